@@ -1,0 +1,46 @@
+"""ament_python package set-up; also installs with plain pip (pip install -e '.[test]')."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "strain_comp"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+    ],
+    python_requires=">=3.10",
+    install_requires=[
+        "numpy>=1.24",
+        "scipy>=1.10",
+        "numba>=0.58",
+        "PyYAML>=6",
+        "mcap>=1.1",
+        "mcap-ros2-support>=0.5",
+        "matplotlib>=3.7",
+    ],
+    extras_require={
+        "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "cyclonedds>=0.10.5", "ruff"],
+        "dds": ["cyclonedds>=0.10.5"],
+        "fast": ["intel-cmplr-lib-rt"],
+    },
+    zip_safe=False,
+    maintainer="strain_comp developers",
+    maintainer_email="strain_comp@example.org",
+    description="Calibrated strain from soft resistive strain sensors (ROS 2 Jazzy).",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "strain-comp = strain_comp.cli:main",
+            "compensator = strain_comp.node:main",
+        ],
+    },
+)

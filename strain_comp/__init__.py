@@ -1,0 +1,7 @@
+"""strain_comp: calibrated strain from the resistance of soft strain sensors.
+
+The core (models, fitting, direction detection, bag I/O, evaluation, diagnosis) imports no
+ROS module; ``strain_comp.node`` is a thin rclpy layer over ``strain_comp.engine``.
+"""
+
+__version__ = "0.1.0"

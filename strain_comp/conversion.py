@@ -1,0 +1,27 @@
+"""Input conversion: voltage-divider readings to resistance.
+
+apl_electrolycra... section II.A: the sensor in series with a known resistor R1 under a
+supply Vin; the voltage across R1 is measured and R = R1 (Vin - V_R1) / V_R1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+
+def divider_to_resistance(v_r1: npt.ArrayLike, r1: float, vin: float) -> np.ndarray:
+    """Sensor resistance [ohm] from the voltage across the series resistor R1 [V].
+
+    Readings with V_R1 <= 0 or V_R1 >= Vin give a non-positive or infinite resistance
+    (open circuit / short); they come back as NaN so that the bad-sample path counts them.
+    """
+    v = np.asarray(v_r1, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = r1 * (vin - v) / v
+    return np.where((v > 0.0) & (v < vin), r, np.nan)
+
+
+def resistance_to_divider(r: npt.ArrayLike, r1: float, vin: float) -> np.ndarray:
+    """Voltage across R1 [V] for a sensor resistance r [ohm]: V_R1 = Vin R1 / (R1 + R)."""
+    return vin * r1 / (r1 + np.asarray(r, dtype=np.float64))

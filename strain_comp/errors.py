@@ -1,0 +1,49 @@
+"""The one errors module of strain_comp: callers catch these precisely.
+
+The command line turns every ``StrainCompError`` into exit code 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+
+class StrainCompError(Exception):
+    """Base class of every error strain_comp raises on bad input."""
+
+
+class CalibrationError(StrainCompError):
+    """A calibration file is missing, malformed or out of range.
+
+    The message always names the file and the field, e.g.
+    ``config/a.yaml: sensors.s1.model.params.sigma: must be >= 0, got -1``.
+    """
+
+    def __init__(self, path: str, field: str, problem: str) -> None:
+        self.path = path
+        self.field = field
+        self.problem = problem
+        super().__init__(f"{path}: {field}: {problem}")
+
+
+class BagError(StrainCompError):
+    """A bag cannot be read or written, or lacks a topic that is required."""
+
+
+class FitError(StrainCompError):
+    """A model cannot be fitted to the data given (too few samples, no excitation, ...)."""
+
+
+class InputError(StrainCompError):
+    """A command-line argument or an input file other than a bag or calibration is bad."""
+
+
+class ParameterError(StrainCompError):
+    """A model or setting parameter is missing or out of range.
+
+    ``field`` is the dotted path inside the parameter mapping (``"sigma"``, ``"w.3"``); the
+    calibration loader prefixes it with the file name and the path to the mapping.
+    """
+
+    def __init__(self, field: str, problem: str) -> None:
+        self.field = field
+        self.problem = problem
+        super().__init__(f"{field}: {problem}")

@@ -1,0 +1,180 @@
+"""What every compensator is: a streaming inverse model, resistance in, strain % out.
+
+A compensator holds explicit state (cell states ``x``, the last sample time, ...).
+``step(t, r)`` advances it by one sample; ``run(t, r)`` advances it over whole arrays
+through the same numba kernel and leaves the state where ``step`` would have left it, so
+the two paths agree to floating-point tolerance. ``reset()`` restores the initial state.
+
+Parameters live in a plain mapping (``to_params`` / ``from_params``) that is what the
+calibration file stores under ``model.params``; ``from_params`` raises
+``ParameterError(field, problem)`` for anything missing or out of range.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp.direction import DirectionSettings
+from strain_comp.errors import ParameterError
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """Affine maps to dimensionless input and output (apl_electrolycra... section II.C).
+
+    xi = R / r0 + alpha and psi = S / s0 + beta, chosen so that the training data span
+    [-1, 1] in both.
+    """
+
+    r0: float
+    alpha: float
+    s0: float
+    beta: float
+
+    @classmethod
+    def from_ranges(cls, r_lo: float, r_hi: float, s_lo: float, s_hi: float) -> Normalisation:
+        """Map [r_lo, r_hi] and [s_lo, s_hi] onto [-1, 1]."""
+        if not (r_hi > r_lo and s_hi > s_lo):
+            raise ParameterError("normalisation", "the data span no range of resistance or strain")
+        r0 = (r_hi - r_lo) / 2.0
+        s0 = (s_hi - s_lo) / 2.0
+        return cls(r0=r0, alpha=-(r_hi + r_lo) / (2.0 * r0), s0=s0, beta=-(s_hi + s_lo) / (2.0 * s0))
+
+    @classmethod
+    def fit(cls, r: npt.ArrayLike, s: npt.ArrayLike) -> Normalisation:
+        """The normalisation that maps the finite samples' ranges onto [-1, 1]."""
+        r = np.asarray(r, dtype=np.float64)
+        s = np.asarray(s, dtype=np.float64)
+        ok = np.isfinite(r) & np.isfinite(s)
+        return cls.from_ranges(float(r[ok].min()), float(r[ok].max()),
+                               float(s[ok].min()), float(s[ok].max()))
+
+    def xi(self, r: npt.ArrayLike) -> np.ndarray:
+        """Normalised input xi = R / r0 + alpha."""
+        return np.asarray(r, dtype=np.float64) / self.r0 + self.alpha
+
+    def psi(self, s: npt.ArrayLike) -> np.ndarray:
+        """Normalised output psi = S / s0 + beta."""
+        return np.asarray(s, dtype=np.float64) / self.s0 + self.beta
+
+    def strain(self, psi: npt.ArrayLike) -> np.ndarray:
+        """Strain % from the normalised output: S = s0 (psi - beta)."""
+        return (np.asarray(psi, dtype=np.float64) - self.beta) * self.s0
+
+    def to_dict(self) -> dict[str, float]:
+        return {"r0": self.r0, "alpha": self.alpha, "s0": self.s0, "beta": self.beta}
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One contiguous training recording: time [s], resistance [ohm], reference strain [%].
+
+    Model state is reset at the start of every segment; samples must be finite, R > 0 and
+    t strictly increasing (``strain_comp.samples`` cleans raw data into this form).
+    """
+
+    t: np.ndarray
+    r: np.ndarray
+    s: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("t", "r", "s"):
+            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
+        if not (self.t.shape == self.r.shape == self.s.shape and self.t.ndim == 1):
+            raise ValueError("Segment: t, r and s must be 1-D arrays of one length")
+
+
+class Compensator(ABC):
+    """Base class of the seven inverse models; see the module docstring for the contract."""
+
+    name: ClassVar[str]
+    """Model name as written in calibration files and on the command line."""
+
+    def __init__(self, normalisation: Normalisation) -> None:
+        self.normalisation = normalisation
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Restore the initial state (as after construction)."""
+
+    @abstractmethod
+    def step(self, t: float, r: float) -> float:
+        """Advance by one good sample (time [s], resistance [ohm]); return strain [%]."""
+
+    @abstractmethod
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        """Advance over arrays of good samples from the current state; return strain [%]."""
+
+    @abstractmethod
+    def to_params(self) -> dict[str, Any]:
+        """Every parameter as YAML-safe plain Python (floats, ints, lists, dicts)."""
+
+    @classmethod
+    @abstractmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> Compensator:
+        """Build from ``to_params`` output; raise ``ParameterError`` naming the bad field.
+
+        ``direction`` is the sensor's detector settings; models that switch on the
+        movement direction (rational, spike_decay) run their own detector with them.
+        """
+
+    @classmethod
+    @abstractmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, **options: Any) -> Compensator:
+        """Fit to training segments; ``options`` are model-specific (N, M, search grids...)."""
+
+
+def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = None,
+                  hi: float | None = None, strict: bool = False) -> float:
+    """Read ``params[key]`` as a finite float within [lo, hi] (open if ``strict``)."""
+    if key not in params:
+        raise ParameterError(key, "missing")
+    value = params[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(key, f"must be a number, got {value!r}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise ParameterError(key, f"must be finite, got {value}")
+    if lo is not None and (value < lo or (strict and value == lo)):
+        raise ParameterError(key, f"must be {'>' if strict else '>='} {lo}, got {value}")
+    if hi is not None and (value > hi or (strict and value == hi)):
+        raise ParameterError(key, f"must be {'<' if strict else '<='} {hi}, got {value}")
+    return value
+
+
+def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None,
+                   min_length: int = 1) -> np.ndarray:
+    """Read ``params[key]`` as a list of finite floats (of ``length`` when given)."""
+    if key not in params:
+        raise ParameterError(key, "missing")
+    value = params[key]
+    if not isinstance(value, (list, tuple, np.ndarray)):
+        raise ParameterError(key, f"must be a list of numbers, got {type(value).__name__}")
+    for i, item in enumerate(value):
+        if isinstance(item, bool) or not isinstance(item, (int, float, np.floating, np.integer)):
+            raise ParameterError(f"{key}.{i}", f"must be a number, got {item!r}")
+    array = np.asarray(value, dtype=np.float64)
+    if not np.all(np.isfinite(array)):
+        raise ParameterError(key, "must hold finite numbers only")
+    if length is not None and array.size != length:
+        raise ParameterError(key, f"must have {length} entries, got {array.size}")
+    if array.size < min_length:
+        raise ParameterError(key, f"must have at least {min_length} entries, got {array.size}")
+    return array
+
+
+def as_float_arrays(t: npt.ArrayLike, r: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Contiguous float64 copies of (t, r), checked to be 1-D and of one length."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    if t.ndim != 1 or t.shape != r.shape:
+        raise ValueError("t and r must be 1-D arrays of one length")
+    return t, r

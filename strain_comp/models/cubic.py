@@ -1,0 +1,70 @@
+"""Cubic baseline (apl_electrolycra... eq. (4)): S = c3 R^3 + c2 R^2 + c1 R + c0.
+
+Memoryless, so it has no state; it is fitted by ordinary least squares on the normalised
+input xi (better conditioned than powers of R in ohm) and its coefficients are stored in
+ohm units exactly as eq. (4) writes them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp.direction import DirectionSettings
+from strain_comp.errors import FitError
+from strain_comp.models.base import (
+    Compensator,
+    Normalisation,
+    Segment,
+    as_float_arrays,
+    require_vector,
+)
+
+
+class Cubic(Compensator):
+    """S = c3 R^3 + c2 R^2 + c1 R + c0 (eq. (4)); ``c`` = [c0, c1, c2, c3] in ohm units."""
+
+    name = "cubic"
+
+    def __init__(self, c: npt.ArrayLike, normalisation: Normalisation) -> None:
+        super().__init__(normalisation)
+        self.c = np.asarray(c, dtype=np.float64)
+
+    def reset(self) -> None:
+        """Nothing to reset: the cubic has no memory."""
+
+    def step(self, t: float, r: float) -> float:
+        c0, c1, c2, c3 = self.c
+        return float(((c3 * r + c2) * r + c1) * r + c0)
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        _, r = as_float_arrays(t, r)
+        c0, c1, c2, c3 = self.c
+        return ((c3 * r + c2) * r + c1) * r + c0
+
+    def to_params(self) -> dict[str, Any]:
+        return {"c": [float(v) for v in self.c]}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> Cubic:
+        return cls(require_vector(params, "c", length=4), normalisation)
+
+    @classmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, **options: Any) -> Cubic:
+        r = np.concatenate([seg.r for seg in segments])
+        s = np.concatenate([seg.s for seg in segments])
+        if r.size < 4:
+            raise FitError(f"cubic: needs at least 4 samples, got {r.size}")
+        xi = normalisation.xi(r)
+        coef_xi = np.polynomial.polynomial.polyfit(xi, s, 3)
+        # Substitute xi = R / r0 + alpha to express the polynomial in R (ohm).
+        poly_r = np.polynomial.Polynomial(coef_xi)(
+            np.polynomial.Polynomial([normalisation.alpha, 1.0 / normalisation.r0]))
+        c = np.zeros(4)
+        c[: poly_r.coef.size] = poly_r.coef
+        return cls(c, normalisation)
