@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# Set up (see bootstrap.sh), lint, then run the whole test suite.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/bootstrap.sh
+.venv/bin/ruff check strain_comp test bench scripts
+exec .venv/bin/python -m pytest -q "$@"

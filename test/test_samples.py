@@ -1,0 +1,45 @@
+"""Sample screening against a slow sample-by-sample reference of the rules."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from strain_comp.samples import SampleStatus, classify
+
+
+def classify_slow(t: list[float], r: list[float]) -> list[int]:
+    last_good = -math.inf
+    out = []
+    for ti, ri in zip(t, r):
+        if not (math.isfinite(ri) and math.isfinite(ti)):
+            out.append(SampleStatus.NOT_FINITE)
+        elif ri <= 0:
+            out.append(SampleStatus.NON_POSITIVE)
+        elif ti <= last_good:
+            out.append(SampleStatus.TIME_NOT_INCREASING)
+        else:
+            out.append(SampleStatus.GOOD)
+            last_good = ti
+    return out
+
+
+values = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=64),
+                   st.floats(min_value=0.1, max_value=100.0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.floats(-5, 5), values), max_size=40))
+def test_classify_matches_reference(samples: list[tuple[float, float]]) -> None:
+    t = [s[0] for s in samples]
+    r = [s[1] for s in samples]
+    assert classify(t, r).tolist() == [int(v) for v in classify_slow(t, r)]
+
+
+def test_bag_loop_rejects_only_the_samples_that_go_back() -> None:
+    t = np.array([0.0, 1.0, 2.0, 0.5, 1.5, 2.5, 3.0])
+    r = np.ones_like(t)
+    assert classify(t, r).tolist() == [0, 0, 0, 3, 3, 0, 0]
