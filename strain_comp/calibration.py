@@ -1,4 +1,6 @@
-"""Calibration files: YAML, one per sensor or one for an array, format ``strain_comp/calibration/v1``.
+"""Calibration files: YAML, one per sensor or one for an array.
+
+Format ``strain_comp/calibration/v1``:
 
 ```yaml
 format: strain_comp/calibration/v1
@@ -31,6 +33,7 @@ import yaml
 
 from strain_comp import __version__
 from strain_comp.direction import DirectionSettings
+from strain_comp.effects import validate_effect_dict
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float
@@ -133,6 +136,19 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def _file_mode(path: Path) -> int:
+    """The mode the file would get if written in place: the old file's, else 0o666 & ~umask.
+
+    mkstemp creates 0o600 files; a calibration is meant to be read by other users too.
+    """
+    try:
+        return path.stat().st_mode & 0o777
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
 def save_calibration(calibration: Calibration, path: str | os.PathLike[str]) -> None:
     """Write atomically: temp file in the target directory, fsync, then rename over."""
     path = Path(path)
@@ -144,6 +160,7 @@ def save_calibration(calibration: Calibration, path: str | os.PathLike[str]) -> 
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write(text)
             handle.flush()
+            os.fchmod(handle.fileno(), _file_mode(path))
             os.fsync(handle.fileno())
         os.replace(tmp, path)
     except BaseException:
@@ -225,6 +242,10 @@ class _Reader:
             effect = self.mapping(effect, f"{where}.effects.{i}")
             if not isinstance(effect.get("name"), str):
                 raise self.fail(f"{where}.effects.{i}.name", "missing or not a string")
+            try:
+                validate_effect_dict(effect)
+            except ParameterError as err:
+                raise self.fail(f"{where}.effects.{i}.{err.field}", err.problem) from None
         prov = node.get("provenance", {}) or {}
         self.mapping(prov, f"{where}.provenance")
         calibration = SensorCalibration(
@@ -271,4 +292,5 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     sensors = reader.mapping(reader.child(root, "sensors", ""), "sensors")
     if not sensors:
         raise reader.fail("sensors", "must name at least one sensor")
-    return Calibration({str(name): reader.sensor(str(name), node) for name, node in sensors.items()})
+    return Calibration({str(name): reader.sensor(str(name), node)
+                        for name, node in sensors.items()})

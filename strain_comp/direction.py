@@ -1,9 +1,32 @@
-"""Dead-zone direction detector (egain_rational... section V.E): loading / hold / unloading."""
+"""Dead-zone direction detector (egain_rational... section V.E, Fig. 7): loading / hold / unloading.
+
+The causal derivative of R (first difference over dt) is low-pass filtered by exponential
+smoothing with time constant ``tau`` (alpha = 1 - exp(-dt / tau); ``tau = 0`` keeps the raw
+difference) and compared with a dead zone: above ``+deadzone`` the state is +1 (R rising,
+"loading" for a sensor whose resistance grows with strain), below ``-deadzone`` it is -1
+(R falling), inside it 0 (hold). The paper sets the dead zone at 3 or 4 sigma of the
+derivative noise measured while nothing moves; ``estimate_deadzone`` does that here.
+
+The per-sample update ``direction_update`` is a numba function that ``DirectionDetector``
+(``step`` and ``run``) and the models that switch on direction (rational, spike_decay) call
+from their own kernels, so every user sees the same states.
+"""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp._numba import njit
+from strain_comp.errors import InputError, ParameterError
+
+# Detector state vector layout (float64): started flag, last t, last r, filtered dR/dt, output.
+STATE_SIZE = 5
+_STARTED, _T, _R, _FILT, _OUT = range(STATE_SIZE)
 
 
 @dataclass(frozen=True)
@@ -21,3 +44,144 @@ class DirectionSettings:
 
     def to_dict(self) -> dict[str, Any]:
         return {"deadzone": self.deadzone, "tau": self.tau, "k_sigma": self.k_sigma}
+
+
+def new_state() -> np.ndarray:
+    """A fresh detector state vector (nothing seen yet)."""
+    return np.zeros(STATE_SIZE, dtype=np.float64)
+
+
+@njit
+def direction_update(state: np.ndarray, t: float, r: float, deadzone: float,
+                     tau: float) -> int:
+    """Advance the detector ``state`` (see ``STATE_SIZE``) by one sample; return -1, 0 or +1.
+
+    The first sample only primes the state (output 0). A sample whose time does not move
+    forward leaves the state untouched and repeats the last output.
+    """
+    if state[0] == 0.0:
+        state[0] = 1.0
+        state[1] = t
+        state[2] = r
+        state[3] = 0.0
+        state[4] = 0.0
+        return 0
+    dt = t - state[1]
+    if not dt > 0.0:
+        return int(state[4])
+    d = (r - state[2]) / dt
+    if tau > 0.0:
+        alpha = 1.0 - math.exp(-dt / tau)
+        state[3] += alpha * (d - state[3])
+    else:
+        state[3] = d
+    state[1] = t
+    state[2] = r
+    out = 0
+    if state[3] > deadzone:
+        out = 1
+    elif state[3] < -deadzone:
+        out = -1
+    state[4] = float(out)
+    return out
+
+
+@njit
+def _direction_run(state: np.ndarray, t: np.ndarray, r: np.ndarray, deadzone: float,
+                   tau: float) -> np.ndarray:
+    out = np.empty(t.size, dtype=np.int8)
+    for n in range(t.size):
+        out[n] = direction_update(state, t[n], r[n], deadzone, tau)
+    return out
+
+
+@njit
+def _filtered_derivative(t: np.ndarray, r: np.ndarray, tau: float) -> np.ndarray:
+    """The detector's filtered derivative at samples 1..n-1 (the first has none)."""
+    state = np.zeros(STATE_SIZE)
+    d = np.empty(max(t.size - 1, 0))
+    for n in range(t.size):
+        direction_update(state, t[n], r[n], np.inf, tau)
+        if n > 0:
+            d[n - 1] = state[3]
+    return d
+
+
+def _check_settings(settings: DirectionSettings) -> None:
+    if not (math.isfinite(settings.deadzone) and settings.deadzone >= 0.0):
+        raise ParameterError("direction.deadzone", f"must be finite and >= 0, got "
+                             f"{settings.deadzone}")
+    if not (math.isfinite(settings.tau) and settings.tau >= 0.0):
+        raise ParameterError("direction.tau", f"must be finite and >= 0, got {settings.tau}")
+
+
+class DirectionDetector:
+    """Streaming dead-zone direction detector; ``step`` and ``run`` share one kernel."""
+
+    def __init__(self, settings: DirectionSettings) -> None:
+        _check_settings(settings)
+        self.settings = settings
+        self.state = new_state()
+
+    def reset(self) -> None:
+        """Forget everything seen (the next sample primes the detector again)."""
+        self.state[:] = 0.0
+
+    def step(self, t: float, r: float) -> int:
+        """State after sample (t [s], r [ohm]): +1 R rising, 0 hold, -1 R falling."""
+        return int(direction_update(self.state, float(t), float(r), self.settings.deadzone,
+                                    self.settings.tau))
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        """States (int8) for whole arrays, continuing from the current state."""
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        r = np.ascontiguousarray(r, dtype=np.float64)
+        if t.ndim != 1 or t.shape != r.shape:
+            raise ValueError("t and r must be 1-D arrays of one length")
+        return _direction_run(self.state, t, r, self.settings.deadzone, self.settings.tau)
+
+
+def derivative_noise(t: npt.ArrayLike, r: npt.ArrayLike, tau: float = 0.0) -> float:
+    """Robust sigma [ohm/s] of the detector's filtered dR/dt on a segment where nothing moves.
+
+    A linear trend of the derivative (slow drift, egain_rational... Fig. 7b) is removed
+    first; sigma = 1.4826 * MAD of what is left, so a few glitches do not inflate it. With
+    ``tau > 0`` the first 5 tau of the segment (the filter's start-up) are skipped.
+    """
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    if t.ndim != 1 or t.shape != r.shape:
+        raise InputError("derivative_noise: t and r must be 1-D arrays of one length")
+    ok = np.isfinite(t) & np.isfinite(r)
+    t, r = t[ok], r[ok]
+    if t.size < 3 or np.any(np.diff(t) <= 0.0):
+        raise InputError("derivative_noise: needs >= 3 finite samples with increasing time")
+    d = _filtered_derivative(t, r, float(tau))
+    td = t[1:]
+    if tau > 0.0:
+        keep = td >= t[0] + 5.0 * tau
+        if keep.sum() >= 10:
+            d, td = d[keep], td[keep]
+    if d.size < 10:
+        raise InputError(f"derivative_noise: hold segment too short ({d.size} derivatives)")
+    coef = np.polyfit(td - td.mean(), d, 1)
+    resid = d - np.polyval(coef, td - td.mean())
+    return float(1.4826 * np.median(np.abs(resid - np.median(resid))))
+
+
+def estimate_deadzone(t: npt.ArrayLike, r: npt.ArrayLike, *, k_sigma: float = 4.0,
+                      tau: float = 0.0) -> DirectionSettings:
+    """Dead zone = k_sigma * sigma of the filtered derivative on a hold segment (section V.E).
+
+    The paper suggests 3 sigma (99.73 %) or 4 sigma (99.99 %) of the derivative noise.
+    """
+    if not (math.isfinite(k_sigma) and k_sigma > 0.0):
+        raise ParameterError("k_sigma", f"must be finite and > 0, got {k_sigma}")
+    if not (math.isfinite(tau) and tau >= 0.0):
+        raise ParameterError("tau", f"must be finite and >= 0, got {tau}")
+    sigma = derivative_noise(t, r, tau)
+    if not sigma > 0.0:
+        raise InputError("estimate_deadzone: the hold segment shows no derivative noise "
+                         "(constant readings); give the dead zone in ohm/s instead")
+    return DirectionSettings(deadzone=float(k_sigma * sigma), tau=float(tau),
+                             k_sigma=float(k_sigma))

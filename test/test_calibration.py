@@ -145,3 +145,18 @@ def test_missing_and_binary_files(tmp_path: Path) -> None:
     scalar.write_text("42\n")
     with pytest.raises(CalibrationError, match=r"\(top level\): must be a mapping"):
         load_calibration(scalar)
+
+
+def test_new_file_gets_umask_mode_and_rewrite_keeps_mode(tmp_path: Path) -> None:
+    import os
+
+    path = tmp_path / "cal.yaml"
+    umask = os.umask(0o022)
+    try:
+        save_calibration(make_calibration(), path)
+    finally:
+        os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644
+    path.chmod(0o640)
+    save_calibration(make_calibration(), path)
+    assert path.stat().st_mode & 0o777 == 0o640

@@ -22,7 +22,9 @@ PACKAGE_DIR = Path(strain_comp.__file__).resolve().parent
 PROBE = ("from strain_comp._numba import njit\n\n"
          "@njit\n"
          "def f(x):\n    return x + 1.0\n")
-KERNEL = "import os, probe_kernel\nassert probe_kernel.f(1.0) == 2.0\nprint(os.environ['NUMBA_CACHE_DIR'])"
+KERNEL = ("import os, probe_kernel\n"
+          "assert probe_kernel.f(1.0) == 2.0\n"
+          "print(os.environ['NUMBA_CACHE_DIR'])")
 
 
 def _read_only_command(site: Path) -> list[str]:

@@ -14,7 +14,7 @@ from strain_comp.samples import SampleStatus, classify
 def classify_slow(t: list[float], r: list[float]) -> list[int]:
     last_good = -math.inf
     out = []
-    for ti, ri in zip(t, r):
+    for ti, ri in zip(t, r, strict=True):
         if not (math.isfinite(ri) and math.isfinite(ti)):
             out.append(SampleStatus.NOT_FINITE)
         elif ri <= 0:

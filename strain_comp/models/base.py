@@ -44,7 +44,8 @@ class Normalisation:
             raise ParameterError("normalisation", "the data span no range of resistance or strain")
         r0 = (r_hi - r_lo) / 2.0
         s0 = (s_hi - s_lo) / 2.0
-        return cls(r0=r0, alpha=-(r_hi + r_lo) / (2.0 * r0), s0=s0, beta=-(s_hi + s_lo) / (2.0 * s0))
+        return cls(r0=r0, alpha=-(r_hi + r_lo) / (2.0 * r0),
+                   s0=s0, beta=-(s_hi + s_lo) / (2.0 * s0))
 
     @classmethod
     def fit(cls, r: npt.ArrayLike, s: npt.ArrayLike) -> Normalisation:
@@ -85,7 +86,8 @@ class Segment:
 
     def __post_init__(self) -> None:
         for name in ("t", "r", "s"):
-            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
+            array = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            object.__setattr__(self, name, array)
         if not (self.t.shape == self.r.shape == self.s.shape and self.t.ndim == 1):
             raise ValueError("Segment: t, r and s must be 1-D arrays of one length")
 

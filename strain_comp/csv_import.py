@@ -1,0 +1,237 @@
+"""CSV import of tensile-tester recordings into Recordings (and bags).
+
+Formats (see ``shared/data/measured/README.md``):
+
+``cb_pdms``  7 columns, no header: R_outer [ohm], R_inner [ohm], t_R [s], stage position
+             [mm], t_pos [s], force [N], t_force [s]. Resistance from column 0 (override
+             with ``columns={"resistance": 1}``), time from column 2, strain
+             S = 100 |pos| / gauge length (default 40 mm). Single-sample position read
+             glitches to 0 mm (|pos| < 1e-9 while both neighbours exceed
+             ``glitch_threshold_mm``) are replaced by linear interpolation between the
+             neighbours and counted. The reference is then interpolated from t_pos onto t_R.
+``fiber``    4 columns, no header: time [s], extension [mm], force [N], resistance [ohm].
+             Strain = 100 extension / gauge length when ``gauge_length_mm`` is given;
+             otherwise the extension in mm is stored as the "strain" and the report says so.
+``generic``  a column mapping ``columns`` with keys ``time``, ``resistance`` and
+             optionally ``strain`` and ``strain_time`` (indices or header names),
+             ``scales`` (factor per key, e.g. ``{"time": 1e-3}`` for ms), ``delimiter``
+             and ``header`` (True, False or None = detect: a non-numeric first row).
+
+The reference strain is taken from the good rows only when it shares the row's time; with
+its own time column (``strain_time``, as in ``cb_pdms``) every row with a finite position
+and time counts. Bad rows are counted by reason and dropped before they reach the
+recording: unparsable or missing fields, NaN/inf, resistance <= 0, and time not
+increasing past the last good row (repeated or backwards). Dropping (rather than keeping
+and flagging) is deliberate: an imported recording is training/evaluation data; fault
+handling is exercised on bags.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from strain_comp.bag import BagWriter
+from strain_comp.errors import InputError
+from strain_comp.recording import Recording, align
+
+FORMATS = ("cb_pdms", "fiber", "generic")
+CB_PDMS_GAUGE_MM = 40.0
+_DEFAULT_COLUMNS: dict[str, dict[str, int | str]] = {
+    "cb_pdms": {"resistance": 0, "time": 2, "strain": 3, "strain_time": 4},
+    "fiber": {"time": 0, "strain": 1, "resistance": 3},
+    "generic": {},
+}
+_WIDTH = {"cb_pdms": 7, "fiber": 4}
+
+
+@dataclass
+class ImportReport:
+    """What the import did: rows read and kept, dropped rows by reason, repaired glitches,
+    the unit of the stored strain, and notes."""
+
+    path: str
+    fmt: str
+    rows: int = 0
+    kept: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    glitches_repaired: int = 0
+    strain_unit: str = "%"
+    notes: list[str] = field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """Human-readable summary, one fact per line."""
+        out = [f"{self.path} ({self.fmt}): {self.rows} rows, {self.kept} kept"]
+        out += [f"  dropped {n} rows: {reason}" for reason, n in self.dropped.items() if n]
+        if self.fmt == "cb_pdms" or self.glitches_repaired:
+            out.append(f"  position glitches repaired: {self.glitches_repaired}")
+        out.append(f"  strain stored in {self.strain_unit}")
+        out += [f"  note: {n}" for n in self.notes]
+        return out
+
+
+@dataclass(frozen=True)
+class ImportResult:
+    recording: Recording
+    report: ImportReport
+
+
+def _read_rows(path: Path, delimiter: str) -> list[list[str]]:
+    try:
+        with path.open(newline="", encoding="utf-8", errors="replace") as f:
+            return [row for row in csv.reader(f, delimiter=delimiter) if any(x.strip()
+                                                                           for x in row)]
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from exc
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a CSV file ({exc})") from exc
+
+
+def _to_float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return np.nan
+
+
+def _numeric(rows: list[list[str]], width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, width) float array (NaN where unparsable) and a mask of short/unparsable rows."""
+    table = np.full((len(rows), width), np.nan)
+    short = np.zeros(len(rows), bool)
+    for i, row in enumerate(rows):
+        if len(row) < width:
+            short[i] = True
+        for j, text in enumerate(row[:width]):
+            table[i, j] = _to_float(text)
+    return table, short
+
+
+def _column(name: str, key: int | str, header: list[str] | None, path: Path) -> int:
+    if isinstance(key, int) or (isinstance(key, str) and key.lstrip("-").isdigit()):
+        return int(key)
+    if header is None or key not in [h.strip() for h in header]:
+        raise InputError(f"{path}: column {name}={key!r} not found in the header "
+                         f"{header if header else '(no header)'}")
+    return [h.strip() for h in header].index(key)
+
+
+def repair_position_glitches(pos: np.ndarray, *, threshold_mm: float = 0.5
+                             ) -> tuple[np.ndarray, int]:
+    """Replace isolated single-sample reads of 0 mm whose neighbours both exceed
+    ``threshold_mm`` by the mean of the neighbours; returns (repaired copy, count)."""
+    pos = np.asarray(pos, dtype=np.float64).copy()
+    if pos.size < 3:
+        return pos, 0
+    mid = np.abs(pos[1:-1]) < 1e-9
+    glitch = mid & (np.abs(pos[:-2]) > threshold_mm) & (np.abs(pos[2:]) > threshold_mm)
+    idx = np.flatnonzero(glitch) + 1
+    pos[idx] = 0.5 * (pos[idx - 1] + pos[idx + 1])
+    return pos, int(idx.size)
+
+
+def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: float | None = None,
+               columns: Mapping[str, int | str] | None = None,
+               scales: Mapping[str, float] | None = None, delimiter: str = ",",
+               header: bool | None = None, glitch_threshold_mm: float = 0.5) -> ImportResult:
+    """Import one tensile-tester CSV as a Recording named ``sensor`` (see module docstring).
+
+    Raises ``InputError`` for a missing/unreadable file, an unknown format, a bad column
+    mapping or a file without any good row.
+    """
+    path = Path(path)
+    if fmt not in FORMATS:
+        raise InputError(f"unknown CSV format {fmt!r}; one of {', '.join(FORMATS)}")
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    if gauge_length_mm is not None and not (np.isfinite(gauge_length_mm) and gauge_length_mm > 0):
+        raise InputError(f"gauge length must be > 0 mm, got {gauge_length_mm}")
+    mapping = {**_DEFAULT_COLUMNS[fmt], **(columns or {})}
+    for key in ("time", "resistance"):
+        if key not in mapping:
+            raise InputError(f"{path}: the column mapping needs '{key}'")
+    unknown = set(mapping) - {"time", "resistance", "strain", "strain_time"}
+    if unknown:
+        raise InputError(f"{path}: unknown column keys {sorted(unknown)}")
+    rows = _read_rows(path, delimiter)
+    report = ImportReport(path=str(path), fmt=fmt)
+    head: list[str] | None = None
+    has_header = header
+    if has_header is None:
+        has_header = bool(rows) and not all(np.isfinite(_to_float(x)) for x in rows[0] if x)
+    if has_header and rows:
+        head, rows = rows[0], rows[1:]
+    if not rows:
+        raise InputError(f"{path}: no data rows")
+    cols = {k: _column(k, v, head, path) for k, v in mapping.items()}
+    width = max(_WIDTH.get(fmt, 0), max(cols.values()) + 1)
+    table, short = _numeric(rows, width)
+    report.rows = len(rows)
+    factor = {k: 1.0 for k in cols} | dict(scales or {})
+    t = table[:, cols["time"]] * factor["time"]
+    r = table[:, cols["resistance"]] * factor["resistance"]
+    s_raw = table[:, cols["strain"]] * factor["strain"] if "strain" in cols else None
+    t_s = table[:, cols["strain_time"]] * factor["strain_time"] if "strain_time" in cols else t
+
+    unparsable = short | ~np.isfinite(t) | np.isnan(r)
+    not_finite = ~unparsable & ~np.isfinite(r)
+    non_positive = ~unparsable & ~not_finite & (r <= 0)
+    candidate = ~(unparsable | not_finite | non_positive)
+    running = np.maximum.accumulate(np.concatenate(([-np.inf], np.where(candidate, t, -np.inf))))
+    backwards = candidate & (t <= running[:-1])
+    good = candidate & ~backwards
+    report.dropped = {"unparsable or missing field": int(unparsable.sum()),
+                      "resistance not finite": int(not_finite.sum()),
+                      "resistance <= 0 ohm": int(non_positive.sum()),
+                      "time not increasing": int(backwards.sum())}
+    if not good.any():
+        raise InputError(f"{path}: no good row (format {fmt})")
+
+    strain = None
+    if s_raw is not None:
+        ok = np.isfinite(s_raw) & np.isfinite(t_s)
+        if "strain_time" not in cols:  # the reference shares the row: only good rows count
+            ok &= good
+        pos, ts = s_raw[ok], t_s[ok]
+        if fmt == "cb_pdms":
+            pos, report.glitches_repaired = repair_position_glitches(
+                np.abs(pos), threshold_mm=glitch_threshold_mm)
+            strain_src = 100.0 * pos / (gauge_length_mm or CB_PDMS_GAUGE_MM)
+        elif fmt == "fiber" and gauge_length_mm is None:
+            strain_src = pos
+            report.strain_unit = "mm"
+            report.notes.append("no --gauge-length-mm: the 'strain' topic holds the "
+                                "extension in mm, not %")
+        elif gauge_length_mm is not None:
+            strain_src = 100.0 * pos / gauge_length_mm
+        else:
+            strain_src = pos
+            report.strain_unit = "as in the file (x scale)"
+        strain = align(t[good], ts, strain_src)
+        outside = int(np.isnan(strain).sum())
+        if outside:
+            report.notes.append(f"{outside} samples outside the reference's time span "
+                                "have no reference (NaN)")
+    report.kept = int(good.sum())
+    rec = Recording(name=sensor, t=t[good], r=r[good], s=strain)
+    return ImportResult(rec, report)
+
+
+def write_recording_bag(recording: Recording, out_path: str | Path) -> None:
+    """Write a Recording as ``/NAME/resistance``, ``/NAME/strain_reference`` (when present)
+    and ``/NAME/temperature`` (when present) into a new MCAP bag. Samples whose reference is
+    NaN are written too (the reader keeps them as NaN)."""
+    prefix = "/" + recording.name.strip("/")
+    with BagWriter(out_path) as writer:
+        writer.write_float64(f"{prefix}/resistance", recording.t, recording.r)
+        if recording.s is not None:
+            writer.write_float64(f"{prefix}/strain_reference", recording.t, recording.s)
+        if recording.temperature is not None:
+            writer.write_temperature(f"{prefix}/temperature", recording.t, recording.temperature)
+
+
+__all__ = ["FORMATS", "ImportReport", "ImportResult", "import_csv",
+           "repair_position_glitches", "write_recording_bag"]

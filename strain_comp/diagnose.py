@@ -1,0 +1,616 @@
+"""The residual loop (DESIGN.md, "The residual loop"): find the effect a calibration lacks,
+add it as an explicit online term, and report the error before and after on held-out data.
+
+Per calibrated sensor that has a recording with a reference strain:
+
+1. **Residual.** The calibration, with its effect terms removed, runs through the engine's
+   batch path (``Engine.run``, the code replay and the node use) to give the model's own
+   estimate S_hat and the direction d; the sensor's existing effect terms (if any) are
+   applied on top, and e = S_corrected - S over the samples the engine used whose
+   reference is finite.
+2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.effects``: rate,
+   direction, relaxation over several time constants and branches, elapsed-time drift,
+   temperature when a temperature series exists, strain level, Mullins-type history,
+   cross-talk from array neighbours at index +-1) is computed online over each recording,
+   exactly as the engine would compute it. Nothing about how the data were made is known.
+3. **Blocks.** Each recording is cut by time into ``n_blocks`` contiguous blocks (never
+   random samples). Without validation recordings, every ``round(1 / holdout_fraction)``-th
+   block is held out for the final report; the other blocks are the fit data.
+4. **Scores.** Blocked cross-validation on the fit data (leave one block position out of
+   every recording per fold): a model is e ~ c0 + sum_j c_j g_j fitted by least squares on
+   the other folds and scored on the held-out fold. A candidate's ``score`` is the share of
+   the residual variance it explains on data it was not fitted on, relative to the
+   intercept-only model (for ``offset`` itself: relative to no correction). Scores can be
+   negative (the term only fits noise).
+5. **Greedy forward selection.** Add the candidate whose relative drop of the
+   cross-validated RMSE is largest, refit, repeat while that gain exceeds ``margin`` and at
+   most ``max_effects`` times. The intercept (an effect of kind ``offset``) is fitted with
+   any added effect and stored with it; an effect's gain is measured against the current
+   model *with* the intercept, so an effect never gets the credit of a mere offset (the
+   offset competes as a candidate of its own, against the model without it).
+6. **Report.** The selected terms are fitted on all fit data; RMSE before and after is
+   measured on the held-out blocks or on the ``validate_recordings``. Added effects are
+   kept only while each one lowers that held-out RMSE, below both the model before it and
+   that model with an intercept (an effect that does not is not added); the result says
+   when nothing helps. The output calibration is the input
+   plus the added effect entries, with the coefficients whose held-out error is reported.
+
+Decisions: the regressors read the engine's clamped estimate (identical to the online
+input as long as the estimate is inside the valid strain range widened by the engine's
+margin); effect state is not reset at the engine's gap resets, in diagnosis as online.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.calibration import Calibration, SensorCalibration, save_calibration
+from strain_comp.effects import Batch, EffectTerms, effect_dict, regressor_from_dict
+from strain_comp.engine import Engine, Status
+from strain_comp.errors import InputError
+from strain_comp.metrics import error_stats
+
+if TYPE_CHECKING:
+    from strain_comp.recording import Recording
+
+RELAXATION_TAUS = (1.0, 3.0, 10.0, 30.0, 100.0)
+"""Time constants [s] of the relaxation candidates."""
+_USED_STATUS = (Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE)
+
+
+def default_candidates(*, temperature_ref: float | None = None,
+                       neighbours: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """The generic candidate effects (calibration-file dicts with ``coef: 0``).
+
+    ``temperature_ref`` [deg C]: include temperature terms around it (None: no temperature
+    series); ``neighbours``: array neighbours to test for cross-talk.
+    """
+    out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
+    out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
+            for mode in ("signed", "direction")]
+    out += [{"name": "direction", "kind": "direction", "params": {"mode": "sign", "hold": False}},
+            {"name": "direction_held", "kind": "direction",
+             "params": {"mode": "sign", "hold": True}},
+            {"name": "direction_strain", "kind": "direction",
+             "params": {"mode": "strain", "hold": True}}]
+    for branch in ("both", "loading", "unloading"):
+        out += [{"name": f"relaxation_{branch}_tau{tau:g}", "kind": "relaxation",
+                 "params": {"tau": tau, "branch": branch}} for tau in RELAXATION_TAUS]
+    out += [{"name": f"drift_{form}", "kind": "elapsed", "params": {"form": form, "scale": 100.0}}
+            for form in ("linear", "sqrt", "log")]
+    if temperature_ref is not None:
+        out += [{"name": f"temperature_{form}", "kind": "temperature",
+                 "params": {"form": form, "t_ref": float(temperature_ref)}}
+                for form in ("offset", "strain")]
+    out += [{"name": f"strain_level_{p}", "kind": "strain_level", "params": {"power": p}}
+            for p in (1, 2, 3)]
+    out += [{"name": "mullins_gap", "kind": "mullins", "params": {"form": "gap", "n0": 1.0}},
+            {"name": "mullins_gap_strain", "kind": "mullins",
+             "params": {"form": "gap_strain", "n0": 1.0}},
+            {"name": "mullins_cycles_log", "kind": "mullins",
+             "params": {"form": "cycles_log", "n0": 1.0}}]
+    out += [{"name": f"mullins_cycles_exp_n{n0:g}", "kind": "mullins",
+             "params": {"form": "cycles_exp", "n0": n0}} for n0 in (1.0, 3.0)]
+    out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}
+            for nb in neighbours]
+    for entry in out:
+        entry["coef"] = 0.0
+    return out
+
+
+@dataclass
+class EffectScore:
+    """One candidate's evidence."""
+
+    sensor: str
+    name: str
+    kind: str
+    params: dict[str, Any]
+    score: float
+    """Held-out share of residual variance explained (first round, see module doc)."""
+    added: bool = False
+    gain: float | None = None
+    """Relative drop of the cross-validated RMSE in the round it was added."""
+    coef: float | None = None
+    magnitude: float | None = None
+    """coef * std(g) over the fit data: the typical size of the correction [% strain]."""
+    rank: int | None = None
+    """Order of addition (0 first); None when not added."""
+
+    def to_json(self) -> dict[str, Any]:
+        record: dict[str, Any] = {"name": self.name, "score": _num(self.score),
+                                  "added": self.added, "sensor": self.sensor, "kind": self.kind,
+                                  "params": self.params}
+        if self.params.get("tau") is not None:
+            record["time_constant"] = self.params["tau"]
+        for key in ("gain", "coef", "magnitude"):
+            value = getattr(self, key)
+            if value is not None:
+                record[key] = _num(value)
+        return record
+
+
+@dataclass
+class SensorDiagnosis:
+    """One sensor's diagnosis, with the held-out arrays the plots show."""
+
+    name: str
+    before: dict[str, float]
+    after: dict[str, float]
+    scores: list[EffectScore]
+    added: list[dict[str, Any]]
+    """Effect entries added to the calibration (with the intercept, if any)."""
+    message: str
+    plot: dict[str, np.ndarray] = field(default_factory=dict)
+    """Held-out t, e_before, e_after and ``g`` = the winning regressor (empty: none)."""
+    winner: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"before": self.before, "after": self.after, "message": self.message,
+                "winner": self.winner, "added": self.added}
+
+
+@dataclass
+class DiagnoseResult:
+    """The outcome: per-sensor detail, pooled before/after and the output calibration."""
+
+    sensors: dict[str, SensorDiagnosis]
+    before: dict[str, float]
+    after: dict[str, float]
+    validated_on: str
+    validation: dict[str, Any]
+    calibration: Calibration
+
+    @property
+    def effects(self) -> list[EffectScore]:
+        """All candidates: added ones first (in order added, the intercept last), then the
+        rest by score."""
+        rows = [s for d in self.sensors.values() for s in d.scores]
+        added = sorted((s for s in rows if s.added),
+                       key=lambda s: (s.kind == "offset", s.sensor, s.rank))
+        rest = sorted((s for s in rows if not s.added),
+                      key=lambda s: -s.score if math.isfinite(s.score) else math.inf)
+        return added + rest
+
+    @property
+    def added(self) -> list[EffectScore]:
+        return [s for s in self.effects if s.added]
+
+    def to_json(self) -> dict[str, Any]:
+        """The DESIGN.md ``diagnose --json`` record, then extra keys."""
+        return {"before": self.before, "after": self.after,
+                "effects": [s.to_json() for s in self.effects],
+                "validated_on": self.validated_on, "validation": self.validation,
+                "sensors": {n: d.to_json() for n, d in self.sensors.items()}}
+
+    def summary(self) -> str:
+        """A few lines for the terminal."""
+        lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} %, "
+                 f"after {self.after['rmse']:.4g} %"]
+        for name, d in self.sensors.items():
+            lines.append(f"  {name}: {d.message}")
+        return "\n".join(lines)
+
+
+def _num(value: float) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+@dataclass
+class _Series:
+    """One recording of one sensor after the engine: used samples only."""
+
+    e: np.ndarray
+    """Residual S_corrected - S."""
+    g: np.ndarray
+    """Candidate regressors, (n, k)."""
+    t: np.ndarray
+    block: np.ndarray
+
+
+def _as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
+             ) -> list[Mapping[str, Recording]]:
+    if isinstance(recordings, Mapping):
+        return [recordings]
+    return list(recordings)
+
+
+def _base_runs(bag: Mapping[str, Recording], calibration: Calibration
+               ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(S_hat without effects, direction, used mask) per calibrated sensor in the bag."""
+    stripped = Calibration({n: dataclasses.replace(c, effects=[])
+                            for n, c in calibration.sensors.items()})
+    out = {}
+    for name, rec in bag.items():
+        if name not in stripped.sensors:
+            continue
+        engine = Engine(stripped)
+        result = engine.run(name, rec.t, rec.r, rec.temperature)
+        used = np.isin(result.status, np.array(_USED_STATUS, dtype=result.status.dtype))
+        out[name] = (result.strain, result.direction.astype(np.float64), used)
+    return out
+
+
+def _neighbours(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
+    """Array neighbours at index +-1 of ``rec``, in index order."""
+    if rec.array is None or rec.index is None:
+        return []
+    found = {other.index: name for name, other in bag.items()
+             if other.array == rec.array and other.index in (rec.index - 1, rec.index + 1)}
+    return [found[i] for i in sorted(found)]
+
+
+def _aligned(t: np.ndarray, t_other: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` (at ``t_other``) held to the times ``t``: the latest at or before each."""
+    idx = np.searchsorted(t_other, t, side="right") - 1
+    return np.where(idx >= 0, values[np.maximum(idx, 0)], np.nan)
+
+
+def _block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
+    """Contiguous time blocks 0..n_blocks-1 of equal duration."""
+    if t.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    span = t[-1] - t[0]
+    if not span > 0:
+        return np.zeros(t.size, dtype=np.intp)
+    return np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
+
+
+def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
+            runs: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+            candidates: Sequence[dict[str, Any]], n_blocks: int) -> _Series | None:
+    """Residual and candidate regressors of one sensor in one bag (None: nothing usable)."""
+    rec = bag[sensor]
+    if rec.s is None or sensor not in runs:
+        return None
+    s_hat, direction, used = runs[sensor]
+    ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
+    if ok.sum() < 2 * n_blocks:
+        return None
+    t = np.asarray(rec.t, dtype=np.float64)[used]
+    temperature = None if rec.temperature is None else np.asarray(rec.temperature)[used]
+    nbrs = {}
+    for name in _neighbours(rec, bag):
+        if name in runs:
+            nbrs[name] = _aligned(np.asarray(rec.t, np.float64),
+                                  np.asarray(bag[name].t, np.float64), runs[name][0])[used]
+    batch = Batch.of(t, np.asarray(rec.r)[used], s_hat[used], direction[used], temperature, nbrs)
+    corrected = EffectTerms.from_dicts(cal.effects).run(
+        batch.t, batch.r, batch.s_hat, batch.direction, batch.temperature, batch.neighbours)
+    keep = ok[used]
+    g = np.column_stack([regressor_from_dict(c).run(batch) for c in candidates])
+    e = corrected - np.asarray(rec.s, dtype=np.float64)[used]
+    return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks))
+
+
+class _Gram:
+    """Per-fold sums X'X, X'e, e'e over all candidate columns: any subset's least-squares
+    fit on some folds and its error on the others, without touching the samples again."""
+
+    def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
+        std = np.std(g, axis=0)
+        self.scale = np.where(std > 0, std, 1.0)
+        x = g / self.scale
+        k = g.shape[1]
+        self.xx = np.zeros((n_folds, k, k))
+        self.xe = np.zeros((n_folds, k))
+        self.ee = np.zeros(n_folds)
+        self.n = np.zeros(n_folds)
+        for f in range(n_folds):
+            m = fold == f
+            xf, ef = x[m], e[m]
+            self.xx[f] = xf.T @ xf
+            self.xe[f] = xf.T @ ef
+            self.ee[f] = ef @ ef
+            self.n[f] = m.sum()
+
+    def solve(self, cols: Sequence[int], folds: np.ndarray) -> np.ndarray:
+        """Least-squares coefficients (scaled columns) on ``folds``."""
+        if not cols:
+            return np.zeros(0)
+        idx = np.asarray(cols)
+        a = self.xx[folds][:, idx[:, None], idx[None, :]].sum(axis=0)
+        b = self.xe[folds][:, idx].sum(axis=0)
+        return np.linalg.lstsq(a, b, rcond=1e-12)[0]
+
+    def sse(self, cols: Sequence[int], c: np.ndarray, folds: np.ndarray) -> float:
+        total = float(self.ee[folds].sum())
+        if not cols:
+            return total
+        idx = np.asarray(cols)
+        a = self.xx[folds][:, idx[:, None], idx[None, :]].sum(axis=0)
+        b = self.xe[folds][:, idx].sum(axis=0)
+        return max(total - 2.0 * float(c @ b) + float(c @ a @ c), 0.0)
+
+    def cv_rmse(self, cols: Sequence[int]) -> float:
+        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out)."""
+        folds = np.arange(self.ee.size)
+        sse = 0.0
+        for f in folds[self.n > 0]:
+            rest = folds[folds != f]
+            sse += self.sse(cols, self.solve(cols, rest), np.array([f]))
+        return math.sqrt(sse / self.n.sum())
+
+
+def _select(gram: _Gram, names: Sequence[str], offset: int, margin: float,
+            max_effects: int) -> tuple[list[int], dict[int, float], dict[int, float]]:
+    """Greedy forward selection; returns (added columns in order, scores, gains)."""
+    rmse_none = gram.cv_rmse([])
+    rmse_offset = gram.cv_rmse([offset])
+    scores = {}
+    for j in range(len(names)):
+        if j == offset:
+            scores[j] = 1.0 - (rmse_offset / rmse_none) ** 2 if rmse_none > 0 else 0.0
+        else:
+            rmse_j = gram.cv_rmse([offset, j])
+            scores[j] = 1.0 - (rmse_j / rmse_offset) ** 2 if rmse_offset > 0 else 0.0
+    chosen: list[int] = []
+    gains: dict[int, float] = {}
+    current = rmse_none
+    while len([c for c in chosen if c != offset]) < max_effects and current > 0:
+        rmse_off = gram.cv_rmse(_with_intercept([*chosen, offset], offset))
+        trials = {} if offset in chosen else {offset: 1.0 - rmse_off / current}
+        if rmse_off > 0:
+            for j in range(len(names)):
+                if j not in chosen and j != offset:
+                    cols = _with_intercept([*chosen, j], offset)
+                    trials[j] = 1.0 - gram.cv_rmse(cols) / rmse_off
+        if not trials:
+            break
+        best = max(trials, key=trials.__getitem__)
+        if trials[best] <= margin:
+            break
+        chosen.append(best)
+        gains[best] = trials[best]
+        current = gram.cv_rmse(_with_intercept(chosen, offset))
+    return chosen, scores, gains
+
+
+def _with_intercept(cols: Sequence[int], offset: int) -> list[int]:
+    """The columns of a model: ``cols`` plus the intercept once any other term is in."""
+    cols = list(dict.fromkeys(cols))
+    if any(c != offset for c in cols) and offset not in cols:
+        cols.insert(0, offset)
+    return cols
+
+
+def _rmse_stats(e: np.ndarray) -> dict[str, float]:
+    stats = error_stats(e, np.zeros_like(e))
+    return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
+
+
+def _unique(name: str, taken: set[str]) -> str:
+    out, k = name, 2
+    while out in taken:
+        out, k = f"{name}_{k}", k + 1
+    taken.add(out)
+    return out
+
+
+def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str, Recording]],
+                     validate: list[Mapping[str, Recording]] | None,
+                     base_fit: list[dict[str, Any]], base_val: list[dict[str, Any]],
+                     candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
+                     n_blocks: int, margin: float, max_effects: int
+                     ) -> SensorDiagnosis | None:
+    if candidates is None:
+        temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
+                 if sensor in b and b[sensor].temperature is not None]
+        temps = [x[np.isfinite(x)] for x in temps]
+        have_temp = any(x.size and np.ptp(x) > 0 for x in temps)
+        t_ref = float(np.mean(np.concatenate(temps))) if have_temp else None
+        nbrs = sorted({n for b, runs in zip(bags, base_fit, strict=True) if sensor in b
+                       for n in _neighbours(b[sensor], b) if n in runs})
+        candidates = default_candidates(temperature_ref=t_ref, neighbours=nbrs)
+    candidates = [dict(c, coef=0.0) for c in candidates]
+    names = [str(c["name"]) for c in candidates]
+    kinds = [str(c["kind"]) for c in candidates]
+    if "offset" not in kinds:
+        candidates.append({"name": "offset", "kind": "offset", "params": {}, "coef": 0.0})
+        names.append("offset")
+        kinds.append("offset")
+    offset = kinds.index("offset")
+    series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
+              for s in [_series(sensor, cal, b, runs, candidates, n_blocks)] if s is not None]
+    if not series:
+        return None
+    period = max(2, round(1.0 / holdout_fraction)) if validate is None else 0
+    held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
+                for s in series]
+    # folds: position of the block among the fit blocks of its recording
+    fold_of_block = np.cumsum([not (period and b % period == period - 1)
+                               for b in range(n_blocks)]) - 1
+    n_folds = int(fold_of_block.max()) + 1
+    e_fit = np.concatenate([s.e[~h] for s, h in zip(series, held_out, strict=True)])
+    g_fit = np.concatenate([s.g[~h] for s, h in zip(series, held_out, strict=True)])
+    fold = np.concatenate([fold_of_block[s.block[~h]]
+                           for s, h in zip(series, held_out, strict=True)])
+    gram = _Gram(g_fit, e_fit, fold, n_folds)
+    chosen, scores, gains = _select(gram, names, offset, margin, max_effects)
+
+    if validate is not None:
+        val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
+                      for s in [_series(sensor, cal, b, runs, candidates, n_blocks)]
+                      if s is not None]
+        if not val_series:
+            raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
+                             "samples with a reference strain")
+        e_out = np.concatenate([s.e for s in val_series])
+        g_out = np.concatenate([s.g for s in val_series])
+        t_out = np.concatenate([s.t for s in val_series])
+    else:
+        e_out = np.concatenate([s.e[h] for s, h in zip(series, held_out, strict=True)])
+        g_out = np.concatenate([s.g[h] for s, h in zip(series, held_out, strict=True)])
+        t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
+    all_folds = np.arange(n_folds)
+
+    def held_out(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Coefficients fitted on all fit data, and the held-out residual after them."""
+        c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
+        return c, e_out - g_out[:, cols] @ c
+
+    rmse_before = float(np.sqrt(np.mean(e_out**2)))
+    kept: list[int] = []
+    current = rmse_before
+    for j in chosen:
+        trial = _with_intercept([*kept, j], offset)
+        rmse = float(np.sqrt(np.mean(held_out(trial)[1] ** 2)))
+        helps = rmse < current
+        if j != offset:  # it must also beat the intercept alone
+            intercept = _with_intercept([*kept, offset], offset)
+            helps = helps and rmse < float(np.sqrt(np.mean(held_out(intercept)[1] ** 2)))
+        if not helps:
+            break
+        kept, current = trial, rmse
+    cols = kept
+    coef, e_after = held_out(cols)
+
+    taken = {str(e["name"]) for e in cal.effects}
+    added = [effect_dict(_unique(names[j], taken), regressor_from_dict(candidates[j]), c)
+             for j, c in zip(cols, coef, strict=True)]
+    std_fit = np.std(g_fit, axis=0)
+    coef_of = dict(zip(cols, coef, strict=True))
+    rows = []
+    for j in range(len(names)):
+        row = EffectScore(sensor=sensor, name=names[j], kind=kinds[j],
+                          params=regressor_from_dict(candidates[j]).params(), score=scores[j])
+        if j in coef_of:
+            row.added = True
+            row.rank = cols.index(j)
+            row.gain = gains.get(j)
+            row.coef = float(coef_of[j])
+            row.magnitude = float(abs(coef_of[j]) * (std_fit[j] if j != offset else 1.0))
+        rows.append(row)
+    order = [j for j in kept if j != offset] or kept
+    winner = names[order[0]] if order else None
+    if winner is None:
+        best = max(scores, key=scores.__getitem__)
+        message = (f"no candidate effect lowers the held-out error by more than "
+                   f"{100 * margin:.0f} %; nothing added (best: {names[best]}, "
+                   f"score {scores[best]:.3f})")
+        if chosen:
+            message = (f"{names[chosen[0]]} looked useful in cross-validation but did not "
+                       "lower the held-out error; nothing added")
+    else:
+        parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order)
+        message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
+                   f"{float(np.sqrt(np.mean(e_after**2))):.4g} %")
+    plot = {}
+    if winner is not None:
+        plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]]}
+    return SensorDiagnosis(name=sensor, before=_rmse_stats(e_out), after=_rmse_stats(e_after),
+                           scores=rows, added=added, message=message, plot=plot, winner=winner)
+
+
+def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]],
+             calibration: Calibration, *,
+             validate_recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
+             | None = None, holdout_fraction: float = 0.3,
+             candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
+             margin: float = 0.03, max_effects: int = 3) -> DiagnoseResult:
+    """Run the residual loop (module docstring) on every calibrated sensor with a reference.
+
+    ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
+    ``candidates``: effect dicts to test instead of ``default_candidates``. ``margin``: the
+    least relative drop of the cross-validated RMSE for an effect to be added.
+    """
+    if not 0.0 < holdout_fraction < 1.0:
+        raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
+    if n_blocks < 3:
+        raise InputError(f"n_blocks must be >= 3, got {n_blocks}")
+    bags = _as_bags(recordings)
+    validate = None if validate_recordings is None else _as_bags(validate_recordings)
+    base_fit = [_base_runs(b, calibration) for b in bags]
+    base_val = None if validate is None else [_base_runs(b, calibration) for b in validate]
+    results: dict[str, SensorDiagnosis] = {}
+    for sensor, cal in calibration.sensors.items():
+        found = _diagnose_sensor(sensor, cal, bags, validate, base_fit, base_val or [],
+                                 candidates, holdout_fraction, n_blocks, margin, max_effects)
+        if found is not None:
+            results[sensor] = found
+    if not results:
+        raise InputError("no calibrated sensor has a recording with a strain_reference "
+                         f"(calibrated: {', '.join(calibration.sensors)})")
+    sensors_out = dict(calibration.sensors)
+    for name, d in results.items():
+        if d.added:
+            sensors_out[name] = dataclasses.replace(
+                sensors_out[name], effects=[*sensors_out[name].effects, *d.added])
+    pooled_before = _pool(results, "before")
+    pooled_after = _pool(results, "after")
+    if validate is None:
+        validated_on = "holdout"
+        validation = {"kind": "held-out time blocks of the input", "n_blocks": n_blocks,
+                      "held_out_every": max(2, round(1.0 / holdout_fraction))}
+    else:
+        validated_on = "validate"
+        validation = {"kind": "validation recordings",
+                      "sensors": sorted({n for b in validate for n in b})}
+    return DiagnoseResult(sensors=results, before=pooled_before, after=pooled_after,
+                          validated_on=validated_on, validation=validation,
+                          calibration=Calibration(sensors_out))
+
+
+def _pool(results: Mapping[str, SensorDiagnosis], which: str) -> dict[str, float]:
+    """RMSE and MAE pooled over every sensor's held-out samples."""
+    n = sum(getattr(d, which)["n"] for d in results.values())
+    sse = sum(getattr(d, which)["rmse"] ** 2 * getattr(d, which)["n"] for d in results.values())
+    sae = sum(getattr(d, which)["mae"] * getattr(d, which)["n"] for d in results.values())
+    return {"rmse": math.sqrt(sse / n), "mae": sae / n, "n": n}
+
+
+def write_plots(result: DiagnoseResult, out_dir: str | Path) -> list[Path]:
+    """Residual before and after against the winning regressor (one PNG per sensor)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, d in result.sensors.items():
+        if not d.plot:
+            continue
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+        p = d.plot
+        ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
+        ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
+        ax1.set_xlabel(f"regressor {d.winner}")
+        ax1.set_ylabel("residual S_hat - S [%]")
+        ax1.legend(markerscale=4)
+        ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
+        ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
+        ax2.set_xlabel("time [s] (held-out samples)")
+        ax2.set_ylabel("residual [%]")
+        ax2.legend(markerscale=4)
+        fig.suptitle(f"{name}: {d.message}", fontsize=8)
+        fig.tight_layout()
+        path = out_dir / f"diagnose_{name}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def diagnose_bag(bag: str | Path, calibration: Calibration, *,
+                 validate: str | Path | None = None, out: str | Path | None = None,
+                 plots: str | Path | None = None, **options: Any) -> DiagnoseResult:
+    """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots."""
+    from strain_comp.recording import load_recordings
+
+    recordings, _ = load_recordings(bag)
+    val = None if validate is None else load_recordings(validate)[0]
+    result = diagnose(recordings, calibration, validate_recordings=val, **options)
+    if out is not None:
+        save_calibration(result.calibration, out)
+    if plots is not None:
+        write_plots(result, plots)
+    return result

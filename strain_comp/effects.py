@@ -1,0 +1,690 @@
+"""Effect terms: online corrections a static or hysteretic inverse model lacks.
+
+The residual loop (DESIGN.md, "The residual loop"; ``strain_comp.diagnose``) finds which
+physical effect explains the residual e = S_hat - S of a calibrated model and adds it as
+an explicit term. Each effect is a *regressor* g_j computed causally, sample by sample,
+from what a running model knows: time t [s], resistance R [ohm], the model's own estimate
+S_hat [%], the direction detector's output d (+1 loading, 0 hold, -1 unloading), an
+optional temperature T and the estimates of array neighbours. The corrected strain is
+
+    S_corrected = S_hat - sum_j c_j g_j
+
+with coefficients c_j fitted by least squares on the residual. A constant term is an
+ordinary effect of kind ``offset`` (g = 1): the residual loop fits it together with every
+other effect, so the correction never shifts the output by an offset it did not test.
+
+Regressors use S_hat (not R) as their signal wherever a signal is needed: S_hat is in
+strain units (coefficients are then dimensionless or in seconds) and monotone in strain
+even where R is not (carbon-black sensors).
+
+Calibration-file form (one entry of a sensor's ``effects:`` list)::
+
+    {name: relaxation_loading_tau10, kind: relaxation,
+     params: {tau: 10.0, branch: loading}, coef: 0.031}
+
+Every parameter has a default, so ``params: {}`` is valid. Each regressor has ``reset()``,
+``step(sample) -> float`` and a batch ``run(batch) -> array`` that continues from the
+current state and leaves it where repeated ``step`` calls would.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp._numba import njit
+from strain_comp.errors import ParameterError
+from strain_comp.models.base import require_float
+
+
+@dataclass
+class Sample:
+    """One sample as the online path sees it (inputs of ``Regressor.step``)."""
+
+    t: float
+    r: float
+    s_hat: float
+    direction: int
+    temperature: float = math.nan
+    neighbours: Mapping[str, float] | None = None
+
+
+@dataclass
+class Batch:
+    """Whole arrays of samples (inputs of ``Regressor.run``); all of one length n.
+
+    ``temperature`` may be None (no temperature topic); ``neighbours`` maps a neighbour
+    sensor's name to its S_hat at the same sample times (NaN where unknown).
+    """
+
+    t: np.ndarray
+    r: np.ndarray
+    s_hat: np.ndarray
+    direction: np.ndarray
+    temperature: np.ndarray | None = None
+    neighbours: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
+           direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
+           neighbours: Mapping[str, npt.ArrayLike] | None = None) -> Batch:
+        """Contiguous float64 copies, checked to be 1-D and of one length."""
+        arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in (t, r, s_hat, direction)]
+        n = arrays[0].size
+        temp = None if temperature is None else np.ascontiguousarray(temperature, np.float64)
+        nbrs = {str(k): np.ascontiguousarray(v, np.float64) for k, v in (neighbours or {}).items()}
+        for a in [*arrays, *([temp] if temp is not None else []), *nbrs.values()]:
+            if a.ndim != 1 or a.size != n:
+                raise ValueError("effects: every input array must be 1-D and of one length")
+        return cls(*arrays, temperature=temp, neighbours=nbrs)
+
+
+def _choice(params: Mapping[str, Any], key: str, options: Sequence[str], default: str) -> str:
+    value = params.get(key, default)
+    if value not in options:
+        raise ParameterError(f"params.{key}", f"must be one of {', '.join(options)}; got {value!r}")
+    return str(value)
+
+
+def _positive(params: Mapping[str, Any], key: str, default: float) -> float:
+    if key not in params:
+        return default
+    try:
+        return require_float(params, key, lo=0.0, strict=True)
+    except ParameterError as err:
+        raise ParameterError(f"params.{err.field}", err.problem) from None
+
+
+def _ffill(values: np.ndarray, last: float) -> np.ndarray:
+    """Hold the last finite value (``last`` before the first one; NaN if none yet)."""
+    ok = np.isfinite(values)
+    idx = np.where(ok, np.arange(values.size), -1)
+    np.maximum.accumulate(idx, out=idx)
+    return np.where(idx >= 0, values[np.maximum(idx, 0)], last)
+
+
+class Regressor(ABC):
+    """One effect regressor g(t) with explicit state; see the module docstring."""
+
+    kind: ClassVar[str]
+    param_names: ClassVar[tuple[str, ...]] = ()
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Restore the initial state."""
+
+    @abstractmethod
+    def step(self, sample: Sample) -> float:
+        """Advance by one sample and return g at that sample."""
+
+    @abstractmethod
+    def run(self, batch: Batch) -> np.ndarray:
+        """g over a batch, continuing from (and updating) the current state."""
+
+    @abstractmethod
+    def params(self) -> dict[str, Any]:
+        """The parameters as plain Python (the calibration file's ``params``)."""
+
+    @classmethod
+    @abstractmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Regressor:
+        """Build from ``params``; ParameterError naming ``params.<key>`` if bad."""
+
+    @property
+    def needs_temperature(self) -> bool:
+        return False
+
+    @property
+    def neighbour(self) -> str | None:
+        """Name of the array neighbour this regressor reads, if any."""
+        return None
+
+
+class Offset(Regressor):
+    """g = 1: a constant offset of the estimate (a zero shift between sessions)."""
+
+    kind = "offset"
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, sample: Sample) -> float:
+        return 1.0
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return np.ones(batch.t.size)
+
+    def params(self) -> dict[str, Any]:
+        return {}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Offset:
+        return cls()
+
+
+@njit
+def _rate_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, direction_mode: bool,
+                 state: np.ndarray) -> np.ndarray:
+    """Low-passed derivative y' = (du/dt - y) / tau, exact for piecewise-constant du/dt."""
+    y, u_prev, t_prev, started = state[0], state[1], state[2], state[3]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        if started > 0.0:
+            dt = t[k] - t_prev
+            if dt > 0.0:
+                y += (1.0 - math.exp(-dt / tau)) * ((u[k] - u_prev) / dt - y)
+        started = 1.0
+        u_prev = u[k]
+        t_prev = t[k]
+        out[k] = d[k] * y if direction_mode else y
+    state[0], state[1], state[2], state[3] = y, u_prev, t_prev, started
+    return out
+
+
+class Rate(Regressor):
+    """Signed strain rate dS_hat/dt [%/s], low-passed with time constant ``tau`` [s].
+
+    Viscoelastic sensors lag or lead the strain by an amount proportional to its rate
+    (rate-dependent hysteresis, apl_electrolycra... section I). ``mode: direction`` gives
+    d * rate (the detector's direction times the rate): an error of one sign whenever the
+    sensor moves, whatever the direction (e.g. self-heating or a rate-dependent gain).
+    """
+
+    kind = "rate"
+    param_names = ("tau", "mode")
+
+    def __init__(self, tau: float = 1.0, mode: str = "signed") -> None:
+        self.tau = tau
+        self.mode = mode
+        self._state = np.zeros(4)
+
+    def reset(self) -> None:
+        self._state = np.zeros(4)
+
+    def step(self, sample: Sample) -> float:
+        y, u_prev, t_prev, started = self._state
+        if started > 0.0:
+            dt = sample.t - t_prev
+            if dt > 0.0:
+                y += (1.0 - math.exp(-dt / self.tau)) * ((sample.s_hat - u_prev) / dt - y)
+        self._state[:] = (y, sample.s_hat, sample.t, 1.0)
+        return sample.direction * y if self.mode == "direction" else y
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _rate_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
+                            self.mode == "direction", self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"tau": self.tau, "mode": self.mode}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Rate:
+        return cls(_positive(params, "tau", 1.0),
+                   _choice(params, "mode", ("signed", "direction"), "signed"))
+
+
+class Direction(Regressor):
+    """The detector's direction d (egain_rational... section V.E) as a regressor.
+
+    ``mode: sign`` gives d; ``mode: strain`` gives d * S_hat (a hysteresis loop whose width
+    grows with strain). With ``hold: true`` a hold (d = 0) keeps the last moving
+    direction, as hysteresis persists while the strain is held.
+    """
+
+    kind = "direction"
+    param_names = ("mode", "hold")
+
+    def __init__(self, mode: str = "sign", hold: bool = False) -> None:
+        self.mode = mode
+        self.hold = hold
+        self._last = 0.0
+
+    def reset(self) -> None:
+        self._last = 0.0
+
+    def step(self, sample: Sample) -> float:
+        d = float(sample.direction)
+        if self.hold:
+            if d != 0.0:
+                self._last = d
+            d = self._last
+        return d * sample.s_hat if self.mode == "strain" else d
+
+    def run(self, batch: Batch) -> np.ndarray:
+        d = batch.direction
+        if self.hold:
+            d = _ffill(np.where(d != 0.0, d, np.nan), self._last)
+            if d.size:
+                self._last = float(d[-1])
+        return d * batch.s_hat if self.mode == "strain" else d.copy()
+
+    def params(self) -> dict[str, Any]:
+        return {"mode": self.mode, "hold": self.hold}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Direction:
+        hold = params.get("hold", False)
+        if not isinstance(hold, bool):
+            raise ParameterError("params.hold", f"must be true or false, got {hold!r}")
+        return cls(_choice(params, "mode", ("sign", "strain"), "sign"), hold)
+
+
+_BRANCHES = ("both", "loading", "unloading")
+
+
+@njit
+def _relaxation_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, branch: int,
+                       state: np.ndarray) -> np.ndarray:
+    """h_k = h_{k-1} exp(-dt/tau) + du_k [d_k in branch]: decaying memory of S_hat steps."""
+    h, u_prev, t_prev, started = state[0], state[1], state[2], state[3]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        if started > 0.0:
+            h *= math.exp(-(t[k] - t_prev) / tau)
+            if branch == 0 or (branch == 1 and d[k] > 0) or (branch == 2 and d[k] < 0):
+                h += u[k] - u_prev
+        started = 1.0
+        u_prev = u[k]
+        t_prev = t[k]
+        out[k] = h
+    state[0], state[1], state[2], state[3] = h, u_prev, t_prev, started
+    return out
+
+
+class Relaxation(Regressor):
+    """Exponentially decaying memory of recent strain change: relaxation after steps.
+
+    The first-order filter x' = (S_hat - x) / tau gives the regressor h = S_hat - x, which
+    jumps with every change of S_hat and decays with time constant ``tau`` [s] once the
+    strain is held. A sensor that overshoots after a step and relaxes back (the
+    Electrolycra's creep, apl_electrolycra... section III; the spike-and-decay of
+    nanocomposite_spike_decay... eq. (1)) leaves a residual c * h. ``branch: loading``
+    (or ``unloading``) accumulates only the changes made while the detector says loading
+    (unloading), since relaxation is often strong on loading and weak on unloading.
+    Discretised exactly for a piecewise-constant input: h_k = h_{k-1} e^{-dt/tau} + dS_k.
+    """
+
+    kind = "relaxation"
+    param_names = ("tau", "branch")
+
+    def __init__(self, tau: float = 10.0, branch: str = "both") -> None:
+        self.tau = tau
+        self.branch = branch
+        self._code = _BRANCHES.index(branch)
+        self._state = np.zeros(4)
+
+    def reset(self) -> None:
+        self._state = np.zeros(4)
+
+    def step(self, sample: Sample) -> float:
+        h, u_prev, t_prev, started = self._state
+        if started > 0.0:
+            h *= math.exp(-(sample.t - t_prev) / self.tau)
+            d = sample.direction
+            if self._code == 0 or (self._code == 1 and d > 0) or (self._code == 2 and d < 0):
+                h += sample.s_hat - u_prev
+        self._state[:] = (h, sample.s_hat, sample.t, 1.0)
+        return float(h)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _relaxation_kernel(batch.t, batch.s_hat, batch.direction, self.tau, self._code,
+                                  self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"tau": self.tau, "branch": self.branch}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Relaxation:
+        return cls(_positive(params, "tau", 10.0), _choice(params, "branch", _BRANCHES, "both"))
+
+
+class Elapsed(Regressor):
+    """Slow drift: a function of the time since the first sample, x = (t - t0) / scale.
+
+    ``form``: ``linear`` x, ``sqrt`` sqrt(x) (diffusion-limited ageing, swelling) or
+    ``log`` log(1 + x) (creep of a polymer matrix). ``scale`` [s] only sets the units of
+    the coefficient (and the knee of ``log``). t0 is the first sample after ``reset``.
+    """
+
+    kind = "elapsed"
+    param_names = ("form", "scale")
+
+    def __init__(self, form: str = "linear", scale: float = 100.0) -> None:
+        self.form = form
+        self.scale = scale
+        self._t0 = math.nan
+
+    def reset(self) -> None:
+        self._t0 = math.nan
+
+    def _g(self, x: npt.ArrayLike) -> np.ndarray:
+        x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
+        if self.form == "sqrt":
+            return np.sqrt(x)
+        if self.form == "log":
+            return np.log1p(x)
+        return x
+
+    def step(self, sample: Sample) -> float:
+        if math.isnan(self._t0):
+            self._t0 = sample.t
+        return float(self._g((sample.t - self._t0) / self.scale))
+
+    def run(self, batch: Batch) -> np.ndarray:
+        if batch.t.size and math.isnan(self._t0):
+            self._t0 = float(batch.t[0])
+        return self._g((batch.t - self._t0) / self.scale)
+
+    def params(self) -> dict[str, Any]:
+        return {"form": self.form, "scale": self.scale}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Elapsed:
+        return cls(_choice(params, "form", ("linear", "sqrt", "log"), "linear"),
+                   _positive(params, "scale", 100.0))
+
+
+class Temperature(Regressor):
+    """Temperature dependence: g = T - t_ref (``form: offset``, a TCR shifting R) or
+    g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor).
+
+    A missing or NaN temperature holds the last valid one; before the first, g = 0.
+    """
+
+    kind = "temperature"
+    param_names = ("form", "t_ref")
+
+    def __init__(self, form: str = "offset", t_ref: float = 20.0) -> None:
+        self.form = form
+        self.t_ref = t_ref
+        self._last = math.nan
+
+    @property
+    def needs_temperature(self) -> bool:
+        return True
+
+    def reset(self) -> None:
+        self._last = math.nan
+
+    def step(self, sample: Sample) -> float:
+        if math.isfinite(sample.temperature):
+            self._last = float(sample.temperature)
+        if math.isnan(self._last):
+            return 0.0
+        dt = self._last - self.t_ref
+        return dt * sample.s_hat if self.form == "strain" else dt
+
+    def run(self, batch: Batch) -> np.ndarray:
+        temp = batch.temperature
+        if temp is None:
+            temp = np.full(batch.t.size, np.nan)
+        held = _ffill(temp, self._last)
+        if held.size:
+            self._last = float(held[-1])
+        dt = np.where(np.isnan(held), 0.0, held - self.t_ref)
+        return dt * batch.s_hat if self.form == "strain" else dt
+
+    def params(self) -> dict[str, Any]:
+        return {"form": self.form, "t_ref": self.t_ref}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Temperature:
+        t_ref = 20.0
+        if "t_ref" in params:
+            try:
+                t_ref = require_float(params, "t_ref")
+            except ParameterError as err:
+                raise ParameterError(f"params.{err.field}", err.problem) from None
+        return cls(_choice(params, "form", ("offset", "strain"), "offset"), t_ref)
+
+
+class StrainLevel(Regressor):
+    """g = S_hat ** power: a gain (power 1) or curvature (2, 3) error of the static map."""
+
+    kind = "strain_level"
+    param_names = ("power",)
+
+    def __init__(self, power: int = 1) -> None:
+        self.power = power
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, sample: Sample) -> float:
+        return float(sample.s_hat) ** self.power
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return batch.s_hat ** self.power
+
+    def params(self) -> dict[str, Any]:
+        return {"power": self.power}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> StrainLevel:
+        power = params.get("power", 1)
+        if isinstance(power, bool) or power not in (1, 2, 3):
+            raise ParameterError("params.power", f"must be 1, 2 or 3, got {power!r}")
+        return cls(int(power))
+
+
+_MULLINS_FORMS = ("gap", "gap_strain", "cycles_log", "cycles_exp")
+
+
+@njit
+def _mullins_kernel(s: np.ndarray, d: np.ndarray, form: int, n0: float,
+                    state: np.ndarray) -> np.ndarray:
+    """Running peak of S_hat and count of completed load cycles -> softening regressor."""
+    peak, cycles, last = state[0], state[1], state[2]
+    out = np.empty(s.size)
+    for k in range(s.size):
+        if s[k] > peak:
+            peak = s[k]
+        if d[k] != 0:
+            if last < 0 and d[k] > 0:
+                cycles += 1.0
+            last = d[k]
+        if form == 0:
+            out[k] = peak - s[k]
+        elif form == 1:
+            out[k] = s[k] * (peak - s[k])
+        elif form == 2:
+            out[k] = s[k] * math.log1p(cycles)
+        else:
+            out[k] = s[k] * math.exp(-cycles / n0)
+    state[0], state[1], state[2] = peak, cycles, last
+    return out
+
+
+class Mullins(Regressor):
+    """Mullins-type softening: the response depends on the strain history's peak and on
+    how many load cycles the sensor has done (elastomers soften over the first cycles and
+    below a previously reached strain).
+
+    State: peak = running max of S_hat; cycles = completed load cycles (an unloading ->
+    loading turn of the detector, holds ignored). ``form``: ``gap`` peak - S_hat (zero on
+    virgin loading), ``gap_strain`` S_hat (peak - S_hat), ``cycles_log`` S_hat log(1 +
+    cycles) (progressive softening), ``cycles_exp`` S_hat exp(-cycles / n0) (a gain excess
+    that dies out over the first ~n0 cycles).
+    """
+
+    kind = "mullins"
+    param_names = ("form", "n0")
+
+    def __init__(self, form: str = "cycles_exp", n0: float = 1.0) -> None:
+        self.form = form
+        self.n0 = n0
+        self._code = _MULLINS_FORMS.index(form)
+        self.reset()
+
+    def reset(self) -> None:
+        self._state = np.array([-np.inf, 0.0, 0.0])
+
+    def step(self, sample: Sample) -> float:
+        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
+                                       [sample.direction]))[0])
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _mullins_kernel(batch.s_hat, batch.direction, self._code, self.n0, self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"form": self.form, "n0": self.n0}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Mullins:
+        return cls(_choice(params, "form", _MULLINS_FORMS, "cycles_exp"),
+                   _positive(params, "n0", 1.0))
+
+
+class Crosstalk(Regressor):
+    """Cross-talk in an array: g = the S_hat of the neighbour sensor ``neighbour``.
+
+    A neighbour's stretch couples into this sensor's resistance (shared substrate, shared
+    return lead). A missing or NaN neighbour value holds the last valid one; before the
+    first, g = 0.
+    """
+
+    kind = "crosstalk"
+    param_names = ("neighbour",)
+
+    def __init__(self, neighbour: str) -> None:
+        self._neighbour = neighbour
+        self._last = math.nan
+
+    @property
+    def neighbour(self) -> str | None:
+        return self._neighbour
+
+    def reset(self) -> None:
+        self._last = math.nan
+
+    def step(self, sample: Sample) -> float:
+        value = (sample.neighbours or {}).get(self._neighbour, math.nan)
+        if math.isfinite(value):
+            self._last = float(value)
+        return 0.0 if math.isnan(self._last) else self._last
+
+    def run(self, batch: Batch) -> np.ndarray:
+        values = batch.neighbours.get(self._neighbour)
+        if values is None:
+            values = np.full(batch.t.size, np.nan)
+        held = _ffill(values, self._last)
+        if held.size:
+            self._last = float(held[-1])
+        return np.where(np.isnan(held), 0.0, held)
+
+    def params(self) -> dict[str, Any]:
+        return {"neighbour": self._neighbour}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Crosstalk:
+        neighbour = params.get("neighbour")
+        if not isinstance(neighbour, str) or not neighbour:
+            raise ParameterError("params.neighbour", f"must be a sensor name, got {neighbour!r}")
+        return cls(neighbour)
+
+
+KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
+    Offset, Rate, Direction, Relaxation, Elapsed, Temperature, StrainLevel, Mullins, Crosstalk)}
+
+
+def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
+    """The regressor of one effect entry; ParameterError(field, problem) if bad."""
+    if not isinstance(effect, Mapping):
+        raise ParameterError("(effect)", f"must be a mapping, got {type(effect).__name__}")
+    name = effect.get("name")
+    if not isinstance(name, str) or not name:
+        raise ParameterError("name", "missing or not a string")
+    kind = effect.get("kind")
+    if kind not in KINDS:
+        raise ParameterError("kind", f"must be one of {', '.join(KINDS)}; got {kind!r}")
+    params = effect.get("params", {})
+    if params is None:
+        params = {}
+    if not isinstance(params, Mapping):
+        raise ParameterError("params", f"must be a mapping, got {type(params).__name__}")
+    cls = KINDS[kind]
+    unknown = sorted(set(params) - set(cls.param_names))
+    if unknown:
+        raise ParameterError(f"params.{unknown[0]}", f"unknown parameter of kind {kind!r}")
+    return cls.from_params(params)
+
+
+def validate_effect_dict(effect: Mapping[str, Any]) -> None:
+    """Check one calibration-file effect entry; ParameterError(field, problem) if bad."""
+    regressor_from_dict(effect)
+    require_float(effect, "coef")
+
+
+def effect_dict(name: str, regressor: Regressor, coef: float) -> dict[str, Any]:
+    """The calibration-file entry of a regressor with its coefficient."""
+    return {"name": name, "kind": regressor.kind, "params": regressor.params(),
+            "coef": float(coef)}
+
+
+class EffectTerms:
+    """The effect terms of one sensor, as the engine uses them:
+    S_corrected = S_hat - sum_j coef_j g_j.
+    """
+
+    def __init__(self, names: Sequence[str], regressors: Sequence[Regressor],
+                 coefs: npt.ArrayLike) -> None:
+        self.names = list(names)
+        self.regressors = list(regressors)
+        self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
+        if not len(self.names) == len(self.regressors) == self.coefs.size:
+            raise ValueError("EffectTerms: names, regressors and coefs differ in length")
+
+    @classmethod
+    def from_dicts(cls, effects: Sequence[Mapping[str, Any]]) -> EffectTerms:
+        """From a calibration's ``effects`` list; ParameterError names ``<i>.<field>``."""
+        regressors, coefs = [], []
+        for i, effect in enumerate(effects):
+            try:
+                validate_effect_dict(effect)
+            except ParameterError as err:
+                raise ParameterError(f"{i}.{err.field}", err.problem) from None
+            regressors.append(regressor_from_dict(effect))
+            coefs.append(float(effect["coef"]))
+        return cls([str(e["name"]) for e in effects], regressors, coefs)
+
+    def to_dicts(self) -> list[dict[str, Any]]:
+        rows = zip(self.names, self.regressors, self.coefs, strict=True)
+        return [effect_dict(n, g, c) for n, g, c in rows]
+
+    def __bool__(self) -> bool:
+        return bool(self.regressors)
+
+    @property
+    def neighbours(self) -> list[str]:
+        """Names of the array neighbours whose S_hat these terms read."""
+        return [g.neighbour for g in self.regressors if g.neighbour is not None]
+
+    def reset(self) -> None:
+        for g in self.regressors:
+            g.reset()
+
+    def step(self, t: float, r: float, s_hat: float, direction: int,
+             temperature: float = math.nan,
+             neighbours: Mapping[str, float] | None = None) -> float:
+        """Corrected strain of one sample (advances every regressor's state)."""
+        sample = Sample(t, r, s_hat, direction, temperature, neighbours)
+        out = float(s_hat)
+        for g, c in zip(self.regressors, self.coefs, strict=True):
+            out -= c * g.step(sample)
+        return out
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
+            direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
+            neighbours: Mapping[str, npt.ArrayLike] | None = None) -> np.ndarray:
+        """Batch equivalent of repeated ``step``: corrected strain over arrays."""
+        batch = Batch.of(t, r, s_hat, direction, temperature, neighbours)
+        out = batch.s_hat.copy()
+        for g, c in zip(self.regressors, self.coefs, strict=True):
+            out -= c * g.run(batch)
+        return out

@@ -1,0 +1,145 @@
+"""Evaluation: run a calibration over recordings with a reference strain and score it.
+
+Every calibrated sensor that has a recording with ``strain_reference`` is run through the
+engine's batch path (``strain_comp.engine.Engine.run``), the very code that ``replay`` and
+the node use, so the numbers here are the numbers a robot would see. Errors (% strain,
+``strain_comp.metrics.error_stats``: RMSE per apl_electrolycra... eq. (5), MAE, max |e|,
+R^2) are taken over the samples the engine *used* (status good, gap reset or out of range)
+whose reference is finite; over bad samples (not finite, R <= 0, open or short circuit,
+time not increasing) the engine holds its estimate, and those are counted, not scored.
+Out-of-range samples are scored like any other and counted: the flag warns, it does not
+hide the error. The engine clamps estimates to the valid strain range plus a margin.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.calibration import Calibration
+from strain_comp.errors import InputError
+from strain_comp.metrics import ErrorStats, error_stats
+
+if TYPE_CHECKING:
+    from strain_comp.recording import Recording
+
+
+@dataclass
+class SensorEvaluation:
+    """One sensor's run: the arrays (for plots) and its error statistics."""
+
+    name: str
+    model: str
+    stats: ErrorStats
+    t: np.ndarray
+    r: np.ndarray
+    reference: np.ndarray
+    estimate: np.ndarray
+    direction: np.ndarray
+    scored: np.ndarray
+    """Boolean mask of the samples the statistics were taken over."""
+    n_samples: int
+    n_bad: int
+    n_out_of_range: int
+    bad_by_status: dict[str, int] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON record: the DESIGN.md keys first, then extra keys."""
+        record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
+        record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
+                      n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status)
+        return record
+
+
+@dataclass
+class EvaluationResult:
+    """Per-sensor evaluations plus notes (calibrated sensors the data could not score)."""
+
+    sensors: dict[str, SensorEvaluation]
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"sensors": {NAME: {"rmse", "mae", "max_abs", "r2", "n", ...}}}`` (DESIGN.md)."""
+        return {"sensors": {name: ev.to_dict() for name, ev in self.sensors.items()}}
+
+
+def _json_number(value: float | int) -> float | int | None:
+    """NaN/inf are not JSON: write them as null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration,
+                        ) -> EvaluationResult:
+    """Score every calibrated sensor that has a recording with a reference strain.
+
+    Raises InputError when no calibrated sensor can be scored (names both sides).
+    """
+    from strain_comp.engine import Engine, Status
+
+    used_codes = [Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE]
+
+    engine = Engine(calibration)
+    sensors: dict[str, SensorEvaluation] = {}
+    notes: list[str] = []
+    for name, cal in calibration.sensors.items():
+        rec = recordings.get(name)
+        if rec is None:
+            notes.append(f"{name}: calibrated but not in the data")
+            continue
+        if rec.s is None:
+            notes.append(f"{name}: no strain_reference in the data, not scored")
+            continue
+        t = np.asarray(rec.t, dtype=np.float64)
+        r = np.asarray(rec.r, dtype=np.float64)
+        s = np.asarray(rec.s, dtype=np.float64)
+        out = engine.run(name, t, r, temperature=rec.temperature)
+        estimate = np.asarray(out.strain, dtype=np.float64)
+        status = np.asarray(out.status)
+        good = np.isin(status, used_codes)
+        scored = good & np.isfinite(s) & np.isfinite(estimate)
+        bad_by_status = {Status(int(v)).name.lower(): int(np.sum(status == v))
+                         for v in np.unique(status[~good])}
+        sensors[name] = SensorEvaluation(
+            name=name, model=cal.model, stats=error_stats(estimate[scored], s[scored]),
+            t=t, r=r, reference=s, estimate=estimate,
+            direction=np.asarray(out.direction), scored=scored, n_samples=int(t.size),
+            n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
+            bad_by_status=bad_by_status)
+    if not sensors:
+        raise InputError(
+            "no calibrated sensor has a strain_reference in the data (calibration: "
+            f"{', '.join(calibration.sensors)}; data: {', '.join(recordings) or 'none'})")
+    return EvaluationResult(sensors, notes)
+
+
+def format_table(result: EvaluationResult) -> str:
+    """Fixed-width error table, errors in % strain."""
+    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
+              f"{'R^2':>8}")
+    lines = [header, "-" * len(header)]
+    for name, ev in result.sensors.items():
+        st = ev.stats
+        lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
+                     f"{st.max_abs:>9.4f} {st.r2:>8.5f}")
+    lines.append("errors in % strain; RMSE apl_electrolycra eq. (5)")
+    return "\n".join(lines)
+
+
+def format_notes(result: EvaluationResult) -> list[str]:
+    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors."""
+    lines = []
+    for name, ev in result.sensors.items():
+        if ev.n_bad:
+            kinds = ", ".join(f"{k} {v}" for k, v in ev.bad_by_status.items())
+            lines.append(f"{name}: {ev.n_bad} of {ev.n_samples} samples bad ({kinds}); "
+                         "estimate held, not scored")
+        if ev.n_out_of_range:
+            lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
+                         "calibration's valid range (flagged, scored)")
+    return lines + list(result.notes)

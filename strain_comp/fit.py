@@ -1,0 +1,297 @@
+"""Fitting orchestration: recordings (time, resistance, reference strain) -> calibration.
+
+``fit_sensor`` turns one sensor's recordings into a ``SensorCalibration``; ``fit_bags`` does
+it for every named sensor of a set of bags and returns one ``Calibration``. The model
+equations and their fits live in ``strain_comp.models``; this module only prepares the
+data and fills in what a calibration file needs besides the parameters:
+
+* **Screening**: a sample is used only when ``strain_comp.samples.good_mask`` accepts it
+  (finite, R > 0 ohm, time increasing) and its reference strain is finite.
+* **Segments**: good samples are cut into ``Segment``s wherever the time between two
+  consecutive good samples exceeds ``GAP_SECONDS`` (a recording pause, or a long stretch of
+  bad samples), the engine's default ``gap_reset``: training resets model state exactly
+  where the engine does. Isolated bad samples do not cut a segment: online, a bad sample
+  is skipped and the state kept, and the fit sees the same. Each recording starts a new
+  segment (model state is reset per segment). Segments shorter than ``MIN_SEGMENT``
+  samples are dropped.
+* **Normalisation**: ``Normalisation.fit`` over all training samples (apl_electrolycra...
+  section II.C: the training data span [-1, 1]).
+* **Valid range**: the training range of R and S widened by ``RANGE_MARGIN`` (5 %) of its
+  span on each side (the resistance floor is kept above half the smallest training R, so it
+  stays > 0 ohm). Inputs outside it are flagged as out of range, not silently trusted.
+* **Direction detector** (egain_rational... section V.E: dead zone = k sigma of dR/dt
+  noise on a hold): the hold is the longest stretch where the *reference* strain is still
+  (``|dS/dt|`` below ``HOLD_RATE_FRACTION`` of the 99.5th-percentile rate, at least
+  ``MIN_HOLD_SAMPLES`` samples). Its second half is used, so that relaxation right after
+  the stop does not count as noise, and ``strain_comp.direction.estimate_deadzone`` sets
+  the dead zone from it. Without a usable hold, the resistance noise sigma is estimated
+  robustly from the whole record (MAD of the second difference of R, which cancels any
+  smooth motion: std(d2 R) = sqrt(6) sigma for white noise), and ``estimate_deadzone`` is
+  given a synthetic hold of white noise with that sigma at the longest segment's own sample
+  times (fixed seed, so fits are reproducible). Noise-free data get a tiny floor.
+  The provenance records which of these set the dead zone (``direction_from``). Options
+  ``deadzone`` (ohm/s, set directly), ``k_sigma`` and ``tau`` override this and are not
+  passed to the model.
+* **Fit error**: the fitted calibration runs over the training segments through the
+  engine (``training_error``); its RMSE, the fit time and the settings' sources go into
+  the provenance.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from itertools import pairwise
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import yaml
+
+from strain_comp.calibration import Calibration, SensorCalibration, ValidRange, provenance
+from strain_comp.direction import DirectionSettings, estimate_deadzone
+from strain_comp.errors import FitError, InputError
+from strain_comp.metrics import error_stats
+from strain_comp.models import Normalisation, Segment, model_class
+from strain_comp.samples import good_mask
+
+if TYPE_CHECKING:
+    from strain_comp.recording import Recording
+
+GAP_SECONDS = 5.0
+"""A step between good samples longer than this [s] cuts a segment (engine ``gap_reset``)."""
+MIN_SEGMENT = 8
+"""Segments with fewer good samples are not used for fitting."""
+RANGE_MARGIN = 0.05
+"""Valid range = training range widened by this fraction of its span on each side."""
+HOLD_RATE_FRACTION = 0.01
+"""|dS/dt| below this fraction of the 99.5th-percentile |dS/dt| counts as a hold (the high
+percentile is a moving rate even when fast steps take only a few % of the record)."""
+MIN_HOLD_SAMPLES = 40
+"""A hold must have at least this many samples to set the dead zone."""
+DEFAULT_K_SIGMA = 4.0
+"""Dead zone = k sigma of the derivative noise (egain_rational... section V.E: 3 or 4)."""
+_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau")
+
+
+def parse_options(items: Iterable[str]) -> dict[str, Any]:
+    """``["N=11", "mode=split", "sigmas=[0.1, 0.3]"]`` -> dict; values are parsed as YAML."""
+    options: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise InputError(f"--option {item!r}: expected key=value")
+        try:
+            options[key] = yaml.safe_load(text) if text.strip() else ""
+        except yaml.YAMLError:
+            raise InputError(f"--option {item!r}: value is not valid YAML") from None
+    return options
+
+
+def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> list[Segment]:
+    """Good, referenced samples of one recording cut into segments (see module docstring)."""
+    t = np.asarray(t, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)
+    keep = good_mask(t, r) & np.isfinite(s)
+    t, r, s = t[keep], r[keep], s[keep]
+    if t.size < 2:
+        return []
+    cuts = np.flatnonzero(np.diff(t) > GAP_SECONDS) + 1
+    bounds = np.concatenate(([0], cuts, [t.size]))
+    return [Segment(t[a:b], r[a:b], s[a:b]) for a, b in pairwise(bounds)
+            if b - a >= MIN_SEGMENT]
+
+
+def valid_range(segments: Sequence[Segment], *, margin: float = RANGE_MARGIN) -> ValidRange:
+    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0)."""
+    r = np.concatenate([seg.r for seg in segments])
+    s = np.concatenate([seg.s for seg in segments])
+    r_lo, r_hi = float(r.min()), float(r.max())
+    s_lo, s_hi = float(s.min()), float(s.max())
+    r_pad, s_pad = margin * (r_hi - r_lo), margin * (s_hi - s_lo)
+    return ValidRange(max(r_lo - r_pad, 0.5 * r_lo), r_hi + r_pad, s_lo - s_pad, s_hi + s_pad)
+
+
+def find_hold(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray] | None:
+    """(t, r) of the second half of the longest still stretch of the reference, or None."""
+    rates = [np.abs(np.gradient(seg.s, seg.t)) for seg in segments]
+    moving = np.concatenate(rates)
+    scale = float(np.percentile(moving, 99.5)) if moving.size else 0.0
+    if scale <= 0.0:
+        return None
+    best: tuple[int, int, int] | None = None  # (length, segment index, start)
+    for index, rate in enumerate(rates):
+        still = np.concatenate(([False], rate <= HOLD_RATE_FRACTION * scale, [False]))
+        edges = np.flatnonzero(np.diff(still.astype(np.int8)))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if best is None or stop - start > best[0]:
+                best = (int(stop - start), index, int(start))
+    if best is None or best[0] < MIN_HOLD_SAMPLES:
+        return None
+    length, index, start = best
+    half = start + length // 2
+    seg = segments[index]
+    return seg.t[half:start + length], seg.r[half:start + length]
+
+
+def _noise_sigma(segments: Sequence[Segment]) -> float:
+    """Robust white-noise sigma of R [ohm] from second differences (smooth motion cancels).
+
+    sigma = 1.4826 MAD(d2 R) / sqrt(6); when the MAD is zero (coarse ADC steps: most second
+    differences are exactly 0) the plain standard deviation of d2 R / sqrt(6) is used.
+    """
+    d2 = np.concatenate([np.diff(seg.r, 2) for seg in segments if seg.r.size >= 3])
+    if d2.size == 0:
+        return 0.0
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
+    return (sigma or float(np.std(d2))) / np.sqrt(6.0)
+
+
+def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
+        DirectionSettings, str]:
+    """Dead-zone settings and their source: ``given``, ``hold``, ``noise`` or ``floor``."""
+    k_sigma = float(options.get("k_sigma", DEFAULT_K_SIGMA))
+    tau = float(options.get("tau", 0.0))
+    if "deadzone" in options:
+        deadzone = float(options["deadzone"])
+        if not deadzone > 0:
+            raise InputError(f"option deadzone must be > 0 ohm/s, got {deadzone}")
+        return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
+    hold = find_hold(segments)
+    if hold is not None:
+        try:
+            return estimate_deadzone(hold[0], hold[1], k_sigma=k_sigma, tau=tau), "hold"
+        except InputError:
+            pass  # constant readings on the hold: fall back to the whole record
+    sigma = _noise_sigma(segments)
+    longest = max(segments, key=lambda seg: seg.t.size)
+    if sigma > 0 and longest.t.size >= 12:
+        rng = np.random.default_rng(0)
+        r_hold = float(np.median(longest.r)) + sigma * rng.standard_normal(longest.t.size)
+        return estimate_deadzone(longest.t, r_hold, k_sigma=k_sigma, tau=tau), "noise"
+    # Noise-free data (a clean simulation): a dead zone far below any real motion,
+    # 1e-6 of the training R span per second of the longest segment.
+    t_span = float(longest.t[-1] - longest.t[0]) or 1.0
+    r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
+    return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=tau, k_sigma=None), "floor"
+
+
+def _check_options(fit: Callable[..., Any], model: str, options: Mapping[str, Any]) -> None:
+    """InputError for an option that ``fit`` has no keyword for (when it names them all)."""
+    params = inspect.signature(fit).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
+             and n != "direction"]
+    for key in options:
+        if key not in known:
+            raise InputError(f"model {model!r} has no option {key!r} "
+                             f"(options: {', '.join(known + list(_DIRECTION_OPTIONS))})")
+
+
+def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) -> float:
+    """RMSE [% strain] on the training segments through the engine's batch path.
+
+    The engine (``strain_comp.engine.Engine``) is reset before every segment; it is the
+    code ``evaluate``, ``replay`` and the node run, so on a training bag without gaps the
+    fit error equals what ``strain-comp evaluate`` reports (the engine clamps estimates to
+    the valid strain range plus its margin, which a raw model output is not).
+    """
+    from strain_comp.engine import Engine
+
+    engine = Engine(Calibration({calibration.name: calibration}))
+    estimates, references = [], []
+    for seg in segments:
+        engine.reset()
+        estimates.append(engine.run(calibration.name, seg.t, seg.r).strain)
+        references.append(seg.s)
+    return error_stats(np.concatenate(estimates), np.concatenate(references)).rmse
+
+
+def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
+               bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
+               ) -> SensorCalibration:
+    """Fit ``model`` to one sensor's recordings (each with a reference strain).
+
+    ``options`` go to the model's ``fit`` (N, M, mode, ...) except ``deadzone``, ``k_sigma``
+    and ``tau``, which set the direction detector. Raises FitError when the data cannot
+    support a fit (no reference, too few good samples, no range of R or S).
+    """
+    options = dict(options or {})
+    cls = model_class(model)
+    segments: list[Segment] = []
+    for rec in recordings:
+        if rec.s is None:
+            raise FitError(f"sensor {name!r}: recording has no strain_reference to fit to")
+        segments.extend(split_segments(rec.t, rec.r, rec.s))
+    if not segments:
+        raise FitError(f"sensor {name!r}: no stretch of {MIN_SEGMENT} or more good samples "
+                       "with a finite reference strain")
+    r_all = np.concatenate([seg.r for seg in segments])
+    s_all = np.concatenate([seg.s for seg in segments])
+    if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
+        raise FitError(f"sensor {name!r}: the training data span no range of resistance "
+                       "or strain")
+    normalisation = Normalisation.fit(r_all, s_all)
+    direction, direction_source = direction_settings(segments, options)
+    model_options = {k: v for k, v in options.items() if k not in _DIRECTION_OPTIONS}
+    _check_options(cls.fit, model, model_options)
+    start = time.perf_counter()
+    compensator = cls.fit(segments, normalisation, direction=direction, **model_options)
+    fit_seconds = time.perf_counter() - start
+    calibration = SensorCalibration(
+        name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
+        valid_range=valid_range(segments), direction=direction)
+    rmse = training_error(calibration, segments)
+    if not np.isfinite(rmse):
+        raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "
+                       "own training data")
+    calibration.provenance = provenance(
+        [str(b) for b in bags], fit_rmse=rmse, n_samples=r_all.size, segments=len(segments),
+        fit_seconds=round(fit_seconds, 3), direction_from=direction_source,
+        options=model_options)
+    return calibration
+
+
+def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
+             options: Mapping[str, Any] | None = None, *,
+             report: Callable[[str], None] | None = None) -> Calibration:
+    """One calibration for ``sensors`` (None or ``["all"]``: every sensor with a reference).
+
+    Each sensor is fitted to its recordings from every bag that has it. Bag problems
+    (skipped chunks, unknown schemas) go to ``report``, one line each.
+    """
+    from strain_comp.recording import load_recordings
+
+    by_sensor: dict[str, list[tuple[str, Recording]]] = {}
+    for path in paths:
+        recordings, problems = load_recordings(path)
+        for problem in problems:
+            if report is not None:
+                report(f"{path}: {problem}")
+        for sensor, rec in recordings.items():
+            by_sensor.setdefault(sensor, []).append((str(path), rec))
+    referenced = [n for n, recs in by_sensor.items() if any(r.s is not None for _, r in recs)]
+    bag_list = ", ".join(str(p) for p in paths)
+    if sensors is None or "all" in sensors:
+        if not referenced:
+            raise InputError(f"{bag_list}: no sensor with a strain_reference topic "
+                             f"(sensors found: {', '.join(by_sensor) or 'none'})")
+        names = referenced
+    else:
+        names = list(dict.fromkeys(sensors))
+        for sensor in names:
+            if sensor not in by_sensor:
+                raise InputError(f"sensor {sensor!r} is not in {bag_list} "
+                                 f"(sensors found: {', '.join(by_sensor) or 'none'})")
+            if sensor not in referenced:
+                raise InputError(f"sensor {sensor!r} has no strain_reference in {bag_list}")
+    calibrations = {}
+    for sensor in names:
+        pairs = [(path, rec) for path, rec in by_sensor[sensor] if rec.s is not None]
+        calibrations[sensor] = fit_sensor([rec for _, rec in pairs], model, name=sensor,
+                                          bags=[path for path, _ in pairs], options=options)
+    return Calibration(calibrations)

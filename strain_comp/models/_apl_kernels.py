@@ -1,0 +1,230 @@
+"""numba kernels of the APL / PL / MPI cells (apl_electrolycra... eq. (1), (2), appendix eq. (6)).
+
+One cell update (``advance_cells``) is shared by the single-sensor run/step kernel, the
+multi-sensor array kernel and the fitting kernel, so every path computes the same numbers.
+
+Time stepping (the paper gives the implicit form h_k(x_k, xdot_k, t) = 0 only). For a new
+sample xi at time step dt = t - t_prev (dt < 0 is taken as 0):
+
+APL (eq. (1)), band x_k in [xi - rho_k, xi + 1]:
+  1. project onto the band of the new input: x <- clip(x, xi - rho_k, xi + 1)
+     (the two rate-independent branches: dragged to xi + 1 while xi falls, to xi - rho_k
+     while xi rises faster than the creep);
+  2. creep with the rate at the projected state (explicit Euler):
+     x <- min(x + dt sigma ((xi - x + 1) / (rho_k + 1))^p, xi + 1).
+  The creep never passes its equilibrium xi + 1 (that clip also keeps large sigma dt
+  stable). At the lower band edge the rate is exactly sigma, as eq. (1) requires.
+PL (eq. (6)), band |x_k - xi| <= rho_k:
+  1. x <- clip(x, xi - rho_k, xi + rho_k);
+  2. x <- x + dt sigma (|xi - x| / rho_k)^p sgn(xi - x), not passing the equilibrium xi.
+MPI: PL with sigma = 0, i.e. step 1 only (pure play operators).
+
+Initial state (first good sample after construction or reset): the relaxed state at that
+input, i.e. the equilibrium of the creep under a constant input: x_k = xi + 1 for APL,
+x_k = xi for PL and MPI. The first sample has no creep step.
+
+Bad samples (r not finite or <= 0, t not finite) advance nothing and give NaN; the state,
+including the previous time, is kept, so the next good sample steps over the gap.
+
+Speed: the power z^p per cell and sample bounds the kernel. libm's exp/log are scalar
+calls (~15 ns; numba's SVML path needs an SVML-patched llvmlite, which the pip wheel is
+not), so ``pow01`` computes exp(p log z) inline: fdlibm's log polynomial after an
+exponent/mantissa split by bit casts, and a degree-13 Taylor exp after reduction by ln 2
+(relative error ~1e-14). With a branch-free cell loop and ``error_model="numpy"`` (no
+zero-division branch) LLVM vectorises the N cells (8 lanes on AVX-512). The relaxed
+fast-math flags exclude ``nnan``/``ninf`` so the bad-sample checks stay in the code.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
+
+from strain_comp._numba import njit
+from strain_comp.models.pwa import finv
+
+FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+"""fast-math flags without ``nnan``/``ninf``: NaN checks must stay in the code."""
+
+KIND_APL = 0
+KIND_PL = 1
+
+P_MIN = 0.05
+"""Smallest exponent p accepted (z^p for tiny z must stay negligible)."""
+
+
+@intrinsic
+def _bits(typingctx, x):
+    """Reinterpret a float64 as int64 (a free bit cast, vectorisable)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+    return types.int64(types.float64), codegen
+
+
+@intrinsic
+def _float(typingctx, x):
+    """Reinterpret an int64 as float64."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+    return types.float64(types.int64), codegen
+
+
+_LN2_HI = 6.93147180369123816490e-01
+_LN2_LO = 1.90821492927058770002e-10
+_LG1, _LG2, _LG3, _LG4 = (6.666666666666735130e-01, 3.999999999940941908e-01,
+                          2.857142874366239149e-01, 2.222219843214978396e-01)
+_LG5, _LG6, _LG7 = 1.818357216161805012e-01, 1.531383769920937332e-01, 1.479819860511658591e-01
+_TINY = 1e-300
+"""Lower guard of z: tiny^p with p >= P_MIN is < 1e-15, and the edge clip removes it."""
+
+
+@njit(fastmath=FASTMATH, error_model="numpy", inline="always")
+def pow01(z: float, p: float) -> float:
+    """z^p for a positive normal z <= ~1 and p > 0 (results below ~1e-304 flush to ~0)."""
+    bits = _bits(z)
+    e = (bits >> 52) - 1023
+    m = _float((bits & 0x000FFFFFFFFFFFFF) | 0x3FF0000000000000)  # z = m 2^e, m in [1, 2)
+    big = m > 1.4142135623730951
+    m = m * 0.5 if big else m
+    ef = float(e + 1) if big else float(e)
+    f = m - 1.0
+    s = f / (2.0 + f)
+    s2 = s * s
+    s4 = s2 * s2
+    r = s4 * (_LG2 + s4 * (_LG4 + s4 * _LG6)) + s2 * (_LG1 + s4 * (_LG3 + s4 * (_LG5 + s4 * _LG7)))
+    hfsq = 0.5 * f * f
+    log_z = ef * _LN2_HI - ((hfsq - (s * (hfsq + r) + ef * _LN2_LO)) - f)
+    y = max(p * log_z, -700.0)
+    nf = math.floor(y * 1.4426950408889634 + 0.5)
+    q = (y - nf * _LN2_HI) - nf * _LN2_LO  # |q| <= ln2 / 2
+    ex = 1.0 + q * (1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (
+        1 / 720 + q * (1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (1 / 3628800 + q * (
+            1 / 39916800 + q * (1 / 479001600 + q * (1 / 6227020800)))))))))))))
+    return ex * _float((np.int64(nf) + 1023) << 52)
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def advance_cells(x: np.ndarray, xi: float, sdt: float, p: float, rho: np.ndarray,
+                  inv_width: np.ndarray, kind: int) -> None:
+    """One time step of all N cells in place; ``sdt`` = sigma dt, ``inv_width`` = 1/(rho+1)
+    for APL and 1/rho for PL. Branch-free inner loops (vectorised)."""
+    n = x.size
+    if kind == KIND_APL:
+        hi = xi + 1.0
+        if sdt > 0.0:
+            for k in range(n):
+                xk = min(max(x[k], xi - rho[k]), hi)
+                z = max((hi - xk) * inv_width[k], _TINY)
+                x[k] = min(xk + sdt * pow01(z, p), hi)
+        else:
+            for k in range(n):
+                x[k] = min(max(x[k], xi - rho[k]), hi)
+    else:
+        if sdt > 0.0:
+            for k in range(n):
+                xk = min(max(x[k], xi - rho[k]), xi + rho[k])
+                d = xi - xk
+                step = sdt * pow01(max(abs(d) * inv_width[k], _TINY), p)
+                x[k] = min(xk + step, xi) if d > 0.0 else max(xk - step, xi)
+        else:
+            for k in range(n):
+                x[k] = min(max(x[k], xi - rho[k]), xi + rho[k])
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def relax_cells(x: np.ndarray, xi: float, kind: int) -> None:
+    """Initial state at input xi: the creep equilibrium (xi + 1 for APL, xi for PL/MPI)."""
+    value = xi + 1.0 if kind == KIND_APL else xi
+    for k in range(x.size):
+        x[k] = value
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def output(x: np.ndarray, xi: float, w: np.ndarray, b: np.ndarray, f_at_b: np.ndarray,
+           inv_slopes: np.ndarray) -> float:
+    """psi = f^-1(w_0 xi + sum_k w_k x_k + w_{N+1}) (eq. (2))."""
+    n = x.size
+    y = w[0] * xi + w[n + 1]
+    for k in range(n):
+        y += w[k + 1] * x[k]
+    return finv(y, b, f_at_b, inv_slopes)
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def run_kernel(t: np.ndarray, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
+               out: np.ndarray, kind: int, sigma: float, p: float, rho: np.ndarray,
+               inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
+               f_at_b: np.ndarray, inv_slopes: np.ndarray) -> None:
+    """Advance one sensor over arrays (t, r); strain % into ``out``.
+
+    ``clock`` = [t_prev, started]; ``norm`` = [r0, alpha, s0, beta].
+    """
+    r0, alpha, s0, beta = norm[0], norm[1], norm[2], norm[3]
+    for i in range(t.size):
+        ti = t[i]
+        ri = r[i]
+        if not (math.isfinite(ti) and math.isfinite(ri) and ri > 0.0):
+            out[i] = np.nan
+            continue
+        xi = ri / r0 + alpha
+        if clock[1] == 0.0:
+            relax_cells(x, xi, kind)
+            clock[1] = 1.0
+        else:
+            dt = ti - clock[0]
+            advance_cells(x, xi, sigma * max(dt, 0.0), p, rho, inv_width, kind)
+        clock[0] = ti
+        out[i] = (output(x, xi, w, b, f_at_b, inv_slopes) - beta) * s0
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def step_array_kernel(t: float, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
+                      out: np.ndarray, kind: np.ndarray, sigma: np.ndarray, p: np.ndarray,
+                      rho: np.ndarray, inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray,
+                      b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) -> None:
+    """Advance K sensors (same N and M) by one tick at time t; strain % into ``out`` (K,).
+
+    Per sensor s: state ``x[s]`` (N,), ``clock[s]`` = [t_prev, started], parameters in row
+    s of ``sigma, p, kind, w, norm, f_at_b, inv_slopes``; ``rho`` and ``inv_width`` are
+    (2, N): row 0 for APL cells, row 1 for PL cells. A bad r[s] leaves sensor s untouched.
+    """
+    for s in range(r.size):
+        ri = r[s]
+        if not (math.isfinite(t) and math.isfinite(ri) and ri > 0.0):
+            out[s] = np.nan
+            continue
+        xi = ri / norm[s, 0] + norm[s, 1]
+        ks = kind[s]
+        xs = x[s]
+        if clock[s, 1] == 0.0:
+            relax_cells(xs, xi, ks)
+            clock[s, 1] = 1.0
+        else:
+            dt = t - clock[s, 0]
+            advance_cells(xs, xi, sigma[s] * max(dt, 0.0), p[s], rho[ks], inv_width[ks], ks)
+        clock[s, 0] = t
+        psi = output(xs, xi, w[s], b, f_at_b[s], inv_slopes[s])
+        out[s] = (psi - norm[s, 3]) * norm[s, 2]
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def states_kernel(t: np.ndarray, xi: np.ndarray, starts: np.ndarray, kind: int, sigma: float,
+                  p: float, rho: np.ndarray, inv_width: np.ndarray) -> np.ndarray:
+    """Cell states (n, N) over concatenated training segments (``starts``: bool, True at
+    each segment's first sample, where the cells are relaxed at that input)."""
+    n = t.size
+    x = np.empty(rho.size)
+    states = np.empty((n, rho.size))
+    t_prev = 0.0
+    for i in range(n):
+        if starts[i]:
+            relax_cells(x, xi[i], kind)
+        else:
+            advance_cells(x, xi[i], sigma * max(t[i] - t_prev, 0.0), p, rho, inv_width, kind)
+        t_prev = t[i]
+        states[i, :] = x
+    return states

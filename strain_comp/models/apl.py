@@ -1,0 +1,458 @@
+"""APL, PL and MPI inverse models (apl_electrolycra_rate_dependent_hysteresis eq. (1)-(3),
+appendix eq. (6)).
+
+Normalised input xi = R / r0 + alpha drives N cells with states x_k:
+
+* ``APL`` (eq. (1)): asymmetric power-law cells, thresholds rho_k = 2k/(N+1) - 1, band
+  -1 <= xi - x_k <= rho_k, creep xdot = sigma ((xi - x_k + 1) / (rho_k + 1))^p; the cells
+  creep only upwards, so relaxation shows after rising input steps only.
+* ``PL`` (eq. (6)): symmetric power-law cells, rho_k = k/(N+1), band |x_k - xi| <= rho_k,
+  xdot = sigma (|xi - x_k| / rho_k)^p sgn(xi - x_k).
+* ``MPI``: PL with sigma = 0, i.e. play operators (rate independent).
+
+Output (eq. (2)): psi = f^-1(w_0 xi + sum_k w_k x_k + w_{N+1}), strain S = s0 (psi - beta),
+f the strictly increasing piecewise-affine map of eq. (3) (basis: ``strain_comp.models.pwa``).
+Time stepping, initial state and bad-sample handling: ``strain_comp.models._apl_kernels``.
+sigma is in normalised units per second, t in seconds.
+
+Fitting (the paper's QP, done as bounded linear least squares): for fixed sigma, p the
+cell states do not depend on w, mu, and f(psi_meas) = w . [xi, x_1..x_N, 1] is linear in
+(w, segment slopes of f). The scale is fixed by the central slope of f = 1, the other
+slopes are bounded below by ``eps`` (f strictly increasing), the cell weights w_1..w_N
+take the sign of the sensor's gauge (so the model loop is a proper counterclockwise
+hysteresis operator, as Table I of the paper has them) unless ``cell_weights="free"``,
+and a small ridge pulls slopes to 1 and weights to 0 where the data say nothing. sigma
+(log grid) and p (grid) are searched by the output error (RMSE of the strain of the model
+run on the training data) and the best point is refined by a short Nelder-Mead.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import lsq_linear, minimize
+
+from strain_comp.direction import DirectionSettings
+from strain_comp.errors import FitError, ParameterError
+from strain_comp.models import _apl_kernels as kern
+from strain_comp.models import pwa
+from strain_comp.models.base import (
+    Compensator,
+    Normalisation,
+    Segment,
+    as_float_arrays,
+    require_float,
+    require_vector,
+)
+
+N_MAX = 200
+M_MAX = 201
+P_MAX = 20.0
+
+
+def thresholds(n: int, kind: int) -> np.ndarray:
+    """rho_k, k = 1..N: 2k/(N+1) - 1 for APL (eq. (1)), k/(N+1) for PL (eq. (6))."""
+    k = np.arange(1, n + 1, dtype=np.float64)
+    return 2.0 * k / (n + 1) - 1.0 if kind == kern.KIND_APL else k / (n + 1)
+
+
+def inverse_widths(rho: np.ndarray, kind: int) -> np.ndarray:
+    """1 / (rho_k + 1) for APL, 1 / rho_k for PL: the normalisers of the power law."""
+    return 1.0 / (rho + 1.0) if kind == kern.KIND_APL else 1.0 / rho
+
+
+def _require_int(params: Mapping[str, Any], key: str, lo: int, hi: int) -> int:
+    if key not in params:
+        raise ParameterError(key, "missing")
+    value = params[key]
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ParameterError(key, f"must be an integer, got {value!r}")
+    if not lo <= int(value) <= hi:
+        raise ParameterError(key, f"must be in [{lo}, {hi}], got {value}")
+    return int(value)
+
+
+def _check_shape(n: int, m: int) -> None:
+    if not 1 <= n <= N_MAX:
+        raise ParameterError("N", f"must be in [1, {N_MAX}], got {n}")
+    if not (1 <= m <= M_MAX and m % 2 == 1):
+        raise ParameterError("M", f"must be odd and in [1, {M_MAX}], got {m}")
+
+
+class _CellModel(Compensator):
+    """Shared implementation of APL, PL and MPI; ``kind`` selects the cell law."""
+
+    kind: ClassVar[int]
+    rate_dependent: ClassVar[bool] = True
+
+    def __init__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
+                 mu: npt.ArrayLike, normalisation: Normalisation) -> None:
+        super().__init__(normalisation)
+        _check_shape(n, m)
+        if not (math.isfinite(sigma) and sigma >= 0.0):
+            raise ParameterError("sigma", f"must be >= 0, got {sigma}")
+        if not self.rate_dependent and sigma != 0.0:
+            raise ParameterError("sigma", f"must be 0 for {self.name}, got {sigma}")
+        if not (math.isfinite(p) and kern.P_MIN <= p <= P_MAX):
+            raise ParameterError("p", f"must be in [{kern.P_MIN}, {P_MAX}], got {p}")
+        self.N = n
+        self.M = m
+        self.sigma = float(sigma)
+        self.p = float(p)
+        self.w = np.ascontiguousarray(w, dtype=np.float64)
+        self.mu = np.ascontiguousarray(mu, dtype=np.float64)
+        if self.w.shape != (n + 2,) or not np.all(np.isfinite(self.w)):
+            raise ParameterError("w", f"must be {n + 2} finite numbers")
+        if self.mu.shape != (m,) or not np.all(np.isfinite(self.mu)):
+            raise ParameterError("mu", f"must be {m} finite numbers")
+        slopes = pwa.slopes_from_mu(self.mu)
+        if not np.all(slopes > 0.0):
+            j = int(np.argmin(slopes))
+            raise ParameterError("mu", f"f must be strictly increasing; segment {j} has "
+                                       f"slope {slopes[j]:.6g}")
+        self.rho = thresholds(n, self.kind)
+        self._inv_width = inverse_widths(self.rho, self.kind)
+        self._b, self._f_at_b, self._inv_slopes = pwa.inverse_tables(self.mu)
+        self._norm = np.array([normalisation.r0, normalisation.alpha,
+                               normalisation.s0, normalisation.beta])
+        self.x = np.zeros(n)
+        self._clock = np.zeros(2)
+        self._t1 = np.zeros(1)
+        self._r1 = np.zeros(1)
+        self._o1 = np.zeros(1)
+        self.fit_report: dict[str, Any] | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the state: the next good sample re-initialises the cells (relaxed)."""
+        self.x[:] = 0.0
+        self._clock[:] = 0.0
+
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        kern.run_kernel(t, r, self.x, self._clock, out, self.kind, self.sigma, self.p,
+                        self.rho, self._inv_width, self.w, self._norm, self._b,
+                        self._f_at_b, self._inv_slopes)
+
+    def step(self, t: float, r: float) -> float:
+        self._t1[0] = t
+        self._r1[0] = r
+        self._run_into(self._t1, self._r1, self._o1)
+        return float(self._o1[0])
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        t, r = as_float_arrays(t, r)
+        out = np.empty(t.size)
+        self._run_into(t, r, out)
+        return out
+
+    def f(self, psi: npt.ArrayLike) -> np.ndarray:
+        """The output map f(psi) of eq. (3)."""
+        return pwa.evaluate(psi, self.mu)
+
+    def f_inverse(self, y: npt.ArrayLike) -> np.ndarray:
+        """f^-1(y), exact (piecewise affine, linear beyond the outer breakpoints)."""
+        y = np.ascontiguousarray(np.atleast_1d(y), dtype=np.float64)
+        return pwa.finv_array(y, self._b, self._f_at_b, self._inv_slopes)
+
+    def to_params(self) -> dict[str, Any]:
+        return {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,
+                "w": [float(v) for v in self.w], "mu": [float(v) for v in self.mu]}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> _CellModel:
+        n = _require_int(params, "N", 1, N_MAX)
+        m = _require_int(params, "M", 1, M_MAX)
+        if m % 2 == 0:
+            raise ParameterError("M", f"must be odd, got {m}")
+        if cls.rate_dependent:
+            sigma = require_float(params, "sigma", lo=0.0)
+            p = require_float(params, "p", lo=kern.P_MIN, hi=P_MAX)
+        else:
+            sigma = require_float(params, "sigma", lo=0.0, hi=0.0) if "sigma" in params else 0.0
+            p = require_float(params, "p", lo=kern.P_MIN, hi=P_MAX) if "p" in params else 1.0
+        w = require_vector(params, "w", length=n + 2)
+        mu = require_vector(params, "mu", length=m)
+        return cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=normalisation)
+
+    @classmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, N: int = 11, M: int = 9,
+            sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
+            refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
+            ridge: float = 1e-6, progress: bool | Callable[[str], None] = True,
+            **options: Any) -> _CellModel:
+        """Fit w, mu by bounded least squares, searching sigma and p (module docstring).
+
+        ``sigma_grid`` [1/s] defaults to 13 log-spaced values between 0.02 / (longest
+        segment duration) and 0.2 / (median sample interval); ``p_grid`` to 0.3 .. 3.
+        ``progress``: True prints a line per grid row to stderr once the fit has run for
+        more than 2 s; a callable receives those lines instead; False is silent.
+        """
+        if options:
+            raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
+        try:
+            _check_shape(N, M)
+        except ParameterError as exc:
+            raise FitError(f"{cls.name}: {exc}") from None
+        if cell_weights not in ("signed", "free"):
+            raise FitError(f"{cls.name}: cell_weights must be 'signed' or 'free'")
+        problem = _FitProblem(cls, segments, normalisation, n=N, m=M, eps=eps, ridge=ridge,
+                              cell_weights=cell_weights)
+        if not cls.rate_dependent:
+            result = problem.solve(0.0, 1.0)
+            model = problem.build(result)
+            model.fit_report = {"rmse": result.rmse, "evaluations": 1}
+            return model
+        sigmas = (problem.default_sigma_grid() if sigma_grid is None
+                  else np.asarray(sigma_grid, dtype=np.float64))
+        ps = (np.array([0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0]) if p_grid is None
+              else np.asarray(p_grid, dtype=np.float64))
+        if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
+            raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
+        say = _progress_printer(progress, cls.name)
+        best = None
+        for i, sigma in enumerate(sigmas):
+            for p in ps:
+                result = problem.solve(float(sigma), float(p))
+                if best is None or result.rmse < best.rmse:
+                    best = result
+            say(f"grid row {i + 1}/{sigmas.size} (sigma={sigma:.3g}/s): best rmse "
+                f"{best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+        if refine:
+            best = problem.refine(best)
+            say(f"refined: rmse {best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+        model = problem.build(best)
+        model.fit_report = {"rmse": best.rmse, "evaluations": problem.evaluations,
+                            "seconds": time.monotonic() - problem.started}
+        return model
+
+
+class APL(_CellModel):
+    """Asymmetric power-law model (eq. (1)-(3))."""
+
+    name = "apl"
+    kind = kern.KIND_APL
+
+
+class PL(_CellModel):
+    """Power-law model of the paper's appendix (eq. (6), (2), (3))."""
+
+    name = "pl"
+    kind = kern.KIND_PL
+
+
+class MPI(_CellModel):
+    """Modified Prandtl-Ishlinskii model: PL with sigma = 0 (rate independent)."""
+
+    name = "mpi"
+    kind = kern.KIND_PL
+    rate_dependent = False
+
+
+def _progress_printer(progress: bool | Callable[[str], None], name: str) -> Callable[[str], None]:
+    started = time.monotonic()
+
+    def say(line: str) -> None:
+        if callable(progress):
+            progress(f"{name} fit: {line}")
+        elif progress and time.monotonic() - started > 2.0:
+            print(f"{name} fit: {line}", file=sys.stderr, flush=True)
+
+    return say
+
+
+class _Solution:
+    """One solved point of the search: sigma, p, parameter vector and output RMSE [%]."""
+
+    def __init__(self, sigma: float, p: float, w: np.ndarray, slopes: np.ndarray,
+                 rmse: float) -> None:
+        self.sigma, self.p, self.w, self.slopes, self.rmse = sigma, p, w, slopes, rmse
+
+
+class _FitProblem:
+    """The training data prepared once; ``solve(sigma, p)`` is one QP + output error."""
+
+    def __init__(self, cls: type[_CellModel], segments: Sequence[Segment],
+                 normalisation: Normalisation, *, n: int, m: int, eps: float, ridge: float,
+                 cell_weights: str) -> None:
+        self.cls, self.norm, self.n, self.m = cls, normalisation, n, m
+        self.eps, self.started, self.evaluations = eps, time.monotonic(), 0
+        segments = [seg for seg in segments if seg.t.size > 0]
+        if not segments:
+            raise FitError(f"{cls.name}: no training samples")
+        self.t = np.concatenate([seg.t for seg in segments])
+        r = np.concatenate([seg.r for seg in segments])
+        s = np.concatenate([seg.s for seg in segments])
+        if not (np.all(np.isfinite(self.t)) and np.all(np.isfinite(r)) and np.all(r > 0)
+                and np.all(np.isfinite(s))):
+            raise FitError(f"{cls.name}: training samples must be finite with R > 0")
+        n_params = n + m + 1
+        if self.t.size < max(50, 5 * n_params):
+            raise FitError(f"{cls.name}: needs at least {max(50, 5 * n_params)} samples for "
+                           f"N={n}, M={m}, got {self.t.size}")
+        self.xi = normalisation.xi(r)
+        self.psi = normalisation.psi(s)
+        if np.ptp(self.xi) < 1e-6 or np.ptp(self.psi) < 1e-6:
+            raise FitError(f"{cls.name}: no excitation (resistance or strain is constant)")
+        self.starts = np.zeros(self.t.size, dtype=np.bool_)
+        self.starts[np.cumsum([0] + [seg.t.size for seg in segments[:-1]])] = True
+        self.durations = [float(seg.t[-1] - seg.t[0]) for seg in segments]
+        self.median_dt = float(np.median(np.concatenate(
+            [np.diff(seg.t) for seg in segments if seg.t.size > 1] or [np.array([1.0])])))
+        self.rho = thresholds(n, cls.kind)
+        self.inv_width = inverse_widths(self.rho, cls.kind)
+        # f(psi) = G @ slopes; the central slope is fixed to 1 (scale of the problem).
+        g = pwa.path_matrix(self.psi, m)
+        self.c = (m - 1) // 2
+        self.free = np.array([j for j in range(m) if j != self.c], dtype=np.int64)
+        self.rhs = g[:, self.c]
+        self.neg_g = -g[:, self.free]
+        gauge = np.sign(np.corrcoef(self.xi, self.psi)[0, 1]) or 1.0
+        n_w = n + 2
+        lo = np.full(n_w + m - 1, -np.inf)
+        hi = np.full(n_w + m - 1, np.inf)
+        if cell_weights == "signed":
+            (lo if gauge > 0 else hi)[1:n + 1] = 0.0
+        lo[n_w:] = eps
+        self.bounds = (lo, hi)
+        # Ridge rows: weights (cells only) -> 0, slopes -> 1, scaled with the sample count.
+        lam = math.sqrt(ridge * self.t.size)
+        k = n + m - 1
+        self.ridge_a = np.zeros((k, n_w + m - 1))
+        self.ridge_b = np.zeros(k)
+        self.ridge_a[np.arange(n), 1 + np.arange(n)] = lam
+        self.ridge_a[n + np.arange(m - 1), n_w + np.arange(m - 1)] = lam
+        self.ridge_b[n:] = lam
+
+    def default_sigma_grid(self) -> np.ndarray:
+        lo = 0.02 / max(max(self.durations), 1e-9)
+        hi = 0.2 / max(self.median_dt, 1e-9)
+        if hi <= lo:
+            hi = lo * 1e3
+        return np.geomspace(lo, hi, 13)
+
+    def solve(self, sigma: float, p: float) -> _Solution:
+        self.evaluations += 1
+        states = kern.states_kernel(self.t, self.xi, self.starts, self.cls.kind, sigma, p,
+                                    self.rho, self.inv_width)
+        n_rows = self.t.size
+        a = np.empty((n_rows, self.n + 2 + self.m - 1 + 1))
+        a[:, 0] = self.xi
+        a[:, 1:self.n + 1] = states
+        a[:, self.n + 1] = 1.0
+        a[:, self.n + 2:-1] = self.neg_g
+        a[:, -1] = self.rhs
+        # Reduce the tall problem to its triangular factor: [A b] = QR, so ||A theta - b||
+        # = ||R_A theta - r_b|| + const. R from the Cholesky factor of the Gram matrix
+        # (tall-skinny QR is ten times slower here); the jitter keeps exactly collinear
+        # columns (a cell pinned to xi + 1 over all data) factorable, the ridge rows below
+        # then decide them.
+        gram = a.T @ a
+        gram[np.diag_indices_from(gram)] += 1e-12 * np.trace(gram) / gram.shape[0]
+        r_full = np.linalg.cholesky(gram).T
+        a_red = np.vstack([r_full[:-1, :-1], self.ridge_a])
+        b_red = np.concatenate([r_full[:-1, -1], self.ridge_b])
+        theta = lsq_linear(a_red, b_red, bounds=self.bounds, method="bvls").x
+        n_w = self.n + 2
+        w = theta[:n_w]
+        slopes = np.insert(theta[n_w:], self.c, 1.0)
+        y = a[:, :n_w] @ w
+        b, f_at_b, inv_slopes = pwa.inverse_tables(pwa.mu_from_slopes(slopes))
+        psi_hat = pwa.finv_array(y, b, f_at_b, inv_slopes)
+        rmse = float(self.norm.s0 * np.sqrt(np.mean((psi_hat - self.psi) ** 2)))
+        if not math.isfinite(rmse):
+            rmse = math.inf
+        return _Solution(sigma, p, w, slopes, rmse)
+
+    def refine(self, best: _Solution, *, max_evaluations: int = 30) -> _Solution:
+        """A short Nelder-Mead in (log10 sigma, p) from the best grid point."""
+        found = {"best": best}
+
+        def objective(v: np.ndarray) -> float:
+            p = float(np.clip(v[1], kern.P_MIN, P_MAX))
+            result = self.solve(float(10.0 ** v[0]), p)
+            if result.rmse < found["best"].rmse:
+                found["best"] = result
+            return result.rmse
+
+        start = np.array([math.log10(best.sigma), best.p])
+        simplex = start + np.array([[0.0, 0.0], [0.15, 0.0], [0.0, 0.1 * best.p]])
+        minimize(objective, start, method="Nelder-Mead",
+                 options={"maxfev": max_evaluations, "initial_simplex": simplex,
+                          "xatol": 1e-3, "fatol": 1e-6})
+        return found["best"]
+
+    def build(self, result: _Solution) -> _CellModel:
+        return self.cls(n=self.n, m=self.m, sigma=result.sigma, p=result.p, w=result.w,
+                        mu=pwa.mu_from_slopes(result.slopes), normalisation=self.norm)
+
+
+class APLArray:
+    """K sensors of the APL family (same N and M) stepped together in one kernel call.
+
+    Built from per-sensor models (APL, PL or MPI, mixed allowed); each sensor keeps its own
+    state and previous time. ``step(t, r)`` gives exactly what each model's own ``step``
+    would give; a bad r[s] (not finite or <= 0) leaves sensor s untouched and gives NaN.
+    """
+
+    def __init__(self, models: Sequence[_CellModel]) -> None:
+        if not models:
+            raise ParameterError("models", "an array needs at least one sensor")
+        n, m = models[0].N, models[0].M
+        for i, model in enumerate(models):
+            if not isinstance(model, _CellModel):
+                raise ParameterError(f"models.{i}", f"not an APL-family model: {model!r}")
+            if (model.N, model.M) != (n, m):
+                raise ParameterError(f"models.{i}", f"N, M = {model.N}, {model.M} differ "
+                                                    f"from the first sensor's {n}, {m}")
+        self.models = list(models)
+        k = len(models)
+        self.kind = np.array([mdl.kind for mdl in models], dtype=np.int64)
+        self.sigma = np.array([mdl.sigma for mdl in models])
+        self.p = np.array([mdl.p for mdl in models])
+        self.rho = np.vstack([thresholds(n, kern.KIND_APL), thresholds(n, kern.KIND_PL)])
+        self.inv_width = np.vstack([inverse_widths(self.rho[0], kern.KIND_APL),
+                                    inverse_widths(self.rho[1], kern.KIND_PL)])
+        self.w = np.vstack([mdl.w for mdl in models])
+        self.norm = np.vstack([mdl._norm for mdl in models])
+        self.b = models[0]._b
+        self.f_at_b = np.ascontiguousarray(np.vstack([mdl._f_at_b for mdl in models])
+                                           .reshape(k, m - 1))
+        self.inv_slopes = np.vstack([mdl._inv_slopes for mdl in models])
+        self.x = np.zeros((k, n))
+        self.clock = np.zeros((k, 2))
+        self.reset()
+
+    @classmethod
+    def from_models(cls, models: Sequence[_CellModel]) -> APLArray:
+        return cls(models)
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def reset(self) -> None:
+        """Forget every sensor's state."""
+        self.x[:] = 0.0
+        self.clock[:] = 0.0
+
+    def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
+        """Advance all sensors by one tick at time t [s]; strain % per sensor."""
+        r = np.ascontiguousarray(r, dtype=np.float64)
+        if r.shape != (len(self.models),):
+            raise ValueError(f"r must have shape ({len(self.models)},), got {r.shape}")
+        if out is None:
+            out = np.empty(r.size)
+        kern.step_array_kernel(float(t), r, self.x, self.clock, out, self.kind, self.sigma,
+                               self.p, self.rho, self.inv_width, self.w, self.norm, self.b,
+                               self.f_at_b, self.inv_slopes)
+        return out
+
+
+__all__ = ["APL", "MPI", "PL", "APLArray", "thresholds"]

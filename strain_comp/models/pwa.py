@@ -1,0 +1,120 @@
+"""Strictly increasing piecewise-affine output map f of the APL family.
+
+apl_electrolycra_rate_dependent_hysteresis eq. (3):
+
+f(psi) = sum_j mu_j phi_j(psi) with an odd number M of PWA basis functions. The paper
+leaves the basis to [29]; the choice made here:
+
+* M - 1 breakpoints b_i = -1 + 2 i / M (i = 1 .. M-1), equally spaced in [-1, 1] and
+  symmetric about 0 (M is odd, so none sits at 0 and 0 lies in the central segment);
+* phi_1(psi) = psi (the linear term) and, for each breakpoint b_i, the one-sided dead
+  zone phi_{i+1}(psi) = max(psi - b_i, 0) if b_i > 0, min(psi - b_i, 0) if b_i < 0.
+
+So f(0) = 0 (the offset lives in w_{N+1} of eq. (2)), the central segment has slope mu_1
+and every outer segment adds the dead zones it lies beyond. ``mu`` is stored in that order:
+``mu[0]`` linear, ``mu[1 + i]`` the dead zone at ``b[i]``. f is strictly increasing iff all
+M segment slopes are > 0; it is linear outside [b_1, b_{M-1}] (so also outside [-1, 1]) and
+its inverse is piecewise affine with the same breakpoints mapped through f: ``finv`` is
+exact, including linear extrapolation at both ends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp._numba import njit
+
+
+def breakpoints(m: int) -> np.ndarray:
+    """The M - 1 breakpoints b_i = -1 + 2 i / M, i = 1 .. M-1."""
+    return -1.0 + 2.0 * np.arange(1, m) / m
+
+
+def basis(psi: npt.ArrayLike, m: int) -> np.ndarray:
+    """The M basis functions phi_j(psi) as columns, shape (n, M) (eq. (3))."""
+    psi = np.atleast_1d(np.asarray(psi, dtype=np.float64))
+    b = breakpoints(m)
+    phi = np.empty((psi.size, m))
+    phi[:, 0] = psi
+    for i, bi in enumerate(b):
+        phi[:, 1 + i] = np.maximum(psi - bi, 0.0) if bi > 0 else np.minimum(psi - bi, 0.0)
+    return phi
+
+
+def slopes_from_mu(mu: npt.ArrayLike) -> np.ndarray:
+    """Slopes of the M segments (left to right) of f with basis coefficients ``mu``."""
+    mu = np.asarray(mu, dtype=np.float64)
+    m = mu.size
+    b = breakpoints(m)
+    slopes = np.full(m, mu[0])
+    for i, bi in enumerate(b):
+        if bi > 0:
+            slopes[i + 1:] += mu[1 + i]   # right of b_i
+        else:
+            slopes[: i + 1] += mu[1 + i]  # left of b_i
+    return slopes
+
+
+def mu_from_slopes(slopes: npt.ArrayLike) -> np.ndarray:
+    """Inverse of ``slopes_from_mu``."""
+    slopes = np.asarray(slopes, dtype=np.float64)
+    m = slopes.size
+    c = (m - 1) // 2
+    mu = np.empty(m)
+    mu[0] = slopes[c]
+    for i in range(m - 1):
+        mu[1 + i] = slopes[i + 1] - slopes[i] if i >= c else slopes[i] - slopes[i + 1]
+    return mu
+
+
+def path_matrix(psi: npt.ArrayLike, m: int) -> np.ndarray:
+    """G (n, M) with f(psi) = G @ slopes: signed length of segment j on the path 0 -> psi.
+
+    f is linear in its segment slopes, which is what the fit uses (slopes >= eps keep f
+    strictly increasing as simple bounds).
+    """
+    psi = np.atleast_1d(np.asarray(psi, dtype=np.float64))
+    edges = np.concatenate(([-np.inf], breakpoints(m), [np.inf]))
+    lo, hi = edges[:-1], edges[1:]
+    return np.clip(psi[:, None], lo, hi) - np.clip(0.0, lo, hi)
+
+
+def inverse_tables(mu: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(b, F, inv_slopes): breakpoints, f at the breakpoints, 1 / segment slopes for ``finv``."""
+    mu = np.asarray(mu, dtype=np.float64)
+    m = mu.size
+    b = breakpoints(m)
+    slopes = slopes_from_mu(mu)
+    f_at_b = path_matrix(b, m) @ slopes
+    return b, f_at_b, 1.0 / slopes
+
+
+def evaluate(psi: npt.ArrayLike, mu: npt.ArrayLike) -> np.ndarray:
+    """f(psi) (eq. (3))."""
+    mu = np.asarray(mu, dtype=np.float64)
+    return basis(psi, mu.size) @ mu
+
+
+@njit
+def finv(y: float, b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
+    """Exact inverse of the PWA f given its tables (see ``inverse_tables``)."""
+    j = 0
+    nb = b.size
+    while j < nb and f_at_b[j] < y:
+        j += 1
+    if j == 0:
+        if nb == 0:
+            return y * inv_slopes[0]
+        return b[0] + (y - f_at_b[0]) * inv_slopes[0]
+    return b[j - 1] + (y - f_at_b[j - 1]) * inv_slopes[j]
+
+
+@njit
+def finv_array(y: np.ndarray, b: np.ndarray, f_at_b: np.ndarray,
+               inv_slopes: np.ndarray) -> np.ndarray:
+    """``finv`` over an array."""
+    out = np.empty(y.size)
+    for i in range(y.size):
+        out[i] = finv(y[i], b, f_at_b, inv_slopes)
+    return out

@@ -1,0 +1,253 @@
+"""Rational rat22 model (egain_rational... eq. (10)) with optional loading/unloading fits.
+
+    S = (p1 xi^2 + p2 xi + p3) / (xi^2 + q1 xi + q2),   xi = R / r0 + alpha
+
+Units: the coefficients act on the normalised resistance xi of the calibration's
+``Normalisation`` (far better conditioned than powers of R in ohm) and give strain in %.
+``coefficients_ohm`` returns the same curve in the paper's form, S(R) with R in ohm.
+
+Modes (``mode`` parameter):
+
+* ``combined``: one fit to all samples.
+* ``split``: separate fits for R rising (``loading``) and R falling (``unloading``), chosen
+  online by a dead-zone direction detector (section V.E) built from the sensor's
+  ``DirectionSettings``; a hold keeps the last moving direction's fit and, before any
+  movement, the ``combined`` fit (which split mode also stores) is used. "Loading" means
+  R rising: for a sensor whose resistance falls with strain it is the unloading branch.
+
+Fit: linearised least squares (S (xi^2 + q1 xi + q2) = p1 xi^2 + p2 xi + p3 is linear in
+p, q), refined by ``scipy.optimize.least_squares`` on the real output error. Pole guard: a
+fit whose denominator has a real root inside the training xi range widened by 5 % of its
+span on each side is rejected and refitted with the denominator written as
+(xi - c)^2 + d^2 (no real root anywhere); the better pole-free fit wins. For the split
+fits, samples are labelled by running the same detector on R, per segment, exactly as the
+model will see them online.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import least_squares
+
+from strain_comp._numba import njit
+from strain_comp.direction import (
+    STATE_SIZE,
+    DirectionDetector,
+    DirectionSettings,
+    _check_settings,
+    direction_update,
+)
+from strain_comp.errors import FitError, ParameterError
+from strain_comp.models.base import (
+    Compensator,
+    Normalisation,
+    Segment,
+    as_float_arrays,
+    require_vector,
+)
+
+MODES = ("combined", "split")
+_BRANCHES = ("combined", "loading", "unloading")
+_GUARD_MARGIN = 0.05
+
+
+@njit
+def rational_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, coef: np.ndarray,
+                    split: bool, deadzone: float, tau: float) -> np.ndarray:
+    """S for each sample; coef rows = combined, loading, unloading [p1, p2, p3, q1, q2].
+
+    state = detector state (STATE_SIZE entries) followed by the active branch index.
+    """
+    out = np.empty(t.size)
+    active = STATE_SIZE
+    for n in range(t.size):
+        x = xi[n]
+        row = 0
+        if split:
+            d = direction_update(state, t[n], x, deadzone, tau)
+            if d > 0:
+                state[active] = 1.0
+            elif d < 0:
+                state[active] = 2.0
+            row = int(state[active])
+        num = (coef[row, 0] * x + coef[row, 1]) * x + coef[row, 2]
+        den = (x + coef[row, 3]) * x + coef[row, 4]
+        out[n] = num / den
+    return out
+
+
+def _branches(states: np.ndarray) -> np.ndarray:
+    """Coefficient row the split model uses per sample: last moving direction, 0 before any."""
+    row = np.where(states > 0, 1, np.where(states < 0, 2, 0))
+    moving = np.flatnonzero(row)
+    if moving.size == 0:
+        return row
+    index = np.maximum.accumulate(np.where(row > 0, np.arange(row.size), -1))
+    return np.where(index >= 0, row[np.maximum(index, 0)], 0)
+
+
+def _real_poles(q: np.ndarray) -> np.ndarray:
+    disc = q[0] * q[0] - 4.0 * q[1]
+    if disc < 0.0:
+        return np.empty(0)
+    root = np.sqrt(disc)
+    return np.array([(-q[0] - root) / 2.0, (-q[0] + root) / 2.0])
+
+
+def _pole_free(q: np.ndarray, lo: float, hi: float) -> bool:
+    poles = _real_poles(q)
+    return not np.any((poles >= lo) & (poles <= hi))
+
+
+def _eval(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return ((coef[0] * x + coef[1]) * x + coef[2]) / ((x + coef[3]) * x + coef[4])
+
+
+def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
+              what: str = "rational") -> np.ndarray:
+    """[p1, p2, p3, q1, q2] of the best pole-free rat22 fit of s(xi); see the module docstring."""
+    if xi.size < 5:
+        raise FitError(f"{what}: needs at least 5 samples, got {xi.size}")
+    if np.ptp(xi) <= 0.0:
+        raise FitError(f"{what}: the resistance does not vary")
+    lo, hi = guard
+    a = np.column_stack([xi * xi, xi, np.ones_like(xi), -s * xi, -s])
+    lin, *_ = np.linalg.lstsq(a, s * xi * xi, rcond=None)
+    candidates = []
+    with np.errstate(all="ignore"):
+        if _pole_free(lin[3:], lo, hi):
+            sol = least_squares(lambda c: _eval(c, xi) - s, lin, method="lm")
+            for coef in (sol.x, lin):
+                if _pole_free(coef[3:], lo, hi) and np.all(np.isfinite(coef)):
+                    candidates.append(coef)
+                    break
+        # pole-free form: den = (xi - c)^2 + d^2, d = exp(log_d)
+        c0 = -lin[3] / 2.0 if np.isfinite(lin[3]) else 0.0
+        d2 = lin[4] - c0 * c0 if np.isfinite(lin[4]) else 1.0
+        span = max(hi - lo, 1e-12)
+        log_d0 = 0.5 * np.log(d2) if d2 > 1e-6 * span**2 else np.log(2.0 * span)
+        c0 = float(np.clip(c0, lo - 10 * span, hi + 10 * span))
+
+        def free(z: np.ndarray) -> np.ndarray:
+            d2 = np.exp(2.0 * z[4])
+            return np.array([z[0], z[1], z[2], -2.0 * z[3], z[3] * z[3] + d2])
+
+        den0 = (xi - c0) ** 2 + np.exp(2.0 * log_d0)
+        pz, *_ = np.linalg.lstsq(np.column_stack([xi * xi, xi, np.ones_like(xi)]), s * den0,
+                                 rcond=None)
+        z0 = np.concatenate([pz, [c0, log_d0]])
+        sol = least_squares(lambda z: _eval(free(z), xi) - s, z0, method="trf")
+        coef = free(sol.x)
+        if np.all(np.isfinite(coef)):
+            candidates.append(coef)
+    if not candidates:
+        raise FitError(f"{what}: no pole-free rat22 fit found")
+    costs = [float(np.sum((_eval(c, xi) - s) ** 2)) for c in candidates]
+    return np.asarray(candidates[int(np.argmin(costs))], dtype=np.float64)
+
+
+class Rational(Compensator):
+    """rat22 compensator, combined or split by direction; see the module docstring."""
+
+    name = "rational"
+
+    def __init__(self, coef: Mapping[str, npt.ArrayLike], mode: str,
+                 normalisation: Normalisation, direction: DirectionSettings) -> None:
+        super().__init__(normalisation)
+        if mode not in MODES:
+            raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
+        _check_settings(direction)
+        self.mode = mode
+        self.direction = direction
+        rows = [coef["combined"]] * 3 if mode == "combined" else [coef[b] for b in _BRANCHES]
+        self.coef = np.ascontiguousarray(np.array(rows, dtype=np.float64).reshape(3, 5))
+        self.state = np.zeros(STATE_SIZE + 1)
+
+    def reset(self) -> None:
+        """Detector restarts; the combined fit is used until the first movement."""
+        self.state[:] = 0.0
+
+    def _kernel(self, t: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        return rational_kernel(self.state, t, xi, self.coef, self.mode == "split",
+                               self.direction.deadzone / self.normalisation.r0,
+                               self.direction.tau)
+
+    def step(self, t: float, r: float) -> float:
+        xi = float(self.normalisation.xi(r))
+        return float(self._kernel(np.array([float(t)]), np.array([xi]))[0])
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        t, r = as_float_arrays(t, r)
+        return self._kernel(t, self.normalisation.xi(r))
+
+    def coefficients_ohm(self, branch: str = "combined") -> dict[str, list[float]]:
+        """The branch's curve as S = (P1 R^2 + P2 R + P3) / (R^2 + Q1 R + Q2), R in ohm."""
+        p1, p2, p3, q1, q2 = self.coef[_BRANCHES.index(branch)]
+        r0, al = self.normalisation.r0, self.normalisation.alpha
+        # xi = R / r0 + al; multiply numerator and denominator by r0^2
+        num = [p1, r0 * (2 * p1 * al + p2), r0**2 * (p1 * al * al + p2 * al + p3)]
+        den = [1.0, r0 * (2 * al + q1), r0**2 * (al * al + q1 * al + q2)]
+        return {"p": [float(v) for v in num], "q": [float(v) for v in den[1:]]}
+
+    def to_params(self) -> dict[str, Any]:
+        params: dict[str, Any] = {"mode": self.mode}
+        branches = _BRANCHES if self.mode == "split" else ("combined",)
+        for i, branch in enumerate(branches):
+            params[branch] = {"p": [float(v) for v in self.coef[i, :3]],
+                              "q": [float(v) for v in self.coef[i, 3:]]}
+        return params
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> Rational:
+        mode = params.get("mode", "combined")
+        if mode not in MODES:
+            raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
+        coef = {}
+        for branch in _BRANCHES if mode == "split" else ("combined",):
+            node = params.get(branch)
+            if not isinstance(node, Mapping):
+                raise ParameterError(branch, "missing or not a mapping with p and q")
+            try:
+                p = require_vector(node, "p", length=3)
+                q = require_vector(node, "q", length=2)
+            except ParameterError as err:
+                raise ParameterError(f"{branch}.{err.field}", err.problem) from None
+            coef[branch] = np.concatenate([p, q])
+        return cls(coef, mode, normalisation, direction)
+
+    @classmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, **options: Any) -> Rational:
+        """Options: ``mode`` = combined (default) or split."""
+        mode = options.pop("mode", "combined")
+        if options:
+            raise ParameterError(next(iter(options)), "unknown rational fit option")
+        if mode not in MODES:
+            raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
+        xi = np.concatenate([normalisation.xi(seg.r) for seg in segments])
+        s = np.concatenate([seg.s for seg in segments])
+        if xi.size < 5:
+            raise FitError(f"rational: needs at least 5 samples, got {xi.size}")
+        span = float(np.ptp(xi))
+        guard = (float(xi.min()) - _GUARD_MARGIN * span, float(xi.max()) + _GUARD_MARGIN * span)
+        coef = {"combined": fit_rat22(xi, s, guard=guard)}
+        if mode == "split":
+            # label with the model's own online branch choice (detector on xi, as in the kernel)
+            scaled = DirectionSettings(direction.deadzone / normalisation.r0, direction.tau)
+            labels = [_branches(DirectionDetector(scaled).run(seg.t, normalisation.xi(seg.r)))
+                      for seg in segments]
+            label = np.concatenate(labels)
+            for index, name in ((1, "loading"), (2, "unloading")):
+                mask = label == index
+                if mask.sum() < 20:
+                    raise FitError(f"rational split: only {int(mask.sum())} {name} samples "
+                                   "(R {}) after direction detection; record both directions "
+                                   "or check the dead zone".format(
+                                       "rising" if index == 1 else "falling"))
+                coef[name] = fit_rat22(xi[mask], s[mask], guard=guard, what=f"rational {name}")
+        return cls(coef, mode, normalisation, direction)

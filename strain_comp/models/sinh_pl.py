@@ -1,0 +1,292 @@
+"""Reduced power-law model with sinh resistors (reduced_power_law... eq. (1)-(3)).
+
+Forward model (eq. (2)), C = 1: N cells with state u_k,
+
+    u_k' = f_k(e - u_k),   f_k(v) = I_S,k (exp(v / V_T,k) - exp(-v / V_T,k))   (eq. (1))
+    i    = w0 e + sum_k w_k u_k - Vb
+
+3N + 2 parameters: w0, Vb and per cell w_k, I_S,k > 0, V_T,k > 0. In strain_comp the
+model's input e is the normalised strain psi = S / s0 + beta and its output i is the
+normalised resistance xi = R / r0 + alpha (``Normalisation``): the sensor maps strain to
+resistance, the compensator (eq. (3)) maps xi back to psi,
+
+    e = i / w0 - sum_j (w_j / w0) u_j + Vb / w0,   u_k' = f_k(e - u_k).
+
+Time stepping. sinh makes the cells stiff, so the forward model advances every cell by one
+linearly implicit (Rosenbrock-Euler) step per sample with the new input e_n:
+
+    u_n = u + dt g(v) / (1 + dt g'(v)),   v = e_n - u,   g = f_k, g' = 2 I_S / V_T cosh(v / V_T)
+
+which is stable for any dt and never steps past e_n (|du| < |v|). The compensator is the
+exact algebraic inverse of that discrete forward model: at each sample it solves the
+scalar equation xi_n = w0 e + sum_k w_k u_k,n(e) - Vb for e by Newton's method (started from
+the explicit eq. (3) value with the old states; the derivative w0 + sum_k w_k s_k has
+0 < s_k < 1), then updates the cells with that e. So ``invert(forward(psi)) == psi`` to
+rounding, whatever dt is. The inverse is well posed when w0 and w0 + sum of the w_k of
+opposite sign to w0 have the same sign (the static map psi -> xi is monotone).
+
+State at start: the cells are at rest, u_k = e, with e from the static map
+xi = (w0 + sum w_k) e - Vb at the first sample.
+
+Fit: ``scipy.optimize.least_squares`` on the compensator's output error (psi_hat - psi)
+over all segments (cells reset per segment), I_S and V_T in log space; four starts (two
+splits of the static gain between w0 and the cells, two V_T) with the cell time constants
+V_T / (2 I_S) spread over the time scales of the data; the best
+start (a few evaluations each, on at most ~5000 evenly decimated samples) is refined on
+all samples. Bounds: w0 keeps the sign of the static gain with |w0| >= 0.05 |gain|,
+|w_k| <= 10 |gain|, log I_S and log V_T in [-20, 10]. (The paper fits the
+forward output error, eq. (4), with fmincon.)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import least_squares
+
+from strain_comp._numba import njit
+from strain_comp.direction import DirectionSettings
+from strain_comp.errors import FitError, ParameterError
+from strain_comp.models.base import (
+    Compensator,
+    Normalisation,
+    Segment,
+    as_float_arrays,
+    require_float,
+    require_vector,
+)
+
+_MAX_NEWTON = 30
+_LOG_LO, _LOG_HI = -20.0, 10.0  # bounds of log I_S and log V_T in the fit
+_START_NFEV = 15  # evaluations per start before the best start is refined
+_START_SAMPLES = 5000  # starts see at most about this many samples
+
+
+@njit
+def _cell_step(u: float, e: float, dt: float, i_s: float, v_t: float) -> tuple[float, float]:
+    """One linearly implicit step of u' = f(e - u); returns (u_new, d u_new / d e)."""
+    x = (e - u) / v_t
+    if x > 700.0:
+        x = 700.0
+    elif x < -700.0:
+        x = -700.0
+    ex = math.exp(x)
+    emx = 1.0 / ex
+    g = i_s * (ex - emx)
+    c = 2.0 * i_s / v_t
+    gp = 0.5 * c * (ex + emx)
+    den = 1.0 + dt * gp
+    du = dt * g / den
+    slope = dt * (gp + dt * c * c) / (den * den)
+    return u + du, slope
+
+
+@njit
+def sinh_pl_forward_kernel(state: np.ndarray, t: np.ndarray, psi: np.ndarray, w0: float,
+                           vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
+                           ) -> np.ndarray:
+    """Forward model eq. (2): psi (input e) -> xi (output i). state = [started, t, u_1..u_N]."""
+    n_cells = w.size
+    out = np.empty(t.size)
+    for n in range(t.size):
+        e = psi[n]
+        if state[0] == 0.0:
+            state[0] = 1.0
+            for k in range(n_cells):
+                state[2 + k] = e
+        else:
+            dt = t[n] - state[1]
+            if dt > 0.0:
+                for k in range(n_cells):
+                    state[2 + k] = _cell_step(state[2 + k], e, dt, i_s[k], v_t[k])[0]
+        state[1] = t[n]
+        acc = w0 * e - vb
+        for k in range(n_cells):
+            acc += w[k] * state[2 + k]
+        out[n] = acc
+    return out
+
+
+@njit
+def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0: float,
+                           vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
+                           ) -> np.ndarray:
+    """Compensator eq. (3), exact inverse of the discrete forward model: xi -> psi."""
+    n_cells = w.size
+    out = np.empty(t.size)
+    gain = w0
+    for k in range(n_cells):
+        gain += w[k]
+    if gain == 0.0:  # no static map to start from: start from the explicit eq. (3)
+        gain = w0
+    for n in range(t.size):
+        target = xi[n] + vb
+        if state[0] == 0.0:
+            state[0] = 1.0
+            e = target / gain
+            for k in range(n_cells):
+                state[2 + k] = e
+        else:
+            dt = t[n] - state[1]
+            acc = target
+            for k in range(n_cells):
+                acc -= w[k] * state[2 + k]
+            e = acc / w0  # explicit eq. (3) with the old states
+            if dt > 0.0:
+                for _ in range(_MAX_NEWTON):
+                    h = w0 * e - target
+                    dh = w0
+                    for k in range(n_cells):
+                        u_new, slope = _cell_step(state[2 + k], e, dt, i_s[k], v_t[k])
+                        h += w[k] * u_new
+                        dh += w[k] * slope
+                    if dh == 0.0 or not math.isfinite(dh):
+                        dh = w0
+                    delta = h / dh
+                    e -= delta
+                    if abs(delta) <= 1e-14 * (1.0 + abs(e)):
+                        break
+                for k in range(n_cells):
+                    state[2 + k] = _cell_step(state[2 + k], e, dt, i_s[k], v_t[k])[0]
+        state[1] = t[n]
+        out[n] = e
+    return out
+
+
+class SinhPL(Compensator):
+    """Reduced power-law compensator with N sinh cells, eq. (1)-(3); see the module docstring."""
+
+    name = "sinh_pl"
+
+    def __init__(self, w0: float, vb: float, w: npt.ArrayLike, i_s: npt.ArrayLike,
+                 v_t: npt.ArrayLike, normalisation: Normalisation) -> None:
+        super().__init__(normalisation)
+        self.w0 = float(w0)
+        self.vb = float(vb)
+        self.w = np.ascontiguousarray(w, dtype=np.float64)
+        self.i_s = np.ascontiguousarray(i_s, dtype=np.float64)
+        self.v_t = np.ascontiguousarray(v_t, dtype=np.float64)
+        if not (self.w.shape == self.i_s.shape == self.v_t.shape and self.w.ndim == 1):
+            raise ParameterError("w", "w, i_s and v_t must have one entry per cell")
+        self.state = np.zeros(2 + self.w.size)
+
+    @property
+    def n_cells(self) -> int:
+        return int(self.w.size)
+
+    def reset(self) -> None:
+        """Cells back to 'not started': the next sample puts them at rest."""
+        self.state[:] = 0.0
+
+    def _inverse(self, t: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        return sinh_pl_inverse_kernel(self.state, t, xi, self.w0, self.vb, self.w, self.i_s,
+                                      self.v_t)
+
+    def step(self, t: float, r: float) -> float:
+        xi = float(self.normalisation.xi(r))
+        psi = self._inverse(np.array([float(t)]), np.array([xi]))[0]
+        return float(self.normalisation.strain(psi))
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        t, r = as_float_arrays(t, r)
+        return self.normalisation.strain(self._inverse(t, self.normalisation.xi(r)))
+
+    def forward(self, t: npt.ArrayLike, s: npt.ArrayLike) -> np.ndarray:
+        """Resistance [ohm] the forward model eq. (2) predicts for strain s [%] (fresh state)."""
+        t, s = as_float_arrays(t, s)
+        xi = sinh_pl_forward_kernel(np.zeros_like(self.state), t, self.normalisation.psi(s),
+                                    self.w0, self.vb, self.w, self.i_s, self.v_t)
+        return (xi - self.normalisation.alpha) * self.normalisation.r0
+
+    def to_params(self) -> dict[str, Any]:
+        return {"w0": self.w0, "vb": self.vb, "w": [float(v) for v in self.w],
+                "i_s": [float(v) for v in self.i_s], "v_t": [float(v) for v in self.v_t]}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> SinhPL:
+        w0 = require_float(params, "w0")
+        if w0 == 0.0:
+            raise ParameterError("w0", "must be non-zero (the compensator divides by it)")
+        vb = require_float(params, "vb")
+        w = require_vector(params, "w")
+        i_s = require_vector(params, "i_s", length=w.size)
+        v_t = require_vector(params, "v_t", length=w.size)
+        for key, vec in (("i_s", i_s), ("v_t", v_t)):
+            bad = np.flatnonzero(vec <= 0.0)
+            if bad.size:
+                raise ParameterError(f"{key}.{bad[0]}", f"must be > 0, got {vec[bad[0]]}")
+        return cls(w0, vb, w, i_s, v_t, normalisation)
+
+    @classmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, **options: Any) -> SinhPL:
+        """Nonlinear least squares on the inverse output error; option ``n_cells`` (1-3)."""
+        n_cells = int(options.pop("n_cells", 1))
+        max_nfev = int(options.pop("max_nfev", 100))
+        if options:
+            raise ParameterError(next(iter(options)), "unknown sinh_pl fit option")
+        if not 1 <= n_cells <= 3:
+            raise ParameterError("n_cells", f"must be 1, 2 or 3, got {n_cells}")
+        data = [(seg.t, normalisation.xi(seg.r), normalisation.psi(seg.s)) for seg in segments]
+        n_samples = sum(d[0].size for d in data)
+        if n_samples < 10 * (3 * n_cells + 2):
+            raise FitError(f"sinh_pl: needs at least {10 * (3 * n_cells + 2)} samples, "
+                           f"got {n_samples}")
+        xi_all = np.concatenate([d[1] for d in data])
+        psi_all = np.concatenate([d[2] for d in data])
+        slope, offset = np.polyfit(psi_all, xi_all, 1)  # static map xi = gain psi - Vb
+        if slope == 0.0 or not np.isfinite(slope):
+            raise FitError("sinh_pl: resistance does not change with strain")
+        dts = np.concatenate([np.diff(d[0]) for d in data if d[0].size > 1])
+        duration = sum(float(d[0][-1] - d[0][0]) for d in data)
+        tau_lo = max(10.0 * float(np.median(dts)), 1e-3)
+        tau_hi = max(duration / 20.0, 2.0 * tau_lo)
+
+        def unpack(x: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+            return (x[0], x[1], x[2:2 + n_cells], np.exp(x[2 + n_cells:2 + 2 * n_cells]),
+                    np.exp(x[2 + 2 * n_cells:]))
+
+        def residual(x: np.ndarray, data: list = data) -> np.ndarray:
+            w0, vb, w, i_s, v_t = unpack(x)
+            parts = []
+            for t, xi, psi in data:
+                state = np.zeros(2 + n_cells)
+                parts.append(sinh_pl_inverse_kernel(state, t, xi, w0, vb, w, i_s, v_t) - psi)
+            res = np.concatenate(parts)
+            return np.where(np.isfinite(res), res, 1e3)
+
+        taus = np.geomspace(tau_lo, tau_hi, n_cells + 2)[1:-1]  # cell time constants
+        # starts run on every k-th sample (the integrator is stable for any dt)
+        k = max(1, n_samples // _START_SAMPLES)
+        coarse = [(t[::k], xi[::k], psi[::k]) for t, xi, psi in data]
+        # w0 keeps the sign of the static gain and stays away from 0; log I_S, log V_T bounded
+        # and |w_k| <= 10 |gain| (the paper bounds the weights likewise)
+        w0_lo, w0_hi = (0.05 * slope, np.inf) if slope > 0 else (-np.inf, 0.05 * slope)
+        w_max = 10.0 * abs(slope)
+        lower = np.concatenate([[w0_lo, -np.inf], np.full(n_cells, -w_max),
+                                np.full(2 * n_cells, _LOG_LO)])
+        upper = np.concatenate([[w0_hi, np.inf], np.full(n_cells, w_max),
+                                np.full(2 * n_cells, _LOG_HI)])
+        best = None
+        for share in (0.8, 0.5):
+            for v_t0 in (0.1, 1.0):
+                w_cells = np.full(n_cells, (1.0 - share) * slope / n_cells)
+                x0 = np.concatenate([[share * slope, -offset], w_cells,
+                                     np.log(v_t0 / (2.0 * taus)), np.full(n_cells,
+                                                                          np.log(v_t0))])
+                sol = least_squares(residual, np.clip(x0, lower + 1e-9, upper - 1e-9),
+                                    bounds=(lower, upper), method="trf", x_scale="jac",
+                                    max_nfev=_START_NFEV, kwargs={"data": coarse})
+                if best is None or sol.cost < best.cost:
+                    best = sol
+        best = least_squares(residual, best.x, bounds=(lower, upper), method="trf",
+                             x_scale="jac", max_nfev=max_nfev)
+        w0, vb, w, i_s, v_t = unpack(best.x)
+        if w0 == 0.0 or not np.all(np.isfinite(best.x)):
+            raise FitError("sinh_pl: the fit did not converge to a usable model")
+        return cls(w0, vb, w, i_s, v_t, normalisation)

@@ -1,0 +1,275 @@
+"""Node parameters: the ``<node>: ros__parameters:`` YAML shared by the rclpy node and DDS.
+
+```yaml
+compensator:
+  ros__parameters:
+    sensors: [s1, s2]                 # read-only: one entry per single sensor
+    s1: {topic: /s1/resistance, calibration: demo_calibration.yaml}
+    s2: {calibration: s2.yaml}        # topic defaults to /s2/resistance
+    arrays: [hand]                    # read-only: multi-sensor array topics
+    hand: {topic: /hand/resistance, sensors: [a, b, c], calibration: hand.yaml}
+    deadzone_scale: 1.0               # tunables: see TUNABLES
+```
+
+The layout imitates ros2_controllers' per-sensor maps: a list of names, then one map per
+name. Structural parameters (names, topics, calibration paths) are read-only; tunables
+have a type, a range and a description in one table (``TUNABLES``) that the rclpy node
+turns into ParameterDescriptors and the DDS transport uses to validate.
+
+A relative calibration path resolves against the params file's directory (when known),
+then the working directory, then the installed package share directory (its ``config/``
+too) and the source checkout; a calibration file must name the sensor, unless it holds
+exactly one sensor, which then takes the name from the params file.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from strain_comp.calibration import Calibration, SensorCalibration, load_calibration
+from strain_comp.errors import InputError, ParameterError
+
+PACKAGE = "strain_comp"
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: ROS type name, default, inclusive range, description, read-only."""
+
+    name: str
+    type: str  # "double" | "integer" | "string" | "string_array"
+    default: Any
+    range: tuple[float, float] | None
+    description: str
+    read_only: bool
+
+
+TUNABLES: tuple[ParamSpec, ...] = (
+    ParamSpec("deadzone_scale", "double", 1.0, (0.01, 100.0),
+              "Multiplies every sensor's direction dead zone [ohm/s] from its calibration.",
+              False),
+    ParamSpec("publish_rate_limit_hz", "double", 0.0, (0.0, 10000.0),
+              "Maximum output rate per sensor or array [Hz]; 0 publishes every input.", False),
+    ParamSpec("stale_after_s", "double", 1.0, (0.001, 3600.0),
+              "Diagnostics report a sensor STALE after this long without a good sample [s].",
+              False),
+    ParamSpec("gap_reset_s", "double", 5.0, (0.001, 3600.0),
+              "A jump between good samples longer than this resets the model state [s].", False),
+    ParamSpec("diagnostics_period_s", "double", 1.0, (0.01, 60.0),
+              "Period of the /diagnostics publication [s].", True),
+)
+TUNABLE = {spec.name: spec for spec in TUNABLES}
+ROS_OWNED = ("use_sim_time", "qos_overrides", "start_type_description_service")
+"""Parameters ROS itself declares; accepted in a params file and ignored here."""
+
+
+def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
+    """Read-only parameters for the given sensor and array names (declare in this order)."""
+    specs = [ParamSpec("sensors", "string_array", [], None,
+                       "Names of single sensors, each with a NAME.* map.", True),
+             ParamSpec("arrays", "string_array", [], None,
+                       "Names of sensor arrays, each with a NAME.* map.", True)]
+    for name in sensors:
+        specs += [ParamSpec(f"{name}.topic", "string", f"/{name}/resistance", None,
+                            "Input topic (std_msgs/Float64, ohm or divider volts).", True),
+                  ParamSpec(f"{name}.calibration", "string", "", None,
+                            "Calibration YAML of this sensor.", True)]
+    for name in arrays:
+        specs += [ParamSpec(f"{name}.topic", "string", f"/{name}/resistance", None,
+                            "Input topic (std_msgs/Float64MultiArray), one value per sensor.",
+                            True),
+                  ParamSpec(f"{name}.sensors", "string_array", [], None,
+                            "Ordered sensor names of the array's vector.", True),
+                  ParamSpec(f"{name}.calibration", "string", "", None,
+                            "Calibration YAML holding every sensor of the array.", True)]
+    return specs
+
+
+def validate_tunable(name: str, value: Any) -> float:
+    """The tunable's value as float, or ParameterError naming it and its range."""
+    spec = TUNABLE.get(name)
+    if spec is None:
+        raise ParameterError(name, f"unknown parameter; tunables: {', '.join(TUNABLE)}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(name, f"must be a number, got {value!r}")
+    lo, hi = spec.range if spec.range is not None else (-float("inf"), float("inf"))
+    if not lo <= float(value) <= hi:
+        raise ParameterError(name, f"must be in [{lo}, {hi}], got {value}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class InputTopic:
+    """A subscribed resistance topic: one sensor (``sensors`` of length 1) or an array."""
+
+    name: str
+    topic: str
+    sensors: tuple[str, ...]
+    calibration_path: Path
+    is_array: bool
+
+
+@dataclass
+class NodeParams:
+    """Validated parameters: inputs, the merged calibration, tunable values."""
+
+    inputs: list[InputTopic]
+    calibration: Calibration
+    tunables: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def arrays(self) -> dict[str, list[str]]:
+        return {i.name: list(i.sensors) for i in self.inputs if i.is_array}
+
+    def build_engine(self) -> Any:
+        """The Engine these parameters describe (gap, stale and dead-zone tunables applied)."""
+        from strain_comp.engine import Engine
+
+        return Engine(self.calibration, arrays=self.arrays,
+                      gap_reset=self.tunables["gap_reset_s"],
+                      stale_after=self.tunables["stale_after_s"],
+                      deadzone_scale=self.tunables["deadzone_scale"])
+
+
+def _flatten(node: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested mappings to ROS's dotted parameter names."""
+    flat: dict[str, Any] = {}
+    for key, value in node.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(_flatten(value, f"{name}."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def share_dirs() -> list[Path]:
+    """Where an installed strain_comp keeps its share files, then the source checkout."""
+    dirs = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        dirs.append(Path(get_package_share_directory(PACKAGE)))
+    except Exception:  # not a ROS environment, or the package is not in the ament index
+        pass
+    dirs.append(Path(sys.prefix) / "share" / PACKAGE)
+    dirs.append(Path(__file__).resolve().parent.parent)
+    return dirs
+
+
+def resolve_path(value: str, base_dir: Path | None) -> Path:
+    """A calibration path: absolute, or relative to base_dir, cwd, share dir (+ config/)."""
+    path = Path(os.path.expanduser(value))
+    if path.is_absolute():
+        return path
+    bases = ([base_dir] if base_dir is not None else []) + [Path.cwd()]
+    for share in share_dirs():
+        bases += [share, share / "config"]
+    for base in bases:
+        if (base / path).is_file():
+            return base / path
+    return (base_dir or Path.cwd()) / path
+
+
+def _string(flat: Mapping[str, Any], key: str, default: str | None = None) -> str:
+    value = flat.get(key, default)
+    if value is None:
+        raise ParameterError(key, "missing")
+    if not isinstance(value, str) or not value:
+        raise ParameterError(key, f"must be a non-empty string, got {value!r}")
+    return value
+
+
+def _names(flat: Mapping[str, Any], key: str) -> list[str]:
+    value = flat.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+        raise ParameterError(key, f"must be a list of names, got {value!r}")
+    if len(set(value)) != len(value):
+        raise ParameterError(key, f"names repeat: {value}")
+    return value
+
+
+def _sensor_from(calibration: Calibration, name: str, where: str) -> SensorCalibration:
+    if name in calibration.sensors:
+        return calibration.sensors[name]
+    if len(calibration.sensors) == 1:
+        return replace(next(iter(calibration.sensors.values())), name=name)
+    raise ParameterError(where, f"sensor {name!r} is not in the calibration file "
+                                f"(it has {', '.join(calibration.sensors)})")
+
+
+def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> NodeParams:
+    """Validate flat (dotted) parameter values and load every calibration file."""
+    sensors = _names(flat, "sensors")
+    arrays = _names(flat, "arrays")
+    if not sensors and not arrays:
+        raise ParameterError("sensors", "no sensors and no arrays: nothing to compensate")
+    known = {spec.name for spec in structural_specs(sensors, arrays)} | set(TUNABLE)
+    for key in flat:
+        if key not in known and key.split(".")[0] not in ROS_OWNED:
+            raise ParameterError(key, f"unknown parameter (sensors: {sensors}, "
+                                      f"arrays: {arrays})")
+    inputs: list[InputTopic] = []
+    merged: dict[str, SensorCalibration] = {}
+    loaded: dict[Path, Calibration] = {}
+    for name, is_array in [(n, False) for n in sensors] + [(n, True) for n in arrays]:
+        topic = _string(flat, f"{name}.topic", f"/{name}/resistance")
+        path = resolve_path(_string(flat, f"{name}.calibration"), base_dir)
+        if path not in loaded:
+            loaded[path] = load_calibration(path)
+        members = _names(flat, f"{name}.sensors") if is_array else [name]
+        if not members:
+            raise ParameterError(f"{name}.sensors", "an array needs its ordered sensor names")
+        for member in members:
+            if member in merged:
+                raise ParameterError(f"{name}.sensors" if is_array else "sensors",
+                                     f"sensor {member!r} appears twice")
+            merged[member] = _sensor_from(loaded[path], member, f"{name}.calibration")
+        inputs.append(InputTopic(name, topic, tuple(members), path, is_array))
+    topics = [i.topic for i in inputs]
+    if len(set(topics)) != len(topics):
+        raise ParameterError("topic", f"two inputs share a topic: {topics}")
+    tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
+                for spec in TUNABLES}
+    return NodeParams(inputs, Calibration(merged), tunables)
+
+
+def load_params(path: str | os.PathLike[str], *, node_name: str | None = None) -> NodeParams:
+    """Read a ROS 2 params file (``<node>: ros__parameters: ...``) and validate it.
+
+    ``node_name`` picks the node's block; without it the file must hold exactly one block
+    (``/**`` wildcard blocks are merged under it). Errors name the file.
+    """
+    path = Path(path)
+    try:
+        root = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise InputError(f"{path}: cannot read params file: {err}") from None
+    if not isinstance(root, Mapping) or not root:
+        raise InputError(f"{path}: must be a mapping '<node>: ros__parameters: ...'")
+    blocks = {str(k).lstrip("/"): v for k, v in root.items()}
+    wildcard = blocks.pop("**", {})
+    if node_name is None:
+        if len(blocks) > 1:
+            raise InputError(f"{path}: holds several nodes ({', '.join(blocks)}); name one")
+        node_name = next(iter(blocks), "**")
+    values: dict[str, Any] = {}
+    for block in (wildcard, blocks.get(node_name.lstrip("/"))):
+        if block is None:
+            raise InputError(f"{path}: no parameters for node {node_name!r}")
+        if block and not (isinstance(block, Mapping)
+                          and isinstance(block.get("ros__parameters"), Mapping)):
+            raise InputError(f"{path}: {node_name}: missing 'ros__parameters' mapping")
+        if block:
+            values.update(_flatten(block["ros__parameters"]))
+    try:
+        return parse_values(values, base_dir=path.parent)
+    except ParameterError as err:
+        raise ParameterError(f"{path}: {err.field}", err.problem) from None

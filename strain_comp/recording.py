@@ -1,0 +1,143 @@
+"""Recordings: one sensor's resistance with its reference strain and temperature, from a bag.
+
+Topic conventions (DESIGN.md, "Topics"): per sensor ``/NAME/resistance`` (Float64, ohm),
+``/NAME/strain_reference`` (Float64, %), ``/NAME/temperature`` (sensor_msgs/Temperature);
+arrays ``/ARRAY/resistance`` + ``/ARRAY/strain_reference`` (Float64MultiArray, one column
+per sensor, names from ``layout.dim[0].label``) and optionally ``/ARRAY/temperature``
+(one temperature for the whole array). ``NAME`` may contain slashes (``/robot/finger``).
+
+Alignment: the reference and the temperature are put on the resistance time stamps.
+Identical stamps are copied exactly; otherwise they are linearly interpolated inside the
+reference's time span and NaN outside it (never extrapolated).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp.bag import BagContents, Series, read_bag
+
+RESISTANCE = "/resistance"
+REFERENCE = "/strain_reference"
+TEMPERATURE = "/temperature"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One sensor: time [s], resistance [ohm], reference strain [%] and temperature [deg C]
+    on the same time stamps (``s`` / ``temperature`` None when the bag has none).
+    ``array``/``index``: the array topic prefix and column when it came from an array."""
+
+    name: str
+    t: np.ndarray
+    r: np.ndarray
+    s: np.ndarray | None = None
+    temperature: np.ndarray | None = None
+    array: str | None = None
+    index: int | None = None
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+
+def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
+    """``values`` sampled at ``t_src`` put on times ``t``: exact copy when the stamps are the
+    same, else linear interpolation inside the source span, NaN outside it.
+
+    Non-finite source samples are dropped first; unsorted source times are sorted (stable)
+    and for repeated stamps the last sample wins.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    t_src = np.asarray(t_src, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if t_src.shape == t.shape and np.array_equal(t_src, t):
+        return values.copy()
+    ok = np.isfinite(t_src) & np.isfinite(values)
+    t_src, values = t_src[ok], values[ok]
+    out = np.full(t.shape, np.nan)
+    if t_src.size == 0:
+        return out
+    order = np.argsort(t_src, kind="stable")
+    t_src, values = t_src[order], values[order]
+    last = np.append(t_src[1:] != t_src[:-1], True)
+    t_src, values = t_src[last], values[last]
+    inside = (t >= t_src[0]) & (t <= t_src[-1])
+    out[inside] = np.interp(t[inside], t_src, values)
+    return out
+
+
+def _align_columns(t: np.ndarray, src: Series, k: int) -> np.ndarray:
+    return np.column_stack([align(t, src.t, src.values[:, j]) for j in range(k)]) if k else \
+        np.empty((t.size, 0))
+
+
+def recordings_from_bag(contents: BagContents) -> dict[str, Recording]:
+    """One Recording per sensor found in ``contents`` (per-sensor and array topics)."""
+    recordings, _ = _recordings(contents)
+    return recordings
+
+
+def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]:
+    problems: list[str] = []
+    out: dict[str, Recording] = {}
+    series = contents.series
+    for topic in sorted(series):
+        if not topic.endswith(RESISTANCE):
+            continue
+        prefix = topic[:-len(RESISTANCE)]
+        res = series[topic]
+        ref = series.get(prefix + REFERENCE)
+        temp = series.get(prefix + TEMPERATURE)
+        t_temp = None if temp is None or temp.values.ndim != 1 else \
+            align(res.t, temp.t, temp.values)
+        if res.values.ndim == 1:
+            name = prefix.lstrip("/")
+            s = None
+            if ref is not None and ref.values.ndim == 1:
+                s = align(res.t, ref.t, ref.values)
+            elif ref is not None:
+                problems.append(f"{prefix + REFERENCE}: an array reference for a single sensor")
+            out[name] = Recording(name, res.t, res.values, s, t_temp)
+            continue
+        k = res.values.shape[1]
+        labels = contents.labels.get(topic) or []
+        if len(labels) != k:
+            if labels:
+                problems.append(f"{topic}: {len(labels)} labels for {k} columns; "
+                                "sensors named by column")
+            labels = [f"{prefix.lstrip('/')}_{j}" for j in range(k)]
+        s_cols = None
+        if ref is not None:
+            ref_labels = contents.labels.get(prefix + REFERENCE) or labels
+            if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
+                    and set(labels) <= set(ref_labels):
+                aligned = _align_columns(res.t, ref, ref.values.shape[1])
+                s_cols = aligned[:, [ref_labels.index(x) for x in labels]]
+            else:
+                problems.append(f"{prefix + REFERENCE}: columns do not match {topic}; ignored")
+        for j, name in enumerate(labels):
+            if name in out:
+                problems.append(f"{topic}: sensor {name} appears twice; column {j} skipped")
+                continue
+            out[name] = Recording(name, res.t, res.values[:, j],
+                                  None if s_cols is None else s_cols[:, j], t_temp,
+                                  prefix.lstrip("/"), j)
+    for topic in series:
+        if topic.endswith(REFERENCE) and topic[:-len(REFERENCE)] + RESISTANCE not in series:
+            problems.append(f"{topic}: reference without a resistance topic; ignored")
+    return out, problems
+
+
+def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
+    """Read a bag (file or rosbag2 directory) into recordings; returns (recordings,
+    problems), the bag reader's problems first. Raises BagError if the bag is unreadable."""
+    contents = read_bag(path)
+    recordings, problems = _recordings(contents)
+    return recordings, contents.problems + problems
+
+
+__all__ = ["Recording", "align", "load_recordings", "recordings_from_bag"]

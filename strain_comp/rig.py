@@ -1,0 +1,441 @@
+"""Virtual test rig: a soft resistive strain sensor on a tensile tester (strain % in, ohm out).
+
+It makes the bundled bags and the residual loop's test bags, whose data may carry an
+effect that a calibration does not declare. The behaviour to reproduce is the Electrolycra
+sensor of apl_electrolycra... (sections II.A-B): a clockwise S-R hysteresis loop that
+rotates counter-clockwise about its lower-left corner as the strain rate grows, resistance
+relaxation after loading steps that is negligible after unloading steps, a voltage-divider
+read-out (R1 = 10.5 ohm, Vin = 3.2 V) and a specimen of L0 = 100 mm (so 50 mm/min is
+50 %/min).
+
+Forward model, per sensor (S strain in %, t in s, all effects listed in ``RigEffects``):
+
+1. quasi-static response with mild saturation and Mullins softening::
+
+       g(S)  = G * S_sat * tanh(S / S_sat)                    (fractional change, G per %)
+       m(t)  = max(0.1, 1 - mullins * S_peak(t) / 100),  S_peak(t) = max_{t' <= t} S(t')
+       u(t)  = m(t) * g(S(t))
+
+   During first loading to a new peak the response follows the virgin curve; any later
+   cycle below that peak is softer, and nothing recovers (the Mullins effect).
+2. viscoelastic (Maxwell-type) branches k with time constants tau_k and weights a_k::
+
+       dq_k/dt = (u - q_k) / tau_k,     x_k = u - q_k
+       phi(x)  = x for x >= 0,  rho * x for x < 0       (rho = relaxation_unloading_ratio)
+       R_mech  = R0 * (1 + u + sum_k a_k phi(x_k))
+
+   Two fast branches (tau = 1 s and 6 s, a = hysteresis / 2 each) make the rate-dependent
+   hysteresis: x_k is about (du/dt) tau_k while loading, so the loading branch lies above
+   the quasi-static curve (the loop is traversed clockwise) and rises with the rate (the
+   loop rotates counter-clockwise); the asymmetric phi keeps the unloading branch, and so
+   the lower-left corner, close to the quasi-static curve (the rate-dependent play of the
+   APL cells, eq. (1), seen from the forward side). One slow branch (tau = relaxation_tau,
+   a = relaxation) gives the exponential relaxation after steps: an overshoot of
+   R0 * relaxation * du after a loading step, only rho times that after an unloading step.
+   The branch filters are integrated exactly for piecewise-linear u (first-order hold is
+   approximated by the exact zero-order-hold exponential at the sample rate).
+3. environment: ``R = R_mech * (1 + tcr (T - T_ref)) * (1 + drift * t / 3600 s)``, plus, in
+   an array, ``crosstalk * (R_mech_j - R0_j)`` from each neighbour j = i +- 1.
+4. read-out: Gaussian noise (std ``noise`` ohm), then the voltage divider
+   V_R1 = Vin R1 / (R1 + R) quantised to ``adc_bits`` and converted back with
+   ``strain_comp.conversion.divider_to_resistance`` (apl_electrolycra... section II.A).
+
+The temperature profile (slow sinusoid plus a square wave of steps) is published on
+``/NAME/temperature`` when ``temperature`` (the TCR) is non-zero or the scenario is
+``temperature``. Everything is deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import lfilter
+
+from strain_comp.bag import BagWriter
+from strain_comp.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.errors import ParameterError
+
+L0_MM = 100.0  # specimen length [mm]: rates in mm/min convert to %/s via this
+T_REF = 23.0  # reference temperature [deg C]
+HYSTERESIS_TAUS = (1.0, 6.0)  # fast branch time constants [s]
+
+
+def _effect(default: float, unit: str, doc: str) -> float:
+    return field(default=default, metadata={"unit": unit, "doc": doc})
+
+
+@dataclass(frozen=True)
+class RigEffects:
+    """Every physical effect of the rig: a named switch with its magnitude (0 = off).
+
+    Defaults: a typical sensor with hysteresis, relaxation, noise and a 12-bit ADC; drift,
+    temperature, crosstalk and mullins off. ``RigEffects.parse(["drift=0.05"])`` for the
+    command line; ``describe()`` lists them with units.
+    """
+
+    hysteresis: float = _effect(1.0, "1", "weight of the fast viscoelastic branches "
+                                "(tau 1 s, 6 s); 1 puts the loading curve about 0.08 R0 above "
+                                "the quasi-static one at 50 mm/min")
+    relaxation: float = _effect(0.3, "1", "weight of the slow branch: overshoot after a "
+                                "loading step = relaxation * R0 * du")
+    relaxation_tau: float = _effect(20.0, "s", "time constant of the relaxation")
+    relaxation_unloading_ratio: float = _effect(0.2, "1", "viscous response on unloading "
+                                                "relative to loading (0..1)")
+    drift: float = _effect(0.0, "1/h", "slow resistance drift, fraction of R per hour")
+    temperature: float = _effect(0.0, "1/K", "temperature coefficient of resistance (TCR)")
+    temperature_amplitude: float = _effect(3.0, "K", "amplitude of the slow sinusoid")
+    temperature_period: float = _effect(600.0, "s", "period of the slow sinusoid")
+    temperature_step: float = _effect(2.0, "K", "size of the temperature steps")
+    temperature_step_period: float = _effect(150.0, "s", "time between temperature steps")
+    crosstalk: float = _effect(0.0, "1", "fraction of each array neighbour's strain-induced "
+                               "resistance change that leaks in")
+    mullins: float = _effect(0.0, "1 per 100 %", "sensitivity lost per 100 % of peak strain "
+                             "reached (first-cycle softening, never recovers)")
+    noise: float = _effect(0.01, "ohm", "standard deviation of Gaussian read-out noise")
+    adc_bits: float = _effect(12, "bit", "ADC resolution of the divider voltage (0 = ideal)")
+    divider_r1: float = _effect(10.5, "ohm", "series resistor R1 of the voltage divider")
+    divider_vin: float = _effect(3.2, "V", "divider supply voltage Vin")
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if not np.isfinite(value):
+                raise ParameterError(f.name, f"must be finite, got {value}")
+        nonneg = ("hysteresis", "relaxation", "noise", "adc_bits", "crosstalk", "mullins",
+                  "temperature_amplitude", "temperature_step")
+        for name in nonneg:
+            if getattr(self, name) < 0:
+                raise ParameterError(name, f"must be >= 0, got {getattr(self, name)}")
+        for name in ("relaxation_tau", "temperature_period", "temperature_step_period",
+                     "divider_r1", "divider_vin"):
+            if getattr(self, name) <= 0:
+                raise ParameterError(name, f"must be > 0, got {getattr(self, name)}")
+        if not 0.0 <= self.relaxation_unloading_ratio <= 1.0:
+            raise ParameterError("relaxation_unloading_ratio", "must lie in [0, 1]")
+        if self.adc_bits != int(self.adc_bits) or self.adc_bits > 24:
+            raise ParameterError("adc_bits", f"must be an integer 0..24, got {self.adc_bits}")
+
+    @classmethod
+    def names(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    @classmethod
+    def parse(cls, items: Iterable[str], *, base: RigEffects | None = None) -> RigEffects:
+        """Effects from ``name=value`` strings over ``base`` (default ``RigEffects()``)."""
+        changes: dict[str, float] = {}
+        for item in items:
+            name, sep, value = item.partition("=")
+            name = name.strip()
+            if not sep or name not in cls.names():
+                raise ParameterError(name or item, f"unknown effect (expected name=value, "
+                                     f"name one of {', '.join(cls.names())})")
+            try:
+                changes[name] = float(value)
+            except ValueError:
+                raise ParameterError(name, f"not a number: {value!r}") from None
+        return dataclasses.replace(base or cls(), **changes)
+
+    @classmethod
+    def describe(cls) -> str:
+        """One line per effect: name, default, unit, meaning."""
+        return "\n".join(f"{f.name} = {f.default} [{f.metadata['unit']}]: {f.metadata['doc']}"
+                         for f in dataclasses.fields(cls))
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """One simulated sensor: unstrained resistance r0 [ohm], gauge G [1/%], saturation [%]."""
+
+    r0: float = 11.5
+    gain: float = 0.03
+    s_sat: float = 80.0
+
+
+@dataclass(frozen=True)
+class SimSensor:
+    """A simulated sensor's data: time [s], true strain [%], measured and noise-free
+    resistance [ohm], temperature [deg C] or None."""
+
+    t: np.ndarray
+    strain: np.ndarray
+    resistance: np.ndarray
+    resistance_true: np.ndarray
+    temperature: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class SimRun:
+    """The result of ``simulate``: sensors in order; ``array`` names the array topic prefix
+    when the sensors form one array (else each sensor has its own topics)."""
+
+    scenario: str
+    seed: int
+    effects: RigEffects
+    fs: float
+    sensors: dict[str, SimSensor]
+    array: str | None = None
+
+
+# --------------------------------------------------------------------------- profiles
+
+
+class _Profile:
+    """Piecewise-linear strain waypoints built from ramps (at mm/min rates) and holds."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        self.t = [0.0]
+        self.s = [start]
+
+    def ramp(self, to: float, rate_mm_min: float) -> _Profile:
+        rate = rate_mm_min / 60.0 / L0_MM * 100.0  # %/s
+        self.t.append(self.t[-1] + abs(to - self.s[-1]) / rate)
+        self.s.append(to)
+        return self
+
+    def hold(self, seconds: float) -> _Profile:
+        if seconds > 0:
+            self.t.append(self.t[-1] + seconds)
+            self.s.append(self.s[-1])
+        return self
+
+    def triangles(self, lo: float, hi: float, rate: float, n: int) -> _Profile:
+        self.ramp(lo, rate)
+        for _ in range(n):
+            self.ramp(hi, rate).ramp(lo, rate)
+        return self
+
+    def sample(self, fs: float, duration: float | None) -> tuple[np.ndarray, np.ndarray]:
+        tp, sp = np.array(self.t), np.array(self.s)
+        end = tp[-1] if duration is None else duration
+        t = np.arange(int(np.floor(end * fs)) + 1) / fs
+        return t, np.interp(t % tp[-1] if end > tp[-1] else t, tp, sp)
+
+
+def _triangle(rng: np.random.Generator) -> _Profile:
+    del rng
+    return _Profile().hold(5).triangles(0, 30, 50, 4).hold(5)
+
+
+def _rates(rng: np.random.Generator) -> _Profile:
+    del rng
+    p = _Profile().hold(5)
+    for rate in (20, 40, 60, 80, 100):
+        p.triangles(0, 20, rate, 2).hold(5)
+    return p
+
+
+def _patterns(rng: np.random.Generator) -> _Profile:
+    del rng
+    p = _Profile().hold(5)
+    for offset, amplitude in ((10, 20), (20, 20), (20, 30), (30, 20), (10, 40)):
+        p.triangles(offset, offset + amplitude, 50, 2)
+    return p.ramp(0, 50).hold(5)
+
+
+def _steps(rng: np.random.Generator) -> _Profile:
+    del rng
+    p = _Profile().hold(10)
+    for level in (10, 20, 30, 40, 30, 20, 10, 0):
+        p.ramp(level, 1000).hold(30)
+    return p
+
+
+def _random(rng: np.random.Generator) -> _Profile:
+    p = _Profile().hold(5)
+    while p.t[-1] < 300:
+        p.ramp(float(rng.uniform(0, 40)), float(rng.uniform(20, 100)))
+        p.hold(float(rng.uniform(0, 8)) * (rng.random() < 0.6))
+    return p
+
+
+def _long(rng: np.random.Generator) -> _Profile:
+    del rng
+    p = _Profile().hold(60)
+    while p.t[-1] < 3600:
+        p.triangles(0, 20, 50, 2).hold(120).ramp(10, 50).hold(120).ramp(0, 50).hold(60)
+    return p
+
+
+def _temperature(rng: np.random.Generator) -> _Profile:
+    del rng
+    p = _Profile().hold(30)
+    while p.t[-1] < 1200:
+        p.triangles(0, 20, 60, 2).hold(40).ramp(10, 60).hold(40).ramp(0, 60).hold(20)
+    return p
+
+
+@dataclass(frozen=True)
+class _Scenario:
+    doc: str
+    profile: Callable[[np.random.Generator], _Profile]
+    fs: float = 50.0
+    effects: dict[str, float] = field(default_factory=dict)  # when effects=None
+    temperature: bool = False
+
+
+_SCENARIOS: dict[str, _Scenario] = {
+    "triangle": _Scenario("0-30 % triangle waves at 50 mm/min, 4 cycles", _triangle),
+    "rates": _Scenario("0-20 % triangles at 20, 40, 60, 80, 100 mm/min, 2 cycles each "
+                       "(like SR1-SR9), 25 Hz", _rates, fs=25.0),
+    "patterns": _Scenario("triangle pieces of different offsets and amplitudes at 50 mm/min "
+                          "(like SP1, plus SP2's largest), 25 Hz", _patterns, fs=25.0),
+    "steps": _Scenario("steps 0-40 % and back at 1000 mm/min with 30 s holds (like RB1)",
+                       _steps),
+    "random": _Scenario("random ramps (20-100 mm/min, 0-40 %) and holds, 300 s", _random),
+    "array": _Scenario("6 sensors of different gains on one array topic /array/..., "
+                       "neighbours strained differently", _triangle, fs=25.0),
+    "long": _Scenario("1 h of cycles and holds at 5 Hz, with drift=0.05 per hour unless "
+                      "effects are given", _long, fs=5.0, effects={"drift": 0.05}),
+    "temperature": _Scenario("20 min of cycles and holds at 10 Hz with a temperature "
+                             "profile, TCR 0.004/K unless effects are given", _temperature,
+                             fs=10.0, effects={"temperature": 0.004}, temperature=True),
+}
+#: scenario name -> one-line description.
+SCENARIOS: dict[str, str] = {name: sc.doc for name, sc in _SCENARIOS.items()}
+ARRAY_NAME = "array"
+ARRAY_SIZE = 6
+
+
+def _array_profiles(fs: float, duration: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sensor strain of the array: neighbours differ in amplitude, rate and phase."""
+    columns = []
+    t = None
+    for i in range(ARRAY_SIZE):
+        hi = 12.0 + 4.0 * ((i * 3) % ARRAY_SIZE)
+        rate = 30.0 + 14.0 * ((i * 5) % ARRAY_SIZE)
+        p = _Profile().hold(2.0 + 3.0 * i)
+        while p.t[-1] < 240:
+            p.triangles(0, hi, rate, 1).hold(4.0 * (i % 3))
+        ti, si = p.sample(fs, 240.0 if duration is None else duration)
+        t = ti
+        columns.append(si)
+    return t, np.column_stack(columns)
+
+
+# --------------------------------------------------------------------------- physics
+
+
+def _branch(u: np.ndarray, tau: float, fs: float) -> np.ndarray:
+    """x = u - q with dq/dt = (u - q)/tau, exact exponential update, q(0) = u(0)."""
+    e = np.exp(-1.0 / (tau * fs))
+    q, _ = lfilter([1.0 - e], [1.0, -e], u, zi=[e * u[0]])
+    return u - q
+
+
+def _mechanical(strain: np.ndarray, spec: SensorSpec, fx: RigEffects, fs: float) -> np.ndarray:
+    """Noise-free R_mech [ohm] of one sensor (items 1-2 of the module docstring)."""
+    g = spec.gain * spec.s_sat * np.tanh(strain / spec.s_sat)
+    peak = np.maximum.accumulate(strain)
+    u = np.maximum(0.1, 1.0 - fx.mullins * peak / 100.0) * g
+    viscous = np.zeros_like(u)
+    branches = [(tau, fx.hysteresis / 2.0) for tau in HYSTERESIS_TAUS]
+    branches.append((fx.relaxation_tau, fx.relaxation))
+    for tau, weight in branches:
+        if weight > 0:
+            x = _branch(u, tau, fs)
+            viscous += weight * np.where(x >= 0, x, fx.relaxation_unloading_ratio * x)
+    return spec.r0 * (1.0 + u + viscous)
+
+
+def temperature_profile(t: np.ndarray, fx: RigEffects) -> np.ndarray:
+    """T(t) [deg C]: T_ref + slow sinusoid + a square wave of steps."""
+    square = (np.floor(t / fx.temperature_step_period) % 2) * fx.temperature_step
+    return T_REF + fx.temperature_amplitude * np.sin(2 * np.pi * t / fx.temperature_period) \
+        + square
+
+
+def _read_out(r: np.ndarray, fx: RigEffects, rng: np.random.Generator) -> np.ndarray:
+    if fx.noise > 0:
+        r = r + rng.normal(0.0, fx.noise, r.shape)
+    if fx.adc_bits > 0:
+        lsb = fx.divider_vin / 2.0 ** int(fx.adc_bits)
+        v = np.round(resistance_to_divider(np.maximum(r, 0.0), fx.divider_r1, fx.divider_vin)
+                     / lsb) * lsb
+        r = divider_to_resistance(v, fx.divider_r1, fx.divider_vin)
+    return r
+
+
+def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
+             duration: float | None = None) -> SimRun:
+    """Run a scenario (``SCENARIOS``) on the rig.
+
+    ``effects=None`` uses ``RigEffects()`` with the scenario's own switches (``long``: drift,
+    ``temperature``: TCR); explicit effects are used as given. ``duration`` [s] cuts the
+    scenario short or repeats its strain profile. Deterministic for a seed.
+    """
+    if scenario not in _SCENARIOS:
+        raise ParameterError("scenario", f"unknown scenario {scenario!r}; one of "
+                             f"{', '.join(SCENARIOS)}")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise ParameterError("duration", f"must be > 0 s, got {duration}")
+    sc = _SCENARIOS[scenario]
+    fx = effects if effects is not None else dataclasses.replace(RigEffects(), **sc.effects)
+    rng = np.random.default_rng([seed, 0])
+    if scenario == "array":
+        t, strain = _array_profiles(sc.fs, duration)
+        names = [f"a{i + 1}" for i in range(ARRAY_SIZE)]
+        specs = [SensorSpec(r0=10.0 + 0.8 * i, gain=0.024 + 0.003 * ((2 * i) % ARRAY_SIZE))
+                 for i in range(ARRAY_SIZE)]
+    else:
+        t, s = sc.profile(rng).sample(sc.fs, duration)
+        strain = s[:, None]
+        names = ["s1"]
+        specs = [SensorSpec()]
+    with_temperature = sc.temperature or fx.temperature != 0
+    temp = temperature_profile(t, fx) if with_temperature else None
+    mech = np.column_stack([_mechanical(strain[:, i], spec, fx, sc.fs)
+                            for i, spec in enumerate(specs)])
+    r = mech.copy()
+    if fx.crosstalk > 0 and len(specs) > 1:
+        delta = mech - np.array([spec.r0 for spec in specs])
+        leak = np.zeros_like(delta)
+        leak[:, 1:] += delta[:, :-1]
+        leak[:, :-1] += delta[:, 1:]
+        r += fx.crosstalk * leak
+    if temp is not None:
+        r *= (1.0 + fx.temperature * (temp - T_REF))[:, None]
+    r *= (1.0 + fx.drift * t / 3600.0)[:, None]
+    sensors = {}
+    for i, name in enumerate(names):
+        noise_rng = np.random.default_rng([seed, 1 + i])
+        sensors[name] = SimSensor(t=t, strain=strain[:, i].copy(),
+                                  resistance=_read_out(r[:, i], fx, noise_rng),
+                                  resistance_true=r[:, i].copy(), temperature=temp)
+    return SimRun(scenario=scenario, seed=seed, effects=fx, fs=sc.fs, sensors=sensors,
+                  array=ARRAY_NAME if scenario == "array" else None)
+
+
+def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:
+    """Write a SimRun as an MCAP bag: per sensor ``/NAME/resistance``,
+    ``/NAME/strain_reference`` and (when simulated) ``/NAME/temperature`` at
+    ``temperature_rate`` Hz; for an array ``/ARRAY/resistance`` and
+    ``/ARRAY/strain_reference`` (Float64MultiArray, labels = sensor names) and
+    ``/ARRAY/temperature``."""
+    first = next(iter(run.sensors.values()))
+    step = max(1, round(run.fs / temperature_rate))
+    with BagWriter(path) as writer:
+        if run.array is not None:
+            names = list(run.sensors)
+            prefix = f"/{run.array}"
+            writer.write_float64_array(f"{prefix}/resistance", first.t, np.column_stack(
+                [run.sensors[n].resistance for n in names]), names)
+            writer.write_float64_array(f"{prefix}/strain_reference", first.t, np.column_stack(
+                [run.sensors[n].strain for n in names]), names)
+            if first.temperature is not None:
+                writer.write_temperature(f"{prefix}/temperature", first.t[::step],
+                                         first.temperature[::step])
+            return
+        for name, sensor in run.sensors.items():
+            writer.write_float64(f"/{name}/resistance", sensor.t, sensor.resistance)
+            writer.write_float64(f"/{name}/strain_reference", sensor.t, sensor.strain)
+            if sensor.temperature is not None:
+                writer.write_temperature(f"/{name}/temperature", sensor.t[::step],
+                                         sensor.temperature[::step])
+
+
+__all__ = ["SCENARIOS", "RigEffects", "SensorSpec", "SimRun", "SimSensor", "simulate",
+           "temperature_profile", "write_sim_bag"]

@@ -1,0 +1,179 @@
+"""Effect regressors: step == run, state carried across batches, the equations against slow
+pure-Python references, calibration-dict round trip and validation errors."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from strain_comp.calibration import load_calibration, save_calibration
+from strain_comp.diagnose import default_candidates
+from strain_comp.effects import (
+    KINDS,
+    Batch,
+    EffectTerms,
+    Sample,
+    regressor_from_dict,
+    validate_effect_dict,
+)
+from strain_comp.errors import CalibrationError, ParameterError
+
+
+def random_inputs(n: int = 400, seed: int = 0) -> Batch:
+    """Irregular times, a wandering strain, a flickering direction, gappy side inputs."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.01, 0.5, n))
+    s_hat = np.cumsum(rng.normal(0, 0.5, n))
+    direction = np.sign(np.round(rng.normal(0, 1.0, n)))
+    temperature = 25 + np.cumsum(rng.normal(0, 0.1, n))
+    temperature[rng.random(n) < 0.2] = np.nan
+    temperature[:5] = np.nan
+    nb = s_hat * 0.3 + rng.normal(0, 0.1, n)
+    nb[rng.random(n) < 0.1] = np.nan
+    return Batch.of(t, 100 + s_hat, s_hat, direction, temperature, {"left": nb})
+
+
+ALL = [*default_candidates(temperature_ref=24.0, neighbours=["left"]),
+       {"name": "x", "kind": "elapsed", "params": {}, "coef": 0.0}]
+
+
+def samples(b: Batch) -> list[Sample]:
+    return [Sample(float(b.t[k]), float(b.r[k]), float(b.s_hat[k]), int(b.direction[k]),
+                   float(b.temperature[k]), {"left": float(b.neighbours["left"][k])})
+            for k in range(b.t.size)]
+
+
+@pytest.mark.parametrize("effect", ALL, ids=[e["name"] for e in ALL])
+def test_step_equals_run_and_run_continues_state(effect: dict) -> None:
+    b = random_inputs()
+    g_step = regressor_from_dict(effect)
+    stepped = np.array([g_step.step(x) for x in samples(b)])
+    g_run = regressor_from_dict(effect)
+    half = b.t.size // 2
+    first = Batch.of(b.t[:half], b.r[:half], b.s_hat[:half], b.direction[:half],
+                     b.temperature[:half], {"left": b.neighbours["left"][:half]})
+    second = Batch.of(b.t[half:], b.r[half:], b.s_hat[half:], b.direction[half:],
+                      b.temperature[half:], {"left": b.neighbours["left"][half:]})
+    ran = np.concatenate([g_run.run(first), g_run.run(second)])
+    assert np.all(np.isfinite(ran))
+    np.testing.assert_allclose(ran, stepped, rtol=1e-12, atol=1e-12)
+    g_run.reset()
+    np.testing.assert_allclose(g_run.run(b), stepped, rtol=1e-12, atol=1e-12)
+
+
+def test_relaxation_matches_first_order_filter() -> None:
+    """h = S_hat - x with x' = (S_hat - x)/tau, exact for a piecewise-constant S_hat."""
+    b = random_inputs(seed=3)
+    tau = 4.0
+    g = regressor_from_dict({"name": "r", "kind": "relaxation", "params": {"tau": tau},
+                             "coef": 0.0}).run(b)
+    x = b.s_hat[0]
+    ref = [0.0]
+    for k in range(1, b.t.size):
+        # S_hat held at s[k-1] over (t[k-1], t[k]], then jumps to s[k]
+        x = b.s_hat[k - 1] + (x - b.s_hat[k - 1]) * math.exp(-(b.t[k] - b.t[k - 1]) / tau)
+        ref.append(b.s_hat[k] - x)
+    np.testing.assert_allclose(g, ref, atol=1e-9)
+    loading = regressor_from_dict({"name": "l", "kind": "relaxation",
+                                   "params": {"tau": tau, "branch": "loading"}, "coef": 0})
+    unloading = regressor_from_dict({"name": "u", "kind": "relaxation",
+                                     "params": {"tau": tau, "branch": "unloading"}, "coef": 0})
+    moving = b.direction != 0
+    both = loading.run(b) + unloading.run(b)
+    # with every increment made while moving, the two branches add up to the plain filter
+    b2 = Batch.of(b.t, b.r, b.s_hat, np.where(moving, b.direction, 1.0))
+    loading.reset()
+    unloading.reset()
+    np.testing.assert_allclose(loading.run(b2) + unloading.run(b2), g, atol=1e-9)
+    assert not np.allclose(both, g)
+
+
+def test_rate_tracks_a_ramp_and_mullins_counts_cycles() -> None:
+    t = np.arange(0, 60, 0.1)
+    s = 2.0 * t
+    rate = regressor_from_dict({"name": "r", "kind": "rate", "params": {"tau": 1.0},
+                                "coef": 0}).run(Batch.of(t, s, s, np.ones_like(t)))
+    assert rate[-1] == pytest.approx(2.0, rel=1e-9)
+    # three triangle cycles: +1 up, -1 down; a cycle completes at each down -> up turn
+    d = np.tile(np.r_[np.ones(10), np.zeros(3), -np.ones(10)], 3)
+    s = np.cumsum(d)
+    tt = np.arange(d.size, dtype=float)
+    g = regressor_from_dict({"name": "m", "kind": "mullins",
+                             "params": {"form": "cycles_log"}, "coef": 0}).run(
+        Batch.of(tt, s, s, d))
+    cycles = np.r_[np.zeros(23), np.ones(23), 2 * np.ones(23)]
+    np.testing.assert_allclose(g, s * np.log1p(cycles))
+    gap = regressor_from_dict({"name": "m", "kind": "mullins", "params": {"form": "gap"},
+                               "coef": 0}).run(Batch.of(tt, s, s, d))
+    np.testing.assert_allclose(gap, np.maximum.accumulate(s) - s)
+
+
+def test_effect_terms_correct_and_round_trip() -> None:
+    b = random_inputs(seed=5)
+    effects = [{"name": "drift", "kind": "elapsed", "params": {"form": "sqrt", "scale": 50.0},
+                "coef": 0.25},
+               {"name": "ct", "kind": "crosstalk", "params": {"neighbour": "left"}, "coef": -0.1},
+               {"name": "offset", "kind": "offset", "params": {}, "coef": 0.5}]
+    terms = EffectTerms.from_dicts(effects)
+    assert terms.neighbours == ["left"]
+    assert terms.to_dicts() == effects
+    out = terms.run(b.t, b.r, b.s_hat, b.direction, b.temperature, b.neighbours)
+    nb = b.neighbours["left"]
+    held = np.array([nb[: k + 1][np.isfinite(nb[: k + 1])][-1]
+                     if np.isfinite(nb[: k + 1]).any() else 0.0 for k in range(nb.size)])
+    expected = b.s_hat - 0.25 * np.sqrt((b.t - b.t[0]) / 50.0) + 0.1 * held - 0.5
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    terms.reset()
+    stepped = [terms.step(x.t, x.r, x.s_hat, x.direction, x.temperature, x.neighbours)
+               for x in samples(b)]
+    np.testing.assert_allclose(stepped, out, rtol=1e-12, atol=1e-12)
+
+
+def test_every_kind_round_trips_through_a_calibration_file(tmp_path: Path) -> None:
+    from test_calibration import make_calibration
+
+    cal = make_calibration()
+    effects = [dict(e, coef=0.125 * i) for i, e in enumerate(ALL)]
+    assert {e["kind"] for e in effects} == set(KINDS)
+    cal.sensors["left"].effects = effects
+    save_calibration(cal, tmp_path / "c.yaml")
+    loaded = load_calibration(tmp_path / "c.yaml")
+    assert loaded.sensors["left"].effects == effects
+    again = EffectTerms.from_dicts(loaded.sensors["left"].effects).to_dicts()
+    assert again[:-1] == effects[:-1]
+    # params: {} takes every default, and to_dicts writes them out
+    assert again[-1]["params"] == {"form": "linear", "scale": 100.0}
+
+
+@pytest.mark.parametrize(("effect", "field"), [
+    ({"name": "a", "kind": "nope", "coef": 1.0}, "kind"),
+    ({"name": "a", "kind": "relaxation", "params": {"tau": -1.0}, "coef": 1.0}, "params.tau"),
+    ({"name": "a", "kind": "relaxation", "params": {"branch": "up"}, "coef": 1.0},
+     "params.branch"),
+    ({"name": "a", "kind": "relaxation", "params": {"taux": 1.0}, "coef": 1.0}, "params.taux"),
+    ({"name": "a", "kind": "crosstalk", "params": {}, "coef": 1.0}, "params.neighbour"),
+    ({"name": "a", "kind": "strain_level", "params": {"power": 4}, "coef": 1.0},
+     "params.power"),
+    ({"name": "a", "kind": "direction", "params": {"hold": "yes"}, "coef": 1.0}, "params.hold"),
+    ({"name": "a", "kind": "temperature", "params": {"t_ref": "hot"}, "coef": 1.0},
+     "params.t_ref"),
+    ({"name": "a", "kind": "offset", "params": [], "coef": 1.0}, "params"),
+    ({"name": "a", "kind": "offset"}, "coef"),
+    ({"name": "a", "kind": "offset", "coef": float("nan")}, "coef"),
+])
+def test_bad_effect_entries_name_the_field(tmp_path: Path, effect: dict, field: str) -> None:
+    with pytest.raises(ParameterError) as err:
+        validate_effect_dict(effect)
+    assert err.value.field == field
+    from test_calibration import make_calibration
+
+    cal = make_calibration()
+    cal.sensors["right"].effects = [{"name": "ok", "kind": "offset", "params": {}, "coef": 1.0},
+                                    effect]
+    save_calibration(cal, tmp_path / "bad.yaml")
+    with pytest.raises(CalibrationError) as cerr:
+        load_calibration(tmp_path / "bad.yaml")
+    assert cerr.value.field == f"sensors.right.effects.1.{field}"

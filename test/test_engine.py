@@ -1,0 +1,326 @@
+"""The engine: batch equals streaming, bad samples held and counted, gaps, ranges, arrays.
+
+Truth here is (a) the engine's own streaming path for the batch path, and (b) a fresh
+model and detector fed only the good samples, for "bad samples never reach the model".
+A first-order lag model defined in this file gives the engine a compensator with memory
+(the cubic has none), so a poisoned or missing reset would show.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from strain_comp.calibration import Calibration, InputSettings, SensorCalibration, ValidRange
+from strain_comp.direction import DirectionDetector, DirectionSettings
+from strain_comp.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine, Status
+from strain_comp.models.base import Compensator, Normalisation, Segment
+
+R_LO, R_HI, S_LO, S_HI = 100.0, 200.0, 0.0, 50.0
+NORM = Normalisation.from_ranges(R_LO, R_HI, S_LO, S_HI)
+DIRECTION = DirectionSettings(deadzone=20.0, tau=0.05)
+
+
+class Lag(Compensator):
+    """Strain from a first-order lag of R (time constant tau): a model with state."""
+
+    name = "lag"
+
+    def __init__(self, tau: float = 0.3) -> None:
+        super().__init__(NORM)
+        self.tau = tau
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = math.nan
+        self.t_last = math.nan
+
+    def step(self, t: float, r: float) -> float:
+        if math.isnan(self.x):
+            self.x = r
+        else:
+            self.x += (1.0 - math.exp(-(t - self.t_last) / self.tau)) * (r - self.x)
+        self.t_last = t
+        return 0.5 * (self.x - R_LO)
+
+    def run(self, t: Any, r: Any) -> np.ndarray:
+        return np.array([self.step(ti, ri) for ti, ri in zip(t, r, strict=True)])
+
+    def to_params(self) -> dict[str, Any]:
+        return {"tau": self.tau}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> Lag:
+        return cls(params["tau"])
+
+    @classmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, **options: Any) -> Lag:
+        raise NotImplementedError
+
+
+class LagCalibration(SensorCalibration):
+    def build_model(self) -> Compensator:
+        return Lag(self.params["tau"])
+
+
+def cubic_cal(name: str = "s1", **changes: Any) -> SensorCalibration:
+    cal = SensorCalibration(name=name, model="cubic", params={"c": [-60.0, 0.4, 1e-3, -2e-6]},
+                            normalisation=NORM, valid_range=ValidRange(R_LO, R_HI, S_LO, S_HI),
+                            direction=DIRECTION)
+    return replace(cal, **changes)
+
+
+def lag_cal(name: str = "s1", **changes: Any) -> SensorCalibration:
+    cal = LagCalibration(name=name, model="lag", params={"tau": 0.3}, normalisation=NORM,
+                         valid_range=ValidRange(R_LO, R_HI, S_LO, S_HI), direction=DIRECTION)
+    return replace(cal, **changes)
+
+
+def engine_of(*cals: SensorCalibration, **options: Any) -> Engine:
+    return Engine(Calibration({c.name: c for c in cals}), **options)
+
+
+def noisy_stream(rng: np.random.Generator, n: int = 600) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle-ish resistance signal at 100 Hz with every kind of fault injected."""
+    t = np.cumsum(rng.uniform(0.005, 0.015, n))
+    r = 150.0 + 45.0 * np.sin(2 * np.pi * 0.7 * t) + rng.normal(0, 0.3, n)
+    faults = rng.choice(n, size=n // 6, replace=False)
+    kinds = rng.integers(0, 9, faults.size)
+    for i, kind in zip(faults, kinds, strict=True):
+        if kind == 0:
+            r[i] = np.nan
+        elif kind == 1:
+            r[i] = np.inf
+        elif kind == 2:
+            r[i] = -rng.uniform(0, 100)
+        elif kind == 3:
+            r[i] = 0.0
+        elif kind == 4:
+            r[i] = R_HI * OPEN_FACTOR * 2
+        elif kind == 5:
+            r[i] = R_LO * SHORT_FACTOR / 2
+        elif kind == 6 and i > 0:
+            t[i] = t[i - 1] - rng.uniform(0, 0.5)  # small step back: rejected
+        elif kind == 7:
+            r[i] = R_HI * rng.uniform(1.2, 3.0)  # out of range, still used
+        elif kind == 8 and i > 0:
+            t[i:] += rng.choice([6.0, -30.0])  # long gap or a clock reset: state reset
+    return t, r
+
+
+def stream(engine: Engine, sensor: str, t: np.ndarray, r: np.ndarray) -> dict[str, np.ndarray]:
+    outs = [engine.step(sensor, ti, ri) for ti, ri in zip(t, r, strict=True)]
+    return {"strain": np.array([o.strain for o in outs]),
+            "direction": np.array([o.direction for o in outs]),
+            "status": np.array([o.status for o in outs]),
+            "out_of_range": np.array([o.out_of_range for o in outs])}
+
+
+def assert_same(batch: Any, ref: dict[str, np.ndarray]) -> None:
+    np.testing.assert_allclose(batch.strain, ref["strain"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(batch.direction, ref["direction"])
+    np.testing.assert_array_equal(batch.status, ref["status"])
+    np.testing.assert_array_equal(batch.out_of_range, ref["out_of_range"])
+
+
+@pytest.mark.parametrize("make_cal", [cubic_cal, lag_cal])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_batch_equals_streaming(make_cal: Any, seed: int) -> None:
+    t, r = noisy_stream(np.random.default_rng(seed))
+    ref_engine = engine_of(make_cal())
+    ref = stream(ref_engine, "s1", t, r)
+    assert set(np.unique(ref["status"])) >= {1, 2, 4, 5, 7}
+    whole = engine_of(make_cal())
+    assert_same(whole.run("s1", t, r), ref)
+    assert whole.health() == ref_engine.health()
+    chunked = engine_of(make_cal())  # batch in pieces continues where the last one stopped
+    cut = len(t) // 3
+    parts = [chunked.run("s1", t[a:b], r[a:b]) for a, b in ((0, cut), (cut, cut + 1),
+                                                           (cut + 1, len(t)))]
+    assert_same(type(parts[0])(*(np.concatenate([getattr(p, f) for p in parts])
+                                 for f in ("strain", "direction", "status", "out_of_range"))),
+                ref)
+    assert chunked.health() == ref_engine.health()
+
+
+def test_bad_samples_counted_held_and_never_reach_the_model() -> None:
+    t = np.arange(12) * 0.01
+    r = np.array([150.0, np.nan, 152.0, np.inf, -3.0, 0.0, 1e6, 0.2, 154.0, 156.0, 158.0, 160.0])
+    t[9] = t[8] - 0.001  # time going back a little
+    engine = engine_of(lag_cal())
+    out = stream(engine, "s1", t, r)
+    expected = [Status.GOOD, Status.NOT_FINITE, Status.GOOD, Status.NOT_FINITE,
+                Status.NON_POSITIVE, Status.NON_POSITIVE, Status.OPEN_CIRCUIT,
+                Status.SHORT_CIRCUIT, Status.GOOD, Status.TIME_NOT_INCREASING, Status.GOOD,
+                Status.GOOD]
+    assert out["status"].tolist() == expected
+    good = np.array([s == Status.GOOD for s in expected])
+    model, detector = Lag(), DirectionDetector(DIRECTION)
+    truth = model.run(t[good], r[good])
+    truth_dir = detector.run(t[good], r[good])
+    np.testing.assert_allclose(out["strain"][good], truth, rtol=1e-14)
+    np.testing.assert_array_equal(out["direction"][good], truth_dir)
+    held = np.maximum.accumulate(np.where(good, np.arange(12), 0))
+    np.testing.assert_array_equal(out["strain"], out["strain"][held])
+    h = engine.health()["s1"]
+    assert (h.n_good, h.n_nan, h.n_non_positive, h.n_open, h.n_short, h.n_time_backwards) == (
+        5, 2, 2, 1, 1, 1)
+    assert h.last_good_t == t[11] and h.n_gaps == 0 and h.n_out_of_range == 0
+
+
+def test_nothing_before_the_first_good_sample_is_held_as_nan() -> None:
+    engine = engine_of(cubic_cal())
+    out = engine.step("s1", 0.0, math.nan)
+    assert math.isnan(out.strain) and out.direction == 0 and out.status is Status.NOT_FINITE
+    batch = engine_of(cubic_cal()).run("s1", [0.0, 0.1], [np.nan, -1.0])
+    assert np.isnan(batch.strain).all() and (batch.direction == 0).all()
+
+
+@pytest.mark.parametrize("jump", [6.0, -30.0])
+def test_long_gap_or_clock_reset_restarts_the_state(jump: float) -> None:
+    t = np.concatenate([np.arange(50) * 0.01, 0.5 + jump + np.arange(50) * 0.01])
+    r = 150.0 + 30.0 * np.sin(7.0 * np.arange(100) * 0.01)
+    slow = lag_cal(params={"tau": 30.0})
+    engine = engine_of(slow, gap_reset=5.0)
+    out = engine.run("s1", t, r)
+    assert out.status[50] == Status.GAP_RESET and engine.health()["s1"].n_gaps == 1
+    np.testing.assert_allclose(out.strain[50:], Lag(30.0).run(t[50:], r[50:]), rtol=1e-14)
+    np.testing.assert_array_equal(out.direction[50:],
+                                  DirectionDetector(DIRECTION).run(t[50:], r[50:]))
+    no_reset = engine_of(slow, gap_reset=100.0).run("s1", t, r)
+    if jump > 0:  # without the reset, the lag would have carried over
+        assert not np.allclose(no_reset.strain[50:], out.strain[50:])
+    else:  # a clock going back less than gap_reset: every later sample is rejected
+        assert (no_reset.status[50:] == Status.TIME_NOT_INCREASING).all()
+
+
+def test_out_of_range_is_flagged_fed_and_clamped() -> None:
+    margin_r = RANGE_MARGIN * (R_HI - R_LO)
+    s_top = S_HI + RANGE_MARGIN * (S_HI - S_LO)
+    t = np.arange(4) * 0.1
+    r = np.array([150.0, R_HI + 0.5 * margin_r, R_HI + 2 * margin_r, 400.0])
+    engine = engine_of(lag_cal())
+    out = stream(engine, "s1", t, r)
+    assert out["out_of_range"].tolist() == [False, False, True, True]
+    assert out["status"].tolist() == [Status.GOOD, Status.GOOD, Status.OUT_OF_RANGE,
+                                      Status.OUT_OF_RANGE]
+    truth = Lag().run(t, r)  # the model saw every sample, out of range ones included
+    np.testing.assert_allclose(out["strain"], np.minimum(truth, s_top), rtol=1e-14)
+    assert out["strain"][3] == s_top
+    assert engine.health()["s1"].n_out_of_range == 2
+
+
+def test_divider_input_converted_and_screened() -> None:
+    r1, vin = 150.0, 3.3
+    cal = cubic_cal(input=InputSettings("divider", r1=r1, vin=vin))
+    r = np.array([120.0, 160.0, 180.0])
+    v = vin * r1 / (r1 + r)
+    raw = np.array([v[0], 0.0, v[1], vin, -0.1, v[2], np.nan])
+    t = np.arange(raw.size) * 0.01
+    out = engine_of(cal).run("s1", t, raw)
+    assert out.status.tolist() == [Status.GOOD, Status.OPEN_CIRCUIT, Status.GOOD,
+                                   Status.SHORT_CIRCUIT, Status.OPEN_CIRCUIT, Status.GOOD,
+                                   Status.NOT_FINITE]
+    direct = engine_of(cubic_cal()).run("s1", t[[0, 2, 5]], r)
+    np.testing.assert_allclose(out.strain[[0, 2, 5]], direct.strain, rtol=1e-12)
+    assert_same(engine_of(cal).run("s1", t, raw), stream(engine_of(cal), "s1", t, raw))
+
+
+def test_array_path_equals_per_sensor_path() -> None:
+    rng = np.random.default_rng(5)
+    names = ["a", "b", "c"]
+    cals = [lag_cal(n) for n in names]
+    streams = [noisy_stream(np.random.default_rng(10 + i)) for i in range(3)]
+    t = streams[0][0]
+    r = np.stack([s[1] for s in streams], axis=1)
+    r[rng.random(r.shape) < 0.05] = np.nan
+    array_engine = engine_of(*cals, arrays={"arr": names})
+    outs = [array_engine.step_array("arr", ti, ri) for ti, ri in zip(t, r, strict=True)]
+    for k, name in enumerate(names):
+        ref = engine_of(lag_cal(name))
+        expected = stream(ref, name, t, r[:, k])
+        np.testing.assert_allclose([o.strain[k] for o in outs], expected["strain"], rtol=1e-14)
+        assert [o.status[k] for o in outs] == expected["status"].tolist()
+        assert [o.direction[k] for o in outs] == expected["direction"].tolist()
+        assert array_engine.health()[name] == ref.health()[name]
+
+
+def test_apl_array_is_one_kernel_and_equals_per_sensor() -> None:
+    apl = pytest.importorskip("strain_comp.models.apl")
+    if not hasattr(apl, "APLArray"):
+        pytest.skip("helper A's APLArray is not there yet")
+    from strain_comp.models import model_class
+
+    rng = np.random.default_rng(3)
+    t = np.arange(400) * 0.01
+    r_true = 150.0 + 40.0 * np.sin(2 * np.pi * 0.5 * t)
+    s_true = 0.5 * (r_true - R_LO)
+    model = model_class("apl").fit([Segment(t, r_true, s_true)], NORM, direction=DIRECTION)
+    names = ["a", "b", "c", "d"]
+    cals = [SensorCalibration(name=n, model="apl", params=model.to_params(), normalisation=NORM,
+                              valid_range=ValidRange(R_LO, R_HI, S_LO, S_HI),
+                              direction=DIRECTION) for n in names]
+    r = np.stack([r_true + rng.normal(0, 0.5, t.size) for _ in names], axis=1)
+    r[rng.random(r.shape) < 0.05] = np.nan
+    r[200:230, 1] += 150.0  # out of range on one sensor only
+    r[250:320, 2] = np.nan  # a long outage on one sensor: it alone gets reset
+    engine = engine_of(*cals, arrays={"arr": names}, gap_reset=0.5)
+    assert engine._arrays["arr"].kernel is not None
+    outs = [engine.step_array("arr", ti, ri) for ti, ri in zip(t, r, strict=True)]
+    for k, name in enumerate(names):
+        ref_engine = engine_of(cals[k], gap_reset=0.5)
+        ref = ref_engine.run(name, t, r[:, k])
+        np.testing.assert_allclose([o.strain[k] for o in outs], ref.strain, rtol=1e-9,
+                                   atol=1e-9)
+        assert [o.status[k] for o in outs] == ref.status.tolist()
+        assert [o.direction[k] for o in outs] == ref.direction.tolist()
+        assert engine.health()[name] == ref_engine.health()[name]
+    assert engine.health()["c"].n_gaps == 1 and engine.health()["b"].n_out_of_range > 0
+
+
+def test_health_levels_and_stale() -> None:
+    engine = engine_of(cubic_cal("a"), cubic_cal("b"), stale_after=1.0)
+    assert engine.health(now=0.0)["a"].to_diagnostic()[0] == 3  # never a sample: stale
+    engine.step("a", 10.0, 150.0)
+    engine.step("b", 10.0, 150.0)
+    engine.step("b", 10.1, math.nan)
+    health = engine.health(now=10.5)
+    level_a, message_a, values_a = health["a"].to_diagnostic()
+    level_b, message_b, values_b = health["b"].to_diagnostic()
+    assert (level_a, message_a) == (0, "ok") and values_a["n_good"] == "1"
+    assert level_b == 2 and "not_finite" in message_b and values_b["n_nan"] == "1"
+    assert engine.health(now=11.5)["a"].to_diagnostic()[0] == 3
+    engine.step("a", 11.6, 1000.0)
+    assert engine.health(now=11.7)["a"].to_diagnostic()[0] == 1  # out of range
+    engine.reset()
+    assert engine.health()["a"].n_good == 0 and math.isnan(engine.step("a", 0.0, -1).strain)
+
+
+def test_deadzone_scale_and_errors() -> None:
+    t = np.arange(100) * 0.01
+    r = 150.0 + 0.15 * np.arange(100)  # 15 ohm/s: inside a dead zone of 20, outside 2*0.5*...
+    engine = engine_of(cubic_cal())
+    assert (engine.run("s1", t, r).direction == 0).all()
+    engine.set_deadzone_scale(0.1)
+    assert engine.run("s1", t + 1.0, r).direction[-1] == 1
+    from strain_comp.errors import InputError, ParameterError
+
+    with pytest.raises(InputError, match="unknown sensor"):
+        engine.step("nope", 0.0, 1.0)
+    with pytest.raises(InputError, match="not in the calibration"):
+        engine_of(cubic_cal(), arrays={"arr": ["s1", "x"]})
+    with pytest.raises(ParameterError, match="gap_reset"):
+        engine_of(cubic_cal(), gap_reset=0.0)
+
+
+def test_warm_up_leaves_the_engine_untouched() -> None:
+    engine = engine_of(cubic_cal("a"), lag_cal("b"), arrays={"arr": ["a", "b"]})
+    engine.warm_up()
+    assert all(h.n_good == 0 for h in engine.health().values())

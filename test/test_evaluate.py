@@ -1,0 +1,90 @@
+"""Evaluation: the table and JSON equal error_stats computed independently; plots are written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from strain_comp.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.direction import DirectionSettings
+from strain_comp.errors import InputError
+from strain_comp.evaluate import evaluate_recordings, format_notes, format_table
+from strain_comp.metrics import error_stats
+from strain_comp.models import Normalisation
+from strain_comp.recording import Recording
+
+C = [-50.0, 0.5, 0.0, 0.0]  # S = 0.5 R - 50: R in [100, 150] ohm -> S in [0, 25] %
+
+
+def calibration() -> Calibration:
+    cal = SensorCalibration(
+        name="s1", model="cubic", params={"c": C},
+        normalisation=Normalisation.from_ranges(100.0, 150.0, 0.0, 25.0),
+        valid_range=ValidRange(95.0, 155.0, -2.5, 27.5),
+        direction=DirectionSettings(deadzone=0.5, tau=0.0, k_sigma=4.0))
+    return Calibration({"s1": cal})
+
+
+def data() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 60.0, 0.02)
+    s = 12.5 + 12.0 * np.sin(2 * np.pi * t / 15.0)
+    r = (s + 50.0) / 0.5 + 0.4 * rng.standard_normal(t.size) + 1.5 * np.sin(t)  # model error
+    r[[100, 101, 2000]] = [np.nan, -3.0, np.inf]
+    return t, r, s
+
+
+def recording(name: str = "s1", *, with_reference: bool = True) -> Recording:
+    t, r, s = data()
+    return Recording(name=name, t=t, r=r, s=s if with_reference else None, temperature=None,
+                     array=None, index=None)
+
+
+def test_table_and_json_equal_independent_error_stats() -> None:
+    result = evaluate_recordings({"s1": recording()}, calibration())
+    t, r, s = data()
+    good = np.isfinite(r) & (r > 0)
+    expected = error_stats(0.5 * r[good] - 50.0, s[good])  # eq. (4) with c by hand
+    got = result.sensors["s1"].stats
+    for key in ("rmse", "mae", "max_abs", "r2"):
+        assert getattr(got, key) == pytest.approx(getattr(expected, key), rel=1e-9)
+    assert got.n == expected.n == t.size - 3
+    table = format_table(result)
+    row = next(line for line in table.splitlines() if line.startswith("s1 "))
+    assert row.split() == ["s1", "cubic", str(expected.n), f"{expected.rmse:.4f}",
+                           f"{expected.mae:.4f}", f"{expected.max_abs:.4f}",
+                           f"{expected.r2:.5f}"]
+    document = json.loads(json.dumps(result.to_json()))
+    assert list(document) == ["sensors"] and list(document["sensors"]) == ["s1"]
+    record = document["sensors"]["s1"]
+    assert {"rmse", "mae", "max_abs", "r2", "n"} <= set(record)
+    assert record["rmse"] == pytest.approx(expected.rmse, rel=1e-12)
+    assert record["n"] == expected.n and record["n_bad"] == 3
+    notes = format_notes(result)
+    assert any("3 of" in line and "bad" in line for line in notes)
+
+
+def test_unscorable_sensors_are_noted_and_nothing_scorable_is_an_error() -> None:
+    cal = calibration()
+    cal.sensors["s2"] = SensorCalibration(**{**cal.sensors["s1"].__dict__, "name": "s2"})
+    result = evaluate_recordings({"s1": recording()}, cal)
+    assert list(result.sensors) == ["s1"]
+    assert any(note.startswith("s2:") for note in result.notes)
+    with pytest.raises(InputError, match="no calibrated sensor"):
+        evaluate_recordings({"s1": recording(with_reference=False)}, calibration())
+    with pytest.raises(InputError, match="no calibrated sensor"):
+        evaluate_recordings({"other": recording("other")}, calibration())
+
+
+def test_plots_are_written(tmp_path: Path) -> None:
+    from strain_comp.plots import plot_evaluation
+
+    result = evaluate_recordings({"s1": recording()}, calibration())
+    written = plot_evaluation(result, tmp_path / "plots")
+    assert sorted(p.name for p in written) == ["s1_error_hist.png", "s1_loop.png",
+                                               "s1_time.png"]
+    for path in written:
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000

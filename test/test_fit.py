@@ -1,0 +1,173 @@
+"""Fitting orchestration: screening, segments, ranges, dead zone, provenance, round trip."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from strain_comp.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.errors import FitError, InputError, ParameterError
+from strain_comp.fit import (
+    GAP_SECONDS,
+    MIN_SEGMENT,
+    RANGE_MARGIN,
+    find_hold,
+    fit_sensor,
+    parse_options,
+    split_segments,
+)
+from strain_comp.metrics import error_stats
+from strain_comp.recording import Recording
+
+C_TRUE = np.array([-40.0, 0.5, -2e-3, 1e-5])  # S = c0 + c1 R + c2 R^2 + c3 R^3, R in ohm
+
+
+def cubic_strain(r: np.ndarray) -> np.ndarray:
+    return C_TRUE[0] + C_TRUE[1] * r + C_TRUE[2] * r**2 + C_TRUE[3] * r**3
+
+
+def triangles(duration: float = 120.0, dt: float = 0.05, *, hold: tuple[float, float] | None
+              = None) -> tuple[np.ndarray, np.ndarray]:
+    """Time and a 0..20 % triangle strain with period 20 s, optionally held still."""
+    t = np.arange(0.0, duration, dt)
+    s = 20.0 * np.abs((t / 10.0) % 2.0 - 1.0)
+    if hold is not None:
+        inside = (t >= hold[0]) & (t < hold[1])
+        s[inside] = s[np.searchsorted(t, hold[0])]
+    return t, s
+
+
+def recording(t: np.ndarray, r: np.ndarray, s: np.ndarray | None, name: str = "s1") -> Recording:
+    return Recording(name=name, t=t, r=r, s=s, temperature=None, array=None, index=None)
+
+
+def resistance_of(s: np.ndarray) -> np.ndarray:
+    """Invert the cubic numerically (it is increasing on the range used)."""
+    grid = np.linspace(80.0, 200.0, 20001)
+    return np.interp(s, cubic_strain(grid), grid)
+
+
+def test_fit_recovers_cubic_and_round_trips(tmp_path: Path) -> None:
+    t, s = triangles()
+    r = resistance_of(s)
+    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1", bags=["a.mcap"])
+    assert np.allclose(cal.params["c"], C_TRUE, rtol=1e-5, atol=1e-8)
+    assert cal.provenance["fit_rmse"] < 1e-6
+    assert cal.provenance["bags"] == ["a.mcap"]
+    assert cal.provenance["n_samples"] == t.size
+    # valid range: training range widened by the documented margin
+    r_pad = RANGE_MARGIN * (r.max() - r.min())
+    s_pad = RANGE_MARGIN * (s.max() - s.min())
+    vr = cal.valid_range
+    assert (vr.r_lo, vr.r_hi) == pytest.approx((r.min() - r_pad, r.max() + r_pad))
+    assert (vr.s_lo, vr.s_hi) == pytest.approx((s.min() - s_pad, s.max() + s_pad))
+    # no hold, hardly any noise: the dead zone is far below the rate of R while moving
+    assert cal.provenance["direction_from"] in ("noise", "floor")
+    assert 0 < cal.direction.deadzone < 0.01 * np.median(np.abs(np.diff(r) / np.diff(t)))
+    path = tmp_path / "cal.yaml"
+    save_calibration(Calibration({"s1": cal}), path)
+    loaded = load_calibration(path)
+    assert loaded.sensors["s1"] == cal
+    assert np.array_equal(loaded.sensors["s1"].build_model().run(t, r),
+                          cal.build_model().run(t, r))
+
+
+def test_fit_rmse_is_the_training_error_over_good_samples() -> None:
+    t, s = triangles()
+    rng = np.random.default_rng(3)
+    r = resistance_of(s) + 0.3 * rng.standard_normal(t.size)
+    r[[10, 500, 501]] = [np.nan, -1.0, np.inf]
+    s_bad = s.copy()
+    s_bad[700] = np.nan
+    cal = fit_sensor([recording(t, r, s_bad)], "cubic", name="s1")
+    keep = np.isfinite(r) & (r > 0) & np.isfinite(s_bad)
+    estimate = cal.build_model().run(t[keep], r[keep])
+    expected = error_stats(estimate, s[keep])
+    assert cal.provenance["fit_rmse"] == pytest.approx(expected.rmse, rel=1e-12)
+    assert cal.provenance["n_samples"] == expected.n == t.size - 4
+
+
+def test_fit_rmse_equals_evaluate_on_the_training_data() -> None:
+    from strain_comp.evaluate import evaluate_recordings
+
+    t, s = triangles(200.0, hold=(100.0, 130.0))
+    r = resistance_of(s) + 0.2 * np.random.default_rng(2).standard_normal(t.size)
+    rec = recording(t, r, s)
+    cal = fit_sensor([rec], "cubic", name="s1")
+    result = evaluate_recordings({"s1": rec}, Calibration({"s1": cal}))
+    assert result.sensors["s1"].stats.rmse == pytest.approx(cal.provenance["fit_rmse"],
+                                                           rel=1e-12)
+
+
+def test_segments_cut_at_gaps_not_at_isolated_bad_samples() -> None:
+    t = np.arange(0.0, 30.0, 0.1)
+    r = 100.0 + t
+    s = t.copy()
+    r[50] = np.nan  # isolated bad sample: no cut
+    gap = (t > 10.0) & (t < 10.0 + GAP_SECONDS + 1.0)  # a long stretch of bad samples: cut
+    r[gap] = 0.0
+    t_short = t.copy()
+    segments = split_segments(t_short, r, s)
+    assert len(segments) == 2
+    assert segments[0].t[-1] <= 10.0 and segments[1].t[0] >= 10.0 + GAP_SECONDS
+    assert segments[0].t.size == np.sum(t <= 10.0) - 1
+    # a stretch shorter than MIN_SEGMENT samples between two gaps is dropped
+    t2 = np.concatenate([np.arange(0, 5, 0.1), 20 + 0.1 * np.arange(MIN_SEGMENT - 1),
+                         np.arange(40, 45, 0.1)])
+    assert len(split_segments(t2, 100 + t2, t2)) == 2
+
+
+def test_dead_zone_from_hold_is_k_sigma_of_derivative_noise() -> None:
+    dt, sigma_r = 0.05, 0.05
+    t, s = triangles(200.0, dt, hold=(100.0, 160.0))
+    rng = np.random.default_rng(7)
+    r = resistance_of(s) + sigma_r * rng.standard_normal(t.size)
+    segments = split_segments(t, r, s)
+    hold_t, _ = find_hold(segments)
+    assert hold_t[0] >= 100.0 and hold_t[-1] < 160.0 and hold_t.size > 200
+    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1", options={"k_sigma": 3.0})
+    assert cal.provenance["direction_from"] == "hold"
+    expected = 3.0 * sigma_r * np.sqrt(2.0) / dt  # sigma of (r_i - r_i-1) / dt
+    assert cal.direction.deadzone == pytest.approx(expected, rel=0.15)
+    assert cal.direction.k_sigma == 3.0
+
+
+def test_dead_zone_without_hold_from_robust_noise() -> None:
+    dt, sigma_r = 0.05, 0.05
+    t, s = triangles(200.0, dt)
+    rng = np.random.default_rng(11)
+    r = resistance_of(s) + sigma_r * rng.standard_normal(t.size)
+    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1")
+    assert cal.provenance["direction_from"] == "noise"
+    assert cal.direction.deadzone == pytest.approx(4.0 * sigma_r * np.sqrt(2.0) / dt, rel=0.2)
+
+
+def test_direction_options_are_not_passed_to_the_model() -> None:
+    t, s = triangles()
+    cal = fit_sensor([recording(t, resistance_of(s), s)], "cubic", name="s1",
+                     options={"deadzone": 0.25, "tau": 0.1})
+    assert (cal.direction.deadzone, cal.direction.tau, cal.direction.k_sigma) == (0.25, 0.1, None)
+    assert cal.provenance["direction_from"] == "given"
+    assert cal.provenance["options"] == {}
+
+
+def test_parse_options_reads_yaml_values() -> None:
+    options = parse_options(["N=11", "sigma=0.5", "mode=split", "grid=[1, 2]", "flag=true"])
+    assert options == {"N": 11, "sigma": 0.5, "mode": "split", "grid": [1, 2], "flag": True}
+    with pytest.raises(InputError, match="key=value"):
+        parse_options(["N"])
+
+
+def test_fit_errors_are_clear() -> None:
+    t, s = triangles(10.0)
+    r = resistance_of(s)
+    with pytest.raises(FitError, match="no strain_reference"):
+        fit_sensor([recording(t, r, None)], "cubic", name="s1")
+    with pytest.raises(FitError, match="no stretch"):
+        fit_sensor([recording(t[:3], r[:3], s[:3])], "cubic", name="s1")
+    with pytest.raises(FitError, match="no range"):
+        fit_sensor([recording(t, np.full(t.size, 100.0), s)], "cubic", name="s1")
+    with pytest.raises(ParameterError, match="unknown model"):
+        fit_sensor([recording(t, r, s)], "quintic", name="s1")

@@ -1,0 +1,167 @@
+"""Virtual rig: determinism, every effect switch in its documented direction, round trip."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from strain_comp.errors import ParameterError
+from strain_comp.recording import load_recordings
+from strain_comp.rig import (
+    SCENARIOS,
+    RigEffects,
+    SensorSpec,
+    _mechanical,
+    _Profile,
+    simulate,
+    write_sim_bag,
+)
+
+CLEAN = RigEffects(noise=0.0, adc_bits=0)
+
+
+def _r(run, name="s1"):
+    return run.sensors[name].resistance
+
+
+def test_every_scenario_runs_and_is_deterministic() -> None:
+    for name in SCENARIOS:
+        a = simulate(name, seed=3, duration=60.0)
+        b = simulate(name, seed=3, duration=60.0)
+        for key in a.sensors:
+            np.testing.assert_array_equal(a.sensors[key].resistance, b.sensors[key].resistance)
+            assert np.isfinite(a.sensors[key].resistance).all()
+    assert not np.array_equal(_r(simulate("random", seed=1)), _r(simulate("random", seed=2)))
+
+
+def test_parse_effects() -> None:
+    fx = RigEffects.parse(["drift=0.05", "crosstalk=0.1"])
+    assert (fx.drift, fx.crosstalk, fx.hysteresis) == (0.05, 0.1, RigEffects().hysteresis)
+    with pytest.raises(ParameterError, match="unknown effect"):
+        RigEffects.parse(["wobble=1"])
+    with pytest.raises(ParameterError, match="relaxation_tau"):
+        RigEffects.parse(["relaxation_tau=0"])
+    assert "drift" in RigEffects.describe()
+
+
+def _loop(rate: float, fx: RigEffects = CLEAN) -> tuple[np.ndarray, np.ndarray]:
+    t, s = _Profile().triangles(0, 30, rate, 3).sample(50.0, None)
+    r = _mechanical(s, SensorSpec(), fx, 50.0)
+    last = slice(2 * t.size // 3, t.size)  # the last cycle
+    return s[last], r[last]
+
+
+def test_loop_is_clockwise_and_rotates_with_rate() -> None:
+    areas, tops, bottoms = [], [], []
+    for rate in (20.0, 60.0, 100.0):
+        s, r = _loop(rate)
+        areas.append(0.5 * np.sum(s[:-1] * r[1:] - s[1:] * r[:-1]))
+        tops.append(r[np.argmax(s)])
+        bottoms.append(r[np.argmin(s)])
+    assert all(a < 0 for a in areas)  # clockwise in the (S, R) plane
+    assert tops[0] < tops[1] < tops[2]  # the loop steepens (rotates ccw) with rate
+    assert tops[2] - tops[0] > 3 * abs(bottoms[2] - bottoms[0])  # about the lower-left corner
+    s, r = _loop(60.0, dataclasses.replace(CLEAN, hysteresis=0.0, relaxation=0.0))
+    assert abs(0.5 * np.sum(s[:-1] * r[1:] - s[1:] * r[:-1])) < 1e-9  # off: no loop
+
+
+def _hold_changes(fx: RigEffects) -> tuple[list[float], list[float]]:
+    run = simulate("steps", effects=fx)
+    x = run.sensors["s1"]
+    d = np.diff(x.strain)
+    ends = np.flatnonzero((d != 0) & (np.append(d[1:], 0) == 0)) + 1
+    up, down = [], []
+    for e in ends:
+        seg = x.resistance[e:e + int(25 * run.fs)]
+        (up if x.strain[e] > x.strain[e - 3] else down).append(seg[0] - seg[-1])
+    return up, down
+
+
+def test_relaxation_strong_on_loading_weak_on_unloading() -> None:
+    up, down = _hold_changes(CLEAN)
+    assert min(up) > 0.5  # resistance falls during a hold after loading
+    assert max(abs(x) for x in down) < 0.3 * min(up)
+    no_ve = dataclasses.replace(CLEAN, hysteresis=0.0, relaxation=0.0)
+    up0, down0 = _hold_changes(no_ve)
+    assert max(abs(x) for x in up0 + down0) < 1e-9
+    slow = _hold_changes(dataclasses.replace(CLEAN, hysteresis=0.0))[0]
+    expected = CLEAN.relaxation * 11.5 * 0.3 * (1 - np.exp(-25 / CLEAN.relaxation_tau))
+    assert slow[0] == pytest.approx(expected, rel=0.15)  # R0 * relaxation * du, 10 % step
+
+
+def test_drift_on_a_long_hold() -> None:
+    off = simulate("long", effects=CLEAN)
+    on = simulate("long", effects=dataclasses.replace(CLEAN, drift=0.05))
+    ratio = on.sensors["s1"].resistance / off.sensors["s1"].resistance
+    t = on.sensors["s1"].t
+    np.testing.assert_allclose(ratio, 1 + 0.05 * t / 3600, rtol=1e-12)
+    default = simulate("long")  # the scenario's own drift
+    assert default.effects.drift == 0.05
+
+
+def test_temperature_effect_and_topic(tmp_path: Path) -> None:
+    off = simulate("triangle", effects=CLEAN)
+    assert off.sensors["s1"].temperature is None
+    fx = dataclasses.replace(CLEAN, temperature=0.004)
+    on = simulate("triangle", effects=fx)
+    temp = on.sensors["s1"].temperature
+    assert np.ptp(temp) > 2.0
+    np.testing.assert_allclose(_r(on) / _r(off), 1 + 0.004 * (temp - 23.0), rtol=1e-12)
+    write_sim_bag(on, tmp_path / "t.mcap")
+    recs, _ = load_recordings(tmp_path / "t.mcap")
+    err = np.abs(recs["s1"].temperature - temp)  # published at 2 Hz, interpolated back
+    assert np.nanmedian(err) < 0.01 and np.nanmax(err) <= fx.temperature_step + 0.01
+
+
+def test_crosstalk_comes_from_neighbours_only() -> None:
+    off = simulate("array", effects=CLEAN)
+    on = simulate("array", effects=dataclasses.replace(CLEAN, crosstalk=0.1))
+    names = list(off.sensors)
+    delta = {n: off.sensors[n].resistance - off.sensors[n].resistance[0] for n in names}
+    for i, n in enumerate(names):
+        leak = sum(delta[names[j]] for j in (i - 1, i + 1) if 0 <= j < len(names))
+        np.testing.assert_allclose(on.sensors[n].resistance - off.sensors[n].resistance,
+                                   0.1 * leak, atol=1e-9)
+    strains = np.array([off.sensors[n].strain for n in names])
+    assert np.corrcoef(strains)[0, 1] < 0.9  # neighbours strained differently
+
+
+def test_mullins_softening_after_first_peak() -> None:
+    fx = dataclasses.replace(CLEAN, hysteresis=0.0, relaxation=0.0, mullins=0.5)
+    run = simulate("triangle", effects=fx)
+    x = run.sensors["s1"]
+    ref = simulate("triangle", effects=dataclasses.replace(fx, mullins=0.0)).sensors["s1"]
+    at_peak = np.argmax(x.strain)
+    first = np.flatnonzero(x.strain > 15)[0]  # first loading, below the later peak
+    later = np.flatnonzero((x.strain > 14.9) & (x.strain < 15.1))[-1]
+    assert x.resistance[first] - 11.5 > x.resistance[later] - 11.5  # softer afterwards
+    loss = 1 - (x.resistance[at_peak] - 11.5) / (ref.resistance[at_peak] - 11.5)
+    assert loss == pytest.approx(0.5 * 30 / 100, rel=1e-6)
+
+
+def test_noise_and_adc() -> None:
+    clean = simulate("triangle", effects=CLEAN)
+    noisy = simulate("triangle", effects=dataclasses.replace(CLEAN, noise=0.05))
+    err = _r(noisy) - _r(clean)
+    assert np.std(err) == pytest.approx(0.05, rel=0.05)
+    adc = simulate("triangle", effects=dataclasses.replace(CLEAN, adc_bits=8))
+    r = _r(adc)
+    assert np.unique(r).size < 256
+    v1 = 3.2 * 10.5 / (10.5 + 23.0)
+    step = 10.5 * 3.2 / v1**2 * 3.2 / 256  # dR/dV * LSB near the top of the range
+    assert np.max(np.abs(r - _r(clean))) < step
+
+
+def test_round_trip_through_bag(tmp_path: Path) -> None:
+    for scenario in ("triangle", "array"):
+        run = simulate(scenario, duration=30.0)
+        write_sim_bag(run, tmp_path / f"{scenario}.mcap")
+        recs, problems = load_recordings(tmp_path / f"{scenario}.mcap")
+        assert problems == [] and set(recs) == set(run.sensors)
+        for name, sensor in run.sensors.items():
+            np.testing.assert_array_equal(recs[name].r, sensor.resistance)
+            np.testing.assert_array_equal(recs[name].s, sensor.strain)
+            np.testing.assert_allclose(recs[name].t, sensor.t, atol=1e-9)
