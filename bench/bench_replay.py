@@ -33,13 +33,13 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import best_time, calibration, resistance  # noqa: E402
+from _common import best_time, calibration, resistance
 
-from strain_comp.bag import BagWriter, read_bag  # noqa: E402
-from strain_comp.calibration import load_calibration, save_calibration  # noqa: E402
-from strain_comp.evaluate import evaluate_recordings  # noqa: E402
-from strain_comp.recording import load_recordings  # noqa: E402
-from strain_comp.replay import replay_bag  # noqa: E402
+from strain_comp.bag import BagWriter, read_bag
+from strain_comp.calibration import load_calibration, save_calibration
+from strain_comp.evaluate import evaluate_recordings
+from strain_comp.recording import load_recordings
+from strain_comp.replay import replay_bag
 
 
 def make_bags(cache: Path, n: int, k: int, model: str) -> tuple[Path, Path, Path]:

@@ -766,6 +766,22 @@ def _write_mcap(stream: Any, topics: Mapping[str, _Topic], chunk_size: int) -> N
         stream.write(piece)
 
 
+@njit
+def _fill_records(raw: np.ndarray, head: np.ndarray, start: np.ndarray, poff: np.ndarray,
+                  plen: np.ndarray, blob: np.ndarray) -> None:
+    """Copy message i's record header ``head[i]`` and payload ``blob[poff[i]:+plen[i]]``
+    to ``raw[start[i]:]`` (one pass; a numpy fancy-index scatter was 3-5x slower)."""
+    width = head.shape[1]
+    for i in range(start.size):
+        s = start[i]
+        for j in range(width):
+            raw[s + j] = head[i, j]
+        s += width
+        o = poff[i]
+        for j in range(plen[i]):
+            raw[s + j] = blob[o + j]
+
+
 def _chunk(t_ns: np.ndarray, chan: np.ndarray, seq: np.ndarray, poff: np.ndarray,
            plen: np.ndarray, blob: np.ndarray, pos: int) -> tuple[list[bytes], ChunkIndex]:
     """One Chunk record plus its MessageIndex records, assembled with numpy."""
@@ -780,10 +796,7 @@ def _chunk(t_ns: np.ndarray, chan: np.ndarray, seq: np.ndarray, poff: np.ndarray
     head["seq"] = seq
     head["log"] = t_ns
     head["pub"] = t_ns
-    raw[start[:, None] + np.arange(31)] = head.view(np.uint8).reshape(n, 31)
-    total = int(plen.sum())
-    within = np.arange(total) - np.repeat(np.cumsum(plen) - plen, plen)
-    raw[np.repeat(start + 31, plen) + within] = blob[np.repeat(poff, plen) + within]
+    _fill_records(raw, head.view(np.uint8).reshape(n, 31), start, poff, plen, blob)
     data = raw.tobytes()
     compressed = zstandard.ZstdCompressor(level=3).compress(data)
     chunk = Chunk(message_start_time=int(t_ns[0]), message_end_time=int(t_ns[-1]),

@@ -10,7 +10,7 @@ sensors:
     normalisation: {r0: .., alpha: .., s0: .., beta: ..}   # xi = R/r0 + alpha, psi = S/s0 + beta
     input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
-    direction: {deadzone: ohm/s, tau: s, k_sigma: null|number}
+    direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
     effects: []                              # added effect terms (strain_comp.effects)
     provenance: {bags: [..], created: .., fit_rmse: .., n_samples: .., tool: ..}
 ```
@@ -233,6 +233,7 @@ class _Reader:
             tau=self.number(dir_node, "tau", dw, lo=0.0) if "tau" in dir_node else 0.0,
             k_sigma=None if k_sigma is None else self.number(dir_node, "k_sigma", dw, lo=0.0,
                                                              strict=True),
+            sign=self.sign(dir_node, dw),
         )
         input_settings = self.input(node.get("input", {"kind": "resistance"}), f"{where}.input")
         effects = node.get("effects", []) or []
@@ -258,6 +259,13 @@ class _Reader:
             prefix = f"{where}.model" if err.field == "name" else f"{where}.model.params"
             raise self.fail(f"{prefix}.{err.field}", err.problem) from None
         return calibration
+
+    def sign(self, node: Mapping[str, Any], where: str) -> int:
+        """Optional ``sign``: +1 (R rises with strain, the default) or -1 (R falls)."""
+        value = node.get("sign", 1)
+        if isinstance(value, bool) or value not in (1, -1):
+            raise self.fail(f"{where}.sign", f"must be +1 or -1, got {value!r}")
+        return int(value)
 
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)

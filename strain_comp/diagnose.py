@@ -5,14 +5,15 @@ Per calibrated sensor that has a recording with a reference strain:
 
 1. **Residual.** The calibration, with its effect terms removed, runs through the engine's
    batch path (``Engine.run``, the code replay and the node use) to give the model's own
-   estimate S_hat and the direction d; the sensor's existing effect terms (if any) are
-   applied on top, and e = S_corrected - S over the samples the engine used whose
-   reference is finite.
+   estimate S_hat and the published direction d; the sensor's existing effect terms (if
+   any) are applied on top, and e = S_corrected - S over the samples the engine used whose
+   reference is finite. Effect state restarts at the engine's gap resets, as online.
 2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.effects``: rate,
-   direction, relaxation over several time constants and branches, elapsed-time drift,
-   temperature when a temperature series exists, strain level, Mullins-type history,
-   cross-talk from array neighbours at index +-1) is computed online over each recording,
-   exactly as the engine would compute it. Nothing about how the data were made is known.
+   direction, relaxation over time constants 0.5-128 s and three branches, elapsed-time
+   drift, temperature when a temperature series exists, strain level, Mullins-type history
+   incl. the peak strain, cross-talk from array neighbours at index +-1, and a per-run
+   ``baseline``) is computed online over each recording, exactly as the engine would
+   compute it. Nothing about how the data were made is known.
 3. **Blocks.** Each recording is cut by time into ``n_blocks`` contiguous blocks (never
    random samples). Without validation recordings, every ``round(1 / holdout_fraction)``-th
    block is held out for the final report; the other blocks are the fit data.
@@ -20,37 +21,49 @@ Per calibrated sensor that has a recording with a reference strain:
    every recording per fold): a model is e ~ c0 + sum_j c_j g_j fitted by least squares on
    the other folds and scored on the held-out fold. A candidate's ``score`` is the share of
    the residual variance it explains on data it was not fitted on, relative to the
-   intercept-only model (for ``offset`` itself: relative to no correction). Scores can be
-   negative (the term only fits noise).
+   intercept-only model (for ``offset`` and ``baseline``: relative to no correction).
+   Scores can be negative (the term only fits noise).
 5. **Greedy forward selection.** Add the candidate whose relative drop of the
-   cross-validated RMSE is largest, refit, repeat while that gain exceeds ``margin`` and at
-   most ``max_effects`` times. The intercept (an effect of kind ``offset``) is fitted with
-   any added effect and stored with it; an effect's gain is measured against the current
-   model *with* the intercept, so an effect never gets the credit of a mere offset (the
-   offset competes as a candidate of its own, against the model without it).
+   cross-validated RMSE is largest, refit, repeat while that gain exceeds ``margin``, the
+   fold-wise drop is positive by more than ``SIGNIFICANCE`` standard errors (a term that
+   helps in a few stretches of the record and hurts in others fits a coincidence of the
+   profile), and at most ``max_effects`` times. The intercept (an effect of kind
+   ``offset``) is fitted with any added effect and stored with it; an effect's gain is
+   measured against the current model *with* the intercept, so an effect never gets the
+   credit of a mere offset (the offset competes as a candidate of its own).
 6. **Report.** The selected terms are fitted on all fit data; RMSE before and after is
    measured on the held-out blocks or on the ``validate_recordings``. Added effects are
-   kept only while each one lowers that held-out RMSE, below both the model before it and
-   that model with an intercept (an effect that does not is not added); the result says
-   when nothing helps. The output calibration is the input
-   plus the added effect entries, with the coefficients whose held-out error is reported.
+   kept only while each one lowers that held-out RMSE by more than ``margin``, below both
+   the model before it and that model with an intercept (an effect that does not is not
+   added); the result says when nothing helps. The output calibration is the input plus
+   the added effect entries, with the coefficients whose held-out error is reported.
+7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
+   run, minus the strain runs start at) is a per-run intercept: inside one run it cannot be
+   told from a constant ``offset``. It is tested as a second hypothesis: its shift is
+   removed whole (coefficient 1, no automatic intercept), steps 5-6 run on what is left,
+   and the baseline hypothesis replaces the constant-intercept one only if its held-out
+   RMSE is lower by more than ``margin``. That choice is made on the held-out data, like
+   the veto of step 6: given a ``--validate`` recording of another run it is a cross-run
+   test; on held-out blocks of one run the two tie and the constant hypothesis stays.
 
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
-margin); effect state is not reset at the engine's gap resets, in diagnosis as online.
+margin); effect state is reset at the engine's gap resets, in diagnosis as online.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from strain_comp._numba import njit
 from strain_comp.calibration import Calibration, SensorCalibration, save_calibration
 from strain_comp.effects import Batch, EffectTerms, effect_dict, regressor_from_dict
 from strain_comp.engine import Engine, Status
@@ -60,17 +73,25 @@ from strain_comp.metrics import error_stats
 if TYPE_CHECKING:
     from strain_comp.recording import Recording
 
-RELAXATION_TAUS = (1.0, 3.0, 10.0, 30.0, 100.0)
-"""Time constants [s] of the relaxation candidates."""
+RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
+"""Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
+(fine enough that the nearest one is within 19 % of any time constant in that span)."""
+BASELINE_WINDOW = 5.0
+"""Seconds at the start of a run over which a ``baseline`` candidate averages S_hat."""
+SIGNIFICANCE = 1.0
+"""A term is added only if its fold-wise cross-validated gain exceeds this many standard
+errors (``_significant``)."""
 _USED_STATUS = (Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE)
 
 
 def default_candidates(*, temperature_ref: float | None = None,
-                       neighbours: Sequence[str] = ()) -> list[dict[str, Any]]:
+                       neighbours: Sequence[str] = (),
+                       baseline_rest: float = 0.0) -> list[dict[str, Any]]:
     """The generic candidate effects (calibration-file dicts with ``coef: 0``).
 
     ``temperature_ref`` [deg C]: include temperature terms around it (None: no temperature
-    series); ``neighbours``: array neighbours to test for cross-talk.
+    series); ``neighbours``: array neighbours to test for cross-talk; ``baseline_rest`` [%]:
+    the strain runs start at (the ``rest`` of the per-run ``baseline`` candidate).
     """
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
@@ -98,6 +119,10 @@ def default_candidates(*, temperature_ref: float | None = None,
              "params": {"form": "cycles_log", "n0": 1.0}}]
     out += [{"name": f"mullins_cycles_exp_n{n0:g}", "kind": "mullins",
              "params": {"form": "cycles_exp", "n0": n0}} for n0 in (1.0, 3.0)]
+    out.append({"name": "mullins_peak_strain", "kind": "mullins",
+                "params": {"form": "peak_strain", "n0": 1.0}})
+    out.append({"name": "baseline", "kind": "baseline",
+                "params": {"window": BASELINE_WINDOW, "rest": float(baseline_rest)}})
     out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}
             for nb in neighbours]
     for entry in out:
@@ -222,9 +247,19 @@ def _as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     return list(recordings)
 
 
-def _base_runs(bag: Mapping[str, Recording], calibration: Calibration
-               ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """(S_hat without effects, direction, used mask) per calibrated sensor in the bag."""
+@dataclass
+class _Run:
+    """The stripped calibration's engine output for one sensor of one bag."""
+
+    s_hat: np.ndarray
+    direction: np.ndarray
+    used: np.ndarray
+    starts: list[int]
+    """Positions among the used samples where the engine reset after a gap."""
+
+
+def _base_runs(bag: Mapping[str, Recording], calibration: Calibration) -> dict[str, _Run]:
+    """S_hat without effects, direction, used mask and gap resets per calibrated sensor."""
     stripped = Calibration({n: dataclasses.replace(c, effects=[])
                             for n, c in calibration.sensors.items()})
     out = {}
@@ -234,7 +269,10 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration
         engine = Engine(stripped)
         result = engine.run(name, rec.t, rec.r, rec.temperature)
         used = np.isin(result.status, np.array(_USED_STATUS, dtype=result.status.dtype))
-        out[name] = (result.strain, result.direction.astype(np.float64), used)
+        dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
+        starts = (np.flatnonzero((dt > engine.gap_reset) | (dt <= -engine.gap_reset))
+                  + 1).tolist()
+        out[name] = _Run(result.strain, result.direction.astype(np.float64), used, starts)
     return out
 
 
@@ -263,14 +301,32 @@ def _block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
     return np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
 
 
+def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], batch: Batch,
+               starts: Sequence[int]) -> np.ndarray:
+    """``run`` over the segments between the engine's gap resets, ``reset`` between them
+    (the engine resets effect state where it resets the model)."""
+    n = batch.t.size
+    out = np.empty(n)
+    for k, (a, b) in enumerate(itertools.pairwise([0, *starts, n])):
+        if k > 0:
+            reset()
+        if b > a:
+            out[a:b] = run(Batch(
+                batch.t[a:b], batch.r[a:b], batch.s_hat[a:b], batch.direction[a:b],
+                None if batch.temperature is None else batch.temperature[a:b],
+                {name: v[a:b] for name, v in batch.neighbours.items()}))
+    return out
+
+
 def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
-            runs: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
-            candidates: Sequence[dict[str, Any]], n_blocks: int) -> _Series | None:
+            runs: Mapping[str, _Run], candidates: Sequence[dict[str, Any]],
+            n_blocks: int) -> _Series | None:
     """Residual and candidate regressors of one sensor in one bag (None: nothing usable)."""
     rec = bag[sensor]
     if rec.s is None or sensor not in runs:
         return None
-    s_hat, direction, used = runs[sensor]
+    run = runs[sensor]
+    used = run.used
     ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
     if ok.sum() < 2 * n_blocks:
         return None
@@ -280,14 +336,44 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
     for name in _neighbours(rec, bag):
         if name in runs:
             nbrs[name] = _aligned(np.asarray(rec.t, np.float64),
-                                  np.asarray(bag[name].t, np.float64), runs[name][0])[used]
-    batch = Batch.of(t, np.asarray(rec.r)[used], s_hat[used], direction[used], temperature, nbrs)
-    corrected = EffectTerms.from_dicts(cal.effects).run(
-        batch.t, batch.r, batch.s_hat, batch.direction, batch.temperature, batch.neighbours)
+                                  np.asarray(bag[name].t, np.float64), runs[name].s_hat)[used]
+    batch = Batch.of(t, np.asarray(rec.r)[used], run.s_hat[used], run.direction[used],
+                     temperature, nbrs)
+    terms = EffectTerms.from_dicts(cal.effects)
+    corrected = _segmented(
+        lambda b: terms.run(b.t, b.r, b.s_hat, b.direction, b.temperature, b.neighbours),
+        terms.reset, batch, run.starts)
     keep = ok[used]
-    g = np.column_stack([regressor_from_dict(c).run(batch) for c in candidates])
+    regressors = [regressor_from_dict(c) for c in candidates]
+    g = np.column_stack([_segmented(reg.run, reg.reset, batch, run.starts)
+                         for reg in regressors])
     e = corrected - np.asarray(rec.s, dtype=np.float64)[used]
     return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks))
+
+
+@njit
+def _fold_sums(x: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-fold X'X, X'e, e'e and counts in one pass (a plain loop: no BLAS threads)."""
+    n, k = x.shape
+    xx = np.zeros((n_folds, k, k))
+    xe = np.zeros((n_folds, k))
+    ee = np.zeros(n_folds)
+    count = np.zeros(n_folds)
+    for i in range(n):
+        f = fold[i]
+        count[f] += 1.0
+        ee[f] += e[i] * e[i]
+        for a in range(k):
+            xa = x[i, a]
+            xe[f, a] += xa * e[i]
+            for b in range(a, k):
+                xx[f, a, b] += xa * x[i, b]
+    for f in range(n_folds):
+        for a in range(k):
+            for b in range(a + 1, k):
+                xx[f, b, a] = xx[f, a, b]
+    return xx, xe, ee, count
 
 
 class _Gram:
@@ -297,80 +383,112 @@ class _Gram:
     def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
         std = np.std(g, axis=0)
         self.scale = np.where(std > 0, std, 1.0)
-        x = g / self.scale
-        k = g.shape[1]
-        self.xx = np.zeros((n_folds, k, k))
-        self.xe = np.zeros((n_folds, k))
-        self.ee = np.zeros(n_folds)
-        self.n = np.zeros(n_folds)
-        for f in range(n_folds):
-            m = fold == f
-            xf, ef = x[m], e[m]
-            self.xx[f] = xf.T @ xf
-            self.xe[f] = xf.T @ ef
-            self.ee[f] = ef @ ef
-            self.n[f] = m.sum()
+        x = np.ascontiguousarray(g / self.scale)
+        self.xx, self.xe, self.ee, self.n = _fold_sums(
+            x, np.ascontiguousarray(e, dtype=np.float64), fold.astype(np.int64), n_folds)
+        self.xx_all = self.xx.sum(axis=0)
+        self.xe_all = self.xe.sum(axis=0)
 
     def solve(self, cols: Sequence[int], folds: np.ndarray) -> np.ndarray:
         """Least-squares coefficients (scaled columns) on ``folds``."""
         if not cols:
             return np.zeros(0)
         idx = np.asarray(cols)
-        a = self.xx[folds][:, idx[:, None], idx[None, :]].sum(axis=0)
-        b = self.xe[folds][:, idx].sum(axis=0)
+        a = self.xx[np.ix_(folds, idx, idx)].sum(axis=0)
+        b = self.xe[np.ix_(folds, idx)].sum(axis=0)
         return np.linalg.lstsq(a, b, rcond=1e-12)[0]
 
-    def sse(self, cols: Sequence[int], c: np.ndarray, folds: np.ndarray) -> float:
-        total = float(self.ee[folds].sum())
+    def fold_sse(self, cols: Sequence[int]) -> np.ndarray:
+        """Blocked cross-validation: each fold's squared error under the fit on the others
+        (0 for an empty fold)."""
         if not cols:
-            return total
+            return self.ee.copy()
         idx = np.asarray(cols)
-        a = self.xx[folds][:, idx[:, None], idx[None, :]].sum(axis=0)
-        b = self.xe[folds][:, idx].sum(axis=0)
-        return max(total - 2.0 * float(c @ b) + float(c @ a @ c), 0.0)
+        xx_f = self.xx[:, idx[:, None], idx[None, :]]
+        xe_f = self.xe[:, idx]
+        a = self.xx_all[np.ix_(idx, idx)] - xx_f
+        b = self.xe_all[idx] - xe_f
+        # leave-one-fold-out fits, batched; a tiny ridge keeps collinear columns solvable
+        ridge = 1e-10 * np.maximum(np.trace(a, axis1=1, axis2=2), 1e-300) / idx.size
+        a = a + ridge[:, None, None] * np.eye(idx.size)
+        c = np.linalg.solve(a, b[..., None])[..., 0]
+        sse = self.ee - 2.0 * np.einsum("fi,fi->f", c, xe_f) \
+            + np.einsum("fi,fij,fj->f", c, xx_f, c)
+        return np.where(self.n > 0, np.maximum(sse, 0.0), 0.0)
 
     def cv_rmse(self, cols: Sequence[int]) -> float:
         """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out)."""
-        folds = np.arange(self.ee.size)
-        sse = 0.0
-        for f in folds[self.n > 0]:
-            rest = folds[folds != f]
-            sse += self.sse(cols, self.solve(cols, rest), np.array([f]))
-        return math.sqrt(sse / self.n.sum())
+        return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
 
 
-def _select(gram: _Gram, names: Sequence[str], offset: int, margin: float,
-            max_effects: int) -> tuple[list[int], dict[int, float], dict[int, float]]:
-    """Greedy forward selection; returns (added columns in order, scores, gains)."""
+def _significant(before: np.ndarray, after: np.ndarray, n: np.ndarray) -> bool:
+    """Is the fold-wise drop of the cross-validated squared error consistently > 0?
+
+    One-sided test over the folds: mean drop > ``SIGNIFICANCE`` standard errors. A term
+    that explains variance in some stretches of the record and hurts in others (it fits a
+    coincidence of the profile, not a physical effect) fails it even when the pooled
+    error falls a little.
+    """
+    d = (before - after)[n > 0]
+    if d.size < 2:
+        return bool(d.sum() > 0)
+    return bool(d.mean() > SIGNIFICANCE * d.std(ddof=1) / math.sqrt(d.size))
+
+
+@dataclass
+class _Selection:
+    chosen: list[int]
+    gains: dict[int, float]
+
+
+def _select(gram: _Gram, n_cols: int, offset: int, margin: float, max_effects: int, *,
+            auto_intercept: bool = True, skip: Sequence[int] = ()) -> _Selection:
+    """Greedy forward selection (module docstring, step 5)."""
+
+    def model(cols: Sequence[int]) -> list[int]:
+        return _with_intercept(cols, offset) if auto_intercept else list(dict.fromkeys(cols))
+
+    chosen: list[int] = []
+    gains: dict[int, float] = {}
+    current = gram.fold_sse([])
+    while len([c for c in chosen if c != offset]) < max_effects and current.sum() > 0:
+        ref = current
+        trials: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        if auto_intercept:
+            ref = gram.fold_sse(model([*chosen, offset]))
+            if offset not in chosen:
+                trials[offset] = (current, ref)
+        if ref.sum() > 0:
+            for j in range(n_cols):
+                if j in chosen or j in skip or (auto_intercept and j == offset):
+                    continue
+                trials[j] = (ref, gram.fold_sse(model([*chosen, j])))
+        gain = {j: 1.0 - math.sqrt(after.sum() / before.sum())
+                for j, (before, after) in trials.items()}
+        passing = [j for j, (before, after) in trials.items()
+                   if gain[j] > margin and _significant(before, after, gram.n)]
+        if not passing:
+            break
+        best = max(passing, key=gain.__getitem__)
+        chosen.append(best)
+        gains[best] = gain[best]
+        current = gram.fold_sse(model(chosen))
+    return _Selection(chosen, gains)
+
+
+def _scores(gram: _Gram, n_cols: int, offset: int) -> dict[int, float]:
+    """First-round scores: held-out share of the residual variance each candidate explains
+    (relative to the intercept-only model; the intercept relative to no correction)."""
     rmse_none = gram.cv_rmse([])
     rmse_offset = gram.cv_rmse([offset])
     scores = {}
-    for j in range(len(names)):
+    for j in range(n_cols):
         if j == offset:
             scores[j] = 1.0 - (rmse_offset / rmse_none) ** 2 if rmse_none > 0 else 0.0
         else:
             rmse_j = gram.cv_rmse([offset, j])
             scores[j] = 1.0 - (rmse_j / rmse_offset) ** 2 if rmse_offset > 0 else 0.0
-    chosen: list[int] = []
-    gains: dict[int, float] = {}
-    current = rmse_none
-    while len([c for c in chosen if c != offset]) < max_effects and current > 0:
-        rmse_off = gram.cv_rmse(_with_intercept([*chosen, offset], offset))
-        trials = {} if offset in chosen else {offset: 1.0 - rmse_off / current}
-        if rmse_off > 0:
-            for j in range(len(names)):
-                if j not in chosen and j != offset:
-                    cols = _with_intercept([*chosen, j], offset)
-                    trials[j] = 1.0 - gram.cv_rmse(cols) / rmse_off
-        if not trials:
-            break
-        best = max(trials, key=trials.__getitem__)
-        if trials[best] <= margin:
-            break
-        chosen.append(best)
-        gains[best] = trials[best]
-        current = gram.cv_rmse(_with_intercept(chosen, offset))
-    return chosen, scores, gains
+    return scores
 
 
 def _with_intercept(cols: Sequence[int], offset: int) -> list[int]:
@@ -394,9 +512,70 @@ def _unique(name: str, taken: set[str]) -> str:
     return out
 
 
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e**2)))
+
+
+@dataclass
+class _Branch:
+    """One hypothesis after selection and the held-out veto: ``shift`` is the baseline
+    column removed with coefficient 1 (None: a constant intercept instead)."""
+
+    shift: int | None
+    selection: _Selection
+    kept: list[int]
+    coef: np.ndarray
+    e_after: np.ndarray
+    rmse: float
+
+
+def _keep(gram: _Gram, selection: _Selection, shift: int | None, offset: int,
+          e_out: np.ndarray, g_out: np.ndarray, n_folds: int, margin: float) -> _Branch:
+    """The held-out veto (module docstring, step 6) on one branch's selected terms."""
+    all_folds = np.arange(n_folds)
+    target = e_out - g_out[:, shift] if shift is not None else e_out
+    auto = shift is None
+
+    def held_out(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
+        return c, target - g_out[:, cols] @ c
+
+    kept: list[int] = []
+    current = _rms(e_out)
+    if shift is not None:
+        rmse = _rms(target)
+        if not rmse < (1.0 - margin) * current:
+            return _Branch(None, selection, [], np.zeros(0), e_out, current)
+        current = rmse
+    for j in selection.chosen:
+        trial = _with_intercept([*kept, j], offset) if auto else [*kept, j]
+        rmse = _rms(held_out(trial)[1])
+        helps = rmse < (1.0 - margin) * current
+        if auto and j != offset:  # it must also beat the intercept alone
+            helps = helps and rmse < _rms(held_out(_with_intercept([*kept, offset], offset))[1])
+        if not helps:
+            break
+        kept, current = trial, rmse
+    coef, e_after = held_out(kept)
+    return _Branch(shift, selection, kept, coef, e_after, _rms(e_after))
+
+
+def _baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:
+    """Mean reference strain over the first ``BASELINE_WINDOW`` s of the fit recordings:
+    the strain a run starts at (what a baseline term should read at rest)."""
+    values = []
+    for bag in bags:
+        rec = bag.get(sensor)
+        if rec is None or rec.s is None or rec.t.size == 0:
+            continue
+        s = np.asarray(rec.s, dtype=np.float64)[rec.t - rec.t[0] <= BASELINE_WINDOW]
+        values.extend(s[np.isfinite(s)].tolist())
+    return float(np.mean(values)) if values else 0.0
+
+
 def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str, Recording]],
                      validate: list[Mapping[str, Recording]] | None,
-                     base_fit: list[dict[str, Any]], base_val: list[dict[str, Any]],
+                     base_fit: list[dict[str, _Run]], base_val: list[dict[str, _Run]],
                      candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
                      n_blocks: int, margin: float, max_effects: int
                      ) -> SensorDiagnosis | None:
@@ -408,7 +587,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         t_ref = float(np.mean(np.concatenate(temps))) if have_temp else None
         nbrs = sorted({n for b, runs in zip(bags, base_fit, strict=True) if sensor in b
                        for n in _neighbours(b[sensor], b) if n in runs})
-        candidates = default_candidates(temperature_ref=t_ref, neighbours=nbrs)
+        candidates = default_candidates(temperature_ref=t_ref, neighbours=nbrs,
+                                        baseline_rest=_baseline_rest(bags, sensor))
     candidates = [dict(c, coef=0.0) for c in candidates]
     names = [str(c["name"]) for c in candidates]
     kinds = [str(c["kind"]) for c in candidates]
@@ -417,6 +597,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         names.append("offset")
         kinds.append("offset")
     offset = kinds.index("offset")
+    baselines = [j for j, k in enumerate(kinds) if k == "baseline"]
     series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
               for s in [_series(sensor, cal, b, runs, candidates, n_blocks)] if s is not None]
     if not series:
@@ -433,7 +614,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     fold = np.concatenate([fold_of_block[s.block[~h]]
                            for s, h in zip(series, held_out, strict=True)])
     gram = _Gram(g_fit, e_fit, fold, n_folds)
-    chosen, scores, gains = _select(gram, names, offset, margin, max_effects)
+    scores = _scores(gram, len(names), offset)
 
     if validate is not None:
         val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
@@ -449,59 +630,60 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         e_out = np.concatenate([s.e[h] for s, h in zip(series, held_out, strict=True)])
         g_out = np.concatenate([s.g[h] for s, h in zip(series, held_out, strict=True)])
         t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
-    all_folds = np.arange(n_folds)
 
-    def held_out(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        """Coefficients fitted on all fit data, and the held-out residual after them."""
-        c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
-        return c, e_out - g_out[:, cols] @ c
+    best = _keep(gram, _select(gram, len(names), offset, margin, max_effects, skip=baselines),
+                 None, offset, e_out, g_out, n_folds, margin)
+    rmse_none = gram.cv_rmse([])
+    for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
+        shifted = _Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
+        rmse_b = shifted.cv_rmse([])
+        scores[b] = 1.0 - (rmse_b / rmse_none) ** 2 if rmse_none > 0 else 0.0
+        selection = _select(shifted, len(names), offset, margin, max_effects - 1,
+                            auto_intercept=False, skip=baselines)
+        selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
+                           **selection.gains}
+        branch = _keep(shifted, selection, b, offset, e_out, g_out, n_folds, margin)
+        if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
+            best = branch
 
-    rmse_before = float(np.sqrt(np.mean(e_out**2)))
-    kept: list[int] = []
-    current = rmse_before
-    for j in chosen:
-        trial = _with_intercept([*kept, j], offset)
-        rmse = float(np.sqrt(np.mean(held_out(trial)[1] ** 2)))
-        helps = rmse < current
-        if j != offset:  # it must also beat the intercept alone
-            intercept = _with_intercept([*kept, offset], offset)
-            helps = helps and rmse < float(np.sqrt(np.mean(held_out(intercept)[1] ** 2)))
-        if not helps:
-            break
-        kept, current = trial, rmse
-    cols = kept
-    coef, e_after = held_out(cols)
-
+    rmse_before = _rms(e_out)
+    terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
+        + best.kept
+    coefs = ([1.0] if terms[:1] == [best.shift] else []) + list(best.coef)
+    gains = best.selection.gains
     taken = {str(e["name"]) for e in cal.effects}
     added = [effect_dict(_unique(names[j], taken), regressor_from_dict(candidates[j]), c)
-             for j, c in zip(cols, coef, strict=True)]
+             for j, c in zip(terms, coefs, strict=True)]
     std_fit = np.std(g_fit, axis=0)
-    coef_of = dict(zip(cols, coef, strict=True))
+    coef_of = dict(zip(terms, coefs, strict=True))
     rows = []
     for j in range(len(names)):
         row = EffectScore(sensor=sensor, name=names[j], kind=kinds[j],
                           params=regressor_from_dict(candidates[j]).params(), score=scores[j])
         if j in coef_of:
             row.added = True
-            row.rank = cols.index(j)
+            row.rank = terms.index(j)
             row.gain = gains.get(j)
             row.coef = float(coef_of[j])
             row.magnitude = float(abs(coef_of[j]) * (std_fit[j] if j != offset else 1.0))
+            if kinds[j] == "baseline":
+                row.magnitude = float(np.sqrt(np.mean(g_out[:, j] ** 2)))
         rows.append(row)
-    order = [j for j in kept if j != offset] or kept
+    e_after = best.e_after
+    order = [j for j in terms if j != offset] or terms
     winner = names[order[0]] if order else None
     if winner is None:
-        best = max(scores, key=scores.__getitem__)
+        top = max((j for j in scores if j not in baselines), key=scores.__getitem__)
         message = (f"no candidate effect lowers the held-out error by more than "
-                   f"{100 * margin:.0f} %; nothing added (best: {names[best]}, "
-                   f"score {scores[best]:.3f})")
-        if chosen:
-            message = (f"{names[chosen[0]]} looked useful in cross-validation but did not "
-                       "lower the held-out error; nothing added")
+                   f"{100 * margin:.0f} %; nothing added (best: {names[top]}, "
+                   f"score {scores[top]:.3f})")
+        if best.selection.chosen:
+            message = (f"{names[best.selection.chosen[0]]} looked useful in cross-validation "
+                       "but did not lower the held-out error; nothing added")
     else:
-        parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order)
+        parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
-                   f"{float(np.sqrt(np.mean(e_after**2))):.4g} %")
+                   f"{_rms(e_after):.4g} %")
     plot = {}
     if winner is not None:
         plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]]}

@@ -35,15 +35,24 @@ class DirectionSettings:
 
     ``deadzone`` [ohm/s] on the causal derivative of R, low-pass filtered with time
     constant ``tau`` [s]; ``k_sigma`` records how the dead zone was set (k times the
-    derivative noise on a hold segment), or None when it was given in ohm/s.
+    derivative noise on a hold segment), or None when it was given in ohm/s. ``sign`` is
+    +1 for a sensor whose R rises with strain and -1 for one whose R falls (negative gauge
+    factor): the detector itself always follows dR/dt, and the engine multiplies the
+    *published* direction by ``sign`` so that +1 means loading (strain rising) for both.
     """
 
     deadzone: float
     tau: float = 0.0
     k_sigma: float | None = None
+    sign: int = 1
+
+    def __post_init__(self) -> None:
+        if self.sign not in (1, -1) or isinstance(self.sign, bool):
+            raise ParameterError("direction.sign", f"must be +1 or -1, got {self.sign!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"deadzone": self.deadzone, "tau": self.tau, "k_sigma": self.k_sigma}
+        return {"deadzone": self.deadzone, "tau": self.tau, "k_sigma": self.k_sigma,
+                "sign": self.sign}
 
 
 def new_state() -> np.ndarray:

@@ -24,7 +24,9 @@ Calibration-file form (one entry of a sensor's ``effects:`` list)::
 
 Every parameter has a default, so ``params: {}`` is valid. Each regressor has ``reset()``,
 ``step(sample) -> float`` and a batch ``run(batch) -> array`` that continues from the
-current state and leaves it where repeated ``step`` calls would.
+current state and leaves it where repeated ``step`` calls would. The engine resets the
+state wherever it resets the model (start, ``reset()``, a gap reset), so a ``baseline``
+(``Baseline``) is captured again at the start of every run.
 """
 
 from __future__ import annotations
@@ -235,6 +237,12 @@ class Direction(Regressor):
     ``mode: sign`` gives d; ``mode: strain`` gives d * S_hat (a hysteresis loop whose width
     grows with strain). With ``hold: true`` a hold (d = 0) keeps the last moving
     direction, as hysteresis persists while the strain is held.
+
+    d is the detector's output at the *previous* sample (0 at the first): the output at
+    sample k follows dR/dt, which carries that sample's own read-out noise, as does the
+    residual at k; a term using it would "correct" noise (a correlation the residual loop
+    would find on any noisy record, effect or not). One sample of lag costs nothing for
+    hysteresis, which persists over many samples.
     """
 
     kind = "direction"
@@ -243,26 +251,27 @@ class Direction(Regressor):
     def __init__(self, mode: str = "sign", hold: bool = False) -> None:
         self.mode = mode
         self.hold = hold
-        self._last = 0.0
+        self.reset()
 
     def reset(self) -> None:
-        self._last = 0.0
+        self._last = 0.0  # the last moving direction (hold) up to the previous sample
+        self._prev = 0.0  # the previous sample's direction
 
     def step(self, sample: Sample) -> float:
-        d = float(sample.direction)
-        if self.hold:
-            if d != 0.0:
-                self._last = d
-            d = self._last
-        return d * sample.s_hat if self.mode == "strain" else d
+        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
+                                       [sample.direction]))[0])
 
     def run(self, batch: Batch) -> np.ndarray:
-        d = batch.direction
+        d = np.concatenate(([self._prev], batch.direction[:-1]))
+        if batch.direction.size:
+            self._prev = float(batch.direction[-1])
         if self.hold:
-            d = _ffill(np.where(d != 0.0, d, np.nan), self._last)
-            if d.size:
-                self._last = float(d[-1])
-        return d * batch.s_hat if self.mode == "strain" else d.copy()
+            last = _ffill(np.where(batch.direction != 0.0, batch.direction, np.nan),
+                          self._last)
+            d = np.concatenate(([self._last], last[:-1]))[:batch.t.size]
+            if last.size:
+                self._last = float(last[-1])
+        return d * batch.s_hat if self.mode == "strain" else d
 
     def params(self) -> dict[str, Any]:
         return {"mode": self.mode, "hold": self.hold}
@@ -473,7 +482,7 @@ class StrainLevel(Regressor):
         return cls(int(power))
 
 
-_MULLINS_FORMS = ("gap", "gap_strain", "cycles_log", "cycles_exp")
+_MULLINS_FORMS = ("gap", "gap_strain", "cycles_log", "cycles_exp", "peak_strain")
 
 
 @njit
@@ -495,8 +504,10 @@ def _mullins_kernel(s: np.ndarray, d: np.ndarray, form: int, n0: float,
             out[k] = s[k] * (peak - s[k])
         elif form == 2:
             out[k] = s[k] * math.log1p(cycles)
-        else:
+        elif form == 3:
             out[k] = s[k] * math.exp(-cycles / n0)
+        else:
+            out[k] = s[k] * peak
     state[0], state[1], state[2] = peak, cycles, last
     return out
 
@@ -510,7 +521,11 @@ class Mullins(Regressor):
     loading turn of the detector, holds ignored). ``form``: ``gap`` peak - S_hat (zero on
     virgin loading), ``gap_strain`` S_hat (peak - S_hat), ``cycles_log`` S_hat log(1 +
     cycles) (progressive softening), ``cycles_exp`` S_hat exp(-cycles / n0) (a gain excess
-    that dies out over the first ~n0 cycles).
+    that dies out over the first ~n0 cycles), ``peak_strain`` S_hat * peak (a gain loss
+    that grows with the largest strain reached so far: the first-order form of the Mullins
+    damage models, which soften the material in proportion to the maximum previous strain;
+    it changes only while loading to a new peak, so it is told from a constant gain error
+    by data whose peak grows over time).
     """
 
     kind = "mullins"
@@ -589,8 +604,71 @@ class Crosstalk(Regressor):
         return cls(neighbour)
 
 
+@njit
+def _baseline_kernel(t: np.ndarray, s: np.ndarray, window: float,
+                     state: np.ndarray) -> np.ndarray:
+    """Running mean of S_hat over the first ``window`` seconds after (re)start, then held."""
+    t0, total, count = state[0], state[1], state[2]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        if count == 0.0:
+            t0 = t[k]
+        if t[k] - t0 <= window:
+            total += s[k]
+            count += 1.0
+        out[k] = total / count
+    state[0], state[1], state[2] = t0, total, count
+    return out
+
+
+class Baseline(Regressor):
+    """Run-to-run baseline shift: g = b - rest, with b the mean of S_hat over the first
+    ``window`` seconds of samples after a start (or a gap reset of the engine) and ``rest``
+    [%] the strain the sensor is at when a run starts (what the calibration should read).
+
+    Soft sensors often start each run at another resistance level (contact resistance,
+    ageing, a different clamping): the whole run is then shifted by about the same
+    amount, which a calibration fitted on one run cannot know. Captured online at the
+    start of each run, b measures that shift; during the window g is the running mean so
+    far (causal). The residual loop gives this term the coefficient 1 (the shift seen at
+    rest is removed whole) and tells it from a constant ``offset`` only across runs.
+    """
+
+    kind = "baseline"
+    param_names = ("window", "rest")
+
+    def __init__(self, window: float = 5.0, rest: float = 0.0) -> None:
+        self.window = window
+        self.rest = rest
+        self._state = np.zeros(3)
+
+    def reset(self) -> None:
+        self._state = np.zeros(3)
+
+    def step(self, sample: Sample) -> float:
+        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
+                                       [sample.direction]))[0])
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _baseline_kernel(batch.t, batch.s_hat, self.window, self._state) - self.rest
+
+    def params(self) -> dict[str, Any]:
+        return {"window": self.window, "rest": self.rest}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Baseline:
+        rest = 0.0
+        if "rest" in params:
+            try:
+                rest = require_float(params, "rest")
+            except ParameterError as err:
+                raise ParameterError(f"params.{err.field}", err.problem) from None
+        return cls(_positive(params, "window", 5.0), rest)
+
+
 KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
-    Offset, Rate, Direction, Relaxation, Elapsed, Temperature, StrainLevel, Mullins, Crosstalk)}
+    Offset, Rate, Direction, Relaxation, Elapsed, Temperature, StrainLevel, Mullins, Crosstalk,
+    Baseline)}
 
 
 def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:

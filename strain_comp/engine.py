@@ -21,12 +21,19 @@ Per sample, in this order:
    follow the sensor; the estimate of every sample is clamped to the valid strain range
    widened by the same margin, so it is never silently extrapolated far.
 5. The direction output comes from a ``DirectionDetector`` with the calibration's settings
-   (dead zone scaled by ``deadzone_scale``); the models that switch on direction
-   (rational, spike_decay) run their own detector with the unscaled settings.
+   (dead zone scaled by ``deadzone_scale``), multiplied by ``direction.sign`` so that +1
+   is loading (strain rising) also for a sensor whose R falls with strain; the models that
+   switch on direction (rational, spike_decay) run their own detector with the unscaled
+   settings on the raw dR/dt sign, as they were fitted.
+6. Effect terms (``strain_comp.effects``) correct the clamped estimate and see the
+   published direction; their state is reset with the model's at a gap reset. In an array
+   (``step_array``, ``run_array``) a cross-talk term reads its neighbours' clamped
+   pre-effect estimate of the same tick (NaN, i.e. held, where that sample was bad).
 
 ``run`` (batch) equals repeated ``step`` exactly: screening is one sequential numba pass
 (the same rule function ``step`` calls), then the model's ``run`` over each run of used
-samples between resets, and the held outputs are a forward fill.
+samples between resets, then the effect terms over the same runs, and the held outputs are
+a forward fill. ``run_array`` equals ``step_array`` tick by tick in the same way.
 """
 
 from __future__ import annotations
@@ -230,6 +237,45 @@ class BatchOutput:
     out_of_range: np.ndarray
 
 
+@dataclass
+class _Pending:
+    """One used sample after screening, model and detector, before the effect terms."""
+
+    t: float
+    r: float
+    status: Status
+    strain: float
+    direction: int
+
+    def base(self, sensor: _Sensor) -> float:
+        """The clamped pre-effect estimate (what neighbours' cross-talk terms read)."""
+        return min(max(self.strain, sensor.s_lo), sensor.s_hi)
+
+
+@dataclass
+class _PendingBatch:
+    """``run``'s first stage: screening, model and detector over a batch."""
+
+    t: np.ndarray
+    ohm: np.ndarray
+    temperature: np.ndarray
+    status: np.ndarray
+    reset: np.ndarray
+    last_good_t: float
+    idx: np.ndarray
+    """Indices of the used samples."""
+    bounds: list[int]
+    """Segment bounds in ``idx`` (a reset starts a segment)."""
+    strain_used: np.ndarray
+    dir_used: np.ndarray
+
+    def base(self, sensor: _Sensor) -> np.ndarray:
+        """Clamped pre-effect estimate at every sample, NaN where the sample was bad."""
+        out = np.full(self.t.size, np.nan)
+        out[self.idx] = np.clip(self.strain_used, sensor.s_lo, sensor.s_hi)
+        return out
+
+
 _COUNTER = {Status.NOT_FINITE: "n_nan", Status.NON_POSITIVE: "n_non_positive",
             Status.TIME_NOT_INCREASING: "n_time_backwards", Status.OPEN_CIRCUIT: "n_open",
             Status.SHORT_CIRCUIT: "n_short", Status.OUT_OF_RANGE: "n_out_of_range"}
@@ -368,20 +414,31 @@ class Engine:
 
     def _apply_effects(self, sensor: _Sensor, t: np.ndarray, r: np.ndarray, strain: np.ndarray,
                        direction: np.ndarray, temperature: np.ndarray,
-                       neighbours: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+                       neighbours: Mapping[str, np.ndarray] | None = None,
+                       starts: Sequence[int] = ()) -> np.ndarray:
         """The one place where a calibration's effect terms correct the strain.
 
         The terms (``strain_comp.effects``) read the model's estimate clamped to the valid
         strain range, as ``strain_comp.diagnose`` fitted them. ``neighbours``: array
         neighbours' clamped pre-effect strain at these samples; where not given, each
-        neighbour's latest value is held.
+        neighbour's latest value is held. ``starts``: sample positions where a gap reset
+        starts a new segment: the terms' state is reset there, as the model's is.
         """
         base = np.clip(strain, sensor.s_lo, sensor.s_hi)
         given = neighbours or {}
         nbrs = {n: given[n] if n in given else np.full(t.size, self._base_strain(n))
                 for n in sensor.effects.neighbours}
         sensor.base = float(base[-1])
-        return sensor.effects.run(t, r, base, direction, temperature, nbrs)
+        out = np.empty(t.size)
+        bounds = [0, *starts, t.size]
+        for k, (a, b) in enumerate(itertools.pairwise(bounds)):
+            if k > 0:
+                sensor.effects.reset()
+            if b > a:
+                out[a:b] = sensor.effects.run(t[a:b], r[a:b], base[a:b], direction[a:b],
+                                              temperature[a:b],
+                                              {n: v[a:b] for n, v in nbrs.items()})
+        return out
 
     def _base_strain(self, name: str) -> float:
         """A sensor's latest clamped strain before its effect terms (NaN if unknown)."""
@@ -393,8 +450,13 @@ class Engine:
     def step(self, sensor: str, t: float, r: float, temperature: float = math.nan) -> SensorOutput:
         """One sample of one sensor: time [s], raw input (ohm or divider volts)."""
         s = self._sensor(sensor)
-        t = float(t)
-        raw = float(r)
+        pending = self._step_model(s, float(t), float(r))
+        if isinstance(pending, SensorOutput):
+            return pending
+        return self._step_finish(s, pending, float(temperature))
+
+    def _step_model(self, s: _Sensor, t: float, raw: float) -> SensorOutput | _Pending:
+        """Screening, gap reset, detector and model of one sample (a bad one: its output)."""
         forced = 0
         if s.cal.input.kind == "divider":
             r_arr, f_arr = s.to_ohm(np.array([raw]))
@@ -410,14 +472,22 @@ class Engine:
         if reset:
             s.model.reset()
             s.detector.reset()
+            s.effects.reset()
             h.n_gaps += 1
-        direction = int(s.detector.step(t, raw))
-        strain = float(s.model.step(t, raw))
+        direction = int(s.detector.step(t, raw)) * s.cal.direction.sign
+        return _Pending(t, raw, status, float(s.model.step(t, raw)), direction)
+
+    def _step_finish(self, s: _Sensor, p: _Pending, temperature: float,
+                     neighbours: Mapping[str, float] | None = None) -> SensorOutput:
+        """Effect terms, clamping, held output and counters of one used sample."""
+        t, raw, status, strain, direction = p.t, p.r, p.status, p.strain, p.direction
         if s.cal.effects:
+            nbrs = {n: np.array([v]) for n, v in (neighbours or {}).items()}
             strain = float(self._apply_effects(s, np.array([t]), np.array([raw]),
                                                np.array([strain]), np.array([direction]),
-                                               np.array([float(temperature)]))[0])
+                                               np.array([temperature]), nbrs)[0])
         strain = min(max(strain, s.s_lo), s.s_hi)
+        h = s.health
         s.last_good_t = t
         s.strain, s.direction = strain, direction
         h.n_good += 1
@@ -436,6 +506,29 @@ class Engine:
         pre-effect strain at the times ``t`` (else their latest values are held).
         """
         s = self._sensor(sensor)
+        pending = self._run_model(s, t, r, temperature)
+        nbrs = {n: np.asarray(v, dtype=np.float64) for n, v in (neighbours or {}).items()}
+        return self._run_finish(s, pending, nbrs)
+
+    def run_array(self, sensors: Sequence[str], t: npt.ArrayLike, r: npt.ArrayLike,
+                  temperature: Mapping[str, npt.ArrayLike | None] | None = None
+                  ) -> dict[str, BatchOutput]:
+        """Batch path for sensors sampled together (an array topic): ``r`` is (n, k) in the
+        order of ``sensors``. Equal, tick by tick, to ``step_array``: every cross-talk term
+        reads its neighbours' clamped pre-effect estimate of the same tick."""
+        r = np.asarray(r, dtype=np.float64)
+        if r.ndim != 2 or r.shape[1] != len(sensors):
+            raise InputError(f"run_array: r must be (n, {len(sensors)}), got shape {r.shape}")
+        temps = temperature or {}
+        pending = {name: self._run_model(self._sensor(name), t, r[:, j], temps.get(name))
+                   for j, name in enumerate(sensors)}
+        bases = {name: p.base(self._sensors[name]) for name, p in pending.items()}
+        return {name: self._run_finish(self._sensors[name], p, bases)
+                for name, p in pending.items()}
+
+    def _run_model(self, s: _Sensor, t: npt.ArrayLike, r: npt.ArrayLike,
+                   temperature: npt.ArrayLike | None) -> _PendingBatch:
+        """``run``'s first stage: screening, gap resets, detector and model."""
         t = np.ascontiguousarray(t, dtype=np.float64)
         raw = np.ascontiguousarray(r, dtype=np.float64)
         if t.ndim != 1 or t.shape != raw.shape:
@@ -459,11 +552,22 @@ class Engine:
             seg = idx[a:b]
             dir_used[a:b] = s.detector.run(t[seg], ohm[seg])
             strain_used[a:b] = s.model.run(t[seg], ohm[seg])
+        if s.cal.direction.sign < 0:
+            dir_used = -dir_used
+        return _PendingBatch(t, ohm, temp, status, reset, last_good_t, idx, bounds,
+                             strain_used, dir_used)
+
+    def _run_finish(self, s: _Sensor, p: _PendingBatch,
+                    neighbours: Mapping[str, np.ndarray]) -> BatchOutput:
+        """``run``'s second stage: effect terms, clamping, held outputs and counters."""
+        t, status, reset, last_good_t, idx = p.t, p.status, p.reset, p.last_good_t, p.idx
+        strain_used, dir_used = p.strain_used, p.dir_used
+        used = (status == Status.GOOD) | (status >= Status.GAP_RESET)
         if s.cal.effects and idx.size:
-            nbrs = {n: np.asarray(v, dtype=np.float64)[idx]
-                    for n, v in (neighbours or {}).items()}
-            strain_used = self._apply_effects(s, t[idx], ohm[idx], strain_used, dir_used,
-                                              temp[idx], nbrs)
+            nbrs = {n: v[idx] for n, v in neighbours.items()}
+            starts = p.bounds[1:-1]  # a reset at the first sample resets at once
+            strain_used = self._apply_effects(s, t[idx], p.ohm[idx], strain_used, dir_used,
+                                              p.temperature[idx], nbrs, starts)
         np.clip(strain_used, s.s_lo, s.s_hi, out=strain_used)
         # held outputs: each sample shows the latest used sample at or before it
         rank = np.cumsum(used) - 1
@@ -570,6 +674,7 @@ class _ArrayGroup:
         self.last_status = np.full(k, -1, dtype=np.int8)
         self.states = np.zeros((k, STATE_SIZE))
         self.tau = np.array([s.cal.direction.tau for s in self.sensors])
+        self.sign = np.array([s.cal.direction.sign for s in self.sensors], dtype=np.int8)
         self.set_deadzone_scale(self.engine.deadzone_scale)
         self.divider = [i for i, s in enumerate(self.sensors) if s.cal.input.kind == "divider"]
         self.effects = [i for i, s in enumerate(self.sensors) if s.cal.effects]
@@ -580,8 +685,14 @@ class _ArrayGroup:
 
     def step(self, t: float, raw: np.ndarray) -> ArrayOutput:
         if self.kernel is None:
-            outputs = [self.engine.step(name, t, value)
-                       for name, value in zip(self.names, raw, strict=True)]
+            engine = self.engine
+            pending = [engine._step_model(s, t, float(value))
+                       for s, value in zip(self.sensors, raw, strict=True)]
+            bases = {name: p.base(s) if isinstance(p, _Pending) else math.nan
+                     for name, s, p in zip(self.names, self.sensors, pending, strict=True)}
+            outputs = [p if isinstance(p, SensorOutput) else
+                       engine._step_finish(s, p, math.nan, bases)
+                       for s, p in zip(self.sensors, pending, strict=True)]
             return ArrayOutput(np.array([o.strain for o in outputs]),
                                np.array([o.direction for o in outputs], dtype=np.int8),
                                np.array([o.status for o in outputs], dtype=np.int8),
@@ -599,8 +710,11 @@ class _ArrayGroup:
             self.kernel.clock[reset] = 0.0
             self.states[reset] = 0.0
             self.gaps += reset
+            for i in np.flatnonzero(reset):
+                self.sensors[i].effects.reset()
         strain = self.kernel.step(t, np.where(used, ohm, math.nan))
         _direction_array(self.states, t, ohm, used, self.deadzone, self.tau, self.direction)
+        direction = self.direction * self.sign
         base = np.clip(np.where(used, strain, np.nan), self.s_lo, self.s_hi)
         for i in self.effects:
             if used[i]:
@@ -608,12 +722,12 @@ class _ArrayGroup:
                         for n in self.sensors[i].effects.neighbours if n in self.names}
                 strain[i] = self.engine._apply_effects(
                     self.sensors[i], np.array([t]), ohm[i:i + 1], strain[i:i + 1],
-                    self.direction[i:i + 1], np.array([math.nan]), nbrs)[0]
+                    direction[i:i + 1], np.array([math.nan]), nbrs)[0]
         np.clip(strain, self.s_lo, self.s_hi, out=strain)
         self.strain = np.where(used, strain, self.strain)
         self.counts[np.arange(raw.size), status] += 1
         self.last_status = status
-        return ArrayOutput(self.strain.copy(), self.direction.copy(), status,
+        return ArrayOutput(self.strain.copy(), direction, status,
                            status == Status.OUT_OF_RANGE)
 
     def health(self) -> dict[str, SensorHealth]:

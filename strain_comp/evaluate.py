@@ -1,12 +1,14 @@
 """Evaluation: run a calibration over recordings with a reference strain and score it.
 
 Every calibrated sensor that has a recording with ``strain_reference`` is run through the
-engine's batch path (``strain_comp.engine.Engine.run``), the very code that ``replay`` and
-the node use, so the numbers here are the numbers a robot would see. Errors (% strain,
-``strain_comp.metrics.error_stats``: RMSE per apl_electrolycra... eq. (5), MAE, max |e|,
-R^2) are taken over the samples the engine *used* (status good, gap reset or out of range)
-whose reference is finite; over bad samples (not finite, R <= 0, open or short circuit,
-time not increasing) the engine holds its estimate, and those are counted, not scored.
+engine's batch path (``strain_comp.engine.Engine.run``, or ``Engine.run_array`` for the
+sensors of one array, so cross-talk terms see the same tick's neighbours), the very code
+that ``replay`` and the node use, so the numbers here are the numbers a robot would see.
+Errors (% strain, ``strain_comp.metrics.error_stats``: RMSE per apl_electrolycra... eq. (5),
+MAE, max |e|, R^2) are taken over the samples the engine *used* (status good, gap reset or
+out of range) whose reference is finite; over bad samples (not finite, R <= 0, open or
+short circuit, time not increasing) the engine holds its estimate, and those are counted,
+not scored.
 Out-of-range samples are scored like any other and counted: the flag warns, it does not
 hide the error. The engine clamps estimates to the valid strain range plus a margin.
 """
@@ -85,6 +87,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     used_codes = [Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE]
 
     engine = Engine(calibration)
+    outputs = _array_outputs(engine, recordings, calibration)
     sensors: dict[str, SensorEvaluation] = {}
     notes: list[str] = []
     for name, cal in calibration.sensors.items():
@@ -98,7 +101,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         t = np.asarray(rec.t, dtype=np.float64)
         r = np.asarray(rec.r, dtype=np.float64)
         s = np.asarray(rec.s, dtype=np.float64)
-        out = engine.run(name, t, r, temperature=rec.temperature)
+        out = outputs.get(name) or engine.run(name, t, r, temperature=rec.temperature)
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
         good = np.isin(status, used_codes)
@@ -116,6 +119,27 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             "no calibrated sensor has a strain_reference in the data (calibration: "
             f"{', '.join(calibration.sensors)}; data: {', '.join(recordings) or 'none'})")
     return EvaluationResult(sensors, notes)
+
+
+def _array_outputs(engine: Any, recordings: Mapping[str, Recording],
+                   calibration: Calibration) -> dict[str, Any]:
+    """``Engine.run_array`` outputs of the calibrated, referenced sensors of every array
+    whose sensors share one time base (cross-talk terms then read the same tick's
+    neighbours, as the node does); other sensors are run one by one by the caller."""
+    groups: dict[str, list[str]] = {}
+    for name in calibration.sensors:
+        rec = recordings.get(name)
+        if rec is not None and rec.s is not None and rec.array is not None:
+            groups.setdefault(rec.array, []).append(name)
+    out: dict[str, Any] = {}
+    for names in groups.values():
+        recs = [recordings[n] for n in names]
+        t = np.asarray(recs[0].t, dtype=np.float64)
+        if len(names) < 2 or any(not np.array_equal(rec.t, t) for rec in recs):
+            continue
+        out.update(engine.run_array(names, t, np.column_stack([rec.r for rec in recs]),
+                                    {n: recordings[n].temperature for n in names}))
+    return out
 
 
 def format_table(result: EvaluationResult) -> str:

@@ -31,7 +31,9 @@ data and fills in what a calibration file needs besides the parameters:
   times (fixed seed, so fits are reproducible). Noise-free data get a tiny floor.
   The provenance records which of these set the dead zone (``direction_from``). Options
   ``deadzone`` (ohm/s, set directly), ``k_sigma`` and ``tau`` override this and are not
-  passed to the model.
+  passed to the model. ``sign`` is the sign of the correlation of R and S in the training
+  data (-1 for a sensor whose R falls with strain), so the published direction is +1 on
+  loading for every sensor (``strain_comp.engine``).
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
@@ -42,6 +44,7 @@ from __future__ import annotations
 import inspect
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import replace
 from itertools import pairwise
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -179,6 +182,12 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
     return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=tau, k_sigma=None), "floor"
 
 
+def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
+    """+1 when R rises with strain in the training data, -1 when it falls (the sign of
+    their correlation; 0 correlation counts as +1). Sets ``DirectionSettings.sign``."""
+    return -1 if float(np.mean((r - r.mean()) * (s - s.mean()))) < 0 else 1
+
+
 def _check_options(fit: Callable[..., Any], model: str, options: Mapping[str, Any]) -> None:
     """InputError for an option that ``fit`` has no keyword for (when it names them all)."""
     params = inspect.signature(fit).parameters
@@ -237,6 +246,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                        "or strain")
     normalisation = Normalisation.fit(r_all, s_all)
     direction, direction_source = direction_settings(segments, options)
+    direction = replace(direction, sign=resistance_sign(r_all, s_all))
     model_options = {k: v for k, v in options.items() if k not in _DIRECTION_OPTIONS}
     _check_options(cls.fit, model, model_options)
     start = time.perf_counter()

@@ -4,6 +4,8 @@ Inputs: ``/NAME/resistance`` (Float64) for every calibrated sensor NAME, and arr
 ``/ARRAY/resistance`` (Float64MultiArray) whose labels are all calibrated sensors;
 ``/NAME/temperature`` when present (the latest value at or before each sample, as a live
 node would hold it). The message time is the log time, as the node's clock is online.
+An array topic goes through ``Engine.run_array``, so its cross-talk effect terms read the
+neighbours' estimates of the same tick, exactly as ``Engine.step_array`` (the node) does.
 
 Outputs, one message at every input message's time (bad samples included, marked):
 ``/NAME/strain`` (Float64, held estimate on bad samples), ``/NAME/direction`` (Int8),
@@ -104,10 +106,15 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
         for inp in inputs:
             a = 0 if k == 0 else cuts[inp.topic][k - 1]
             b = cuts[inp.topic][k] if k < ticks.size else inp.t.size
-            for j, sensor in enumerate(inp.sensors):
-                temp = temperature[sensor]
-                results.setdefault(sensor, []).append(engine.run(
-                    sensor, inp.t[a:b], inp.values[a:b, j], None if temp is None else temp[a:b]))
+            temps = {s: None if temperature[s] is None else temperature[s][a:b]
+                     for s in inp.sensors}
+            if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
+                outs = engine.run_array(inp.sensors, inp.t[a:b], inp.values[a:b], temps)
+            else:
+                outs = {inp.name: engine.run(inp.name, inp.t[a:b], inp.values[a:b, 0],
+                                             temps[inp.name])}
+            for sensor in inp.sensors:
+                results.setdefault(sensor, []).append(outs[sensor])
         if k < ticks.size:
             statuses.append(diagnostics(engine.health(now=float(ticks[k]))))
     out_path = Path(out_path)

@@ -177,3 +177,37 @@ def test_bad_effect_entries_name_the_field(tmp_path: Path, effect: dict, field: 
     with pytest.raises(CalibrationError) as cerr:
         load_calibration(tmp_path / "bad.yaml")
     assert cerr.value.field == f"sensors.right.effects.1.{field}"
+
+
+def test_baseline_captures_the_start_of_each_run() -> None:
+    """g = running mean of S_hat over the first ``window`` s, then held, minus ``rest``;
+    captured again after ``reset`` (the engine resets it at a gap)."""
+    b = random_inputs(seed=7)
+    window, rest = 3.0, 0.5
+    g = regressor_from_dict({"name": "b", "kind": "baseline",
+                             "params": {"window": window, "rest": rest}, "coef": 1.0})
+    out = g.run(b)
+    inside = b.t - b.t[0] <= window
+    ref = [np.mean(b.s_hat[: k + 1][inside[: k + 1]]) - rest for k in range(b.t.size)]
+    np.testing.assert_allclose(out, ref, rtol=1e-12)
+    assert np.all(out[~inside] == out[~inside][0])
+    g.reset()
+    later = Batch.of(b.t[100:], b.r[100:], b.s_hat[100:], b.direction[100:])
+    again = g.run(later)
+    assert again[0] == pytest.approx(b.s_hat[100] - rest)
+
+
+def test_mullins_peak_strain_and_direction_of_the_previous_sample() -> None:
+    b = random_inputs(seed=9)
+    peak = regressor_from_dict({"name": "m", "kind": "mullins",
+                                "params": {"form": "peak_strain"}, "coef": 0}).run(b)
+    np.testing.assert_allclose(peak, b.s_hat * np.maximum.accumulate(b.s_hat))
+    d = regressor_from_dict({"name": "d", "kind": "direction", "params": {}, "coef": 0}).run(b)
+    np.testing.assert_array_equal(d, np.r_[0.0, b.direction[:-1]])
+    held = regressor_from_dict({"name": "d", "kind": "direction", "params": {"hold": True},
+                                "coef": 0}).run(b)
+    last, ref = 0.0, []
+    for x in b.direction:  # the last moving direction up to the previous sample
+        ref.append(last)
+        last = x if x != 0 else last
+    np.testing.assert_array_equal(held, ref)

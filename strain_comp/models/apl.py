@@ -42,6 +42,7 @@ from strain_comp.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import _apl_kernels as kern
 from strain_comp.models import pwa
+from strain_comp.models._apl_refine import bounded_lm, output_jacobian
 from strain_comp.models.base import (
     Compensator,
     Normalisation,
@@ -186,8 +187,9 @@ class _CellModel(Compensator):
             direction: DirectionSettings, N: int = 11, M: int = 9,
             sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
             refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
-            ridge: float = 1e-6, progress: bool | Callable[[str], None] = True,
-            **options: Any) -> _CellModel:
+            ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
+            search_top: int = 5,
+            progress: bool | Callable[[str], None] = True, **options: Any) -> _CellModel:
         """Fit w, mu by bounded least squares, searching sigma and p (module docstring).
 
         ``sigma_grid`` [1/s] defaults to 13 log-spaced values between 0.02 / (longest
@@ -203,10 +205,14 @@ class _CellModel(Compensator):
             raise FitError(f"{cls.name}: {exc}") from None
         if cell_weights not in ("signed", "free"):
             raise FitError(f"{cls.name}: cell_weights must be 'signed' or 'free'")
+        counts = (output_nfev, search_nfev, search_top)
+        if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counts):
+            raise FitError(f"{cls.name}: output_nfev, search_nfev and search_top must be "
+                           "integers >= 0")
         problem = _FitProblem(cls, segments, normalisation, n=N, m=M, eps=eps, ridge=ridge,
-                              cell_weights=cell_weights)
+                              cell_weights=cell_weights, search_nfev=search_nfev)
         if not cls.rate_dependent:
-            result = problem.solve(0.0, 1.0)
+            result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
             model = problem.build(result)
             model.fit_report = {"rmse": result.rmse, "evaluations": 1}
             return model
@@ -217,17 +223,25 @@ class _CellModel(Compensator):
         if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
             raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
         say = _progress_printer(progress, cls.name)
-        best = None
+        grid: list[_Solution] = []
         for i, sigma in enumerate(sigmas):
-            for p in ps:
-                result = problem.solve(float(sigma), float(p))
-                if best is None or result.rmse < best.rmse:
-                    best = result
+            grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
+            best = min(grid, key=_by_rmse)
             say(f"grid row {i + 1}/{sigmas.size} (sigma={sigma:.3g}/s): best rmse "
                 f"{best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+        if search_nfev > 0:
+            ranked = sorted(grid, key=_by_rmse)[:search_top]
+            best = min((problem.solve(g.sigma, g.p, output_nfev=search_nfev) for g in ranked),
+                       key=_by_rmse)
+            say(f"output error on the best {len(ranked)} grid points: rmse {best.rmse:.4g} % "
+                f"at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
         if refine:
             best = problem.refine(best)
             say(f"refined: rmse {best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+        if output_nfev > search_nfev:
+            final = problem.solve(best.sigma, best.p, output_nfev=output_nfev)
+            best = min(final, best, key=_by_rmse)
+            say(f"output error: rmse {best.rmse:.4g} %")
         model = problem.build(best)
         model.fit_report = {"rmse": best.rmse, "evaluations": problem.evaluations,
                             "seconds": time.monotonic() - problem.started}
@@ -256,6 +270,10 @@ class MPI(_CellModel):
     rate_dependent = False
 
 
+def _by_rmse(solution: _Solution) -> float:
+    return solution.rmse
+
+
 def _progress_printer(progress: bool | Callable[[str], None], name: str) -> Callable[[str], None]:
     started = time.monotonic()
 
@@ -281,8 +299,9 @@ class _FitProblem:
 
     def __init__(self, cls: type[_CellModel], segments: Sequence[Segment],
                  normalisation: Normalisation, *, n: int, m: int, eps: float, ridge: float,
-                 cell_weights: str) -> None:
+                 cell_weights: str, search_nfev: int) -> None:
         self.cls, self.norm, self.n, self.m = cls, normalisation, n, m
+        self.search_nfev = search_nfev
         self.eps, self.started, self.evaluations = eps, time.monotonic(), 0
         segments = [seg for seg in segments if seg.t.size > 0]
         if not segments:
@@ -338,17 +357,19 @@ class _FitProblem:
             hi = lo * 1e3
         return np.geomspace(lo, hi, 13)
 
-    def solve(self, sigma: float, p: float) -> _Solution:
-        self.evaluations += 1
+    def design(self, sigma: float, p: float) -> np.ndarray:
+        """z = [xi, x_1..x_N, 1] per training sample (rows) for this sigma, p."""
         states = kern.states_kernel(self.t, self.xi, self.starts, self.cls.kind, sigma, p,
                                     self.rho, self.inv_width)
-        n_rows = self.t.size
-        a = np.empty((n_rows, self.n + 2 + self.m - 1 + 1))
-        a[:, 0] = self.xi
-        a[:, 1:self.n + 1] = states
-        a[:, self.n + 1] = 1.0
-        a[:, self.n + 2:-1] = self.neg_g
-        a[:, -1] = self.rhs
+        z = np.empty((self.t.size, self.n + 2))
+        z[:, 0] = self.xi
+        z[:, 1:self.n + 1] = states
+        z[:, self.n + 1] = 1.0
+        return z
+
+    def equation_error(self, z: np.ndarray) -> np.ndarray:
+        """The paper's QP: theta = [w, free slopes] minimising ||f(psi) - w . z||^2 + ridge."""
+        a = np.hstack([z, self.neg_g, self.rhs[:, None]])
         # Reduce the tall problem to its triangular factor: [A b] = QR, so ||A theta - b||
         # = ||R_A theta - r_b|| + const. R from the Cholesky factor of the Gram matrix
         # (tall-skinny QR is ten times slower here); the jitter keeps exactly collinear
@@ -360,16 +381,68 @@ class _FitProblem:
         a_red = np.vstack([r_full[:-1, :-1], self.ridge_a])
         b_red = np.concatenate([r_full[:-1, -1], self.ridge_b])
         theta = lsq_linear(a_red, b_red, bounds=self.bounds, method="bvls").x
+        return np.clip(theta, *self.bounds)
+
+    def predict(self, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """psi_hat = f^-1(w . z) (eq. (2)) for the parameter vector theta."""
+        b, f_at_b, inv_slopes = pwa.inverse_tables(pwa.mu_from_slopes(self.slopes(theta)))
+        return pwa.finv_array(z @ theta[:self.n + 2], b, f_at_b, inv_slopes)
+
+    def slopes(self, theta: np.ndarray) -> np.ndarray:
+        return np.insert(theta[self.n + 2:], self.c, 1.0)
+
+    def rmse(self, psi_hat: np.ndarray) -> float:
+        value = float(self.norm.s0 * np.sqrt(np.mean((psi_hat - self.psi) ** 2)))
+        return value if math.isfinite(value) else math.inf
+
+    def output_error(self, z: np.ndarray, theta: np.ndarray, *,
+                     max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
+        """Minimise sum (f^-1(w . z) - psi)^2 + ridge over theta from ``theta`` (bounded
+        Levenberg-Marquardt, same bounds as the QP); returns (theta, psi_hat), the start
+        when the refinement does not lower the output RMSE.
+
+        Jacobian: with y = w . z and f(psi_hat) = G(psi_hat) . slopes = y, implicit
+        differentiation gives d psi_hat / d w = z / f'(psi_hat) and d psi_hat / d slope_j =
+        -G_j(psi_hat) / f'(psi_hat) (G: the path matrix, f' the slope of the segment
+        psi_hat lies in).
+        """
         n_w = self.n + 2
-        w = theta[:n_w]
-        slopes = np.insert(theta[n_w:], self.c, 1.0)
-        y = a[:, :n_w] @ w
-        b, f_at_b, inv_slopes = pwa.inverse_tables(pwa.mu_from_slopes(slopes))
-        psi_hat = pwa.finv_array(y, b, f_at_b, inv_slopes)
-        rmse = float(self.norm.s0 * np.sqrt(np.mean((psi_hat - self.psi) ** 2)))
-        if not math.isfinite(rmse):
-            rmse = math.inf
-        return _Solution(sigma, p, w, slopes, rmse)
+        edges = pwa.breakpoints(self.m)
+        cache: dict[str, np.ndarray] = {}
+
+        def psi_of(x: np.ndarray) -> np.ndarray:
+            if "x" not in cache or not np.array_equal(cache["x"], x):
+                cache["x"], cache["psi"] = x.copy(), self.predict(z, x)
+            return cache["psi"]
+
+        def residuals(x: np.ndarray) -> np.ndarray:
+            return np.concatenate([psi_of(x) - self.psi, self.ridge_a @ x - self.ridge_b])
+
+        jac = np.empty((self.t.size, n_w + self.m))
+        ridge_gram = self.ridge_a.T @ self.ridge_a
+
+        def normal_equations(x: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            output_jacobian(z, psi_of(x), res, self.slopes(x), edges, self.c, jac)
+            both = jac.T @ jac
+            return (both[:-1, :-1] + ridge_gram,
+                    both[:-1, -1] + self.ridge_a.T @ res[self.t.size:])
+
+        start = self.predict(z, theta)
+        found = bounded_lm(residuals, normal_equations, theta, *self.bounds, max_nfev=max_nfev)
+        if not self.rmse(psi_of(found)) <= self.rmse(start):
+            return theta, start
+        return found, psi_of(found)
+
+    def solve(self, sigma: float, p: float, *, output_nfev: int = 0) -> _Solution:
+        """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it."""
+        self.evaluations += 1
+        z = self.design(sigma, p)
+        theta = self.equation_error(z)
+        psi_hat = self.predict(z, theta)
+        if output_nfev > 0 and math.isfinite(self.rmse(psi_hat)):
+            theta, psi_hat = self.output_error(z, theta, max_nfev=output_nfev)
+        return _Solution(sigma, p, theta[:self.n + 2].copy(), self.slopes(theta),
+                         self.rmse(psi_hat))
 
     def refine(self, best: _Solution, *, max_evaluations: int = 30) -> _Solution:
         """A short Nelder-Mead in (log10 sigma, p) from the best grid point."""
@@ -377,7 +450,7 @@ class _FitProblem:
 
         def objective(v: np.ndarray) -> float:
             p = float(np.clip(v[1], kern.P_MIN, P_MAX))
-            result = self.solve(float(10.0 ** v[0]), p)
+            result = self.solve(float(10.0 ** v[0]), p, output_nfev=self.search_nfev)
             if result.rmse < found["best"].rmse:
                 found["best"] = result
             return result.rmse

@@ -496,13 +496,18 @@ def _fit_f(eps_pts: np.ndarray, r_pts: np.ndarray
 
 def _tabulate(steps: list[tuple[float, ...]], levels: np.ndarray,
               tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """S and lambda tables over (rate x strain) from the fitted steps; gaps filled."""
+    """S and lambda tables over (rate x strain) from the fitted steps; gaps filled.
+
+    Steps whose measured rate is not > 0 (a step too small or too fast to time) have no
+    place on the log-rate axis and are left out.
+    """
+    steps = [st for st in steps if st[0] > 0.0]
     if not steps:
         return (np.array([1.0]), np.array([float(np.mean(levels))]), np.zeros((2, 1, 1)),
                 np.ones((2, 1, 1)))
     rate = np.array([st[0] for st in steps])
     level = np.array([st[1] for st in steps])
-    rate_groups = _cluster(np.log10(np.maximum(rate, 1e-12)), math.log10(1.5))
+    rate_groups = _cluster(np.log10(rate), math.log10(1.5))
     rates = np.array([10 ** np.mean(np.log10(rate[g])) for g in rate_groups])
     strain_groups = _cluster(level, tol)
     strains = np.array([np.mean(level[g]) for g in strain_groups])

@@ -241,6 +241,62 @@ def test_fit_recovers_known_forward_models():
             assert fitted.p == pytest.approx(p, rel=0.1)
 
 
+def noisy_input_segments(truth, periods, noise, rng):
+    """Triangles through ``truth``; the fit sees the resistance with white noise of
+    ``noise`` (normalised units) added, the strain is the truth's noise-free output."""
+    noisy, clean = [], []
+    for t, xi in triangle_segments(periods, lo=-1.0, hi=1.1):
+        r = (xi - NORM.alpha) * NORM.r0
+        truth.reset()
+        s = truth.run(t, r)
+        noisy.append(Segment(t, r + rng.normal(scale=noise * NORM.r0, size=r.size), s))
+        clean.append(Segment(t, r, s))
+    return noisy, clean
+
+
+def rmse_on(model, segments):
+    errors = []
+    for seg in segments:
+        model.reset()
+        errors.append(model.run(seg.t, seg.r) - seg.s)
+    return float(np.sqrt(np.mean(np.concatenate(errors) ** 2)))
+
+
+@pytest.mark.parametrize("cls", [APL, PL, MPI])
+def test_output_error_refinement_never_worse_than_qp(cls):
+    """The output-error refinement starts at the QP solution and only accepts lower RMSE."""
+    rng = np.random.default_rng({"apl": 31, "pl": 32, "mpi": 33}[cls.name])
+    n, m = 5, 7
+    for noise in (0.0, 0.03, 0.2):
+        truth = random_model(rng, cls)
+        segs, _ = noisy_input_segments(truth, [5, 17], noise, rng)
+        grid = {} if cls is MPI else {"sigma_grid": [0.5], "p_grid": [1.3], "refine": False}
+        qp, refined = (cls.fit(segs, NORM, direction=DIRECTION, N=n, M=m, progress=False,
+                               output_nfev=nfev, search_nfev=0, **grid) for nfev in (0, 60))
+        assert rmse_on(refined, segs) <= rmse_on(qp, segs) + 1e-9
+        assert refined.fit_report["rmse"] == pytest.approx(rmse_on(refined, segs), rel=1e-9)
+
+
+def test_output_error_recovers_model_from_noisy_input_better_than_qp():
+    """Errors in the input: the QP (equation error) degrades; the output-error refinement
+    recovers the known model clearly better, judged on noise-free held-out input."""
+    rng = np.random.default_rng(4)
+    n, m = 6, 5
+    w = np.r_[0.8, rng.uniform(0.05, 0.4, n), 0.1]
+    mu = [1.0, 0.2, 0.1, 0.3, -0.2]
+    for cls, sigma, p in ((MPI, 0.0, 1.0), (APL, 0.3, 1.0)):
+        truth = cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=NORM)
+        train, _ = noisy_input_segments(truth, [4, 13, 40], 0.05, rng)
+        _, held_out = noisy_input_segments(truth, [7, 25], 0.0, rng)
+        grid = {} if cls is MPI else {"sigma_grid": [sigma], "p_grid": [p], "refine": False}
+        qp, refined = (cls.fit(train, NORM, direction=DIRECTION, N=n, M=m, progress=False,
+                               output_nfev=nfev, search_nfev=0, **grid) for nfev in (0, 100))
+        errors = rmse_on(qp, held_out), rmse_on(refined, held_out)
+        print(f"\n{cls.name}: held-out RMSE vs truth, QP {errors[0]:.3f} %, "
+              f"refined {errors[1]:.3f} %")
+        assert errors[1] < 0.8 * errors[0]
+
+
 def test_fit_errors():
     t = np.arange(30.0)
     with pytest.raises(FitError, match="at least"):
@@ -250,6 +306,9 @@ def test_fit_errors():
         MPI.fit([Segment(t, np.full(t.size, 10.0), np.sin(t))], NORM, direction=DIRECTION)
     with pytest.raises(FitError):
         APL.fit([Segment(t, 10 + np.sin(t), np.sin(t))], NORM, direction=DIRECTION, M=4)
+    for bad in ({"output_nfev": -1}, {"search_nfev": 1.5}, {"search_top": True}):
+        with pytest.raises(FitError, match="integers"):
+            APL.fit([Segment(t, 10 + np.sin(t), np.sin(t))], NORM, direction=DIRECTION, **bad)
 
 
 # ---------------------------------------------------------------- paper's claims

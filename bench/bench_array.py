@@ -1,0 +1,103 @@
+#!/usr/bin/env python3
+"""An array of 256 APL sensors (N = 11, M = 9) stepped by the engine at 1 kHz in real time.
+
+    python bench/bench_array.py [--sensors 256] [--seconds 60] [--baseline-ticks 1000]
+
+``Engine(calibration, arrays={"arr": names}).step_array`` is called once per tick for
+``--seconds`` of 1 kHz data (60 000 ticks by default), each call timed on its own
+(Python call, screening, the APL kernel, the direction kernel and the output arrays
+included). Printed: per-tick cost median / p99 / max and the share of the 1 ms budget,
+and the median of ``APLArray.step`` alone (the one kernel call per tick) for comparison.
+
+Baseline in the same run: the same ticks fed through a Python loop over the sensors,
+``Engine.step(sensor, t, r)`` per sensor (an engine without the array registered), on
+the first ``--baseline-ticks`` ticks; both paths' strain must agree there to 1e-9.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import calibration, resistance
+
+from strain_comp.engine import Engine
+from strain_comp.models.apl import APLArray
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sensors", type=int, default=256)
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--baseline-ticks", type=int, default=1000)
+    args = parser.parse_args()
+    k, ticks = args.sensors, round(args.seconds * 1000)
+    names = [f"x{i:03d}" for i in range(k)]
+    cal = calibration(names, ["apl"], seed=3)
+    t = np.arange(ticks) * 1e-3
+    r = resistance(t, k, seed=4)
+
+    engine = Engine(cal, arrays={"arr": names})
+    group = engine._arrays["arr"]
+    path = (f"kernel path: one {type(group.kernel).__name__}.step call for all {k} sensors"
+            if group.kernel is not None else "FALLBACK: Python loop of Engine.step")
+    engine.warm_up()
+    cost = np.empty(ticks)
+    strain_array = np.empty((min(args.baseline_ticks, ticks), k))
+    for i in range(ticks):
+        start = time.perf_counter()
+        out = engine.step_array("arr", t[i], r[i])
+        cost[i] = time.perf_counter() - start
+        if i < strain_array.shape[0]:
+            strain_array[i] = out.strain
+
+    kernel = APLArray.from_models([c.build_model() for c in cal.sensors.values()])
+    kernel_cost = np.empty(min(ticks, 10_000))
+    for i in range(kernel_cost.size):
+        start = time.perf_counter()
+        kernel.step(t[i], r[i])
+        kernel_cost[i] = time.perf_counter() - start
+
+    loop = Engine(cal)
+    loop.warm_up()
+    n_base = strain_array.shape[0]
+    base_cost = np.empty(n_base)
+    strain_loop = np.empty((n_base, k))
+    gc.collect()
+    for i in range(n_base):
+        start = time.perf_counter()
+        ti, ri = t[i], r[i]
+        for j, name in enumerate(names):
+            strain_loop[i, j] = loop.step(name, ti, ri[j]).strain
+        base_cost[i] = time.perf_counter() - start
+    diff = float(np.max(np.abs(strain_array - strain_loop)))
+
+    us = cost * 1e6
+    med, p99, worst = np.median(us), np.percentile(us, 99), us.max()
+    base_med = np.median(base_cost) * 1e6
+    print(f"Engine.step_array, {k} APL sensors (N=11, M=9), {ticks:,} ticks at 1 kHz "
+          f"({args.seconds:g} s of data); {path}")
+    print(f"  per tick: median {med:.1f} us, p99 {p99:.1f} us, max {worst:.0f} us; "
+          f"median uses {med / 10:.1f} % of the 1 ms budget (p99 {p99 / 10:.1f} %); "
+          f"{int((us > 1000).sum())} ticks over budget")
+    print(f"  of which APLArray.step alone (the APL kernel, {kernel_cost.size:,} ticks): median "
+          f"{np.median(kernel_cost) * 1e6:.1f} us; the rest is screening, the direction "
+          f"kernel and the output arrays")
+    print(f"  {k / np.median(cost):,.0f} sensor-samples/s; total {cost.sum():.2f} s for "
+          f"{args.seconds:g} s of data ({args.seconds / cost.sum():.0f}x real time)")
+    print(f"baseline, Python loop of Engine.step over the {k} sensors ({n_base} ticks): "
+          f"median {base_med:.0f} us per tick ({base_med / 10:.0f} % of the budget)")
+    print(f"ratio loop / array (median per tick): {base_med / med:.0f}x; "
+          f"max |strain difference| {diff:.1e} %")
+    if not diff <= 1e-9:
+        raise SystemExit("array path and per-sensor loop disagree")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,109 @@
+#!/usr/bin/env python3
+"""Kernel throughput of the models that ``bench/bench_kernels.py`` (APL family, cubic) does
+not cover: sinh_pl, rational (split mode), spike_decay.
+
+    python bench/bench_models.py [--samples 1000000] [--reference-samples 5000]
+
+For each model: samples/s of the batch path ``run`` (numba kernel, one core, after a
+warm-up call that compiles it), best of 3, against the slow pure-Python reference of the
+same equations that the model's own tests check the kernel against
+(``test/models/test_{sinh_pl,rational,spike_decay}.py``), timed in the same run on
+``--reference-samples`` samples, and the largest difference between the two there.
+Parameters and inputs are those of the tests: sinh_pl with 2 cells on a modulated sine,
+rat22 split into loading / unloading fits on a random walk, spike_decay on a staircase.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test" / "models"))
+import test_rational
+import test_sinh_pl
+import test_spike_decay
+from _common import best_time
+
+from strain_comp.models.base import Normalisation
+from strain_comp.models.rational import Rational
+
+
+def sinh_pl(n: int):
+    m = test_sinh_pl.model(2)
+    t, s = test_sinh_pl.excitation(n)
+    r = m.forward(t, s)
+
+    def slow(k: int) -> np.ndarray:
+        xi = m.normalisation.xi(r[:k])
+        args = (m.w0, m.vb, list(m.w), list(m.i_s), list(m.v_t))
+        return m.normalisation.strain(test_sinh_pl.inverse_slow(t[:k], xi, *args))
+
+    return "sinh_pl (2 cells)", m, t, r, slow
+
+
+def rational(n: int):
+    rng = np.random.default_rng(0)
+    t = np.arange(n) * 1e-3
+    r = 3.0 + 0.3 * np.sin(2 * np.pi * 0.5 * t) + np.cumsum(rng.normal(0, 3e-4, n))
+    norm = Normalisation.from_ranges(float(r.min()), float(r.max()), 0.0, 1.0)
+    coef = {"combined": [1.0, 2.0, 3.0, 0.5, 4.0], "loading": [0.5, 2.5, 3.0, 0.1, 5.0],
+            "unloading": [1.5, 1.0, 2.0, 0.0, 3.0]}
+    direction = test_rational.DIRECTION
+    m = Rational(coef, "split", norm, direction)
+    rows = [coef[k] for k in ("combined", "loading", "unloading")]
+
+    def slow(k: int) -> np.ndarray:
+        return np.array(test_rational.rational_slow(t[:k], norm.xi(r[:k]), rows, True,
+                                                    direction.deadzone / norm.r0,
+                                                    direction.tau))
+
+    return "rational (rat22, split)", m, t, r, slow
+
+
+def spike_decay(n: int):
+    m = test_spike_decay.truth_model()
+    t, s = test_spike_decay.staircase(2.0, dt=0.02, hold=2.0, step=3.0, top=12.0)
+    r = m.predict_resistance(t, s)  # one staircase (from rest to rest), repeated
+    reps = -(-n // t.size)
+    t = (np.arange(reps)[:, None] * (t[-1] + 0.02) + t[None, :]).reshape(-1)[:n]
+    r = np.tile(r, reps)[:n] + np.random.default_rng(0).normal(0, 0.3, n)
+    d = test_spike_decay.DIRECTION
+
+    def slow(k: int) -> np.ndarray:
+        return np.array(test_spike_decay.kernel_slow(m, t[:k], r[:k], d.deadzone, d.tau))
+
+    return "spike_decay", m, t, r, slow
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=1_000_000)
+    parser.add_argument("--reference-samples", type=int, default=5000)
+    args = parser.parse_args()
+    n, k = args.samples, args.reference_samples
+    print(f"kernel throughput, run() on {n:,} samples, one core; pure-Python reference of "
+          f"the same equations (from the model's tests) on {k:,} samples:")
+    print(f"{'model':<26}{'samples/s':>14}{'reference':>12}{'ratio':>9}{'max |diff| %':>14}")
+    for build in (sinh_pl, rational, spike_decay):
+        name, model, t, r, slow = build(n)
+        model.reset()
+        model.run(t[:100], r[:100])  # compile / load the kernel
+
+        def go(model=model, t=t, r=r) -> None:
+            model.reset()
+            model.run(t, r)
+
+        fast = n / best_time(go, 3)
+        ref_out: list[np.ndarray] = []
+        ref = k / best_time(lambda slow=slow, out=ref_out: out.append(slow(k)), 1)
+        model.reset()
+        diff = float(np.max(np.abs(model.run(t[:k], r[:k]) - ref_out[-1])))
+        print(f"{name:<26}{fast:>14,.0f}{ref:>12,.0f}{fast / ref:>8.0f}x{diff:>14.1e}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+#!/usr/bin/env python3
+"""Engine / node start-up time including numba compilation, cold and warm kernel cache.
+
+    python bench/bench_startup.py [--warm-runs 3] [--no-dds]
+
+1. Engine start-up, in a fresh ``python`` subprocess: import ``strain_comp``'s engine,
+   load a calibration file (one APL sensor, one cubic sensor and a 16-sensor APL array,
+   ``bench/_common.py``), build ``Engine``, ``warm_up()`` (compiles every kernel, as the
+   node does at start-up, issue 4 item 5) and the first ``step`` / ``step_array``. The
+   child reports each phase; the total is the wall time from spawn to exit.
+2. DDS node start-up: ``python -m strain_comp.dds --params config/array_params.yaml``
+   (bundled 6-sensor APL array; Cyclone DDS on loopback) until it prints ``ready``.
+
+Cold: ``NUMBA_CACHE_DIR`` is a new, empty directory (every kernel compiled). Warm: the
+same directory again (kernels loaded from the cache). Baseline in the same run: the
+interpreter with numpy imported (``python -c "import numpy"``). Ratios: cold / warm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import calibration
+
+from strain_comp.calibration import save_calibration
+
+REPO = Path(__file__).resolve().parent.parent
+
+CHILD = """
+import json, sys, time
+t0 = time.perf_counter()
+import numpy as np
+from strain_comp.calibration import load_calibration
+from strain_comp.engine import Engine
+t1 = time.perf_counter()
+cal = load_calibration(sys.argv[1])
+arr = [n for n in cal.sensors if n.startswith("a")]
+engine = Engine(cal, arrays={"arr": arr})
+t2 = time.perf_counter()
+engine.warm_up()
+t3 = time.perf_counter()
+engine.step("s_apl", 0.0, 20.0)
+engine.step("s_cubic", 0.0, 20.0)
+engine.step_array("arr", 0.0, np.full(len(arr), 20.0))
+t4 = time.perf_counter()
+print(json.dumps({"import": t1 - t0, "build": t2 - t1, "warm_up": t3 - t2, "first": t4 - t3}))
+"""
+DDS_XML = """<CycloneDDS xmlns="https://cdds.io/config"><Domain id="any">
+<General><Interfaces><NetworkInterface name="lo"/></Interfaces>
+<AllowMulticast>false</AllowMulticast></General>
+<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30
+</MaxAutoParticipantIndex><Peers><Peer address="127.0.0.1"/></Peers></Discovery>
+</Domain></CycloneDDS>"""
+
+
+def engine_start(cal_path: Path, cache: Path) -> tuple[float, dict[str, float]]:
+    """(wall s from spawn to exit, the child's phase times)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    start = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", CHILD, str(cal_path)], env=env, check=True,
+                         capture_output=True, text=True, timeout=600)
+    return time.perf_counter() - start, json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def dds_start(cache: Path, xml: Path, domain: int) -> float:
+    """Wall s from spawn until the DDS node prints ``ready``."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "CYCLONEDDS_URI": xml.as_uri()}
+    start = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "strain_comp.dds", "--params",
+                             str(REPO / "config" / "array_params.yaml"), "--domain",
+                             str(domain), "--duration", "0.2"], env=env,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline().strip()
+        ready = time.perf_counter() - start
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    if line != "ready":
+        raise SystemExit(f"the DDS node did not start (printed {line!r})")
+    return ready
+
+
+def median(values: list[float]) -> float:
+    return sorted(values)[len(values) // 2]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--warm-runs", type=int, default=3)
+    parser.add_argument("--no-dds", action="store_true")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="strain_comp_startup_") as tmp:
+        tmp_path = Path(tmp)
+        names = ["s_apl", "s_cubic"] + [f"a{i:02d}" for i in range(16)]
+        save_calibration(calibration(names, ["apl", "cubic"] + ["apl"] * 16),
+                         tmp_path / "cal.yaml")
+        start = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "import numpy"], check=True)
+        base = time.perf_counter() - start
+        print(f"baseline: python -c 'import numpy': {base:.2f} s")
+        print(f"{'engine start-up (subprocess)':<34}{'total':>8}{'import':>8}{'build':>8}"
+              f"{'warm_up':>9}{'1st step':>10}")
+        cache = tmp_path / "numba_engine"
+        cache.mkdir()
+        rows = [("cold cache", *engine_start(tmp_path / "cal.yaml", cache))]
+        warm = [engine_start(tmp_path / "cal.yaml", cache) for _ in range(args.warm_runs)]
+        mid = sorted(warm, key=lambda w: w[0])[len(warm) // 2]
+        rows.append((f"warm cache (median of {len(warm)})", *mid))
+        for what, total, phase in rows:
+            print(f"{what:<34}{total:>8.2f}{phase['import']:>8.2f}{phase['build']:>8.2f}"
+                  f"{phase['warm_up']:>9.2f}{phase['first'] * 1e3:>8.2f}ms")
+        print(f"engine start-up ratio cold / warm: {rows[0][1] / rows[1][1]:.1f}x "
+              f"(warm_up alone {rows[0][2]['warm_up'] / rows[1][2]['warm_up']:.0f}x)")
+        if args.no_dds:
+            return
+        (tmp_path / "dds.xml").write_text(DDS_XML)
+        cache = tmp_path / "numba_dds"
+        cache.mkdir()
+        domain = 100 + os.getpid() % 50
+        cold = dds_start(cache, tmp_path / "dds.xml", domain)
+        warm_dds = median([dds_start(cache, tmp_path / "dds.xml", domain)
+                           for _ in range(args.warm_runs)])
+        print(f"DDS node (config/array_params.yaml) spawn -> 'ready': cold {cold:.2f} s, "
+              f"warm {warm_dds:.2f} s; ratio cold / warm {cold / warm_dds:.1f}x")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,385 @@
+#!/usr/bin/env python3
+"""Fuzz the calibration loader and the bag reader for a bounded time (issue 7).
+
+* **yaml**: random mutations of a valid calibration (every model, a divider input, every
+  effect kind): byte flips, truncations, inserted YAML syntax, deleted lines, and
+  structural edits of the parsed tree (deleted keys, values swapped for other types, NaN,
+  inf, huge or negative numbers, emptied or lengthened lists). ``load_calibration`` may
+  only raise ``CalibrationError``; a file that loads must then drive an ``Engine`` through
+  a few good and bad samples without any exception (a loaded calibration always works).
+* **bag**: byte flips, overwritten spans, truncations, deleted or duplicated spans of
+  small valid MCAP bags (every message type, several chunk sizes). ``read_bag`` may only
+  raise ``BagError`` or return contents (with ``problems``) whose series are consistent;
+  every ``--replay-every``-th readable input is also replayed, which may raise only
+  ``BagError``.
+
+Anything else is a crash: the input and its traceback are saved under ``--out``. Inputs
+that take longer than ``--timeout`` seconds count as hangs (saved too).
+
+    python scripts/fuzz.py --seconds 120 [--target yaml|bag|all] [--seed 0] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from strain_comp.bag import BagWriter, read_bag
+from strain_comp.calibration import (
+    Calibration,
+    InputSettings,
+    SensorCalibration,
+    load_calibration,
+    save_calibration,
+)
+from strain_comp.effects import KINDS
+from strain_comp.engine import Engine
+from strain_comp.errors import BagError, CalibrationError
+from strain_comp.fit import fit_sensor
+from strain_comp.models import MODEL_NAMES
+from strain_comp.recording import Recording
+from strain_comp.replay import replay_bag
+from strain_comp.rig import simulate
+
+
+class Hang(Exception):
+    """An input took longer than the time limit."""
+
+
+@dataclass
+class Stats:
+    """Counts of one fuzz target's run."""
+
+    target: str
+    inputs: int = 0
+    rejected: int = 0
+    """Inputs refused with the documented error (CalibrationError / BagError)."""
+    accepted: int = 0
+    crashes: list[tuple[bytes, str]] = field(default_factory=list)
+
+    def line(self) -> str:
+        return (f"{self.target}: {self.inputs} inputs, {self.accepted} accepted, "
+                f"{self.rejected} rejected cleanly, {len(self.crashes)} crashes")
+
+
+# ---------------------------------------------------------------- seeds
+
+def seed_calibration(fitted: dict[str, SensorCalibration]) -> Calibration:
+    """Every model of ``fitted`` as a sensor, a divider-input copy, and every effect kind."""
+    sensors = {name: SensorCalibration(**{**vars(cal), "name": name})
+               for name, cal in fitted.items()}
+    first = next(iter(fitted.values()))
+    r_mid = 0.5 * (first.valid_range.r_lo + first.valid_range.r_hi)
+    sensors["divider"] = SensorCalibration(**{
+        **vars(first), "name": "divider",
+        "input": InputSettings("divider", r1=r_mid, vin=3.3),
+        "effects": [{"name": kind, "kind": kind,
+                     "params": {"neighbour": next(iter(fitted))} if kind == "crosstalk" else {},
+                     "coef": 0.01} for kind in KINDS]})
+    return Calibration(sensors)
+
+
+def fit_every_model() -> dict[str, SensorCalibration]:
+    """Each model fitted quickly on 60 s of the rig's random scenario (a sound seed)."""
+    run = simulate("random", seed=2, duration=60.0)
+    sensor = next(iter(run.sensors.values()))
+    rec = Recording("s", sensor.t, sensor.resistance, sensor.strain)
+    fitted = {}
+    for model in MODEL_NAMES:
+        options: dict[str, Any] = {"tau": 0.2}
+        if model in ("apl", "pl"):
+            options.update(sigma_grid=[0.03], p_grid=[1.0], refine=False)
+        if model == "rational":
+            options["mode"] = "split"
+        fitted[model] = fit_sensor([rec], model, name=model, options=options)
+    return fitted
+
+
+def replay_calibration(fitted: dict[str, SensorCalibration]) -> Calibration:
+    """Sensors ``s1`` (apl) and ``p`` (cubic): the seed bags' per-sensor and array inputs."""
+    return Calibration({name: SensorCalibration(**{**vars(fitted[model]), "name": name})
+                        for name, model in (("s1", "apl"), ("p", "cubic"))})
+
+
+def seed_bags(directory: Path) -> list[bytes]:
+    """Small valid bags: every message type, chunk sizes from tiny to one chunk."""
+    t = 1.0 + np.arange(300) * 0.01
+    seeds = []
+    for chunk_size in (400, 3000, 1 << 20):
+        path = directory / f"seed_{chunk_size}.mcap"
+        with BagWriter(path, chunk_size=chunk_size) as w:
+            w.write_float64("/s1/resistance", t, 15.0 + 5.0 * np.sin(t))
+            w.write_float64("/s1/strain_reference", t, 10.0 + 10.0 * np.sin(t))
+            w.write_int8("/s1/direction", t, np.sign(np.cos(t)))
+            w.write_float64_array("/a/resistance", t, np.c_[t, 2 * t], ["s1", "p"])
+            w.write_temperature("/s1/temperature", t[::30], 20.0 + t[::30])
+            w.write_diagnostics(t[:3], [[("s1", 0, "ok", {"k": "v"})]] * 3)
+        seeds.append(path.read_bytes())
+    return seeds
+
+
+# ---------------------------------------------------------------- mutations
+
+SWAPS: list[Any] = [None, True, False, 0, -1, 1, 1e308, -1e308, math.nan, math.inf, -math.inf,
+                    10**30, -0.0, "", "x", "1.5", [], {}, [1.0, 2.0], {"a": 1}, [[1.0]],
+                    [None], list(range(300)), "apl", "divider", 2.5e-320]
+SNIPPETS = [b"{", b"}", b"[", b"]", b": ", b"- ", b"\t", b"&a ", b"*a", b"!!binary ",
+            b"!!python/object:os.system ", b"? ", b"|\n", b"'", b'"', b"\xff\xfe", b"\x00",
+            b"~", b".nan", b"-.inf", b"1e999", b"0x1F", b"<<: *a", b"%YAML 1.1\n", b"---\n",
+            b"...\n"]
+
+
+def _paths(node: Any, prefix: tuple = ()) -> Iterator[tuple]:
+    yield prefix
+    if isinstance(node, dict):
+        for key, value in node.items():
+            yield from _paths(value, (*prefix, key))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            yield from _paths(value, (*prefix, i))
+
+
+def _structural(text: bytes, rng: np.random.Generator) -> bytes:
+    tree = yaml.safe_load(text)
+    paths = [p for p in _paths(tree) if p]
+    for _ in range(int(rng.integers(1, 4))):
+        path = paths[int(rng.integers(0, len(paths)))]
+        parent = tree
+        try:
+            for key in path[:-1]:
+                parent = parent[key]
+            key = path[-1]
+            op = int(rng.integers(0, 5))
+            if op == 0:
+                del parent[key]
+            elif op == 1:
+                parent[key] = SWAPS[int(rng.integers(0, len(SWAPS)))]
+            elif op == 2 and isinstance(parent[key], list):
+                parent[key] = parent[key][:int(rng.integers(0, len(parent[key]) + 1))]
+            elif op == 3 and isinstance(parent[key], list):
+                parent[key] = parent[key] + parent[key][:int(rng.integers(1, 4))]
+            elif isinstance(parent[key], (int, float)) and not isinstance(parent[key], bool):
+                parent[key] = parent[key] * float(rng.choice([-1.0, 0.0, 1e-9, 1e9, 1.0001]))
+        except (KeyError, IndexError, TypeError):
+            continue  # an earlier edit removed this path
+    return yaml.safe_dump(tree, sort_keys=False).encode()
+
+
+def mutate_yaml(text: bytes, rng: np.random.Generator) -> bytes:
+    """One mutated calibration file (see the module docstring)."""
+    op = int(rng.integers(0, 6))
+    if op <= 1:
+        return _structural(text, rng)
+    buf = bytearray(text)
+    if op == 2:  # bit flips
+        for i in rng.integers(0, len(buf), int(rng.integers(1, 8))):
+            buf[i] ^= 1 << int(rng.integers(0, 8))
+    elif op == 3:  # truncation
+        del buf[int(rng.integers(0, len(buf))):]
+    elif op == 4:  # YAML syntax inserted
+        i = int(rng.integers(0, len(buf) + 1))
+        buf[i:i] = SNIPPETS[int(rng.integers(0, len(SNIPPETS)))]
+    else:  # a line deleted or duplicated
+        lines = bytes(buf).split(b"\n")
+        i = int(rng.integers(0, len(lines)))
+        if rng.random() < 0.5:
+            del lines[i]
+        else:
+            lines.insert(i, lines[i])
+        buf = bytearray(b"\n".join(lines))
+    return bytes(buf)
+
+
+def mutate_bag(data: bytes, rng: np.random.Generator) -> bytes:
+    """One damaged bag: flips, overwritten or deleted or duplicated spans, truncation."""
+    buf = bytearray(data)
+    for _ in range(int(rng.integers(1, 5))):
+        if len(buf) < 2:
+            break
+        i = int(rng.integers(0, len(buf)))
+        op = int(rng.integers(0, 5))
+        if op == 0:
+            buf[i] ^= 1 << int(rng.integers(0, 8))
+        elif op == 1:
+            fill = int(rng.choice([0x00, 0xFF, int(rng.integers(0, 256))]))
+            span = int(rng.integers(1, 16))
+            buf[i:i + span] = bytes([fill]) * len(buf[i:i + span])
+        elif op == 2:
+            del buf[i:]
+        elif op == 3:
+            j = min(len(buf), i + int(rng.integers(1, 64)))
+            buf[i:i] = buf[i:j]
+        else:
+            del buf[i:i + int(rng.integers(1, 64))]
+    return bytes(buf)
+
+
+# ---------------------------------------------------------------- checks
+
+def _exercise(calibration: Calibration) -> None:
+    """A loaded calibration must run: good, bad and out-of-range samples, batch and step."""
+    engine = Engine(calibration)
+    for name, cal in calibration.sensors.items():
+        lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
+        if cal.input.kind == "divider":
+            r1, vin = float(cal.input.r1), float(cal.input.vin)
+            lo, hi = vin * r1 / (r1 + hi), vin * r1 / (r1 + lo)
+        r = np.array([lo, hi, 0.5 * (lo + hi), math.nan, -1.0, 2 * hi, hi, lo])
+        t = np.arange(r.size) * 0.1
+        out = engine.run(name, t, r)
+        if not np.isfinite(out.strain).all():
+            raise AssertionError(f"{name}: non-finite strain {out.strain}")
+        for ti, ri in zip(t + 10.0, r, strict=True):
+            if not math.isfinite(engine.step(name, ti, ri).strain):
+                raise AssertionError(f"{name}: non-finite strain from step")
+    engine.health(now=100.0)
+
+
+def check_yaml(path: Path) -> bool:
+    """True if the file loaded (and ran), False if it was refused; raises on a crash."""
+    try:
+        calibration = load_calibration(path)
+    except CalibrationError as err:
+        if "\n" in str(err) or not str(err).startswith(str(path)):
+            raise AssertionError(f"error message not one line naming the file: {err}") \
+                from None
+        return False
+    _exercise(calibration)
+    return True
+
+
+def check_bag(path: Path, calibration: Calibration | None) -> bool:
+    """True if the bag read (and replayed), False if refused with BagError; raises else."""
+    try:
+        contents = read_bag(path)
+    except BagError:
+        return False
+    for topic, series in contents.series.items():
+        if series.t.shape[0] != series.values.shape[0] or not np.isfinite(series.t).all():
+            raise AssertionError(f"{topic}: inconsistent series")
+    if not all(isinstance(p, str) for p in contents.problems):
+        raise AssertionError("problems must be strings")
+    if calibration is not None:
+        try:
+            replay_bag(path, calibration, path.with_suffix(".out.mcap"))
+        except BagError:
+            pass
+    return True
+
+
+# ---------------------------------------------------------------- driver
+
+def _alarm(signum: int, frame: Any) -> None:
+    raise Hang("time limit exceeded")
+
+
+def run_target(stats: Stats, make: Callable[[], bytes], check: Callable[[Path], bool],
+               path: Path, *, seconds: float | None = None, iterations: int | None = None,
+               timeout: float = 10.0) -> Stats:
+    """Feed ``make()`` inputs to ``check`` until the time or the iteration count runs out."""
+    deadline = time.monotonic() + (seconds if seconds is not None else math.inf)
+    use_alarm = hasattr(signal, "SIGALRM")
+    if use_alarm:
+        previous = signal.signal(signal.SIGALRM, _alarm)
+    try:
+        while time.monotonic() < deadline and (iterations is None or stats.inputs < iterations):
+            data = make()
+            path.write_bytes(data)
+            stats.inputs += 1
+            try:
+                if use_alarm:
+                    signal.setitimer(signal.ITIMER_REAL, timeout)
+                ok = check(path)
+            except Exception:  # what the fuzzer looks for
+                stats.crashes.append((data, traceback.format_exc()))
+                continue
+            finally:
+                if use_alarm:
+                    signal.setitimer(signal.ITIMER_REAL, 0.0)
+            stats.accepted += ok
+            stats.rejected += not ok
+    finally:
+        if use_alarm:
+            signal.signal(signal.SIGALRM, previous)
+    return stats
+
+
+def fuzz_yaml(seed_text: bytes, rng: np.random.Generator, work: Path, **limits: Any) -> Stats:
+    """Fuzz ``load_calibration`` (and the engine on what loads) from one seed file."""
+    return run_target(Stats("yaml"), lambda: mutate_yaml(seed_text, rng), check_yaml,
+                      work / "cal.yaml", **limits)
+
+
+def fuzz_bag(seeds: list[bytes], calibration: Calibration | None, rng: np.random.Generator,
+             work: Path, *, replay_every: int = 10, **limits: Any) -> Stats:
+    """Fuzz ``read_bag`` (and ``replay_bag`` on every ``replay_every``-th input)."""
+    stats = Stats("bag")
+
+    def make() -> bytes:
+        return mutate_bag(seeds[int(rng.integers(0, len(seeds)))], rng)
+
+    def check(path: Path) -> bool:
+        replay = calibration if replay_every and stats.inputs % replay_every == 0 else None
+        return check_bag(path, replay)
+
+    return run_target(stats, make, check, work / "bag.mcap", **limits)
+
+
+def save_crashes(stats: Stats, out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    suffix = ".yaml" if stats.target == "yaml" else ".mcap"
+    for k, (data, trace) in enumerate(stats.crashes):
+        (out / f"{stats.target}_crash_{k}{suffix}").write_bytes(data)
+        (out / f"{stats.target}_crash_{k}.txt").write_text(trace)
+        print(f"crash saved to {out / f'{stats.target}_crash_{k}{suffix}'}: "
+              f"{trace.strip().splitlines()[-1]}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="total fuzzing time")
+    parser.add_argument("--target", choices=("yaml", "bag", "all"), default="all")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "strain_fuzz")
+    parser.add_argument("--replay-every", type=int, default=10)
+    parser.add_argument("--timeout", type=float, default=10.0, help="seconds per input")
+    args = parser.parse_args()
+    rng = np.random.default_rng(args.seed)
+    targets = ["yaml", "bag"] if args.target == "all" else [args.target]
+    share = args.seconds / len(targets)
+    failures = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        fitted = fit_every_model()
+        calibration = seed_calibration(fitted)
+        seed_yaml = work / "seed.yaml"
+        save_calibration(calibration, seed_yaml)
+        check_yaml(seed_yaml)  # the seed itself must load and run
+        for target in targets:
+            if target == "yaml":
+                stats = fuzz_yaml(seed_yaml.read_bytes(), rng, work, seconds=share,
+                                  timeout=args.timeout)
+            else:
+                stats = fuzz_bag(seed_bags(work), replay_calibration(fitted), rng, work,
+                                 seconds=share,
+                                 replay_every=args.replay_every, timeout=args.timeout)
+            print(stats.line(), flush=True)
+            save_crashes(stats, args.out)
+            failures += len(stats.crashes)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,116 @@
+#!/usr/bin/env python3
+"""The residual loop on the real lab recordings (../shared/data/measured): before/after table.
+
+    python scripts/measured_diagnose.py --data ../shared/data/measured --out out/diagnose
+
+Per data set, fixed in advance (by file, never by sample):
+
+* carbon-black/PDMS strip (``cb_pdms_7p5wt``, strain in %): fit on v16, diagnose on v19,
+  validate on v10;
+* conductive fibre (``conductive_fiber``, "strain" = crosshead extension in mm, since the
+  gauge length is not stated): fit on run 1, diagnose on run 3, validate on run 4.
+
+Each CSV is imported with ``strain_comp.csv_import.import_csv`` (the importer behind
+``strain-comp import-csv``), the calibration is fitted with ``strain_comp.fit.fit_sensor``
+(``strain-comp fit``) and ``strain_comp.diagnose.diagnose`` (``strain-comp diagnose
+--validate``) adds what lowers the error on the validation run. "before" and "after" are
+the RMSE on the validation run through the engine, without and with the added terms.
+
+Prints a Markdown table (data set x model: before, after, effects added), writes
+``results.json``, the diagnosed calibrations (``<set>_<model>_diagnosed.yaml``) and the
+residual plots (``plots/``) into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured"
+DEFAULT_MODELS = ("cubic", "rational", "mpi")
+DATASETS = {
+    "cb_pdms": {"dir": "cb_pdms_7p5wt", "format": "cb_pdms", "unit": "%",
+                "fit": "2_7-5_E4pin_20mm_v16_0.3Strain.csv",
+                "diagnose": "2_7-5_E4pin_20mm_v19_0.3Strain.csv",
+                "validate": "2_7-5_E4pin_20mm_v10_0.3Strain.csv"},
+    "fiber": {"dir": "conductive_fiber", "format": "fiber", "unit": "mm",
+              "fit": "oldthread_sensorfiber_5x_1_synced.csv",
+              "diagnose": "oldthread_sensorfiber_5x_3_synced.csv",
+              "validate": "oldthread_sensorfiber_5x_4_synced.csv"},
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA,
+                        help=f"measured data directory (default {DEFAULT_DATA})")
+    parser.add_argument("--out", type=Path, default=REPO / "out" / "diagnose")
+    parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS),
+                        help=f"models to fit (default {' '.join(DEFAULT_MODELS)})")
+    args = parser.parse_args(argv)
+
+    from strain_comp.calibration import Calibration, save_calibration
+    from strain_comp.csv_import import import_csv
+    from strain_comp.diagnose import diagnose, write_plots
+    from strain_comp.errors import StrainCompError
+    from strain_comp.fit import fit_sensor
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows, failures = [], []
+    for name, spec in DATASETS.items():
+        recs = {}
+        for role in ("fit", "diagnose", "validate"):
+            path = args.data / spec["dir"] / spec[role]
+            try:
+                recs[role] = import_csv(path, fmt=spec["format"], sensor=name).recording
+            except StrainCompError as err:
+                raise SystemExit(f"import of {path} failed: {err}") from None
+        for model in args.models:
+            start = time.perf_counter()
+            try:
+                cal = Calibration({name: fit_sensor([recs["fit"]], model, name=name,
+                                                    options={"progress": False}
+                                                    if model in ("apl", "pl", "mpi") else {})})
+                result = diagnose({name: recs["diagnose"]}, cal,
+                                  validate_recordings={name: recs["validate"]})
+            except StrainCompError as err:
+                failures.append(f"{name}/{model}: {err}")
+                continue
+            seconds = time.perf_counter() - start
+            save_calibration(result.calibration, args.out / f"{name}_{model}_diagnosed.yaml")
+            write_plots(result, args.out / "plots" / f"{name}_{model}")
+            added = result.added
+            rows.append({
+                "data": name, "model": model, "unit": spec["unit"],
+                "fit": spec["fit"], "diagnose": spec["diagnose"], "validate": spec["validate"],
+                "before": result.before["rmse"], "after": result.after["rmse"],
+                "added": [{"name": a.name, "kind": a.kind, "coef": a.coef} for a in added],
+                "message": result.sensors[name].message, "seconds": round(seconds, 2),
+                "top_scores": [(e.name, e.score) for e in sorted(
+                    result.sensors[name].scores, key=lambda e: -e.score)[:3]]})
+            print(f"## {name}/{model}: {result.sensors[name].message} ({seconds:.1f} s)",
+                  file=sys.stderr)
+    print("| data (fit -> diagnose -> validate) | model | validation RMSE before | after | "
+          "effects added |")
+    print("|---|---|---:|---:|---|")
+    for row in rows:
+        short = {"cb_pdms": "cb_pdms (v16 -> v19 -> v10)",
+                 "fiber": "fiber (run 1 -> run 3 -> run 4)"}[row["data"]]
+        effects = ", ".join(a["name"] for a in row["added"]) or "none (nothing helps)"
+        print(f"| {short} | {row['model']} | {row['before']:.3f} {row['unit']} | "
+              f"{row['after']:.3f} {row['unit']} | {effects} |")
+    if failures:
+        print("\nFailures:")
+        for line in failures:
+            print(f"- {line}")
+    (args.out / "results.json").write_text(json.dumps({"rows": rows, "failures": failures},
+                                                      indent=2) + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,165 @@
+"""Effect terms inside the engine: cross-talk with the same tick's neighbours (replay equals
+the node's ``step_array``), effect state reset at gap resets, and the published direction
+sign of a sensor whose resistance falls with strain."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_engine import DIRECTION, NORM, R_LO, cubic_cal, engine_of
+
+from strain_comp.bag import BagWriter, read_bag
+from strain_comp.calibration import (
+    Calibration,
+    SensorCalibration,
+    load_calibration,
+    save_calibration,
+)
+from strain_comp.direction import DirectionSettings
+from strain_comp.errors import CalibrationError, ParameterError
+from strain_comp.fit import fit_sensor
+from strain_comp.models import Segment, model_class
+from strain_comp.recording import Recording
+from strain_comp.replay import replay_bag
+
+NAMES = ["a", "b", "c"]
+
+
+def crosstalk(neighbours: list[str], coef: float = 0.2) -> list[dict]:
+    return [{"name": f"ct_{n}", "kind": "crosstalk", "params": {"neighbour": n}, "coef": coef}
+            for n in neighbours] + [{"name": "offset", "kind": "offset", "params": {},
+                                     "coef": 0.1}]
+
+
+def array_stream(n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """Three sensors with their own motion, some bad samples and a long outage on one."""
+    rng = np.random.default_rng(11)
+    t = 100.0 + np.arange(n) * 0.02
+    r = np.stack([150 + 30 * np.sin(t * (1 + k) + k) + rng.normal(0, 0.3, n)
+                  for k in range(len(NAMES))], axis=1)
+    r[rng.random(r.shape) < 0.03] = np.nan
+    r[150:220, 1] = np.nan  # 1.4 s without sensor b: a gap reset with gap_reset=1
+    return t, r
+
+
+def apl_cals(effects: dict[str, list[dict]]) -> list[SensorCalibration]:
+    t = np.arange(400) * 0.01
+    r_true = 150.0 + 40.0 * np.sin(2 * np.pi * 0.5 * t)
+    model = model_class("apl").fit([Segment(t, r_true, 0.5 * (r_true - R_LO))], NORM,
+                                   direction=DIRECTION, N=3, M=3, sigma_grid=[1.0],
+                                   p_grid=[1.0], refine=False, progress=False)
+    base = cubic_cal("x")
+    return [replace(base, name=n, model="apl", params=model.to_params(),
+                    effects=effects.get(n, [])) for n in NAMES]
+
+
+@pytest.mark.parametrize("family", ["cubic", "apl"])
+def test_array_crosstalk_replay_equals_step_array(tmp_path: Path, family: str) -> None:
+    effects = {"a": crosstalk(["b"]), "b": crosstalk(["a", "c"], -0.3), "c": crosstalk(["b"])}
+    cals = ([cubic_cal(n, effects=effects[n]) for n in NAMES] if family == "cubic"
+            else apl_cals(effects))
+    t, r = array_stream()
+    with BagWriter(tmp_path / "in.mcap") as writer:
+        writer.write_float64_array("/arr/resistance", t, r, NAMES)
+    calibration = Calibration({c.name: c for c in cals})
+    replay_bag(tmp_path / "in.mcap", calibration, tmp_path / "out.mcap", gap_reset=1.0)
+    replayed = read_bag(tmp_path / "out.mcap").series
+    engine = engine_of(*cals, arrays={"arr": NAMES}, gap_reset=1.0)
+    assert (engine._arrays["arr"].kernel is not None) == (family == "apl")
+    outs = [engine.step_array("arr", ti, ri) for ti, ri in zip(t, r, strict=True)]
+    stepped = np.array([o.strain for o in outs])
+    np.testing.assert_allclose(replayed["/arr/strain"].values, stepped, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(replayed["/arr/direction"].values,
+                                  np.array([o.direction for o in outs]))
+    # the terms read the same tick's neighbours: a one-tick-stale neighbour differs
+    batch = engine_of(*cals, gap_reset=1.0).run_array(NAMES, t, r)
+    np.testing.assert_allclose(batch["b"].strain, stepped[:, 1], rtol=1e-12, atol=1e-12)
+    stale = engine_of(*cals, gap_reset=1.0).run("b", t, r[:, 1], neighbours={
+        n: np.roll(batch[n].strain, 1) for n in ("a", "c")})
+    assert np.abs(stale.strain - stepped[:, 1]).max() > 1e-3
+
+
+def test_effect_state_resets_at_a_gap_reset() -> None:
+    """A baseline captured at the start of a run is captured again after a gap reset."""
+    effects = [{"name": "baseline", "kind": "baseline", "params": {"window": 0.5, "rest": 0.0},
+                "coef": 1.0},
+               {"name": "drift", "kind": "elapsed", "params": {"scale": 1.0}, "coef": 0.5}]
+    cal = cubic_cal("s1", effects=effects)
+    t1 = np.arange(100) * 0.02
+    t2 = t1[-1] + 10.0 + np.arange(100) * 0.02  # 10 s later: gap reset (gap_reset = 5 s)
+    r1 = 150 + 20 * np.sin(3 * t1)
+    r2 = 170 + 20 * np.sin(3 * t2)
+    t, r = np.concatenate([t1, t2]), np.concatenate([r1, r2])
+    engine = engine_of(cal)
+    batch = engine.run("s1", t, r)
+    assert engine.health()["s1"].n_gaps == 1
+    fresh = engine_of(cal).run("s1", t2, r2).strain
+    np.testing.assert_allclose(batch.strain[100:], fresh, rtol=0, atol=1e-12)
+    stepper = engine_of(cal)
+    stepped = [stepper.step("s1", ti, ri).strain for ti, ri in zip(t, r, strict=True)]
+    np.testing.assert_allclose(stepped, batch.strain, rtol=0, atol=1e-12)
+    # without the reset the terms would carry the first run's state over
+    carried = engine_of(cal, gap_reset=100.0).run("s1", t, r).strain
+    assert np.abs(carried[100:] - fresh).max() > 0.1
+
+
+def falling_sensor(n: int = 1500) -> Recording:
+    """R falls with strain (negative gauge factor, like the nanocomposite seed)."""
+    rng = np.random.default_rng(5)
+    t = np.arange(n) * 0.02
+    s = 15 * (1 - np.cos(2 * np.pi * t / 10.0))
+    return Recording("neg", t, 1000.0 * (1 - 0.01 * s) + rng.normal(0, 0.05, n), s)
+
+
+def test_falling_resistance_publishes_loading_as_plus_one() -> None:
+    rec = falling_sensor()
+    cal = fit_sensor([rec], "cubic", name="neg", options={"tau": 0.2})
+    assert cal.direction.sign == -1
+    assert fit_sensor([replace(rec, r=2000.0 - rec.r)], "cubic", name="neg",
+                      options={"tau": 0.2}).direction.sign == 1
+    rising = np.gradient(rec.s) > 0.05
+    falling = np.gradient(rec.s) < -0.05
+    out = engine_of(cal).run("neg", rec.t, rec.r)
+    assert np.mean(out.direction[rising] == 1) > 0.9
+    assert np.mean(out.direction[falling] == -1) > 0.9
+    engine = engine_of(cal)
+    stepped = [engine.step("neg", ti, ri).direction for ti, ri in zip(rec.t, rec.r, strict=True)]
+    np.testing.assert_array_equal(stepped, out.direction)
+    arrays = engine_of(replace(cal, name="x"), replace(cal, name="y"), arrays={"arr": ["x", "y"]})
+    ticks = [arrays.step_array("arr", ti, [ri, ri]).direction
+             for ti, ri in zip(rec.t, rec.r, strict=True)]
+    np.testing.assert_array_equal(np.array(ticks)[:, 0], out.direction)
+
+
+def test_apl_array_kernel_publishes_the_signed_direction() -> None:
+    cals = [replace(c, direction=replace(c.direction, sign=-1)) for c in apl_cals({})]
+    t = 100.0 + np.arange(300) * 0.02
+    r = np.stack([150 + 30 * np.sin(t)] * len(NAMES), axis=1)
+    engine = engine_of(*cals, arrays={"arr": NAMES})
+    assert engine._arrays["arr"].kernel is not None
+    ticks = np.array([engine.step_array("arr", ti, ri).direction for ti, ri in zip(t, r,
+                                                                                    strict=True)])
+    raw = engine_of(cals[0]).run("a", t, r[:, 0]).direction
+    np.testing.assert_array_equal(ticks[:, 0], raw)
+    slope = np.gradient(r[:, 0], t)  # R rising beyond the dead zone: unloading here
+    for sel, published in ((slope > 25.0, -1), (slope < -25.0, 1)):
+        assert np.mean(raw[sel] == published) > 0.8 and not np.any(raw[sel] == -published)
+
+
+def test_sign_in_calibration_files(tmp_path: Path) -> None:
+    cal = cubic_cal("s1", direction=DirectionSettings(deadzone=1.0, sign=-1))
+    save_calibration(Calibration({"s1": cal}), tmp_path / "c.yaml")
+    assert load_calibration(tmp_path / "c.yaml").sensors["s1"].direction.sign == -1
+    text = (tmp_path / "c.yaml").read_text()
+    (tmp_path / "old.yaml").write_text(text.replace("sign: -1", ""))
+    assert load_calibration(tmp_path / "old.yaml").sensors["s1"].direction.sign == 1
+    for bad in ("sign: 0", "sign: '+1'", "sign: true"):
+        (tmp_path / "bad.yaml").write_text(text.replace("sign: -1", bad))
+        with pytest.raises(CalibrationError) as err:
+            load_calibration(tmp_path / "bad.yaml")
+        assert err.value.field == "sensors.s1.direction.sign"
+    with pytest.raises(ParameterError):
+        DirectionSettings(deadzone=1.0, sign=2)
