@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """An array of 256 APL sensors (N = 11, M = 9) stepped by the engine at 1 kHz in real time.
 
-    python bench/bench_array.py [--sensors 256] [--seconds 60] [--baseline-ticks 1000]
+    python bench/bench_array.py [--sensors 256] [--seconds 60] [--baseline-ticks 1000] [--no-gc]
 
 ``Engine(calibration, arrays={"arr": names}).step_array`` is called once per tick for
 ``--seconds`` of 1 kHz data (60 000 ticks by default), each call timed on its own
@@ -36,6 +36,8 @@ def main() -> None:
     parser.add_argument("--sensors", type=int, default=256)
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--baseline-ticks", type=int, default=1000)
+    parser.add_argument("--no-gc", action="store_true",
+                        help="disable Python's garbage collector during the timed ticks")
     args = parser.parse_args()
     k, ticks = args.sensors, round(args.seconds * 1000)
     names = [f"x{i:03d}" for i in range(k)]
@@ -48,6 +50,9 @@ def main() -> None:
     path = (f"kernel path: one {type(group.kernel).__name__}.step call for all {k} sensors"
             if group.kernel is not None else "FALLBACK: Python loop of Engine.step")
     engine.warm_up()
+    gc.collect()
+    if args.no_gc:
+        gc.disable()
     cost = np.empty(ticks)
     strain_array = np.empty((min(args.baseline_ticks, ticks), k))
     for i in range(ticks):
@@ -56,6 +61,7 @@ def main() -> None:
         cost[i] = time.perf_counter() - start
         if i < strain_array.shape[0]:
             strain_array[i] = out.strain
+    gc.enable()
 
     kernel = APLArray.from_models([c.build_model() for c in cal.sensors.values()])
     kernel_cost = np.empty(min(ticks, 10_000))
@@ -82,7 +88,7 @@ def main() -> None:
     med, p99, worst = np.median(us), np.percentile(us, 99), us.max()
     base_med = np.median(base_cost) * 1e6
     print(f"Engine.step_array, {k} APL sensors (N=11, M=9), {ticks:,} ticks at 1 kHz "
-          f"({args.seconds:g} s of data); {path}")
+          f"({args.seconds:g} s of data){', gc off' if args.no_gc else ''}; {path}")
     print(f"  per tick: median {med:.1f} us, p99 {p99:.1f} us, max {worst:.0f} us; "
           f"median uses {med / 10:.1f} % of the 1 ms budget (p99 {p99 / 10:.1f} %); "
           f"{int((us > 1000).sum())} ticks over budget")

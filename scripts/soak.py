@@ -18,7 +18,8 @@ For each model (fitted once on a simulated rig run, as ``strain-comp fit`` does)
    inf, <= 0, open, short, repeated and backward time stamps): no exception, every output
    finite once a sample was used.
 
-Memory: VmRSS from /proc/self/status before and after each model (no psutil).
+Memory: VmRSS from /proc/self/status (no psutil) after the second and the last chunk of
+each model, and at the start and end of the whole run.
 
     python scripts/soak.py --samples 10000000 [--models apl,pl] [--seed 0]
 """
@@ -66,8 +67,11 @@ class SoakResult:
     strain_span: float
     engine_bad: int
     engine_nonfinite: int
-    rss_start_kib: int
-    rss_end_kib: int
+    rss_early_kib: int
+    """VmRSS after the second chunk through ``run``: two chunks' arrays are alive at once
+    from then on, and the allocator keeps their memory (steady state)."""
+    rss_last_chunk_kib: int
+    """VmRSS after the last chunk: equal to ``rss_early_kib`` if nothing grows."""
 
 
 def fit_calibration(model: str) -> SensorCalibration:
@@ -113,7 +117,7 @@ def soak_model(cal: SensorCalibration, *, samples: int, chunk: int, steps: int,
     rng = np.random.default_rng(seed)
     lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
     model = cal.build_model()
-    rss_start = rss_kib()
+    rss_early, n_chunks = 0, 0
     start = time.perf_counter()
     t_probe, r_probe = probe(cal, 0.0)
     first = model.run(t_probe, r_probe)
@@ -127,6 +131,10 @@ def soak_model(cal: SensorCalibration, *, samples: int, chunk: int, steps: int,
         out = model.run(t, lo + u_walk * (hi - lo))
         nan_count += int(np.count_nonzero(~np.isfinite(out)))
         t_last, u, done = float(t[-1]), float(u_walk[-1]), done + n
+        n_chunks += 1
+        if n_chunks <= 2:
+            rss_early = rss_kib()
+    rss_last = rss_kib()
     u_walk = random_walk(rng, u, steps)
     for k in range(steps):
         t_last += DT
@@ -141,7 +149,7 @@ def soak_model(cal: SensorCalibration, *, samples: int, chunk: int, steps: int,
         cycle_drift=float(np.max(np.abs(again - first)[-PROBE_CYCLES:])),
         strain_span=cal.valid_range.s_hi - cal.valid_range.s_lo,
         engine_bad=engine_bad, engine_nonfinite=engine_nonfinite,
-        rss_start_kib=rss_start, rss_end_kib=rss_kib())
+        rss_early_kib=rss_early, rss_last_chunk_kib=rss_last)
 
 
 def engine_soak(cal: SensorCalibration, rng: np.random.Generator, samples: int,
@@ -196,7 +204,8 @@ def main() -> int:
         print(f"{model:12s} {r.samples:>10d} samples in {r.seconds:7.1f} s "
               f"({r.samples / r.seconds / 1e6:5.2f} M/s)  NaN {r.nan_count}  "
               f"probe drift {r.cycle_drift:.1e} %  engine bad {r.engine_bad} "
-              f"non-finite {r.engine_nonfinite}  RSS {r.rss_start_kib} -> {r.rss_end_kib} KiB"
+              f"non-finite {r.engine_nonfinite}  RSS chunk 2 / last "
+              f"{r.rss_early_kib}/{r.rss_last_chunk_kib} KiB"
               f"  {'ok' if ok else 'FAIL'}", flush=True)
     print(f"RSS at end: {rss_kib()} KiB")
     return 1 if failures else 0

@@ -484,6 +484,8 @@ def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
     for i in range(start.size):
         try:  # the first message that decodes into a well-formed array fixes the layout
             msg = decoder(blob[start[i]:start[i] + length[i]].tobytes())
+            if len(msg.data) == 0:  # an empty array cannot fix the layout
+                continue
             first = (len(msg.data), [str(d.label) for d in msg.layout.dim])
             break
         except Exception:  # find the first decodable message
@@ -493,7 +495,12 @@ def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
         return
     k, dim_labels = first
     if dim_labels:
-        out.labels[topic] = [x.strip() for x in dim_labels[0].split(",") if x.strip()]
+        labels = [x.strip() for x in dim_labels[0].split(",") if x.strip()]
+        if len(labels) == k:
+            out.labels[topic] = labels
+        else:
+            out.problems.append(f"{topic}: {len(labels)} sensor labels for {k} values; "
+                                "labels ignored")
     n0 = int(length[i])
     prefix_len = n0 - 8 * k
     ref = blob[start[i]:start[i] + prefix_len]

@@ -679,7 +679,7 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
     if not isinstance(name, str) or not name:
         raise ParameterError("name", "missing or not a string")
     kind = effect.get("kind")
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:
         raise ParameterError("kind", f"must be one of {', '.join(KINDS)}; got {kind!r}")
     params = effect.get("params", {})
     if params is None:
@@ -687,7 +687,7 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
     if not isinstance(params, Mapping):
         raise ParameterError("params", f"must be a mapping, got {type(params).__name__}")
     cls = KINDS[kind]
-    unknown = sorted(set(params) - set(cls.param_names))
+    unknown = sorted(str(k) for k in params if k not in cls.param_names)
     if unknown:
         raise ParameterError(f"params.{unknown[0]}", f"unknown parameter of kind {kind!r}")
     return cls.from_params(params)

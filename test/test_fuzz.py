@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from test_properties import fitted
 
-from strain_comp.calibration import save_calibration
+from strain_comp.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.errors import CalibrationError
 from strain_comp.models import MODEL_NAMES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,3 +65,97 @@ def test_fuzz_bag_reader_and_replay(fuzz, every_model, tmp_path: Path) -> None:
                           replay_every=10, iterations=200, timeout=20.0)
     assert not stats.crashes, _report(stats)
     assert stats.accepted > 50
+
+
+def test_calibration_truncated_at_any_line_loads_or_is_refused_cleanly(
+        fuzz, every_model, tmp_path: Path) -> None:
+    seed = tmp_path / "seed.yaml"
+    save_calibration(fuzz.seed_calibration(every_model), seed)
+    text = seed.read_bytes()
+    cuts = [i for i, byte in enumerate(text) if byte == ord("\n")][::4]
+    cuts += [len(text) // 3 + 7, len(text) // 2 + 3]  # mid-line, mid-number
+    outcomes = set()
+    for cut in cuts:
+        path = tmp_path / "cut.yaml"
+        path.write_bytes(text[:cut])
+        outcomes.add(fuzz.check_yaml(path))  # raises on anything but CalibrationError
+    assert outcomes == {False, True}  # early cuts refused; a cut in provenance may load
+
+
+@pytest.mark.parametrize(("effect", "field"), [
+    ({"name": "e", "kind": {"offset": None}, "coef": 0.1}, "effects.0.kind"),
+    ({"name": "e", "kind": ["offset"], "coef": 0.1}, "effects.0.kind"),
+    ({"name": "e", "kind": "rate", "params": {1: 2.0, "x": 1.0}, "coef": 0.1},
+     "effects.0.params.1"),
+])
+def test_regression_fuzz_effect_of_wrong_type(every_model, tmp_path: Path, effect: dict,
+                                              field: str) -> None:
+    """Found by scripts/fuzz.py: an effect ``kind`` that is a mapping or a list raised
+    TypeError (unhashable) and mixed-type ``params`` keys raised TypeError (sorting) in
+    strain_comp.effects.regressor_from_dict instead of a CalibrationError."""
+    path = tmp_path / "cal.yaml"
+    save_calibration(Calibration({"s": replace(every_model["cubic"], name="s")}), path)
+    data = yaml.safe_load(path.read_text())
+    data["sensors"]["s"]["effects"] = [effect]
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationError) as info:
+        load_calibration(path)
+    assert str(info.value).startswith(f"{path}: sensors.s.{field}: "), str(info.value)
+
+
+def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
+    """Float64MultiArray messages on /a/resistance with the given (labels, data), as
+    a foreign or damaged recorder might write them (BagWriter refuses such rows)."""
+    from mcap.writer import Writer
+
+    import strain_comp.bag as bag_module
+
+    kind = "std_msgs/msg/Float64MultiArray"
+    encode = bag_module._encoder(kind)
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2")
+        schema = writer.register_schema(kind, "ros2msg", bag_module.SCHEMAS[kind].encode())
+        channel = writer.register_channel("/a/resistance", "cdr", schema)
+        for i, (labels, data) in enumerate(rows):
+            payload = encode({"layout": {"dim": [{"label": labels, "size": len(data),
+                                                  "stride": len(data)}], "data_offset": 0},
+                              "data": data})
+            writer.add_message(channel, (i + 1) * 10**8, payload, (i + 1) * 10**8)
+        writer.finish()
+
+
+def test_regression_fuzz_empty_array_message_first(tmp_path: Path) -> None:
+    """Found by scripts/fuzz.py: when the first decodable Float64MultiArray held no values,
+    it fixed the layout at k = 0 and the bulk decoder's reshape raised ValueError."""
+    from strain_comp.bag import read_bag
+
+    path = tmp_path / "empty_first.mcap"
+    _raw_array_bag(path, [("s1,p", [])] + [("s1,p", [15.0, 16.0])] * 5)
+    contents = read_bag(path)
+    series = contents.series["/a/resistance"]
+    assert series.values.shape == (5, 2) and contents.labels["/a/resistance"] == ["s1", "p"]
+    assert any("malformed or wrong-size" in p for p in contents.problems)
+    only_empty = tmp_path / "only_empty.mcap"
+    _raw_array_bag(only_empty, [("s1,p", [])] * 3)
+    contents = read_bag(only_empty)
+    assert "/a/resistance" not in contents.series and contents.problems
+
+
+def test_regression_labels_that_do_not_match_the_values(fuzz, every_model,
+                                                        tmp_path: Path) -> None:
+    """Found while turning the fuzz crashes into tests: an array whose label list has more
+    or fewer names than values made replay fail inside the engine (InputError without the
+    file); the reader now drops such labels and says so, and replay refuses cleanly."""
+    from strain_comp.bag import read_bag
+    from strain_comp.errors import BagError
+    from strain_comp.replay import replay_bag
+
+    path = tmp_path / "labels.mcap"
+    _raw_array_bag(path, [("s1,p", [15.0, 16.0, 17.0])] * 4)
+    contents = read_bag(path)
+    assert contents.series["/a/resistance"].values.shape == (4, 3)
+    assert "/a/resistance" not in contents.labels
+    assert any("2 sensor labels for 3 values" in p for p in contents.problems)
+    with pytest.raises(BagError, match="no /NAME/resistance"):
+        replay_bag(path, fuzz.replay_calibration(every_model), tmp_path / "out.mcap")

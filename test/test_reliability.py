@@ -205,6 +205,10 @@ def test_truncated_bag_replays_what_is_readable_and_reports_it(tmp_path: Path) -
 
 # --------------------------------------------------------------------- random array stream
 
+N_TICKS = 5000
+"""Ticks of the random stream (about 1 s for an array of one sensor per model)."""
+
+
 def _array_engine(models: list[str]) -> tuple[Engine, list[str]]:
     names = [f"{m}_{i}" for i, m in enumerate(models)]
     cals = {n: SensorCalibration(**{**vars(fitted(m)), "name": n})
@@ -227,8 +231,7 @@ def test_array_engine_survives_a_random_stream_of_good_and_bad_messages(models: 
     previous = np.full(k, np.nan)
     ever_used = np.zeros(k, dtype=bool)
     ticks = rejected = 0
-    deadline = time.monotonic() + 1.5
-    while time.monotonic() < deadline:
+    while ticks < N_TICKS:
         jump = rng.random()
         if jump < 0.02:
             t -= rng.uniform(0.0, 10.0)  # bag loop or sim-time reset
@@ -260,7 +263,7 @@ def test_array_engine_survives_a_random_stream_of_good_and_bad_messages(models: 
         np.testing.assert_array_equal(out.strain[~used], previous[~used])  # held
         assert set(np.unique(out.direction)) <= {-1, 0, 1}
         previous = out.strain
-    assert ticks > 500 and rejected > 0
+    assert rejected > 0
     health = engine.health()
     for name in names:
         h = health[name]
@@ -304,3 +307,20 @@ def test_short_soak_every_model() -> None:
         assert result.cycle_drift <= 1e-9 * result.strain_span, (model, result)
         assert result.engine_bad > 0 and result.engine_nonfinite == 0, (model, result)
     assert os.path.exists("/proc/self/status") and soak.rss_kib() > 0
+
+
+def test_replay_reports_a_calibrated_sensor_without_its_topic_as_stale(tmp_path: Path) -> None:
+    both = Calibration({n: SensorCalibration(**{**vars(fitted("cubic")), "name": n})
+                        for n in ("s1", "s2")})
+    vr = fitted("cubic").valid_range
+    t = 1.0 + np.arange(300) * 0.01
+    bag_in, bag_out = tmp_path / "in.mcap", tmp_path / "out.mcap"
+    with BagWriter(bag_in) as w:
+        w.write_float64("/s1/resistance", t, np.full(t.size, 0.5 * (vr.r_lo + vr.r_hi)))
+    summary = replay_bag(bag_in, both, bag_out)
+    assert summary.sensors["s2"].n_good == 0
+    out = read_bag(bag_out)
+    assert "/s2/strain" not in out.series
+    last = {name: (level, message) for name, level, message, _ in out.diagnostics[-1][1]}
+    assert last["strain_comp: s1"][0] == 0
+    assert last["strain_comp: s2"][0] == 3 and "stale" in last["strain_comp: s2"][1]
