@@ -380,7 +380,15 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> BagConten
         except OSError as exc:
             raise BagError(f"{file}: cannot read ({exc.strerror})") from exc
         _read_file(col, data, str(file))
-    return _decode(col)
+    contents = _decode(col)
+    contents.problems[:] = located(path, contents.problems)
+    return contents
+
+
+def located(path: str | Path, problems: Iterable[str]) -> list[str]:
+    """Problem lines that all name the bag: ``path: ...`` (kept if they already do)."""
+    prefix = str(path)
+    return [p if p.startswith(prefix) else f"{prefix}: {p}" for p in problems]
 
 
 def _decode(col: _Collector) -> BagContents:

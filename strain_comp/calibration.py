@@ -149,8 +149,18 @@ def _file_mode(path: Path) -> int:
         return 0o666 & ~umask
 
 
+def _fsync_directory(directory: Path) -> None:
+    """Make the rename itself durable (a power loss after it keeps the new file)."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 def save_calibration(calibration: Calibration, path: str | os.PathLike[str]) -> None:
-    """Write atomically: temp file in the target directory, fsync, then rename over."""
+    """Write atomically: temp file in the target directory, fsync, rename over, fsync the
+    directory. A crash at any moment leaves the old or the new file, never a mix."""
     path = Path(path)
     text = yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
                           default_flow_style=None, width=100)
@@ -163,6 +173,7 @@ def save_calibration(calibration: Calibration, path: str | os.PathLike[str]) -> 
             os.fchmod(handle.fileno(), _file_mode(path))
             os.fsync(handle.fileno())
         os.replace(tmp, path)
+        _fsync_directory(path.parent)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

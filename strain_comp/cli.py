@@ -122,9 +122,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     calibration = load_calibration(_existing(args.calibration, "calibration file"))
     recordings, problems = load_recordings(args.bag)
-    result = evaluate_recordings(recordings, calibration)
+    try:
+        result = evaluate_recordings(recordings, calibration)
+    except InputError as err:  # nothing to score: say what the bag reader skipped, if anything
+        raise InputError("; ".join([f"{args.bag}: {err}", *problems])) from None
     print(format_table(result))
-    for line in [f"{args.bag}: {p}" for p in problems] + format_notes(result):
+    for line in problems + format_notes(result):
         print(line)
     if args.json:
         _write_json(args.json, result.to_json())
@@ -150,7 +153,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             print(f"{name}: {health.n_bad} bad samples (estimate held), {health.n_out_of_range} "
                   f"out of range, {health.n_gaps} gap resets")
     for problem in summary.problems:
-        print(f"{args.bag}: {problem}")
+        print(problem)
     return 0
 
 

@@ -75,6 +75,10 @@ MIN_HOLD_SAMPLES = 40
 """A hold must have at least this many samples to set the dead zone."""
 DEFAULT_K_SIGMA = 4.0
 """Dead zone = k sigma of the derivative noise (egain_rational... section V.E: 3 or 4)."""
+TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+"""Derivative low-pass time constants [s] tried, shortest (least lag) first."""
+DEADZONE_FRACTION = 0.5
+"""The dead zone must stay below this fraction of the typical dR/dt while moving."""
 _DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau")
 
 
@@ -153,33 +157,71 @@ def _noise_sigma(segments: Sequence[Segment]) -> float:
     return (sigma or float(np.std(d2))) / np.sqrt(6.0)
 
 
-def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
-        DirectionSettings, str]:
-    """Dead-zone settings and their source: ``given``, ``hold``, ``noise`` or ``floor``."""
-    k_sigma = float(options.get("k_sigma", DEFAULT_K_SIGMA))
-    tau = float(options.get("tau", 0.0))
-    if "deadzone" in options:
-        deadzone = float(options["deadzone"])
-        if not deadzone > 0:
-            raise InputError(f"option deadzone must be > 0 ohm/s, got {deadzone}")
-        return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
+def movement_rate(segments: Sequence[Segment]) -> float:
+    """Typical |dR/dt| [ohm/s] while the reference moves: the gauge slope |dR/dS| (a line
+    through all samples) times the median |dS/dt| of the moving samples (the reference is
+    clean, so this is not inflated by resistance noise)."""
+    r = np.concatenate([seg.r for seg in segments])
+    s = np.concatenate([seg.s for seg in segments])
+    rates = np.concatenate([np.abs(np.gradient(seg.s, seg.t)) for seg in segments])
+    scale = float(np.percentile(rates, 99.5))
+    moving = rates > 10 * HOLD_RATE_FRACTION * scale
+    if scale <= 0.0 or not moving.any():
+        return 0.0
+    gain = abs(float(np.polyfit(s, r, 1)[0]))
+    return gain * float(np.median(rates[moving]))
+
+
+def _hold_samples(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """(t, r, source) of what nothing-moves noise looks like: the reference's longest hold,
+    else white noise of the record's robust sigma at the longest segment's sample times
+    (fixed seed); None for noise-free data."""
     hold = find_hold(segments)
-    if hold is not None:
-        try:
-            return estimate_deadzone(hold[0], hold[1], k_sigma=k_sigma, tau=tau), "hold"
-        except InputError:
-            pass  # constant readings on the hold: fall back to the whole record
+    if hold is not None and np.ptp(hold[1]) > 0:
+        return hold[0], hold[1], "hold"
     sigma = _noise_sigma(segments)
     longest = max(segments, key=lambda seg: seg.t.size)
     if sigma > 0 and longest.t.size >= 12:
         rng = np.random.default_rng(0)
         r_hold = float(np.median(longest.r)) + sigma * rng.standard_normal(longest.t.size)
-        return estimate_deadzone(longest.t, r_hold, k_sigma=k_sigma, tau=tau), "noise"
-    # Noise-free data (a clean simulation): a dead zone far below any real motion,
-    # 1e-6 of the training R span per second of the longest segment.
-    t_span = float(longest.t[-1] - longest.t[0]) or 1.0
-    r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
-    return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=tau, k_sigma=None), "floor"
+        return longest.t, r_hold, "noise"
+    return None
+
+
+def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
+        DirectionSettings, str]:
+    """Dead-zone settings and their source: ``given``, ``hold``, ``noise`` or ``floor``.
+
+    Without a ``tau`` option the derivative filter is the shortest on ``TAU_GRID`` whose
+    dead zone (k sigma of the filtered derivative noise) stays below ``DEADZONE_FRACTION``
+    of the typical movement rate: a raw first difference of a noisy, fast-sampled signal
+    can have a 4-sigma dead zone above the slowest ramps, and the detector would never
+    leave hold. When even the longest filter cannot get there, it is used anyway.
+    """
+    k_sigma = float(options.get("k_sigma", DEFAULT_K_SIGMA))
+    if "deadzone" in options:
+        deadzone = float(options["deadzone"])
+        if not deadzone > 0:
+            raise InputError(f"option deadzone must be > 0 ohm/s, got {deadzone}")
+        tau = float(options.get("tau", 0.0))
+        return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
+    taus = [float(options["tau"])] if "tau" in options else list(TAU_GRID)
+    hold = _hold_samples(segments)
+    if hold is None:
+        # Noise-free data (a clean simulation): a dead zone far below any real motion,
+        # 1e-6 of the training R span per second of the longest segment.
+        longest = max(segments, key=lambda seg: seg.t.size)
+        t_span = float(longest.t[-1] - longest.t[0]) or 1.0
+        r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
+        return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=taus[0],
+                                 k_sigma=None), "floor"
+    t_hold, r_hold, source = hold
+    target = DEADZONE_FRACTION * movement_rate(segments)
+    for tau in taus:
+        settings = estimate_deadzone(t_hold, r_hold, k_sigma=k_sigma, tau=tau)
+        if settings.deadzone <= target:
+            break
+    return settings, source
 
 
 def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
@@ -281,7 +323,7 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
         recordings, problems = load_recordings(path)
         for problem in problems:
             if report is not None:
-                report(f"{path}: {problem}")
+                report(problem)
         for sensor, rec in recordings.items():
             by_sensor.setdefault(sensor, []).append((str(path), rec))
     referenced = [n for n, recs in by_sensor.items() if any(r.s is not None for _, r in recs)]

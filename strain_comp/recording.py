@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.bag import BagContents, Series, read_bag
+from strain_comp.bag import BagContents, Series, located, read_bag
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -137,7 +137,7 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     problems), the bag reader's problems first. Raises BagError if the bag is unreadable."""
     contents = read_bag(path)
     recordings, problems = _recordings(contents)
-    return recordings, contents.problems + problems
+    return recordings, contents.problems + located(path, problems)
 
 
 __all__ = ["Recording", "align", "load_recordings", "recordings_from_bag"]

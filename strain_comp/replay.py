@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.bag import BagContents, BagWriter, read_bag
+from strain_comp.bag import BagContents, BagWriter, located, read_bag
 from strain_comp.calibration import Calibration
 from strain_comp.engine import BatchOutput, Engine, SensorHealth, diagnostics
 from strain_comp.errors import BagError
@@ -119,6 +119,9 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             statuses.append(diagnostics(engine.health(now=float(ticks[k]))))
     out_path = Path(out_path)
     problems = list(contents.problems)
+    replayed = {s for i in inputs for s in i.sensors}
+    problems += [f"calibrated sensor {s!r} has no input topic in the bag: not replayed "
+                 "(STALE in /diagnostics)" for s in calibration.sensors if s not in replayed]
     n_out = 0
     written: set[str] = {"/diagnostics"}
     with BagWriter(out_path) as writer:
@@ -147,7 +150,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
         n_in = _copy_through(contents, writer, written, problems)
     return ReplaySummary(out_path, engine.health(), {i.name: i.sensors for i in inputs
                                                     if i.is_array},
-                         n_in, n_out + n_in, problems)
+                         n_in, n_out + n_in, located(in_path, problems))
 
 
 def _concat(parts: list[BatchOutput]) -> BatchOutput:

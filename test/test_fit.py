@@ -8,13 +8,16 @@ import numpy as np
 import pytest
 
 from strain_comp.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.engine import Engine
 from strain_comp.errors import FitError, InputError, ParameterError
 from strain_comp.fit import (
+    DEADZONE_FRACTION,
     GAP_SECONDS,
     MIN_SEGMENT,
     RANGE_MARGIN,
     find_hold,
     fit_sensor,
+    movement_rate,
     parse_options,
     split_segments,
 )
@@ -127,7 +130,8 @@ def test_dead_zone_from_hold_is_k_sigma_of_derivative_noise() -> None:
     segments = split_segments(t, r, s)
     hold_t, _ = find_hold(segments)
     assert hold_t[0] >= 100.0 and hold_t[-1] < 160.0 and hold_t.size > 200
-    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1", options={"k_sigma": 3.0})
+    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1",
+                     options={"k_sigma": 3.0, "tau": 0.0})
     assert cal.provenance["direction_from"] == "hold"
     expected = 3.0 * sigma_r * np.sqrt(2.0) / dt  # sigma of (r_i - r_i-1) / dt
     assert cal.direction.deadzone == pytest.approx(expected, rel=0.15)
@@ -139,9 +143,29 @@ def test_dead_zone_without_hold_from_robust_noise() -> None:
     t, s = triangles(200.0, dt)
     rng = np.random.default_rng(11)
     r = resistance_of(s) + sigma_r * rng.standard_normal(t.size)
-    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1")
+    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1", options={"tau": 0.0})
     assert cal.provenance["direction_from"] == "noise"
     assert cal.direction.deadzone == pytest.approx(4.0 * sigma_r * np.sqrt(2.0) / dt, rel=0.2)
+
+
+def test_derivative_filter_is_chosen_so_the_detector_sees_the_ramps() -> None:
+    """With noise that puts the raw-difference dead zone above the ramps' dR/dt, the fit
+    picks a longer filter, and the detector then follows the reference's direction."""
+    dt, sigma_r = 0.02, 0.2
+    t, s = triangles(200.0, dt, hold=(100.0, 160.0))
+    rng = np.random.default_rng(3)
+    r = resistance_of(s) + sigma_r * rng.standard_normal(t.size)
+    segments = split_segments(t, r, s)
+    raw = fit_sensor([recording(t, r, s)], "cubic", name="s1", options={"tau": 0.0})
+    assert raw.direction.deadzone > movement_rate(segments)  # tau = 0: blind to the ramps
+    cal = fit_sensor([recording(t, r, s)], "cubic", name="s1")
+    assert cal.direction.tau > 0.0
+    assert cal.direction.deadzone <= DEADZONE_FRACTION * movement_rate(segments)
+    published = Engine(Calibration({"s1": cal})).run("s1", t, r).direction
+    truth = np.sign(np.gradient(s, t))
+    moving = np.abs(np.gradient(s, t)) > 0.05
+    agree = np.mean(published[moving] == truth[moving])
+    assert agree > 0.9, agree
 
 
 def test_direction_options_are_not_passed_to_the_model() -> None:

@@ -319,6 +319,9 @@ def test_replay_reports_a_calibrated_sensor_without_its_topic_as_stale(tmp_path:
         w.write_float64("/s1/resistance", t, np.full(t.size, 0.5 * (vr.r_lo + vr.r_hi)))
     summary = replay_bag(bag_in, both, bag_out)
     assert summary.sensors["s2"].n_good == 0
+    assert [p for p in summary.problems if "'s2'" in p] == [
+        f"{bag_in}: calibrated sensor 's2' has no input topic in the bag: not replayed "
+        "(STALE in /diagnostics)"]
     out = read_bag(bag_out)
     assert "/s2/strain" not in out.series
     last = {name: (level, message) for name, level, message, _ in out.diagnostics[-1][1]}
