@@ -94,13 +94,18 @@ def _choice(params: Mapping[str, Any], key: str, options: Sequence[str], default
     return str(value)
 
 
-def _positive(params: Mapping[str, Any], key: str, default: float) -> float:
+def _number(params: Mapping[str, Any], key: str, default: float, **bounds: Any) -> float:
+    """``params[key]`` as a finite float within ``bounds`` (see require_float), or default."""
     if key not in params:
         return default
     try:
-        return require_float(params, key, lo=0.0, strict=True)
+        return require_float(params, key, **bounds)
     except ParameterError as err:
         raise ParameterError(f"params.{err.field}", err.problem) from None
+
+
+def _positive(params: Mapping[str, Any], key: str, default: float) -> float:
+    return _number(params, key, default, lo=0.0, strict=True)
 
 
 def _ffill(values: np.ndarray, last: float) -> np.ndarray:
@@ -444,13 +449,8 @@ class Temperature(Regressor):
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> Temperature:
-        t_ref = 20.0
-        if "t_ref" in params:
-            try:
-                t_ref = require_float(params, "t_ref")
-            except ParameterError as err:
-                raise ParameterError(f"params.{err.field}", err.problem) from None
-        return cls(_choice(params, "form", ("offset", "strain"), "offset"), t_ref)
+        return cls(_choice(params, "form", ("offset", "strain"), "offset"),
+                   _number(params, "t_ref", 20.0))
 
 
 class StrainLevel(Regressor):
@@ -657,13 +657,7 @@ class Baseline(Regressor):
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> Baseline:
-        rest = 0.0
-        if "rest" in params:
-            try:
-                rest = require_float(params, "rest")
-            except ParameterError as err:
-                raise ParameterError(f"params.{err.field}", err.problem) from None
-        return cls(_positive(params, "window", 5.0), rest)
+        return cls(_positive(params, "window", 5.0), _number(params, "rest", 0.0))
 
 
 KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
