@@ -36,7 +36,6 @@ setup(
     maintainer_email="strain_comp@example.org",
     description="Calibrated strain from soft resistive strain sensors (ROS 2 Jazzy).",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "strain-comp = strain_comp.cli:main",
