@@ -22,6 +22,7 @@ import math
 import time
 
 import numpy as np
+from _common import best_time
 
 from strain_comp.direction import DirectionSettings
 from strain_comp.models.apl import APL, MPI, PL, APLArray
@@ -92,15 +93,6 @@ def python_cells(kind: str, t, r, n_cells: int, sigma: float, p: float, w, mu) -
 def python_cubic(t, r, c) -> list[float]:
     c0, c1, c2, c3 = c
     return [((c3 * v + c2) * v + c1) * v + c0 for v in r.tolist()]
-
-
-def best_time(fn, repeat: int = 3) -> float:
-    best = math.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def bench_models(n: int) -> None:

@@ -105,7 +105,7 @@ def default_candidates(*, temperature_ref: float | None = None,
         out += [{"name": f"relaxation_{branch}_tau{tau:g}", "kind": "relaxation",
                  "params": {"tau": tau, "branch": branch}} for tau in RELAXATION_TAUS]
     out += [{"name": f"drift_{form}", "kind": "elapsed", "params": {"form": form, "scale": 100.0}}
-            for form in ("linear", "sqrt", "log")]
+            for form in ("linear", "sqrt", "log", "linear_strain")]
     if temperature_ref is not None:
         out += [{"name": f"temperature_{form}", "kind": "temperature",
                  "params": {"form": form, "t_ref": float(temperature_ref)}}

@@ -362,8 +362,12 @@ class Elapsed(Regressor):
     """Slow drift: a function of the time since the first sample, x = (t - t0) / scale.
 
     ``form``: ``linear`` x, ``sqrt`` sqrt(x) (diffusion-limited ageing, swelling) or
-    ``log`` log(1 + x) (creep of a polymer matrix). ``scale`` [s] only sets the units of
-    the coefficient (and the knee of ``log``). t0 is the first sample after ``reset``.
+    ``log`` log(1 + x) (creep of a polymer matrix); ``linear_strain`` x * S_hat: a drift
+    of the *gain*. A resistance that drifts in proportion to itself, R (1 + d t), which is
+    how contact and filler-network ageing usually act, shifts the strain estimate by about
+    (1/G + S) d t for a gauge factor G: an offset drift plus this gain drift. ``scale`` [s]
+    only sets the units of the coefficient (and the knee of ``log``). t0 is the first
+    sample after ``reset``.
     """
 
     kind = "elapsed"
@@ -388,19 +392,22 @@ class Elapsed(Regressor):
     def step(self, sample: Sample) -> float:
         if math.isnan(self._t0):
             self._t0 = sample.t
-        return float(self._g((sample.t - self._t0) / self.scale))
+        g = float(self._g((sample.t - self._t0) / self.scale))
+        return g * sample.s_hat if self.form == "linear_strain" else g
 
     def run(self, batch: Batch) -> np.ndarray:
         if batch.t.size and math.isnan(self._t0):
             self._t0 = float(batch.t[0])
-        return self._g((batch.t - self._t0) / self.scale)
+        g = self._g((batch.t - self._t0) / self.scale)
+        return g * batch.s_hat if self.form == "linear_strain" else g
 
     def params(self) -> dict[str, Any]:
         return {"form": self.form, "scale": self.scale}
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> Elapsed:
-        return cls(_choice(params, "form", ("linear", "sqrt", "log"), "linear"),
+        return cls(_choice(params, "form", ("linear", "sqrt", "log", "linear_strain"),
+                           "linear"),
                    _positive(params, "scale", 100.0))
 
 

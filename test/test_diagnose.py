@@ -60,6 +60,8 @@ def calibration(bags: BagMaker) -> Calibration:
 CASES = [  # effect, rig switch, bag scenario, validation scenario, expected kind
     ("relaxation after steps", {"relaxation": 0.3}, "random", "steps", "relaxation"),
     ("slow drift", {"drift": 0.05}, "long", "long", "elapsed"),
+    ("fast drift, validated on other strain levels", {"drift": 0.5}, "random", "patterns",
+     "elapsed"),
     ("temperature (TCR)", {"temperature": 0.004}, "temperature", "temperature", "temperature"),
     ("Mullins softening", {"mullins": 0.3}, "patterns", "random", "mullins"),
 ]
