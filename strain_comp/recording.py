@@ -81,6 +81,18 @@ def recordings_from_bag(contents: BagContents) -> dict[str, Recording]:
     return recordings
 
 
+def array_sensor_names(topic: str, labels: list[str], k: int) -> tuple[list[str], str | None]:
+    """Sensor names of the k columns of array topic ``/ARRAY/resistance``: its labels when
+    there is one per column, else ``ARRAY_0`` ... ``ARRAY_{k-1}`` (with a problem line when
+    labels were there but did not fit)."""
+    if len(labels) == k:
+        return labels, None
+    prefix = topic[:-len(RESISTANCE)].lstrip("/")
+    problem = (f"{topic}: {len(labels)} labels for {k} columns; sensors named by column"
+               if labels else None)
+    return [f"{prefix}_{j}" for j in range(k)], problem
+
+
 def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]:
     problems: list[str] = []
     out: dict[str, Recording] = {}
@@ -103,13 +115,10 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
                 problems.append(f"{prefix + REFERENCE}: an array reference for a single sensor")
             out[name] = Recording(name, res.t, res.values, s, t_temp)
             continue
-        k = res.values.shape[1]
-        labels = contents.labels.get(topic) or []
-        if len(labels) != k:
-            if labels:
-                problems.append(f"{topic}: {len(labels)} labels for {k} columns; "
-                                "sensors named by column")
-            labels = [f"{prefix.lstrip('/')}_{j}" for j in range(k)]
+        labels, problem = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                             res.values.shape[1])
+        if problem is not None:
+            problems.append(problem)
         s_cols = None
         if ref is not None:
             ref_labels = contents.labels.get(prefix + REFERENCE) or labels
@@ -140,4 +149,5 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     return recordings, contents.problems + located(path, problems)
 
 
-__all__ = ["Recording", "align", "load_recordings", "recordings_from_bag"]
+__all__ = ["Recording", "align", "array_sensor_names", "load_recordings",
+           "recordings_from_bag"]

@@ -28,6 +28,7 @@ from strain_comp.bag import BagContents, BagWriter, located, read_bag
 from strain_comp.calibration import Calibration
 from strain_comp.engine import BatchOutput, Engine, SensorHealth, diagnostics
 from strain_comp.errors import BagError
+from strain_comp.recording import array_sensor_names
 
 OUTPUTS = ("strain", "direction", "status")
 
@@ -65,8 +66,9 @@ def _inputs(contents: BagContents, calibration: Calibration) -> list[_Input]:
             found.append(_Input(topic, name, [name], series.t, series.values[:, None], False))
             covered.add(name)
         elif series.values.ndim == 2:
-            labels = contents.labels.get(topic, [])
-            if labels and all(label in calibration.sensors for label in labels):
+            labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                           series.values.shape[1])
+            if all(label in calibration.sensors for label in labels):
                 found.append(_Input(topic, name, labels, series.t, series.values, True))
                 covered.update(labels)
     if not found:

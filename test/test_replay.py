@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_engine import cubic_cal, lag_cal, noisy_stream
 
-from strain_comp.bag import BagWriter, read_bag
+from strain_comp.bag import SCHEMAS, BagWriter, read_bag
 from strain_comp.calibration import Calibration
 from strain_comp.engine import Status
 from strain_comp.errors import BagError
@@ -108,3 +108,35 @@ def test_replay_without_calibrated_topics_is_a_bag_error(tmp_path: object) -> No
         w.write_float64("/other/resistance", [0.0, 1.0], [1.0, 2.0])
     with pytest.raises(BagError, match="no /NAME/resistance"):
         replay_bag(tmp_path / "x.mcap", calibration(), tmp_path / "y.mcap")
+
+
+def test_array_without_labels_replays_under_column_names(tmp_path) -> None:
+    """An array topic written by another tool without labels: fit, evaluate and replay all
+    name its sensors ARRAY_0 ... ARRAY_{k-1}."""
+    from mcap_ros2.writer import Writer
+
+    from strain_comp.fit import fit_bags
+
+    t = np.arange(0.0, 30.0, 0.02)
+    strain = np.stack([10 + 10 * np.sin(t * k / 5) for k in (1, 2, 3)], axis=1)
+    ohm = 100.0 + 2.0 * strain
+    path = tmp_path / "unlabelled.mcap"
+    with path.open("wb") as handle:
+        writer = Writer(handle)
+        kind = "std_msgs/msg/Float64MultiArray"
+        schema = writer.register_msgdef(kind, SCHEMAS[kind])
+        for i, ti in enumerate(t):
+            ns = round(float(ti) * 1e9)
+            for topic, values in (("/arr/resistance", ohm), ("/arr/strain_reference", strain)):
+                writer.write_message(topic, schema,
+                                     {"layout": {"dim": [], "data_offset": 0},
+                                      "data": values[i].tolist()},
+                                     log_time=ns, publish_time=ns)
+        writer.finish()
+    calibration = fit_bags([path], "cubic")
+    assert list(calibration.sensors) == ["arr_0", "arr_1", "arr_2"]
+    summary = replay_bag(path, calibration, tmp_path / "out.mcap")
+    assert summary.arrays == {"arr": ["arr_0", "arr_1", "arr_2"]}
+    out = read_bag(tmp_path / "out.mcap")
+    assert out.labels["/arr/strain"] == ["arr_0", "arr_1", "arr_2"]
+    assert np.allclose(out.series["/arr/strain"].values, strain, atol=1e-6)
