@@ -45,7 +45,7 @@ from strain_comp.calibration import (
     save_calibration,
 )
 from strain_comp.effects import KINDS
-from strain_comp.engine import Engine, Status
+from strain_comp.engine import Engine, used_mask
 from strain_comp.errors import BagError, CalibrationError
 from strain_comp.fit import fit_sensor
 from strain_comp.models import MODEL_NAMES
@@ -244,7 +244,7 @@ def _exercise(calibration: Calibration) -> None:
         steps = [engine.step(name, ti, ri) for ti, ri in zip(t + 10.0, r, strict=True)]
         strain = np.concatenate([out.strain, [o.strain for o in steps]])
         status = np.concatenate([out.status, [o.status for o in steps]])
-        used = (status == Status.GOOD) | (status >= Status.GAP_RESET)
+        used = used_mask(status)
         if used.any() and not np.isfinite(strain[int(np.argmax(used)):]).all():
             raise AssertionError(f"{name}: non-finite strain {strain} (status {status})")
     engine.health(now=100.0)

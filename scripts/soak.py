@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from strain_comp.calibration import Calibration, SensorCalibration
-from strain_comp.engine import OPEN_FACTOR, SHORT_FACTOR, Engine, Status
+from strain_comp.engine import OPEN_FACTOR, SHORT_FACTOR, Engine, used_mask
 from strain_comp.fit import fit_sensor
 from strain_comp.models import MODEL_NAMES
 from strain_comp.recording import Recording
@@ -170,7 +170,7 @@ def engine_soak(cal: SensorCalibration, rng: np.random.Generator, samples: int,
         back = np.flatnonzero(rng.random(n) < 0.002)
         t[back[back > 0]] = t[back[back > 0] - 1] - rng.uniform(0.0, 1.0)
         out = engine.run("s1", t, r)
-        used = (out.status == Status.GOOD) | (out.status >= Status.GAP_RESET)
+        used = used_mask(out.status)
         first = 0 if seen_good else (int(np.argmax(used)) if used.any() else n)
         seen_good = seen_good or bool(used.any())
         nonfinite += int(np.count_nonzero(~np.isfinite(out.strain[first:])))

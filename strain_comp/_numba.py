@@ -45,7 +45,6 @@ if _cache_dir is not None:  # numba already imported elsewhere: its config was r
     numba.config.CACHE_DIR = _cache_dir
 
 
-
 def njit(*args: object, **options: object) -> object:
     """``numba.njit`` with ``cache=True`` and ``nogil=True`` unless told otherwise.
 

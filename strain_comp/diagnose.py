@@ -54,24 +54,27 @@ margin); effect state is reset at the engine's gap resets, in diagnosis as onlin
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from strain_comp._numba import njit
 from strain_comp.calibration import Calibration, SensorCalibration, save_calibration
-from strain_comp.effects import Batch, EffectTerms, effect_dict, regressor_from_dict
-from strain_comp.engine import Engine, Status
+from strain_comp.effects import (
+    Batch,
+    EffectTerms,
+    effect_dict,
+    regressor_from_dict,
+    run_segments,
+)
+from strain_comp.engine import Engine, used_mask
 from strain_comp.errors import InputError
 from strain_comp.metrics import error_stats
-
-if TYPE_CHECKING:
-    from strain_comp.recording import Recording
+from strain_comp.recording import Recording, hold_latest, load_recordings
 
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
 """Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
@@ -81,7 +84,6 @@ BASELINE_WINDOW = 5.0
 SIGNIFICANCE = 1.0
 """A term is added only if its fold-wise cross-validated gain exceeds this many standard
 errors (``_significant``)."""
-_USED_STATUS = (Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE)
 
 
 def default_candidates(*, temperature_ref: float | None = None,
@@ -262,13 +264,13 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration) -> dict[s
     """S_hat without effects, direction, used mask and gap resets per calibrated sensor."""
     stripped = Calibration({n: dataclasses.replace(c, effects=[])
                             for n, c in calibration.sensors.items()})
+    engine = Engine(stripped)  # sensors are independent: effect terms (cross-talk) stripped
     out = {}
     for name, rec in bag.items():
         if name not in stripped.sensors:
             continue
-        engine = Engine(stripped)
         result = engine.run(name, rec.t, rec.r, rec.temperature)
-        used = np.isin(result.status, np.array(_USED_STATUS, dtype=result.status.dtype))
+        used = used_mask(result.status)
         dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
         starts = (np.flatnonzero((dt > engine.gap_reset) | (dt <= -engine.gap_reset))
                   + 1).tolist()
@@ -285,12 +287,6 @@ def _neighbours(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
     return [found[i] for i in sorted(found)]
 
 
-def _aligned(t: np.ndarray, t_other: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``values`` (at ``t_other``) held to the times ``t``: the latest at or before each."""
-    idx = np.searchsorted(t_other, t, side="right") - 1
-    return np.where(idx >= 0, values[np.maximum(idx, 0)], np.nan)
-
-
 def _block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
     """Contiguous time blocks 0..n_blocks-1 of equal duration."""
     if t.size == 0:
@@ -305,17 +301,11 @@ def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], ba
                starts: Sequence[int]) -> np.ndarray:
     """``run`` over the segments between the engine's gap resets, ``reset`` between them
     (the engine resets effect state where it resets the model)."""
-    n = batch.t.size
-    out = np.empty(n)
-    for k, (a, b) in enumerate(itertools.pairwise([0, *starts, n])):
-        if k > 0:
-            reset()
-        if b > a:
-            out[a:b] = run(Batch(
-                batch.t[a:b], batch.r[a:b], batch.s_hat[a:b], batch.direction[a:b],
-                None if batch.temperature is None else batch.temperature[a:b],
-                {name: v[a:b] for name, v in batch.neighbours.items()}))
-    return out
+    return run_segments(
+        lambda k: run(Batch(batch.t[k], batch.r[k], batch.s_hat[k], batch.direction[k],
+                            None if batch.temperature is None else batch.temperature[k],
+                            {name: v[k] for name, v in batch.neighbours.items()})),
+        reset, batch.t.size, starts)
 
 
 def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
@@ -335,7 +325,7 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
     nbrs = {}
     for name in _neighbours(rec, bag):
         if name in runs:
-            nbrs[name] = _aligned(np.asarray(rec.t, np.float64),
+            nbrs[name] = hold_latest(np.asarray(rec.t, np.float64),
                                   np.asarray(bag[name].t, np.float64), runs[name].s_hat)[used]
     batch = Batch.of(t, np.asarray(rec.r)[used], run.s_hat[used], run.direction[used],
                      temperature, nbrs)
@@ -560,6 +550,11 @@ def _keep(gram: _Gram, selection: _Selection, shift: int | None, offset: int,
     return _Branch(shift, selection, kept, coef, e_after, _rms(e_after))
 
 
+def _holdout_period(holdout_fraction: float) -> int:
+    """Every how many-th time block is held out (module docstring, step 3)."""
+    return max(2, round(1.0 / holdout_fraction))
+
+
 def _baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:
     """Mean reference strain over the first ``BASELINE_WINDOW`` s of the fit recordings:
     the strain a run starts at (what a baseline term should read at rest)."""
@@ -602,7 +597,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
               for s in [_series(sensor, cal, b, runs, candidates, n_blocks)] if s is not None]
     if not series:
         return None
-    period = max(2, round(1.0 / holdout_fraction)) if validate is None else 0
+    period = _holdout_period(holdout_fraction) if validate is None else 0
     held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
                 for s in series]
     # folds: position of the block among the fit blocks of its recording
@@ -730,7 +725,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     if validate is None:
         validated_on = "holdout"
         validation = {"kind": "held-out time blocks of the input", "n_blocks": n_blocks,
-                      "held_out_every": max(2, round(1.0 / holdout_fraction))}
+                      "held_out_every": _holdout_period(holdout_fraction)}
     else:
         validated_on = "validate"
         validation = {"kind": "validation recordings",
@@ -786,8 +781,6 @@ def diagnose_bag(bag: str | Path, calibration: Calibration, *,
                  validate: str | Path | None = None, out: str | Path | None = None,
                  plots: str | Path | None = None, **options: Any) -> DiagnoseResult:
     """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots."""
-    from strain_comp.recording import load_recordings
-
     recordings, _ = load_recordings(bag)
     val = None if validate is None else load_recordings(validate)[0]
     result = diagnose(recordings, calibration, validate_recordings=val, **options)

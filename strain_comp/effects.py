@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Any, ClassVar
 
 import numpy as np
@@ -116,6 +117,19 @@ def _ffill(values: np.ndarray, last: float) -> np.ndarray:
     return np.where(idx >= 0, values[np.maximum(idx, 0)], last)
 
 
+def run_segments(run: Callable[[slice], np.ndarray], reset: Callable[[], None], n: int,
+                 starts: Sequence[int]) -> np.ndarray:
+    """``run`` over the n samples in segments cut at ``starts`` (where the engine reset after
+    a gap), calling ``reset`` between segments, as the engine resets effect state there."""
+    out = np.empty(n)
+    for k, (a, b) in enumerate(pairwise([0, *starts, n])):
+        if k > 0:
+            reset()
+        if b > a:
+            out[a:b] = run(slice(a, b))
+    return out
+
+
 class Regressor(ABC):
     """One effect regressor g(t) with explicit state; see the module docstring."""
 
@@ -142,10 +156,6 @@ class Regressor(ABC):
     @abstractmethod
     def from_params(cls, params: Mapping[str, Any]) -> Regressor:
         """Build from ``params``; ParameterError naming ``params.<key>`` if bad."""
-
-    @property
-    def needs_temperature(self) -> bool:
-        return False
 
     @property
     def neighbour(self) -> str | None:
@@ -425,10 +435,6 @@ class Temperature(Regressor):
         self.form = form
         self.t_ref = t_ref
         self._last = math.nan
-
-    @property
-    def needs_temperature(self) -> bool:
-        return True
 
     def reset(self) -> None:
         self._last = math.nan

@@ -50,14 +50,14 @@ import numpy.typing as npt
 
 from strain_comp._numba import njit
 from strain_comp.calibration import Calibration, SensorCalibration
-from strain_comp.conversion import divider_to_resistance
+from strain_comp.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.direction import (
     STATE_SIZE,
     DirectionDetector,
     DirectionSettings,
     direction_update,
 )
-from strain_comp.effects import EffectTerms
+from strain_comp.effects import EffectTerms, run_segments
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.models.base import Compensator
 from strain_comp.samples import SampleStatus
@@ -68,6 +68,8 @@ SHORT_FACTOR = 0.01
 """0 < R below this fraction of the bottom of the valid resistance range is a short."""
 RANGE_MARGIN = 0.05
 """Fraction of the valid range's span added on each side before flagging / clamping."""
+GAP_RESET = 5.0
+"""Default ``gap_reset`` [s]: a longer jump between good samples resets the state."""
 APL_FAMILY = frozenset({"apl", "pl", "mpi"})
 
 
@@ -88,9 +90,16 @@ class Status(IntEnum):
     OUT_OF_RANGE = 7
 
 
-_USED = (Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE)
+USED = frozenset({Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE})
+"""The statuses of samples fed to the model (all others are bad: estimate held)."""
 _DIAG_OK, _DIAG_WARN, _DIAG_ERROR, _DIAG_STALE = 0, 1, 2, 3
 LEVEL_NAMES = {_DIAG_OK: "OK", _DIAG_WARN: "WARN", _DIAG_ERROR: "ERROR", _DIAG_STALE: "STALE"}
+
+
+def used_mask(status: npt.ArrayLike) -> np.ndarray:
+    """True where a sample's ``Status`` is in ``USED`` (it was fed to the model)."""
+    status = np.asarray(status)
+    return (status == Status.GOOD) | (status >= Status.GAP_RESET)
 
 
 @njit
@@ -188,7 +197,7 @@ class SensorHealth:
             level, message = _DIAG_STALE, "stale: no good sample recently"
         elif last is None:
             level, message = _DIAG_WARN, "no sample yet"
-        elif last not in _USED:
+        elif last not in USED:
             level, message = _DIAG_ERROR, f"bad input ({last.name.lower()}): estimate held"
         elif last is Status.OUT_OF_RANGE:
             level, message = _DIAG_WARN, "resistance out of the calibrated range"
@@ -329,18 +338,22 @@ class _Sensor:
         r_mid = 0.5 * (self.cal.valid_range.r_lo + self.cal.valid_range.r_hi)
         if self.cal.input.kind != "divider":
             return r_mid
-        r1, vin = float(self.cal.input.r1), float(self.cal.input.vin)
-        return vin * r1 / (r1 + r_mid)
+        return float(resistance_to_divider(r_mid, float(self.cal.input.r1),
+                                           float(self.cal.input.vin)))
 
     def count(self, status: np.ndarray) -> None:
-        counts = np.bincount(status.astype(np.intp), minlength=len(Status))
+        """Add a batch's statuses to the counters."""
         h = self.health
-        h.n_good += int(counts[Status.GOOD] + counts[Status.GAP_RESET]
-                        + counts[Status.OUT_OF_RANGE])
-        for code, name in _COUNTER.items():
-            setattr(h, name, getattr(h, name) + int(counts[code]))
+        _add_counts(h, np.bincount(status.astype(np.intp), minlength=len(Status)))
         if status.size:
             h.last_status = Status(int(status[-1]))
+
+
+def _add_counts(h: SensorHealth, counts: np.ndarray) -> None:
+    """Add per-``Status`` sample counts (indexed by status code) to ``h``'s counters."""
+    h.n_good += int(sum(counts[code] for code in USED))
+    for code, name in _COUNTER.items():
+        setattr(h, name, getattr(h, name) + int(counts[code]))
 
 
 def _scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
@@ -357,7 +370,7 @@ class Engine:
     """
 
     def __init__(self, calibration: Calibration, *,
-                 arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = 5.0,
+                 arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
                  stale_after: float = 1.0, deadzone_scale: float = 1.0) -> None:
         if not gap_reset > 0:
             raise ParameterError("gap_reset", f"must be > 0 s, got {gap_reset}")
@@ -429,16 +442,10 @@ class Engine:
         nbrs = {n: given[n] if n in given else np.full(t.size, self._base_strain(n))
                 for n in sensor.effects.neighbours}
         sensor.base = float(base[-1])
-        out = np.empty(t.size)
-        bounds = [0, *starts, t.size]
-        for k, (a, b) in enumerate(itertools.pairwise(bounds)):
-            if k > 0:
-                sensor.effects.reset()
-            if b > a:
-                out[a:b] = sensor.effects.run(t[a:b], r[a:b], base[a:b], direction[a:b],
-                                              temperature[a:b],
-                                              {n: v[a:b] for n, v in nbrs.items()})
-        return out
+        return run_segments(
+            lambda k: sensor.effects.run(t[k], r[k], base[k], direction[k], temperature[k],
+                                         {n: v[k] for n, v in nbrs.items()}),
+            sensor.effects.reset, t.size, starts)
 
     def _base_strain(self, name: str) -> float:
         """A sensor's latest clamped strain before its effect terms (NaN if unknown)."""
@@ -465,7 +472,7 @@ class Engine:
                                   s.r_lo, s.r_hi, self.gap_reset)
         status = Status(code)
         h = s.health
-        if status not in _USED:
+        if status not in USED:
             setattr(h, _COUNTER[status], getattr(h, _COUNTER[status]) + 1)
             h.last_status = status
             return SensorOutput(s.strain, s.direction, status, False)
@@ -538,7 +545,7 @@ class Engine:
         ohm, forced = s.to_ohm(raw)
         status, reset, last_good_t = _screen_all(t, ohm, forced, s.last_good_t, s.r_short,
                                                  s.r_open, s.r_lo, s.r_hi, self.gap_reset)
-        used = (status == Status.GOOD) | (status >= Status.GAP_RESET)
+        used = used_mask(status)
         idx = np.flatnonzero(used)
         strain_used = np.empty(idx.size)
         dir_used = np.empty(idx.size, dtype=np.int8)
@@ -562,7 +569,7 @@ class Engine:
         """``run``'s second stage: effect terms, clamping, held outputs and counters."""
         t, status, reset, last_good_t, idx = p.t, p.status, p.reset, p.last_good_t, p.idx
         strain_used, dir_used = p.strain_used, p.dir_used
-        used = (status == Status.GOOD) | (status >= Status.GAP_RESET)
+        used = used_mask(status)
         if s.cal.effects and idx.size:
             nbrs = {n: v[idx] for n, v in neighbours.items()}
             starts = p.bounds[1:-1]  # a reset at the first sample resets at once
@@ -704,7 +711,7 @@ class _ArrayGroup:
             ohm[i], forced[i] = conv[0], code[0]
         status, reset = _screen_vec(t, ohm, forced, self.last_good_t, self.r_short,
                                     self.r_open, self.r_lo, self.r_hi, self.engine.gap_reset)
-        used = (status == Status.GOOD) | (status >= Status.GAP_RESET)
+        used = used_mask(status)
         if reset.any():
             self.kernel.x[reset] = 0.0  # the state APLArray.reset() clears, for these rows
             self.kernel.clock[reset] = 0.0
@@ -734,11 +741,8 @@ class _ArrayGroup:
         """Counters of the kernel path's sensors (only when ``kernel`` is set)."""
         out = {}
         for k, name in enumerate(self.names):
-            c = self.counts[k]
-            h = SensorHealth(n_good=int(c[Status.GOOD] + c[Status.GAP_RESET]
-                                        + c[Status.OUT_OF_RANGE]), n_gaps=int(self.gaps[k]))
-            for code, attr in _COUNTER.items():
-                setattr(h, attr, int(c[code]))
+            h = SensorHealth(n_gaps=int(self.gaps[k]))
+            _add_counts(h, self.counts[k])
             if self.last_good_t[k] > -math.inf:
                 h.last_good_t = float(self.last_good_t[k])
             if self.last_status[k] >= 0:

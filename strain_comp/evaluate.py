@@ -82,9 +82,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 
     Raises InputError when no calibrated sensor can be scored (names both sides).
     """
-    from strain_comp.engine import Engine, Status
-
-    used_codes = [Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE]
+    from strain_comp.engine import Engine, Status, used_mask
 
     engine = Engine(calibration)
     outputs = _array_outputs(engine, recordings, calibration)
@@ -104,7 +102,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         out = outputs.get(name) or engine.run(name, t, r, temperature=rec.temperature)
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
-        good = np.isin(status, used_codes)
+        good = used_mask(status)
         scored = good & np.isfinite(s) & np.isfinite(estimate)
         bad_by_status = {Status(int(v)).name.lower(): int(np.sum(status == v))
                          for v in np.unique(status[~good])}

@@ -54,6 +54,7 @@ import yaml
 
 from strain_comp.calibration import Calibration, SensorCalibration, ValidRange, provenance
 from strain_comp.direction import DirectionSettings, estimate_deadzone
+from strain_comp.engine import GAP_RESET
 from strain_comp.errors import FitError, InputError
 from strain_comp.metrics import error_stats
 from strain_comp.models import Normalisation, Segment, model_class
@@ -62,7 +63,7 @@ from strain_comp.samples import good_mask
 if TYPE_CHECKING:
     from strain_comp.recording import Recording
 
-GAP_SECONDS = 5.0
+GAP_SECONDS = GAP_RESET
 """A step between good samples longer than this [s] cuts a segment (engine ``gap_reset``)."""
 MIN_SEGMENT = 8
 """Segments with fewer good samples are not used for fitting."""

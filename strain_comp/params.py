@@ -34,6 +34,7 @@ from typing import Any
 import yaml
 
 from strain_comp.calibration import Calibration, SensorCalibration, load_calibration
+from strain_comp.engine import GAP_RESET
 from strain_comp.errors import InputError, ParameterError
 
 PACKAGE = "strain_comp"
@@ -60,7 +61,7 @@ TUNABLES: tuple[ParamSpec, ...] = (
     ParamSpec("stale_after_s", "double", 1.0, (0.001, 3600.0),
               "Diagnostics report a sensor STALE after this long without a good sample [s].",
               False),
-    ParamSpec("gap_reset_s", "double", 5.0, (0.001, 3600.0),
+    ParamSpec("gap_reset_s", "double", GAP_RESET, (0.001, 3600.0),
               "A jump between good samples longer than this resets the model state [s].", False),
     ParamSpec("diagnostics_period_s", "double", 1.0, (0.01, 60.0),
               "Period of the /diagnostics publication [s].", True),

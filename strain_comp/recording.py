@@ -70,6 +70,17 @@ def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.n
     return out
 
 
+def hold_latest(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
+    """``values`` sampled at ``t_src`` held to the times ``t``: the latest at or before each
+    (as a live node holds it), NaN before the first. Unsorted source times are sorted
+    (stable); for repeated stamps the last sample wins."""
+    t_src = np.asarray(t_src, dtype=np.float64)
+    values = np.asarray(values)
+    order = np.argsort(t_src, kind="stable")
+    pos = np.searchsorted(t_src[order], t, side="right") - 1
+    return np.where(pos >= 0, values[order][np.maximum(pos, 0)], np.nan)
+
+
 def _align_columns(t: np.ndarray, src: Series, k: int) -> np.ndarray:
     return np.column_stack([align(t, src.t, src.values[:, j]) for j in range(k)]) if k else \
         np.empty((t.size, 0))
@@ -149,5 +160,5 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     return recordings, contents.problems + located(path, problems)
 
 
-__all__ = ["Recording", "align", "array_sensor_names", "load_recordings",
+__all__ = ["Recording", "align", "array_sensor_names", "hold_latest", "load_recordings",
            "recordings_from_bag"]

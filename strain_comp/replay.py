@@ -26,9 +26,9 @@ import numpy as np
 
 from strain_comp.bag import BagContents, BagWriter, located, read_bag
 from strain_comp.calibration import Calibration
-from strain_comp.engine import BatchOutput, Engine, SensorHealth, diagnostics
+from strain_comp.engine import GAP_RESET, BatchOutput, Engine, SensorHealth, diagnostics
 from strain_comp.errors import BagError
-from strain_comp.recording import array_sensor_names
+from strain_comp.recording import array_sensor_names, hold_latest
 
 OUTPUTS = ("strain", "direction", "status")
 
@@ -81,14 +81,12 @@ def _temperature(contents: BagContents, name: str, t: np.ndarray) -> np.ndarray 
     series = contents.series.get(f"/{name}/temperature")
     if series is None or series.t.size == 0:
         return None
-    order = np.argsort(series.t, kind="stable")
-    pos = np.searchsorted(series.t[order], t, side="right") - 1
-    return np.where(pos >= 0, series.values[order][np.maximum(pos, 0)], np.nan)
+    return hold_latest(t, series.t, series.values)
 
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
-               gap_reset: float = 5.0, stale_after: float = 1.0) -> ReplaySummary:
+               gap_reset: float = GAP_RESET, stale_after: float = 1.0) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``."""
     contents = read_bag(in_path)
     inputs = _inputs(contents, calibration)
