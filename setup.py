@@ -27,8 +27,7 @@ setup(
         "matplotlib>=3.7",
     ],
     extras_require={
-        "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "cyclonedds>=0.10.5", "ruff"],
-        "dds": ["cyclonedds>=0.10.5"],
+        "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "ruff"],
         "fast": ["intel-cmplr-lib-rt"],
     },
     zip_safe=False,
@@ -39,7 +38,7 @@ setup(
     entry_points={
         "console_scripts": [
             "strain-comp = strain_comp.cli:main",
-            "compensator = strain_comp.node:main",
+            "compensator = strain_comp.ros.node:main",
         ],
     },
 )

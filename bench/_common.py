@@ -15,8 +15,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from strain_comp.calibration import Calibration, SensorCalibration, ValidRange
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.models.base import Normalisation
 
 NORM = Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0)

@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import calibration, resistance
 
-from strain_comp.engine import Engine
+from strain_comp.core.engine import Engine
 from strain_comp.models.apl import APLArray
 
 

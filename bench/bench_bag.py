@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.highlevel import AnyReader
 
-from strain_comp.bag import BagWriter, read_bag
+from strain_comp.io.bag import BagWriter, read_bag
 
 
 def main() -> None:

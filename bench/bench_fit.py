@@ -3,10 +3,10 @@
 
     python bench/bench_fit.py [--samples 20000] [--naive-seconds S] [--models apl,pl,...]
 
-Training data: ``strain_comp.rig.simulate("rates", duration=samples / 25 Hz)`` (0-20 %
+Training data: ``strain_comp.offline.rig.simulate("rates", duration=samples / 25 Hz)`` (0-20 %
 triangles at 20-100 mm/min, repeated), cut to ``--samples`` samples; spike_decay, which
 fits from step-and-hold data, gets ``simulate("steps")`` at 50 Hz cut to the same count.
-Each model is fitted with ``strain_comp.fit.fit_sensor`` (what ``strain-comp fit`` runs
+Each model is fitted with ``strain_comp.offline.fit.fit_sensor`` (what ``strain-comp fit`` runs
 after reading the bag: normalisation, direction settings, the model's ``fit`` with its
 defaults -- for APL/PL the 13 x 9 sigma/p grid plus a Nelder-Mead refinement -- and the
 training error through the engine). Printed: wall time, the model fit's own time, and
@@ -29,12 +29,12 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-from strain_comp import rig
 from strain_comp.errors import StrainCompError
-from strain_comp.fit import fit_sensor, split_segments
+from strain_comp.io.recording import Recording
 from strain_comp.models import Normalisation
 from strain_comp.models.apl import APL
-from strain_comp.recording import Recording
+from strain_comp.offline import rig
+from strain_comp.offline.fit import fit_sensor, split_segments
 
 MODELS = ("apl", "pl", "mpi", "cubic", "sinh_pl", "rational", "spike_decay")
 

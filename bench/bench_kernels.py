@@ -24,7 +24,7 @@ import time
 import numpy as np
 from _common import best_time
 
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.cubic import Cubic

@@ -21,9 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.calibration import Calibration, SensorCalibration, ValidRange, save_calibration
-from strain_comp.direction import DirectionSettings
-from strain_comp.engine import Engine
+from strain_comp.core.calibration import (
+    Calibration,
+    SensorCalibration,
+    ValidRange,
+    save_calibration,
+)
+from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.engine import Engine
 from strain_comp.models import Normalisation, Segment, model_class
 
 NORM = Normalisation.from_ranges(100.0, 200.0, 0.0, 50.0)
@@ -90,7 +95,6 @@ def bench_dds(cal: SensorCalibration, n: int) -> np.ndarray:
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
     from cyclonedds.util import duration
-
     from strain_comp.dds import Float64_, qos, ros_topic
 
     tmp = Path(tempfile.mkdtemp(prefix="strain_comp_bench_"))

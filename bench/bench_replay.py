@@ -4,7 +4,7 @@
     python bench/bench_replay.py [--messages 1000000] [--sensors 10] [--model apl] [--cache DIR]
 
 The bag: ``--messages`` std_msgs/Float64 resistance messages spread over ``--sensors``
-topics ``/sI/resistance`` at 1 kHz each (``strain_comp.bag.BagWriter``), with a matching
+topics ``/sI/resistance`` at 1 kHz each (``strain_comp.io.bag.BagWriter``), with a matching
 calibration (``bench/_common.py``: the paper's APL parameters per sensor, perturbed, or the
 cubic). A second bag adds ``/sI/strain_reference`` for ``evaluate``. Both are generated
 once and cached (default: ``$TMPDIR/strain_comp_bench``; ``--cache`` to choose).
@@ -12,8 +12,8 @@ once and cached (default: ``$TMPDIR/strain_comp_bench``; ``--cache`` to choose).
 Timed (best of ``--repeat``, kernels and caches warm):
 
 * baseline: ``rosbags.highlevel.AnyReader`` reading and deserializing every message;
-* ``strain_comp.bag.read_bag`` alone;
-* ``strain_comp.replay.replay_bag``: read + compensate (engine batch path) + write;
+* ``strain_comp.io.bag.read_bag`` alone;
+* ``strain_comp.offline.replay.replay_bag``: read + compensate (engine batch path) + write;
 * ``strain-comp evaluate`` minus printing: ``load_recordings`` + ``evaluate_recordings``
   on the bag with the reference (baseline: rosbags on that bag).
 
@@ -35,11 +35,11 @@ from rosbags.highlevel import AnyReader
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, calibration, resistance
 
-from strain_comp.bag import BagWriter, read_bag
-from strain_comp.calibration import load_calibration, save_calibration
-from strain_comp.evaluate import evaluate_recordings
-from strain_comp.recording import load_recordings
-from strain_comp.replay import replay_bag
+from strain_comp.core.calibration import load_calibration, save_calibration
+from strain_comp.io.bag import BagWriter, read_bag
+from strain_comp.io.recording import load_recordings
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.replay import replay_bag
 
 
 def make_bags(cache: Path, n: int, k: int, model: str) -> tuple[Path, Path, Path]:

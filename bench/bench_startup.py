@@ -30,7 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import calibration
 
-from strain_comp.calibration import save_calibration
+from strain_comp.core.calibration import save_calibration
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -38,8 +38,8 @@ CHILD = """
 import json, sys, time
 t0 = time.perf_counter()
 import numpy as np
-from strain_comp.calibration import load_calibration
-from strain_comp.engine import Engine
+from strain_comp.core.calibration import load_calibration
+from strain_comp.core.engine import Engine
 t1 = time.perf_counter()
 cal = load_calibration(sys.argv[1])
 arr = [n for n in cal.sensors if n.startswith("a")]

@@ -17,10 +17,10 @@ import time
 from pathlib import Path
 
 from strain_comp.errors import StrainCompError
-from strain_comp.evaluate import evaluate_recordings
-from strain_comp.fit import fit_bags, parse_options
+from strain_comp.io.recording import load_recordings
 from strain_comp.models import MODEL_NAMES
-from strain_comp.recording import load_recordings
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.fit import fit_bags, parse_options
 
 TRAIN = ("train_random.mcap", "train_patterns.mcap")
 HELD_OUT = ("demo_rates.mcap", "steps.mcap")

@@ -36,22 +36,22 @@ from typing import Any
 import numpy as np
 import yaml
 
-from strain_comp.bag import BagWriter, read_bag
-from strain_comp.calibration import (
+from strain_comp.core.calibration import (
     Calibration,
     InputSettings,
     SensorCalibration,
     load_calibration,
     save_calibration,
 )
-from strain_comp.effects import KINDS
-from strain_comp.engine import Engine, used_mask
+from strain_comp.core.effects import KINDS
+from strain_comp.core.engine import Engine, used_mask
 from strain_comp.errors import BagError, CalibrationError
-from strain_comp.fit import fit_sensor
+from strain_comp.io.bag import BagWriter, read_bag
+from strain_comp.io.recording import Recording
 from strain_comp.models import MODEL_NAMES
-from strain_comp.recording import Recording
-from strain_comp.replay import replay_bag
-from strain_comp.rig import simulate
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.replay import replay_bag
+from strain_comp.offline.rig import simulate
 
 
 class Hang(Exception):

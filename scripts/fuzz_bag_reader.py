@@ -2,7 +2,7 @@
 """Fuzz the MCAP bag reader for a bounded time: any exception other than BagError is a bug.
 
 Random mutations (byte flips, overwrites with 0x00/0xff, truncation, duplicated or deleted
-spans) of small valid bags written by strain_comp.bag.BagWriter (every message type, a few
+spans) of small valid bags written by strain_comp.io.bag.BagWriter (every message type, a few
 chunk sizes). A crashing input is saved under --out for a regression test.
 
     python scripts/fuzz_bag_reader.py --seconds 60 [--seed 0] [--out /tmp/bag_fuzz]
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.bag import BagWriter, read_bag
 from strain_comp.errors import BagError
+from strain_comp.io.bag import BagWriter, read_bag
 
 
 def _seeds(directory: Path) -> list[bytes]:

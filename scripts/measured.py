@@ -101,12 +101,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fiber-gauge-mm", type=float, default=None)
     args = parser.parse_args(argv)
 
-    from strain_comp.calibration import Calibration, save_calibration
+    from strain_comp.core.calibration import Calibration, save_calibration
     from strain_comp.errors import StrainCompError
-    from strain_comp.evaluate import evaluate_recordings
-    from strain_comp.fit import fit_bags
-    from strain_comp.plots import plot_time
-    from strain_comp.recording import load_recordings
+    from strain_comp.io.recording import load_recordings
+    from strain_comp.offline.evaluate import evaluate_recordings
+    from strain_comp.offline.fit import fit_bags
+    from strain_comp.offline.plots import plot_time
 
     args.out.mkdir(parents=True, exist_ok=True)
     bags = import_all(args.data, args.out, args.fiber_gauge_mm)
@@ -172,10 +172,10 @@ def within_run(recordings: dict[str, dict], models: list[str], failures: list[st
     This separates what a model can do on one run (stable contact resistance) from the
     run-to-run shift of the resistance level that the by-file split above runs into.
     """
-    from strain_comp.calibration import Calibration
+    from strain_comp.core.calibration import Calibration
     from strain_comp.errors import StrainCompError
-    from strain_comp.evaluate import evaluate_recordings
-    from strain_comp.fit import fit_sensor
+    from strain_comp.offline.evaluate import evaluate_recordings
+    from strain_comp.offline.fit import fit_sensor
 
     table: dict[str, dict[str, float]] = {}
     for csv_name, by_sensor in recordings.items():

@@ -10,9 +10,9 @@ Per data set, fixed in advance (by file, never by sample):
 * conductive fibre (``conductive_fiber``, "strain" = crosshead extension in mm, since the
   gauge length is not stated): fit on run 1, diagnose on run 3, validate on run 4.
 
-Each CSV is imported with ``strain_comp.csv_import.import_csv`` (the importer behind
-``strain-comp import-csv``), the calibration is fitted with ``strain_comp.fit.fit_sensor``
-(``strain-comp fit``) and ``strain_comp.diagnose.diagnose`` (``strain-comp diagnose
+Each CSV is imported with ``strain_comp.io.csv_import.import_csv`` (the importer behind
+``strain-comp import-csv``), the calibration is fitted with ``strain_comp.offline.fit.fit_sensor``
+(``strain-comp fit``) and ``strain_comp.diagnosis.loop.diagnose`` (``strain-comp diagnose
 --validate``) adds what lowers the error on the validation run. "before" and "after" are
 the RMSE on the validation run through the engine, without and with the added terms.
 
@@ -53,11 +53,11 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"models to fit (default {' '.join(DEFAULT_MODELS)})")
     args = parser.parse_args(argv)
 
-    from strain_comp.calibration import Calibration, save_calibration
-    from strain_comp.csv_import import import_csv
-    from strain_comp.diagnose import diagnose, write_plots
+    from strain_comp.core.calibration import Calibration, save_calibration
+    from strain_comp.diagnosis.loop import diagnose, write_plots
     from strain_comp.errors import StrainCompError
-    from strain_comp.fit import fit_sensor
+    from strain_comp.io.csv_import import import_csv
+    from strain_comp.offline.fit import fit_sensor
 
     args.out.mkdir(parents=True, exist_ok=True)
     rows, failures = [], []

@@ -35,12 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.calibration import Calibration, SensorCalibration
-from strain_comp.engine import OPEN_FACTOR, SHORT_FACTOR, Engine, used_mask
-from strain_comp.fit import fit_sensor
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.engine import OPEN_FACTOR, SHORT_FACTOR, Engine, used_mask
+from strain_comp.io.recording import Recording
 from strain_comp.models import MODEL_NAMES
-from strain_comp.recording import Recording
-from strain_comp.rig import simulate
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.rig import simulate
 
 DT = 0.01
 """Nominal sample period [s] of the soak stream."""

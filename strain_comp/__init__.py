@@ -1,7 +1,7 @@
 """strain_comp: calibrated strain from the resistance of soft strain sensors.
 
 The core (models, fitting, direction detection, bag I/O, evaluation, diagnosis) imports no
-ROS module; ``strain_comp.node`` is a thin rclpy layer over ``strain_comp.engine``.
+ROS module; ``strain_comp.ros.node`` is a thin rclpy layer over ``strain_comp.core.engine``.
 """
 
 __version__ = "0.1.0"

@@ -54,7 +54,7 @@ def _write_json(path: str, data: object) -> None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from strain_comp import rig
+    from strain_comp.offline import rig
 
     if args.list:
         for name, description in rig.SCENARIOS.items():
@@ -85,7 +85,7 @@ def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
 
 def cmd_import_csv(args: argparse.Namespace) -> int:
     _existing(args.csv, "CSV file")
-    from strain_comp import csv_import
+    from strain_comp.io import csv_import
 
     result = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
@@ -99,8 +99,8 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     for bag in args.bags:
         _existing(bag, "bag")
-    from strain_comp.calibration import save_calibration
-    from strain_comp.fit import fit_bags, parse_options
+    from strain_comp.core.calibration import save_calibration
+    from strain_comp.offline.fit import fit_bags, parse_options
 
     options = parse_options(args.option or [])
     calibration = fit_bags(args.bags, args.model, args.sensor, options, report=_err)
@@ -116,9 +116,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     _existing(args.bag, "bag")
-    from strain_comp.calibration import load_calibration
-    from strain_comp.evaluate import evaluate_recordings, format_notes, format_table
-    from strain_comp.recording import load_recordings
+    from strain_comp.core.calibration import load_calibration
+    from strain_comp.io.recording import load_recordings
+    from strain_comp.offline.evaluate import evaluate_recordings, format_notes, format_table
 
     calibration = load_calibration(_existing(args.calibration, "calibration file"))
     recordings, problems = load_recordings(args.bag)
@@ -132,7 +132,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, result.to_json())
     if args.plots:
-        from strain_comp.plots import plot_evaluation
+        from strain_comp.offline.plots import plot_evaluation
 
         written = plot_evaluation(result, args.plots)
         print(f"wrote {len(written)} plots to {args.plots}")
@@ -141,8 +141,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     _existing(args.bag, "bag")
-    from strain_comp.calibration import load_calibration
-    from strain_comp.replay import replay_bag
+    from strain_comp.core.calibration import load_calibration
+    from strain_comp.offline.replay import replay_bag
 
     calibration = load_calibration(_existing(args.calibration, "calibration file"))
     summary = replay_bag(args.bag, calibration, _output(args.out))
@@ -159,8 +159,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     _existing(args.bag, "bag")
-    from strain_comp.calibration import load_calibration
-    from strain_comp.diagnose import diagnose_bag
+    from strain_comp.core.calibration import load_calibration
+    from strain_comp.diagnosis.loop import diagnose_bag
 
     if args.validate:
         _existing(args.validate, "validation bag")
@@ -178,12 +178,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def cmd_node(args: argparse.Namespace) -> int:
     _existing(args.params, "parameter file")
-    from strain_comp.dds import run_dds_node
+    from strain_comp.ros.node import main as node_main
 
-    print(f"strain_comp node ({args.transport}) running with {args.params}; Ctrl-C stops it",
-          flush=True)
-    run_dds_node(args.params, duration=args.duration)
-    return 0
+    return node_main(["--ros-args", "--params-file", str(args.params)])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -248,10 +245,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", metavar="DIR")
     p.set_defaults(func=cmd_diagnose)
 
-    p = sub.add_parser("node", help="run the compensator live (ROS-free DDS transport)")
-    p.add_argument("--transport", default="dds", choices=("dds",))
+    p = sub.add_parser("node", help="run the rclpy compensator node (as `ros2 run` does)")
     p.add_argument("--params", required=True, metavar="FILE", help="node parameter YAML")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.set_defaults(func=cmd_node)
     return parser
 

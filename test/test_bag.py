@@ -11,9 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rosbags.highlevel import AnyReader
 
-import strain_comp.bag as bag_module
-from strain_comp.bag import BagWriter, read_bag
+import strain_comp.io.bag.writer as bag_module
 from strain_comp.errors import BagError
+from strain_comp.io.bag import BagWriter, read_bag
 
 N = 3000
 T = 1.0 + np.arange(N) * 0.01
@@ -107,7 +107,7 @@ def _rosbag2_dir(tmp_path: Path) -> Path:
         "topics_with_message_count": [{
             "topic_metadata": {"name": "/s1/resistance", "type": "std_msgs/msg/Float64",
                                "serialization_format": "cdr",
-                               "offered_qos_profiles": bag_module._QOS,
+                               "offered_qos_profiles": bag_module.OFFERED_QOS,
                                "type_description_hash": ""},
             "message_count": N}],
         "compression_format": "", "compression_mode": "", "relative_file_paths": names,
@@ -259,7 +259,7 @@ def test_regression_fuzz_damaged_schema_text(tmp_path: Path) -> None:
                                                                          "temperatura")
         sid = w.register_schema("sensor_msgs/msg/Temperature", "ros2msg", text.encode())
         cid = w.register_channel("/s/temperature", "cdr", sid)
-        payload = bag_module._encoder("sensor_msgs/msg/Temperature")(
+        payload = bag_module.message_encoder("sensor_msgs/msg/Temperature")(
             {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
              "temperature": 21.0, "variance": 0.0})
         w.add_message(cid, 0, payload, 0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from strain_comp.calibration import (
+from strain_comp.core.calibration import (
     Calibration,
     InputSettings,
     SensorCalibration,
@@ -18,7 +18,7 @@ from strain_comp.calibration import (
     provenance,
     save_calibration,
 )
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import CalibrationError
 from strain_comp.models import Normalisation
 

@@ -18,7 +18,7 @@ ERROR_PREFIX = "strain-comp: error: "
 
 def scenario() -> str:
     """A single-sensor triangle scenario of the virtual rig."""
-    from strain_comp.rig import SCENARIOS
+    from strain_comp.offline.rig import SCENARIOS
 
     return next((n for n in SCENARIOS if "triangle" in n), next(iter(SCENARIOS)))
 
@@ -47,8 +47,8 @@ def run_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 
 
 def test_fit_evaluate_replay(workdir: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from strain_comp.bag import read_bag
-    from strain_comp.calibration import load_calibration
+    from strain_comp.core.calibration import load_calibration
+    from strain_comp.io.bag import read_bag
 
     calibration = load_calibration(workdir / "cal.yaml")
     names = list(calibration.sensors)
@@ -112,7 +112,7 @@ def test_bad_input_exits_2_with_one_line(workdir: Path, tmp_path: Path,
 
 
 def test_import_csv_then_fit(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from strain_comp.recording import load_recordings
+    from strain_comp.io.recording import load_recordings
 
     t = np.arange(0.0, 600.0, 1.0)
     extension = 10.0 * np.abs((t / 60.0) % 2.0 - 1.0)  # mm

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.csv_import import import_csv, repair_position_glitches, write_recording_bag
 from strain_comp.errors import InputError
-from strain_comp.recording import load_recordings
+from strain_comp.io.csv_import import import_csv, repair_position_glitches, write_recording_bag
+from strain_comp.io.recording import load_recordings
 
 MEASURED = Path(__file__).resolve().parents[2] / "shared" / "data" / "measured"
 if not MEASURED.is_dir():

@@ -1,9 +1,9 @@
 """The residual loop on virtual-rig bags that carry an effect their calibration does not
 declare (issue 5, item 4).
 
-Every bag is made by ``strain_comp.rig.simulate`` -> ``rig.write_sim_bag`` and read back with
+Every bag is made by ``rig.simulate`` -> ``rig.write_sim_bag`` and read back with
 ``recording.load_recordings``, as a user's recording would be. The calibration is a
-**cubic** fitted with ``strain_comp.fit.fit_sensor`` on a clean rig bag of the ``patterns``
+**cubic** fitted with ``strain_comp.offline.fit.fit_sensor`` on a clean rig bag of the ``patterns``
 scenario (0-50 %). A cubic is a static map, so the rig's viscous branches are switched
 **off** in every bag (``hysteresis=0, relaxation=0``; read-out noise and the 12-bit ADC stay
 on): with them on, the cubic lacks rate-dependent hysteresis, which is then a real missing
@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.calibration import Calibration, load_calibration, save_calibration
-from strain_comp.diagnose import diagnose, write_plots
-from strain_comp.engine import Engine
-from strain_comp.fit import fit_sensor
-from strain_comp.recording import Recording, load_recordings
-from strain_comp.rig import RigEffects, simulate, write_sim_bag
+from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.engine import Engine
+from strain_comp.diagnosis.loop import diagnose, write_plots
+from strain_comp.io.recording import Recording, load_recordings
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.rig import RigEffects, simulate, write_sim_bag
 
 MIN_DROP = 0.6
 """Least relative fall of the validation RMSE when the missing effect is added."""
@@ -139,7 +139,7 @@ def test_per_run_baseline_only_when_runs_shift(bags: BagMaker, calibration: Cali
     assert result.added[0].coef == 1.0
     assert result.after["rmse"] < 0.2 * result.before["rmse"], result.summary()
     # a constant offset (the hypothesis without the baseline) does not carry over
-    from strain_comp.diagnose import default_candidates
+    from strain_comp.diagnosis.loop import default_candidates
 
     constant = [c for c in default_candidates() if c["kind"] != "baseline"]
     without = diagnose(shifted(bags("random", 2), 0.6), calibration,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.direction import (
+from strain_comp.core.direction import (
     DirectionDetector,
     DirectionSettings,
     derivative_noise,

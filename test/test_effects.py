@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.calibration import load_calibration, save_calibration
-from strain_comp.diagnose import default_candidates
-from strain_comp.effects import (
+from strain_comp.core.calibration import load_calibration, save_calibration
+from strain_comp.core.effects import (
     KINDS,
     Batch,
     EffectTerms,
@@ -19,6 +18,7 @@ from strain_comp.effects import (
     regressor_from_dict,
     validate_effect_dict,
 )
+from strain_comp.diagnosis.loop import default_candidates
 from strain_comp.errors import CalibrationError, ParameterError
 
 

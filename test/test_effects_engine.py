@@ -11,19 +11,19 @@ import numpy as np
 import pytest
 from test_engine import DIRECTION, NORM, R_LO, cubic_cal, engine_of
 
-from strain_comp.bag import BagWriter, read_bag
-from strain_comp.calibration import (
+from strain_comp.core.calibration import (
     Calibration,
     SensorCalibration,
     load_calibration,
     save_calibration,
 )
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import CalibrationError, ParameterError
-from strain_comp.fit import fit_sensor
+from strain_comp.io.bag import BagWriter, read_bag
+from strain_comp.io.recording import Recording
 from strain_comp.models import Segment, model_class
-from strain_comp.recording import Recording
-from strain_comp.replay import replay_bag
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.replay import replay_bag
 
 NAMES = ["a", "b", "c"]
 

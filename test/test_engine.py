@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from strain_comp.calibration import Calibration, InputSettings, SensorCalibration, ValidRange
-from strain_comp.direction import DirectionDetector, DirectionSettings
-from strain_comp.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine, Status
+from strain_comp.core.calibration import Calibration, InputSettings, SensorCalibration, ValidRange
+from strain_comp.core.direction import DirectionDetector, DirectionSettings
+from strain_comp.core.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine, Status
 from strain_comp.models.base import Compensator, Normalisation, Segment
 
 R_LO, R_HI, S_LO, S_HI = 100.0, 200.0, 0.0, 50.0

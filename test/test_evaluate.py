@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.calibration import Calibration, SensorCalibration, ValidRange
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
-from strain_comp.evaluate import evaluate_recordings, format_notes, format_table
-from strain_comp.metrics import error_stats
+from strain_comp.io.recording import Recording
 from strain_comp.models import Normalisation
-from strain_comp.recording import Recording
+from strain_comp.offline.evaluate import evaluate_recordings, format_notes, format_table
 
 C = [-50.0, 0.5, 0.0, 0.0]  # S = 0.5 R - 50: R in [100, 150] ohm -> S in [0, 25] %
 
@@ -80,7 +80,7 @@ def test_unscorable_sensors_are_noted_and_nothing_scorable_is_an_error() -> None
 
 
 def test_plots_are_written(tmp_path: Path) -> None:
-    from strain_comp.plots import plot_evaluation
+    from strain_comp.offline.plots import plot_evaluation
 
     result = evaluate_recordings({"s1": recording()}, calibration())
     written = plot_evaluation(result, tmp_path / "plots")

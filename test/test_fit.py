@@ -7,10 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.calibration import Calibration, load_calibration, save_calibration
-from strain_comp.engine import Engine
+from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.engine import Engine
+from strain_comp.core.metrics import error_stats
 from strain_comp.errors import FitError, InputError, ParameterError
-from strain_comp.fit import (
+from strain_comp.io.recording import Recording
+from strain_comp.offline.fit import (
     DEADZONE_FRACTION,
     GAP_SECONDS,
     MIN_SEGMENT,
@@ -21,8 +23,6 @@ from strain_comp.fit import (
     parse_options,
     split_segments,
 )
-from strain_comp.metrics import error_stats
-from strain_comp.recording import Recording
 
 C_TRUE = np.array([-40.0, 0.5, -2e-3, 1e-5])  # S = c0 + c1 R + c2 R^2 + c3 R^3, R in ohm
 
@@ -93,7 +93,7 @@ def test_fit_rmse_is_the_training_error_over_good_samples() -> None:
 
 
 def test_fit_rmse_equals_evaluate_on_the_training_data() -> None:
-    from strain_comp.evaluate import evaluate_recordings
+    from strain_comp.offline.evaluate import evaluate_recordings
 
     t, s = triangles(200.0, hold=(100.0, 130.0))
     r = resistance_of(s) + 0.2 * np.random.default_rng(2).standard_normal(t.size)

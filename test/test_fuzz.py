@@ -18,7 +18,7 @@ import pytest
 import yaml
 from test_properties import fitted
 
-from strain_comp.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
 from strain_comp.errors import CalibrationError
 from strain_comp.models import MODEL_NAMES
 
@@ -92,7 +92,7 @@ def test_regression_fuzz_effect_of_wrong_type(every_model, tmp_path: Path, effec
                                               field: str) -> None:
     """Found by scripts/fuzz.py: an effect ``kind`` that is a mapping or a list raised
     TypeError (unhashable) and mixed-type ``params`` keys raised TypeError (sorting) in
-    strain_comp.effects.regressor_from_dict instead of a CalibrationError."""
+    strain_comp.core.effects.regressor_from_dict instead of a CalibrationError."""
     path = tmp_path / "cal.yaml"
     save_calibration(Calibration({"s": replace(every_model["cubic"], name="s")}), path)
     data = yaml.safe_load(path.read_text())
@@ -108,10 +108,10 @@ def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
     a foreign or damaged recorder might write them (BagWriter refuses such rows)."""
     from mcap.writer import Writer
 
-    import strain_comp.bag as bag_module
+    import strain_comp.io.bag.writer as bag_module
 
     kind = "std_msgs/msg/Float64MultiArray"
-    encode = bag_module._encoder(kind)
+    encode = bag_module.message_encoder(kind)
     with path.open("wb") as f:
         writer = Writer(f)
         writer.start(profile="ros2")
@@ -128,7 +128,7 @@ def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
 def test_regression_fuzz_empty_array_message_first(tmp_path: Path) -> None:
     """Found by scripts/fuzz.py: when the first decodable Float64MultiArray held no values,
     it fixed the layout at k = 0 and the bulk decoder's reshape raised ValueError."""
-    from strain_comp.bag import read_bag
+    from strain_comp.io.bag import read_bag
 
     path = tmp_path / "empty_first.mcap"
     _raw_array_bag(path, [("s1,p", [])] + [("s1,p", [15.0, 16.0])] * 5)
@@ -147,9 +147,9 @@ def test_regression_labels_that_do_not_match_the_values(fuzz, every_model,
     """Found while turning the fuzz crashes into tests: an array whose label list has more
     or fewer names than values made replay fail inside the engine (InputError without the
     file); the reader now drops such labels and says so, and replay refuses cleanly."""
-    from strain_comp.bag import read_bag
     from strain_comp.errors import BagError
-    from strain_comp.replay import replay_bag
+    from strain_comp.io.bag import read_bag
+    from strain_comp.offline.replay import replay_bag
 
     path = tmp_path / "labels.mcap"
     _raw_array_bag(path, [("s1,p", [15.0, 16.0, 17.0])] * 4)

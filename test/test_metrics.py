@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.metrics import error_stats, hysteresis_area
+from strain_comp.core.metrics import error_stats, hysteresis_area
 
 
 def test_error_stats_hand_computed() -> None:

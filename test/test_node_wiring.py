@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 from test_engine import cubic_cal
 
-from strain_comp.calibration import Calibration, save_calibration
-from strain_comp.engine import Engine
-from strain_comp.params import TUNABLES
+from strain_comp.core.calibration import Calibration, save_calibration
+from strain_comp.core.engine import Engine
+from strain_comp.ros.params import TUNABLES
 
 SENSOR_DATA = object()  # stands for rclpy.qos.qos_profile_sensor_data
 
@@ -158,7 +158,7 @@ def configure(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Calibration:
 def test_node_wiring(fake_ros: dict[str, Any], tmp_path: Path,
                      monkeypatch: pytest.MonkeyPatch) -> None:
     cal = configure(tmp_path, monkeypatch)
-    from strain_comp.node import create_node
+    from strain_comp.ros.node import create_node
 
     node = create_node()
     subs = {topic: (kind.__name__, qos) for kind, topic, _, qos in node.subscriptions}
@@ -217,7 +217,7 @@ def test_node_wiring(fake_ros: dict[str, Any], tmp_path: Path,
 
 def test_main_exit_codes(fake_ros: dict[str, Any], tmp_path: Path,
                          monkeypatch: pytest.MonkeyPatch, capsys: Any) -> None:
-    from strain_comp.node import main
+    from strain_comp.ros.node import main
 
     monkeypatch.setattr(FakeNode, "overrides", {})
     assert main([]) == 2

@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 from test_engine import cubic_cal
 
-from strain_comp.calibration import Calibration, save_calibration
+from strain_comp.core.calibration import Calibration, save_calibration
 from strain_comp.errors import CalibrationError, InputError, ParameterError, StrainCompError
-from strain_comp.params import TUNABLES, load_params, parse_values, validate_tunable
+from strain_comp.ros.params import TUNABLES, load_params, parse_values, validate_tunable
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 

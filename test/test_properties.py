@@ -1,7 +1,7 @@
 """Property tests (issue 7): every model, any finite positive input, through the engine.
 
 Each model of ``MODEL_NAMES`` is fitted once (``fitted``) on a short simulated rig run
-(random ramps and holds) by the same ``strain_comp.fit.fit_sensor`` the command line uses,
+(random ramps and holds) by the same ``strain_comp.offline.fit.fit_sensor`` the command line uses,
 so the calibrations carry a real valid range and direction settings. Hypothesis then
 draws irregular but increasing times and positive resistances, and checks:
 
@@ -25,13 +25,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from strain_comp.calibration import Calibration, SensorCalibration
-from strain_comp.direction import DirectionDetector, DirectionSettings
-from strain_comp.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine
-from strain_comp.fit import fit_sensor
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.direction import DirectionDetector, DirectionSettings
+from strain_comp.core.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine
+from strain_comp.io.recording import Recording
 from strain_comp.models import MODEL_NAMES
-from strain_comp.recording import Recording
-from strain_comp.rig import simulate
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.rig import simulate
 
 FAST_CELLS = {"sigma_grid": [0.03], "p_grid": [1.0], "refine": False}
 """APL/PL: one (sigma, p) point instead of the search; the tests need a sound model, not

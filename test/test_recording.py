@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.bag import BagWriter, read_bag
-from strain_comp.recording import align, load_recordings, recordings_from_bag
+from strain_comp.io.bag import BagWriter, read_bag
+from strain_comp.io.recording import align, load_recordings, recordings_from_bag
 
 T = np.arange(200) * 0.1
 

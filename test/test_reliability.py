@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 from test_properties import calibration_of, fitted, strain_bounds
 
-from strain_comp.bag import BagWriter, read_bag
-from strain_comp.calibration import Calibration, SensorCalibration, load_calibration
-from strain_comp.calibration import save_calibration as save
-from strain_comp.engine import OPEN_FACTOR, SHORT_FACTOR, Engine, Status
+from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
+from strain_comp.core.calibration import save_calibration as save
+from strain_comp.core.engine import OPEN_FACTOR, SHORT_FACTOR, Engine, Status
 from strain_comp.errors import InputError
+from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.models import MODEL_NAMES
-from strain_comp.replay import replay_bag
+from strain_comp.offline.replay import replay_bag
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,9 +53,9 @@ def big_calibration(version: int, n_copies: int = 10) -> Calibration:
 WRITER = """
 import os, sys, time
 import yaml
-from strain_comp.calibration import (Calibration, InputSettings, SensorCalibration,
+from strain_comp.core.calibration import (Calibration, InputSettings, SensorCalibration,
                                      ValidRange, save_calibration)
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.models import Normalisation
 
 def read(path):  # load_calibration without building the models (quicker start)

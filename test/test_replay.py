@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from test_engine import cubic_cal, lag_cal, noisy_stream
 
-from strain_comp.bag import SCHEMAS, BagWriter, read_bag
-from strain_comp.calibration import Calibration
-from strain_comp.engine import Status
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.engine import Status
 from strain_comp.errors import BagError
-from strain_comp.live import LiveCompensator
-from strain_comp.params import TUNABLES, InputTopic, NodeParams
-from strain_comp.replay import replay_bag
+from strain_comp.io.bag import SCHEMAS, BagWriter, read_bag
+from strain_comp.offline.replay import replay_bag
+from strain_comp.ros.live import LiveCompensator
+from strain_comp.ros.params import TUNABLES, InputTopic, NodeParams
 
 
 def make_bag(path: object) -> None:
@@ -115,7 +115,7 @@ def test_array_without_labels_replays_under_column_names(tmp_path) -> None:
     name its sensors ARRAY_0 ... ARRAY_{k-1}."""
     from mcap_ros2.writer import Writer
 
-    from strain_comp.fit import fit_bags
+    from strain_comp.offline.fit import fit_bags
 
     t = np.arange(0.0, 30.0, 0.02)
     strain = np.stack([10 + 10 * np.sin(t * k / 5) for k in (1, 2, 3)], axis=1)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from strain_comp.errors import ParameterError
-from strain_comp.recording import load_recordings
-from strain_comp.rig import (
+from strain_comp.io.recording import load_recordings
+from strain_comp.offline.rig import (
     SCENARIOS,
     RigEffects,
     SensorSpec,

@@ -71,7 +71,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import lsq_linear, minimize
 
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import _apl_kernels as kern
 from strain_comp.models import pwa

@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import ParameterError
 
 
@@ -77,7 +77,7 @@ class Segment:
     """One contiguous training recording: time [s], resistance [ohm], reference strain [%].
 
     Model state is reset at the start of every segment; samples must be finite, R > 0 and
-    t strictly increasing (``strain_comp.samples`` cleans raw data into this form).
+    t strictly increasing (``strain_comp.core.samples`` cleans raw data into this form).
     """
 
     t: np.ndarray

@@ -34,7 +34,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
-from strain_comp.direction import (
+from strain_comp.core.direction import (
     STATE_SIZE,
     DirectionDetector,
     DirectionSettings,

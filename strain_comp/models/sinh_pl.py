@@ -49,7 +49,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models.base import (
     Compensator,

@@ -14,7 +14,7 @@ Forward model, eq. (3): R = f(eps) [1 + S exp(-lambda (t - ts))], with
 
 Online inversion (``step``/``run``, one numba kernel):
 
-1. The dead-zone direction detector (egain_rational... section V.E, ``strain_comp.direction``)
+1. The dead-zone direction detector (egain_rational... section V.E, ``strain_comp.core.direction``)
    runs on the spike-compensated resistance R_c = R / (1 + S exp(-lambda (t - ts))) of the
    active spike, so the decay of a spike already accounted for is not taken for movement.
 2. A movement starts when the detector leaves 0; its start time and start strain are
@@ -72,7 +72,12 @@ from scipy.interpolate import PchipInterpolator
 from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
-from strain_comp.direction import STATE_SIZE, DirectionSettings, _check_settings, direction_update
+from strain_comp.core.direction import (
+    STATE_SIZE,
+    DirectionSettings,
+    _check_settings,
+    direction_update,
+)
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models.base import (
     Compensator,

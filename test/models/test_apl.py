@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import model_class
 from strain_comp.models.apl import APL, MPI, PL, APLArray

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.rational import Rational, fit_rat22

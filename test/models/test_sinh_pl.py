@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from strain_comp.direction import DirectionSettings
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import ParameterError
 from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.sinh_pl import SinhPL

@@ -5,7 +5,7 @@ it for every named sensor of a set of bags and returns one ``Calibration``. The 
 equations and their fits live in ``strain_comp.models``; this module only prepares the
 data and fills in what a calibration file needs besides the parameters:
 
-* **Screening**: a sample is used only when ``strain_comp.samples.good_mask`` accepts it
+* **Screening**: a sample is used only when ``strain_comp.core.samples.good_mask`` accepts it
   (finite, R > 0 ohm, time increasing) and its reference strain is finite.
 * **Segments**: good samples are cut into ``Segment``s wherever the time between two
   consecutive good samples exceeds ``GAP_SECONDS`` (a recording pause, or a long stretch of
@@ -23,7 +23,7 @@ data and fills in what a calibration file needs besides the parameters:
   noise on a hold): the hold is the longest stretch where the *reference* strain is still
   (``|dS/dt|`` below ``HOLD_RATE_FRACTION`` of the 99.5th-percentile rate, at least
   ``MIN_HOLD_SAMPLES`` samples). Its second half is used, so that relaxation right after
-  the stop does not count as noise, and ``strain_comp.direction.estimate_deadzone`` sets
+  the stop does not count as noise, and ``strain_comp.core.direction.estimate_deadzone`` sets
   the dead zone from it. Without a usable hold, the resistance noise sigma is estimated
   robustly from the whole record (MAD of the second difference of R, which cancels any
   smooth motion: std(d2 R) = sqrt(6) sigma for white noise), and ``estimate_deadzone`` is
@@ -33,7 +33,7 @@ data and fills in what a calibration file needs besides the parameters:
   ``deadzone`` (ohm/s, set directly), ``k_sigma`` and ``tau`` override this and are not
   passed to the model. ``sign`` is the sign of the correlation of R and S in the training
   data (-1 for a sensor whose R falls with strain), so the published direction is +1 on
-  loading for every sensor (``strain_comp.engine``).
+  loading for every sensor (``strain_comp.core.engine``).
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
@@ -52,16 +52,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from strain_comp.calibration import Calibration, SensorCalibration, ValidRange, provenance
-from strain_comp.direction import DirectionSettings, estimate_deadzone
-from strain_comp.engine import GAP_RESET
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange, provenance
+from strain_comp.core.direction import DirectionSettings, estimate_deadzone
+from strain_comp.core.engine import GAP_RESET
+from strain_comp.core.metrics import error_stats
+from strain_comp.core.samples import good_mask
 from strain_comp.errors import FitError, InputError
-from strain_comp.metrics import error_stats
 from strain_comp.models import Normalisation, Segment, model_class
-from strain_comp.samples import good_mask
 
 if TYPE_CHECKING:
-    from strain_comp.recording import Recording
+    from strain_comp.io.recording import Recording
 
 GAP_SECONDS = GAP_RESET
 """A step between good samples longer than this [s] cuts a segment (engine ``gap_reset``)."""
@@ -247,12 +247,12 @@ def _check_options(fit: Callable[..., Any], model: str, options: Mapping[str, An
 def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) -> float:
     """RMSE [% strain] on the training segments through the engine's batch path.
 
-    The engine (``strain_comp.engine.Engine``) is reset before every segment; it is the
+    The engine (``strain_comp.core.engine.Engine``) is reset before every segment; it is the
     code ``evaluate``, ``replay`` and the node run, so on a training bag without gaps the
     fit error equals what ``strain-comp evaluate`` reports (the engine clamps estimates to
     the valid strain range plus its margin, which a raw model output is not).
     """
-    from strain_comp.engine import Engine
+    from strain_comp.core.engine import Engine
 
     engine = Engine(Calibration({calibration.name: calibration}))
     estimates, references = [], []
@@ -317,7 +317,7 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
     Each sensor is fitted to its recordings from every bag that has it. Bag problems
     (skipped chunks, unknown schemas) go to ``report``, one line each.
     """
-    from strain_comp.recording import load_recordings
+    from strain_comp.io.recording import load_recordings
 
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
     for path in paths:

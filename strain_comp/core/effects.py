@@ -1,6 +1,6 @@
 """Effect terms: online corrections a static or hysteretic inverse model lacks.
 
-The residual loop (DESIGN.md, "The residual loop"; ``strain_comp.diagnose``) finds which
+The residual loop (DESIGN.md, "The residual loop"; ``strain_comp.diagnosis.loop``) finds which
 physical effect explains the residual e = S_hat - S of a calibrated model and adds it as
 an explicit term. Each effect is a *regressor* g_j computed causally, sample by sample,
 from what a running model knows: time t [s], resistance R [ohm], the model's own estimate

@@ -1,7 +1,7 @@
 """The rclpy node (thin): ROS topics and parameters around a ``LiveCompensator``.
 
 ``ros2 run strain_comp compensator --ros-args --params-file config/compensator_params.yaml``.
-Parameters as in ``strain_comp.params`` (structural ones read-only, tunables ranged and
+Parameters as in ``strain_comp.ros.params`` (structural ones read-only, tunables ranged and
 validated on change); inputs with sensor-data QoS; message time from the node clock, so
 ``use_sim_time`` works with ``ros2 bag play --clock``. rclpy is imported only here, lazily.
 """
@@ -12,7 +12,7 @@ import sys
 from typing import Any
 
 from strain_comp.errors import ParameterError, StrainCompError
-from strain_comp.params import TUNABLE, TUNABLES, ParamSpec, parse_values, structural_specs
+from strain_comp.ros.params import TUNABLE, TUNABLES, ParamSpec, parse_values, structural_specs
 
 
 def _descriptor(spec: ParamSpec) -> Any:
@@ -38,7 +38,7 @@ def create_node(node_name: str = "compensator", **node_options: Any) -> Any:
     from sensor_msgs.msg import Temperature
     from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension
 
-    from strain_comp.live import LiveCompensator
+    from strain_comp.ros.live import LiveCompensator
 
     class CompensatorNode(Node):
         def __init__(self) -> None:

@@ -1,10 +1,10 @@
 """Evaluation: run a calibration over recordings with a reference strain and score it.
 
 Every calibrated sensor that has a recording with ``strain_reference`` is run through the
-engine's batch path (``strain_comp.engine.Engine.run``, or ``Engine.run_array`` for the
+engine's batch path (``strain_comp.core.engine.Engine.run``, or ``Engine.run_array`` for the
 sensors of one array, so cross-talk terms see the same tick's neighbours), the very code
 that ``replay`` and the node use, so the numbers here are the numbers a robot would see.
-Errors (% strain, ``strain_comp.metrics.error_stats``: RMSE per apl_electrolycra... eq. (5),
+Errors (% strain, ``strain_comp.core.metrics.error_stats``: RMSE per apl_electrolycra... eq. (5),
 MAE, max |e|, R^2) are taken over the samples the engine *used* (status good, gap reset or
 out of range) whose reference is finite; over bad samples (not finite, R <= 0, open or
 short circuit, time not increasing) the engine holds its estimate, and those are counted,
@@ -22,12 +22,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.calibration import Calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.metrics import ErrorStats, error_stats
 from strain_comp.errors import InputError
-from strain_comp.metrics import ErrorStats, error_stats
 
 if TYPE_CHECKING:
-    from strain_comp.recording import Recording
+    from strain_comp.io.recording import Recording
 
 
 @dataclass
@@ -82,7 +82,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 
     Raises InputError when no calibrated sensor can be scored (names both sides).
     """
-    from strain_comp.engine import Engine, Status, used_mask
+    from strain_comp.core.engine import Engine, Status, used_mask
 
     engine = Engine(calibration)
     outputs = _array_outputs(engine, recordings, calibration)

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.engine import ArrayOutput, Engine, SensorOutput, diagnostics
+from strain_comp.core.engine import ArrayOutput, Engine, SensorOutput, diagnostics
 from strain_comp.errors import ParameterError
-from strain_comp.params import TUNABLE, NodeParams, validate_tunable
+from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
 
 class LiveCompensator:

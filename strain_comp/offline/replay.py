@@ -9,7 +9,7 @@ neighbours' estimates of the same tick, exactly as ``Engine.step_array`` (the no
 
 Outputs, one message at every input message's time (bad samples included, marked):
 ``/NAME/strain`` (Float64, held estimate on bad samples), ``/NAME/direction`` (Int8),
-``/NAME/status`` (Int8, ``strain_comp.engine.Status``); for arrays the same three as
+``/NAME/status`` (Int8, ``strain_comp.core.engine.Status``); for arrays the same three as
 Float64MultiArray on ``/ARRAY/strain``, ``/ARRAY/direction``, ``/ARRAY/status``;
 ``/diagnostics`` at the end of every ``diagnostics_period`` of log time that holds input.
 Every input topic that can be written back (Float64, Int8, Float64MultiArray, Temperature,
@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.bag import BagContents, BagWriter, located, read_bag
-from strain_comp.calibration import Calibration
-from strain_comp.engine import GAP_RESET, BatchOutput, Engine, SensorHealth, diagnostics
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.engine import GAP_RESET, BatchOutput, Engine, SensorHealth, diagnostics
 from strain_comp.errors import BagError
-from strain_comp.recording import array_sensor_names, hold_latest
+from strain_comp.io.bag import BagContents, BagWriter, located, read_bag
+from strain_comp.io.recording import array_sensor_names, hold_latest
 
 OUTPUTS = ("strain", "direction", "status")
 

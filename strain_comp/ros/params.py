@@ -33,8 +33,8 @@ from typing import Any
 
 import yaml
 
-from strain_comp.calibration import Calibration, SensorCalibration, load_calibration
-from strain_comp.engine import GAP_RESET
+from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
+from strain_comp.core.engine import GAP_RESET
 from strain_comp.errors import InputError, ParameterError
 
 PACKAGE = "strain_comp"
@@ -131,7 +131,7 @@ class NodeParams:
 
     def build_engine(self) -> Any:
         """The Engine these parameters describe (gap, stale and dead-zone tunables applied)."""
-        from strain_comp.engine import Engine
+        from strain_comp.core.engine import Engine
 
         return Engine(self.calibration, arrays=self.arrays,
                       gap_reset=self.tunables["gap_reset_s"],

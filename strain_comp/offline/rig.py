@@ -38,7 +38,7 @@ Forward model, per sensor (S strain in %, t in s, all effects listed in ``RigEff
    an array, ``crosstalk * (R_mech_j - R0_j)`` from each neighbour j = i +- 1.
 4. read-out: Gaussian noise (std ``noise`` ohm), then the voltage divider
    V_R1 = Vin R1 / (R1 + R) quantised to ``adc_bits`` and converted back with
-   ``strain_comp.conversion.divider_to_resistance`` (apl_electrolycra... section II.A).
+   ``strain_comp.core.conversion.divider_to_resistance`` (apl_electrolycra... section II.A).
 
 The temperature profile (slow sinusoid plus a square wave of steps) is published on
 ``/NAME/temperature`` when ``temperature`` (the TCR) is non-zero or the scenario is
@@ -55,9 +55,9 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
-from strain_comp.bag import BagWriter
-from strain_comp.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.errors import ParameterError
+from strain_comp.io.bag import BagWriter
 
 L0_MM = 100.0  # specimen length [mm]: rates in mm/min convert to %/s via this
 T_REF = 23.0  # reference temperature [deg C]

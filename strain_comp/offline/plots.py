@@ -17,7 +17,7 @@ import numpy as np
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from strain_comp.evaluate import EvaluationResult, SensorEvaluation
+    from strain_comp.offline.evaluate import EvaluationResult, SensorEvaluation
 
 
 def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:

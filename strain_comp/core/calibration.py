@@ -11,7 +11,7 @@ sensors:
     input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
     direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
-    effects: []                              # added effect terms (strain_comp.effects)
+    effects: []                              # added effect terms (strain_comp.core.effects)
     provenance: {bags: [..], created: .., fit_rmse: .., n_samples: .., tool: ..}
 ```
 
@@ -32,8 +32,8 @@ from typing import Any
 import yaml
 
 from strain_comp import __version__
-from strain_comp.direction import DirectionSettings
-from strain_comp.effects import validate_effect_dict
+from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.effects import validate_effect_dict
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float

@@ -25,7 +25,7 @@ Per sample, in this order:
    is loading (strain rising) also for a sensor whose R falls with strain; the models that
    switch on direction (rational, spike_decay) run their own detector with the unscaled
    settings on the raw dR/dt sign, as they were fitted.
-6. Effect terms (``strain_comp.effects``) correct the clamped estimate and see the
+6. Effect terms (``strain_comp.core.effects``) correct the clamped estimate and see the
    published direction; their state is reset with the model's at a gap reset. In an array
    (``step_array``, ``run_array``) a cross-talk term reads its neighbours' clamped
    pre-effect estimate of the same tick (NaN, i.e. held, where that sample was bad).
@@ -49,18 +49,18 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp._numba import njit
-from strain_comp.calibration import Calibration, SensorCalibration
-from strain_comp.conversion import divider_to_resistance, resistance_to_divider
-from strain_comp.direction import (
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.core.direction import (
     STATE_SIZE,
     DirectionDetector,
     DirectionSettings,
     direction_update,
 )
-from strain_comp.effects import EffectTerms, run_segments
+from strain_comp.core.effects import EffectTerms, run_segments
+from strain_comp.core.samples import SampleStatus
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.models.base import Compensator
-from strain_comp.samples import SampleStatus
 
 OPEN_FACTOR = 100.0
 """R above this many times the top of the valid resistance range is an open circuit."""
@@ -76,7 +76,7 @@ APL_FAMILY = frozenset({"apl", "pl", "mpi"})
 class Status(IntEnum):
     """Per-sample status (the ``/NAME/status`` value in replay output).
 
-    0-3 are ``strain_comp.samples.SampleStatus``; 0, 6, 7 are *used* samples (fed to the
+    0-3 are ``strain_comp.core.samples.SampleStatus``; 0, 6, 7 are *used* samples (fed to the
     model), 1-5 are bad samples (held estimate).
     """
 
@@ -431,8 +431,8 @@ class Engine:
                        starts: Sequence[int] = ()) -> np.ndarray:
         """The one place where a calibration's effect terms correct the strain.
 
-        The terms (``strain_comp.effects``) read the model's estimate clamped to the valid
-        strain range, as ``strain_comp.diagnose`` fitted them. ``neighbours``: array
+        The terms (``strain_comp.core.effects``) read the model's estimate clamped to the valid
+        strain range, as ``strain_comp.diagnosis.loop`` fitted them. ``neighbours``: array
         neighbours' clamped pre-effect strain at these samples; where not given, each
         neighbour's latest value is held. ``starts``: sample positions where a gap reset
         starts a new segment: the terms' state is reset there, as the model's is.

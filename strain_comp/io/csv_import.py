@@ -35,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.bag import BagWriter
 from strain_comp.errors import InputError
-from strain_comp.recording import Recording, align
+from strain_comp.io.bag import BagWriter
+from strain_comp.io.recording import Recording, align
 
 FORMATS = ("cb_pdms", "fiber", "generic")
 CB_PDMS_GAUGE_MM = 40.0

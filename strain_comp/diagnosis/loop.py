@@ -8,7 +8,7 @@ Per calibrated sensor that has a recording with a reference strain:
    estimate S_hat and the published direction d; the sensor's existing effect terms (if
    any) are applied on top, and e = S_corrected - S over the samples the engine used whose
    reference is finite. Effect state restarts at the engine's gap resets, as online.
-2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.effects``: rate,
+2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.core.effects``: rate,
    direction, relaxation over time constants 0.5-128 s and three branches, elapsed-time
    drift, temperature when a temperature series exists, strain level, Mullins-type history
    incl. the peak strain, cross-talk from array neighbours at index +-1, and a per-run
@@ -63,18 +63,18 @@ from typing import Any
 import numpy as np
 
 from strain_comp._numba import njit
-from strain_comp.calibration import Calibration, SensorCalibration, save_calibration
-from strain_comp.effects import (
+from strain_comp.core.calibration import Calibration, SensorCalibration, save_calibration
+from strain_comp.core.effects import (
     Batch,
     EffectTerms,
     effect_dict,
     regressor_from_dict,
     run_segments,
 )
-from strain_comp.engine import Engine, used_mask
+from strain_comp.core.engine import Engine, used_mask
+from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
-from strain_comp.metrics import error_stats
-from strain_comp.recording import Recording, hold_latest, load_recordings
+from strain_comp.io.recording import Recording, hold_latest, load_recordings
 
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
 """Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart

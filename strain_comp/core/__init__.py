@@ -1,0 +1,1 @@
+"""The ROS-free core: calibration files, sample screening, the engine, direction, effects."""

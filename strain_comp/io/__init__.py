@@ -1,0 +1,1 @@
+"""Reading and writing recordings: MCAP bags, per-sensor recordings, tensile-tester CSVs."""

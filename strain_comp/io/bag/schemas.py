@@ -1,0 +1,74 @@
+"""What a strain_comp bag holds: the ros2msg schema texts, and the decoded contents.
+
+Time is the message log time in seconds (float64); written bags store it in integer ns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MAGIC = b"\x89MCAP0\r\n"
+PROFILE = "ros2"
+LIBRARY = "strain_comp.io.bag"
+CHUNK_SIZE = 1 << 20  # uncompressed bytes per chunk
+
+_SEP = "=" * 80 + "\n"
+_TIME = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+_HEADER = "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+#: ros2msg schema texts (concatenated with their dependencies, as rosbag2 stores them).
+SCHEMAS: dict[str, str] = {
+    "std_msgs/msg/Float64": "float64 data\n",
+    "std_msgs/msg/Float32": "float32 data\n",
+    "std_msgs/msg/Int8": "int8 data\n",
+    "std_msgs/msg/Float64MultiArray": (
+        "MultiArrayLayout layout\nfloat64[] data\n" + _SEP
+        + "MSG: std_msgs/MultiArrayLayout\nMultiArrayDimension[] dim\nuint32 data_offset\n"
+        + _SEP + "MSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride\n"
+    ),
+    "sensor_msgs/msg/Temperature": (
+        "std_msgs/Header header\nfloat64 temperature\nfloat64 variance\n"
+        + _SEP + _HEADER + _SEP + _TIME
+    ),
+    "diagnostic_msgs/msg/DiagnosticArray": (
+        "std_msgs/Header header\nDiagnosticStatus[] status\n" + _SEP + _HEADER + _SEP + _TIME
+        + _SEP + "MSG: diagnostic_msgs/DiagnosticStatus\nbyte OK=0\nbyte WARN=1\nbyte ERROR=2\n"
+        "byte STALE=3\nbyte level\nstring name\nstring message\nstring hardware_id\n"
+        "KeyValue[] values\n" + _SEP + "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value\n"
+    ),
+}
+#: One diagnostic status: (name, level, message, {key: value}).
+Status = tuple[str, int, str, dict[str, str]]
+
+
+@dataclass(frozen=True)
+class Series:
+    """One topic's samples: log times [s] and float64 values, shape (n,) or (n, k)."""
+
+    t: np.ndarray
+    values: np.ndarray
+
+
+@dataclass
+class BagContents:
+    """What ``read_bag`` found.
+
+    ``series``: numeric topics (Float64, Int8, Float32 -> (n,); Float64MultiArray -> (n, k);
+    Temperature -> (n,) temperature). ``labels``: sensor names of each array topic (from
+    ``layout.dim[0].label``, comma separated). ``diagnostics``: (time, statuses) per
+    DiagnosticArray message. ``types``: message type of every topic seen. ``problems``: one
+    line per thing skipped (damage, unknown schemas, malformed messages).
+    """
+
+    series: dict[str, Series] = field(default_factory=dict)
+    labels: dict[str, list[str]] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+    diagnostics: list[tuple[float, list[Status]]] = field(default_factory=list)
+    types: dict[str, str] = field(default_factory=dict)
+
+
+def norm_type(name: str) -> str:
+    """``pkg/Type`` -> ``pkg/msg/Type`` (both spellings occur in the wild)."""
+    parts = name.split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name

@@ -1,0 +1,1 @@
+"""Offline work on bags: the virtual rig, fitting, evaluation, replay and plots."""

@@ -1,0 +1,4 @@
+"""The ROS 2 layer: node parameters, the per-message live logic and the rclpy node.
+
+The only subpackage that imports rclpy (lazily, in ``node``).
+"""
