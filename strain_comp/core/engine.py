@@ -310,6 +310,8 @@ class _Sensor:
     effects: EffectTerms = field(default_factory=lambda: EffectTerms([], [], []))
     base: float = math.nan
     """Latest clamped strain before effect terms (what neighbours' cross-talk terms read)."""
+    gain: float = 1.0
+    """Input gain (tare): the models see ``gain`` x the measured resistance."""
 
     @classmethod
     def build(cls, cal: SensorCalibration, deadzone_scale: float) -> _Sensor:
@@ -324,14 +326,14 @@ class _Sensor:
                    effects=EffectTerms.from_dicts(cal.effects))
 
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(resistance [ohm], forced status) from the raw input values."""
+        """(resistance [ohm] x the tare gain, forced status) from the raw input values."""
         forced = np.zeros(raw.shape, dtype=np.int8)
         if self.cal.input.kind != "divider":
-            return raw, forced
+            return raw * self.gain if self.gain != 1.0 else raw, forced
         vin = float(self.cal.input.vin)
         forced[raw <= 0.0] = Status.OPEN_CIRCUIT
         forced[raw >= vin] = Status.SHORT_CIRCUIT
-        return divider_to_resistance(raw, float(self.cal.input.r1), vin), forced
+        return divider_to_resistance(raw, float(self.cal.input.r1), vin) * self.gain, forced
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
@@ -408,11 +410,24 @@ class Engine:
                 from None
 
     def reset(self) -> None:
-        """Fresh model and detector state, zeroed counters, no held output."""
-        self._sensors = {name: _Sensor.build(s.cal, self.deadzone_scale)
+        """Fresh model and detector state, zeroed counters, no held output (tare gains kept)."""
+        self._sensors = {name: replace(_Sensor.build(s.cal, self.deadzone_scale), gain=s.gain)
                          for name, s in self._sensors.items()}
         for group in self._arrays.values():
             group.rebuild()
+
+    def input_gain(self, sensor: str) -> float:
+        """The tare gain of ``sensor``: its models see this x the measured resistance."""
+        return self._sensor(sensor).gain
+
+    def set_input_gain(self, sensor: str, gain: float) -> None:
+        """Set the tare gain of ``sensor`` (effective from the next sample; state kept)."""
+        if not (math.isfinite(gain) and gain > 0):
+            raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
+        self._sensor(sensor).gain = float(gain)
+        for group in self._arrays.values():
+            if sensor in group.names and group.kernel is not None:
+                group.gain[group.names.index(sensor)] = float(gain)
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Change the dead-zone scale (a node tunable); the detectors restart from rest."""
@@ -468,6 +483,8 @@ class Engine:
         if s.cal.input.kind == "divider":
             r_arr, f_arr = s.to_ohm(np.array([raw]))
             raw, forced = float(r_arr[0]), int(f_arr[0])
+        else:
+            raw *= s.gain
         code, reset = _screen_one(t, raw, forced, s.last_good_t, s.r_short, s.r_open,
                                   s.r_lo, s.r_hi, self.gap_reset)
         status = Status(code)
@@ -684,6 +701,7 @@ class _ArrayGroup:
         self.sign = np.array([s.cal.direction.sign for s in self.sensors], dtype=np.int8)
         self.set_deadzone_scale(self.engine.deadzone_scale)
         self.divider = [i for i, s in enumerate(self.sensors) if s.cal.input.kind == "divider"]
+        self.gain = np.array([s.gain for s in self.sensors])
         self.effects = [i for i, s in enumerate(self.sensors) if s.cal.effects]
 
     def set_deadzone_scale(self, scale: float) -> None:
@@ -704,7 +722,7 @@ class _ArrayGroup:
                                np.array([o.direction for o in outputs], dtype=np.int8),
                                np.array([o.status for o in outputs], dtype=np.int8),
                                np.array([o.out_of_range for o in outputs]))
-        ohm = raw.copy()
+        ohm = raw * self.gain
         forced = np.zeros(raw.size, dtype=np.int8)
         for i in self.divider:
             conv, code = self.sensors[i].to_ohm(raw[i:i + 1])
