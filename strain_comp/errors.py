@@ -47,3 +47,7 @@ class ParameterError(StrainCompError):
         self.field = field
         self.problem = problem
         super().__init__(f"{field}: {problem}")
+
+
+class OutputError(StrainCompError):
+    """An output path cannot be written: it is an input, or not a regular file."""

@@ -23,8 +23,7 @@ Floats are written with Python's shortest round-trip repr, so load(save(c)) == c
 from __future__ import annotations
 
 import os
-import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +34,7 @@ from strain_comp import __version__
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
 from strain_comp.errors import CalibrationError, ParameterError
+from strain_comp.io.atomic import write_text
 from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float
 
@@ -136,47 +136,14 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def _file_mode(path: Path) -> int:
-    """The mode the file would get if written in place: the old file's, else 0o666 & ~umask.
-
-    mkstemp creates 0o600 files; a calibration is meant to be read by other users too.
-    """
-    try:
-        return path.stat().st_mode & 0o777
-    except FileNotFoundError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
-
-
-def _fsync_directory(directory: Path) -> None:
-    """Make the rename itself durable (a power loss after it keeps the new file)."""
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def save_calibration(calibration: Calibration, path: str | os.PathLike[str]) -> None:
-    """Write atomically: temp file in the target directory, fsync, rename over, fsync the
-    directory. A crash at any moment leaves the old or the new file, never a mix."""
-    path = Path(path)
+def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
+                     inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
+    """Write atomically (``strain_comp.io.atomic``): a crash at any moment leaves the old or
+    the new file, never a mix; a target that is one of ``inputs`` or not a regular file is
+    refused."""
     text = yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
                           default_flow_style=None, width=100)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fchmod(handle.fileno(), _file_mode(path))
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-        _fsync_directory(path.parent)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text(path, text, inputs=inputs)
 
 
 class _Reader:

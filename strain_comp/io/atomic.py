@@ -1,0 +1,100 @@
+"""The one way strain_comp writes a file: atomically, and never over an input or a non-file.
+
+``atomic_output(path, inputs=...)`` yields a binary file object on a temporary file beside
+``path``; on a clean exit the data are fsynced, the temporary file is renamed over ``path``
+and the directory is fsynced, so a kill at any moment leaves the old file or the complete
+new one (and at most a hidden ``.NAME.*.tmp`` beside it). Concurrent writers to one path
+each rename a complete file: the last rename wins. Refused with ``OutputError`` before
+anything is written: a target that exists and is not a regular file (a directory, a device,
+a FIFO, a symbolic link), and a target that is one of ``inputs`` (the same file, through a
+hard or symbolic link too).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import BinaryIO
+
+from strain_comp.errors import OutputError
+
+PathLike = str | os.PathLike[str]
+
+
+def check_output(path: PathLike, inputs: Iterable[PathLike] = ()) -> Path:
+    """``path`` as a Path if it may be written; ``OutputError`` naming why not."""
+    target = Path(path)
+    try:
+        info = target.lstat()
+    except FileNotFoundError:
+        info = None
+    except OSError as err:
+        raise OutputError(f"{target}: cannot check the output path: {err.strerror}") from None
+    if info is not None and not stat.S_ISREG(info.st_mode):
+        kind = "a symbolic link" if stat.S_ISLNK(info.st_mode) else "not a regular file"
+        raise OutputError(f"{target}: refusing to replace it ({kind})")
+    for source in inputs:
+        if info is not None and _same_file(target, Path(source)):
+            raise OutputError(f"{target}: the output is the input {source}; choose another path")
+    return target
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _file_mode(path: Path) -> int:
+    """The mode the file would get if written in place: the old file's, else 0o666 & ~umask."""
+    try:
+        return path.stat().st_mode & 0o777
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def fsync_directory(directory: Path) -> None:
+    """Make a rename in ``directory`` durable."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextmanager
+def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterator[BinaryIO]:
+    """A binary file that replaces ``path`` only once it is complete (see the module)."""
+    target = check_output(path, inputs)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            yield handle
+            handle.flush()
+            os.fchmod(handle.fileno(), _file_mode(target))
+            os.fsync(handle.fileno())
+        check_output(target, inputs)
+        os.replace(tmp, target)
+        fsync_directory(target.parent)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_bytes(path: PathLike, data: bytes, *, inputs: Iterable[PathLike] = ()) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_output(path, inputs=inputs) as handle:
+        handle.write(data)
+
+
+def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically."""
+    write_bytes(path, text.encode("utf-8"), inputs=inputs)
