@@ -369,3 +369,15 @@ def test_input_gain_in_the_array_kernel_path() -> None:
         a = tared.step_array("arr", 0.01 * k, r / gains)
         b = plain.step_array("arr", 0.01 * k, r)
         np.testing.assert_allclose(a.strain, b.strain, rtol=0, atol=1e-9)
+
+
+def test_tare_uses_the_calibrations_rest_resistance() -> None:
+    """Tare at R_now: gain = rest_resistance / R_now; refused without a stored rest value."""
+    engine = Engine(Calibration({"s1": cubic_cal(rest_resistance=200.0)}))
+    assert engine.tare("s1", 250.0) == pytest.approx(0.8)
+    assert engine.input_gain("s1") == pytest.approx(0.8)
+    with pytest.raises(ParameterError, match="finite"):
+        engine.tare("s1", math.nan)
+    assert engine.input_gain("s1") == pytest.approx(0.8)
+    with pytest.raises(ParameterError, match="rest_resistance"):
+        Engine(Calibration({"s1": cubic_cal()})).tare("s1", 250.0)

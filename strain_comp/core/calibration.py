@@ -10,6 +10,7 @@ sensors:
     normalisation: {r0: .., alpha: .., s0: .., beta: ..}   # xi = R/r0 + alpha, psi = S/s0 + beta
     input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
+    rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
     direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
     effects: []                              # added effect terms (strain_comp.core.effects)
     provenance: {bags: [..], created: .., fit_rmse: .., n_samples: .., tool: ..}
@@ -81,6 +82,9 @@ class SensorCalibration:
     input: InputSettings = field(default_factory=InputSettings)
     effects: list[dict[str, Any]] = field(default_factory=list)
     provenance: dict[str, Any] = field(default_factory=dict)
+    rest_resistance: float | None = None
+    """Resistance at rest (zero strain) when the calibration was made [ohm]; a tare scales
+    the measured resistance by rest_resistance / (the rest resistance measured now)."""
 
     def build_model(self) -> Compensator:
         """A fresh compensator with these parameters."""
@@ -93,6 +97,7 @@ class SensorCalibration:
             "normalisation": self.normalisation.to_dict(),
             "input": self.input.to_dict(),
             "valid_range": self.valid_range.to_dict(),
+            **({} if self.rest_resistance is None else {"rest_resistance": self.rest_resistance}),
             "direction": self.direction.to_dict(),
             "effects": self.effects,
             "provenance": self.provenance,
@@ -203,6 +208,8 @@ class _Reader:
         if r_lo <= 0:
             raise self.fail(f"{where}.valid_range.resistance", f"must be > 0 ohm, got {r_lo}")
         s_lo, s_hi = self.pair(range_node, "strain", f"{where}.valid_range")
+        rest = (None if node.get("rest_resistance") is None
+                else self.number(node, "rest_resistance", where, lo=0.0, strict=True))
         dir_node = self.mapping(self.child(node, "direction", where), f"{where}.direction")
         dw = f"{where}.direction"
         k_sigma = dir_node.get("k_sigma")
@@ -230,7 +237,8 @@ class _Reader:
         calibration = SensorCalibration(
             name=name, model=model_name, params=dict(params), normalisation=norm,
             valid_range=ValidRange(r_lo, r_hi, s_lo, s_hi), direction=direction,
-            input=input_settings, effects=[dict(e) for e in effects], provenance=dict(prov))
+            input=input_settings, effects=[dict(e) for e in effects], provenance=dict(prov),
+            rest_resistance=rest)
         try:
             calibration.build_model()
         except ParameterError as err:

@@ -420,6 +420,24 @@ class Engine:
         """The tare gain of ``sensor``: its models see this x the measured resistance."""
         return self._sensor(sensor).gain
 
+    def tare(self, sensor: str, rest_resistance: float) -> float:
+        """Make ``rest_resistance`` [ohm] (measured now, at rest) this sensor's zero.
+
+        Multiplicative: the models see R x (calibration's rest resistance / rest_resistance).
+        Returns the new gain; ``ParameterError`` if the calibration stores no rest resistance
+        or the value is not finite and > 0 (the old gain then stays).
+        """
+        reference = self._sensor(sensor).cal.rest_resistance
+        if reference is None:
+            raise ParameterError(f"{sensor}.rest_resistance",
+                                 "the calibration stores none, so it cannot be tared")
+        if not (math.isfinite(rest_resistance) and rest_resistance > 0):
+            raise ParameterError(f"{sensor}.tare", f"rest resistance must be finite and > 0 "
+                                 f"ohm, got {rest_resistance}")
+        gain = reference / rest_resistance
+        self.set_input_gain(sensor, gain)
+        return gain
+
     def set_input_gain(self, sensor: str, gain: float) -> None:
         """Set the tare gain of ``sensor`` (effective from the next sample; state kept)."""
         if not (math.isfinite(gain) and gain > 0):
