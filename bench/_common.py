@@ -1,6 +1,6 @@
 """Shared set-up of the bench scripts: calibrations built from parameters, inputs, timing.
 
-The APL parameters are the paper's (apl_electrolycra_rate_dependent_hysteresis, Table I:
+The APL parameters are the paper's ([Electrolycra] Table I:
 sigma = 2.15e-2 /s, p = 0.73, w) with a mildly nonlinear f (M = 9), as in
 ``bench/bench_kernels.py``; each sensor gets a seeded perturbation of sigma, p and w so
 that an array is not 256 copies of one sensor. The normalisation maps R in about

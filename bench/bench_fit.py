@@ -10,7 +10,7 @@ Each model is fitted with ``strain_comp.offline.fit.fit_sensor`` (what ``strain-
 after reading the bag: normalisation, direction settings, the model's ``fit`` with its
 defaults -- for APL/PL the 13 x 9 sigma/p grid plus a Nelder-Mead refinement -- and the
 training error through the engine). Printed: wall time, the model fit's own time, and
-the training RMSE. Target (issue 6): APL under 30 s on this 2-core machine.
+the training RMSE. Target: APL under 30 s on this 2-core machine.
 
 Baseline in the same run: a naive, unguided ``scipy.optimize.minimize`` (Nelder-Mead,
 scipy defaults) of the same APL model's training RMSE over all 24 parameters (log sigma,

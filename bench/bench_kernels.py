@@ -1,4 +1,4 @@
-"""Kernel throughput of the APL family and the cubic baseline (issue 6, items 1, 2 and 4).
+"""Kernel throughput of the APL family and the cubic baseline.
 
 Run on demand (not part of the test suite)::
 

@@ -17,7 +17,7 @@ Timed (best of ``--repeat``, kernels and caches warm):
 * ``strain-comp evaluate`` minus printing: ``load_recordings`` + ``evaluate_recordings``
   on the bag with the reference (baseline: rosbags on that bag).
 
-Goal (issue 6): full replay faster than the rosbags read alone (ratio > 1).
+Goal: full replay faster than the rosbags read alone (ratio > 1).
 """
 
 from __future__ import annotations

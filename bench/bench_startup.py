@@ -6,7 +6,7 @@
 1. Engine start-up, in a fresh ``python`` subprocess: import ``strain_comp``'s engine,
    load a calibration file (one APL sensor, one cubic sensor and a 16-sensor APL array,
    ``bench/_common.py``), build ``Engine``, ``warm_up()`` (compiles every kernel, as the
-   node does at start-up, issue 4 item 5) and the first ``step`` / ``step_array``. The
+   node does at start-up) and the first ``step`` / ``step_array``. The
    child reports each phase; the total is the wall time from spawn to exit.
 2. DDS node start-up: ``python -m strain_comp.dds --params config/array_params.yaml``
    (bundled 6-sensor APL array; Cyclone DDS on loopback) until it prints ``ready``.

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Fuzz the calibration loader and the bag reader for a bounded time (issue 7).
+"""Fuzz the calibration loader and the bag reader for a bounded time.
 
 * **yaml**: random mutations of a valid calibration (every model, a divider input, every
   effect kind): byte flips, truncations, inserted YAML syntax, deleted lines, and

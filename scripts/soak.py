@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Soak test (issue 7): every model over many samples, no NaN, no drift, no memory growth.
+"""Soak test: every model over many samples, no NaN, no drift, no memory growth.
 
 For each model (fitted once on a simulated rig run, as ``strain-comp fit`` does):
 

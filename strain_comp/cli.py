@@ -1,4 +1,4 @@
-"""The ``strain-comp`` command line (DESIGN.md, "Command line": names and flags are a contract).
+"""The ``strain-comp`` command line (docs/design.md, "Command line": a contract).
 
 Every subcommand imports its machinery only when it runs, so ``strain-comp --help`` stays
 fast. Bad input never shows a traceback: every ``StrainCompError`` and every unreadable
@@ -184,7 +184,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser; subcommand names and flags as DESIGN.md fixes them."""
+    """The argument parser; subcommand names and flags as docs/design.md fixes them."""
     parser = argparse.ArgumentParser(
         prog=PROG, description="Calibrated strain from soft resistive strain sensors: "
         "simulate or import data, fit, evaluate, replay, diagnose, run.")

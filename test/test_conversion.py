@@ -1,4 +1,4 @@
-"""Voltage-divider input conversion (apl_electrolycra... section II.A)."""
+"""Voltage-divider input conversion ([Electrolycra] section II.A)."""
 
 from __future__ import annotations
 

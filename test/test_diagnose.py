@@ -1,5 +1,5 @@
 """The residual loop on virtual-rig bags that carry an effect their calibration does not
-declare (issue 5, item 4).
+declare (docs/design.md, "The residual loop", step 4).
 
 Every bag is made by ``rig.simulate`` -> ``rig.write_sim_bag`` and read back with
 ``recording.load_recordings``, as a user's recording would be. The calibration is a
@@ -127,7 +127,7 @@ def test_no_missing_effect_adds_nothing(bags: BagMaker, calibration: Calibration
 
 
 def shifted(recordings: dict[str, Recording], ohm: float) -> dict[str, Recording]:
-    """A run whose contact resistance is ``ohm`` higher (re-clamped, a new session)."""
+    """A run whose contact resistance is ``ohm`` higher (re-clamped, a new run)."""
     return {n: dataclasses.replace(r, r=r.r + ohm) for n, r in recordings.items()}
 
 

@@ -1,4 +1,4 @@
-"""Dead-zone direction detector (egain_rational... section V.E) against a slow reference."""
+"""Dead-zone direction detector ([EGaIn] section V.E) against a slow reference."""
 
 from __future__ import annotations
 

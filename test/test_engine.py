@@ -263,9 +263,6 @@ def test_array_path_equals_per_sensor_path() -> None:
 
 
 def test_apl_array_is_one_kernel_and_equals_per_sensor() -> None:
-    apl = pytest.importorskip("strain_comp.models.apl")
-    if not hasattr(apl, "APLArray"):
-        pytest.skip("helper A's APLArray is not there yet")
     from strain_comp.models import model_class
 
     rng = np.random.default_rng(3)

@@ -1,4 +1,4 @@
-"""A bounded, seeded run of scripts/fuzz.py (issue 7), plus the regressions it found.
+"""A bounded, seeded run of scripts/fuzz.py, plus the regressions it found.
 
 The calibration loader may only raise CalibrationError (one line naming the file), and a
 file that loads must run through the engine; the bag reader may only raise BagError or

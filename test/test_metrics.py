@@ -1,4 +1,4 @@
-"""Error metrics and the normalised hysteresis area (reduced_power_law... eq. (5))."""
+"""Error metrics and the normalised hysteresis area ([ReducedPL] eq. (5))."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Property tests (issue 7): every model, any finite positive input, through the engine.
+"""Property tests: every model, any finite positive input, through the engine.
 
 Each model of ``MODEL_NAMES`` is fitted once (``fitted``) on a short simulated rig run
 (random ramps and holds) by the same ``strain_comp.offline.fit.fit_sensor`` the command line uses,
@@ -58,7 +58,7 @@ def training_recording() -> Recording:
 
 @functools.cache
 def fitted(model: str) -> SensorCalibration:
-    """One calibration per model, fitted once per test session (shared with other files)."""
+    """One calibration per model, fitted once per pytest run (shared with other files)."""
     return fit_sensor([training_recording()], model, name="s1",
                       options={"tau": 0.2, **FIT_OPTIONS.get(model, {})})
 

@@ -1,8 +1,8 @@
-"""Reliability (issue 7): killed calibration writers, replay of bad and truncated bags, a
+"""Reliability: killed calibration writers, replay of bad and truncated bags, a
 random stream of good and bad array messages, stale inputs, and a short soak.
 
 The calibrations are the per-model fits of ``test_properties.fitted`` (fitted once per
-session). Truth: the bytes ``save_calibration`` writes for the old and the new calibration;
+pytest run). Truth: the bytes ``save_calibration`` writes for the old and the new calibration;
 the input bag's message times; the engine's documented rules (a bad sample holds the last
 estimate, a used one is finite and inside the widened strain range).
 """

@@ -1,6 +1,6 @@
 """Input conversion: voltage-divider readings to resistance.
 
-apl_electrolycra... section II.A: the sensor in series with a known resistor R1 under a
+[Electrolycra] section II.A: the sensor in series with a known resistor R1 under a
 supply Vin; the voltage across R1 is measured and R = R1 (Vin - V_R1) / V_R1.
 """
 

@@ -1,4 +1,4 @@
-"""Dead-zone direction detector (egain_rational... section V.E, Fig. 7): loading / hold / unloading.
+"""Dead-zone direction detector ([EGaIn] section V.E, Fig. 7): loading / hold / unloading.
 
 The causal derivative of R (first difference over dt) is low-pass filtered by exponential
 smoothing with time constant ``tau`` (alpha = 1 - exp(-dt / tau); ``tau = 0`` keeps the raw
@@ -153,7 +153,7 @@ class DirectionDetector:
 def derivative_noise(t: npt.ArrayLike, r: npt.ArrayLike, tau: float = 0.0) -> float:
     """Robust sigma [ohm/s] of the detector's filtered dR/dt on a segment where nothing moves.
 
-    A linear trend of the derivative (slow drift, egain_rational... Fig. 7b) is removed
+    A linear trend of the derivative (slow drift, [EGaIn] Fig. 7b) is removed
     first; sigma = 1.4826 * MAD of what is left, so a few glitches do not inflate it. With
     ``tau > 0`` the first 5 tau of the segment (the filter's start-up) are skipped.
     """

@@ -1,6 +1,6 @@
 """Effect terms: online corrections a static or hysteretic inverse model lacks.
 
-The residual loop (DESIGN.md, "The residual loop"; ``strain_comp.diagnosis.loop``) finds which
+The residual loop (docs/design.md, "The residual loop"; ``strain_comp.diagnosis``) finds which
 physical effect explains the residual e = S_hat - S of a calibrated model and adds it as
 an explicit term. Each effect is a *regressor* g_j computed causally, sample by sample,
 from what a running model knows: time t [s], resistance R [ohm], the model's own estimate
@@ -164,7 +164,7 @@ class Regressor(ABC):
 
 
 class Offset(Regressor):
-    """g = 1: a constant offset of the estimate (a zero shift between sessions)."""
+    """g = 1: a constant offset of the estimate (a zero shift between runs)."""
 
     kind = "offset"
 
@@ -208,7 +208,7 @@ class Rate(Regressor):
     """Signed strain rate dS_hat/dt [%/s], low-passed with time constant ``tau`` [s].
 
     Viscoelastic sensors lag or lead the strain by an amount proportional to its rate
-    (rate-dependent hysteresis, apl_electrolycra... section I). ``mode: direction`` gives
+    (rate-dependent hysteresis, [Electrolycra] section I). ``mode: direction`` gives
     d * rate (the detector's direction times the rate): an error of one sign whenever the
     sensor moves, whatever the direction (e.g. self-heating or a rate-dependent gain).
     """
@@ -247,7 +247,7 @@ class Rate(Regressor):
 
 
 class Direction(Regressor):
-    """The detector's direction d (egain_rational... section V.E) as a regressor.
+    """The detector's direction d ([EGaIn] section V.E) as a regressor.
 
     ``mode: sign`` gives d; ``mode: strain`` gives d * S_hat (a hysteresis loop whose width
     grows with strain). With ``hold: true`` a hold (d = 0) keeps the last moving
@@ -327,8 +327,8 @@ class Relaxation(Regressor):
     The first-order filter x' = (S_hat - x) / tau gives the regressor h = S_hat - x, which
     jumps with every change of S_hat and decays with time constant ``tau`` [s] once the
     strain is held. A sensor that overshoots after a step and relaxes back (the
-    Electrolycra's creep, apl_electrolycra... section III; the spike-and-decay of
-    nanocomposite_spike_decay... eq. (1)) leaves a residual c * h. ``branch: loading``
+    Electrolycra's creep, [Electrolycra] section III; the spike-and-decay of
+    [Nanocomposite] eq. (1)) leaves a residual c * h. ``branch: loading``
     (or ``unloading``) accumulates only the changes made while the detector says loading
     (unloading), since relaxation is often strong on loading and weak on unloading.
     Discretised exactly for a piecewise-constant input: h_k = h_{k-1} e^{-dt/tau} + dS_k.

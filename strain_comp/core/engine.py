@@ -1,12 +1,12 @@
 """The transport-free engine: per-sensor screening, compensator, direction and health.
 
 Bag replay and both live transports (rclpy node, DDS) feed the same ``Engine``, so a bag
-replayed through the node logic gives the numbers ``replay`` gives (DESIGN.md).
+replayed through the node logic gives the numbers ``replay`` gives (docs/design.md).
 
 Per sample, in this order:
 
 1. Input conversion: ``input.kind: divider`` readings [V] become ohm through
-   R = R1 (Vin - V_R1) / V_R1 (apl_electrolycra... section II.A); V_R1 <= 0 is an open
+   R = R1 (Vin - V_R1) / V_R1 ([Electrolycra] section II.A); V_R1 <= 0 is an open
    circuit and V_R1 >= Vin a short.
 2. Screening (``Status``): not finite, R <= 0 ohm, open circuit (R > ``OPEN_FACTOR`` x the
    top of the calibration's resistance range), short (0 < R < ``SHORT_FACTOR`` x its bottom),
@@ -680,8 +680,8 @@ def _direction_array(states: np.ndarray, t: float, r: np.ndarray, used: np.ndarr
 class _ArrayGroup:
     """The sensors of one array, stepped together.
 
-    When every sensor is of the APL family (same N and M), one tick is one call of helper
-    A's ``APLArray`` kernel plus one screening and one detector kernel for all sensors; the
+    When every sensor is of the APL family (same N and M), one tick is one call of the
+    ``APLArray`` kernel plus one screening and one detector kernel for all sensors; the
     group then keeps the array's state, counters and held outputs itself, and its sensors
     should not also be fed through ``Engine.step``. Otherwise a loop of ``Engine.step``.
     """

@@ -1,5 +1,5 @@
-"""Error metrics, in % strain: RMSE (apl_electrolycra... eq. (5)), MAE, max error, R^2,
-and the normalised hysteresis area (reduced_power_law... eq. (5))."""
+"""Error metrics, in % strain: RMSE ([Electrolycra] eq. (5)), MAE, max error, R^2,
+and the normalised hysteresis area ([ReducedPL] eq. (5))."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def error_stats(estimate: npt.ArrayLike, reference: npt.ArrayLike) -> ErrorStats
 
 
 def hysteresis_area(x: npt.ArrayLike, y: npt.ArrayLike, n_periods: int) -> float:
-    """Normalised hysteresis area, reduced_power_law... eq. (5).
+    """Normalised hysteresis area, [ReducedPL] eq. (5).
 
     A = (1/n) * integral of y_hat d x_hat over the n periods, with x_hat and y_hat
     min-max normalised to [0, 1]. A closed loop travelled counter-clockwise gives a

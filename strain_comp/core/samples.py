@@ -2,7 +2,7 @@
 
 A sample is bad when its resistance is not finite, is <= 0 ohm, or its time does not
 move forward past the last good sample. Bad samples are counted and reported by the
-caller; they never reach a model (DESIGN.md, "Units and conventions").
+caller; they never reach a model (docs/design.md, "Units and conventions").
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The residual loop (DESIGN.md, "The residual loop"): find the effect a calibration lacks,
+"""The residual loop (docs/design.md, "The residual loop"): find the effect a calibration lacks,
 add it as an explicit online term, and report the error before and after on held-out data.
 
 Per calibrated sensor that has a recording with a reference strain:
@@ -211,7 +211,7 @@ class DiagnoseResult:
         return [s for s in self.effects if s.added]
 
     def to_json(self) -> dict[str, Any]:
-        """The DESIGN.md ``diagnose --json`` record, then extra keys."""
+        """The docs/design.md ``diagnose --json`` record, then extra keys."""
         return {"before": self.before, "after": self.after,
                 "effects": [s.to_json() for s in self.effects],
                 "validated_on": self.validated_on, "validation": self.validation,

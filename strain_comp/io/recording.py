@@ -1,6 +1,6 @@
 """Recordings: one sensor's resistance with its reference strain and temperature, from a bag.
 
-Topic conventions (DESIGN.md, "Topics"): per sensor ``/NAME/resistance`` (Float64, ohm),
+Topic conventions (docs/design.md, "Topics"): per sensor ``/NAME/resistance`` (Float64, ohm),
 ``/NAME/strain_reference`` (Float64, %), ``/NAME/temperature`` (sensor_msgs/Temperature);
 arrays ``/ARRAY/resistance`` + ``/ARRAY/strain_reference`` (Float64MultiArray, one column
 per sensor, names from ``layout.dim[0].label``) and optionally ``/ARRAY/temperature``

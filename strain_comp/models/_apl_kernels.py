@@ -1,4 +1,4 @@
-"""numba kernels of the APL / PL / MPI cells (apl_electrolycra... eq. (1), (2), appendix eq. (6)).
+"""numba kernels of the APL / PL / MPI cells ([Electrolycra] eq. (1), (2), appendix eq. (6)).
 
 One cell update (``advance_cells``) is shared by the single-sensor run/step kernel, the
 multi-sensor array kernel and the fitting kernel, so every path computes the same numbers.

@@ -1,7 +1,7 @@
 """Bounded Levenberg-Marquardt for the output-error refinement of the APL family's fit.
 
 Used by ``strain_comp.models.apl`` to minimise sum_i (f^-1(w . z_i) - psi_i)^2 (+ ridge)
-over (w, slopes of f) from the QP solution (apl_electrolycra... eq. (2), (3); the refinement
+over (w, slopes of f) from the QP solution ([Electrolycra] eq. (2), (3); the refinement
 itself is beyond the paper, see the apl module docstring).
 
 Why not ``scipy.optimize.least_squares``: its trust-region-reflective method with the exact

@@ -1,4 +1,4 @@
-"""APL, PL and MPI inverse models (apl_electrolycra_rate_dependent_hysteresis eq. (1)-(3),
+"""APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3),
 appendix eq. (6)).
 
 Normalised input xi = R / r0 + alpha drives N cells with states x_k:

@@ -26,7 +26,7 @@ from strain_comp.errors import ParameterError
 
 @dataclass(frozen=True)
 class Normalisation:
-    """Affine maps to dimensionless input and output (apl_electrolycra... section II.C).
+    """Affine maps to dimensionless input and output ([Electrolycra] section II.C).
 
     xi = R / r0 + alpha and psi = S / s0 + beta, chosen so that the training data span
     [-1, 1] in both.

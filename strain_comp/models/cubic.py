@@ -1,4 +1,4 @@
-"""Cubic baseline (apl_electrolycra... eq. (4)): S = c3 R^3 + c2 R^2 + c1 R + c0.
+"""Cubic baseline ([Electrolycra] eq. (4)): S = c3 R^3 + c2 R^2 + c1 R + c0.
 
 Memoryless, so it has no state; it is fitted by ordinary least squares on the normalised
 input xi (better conditioned than powers of R in ohm) and its coefficients are stored in

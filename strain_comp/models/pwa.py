@@ -1,6 +1,6 @@
 """Strictly increasing piecewise-affine output map f of the APL family.
 
-apl_electrolycra_rate_dependent_hysteresis eq. (3):
+[Electrolycra] eq. (3):
 
 f(psi) = sum_j mu_j phi_j(psi) with an odd number M of PWA basis functions. The paper
 leaves the basis to [29]; the choice made here:

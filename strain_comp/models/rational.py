@@ -1,4 +1,4 @@
-"""Rational rat22 model (egain_rational... eq. (10)) with optional loading/unloading fits.
+"""Rational rat22 model ([EGaIn] eq. (10)) with optional loading/unloading fits.
 
     S = (p1 xi^2 + p2 xi + p3) / (xi^2 + q1 xi + q2),   xi = R / r0 + alpha
 

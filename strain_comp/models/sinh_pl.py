@@ -1,4 +1,4 @@
-"""Reduced power-law model with sinh resistors (reduced_power_law... eq. (1)-(3)).
+"""Reduced power-law model with sinh resistors ([ReducedPL] eq. (1)-(3)).
 
 Forward model (eq. (2)), C = 1: N cells with state u_k,
 

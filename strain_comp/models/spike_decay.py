@@ -1,4 +1,4 @@
-"""Spike-and-decay model of viscoelastic nanocomposite gauges (nanocomposite_spike_decay...).
+"""Spike-and-decay model of viscoelastic nanocomposite gauges ([Nanocomposite]).
 
 Forward model, eq. (3): R = f(eps) [1 + S exp(-lambda (t - ts))], with
 
@@ -14,7 +14,7 @@ Forward model, eq. (3): R = f(eps) [1 + S exp(-lambda (t - ts))], with
 
 Online inversion (``step``/``run``, one numba kernel):
 
-1. The dead-zone direction detector (egain_rational... section V.E, ``strain_comp.core.direction``)
+1. The dead-zone direction detector ([EGaIn] section V.E, ``strain_comp.core.direction``)
    runs on the spike-compensated resistance R_c = R / (1 + S exp(-lambda (t - ts))) of the
    active spike, so the decay of a spike already accounted for is not taken for movement.
 2. A movement starts when the detector leaves 0; its start time and start strain are

@@ -4,7 +4,7 @@ Every calibrated sensor that has a recording with ``strain_reference`` is run th
 engine's batch path (``strain_comp.core.engine.Engine.run``, or ``Engine.run_array`` for the
 sensors of one array, so cross-talk terms see the same tick's neighbours), the very code
 that ``replay`` and the node use, so the numbers here are the numbers a robot would see.
-Errors (% strain, ``strain_comp.core.metrics.error_stats``: RMSE per apl_electrolycra... eq. (5),
+Errors (% strain, ``strain_comp.core.metrics.error_stats``: RMSE per [Electrolycra] eq. (5),
 MAE, max |e|, R^2) are taken over the samples the engine *used* (status good, gap reset or
 out of range) whose reference is finite; over bad samples (not finite, R <= 0, open or
 short circuit, time not increasing) the engine holds its estimate, and those are counted,
@@ -50,7 +50,7 @@ class SensorEvaluation:
     bad_by_status: dict[str, int] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON record: the DESIGN.md keys first, then extra keys."""
+        """The JSON record: the docs/design.md keys first, then extra keys."""
         record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
         record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
                       n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status)
@@ -65,7 +65,7 @@ class EvaluationResult:
     notes: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
-        """``{"sensors": {NAME: {"rmse", "mae", "max_abs", "r2", "n", ...}}}`` (DESIGN.md)."""
+        """``{"sensors": {NAME: {"rmse", "mae", "max_abs", "r2", "n", ...}}}`` (docs/design.md)."""
         return {"sensors": {name: ev.to_dict() for name, ev in self.sensors.items()}}
 
 
@@ -149,7 +149,7 @@ def format_table(result: EvaluationResult) -> str:
         st = ev.stats
         lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
                      f"{st.max_abs:>9.4f} {st.r2:>8.5f}")
-    lines.append("errors in % strain; RMSE apl_electrolycra eq. (5)")
+    lines.append("errors in % strain; RMSE [Electrolycra] eq. (5)")
     return "\n".join(lines)
 
 

@@ -14,12 +14,12 @@ data and fills in what a calibration file needs besides the parameters:
   is skipped and the state kept, and the fit sees the same. Each recording starts a new
   segment (model state is reset per segment). Segments shorter than ``MIN_SEGMENT``
   samples are dropped.
-* **Normalisation**: ``Normalisation.fit`` over all training samples (apl_electrolycra...
+* **Normalisation**: ``Normalisation.fit`` over all training samples ([Electrolycra]
   section II.C: the training data span [-1, 1]).
 * **Valid range**: the training range of R and S widened by ``RANGE_MARGIN`` (5 %) of its
   span on each side (the resistance floor is kept above half the smallest training R, so it
   stays > 0 ohm). Inputs outside it are flagged as out of range, not silently trusted.
-* **Direction detector** (egain_rational... section V.E: dead zone = k sigma of dR/dt
+* **Direction detector** ([EGaIn] section V.E: dead zone = k sigma of dR/dt
   noise on a hold): the hold is the longest stretch where the *reference* strain is still
   (``|dS/dt|`` below ``HOLD_RATE_FRACTION`` of the 99.5th-percentile rate, at least
   ``MIN_HOLD_SAMPLES`` samples). Its second half is used, so that relaxation right after
@@ -75,7 +75,7 @@ percentile is a moving rate even when fast steps take only a few % of the record
 MIN_HOLD_SAMPLES = 40
 """A hold must have at least this many samples to set the dead zone."""
 DEFAULT_K_SIGMA = 4.0
-"""Dead zone = k sigma of the derivative noise (egain_rational... section V.E: 3 or 4)."""
+"""Dead zone = k sigma of the derivative noise ([EGaIn] section V.E: 3 or 4)."""
 TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Derivative low-pass time constants [s] tried, shortest (least lag) first."""
 DEADZONE_FRACTION = 0.5

@@ -2,7 +2,7 @@
 
 It makes the bundled bags and the residual loop's test bags, whose data may carry an
 effect that a calibration does not declare. The behaviour to reproduce is the Electrolycra
-sensor of apl_electrolycra... (sections II.A-B): a clockwise S-R hysteresis loop that
+sensor of [Electrolycra] (sections II.A-B): a clockwise S-R hysteresis loop that
 rotates counter-clockwise about its lower-left corner as the strain rate grows, resistance
 relaxation after loading steps that is negligible after unloading steps, a voltage-divider
 read-out (R1 = 10.5 ohm, Vin = 3.2 V) and a specimen of L0 = 100 mm (so 50 mm/min is
@@ -38,7 +38,7 @@ Forward model, per sensor (S strain in %, t in s, all effects listed in ``RigEff
    an array, ``crosstalk * (R_mech_j - R0_j)`` from each neighbour j = i +- 1.
 4. read-out: Gaussian noise (std ``noise`` ohm), then the voltage divider
    V_R1 = Vin R1 / (R1 + R) quantised to ``adc_bits`` and converted back with
-   ``strain_comp.core.conversion.divider_to_resistance`` (apl_electrolycra... section II.A).
+   ``strain_comp.core.conversion.divider_to_resistance`` ([Electrolycra] section II.A).
 
 The temperature profile (slow sinusoid plus a square wave of steps) is published on
 ``/NAME/temperature`` when ``temperature`` (the TCR) is non-zero or the scenario is

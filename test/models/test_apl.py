@@ -1,4 +1,4 @@
-"""APL / PL / MPI (apl_electrolycra... eq. (1)-(3), (6)) against slow pure-Python references,
+"""APL / PL / MPI ([Electrolycra] eq. (1)-(3), (6)) against slow pure-Python references,
 fitting, and the paper's qualitative claims on a simulated rate-dependent sensor."""
 
 from __future__ import annotations

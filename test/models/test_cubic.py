@@ -1,4 +1,4 @@
-"""Cubic baseline (apl_electrolycra... eq. (4)) against the equation computed directly."""
+"""Cubic baseline ([Electrolycra] eq. (4)) against the equation computed directly."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""rat22 (egain_rational... eq. (10)) combined and split by the direction detector."""
+"""rat22 ([EGaIn] eq. (10)) combined and split by the direction detector."""
 
 from __future__ import annotations
 

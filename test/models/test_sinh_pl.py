@@ -1,4 +1,4 @@
-"""sinh_pl (reduced_power_law... eq. (1)-(3)) against a slow pure-Python reference."""
+"""sinh_pl ([ReducedPL] eq. (1)-(3)) against a slow pure-Python reference."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""spike_decay (nanocomposite_spike_decay... eq. (3)/(4), Tables 2, 4, 5)."""
+"""spike_decay ([Nanocomposite] eq. (3)/(4), Tables 2, 4, 5)."""
 
 from __future__ import annotations
 
