@@ -11,10 +11,6 @@ from strain_comp.errors import InputError
 from strain_comp.io.csv_import import import_csv, repair_position_glitches, write_recording_bag
 from strain_comp.io.recording import load_recordings
 
-MEASURED = Path(__file__).resolve().parents[2] / "shared" / "data" / "measured"
-if not MEASURED.is_dir():
-    MEASURED = Path("/work/shared/data/measured")
-
 
 def _cb_pdms(tmp_path: Path, glitches: tuple[int, ...] = (30, 50)) -> tuple[Path, np.ndarray]:
     n = 200
@@ -111,17 +107,16 @@ def test_bag_round_trip(tmp_path: Path) -> None:
     np.testing.assert_array_equal(recs["cb"].s, rec.s)  # NaN where no reference, kept
 
 
-@pytest.mark.skipif(not MEASURED.is_dir(), reason="measured data not present")
-def test_measured_files() -> None:
-    v9 = import_csv(MEASURED / "cb_pdms_7p5wt" / "2_7-5_E4pin_20mm_v9_0.2Strain_velocityprof.csv",
+def test_measured_files(measured_data: Path) -> None:
+    cb = measured_data / "cb_pdms_7p5wt"
+    v9 = import_csv(cb / "2_7-5_E4pin_20mm_v9_0.2Strain_velocityprof.csv",
                     fmt="cb_pdms", sensor="cb")
-    v10 = import_csv(MEASURED / "cb_pdms_7p5wt" / "2_7-5_E4pin_20mm_v10_0.3Strain.csv",
-                     fmt="cb_pdms", sensor="cb")
+    v10 = import_csv(cb / "2_7-5_E4pin_20mm_v10_0.3Strain.csv", fmt="cb_pdms", sensor="cb")
     for res, top in ((v9, 20.0), (v10, 30.0)):
         assert res.report.glitches_repaired > 0
         assert np.nanmin(res.recording.s) == pytest.approx(0.0, abs=0.5)
         assert np.nanmax(res.recording.s) == pytest.approx(top, abs=0.5)
         assert res.report.kept == res.report.rows
-    fiber = import_csv(MEASURED / "conductive_fiber" / "oldthread_sensorfiber_5x_1_synced.csv",
+    fiber = import_csv(measured_data / "conductive_fiber" / "oldthread_sensorfiber_5x_1_synced.csv",
                        fmt="fiber", sensor="fib")
     assert fiber.report.strain_unit == "mm" and np.nanmax(fiber.recording.s) > 50

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_engine import DIRECTION, NORM, R_LO, cubic_cal, engine_of
+from conftest import DIRECTION, NORM, R_LO, cubic_cal, engine_of
 
 from strain_comp.core.calibration import (
     Calibration,

@@ -2,20 +2,31 @@
 
 Truth here is (a) the engine's own streaming path for the batch path, and (b) a fresh
 model and detector fed only the good samples, for "bad samples never reach the model".
-A first-order lag model defined in this file gives the engine a compensator with memory
+A first-order lag model (``conftest.Lag``) gives the engine a compensator with memory
 (the cubic has none), so a poisoned or missing reset would show.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from conftest import (
+    DIRECTION,
+    NORM,
+    R_HI,
+    R_LO,
+    S_HI,
+    S_LO,
+    Lag,
+    cubic_cal,
+    engine_of,
+    lag_cal,
+    noisy_stream,
+)
 
 from strain_comp.core.calibration import (
     Calibration,
@@ -24,106 +35,12 @@ from strain_comp.core.calibration import (
     ValidRange,
     load_calibration,
 )
-from strain_comp.core.direction import DirectionDetector, DirectionSettings
-from strain_comp.core.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine, Status
+from strain_comp.core.direction import DirectionDetector
+from strain_comp.core.engine import RANGE_MARGIN, Engine, Status
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import Compensator, Normalisation, Segment
+from strain_comp.models.base import Segment
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
-
-R_LO, R_HI, S_LO, S_HI = 100.0, 200.0, 0.0, 50.0
-NORM = Normalisation.from_ranges(R_LO, R_HI, S_LO, S_HI)
-DIRECTION = DirectionSettings(deadzone=20.0, tau=0.05)
-
-
-class Lag(Compensator):
-    """Strain from a first-order lag of R (time constant tau): a model with state."""
-
-    name = "lag"
-
-    def __init__(self, tau: float = 0.3) -> None:
-        super().__init__(NORM)
-        self.tau = tau
-        self.reset()
-
-    def reset(self) -> None:
-        self.x = math.nan
-        self.t_last = math.nan
-
-    def step(self, t: float, r: float) -> float:
-        if math.isnan(self.x):
-            self.x = r
-        else:
-            self.x += (1.0 - math.exp(-(t - self.t_last) / self.tau)) * (r - self.x)
-        self.t_last = t
-        return 0.5 * (self.x - R_LO)
-
-    def run(self, t: Any, r: Any) -> np.ndarray:
-        return np.array([self.step(ti, ri) for ti, ri in zip(t, r, strict=True)])
-
-    def to_params(self) -> dict[str, Any]:
-        return {"tau": self.tau}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
-                    direction: DirectionSettings) -> Lag:
-        return cls(params["tau"])
-
-    @classmethod
-    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
-            direction: DirectionSettings, **options: Any) -> Lag:
-        raise NotImplementedError
-
-
-class LagCalibration(SensorCalibration):
-    def build_model(self) -> Compensator:
-        return Lag(self.params["tau"])
-
-
-def cubic_cal(name: str = "s1", **changes: Any) -> SensorCalibration:
-    cal = SensorCalibration(name=name, model="cubic", params={"c": [-60.0, 0.4, 1e-3, -2e-6]},
-                            normalisation=NORM, valid_range=ValidRange(R_LO, R_HI, S_LO, S_HI),
-                            direction=DIRECTION)
-    return replace(cal, **changes)
-
-
-def lag_cal(name: str = "s1", **changes: Any) -> SensorCalibration:
-    cal = LagCalibration(name=name, model="lag", params={"tau": 0.3}, normalisation=NORM,
-                         valid_range=ValidRange(R_LO, R_HI, S_LO, S_HI), direction=DIRECTION)
-    return replace(cal, **changes)
-
-
-def engine_of(*cals: SensorCalibration, **options: Any) -> Engine:
-    return Engine(Calibration({c.name: c for c in cals}), **options)
-
-
-def noisy_stream(rng: np.random.Generator, n: int = 600) -> tuple[np.ndarray, np.ndarray]:
-    """A triangle-ish resistance signal at 100 Hz with every kind of fault injected."""
-    t = np.cumsum(rng.uniform(0.005, 0.015, n))
-    r = 150.0 + 45.0 * np.sin(2 * np.pi * 0.7 * t) + rng.normal(0, 0.3, n)
-    faults = rng.choice(n, size=n // 6, replace=False)
-    kinds = rng.integers(0, 9, faults.size)
-    for i, kind in zip(faults, kinds, strict=True):
-        if kind == 0:
-            r[i] = np.nan
-        elif kind == 1:
-            r[i] = np.inf
-        elif kind == 2:
-            r[i] = -rng.uniform(0, 100)
-        elif kind == 3:
-            r[i] = 0.0
-        elif kind == 4:
-            r[i] = R_HI * OPEN_FACTOR * 2
-        elif kind == 5:
-            r[i] = R_LO * SHORT_FACTOR / 2
-        elif kind == 6 and i > 0:
-            t[i] = t[i - 1] - rng.uniform(0, 0.5)  # small step back: rejected
-        elif kind == 7:
-            r[i] = R_HI * rng.uniform(1.2, 3.0)  # out of range, still used
-        elif kind == 8 and i > 0:
-            t[i:] += rng.choice([6.0, -30.0])  # long gap or a clock reset: state reset
-    return t, r
-
 
 def stream(engine: Engine, sensor: str, t: np.ndarray, r: np.ndarray) -> dict[str, np.ndarray]:
     outs = [engine.step(sensor, ti, ri) for ti, ri in zip(t, r, strict=True)]

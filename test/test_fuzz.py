@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from test_properties import fitted
+from conftest import fitted
 
 from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
 from strain_comp.errors import CalibrationError

@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pytest
-from test_engine import cubic_cal
+from conftest import cubic_cal
 
 from strain_comp.core.calibration import Calibration, save_calibration
 from strain_comp.core.engine import Engine

@@ -16,63 +16,25 @@ draws irregular but increasing times and positive resistances, and checks:
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 
 import numpy as np
 import pytest
+from conftest import calibration_of, fitted, strain_bounds
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.direction import DirectionDetector, DirectionSettings
-from strain_comp.core.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine
-from strain_comp.io.recording import Recording
+from strain_comp.core.engine import OPEN_FACTOR, SHORT_FACTOR, Engine
 from strain_comp.models import MODEL_NAMES
-from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.rig import simulate
 
-FAST_CELLS = {"sigma_grid": [0.03], "p_grid": [1.0], "refine": False}
-"""APL/PL: one (sigma, p) point instead of the search; the tests need a sound model, not
-the best one."""
-FIT_OPTIONS = {"apl": FAST_CELLS, "pl": FAST_CELLS, "rational": {"mode": "split"}}
-"""rational is fitted as separate loading/unloading curves, so its detector switch is used.
-Every model gets tau = 0.2 s: it smooths the derivative enough for the 50 Hz rig noise
-(with tau = 0 the dead zone exceeds the ramp rate and the detector never leaves hold)."""
 GAP_RESET = 5.0
 EXPLORE = int(os.environ.get("STRAIN_COMP_EXPLORE", "0"))
 """Set to a number of examples to search further, with random seeds (not for CI)."""
 PROPERTY = settings(max_examples=EXPLORE or 25, deadline=None, derandomize=not EXPLORE,
                     suppress_health_check=[HealthCheck.too_slow,
                                            HealthCheck.function_scoped_fixture])
-
-
-@functools.cache
-def training_recording() -> Recording:
-    """120 s of the rig's random ramps and holds (50 Hz, noise, hysteresis, relaxation)."""
-    run = simulate("random", seed=1, duration=120.0)
-    sensor = next(iter(run.sensors.values()))
-    return Recording("s1", sensor.t, sensor.resistance, sensor.strain)
-
-
-@functools.cache
-def fitted(model: str) -> SensorCalibration:
-    """One calibration per model, fitted once per pytest run (shared with other files)."""
-    return fit_sensor([training_recording()], model, name="s1",
-                      options={"tau": 0.2, **FIT_OPTIONS.get(model, {})})
-
-
-def calibration_of(model: str, name: str = "s1") -> Calibration:
-    cal = fitted(model)
-    return Calibration({name: SensorCalibration(**{**vars(cal), "name": name})})
-
-
-def strain_bounds(cal: SensorCalibration) -> tuple[float, float]:
-    """The engine's clamp: the valid strain range widened by ``RANGE_MARGIN`` of its span."""
-    vr = cal.valid_range
-    margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
-    return vr.s_lo - margin, vr.s_hi + margin
 
 
 @st.composite

@@ -1,7 +1,7 @@
 """Reliability: killed calibration writers, replay of bad and truncated bags, a
 random stream of good and bad array messages, stale inputs, and a short soak.
 
-The calibrations are the per-model fits of ``test_properties.fitted`` (fitted once per
+The calibrations are the per-model fits of ``conftest.fitted`` (fitted once per
 pytest run). Truth: the bytes ``save_calibration`` writes for the old and the new calibration;
 the input bag's message times; the engine's documented rules (a bad sample holds the last
 estimate, a used one is finite and inside the widened strain range).
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_properties import calibration_of, fitted, strain_bounds
+from conftest import calibration_of, fitted, strain_bounds
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
 from strain_comp.core.calibration import save_calibration as save

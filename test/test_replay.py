@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_engine import cubic_cal, lag_cal, noisy_stream
+from conftest import cubic_cal, lag_cal, noisy_stream
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Status

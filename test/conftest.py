@@ -1,0 +1,193 @@
+"""Shared test fixtures and factories.
+
+* A small calibration world for the engine tests: a cubic and a first-order lag model
+  (``Lag``, a compensator with state, so a poisoned or missing reset would show) over
+  100-200 ohm and 0-50 %, with ``cubic_cal``, ``lag_cal``, ``engine_of`` and
+  ``noisy_stream`` (a signal with every kind of fault injected).
+* ``fitted(model)``: one calibration per model, fitted once per pytest run on a short
+  simulated rig run by the same ``strain_comp.offline.fit.fit_sensor`` the command line
+  uses, so the calibrations carry a real valid range and direction settings.
+* ``measured_data``: the lab recordings, found through ``STRAIN_COMP_MEASURED_DATA`` or
+  ``../shared/data/measured`` relative to the project root (not part of the repository).
+
+Test modules take the fixtures as arguments and the plain factories with
+``from conftest import ...``; no test module imports another.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine
+from strain_comp.io.recording import Recording
+from strain_comp.models.base import Compensator, Normalisation, Segment
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.rig import simulate
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+CONFIG = PROJECT_ROOT / "config"
+BAGS = PROJECT_ROOT / "bags"
+
+R_LO, R_HI, S_LO, S_HI = 100.0, 200.0, 0.0, 50.0
+NORM = Normalisation.from_ranges(R_LO, R_HI, S_LO, S_HI)
+DIRECTION = DirectionSettings(deadzone=20.0, tau=0.05)
+
+
+class Lag(Compensator):
+    """Strain from a first-order lag of R (time constant tau): a model with state."""
+
+    name = "lag"
+
+    def __init__(self, tau: float = 0.3) -> None:
+        super().__init__(NORM)
+        self.tau = tau
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = math.nan
+        self.t_last = math.nan
+
+    def step(self, t: float, r: float) -> float:
+        if math.isnan(self.x):
+            self.x = r
+        else:
+            self.x += (1.0 - math.exp(-(t - self.t_last) / self.tau)) * (r - self.x)
+        self.t_last = t
+        return 0.5 * (self.x - R_LO)
+
+    def run(self, t: Any, r: Any) -> np.ndarray:
+        return np.array([self.step(ti, ri) for ti, ri in zip(t, r, strict=True)])
+
+    def to_params(self) -> dict[str, Any]:
+        return {"tau": self.tau}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> Lag:
+        return cls(params["tau"])
+
+    @classmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, **options: Any) -> Lag:
+        raise NotImplementedError
+
+
+class LagCalibration(SensorCalibration):
+    def build_model(self) -> Compensator:
+        return Lag(self.params["tau"])
+
+
+def cubic_cal(name: str = "s1", **changes: Any) -> SensorCalibration:
+    cal = SensorCalibration(name=name, model="cubic", params={"c": [-60.0, 0.4, 1e-3, -2e-6]},
+                            normalisation=NORM, valid_range=ValidRange(R_LO, R_HI, S_LO, S_HI),
+                            direction=DIRECTION)
+    return replace(cal, **changes)
+
+
+def lag_cal(name: str = "s1", **changes: Any) -> SensorCalibration:
+    cal = LagCalibration(name=name, model="lag", params={"tau": 0.3}, normalisation=NORM,
+                         valid_range=ValidRange(R_LO, R_HI, S_LO, S_HI), direction=DIRECTION)
+    return replace(cal, **changes)
+
+
+def engine_of(*cals: SensorCalibration, **options: Any) -> Engine:
+    return Engine(Calibration({c.name: c for c in cals}), **options)
+
+
+def noisy_stream(rng: np.random.Generator, n: int = 600) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle-ish resistance signal at 100 Hz with every kind of fault injected."""
+    t = np.cumsum(rng.uniform(0.005, 0.015, n))
+    r = 150.0 + 45.0 * np.sin(2 * np.pi * 0.7 * t) + rng.normal(0, 0.3, n)
+    faults = rng.choice(n, size=n // 6, replace=False)
+    kinds = rng.integers(0, 9, faults.size)
+    for i, kind in zip(faults, kinds, strict=True):
+        if kind == 0:
+            r[i] = np.nan
+        elif kind == 1:
+            r[i] = np.inf
+        elif kind == 2:
+            r[i] = -rng.uniform(0, 100)
+        elif kind == 3:
+            r[i] = 0.0
+        elif kind == 4:
+            r[i] = R_HI * OPEN_FACTOR * 2
+        elif kind == 5:
+            r[i] = R_LO * SHORT_FACTOR / 2
+        elif kind == 6 and i > 0:
+            t[i] = t[i - 1] - rng.uniform(0, 0.5)  # small step back: rejected
+        elif kind == 7:
+            r[i] = R_HI * rng.uniform(1.2, 3.0)  # out of range, still used
+        elif kind == 8 and i > 0:
+            t[i:] += rng.choice([6.0, -30.0])  # long gap or a clock reset: state reset
+    return t, r
+
+
+FAST_CELLS = {"sigma_grid": [0.03], "p_grid": [1.0], "refine": False}
+"""APL/PL: one (sigma, p) point instead of the search; the tests need a sound model, not
+the best one."""
+FIT_OPTIONS = {"apl": FAST_CELLS, "pl": FAST_CELLS, "rational": {"mode": "split"}}
+"""rational is fitted as separate loading/unloading curves, so its detector switch is used.
+Every model gets tau = 0.2 s: it smooths the derivative enough for the 50 Hz rig noise
+(with tau = 0 the dead zone exceeds the ramp rate and the detector never leaves hold)."""
+
+
+@functools.cache
+def training_recording() -> Recording:
+    """120 s of the rig's random ramps and holds (50 Hz, noise, hysteresis, relaxation)."""
+    run = simulate("random", seed=1, duration=120.0)
+    sensor = next(iter(run.sensors.values()))
+    return Recording("s1", sensor.t, sensor.resistance, sensor.strain)
+
+
+@functools.cache
+def fitted(model: str) -> SensorCalibration:
+    """One calibration per model, fitted once per pytest run (shared with other files)."""
+    return fit_sensor([training_recording()], model, name="s1",
+                      options={"tau": 0.2, **FIT_OPTIONS.get(model, {})})
+
+
+def calibration_of(model: str, name: str = "s1") -> Calibration:
+    cal = fitted(model)
+    return Calibration({name: SensorCalibration(**{**vars(cal), "name": name})})
+
+
+def strain_bounds(cal: SensorCalibration) -> tuple[float, float]:
+    """The engine's clamp: the valid strain range widened by ``RANGE_MARGIN`` of its span."""
+    vr = cal.valid_range
+    margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
+    return vr.s_lo - margin, vr.s_hi + margin
+
+
+def measured_data_dir() -> Path | None:
+    """The measured-data folder: ``STRAIN_COMP_MEASURED_DATA`` if set (it must exist),
+    else ``../shared/data/measured`` beside the project root if present, else None."""
+    configured = os.environ.get("STRAIN_COMP_MEASURED_DATA")
+    if configured:
+        path = Path(configured)
+        if not path.is_dir():
+            raise FileNotFoundError(f"STRAIN_COMP_MEASURED_DATA={configured} is not a directory")
+        return path
+    default = PROJECT_ROOT.parent / "shared" / "data" / "measured"
+    return default if default.is_dir() else None
+
+
+@pytest.fixture(scope="session")
+def measured_data() -> Path:
+    """The measured-data folder; the test skips only when no data are installed at all
+    (they are an optional input without a licence, never part of the repository)."""
+    path = measured_data_dir()
+    if path is None:
+        pytest.skip("measured data not installed: set STRAIN_COMP_MEASURED_DATA or put them "
+                    "in ../shared/data/measured")
+    return path
