@@ -10,6 +10,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    package_data={PACKAGE: ["py.typed"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -23,11 +24,12 @@ setup(
         "numba>=0.58",
         "PyYAML>=6",
         "mcap>=1.1",
-        "mcap-ros2-support>=0.5",
+        "mcap-ros2-support>=0.6,<0.7",  # io/bag/writer.py uses its serialize_dynamic
         "matplotlib>=3.7",
     ],
     extras_require={
-        "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "ruff"],
+        "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "ruff", "mypy>=1.16",
+                 "types-PyYAML"],
         "fast": ["intel-cmplr-lib-rt"],
     },
     zip_safe=False,

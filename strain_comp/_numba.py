@@ -10,7 +10,12 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar, overload
+
+if TYPE_CHECKING:
+    from numba.core.dispatcher import Dispatcher
 
 
 def _writable(path: Path) -> bool:
@@ -42,16 +47,30 @@ if _cache_dir is not None:
 import numba  # noqa: E402
 
 if _cache_dir is not None:  # numba already imported elsewhere: its config was read before
-    numba.config.CACHE_DIR = _cache_dir
+    numba.config.CACHE_DIR = _cache_dir  # type: ignore[attr-defined]  # set at runtime
+
+_F = TypeVar("_F", bound=Callable[..., Any])
 
 
-def njit(*args: object, **options: object) -> object:
+@overload
+def njit(function: _F, /) -> Dispatcher[_F]: ...
+@overload
+def njit(function: None = None, /, **options: Any) -> Callable[[_F], Dispatcher[_F]]: ...
+
+
+def njit(function: _F | None = None, /,
+         **options: Any) -> Dispatcher[_F] | Callable[[_F], Dispatcher[_F]]:
     """``numba.njit`` with ``cache=True`` and ``nogil=True`` unless told otherwise.
 
-    Use as ``@njit`` or ``@njit(fastmath=True)``.
+    Use as ``@njit`` or ``@njit(fastmath=True)``. The dispatcher is typed with the
+    signature of the Python function it compiles.
     """
     options.setdefault("cache", True)
     options.setdefault("nogil", True)
-    return numba.njit(*args, **options)
+
+    def compile_(python_function: _F) -> Dispatcher[_F]:
+        return numba.njit(python_function, **options)
+
+    return compile_ if function is None else compile_(function)
 
 __all__ = ["njit", "numba"]

@@ -55,6 +55,12 @@ class InputSettings:
             return {"kind": "divider", "r1": self.r1, "vin": self.vin}
         return {"kind": "resistance"}
 
+    def divider(self) -> tuple[float, float]:
+        """(r1 [ohm], vin [V]) of a ``divider`` input; ParameterError for other kinds."""
+        if self.kind != "divider" or self.r1 is None or self.vin is None:
+            raise ParameterError("input", f"not a voltage divider: {self.to_dict()}")
+        return float(self.r1), float(self.vin)
+
 
 @dataclass(frozen=True)
 class ValidRange:

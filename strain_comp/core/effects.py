@@ -85,7 +85,8 @@ class Batch:
         for a in [*arrays, *([temp] if temp is not None else []), *nbrs.values()]:
             if a.ndim != 1 or a.size != n:
                 raise ValueError("effects: every input array must be 1-D and of one length")
-        return cls(*arrays, temperature=temp, neighbours=nbrs)
+        t_, r_, s_hat_, direction_ = arrays
+        return cls(t_, r_, s_hat_, direction_, temperature=temp, neighbours=nbrs)
 
 
 def _choice(params: Mapping[str, Any], key: str, options: Sequence[str], default: str) -> str:

@@ -330,18 +330,17 @@ class _Sensor:
         forced = np.zeros(raw.shape, dtype=np.int8)
         if self.cal.input.kind != "divider":
             return raw * self.gain if self.gain != 1.0 else raw, forced
-        vin = float(self.cal.input.vin)
+        r1, vin = self.cal.input.divider()
         forced[raw <= 0.0] = Status.OPEN_CIRCUIT
         forced[raw >= vin] = Status.SHORT_CIRCUIT
-        return divider_to_resistance(raw, float(self.cal.input.r1), vin) * self.gain, forced
+        return divider_to_resistance(raw, r1, vin) * self.gain, forced
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
         r_mid = 0.5 * (self.cal.valid_range.r_lo + self.cal.valid_range.r_hi)
         if self.cal.input.kind != "divider":
             return r_mid
-        return float(resistance_to_divider(r_mid, float(self.cal.input.r1),
-                                           float(self.cal.input.vin)))
+        return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
 
     def count(self, status: np.ndarray) -> None:
         """Add a batch's statuses to the counters."""

@@ -38,6 +38,8 @@ fast-math flags exclude ``nnan``/``ninf`` so the bad-sample checks stay in the c
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from llvmlite import ir
@@ -57,18 +59,21 @@ P_MIN = 0.05
 """Smallest exponent p accepted (z^p for tiny z must stay negligible)."""
 
 
+_Codegen = Callable[[Any, Any, Any, Any], Any]
+
+
 @intrinsic
-def _bits(typingctx, x):
+def _bits(typingctx: Any, x: Any) -> tuple[Any, _Codegen]:
     """Reinterpret a float64 as int64 (a free bit cast, vectorisable)."""
-    def codegen(context, builder, signature, args):
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         return builder.bitcast(args[0], ir.IntType(64))
     return types.int64(types.float64), codegen
 
 
 @intrinsic
-def _float(typingctx, x):
+def _float(typingctx: Any, x: Any) -> tuple[Any, _Codegen]:
     """Reinterpret an int64 as float64."""
-    def codegen(context, builder, signature, args):
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         return builder.bitcast(args[0], ir.DoubleType())
     return types.float64(types.int64), codegen
 
@@ -85,7 +90,8 @@ _TINY = 1e-300
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def pow01(z: float, p: float) -> float:
     """z^p for a positive normal z <= ~1 and p > 0 (results below ~1e-304 flush to ~0)."""
-    bits = _bits(z)
+    # numba passes the typing context of an intrinsic itself
+    bits: int = _bits(z)  # type: ignore[call-arg]
     e = (bits >> 52) - 1023
     m = _float((bits & 0x000FFFFFFFFFFFFF) | 0x3FF0000000000000)  # z = m 2^e, m in [1, 2)
     big = m > 1.4142135623730951

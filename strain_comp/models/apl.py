@@ -541,8 +541,13 @@ class APLArray:
         self.reset()
 
     @classmethod
-    def from_models(cls, models: Sequence[_CellModel]) -> APLArray:
-        return cls(models)
+    def from_models(cls, models: Sequence[Compensator]) -> APLArray:
+        """The array of ``models``; ParameterError if one is not of the APL family."""
+        cells = [model for model in models if isinstance(model, _CellModel)]
+        if len(cells) != len(models):
+            i = next(i for i, model in enumerate(models) if not isinstance(model, _CellModel))
+            raise ParameterError(f"models.{i}", f"not an APL-family model: {models[i]!r}")
+        return cls(cells)
 
     def __len__(self) -> int:
         return len(self.models)

@@ -284,6 +284,8 @@ class SinhPL(Compensator):
                                     max_nfev=_START_NFEV, kwargs={"data": coarse})
                 if best is None or sol.cost < best.cost:
                     best = sol
+        if best is None:
+            raise FitError("sinh_pl: no start point of the least-squares fit")
         best = least_squares(residual, best.x, bounds=(lower, upper), method="trf",
                              x_scale="jac", max_nfev=max_nfev)
         w0, vb, w, i_s, v_t = unpack(best.x)

@@ -243,9 +243,10 @@ class SpikeDecay(Compensator):
 
     name = "spike_decay"
 
-    def __init__(self, knots: npt.ArrayLike, c: npt.ArrayLike, eps_range: Sequence[float],
-                 rates: npt.ArrayLike, strains: npt.ArrayLike, s_table: npt.ArrayLike,
-                 lam_table: npt.ArrayLike, min_step: float, normalisation: Normalisation,
+    def __init__(self, knots: npt.ArrayLike, c: npt.ArrayLike,
+                 eps_range: Sequence[float] | np.ndarray, rates: npt.ArrayLike,
+                 strains: npt.ArrayLike, s_table: npt.ArrayLike, lam_table: npt.ArrayLike,
+                 min_step: float, normalisation: Normalisation,
                  direction: DirectionSettings) -> None:
         super().__init__(normalisation)
         _check_settings(direction)
@@ -429,7 +430,8 @@ def _analyse_holds(segments: Sequence[Segment], hold_rate: float, min_hold: floa
     for seg in segments:
         t, r, s = seg.t, seg.r, seg.s
         moves = _movements(t, s, hold_rate)
-        bounds = [(0, moves[0].start if moves else t.size - 1, None)]
+        bounds: list[tuple[int, int, _Movement | None]] = [
+            (0, moves[0].start if moves else t.size - 1, None)]
         for k, mv in enumerate(moves):
             nxt = moves[k + 1].start if k + 1 < len(moves) else t.size - 1
             bounds.append((mv.end, nxt, mv))

@@ -106,7 +106,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
         for inp in inputs:
             a = 0 if k == 0 else cuts[inp.topic][k - 1]
             b = cuts[inp.topic][k] if k < ticks.size else inp.t.size
-            temps = {s: None if temperature[s] is None else temperature[s][a:b]
+            temps = {s: None if (ts := temperature[s]) is None else ts[a:b]
                      for s in inp.sensors}
             if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
                 outs = engine.run_array(inp.sensors, inp.t[a:b], inp.values[a:b], temps)

@@ -303,7 +303,7 @@ ARRAY_SIZE = 6
 def _array_profiles(fs: float, duration: float | None) -> tuple[np.ndarray, np.ndarray]:
     """Per-sensor strain of the array: neighbours differ in amplitude, rate and phase."""
     columns = []
-    t = None
+    t = np.empty(0)
     for i in range(ARRAY_SIZE):
         hi = 12.0 + 4.0 * ((i * 3) % ARRAY_SIZE)
         rate = 30.0 + 14.0 * ((i * 5) % ARRAY_SIZE)

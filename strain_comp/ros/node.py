@@ -9,6 +9,7 @@ validated on change); inputs with sensor-data QoS; message time from the node cl
 from __future__ import annotations
 
 import sys
+from functools import partial
 from typing import Any
 
 from strain_comp.errors import ParameterError, StrainCompError
@@ -55,19 +56,19 @@ def create_node(node_name: str = "compensator", **node_options: Any) -> Any:
                             for what in ("strain", "direction")]
                     self.create_subscription(
                         Float64MultiArray, inp.topic,
-                        lambda msg, i=inp, p=pubs, d=dim: self._on_array(i.name, msg, p, d),
+                        partial(self._on_array, inp.name, pubs=pubs, dim=dim),
                         qos_profile_sensor_data)
                 else:
                     pubs = [self.create_publisher(Float64, f"/{inp.name}/strain", 10),
                             self.create_publisher(Int8, f"/{inp.name}/direction", 10)]
                     self.create_subscription(
                         Float64, inp.topic,
-                        lambda msg, n=inp.name, p=pubs: self._on_sensor(n, msg, p),
+                        partial(self._on_sensor, inp.name, pubs=pubs),
                         qos_profile_sensor_data)
                 for sensor in inp.sensors:
                     self.create_subscription(
                         Temperature, f"/{sensor}/temperature",
-                        lambda msg, s=sensor: self.live.on_temperature(s, msg.temperature),
+                        partial(self._on_temperature, sensor),
                         qos_profile_sensor_data)
             self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
             self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
@@ -90,6 +91,9 @@ def create_node(node_name: str = "compensator", **node_options: Any) -> Any:
             self.live.n_errors += 1
             self.get_logger().warning(f"{name}: message not handled: {err}",
                                       throttle_duration_sec=5.0)
+
+        def _on_temperature(self, name: str, msg: Any) -> None:
+            self.live.on_temperature(name, msg.temperature)
 
         def _on_sensor(self, name: str, msg: Any, pubs: list[Any]) -> None:
             try:

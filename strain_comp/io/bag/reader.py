@@ -8,17 +8,20 @@ record (after a damaged record the walk resynchronises on the next chunk whose C
 Chunks are decompressed and their records located by one numba scan; fixed-layout payloads
 (``std_msgs/msg/Float64``, ``Int8``, ``Float32``, and ``Float64MultiArray`` topics whose
 layout never changes) are then decoded in bulk with numpy, honouring the CDR little/big-endian
-flag. Other supported types go through ``mcap_ros2``'s schema-driven decoder message by
-message. A rosbag2 directory (``metadata.yaml`` + ``.mcap`` files) reads as one bag.
+flag. Float64MultiArray (when the layout varies), Temperature and DiagnosticArray go message
+by message through ``mcap_ros2``'s public ``DecoderFactory``, built on the standard ROS 2
+definitions of those types (``schemas.SCHEMAS``), not on the schema text found in the bag:
+these are fixed message types, so a damaged schema text in a bag costs nothing. A rosbag2
+directory (``metadata.yaml`` + ``.mcap`` files) reads as one bag.
 """
 
 from __future__ import annotations
 
-import contextlib
 import io
+import os
 import struct
 import zlib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -34,11 +37,11 @@ from mcap.records import (
     Message,
     Schema,
 )
-from mcap_ros2._dynamic import generate_dynamic
+from mcap_ros2.decoder import DecoderFactory
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
-from strain_comp.io.bag.schemas import MAGIC, BagContents, Series, norm_type
+from strain_comp.io.bag.schemas import MAGIC, SCHEMAS, BagContents, Series, norm_type
 
 _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
     "std_msgs/msg/Float64": (4, "<f8"),
@@ -49,6 +52,24 @@ _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
 # what the mcap record parsers raise on damaged content
 _PARSE_ERRORS = (McapError, struct.error, UnicodeDecodeError, ValueError, OverflowError,
                  MemoryError, IndexError, KeyError)
+# what decompression raises on damaged chunk data
+_DECOMPRESS_ERRORS = (zstandard.ZstdError, RuntimeError, BagError, ValueError)
+# what the CDR decoder raises on a damaged payload (short reads, bad lengths, bad UTF-8)
+_PAYLOAD_ERRORS = (struct.error, ValueError, IndexError, OverflowError, MemoryError)
+#: types decoded message by message with their standard definitions
+_DECODED_TYPES = ("std_msgs/msg/Float64MultiArray", "sensor_msgs/msg/Temperature",
+                  "diagnostic_msgs/msg/DiagnosticArray")
+_DECODERS = DecoderFactory()
+
+
+def _decoder(kind: str) -> Callable[[bytes], Any]:
+    """CDR decoder of the standard ROS 2 message ``kind`` (one of ``_DECODED_TYPES``)."""
+    schema = Schema(id=_DECODED_TYPES.index(kind) + 1, name=kind, encoding="ros2msg",
+                    data=SCHEMAS[kind].encode())
+    decoder = _DECODERS.decoder_for("cdr", schema)
+    if decoder is None:
+        raise BagError(f"no CDR decoder for {kind}")
+    return decoder
 
 # --------------------------------------------------------------------------- reading
 
@@ -147,7 +168,7 @@ def _chunk_payload(chunk: Chunk) -> bytes:
 def _add_chunk(col: _Collector, chunk: Chunk, where: str) -> None:
     try:
         data = _chunk_payload(chunk)
-    except (zstandard.ZstdError, RuntimeError, BagError, ValueError) as exc:
+    except _DECOMPRESS_ERRORS as exc:
         col.problems.append(f"{where}: chunk skipped, cannot decompress ({exc})")
         return
     if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
@@ -172,7 +193,7 @@ def _plausible_chunk(data: bytes, pos: int) -> bool:
         if chunk.compression not in ("", "zstd", "lz4") or chunk.uncompressed_crc == 0:
             return False
         return zlib.crc32(_chunk_payload(chunk)) == chunk.uncompressed_crc
-    except Exception:
+    except _PARSE_ERRORS + _DECOMPRESS_ERRORS:
         return False
 
 
@@ -274,7 +295,7 @@ def _bag_files(path: Path) -> list[Path]:
     return files
 
 
-def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> BagContents:
+def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagContents:
     """Read a bare ``.mcap`` file or a rosbag2 directory (metadata.yaml + .mcap files).
 
     ``topics`` limits decoding to those topics. Raises ``BagError`` when the path is
@@ -298,7 +319,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> BagConten
     return contents
 
 
-def located(path: str | Path, problems: Iterable[str]) -> list[str]:
+def located(path: str | os.PathLike[str], problems: Iterable[str]) -> list[str]:
     """Problem lines that all name the bag: ``path: ...`` (kept if they already do)."""
     prefix = str(path)
     return [p if p.startswith(prefix) else f"{prefix}: {p}" for p in problems]
@@ -360,41 +381,34 @@ def _decode_topic(out: BagContents, topic: str, schema: Schema, blob: np.ndarray
             values[~little] = raw[~little].copy().view(np.dtype(dtype).newbyteorder(">"))[:, 0]
         out.series[topic] = Series(t, values)
         return
-    if kind not in ("std_msgs/msg/Float64MultiArray", "sensor_msgs/msg/Temperature",
-                    "diagnostic_msgs/msg/DiagnosticArray"):
+    if kind not in _DECODED_TYPES:
         out.problems.append(f"{topic}: unsupported message type {schema.name}; "
                             f"{start.size} messages skipped")
         return
-    try:
-        sink = io.StringIO()  # the msg parser prints its errors
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
-            decoder = generate_dynamic(schema.name, schema.data.decode())[schema.name]
-    except Exception as exc:
-        out.problems.append(f"{topic}: unparsable schema {schema.name} ({exc}); skipped")
-        return
+    decoder = _decoder(kind)
     if kind == "std_msgs/msg/Float64MultiArray":
         _decode_array(out, topic, decoder, blob, start, length, t)
         return
     temperature = kind == "sensor_msgs/msg/Temperature"
     times: list[float] = []
-    values: list[Any] = []
+    items: list[Any] = []
     bad = 0
     for s, n, ti in zip(start.tolist(), length.tolist(), t.tolist(), strict=True):
-        try:  # a damaged schema text may decode into objects without the expected fields
+        try:
             msg = decoder(blob[s:s + n].tobytes())
-            values.append(float(msg.temperature) if temperature else
-                          [(str(x.name), int(x.level), str(x.message),
-                            {str(kv.key): str(kv.value) for kv in x.values})
-                           for x in msg.status])
+            items.append(float(msg.temperature) if temperature else
+                         [(str(x.name), int(x.level), str(x.message),
+                           {str(kv.key): str(kv.value) for kv in x.values})
+                          for x in msg.status])
             times.append(ti)
-        except Exception:  # malformed payload: count it, keep going
+        except _PAYLOAD_ERRORS:  # malformed payload: count it, keep going
             bad += 1
     if bad:
         out.problems.append(f"{topic}: {bad} malformed {kind} messages skipped")
     if temperature:
-        out.series[topic] = Series(np.array(times, np.float64), np.array(values, np.float64))
+        out.series[topic] = Series(np.array(times, np.float64), np.array(items, np.float64))
     else:
-        out.diagnostics.extend(zip(times, values, strict=True))
+        out.diagnostics.extend(zip(times, items, strict=True))
         out.diagnostics.sort(key=lambda d: d[0])
 
 
@@ -409,7 +423,7 @@ def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
                 continue
             first = (len(msg.data), [str(d.label) for d in msg.layout.dim])
             break
-        except Exception:  # find the first decodable message
+        except _PAYLOAD_ERRORS:  # find the first decodable message
             continue
     if first is None:
         out.problems.append(f"{topic}: no decodable Float64MultiArray message; skipped")
@@ -439,7 +453,7 @@ def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
         try:
             data = np.asarray(decoder(blob[start[j]:start[j] + length[j]].tobytes()).data,
                               np.float64)
-        except Exception:  # malformed payload: count it, keep going
+        except _PAYLOAD_ERRORS:  # malformed payload: count it, keep going
             bad += 1
             continue
         if data.shape == (k,):

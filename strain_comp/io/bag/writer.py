@@ -189,6 +189,12 @@ _ENCODERS: dict[str, Any] = {}
 
 
 def message_encoder(kind: str) -> Any:
+    """CDR encoder of the standard message ``kind`` (dict or object -> bytes).
+
+    mcap_ros2 has no public encoder outside its own Writer, so this uses
+    ``mcap_ros2._dynamic.serialize_dynamic``; setup.py pins mcap-ros2-support to the
+    tested range and test_bag checks every encoder against the rosbags deserialiser.
+    """
     if kind not in _ENCODERS:
         _ENCODERS[kind] = serialize_dynamic(kind, SCHEMAS[kind])[kind]
     return _ENCODERS[kind]
