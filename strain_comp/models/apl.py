@@ -26,8 +26,8 @@ and a small ridge pulls slopes to 1 and weights to 0 where the data say nothing.
 Step 2 (a choice beyond the paper): output-error refinement. The QP minimises the
 *equation* error f(psi_meas) - w . z; with a noisy resistance the regressors z (xi and the
 cell states) are noisy while f(psi_meas) is not, and the QP trades the fit of psi against
-the shape of f: on the measured carbon-black sensor the QP solution scored 7.6 % training
-RMSE against the cubic's 5.9 %, with its output collapsing toward the mean on held-out runs.
+the shape of f: on a noisy measured sensor the QP solution fits worse than the cubic, its
+output collapsing toward the mean on held-out runs.
 So from the QP solution (w, slopes) are refined, same bounds and ridge, to minimise the
 *output* error sum (f^-1(w . z) - psi_meas)^2 with the cell states fixed for the given
 sigma, p, by a bounded Levenberg-Marquardt (``strain_comp.models._apl_refine``; analytic
@@ -42,21 +42,13 @@ evaluations), and the final sigma, p get the full ``output_nfev`` refinement.
 (``search_nfev=0`` scores the whole search by the QP; refining every grid point instead
 costs ~3.5x the fit time for the same result on the rig bags.)
 
-Evidence (fit on the first named run, RMSE % strain, APL / PL / MPI, cubic for reference;
-``scripts/measured.py`` bags, rig bags ``bags/``):
-
-* output error vs QP alone: carbon black v16 training 5.63 / 5.75 / 5.75 (QP: 7.59 / 7.59 /
-  7.61; cubic 5.91), held-out v19 6.91 / 6.26 / 6.04 (QP: 9.04 / 8.68 / 8.69; cubic 7.00);
-  fiber 1 training 2.29 / 1.84 / 3.58 (QP: 3.98 / 2.85 / 7.17; cubic 4.81), held-out
-  fiber 4 11.06 / 12.44 / 13.45 (QP: 12.39 / 13.39 / 14.66; cubic 12.47); rig demo_rates
-  0.443 / 0.776 / 1.505 (QP: 0.484 / 0.784 / 1.547; cubic 2.057); the simulated rate sweep
-  of the tests 0.251 / 0.483 / 0.610 (QP: 0.265 / 0.553 / 0.819).
-* ``cell_weights`` signed (default) vs free: free overfits the noisy carbon-black sensor
-  (training 4.02 / 4.40 / 4.25, held-out v19 7.04 / 6.79 / 8.14, v10 17.98 / 15.75 /
-  18.98 vs signed 13.56 / 16.28 / 15.86); it helps on fiber 4 (9.20 / 11.57 / 13.03); rig
-  demo_rates 0.448 / 0.866 / 1.495, steps 0.776 / 1.090 / 1.388 (signed 0.824 / 0.907 /
-  1.360); simulated rate sweep 0.250 / 0.526 / 0.606. Signed is never much worse and
-  guards the noisy case, so it stays the default.
+Both choices (output-error refinement, signed cell weights) were made on held-out error,
+on the bundled rig bags and the measured recordings: compare them with
+``strain-comp fit ... --option output_nfev=0`` (the QP alone) or ``--option
+cell_weights=free`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
+never much worse than free ones and keep free weights from overfitting a noisy sensor.
+The current held-out figures of every model are the README's tables
+(``scripts/compare_models.py``, ``scripts/measured.py``).
 """
 
 from __future__ import annotations

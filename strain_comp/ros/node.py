@@ -15,6 +15,10 @@ from typing import Any
 from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, TUNABLES, ParamSpec, parse_values, structural_specs
 
+# what handling one message can raise: the engine's input errors, and a payload of the
+# wrong shape or type (values that do not convert to float, a wrong array length)
+_MESSAGE_ERRORS = (StrainCompError, ArithmeticError, ValueError, TypeError, LookupError)
+
 
 def _descriptor(spec: ParamSpec) -> Any:
     from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType
@@ -101,7 +105,7 @@ def create_node(node_name: str = "compensator", **node_options: Any) -> Any:
                 if out is not None:
                     pubs[0].publish(Float64(data=out.strain))
                     pubs[1].publish(Int8(data=out.direction))
-            except Exception as err:  # a bad message must never stop the node
+            except _MESSAGE_ERRORS as err:  # a bad message must never stop the node
                 self._guard(name, err)
 
         def _on_array(self, name: str, msg: Any, pubs: list[Any], dim: Any) -> None:
@@ -112,7 +116,7 @@ def create_node(node_name: str = "compensator", **node_options: Any) -> Any:
                         msg = Float64MultiArray(data=[float(v) for v in values])
                         msg.layout.dim = [dim]
                         pub.publish(msg)
-            except Exception as err:  # a bad message must never stop the node
+            except _MESSAGE_ERRORS as err:  # a bad message must never stop the node
                 self._guard(name, err)
 
         def _diagnostics(self) -> None:

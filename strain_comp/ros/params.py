@@ -158,7 +158,7 @@ def share_dirs() -> list[Path]:
         from ament_index_python.packages import get_package_share_directory
 
         dirs.append(Path(get_package_share_directory(PACKAGE)))
-    except Exception:  # not a ROS environment, or the package is not in the ament index
+    except (ImportError, LookupError):  # no ament index, or the package is not in it
         pass
     dirs.append(Path(sys.prefix) / "share" / PACKAGE)
     dirs.append(Path(__file__).resolve().parent.parent)
