@@ -15,9 +15,11 @@ from typing import Any
 from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, TUNABLES, ParamSpec, parse_values, structural_specs
 
-# what handling one message can raise: the engine's input errors, and a payload of the
-# wrong shape or type (values that do not convert to float, a wrong array length)
-_MESSAGE_ERRORS = (StrainCompError, ArithmeticError, ValueError, TypeError, LookupError)
+# what handling one message can raise: the engine's input errors, and a message of the
+# wrong shape or type (no ``data`` field, values that do not convert to float, a wrong
+# array length)
+_MESSAGE_ERRORS = (StrainCompError, ArithmeticError, ValueError, TypeError, LookupError,
+                   AttributeError)
 
 
 def _descriptor(spec: ParamSpec) -> Any:
