@@ -158,8 +158,8 @@ def share_dirs() -> list[Path]:
         from ament_index_python.packages import get_package_share_directory
 
         dirs.append(Path(get_package_share_directory(PACKAGE)))
-    except (ImportError, LookupError):  # no ament index, or the package is not in it
-        pass
+    except (ImportError, LookupError, OSError):  # no ament index (AMENT_PREFIX_PATH unset)
+        pass  # or the package is not in it
     dirs.append(Path(sys.prefix) / "share" / PACKAGE)
     dirs.append(Path(__file__).resolve().parent.parent)
     return dirs
