@@ -1,4 +1,4 @@
-"""Spike-and-decay model of viscoelastic nanocomposite gauges ([Nanocomposite]).
+"""Spike-and-decay model of viscoelastic nanocomposite gauges ([Nanocomposite] eq. (3), (4)).
 
 Forward model, eq. (3): R = f(eps) [1 + S exp(-lambda (t - ts))], with
 
