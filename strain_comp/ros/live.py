@@ -7,7 +7,11 @@ recent good samples the tare needs, and turns health into diagnostic statuses. T
 only moves messages, so a bag played through it gives what ``replay`` gives.
 
 Time: every input is stamped with the node's clock when its callback runs (std_msgs/Float64
-and Float64MultiArray carry no stamp): ROS time, i.e. /clock under ``use_sim_time``.
+and Float64MultiArray carry no stamp): ROS time, i.e. /clock under ``use_sim_time``. Under
+sim time a player publishes a /clock tick before each input, but the two travel on different
+topics and may arrive in either order; ``ClockGate`` therefore holds an input whose clock
+reading equals the previous input's stamp until the next tick (one held input per topic),
+so the input takes its own tick's time either way.
 
 Tare (multiplicative, ``Engine.tare``): the zero is a rest resistance R0 measured now, the
 models then see R x (calibration rest resistance / R0).
@@ -63,6 +67,37 @@ def array_values(data: Any, offset: int, sizes: list[int], k: int) -> np.ndarray
     if size != k:
         raise InputError(f"expected {k} values, got {size}")
     return values[offset:offset + k]
+
+
+class ClockGate:
+    """Under sim time: an input whose clock reading [ns] equals the previous input's stamp on
+    the same topic waits for the next clock tick; a second such input releases the first at
+    the unchanged time (it then counts as time-not-increasing, as it would without the gate).
+    """
+
+    def __init__(self) -> None:
+        self.last: dict[str, int] = {}
+        self.held: dict[str, Any] = {}
+
+    def arrive(self, name: str, now_ns: int, item: Any) -> list[tuple[int, Any]]:
+        """(stamp, item) pairs to process now, in order."""
+        out = []
+        if name in self.held:
+            out.append((now_ns, self.held.pop(name)))
+        elif self.last.get(name) == now_ns:
+            self.held[name] = item
+            return out
+        self.last[name] = now_ns
+        out.append((now_ns, item))
+        return out
+
+    def tick(self, now_ns: int) -> list[tuple[int, Any]]:
+        """The clock moved to ``now_ns``: the held inputs to process now, stamped with it."""
+        out = [(now_ns, item) for item in self.held.values()]
+        for name in self.held:
+            self.last[name] = now_ns
+        self.held.clear()
+        return out
 
 
 @dataclass

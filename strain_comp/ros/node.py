@@ -109,6 +109,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     """
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
+    from rclpy.clock import JumpThreshold
+    from rclpy.duration import Duration
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Temperature
@@ -116,7 +118,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from std_srvs.srv import Trigger
 
     from strain_comp.errors import ParameterError, StrainCompError
-    from strain_comp.ros.live import LiveCompensator
+    from strain_comp.ros.live import ClockGate, LiveCompensator
     from strain_comp.ros.params import ROS_OWNED, TUNABLE, parse_values, structural_specs
 
     class CompensatorNode(Node):
@@ -125,6 +127,10 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                          if k.split(".")[0] not in ROS_OWNED}
             self.base_dir = base_dir
+            self.gate = ClockGate()
+            self._jump = self.get_clock().create_jump_callback(
+                JumpThreshold(min_forward=Duration(nanoseconds=1), min_backward=None,
+                              on_clock_change=False), post_callback=self._on_tick)
             self.live = LiveCompensator(parse_values(self.flat, base_dir=base_dir))
             params = self.live.params
             names = [i.name for i in params.inputs]
@@ -141,9 +147,10 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 pubs = [self.create_publisher(kind, f"{inp.name}/strain", 10),
                         self.create_publisher(Float64MultiArray if inp.is_array else Int8,
                                               f"{inp.name}/direction", 10)]
-                callback = self._on_array if inp.is_array else self._on_sensor
+                handler = self._on_array if inp.is_array else self._on_sensor
                 sub = self.create_subscription(
-                    kind, inp.topic, lambda msg, n=inp.name, p=pubs, c=callback: c(n, msg, p),
+                    kind, inp.topic,
+                    lambda msg, n=inp.name, p=pubs, h=handler: self._arrive(n, h, msg, p),
                     qos_profile_sensor_data)
                 for sensor in inp.sensors:
                     self.create_subscription(
@@ -165,8 +172,20 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
                                    + f"; tare {params.tare}")
 
-        def _now(self) -> float:
-            return self.get_clock().now().nanoseconds * 1e-9
+        def _arrive(self, name: str, handler: Any, msg: Any, pubs: list[Any]) -> None:
+            clock = self.get_clock()
+            now = clock.now().nanoseconds
+            if not clock.ros_time_is_active:
+                handler(name, now, msg, pubs)
+                return
+            for stamp, (h, m, p) in self.gate.arrive(name, now, (handler, msg, pubs)):
+                h(name, stamp, m, p)
+
+        def _on_tick(self, jump: Any) -> None:
+            now = self.get_clock().now().nanoseconds
+            names = list(self.gate.held)
+            for name, (stamp, (h, m, p)) in zip(names, self.gate.tick(now), strict=True):
+                h(name, stamp, m, p)
 
         def _refuse(self, name: str, err: Exception) -> None:
             reason = " ".join(str(err).split())
@@ -174,9 +193,9 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.get_logger().warning(f"{name}: message refused: {reason}",
                                       throttle_duration_sec=5.0)
 
-        def _on_sensor(self, name: str, msg: Any, pubs: list[Any]) -> None:
+        def _on_sensor(self, name: str, stamp: int, msg: Any, pubs: list[Any]) -> None:
             try:
-                out = self.live.on_sensor(name, self._now(), msg.data)
+                out = self.live.on_sensor(name, stamp * 1e-9, msg.data)
                 if out is not None:
                     pubs[0].publish(Float64(data=out.strain))
                     pubs[1].publish(Int8(data=int(out.direction)))
@@ -184,9 +203,9 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 self._refuse(name, err)
             self._log_tare()
 
-        def _on_array(self, name: str, msg: Any, pubs: list[Any]) -> None:
+        def _on_array(self, name: str, stamp: int, msg: Any, pubs: list[Any]) -> None:
             try:
-                out = self.live.on_array(name, self._now(), msg.data,
+                out = self.live.on_array(name, stamp * 1e-9, msg.data,
                                          offset=msg.layout.data_offset,
                                          sizes=[d.size for d in msg.layout.dim])
                 if out is not None:
