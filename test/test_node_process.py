@@ -2,11 +2,11 @@
 ``compensator`` executable started with a params file, a second process playing a bag
 (``strain-comp play``), this process recording the outputs; start-up errors and signals.
 
-Playing uses ``--lockstep /s1/strain`` under sim time (each input waits for the previous
-answer, so each /clock tick is processed before its input): every strain must equal
-``strain-comp replay``'s (1e-9). Without sim time the node stamps inputs with the wall clock,
-so the bag is played at 10x speed (250 messages/s) through a memoryless (cubic) calibration, whose strain
-does not depend on the stamps: again every strain must equal replay's.
+Under sim time the bag is played with ``--clock --lockstep /s1/strain`` (a tick before each
+input, the next input after the answer): every strain must equal ``strain-comp replay``'s
+(1e-9). Without sim time the node stamps inputs with the wall clock, so the bag is played at
+10x speed (250 messages/s) through a memoryless (cubic) calibration, whose strain does not
+depend on the stamps: again every strain must equal replay's.
 """
 
 from __future__ import annotations
