@@ -147,6 +147,7 @@ class LiveCompensator:
                                      f"of {', '.join(missing)}")
         self._last_publish: dict[str, float] = {}
         self.temperature: dict[str, float] = {}
+        self._inputs = {i.name: i.sensors for i in params.inputs}
         self._recent = {i.name: _Recent(len(i.sensors)) for i in params.inputs}
         self._last_message: dict[str, float] = {}
         self._auto: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
@@ -176,8 +177,7 @@ class LiveCompensator:
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
                  sizes: list[int] | None = None) -> ArrayOutput | None:
         """Feed one array message (its ``data``, ``layout.data_offset``, ``dim[*].size``)."""
-        k = len(self.params.arrays[name])
-        values = array_values(data, offset, sizes or [], k)
+        values = array_values(data, offset, sizes or [], len(self._inputs[name]))
         out = self.engine.step_array(name, t, values)
         self._seen(name, t, values, out.status, out.direction)
         return out if self._due(name, t) else None
@@ -225,10 +225,6 @@ class LiveCompensator:
             del self._auto[sensor]
             self.tare_log.append(f"{sensor}: auto tare: rest resistance "
                                  f"{float(np.median(rest)):.6g} ohm, input gain {gain:.6g}")
-
-    @property
-    def _inputs(self) -> dict[str, tuple[str, ...]]:
-        return {i.name: i.sensors for i in self.params.inputs}
 
     def tare(self) -> str:
         """Make each sensor's current rest resistance its zero (all or none); the summary.

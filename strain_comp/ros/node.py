@@ -107,6 +107,9 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
 
     Parameters come from the node's overrides (params files, ``-p``, ``parameter_overrides``).
     """
+    from array import array
+
+    import numpy as np
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.clock import JumpThreshold
@@ -210,7 +213,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                                          sizes=[d.size for d in msg.layout.dim])
                 if out is not None:
                     for pub, values in zip(pubs, (out.strain, out.direction), strict=True):
-                        reply = Float64MultiArray(data=values.astype(float).tolist())
+                        reply = Float64MultiArray()
+                        reply.data = array("d", values.astype(np.float64).tobytes())
                         reply.layout.dim = [self.dims[name]]
                         pub.publish(reply)
             except Exception as err:  # a bad message must never stop the node
