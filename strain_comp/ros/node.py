@@ -155,10 +155,10 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                     kind, inp.topic,
                     lambda msg, n=inp.name, p=pubs, h=handler: self._arrive(n, h, msg, p),
                     qos_profile_sensor_data)
-                for sensor in inp.sensors:
+                if not inp.is_array:  # the array tick has no temperature input
                     self.create_subscription(
-                        Temperature, f"{sensor}/temperature",
-                        lambda msg, s=sensor: self.live.on_temperature(s, msg.temperature),
+                        Temperature, f"{inp.name}/temperature",
+                        lambda msg, s=inp.name: self.live.on_temperature(s, msg.temperature),
                         qos_profile_sensor_data)
                 models = ",".join(sorted({params.calibration.sensors[s].model
                                           for s in inp.sensors}))
