@@ -1,4 +1,8 @@
-"""ament_python package set-up; also installs with plain pip (pip install -e '.[test]')."""
+"""ament_python package set-up; also installs with plain pip (pip install -e '.[test,ros]').
+
+The ``ros`` extra pulls ROS 2 Jazzy's Python client and messages from PyPI (wheels), so the
+node runs, and its tests run, without a ROS installation.
+"""
 
 from glob import glob
 
@@ -31,7 +35,11 @@ setup(
         "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "ruff", "mypy>=1.16",
                  "types-PyYAML"],
         "fast": ["intel-cmplr-lib-rt"],
+        "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-std-msgs", "ros-jazzy-sensor-msgs",
+                "ros-jazzy-diagnostic-msgs", "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs",
+                "colcon-common-extensions", "ros-jazzy-ament-package"],
     },
+    scripts=["bin/compensator"],
     zip_safe=False,
     maintainer="strain_comp developers",
     maintainer_email="strain_comp@example.org",
@@ -40,7 +48,6 @@ setup(
     entry_points={
         "console_scripts": [
             "strain-comp = strain_comp.cli:main",
-            "compensator = strain_comp.ros.node:main",
         ],
     },
 )

@@ -1,15 +1,16 @@
 #!/usr/bin/env python3
 """Engine / node start-up time including numba compilation, cold and warm kernel cache.
 
-    python bench/bench_startup.py [--warm-runs 3] [--no-dds]
+    python bench/bench_startup.py [--warm-runs 3] [--no-node]
 
 1. Engine start-up, in a fresh ``python`` subprocess: import ``strain_comp``'s engine,
    load a calibration file (one APL sensor, one cubic sensor and a 16-sensor APL array,
    ``bench/_common.py``), build ``Engine``, ``warm_up()`` (compiles every kernel, as the
    node does at start-up) and the first ``step`` / ``step_array``. The
    child reports each phase; the total is the wall time from spawn to exit.
-2. DDS node start-up: ``python -m strain_comp.dds --params config/array_params.yaml``
-   (bundled 6-sensor APL array; Cyclone DDS on loopback) until it prints ``ready``.
+2. Node start-up: ``bin/compensator --ros-args --params-file config/array_params.yaml``
+   (the rclpy node, bundled 6-sensor APL array, discovery on this machine) until it logs
+   its ``ready:`` line.
 
 Cold: ``NUMBA_CACHE_DIR`` is a new, empty directory (every kernel compiled). Warm: the
 same directory again (kernels loaded from the cache). Baseline in the same run: the
@@ -53,12 +54,6 @@ engine.step_array("arr", 0.0, np.full(len(arr), 20.0))
 t4 = time.perf_counter()
 print(json.dumps({"import": t1 - t0, "build": t2 - t1, "warm_up": t3 - t2, "first": t4 - t3}))
 """
-DDS_XML = """<CycloneDDS xmlns="https://cdds.io/config"><Domain id="any">
-<General><Interfaces><NetworkInterface name="lo"/></Interfaces>
-<AllowMulticast>false</AllowMulticast></General>
-<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30
-</MaxAutoParticipantIndex><Peers><Peer address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>"""
 
 
 def engine_start(cal_path: Path, cache: Path) -> tuple[float, dict[str, float]]:
@@ -70,24 +65,25 @@ def engine_start(cal_path: Path, cache: Path) -> tuple[float, dict[str, float]]:
     return time.perf_counter() - start, json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def dds_start(cache: Path, xml: Path, domain: int) -> float:
-    """Wall s from spawn until the DDS node prints ``ready``."""
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "CYCLONEDDS_URI": xml.as_uri()}
+def node_start(cache: Path) -> float:
+    """Wall s from spawn until the node logs its ``ready:`` line."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(REPO),
+           "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+           "ROS_DOMAIN_ID": str(100 + os.getpid() % 50), "PYTHONUNBUFFERED": "1"}
     start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "strain_comp.dds", "--params",
-                             str(REPO / "config" / "array_params.yaml"), "--domain",
-                             str(domain), "--duration", "0.2"], env=env,
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, str(REPO / "bin" / "compensator"), "--ros-args",
+                             "--params-file", str(REPO / "config" / "array_params.yaml")],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        line = proc.stdout.readline().strip()
+        line = ""
+        while "ready:" not in line and proc.poll() is None:
+            line = proc.stdout.readline()
         ready = time.perf_counter() - start
-        proc.wait(timeout=60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    if line != "ready":
-        raise SystemExit(f"the DDS node did not start (printed {line!r})")
+        proc.terminate()
+        proc.wait(timeout=10)
+    if "ready:" not in line:
+        raise SystemExit("the node did not start")
     return ready
 
 
@@ -98,7 +94,7 @@ def median(values: list[float]) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--warm-runs", type=int, default=3)
-    parser.add_argument("--no-dds", action="store_true")
+    parser.add_argument("--no-node", action="store_true")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="strain_comp_startup_") as tmp:
         tmp_path = Path(tmp)
@@ -122,17 +118,14 @@ def main() -> None:
                   f"{phase['warm_up']:>9.2f}{phase['first'] * 1e3:>8.2f}ms")
         print(f"engine start-up ratio cold / warm: {rows[0][1] / rows[1][1]:.1f}x "
               f"(warm_up alone {rows[0][2]['warm_up'] / rows[1][2]['warm_up']:.0f}x)")
-        if args.no_dds:
+        if args.no_node:
             return
-        (tmp_path / "dds.xml").write_text(DDS_XML)
-        cache = tmp_path / "numba_dds"
+        cache = tmp_path / "numba_node"
         cache.mkdir()
-        domain = 100 + os.getpid() % 50
-        cold = dds_start(cache, tmp_path / "dds.xml", domain)
-        warm_dds = median([dds_start(cache, tmp_path / "dds.xml", domain)
-                           for _ in range(args.warm_runs)])
-        print(f"DDS node (config/array_params.yaml) spawn -> 'ready': cold {cold:.2f} s, "
-              f"warm {warm_dds:.2f} s; ratio cold / warm {cold / warm_dds:.1f}x")
+        cold = node_start(cache)
+        warm_node = median([node_start(cache) for _ in range(args.warm_runs)])
+        print(f"rclpy node (config/array_params.yaml) spawn -> 'ready:': cold {cold:.2f} s, "
+              f"warm {warm_node:.2f} s; ratio cold / warm {cold / warm_node:.1f}x")
 
 
 if __name__ == "__main__":

@@ -14,7 +14,9 @@ if (( quick )); then
   run bench/bench_array.py --seconds 5 --baseline-ticks 200
   run bench/bench_replay.py --messages 100000 --repeat 1
   run bench/bench_fit.py --samples 5000 --models apl,mpi,cubic,rational --naive-seconds 5
-  run bench/bench_startup.py --warm-runs 1 --no-dds
+  run bench/bench_startup.py --warm-runs 1 --no-node
+  run bench/bench_latency.py --messages 2000 --round-trips 200
+  run bench/bench_node_throughput.py --seconds 2 --rates 250,1000
 else
   run bench/bench_kernels.py
   run bench/bench_models.py
@@ -22,4 +24,6 @@ else
   run bench/bench_replay.py
   run bench/bench_fit.py
   run bench/bench_startup.py
+  run bench/bench_latency.py
+  run bench/bench_node_throughput.py
 fi

@@ -183,6 +183,16 @@ def cmd_node(args: argparse.Namespace) -> int:
     return node_main(["--ros-args", "--params-file", str(args.params)])
 
 
+def cmd_play(args: argparse.Namespace) -> int:
+    _existing(args.bag, "bag")
+    from strain_comp.ros.player import main as play_main
+
+    n = play_main(args.bag, clock=args.clock, rate=args.rate, topics=args.topic,
+                  lockstep=args.lockstep)
+    print(f"played {n} messages")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser; subcommand names and flags as docs/design.md fixes them."""
     parser = argparse.ArgumentParser(
@@ -248,6 +258,19 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("node", help="run the rclpy compensator node (as `ros2 run` does)")
     p.add_argument("--params", required=True, metavar="FILE", help="node parameter YAML")
     p.set_defaults(func=cmd_node)
+
+    p = sub.add_parser("play", help="publish a bag's messages over ROS 2 (ros2 bag play "
+                       "where ROS is installed)")
+    p.add_argument("bag", metavar="BAG.mcap")
+    p.add_argument("--clock", action="store_true",
+                   help="publish /clock with each message's log time (for use_sim_time)")
+    p.add_argument("--rate", type=float, default=1.0, metavar="X",
+                   help="speed factor (default 1; 0: as fast as possible)")
+    p.add_argument("--topic", action="append", metavar="TOPIC",
+                   help="play only this topic (repeatable; default all)")
+    p.add_argument("--lockstep", metavar="TOPIC",
+                   help="after each message wait for one message on TOPIC (the node's answer)")
+    p.set_defaults(func=cmd_play)
     return parser
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import cubic_cal
@@ -36,7 +37,7 @@ compensator:
 """)
     params = load_params(path)
     assert [(i.name, i.topic, i.sensors, i.is_array) for i in params.inputs] == [
-        ("left", "/left/resistance", ("left",), False), ("right", "/r/ohm", ("right",), False),
+        ("left", "left/resistance", ("left",), False), ("right", "/r/ohm", ("right",), False),
         ("hand", "/hand/resistance", ("c", "a"), True)]
     assert list(params.calibration.sensors) == ["left", "right", "c", "a"]
     assert params.calibration.sensors["left"].name == "left"  # one-sensor file takes the name
@@ -53,6 +54,15 @@ compensator:
      r"deadzone_scale: must be in \[0.01, 100.0\]"),
     ("sensors: [s1]\n    s1: {calibration: one.yaml}\n    dead_zone: 1.0",
      "dead_zone: unknown parameter"),
+    ("sensors: [s1]\n    s1: {calibration: one.yaml}\n    stale_afer_s: 1.0",
+     "stale_afer_s: unknown parameter; did you mean 'stale_after_s'"),
+    ("sensors: [s1]\n    s1: {calibration: one.yaml}\n    s2: {calibration: one.yaml}",
+     "'s2' is not listed in 'sensors' or 'arrays'"),
+    ("sensors: s1", "sensors: must be a list of names"),
+    ("sensors: [s1]\n    s1: {calibration: one.yaml}\n    stale_after_s: soon",
+     "stale_after_s: must be a number"),
+    ("sensors: [s1]\n    s1: {calibration: one.yaml}\n    tare: later",
+     "tare: must be one of calibration, auto"),
     ("arrays: [h]\n    h: {sensors: [a, x], calibration: arr.yaml}",
      "sensor 'x' is not in the calibration"),
     ("sensors: []", "nothing to compensate"),
@@ -65,6 +75,16 @@ def test_bad_params_give_one_clear_error(tmp_path: Path, body: str, match: str) 
     assert str(path) in str(info.value) or "missing.yaml" in str(info.value)
 
 
+def test_integers_accepted_for_floats_and_paths_beside_the_file(tmp_path: Path,
+                                                                monkeypatch: Any) -> None:
+    path = setup_files(tmp_path, "compensator:\n  ros__parameters:\n    sensors: [s1]\n"
+                                 "    s1: {calibration: one.yaml}\n    stale_after_s: 2\n")
+    monkeypatch.chdir(Path(__file__).parent)
+    params = load_params(path)
+    assert params.tunables["stale_after_s"] == 2.0
+    assert params.inputs[0].calibration_path == tmp_path / "one.yaml"
+
+
 def test_file_structure_errors(tmp_path: Path) -> None:
     path = tmp_path / "p.yaml"
     path.write_text("a: {ros__parameters: {}}\nb: {ros__parameters: {}}\n")
@@ -74,7 +94,7 @@ def test_file_structure_errors(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="ros__parameters"):
         load_params(path)
     path.write_text(": : :")
-    with pytest.raises(InputError, match="cannot read"):
+    with pytest.raises(InputError, match="not a YAML params file"):
         load_params(path)
 
 

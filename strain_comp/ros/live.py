@@ -1,26 +1,137 @@
-"""What a live transport does with each message, free of any transport.
+"""What the live node does with each message, free of any transport.
 
-The rclpy node and the DDS transport both hold one ``LiveCompensator``: it builds the
-engine from validated node parameters, compiles its kernels at start-up (not on the first
-message), applies the publish-rate limit and tunable changes, and turns health into
-diagnostic statuses. The transports only move bytes, so a bag replayed through the node
-logic gives exactly what ``replay`` gives.
+The rclpy node holds one ``LiveCompensator``: it builds the engine from validated node
+parameters, compiles its kernels at start-up (not on the first message), reads a
+Float64MultiArray's layout, applies the publish-rate limit and tunable changes, keeps the
+recent good samples the tare needs, and turns health into diagnostic statuses. The node
+only moves messages, so a bag played through it gives what ``replay`` gives.
+
+Time: every input is stamped with the node's clock when its callback runs (std_msgs/Float64
+and Float64MultiArray carry no stamp): ROS time, i.e. /clock under ``use_sim_time``. Under
+sim time a player publishes a /clock tick before each input, but the two travel on different
+topics and may arrive in either order; ``ClockGate`` therefore holds an input whose clock
+reading equals the previous input's stamp until the next tick (one held input per topic),
+so the input takes its own tick's time either way.
+
+Tare (multiplicative, ``Engine.tare``): the zero is a rest resistance R0 measured now, the
+models then see R x (calibration rest resistance / R0).
+
+- ``tare()`` (the node's ``~/tare`` service): R0 = median of each sensor's good samples of the
+  last ``TARE_WINDOW_S`` seconds; all sensors or none (a refusal names each reason).
+- ``tare: auto`` (parameter): R0 = median of the good samples, taken while the direction
+  detector says hold, of the first ``AUTO_TARE_S`` seconds after a sensor's first good sample;
+  the window restarts if it holds fewer than ``AUTO_TARE_MIN`` such samples. Until then the
+  calibration's zero is used.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from strain_comp.core.engine import ArrayOutput, Engine, SensorOutput, diagnostics
-from strain_comp.errors import ParameterError
+from strain_comp.core.conversion import divider_to_resistance
+from strain_comp.core.engine import USED, ArrayOutput, Engine, SensorOutput, Status, diagnostics
+from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
+
+TARE_WINDOW_S = 0.5
+"""``~/tare``: the rest resistance is the median of the good samples of this last span [s]."""
+AUTO_TARE_S = 2.0
+"""``tare: auto``: length of the first rest window [s]."""
+AUTO_TARE_MIN = 5
+"""``tare: auto``: fewest hold samples a window needs."""
+RING = 4096
+"""Recent samples kept per input for the tare."""
+BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
+              Status.TIME_NOT_INCREASING: "time not increasing",
+              Status.OPEN_CIRCUIT: "open circuit", Status.SHORT_CIRCUIT: "short circuit"}
+ERROR, STALE, WARN, OK = 2, 3, 1, 0
+
+
+def array_values(data: Any, offset: int, sizes: list[int], k: int) -> np.ndarray:
+    """The k values of a Float64MultiArray: ``data[offset:offset + dim[0].size]``.
+
+    InputError with the reason when the layout does not describe k values inside ``data``.
+    """
+    values = np.asarray(data, dtype=np.float64)
+    size = sizes[0] if sizes else values.size - offset
+    if sizes and size != k:
+        raise InputError(f"layout dim[0].size {size} != {k} sensors")
+    if offset < 0 or offset + size > values.size:
+        raise InputError(f"layout data_offset {offset} + size {size} exceeds the "
+                         f"{values.size} values")
+    if size != k:
+        raise InputError(f"expected {k} values, got {size}")
+    return values[offset:offset + k]
+
+
+class ClockGate:
+    """Under sim time: an input whose clock reading [ns] equals the previous input's stamp on
+    the same topic waits for the next clock tick; a second such input releases the first at
+    the unchanged time (it then counts as time-not-increasing, as it would without the gate).
+    """
+
+    def __init__(self) -> None:
+        self.last: dict[str, int] = {}
+        self.held: dict[str, Any] = {}
+
+    def arrive(self, name: str, now_ns: int, item: Any) -> list[tuple[int, Any]]:
+        """(stamp, item) pairs to process now, in order."""
+        out = []
+        if name in self.held:
+            out.append((now_ns, self.held.pop(name)))
+        elif self.last.get(name) == now_ns:
+            self.held[name] = item
+            return out
+        self.last[name] = now_ns
+        out.append((now_ns, item))
+        return out
+
+    def tick(self, now_ns: int) -> list[tuple[int, Any]]:
+        """The clock moved to ``now_ns``: the held inputs to process now, stamped with it."""
+        out = [(now_ns, item) for item in self.held.values()]
+        for name in self.held:
+            self.last[name] = now_ns
+        self.held.clear()
+        return out
+
+
+@dataclass
+class _Recent:
+    """Ring of an input's latest raw samples (columns: its sensors) and their used flags."""
+
+    k: int
+    t: np.ndarray = field(init=False)
+    raw: np.ndarray = field(init=False)
+    good: np.ndarray = field(init=False)
+    hold: np.ndarray = field(init=False)
+    n: int = 0
+
+    def __post_init__(self) -> None:
+        self.t = np.full(RING, -math.inf)
+        self.raw = np.zeros((RING, self.k))
+        self.good = np.zeros((RING, self.k), dtype=bool)
+        self.hold = np.zeros((RING, self.k), dtype=bool)
+
+    def add(self, t: float, raw: np.ndarray, status: np.ndarray, direction: np.ndarray) -> None:
+        i = self.n % RING
+        self.t[i], self.raw[i] = t, raw
+        self.good[i] = status == Status.GOOD
+        self.hold[i] = self.good[i] & (direction == 0)
+        self.n += 1
+
+    def since(self, t0: float, column: int, *, hold: bool = False) -> np.ndarray:
+        """Raw values of ``column`` with time >= t0 that were good (and at rest if ``hold``)."""
+        mask = (self.t >= t0) & (self.hold if hold else self.good)[:, column]
+        return self.raw[mask, column]
 
 
 class LiveCompensator:
-    """One engine plus the per-input publish bookkeeping of a live node."""
+    """One engine plus the per-input bookkeeping of a live node."""
 
     def __init__(self, params: NodeParams, *, warm_up: bool = True) -> None:
         self.params = params
@@ -28,9 +139,24 @@ class LiveCompensator:
         self.engine: Engine = params.build_engine()
         if warm_up:
             self.engine.warm_up()
+        if params.tare == "auto":
+            missing = [n for n, c in params.calibration.sensors.items()
+                       if c.rest_resistance is None]
+            if missing:
+                raise ParameterError("tare", f"auto needs 'rest_resistance' in the calibration "
+                                     f"of {', '.join(missing)}")
         self._last_publish: dict[str, float] = {}
         self.temperature: dict[str, float] = {}
-        self.n_errors = 0
+        self._inputs = {i.name: i.sensors for i in params.inputs}
+        self._recent = {i.name: _Recent(len(i.sensors)) for i in params.inputs}
+        self._last_message: dict[str, float] = {}
+        self._auto: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
+                                        if params.tare == "auto" else {})
+        self.refused: Counter[str] = Counter()
+        self._refused_seen = 0
+        self.tare_log: list[str] = []
+
+    # --- messages -------------------------------------------------------------------------
 
     def _due(self, name: str, t: float) -> bool:
         """Publish-rate limit on message time: at most one output per 1/rate seconds."""
@@ -44,16 +170,90 @@ class LiveCompensator:
     def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
         """Feed one resistance message; the output to publish, or None (rate limited)."""
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
+        self._seen(name, t, np.array([value]), np.array([out.status]),
+                   np.array([out.direction]))
         return out if self._due(name, t) else None
 
-    def on_array(self, name: str, t: float, values: Any) -> ArrayOutput | None:
-        """Feed one array message (values in the array's sensor order)."""
-        out = self.engine.step_array(name, t, np.asarray(values, dtype=np.float64))
+    def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
+                 sizes: list[int] | None = None) -> ArrayOutput | None:
+        """Feed one array message (its ``data``, ``layout.data_offset``, ``dim[*].size``)."""
+        values = array_values(data, offset, sizes or [], len(self._inputs[name]))
+        out = self.engine.step_array(name, t, values)
+        self._seen(name, t, values, out.status, out.direction)
         return out if self._due(name, t) else None
+
+    def refuse(self, name: str, reason: str) -> None:
+        """Count a message that could not be handled, by input and reason."""
+        self.refused[f"{name}: {reason}"] += 1
 
     def on_temperature(self, name: str, value: float) -> None:
         """Remember a sensor's latest temperature [deg C] for its effect terms."""
         self.temperature[name] = float(value)
+
+    def _seen(self, name: str, t: float, raw: np.ndarray, status: np.ndarray,
+              direction: np.ndarray) -> None:
+        recent = self._recent[name]
+        recent.add(t, raw, status, direction)
+        self._last_message[name] = t
+        if self._auto:
+            self._auto_tare(name, t, recent, status)
+
+    # --- tare -----------------------------------------------------------------------------
+
+    def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
+        cal = self.params.calibration.sensors[sensor]
+        if cal.input.kind == "divider":
+            return divider_to_resistance(raw, float(cal.input.r1), float(cal.input.vin))
+        return raw
+
+    def _auto_tare(self, name: str, t: float, recent: _Recent, status: np.ndarray) -> None:
+        for column, sensor in enumerate(self._inputs[name]):
+            start = self._auto.get(sensor)
+            if start is None:
+                continue
+            if math.isnan(start):
+                if status[column] == Status.GOOD:
+                    self._auto[sensor] = t
+                continue
+            if t - start < AUTO_TARE_S:
+                continue
+            rest = self._ohm(sensor, recent.since(start, column, hold=True))
+            if rest.size < AUTO_TARE_MIN:
+                self._auto[sensor] = t  # not enough rest: try the next window
+                continue
+            gain = self.engine.tare(sensor, float(np.median(rest)))
+            del self._auto[sensor]
+            self.tare_log.append(f"{sensor}: auto tare: rest resistance "
+                                 f"{float(np.median(rest)):.6g} ohm, input gain {gain:.6g}")
+
+    def tare(self) -> str:
+        """Make each sensor's current rest resistance its zero (all or none); the summary.
+
+        ParameterError naming every sensor that cannot be tared (no rest resistance in its
+        calibration, no good sample in the last ``TARE_WINDOW_S``); the gains then stay.
+        """
+        rests: dict[str, float] = {}
+        problems = []
+        for name, sensors in self._inputs.items():
+            recent = self._recent[name]
+            latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
+            for column, sensor in enumerate(sensors):
+                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column))
+                if self.params.calibration.sensors[sensor].rest_resistance is None:
+                    problems.append(f"{sensor}: the calibration stores no rest_resistance")
+                elif values.size == 0:
+                    problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
+                else:
+                    rests[sensor] = float(np.median(values))
+        if problems:
+            raise ParameterError("tare", "refused: " + "; ".join(problems))
+        for sensor, rest in rests.items():
+            self.engine.tare(sensor, rest)
+            self._auto.pop(sensor, None)
+        return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
+                                    for s, r in rests.items())
+
+    # --- parameters -----------------------------------------------------------------------
 
     def check_tunable(self, name: str, value: Any) -> float:
         """The validated value; ParameterError if out of range, unknown or read-only."""
@@ -73,11 +273,53 @@ class LiveCompensator:
         elif name == "stale_after_s":
             self.engine.stale_after = value
 
+    def reload(self, params: NodeParams) -> LiveCompensator:
+        """A new LiveCompensator on ``params``'s calibration with this one's tunables.
+
+        Model state restarts and the input gains return to 1 (a new calibration brings its
+        own zero; ``tare: auto`` tares again). StrainCompError if the new one cannot run.
+        """
+        params.tunables = dict(self.tunables)
+        fresh = LiveCompensator(params)
+        if [i.sensors for i in params.inputs] != [i.sensors for i in self.params.inputs]:
+            raise StrainCompError("the reloaded calibration changes the sensors")
+        return fresh
+
+    # --- diagnostics ----------------------------------------------------------------------
+
     def diagnostics(self, now: float) -> list[tuple[str, int, str, dict[str, str]]]:
-        """Per-sensor statuses at clock time ``now`` [s] (plus the transport's own)."""
-        statuses = diagnostics(self.engine.health(now))
-        level = 1 if self.n_errors else 0
-        statuses.append(("strain_comp: transport", level,
-                         f"{self.n_errors} messages could not be handled" if self.n_errors
-                         else "ok", {"n_errors": str(self.n_errors)}))
-        return statuses
+        """Statuses at clock time ``now`` [s]: one per sensor, then the transport's.
+
+        A sensor is ERROR with the reason while its latest sample is bad (e.g. "non-finite
+        input"), STALE when no message arrived for ``stale_after_s``, else as the engine says.
+        The transport is WARN while messages were refused since the previous call.
+        """
+        stale_after = self.tunables["stale_after_s"]
+        out = []
+        health = self.engine.health(now)
+        last_message = {s: self._last_message.get(i.name) for i in self.params.inputs
+                        for s in i.sensors}
+        for name, level, message, values in diagnostics(health):
+            sensor = name.split(": ", 1)[1]
+            h = health[sensor]
+            last = last_message.get(sensor)
+            silent = last is None or now - last > stale_after
+            if h.last_status is not None and h.last_status not in USED and not silent:
+                level, message = ERROR, f"{BAD_REASON[h.last_status]}: estimate held"
+            elif silent and last is not None:
+                level, message = STALE, f"no input for more than {stale_after:g} s"
+            cal = self.params.calibration.sensors[sensor]
+            gain = self.engine.input_gain(sensor)
+            values["input_gain"] = repr(gain)
+            values["rest_resistance"] = ("none" if cal.rest_resistance is None
+                                         else repr(cal.rest_resistance / gain))
+            values["model"] = cal.model
+            out.append((name, level, message, values))
+        total = sum(self.refused.values())
+        recent, self._refused_seen = total - self._refused_seen, total
+        reasons = {f"refused[{k}]": str(v) for k, v in sorted(self.refused.items())}
+        worst = self.refused.most_common(1)[0][0] if self.refused else ""
+        out.append(("strain_comp: transport", WARN if recent else OK,
+                    f"{recent} messages refused recently (most: {worst})" if recent else "ok",
+                    {"n_refused": str(total), "n_refused_recent": str(recent), **reasons}))
+        return out

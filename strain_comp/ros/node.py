@@ -1,125 +1,234 @@
-"""The rclpy node (thin): ROS topics and parameters around a ``LiveCompensator``.
+"""The rclpy node (thin): ROS topics, services and parameters around a ``LiveCompensator``.
 
 ``ros2 run strain_comp compensator --ros-args --params-file config/compensator_params.yaml``.
 Parameters as in ``strain_comp.ros.params`` (structural ones read-only, tunables ranged and
-validated on change); inputs with sensor-data QoS; message time from the node clock, so
-``use_sim_time`` works with ``ros2 bag play --clock``. rclpy is imported only here, lazily.
+validated, integers accepted for floats); inputs with sensor-data QoS, topic names resolved
+in the node's namespace, ``/diagnostics`` absolute; services ``~/tare`` and
+``~/reload_calibration`` (std_srvs/Trigger). Each input is stamped with the node clock when
+its callback runs, so ``use_sim_time`` follows /clock.
+
+Start-up problems (params file missing or not YAML, no block for the node's name, a bad or
+unknown parameter, a missing calibration) print one line ``compensator: ...`` and exit 2.
+SIGINT / SIGTERM exit 0 at any moment: during start-up at once, while spinning after a clean
+shutdown bounded by ``SHUTDOWN_S``. Only the standard library is imported at module level, so
+the signal handlers are in place before anything slow is imported.
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
-from functools import partial
+import threading
+from pathlib import Path
 from typing import Any
 
-from strain_comp.errors import ParameterError, StrainCompError
-from strain_comp.ros.params import TUNABLE, TUNABLES, ParamSpec, parse_values, structural_specs
+NODE_NAME = "compensator"
+SHUTDOWN_S = 1.5
+"""Longest clean shutdown after SIGINT/SIGTERM before the process exits regardless [s]."""
+EXIT_BAD_INPUT = 2
+_stop = threading.Event()
 
-# what handling one message can raise: the engine's input errors, and a message of the
-# wrong shape or type (no ``data`` field, values that do not convert to float, a wrong
-# array length)
-_MESSAGE_ERRORS = (StrainCompError, ArithmeticError, ValueError, TypeError, LookupError,
-                   AttributeError)
+# what handling one message or service call can raise: the engine's input errors, and a
+# message of the wrong shape or type (no ``data`` field, values that do not convert to float,
+# a wrong array length)
+_MESSAGE_ERRORS = (ArithmeticError, ValueError, TypeError, LookupError, AttributeError)
 
 
-def _descriptor(spec: ParamSpec) -> Any:
+def _exit_now(signum: int, frame: Any) -> None:
+    os._exit(0)
+
+
+def _request_stop(signum: int, frame: Any) -> None:
+    _stop.set()
+    watchdog = threading.Timer(SHUTDOWN_S, os._exit, args=(0,))
+    watchdog.daemon = True
+    watchdog.start()
+
+
+def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
+    """(params files, node name, namespace) from the ``--ros-args`` part of ``args``."""
+    files: list[Path] = []
+    name, namespace = NODE_NAME, "/"
+    inside = False
+    it = iter(args)
+    for arg in it:
+        if arg == "--ros-args":
+            inside = True
+        elif arg == "--":
+            inside = False
+        elif inside and arg == "--params-file":
+            files.append(Path(next(it, "")))
+        elif inside and arg in ("-r", "--remap"):
+            rule = next(it, "")
+            if ":=" in rule:
+                key, value = rule.split(":=", 1)
+                key = key.split(":", 1)[-1] if key.count(":") == 1 else key
+                if key == "__node" or key == "__name":
+                    name = value
+                elif key == "__ns":
+                    namespace = value
+    return files, name, namespace
+
+
+def check_params_files(files: list[Path], name: str, namespace: str) -> Path | None:
+    """The folder of the last params file holding a block for the node (relative calibration
+    paths resolve there); StrainCompError naming the file when a file cannot be used."""
+    from strain_comp.errors import InputError
+    from strain_comp.ros.params import block_names, read_blocks
+
+    base = None
+    for path in files:
+        blocks = read_blocks(path)
+        if any(b in blocks for b in block_names(name, namespace)):
+            base = path.resolve().parent
+        elif name != NODE_NAME or len(files) == 1:
+            fqn = f"{namespace.rstrip('/')}/{name}"
+            raise InputError(f"{path}: no parameters for node {fqn!r} (the file holds: "
+                             f"{', '.join(blocks)}); name a block '{fqn}' or '/**/{name}'")
+    return base
+
+
+def _descriptor(spec: Any) -> Any:
     from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType
 
-    kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
+    kinds = {"string": ParameterType.PARAMETER_STRING,
              "string_array": ParameterType.PARAMETER_STRING_ARRAY}
-    descriptor = ParameterDescriptor(name=spec.name, type=kinds[spec.type],
-                                     description=spec.description, read_only=spec.read_only)
+    descriptor = ParameterDescriptor(name=spec.name, description=spec.description,
+                                     read_only=spec.read_only)
+    if spec.type == "double":  # integers accepted too: the value is checked on change
+        descriptor.dynamic_typing = True
+    else:
+        descriptor.type = kinds[spec.type]
     if spec.range is not None:
         descriptor.floating_point_range = [FloatingPointRange(
             from_value=float(spec.range[0]), to_value=float(spec.range[1]), step=0.0)]
     return descriptor
 
 
-def create_node(node_name: str = "compensator", **node_options: Any) -> Any:
-    """Build the node (rclpy must be initialised); StrainCompError on bad parameters."""
+def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
+                **node_options: Any) -> Any:
+    """Build the node (rclpy must be initialised); StrainCompError on bad parameters.
+
+    Parameters come from the node's overrides (params files, ``-p``, ``parameter_overrides``).
+    """
+    from array import array
+
+    import numpy as np
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
+    from rclpy.clock import JumpThreshold
+    from rclpy.duration import Duration
     from rclpy.node import Node
-    from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Temperature
     from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension
+    from std_srvs.srv import Trigger
 
-    from strain_comp.ros.live import LiveCompensator
+    from strain_comp.errors import ParameterError, StrainCompError
+    from strain_comp.ros.live import ClockGate, LiveCompensator
+    from strain_comp.ros.params import ROS_OWNED, TUNABLE, parse_values, structural_specs
 
     class CompensatorNode(Node):
         def __init__(self) -> None:
             super().__init__(node_name, **node_options)
-            flat = self._declare(structural_specs([], []))
-            specs = structural_specs(flat.get("sensors", []), flat.get("arrays", []))
-            flat.update(self._declare(specs[2:] + list(TUNABLES)))
-            self.live = LiveCompensator(parse_values(flat))  # warms the kernels up
-            for inp in self.live.params.inputs:
-                if inp.is_array:
-                    k = len(inp.sensors)
-                    dim = MultiArrayDimension(label=",".join(inp.sensors), size=k, stride=k)
-                    pubs = [self.create_publisher(Float64MultiArray, f"/{inp.name}/{what}", 10)
-                            for what in ("strain", "direction")]
+            self.flat = {k: p.value for k, p in self._parameter_overrides.items()
+                         if k.split(".")[0] not in ROS_OWNED}
+            self.base_dir = base_dir
+            self.gate = ClockGate()
+            self._jump = self.get_clock().create_jump_callback(
+                JumpThreshold(min_forward=Duration(nanoseconds=1), min_backward=None,
+                              on_clock_change=False), post_callback=self._on_tick)
+            self.live = LiveCompensator(parse_values(self.flat, base_dir=base_dir))
+            params = self.live.params
+            names = [i.name for i in params.inputs]
+            for spec in structural_specs([i.name for i in params.inputs if not i.is_array],
+                                         [i.name for i in params.inputs if i.is_array]):
+                value = self.flat.get(spec.name, spec.default)
+                self.declare_parameter(spec.name, value, _descriptor(spec), ignore_override=True)
+            for name, value in params.tunables.items():
+                self.declare_parameter(name, value, _descriptor(TUNABLE[name]),
+                                       ignore_override=True)
+            ready = []
+            for inp in params.inputs:
+                kind = Float64MultiArray if inp.is_array else Float64
+                pubs = [self.create_publisher(kind, f"{inp.name}/strain", 10),
+                        self.create_publisher(Float64MultiArray if inp.is_array else Int8,
+                                              f"{inp.name}/direction", 10)]
+                handler = self._on_array if inp.is_array else self._on_sensor
+                sub = self.create_subscription(
+                    kind, inp.topic,
+                    lambda msg, n=inp.name, p=pubs, h=handler: self._arrive(n, h, msg, p),
+                    qos_profile_sensor_data)
+                if not inp.is_array:  # the array tick has no temperature input
                     self.create_subscription(
-                        Float64MultiArray, inp.topic,
-                        partial(self._on_array, inp.name, pubs=pubs, dim=dim),
+                        Temperature, f"{inp.name}/temperature",
+                        lambda msg, s=inp.name: self.live.on_temperature(s, msg.temperature),
                         qos_profile_sensor_data)
-                else:
-                    pubs = [self.create_publisher(Float64, f"/{inp.name}/strain", 10),
-                            self.create_publisher(Int8, f"/{inp.name}/direction", 10)]
-                    self.create_subscription(
-                        Float64, inp.topic,
-                        partial(self._on_sensor, inp.name, pubs=pubs),
-                        qos_profile_sensor_data)
-                for sensor in inp.sensors:
-                    self.create_subscription(
-                        Temperature, f"/{sensor}/temperature",
-                        partial(self._on_temperature, sensor),
-                        qos_profile_sensor_data)
+                models = ",".join(sorted({params.calibration.sensors[s].model
+                                          for s in inp.sensors}))
+                ready.append(f"{inp.name} [{','.join(inp.sensors)}] ({models}) "
+                             f"{sub.topic_name} -> {pubs[0].topic_name}")
+            self.dims = {i.name: MultiArrayDimension(label=",".join(i.sensors),
+                                                     size=len(i.sensors), stride=len(i.sensors))
+                         for i in params.inputs if i.is_array}
             self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
             self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
             self.add_on_set_parameters_callback(self._on_set)
+            self.create_service(Trigger, "~/tare", self._tare)
+            self.create_service(Trigger, "~/reload_calibration", self._reload)
+            self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
+                                   + f"; tare {params.tare}")
 
-        def _declare(self, specs: list[ParamSpec]) -> dict[str, Any]:
-            values = {}
-            for spec in specs:
-                default = (Parameter.Type.STRING_ARRAY if spec.type == "string_array"
-                           else Parameter.Type.STRING if spec.type == "string" else spec.default)
-                value = self.declare_parameter(spec.name, default, _descriptor(spec)).value
-                if value is not None and value != "":
-                    values[spec.name] = list(value) if spec.type == "string_array" else value
-            return values
+        def _arrive(self, name: str, handler: Any, msg: Any, pubs: list[Any]) -> None:
+            clock = self.get_clock()
+            now = clock.now().nanoseconds
+            if not clock.ros_time_is_active:
+                handler(name, now, msg, pubs)
+                return
+            for stamp, (h, m, p) in self.gate.arrive(name, now, (handler, msg, pubs)):
+                h(name, stamp, m, p)
 
-        def _now(self) -> float:
-            return self.get_clock().now().nanoseconds * 1e-9
+        def _on_tick(self, jump: Any) -> None:
+            now = self.get_clock().now().nanoseconds
+            names = list(self.gate.held)
+            for name, (stamp, (h, m, p)) in zip(names, self.gate.tick(now), strict=True):
+                h(name, stamp, m, p)
 
-        def _guard(self, name: str, err: Exception) -> None:
-            self.live.n_errors += 1
-            self.get_logger().warning(f"{name}: message not handled: {err}",
+        def _refuse(self, name: str, err: Exception) -> None:
+            reason = " ".join(str(err).split())
+            self.live.refuse(name, reason)
+            self.get_logger().warning(f"{name}: message refused: {reason}",
                                       throttle_duration_sec=5.0)
 
-        def _on_temperature(self, name: str, msg: Any) -> None:
-            self.live.on_temperature(name, msg.temperature)
-
-        def _on_sensor(self, name: str, msg: Any, pubs: list[Any]) -> None:
+        def _on_sensor(self, name: str, stamp: int, msg: Any, pubs: list[Any]) -> None:
             try:
-                out = self.live.on_sensor(name, self._now(), msg.data)
+                out = self.live.on_sensor(name, stamp * 1e-9, msg.data)
                 if out is not None:
                     pubs[0].publish(Float64(data=out.strain))
-                    pubs[1].publish(Int8(data=out.direction))
-            except _MESSAGE_ERRORS as err:  # a bad message must never stop the node
-                self._guard(name, err)
+                    pubs[1].publish(Int8(data=int(out.direction)))
+            except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
+                self._refuse(name, err)
+            self._log_tare()
 
-        def _on_array(self, name: str, msg: Any, pubs: list[Any], dim: Any) -> None:
+        def _on_array(self, name: str, stamp: int, msg: Any, pubs: list[Any]) -> None:
             try:
-                out = self.live.on_array(name, self._now(), list(msg.data))
+                out = self.live.on_array(name, stamp * 1e-9, msg.data,
+                                         offset=msg.layout.data_offset,
+                                         sizes=[d.size for d in msg.layout.dim])
                 if out is not None:
                     for pub, values in zip(pubs, (out.strain, out.direction), strict=True):
-                        msg = Float64MultiArray(data=[float(v) for v in values])
-                        msg.layout.dim = [dim]
-                        pub.publish(msg)
-            except _MESSAGE_ERRORS as err:  # a bad message must never stop the node
-                self._guard(name, err)
+                        reply = Float64MultiArray()
+                        reply.data = array("d", values.astype(np.float64).tobytes())
+                        reply.layout.dim = [self.dims[name]]
+                        pub.publish(reply)
+            except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
+                self._refuse(name, err)
+            self._log_tare()
+
+        def _log_tare(self) -> None:
+            while self.live.tare_log:
+                self.get_logger().info(self.live.tare_log.pop(0))
 
         def _diagnostics(self) -> None:
             now = self.get_clock().now()
@@ -143,29 +252,79 @@ def create_node(node_name: str = "compensator", **node_options: Any) -> Any:
                 return SetParametersResult(successful=False, reason=str(err))
             return SetParametersResult(successful=True)
 
+        def _tare(self, request: Any, response: Any) -> Any:
+            try:
+                response.message = self.live.tare()
+                response.success = True
+                self.get_logger().info(response.message)
+            except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
+                response.success, response.message = False, " ".join(str(err).split())
+            return response
+
+        def _reload(self, request: Any, response: Any) -> Any:
+            try:
+                self.live = self.live.reload(parse_values(self.flat, base_dir=self.base_dir))
+                response.success = True
+                response.message = "reloaded " + ", ".join(
+                    str(i.calibration_path) for i in self.live.params.inputs)
+                self.get_logger().info(response.message)
+            except (StrainCompError, OSError, *_MESSAGE_ERRORS) as err:
+                response.success = False
+                response.message = ("refused, the old calibration keeps running: "
+                                    + " ".join(str(err).split()))
+            return response
+
     return CompensatorNode()
 
 
 def main(args: list[str] | None = None) -> int:
-    """``compensator`` console script: spin the node until shutdown."""
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
+    """``compensator``: spin the node until SIGINT/SIGTERM or shutdown, then exit 0; returns
+    ``EXIT_BAD_INPUT`` when the node cannot start."""
+    signal.signal(signal.SIGINT, _exit_now)
+    signal.signal(signal.SIGTERM, _exit_now)
+    argv = list(sys.argv if args is None else args)
+    # rclpy's own argument and parameter-file errors (RCLError is a RuntimeError), and what
+    # reading a params file can raise
+    start_errors: tuple[type[Exception], ...] = (RuntimeError, ValueError, TypeError, OSError)
+    try:
+        from strain_comp.errors import StrainCompError
 
-    rclpy.init(args=args)
-    try:
-        node = create_node()
+        files, name, namespace = ros_arguments(argv)
+        base_dir = check_params_files(files, name, namespace)
+        import rclpy
+        from rclpy.exceptions import ParameterException
+        from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        start_errors = (*start_errors, ParameterException)
+
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+        node = create_node(name, base_dir=base_dir)
     except StrainCompError as err:
-        print(f"compensator: {err}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
+        where = f"{files[-1]}: " if files and not str(err).startswith(str(files[-1])) else ""
+        print(f"{NODE_NAME}: {where}" + " ".join(str(err).split()), file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except start_errors as err:
+        print(f"{NODE_NAME}: cannot start: " + " ".join(str(err).split()[:40]), file=sys.stderr)
+        return EXIT_BAD_INPUT
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        while not _stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        signal.signal(signal.SIGINT, _exit_now)
+        signal.signal(signal.SIGTERM, _exit_now)
+        executor.shutdown(timeout_sec=0.5)
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)  # the interpreter's own teardown of the DDS library can take over a second
 
 
 if __name__ == "__main__":

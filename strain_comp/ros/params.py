@@ -1,29 +1,34 @@
-"""Node parameters: the ``<node>: ros__parameters:`` YAML shared by the rclpy node and DDS.
+"""Node parameters: the ``<node>: ros__parameters:`` YAML of the rclpy node.
 
 ```yaml
 compensator:
   ros__parameters:
     sensors: [s1, s2]                 # read-only: one entry per single sensor
-    s1: {topic: /s1/resistance, calibration: demo_calibration.yaml}
-    s2: {calibration: s2.yaml}        # topic defaults to /s2/resistance
+    s1: {topic: s1/resistance, calibration: demo_calibration.yaml}
+    s2: {calibration: s2.yaml}        # topic defaults to s2/resistance
     arrays: [hand]                    # read-only: multi-sensor array topics
-    hand: {topic: /hand/resistance, sensors: [a, b, c], calibration: hand.yaml}
+    hand: {topic: hand/resistance, sensors: [a, b, c], calibration: hand.yaml}
+    tare: calibration                 # read-only: calibration | auto
     deadzone_scale: 1.0               # tunables: see TUNABLES
 ```
 
 The layout imitates ros2_controllers' per-sensor maps: a list of names, then one map per
-name. Structural parameters (names, topics, calibration paths) are read-only; tunables
-have a type, a range and a description in one table (``TUNABLES``) that the rclpy node
-turns into ParameterDescriptors and the DDS transport uses to validate.
+name. Structural parameters (names, topics, calibration paths, tare mode) are read-only;
+tunables have a type, a range and a description in one table (``TUNABLES``) that the node
+turns into ParameterDescriptors. Topic names follow ROS name resolution: relative names
+(the defaults) resolve in the node's namespace. Integers are accepted where a float is
+expected (ROS users write ``2`` for ``2.0``). An unknown key is refused with the closest
+valid name.
 
-A relative calibration path resolves against the params file's directory (when known),
-then the working directory, then the installed package share directory (its ``config/``
+A relative calibration path resolves against the params file's directory (when known,
+else the working directory), then the installed package share directory (its ``config/``
 too) and the source checkout; a calibration file must name the sensor, unless it holds
 exactly one sensor, which then takes the name from the params file.
 """
 
 from __future__ import annotations
 
+import difflib
 import os
 import sys
 from collections.abc import Mapping
@@ -67,6 +72,9 @@ TUNABLES: tuple[ParamSpec, ...] = (
               "Period of the /diagnostics publication [s].", True),
 )
 TUNABLE = {spec.name: spec for spec in TUNABLES}
+TARE_MODES = ("calibration", "auto")
+"""``tare``: ``calibration`` uses the calibration as fitted (input gain 1); ``auto`` takes the
+rest resistance from the first seconds of good samples at rest (``strain_comp.ros.live``)."""
 ROS_OWNED = ("use_sim_time", "qos_overrides", "start_type_description_service")
 """Parameters ROS itself declares; accepted in a params file and ignored here."""
 
@@ -76,14 +84,17 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
     specs = [ParamSpec("sensors", "string_array", [], None,
                        "Names of single sensors, each with a NAME.* map.", True),
              ParamSpec("arrays", "string_array", [], None,
-                       "Names of sensor arrays, each with a NAME.* map.", True)]
+                       "Names of sensor arrays, each with a NAME.* map.", True),
+             ParamSpec("tare", "string", "calibration", None,
+                       "calibration: the calibrated zero; auto: the rest resistance of the "
+                       "first seconds at rest becomes the zero.", True)]
     for name in sensors:
-        specs += [ParamSpec(f"{name}.topic", "string", f"/{name}/resistance", None,
+        specs += [ParamSpec(f"{name}.topic", "string", f"{name}/resistance", None,
                             "Input topic (std_msgs/Float64, ohm or divider volts).", True),
                   ParamSpec(f"{name}.calibration", "string", "", None,
                             "Calibration YAML of this sensor.", True)]
     for name in arrays:
-        specs += [ParamSpec(f"{name}.topic", "string", f"/{name}/resistance", None,
+        specs += [ParamSpec(f"{name}.topic", "string", f"{name}/resistance", None,
                             "Input topic (std_msgs/Float64MultiArray), one value per sensor.",
                             True),
                   ParamSpec(f"{name}.sensors", "string_array", [], None,
@@ -124,6 +135,7 @@ class NodeParams:
     inputs: list[InputTopic]
     calibration: Calibration
     tunables: dict[str, float] = field(default_factory=dict)
+    tare: str = "calibration"
 
     @property
     def arrays(self) -> dict[str, list[str]]:
@@ -166,11 +178,12 @@ def share_dirs() -> list[Path]:
 
 
 def resolve_path(value: str, base_dir: Path | None) -> Path:
-    """A calibration path: absolute, or relative to base_dir, cwd, share dir (+ config/)."""
+    """A calibration path: absolute, or relative to base_dir (else cwd), then the share dir
+    (+ config/)."""
     path = Path(os.path.expanduser(value))
     if path.is_absolute():
         return path
-    bases = ([base_dir] if base_dir is not None else []) + [Path.cwd()]
+    bases = [base_dir if base_dir is not None else Path.cwd()]
     for share in share_dirs():
         bases += [share, share / "config"]
     for base in bases:
@@ -215,13 +228,15 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     known = {spec.name for spec in structural_specs(sensors, arrays)} | set(TUNABLE)
     for key in flat:
         if key not in known and key.split(".")[0] not in ROS_OWNED:
-            raise ParameterError(key, f"unknown parameter (sensors: {sensors}, "
-                                      f"arrays: {arrays})")
+            raise ParameterError(key, unknown_hint(key, known, sensors + arrays))
+    tare = _string(flat, "tare", "calibration")
+    if tare not in TARE_MODES:
+        raise ParameterError("tare", f"must be one of {', '.join(TARE_MODES)}, got {tare!r}")
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
     for name, is_array in [(n, False) for n in sensors] + [(n, True) for n in arrays]:
-        topic = _string(flat, f"{name}.topic", f"/{name}/resistance")
+        topic = _string(flat, f"{name}.topic", f"{name}/resistance")
         path = resolve_path(_string(flat, f"{name}.calibration"), base_dir)
         if path not in loaded:
             loaded[path] = load_calibration(path)
@@ -239,7 +254,41 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
         raise ParameterError("topic", f"two inputs share a topic: {topics}")
     tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
                 for spec in TUNABLES}
-    return NodeParams(inputs, Calibration(merged), tunables)
+    return NodeParams(inputs, Calibration(merged), tunables, tare)
+
+
+def unknown_hint(key: str, known: set[str], names: list[str]) -> str:
+    """'unknown parameter' with the closest valid name, or the missing list entry."""
+    head = key.split(".")[0]
+    if "." in key and head not in names:
+        return (f"unknown parameter: {head!r} is not listed in 'sensors' or 'arrays' "
+                f"(listed: {', '.join(names) or 'none'})")
+    close = difflib.get_close_matches(key, sorted(known), n=1)
+    return "unknown parameter" + (f"; did you mean {close[0]!r}?" if close else "")
+
+
+def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A params file's top-level node blocks (names without a leading '/'); InputError naming
+    the file when it is missing, unreadable, not YAML or not a mapping of blocks."""
+    path = Path(path)
+    try:
+        root = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise InputError(f"{path}: cannot read params file: {err.strerror or err}") from None
+    except (UnicodeDecodeError, yaml.YAMLError) as err:
+        raise InputError(f"{path}: not a YAML params file: "
+                         + " ".join(str(err).split())) from None
+    if not isinstance(root, Mapping) or not root:
+        raise InputError(f"{path}: must be a mapping '<node>: ros__parameters: ...'")
+    return {str(k).lstrip("/"): v for k, v in root.items()}
+
+
+def block_names(node_name: str, namespace: str = "/") -> list[str]:
+    """The block keys (without a leading '/') that address a node as rcl matches them: its
+    fully qualified name, ``**/NAME``, ``NAMESPACE/*``, ``**``."""
+    ns = namespace.strip("/")
+    fqn = f"{ns}/{node_name}" if ns else node_name
+    return [fqn, f"**/{node_name}", f"{ns}/*" if ns else "*", "**"]
 
 
 def load_params(path: str | os.PathLike[str], *, node_name: str | None = None) -> NodeParams:
@@ -249,13 +298,7 @@ def load_params(path: str | os.PathLike[str], *, node_name: str | None = None) -
     (``/**`` wildcard blocks are merged under it). Errors name the file.
     """
     path = Path(path)
-    try:
-        root = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise InputError(f"{path}: cannot read params file: {err}") from None
-    if not isinstance(root, Mapping) or not root:
-        raise InputError(f"{path}: must be a mapping '<node>: ros__parameters: ...'")
-    blocks = {str(k).lstrip("/"): v for k, v in root.items()}
+    blocks = read_blocks(path)
     wildcard = blocks.pop("**", {})
     if node_name is None:
         if len(blocks) > 1:

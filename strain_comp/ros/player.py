@@ -1,0 +1,133 @@
+"""``strain-comp play``: publish a bag's messages over ROS 2 at their recorded times.
+
+For machines without rosbag2 (where ROS is installed, ``ros2 bag play`` is the tool). Each
+message goes out as its recorded CDR bytes on its recorded topic and type; the first one at
+once, every later one at ``(log time - first log time) / rate`` after it. With ``clock``, a
+rosgraph_msgs/Clock carrying the message's log time is published on /clock just before each
+message, so a node with ``use_sim_time`` stamps the input with its recorded time.
+
+``lockstep=TOPIC``: after each message, wait (at most ``LOCKSTEP_TIMEOUT_S``) for one message
+on TOPIC (the node's answer) before the next one, instead of keeping the recorded pace: what
+a test or an offline comparison needs, as nothing then queues up in the node. Playing waits
+for every played topic to have a subscriber (at most ``wait_s``) before the first message.
+"""
+
+from __future__ import annotations
+
+import importlib
+import struct
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+
+from strain_comp.errors import BagError
+
+LOCKSTEP_TIMEOUT_S = 1.0
+
+
+@dataclass(frozen=True)
+class PlayedMessage:
+    topic: str
+    type_name: str
+    log_time_ns: int
+    data: bytes
+
+
+def bag_messages(path: str | Path, topics: list[str] | None = None) -> list[PlayedMessage]:
+    """A bag's CDR messages in log-time order (only ``topics`` when given)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as stream:
+            out = [PlayedMessage(channel.topic, schema.name, message.log_time, message.data)
+                   for schema, channel, message in make_reader(stream).iter_messages(
+                       topics=topics, log_time_order=True)
+                   if schema is not None and channel.message_encoding == "cdr"]
+    except OSError as err:
+        raise BagError(f"{path}: cannot read bag: {err.strerror or err}") from None
+    except (McapError, struct.error, ValueError, UnicodeDecodeError) as err:
+        raise BagError(f"{path}: not a readable MCAP bag: {err}") from None
+    if not out:
+        raise BagError(f"{path}: no CDR messages" + (f" on {', '.join(topics)}" if topics else ""))
+    return out
+
+
+def message_class(type_name: str) -> Any:
+    """The Python class of a ROS type name such as ``std_msgs/msg/Float64``."""
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def _wait(node: Any, executor: Any, ready: Any, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not ready():
+        if time.monotonic() > deadline:
+            return False
+        executor.spin_once(timeout_sec=0.01)
+    return True
+
+
+def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
+         topics: list[str] | None = None, lockstep: str | None = None,
+         wait_s: float = 10.0) -> int:
+    """Play the bag (rclpy must be initialised); the number of messages published."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+
+    messages = bag_messages(path, topics)
+    node = Node("strain_comp_player")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    pubs = {}
+    for m in messages:
+        if m.topic not in pubs:
+            pubs[m.topic] = node.create_publisher(message_class(m.type_name), m.topic, 100)
+    clock_pub = node.create_publisher(Clock, "/clock", 100) if clock else None
+    answers = [0]
+    try:
+        if lockstep is not None:
+            if not _wait(node, executor, lambda: lockstep in dict(node.get_topic_names_and_types()),
+                         wait_s):
+                raise BagError(f"lockstep topic {lockstep} does not appear within {wait_s} s")
+            kind = message_class(dict(node.get_topic_names_and_types())[lockstep][0])
+            node.create_subscription(kind, lockstep,
+                                     lambda _msg: answers.__setitem__(0, answers[0] + 1), 100)
+            if not _wait(node, executor, lambda: node.count_publishers(lockstep) > 0, wait_s):
+                raise BagError(f"no publisher on {lockstep} within {wait_s} s")
+        for topic, pub in pubs.items():
+            if not _wait(node, executor, lambda p=pub: p.get_subscription_count() > 0, wait_s):
+                raise BagError(f"no subscriber on {topic} within {wait_s} s")
+        time.sleep(0.2)  # let the subscribers' matching of the publishers complete too
+        t0_ns, start = messages[0].log_time_ns, time.monotonic()
+        for m in messages:
+            if lockstep is None and rate > 0:
+                delay = start + (m.log_time_ns - t0_ns) * 1e-9 / rate - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            if clock_pub is not None:
+                stamp = Clock()
+                stamp.clock.sec, stamp.clock.nanosec = divmod(m.log_time_ns, 1_000_000_000)
+                clock_pub.publish(stamp)
+            expected = answers[0] + 1
+            pubs[m.topic].publish(m.data)
+            if lockstep is not None:
+                _wait(node, executor, lambda e=expected: answers[0] >= e, LOCKSTEP_TIMEOUT_S)
+    finally:
+        executor.shutdown(timeout_sec=0.5)
+        node.destroy_node()
+    return len(messages)
+
+
+def main(path: str | Path, **options: Any) -> int:
+    """``strain-comp play``: init rclpy, play, shut down; the messages published."""
+    import rclpy
+
+    rclpy.init()
+    try:
+        return play(path, **options)
+    finally:
+        rclpy.try_shutdown()

@@ -1,0 +1,87 @@
+"""The node's per-message logic without ROS: clock gate, array layout, tare, diagnostics."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_engine import cubic_cal
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.errors import InputError, ParameterError
+from strain_comp.ros.live import AUTO_TARE_S, ClockGate, LiveCompensator, array_values
+from strain_comp.ros.params import parse_values
+
+
+def live(tmp_path: Path, *, tare: str = "calibration",
+         rest: float | None = 150.0) -> LiveCompensator:
+    from strain_comp.core.calibration import save_calibration
+
+    save_calibration(Calibration({"s1": replace(cubic_cal("s1"), rest_resistance=rest)}),
+                     tmp_path / "c.yaml")
+    return LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml",
+                                         "tare": tare}, base_dir=tmp_path), warm_up=False)
+
+
+def test_clock_gate_gives_each_input_its_own_tick() -> None:
+    gate = ClockGate()
+    assert gate.arrive("a", 10, "x") == [(10, "x")]
+    assert gate.arrive("a", 10, "y") == []            # arrived before its tick: held
+    assert gate.tick(20) == [(20, "y")]                # its tick releases it
+    assert gate.arrive("a", 30, "z") == [(30, "z")]    # tick first: processed at once
+    assert gate.arrive("a", 30, "u") == []
+    assert gate.arrive("a", 30, "v") == [(30, "u"), (30, "v")]  # as if there were no gate
+    assert gate.arrive("b", 30, "w") == [(30, "w")]    # topics are independent
+
+
+def test_array_layout() -> None:
+    np.testing.assert_array_equal(array_values([9, 1, 2, 3], 1, [3], 3), [1, 2, 3])
+    np.testing.assert_array_equal(array_values([1, 2, 3], 0, [], 3), [1, 2, 3])
+    for data, offset, sizes, match in (([1, 2], 0, [], "expected 3 values, got 2"),
+                                       ([1, 2, 3], 0, [2], r"dim\[0\].size 2 != 3"),
+                                       ([1, 2, 3], 1, [3], "exceeds the 3 values")):
+        with pytest.raises(InputError, match=match):
+            array_values(data, offset, sizes, 3)
+
+
+def test_tare_takes_the_recent_median_all_or_nothing(tmp_path: Path) -> None:
+    node = live(tmp_path)
+    with pytest.raises(ParameterError, match="no good sample"):
+        node.tare()
+    for i, r in enumerate([100.0, 160.0, 161.0, math.nan, 159.0]):
+        node.on_sensor("s1", 10.0 + 0.2 * i, r)
+    node.tare()  # the good samples of the last 0.5 s: 161, 159
+    assert node.engine.input_gain("s1") == pytest.approx(150.0 / 160.0)
+    values = node.diagnostics(10.5)[0][3]
+    assert float(values["rest_resistance"]) == pytest.approx(160.0)
+    assert live(tmp_path, rest=None).engine.input_gain("s1") == 1.0
+    bare = live(tmp_path, rest=None)
+    bare.on_sensor("s1", 1.0, 150.0)
+    with pytest.raises(ParameterError, match="stores no rest_resistance"):
+        bare.tare()
+
+
+def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
+    node = live(tmp_path, tare="auto")
+    t = np.arange(0.0, AUTO_TARE_S + 0.5, 0.01)
+    for ti in t:
+        node.on_sensor("s1", float(ti), 140.0)
+    assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
+    assert node.tare_log and "auto tare" in node.tare_log[0]
+    with pytest.raises(ParameterError, match="auto needs 'rest_resistance'"):
+        live(tmp_path, tare="auto", rest=None)
+
+
+def test_diagnostics_error_stale_and_transport_recovery(tmp_path: Path) -> None:
+    node = live(tmp_path)
+    node.on_sensor("s1", 1.0, 150.0)
+    node.on_sensor("s1", 1.1, math.nan)
+    status = node.diagnostics(1.2)
+    assert status[0][1:3] == (2, "non-finite input: estimate held")
+    assert node.diagnostics(5.0)[0][1] == 3  # no input at all for longer than stale_after_s
+    node.refuse("s1", "bad")
+    assert node.diagnostics(5.0)[-1][1] == 1
+    assert node.diagnostics(5.1)[-1][1:3] == (0, "ok")
