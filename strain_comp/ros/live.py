@@ -203,7 +203,7 @@ class LiveCompensator:
     def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
         cal = self.params.calibration.sensors[sensor]
         if cal.input.kind == "divider":
-            return divider_to_resistance(raw, float(cal.input.r1), float(cal.input.vin))
+            return divider_to_resistance(raw, *cal.input.divider())
         return raw
 
     def _auto_tare(self, name: str, t: float, recent: _Recent, status: np.ndarray) -> None:

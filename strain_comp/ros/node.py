@@ -20,6 +20,8 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -117,7 +119,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     import numpy as np
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
-    from rclpy.clock import JumpThreshold
+    from rclpy.clock import JumpThreshold, ROSClock
     from rclpy.duration import Duration
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
@@ -157,14 +159,12 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                                               f"{inp.name}/direction", 10)]
                 handler = self._on_array if inp.is_array else self._on_sensor
                 sub = self.create_subscription(
-                    kind, inp.topic,
-                    lambda msg, n=inp.name, p=pubs, h=handler: self._arrive(n, h, msg, p),
+                    kind, inp.topic, self._receiver(inp.name, handler, pubs),
                     qos_profile_sensor_data)
                 if not inp.is_array:  # the array tick has no temperature input
                     self.create_subscription(
                         Temperature, f"{inp.name}/temperature",
-                        lambda msg, s=inp.name: self.live.on_temperature(s, msg.temperature),
-                        qos_profile_sensor_data)
+                        partial(self._on_temperature, inp.name), qos_profile_sensor_data)
                 models = ",".join(sorted({params.calibration.sensors[s].model
                                           for s in inp.sensors}))
                 ready.append(f"{inp.name} [{','.join(inp.sensors)}] ({models}) "
@@ -180,10 +180,18 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
                                    + f"; tare {params.tare}")
 
+        def _receiver(self, name: str, handler: Any, pubs: list[Any]) -> Callable[[Any], None]:
+            def receive(msg: Any) -> None:
+                self._arrive(name, handler, msg, pubs)
+            return receive
+
+        def _on_temperature(self, sensor: str, msg: Any) -> None:
+            self.live.on_temperature(sensor, msg.temperature)
+
         def _arrive(self, name: str, handler: Any, msg: Any, pubs: list[Any]) -> None:
             clock = self.get_clock()
             now = clock.now().nanoseconds
-            if not clock.ros_time_is_active:
+            if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
                 handler(name, now, msg, pubs)
                 return
             for stamp, (h, m, p) in self.gate.arrive(name, now, (handler, msg, pubs)):
