@@ -35,7 +35,6 @@ from __future__ import annotations
 import math
 import os
 import stat
-import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,6 +46,7 @@ from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.atomic import write_text
+from strain_comp.io.safe_yaml import LimitError, load_limited
 from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float
 
@@ -307,98 +307,18 @@ class _Reader:
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 
-class _LimitError(Exception):
-    """A limit of the module docstring was exceeded while composing the YAML."""
-
-
-class _LimitedLoader(yaml.SafeLoader):
-    """yaml.SafeLoader that counts aliases and nesting while it composes, and refuses
-    integers that no float can hold."""
-
-    def __init__(self, stream: str) -> None:
-        super().__init__(stream)
-        self.n_aliases = 0
-        self.depth = 0
-
-    def compose_node(self, parent: Any, index: Any) -> Any:
-        if self.check_event(yaml.AliasEvent):
-            self.n_aliases += 1
-            if self.n_aliases > MAX_ALIASES:
-                raise _LimitError(f"more than {MAX_ALIASES} YAML aliases")
-        self.depth += 1
-        try:
-            if self.depth > MAX_DEPTH:
-                raise _LimitError(f"nested more than {MAX_DEPTH} deep")
-            return super().compose_node(parent, index)
-        finally:
-            self.depth -= 1
-
-    def construct_yaml_int(self, node: Any) -> int:
-        try:
-            value = super().construct_yaml_int(node)
-        except ValueError:  # beyond Python's digit limit for int()
-            value = None
-        if value is None or abs(value) > sys.float_info.max:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"integer {node.value[:20]!r}... beyond float range"
-                if len(node.value) > 20 else f"integer {node.value!r} beyond float range",
-                node.start_mark)
-        return value
-
-
-_LimitedLoader.add_constructor("tag:yaml.org,2002:int", _LimitedLoader.construct_yaml_int)
-
-
-def _check_expansion(root: yaml.Node) -> None:
-    """_LimitError when ``root`` with every alias expanded holds more than MAX_NODES values
-    or is nested more than MAX_DEPTH deep (iterative: no recursion on hostile input)."""
-    size: dict[int, int] = {}
-    depth: dict[int, int] = {}
-    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
-    while stack:
-        node, done = stack.pop()
-        key = id(node)
-        if key in size and not done:
-            continue
-        children: list[yaml.Node] = []
-        if isinstance(node, yaml.SequenceNode):
-            children = list(node.value)
-        elif isinstance(node, yaml.MappingNode):
-            children = [n for pair in node.value for n in pair]
-        if not done:
-            size[key] = -1  # in progress
-            stack.append((node, True))
-            stack.extend((c, False) for c in children if id(c) not in size)
-            continue
-        size[key] = 1 + sum(size[id(c)] for c in children)
-        depth[key] = 1 + max((depth[id(c)] for c in children), default=0)
-        if size[key] > MAX_NODES:
-            raise _LimitError(f"more than {MAX_NODES} values once YAML aliases are expanded")
-        if depth[key] > MAX_DEPTH:
-            raise _LimitError(f"nested more than {MAX_DEPTH} deep once YAML aliases are "
-                              "expanded")
-
-
 def _parse_yaml(reader: _Reader, text: str) -> Any:
     """The YAML document in ``text`` within the limits; CalibrationError otherwise."""
-    loader = None
     try:
-        loader = _LimitedLoader(text)
-        node = loader.get_single_node()
-        if node is None:
-            return None
-        _check_expansion(node)
-        return loader.construct_document(node)
-    except _LimitError as err:
+        return load_limited(text, max_aliases=MAX_ALIASES, max_nodes=MAX_NODES,
+                            max_depth=MAX_DEPTH)
+    except LimitError as err:
         raise reader.fail("yaml", f"refused: {err}") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "yaml"
         problem = getattr(err, "problem", None) or str(err).splitlines()[0]
         raise reader.fail(where, f"not valid YAML: {problem}") from None
-    finally:
-        if loader is not None:
-            loader.dispose()
 
 
 def _read_text(reader: _Reader, path: str | os.PathLike[str]) -> str:

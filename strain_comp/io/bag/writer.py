@@ -61,7 +61,8 @@ def _ns(t: npt.ArrayLike) -> np.ndarray:
 def _cdr_rows(header_and_prefix: bytes, values: np.ndarray) -> np.ndarray:
     """(n, len(prefix) + row bytes) uint8 payloads: a constant prefix, then the values."""
     prefix = np.frombuffer(header_and_prefix, dtype=np.uint8)
-    body = np.ascontiguousarray(values).view(np.uint8).reshape(values.shape[0], -1)
+    width = values.dtype.itemsize * int(np.prod(values.shape[1:]))
+    body = np.ascontiguousarray(values).view(np.uint8).reshape(values.shape[0], width)
     rows = np.empty((values.shape[0], prefix.size + body.shape[1]), np.uint8)
     rows[:, :prefix.size] = prefix
     rows[:, prefix.size:] = body
