@@ -93,7 +93,8 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
     calibration file) is refused before anything is read."""
-    check_output(out_path, [in_path, *inputs])
+    protected = [in_path, *inputs]
+    check_output(out_path, protected)
     contents = read_bag(in_path)
     inputs = _inputs(contents, calibration)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
@@ -130,7 +131,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                  "(STALE in /diagnostics)" for s in calibration.sensors if s not in replayed]
     n_out = 0
     written: set[str] = {"/diagnostics"}
-    with BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
+    with BagWriter(out_path, inputs=protected) as writer:
         for inp in inputs:
             full = {s: _concat(results[s]) for s in inp.sensors}
             for what in OUTPUTS:
