@@ -270,10 +270,11 @@ from strain_comp.io.bag import BagWriter
 target, first = sys.argv[1], int(sys.argv[2])
 t = np.arange(200_000) * 0.01
 k = first
-print("ready", flush=True)
 while True:
     with BagWriter(target) as writer:
         writer.write_float64("/s1/resistance", t, 10.0 + k % 2 + np.sin(t))
+    if k == first:
+        print("ready", flush=True)  # compiled and written once: kills land in the loop
     k += 1
 """
 
@@ -297,13 +298,13 @@ def test_a_killed_bag_writer_leaves_the_old_or_the_new_bag(tmp_path: Path) -> No
     target.parent.mkdir()
     write_version(target, 0)
     rng = np.random.default_rng(11)
-    for _ in range(6):
+    for _ in range(3):
         child = subprocess.Popen([sys.executable, "-c", BAG_WRITER, str(target),
                                   str(int(rng.integers(0, 2)))], stdout=subprocess.PIPE,
                                  text=True, env=ENV)
         try:
             assert child.stdout.readline().strip() == "ready"
-            time.sleep(float(rng.uniform(0.0, 1.5)))  # one bag takes ~0.3 s
+            time.sleep(float(rng.uniform(0.0, 0.8)))  # one bag takes ~0.3 s
         finally:
             child.send_signal(signal.SIGKILL)
             child.wait(timeout=30)
@@ -323,7 +324,7 @@ def test_a_killed_replay_leaves_the_old_or_the_complete_new_output(work: Path,
     new = out.read_bytes()
     old = b"previous complete output"
     rng = np.random.default_rng(3)
-    for _ in range(3):
+    for _ in range(2):
         out.write_bytes(old)
         child = subprocess.Popen([sys.executable, "-m", "strain_comp.cli", "replay",
                                   str(work / "sim.mcap"), "--calibration",
@@ -341,7 +342,7 @@ import numpy as np
 from strain_comp.io.bag import BagWriter
 target, k = sys.argv[1], int(sys.argv[2])
 t = np.arange(100_000) * 0.01
-for _ in range(8):
+for _ in range(4):
     with BagWriter(target) as writer:
         writer.write_float64("/s1/resistance", t, 10.0 + k + np.sin(t))
 """
@@ -458,7 +459,7 @@ def perturb(value: object, rng: np.random.Generator) -> object:
     return value
 
 
-@settings(max_examples=30, deadline=None, derandomize=True,
+@settings(max_examples=25, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(model=st.sampled_from(MODEL_NAMES), seed=st.integers(0, 2**32 - 1),
        n_effects=st.integers(0, 4), log_r=st.lists(st.floats(-300, 300), min_size=5,
