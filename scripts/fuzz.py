@@ -13,10 +13,19 @@
   every ``--replay-every``-th readable input is also replayed, which may raise only
   ``BagError``.
 
+* **cli**: random ``strain-comp`` command lines built from the real subcommands and flags
+  (``node`` excepted), with hostile values (wrong types, huge and negative numbers, unknown
+  options) and hostile files (empty, random bytes, non-UTF-8, "billion laughs" and deeply
+  nested YAML, a FIFO, a directory, symbolic, hard and looping links, a rosbag2 directory
+  whose metadata leaves it, ``/dev/null``) as inputs and as outputs. Every run must exit
+  0, 2 or 130 with no traceback and exactly one ``strain-comp: error:`` line when it fails,
+  and leave every input file byte for byte as it was. Runs that reach the command line's
+  last-resort frame ("unexpected ...") are listed: they keep the contract but are faults.
+
 Anything else is a crash: the input and its traceback are saved under ``--out``. Inputs
 that take longer than ``--timeout`` seconds count as hangs (saved too).
 
-    python scripts/fuzz.py --seconds 120 [--target yaml|bag|all] [--seed 0] [--out DIR]
+    python scripts/fuzz.py --seconds 120 [--target yaml|bag|cli|all] [--seed 0] [--out DIR]
 """
 
 from __future__ import annotations
@@ -340,6 +349,239 @@ def fuzz_bag(seeds: list[bytes], calibration: Calibration | None, rng: np.random
     return run_target(stats, make, check, work / "bag.mcap", **limits)
 
 
+
+# ---------------------------------------------------------------- command line
+
+NUMBERS = ["0", "1", "3", "-1", "2.5", "1e12", "1e400", "-1e400", "nan", "inf", "abc", "",
+           "9223372036854775807", "9223372036854775808", "0x10", "1_000"]
+OPTION_VALUES = ["abc", "2.5", "3", "11", "-1", "0", "1e400", "[0.1, 0.3]", "[]", "true",
+                 "null", "split", "combined", "free", "{a: 1}", "", "[1, [2]]", "&a [*a]"]
+OPTION_KEYS = ["N", "M", "mode", "k_sigma", "deadzone", "tau", "n_cells", "max_nfev",
+               "hold_rate", "min_hold", "sigma_grid", "p_grid", "refine", "eps", "ridge",
+               "output_nfev", "search_nfev", "search_top", "cell_weights", "progress",
+               "bogus", ""]
+FAST_CELLS = ["sigma_grid=[0.03]", "p_grid=[1.0]", "refine=false", "progress=false"]
+COMMANDS = ("simulate", "import-csv", "fit", "evaluate", "replay", "diagnose")
+"""``node`` is left out: with a valid parameter file it starts the node and runs forever."""
+
+
+def hostile_files(work: Path, fitted: dict[str, SensorCalibration]) -> dict[str, list[Path]]:
+    """Input files by kind under ``work/in`` (good ones and hostile ones) and output paths
+    under ``work/out`` (fresh, and ones that must be refused: FIFO, directory, symbolic
+    link, device)."""
+    import os
+
+    from strain_comp.offline.rig import write_sim_bag
+
+    ins, outs = work / "in", work / "out"
+    ins.mkdir(parents=True)
+    outs.mkdir()
+    bag = ins / "good.mcap"
+    write_sim_bag(simulate("triangle", seed=1, duration=20.0), bag)
+    cal = ins / "cal.yaml"
+    save_calibration(Calibration({"s1": fitted["cubic"]}), cal)
+    csv = ins / "good.csv"
+    csv.write_text("t,r,s\n" + "".join(f"{k * 0.1},{10 + (k % 50) * 0.1},{k % 50}\n"
+                                        for k in range(300)))
+    (ins / "empty").write_bytes(b"")
+    (ins / "random.bin").write_bytes(np.random.default_rng(7).bytes(4096))
+    (ins / "latin1.yaml").write_bytes(b"format: \xff\xfe\n")
+    (ins / "laughs.yaml").write_text("a: &a [x,x,x,x,x,x,x,x,x,x]\n" + "".join(
+        f"{c}: &{c} [{', '.join([f'*{p}'] * 10)}]\n"
+        for p, c in zip("abcdefgh", "bcdefghi", strict=True)))
+    (ins / "deep.yaml").write_text("[" * 2000 + "]" * 2000)
+    (ins / "bigint.yaml").write_text("format: strain_comp/calibration/v1\nsensors: {s1: {"
+                                     "model: {name: cubic, params: {c: [1" + "0" * 400 +
+                                     ", 0, 0, 0]}}}}\n")
+    os.mkfifo(ins / "fifo")
+    (ins / "dir").mkdir()
+    os.symlink(bag, ins / "link.mcap")
+    os.link(bag, ins / "hard.mcap")
+    os.symlink(ins / "loop", ins / "loop")
+    rosbag = ins / "rosbag2"
+    rosbag.mkdir()
+    (rosbag / "metadata.yaml").write_text("rosbag2_bagfile_information:\n"
+                                          "  relative_file_paths: [../good.mcap, 7]\n")
+    os.mkfifo(outs / "fifo")
+    (outs / "dir").mkdir()
+    os.symlink(outs / "target", outs / "link")
+    inputs = [bag, cal, csv, *(ins / n for n in ("empty", "random.bin", "latin1.yaml",
+              "laughs.yaml", "deep.yaml", "bigint.yaml", "fifo", "dir", "link.mcap",
+              "hard.mcap", "loop", "missing")), rosbag, Path("/dev/null")]
+    fresh = [outs / f"new{k}{ext}" for k, ext in enumerate([".mcap", ".yaml", ".json", ""])]
+    refused = [outs / "fifo", outs / "dir", outs / "link", Path("/dev/null")]
+    return {"bag": [bag] * 4 + inputs, "cal": [cal] * 4 + inputs, "csv": [csv] * 4 + inputs,
+            "out": fresh * 3 + refused + inputs}
+
+
+def random_argv(rng: np.random.Generator, files: dict[str, list[Path]]
+                ) -> tuple[list[str], list[str]]:
+    """A command line built from the real subcommands and flags with hostile values, and
+    the paths it names as inputs."""
+    from strain_comp.offline.rig import SCENARIOS
+
+    def pick(pool: list[Any]) -> str:
+        return str(pool[int(rng.integers(0, len(pool)))])
+
+    def maybe(p: float = 0.8) -> bool:
+        return bool(rng.random() < p)
+
+    command = pick(list(COMMANDS))
+    argv = [command]
+    inputs: list[str] = []
+
+    def pick_input(kind: str) -> str:
+        inputs.append(pick(files[kind]))
+        return inputs[-1]
+
+    if command == "simulate":
+        argv += ["--scenario", pick([*SCENARIOS, "nope"])] if maybe(0.9) else []
+        argv += ["--out", pick(files["out"])] if maybe(0.9) else []
+        argv += ["--seed", pick(NUMBERS)] if maybe(0.5) else []
+        argv += ["--duration", pick([*NUMBERS, "5", "30", "1e7"])] if maybe(0.8) else []
+        for _ in range(int(rng.integers(0, 3))):
+            argv += ["--effect", pick(["drift", "noise", "crosstalk", "adc_bits", "nope"])
+                     + "=" + pick(NUMBERS)]
+        argv += ["--list"] if maybe(0.05) else []
+    elif command == "import-csv":
+        argv += [pick_input("csv")]
+        argv += ["--out", pick(files["out"])] if maybe(0.9) else []
+        argv += ["--sensor", pick(["s1", "a/b", "", "all"])] if maybe(0.9) else []
+        argv += ["--format", pick(["generic", "fiber", "cb_pdms", "xls"])] if maybe(0.9) else []
+        argv += ["--columns", pick(["time=0,resistance=1,strain=2", "time=t,resistance=r",
+                                    "time=9", "x", "time=0,resistance=0"])] if maybe() else []
+        argv += ["--gauge-length-mm", pick(NUMBERS)] if maybe(0.3) else []
+    elif command == "fit":
+        argv += [pick_input("bag") for _ in range(int(rng.integers(1, 3)))]
+        model = pick([*MODEL_NAMES, "quintic"])
+        argv += ["--model", model] if maybe(0.95) else []
+        argv += ["--sensor", pick(["all", "s1", "nope"])] if maybe(0.9) else []
+        argv += ["--out", pick(files["out"])] if maybe(0.9) else []
+        if model in ("apl", "pl", "mpi"):  # keep a grid search short
+            argv += [x for o in FAST_CELLS for x in ("--option", o)]
+        for _ in range(int(rng.integers(0, 3))):
+            argv += ["--option", pick(OPTION_KEYS) + pick(["=", "=", ""]) + pick(OPTION_VALUES)]
+    elif command in ("evaluate", "replay", "diagnose"):
+        argv += [pick_input("bag")]
+        argv += ["--calibration", pick_input("cal")] if maybe(0.9) else []
+        if command == "replay" or (command == "diagnose" and maybe(0.9)):
+            argv += ["--out", pick(files["out"])]
+        if command != "replay":
+            argv += ["--json", pick(files["out"])] if maybe(0.4) else []
+            argv += ["--plots", pick(files["out"])] if maybe(0.1) else []
+        if command == "diagnose" and maybe(0.3):
+            argv += ["--validate", pick_input("bag")]
+    if maybe(0.05):
+        argv.insert(int(rng.integers(0, len(argv) + 1)), pick(["--bogus", "-x", "--", "-"]))
+    return argv, inputs
+
+
+def _digest(paths: list[str]) -> dict[str, bytes]:
+    """The SHA-256 of every regular file among ``paths`` (and inside a directory among them)."""
+    import hashlib
+    import os
+
+    found: dict[str, bytes] = {}
+    for name in paths:
+        path = Path(name)
+        if not os.path.exists(path):
+            continue
+        for p in [path, *(sorted(path.rglob("*")) if path.is_dir() else [])]:
+            if p.is_file():
+                found[str(p)] = hashlib.sha256(p.read_bytes()).digest()
+    return found
+
+
+def _restore(directory: Path, pristine: dict[Path, bytes]) -> None:
+    """Put ``directory``'s regular files back as they were (a run may legitimately write
+    over a file it does not read) and delete the files it created."""
+    for p in directory.rglob("*"):
+        if p.is_file() and not p.is_symlink() and p not in pristine:
+            p.unlink()
+    for p, data in pristine.items():
+        if p.read_bytes() != data:
+            p.write_bytes(data)
+
+
+def check_cli(argv: list[str], inputs: list[str]) -> tuple[int, str]:
+    """Run ``strain-comp argv`` in this process; (exit code, stderr). AssertionError when
+    the contract breaks: an exit code other than 0, 2, 130; an exception out of ``main``;
+    more than one error line or a traceback on stderr; an input file changed."""
+    import contextlib
+    import io
+
+    from strain_comp.cli import main as cli_main
+
+    before = _digest(inputs)  # the files this command reads
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli_main(argv)
+    text = err.getvalue()
+    errors = [line for line in text.splitlines() if line.startswith("strain-comp: error:")]
+    assert code in (0, 2, 130), f"exit code {code}"
+    assert "Traceback" not in text, text
+    assert len(errors) == (1 if code == 2 else 0), text
+    assert _digest(inputs) == before, "an input file changed"
+    return code, text
+
+
+@dataclass
+class CliStats:
+    """Counts of a command-line fuzz run."""
+
+    runs: int = 0
+    exits: dict[int, int] = field(default_factory=dict)
+    unexpected: list[tuple[list[str], str]] = field(default_factory=list)
+    """Runs that ended in the command line's last-resort frame ("unexpected ..."): the
+    contract held (exit 2, one line) but strain_comp had a fault."""
+    crashes: list[tuple[list[str], str]] = field(default_factory=list)
+
+    def line(self) -> str:
+        codes = ", ".join(f"exit {k}: {v}" for k, v in sorted(self.exits.items()))
+        return (f"cli: {self.runs} command lines ({codes}), {len(self.unexpected)} unexpected "
+                f"exceptions caught by the last-resort frame, {len(self.crashes)} crashes")
+
+
+def fuzz_cli(fitted: dict[str, SensorCalibration], rng: np.random.Generator, work: Path, *,
+             seconds: float | None = None, iterations: int | None = None,
+             timeout: float = 60.0) -> CliStats:
+    """Random command lines (``random_argv``) over hostile files, checked by ``check_cli``."""
+    files = hostile_files(work, fitted)
+    pristine = {p: p.read_bytes() for p in (work / "in").rglob("*")
+                if p.is_file() and not p.is_symlink()}
+    stats = CliStats()
+    deadline = time.monotonic() + (seconds if seconds is not None else math.inf)
+    previous = signal.signal(signal.SIGALRM, _alarm_base)
+    try:
+        while time.monotonic() < deadline and (iterations is None or stats.runs < iterations):
+            argv, inputs = random_argv(rng, files)
+            stats.runs += 1
+            signal.setitimer(signal.ITIMER_REAL, timeout)
+            try:
+                code, text = check_cli(argv, inputs)
+            except (Exception, HangBase):
+                stats.crashes.append((argv, traceback.format_exc()))
+                continue
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0.0)
+                _restore(work / "in", pristine)
+            stats.exits[code] = stats.exits.get(code, 0) + 1
+            if "error: unexpected " in text:
+                stats.unexpected.append((argv, text.strip()))
+    finally:
+        signal.signal(signal.SIGALRM, previous)
+    return stats
+
+
+class HangBase(BaseException):
+    """A command line ran past the time limit (a BaseException: the command line's
+    last-resort frame must not turn it into an ordinary exit 2)."""
+
+
+def _alarm_base(signum: int, frame: Any) -> None:
+    raise HangBase("time limit exceeded")
+
+
 def save_crashes(stats: Stats, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     suffix = ".yaml" if stats.target == "yaml" else ".mcap"
@@ -353,14 +595,14 @@ def save_crashes(stats: Stats, out: Path) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="total fuzzing time")
-    parser.add_argument("--target", choices=("yaml", "bag", "all"), default="all")
+    parser.add_argument("--target", choices=("yaml", "bag", "cli", "all"), default="all")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "strain_fuzz")
     parser.add_argument("--replay-every", type=int, default=10)
     parser.add_argument("--timeout", type=float, default=10.0, help="seconds per input")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
-    targets = ["yaml", "bag"] if args.target == "all" else [args.target]
+    targets = ["yaml", "bag", "cli"] if args.target == "all" else [args.target]
     share = args.seconds / len(targets)
     failures = 0
     with tempfile.TemporaryDirectory() as tmp:
@@ -371,6 +613,15 @@ def main() -> int:
         save_calibration(calibration, seed_yaml)
         check_yaml(seed_yaml)  # the seed itself must load and run
         for target in targets:
+            if target == "cli":
+                cli = fuzz_cli(fitted, rng, work / "cli", seconds=share,
+                               timeout=max(args.timeout, 60.0))
+                print(cli.line(), flush=True)
+                for argv, text in cli.unexpected + cli.crashes:
+                    print("  strain-comp " + " ".join(argv) + "\n    " +
+                          text.strip().splitlines()[-1])
+                failures += len(cli.crashes)
+                continue
             if target == "yaml":
                 stats = fuzz_yaml(seed_yaml.read_bytes(), rng, work, seconds=share,
                                   timeout=args.timeout)

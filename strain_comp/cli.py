@@ -1,9 +1,17 @@
 """The ``strain-comp`` command line (docs/design.md, "Command line": a contract).
 
 Every subcommand imports its machinery only when it runs, so ``strain-comp --help`` stays
-fast. Bad input never shows a traceback: every ``StrainCompError`` and every unreadable
-or missing file ends the command with exit code 2 and one line on stderr,
-``strain-comp: error: ...``; argparse usage errors exit 2 as well.
+fast. Exit codes are 0 (done), 2 (refused or failed) and 130 (interrupted), nothing else,
+and never a traceback: every ``StrainCompError``, unreadable or missing file, usage error
+(argparse's included) and, as a last resort, any unexpected exception ends the command with
+exit code 2 and exactly one line on stderr, ``strain-comp: error: ...``.
+
+Inputs (bags, CSV files, calibrations, parameter files) must be regular files (a bag may be
+a rosbag2 directory): a FIFO or a device is refused before it is opened, so a command never
+blocks on one. Every output goes through ``strain_comp.io.atomic`` with the command's
+inputs, so an output that is an input (the same file, or a hard or symbolic link to it) or
+not a regular file is refused before any work is done, and a kill leaves the old file or
+the complete new one.
 """
 
 from __future__ import annotations
@@ -11,29 +19,63 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import stat
 import sys
 from collections.abc import Sequence
-from pathlib import Path
+from typing import NoReturn
 
 from strain_comp.errors import InputError, StrainCompError
+from strain_comp.io.atomic import check_output, write_text
 
 PROG = "strain-comp"
+
+
+class UsageError(StrainCompError):
+    """A command line argparse cannot parse (printed as one line, exit code 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors as one line (``UsageError``) instead of usage + exit."""
+
+    def error(self, message: str) -> NoReturn:
+        command = self.prog.removeprefix(PROG).strip()
+        hint = f"see {self.prog} --help"
+        raise UsageError(f"{command + ': ' if command else ''}{message} ({hint})")
+
+    def exit(self, status: int = 0, message: str | None = None) -> NoReturn:
+        if status != 0 or message:
+            raise UsageError(message or f"exit status {status}")
+        raise SystemExit(0)
 
 
 def _err(line: str) -> None:
     print(line, file=sys.stderr)
 
 
-def _existing(path: str, what: str) -> str:
-    """``path`` if it exists; InputError naming it otherwise (before any heavy import)."""
-    if not Path(path).exists():
-        raise InputError(f"{path}: {what} not found")
+def _existing(path: str, what: str, *, directory: bool = False) -> str:
+    """``path`` if it is a regular file (or, with ``directory``, a directory); InputError
+    naming it otherwise, before anything opens it (a FIFO would block a reader)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except OSError as err:
+        raise InputError(f"{path}: {what} cannot be read ({err.strerror})") from None
+    if not (stat.S_ISREG(mode) or (directory and stat.S_ISDIR(mode))):
+        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
+        raise InputError(f"{path}: {what} is {kind}")
     return path
 
 
-def _output(path: str) -> str:
-    """``path`` with its parent directory created."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
+def _bag(path: str, what: str = "bag") -> str:
+    """An input bag: an MCAP file or a rosbag2 directory."""
+    return _existing(path, what, directory=True)
+
+
+def _output(path: str, inputs: Sequence[str | None]) -> str:
+    """``path`` if it may be written: not one of ``inputs``, not a non-regular file."""
+    check_output(path, [i for i in inputs if i is not None])
     return path
 
 
@@ -48,9 +90,9 @@ def _finite(value: object) -> object:
     return value
 
 
-def _write_json(path: str, data: object) -> None:
+def _write_json(path: str, data: object, inputs: Sequence[str]) -> None:
     text = json.dumps(_finite(data), indent=2, allow_nan=False) + "\n"
-    Path(_output(path)).write_text(text, encoding="utf-8")
+    write_text(path, text, inputs=inputs)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -64,9 +106,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         return 0
     if not args.scenario or not args.out:
         raise InputError("simulate needs --scenario NAME and --out BAG.mcap (or --list)")
+    rig.check_size(args.scenario, seed=args.seed, duration=args.duration)
     effects = rig.RigEffects.parse(args.effect) if args.effect else None
+    _output(args.out, [])
     run = rig.simulate(args.scenario, seed=args.seed, effects=effects, duration=args.duration)
-    rig.write_sim_bag(run, _output(args.out))
+    rig.write_sim_bag(run, args.out)
     print(f"wrote {args.out} (scenario {args.scenario}, seed {args.seed})")
     return 0
 
@@ -85,12 +129,13 @@ def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
 
 def cmd_import_csv(args: argparse.Namespace) -> int:
     _existing(args.csv, "CSV file")
+    _output(args.out, [args.csv])
     from strain_comp.io import csv_import
 
     result = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
         columns=parse_columns(args.columns) if args.columns else None)
-    csv_import.write_recording_bag(result.recording, _output(args.out))
+    csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
     print(f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
     return 0
@@ -98,13 +143,16 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     for bag in args.bags:
-        _existing(bag, "bag")
+        _bag(bag)
+    _output(args.out, args.bags)
     from strain_comp.core.calibration import save_calibration
     from strain_comp.offline.fit import fit_bags, parse_options
+    from strain_comp.offline.options import check_fit_options
 
     options = parse_options(args.option or [])
+    check_fit_options(args.model, options)
     calibration = fit_bags(args.bags, args.model, args.sensor, options, report=_err)
-    save_calibration(calibration, args.out)
+    save_calibration(calibration, args.out, inputs=args.bags)
     for name, cal in calibration.sensors.items():
         prov = cal.provenance
         print(f"{name}: {cal.model} fitted on {prov['n_samples']} samples in "
@@ -115,12 +163,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    _existing(args.bag, "bag")
+    _bag(args.bag)
+    _existing(args.calibration, "calibration file")
+    inputs = [args.bag, args.calibration]
+    if args.json:
+        _output(args.json, inputs)
     from strain_comp.core.calibration import load_calibration
     from strain_comp.io.recording import load_recordings
     from strain_comp.offline.evaluate import evaluate_recordings, format_notes, format_table
 
-    calibration = load_calibration(_existing(args.calibration, "calibration file"))
+    calibration = load_calibration(args.calibration)
     recordings, problems = load_recordings(args.bag)
     try:
         result = evaluate_recordings(recordings, calibration)
@@ -130,22 +182,24 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for line in problems + format_notes(result):
         print(line)
     if args.json:
-        _write_json(args.json, result.to_json())
+        _write_json(args.json, result.to_json(), inputs)
     if args.plots:
         from strain_comp.offline.plots import plot_evaluation
 
-        written = plot_evaluation(result, args.plots)
+        written = plot_evaluation(result, args.plots, inputs=inputs)
         print(f"wrote {len(written)} plots to {args.plots}")
     return 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    _existing(args.bag, "bag")
+    _bag(args.bag)
+    _existing(args.calibration, "calibration file")
+    _output(args.out, [args.bag, args.calibration])
     from strain_comp.core.calibration import load_calibration
     from strain_comp.offline.replay import replay_bag
 
-    calibration = load_calibration(_existing(args.calibration, "calibration file"))
-    summary = replay_bag(args.bag, calibration, _output(args.out))
+    calibration = load_calibration(args.calibration)
+    summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration])
     print(f"replayed {summary.n_input_messages} input messages of {len(summary.sensors)} "
           f"sensors into {args.out} ({summary.n_output_messages} output messages)")
     for name, health in summary.sensors.items():
@@ -158,18 +212,23 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    _existing(args.bag, "bag")
+    _bag(args.bag)
+    if args.validate:
+        _bag(args.validate, "validation bag")
+    _existing(args.calibration, "calibration file")
+    inputs = [i for i in (args.bag, args.validate, args.calibration) if i is not None]
+    for out in (args.out, args.json):
+        if out is not None:
+            _output(out, inputs)
     from strain_comp.core.calibration import load_calibration
     from strain_comp.diagnosis.loop import diagnose_bag
 
-    if args.validate:
-        _existing(args.validate, "validation bag")
-    calibration = load_calibration(_existing(args.calibration, "calibration file"))
+    calibration = load_calibration(args.calibration)
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
-                          plots=args.plots)
+                          plots=args.plots, inputs=[args.calibration])
     print(report.summary())
     if args.json:
-        _write_json(args.json, report.to_json())
+        _write_json(args.json, report.to_json(), inputs)
     if args.plots:
         print(f"wrote plots to {args.plots}")
     print(f"wrote {args.out}")
@@ -180,7 +239,8 @@ def cmd_node(args: argparse.Namespace) -> int:
     _existing(args.params, "parameter file")
     from strain_comp.ros.node import main as node_main
 
-    return node_main(["--ros-args", "--params-file", str(args.params)])
+    code = node_main(["--ros-args", "--params-file", str(args.params)])
+    return code if code in (0, 2, 130) else 2
 
 
 def cmd_play(args: argparse.Namespace) -> int:
@@ -195,7 +255,7 @@ def cmd_play(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser; subcommand names and flags as docs/design.md fixes them."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog=PROG, description="Calibrated strain from soft resistive strain sensors: "
         "simulate or import data, fit, evaluate, replay, diagnose, run.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -203,10 +263,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="make a bag on the virtual test rig")
     p.add_argument("--scenario", metavar="NAME", help="scenario name (see --list)")
     p.add_argument("--out", metavar="BAG.mcap", help="bag to write")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed, 0 .. 2^63-1 (default 0)")
     p.add_argument("--effect", action="append", metavar="K=V",
                    help="rig effect switch and magnitude, e.g. drift=0.5 (repeatable)")
-    p.add_argument("--duration", type=float, metavar="S", help="duration in seconds")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="duration in seconds; at most 2,000,000 samples x sensors "
+                   "(40,000 s for a 50 Hz scenario)")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
     p.set_defaults(func=cmd_simulate)
 
@@ -276,12 +339,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 2 bad input, 130 interrupted)."""
-    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help (0) or a usage error (2, already printed)
-        return exc.code if isinstance(exc.code, int) else 2
-    try:
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit:  # --help or --list printed; nothing else exits
+            return 0
         return int(args.func(args))
     except StrainCompError as err:
         message = str(err)
@@ -290,6 +353,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = f"{where}: {err.strerror or err}" if where else str(err)
     except KeyboardInterrupt:
         return 130
+    except (Exception, SystemExit) as err:  # a fault of strain_comp: still one line
+        message = f"unexpected {type(err).__name__}: {err}"
     _err(f"{PROG}: error: " + " ".join(message.split()))
     return 2
 

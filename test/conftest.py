@@ -27,7 +27,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.calibration import (
+    Calibration,
+    InputSettings,
+    SensorCalibration,
+    ValidRange,
+    provenance,
+)
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine
 from strain_comp.io.recording import Recording
@@ -191,3 +197,21 @@ def measured_data() -> Path:
         pytest.skip("measured data not installed: set STRAIN_COMP_MEASURED_DATA or put them "
                     "in ../shared/data/measured")
     return path
+
+
+def make_calibration() -> Calibration:
+    """A two-sensor cubic calibration with awkward floats (repr round trip matters)."""
+    sensors = {}
+    for i, name in enumerate(("left", "right")):
+        sensors[name] = SensorCalibration(
+            name=name,
+            model="cubic",
+            params={"c": [-69.5 + i / 3.0, 7.816, -0.2112, 0.003512 * math.pi]},
+            normalisation=Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0 / 3.0),
+            valid_range=ValidRange(10.0, 30.0 + 1e-13, 0.0, 50.0),
+            direction=DirectionSettings(deadzone=0.0048, tau=0.1, k_sigma=4.0),
+            input=InputSettings("divider", r1=10.5, vin=3.2) if i else InputSettings(),
+            effects=[{"name": "drift", "kind": "elapsed", "params": {}, "coef": 1e-3}] if i else [],
+            provenance=provenance(["a.mcap"], fit_rmse=0.1234567890123, n_samples=20000),
+        )
+    return Calibration(sensors)

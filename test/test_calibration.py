@@ -2,43 +2,18 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from conftest import make_calibration
 
 from strain_comp.core.calibration import (
-    Calibration,
-    InputSettings,
-    SensorCalibration,
-    ValidRange,
     load_calibration,
-    provenance,
     save_calibration,
 )
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import CalibrationError
-from strain_comp.models import Normalisation
-
-
-def make_calibration() -> Calibration:
-    """A two-sensor cubic calibration with awkward floats (repr round trip matters)."""
-    sensors = {}
-    for i, name in enumerate(("left", "right")):
-        sensors[name] = SensorCalibration(
-            name=name,
-            model="cubic",
-            params={"c": [-69.5 + i / 3.0, 7.816, -0.2112, 0.003512 * math.pi]},
-            normalisation=Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0 / 3.0),
-            valid_range=ValidRange(10.0, 30.0 + 1e-13, 0.0, 50.0),
-            direction=DirectionSettings(deadzone=0.0048, tau=0.1, k_sigma=4.0),
-            input=InputSettings("divider", r1=10.5, vin=3.2) if i else InputSettings(),
-            effects=[{"name": "drift", "kind": "elapsed", "params": {}, "coef": 1e-3}] if i else [],
-            provenance=provenance(["a.mcap"], fit_rmse=0.1234567890123, n_samples=20000),
-        )
-    return Calibration(sensors)
 
 
 def test_round_trip_is_exact(tmp_path: Path) -> None:

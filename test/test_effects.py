@@ -133,16 +133,16 @@ def test_effect_terms_correct_and_round_trip() -> None:
 
 
 def test_every_kind_round_trips_through_a_calibration_file(tmp_path: Path) -> None:
-    from test_calibration import make_calibration
+    from conftest import make_calibration
 
     cal = make_calibration()
     effects = [dict(e, coef=0.125 * i) for i, e in enumerate(ALL)]
     assert {e["kind"] for e in effects} == set(KINDS)
-    cal.sensors["left"].effects = effects
+    cal.sensors["right"].effects = effects  # the cross-talk term reads "left"
     save_calibration(cal, tmp_path / "c.yaml")
     loaded = load_calibration(tmp_path / "c.yaml")
-    assert loaded.sensors["left"].effects == effects
-    again = EffectTerms.from_dicts(loaded.sensors["left"].effects).to_dicts()
+    assert loaded.sensors["right"].effects == effects
+    again = EffectTerms.from_dicts(loaded.sensors["right"].effects).to_dicts()
     assert again[:-1] == effects[:-1]
     # params: {} takes every default, and to_dicts writes them out
     assert again[-1]["params"] == {"form": "linear", "scale": 100.0}
@@ -168,7 +168,7 @@ def test_bad_effect_entries_name_the_field(tmp_path: Path, effect: dict, field: 
     with pytest.raises(ParameterError) as err:
         validate_effect_dict(effect)
     assert err.value.field == field
-    from test_calibration import make_calibration
+    from conftest import make_calibration
 
     cal = make_calibration()
     cal.sensors["right"].effects = [{"name": "ok", "kind": "offset", "params": {}, "coef": 1.0},

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_engine import cubic_cal
+from conftest import cubic_cal
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError, ParameterError

@@ -17,16 +17,26 @@ sensors:
 ```
 
 Loading validates everything and raises one ``CalibrationError`` naming the file and the
-dotted field. Saving is atomic: a temporary file in the same directory, fsync, rename.
+dotted field. Limits (a calibration is a small machine-written file; anything beyond these
+is refused, never half-read): a regular file of at most ``MAX_FILE_BYTES``; at most
+``MAX_ALIASES`` YAML aliases and ``MAX_NODES`` values once aliases are expanded (no "billion
+laughs"); nesting at most ``MAX_DEPTH`` deep (aliases included); integers within float
+range; every number of a model's parameters and of an effect at most ``PARAM_MAX`` in
+magnitude, resistances in (0, ``PARAM_MAX``] ohm and strains within +/- ``STRAIN_MAX`` %.
+A cross-talk effect must read another sensor. Last, every sensor is run through the engine
+on a probe (``probe_calibration``): a calibration that gives a non-finite strain there is
+refused, so one that loads gives finite strain inside its declared range.
+Saving is atomic: a temporary file in the same directory, fsync, rename.
 Floats are written with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 """
 
 from __future__ import annotations
 
+import math
 import os
+import stat
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import yaml
@@ -36,10 +46,17 @@ from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.atomic import write_text
+from strain_comp.io.safe_yaml import LimitError, load_limited
 from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float
 
 FORMAT = "strain_comp/calibration/v1"
+MAX_FILE_BYTES = 8 * 2**20
+MAX_ALIASES = 100
+MAX_NODES = 1_000_000
+MAX_DEPTH = 64
+PARAM_MAX = 1e12
+STRAIN_MAX = 1e6
 
 
 @dataclass(frozen=True)
@@ -192,6 +209,19 @@ class _Reader:
             raise self.fail(f"{where}.{key}", f"hi must be > lo, got [{lo}, {hi}]")
         return lo, hi
 
+    def bounded(self, node: Any, where: str, limit: float = PARAM_MAX) -> None:
+        """Every number inside ``node`` finite and at most ``limit`` in magnitude."""
+        if isinstance(node, Mapping):
+            for key, value in node.items():
+                self.bounded(value, f"{where}.{key}", limit)
+        elif isinstance(node, list):
+            for i, value in enumerate(node):
+                self.bounded(value, f"{where}.{i}", limit)
+        elif isinstance(node, (int, float)) and not isinstance(node, bool):
+            if not abs(node) <= limit:
+                raise self.fail(where, f"must be finite and at most {limit:g} in magnitude, "
+                                f"got {node!r}")
+
     def sensor(self, name: str, node: Any) -> SensorCalibration:
         where = f"sensors.{name}"
         node = self.mapping(node, where)
@@ -201,8 +231,10 @@ class _Reader:
             raise self.fail(f"{where}.model.name", f"must be a string, got {model_name!r}")
         params = self.mapping(self.child(model_node, "params", f"{where}.model"),
                               f"{where}.model.params")
+        self.bounded(params, f"{where}.model.params")
         norm_node = self.mapping(self.child(node, "normalisation", where), f"{where}.normalisation")
         nw = f"{where}.normalisation"
+        self.bounded(norm_node, nw)
         norm = Normalisation(
             r0=self.number(norm_node, "r0", nw, lo=0.0, strict=True),
             alpha=self.number(norm_node, "alpha", nw),
@@ -213,7 +245,13 @@ class _Reader:
         r_lo, r_hi = self.pair(range_node, "resistance", f"{where}.valid_range")
         if r_lo <= 0:
             raise self.fail(f"{where}.valid_range.resistance", f"must be > 0 ohm, got {r_lo}")
+        if r_hi > PARAM_MAX:
+            raise self.fail(f"{where}.valid_range.resistance",
+                            f"must be <= {PARAM_MAX:g} ohm, got {r_hi}")
         s_lo, s_hi = self.pair(range_node, "strain", f"{where}.valid_range")
+        if not (-STRAIN_MAX <= s_lo and s_hi <= STRAIN_MAX):
+            raise self.fail(f"{where}.valid_range.strain",
+                            f"must lie within +/- {STRAIN_MAX:g} %, got [{s_lo}, {s_hi}]")
         rest = (None if node.get("rest_resistance") is None
                 else self.number(node, "rest_resistance", where, lo=0.0, strict=True))
         dir_node = self.mapping(self.child(node, "direction", where), f"{where}.direction")
@@ -238,6 +276,11 @@ class _Reader:
                 validate_effect_dict(effect)
             except ParameterError as err:
                 raise self.fail(f"{where}.effects.{i}.{err.field}", err.problem) from None
+            self.bounded({k: effect.get(k) for k in ("params", "coef")}, f"{where}.effects.{i}")
+            if (effect.get("kind") == "crosstalk" and isinstance(effect.get("params"), Mapping)
+                    and str(effect["params"].get("neighbour")) == name):
+                raise self.fail(f"{where}.effects.{i}.params.neighbour",
+                                f"a cross-talk term must read another sensor, not {name!r}")
         prov = node.get("provenance", {}) or {}
         self.mapping(prov, f"{where}.provenance")
         calibration = SensorCalibration(
@@ -270,21 +313,43 @@ class _Reader:
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 
-def load_calibration(path: str | os.PathLike[str]) -> Calibration:
-    """Read and validate a calibration file; CalibrationError names the file and field."""
-    path_str = str(path)
-    reader = _Reader(path_str)
+def _parse_yaml(reader: _Reader, text: str) -> Any:
+    """The YAML document in ``text`` within the limits; CalibrationError otherwise."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise reader.fail("file", f"cannot read: {err}") from None
-    try:
-        root = yaml.safe_load(text)
+        return load_limited(text, max_aliases=MAX_ALIASES, max_nodes=MAX_NODES,
+                            max_depth=MAX_DEPTH)
+    except LimitError as err:
+        raise reader.fail("yaml", f"refused: {err}") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "yaml"
         problem = getattr(err, "problem", None) or str(err).splitlines()[0]
         raise reader.fail(where, f"not valid YAML: {problem}") from None
+
+
+def _read_text(reader: _Reader, path: str | os.PathLike[str]) -> str:
+    """The file's text: a regular file (never a FIFO: checked before opening) of at most
+    MAX_FILE_BYTES, UTF-8."""
+    try:
+        info = os.stat(path)
+        if not stat.S_ISREG(info.st_mode):
+            raise reader.fail("file", "cannot read: not a regular file")
+        if info.st_size > MAX_FILE_BYTES:
+            raise reader.fail("file", f"refused: larger than {MAX_FILE_BYTES} bytes")
+        with open(path, "rb") as handle:
+            data = handle.read(MAX_FILE_BYTES + 1)
+        if len(data) > MAX_FILE_BYTES:
+            raise reader.fail("file", f"refused: larger than {MAX_FILE_BYTES} bytes")
+        return data.decode("utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise reader.fail("file", f"cannot read: {err}") from None
+
+
+def load_calibration(path: str | os.PathLike[str]) -> Calibration:
+    """Read and validate a calibration file; CalibrationError names the file and field."""
+    path_str = str(path)
+    reader = _Reader(path_str)
+    root = _parse_yaml(reader, _read_text(reader, path))
     root = reader.mapping(root, "(top level)")
     fmt = reader.child(root, "format", "")
     if fmt != FORMAT:
@@ -292,5 +357,42 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     sensors = reader.mapping(reader.child(root, "sensors", ""), "sensors")
     if not sensors:
         raise reader.fail("sensors", "must name at least one sensor")
-    return Calibration({str(name): reader.sensor(str(name), node)
-                        for name, node in sensors.items()})
+    calibration = Calibration({str(name): reader.sensor(str(name), node)
+                               for name, node in sensors.items()})
+    for name, cal in calibration.sensors.items():
+        where = probe_calibration(cal)
+        if where is not None:
+            raise reader.fail(f"sensors.{name}", f"gives a non-finite strain ({where}); "
+                              "its parameters are out of any usable range")
+    return calibration
+
+
+def probe_resistance(cal: SensorCalibration) -> tuple[Any, Any]:
+    """A probe of one sensor: times [s] and resistances [ohm] sweeping log-spaced from the
+    shortest to the most open value the engine feeds a model (0.01 x the bottom to 100 x
+    the top of the valid range) and back, slowly, fast, and with a long hold."""
+    import numpy as np
+
+    lo, hi = math.log(cal.valid_range.r_lo * 0.011), math.log(cal.valid_range.r_hi * 99.0)
+    up = np.exp(np.linspace(lo, hi, 200))
+    sweep = np.concatenate([up, up[::-1], up[::4], up[::-4], np.full(50, up[100])])
+    t = np.concatenate([np.arange(400) * 0.05, 20.0 + np.arange(100) * 0.01,
+                        21.0 + np.arange(50) * 2.0])
+    return t, sweep
+
+
+def probe_calibration(cal: SensorCalibration) -> str | None:
+    """Where the engine gives a non-finite strain on this sensor's probe
+    (``probe_resistance``, with a temperature of 25 deg C), or None."""
+    import numpy as np
+
+    from strain_comp.core.engine import Engine
+
+    probe = SensorCalibration(**{**vars(cal), "effects": [
+        e for e in cal.effects if e.get("kind") != "crosstalk"]})
+    engine = Engine(Calibration({cal.name: probe}))
+    t, r = probe_resistance(cal)
+    with np.errstate(all="ignore"):
+        out = engine.run(cal.name, t, r, np.full(t.size, 25.0))
+    bad = np.flatnonzero(~np.isfinite(out.strain))
+    return None if bad.size == 0 else f"R = {r[bad[0]]:.6g} ohm at t = {t[bad[0]]:g} s"

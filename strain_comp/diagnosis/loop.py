@@ -74,6 +74,7 @@ from strain_comp.core.effects import (
 from strain_comp.core.engine import Engine, used_mask
 from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
+from strain_comp.io.atomic import atomic_output
 from strain_comp.io.recording import Recording, hold_latest, load_recordings
 
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
@@ -743,8 +744,10 @@ def _pool(results: Mapping[str, SensorDiagnosis], which: str) -> dict[str, float
     return {"rmse": math.sqrt(sse / n), "mae": sae / n, "n": n}
 
 
-def write_plots(result: DiagnoseResult, out_dir: str | Path) -> list[Path]:
-    """Residual before and after against the winning regressor (one PNG per sensor)."""
+def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
+                inputs: Sequence[str | Path] = ()) -> list[Path]:
+    """Residual before and after against the winning regressor (one PNG per sensor), each
+    written atomically; a plot path that is one of ``inputs`` is refused."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -771,21 +774,27 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path) -> list[Path]:
         fig.suptitle(f"{name}: {d.message}", fontsize=8)
         fig.tight_layout()
         path = out_dir / f"diagnose_{name}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        try:
+            with atomic_output(path, inputs=inputs) as handle:
+                fig.savefig(handle, dpi=110, format="png")
+        finally:
+            plt.close(fig)
         written.append(path)
     return written
 
 
 def diagnose_bag(bag: str | Path, calibration: Calibration, *,
                  validate: str | Path | None = None, out: str | Path | None = None,
-                 plots: str | Path | None = None, **options: Any) -> DiagnoseResult:
-    """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots."""
+                 plots: str | Path | None = None, inputs: Sequence[str | Path] = (),
+                 **options: Any) -> DiagnoseResult:
+    """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots
+    (atomically; an output that is a bag or one of ``inputs`` is refused)."""
+    inputs = [bag, *([] if validate is None else [validate]), *inputs]
     recordings, _ = load_recordings(bag)
     val = None if validate is None else load_recordings(validate)[0]
     result = diagnose(recordings, calibration, validate_recordings=val, **options)
     if out is not None:
-        save_calibration(result.calibration, out)
+        save_calibration(result.calibration, out, inputs=inputs)
     if plots is not None:
-        write_plots(result, plots)
+        write_plots(result, plots, inputs=inputs)
     return result

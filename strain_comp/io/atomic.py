@@ -40,6 +40,9 @@ def check_output(path: PathLike, inputs: Iterable[PathLike] = ()) -> Path:
     for source in inputs:
         if info is not None and _same_file(target, Path(source)):
             raise OutputError(f"{target}: the output is the input {source}; choose another path")
+        if info is not None and Path(source).is_dir() and _same_file(target.parent, Path(source)):
+            raise OutputError(f"{target}: the output is inside the input bag directory {source}; "
+                              "choose another path")
     return target
 
 
@@ -69,24 +72,60 @@ def fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
+class AtomicFile:
+    """An open temporary file beside ``path`` that ``commit()`` renames over ``path`` and
+    ``discard()`` deletes; for writers that stream into it over many calls (the bag writer).
+
+    The target is checked (``check_output``) when it is opened and again just before the
+    rename. ``handle`` is the binary file to write to.
+    """
+
+    def __init__(self, path: PathLike, *, inputs: Iterable[PathLike] = ()) -> None:
+        self.inputs = list(inputs)
+        self.path = check_output(path, self.inputs)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                   dir=self.path.parent)
+        self.tmp = Path(tmp)
+        self.handle: BinaryIO = os.fdopen(fd, "wb")
+        self.done = False
+
+    def commit(self) -> None:
+        """Flush, fsync, rename over the target and fsync the directory (once)."""
+        if self.done:
+            return
+        try:
+            with self.handle:
+                self.handle.flush()
+                os.fchmod(self.handle.fileno(), _file_mode(self.path))
+                os.fsync(self.handle.fileno())
+            check_output(self.path, self.inputs)
+            os.replace(self.tmp, self.path)
+            self.done = True
+            fsync_directory(self.path.parent)
+        except BaseException:
+            self.discard()
+            raise
+
+    def discard(self) -> None:
+        """Close and delete the temporary file; the target is left as it was (once)."""
+        if self.done:
+            return
+        self.done = True
+        self.handle.close()
+        self.tmp.unlink(missing_ok=True)
+
+
 @contextmanager
 def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterator[BinaryIO]:
     """A binary file that replaces ``path`` only once it is complete (see the module)."""
-    target = check_output(path, inputs)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    output = AtomicFile(path, inputs=inputs)
     try:
-        with os.fdopen(fd, "wb") as handle:
-            yield handle
-            handle.flush()
-            os.fchmod(handle.fileno(), _file_mode(target))
-            os.fsync(handle.fileno())
-        check_output(target, inputs)
-        os.replace(tmp, target)
-        fsync_directory(target.parent)
+        yield output.handle
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        output.discard()
         raise
+    output.commit()
 
 
 def write_bytes(path: PathLike, data: bytes, *, inputs: Iterable[PathLike] = ()) -> None:

@@ -29,7 +29,7 @@ handling is exercised on bags.
 from __future__ import annotations
 
 import csv
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -220,12 +220,14 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     return ImportResult(rec, report)
 
 
-def write_recording_bag(recording: Recording, out_path: str | Path) -> None:
+def write_recording_bag(recording: Recording, out_path: str | Path, *,
+                        inputs: Sequence[str | Path] = ()) -> None:
     """Write a Recording as ``/NAME/resistance``, ``/NAME/strain_reference`` (when present)
     and ``/NAME/temperature`` (when present) into a new MCAP bag. Samples whose reference is
-    NaN are written too (the reader keeps them as NaN)."""
+    NaN are written too (the reader keeps them as NaN). Written atomically; an ``out_path``
+    that is one of ``inputs`` is refused."""
     prefix = "/" + recording.name.strip("/")
-    with BagWriter(out_path) as writer:
+    with BagWriter(out_path, inputs=inputs) as writer:
         writer.write_float64(f"{prefix}/resistance", recording.t, recording.r)
         if recording.s is not None:
             writer.write_float64(f"{prefix}/strain_reference", recording.t, recording.s)

@@ -9,10 +9,13 @@ shows as a loop) and
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from strain_comp.io.atomic import atomic_output
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -29,8 +32,10 @@ def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
     return Figure(figsize=(9.0, height * rows), layout="constrained")
 
 
-def _save(fig: Figure, path: Path) -> Path:
-    fig.savefig(path, dpi=110)
+def _save(fig: Figure, path: Path, inputs: Sequence[str | Path] = ()) -> Path:
+    """PNG written atomically (``strain_comp.io.atomic``); a path that is an input is refused."""
+    with atomic_output(path, inputs=inputs) as handle:
+        fig.savefig(handle, dpi=110, format="png")
     return path
 
 
@@ -39,7 +44,7 @@ def _title(ev: SensorEvaluation) -> str:
     return f"{ev.name} ({ev.model}): RMSE {st.rmse:.3g} %, max {st.max_abs:.3g} %, n = {st.n}"
 
 
-def plot_time(ev: SensorEvaluation, path: Path) -> Path:
+def plot_time(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = ()) -> Path:
     """Estimate and reference strain over time, resistance on a second panel."""
     fig = _figure(2, height=3.2)
     top, bottom = fig.subplots(2, 1, sharex=True)
@@ -55,10 +60,10 @@ def plot_time(ev: SensorEvaluation, path: Path) -> Path:
     bottom.set_ylabel("resistance [ohm]")
     bottom.legend(loc="upper right")
     bottom.grid(alpha=0.3)
-    return _save(fig, path)
+    return _save(fig, path, inputs)
 
 
-def plot_loop(ev: SensorEvaluation, path: Path) -> Path:
+def plot_loop(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = ()) -> Path:
     """S_hat against S with the identity line."""
     fig = _figure(height=6.0)
     ax = fig.subplots()
@@ -74,10 +79,10 @@ def plot_loop(ev: SensorEvaluation, path: Path) -> Path:
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(loc="upper left")
     ax.grid(alpha=0.3)
-    return _save(fig, path)
+    return _save(fig, path, inputs)
 
 
-def plot_error_hist(ev: SensorEvaluation, path: Path) -> Path:
+def plot_error_hist(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = ()) -> Path:
     """Histogram of the error S_hat - S over the scored samples."""
     fig = _figure(height=4.0)
     ax = fig.subplots()
@@ -90,17 +95,19 @@ def plot_error_hist(ev: SensorEvaluation, path: Path) -> Path:
     ax.set_title(_title(ev))
     ax.legend(loc="upper right")
     ax.grid(alpha=0.3)
-    return _save(fig, path)
+    return _save(fig, path, inputs)
 
 
-def plot_evaluation(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
-    """The three plots for every evaluated sensor in ``out_dir`` (created); paths written."""
+def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
+                    inputs: Sequence[str | Path] = ()) -> list[Path]:
+    """The three plots for every evaluated sensor in ``out_dir`` (created); paths written.
+    Each is written atomically; a plot path that is one of ``inputs`` is refused."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, ev in result.sensors.items():
         stem = name.strip("/").replace("/", "_")  # sensor names may hold slashes
-        written.append(plot_time(ev, out / f"{stem}_time.png"))
-        written.append(plot_loop(ev, out / f"{stem}_loop.png"))
-        written.append(plot_error_hist(ev, out / f"{stem}_error_hist.png"))
+        written.append(plot_time(ev, out / f"{stem}_time.png", inputs=inputs))
+        written.append(plot_loop(ev, out / f"{stem}_loop.png", inputs=inputs))
+        written.append(plot_error_hist(ev, out / f"{stem}_error_hist.png", inputs=inputs))
     return written

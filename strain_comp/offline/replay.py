@@ -19,6 +19,7 @@ DiagnosticArray) is copied through; anything else is listed in the summary's pro
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +28,7 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import GAP_RESET, BatchOutput, Engine, SensorHealth, diagnostics
 from strain_comp.errors import BagError
+from strain_comp.io.atomic import check_output
 from strain_comp.io.bag import BagContents, BagWriter, located, read_bag
 from strain_comp.io.recording import array_sensor_names, hold_latest
 
@@ -86,8 +88,13 @@ def _temperature(contents: BagContents, name: str, t: np.ndarray) -> np.ndarray 
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
-               gap_reset: float = GAP_RESET, stale_after: float = 1.0) -> ReplaySummary:
-    """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``."""
+               gap_reset: float = GAP_RESET, stale_after: float = 1.0,
+               inputs: Sequence[str | os.PathLike[str]] = ()) -> ReplaySummary:
+    """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
+    written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
+    calibration file) is refused before anything is read."""
+    protected = [in_path, *inputs]
+    check_output(out_path, protected)
     contents = read_bag(in_path)
     inputs = _inputs(contents, calibration)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
@@ -124,7 +131,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                  "(STALE in /diagnostics)" for s in calibration.sensors if s not in replayed]
     n_out = 0
     written: set[str] = {"/diagnostics"}
-    with BagWriter(out_path) as writer:
+    with BagWriter(out_path, inputs=protected) as writer:
         for inp in inputs:
             full = {s: _concat(results[s]) for s in inp.sensors}
             for what in OUTPUTS:

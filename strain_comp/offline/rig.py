@@ -298,6 +298,30 @@ _SCENARIOS: dict[str, _Scenario] = {
 SCENARIOS: dict[str, str] = {name: sc.doc for name, sc in _SCENARIOS.items()}
 ARRAY_NAME = "array"
 ARRAY_SIZE = 6
+#: Size limits of one simulation: samples x sensors, and the seed range (numpy's seeds).
+MAX_SAMPLES = 2_000_000
+SEED_MAX = 2**63 - 1
+
+
+def check_size(scenario: str, *, seed: int = 0, duration: float | None = None) -> None:
+    """ParameterError unless ``seed`` is in [0, SEED_MAX] and the run holds at most
+    ``MAX_SAMPLES`` samples over all its sensors (a 50 Hz single sensor: 40,000 s)."""
+    if scenario not in _SCENARIOS:
+        raise ParameterError("scenario", f"unknown scenario {scenario!r}; one of "
+                             f"{', '.join(SCENARIOS)}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX:
+        raise ParameterError("seed", f"must be an integer in [0, 2^63-1], got {seed!r}")
+    if duration is None:
+        return
+    if not (np.isfinite(duration) and duration > 0):
+        raise ParameterError("duration", f"must be > 0 s, got {duration}")
+    sc = _SCENARIOS[scenario]
+    n_sensors = ARRAY_SIZE if scenario == ARRAY_NAME else 1
+    if duration * sc.fs * n_sensors > MAX_SAMPLES:
+        longest = MAX_SAMPLES / (sc.fs * n_sensors)
+        raise ParameterError("duration", f"at most {longest:g} s for scenario {scenario!r} "
+                             f"({MAX_SAMPLES} samples x sensors at {sc.fs:g} Hz), got "
+                             f"{duration:g}")
 
 
 def _array_profiles(fs: float, duration: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -365,13 +389,10 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
 
     ``effects=None`` uses ``RigEffects()`` with the scenario's own switches (``long``: drift,
     ``temperature``: TCR); explicit effects are used as given. ``duration`` [s] cuts the
-    scenario short or repeats its strain profile. Deterministic for a seed.
+    scenario short or repeats its strain profile. Deterministic for a seed. Size limits:
+    ``check_size``.
     """
-    if scenario not in _SCENARIOS:
-        raise ParameterError("scenario", f"unknown scenario {scenario!r}; one of "
-                             f"{', '.join(SCENARIOS)}")
-    if duration is not None and not (np.isfinite(duration) and duration > 0):
-        raise ParameterError("duration", f"must be > 0 s, got {duration}")
+    check_size(scenario, seed=seed, duration=duration)
     sc = _SCENARIOS[scenario]
     fx = effects if effects is not None else dataclasses.replace(RigEffects(), **sc.effects)
     rng = np.random.default_rng([seed, 0])

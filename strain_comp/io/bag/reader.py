@@ -42,6 +42,7 @@ from mcap_ros2.decoder import DecoderFactory
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
 from strain_comp.io.bag.schemas import MAGIC, SCHEMAS, BagContents, Series, norm_type
+from strain_comp.io.safe_yaml import LimitError, load_limited
 
 _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
     "std_msgs/msg/Float64": (4, "<f8"),
@@ -277,19 +278,55 @@ def _add_loose(col: _Collector, msgs: list[Message], name: str) -> None:
     col.add_block(buf, ops, starts, lens, name)
 
 
+MAX_METADATA_BYTES = 2**20
+"""rosbag2 metadata.yaml larger than this is refused (a real one is a few kB)."""
+
+
+def _inside(path: Path, file: Path) -> bool:
+    """``file`` is a regular file that resolves (symbolic links followed) into ``path``."""
+    try:
+        return file.resolve().is_relative_to(path.resolve()) and file.is_file()
+    except (OSError, RuntimeError):  # a symbolic link loop
+        return False
+
+
+def _metadata_files(path: Path, meta: Path) -> list[Path]:
+    """The files ``metadata.yaml`` lists (``rosbag2_bagfile_information.
+    relative_file_paths``) that exist; BagError (one line) for unreadable metadata, a field
+    of the wrong type, or a path that is absolute, holds ``..`` or leads out of ``path``."""
+    try:
+        with meta.open("rb") as handle:
+            data = handle.read(MAX_METADATA_BYTES + 1)
+        if len(data) > MAX_METADATA_BYTES:
+            raise BagError(f"{meta}: rosbag2 metadata larger than {MAX_METADATA_BYTES} bytes")
+        info = load_limited(data.decode("utf-8")) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, LimitError) as exc:
+        detail = " ".join(str(exc).split())
+        raise BagError(f"{meta}: unreadable rosbag2 metadata ({detail})") from None
+    where = "rosbag2_bagfile_information"
+    if not isinstance(info, dict) or not isinstance(info.get(where, {}), dict):
+        raise BagError(f"{meta}: {where} must be a mapping")
+    rel = info.get(where, {}).get("relative_file_paths", [])
+    if not isinstance(rel, list) or not all(isinstance(p, str) for p in rel):
+        raise BagError(f"{meta}: {where}.relative_file_paths must be a list of strings")
+    for p in rel:
+        if Path(p).is_absolute() or ".." in Path(p).parts:
+            raise BagError(f"{meta}: relative_file_paths: {p!r} leaves the bag directory")
+    files = [path / p for p in rel if (path / p).exists()]
+    for file in files:
+        if not _inside(path, file):
+            raise BagError(f"{meta}: relative_file_paths: {file.name!r} is not a regular "
+                           "file inside the bag directory")
+    return files
+
+
 def _bag_files(path: Path) -> list[Path]:
-    """The .mcap files of a rosbag2 directory, in metadata.yaml order when it lists them."""
+    """The .mcap files of a rosbag2 directory, in metadata.yaml order when it lists them;
+    only regular files inside the directory (a symbolic link out of it is not read)."""
     meta = path / "metadata.yaml"
-    files: list[Path] = []
-    if meta.is_file():
-        try:
-            info = yaml.safe_load(meta.read_text()) or {}
-            rel = info.get("rosbag2_bagfile_information", {}).get("relative_file_paths", [])
-            files = [path / p for p in rel if (path / p).is_file()]
-        except (yaml.YAMLError, AttributeError, OSError) as exc:
-            raise BagError(f"{meta}: unreadable rosbag2 metadata ({exc})") from exc
+    files = _metadata_files(path, meta) if _inside(path, meta) else []
     if not files:
-        files = sorted(path.glob("*.mcap"))
+        files = [f for f in sorted(path.glob("*.mcap")) if _inside(path, f)]
     if not files:
         raise BagError(f"{path}: directory holds no .mcap file")
     return files
@@ -305,6 +342,8 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag")
+    if not (path.is_dir() or path.is_file()):  # checked before opening: a FIFO would block
+        raise BagError(f"{path}: not a regular file or a rosbag2 directory")
     files = _bag_files(path) if path.is_dir() else [path]
     col = _Collector(set(topics) if topics is not None else None)
     for index, file in enumerate(files):
@@ -325,6 +364,12 @@ def located(path: str | os.PathLike[str], problems: Iterable[str]) -> list[str]:
     return [p if p.startswith(prefix) else f"{prefix}: {p}" for p in problems]
 
 
+MAX_LOG_NS = (2**31 - 1) * 10**9
+"""The latest log time kept [ns]: 2038-01-19, the last second a ROS 2 header stamp
+(builtin_interfaces/Time, int32 seconds) can hold. A later (or negative) log time is a
+damaged record: its message is skipped and counted in ``problems``."""
+
+
 def _decode(col: _Collector) -> BagContents:
     out = BagContents(problems=col.problems)
     if not col.msg_channel:
@@ -336,12 +381,18 @@ def _decode(col: _Collector) -> BagContents:
     start = np.concatenate(col.msg_start) + base[block]
     length = np.concatenate(col.msg_len)
     log_ns = np.concatenate(col.msg_time)
+    late = (log_ns < 0) | (log_ns > MAX_LOG_NS)
+    if late.any():
+        out.problems.append(f"{int(np.count_nonzero(late))} messages with a log time beyond "
+                            "2^31 s (2038-01-19) skipped")
     # channel ids are per file: key messages by (file, channel id)
     key = np.array(col.block_file, dtype=np.int64)[block] * 65536 + np.concatenate(col.msg_channel)
     per_topic: dict[str, tuple[Schema, list[np.ndarray]]] = {}
     for k in np.unique(key):
         f, cid = divmod(int(k), 65536)
-        idx = np.flatnonzero(key == k)
+        idx = np.flatnonzero((key == k) & ~late)
+        if idx.size == 0:
+            continue
         channel = col.channels.get((f, cid))
         if channel is None:
             out.problems.append(f"{idx.size} messages on unknown channel id {cid} skipped")

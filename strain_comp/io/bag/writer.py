@@ -11,9 +11,10 @@ assembled per chunk with numpy scatter, not per message. Times are log times in 
 from __future__ import annotations
 
 import itertools
+import os
 import struct
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ from mcap_ros2._dynamic import serialize_dynamic
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
+from strain_comp.io.atomic import AtomicFile
 from strain_comp.io.bag.schemas import CHUNK_SIZE, LIBRARY, MAGIC, PROFILE, SCHEMAS, Status
 
 OFFERED_QOS = ("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n"
@@ -59,7 +61,8 @@ def _ns(t: npt.ArrayLike) -> np.ndarray:
 def _cdr_rows(header_and_prefix: bytes, values: np.ndarray) -> np.ndarray:
     """(n, len(prefix) + row bytes) uint8 payloads: a constant prefix, then the values."""
     prefix = np.frombuffer(header_and_prefix, dtype=np.uint8)
-    body = np.ascontiguousarray(values).view(np.uint8).reshape(values.shape[0], -1)
+    width = values.dtype.itemsize * int(np.prod(values.shape[1:]))
+    body = np.ascontiguousarray(values).view(np.uint8).reshape(values.shape[0], width)
     rows = np.empty((values.shape[0], prefix.size + body.shape[1]), np.uint8)
     rows[:, :prefix.size] = prefix
     rows[:, prefix.size:] = body
@@ -82,11 +85,16 @@ class BagWriter:
     Times are log times in seconds (>= 0). A topic keeps the type of its first write.
     """
 
-    def __init__(self, path: str | Path, *, chunk_size: int = CHUNK_SIZE) -> None:
+    def __init__(self, path: str | Path, *, chunk_size: int = CHUNK_SIZE,
+                 inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
         self.path = Path(path)
         self.chunk_size = chunk_size
         self._topics: dict[str, _Topic] = {}
         self._closed = False
+        try:  # written atomically (strain_comp.io.atomic): renamed over path on close()
+            self._output = AtomicFile(self.path, inputs=inputs)
+        except OSError as exc:
+            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
 
     def __enter__(self) -> BagWriter:
         return self
@@ -94,6 +102,13 @@ class BagWriter:
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
         if exc_type is None:
             self.close()
+        else:
+            self.abort()
+
+    def abort(self) -> None:
+        """Give up: delete the temporary file, leave ``path`` as it was."""
+        self._closed = True
+        self._output.discard()
 
     def _add(self, topic: str, kind: str, t_ns: np.ndarray, rows: np.ndarray | list[bytes]
              ) -> None:
@@ -179,10 +194,12 @@ class BagWriter:
             return
         self._closed = True
         try:
-            with self.path.open("wb") as stream:
-                _write_mcap(stream, self._topics, self.chunk_size)
+            _write_mcap(self._output.handle, self._topics, self.chunk_size)
+            self._output.commit()
         except OSError as exc:
             raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
+        finally:
+            self._output.discard()
 
 
 _ENCODERS: dict[str, Any] = {}

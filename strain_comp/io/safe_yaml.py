@@ -1,0 +1,106 @@
+"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range.
+
+``load_limited(text, ...)`` is ``yaml.safe_load`` that raises ``LimitError`` instead of
+expanding a "billion laughs" document, recursing into 1,000 levels of nesting
+(``RecursionError``) or building an integer no float can hold (``OverflowError`` later);
+every other fault is the usual ``yaml.YAMLError``. Used for calibration files and rosbag2
+``metadata.yaml``.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import yaml
+
+
+class LimitError(Exception):
+    """A YAML document exceeds a limit of ``load_limited``."""
+
+
+class _LimitedLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that counts aliases and nesting while it composes, and refuses
+    integers that no float can hold."""
+
+    def __init__(self, stream: str, max_aliases: int, max_depth: int) -> None:
+        super().__init__(stream)
+        self.max_aliases = max_aliases
+        self.max_depth = max_depth
+        self.n_aliases = 0
+        self.depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            self.n_aliases += 1
+            if self.n_aliases > self.max_aliases:
+                raise LimitError(f"more than {self.max_aliases} YAML aliases")
+        self.depth += 1
+        try:
+            if self.depth > self.max_depth:
+                raise LimitError(f"nested more than {self.max_depth} deep")
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+    def construct_yaml_int(self, node: Any) -> int:
+        try:
+            value = super().construct_yaml_int(node)
+        except ValueError:  # beyond Python's digit limit for int()
+            value = None
+        if value is None or abs(value) > sys.float_info.max:
+            text = node.value if len(node.value) <= 20 else node.value[:20] + "..."
+            raise yaml.constructor.ConstructorError(
+                None, None, f"integer {text} beyond float range", node.start_mark)
+        return value
+
+
+_LimitedLoader.add_constructor("tag:yaml.org,2002:int", _LimitedLoader.construct_yaml_int)
+
+
+def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
+    """LimitError when ``root`` with every alias expanded holds more than ``max_nodes``
+    values or is nested more than ``max_depth`` deep (iterative: no recursion)."""
+    size: dict[int, int] = {}
+    depth: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if key in size and not done:
+            continue
+        children: list[yaml.Node] = []
+        if isinstance(node, yaml.SequenceNode):
+            children = list(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        if not done:
+            size[key] = 0  # in progress: on the current path from the root
+            if any(id(c) in size and id(c) not in depth for c in children):
+                raise LimitError("a YAML alias refers to a value that contains it")
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if id(c) not in size)
+            continue
+        size[key] = 1 + sum(size[id(c)] for c in children)
+        depth[key] = 1 + max((depth[id(c)] for c in children), default=0)
+        if size[key] > max_nodes:
+            raise LimitError(f"more than {max_nodes} values once YAML aliases are expanded")
+        if depth[key] > max_depth:
+            raise LimitError(f"nested more than {max_depth} deep once YAML aliases are "
+                             "expanded")
+
+
+def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_000,
+                 max_depth: int = 64) -> Any:
+    """The single YAML document in ``text`` (None if empty), within the limits."""
+    loader = None
+    try:
+        loader = _LimitedLoader(text, max_aliases, max_depth)
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_expansion(node, max_nodes, max_depth)
+        return loader.construct_document(node)
+    finally:
+        if loader is not None:
+            loader.dispose()

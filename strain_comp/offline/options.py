@@ -1,0 +1,113 @@
+"""The ``fit --option K=V`` options of every model, with their types and ranges.
+
+``check_fit_options(model, options)`` refuses, with one ``InputError`` line naming the
+option, an option the model has no use for (every model, ``cubic`` included) and a value
+of the wrong type or out of range, before any bag is read. The table mirrors the keyword
+arguments of each model's ``fit`` (``strain_comp.models``) and the direction-detector
+options every model takes (``strain_comp.offline.fit.direction_settings``). The APL grid
+sizes are capped by the kernels (``N_MAX``, ``M_MAX``); lists hold at most 100 values.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from strain_comp.errors import InputError
+
+Check = Callable[[Any], str | None]
+"""None when the value is acceptable, else what it must be."""
+
+MAX_LIST = 100
+MAX_COUNT = 100_000
+
+
+def _number(lo: float, *, strict: bool = False, hi: float = math.inf) -> Check:
+    def check(value: Any) -> str | None:
+        ok = (isinstance(value, (int, float)) and not isinstance(value, bool)
+              and math.isfinite(value) and (value > lo if strict else value >= lo)
+              and value <= hi)
+        return None if ok else f"a number {'>' if strict else '>='} {lo:g}" + (
+            f" and <= {hi:g}" if math.isfinite(hi) else "")
+    return check
+
+
+def _integer(lo: int, hi: int, *, odd: bool = False) -> Check:
+    def check(value: Any) -> str | None:
+        ok = (isinstance(value, int) and not isinstance(value, bool) and lo <= value <= hi
+              and (not odd or value % 2 == 1))
+        return None if ok else f"an {'odd ' if odd else ''}integer in [{lo}, {hi}]"
+    return check
+
+
+def _choice(*names: str) -> Check:
+    def check(value: Any) -> str | None:
+        return None if value in names else f"one of {', '.join(names)}"
+    return check
+
+
+def _boolean(value: Any) -> str | None:
+    return None if isinstance(value, bool) else "true or false"
+
+
+def _number_list(lo: float, *, strict: bool = False) -> Check:
+    item = _number(lo, strict=strict)
+
+    def check(value: Any) -> str | None:
+        ok = (isinstance(value, list) and 1 <= len(value) <= MAX_LIST
+              and all(item(v) is None for v in value))
+        return None if ok else (f"a list of 1 to {MAX_LIST} numbers "
+                                f"{'>' if strict else '>='} {lo:g}")
+    return check
+
+
+def _apl_options() -> dict[str, Check]:
+    from strain_comp.models._apl_kernels import P_MIN
+    from strain_comp.models.apl import M_MAX, N_MAX
+
+    return {
+        "N": _integer(1, N_MAX), "M": _integer(1, M_MAX, odd=True),
+        "sigma_grid": _number_list(0.0, strict=True), "p_grid": _number_list(P_MIN),
+        "refine": _boolean, "cell_weights": _choice("signed", "free"),
+        "eps": _number(0.0, strict=True), "ridge": _number(0.0),
+        "output_nfev": _integer(0, MAX_COUNT), "search_nfev": _integer(0, MAX_COUNT),
+        "search_top": _integer(0, MAX_COUNT), "progress": _boolean,
+    }
+
+
+def model_options(model: str) -> dict[str, Check]:
+    """The options of ``model``'s fit (without the direction options)."""
+    from strain_comp.models import MODEL_NAMES
+
+    if model in ("apl", "pl", "mpi"):
+        return _apl_options()
+    if model == "sinh_pl":
+        return {"n_cells": _integer(1, 3), "max_nfev": _integer(1, MAX_COUNT)}
+    if model == "rational":
+        from strain_comp.models.rational import MODES
+
+        return {"mode": _choice(*MODES)}
+    if model == "spike_decay":
+        return {"hold_rate": _number(0.0, strict=True), "min_hold": _number(0.0, strict=True)}
+    if model == "cubic":
+        return {}
+    raise InputError(f"--model {model!r}: unknown model; known: {', '.join(MODEL_NAMES)}")
+
+
+DIRECTION_OPTIONS: dict[str, Check] = {
+    "deadzone": _number(0.0, strict=True), "k_sigma": _number(0.0, strict=True),
+    "tau": _number(0.0),
+}
+
+
+def check_fit_options(model: str, options: Mapping[str, Any]) -> None:
+    """InputError naming the first option ``model`` does not take or whose value is bad."""
+    known = {**model_options(model), **DIRECTION_OPTIONS}
+    for key, value in options.items():
+        if key not in known:
+            raise InputError(f"--option {key}: model {model!r} has no such option; its "
+                             f"options: {', '.join(known)}")
+        problem = known[key](value)
+        if problem is not None:
+            raise InputError(f"--option {key}={value!r}: must be {problem}")
