@@ -206,11 +206,13 @@ class BagWriter:
                 for ns, st in zip(t_ns.tolist(), statuses, strict=False)]
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns, rows)
 
-    def flush(self) -> None:
-        """Write the buffered messages as complete chunks (see the class doc)."""
+    def flush(self, *, before: float | None = None) -> None:
+        """Write the buffered messages (only those before log time ``before`` [s], if
+        given) as complete chunks; the rest stays buffered (see the class doc)."""
         if self._closed:
             raise BagError(f"{self.path}: writer already closed")
-        self._write_pending(final=False)
+        self._write_pending(final=False, before=None if before is None else
+                            round(before * 1e9))
 
     def close(self) -> None:
         """Write the remaining messages, the summary and the footer (once)."""
@@ -221,7 +223,7 @@ class BagWriter:
         assert self._out is not None
         self._out.finish()
 
-    def _write_pending(self, *, final: bool) -> None:
+    def _write_pending(self, *, final: bool, before: int | None = None) -> None:
         if self._out is None:
             self._out = _Stream(self.path, self.inputs, self.chunk_size)
         p = self._pending
@@ -229,7 +231,7 @@ class BagWriter:
         if not p.t_ns:
             return
         try:
-            rest = self._out.write_messages(self._topics, p, final=final)
+            rest = self._out.write_messages(self._topics, p, final=final, before=before)
         except OSError as exc:
             self._out.abort(exc)
             raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
@@ -298,10 +300,10 @@ class _Stream:
             self.counts[entry.id] = 0
             self._write(_record(channel))
 
-    def write_messages(self, topics: Mapping[str, _Topic], p: _Pending, *,
-                       final: bool) -> _Pending | None:
+    def write_messages(self, topics: Mapping[str, _Topic], p: _Pending, *, final: bool,
+                       before: int | None = None) -> _Pending | None:
         """Write ``p`` merged in log-time order as chunks; unless ``final``, the last partial
-        chunk is returned (sorted) instead of written."""
+        chunk and the messages at or after ``before`` [ns] are returned (sorted) instead."""
         self._declare(topics)
         t_ns = np.concatenate(p.t_ns)
         order = np.argsort(t_ns, kind="stable")
@@ -312,22 +314,23 @@ class _Stream:
         poff = (np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64))[order]
         plen = plen[order]
         blob = np.concatenate(p.payloads) if len(p.payloads) > 1 else p.payloads[0]
-        n = t_ns.size
-        rec_end = np.cumsum(31 + plen)
+        n = t_ns.size if before is None or final else int(np.searchsorted(t_ns, before))
+        rec_end = np.cumsum(31 + plen[:n])
         cuts = [0]
         while cuts[-1] < n:
             base = rec_end[cuts[-1] - 1] if cuts[-1] else 0
             nxt = int(np.searchsorted(rec_end, base + self.chunk_size, side="right"))
             cuts.append(min(max(nxt, cuts[-1] + 1), n))
         keep = None
-        if not final and len(cuts) > 1:
-            base = rec_end[cuts[-2] - 1] if cuts[-2] else 0
-            if rec_end[-1] - base < self.chunk_size:  # a partial last chunk: keep it
-                a = cuts.pop(-2)
+        if not final:
+            if len(cuts) > 1 and rec_end[-1] - (rec_end[cuts[-2] - 1] if cuts[-2] else 0) \
+                    < self.chunk_size:  # a partial last chunk: keep it
+                cuts.pop()
+            a = cuts[-1]
+            if a < t_ns.size:
                 keep = _Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [plen[a:].copy()],
                                 [_take_payloads(blob, poff[a:], plen[a:])])
                 keep.nbytes = keep.payloads[0].size
-                cuts[-1] = a
         for a, b in itertools.pairwise(cuts):
             if b == a:
                 continue
