@@ -124,6 +124,7 @@ class _CellModel(Compensator):
 
     kind: ClassVar[int]
     rate_dependent: ClassVar[bool] = True
+    array_kernel: ClassVar[bool] = True
 
     def __init__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
                  mu: npt.ArrayLike, normalisation: Normalisation) -> None:
