@@ -269,10 +269,17 @@ class _Sensor:
             h.last_status = Status(int(status[-1]))
 
 
+_COUNTER_CODES = [(name, [int(c) for c, (used, counter) in STATUS_RULES.items()
+                           if (used if name == "n_good" else counter == name)])
+                   for name in ["n_good", *sorted({c for _, c in STATUS_RULES.values() if c})]]
+"""Each health counter with the status codes it counts (from ``STATUS_RULES``)."""
+
+
 def _add_counts(h: SensorHealth, counts: np.ndarray) -> None:
     """Add per-``Status`` sample counts (indexed by status code) to ``h``'s counters."""
-    for status in Status:
-        h.count(status, int(counts[status]))
+    values = counts.tolist()
+    for name, codes in _COUNTER_CODES:
+        setattr(h, name, getattr(h, name) + sum(values[c] for c in codes))
 
 
 def _scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
