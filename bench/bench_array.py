@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import calibration, resistance
+from _common import calibration, resistance, row
 
 from strain_comp.core.engine import Engine
 from strain_comp.models.apl import APLArray
@@ -103,6 +103,16 @@ def main() -> None:
           f"max |strain difference| {diff:.1e} %")
     if not diff <= 1e-9:
         raise SystemExit("array path and per-sensor loop disagree")
+    k_med = np.median(kernel_cost) * 1e6
+    goal = "<= 2x the bare kernel" if k >= 256 else "<= 20 us"
+    held = med <= 2 * k_med if k >= 256 else med <= 20.0
+    print(f"goal 'step_array {goal}': {'holds' if held else 'does NOT hold'} "
+          f"({med:.1f} us, {med / k_med:.2f}x the kernel)")
+    row(f"`Engine.step_array`, {k} APL sensors at 1 kHz, fused tick "
+        f"(`bench_array.py --sensors {k}`)", f"median {med:.1f} us/tick, p99 {p99:.0f} us",
+        f"bare APL kernel (`APLArray.step`) {k_med:.1f} us; loop of `Engine.step` "
+        f"{base_med:.0f} us", f"{med / k_med:.2f}x the kernel; {base_med / med:.0f}x faster "
+        f"than the loop")
 
 
 if __name__ == "__main__":

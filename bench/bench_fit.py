@@ -36,6 +36,7 @@ import os
 import time
 
 import numpy as np
+from _common import row
 from scipy.optimize import minimize
 
 from strain_comp.errors import StrainCompError
@@ -134,6 +135,9 @@ def rational_scaling(sizes: list[int]) -> None:
             rational.least_squares = real
         print(f"{n:>10,}{t_an:>12.3f}{1e6 * t_an / n:>11.2f}{t_fd:>9.3f}{1e6 * t_fd / n:>11.2f}"
               f"{t_fd / t_an:>12.1f}x")
+        row(f"rational rat22 fit, {n:,} samples (`bench_fit.py`)",
+            f"{t_an:.2f} s, {1e6 * t_an / n:.1f} us/sample (analytic Jacobian)",
+            f"finite-difference Jacobian: {t_fd:.2f} s", f"{t_fd / t_an:.1f}x")
 
 
 def main() -> None:
@@ -186,6 +190,10 @@ def main() -> None:
             timed[workers] = time.perf_counter() - start
         print(f"APL fit: grid in {os.cpu_count()} threads {timed[None]:.2f} s, serial "
               f"(baseline) {timed[1]:.2f} s: {timed[1] / timed[None]:.2f}x")
+        row(f"APL fit with its sigma/p grid in {os.cpu_count()} threads, "
+            f"{args.samples:,} samples (`bench_fit.py`)", f"{timed[None]:.1f} s",
+            f"the same grid scored serially: {timed[1]:.1f} s",
+            f"{timed[1] / timed[None]:.2f}x")
         budget = args.naive_evaluations or int(model.fit_report["evaluations"])
         best, reached, n, sec = naive_apl(rates, budget, target)
         when = (f"reached the guided RMSE after {reached:.1f} s" if reached is not None else
@@ -193,6 +201,10 @@ def main() -> None:
         print(f"baseline: naive Nelder-Mead over all 24 APL parameters, equal work "
               f"({n} model runs, {sec:.1f} s): best RMSE {best:.3f} % ({best / target:.1f}x "
               f"the guided fit's); {when}")
+        row(f"APL fit training RMSE, {args.samples:,} samples (`bench_fit.py`)",
+            f"{target:.3f} % in {wall:.1f} s",
+            f"naive Nelder-Mead over all 24 parameters, equal work ({n} model runs): "
+            f"{best:.3f} %", f"{best / target:.1f}x lower error")
     if args.rational_sizes:
         rational_scaling([int(x) for x in args.rational_sizes.split(",")])
 

@@ -22,7 +22,7 @@ import math
 import time
 
 import numpy as np
-from _common import best_time
+from _common import best_time, row
 
 from strain_comp._numba import njit
 from strain_comp.core.direction import DirectionSettings
@@ -124,6 +124,9 @@ def bench_models(n: int) -> None:
             slow = n_py / best_time(lambda kind=kind, args=args:
                                     python_cells(kind, t[:n_py], r[:n_py], *args), 2)
         print(f"{name:<7}{fast:>14,.0f}{slow:>14,.0f}{fast / slow:>8.0f}x")
+        row(f"{name} kernel `run`, N=11, M=9, one core (`bench_kernels.py`)",
+            f"{fast / 1e6:.1f} M samples/s", f"pure-Python loop: {slow / 1e3:.0f} k/s",
+            f"{fast / slow:.0f}x")
     apl = models["apl"][0]
     apl.reset()
     check = np.abs(apl.run(t[:n_py], r[:n_py]) - python_cells(
@@ -248,6 +251,10 @@ def roofline(n: int = 1_000_000, n_cells: int = 11) -> None:
     print(f"  the {n_cells} powers with libm pow:    {ns_libm:7.1f} ns/sample")
     print(f"  pure-Python loop (baseline):   {ns_py:7.0f} ns/sample "
           f"(kernel is {ns_py / ns_kernel:.0f}x faster)")
+    row("APL kernel roofline: ns per sample vs its 11 powers alone (`bench_kernels.py`)",
+        f"{ns_kernel:.0f} ns/sample, {flops / ns_kernel:.1f} Gflop/s",
+        f"the powers alone (pow01): {ns_pow:.0f} ns; libm pow: {ns_libm:.0f} ns",
+        f"{100 * ns_pow / ns_kernel:.0f} % of the kernel")
 
 
 def main() -> None:

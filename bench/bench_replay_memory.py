@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import calibration, resistance
+from _common import calibration, resistance, row
 
 from strain_comp.core.calibration import save_calibration
 from strain_comp.io.bag import BagWriter
@@ -82,6 +82,12 @@ def main() -> None:
             print(f"{n:>12,}{bag.stat().st_size / 1e6:>9.1f}{res['seconds']:>9.2f}"
                   f"{1e6 * res['seconds'] / n:>8.2f}{res['rss_mb']:>13.0f}"
                   f"{res['rss_mb'] / base['rss_mb']:>12.2f}x", flush=True)
+            row(f"streaming replay, {n:,} messages on {args.sensors} sensors "
+                f"(`bench_replay_memory.py`)",
+                f"{res['seconds']:.1f} s, {1e6 * res['seconds'] / n:.1f} us/msg",
+                f"import + compile only (1,000 msgs): {base['rss_mb']:.0f} MB peak",
+                f"{res['rss_mb'] / base['rss_mb']:.2f}x the baseline's memory",
+                memory_mb=res["rss_mb"])
             bag.unlink()
 
 
