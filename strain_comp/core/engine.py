@@ -190,7 +190,7 @@ class _PendingBatch:
 
     t: np.ndarray
     ohm: np.ndarray
-    temperature: np.ndarray
+    temperature: np.ndarray | None
     status: np.ndarray
     reset: np.ndarray
     last_good_t: float
@@ -261,14 +261,6 @@ class _Sensor:
         return float(resistance_to_divider(r_mid, float(self.cal.input.r1),
                                            float(self.cal.input.vin)))
 
-    def count(self, status: np.ndarray) -> None:
-        """Add a batch's statuses to the counters."""
-        h = self.health
-        _add_counts(h, np.bincount(status.astype(np.intp), minlength=len(Status)))
-        if status.size:
-            h.last_status = Status(int(status[-1]))
-
-
 _COUNTER_CODES = [(name, [int(c) for c, (used, counter) in STATUS_RULES.items()
                            if (used if name == "n_good" else counter == name)])
                    for name in ["n_good", *sorted({c for _, c in STATUS_RULES.values() if c})]]
@@ -279,7 +271,64 @@ def _add_counts(h: SensorHealth, counts: np.ndarray) -> None:
     """Add per-``Status`` sample counts (indexed by status code) to ``h``'s counters."""
     values = counts.tolist()
     for name, codes in _COUNTER_CODES:
-        setattr(h, name, getattr(h, name) + sum(values[c] for c in codes))
+        n = 0
+        for c in codes:
+            n += values[c]
+        if n:
+            setattr(h, name, getattr(h, name) + n)
+
+
+@njit
+def _clamp(value: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one value (NaN stays NaN)."""
+    return value if value != value else min(max(value, lo), hi)
+
+
+@njit
+def _screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t: float,
+                  r_short: float, r_open: float, r_lo: float, r_hi: float, gap: float
+                  ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
+    """``screen_all``, plus the indices of the used samples and the positions among them
+    where a gap reset starts a segment."""
+    status, reset, last = screen_all(t, ohm, forced, last_good_t, r_short, r_open, r_lo,
+                                     r_hi, gap)
+    idx = np.empty(t.size, np.int64)
+    starts = np.empty(t.size, np.int64)
+    m = 0
+    n_starts = 0
+    for i in range(t.size):
+        if sc.is_used(status[i]):
+            if reset[i]:
+                starts[n_starts] = m
+                n_starts += 1
+            idx[m] = i
+            m += 1
+    return status, reset, last, idx[:m], starts[:n_starts]
+
+
+@njit
+def _hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np.ndarray,
+          dir_used: np.ndarray, strain: float, direction: int, s_lo: float, s_hi: float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Clamp the used samples' strain (in place) and hold it, and the direction, over the
+    bad samples. Also returns the samples per status code, then the number of resets."""
+    n = status.size
+    out_s = np.empty(n)
+    out_d = np.empty(n, np.int8)
+    counts = np.zeros(sc.OUT_OF_RANGE + 2, np.int64)
+    j = 0
+    for i in range(n):
+        counts[status[i]] += 1
+        if reset[i]:
+            counts[counts.size - 1] += 1
+        if j < idx.size and idx[j] == i:
+            strain_used[j] = _clamp(strain_used[j], s_lo, s_hi)
+            strain = strain_used[j]
+            direction = dir_used[j]
+            j += 1
+        out_s[i] = strain
+        out_d[i] = direction
+    return out_s, out_d, counts
 
 
 def _scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
@@ -497,16 +546,15 @@ class Engine:
         raw = np.ascontiguousarray(r, dtype=np.float64)
         if t.ndim != 1 or t.shape != raw.shape:
             raise InputError("run: t and r must be 1-D arrays of one length")
-        temp = (np.full(t.shape, np.nan) if temperature is None
+        temp = (None if temperature is None
                 else np.ascontiguousarray(temperature, dtype=np.float64))
         ohm, forced = s.to_ohm(raw)
-        status, reset, last_good_t = screen_all(t, ohm, forced, s.last_good_t, s.r_short,
-                                                 s.r_open, s.r_lo, s.r_hi, self.gap_reset)
-        used = used_mask(status)
-        idx = np.flatnonzero(used)
+        status, reset, last_good_t, idx, resets = _screen_batch(
+            t, ohm, forced, s.last_good_t, s.r_short, s.r_open, s.r_lo, s.r_hi,
+            self.gap_reset)
         strain_used = np.empty(idx.size)
         dir_used = np.empty(idx.size, dtype=np.int8)
-        bounds = [0, *np.flatnonzero(reset[idx]).tolist(), idx.size]
+        bounds = [0, *resets.tolist(), idx.size]
         for k, (a, b) in enumerate(itertools.pairwise(bounds)):
             if b == a:
                 continue
@@ -526,30 +574,26 @@ class Engine:
         """``run``'s second stage: effect terms, clamping, held outputs and counters."""
         t, status, reset, last_good_t, idx = p.t, p.status, p.reset, p.last_good_t, p.idx
         strain_used, dir_used = p.strain_used, p.dir_used
-        used = used_mask(status)
         if s.cal.effects and idx.size:
             nbrs = {n: v[idx] for n, v in neighbours.items()}
             starts = p.bounds[1:-1]  # a reset at the first sample resets at once
+            temp = (np.full(idx.size, np.nan) if p.temperature is None
+                    else p.temperature[idx])
             strain_used = self._apply_effects(s, t[idx], p.ohm[idx], strain_used, dir_used,
-                                              p.temperature[idx], nbrs, starts)
-        np.clip(strain_used, s.s_lo, s.s_hi, out=strain_used)
-        # held outputs: each sample shows the latest used sample at or before it
-        rank = np.cumsum(used) - 1
-        if idx.size:
-            take = np.maximum(rank, 0)
-            strain = np.where(rank < 0, s.strain, strain_used[take])
-            direction = np.where(rank < 0, s.direction, dir_used[take]).astype(np.int8)
-        else:
-            strain = np.full(t.size, s.strain)
-            direction = np.full(t.size, s.direction, dtype=np.int8)
-        s.count(status)
-        s.health.n_gaps += int(np.count_nonzero(reset))
+                                              temp, nbrs, starts)
+        # clamped; held outputs: each sample shows the latest used sample at or before it
+        strain, direction, counts = _hold(status, reset, idx, strain_used, dir_used, s.strain,
+                                          s.direction, s.s_lo, s.s_hi)
+        h = s.health
+        _add_counts(h, counts)
+        if status.size:
+            h.last_status = Status(int(status[-1]))
+        h.n_gaps += int(counts[-1])
         if idx.size:
             s.last_good_t = last_good_t
             s.health.last_good_t = last_good_t
             s.strain, s.direction = float(strain_used[-1]), int(dir_used[-1])
-        return BatchOutput(strain.astype(np.float64), direction, status,
-                           status == Status.OUT_OF_RANGE)
+        return BatchOutput(strain, direction, status, status == sc.OUT_OF_RANGE)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
         """One tick of an array: ``r_vector`` in the array's sensor order."""
@@ -640,7 +684,7 @@ def _array_tick(t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
         model_out[k] = estimate
         held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                                par[k, _TAU]) * par[k, _SIGN]
-        held[k, _STRAIN] = min(max(estimate, par[k, _S_LO]), par[k, _S_HI])
+        held[k, _STRAIN] = _clamp(estimate, par[k, _S_LO], par[k, _S_HI])
         held[k, _LAST_GOOD_T] = t
 
 
@@ -726,7 +770,7 @@ class _ArrayGroup:
             self._effects(t, raw)
         return ArrayOutput(self.held[:, _STRAIN].copy(),
                            self.held[:, _DIRECTION].astype(np.int8), status,
-                           status == Status.OUT_OF_RANGE)
+                           status == sc.OUT_OF_RANGE)
 
     def _effects(self, t: float, raw: np.ndarray) -> None:
         """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""
