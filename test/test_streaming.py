@@ -97,3 +97,37 @@ def test_streaming_replay_equals_the_batch_path_over_the_whole_series(
     whole = read_bag(big)
     assert got.diagnostics == whole.diagnostics
     assert len(got.diagnostics) > 3
+
+
+def test_chunks_out_of_time_order_are_all_delivered_with_a_problem_line(tmp_path: Path) -> None:
+    path = tmp_path / "late.mcap"
+    t = np.arange(2000) * 0.01
+    with BagWriter(path, chunk_size=2000) as w:  # /a fully, then /b over the same times
+        w.write_float64("/a", t, np.ones(t.size))
+        w.flush()
+        w.write_float64("/b", t, np.zeros(t.size))
+    whole = read_bag(path)
+    pieces = list(iter_bag(path, window=300))
+    for topic in ("/a", "/b"):
+        got, _ = _concat(pieces, topic)
+        np.testing.assert_array_equal(np.sort(got), whole.series[topic].t)
+    assert any("delivered late" in line for p in pieces for line in p.problems)
+
+
+def test_an_exception_inside_the_writer_leaves_no_output(tmp_path: Path) -> None:
+    path = tmp_path / "x.mcap"
+    with pytest.raises(RuntimeError), BagWriter(path, chunk_size=500) as w:
+        w.write_float64("/a", np.arange(500) * 0.01, np.ones(500))
+        w.flush()
+        raise RuntimeError("stop")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_fit_segments_cut_at_a_long_step_back_in_time() -> None:
+    from strain_comp.offline.fit import split_segments
+
+    t = np.concatenate([np.arange(100) * 0.1, np.arange(100) * 0.1])  # a looped recording
+    r = 100.0 + np.sin(t)
+    segments = split_segments(t, r, np.sin(t))
+    assert [seg.t.size for seg in segments] == [100, 100]
+    assert all(np.all(np.diff(seg.t) > 0) for seg in segments)

@@ -8,7 +8,8 @@ Per sample, in this order:
 1. Input conversion: ``input.kind: divider`` readings [V] become ohm through
    R = R1 (Vin - V_R1) / V_R1 (apl_electrolycra... section II.A); V_R1 <= 0 is an open
    circuit and V_R1 >= Vin a short.
-2. Screening (``Status``): not finite, R <= 0 ohm, open circuit (R > ``OPEN_FACTOR`` x the
+2. Screening (``strain_comp.core.samples.screen_one``, the one rule the fit uses too;
+   ``Status``, ``STATUS_RULES``): not finite, R <= 0 ohm, open circuit (R > ``OPEN_FACTOR`` x the
    top of the calibration's resistance range), short (0 < R < ``SHORT_FACTOR`` x its bottom),
    time not past the last good sample. These are *bad*: counted per kind, never fed to the
    model or the detector; the output holds the last good estimate (NaN strain and direction
@@ -31,9 +32,9 @@ Per sample, in this order:
    pre-effect estimate of the same tick (NaN, i.e. held, where that sample was bad).
 
 ``run`` (batch) equals repeated ``step`` exactly: screening is one sequential numba pass
-(the same rule function ``step`` calls), then the model's ``run`` over each run of used
-samples between resets, then the effect terms over the same runs, and the held outputs are
-a forward fill. ``run_array`` equals ``step_array`` tick by tick in the same way.
+(the same rule function ``step`` and the array tick call), then the model's ``run`` over
+each run of used samples between resets, then the effect terms over the same runs, and the
+held outputs are a forward fill. ``run_array`` equals ``step_array`` tick by tick in the same way.
 """
 
 from __future__ import annotations
