@@ -24,7 +24,7 @@ if (( quick )); then
     --rational-sizes 20000,200000
   run bench/bench_startup.py --warm-runs 1 --no-dds
 else
-  run bench/bench_kernels.py
+  run bench/bench_kernels.py --no-fit
   run bench/bench_models.py
   run bench/bench_array.py
   run bench/bench_array.py --sensors 16
