@@ -131,3 +131,27 @@ def test_fit_segments_cut_at_a_long_step_back_in_time() -> None:
     segments = split_segments(t, r, np.sin(t))
     assert [seg.t.size for seg in segments] == [100, 100]
     assert all(np.all(np.diff(seg.t) > 0) for seg in segments)
+
+
+def test_replay_diagnostics_equal_the_engine_stepped_up_to_each_tick(tmp_path: Path) -> None:
+    from strain_comp.core.engine import diagnostics
+
+    calibration = load_calibration(ROOT / "config" / "demo_calibration.yaml")
+    bag = ROOT / "bags" / "steps.mcap"
+    out = tmp_path / "out.mcap"
+    replay_bag(bag, calibration, out, diagnostics_period=0.7, window=2000)
+    series = read_bag(bag).series["/s1/resistance"]
+    written = read_bag(out).diagnostics
+    assert len(written) > 20
+    engine = Engine(calibration)
+    i = 0
+    t0 = series.t[0]
+    for stored, statuses in written:
+        tick = t0 + 0.7 * round((stored - t0) / 0.7)  # the tick before its ns rounding
+        while i < series.t.size and series.t[i] <= tick:
+            engine.step("s1", series.t[i], series.values[i])
+            i += 1
+        expect = [(name, level, message, values) for name, level, message, values
+                  in diagnostics(engine.health(now=tick))]
+        assert statuses == expect
+    assert i == series.t.size

@@ -168,6 +168,8 @@ class BatchOutput:
     direction: np.ndarray
     status: np.ndarray
     out_of_range: np.ndarray
+    reset: np.ndarray
+    """True where a gap reset the state before the sample (counted in ``n_gaps``)."""
 
 
 @dataclass
@@ -594,7 +596,7 @@ class Engine:
             s.last_good_t = last_good_t
             s.health.last_good_t = last_good_t
             s.strain, s.direction = float(strain_used[-1]), int(dir_used[-1])
-        return BatchOutput(strain, direction, status, status == sc.OUT_OF_RANGE)
+        return BatchOutput(strain, direction, status, status == sc.OUT_OF_RANGE, reset)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
         """One tick of an array: ``r_vector`` in the array's sensor order."""
@@ -802,6 +804,33 @@ class _ArrayGroup:
                 h.last_status = Status(int(self.held[k, _LAST_STATUS]))
             out[name] = h
         return out
+
+
+def health_at(before: SensorHealth, t: np.ndarray, out: BatchOutput, ticks: np.ndarray, *,
+              stale_after: float) -> list[SensorHealth]:
+    """A sensor's health at each of ``ticks`` [s] from one ``run``'s statuses: ``before``
+    (its health when the run started) plus the counts of the samples at or before each tick
+    (``t`` in order), what ``Engine.health(now=tick)`` would have said had the run been cut
+    there."""
+    n = t.size
+    pos = np.searchsorted(np.maximum.accumulate(t), ticks, side="right")
+    cum = np.zeros((n + 1, len(Status) + 1), np.int64)
+    cum[1:, :len(Status)] = np.cumsum(
+        out.status[:, None].astype(np.int64) == np.arange(len(Status)), axis=0)
+    cum[1:, -1] = np.cumsum(out.reset)
+    last_used = np.maximum.accumulate(np.where(USED_CODE[out.status], np.arange(n), -1))
+    found = []
+    for now, k in zip(ticks.tolist(), pos.tolist(), strict=True):
+        h = replace(before)
+        _add_counts(h, cum[k, :-1])
+        h.n_gaps += int(cum[k, -1])
+        if k:
+            h.last_status = Status(int(out.status[k - 1]))
+            if last_used[k - 1] >= 0:
+                h.last_good_t = float(t[last_used[k - 1]])
+        h.stale = h.last_good_t is None or now - h.last_good_t > stale_after
+        found.append(h)
+    return found
 
 
 def diagnostics(health: Mapping[str, SensorHealth], *, prefix: str = "strain_comp"

@@ -20,13 +20,20 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.engine import GAP_RESET, Engine, SensorHealth, diagnostics
+from strain_comp.core.engine import (
+    GAP_RESET,
+    BatchOutput,
+    Engine,
+    SensorHealth,
+    diagnostics,
+    health_at,
+)
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -124,26 +131,31 @@ class _Replay:
         now, self.ticks = ticks[ticks < t_last], ticks[ticks >= t_last]
         temps = {s: self._temperature(contents, s, series.t)
                  for inp, series in inputs for s in inp.sensors}
-        # run in pieces between ticks, so health at a tick sees what came before it
-        cuts = [np.searchsorted(np.maximum.accumulate(series.t), now, side="right")
-                for _, series in inputs]
-        for k in range(now.size + 1):
-            for (inp, series), cut in zip(inputs, cuts, strict=True):
-                a = 0 if k == 0 else cut[k - 1]
-                b = cut[k] if k < now.size else series.t.size
-                if b > a:
-                    self._outputs(inp, series.t[a:b], series.values[a:b],
-                                  {s: None if temps[s] is None else temps[s][a:b]
-                                   for s in inp.sensors})
-            if k < now.size:
-                self.write_tick(float(now[k]))
+        # each input runs once over the piece; the health at each tick inside it comes
+        # from the cumulative status counts of the samples at or before the tick
+        before = self.engine.health()
+        at_ticks = {name: [h] * now.size for name, h in before.items()}
+        for inp, series in inputs:
+            outs = self._outputs(inp, series.t, series.values,
+                                 {s: temps[s] for s in inp.sensors})
+            if now.size:
+                for sensor, out in outs.items():
+                    at_ticks[sensor] = health_at(before[sensor], series.t, out, now,
+                                                 stale_after=self.engine.stale_after)
+        for k, tick in enumerate(now.tolist()):
+            health = {name: _stale(hs[k], tick, self.engine.stale_after)
+                      for name, hs in at_ticks.items()}
+            self._write_diagnostics(tick, health)
 
     def write_tick(self, t: float) -> None:
-        self.writer.write_diagnostics([t], [diagnostics(self.engine.health(now=t))])
+        self._write_diagnostics(t, self.engine.health(now=t))
+
+    def _write_diagnostics(self, t: float, health: dict[str, SensorHealth]) -> None:
+        self.writer.write_diagnostics([t], [diagnostics(health)])
         self.n_out += 1
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
-                 temps: dict[str, np.ndarray | None]) -> None:
+                 temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
         if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
             outs = self.engine.run_array(inp.sensors, t, values, temps)
             for what in OUTPUTS:
@@ -155,7 +167,9 @@ class _Replay:
             self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
             self.writer.write_int8(f"/{inp.name}/direction", t, out.direction)
             self.writer.write_int8(f"/{inp.name}/status", t, out.status)
+            outs = {inp.name: out}
         self.n_out += len(OUTPUTS) * t.size
+        return outs
 
     def _temperature(self, contents: BagContents, name: str, t: np.ndarray
                      ) -> np.ndarray | None:
@@ -173,6 +187,12 @@ class _Replay:
         else:
             return None
         return hold_latest(t, src_t, src_v)
+
+
+def _stale(h: SensorHealth, now: float, stale_after: float) -> SensorHealth:
+    """``h`` with ``stale`` evaluated at ``now`` (as ``Engine.health(now)`` does)."""
+    stale = h.last_good_t is None or now - h.last_good_t > stale_after
+    return h if h.stale == stale else replace(h, stale=stale)
 
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
