@@ -140,6 +140,10 @@ class SensorHealth:
         return level, message, {k: str(v) for k, v in values.items()}
 
 
+if {c for _, c in STATUS_RULES.values() if c} - {f.name for f in fields(SensorHealth)}:
+    raise AssertionError("every counter of STATUS_RULES must be a SensorHealth field")
+
+
 @dataclass(frozen=True)
 class SensorOutput:
     """One sample's result: strain [%] (held if bad), direction (+1/0/-1), status, flag."""
