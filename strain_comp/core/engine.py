@@ -172,8 +172,9 @@ class BatchOutput:
     direction: np.ndarray
     status: np.ndarray
     out_of_range: np.ndarray
-    reset: np.ndarray
-    """True where a gap reset the state before the sample (counted in ``n_gaps``)."""
+    reset: np.ndarray | None = None
+    """True where a gap reset the state before the sample (counted in ``n_gaps``); None
+    when not known (no resets assumed)."""
 
 
 @dataclass
@@ -821,7 +822,8 @@ def health_at(before: SensorHealth, t: np.ndarray, out: BatchOutput, ticks: np.n
     cum = np.zeros((n + 1, len(Status) + 1), np.int64)
     cum[1:, :len(Status)] = np.cumsum(
         out.status[:, None].astype(np.int64) == np.arange(len(Status)), axis=0)
-    cum[1:, -1] = np.cumsum(out.reset)
+    if out.reset is not None:
+        cum[1:, -1] = np.cumsum(out.reset)
     last_used = np.maximum.accumulate(np.where(USED_CODE[out.status], np.arange(n), -1))
     found = []
     for now, k in zip(ticks.tolist(), pos.tolist(), strict=True):
