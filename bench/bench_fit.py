@@ -15,8 +15,9 @@ includes numba compilation. Target: APL under 30 s on this 2-core machine.
 
 Baselines in the same run:
 
-* the APL fit with its sigma/p grid scored serially (``workers=1``) against the default
-  (one thread per core): the speed-up of the parallel grid;
+* the APL fit with its sigma/p grid scored in one thread per core
+  (``workers=os.cpu_count()``) against the default serial search: the speed-up (or not) of
+  the threaded grid;
 * a naive, unguided ``scipy.optimize.minimize`` (Nelder-Mead, scipy defaults) of the same
   APL model's training RMSE over all 24 parameters (log sigma, p, w_0..w_12, mu_1..mu_9)
   from a neutral start (sigma = 0.02 /s, p = 1, w = [1, 0...], f = identity), given equal
@@ -184,10 +185,11 @@ def main() -> None:
         segments = split_segments(rates.t, rates.r, rates.s)
         norm = Normalisation.fit(rates.r, rates.s)
         cal = cals["apl"]
-        timed = {None: float(cal.provenance["fit_seconds"])}  # fit_sensor: default workers
+        timed = {1: float(cal.provenance["fit_seconds"])}  # fit_sensor: serial by default
         start = time.perf_counter()
-        model = APL.fit(segments, norm, direction=cal.direction, workers=1, progress=False)
-        timed[1] = time.perf_counter() - start
+        model = APL.fit(segments, norm, direction=cal.direction, workers=os.cpu_count() or 1,
+                        progress=False)
+        timed[None] = time.perf_counter() - start
         print(f"APL fit: grid in {os.cpu_count()} threads {timed[None]:.2f} s, serial "
               f"(baseline) {timed[1]:.2f} s: {timed[1] / timed[None]:.2f}x")
         row(f"APL fit with its sigma/p grid in {os.cpu_count()} threads, "
