@@ -238,8 +238,8 @@ class _CellModel(Compensator):
         Default 1: measured on a 2-core machine, threads were slower than the serial
         search (numpy's BLAS already uses the cores, and the bounded QP solver holds the
         GIL for much of its time); ``bench/bench_fit.py`` measures both. ``progress``:
-        True prints a line per grid row to stderr once the fit has run for more than 2 s; a callable receives those lines instead;
-        False is silent.
+        True prints a line per grid row to stderr once the fit has run for more than 2 s;
+        a callable receives those lines instead; False is silent.
         """
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
