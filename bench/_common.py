@@ -73,3 +73,19 @@ def best_time(fn: Callable[[], object], repeat: int = 3) -> float:
         fn()
         best = min(best, time.perf_counter() - start)
     return best
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory so far [MB]."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def row(what: str, figure: str, baseline: str, ratio: str, *,
+        memory_mb: float | None = None) -> None:
+    """Print one row of the README's performance table (``bench/perf_table.py`` collects
+    the ``ROW`` lines of ``bench/run_all.sh``); memory: the peak RSS of this process unless
+    given."""
+    memory = peak_rss_mb() if memory_mb is None else memory_mb
+    print(f"ROW | {what} | {figure} | {baseline} | {ratio} | {memory:.0f} MB |", flush=True)

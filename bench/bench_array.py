@@ -25,10 +25,35 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import calibration, resistance
+from _common import calibration, resistance, row
 
 from strain_comp.core.engine import Engine
 from strain_comp.models.apl import APLArray
+
+
+def run_fixed_cost(cal: object, name: str, t: np.ndarray, r: np.ndarray,
+                   calls: int = 3000) -> None:
+    """``Engine.run`` on one sample at a time (its fixed cost) against ``Engine.step``."""
+    engine = Engine(cal)
+    engine.warm_up()
+    n = min(calls, t.size)
+    cost_run, cost_step = np.empty(n), np.empty(n)
+    for i in range(n):
+        start = time.perf_counter()
+        engine.run(name, t[i:i + 1], r[i:i + 1])
+        cost_run[i] = time.perf_counter() - start
+    engine.reset()
+    for i in range(n):
+        start = time.perf_counter()
+        engine.step(name, t[i], r[i])
+        cost_step[i] = time.perf_counter() - start
+    med_run, med_step = np.median(cost_run) * 1e6, np.median(cost_step) * 1e6
+    print(f"Engine.run on one sample (fixed cost), {n} calls: median {med_run:.1f} us; "
+          f"Engine.step median {med_step:.1f} us; goal '< 20 us': "
+          f"{'holds' if med_run < 20 else 'does NOT hold'}")
+    row("`Engine.run` fixed cost: one APL sample per call (`bench_array.py`)",
+        f"median {med_run:.1f} us", f"`Engine.step` on one sample: {med_step:.1f} us",
+        f"{med_run / med_step:.1f}x step")
 
 
 def main() -> None:
@@ -103,6 +128,17 @@ def main() -> None:
           f"max |strain difference| {diff:.1e} %")
     if not diff <= 1e-9:
         raise SystemExit("array path and per-sensor loop disagree")
+    k_med = np.median(kernel_cost) * 1e6
+    goal = "<= 2x the bare kernel" if k >= 256 else "<= 20 us"
+    held = med <= 2 * k_med if k >= 256 else med <= 20.0
+    print(f"goal 'step_array {goal}': {'holds' if held else 'does NOT hold'} "
+          f"({med:.1f} us, {med / k_med:.2f}x the kernel)")
+    run_fixed_cost(cal, names[0], t, r[:, 0])
+    row(f"`Engine.step_array`, {k} APL sensors at 1 kHz, fused tick "
+        f"(`bench_array.py --sensors {k}`)", f"median {med:.1f} us/tick, p99 {p99:.0f} us",
+        f"bare APL kernel (`APLArray.step`) {k_med:.1f} us; loop of `Engine.step` "
+        f"{base_med:.0f} us", f"{med / k_med:.2f}x the kernel; {base_med / med:.0f}x faster "
+        f"than the loop")
 
 
 if __name__ == "__main__":

@@ -22,9 +22,11 @@ import math
 import time
 
 import numpy as np
-from _common import best_time
+from _common import best_time, row
 
+from strain_comp._numba import njit
 from strain_comp.core.direction import DirectionSettings
+from strain_comp.models._apl_kernels import FASTMATH, pow01
 from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.cubic import Cubic
@@ -122,6 +124,9 @@ def bench_models(n: int) -> None:
             slow = n_py / best_time(lambda kind=kind, args=args:
                                     python_cells(kind, t[:n_py], r[:n_py], *args), 2)
         print(f"{name:<7}{fast:>14,.0f}{slow:>14,.0f}{fast / slow:>8.0f}x")
+        row(f"{name} kernel `run`, N=11, M=9, one core (`bench_kernels.py`)",
+            f"{fast / 1e6:.1f} M samples/s", f"pure-Python loop: {slow / 1e3:.0f} k/s",
+            f"{fast / slow:.0f}x")
     apl = models["apl"][0]
     apl.reset()
     check = np.abs(apl.run(t[:n_py], r[:n_py]) - python_cells(
@@ -190,12 +195,75 @@ def bench_fit() -> None:
         print(f"  {cls.name:<6}{seconds:7.2f} s{extra}")
 
 
+@njit(fastmath=FASTMATH, error_model="numpy")
+def _pow_only(z: np.ndarray, p: float) -> float:
+    """Sum of pow01 over every cell and sample (independent: vectorisable)."""
+    acc = 0.0
+    for i in range(z.shape[0]):
+        for k in range(z.shape[1]):
+            acc += pow01(z[i, k], p)
+    return acc
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def _libm_only(z: np.ndarray, p: float) -> float:
+    """The same with libm's pow (a scalar call per cell)."""
+    acc = 0.0
+    for i in range(z.shape[0]):
+        for k in range(z.shape[1]):
+            acc += z[i, k] ** p
+    return acc
+
+
+def roofline(n: int = 1_000_000, n_cells: int = 11) -> None:
+    """What bounds the APL kernel: its ns/sample against the N powers z^p it must evaluate.
+
+    Per sample the kernel evaluates N = 11 powers (pow01: ~20 flops of log polynomial and
+    ~30 of exp polynomial) plus ~10 flops of band clip and creep per cell, then the output
+    (N + 2 multiply-adds and an M-segment search): about 11 x 60 + 40 = 700 flops and 24
+    bytes of input/output per sample. At 24 bytes per ~700 flops memory is never the bound;
+    the powers are. The samples form a recursion (each state needs the previous), so only
+    the N cells of one sample can run in SIMD lanes.
+    """
+    t, r = make_input(n)
+    apl = APL(n=n_cells, m=9, sigma=2.15e-2, p=0.73, w=W_PAPER, mu=MU, normalisation=NORM)
+    apl.run(t[:100], r[:100])
+
+    def go() -> None:
+        apl.reset()
+        apl.run(t, r)
+
+    ns_kernel = 1e9 * best_time(go, 5) / n
+    z = np.random.default_rng(0).uniform(1e-3, 1.0, (n, n_cells))
+    _pow_only(z[:10], 0.73)
+    _libm_only(z[:10], 0.73)
+    ns_pow = 1e9 * best_time(lambda: _pow_only(z, 0.73), 5) / n
+    ns_libm = 1e9 * best_time(lambda: _libm_only(z, 0.73), 5) / n
+    n_py = 20_000
+    ns_py = 1e9 * best_time(lambda: python_cells("apl", t[:n_py], r[:n_py], n_cells, apl.sigma,
+                                                 apl.p, apl.w.tolist(), apl.mu), 2) / n_py
+    flops = n_cells * 60 + 40
+    print(f"\nroofline of the APL kernel (N={n_cells}, {n:.0e} samples, one core):")
+    print(f"  kernel:                        {ns_kernel:7.1f} ns/sample "
+          f"({flops / ns_kernel:.2f} Gflop/s at ~{flops} flops/sample, 24 B/sample)")
+    print(f"  the {n_cells} powers alone (pow01, SIMD):{ns_pow:7.1f} ns/sample "
+          f"({100 * ns_pow / ns_kernel:.0f} % of the kernel)")
+    print(f"  the {n_cells} powers with libm pow:    {ns_libm:7.1f} ns/sample")
+    print(f"  pure-Python loop (baseline):   {ns_py:7.0f} ns/sample "
+          f"(kernel is {ns_py / ns_kernel:.0f}x faster)")
+    row("APL kernel roofline: ns per sample vs its 11 powers alone (`bench_kernels.py`)",
+        f"{ns_kernel:.0f} ns/sample, {flops / ns_kernel:.1f} Gflop/s",
+        f"the powers alone (pow01): {ns_pow:.0f} ns; libm pow: {ns_libm:.0f} ns",
+        f"{100 * ns_pow / ns_kernel:.0f} % of the kernel")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=1_000_000)
     parser.add_argument("--no-fit", action="store_true")
     args = parser.parse_args()
     bench_models(args.samples)
+    roofline(args.samples)
     bench_array()
     if not args.no_fit:
         bench_fit()

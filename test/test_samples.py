@@ -19,6 +19,9 @@ def classify_slow(t: list[float], r: list[float]) -> list[int]:
             out.append(SampleStatus.NOT_FINITE)
         elif ri <= 0:
             out.append(SampleStatus.NON_POSITIVE)
+        elif last_good > -math.inf and (ti <= last_good - 5.0 or ti - last_good > 5.0):
+            out.append(SampleStatus.GAP_RESET)  # a jump longer than the gap: start afresh
+            last_good = ti
         elif ti <= last_good:
             out.append(SampleStatus.TIME_NOT_INCREASING)
         else:
@@ -43,3 +46,10 @@ def test_bag_loop_rejects_only_the_samples_that_go_back() -> None:
     t = np.array([0.0, 1.0, 2.0, 0.5, 1.5, 2.5, 3.0])
     r = np.ones_like(t)
     assert classify(t, r).tolist() == [0, 0, 0, 3, 3, 0, 0]
+
+
+def test_a_step_back_longer_than_the_gap_starts_afresh_as_in_the_engine() -> None:
+    t = np.array([10.0, 11.0, 12.0, 2.0, 3.0, 11.5, 20.0])
+    r = np.ones_like(t)
+    assert classify(t, r).tolist() == [0, 0, 0, 6, 0, 6, 6]
+    assert classify(t, r, gap=100.0).tolist() == [0, 0, 0, 3, 3, 3, 0]

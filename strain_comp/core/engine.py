@@ -8,7 +8,8 @@ Per sample, in this order:
 1. Input conversion: ``input.kind: divider`` readings [V] become ohm through
    R = R1 (Vin - V_R1) / V_R1 ([Electrolycra] section II.A); V_R1 <= 0 is an open
    circuit and V_R1 >= Vin a short.
-2. Screening (``Status``): not finite, R <= 0 ohm, open circuit (R > ``OPEN_FACTOR`` x the
+2. Screening (``strain_comp.core.samples.screen_one``, the one rule the fit uses too;
+   ``Status``, ``STATUS_RULES``): not finite, R <= 0 ohm, open circuit (R > ``OPEN_FACTOR`` x the
    top of the calibration's resistance range), short (0 < R < ``SHORT_FACTOR`` x its bottom),
    time not past the last good sample. These are *bad*: counted per kind, never fed to the
    model or the detector; the output holds the last good estimate (NaN strain and direction
@@ -31,9 +32,9 @@ Per sample, in this order:
    pre-effect estimate of the same tick (NaN, i.e. held, where that sample was bad).
 
 ``run`` (batch) equals repeated ``step`` exactly: screening is one sequential numba pass
-(the same rule function ``step`` calls), then the model's ``run`` over each run of used
-samples between resets, then the effect terms over the same runs, and the held outputs are
-a forward fill. ``run_array`` equals ``step_array`` tick by tick in the same way.
+(the same rule function ``step`` and the array tick call), then the model's ``run`` over
+each run of used samples between resets, then the effect terms over the same runs, and the
+held outputs are a forward fill. ``run_array`` equals ``step_array`` tick by tick in the same way.
 """
 
 from __future__ import annotations
@@ -41,14 +42,14 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from enum import IntEnum
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from strain_comp._numba import njit
+from strain_comp.core import samples as sc
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.core.direction import (
@@ -58,8 +59,9 @@ from strain_comp.core.direction import (
     direction_update,
 )
 from strain_comp.core.effects import EffectTerms, run_segments
-from strain_comp.core.samples import SampleStatus
+from strain_comp.core.samples import STATUS_RULES, USED, USED_CODE, Status, screen_all, screen_one
 from strain_comp.errors import InputError, ParameterError
+from strain_comp.models._apl_kernels import step_sensor
 from strain_comp.models.base import Compensator
 
 OPEN_FACTOR = 100.0
@@ -68,99 +70,17 @@ SHORT_FACTOR = 0.01
 """0 < R below this fraction of the bottom of the valid resistance range is a short."""
 RANGE_MARGIN = 0.05
 """Fraction of the valid range's span added on each side before flagging / clamping."""
-GAP_RESET = 5.0
+GAP_RESET = sc.DEFAULT_GAP_RESET
 """Default ``gap_reset`` [s]: a longer jump between good samples resets the state."""
-APL_FAMILY = frozenset({"apl", "pl", "mpi"})
 
 
-class Status(IntEnum):
-    """Per-sample status (the ``/NAME/status`` value in replay output).
-
-    0-3 are ``strain_comp.core.samples.SampleStatus``; 0, 6, 7 are *used* samples (fed to the
-    model), 1-5 are bad samples (held estimate).
-    """
-
-    GOOD = SampleStatus.GOOD
-    NOT_FINITE = SampleStatus.NOT_FINITE
-    NON_POSITIVE = SampleStatus.NON_POSITIVE
-    TIME_NOT_INCREASING = SampleStatus.TIME_NOT_INCREASING
-    OPEN_CIRCUIT = 4
-    SHORT_CIRCUIT = 5
-    GAP_RESET = 6
-    OUT_OF_RANGE = 7
-
-
-USED = frozenset({Status.GOOD, Status.GAP_RESET, Status.OUT_OF_RANGE})
-"""The statuses of samples fed to the model (all others are bad: estimate held)."""
 _DIAG_OK, _DIAG_WARN, _DIAG_ERROR, _DIAG_STALE = 0, 1, 2, 3
 LEVEL_NAMES = {_DIAG_OK: "OK", _DIAG_WARN: "WARN", _DIAG_ERROR: "ERROR", _DIAG_STALE: "STALE"}
 
 
 def used_mask(status: npt.ArrayLike) -> np.ndarray:
     """True where a sample's ``Status`` is in ``USED`` (it was fed to the model)."""
-    status = np.asarray(status)
-    return (status == Status.GOOD) | (status >= Status.GAP_RESET)
-
-
-@njit
-def _screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: float,
-                r_open: float, r_lo: float, r_hi: float, gap: float) -> tuple[int, bool]:
-    """Status of one sample and whether it resets the state (rules in the module doc)."""
-    if not (math.isfinite(t) and math.isfinite(r)):
-        return 1 if forced == 0 else forced, False
-    if forced != 0:
-        return forced, False
-    if r <= 0.0:
-        return 2, False
-    if r > r_open:
-        return 4, False
-    if r < r_short:
-        return 5, False
-    reset = False
-    if last_good_t > -math.inf:
-        if t <= last_good_t - gap or t - last_good_t > gap:
-            reset = True
-        elif t <= last_good_t:
-            return 3, False
-    if r < r_lo or r > r_hi:
-        return 7, reset
-    return (6 if reset else 0), reset
-
-
-@njit
-def _screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: float,
-                r_short: float, r_open: float, r_lo: float, r_hi: float,
-                gap: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """``_screen_one`` over a sequence; returns (status, reset, last good time)."""
-    n = t.size
-    status = np.empty(n, dtype=np.int8)
-    reset = np.zeros(n, dtype=np.bool_)
-    for i in range(n):
-        code, rst = _screen_one(t[i], r[i], forced[i], last_good_t, r_short, r_open,
-                                r_lo, r_hi, gap)
-        status[i] = code
-        reset[i] = rst
-        if code == 0 or code >= 6:
-            last_good_t = t[i]
-    return status, reset, last_good_t
-
-
-@njit
-def _screen_vec(t: float, r: np.ndarray, forced: np.ndarray, last_good_t: np.ndarray,
-                r_short: np.ndarray, r_open: np.ndarray, r_lo: np.ndarray, r_hi: np.ndarray,
-                gap: float) -> tuple[np.ndarray, np.ndarray]:
-    """``_screen_one`` across the sensors of an array at one tick (updates last_good_t)."""
-    n = r.size
-    status = np.empty(n, dtype=np.int8)
-    reset = np.zeros(n, dtype=np.bool_)
-    for i in range(n):
-        code, rst = _screen_one(t, r[i], forced[i], last_good_t[i], r_short[i], r_open[i],
-                                r_lo[i], r_hi[i], gap)
-        status[i] = code
-        reset[i] = rst
-        if code == 0 or code >= 6:
-            last_good_t[i] = t
-    return status, reset
+    return USED_CODE[np.asarray(status)]
 
 
 @dataclass
@@ -178,6 +98,14 @@ class SensorHealth:
     last_good_t: float | None = None
     last_status: Status | None = None
     stale: bool = False
+
+    def count(self, status: Status, n: int = 1) -> None:
+        """Add ``n`` samples of ``status`` to the counters (``STATUS_RULES``)."""
+        used, counter = STATUS_RULES[status]
+        if used:
+            self.n_good += n
+        if counter is not None:
+            setattr(self, counter, getattr(self, counter) + n)
 
     @property
     def n_bad(self) -> int:
@@ -205,15 +133,15 @@ class SensorHealth:
             level, message = _DIAG_WARN, "state reset after a gap"
         else:
             level, message = _DIAG_OK, "ok"
-        values = {
-            "n_good": self.n_good, "n_nan": self.n_nan, "n_non_positive": self.n_non_positive,
-            "n_time_backwards": self.n_time_backwards, "n_open": self.n_open,
-            "n_short": self.n_short, "n_out_of_range": self.n_out_of_range,
-            "n_gaps": self.n_gaps,
-            "last_good_t": "none" if self.last_good_t is None else repr(self.last_good_t),
-            "last_status": "none" if last is None else last.name,
-        }
+        values: dict[str, object] = {f.name: getattr(self, f.name) for f in fields(self)
+                                     if f.name.startswith("n_")}
+        values["last_good_t"] = "none" if self.last_good_t is None else repr(self.last_good_t)
+        values["last_status"] = "none" if last is None else last.name
         return level, message, {k: str(v) for k, v in values.items()}
+
+
+if {c for _, c in STATUS_RULES.values() if c} - {f.name for f in fields(SensorHealth)}:
+    raise AssertionError("every counter of STATUS_RULES must be a SensorHealth field")
 
 
 @dataclass(frozen=True)
@@ -244,6 +172,9 @@ class BatchOutput:
     direction: np.ndarray
     status: np.ndarray
     out_of_range: np.ndarray
+    reset: np.ndarray | None = None
+    """True where a gap reset the state before the sample (counted in ``n_gaps``); None
+    when not known (no resets assumed)."""
 
 
 @dataclass
@@ -267,7 +198,7 @@ class _PendingBatch:
 
     t: np.ndarray
     ohm: np.ndarray
-    temperature: np.ndarray
+    temperature: np.ndarray | None
     status: np.ndarray
     reset: np.ndarray
     last_good_t: float
@@ -283,11 +214,6 @@ class _PendingBatch:
         out = np.full(self.t.size, np.nan)
         out[self.idx] = np.clip(self.strain_used, sensor.s_lo, sensor.s_hi)
         return out
-
-
-_COUNTER = {Status.NOT_FINITE: "n_nan", Status.NON_POSITIVE: "n_non_positive",
-            Status.TIME_NOT_INCREASING: "n_time_backwards", Status.OPEN_CIRCUIT: "n_open",
-            Status.SHORT_CIRCUIT: "n_short", Status.OUT_OF_RANGE: "n_out_of_range"}
 
 
 @dataclass
@@ -342,19 +268,74 @@ class _Sensor:
             return r_mid
         return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
 
-    def count(self, status: np.ndarray) -> None:
-        """Add a batch's statuses to the counters."""
-        h = self.health
-        _add_counts(h, np.bincount(status.astype(np.intp), minlength=len(Status)))
-        if status.size:
-            h.last_status = Status(int(status[-1]))
+_COUNTER_CODES = [(name, [int(c) for c, (used, counter) in STATUS_RULES.items()
+                           if (used if name == "n_good" else counter == name)])
+                   for name in ["n_good", *sorted({c for _, c in STATUS_RULES.values() if c})]]
+"""Each health counter with the status codes it counts (from ``STATUS_RULES``)."""
 
 
 def _add_counts(h: SensorHealth, counts: np.ndarray) -> None:
     """Add per-``Status`` sample counts (indexed by status code) to ``h``'s counters."""
-    h.n_good += int(sum(counts[code] for code in USED))
-    for code, name in _COUNTER.items():
-        setattr(h, name, getattr(h, name) + int(counts[code]))
+    values = counts.tolist()
+    for name, codes in _COUNTER_CODES:
+        n = 0
+        for c in codes:
+            n += values[c]
+        if n:
+            setattr(h, name, getattr(h, name) + n)
+
+
+@njit
+def _clamp(value: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one value (NaN stays NaN)."""
+    return value if value != value else min(max(value, lo), hi)
+
+
+@njit
+def _screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t: float,
+                  r_short: float, r_open: float, r_lo: float, r_hi: float, gap: float
+                  ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
+    """``screen_all``, plus the indices of the used samples and the positions among them
+    where a gap reset starts a segment."""
+    status, reset, last = screen_all(t, ohm, forced, last_good_t, r_short, r_open, r_lo,
+                                     r_hi, gap)
+    idx = np.empty(t.size, np.int64)
+    starts = np.empty(t.size, np.int64)
+    m = 0
+    n_starts = 0
+    for i in range(t.size):
+        if sc.is_used(status[i]):
+            if reset[i]:
+                starts[n_starts] = m
+                n_starts += 1
+            idx[m] = i
+            m += 1
+    return status, reset, last, idx[:m], starts[:n_starts]
+
+
+@njit
+def _hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np.ndarray,
+          dir_used: np.ndarray, strain: float, direction: int, s_lo: float, s_hi: float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Clamp the used samples' strain (in place) and hold it, and the direction, over the
+    bad samples. Also returns the samples per status code, then the number of resets."""
+    n = status.size
+    out_s = np.empty(n)
+    out_d = np.empty(n, np.int8)
+    counts = np.zeros(sc.OUT_OF_RANGE + 2, np.int64)
+    j = 0
+    for i in range(n):
+        counts[status[i]] += 1
+        if reset[i]:
+            counts[counts.size - 1] += 1
+        if j < idx.size and idx[j] == i:
+            strain_used[j] = _clamp(strain_used[j], s_lo, s_hi)
+            strain = strain_used[j]
+            direction = dir_used[j]
+            j += 1
+        out_s[i] = strain
+        out_d[i] = direction
+    return out_s, out_d, counts
 
 
 def _scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
@@ -444,7 +425,7 @@ class Engine:
         self._sensor(sensor).gain = float(gain)
         for group in self._arrays.values():
             if sensor in group.names and group.kernel is not None:
-                group.gain[group.names.index(sensor)] = float(gain)
+                group.set_gain(group.names.index(sensor), float(gain))
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Change the dead-zone scale (a node tunable); the detectors restart from rest."""
@@ -502,12 +483,12 @@ class Engine:
             raw, forced = float(r_arr[0]), int(f_arr[0])
         else:
             raw *= s.gain
-        code, reset = _screen_one(t, raw, forced, s.last_good_t, s.r_short, s.r_open,
+        code, reset = screen_one(t, raw, forced, s.last_good_t, s.r_short, s.r_open,
                                   s.r_lo, s.r_hi, self.gap_reset)
         status = Status(code)
         h = s.health
         if status not in USED:
-            setattr(h, _COUNTER[status], getattr(h, _COUNTER[status]) + 1)
+            h.count(status)
             h.last_status = status
             return SensorOutput(s.strain, s.direction, status, False)
         if reset:
@@ -531,11 +512,9 @@ class Engine:
         h = s.health
         s.last_good_t = t
         s.strain, s.direction = strain, direction
-        h.n_good += 1
+        h.count(status)
         h.last_good_t = t
         h.last_status = status
-        if status is Status.OUT_OF_RANGE:
-            h.n_out_of_range += 1
         return SensorOutput(strain, direction, status, status is Status.OUT_OF_RANGE)
 
     def run(self, sensor: str, t: npt.ArrayLike, r: npt.ArrayLike,
@@ -574,16 +553,15 @@ class Engine:
         raw = np.ascontiguousarray(r, dtype=np.float64)
         if t.ndim != 1 or t.shape != raw.shape:
             raise InputError("run: t and r must be 1-D arrays of one length")
-        temp = (np.full(t.shape, np.nan) if temperature is None
+        temp = (None if temperature is None
                 else np.ascontiguousarray(temperature, dtype=np.float64))
         ohm, forced = s.to_ohm(raw)
-        status, reset, last_good_t = _screen_all(t, ohm, forced, s.last_good_t, s.r_short,
-                                                 s.r_open, s.r_lo, s.r_hi, self.gap_reset)
-        used = used_mask(status)
-        idx = np.flatnonzero(used)
+        status, reset, last_good_t, idx, resets = _screen_batch(
+            t, ohm, forced, s.last_good_t, s.r_short, s.r_open, s.r_lo, s.r_hi,
+            self.gap_reset)
         strain_used = np.empty(idx.size)
         dir_used = np.empty(idx.size, dtype=np.int8)
-        bounds = [0, *np.flatnonzero(reset[idx]).tolist(), idx.size]
+        bounds = [0, *resets.tolist(), idx.size]
         for k, (a, b) in enumerate(itertools.pairwise(bounds)):
             if b == a:
                 continue
@@ -603,30 +581,26 @@ class Engine:
         """``run``'s second stage: effect terms, clamping, held outputs and counters."""
         t, status, reset, last_good_t, idx = p.t, p.status, p.reset, p.last_good_t, p.idx
         strain_used, dir_used = p.strain_used, p.dir_used
-        used = used_mask(status)
         if s.cal.effects and idx.size:
             nbrs = {n: v[idx] for n, v in neighbours.items()}
             starts = p.bounds[1:-1]  # a reset at the first sample resets at once
+            temp = (np.full(idx.size, np.nan) if p.temperature is None
+                    else p.temperature[idx])
             strain_used = self._apply_effects(s, t[idx], p.ohm[idx], strain_used, dir_used,
-                                              p.temperature[idx], nbrs, starts)
-        np.clip(strain_used, s.s_lo, s.s_hi, out=strain_used)
-        # held outputs: each sample shows the latest used sample at or before it
-        rank = np.cumsum(used) - 1
-        if idx.size:
-            take = np.maximum(rank, 0)
-            strain = np.where(rank < 0, s.strain, strain_used[take])
-            direction = np.where(rank < 0, s.direction, dir_used[take]).astype(np.int8)
-        else:
-            strain = np.full(t.size, s.strain)
-            direction = np.full(t.size, s.direction, dtype=np.int8)
-        s.count(status)
-        s.health.n_gaps += int(np.count_nonzero(reset))
+                                              temp, nbrs, starts)
+        # clamped; held outputs: each sample shows the latest used sample at or before it
+        strain, direction, counts = _hold(status, reset, idx, strain_used, dir_used, s.strain,
+                                          s.direction, s.s_lo, s.s_hi)
+        h = s.health
+        _add_counts(h, counts)
+        if status.size:
+            h.last_status = Status(int(status[-1]))
+        h.n_gaps += int(counts[-1])
         if idx.size:
             s.last_good_t = last_good_t
             s.health.last_good_t = last_good_t
             s.strain, s.direction = float(strain_used[-1]), int(dir_used[-1])
-        return BatchOutput(strain.astype(np.float64), direction, status,
-                           status == Status.OUT_OF_RANGE)
+        return BatchOutput(strain, direction, status, status == sc.OUT_OF_RANGE, reset)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
         """One tick of an array: ``r_vector`` in the array's sensor order."""
@@ -667,22 +641,68 @@ class Engine:
             spare.step_array(array, 3.0, np.array([mid[n] for n in names]))
 
 
-@njit
-def _direction_array(states: np.ndarray, t: float, r: np.ndarray, used: np.ndarray,
-                     deadzone: np.ndarray, tau: np.ndarray, held: np.ndarray) -> None:
-    """Step every used sensor's detector (row of ``states``); ``held`` gets the outputs."""
-    for k in range(r.size):
-        if used[k]:
-            held[k] = direction_update(states[k], t, r[k], deadzone[k], tau[k])
+# columns of the fused tick's per-sensor parameter table
+_GAIN, _R1, _VIN, _R_SHORT, _R_OPEN, _R_LO, _R_HI, _S_LO, _S_HI, _DEADZONE, _TAU, _SIGN = \
+    range(12)
+_N_PARAMS = 12
+# columns of its per-sensor held state
+_LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS = range(4)
+
+
+@njit(error_model="numpy")
+def _array_tick(t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
+                counts: np.ndarray, det: np.ndarray, gap: float, model_out: np.ndarray,
+                status: np.ndarray, reset: np.ndarray, x: np.ndarray, clock: np.ndarray,
+                kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, rho: np.ndarray,
+                inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
+                f_at_b: np.ndarray, inv_slopes: np.ndarray) -> None:
+    """One array tick, all sensors, in one call: input conversion and tare gain,
+    screening, gap reset, model step (``step_sensor``), detector, clamp, held outputs and
+    counters (the module's steps 1-5). ``held[k]`` gets the published strain / direction /
+    status; ``model_out[k]`` the unclamped model estimate of a used sample (NaN if bad),
+    for the effect terms; ``counts[k]`` = samples per status code, then gap resets."""
+    for k in range(raw.size):
+        ri = raw[k]
+        forced = sc.GOOD
+        vin = par[k, _VIN]
+        if vin > 0.0:  # voltage divider
+            if ri <= 0.0:
+                forced = sc.OPEN_CIRCUIT
+            elif ri >= vin:
+                forced = sc.SHORT_CIRCUIT
+            ri = par[k, _R1] * (vin - ri) / ri if forced == sc.GOOD else np.nan
+        ohm = ri * par[k, _GAIN]
+        code, rst = screen_one(t, ohm, forced, held[k, _LAST_GOOD_T], par[k, _R_SHORT],
+                               par[k, _R_OPEN], par[k, _R_LO], par[k, _R_HI], gap)
+        status[k] = code
+        reset[k] = rst
+        counts[k, code] += 1
+        held[k, _LAST_STATUS] = code
+        if not sc.is_used(code):
+            model_out[k] = np.nan
+            continue
+        if rst:
+            x[k, :] = 0.0
+            clock[k, :] = 0.0
+            det[k, :] = 0.0
+            counts[k, counts.shape[1] - 1] += 1
+        estimate = step_sensor(k, t, ohm, x, clock, kind, sigma, p, rho, inv_width, w, norm,
+                               b, f_at_b, inv_slopes)
+        model_out[k] = estimate
+        held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
+                                               par[k, _TAU]) * par[k, _SIGN]
+        held[k, _STRAIN] = _clamp(estimate, par[k, _S_LO], par[k, _S_HI])
+        held[k, _LAST_GOOD_T] = t
 
 
 class _ArrayGroup:
     """The sensors of one array, stepped together.
 
-    When every sensor is of the APL family (same N and M), one tick is one call of the
-    ``APLArray`` kernel plus one screening and one detector kernel for all sensors; the
-    group then keeps the array's state, counters and held outputs itself, and its sensors
-    should not also be fed through ``Engine.step``. Otherwise a loop of ``Engine.step``.
+    When every sensor's model declares ``array_kernel`` (the APL family, same N and M), one
+    tick is one call of the fused ``_array_tick`` kernel; the group then keeps the array's
+    state, counters and held outputs itself, and its sensors should not also be fed through
+    ``Engine.step``. Sensors with effect terms are corrected after the kernel, one by one
+    in Python (the slower path). Otherwise a loop of ``Engine.step``.
     """
 
     def __init__(self, engine: Engine, names: list[str]) -> None:
@@ -695,7 +715,7 @@ class _ArrayGroup:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
-        if not all(s.cal.model in APL_FAMILY for s in self.sensors):
+        if not all(type(s.model).array_kernel for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray
 
@@ -704,25 +724,32 @@ class _ArrayGroup:
         except ParameterError:  # different N or M: fall back to the loop
             return
         k = len(self.sensors)
-        self.r_short, self.r_open, self.r_lo, self.r_hi, self.s_lo, self.s_hi = (
-            np.array([getattr(s, attr) for s in self.sensors])
-            for attr in ("r_short", "r_open", "r_lo", "r_hi", "s_lo", "s_hi"))
-        self.last_good_t = np.full(k, -math.inf)
-        self.strain = np.full(k, math.nan)
-        self.direction = np.zeros(k, dtype=np.int8)
-        self.counts = np.zeros((k, len(Status)), dtype=np.int64)
-        self.gaps = np.zeros(k, dtype=np.int64)
-        self.last_status = np.full(k, -1, dtype=np.int8)
+        par = np.zeros((k, _N_PARAMS))
+        for i, s in enumerate(self.sensors):
+            if s.cal.input.kind == "divider":
+                par[i, _R1], par[i, _VIN] = s.cal.input.divider()
+            par[i, _R_SHORT:_S_HI + 1] = (s.r_short, s.r_open, s.r_lo, s.r_hi, s.s_lo, s.s_hi)
+            par[i, _TAU] = s.cal.direction.tau
+            par[i, _SIGN] = s.cal.direction.sign
+        par[:, _GAIN] = [s.gain for s in self.sensors]
+        self.par = par
+        self.held = np.zeros((k, 4))
+        self.held[:, _LAST_GOOD_T] = -math.inf
+        self.held[:, _STRAIN] = math.nan
+        self.held[:, _LAST_STATUS] = -1
+        self.counts = np.zeros((k, len(Status) + 1), dtype=np.int64)
         self.states = np.zeros((k, STATE_SIZE))
-        self.tau = np.array([s.cal.direction.tau for s in self.sensors])
-        self.sign = np.array([s.cal.direction.sign for s in self.sensors], dtype=np.int8)
+        self.model_out = np.empty(k)
+        self.status = np.empty(k, dtype=np.int8)
+        self.reset = np.empty(k, dtype=np.bool_)
         self.set_deadzone_scale(self.engine.deadzone_scale)
-        self.divider = [i for i, s in enumerate(self.sensors) if s.cal.input.kind == "divider"]
-        self.gain = np.array([s.gain for s in self.sensors])
         self.effects = [i for i, s in enumerate(self.sensors) if s.cal.effects]
 
+    def set_gain(self, index: int, gain: float) -> None:
+        self.par[index, _GAIN] = gain
+
     def set_deadzone_scale(self, scale: float) -> None:
-        self.deadzone = np.array([s.cal.direction.deadzone * scale for s in self.sensors])
+        self.par[:, _DEADZONE] = [s.cal.direction.deadzone * scale for s in self.sensors]
         self.states[:] = 0.0
 
     def step(self, t: float, raw: np.ndarray) -> ArrayOutput:
@@ -739,51 +766,75 @@ class _ArrayGroup:
                                np.array([o.direction for o in outputs], dtype=np.int8),
                                np.array([o.status for o in outputs], dtype=np.int8),
                                np.array([o.out_of_range for o in outputs]))
-        ohm = raw * self.gain
-        forced = np.zeros(raw.size, dtype=np.int8)
-        for i in self.divider:
-            conv, code = self.sensors[i].to_ohm(raw[i:i + 1])
-            ohm[i], forced[i] = conv[0], code[0]
-        status, reset = _screen_vec(t, ohm, forced, self.last_good_t, self.r_short,
-                                    self.r_open, self.r_lo, self.r_hi, self.engine.gap_reset)
-        used = used_mask(status)
-        if reset.any():
-            self.kernel.x[reset] = 0.0  # the state APLArray.reset() clears, for these rows
-            self.kernel.clock[reset] = 0.0
-            self.states[reset] = 0.0
-            self.gaps += reset
-            for i in np.flatnonzero(reset):
-                self.sensors[i].effects.reset()
-        strain = self.kernel.step(t, np.where(used, ohm, math.nan))
-        _direction_array(self.states, t, ohm, used, self.deadzone, self.tau, self.direction)
-        direction = self.direction * self.sign
-        base = np.clip(np.where(used, strain, np.nan), self.s_lo, self.s_hi)
+        kern = self.kernel
+        _array_tick(t, raw, self.par, self.held, self.counts, self.states,
+                    self.engine.gap_reset, self.model_out, self.status, self.reset, kern.x,
+                    kern.clock, kern.kind, kern.sigma, kern.p, kern.rho, kern.inv_width,
+                    kern.w, kern.norm, kern.b, kern.f_at_b, kern.inv_slopes)
+        status = self.status.copy()
+        if self.effects:
+            self._effects(t, raw)
+        return ArrayOutput(self.held[:, _STRAIN].copy(),
+                           self.held[:, _DIRECTION].astype(np.int8), status,
+                           status == sc.OUT_OF_RANGE)
+
+    def _effects(self, t: float, raw: np.ndarray) -> None:
+        """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""
+        base = np.clip(self.model_out, self.par[:, _S_LO], self.par[:, _S_HI])
         for i in self.effects:
-            if used[i]:
-                nbrs = {n: base[self.names.index(n):self.names.index(n) + 1]
-                        for n in self.sensors[i].effects.neighbours if n in self.names}
-                strain[i] = self.engine._apply_effects(
-                    self.sensors[i], np.array([t]), ohm[i:i + 1], strain[i:i + 1],
-                    direction[i:i + 1], np.array([math.nan]), nbrs)[0]
-        np.clip(strain, self.s_lo, self.s_hi, out=strain)
-        self.strain = np.where(used, strain, self.strain)
-        self.counts[np.arange(raw.size), status] += 1
-        self.last_status = status
-        return ArrayOutput(self.strain.copy(), direction, status,
-                           status == Status.OUT_OF_RANGE)
+            s = self.sensors[i]
+            if self.reset[i]:
+                s.effects.reset()
+            if not USED_CODE[self.status[i]]:
+                continue
+            ohm, _ = s.to_ohm(raw[i:i + 1])
+            nbrs = {n: base[self.names.index(n):self.names.index(n) + 1]
+                    for n in s.effects.neighbours if n in self.names}
+            strain = self.engine._apply_effects(
+                s, np.array([t]), ohm, self.model_out[i:i + 1],
+                self.held[i:i + 1, _DIRECTION].astype(np.int8), np.array([math.nan]), nbrs)
+            self.held[i, _STRAIN] = min(max(float(strain[0]), s.s_lo), s.s_hi)
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``kernel`` is set)."""
         out = {}
         for k, name in enumerate(self.names):
-            h = SensorHealth(n_gaps=int(self.gaps[k]))
+            h = SensorHealth(n_gaps=int(self.counts[k, -1]))
             _add_counts(h, self.counts[k])
-            if self.last_good_t[k] > -math.inf:
-                h.last_good_t = float(self.last_good_t[k])
-            if self.last_status[k] >= 0:
-                h.last_status = Status(int(self.last_status[k]))
+            if self.held[k, _LAST_GOOD_T] > -math.inf:
+                h.last_good_t = float(self.held[k, _LAST_GOOD_T])
+            if self.held[k, _LAST_STATUS] >= 0:
+                h.last_status = Status(int(self.held[k, _LAST_STATUS]))
             out[name] = h
         return out
+
+
+def health_at(before: SensorHealth, t: np.ndarray, out: BatchOutput, ticks: np.ndarray, *,
+              stale_after: float) -> list[SensorHealth]:
+    """A sensor's health at each of ``ticks`` [s] from one ``run``'s statuses: ``before``
+    (its health when the run started) plus the counts of the samples at or before each tick
+    (``t`` in order), what ``Engine.health(now=tick)`` would have said had the run been cut
+    there."""
+    n = t.size
+    pos = np.searchsorted(np.maximum.accumulate(t), ticks, side="right")
+    cum = np.zeros((n + 1, len(Status) + 1), np.int64)
+    cum[1:, :len(Status)] = np.cumsum(
+        out.status[:, None].astype(np.int64) == np.arange(len(Status)), axis=0)
+    if out.reset is not None:
+        cum[1:, -1] = np.cumsum(out.reset)
+    last_used = np.maximum.accumulate(np.where(USED_CODE[out.status], np.arange(n), -1))
+    found = []
+    for now, k in zip(ticks.tolist(), pos.tolist(), strict=True):
+        h = replace(before)
+        _add_counts(h, cum[k, :-1])
+        h.n_gaps += int(cum[k, -1])
+        if k:
+            h.last_status = Status(int(out.status[k - 1]))
+            if last_used[k - 1] >= 0:
+                h.last_good_t = float(t[last_used[k - 1]])
+        h.stale = h.last_good_t is None or now - h.last_good_t > stale_after
+        found.append(h)
+    return found
 
 
 def diagnostics(health: Mapping[str, SensorHealth], *, prefix: str = "strain_comp"

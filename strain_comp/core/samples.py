@@ -1,47 +1,160 @@
-"""Sample screening: which raw samples may reach a model's state.
+"""Sample screening: the one rule deciding which raw samples may reach a model's state.
 
-A sample is bad when its resistance is not finite, is <= 0 ohm, or its time does not
-move forward past the last good sample. Bad samples are counted and reported by the
-caller; they never reach a model (docs/design.md, "Units and conventions").
+The engine (``strain_comp.core.engine``, every sample online and in replay) and the fit
+(``strain_comp.offline.fit``) both call ``screen_one``; the fit passes no resistance range
+(no calibration exists yet), so only the rules that need none apply there.
+
+Per sample, in this order (``Status`` codes):
+
+1. not finite (t or R): ``NOT_FINITE`` (or the status the input conversion forced);
+2. R <= 0 ohm: ``NON_POSITIVE``; R above ``r_open``: ``OPEN_CIRCUIT``; 0 < R below
+   ``r_short``: ``SHORT_CIRCUIT``;
+3. a time more than ``gap`` seconds after the last good sample, or that far *before* it (a
+   bag loop, a sim-time reset): accepted, and the state is reset first (``GAP_RESET``);
+   any smaller step that does not move forward past the last good time:
+   ``TIME_NOT_INCREASING``;
+4. R outside [r_lo, r_hi]: ``OUT_OF_RANGE`` (still used), else ``GOOD``.
+
+Bad samples (statuses 1-5) are counted and reported by the caller; they never reach a model
+(docs/design.md, "Units and conventions"). ``STATUS_RULES`` is the one table of what each status
+means: used or not, and which health counter it adds to.
 """
 
 from __future__ import annotations
 
+import math
 from enum import IntEnum
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp._numba import njit
 
-class SampleStatus(IntEnum):
-    """Why a sample was accepted or rejected (the value is stored in replay output)."""
+
+class Status(IntEnum):
+    """Per-sample status (the ``/NAME/status`` value in replay output)."""
 
     GOOD = 0
     NOT_FINITE = 1
     NON_POSITIVE = 2
     TIME_NOT_INCREASING = 3
+    OPEN_CIRCUIT = 4
+    SHORT_CIRCUIT = 5
+    GAP_RESET = 6
+    OUT_OF_RANGE = 7
 
 
-def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf) -> np.ndarray:
-    """Status of every sample (uint8 SampleStatus values), judged in order.
+DEFAULT_GAP_RESET = 5.0
+"""Default gap [s]: a longer jump between good samples resets the state."""
+
+SampleStatus = Status
+"""The name the fitting code used for the same codes."""
+
+# the codes as plain ints, for the numba kernels (compile-time constants there)
+GOOD: Final = int(Status.GOOD)
+NOT_FINITE: Final = int(Status.NOT_FINITE)
+NON_POSITIVE: Final = int(Status.NON_POSITIVE)
+TIME_NOT_INCREASING: Final = int(Status.TIME_NOT_INCREASING)
+OPEN_CIRCUIT: Final = int(Status.OPEN_CIRCUIT)
+SHORT_CIRCUIT: Final = int(Status.SHORT_CIRCUIT)
+GAP_RESET: Final = int(Status.GAP_RESET)
+OUT_OF_RANGE: Final = int(Status.OUT_OF_RANGE)
+
+STATUS_RULES: Final[dict[Status, tuple[bool, str | None]]] = {
+    Status.GOOD: (True, None),
+    Status.NOT_FINITE: (False, "n_nan"),
+    Status.NON_POSITIVE: (False, "n_non_positive"),
+    Status.TIME_NOT_INCREASING: (False, "n_time_backwards"),
+    Status.OPEN_CIRCUIT: (False, "n_open"),
+    Status.SHORT_CIRCUIT: (False, "n_short"),
+    Status.GAP_RESET: (True, None),
+    Status.OUT_OF_RANGE: (True, "n_out_of_range"),
+}
+"""Per status: is the sample used (fed to the model; counted in ``n_good``), and the health
+counter it also adds to (None: only ``n_good``). Gap resets are counted apart (``n_gaps``),
+as an out-of-range sample may reset too."""
+if set(STATUS_RULES) != set(Status):
+    raise AssertionError("STATUS_RULES must name every Status")
+
+USED: Final = frozenset(s for s, (used, _) in STATUS_RULES.items() if used)
+"""The statuses of samples fed to the model (all others are bad: estimate held)."""
+USED_CODE: Final = np.array([STATUS_RULES[Status(c)][0] for c in range(len(Status))])
+"""``USED`` as a lookup table by status code (for arrays and kernels)."""
+
+
+@njit
+def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: float,
+               r_open: float, r_lo: float, r_hi: float, gap: float) -> tuple[int, bool]:
+    """Status of one sample and whether it resets the state (rules in the module doc)."""
+    if not (math.isfinite(t) and math.isfinite(r)):
+        return NOT_FINITE if forced == GOOD else forced, False
+    if forced != GOOD:
+        return forced, False
+    if r <= 0.0:
+        return NON_POSITIVE, False
+    if r > r_open:
+        return OPEN_CIRCUIT, False
+    if r < r_short:
+        return SHORT_CIRCUIT, False
+    reset = False
+    if last_good_t > -math.inf:
+        if t <= last_good_t - gap or t - last_good_t > gap:
+            reset = True
+        elif t <= last_good_t:
+            return TIME_NOT_INCREASING, False
+    if r < r_lo or r > r_hi:
+        return OUT_OF_RANGE, reset
+    return (GAP_RESET if reset else GOOD), reset
+
+
+@njit
+def is_used(code: int) -> bool:
+    """Was a sample with this status fed to the model (``USED``)?"""
+    return code == GOOD or code == GAP_RESET or code == OUT_OF_RANGE
+
+
+if {Status(c) for c in range(len(Status)) if is_used.py_func(c)} != USED:
+    raise AssertionError("is_used must agree with STATUS_RULES")
+
+
+@njit
+def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: float,
+               r_short: float, r_open: float, r_lo: float, r_hi: float,
+               gap: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """``screen_one`` over a sequence; returns (status, reset, last good time)."""
+    n = t.size
+    status = np.empty(n, dtype=np.int8)
+    reset = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        code, rst = screen_one(t[i], r[i], forced[i], last_good_t, r_short, r_open,
+                               r_lo, r_hi, gap)
+        status[i] = code
+        reset[i] = rst
+        if is_used(code):
+            last_good_t = t[i]
+    return status, reset, last_good_t
+
+
+def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *,
+             gap: float = DEFAULT_GAP_RESET) -> np.ndarray:
+    """Status of every sample (int8 ``Status`` codes), judged in order by ``screen_one``
+    with no resistance range (what the fit can know): GOOD, NOT_FINITE, NON_POSITIVE,
+    TIME_NOT_INCREASING or GAP_RESET.
 
     Time must exceed the time of the last *good* sample before it (``last_good_t`` for
-    the first), so one sample from a looped bag or a sim-time reset rejects only the
-    samples that go back, not the ones after the clock catches up again.
+    the first), so a short step back rejects only the samples that go back, not the ones
+    after the clock catches up again; a step back longer than ``gap`` [s] (the engine's
+    default ``gap_reset``) starts afresh (GAP_RESET), as the engine does.
     """
-    t = np.asarray(t, dtype=np.float64)
-    r = np.asarray(r, dtype=np.float64)
-    status = np.zeros(t.shape, dtype=np.uint8)
-    status[~np.isfinite(r) | ~np.isfinite(t)] = SampleStatus.NOT_FINITE
-    status[(status == 0) & (r <= 0.0)] = SampleStatus.NON_POSITIVE
-    candidate = status == 0
-    # time must beat the running maximum of earlier good times
-    t_good = np.where(candidate, t, -np.inf)
-    previous_max = np.maximum.accumulate(np.concatenate(([last_good_t], t_good[:-1])))
-    status[candidate & (t <= previous_max)] = SampleStatus.TIME_NOT_INCREASING
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    forced = np.zeros(t.shape, dtype=np.int8)
+    status, _, _ = screen_all(t, r, forced, float(last_good_t), 0.0, math.inf, -math.inf,
+                              math.inf, float(gap))
     return status
 
 
 def good_mask(t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-    """True where a sample may be fed to a model."""
-    return classify(t, r) == SampleStatus.GOOD
+    """True where a sample may be fed to a model (``USED``)."""
+    return USED_CODE[classify(t, r)]

@@ -188,6 +188,26 @@ def run_kernel(t: np.ndarray, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")
+def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
+                kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, rho: np.ndarray,
+                inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
+                f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
+    """Advance sensor s of an array (see ``step_array_kernel``) by a good sample; strain %."""
+    xi = ri / norm[s, 0] + norm[s, 1]
+    ks = kind[s]
+    xs = x[s]
+    if clock[s, 1] == 0.0:
+        relax_cells(xs, xi, ks)
+        clock[s, 1] = 1.0
+    else:
+        dt = t - clock[s, 0]
+        advance_cells(xs, xi, sigma[s] * max(dt, 0.0), p[s], rho[ks], inv_width[ks], ks)
+    clock[s, 0] = t
+    psi = output(xs, xi, w[s], b, f_at_b[s], inv_slopes[s])
+    return (psi - norm[s, 3]) * norm[s, 2]
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
 def step_array_kernel(t: float, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
                       out: np.ndarray, kind: np.ndarray, sigma: np.ndarray, p: np.ndarray,
                       rho: np.ndarray, inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray,
@@ -203,18 +223,8 @@ def step_array_kernel(t: float, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
         if not (math.isfinite(t) and math.isfinite(ri) and ri > 0.0):
             out[s] = np.nan
             continue
-        xi = ri / norm[s, 0] + norm[s, 1]
-        ks = kind[s]
-        xs = x[s]
-        if clock[s, 1] == 0.0:
-            relax_cells(xs, xi, ks)
-            clock[s, 1] = 1.0
-        else:
-            dt = t - clock[s, 0]
-            advance_cells(xs, xi, sigma[s] * max(dt, 0.0), p[s], rho[ks], inv_width[ks], ks)
-        clock[s, 0] = t
-        psi = output(xs, xi, w[s], b, f_at_b[s], inv_slopes[s])
-        out[s] = (psi - norm[s, 3]) * norm[s, 2]
+        out[s] = step_sensor(s, t, ri, x, clock, kind, sigma, p, rho, inv_width, w, norm, b,
+                             f_at_b, inv_slopes)
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")

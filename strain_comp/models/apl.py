@@ -55,8 +55,10 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, ClassVar
 
 import numpy as np
@@ -116,6 +118,7 @@ class _CellModel(Compensator):
 
     kind: ClassVar[int]
     rate_dependent: ClassVar[bool] = True
+    array_kernel: ClassVar[bool] = True
 
     def __init__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
                  mu: npt.ArrayLike, normalisation: Normalisation) -> None:
@@ -213,7 +216,7 @@ class _CellModel(Compensator):
             sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
             refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
             ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
-            search_top: int = 5,
+            search_top: int = 5, workers: int = 1,
             progress: bool | Callable[[str], None] = True, **options: Any) -> _CellModel:
         """Fit w, mu by the QP and the output-error refinement, searching sigma and p
         (module docstring).
@@ -223,8 +226,12 @@ class _CellModel(Compensator):
         ``output_nfev``: residual evaluations of the final output-error refinement (0: the
         paper's QP only); ``search_nfev``: those per scored point of the search (0: the
         search scores the QP solutions); ``search_top``: grid points re-scored with it.
-        ``progress``: True prints a line per grid row to stderr once the fit has run for
-        more than 2 s; a callable receives those lines instead; False is silent.
+        ``workers``: threads scoring the sigma/p grid (the result does not depend on it).
+        Default 1: measured on a 2-core machine, threads were slower than the serial
+        search (numpy's BLAS already uses the cores, and the bounded QP solver holds the
+        GIL for much of its time); ``bench/bench_fit.py`` measures both. ``progress``:
+        True prints a line per grid row to stderr once the fit has run for more than 2 s;
+        a callable receives those lines instead; False is silent.
         """
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
@@ -232,6 +239,8 @@ class _CellModel(Compensator):
             _check_shape(N, M)
         except ParameterError as exc:
             raise FitError(f"{cls.name}: {exc}") from None
+        if not (isinstance(workers, int) and workers >= 1):
+            raise FitError(f"{cls.name}: workers must be an integer >= 1")
         if cell_weights not in ("signed", "free"):
             raise FitError(f"{cls.name}: cell_weights must be 'signed' or 'free'")
         counts = (output_nfev, search_nfev, search_top)
@@ -253,11 +262,15 @@ class _CellModel(Compensator):
             raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
         say = _progress_printer(progress, cls.name)
         grid: list[_Solution] = []
-        for i, sigma in enumerate(sigmas):
-            grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
-            best = min(grid, key=_by_rmse)
-            say(f"grid row {i + 1}/{sigmas.size} (sigma={sigma:.3g}/s): best rmse "
-                f"{best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+        # the grid points are independent and their kernels release the GIL: threads
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            rows = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
+                    for sigma in sigmas]
+            for i, (sigma, row) in enumerate(zip(sigmas, rows, strict=True)):
+                grid.extend(job.result() for job in row)
+                best = min(grid, key=_by_rmse)
+                say(f"grid row {i + 1}/{sigmas.size} (sigma={sigma:.3g}/s): best rmse "
+                    f"{best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
         if search_nfev > 0:
             ranked = sorted(grid, key=_by_rmse)[:search_top]
             best = min((problem.solve(g.sigma, g.p, output_nfev=search_nfev) for g in ranked),
@@ -332,6 +345,7 @@ class _FitProblem:
         self.cls, self.norm, self.n, self.m = cls, normalisation, n, m
         self.search_nfev = search_nfev
         self.eps, self.started, self.evaluations = eps, time.monotonic(), 0
+        self._lock = threading.Lock()
         segments = [seg for seg in segments if seg.t.size > 0]
         if not segments:
             raise FitError(f"{cls.name}: no training samples")
@@ -464,7 +478,8 @@ class _FitProblem:
 
     def solve(self, sigma: float, p: float, *, output_nfev: int = 0) -> _Solution:
         """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it."""
-        self.evaluations += 1
+        with self._lock:
+            self.evaluations += 1
         z = self.design(sigma, p)
         theta = self.equation_error(z)
         psi_hat = self.predict(z, theta)

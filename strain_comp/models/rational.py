@@ -16,7 +16,9 @@ Modes (``mode`` parameter):
   R rising: for a sensor whose resistance falls with strain it is the unloading branch.
 
 Fit: linearised least squares (S (xi^2 + q1 xi + q2) = p1 xi^2 + p2 xi + p3 is linear in
-p, q), refined by ``scipy.optimize.least_squares`` on the real output error. Pole guard: a
+p, q), refined by ``scipy.optimize.least_squares`` on the real output error with the
+analytic Jacobian (``_jac``: x^2/D, x/D, 1/D, -N x/D^2, -N/D^2), so a fit costs a few
+passes over the samples, linear in their number. Pole guard: a
 fit whose denominator has a real root inside the training xi range widened by 5 % of its
 span on each side is rejected and refitted with the denominator written as
 (xi - c)^2 + d^2 (no real root anywhere); the better pole-free fit wins. For the split
@@ -107,6 +109,35 @@ def _eval(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
     return ((coef[0] * x + coef[1]) * x + coef[2]) / ((x + coef[3]) * x + coef[4])
 
 
+def _jac(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """d _eval / d [p1, p2, p3, q1, q2] (n, 5): x^2/D, x/D, 1/D, -N x/D^2, -N/D^2."""
+    inv_d = 1.0 / ((x + coef[3]) * x + coef[4])
+    f = ((coef[0] * x + coef[1]) * x + coef[2]) * inv_d
+    jac = np.empty((x.size, 5))
+    jac[:, 2] = inv_d
+    jac[:, 1] = x * inv_d
+    jac[:, 0] = x * jac[:, 1]
+    jac[:, 4] = -f * inv_d
+    jac[:, 3] = x * jac[:, 4]
+    return jac
+
+
+def _free(z: np.ndarray) -> np.ndarray:
+    """[p1, p2, p3, q1, q2] of the pole-free form den = (xi - c)^2 + d^2, z = [p, c, log d]."""
+    return np.array([z[0], z[1], z[2], -2.0 * z[3], z[3] * z[3] + np.exp(2.0 * z[4])])
+
+
+def _jac_free(z: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """d _eval(_free(z)) / d z by the chain rule through ``_free``."""
+    jac = _jac(_free(z), x)
+    dq2 = jac[:, 4]
+    out = np.empty_like(jac)
+    out[:, :3] = jac[:, :3]
+    out[:, 3] = -2.0 * jac[:, 3] + 2.0 * z[3] * dq2
+    out[:, 4] = 2.0 * np.exp(2.0 * z[4]) * dq2
+    return out
+
+
 def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
               what: str = "rational") -> np.ndarray:
     """[p1, p2, p3, q1, q2] of the best pole-free rat22 fit of s(xi); see the module docstring."""
@@ -120,7 +151,8 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
     candidates = []
     with np.errstate(all="ignore"):
         if _pole_free(lin[3:], lo, hi):
-            sol = least_squares(lambda c: _eval(c, xi) - s, lin, method="lm")
+            sol = least_squares(lambda c: _eval(c, xi) - s, lin, jac=lambda c: _jac(c, xi),
+                                method="lm")
             for coef in (sol.x, lin):
                 if _pole_free(coef[3:], lo, hi) and np.all(np.isfinite(coef)):
                     candidates.append(coef)
@@ -132,16 +164,13 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
         log_d0 = 0.5 * np.log(d2) if d2 > 1e-6 * span**2 else np.log(2.0 * span)
         c0 = float(np.clip(c0, lo - 10 * span, hi + 10 * span))
 
-        def free(z: np.ndarray) -> np.ndarray:
-            d2 = np.exp(2.0 * z[4])
-            return np.array([z[0], z[1], z[2], -2.0 * z[3], z[3] * z[3] + d2])
-
         den0 = (xi - c0) ** 2 + np.exp(2.0 * log_d0)
         pz, *_ = np.linalg.lstsq(np.column_stack([xi * xi, xi, np.ones_like(xi)]), s * den0,
                                  rcond=None)
         z0 = np.concatenate([pz, [c0, log_d0]])
-        sol = least_squares(lambda z: _eval(free(z), xi) - s, z0, method="trf")
-        coef = free(sol.x)
+        sol = least_squares(lambda z: _eval(_free(z), xi) - s, z0,
+                            jac=lambda z: _jac_free(z, xi), method="trf")
+        coef = _free(sol.x)
         if np.all(np.isfinite(coef)):
             candidates.append(coef)
     if not candidates:

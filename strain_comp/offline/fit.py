@@ -6,7 +6,9 @@ equations and their fits live in ``strain_comp.models``; this module only prepar
 data and fills in what a calibration file needs besides the parameters:
 
 * **Screening**: a sample is used only when ``strain_comp.core.samples.good_mask`` accepts it
-  (finite, R > 0 ohm, time increasing) and its reference strain is finite.
+  (the engine's rule: finite, R > 0 ohm, time increasing) and its reference strain is
+  finite. As in the engine, a step back in time longer than ``GAP_SECONDS`` (a looped bag,
+  a sim-time reset) is not a run of rejected samples but a new start: it cuts a segment.
 * **Segments**: good samples are cut into ``Segment``s wherever the time between two
   consecutive good samples exceeds ``GAP_SECONDS`` (a recording pause, or a long stretch of
   bad samples), the engine's default ``gap_reset``: training resets model state exactly
@@ -107,7 +109,8 @@ def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> list[Segment]
     t, r, s = t[keep], r[keep], s[keep]
     if t.size < 2:
         return []
-    cuts = np.flatnonzero(np.diff(t) > GAP_SECONDS) + 1
+    step = np.diff(t)
+    cuts = np.flatnonzero((step > GAP_SECONDS) | (step < 0.0)) + 1
     bounds = np.concatenate(([0], cuts, [t.size]))
     return [Segment(t[a:b], r[a:b], s[a:b]) for a, b in pairwise(bounds)
             if b - a >= MIN_SEGMENT]

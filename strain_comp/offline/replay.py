@@ -19,17 +19,24 @@ DiagnosticArray) is copied through; anything else is listed in the summary's pro
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.engine import GAP_RESET, BatchOutput, Engine, SensorHealth, diagnostics
+from strain_comp.core.engine import (
+    GAP_RESET,
+    BatchOutput,
+    Engine,
+    SensorHealth,
+    diagnostics,
+    health_at,
+)
 from strain_comp.errors import BagError
-from strain_comp.io.atomic import check_output
-from strain_comp.io.bag import BagContents, BagWriter, located, read_bag
+from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
+from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import array_sensor_names, hold_latest
 
 OUTPUTS = ("strain", "direction", "status")
@@ -52,126 +59,186 @@ class _Input:
     topic: str
     name: str
     sensors: list[str]
-    t: np.ndarray
-    values: np.ndarray  # (n, k)
     is_array: bool
 
 
-def _inputs(contents: BagContents, calibration: Calibration) -> list[_Input]:
-    found: list[_Input] = []
-    covered: set[str] = set()
-    for topic, series in contents.series.items():
-        if not topic.endswith("/resistance"):
-            continue
-        name = topic[1:].rsplit("/", 1)[0]
-        if series.values.ndim == 1 and name in calibration.sensors:
-            found.append(_Input(topic, name, [name], series.t, series.values[:, None], False))
-            covered.add(name)
-        elif series.values.ndim == 2:
-            labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
-                                           series.values.shape[1])
-            if all(label in calibration.sensors for label in labels):
-                found.append(_Input(topic, name, labels, series.t, series.values, True))
-                covered.update(labels)
-    if not found:
-        raise BagError(f"no /NAME/resistance topic for any calibrated sensor "
-                       f"({', '.join(calibration.sensors)})")
-    return found
+def _input(topic: str, contents: BagContents, calibration: Calibration) -> _Input | None:
+    """The input a ``/NAME/resistance`` topic is, or None (copied through only)."""
+    series = contents.series[topic]
+    name = topic[1:].rsplit("/", 1)[0]
+    if series.values.ndim == 1 and name in calibration.sensors:
+        return _Input(topic, name, [name], False)
+    if series.values.ndim == 2:
+        labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                       series.values.shape[1])
+        if all(label in calibration.sensors for label in labels):
+            return _Input(topic, name, labels, True)
+    return None
 
 
-def _temperature(contents: BagContents, name: str, t: np.ndarray) -> np.ndarray | None:
-    series = contents.series.get(f"/{name}/temperature")
-    if series is None or series.t.size == 0:
-        return None
-    return hold_latest(t, series.t, series.values)
+class _Replay:
+    """The state carried from one piece of the bag to the next."""
+
+    def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
+                 period: float) -> None:
+        self.calibration = calibration
+        self.writer = writer
+        self.engine = engine
+        self.period = period
+        self.inputs: dict[str, _Input | None] = {}
+        self.t0: float | None = None
+        self.ticks = np.empty(0)
+        """Diagnostics ticks not yet written (later messages may fall before them)."""
+        self.temperature: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        """Per sensor, its latest temperature sample so far (t, value), to hold across pieces."""
+        self.n_in = 0
+        self.n_out = 0
+        self.problems: list[str] = []
+        self.reported: set[str] = set()
+        self.written: set[str] = {"/diagnostics"}
+
+    def piece(self, contents: BagContents) -> None:
+        """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs."""
+        self.problems += contents.problems
+        for topic in contents.series:
+            if topic.endswith("/resistance") and topic not in self.inputs:
+                inp = _input(topic, contents, self.calibration)
+                self.inputs[topic] = inp
+                if inp is not None:
+                    self.written.update(f"/{inp.name}/{what}" for what in OUTPUTS)
+        inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
+                  if inp is not None and topic in contents.series
+                  and contents.series[topic].t.size]
+        if inputs:
+            self._run(contents, inputs)
+        self.n_in += _copy_through(contents, self.writer, self.written, self._problem)
+        self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
+
+    def _problem(self, line: str) -> None:
+        if line not in self.reported:
+            self.reported.add(line)
+            self.problems.append(line)
+
+    def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]) -> None:
+        t_all = np.concatenate([series.t for _, series in inputs])
+        if self.t0 is None:
+            self.t0 = float(t_all.min())
+        # a diagnostics tick at the end of every period that holds messages
+        new = self.t0 + self.period * (np.unique(np.floor((t_all - self.t0) / self.period))
+                                       + 1.0)
+        ticks = np.union1d(self.ticks, new)
+        t_last = float(t_all.max())
+        now, self.ticks = ticks[ticks < t_last], ticks[ticks >= t_last]
+        temps = {s: self._temperature(contents, s, series.t)
+                 for inp, series in inputs for s in inp.sensors}
+        # each input runs once over the piece; the health at each tick inside it comes
+        # from the cumulative status counts of the samples at or before the tick
+        before = self.engine.health()
+        at_ticks = {name: [h] * now.size for name, h in before.items()}
+        for inp, series in inputs:
+            outs = self._outputs(inp, series.t, series.values,
+                                 {s: temps[s] for s in inp.sensors})
+            if now.size:
+                for sensor, out in outs.items():
+                    at_ticks[sensor] = health_at(before[sensor], series.t, out, now,
+                                                 stale_after=self.engine.stale_after)
+        for k, tick in enumerate(now.tolist()):
+            health = {name: _stale(hs[k], tick, self.engine.stale_after)
+                      for name, hs in at_ticks.items()}
+            self._write_diagnostics(tick, health)
+
+    def write_tick(self, t: float) -> None:
+        self._write_diagnostics(t, self.engine.health(now=t))
+
+    def _write_diagnostics(self, t: float, health: dict[str, SensorHealth]) -> None:
+        self.writer.write_diagnostics([t], [diagnostics(health)])
+        self.n_out += 1
+
+    def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
+                 temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
+        if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
+            outs = self.engine.run_array(inp.sensors, t, values, temps)
+            for what in OUTPUTS:
+                stacked = np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
+                self.writer.write_float64_array(f"/{inp.name}/{what}", t,
+                                                stacked.astype(np.float64), inp.sensors)
+        else:
+            out = self.engine.run(inp.name, t, values, temps[inp.name])
+            self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
+            self.writer.write_int8(f"/{inp.name}/direction", t, out.direction)
+            self.writer.write_int8(f"/{inp.name}/status", t, out.status)
+            outs = {inp.name: out}
+        self.n_out += len(OUTPUTS) * t.size
+        return outs
+
+    def _temperature(self, contents: BagContents, name: str, t: np.ndarray
+                     ) -> np.ndarray | None:
+        """The latest temperature at or before each of ``t`` (NaN before the first)."""
+        series = contents.series.get(f"/{name}/temperature")
+        held = self.temperature.get(name)
+        if series is not None and series.t.size:
+            src_t, src_v = series.t, series.values
+            if held is not None:
+                src_t, src_v = np.concatenate((held[0], src_t)), np.concatenate((held[1], src_v))
+            order = np.argsort(src_t, kind="stable")
+            self.temperature[name] = (src_t[order][-1:], src_v[order][-1:])
+        elif held is not None:
+            src_t, src_v = held
+        else:
+            return None
+        return hold_latest(t, src_t, src_v)
+
+
+def _stale(h: SensorHealth, now: float, stale_after: float) -> SensorHealth:
+    """``h`` with ``stale`` evaluated at ``now`` (as ``Engine.health(now)`` does)."""
+    stale = h.last_good_t is None or now - h.last_good_t > stale_after
+    return h if h.stale == stale else replace(h, stale=stale)
 
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
                gap_reset: float = GAP_RESET, stale_after: float = 1.0,
+               window: int = WINDOW,
                inputs: Sequence[str | os.PathLike[str]] = ()) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
-    calibration file) is refused before anything is read."""
-    protected = [in_path, *inputs]
-    check_output(out_path, protected)
-    contents = read_bag(in_path)
-    inputs = _inputs(contents, calibration)
+    calibration file) is refused before anything is read.
+
+    Streams: the bag is read in time-ordered pieces of about ``window`` messages
+    (``iter_bag``), each replayed and written before the next is read, so memory does not
+    grow with the bag's length. Pieces change nothing in the output: the engine's batch
+    path carries its state from piece to piece exactly (``run`` over two halves equals
+    ``run`` over the whole), temperatures are held across pieces, and a diagnostics tick
+    is written once every message at or before it has been replayed.
+    """
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
-    t_all = np.concatenate([i.t for i in inputs])
-    # a diagnostics tick at the end of every period that holds messages (bounded by them)
-    t0 = t_all.min() if t_all.size else 0.0
-    ticks = t0 + diagnostics_period * (np.unique(np.floor((t_all - t0) / diagnostics_period))
-                                       + 1.0)
-    temperature = {s: _temperature(contents, s, i.t) for i in inputs for s in i.sensors}
-    results: dict[str, list[BatchOutput]] = {}
-    statuses = []
-    # run in pieces between diagnostics ticks, so health at a tick sees what came before it
-    cuts = {i.topic: np.searchsorted(np.maximum.accumulate(i.t), ticks, side="right")
-            for i in inputs}
-    for k in range(ticks.size + 1):
-        for inp in inputs:
-            a = 0 if k == 0 else cuts[inp.topic][k - 1]
-            b = cuts[inp.topic][k] if k < ticks.size else inp.t.size
-            temps = {s: None if (ts := temperature[s]) is None else ts[a:b]
-                     for s in inp.sensors}
-            if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
-                outs = engine.run_array(inp.sensors, inp.t[a:b], inp.values[a:b], temps)
-            else:
-                outs = {inp.name: engine.run(inp.name, inp.t[a:b], inp.values[a:b, 0],
-                                             temps[inp.name])}
-            for sensor in inp.sensors:
-                results.setdefault(sensor, []).append(outs[sensor])
-        if k < ticks.size:
-            statuses.append(diagnostics(engine.health(now=float(ticks[k]))))
     out_path = Path(out_path)
-    problems = list(contents.problems)
+    with BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
+        state = _Replay(calibration, writer, engine, diagnostics_period)
+        for contents in iter_bag(in_path, window=window):
+            state.piece(contents)
+        inputs = [i for i in state.inputs.values() if i is not None]
+        if not inputs:
+            raise BagError(f"no /NAME/resistance topic for any calibrated sensor "
+                           f"({', '.join(calibration.sensors)})")
+        for t in state.ticks:
+            state.write_tick(float(t))
     replayed = {s for i in inputs for s in i.sensors}
-    problems += [f"calibrated sensor {s!r} has no input topic in the bag: not replayed "
-                 "(STALE in /diagnostics)" for s in calibration.sensors if s not in replayed]
-    n_out = 0
-    written: set[str] = {"/diagnostics"}
-    with BagWriter(out_path, inputs=protected) as writer:
-        for inp in inputs:
-            full = {s: _concat(results[s]) for s in inp.sensors}
-            for what in OUTPUTS:
-                if inp.is_array:
-                    topic = f"/{inp.name}/{what}"
-                    values = np.stack([getattr(full[s], what) for s in inp.sensors], axis=1)
-                    writer.write_float64_array(topic, inp.t, values.astype(np.float64),
-                                               inp.sensors)
-                    written.add(topic)
-                    n_out += inp.t.size
-                    continue
-                topic = f"/{inp.name}/{what}"
-                values = getattr(full[inp.name], what)
-                if what == "strain":
-                    writer.write_float64(topic, inp.t, values)
-                else:
-                    writer.write_int8(topic, inp.t, values)
-                written.add(topic)
-                n_out += inp.t.size
-        if ticks.size:
-            writer.write_diagnostics(ticks, statuses)
-            n_out += ticks.size
-        n_in = _copy_through(contents, writer, written, problems)
+    problems = state.problems + [
+        f"calibrated sensor {s!r} has no input topic in the bag: not replayed "
+        "(STALE in /diagnostics)" for s in calibration.sensors if s not in replayed]
     return ReplaySummary(out_path, engine.health(), {i.name: i.sensors for i in inputs
                                                     if i.is_array},
-                         n_in, n_out + n_in, located(in_path, problems))
-
-
-def _concat(parts: list[BatchOutput]) -> BatchOutput:
-    return BatchOutput(*(np.concatenate([getattr(p, f) for p in parts])
-                         for f in ("strain", "direction", "status", "out_of_range")))
+                         state.n_in, state.n_out + state.n_in, located(in_path, problems))
 
 
 def _copy_through(contents: BagContents, writer: BagWriter, written: set[str],
-                  problems: list[str]) -> int:
+                  problem: Callable[[str], None]) -> int:
     """Write the input topics into the output bag; the number of messages copied."""
     n = 0
     for topic, kind in contents.types.items():
         if topic in written and topic != "/diagnostics":
-            problems.append(f"{topic}: an input topic with an output's name; not copied")
+            problem(f"{topic}: an input topic with an output's name; not copied")
             continue
         series = contents.series.get(topic)
         if kind == "diagnostic_msgs/msg/DiagnosticArray":
@@ -180,7 +247,7 @@ def _copy_through(contents: BagContents, writer: BagWriter, written: set[str],
                                          [d[1] for d in contents.diagnostics], topic=topic)
                 n += len(contents.diagnostics)
         elif series is None:
-            problems.append(f"{topic}: type {kind} is not copied to the output")
+            problem(f"{topic}: type {kind} is not copied to the output")
         elif kind == "std_msgs/msg/Float64":
             writer.write_float64(topic, series.t, series.values)
         elif kind == "std_msgs/msg/Int8":
@@ -192,7 +259,7 @@ def _copy_through(contents: BagContents, writer: BagWriter, written: set[str],
         elif kind == "sensor_msgs/msg/Temperature":
             writer.write_temperature(topic, series.t, series.values)
         else:
-            problems.append(f"{topic}: type {kind} is not copied to the output")
+            problem(f"{topic}: type {kind} is not copied to the output")
             continue
         if series is not None:
             n += series.t.size

@@ -380,3 +380,19 @@ def test_rate_sweep_apl_beats_mpi_beats_cubic():
     print(f"  all: {total}; mpi/apl = {total['mpi'] / total['apl']:.2f}, "
           f"cubic/mpi = {total['cubic'] / total['mpi']:.2f}")
     assert total["apl"] < 0.5 * total["mpi"] and total["mpi"] < total["cubic"]
+
+
+def test_grid_search_in_threads_gives_the_serial_result() -> None:
+    rng = np.random.default_rng(5)
+    t = np.arange(600) * 0.01
+    r = 100.0 + 20.0 * np.sin(t) + 5.0 * np.sin(3.1 * t) + rng.normal(0, 0.05, t.size)
+    s = 0.4 * (r - 100.0) + 0.5 * np.sin(t - 0.2)
+    seg = [Segment(t, r, s)]
+    norm = Normalisation.fit(r, s)
+    kw = dict(direction=DirectionSettings(deadzone=0.1), N=3, M=3,
+              sigma_grid=[0.05, 0.5, 5.0], p_grid=[0.5, 1.0], refine=False, output_nfev=0,
+              search_nfev=0, progress=False)
+    serial = APL.fit(seg, norm, workers=1, **kw)
+    threaded = APL.fit(seg, norm, workers=3, **kw)
+    assert (threaded.sigma, threaded.p) == (serial.sigma, serial.p)
+    np.testing.assert_array_equal(threaded.w, serial.w)

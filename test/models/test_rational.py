@@ -126,3 +126,20 @@ def test_params_round_trip_and_errors() -> None:
     with pytest.raises(FitError, match="falling"):
         up = slice(0, 500)  # only a rising quarter wave
         Rational.fit([Segment(t[up], r[up], s[up])], norm, direction=DIRECTION, mode="split")
+
+
+def test_analytic_jacobians_match_finite_differences() -> None:
+    from strain_comp.models.rational import _eval, _free, _jac, _jac_free
+
+    def approx_derivative(f, v: np.ndarray, h: float = 1e-6) -> np.ndarray:
+        steps = np.eye(v.size) * h
+        return np.column_stack([(f(v + e) - f(v - e)) / (2 * h) for e in steps])
+
+    x = np.linspace(0.3, 2.0, 50)
+    coef = np.array([0.7, -1.2, 3.0, 0.4, 2.5])
+    np.testing.assert_allclose(_jac(coef, x), approx_derivative(lambda c: _eval(c, x), coef),
+                               rtol=1e-6, atol=1e-9)
+    z = np.array([0.7, -1.2, 3.0, -0.8, 0.3])
+    np.testing.assert_allclose(_jac_free(z, x),
+                               approx_derivative(lambda v: _eval(_free(v), x), z),
+                               rtol=1e-6, atol=1e-9)

@@ -18,10 +18,11 @@ directory (``metadata.yaml`` + ``.mcap`` files) reads as one bag.
 from __future__ import annotations
 
 import io
+import mmap
 import os
 import struct
 import zlib
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +50,9 @@ _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
     "std_msgs/msg/Float32": (4, "<f4"),
     "std_msgs/msg/Int8": (4, "i1"),
 }
+
+WINDOW = 200_000
+"""Messages ``iter_bag`` lets wait before it cuts a piece."""
 
 # what the mcap record parsers raise on damaged content
 _PARSE_ERRORS = (McapError, struct.error, UnicodeDecodeError, ValueError, OverflowError,
@@ -120,6 +124,8 @@ class _Collector:
         self.msg_len: list[np.ndarray] = []
         self.problems: list[str] = []
         self.file_index = 0
+        self.chunk_start = 0
+        """Largest message start time [ns] of the chunks read so far."""
 
     def add_block(self, buf: np.ndarray, ops: np.ndarray, starts: np.ndarray,
                   lens: np.ndarray, where: str) -> None:
@@ -182,7 +188,7 @@ def _add_chunk(col: _Collector, chunk: Chunk, where: str) -> None:
     col.add_block(buf, ops, starts, lens, where)
 
 
-def _plausible_chunk(data: bytes, pos: int) -> bool:
+def _plausible_chunk(data: bytes | mmap.mmap, pos: int) -> bool:
     """Does a valid Chunk record start at ``pos`` (structure, compression, CRC)?"""
     if pos + 9 + 40 > len(data) or data[pos] != Opcode.CHUNK:
         return False
@@ -198,7 +204,7 @@ def _plausible_chunk(data: bytes, pos: int) -> bool:
         return False
 
 
-def _resync(data: bytes, pos: int) -> int | None:
+def _resync(data: bytes | mmap.mmap, pos: int) -> int | None:
     """Offset of the next valid chunk record after ``pos``, or None."""
     arr = np.frombuffer(data, dtype=np.uint8)
     for cand in np.flatnonzero(arr[pos:] == Opcode.CHUNK) + pos:
@@ -210,8 +216,9 @@ def _resync(data: bytes, pos: int) -> int | None:
 _OPCODES = {int(op) for op in Opcode}
 
 
-def _read_file(col: _Collector, data: bytes, name: str) -> None:
-    """Collect every complete record of one MCAP file held in memory.
+def _read_file(col: _Collector, data: bytes | mmap.mmap, name: str) -> Iterator[int]:
+    """Collect every complete record of one MCAP file held in memory (or mapped); yields
+    the end offset after each top-level record, so a caller may take what was collected.
 
     The top-level walk is ours (so positions are exact and the summary is never needed);
     each record's content is parsed by the ``mcap`` record classes and any failure is
@@ -245,6 +252,7 @@ def _read_file(col: _Collector, data: bytes, name: str) -> None:
                     problem = f"corrupt record at byte {pos} ({type(exc).__name__}: {exc})"
         if problem is None:
             pos = end
+            yield pos
             continue
         col.problems.append(f"{name}: {problem}; messages before it are kept")
         nxt = _resync(data, pos + 1)
@@ -260,7 +268,9 @@ def _read_top_record(col: _Collector, opcode: int, content: bytes, where: str,
                      loose_msgs: list[Message]) -> bool:
     """Handle one top-level record; True at the footer."""
     if opcode == Opcode.CHUNK:
-        _add_chunk(col, Chunk.read(ReadDataStream(io.BytesIO(content))), where)
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(content)))
+        col.chunk_start = max(col.chunk_start, chunk.message_start_time)
+        _add_chunk(col, chunk, where)
     elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
         col.add_small_record(opcode, content, where)
     elif opcode == Opcode.MESSAGE:
@@ -332,6 +342,16 @@ def _bag_files(path: Path) -> list[Path]:
     return files
 
 
+def _bag_paths(path: Path) -> list[Path]:
+    """The MCAP files of a bare ``.mcap`` or a rosbag2 directory; BagError before anything
+    is opened for a missing path or one that is neither (a FIFO would block)."""
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
+    if not (path.is_dir() or path.is_file()):
+        raise BagError(f"{path}: not a regular file or a rosbag2 directory")
+    return _bag_files(path) if path.is_dir() else [path]
+
+
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagContents:
     """Read a bare ``.mcap`` file or a rosbag2 directory (metadata.yaml + .mcap files).
 
@@ -340,22 +360,99 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
     line in ``problems``.
     """
     path = Path(path)
-    if not path.exists():
-        raise BagError(f"{path}: no such bag")
-    if not (path.is_dir() or path.is_file()):  # checked before opening: a FIFO would block
-        raise BagError(f"{path}: not a regular file or a rosbag2 directory")
-    files = _bag_files(path) if path.is_dir() else [path]
     col = _Collector(set(topics) if topics is not None else None)
-    for index, file in enumerate(files):
+    for index, file in enumerate(_bag_paths(path)):
         col.file_index = index
         try:
             data = file.read_bytes()
         except OSError as exc:
             raise BagError(f"{file}: cannot read ({exc.strerror})") from exc
-        _read_file(col, data, str(file))
+        for _ in _read_file(col, data, str(file)):
+            pass
     contents = _decode(col)
     contents.problems[:] = located(path, contents.problems)
     return contents
+
+
+def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
+             window: int = WINDOW) -> Iterator[BagContents]:
+    """``read_bag`` piece by piece in log-time order, in memory bounded by ``window``.
+
+    Each piece holds the messages of a log-time interval [t_a, t_b) (per topic sorted as
+    ``read_bag`` sorts them), and the pieces follow each other in time. Files are mapped,
+    not read, and the pages already walked are released. A piece is cut once ``window``
+    messages are waiting, at the start time of the latest chunk read: chunks that overlap
+    in time are merged as long as no later chunk starts before an earlier one's cut. If
+    one does, its messages before the cut come in the next piece (late) and a problem line
+    counts them. Messages stored outside chunks are delivered with the last piece.
+    """
+    path = Path(path)
+    col = _Collector(set(topics) if topics is not None else None)
+    cut: int | None = None
+    for index, file in enumerate(_bag_paths(path)):
+        col.file_index = index
+        try:
+            with file.open("rb") as handle:
+                if os.fstat(handle.fileno()).st_size < len(MAGIC):
+                    raise BagError(f"{file}: not an MCAP file (bad magic)")
+                data = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
+        except OSError as exc:
+            raise BagError(f"{file}: cannot read ({exc.strerror})") from exc
+        with data:
+            released = 0
+            for pos in _read_file(col, data, str(file)):
+                page = pos - pos % mmap.PAGESIZE
+                if page > released:
+                    data.madvise(mmap.MADV_DONTNEED, released, page - released)
+                    released = page
+                if sum(m.size for m in col.msg_time) >= window:
+                    piece, cut = _take(col, col.chunk_start, cut)
+                    if piece is not None:
+                        piece.problems[:] = located(path, piece.problems)
+                        yield piece
+    piece, _ = _take(col, None, cut)
+    if piece is None:
+        piece = BagContents(problems=col.problems)
+    piece.problems[:] = located(path, piece.problems)
+    yield piece
+
+
+def _take(col: _Collector, upto: int | None, cut: int | None
+          ) -> tuple[BagContents | None, int | None]:
+    """Decode and remove from ``col`` the messages before ``upto`` [ns] (all if None);
+    ``cut``: the previous piece's end. Returns the piece and the new cut."""
+    if not col.msg_time:
+        return None, cut
+    time = np.concatenate(col.msg_time)
+    block = np.concatenate(col.msg_block)
+    channel = np.concatenate(col.msg_channel)
+    start = np.concatenate(col.msg_start)
+    length = np.concatenate(col.msg_len)
+    take = np.ones(time.size, bool) if upto is None else time < upto
+    if not take.any():
+        return None, cut
+    sub = _Collector(col.topics)
+    sub.schemas, sub.channels = col.schemas, col.channels
+    sub.blocks, sub.block_file = col.blocks, col.block_file
+    sub.msg_time, sub.msg_block, sub.msg_channel = [time[take]], [block[take]], [channel[take]]
+    sub.msg_start, sub.msg_len = [start[take]], [length[take]]
+    sub.problems, col.problems = col.problems, []
+    if cut is not None:
+        late = int(np.count_nonzero(time[take] < cut))
+        if late:
+            sub.problems.append(f"{late} messages in chunks that start before an earlier "
+                                "chunk's end: delivered late, after later messages")
+    keep = ~take
+    used = np.unique(block[keep])
+    remap = np.full(len(col.blocks), -1, np.int32)
+    remap[used] = np.arange(used.size, dtype=np.int32)
+    col.blocks = [col.blocks[b] for b in used]
+    col.block_file = [col.block_file[b] for b in used]
+    col.msg_time, col.msg_block, col.msg_channel = [time[keep]], [remap[block[keep]]], \
+        [channel[keep]]
+    col.msg_start, col.msg_len = [start[keep]], [length[keep]]
+    new_cut = int(time[take].max()) + 1 if upto is None else upto
+    return _decode(sub), new_cut if cut is None else max(cut, new_cut)
 
 
 def located(path: str | os.PathLike[str], problems: Iterable[str]) -> list[str]:

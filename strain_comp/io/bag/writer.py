@@ -39,7 +39,7 @@ from mcap_ros2._dynamic import serialize_dynamic
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
-from strain_comp.io.atomic import AtomicFile
+from strain_comp.io.atomic import AtomicFile, check_output
 from strain_comp.io.bag.schemas import CHUNK_SIZE, LIBRARY, MAGIC, PROFILE, SCHEMAS, Status
 
 OFFERED_QOS = ("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n"
@@ -71,17 +71,36 @@ def _cdr_rows(header_and_prefix: bytes, values: np.ndarray) -> np.ndarray:
 
 @dataclass
 class _Topic:
+    id: int
     type: str
-    times: list[np.ndarray] = field(default_factory=list)
-    payloads: list[np.ndarray] = field(default_factory=list)  # flat uint8 blobs
+    n: int = 0
+    """Messages written so far (the next sequence number is n + 1)."""
+
+
+@dataclass
+class _Pending:
+    """Messages buffered since the last flush: times [ns], channels, sequences, payloads."""
+
+    t_ns: list[np.ndarray] = field(default_factory=list)
+    chan: list[np.ndarray] = field(default_factory=list)
+    seq: list[np.ndarray] = field(default_factory=list)
     lengths: list[np.ndarray] = field(default_factory=list)
+    payloads: list[np.ndarray] = field(default_factory=list)
+    nbytes: int = 0
 
 
 class BagWriter:
     """Write a ros2-profile MCAP bag; use as a context manager.
 
-    Every ``write_*`` call takes whole arrays; data are buffered and written, merged in
-    log-time order, chunked and indexed, when the context exits (or on ``close()``).
+    Every ``write_*`` call takes whole arrays. Messages are buffered; ``flush()`` writes
+    the buffered messages in log-time order as complete chunks (the last partial chunk
+    stays buffered), and the context exit (or ``close()``) writes the rest, the summary and
+    the footer. A caller that streams calls ``flush()`` once every message up to some time
+    has been written and no later call writes an earlier one: the file is then in log-time
+    order and memory is bounded by what was written between two flushes. Without
+    ``flush()`` everything is written, merged in log-time order, at the exit.
+    The file is written through ``strain_comp.io.atomic.atomic_output`` (``inputs``: paths
+    it must not overwrite); an exception inside the context leaves no output.
     Times are log times in seconds (>= 0). A topic keeps the type of its first write.
     """
 
@@ -89,12 +108,12 @@ class BagWriter:
                  inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
         self.path = Path(path)
         self.chunk_size = chunk_size
+        self.inputs = list(inputs)
+        check_output(self.path, self.inputs)  # refused before anything is computed
         self._topics: dict[str, _Topic] = {}
+        self._pending = _Pending()
         self._closed = False
-        try:  # written atomically (strain_comp.io.atomic): renamed over path on close()
-            self._output = AtomicFile(self.path, inputs=inputs)
-        except OSError as exc:
-            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
+        self._out: _Stream | None = None
 
     def __enter__(self) -> BagWriter:
         return self
@@ -108,7 +127,8 @@ class BagWriter:
     def abort(self) -> None:
         """Give up: delete the temporary file, leave ``path`` as it was."""
         self._closed = True
-        self._output.discard()
+        if self._out is not None:
+            self._out.abort()
 
     def _add(self, topic: str, kind: str, t_ns: np.ndarray, rows: np.ndarray | list[bytes]
              ) -> None:
@@ -116,7 +136,7 @@ class BagWriter:
             raise BagError(f"{self.path}: writer already closed")
         if not topic.startswith("/"):
             raise BagError(f"topic {topic!r} must start with '/'")
-        entry = self._topics.setdefault(topic, _Topic(kind))
+        entry = self._topics.setdefault(topic, _Topic(len(self._topics) + 1, kind))
         if entry.type != kind:
             raise BagError(f"topic {topic} already holds {entry.type}, not {kind}")
         if isinstance(rows, np.ndarray):
@@ -127,9 +147,14 @@ class BagWriter:
             blob = np.frombuffer(b"".join(rows), dtype=np.uint8)
         if lengths.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {lengths.size} values")
-        entry.times.append(t_ns)
-        entry.payloads.append(blob)
-        entry.lengths.append(lengths)
+        p = self._pending
+        p.t_ns.append(t_ns)
+        p.chan.append(np.full(t_ns.size, entry.id, np.uint16))
+        p.seq.append(np.arange(entry.n + 1, entry.n + 1 + t_ns.size, dtype=np.uint32))
+        p.lengths.append(lengths)
+        p.payloads.append(blob)
+        p.nbytes += blob.size
+        entry.n += t_ns.size
 
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """std_msgs/msg/Float64 messages, one per (t, value)."""
@@ -188,18 +213,37 @@ class BagWriter:
                 for ns, st in zip(t_ns.tolist(), statuses, strict=False)]
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns, rows)
 
+    def flush(self, *, before: float | None = None) -> None:
+        """Write the buffered messages (only those before log time ``before`` [s], if
+        given) as complete chunks; the rest stays buffered (see the class doc)."""
+        if self._closed:
+            raise BagError(f"{self.path}: writer already closed")
+        self._write_pending(final=False, before=None if before is None else
+                            round(before * 1e9))
+
     def close(self) -> None:
-        """Write the file (once)."""
+        """Write the remaining messages, the summary and the footer (once)."""
         if self._closed:
             return
+        self._write_pending(final=True)
         self._closed = True
+        assert self._out is not None
+        self._out.finish()
+
+    def _write_pending(self, *, final: bool, before: int | None = None) -> None:
+        if self._out is None:
+            self._out = _Stream(self.path, self.inputs, self.chunk_size)
+        p = self._pending
+        self._pending = _Pending()
+        if not p.t_ns:
+            return
         try:
-            _write_mcap(self._output.handle, self._topics, self.chunk_size)
-            self._output.commit()
+            rest = self._out.write_messages(self._topics, p, final=final, before=before)
         except OSError as exc:
+            self._out.abort()
             raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
-        finally:
-            self._output.discard()
+        if rest is not None:
+            self._pending = rest
 
 
 _ENCODERS: dict[str, Any] = {}
@@ -227,88 +271,144 @@ _MSG_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq"
                         ("log", "<u8"), ("pub", "<u8")])  # packed: 31 bytes
 
 
-def _write_mcap(stream: Any, topics: Mapping[str, _Topic], chunk_size: int) -> None:
-    """Serialise buffered topics as one chunked, indexed ros2-profile MCAP file."""
-    schemas: dict[str, Schema] = {}
-    channels: list[Channel] = []
-    t_all, ch_all, seq_all, off_all, len_all, blobs = [], [], [], [], [], []
-    blob_base = 0
-    for cid, (topic, entry) in enumerate(topics.items(), start=1):
-        if entry.type not in schemas:
-            schemas[entry.type] = Schema(id=len(schemas) + 1, name=entry.type,
-                                         encoding="ros2msg", data=SCHEMAS[entry.type].encode())
-        channels.append(Channel(id=cid, schema_id=schemas[entry.type].id, topic=topic,
-                                message_encoding="cdr",
-                                metadata={"offered_qos_profiles": OFFERED_QOS}))
-        lengths = np.concatenate(entry.lengths)
-        t_all.append(np.concatenate(entry.times))
-        ch_all.append(np.full(lengths.size, cid, np.uint16))
-        seq_all.append(np.arange(1, lengths.size + 1, dtype=np.uint32))
-        off_all.append(np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
-                       + blob_base)
-        len_all.append(lengths)
-        blobs.extend(entry.payloads)
-        blob_base += int(lengths.sum())
-    out = [MAGIC, _record(Header(profile=PROFILE, library=LIBRARY))]
-    out += [_record(s) for s in schemas.values()] + [_record(c) for c in channels]
-    pos = sum(len(b) for b in out)
-    chunk_indexes: list[ChunkIndex] = []
-    counts: dict[int, int] = {c.id: 0 for c in channels}
-    n_total = 0
-    t0 = t1 = 0
-    if channels and sum(x.size for x in t_all):
-        t_ns = np.concatenate(t_all)
+class _Stream:
+    """The output file: records written as they come, the summary kept for the end."""
+
+    def __init__(self, path: Path, inputs: Sequence[str | os.PathLike[str]],
+                 chunk_size: int) -> None:
+        self.path = path
+        self.chunk_size = chunk_size
+        try:
+            self._output = AtomicFile(path, inputs=inputs)
+        except OSError as exc:
+            raise BagError(f"{path}: cannot write ({exc.strerror})") from exc
+        self.file = self._output.handle
+        self.schemas: dict[str, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.chunk_indexes: list[ChunkIndex] = []
+        self.counts: dict[int, int] = {}
+        self.n_total = 0
+        self.t0: int | None = None
+        self.t1 = 0
+        self.pos = 0
+        self._write(MAGIC + _record(Header(profile=PROFILE, library=LIBRARY)))
+
+    def _write(self, data: bytes) -> None:
+        self.file.write(data)
+        self.pos += len(data)
+
+    def _declare(self, topics: Mapping[str, _Topic]) -> None:
+        """Schema and Channel records of topics not written yet (before their messages)."""
+        for topic, entry in topics.items():
+            if entry.id in self.channels:
+                continue
+            if entry.type not in self.schemas:
+                schema = Schema(id=len(self.schemas) + 1, name=entry.type, encoding="ros2msg",
+                                data=SCHEMAS[entry.type].encode())
+                self.schemas[entry.type] = schema
+                self._write(_record(schema))
+            channel = Channel(id=entry.id, schema_id=self.schemas[entry.type].id, topic=topic,
+                              message_encoding="cdr",
+                              metadata={"offered_qos_profiles": OFFERED_QOS})
+            self.channels[entry.id] = channel
+            self.counts[entry.id] = 0
+            self._write(_record(channel))
+
+    def write_messages(self, topics: Mapping[str, _Topic], p: _Pending, *, final: bool,
+                       before: int | None = None) -> _Pending | None:
+        """Write ``p`` merged in log-time order as chunks; unless ``final``, the last partial
+        chunk and the messages at or after ``before`` [ns] are returned (sorted) instead."""
+        self._declare(topics)
+        t_ns = np.concatenate(p.t_ns)
         order = np.argsort(t_ns, kind="stable")
         t_ns = t_ns[order]
-        chan = np.concatenate(ch_all)[order]
-        seq = np.concatenate(seq_all)[order]
-        poff = np.concatenate(off_all)[order]
-        plen = np.concatenate(len_all)[order]
-        blob = np.concatenate(blobs)
-        n_total = t_ns.size
-        t0, t1 = int(t_ns[0]), int(t_ns[-1])
-        for c, n in zip(*np.unique(chan, return_counts=True), strict=True):
-            counts[int(c)] = int(n)
-        rec_end = np.cumsum(31 + plen)
+        chan = np.concatenate(p.chan)[order]
+        seq = np.concatenate(p.seq)[order]
+        plen = np.concatenate(p.lengths)
+        poff = (np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64))[order]
+        plen = plen[order]
+        blob = np.concatenate(p.payloads) if len(p.payloads) > 1 else p.payloads[0]
+        n = t_ns.size if before is None or final else int(np.searchsorted(t_ns, before))
+        rec_end = np.cumsum(31 + plen[:n])
         cuts = [0]
-        while cuts[-1] < n_total:
+        while cuts[-1] < n:
             base = rec_end[cuts[-1] - 1] if cuts[-1] else 0
-            nxt = int(np.searchsorted(rec_end, base + chunk_size, side="right"))
-            cuts.append(min(max(nxt, cuts[-1] + 1), n_total))
+            nxt = int(np.searchsorted(rec_end, base + self.chunk_size, side="right"))
+            cuts.append(min(max(nxt, cuts[-1] + 1), n))
+        keep = None
+        if not final:
+            if len(cuts) > 1 and rec_end[-1] - (rec_end[cuts[-2] - 1] if cuts[-2] else 0) \
+                    < self.chunk_size:  # a partial last chunk: keep it
+                cuts.pop()
+            a = cuts[-1]
+            if a < t_ns.size:
+                keep = _Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [plen[a:].copy()],
+                                [_take_payloads(blob, poff[a:], plen[a:])])
+                keep.nbytes = keep.payloads[0].size
         for a, b in itertools.pairwise(cuts):
+            if b == a:
+                continue
             pieces, index = _chunk(t_ns[a:b], chan[a:b], seq[a:b], poff[a:b], plen[a:b], blob,
-                                   pos)
-            chunk_indexes.append(index)
-            out += pieces
-            pos += sum(len(x) for x in pieces)
-    out.append(_record(DataEnd(data_section_crc=0)))
-    pos += len(out[-1])
-    summary_start = pos
-    summary: list[bytes] = []
-    offsets: list[SummaryOffset] = []
-    for opcode, group in ((Opcode.SCHEMA, list(schemas.values())), (Opcode.CHANNEL, channels),
-                          (Opcode.STATISTICS, [Statistics(
-                              message_count=n_total, schema_count=len(schemas),
-                              channel_count=len(channels), attachment_count=0,
-                              metadata_count=0, chunk_count=len(chunk_indexes),
-                              message_start_time=t0, message_end_time=t1,
-                              channel_message_counts=counts)]),
-                          (Opcode.CHUNK_INDEX, chunk_indexes)):
-        data = b"".join(_record(r) for r in group)
-        offsets.append(SummaryOffset(group_opcode=opcode, group_start=pos, group_length=len(data)))
-        summary.append(data)
-        pos += len(data)
-    summary_offset_start = pos
-    summary += [_record(o) for o in offsets]
-    summary_data = b"".join(summary)
-    crc = zlib.crc32(summary_data)
-    crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start,
-                                 summary_offset_start), crc)
-    out += [summary_data, _record(Footer(summary_start=summary_start,
-                                         summary_offset_start=summary_offset_start,
-                                         summary_crc=crc)), MAGIC]
-    for piece in out:
-        stream.write(piece)
+                                   self.pos)
+            self.chunk_indexes.append(index)
+            for piece in pieces:
+                self._write(piece)
+            for c, k in zip(*np.unique(chan[a:b], return_counts=True), strict=True):
+                self.counts[int(c)] += int(k)
+            self.n_total += b - a
+            self.t0 = int(t_ns[a]) if self.t0 is None else min(self.t0, int(t_ns[a]))
+            self.t1 = max(self.t1, int(t_ns[b - 1]))
+        return keep
+
+    def finish(self) -> None:
+        """Data end, summary (schemas, channels, statistics, chunk indexes), footer; then
+        the atomic rename."""
+        try:
+            self._finish()
+            self._output.commit()
+        except OSError as exc:
+            self.abort()
+            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
+
+    def _finish(self) -> None:
+        self._write(_record(DataEnd(data_section_crc=0)))
+        summary_start = self.pos
+        pos = self.pos
+        summary: list[bytes] = []
+        offsets: list[SummaryOffset] = []
+        stats = Statistics(message_count=self.n_total, schema_count=len(self.schemas),
+                           channel_count=len(self.channels), attachment_count=0,
+                           metadata_count=0, chunk_count=len(self.chunk_indexes),
+                           message_start_time=self.t0 or 0, message_end_time=self.t1,
+                           channel_message_counts=self.counts)
+        for opcode, group in ((Opcode.SCHEMA, list(self.schemas.values())),
+                              (Opcode.CHANNEL, list(self.channels.values())),
+                              (Opcode.STATISTICS, [stats]),
+                              (Opcode.CHUNK_INDEX, self.chunk_indexes)):
+            data = b"".join(_record(r) for r in group)
+            offsets.append(SummaryOffset(group_opcode=opcode, group_start=pos,
+                                         group_length=len(data)))
+            summary.append(data)
+            pos += len(data)
+        summary_offset_start = pos
+        summary += [_record(o) for o in offsets]
+        summary_data = b"".join(summary)
+        crc = zlib.crc32(summary_data)
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start,
+                                     summary_offset_start), crc)
+        self._write(summary_data + _record(Footer(summary_start=summary_start,
+                                                  summary_offset_start=summary_offset_start,
+                                                  summary_crc=crc)) + MAGIC)
+
+    def abort(self) -> None:
+        """Drop the temporary file (nothing replaces the target)."""
+        self._output.discard()
+
+
+def _take_payloads(blob: np.ndarray, poff: np.ndarray, plen: np.ndarray) -> np.ndarray:
+    """The payloads at ``poff`` / ``plen`` packed into one blob, in that order."""
+    idx = np.repeat(poff - np.concatenate(([0], np.cumsum(plen)[:-1])), plen)
+    return blob[idx + np.arange(idx.size)]
 
 
 @njit
