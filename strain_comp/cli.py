@@ -123,7 +123,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     calibration = load_calibration(_existing(args.calibration, "calibration file"))
     recordings, problems = load_recordings(args.bag)
     try:
-        result = evaluate_recordings(recordings, calibration)
+        result = evaluate_recordings(recordings, calibration, tare=args.tare)
     except InputError as err:  # nothing to score: say what the bag reader skipped, if anything
         raise InputError("; ".join([f"{args.bag}: {err}", *problems])) from None
     print(format_table(result))
@@ -145,7 +145,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from strain_comp.offline.replay import replay_bag
 
     calibration = load_calibration(_existing(args.calibration, "calibration file"))
-    summary = replay_bag(args.bag, calibration, _output(args.out))
+    summary = replay_bag(args.bag, calibration, _output(args.out), tare=args.tare)
     print(f"replayed {summary.n_input_messages} input messages of {len(summary.sensors)} "
           f"sensors into {args.out} ({summary.n_output_messages} output messages)")
     for name, health in summary.sensors.items():
@@ -166,7 +166,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         _existing(args.validate, "validation bag")
     calibration = load_calibration(_existing(args.calibration, "calibration file"))
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
-                          plots=args.plots)
+                          plots=args.plots, tare=args.tare)
     print(report.summary())
     if args.json:
         _write_json(args.json, report.to_json())
@@ -181,6 +181,12 @@ def cmd_node(args: argparse.Namespace) -> int:
     from strain_comp.ros.node import main as node_main
 
     return node_main(["--ros-args", "--params-file", str(args.params)])
+
+
+def _tare_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--tare", choices=("calibration", "auto"), default="calibration",
+                   help="rest resistance from the calibration (default) or from the run's "
+                   "first seconds at rest (auto)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -228,12 +234,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--json", metavar="OUT.json", help="also write the errors as JSON")
     p.add_argument("--plots", metavar="DIR", help="also write PNG plots per sensor")
+    _tare_flag(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("replay", help="write estimated strain and direction into a new bag")
     p.add_argument("bag", metavar="IN.mcap")
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--out", required=True, metavar="OUT.mcap")
+    _tare_flag(p)
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("diagnose", help="find the effect a calibration lacks and add it")
@@ -243,6 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="CAL2.yaml")
     p.add_argument("--json", metavar="OUT.json")
     p.add_argument("--plots", metavar="DIR")
+    _tare_flag(p)
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("node", help="run the rclpy compensator node (as `ros2 run` does)")

@@ -73,6 +73,7 @@ from strain_comp.core.effects import (
 )
 from strain_comp.core.engine import Engine, used_mask
 from strain_comp.core.metrics import error_stats
+from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording, hold_latest, load_recordings
 
@@ -260,11 +261,14 @@ class _Run:
     """Positions among the used samples where the engine reset after a gap."""
 
 
-def _base_runs(bag: Mapping[str, Recording], calibration: Calibration) -> dict[str, _Run]:
-    """S_hat without effects, direction, used mask and gap resets per calibrated sensor."""
+def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
+               tare: str = "calibration") -> dict[str, _Run]:
+    """S_hat without effects, direction, used mask and gap resets per calibrated sensor
+    (each run tared by ``tare``, as ``evaluate`` does)."""
     stripped = Calibration({n: dataclasses.replace(c, effects=[])
                             for n, c in calibration.sensors.items()})
     engine = Engine(stripped)  # sensors are independent: effect terms (cross-talk) stripped
+    tare_engine(engine, {n: (rec.t, rec.r) for n, rec in bag.items()}, tare)
     out = {}
     for name, rec in bag.items():
         if name not in stripped.sensors:
@@ -691,12 +695,14 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              validate_recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
              | None = None, holdout_fraction: float = 0.3,
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
-             margin: float = 0.03, max_effects: int = 3) -> DiagnoseResult:
+             margin: float = 0.03, max_effects: int = 3,
+             tare: str = "calibration") -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
     ``candidates``: effect dicts to test instead of ``default_candidates``. ``margin``: the
-    least relative drop of the cross-validated RMSE for an effect to be added.
+    least relative drop of the cross-validated RMSE for an effect to be added. ``tare``:
+    ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
     """
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
@@ -704,8 +710,9 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
         raise InputError(f"n_blocks must be >= 3, got {n_blocks}")
     bags = _as_bags(recordings)
     validate = None if validate_recordings is None else _as_bags(validate_recordings)
-    base_fit = [_base_runs(b, calibration) for b in bags]
-    base_val = None if validate is None else [_base_runs(b, calibration) for b in validate]
+    base_fit = [_base_runs(b, calibration, tare=tare) for b in bags]
+    base_val = (None if validate is None
+                else [_base_runs(b, calibration, tare=tare) for b in validate])
     results: dict[str, SensorDiagnosis] = {}
     for sensor, cal in calibration.sensors.items():
         found = _diagnose_sensor(sensor, cal, bags, validate, base_fit, base_val or [],

@@ -76,18 +76,22 @@ def _json_number(value: float | int) -> float | int | None:
     return value
 
 
-def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration,
-                        ) -> EvaluationResult:
+def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
+                        tare: str = "calibration") -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
-    Raises InputError when no calibrated sensor can be scored (names both sides).
+    ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
+    tare read goes to the notes). Raises InputError when no calibrated sensor can be scored
+    (names both sides).
     """
     from strain_comp.core.engine import Engine, Status, used_mask
+    from strain_comp.core.tare import tare_engine
 
     engine = Engine(calibration)
+    tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
     outputs = _array_outputs(engine, recordings, calibration)
     sensors: dict[str, SensorEvaluation] = {}
-    notes: list[str] = []
+    notes: list[str] = [f"{name}: {line}" for name, line in tared.items()]
     for name, cal in calibration.sensors.items():
         rec = recordings.get(name)
         if rec is None:

@@ -57,6 +57,7 @@ from strain_comp.core.direction import DirectionSettings, estimate_deadzone
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import good_mask
+from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import FitError, InputError
 from strain_comp.models import Normalisation, Segment, model_class
 
@@ -263,6 +264,16 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
     return error_stats(np.concatenate(estimates), np.concatenate(references)).rmse
 
 
+def training_rest_resistance(recordings: Sequence[Recording]) -> float | None:
+    """The calibration's rest resistance [ohm]: the median over the training runs of each
+    run's leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``,
+    the statistic an automatic tare uses at run time); None when no run starts at rest."""
+    levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s) for rec in recordings
+              if rec.s is not None]
+    found = [level for level in levels if level is not None]
+    return float(np.median(found)) if found else None
+
+
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                ) -> SensorCalibration:
@@ -297,7 +308,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     fit_seconds = time.perf_counter() - start
     calibration = SensorCalibration(
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
-        valid_range=valid_range(segments), direction=direction)
+        valid_range=valid_range(segments), direction=direction,
+        rest_resistance=training_rest_resistance(recordings))
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "

@@ -26,6 +26,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import GAP_RESET, BatchOutput, Engine, SensorHealth, diagnostics
+from strain_comp.core.tare import tare_engine
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagContents, BagWriter, located, read_bag
 from strain_comp.io.recording import array_sensor_names, hold_latest
@@ -86,11 +87,18 @@ def _temperature(contents: BagContents, name: str, t: np.ndarray) -> np.ndarray 
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
-               gap_reset: float = GAP_RESET, stale_after: float = 1.0) -> ReplaySummary:
-    """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``."""
+               gap_reset: float = GAP_RESET, stale_after: float = 1.0,
+               tare: str = "calibration") -> ReplaySummary:
+    """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``.
+
+    ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine`` on each
+    input's first seconds before the replay; its readings go to the problems list).
+    """
     contents = read_bag(in_path)
     inputs = _inputs(contents, calibration)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
+    tared = tare_engine(engine, {s: (i.t, i.values[:, j]) for i in inputs
+                                 for j, s in enumerate(i.sensors)}, tare)
     t_all = np.concatenate([i.t for i in inputs])
     # a diagnostics tick at the end of every period that holds messages (bounded by them)
     t0 = t_all.min() if t_all.size else 0.0
@@ -118,7 +126,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
         if k < ticks.size:
             statuses.append(diagnostics(engine.health(now=float(ticks[k]))))
     out_path = Path(out_path)
-    problems = list(contents.problems)
+    problems = list(contents.problems) + [f"{s}: {line}" for s, line in tared.items()]
     replayed = {s for i in inputs for s in i.sensors}
     problems += [f"calibrated sensor {s!r} has no input topic in the bag: not replayed "
                  "(STALE in /diagnostics)" for s in calibration.sensors if s not in replayed]
