@@ -176,6 +176,24 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_recalibrate(args: argparse.Namespace) -> int:
+    from strain_comp.core.calibration import load_calibration, save_calibration
+    from strain_comp.offline.recalibrate import parse_point, recalibrate
+
+    if bool(args.point) == bool(args.from_bag):
+        raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
+    calibration = load_calibration(_existing(args.calibration, "calibration file"))
+    points = [parse_point(p) for p in args.point or []]
+    bag = None if args.from_bag is None else _existing(args.from_bag, "bag")
+    new, lines = recalibrate(calibration, points=points, bag=bag, sensors=args.sensor,
+                             tare=args.tare)
+    save_calibration(new, _output(args.out),
+                     inputs=[p for p in (args.calibration, bag) if p is not None])
+    print("\n".join(lines))
+    print(f"wrote {args.out}")
+    return 0
+
+
 def cmd_node(args: argparse.Namespace) -> int:
     _existing(args.params, "parameter file")
     from strain_comp.ros.node import main as node_main
@@ -253,6 +271,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", metavar="DIR")
     _tare_flag(p)
     p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("recalibrate",
+                       help="output gain and offset through two known strains or a bag")
+    p.add_argument("calibration", metavar="CAL.yaml")
+    p.add_argument("--point", action="append", metavar="R:S",
+                   help="a resistance [ohm] and its known strain [%%] (give two)")
+    p.add_argument("--from", dest="from_bag", metavar="BAG.mcap",
+                   help="a bag with a strain reference (least-squares gain and offset)")
+    p.add_argument("--sensor", action="append", metavar="NAME",
+                   help="sensor to recalibrate (needed with --point if several)")
+    p.add_argument("--out", required=True, metavar="CAL2.yaml")
+    _tare_flag(p)
+    p.set_defaults(func=cmd_recalibrate)
 
     p = sub.add_parser("node", help="run the rclpy compensator node (as `ros2 run` does)")
     p.add_argument("--params", required=True, metavar="FILE", help="node parameter YAML")
