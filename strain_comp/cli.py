@@ -118,7 +118,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     _existing(args.bag, "bag")
     from strain_comp.core.calibration import load_calibration
     from strain_comp.io.recording import load_recordings
-    from strain_comp.offline.evaluate import evaluate_recordings, format_notes, format_table
+    from strain_comp.offline.evaluate import (
+        evaluate_recordings,
+        format_notes,
+        format_table,
+        in_run_bound,
+    )
 
     calibration = load_calibration(_existing(args.calibration, "calibration file"))
     recordings, problems = load_recordings(args.bag)
@@ -126,6 +131,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         result = evaluate_recordings(recordings, calibration, tare=args.tare)
     except InputError as err:  # nothing to score: say what the bag reader skipped, if anything
         raise InputError("; ".join([f"{args.bag}: {err}", *problems])) from None
+    if args.in_run_bound:
+        in_run_bound(result, recordings, calibration)
     print(format_table(result))
     for line in problems + format_notes(result):
         print(line)
@@ -252,6 +259,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--json", metavar="OUT.json", help="also write the errors as JSON")
     p.add_argument("--plots", metavar="DIR", help="also write PNG plots per sensor")
+    p.add_argument("--in-run-bound", action="store_true",
+                   help="also fit the same model on this run itself and give its RMSE "
+                   "(JSON key in_run_rmse; costs a fit)")
     _tare_flag(p)
     p.set_defaults(func=cmd_evaluate)
 

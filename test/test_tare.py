@@ -146,3 +146,18 @@ def test_cli_recalibrate_refuses_its_input_as_output_and_keeps_it(cubic: Calibra
                 "--out", str(out)]) == 0
     assert load_calibration(out).sensors["s1"].effects[-1]["name"] == "recalibration_offset"
     assert yaml.safe_load(out.read_text())["sensors"]["s1"]["provenance"]["recalibrations"]
+
+
+def test_in_run_bound_is_the_same_model_fitted_on_the_evaluated_run(cubic: Calibration,
+                                                                    tmp_path: Path) -> None:
+    from strain_comp.offline.evaluate import in_run_bound
+
+    other = {"s1": run(1.2 * R0)}
+    result = evaluate_recordings(other, cubic)
+    assert "in_run_rmse" not in result.to_json()["sensors"]["s1"]
+    in_run_bound(result, other, cubic)
+    own = fit_sensor([other["s1"]], "cubic", name="s1")
+    expected = evaluate_recordings(other, Calibration({"s1": own})).sensors["s1"].stats.rmse
+    assert result.sensors["s1"].in_run_rmse == pytest.approx(expected)
+    assert result.sensors["s1"].in_run_rmse < 0.05 < result.sensors["s1"].stats.rmse
+    assert result.to_json()["sensors"]["s1"]["in_run_rmse"] == pytest.approx(expected)

@@ -54,6 +54,8 @@ class SensorEvaluation:
         record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
         record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
                       n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status)
+        if self.in_run_rmse is not None:
+            record["in_run_rmse"] = _json_number(self.in_run_rmse)
         return record
 
 
@@ -123,6 +125,27 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     return EvaluationResult(sensors, notes)
 
 
+def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
+                 calibration: Calibration) -> None:
+    """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
+    the evaluated run itself and scored on it, i.e. what that model family can reach on
+    this run; the gap to ``rmse`` is what does not transfer from the training runs. A run
+    the model cannot be fitted to gets NaN and a note."""
+    from strain_comp.errors import StrainCompError
+    from strain_comp.offline.fit import fit_sensor
+
+    for name, ev in result.sensors.items():
+        cal = calibration.sensors[name]
+        try:
+            own = fit_sensor([recordings[name]], cal.model, name=name,
+                             options=cal.provenance.get("options") or None)
+            again = evaluate_recordings({name: recordings[name]}, Calibration({name: own}))
+            ev.in_run_rmse = again.sensors[name].stats.rmse
+        except StrainCompError as err:
+            ev.in_run_rmse = math.nan
+            result.notes.append(f"{name}: no in-run bound ({err})")
+
+
 def _array_outputs(engine: Any, recordings: Mapping[str, Recording],
                    calibration: Calibration) -> dict[str, Any]:
     """``Engine.run_array`` outputs of the calibrated, referenced sensors of every array
@@ -153,6 +176,9 @@ def format_table(result: EvaluationResult) -> str:
         st = ev.stats
         lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
                      f"{st.max_abs:>9.4f} {st.r2:>8.5f}")
+        if ev.in_run_rmse is not None:
+            lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
+                         f"{ev.in_run_rmse:.4f}")
     lines.append("errors in % strain; RMSE apl_electrolycra eq. (5)")
     return "\n".join(lines)
 
