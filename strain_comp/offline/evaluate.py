@@ -48,6 +48,8 @@ class SensorEvaluation:
     n_bad: int
     n_out_of_range: int
     bad_by_status: dict[str, int] = field(default_factory=dict)
+    in_run_rmse: float | None = None
+    """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the DESIGN.md keys first, then extra keys."""
