@@ -34,6 +34,12 @@ data and fills in what a calibration file needs besides the parameters:
   passed to the model. ``sign`` is the sign of the correlation of R and S in the training
   data (-1 for a sensor whose R falls with strain), so the published direction is +1 on
   loading for every sensor (``strain_comp.core.engine``).
+* **Measurement chain**: an alternation of the excitation every other sample
+  (``strain_comp.core.chain.alternation``, found from R alone) switches on the calibration's
+  ``input.alternation``: the models are fitted to, and the engine feeds them, pair means
+  (R[i] + R[i-1]) / 2, so the alternation never reaches a model's memory or the detector.
+  Option ``alternation`` (true/false) overrides the detection; the provenance records the
+  reading (``measurement_chain``).
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
@@ -52,7 +58,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange, provenance
+from strain_comp.core.calibration import (
+    Calibration,
+    InputSettings,
+    SensorCalibration,
+    ValidRange,
+    provenance,
+)
+from strain_comp.core.chain import alternation, pair_means
 from strain_comp.core.direction import DirectionSettings, estimate_deadzone
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.metrics import error_stats
@@ -81,7 +94,7 @@ TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Derivative low-pass time constants [s] tried, shortest (least lag) first."""
 DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
-_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau")
+_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation")
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
@@ -298,6 +311,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
         raise FitError(f"sensor {name!r}: the training data span no range of resistance "
                        "or strain")
+    chain = alternation(np.concatenate([np.asarray(rec.r) for rec in recordings]))
+    alternating = bool(options.get("alternation", chain.present))
+    if alternating:  # the models learn what the engine will feed them: pair means
+        segments = [Segment(seg.t, pair_means(seg.r), seg.s) for seg in segments]
+        r_all = np.concatenate([seg.r for seg in segments])
     normalisation = Normalisation.fit(r_all, s_all)
     direction, direction_source = direction_settings(segments, options)
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
@@ -309,6 +327,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     calibration = SensorCalibration(
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
         valid_range=valid_range(segments), direction=direction,
+        input=InputSettings(alternation=alternating),
         rest_resistance=training_rest_resistance(recordings))
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
@@ -317,6 +336,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     calibration.provenance = provenance(
         [str(b) for b in bags], fit_rmse=rmse, n_samples=r_all.size, segments=len(segments),
         fit_seconds=round(fit_seconds, 3), direction_from=direction_source,
+        measurement_chain=chain.reading() if chain.present else "no alternation found",
         options=model_options)
     return calibration
 
