@@ -6,8 +6,9 @@ isolated spikes (one-sample read glitches) and quantisation (an ADC's resistance
 Smooth strain motion cancels in the second difference d2[i] = R[i+1] - 2 R[i] + R[i-1],
 which all three statistics read:
 
-* alternation: the d2 of A (-1)^i is -4 A (-1)^i, so A = -median((-1)^i d2) / 4, and
-  the share of (-1)^i d2 with the sign of -A is 0.5 without alternation. It is *present*
+* alternation: the d2 centred on sample i of A (-1)^i is -4 A (-1)^i, so
+  A = -median((-1)^i d2) / 4 (d2 indexed by its centre), and the share of (-1)^i d2
+  with the sign of -A is 0.5 without alternation. It is *present*
   when that share is significant (z > ``ALTERNATION_Z``) and A is at least the white noise
   sigma left after removing it (smaller alternations are a minor part of the noise).
   Correction (online, phase-free, half a sample of delay): the models see pair means
@@ -65,7 +66,7 @@ def alternation(r: npt.ArrayLike) -> Alternation:
     if r.size < 8:
         return Alternation(0.0, 0.0, 0.5, 0.0)
     d2 = np.diff(r, 2)
-    m = d2 * (-1.0) ** np.arange(d2.size)
+    m = d2 * (-1.0) ** np.arange(1, d2.size + 1)  # d2[i] is centred on sample i + 1
     amplitude = -float(np.median(m)) / 4.0
     noise = _robust_sigma(m + 4.0 * amplitude) / math.sqrt(6.0)
     nonzero = m[m != 0]
