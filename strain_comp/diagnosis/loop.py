@@ -162,7 +162,50 @@ class EffectScore:
             value = getattr(self, key)
             if value is not None:
                 record[key] = _num(value)
+        if self.added and self.coef is not None:
+            record["reading"] = effect_reading(self.kind, self.params, self.coef,
+                                               self.magnitude)
         return record
+
+
+def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
+                   magnitude: float | None = None) -> str:
+    """An added term in physical words. The model's output carries + coef g (the term
+    removes it), so the reading describes the sensor against its calibration."""
+    size = "" if magnitude is None else f", typically {abs(magnitude):.2g} % strain"
+    if kind == "offset":
+        return f"output offset {coef:+.3g} % strain"
+    if kind == "strain_level":
+        if params.get("power", 1) == 1 and coef < 1.0:
+            return f"sensitivity {100.0 * (1.0 / (1.0 - coef) - 1.0):+.1f} % against calibration"
+        return f"curvature error (strain^{params.get('power')}){size}"
+    if kind == "rate":
+        return f"rate-dependent lag {coef:+.3g} s (filter tau {params.get('tau')} s){size}"
+    if kind == "direction" and params.get("mode") == "strain":
+        return f"hysteresis +-{100.0 * abs(coef):.3g} % of the strain, loading vs unloading"
+    if kind == "direction":
+        return f"hysteresis +-{abs(coef):.3g} % strain between loading and unloading"
+    if kind == "relaxation":
+        return (f"relaxation tau {params.get('tau')} s after {params.get('branch')} "
+                f"steps{size}")
+    if kind == "elapsed":
+        scale = float(params.get("scale", 100.0))
+        if params.get("form", "linear") == "linear":
+            return f"drift {coef * 3600.0 / scale:+.3g} % strain/h"
+        if params.get("form") == "linear_strain":
+            return f"gain drift {100.0 * coef * 3600.0 / scale:+.3g} %/h"
+        return f"drift ({params.get('form')} in time){size}"
+    if kind == "temperature":
+        if params.get("form") == "strain":
+            return f"temperature sensitivity {100.0 * coef:+.3g} %/K"
+        return f"temperature offset {coef:+.3g} % strain/K"
+    if kind == "mullins":
+        return f"Mullins-type softening ({params.get('form')}){size}"
+    if kind == "crosstalk":
+        return f"cross-talk {100.0 * coef:+.3g} % of {params.get('neighbour')}'s strain"
+    if kind == "baseline":
+        return f"per-run baseline: each run re-zeroed at its start{size}"
+    return f"{kind}{size}"
 
 
 @dataclass
@@ -177,7 +220,8 @@ class SensorDiagnosis:
     """Effect entries added to the calibration (with the intercept, if any)."""
     message: str
     plot: dict[str, np.ndarray] = field(default_factory=dict)
-    """Held-out t, e_before, e_after and ``g`` = the winning regressor (empty: none)."""
+    """Held-out t, s (reference), e_before, e_after and ``g`` = the winning regressor
+    (empty: none)."""
     winner: str | None = None
 
     def to_json(self) -> dict[str, Any]:
@@ -195,6 +239,8 @@ class DiagnoseResult:
     validated_on: str
     validation: dict[str, Any]
     calibration: Calibration
+    conditions: list[dict[str, Any]] = field(default_factory=list)
+    """Measurement-chain and tare hypotheses tried (``strain_comp.diagnosis.conditions``)."""
 
     @property
     def effects(self) -> list[EffectScore]:
@@ -216,14 +262,26 @@ class DiagnoseResult:
         return {"before": self.before, "after": self.after,
                 "effects": [s.to_json() for s in self.effects],
                 "validated_on": self.validated_on, "validation": self.validation,
-                "sensors": {n: d.to_json() for n, d in self.sensors.items()}}
+                "sensors": {n: d.to_json() for n, d in self.sensors.items()},
+                "conditions": self.conditions}
 
     def summary(self) -> str:
         """A few lines for the terminal."""
         lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} %, "
                  f"after {self.after['rmse']:.4g} %"]
+        for c in self.conditions:
+            if c["name"] == "measurement chain":
+                lines.append(f"  measurement chain: {c['reading']}")
+                continue
+            verdict = "chosen" if c["chosen"] else "not chosen"
+            lines.append(f"  {c['name']}: {c['reading']}; held-out RMSE after the loop "
+                         f"{c['after']:.4g} % ({verdict})")
         for name, d in self.sensors.items():
             lines.append(f"  {name}: {d.message}")
+            for e in d.scores:
+                if e.added and e.coef is not None:
+                    lines.append(f"    + {e.name}: "
+                                 f"{effect_reading(e.kind, e.params, e.coef, e.magnitude)}")
         return "\n".join(lines)
 
 
@@ -241,6 +299,8 @@ class _Series:
     """Candidate regressors, (n, k)."""
     t: np.ndarray
     block: np.ndarray
+    s: np.ndarray
+    """Reference strain [%]."""
 
 
 def _as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
@@ -341,8 +401,10 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
     regressors = [regressor_from_dict(c) for c in candidates]
     g = np.column_stack([_segmented(reg.run, reg.reset, batch, run.starts)
                          for reg in regressors])
-    e = corrected - np.asarray(rec.s, dtype=np.float64)[used]
-    return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks))
+    s = np.asarray(rec.s, dtype=np.float64)[used]
+    e = corrected - s
+    return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks),
+                   s=s[keep])
 
 
 @njit
@@ -625,10 +687,12 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         e_out = np.concatenate([s.e for s in val_series])
         g_out = np.concatenate([s.g for s in val_series])
         t_out = np.concatenate([s.t for s in val_series])
+        s_out = np.concatenate([s.s for s in val_series])
     else:
         e_out = np.concatenate([s.e[h] for s, h in zip(series, held_out, strict=True)])
         g_out = np.concatenate([s.g[h] for s, h in zip(series, held_out, strict=True)])
         t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
+        s_out = np.concatenate([s.s[h] for s, h in zip(series, held_out, strict=True)])
 
     best = _keep(gram, _select(gram, len(names), offset, margin, max_effects, skip=baselines),
                  None, offset, e_out, g_out, n_folds, margin)
@@ -685,7 +749,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
                    f"{_rms(e_after):.4g} %")
     plot = {}
     if winner is not None:
-        plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]]}
+        plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],
+                "s": s_out}
     return SensorDiagnosis(name=sensor, before=_rmse_stats(e_out), after=_rmse_stats(e_after),
                            scores=rows, added=added, message=message, plot=plot, winner=winner)
 
@@ -751,7 +816,8 @@ def _pool(results: Mapping[str, SensorDiagnosis], which: str) -> dict[str, float
 
 
 def write_plots(result: DiagnoseResult, out_dir: str | Path) -> list[Path]:
-    """Residual before and after against the winning regressor (one PNG per sensor)."""
+    """Residual before and after against the winning regressor, time and strain (one PNG
+    per sensor)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -763,7 +829,7 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path) -> list[Path]:
     for name, d in result.sensors.items():
         if not d.plot:
             continue
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+        fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(16, 4.2))
         p = d.plot
         ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
         ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
@@ -775,6 +841,11 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path) -> list[Path]:
         ax2.set_xlabel("time [s] (held-out samples)")
         ax2.set_ylabel("residual [%]")
         ax2.legend(markerscale=4)
+        ax3.plot(p["s"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
+        ax3.plot(p["s"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
+        ax3.set_xlabel("reference strain [%] (held-out samples)")
+        ax3.set_ylabel("residual [%]")
+        ax3.legend(markerscale=4)
         fig.suptitle(f"{name}: {d.message}", fontsize=8)
         fig.tight_layout()
         path = out_dir / f"diagnose_{name}.png"
@@ -788,11 +859,15 @@ def diagnose_bag(bag: str | Path, calibration: Calibration, *,
                  validate: str | Path | None = None, out: str | Path | None = None,
                  plots: str | Path | None = None, **options: Any) -> DiagnoseResult:
     """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots."""
+    from strain_comp.diagnosis.conditions import diagnose_conditions
+
     recordings, _ = load_recordings(bag)
     val = None if validate is None else load_recordings(validate)[0]
-    result = diagnose(recordings, calibration, validate_recordings=val, **options)
+    result = diagnose_conditions(recordings, calibration, validate_recordings=val,
+                                 **options)
     if out is not None:
-        save_calibration(result.calibration, out)
+        save_calibration(result.calibration, out,
+                         inputs=[p for p in (bag, validate) if p is not None])
     if plots is not None:
         write_plots(result, plots)
     return result
