@@ -9,7 +9,7 @@ import pytest
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.diagnosis.conditions import diagnose_conditions
-from strain_comp.diagnosis.loop import effect_reading
+from strain_comp.diagnosis.report import effect_reading
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import fit_sensor
 

@@ -29,7 +29,8 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, InputSettings
 from strain_comp.core.chain import alternation, quantisation, spikes
-from strain_comp.diagnosis.loop import DiagnoseResult, diagnose
+from strain_comp.diagnosis.loop import diagnose
+from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.io.recording import Recording
 
 
