@@ -7,9 +7,9 @@ this run (a tare), an alternation of the excitation every other sample (pair mea
 
 1. ``as calibrated``: the calibration as given (always run; the reference).
 2. ``tare`` (with ``tare="auto"``): every run tared at its start (``strain_comp.core.tare``).
-3. ``alternation`` (when ``strain_comp.core.chain.alternation`` finds one in the data and
-   the calibration does not correct it yet): the engine feeds the models pair means.
-   Combined with 2 when both apply.
+3. ``alternation`` (when ``strain_comp.core.chain.alternation`` finds one in the
+   diagnosed or the validation runs and the calibration does not correct it yet): the
+   engine feeds the models pair means. Combined with 2 when both apply.
 
 The condition whose held-out RMSE after the loop is lowest is chosen, but a condition other
 than the reference only if it beats it by more than ``margin`` (relative): a tare or a
@@ -73,6 +73,10 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
     """``diagnose`` under each condition of the module docstring; the chosen result, with
     every condition's record in ``conditions``."""
     alternating, readings = chain_readings(recordings, calibration)
+    if validate_recordings is not None:  # what the validation runs show is tested as well
+        more, lines = chain_readings(validate_recordings, calibration)
+        alternating |= more
+        readings += [f"{line} (validation run)" for line in lines]
     runs: list[tuple[str, str, Calibration, str]] = [
         ("as calibrated", "the calibration's rest resistance and input", calibration,
          "calibration")]
