@@ -46,9 +46,7 @@ REST_BAND = 0.02
 
 def _rest_level(r: np.ndarray) -> float:
     """Median of pair means (cancels alternation every other sample, ignores spikes)."""
-    if r.size >= 2:
-        r = 0.5 * (r[:-1] + r[1:])
-    return float(np.median(r))
+    return float(np.median(0.5 * (r[:-1] + r[1:]) if r.size >= 2 else r))
 
 
 def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -66,23 +64,23 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
     sample. Raises InputError when fewer than ``MIN_REST_SAMPLES`` samples qualify (the run
     does not start at rest): the caller then keeps the old tare.
     """
-    t = np.asarray(t, dtype=np.float64)
-    r = np.asarray(r, dtype=np.float64)
-    good = _good(t, r)
-    t, r = t[good], r[good]
-    if t.size == 0:
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    good = _good(ta, ra)
+    ta, ra = ta[good], ra[good]
+    if ta.size == 0:
         raise InputError("tare: no good resistance sample at the start of the run")
-    head = int(np.searchsorted(t, t[0] + window, side="right"))
-    t, r = t[:head], r[:head]
+    head = int(np.searchsorted(ta, ta[0] + window, side="right"))
+    ta, ra = ta[:head], ra[:head]
     # the detector reads pair means: an alternation every other sample is not movement
-    pairs = 0.5 * (r[:-1] + r[1:]) if r.size >= 2 else r
-    states = DirectionDetector(direction).run(t[t.size - pairs.size:], pairs)
+    pairs = 0.5 * (ra[:-1] + ra[1:]) if ra.size >= 2 else ra
+    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
     moving = np.flatnonzero(states != 0)
-    stop = int(moving[0]) + (r.size - pairs.size) if moving.size else r.size
+    stop = int(moving[0]) + (ra.size - pairs.size) if moving.size else ra.size
     if stop < MIN_REST_SAMPLES:
         raise InputError(f"tare: the run does not start at rest (the direction detector "
                          f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} needed)")
-    return _rest_level(r[:stop])
+    return _rest_level(ra[:stop])
 
 
 def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
@@ -96,19 +94,20 @@ def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
     rest after loading sits higher, the material has softened), else the first stretch of
     ``MIN_REST_SAMPLES`` or more. None when the run never rests that long.
     """
-    t = np.asarray(t, dtype=np.float64)
-    r = np.asarray(r, dtype=np.float64)
-    s = np.asarray(s, dtype=np.float64)
-    good = _good(t, r) & np.isfinite(s)
-    t, r, s = t[good], r[good], s[good]
-    if t.size < MIN_REST_SAMPLES or not np.ptp(s) > 0:
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    sa = np.asarray(s, dtype=np.float64)
+    good = _good(ta, ra) & np.isfinite(sa)
+    ta, ra, sa = ta[good], ra[good], sa[good]
+    if ta.size < MIN_REST_SAMPLES or not np.ptp(sa) > 0:
         return None
-    rest = np.concatenate(([False], s <= s.min() + REST_BAND * np.ptp(s), [False]))
+    rest = np.concatenate(([False], sa <= sa.min() + REST_BAND * np.ptp(sa), [False]))
     edges = np.flatnonzero(np.diff(rest.astype(np.int8)))
     for start, stop in zip(edges[::2], edges[1::2], strict=True):
         if start == 0 or stop - start >= MIN_REST_SAMPLES:
-            stop = min(int(stop), int(np.searchsorted(t, t[start] + TARE_WINDOW, side="right")))
-            return _rest_level(r[start:stop])
+            end = min(int(stop), int(np.searchsorted(ta, ta[start] + TARE_WINDOW,
+                                                     side="right")))
+            return _rest_level(ra[start:end])
     return None
 
 
@@ -146,12 +145,13 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
         if cal.rest_resistance is None:
             lines[name] = "not tared: the calibration stores no rest_resistance (refit it)"
             continue
-        r = np.asarray(r, dtype=np.float64)
-        if cal.input.kind == "divider":
+        ohm = np.asarray(r, dtype=np.float64)
+        if cal.input.kind == "divider" and cal.input.r1 is not None \
+                and cal.input.vin is not None:
             with np.errstate(divide="ignore", invalid="ignore"):
-                r = divider_to_resistance(r, float(cal.input.r1), float(cal.input.vin))
+                ohm = divider_to_resistance(ohm, cal.input.r1, cal.input.vin)
         try:
-            rest = rest_resistance_at_start(t, r, cal.direction)
+            rest = rest_resistance_at_start(t, ohm, cal.direction)
         except InputError as err:
             lines[name] = f"not tared: {err}"
             continue
