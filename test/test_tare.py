@@ -161,3 +161,26 @@ def test_in_run_bound_is_the_same_model_fitted_on_the_evaluated_run(cubic: Calib
     assert result.sensors["s1"].in_run_rmse == pytest.approx(expected)
     assert result.sensors["s1"].in_run_rmse < 0.05 < result.sensors["s1"].stats.rmse
     assert result.to_json()["sensors"]["s1"]["in_run_rmse"] == pytest.approx(expected)
+
+
+def test_cli_evaluate_tare_auto_with_bound_and_recalibrate_from_a_bag(cubic: Calibration,
+                                                                       tmp_path: Path) -> None:
+    import json
+
+    from strain_comp.io.csv_import import write_recording_bag
+
+    cal, bag = tmp_path / "cal.yaml", tmp_path / "shifted.mcap"
+    save_calibration(cubic, cal)
+    write_recording_bag(run(1.25 * R0), str(bag))
+    out = tmp_path / "e.json"
+    assert cli(["evaluate", str(bag), "--calibration", str(cal), "--tare", "auto",
+                "--in-run-bound", "--json", str(out)]) == 0
+    record = json.loads(out.read_text())["sensors"]["s1"]
+    assert record["rmse"] < 0.05 and record["in_run_rmse"] < 0.05
+    # without a tare the shifted run reads wrong; a recalibration from it repairs the
+    # part inside the valid range, where the output map is affine
+    cal2 = tmp_path / "cal2.yaml"
+    assert cli(["recalibrate", str(cal), "--from", str(bag), "--out", str(cal2)]) == 0
+    prov = load_calibration(cal2).sensors["s1"].provenance["recalibrations"][0]
+    assert prov["from"] == str(bag) and prov["tare"] == "calibration"
+    assert cli(["recalibrate", str(cal), "--from", str(bag), "--out", str(bag)]) == 2
