@@ -99,12 +99,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=REPO / "out" / "measured")
     parser.add_argument("--models", nargs="+", default=list(MODELS))
     parser.add_argument("--fiber-gauge-mm", type=float, default=None)
+    parser.add_argument("--no-bound", action="store_true",
+                        help="skip the in-run bound (a fit per model and held-out file)")
     args = parser.parse_args(argv)
 
     from strain_comp.core.calibration import Calibration, save_calibration
     from strain_comp.errors import StrainCompError
     from strain_comp.io.recording import load_recordings
-    from strain_comp.offline.evaluate import evaluate_recordings
+    from strain_comp.offline.evaluate import evaluate_recordings, in_run_bound
     from strain_comp.offline.fit import fit_bags
     from strain_comp.offline.plots import plot_time
 
@@ -126,17 +128,28 @@ def main(argv: list[str] | None = None) -> int:
             seconds = time.perf_counter() - start
             save_calibration(cal, args.out / f"{sensor}_{model}.yaml")
             prov = cal.sensors[sensor].provenance
-            row = {"fit_seconds": seconds, "fit_rmse": prov["fit_rmse"], "held_out": {}}
+            row = {"fit_seconds": seconds, "fit_rmse": prov["fit_rmse"], "held_out": {},
+                   "rest_resistance": cal.sensors[sensor].rest_resistance,
+                   "measurement_chain": prov.get("measurement_chain")}
             for csv_name in spec["test"]:
                 try:
-                    ev = evaluate_recordings(recordings[csv_name], cal).sensors[sensor]
+                    result = evaluate_recordings(recordings[csv_name], cal)
+                    if not args.no_bound:
+                        in_run_bound(result, recordings[csv_name], cal)
+                    ev = result.sensors[sensor]
+                    tared = evaluate_recordings(recordings[csv_name], cal, tare="auto")
                 except StrainCompError as err:
                     failures.append(f"{key} on {short(csv_name)}: {err}")
                     continue
+                tev = tared.sensors[sensor]
                 row["held_out"][short(csv_name)] = {
                     "rmse": ev.stats.rmse, "mae": ev.stats.mae, "max_abs": ev.stats.max_abs,
                     "r2": ev.stats.r2, "n": ev.stats.n, "n_out_of_range": ev.n_out_of_range,
-                    "out_of_range_share": ev.n_out_of_range / max(ev.n_samples, 1)}
+                    "out_of_range_share": ev.n_out_of_range / max(ev.n_samples, 1),
+                    "in_run_rmse": ev.in_run_rmse, "tare_rmse": tev.stats.rmse,
+                    "tare_max_abs": tev.stats.max_abs,
+                    "tare_out_of_range_share": tev.n_out_of_range / max(tev.n_samples, 1),
+                    "tare_notes": [n for n in tared.notes if "tare" in n]}
             results[key] = row
             first = short(spec["test"][0])
             if first in row["held_out"]:
@@ -147,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
 
     print(markdown(results, args.fiber_gauge_mm))
+    print(targets(results))
     within = within_run(recordings, args.models, failures)
     print(within_markdown(within))
     if failures:
@@ -212,6 +226,30 @@ def within_markdown(table: dict[str, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
+def targets(results: dict[str, dict]) -> str:
+    """Per held-out run: the best model without and with tare, and whether the best tared
+    model is within 1.5 x its own in-run bound."""
+    lines = ["\nper held-out run: best model without tare, with tare, and its in-run bound\n",
+             "| run | best without tare | best with tare | in-run bound of that model | "
+             "within 1.5 x bound |", "|---|---|---|---:|---|"]
+    runs = dict.fromkeys(f for row in results.values() for f in row["held_out"])
+    within = 0
+    for f in runs:
+        cells = {key: row["held_out"][f] for key, row in results.items()
+                 if f in row["held_out"]}
+        plain = min(cells, key=lambda k: cells[k]["rmse"])
+        tared = min(cells, key=lambda k: cells[k]["tare_rmse"])
+        bound = cells[tared].get("in_run_rmse")
+        ok = bound is not None and cells[tared]["tare_rmse"] <= 1.5 * bound
+        within += ok
+        lines.append(f"| {f} | {plain.split('/')[1]} {cells[plain]['rmse']:.3f} | "
+                     f"{tared.split('/')[1]} {cells[tared]['tare_rmse']:.3f} | "
+                     + ("n/a" if bound is None else f"{bound:.3f}")
+                     + f" | {'yes' if ok else 'no'} |")
+    lines.append(f"\n{within} of {len(runs)} held-out runs within 1.5 x the in-run bound")
+    return "\n".join(lines)
+
+
 def markdown(results: dict[str, dict], fiber_gauge_mm: float | None) -> str:
     """Held-out RMSE table, one row per dataset and model, one column per held-out file."""
     lines = []
@@ -219,8 +257,9 @@ def markdown(results: dict[str, dict], fiber_gauge_mm: float | None) -> str:
         unit = "mm" if sensor == "fiber" and not fiber_gauge_mm else "% strain"
         files = [short(c) for c in spec["test"]]
         trained = " + ".join(short(c) for c in spec["train"])
-        lines.append(f"\n{sensor} (fit on {trained}; held-out RMSE [{unit}], "
-                     "max |error| in brackets)\n")
+        lines.append(f"\n{sensor} (fit on {trained}; held-out RMSE [{unit}]: without tare / "
+                     "with `--tare auto`, and in brackets the in-run bound, the same model "
+                     "fitted on that run itself)\n")
         lines.append("| model | fit time [s] | train RMSE | " + " | ".join(files) + " |")
         lines.append("|---|---:|---:|" + "---:|" * len(files))
         for key, row in results.items():
@@ -229,15 +268,25 @@ def markdown(results: dict[str, dict], fiber_gauge_mm: float | None) -> str:
             cells = []
             for f in files:
                 h = row["held_out"].get(f)
-                cells.append(f"{h['rmse']:.3f} ({h['max_abs']:.2f})" if h else "failed")
+                bound = h.get("in_run_rmse") if h else None
+                cells.append("failed" if not h else
+                             f"{h['rmse']:.3f} / {h['tare_rmse']:.3f}"
+                             + (f" [{bound:.3f}]" if bound is not None else ""))
             lines.append(f"| {key.split('/')[1]} | {row['fit_seconds']:.1f} | "
                          f"{row['fit_rmse']:.3f} | " + " | ".join(cells) + " |")
         # the valid range comes from the training data alone: the same for every model
         shares = {f: h["out_of_range_share"] for key, row in results.items()
                   if key.startswith(f"{sensor}/") for f, h in row["held_out"].items()}
+        tared = {f: h["tare_out_of_range_share"] for key, row in results.items()
+                 if key.startswith(f"{sensor}/") for f, h in row["held_out"].items()}
         if shares:
             lines.append("\nheld-out samples outside the calibration's resistance range: "
-                         + ", ".join(f"{f} {100 * v:.0f} %" for f, v in shares.items()))
+                         + ", ".join(f"{f} {100 * v:.0f} %" for f, v in shares.items())
+                         + "; with tare: "
+                         + ", ".join(f"{f} {100 * v:.0f} %" for f, v in tared.items()))
+        notes = {f: h["tare_notes"] for key, row in results.items()
+                 if key.startswith(f"{sensor}/") for f, h in row["held_out"].items()}
+        lines += [f"- {f}: " + "; ".join(n) for f, n in notes.items() if n]
     return "\n".join(lines)
 
 

@@ -7,8 +7,14 @@ Per data set, fixed in advance (by file, never by sample):
 
 * carbon-black/PDMS strip (``cb_pdms_7p5wt``, strain in %): fit on v16, diagnose on v19,
   validate on v10;
+* the same strip across resistance levels and the alternating excitation: fit on v16,
+  diagnose on the random sawtooth, validate on v9 (the run whose excitation alternates);
 * conductive fibre (``conductive_fiber``, "strain" = crosshead extension in mm, since the
   gauge length is not stated): fit on run 1, diagnose on run 3, validate on run 4.
+
+The loop runs under each condition of ``strain_comp.diagnosis.conditions`` (as
+calibrated; ``--tare auto``; the alternation correction when the data show one) and
+keeps the one with the lowest validation RMSE (``strain-comp diagnose --tare auto``).
 
 Each CSV is imported with ``strain_comp.io.csv_import.import_csv`` (the importer behind
 ``strain-comp import-csv``), the calibration is fitted with ``strain_comp.offline.fit.fit_sensor``
@@ -37,6 +43,10 @@ DATASETS = {
                 "fit": "2_7-5_E4pin_20mm_v16_0.3Strain.csv",
                 "diagnose": "2_7-5_E4pin_20mm_v19_0.3Strain.csv",
                 "validate": "2_7-5_E4pin_20mm_v10_0.3Strain.csv"},
+    "cb_levels": {"dir": "cb_pdms_7p5wt", "format": "cb_pdms", "unit": "%",
+                  "fit": "2_7-5_E4pin_20mm_v16_0.3Strain.csv",
+                  "diagnose": "2_7-5_4Epin_rand_sawtooth.csv",
+                  "validate": "2_7-5_E4pin_20mm_v9_0.2Strain_velocityprof.csv"},
     "fiber": {"dir": "conductive_fiber", "format": "fiber", "unit": "mm",
               "fit": "oldthread_sensorfiber_5x_1_synced.csv",
               "diagnose": "oldthread_sensorfiber_5x_3_synced.csv",
@@ -54,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     from strain_comp.core.calibration import Calibration, save_calibration
-    from strain_comp.diagnosis.loop import diagnose, write_plots
+    from strain_comp.diagnosis.conditions import diagnose_conditions
+    from strain_comp.diagnosis.report import effect_reading, write_plots
     from strain_comp.errors import StrainCompError
     from strain_comp.io.csv_import import import_csv
     from strain_comp.offline.fit import fit_sensor
@@ -75,8 +86,9 @@ def main(argv: list[str] | None = None) -> int:
                 cal = Calibration({name: fit_sensor([recs["fit"]], model, name=name,
                                                     options={"progress": False}
                                                     if model in ("apl", "pl", "mpi") else {})})
-                result = diagnose({name: recs["diagnose"]}, cal,
-                                  validate_recordings={name: recs["validate"]})
+                result = diagnose_conditions({name: recs["diagnose"]}, cal,
+                                             validate_recordings={name: recs["validate"]},
+                                             tare="auto")
             except StrainCompError as err:
                 failures.append(f"{name}/{model}: {err}")
                 continue
@@ -88,21 +100,38 @@ def main(argv: list[str] | None = None) -> int:
                 "data": name, "model": model, "unit": spec["unit"],
                 "fit": spec["fit"], "diagnose": spec["diagnose"], "validate": spec["validate"],
                 "before": result.before["rmse"], "after": result.after["rmse"],
-                "added": [{"name": a.name, "kind": a.kind, "coef": a.coef} for a in added],
+                "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
+                           "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
+                                                     a.magnitude)} for a in added],
+                "conditions": result.conditions,
                 "message": result.sensors[name].message, "seconds": round(seconds, 2),
                 "top_scores": [(e.name, e.score) for e in sorted(
                     result.sensors[name].scores, key=lambda e: -e.score)[:3]]})
             print(f"## {name}/{model}: {result.sensors[name].message} ({seconds:.1f} s)",
                   file=sys.stderr)
-    print("| data (fit -> diagnose -> validate) | model | validation RMSE before | after | "
-          "effects added |")
-    print("|---|---|---:|---:|---|")
+    print("| data (fit -> diagnose -> validate) | model | validation RMSE after the loop: "
+          "as calibrated | with tare | with alternation correction | chosen: before -> after "
+          "| effects added (reading) |")
+    print("|---|---|---:|---:|---:|---|---|")
     for row in rows:
         short = {"cb_pdms": "cb_pdms (v16 -> v19 -> v10)",
+                 "cb_levels": "cb_pdms (v16 -> rand_sawtooth -> v9)",
                  "fiber": "fiber (run 1 -> run 3 -> run 4)"}[row["data"]]
-        effects = ", ".join(a["name"] for a in row["added"]) or "none (nothing helps)"
-        print(f"| {short} | {row['model']} | {row['before']:.3f} {row['unit']} | "
+        effects = "; ".join(f"{a['name']}: {a['reading']}" for a in row["added"]) \
+            or "none (nothing helps)"
+        after = {c["name"]: c["after"] for c in row["conditions"]}
+        chosen = next(c["name"] for c in row["conditions"] if c["chosen"])
+
+        def cell(key: str, after: dict = after, unit: str = row["unit"]) -> str:
+            return f"{after[key]:.3f} {unit}" if key in after else "-"
+
+        print(f"| {short} | {row['model']} | {cell('as calibrated')} | {cell('tare')} | "
+              f"{cell('alternation')} | {chosen}: {row['before']:.3f} -> "
               f"{row['after']:.3f} {row['unit']} | {effects} |")
+    readings = dict.fromkeys(c["reading"] for row in rows for c in row["conditions"]
+                             if c["name"] == "measurement chain")
+    if readings:
+        print("\nmeasurement chain found in the diagnosed runs: " + "; ".join(readings))
     if failures:
         print("\nFailures:")
         for line in failures:

@@ -170,14 +170,21 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         _output(args.json, inputs)
     from strain_comp.core.calibration import load_calibration
     from strain_comp.io.recording import load_recordings
-    from strain_comp.offline.evaluate import evaluate_recordings, format_notes, format_table
+    from strain_comp.offline.evaluate import (
+        evaluate_recordings,
+        format_notes,
+        format_table,
+        in_run_bound,
+    )
 
     calibration = load_calibration(args.calibration)
     recordings, problems = load_recordings(args.bag)
     try:
-        result = evaluate_recordings(recordings, calibration)
+        result = evaluate_recordings(recordings, calibration, tare=args.tare)
     except InputError as err:  # nothing to score: say what the bag reader skipped, if anything
         raise InputError("; ".join([f"{args.bag}: {err}", *problems])) from None
+    if args.in_run_bound:
+        in_run_bound(result, recordings, calibration)
     print(format_table(result))
     for line in problems + format_notes(result):
         print(line)
@@ -199,7 +206,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from strain_comp.offline.replay import replay_bag
 
     calibration = load_calibration(args.calibration)
-    summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration])
+    summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration],
+                         tare=args.tare)
     print(f"replayed {summary.n_input_messages} input messages of {len(summary.sensors)} "
           f"sensors into {args.out} ({summary.n_output_messages} output messages)")
     for name, health in summary.sensors.items():
@@ -225,12 +233,31 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     calibration = load_calibration(args.calibration)
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
-                          plots=args.plots, inputs=[args.calibration])
+                          plots=args.plots, inputs=[args.calibration], tare=args.tare)
     print(report.summary())
     if args.json:
         _write_json(args.json, report.to_json(), inputs)
     if args.plots:
         print(f"wrote plots to {args.plots}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_recalibrate(args: argparse.Namespace) -> int:
+    from strain_comp.core.calibration import load_calibration, save_calibration
+    from strain_comp.offline.recalibrate import parse_point, recalibrate
+
+    if bool(args.point) == bool(args.from_bag):
+        raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
+    calibration = load_calibration(_existing(args.calibration, "calibration file"))
+    points = [parse_point(p) for p in args.point or []]
+    bag = None if args.from_bag is None else _bag(args.from_bag)
+    _output(args.out, [args.calibration, bag])
+    new, lines = recalibrate(calibration, points=points, bag=bag, sensors=args.sensor,
+                             tare=args.tare)
+    save_calibration(new, args.out,
+                     inputs=[p for p in (args.calibration, bag) if p is not None])
+    print("\n".join(lines))
     print(f"wrote {args.out}")
     return 0
 
@@ -251,6 +278,12 @@ def cmd_play(args: argparse.Namespace) -> int:
                   lockstep=args.lockstep)
     print(f"played {n} messages")
     return 0
+
+
+def _tare_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--tare", choices=("calibration", "auto"), default="calibration",
+                   help="rest resistance from the calibration (default) or from the run's "
+                   "first seconds at rest (auto)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -301,12 +334,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--json", metavar="OUT.json", help="also write the errors as JSON")
     p.add_argument("--plots", metavar="DIR", help="also write PNG plots per sensor")
+    p.add_argument("--in-run-bound", action="store_true",
+                   help="also fit the same model on this run itself and give its RMSE "
+                   "(JSON key in_run_rmse; costs a fit)")
+    _tare_flag(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("replay", help="write estimated strain and direction into a new bag")
     p.add_argument("bag", metavar="IN.mcap")
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--out", required=True, metavar="OUT.mcap")
+    _tare_flag(p)
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("diagnose", help="find the effect a calibration lacks and add it")
@@ -316,7 +354,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="CAL2.yaml")
     p.add_argument("--json", metavar="OUT.json")
     p.add_argument("--plots", metavar="DIR")
+    _tare_flag(p)
     p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("recalibrate",
+                       help="output gain and offset through two known strains or a bag")
+    p.add_argument("calibration", metavar="CAL.yaml")
+    p.add_argument("--point", action="append", metavar="R:S",
+                   help="a resistance [ohm] and its known strain [%%] (give two)")
+    p.add_argument("--from", dest="from_bag", metavar="BAG.mcap",
+                   help="a bag with a strain reference (least-squares gain and offset)")
+    p.add_argument("--sensor", action="append", metavar="NAME",
+                   help="sensor to recalibrate (needed with --point if several)")
+    p.add_argument("--out", required=True, metavar="CAL2.yaml")
+    _tare_flag(p)
+    p.set_defaults(func=cmd_recalibrate)
 
     p = sub.add_parser("node", help="run the rclpy compensator node (as `ros2 run` does)")
     p.add_argument("--params", required=True, metavar="FILE", help="node parameter YAML")

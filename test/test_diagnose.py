@@ -25,7 +25,8 @@ import pytest
 
 from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
 from strain_comp.core.engine import Engine
-from strain_comp.diagnosis.loop import diagnose, write_plots
+from strain_comp.diagnosis.loop import diagnose
+from strain_comp.diagnosis.report import write_plots
 from strain_comp.io.recording import Recording, load_recordings
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.rig import RigEffects, simulate, write_sim_bag
@@ -139,7 +140,7 @@ def test_per_run_baseline_only_when_runs_shift(bags: BagMaker, calibration: Cali
     assert result.added[0].coef == 1.0
     assert result.after["rmse"] < 0.2 * result.before["rmse"], result.summary()
     # a constant offset (the hypothesis without the baseline) does not carry over
-    from strain_comp.diagnosis.loop import default_candidates
+    from strain_comp.diagnosis.candidates import default_candidates
 
     constant = [c for c in default_candidates() if c["kind"] != "baseline"]
     without = diagnose(shifted(bags("random", 2), 0.6), calibration,

@@ -18,7 +18,7 @@ from strain_comp.core.effects import (
     regressor_from_dict,
     validate_effect_dict,
 )
-from strain_comp.diagnosis.loop import default_candidates
+from strain_comp.diagnosis.candidates import default_candidates
 from strain_comp.errors import CalibrationError, ParameterError
 
 

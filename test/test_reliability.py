@@ -67,7 +67,7 @@ def read(path):  # load_calibration without building the models (quicker start)
             Normalisation(**d["normalisation"]),
             ValidRange(*d["valid_range"]["resistance"], *d["valid_range"]["strain"]),
             DirectionSettings(**d["direction"]), InputSettings(**d["input"]),
-            d["effects"], d["provenance"])
+            d["effects"], d["provenance"], d.get("rest_resistance"))
     return Calibration(sensors)
 
 mode, target, a, b = sys.argv[1:5]

@@ -61,16 +61,20 @@ STRAIN_MAX = 1e6
 
 @dataclass(frozen=True)
 class InputSettings:
-    """What the input topic carries: ``resistance`` in ohm, or ``divider`` volts across R1."""
+    """What the input topic carries: ``resistance`` in ohm, or ``divider`` volts across R1;
+    ``alternation``: the excitation alternates every sample, so the models and the
+    direction detector see pair means (``strain_comp.core.chain``)."""
 
     kind: str = "resistance"
     r1: float | None = None
     vin: float | None = None
+    alternation: bool = False
 
     def to_dict(self) -> dict[str, Any]:
+        extra = {"alternation": True} if self.alternation else {}
         if self.kind == "divider":
-            return {"kind": "divider", "r1": self.r1, "vin": self.vin}
-        return {"kind": "resistance"}
+            return {"kind": "divider", "r1": self.r1, "vin": self.vin, **extra}
+        return {"kind": "resistance", **extra}
 
     def divider(self) -> tuple[float, float]:
         """(r1 [ohm], vin [V]) of a ``divider`` input; ParameterError for other kinds."""
@@ -305,11 +309,15 @@ class _Reader:
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)
         kind = node.get("kind", "resistance")
+        alternation = node.get("alternation", False)
+        if not isinstance(alternation, bool):
+            raise self.fail(f"{where}.alternation", f"must be true or false, got {alternation!r}")
         if kind == "resistance":
-            return InputSettings()
+            return InputSettings(alternation=alternation)
         if kind == "divider":
             return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
-                                 vin=self.number(node, "vin", where, lo=0.0, strict=True))
+                                 vin=self.number(node, "vin", where, lo=0.0, strict=True),
+                                 alternation=alternation)
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 

@@ -141,9 +141,13 @@ class Regressor(ABC):
     def reset(self) -> None:
         """Restore the initial state."""
 
-    @abstractmethod
     def step(self, sample: Sample) -> float:
-        """Advance by one sample and return g at that sample."""
+        """Advance by one sample and return g at that sample: ``run`` on a batch of one, so
+        a regressor with a compiled kernel has that one implementation."""
+        neighbours = {n: [v] for n, v in (sample.neighbours or {}).items()}
+        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
+                                       [sample.direction], [sample.temperature],
+                                       neighbours))[0])
 
     @abstractmethod
     def run(self, batch: Batch) -> np.ndarray:
@@ -225,15 +229,6 @@ class Rate(Regressor):
     def reset(self) -> None:
         self._state = np.zeros(4)
 
-    def step(self, sample: Sample) -> float:
-        y, u_prev, t_prev, started = self._state
-        if started > 0.0:
-            dt = sample.t - t_prev
-            if dt > 0.0:
-                y += (1.0 - math.exp(-dt / self.tau)) * ((sample.s_hat - u_prev) / dt - y)
-        self._state[:] = (y, sample.s_hat, sample.t, 1.0)
-        return sample.direction * y if self.mode == "direction" else y
-
     def run(self, batch: Batch) -> np.ndarray:
         return _rate_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
                             self.mode == "direction", self._state)
@@ -272,10 +267,6 @@ class Direction(Regressor):
     def reset(self) -> None:
         self._last = 0.0  # the last moving direction (hold) up to the previous sample
         self._prev = 0.0  # the previous sample's direction
-
-    def step(self, sample: Sample) -> float:
-        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
-                                       [sample.direction]))[0])
 
     def run(self, batch: Batch) -> np.ndarray:
         d = np.concatenate(([self._prev], batch.direction[:-1]))
@@ -346,16 +337,6 @@ class Relaxation(Regressor):
 
     def reset(self) -> None:
         self._state = np.zeros(4)
-
-    def step(self, sample: Sample) -> float:
-        h, u_prev, t_prev, started = self._state
-        if started > 0.0:
-            h *= math.exp(-(sample.t - t_prev) / self.tau)
-            d = sample.direction
-            if self._code == 0 or (self._code == 1 and d > 0) or (self._code == 2 and d < 0):
-                h += sample.s_hat - u_prev
-        self._state[:] = (h, sample.s_hat, sample.t, 1.0)
-        return float(h)
 
     def run(self, batch: Batch) -> np.ndarray:
         return _relaxation_kernel(batch.t, batch.s_hat, batch.direction, self.tau, self._code,
@@ -554,10 +535,6 @@ class Mullins(Regressor):
     def reset(self) -> None:
         self._state = np.array([-np.inf, 0.0, 0.0])
 
-    def step(self, sample: Sample) -> float:
-        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
-                                       [sample.direction]))[0])
-
     def run(self, batch: Batch) -> np.ndarray:
         return _mullins_kernel(batch.s_hat, batch.direction, self._code, self.n0, self._state)
 
@@ -658,10 +635,6 @@ class Baseline(Regressor):
 
     def reset(self) -> None:
         self._state = np.zeros(3)
-
-    def step(self, sample: Sample) -> float:
-        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
-                                       [sample.direction]))[0])
 
     def run(self, batch: Batch) -> np.ndarray:
         return _baseline_kernel(batch.t, batch.s_hat, self.window, self._state) - self.rest

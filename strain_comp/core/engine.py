@@ -51,6 +51,7 @@ import numpy.typing as npt
 from strain_comp._numba import njit
 from strain_comp.core import samples as sc
 from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.chain import pair_means
 from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.core.direction import (
     STATE_SIZE,
@@ -238,6 +239,17 @@ class _Sensor:
     """Latest clamped strain before effect terms (what neighbours' cross-talk terms read)."""
     gain: float = 1.0
     """Input gain (tare): the models see ``gain`` x the measured resistance."""
+    previous: float = math.nan
+    """Latest used resistance [ohm] (for pair means when the input alternates)."""
+
+    def pair(self, ohm: np.ndarray, previous: float) -> np.ndarray:
+        """What the models see of used samples ``ohm``: pair means when the calibration's
+        input alternates (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used
+        sample before them (NaN after a reset)."""
+        if not self.cal.input.alternation or not ohm.size:
+            return ohm
+        self.previous = float(ohm[-1])
+        return pair_means(ohm, previous)
 
     @classmethod
     def build(cls, cal: SensorCalibration, deadzone_scale: float) -> _Sensor:
@@ -496,6 +508,7 @@ class Engine:
             s.detector.reset()
             s.effects.reset()
             h.n_gaps += 1
+        raw = float(s.pair(np.array([raw]), math.nan if reset else s.previous)[0])
         direction = int(s.detector.step(t, raw)) * s.cal.direction.sign
         return _Pending(t, raw, status, float(s.model.step(t, raw)), direction)
 
@@ -559,6 +572,8 @@ class Engine:
         status, reset, last_good_t, idx, resets = _screen_batch(
             t, ohm, forced, s.last_good_t, s.r_short, s.r_open, s.r_lo, s.r_hi,
             self.gap_reset)
+        if s.cal.input.alternation:
+            ohm = ohm.copy()  # pair means replace the used samples below; raw stays intact
         strain_used = np.empty(idx.size)
         dir_used = np.empty(idx.size, dtype=np.int8)
         bounds = [0, *resets.tolist(), idx.size]
@@ -569,6 +584,7 @@ class Engine:
                 s.model.reset()
                 s.detector.reset()
             seg = idx[a:b]
+            ohm[seg] = s.pair(ohm[seg], s.previous if k == 0 else math.nan)
             dir_used[a:b] = s.detector.run(t[seg], ohm[seg])
             strain_used[a:b] = s.model.run(t[seg], ohm[seg])
         if s.cal.direction.sign < 0:
@@ -715,7 +731,8 @@ class _ArrayGroup:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
-        if not all(type(s.model).array_kernel for s in self.sensors):
+        if not all(type(s.model).array_kernel and not s.cal.input.alternation
+                   for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray
 

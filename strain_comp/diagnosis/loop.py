@@ -49,6 +49,10 @@ Per calibrated sensor that has a recording with a reference strain:
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
 margin); effect state is reset at the engine's gap resets, in diagnosis as online.
+
+The package: ``candidates`` (step 2), ``selection`` (steps 4-6, testable alone),
+``report`` (results, readings, plots), this module (residuals, blocks, the per-sensor
+loop) and ``conditions`` (tare and measurement-chain hypotheses around the whole loop).
 """
 
 from __future__ import annotations
@@ -56,13 +60,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from strain_comp._numba import njit
 from strain_comp.core.calibration import Calibration, SensorCalibration, save_calibration
 from strain_comp.core.effects import (
     Batch,
@@ -73,162 +76,23 @@ from strain_comp.core.effects import (
 )
 from strain_comp.core.engine import Engine, used_mask
 from strain_comp.core.metrics import error_stats
+from strain_comp.core.tare import tare_engine
+from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
+from strain_comp.diagnosis.report import (
+    DiagnoseResult,
+    EffectScore,
+    SensorDiagnosis,
+    write_plots,
+)
+from strain_comp.diagnosis.selection import (
+    Gram,
+    candidate_scores,
+    keep_on_held_out,
+    rms,
+    select_forward,
+)
 from strain_comp.errors import InputError
-from strain_comp.io.atomic import atomic_output
 from strain_comp.io.recording import Recording, hold_latest, load_recordings
-
-RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
-"""Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
-(fine enough that the nearest one is within 19 % of any time constant in that span)."""
-BASELINE_WINDOW = 5.0
-"""Seconds at the start of a run over which a ``baseline`` candidate averages S_hat."""
-SIGNIFICANCE = 1.0
-"""A term is added only if its fold-wise cross-validated gain exceeds this many standard
-errors (``_significant``)."""
-
-
-def default_candidates(*, temperature_ref: float | None = None,
-                       neighbours: Sequence[str] = (),
-                       baseline_rest: float = 0.0) -> list[dict[str, Any]]:
-    """The generic candidate effects (calibration-file dicts with ``coef: 0``).
-
-    ``temperature_ref`` [deg C]: include temperature terms around it (None: no temperature
-    series); ``neighbours``: array neighbours to test for cross-talk; ``baseline_rest`` [%]:
-    the strain runs start at (the ``rest`` of the per-run ``baseline`` candidate).
-    """
-    out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
-    out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
-            for mode in ("signed", "direction")]
-    out += [{"name": "direction", "kind": "direction", "params": {"mode": "sign", "hold": False}},
-            {"name": "direction_held", "kind": "direction",
-             "params": {"mode": "sign", "hold": True}},
-            {"name": "direction_strain", "kind": "direction",
-             "params": {"mode": "strain", "hold": True}}]
-    for branch in ("both", "loading", "unloading"):
-        out += [{"name": f"relaxation_{branch}_tau{tau:g}", "kind": "relaxation",
-                 "params": {"tau": tau, "branch": branch}} for tau in RELAXATION_TAUS]
-    out += [{"name": f"drift_{form}", "kind": "elapsed", "params": {"form": form, "scale": 100.0}}
-            for form in ("linear", "sqrt", "log", "linear_strain")]
-    if temperature_ref is not None:
-        out += [{"name": f"temperature_{form}", "kind": "temperature",
-                 "params": {"form": form, "t_ref": float(temperature_ref)}}
-                for form in ("offset", "strain")]
-    out += [{"name": f"strain_level_{p}", "kind": "strain_level", "params": {"power": p}}
-            for p in (1, 2, 3)]
-    out += [{"name": "mullins_gap", "kind": "mullins", "params": {"form": "gap", "n0": 1.0}},
-            {"name": "mullins_gap_strain", "kind": "mullins",
-             "params": {"form": "gap_strain", "n0": 1.0}},
-            {"name": "mullins_cycles_log", "kind": "mullins",
-             "params": {"form": "cycles_log", "n0": 1.0}}]
-    out += [{"name": f"mullins_cycles_exp_n{n0:g}", "kind": "mullins",
-             "params": {"form": "cycles_exp", "n0": n0}} for n0 in (1.0, 3.0)]
-    out.append({"name": "mullins_peak_strain", "kind": "mullins",
-                "params": {"form": "peak_strain", "n0": 1.0}})
-    out.append({"name": "baseline", "kind": "baseline",
-                "params": {"window": BASELINE_WINDOW, "rest": float(baseline_rest)}})
-    out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}
-            for nb in neighbours]
-    for entry in out:
-        entry["coef"] = 0.0
-    return out
-
-
-@dataclass
-class EffectScore:
-    """One candidate's evidence."""
-
-    sensor: str
-    name: str
-    kind: str
-    params: dict[str, Any]
-    score: float
-    """Held-out share of residual variance explained (first round, see module doc)."""
-    added: bool = False
-    gain: float | None = None
-    """Relative drop of the cross-validated RMSE in the round it was added."""
-    coef: float | None = None
-    magnitude: float | None = None
-    """coef * std(g) over the fit data: the typical size of the correction [% strain]."""
-    rank: int | None = None
-    """Order of addition (0 first); None when not added."""
-
-    def to_json(self) -> dict[str, Any]:
-        record: dict[str, Any] = {"name": self.name, "score": _num(self.score),
-                                  "added": self.added, "sensor": self.sensor, "kind": self.kind,
-                                  "params": self.params}
-        if self.params.get("tau") is not None:
-            record["time_constant"] = self.params["tau"]
-        for key in ("gain", "coef", "magnitude"):
-            value = getattr(self, key)
-            if value is not None:
-                record[key] = _num(value)
-        return record
-
-
-@dataclass
-class SensorDiagnosis:
-    """One sensor's diagnosis, with the held-out arrays the plots show."""
-
-    name: str
-    before: dict[str, float]
-    after: dict[str, float]
-    scores: list[EffectScore]
-    added: list[dict[str, Any]]
-    """Effect entries added to the calibration (with the intercept, if any)."""
-    message: str
-    plot: dict[str, np.ndarray] = field(default_factory=dict)
-    """Held-out t, e_before, e_after and ``g`` = the winning regressor (empty: none)."""
-    winner: str | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        return {"before": self.before, "after": self.after, "message": self.message,
-                "winner": self.winner, "added": self.added}
-
-
-@dataclass
-class DiagnoseResult:
-    """The outcome: per-sensor detail, pooled before/after and the output calibration."""
-
-    sensors: dict[str, SensorDiagnosis]
-    before: dict[str, float]
-    after: dict[str, float]
-    validated_on: str
-    validation: dict[str, Any]
-    calibration: Calibration
-
-    @property
-    def effects(self) -> list[EffectScore]:
-        """All candidates: added ones first (in order added, the intercept last), then the
-        rest by score."""
-        rows = [s for d in self.sensors.values() for s in d.scores]
-        added = sorted((s for s in rows if s.added),
-                       key=lambda s: (s.kind == "offset", s.sensor, s.rank))
-        rest = sorted((s for s in rows if not s.added),
-                      key=lambda s: -s.score if math.isfinite(s.score) else math.inf)
-        return added + rest
-
-    @property
-    def added(self) -> list[EffectScore]:
-        return [s for s in self.effects if s.added]
-
-    def to_json(self) -> dict[str, Any]:
-        """The docs/design.md ``diagnose --json`` record, then extra keys."""
-        return {"before": self.before, "after": self.after,
-                "effects": [s.to_json() for s in self.effects],
-                "validated_on": self.validated_on, "validation": self.validation,
-                "sensors": {n: d.to_json() for n, d in self.sensors.items()}}
-
-    def summary(self) -> str:
-        """A few lines for the terminal."""
-        lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} %, "
-                 f"after {self.after['rmse']:.4g} %"]
-        for name, d in self.sensors.items():
-            lines.append(f"  {name}: {d.message}")
-        return "\n".join(lines)
-
-
-def _num(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
 
 
 @dataclass
@@ -241,6 +105,8 @@ class _Series:
     """Candidate regressors, (n, k)."""
     t: np.ndarray
     block: np.ndarray
+    s: np.ndarray
+    """Reference strain [%]."""
 
 
 def _as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
@@ -261,11 +127,14 @@ class _Run:
     """Positions among the used samples where the engine reset after a gap."""
 
 
-def _base_runs(bag: Mapping[str, Recording], calibration: Calibration) -> dict[str, _Run]:
-    """S_hat without effects, direction, used mask and gap resets per calibrated sensor."""
+def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
+               tare: str = "calibration") -> dict[str, _Run]:
+    """S_hat without effects, direction, used mask and gap resets per calibrated sensor
+    (each run tared by ``tare``, as ``evaluate`` does)."""
     stripped = Calibration({n: dataclasses.replace(c, effects=[])
                             for n, c in calibration.sensors.items()})
     engine = Engine(stripped)  # sensors are independent: effect terms (cross-talk) stripped
+    tare_engine(engine, {n: (rec.t, rec.r) for n, rec in bag.items()}, tare)
     out = {}
     for name, rec in bag.items():
         if name not in stripped.sensors:
@@ -338,156 +207,10 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
     regressors = [regressor_from_dict(c) for c in candidates]
     g = np.column_stack([_segmented(reg.run, reg.reset, batch, run.starts)
                          for reg in regressors])
-    e = corrected - np.asarray(rec.s, dtype=np.float64)[used]
-    return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks))
-
-
-@njit
-def _fold_sums(x: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per-fold X'X, X'e, e'e and counts in one pass (a plain loop: no BLAS threads)."""
-    n, k = x.shape
-    xx = np.zeros((n_folds, k, k))
-    xe = np.zeros((n_folds, k))
-    ee = np.zeros(n_folds)
-    count = np.zeros(n_folds)
-    for i in range(n):
-        f = fold[i]
-        count[f] += 1.0
-        ee[f] += e[i] * e[i]
-        for a in range(k):
-            xa = x[i, a]
-            xe[f, a] += xa * e[i]
-            for b in range(a, k):
-                xx[f, a, b] += xa * x[i, b]
-    for f in range(n_folds):
-        for a in range(k):
-            for b in range(a + 1, k):
-                xx[f, b, a] = xx[f, a, b]
-    return xx, xe, ee, count
-
-
-class _Gram:
-    """Per-fold sums X'X, X'e, e'e over all candidate columns: any subset's least-squares
-    fit on some folds and its error on the others, without touching the samples again."""
-
-    def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
-        std = np.std(g, axis=0)
-        self.scale = np.where(std > 0, std, 1.0)
-        x = np.ascontiguousarray(g / self.scale)
-        self.xx, self.xe, self.ee, self.n = _fold_sums(
-            x, np.ascontiguousarray(e, dtype=np.float64), fold.astype(np.int64), n_folds)
-        self.xx_all = self.xx.sum(axis=0)
-        self.xe_all = self.xe.sum(axis=0)
-
-    def solve(self, cols: Sequence[int], folds: np.ndarray) -> np.ndarray:
-        """Least-squares coefficients (scaled columns) on ``folds``."""
-        if not cols:
-            return np.zeros(0)
-        idx = np.asarray(cols)
-        a = self.xx[np.ix_(folds, idx, idx)].sum(axis=0)
-        b = self.xe[np.ix_(folds, idx)].sum(axis=0)
-        return np.linalg.lstsq(a, b, rcond=1e-12)[0]
-
-    def fold_sse(self, cols: Sequence[int]) -> np.ndarray:
-        """Blocked cross-validation: each fold's squared error under the fit on the others
-        (0 for an empty fold)."""
-        if not cols:
-            return self.ee.copy()
-        idx = np.asarray(cols)
-        xx_f = self.xx[:, idx[:, None], idx[None, :]]
-        xe_f = self.xe[:, idx]
-        a = self.xx_all[np.ix_(idx, idx)] - xx_f
-        b = self.xe_all[idx] - xe_f
-        # leave-one-fold-out fits, batched; a tiny ridge keeps collinear columns solvable
-        ridge = 1e-10 * np.maximum(np.trace(a, axis1=1, axis2=2), 1e-300) / idx.size
-        a = a + ridge[:, None, None] * np.eye(idx.size)
-        c = np.linalg.solve(a, b[..., None])[..., 0]
-        sse = self.ee - 2.0 * np.einsum("fi,fi->f", c, xe_f) \
-            + np.einsum("fi,fij,fj->f", c, xx_f, c)
-        return np.where(self.n > 0, np.maximum(sse, 0.0), 0.0)
-
-    def cv_rmse(self, cols: Sequence[int]) -> float:
-        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out)."""
-        return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
-
-
-def _significant(before: np.ndarray, after: np.ndarray, n: np.ndarray) -> bool:
-    """Is the fold-wise drop of the cross-validated squared error consistently > 0?
-
-    One-sided test over the folds: mean drop > ``SIGNIFICANCE`` standard errors. A term
-    that explains variance in some stretches of the record and hurts in others (it fits a
-    coincidence of the profile, not a physical effect) fails it even when the pooled
-    error falls a little.
-    """
-    d = (before - after)[n > 0]
-    if d.size < 2:
-        return bool(d.sum() > 0)
-    return bool(d.mean() > SIGNIFICANCE * d.std(ddof=1) / math.sqrt(d.size))
-
-
-@dataclass
-class _Selection:
-    chosen: list[int]
-    gains: dict[int, float]
-
-
-def _select(gram: _Gram, n_cols: int, offset: int, margin: float, max_effects: int, *,
-            auto_intercept: bool = True, skip: Sequence[int] = ()) -> _Selection:
-    """Greedy forward selection (module docstring, step 5)."""
-
-    def model(cols: Sequence[int]) -> list[int]:
-        return _with_intercept(cols, offset) if auto_intercept else list(dict.fromkeys(cols))
-
-    chosen: list[int] = []
-    gains: dict[int, float] = {}
-    current = gram.fold_sse([])
-    while len([c for c in chosen if c != offset]) < max_effects and current.sum() > 0:
-        ref = current
-        trials: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        if auto_intercept:
-            ref = gram.fold_sse(model([*chosen, offset]))
-            if offset not in chosen:
-                trials[offset] = (current, ref)
-        if ref.sum() > 0:
-            for j in range(n_cols):
-                if j in chosen or j in skip or (auto_intercept and j == offset):
-                    continue
-                trials[j] = (ref, gram.fold_sse(model([*chosen, j])))
-        gain = {j: 1.0 - math.sqrt(after.sum() / before.sum())
-                for j, (before, after) in trials.items()}
-        passing = [j for j, (before, after) in trials.items()
-                   if gain[j] > margin and _significant(before, after, gram.n)]
-        if not passing:
-            break
-        best = max(passing, key=gain.__getitem__)
-        chosen.append(best)
-        gains[best] = gain[best]
-        current = gram.fold_sse(model(chosen))
-    return _Selection(chosen, gains)
-
-
-def _scores(gram: _Gram, n_cols: int, offset: int) -> dict[int, float]:
-    """First-round scores: held-out share of the residual variance each candidate explains
-    (relative to the intercept-only model; the intercept relative to no correction)."""
-    rmse_none = gram.cv_rmse([])
-    rmse_offset = gram.cv_rmse([offset])
-    scores = {}
-    for j in range(n_cols):
-        if j == offset:
-            scores[j] = 1.0 - (rmse_offset / rmse_none) ** 2 if rmse_none > 0 else 0.0
-        else:
-            rmse_j = gram.cv_rmse([offset, j])
-            scores[j] = 1.0 - (rmse_j / rmse_offset) ** 2 if rmse_offset > 0 else 0.0
-    return scores
-
-
-def _with_intercept(cols: Sequence[int], offset: int) -> list[int]:
-    """The columns of a model: ``cols`` plus the intercept once any other term is in."""
-    cols = list(dict.fromkeys(cols))
-    if any(c != offset for c in cols) and offset not in cols:
-        cols.insert(0, offset)
-    return cols
+    s = np.asarray(rec.s, dtype=np.float64)[used]
+    e = corrected - s
+    return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks),
+                   s=s[keep])
 
 
 def _rmse_stats(e: np.ndarray) -> dict[str, float]:
@@ -501,54 +224,6 @@ def _unique(name: str, taken: set[str]) -> str:
         out, k = f"{name}_{k}", k + 1
     taken.add(out)
     return out
-
-
-def _rms(e: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(e**2)))
-
-
-@dataclass
-class _Branch:
-    """One hypothesis after selection and the held-out veto: ``shift`` is the baseline
-    column removed with coefficient 1 (None: a constant intercept instead)."""
-
-    shift: int | None
-    selection: _Selection
-    kept: list[int]
-    coef: np.ndarray
-    e_after: np.ndarray
-    rmse: float
-
-
-def _keep(gram: _Gram, selection: _Selection, shift: int | None, offset: int,
-          e_out: np.ndarray, g_out: np.ndarray, n_folds: int, margin: float) -> _Branch:
-    """The held-out veto (module docstring, step 6) on one branch's selected terms."""
-    all_folds = np.arange(n_folds)
-    target = e_out - g_out[:, shift] if shift is not None else e_out
-    auto = shift is None
-
-    def held_out(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
-        return c, target - g_out[:, cols] @ c
-
-    kept: list[int] = []
-    current = _rms(e_out)
-    if shift is not None:
-        rmse = _rms(target)
-        if not rmse < (1.0 - margin) * current:
-            return _Branch(None, selection, [], np.zeros(0), e_out, current)
-        current = rmse
-    for j in selection.chosen:
-        trial = _with_intercept([*kept, j], offset) if auto else [*kept, j]
-        rmse = _rms(held_out(trial)[1])
-        helps = rmse < (1.0 - margin) * current
-        if auto and j != offset:  # it must also beat the intercept alone
-            helps = helps and rmse < _rms(held_out(_with_intercept([*kept, offset], offset))[1])
-        if not helps:
-            break
-        kept, current = trial, rmse
-    coef, e_after = held_out(kept)
-    return _Branch(shift, selection, kept, coef, e_after, _rms(e_after))
 
 
 def _holdout_period(holdout_fraction: float) -> int:
@@ -609,8 +284,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     g_fit = np.concatenate([s.g[~h] for s, h in zip(series, held_out, strict=True)])
     fold = np.concatenate([fold_of_block[s.block[~h]]
                            for s, h in zip(series, held_out, strict=True)])
-    gram = _Gram(g_fit, e_fit, fold, n_folds)
-    scores = _scores(gram, len(names), offset)
+    gram = Gram(g_fit, e_fit, fold, n_folds)
+    scores = candidate_scores(gram, len(names), offset)
 
     if validate is not None:
         val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
@@ -622,27 +297,29 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         e_out = np.concatenate([s.e for s in val_series])
         g_out = np.concatenate([s.g for s in val_series])
         t_out = np.concatenate([s.t for s in val_series])
+        s_out = np.concatenate([s.s for s in val_series])
     else:
         e_out = np.concatenate([s.e[h] for s, h in zip(series, held_out, strict=True)])
         g_out = np.concatenate([s.g[h] for s, h in zip(series, held_out, strict=True)])
         t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
+        s_out = np.concatenate([s.s[h] for s, h in zip(series, held_out, strict=True)])
 
-    best = _keep(gram, _select(gram, len(names), offset, margin, max_effects, skip=baselines),
-                 None, offset, e_out, g_out, n_folds, margin)
+    chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
+    best = keep_on_held_out(gram, chosen, None, offset, e_out, g_out, n_folds, margin)
     rmse_none = gram.cv_rmse([])
     for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
-        shifted = _Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
+        shifted = Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
         rmse_b = shifted.cv_rmse([])
         scores[b] = 1.0 - (rmse_b / rmse_none) ** 2 if rmse_none > 0 else 0.0
-        selection = _select(shifted, len(names), offset, margin, max_effects - 1,
+        selection = select_forward(shifted, len(names), offset, margin, max_effects - 1,
                             auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = _keep(shifted, selection, b, offset, e_out, g_out, n_folds, margin)
+        branch = keep_on_held_out(shifted, selection, b, offset, e_out, g_out, n_folds, margin)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
 
-    rmse_before = _rms(e_out)
+    rmse_before = rms(e_out)
     terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
         + best.kept
     coefs = ([1.0] if terms[:1] == [best.shift] else []) + list(best.coef)
@@ -679,10 +356,11 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     else:
         parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
-                   f"{_rms(e_after):.4g} %")
+                   f"{rms(e_after):.4g} %")
     plot = {}
     if winner is not None:
-        plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]]}
+        plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],
+                "s": s_out}
     return SensorDiagnosis(name=sensor, before=_rmse_stats(e_out), after=_rmse_stats(e_after),
                            scores=rows, added=added, message=message, plot=plot, winner=winner)
 
@@ -692,12 +370,14 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              validate_recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
              | None = None, holdout_fraction: float = 0.3,
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
-             margin: float = 0.03, max_effects: int = 3) -> DiagnoseResult:
+             margin: float = 0.03, max_effects: int = 3,
+             tare: str = "calibration") -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
     ``candidates``: effect dicts to test instead of ``default_candidates``. ``margin``: the
-    least relative drop of the cross-validated RMSE for an effect to be added.
+    least relative drop of the cross-validated RMSE for an effect to be added. ``tare``:
+    ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
     """
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
@@ -705,8 +385,9 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
         raise InputError(f"n_blocks must be >= 3, got {n_blocks}")
     bags = _as_bags(recordings)
     validate = None if validate_recordings is None else _as_bags(validate_recordings)
-    base_fit = [_base_runs(b, calibration) for b in bags]
-    base_val = None if validate is None else [_base_runs(b, calibration) for b in validate]
+    base_fit = [_base_runs(b, calibration, tare=tare) for b in bags]
+    base_val = (None if validate is None
+                else [_base_runs(b, calibration, tare=tare) for b in validate])
     results: dict[str, SensorDiagnosis] = {}
     for sensor, cal in calibration.sensors.items():
         found = _diagnose_sensor(sensor, cal, bags, validate, base_fit, base_val or [],
@@ -744,55 +425,19 @@ def _pool(results: Mapping[str, SensorDiagnosis], which: str) -> dict[str, float
     return {"rmse": math.sqrt(sse / n), "mae": sae / n, "n": n}
 
 
-def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
-                inputs: Sequence[str | Path] = ()) -> list[Path]:
-    """Residual before and after against the winning regressor (one PNG per sensor), each
-    written atomically; a plot path that is one of ``inputs`` is refused."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, d in result.sensors.items():
-        if not d.plot:
-            continue
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
-        p = d.plot
-        ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
-        ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-        ax1.set_xlabel(f"regressor {d.winner}")
-        ax1.set_ylabel("residual S_hat - S [%]")
-        ax1.legend(markerscale=4)
-        ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
-        ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
-        ax2.set_xlabel("time [s] (held-out samples)")
-        ax2.set_ylabel("residual [%]")
-        ax2.legend(markerscale=4)
-        fig.suptitle(f"{name}: {d.message}", fontsize=8)
-        fig.tight_layout()
-        path = out_dir / f"diagnose_{name}.png"
-        try:
-            with atomic_output(path, inputs=inputs) as handle:
-                fig.savefig(handle, dpi=110, format="png")
-        finally:
-            plt.close(fig)
-        written.append(path)
-    return written
-
-
 def diagnose_bag(bag: str | Path, calibration: Calibration, *,
                  validate: str | Path | None = None, out: str | Path | None = None,
                  plots: str | Path | None = None, inputs: Sequence[str | Path] = (),
                  **options: Any) -> DiagnoseResult:
     """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots
     (atomically; an output that is a bag or one of ``inputs`` is refused)."""
+    from strain_comp.diagnosis.conditions import diagnose_conditions
+
     inputs = [bag, *([] if validate is None else [validate]), *inputs]
     recordings, _ = load_recordings(bag)
     val = None if validate is None else load_recordings(validate)[0]
-    result = diagnose(recordings, calibration, validate_recordings=val, **options)
+    result = diagnose_conditions(recordings, calibration, validate_recordings=val,
+                                 **options)
     if out is not None:
         save_calibration(result.calibration, out, inputs=inputs)
     if plots is not None:

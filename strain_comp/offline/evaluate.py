@@ -48,12 +48,16 @@ class SensorEvaluation:
     n_bad: int
     n_out_of_range: int
     bad_by_status: dict[str, int] = field(default_factory=dict)
+    in_run_rmse: float | None = None
+    """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
         record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
         record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
                       n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status)
+        if self.in_run_rmse is not None:
+            record["in_run_rmse"] = _json_number(self.in_run_rmse)
         return record
 
 
@@ -76,18 +80,22 @@ def _json_number(value: float | int) -> float | int | None:
     return value
 
 
-def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration,
-                        ) -> EvaluationResult:
+def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
+                        tare: str = "calibration") -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
-    Raises InputError when no calibrated sensor can be scored (names both sides).
+    ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
+    tare read goes to the notes). Raises InputError when no calibrated sensor can be scored
+    (names both sides).
     """
     from strain_comp.core.engine import Engine, Status, used_mask
+    from strain_comp.core.tare import tare_engine
 
     engine = Engine(calibration)
+    tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
     outputs = _array_outputs(engine, recordings, calibration)
     sensors: dict[str, SensorEvaluation] = {}
-    notes: list[str] = []
+    notes: list[str] = [f"{name}: {line}" for name, line in tared.items()]
     for name, cal in calibration.sensors.items():
         rec = recordings.get(name)
         if rec is None:
@@ -117,6 +125,27 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             "no calibrated sensor has a strain_reference in the data (calibration: "
             f"{', '.join(calibration.sensors)}; data: {', '.join(recordings) or 'none'})")
     return EvaluationResult(sensors, notes)
+
+
+def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
+                 calibration: Calibration) -> None:
+    """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
+    the evaluated run itself and scored on it, i.e. what that model family can reach on
+    this run; the gap to ``rmse`` is what does not transfer from the training runs. A run
+    the model cannot be fitted to gets NaN and a note."""
+    from strain_comp.errors import StrainCompError
+    from strain_comp.offline.fit import fit_sensor
+
+    for name, ev in result.sensors.items():
+        cal = calibration.sensors[name]
+        try:
+            own = fit_sensor([recordings[name]], cal.model, name=name,
+                             options=cal.provenance.get("options") or None)
+            again = evaluate_recordings({name: recordings[name]}, Calibration({name: own}))
+            ev.in_run_rmse = again.sensors[name].stats.rmse
+        except StrainCompError as err:
+            ev.in_run_rmse = math.nan
+            result.notes.append(f"{name}: no in-run bound ({err})")
 
 
 def _array_outputs(engine: Any, recordings: Mapping[str, Recording],
@@ -149,6 +178,9 @@ def format_table(result: EvaluationResult) -> str:
         st = ev.stats
         lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
                      f"{st.max_abs:>9.4f} {st.r2:>8.5f}")
+        if ev.in_run_rmse is not None:
+            lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
+                         f"{ev.in_run_rmse:.4f}")
     lines.append("errors in % strain; RMSE [Electrolycra] eq. (5)")
     return "\n".join(lines)
 

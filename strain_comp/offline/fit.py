@@ -36,6 +36,12 @@ data and fills in what a calibration file needs besides the parameters:
   passed to the model. ``sign`` is the sign of the correlation of R and S in the training
   data (-1 for a sensor whose R falls with strain), so the published direction is +1 on
   loading for every sensor (``strain_comp.core.engine``).
+* **Measurement chain**: an alternation of the excitation every other sample
+  (``strain_comp.core.chain.alternation``, found from R alone) switches on the calibration's
+  ``input.alternation``: the models are fitted to, and the engine feeds them, pair means
+  (R[i] + R[i-1]) / 2, so the alternation never reaches a model's memory or the detector.
+  Option ``alternation`` (true/false) overrides the detection; the provenance records the
+  reading (``measurement_chain``).
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
@@ -54,11 +60,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange, provenance
+from strain_comp.core.calibration import (
+    Calibration,
+    InputSettings,
+    SensorCalibration,
+    ValidRange,
+    provenance,
+)
+from strain_comp.core.chain import alternation, pair_means
 from strain_comp.core.direction import DirectionSettings, estimate_deadzone
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import good_mask
+from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import FitError, InputError
 from strain_comp.models import Normalisation, Segment, model_class
 
@@ -82,7 +96,7 @@ TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Derivative low-pass time constants [s] tried, shortest (least lag) first."""
 DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
-_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau")
+_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation")
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
@@ -266,6 +280,16 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
     return error_stats(np.concatenate(estimates), np.concatenate(references)).rmse
 
 
+def training_rest_resistance(recordings: Sequence[Recording]) -> float | None:
+    """The calibration's rest resistance [ohm]: the median over the training runs of each
+    run's leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``,
+    the statistic an automatic tare uses at run time); None when no run starts at rest."""
+    levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s) for rec in recordings
+              if rec.s is not None]
+    found = [level for level in levels if level is not None]
+    return float(np.median(found)) if found else None
+
+
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                ) -> SensorCalibration:
@@ -290,6 +314,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
         raise FitError(f"sensor {name!r}: the training data span no range of resistance "
                        "or strain")
+    chain = alternation(np.concatenate([np.asarray(rec.r) for rec in recordings]))
+    alternating = bool(options.get("alternation", chain.present))
+    if alternating:  # the models learn what the engine will feed them: pair means
+        segments = [Segment(seg.t, pair_means(seg.r), seg.s) for seg in segments]
+        r_all = np.concatenate([seg.r for seg in segments])
     normalisation = Normalisation.fit(r_all, s_all)
     direction, direction_source = direction_settings(segments, options)
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
@@ -300,7 +329,9 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     fit_seconds = time.perf_counter() - start
     calibration = SensorCalibration(
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
-        valid_range=valid_range(segments), direction=direction)
+        valid_range=valid_range(segments), direction=direction,
+        input=InputSettings(alternation=alternating),
+        rest_resistance=training_rest_resistance(recordings))
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "
@@ -308,6 +339,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     calibration.provenance = provenance(
         [str(b) for b in bags], fit_rmse=rmse, n_samples=r_all.size, segments=len(segments),
         fit_seconds=round(fit_seconds, 3), direction_from=direction_source,
+        measurement_chain=chain.reading() if chain.present else "no alternation found",
         options=model_options)
     return calibration
 

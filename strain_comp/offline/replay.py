@@ -34,6 +34,7 @@ from strain_comp.core.engine import (
     diagnostics,
     health_at,
 )
+from strain_comp.core.tare import tare_engine
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -80,8 +81,9 @@ class _Replay:
     """The state carried from one piece of the bag to the next."""
 
     def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
-                 period: float) -> None:
+                 period: float, tare: str) -> None:
         self.calibration = calibration
+        self.tare = tare
         self.writer = writer
         self.engine = engine
         self.period = period
@@ -106,6 +108,12 @@ class _Replay:
                 self.inputs[topic] = inp
                 if inp is not None:
                     self.written.update(f"/{inp.name}/{what}" for what in OUTPUTS)
+                    series = contents.series[topic]
+                    values = series.values.reshape(series.t.size, -1)
+                    tared = tare_engine(self.engine, {s: (series.t, values[:, j])
+                                                      for j, s in enumerate(inp.sensors)},
+                                        self.tare)
+                    self.problems += [f"{s}: {line}" for s, line in tared.items()]
         inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
                   if inp is not None and topic in contents.series
                   and contents.series[topic].t.size]
@@ -198,7 +206,7 @@ def _stale(h: SensorHealth, now: float, stale_after: float) -> SensorHealth:
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
                gap_reset: float = GAP_RESET, stale_after: float = 1.0,
-               window: int = WINDOW,
+               window: int = WINDOW, tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = ()) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
@@ -210,11 +218,15 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     path carries its state from piece to piece exactly (``run`` over two halves equals
     ``run`` over the whole), temperatures are held across pieces, and a diagnostics tick
     is written once every message at or before it has been replayed.
+
+    ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine`` on the first
+    seconds of each input, from the first piece it appears in, before it is replayed; the
+    readings go to the problems list).
     """
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
     out_path = Path(out_path)
     with BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
-        state = _Replay(calibration, writer, engine, diagnostics_period)
+        state = _Replay(calibration, writer, engine, diagnostics_period, tare)
         for contents in iter_bag(in_path, window=window):
             state.piece(contents)
         inputs = [i for i in state.inputs.values() if i is not None]

@@ -1,0 +1,160 @@
+"""Tare: the sensor's resistance at rest, measured at the start of a run or of a fit.
+
+A soft resistive sensor's rest resistance moves between runs (contact resistance, ageing,
+the specimen's history): the carbon-black recordings rest at 17 kohm in one run and 38-56
+kohm in others. As one zeroes a scale before use, the engine scales the measured
+resistance by (calibration's rest resistance / rest resistance measured now)
+(``Engine.tare``). Multiplicative rather than additive: the resistance span of a strain
+cycle scales with the rest level across those runs (dR/R_rest stays within a factor 1.5
+where dR alone differs 3x), as a change of the conducting cross-section (a gain) predicts;
+a series contact resistance alone would shift R without changing dR.
+
+Both estimators here use the same statistic, so a fit and a run are zeroed alike: the
+median of the pair means (R[i] + R[i+1]) / 2 over the leading rest samples. Pair means
+cancel a sample-to-sample alternation of the excitation (a +-a artefact every other
+sample); the median ignores isolated spikes.
+
+* ``rest_resistance_at_start`` (run time, no reference: ``--tare auto``, the node): the
+  samples from the start while the calibration's direction detector says hold (0), at most
+  ``window`` seconds.
+* ``rest_resistance_from_reference`` (fit time): the leading samples whose reference strain
+  is within ``REST_BAND`` of the span of its minimum.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp.core.conversion import divider_to_resistance
+from strain_comp.core.direction import DirectionDetector, DirectionSettings
+from strain_comp.errors import InputError
+
+if TYPE_CHECKING:
+    from strain_comp.core.engine import Engine
+
+TARE_WINDOW = 5.0
+"""Longest stretch at the start of a run that an automatic tare averages over [s]."""
+MIN_REST_SAMPLES = 3
+"""Fewest rest samples a tare accepts."""
+REST_BAND = 0.02
+"""Reference strain within this share of its span above its minimum counts as rest."""
+
+
+def _rest_level(r: np.ndarray) -> float:
+    """Median of pair means (cancels alternation every other sample, ignores spikes)."""
+    return float(np.median(0.5 * (r[:-1] + r[1:]) if r.size >= 2 else r))
+
+
+def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
+    return np.isfinite(t) & np.isfinite(r) & (r > 0)
+
+
+def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
+                             direction: DirectionSettings, *,
+                             window: float = TARE_WINDOW) -> float:
+    """Rest resistance [ohm] of a run from its first seconds (no reference needed).
+
+    ``t`` [s], ``r`` [ohm] from the start of the run (bad samples, i.e. not finite or <= 0,
+    are skipped); ``direction``: the calibration's detector settings. Uses the samples
+    before the detector first leaves hold, within ``window`` seconds of the first good
+    sample. Raises InputError when fewer than ``MIN_REST_SAMPLES`` samples qualify (the run
+    does not start at rest): the caller then keeps the old tare.
+    """
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    good = _good(ta, ra)
+    ta, ra = ta[good], ra[good]
+    if ta.size == 0:
+        raise InputError("tare: no good resistance sample at the start of the run")
+    head = int(np.searchsorted(ta, ta[0] + window, side="right"))
+    ta, ra = ta[:head], ra[:head]
+    # the detector reads pair means: an alternation every other sample is not movement
+    pairs = 0.5 * (ra[:-1] + ra[1:]) if ra.size >= 2 else ra
+    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
+    moving = np.flatnonzero(states != 0)
+    stop = int(moving[0]) + (ra.size - pairs.size) if moving.size else ra.size
+    if stop < MIN_REST_SAMPLES:
+        raise InputError(f"tare: the run does not start at rest (the direction detector "
+                         f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} needed)")
+    return _rest_level(ra[:stop])
+
+
+def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
+                                   s: npt.ArrayLike) -> float | None:
+    """Rest resistance [ohm] of a training run: its first stay at minimum strain.
+
+    Rest samples have a reference strain ``s`` within ``REST_BAND`` x span of its minimum.
+    The run's first rest is used (at most ``TARE_WINDOW`` s of it, as at run time): the
+    leading rest samples when the run starts at rest (even one: the rest before the first
+    load is what an automatic tare sees at the start of a later run; the first return to
+    rest after loading sits higher, the material has softened), else the first stretch of
+    ``MIN_REST_SAMPLES`` or more. None when the run never rests that long.
+    """
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    sa = np.asarray(s, dtype=np.float64)
+    good = _good(ta, ra) & np.isfinite(sa)
+    ta, ra, sa = ta[good], ra[good], sa[good]
+    if ta.size < MIN_REST_SAMPLES or not np.ptp(sa) > 0:
+        return None
+    rest = np.concatenate(([False], sa <= sa.min() + REST_BAND * np.ptp(sa), [False]))
+    edges = np.flatnonzero(np.diff(rest.astype(np.int8)))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        if start == 0 or stop - start >= MIN_REST_SAMPLES:
+            end = min(int(stop), int(np.searchsorted(ta, ta[start] + TARE_WINDOW,
+                                                     side="right")))
+            return _rest_level(ra[start:end])
+    return None
+
+
+TARE_MODES = ("calibration", "auto")
+"""Where the rest resistance comes from: the calibration (gain 1) or the run's start."""
+
+
+def tare_reading(calibrated: float, measured: float) -> str:
+    """A tare in words: ``rest resistance 12.0 % below calibration (35.1 vs 39.9 kohm)``."""
+    change = 100.0 * (measured / calibrated - 1.0)
+    side = "above" if change >= 0 else "below"
+    return (f"rest resistance {abs(change):.1f} % {side} calibration "
+            f"({measured / 1e3:.4g} vs {calibrated / 1e3:.4g} kohm)")
+
+
+def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.ArrayLike]],
+                mode: str) -> dict[str, str]:
+    """Apply ``mode`` (``TARE_MODES``) to ``engine`` for the sensors of ``runs``.
+
+    ``runs``: sensor name -> (t [s], raw input: ohm, or divider volts) from the start of
+    the run. ``calibration`` leaves every gain at 1. ``auto`` tares each calibrated sensor with
+    ``rest_resistance_at_start``. Returns one line per sensor: the reading of its tare, or
+    why it kept the calibration's rest resistance (no stored rest resistance, no rest at
+    the start); a failed tare never changes the gain.
+    """
+    if mode not in TARE_MODES:
+        raise InputError(f"--tare {mode!r}: expected one of {', '.join(TARE_MODES)}")
+    lines: dict[str, str] = {}
+    if mode == "calibration":
+        return lines
+    for name, (t, r) in runs.items():
+        if name not in engine.sensors:
+            continue
+        cal = engine.calibration.sensors[name]
+        if cal.rest_resistance is None:
+            lines[name] = "not tared: the calibration stores no rest_resistance (refit it)"
+            continue
+        ohm = np.asarray(r, dtype=np.float64)
+        if cal.input.kind == "divider" and cal.input.r1 is not None \
+                and cal.input.vin is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ohm = divider_to_resistance(ohm, cal.input.r1, cal.input.vin)
+        try:
+            rest = rest_resistance_at_start(t, ohm, cal.direction)
+        except InputError as err:
+            lines[name] = f"not tared: {err}"
+            continue
+        engine.tare(name, rest)
+        lines[name] = "tare: " + tare_reading(cal.rest_resistance, rest)
+    return lines

@@ -1,0 +1,64 @@
+"""Candidate effects of the residual loop: the generic regressors a model lacks.
+
+Each candidate is a calibration-file effect dict (``strain_comp.core.effects``) with
+``coef: 0``; the loop (``strain_comp.diagnosis.loop``) computes each one online over the
+recordings, exactly as the engine would, and ``strain_comp.diagnosis.selection`` decides
+which ones to add.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
+"""Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
+(fine enough that the nearest one is within 19 % of any time constant in that span)."""
+BASELINE_WINDOW = 5.0
+"""Seconds at the start of a run over which a ``baseline`` candidate averages S_hat."""
+
+
+def default_candidates(*, temperature_ref: float | None = None,
+                       neighbours: Sequence[str] = (),
+                       baseline_rest: float = 0.0) -> list[dict[str, Any]]:
+    """The generic candidate effects (calibration-file dicts with ``coef: 0``).
+
+    ``temperature_ref`` [deg C]: include temperature terms around it (None: no temperature
+    series); ``neighbours``: array neighbours to test for cross-talk; ``baseline_rest`` [%]:
+    the strain runs start at (the ``rest`` of the per-run ``baseline`` candidate).
+    """
+    out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
+    out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
+            for mode in ("signed", "direction")]
+    out += [{"name": "direction", "kind": "direction", "params": {"mode": "sign", "hold": False}},
+            {"name": "direction_held", "kind": "direction",
+             "params": {"mode": "sign", "hold": True}},
+            {"name": "direction_strain", "kind": "direction",
+             "params": {"mode": "strain", "hold": True}}]
+    for branch in ("both", "loading", "unloading"):
+        out += [{"name": f"relaxation_{branch}_tau{tau:g}", "kind": "relaxation",
+                 "params": {"tau": tau, "branch": branch}} for tau in RELAXATION_TAUS]
+    out += [{"name": f"drift_{form}", "kind": "elapsed", "params": {"form": form, "scale": 100.0}}
+            for form in ("linear", "sqrt", "log", "linear_strain")]
+    if temperature_ref is not None:
+        out += [{"name": f"temperature_{form}", "kind": "temperature",
+                 "params": {"form": form, "t_ref": float(temperature_ref)}}
+                for form in ("offset", "strain")]
+    out += [{"name": f"strain_level_{p}", "kind": "strain_level", "params": {"power": p}}
+            for p in (1, 2, 3)]
+    out += [{"name": "mullins_gap", "kind": "mullins", "params": {"form": "gap", "n0": 1.0}},
+            {"name": "mullins_gap_strain", "kind": "mullins",
+             "params": {"form": "gap_strain", "n0": 1.0}},
+            {"name": "mullins_cycles_log", "kind": "mullins",
+             "params": {"form": "cycles_log", "n0": 1.0}}]
+    out += [{"name": f"mullins_cycles_exp_n{n0:g}", "kind": "mullins",
+             "params": {"form": "cycles_exp", "n0": n0}} for n0 in (1.0, 3.0)]
+    out.append({"name": "mullins_peak_strain", "kind": "mullins",
+                "params": {"form": "peak_strain", "n0": 1.0}})
+    out.append({"name": "baseline", "kind": "baseline",
+                "params": {"window": BASELINE_WINDOW, "rest": float(baseline_rest)}})
+    out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}
+            for nb in neighbours]
+    for entry in out:
+        entry["coef"] = 0.0
+    return out

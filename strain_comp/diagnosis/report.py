@@ -1,0 +1,216 @@
+"""Reports of the residual loop: per-candidate evidence, physical readings, per-sensor
+and pooled results (terminal summary, JSON) and the residual plots."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.io.atomic import atomic_output
+
+
+@dataclass
+class EffectScore:
+    """One candidate's evidence."""
+
+    sensor: str
+    name: str
+    kind: str
+    params: dict[str, Any]
+    score: float
+    """Held-out share of residual variance explained (first round, see module doc)."""
+    added: bool = False
+    gain: float | None = None
+    """Relative drop of the cross-validated RMSE in the round it was added."""
+    coef: float | None = None
+    magnitude: float | None = None
+    """coef * std(g) over the fit data: the typical size of the correction [% strain]."""
+    rank: int | None = None
+    """Order of addition (0 first); None when not added."""
+
+    def to_json(self) -> dict[str, Any]:
+        record: dict[str, Any] = {"name": self.name, "score": _num(self.score),
+                                  "added": self.added, "sensor": self.sensor, "kind": self.kind,
+                                  "params": self.params}
+        if self.params.get("tau") is not None:
+            record["time_constant"] = self.params["tau"]
+        for key in ("gain", "coef", "magnitude"):
+            value = getattr(self, key)
+            if value is not None:
+                record[key] = _num(value)
+        if self.added and self.coef is not None:
+            record["reading"] = effect_reading(self.kind, self.params, self.coef,
+                                               self.magnitude)
+        return record
+
+
+def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
+                   magnitude: float | None = None) -> str:
+    """An added term in physical words. The model's output carries + coef g (the term
+    removes it), so the reading describes the sensor against its calibration."""
+    size = "" if magnitude is None else f", typically {abs(magnitude):.2g} % strain"
+    if kind == "offset":
+        return f"output offset {coef:+.3g} % strain"
+    if kind == "strain_level":
+        if params.get("power", 1) == 1 and coef < 1.0:
+            return f"sensitivity {100.0 * (1.0 / (1.0 - coef) - 1.0):+.1f} % against calibration"
+        return f"curvature error (strain^{params.get('power')}){size}"
+    if kind == "rate":
+        return f"rate-dependent lag {coef:+.3g} s (filter tau {params.get('tau')} s){size}"
+    if kind == "direction" and params.get("mode") == "strain":
+        return f"hysteresis +-{100.0 * abs(coef):.3g} % of the strain, loading vs unloading"
+    if kind == "direction":
+        return f"hysteresis +-{abs(coef):.3g} % strain between loading and unloading"
+    if kind == "relaxation":
+        return (f"relaxation tau {params.get('tau')} s after {params.get('branch')} "
+                f"steps{size}")
+    if kind == "elapsed":
+        scale = float(params.get("scale", 100.0))
+        if params.get("form", "linear") == "linear":
+            return f"drift {coef * 3600.0 / scale:+.3g} % strain/h"
+        if params.get("form") == "linear_strain":
+            return f"gain drift {100.0 * coef * 3600.0 / scale:+.3g} %/h"
+        return f"drift ({params.get('form')} in time){size}"
+    if kind == "temperature":
+        if params.get("form") == "strain":
+            return f"temperature sensitivity {100.0 * coef:+.3g} %/K"
+        return f"temperature offset {coef:+.3g} % strain/K"
+    if kind == "mullins":
+        return f"Mullins-type softening ({params.get('form')}){size}"
+    if kind == "crosstalk":
+        return f"cross-talk {100.0 * coef:+.3g} % of {params.get('neighbour')}'s strain"
+    if kind == "baseline":
+        return f"per-run baseline: each run re-zeroed at its start{size}"
+    return f"{kind}{size}"
+
+
+@dataclass
+class SensorDiagnosis:
+    """One sensor's diagnosis, with the held-out arrays the plots show."""
+
+    name: str
+    before: dict[str, float]
+    after: dict[str, float]
+    scores: list[EffectScore]
+    added: list[dict[str, Any]]
+    """Effect entries added to the calibration (with the intercept, if any)."""
+    message: str
+    plot: dict[str, np.ndarray] = field(default_factory=dict)
+    """Held-out t, s (reference), e_before, e_after and ``g`` = the winning regressor
+    (empty: none)."""
+    winner: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"before": self.before, "after": self.after, "message": self.message,
+                "winner": self.winner, "added": self.added}
+
+
+@dataclass
+class DiagnoseResult:
+    """The outcome: per-sensor detail, pooled before/after and the output calibration."""
+
+    sensors: dict[str, SensorDiagnosis]
+    before: dict[str, float]
+    after: dict[str, float]
+    validated_on: str
+    validation: dict[str, Any]
+    calibration: Calibration
+    conditions: list[dict[str, Any]] = field(default_factory=list)
+    """Measurement-chain and tare hypotheses tried (``strain_comp.diagnosis.conditions``)."""
+
+    @property
+    def effects(self) -> list[EffectScore]:
+        """All candidates: added ones first (in order added, the intercept last), then the
+        rest by score."""
+        rows = [s for d in self.sensors.values() for s in d.scores]
+        added = sorted((s for s in rows if s.added),
+                       key=lambda s: (s.kind == "offset", s.sensor, s.rank))
+        rest = sorted((s for s in rows if not s.added),
+                      key=lambda s: -s.score if math.isfinite(s.score) else math.inf)
+        return added + rest
+
+    @property
+    def added(self) -> list[EffectScore]:
+        return [s for s in self.effects if s.added]
+
+    def to_json(self) -> dict[str, Any]:
+        """The DESIGN.md ``diagnose --json`` record, then extra keys."""
+        return {"before": self.before, "after": self.after,
+                "effects": [s.to_json() for s in self.effects],
+                "validated_on": self.validated_on, "validation": self.validation,
+                "sensors": {n: d.to_json() for n, d in self.sensors.items()},
+                "conditions": self.conditions}
+
+    def summary(self) -> str:
+        """A few lines for the terminal."""
+        lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} %, "
+                 f"after {self.after['rmse']:.4g} %"]
+        for c in self.conditions:
+            if c["name"] == "measurement chain":
+                lines.append(f"  measurement chain: {c['reading']}")
+                continue
+            verdict = "chosen" if c["chosen"] else "not chosen"
+            lines.append(f"  {c['name']}: {c['reading']}; held-out RMSE after the loop "
+                         f"{c['after']:.4g} % ({verdict})")
+        for name, d in self.sensors.items():
+            lines.append(f"  {name}: {d.message}")
+            for e in d.scores:
+                if e.added and e.coef is not None:
+                    lines.append(f"    + {e.name}: "
+                                 f"{effect_reading(e.kind, e.params, e.coef, e.magnitude)}")
+        return "\n".join(lines)
+
+
+def _num(value: float) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
+                inputs: Sequence[str | Path] = ()) -> list[Path]:
+    """Residual before and after against the winning regressor, time and strain (one PNG
+    per sensor), each written atomically; a plot path that is one of ``inputs`` is
+    refused."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, d in result.sensors.items():
+        if not d.plot:
+            continue
+        fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(16, 4.2))
+        p = d.plot
+        ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
+        ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
+        ax1.set_xlabel(f"regressor {d.winner}")
+        ax1.set_ylabel("residual S_hat - S [%]")
+        ax1.legend(markerscale=4)
+        ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
+        ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
+        ax2.set_xlabel("time [s] (held-out samples)")
+        ax2.set_ylabel("residual [%]")
+        ax2.legend(markerscale=4)
+        ax3.plot(p["s"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
+        ax3.plot(p["s"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
+        ax3.set_xlabel("reference strain [%] (held-out samples)")
+        ax3.set_ylabel("residual [%]")
+        ax3.legend(markerscale=4)
+        fig.suptitle(f"{name}: {d.message}", fontsize=8)
+        fig.tight_layout()
+        path = out_dir / f"diagnose_{name}.png"
+        try:
+            with atomic_output(path, inputs=inputs) as handle:
+                fig.savefig(handle, dpi=110, format="png")
+        finally:
+            plt.close(fig)
+        written.append(path)
+    return written

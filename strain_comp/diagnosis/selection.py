@@ -1,0 +1,217 @@
+"""Selection statistics of the residual loop, testable on any regressor matrix.
+
+Blocked cross-validation from per-fold sums (``Gram``), the fold-wise significance test
+(``significant``), greedy forward selection (``select_forward``), first-round scores
+(``candidate_scores``) and the held-out veto (``keep_on_held_out``). See
+``strain_comp.diagnosis.loop`` (steps 4-6) for how the loop uses them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from strain_comp._numba import njit
+
+SIGNIFICANCE = 1.0
+"""A term is added only if its fold-wise cross-validated gain exceeds this many standard
+errors (``significant``)."""
+
+
+@njit
+def _fold_sums(x: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-fold X'X, X'e, e'e and counts in one pass (a plain loop: no BLAS threads)."""
+    n, k = x.shape
+    xx = np.zeros((n_folds, k, k))
+    xe = np.zeros((n_folds, k))
+    ee = np.zeros(n_folds)
+    count = np.zeros(n_folds)
+    for i in range(n):
+        f = fold[i]
+        count[f] += 1.0
+        ee[f] += e[i] * e[i]
+        for a in range(k):
+            xa = x[i, a]
+            xe[f, a] += xa * e[i]
+            for b in range(a, k):
+                xx[f, a, b] += xa * x[i, b]
+    for f in range(n_folds):
+        for a in range(k):
+            for b in range(a + 1, k):
+                xx[f, b, a] = xx[f, a, b]
+    return xx, xe, ee, count
+
+
+class Gram:
+    """Per-fold sums X'X, X'e, e'e over all candidate columns: any subset's least-squares
+    fit on some folds and its error on the others, without touching the samples again."""
+
+    def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
+        std = np.std(g, axis=0)
+        self.scale = np.where(std > 0, std, 1.0)
+        x = np.ascontiguousarray(g / self.scale)
+        self.xx, self.xe, self.ee, self.n = _fold_sums(
+            x, np.ascontiguousarray(e, dtype=np.float64), fold.astype(np.int64), n_folds)
+        self.xx_all = self.xx.sum(axis=0)
+        self.xe_all = self.xe.sum(axis=0)
+
+    def solve(self, cols: Sequence[int], folds: np.ndarray) -> np.ndarray:
+        """Least-squares coefficients (scaled columns) on ``folds``."""
+        if not cols:
+            return np.zeros(0)
+        idx = np.asarray(cols)
+        a = self.xx[np.ix_(folds, idx, idx)].sum(axis=0)
+        b = self.xe[np.ix_(folds, idx)].sum(axis=0)
+        return np.linalg.lstsq(a, b, rcond=1e-12)[0]
+
+    def fold_sse(self, cols: Sequence[int]) -> np.ndarray:
+        """Blocked cross-validation: each fold's squared error under the fit on the others
+        (0 for an empty fold)."""
+        if not cols:
+            return self.ee.copy()
+        idx = np.asarray(cols)
+        xx_f = self.xx[:, idx[:, None], idx[None, :]]
+        xe_f = self.xe[:, idx]
+        a = self.xx_all[np.ix_(idx, idx)] - xx_f
+        b = self.xe_all[idx] - xe_f
+        # leave-one-fold-out fits, batched; a tiny ridge keeps collinear columns solvable
+        ridge = 1e-10 * np.maximum(np.trace(a, axis1=1, axis2=2), 1e-300) / idx.size
+        a = a + ridge[:, None, None] * np.eye(idx.size)
+        c = np.linalg.solve(a, b[..., None])[..., 0]
+        sse = self.ee - 2.0 * np.einsum("fi,fi->f", c, xe_f) \
+            + np.einsum("fi,fij,fj->f", c, xx_f, c)
+        return np.where(self.n > 0, np.maximum(sse, 0.0), 0.0)
+
+    def cv_rmse(self, cols: Sequence[int]) -> float:
+        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out)."""
+        return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
+
+
+def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray) -> bool:
+    """Is the fold-wise drop of the cross-validated squared error consistently > 0?
+
+    One-sided test over the folds: mean drop > ``SIGNIFICANCE`` standard errors. A term
+    that explains variance in some stretches of the record and hurts in others (it fits a
+    coincidence of the profile, not a physical effect) fails it even when the pooled
+    error falls a little.
+    """
+    d = (before - after)[n > 0]
+    if d.size < 2:
+        return bool(d.sum() > 0)
+    return bool(d.mean() > SIGNIFICANCE * d.std(ddof=1) / math.sqrt(d.size))
+
+
+@dataclass
+class Selection:
+    chosen: list[int]
+    gains: dict[int, float]
+
+
+def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effects: int, *,
+            auto_intercept: bool = True, skip: Sequence[int] = ()) -> Selection:
+    """Greedy forward selection (module docstring, step 5)."""
+
+    def model(cols: Sequence[int]) -> list[int]:
+        return with_intercept(cols, offset) if auto_intercept else list(dict.fromkeys(cols))
+
+    chosen: list[int] = []
+    gains: dict[int, float] = {}
+    current = gram.fold_sse([])
+    while len([c for c in chosen if c != offset]) < max_effects and current.sum() > 0:
+        ref = current
+        trials: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        if auto_intercept:
+            ref = gram.fold_sse(model([*chosen, offset]))
+            if offset not in chosen:
+                trials[offset] = (current, ref)
+        if ref.sum() > 0:
+            for j in range(n_cols):
+                if j in chosen or j in skip or (auto_intercept and j == offset):
+                    continue
+                trials[j] = (ref, gram.fold_sse(model([*chosen, j])))
+        gain = {j: 1.0 - math.sqrt(after.sum() / before.sum())
+                for j, (before, after) in trials.items()}
+        passing = [j for j, (before, after) in trials.items()
+                   if gain[j] > margin and significant(before, after, gram.n)]
+        if not passing:
+            break
+        best = max(passing, key=gain.__getitem__)
+        chosen.append(best)
+        gains[best] = gain[best]
+        current = gram.fold_sse(model(chosen))
+    return Selection(chosen, gains)
+
+
+def candidate_scores(gram: Gram, n_cols: int, offset: int) -> dict[int, float]:
+    """First-round scores: held-out share of the residual variance each candidate explains
+    (relative to the intercept-only model; the intercept relative to no correction)."""
+    rmse_none = gram.cv_rmse([])
+    rmse_offset = gram.cv_rmse([offset])
+    scores = {}
+    for j in range(n_cols):
+        if j == offset:
+            scores[j] = 1.0 - (rmse_offset / rmse_none) ** 2 if rmse_none > 0 else 0.0
+        else:
+            rmse_j = gram.cv_rmse([offset, j])
+            scores[j] = 1.0 - (rmse_j / rmse_offset) ** 2 if rmse_offset > 0 else 0.0
+    return scores
+
+
+def with_intercept(cols: Sequence[int], offset: int) -> list[int]:
+    """The columns of a model: ``cols`` plus the intercept once any other term is in."""
+    cols = list(dict.fromkeys(cols))
+    if any(c != offset for c in cols) and offset not in cols:
+        cols.insert(0, offset)
+    return cols
+
+
+def rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e**2)))
+
+
+@dataclass
+class Branch:
+    """One hypothesis after selection and the held-out veto: ``shift`` is the baseline
+    column removed with coefficient 1 (None: a constant intercept instead)."""
+
+    shift: int | None
+    selection: Selection
+    kept: list[int]
+    coef: np.ndarray
+    e_after: np.ndarray
+    rmse: float
+
+
+def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
+          e_out: np.ndarray, g_out: np.ndarray, n_folds: int, margin: float) -> Branch:
+    """The held-out veto (module docstring, step 6) on one branch's selected terms."""
+    all_folds = np.arange(n_folds)
+    target = e_out - g_out[:, shift] if shift is not None else e_out
+    auto = shift is None
+
+    def held_out(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
+        return c, target - g_out[:, cols] @ c
+
+    kept: list[int] = []
+    current = rms(e_out)
+    if shift is not None:
+        rmse = rms(target)
+        if not rmse < (1.0 - margin) * current:
+            return Branch(None, selection, [], np.zeros(0), e_out, current)
+        current = rmse
+    for j in selection.chosen:
+        trial = with_intercept([*kept, j], offset) if auto else [*kept, j]
+        rmse = rms(held_out(trial)[1])
+        helps = rmse < (1.0 - margin) * current
+        if auto and j != offset:  # it must also beat the intercept alone
+            helps = helps and rmse < rms(held_out(with_intercept([*kept, offset], offset))[1])
+        if not helps:
+            break
+        kept, current = trial, rmse
+    coef, e_after = held_out(kept)
+    return Branch(shift, selection, kept, coef, e_after, rms(e_after))

@@ -1,0 +1,146 @@
+"""Two-point recalibration of any model: an output gain and offset through known strains.
+
+The spike-decay paper (Lee et al., spike_decay seed) recalibrates its output map f through
+two known strains; here the same is done for every model, on the engine's output:
+
+    S_new = a S_out + b
+
+with (a, b) through two points (R_i, S_i), S_out(R_i) being the calibration's steady output
+at the constant resistance R_i (the engine run for ``SETTLE_SAMPLES`` samples at R_i, so a
+memory model has settled), or by least squares over a bag with a reference strain (the
+engine's output over its used samples, each run tared as asked).
+
+One mechanism: the map is stored as effect terms (``strain_comp.core.effects``), which the
+engine applies identically in step, run, replay, evaluate, diagnose and the node. With
+S_corrected = S_hat - sum c_j g_j, the new output a S_corrected + b is S_hat minus
+``recalibration_gain`` (kind ``strain_level``, power 1, coef 1 - a), minus
+``recalibration_offset`` (kind ``offset``, coef -b), with every existing coefficient scaled
+by a. A second recalibration composes with the first (the coefficients add).
+Limits: ``strain_level`` reads the engine's estimate clamped to the valid strain range, so
+the map is exact inside that range.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.errors import InputError
+
+SETTLE_SAMPLES = 200
+"""Samples at a constant resistance (at 10 Hz) before the output is read."""
+GAIN_NAME = "recalibration_gain"
+OFFSET_NAME = "recalibration_offset"
+
+
+def parse_point(text: str) -> tuple[float, float]:
+    """``"R:S"`` (ohm, % strain) -> (R, S); InputError naming the flag otherwise."""
+    r_text, sep, s_text = text.partition(":")
+    try:
+        r, s = float(r_text), float(s_text)
+    except ValueError:
+        r, s = float("nan"), float("nan")
+    if not sep or not (np.isfinite(r) and np.isfinite(s) and r > 0):
+        raise InputError(f"--point {text!r}: expected R:S with R > 0 ohm and S in %")
+    return r, s
+
+
+def steady_output(cal: SensorCalibration, r: float) -> float:
+    """The calibration's output [%] after ``SETTLE_SAMPLES`` samples at constant ``r``."""
+    from strain_comp.core.engine import Engine
+
+    engine = Engine(Calibration({cal.name: cal}))
+    t = 0.1 * np.arange(SETTLE_SAMPLES)
+    return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
+
+
+def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
+                    ) -> tuple[float, float]:
+    """(a, b) through two (R [ohm], S [%]) points."""
+    if len(points) != 2:
+        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
+    (r1, s1), (r2, s2) = points
+    o1, o2 = steady_output(cal, r1), steady_output(cal, r2)
+    if not abs(o2 - o1) > 1e-9 * max(1.0, abs(o1)):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the calibration gives "
+                         f"the same strain ({o1:.4g} %) at both resistances")
+    a = (s2 - s1) / (o2 - o1)
+    return a, s1 - a * o1
+
+
+def map_from_pairs(estimate: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
+    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs."""
+    ok = np.isfinite(estimate) & np.isfinite(reference)
+    if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
+        raise InputError("recalibrate --from: the bag gives too few scored samples or no "
+                         "range of estimated strain")
+    a, b = np.polyfit(estimate[ok], reference[ok], 1)
+    return float(a), float(b)
+
+
+def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, Any],
+              ) -> SensorCalibration:
+    """``cal`` whose output is a x (old output) + b, with ``record`` in its provenance."""
+    if not (np.isfinite(a) and np.isfinite(b) and a > 0):
+        raise InputError(f"recalibration of {cal.name!r}: gain {a:.4g} must be finite and "
+                         "> 0 (the points contradict the calibration's direction)")
+    effects = [dict(e, coef=a * float(e["coef"])) for e in cal.effects]
+    for name, kind, params, coef in ((GAIN_NAME, "strain_level", {"power": 1}, 1.0 - a),
+                                     (OFFSET_NAME, "offset", {}, -b)):
+        old = next((e for e in effects if e["name"] == name), None)
+        if old is None:
+            effects.append({"name": name, "kind": kind, "params": params, "coef": coef})
+        else:
+            old["coef"] = float(old["coef"]) + coef
+    history = [*cal.provenance.get("recalibrations", []), dict(record, gain=a, offset=b)]
+    return replace(cal, effects=effects,
+                   provenance={**cal.provenance, "recalibrations": history})
+
+
+def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
+                bag: str | None = None, sensors: Sequence[str] | None = None,
+                tare: str = "calibration") -> tuple[Calibration, list[str]]:
+    """The recalibrated calibration and one line per sensor (gain, offset, reading).
+
+    ``points``: two (R, S) points (one sensor: ``sensors`` or the calibration's only one);
+    ``bag``: a bag with a reference strain (every calibrated sensor in it). Raises
+    InputError (the input calibration is untouched) when the map cannot be made.
+    """
+    from strain_comp.offline.evaluate import evaluate_recordings
+
+    out = dict(calibration.sensors)
+    lines = []
+    if bag is not None:
+        from strain_comp.io.recording import load_recordings
+
+        result = evaluate_recordings(load_recordings(bag)[0], calibration, tare=tare)
+        for name, ev in result.sensors.items():
+            if sensors and name not in sensors:
+                continue
+            a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
+            out[name] = apply_map(out[name], a, b, {"from": str(bag), "tare": tare})
+            lines.append(f"{name}: {reading(a, b)} (from {bag}, {int(ev.scored.sum())} samples)")
+    else:
+        names = list(sensors or calibration.sensors)
+        if len(names) != 1:
+            raise InputError("recalibrate --point: name one --sensor (the calibration has "
+                             f"{', '.join(calibration.sensors)})")
+        name = names[0]
+        if name not in calibration.sensors:
+            raise InputError(f"sensor {name!r} is not in the calibration "
+                             f"({', '.join(calibration.sensors)})")
+        a, b = map_from_points(out[name], points)
+        out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
+        lines.append(f"{name}: {reading(a, b)} (through {len(points)} points)")
+    return Calibration(out), lines
+
+
+def reading(a: float, b: float) -> str:
+    """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
+    (the sensor's sensitivity against the calibration's is 1 / a)."""
+    return (f"output gain {a:.4g} (sensitivity {100.0 * (1.0 / a - 1.0):+.1f} %), "
+            f"offset {b:+.3g} % strain")

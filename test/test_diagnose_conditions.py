@@ -1,0 +1,74 @@
+"""Tare and measurement-chain conditions around the residual loop, with injected truth."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.diagnosis.conditions import diagnose_conditions
+from strain_comp.diagnosis.report import effect_reading
+from strain_comp.io.recording import Recording
+from strain_comp.offline.fit import fit_sensor
+
+
+def run(seed: int, *, alternation: float = 0.0, start_bump: float = 0.0) -> Recording:
+    """Rest 5 s, then 0 -> 10 % triangles (20 s period) at 10 Hz; R = 1000 (1 + 0.02 S)
+    with 1 ohm of white noise, an optional alternation and an optional warm-up bump of
+    the first 5 s."""
+    rng = np.random.default_rng(seed)
+    t = 0.1 * np.arange(1500)
+    phase = np.clip(t - 5.0, 0.0, None) % 20.0
+    s = np.where(t < 5.0, 0.0, 10.0 * (1.0 - np.abs(phase - 10.0) / 10.0))
+    r = 1000.0 * (1.0 + 0.02 * s) + rng.standard_normal(t.size)
+    r += alternation * (-1.0) ** np.arange(t.size) + start_bump * (t < 5.0)
+    return Recording("s1", t, r, s)
+
+
+@pytest.fixture(scope="module")
+def calibration() -> Calibration:
+    return Calibration({"s1": fit_sensor([run(0)], "cubic", name="s1")})
+
+
+def chosen(result: object) -> list[str]:
+    return [c["name"] for c in result.conditions if c["chosen"]]  # type: ignore[attr-defined]
+
+
+def test_alternation_is_found_corrected_and_reported(calibration: Calibration) -> None:
+    result = diagnose_conditions({"s1": run(1, alternation=20.0)}, calibration,
+                                 validate_recordings={"s1": run(2, alternation=20.0)})
+    assert chosen(result) == ["alternation"]
+    assert result.calibration.sensors["s1"].input.alternation
+    rows = {c["name"]: c for c in result.conditions}
+    assert "alternation +-20" in rows["alternation"]["reading"]
+    # the pair means remove it before any loop term does
+    assert rows["alternation"]["before"] < 0.1 * rows["as calibrated"]["before"]
+
+
+def test_a_tare_that_worsens_held_out_error_is_not_chosen(calibration: Calibration) -> None:
+    # the runs do not start at their rest level: a tare reads a warm-up transient
+    result = diagnose_conditions({"s1": run(3, start_bump=40.0)}, calibration,
+                                 validate_recordings={"s1": run(5, start_bump=-40.0)},
+                                 tare="auto")
+    rows = {c["name"]: c for c in result.conditions}
+    assert rows["tare"]["after"] > rows["as calibrated"]["after"]
+    assert chosen(result) == ["as calibrated"]
+
+
+def test_a_tare_that_helps_is_chosen(calibration: Calibration) -> None:
+    plain = run(4)
+    shifted = replace(plain, r=1.3 * plain.r)
+    result = diagnose_conditions({"s1": shifted}, calibration,
+                                 validate_recordings={"s1": shifted}, tare="auto")
+    assert chosen(result) == ["tare"]
+
+
+def test_readings_name_the_physics() -> None:
+    assert effect_reading("strain_level", {"power": 1}, 0.2) == \
+        "sensitivity +25.0 % against calibration"
+    assert effect_reading("elapsed", {"form": "linear", "scale": 100.0}, 0.01) == \
+        "drift +0.36 % strain/h"
+    assert "relaxation tau 22.6 s" in effect_reading(
+        "relaxation", {"tau": 22.6, "branch": "loading"}, 0.1, 0.4)

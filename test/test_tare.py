@@ -1,0 +1,186 @@
+"""Tare and two-point recalibration against known truth on short synthetic runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from strain_comp.cli import main as cli
+from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.engine import Engine
+from strain_comp.core.tare import (
+    rest_resistance_at_start,
+    rest_resistance_from_reference,
+    tare_engine,
+)
+from strain_comp.errors import InputError
+from strain_comp.io.recording import Recording
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.recalibrate import apply_map, map_from_pairs, recalibrate, steady_output
+
+R0 = 1000.0
+
+
+def strain_profile(t: np.ndarray, rest: float = 5.0) -> np.ndarray:
+    """Rest for ``rest`` s, then 0 -> 20 % triangles of 10 s period."""
+    phase = np.clip(t - rest, 0.0, None) % 10.0
+    return np.where(t < rest, 0.0, 20.0 * (1.0 - np.abs(phase - 5.0) / 5.0))
+
+
+def gauge(s: np.ndarray, r0: float = R0) -> np.ndarray:
+    """A static sensor: R = r0 (1 + 0.02 S + 2e-4 S^2)."""
+    return r0 * (1.0 + 0.02 * s + 2e-4 * s ** 2)
+
+
+def run(r0: float = R0, *, alternation: float = 0.0, seconds: float = 40.0) -> Recording:
+    t = np.arange(0.0, seconds, 0.1)
+    s = strain_profile(t)
+    r = gauge(s, r0) + alternation * (-1.0) ** np.arange(t.size)
+    return Recording("s1", t, r, s)
+
+
+@pytest.fixture(scope="module")
+def cubic() -> Calibration:
+    return Calibration({"s1": fit_sensor([run()], "cubic", name="s1")})
+
+
+def test_fit_stores_the_rest_resistance_of_the_first_rest(cubic: Calibration) -> None:
+    assert cubic.sensors["s1"].rest_resistance == pytest.approx(R0, rel=1e-9)
+
+
+def test_rest_from_reference_uses_the_first_rest_when_the_run_starts_moving() -> None:
+    t = np.arange(0.0, 30.0, 0.1)
+    s = strain_profile(t, rest=0.0)
+    s[(t > 10.0) & (t < 12.0)] = 0.0  # a rest after the first cycle
+    r = gauge(s) + 30.0 * (t > 9.5)  # softened: rests higher after loading
+    assert rest_resistance_from_reference(t, r, s) == pytest.approx(R0, abs=5.0)
+    # not at rest at the start: the first stay at rest
+    assert rest_resistance_from_reference(t[3:], r[3:], s[3:]) == pytest.approx(R0 + 30.0,
+                                                                                abs=5.0)
+
+
+def test_rest_at_start_cancels_alternation_and_spikes(cubic: Calibration) -> None:
+    rec = run(1234.0, alternation=40.0)
+    r = rec.r.copy()
+    r[7] = 5e4  # an isolated spike
+    r[3] = np.nan  # a bad sample
+    rest = rest_resistance_at_start(rec.t, r, cubic.sensors["s1"].direction)
+    assert rest == pytest.approx(1234.0, abs=1.0)
+
+
+def test_rest_at_start_refuses_a_run_that_starts_moving(cubic: Calibration) -> None:
+    t = np.arange(0.0, 10.0, 0.1)
+    with pytest.raises(InputError, match="does not start at rest"):
+        rest_resistance_at_start(t, gauge(strain_profile(t, rest=0.0)),
+                                 cubic.sensors["s1"].direction)
+
+
+def test_auto_tare_makes_a_shifted_run_read_like_the_calibrated_one(cubic: Calibration,
+                                                                     ) -> None:
+    same = evaluate_recordings({"s1": run()}, cubic).sensors["s1"].stats.rmse
+    shifted = {"s1": run(1.4 * R0)}
+    untared = evaluate_recordings(shifted, cubic).sensors["s1"].stats.rmse
+    result = evaluate_recordings(shifted, cubic, tare="auto")
+    assert same < 0.05
+    assert untared > 5.0
+    assert result.sensors["s1"].stats.rmse == pytest.approx(same, abs=0.02)
+    assert any("40.0 % above calibration" in note for note in result.notes)
+
+
+def test_failed_auto_tare_keeps_the_old_gain(cubic: Calibration) -> None:
+    engine = Engine(cubic)
+    engine.set_input_gain("s1", 0.5)
+    t = np.arange(0.0, 10.0, 0.1)
+    lines = tare_engine(engine, {"s1": (t, gauge(strain_profile(t, rest=0.0)))}, "auto")
+    assert "not tared" in lines["s1"]
+    assert engine.input_gain("s1") == 0.5
+
+
+def test_two_point_recalibration_passes_through_both_points(cubic: Calibration) -> None:
+    cal = cubic.sensors["s1"]
+    points = [(float(gauge(np.array(2.0))), 3.0), (float(gauge(np.array(15.0))), 17.0)]
+    new, lines = recalibrate(cubic, points=points)
+    for r, s in points:
+        assert steady_output(new.sensors["s1"], r) == pytest.approx(s, abs=1e-6)
+    assert new.sensors["s1"].provenance["recalibrations"][0]["points"] == [list(p)
+                                                                           for p in points]
+    assert "output gain" in lines[0]
+    assert cal.effects == []  # the input calibration is untouched
+
+
+def test_recalibration_map_is_applied_alike_by_step_and_run(cubic: Calibration) -> None:
+    new = Calibration({"s1": apply_map(cubic.sensors["s1"], 1.3, -0.7, {})})
+    rec = run()
+    batch = Engine(new).run("s1", rec.t, rec.r).strain
+    engine = Engine(new)
+    stepped = np.array([engine.step("s1", t, r).strain for t, r in zip(rec.t, rec.r,
+                                                                          strict=True)])
+    old = Engine(cubic).run("s1", rec.t, rec.r).strain
+    np.testing.assert_allclose(batch, stepped, atol=1e-9)
+    inside = (old > 1.0) & (old < 14.0)  # away from the clamp of the valid range
+    np.testing.assert_allclose(batch[inside], 1.3 * old[inside] - 0.7, atol=1e-9)
+
+
+def test_least_squares_map_recovers_a_known_gain_and_offset() -> None:
+    estimate = np.linspace(0.0, 20.0, 50)
+    reference = 0.8 * estimate + 1.5
+    reference[3] = np.nan
+    assert map_from_pairs(estimate, reference) == pytest.approx((0.8, 1.5))
+
+
+def test_cli_recalibrate_refuses_its_input_as_output_and_keeps_it(cubic: Calibration,
+                                                                  tmp_path: Path) -> None:
+    path = tmp_path / "cal.yaml"
+    save_calibration(cubic, path)
+    before = path.read_bytes()
+    code = cli(["recalibrate", str(path), "--point", "1040:2", "--point", "1300:15",
+                "--out", str(path)])
+    assert code == 2
+    assert path.read_bytes() == before
+    out = tmp_path / "cal2.yaml"
+    assert cli(["recalibrate", str(path), "--point", "1040:2", "--point", "1300:15",
+                "--out", str(out)]) == 0
+    assert load_calibration(out).sensors["s1"].effects[-1]["name"] == "recalibration_offset"
+    assert yaml.safe_load(out.read_text())["sensors"]["s1"]["provenance"]["recalibrations"]
+
+
+def test_in_run_bound_is_the_same_model_fitted_on_the_evaluated_run(cubic: Calibration,
+                                                                    tmp_path: Path) -> None:
+    from strain_comp.offline.evaluate import in_run_bound
+
+    other = {"s1": run(1.2 * R0)}
+    result = evaluate_recordings(other, cubic)
+    assert "in_run_rmse" not in result.to_json()["sensors"]["s1"]
+    in_run_bound(result, other, cubic)
+    own = fit_sensor([other["s1"]], "cubic", name="s1")
+    expected = evaluate_recordings(other, Calibration({"s1": own})).sensors["s1"].stats.rmse
+    assert result.sensors["s1"].in_run_rmse == pytest.approx(expected)
+    assert result.sensors["s1"].in_run_rmse < 0.05 < result.sensors["s1"].stats.rmse
+    assert result.to_json()["sensors"]["s1"]["in_run_rmse"] == pytest.approx(expected)
+
+
+def test_cli_evaluate_tare_auto_with_bound_and_recalibrate_from_a_bag(cubic: Calibration,
+                                                                       tmp_path: Path) -> None:
+    import json
+
+    from strain_comp.io.csv_import import write_recording_bag
+
+    cal, bag = tmp_path / "cal.yaml", tmp_path / "shifted.mcap"
+    save_calibration(cubic, cal)
+    write_recording_bag(run(1.25 * R0), str(bag))
+    out = tmp_path / "e.json"
+    assert cli(["evaluate", str(bag), "--calibration", str(cal), "--tare", "auto",
+                "--in-run-bound", "--json", str(out)]) == 0
+    record = json.loads(out.read_text())["sensors"]["s1"]
+    assert record["rmse"] < 0.05 and record["in_run_rmse"] < 0.05
+    # without a tare the shifted run reads wrong; a recalibration from it repairs the
+    # part inside the valid range, where the output map is affine
+    cal2 = tmp_path / "cal2.yaml"
+    assert cli(["recalibrate", str(cal), "--from", str(bag), "--out", str(cal2)]) == 0
+    prov = load_calibration(cal2).sensors["s1"].provenance["recalibrations"][0]
+    assert prov["from"] == str(bag) and prov["tare"] == "calibration"
+    assert cli(["recalibrate", str(cal), "--from", str(bag), "--out", str(bag)]) == 2
