@@ -109,7 +109,7 @@ class _Replay:
                 if inp is not None:
                     self.written.update(f"/{inp.name}/{what}" for what in OUTPUTS)
                     series = contents.series[topic]
-                    values = series.values.reshape(series.t.size, -1)
+                    values = series.values if series.values.ndim == 2 else series.values[:, None]
                     tared = tare_engine(self.engine, {s: (series.t, values[:, j])
                                                       for j, s in enumerate(inp.sensors)},
                                         self.tare)
