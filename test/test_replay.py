@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import cubic_cal, lag_cal, noisy_stream
 
-from strain_comp.core.calibration import Calibration
-from strain_comp.core.engine import Status
+from strain_comp.core.calibration import Calibration, load_calibration
+from strain_comp.core.engine import Engine, Status
+from strain_comp.core.tare import rest_resistance_at_start
 from strain_comp.errors import BagError
 from strain_comp.io.bag import SCHEMAS, BagWriter, read_bag
 from strain_comp.offline.replay import replay_bag
@@ -140,3 +144,21 @@ def test_array_without_labels_replays_under_column_names(tmp_path) -> None:
     out = read_bag(tmp_path / "out.mcap")
     assert out.labels["/arr/strain"] == ["arr_0", "arr_1", "arr_2"]
     assert np.allclose(out.series["/arr/strain"].values, strain, atol=1e-6)
+
+
+def test_replay_with_auto_tare_equals_the_engine_tared_at_the_run_start(tmp_path: Path) -> None:
+    """``tare="auto"``: the streamed replay tares each sensor from the start of its run,
+    exactly as an engine tared by hand with ``rest_resistance_at_start``."""
+    root = Path(__file__).resolve().parents[1]
+    bag = root / "bags" / "demo_rates.mcap"
+    demo = load_calibration(root / "config" / "demo_calibration.yaml")
+    name, sensor = next(iter(demo.sensors.items()))
+    series = read_bag(bag).series[f"/{name}/resistance"]
+    rest = rest_resistance_at_start(series.t, series.values, sensor.direction)
+    calibration = Calibration({name: replace(sensor, rest_resistance=0.9 * rest)})
+    replay_bag(bag, calibration, tmp_path / "out.mcap", tare="auto", window=5000)
+    engine = Engine(calibration)
+    assert engine.tare(name, rest) == pytest.approx(0.9)
+    expected = engine.run(name, series.t, series.values).strain
+    got = read_bag(tmp_path / "out.mcap").series[f"/{name}/strain"].values
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
