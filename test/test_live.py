@@ -11,8 +11,9 @@ import pytest
 from conftest import cubic_cal
 
 from strain_comp.core.calibration import Calibration
+from strain_comp.core.tare import TARE_WINDOW, rest_resistance_at_start
 from strain_comp.errors import InputError, ParameterError
-from strain_comp.ros.live import AUTO_TARE_S, ClockGate, LiveCompensator, array_values
+from strain_comp.ros.live import ClockGate, LiveCompensator, array_values
 from strain_comp.ros.params import parse_values
 
 
@@ -66,13 +67,28 @@ def test_tare_takes_the_recent_median_all_or_nothing(tmp_path: Path) -> None:
 
 def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
     node = live(tmp_path, tare="auto")
-    t = np.arange(0.0, AUTO_TARE_S + 0.5, 0.01)
+    t = np.arange(0.0, TARE_WINDOW + 0.5, 0.01)
     for ti in t:
         node.on_sensor("s1", float(ti), 140.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
     assert node.tare_log and "auto tare" in node.tare_log[0]
     with pytest.raises(ParameterError, match="auto needs 'rest_resistance'"):
         live(tmp_path, tare="auto", rest=None)
+
+
+def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path) -> None:
+    """An alternating rest, then a ramp: the node tares once the detector leaves hold, with
+    exactly the rest resistance ``--tare auto`` computes offline from the same samples."""
+    node = live(tmp_path, tare="auto")
+    t = np.arange(0.0, 3.0, 0.01)
+    r = 140.0 + 2.0 * (-1.0) ** np.arange(t.size) + np.where(t > 1.0, 60.0 * (t - 1.0), 0.0)
+    for ti, ri in zip(t, r, strict=True):
+        node.on_sensor("s1", float(ti), float(ri))
+    assert node.tare_log, "no auto tare although the run started at rest"
+    direction = node.params.calibration.sensors["s1"].direction
+    expected = rest_resistance_at_start(t, r, direction)
+    assert expected == pytest.approx(140.0, abs=0.5)
+    assert node.engine.input_gain("s1") == pytest.approx(150.0 / expected, rel=1e-12)
 
 
 def test_diagnostics_error_stale_and_transport_recovery(tmp_path: Path) -> None:

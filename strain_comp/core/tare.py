@@ -44,7 +44,7 @@ REST_BAND = 0.02
 """Reference strain within this share of its span above its minimum counts as rest."""
 
 
-def _rest_level(r: np.ndarray) -> float:
+def rest_level(r: np.ndarray) -> float:
     """Median of pair means (cancels alternation every other sample, ignores spikes)."""
     return float(np.median(0.5 * (r[:-1] + r[1:]) if r.size >= 2 else r))
 
@@ -80,7 +80,7 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
     if stop < MIN_REST_SAMPLES:
         raise InputError(f"tare: the run does not start at rest (the direction detector "
                          f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} needed)")
-    return _rest_level(ra[:stop])
+    return rest_level(ra[:stop])
 
 
 def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
@@ -107,7 +107,7 @@ def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
         if start == 0 or stop - start >= MIN_REST_SAMPLES:
             end = min(int(stop), int(np.searchsorted(ta, ta[start] + TARE_WINDOW,
                                                      side="right")))
-            return _rest_level(ra[start:end])
+            return rest_level(ra[start:end])
     return None
 
 

@@ -16,12 +16,14 @@ so the input takes its own tick's time either way.
 Tare (multiplicative, ``Engine.tare``): the zero is a rest resistance R0 measured now, the
 models then see R x (calibration rest resistance / R0).
 
-- ``tare()`` (the node's ``~/tare`` service): R0 = median of each sensor's good samples of the
-  last ``TARE_WINDOW_S`` seconds; all sensors or none (a refusal names each reason).
-- ``tare: auto`` (parameter): R0 = median of the good samples, taken while the direction
-  detector says hold, of the first ``AUTO_TARE_S`` seconds after a sensor's first good sample;
-  the window restarts if it holds fewer than ``AUTO_TARE_MIN`` such samples. Until then the
-  calibration's zero is used.
+- ``tare()`` (the node's ``~/tare`` service): R0 = ``core.tare.rest_level`` (median of pair
+  means) of each sensor's good samples of the last ``TARE_WINDOW_S`` seconds; all sensors or
+  none (a refusal names each reason).
+- ``tare: auto`` (parameter): R0 = ``core.tare.rest_resistance_at_start``, the rule
+  ``--tare auto`` applies offline, on the good samples since a sensor's first good sample,
+  evaluated once the engine's detector leaves hold or ``core.tare.TARE_WINDOW`` seconds have
+  passed (at most the last ``RING`` samples). If the run did not start at rest, the window
+  starts again at that moment. Until then the calibration's zero is used.
 """
 
 from __future__ import annotations
@@ -35,15 +37,12 @@ import numpy as np
 
 from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.engine import USED, ArrayOutput, Engine, SensorOutput, Status, diagnostics
+from strain_comp.core.tare import TARE_WINDOW, rest_level, rest_resistance_at_start
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
 TARE_WINDOW_S = 0.5
 """``~/tare``: the rest resistance is the median of the good samples of this last span [s]."""
-AUTO_TARE_S = 2.0
-"""``tare: auto``: length of the first rest window [s]."""
-AUTO_TARE_MIN = 5
-"""``tare: auto``: fewest hold samples a window needs."""
 RING = 4096
 """Recent samples kept per input for the tare."""
 BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
@@ -102,32 +101,30 @@ class ClockGate:
 
 @dataclass
 class _Recent:
-    """Ring of an input's latest raw samples (columns: its sensors) and their used flags."""
+    """Ring of an input's latest raw samples (columns: its sensors) and their good flags."""
 
     k: int
     t: np.ndarray = field(init=False)
     raw: np.ndarray = field(init=False)
     good: np.ndarray = field(init=False)
-    hold: np.ndarray = field(init=False)
     n: int = 0
 
     def __post_init__(self) -> None:
         self.t = np.full(RING, -math.inf)
         self.raw = np.zeros((RING, self.k))
         self.good = np.zeros((RING, self.k), dtype=bool)
-        self.hold = np.zeros((RING, self.k), dtype=bool)
 
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray, direction: np.ndarray) -> None:
+    def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
         i = self.n % RING
         self.t[i], self.raw[i] = t, raw
         self.good[i] = status == Status.GOOD
-        self.hold[i] = self.good[i] & (direction == 0)
         self.n += 1
 
-    def since(self, t0: float, column: int, *, hold: bool = False) -> np.ndarray:
-        """Raw values of ``column`` with time >= t0 that were good (and at rest if ``hold``)."""
-        mask = (self.t >= t0) & (self.hold if hold else self.good)[:, column]
-        return self.raw[mask, column]
+    def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
+        """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
+        mask = (self.t >= t0) & self.good[:, column]
+        order = np.argsort(self.t[mask], kind="stable")
+        return self.t[mask][order], self.raw[mask, column][order]
 
 
 class LiveCompensator:
@@ -193,10 +190,10 @@ class LiveCompensator:
     def _seen(self, name: str, t: float, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
         recent = self._recent[name]
-        recent.add(t, raw, status, direction)
+        recent.add(t, raw, status)
         self._last_message[name] = t
         if self._auto:
-            self._auto_tare(name, t, recent, status)
+            self._auto_tare(name, t, recent, status, direction)
 
     # --- tare -----------------------------------------------------------------------------
 
@@ -206,25 +203,30 @@ class LiveCompensator:
             return divider_to_resistance(raw, *cal.input.divider())
         return raw
 
-    def _auto_tare(self, name: str, t: float, recent: _Recent, status: np.ndarray) -> None:
+    def _auto_tare(self, name: str, t: float, recent: _Recent, status: np.ndarray,
+                   direction: np.ndarray) -> None:
         for column, sensor in enumerate(self._inputs[name]):
             start = self._auto.get(sensor)
             if start is None:
                 continue
+            good = status[column] == Status.GOOD
             if math.isnan(start):
-                if status[column] == Status.GOOD:
+                if good:
                     self._auto[sensor] = t
                 continue
-            if t - start < AUTO_TARE_S:
+            if t - start < TARE_WINDOW and not (good and direction[column] != 0):
                 continue
-            rest = self._ohm(sensor, recent.since(start, column, hold=True))
-            if rest.size < AUTO_TARE_MIN:
-                self._auto[sensor] = t  # not enough rest: try the next window
+            times, raw = recent.since(start, column)
+            cal = self.params.calibration.sensors[sensor]
+            try:
+                rest = rest_resistance_at_start(times, self._ohm(sensor, raw), cal.direction)
+            except InputError:
+                self._auto[sensor] = t  # the run did not start at rest: try from now
                 continue
-            gain = self.engine.tare(sensor, float(np.median(rest)))
+            gain = self.engine.tare(sensor, rest)
             del self._auto[sensor]
-            self.tare_log.append(f"{sensor}: auto tare: rest resistance "
-                                 f"{float(np.median(rest)):.6g} ohm, input gain {gain:.6g}")
+            self.tare_log.append(f"{sensor}: auto tare: rest resistance {rest:.6g} ohm, "
+                                 f"input gain {gain:.6g}")
 
     def tare(self) -> str:
         """Make each sensor's current rest resistance its zero (all or none); the summary.
@@ -238,13 +240,13 @@ class LiveCompensator:
             recent = self._recent[name]
             latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
             for column, sensor in enumerate(sensors):
-                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column))
+                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
                 if self.params.calibration.sensors[sensor].rest_resistance is None:
                     problems.append(f"{sensor}: the calibration stores no rest_resistance")
                 elif values.size == 0:
                     problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
                 else:
-                    rests[sensor] = float(np.median(values))
+                    rests[sensor] = rest_level(values)
         if problems:
             raise ParameterError("tare", "refused: " + "; ".join(problems))
         for sensor, rest in rests.items():
