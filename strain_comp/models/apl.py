@@ -54,6 +54,7 @@ The current held-out figures of every model are the README's tables
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import time
@@ -216,7 +217,7 @@ class _CellModel(Compensator):
             sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
             refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
             ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
-            search_top: int = 5, workers: int = 1,
+            search_top: int = 5, workers: int | None = None,
             progress: bool | Callable[[str], None] = True, **options: Any) -> _CellModel:
         """Fit w, mu by the QP and the output-error refinement, searching sigma and p
         (module docstring).
@@ -226,10 +227,8 @@ class _CellModel(Compensator):
         ``output_nfev``: residual evaluations of the final output-error refinement (0: the
         paper's QP only); ``search_nfev``: those per scored point of the search (0: the
         search scores the QP solutions); ``search_top``: grid points re-scored with it.
-        ``workers``: threads scoring the sigma/p grid (the result does not depend on it).
-        Default 1: measured on a 2-core machine, threads were slower than the serial
-        search (numpy's BLAS already uses the cores, and the bounded QP solver holds the
-        GIL for much of its time); ``bench/bench_fit.py`` measures both. ``progress``:
+        ``workers``: threads scoring the sigma/p grid (default: one per core; the result
+        does not depend on it; ``bench/bench_fit.py`` times it against 1). ``progress``:
         True prints a line per grid row to stderr once the fit has run for more than 2 s;
         a callable receives those lines instead; False is silent.
         """
@@ -239,7 +238,7 @@ class _CellModel(Compensator):
             _check_shape(N, M)
         except ParameterError as exc:
             raise FitError(f"{cls.name}: {exc}") from None
-        if not (isinstance(workers, int) and workers >= 1):
+        if workers is not None and not (isinstance(workers, int) and workers >= 1):
             raise FitError(f"{cls.name}: workers must be an integer >= 1")
         if cell_weights not in ("signed", "free"):
             raise FitError(f"{cls.name}: cell_weights must be 'signed' or 'free'")
@@ -263,7 +262,7 @@ class _CellModel(Compensator):
         say = _progress_printer(progress, cls.name)
         grid: list[_Solution] = []
         # the grid points are independent and their kernels release the GIL: threads
-        with ThreadPoolExecutor(max_workers=workers) as pool:
+        with ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
             rows = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
                     for sigma in sigmas]
             for i, (sigma, row) in enumerate(zip(sigmas, rows, strict=True)):
