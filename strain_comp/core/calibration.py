@@ -39,9 +39,12 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 import yaml
 
 from strain_comp import __version__
+from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
 from strain_comp.errors import CalibrationError, ParameterError
@@ -75,6 +78,12 @@ class InputSettings:
         if self.kind == "divider":
             return {"kind": "divider", "r1": self.r1, "vin": self.vin, **extra}
         return {"kind": "resistance", **extra}
+
+    def to_ohm(self, raw: npt.ArrayLike) -> np.ndarray:
+        """Resistance [ohm] of raw input values (divider readings outside (0, Vin): NaN)."""
+        if self.kind == "divider":
+            return divider_to_resistance(raw, *self.divider())
+        return np.asarray(raw, dtype=np.float64)
 
     def divider(self) -> tuple[float, float]:
         """(r1 [ohm], vin [V]) of a ``divider`` input; ParameterError for other kinds."""

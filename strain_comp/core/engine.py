@@ -52,7 +52,7 @@ from strain_comp._numba import njit
 from strain_comp.core import samples as sc
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.chain import pair_means
-from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.direction import (
     STATE_SIZE,
     DirectionDetector,
@@ -268,10 +268,10 @@ class _Sensor:
         forced = np.zeros(raw.shape, dtype=np.int8)
         if self.cal.input.kind != "divider":
             return raw * self.gain if self.gain != 1.0 else raw, forced
-        r1, vin = self.cal.input.divider()
+        _, vin = self.cal.input.divider()
         forced[raw <= 0.0] = Status.OPEN_CIRCUIT
         forced[raw >= vin] = Status.SHORT_CIRCUIT
-        return divider_to_resistance(raw, r1, vin) * self.gain, forced
+        return self.cal.input.to_ohm(raw) * self.gain, forced
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""

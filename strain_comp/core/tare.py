@@ -29,7 +29,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionDetector, DirectionSettings
 from strain_comp.errors import InputError
 
@@ -145,13 +144,8 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
         if cal.rest_resistance is None:
             lines[name] = "not tared: the calibration stores no rest_resistance (refit it)"
             continue
-        ohm = np.asarray(r, dtype=np.float64)
-        if cal.input.kind == "divider" and cal.input.r1 is not None \
-                and cal.input.vin is not None:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ohm = divider_to_resistance(ohm, cal.input.r1, cal.input.vin)
         try:
-            rest = rest_resistance_at_start(t, ohm, cal.direction)
+            rest = rest_resistance_at_start(t, cal.input.to_ohm(r), cal.direction)
         except InputError as err:
             lines[name] = f"not tared: {err}"
             continue

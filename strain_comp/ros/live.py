@@ -35,7 +35,6 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.engine import USED, ArrayOutput, Engine, SensorOutput, Status, diagnostics
 from strain_comp.core.tare import TARE_WINDOW, rest_level, rest_resistance_at_start
 from strain_comp.errors import InputError, ParameterError, StrainCompError
@@ -198,10 +197,7 @@ class LiveCompensator:
     # --- tare -----------------------------------------------------------------------------
 
     def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
-        cal = self.params.calibration.sensors[sensor]
-        if cal.input.kind == "divider":
-            return divider_to_resistance(raw, *cal.input.divider())
-        return raw
+        return self.params.calibration.sensors[sensor].input.to_ohm(raw)
 
     def _auto_tare(self, name: str, t: float, recent: _Recent, status: np.ndarray,
                    direction: np.ndarray) -> None:
