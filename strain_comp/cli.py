@@ -171,20 +171,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from strain_comp.core.calibration import load_calibration
     from strain_comp.io.recording import load_recordings
     from strain_comp.offline.evaluate import (
-        evaluate_recordings,
+        PLOT_POINTS,
+        evaluate_bag,
         format_notes,
         format_table,
         in_run_bound,
     )
 
     calibration = load_calibration(args.calibration)
-    recordings, problems = load_recordings(args.bag)
-    try:
-        result = evaluate_recordings(recordings, calibration, tare=args.tare)
-    except InputError as err:  # nothing to score: say what the bag reader skipped, if anything
-        raise InputError("; ".join([f"{args.bag}: {err}", *problems])) from None
-    if args.in_run_bound:
-        in_run_bound(result, recordings, calibration)
+    # streamed; an error when nothing can be scored names what the bag reader skipped
+    result, problems = evaluate_bag(args.bag, calibration, tare=args.tare,
+                                    plot_points=PLOT_POINTS if args.plots else 0)
+    if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
+        in_run_bound(result, load_recordings(args.bag)[0], calibration)
     print(format_table(result))
     for line in problems + format_notes(result):
         print(line)

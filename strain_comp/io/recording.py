@@ -13,6 +13,7 @@ reference's time span and NaN outside it (never extrapolated).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,6 +69,81 @@ def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.n
     inside = (t >= t_src[0]) & (t <= t_src[-1])
     out[inside] = np.interp(t[inside], t_src, values)
     return out
+
+
+class PieceAlign:
+    """``align`` of a source series onto target stamps when both arrive in time-ordered
+    pieces (``iter_bag``), equal to ``align`` over the whole series.
+
+    While every piece's target stamps are its source stamps, values are copied (``align``'s
+    exact case); from the first piece where they differ on, values are interpolated
+    between the finite source samples, NaN before the first and after the last. A target's
+    value is known once a finite source sample at or after it has arrived (or none has yet:
+    it lies before the first) or at ``finish``; ``horizon`` is the latest target time
+    known. Only the latest finite source sample at or before the known targets is held.
+    Pieces copied before the stamps first differ keep their copies (``align`` over the
+    whole series would interpolate them; the two differ only at NaN source values).
+    """
+
+    def __init__(self) -> None:
+        self.exact = True
+        self.finished = False
+        self.copied: list[np.ndarray] = []
+        """Copied values of the leading waiting targets (pieces with identical stamps)."""
+        self.src_t = np.empty(0)
+        self.src_v = np.empty(0)
+
+    def add(self, t: np.ndarray, t_src: np.ndarray, values: np.ndarray) -> None:
+        """The next piece: its target stamps ``t`` and its source samples."""
+        t_src = np.asarray(t_src, dtype=np.float64)
+        values = np.asarray(values, dtype=np.float64)
+        if self.exact and t_src.shape == t.shape and np.array_equal(t_src, t):
+            if t.size:
+                self.copied.append(values.copy())
+        elif t.size or t_src.size:
+            self.exact = False
+        ok = np.isfinite(t_src) & np.isfinite(values)
+        if not ok.any():
+            return
+        t_src = np.concatenate((self.src_t, t_src[ok]))
+        values = np.concatenate((self.src_v, values[ok]))
+        order = np.argsort(t_src, kind="stable")
+        t_src, values = t_src[order], values[order]
+        last = np.append(t_src[1:] != t_src[:-1], True)
+        self.src_t, self.src_v = t_src[last], values[last]
+        if self.exact:  # held for the piece where the stamps first differ
+            self.src_t, self.src_v = self.src_t[-1:], self.src_v[-1:]
+
+    def finish(self) -> None:
+        """No more pieces: every waiting target is known."""
+        self.finished = True
+
+    def horizon(self) -> float:
+        """The latest target time whose value is known."""
+        if self.exact or self.finished or self.src_t.size == 0:
+            return math.inf
+        return float(self.src_t[-1])
+
+    def take(self, t: np.ndarray) -> np.ndarray:
+        """Values at the next waiting targets ``t`` (in order, none after ``horizon``)."""
+        out = np.full(t.size, np.nan)
+        done = 0
+        while self.copied and done < t.size:
+            head = self.copied[0]
+            n = min(head.size, t.size - done)
+            out[done:done + n] = head[:n]
+            done += n
+            if n == head.size:
+                self.copied.pop(0)
+            else:
+                self.copied[0] = head[n:]
+        rest = t[done:]
+        if rest.size and self.src_t.size:
+            inside = (rest >= self.src_t[0]) & (rest <= self.src_t[-1])
+            out[done:][inside] = np.interp(rest[inside], self.src_t, self.src_v)
+            keep = max(int(np.searchsorted(self.src_t, rest[-1], side="right")) - 1, 0)
+            self.src_t, self.src_v = self.src_t[keep:], self.src_v[keep:]
+        return out
 
 
 def hold_latest(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
@@ -160,5 +236,5 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     return recordings, contents.problems + located(path, problems)
 
 
-__all__ = ["Recording", "align", "array_sensor_names", "hold_latest", "load_recordings",
-           "recordings_from_bag"]
+__all__ = ["PieceAlign", "Recording", "align", "array_sensor_names", "hold_latest",
+           "load_recordings", "recordings_from_bag"]

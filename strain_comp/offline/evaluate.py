@@ -11,11 +11,25 @@ short circuit, time not increasing) the engine holds its estimate, and those are
 not scored.
 Out-of-range samples are scored like any other and counted: the flag warns, it does not
 hide the error. The engine clamps estimates to the valid strain range plus a margin.
+
+``evaluate_bag`` (the ``evaluate`` command) does the same on a bag read piece by piece
+(``strain_comp.io.bag.iter_bag``), in memory bounded independently of the bag's length: the
+engine carries its state from piece to piece exactly, the reference and temperature are
+aligned across pieces (``strain_comp.io.recording.PieceAlign``), the statistics are running
+sums (``strain_comp.core.metrics.ErrorAccumulator``) and the status counts cumulative. Its
+numbers are ``evaluate_recordings``'s on the whole recordings (equal to rounding; a bag of
+one piece gives the same bits). What waits between pieces is the samples after the latest
+reference (or temperature) sample read so far: bounded when the reference runs with the
+resistance, the whole tail when a reference stops before the bag ends. Arrays for plots are
+kept only when asked for, decimated to at most ``PLOT_POINTS`` evenly spaced samples per
+sensor (the statistics use every sample). ``in_run_bound`` fits a model to the whole run:
+it needs the recordings loaded whole (``load_recordings``).
 """
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -23,11 +37,24 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.metrics import ErrorStats, error_stats
+from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
 from strain_comp.errors import InputError
+from strain_comp.io.bag import BagContents, iter_bag, located
+from strain_comp.io.bag.reader import WINDOW
+from strain_comp.io.recording import (
+    REFERENCE,
+    RESISTANCE,
+    TEMPERATURE,
+    PieceAlign,
+    Recording,
+    array_sensor_names,
+)
 
 if TYPE_CHECKING:
-    from strain_comp.io.recording import Recording
+    from strain_comp.core.engine import BatchOutput, Engine
+
+PLOT_POINTS = 50_000
+"""Most samples per sensor ``evaluate_bag`` keeps for plots (evenly spaced)."""
 
 
 @dataclass
@@ -121,10 +148,13 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
             bad_by_status=bad_by_status)
     if not sensors:
-        raise InputError(
-            "no calibrated sensor has a strain_reference in the data (calibration: "
-            f"{', '.join(calibration.sensors)}; data: {', '.join(recordings) or 'none'})")
+        raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def _nothing_scored(calibration: Calibration, names: list[str]) -> str:
+    return ("no calibrated sensor has a strain_reference in the data (calibration: "
+            f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
 
 
 def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
@@ -197,3 +227,295 @@ def format_notes(result: EvaluationResult) -> list[str]:
             lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
                          "calibration's valid range (flagged, scored)")
     return lines + list(result.notes)
+
+
+# --------------------------------------------------------------------------- streamed
+
+
+class _Kept:
+    """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
+    more, every other kept sample goes and the stride doubles)."""
+
+    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored")
+
+    def __init__(self, cap: int) -> None:
+        self.cap = cap
+        self.stride = 1
+        self.n = 0
+        self.index = np.empty(0, np.int64)
+        self.columns: dict[str, np.ndarray] = {}
+
+    def add(self, **columns: np.ndarray) -> None:
+        size = columns["t"].size
+        index = np.arange(self.n, self.n + size)
+        self.n += size
+        take = index % self.stride == 0
+        self.index = np.concatenate((self.index, index[take]))
+        for key in self.FIELDS:
+            new = columns[key][take]
+            self.columns[key] = new if key not in self.columns else \
+                np.concatenate((self.columns[key], new))
+        while self.index.size > self.cap:
+            self.stride *= 2
+            take = self.index % self.stride == 0
+            self.index = self.index[take]
+            self.columns = {k: v[take] for k, v in self.columns.items()}
+
+    def get(self, key: str) -> np.ndarray:
+        return self.columns.get(key, np.empty(0))
+
+
+class _Score:
+    """One sensor's running statistics and cumulative status counts."""
+
+    def __init__(self, plot_points: int) -> None:
+        self.errors = ErrorAccumulator()
+        self.n_samples = 0
+        self.n_bad = 0
+        self.n_out_of_range = 0
+        self.bad: dict[int, int] = {}
+        self.kept = _Kept(plot_points) if plot_points > 0 else None
+
+    def add(self, t: np.ndarray, r: np.ndarray, s: np.ndarray, out: BatchOutput) -> None:
+        from strain_comp.core.engine import used_mask
+
+        estimate = np.asarray(out.strain, dtype=np.float64)
+        status = np.asarray(out.status)
+        good = used_mask(status)
+        scored = good & np.isfinite(s) & np.isfinite(estimate)
+        self.errors.add(estimate[scored], s[scored])
+        self.n_samples += int(t.size)
+        self.n_bad += int(np.sum(~good))
+        self.n_out_of_range += int(np.sum(np.asarray(out.out_of_range)))
+        values, counts = np.unique(status[~good], return_counts=True)
+        for v, c in zip(values.tolist(), counts.tolist(), strict=True):
+            self.bad[int(v)] = self.bad.get(int(v), 0) + int(c)
+        if self.kept is not None:
+            self.kept.add(t=t, r=r, reference=s, estimate=estimate,
+                          direction=np.asarray(out.direction), scored=scored)
+
+    def evaluation(self, name: str, model: str) -> SensorEvaluation:
+        from strain_comp.core.engine import Status
+
+        kept = self.kept or _Kept(0)
+        return SensorEvaluation(
+            name=name, model=model, stats=self.errors.stats(), t=kept.get("t"),
+            r=kept.get("r"), reference=kept.get("reference"), estimate=kept.get("estimate"),
+            direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
+            n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
+            bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())})
+
+
+@dataclass
+class _Input:
+    """One ``/PREFIX/resistance`` topic: its calibrated columns and what waits for the
+    reference (or temperature) to arrive."""
+
+    prefix: str
+    names: list[str]
+    """Calibrated sensors, in column order of ``columns``."""
+    columns: list[int]
+    single: bool
+    group: list[str]
+    """Sensors run together by ``Engine.run_array`` (calibration order), else empty."""
+    temperature: PieceAlign | None
+    """Only when an effect term of a sensor here could read it."""
+    reference: dict[str, PieceAlign]
+    """Per sensor its reference alignment (PieceAlign)."""
+    ref_columns: dict[str, int | None] | None = None
+    """Per sensor its reference column (None: a 1-D reference); None until the reference
+    topic is first seen; empty when it does not fit."""
+    t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    r: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+
+
+class _Stream:
+    """``evaluate_recordings`` carried from one piece of a bag to the next."""
+
+    def __init__(self, calibration: Calibration, engine: Engine, tare: str,
+                 plot_points: int) -> None:
+        self.calibration = calibration
+        self.engine = engine
+        self.tare = tare
+        self.plot_points = plot_points
+        self.inputs: dict[str, _Input | None] = {}
+        self.names: list[str] = []
+        """Every sensor found in the data, in ``load_recordings`` order."""
+        self.scores: dict[str, _Score] = {}
+        self.notes: list[str] = []
+        self.bag_problems: list[str] = []
+        self.problems: list[str] = []
+        self.references: set[str] = set()
+
+    def _problem(self, line: str) -> None:
+        if line not in self.problems:
+            self.problems.append(line)
+
+    def piece(self, contents: BagContents) -> None:
+        self.bag_problems += contents.problems
+        for topic in sorted(contents.series):
+            if topic.endswith(REFERENCE):
+                self.references.add(topic)
+            if topic.endswith(RESISTANCE) and topic not in self.inputs:
+                self.inputs[topic] = self._input(topic, contents)
+        for topic, inp in self.inputs.items():
+            if inp is not None:
+                self._add(inp, topic, contents)
+                self._run(inp)
+
+    def finish(self) -> None:
+        for inp in self.inputs.values():
+            if inp is not None:
+                for align in [inp.temperature, *inp.reference.values()]:
+                    if align is not None:
+                        align.finish()
+                self._run(inp)
+        for topic in sorted(self.references):
+            if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
+                self._problem(f"{topic}: reference without a resistance topic; ignored")
+
+    def _input(self, topic: str, contents: BagContents) -> _Input | None:
+        """What a resistance topic first seen in ``contents`` is (as ``load_recordings``
+        reads it), tared from this first piece (as ``replay`` does)."""
+        from strain_comp.core.tare import tare_engine
+
+        prefix = topic[:-len(RESISTANCE)]
+        series = contents.series[topic]
+        single = series.values.ndim == 1
+        if single:
+            labels = [prefix.lstrip("/")]
+        else:
+            labels, problem = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                                 series.values.shape[1])
+            if problem is not None:
+                self._problem(problem)
+        names: list[str] = []
+        columns: list[int] = []
+        for j, name in enumerate(labels):
+            if not single and name in self.names:
+                self._problem(f"{topic}: sensor {name} appears twice; column {j} skipped")
+                continue
+            self.names.append(name)
+            if name in self.calibration.sensors:
+                names.append(name)
+                columns.append(j)
+        if not names:
+            return None
+        values = series.values if not single else series.values[:, None]
+        tared = tare_engine(self.engine, {n: (series.t, values[:, j])
+                                          for n, j in zip(names, columns, strict=True)},
+                            self.tare)
+        self.notes += [f"{name}: {line}" for name, line in tared.items()]
+        for name in names:
+            self.scores[name] = _Score(self.plot_points)
+        group = [] if single or len(names) < 2 else \
+            [n for n in self.calibration.sensors if n in names]
+        effects = any(self.calibration.sensors[n].effects for n in names)
+        return _Input(prefix, names, columns, single, group,
+                      PieceAlign() if effects else None,
+                      {n: PieceAlign() for n in names}, r=np.empty((0, len(names))))
+
+    def _ref_columns(self, inp: _Input, topic: str, contents: BagContents
+                     ) -> dict[str, int | None]:
+        """Reference column of each sensor of ``inp`` (``load_recordings``'s rules)."""
+        ref = contents.series[inp.prefix + REFERENCE]
+        if inp.single:
+            if ref.values.ndim == 1:
+                return {inp.names[0]: None}
+            self._problem(f"{inp.prefix + REFERENCE}: an array reference for a single sensor")
+            return {}
+        labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                       contents.series[topic].values.shape[1])
+        ref_labels = contents.labels.get(inp.prefix + REFERENCE) or labels
+        if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
+                and set(labels) <= set(ref_labels):
+            return {n: ref_labels.index(n) for n in inp.names}
+        self._problem(f"{inp.prefix + REFERENCE}: columns do not match {topic}; ignored")
+        return {}
+
+    def _add(self, inp: _Input, topic: str, contents: BagContents) -> None:
+        """Queue a piece's samples of ``inp`` and feed its alignments."""
+        empty = np.empty(0)
+        series = contents.series.get(topic)
+        t = series.t if series is not None else empty
+        if series is not None and t.size:
+            values = series.values[:, None] if inp.single else series.values
+            inp.t = np.concatenate((inp.t, t))
+            inp.r = np.concatenate((inp.r, values[:, inp.columns]))
+        if inp.temperature is not None:
+            temp = contents.series.get(inp.prefix + TEMPERATURE)
+            if temp is not None and temp.values.ndim == 1:
+                inp.temperature.add(t, temp.t, temp.values)
+            else:
+                inp.temperature.add(t, empty, empty)
+        ref = contents.series.get(inp.prefix + REFERENCE)
+        if ref is not None and inp.ref_columns is None:
+            inp.ref_columns = self._ref_columns(inp, topic, contents)
+        for name, align in inp.reference.items():
+            column = (inp.ref_columns or {}).get(name, -1)
+            if ref is None or column == -1:
+                align.add(t, empty, empty)
+            else:
+                align.add(t, ref.t, ref.values if column is None else ref.values[:, column])
+
+    def _run(self, inp: _Input) -> None:
+        """Compensate and score the queued samples whose reference is known."""
+        horizon = min(a.horizon() for a in [inp.temperature, *inp.reference.values()]
+                      if a is not None)
+        n = int(np.searchsorted(inp.t, horizon, side="right"))
+        if n == 0:
+            return
+        t, r = inp.t[:n], inp.r[:n]
+        inp.t, inp.r = inp.t[n:], inp.r[n:]
+        temp = None if inp.temperature is None else inp.temperature.take(t)
+        refs = {name: align.take(t) for name, align in inp.reference.items()}
+        column = {name: j for j, name in enumerate(inp.names)}
+        if inp.group:
+            outs = self.engine.run_array(inp.group, t, r[:, [column[g] for g in inp.group]],
+                                         {g: temp for g in inp.group})
+        else:
+            outs = {name: self.engine.run(name, t, r[:, j], temperature=temp)
+                    for j, name in enumerate(inp.names)}
+        for name, j in column.items():
+            self.scores[name].add(t, r[:, j], refs[name], outs[name])
+
+    def result(self) -> EvaluationResult:
+        referenced = {name for inp in self.inputs.values() if inp is not None
+                      for name in inp.ref_columns or {}}
+        sensors: dict[str, SensorEvaluation] = {}
+        notes = list(self.notes)
+        for name, cal in self.calibration.sensors.items():
+            if name not in self.names:
+                notes.append(f"{name}: calibrated but not in the data")
+            elif name not in referenced:
+                notes.append(f"{name}: no strain_reference in the data, not scored")
+            else:
+                sensors[name] = self.scores[name].evaluation(name, cal.model)
+        return EvaluationResult(sensors, notes)
+
+
+def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
+                 tare: str = "calibration", window: int = WINDOW,
+                 plot_points: int = 0) -> tuple[EvaluationResult, list[str]]:
+    """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
+    of about ``window`` messages (``iter_bag``), each compensated and scored before the next
+    is read. Returns the result and the bag's problem lines (reader first, then the
+    recordings' as ``load_recordings`` gives them).
+
+    ``tare``: as in ``evaluate_recordings``, each input tared from the first piece it
+    appears in (``replay_bag``'s rule). ``plot_points``: keep that many evenly spaced
+    samples per sensor for plots (0: none). Raises InputError when no calibrated sensor
+    can be scored (names both sides and the bag's problems).
+    """
+    from strain_comp.core.engine import Engine
+
+    stream = _Stream(calibration, Engine(calibration), tare, plot_points)
+    for contents in iter_bag(path, window=window):
+        stream.piece(contents)
+    stream.finish()
+    problems = stream.bag_problems + located(path, stream.problems)
+    result = stream.result()
+    if not result.sensors:
+        raise InputError("; ".join([f"{path}: {_nothing_scored(calibration, stream.names)}",
+                                    *problems]))
+    return result, problems
