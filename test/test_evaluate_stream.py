@@ -179,3 +179,19 @@ def test_plot_samples_are_bounded_and_evenly_spaced() -> None:
     t = kept.get("t")
     assert 500 < t.size <= 1000
     assert np.all(np.diff(t) == kept.stride) and t[0] == 0.0
+
+
+def test_evaluate_command_json_and_plots_from_the_streamed_path(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from strain_comp.cli import main
+
+    bag, cal = BAGS / "array.mcap", CONFIG / "array_calibration.yaml"
+    out = tmp_path / "e.json"
+    assert main(["evaluate", str(bag), "--calibration", str(cal), "--json", str(out),
+                 "--plots", str(tmp_path / "plots")]) == 0
+    whole = evaluate_recordings(load_recordings(bag)[0], load_calibration(cal))
+    assert json.loads(out.read_text()) == json.loads(json.dumps(whole.to_json()))
+    assert format_table(whole) in capsys.readouterr().out
+    assert len(list((tmp_path / "plots").glob("*.png"))) == 3 * len(whole.sensors)
