@@ -155,3 +155,62 @@ def test_replay_diagnostics_equal_the_engine_stepped_up_to_each_tick(tmp_path: P
                   in diagnostics(engine.health(now=tick))]
         assert statuses == expect
     assert i == series.t.size
+
+
+def _unchunked(path: Path, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """An MCAP written without chunks (as some tools do): two Float64 topics, in time
+    order, every message a top-level record."""
+    from mcap.writer import Writer
+
+    t = np.arange(n) * 1000
+    v = np.sin(np.arange(n) * 0.01)
+    with path.open("wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start(profile="ros2")
+        sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data\n")
+        cids = [w.register_channel(f"/s{k}/resistance", "cdr", sid) for k in range(2)]
+        for i in range(n):
+            w.add_message(cids[i % 2], int(t[i]), b"\0\1\0\0" + np.array([v[i]]).tobytes(),
+                          int(t[i]))
+        w.finish()
+    return t, v
+
+
+def test_unchunked_bag_comes_in_bounded_time_ordered_pieces(tmp_path: Path) -> None:
+    from strain_comp.io.bag.reader import LOOSE_BLOCK
+
+    path = tmp_path / "flat.mcap"
+    _unchunked(path, 30_000)
+    whole = read_bag(path)
+    pieces = list(iter_bag(path, window=2000))
+    sizes = [sum(s.t.size for s in p.series.values()) for p in pieces]
+    assert len(pieces) > 5 and max(sizes) <= 2000 + LOOSE_BLOCK
+    assert not any(p.problems for p in pieces) and not whole.problems
+    for topic, series in whole.series.items():
+        t, v = _concat(pieces, topic)
+        np.testing.assert_array_equal(t, series.t)
+        np.testing.assert_array_equal(v, series.values)
+    end = -np.inf
+    for p in pieces:
+        times = np.concatenate([s.t for s in p.series.values()])
+        assert times.min() >= end
+        end = times.max()
+
+
+def test_truncated_unchunked_bag_keeps_what_is_readable_in_pieces(tmp_path: Path) -> None:
+    path = tmp_path / "flat.mcap"
+    _unchunked(path, 20_000)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:len(data) // 2 + 7])
+    whole = read_bag(cut)
+    pieces = list(iter_bag(cut, window=1000))
+    assert len(pieces) >= 3
+    n = sum(s.t.size for s in whole.series.values())
+    assert 9000 < n < 11_000
+    for topic, series in whole.series.items():
+        t, _ = _concat(pieces, topic)
+        np.testing.assert_array_equal(t, series.t)
+    lines = [line for p in pieces for line in p.problems]
+    assert any("truncated" in line for line in lines)
+    assert lines == whole.problems

@@ -53,6 +53,8 @@ _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
 
 WINDOW = 200_000
 """Messages ``iter_bag`` lets wait before it cuts a piece."""
+LOOSE_BLOCK = 4096
+"""Messages outside chunks (an unchunked MCAP) are packed into blocks of this many."""
 
 # what the mcap record parsers raise on damaged content
 _PARSE_ERRORS = (McapError, struct.error, UnicodeDecodeError, ValueError, OverflowError,
@@ -125,7 +127,8 @@ class _Collector:
         self.problems: list[str] = []
         self.file_index = 0
         self.chunk_start = 0
-        """Largest message start time [ns] of the chunks read so far."""
+        """Largest message start time [ns] of the chunks read so far (or log time of the
+        messages read outside chunks): earlier messages are all read."""
 
     def add_block(self, buf: np.ndarray, ops: np.ndarray, starts: np.ndarray,
                   lens: np.ndarray, where: str) -> None:
@@ -251,6 +254,9 @@ def _read_file(col: _Collector, data: bytes | mmap.mmap, name: str) -> Iterator[
                 except _PARSE_ERRORS as exc:
                     problem = f"corrupt record at byte {pos} ({type(exc).__name__}: {exc})"
         if problem is None:
+            if len(loose_msgs) >= LOOSE_BLOCK:
+                _add_loose(col, loose_msgs, name)
+                loose_msgs.clear()
             pos = end
             yield pos
             continue
@@ -279,10 +285,13 @@ def _read_top_record(col: _Collector, opcode: int, content: bytes, where: str,
 
 
 def _add_loose(col: _Collector, msgs: list[Message], name: str) -> None:
-    """Messages stored outside chunks: pack them into one block of message records."""
+    """Messages stored outside chunks: pack them into one block of message records. They
+    are in file order, which is log-time order: those before the latest log time are
+    complete, as a chunk's start time says for chunked messages."""
     builder = RecordBuilder()
     for m in msgs:
         m.write(builder)
+    col.chunk_start = max(col.chunk_start, max(m.log_time for m in msgs))
     buf = np.frombuffer(builder.end(), dtype=np.uint8)
     ops, starts, lens, _ = _scan_records(buf)
     col.add_block(buf, ops, starts, lens, name)
@@ -384,7 +393,9 @@ def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     messages are waiting, at the start time of the latest chunk read: chunks that overlap
     in time are merged as long as no later chunk starts before an earlier one's cut. If
     one does, its messages before the cut come in the next piece (late) and a problem line
-    counts them. Messages stored outside chunks are delivered with the last piece.
+    counts them. Messages stored outside chunks (an unchunked MCAP) are taken in blocks of
+    ``LOOSE_BLOCK`` in file order and cut the same way, at the latest log time read (an
+    earlier one after it is delivered late, with the problem line).
     """
     path = Path(path)
     col = _Collector(set(topics) if topics is not None else None)
