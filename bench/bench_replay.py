@@ -14,8 +14,8 @@ Timed (best of ``--repeat``, kernels and caches warm):
 * baseline: ``rosbags.highlevel.AnyReader`` reading and deserializing every message;
 * ``strain_comp.io.bag.read_bag`` alone;
 * ``strain_comp.offline.replay.replay_bag``: read + compensate (engine batch path) + write;
-* ``strain-comp evaluate`` minus printing: ``load_recordings`` + ``evaluate_recordings``
-  on the bag with the reference (baseline: rosbags on that bag).
+* ``strain-comp evaluate`` minus printing: ``evaluate_bag`` (streamed: read + compensate +
+  score) on the bag with the reference (baseline: rosbags on that bag).
 
 Goal: full replay faster than the rosbags read alone (ratio > 1).
 """
@@ -37,8 +37,7 @@ from _common import best_time, calibration, resistance, row
 
 from strain_comp.core.calibration import load_calibration, save_calibration
 from strain_comp.io.bag import BagWriter, read_bag
-from strain_comp.io.recording import load_recordings
-from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.evaluate import evaluate_bag
 from strain_comp.offline.replay import replay_bag
 
 
@@ -114,8 +113,7 @@ def main() -> None:
         t_rosbags_ref = best_time(lambda: rb(ref_bag), args.repeat)
 
         def evaluate() -> None:
-            recordings, _ = load_recordings(ref_bag)
-            evaluate_recordings(recordings, cal)
+            evaluate_bag(ref_bag, cal)
 
         t_eval = best_time(evaluate, args.repeat)
     assert counted[str(bag)] == n and counted[str(ref_bag)] == n_ref
@@ -125,7 +123,8 @@ def main() -> None:
         ("strain_comp replay (read+compensate+write)", t_replay, n, t_rosbags),
         (f"rosbags read + deserialize, bag with reference ({n_ref:,} msgs)", t_rosbags_ref,
          n_ref, t_rosbags_ref),
-        ("strain_comp evaluate (load + score), same bag", t_eval, n_ref, t_rosbags_ref),
+        ("strain_comp evaluate (streamed read + compensate + score), same bag", t_eval,
+         n_ref, t_rosbags_ref),
     ]
     print(f"replay wrote {n_out:,} numeric output messages (strain, direction, status + "
           f"copied inputs); best of {args.repeat}, {os.cpu_count()} cores")
