@@ -11,7 +11,10 @@ For each size a bag of that many Float64 messages is written in /tmp (streamed:
 process that reports its own peak RSS (``ru_maxrss``) and wall time. Baselines in the same
 run: the peak RSS of a fresh process doing the same on a 1 000-message bag (import and
 kernel compilation), so the table shows what the bag's length adds; for time, each size's
-time against the previous size's (10x the messages: about 10x the time when linear).
+time against the previous size's (10x the messages: about 10x the time when linear), and
+within one run the time per message over the second half of the bag's pieces against the
+first half's (1x when linear; the first piece carries the kernels' compilation or cache
+load, so it favours the second half).
 Bags are deleted afterwards.
 """
 
@@ -34,17 +37,31 @@ from strain_comp.io.bag import BagWriter
 
 CHILD = """
 import json, resource, sys, time
+import numpy as np
+import strain_comp.offline.evaluate, strain_comp.offline.replay
 from strain_comp.core.calibration import load_calibration
-from strain_comp.offline.evaluate import evaluate_bag
-from strain_comp.offline.replay import replay_bag
+from strain_comp.io.bag import iter_bag
+done, sizes = [], []
+def timed(*args, **kwargs):  # when each piece has been read and processed
+    for piece in iter_bag(*args, **kwargs):
+        sizes.append(sum(s.t.size for s in piece.series.values()))
+        yield piece
+        done.append(time.perf_counter())
+strain_comp.offline.evaluate.iter_bag = strain_comp.offline.replay.iter_bag = timed
 cal = load_calibration(sys.argv[3])
 start = time.perf_counter()
 if sys.argv[1] == "replay":
-    replay_bag(sys.argv[2], cal, sys.argv[4])
+    strain_comp.offline.replay.replay_bag(sys.argv[2], cal, sys.argv[4])
 else:
-    result, _ = evaluate_bag(sys.argv[2], cal)
+    result, _ = strain_comp.offline.evaluate.evaluate_bag(sys.argv[2], cal)
     assert all(ev.stats.n > 0 for ev in result.sensors.values())
-print(json.dumps({"seconds": time.perf_counter() - start,
+seconds = time.perf_counter() - start
+# time per message in the second half of the bag's pieces against the first half's
+cost = np.diff(np.array([start] + done[:len(sizes)]))
+half = len(cost) // 2
+halves = (cost[half:].sum() / max(sum(sizes[half:]), 1)) / \
+    (cost[:half].sum() / max(sum(sizes[:half]), 1)) if half else float("nan")
+print(json.dumps({"seconds": seconds, "pieces": len(sizes), "halves": halves,
                   "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
 COMMANDS = ("replay", "evaluate")
@@ -97,11 +114,15 @@ def main() -> None:
             for c in COMMANDS:
                 res = child(c, bag, cal, d / "out.mcap")
                 memory = res["rss_mb"] / base[c]["rss_mb"]
-                growth = ""
+                parts = []
+                if res["pieces"] >= 4:
+                    parts.append(f"second half {res['halves']:.2f}x the first's time per "
+                                 "message")
                 if c in previous:
                     m, seconds = previous[c]
-                    growth = f"{res['seconds'] / seconds:.1f}x the time for {n / m:.0f}x " \
-                        "the messages"
+                    parts.append(f"{res['seconds'] / seconds:.1f}x the time for {n / m:.0f}x "
+                                 "the messages")
+                growth = "; ".join(parts)
                 previous[c] = (n, res["seconds"])
                 print(f"{c:>9}{n:>12,}{bag.stat().st_size / 1e6:>9.1f}{res['seconds']:>9.2f}"
                       f"{1e6 * res['seconds'] / n:>8.2f}{res['rss_mb']:>13.0f}"
