@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
+import re
 from pathlib import Path
 
 BEGIN, END = "<!-- perf-table:begin -->", "<!-- perf-table:end -->"
@@ -59,7 +60,9 @@ def _merge(old: str, rows: list[str], script: str, today: datetime.date
     at = mine[0] if mine else len(kept)
     others = [x for i, x in enumerate(kept) if i not in mine]
     merged = others[:at] + rows + others[at:]
-    stamp = stamp.removesuffix(" -->") + f"; rows of {script} rerun on {today} -->"
+    stamp = re.sub(f"; rows of {re.escape(script)} rerun on [0-9-]+", "",
+                   stamp.removesuffix(" -->"))
+    stamp += f"; rows of {script} rerun on {today} -->"
     return merged, stamp
 
 if __name__ == "__main__":
