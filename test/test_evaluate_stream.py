@@ -195,3 +195,31 @@ def test_evaluate_command_json_and_plots_from_the_streamed_path(
     assert json.loads(out.read_text()) == json.loads(json.dumps(whole.to_json()))
     assert format_table(whole) in capsys.readouterr().out
     assert len(list((tmp_path / "plots").glob("*.png"))) == 3 * len(whole.sensors)
+
+
+def test_streamed_evaluate_of_an_unchunked_bag_equals_the_whole_series(tmp_path: Path) -> None:
+    from mcap.writer import Writer
+
+    from strain_comp.io.bag import iter_bag, read_bag
+
+    demo = read_bag(BAGS / "demo_rates.mcap")
+    topics = ["/s1/resistance", "/s1/strain_reference"]
+    rows = sorted((round(t * 1e9), k, v) for k, topic in enumerate(topics)
+                  for t, v in zip(demo.series[topic].t, demo.series[topic].values,
+                                  strict=True))
+    path = tmp_path / "flat.mcap"
+    with path.open("wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start(profile="ros2")
+        sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data\n")
+        cids = [w.register_channel(topic, "cdr", sid) for topic in topics]
+        for ns, k, v in rows:
+            w.add_message(cids[k], ns, b"\0\1\0\0" + np.array([v]).tobytes(), ns)
+        w.finish()
+    assert len(list(iter_bag(path, window=3000))) > 3
+    calibration = load_calibration(CONFIG / "demo_calibration.yaml")
+    whole = evaluate_recordings(load_recordings(path)[0], calibration)
+    got, problems = evaluate_bag(path, calibration, window=3000)
+    assert problems == []
+    assert_same(got, whole)
+    assert got.sensors["s1"].stats.n == whole.sensors["s1"].stats.n > 10_000
