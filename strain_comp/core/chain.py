@@ -120,7 +120,7 @@ def quantisation(r: npt.ArrayLike) -> float | None:
 
 DESPIKE_K = 8.0
 """Default spike threshold of the online corrector: robust sigmas of its innovation."""
-STEP_K = 16.0
+STEP_K = 12.0
 """Default least size of a baseline step, in robust sigmas of the innovation (twice the
 spike threshold: the measured carbon-black runs show single-sample changes of 8-16 sigmas
 while loading, which are strain, not steps)."""
@@ -133,8 +133,10 @@ TREND = 5
 STEP_SAMPLES = 16
 """Samples a jump must stay at its new level, without relaxing, to be a baseline step."""
 RELAX_Z = 4.0
-"""A jump whose level changes by more than this many standard errors over the
-``STEP_SAMPLES`` after it relaxes or moves: a strain change, not a baseline step."""
+RELAX_FRAC = 0.2
+"""A jump after which the trend bends (the slope after it minus the slope before, times
+``STEP_SAMPLES``) by more than ``RELAX_FRAC`` of the jump plus ``RELAX_Z`` standard errors
+relaxes or starts a movement: a strain change, not a baseline step."""
 
 # corrector state columns
 (_OFFSET, _LAST, _LASTX, _NHIST, _MODE, _NBUF, _WPOS, _WN, _TPOS, _TN, _FIRST, _NPEND,
@@ -147,6 +149,21 @@ prediction), the excursion before ended here (a spike), a baseline step was conf
 NOISE_RATIO = 2.0
 """A baseline step keeps the noise: the scatter after the jump is at most this many times
 the robust sigma before it."""
+
+
+@njit(error_model="numpy")
+def _scale(window: np.ndarray) -> float:
+    """Robust sigma of innovations: 1.4826 x their median |value|, but at least 1.2533 x
+    their mean |value| (equal for Gaussian noise; on a quantised series, whose median
+    change may be 0, the mean still sees the noise)."""
+    return max(1.4826 * np.median(window), 1.2533 * np.mean(window))
+
+
+@njit(error_model="numpy")
+def _slope(values: np.ndarray) -> float:
+    """Least-squares slope of ``values`` against their index."""
+    tau = np.arange(values.size) - 0.5 * (values.size - 1)
+    return float(np.sum(tau * values) / np.sum(tau * tau))
 
 
 @njit(error_model="numpy")
@@ -188,9 +205,7 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
             pred = st[_LAST] + drift
             e = xi - pred
             n_win = int(st[_WN])
-            sigma = 1.4826 * np.median(win[:n_win]) if n_win >= WINDOW_MIN else np.inf
-            if sigma == 0.0:
-                sigma = np.mean(win[:n_win])
+            sigma = _scale(win[:n_win]) if n_win >= WINDOW_MIN else np.inf
             thr = k * sigma if sigma > 0.0 else np.inf
             mode = int(st[_MODE])
             accept = True
@@ -207,6 +222,7 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
                     st[_MODE] = _NORMAL
                 elif st[_NPEND] < width:  # a spike may last ``width`` samples
                     st[_NPEND] += 1
+                    st[_FIRST] = e
                     accept = False
                 elif abs(e - st[_FIRST]) <= thr and step_k > 0.0:  # stays: watch for a step
                     st[_MODE] = _WATCH
@@ -230,13 +246,13 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
                         accept = True
                         jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf,
                                                   int(st[_NPEND]))
-                        half = nbuf // 2
                         noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
-                        change = (np.mean(buf[half:nbuf]) - np.mean(buf[:half])
-                                  - slope * half)
-                        scatter = 1.4826 * np.median(np.abs(np.diff(buf[:nbuf]) - slope))
+                        bend = (_slope(buf[:nbuf])
+                                - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
+                        bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
+                        scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
                         if (abs(jump) > step_k * sigma
-                                and abs(change) <= RELAX_Z * 2.0 * noise / np.sqrt(nbuf)
+                                and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
                                 and scatter <= NOISE_RATIO * sigma):
                             st[_OFFSET] += jump
                             xi -= jump
@@ -288,7 +304,8 @@ class ChainCorrector:
     sample is compared with its prediction: the latest output plus the median of the
     latest ``TREND`` sample-to-sample changes (a ramp is not a jump). The threshold is
     ``k`` robust sigmas (1.4826 x median |innovation| over the latest ``WINDOW`` accepted
-    samples): learned from the run itself, it follows the noise of the moment.
+    samples, or 1.2533 x the mean where quantisation zeroes the median): learned from the
+    run itself, it follows the noise of the moment.
 
     * A sample beyond the threshold is *held*: the models see the prediction instead. If
       a sample within ``width`` (1; 2 on pair means) comes back within the threshold, the
@@ -298,8 +315,8 @@ class ChainCorrector:
     * ``baseline_step``: a jump that stays at its new level is watched for
       ``STEP_SAMPLES`` samples (held meanwhile). It is a baseline step when its size
       against the median level before it (both carried by the trend) exceeds the
-      threshold, its level does not move by more than ``RELAX_Z`` standard errors
-      (relaxation, a ramp) and its scatter stays within ``NOISE_RATIO`` of the sigma
+      threshold, its trend does not bend (relaxation, a ramp starting or stopping: see
+      ``RELAX_FRAC``) and its scatter stays within ``NOISE_RATIO`` of the sigma
       before. A contact resistance in series changed, which adds to R in ohm, so the
       corrector subtracts the jump from every later sample. Otherwise the samples pass
       again (a real fast strain change then costs up to ``STEP_SAMPLES`` + ``width``
