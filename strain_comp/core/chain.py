@@ -140,8 +140,8 @@ relaxes or starts a movement: a strain change, not a baseline step."""
 
 # corrector state columns
 (_OFFSET, _LAST, _LASTX, _NHIST, _MODE, _NBUF, _WPOS, _WN, _TPOS, _TN, _FIRST, _NPEND,
- _PPOS, _PN, _DRIFT0) = range(15)
-_STATE_SIZE = 15
+ _PPOS, _PN, _DRIFT0, _LASTT) = range(16)
+_STATE_SIZE = 16
 _NORMAL, _SUSPECT, _WATCH = 0, 1, 2
 HELD, SPIKE, STEP = 1, 2, 3
 """Event codes of ``ChainCorrector.run``: the sample was held (replaced by the
@@ -190,7 +190,7 @@ def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: in
 
 
 @njit(error_model="numpy")
-def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
+def _correct(t: np.ndarray, x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
              buf: np.ndarray, pre: np.ndarray, k: float, width: int, step_k: float,
              events: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """The corrector of ``ChainCorrector`` over consecutive used samples ``x`` [ohm]."""
@@ -198,10 +198,12 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
     for i in range(x.size):
         xi = x[i] - st[_OFFSET]
         events[i] = 0
+        dt = t[i] - st[_LASTT]
         if st[_NHIST] < 1:  # no reference yet: pass
             out = xi
         else:
-            drift = np.median(trend[:int(st[_TN])]) if st[_TN] > 0 else 0.0
+            rate = np.median(trend[:int(st[_TN])]) if st[_TN] > 0 else 0.0
+            drift = rate * dt
             pred = st[_LAST] + drift
             e = xi - pred
             n_win = int(st[_WN])
@@ -214,7 +216,7 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
                     st[_MODE] = _SUSPECT
                     st[_FIRST] = e
                     st[_NPEND] = 1
-                    st[_DRIFT0] = drift
+                    st[_DRIFT0] = rate
                     accept = False
             elif mode == _SUSPECT:
                 if abs(e) <= thr:  # back: the held samples were a spike
@@ -229,10 +231,12 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
                     buf[0] = xi
                     st[_NBUF] = 1
                     accept = False
-                else:  # a real change: let it through
+                else:  # a real change: let it through, and follow its rate at once
                     st[_MODE] = _NORMAL
+                    trend[:] = (xi - st[_LASTX]) / dt if dt > 0.0 else 0.0
+                    st[_TN] = TREND
             else:  # watching a jump that stayed, against the trend before it
-                drift = st[_DRIFT0]
+                drift = st[_DRIFT0] * dt
                 nbuf = int(st[_NBUF])
                 if abs(xi - buf[nbuf - 1] - drift) > thr:  # moves on: a strain change
                     st[_MODE] = _NORMAL
@@ -260,7 +264,7 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
                             events[i] = STEP
             if accept:
                 out = xi
-                if abs(e) <= thr:
+                if abs(e) <= thr or mode == _SUSPECT:  # a real change teaches the scale
                     win[int(st[_WPOS])] = abs(e)
                     st[_WPOS] = (st[_WPOS] + 1) % WINDOW
                     st[_WN] = min(st[_WN] + 1, WINDOW)
@@ -268,7 +272,7 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
                 out = pred
                 if events[i] == 0:
                     events[i] = HELD
-            trend[int(st[_TPOS])] = xi - st[_LASTX]
+            trend[int(st[_TPOS])] = (xi - st[_LASTX]) / dt if dt > 0.0 else 0.0
             st[_TPOS] = (st[_TPOS] + 1) % TREND
             st[_TN] = min(st[_TN] + 1, TREND)
         if st[_MODE] == _NORMAL and events[i] != HELD:
@@ -277,6 +281,7 @@ def _correct(x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
             st[_PN] = min(st[_PN] + 1, pre.size)
         st[_LAST] = out
         st[_LASTX] = xi
+        st[_LASTT] = t[i]
         st[_NHIST] = 1.0
         offsets[i] = st[_OFFSET]
         y[i] = out
@@ -301,8 +306,9 @@ class ChainCorrector:
 
     It reads what the models would see (pair means when the excitation alternates, so the
     alternation is no innovation; a one-sample spike then spans two pair means). Each
-    sample is compared with its prediction: the latest output plus the median of the
-    latest ``TREND`` sample-to-sample changes (a ramp is not a jump). The threshold is
+    sample is compared with its prediction: the latest output plus the median rate of the
+    latest ``TREND`` sample-to-sample changes times the time step (a ramp is not a jump,
+    also when the sampling is irregular). The threshold is
     ``k`` robust sigmas (1.4826 x median |innovation| over the latest ``WINDOW`` accepted
     samples, or 1.2533 x the mean where quantisation zeroes the median): learned from the
     run itself, it follows the noise of the moment.
@@ -356,8 +362,9 @@ class ChainCorrector:
         events = np.zeros(x.size, np.int8)
         offsets = np.empty(x.size)
         before = self.offset
-        y = _correct(x, self.state, self.window, self.trend, self.buffer, self.pre, self.k,
-                     self.width, self.step_k, events, offsets)
+        y = _correct(np.ascontiguousarray(t, dtype=np.float64), x, self.state, self.window,
+                     self.trend, self.buffer, self.pre, self.k, self.width, self.step_k,
+                     events, offsets)
         self.n_spikes += int(np.count_nonzero(events == SPIKE))
         for i in np.flatnonzero(events == STEP).tolist():
             previous = offsets[i - 1] if i > 0 else before
