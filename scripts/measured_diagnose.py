@@ -14,8 +14,8 @@ Per data set, fixed in advance (by file, never by sample):
 
 The loop runs under each condition of ``strain_comp.diagnosis.conditions`` (as
 calibrated; ``--tare auto``; the alternation, spike and baseline-step corrections when the
-data show them) and
-keeps the one with the lowest validation RMSE (``strain-comp diagnose --tare auto``).
+data show them) and keeps the one with the lowest validation RMSE (``strain-comp diagnose
+--tare auto``).
 
 Each CSV is imported with ``strain_comp.io.csv_import.import_csv`` (the importer behind
 ``strain-comp import-csv``), the calibration is fitted with ``strain_comp.offline.fit.fit_sensor``

@@ -85,7 +85,8 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
         _, _, corrector = correct(rec.t, r, step_k=STEP_K, alternating=wobble.present)
         if corrector.n_spikes and settings.despike is None:
             found.spiky.add(name)
-            found.spike_lines.append(f"{name}: {corrector.n_spikes} isolated spikes in "
+            plural = "s" if corrector.n_spikes > 1 else ""
+            found.spike_lines.append(f"{name}: {corrector.n_spikes} isolated spike{plural} in "
                                      f"{r.size} samples (held out online at "
                                      f"{DESPIKE_K:g} robust sigmas)")
         if corrector.steps and settings.baseline_step is None:
@@ -135,7 +136,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                          "auto"))
     then = " + tare" if tare == "auto" else ""
     if found.spiky:
-        text = "; ".join(line for line in readings if "isolated spikes" in line)
+        text = "; ".join(line for line in readings if "isolated spike" in line)
         runs.append((f"despike{then}", f"spikes held out online: {text}",
                      _with_input(base, found.spiky, despike=DESPIKE_K), tare))
     if found.stepped:
