@@ -7,10 +7,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import fitted, training_recording
 
 from strain_comp.core.calibration import (
     Calibration,
     InputSettings,
+    SensorCalibration,
     load_calibration,
     save_calibration,
 )
@@ -186,3 +188,22 @@ def test_input_corrections_round_trip_and_bad_values_name_the_field(tmp_path) ->
         path.write_text(text.replace("despike: 6.5", bad))
         with pytest.raises(CalibrationError, match=r"cal.yaml.*sensors.s1.input.despike"):
             load_calibration(path)
+
+
+def test_an_array_with_a_corrected_sensor_steps_as_its_sensors_do() -> None:
+    base = fitted("apl")
+    cals = {n: SensorCalibration(**{**vars(base), "name": n}) for n in ("a1", "a2")}
+    cals["a2"] = replace(cals["a2"], input=replace(cals["a2"].input, despike=8.0))
+    cal = Calibration(cals)
+    rec = training_recording()
+    t, r = rec.t[:400], np.array(rec.r[:400], dtype=float)
+    r[[150, 300]] *= 1.5  # spikes
+    engine = Engine(cal, arrays={"pair": ["a1", "a2"]})
+    assert engine._arrays["pair"].kernel is None  # the per-sensor path
+    ticks = np.array([engine.step_array("pair", a, np.array([b, b])).strain
+                      for a, b in zip(t, r, strict=True)])
+    for j, name in enumerate(("a1", "a2")):
+        np.testing.assert_allclose(ticks[:, j], Engine(cal).run(name, t, r).strain,
+                                   atol=1e-12)
+    assert np.max(np.abs(ticks[:, 1] - Engine(cal).run("a1", t, rec.r[:400]).strain)) < \
+        np.max(np.abs(ticks[:, 0] - Engine(cal).run("a1", t, rec.r[:400]).strain))

@@ -297,6 +297,7 @@ class _Sensor:
             return r_mid
         return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
 
+
 def _corrector(cal: SensorCalibration) -> ChainCorrector | None:
     settings = cal.input
     if settings.despike is None and settings.baseline_step is None:
@@ -534,8 +535,9 @@ class Engine:
             s.detector.reset()
             s.effects.reset()
             h.n_gaps += 1
-        raw = float(s.pair(np.array([t]), np.array([raw]),
-                           math.nan if reset else s.previous)[0])
+        if s.cal.input.filtered:
+            raw = float(s.pair(np.array([t]), np.array([raw]),
+                               math.nan if reset else s.previous)[0])
         direction = int(s.detector.step(t, raw)) * s.cal.direction.sign
         return _Pending(t, raw, status, float(s.model.step(t, raw)), direction)
 
