@@ -349,14 +349,14 @@ class _Reader:
         alternation = node.get("alternation", False)
         if not isinstance(alternation, bool):
             raise self.fail(f"{where}.alternation", f"must be true or false, got {alternation!r}")
-        chain = {key: self.sigmas(node, key, where, default)
-                 for key, default in (("despike", DESPIKE_K), ("baseline_step", STEP_K))}
+        despike = self.sigmas(node, "despike", where, DESPIKE_K)
+        step = self.sigmas(node, "baseline_step", where, STEP_K)
         if kind == "resistance":
-            return InputSettings(alternation=alternation, **chain)
+            return InputSettings(alternation=alternation, despike=despike, baseline_step=step)
         if kind == "divider":
             return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
                                  vin=self.number(node, "vin", where, lo=0.0, strict=True),
-                                 alternation=alternation, **chain)
+                                 alternation=alternation, despike=despike, baseline_step=step)
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 
