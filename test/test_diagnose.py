@@ -29,6 +29,7 @@ from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import write_plots
 from strain_comp.io.recording import Recording, load_recordings
+from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.rig import RigEffects, simulate, write_sim_bag
 
@@ -219,3 +220,22 @@ def test_a_clean_bag_gets_no_chain_condition(bags: BagMaker, calibration: Calibr
         result = diagnose_conditions(bags("random", seed), calibration,
                                      validate_recordings=bags("patterns", seed + 1))
         assert [c["name"] for c in result.conditions] == ["as calibrated"], result.conditions
+
+
+def test_quantisation_stays_a_reading(bags: BagMaker, calibration: Calibration) -> None:
+    # the one causal smoother the engine has, the pair mean, on reads of a coarse and of
+    # an ideal ADC: it helps as much without quantisation, so it averages noise and does
+    # not undo the quantisation
+    sensor = calibration.sensors["s1"]
+    smoothed = Calibration({"s1": dataclasses.replace(
+        sensor, input=dataclasses.replace(sensor.input, alternation=True))})
+    gains = {}
+    for bits in (0, 12, 8):
+        data = bags("patterns", 3, adc_bits=bits)
+        plain = evaluate_recordings(data, calibration).sensors["s1"].stats.rmse
+        paired = evaluate_recordings(data, smoothed).sensors["s1"].stats.rmse
+        gains[bits] = 1.0 - paired / plain
+        adc = f"{bits}-bit" if bits else "ideal"
+        print(f"{adc} ADC: validation RMSE {plain:.4f} %, with pair means "
+              f"{paired:.4f} %")
+    assert gains[8] <= gains[0] + 0.02
