@@ -14,9 +14,12 @@ which all three statistics read:
   Correction (online, phase-free, half a sample of delay): the models see pair means
   (R[i] + R[i-1]) / 2 (``pair_means``), which cancel A exactly whatever its phase.
 * spikes: samples whose |d2| exceeds ``SPIKE_K`` robust sigmas at a sign pattern of one
-  sample (counted; the engine's screen and the pair mean bound their effect).
+  sample (a count). Corrected online by ``ChainCorrector`` (calibration key
+  ``input.despike``), which also re-bases baseline steps (``input.baseline_step``): a
+  contact resistance in series that changes in one sample and stays.
 * quantisation: the smallest common step of the nonzero |R[i+1] - R[i]|, if most
-  differences are integer multiples of it.
+  differences are integer multiples of it (a reading only: no causal term undoes it
+  without lag; ``strain_comp.diagnosis.conditions``).
 """
 
 from __future__ import annotations
