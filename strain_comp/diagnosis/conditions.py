@@ -36,7 +36,14 @@ from typing import Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.chain import DESPIKE_K, STEP_K, alternation, correct, quantisation
+from strain_comp.core.chain import (
+    DESPIKE_K,
+    STEP_K,
+    STEP_SAMPLES,
+    alternation,
+    correct,
+    quantisation,
+)
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.io.recording import Recording
@@ -62,6 +69,25 @@ class ChainFindings:
     lines: list[str] = dataclasses.field(default_factory=list)
     spike_lines: list[str] = dataclasses.field(default_factory=list)
     step_lines: list[str] = dataclasses.field(default_factory=list)
+
+
+def _reference_note(rec: Recording, t: float) -> str:
+    """Whether the reference strain jumps too around a step confirmed at ``t`` (a change of
+    its rate by more than 1 % of its span from one sample to the next, over the samples
+    that confirmed it and a few before): no jump is the signature of a baseline step."""
+    if rec.s is None or np.asarray(rec.t).size < 3:
+        return ""
+    times, strain = np.asarray(rec.t), np.asarray(rec.s, dtype=np.float64)
+    dt = float(np.median(np.diff(times)))
+    seen = (times >= t - (STEP_SAMPLES + 6) * dt) & (times <= t) & np.isfinite(strain)
+    finite = strain[np.isfinite(strain)]
+    span = float(np.ptp(finite)) if finite.size else 0.0
+    if np.count_nonzero(seen) < 3 or not span > 0:
+        return ""
+    steps = np.diff(strain[seen])
+    jump = float(np.max(np.abs(steps - np.median(steps)))) / span
+    return (" (the reference shows no jump there)" if jump < 0.01
+            else " (the reference jumps too: a strain change?)")
 
 
 def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration,
@@ -91,7 +117,8 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
                                      f"{DESPIKE_K:g} robust sigmas)")
         if corrector.steps and settings.baseline_step is None:
             found.stepped.add(name)
-            found.step_lines += [f"{name}: {step.reading()}" for step in corrector.steps]
+            found.step_lines += [f"{name}: {step.reading()}{_reference_note(rec, step.t)}"
+                                 for step in corrector.steps]
         step = quantisation(r)
         if step is not None:
             found.lines.append(f"{name}: resistance quantised in steps of {step:.3g} ohm")
