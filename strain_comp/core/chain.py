@@ -124,9 +124,9 @@ def quantisation(r: npt.ArrayLike) -> float | None:
 DESPIKE_K = 8.0
 """Default spike threshold of the online corrector: robust sigmas of its innovation."""
 STEP_K = 12.0
-"""Default least size of a baseline step, in robust sigmas of the innovation (twice the
-spike threshold: the measured carbon-black runs show single-sample changes of 8-16 sigmas
-while loading, which are strain, not steps)."""
+"""Default least size of a baseline step, in robust sigmas of the innovation (1.5 times the
+spike threshold: a measured carbon-black run, v19, shows a change of 8-12 sigmas that stays
+while loading, which is strain, not a step; ``scripts/measured_chain.py``)."""
 WINDOW = 32
 """Latest |innovation| values the corrector's robust scale is the median of."""
 WINDOW_MIN = 16
@@ -136,6 +136,7 @@ TREND = 5
 STEP_SAMPLES = 16
 """Samples a jump must stay at its new level, without relaxing, to be a baseline step."""
 RELAX_Z = 4.0
+"""Standard errors of the bend allowed for noise (below)."""
 RELAX_FRAC = 0.2
 """A jump after which the trend bends (the slope after it minus the slope before, times
 ``STEP_SAMPLES``) by more than ``RELAX_FRAC`` of the jump plus ``RELAX_Z`` standard errors
