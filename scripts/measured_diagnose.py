@@ -13,8 +13,9 @@ Per data set, fixed in advance (by file, never by sample):
   gauge length is not stated): fit on run 1, diagnose on run 3, validate on run 4.
 
 The loop runs under each condition of ``strain_comp.diagnosis.conditions`` (as
-calibrated; ``--tare auto``; the alternation correction when the data show one) and
-keeps the one with the lowest validation RMSE (``strain-comp diagnose --tare auto``).
+calibrated; ``--tare auto``; the alternation, spike and baseline-step corrections when the
+data show them) and keeps the one with the lowest validation RMSE (``strain-comp diagnose
+--tare auto``).
 
 Each CSV is imported with ``strain_comp.io.csv_import.import_csv`` (the importer behind
 ``strain-comp import-csv``), the calibration is fitted with ``strain_comp.offline.fit.fit_sensor``
@@ -110,9 +111,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"## {name}/{model}: {result.sensors[name].message} ({seconds:.1f} s)",
                   file=sys.stderr)
     print("| data (fit -> diagnose -> validate) | model | validation RMSE after the loop: "
-          "as calibrated | with tare | with alternation correction | chosen: before -> after "
-          "| effects added (reading) |")
-    print("|---|---|---:|---:|---:|---|---|")
+          "as calibrated | with tare | with alternation correction | with despike | with "
+          "baseline-step correction | chosen: before -> after | effects added (reading) |")
+    print("|---|---|---:|---:|---:|---:|---:|---|---|")
     for row in rows:
         short = {"cb_pdms": "cb_pdms (v16 -> v19 -> v10)",
                  "cb_levels": "cb_pdms (v16 -> rand_sawtooth -> v9)",
@@ -123,10 +124,12 @@ def main(argv: list[str] | None = None) -> int:
         chosen = next(c["name"] for c in row["conditions"] if c["chosen"])
 
         def cell(key: str, after: dict = after, unit: str = row["unit"]) -> str:
+            key = key if key in after else f"{key} + tare"  # chain corrections with tare
             return f"{after[key]:.3f} {unit}" if key in after else "-"
 
         print(f"| {short} | {row['model']} | {cell('as calibrated')} | {cell('tare')} | "
-              f"{cell('alternation')} | {chosen}: {row['before']:.3f} -> "
+              f"{cell('alternation')} | {cell('despike')} | {cell('baseline step')} | "
+              f"{chosen}: {row['before']:.3f} -> "
               f"{row['after']:.3f} {row['unit']} | {effects} |")
     readings = dict.fromkeys(c["reading"] for row in rows for c in row["conditions"]
                              if c["name"] == "measurement chain")

@@ -7,10 +7,18 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import fitted, training_recording
 
-from strain_comp.core.calibration import Calibration, InputSettings
-from strain_comp.core.chain import alternation, pair_means, quantisation, spikes
+from strain_comp.core.calibration import (
+    Calibration,
+    InputSettings,
+    SensorCalibration,
+    load_calibration,
+    save_calibration,
+)
+from strain_comp.core.chain import DESPIKE_K, alternation, correct, pair_means, quantisation, spikes
 from strain_comp.core.engine import Engine
+from strain_comp.errors import CalibrationError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
@@ -82,3 +90,120 @@ def test_alternation_filter_is_identical_in_step_and_run_and_across_batches() ->
     stepped = np.array([engine.step("s1", a, b).strain for a, b in zip(t, r, strict=True)])
     np.testing.assert_allclose(halves, whole, atol=1e-12)
     np.testing.assert_allclose(stepped, whole, atol=1e-12)
+
+
+def corrected(cal: Calibration, **settings: object) -> Calibration:
+    name, sensor = next(iter(cal.sensors.items()))
+    return Calibration({name: replace(sensor, input=replace(sensor.input, **settings))})
+
+
+def test_spikes_are_replaced_before_the_model_and_the_error_falls() -> None:
+    t, r, s = smooth_run(7)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
+    t2, r2, s2 = smooth_run(8)
+    spiky = r2.copy()
+    rng = np.random.default_rng(9)
+    at = 60 + 48 * np.arange(40) + rng.integers(0, 20, 40)  # isolated spikes
+    spiky[at] += rng.choice([-1.0, 1.0], at.size) * rng.uniform(50.0, 300.0, at.size)
+    test = {"s1": Recording("s1", t2, spiky, s2)}
+    raw = evaluate_recordings(test, cal).sensors["s1"].stats.rmse
+    fixed = evaluate_recordings(test, corrected(cal, despike=8.0)).sensors["s1"].stats.rmse
+    clean = evaluate_recordings({"s1": Recording("s1", t2, r2, s2)}, cal).sensors["s1"]
+    assert fixed < 0.3 * raw
+    assert fixed < 1.2 * clean.stats.rmse
+    seen, _, corrector = correct(t2, spiky, alternating=False)
+    assert corrector.n_spikes == at.size
+    assert np.max(np.abs(seen - r2)) < 8.0 * 2.0 * np.sqrt(2.0)  # within the threshold
+
+
+def test_a_spike_on_alternating_input_is_removed_from_the_pair_means() -> None:
+    t, r, _ = smooth_run(10)
+    r = r + 30.0 * (-1.0) ** np.arange(t.size)
+    r[[300, 900]] += [500.0, -400.0]
+    seen, _, corrector = correct(t, r)
+    assert corrector.n_spikes == 2
+    truth = pair_means(r - 30.0 * (-1.0) ** np.arange(t.size))
+    truth[[300, 301, 900, 901]] = np.nan  # the spikes' pair means
+    assert np.nanmax(np.abs(seen - pair_means(r))[[300, 301, 900, 901]]) > 100.0
+    assert abs(seen[300] - truth[299]) < 30.0 and abs(seen[901] - truth[902]) < 30.0
+
+
+@pytest.mark.parametrize("size", [150.0, -80.0])
+def test_a_baseline_step_is_found_its_size_recovered_and_the_error_falls(size: float) -> None:
+    t, r, s = smooth_run(11)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
+    t2, r2, s2 = smooth_run(12)
+    stepped = r2 + size * (t2 >= 97.0)
+    _, _, corrector = correct(t2, stepped, step_k=16.0)
+    assert len(corrector.steps) == 1
+    found = corrector.steps[0]
+    assert found.size == pytest.approx(size, abs=6.0)  # 3 noise sigmas
+    assert 97.0 <= found.t < 97.0 + 2.0
+    assert found.reading() == (f"baseline step {found.size:+.3g} ohm at t={found.t:.4g} s, "
+                               "connector re-seated?")
+    test = {"s1": Recording("s1", t2, stepped, s2)}
+    raw = evaluate_recordings(test, cal).sensors["s1"].stats.rmse
+    fixed = evaluate_recordings(test, corrected(cal, baseline_step=16.0)).sensors["s1"]
+    assert fixed.stats.rmse < 0.3 * raw
+
+
+def test_no_step_on_ramps_and_no_change_without_spikes() -> None:
+    t, r, _ = smooth_run(13)
+    seen, events, corrector = correct(t, r, step_k=16.0)
+    assert not corrector.steps and corrector.n_spikes == 0
+    assert np.count_nonzero(events) < 0.005 * t.size
+    assert np.max(np.abs(seen - r)) < 8.0 * 2.0 * np.sqrt(2.0)
+
+
+def test_corrector_is_identical_in_step_and_run_and_across_batches_and_gaps() -> None:
+    t, r, s = smooth_run(14, n=600)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
+    cal = corrected(cal, alternation=True, despike=8.0, baseline_step=16.0)
+    r = r + 20.0 * (-1.0) ** np.arange(t.size) + 200.0 * (t > 30.0)
+    r[[100, 400]] += 300.0
+    r[50] = np.nan
+    t = t + 10.0 * (t > 45.0)  # a gap reset
+    whole = Engine(cal).run("s1", t, r).strain
+    engine = Engine(cal)
+    halves = np.concatenate([engine.run("s1", t[:237], r[:237]).strain,
+                             engine.run("s1", t[237:], r[237:]).strain])
+    engine = Engine(cal)
+    stepped = np.array([engine.step("s1", a, b).strain for a, b in zip(t, r, strict=True)])
+    np.testing.assert_allclose(halves, whole, atol=1e-12)
+    np.testing.assert_allclose(stepped, whole, atol=1e-12)
+
+
+def test_input_corrections_round_trip_and_bad_values_name_the_field(tmp_path) -> None:
+    t, r, s = smooth_run(15, n=400)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
+    cal = corrected(cal, despike=6.5, baseline_step=20.0)
+    path = tmp_path / "cal.yaml"
+    save_calibration(cal, path)
+    assert load_calibration(path).sensors["s1"].input == cal.sensors["s1"].input
+    text = path.read_text()
+    assert text.replace("despike: 6.5", "despike: true").count("despike: true") == 1
+    path.write_text(text.replace("despike: 6.5", "despike: true"))
+    assert load_calibration(path).sensors["s1"].input.despike == DESPIKE_K
+    for bad in ("despike: -1", "despike: many", "despike: .nan"):
+        path.write_text(text.replace("despike: 6.5", bad))
+        with pytest.raises(CalibrationError, match=r"cal.yaml.*sensors.s1.input.despike"):
+            load_calibration(path)
+
+
+def test_an_array_with_a_corrected_sensor_steps_as_its_sensors_do() -> None:
+    base = fitted("apl")
+    cals = {n: SensorCalibration(**{**vars(base), "name": n}) for n in ("a1", "a2")}
+    cals["a2"] = replace(cals["a2"], input=replace(cals["a2"].input, despike=8.0))
+    cal = Calibration(cals)
+    rec = training_recording()
+    t, r = rec.t[:400], np.array(rec.r[:400], dtype=float)
+    r[[150, 300]] *= 1.5  # spikes
+    engine = Engine(cal, arrays={"pair": ["a1", "a2"]})
+    assert engine._arrays["pair"].kernel is None  # the per-sensor path
+    ticks = np.array([engine.step_array("pair", a, np.array([b, b])).strain
+                      for a, b in zip(t, r, strict=True)])
+    for j, name in enumerate(("a1", "a2")):
+        np.testing.assert_allclose(ticks[:, j], Engine(cal).run(name, t, r).strain,
+                                   atol=1e-12)
+    assert np.max(np.abs(ticks[:, 1] - Engine(cal).run("a1", t, rec.r[:400]).strain)) < \
+        np.max(np.abs(ticks[:, 0] - Engine(cal).run("a1", t, rec.r[:400]).strain))

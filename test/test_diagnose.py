@@ -25,9 +25,11 @@ import pytest
 
 from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
 from strain_comp.core.engine import Engine
+from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import write_plots
 from strain_comp.io.recording import Recording, load_recordings
+from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.rig import RigEffects, simulate, write_sim_bag
 
@@ -181,3 +183,59 @@ def test_json_contract_validation_bag_and_cal2(bags: BagMaker, calibration: Cali
     np.testing.assert_allclose(stepped, estimate[:300], rtol=1e-12, atol=1e-12)
     paths = write_plots(result, tmp_path / "plots")
     assert [p.name for p in paths] == ["diagnose_s1.png"] and paths[0].stat().st_size > 1000
+
+
+CHAIN_CASES = [  # effect, rig switch of the diagnosed bag, of the validation bag, condition
+    ("isolated spikes", {"spikes": 0.01}, {"spikes": 0.01}, "despike"),
+    ("baseline step mid-run", {"baseline_step": 0.4, "baseline_step_at": 100.0},
+     {"baseline_step": 0.4, "baseline_step_at": 60.0}, "baseline step"),
+    ("alternation every other sample", {"alternation": 0.2}, {"alternation": 0.2},
+     "alternation"),
+]
+
+
+@pytest.mark.parametrize(("effect", "switch", "val_switch", "condition"), CHAIN_CASES,
+                         ids=[c[0] for c in CHAIN_CASES])
+def test_finds_and_corrects_the_measurement_chain(bags: BagMaker, calibration: Calibration,
+                                                   effect: str, switch: dict,
+                                                   val_switch: dict, condition: str) -> None:
+    result = diagnose_conditions(bags("random", 2, **switch), calibration,
+                                 validate_recordings=bags("patterns", 3, **val_switch))
+    rows = {c["name"]: c for c in result.conditions}
+    chosen = [c["name"] for c in result.conditions if c["chosen"]]
+    assert chosen == [condition], result.conditions
+    before, after = rows["as calibrated"]["before"], rows[condition]["after"]
+    print(f"{effect}: condition {condition!r} ({rows[condition]['reading']}): validation "
+          f"RMSE {before:.4f} -> {after:.4f} % (the loop alone, as calibrated: "
+          f"{rows['as calibrated']['after']:.4f} %)")
+    assert 1 - after / before >= MIN_DROP
+    assert after < rows["as calibrated"]["after"]
+    if condition == "baseline step":
+        assert "baseline step +0.4" in rows[condition]["reading"]
+    json.dumps(result.to_json())  # the conditions reach the JSON
+
+
+def test_a_clean_bag_gets_no_chain_condition(bags: BagMaker, calibration: Calibration) -> None:
+    for seed in (2, 5):
+        result = diagnose_conditions(bags("random", seed), calibration,
+                                     validate_recordings=bags("patterns", seed + 1))
+        assert [c["name"] for c in result.conditions] == ["as calibrated"], result.conditions
+
+
+def test_quantisation_stays_a_reading(bags: BagMaker, calibration: Calibration) -> None:
+    # the one causal smoother the engine has, the pair mean, on reads of a coarse and of
+    # an ideal ADC: it helps as much without quantisation, so it averages noise and does
+    # not undo the quantisation
+    sensor = calibration.sensors["s1"]
+    smoothed = Calibration({"s1": dataclasses.replace(
+        sensor, input=dataclasses.replace(sensor.input, alternation=True))})
+    gains = {}
+    for bits in (0, 12, 8):
+        data = bags("patterns", 3, adc_bits=bits)
+        plain = evaluate_recordings(data, calibration).sensors["s1"].stats.rmse
+        paired = evaluate_recordings(data, smoothed).sensors["s1"].stats.rmse
+        gains[bits] = 1.0 - paired / plain
+        adc = f"{bits}-bit" if bits else "ideal"
+        print(f"{adc} ADC: validation RMSE {plain:.4f} %, with pair means "
+              f"{paired:.4f} %")
+    assert gains[8] <= gains[0] + 0.02

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -72,3 +73,30 @@ def test_readings_name_the_physics() -> None:
         "drift +0.36 % strain/h"
     assert "relaxation tau 22.6 s" in effect_reading(
         "relaxation", {"tau": 22.6, "branch": "loading"}, 0.1, 0.4)
+
+
+def held_step(seed: int, *, contact: float = 0.0) -> Recording:
+    """A hold at 0 %, a strain step to 5 % at 60 s held to the end (R follows at once, no
+    relaxation), and optionally a contact resistance ``contact`` ohm added from 100 s."""
+    rng = np.random.default_rng(seed)
+    t = 0.1 * np.arange(1500)
+    s = np.where(t >= 60.0, 5.0, 0.0)
+    r = 1000.0 * (1.0 + 0.02 * s) + rng.standard_normal(t.size) + contact * (t >= 100.0)
+    return Recording("s1", t, r, s)
+
+
+def test_a_strain_step_is_told_from_a_baseline_step_by_the_reference(
+        calibration: Calibration) -> None:
+    result = diagnose_conditions({"s1": held_step(1, contact=40.0)}, calibration,
+                                 validate_recordings={"s1": held_step(2, contact=40.0)})
+    rows = {c["name"]: c for c in result.conditions}
+    reading = rows["baseline step"]["reading"]
+    # R alone cannot tell the strain step at 60 s from the contact at 100 s; the
+    # reference can, and says so
+    assert re.search(r"baseline step \+(99|10[01])\S* ohm at t=61.6 s, connector re-seated\? "
+                     r"\(the reference jumps too", reading)
+    assert re.search(r"baseline step \+(39|40|41)\S* ohm at t=101.6 s, connector re-seated\? "
+                     r"\(the reference shows no jump", reading)
+    # re-basing both is worse than the calibration as given: not chosen
+    assert rows["baseline step"]["after"] > rows["as calibrated"]["after"]
+    assert chosen(result) == ["as calibrated"]

@@ -9,6 +9,8 @@ sensors:
     model: {name: apl, params: {...}}        # every model parameter (see strain_comp.models)
     normalisation: {r0: .., alpha: .., s0: .., beta: ..}   # xi = R/r0 + alpha, psi = S/s0 + beta
     input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
+                                             # optional: alternation: true, despike: k,
+                                             # baseline_step: k (robust sigmas; true = default)
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
     rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
     direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
@@ -44,6 +46,7 @@ import numpy.typing as npt
 import yaml
 
 from strain_comp import __version__
+from strain_comp.core.chain import DESPIKE_K, STEP_K
 from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
@@ -66,15 +69,29 @@ STRAIN_MAX = 1e6
 class InputSettings:
     """What the input topic carries: ``resistance`` in ohm, or ``divider`` volts across R1;
     ``alternation``: the excitation alternates every sample, so the models and the
-    direction detector see pair means (``strain_comp.core.chain``)."""
+    direction detector see pair means (``strain_comp.core.chain``); ``despike``: isolated
+    spikes beyond this many robust sigmas are replaced by the prediction, and
+    ``baseline_step``: jumps beyond this many robust sigmas that stay without relaxing are
+    subtracted (both ``strain_comp.core.chain.ChainCorrector``; None: off)."""
 
     kind: str = "resistance"
     r1: float | None = None
     vin: float | None = None
     alternation: bool = False
+    despike: float | None = None
+    baseline_step: float | None = None
+
+    @property
+    def filtered(self) -> bool:
+        """True when the models see the input through a measurement-chain correction."""
+        return self.alternation or self.despike is not None or self.baseline_step is not None
 
     def to_dict(self) -> dict[str, Any]:
-        extra = {"alternation": True} if self.alternation else {}
+        extra: dict[str, Any] = {"alternation": True} if self.alternation else {}
+        if self.despike is not None:
+            extra["despike"] = self.despike
+        if self.baseline_step is not None:
+            extra["baseline_step"] = self.baseline_step
         if self.kind == "divider":
             return {"kind": "divider", "r1": self.r1, "vin": self.vin, **extra}
         return {"kind": "resistance", **extra}
@@ -315,18 +332,31 @@ class _Reader:
             raise self.fail(f"{where}.sign", f"must be +1 or -1, got {value!r}")
         return int(value)
 
+    def sigmas(self, node: Mapping[str, Any], key: str, where: str, default: float
+               ) -> float | None:
+        """An optional threshold in robust sigmas: absent/false/null off, true the default,
+        else a number in (0, 1000)."""
+        value = node.get(key)
+        if value is None or value is False:
+            return None
+        if value is True:
+            return default
+        return self.number(node, key, where, lo=0.0, hi=1000.0, strict=True)
+
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)
         kind = node.get("kind", "resistance")
         alternation = node.get("alternation", False)
         if not isinstance(alternation, bool):
             raise self.fail(f"{where}.alternation", f"must be true or false, got {alternation!r}")
+        despike = self.sigmas(node, "despike", where, DESPIKE_K)
+        step = self.sigmas(node, "baseline_step", where, STEP_K)
         if kind == "resistance":
-            return InputSettings(alternation=alternation)
+            return InputSettings(alternation=alternation, despike=despike, baseline_step=step)
         if kind == "divider":
             return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
                                  vin=self.number(node, "vin", where, lo=0.0, strict=True),
-                                 alternation=alternation)
+                                 alternation=alternation, despike=despike, baseline_step=step)
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 

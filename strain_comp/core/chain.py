@@ -14,9 +14,12 @@ which all three statistics read:
   Correction (online, phase-free, half a sample of delay): the models see pair means
   (R[i] + R[i-1]) / 2 (``pair_means``), which cancel A exactly whatever its phase.
 * spikes: samples whose |d2| exceeds ``SPIKE_K`` robust sigmas at a sign pattern of one
-  sample (counted; the engine's screen and the pair mean bound their effect).
+  sample (a count). Corrected online by ``ChainCorrector`` (calibration key
+  ``input.despike``), which also re-bases baseline steps (``input.baseline_step``): a
+  contact resistance in series that changes in one sample and stays.
 * quantisation: the smallest common step of the nonzero |R[i+1] - R[i]|, if most
-  differences are integer multiples of it.
+  differences are integer multiples of it (a reading only: no causal term undoes it
+  without lag; ``strain_comp.diagnosis.conditions``).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+
+from strain_comp._numba import njit
 
 ALTERNATION_Z = 5.0
 """Significance (binomial z) of the sign agreement for an alternation to be present."""
@@ -112,3 +117,279 @@ def quantisation(r: npt.ArrayLike) -> float | None:
     ratio = steps / q
     on_grid = np.abs(ratio - np.round(ratio)) < 0.05
     return q if float(np.mean(on_grid)) > 0.9 and np.mean(np.diff(r) == 0) > 0.05 else None
+
+
+# ------------------------------------------------------------------ online input correction
+
+DESPIKE_K = 8.0
+"""Default spike threshold of the online corrector: robust sigmas of its innovation."""
+STEP_K = 12.0
+"""Default least size of a baseline step, in robust sigmas of the innovation (1.5 times the
+spike threshold: a measured carbon-black run, v19, shows a change of 8-12 sigmas that stays
+while loading, which is strain, not a step; ``scripts/measured_chain.py``)."""
+WINDOW = 32
+"""Latest |innovation| values the corrector's robust scale is the median of."""
+WINDOW_MIN = 16
+"""Innovations seen before the corrector judges any sample (it passes them until then)."""
+TREND = 5
+"""Latest lag differences whose median is the corrector's trend (a ramp is not a jump)."""
+STEP_SAMPLES = 16
+"""Samples a jump must stay at its new level, without relaxing, to be a baseline step."""
+RELAX_Z = 4.0
+"""Standard errors of the bend allowed for noise (below)."""
+RELAX_FRAC = 0.2
+"""A jump after which the trend bends (the slope after it minus the slope before, times
+``STEP_SAMPLES``) by more than ``RELAX_FRAC`` of the jump plus ``RELAX_Z`` standard errors
+relaxes or starts a movement: a strain change, not a baseline step."""
+
+# corrector state columns
+(_OFFSET, _LAST, _LASTX, _NHIST, _MODE, _NBUF, _WPOS, _WN, _TPOS, _TN, _FIRST, _NPEND,
+ _PPOS, _PN, _DRIFT0, _LASTT) = range(16)
+_STATE_SIZE = 16
+_NORMAL, _SUSPECT, _WATCH = 0, 1, 2
+HELD, SPIKE, STEP = 1, 2, 3
+"""Event codes of ``ChainCorrector.run``: the sample was held (replaced by the
+prediction), the excursion before ended here (a spike), a baseline step was confirmed here."""
+NOISE_RATIO = 2.0
+"""A baseline step keeps the noise: the scatter after the jump is at most this many times
+the robust sigma before it."""
+
+
+@njit(error_model="numpy")
+def _scale(window: np.ndarray) -> float:
+    """Robust sigma of innovations: 1.4826 x their median |value|, but at least 1.2533 x
+    their mean |value| (equal for Gaussian noise; on a quantised series, whose median
+    change may be 0, the mean still sees the noise)."""
+    return max(1.4826 * np.median(window), 1.2533 * np.mean(window))
+
+
+@njit(error_model="numpy")
+def _slope(values: np.ndarray) -> float:
+    """Least-squares slope of ``values`` against their index."""
+    tau = np.arange(values.size) - 0.5 * (values.size - 1)
+    return float(np.sum(tau * values) / np.sum(tau * tau))
+
+
+@njit(error_model="numpy")
+def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: int
+                ) -> tuple[float, float]:
+    """(jump, slope) of a least-squares fit of one line with a jump to the samples before
+    a jump (``pre``, a ring of ``npre`` values ending before ``ppos``) and after it
+    (``post``, starting ``gap`` samples after the last ``pre`` one); (0, 0) if the ring is
+    not full."""
+    if npre < pre.size:
+        return 0.0, 0.0
+    a = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    for j in range(pre.size + post.size):
+        if j < pre.size:
+            tau, value, after = float(j - pre.size), pre[(ppos + j) % pre.size], 0.0
+        else:
+            tau, value, after = float(j - pre.size + gap), post[j - pre.size], 1.0
+        row = np.array([1.0, tau, after])
+        a += np.outer(row, row)
+        rhs += row * value
+    solution = np.linalg.solve(a, rhs)
+    return solution[2], solution[1]
+
+
+@njit(error_model="numpy")
+def _correct(t: np.ndarray, x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
+             buf: np.ndarray, pre: np.ndarray, k: float, width: int, step_k: float,
+             events: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """The corrector of ``ChainCorrector`` over consecutive used samples ``x`` [ohm]."""
+    y = np.empty(x.size)
+    for i in range(x.size):
+        xi = x[i] - st[_OFFSET]
+        events[i] = 0
+        dt = t[i] - st[_LASTT]
+        if st[_NHIST] < 1:  # no reference yet: pass
+            out = xi
+        else:
+            rate = np.median(trend[:int(st[_TN])]) if st[_TN] > 0 else 0.0
+            drift = rate * dt
+            pred = st[_LAST] + drift
+            e = xi - pred
+            n_win = int(st[_WN])
+            sigma = _scale(win[:n_win]) if n_win >= WINDOW_MIN else np.inf
+            thr = k * sigma if sigma > 0.0 else np.inf
+            mode = int(st[_MODE])
+            accept = True
+            if mode == _NORMAL:
+                if abs(e) > thr:
+                    st[_MODE] = _SUSPECT
+                    st[_FIRST] = e
+                    st[_NPEND] = 1
+                    st[_DRIFT0] = rate
+                    accept = False
+            elif mode == _SUSPECT:
+                if abs(e) <= thr:  # back: the held samples were a spike
+                    events[i] = SPIKE
+                    st[_MODE] = _NORMAL
+                elif st[_NPEND] < width:  # a spike may last ``width`` samples
+                    st[_NPEND] += 1
+                    st[_FIRST] = e
+                    accept = False
+                elif abs(e - st[_FIRST]) <= thr and step_k > 0.0:  # stays: watch for a step
+                    st[_MODE] = _WATCH
+                    buf[0] = xi
+                    st[_NBUF] = 1
+                    accept = False
+                else:  # a real change: let it through, and follow its rate at once
+                    st[_MODE] = _NORMAL
+                    trend[:] = (xi - st[_LASTX]) / dt if dt > 0.0 else 0.0
+                    st[_TN] = TREND
+            else:  # watching a jump that stayed, against the trend before it
+                drift = st[_DRIFT0] * dt
+                nbuf = int(st[_NBUF])
+                if abs(xi - buf[nbuf - 1] - drift) > thr:  # moves on: a strain change
+                    st[_MODE] = _NORMAL
+                else:
+                    buf[nbuf] = xi
+                    nbuf += 1
+                    st[_NBUF] = nbuf
+                    accept = False
+                    if nbuf == STEP_SAMPLES:
+                        st[_MODE] = _NORMAL
+                        accept = True
+                        jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf,
+                                                  int(st[_NPEND]))
+                        noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
+                        bend = (_slope(buf[:nbuf])
+                                - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
+                        bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
+                        scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
+                        if (abs(jump) > step_k * sigma
+                                and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
+                                and scatter <= NOISE_RATIO * sigma):
+                            st[_OFFSET] += jump
+                            xi -= jump
+                            e = xi - pred
+                            events[i] = STEP
+            if accept:
+                out = xi
+                if abs(e) <= thr or mode == _SUSPECT:  # a real change teaches the scale
+                    win[int(st[_WPOS])] = abs(e)
+                    st[_WPOS] = (st[_WPOS] + 1) % WINDOW
+                    st[_WN] = min(st[_WN] + 1, WINDOW)
+            else:
+                out = pred
+                if events[i] == 0:
+                    events[i] = HELD
+            trend[int(st[_TPOS])] = (xi - st[_LASTX]) / dt if dt > 0.0 else 0.0
+            st[_TPOS] = (st[_TPOS] + 1) % TREND
+            st[_TN] = min(st[_TN] + 1, TREND)
+        if st[_MODE] == _NORMAL and events[i] != HELD:
+            pre[int(st[_PPOS])] = xi
+            st[_PPOS] = (st[_PPOS] + 1) % pre.size
+            st[_PN] = min(st[_PN] + 1, pre.size)
+        st[_LAST] = out
+        st[_LASTX] = xi
+        st[_LASTT] = t[i]
+        st[_NHIST] = 1.0
+        offsets[i] = st[_OFFSET]
+        y[i] = out
+    return y
+
+
+@dataclass(frozen=True)
+class BaselineStep:
+    """A confirmed baseline step: time of confirmation [s] and size [ohm]."""
+
+    t: float
+    size: float
+
+    def reading(self) -> str:
+        size = (f"{self.size / 1000.0:+.3g} kohm" if abs(self.size) >= 1000.0
+                else f"{self.size:+.3g} ohm")
+        return f"baseline step {size} at t={self.t:.4g} s, connector re-seated?"
+
+
+class ChainCorrector:
+    """Online, causal correction of isolated spikes and baseline steps of one sensor.
+
+    It reads what the models would see (pair means when the excitation alternates, so the
+    alternation is no innovation; a one-sample spike then spans two pair means). Each
+    sample is compared with its prediction: the latest output plus the median rate of the
+    latest ``TREND`` sample-to-sample changes times the time step (a ramp is not a jump,
+    also when the sampling is irregular). The threshold is
+    ``k`` robust sigmas (1.4826 x median |innovation| over the latest ``WINDOW`` accepted
+    samples, or 1.2533 x the mean where quantisation zeroes the median): learned from the
+    run itself, it follows the noise of the moment.
+
+    * A sample beyond the threshold is *held*: the models see the prediction instead. If
+      a sample within ``width`` (1; 2 on pair means) comes back within the threshold, the
+      held ones were a spike and are never seen (no latency). Otherwise the change was
+      real and passes from the next sample on: a jump larger than k sigmas costs ``width``
+      samples of lag.
+    * ``baseline_step``: a jump that stays at its new level is watched for
+      ``STEP_SAMPLES`` samples (held meanwhile). It is a baseline step when its size
+      against the median level before it (both carried by the trend) exceeds the
+      threshold, its trend does not bend (relaxation, a ramp starting or stopping: see
+      ``RELAX_FRAC``) and its scatter stays within ``NOISE_RATIO`` of the sigma
+      before. A contact resistance in series changed, which adds to R in ohm, so the
+      corrector subtracts the jump from every later sample. Otherwise the samples pass
+      again (a real fast strain change then costs up to ``STEP_SAMPLES`` + ``width``
+      samples of lag). The watch's hold also removes isolated spikes.
+
+    A gap reset clears the references (``restart``), not the learned scale or the offset:
+    a re-seated connector stays where it is.
+    """
+
+    def __init__(self, *, k: float = DESPIKE_K, alternating: bool = False,
+                 step_k: float = 0.0) -> None:
+        self.k = float(k)
+        self.width = 2 if alternating else 1
+        self.step_k = float(step_k)
+        self.state = np.zeros(_STATE_SIZE)
+        self.window = np.zeros(WINDOW)
+        self.trend = np.zeros(TREND)
+        self.buffer = np.zeros(STEP_SAMPLES)
+        self.pre = np.zeros(STEP_SAMPLES)
+        self.n_spikes = 0
+        self.steps: list[BaselineStep] = []
+
+    @property
+    def offset(self) -> float:
+        """The baseline correction so far [ohm] (subtracted from every sample)."""
+        return float(self.state[_OFFSET])
+
+    def restart(self) -> None:
+        """Forget the references (after a gap): the next sample passes unjudged."""
+        for column in (_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS):
+            self.state[column] = 0.0
+
+    def run(self, t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(corrected samples, event codes) of consecutive used samples ``x`` [ohm] at
+        times ``t`` [s]; spikes and steps are counted in ``n_spikes`` and ``steps``."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        events = np.zeros(x.size, np.int8)
+        offsets = np.empty(x.size)
+        before = self.offset
+        y = _correct(np.ascontiguousarray(t, dtype=np.float64), x, self.state, self.window,
+                     self.trend, self.buffer, self.pre, self.k, self.width, self.step_k,
+                     events, offsets)
+        self.n_spikes += int(np.count_nonzero(events == SPIKE))
+        for i in np.flatnonzero(events == STEP).tolist():
+            previous = offsets[i - 1] if i > 0 else before
+            self.steps.append(BaselineStep(float(t[i]), float(offsets[i] - previous)))
+        return y, events
+
+
+def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
+            step_k: float = 0.0, alternating: bool | None = None,
+            ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
+    """A whole run's finite positive samples through a fresh ``ChainCorrector``, after pair
+    means when the excitation alternates (when None: found from the data), as the engine
+    feeds its models: (what the models see, event codes, the corrector); NaN where bad."""
+    t = np.asarray(t, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    good = np.isfinite(r) & (r > 0)
+    if alternating is None:
+        alternating = alternation(r).present
+    corrector = ChainCorrector(k=k, alternating=alternating, step_k=step_k)
+    seen = pair_means(r[good]) if alternating else r[good]
+    out = np.full(r.size, np.nan)
+    events = np.zeros(r.size, np.int8)
+    out[good], events[good] = corrector.run(t[good], seen)
+    return out, events, corrector

@@ -31,6 +31,13 @@ Per sample, in this order:
    (``step_array``, ``run_array``) a cross-talk term reads its neighbours' clamped
    pre-effect estimate of the same tick (NaN, i.e. held, where that sample was bad).
 
+Between 3 and the model, the calibration's input corrections (``input.filtered``) act on
+the used samples: pair means when the excitation alternates, then the spike and
+baseline-step corrector (``strain_comp.core.chain.ChainCorrector``), so neither reaches a
+model's or detector's state. Its state is kept across batches and ``step`` calls; a gap
+reset restarts its references. An array with such a sensor runs the per-sensor path, not
+the fused kernel.
+
 ``run`` (batch) equals repeated ``step`` exactly: screening is one sequential numba pass
 (the same rule function ``step`` and the array tick call), then the model's ``run`` over
 each run of used samples between resets, then the effect terms over the same runs, and the
@@ -51,7 +58,7 @@ import numpy.typing as npt
 from strain_comp._numba import njit
 from strain_comp.core import samples as sc
 from strain_comp.core.calibration import Calibration, SensorCalibration
-from strain_comp.core.chain import pair_means
+from strain_comp.core.chain import DESPIKE_K, ChainCorrector, pair_means
 from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.direction import (
     STATE_SIZE,
@@ -241,15 +248,24 @@ class _Sensor:
     """Input gain (tare): the models see ``gain`` x the measured resistance."""
     previous: float = math.nan
     """Latest used resistance [ohm] (for pair means when the input alternates)."""
+    corrector: ChainCorrector | None = None
+    """Spike and baseline-step correction when the calibration's input asks for it."""
 
-    def pair(self, ohm: np.ndarray, previous: float) -> np.ndarray:
-        """What the models see of used samples ``ohm``: pair means when the calibration's
-        input alternates (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used
-        sample before them (NaN after a reset)."""
-        if not self.cal.input.alternation or not ohm.size:
+    def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float) -> np.ndarray:
+        """What the models see of used samples ``ohm`` at times ``t``: pair means when the
+        calibration's input alternates, then the spike / baseline-step corrector when set
+        (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used sample before
+        them (NaN after a reset, which also restarts the corrector's references)."""
+        if not self.cal.input.filtered or not ohm.size:
             return ohm
         self.previous = float(ohm[-1])
-        return pair_means(ohm, previous)
+        if self.cal.input.alternation:
+            ohm = pair_means(ohm, previous)
+        if self.corrector is not None:
+            if math.isnan(previous):
+                self.corrector.restart()
+            ohm, _ = self.corrector.run(t, ohm)
+        return ohm
 
     @classmethod
     def build(cls, cal: SensorCalibration, deadzone_scale: float) -> _Sensor:
@@ -261,7 +277,8 @@ class _Sensor:
                    r_short=SHORT_FACTOR * vr.r_lo, r_open=OPEN_FACTOR * vr.r_hi,
                    r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
                    s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin,
-                   effects=EffectTerms.from_dicts(cal.effects))
+                   effects=EffectTerms.from_dicts(cal.effects),
+                   corrector=_corrector(cal))
 
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(resistance [ohm] x the tare gain, forced status) from the raw input values."""
@@ -279,6 +296,16 @@ class _Sensor:
         if self.cal.input.kind != "divider":
             return r_mid
         return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
+
+
+def _corrector(cal: SensorCalibration) -> ChainCorrector | None:
+    settings = cal.input
+    if settings.despike is None and settings.baseline_step is None:
+        return None
+    return ChainCorrector(k=settings.despike if settings.despike is not None else DESPIKE_K,
+                          alternating=settings.alternation,
+                          step_k=settings.baseline_step or 0.0)
+
 
 _COUNTER_CODES = [(name, [int(c) for c, (used, counter) in STATUS_RULES.items()
                            if (used if name == "n_good" else counter == name)])
@@ -508,7 +535,9 @@ class Engine:
             s.detector.reset()
             s.effects.reset()
             h.n_gaps += 1
-        raw = float(s.pair(np.array([raw]), math.nan if reset else s.previous)[0])
+        if s.cal.input.filtered:
+            raw = float(s.pair(np.array([t]), np.array([raw]),
+                               math.nan if reset else s.previous)[0])
         direction = int(s.detector.step(t, raw)) * s.cal.direction.sign
         return _Pending(t, raw, status, float(s.model.step(t, raw)), direction)
 
@@ -572,8 +601,8 @@ class Engine:
         status, reset, last_good_t, idx, resets = _screen_batch(
             t, ohm, forced, s.last_good_t, s.r_short, s.r_open, s.r_lo, s.r_hi,
             self.gap_reset)
-        if s.cal.input.alternation:
-            ohm = ohm.copy()  # pair means replace the used samples below; raw stays intact
+        if s.cal.input.filtered:
+            ohm = ohm.copy()  # corrected samples replace the used ones below; raw intact
         strain_used = np.empty(idx.size)
         dir_used = np.empty(idx.size, dtype=np.int8)
         bounds = [0, *resets.tolist(), idx.size]
@@ -584,7 +613,7 @@ class Engine:
                 s.model.reset()
                 s.detector.reset()
             seg = idx[a:b]
-            ohm[seg] = s.pair(ohm[seg], s.previous if k == 0 else math.nan)
+            ohm[seg] = s.pair(t[seg], ohm[seg], s.previous if k == 0 else math.nan)
             dir_used[a:b] = s.detector.run(t[seg], ohm[seg])
             strain_used[a:b] = s.model.run(t[seg], ohm[seg])
         if s.cal.direction.sign < 0:
@@ -714,9 +743,10 @@ def _array_tick(t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
 class _ArrayGroup:
     """The sensors of one array, stepped together.
 
-    When every sensor's model declares ``array_kernel`` (the APL family, same N and M), one
-    tick is one call of the fused ``_array_tick`` kernel; the group then keeps the array's
-    state, counters and held outputs itself, and its sensors should not also be fed through
+    When every sensor's model declares ``array_kernel`` (the APL family, same N and M) and
+    no sensor's input is corrected (``InputSettings.filtered``), one tick is one call of
+    the fused ``_array_tick`` kernel; the group then keeps the array's state, counters and
+    held outputs itself, and its sensors should not also be fed through
     ``Engine.step``. Sensors with effect terms are corrected after the kernel, one by one
     in Python (the slower path). Otherwise a loop of ``Engine.step``.
     """
@@ -731,7 +761,7 @@ class _ArrayGroup:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
-        if not all(type(s.model).array_kernel and not s.cal.input.alternation
+        if not all(type(s.model).array_kernel and not s.cal.input.filtered
                    for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray

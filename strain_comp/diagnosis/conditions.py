@@ -10,13 +10,21 @@ this run (a tare), an alternation of the excitation every other sample (pair mea
 3. ``alternation`` (when ``strain_comp.core.chain.alternation`` finds one in the
    diagnosed or the validation runs and the calibration does not correct it yet): the
    engine feeds the models pair means. Combined with 2 when both apply.
+4. ``despike`` (when the engine's own online corrector, ``ChainCorrector``, removes
+   isolated spikes from those runs): ``input.despike`` on, over 3 when it applies, with
+   the tare of 2 when asked for.
+5. ``baseline step`` (when that corrector confirms a baseline step in those runs: a jump
+   that stays without relaxing): ``input.baseline_step`` on, like 4.
 
 The condition whose held-out RMSE after the loop is lowest is chosen, but a condition other
 than the reference only if it beats it by more than ``margin`` (relative): a tare or a
 filter that worsens held-out error is not chosen. Every condition is reported with its
 reading (e.g. ``alternation +-340 ohm every other sample``) and its before/after RMSE.
-Spikes and quantisation found in the data are reported as readings only: the engine's
-screen already bounds spikes, and quantisation is a noise floor no term can remove.
+Quantisation found in the data is reported as a reading only: a quantisation step cannot
+be undone by a causal term without lag (any dequantiser is a low-pass filter, which delays
+every real change), and its error, q / sqrt(12) rms, is below the read-out noise wherever
+the noise dithers it (the ADC's steps on the virtual rig: 0.0098 ohm against 0.01 ohm of
+noise).
 """
 
 from __future__ import annotations
@@ -27,43 +35,101 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, InputSettings
-from strain_comp.core.chain import alternation, quantisation, spikes
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.chain import (
+    DESPIKE_K,
+    STEP_K,
+    STEP_SAMPLES,
+    alternation,
+    correct,
+    quantisation,
+)
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.io.recording import Recording
 
 
 def _with_alternation(calibration: Calibration, names: set[str]) -> Calibration:
+    return _with_input(calibration, names, alternation=True)
+
+
+def _with_input(calibration: Calibration, names: set[str], **settings: Any) -> Calibration:
     return Calibration({
-        n: dataclasses.replace(c, input=InputSettings(c.input.kind, c.input.r1, c.input.vin,
-                                                      alternation=True))
+        n: dataclasses.replace(c, input=dataclasses.replace(c.input, **settings))
         if n in names else c for n, c in calibration.sensors.items()})
+
+
+@dataclasses.dataclass
+class ChainFindings:
+    """Sensors with an uncorrected alternation, spikes, baseline steps; reading lines."""
+
+    alternating: set[str] = dataclasses.field(default_factory=set)
+    spiky: set[str] = dataclasses.field(default_factory=set)
+    stepped: set[str] = dataclasses.field(default_factory=set)
+    lines: list[str] = dataclasses.field(default_factory=list)
+    spike_lines: list[str] = dataclasses.field(default_factory=list)
+    step_lines: list[str] = dataclasses.field(default_factory=list)
+
+
+def _reference_note(rec: Recording, t: float) -> str:
+    """Whether the reference strain jumps too around a step confirmed at ``t`` (a change of
+    its rate by more than 1 % of its span from one sample to the next, over the samples
+    that confirmed it and a few before): no jump is the signature of a baseline step."""
+    if rec.s is None or np.asarray(rec.t).size < 3:
+        return ""
+    times, strain = np.asarray(rec.t), np.asarray(rec.s, dtype=np.float64)
+    dt = float(np.median(np.diff(times)))
+    seen = (times >= t - (STEP_SAMPLES + 6) * dt) & (times <= t) & np.isfinite(strain)
+    finite = strain[np.isfinite(strain)]
+    span = float(np.ptp(finite)) if finite.size else 0.0
+    if np.count_nonzero(seen) < 3 or not span > 0:
+        return ""
+    steps = np.diff(strain[seen])
+    jump = float(np.max(np.abs(steps - np.median(steps)))) / span
+    return (" (the reference shows no jump there)" if jump < 0.01
+            else " (the reference jumps too: a strain change?)")
+
+
+def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration,
+                   ) -> ChainFindings:
+    """What the measurement chain shows in ``recordings`` that ``calibration`` does not
+    correct yet: the alternation statistics, and the spikes and baseline steps the
+    engine's online corrector (at the default thresholds) finds in each run."""
+    found = ChainFindings()
+    for name, rec in recordings.items():
+        if name not in calibration.sensors:
+            continue
+        settings = calibration.sensors[name].input
+        r = np.asarray(rec.r)
+        wobble = alternation(r)
+        if wobble.present:
+            done = settings.alternation
+            found.lines.append(f"{name}: {wobble.reading()}"
+                               + (" (corrected by the calibration)" if done else ""))
+            if not done:
+                found.alternating.add(name)
+        _, _, corrector = correct(rec.t, r, step_k=STEP_K, alternating=wobble.present)
+        if corrector.n_spikes and settings.despike is None:
+            found.spiky.add(name)
+            plural = "s" if corrector.n_spikes > 1 else ""
+            found.spike_lines.append(f"{name}: {corrector.n_spikes} isolated spike{plural} in "
+                                     f"{r.size} samples (held out online at "
+                                     f"{DESPIKE_K:g} robust sigmas)")
+        if corrector.steps and settings.baseline_step is None:
+            found.stepped.add(name)
+            found.step_lines += [f"{name}: {step.reading()}{_reference_note(rec, step.t)}"
+                                 for step in corrector.steps]
+        step = quantisation(r)
+        if step is not None:
+            found.lines.append(f"{name}: resistance quantised in steps of {step:.3g} ohm")
+    return found
 
 
 def chain_readings(recordings: Mapping[str, Recording], calibration: Calibration,
                    ) -> tuple[set[str], list[str]]:
     """(sensors with an uncorrected alternation, one reading line per finding)."""
-    alternating: set[str] = set()
-    lines = []
-    for name, rec in recordings.items():
-        if name not in calibration.sensors:
-            continue
-        found = alternation(rec.r)
-        if found.present:
-            done = calibration.sensors[name].input.alternation
-            lines.append(f"{name}: {found.reading()}"
-                         + (" (corrected by the calibration)" if done else ""))
-            if not done:
-                alternating.add(name)
-        n_spikes = spikes(rec.r)
-        if n_spikes:
-            lines.append(f"{name}: {n_spikes} isolated spikes in {np.asarray(rec.r).size} "
-                         "samples")
-        step = quantisation(rec.r)
-        if step is not None:
-            lines.append(f"{name}: resistance quantised in steps of {step:.3g} ohm")
-    return alternating, lines
+    found = chain_findings(recordings, calibration)
+    return found.alternating, found.lines + found.spike_lines + found.step_lines
 
 
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
@@ -72,23 +138,38 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                         **options: Any) -> DiagnoseResult:
     """``diagnose`` under each condition of the module docstring; the chosen result, with
     every condition's record in ``conditions``."""
-    alternating, readings = chain_readings(recordings, calibration)
+    found = chain_findings(recordings, calibration)
+    readings = found.lines + found.spike_lines + found.step_lines
     if validate_recordings is not None:  # what the validation runs show is tested as well
-        more, lines = chain_readings(validate_recordings, calibration)
-        alternating |= more
-        readings += [f"{line} (validation run)" for line in lines]
+        more = chain_findings(validate_recordings, calibration)
+        for key in ("alternating", "spiky", "stepped"):
+            getattr(found, key).update(getattr(more, key))
+        readings += [f"{line} (validation run)"
+                     for line in more.lines + more.spike_lines + more.step_lines]
+    alternating = found.alternating
     runs: list[tuple[str, str, Calibration, str]] = [
         ("as calibrated", "the calibration's rest resistance and input", calibration,
          "calibration")]
     if tare == "auto":
         runs.append(("tare", "each run tared at its start", calibration, "auto"))
+    base = calibration
     if alternating:
         fixed = _with_alternation(calibration, alternating)
+        base = fixed
         text = "; ".join(line for line in readings if "alternation" in line)
         runs.append(("alternation", f"pair means for {text}", fixed, "calibration"))
         if tare == "auto":
             runs.append(("alternation + tare", f"pair means and tare for {text}", fixed,
                          "auto"))
+    then = " + tare" if tare == "auto" else ""
+    if found.spiky:
+        text = "; ".join(line for line in readings if "isolated spike" in line)
+        runs.append((f"despike{then}", f"spikes held out online: {text}",
+                     _with_input(base, found.spiky, despike=DESPIKE_K), tare))
+    if found.stepped:
+        text = "; ".join(line for line in readings if "baseline step" in line)
+        runs.append((f"baseline step{then}", f"jumps re-based online: {text}",
+                     _with_input(base, found.stepped, baseline_step=STEP_K), tare))
     results = [diagnose(recordings, cal, validate_recordings=validate_recordings,
                         margin=margin, tare=mode, **options) for _, _, cal, mode in runs]
     best = 0

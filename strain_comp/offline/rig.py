@@ -36,7 +36,10 @@ Forward model, per sensor (S strain in %, t in s, all effects listed in ``RigEff
    approximated by the exact zero-order-hold exponential at the sample rate).
 3. environment: ``R = R_mech * (1 + tcr (T - T_ref)) * (1 + drift * t / 3600 s)``, plus, in
    an array, ``crosstalk * (R_mech_j - R0_j)`` from each neighbour j = i +- 1.
-4. read-out: Gaussian noise (std ``noise`` ohm), then the voltage divider
+4. measurement chain: ``+-alternation`` every other sample, ``baseline_step`` ohm in
+   series from ``baseline_step_at`` on, isolated spikes of ``spike_size`` ohm on a share
+   ``spikes`` of the samples (none of them in ``resistance_true``); then the read-out:
+   Gaussian noise (std ``noise`` ohm), then the voltage divider
    V_R1 = Vin R1 / (R1 + R) quantised to ``adc_bits`` and converted back with
    ``strain_comp.core.conversion.divider_to_resistance`` ([Electrolycra] section II.A).
 
@@ -96,6 +99,14 @@ class RigEffects:
     mullins: float = _effect(0.0, "1 per 100 %", "sensitivity lost per 100 % of peak strain "
                              "reached (first-cycle softening, never recovers)")
     noise: float = _effect(0.01, "ohm", "standard deviation of Gaussian read-out noise")
+    alternation: float = _effect(0.0, "ohm", "read-out alternating every sample: "
+                                 "+-this added to R (an excitation reversing its polarity)")
+    spikes: float = _effect(0.0, "1", "share of samples read as an isolated spike "
+                            "(never two in a row)")
+    spike_size: float = _effect(0.5, "ohm", "height of a spike, with a random sign")
+    baseline_step: float = _effect(0.0, "ohm", "series resistance added from "
+                                   "baseline_step_at on (a connector re-seated)")
+    baseline_step_at: float = _effect(60.0, "s", "time of the baseline step")
     adc_bits: float = _effect(12, "bit", "ADC resolution of the divider voltage (0 = ideal)")
     divider_r1: float = _effect(10.5, "ohm", "series resistor R1 of the voltage divider")
     divider_vin: float = _effect(3.2, "V", "divider supply voltage Vin")
@@ -106,7 +117,10 @@ class RigEffects:
             if not np.isfinite(value):
                 raise ParameterError(f.name, f"must be finite, got {value}")
         nonneg = ("hysteresis", "relaxation", "noise", "adc_bits", "crosstalk", "mullins",
-                  "temperature_amplitude", "temperature_step")
+                  "temperature_amplitude", "temperature_step", "spike_size",
+                  "baseline_step_at")
+        if not 0.0 <= self.spikes <= 0.1:
+            raise ParameterError("spikes", f"must lie in [0, 0.1], got {self.spikes}")
         for name in nonneg:
             if getattr(self, name) < 0:
                 raise ParameterError(name, f"must be >= 0, got {getattr(self, name)}")
@@ -372,6 +386,18 @@ def temperature_profile(t: np.ndarray, fx: RigEffects) -> np.ndarray:
         + square
 
 
+def _chain(t: np.ndarray, r: np.ndarray, fx: RigEffects, rng: np.random.Generator
+           ) -> np.ndarray:
+    """The measurement chain's own effects (item 4): alternation, spikes, baseline step."""
+    r = r + fx.alternation * (-1.0) ** np.arange(r.size)
+    r = r + fx.baseline_step * (t >= fx.baseline_step_at)
+    if fx.spikes > 0:
+        hit = rng.random(r.size) < fx.spikes
+        hit[1:] &= ~hit[:-1]  # isolated: never two in a row
+        r = r + hit * fx.spike_size * rng.choice([-1.0, 1.0], r.size)
+    return r
+
+
 def _read_out(r: np.ndarray, fx: RigEffects, rng: np.random.Generator) -> np.ndarray:
     if fx.noise > 0:
         r = r + rng.normal(0.0, fx.noise, r.shape)
@@ -423,8 +449,9 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
     sensors = {}
     for i, name in enumerate(names):
         noise_rng = np.random.default_rng([seed, 1 + i])
+        chain = _chain(t, r[:, i], fx, np.random.default_rng([seed, 100 + i]))
         sensors[name] = SimSensor(t=t, strain=strain[:, i].copy(),
-                                  resistance=_read_out(r[:, i], fx, noise_rng),
+                                  resistance=_read_out(chain, fx, noise_rng),
                                   resistance_true=r[:, i].copy(), temperature=temp)
     return SimRun(scenario=scenario, seed=seed, effects=fx, fs=sc.fs, sensors=sensors,
                   array=ARRAY_NAME if scenario == "array" else None)
