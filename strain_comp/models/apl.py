@@ -65,6 +65,7 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import lsq_linear, minimize
+from threadpoolctl import threadpool_limits
 
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
@@ -227,8 +228,9 @@ class _CellModel(Compensator):
         ``output_nfev``: residual evaluations of the final output-error refinement (0: the
         paper's QP only); ``search_nfev``: those per scored point of the search (0: the
         search scores the QP solutions); ``search_top``: grid points re-scored with it.
-        ``workers``: threads scoring the sigma/p grid (default: one per core; the result
-        does not depend on it; ``bench/bench_fit.py`` times it against 1). ``progress``:
+        ``workers``: threads scoring the sigma/p grid (default ``grid_workers``: one per
+        available core, serial for a small problem; the result does not depend on it;
+        ``bench/bench_fit.py`` times the grid against ``workers=1``). ``progress``:
         True prints a line per grid row to stderr once the fit has run for more than 2 s;
         a callable receives those lines instead; False is silent.
         """
@@ -260,16 +262,10 @@ class _CellModel(Compensator):
         if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
             raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
         say = _progress_printer(progress, cls.name)
-        grid: list[_Solution] = []
-        # the grid points are independent and their kernels release the GIL: threads
-        with ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
-            rows = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
-                    for sigma in sigmas]
-            for i, (sigma, row) in enumerate(zip(sigmas, rows, strict=True)):
-                grid.extend(job.result() for job in row)
-                best = min(grid, key=_by_rmse)
-                say(f"grid row {i + 1}/{sigmas.size} (sigma={sigma:.3g}/s): best rmse "
-                    f"{best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+        grid = score_grid(problem, sigmas, ps,
+                          workers=grid_workers(workers, sigmas.size * ps.size, problem.t.size),
+                          say=say)
+        best = min(grid, key=_by_rmse)
         if search_nfev > 0:
             ranked = sorted(grid, key=_by_rmse)[:search_top]
             best = min((problem.solve(g.sigma, g.p, output_nfev=search_nfev) for g in ranked),
@@ -313,6 +309,62 @@ class MPI(_CellModel):
 
 def _by_rmse(solution: _Solution) -> float:
     return solution.rmse
+
+
+MIN_THREADED_SAMPLES = 2000
+"""Below this many training samples a grid point takes well under a millisecond and the
+grid is scored serially: thread hand-offs would cost more than they save."""
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the system tells it)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def grid_workers(requested: int | None, points: int, samples: int) -> int:
+    """Threads to score a sigma/p grid of ``points`` points on ``samples`` training samples:
+    ``requested``, else one per available core; never more than half the points (each
+    thread gets two or more), and 1 (serial, no thread pool) on one core or below
+    ``MIN_THREADED_SAMPLES`` samples unless requested."""
+    if requested is not None:
+        return max(1, min(requested, points))
+    if samples < MIN_THREADED_SAMPLES:
+        return 1
+    return max(1, min(available_cores(), points // 2))
+
+
+def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *, workers: int,
+               say: Callable[[str], None]) -> list[_Solution]:
+    """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads
+    (the points are independent; the cell-state kernel, numpy's array operations and BLAS
+    release the GIL). BLAS is held to one thread meanwhile: the grid's matrices (samples x
+    N + M + 2) are too small to gain from BLAS threads, and BLAS threads started from
+    several grid threads at once oversubscribe the cores. The result does not depend on
+    ``workers``."""
+    grid: list[_Solution] = []
+    with threadpool_limits(1, user_api="blas"):
+        if workers <= 1:
+            for i, sigma in enumerate(sigmas):
+                grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
+                _say_row(say, grid, i, sigmas.size, sigma)
+            return grid
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            jobs = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
+                    for sigma in sigmas]
+            for i, (sigma, row) in enumerate(zip(sigmas, jobs, strict=True)):
+                grid.extend(job.result() for job in row)
+                _say_row(say, grid, i, sigmas.size, sigma)
+    return grid
+
+
+def _say_row(say: Callable[[str], None], grid: list[_Solution], i: int, rows: int,
+             sigma: float) -> None:
+    best = min(grid, key=_by_rmse)
+    say(f"grid row {i + 1}/{rows} (sigma={sigma:.3g}/s): best rmse {best.rmse:.4g} % at "
+        f"sigma={best.sigma:.3g}/s, p={best.p:.3g}")
 
 
 def _progress_printer(progress: bool | Callable[[str], None], name: str) -> Callable[[str], None]:
@@ -576,4 +628,4 @@ class APLArray:
         return out
 
 
-__all__ = ["APL", "MPI", "PL", "APLArray", "thresholds"]
+__all__ = ["APL", "MPI", "PL", "APLArray", "grid_workers", "score_grid", "thresholds"]
