@@ -46,6 +46,7 @@ from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.models import Normalisation
 from strain_comp.models.apl import APL, available_cores
+from strain_comp.models.base import Segment
 from strain_comp.offline import rig
 from strain_comp.offline.fit import fit_sensor, split_segments
 
@@ -117,13 +118,16 @@ def grid_speedup(rec: Recording, direction: DirectionSettings, repeats: int) -> 
     only_grid = {"search_nfev": 0, "refine": False, "output_nfev": 0, "progress": False}
     load_before = os.getloadavg()
     best = {1: math.inf, cores: math.inf}
+    cpu = {1: math.inf, cores: math.inf}
     models = {}
     for _ in range(repeats):
         for workers in best:
-            start = time.perf_counter()
+            start, start_cpu = time.perf_counter(), time.process_time()
             models[workers] = APL.fit(segments, norm, direction=direction, workers=workers,
                                       **only_grid)
-            best[workers] = min(best[workers], time.perf_counter() - start)
+            wall = time.perf_counter() - start
+            if wall < best[workers]:
+                best[workers], cpu[workers] = wall, time.process_time() - start_cpu
     load_after = os.getloadavg()
     same = all(np.array_equal(m.w, models[1].w) and m.sigma == models[1].sigma
                for m in models.values())
@@ -134,11 +138,36 @@ def grid_speedup(rec: Recording, direction: DirectionSettings, repeats: int) -> 
           f"{best[1]:.2f} s, {cores} threads {best[cores]:.2f} s: {ratio:.2f}x; "
           f"os.cpu_count() = {os.cpu_count()}, {cores} cores available; {load}; "
           f"same model: {same}")
+    print(f"  CPU time: serial {cpu[1]:.2f} s, threaded {cpu[cores]:.2f} s (cores kept busy "
+          f"on average: {cpu[cores] / best[cores]:.2f} of {cores}; the rest went to the "
+          f"machine's other work or waiting for the GIL)")
+    gil_free = _gil_free_share(segments, norm, best[1])
+    print(f"  the cell-state kernel (GIL released) takes {100 * gil_free:.0f} % of the serial "
+          f"grid: were it the only part to run in parallel, {cores} idle cores would give "
+          f"{1 / (1 - gil_free + gil_free / cores):.2f}x (Amdahl); BLAS and numpy's array "
+          f"copies also release the GIL, the bounded least-squares solver (scipy's bvls) "
+          f"does not")
     if not same:
         raise SystemExit("threaded and serial grids gave different models")
     row(f"APL sigma/p grid ({points} points) in {cores} threads, {rec.t.size:,} samples "
         f"(`bench_fit.py`)", f"{best[cores]:.2f} s ({os.cpu_count()} cores, {load})",
         f"the same grid serially: {best[1]:.2f} s", f"{ratio:.2f}x")
+
+
+def _gil_free_share(segments: list[Segment], norm: Normalisation, serial: float) -> float:
+    """Share of the serial default grid's wall time ``serial`` that its cell-state kernel
+    (nogil) takes, timed alone over the same points."""
+    from strain_comp.models import _apl_kernels as kern
+    from strain_comp.models.apl import P_GRID, _FitProblem
+
+    problem = _FitProblem(APL, segments, norm, n=11, m=9, eps=1e-3, ridge=1e-6,
+                          cell_weights="signed", search_nfev=0)
+    start = time.perf_counter()
+    for sigma in problem.default_sigma_grid():
+        for p in P_GRID:
+            kern.states_kernel(problem.t, problem.xi, problem.starts, kern.KIND_APL,
+                               float(sigma), float(p), problem.rho, problem.inv_width)
+    return min(1.0, (time.perf_counter() - start) / serial)
 
 
 def rational_scaling(sizes: list[int]) -> None:

@@ -84,6 +84,8 @@ from strain_comp.models.base import (
 N_MAX = 200
 M_MAX = 201
 P_MAX = 20.0
+P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
+"""The default grid of p searched by the fit."""
 
 
 def thresholds(n: int, kind: int) -> np.ndarray:
@@ -257,8 +259,7 @@ class _CellModel(Compensator):
             return model
         sigmas = (problem.default_sigma_grid() if sigma_grid is None
                   else np.asarray(sigma_grid, dtype=np.float64))
-        ps = (np.array([0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0]) if p_grid is None
-              else np.asarray(p_grid, dtype=np.float64))
+        ps = np.asarray(P_GRID if p_grid is None else p_grid, dtype=np.float64)
         if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
             raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
         say = _progress_printer(progress, cls.name)
