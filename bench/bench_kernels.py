@@ -26,7 +26,7 @@ from _common import best_time, row
 
 from strain_comp._numba import njit
 from strain_comp.core.direction import DirectionSettings
-from strain_comp.models._apl_kernels import FASTMATH, pow01
+from strain_comp.models._apl_kernels import FASTMATH, LANES, pow01
 from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.cubic import Cubic
@@ -223,25 +223,33 @@ def roofline(n: int = 1_000_000, n_cells: int = 11) -> None:
     (N + 2 multiply-adds and an M-segment search): about 11 x 60 + 40 = 700 flops and 24
     bytes of input/output per sample. At 24 bytes per ~700 flops memory is never the bound;
     the powers are. The samples form a recursion (each state needs the previous), so only
-    the N cells of one sample can run in SIMD lanes.
+    the N cells of one sample can run in SIMD lanes, and a sample cannot start before the
+    previous one's powers are done: the kernel with one vector of cells (``LANES``) shows
+    that latency alone, the floor of the time per sample whatever the SIMD width.
     """
     t, r = make_input(n)
-    apl = APL(n=n_cells, m=9, sigma=2.15e-2, p=0.73, w=W_PAPER, mu=MU, normalisation=NORM)
-    apl.run(t[:100], r[:100])
 
-    def go() -> None:
-        apl.reset()
-        apl.run(t, r)
+    def kernel_ns(cells: int) -> float:
+        w = np.r_[W_PAPER[0], np.resize(W_PAPER[1:-1], cells), W_PAPER[-1]]
+        model = APL(n=cells, m=9, sigma=2.15e-2, p=0.73, w=w, mu=MU, normalisation=NORM)
+        model.run(t[:100], r[:100])
 
-    ns_kernel = 1e9 * best_time(go, 5) / n
+        def go() -> None:
+            model.reset()
+            model.run(t, r)
+
+        return 1e9 * best_time(go, 5) / n
+
+    ns_kernel = kernel_ns(n_cells)
+    ns_one_vector = kernel_ns(LANES)
     z = np.random.default_rng(0).uniform(1e-3, 1.0, (n, n_cells))
     _pow_only(z[:10], 0.73)
     _libm_only(z[:10], 0.73)
     ns_pow = 1e9 * best_time(lambda: _pow_only(z, 0.73), 5) / n
     ns_libm = 1e9 * best_time(lambda: _libm_only(z, 0.73), 5) / n
     n_py = 20_000
-    ns_py = 1e9 * best_time(lambda: python_cells("apl", t[:n_py], r[:n_py], n_cells, apl.sigma,
-                                                 apl.p, apl.w.tolist(), apl.mu), 2) / n_py
+    ns_py = 1e9 * best_time(lambda: python_cells("apl", t[:n_py], r[:n_py], n_cells, 2.15e-2,
+                                                 0.73, W_PAPER, np.array(MU)), 2) / n_py
     flops = n_cells * 60 + 40
     print(f"\nroofline of the APL kernel (N={n_cells}, {n:.0e} samples, one core):")
     print(f"  kernel:                        {ns_kernel:7.1f} ns/sample "
@@ -249,12 +257,19 @@ def roofline(n: int = 1_000_000, n_cells: int = 11) -> None:
     print(f"  the {n_cells} powers alone (pow01, SIMD):{ns_pow:7.1f} ns/sample "
           f"({100 * ns_pow / ns_kernel:.0f} % of the kernel)")
     print(f"  the {n_cells} powers with libm pow:    {ns_libm:7.1f} ns/sample")
+    print(f"  the kernel with {LANES} cells (one SIMD vector): {ns_one_vector:7.1f} ns/sample: "
+          f"the latency of one sample's dependency chain (state -> power -> state), which "
+          f"SIMD cannot shorten; {n_cells} cells ({-(-n_cells // LANES)} vectors) cost "
+          f"{ns_kernel / ns_one_vector:.2f}x that")
     print(f"  pure-Python loop (baseline):   {ns_py:7.0f} ns/sample "
-          f"(kernel is {ns_py / ns_kernel:.0f}x faster)")
+          f"(kernel is {ns_py / ns_kernel:.0f}x faster; 100x would need "
+          f"{ns_py / 100:.0f} ns/sample)")
     row("APL kernel roofline: ns per sample vs its 11 powers alone (`bench_kernels.py`)",
-        f"{ns_kernel:.0f} ns/sample, {flops / ns_kernel:.1f} Gflop/s",
-        f"the powers alone (pow01): {ns_pow:.0f} ns; libm pow: {ns_libm:.0f} ns",
-        f"{100 * ns_pow / ns_kernel:.0f} % of the kernel")
+        f"{ns_kernel:.0f} ns/sample, {flops / ns_kernel:.1f} Gflop/s; {LANES} cells (one "
+        f"vector, the recursion's latency): {ns_one_vector:.0f} ns",
+        f"the powers alone (pow01): {ns_pow:.0f} ns; libm pow: {ns_libm:.0f} ns; "
+        f"pure Python: {ns_py:.0f} ns", f"powers {100 * ns_pow / ns_kernel:.0f} % of the "
+        f"kernel; kernel {ns_py / ns_kernel:.0f}x pure Python")
 
 
 def main() -> None:
