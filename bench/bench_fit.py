@@ -15,6 +15,8 @@ includes numba compilation. Target: APL under 30 s on this 2-core machine.
 
 Baselines in the same run:
 
+* the default APL fit with BLAS held to one thread (as ``APL.fit`` runs) against the same
+  fit with BLAS's own threads;
 * the APL sigma/p grid alone (13 x 9 points scored by their QP) in one thread per available
   core against the same grid serially (``workers=1``), alternately, best of
   ``--grid-repeats``: the speed-up (or not) of the threaded grid, printed with
@@ -154,6 +156,33 @@ def grid_speedup(rec: Recording, direction: DirectionSettings, repeats: int) -> 
         f"the same grid serially: {best[1]:.2f} s", f"{ratio:.2f}x")
 
 
+def blas_threads(rec: Recording, direction: DirectionSettings) -> int:
+    """The default APL fit as ``APL.fit`` runs it (BLAS held to one thread) against the
+    same fit with BLAS's threads left as numpy starts them, one after the other; returns
+    the fit's model runs (the naive baseline's budget)."""
+    from threadpoolctl import threadpool_info
+
+    segments = split_segments(rec.t, rec.r, rec.s)
+    norm = Normalisation.fit(rec.r, rec.s)
+    unlimited = APL.fit.__func__.__wrapped__  # type: ignore[attr-defined]
+    threads = max((pool["num_threads"] for pool in threadpool_info()
+                   if pool["user_api"] == "blas"), default=1)
+    load = os.getloadavg()[0]
+    start = time.perf_counter()
+    model = APL.fit(segments, norm, direction=direction, progress=False)
+    one = time.perf_counter() - start
+    start = time.perf_counter()
+    other = unlimited(APL, segments, norm, direction=direction, progress=False)
+    free = time.perf_counter() - start
+    print(f"APL fit ({rec.t.size:,} samples), BLAS held to one thread: {one:.2f} s; with "
+          f"BLAS's {threads} threads: {free:.2f} s ({free / one:.1f}x; load average "
+          f"{load:.2f}); same RMSE: {model.fit_report['rmse'] == other.fit_report['rmse']}")
+    row(f"APL fit, BLAS held to one thread, {rec.t.size:,} samples (`bench_fit.py`)",
+        f"{one:.2f} s (load average {load:.2f})",
+        f"the same fit with BLAS's {threads} threads: {free:.2f} s", f"{free / one:.1f}x")
+    return int(model.fit_report["evaluations"])
+
+
 def _gil_free_share(segments: list[Segment], norm: Normalisation, serial: float) -> float:
     """Share of the serial default grid's wall time ``serial`` that its cell-state kernel
     (nogil) takes, timed alone over the same points."""
@@ -253,9 +282,7 @@ def main() -> None:
         print(f"target 'APL fit (with sigma/p search) under 30 s': {verdict} ({wall:.1f} s)")
         direction = cals["apl"].direction
         grid_speedup(rates, direction, args.grid_repeats)
-        budget = args.naive_evaluations or int(APL.fit(
-            split_segments(rates.t, rates.r, rates.s), Normalisation.fit(rates.r, rates.s),
-            direction=direction, progress=False).fit_report["evaluations"])
+        budget = args.naive_evaluations or blas_threads(rates, direction)
         best, reached, n, sec = naive_apl(rates, budget, target)
         when = (f"reached the guided RMSE after {reached:.1f} s" if reached is not None else
                 f"never reached the guided fit's {target:.3f} %")

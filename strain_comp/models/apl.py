@@ -215,6 +215,7 @@ class _CellModel(Compensator):
         return cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=normalisation)
 
     @classmethod
+    @threadpool_limits.wrap(limits=1, user_api="blas")
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, N: int = 11, M: int = 9,
             sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
@@ -235,6 +236,11 @@ class _CellModel(Compensator):
         ``bench/bench_fit.py`` times the grid against ``workers=1``). ``progress``:
         True prints a line per grid row to stderr once the fit has run for more than 2 s;
         a callable receives those lines instead; False is silent.
+
+        BLAS is held to one thread during the fit: its matrices (samples x N + M + 2, and
+        the reduced QP) are too small to gain from BLAS threads, and BLAS threads spinning
+        on a machine with other work, or started from several grid threads at once, made
+        the same fit many times slower (``bench/bench_fit.py`` times both).
         """
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
@@ -341,23 +347,21 @@ def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *, work
                say: Callable[[str], None]) -> list[_Solution]:
     """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads
     (the points are independent; the cell-state kernel, numpy's array operations and BLAS
-    release the GIL). BLAS is held to one thread meanwhile: the grid's matrices (samples x
-    N + M + 2) are too small to gain from BLAS threads, and BLAS threads started from
-    several grid threads at once oversubscribe the cores. The result does not depend on
+    release the GIL). ``APL.fit`` calls it with BLAS held to one thread, so the grid
+    threads do not start BLAS threads of their own. The result does not depend on
     ``workers``."""
     grid: list[_Solution] = []
-    with threadpool_limits(1, user_api="blas"):
-        if workers <= 1:
-            for i, sigma in enumerate(sigmas):
-                grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
-                _say_row(say, grid, i, sigmas.size, sigma)
-            return grid
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            jobs = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
-                    for sigma in sigmas]
-            for i, (sigma, row) in enumerate(zip(sigmas, jobs, strict=True)):
-                grid.extend(job.result() for job in row)
-                _say_row(say, grid, i, sigmas.size, sigma)
+    if workers <= 1:
+        for i, sigma in enumerate(sigmas):
+            grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
+            _say_row(say, grid, i, sigmas.size, sigma)
+        return grid
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        jobs = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
+                for sigma in sigmas]
+        for i, (sigma, row) in enumerate(zip(sigmas, jobs, strict=True)):
+            grid.extend(job.result() for job in row)
+            _say_row(say, grid, i, sigmas.size, sigma)
     return grid
 
 
