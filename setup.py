@@ -30,6 +30,7 @@ setup(
         "mcap>=1.1",
         "mcap-ros2-support>=0.6,<0.7",  # io/bag/writer.py uses its serialize_dynamic
         "matplotlib>=3.7",
+        "threadpoolctl>=3.1",  # models/apl.py: one BLAS thread while the fit grid is scored
     ],
     extras_require={
         "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "ruff", "mypy>=1.16",

@@ -15,9 +15,12 @@ includes numba compilation. Target: APL under 30 s on this 2-core machine.
 
 Baselines in the same run:
 
-* the APL fit with its sigma/p grid scored in one thread per core
-  (``workers=os.cpu_count()``) against the default serial search: the speed-up (or not) of
-  the threaded grid;
+* the default APL fit with BLAS held to one thread (as ``APL.fit`` runs) against the same
+  fit with BLAS's own threads;
+* the APL sigma/p grid alone (13 x 9 points scored by their QP) in one thread per available
+  core against the same grid serially (``workers=1``), alternately, best of
+  ``--grid-repeats``: the speed-up (or not) of the threaded grid, printed with
+  ``os.cpu_count()`` and the load average (a shared machine's other work takes cores);
 * a naive, unguided ``scipy.optimize.minimize`` (Nelder-Mead, scipy defaults) of the same
   APL model's training RMSE over all 24 parameters (log sigma, p, w_0..w_12, mu_1..mu_9)
   from a neutral start (sigma = 0.02 /s, p = 1, w = [1, 0...], f = identity), given equal
@@ -40,10 +43,12 @@ import numpy as np
 from _common import row
 from scipy.optimize import minimize
 
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.models import Normalisation
-from strain_comp.models.apl import APL
+from strain_comp.models.apl import APL, available_cores
+from strain_comp.models.base import Segment
 from strain_comp.offline import rig
 from strain_comp.offline.fit import fit_sensor, split_segments
 
@@ -103,6 +108,97 @@ def naive_apl(rec: Recording, evaluations: int, target: float
     return state["best"], state["reached"], state["n"], time.perf_counter() - start
 
 
+def grid_speedup(rec: Recording, direction: DirectionSettings, repeats: int) -> None:
+    """The default 13 x 9 sigma/p grid alone (``APL.fit`` with no search refinement, no
+    Nelder-Mead, no output-error step: the grid points scored by their QP), serially
+    (``workers=1``) and in one thread per available core, alternately, best of
+    ``repeats`` each: equal work, same run. Prints the cores and the load average (other
+    processes on the machine take cores from the threads), and checks both gave one model."""
+    segments = split_segments(rec.t, rec.r, rec.s)
+    norm = Normalisation.fit(rec.r, rec.s)
+    cores = available_cores()
+    only_grid = {"search_nfev": 0, "refine": False, "output_nfev": 0, "progress": False}
+    load_before = os.getloadavg()
+    best = {1: math.inf, cores: math.inf}
+    cpu = {1: math.inf, cores: math.inf}
+    models = {}
+    for _ in range(repeats):
+        for workers in best:
+            start, start_cpu = time.perf_counter(), time.process_time()
+            models[workers] = APL.fit(segments, norm, direction=direction, workers=workers,
+                                      **only_grid)
+            wall = time.perf_counter() - start
+            if wall < best[workers]:
+                best[workers], cpu[workers] = wall, time.process_time() - start_cpu
+    load_after = os.getloadavg()
+    same = all(np.array_equal(m.w, models[1].w) and m.sigma == models[1].sigma
+               for m in models.values())
+    points = int(models[1].fit_report["evaluations"])
+    ratio = best[1] / best[cores]
+    load = f"load average {load_before[0]:.2f} before, {load_after[0]:.2f} after"
+    print(f"APL sigma/p grid alone ({points} points, {rec.t.size:,} samples): serial "
+          f"{best[1]:.2f} s, {cores} threads {best[cores]:.2f} s: {ratio:.2f}x; "
+          f"os.cpu_count() = {os.cpu_count()}, {cores} cores available; {load}; "
+          f"same model: {same}")
+    print(f"  CPU time: serial {cpu[1]:.2f} s, threaded {cpu[cores]:.2f} s (cores kept busy "
+          f"on average: {cpu[cores] / best[cores]:.2f} of {cores}; the rest went to the "
+          f"machine's other work or waiting for the GIL)")
+    gil_free = _gil_free_share(segments, norm, best[1])
+    print(f"  the cell-state kernel (GIL released) takes {100 * gil_free:.0f} % of the serial "
+          f"grid: were it the only part to run in parallel, {cores} idle cores would give "
+          f"{1 / (1 - gil_free + gil_free / cores):.2f}x (Amdahl); BLAS and numpy's array "
+          f"copies also release the GIL, the bounded least-squares solver (scipy's bvls) "
+          f"does not")
+    if not same:
+        raise SystemExit("threaded and serial grids gave different models")
+    row(f"APL sigma/p grid ({points} points) in {cores} threads, {rec.t.size:,} samples "
+        f"(`bench_fit.py`)", f"{best[cores]:.2f} s ({os.cpu_count()} cores, {load})",
+        f"the same grid serially: {best[1]:.2f} s", f"{ratio:.2f}x")
+
+
+def blas_threads(rec: Recording, direction: DirectionSettings) -> int:
+    """The default APL fit as ``APL.fit`` runs it (BLAS held to one thread) against the
+    same fit with BLAS's threads left as numpy starts them, one after the other; returns
+    the fit's model runs (the naive baseline's budget)."""
+    from threadpoolctl import threadpool_info
+
+    segments = split_segments(rec.t, rec.r, rec.s)
+    norm = Normalisation.fit(rec.r, rec.s)
+    unlimited = APL.fit.__func__.__wrapped__  # type: ignore[attr-defined]
+    threads = max((pool["num_threads"] for pool in threadpool_info()
+                   if pool["user_api"] == "blas"), default=1)
+    load = os.getloadavg()[0]
+    start = time.perf_counter()
+    model = APL.fit(segments, norm, direction=direction, progress=False)
+    one = time.perf_counter() - start
+    start = time.perf_counter()
+    other = unlimited(APL, segments, norm, direction=direction, progress=False)
+    free = time.perf_counter() - start
+    print(f"APL fit ({rec.t.size:,} samples), BLAS held to one thread: {one:.2f} s; with "
+          f"BLAS's {threads} threads: {free:.2f} s ({free / one:.1f}x; load average "
+          f"{load:.2f}); same RMSE: {model.fit_report['rmse'] == other.fit_report['rmse']}")
+    row(f"APL fit, BLAS held to one thread, {rec.t.size:,} samples (`bench_fit.py`)",
+        f"{one:.2f} s (load average {load:.2f})",
+        f"the same fit with BLAS's {threads} threads: {free:.2f} s", f"{free / one:.1f}x")
+    return int(model.fit_report["evaluations"])
+
+
+def _gil_free_share(segments: list[Segment], norm: Normalisation, serial: float) -> float:
+    """Share of the serial default grid's wall time ``serial`` that its cell-state kernel
+    (nogil) takes, timed alone over the same points."""
+    from strain_comp.models import _apl_kernels as kern
+    from strain_comp.models.apl import P_GRID, _FitProblem
+
+    problem = _FitProblem(APL, segments, norm, n=11, m=9, eps=1e-3, ridge=1e-6,
+                          cell_weights="signed", search_nfev=0)
+    start = time.perf_counter()
+    for sigma in problem.default_sigma_grid():
+        for p in P_GRID:
+            kern.states_kernel(problem.t, problem.xi, problem.starts, kern.KIND_APL,
+                               float(sigma), float(p), problem.rho, problem.inv_width)
+    return min(1.0, (time.perf_counter() - start) / serial)
+
+
 def rational_scaling(sizes: list[int]) -> None:
     """fit_rat22 time per sample, analytic vs finite-difference Jacobian."""
     from scipy import optimize
@@ -148,6 +244,8 @@ def main() -> None:
                         help="model runs of the naive baseline (default: the APL fit's)")
     parser.add_argument("--rational-sizes", default="20000,200000,1000000")
     parser.add_argument("--models", default=",".join(MODELS))
+    parser.add_argument("--grid-repeats", type=int, default=3,
+                        help="timed runs of the APL grid alone, serial and threaded each")
     args = parser.parse_args()
     rates = training_recording("rates", args.samples)
     steps = training_recording("steps", args.samples)
@@ -182,22 +280,9 @@ def main() -> None:
         wall, target = results["apl"]
         verdict = "holds" if wall < 30.0 else "does NOT hold"
         print(f"target 'APL fit (with sigma/p search) under 30 s': {verdict} ({wall:.1f} s)")
-        segments = split_segments(rates.t, rates.r, rates.s)
-        norm = Normalisation.fit(rates.r, rates.s)
-        cal = cals["apl"]
-        timed = {}
-        for workers in (1, os.cpu_count() or 1):
-            start = time.perf_counter()
-            model = APL.fit(segments, norm, direction=cal.direction, workers=workers,
-                            progress=False)
-            timed[None if workers > 1 else 1] = time.perf_counter() - start
-        print(f"APL fit: grid in {os.cpu_count()} threads {timed[None]:.2f} s, serial "
-              f"(baseline) {timed[1]:.2f} s: {timed[1] / timed[None]:.2f}x")
-        row(f"APL fit with its sigma/p grid in {os.cpu_count()} threads, "
-            f"{args.samples:,} samples (`bench_fit.py`)", f"{timed[None]:.1f} s",
-            f"the same grid scored serially: {timed[1]:.1f} s",
-            f"{timed[1] / timed[None]:.2f}x")
-        budget = args.naive_evaluations or int(model.fit_report["evaluations"])
+        direction = cals["apl"].direction
+        grid_speedup(rates, direction, args.grid_repeats)
+        budget = args.naive_evaluations or blas_threads(rates, direction)
         best, reached, n, sec = naive_apl(rates, budget, target)
         when = (f"reached the guided RMSE after {reached:.1f} s" if reached is not None else
                 f"never reached the guided fit's {target:.3f} %")

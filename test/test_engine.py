@@ -77,6 +77,22 @@ def test_batch_equals_streaming(make_cal: Any, seed: int) -> None:
     assert chunked.health() == ref_engine.health()
 
 
+
+@pytest.mark.parametrize("alternating", [False, True])
+def test_batch_reads_but_never_writes_its_input(alternating: bool) -> None:
+    """Read-only input (a bag reader's buffers) gives what writable copies give, and the
+    caller's arrays are left as they were, whatever segments the gaps cut."""
+    t, r = noisy_stream(np.random.default_rng(5))
+    cal = lag_cal(input=InputSettings(alternation=alternating))
+    t_ro, r_ro = t.copy(), r.copy()
+    t_ro.flags.writeable = r_ro.flags.writeable = False
+    ref = engine_of(cal).run("s1", t.copy(), r.copy())
+    got = engine_of(cal).run("s1", t_ro, r_ro)
+    for f in ("strain", "direction", "status", "out_of_range"):
+        np.testing.assert_array_equal(getattr(got, f), getattr(ref, f))
+    np.testing.assert_array_equal(r_ro, r)
+    np.testing.assert_array_equal(t_ro, t)
+
 def test_bad_samples_counted_held_and_never_reach_the_model() -> None:
     t = np.arange(12) * 0.01
     r = np.array([150.0, np.nan, 152.0, np.inf, -3.0, 0.0, 1e6, 0.2, 154.0, 156.0, 158.0, 160.0])

@@ -307,21 +307,20 @@ def _corrector(cal: SensorCalibration) -> ChainCorrector | None:
                           step_k=settings.baseline_step or 0.0)
 
 
-_COUNTER_CODES = [(name, [int(c) for c, (used, counter) in STATUS_RULES.items()
-                           if (used if name == "n_good" else counter == name)])
-                   for name in ["n_good", *sorted({c for _, c in STATUS_RULES.values() if c})]]
-"""Each health counter with the status codes it counts (from ``STATUS_RULES``)."""
+_STATUSES = tuple(Status)
+"""Every ``Status``, indexed by its code."""
+_COUNTERS = tuple((("n_good",) if used else ()) + ((counter,) if counter else ())
+                  for used, counter in (STATUS_RULES[s] for s in _STATUSES))
+"""The health counters a sample of each status code adds to (from ``STATUS_RULES``)."""
 
 
 def _add_counts(h: SensorHealth, counts: np.ndarray) -> None:
-    """Add per-``Status`` sample counts (indexed by status code) to ``h``'s counters."""
-    values = counts.tolist()
-    for name, codes in _COUNTER_CODES:
-        n = 0
-        for c in codes:
-            n += values[c]
+    """Add per-``Status`` sample counts (indexed by status code; a further entry, the gap
+    resets, is left out) to ``h``'s counters."""
+    for names, n in zip(_COUNTERS, counts.tolist(), strict=False):
         if n:
-            setattr(h, name, getattr(h, name) + n)
+            for name in names:
+                setattr(h, name, getattr(h, name) + n)
 
 
 @njit
@@ -355,16 +354,19 @@ def _screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_
 @njit
 def _hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np.ndarray,
           dir_used: np.ndarray, strain: float, direction: int, s_lo: float, s_hi: float
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Clamp the used samples' strain (in place) and hold it, and the direction, over the
-    bad samples. Also returns the samples per status code, then the number of resets."""
+    bad samples. Also returns the out-of-range flags and the samples per status code, then
+    the number of resets."""
     n = status.size
     out_s = np.empty(n)
     out_d = np.empty(n, np.int8)
+    oor = np.empty(n, np.bool_)
     counts = np.zeros(sc.OUT_OF_RANGE + 2, np.int64)
     j = 0
     for i in range(n):
         counts[status[i]] += 1
+        oor[i] = status[i] == sc.OUT_OF_RANGE
         if reset[i]:
             counts[counts.size - 1] += 1
         if j < idx.size and idx[j] == i:
@@ -374,7 +376,7 @@ def _hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: n
             j += 1
         out_s[i] = strain
         out_d[i] = direction
-    return out_s, out_d, counts
+    return out_s, out_d, oor, counts
 
 
 def _scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
@@ -569,7 +571,8 @@ class Engine:
         """
         s = self._sensor(sensor)
         pending = self._run_model(s, t, r, temperature)
-        nbrs = {n: np.asarray(v, dtype=np.float64) for n, v in (neighbours or {}).items()}
+        nbrs = ({n: np.asarray(v, dtype=np.float64) for n, v in neighbours.items()}
+                if neighbours else {})
         return self._run_finish(s, pending, nbrs)
 
     def run_array(self, sensors: Sequence[str], t: npt.ArrayLike, r: npt.ArrayLike,
@@ -603,19 +606,26 @@ class Engine:
             self.gap_reset)
         if s.cal.input.filtered:
             ohm = ohm.copy()  # corrected samples replace the used ones below; raw intact
-        strain_used = np.empty(idx.size)
-        dir_used = np.empty(idx.size, dtype=np.int8)
-        bounds = [0, *resets.tolist(), idx.size]
-        for k, (a, b) in enumerate(itertools.pairwise(bounds)):
-            if b == a:
-                continue
-            if k > 0:
-                s.model.reset()
-                s.detector.reset()
-            seg = idx[a:b]
-            ohm[seg] = s.pair(t[seg], ohm[seg], s.previous if k == 0 else math.nan)
-            dir_used[a:b] = s.detector.run(t[seg], ohm[seg])
-            strain_used[a:b] = s.model.run(t[seg], ohm[seg])
+        bounds = [0, *resets.tolist(), idx.size] if resets.size else [0, idx.size]
+        if 0 < idx.size == t.size and len(bounds) == 2:  # every sample used, one segment
+            ohm = s.pair(t, ohm, s.previous)
+            dir_used = s.detector.run(t, ohm)
+            strain_used = s.model.run(t, ohm)
+        else:
+            strain_used = np.empty(idx.size)
+            dir_used = np.empty(idx.size, dtype=np.int8)
+            for k, (a, b) in enumerate(itertools.pairwise(bounds)):
+                if b == a:
+                    continue
+                if k > 0:
+                    s.model.reset()
+                    s.detector.reset()
+                seg = idx[a:b]
+                seg_ohm = s.pair(t[seg], ohm[seg], s.previous if k == 0 else math.nan)
+                if s.cal.input.filtered:
+                    ohm[seg] = seg_ohm
+                dir_used[a:b] = s.detector.run(t[seg], seg_ohm)
+                strain_used[a:b] = s.model.run(t[seg], seg_ohm)
         if s.cal.direction.sign < 0:
             dir_used = -dir_used
         return _PendingBatch(t, ohm, temp, status, reset, last_good_t, idx, bounds,
@@ -634,18 +644,18 @@ class Engine:
             strain_used = self._apply_effects(s, t[idx], p.ohm[idx], strain_used, dir_used,
                                               temp, nbrs, starts)
         # clamped; held outputs: each sample shows the latest used sample at or before it
-        strain, direction, counts = _hold(status, reset, idx, strain_used, dir_used, s.strain,
-                                          s.direction, s.s_lo, s.s_hi)
+        strain, direction, out_of_range, counts = _hold(
+            status, reset, idx, strain_used, dir_used, s.strain, s.direction, s.s_lo, s.s_hi)
         h = s.health
         _add_counts(h, counts)
-        if status.size:
-            h.last_status = Status(int(status[-1]))
         h.n_gaps += int(counts[-1])
+        if status.size:
+            h.last_status = _STATUSES[status[-1]]
         if idx.size:
             s.last_good_t = last_good_t
-            s.health.last_good_t = last_good_t
+            h.last_good_t = last_good_t
             s.strain, s.direction = float(strain_used[-1]), int(dir_used[-1])
-        return BatchOutput(strain, direction, status, status == sc.OUT_OF_RANGE, reset)
+        return BatchOutput(strain, direction, status, out_of_range, reset)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
         """One tick of an array: ``r_vector`` in the array's sensor order."""

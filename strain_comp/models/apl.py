@@ -65,6 +65,7 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import lsq_linear, minimize
+from threadpoolctl import threadpool_limits
 
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
@@ -83,6 +84,8 @@ from strain_comp.models.base import (
 N_MAX = 200
 M_MAX = 201
 P_MAX = 20.0
+P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
+"""The default grid of p searched by the fit."""
 
 
 def thresholds(n: int, kind: int) -> np.ndarray:
@@ -212,6 +215,7 @@ class _CellModel(Compensator):
         return cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=normalisation)
 
     @classmethod
+    @threadpool_limits.wrap(limits=1, user_api="blas")
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, N: int = 11, M: int = 9,
             sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
@@ -227,10 +231,16 @@ class _CellModel(Compensator):
         ``output_nfev``: residual evaluations of the final output-error refinement (0: the
         paper's QP only); ``search_nfev``: those per scored point of the search (0: the
         search scores the QP solutions); ``search_top``: grid points re-scored with it.
-        ``workers``: threads scoring the sigma/p grid (default: one per core; the result
-        does not depend on it; ``bench/bench_fit.py`` times it against 1). ``progress``:
+        ``workers``: threads scoring the sigma/p grid (default ``grid_workers``: one per
+        available core, serial for a small problem; the result does not depend on it;
+        ``bench/bench_fit.py`` times the grid against ``workers=1``). ``progress``:
         True prints a line per grid row to stderr once the fit has run for more than 2 s;
         a callable receives those lines instead; False is silent.
+
+        BLAS is held to one thread during the fit: its matrices (samples x N + M + 2, and
+        the reduced QP) are too small to gain from BLAS threads, and BLAS threads spinning
+        on a machine with other work, or started from several grid threads at once, made
+        the same fit many times slower (``bench/bench_fit.py`` times both).
         """
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
@@ -255,21 +265,14 @@ class _CellModel(Compensator):
             return model
         sigmas = (problem.default_sigma_grid() if sigma_grid is None
                   else np.asarray(sigma_grid, dtype=np.float64))
-        ps = (np.array([0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0]) if p_grid is None
-              else np.asarray(p_grid, dtype=np.float64))
+        ps = np.asarray(P_GRID if p_grid is None else p_grid, dtype=np.float64)
         if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
             raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
         say = _progress_printer(progress, cls.name)
-        grid: list[_Solution] = []
-        # the grid points are independent and their kernels release the GIL: threads
-        with ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
-            rows = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
-                    for sigma in sigmas]
-            for i, (sigma, row) in enumerate(zip(sigmas, rows, strict=True)):
-                grid.extend(job.result() for job in row)
-                best = min(grid, key=_by_rmse)
-                say(f"grid row {i + 1}/{sigmas.size} (sigma={sigma:.3g}/s): best rmse "
-                    f"{best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+        grid = score_grid(problem, sigmas, ps,
+                          workers=grid_workers(workers, sigmas.size * ps.size, problem.t.size),
+                          say=say)
+        best = min(grid, key=_by_rmse)
         if search_nfev > 0:
             ranked = sorted(grid, key=_by_rmse)[:search_top]
             best = min((problem.solve(g.sigma, g.p, output_nfev=search_nfev) for g in ranked),
@@ -313,6 +316,60 @@ class MPI(_CellModel):
 
 def _by_rmse(solution: _Solution) -> float:
     return solution.rmse
+
+
+MIN_THREADED_SAMPLES = 2000
+"""Below this many training samples a grid point takes well under a millisecond and the
+grid is scored serially: thread hand-offs would cost more than they save."""
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the system tells it)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def grid_workers(requested: int | None, points: int, samples: int) -> int:
+    """Threads to score a sigma/p grid of ``points`` points on ``samples`` training samples:
+    ``requested``, else one per available core; never more than half the points (each
+    thread gets two or more), and 1 (serial, no thread pool) on one core or below
+    ``MIN_THREADED_SAMPLES`` samples unless requested."""
+    if requested is not None:
+        return max(1, min(requested, points))
+    if samples < MIN_THREADED_SAMPLES:
+        return 1
+    return max(1, min(available_cores(), points // 2))
+
+
+def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *, workers: int,
+               say: Callable[[str], None]) -> list[_Solution]:
+    """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads
+    (the points are independent; the cell-state kernel, numpy's array operations and BLAS
+    release the GIL). ``APL.fit`` calls it with BLAS held to one thread, so the grid
+    threads do not start BLAS threads of their own. The result does not depend on
+    ``workers``."""
+    grid: list[_Solution] = []
+    if workers <= 1:
+        for i, sigma in enumerate(sigmas):
+            grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
+            _say_row(say, grid, i, sigmas.size, sigma)
+        return grid
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        jobs = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
+                for sigma in sigmas]
+        for i, (sigma, row) in enumerate(zip(sigmas, jobs, strict=True)):
+            grid.extend(job.result() for job in row)
+            _say_row(say, grid, i, sigmas.size, sigma)
+    return grid
+
+
+def _say_row(say: Callable[[str], None], grid: list[_Solution], i: int, rows: int,
+             sigma: float) -> None:
+    best = min(grid, key=_by_rmse)
+    say(f"grid row {i + 1}/{rows} (sigma={sigma:.3g}/s): best rmse {best.rmse:.4g} % at "
+        f"sigma={best.sigma:.3g}/s, p={best.p:.3g}")
 
 
 def _progress_printer(progress: bool | Callable[[str], None], name: str) -> Callable[[str], None]:
@@ -576,4 +633,4 @@ class APLArray:
         return out
 
 
-__all__ = ["APL", "MPI", "PL", "APLArray", "thresholds"]
+__all__ = ["APL", "MPI", "PL", "APLArray", "grid_workers", "score_grid", "thresholds"]

@@ -10,6 +10,7 @@ import pytest
 
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
+from strain_comp.models import _apl_kernels as kern
 from strain_comp.models import model_class
 from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.base import Normalisation, Segment
@@ -104,6 +105,18 @@ def random_walk(rng: np.random.Generator, size: int, *, bad: bool = True):
 
 
 # ---------------------------------------------------------------- kernels
+
+
+@pytest.mark.parametrize("p", [0.05, 0.3, 0.73, 1.0, 3.0, 20.0])
+def test_inline_power_matches_libm(p):
+    """The kernels' z^p (log/exp polynomials) against libm's pow over the cells' range of z
+    (0, 1]: relative error within a few hundred ulps (p log z carries the rounding)."""
+    rng = np.random.default_rng(int(100 * p))
+    z = np.concatenate([10.0 ** rng.uniform(-30.0, 0.0, 3000), rng.uniform(0.0, 1.0, 3000),
+                        [1.0, 0.5, 2.0 ** -1000]])
+    got = np.array([kern.pow01(v, p) for v in z])
+    ref = np.array([math.pow(v, p) for v in z])
+    np.testing.assert_allclose(got, ref, rtol=2e-13, atol=1e-300)
 
 
 @pytest.mark.parametrize("cls", [APL, PL, MPI])
@@ -396,3 +409,16 @@ def test_grid_search_in_threads_gives_the_serial_result() -> None:
     threaded = APL.fit(seg, norm, workers=3, **kw)
     assert (threaded.sigma, threaded.p) == (serial.sigma, serial.p)
     np.testing.assert_array_equal(threaded.w, serial.w)
+
+
+def test_grid_threads_follow_cores_and_problem_size(monkeypatch):
+    from strain_comp.models import apl
+
+    monkeypatch.setattr(apl, "available_cores", lambda: 4)
+    assert apl.grid_workers(None, 117, 20_000) == 4
+    assert apl.grid_workers(None, 6, 20_000) == 3  # two or more points per thread
+    assert apl.grid_workers(None, 117, apl.MIN_THREADED_SAMPLES - 1) == 1  # tiny: serial
+    assert apl.grid_workers(3, 117, 100) == 3  # asked for: given
+    assert apl.grid_workers(8, 2, 20_000) == 2  # never more threads than points
+    monkeypatch.setattr(apl, "available_cores", lambda: 1)
+    assert apl.grid_workers(None, 117, 20_000) == 1
