@@ -16,7 +16,13 @@ sample); the median ignores isolated spikes.
 
 * ``rest_resistance_at_start`` (run time, no reference: ``--tare auto``, the node): the
   samples from the start while the calibration's direction detector says hold (0), at most
-  ``window`` seconds.
+  ``window`` seconds. The rest must last ``MIN_REST_SAMPLES`` samples or ``MIN_REST_SECONDS``
+  (a 1 Hz instrument gives one or two samples before any movement shows: a rule in samples
+  alone never tares it; a detector cannot see movement before its second sample, so such a
+  tare is off by at most half the first sample's change), and it must be settled: a start
+  whose level still drifts by more than ``MAX_REST_DRIFT`` of itself over the window (a
+  sensor still relaxing from an earlier stretch, whose resistance falls for minutes; or a
+  movement slower than the detector's dead zone) is no rest level and is declined.
 * ``rest_resistance_from_reference`` (fit time): the leading samples whose reference strain
   is within ``REST_BAND`` of the span of its minimum.
 """
@@ -38,7 +44,15 @@ if TYPE_CHECKING:
 TARE_WINDOW = 5.0
 """Longest stretch at the start of a run that an automatic tare averages over [s]."""
 MIN_REST_SAMPLES = 3
-"""Fewest rest samples a tare accepts."""
+"""Fewest rest samples a tare accepts (unless they span ``MIN_REST_SECONDS``)."""
+MIN_REST_SECONDS = 1.0
+"""A rest this long [s] is enough whatever its sample count (slow instruments)."""
+MAX_REST_DRIFT = 0.005
+"""Largest drift of the rest level over ``TARE_WINDOW`` (share of the level) a tare accepts.
+
+The tare corrects level changes of several % between runs; a level moving by more than
+0.5 % within the first seconds of a run is a relaxation that goes on for minutes (an
+exponential decay settles slower than it starts), so its start is no rest level."""
 REST_BAND = 0.02
 """Reference strain within this share of its span above its minimum counts as rest."""
 
@@ -76,10 +90,30 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
     states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
     moving = np.flatnonzero(states != 0)
     stop = int(moving[0]) + (ra.size - pairs.size) if moving.size else ra.size
-    if stop < MIN_REST_SAMPLES:
+    if stop == 0 or (stop < MIN_REST_SAMPLES and ta[stop - 1] - ta[0] < MIN_REST_SECONDS):
         raise InputError(f"tare: the run does not start at rest (the direction detector "
-                         f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} needed)")
+                         f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} or "
+                         f"{MIN_REST_SECONDS:g} s needed)")
+    drift = rest_drift(ta[:stop], ra[:stop], window=window)
+    if abs(drift) > MAX_REST_DRIFT:
+        raise InputError(f"tare: the run starts while the resistance still drifts "
+                         f"({100 * drift:+.2f} % over {window:g} s, at most "
+                         f"{100 * MAX_REST_DRIFT:g} % at rest): no rest level")
     return rest_level(ra[:stop])
+
+
+def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float = TARE_WINDOW) -> float:
+    """Drift of a rest stretch over ``window`` s, as a share of its level: the change of the
+    ``rest_level`` of its second half against its first, per the time between the halves'
+    centres; 0 when the stretch is too short to tell (fewer than 4 samples)."""
+    if r.size < 4:
+        return 0.0
+    half = r.size // 2
+    first, second = rest_level(r[:half]), rest_level(r[half:])
+    dt = float(np.median(t[half:]) - np.median(t[:half]))
+    if not dt > 0:
+        return 0.0
+    return (second - first) / first * window / dt
 
 
 def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
