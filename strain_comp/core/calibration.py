@@ -44,6 +44,7 @@ import numpy.typing as npt
 import yaml
 
 from strain_comp import __version__
+from strain_comp.core.chain import PAIR_BRANCHES
 from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
@@ -66,15 +67,20 @@ STRAIN_MAX = 1e6
 class InputSettings:
     """What the input topic carries: ``resistance`` in ohm, or ``divider`` volts across R1;
     ``alternation``: the excitation alternates every sample, so the models and the
-    direction detector see pair means (``strain_comp.core.chain``)."""
+    direction detector see a pair statistic of consecutive samples, ``pair``: ``mean``,
+    or ``upper`` / ``lower`` for an alternation on one side of the signal
+    (``strain_comp.core.chain.pair_values``)."""
 
     kind: str = "resistance"
     r1: float | None = None
     vin: float | None = None
     alternation: bool = False
+    pair: str = "mean"
 
     def to_dict(self) -> dict[str, Any]:
-        extra = {"alternation": True} if self.alternation else {}
+        extra: dict[str, Any] = {"alternation": True} if self.alternation else {}
+        if self.alternation and self.pair != "mean":
+            extra["pair"] = self.pair
         if self.kind == "divider":
             return {"kind": "divider", "r1": self.r1, "vin": self.vin, **extra}
         return {"kind": "resistance", **extra}
@@ -321,12 +327,16 @@ class _Reader:
         alternation = node.get("alternation", False)
         if not isinstance(alternation, bool):
             raise self.fail(f"{where}.alternation", f"must be true or false, got {alternation!r}")
+        pair = node.get("pair", "mean")
+        if pair not in PAIR_BRANCHES:
+            raise self.fail(f"{where}.pair", f"must be one of {', '.join(PAIR_BRANCHES)}, "
+                                             f"got {pair!r}")
         if kind == "resistance":
-            return InputSettings(alternation=alternation)
+            return InputSettings(alternation=alternation, pair=pair)
         if kind == "divider":
             return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
                                  vin=self.number(node, "vin", where, lo=0.0, strict=True),
-                                 alternation=alternation)
+                                 alternation=alternation, pair=pair)
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 

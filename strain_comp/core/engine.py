@@ -51,7 +51,7 @@ import numpy.typing as npt
 from strain_comp._numba import njit
 from strain_comp.core import samples as sc
 from strain_comp.core.calibration import Calibration, SensorCalibration
-from strain_comp.core.chain import pair_means
+from strain_comp.core.chain import pair_values
 from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.direction import (
     STATE_SIZE,
@@ -243,13 +243,13 @@ class _Sensor:
     """Latest used resistance [ohm] (for pair means when the input alternates)."""
 
     def pair(self, ohm: np.ndarray, previous: float) -> np.ndarray:
-        """What the models see of used samples ``ohm``: pair means when the calibration's
-        input alternates (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used
-        sample before them (NaN after a reset)."""
+        """What the models see of used samples ``ohm``: the calibration's pair statistic
+        (``input.pair``) when its input alternates (``strain_comp.core.chain``), else
+        ``ohm``; ``previous``: the used sample before them (NaN after a reset)."""
         if not self.cal.input.alternation or not ohm.size:
             return ohm
         self.previous = float(ohm[-1])
-        return pair_means(ohm, previous)
+        return pair_values(ohm, previous, self.cal.input.pair)
 
     @classmethod
     def build(cls, cal: SensorCalibration, deadzone_scale: float) -> _Sensor:
