@@ -100,8 +100,9 @@ TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Derivative low-pass time constants [s] tried, shortest (least lag) first."""
 DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
-STILL_FRACTION = 0.005
-"""The reference strain is still where it moves by at most this share of its span in 1 s."""
+STILL_FRACTION = 0.001
+"""The reference strain is still where it moves by at most this share of its span in 1 s
+(half the slowest ramp in the measured data: the fibre moves 0.2 % of its span per s)."""
 _DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair")
 
 
@@ -286,6 +287,15 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
     return error_stats(np.concatenate(estimates), np.concatenate(references)).rmse
 
 
+def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Change of the reference strain ``s`` over the second around each sample (from the
+    last sample at or after t - 0.5 s to the last at or before t + 0.5 s)."""
+    t = np.asarray(t, dtype=np.float64)
+    lo = np.searchsorted(t, t - 0.5)
+    hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
+    return s[hi] - s[lo]
+
+
 def pair_side(recordings: Sequence[Recording]) -> str:
     """``strain_comp.core.chain.pair_branch`` over the training runs, still where the
     reference strain moves by at most ``STILL_FRACTION`` of its span over 1 s around a
@@ -294,11 +304,9 @@ def pair_side(recordings: Sequence[Recording]) -> str:
     for rec in recordings:
         if rec.s is None:
             continue
-        t, s = np.asarray(rec.t, dtype=np.float64), np.asarray(rec.s, dtype=np.float64)
+        s = np.asarray(rec.s, dtype=np.float64)
         span = float(np.nanmax(s) - np.nanmin(s)) if np.any(np.isfinite(s)) else 0.0
-        lo = np.searchsorted(t, t - 0.5)
-        hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
-        moved = np.abs(s[hi] - s[lo])
+        moved = np.abs(strain_change(rec.t, s))
         r_all.append(np.asarray(rec.r, dtype=np.float64))
         still_all.append(np.isfinite(moved) & (moved <= STILL_FRACTION * span))
     if not r_all:
