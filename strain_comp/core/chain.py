@@ -131,7 +131,7 @@ def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
     pairs = ra[:n].reshape(-1, 2)
     upper = np.median(pairs.max(axis=1).reshape(-1, PAIR_WINDOW), axis=1)
     lower = np.median(pairs.min(axis=1).reshape(-1, PAIR_WINDOW), axis=1)
-    quiet = sa[:n].reshape(-1, 2 * PAIR_WINDOW).all(axis=1)
+    quiet = np.all(sa[:n].reshape(-1, 2 * PAIR_WINDOW), axis=1)
     d_size, d_lower = np.diff(upper - lower), np.diff(lower)
     sigma = _robust_sigma(d_size)
     steps = (np.abs(d_size) > PAIR_STEP_K * sigma) & quiet[1:] & quiet[:-1]
