@@ -8,7 +8,8 @@ sensors:
   s1:
     model: {name: apl, params: {...}}        # every model parameter (see strain_comp.models)
     normalisation: {r0: .., alpha: .., s0: .., beta: ..}   # xi = R/r0 + alpha, psi = S/s0 + beta
-    input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
+    input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt};
+                                             # alternation: true, pair: mean|upper|lower
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
     rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
     direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
