@@ -21,7 +21,10 @@ code as ``strain-comp fit`` and scored on the held-out files with the same code 
   ``--fiber-gauge-mm`` is given; its errors are then in mm, not %.
 
 A second table splits each run in time instead (fit on the first 60 %, score on the rest),
-to separate model error from the run-to-run shift of the resistance level.
+to separate model error from the run-to-run shift of the resistance level. The fitted
+calibration runs through the whole run, as it would online, and is scored on the rest: a
+model with memory enters the held-out part in the state the run left it in, not reset
+in the middle of a hold.
 
 Prints a Markdown table (model x held-out file, RMSE) with the wall time of every fit
 (``fit_bags``: bag read, model fit incl. numba compilation on first use, training error),
@@ -184,9 +187,12 @@ def within_run(recordings: dict[str, dict], models: list[str], failures: list[st
     """RMSE on the last ``1 - WITHIN_FIT`` of each run after fitting on its first part.
 
     This separates what a model can do on one run (stable contact resistance) from the
-    run-to-run shift of the resistance level that the by-file split above runs into.
+    run-to-run shift of the resistance level that the by-file split above runs into. The
+    calibration runs over the whole run (its state carried into the held-out part, as
+    online) and only the held-out part is scored.
     """
     from strain_comp.core.calibration import Calibration
+    from strain_comp.core.metrics import error_stats
     from strain_comp.errors import StrainCompError
     from strain_comp.offline.evaluate import evaluate_recordings
     from strain_comp.offline.fit import fit_sensor
@@ -198,18 +204,17 @@ def within_run(recordings: dict[str, dict], models: list[str], failures: list[st
         head, tail = rec.t <= cut, rec.t > cut
         part = {k: None if getattr(rec, k) is None else getattr(rec, k)[head]
                 for k in ("t", "r", "s", "temperature")}
-        rest = {k: None if getattr(rec, k) is None else getattr(rec, k)[tail]
-                for k in ("t", "r", "s", "temperature")}
         row = table.setdefault(short(csv_name), {})
         for model in models:
             try:
                 cal = fit_sensor([dataclasses.replace(rec, **part)], model, name=sensor)
-                ev = evaluate_recordings({sensor: dataclasses.replace(rec, **rest)},
-                                         Calibration({sensor: cal}))
+                ev = evaluate_recordings({sensor: rec}, Calibration({sensor: cal}))
             except StrainCompError as err:
                 failures.append(f"within-run {short(csv_name)}/{model}: {err}")
                 continue
-            row[model] = ev.sensors[sensor].stats.rmse
+            scored = ev.sensors[sensor]
+            keep = scored.scored & tail
+            row[model] = error_stats(scored.estimate[keep], scored.reference[keep]).rmse
         print(f"## within-run {short(csv_name)} done", file=sys.stderr)
     return table
 

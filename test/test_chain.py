@@ -16,7 +16,16 @@ from strain_comp.core.calibration import (
     load_calibration,
     save_calibration,
 )
-from strain_comp.core.chain import DESPIKE_K, alternation, correct, pair_means, quantisation, spikes
+from strain_comp.core.chain import (
+    DESPIKE_K,
+    alternation,
+    correct,
+    pair_branch,
+    pair_means,
+    pair_values,
+    quantisation,
+    spikes,
+)
 from strain_comp.core.engine import Engine
 from strain_comp.errors import CalibrationError
 from strain_comp.io.recording import Recording
@@ -207,3 +216,63 @@ def test_an_array_with_a_corrected_sensor_steps_as_its_sensors_do() -> None:
                                    atol=1e-12)
     assert np.max(np.abs(ticks[:, 1] - Engine(cal).run("a1", t, rec.r[:400]).strain)) < \
         np.max(np.abs(ticks[:, 0] - Engine(cal).run("a1", t, rec.r[:400]).strain))
+
+
+def held_run(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, R, S): 0 -> 10 % ramps of 20 s with 80 s holds, 10 Hz, noise 2 ohm."""
+    rng = np.random.default_rng(seed)
+    t = 0.1 * np.arange(4000)
+    phase = t % 200.0
+    s = np.interp(phase, [0.0, 20.0, 100.0, 120.0, 200.0], [0.0, 10.0, 10.0, 0.0, 0.0])
+    return t, 1000.0 * (1.0 + 0.02 * s) + 2.0 * rng.standard_normal(t.size), s
+
+
+def one_sided(t: np.ndarray, r: np.ndarray, drop: float = 300.0) -> np.ndarray:
+    """Every other sample reads ``drop`` ohm low except for 40 s in each loaded hold
+    (``held_run``): an alternation on one side of the signal that switches off and on
+    with the sensor's state."""
+    return r - drop * ((np.arange(t.size) % 2 == 1) & ~on_window(t))
+
+
+def on_window(t: np.ndarray) -> np.ndarray:
+    return (t % 200.0 >= 40.0) & (t % 200.0 < 80.0)
+
+
+def test_pair_branch_reads_the_side_from_steps_in_holds() -> None:
+    t, r, s = held_run(7)
+    still = np.abs(np.gradient(s, t)) < 1e-9
+    assert pair_branch(one_sided(t, r), still) == "upper"
+    assert pair_branch(2 * r.mean() - one_sided(t, r), still) == "lower"  # high samples
+    symmetric = r + np.where(on_window(t), 20.0, 150.0) * (-1.0) ** np.arange(t.size)
+    assert pair_branch(symmetric, still) == "mean"
+    assert pair_branch(r, still) == "mean"  # no alternation
+    # steps while moving do not count (the level moves with them)
+    assert pair_branch(one_sided(t, r), np.zeros(t.size, dtype=bool)) == "mean"
+    # the upper pair value follows the truth through the steps; the mean steps by half
+    upper = pair_values(one_sided(t, r), branch="upper")[1:]
+    mean = pair_means(one_sided(t, r))[1:]
+    inside = still[1:] & still[:-1]
+    assert np.max(np.abs(upper - r[1:])[inside]) < 15.0  # max of two of 2 ohm noise
+    assert np.max(np.abs(mean - r[1:])[inside]) > 140.0
+
+
+def test_fit_reads_a_one_sided_alternation_through_the_upper_pair_value(tmp_path) -> None:
+    t, r, s = held_run(8)
+    cal = fit_sensor([Recording("s1", t, one_sided(t, r), s)], "cubic", name="s1")
+    assert cal.input.alternation and cal.input.pair == "upper"
+    assert "read through the pair upper" in cal.provenance["measurement_chain"]
+    path = tmp_path / "cal.yaml"
+    save_calibration(Calibration({"s1": cal}), path)
+    assert load_calibration(path).sensors["s1"].input == cal.input
+    t2, r2, s2 = held_run(9)
+    test = {"s1": Recording("s1", t2, one_sided(t2, r2), s2)}
+    upper = evaluate_recordings(test, Calibration({"s1": cal})).sensors["s1"].stats.rmse
+    mean = replace(cal, input=replace(cal.input, pair="mean"))
+    stepped = evaluate_recordings(test, Calibration({"s1": mean})).sensors["s1"].stats.rmse
+    assert upper < 0.2  # % strain; 2 ohm of noise is 0.01 % strain
+    assert stepped > 3.0 * upper
+    engine = Engine(Calibration({"s1": cal}))
+    steps = np.array([engine.step("s1", a, b).strain for a, b in zip(t2, test["s1"].r,
+                                                                       strict=True)])
+    np.testing.assert_allclose(steps, Engine(Calibration({"s1": cal})).run(
+        "s1", t2, test["s1"].r).strain, atol=1e-12)

@@ -16,13 +16,21 @@ import numpy as np
 import pytest
 
 from strain_comp.core.calibration import Calibration, InputSettings
-from strain_comp.core.chain import HELD, STEP_K, STEP_SAMPLES, alternation, correct, pair_means
+from strain_comp.core.chain import (
+    HELD,
+    STEP_K,
+    STEP_SAMPLES,
+    alternation,
+    correct,
+    pair_means,
+    pair_values,
+)
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.tare import rest_resistance_at_start
 from strain_comp.io.csv_import import repair_position_glitches
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.fit import fit_sensor, pair_side
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("STRAIN_COMP_MEASURED_DATA", ROOT.parent / "shared" / "data"
@@ -114,3 +122,32 @@ def test_an_injected_step_on_a_measured_run_is_found_and_the_error_falls() -> No
           f"(without the step: {same:.3f} %)")
     assert after < before
     assert after == pytest.approx(same, rel=0.01)
+
+
+def test_a_one_sided_alternation_switches_on_in_a_loaded_hold() -> None:
+    """v9, fourth loaded hold (1500-1600 s, 20 % strain): at about 1537 s every other
+    sample starts to read about 680 ohm low while the others continue the level. The pair
+    mean steps down by half that (what a memory model takes for unloading); the upper pair
+    value stays on the level."""
+    if not V9.is_file():
+        pytest.skip(f"measured data not found at {DATA} (set STRAIN_COMP_MEASURED_DATA)")
+    rows = np.loadtxt(V9, delimiter=",", skiprows=13291, max_rows=800)
+    t, r = rows[:, 2], rows[:, 0]
+    before, after = (t > 1525.0) & (t < 1535.0), (t > 1540.0) & (t < 1550.0)
+    def fall(series: np.ndarray) -> float:
+        return float(np.median(series[before[1:]]) - np.median(series[after[1:]]))
+
+    upper, mean = fall(pair_values(r, branch="upper")[1:]), fall(pair_means(r)[1:])
+    assert abs(upper) < 100.0  # the hold's own relaxation over 15 s
+    assert 280.0 < mean - upper < 420.0  # half the 680 ohm drop of every other sample
+
+
+def test_fit_reads_v9_through_the_upper_pair_value() -> None:
+    """Over the whole v9 run the steps of the alternation's size in its holds (on at 1537 s
+    and 2100 s, off at each loading) are taken by the lower side: ``pair_side`` chooses
+    ``upper``."""
+    if not V9.is_file():
+        pytest.skip(f"measured data not found at {DATA} (set STRAIN_COMP_MEASURED_DATA)")
+    rows = np.loadtxt(V9, delimiter=",")
+    strain = 100.0 * np.abs(rows[:, 3]) / 40.0
+    assert pair_side([Recording("cb", rows[:, 2], rows[:, 0], strain)]) == "upper"

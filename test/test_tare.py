@@ -10,8 +10,11 @@ import yaml
 
 from strain_comp.cli import main as cli
 from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import (
+    MAX_REST_DRIFT,
+    TARE_WINDOW,
     rest_resistance_at_start,
     rest_resistance_from_reference,
     tare_engine,
@@ -77,6 +80,35 @@ def test_rest_at_start_refuses_a_run_that_starts_moving(cubic: Calibration) -> N
     with pytest.raises(InputError, match="does not start at rest"):
         rest_resistance_at_start(t, gauge(strain_profile(t, rest=0.0)),
                                  cubic.sensors["s1"].direction)
+
+
+def test_rest_at_start_of_a_slow_instrument_counts_seconds_not_samples() -> None:
+    """At 1 Hz a run that rests for 1 s shows two samples at rest before it moves: the
+    tare reads their level (the first sample's R exactly, the second's 0.1 % above)."""
+    t = np.arange(0.0, 60.0, 1.0)
+    s = np.clip(t - 1.0, 0.0, None) * 0.5
+    r = gauge(s, 1.3 * R0)
+    detector = DirectionSettings(deadzone=1.0)  # ohm/s: the first movement is 10 ohm/s
+    assert rest_resistance_at_start(t, r, detector) == pytest.approx(1.3 * R0, rel=2e-3)
+    # the same two samples at 10 Hz (0.1 s of rest) are too few
+    with pytest.raises(InputError, match="does not start at rest"):
+        rest_resistance_at_start(t / 10.0, r, DirectionSettings(deadzone=10.0))
+
+
+def test_rest_at_start_declines_a_start_that_still_relaxes() -> None:
+    """A pre-stretched sensor decaying towards its rest level (R0 (1 + 0.2 exp(-t / 60 s)),
+    1 % in the first 5 s, slower than the detector's dead zone) is no rest level; the same
+    start once settled (0.1 % noise-free drift left) is tared."""
+    t = np.arange(0.0, 20.0, 0.1)
+    detector = DirectionSettings(deadzone=50.0)
+    relaxing = R0 * (1.0 + 0.2 * np.exp(-t / 60.0))
+    with pytest.raises(InputError, match="still drifts"):
+        rest_resistance_at_start(t, relaxing, detector)
+    settled = R0 * (1.0 + 0.2 * np.exp(-(t + 300.0) / 60.0))
+    drift = settled[int(TARE_WINDOW / 0.1)] / settled[0] - 1.0
+    assert abs(drift) < MAX_REST_DRIFT
+    assert rest_resistance_at_start(t, settled, detector) == pytest.approx(
+        float(np.median(settled[t <= TARE_WINDOW])), rel=1e-4)
 
 
 def test_auto_tare_makes_a_shifted_run_read_like_the_calibrated_one(cubic: Calibration,

@@ -9,8 +9,9 @@ sensors:
     model: {name: apl, params: {...}}        # every model parameter (see strain_comp.models)
     normalisation: {r0: .., alpha: .., s0: .., beta: ..}   # xi = R/r0 + alpha, psi = S/s0 + beta
     input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
-                                             # optional: alternation: true, despike: k,
-                                             # baseline_step: k (robust sigmas; true = default)
+                                             # optional: alternation: true, pair: mean|upper|
+                                             # lower, despike: k, baseline_step: k (robust
+                                             # sigmas; true = default)
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
     rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
     direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
@@ -46,7 +47,7 @@ import numpy.typing as npt
 import yaml
 
 from strain_comp import __version__
-from strain_comp.core.chain import DESPIKE_K, STEP_K
+from strain_comp.core.chain import DESPIKE_K, PAIR_BRANCHES, STEP_K
 from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
@@ -69,7 +70,9 @@ STRAIN_MAX = 1e6
 class InputSettings:
     """What the input topic carries: ``resistance`` in ohm, or ``divider`` volts across R1;
     ``alternation``: the excitation alternates every sample, so the models and the
-    direction detector see pair means (``strain_comp.core.chain``); ``despike``: isolated
+    direction detector see a pair statistic of consecutive samples, ``pair``: ``mean``,
+    or ``upper`` / ``lower`` for an alternation on one side of the signal
+    (``strain_comp.core.chain.pair_values``); ``despike``: isolated
     spikes beyond this many robust sigmas are replaced by the prediction, and
     ``baseline_step``: jumps beyond this many robust sigmas that stay without relaxing are
     subtracted (both ``strain_comp.core.chain.ChainCorrector``; None: off)."""
@@ -78,6 +81,7 @@ class InputSettings:
     r1: float | None = None
     vin: float | None = None
     alternation: bool = False
+    pair: str = "mean"
     despike: float | None = None
     baseline_step: float | None = None
 
@@ -88,6 +92,8 @@ class InputSettings:
 
     def to_dict(self) -> dict[str, Any]:
         extra: dict[str, Any] = {"alternation": True} if self.alternation else {}
+        if self.alternation and self.pair != "mean":
+            extra["pair"] = self.pair
         if self.despike is not None:
             extra["despike"] = self.despike
         if self.baseline_step is not None:
@@ -349,14 +355,20 @@ class _Reader:
         alternation = node.get("alternation", False)
         if not isinstance(alternation, bool):
             raise self.fail(f"{where}.alternation", f"must be true or false, got {alternation!r}")
+        pair = node.get("pair", "mean")
+        if pair not in PAIR_BRANCHES:
+            raise self.fail(f"{where}.pair", f"must be one of {', '.join(PAIR_BRANCHES)}, "
+                                             f"got {pair!r}")
         despike = self.sigmas(node, "despike", where, DESPIKE_K)
         step = self.sigmas(node, "baseline_step", where, STEP_K)
         if kind == "resistance":
-            return InputSettings(alternation=alternation, despike=despike, baseline_step=step)
+            return InputSettings(alternation=alternation, pair=pair, despike=despike,
+                                 baseline_step=step)
         if kind == "divider":
             return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
                                  vin=self.number(node, "vin", where, lo=0.0, strict=True),
-                                 alternation=alternation, despike=despike, baseline_step=step)
+                                 alternation=alternation, pair=pair, despike=despike,
+                                 baseline_step=step)
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 

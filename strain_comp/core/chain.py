@@ -13,6 +13,20 @@ which all three statistics read:
   sigma left after removing it (smaller alternations are a minor part of the noise).
   Correction (online, phase-free, half a sample of delay): the models see pair means
   (R[i] + R[i-1]) / 2 (``pair_means``), which cancel A exactly whatever its phase.
+  An alternation can also sit on one side of the signal: every other sample reads low by
+  an amount that switches on and off with the sensor's state (the carbon-black strip reads
+  steadily under load, then every other sample drops 680 ohm in the middle of a hold while
+  the other half continue the level). The pair mean then steps by half that amount, which
+  a model with memory takes for movement; the pair maximum does not. ``pair_branch``
+  reads the side from the steps of the alternation's size while the strain is known to be
+  still (a fit has the reference): per window of ``PAIR_WINDOW`` pairs the medians of the
+  upper (U) and lower (L) value of each pair, and at every step of U - L larger than
+  ``PAIR_STEP_K`` robust sigmas between two still windows the share k = -dL / d(U - L)
+  of it that the lower side took: median k near 1 means the lower side moves and the
+  upper one holds the level (``upper``), near 0 the reverse (``lower``), near 1/2 a
+  symmetric alternation (``mean``). Without such a step the side cannot be told and the
+  mean, exact for a symmetric alternation and the quietest, is kept. Movement is excluded
+  because it changes the level and the alternation's size together.
 * spikes: samples whose |d2| exceeds ``SPIKE_K`` robust sigmas at a sign pattern of one
   sample (a count). Corrected online by ``ChainCorrector`` (calibration key
   ``input.despike``), which also re-bases baseline steps (``input.baseline_step``): a
@@ -36,6 +50,12 @@ ALTERNATION_Z = 5.0
 """Significance (binomial z) of the sign agreement for an alternation to be present."""
 SPIKE_K = 8.0
 """A spike's second difference exceeds this many robust sigmas."""
+PAIR_WINDOW = 5
+"""Pairs per window of the medians ``pair_branch`` compares."""
+PAIR_STEP_K = 8.0
+"""A step of the alternation's size exceeds this many robust sigmas of its changes."""
+PAIR_MIN_STEPS = 3
+"""Fewest steps ``pair_branch`` needs to read a side."""
 
 
 @dataclass(frozen=True)
@@ -86,6 +106,44 @@ def pair_means(r: np.ndarray, previous: float = math.nan) -> np.ndarray:
     """(R[i] + R[i-1]) / 2, the first one with ``previous`` (itself when NaN)."""
     before = np.concatenate(([previous], r[:-1])) if r.size else r
     return np.where(np.isfinite(before), 0.5 * (r + before), r)
+
+
+PAIR_BRANCHES = ("mean", "upper", "lower")
+"""The pair statistics an alternating input can be read through (``pair_values``)."""
+
+
+def pair_values(r: np.ndarray, previous: float = math.nan, branch: str = "mean",
+                ) -> np.ndarray:
+    """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
+    first one with ``previous`` (itself when NaN)."""
+    if branch == "mean":
+        return pair_means(r, previous)
+    before = np.concatenate(([previous], r[:-1])) if r.size else r
+    pick = np.fmax if branch == "upper" else np.fmin  # fmax/fmin: a NaN previous is skipped
+    return pick(r, before)
+
+
+def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
+    """The pair statistic (``PAIR_BRANCHES``) to read an alternating ``r`` through, from the
+    steps of its size between windows where ``still`` (bool per sample: the strain is known
+    to be constant) holds (module docstring); ``mean`` when fewer than ``PAIR_MIN_STEPS``."""
+    ra = np.asarray(r, dtype=np.float64)
+    ok = np.isfinite(ra) & (ra > 0)
+    ra, sa = ra[ok], np.asarray(still, dtype=bool)[ok]
+    n = (ra.size // (2 * PAIR_WINDOW)) * 2 * PAIR_WINDOW
+    if n < 4 * PAIR_WINDOW:
+        return "mean"
+    pairs = ra[:n].reshape(-1, 2)
+    upper = np.median(pairs.max(axis=1).reshape(-1, PAIR_WINDOW), axis=1)
+    lower = np.median(pairs.min(axis=1).reshape(-1, PAIR_WINDOW), axis=1)
+    quiet = np.all(sa[:n].reshape(-1, 2 * PAIR_WINDOW), axis=1)
+    d_size, d_lower = np.diff(upper - lower), np.diff(lower)
+    sigma = _robust_sigma(d_size)
+    steps = (np.abs(d_size) > PAIR_STEP_K * sigma) & quiet[1:] & quiet[:-1]
+    if sigma <= 0 or np.sum(steps) < PAIR_MIN_STEPS:
+        return "mean"
+    share = float(np.median(-d_lower[steps] / d_size[steps]))
+    return "upper" if share > 0.75 else "lower" if share < 0.25 else "mean"
 
 
 def spikes(r: npt.ArrayLike) -> int:

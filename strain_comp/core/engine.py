@@ -58,7 +58,7 @@ import numpy.typing as npt
 from strain_comp._numba import njit
 from strain_comp.core import samples as sc
 from strain_comp.core.calibration import Calibration, SensorCalibration
-from strain_comp.core.chain import DESPIKE_K, ChainCorrector, pair_means
+from strain_comp.core.chain import DESPIKE_K, ChainCorrector, pair_values
 from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.direction import (
     STATE_SIZE,
@@ -252,15 +252,16 @@ class _Sensor:
     """Spike and baseline-step correction when the calibration's input asks for it."""
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float) -> np.ndarray:
-        """What the models see of used samples ``ohm`` at times ``t``: pair means when the
-        calibration's input alternates, then the spike / baseline-step corrector when set
-        (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used sample before
-        them (NaN after a reset, which also restarts the corrector's references)."""
+        """What the models see of used samples ``ohm`` at times ``t``: the calibration's pair
+        statistic (``input.pair``) when its input alternates, then the spike / baseline-step
+        corrector when set (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used
+        sample before them (NaN after a reset, which also restarts the corrector's
+        references)."""
         if not self.cal.input.filtered or not ohm.size:
             return ohm
         self.previous = float(ohm[-1])
         if self.cal.input.alternation:
-            ohm = pair_means(ohm, previous)
+            ohm = pair_values(ohm, previous, self.cal.input.pair)
         if self.corrector is not None:
             if math.isnan(previous):
                 self.corrector.restart()

@@ -10,13 +10,20 @@ where dR alone differs 3x), as a change of the conducting cross-section (a gain)
 a series contact resistance alone would shift R without changing dR.
 
 Both estimators here use the same statistic, so a fit and a run are zeroed alike: the
-median of the pair means (R[i] + R[i+1]) / 2 over the leading rest samples. Pair means
-cancel a sample-to-sample alternation of the excitation (a +-a artefact every other
-sample); the median ignores isolated spikes.
+median of the pair means (R[i] + R[i+1]) / 2 over the leading rest samples, or of the pair
+statistic the calibration reads an alternating input through (``pair``: the models see
+it, so the tare scales its level). Pair statistics cancel a sample-to-sample alternation of
+the excitation (an artefact every other sample); the median ignores isolated spikes.
 
 * ``rest_resistance_at_start`` (run time, no reference: ``--tare auto``, the node): the
   samples from the start while the calibration's direction detector says hold (0), at most
-  ``window`` seconds.
+  ``window`` seconds. The rest must last ``MIN_REST_SAMPLES`` samples or ``MIN_REST_SECONDS``
+  (a 1 Hz instrument gives one or two samples before any movement shows: a rule in samples
+  alone never tares it; a detector cannot see movement before its second sample, so such a
+  tare is off by at most half the first sample's change), and it must be settled: a start
+  whose level still drifts by more than ``MAX_REST_DRIFT`` of itself over the window (a
+  sensor still relaxing from an earlier stretch, whose resistance falls for minutes; or a
+  movement slower than the detector's dead zone) is no rest level and is declined.
 * ``rest_resistance_from_reference`` (fit time): the leading samples whose reference strain
   is within ``REST_BAND`` of the span of its minimum.
 """
@@ -29,6 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.core.chain import pair_values
 from strain_comp.core.direction import DirectionDetector, DirectionSettings
 from strain_comp.errors import InputError
 
@@ -38,14 +46,23 @@ if TYPE_CHECKING:
 TARE_WINDOW = 5.0
 """Longest stretch at the start of a run that an automatic tare averages over [s]."""
 MIN_REST_SAMPLES = 3
-"""Fewest rest samples a tare accepts."""
+"""Fewest rest samples a tare accepts (unless they span ``MIN_REST_SECONDS``)."""
+MIN_REST_SECONDS = 1.0
+"""A rest this long [s] is enough whatever its sample count (slow instruments)."""
+MAX_REST_DRIFT = 0.005
+"""Largest drift of the rest level over ``TARE_WINDOW`` (share of the level) a tare accepts.
+
+The tare corrects level changes of several % between runs; a level moving by more than
+0.5 % within the first seconds of a run is a relaxation that goes on for minutes (an
+exponential decay settles slower than it starts), so its start is no rest level."""
 REST_BAND = 0.02
 """Reference strain within this share of its span above its minimum counts as rest."""
 
 
-def rest_level(r: np.ndarray) -> float:
-    """Median of pair means (cancels alternation every other sample, ignores spikes)."""
-    return float(np.median(0.5 * (r[:-1] + r[1:]) if r.size >= 2 else r))
+def rest_level(r: np.ndarray, *, pair: str = "mean") -> float:
+    """Median of the pair statistic ``pair`` (``strain_comp.core.chain.pair_values``; cancels
+    an alternation every other sample), which ignores spikes."""
+    return float(np.median(pair_values(r, branch=pair)[1:] if r.size >= 2 else r))
 
 
 def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -54,7 +71,7 @@ def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
                              direction: DirectionSettings, *,
-                             window: float = TARE_WINDOW) -> float:
+                             window: float = TARE_WINDOW, pair: str = "mean") -> float:
     """Rest resistance [ohm] of a run from its first seconds (no reference needed).
 
     ``t`` [s], ``r`` [ohm] from the start of the run (bad samples, i.e. not finite or <= 0,
@@ -71,19 +88,40 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
         raise InputError("tare: no good resistance sample at the start of the run")
     head = int(np.searchsorted(ta, ta[0] + window, side="right"))
     ta, ra = ta[:head], ra[:head]
-    # the detector reads pair means: an alternation every other sample is not movement
-    pairs = 0.5 * (ra[:-1] + ra[1:]) if ra.size >= 2 else ra
+    # the detector reads pair values: an alternation every other sample is not movement
+    pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
     states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
     moving = np.flatnonzero(states != 0)
     stop = int(moving[0]) + (ra.size - pairs.size) if moving.size else ra.size
-    if stop < MIN_REST_SAMPLES:
+    if stop == 0 or (stop < MIN_REST_SAMPLES and ta[stop - 1] - ta[0] < MIN_REST_SECONDS):
         raise InputError(f"tare: the run does not start at rest (the direction detector "
-                         f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} needed)")
-    return rest_level(ra[:stop])
+                         f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} or "
+                         f"{MIN_REST_SECONDS:g} s needed)")
+    drift = rest_drift(ta[:stop], ra[:stop], window=window, pair=pair)
+    if abs(drift) > MAX_REST_DRIFT:
+        raise InputError(f"tare: the run starts while the resistance still drifts "
+                         f"({100 * drift:+.2f} % over {window:g} s, at most "
+                         f"{100 * MAX_REST_DRIFT:g} % at rest): no rest level")
+    return rest_level(ra[:stop], pair=pair)
 
 
-def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
-                                   s: npt.ArrayLike) -> float | None:
+def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float = TARE_WINDOW,
+               pair: str = "mean") -> float:
+    """Drift of a rest stretch over ``window`` s, as a share of its level: the change of the
+    ``rest_level`` of its second half against its first, per the time between the halves'
+    centres; 0 when the stretch is too short to tell (fewer than 4 samples)."""
+    if r.size < 4:
+        return 0.0
+    half = r.size // 2
+    first, second = rest_level(r[:half], pair=pair), rest_level(r[half:], pair=pair)
+    dt = float(np.median(t[half:]) - np.median(t[:half]))
+    if not dt > 0:
+        return 0.0
+    return (second - first) / first * window / dt
+
+
+def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike,
+                                   *, pair: str = "mean") -> float | None:
     """Rest resistance [ohm] of a training run: its first stay at minimum strain.
 
     Rest samples have a reference strain ``s`` within ``REST_BAND`` x span of its minimum.
@@ -106,7 +144,7 @@ def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike,
         if start == 0 or stop - start >= MIN_REST_SAMPLES:
             end = min(int(stop), int(np.searchsorted(ta, ta[start] + TARE_WINDOW,
                                                      side="right")))
-            return rest_level(ra[start:end])
+            return rest_level(ra[start:end], pair=pair)
     return None
 
 
@@ -145,7 +183,8 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
             lines[name] = "not tared: the calibration stores no rest_resistance (refit it)"
             continue
         try:
-            rest = rest_resistance_at_start(t, cal.input.to_ohm(r), cal.direction)
+            rest = rest_resistance_at_start(t, cal.input.to_ohm(r), cal.direction,
+                                            pair=cal.input.pair)
         except InputError as err:
             lines[name] = f"not tared: {err}"
             continue

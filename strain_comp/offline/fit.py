@@ -38,10 +38,14 @@ data and fills in what a calibration file needs besides the parameters:
   loading for every sensor (``strain_comp.core.engine``).
 * **Measurement chain**: an alternation of the excitation every other sample
   (``strain_comp.core.chain.alternation``, found from R alone) switches on the calibration's
-  ``input.alternation``: the models are fitted to, and the engine feeds them, pair means
-  (R[i] + R[i-1]) / 2, so the alternation never reaches a model's memory or the detector.
-  Option ``alternation`` (true/false) overrides the detection; the provenance records the
-  reading (``measurement_chain``).
+  ``input.alternation``: the models are fitted to, and the engine feeds them, a pair
+  statistic of R[i] and R[i-1], so the alternation never reaches a model's memory or the
+  detector: the mean, or the upper or lower of the two when the steps of the alternation's
+  size while the reference strain is still (``STILL_FRACTION`` of its span within a
+  window) show the alternation on one side of the signal (``strain_comp.core.chain.
+  pair_branch``; the carbon-black strip), stored as ``input.pair``.
+  Options ``alternation`` (true/false) and ``pair`` (mean/upper/lower) override the
+  detection; the provenance records the reading (``measurement_chain``).
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
@@ -67,7 +71,7 @@ from strain_comp.core.calibration import (
     ValidRange,
     provenance,
 )
-from strain_comp.core.chain import alternation, pair_means
+from strain_comp.core.chain import PAIR_BRANCHES, alternation, pair_branch, pair_values
 from strain_comp.core.direction import DirectionSettings, estimate_deadzone
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.metrics import error_stats
@@ -96,7 +100,10 @@ TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Derivative low-pass time constants [s] tried, shortest (least lag) first."""
 DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
-_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation")
+STILL_FRACTION = 0.001
+"""The reference strain is still where it moves by at most this share of its span in 1 s
+(half the slowest ramp in the measured data: the fibre moves 0.2 % of its span per s)."""
+_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair")
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
@@ -280,11 +287,40 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
     return error_stats(np.concatenate(estimates), np.concatenate(references)).rmse
 
 
-def training_rest_resistance(recordings: Sequence[Recording]) -> float | None:
+def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Change of the reference strain ``s`` over the second around each sample (from the
+    last sample at or after t - 0.5 s to the last at or before t + 0.5 s)."""
+    t = np.asarray(t, dtype=np.float64)
+    lo = np.searchsorted(t, t - 0.5)
+    hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
+    return s[hi] - s[lo]
+
+
+def pair_side(recordings: Sequence[Recording]) -> str:
+    """``strain_comp.core.chain.pair_branch`` over the training runs, still where the
+    reference strain moves by at most ``STILL_FRACTION`` of its span over 1 s around a
+    sample."""
+    r_all, still_all = [], []
+    for rec in recordings:
+        if rec.s is None:
+            continue
+        s = np.asarray(rec.s, dtype=np.float64)
+        span = float(np.nanmax(s) - np.nanmin(s)) if np.any(np.isfinite(s)) else 0.0
+        moved = np.abs(strain_change(rec.t, s))
+        r_all.append(np.asarray(rec.r, dtype=np.float64))
+        still_all.append(np.isfinite(moved) & (moved <= STILL_FRACTION * span))
+    if not r_all:
+        return "mean"
+    return pair_branch(np.concatenate(r_all), np.concatenate(still_all))
+
+
+def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "mean",
+                             ) -> float | None:
     """The calibration's rest resistance [ohm]: the median over the training runs of each
     run's leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``,
     the statistic an automatic tare uses at run time); None when no run starts at rest."""
-    levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s) for rec in recordings
+    levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s, pair=pair)
+              for rec in recordings
               if rec.s is not None]
     found = [level for level in levels if level is not None]
     return float(np.median(found)) if found else None
@@ -314,10 +350,15 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
         raise FitError(f"sensor {name!r}: the training data span no range of resistance "
                        "or strain")
-    chain = alternation(np.concatenate([np.asarray(rec.r) for rec in recordings]))
+    r_raw = np.concatenate([np.asarray(rec.r) for rec in recordings])
+    chain = alternation(r_raw)
     alternating = bool(options.get("alternation", chain.present))
-    if alternating:  # the models learn what the engine will feed them: pair means
-        segments = [Segment(seg.t, pair_means(seg.r), seg.s) for seg in segments]
+    pair = str(options.get("pair", pair_side(recordings) if alternating else "mean"))
+    if pair not in PAIR_BRANCHES:
+        raise FitError(f"sensor {name!r}: option pair must be one of "
+                       f"{', '.join(PAIR_BRANCHES)}, got {pair!r}")
+    if alternating:  # the models learn what the engine will feed them
+        segments = [Segment(seg.t, pair_values(seg.r, branch=pair), seg.s) for seg in segments]
         r_all = np.concatenate([seg.r for seg in segments])
     normalisation = Normalisation.fit(r_all, s_all)
     direction, direction_source = direction_settings(segments, options)
@@ -330,8 +371,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     calibration = SensorCalibration(
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
         valid_range=valid_range(segments), direction=direction,
-        input=InputSettings(alternation=alternating),
-        rest_resistance=training_rest_resistance(recordings))
+        input=InputSettings(alternation=alternating, pair=pair),
+        rest_resistance=training_rest_resistance(recordings, pair=pair))
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "
@@ -339,7 +380,9 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     calibration.provenance = provenance(
         [str(b) for b in bags], fit_rmse=rmse, n_samples=r_all.size, segments=len(segments),
         fit_seconds=round(fit_seconds, 3), direction_from=direction_source,
-        measurement_chain=chain.reading() if chain.present else "no alternation found",
+        measurement_chain=(chain.reading() + (f", read through the pair {pair}" if alternating
+                                              else "")
+                           if chain.present else "no alternation found"),
         options=model_options)
     return calibration
 

@@ -215,7 +215,8 @@ class LiveCompensator:
             times, raw = recent.since(start, column)
             cal = self.params.calibration.sensors[sensor]
             try:
-                rest = rest_resistance_at_start(times, self._ohm(sensor, raw), cal.direction)
+                rest = rest_resistance_at_start(times, self._ohm(sensor, raw), cal.direction,
+                                                pair=cal.input.pair)
             except InputError:
                 self._auto[sensor] = t  # the run did not start at rest: try from now
                 continue
@@ -237,12 +238,13 @@ class LiveCompensator:
             latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
             for column, sensor in enumerate(sensors):
                 values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
-                if self.params.calibration.sensors[sensor].rest_resistance is None:
+                cal = self.params.calibration.sensors[sensor]
+                if cal.rest_resistance is None:
                     problems.append(f"{sensor}: the calibration stores no rest_resistance")
                 elif values.size == 0:
                     problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
                 else:
-                    rests[sensor] = rest_level(values)
+                    rests[sensor] = rest_level(values, pair=cal.input.pair)
         if problems:
             raise ParameterError("tare", "refused: " + "; ".join(problems))
         for sensor, rest in rests.items():

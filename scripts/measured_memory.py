@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""Where the memory models lose to the cubic within one measured run, by phase and by block.
+
+    python scripts/measured_memory.py --data ../shared/data/measured --out out/memory
+
+For each run (the CSVs of ``scripts/measured.py``): every model is fitted on the first 60 %
+of the run's time, run through the whole run (its state carried on, as online) and scored
+on the rest: overall, and split by the phase of the reference (loading, unloading, hold:
+the strain moves by at most ``STILL_FRACTION`` of its span in 1 s). Then blocked
+cross-validation: the run cut into ``--folds`` equal blocks of time, each block scored
+after fitting on the others. A model that loses only on the one block of the 60/40 split
+that holds something the training part never showed (an artefact of the measurement
+chain, a level outside the trained range) and wins on the others loses by extrapolation,
+not by its structure. ``--option k=v`` is passed to every fit (``strain-comp fit
+--option``), e.g. ``pair=upper``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from measured import DEFAULT_DATA, WITHIN_FIT, import_all, short
+
+MODELS = ("cubic", "mpi", "pl", "apl", "spike_decay")
+RUNS = ("v9", "v10", "fiber_run1", "fiber_run3", "fiber_run4")
+"""The runs with holds or relaxation (the within-run target of the measured-data section)."""
+
+
+def _part(rec, mask):  # type: ignore[no-untyped-def]
+    return dataclasses.replace(rec, **{k: None if getattr(rec, k) is None
+                                       else getattr(rec, k)[mask]
+                                       for k in ("t", "r", "s", "temperature")})
+
+
+def scored_errors(rec, train: list, model: str, options: dict):  # type: ignore[no-untyped-def]
+    """(error per sample, scored mask) of ``model`` fitted on ``train`` and run over ``rec``."""
+    from strain_comp.core.calibration import Calibration
+    from strain_comp.offline.evaluate import evaluate_recordings
+    from strain_comp.offline.fit import fit_sensor
+
+    cal = fit_sensor(train, model, name=rec.name, options=options or None)
+    ev = evaluate_recordings({rec.name: rec}, Calibration({rec.name: cal})).sensors[rec.name]
+    return ev.estimate - ev.reference, ev.scored
+
+
+def phases(rec) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
+    """Loading / unloading / hold masks of a run from its reference strain."""
+    from strain_comp.offline.fit import STILL_FRACTION, strain_change
+
+    s = np.asarray(rec.s, dtype=np.float64)
+    moved = strain_change(rec.t, s)
+    still = STILL_FRACTION * float(np.nanmax(s) - np.nanmin(s))
+    return {"loading": moved > still, "unloading": moved < -still,
+            "hold": np.abs(moved) <= still}
+
+
+def rmse(e: np.ndarray, mask: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e[mask] ** 2))) if mask.any() else float("nan")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--out", type=Path, default=Path("out") / "memory")
+    parser.add_argument("--models", nargs="+", default=list(MODELS))
+    parser.add_argument("--runs", nargs="+", default=list(RUNS))
+    parser.add_argument("--folds", type=int, default=5)
+    parser.add_argument("--option", action="append", default=[], metavar="K=V")
+    args = parser.parse_args(argv)
+
+    from strain_comp.io.recording import load_recordings
+    from strain_comp.offline.fit import parse_options
+
+    options = parse_options(args.option)
+    args.out.mkdir(parents=True, exist_ok=True)
+    bags = import_all(args.data, args.out, None)
+    runs = {short(name): load_recordings(path)[0] for name, path in bags.items()
+            if short(name) in args.runs}
+    split = ["", f"split: fit on the first {100 * WITHIN_FIT:.0f} %, RMSE on the rest, by "
+             "phase of the reference (samples)", "",
+             "| run | model | rest | loading | unloading | hold |", "|---|---|---:|---:|---:|---:|"]
+    folds = ["", f"blocked cross-validation: {args.folds} blocks of time, each scored after "
+             "fitting on the others (RMSE per block; all: over every block)", "",
+             "| run | model | all | " + " | ".join(f"block {k + 1}" for k in range(args.folds))
+             + " |", "|---|---|" + "---:|" * (args.folds + 1)]
+    for run, by_sensor in runs.items():
+        (_, rec), = by_sensor.items()
+        frac = (rec.t - rec.t[0]) / (rec.t[-1] - rec.t[0])
+        tail = frac > WITHIN_FIT
+        phase = phases(rec)
+        for model in args.models:
+            e, scored = scored_errors(rec, [_part(rec, ~tail)], model, options)
+            cells = [rmse(e, scored & tail)] + [rmse(e, scored & tail & m)
+                                                for m in phase.values()]
+            counts = [int(np.sum(scored & tail & m)) for m in phase.values()]
+            split.append(f"| {run} | {model} | {cells[0]:.3f} | " + " | ".join(
+                f"{c:.3f} ({n})" for c, n in zip(cells[1:], counts, strict=True)) + " |")
+            per_block, all_e = [], []
+            for k in range(args.folds):
+                block = (frac >= k / args.folds) & ((frac < (k + 1) / args.folds)
+                                                    | (k == args.folds - 1))
+                train = [_part(rec, ~block & (frac < k / args.folds)),
+                         _part(rec, ~block & (frac >= (k + 1) / args.folds))]
+                e, scored = scored_errors(rec, [p for p in train if p.t.size > 100],
+                                          model, options)
+                per_block.append(rmse(e, scored & block))
+                all_e.append(e[scored & block])
+            every = np.concatenate(all_e)
+            folds.append(f"| {run} | {model} | {np.sqrt(np.mean(every ** 2)):.3f} | "
+                         + " | ".join(f"{v:.3f}" for v in per_block) + " |")
+            print(f"## {run} {model} done", file=sys.stderr, flush=True)
+    text = "\n".join(split + folds) + "\n"
+    print(text)
+    (args.out / "memory.md").write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
