@@ -91,6 +91,22 @@ def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / expected, rel=1e-12)
 
 
+def test_auto_tare_declines_a_run_that_starts_moving_and_never_tares_later(
+        tmp_path: Path) -> None:
+    """A ramp from the first sample, then a long hold under load: no zero is taken (the
+    offline rule declines the same samples), and the log says why."""
+    node = live(tmp_path, tare="auto")
+    t = np.arange(0.0, 3.0 * TARE_WINDOW, 0.01)
+    r = 140.0 + 60.0 * np.minimum(t, 1.0)
+    for ti, ri in zip(t, r, strict=True):
+        node.on_sensor("s1", float(ti), float(ri))
+    direction = node.params.calibration.sensors["s1"].direction
+    with pytest.raises(InputError):
+        rest_resistance_at_start(t, r, direction)
+    assert node.engine.input_gain("s1") == 1.0
+    assert len(node.tare_log) == 1 and "auto tare declined" in node.tare_log[0]
+
+
 def test_diagnostics_error_stale_and_transport_recovery(tmp_path: Path) -> None:
     node = live(tmp_path)
     node.on_sensor("s1", 1.0, 150.0)

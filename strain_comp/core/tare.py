@@ -80,19 +80,9 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
     sample. Raises InputError when fewer than ``MIN_REST_SAMPLES`` samples qualify (the run
     does not start at rest): the caller then keeps the old tare.
     """
-    ta = np.asarray(t, dtype=np.float64)
-    ra = np.asarray(r, dtype=np.float64)
-    good = _good(ta, ra)
-    ta, ra = ta[good], ra[good]
+    ta, ra, stop, _ = _rest_stretch(t, r, direction, window, pair)
     if ta.size == 0:
         raise InputError("tare: no good resistance sample at the start of the run")
-    head = int(np.searchsorted(ta, ta[0] + window, side="right"))
-    ta, ra = ta[:head], ra[:head]
-    # the detector reads pair values: an alternation every other sample is not movement
-    pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
-    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
-    moving = np.flatnonzero(states != 0)
-    stop = int(moving[0]) + (ra.size - pairs.size) if moving.size else ra.size
     if stop == 0 or (stop < MIN_REST_SAMPLES and ta[stop - 1] - ta[0] < MIN_REST_SECONDS):
         raise InputError(f"tare: the run does not start at rest (the direction detector "
                          f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} or "
@@ -103,6 +93,37 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
                          f"({100 * drift:+.2f} % over {window:g} s, at most "
                          f"{100 * MAX_REST_DRIFT:g} % at rest): no rest level")
     return rest_level(ra[:stop], pair=pair)
+
+
+def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings,
+                  window: float, pair: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """(good t, good r within ``window`` s of the first, samples before the detector first
+    leaves hold, whether that stretch has ended: the detector left hold or the window
+    is complete)."""
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    good = _good(ta, ra)
+    ta, ra = ta[good], ra[good]
+    if ta.size == 0:
+        return ta, ra, 0, False
+    head = int(np.searchsorted(ta, ta[0] + window, side="right"))
+    complete = head < ta.size or ta[-1] - ta[0] >= window
+    ta, ra = ta[:head], ra[:head]
+    # the detector reads pair values: an alternation every other sample is not movement
+    pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
+    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
+    moving = np.flatnonzero(states != 0)
+    if moving.size:
+        return ta, ra, int(moving[0]) + (ra.size - pairs.size), True
+    return ta, ra, ra.size, complete
+
+
+def rest_decided(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings, *,
+                 window: float = TARE_WINDOW, pair: str = "mean") -> bool:
+    """Whether ``rest_resistance_at_start`` on these first samples of a run gives what it
+    gives on the whole run: its detector has left hold, or ``window`` seconds have passed.
+    The node asks this before it tares, so it takes the offline zero."""
+    return _rest_stretch(t, r, direction, window, pair)[3]
 
 
 def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float = TARE_WINDOW,

@@ -21,9 +21,12 @@ models then see R x (calibration rest resistance / R0).
   none (a refusal names each reason).
 - ``tare: auto`` (parameter): R0 = ``core.tare.rest_resistance_at_start``, the rule
   ``--tare auto`` applies offline, on the good samples since a sensor's first good sample,
-  evaluated once the engine's detector leaves hold or ``core.tare.TARE_WINDOW`` seconds have
-  passed (at most the last ``RING`` samples). If the run did not start at rest, the window
-  starts again at that moment. Until then the calibration's zero is used.
+  evaluated once the rule's own detector (on pair values) leaves hold or
+  ``core.tare.TARE_WINDOW`` seconds have passed (``core.tare.rest_decided``; at most the
+  last ``RING`` samples), so it takes the zero ``--tare auto`` takes offline. A run that
+  did not start at rest is not tared (logged with the reason), as offline: a later hold
+  may be under load, no zero to take; the calibration's zero stays until ``~/tare`` is
+  called at a known rest.
 """
 
 from __future__ import annotations
@@ -36,7 +39,12 @@ from typing import Any
 import numpy as np
 
 from strain_comp.core.engine import USED, ArrayOutput, Engine, SensorOutput, Status, diagnostics
-from strain_comp.core.tare import TARE_WINDOW, rest_level, rest_resistance_at_start
+from strain_comp.core.tare import (
+    TARE_WINDOW,
+    rest_decided,
+    rest_level,
+    rest_resistance_at_start,
+)
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
@@ -214,11 +222,16 @@ class LiveCompensator:
                 continue
             times, raw = recent.since(start, column)
             cal = self.params.calibration.sensors[sensor]
+            ohm = self._ohm(sensor, raw)
+            if not rest_decided(times, ohm, cal.direction, pair=cal.input.pair):
+                continue  # the engine's detector moved, the tare rule's (on pairs) not yet
             try:
-                rest = rest_resistance_at_start(times, self._ohm(sensor, raw), cal.direction,
+                rest = rest_resistance_at_start(times, ohm, cal.direction,
                                                 pair=cal.input.pair)
-            except InputError:
-                self._auto[sensor] = t  # the run did not start at rest: try from now
+            except InputError as err:
+                del self._auto[sensor]
+                self.tare_log.append(f"{sensor}: auto tare declined: {err}; the calibration's "
+                                     "zero stays (call ~/tare at rest)")
                 continue
             gain = self.engine.tare(sensor, rest)
             del self._auto[sensor]
