@@ -10,7 +10,7 @@ import pytest
 
 from strain_comp.core.calibration import load_calibration
 from strain_comp.core.engine import Engine
-from strain_comp.io.bag import BagWriter, iter_bag, read_bag
+from strain_comp.io.bag import BagContents, BagWriter, iter_bag, read_bag
 from strain_comp.offline.replay import replay_bag
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -19,6 +19,20 @@ ROOT = Path(__file__).resolve().parents[1]
 def _concat(pieces: list, topic: str) -> tuple[np.ndarray, np.ndarray]:
     parts = [p.series[topic] for p in pieces if topic in p.series]
     return np.concatenate([s.t for s in parts]), np.concatenate([s.values for s in parts])
+
+
+def assert_same_messages_in_time_order(whole: BagContents, pieces: list[BagContents]) -> None:
+    """The pieces hold every message of ``whole``, and no piece starts before the one
+    before it ended."""
+    for topic, series in whole.series.items():
+        t, v = _concat(pieces, topic)
+        np.testing.assert_array_equal(t, series.t)
+        np.testing.assert_array_equal(v, series.values)
+    end = -np.inf
+    for p in pieces:
+        times = np.concatenate([s.t for s in p.series.values()])
+        assert times.min() >= end
+        end = times.max()
 
 
 def test_iter_bag_pieces_are_time_ordered_and_make_the_whole_bag(tmp_path: Path) -> None:
@@ -34,15 +48,7 @@ def test_iter_bag_pieces_are_time_ordered_and_make_the_whole_bag(tmp_path: Path)
     pieces = list(iter_bag(path, window=500))
     assert len(pieces) > 5
     assert not any(p.problems for p in pieces)
-    for topic, series in whole.series.items():
-        t, v = _concat(pieces, topic)
-        np.testing.assert_array_equal(t, series.t)
-        np.testing.assert_array_equal(v, series.values)
-    end = -np.inf
-    for p in pieces:
-        times = np.concatenate([s.t for s in p.series.values()])
-        assert times.min() >= end
-        end = times.max()
+    assert_same_messages_in_time_order(whole, pieces)
 
 
 def test_writer_flushes_give_the_same_messages_as_one_write(tmp_path: Path) -> None:
@@ -186,15 +192,7 @@ def test_unchunked_bag_comes_in_bounded_time_ordered_pieces(tmp_path: Path) -> N
     sizes = [sum(s.t.size for s in p.series.values()) for p in pieces]
     assert len(pieces) > 5 and max(sizes) <= 2000 + LOOSE_BLOCK
     assert not any(p.problems for p in pieces) and not whole.problems
-    for topic, series in whole.series.items():
-        t, v = _concat(pieces, topic)
-        np.testing.assert_array_equal(t, series.t)
-        np.testing.assert_array_equal(v, series.values)
-    end = -np.inf
-    for p in pieces:
-        times = np.concatenate([s.t for s in p.series.values()])
-        assert times.min() >= end
-        end = times.max()
+    assert_same_messages_in_time_order(whole, pieces)
 
 
 def test_truncated_unchunked_bag_keeps_what_is_readable_in_pieces(tmp_path: Path) -> None:
