@@ -26,7 +26,7 @@ from strain_comp.core.chain import (
     quantisation,
     spikes,
 )
-from strain_comp.core.engine import Engine
+from strain_comp.core.engine import Engine, health_at
 from strain_comp.errors import CalibrationError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
@@ -180,6 +180,38 @@ def test_corrector_is_identical_in_step_and_run_and_across_batches_and_gaps() ->
     stepped = np.array([engine.step("s1", a, b).strain for a, b in zip(t, r, strict=True)])
     np.testing.assert_allclose(halves, whole, atol=1e-12)
     np.testing.assert_allclose(stepped, whole, atol=1e-12)
+
+
+def test_health_counts_the_corrections_alike_in_step_run_and_replay_ticks() -> None:
+    """The spikes kept from the model and the steps re-based are health counters (the
+    node's /diagnostics): the same from ``step``, from ``run`` in pieces, and from
+    ``health_at`` (replay's diagnostics) at any tick."""
+    t, r, s = smooth_run(16, n=600)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
+    cal = corrected(cal, despike=8.0, baseline_step=16.0)
+    r = r + 150.0 * (t > 30.0)
+    r[[100, 400, 500]] += 300.0
+    engine = Engine(cal)
+    for a, b in zip(t, r, strict=True):
+        engine.step("s1", a, b)
+    stepped = engine.health()["s1"]
+    assert stepped.n_spikes == 3 and stepped.n_baseline_steps == 1
+    engine = Engine(cal)
+    before = engine.health()["s1"]
+    out = engine.run("s1", t[:450], r[:450])
+    assert out.corrections is not None
+    ticks = np.array([t[99], t[101], t[449]])
+    at = health_at(before, t[:450], out, ticks, stale_after=1.0)
+    assert [h.n_spikes for h in at] == [0, 1, 2]
+    assert at[-1].n_baseline_steps == 1
+    assert at[-1].n_spikes == engine.health()["s1"].n_spikes
+    engine.run("s1", t[450:], r[450:])
+    run = engine.health()["s1"]
+    assert (run.n_spikes, run.n_baseline_steps) == (stepped.n_spikes, stepped.n_baseline_steps)
+    assert Engine(corrected(cal, despike=None, baseline_step=None)).run(
+        "s1", t, r).corrections is None
+    values = stepped.to_diagnostic()[2]
+    assert values["n_spikes"] == "3" and values["n_baseline_steps"] == "1"
 
 
 def test_input_corrections_round_trip_and_bad_values_name_the_field(tmp_path) -> None:

@@ -58,7 +58,7 @@ import numpy.typing as npt
 from strain_comp._numba import njit
 from strain_comp.core import samples as sc
 from strain_comp.core.calibration import Calibration, SensorCalibration
-from strain_comp.core.chain import DESPIKE_K, ChainCorrector, pair_values
+from strain_comp.core.chain import DESPIKE_K, SPIKE, STEP, ChainCorrector, pair_values
 from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.direction import (
     STATE_SIZE,
@@ -103,6 +103,10 @@ class SensorHealth:
     n_short: int = 0
     n_out_of_range: int = 0
     n_gaps: int = 0
+    n_spikes: int = 0
+    """Isolated spikes the input corrector kept from the model (``input.despike``)."""
+    n_baseline_steps: int = 0
+    """Baseline steps it re-based (``input.baseline_step``: a connector re-seated?)."""
     last_good_t: float | None = None
     last_status: Status | None = None
     stale: bool = False
@@ -183,6 +187,9 @@ class BatchOutput:
     reset: np.ndarray | None = None
     """True where a gap reset the state before the sample (counted in ``n_gaps``); None
     when not known (no resets assumed)."""
+    corrections: np.ndarray | None = None
+    """Where the input corrector removed a spike (``chain.SPIKE``) or confirmed a
+    baseline step (``chain.STEP``), else 0; None without a corrector."""
 
 
 @dataclass
@@ -216,6 +223,8 @@ class _PendingBatch:
     """Segment bounds in ``idx`` (a reset starts a segment)."""
     strain_used: np.ndarray
     dir_used: np.ndarray
+    corrections: np.ndarray | None
+    """The corrector's event per used sample (``BatchOutput.corrections``), if any."""
 
     def base(self, sensor: _Sensor) -> np.ndarray:
         """Clamped pre-effect estimate at every sample, NaN where the sample was bad."""
@@ -251,22 +260,28 @@ class _Sensor:
     corrector: ChainCorrector | None = None
     """Spike and baseline-step correction when the calibration's input asks for it."""
 
-    def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float) -> np.ndarray:
+    def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
+             ) -> tuple[np.ndarray, np.ndarray | None]:
         """What the models see of used samples ``ohm`` at times ``t``: the calibration's pair
         statistic (``input.pair``) when its input alternates, then the spike / baseline-step
         corrector when set (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used
         sample before them (NaN after a reset, which also restarts the corrector's
-        references)."""
+        references); with the corrector's event per sample (spikes and confirmed steps,
+        also counted in ``health``), None without a corrector."""
         if not self.cal.input.filtered or not ohm.size:
-            return ohm
+            return ohm, None
         self.previous = float(ohm[-1])
         if self.cal.input.alternation:
             ohm = pair_values(ohm, previous, self.cal.input.pair)
-        if self.corrector is not None:
-            if math.isnan(previous):
-                self.corrector.restart()
-            ohm, _ = self.corrector.run(t, ohm)
-        return ohm
+        if self.corrector is None:
+            return ohm, None
+        if math.isnan(previous):
+            self.corrector.restart()
+        ohm, events = self.corrector.run(t, ohm)
+        events = np.where((events == SPIKE) | (events == STEP), events, 0).astype(np.int8)
+        self.health.n_spikes += int(np.count_nonzero(events == SPIKE))
+        self.health.n_baseline_steps += int(np.count_nonzero(events == STEP))
+        return ohm, events
 
     @classmethod
     def build(cls, cal: SensorCalibration, deadzone_scale: float) -> _Sensor:
@@ -540,7 +555,7 @@ class Engine:
             h.n_gaps += 1
         if s.cal.input.filtered:
             raw = float(s.pair(np.array([t]), np.array([raw]),
-                               math.nan if reset else s.previous)[0])
+                               math.nan if reset else s.previous)[0][0])
         direction = int(s.detector.step(t, raw)) * s.cal.direction.sign
         return _Pending(t, raw, status, float(s.model.step(t, raw)), direction)
 
@@ -608,8 +623,11 @@ class Engine:
         if s.cal.input.filtered:
             ohm = ohm.copy()  # corrected samples replace the used ones below; raw intact
         bounds = [0, *resets.tolist(), idx.size] if resets.size else [0, idx.size]
+        corrections = np.zeros(idx.size, np.int8) if s.corrector is not None else None
         if 0 < idx.size == t.size and len(bounds) == 2:  # every sample used, one segment
-            ohm = s.pair(t, ohm, s.previous)
+            ohm, events = s.pair(t, ohm, s.previous)
+            if events is not None:
+                corrections = events
             dir_used = s.detector.run(t, ohm)
             strain_used = s.model.run(t, ohm)
         else:
@@ -622,15 +640,18 @@ class Engine:
                     s.model.reset()
                     s.detector.reset()
                 seg = idx[a:b]
-                seg_ohm = s.pair(t[seg], ohm[seg], s.previous if k == 0 else math.nan)
+                seg_ohm, events = s.pair(t[seg], ohm[seg],
+                                         s.previous if k == 0 else math.nan)
                 if s.cal.input.filtered:
                     ohm[seg] = seg_ohm
+                if corrections is not None and events is not None:
+                    corrections[a:b] = events
                 dir_used[a:b] = s.detector.run(t[seg], seg_ohm)
                 strain_used[a:b] = s.model.run(t[seg], seg_ohm)
         if s.cal.direction.sign < 0:
             dir_used = -dir_used
         return _PendingBatch(t, ohm, temp, status, reset, last_good_t, idx, bounds,
-                             strain_used, dir_used)
+                             strain_used, dir_used, corrections)
 
     def _run_finish(self, s: _Sensor, p: _PendingBatch,
                     neighbours: Mapping[str, np.ndarray]) -> BatchOutput:
@@ -656,7 +677,11 @@ class Engine:
             s.last_good_t = last_good_t
             h.last_good_t = last_good_t
             s.strain, s.direction = float(strain_used[-1]), int(dir_used[-1])
-        return BatchOutput(strain, direction, status, out_of_range, reset)
+        corrections = None
+        if p.corrections is not None:
+            corrections = np.zeros(t.size, np.int8)
+            corrections[idx] = p.corrections
+        return BatchOutput(strain, direction, status, out_of_range, reset, corrections)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
         """One tick of an array: ``r_vector`` in the array's sensor order."""
@@ -880,12 +905,17 @@ def health_at(before: SensorHealth, t: np.ndarray, out: BatchOutput, ticks: np.n
         out.status[:, None].astype(np.int64) == np.arange(len(Status)), axis=0)
     if out.reset is not None:
         cum[1:, -1] = np.cumsum(out.reset)
+    fixes = np.zeros((n + 1, 2), np.int64)
+    if out.corrections is not None:
+        fixes[1:] = np.cumsum(out.corrections[:, None] == np.array([SPIKE, STEP]), axis=0)
     last_used = np.maximum.accumulate(np.where(USED_CODE[out.status], np.arange(n), -1))
     found = []
     for now, k in zip(ticks.tolist(), pos.tolist(), strict=True):
         h = replace(before)
         _add_counts(h, cum[k, :-1])
         h.n_gaps += int(cum[k, -1])
+        h.n_spikes += int(fixes[k, 0])
+        h.n_baseline_steps += int(fixes[k, 1])
         if k:
             h.last_status = Status(int(out.status[k - 1]))
             if last_used[k - 1] >= 0:
