@@ -27,7 +27,7 @@ from strain_comp.core.chain import (
     spikes,
 )
 from strain_comp.core.engine import Engine, health_at
-from strain_comp.errors import CalibrationError
+from strain_comp.errors import CalibrationError, FitError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
@@ -229,6 +229,23 @@ def test_input_corrections_round_trip_and_bad_values_name_the_field(tmp_path) ->
         path.write_text(text.replace("despike: 6.5", bad))
         with pytest.raises(CalibrationError, match=r"cal.yaml.*sensors.s1.input.despike"):
             load_calibration(path)
+
+
+def test_a_pair_side_without_alternation_is_refused_at_load_and_fit(tmp_path) -> None:
+    t, r, s = smooth_run(15, n=400)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
+    assert not cal.sensors["s1"].input.alternation
+    path = tmp_path / "cal.yaml"
+    save_calibration(cal, path)
+    text = path.read_text()
+    assert "kind: resistance" in text
+    # the tare would read pair maxima while the models see the samples themselves
+    path.write_text(text.replace("kind: resistance", "kind: resistance, pair: upper"))
+    with pytest.raises(CalibrationError, match=r"cal.yaml: sensors.s1.input.pair: .*alternation"):
+        load_calibration(path)
+    with pytest.raises(FitError, match="pair=upper needs an alternating input"):
+        fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1",
+                   options={"alternation": False, "pair": "upper"})
 
 
 def test_an_array_with_a_corrected_sensor_steps_as_its_sensors_do() -> None:

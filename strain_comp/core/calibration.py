@@ -359,6 +359,9 @@ class _Reader:
         if pair not in PAIR_BRANCHES:
             raise self.fail(f"{where}.pair", f"must be one of {', '.join(PAIR_BRANCHES)}, "
                                              f"got {pair!r}")
+        if pair != "mean" and not alternation:
+            raise self.fail(f"{where}.pair", f"{pair!r} needs alternation: true (without it "
+                                             "the models see the samples themselves)")
         despike = self.sigmas(node, "despike", where, DESPIKE_K)
         step = self.sigmas(node, "baseline_step", where, STEP_K)
         if kind == "resistance":

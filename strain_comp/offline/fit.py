@@ -357,6 +357,9 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     if pair not in PAIR_BRANCHES:
         raise FitError(f"sensor {name!r}: option pair must be one of "
                        f"{', '.join(PAIR_BRANCHES)}, got {pair!r}")
+    if pair != "mean" and not alternating:
+        raise FitError(f"sensor {name!r}: option pair={pair} needs an alternating input "
+                       "(found none; set alternation=true)")
     if alternating:  # the models learn what the engine will feed them
         segments = [Segment(seg.t, pair_values(seg.r, branch=pair), seg.s) for seg in segments]
         r_all = np.concatenate([seg.r for seg in segments])
