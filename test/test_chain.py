@@ -231,6 +231,31 @@ def test_input_corrections_round_trip_and_bad_values_name_the_field(tmp_path) ->
             load_calibration(path)
 
 
+@pytest.mark.parametrize("alternating", [False, True])
+def test_a_tare_during_a_run_is_not_taken_for_a_baseline_step(alternating: bool) -> None:
+    """The node's auto tare changes the input gain mid-run: the models then see the tared
+    level, as an engine tared before the run does (a cubic has no memory)."""
+    t, r, s = smooth_run(17, n=400)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
+    cal = corrected(cal, alternation=alternating, despike=8.0, baseline_step=12.0)
+    rest = cal.sensors["s1"].rest_resistance
+    rng = np.random.default_rng(3)
+    t2 = 0.1 * np.arange(300)
+    r2 = 1.05 * rest + 2.0 * rng.standard_normal(t2.size)  # at rest, reading 5 % high
+    if alternating:
+        r2 = r2 + 20.0 * (-1.0) ** np.arange(t2.size)
+    live = Engine(cal)
+    for a, b in zip(t2[:100], r2[:100], strict=True):
+        live.step("s1", a, b)
+    live.tare("s1", 1.05 * rest)
+    late = [live.step("s1", a, b).strain for a, b in zip(t2[100:], r2[100:], strict=True)]
+    tared = Engine(cal)
+    tared.tare("s1", 1.05 * rest)
+    truth = tared.run("s1", t2, r2).strain[100:]
+    assert live.health()["s1"].n_baseline_steps == 0
+    np.testing.assert_allclose(late[30:], truth[30:], atol=0.05)
+
+
 def test_a_pair_side_without_alternation_is_refused_at_load_and_fit(tmp_path) -> None:
     t, r, s = smooth_run(15, n=400)
     cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})

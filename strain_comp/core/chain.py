@@ -417,6 +417,15 @@ class ChainCorrector:
         for column in (_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS):
             self.state[column] = 0.0
 
+    def rescale(self, factor: float) -> None:
+        """Carry the state over to samples ``factor`` x as large (a new tare gain): every
+        level, offset, rate and innovation scales with them, so the gain change itself is
+        neither a spike nor a baseline step."""
+        for column in (_OFFSET, _LAST, _LASTX, _FIRST, _DRIFT0):
+            self.state[column] *= factor
+        for values in (self.window, self.trend, self.buffer, self.pre):
+            values *= factor
+
     def run(self, t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(corrected samples, event codes) of consecutive used samples ``x`` [ohm] at
         times ``t`` [s]; spikes and steps are counted in ``n_spikes`` and ``steps``."""

@@ -476,10 +476,17 @@ class Engine:
         return gain
 
     def set_input_gain(self, sensor: str, gain: float) -> None:
-        """Set the tare gain of ``sensor`` (effective from the next sample; state kept)."""
+        """Set the tare gain of ``sensor`` (effective from the next sample; state kept, the
+        input corrector's and the pair statistic's references carried over to the new gain,
+        so the change is not taken for a baseline step)."""
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
-        self._sensor(sensor).gain = float(gain)
+        s = self._sensor(sensor)
+        factor = float(gain) / s.gain
+        s.previous *= factor
+        if s.corrector is not None:
+            s.corrector.rescale(factor)
+        s.gain = float(gain)
         for group in self._arrays.values():
             if sensor in group.names and group.kernel is not None:
                 group.set_gain(group.names.index(sensor), float(gain))
