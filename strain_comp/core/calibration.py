@@ -10,8 +10,8 @@ sensors:
     normalisation: {r0: .., alpha: .., s0: .., beta: ..}   # xi = R/r0 + alpha, psi = S/s0 + beta
     input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
                                              # optional: alternation: true, pair: mean|upper|
-                                             # lower, despike: k, baseline_step: k (robust
-                                             # sigmas; true = default)
+                                             # lower (with alternation), despike: k,
+                                             # baseline_step: k (robust sigmas; true = default)
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
     rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
     direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
