@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.diagnosis.conditions import diagnose_conditions
+from strain_comp.core.chain import STEP_K
+from strain_comp.core.engine import Engine
+from strain_comp.diagnosis.conditions import chain_findings, diagnose_conditions
 from strain_comp.diagnosis.report import effect_reading
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import fit_sensor
@@ -100,3 +102,27 @@ def test_a_strain_step_is_told_from_a_baseline_step_by_the_reference(
     # re-basing both is worse than the calibration as given: not chosen
     assert rows["baseline step"]["after"] > rows["as calibrated"]["after"]
     assert chosen(result) == ["as calibrated"]
+
+
+def test_chain_findings_read_the_input_through_the_calibrations_pair_side(
+        calibration: Calibration) -> None:
+    """An alternation on one side of the signal (from mid-hold every other sample reads
+    680 ohm low) steps the pair mean, not the upper value a calibration with
+    ``pair: upper`` feeds its models: no baseline step to report for it."""
+    rng = np.random.default_rng(5)
+    t = 0.1 * np.arange(600)
+    s = np.full(t.size, 5.0)
+    r = 1000.0 * (1.0 + 0.02 * s) + rng.standard_normal(t.size)
+    r[301::2] -= 680.0
+    rec = {"s1": Recording("s1", t, r, s)}
+    sensor = calibration.sensors["s1"]
+    upper = Calibration({"s1": replace(sensor, input=replace(sensor.input, alternation=True,
+                                                             pair="upper"))})
+    mean = Calibration({"s1": replace(sensor, input=replace(sensor.input, alternation=True))})
+    for cal, stepped in ((mean, {"s1"}), (upper, set())):
+        assert chain_findings(rec, cal).stepped == stepped
+        on = cal.sensors["s1"]
+        engine = Engine(Calibration({"s1": replace(on, input=replace(on.input,
+                                                                     baseline_step=STEP_K))}))
+        engine.run("s1", t, r)  # the engine's own corrector agrees
+        assert (engine.health()["s1"].n_baseline_steps > 0) == bool(stepped)

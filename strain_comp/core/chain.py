@@ -444,18 +444,19 @@ class ChainCorrector:
 
 
 def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
-            step_k: float = 0.0, alternating: bool | None = None,
+            step_k: float = 0.0, alternating: bool | None = None, pair: str = "mean",
             ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
-    """A whole run's finite positive samples through a fresh ``ChainCorrector``, after pair
-    means when the excitation alternates (when None: found from the data), as the engine
-    feeds its models: (what the models see, event codes, the corrector); NaN where bad."""
+    """A whole run's finite positive samples through a fresh ``ChainCorrector``, after the
+    pair statistic ``pair`` (``pair_values``) when the excitation alternates (when None:
+    found from the data), as the engine feeds its models: (what the models see, event
+    codes, the corrector); NaN where bad."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)
     if alternating is None:
         alternating = alternation(r).present
     corrector = ChainCorrector(k=k, alternating=alternating, step_k=step_k)
-    seen = pair_means(r[good]) if alternating else r[good]
+    seen = pair_values(r[good], branch=pair) if alternating else r[good]
     out = np.full(r.size, np.nan)
     events = np.zeros(r.size, np.int8)
     out[good], events[good] = corrector.run(t[good], seen)

@@ -108,7 +108,11 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
                                + (" (corrected by the calibration)" if done else ""))
             if not done:
                 found.alternating.add(name)
-        _, _, corrector = correct(rec.t, r, step_k=STEP_K, alternating=wobble.present)
+        # what the engine's corrector would see: the calibration's pair statistic if it
+        # reads one, pair means if an alternation is found (the condition switches them on)
+        _, _, corrector = correct(rec.t, r, step_k=STEP_K,
+                                  alternating=settings.alternation or wobble.present,
+                                  pair=settings.pair if settings.alternation else "mean")
         if corrector.n_spikes and settings.despike is None:
             found.spiky.add(name)
             plural = "s" if corrector.n_spikes > 1 else ""
