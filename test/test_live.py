@@ -76,6 +76,18 @@ def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
         live(tmp_path, tare="auto", rest=None)
 
 
+def test_auto_tare_at_a_rate_whose_window_outgrows_the_ring(tmp_path: Path) -> None:
+    """At 1 kHz the node keeps fewer than ``TARE_WINDOW`` seconds of samples: a run at rest
+    is still tared once the window has passed."""
+    node = live(tmp_path, tare="auto")
+    t = np.arange(0.0, TARE_WINDOW + 0.2, 0.001)
+    r = 140.0 + 0.1 * np.random.default_rng(1).standard_normal(t.size)
+    for ti, ri in zip(t, r, strict=True):
+        node.on_sensor("s1", float(ti), float(ri))
+    assert node.tare_log and "auto tare: rest resistance" in node.tare_log[0]
+    assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0, rel=1e-3)
+
+
 def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path) -> None:
     """An alternating rest, then a ramp: the node tares once the detector leaves hold, with
     exactly the rest resistance ``--tare auto`` computes offline from the same samples."""

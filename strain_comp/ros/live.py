@@ -223,8 +223,11 @@ class LiveCompensator:
             times, raw = recent.since(start, column)
             cal = self.params.calibration.sensors[sensor]
             ohm = self._ohm(sensor, raw)
-            if not rest_decided(times, ohm, cal.direction, pair=cal.input.pair):
-                continue  # the engine's detector moved, the tare rule's (on pairs) not yet
+            # before the window has passed (the ring may hold less of it than that at a high
+            # rate): wait while the engine's detector moved but the rule's (on pairs) not yet
+            if t - start < TARE_WINDOW and not rest_decided(times, ohm, cal.direction,
+                                                            pair=cal.input.pair):
+                continue
             try:
                 rest = rest_resistance_at_start(times, ohm, cal.direction,
                                                 pair=cal.input.pair)
