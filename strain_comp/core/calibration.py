@@ -75,7 +75,9 @@ class InputSettings:
     (``strain_comp.core.chain.pair_values``); ``despike``: isolated
     spikes beyond this many robust sigmas are replaced by the prediction, and
     ``baseline_step``: jumps beyond this many robust sigmas that stay without relaxing are
-    subtracted (both ``strain_comp.core.chain.ChainCorrector``; None: off)."""
+    subtracted (both ``strain_comp.core.chain.ChainCorrector``; None: off, except that
+    ``baseline_step`` alone holds spikes at ``chain.DESPIKE_K``: its watch starts from a
+    held jump)."""
 
     kind: str = "resistance"
     r1: float | None = None
