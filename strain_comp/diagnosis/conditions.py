@@ -49,11 +49,8 @@ from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.io.recording import Recording
 
 
-def _with_alternation(calibration: Calibration, names: set[str]) -> Calibration:
-    return _with_input(calibration, names, alternation=True)
-
-
 def _with_input(calibration: Calibration, names: set[str], **settings: Any) -> Calibration:
+    """``calibration`` with the ``InputSettings`` fields ``settings`` set for ``names``."""
     return Calibration({
         n: dataclasses.replace(c, input=dataclasses.replace(c.input, **settings))
         if n in names else c for n, c in calibration.sensors.items()})
@@ -67,6 +64,7 @@ class ChainFindings:
     spiky: set[str] = dataclasses.field(default_factory=set)
     stepped: set[str] = dataclasses.field(default_factory=set)
     lines: list[str] = dataclasses.field(default_factory=list)
+    """Alternation and quantisation readings."""
     spike_lines: list[str] = dataclasses.field(default_factory=list)
     step_lines: list[str] = dataclasses.field(default_factory=list)
 
@@ -129,13 +127,6 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
     return found
 
 
-def chain_readings(recordings: Mapping[str, Recording], calibration: Calibration,
-                   ) -> tuple[set[str], list[str]]:
-    """(sensors with an uncorrected alternation, one reading line per finding)."""
-    found = chain_findings(recordings, calibration)
-    return found.alternating, found.lines + found.spike_lines + found.step_lines
-
-
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         validate_recordings: Mapping[str, Recording] | None = None,
                         tare: str = "calibration", margin: float = 0.03,
@@ -158,7 +149,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
         runs.append(("tare", "each run tared at its start", calibration, "auto"))
     base = calibration
     if alternating:
-        fixed = _with_alternation(calibration, alternating)
+        fixed = _with_input(calibration, alternating, alternation=True)
         base = fixed
         text = "; ".join(line for line in readings if "alternation" in line)
         runs.append(("alternation", f"pair means for {text}", fixed, "calibration"))
