@@ -76,9 +76,11 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
 
     ``t`` [s], ``r`` [ohm] from the start of the run (bad samples, i.e. not finite or <= 0,
     are skipped); ``direction``: the calibration's detector settings. Uses the samples
-    before the detector first leaves hold, within ``window`` seconds of the first good
-    sample. Raises InputError when fewer than ``MIN_REST_SAMPLES`` samples qualify (the run
-    does not start at rest): the caller then keeps the old tare.
+    before the detector (fed the pair statistic ``pair``) first leaves hold, within
+    ``window`` seconds of the first good sample. Raises InputError when fewer than
+    ``MIN_REST_SAMPLES`` samples spanning less than ``MIN_REST_SECONDS`` qualify (the run
+    does not start at rest) or their level drifts by more than ``MAX_REST_DRIFT``
+    (``rest_drift``): the caller then keeps the old tare.
     """
     ta, ra, stop, _ = _rest_stretch(t, r, direction, window, pair)
     if ta.size == 0:
