@@ -251,7 +251,9 @@ def within_run(recordings: dict[str, dict], models: list[str], failures: list[st
                                                      a.magnitude)} for a in found.added],
                 "loop_before": found.before["rmse"], "loop_after": found.after["rmse"],
                 "message": found.sensors[sensor].message,
-                "top_score": {"name": top.name, "score": top.score}}
+                "top_score": {"name": top.name, "score": top.score},
+                "offset_score": next((e.score for e in found.sensors[sensor].scores
+                                      if e.kind == "offset"), None)}
         print(f"## within-run {short(csv_name)} done", file=sys.stderr)
     return table, looped
 
@@ -292,10 +294,17 @@ def loop_markdown(within: dict[str, dict[str, float]], looped: dict[str, dict[st
                 continue
             lines.append(f"- {name}/{m}: {what} ({cell['loop_before']:.3f} -> "
                          f"{cell['loop_after']:.3f})")
-    untouched = [f"{name}/{m}" for name, row in looped.items() for m, c in row.items()
+    untouched = [f"{name}/{m} ({c['top_score']['name']} {c['top_score']['score']:.2f}"
+                 + (", vetoed on the held-out blocks" if "looked useful" in c["message"]
+                    else "")
+                 + ("" if c["offset_score"] is None else f"; offset {c['offset_score']:.2f}")
+                 + ")"
+                 for name, row in looped.items() for m, c in row.items()
                  if not c["added"] and c["condition"] == "as calibrated"]
     if untouched:
-        lines.append("- nothing added: " + ", ".join(untouched))
+        lines.append("- nothing added (best candidate and the intercept alone, their "
+                     "cross-validated scores): "
+                     + ", ".join(untouched))
     lines += ["\nwithin-run target: best memory model "
               f"({', '.join(MEMORY_MODELS)}) <= 0.8 x the cubic\n",
               "| file | without the loop | with the loop, against the cubic without | "
