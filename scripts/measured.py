@@ -246,6 +246,8 @@ def within_run(recordings: dict[str, dict], models: list[str], failures: list[st
             loop_row[model] = {
                 "rmse": error_stats(scored.estimate[keep], scored.reference[keep]).rmse,
                 "condition": next(c["name"] for c in found.conditions if c["chosen"]),
+                "conditions": [{k: None if isinstance(v, float) and v != v else v
+                                for k, v in c.items()} for c in found.conditions],
                 "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
                            "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
                                                      a.magnitude)} for a in found.added],
