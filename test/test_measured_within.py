@@ -39,6 +39,7 @@ def _tail_changed(rec: Recording) -> Recording:
     m = measured()
     cut = rec.t[0] + m.WITHIN_FIT * (rec.t[-1] - rec.t[0])
     tail = rec.t > cut
+    assert rec.s is not None
     return dataclasses.replace(rec, r=np.where(tail, 1.05 * rec.r, rec.r),
                                s=np.where(tail, rec.s + 3.0, rec.s))
 
