@@ -24,7 +24,11 @@ A second table splits each run in time instead (fit on the first 60 %, score on 
 to separate model error from the run-to-run shift of the resistance level. The fitted
 calibration runs through the whole run, as it would online, and is scored on the rest: a
 model with memory enters the held-out part in the state the run left it in, not reset
-in the middle of a hold.
+in the middle of a hold. A third table adds the residual loop to it: each calibration
+fitted on the first 60 % goes through ``diagnose_conditions`` (the code behind
+``strain-comp diagnose``, default options) on that same first 60 % alone, with its own
+held-out time blocks, and the calibration it returns (the model plus the terms the loop
+added) is scored on the last 40 % in the same way.
 
 Prints a Markdown table (model x held-out file, RMSE) with the wall time of every fit
 (``fit_bags``: bag read, model fit incl. numba compilation on first use, training error),
@@ -47,6 +51,10 @@ DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured"
 WITHIN_FIT = 0.6
 """Within-run split: fit on the first 60 % of a run's time, score on the last 40 %."""
 MODELS = ("cubic", "rational", "sinh_pl", "mpi", "pl", "apl", "spike_decay")
+MEMORY_MODELS = ("mpi", "pl", "apl", "spike_decay")
+"""Models whose output depends on the loading history (the within-run target)."""
+WITH_HOLDS = ("v9", "v10", "fiber_run1", "fiber_run3", "fiber_run4")
+"""Files with holds or relaxation at constant strain (the within-run target)."""
 
 DATASETS = {
     "cb": {
@@ -164,14 +172,16 @@ def main(argv: list[str] | None = None) -> int:
 
     print(markdown(results, args.fiber_gauge_mm))
     print(targets(results))
-    within = within_run(recordings, args.models, failures)
+    within, looped = within_run(recordings, args.models, failures)
     print(within_markdown(within))
+    print(loop_markdown(within, looped))
     if failures:
         print("\nFailures:")
         for line in failures:
             print(f"- {line}")
     (args.out / "results.json").write_text(json.dumps(
-        {"results": results, "within_run": within, "failures": failures}, indent=2) + "\n",
+        {"results": results, "within_run": within, "within_run_loop": looped,
+         "failures": failures}, indent=2) + "\n",
         encoding="utf-8")
     if "cb" in best:
         _, model, cal = best["cb"]
@@ -183,40 +193,71 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def within_run(recordings: dict[str, dict], models: list[str], failures: list[str],
-               ) -> dict[str, dict[str, float]]:
-    """RMSE on the last ``1 - WITHIN_FIT`` of each run after fitting on its first part.
+               ) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, dict]]]:
+    """RMSE on the last ``1 - WITHIN_FIT`` of each run after fitting on its first part,
+    without and with the residual loop run on that first part.
 
     This separates what a model can do on one run (stable contact resistance) from the
     run-to-run shift of the resistance level that the by-file split above runs into. The
     calibration runs over the whole run (its state carried into the held-out part, as
-    online) and only the held-out part is scored.
+    online) and only the held-out part is scored. The loop (``diagnose_conditions`` with
+    its defaults: ten time blocks, every third held out) sees the first part only; the
+    scored part never chooses a term.
     """
     from strain_comp.core.calibration import Calibration
     from strain_comp.core.metrics import error_stats
+    from strain_comp.diagnosis.conditions import diagnose_conditions
+    from strain_comp.diagnosis.report import effect_reading
     from strain_comp.errors import StrainCompError
     from strain_comp.offline.evaluate import evaluate_recordings
     from strain_comp.offline.fit import fit_sensor
 
     table: dict[str, dict[str, float]] = {}
+    looped: dict[str, dict[str, dict]] = {}
     for csv_name, by_sensor in recordings.items():
         (sensor, rec), = by_sensor.items()
         cut = rec.t[0] + WITHIN_FIT * (rec.t[-1] - rec.t[0])
         head, tail = rec.t <= cut, rec.t > cut
         part = {k: None if getattr(rec, k) is None else getattr(rec, k)[head]
                 for k in ("t", "r", "s", "temperature")}
+        training = dataclasses.replace(rec, **part)
         row = table.setdefault(short(csv_name), {})
+        loop_row = looped.setdefault(short(csv_name), {})
         for model in models:
             try:
-                cal = fit_sensor([dataclasses.replace(rec, **part)], model, name=sensor)
-                ev = evaluate_recordings({sensor: rec}, Calibration({sensor: cal}))
+                cal = Calibration({sensor: fit_sensor([training], model, name=sensor)})
+                ev = evaluate_recordings({sensor: rec}, cal)
             except StrainCompError as err:
                 failures.append(f"within-run {short(csv_name)}/{model}: {err}")
                 continue
             scored = ev.sensors[sensor]
             keep = scored.scored & tail
             row[model] = error_stats(scored.estimate[keep], scored.reference[keep]).rmse
+            try:
+                found = diagnose_conditions({sensor: training}, cal)
+                ev = evaluate_recordings({sensor: rec}, found.calibration)
+            except StrainCompError as err:
+                failures.append(f"within-run loop {short(csv_name)}/{model}: {err}")
+                continue
+            scored = ev.sensors[sensor]
+            keep = scored.scored & tail
+            top = max((e for e in found.sensors[sensor].scores if e.kind != "baseline"),
+                      key=lambda e: e.score)
+            loop_row[model] = {
+                "rmse": error_stats(scored.estimate[keep], scored.reference[keep]).rmse,
+                "condition": next(c["name"] for c in found.conditions if c["chosen"]),
+                "conditions": [{k: None if isinstance(v, float) and v != v else v
+                                for k, v in c.items()} for c in found.conditions],
+                "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
+                           "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
+                                                     a.magnitude)} for a in found.added],
+                "loop_before": found.before["rmse"], "loop_after": found.after["rmse"],
+                "message": found.sensors[sensor].message,
+                "top_score": {"name": top.name, "score": top.score},
+                "offset_score": next((e.score for e in found.sensors[sensor].scores
+                                      if e.kind == "offset"), None)}
         print(f"## within-run {short(csv_name)} done", file=sys.stderr)
-    return table
+    return table, looped
 
 
 def within_markdown(table: dict[str, dict[str, float]]) -> str:
@@ -228,6 +269,68 @@ def within_markdown(table: dict[str, dict[str, float]]) -> str:
     for name, row in table.items():
         cells = [f"{row[m]:.3f}" if m in row else "failed" for m in models]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def loop_markdown(within: dict[str, dict[str, float]], looped: dict[str, dict[str, dict]],
+                  ) -> str:
+    """Within-run table after the loop, the terms it added, and the within-run target
+    (best memory model <= 0.8 x the cubic on the files with holds) without and with it."""
+    models = list(dict.fromkeys(m for row in looped.values() for m in row))
+    lines = ["\nwithin one run, after the loop on the training part (the first "
+             f"{100 * WITHIN_FIT:.0f} %, its own held-out blocks); RMSE on the rest, "
+             "* = the loop changed the calibration\n",
+             "| file | " + " | ".join(models) + " |", "|---|" + "---:|" * len(models)]
+    for name, row in looped.items():
+        cells = ["failed" if m not in row else f"{row[m]['rmse']:.3f}"
+                 + ("*" if row[m]["added"] or row[m]["condition"] != "as calibrated" else "")
+                 for m in models]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines.append("\nwhat the loop did (held-out blocks of the training part: before -> after)")
+    for name, row in looped.items():
+        for m, cell in row.items():
+            what = "; ".join(f"{a['name']}: {a['reading']}" for a in cell["added"])
+            if cell["condition"] != "as calibrated":
+                what = f"condition {cell['condition']}" + (f"; {what}" if what else "")
+            if not what:
+                continue
+            lines.append(f"- {name}/{m}: {what} ({cell['loop_before']:.3f} -> "
+                         f"{cell['loop_after']:.3f})")
+    untouched = [f"{name}/{m} ({c['top_score']['name']} {c['top_score']['score']:.2f}"
+                 + (", vetoed on the held-out blocks" if "looked useful" in c["message"]
+                    else "")
+                 + ("" if c["offset_score"] is None else f"; offset {c['offset_score']:.2f}")
+                 + ")"
+                 for name, row in looped.items() for m, c in row.items()
+                 if not c["added"] and c["condition"] == "as calibrated"]
+    if untouched:
+        lines.append("- nothing added (best candidate and the intercept alone, their "
+                     "cross-validated scores): "
+                     + ", ".join(untouched))
+    lines += ["\nwithin-run target: best memory model "
+              f"({', '.join(MEMORY_MODELS)}) <= 0.8 x the cubic\n",
+              "| file | without the loop | with the loop, against the cubic without | "
+              "with the loop, against the cubic with |", "|---|---|---|---|"]
+    met = [0, 0, 0]
+    files = [f for f in WITH_HOLDS if f in within and f in looped]
+    for f in files:
+        cells = []
+        pairs = ((within[f], within[f]), (looped[f], within[f]), (looped[f], looped[f]))
+        for k, (memory, static) in enumerate(pairs):
+            rmse = {m: v if isinstance(v, float) else v["rmse"] for m, v in memory.items()}
+            base = static.get("cubic")
+            base = base if base is None or isinstance(base, float) else base["rmse"]
+            have = [m for m in MEMORY_MODELS if m in rmse]
+            if base is None or not have:
+                cells.append("n/a")
+                continue
+            best = min(have, key=rmse.__getitem__)
+            ratio = rmse[best] / base
+            met[k] += ratio <= 0.8
+            cells.append(f"{best} {rmse[best]:.3f} / cubic {base:.3f} = {ratio:.2f} "
+                         + ("met" if ratio <= 0.8 else "not met"))
+        lines.append(f"| {f} | " + " | ".join(cells) + " |")
+    lines.append("\nmet on " + " / ".join(f"{n} of {len(files)}" for n in met) + " files")
     return "\n".join(lines)
 
 
