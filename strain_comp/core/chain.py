@@ -4,7 +4,7 @@ These belong to the instrument, not the material: an excitation whose polarity a
 every sample (a source-measure unit reversing its current: R_meas[i] = R[i] + A (-1)^i),
 isolated spikes (one-sample read glitches) and quantisation (an ADC's resistance step).
 Smooth strain motion cancels in the second difference d2[i] = R[i+1] - 2 R[i] + R[i-1],
-which all three statistics read:
+which the alternation statistic reads:
 
 * alternation: the d2 centred on sample i of A (-1)^i is -4 A (-1)^i, so
   A = -median((-1)^i d2) / 4 (d2 indexed by its centre), and the share of (-1)^i d2
@@ -27,10 +27,10 @@ which all three statistics read:
   symmetric alternation (``mean``). Without such a step the side cannot be told and the
   mean, exact for a symmetric alternation and the quietest, is kept. Movement is excluded
   because it changes the level and the alternation's size together.
-* spikes: samples whose |d2| exceeds ``SPIKE_K`` robust sigmas at a sign pattern of one
-  sample (a count). Corrected online by ``ChainCorrector`` (calibration key
-  ``input.despike``), which also re-bases baseline steps (``input.baseline_step``): a
-  contact resistance in series that changes in one sample and stays.
+* spikes: found and corrected online by ``ChainCorrector`` (calibration key
+  ``input.despike``; ``correct`` runs it over a whole series), which also re-bases
+  baseline steps (``input.baseline_step``): a contact resistance in series that changes in
+  one sample and stays.
 * quantisation: the smallest common step of the nonzero |R[i+1] - R[i]|, if most
   differences are integer multiples of it (a reading only: no causal term undoes it
   without lag; ``strain_comp.diagnosis.conditions``).
@@ -48,8 +48,6 @@ from strain_comp._numba import njit
 
 ALTERNATION_Z = 5.0
 """Significance (binomial z) of the sign agreement for an alternation to be present."""
-SPIKE_K = 8.0
-"""A spike's second difference exceeds this many robust sigmas."""
 PAIR_WINDOW = 5
 """Pairs per window of the medians ``pair_branch`` compares."""
 PAIR_STEP_K = 8.0
@@ -144,22 +142,6 @@ def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
         return "mean"
     share = float(np.median(-d_lower[steps] / d_size[steps]))
     return "upper" if share > 0.75 else "lower" if share < 0.25 else "mean"
-
-
-def spikes(r: npt.ArrayLike) -> int:
-    """Number of isolated one-sample spikes (module docstring)."""
-    r = _finite(r)
-    if r.size < 8:
-        return 0
-    d2 = np.diff(pair_means(r) if alternation(r).present else r, 2)
-    sigma = _robust_sigma(d2)
-    if not sigma > 0:
-        return 0
-    big = np.abs(d2) > SPIKE_K * sigma
-    # a spike at i gives d2 of one sign at i-1 and i+1 and twice the opposite at i
-    peak = big[1:-1] & (np.abs(d2[1:-1]) >= np.abs(d2[:-2])) & (np.abs(d2[1:-1])
-                                                              >= np.abs(d2[2:]))
-    return int(np.count_nonzero(peak))
 
 
 def quantisation(r: npt.ArrayLike) -> float | None:
