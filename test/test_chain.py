@@ -83,19 +83,26 @@ def test_fit_finds_the_alternation_and_the_engine_cancels_it() -> None:
     assert fixed < 0.3 * raw
 
 
+def assert_step_run_and_pieces_agree(cal: Calibration, t: np.ndarray, r: np.ndarray, *,
+                                     cut: int) -> None:
+    """Sensor s1's strain from one ``run``, from two ``run`` calls split at ``cut`` and from
+    ``step`` sample by sample is the same (the input path keeps its state)."""
+    whole = Engine(cal).run("s1", t, r).strain
+    engine = Engine(cal)
+    halves = np.concatenate([engine.run("s1", t[:cut], r[:cut]).strain,
+                             engine.run("s1", t[cut:], r[cut:]).strain])
+    engine = Engine(cal)
+    stepped = np.array([engine.step("s1", a, b).strain for a, b in zip(t, r, strict=True)])
+    np.testing.assert_allclose(halves, whole, atol=1e-12)
+    np.testing.assert_allclose(stepped, whole, atol=1e-12)
+
+
 def test_alternation_filter_is_identical_in_step_and_run_and_across_batches() -> None:
     t, r, s = smooth_run(6, n=400)
     r = r + 30.0 * (-1.0) ** np.arange(t.size)
     r[50] = np.nan  # a bad sample: skipped, not averaged
     cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
-    whole = Engine(cal).run("s1", t, r).strain
-    engine = Engine(cal)
-    halves = np.concatenate([engine.run("s1", t[:123], r[:123]).strain,
-                             engine.run("s1", t[123:], r[123:]).strain])
-    engine = Engine(cal)
-    stepped = np.array([engine.step("s1", a, b).strain for a, b in zip(t, r, strict=True)])
-    np.testing.assert_allclose(halves, whole, atol=1e-12)
-    np.testing.assert_allclose(stepped, whole, atol=1e-12)
+    assert_step_run_and_pieces_agree(cal, t, r, cut=123)
 
 
 def corrected(cal: Calibration, **settings: object) -> Calibration:
@@ -169,14 +176,7 @@ def test_corrector_is_identical_in_step_and_run_and_across_batches_and_gaps() ->
     r[[100, 400]] += 300.0
     r[50] = np.nan
     t = t + 10.0 * (t > 45.0)  # a gap reset
-    whole = Engine(cal).run("s1", t, r).strain
-    engine = Engine(cal)
-    halves = np.concatenate([engine.run("s1", t[:237], r[:237]).strain,
-                             engine.run("s1", t[237:], r[237:]).strain])
-    engine = Engine(cal)
-    stepped = np.array([engine.step("s1", a, b).strain for a, b in zip(t, r, strict=True)])
-    np.testing.assert_allclose(halves, whole, atol=1e-12)
-    np.testing.assert_allclose(stepped, whole, atol=1e-12)
+    assert_step_run_and_pieces_agree(cal, t, r, cut=237)
 
 
 def test_health_counts_the_corrections_alike_in_step_run_and_replay_ticks() -> None:
