@@ -15,9 +15,9 @@ from strain_comp.core.engine import Engine
 from strain_comp.core.tare import (
     MAX_REST_DRIFT,
     TARE_WINDOW,
-    rest_decided,
     rest_resistance_at_start,
     rest_resistance_from_reference,
+    rest_resistance_when_decided,
     tare_engine,
 )
 from strain_comp.errors import InputError
@@ -97,19 +97,22 @@ def test_rest_at_start_of_a_slow_instrument_counts_seconds_not_samples() -> None
 
 
 def test_rest_is_decided_once_the_detector_moves_or_the_window_is_full() -> None:
-    """Until then the rule's answer on a longer start could differ; from then on every
+    """Until then the rule's answer on a longer start could differ (None); from then on every
     longer start gives the same rest resistance."""
     detector = DirectionSettings(deadzone=1.0)
     t = np.arange(0.0, 20.0, 0.1)
     resting = np.full(t.size, 1.3 * R0)
     inside = t < TARE_WINDOW - 0.5
-    assert not rest_decided(t[inside], resting[inside], detector)
-    assert rest_decided(t, resting, detector)
+    assert rest_resistance_when_decided(t[inside], resting[inside], detector) is None
+    assert rest_resistance_when_decided(t, resting, detector) == rest_resistance_at_start(
+        t, resting, detector)
     ramp = gauge(np.clip(t - 2.0, 0.0, None) * 2.0, 1.3 * R0)
     n = int(np.argmax(t > 3.0))
-    assert rest_decided(t[:n], ramp[:n], detector)
-    assert rest_resistance_at_start(t[:n], ramp[:n], detector) == rest_resistance_at_start(
-        t, ramp, detector)
+    assert rest_resistance_when_decided(t[:n], ramp[:n], detector) == \
+        rest_resistance_at_start(t, ramp, detector)
+    moving = gauge(t * 2.0, 1.3 * R0)
+    with pytest.raises(InputError, match="does not start at rest"):
+        rest_resistance_when_decided(t[:n], moving[:n], detector)
 
 
 def test_rest_at_start_declines_a_start_that_still_relaxes() -> None:

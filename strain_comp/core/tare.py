@@ -83,6 +83,24 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
     (``rest_drift``): the caller then keeps the old tare.
     """
     ta, ra, stop, _ = _rest_stretch(t, r, direction, window, pair)
+    return _rest_of_stretch(ta, ra, stop, window, pair)
+
+
+def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
+                                 direction: DirectionSettings, *, window: float = TARE_WINDOW,
+                                 pair: str = "mean") -> float | None:
+    """``rest_resistance_at_start`` on the first samples of a run as they arrive: None while
+    a longer start could still change the answer (the detector has not left hold and
+    ``window`` seconds have not passed), else that answer (or its InputError). The node
+    calls it on each new sample, so it takes the zero ``--tare auto`` takes offline."""
+    ta, ra, stop, decided = _rest_stretch(t, r, direction, window, pair)
+    return _rest_of_stretch(ta, ra, stop, window, pair) if decided else None
+
+
+def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
+                     pair: str) -> float:
+    """The rest level of the first ``stop`` good samples ``ta``, ``ra``, or InputError when
+    they are too few or still drift (``rest_resistance_at_start``)."""
     if ta.size == 0:
         raise InputError("tare: no good resistance sample at the start of the run")
     if stop == 0 or (stop < MIN_REST_SAMPLES and ta[stop - 1] - ta[0] < MIN_REST_SECONDS):
@@ -118,14 +136,6 @@ def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettin
     if moving.size:
         return ta, ra, int(moving[0]) + (ra.size - pairs.size), True
     return ta, ra, ra.size, complete
-
-
-def rest_decided(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings, *,
-                 window: float = TARE_WINDOW, pair: str = "mean") -> bool:
-    """Whether ``rest_resistance_at_start`` on these first samples of a run gives what it
-    gives on the whole run: its detector has left hold, or ``window`` seconds have passed.
-    The node asks this before it tares, so it takes the offline zero."""
-    return _rest_stretch(t, r, direction, window, pair)[3]
 
 
 def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float = TARE_WINDOW,

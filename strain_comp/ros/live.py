@@ -22,8 +22,8 @@ models then see R x (calibration rest resistance / R0).
 - ``tare: auto`` (parameter): R0 = ``core.tare.rest_resistance_at_start``, the rule
   ``--tare auto`` applies offline, on the good samples since a sensor's first good sample,
   evaluated once the rule's own detector (on pair values) leaves hold or
-  ``core.tare.TARE_WINDOW`` seconds have passed (``core.tare.rest_decided``; at most the
-  last ``RING`` samples), so it takes the zero ``--tare auto`` takes offline. A run that
+  ``core.tare.TARE_WINDOW`` seconds have passed (``core.tare.rest_resistance_when_decided``;
+  at most the last ``RING`` samples), so it takes the zero ``--tare auto`` takes offline. A run that
   did not start at rest is not tared (logged with the reason), as offline: a later hold
   may be under load, no zero to take; the calibration's zero stays until ``~/tare`` is
   called at a known rest.
@@ -41,9 +41,9 @@ import numpy as np
 from strain_comp.core.engine import USED, ArrayOutput, Engine, SensorOutput, Status, diagnostics
 from strain_comp.core.tare import (
     TARE_WINDOW,
-    rest_decided,
     rest_level,
     rest_resistance_at_start,
+    rest_resistance_when_decided,
 )
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
@@ -223,14 +223,16 @@ class LiveCompensator:
             times, raw = recent.since(start, column)
             cal = self.params.calibration.sensors[sensor]
             ohm = self._ohm(sensor, raw)
-            # before the window has passed (the ring may hold less of it than that at a high
-            # rate): wait while the engine's detector moved but the rule's (on pairs) not yet
-            if t - start < TARE_WINDOW and not rest_decided(times, ohm, cal.direction,
-                                                            pair=cal.input.pair):
-                continue
             try:
-                rest = rest_resistance_at_start(times, ohm, cal.direction,
-                                                pair=cal.input.pair)
+                if t - start >= TARE_WINDOW:  # decided, also when the ring holds less of it
+                    rest = rest_resistance_at_start(times, ohm, cal.direction,
+                                                    pair=cal.input.pair)
+                else:  # the engine's detector moved; the rule's (on pairs) may not have yet
+                    found = rest_resistance_when_decided(times, ohm, cal.direction,
+                                                         pair=cal.input.pair)
+                    if found is None:
+                        continue
+                    rest = found
             except InputError as err:
                 del self._auto[sensor]
                 self.tare_log.append(f"{sensor}: auto tare declined: {err}; the calibration's "
