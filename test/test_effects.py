@@ -211,3 +211,34 @@ def test_mullins_peak_strain_and_direction_of_the_previous_sample() -> None:
         ref.append(last)
         last = x if x != 0 else last
     np.testing.assert_array_equal(held, ref)
+
+
+def _memory(form: str, tau: float, b: Batch, r: np.ndarray) -> np.ndarray:
+    g = regressor_from_dict({"name": "m", "kind": "resistance_memory",
+                             "params": {"tau": tau, "form": form}, "coef": 0.0})
+    return g.run(Batch.of(b.t, r, b.s_hat, b.direction))
+
+
+def test_resistance_memory_against_references() -> None:
+    """relaxation = the S_hat relaxation filter applied to 100 ln R; peak against a slow
+    loop; trough(R) = peak(1 / R); every form unchanged by a multiplicative tare."""
+    b = random_inputs(seed=5)
+    r = 1000.0 * np.exp(np.cumsum(np.random.default_rng(5).normal(0, 0.05, b.t.size)))
+    y = 100.0 * np.log(r)
+    tau = 6.0
+    relaxation = regressor_from_dict({"name": "r", "kind": "relaxation",
+                                      "params": {"tau": tau, "branch": "both"}, "coef": 0.0})
+    np.testing.assert_allclose(_memory("relaxation", tau, b, r),
+                               relaxation.run(Batch.of(b.t, r, y, b.direction)), atol=1e-9)
+    p, ref = y[0], [0.0]
+    for k in range(1, b.t.size):
+        p = max(y[k], y[k - 1] + (p - y[k - 1]) * math.exp(-(b.t[k] - b.t[k - 1]) / tau))
+        ref.append(p - y[k])
+    peak = _memory("peak", tau, b, r)
+    np.testing.assert_allclose(peak, ref, atol=1e-9)
+    assert np.all(peak >= 0.0) and peak.max() > 1.0
+    np.testing.assert_allclose(_memory("trough", tau, b, r), _memory("peak", tau, b, 1.0 / r),
+                               atol=1e-9)
+    for form in ("relaxation", "peak", "trough"):
+        np.testing.assert_allclose(_memory(form, tau, b, 37.0 * r), _memory(form, tau, b, r),
+                                   atol=1e-9)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import DIRECTION, NORM, R_LO, cubic_cal, engine_of
+from conftest import DIRECTION, NORM, R_LO, S_HI, S_LO, cubic_cal, engine_of
 
 from strain_comp.core.calibration import (
     Calibration,
@@ -18,6 +18,8 @@ from strain_comp.core.calibration import (
     save_calibration,
 )
 from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.effects import Batch, regressor_from_dict
+from strain_comp.core.engine import RANGE_MARGIN, used_mask
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording
@@ -163,3 +165,28 @@ def test_sign_in_calibration_files(tmp_path: Path) -> None:
         assert err.value.field == "sensors.s1.direction.sign"
     with pytest.raises(ParameterError):
         DirectionSettings(deadzone=1.0, sign=2)
+
+
+def test_resistance_memory_reads_what_the_model_reads() -> None:
+    """A resistance-memory term reads the tared input the model sees: step, run and the
+    loop's view (``BatchOutput.resistance`` of the calibration without its terms) agree."""
+    rng = np.random.default_rng(4)
+    t = np.arange(500) * 0.05
+    r = 150.0 + 30.0 * np.sin(t) + rng.normal(0, 0.5, t.size)
+    r[rng.random(t.size) < 0.05] = np.nan
+    effect = {"name": "spike", "kind": "resistance_memory",
+              "params": {"tau": 2.0, "form": "peak"}, "coef": 0.4}
+    stepped, ran, stripped = (engine_of(cubic_cal(effects=e)) for e in ([effect], [effect], []))
+    for engine in (stepped, ran, stripped):
+        engine.set_input_gain("s1", 0.8)
+    by_step = np.array([stepped.step("s1", tk, rk).strain for tk, rk in zip(t, r, strict=True)])
+    by_run = ran.run("s1", t, r)
+    np.testing.assert_allclose(by_run.strain, by_step, atol=1e-12)
+    base = stripped.run("s1", t, r)
+    used = used_mask(base.status)
+    np.testing.assert_allclose(base.resistance[used], 0.8 * r[used])
+    g = regressor_from_dict(effect).run(Batch.of(t[used], base.resistance[used],
+                                                 base.strain[used], base.direction[used]))
+    lo, hi = S_LO - RANGE_MARGIN * (S_HI - S_LO), S_HI + RANGE_MARGIN * (S_HI - S_LO)
+    expected = np.clip(np.clip(base.strain[used], lo, hi) - 0.4 * g, lo, hi)
+    np.testing.assert_allclose(by_run.strain[used], expected, atol=1e-9)

@@ -350,6 +350,80 @@ class Relaxation(Regressor):
         return cls(_positive(params, "tau", 10.0), _choice(params, "branch", _BRANCHES, "both"))
 
 
+_MEMORY_FORMS = ("relaxation", "peak", "trough")
+
+
+@njit
+def _resistance_memory_kernel(t: np.ndarray, r: np.ndarray, tau: float, form: int,
+                              state: np.ndarray) -> np.ndarray:
+    """y = 100 ln R, held between samples; m relaxes towards it with ``tau`` (``peak``:
+    m = max(m, y); ``trough``: m = min(m, y)); g = y - m (``peak``: m - y)."""
+    m, y_prev, t_prev, started = state[0], state[1], state[2], state[3]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        y = 100.0 * math.log(max(r[k], 1e-300))
+        if started > 0.0:
+            m = y_prev + (m - y_prev) * math.exp(-(t[k] - t_prev) / tau)
+        else:
+            m = y
+        if form == 1:
+            m = max(m, y)
+        elif form == 2:
+            m = min(m, y)
+        started = 1.0
+        y_prev = y
+        t_prev = t[k]
+        out[k] = m - y if form == 1 else y - m
+    state[0], state[1], state[2], state[3] = m, y_prev, t_prev, started
+    return out
+
+
+class ResistanceMemory(Regressor):
+    """Fading memory of the resistance itself: the part of R still relaxing, or how far R
+    stands from a recent spike. It reads R (the resistance the model sees), not S_hat,
+    because where R is not monotone in strain (the carbon-black shoulder) or a step's
+    overshoot runs past the calibrated range, S_hat has lost what R still shows.
+
+    With y = 100 ln R (so the term does not change with a multiplicative tare) and a
+    first-order memory of time constant ``tau`` [s]:
+
+    * ``relaxation``: g = y - m, m' = (y - m) / tau, the share of R [%] above its recent
+      average: a relaxation that follows every step of R, whatever its sign;
+    * ``peak``: g = p - y, p the peak of y relaxing towards y with ``tau`` and never below
+      it: how far R [%] has fallen from a recent spike, the decaying spike of
+      [Nanocomposite] eq. (3), read without knowing the step that caused it;
+    * ``trough``: g = y - q, the mirror of ``peak`` for sensors whose steps undershoot.
+
+    A bank of such filters followed by a static map approximates any fading-memory
+    operator (Boyd and Chua, 1985); the loop adds the few that pay on held-out data.
+    Discretised exactly for a piecewise-constant input, as ``Relaxation``: the
+    ``relaxation`` form is ``Relaxation`` (branch ``both``) applied to y.
+    """
+
+    kind = "resistance_memory"
+    param_names = ("tau", "form")
+
+    def __init__(self, tau: float = 10.0, form: str = "relaxation") -> None:
+        self.tau = tau
+        self.form = form
+        self._code = _MEMORY_FORMS.index(form)
+        self._state = np.zeros(4)
+
+    def reset(self) -> None:
+        self._state = np.zeros(4)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _resistance_memory_kernel(batch.t, batch.r, self.tau, self._code, self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"tau": self.tau, "form": self.form}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> ResistanceMemory:
+        return cls(_positive(params, "tau", 10.0),
+                   _choice(params, "form", _MEMORY_FORMS, "relaxation"))
+
+
 class Elapsed(Regressor):
     """Slow drift: a function of the time since the first sample, x = (t - t0) / scale.
 
@@ -648,8 +722,8 @@ class Baseline(Regressor):
 
 
 KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
-    Offset, Rate, Direction, Relaxation, Elapsed, Temperature, StrainLevel, Mullins, Crosstalk,
-    Baseline)}
+    Offset, Rate, Direction, Relaxation, ResistanceMemory, Elapsed, Temperature, StrainLevel,
+    Mullins, Crosstalk, Baseline)}
 
 
 def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:

@@ -184,6 +184,10 @@ class BatchOutput:
     direction: np.ndarray
     status: np.ndarray
     out_of_range: np.ndarray
+    resistance: np.ndarray
+    """The resistance [ohm] the model read at each used sample (converted, times the tare
+    gain, after the input corrections: what effect terms read); other samples hold their
+    converted input. Read-only: it may share memory with the caller's input."""
     reset: np.ndarray | None = None
     """True where a gap reset the state before the sample (counted in ``n_gaps``); None
     when not known (no resets assumed)."""
@@ -688,7 +692,7 @@ class Engine:
         if p.corrections is not None:
             corrections = np.zeros(t.size, np.int8)
             corrections[idx] = p.corrections
-        return BatchOutput(strain, direction, status, out_of_range, reset, corrections)
+        return BatchOutput(strain, direction, status, out_of_range, p.ohm, reset, corrections)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
         """One tick of an array: ``r_vector`` in the array's sensor order."""

@@ -14,6 +14,8 @@ from typing import Any
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
 """Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
 (fine enough that the nearest one is within 19 % of any time constant in that span)."""
+MEMORY_TAUS = tuple(float(2 ** k) for k in range(9))
+"""Time constants [s] of the resistance-memory candidates: 1 s to 256 s, a factor 2 apart."""
 BASELINE_WINDOW = 5.0
 """Seconds at the start of a run over which a ``baseline`` candidate averages S_hat."""
 
@@ -38,6 +40,9 @@ def default_candidates(*, temperature_ref: float | None = None,
     for branch in ("both", "loading", "unloading"):
         out += [{"name": f"relaxation_{branch}_tau{tau:g}", "kind": "relaxation",
                  "params": {"tau": tau, "branch": branch}} for tau in RELAXATION_TAUS]
+    for form in ("relaxation", "peak", "trough"):
+        out += [{"name": f"resistance_{form}_tau{tau:g}", "kind": "resistance_memory",
+                 "params": {"tau": tau, "form": form}} for tau in MEMORY_TAUS]
     out += [{"name": f"drift_{form}", "kind": "elapsed", "params": {"form": form, "scale": 100.0}}
             for form in ("linear", "sqrt", "log", "linear_strain")]
     if temperature_ref is not None:

@@ -122,6 +122,8 @@ class _Run:
 
     s_hat: np.ndarray
     direction: np.ndarray
+    resistance: np.ndarray
+    """What the model read (``BatchOutput.resistance``): the effect terms' R."""
     used: np.ndarray
     starts: list[int]
     """Positions among the used samples where the engine reset after a gap."""
@@ -144,7 +146,8 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
         dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
         starts = (np.flatnonzero((dt > engine.gap_reset) | (dt <= -engine.gap_reset))
                   + 1).tolist()
-        out[name] = _Run(result.strain, result.direction.astype(np.float64), used, starts)
+        out[name] = _Run(result.strain, result.direction.astype(np.float64), result.resistance,
+                         used, starts)
     return out
 
 
@@ -197,7 +200,7 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
         if name in runs:
             nbrs[name] = hold_latest(np.asarray(rec.t, np.float64),
                                   np.asarray(bag[name].t, np.float64), runs[name].s_hat)[used]
-    batch = Batch.of(t, np.asarray(rec.r)[used], run.s_hat[used], run.direction[used],
+    batch = Batch.of(t, run.resistance[used], run.s_hat[used], run.direction[used],
                      temperature, nbrs)
     terms = EffectTerms.from_dicts(cal.effects)
     corrected = _segmented(

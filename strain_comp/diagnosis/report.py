@@ -70,6 +70,12 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
     if kind == "relaxation":
         return (f"relaxation tau {params.get('tau')} s after {params.get('branch')} "
                 f"steps{size}")
+    if kind == "resistance_memory":
+        what = {"relaxation": "resistance still relaxing (above its recent average)",
+                "peak": "resistance falling back from a recent spike",
+                "trough": "resistance rising back from a recent dip"}.get(
+                    str(params.get("form")), str(params.get("form")))
+        return f"{what}, tau {params.get('tau')} s{size}"
     if kind == "elapsed":
         scale = float(params.get("scale", 100.0))
         if params.get("form", "linear") == "linear":
