@@ -72,7 +72,8 @@ def test_batch_equals_streaming(make_cal: Any, seed: int) -> None:
     parts = [chunked.run("s1", t[a:b], r[a:b]) for a, b in ((0, cut), (cut, cut + 1),
                                                            (cut + 1, len(t)))]
     assert_same(type(parts[0])(*(np.concatenate([getattr(p, f) for p in parts])
-                                 for f in ("strain", "direction", "status", "out_of_range"))),
+                                 for f in ("strain", "direction", "status", "out_of_range",
+                                           "resistance"))),
                 ref)
     assert chunked.health() == ref_engine.health()
 
