@@ -12,7 +12,10 @@ after fitting on the others. A model that loses only on the one block of the 60/
 that holds something the training part never showed (an artefact of the measurement
 chain, a level outside the trained range) and wins on the others loses by extrapolation,
 not by its structure. ``--option k=v`` is passed to every fit (``strain-comp fit
---option``), e.g. ``pair=upper``.
+--option``), e.g. ``pair=upper``. ``--effect NAME`` (a candidate of the residual loop,
+e.g. ``resistance_peak_tau128``; repeatable) adds that term with an intercept, fitted by
+least squares on the training part's residual without the loop's selection: what the term
+would do, whether or not the loop would choose it.
 """
 
 from __future__ import annotations
@@ -38,13 +41,39 @@ def _part(rec, mask):  # type: ignore[no-untyped-def]
                                        for k in ("t", "r", "s", "temperature")})
 
 
-def scored_errors(rec, train: list, model: str, options: dict):  # type: ignore[no-untyped-def]
+def with_effects(cal, train: list, effects: list[str]):  # type: ignore[no-untyped-def]
+    """``cal`` plus the named loop candidates and an intercept, least squares on ``train``."""
+    from strain_comp.core.calibration import Calibration
+    from strain_comp.core.effects import Batch, regressor_from_dict
+    from strain_comp.core.engine import Engine, used_mask
+    from strain_comp.diagnosis.candidates import default_candidates
+
+    known = {c["name"]: c for c in default_candidates()}
+    columns, targets = [], []
+    for part in train:
+        out = Engine(Calibration({cal.name: cal})).run(cal.name, part.t, part.r)
+        ok = used_mask(out.status) & np.isfinite(part.s)
+        batch = Batch.of(part.t[ok], out.resistance[ok], out.strain[ok], out.direction[ok])
+        columns.append(np.column_stack([np.ones(batch.t.size)] + [
+            regressor_from_dict(known[name]).run(batch) for name in effects]))
+        targets.append(out.strain[ok] - part.s[ok])
+    coef = np.linalg.lstsq(np.vstack(columns), np.concatenate(targets), rcond=None)[0]
+    terms = [{"name": "offset", "kind": "offset", "params": {}, "coef": float(coef[0])}]
+    terms += [dict(known[name], coef=float(c)) for name, c in zip(effects, coef[1:],
+                                                                  strict=True)]
+    return dataclasses.replace(cal, effects=terms)
+
+
+def scored_errors(rec, train: list, model: str, options: dict,  # type: ignore[no-untyped-def]
+                  effects: list[str] | None = None):
     """(error per sample, scored mask) of ``model`` fitted on ``train`` and run over ``rec``."""
     from strain_comp.core.calibration import Calibration
     from strain_comp.offline.evaluate import evaluate_recordings
     from strain_comp.offline.fit import fit_sensor
 
     cal = fit_sensor(train, model, name=rec.name, options=options or None)
+    if effects:
+        cal = with_effects(cal, train, effects)
     ev = evaluate_recordings({rec.name: rec}, Calibration({rec.name: cal})).sensors[rec.name]
     return ev.estimate - ev.reference, ev.scored
 
@@ -72,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", nargs="+", default=list(RUNS))
     parser.add_argument("--folds", type=int, default=5)
     parser.add_argument("--option", action="append", default=[], metavar="K=V")
+    parser.add_argument("--effect", action="append", default=[], metavar="NAME")
     args = parser.parse_args(argv)
 
     from strain_comp.io.recording import load_recordings
@@ -95,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         tail = frac > WITHIN_FIT
         phase = phases(rec)
         for model in args.models:
-            e, scored = scored_errors(rec, [_part(rec, ~tail)], model, options)
+            e, scored = scored_errors(rec, [_part(rec, ~tail)], model, options, args.effect)
             cells = [rmse(e, scored & tail)] + [rmse(e, scored & tail & m)
                                                 for m in phase.values()]
             counts = [int(np.sum(scored & tail & m)) for m in phase.values()]
@@ -108,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
                 train = [_part(rec, ~block & (frac < k / args.folds)),
                          _part(rec, ~block & (frac >= (k + 1) / args.folds))]
                 e, scored = scored_errors(rec, [p for p in train if p.t.size > 100],
-                                          model, options)
+                                          model, options, args.effect)
                 per_block.append(rmse(e, scored & block))
                 all_e.append(e[scored & block])
             every = np.concatenate(all_e)
