@@ -347,3 +347,27 @@ def test_fit_reads_a_one_sided_alternation_through_the_upper_pair_value(tmp_path
                                                                        strict=True)])
     np.testing.assert_allclose(steps, Engine(Calibration({"s1": cal})).run(
         "s1", t2, test["s1"].r).strain, atol=1e-12)
+
+
+def test_range_flags_follow_the_pair_values_the_model_reads() -> None:
+    """An alternation larger than the margin of the valid range flags no sample once the
+    pair means are read inside the range, in run and step alike; a level truly outside
+    is still flagged."""
+    t, r, s = smooth_run(8, n=600)
+    cal = Calibration({"s1": fit_sensor([Recording("s1", t, r + 60.0 * (-1.0) ** np.arange(
+        t.size), s)], "cubic", name="s1")})
+    vr = cal.sensors["s1"].valid_range
+    assert cal.sensors["s1"].input.alternation and 60.0 > 0.05 * (vr.r_hi - vr.r_lo)
+    t2, r2, _ = smooth_run(9, n=600)
+    wobbled = r2 + 80.0 * (-1.0) ** np.arange(t2.size)
+    wobbled[300:320] += 5.0 * (vr.r_hi - vr.r_lo)  # a stretch truly out of range
+    out = Engine(cal).run("s1", t2, wobbled)
+    engine = Engine(cal)
+    stepped = [engine.step("s1", a, b).out_of_range for a, b in zip(t2, wobbled, strict=True)]
+    np.testing.assert_array_equal(out.out_of_range, stepped)
+    outside = np.zeros(t2.size, bool)
+    outside[300:321] = True  # the pair mean of the first sample after the stretch too
+    raw_outside = (wobbled < vr.r_lo) | (wobbled > vr.r_hi)
+    assert np.sum(raw_outside & ~outside) > 50  # the raw samples would have been flagged
+    assert not np.any(out.out_of_range[~outside])
+    assert np.all(out.out_of_range[301:320])

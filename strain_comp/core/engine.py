@@ -20,7 +20,9 @@ Per sample, in this order:
 4. Out of range: R outside the valid resistance range widened by ``RANGE_MARGIN`` of its
    span is flagged (status ``OUT_OF_RANGE``) but still fed to the model, whose state must
    follow the sensor; the estimate of every sample is clamped to the valid strain range
-   widened by the same margin, so it is never silently extrapolated far.
+   widened by the same margin, so it is never silently extrapolated far. With an input
+   filter (``input.alternation``, ``despike``, ``baseline_step``) the flag is taken on the
+   filtered value the model reads (a pair mean, a removed spike), not on the raw sample.
 5. The direction output comes from a ``DirectionDetector`` with the calibration's settings
    (dead zone scaled by ``deadzone_scale``), multiplied by ``direction.sign`` so that +1
    is loading (strain rising) also for a sensor whose R falls with strain; the models that
@@ -371,6 +373,13 @@ def _screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_
     return status, reset, last, idx[:m], starts[:n_starts]
 
 
+def _range_status(ohm: np.ndarray, reset: np.ndarray, r_lo: float, r_hi: float) -> np.ndarray:
+    """Status codes of used samples from the resistance the model reads: out of range
+    outside [r_lo, r_hi], else a gap reset or good (``screen_one``'s last rule)."""
+    inside = np.where(reset, sc.GAP_RESET, sc.GOOD)
+    return np.where((ohm < r_lo) | (ohm > r_hi), sc.OUT_OF_RANGE, inside).astype(np.int8)
+
+
 @njit
 def _hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np.ndarray,
           dir_used: np.ndarray, strain: float, direction: int, s_lo: float, s_hi: float
@@ -567,6 +576,8 @@ class Engine:
         if s.cal.input.filtered:
             raw = float(s.pair(np.array([t]), np.array([raw]),
                                math.nan if reset else s.previous)[0][0])
+            status = Status(int(_range_status(np.array([raw]), np.array([reset]),
+                                              s.r_lo, s.r_hi)[0]))
         direction = int(s.detector.step(t, raw)) * s.cal.direction.sign
         return _Pending(t, raw, status, float(s.model.step(t, raw)), direction)
 
@@ -659,6 +670,8 @@ class Engine:
                     corrections[a:b] = events
                 dir_used[a:b] = s.detector.run(t[seg], seg_ohm)
                 strain_used[a:b] = s.model.run(t[seg], seg_ohm)
+        if s.cal.input.filtered:  # the range flag of what the model reads
+            status[idx] = _range_status(ohm[idx], reset[idx], s.r_lo, s.r_hi)
         if s.cal.direction.sign < 0:
             dir_used = -dir_used
         return _PendingBatch(t, ohm, temp, status, reset, last_good_t, idx, bounds,
