@@ -76,16 +76,18 @@ def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
         live(tmp_path, tare="auto", rest=None)
 
 
-def test_auto_tare_at_a_rate_whose_window_outgrows_the_ring(tmp_path: Path) -> None:
-    """At 1 kHz the node keeps fewer than ``TARE_WINDOW`` seconds of samples: a run at rest
-    is still tared once the window has passed."""
+def test_auto_tare_at_1_khz_reads_the_whole_window_as_offline(tmp_path: Path) -> None:
+    """At 1 kHz the ``TARE_WINDOW`` holds 5000 samples, more than the ``~/tare`` ring: the
+    node still takes the rest level from the whole window, exactly as ``--tare auto``."""
     node = live(tmp_path, tare="auto")
     t = np.arange(0.0, TARE_WINDOW + 0.2, 0.001)
-    r = 140.0 + 0.1 * np.random.default_rng(1).standard_normal(t.size)
+    r = np.where(t < 2.5, 140.0, 140.3) + 0.1 * np.random.default_rng(1).standard_normal(t.size)
     for ti, ri in zip(t, r, strict=True):
         node.on_sensor("s1", float(ti), float(ri))
     assert node.tare_log and "auto tare: rest resistance" in node.tare_log[0]
-    assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0, rel=1e-3)
+    expected = rest_resistance_at_start(t, r, node.params.calibration.sensors["s1"].direction)
+    assert node.engine.input_gain("s1") == pytest.approx(150.0 / expected, rel=1e-12)
+    assert not node._start  # the start log is dropped once every sensor is decided
 
 
 def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path) -> None:

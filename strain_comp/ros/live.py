@@ -23,7 +23,8 @@ models then see R x (calibration rest resistance / R0).
   ``--tare auto`` applies offline, on the good samples since a sensor's first good sample,
   evaluated once the rule's own detector (on pair values) leaves hold or
   ``core.tare.TARE_WINDOW`` seconds have passed (``core.tare.rest_resistance_when_decided``;
-  at most the last ``RING`` samples), so it takes the zero ``--tare auto`` takes offline. A run that
+  every sample since then, however fast the input), so it takes the zero ``--tare auto``
+  takes offline. A run that
   did not start at rest is not tared (logged with the reason), as offline: a later hold
   may be under load, no zero to take; the calibration's zero stays until ``~/tare`` is
   called at a known rest.
@@ -134,6 +135,39 @@ class _Recent:
         return self.t[mask][order], self.raw[mask, column][order]
 
 
+@dataclass
+class _StartLog:
+    """Every raw sample of an input (columns: its sensors) and its good flags, kept while an
+    automatic tare of one of its sensors is pending (at most ``TARE_WINDOW`` seconds)."""
+
+    k: int
+    t: np.ndarray = field(init=False)
+    raw: np.ndarray = field(init=False)
+    good: np.ndarray = field(init=False)
+    n: int = 0
+
+    def __post_init__(self) -> None:
+        self.t = np.empty(256)
+        self.raw = np.empty((256, self.k))
+        self.good = np.empty((256, self.k), dtype=bool)
+
+    def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
+        if self.n == self.t.size:  # doubling: amortised O(1) per sample
+            self.t = np.concatenate([self.t, np.empty(self.n)])
+            self.raw = np.concatenate([self.raw, np.empty((self.n, self.k))])
+            self.good = np.concatenate([self.good, np.empty((self.n, self.k), dtype=bool)])
+        self.t[self.n], self.raw[self.n] = t, raw
+        self.good[self.n] = status == Status.GOOD
+        self.n += 1
+
+    def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
+        """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
+        t, raw, good = self.t[:self.n], self.raw[:self.n, column], self.good[:self.n, column]
+        mask = (t >= t0) & good
+        order = np.argsort(t[mask], kind="stable")
+        return t[mask][order], raw[mask][order]
+
+
 class LiveCompensator:
     """One engine plus the per-input bookkeeping of a live node."""
 
@@ -156,6 +190,8 @@ class LiveCompensator:
         self._last_message: dict[str, float] = {}
         self._auto: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
                                         if params.tare == "auto" else {})
+        self._start = ({i.name: _StartLog(len(i.sensors)) for i in params.inputs}
+                       if self._auto else {})
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self.tare_log: list[str] = []
@@ -199,15 +235,19 @@ class LiveCompensator:
         recent = self._recent[name]
         recent.add(t, raw, status)
         self._last_message[name] = t
-        if self._auto:
-            self._auto_tare(name, t, recent, status, direction)
+        start = self._start.get(name)
+        if start is not None:
+            start.add(t, raw, status)
+            self._auto_tare(name, t, start, status, direction)
+            if not any(s in self._auto for s in self._inputs[name]):
+                del self._start[name]
 
     # --- tare -----------------------------------------------------------------------------
 
     def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
         return self.params.calibration.sensors[sensor].input.to_ohm(raw)
 
-    def _auto_tare(self, name: str, t: float, recent: _Recent, status: np.ndarray,
+    def _auto_tare(self, name: str, t: float, log: _StartLog, status: np.ndarray,
                    direction: np.ndarray) -> None:
         for column, sensor in enumerate(self._inputs[name]):
             start = self._auto.get(sensor)
@@ -220,11 +260,11 @@ class LiveCompensator:
                 continue
             if t - start < TARE_WINDOW and not (good and direction[column] != 0):
                 continue
-            times, raw = recent.since(start, column)
+            times, raw = log.since(start, column)
             cal = self.params.calibration.sensors[sensor]
             ohm = self._ohm(sensor, raw)
             try:
-                if t - start >= TARE_WINDOW:  # decided, also when the ring holds less of it
+                if t - start >= TARE_WINDOW:  # decided
                     rest = rest_resistance_at_start(times, ohm, cal.direction,
                                                     pair=cal.input.pair)
                 else:  # the engine's detector moved; the rule's (on pairs) may not have yet
