@@ -19,6 +19,7 @@ from strain_comp.core.tare import (
     rest_resistance_from_reference,
     rest_resistance_when_decided,
     tare_engine,
+    unsettled_start,
 )
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
@@ -129,6 +130,21 @@ def test_rest_at_start_declines_a_start_that_still_relaxes() -> None:
     assert abs(drift) < MAX_REST_DRIFT
     assert rest_resistance_at_start(t, settled, detector) == pytest.approx(
         float(np.median(settled[t <= TARE_WINDOW])), rel=1e-4)
+
+
+def test_unsettled_start_is_the_relaxing_rest_before_the_reference_moves() -> None:
+    """A run at rest for 40 s, still relaxing from an earlier stretch, then a ramp: the 40 s
+    are unsettled; the same rest settled, or a run that starts moving, gives 0."""
+    t = np.arange(0.0, 100.0, 0.1)
+    s = np.clip(t - 40.0, 0.0, 20.0)
+    relaxing = R0 * (1.0 + 0.01 * s + 0.2 * np.exp(-t / 60.0))
+    seconds, drift = unsettled_start(t, relaxing, s)
+    assert seconds == pytest.approx(40.4, abs=0.15)  # 2 % of the 20 % span at 1 %/s
+    assert drift < -MAX_REST_DRIFT
+    settled = R0 * (1.0 + 0.01 * s + 0.2 * np.exp(-(t + 300.0) / 60.0))
+    assert unsettled_start(t, settled, s)[0] == 0.0
+    moving = np.clip(t, 0.0, 20.0)
+    assert unsettled_start(t, R0 * (1.0 + 0.01 * moving), moving)[0] == 0.0
 
 
 def test_auto_tare_makes_a_shifted_run_read_like_the_calibrated_one(cubic: Calibration,

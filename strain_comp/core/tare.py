@@ -153,6 +153,35 @@ def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float = TARE_WINDOW,
     return (second - first) / first * window / dt
 
 
+def unsettled_start(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, *,
+                    pair: str = "mean") -> tuple[float, float]:
+    """(seconds, drift) of a run that starts while its resistance still relaxes.
+
+    The stretch before the reference strain ``s`` first moves (by ``REST_BAND`` x its
+    span) is a rest; when its level drifts over its first ``TARE_WINDOW`` s by more than
+    ``MAX_REST_DRIFT`` (``rest_drift``, the rule that declines an automatic tare there),
+    the sensor is relaxing from a stretch before the recording, which no state started at
+    the first sample knows. Returns the stretch's length [s] and that drift; (0, drift)
+    at a settled rest, (0, 0) when the rest is shorter than the window.
+    """
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    sa = np.asarray(s, dtype=np.float64)
+    good = _good(ta, ra) & np.isfinite(sa)
+    ta, ra, sa = ta[good], ra[good], sa[good]
+    if ta.size < MIN_REST_SAMPLES or not np.ptp(sa) > 0:
+        return 0.0, 0.0
+    moves = np.flatnonzero(np.abs(sa - sa[0]) > REST_BAND * np.ptp(sa))
+    stop = int(moves[0])  # the span is > 0, so the reference leaves the band somewhere
+    head = int(np.searchsorted(ta, ta[0] + TARE_WINDOW, side="right"))
+    if stop < head:  # a rest shorter than the window: no drift to judge
+        return 0.0, 0.0
+    drift = rest_drift(ta[:head], ra[:head], pair=pair)
+    if abs(drift) <= MAX_REST_DRIFT:
+        return 0.0, drift
+    return float(ta[stop] - ta[0]), drift
+
+
 def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike,
                                    *, pair: str = "mean") -> float | None:
     """Rest resistance [ohm] of a training run: its first stay at minimum strain.

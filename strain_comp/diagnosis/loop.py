@@ -8,6 +8,12 @@ Per calibrated sensor that has a recording with a reference strain:
    estimate S_hat and the published direction d; the sensor's existing effect terms (if
    any) are applied on top, and e = S_corrected - S over the samples the engine used whose
    reference is finite. Effect state restarts at the engine's gap resets, as online.
+   A run that starts while its resistance still relaxes from a stretch before the
+   recording (``strain_comp.core.tare.unsettled_start``: the rest before the reference
+   first moves drifts as the automatic tare refuses) leaves that rest out of steps 3-6:
+   no term whose state starts at the first sample can know that earlier stretch, and
+   those samples would decide the intercept every term is fitted with. The engine still
+   applies the terms there online; the message says what was left out.
 2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.core.effects``: rate,
    direction, relaxation over time constants 0.5-128 s and three branches, elapsed-time
    drift, temperature when a temperature series exists, strain level, Mullins-type history
@@ -76,7 +82,7 @@ from strain_comp.core.effects import (
 )
 from strain_comp.core.engine import Engine, used_mask
 from strain_comp.core.metrics import error_stats
-from strain_comp.core.tare import tare_engine
+from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
 from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
 from strain_comp.diagnosis.report import (
     DiagnoseResult,
@@ -107,6 +113,9 @@ class _Series:
     block: np.ndarray
     s: np.ndarray
     """Reference strain [%]."""
+    unsettled: tuple[float, float] = (0.0, 0.0)
+    """Seconds left out at the start (the sensor still relaxing there) and the drift seen
+    (``strain_comp.core.tare.unsettled_start``)."""
 
 
 def _as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
@@ -212,8 +221,13 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
                          for reg in regressors])
     s = np.asarray(rec.s, dtype=np.float64)[used]
     e = corrected - s
+    unsettled = unsettled_start(rec.t, rec.r, rec.s, pair=cal.input.pair)
+    if unsettled[0] > 0:
+        keep &= t > t[0] + unsettled[0]
+    if keep.sum() < 2 * n_blocks:
+        return None
     return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks),
-                   s=s[keep])
+                   s=s[keep], unsettled=unsettled)
 
 
 def _rmse_stats(e: np.ndarray) -> dict[str, float]:
@@ -360,6 +374,12 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
                    f"{rms(e_after):.4g} %")
+    left_out = [x.unsettled for x in series if x.unsettled[0] > 0]
+    if left_out:
+        seconds, drift = left_out[0]
+        message += (f"; the first {seconds:.0f} s, before the reference first moves, are left "
+                    f"out: the resistance still relaxes there from an earlier stretch "
+                    f"({100 * drift:+.2f} % over {TARE_WINDOW:g} s)")
     plot = {}
     if winner is not None:
         plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],
