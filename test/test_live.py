@@ -11,7 +11,7 @@ import pytest
 from conftest import cubic_cal
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.tare import TARE_WINDOW, rest_resistance_at_start
+from strain_comp.core.tare import TARE_WINDOW, rest_resistance_at_start, tare_engine
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.ros.live import ClockGate, LiveCompensator, array_values
 from strain_comp.ros.params import parse_values
@@ -131,3 +131,42 @@ def test_diagnostics_error_stale_and_transport_recovery(tmp_path: Path) -> None:
     node.refuse("s1", "bad")
     assert node.diagnostics(5.0)[-1][1] == 1
     assert node.diagnostics(5.1)[-1][1:3] == (0, "ok")
+
+
+def test_auto_tare_of_a_rest_outside_the_calibrated_range_is_the_offline_one(
+        tmp_path: Path) -> None:
+    """A rest at 60 ohm below a 100-200 ohm range (every sample flagged out of range, still
+    fed to the model): the node tares it as ``--tare auto`` does offline, and ``~/tare``
+    takes it too."""
+    t = np.arange(0.0, TARE_WINDOW + 0.5, 0.01)
+    r = 60.0 + 0.05 * np.random.default_rng(2).standard_normal(t.size)
+    node = live(tmp_path, tare="auto")
+    for ti, ri in zip(t, r, strict=True):
+        node.on_sensor("s1", float(ti), float(ri))
+    engine = node.params.build_engine()
+    tare_engine(engine, {"s1": (t, r)}, "auto")
+    assert engine.input_gain("s1") != 1.0
+    assert node.engine.input_gain("s1") == pytest.approx(engine.input_gain("s1"), rel=1e-12)
+    service = live(tmp_path)
+    for ti, ri in zip(t, r, strict=True):
+        service.on_sensor("s1", float(ti), float(ri))
+    service.tare()
+    assert service.engine.input_gain("s1") == pytest.approx(150.0 / 60.0, rel=1e-3)
+
+
+def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) -> None:
+    """An array whose second sensor never gives a usable sample: the first is tared after
+    ``TARE_WINDOW``, the second stays pending, and the start log keeps no more than a few
+    hundred samples however long the input runs."""
+    from strain_comp.core.calibration import save_calibration
+
+    save_calibration(Calibration({n: replace(cubic_cal(n), rest_resistance=150.0)
+                                  for n in ("a", "b")}), tmp_path / "c.yaml")
+    node = LiveCompensator(parse_values({"arrays": ["m"], "m.sensors": ["a", "b"],
+                                         "m.calibration": "c.yaml", "tare": "auto"},
+                                        base_dir=tmp_path), warm_up=False)
+    for ti in np.arange(0.0, 60.0, 0.01):
+        node.on_array("m", float(ti), [140.0, math.nan])
+    assert node.engine.input_gain("a") == pytest.approx(150.0 / 140.0)
+    assert node.engine.input_gain("b") == 1.0
+    assert node._start["m"].n <= 512

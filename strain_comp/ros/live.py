@@ -14,7 +14,9 @@ reading equals the previous input's stamp until the next tick (one held input pe
 so the input takes its own tick's time either way.
 
 Tare (multiplicative, ``Engine.tare``): the zero is a rest resistance R0 measured now, the
-models then see R x (calibration rest resistance / R0).
+models then see R x (calibration rest resistance / R0). A good sample here is one the engine
+fed to its model (``USED``), also when it lies outside the calibrated range: a rest that
+moved out of the range is what a tare corrects.
 
 - ``tare()`` (the node's ``~/tare`` service): R0 = ``core.tare.rest_level`` (median of pair
   means) of each sensor's good samples of the last ``TARE_WINDOW_S`` seconds; all sensors or
@@ -39,7 +41,15 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.engine import USED, ArrayOutput, Engine, SensorOutput, Status, diagnostics
+from strain_comp.core.engine import (
+    USED,
+    ArrayOutput,
+    Engine,
+    SensorOutput,
+    Status,
+    diagnostics,
+    used_mask,
+)
 from strain_comp.core.tare import (
     TARE_WINDOW,
     rest_level,
@@ -109,7 +119,8 @@ class ClockGate:
 
 @dataclass
 class _Recent:
-    """Ring of an input's latest raw samples (columns: its sensors) and their good flags."""
+    """Ring of an input's latest raw samples (columns: its sensors) and their good flags
+    (good: fed to the model, ``USED``, also when out of the calibrated range)."""
 
     k: int
     t: np.ndarray = field(init=False)
@@ -125,7 +136,7 @@ class _Recent:
     def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
         i = self.n % RING
         self.t[i], self.raw[i] = t, raw
-        self.good[i] = status == Status.GOOD
+        self.good[i] = used_mask(status)
         self.n += 1
 
     def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
@@ -137,8 +148,10 @@ class _Recent:
 
 @dataclass
 class _StartLog:
-    """Every raw sample of an input (columns: its sensors) and its good flags, kept while an
-    automatic tare of one of its sensors is pending (at most ``TARE_WINDOW`` seconds)."""
+    """Every raw sample of an input (columns: its sensors) and its good flags (as
+    ``_Recent``) since the earliest first good sample of a sensor whose automatic tare is
+    pending (``keep_from``): about ``TARE_WINDOW`` seconds, nothing while no pending sensor
+    has had a good sample."""
 
     k: int
     t: np.ndarray = field(init=False)
@@ -151,13 +164,20 @@ class _StartLog:
         self.raw = np.empty((256, self.k))
         self.good = np.empty((256, self.k), dtype=bool)
 
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
-        if self.n == self.t.size:  # doubling: amortised O(1) per sample
-            self.t = np.concatenate([self.t, np.empty(self.n)])
-            self.raw = np.concatenate([self.raw, np.empty((self.n, self.k))])
-            self.good = np.concatenate([self.good, np.empty((self.n, self.k), dtype=bool)])
+    def add(self, t: float, raw: np.ndarray, status: np.ndarray, *, keep_from: float) -> None:
+        """Log a sample; when full, first drop the samples before ``keep_from`` [s], then
+        double if still more than half full (amortised O(1) per sample)."""
+        if self.n == self.t.size:
+            keep = np.flatnonzero(self.t[:self.n] >= keep_from)
+            self.n = keep.size
+            self.t[:self.n], self.raw[:self.n], self.good[:self.n] = (
+                self.t[keep], self.raw[keep], self.good[keep])
+            if 2 * self.n > self.t.size:
+                self.t = np.concatenate([self.t, np.empty(self.t.size)])
+                self.raw = np.concatenate([self.raw, np.empty(self.raw.shape)])
+                self.good = np.concatenate([self.good, np.empty(self.good.shape, dtype=bool)])
         self.t[self.n], self.raw[self.n] = t, raw
-        self.good[self.n] = status == Status.GOOD
+        self.good[self.n] = used_mask(status)
         self.n += 1
 
     def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
@@ -237,7 +257,9 @@ class LiveCompensator:
         self._last_message[name] = t
         start = self._start.get(name)
         if start is not None:
-            start.add(t, raw, status)
+            firsts = [self._auto[s] for s in self._inputs[name] if s in self._auto]
+            start.add(t, raw, status, keep_from=min((f for f in firsts if not math.isnan(f)),
+                                                    default=math.inf))
             self._auto_tare(name, t, start, status, direction)
             if not any(s in self._auto for s in self._inputs[name]):
                 del self._start[name]
@@ -253,7 +275,7 @@ class LiveCompensator:
             start = self._auto.get(sensor)
             if start is None:
                 continue
-            good = status[column] == Status.GOOD
+            good = bool(used_mask(status[column]))
             if math.isnan(start):
                 if good:
                     self._auto[sensor] = t
