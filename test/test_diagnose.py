@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
@@ -274,3 +275,34 @@ def test_a_relaxing_start_is_left_out_and_the_spike_memory_found() -> None:
     assert "the first 100 s, before the reference first moves, are left out" in message
     assert any(a.kind == "resistance_memory" for a in result.added), result.summary()
     assert result.after["rmse"] < 0.7 * result.before["rmse"], result.summary()
+
+
+PEAK_ONLY = [{"name": "resistance_peak_tau64", "kind": "resistance_memory",
+              "params": {"tau": 64.0, "form": "peak"}}]
+
+
+def test_an_unsettled_start_is_judged_on_the_resistance_behind_a_divider() -> None:
+    """The same relaxing start read as divider volts (R1 = 10 x R, where the volts drift
+    about a tenth as much as R): still judged unsettled and left out."""
+    run = spiking_run(0, relaxing_start=True)
+    cal = fit_sensor([run], "cubic", name="s1")
+    divider = dataclasses.replace(cal, input=dataclasses.replace(
+        cal.input, kind="divider", r1=10000.0, vin=5.0))
+    volts = Recording("s1", run.t, resistance_to_divider(run.r, 10000.0, 5.0), run.s)
+    message = diagnose({"s1": volts}, Calibration({"s1": divider}),
+                       candidates=PEAK_ONLY).sensors["s1"].message
+    assert "the first 100 s, before the reference first moves, are left out" in message
+
+
+def test_an_unsettled_validation_start_is_cut_from_its_first_reference_and_reported() -> None:
+    """A validation run whose reference starts 50 s after its resistance, at an unsettled
+    rest until 100 s: the rest is left out up to the reference's first move (not 50 s
+    after the first sample), and the message says so."""
+    train = spiking_run(1, relaxing_start=False)
+    val = spiking_run(0, relaxing_start=True)
+    s = np.where(val.t < 50.0, np.nan, val.s)
+    cal = Calibration({"s1": fit_sensor([train], "cubic", name="s1")})
+    result = diagnose({"s1": train}, cal, candidates=PEAK_ONLY,
+                      validate_recordings={"s1": Recording("s1", val.t, val.r, s)})
+    assert "the first 50 s, before the reference first moves" in result.sensors["s1"].message
+    assert np.sum(val.t > 100.8) <= result.before["n"] <= np.sum(val.t > 100.0)

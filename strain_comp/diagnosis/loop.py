@@ -10,10 +10,12 @@ Per calibrated sensor that has a recording with a reference strain:
    reference is finite. Effect state restarts at the engine's gap resets, as online.
    A run that starts while its resistance still relaxes from a stretch before the
    recording (``strain_comp.core.tare.unsettled_start``: the rest before the reference
-   first moves drifts as the automatic tare refuses) leaves that rest out of steps 3-6:
-   no term whose state starts at the first sample can know that earlier stretch, and
-   those samples would decide the intercept every term is fitted with. The engine still
-   applies the terms there online; the message says what was left out.
+   first moves drifts as the automatic tare refuses; judged on the resistance, and timed
+   from the first sample with a reference) leaves that rest out of steps 3-6, in fit and
+   validation runs alike: no term whose state starts at the first sample can know that
+   earlier stretch, and those samples would decide the intercept every term is fitted
+   with. The engine still applies the terms there online; the message says what was left
+   out.
 2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.core.effects``: rate,
    direction, relaxation over time constants 0.5-128 s and three branches, elapsed-time
    drift, temperature when a temperature series exists, strain level, Mullins-type history
@@ -221,9 +223,9 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
                          for reg in regressors])
     s = np.asarray(rec.s, dtype=np.float64)[used]
     e = corrected - s
-    unsettled = unsettled_start(rec.t, rec.r, rec.s, pair=cal.input.pair)
-    if unsettled[0] > 0:
-        keep &= t > t[0] + unsettled[0]
+    unsettled = unsettled_start(rec.t, cal.input.to_ohm(rec.r), rec.s, pair=cal.input.pair)
+    if unsettled[0] > 0:  # seconds from the first sample with a reference
+        keep &= t > t[keep][0] + unsettled[0]
     if keep.sum() < 2 * n_blocks:
         return None
     return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks),
@@ -316,6 +318,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         t_out = np.concatenate([s.t for s in val_series])
         s_out = np.concatenate([s.s for s in val_series])
     else:
+        val_series = []
         e_out = np.concatenate([s.e[h] for s, h in zip(series, held_out, strict=True)])
         g_out = np.concatenate([s.g[h] for s, h in zip(series, held_out, strict=True)])
         t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
@@ -374,12 +377,14 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
                    f"{rms(e_after):.4g} %")
-    left_out = [x.unsettled for x in series if x.unsettled[0] > 0]
+    left_out = [x.unsettled for x in [*series, *val_series] if x.unsettled[0] > 0]
     if left_out:
         seconds, drift = left_out[0]
-        message += (f"; the first {seconds:.0f} s, before the reference first moves, are left "
-                    f"out: the resistance still relaxes there from an earlier stretch "
-                    f"({100 * drift:+.2f} % over {TARE_WINDOW:g} s)")
+        others = (f" (and the start of {len(left_out) - 1} more runs)" if len(left_out) > 1
+                  else "")
+        message += (f"; the first {seconds:.0f} s{others}, before the reference first moves, "
+                    f"are left out: the resistance still relaxes there from an earlier "
+                    f"stretch ({100 * drift:+.2f} % over {TARE_WINDOW:g} s)")
     plot = {}
     if winner is not None:
         plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],
