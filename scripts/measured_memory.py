@@ -42,7 +42,8 @@ def _part(rec, mask):  # type: ignore[no-untyped-def]
 
 
 def with_effects(cal, train: list, effects: list[str]):  # type: ignore[no-untyped-def]
-    """``cal`` plus the named loop candidates and an intercept, least squares on ``train``."""
+    """``cal`` plus the named loop candidates and an intercept, least squares on ``train``'s
+    samples with a reference; the terms run over every sample the engine used, as online."""
     from strain_comp.core.calibration import Calibration
     from strain_comp.core.effects import Batch, regressor_from_dict
     from strain_comp.core.engine import Engine, used_mask
@@ -52,11 +53,13 @@ def with_effects(cal, train: list, effects: list[str]):  # type: ignore[no-untyp
     columns, targets = [], []
     for part in train:
         out = Engine(Calibration({cal.name: cal})).run(cal.name, part.t, part.r)
-        ok = used_mask(out.status) & np.isfinite(part.s)
-        batch = Batch.of(part.t[ok], out.resistance[ok], out.strain[ok], out.direction[ok])
+        used = used_mask(out.status)
+        ok = np.isfinite(part.s[used])
+        batch = Batch.of(part.t[used], out.resistance[used], out.strain[used],
+                         out.direction[used])
         columns.append(np.column_stack([np.ones(batch.t.size)] + [
-            regressor_from_dict(known[name]).run(batch) for name in effects]))
-        targets.append(out.strain[ok] - part.s[ok])
+            regressor_from_dict(known[name]).run(batch) for name in effects])[ok])
+        targets.append((out.strain[used] - part.s[used])[ok])
     coef = np.linalg.lstsq(np.vstack(columns), np.concatenate(targets), rcond=None)[0]
     terms = [{"name": "offset", "kind": "offset", "params": {}, "coef": float(coef[0])}]
     terms += [dict(known[name], coef=float(c)) for name, c in zip(effects, coef[1:],
