@@ -190,3 +190,23 @@ def test_resistance_memory_reads_what_the_model_reads() -> None:
     lo, hi = S_LO - RANGE_MARGIN * (S_HI - S_LO), S_HI + RANGE_MARGIN * (S_HI - S_LO)
     expected = np.clip(np.clip(base.strain[used], lo, hi) - 0.4 * g, lo, hi)
     np.testing.assert_allclose(by_run.strain[used], expected, atol=1e-9)
+
+
+def test_a_tare_during_a_run_is_no_step_for_a_resistance_memory() -> None:
+    """A tare mid-run (the node's auto tare or ``~/tare``) rescales what the models read;
+    a resistance-memory term carries its memory over to the new gain, so after the tare it
+    reads as if that gain had been set from the first sample (``--tare auto`` offline)."""
+    rng = np.random.default_rng(6)
+    t = np.arange(400) * 0.05
+    r = 150.0 + 30.0 * np.sin(t) + rng.normal(0, 0.5, t.size)
+    for form in ("relaxation", "peak", "trough"):
+        effect = {"name": "m", "kind": "resistance_memory",
+                  "params": {"tau": 4.0, "form": form}, "coef": 0.4}
+        offline, live = engine_of(cubic_cal(effects=[effect])), engine_of(cubic_cal(
+            effects=[effect]))
+        offline.set_input_gain("s1", 0.9)
+        whole = offline.run("s1", t, r).strain
+        live.run("s1", t[:100], r[:100])
+        live.set_input_gain("s1", 0.9)
+        np.testing.assert_allclose(live.run("s1", t[100:], r[100:]).strain, whole[100:],
+                                   atol=1e-9)

@@ -167,6 +167,12 @@ class Regressor(ABC):
         """Name of the array neighbour this regressor reads, if any."""
         return None
 
+    def rescale(self, factor: float) -> None:
+        """The resistance it reads is ``factor`` x what it was (a tare): carry the state
+        over, as if that scale had held from the first sample. Terms that do not read the
+        resistance keep no state in its scale: nothing to do."""
+        return None
+
 
 class Offset(Regressor):
     """g = 1: a constant offset of the estimate (a zero shift between runs)."""
@@ -411,6 +417,10 @@ class ResistanceMemory(Regressor):
 
     def reset(self) -> None:
         self._state = np.zeros(4)
+
+    def rescale(self, factor: float) -> None:
+        """y and its memory shift by 100 ln(factor): g is unchanged."""
+        self._state[:2] += 100.0 * math.log(factor)
 
     def run(self, batch: Batch) -> np.ndarray:
         return _resistance_memory_kernel(batch.t, batch.r, self.tau, self._code, self._state)
@@ -801,6 +811,11 @@ class EffectTerms:
     def reset(self) -> None:
         for g in self.regressors:
             g.reset()
+
+    def rescale(self, factor: float) -> None:
+        """The resistance these terms read is ``factor`` x what it was (``Regressor.rescale``)."""
+        for g in self.regressors:
+            g.rescale(factor)
 
     def step(self, t: float, r: float, s_hat: float, direction: int,
              temperature: float = math.nan,

@@ -491,7 +491,8 @@ class Engine:
     def set_input_gain(self, sensor: str, gain: float) -> None:
         """Set the tare gain of ``sensor`` (effective from the next sample; state kept, the
         input corrector's and the pair statistic's references carried over to the new gain,
-        so the change is not taken for a baseline step)."""
+        so the change is not taken for a baseline step, and so is the memory of effect terms
+        that read the resistance, so the change is no step for them either)."""
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
         s = self._sensor(sensor)
@@ -499,6 +500,7 @@ class Engine:
         s.previous *= factor
         if s.corrector is not None:
             s.corrector.rescale(factor)
+        s.effects.rescale(factor)
         s.gain = float(gain)
         for group in self._arrays.values():
             if sensor in group.names and group.kernel is not None:
