@@ -153,6 +153,20 @@ def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float = TARE_WINDOW,
     return (second - first) / first * window / dt
 
 
+def _referenced(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The good samples with a finite reference, None when fewer than ``MIN_REST_SAMPLES``
+    or the reference never moves."""
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    sa = np.asarray(s, dtype=np.float64)
+    good = _good(ta, ra) & np.isfinite(sa)
+    ta, ra, sa = ta[good], ra[good], sa[good]
+    if ta.size < MIN_REST_SAMPLES or not np.ptp(sa) > 0:
+        return None
+    return ta, ra, sa
+
+
 def unsettled_start(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, *,
                     pair: str = "mean") -> tuple[float, float]:
     """(seconds, drift) of a run that starts while its resistance still relaxes.
@@ -164,13 +178,10 @@ def unsettled_start(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, *,
     the first sample knows. Returns the stretch's length [s] and that drift; (0, drift)
     at a settled rest, (0, 0) when the rest is shorter than the window.
     """
-    ta = np.asarray(t, dtype=np.float64)
-    ra = np.asarray(r, dtype=np.float64)
-    sa = np.asarray(s, dtype=np.float64)
-    good = _good(ta, ra) & np.isfinite(sa)
-    ta, ra, sa = ta[good], ra[good], sa[good]
-    if ta.size < MIN_REST_SAMPLES or not np.ptp(sa) > 0:
+    referenced = _referenced(t, r, s)
+    if referenced is None:
         return 0.0, 0.0
+    ta, ra, sa = referenced
     moves = np.flatnonzero(np.abs(sa - sa[0]) > REST_BAND * np.ptp(sa))
     stop = int(moves[0])  # the span is > 0, so the reference leaves the band somewhere
     head = int(np.searchsorted(ta, ta[0] + TARE_WINDOW, side="right"))
@@ -193,13 +204,10 @@ def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.Ar
     rest after loading sits higher, the material has softened), else the first stretch of
     ``MIN_REST_SAMPLES`` or more. None when the run never rests that long.
     """
-    ta = np.asarray(t, dtype=np.float64)
-    ra = np.asarray(r, dtype=np.float64)
-    sa = np.asarray(s, dtype=np.float64)
-    good = _good(ta, ra) & np.isfinite(sa)
-    ta, ra, sa = ta[good], ra[good], sa[good]
-    if ta.size < MIN_REST_SAMPLES or not np.ptp(sa) > 0:
+    referenced = _referenced(t, r, s)
+    if referenced is None:
         return None
+    ta, ra, sa = referenced
     rest = np.concatenate(([False], sa <= sa.min() + REST_BAND * np.ptp(sa), [False]))
     edges = np.flatnonzero(np.diff(rest.astype(np.int8)))
     for start, stop in zip(edges[::2], edges[1::2], strict=True):

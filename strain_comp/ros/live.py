@@ -117,6 +117,14 @@ class ClockGate:
         return out
 
 
+def _good_since(t: np.ndarray, raw: np.ndarray, good: np.ndarray, t0: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(times, raw values) of the good samples with time >= t0, in time order."""
+    mask = (t >= t0) & good
+    order = np.argsort(t[mask], kind="stable")
+    return t[mask][order], raw[mask][order]
+
+
 @dataclass
 class _Recent:
     """Ring of an input's latest raw samples (columns: its sensors) and their good flags
@@ -141,9 +149,7 @@ class _Recent:
 
     def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
         """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
-        mask = (self.t >= t0) & self.good[:, column]
-        order = np.argsort(self.t[mask], kind="stable")
-        return self.t[mask][order], self.raw[mask, column][order]
+        return _good_since(self.t, self.raw[:, column], self.good[:, column], t0)
 
 
 @dataclass
@@ -182,10 +188,8 @@ class _StartLog:
 
     def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
         """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
-        t, raw, good = self.t[:self.n], self.raw[:self.n, column], self.good[:self.n, column]
-        mask = (t >= t0) & good
-        order = np.argsort(t[mask], kind="stable")
-        return t[mask][order], raw[mask][order]
+        return _good_since(self.t[:self.n], self.raw[:self.n, column],
+                           self.good[:self.n, column], t0)
 
 
 class LiveCompensator:
