@@ -15,7 +15,9 @@ other effect, so the correction never shifts the output by an offset it did not 
 
 Regressors use S_hat (not R) as their signal wherever a signal is needed: S_hat is in
 strain units (coefficients are then dimensionless or in seconds) and monotone in strain
-even where R is not (carbon-black sensors).
+even where R is not (carbon-black sensors). The one exception, ``resistance_memory``
+(``ResistanceMemory``), reads 100 ln R on purpose: what R still shows where S_hat has lost
+it. R is what the model reads (converted, times the tare gain, after the input corrections).
 
 Calibration-file form (one entry of a sensor's ``effects:`` list)::
 
@@ -26,7 +28,8 @@ Every parameter has a default, so ``params: {}`` is valid. Each regressor has ``
 ``step(sample) -> float`` and a batch ``run(batch) -> array`` that continues from the
 current state and leaves it where repeated ``step`` calls would. The engine resets the
 state wherever it resets the model (start, ``reset()``, a gap reset), so a ``baseline``
-(``Baseline``) is captured again at the start of every run.
+(``Baseline``) is captured again at the start of every run; a tare during a run
+(``Engine.set_input_gain``) carries the state of R-reading terms over (``rescale``).
 """
 
 from __future__ import annotations

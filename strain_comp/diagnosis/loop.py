@@ -17,11 +17,12 @@ Per calibrated sensor that has a recording with a reference strain:
    with. The engine still applies the terms there online; the message says what was left
    out.
 2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.core.effects``: rate,
-   direction, relaxation over time constants 0.5-128 s and three branches, elapsed-time
-   drift, temperature when a temperature series exists, strain level, Mullins-type history
-   incl. the peak strain, cross-talk from array neighbours at index +-1, and a per-run
-   ``baseline``) is computed online over each recording, exactly as the engine would
-   compute it. Nothing about how the data were made is known.
+   direction, relaxation over time constants 0.5-128 s and three branches, a fading
+   memory of the resistance itself (relaxation, peak, trough of 100 ln R, 1-256 s),
+   elapsed-time drift, temperature when a temperature series exists, strain level,
+   Mullins-type history incl. the peak strain, cross-talk from array neighbours at index
+   +-1, and a per-run ``baseline``) is computed online over each recording, exactly as
+   the engine would compute it. Nothing about how the data were made is known.
 3. **Blocks.** Each recording is cut by time into ``n_blocks`` contiguous blocks (never
    random samples). Without validation recordings, every ``round(1 / holdout_fraction)``-th
    block is held out for the final report; the other blocks are the fit data.
