@@ -107,8 +107,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--effect", action="append", default=[], metavar="NAME")
     args = parser.parse_args(argv)
 
+    from strain_comp.diagnosis.candidates import default_candidates
     from strain_comp.io.recording import load_recordings
     from strain_comp.offline.fit import parse_options
+
+    unknown = set(args.effect) - {c["name"] for c in default_candidates()}
+    if unknown:
+        parser.error(f"--effect {', '.join(sorted(unknown))}: not a candidate of the loop "
+                     "(e.g. resistance_peak_tau128)")
 
     options = parse_options(args.option)
     args.out.mkdir(parents=True, exist_ok=True)
