@@ -170,3 +170,17 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
     assert node.engine.input_gain("a") == pytest.approx(150.0 / 140.0)
     assert node.engine.input_gain("b") == 1.0
     assert node._start["m"].n <= 512
+
+
+def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
+    """``~/tare`` within the first seconds of ``tare: auto``: its zero stays, no automatic
+    tare follows, and nothing more is logged for one."""
+    node = live(tmp_path, tare="auto")
+    for ti in np.arange(0.0, 1.0, 0.01):
+        node.on_sensor("s1", float(ti), 140.0)
+    node.tare()
+    assert not node._start
+    for ti in np.arange(1.0, 2.0 * TARE_WINDOW, 0.01):
+        node.on_sensor("s1", float(ti), 120.0)
+    assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
+    assert not node.tare_log and not node._start

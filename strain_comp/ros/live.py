@@ -334,6 +334,7 @@ class LiveCompensator:
         for sensor, rest in rests.items():
             self.engine.tare(sensor, rest)
             self._auto.pop(sensor, None)
+        self._start.clear()  # no automatic tare is pending any more
         return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
                                     for s, r in rests.items())
 
