@@ -8,8 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, InputSettings
 from strain_comp.core.chain import STEP_K
+from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import chain_findings, diagnose_conditions
 from strain_comp.diagnosis.report import effect_reading
@@ -126,3 +127,24 @@ def test_chain_findings_read_the_input_through_the_calibrations_pair_side(
                                                                      baseline_step=STEP_K))}))
         engine.run("s1", t, r)  # the engine's own corrector agrees
         assert (engine.health()["s1"].n_baseline_steps > 0) == bool(stepped)
+
+
+def test_chain_findings_of_a_divider_read_ohm_as_the_engine_does(
+        calibration: Calibration) -> None:
+    """Behind a voltage divider the alternation is read on the resistance the engine
+    converts (in ohm), the quantisation on the volts the ADC quantised."""
+    r1, vin = 1000.0, 5.0
+    sensor = calibration.sensors["s1"]
+    divider = Calibration({"s1": replace(sensor, input=InputSettings("divider", r1=r1,
+                                                                     vin=vin))})
+
+    def findings(rec: Recording, step: float) -> list[str]:
+        volts = np.round(resistance_to_divider(rec.r, r1, vin) / step) * step
+        return chain_findings({"s1": replace(rec, r=volts)}, divider).lines
+
+    lines = findings(run(3, alternation=20.0), 1e-5)
+    amplitude = [float(m[1]) for line in lines
+                 if (m := re.search(r"alternation \+-([\d.]+) ohm", line))]
+    assert amplitude and 15.0 < amplitude[0] < 25.0, lines  # 20 ohm, in ohm, not volts
+    lines = findings(run(3), 2e-3)
+    assert any("divider voltage quantised in steps of 0.002 V" in line for line in lines), lines

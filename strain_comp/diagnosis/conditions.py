@@ -98,7 +98,8 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
         if name not in calibration.sensors:
             continue
         settings = calibration.sensors[name].input
-        r = np.asarray(rec.r)
+        raw = np.asarray(rec.r, dtype=np.float64)
+        r = settings.to_ohm(raw)  # what the engine's input path reads (divider volts: ohm)
         wobble = alternation(r)
         if wobble.present:
             done = settings.alternation
@@ -121,9 +122,11 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
             found.stepped.add(name)
             found.step_lines += [f"{name}: {step.reading()}{_reference_note(rec, step.t)}"
                                  for step in corrector.steps]
-        step = quantisation(r)
+        step = quantisation(raw)  # an ADC quantises what it reads: volts of a divider
         if step is not None:
-            found.lines.append(f"{name}: resistance quantised in steps of {step:.3g} ohm")
+            what = ("divider voltage", "V") if settings.kind == "divider" else ("resistance",
+                                                                                "ohm")
+            found.lines.append(f"{name}: {what[0]} quantised in steps of {step:.3g} {what[1]}")
     return found
 
 
