@@ -127,6 +127,20 @@ def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
     return columns
 
 
+def parse_scales(items: Sequence[str]) -> dict[str, float]:
+    """``["time=1e-3,resistance=1000"]`` -> {key: factor}."""
+    scales: dict[str, float] = {}
+    for item in (part for text in items for part in text.split(",") if part.strip()):
+        key, sep, value = item.partition("=")
+        try:
+            scales[key.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep or not key.strip():
+            raise InputError(f"--scales {item!r}: expected KEY=FACTOR, e.g. time=1e-3")
+    return scales
+
+
 def cmd_import_csv(args: argparse.Namespace) -> int:
     _existing(args.csv, "CSV file")
     _output(args.out, [args.csv])
@@ -134,7 +148,8 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 
     result = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
-        columns=parse_columns(args.columns) if args.columns else None)
+        columns=parse_columns(args.columns) if args.columns else None,
+        scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
     print(f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
@@ -315,6 +330,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--columns", action="append", metavar="KEY=COL,...",
                    help="column mapping (index or header name) for keys time, resistance, "
                    "strain, strain_time, e.g. time=0,resistance=3,strain=1")
+    p.add_argument("--scales", action="append", metavar="KEY=FACTOR,...",
+                   help="factor per column key into s, ohm and the strain unit, e.g. "
+                   "time=1e-3 (ms),resistance=1000 (kohm),strain=100 (a fraction)")
+    p.add_argument("--delimiter", metavar="C",
+                   help="field delimiter (default: detected among tab ; , | and spaces)")
     p.set_defaults(func=cmd_import_csv)
 
     p = sub.add_parser("fit", help="fit a model to bags with a strain reference")
