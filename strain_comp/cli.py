@@ -160,18 +160,24 @@ def cmd_fit(args: argparse.Namespace) -> int:
     for bag in args.bags:
         _bag(bag)
     _output(args.out, args.bags)
-    from strain_comp.core.calibration import save_calibration
+    from strain_comp.core.calibration import save_calibration, strain_unit_words, unit_ok
     from strain_comp.offline.fit import fit_bags, parse_options
     from strain_comp.offline.options import check_fit_options
 
     options = parse_options(args.option or [])
     check_fit_options(args.model, options)
+    if not unit_ok(args.strain_unit):
+        raise InputError(f"--strain-unit {args.strain_unit!r}: expected a unit such as % or "
+                         "mm (1-16 letters, digits, %, / or .)")
     calibration = fit_bags(args.bags, args.model, args.sensor, options, report=_err)
+    for cal in calibration.sensors.values():
+        cal.strain_unit = args.strain_unit
     save_calibration(calibration, args.out, inputs=args.bags)
     for name, cal in calibration.sensors.items():
         prov = cal.provenance
         print(f"{name}: {cal.model} fitted on {prov['n_samples']} samples in "
-              f"{prov['fit_seconds']:.2f} s, training RMSE {prov['fit_rmse']:.4f} % "
+              f"{prov['fit_seconds']:.2f} s, training RMSE {prov['fit_rmse']:.4f} "
+              f"{strain_unit_words(cal.strain_unit)} "
               f"(dead zone {cal.direction.deadzone:.4g} ohm/s from {prov['direction_from']})")
     print(f"wrote {args.out}")
     return 0
@@ -346,6 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="CAL.yaml")
     p.add_argument("--option", action="append", metavar="K=V",
                    help="fit option, e.g. N=11, M=9, mode=split, k_sigma=3 (repeatable)")
+    p.add_argument("--strain-unit", default="%", metavar="UNIT",
+                   help="unit of the bags' strain_reference (default %%; mm for an extension "
+                   "imported without a gauge length): errors and readings are given in it")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("evaluate", help="error table of a calibration on a bag")

@@ -239,3 +239,34 @@ def test_quantisation_stays_a_reading(bags: BagMaker, calibration: Calibration) 
         print(f"{adc} ADC: validation RMSE {plain:.4f} %, with pair means "
               f"{paired:.4f} %")
     assert gains[8] <= gains[0] + 0.02
+
+
+def in_mm(recordings: dict[str, Recording]) -> dict[str, Recording]:
+    """The rig's reference as an extension of a 40 mm gauge [mm] (a fibre run imported
+    without a gauge length)."""
+    return {n: dataclasses.replace(r, s=None if r.s is None else 0.4 * r.s)
+            for n, r in recordings.items()}
+
+
+def test_readings_and_errors_are_in_the_calibration_strain_unit(
+        bags: BagMaker, tmp_path: Path) -> None:
+    from strain_comp.errors import CalibrationError
+    from strain_comp.offline.evaluate import format_table
+
+    cal = fit_sensor([in_mm(bags("patterns", 0))["s1"]], "cubic", name="s1")
+    cal = Calibration({"s1": dataclasses.replace(cal, strain_unit="mm")})
+    path = tmp_path / "mm.yaml"
+    save_calibration(cal, path)
+    assert load_calibration(path).sensors["s1"].strain_unit == "mm"
+    data, val = (in_mm(bags(sc, seed, drift=0.5)) for sc, seed in (("random", 2),
+                                                                   ("patterns", 3)))
+    result = diagnose(data, load_calibration(path), validate_recordings=val)
+    readings = [e.to_json()["reading"] for e in result.added]
+    assert readings and any(" mm" in r for r in readings), readings
+    text = result.summary() + " ".join(readings)
+    assert "% strain" not in text and "before" in text and " mm," in text, text
+    assert result.to_json()["units"] == {"s1": "mm"}
+    assert "errors in mm;" in format_table(evaluate_recordings(val, result.calibration))
+    path.write_text(path.read_text().replace("strain_unit: mm", "strain_unit: '% of 40 mm'"))
+    with pytest.raises(CalibrationError, match="strain_unit"):
+        load_calibration(path)

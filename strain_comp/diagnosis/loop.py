@@ -332,7 +332,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     rows = []
     for j in range(len(names)):
         row = EffectScore(sensor=sensor, name=names[j], kind=kinds[j],
-                          params=regressor_from_dict(candidates[j]).params(), score=scores[j])
+                          params=regressor_from_dict(candidates[j]).params(), score=scores[j],
+                          unit=cal.strain_unit)
         if j in coef_of:
             row.added = True
             row.rank = terms.index(j)
@@ -356,7 +357,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     else:
         parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
-                   f"{rms(e_after):.4g} %")
+                   f"{rms(e_after):.4g} {cal.strain_unit}")
     plot = {}
     if winner is not None:
         plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],

@@ -242,7 +242,7 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
             strain_src = pos
             report.strain_unit = "mm"
             report.notes.append("no --gauge-length-mm: the 'strain' topic holds the "
-                                "extension in mm, not %")
+                                "extension in mm, not % (fit it with --strain-unit mm)")
         elif gauge_length_mm is not None:
             strain_src = 100.0 * pos / gauge_length_mm
         else:

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, iter_bag, located
@@ -77,12 +77,15 @@ class SensorEvaluation:
     bad_by_status: dict[str, int] = field(default_factory=dict)
     in_run_rmse: float | None = None
     """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
+    unit: str = "%"
+    """The unit of the strain and of the errors: the calibration's ``strain_unit``."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
         record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
         record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
-                      n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status)
+                      n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status,
+                      unit=self.unit)
         if self.in_run_rmse is not None:
             record["in_run_rmse"] = _json_number(self.in_run_rmse)
         return record
@@ -146,7 +149,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             t=t, r=r, reference=s, estimate=estimate,
             direction=np.asarray(out.direction), scored=scored, n_samples=int(t.size),
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
-            bad_by_status=bad_by_status)
+            bad_by_status=bad_by_status, unit=cal.strain_unit)
     if not sensors:
         raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
@@ -200,7 +203,7 @@ def _array_outputs(engine: Any, recordings: Mapping[str, Recording],
 
 
 def format_table(result: EvaluationResult) -> str:
-    """Fixed-width error table, errors in % strain."""
+    """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
     header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
               f"{'R^2':>8}")
     lines = [header, "-" * len(header)]
@@ -211,7 +214,12 @@ def format_table(result: EvaluationResult) -> str:
         if ev.in_run_rmse is not None:
             lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
                          f"{ev.in_run_rmse:.4f}")
-    lines.append("errors in % strain; RMSE [Electrolycra] eq. (5)")
+    units = sorted({ev.unit for ev in result.sensors.values()} or {"%"})
+    words = strain_unit_words(units[0])
+    if len(units) > 1:
+        words = ", ".join(strain_unit_words(u) + " (" + ", ".join(
+            n for n, ev in result.sensors.items() if ev.unit == u) + ")" for u in units)
+    lines.append(f"errors in {words}; RMSE [Electrolycra] eq. (5)")
     return "\n".join(lines)
 
 
@@ -294,7 +302,7 @@ class _Score:
             self.kept.add(t=t, r=r, reference=s, estimate=estimate,
                           direction=np.asarray(out.direction), scored=scored)
 
-    def evaluation(self, name: str, model: str) -> SensorEvaluation:
+    def evaluation(self, name: str, model: str, unit: str) -> SensorEvaluation:
         from strain_comp.core.engine import Status
 
         kept = self.kept or _Kept(0)
@@ -303,7 +311,8 @@ class _Score:
             r=kept.get("r"), reference=kept.get("reference"), estimate=kept.get("estimate"),
             direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
-            bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())})
+            bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
+            unit=unit)
 
 
 @dataclass
@@ -490,7 +499,8 @@ class _Stream:
             elif name not in referenced:
                 notes.append(f"{name}: no strain_reference in the data, not scored")
             else:
-                sensors[name] = self.scores[name].evaluation(name, cal.model)
+                sensors[name] = self.scores[name].evaluation(name, cal.model,
+                                                                cal.strain_unit)
         return EvaluationResult(sensors, notes)
 
 
