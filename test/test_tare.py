@@ -236,3 +236,13 @@ def test_cli_evaluate_tare_auto_with_bound_and_recalibrate_from_a_bag(cubic: Cal
     prov = load_calibration(cal2).sensors["s1"].provenance["recalibrations"][0]
     assert prov["from"] == str(bag) and prov["tare"] == "calibration"
     assert cli(["recalibrate", str(cal), "--from", str(bag), "--out", str(bag)]) == 2
+
+
+def test_tare_reading_names_the_resistance_in_a_prefix_that_suits_it() -> None:
+    from strain_comp.core.tare import tare_reading
+
+    assert tare_reading(39_900.0, 35_100.0) == \
+        "rest resistance 12.0 % below calibration (35.1 vs 39.9 kohm)"
+    assert tare_reading(71.79, 66.13).endswith("(66.13 vs 71.79 ohm)")
+    assert tare_reading(2.45e6, 2.41e6).endswith("(2.41 vs 2.45 Mohm)")
+    assert tare_reading(0.53, 0.5512).endswith("above calibration (0.5512 vs 0.53 ohm)")
