@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, strain_unit_words
+from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, iter_bag, located
@@ -150,9 +150,21 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             direction=np.asarray(out.direction), scored=scored, n_samples=int(t.size),
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
             bad_by_status=bad_by_status, unit=cal.strain_unit)
+        if rec.temperature is None:
+            notes += _temperature_missing(name, calibration.sensors[name])
     if not sensors:
         raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
+    """The note for a run without temperature scored through a calibration with a
+    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
+    if not terms:
+        return []
+    return [f"{name}: no temperature in the data: the calibration's temperature term "
+            f"{', '.join(terms)} is not applied"]
 
 
 def _nothing_scored(calibration: Calibration, names: list[str]) -> str:
@@ -355,6 +367,8 @@ class _Stream:
         self.bag_problems: list[str] = []
         self.problems: list[str] = []
         self.references: set[str] = set()
+        self.with_temperature: set[str] = set()
+        """Sensors whose input has a temperature sample in a piece read so far."""
 
     def _problem(self, line: str) -> None:
         if line not in self.problems:
@@ -455,6 +469,8 @@ class _Stream:
             temp = contents.series.get(inp.prefix + TEMPERATURE)
             if temp is not None and temp.values.ndim == 1:
                 inp.temperature.add(t, temp.t, temp.values)
+                if temp.t.size:
+                    self.with_temperature.update(inp.names)
             else:
                 inp.temperature.add(t, empty, empty)
         ref = contents.series.get(inp.prefix + REFERENCE)
@@ -501,6 +517,8 @@ class _Stream:
             else:
                 sensors[name] = self.scores[name].evaluation(name, cal.model,
                                                                 cal.strain_unit)
+                if name not in self.with_temperature:
+                    notes += _temperature_missing(name, cal)
         return EvaluationResult(sensors, notes)
 
 
