@@ -246,3 +246,22 @@ def test_tare_reading_names_the_resistance_in_a_prefix_that_suits_it() -> None:
     assert tare_reading(71.79, 66.13).endswith("(66.13 vs 71.79 ohm)")
     assert tare_reading(2.45e6, 2.41e6).endswith("(2.41 vs 2.45 Mohm)")
     assert tare_reading(0.53, 0.5512).endswith("above calibration (0.5512 vs 0.53 ohm)")
+
+
+def test_a_point_outside_the_resistance_range_is_refused_not_fitted_to_the_clamp(
+        cubic: Calibration, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A sensor whose resistance fell 40 %: its 0 % and 15 % points lie below the
+    calibrated range, where the output is clamped; a map through clamped outputs would be
+    wrong, so the points are refused with the range, and no file is written."""
+    lo = cubic.sensors["s1"].valid_range.r_lo
+    points = [(0.6 * float(gauge(np.array(0.0))), 0.0),
+              (0.6 * float(gauge(np.array(15.0))), 15.0)]
+    assert points[0][0] < lo
+    with pytest.raises(InputError, match="outside the calibration's resistance range"):
+        recalibrate(cubic, points=points)
+    path = tmp_path / "cal.yaml"
+    save_calibration(cubic, path)
+    out = tmp_path / "cal2.yaml"
+    flags = [f for r, s in points for f in ("--point", f"{r}:{s}")]
+    assert cli(["recalibrate", str(path), *flags, "--out", str(out)]) == 2
+    assert "resistance range" in capsys.readouterr().err and not out.exists()

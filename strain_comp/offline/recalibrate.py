@@ -64,6 +64,13 @@ def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = points
+    lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
+    for r, s in points:
+        if not lo <= r <= hi:
+            raise InputError(f"--point {r:g}:{s:g}: {r:g} ohm is outside the calibration's "
+                             f"resistance range [{lo:.4g}, {hi:.4g}] ohm, where its output is "
+                             "clamped; a sensor whose resistance moved that far needs a tare "
+                             "(--tare auto, the node's ~/tare) or a new fit")
     o1, o2 = steady_output(cal, r1), steady_output(cal, r2)
     if not abs(o2 - o1) > 1e-9 * max(1.0, abs(o1)):
         raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the calibration gives "
