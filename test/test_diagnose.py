@@ -270,3 +270,21 @@ def test_readings_and_errors_are_in_the_calibration_strain_unit(
     path.write_text(path.read_text().replace("strain_unit: mm", "strain_unit: '% of 40 mm'"))
     with pytest.raises(CalibrationError, match="strain_unit"):
         load_calibration(path)
+
+
+def test_a_reference_the_sensor_does_not_follow_gets_one_term_and_no_rounding_terms() -> None:
+    """The reference stays at 0 % while the resistance moves (a sensor off the specimen):
+    one gain term explains the residual whole, its reading says so, and nothing is added
+    after it to "explain" what is left, rounding at 1e-15 % strain."""
+    sim = simulate("random", seed=1).sensors["s1"]
+    calibration = Calibration({"s1": fit_sensor(
+        [Recording("s1", sim.t, sim.resistance, sim.strain)], "cubic", name="s1")})
+    i = np.arange(2000)
+    data = {"s1": Recording("s1", i * 20_000_000 * 1e-9, 10.0 + np.sin(0.02 * i),
+                            np.zeros(i.size))}
+    result = diagnose(data, calibration)
+    kinds = sorted(a.kind for a in result.added)
+    assert kinds == ["offset", "strain_level"], result.summary()
+    assert result.after["rmse"] < 1e-9 * result.before["rmse"]
+    reading = next(a for a in result.added if a.kind == "strain_level").to_json()["reading"]
+    assert "does not follow" in reading, reading

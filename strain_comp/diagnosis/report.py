@@ -63,8 +63,11 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
     if kind == "offset":
         return f"output offset {coef:+.3g} {u}"
     if kind == "strain_level":
-        if params.get("power", 1) == 1 and coef < 1.0:
+        if params.get("power", 1) == 1 and coef < 0.99:
             return f"sensitivity {100.0 * (1.0 / (1.0 - coef) - 1.0):+.1f} % against calibration"
+        if params.get("power", 1) == 1:  # the output scaled by 0.01 or less, or reversed
+            return (f"output gain {1.0 - coef:+.3g} against calibration: the reference does not "
+                    "follow the sensor")
         return f"curvature error (strain^{params.get('power')}){size}"
     if kind == "rate":
         return f"rate-dependent lag {coef:+.3g} s (filter tau {params.get('tau')} s){size}"
