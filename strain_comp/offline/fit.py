@@ -98,6 +98,8 @@ DEFAULT_K_SIGMA = 4.0
 """Dead zone = k sigma of the derivative noise ([EGaIn] section V.E: 3 or 4)."""
 TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Derivative low-pass time constants [s] tried, shortest (least lag) first."""
+BURST_FRACTION = 0.25
+"""Sample intervals shorter than this fraction of the median are bursts (``_tau_grid``)."""
 DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
 STILL_FRACTION = 0.001
@@ -188,7 +190,8 @@ def movement_rate(segments: Sequence[Segment]) -> float:
     clean, so this is not inflated by resistance noise)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
-    rates = np.concatenate([np.abs(np.gradient(seg.s, seg.t)) for seg in segments])
+    rates = np.concatenate([np.abs(np.gradient(seg.s, seg.t)) if not _bursts(segments)
+                            else np.abs(_regular_gradient(seg.t, seg.s)) for seg in segments])
     scale = float(np.percentile(rates, 99.5))
     moving = rates > 10 * HOLD_RATE_FRACTION * scale
     if scale <= 0.0 or not moving.any():
@@ -230,7 +233,7 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
             raise InputError(f"option deadzone must be > 0 ohm/s, got {deadzone}")
         tau = float(options.get("tau", 0.0))
         return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
-    taus = [float(options["tau"])] if "tau" in options else list(TAU_GRID)
+    taus = [float(options["tau"])] if "tau" in options else _tau_grid(segments)
     hold = _hold_samples(segments)
     if hold is None:
         # Noise-free data (a clean simulation): a dead zone far below any real motion,
@@ -247,6 +250,42 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
         if settings.deadzone <= target:
             break
     return settings, source
+
+
+def _bursts(segments: Sequence[Segment]) -> float | None:
+    """The median sample interval when the samples come in bursts (more than 1 % of the
+    intervals below ``BURST_FRACTION`` of the median: stamps taken on arrival, as a bag's
+    log time is), else None."""
+    dt = np.concatenate([np.diff(seg.t) for seg in segments])
+    if dt.size < 2:
+        return None
+    median = float(np.median(dt))
+    return median if float(np.percentile(dt, 1)) < BURST_FRACTION * median else None
+
+
+def _regular_gradient(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """dS/dt at the samples, from S interpolated onto a grid of the median interval (a
+    burst's microseconds would turn the reference's own steps into huge rates)."""
+    if t.size < 3:
+        return np.zeros(t.size)
+    step = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1] + 0.5 * step, step)
+    if grid.size < 2:
+        return np.zeros(t.size)
+    return np.interp(t, grid, np.gradient(np.interp(grid, t, s), grid))
+
+
+def _tau_grid(segments: Sequence[Segment]) -> list[float]:
+    """``TAU_GRID``, without the filters shorter than two median sample intervals when the
+    samples come in bursts (``_bursts``). A first difference over a
+    burst's microseconds turns read-out noise into a derivative thousands of times its
+    size (its dead zone then hides every movement, or the detector flickers); a filter of
+    at least two sample intervals weights each difference by its dt and averages over the
+    bursts, as a regular instrument's difference would be."""
+    median = _bursts(segments)
+    if median is None:
+        return list(TAU_GRID)
+    return [tau for tau in TAU_GRID if tau >= 2.0 * median] or [TAU_GRID[-1]]
 
 
 def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
