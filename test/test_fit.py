@@ -221,3 +221,31 @@ def test_samples_stamped_in_bursts_get_a_filter_of_two_intervals_and_a_working_d
         agree[name] = float(np.mean(published[moving] == np.sign(rate[moving])))
     print(f"\ndetector agreement with the reference's direction: {agree}")
     assert agree["bursts"] > 0.75 and agree["regular"] > 0.9, agree
+
+
+def test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample(
+        tmp_path: Path) -> None:
+    """A 0.1 Hz logger (every 50th sample of the rig's hour at 5 Hz): its 10 s intervals
+    exceed the default 5 s gap, so the fit found no segment at all and the engine reset
+    the model at every sample. The fit now counts gaps in sample intervals, the calibration
+    carries the interval, and the engine runs the memory model through (no GAP_RESET)
+    with the error it had in training; a pause of 20 intervals still resets."""
+    from strain_comp.core.samples import Status
+    from strain_comp.offline.rig import RigEffects, simulate
+
+    sim = simulate("long", seed=1, effects=RigEffects()).sensors["s1"]
+    t, r, s = sim.t[::50], sim.resistance[::50], sim.strain[::50]
+    cal = fit_sensor([recording(t, r, s)], "pl", name="s1")
+    assert cal.sample_interval == pytest.approx(10.0)
+    path = tmp_path / "slow.yaml"
+    save_calibration(Calibration({"s1": cal}), path)
+    loaded = load_calibration(path)
+    assert loaded.sensors["s1"].sample_interval == pytest.approx(10.0)
+    out = Engine(loaded).run("s1", t, r)
+    assert not np.any(out.status == int(Status.GAP_RESET))
+    rmse = error_stats(out.strain, s).rmse
+    assert rmse == pytest.approx(cal.provenance["fit_rmse"], rel=1e-9)
+    assert rmse < 0.5 * np.std(s)
+    paused = np.where(np.arange(t.size) >= 100, t + 200.0, t)
+    status = Engine(loaded).run("s1", paused, r).status
+    assert np.flatnonzero(status == int(Status.GAP_RESET)).tolist() == [100]

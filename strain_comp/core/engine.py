@@ -548,7 +548,8 @@ class Engine:
         else:
             raw *= s.gain
         code, reset = screen_one(t, raw, forced, s.last_good_t, s.r_short, s.r_open,
-                                  s.r_lo, s.r_hi, self.gap_reset)
+                                  s.r_lo, s.r_hi, sc.gap_for(s.cal.sample_interval,
+                                                             self.gap_reset))
         status = Status(code)
         h = s.health
         if status not in USED:
@@ -626,7 +627,7 @@ class Engine:
         ohm, forced = s.to_ohm(raw)
         status, reset, last_good_t, idx, resets = _screen_batch(
             t, ohm, forced, s.last_good_t, s.r_short, s.r_open, s.r_lo, s.r_hi,
-            self.gap_reset)
+            sc.gap_for(s.cal.sample_interval, self.gap_reset))
         if s.cal.input.filtered:
             ohm = ohm.copy()  # corrected samples replace the used ones below; raw intact
         bounds = [0, *resets.tolist(), idx.size] if resets.size else [0, idx.size]
@@ -805,7 +806,7 @@ class _ArrayGroup:
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
         if not all(type(s.model).array_kernel and not s.cal.input.filtered
-                   for s in self.sensors):
+                   and s.cal.sample_interval is None for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray
 

@@ -76,6 +76,7 @@ from strain_comp.core.effects import (
 )
 from strain_comp.core.engine import Engine, used_mask
 from strain_comp.core.metrics import error_stats
+from strain_comp.core.samples import gap_for
 from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
 from strain_comp.diagnosis.report import (
@@ -142,8 +143,8 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
         result = engine.run(name, rec.t, rec.r, rec.temperature)
         used = used_mask(result.status)
         dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
-        starts = (np.flatnonzero((dt > engine.gap_reset) | (dt <= -engine.gap_reset))
-                  + 1).tolist()
+        gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
+        starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
         out[name] = _Run(result.strain, result.direction.astype(np.float64), used, starts)
     return out
 

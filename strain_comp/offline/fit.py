@@ -12,8 +12,12 @@ data and fills in what a calibration file needs besides the parameters:
 * **Segments**: good samples are cut into ``Segment``s wherever the time between two
   consecutive good samples exceeds ``GAP_SECONDS`` (a recording pause, or a long stretch of
   bad samples), the engine's default ``gap_reset``: training resets model state exactly
-  where the engine does. Isolated bad samples do not cut a segment: online, a bad sample
-  is skipped and the state kept, and the fit sees the same. Each recording starts a new
+  where the engine does. For an instrument so slow that ``GAP_INTERVALS`` of its median
+  sample interval exceed that, the gap is that many intervals, and the calibration stores
+  the interval (``sample_interval``) so that the engine counts gaps alike (a 0.1 Hz
+  logger was cut at every sample and could not be fitted at all). Isolated bad samples
+  do not cut a segment: online, a bad sample is skipped and the state kept, and the fit
+  sees the same. Each recording starts a new
   segment (model state is reset per segment). Segments shorter than ``MIN_SEGMENT``
   samples are dropped.
 * **Normalisation**: ``Normalisation.fit`` over all training samples ([Electrolycra]
@@ -75,7 +79,7 @@ from strain_comp.core.chain import PAIR_BRANCHES, alternation, pair_branch, pair
 from strain_comp.core.direction import DirectionSettings, estimate_deadzone
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.metrics import error_stats
-from strain_comp.core.samples import good_mask
+from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import FitError, InputError
 from strain_comp.models import Normalisation, Segment, model_class
@@ -123,8 +127,10 @@ def parse_options(items: Iterable[str]) -> dict[str, Any]:
     return options
 
 
-def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> list[Segment]:
-    """Good, referenced samples of one recording cut into segments (see module docstring)."""
+def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
+                   gap: float = GAP_SECONDS) -> list[Segment]:
+    """Good, referenced samples of one recording cut into segments (see module docstring)
+    wherever the time steps back or forward by more than ``gap`` [s]."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64)
@@ -133,7 +139,7 @@ def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> list[Segment]
     if t.size < 2:
         return []
     step = np.diff(t)
-    cuts = np.flatnonzero((step > GAP_SECONDS) | (step < 0.0)) + 1
+    cuts = np.flatnonzero((step > gap) | (step < 0.0)) + 1
     bounds = np.concatenate(([0], cuts, [t.size]))
     return [Segment(t[a:b], r[a:b], s[a:b]) for a, b in pairwise(bounds)
             if b - a >= MIN_SEGMENT]
@@ -353,6 +359,19 @@ def pair_side(recordings: Sequence[Recording]) -> str:
     return pair_branch(np.concatenate(r_all), np.concatenate(still_all))
 
 
+def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
+    """The median interval [s] between the recordings' good samples when ``GAP_INTERVALS``
+    of it exceed ``GAP_SECONDS`` (a slow instrument, module docstring), else None."""
+    steps = [np.diff(np.asarray(rec.t, dtype=np.float64)[good_mask(rec.t, rec.r)])
+             for rec in recordings]
+    dt = np.concatenate(steps) if steps else np.empty(0)
+    dt = dt[dt > 0.0]
+    if not dt.size:
+        return None
+    interval = float(np.median(dt))
+    return interval if GAP_INTERVALS * interval > GAP_SECONDS else None
+
+
 def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "mean",
                              ) -> float | None:
     """The calibration's rest resistance [ohm]: the median over the training runs of each
@@ -377,10 +396,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     options = dict(options or {})
     cls = model_class(model)
     segments: list[Segment] = []
+    interval = slow_sample_interval(recordings)
     for rec in recordings:
         if rec.s is None:
             raise FitError(f"sensor {name!r}: recording has no strain_reference to fit to")
-        segments.extend(split_segments(rec.t, rec.r, rec.s))
+        segments.extend(split_segments(rec.t, rec.r, rec.s, gap=gap_for(interval)))
     if not segments:
         raise FitError(f"sensor {name!r}: no stretch of {MIN_SEGMENT} or more good samples "
                        "with a finite reference strain")
@@ -414,7 +434,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
         valid_range=valid_range(segments), direction=direction,
         input=InputSettings(alternation=alternating, pair=pair),
-        rest_resistance=training_rest_resistance(recordings, pair=pair))
+        rest_resistance=training_rest_resistance(recordings, pair=pair),
+        sample_interval=interval)
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "
