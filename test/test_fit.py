@@ -249,3 +249,7 @@ def test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample(
     paused = np.where(np.arange(t.size) >= 100, t + 200.0, t)
     status = Engine(loaded).run("s1", paused, r).status
     assert np.flatnonzero(status == int(Status.GAP_RESET)).tolist() == [100]
+    engine = Engine(loaded, stale_after=1.0)  # stale after two intervals, not after 1 s
+    engine.run("s1", t[:10], r[:10])
+    assert not engine.health(now=t[9] + 15.0)["s1"].stale
+    assert engine.health(now=t[9] + 25.0)["s1"].stale

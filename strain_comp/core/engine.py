@@ -714,9 +714,16 @@ class Engine:
         for name, s in self._sensors.items():
             h = kernel_health.get(name) or replace(s.health)
             if now is not None:
-                h.stale = h.last_good_t is None or now - h.last_good_t > self.stale_after
+                h.stale = h.last_good_t is None or now - h.last_good_t > self.stale_for(name)
             out[name] = h
         return out
+
+    def stale_for(self, sensor: str) -> float:
+        """The silence [s] after which ``sensor`` is stale: ``stale_after``, or two of its
+        sample intervals for a slow instrument (``SensorCalibration.sample_interval``),
+        which is otherwise stale between every two samples."""
+        interval = self._sensor(sensor).cal.sample_interval
+        return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 
     def warm_up(self) -> None:
         """Compile every kernel now (not on the first message): run a copy of the engine."""
