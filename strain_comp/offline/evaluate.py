@@ -152,9 +152,27 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             bad_by_status=bad_by_status, unit=cal.strain_unit)
         if rec.temperature is None:
             notes += _temperature_missing(name, calibration.sensors[name])
+        notes += _crosstalk_off_tick(name, cal, {
+            n for n, other in recordings.items()
+            if rec.array is not None and other.array == rec.array})
     if not sensors:
         raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic (the
+    sensors of ``same_tick``): offline such a term reads the neighbour's latest estimate of
+    the previous batch, not of the same instant (``Engine.run``; the node, stepping each
+    message, reads the latest one), so its correction is not the one diagnosed."""
+    off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
+           if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
+           and str(e["params"].get("neighbour")) not in same_tick]
+    if not off:
+        return []
+    return [f"{name}: cross-talk term {', '.join(off)} reads a sensor not recorded on its "
+            "array topic: offline it sees that sensor's estimate batch by batch, not tick by "
+            "tick, and this error is not the calibration's (record the array on one topic)"]
 
 
 def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
@@ -519,6 +537,9 @@ class _Stream:
                                                                 cal.strain_unit)
                 if name not in self.with_temperature:
                     notes += _temperature_missing(name, cal)
+                notes += _crosstalk_off_tick(name, cal, next(
+                    (set(inp.names) for inp in self.inputs.values()
+                     if inp is not None and not inp.single and name in inp.names), set()))
         return EvaluationResult(sensors, notes)
 
 
