@@ -193,11 +193,12 @@ def _noise_sigma(segments: Sequence[Segment]) -> float:
 def movement_rate(segments: Sequence[Segment]) -> float:
     """Typical |dR/dt| [ohm/s] while the reference moves: the gauge slope |dR/dS| (a line
     through all samples) times the median |dS/dt| of the moving samples (the reference is
-    clean, so this is not inflated by resistance noise)."""
+    clean, so this is not inflated by resistance noise; on samples stamped in bursts dS/dt
+    is taken on a regular grid, ``_regular_gradient``)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
-    rates = np.concatenate([np.abs(np.gradient(seg.s, seg.t)) if not _bursts(segments)
-                            else np.abs(_regular_gradient(seg.t, seg.s)) for seg in segments])
+    gradient = np.gradient if _bursts(segments) is None else _regular_gradient
+    rates = np.concatenate([np.abs(gradient(seg.s, seg.t)) for seg in segments])
     scale = float(np.percentile(rates, 99.5))
     moving = rates > 10 * HOLD_RATE_FRACTION * scale
     if scale <= 0.0 or not moving.any():
@@ -269,7 +270,7 @@ def _bursts(segments: Sequence[Segment]) -> float | None:
     return median if float(np.percentile(dt, 1)) < BURST_FRACTION * median else None
 
 
-def _regular_gradient(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
     """dS/dt at the samples, from S interpolated onto a grid of the median interval (a
     burst's microseconds would turn the reference's own steps into huge rates)."""
     if t.size < 3:
