@@ -265,3 +265,15 @@ def test_a_point_outside_the_resistance_range_is_refused_not_fitted_to_the_clamp
     flags = [f for r, s in points for f in ("--point", f"{r}:{s}")]
     assert cli(["recalibrate", str(path), *flags, "--out", str(out)]) == 2
     assert "resistance range" in capsys.readouterr().err and not out.exists()
+
+
+def test_recalibration_reading_gives_the_offset_in_the_calibration_unit(
+        cubic: Calibration) -> None:
+    from dataclasses import replace
+
+    mm = Calibration({"s1": replace(cubic.sensors["s1"], strain_unit="mm")})
+    points = [(float(gauge(np.array(2.0))), 3.0), (float(gauge(np.array(15.0))), 17.0)]
+    _, lines = recalibrate(mm, points=points)
+    assert lines[0].split("offset ")[1].split(" (")[0].endswith(" mm"), lines
+    _, lines = recalibrate(cubic, points=points)
+    assert "% strain (through 2 points)" in lines[0], lines
