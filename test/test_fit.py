@@ -253,3 +253,24 @@ def test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample(
     engine.run("s1", t[:10], r[:10])
     assert not engine.health(now=t[9] + 15.0)["s1"].stale
     assert engine.health(now=t[9] + 25.0)["s1"].stale
+
+
+def test_fit_all_leaves_out_a_sensor_that_cannot_be_fitted_and_says_so(tmp_path: Path) -> None:
+    """An array of two where one sensor's reference is NaN throughout: ``--sensor all``
+    fits the other and reports the one left out; naming it alone is still an error."""
+    from strain_comp.io.bag import BagWriter
+    from strain_comp.offline.fit import fit_bags
+
+    t, s = triangles()
+    r = resistance_of(s)
+    path = tmp_path / "two.mcap"
+    with BagWriter(path) as writer:
+        for name, ref in (("s1", s), ("s2", np.full(s.size, np.nan))):
+            writer.write_float64(f"/{name}/resistance", t, r)
+            writer.write_float64(f"/{name}/strain_reference", t, ref)
+    lines: list[str] = []
+    cal = fit_bags([path], "cubic", ["all"], report=lines.append)
+    assert list(cal.sensors) == ["s1"]
+    assert len(lines) == 1 and "s2" in lines[0], lines
+    with pytest.raises(FitError, match="s2"):
+        fit_bags([path], "cubic", ["s2"])

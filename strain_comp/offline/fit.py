@@ -454,7 +454,9 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None) -> Calibration:
-    """One calibration for ``sensors`` (None or ``["all"]``: every sensor with a reference).
+    """One calibration for ``sensors`` (None or ``["all"]``: every sensor with a reference;
+    one of those that cannot be fitted, e.g. a reference that is NaN throughout, is left
+    out with a line to ``report``, unless none can be).
 
     Each sensor is fitted to its recordings from every bag that has it. Bag problems
     (skipped chunks, unknown schemas) go to ``report``, one line each.
@@ -485,8 +487,18 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
             if sensor not in referenced:
                 raise InputError(f"sensor {sensor!r} has no strain_reference in {bag_list}")
     calibrations = {}
+    every = sensors is None or "all" in sensors
     for sensor in names:
         pairs = [(path, rec) for path, rec in by_sensor[sensor] if rec.s is not None]
-        calibrations[sensor] = fit_sensor([rec for _, rec in pairs], model, name=sensor,
-                                          bags=[path for path, _ in pairs], options=options)
+        try:
+            calibrations[sensor] = fit_sensor([rec for _, rec in pairs], model, name=sensor,
+                                              bags=[path for path, _ in pairs],
+                                              options=options)
+        except FitError as err:
+            if not every or len(names) == 1:
+                raise
+            if report is not None:  # "all": the sensors that can be fitted are
+                report(f"not fitted: {err}")
+    if not calibrations:
+        raise FitError(f"{bag_list}: no sensor could be fitted")
     return Calibration(calibrations)
