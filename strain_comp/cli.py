@@ -127,6 +127,20 @@ def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
     return columns
 
 
+def parse_scales(items: Sequence[str]) -> dict[str, float]:
+    """``["time=1e-3,resistance=1000"]`` -> {key: factor}."""
+    scales: dict[str, float] = {}
+    for item in (part for text in items for part in text.split(",") if part.strip()):
+        key, sep, value = item.partition("=")
+        try:
+            scales[key.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep or not key.strip():
+            raise InputError(f"--scales {item!r}: expected KEY=FACTOR, e.g. time=1e-3")
+    return scales
+
+
 def cmd_import_csv(args: argparse.Namespace) -> int:
     _existing(args.csv, "CSV file")
     _output(args.out, [args.csv])
@@ -134,7 +148,8 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 
     result = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
-        columns=parse_columns(args.columns) if args.columns else None)
+        columns=parse_columns(args.columns) if args.columns else None,
+        scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
     print(f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
@@ -145,18 +160,24 @@ def cmd_fit(args: argparse.Namespace) -> int:
     for bag in args.bags:
         _bag(bag)
     _output(args.out, args.bags)
-    from strain_comp.core.calibration import save_calibration
+    from strain_comp.core.calibration import save_calibration, strain_unit_words, unit_ok
     from strain_comp.offline.fit import fit_bags, parse_options
     from strain_comp.offline.options import check_fit_options
 
     options = parse_options(args.option or [])
     check_fit_options(args.model, options)
+    if not unit_ok(args.strain_unit):
+        raise InputError(f"--strain-unit {args.strain_unit!r}: expected a unit such as % or "
+                         "mm (1-16 letters, digits, %, / or .)")
     calibration = fit_bags(args.bags, args.model, args.sensor, options, report=_err)
+    for cal in calibration.sensors.values():
+        cal.strain_unit = args.strain_unit
     save_calibration(calibration, args.out, inputs=args.bags)
     for name, cal in calibration.sensors.items():
         prov = cal.provenance
         print(f"{name}: {cal.model} fitted on {prov['n_samples']} samples in "
-              f"{prov['fit_seconds']:.2f} s, training RMSE {prov['fit_rmse']:.4f} % "
+              f"{prov['fit_seconds']:.2f} s, training RMSE {prov['fit_rmse']:.4f} "
+              f"{strain_unit_words(cal.strain_unit)} "
               f"(dead zone {cal.direction.deadzone:.4g} ohm/s from {prov['direction_from']})")
     print(f"wrote {args.out}")
     return 0
@@ -315,6 +336,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--columns", action="append", metavar="KEY=COL,...",
                    help="column mapping (index or header name) for keys time, resistance, "
                    "strain, strain_time, e.g. time=0,resistance=3,strain=1")
+    p.add_argument("--scales", action="append", metavar="KEY=FACTOR,...",
+                   help="factor per column key into s, ohm and the strain unit, e.g. "
+                   "time=1e-3 (ms),resistance=1000 (kohm),strain=100 (a fraction)")
+    p.add_argument("--delimiter", metavar="C",
+                   help="field delimiter (default: detected among tab ; , | and spaces)")
     p.set_defaults(func=cmd_import_csv)
 
     p = sub.add_parser("fit", help="fit a model to bags with a strain reference")
@@ -326,6 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="CAL.yaml")
     p.add_argument("--option", action="append", metavar="K=V",
                    help="fit option, e.g. N=11, M=9, mode=split, k_sigma=3 (repeatable)")
+    p.add_argument("--strain-unit", default="%", metavar="UNIT",
+                   help="unit of the bags' strain_reference (default %%; mm for an extension "
+                   "imported without a gauge length): errors and readings are given in it")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("evaluate", help="error table of a calibration on a bag")

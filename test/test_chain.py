@@ -18,6 +18,7 @@ from strain_comp.core.calibration import (
 )
 from strain_comp.core.chain import (
     DESPIKE_K,
+    SPIKE,
     alternation,
     correct,
     pair_branch,
@@ -371,3 +372,23 @@ def test_range_flags_follow_the_pair_values_the_model_reads() -> None:
     assert np.sum(raw_outside & ~outside) > 50  # the raw samples would have been flagged
     assert not np.any(out.out_of_range[~outside])
     assert np.all(out.out_of_range[301:320])
+
+
+def test_one_adc_step_of_flicker_in_a_quiet_hold_is_no_spike() -> None:
+    """A 12-bit divider read-out whose steps exceed its noise (the rig's steps run: long
+    holds at 40 %): a hold flickering by one ADC step is quantisation, not spikes; spikes
+    of 0.5 ohm injected on the same run are still all found."""
+    from strain_comp.offline.rig import RigEffects, simulate
+
+    clean = RigEffects(relaxation=0.0)
+    run = simulate("steps", seed=13, effects=clean).sensors["s1"]
+    hold = run.resistance[(run.strain == 40.0)]
+    changes = np.abs(np.diff(hold))
+    assert np.mean(changes == 0.0) > 0.3  # stuck on one ADC step for runs of samples
+    assert np.min(changes[changes > 0]) > 2.0 * clean.noise  # a step exceeds the noise
+    _, events, corrector = correct(run.t, run.resistance, alternating=False)
+    assert corrector.n_spikes == 0 and not np.any(events == SPIKE)
+    spiky = simulate("steps", seed=13, effects=replace(clean, spikes=0.002)).sensors["s1"]
+    injected = np.count_nonzero(np.abs(spiky.resistance - run.resistance) > 0.25)
+    _, _, corrector = correct(spiky.t, spiky.resistance, alternating=False)
+    assert injected > 10 and corrector.n_spikes == injected

@@ -120,3 +120,39 @@ def test_measured_files(measured_data: Path) -> None:
     fiber = import_csv(measured_data / "conductive_fiber" / "oldthread_sensorfiber_5x_1_synced.csv",
                        fmt="fiber", sensor="fib")
     assert fiber.report.strain_unit == "mm" and np.nanmax(fiber.recording.s) > 50
+
+
+def test_delimiter_decimal_comma_and_units_from_the_command_line(tmp_path: Path) -> None:
+    """The same recording written as a comma file in s and ohm, as a semicolon file with
+    decimal commas in ms and kohm with the strain as a fraction, and space separated: every
+    one imports (delimiter detected, units from --scales) to the same samples."""
+    from strain_comp.cli import main
+
+    t = np.arange(50) * 0.02
+    r = 1500.0 + 400.0 * np.sin(t)
+    s = 20.0 * np.sin(t)
+    plain = tmp_path / "plain.csv"
+    plain.write_text("t_s,r_ohm,s_pct\n" + "".join(
+        f"{a:.17g},{b:.17g},{c:.17g}\n" for a, b, c in zip(t, r, s, strict=True)))
+    local = tmp_path / "local.csv"
+    local.write_text("ms;kohm;fraction\n" + "".join(
+        f"{a * 1e3:.1f};{b / 1e3:.10f};{c / 100:.12f}\n".replace(".", ",")
+        for a, b, c in zip(t, r, s, strict=True)))
+    spaced = tmp_path / "spaced.txt"
+    spaced.write_text("".join(f"  {a:.17g}   {b:.17g} {c:.17g}\n"
+                              for a, b, c in zip(t, r, s, strict=True)))
+    runs = {plain: ["--columns", "time=t_s,resistance=r_ohm,strain=s_pct"],
+            local: ["--columns", "time=ms,resistance=kohm,strain=fraction",
+                    "--scales", "time=1e-3,resistance=1000,strain=100"],
+            spaced: ["--columns", "time=0,resistance=1,strain=2"]}
+    for path, flags in runs.items():
+        out = tmp_path / f"{path.stem}.mcap"
+        assert main(["import-csv", str(path), "--out", str(out), "--sensor", "s1",
+                     "--format", "generic", *flags]) == 0
+        rec = load_recordings(out)[0]["s1"]
+        np.testing.assert_allclose(rec.t, t, atol=1e-9)
+        np.testing.assert_allclose(rec.r, r, rtol=1e-9)
+        np.testing.assert_allclose(rec.s, s, rtol=1e-9, atol=1e-9)
+    with pytest.raises(InputError, match="scale"):
+        import_csv(plain, fmt="generic", sensor="g", scales={"time": 0.0},
+                   columns={"time": "t_s", "resistance": "r_ohm"})

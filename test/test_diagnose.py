@@ -306,3 +306,52 @@ def test_an_unsettled_validation_start_is_cut_from_its_first_reference_and_repor
                       validate_recordings={"s1": Recording("s1", val.t, val.r, s)})
     assert "the first 50 s, before the reference first moves" in result.sensors["s1"].message
     assert np.sum(val.t > 100.8) <= result.before["n"] <= np.sum(val.t > 100.0)
+
+
+def in_mm(recordings: dict[str, Recording]) -> dict[str, Recording]:
+    """The rig's reference as an extension of a 40 mm gauge [mm] (a fibre run imported
+    without a gauge length)."""
+    return {n: dataclasses.replace(r, s=None if r.s is None else 0.4 * r.s)
+            for n, r in recordings.items()}
+
+
+def test_readings_and_errors_are_in_the_calibration_strain_unit(
+        bags: BagMaker, tmp_path: Path) -> None:
+    from strain_comp.errors import CalibrationError
+    from strain_comp.offline.evaluate import format_table
+
+    cal = fit_sensor([in_mm(bags("patterns", 0))["s1"]], "cubic", name="s1")
+    cal = Calibration({"s1": dataclasses.replace(cal, strain_unit="mm")})
+    path = tmp_path / "mm.yaml"
+    save_calibration(cal, path)
+    assert load_calibration(path).sensors["s1"].strain_unit == "mm"
+    data, val = (in_mm(bags(sc, seed, drift=0.5)) for sc, seed in (("random", 2),
+                                                                   ("patterns", 3)))
+    result = diagnose(data, load_calibration(path), validate_recordings=val)
+    readings = [e.to_json()["reading"] for e in result.added]
+    assert readings and any(" mm" in r for r in readings), readings
+    text = result.summary() + " ".join(readings)
+    assert "% strain" not in text and "before" in text and " mm," in text, text
+    assert result.to_json()["units"] == {"s1": "mm"}
+    assert "errors in mm;" in format_table(evaluate_recordings(val, result.calibration))
+    path.write_text(path.read_text().replace("strain_unit: mm", "strain_unit: '% of 40 mm'"))
+    with pytest.raises(CalibrationError, match="strain_unit"):
+        load_calibration(path)
+
+
+def test_a_reference_the_sensor_does_not_follow_gets_one_term_and_no_rounding_terms() -> None:
+    """The reference stays at 0 % while the resistance moves (a sensor off the specimen):
+    one gain term explains the residual whole, its reading says so, and nothing is added
+    after it to "explain" what is left, rounding at 1e-15 % strain."""
+    sim = simulate("random", seed=1).sensors["s1"]
+    calibration = Calibration({"s1": fit_sensor(
+        [Recording("s1", sim.t, sim.resistance, sim.strain)], "cubic", name="s1")})
+    i = np.arange(2000)
+    data = {"s1": Recording("s1", i * 20_000_000 * 1e-9, 10.0 + np.sin(0.02 * i),
+                            np.zeros(i.size))}
+    result = diagnose(data, calibration)
+    kinds = sorted(a.kind for a in result.added)
+    assert kinds == ["offset", "strain_level"], result.summary()
+    assert result.after["rmse"] < 1e-9 * result.before["rmse"]
+    reading = next(a for a in result.added if a.kind == "strain_level").to_json()["reading"]
+    assert "does not follow" in reading, reading

@@ -88,3 +88,73 @@ def test_plots_are_written(tmp_path: Path) -> None:
                                                "s1_time.png"]
     for path in written:
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
+
+
+def test_a_temperature_term_without_temperature_in_the_data_is_noted(tmp_path: Path) -> None:
+    """A calibration with a temperature term scored on a run without a temperature topic:
+    the term reads nothing (g = 0), the estimate is the bare model's, and the notes say so,
+    in memory and streamed alike; with temperature, no note and the term applies."""
+    from dataclasses import replace
+
+    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.offline.evaluate import evaluate_bag
+
+    bare = calibration()
+    term = {"name": "temperature_offset", "kind": "temperature",
+            "params": {"form": "offset", "t_ref": 23.0}, "coef": 0.5}
+    cal = Calibration({"s1": replace(bare.sensors["s1"], effects=[term])})
+    rec = recording()
+    note = "s1: no temperature in the data: the calibration's temperature term " \
+           "temperature_offset is not applied"
+    without = evaluate_recordings({"s1": rec}, cal)
+    assert note in format_notes(without)
+    assert without.sensors["s1"].stats.rmse == evaluate_recordings(
+        {"s1": rec}, bare).sensors["s1"].stats.rmse
+    path = tmp_path / "no_temperature.mcap"
+    write_recording_bag(rec, path)
+    streamed, _ = evaluate_bag(path, cal, window=500)
+    assert note in format_notes(streamed)
+    warm = replace(rec, temperature=np.full(rec.t.size, 25.0))
+    with_t = evaluate_recordings({"s1": warm}, cal)
+    assert not any("temperature" in line for line in format_notes(with_t))
+    path = tmp_path / "temperature.mcap"
+    write_recording_bag(warm, path)
+    streamed, _ = evaluate_bag(path, cal, window=500)
+    assert not any("temperature" in line for line in format_notes(streamed))
+    assert streamed.sensors["s1"].stats.rmse != without.sensors["s1"].stats.rmse
+
+
+def test_a_crosstalk_term_whose_neighbour_is_on_another_topic_is_noted(tmp_path: Path) -> None:
+    """A cross-talk term (fitted on an array topic) scored on sensors recorded on separate
+    topics reads its neighbour batch by batch, not tick by tick: the notes say so, in
+    memory and streamed; on one array topic there is no such note."""
+    from dataclasses import replace
+
+    from strain_comp.io.bag import BagWriter
+    from strain_comp.offline.evaluate import evaluate_bag
+
+    bare = calibration().sensors["s1"]
+    term = {"name": "crosstalk_s2", "kind": "crosstalk", "params": {"neighbour": "s2"},
+            "coef": 0.05}
+    cal = Calibration({"s1": replace(bare, effects=[term]), "s2": replace(bare, name="s2")})
+    t, r, s = data()
+    apart = {n: replace(recording(n), r=r) for n in ("s1", "s2")}
+    note = "s1: cross-talk term crosstalk_s2 (s2) reads a sensor not recorded on its array"
+    assert any(line.startswith(note) for line in format_notes(evaluate_recordings(apart, cal)))
+    together = {n: replace(rec, array="arr", index=i) for i, (n, rec) in
+                enumerate(apart.items())}
+    assert not any("cross-talk" in line
+                   for line in format_notes(evaluate_recordings(together, cal)))
+    for path, arrayed in ((tmp_path / "apart.mcap", False), (tmp_path / "arr.mcap", True)):
+        with BagWriter(path) as writer:
+            if arrayed:
+                writer.write_float64_array("/arr/resistance", t, np.column_stack([r, r]),
+                                           ["s1", "s2"])
+                writer.write_float64_array("/arr/strain_reference", t, np.column_stack([s, s]),
+                                           ["s1", "s2"])
+            else:
+                for n in ("s1", "s2"):
+                    writer.write_float64(f"/{n}/resistance", t, r)
+                    writer.write_float64(f"/{n}/strain_reference", t, s)
+        notes = format_notes(evaluate_bag(path, cal, window=500)[0])
+        assert any(line.startswith(note) for line in notes) is not arrayed, notes

@@ -195,3 +195,82 @@ def test_fit_errors_are_clear() -> None:
         fit_sensor([recording(t, np.full(t.size, 100.0), s)], "cubic", name="s1")
     with pytest.raises(ParameterError, match="unknown model"):
         fit_sensor([recording(t, r, s)], "quintic", name="s1")
+
+
+def test_samples_stamped_in_bursts_get_a_filter_of_two_intervals_and_a_working_detector(
+        ) -> None:
+    """The rig's random run with arrival-time stamps (each sample 0-35 ms late, kept in
+    order: bursts microseconds apart, as a bag's log time has them): the fit no longer
+    takes the raw difference, whose dead zone there is thousands of ohm/s and leaves the
+    detector in hold (agreement 0.10), and the detector follows the reference's direction
+    on 4 moving samples of 5 (0.96 on the regular stamps; the bursts' noise stays)."""
+    from strain_comp.offline.rig import simulate
+
+    sim = simulate("random", seed=1).sensors["s1"]
+    rng = np.random.default_rng(3)
+    late = np.maximum.accumulate(sim.t + rng.uniform(0.0, 0.035, sim.t.size))
+    late += 1e-6 * np.arange(sim.t.size)
+    agree = {}
+    for name, t in (("regular", sim.t), ("bursts", late)):
+        cal = fit_sensor([recording(t, sim.resistance, sim.strain)], "cubic", name="s1")
+        if name == "bursts":
+            assert cal.direction.tau >= 2.0 * np.median(np.diff(t))
+        published = Engine(Calibration({"s1": cal})).run("s1", t, sim.resistance).direction
+        rate = np.gradient(sim.strain, sim.t)
+        moving = np.abs(rate) > 0.05
+        agree[name] = float(np.mean(published[moving] == np.sign(rate[moving])))
+    print(f"\ndetector agreement with the reference's direction: {agree}")
+    assert agree["bursts"] > 0.75 and agree["regular"] > 0.9, agree
+
+
+def test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample(
+        tmp_path: Path) -> None:
+    """A 0.1 Hz logger (every 50th sample of the rig's hour at 5 Hz): its 10 s intervals
+    exceed the default 5 s gap, so the fit found no segment at all and the engine reset
+    the model at every sample. The fit now counts gaps in sample intervals, the calibration
+    carries the interval, and the engine runs the memory model through (no GAP_RESET)
+    with the error it had in training; a pause of 20 intervals still resets."""
+    from strain_comp.core.samples import Status
+    from strain_comp.offline.rig import RigEffects, simulate
+
+    sim = simulate("long", seed=1, effects=RigEffects()).sensors["s1"]
+    t, r, s = sim.t[::50], sim.resistance[::50], sim.strain[::50]
+    cal = fit_sensor([recording(t, r, s)], "pl", name="s1")
+    assert cal.sample_interval == pytest.approx(10.0)
+    path = tmp_path / "slow.yaml"
+    save_calibration(Calibration({"s1": cal}), path)
+    loaded = load_calibration(path)
+    assert loaded.sensors["s1"].sample_interval == pytest.approx(10.0)
+    out = Engine(loaded).run("s1", t, r)
+    assert not np.any(out.status == int(Status.GAP_RESET))
+    rmse = error_stats(out.strain, s).rmse
+    assert rmse == pytest.approx(cal.provenance["fit_rmse"], rel=1e-9)
+    assert rmse < 0.5 * np.std(s)
+    paused = np.where(np.arange(t.size) >= 100, t + 200.0, t)
+    status = Engine(loaded).run("s1", paused, r).status
+    assert np.flatnonzero(status == int(Status.GAP_RESET)).tolist() == [100]
+    engine = Engine(loaded, stale_after=1.0)  # stale after two intervals, not after 1 s
+    engine.run("s1", t[:10], r[:10])
+    assert not engine.health(now=t[9] + 15.0)["s1"].stale
+    assert engine.health(now=t[9] + 25.0)["s1"].stale
+
+
+def test_fit_all_leaves_out_a_sensor_that_cannot_be_fitted_and_says_so(tmp_path: Path) -> None:
+    """An array of two where one sensor's reference is NaN throughout: ``--sensor all``
+    fits the other and reports the one left out; naming it alone is still an error."""
+    from strain_comp.io.bag import BagWriter
+    from strain_comp.offline.fit import fit_bags
+
+    t, s = triangles()
+    r = resistance_of(s)
+    path = tmp_path / "two.mcap"
+    with BagWriter(path) as writer:
+        for name, ref in (("s1", s), ("s2", np.full(s.size, np.nan))):
+            writer.write_float64(f"/{name}/resistance", t, r)
+            writer.write_float64(f"/{name}/strain_reference", t, ref)
+    lines: list[str] = []
+    cal = fit_bags([path], "cubic", ["all"], report=lines.append)
+    assert list(cal.sensors) == ["s1"]
+    assert len(lines) == 1 and "s2" in lines[0], lines
+    with pytest.raises(FitError, match="s2"):
+        fit_bags([path], "cubic", ["s2"])

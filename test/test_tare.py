@@ -252,3 +252,44 @@ def test_cli_evaluate_tare_auto_with_bound_and_recalibrate_from_a_bag(cubic: Cal
     prov = load_calibration(cal2).sensors["s1"].provenance["recalibrations"][0]
     assert prov["from"] == str(bag) and prov["tare"] == "calibration"
     assert cli(["recalibrate", str(cal), "--from", str(bag), "--out", str(bag)]) == 2
+
+
+def test_tare_reading_names_the_resistance_in_a_prefix_that_suits_it() -> None:
+    from strain_comp.core.tare import tare_reading
+
+    assert tare_reading(39_900.0, 35_100.0) == \
+        "rest resistance 12.0 % below calibration (35.1 vs 39.9 kohm)"
+    assert tare_reading(71.79, 66.13).endswith("(66.13 vs 71.79 ohm)")
+    assert tare_reading(2.45e6, 2.41e6).endswith("(2.41 vs 2.45 Mohm)")
+    assert tare_reading(0.53, 0.5512).endswith("above calibration (0.5512 vs 0.53 ohm)")
+
+
+def test_a_point_outside_the_resistance_range_is_refused_not_fitted_to_the_clamp(
+        cubic: Calibration, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A sensor whose resistance fell 40 %: its 0 % and 15 % points lie below the
+    calibrated range, where the output is clamped; a map through clamped outputs would be
+    wrong, so the points are refused with the range, and no file is written."""
+    lo = cubic.sensors["s1"].valid_range.r_lo
+    points = [(0.6 * float(gauge(np.array(0.0))), 0.0),
+              (0.6 * float(gauge(np.array(15.0))), 15.0)]
+    assert points[0][0] < lo
+    with pytest.raises(InputError, match="outside the calibration's resistance range"):
+        recalibrate(cubic, points=points)
+    path = tmp_path / "cal.yaml"
+    save_calibration(cubic, path)
+    out = tmp_path / "cal2.yaml"
+    flags = [f for r, s in points for f in ("--point", f"{r}:{s}")]
+    assert cli(["recalibrate", str(path), *flags, "--out", str(out)]) == 2
+    assert "resistance range" in capsys.readouterr().err and not out.exists()
+
+
+def test_recalibration_reading_gives_the_offset_in_the_calibration_unit(
+        cubic: Calibration) -> None:
+    from dataclasses import replace
+
+    mm = Calibration({"s1": replace(cubic.sensors["s1"], strain_unit="mm")})
+    points = [(float(gauge(np.array(2.0))), 3.0), (float(gauge(np.array(15.0))), 17.0)]
+    _, lines = recalibrate(mm, points=points)
+    assert lines[0].split("offset ")[1].split(" (")[0].endswith(" mm"), lines
+    _, lines = recalibrate(cubic, points=points)
+    assert "% strain (through 2 points)" in lines[0], lines

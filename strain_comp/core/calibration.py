@@ -14,6 +14,10 @@ sensors:
                                              # baseline_step: k (robust sigmas; true = default)
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
     rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
+    strain_unit: mm                          # optional, default "%": the unit of the
+                                             # reference the model was fitted to
+    sample_interval: s                       # optional: median sample interval of a slow
+                                             # instrument (gaps are counted in it)
     direction: {deadzone: ohm/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
     effects: []                              # added effect terms (strain_comp.core.effects)
     provenance: {bags: [..], created: .., fit_rmse: .., n_samples: .., tool: ..}
@@ -146,6 +150,15 @@ class SensorCalibration:
     rest_resistance: float | None = None
     """Resistance at rest (zero strain) when the calibration was made [ohm]; a tare scales
     the measured resistance by rest_resistance / (the rest resistance measured now)."""
+    strain_unit: str = "%"
+    """The unit of the strain the model gives: that of the training reference. "%" (strain
+    in percent, the contract); an extension in "mm" where the recording holds no gauge
+    length (an imported fibre run); the numbers, errors and readings are in it."""
+    sample_interval: float | None = None
+    """Median sample interval of the training data [s], stored for an instrument so slow
+    that ``GAP_INTERVALS`` of its intervals exceed the default gap (``samples.
+    DEFAULT_GAP_RESET``): the engine then resets the state only after a pause of that many
+    intervals, not at every sample."""
 
     def build_model(self) -> Compensator:
         """A fresh compensator with these parameters."""
@@ -159,6 +172,9 @@ class SensorCalibration:
             "input": self.input.to_dict(),
             "valid_range": self.valid_range.to_dict(),
             **({} if self.rest_resistance is None else {"rest_resistance": self.rest_resistance}),
+            **({} if self.strain_unit == "%" else {"strain_unit": self.strain_unit}),
+            **({} if self.sample_interval is None
+               else {"sample_interval": self.sample_interval}),
             "direction": self.direction.to_dict(),
             "effects": self.effects,
             "provenance": self.provenance,
@@ -174,6 +190,16 @@ class Calibration:
     def to_dict(self) -> dict[str, Any]:
         return {"format": FORMAT,
                 "sensors": {name: cal.to_dict() for name, cal in self.sensors.items()}}
+
+
+def unit_ok(unit: str) -> bool:
+    """A strain unit a file may name: 1-16 letters, digits, ``%``, ``/`` or ``.``."""
+    return 0 < len(unit) <= 16 and all(c.isalnum() or c in "%/." for c in unit)
+
+
+def strain_unit_words(unit: str) -> str:
+    """How a number in ``unit`` reads: ``% strain`` for percent, else the unit."""
+    return "% strain" if unit == "%" else unit
 
 
 def provenance(bags: list[str], fit_rmse: float, n_samples: int, **extra: Any) -> dict[str, Any]:
@@ -292,6 +318,12 @@ class _Reader:
                             f"must lie within +/- {STRAIN_MAX:g} %, got [{s_lo}, {s_hi}]")
         rest = (None if node.get("rest_resistance") is None
                 else self.number(node, "rest_resistance", where, lo=0.0, strict=True))
+        unit = node.get("strain_unit", "%")
+        if not (isinstance(unit, str) and unit_ok(unit)):
+            raise self.fail(f"{where}.strain_unit", "must be a unit such as '%' or 'mm' (1-16 "
+                            f"letters, digits, %, / or .), got {unit!r}")
+        interval = (None if node.get("sample_interval") is None
+                    else self.number(node, "sample_interval", where, lo=0.0, hi=1e6, strict=True))
         dir_node = self.mapping(self.child(node, "direction", where), f"{where}.direction")
         dw = f"{where}.direction"
         k_sigma = dir_node.get("k_sigma")
@@ -325,7 +357,7 @@ class _Reader:
             name=name, model=model_name, params=dict(params), normalisation=norm,
             valid_range=ValidRange(r_lo, r_hi, s_lo, s_hi), direction=direction,
             input=input_settings, effects=[dict(e) for e in effects], provenance=dict(prov),
-            rest_resistance=rest)
+            rest_resistance=rest, strain_unit=unit, sample_interval=interval)
         try:
             calibration.build_model()
         except ParameterError as err:

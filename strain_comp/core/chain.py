@@ -203,6 +203,24 @@ def _scale(window: np.ndarray) -> float:
     return max(1.4826 * np.median(window), 1.2533 * np.mean(window))
 
 
+QUANT_STEPS = 3.0
+"""The threshold is at least this many of the smallest non-zero |innovation| of the window:
+a read-out quantised coarser than its noise (a quiet hold flickering by one ADC step either
+way, two steps from one side to the other, of which the mean floor of ``_scale`` sees one
+in 32) never makes a spike or a step."""
+
+
+@njit(error_model="numpy")
+def _least_change(window: np.ndarray) -> float:
+    """The smallest non-zero value of ``window`` (0 if none): one quantisation step where
+    the read-out is quantised, negligible where it is not."""
+    least = np.inf
+    for v in window:
+        if 0.0 < v < least:
+            least = v
+    return least if least < np.inf else 0.0
+
+
 @njit(error_model="numpy")
 def _slope(values: np.ndarray) -> float:
     """Least-squares slope of ``values`` against their index."""
@@ -252,7 +270,8 @@ def _correct(t: np.ndarray, x: np.ndarray, st: np.ndarray, win: np.ndarray, tren
             e = xi - pred
             n_win = int(st[_WN])
             sigma = _scale(win[:n_win]) if n_win >= WINDOW_MIN else np.inf
-            thr = k * sigma if sigma > 0.0 else np.inf
+            thr = (max(k * sigma, QUANT_STEPS * _least_change(win[:n_win])) if sigma > 0.0
+                   else np.inf)
             mode = int(st[_MODE])
             accept = True
             if mode == _NORMAL:

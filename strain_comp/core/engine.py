@@ -563,7 +563,8 @@ class Engine:
         else:
             raw *= s.gain
         code, reset = screen_one(t, raw, forced, s.last_good_t, s.r_short, s.r_open,
-                                  s.r_lo, s.r_hi, self.gap_reset)
+                                  s.r_lo, s.r_hi, sc.gap_for(s.cal.sample_interval,
+                                                             self.gap_reset))
         status = Status(code)
         h = s.health
         if status not in USED:
@@ -643,7 +644,7 @@ class Engine:
         ohm, forced = s.to_ohm(raw)
         status, reset, last_good_t, idx, resets = _screen_batch(
             t, ohm, forced, s.last_good_t, s.r_short, s.r_open, s.r_lo, s.r_hi,
-            self.gap_reset)
+            sc.gap_for(s.cal.sample_interval, self.gap_reset))
         if s.cal.input.filtered:
             ohm = ohm.copy()  # corrected samples replace the used ones below; raw intact
         bounds = [0, *resets.tolist(), idx.size] if resets.size else [0, idx.size]
@@ -732,9 +733,16 @@ class Engine:
         for name, s in self._sensors.items():
             h = kernel_health.get(name) or replace(s.health)
             if now is not None:
-                h.stale = h.last_good_t is None or now - h.last_good_t > self.stale_after
+                h.stale = h.last_good_t is None or now - h.last_good_t > self.stale_for(name)
             out[name] = h
         return out
+
+    def stale_for(self, sensor: str) -> float:
+        """The silence [s] after which ``sensor`` is stale: ``stale_after``, or two of its
+        sample intervals for a slow instrument (``SensorCalibration.sample_interval``),
+        which is otherwise stale between every two samples."""
+        interval = self._sensor(sensor).cal.sample_interval
+        return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 
     def warm_up(self) -> None:
         """Compile every kernel now (not on the first message): run a copy of the engine."""
@@ -824,7 +832,7 @@ class _ArrayGroup:
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
         if not all(type(s.model).array_kernel and not s.cal.input.filtered
-                   for s in self.sensors):
+                   and s.cal.sample_interval is None for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray
 

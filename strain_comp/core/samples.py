@@ -47,6 +47,15 @@ class Status(IntEnum):
 
 DEFAULT_GAP_RESET = 5.0
 """Default gap [s]: a longer jump between good samples resets the state."""
+GAP_INTERVALS = 10.0
+"""For a slow instrument the gap is at least this many of its sample intervals."""
+
+
+def gap_for(sample_interval: float | None, gap: float = DEFAULT_GAP_RESET) -> float:
+    """The gap [s] of a sensor sampled every ``sample_interval`` s (None: not recorded):
+    ``gap``, or ``GAP_INTERVALS`` intervals when that is longer (a 0.1 Hz instrument
+    would otherwise start afresh at every sample)."""
+    return gap if sample_interval is None else max(gap, GAP_INTERVALS * sample_interval)
 
 SampleStatus = Status
 """The name the fitting code used for the same codes."""

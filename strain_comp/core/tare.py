@@ -222,12 +222,20 @@ TARE_MODES = ("calibration", "auto")
 """Where the rest resistance comes from: the calibration (gain 1) or the run's start."""
 
 
+def ohms(values: tuple[float, ...]) -> str:
+    """Resistances in the prefix that suits the largest: ``35.1 vs 39.9 kohm``, ``66.1 vs
+    71.8 ohm``, ``2.41 vs 2.45 Mohm``, ``0.521 vs 0.530 ohm``."""
+    top = max(abs(v) for v in values)
+    scale, prefix = next(((f, p) for f, p in ((1e6, "M"), (1e3, "k")) if top >= f), (1.0, ""))
+    return " vs ".join(f"{v / scale:.4g}" for v in values) + f" {prefix}ohm"
+
+
 def tare_reading(calibrated: float, measured: float) -> str:
     """A tare in words: ``rest resistance 12.0 % below calibration (35.1 vs 39.9 kohm)``."""
     change = 100.0 * (measured / calibrated - 1.0)
     side = "above" if change >= 0 else "below"
     return (f"rest resistance {abs(change):.1f} % {side} calibration "
-            f"({measured / 1e3:.4g} vs {calibrated / 1e3:.4g} kohm)")
+            f"({ohms((measured, calibrated))})")
 
 
 def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.ArrayLike]],

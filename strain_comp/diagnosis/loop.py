@@ -85,6 +85,7 @@ from strain_comp.core.effects import (
 )
 from strain_comp.core.engine import Engine, used_mask
 from strain_comp.core.metrics import error_stats
+from strain_comp.core.samples import gap_for
 from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
 from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
 from strain_comp.diagnosis.report import (
@@ -156,8 +157,8 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
         result = engine.run(name, rec.t, rec.r, rec.temperature)
         used = used_mask(result.status)
         dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
-        starts = (np.flatnonzero((dt > engine.gap_reset) | (dt <= -engine.gap_reset))
-                  + 1).tolist()
+        gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
+        starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
         out[name] = _Run(result.strain, result.direction.astype(np.float64), result.resistance,
                          used, starts)
     return out
@@ -353,7 +354,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     rows = []
     for j in range(len(names)):
         row = EffectScore(sensor=sensor, name=names[j], kind=kinds[j],
-                          params=regressor_from_dict(candidates[j]).params(), score=scores[j])
+                          params=regressor_from_dict(candidates[j]).params(), score=scores[j],
+                          unit=cal.strain_unit)
         if j in coef_of:
             row.added = True
             row.rank = terms.index(j)
@@ -377,7 +379,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     else:
         parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
-                   f"{rms(e_after):.4g} %")
+                   f"{rms(e_after):.4g} {cal.strain_unit}")
     left_out = [x.unsettled for x in [*series, *val_series] if x.unsettled[0] > 0]
     if left_out:
         seconds, drift = left_out[0]

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
 
 
@@ -33,6 +33,8 @@ class EffectScore:
     """coef * std(g) over the fit data: the typical size of the correction [% strain]."""
     rank: int | None = None
     """Order of addition (0 first); None when not added."""
+    unit: str = "%"
+    """The calibration's strain unit, the unit of coef and magnitude."""
 
     def to_json(self) -> dict[str, Any]:
         record: dict[str, Any] = {"name": self.name, "score": _num(self.score),
@@ -46,27 +48,33 @@ class EffectScore:
                 record[key] = _num(value)
         if self.added and self.coef is not None:
             record["reading"] = effect_reading(self.kind, self.params, self.coef,
-                                               self.magnitude)
+                                               self.magnitude, unit=self.unit)
         return record
 
 
 def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
-                   magnitude: float | None = None) -> str:
+                   magnitude: float | None = None, *, unit: str = "%") -> str:
     """An added term in physical words. The model's output carries + coef g (the term
-    removes it), so the reading describes the sensor against its calibration."""
-    size = "" if magnitude is None else f", typically {abs(magnitude):.2g} % strain"
+    removes it), so the reading describes the sensor against its calibration. Sizes are
+    in the calibration's strain ``unit`` (``% strain``, or e.g. ``mm`` for an extension);
+    relative readings (sensitivity, gain drift) are in % of the output."""
+    u = strain_unit_words(unit)
+    size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
     if kind == "offset":
-        return f"output offset {coef:+.3g} % strain"
+        return f"output offset {coef:+.3g} {u}"
     if kind == "strain_level":
-        if params.get("power", 1) == 1 and coef < 1.0:
+        if params.get("power", 1) == 1 and coef < 0.99:
             return f"sensitivity {100.0 * (1.0 / (1.0 - coef) - 1.0):+.1f} % against calibration"
+        if params.get("power", 1) == 1:  # the output scaled by 0.01 or less, or reversed
+            return (f"output gain {1.0 - coef:+.3g} against calibration: the reference does not "
+                    "follow the sensor")
         return f"curvature error (strain^{params.get('power')}){size}"
     if kind == "rate":
         return f"rate-dependent lag {coef:+.3g} s (filter tau {params.get('tau')} s){size}"
     if kind == "direction" and params.get("mode") == "strain":
         return f"hysteresis +-{100.0 * abs(coef):.3g} % of the strain, loading vs unloading"
     if kind == "direction":
-        return f"hysteresis +-{abs(coef):.3g} % strain between loading and unloading"
+        return f"hysteresis +-{abs(coef):.3g} {u} between loading and unloading"
     if kind == "relaxation":
         return (f"relaxation tau {params.get('tau')} s after {params.get('branch')} "
                 f"steps{size}")
@@ -79,14 +87,14 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
     if kind == "elapsed":
         scale = float(params.get("scale", 100.0))
         if params.get("form", "linear") == "linear":
-            return f"drift {coef * 3600.0 / scale:+.3g} % strain/h"
+            return f"drift {coef * 3600.0 / scale:+.3g} {u}/h"
         if params.get("form") == "linear_strain":
             return f"gain drift {100.0 * coef * 3600.0 / scale:+.3g} %/h"
         return f"drift ({params.get('form')} in time){size}"
     if kind == "temperature":
         if params.get("form") == "strain":
             return f"temperature sensitivity {100.0 * coef:+.3g} %/K"
-        return f"temperature offset {coef:+.3g} % strain/K"
+        return f"temperature offset {coef:+.3g} {u}/K"
     if kind == "mullins":
         return f"Mullins-type softening ({params.get('form')}){size}"
     if kind == "crosstalk":
@@ -151,25 +159,29 @@ class DiagnoseResult:
                 "effects": [s.to_json() for s in self.effects],
                 "validated_on": self.validated_on, "validation": self.validation,
                 "sensors": {n: d.to_json() for n, d in self.sensors.items()},
-                "conditions": self.conditions}
+                "conditions": self.conditions,
+                "units": {n: self.calibration.sensors[n].strain_unit for n in self.sensors}}
 
     def summary(self) -> str:
         """A few lines for the terminal."""
-        lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} %, "
-                 f"after {self.after['rmse']:.4g} %"]
+        units = {cal.strain_unit for cal in self.calibration.sensors.values()}
+        u = units.pop() if len(units) == 1 else "(each sensor's unit)"
+        lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} {u}, "
+                 f"after {self.after['rmse']:.4g} {u}"]
         for c in self.conditions:
             if c["name"] == "measurement chain":
                 lines.append(f"  measurement chain: {c['reading']}")
                 continue
             verdict = "chosen" if c["chosen"] else "not chosen"
             lines.append(f"  {c['name']}: {c['reading']}; held-out RMSE after the loop "
-                         f"{c['after']:.4g} % ({verdict})")
+                         f"{c['after']:.4g} {u} ({verdict})")
         for name, d in self.sensors.items():
             lines.append(f"  {name}: {d.message}")
             for e in d.scores:
                 if e.added and e.coef is not None:
-                    lines.append(f"    + {e.name}: "
-                                 f"{effect_reading(e.kind, e.params, e.coef, e.magnitude)}")
+                    reading = effect_reading(e.kind, e.params, e.coef, e.magnitude,
+                                             unit=e.unit)
+                    lines.append(f"    + {e.name}: {reading}")
         return "\n".join(lines)
 
 
@@ -195,20 +207,21 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
             continue
         fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(16, 4.2))
         p = d.plot
+        u = result.calibration.sensors[name].strain_unit
         ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
         ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
         ax1.set_xlabel(f"regressor {d.winner}")
-        ax1.set_ylabel("residual S_hat - S [%]")
+        ax1.set_ylabel(f"residual S_hat - S [{u}]")
         ax1.legend(markerscale=4)
         ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
         ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
         ax2.set_xlabel("time [s] (held-out samples)")
-        ax2.set_ylabel("residual [%]")
+        ax2.set_ylabel(f"residual [{u}]")
         ax2.legend(markerscale=4)
         ax3.plot(p["s"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
         ax3.plot(p["s"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-        ax3.set_xlabel("reference strain [%] (held-out samples)")
-        ax3.set_ylabel("residual [%]")
+        ax3.set_xlabel(f"reference strain [{u}] (held-out samples)")
+        ax3.set_ylabel(f"residual [{u}]")
         ax3.legend(markerscale=4)
         fig.suptitle(f"{name}: {d.message}", fontsize=8)
         fig.tight_layout()

@@ -21,6 +21,13 @@ SIGNIFICANCE = 1.0
 errors (``significant``)."""
 
 
+RESOLUTION = 1e-6
+"""Forward selection stops once the cross-validated RMSE is below this fraction of the
+residual's own: what is left is rounding (the fold sums' squared errors cancel to about
+1e-16 of the residual's square, 1e-8 of its RMSE), and a relative gain on it (a term
+"explaining" 1e-15 % of strain) is no evidence of any effect."""
+
+
 @njit
 def _fold_sums(x: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -121,7 +128,8 @@ def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effe
     chosen: list[int] = []
     gains: dict[int, float] = {}
     current = gram.fold_sse([])
-    while len([c for c in chosen if c != offset]) < max_effects and current.sum() > 0:
+    floor = RESOLUTION ** 2 * current.sum()
+    while len([c for c in chosen if c != offset]) < max_effects and current.sum() > floor:
         ref = current
         trials: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         if auto_intercept:

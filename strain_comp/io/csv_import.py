@@ -17,6 +17,11 @@ Formats (see ``shared/data/measured/README.md``):
              ``scales`` (factor per key, e.g. ``{"time": 1e-3}`` for ms), ``delimiter``
              and ``header`` (True, False or None = detect: a non-numeric first row).
 
+The delimiter (every format) is detected unless given: the first of tab, ``;``, ``,``
+and ``|`` that splits the first 20 lines into the same number (at least 2) of fields,
+else runs of white space; with a delimiter other than ``,``, a decimal comma
+(``11,51``, as spreadsheets in many locales write) reads as a decimal point.
+
 The reference strain is taken from the good rows only when it shares the row's time; with
 its own time column (``strain_time``, as in ``cb_pdms``) every row with a finite position
 and time counts. Bad rows are counted by reason and dropped before they reach the
@@ -80,15 +85,41 @@ class ImportResult:
     report: ImportReport
 
 
-def _read_rows(path: Path, delimiter: str) -> list[list[str]]:
+_DELIMITERS = ("\t", ";", ",", "|")
+_WHITESPACE = " "
+
+
+def detect_delimiter(lines: Sequence[str]) -> str:
+    """The delimiter of ``lines`` (module docstring); ``" "`` stands for runs of white
+    space."""
+    lines = [line for line in lines if line.strip()][:20]
+    for delimiter in _DELIMITERS:
+        counts = {len(row) for row in csv.reader(lines, delimiter=delimiter)}
+        if len(counts) == 1 and counts.pop() >= 2:
+            return delimiter
+    return _WHITESPACE if all(len(line.split()) >= 2 for line in lines) else ","
+
+
+def _read_rows(path: Path, delimiter: str | None) -> tuple[list[list[str]], str]:
     try:
         with path.open(newline="", encoding="utf-8", errors="replace") as f:
-            return [row for row in csv.reader(f, delimiter=delimiter) if any(x.strip()
-                                                                           for x in row)]
+            text = f.read().splitlines()
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from exc
+    if delimiter is None:
+        delimiter = detect_delimiter(text[:40])
+    try:
+        if delimiter == _WHITESPACE:
+            rows = [line.split() for line in text]
+        else:
+            rows = list(csv.reader(text, delimiter=delimiter))
     except csv.Error as exc:
         raise InputError(f"{path}: not a CSV file ({exc})") from exc
+    rows = [row for row in rows if any(x.strip() for x in row)]
+    if delimiter != ",":
+        rows = [[x.replace(",", ".") if "," in x and "." not in x else x for x in row]
+                for row in rows]
+    return rows, delimiter
 
 
 def _to_float(text: str) -> float:
@@ -135,7 +166,7 @@ def repair_position_glitches(pos: np.ndarray, *, threshold_mm: float = 0.5
 
 def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: float | None = None,
                columns: Mapping[str, int | str] | None = None,
-               scales: Mapping[str, float] | None = None, delimiter: str = ",",
+               scales: Mapping[str, float] | None = None, delimiter: str | None = None,
                header: bool | None = None, glitch_threshold_mm: float = 0.5) -> ImportResult:
     """Import one tensile-tester CSV as a Recording named ``sensor`` (see module docstring).
 
@@ -156,7 +187,14 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     unknown = set(mapping) - {"time", "resistance", "strain", "strain_time"}
     if unknown:
         raise InputError(f"{path}: unknown column keys {sorted(unknown)}")
-    rows = _read_rows(path, delimiter)
+    for key, factor in (scales or {}).items():
+        if key not in ("time", "resistance", "strain", "strain_time"):
+            raise InputError(f"{path}: unknown scale key {key!r}")
+        sign_ok = factor != 0 if key == "strain" else factor > 0
+        if not (isinstance(factor, (int, float)) and np.isfinite(factor) and sign_ok):
+            need = "a number other than 0" if key == "strain" else "a number > 0"
+            raise InputError(f"{path}: scale {key}={factor!r} must be {need}")
+    rows, _ = _read_rows(path, delimiter)
     report = ImportReport(path=str(path), fmt=fmt)
     head: list[str] | None = None
     has_header = header
@@ -204,12 +242,13 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
             strain_src = pos
             report.strain_unit = "mm"
             report.notes.append("no --gauge-length-mm: the 'strain' topic holds the "
-                                "extension in mm, not %")
+                                "extension in mm, not % (fit it with --strain-unit mm)")
         elif gauge_length_mm is not None:
             strain_src = 100.0 * pos / gauge_length_mm
         else:
             strain_src = pos
-            report.strain_unit = "as in the file (x scale)"
+            report.strain_unit = ("the file's unit" if factor["strain"] == 1.0
+                                  else f"the file's unit x {factor['strain']:g}")
         strain = align(t[good], ts, strain_src)
         outside = int(np.isnan(strain).sum())
         if outside:

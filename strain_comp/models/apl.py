@@ -10,6 +10,13 @@ Normalised input xi = R / r0 + alpha drives N cells with states x_k:
   xdot = sigma (|xi - x_k| / rho_k)^p sgn(xi - x_k).
 * ``MPI``: PL with sigma = 0, i.e. play operators (rate independent).
 
+The paper's sensors rise in resistance with strain. For one whose resistance falls with
+strain (a negative gauge factor) the APL cells are driven by -xi (parameter
+``orientation: -1``, chosen by ``fit`` from the sign of the training data's correlation of
+R and S), so that they still creep after *strain* loading steps, as the material does; the
+PL and MPI cells are symmetric (eq. (6)), for them the orientation changes nothing and is
+not set.
+
 Output (eq. (2)): psi = f^-1(w_0 xi + sum_k w_k x_k + w_{N+1}), strain S = s0 (psi - beta),
 f the strictly increasing piecewise-affine map of eq. (3) (basis: ``strain_comp.models.pwa``).
 Time stepping, initial state and bad-sample handling: ``strain_comp.models._apl_kernels``.
@@ -125,9 +132,12 @@ class _CellModel(Compensator):
     array_kernel: ClassVar[bool] = True
 
     def __init__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
-                 mu: npt.ArrayLike, normalisation: Normalisation) -> None:
+                 mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
+                 ) -> None:
         super().__init__(normalisation)
         _check_shape(n, m)
+        if orientation not in (1, -1) or isinstance(orientation, bool):
+            raise ParameterError("orientation", f"must be 1 or -1, got {orientation!r}")
         if not (math.isfinite(sigma) and sigma >= 0.0):
             raise ParameterError("sigma", f"must be >= 0, got {sigma}")
         if not self.rate_dependent and sigma != 0.0:
@@ -152,7 +162,9 @@ class _CellModel(Compensator):
         self.rho = thresholds(n, self.kind)
         self._inv_width = inverse_widths(self.rho, self.kind)
         self._b, self._f_at_b, self._inv_slopes = pwa.inverse_tables(self.mu)
-        self._norm = np.array([normalisation.r0, normalisation.alpha,
+        self.orientation = int(orientation)
+        # The cells' input orientation * xi, as orientation * (R / r0 + alpha).
+        self._norm = np.array([orientation * normalisation.r0, orientation * normalisation.alpha,
                                normalisation.s0, normalisation.beta])
         self.x = np.zeros(n)
         self._clock = np.zeros(2)
@@ -194,8 +206,12 @@ class _CellModel(Compensator):
         return pwa.finv_array(y, self._b, self._f_at_b, self._inv_slopes)
 
     def to_params(self) -> dict[str, Any]:
-        return {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,
-                "w": [float(v) for v in self.w], "mu": [float(v) for v in self.mu]}
+        params: dict[str, Any] = {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,
+                                  "w": [float(v) for v in self.w],
+                                  "mu": [float(v) for v in self.mu]}
+        if self.orientation != 1:
+            params["orientation"] = self.orientation
+        return params
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
@@ -212,7 +228,11 @@ class _CellModel(Compensator):
             p = require_float(params, "p", lo=kern.P_MIN, hi=P_MAX) if "p" in params else 1.0
         w = require_vector(params, "w", length=n + 2)
         mu = require_vector(params, "mu", length=m)
-        return cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=normalisation)
+        orientation = _require_int(params, "orientation", -1, 1) if "orientation" in params else 1
+        if orientation == 0:
+            raise ParameterError("orientation", "must be 1 or -1, got 0")
+        return cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=normalisation,
+                   orientation=orientation)
 
     @classmethod
     @threadpool_limits.wrap(limits=1, user_api="blas")
@@ -258,6 +278,8 @@ class _CellModel(Compensator):
                            "integers >= 0")
         problem = _FitProblem(cls, segments, normalisation, n=N, m=M, eps=eps, ridge=ridge,
                               cell_weights=cell_weights, search_nfev=search_nfev)
+        if cls.kind == kern.KIND_APL and problem.gauge < 0:
+            problem.orient(-1)
         if not cls.rate_dependent:
             result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
             model = problem.build(result)
@@ -432,22 +454,36 @@ class _FitProblem:
         self.free = np.array([j for j in range(m) if j != self.c], dtype=np.int64)
         self.rhs = g[:, self.c]
         self.neg_g = -g[:, self.free]
-        gauge = np.sign(np.corrcoef(self.xi, self.psi)[0, 1]) or 1.0
-        n_w = n + 2
-        lo = np.full(n_w + m - 1, -np.inf)
-        hi = np.full(n_w + m - 1, np.inf)
-        if cell_weights == "signed":
-            (lo if gauge > 0 else hi)[1:n + 1] = 0.0
-        lo[n_w:] = eps
-        self.bounds = (lo, hi)
+        self.orientation = 1
+        self.cell_weights = cell_weights
+        self.gauge = float(np.sign(np.corrcoef(self.xi, self.psi)[0, 1]) or 1.0)
+        self._set_bounds()
         # Ridge rows: weights (cells only) -> 0, slopes -> 1, scaled with the sample count.
         lam = math.sqrt(ridge * self.t.size)
-        k = n + m - 1
+        k, n_w = n + m - 1, n + 2
         self.ridge_a = np.zeros((k, n_w + m - 1))
         self.ridge_b = np.zeros(k)
         self.ridge_a[np.arange(n), 1 + np.arange(n)] = lam
         self.ridge_a[n + np.arange(m - 1), n_w + np.arange(m - 1)] = lam
         self.ridge_b[n:] = lam
+
+    def _set_bounds(self) -> None:
+        """Bounds of [w, free slopes]: slopes >= eps, cell weights of the gauge's sign."""
+        n_w = self.n + 2
+        lo = np.full(n_w + self.m - 1, -np.inf)
+        hi = np.full(n_w + self.m - 1, np.inf)
+        if self.cell_weights == "signed":
+            (lo if self.gauge > 0 else hi)[1:self.n + 1] = 0.0
+        lo[n_w:] = self.eps
+        self.bounds = (lo, hi)
+
+    def orient(self, orientation: int) -> None:
+        """Drive the cells by orientation * xi (module docstring); before any solve."""
+        if orientation != self.orientation:
+            self.xi = -self.xi
+            self.gauge = -self.gauge
+            self.orientation = orientation
+            self._set_bounds()
 
     def default_sigma_grid(self) -> np.ndarray:
         lo = 0.02 / max(max(self.durations), 1e-9)
@@ -564,7 +600,8 @@ class _FitProblem:
 
     def build(self, result: _Solution) -> _CellModel:
         return self.cls(n=self.n, m=self.m, sigma=result.sigma, p=result.p, w=result.w,
-                        mu=pwa.mu_from_slopes(result.slopes), normalisation=self.norm)
+                        mu=pwa.mu_from_slopes(result.slopes), normalisation=self.norm,
+                        orientation=self.orientation)
 
 
 class APLArray:

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, iter_bag, located
@@ -77,12 +77,15 @@ class SensorEvaluation:
     bad_by_status: dict[str, int] = field(default_factory=dict)
     in_run_rmse: float | None = None
     """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
+    unit: str = "%"
+    """The unit of the strain and of the errors: the calibration's ``strain_unit``."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
         record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
         record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
-                      n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status)
+                      n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status,
+                      unit=self.unit)
         if self.in_run_rmse is not None:
             record["in_run_rmse"] = _json_number(self.in_run_rmse)
         return record
@@ -146,10 +149,40 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             t=t, r=r, reference=s, estimate=estimate,
             direction=np.asarray(out.direction), scored=scored, n_samples=int(t.size),
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
-            bad_by_status=bad_by_status)
+            bad_by_status=bad_by_status, unit=cal.strain_unit)
+        if rec.temperature is None:
+            notes += _temperature_missing(name, calibration.sensors[name])
+        notes += _crosstalk_off_tick(name, cal, {
+            n for n, other in recordings.items()
+            if rec.array is not None and other.array == rec.array})
     if not sensors:
         raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic (the
+    sensors of ``same_tick``): offline such a term reads the neighbour's latest estimate of
+    the previous batch, not of the same instant (``Engine.run``; the node, stepping each
+    message, reads the latest one), so its correction is not the one diagnosed."""
+    off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
+           if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
+           and str(e["params"].get("neighbour")) not in same_tick]
+    if not off:
+        return []
+    return [f"{name}: cross-talk term {', '.join(off)} reads a sensor not recorded on its "
+            "array topic: offline it sees that sensor's estimate batch by batch, not tick by "
+            "tick, and this error is not the calibration's (record the array on one topic)"]
+
+
+def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
+    """The note for a run without temperature scored through a calibration with a
+    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
+    if not terms:
+        return []
+    return [f"{name}: no temperature in the data: the calibration's temperature term "
+            f"{', '.join(terms)} is not applied"]
 
 
 def _nothing_scored(calibration: Calibration, names: list[str]) -> str:
@@ -200,7 +233,7 @@ def _array_outputs(engine: Any, recordings: Mapping[str, Recording],
 
 
 def format_table(result: EvaluationResult) -> str:
-    """Fixed-width error table, errors in % strain."""
+    """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
     header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
               f"{'R^2':>8}")
     lines = [header, "-" * len(header)]
@@ -211,7 +244,12 @@ def format_table(result: EvaluationResult) -> str:
         if ev.in_run_rmse is not None:
             lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
                          f"{ev.in_run_rmse:.4f}")
-    lines.append("errors in % strain; RMSE [Electrolycra] eq. (5)")
+    units = sorted({ev.unit for ev in result.sensors.values()} or {"%"})
+    words = strain_unit_words(units[0])
+    if len(units) > 1:
+        words = ", ".join(strain_unit_words(u) + " (" + ", ".join(
+            n for n, ev in result.sensors.items() if ev.unit == u) + ")" for u in units)
+    lines.append(f"errors in {words}; RMSE [Electrolycra] eq. (5)")
     return "\n".join(lines)
 
 
@@ -294,7 +332,7 @@ class _Score:
             self.kept.add(t=t, r=r, reference=s, estimate=estimate,
                           direction=np.asarray(out.direction), scored=scored)
 
-    def evaluation(self, name: str, model: str) -> SensorEvaluation:
+    def evaluation(self, name: str, model: str, unit: str) -> SensorEvaluation:
         from strain_comp.core.engine import Status
 
         kept = self.kept or _Kept(0)
@@ -303,7 +341,8 @@ class _Score:
             r=kept.get("r"), reference=kept.get("reference"), estimate=kept.get("estimate"),
             direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
-            bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())})
+            bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
+            unit=unit)
 
 
 @dataclass
@@ -346,6 +385,8 @@ class _Stream:
         self.bag_problems: list[str] = []
         self.problems: list[str] = []
         self.references: set[str] = set()
+        self.with_temperature: set[str] = set()
+        """Sensors whose input has a temperature sample in a piece read so far."""
 
     def _problem(self, line: str) -> None:
         if line not in self.problems:
@@ -446,6 +487,8 @@ class _Stream:
             temp = contents.series.get(inp.prefix + TEMPERATURE)
             if temp is not None and temp.values.ndim == 1:
                 inp.temperature.add(t, temp.t, temp.values)
+                if temp.t.size:
+                    self.with_temperature.update(inp.names)
             else:
                 inp.temperature.add(t, empty, empty)
         ref = contents.series.get(inp.prefix + REFERENCE)
@@ -490,7 +533,13 @@ class _Stream:
             elif name not in referenced:
                 notes.append(f"{name}: no strain_reference in the data, not scored")
             else:
-                sensors[name] = self.scores[name].evaluation(name, cal.model)
+                sensors[name] = self.scores[name].evaluation(name, cal.model,
+                                                                cal.strain_unit)
+                if name not in self.with_temperature:
+                    notes += _temperature_missing(name, cal)
+                notes += _crosstalk_off_tick(name, cal, next(
+                    (set(inp.names) for inp in self.inputs.values()
+                     if inp is not None and not inp.single and name in inp.names), set()))
         return EvaluationResult(sensors, notes)
 
 

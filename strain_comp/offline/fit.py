@@ -12,8 +12,12 @@ data and fills in what a calibration file needs besides the parameters:
 * **Segments**: good samples are cut into ``Segment``s wherever the time between two
   consecutive good samples exceeds ``GAP_SECONDS`` (a recording pause, or a long stretch of
   bad samples), the engine's default ``gap_reset``: training resets model state exactly
-  where the engine does. Isolated bad samples do not cut a segment: online, a bad sample
-  is skipped and the state kept, and the fit sees the same. Each recording starts a new
+  where the engine does. For an instrument so slow that ``GAP_INTERVALS`` of its median
+  sample interval exceed that, the gap is that many intervals, and the calibration stores
+  the interval (``sample_interval``) so that the engine counts gaps alike (a 0.1 Hz
+  logger was cut at every sample and could not be fitted at all). Isolated bad samples
+  do not cut a segment: online, a bad sample is skipped and the state kept, and the fit
+  sees the same. Each recording starts a new
   segment (model state is reset per segment). Segments shorter than ``MIN_SEGMENT``
   samples are dropped.
 * **Normalisation**: ``Normalisation.fit`` over all training samples ([Electrolycra]
@@ -75,7 +79,7 @@ from strain_comp.core.chain import PAIR_BRANCHES, alternation, pair_branch, pair
 from strain_comp.core.direction import DirectionSettings, estimate_deadzone
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.metrics import error_stats
-from strain_comp.core.samples import good_mask
+from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import FitError, InputError
 from strain_comp.models import Normalisation, Segment, model_class
@@ -98,6 +102,8 @@ DEFAULT_K_SIGMA = 4.0
 """Dead zone = k sigma of the derivative noise ([EGaIn] section V.E: 3 or 4)."""
 TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Derivative low-pass time constants [s] tried, shortest (least lag) first."""
+BURST_FRACTION = 0.25
+"""Sample intervals shorter than this fraction of the median are bursts (``_tau_grid``)."""
 DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
 STILL_FRACTION = 0.001
@@ -121,8 +127,10 @@ def parse_options(items: Iterable[str]) -> dict[str, Any]:
     return options
 
 
-def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> list[Segment]:
-    """Good, referenced samples of one recording cut into segments (see module docstring)."""
+def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
+                   gap: float = GAP_SECONDS) -> list[Segment]:
+    """Good, referenced samples of one recording cut into segments (see module docstring)
+    wherever the time steps back or forward by more than ``gap`` [s]."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64)
@@ -131,7 +139,7 @@ def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray) -> list[Segment]
     if t.size < 2:
         return []
     step = np.diff(t)
-    cuts = np.flatnonzero((step > GAP_SECONDS) | (step < 0.0)) + 1
+    cuts = np.flatnonzero((step > gap) | (step < 0.0)) + 1
     bounds = np.concatenate(([0], cuts, [t.size]))
     return [Segment(t[a:b], r[a:b], s[a:b]) for a, b in pairwise(bounds)
             if b - a >= MIN_SEGMENT]
@@ -185,10 +193,12 @@ def _noise_sigma(segments: Sequence[Segment]) -> float:
 def movement_rate(segments: Sequence[Segment]) -> float:
     """Typical |dR/dt| [ohm/s] while the reference moves: the gauge slope |dR/dS| (a line
     through all samples) times the median |dS/dt| of the moving samples (the reference is
-    clean, so this is not inflated by resistance noise)."""
+    clean, so this is not inflated by resistance noise; on samples stamped in bursts dS/dt
+    is taken on a regular grid, ``_regular_gradient``)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
-    rates = np.concatenate([np.abs(np.gradient(seg.s, seg.t)) for seg in segments])
+    gradient = np.gradient if _bursts(segments) is None else _regular_gradient
+    rates = np.concatenate([np.abs(gradient(seg.s, seg.t)) for seg in segments])
     scale = float(np.percentile(rates, 99.5))
     moving = rates > 10 * HOLD_RATE_FRACTION * scale
     if scale <= 0.0 or not moving.any():
@@ -230,7 +240,7 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
             raise InputError(f"option deadzone must be > 0 ohm/s, got {deadzone}")
         tau = float(options.get("tau", 0.0))
         return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
-    taus = [float(options["tau"])] if "tau" in options else list(TAU_GRID)
+    taus = [float(options["tau"])] if "tau" in options else _tau_grid(segments)
     hold = _hold_samples(segments)
     if hold is None:
         # Noise-free data (a clean simulation): a dead zone far below any real motion,
@@ -247,6 +257,42 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
         if settings.deadzone <= target:
             break
     return settings, source
+
+
+def _bursts(segments: Sequence[Segment]) -> float | None:
+    """The median sample interval when the samples come in bursts (more than 1 % of the
+    intervals below ``BURST_FRACTION`` of the median: stamps taken on arrival, as a bag's
+    log time is), else None."""
+    dt = np.concatenate([np.diff(seg.t) for seg in segments])
+    if dt.size < 2:
+        return None
+    median = float(np.median(dt))
+    return median if float(np.percentile(dt, 1)) < BURST_FRACTION * median else None
+
+
+def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """dS/dt at the samples, from S interpolated onto a grid of the median interval (a
+    burst's microseconds would turn the reference's own steps into huge rates)."""
+    if t.size < 3:
+        return np.zeros(t.size)
+    step = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1] + 0.5 * step, step)
+    if grid.size < 2:
+        return np.zeros(t.size)
+    return np.interp(t, grid, np.gradient(np.interp(grid, t, s), grid))
+
+
+def _tau_grid(segments: Sequence[Segment]) -> list[float]:
+    """``TAU_GRID``, without the filters shorter than two median sample intervals when the
+    samples come in bursts (``_bursts``). A first difference over a
+    burst's microseconds turns read-out noise into a derivative thousands of times its
+    size (its dead zone then hides every movement, or the detector flickers); a filter of
+    at least two sample intervals weights each difference by its dt and averages over the
+    bursts, as a regular instrument's difference would be."""
+    median = _bursts(segments)
+    if median is None:
+        return list(TAU_GRID)
+    return [tau for tau in TAU_GRID if tau >= 2.0 * median] or [TAU_GRID[-1]]
 
 
 def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
@@ -314,6 +360,19 @@ def pair_side(recordings: Sequence[Recording]) -> str:
     return pair_branch(np.concatenate(r_all), np.concatenate(still_all))
 
 
+def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
+    """The median interval [s] between the recordings' good samples when ``GAP_INTERVALS``
+    of it exceed ``GAP_SECONDS`` (a slow instrument, module docstring), else None."""
+    steps = [np.diff(np.asarray(rec.t, dtype=np.float64)[good_mask(rec.t, rec.r)])
+             for rec in recordings]
+    dt = np.concatenate(steps) if steps else np.empty(0)
+    dt = dt[dt > 0.0]
+    if not dt.size:
+        return None
+    interval = float(np.median(dt))
+    return interval if GAP_INTERVALS * interval > GAP_SECONDS else None
+
+
 def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "mean",
                              ) -> float | None:
     """The calibration's rest resistance [ohm]: the median over the training runs of each
@@ -338,10 +397,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     options = dict(options or {})
     cls = model_class(model)
     segments: list[Segment] = []
+    interval = slow_sample_interval(recordings)
     for rec in recordings:
         if rec.s is None:
             raise FitError(f"sensor {name!r}: recording has no strain_reference to fit to")
-        segments.extend(split_segments(rec.t, rec.r, rec.s))
+        segments.extend(split_segments(rec.t, rec.r, rec.s, gap=gap_for(interval)))
     if not segments:
         raise FitError(f"sensor {name!r}: no stretch of {MIN_SEGMENT} or more good samples "
                        "with a finite reference strain")
@@ -375,7 +435,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
         valid_range=valid_range(segments), direction=direction,
         input=InputSettings(alternation=alternating, pair=pair),
-        rest_resistance=training_rest_resistance(recordings, pair=pair))
+        rest_resistance=training_rest_resistance(recordings, pair=pair),
+        sample_interval=interval)
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "
@@ -393,7 +454,9 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None) -> Calibration:
-    """One calibration for ``sensors`` (None or ``["all"]``: every sensor with a reference).
+    """One calibration for ``sensors`` (None or ``["all"]``: every sensor with a reference;
+    one of those that cannot be fitted, e.g. a reference that is NaN throughout, is left
+    out with a line to ``report``, unless none can be).
 
     Each sensor is fitted to its recordings from every bag that has it. Bag problems
     (skipped chunks, unknown schemas) go to ``report``, one line each.
@@ -424,8 +487,18 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
             if sensor not in referenced:
                 raise InputError(f"sensor {sensor!r} has no strain_reference in {bag_list}")
     calibrations = {}
+    every = sensors is None or "all" in sensors
     for sensor in names:
         pairs = [(path, rec) for path, rec in by_sensor[sensor] if rec.s is not None]
-        calibrations[sensor] = fit_sensor([rec for _, rec in pairs], model, name=sensor,
-                                          bags=[path for path, _ in pairs], options=options)
+        try:
+            calibrations[sensor] = fit_sensor([rec for _, rec in pairs], model, name=sensor,
+                                              bags=[path for path, _ in pairs],
+                                              options=options)
+        except FitError as err:
+            if not every or len(names) == 1:
+                raise
+            if report is not None:  # "all": the sensors that can be fitted are
+                report(f"not fitted: {err}")
+    if not calibrations:
+        raise FitError(f"{bag_list}: no sensor could be fitted")
     return Calibration(calibrations)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from strain_comp.core.calibration import strain_unit_words
 from strain_comp.io.atomic import atomic_output
 
 if TYPE_CHECKING:
@@ -41,7 +42,8 @@ def _save(fig: Figure, path: Path, inputs: Sequence[str | Path] = ()) -> Path:
 
 def _title(ev: SensorEvaluation) -> str:
     st = ev.stats
-    return f"{ev.name} ({ev.model}): RMSE {st.rmse:.3g} %, max {st.max_abs:.3g} %, n = {st.n}"
+    return (f"{ev.name} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max {st.max_abs:.3g} "
+            f"{ev.unit}, n = {st.n}")
 
 
 def plot_time(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = ()) -> Path:
@@ -51,7 +53,7 @@ def plot_time(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] 
     t = ev.t - ev.t[0] if ev.t.size else ev.t
     top.plot(t, ev.reference, color="0.2", lw=1.0, label="reference S")
     top.plot(t, ev.estimate, color="tab:red", lw=0.8, alpha=0.85, label="estimate S_hat")
-    top.set_ylabel("strain [%]")
+    top.set_ylabel(f"strain [{ev.unit}]")
     top.set_title(_title(ev))
     top.legend(loc="upper right")
     top.grid(alpha=0.3)
@@ -73,8 +75,8 @@ def plot_loop(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] 
         lo = float(min(s.min(), s_hat.min()))
         hi = float(max(s.max(), s_hat.max()))
         ax.plot([lo, hi], [lo, hi], color="0.3", ls="--", lw=1.0, label="identity S_hat = S")
-    ax.set_xlabel("reference strain S [%]")
-    ax.set_ylabel("estimated strain S_hat [%]")
+    ax.set_xlabel(f"reference strain S [{ev.unit}]")
+    ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
     ax.set_title(_title(ev))
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(loc="upper left")
@@ -90,7 +92,7 @@ def plot_error_hist(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | 
     ax.hist(error, bins=min(80, max(10, int(np.sqrt(error.size)))), color="tab:purple",
             alpha=0.8, label=f"S_hat - S ({error.size} samples)")
     ax.axvline(0.0, color="0.3", lw=1.0)
-    ax.set_xlabel("error S_hat - S [% strain]")
+    ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
     ax.set_title(_title(ev))
     ax.legend(loc="upper right")

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.errors import InputError
 
 SETTLE_SAMPLES = 200
@@ -64,6 +64,13 @@ def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = points
+    lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
+    for r, s in points:
+        if not lo <= r <= hi:
+            raise InputError(f"--point {r:g}:{s:g}: {r:g} ohm is outside the calibration's "
+                             f"resistance range [{lo:.4g}, {hi:.4g}] ohm, where its output is "
+                             "clamped; a sensor whose resistance moved that far needs a tare "
+                             "(--tare auto, the node's ~/tare) or a new fit")
     o1, o2 = steady_output(cal, r1), steady_output(cal, r2)
     if not abs(o2 - o1) > 1e-9 * max(1.0, abs(o1)):
         raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the calibration gives "
@@ -123,7 +130,8 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
                 continue
             a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
             out[name] = apply_map(out[name], a, b, {"from": str(bag), "tare": tare})
-            lines.append(f"{name}: {reading(a, b)} (from {bag}, {int(ev.scored.sum())} samples)")
+            lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {bag}, "
+                         f"{int(ev.scored.sum())} samples)")
     else:
         names = list(sensors or calibration.sensors)
         if len(names) != 1:
@@ -135,12 +143,14 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
                              f"({', '.join(calibration.sensors)})")
         a, b = map_from_points(out[name], points)
         out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
-        lines.append(f"{name}: {reading(a, b)} (through {len(points)} points)")
+        lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
+                     f"{len(points)} points)")
     return Calibration(out), lines
 
 
-def reading(a: float, b: float) -> str:
+def reading(a: float, b: float, *, unit: str = "%") -> str:
     """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
-    (the sensor's sensitivity against the calibration's is 1 / a)."""
+    (the sensor's sensitivity against the calibration's is 1 / a; the offset in the
+    calibration's strain ``unit``)."""
     return (f"output gain {a:.4g} (sensitivity {100.0 * (1.0 / a - 1.0):+.1f} %), "
-            f"offset {b:+.3g} % strain")
+            f"offset {b:+.3g} {strain_unit_words(unit)}")

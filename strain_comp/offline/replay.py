@@ -149,9 +149,9 @@ class _Replay:
             if now.size:
                 for sensor, out in outs.items():
                     at_ticks[sensor] = health_at(before[sensor], series.t, out, now,
-                                                 stale_after=self.engine.stale_after)
+                                                 stale_after=self.engine.stale_for(sensor))
         for k, tick in enumerate(now.tolist()):
-            health = {name: _stale(hs[k], tick, self.engine.stale_after)
+            health = {name: _stale(hs[k], tick, self.engine.stale_for(name))
                       for name, hs in at_ticks.items()}
             self._write_diagnostics(tick, health)
 

@@ -376,10 +376,10 @@ class LiveCompensator:
         """Statuses at clock time ``now`` [s]: one per sensor, then the transport's.
 
         A sensor is ERROR with the reason while its latest sample is bad (e.g. "non-finite
-        input"), STALE when no message arrived for ``stale_after_s``, else as the engine says.
+        input"), STALE when no message arrived for ``stale_after_s`` (two sample intervals
+        of a slow instrument, ``Engine.stale_for``), else as the engine says.
         The transport is WARN while messages were refused since the previous call.
         """
-        stale_after = self.tunables["stale_after_s"]
         out = []
         health = self.engine.health(now)
         last_message = {s: self._last_message.get(i.name) for i in self.params.inputs
@@ -388,6 +388,7 @@ class LiveCompensator:
             sensor = name.split(": ", 1)[1]
             h = health[sensor]
             last = last_message.get(sensor)
+            stale_after = self.engine.stale_for(sensor)
             silent = last is None or now - last > stale_after
             if h.last_status is not None and h.last_status not in USED and not silent:
                 level, message = ERROR, f"{BAD_REASON[h.last_status]}: estimate held"
