@@ -123,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     bags = import_all(args.data, args.out, args.fiber_gauge_mm)
+    units = {"cb": "%", "fiber": "%" if args.fiber_gauge_mm else "mm"}
     recordings = {name: load_recordings(path)[0] for name, path in bags.items()}
     results: dict[str, dict] = {}
     failures: list[str] = []
@@ -133,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
             start = time.perf_counter()
             try:
                 cal = fit_bags([bags[c] for c in spec["train"]], model, [sensor])
+                cal.sensors[sensor].strain_unit = units[sensor]
             except StrainCompError as err:
                 failures.append(f"{key}: fit failed: {err}")
                 continue
@@ -172,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
 
     print(markdown(results, args.fiber_gauge_mm))
     print(targets(results))
-    within, looped = within_run(recordings, args.models, failures)
+    within, looped = within_run(recordings, args.models, failures, units)
     print(within_markdown(within))
     print(loop_markdown(within, looped))
     if failures:
@@ -193,6 +195,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def within_run(recordings: dict[str, dict], models: list[str], failures: list[str],
+               units: dict[str, str] | None = None,
                ) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, dict]]]:
     """RMSE on the last ``1 - WITHIN_FIT`` of each run after fitting on its first part,
     without and with the residual loop run on that first part.
@@ -225,7 +228,9 @@ def within_run(recordings: dict[str, dict], models: list[str], failures: list[st
         loop_row = looped.setdefault(short(csv_name), {})
         for model in models:
             try:
-                cal = Calibration({sensor: fit_sensor([training], model, name=sensor)})
+                fitted = fit_sensor([training], model, name=sensor)
+                fitted.strain_unit = (units or {}).get(sensor, "%")
+                cal = Calibration({sensor: fitted})
                 ev = evaluate_recordings({sensor: rec}, cal)
             except StrainCompError as err:
                 failures.append(f"within-run {short(csv_name)}/{model}: {err}")
@@ -250,7 +255,8 @@ def within_run(recordings: dict[str, dict], models: list[str], failures: list[st
                                 for k, v in c.items()} for c in found.conditions],
                 "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
                            "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
-                                                     a.magnitude)} for a in found.added],
+                                                     a.magnitude, unit=fitted.strain_unit)}
+                          for a in found.added],
                 "loop_before": found.before["rmse"], "loop_after": found.after["rmse"],
                 "message": found.sensors[sensor].message,
                 "top_score": {"name": top.name, "score": top.score},

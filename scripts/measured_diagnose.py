@@ -84,9 +84,11 @@ def main(argv: list[str] | None = None) -> int:
         for model in args.models:
             start = time.perf_counter()
             try:
-                cal = Calibration({name: fit_sensor([recs["fit"]], model, name=name,
-                                                    options={"progress": False}
-                                                    if model in ("apl", "pl", "mpi") else {})})
+                fitted = fit_sensor([recs["fit"]], model, name=name,
+                                    options={"progress": False}
+                                    if model in ("apl", "pl", "mpi") else {})
+                fitted.strain_unit = spec["unit"]
+                cal = Calibration({name: fitted})
                 result = diagnose_conditions({name: recs["diagnose"]}, cal,
                                              validate_recordings={name: recs["validate"]},
                                              tare="auto")
@@ -103,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
                 "before": result.before["rmse"], "after": result.after["rmse"],
                 "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
                            "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
-                                                     a.magnitude)} for a in added],
+                                                     a.magnitude, unit=spec["unit"])}
+                          for a in added],
                 "conditions": result.conditions,
                 "message": result.sensors[name].message, "seconds": round(seconds, 2),
                 "top_scores": [(e.name, e.score) for e in sorted(
