@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -117,19 +117,12 @@ class ClockGate:
         return out
 
 
-def _good_since(t: np.ndarray, raw: np.ndarray, good: np.ndarray, t0: float
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """(times, raw values) of the good samples with time >= t0, in time order."""
-    mask = (t >= t0) & good
-    order = np.argsort(t[mask], kind="stable")
-    return t[mask][order], raw[mask][order]
-
-
 @dataclass
-class _Recent:
-    """Ring of an input's latest raw samples (columns: its sensors) and their good flags
-    (good: fed to the model, ``USED``, also when out of the calibrated range)."""
+class _Samples:
+    """An input's raw samples (columns: its sensors) with their good flags (good: fed to the
+    model, ``USED``, also when out of the calibrated range); ``SIZE`` rows at first."""
 
+    SIZE: ClassVar[int] = RING
     k: int
     t: np.ndarray = field(init=False)
     raw: np.ndarray = field(init=False)
@@ -137,38 +130,36 @@ class _Recent:
     n: int = 0
 
     def __post_init__(self) -> None:
-        self.t = np.full(RING, -math.inf)
-        self.raw = np.zeros((RING, self.k))
-        self.good = np.zeros((RING, self.k), dtype=bool)
+        self.t = np.full(self.SIZE, -math.inf)
+        self.raw = np.zeros((self.SIZE, self.k))
+        self.good = np.zeros((self.SIZE, self.k), dtype=bool)
 
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
-        i = self.n % RING
+    def _store(self, i: int, t: float, raw: np.ndarray, status: np.ndarray) -> None:
         self.t[i], self.raw[i] = t, raw
         self.good[i] = used_mask(status)
         self.n += 1
 
     def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
         """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
-        return _good_since(self.t, self.raw[:, column], self.good[:, column], t0)
+        m = min(self.n, self.t.size)
+        mask = (self.t[:m] >= t0) & self.good[:m, column]
+        order = np.argsort(self.t[:m][mask], kind="stable")
+        return self.t[:m][mask][order], self.raw[:m, column][mask][order]
 
 
-@dataclass
-class _StartLog:
-    """Every raw sample of an input (columns: its sensors) and its good flags (as
-    ``_Recent``) since the earliest first good sample of a sensor whose automatic tare is
-    pending (``keep_from``): about ``TARE_WINDOW`` seconds, nothing while no pending sensor
-    has had a good sample."""
+class _Recent(_Samples):
+    """Ring of an input's latest ``RING`` samples (for ``~/tare``)."""
 
-    k: int
-    t: np.ndarray = field(init=False)
-    raw: np.ndarray = field(init=False)
-    good: np.ndarray = field(init=False)
-    n: int = 0
+    def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
+        self._store(self.n % RING, t, raw, status)
 
-    def __post_init__(self) -> None:
-        self.t = np.empty(256)
-        self.raw = np.empty((256, self.k))
-        self.good = np.empty((256, self.k), dtype=bool)
+
+class _StartLog(_Samples):
+    """Every sample of an input since the earliest first good sample of a sensor whose
+    automatic tare is pending (``keep_from``): about ``TARE_WINDOW`` seconds, nothing while
+    no pending sensor has had a good sample."""
+
+    SIZE = 256
 
     def add(self, t: float, raw: np.ndarray, status: np.ndarray, *, keep_from: float) -> None:
         """Log a sample; when full, first drop the samples before ``keep_from`` [s], then
@@ -179,17 +170,10 @@ class _StartLog:
             self.t[:self.n], self.raw[:self.n], self.good[:self.n] = (
                 self.t[keep], self.raw[keep], self.good[keep])
             if 2 * self.n > self.t.size:
-                self.t = np.concatenate([self.t, np.empty(self.t.size)])
-                self.raw = np.concatenate([self.raw, np.empty(self.raw.shape)])
-                self.good = np.concatenate([self.good, np.empty(self.good.shape, dtype=bool)])
-        self.t[self.n], self.raw[self.n] = t, raw
-        self.good[self.n] = used_mask(status)
-        self.n += 1
-
-    def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
-        """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
-        return _good_since(self.t[:self.n], self.raw[:self.n, column],
-                           self.good[:self.n, column], t0)
+                self.t = np.concatenate([self.t, np.full(self.t.size, -math.inf)])
+                self.raw = np.concatenate([self.raw, np.zeros(self.raw.shape)])
+                self.good = np.concatenate([self.good, np.zeros(self.good.shape, dtype=bool)])
+        self._store(self.n, t, raw, status)
 
 
 class LiveCompensator:
