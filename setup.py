@@ -28,7 +28,7 @@ setup(
         "numba>=0.58",
         "PyYAML>=6",
         "mcap>=1.1",
-        "mcap-ros2-support>=0.6,<0.7",  # io/bag/writer.py uses its serialize_dynamic
+        "mcap-ros2-support>=0.6,<0.7",  # io/bag/reader.py: its public DecoderFactory
         "matplotlib>=3.7",
         "threadpoolctl>=3.1",  # models/apl.py: one BLAS thread while the fit grid is scored
     ],

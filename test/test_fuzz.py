@@ -109,9 +109,10 @@ def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
     from mcap.writer import Writer
 
     import strain_comp.io.bag.writer as bag_module
+    from strain_comp.io.bag.cdr import message_encoder
 
     kind = "std_msgs/msg/Float64MultiArray"
-    encode = bag_module.message_encoder(kind)
+    encode = message_encoder(kind)
     with path.open("wb") as f:
         writer = Writer(f)
         writer.start(profile="ros2")

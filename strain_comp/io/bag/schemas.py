@@ -37,6 +37,10 @@ SCHEMAS: dict[str, str] = {
         "byte STALE=3\nbyte level\nstring name\nstring message\nstring hardware_id\n"
         "KeyValue[] values\n" + _SEP + "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value\n"
     ),
+    "sensor_msgs/msg/JointState": (
+        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+        "float64[] effort\n" + _SEP + _HEADER + _SEP + _TIME
+    ),
 }
 #: One diagnostic status: (name, level, message, {key: value}).
 Status = tuple[str, int, str, dict[str, str]]

@@ -3,8 +3,10 @@
 ``BagWriter`` writes a header with profile ``ros2``, ros2msg schemas, channels with ``cdr``
 encoding, chunks with CRCs and message indexes, and a summary with schemas, channels,
 statistics, chunk indexes and summary offsets, so ``ros2 bag play``, ``rosbags`` and Foxglove
-read it. Float64/Int8/Float64MultiArray payloads are built as numpy byte arrays; records are
-assembled per chunk with numpy scatter, not per message. Times are log times in seconds
+read it. Payloads are CDR (``strain_comp.io.bag.cdr``): Float64, Int8, Float64MultiArray and
+JointState runs are built as numpy byte rows of one template (their layout is fixed for a
+topic), Temperature and DiagnosticArray message by message; records are assembled per chunk
+with numpy scatter, not per message. Times are log times in seconds
 (float64), stored as integer ns.
 """
 
@@ -35,11 +37,11 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
-from mcap_ros2._dynamic import serialize_dynamic
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
 from strain_comp.io.atomic import AtomicFile, check_output
+from strain_comp.io.bag import cdr
 from strain_comp.io.bag.schemas import CHUNK_SIZE, LIBRARY, MAGIC, PROFILE, SCHEMAS, Status
 
 OFFERED_QOS = ("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n"
@@ -178,22 +180,42 @@ class BagWriter:
             raise BagError(f"{topic}: values must be (n, {len(labels)}) for {len(labels)} labels")
         if any("," in x for x in labels):
             raise BagError(f"{topic}: sensor labels must not contain commas")
-        kind = "std_msgs/msg/Float64MultiArray"
         k = v.shape[1]
-        msg = {"layout": {"dim": [{"label": ",".join(labels), "size": k, "stride": k}],
-                          "data_offset": 0}, "data": [0.0] * k}
-        sample = message_encoder(kind)(msg)
-        self._add(topic, kind, _ns(t), _cdr_rows(sample[:len(sample) - 8 * k], v))
+        sample = cdr.float64_multiarray([(",".join(labels), k, k)], 0, np.zeros(k))
+        self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t),
+                  _cdr_rows(sample[:len(sample) - 8 * k], v))
+
+    def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
+                          position: npt.ArrayLike, velocity: npt.ArrayLike | None = None, *,
+                          stamp: npt.ArrayLike | None = None, frame_id: str = "") -> None:
+        """sensor_msgs/msg/JointState, one per row of ``position`` (n, len(names)):
+        ``name`` = names, ``velocity`` the same shape or None (empty), ``effort`` empty;
+        ``header.stamp`` = ``stamp`` [s] (default: the log time ``t``)."""
+        t_ns = _ns(t)
+        k = len(names)
+        p = np.asarray(position, dtype="<f8").reshape(t_ns.size, k)
+        template, pos_at, vel_at = cdr.joint_state_layout(frame_id, names,
+                                                          velocity=velocity is not None)
+        rows = np.empty((t_ns.size, len(template)), np.uint8)
+        rows[:] = np.frombuffer(template, np.uint8)
+        s_ns = t_ns if stamp is None else _ns(stamp)
+        if s_ns.size != t_ns.size:
+            raise BagError(f"{topic}: {t_ns.size} times but {s_ns.size} stamps")
+        stamps = np.empty(t_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])
+        stamps["sec"], stamps["nanosec"] = np.divmod(s_ns, 10**9)
+        rows[:, 4:12] = stamps.view(np.uint8).reshape(-1, 8)
+        rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
+        if vel_at is not None:
+            v = np.asarray(velocity, dtype="<f8").reshape(t_ns.size, k)
+            rows[:, vel_at:vel_at + 8 * k] = v.view(np.uint8).reshape(-1, 8 * k)
+        self._add(topic, "sensor_msgs/msg/JointState", t_ns, rows)
 
     def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike, *,
                           frame_id: str = "", variance: float = 0.0) -> None:
         """sensor_msgs/msg/Temperature [deg C], header stamp = log time."""
         t_ns = _ns(t)
         v = np.asarray(values, dtype=np.float64).reshape(-1)
-        enc = message_encoder("sensor_msgs/msg/Temperature")
-        rows = [enc({"header": {"stamp": {"sec": int(ns // 10**9), "nanosec": int(ns % 10**9)},
-                                "frame_id": frame_id},
-                     "temperature": float(x), "variance": variance})
+        rows = [cdr.temperature(*cdr.stamp_of(ns), frame_id, x, variance)
                 for ns, x in zip(t_ns.tolist(), v.tolist(), strict=False)]
         self._add(topic, "sensor_msgs/msg/Temperature", t_ns, rows)
 
@@ -202,14 +224,10 @@ class BagWriter:
         """diagnostic_msgs/msg/DiagnosticArray, one message per time with its statuses,
         each (name, level 0..3, message, {key: value})."""
         t_ns = _ns(t)
-        enc = message_encoder("diagnostic_msgs/msg/DiagnosticArray")
-        rows = [enc({"header": {"stamp": {"sec": int(ns // 10**9), "nanosec": int(ns % 10**9)},
-                                "frame_id": ""},
-                     "status": [{"level": int(level), "name": name, "message": message,
-                                 "hardware_id": "",
-                                 "values": [{"key": str(a), "value": str(b)}
-                                            for a, b in values.items()]}
-                                for name, level, message, values in st]})
+        rows = [cdr.diagnostic_array(*cdr.stamp_of(ns), "",
+                                     [(name, int(level), message, "",
+                                       [(str(a), str(b)) for a, b in values.items()])
+                                      for name, level, message, values in st])
                 for ns, st in zip(t_ns.tolist(), statuses, strict=False)]
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns, rows)
 
@@ -244,21 +262,6 @@ class BagWriter:
             raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
         if rest is not None:
             self._pending = rest
-
-
-_ENCODERS: dict[str, Any] = {}
-
-
-def message_encoder(kind: str) -> Any:
-    """CDR encoder of the standard message ``kind`` (dict or object -> bytes).
-
-    mcap_ros2 has no public encoder outside its own Writer, so this uses
-    ``mcap_ros2._dynamic.serialize_dynamic``; setup.py pins mcap-ros2-support to the
-    tested range and test_bag checks every encoder against the rosbags deserialiser.
-    """
-    if kind not in _ENCODERS:
-        _ENCODERS[kind] = serialize_dynamic(kind, SCHEMAS[kind])[kind]
-    return _ENCODERS[kind]
 
 
 def _record(record: Any) -> bytes:

@@ -1,0 +1,214 @@
+"""CDR encoding of the fixed message types a strain_comp bag holds (``schemas.SCHEMAS``).
+
+ROS 2 serialises messages as OMG CDR (XCDR1, plain little endian, rmw's encapsulation
+``00 01 00 00``): each primitive is aligned to its own size counted from the end of the
+4-byte encapsulation header, a string is a uint32 length (the terminating NUL included),
+its UTF-8 bytes and a NUL, a sequence is a uint32 count followed by its elements (an empty
+sequence of 8-byte values is not padded, as Fast-CDR does). One dedicated encoder per type,
+so a message costs a few ``struct.pack`` calls instead of a walk over a parsed schema;
+``test_cdr`` checks every one byte for byte against ``rosbags``' serialiser.
+
+``message_encoder(kind)`` gives a ``dict -> bytes`` encoder of the standard field names (the
+shape rosbags and the ROS message classes use); the writer calls the typed functions below
+directly.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+ENCAPSULATION = b"\x00\x01\x00\x00"
+"""CDR little endian, no options."""
+
+_U32 = struct.Struct("<I")
+_STAMP = struct.Struct("<iI")
+
+
+class CdrBuffer:
+    """A CDR payload being written: the encapsulation header, then aligned fields."""
+
+    __slots__ = ("data",)
+
+    def __init__(self) -> None:
+        self.data = bytearray(ENCAPSULATION)
+
+    def align(self, size: int) -> None:
+        pad = -(len(self.data) - 4) % size
+        if pad:
+            self.data += b"\0" * pad
+
+    def u32(self, value: int) -> None:
+        self.align(4)
+        self.data += _U32.pack(value)
+
+    def stamp(self, sec: int, nanosec: int) -> None:
+        """builtin_interfaces/Time: int32 sec, uint32 nanosec."""
+        self.align(4)
+        self.data += _STAMP.pack(sec, nanosec)
+
+    def f64(self, *values: float) -> None:
+        self.align(8)
+        self.data += struct.pack(f"<{len(values)}d", *values)
+
+    def string(self, text: str) -> None:
+        raw = text.encode()
+        self.align(4)
+        self.data += _U32.pack(len(raw) + 1)
+        self.data += raw
+        self.data += b"\0"
+
+    def strings(self, texts: Sequence[str]) -> None:
+        self.u32(len(texts))
+        for text in texts:
+            self.string(text)
+
+    def f64_seq(self, values: npt.ArrayLike) -> None:
+        v = np.asarray(values, dtype="<f8").reshape(-1)
+        self.u32(v.size)
+        if v.size:
+            self.align(8)
+            self.data += v.tobytes()
+
+    def header(self, sec: int, nanosec: int, frame_id: str) -> None:
+        """std_msgs/Header: stamp, frame_id."""
+        self.stamp(sec, nanosec)
+        self.string(frame_id)
+
+    def payload(self) -> bytes:
+        return bytes(self.data)
+
+
+def stamp_of(t_ns: int) -> tuple[int, int]:
+    """(sec, nanosec) of a time in integer ns (>= 0)."""
+    return t_ns // 1_000_000_000, t_ns % 1_000_000_000
+
+
+def float64(value: float) -> bytes:
+    """std_msgs/msg/Float64."""
+    return ENCAPSULATION + struct.pack("<d", value)
+
+
+def float32(value: float) -> bytes:
+    """std_msgs/msg/Float32."""
+    return ENCAPSULATION + struct.pack("<f", value)
+
+
+def int8(value: int) -> bytes:
+    """std_msgs/msg/Int8."""
+    return ENCAPSULATION + struct.pack("<b", value)
+
+
+def float64_multiarray(dims: Sequence[tuple[str, int, int]], data_offset: int,
+                       data: npt.ArrayLike) -> bytes:
+    """std_msgs/msg/Float64MultiArray: layout (dim = (label, size, stride) each,
+    data_offset), float64[] data."""
+    buf = CdrBuffer()
+    buf.u32(len(dims))
+    for label, size, stride in dims:
+        buf.string(label)
+        buf.u32(size)
+        buf.u32(stride)
+    buf.u32(data_offset)
+    buf.f64_seq(data)
+    return buf.payload()
+
+
+def temperature(sec: int, nanosec: int, frame_id: str, value: float,
+                variance: float) -> bytes:
+    """sensor_msgs/msg/Temperature: header, temperature [deg C], variance."""
+    buf = CdrBuffer()
+    buf.header(sec, nanosec, frame_id)
+    buf.f64(value, variance)
+    return buf.payload()
+
+
+def diagnostic_array(sec: int, nanosec: int, frame_id: str,
+                     statuses: Sequence[tuple[str, int, str, str, Sequence[tuple[str, str]]]]
+                     ) -> bytes:
+    """diagnostic_msgs/msg/DiagnosticArray: header, status[] with each status given as
+    (name, level, message, hardware_id, [(key, value), ...])."""
+    buf = CdrBuffer()
+    buf.header(sec, nanosec, frame_id)
+    buf.u32(len(statuses))
+    data = buf.data
+    for name, level, message, hardware_id, values in statuses:
+        data.append(level)  # byte level (uint8: no alignment)
+        buf.string(name)
+        buf.string(message)
+        buf.string(hardware_id)
+        buf.u32(len(values))
+        for key, value in values:
+            buf.string(key)
+            buf.string(value)
+    return buf.payload()
+
+
+def joint_state(sec: int, nanosec: int, frame_id: str, names: Sequence[str],
+                position: npt.ArrayLike, velocity: npt.ArrayLike = (),
+                effort: npt.ArrayLike = ()) -> bytes:
+    """sensor_msgs/msg/JointState: header, string[] name, float64[] position, velocity,
+    effort."""
+    buf = CdrBuffer()
+    buf.header(sec, nanosec, frame_id)
+    buf.strings(names)
+    buf.f64_seq(position)
+    buf.f64_seq(velocity)
+    buf.f64_seq(effort)
+    return buf.payload()
+
+
+def joint_state_layout(frame_id: str, names: Sequence[str], *, velocity: bool
+                       ) -> tuple[bytes, int, int | None]:
+    """A JointState payload for ``names`` with zero stamp and values, the byte offset of
+    its first position value and of its first velocity value (None: velocity empty).
+
+    For fixed names every message has this layout: only the stamp (bytes 4..12) and the
+    values differ, so whole runs are written as numpy rows of this template.
+    """
+    n = len(names)
+    buf = CdrBuffer()
+    buf.header(0, 0, frame_id)
+    buf.strings(names)
+    buf.f64_seq(np.zeros(n))
+    pos_at = len(buf.data) - 8 * n
+    buf.f64_seq(np.zeros(n if velocity else 0))
+    vel_at = len(buf.data) - 8 * n if velocity else None
+    buf.f64_seq(())  # effort
+    return buf.payload(), pos_at, vel_at
+
+
+# ------------------------------------------------------------ dict messages (standard names)
+
+
+def _header(msg: Mapping[str, Any]) -> tuple[int, int, str]:
+    header = msg["header"]
+    return int(header["stamp"]["sec"]), int(header["stamp"]["nanosec"]), header["frame_id"]
+
+
+_DICT_ENCODERS: dict[str, Callable[[Mapping[str, Any]], bytes]] = {
+    "std_msgs/msg/Float64": lambda m: float64(m["data"]),
+    "std_msgs/msg/Float32": lambda m: float32(m["data"]),
+    "std_msgs/msg/Int8": lambda m: int8(m["data"]),
+    "std_msgs/msg/Float64MultiArray": lambda m: float64_multiarray(
+        [(d["label"], d["size"], d["stride"]) for d in m["layout"]["dim"]],
+        m["layout"]["data_offset"], m["data"]),
+    "sensor_msgs/msg/Temperature": lambda m: temperature(
+        *_header(m), m["temperature"], m["variance"]),
+    "diagnostic_msgs/msg/DiagnosticArray": lambda m: diagnostic_array(
+        *_header(m), [(s["name"], s["level"], s["message"], s["hardware_id"],
+                       [(kv["key"], kv["value"]) for kv in s["values"]])
+                      for s in m["status"]]),
+    "sensor_msgs/msg/JointState": lambda m: joint_state(
+        *_header(m), m["name"], m["position"], m["velocity"], m["effort"]),
+}
+
+
+def message_encoder(kind: str) -> Callable[[Mapping[str, Any]], bytes]:
+    """CDR encoder of ``kind`` (a type of ``schemas.SCHEMAS``) for a message given as
+    nested dicts with the standard field names (KeyError for another type)."""
+    return _DICT_ENCODERS[kind]
