@@ -83,12 +83,37 @@ def test_replay_equals_node_logic_and_reads_back(tmp_path: object) -> None:
                   "/unrelated/resistance"):
         np.testing.assert_array_equal(out.series[topic].values, contents_in.series[topic].values)
     assert len(out.diagnostics) == summary.n_output_messages - summary.n_input_messages - (
-        3 * 500 + 3 * 300)
+        4 * 500 + 4 * 300)
+    stamped = _joint_states(bag_out)
+    for topic, names, strain in (("/s1/strain_stamped", ["s1"], s1), ("/arr/strain_stamped",
+                                                                      ["a", "b"], arr)):
+        log_ns, msgs = stamped[topic]
+        np.testing.assert_array_equal(log_ns, np.round(strain.t * 1e9))
+        np.testing.assert_array_equal([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+                                       for m in msgs], log_ns)  # the input's time
+        assert all(m.name == names and m.header.frame_id == "" and m.velocity.size == 0
+                   and m.effort.size == 0 for m in msgs)
+        np.testing.assert_array_equal(np.array([m.position for m in msgs]).reshape(
+            strain.values.shape), strain.values)
     names = {s[0] for s in out.diagnostics[-1][1]}
     assert names == {"strain_comp: s1", "strain_comp: a", "strain_comp: b"}
     health = summary.sensors
     assert health["s1"].n_good + health["s1"].n_bad == 500
     assert health == live_health(contents_in)
+
+
+def _joint_states(path: object) -> dict[str, tuple[list[int], list[object]]]:
+    """Per JointState topic: log times [ns] and messages, decoded by rosbags."""
+    from rosbags.highlevel import AnyReader
+
+    found: dict[str, tuple[list[int], list[object]]] = {}
+    with AnyReader([path]) as reader:
+        conns = [c for c in reader.connections if c.msgtype == "sensor_msgs/msg/JointState"]
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            log, msgs = found.setdefault(conn.topic, ([], []))
+            log.append(t_ns)
+            msgs.append(reader.deserialize(raw, conn.msgtype))
+    return found
 
 
 def live_health(contents: object) -> dict:

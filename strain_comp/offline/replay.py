@@ -10,7 +10,11 @@ neighbours' estimates of the same tick, exactly as ``Engine.step_array`` (the no
 Outputs, one message at every input message's time (bad samples included, marked):
 ``/NAME/strain`` (Float64, held estimate on bad samples), ``/NAME/direction`` (Int8),
 ``/NAME/status`` (Int8, ``strain_comp.core.engine.Status``); for arrays the same three as
-Float64MultiArray on ``/ARRAY/strain``, ``/ARRAY/direction``, ``/ARRAY/status``;
+Float64MultiArray on ``/ARRAY/strain``, ``/ARRAY/direction``, ``/ARRAY/status``; and the
+strain stamped with its input's time, ``/NAME/strain_stamped`` and ``/ARRAY/strain_stamped``
+(sensor_msgs/JointState: name = sensor names, position = strain, velocity and effort empty,
+header.stamp = the input message's log time, as Float64 and Float64MultiArray inputs
+carry no header; the node's topics of the same name);
 ``/diagnostics`` at the end of every ``diagnostics_period`` of log time that holds input.
 Every input topic that can be written back (Float64, Int8, Float64MultiArray, Temperature,
 DiagnosticArray) is copied through; anything else is listed in the summary's problems.
@@ -41,6 +45,8 @@ from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import array_sensor_names, hold_latest
 
 OUTPUTS = ("strain", "direction", "status")
+STAMPED = "strain_stamped"
+"""The JointState output beside ``OUTPUTS`` (module docstring)."""
 
 
 @dataclass
@@ -107,7 +113,7 @@ class _Replay:
                 inp = _input(topic, contents, self.calibration)
                 self.inputs[topic] = inp
                 if inp is not None:
-                    self.written.update(f"/{inp.name}/{what}" for what in OUTPUTS)
+                    self.written.update(f"/{inp.name}/{what}" for what in (*OUTPUTS, STAMPED))
                     series = contents.series[topic]
                     values = series.values if series.values.ndim == 2 else series.values[:, None]
                     tared = tare_engine(self.engine, {s: (series.t, values[:, j])
@@ -170,13 +176,18 @@ class _Replay:
                 stacked = np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
                 self.writer.write_float64_array(f"/{inp.name}/{what}", t,
                                                 stacked.astype(np.float64), inp.sensors)
+                if what == "strain":
+                    self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
+                                                  stacked)
         else:
             out = self.engine.run(inp.name, t, values, temps[inp.name])
             self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
+            self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
+                                          out.strain[:, None])
             self.writer.write_int8(f"/{inp.name}/direction", t, out.direction)
             self.writer.write_int8(f"/{inp.name}/status", t, out.status)
             outs = {inp.name: out}
-        self.n_out += len(OUTPUTS) * t.size
+        self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs
 
     def _temperature(self, contents: BagContents, name: str, t: np.ndarray

@@ -540,6 +540,8 @@ def _decode_topic(out: BagContents, topic: str, schema: Schema, blob: np.ndarray
             values[~little] = raw[~little].copy().view(np.dtype(dtype).newbyteorder(">"))[:, 0]
         out.series[topic] = Series(t, values)
         return
+    if kind == "sensor_msgs/msg/JointState":
+        return  # the stamped copy of a strain output (``types`` lists it): nothing to read
     if kind not in _DECODED_TYPES:
         out.problems.append(f"{topic}: unsupported message type {schema.name}; "
                             f"{start.size} messages skipped")
