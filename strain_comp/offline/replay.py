@@ -42,6 +42,7 @@ from strain_comp.core.tare import tare_engine
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
+from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.recording import array_sensor_names, hold_latest
 
 OUTPUTS = ("strain", "direction", "status")
@@ -156,17 +157,20 @@ class _Replay:
                 for sensor, out in outs.items():
                     at_ticks[sensor] = health_at(before[sensor], series.t, out, now,
                                                  stale_after=self.engine.stale_for(sensor))
-        for k, tick in enumerate(now.tolist()):
-            health = {name: _stale(hs[k], tick, self.engine.stale_for(name))
-                      for name, hs in at_ticks.items()}
-            self._write_diagnostics(tick, health)
+        stale_for = {name: self.engine.stale_for(name) for name in at_ticks}
+        self._write_diagnostics(now, [
+            diagnostics({name: _stale(hs[k], tick, stale_for[name])
+                         for name, hs in at_ticks.items()})
+            for k, tick in enumerate(now.tolist())])
 
     def write_tick(self, t: float) -> None:
-        self._write_diagnostics(t, self.engine.health(now=t))
+        self._write_diagnostics(np.array([t]), [diagnostics(self.engine.health(now=t))])
 
-    def _write_diagnostics(self, t: float, health: dict[str, SensorHealth]) -> None:
-        self.writer.write_diagnostics([t], [diagnostics(health)])
-        self.n_out += 1
+    def _write_diagnostics(self, t: np.ndarray, statuses: list[list[DiagnosticStatus]]) -> None:
+        """One /diagnostics message per time of ``t`` (one writer call for them all)."""
+        if t.size:
+            self.writer.write_diagnostics(t, statuses)
+            self.n_out += t.size
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:

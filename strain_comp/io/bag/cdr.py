@@ -27,6 +27,11 @@ ENCAPSULATION = b"\x00\x01\x00\x00"
 
 _U32 = struct.Struct("<I")
 _STAMP = struct.Struct("<iI")
+_PAD = [b"\0" * k for k in range(8)]
+_STRING_CACHE = 4096
+_STRINGS: dict[str, bytes] = {}
+"""Encoded strings (length, UTF-8, NUL) by text: diagnostics repeat their names and keys
+in every message. Emptied when it reaches ``_STRING_CACHE`` entries."""
 
 
 class CdrBuffer:
@@ -38,9 +43,7 @@ class CdrBuffer:
         self.data = bytearray(ENCAPSULATION)
 
     def align(self, size: int) -> None:
-        pad = -(len(self.data) - 4) % size
-        if pad:
-            self.data += b"\0" * pad
+        self.data += _PAD[-(len(self.data) - 4) % size]
 
     def u32(self, value: int) -> None:
         self.align(4)
@@ -56,11 +59,9 @@ class CdrBuffer:
         self.data += struct.pack(f"<{len(values)}d", *values)
 
     def string(self, text: str) -> None:
-        raw = text.encode()
-        self.align(4)
-        self.data += _U32.pack(len(raw) + 1)
-        self.data += raw
-        self.data += b"\0"
+        data = self.data
+        data += _PAD[-len(data) % 4]  # the 4-byte encapsulation keeps 4-alignment
+        data += _STRINGS.get(text) or _encoded(text)
 
     def strings(self, texts: Sequence[str]) -> None:
         self.u32(len(texts))
@@ -81,6 +82,16 @@ class CdrBuffer:
 
     def payload(self) -> bytes:
         return bytes(self.data)
+
+
+def _encoded(text: str) -> bytes:
+    """``text`` as a CDR string (length with the NUL, UTF-8, NUL), kept in ``_STRINGS``."""
+    raw = text.encode()
+    encoded = _U32.pack(len(raw) + 1) + raw + b"\0"
+    if len(_STRINGS) >= _STRING_CACHE:
+        _STRINGS.clear()
+    _STRINGS[text] = encoded
+    return encoded
 
 
 def stamp_of(t_ns: int) -> tuple[int, int]:
@@ -136,15 +147,19 @@ def diagnostic_array(sec: int, nanosec: int, frame_id: str,
     buf.header(sec, nanosec, frame_id)
     buf.u32(len(statuses))
     data = buf.data
-    for name, level, message, hardware_id, values in statuses:
+    cached = _STRINGS.get
+    for name, level, message, hardware_id, values in statuses:  # inlined: ~1 us a string
         data.append(level)  # byte level (uint8: no alignment)
-        buf.string(name)
-        buf.string(message)
-        buf.string(hardware_id)
-        buf.u32(len(values))
+        for text in (name, message, hardware_id):
+            data += _PAD[-len(data) % 4]
+            data += cached(text) or _encoded(text)
+        data += _PAD[-len(data) % 4]
+        data += _U32.pack(len(values))
         for key, value in values:
-            buf.string(key)
-            buf.string(value)
+            data += _PAD[-len(data) % 4]
+            data += cached(key) or _encoded(key)
+            data += _PAD[-len(data) % 4]
+            data += cached(value) or _encoded(value)
     return buf.payload()
 
 
