@@ -41,6 +41,9 @@ from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import array_sensor_names, hold_latest
 
 OUTPUTS = ("strain", "direction", "status")
+RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
+                    "std_msgs/msg/Float64MultiArray")
+"""Message types a ``/NAME/resistance`` input is read from; other types are copied only."""
 
 
 @dataclass
@@ -67,6 +70,8 @@ def _input(topic: str, contents: BagContents, calibration: Calibration) -> _Inpu
     """The input a ``/NAME/resistance`` topic is, or None (copied through only)."""
     series = contents.series[topic]
     name = topic[1:].rsplit("/", 1)[0]
+    if contents.types.get(topic) not in RESISTANCE_TYPES:  # e.g. Temperature: never ohm
+        return None
     if series.values.ndim == 1 and name in calibration.sensors:
         return _Input(topic, name, [name], False)
     if series.values.ndim == 2:
