@@ -8,19 +8,26 @@ were written.
 
 from __future__ import annotations
 
+import math
 import struct
 import tracemalloc
 import zlib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zstandard
+from conftest import cubic_cal
 from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Schema
 
+from strain_comp.core.calibration import Calibration, save_calibration
 from strain_comp.io.bag import iter_bag, read_bag, reader
 from strain_comp.io.bag.schemas import MAGIC, SCHEMAS
+from strain_comp.ros import live as live_module
+from strain_comp.ros.live import LiveCompensator
+from strain_comp.ros.params import parse_values
 
 FLOAT64 = "std_msgs/msg/Float64"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
@@ -182,3 +189,38 @@ def test_recovery_checks_each_candidate_in_place(tmp_path: Path) -> None:
     np.testing.assert_array_equal(contents.series["/s1/resistance"].values, [1.0, 2.0, 3.0])
     assert seen[0] <= 1  # only the intact chunk was copied and checked
     assert any("resumed at the next intact chunk" in p for p in contents.problems)
+
+
+def _live(tmp_path: Path, tare: str = "calibration") -> LiveCompensator:
+    save_calibration(Calibration({"s1": replace(cubic_cal("s1"), rest_resistance=150.0)}),
+                     tmp_path / "c.yaml")
+    return LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml",
+                                         "tare": tare}, base_dir=tmp_path), warm_up=False)
+
+
+def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every sample at one clock time (a paused sim clock): the start log stops at its
+    budget and the automatic tare is declined with a log line; the calibration's zero
+    stays (gain 1)."""
+    monkeypatch.setattr(live_module, "MAX_START_SAMPLES", 1024)
+    node = _live(tmp_path, "auto")
+    for _ in range(5000):
+        node.on_sensor("s1", 3.0, 150.0)
+    assert node._start == {} or node._start["s1"].t.size <= 1024
+    assert any("auto tare declined: 1024 samples" in line for line in node.tare_log)
+    assert node.engine.input_gain("s1") == 1.0
+
+
+def test_reload_keeps_the_health_and_refusal_counters(tmp_path: Path) -> None:
+    node = _live(tmp_path)
+    for i, r in enumerate([150.0, math.nan, 151.0, -1.0]):
+        node.on_sensor("s1", 1.0 + 0.1 * i, r)
+    node.refuse("s1", "wrong type")
+    before = node.health()["s1"]
+    node = node.reload(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml"},
+                                    base_dir=tmp_path))
+    node.on_sensor("s1", 2.0, 152.0)
+    after = node.health()["s1"]
+    assert (after.n_good, after.n_nan, after.n_non_positive) == (before.n_good + 1, 1, 1)
+    assert node.refused["s1: wrong type"] == 1

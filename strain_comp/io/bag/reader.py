@@ -707,21 +707,32 @@ def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
         dtype = "<f8" if ref[1] & 1 else ">f8"
         values[same] = raw.copy().view(dtype)[..., 0]
     keep = same.copy()
-    bad = 0
+    bad = relabelled = 0
+    names = out.labels.get(topic)
     for j in np.flatnonzero(~same):
         try:
-            data = np.asarray(decoder(blob[start[j]:start[j] + length[j]].tobytes()).data,
-                              np.float64)
+            msg = decoder(blob[start[j]:start[j] + length[j]].tobytes())
+            data = np.asarray(msg.data, np.float64)
+            label = str(msg.layout.dim[0].label) if msg.layout.dim else ""
         except _PAYLOAD_ERRORS:  # malformed payload: count it, keep going
             bad += 1
             continue
-        if data.shape == (k,):
-            values[j] = data
-            keep[j] = True
-        else:
+        if data.shape != (k,):
             bad += 1
+            continue
+        given = [x.strip() for x in label.split(",")] if label.strip() else []
+        if names and given and given != names:  # matched by label, as the node does
+            if sorted(given) != sorted(names):
+                relabelled += 1
+                continue
+            data = data[[given.index(s) for s in names]]
+        values[j] = data
+        keep[j] = True
     if bad:
         out.problems.append(f"{topic}: {bad} malformed or wrong-size arrays skipped")
+    if relabelled:
+        out.problems.append(f"{topic}: {relabelled} arrays whose dim[0].label names other "
+                            f"sensors than {','.join(names or [])} skipped")
     out.series[topic] = Series(t[keep], values[keep])
 
 
