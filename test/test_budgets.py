@@ -224,3 +224,32 @@ def test_reload_keeps_the_health_and_refusal_counters(tmp_path: Path) -> None:
     after = node.health()["s1"]
     assert (after.n_good, after.n_nan, after.n_non_positive) == (before.n_good + 1, 1, 1)
     assert node.refused["s1: wrong type"] == 1
+
+
+def test_temperatures_outside_the_physical_range_are_missing_never_nan(tmp_path: Path) -> None:
+    """A temperature term (coefficient 0.5 per K) read 1e308 deg C, inf or -300 deg C: the
+    term holds the last valid temperature (25 deg C) instead, batch and step alike; the live
+    node refuses and counts the reading. The truth: the same run with 25 deg C throughout."""
+    from strain_comp.core.engine import Engine
+
+    term = {"name": "t", "kind": "temperature", "params": {"form": "offset", "t_ref": 23.0},
+            "coef": 0.5}
+    cal = Calibration({"s1": replace(cubic_cal("s1"), effects=[term], rest_resistance=150.0)})
+    t = np.arange(6) * 0.01 + 1.0
+    r = np.array([150.0, 155.0, 160.0, 165.0, 160.0, 155.0])
+    hostile = np.array([25.0, 1e308, np.inf, -300.0, -1e308, 25.0])
+    truth = Engine(cal).run("s1", t, r, np.full(6, 25.0)).strain
+    np.testing.assert_allclose(Engine(cal).run("s1", t, r, hostile).strain, truth, atol=1e-12)
+    engine = Engine(cal)
+    stepped = [engine.step("s1", ti, ri, ti_c).strain
+               for ti, ri, ti_c in zip(t, r, hostile, strict=True)]
+    np.testing.assert_allclose(stepped, truth, atol=1e-12)
+    save_calibration(cal, tmp_path / "c.yaml")
+    node = LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml"},
+                                        base_dir=tmp_path), warm_up=False)
+    out = []
+    for ti, ri, ti_c in zip(t, r, hostile, strict=True):
+        node.on_temperature("s1", ti_c)
+        out.append(node.on_sensor("s1", ti, ri).strain)  # type: ignore[union-attr]
+    np.testing.assert_allclose(out, truth, atol=1e-12)
+    assert sum(node.refused.values()) == 4

@@ -41,6 +41,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import (
     USED,
     ArrayOutput,
@@ -248,6 +249,8 @@ class LiveCompensator:
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
+        if not math.isfinite(out.strain):
+            raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
@@ -258,6 +261,8 @@ class LiveCompensator:
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
         self._seen(name, t, values, out.status, out.direction)
+        if not np.isfinite(out.strain).all():
+            raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 
     def refuse(self, name: str, reason: str) -> None:
@@ -269,8 +274,14 @@ class LiveCompensator:
         self.refused[key] += 1
 
     def on_temperature(self, name: str, value: float) -> None:
-        """Remember a sensor's latest temperature [deg C] for its effect terms."""
-        self.temperature[name] = float(value)
+        """Remember a sensor's latest temperature [deg C] for its effect terms; a reading
+        outside ``TEMPERATURE_RANGE`` is refused and counted, the previous one stays."""
+        value = float(value)
+        if not TEMPERATURE_RANGE[0] <= value <= TEMPERATURE_RANGE[1]:
+            self.refuse(f"{name}/temperature", "temperature outside "
+                        f"[{TEMPERATURE_RANGE[0]:g}, {TEMPERATURE_RANGE[1]:g}] degC")
+            return
+        self.temperature[name] = value
 
     def _seen(self, name: str, t: float, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
