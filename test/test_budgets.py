@@ -9,7 +9,10 @@ were written.
 from __future__ import annotations
 
 import math
+import resource
 import struct
+import subprocess
+import sys
 import tracemalloc
 import zlib
 from dataclasses import replace
@@ -29,6 +32,7 @@ from strain_comp.ros import live as live_module
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
+ROOT = Path(__file__).resolve().parent.parent
 FLOAT64 = "std_msgs/msg/Float64"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
 
@@ -253,3 +257,37 @@ def test_temperatures_outside_the_physical_range_are_missing_never_nan(tmp_path:
         out.append(node.on_sensor("s1", ti, ri).strain)  # type: ignore[union-attr]
     np.testing.assert_allclose(out, truth, atol=1e-12)
     assert sum(node.refused.values()) == 4
+
+
+def _cli(args: list[str], *, fsize: int | None = None) -> subprocess.CompletedProcess[str]:
+    def limit() -> None:
+        if fsize is not None:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+    return subprocess.run([sys.executable, "-m", "strain_comp.cli", *args], text=True,
+                          capture_output=True, timeout=120, preexec_fn=limit)
+
+
+def test_a_write_past_ulimit_f_names_the_path_and_leaves_no_temporary_file(
+        tmp_path: Path) -> None:
+    out = tmp_path / "out" / "c.yaml"
+    out.parent.mkdir()
+    done = _cli(["fit", str(ROOT / "bags" / "steps.mcap"), "--model", "cubic", "--sensor", "s1",
+                 "--out", str(out)], fsize=300)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0].startswith("strain-comp: error: ") and str(out) in lines[0]
+    assert list(out.parent.iterdir()) == []
+
+
+def test_two_outputs_of_one_command_on_one_path_are_refused(tmp_path: Path) -> None:
+    """``diagnose --out X --json X`` (the JSON would replace the calibration), also through
+    a symbolic link; nothing is written."""
+    x = tmp_path / "x.yaml"
+    link = tmp_path / "link.yaml"
+    link.symlink_to(x)
+    for json_path in (x, link):
+        done = _cli(["diagnose", str(ROOT / "bags" / "steps.mcap"), "--calibration",
+                     str(ROOT / "config" / "demo_calibration.yaml"), "--out", str(x),
+                     "--json", str(json_path)])
+        assert done.returncode == 2 and "given for two outputs" in done.stderr, done.stderr
+        assert not x.exists()

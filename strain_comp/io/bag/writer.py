@@ -294,7 +294,10 @@ class _Stream:
         self._write(MAGIC + _record(Header(profile=PROFILE, library=LIBRARY)))
 
     def _write(self, data: bytes) -> None:
-        self.file.write(data)
+        try:
+            self.file.write(data)
+        except OSError as exc:  # a full disk, ``ulimit -f``: the message names the file
+            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from None
         self.pos += len(data)
 
     def _declare(self, topics: Mapping[str, _Topic]) -> None:
