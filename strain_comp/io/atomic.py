@@ -57,7 +57,7 @@ def check_distinct(outputs: Iterable[PathLike | None]) -> None:
             continue
         path = Path(out)
         for other in seen:
-            if path.resolve() == other.resolve() or _same_file(path, other):
+            if os.path.realpath(path) == os.path.realpath(other) or _same_file(path, other):
                 raise OutputError(f"{path}: given for two outputs ({other} too); each output "
                                   "needs its own path")
         seen.append(path)
