@@ -291,3 +291,53 @@ def test_two_outputs_of_one_command_on_one_path_are_refused(tmp_path: Path) -> N
                      "--json", str(json_path)])
         assert done.returncode == 2 and "given for two outputs" in done.stderr, done.stderr
         assert not x.exists()
+
+
+def _csv(tmp_path: Path, text: str, name: str = "in.csv") -> Path:
+    path = tmp_path / name
+    path.write_bytes(text.encode("utf-8"))
+    return path
+
+
+def test_csv_column_indices_cost_nothing_beyond_the_file(tmp_path: Path) -> None:
+    """A column index past the widest row is refused at once (it used to allocate rows x
+    index floats: 2.4 GB for 600000 on 500 rows); a non-ASCII digit is not an index."""
+    from strain_comp.errors import InputError
+    from strain_comp.io.csv_import import import_csv
+
+    path = _csv(tmp_path, "".join(f"{i * 0.1},{100 + i},{i * 0.2}\n" for i in range(500)))
+    for key, match in ((600_000, "the widest row has 3 fields"),
+                       ("1000000000", "the widest row has 3 fields"),
+                       ("²", "not found in the header"), ("-1", "counts from 0")):
+        with pytest.raises(InputError, match=match):
+            import_csv(path, fmt="generic", sensor="s1",
+                       columns={"time": 0, "resistance": 1, "strain": key})
+    peak = _peak_mib(lambda: import_csv(path, fmt="generic", sensor="s1",
+                                        columns={"time": 0, "resistance": 1, "strain": 2}))
+    assert peak < 8
+
+
+def test_csv_text_hazards_lose_no_row(tmp_path: Path) -> None:
+    """A UTF-8 byte-order mark on a headerless file, U+2028 inside a field, and epoch
+    nanoseconds: every row is kept or the refusal says why in one line."""
+    from strain_comp.errors import InputError
+    from strain_comp.io.csv_import import import_csv
+
+    rows = "".join(f"{i * 0.1:.1f},{100.0 + i}\n" for i in range(10))
+    bom = import_csv(_csv(tmp_path, "\ufeff" + rows), fmt="generic", sensor="s1",
+                     columns={"time": 0, "resistance": 1})
+    np.testing.assert_allclose(bom.recording.r, 100.0 + np.arange(10))
+    sep = import_csv(_csv(tmp_path, "time,resistance,note\n" + "".join(
+        f"{i * 0.1:.1f},{100.0 + i},a\u2028b\n" for i in range(10))), fmt="generic",
+        sensor="s1", columns={"time": "time", "resistance": "resistance"})
+    assert sep.report.rows == 10 and sep.report.kept == 10
+    epoch = "".join(f"{1_700_000_000_000_000_000 + i * 10**8},{100.0 + i}\n" for i in range(10))
+    with pytest.raises(InputError, match=r"epoch milli- or nanoseconds\? .*--scales time=1e-9"):
+        import_csv(_csv(tmp_path, epoch), fmt="generic", sensor="s1",
+                   columns={"time": 0, "resistance": 1})
+    scaled = import_csv(_csv(tmp_path, epoch), fmt="generic", sensor="s1",
+                        columns={"time": 0, "resistance": 1}, scales={"time": 1e-9})
+    assert scaled.report.kept == 10
+    wide = _csv(tmp_path, "0.0," + "9" * 200_000 + "\n0.1,100\n")
+    with pytest.raises(InputError, match="field larger than field limit"):
+        import_csv(wide, fmt="generic", sensor="s1", columns={"time": 0, "resistance": 1})

@@ -42,7 +42,14 @@ from mcap_ros2.decoder import DecoderFactory
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
-from strain_comp.io.bag.schemas import MAGIC, SCHEMAS, BagContents, Series, norm_type
+from strain_comp.io.bag.schemas import (
+    MAGIC,
+    MAX_TIME_S,
+    SCHEMAS,
+    BagContents,
+    Series,
+    norm_type,
+)
 from strain_comp.io.safe_yaml import LimitError, load_limited
 
 _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
@@ -551,9 +558,8 @@ def located(path: str | os.PathLike[str], problems: Iterable[str]) -> list[str]:
     return [p if p.startswith(prefix) else f"{prefix}: {p}" for p in problems]
 
 
-MAX_LOG_NS = (2**31 - 1) * 10**9
-"""The latest log time kept [ns]: 2038-01-19, the last second a ROS 2 header stamp
-(builtin_interfaces/Time, int32 seconds) can hold. A later (or negative) log time is a
+MAX_LOG_NS = MAX_TIME_S * 10**9
+"""The latest log time kept [ns] (``MAX_TIME_S``). A later (or negative) log time is a
 damaged record: its message is skipped and counted in ``problems``."""
 
 
