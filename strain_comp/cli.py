@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from strain_comp.errors import InputError, StrainCompError
-from strain_comp.io.atomic import check_output, write_text
+from strain_comp.io.atomic import check_distinct, check_output, write_text
 
 PROG = "strain-comp"
 
@@ -187,6 +187,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     _bag(args.bag)
     _existing(args.calibration, "calibration file")
     inputs = [args.bag, args.calibration]
+    check_distinct((args.json, args.plots))
     if args.json:
         _output(args.json, inputs)
     from strain_comp.core.calibration import load_calibration
@@ -245,6 +246,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         _bag(args.validate, "validation bag")
     _existing(args.calibration, "calibration file")
     inputs = [i for i in (args.bag, args.validate, args.calibration) if i is not None]
+    check_distinct((args.out, args.json, args.plots))
     for out in (args.out, args.json):
         if out is not None:
             _output(out, inputs)

@@ -490,11 +490,22 @@ class Elapsed(Regressor):
                    _positive(params, "scale", 100.0))
 
 
+TEMPERATURE_RANGE = (-273.15, 1000.0)
+"""Temperatures [deg C] a temperature term reads; one outside (below absolute zero, a
+finite 1e308, NaN, inf) is a bad reading, treated as missing."""
+
+
+def valid_temperature(temp: np.ndarray) -> np.ndarray:
+    """Mask of readings inside ``TEMPERATURE_RANGE``."""
+    return (temp >= TEMPERATURE_RANGE[0]) & (temp <= TEMPERATURE_RANGE[1])
+
+
 class Temperature(Regressor):
     """Temperature dependence: g = T - t_ref (``form: offset``, a TCR shifting R) or
     g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor).
 
-    A missing or NaN temperature holds the last valid one; before the first, g = 0.
+    A missing or bad temperature (outside ``TEMPERATURE_RANGE``) holds the last valid one;
+    before the first, g = 0.
     """
 
     kind = "temperature"
@@ -509,7 +520,7 @@ class Temperature(Regressor):
         self._last = math.nan
 
     def step(self, sample: Sample) -> float:
-        if math.isfinite(sample.temperature):
+        if TEMPERATURE_RANGE[0] <= sample.temperature <= TEMPERATURE_RANGE[1]:
             self._last = float(sample.temperature)
         if math.isnan(self._last):
             return 0.0
@@ -520,6 +531,7 @@ class Temperature(Regressor):
         temp = batch.temperature
         if temp is None:
             temp = np.full(batch.t.size, np.nan)
+        temp = np.where(valid_temperature(temp), temp, np.nan)
         held = _ffill(temp, self._last)
         if held.size:
             self._last = float(held[-1])

@@ -534,10 +534,13 @@ class Engine:
         nbrs = {n: given[n] if n in given else np.full(t.size, self._base_strain(n))
                 for n in sensor.effects.neighbours}
         sensor.base = float(base[-1])
-        return run_segments(
+        corrected = run_segments(
             lambda k: sensor.effects.run(t[k], r[k], base[k], direction[k], temperature[k],
                                          {n: v[k] for n, v in nbrs.items()}),
             sensor.effects.reset, t.size, starts)
+        # a correction that overflows (extreme inputs or coefficients) is not applied: the
+        # estimate never becomes NaN; +-inf is clamped to the valid range by the caller
+        return np.where(np.isnan(corrected), base, corrected)
 
     def _base_strain(self, name: str) -> float:
         """A sensor's latest clamped strain before its effect terms (NaN if unknown)."""

@@ -6,8 +6,10 @@ and the directory is fsynced, so a kill at any moment leaves the old file or the
 new one (and at most a hidden ``.NAME.*.tmp`` beside it). Concurrent writers to one path
 each rename a complete file: the last rename wins. Refused with ``OutputError`` before
 anything is written: a target that exists and is not a regular file (a directory, a device,
-a FIFO, a symbolic link), and a target that is one of ``inputs`` (the same file, through a
-hard or symbolic link too).
+a FIFO, a symbolic link), a target that is one of ``inputs`` (the same file, through a
+hard or symbolic link too), and two outputs of one command that are one path
+(``check_distinct``). A write that fails (a full disk, ``ulimit -f``) removes its temporary
+file and raises ``OutputError`` naming the target.
 """
 
 from __future__ import annotations
@@ -44,6 +46,21 @@ def check_output(path: PathLike, inputs: Iterable[PathLike] = ()) -> Path:
             raise OutputError(f"{target}: the output is inside the input bag directory {source}; "
                               "choose another path")
     return target
+
+
+def check_distinct(outputs: Iterable[PathLike | None]) -> None:
+    """``OutputError`` when two of one command's outputs (None: not asked for) are one path
+    or one existing file: the second write would replace the first."""
+    seen: list[Path] = []
+    for out in outputs:
+        if out is None:
+            continue
+        path = Path(out)
+        for other in seen:
+            if os.path.realpath(path) == os.path.realpath(other) or _same_file(path, other):
+                raise OutputError(f"{path}: given for two outputs ({other} too); each output "
+                                  "needs its own path")
+        seen.append(path)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -84,8 +101,11 @@ class AtomicFile:
         self.inputs = list(inputs)
         self.path = check_output(path, self.inputs)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
-                                   dir=self.path.parent)
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                       dir=self.path.parent)
+        except OSError as err:
+            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from None
         self.tmp = Path(tmp)
         self.handle: BinaryIO = os.fdopen(fd, "wb")
         self.done = False
@@ -103,6 +123,9 @@ class AtomicFile:
             os.replace(self.tmp, self.path)
             self.done = True
             fsync_directory(self.path.parent)
+        except OSError as err:
+            self.discard()
+            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from None
         except BaseException:
             self.discard()
             raise
@@ -112,8 +135,12 @@ class AtomicFile:
         if self.done:
             return
         self.done = True
-        self.handle.close()
-        self.tmp.unlink(missing_ok=True)
+        try:
+            self.handle.close()  # flushes: fails again when the write failed
+        except OSError:
+            pass
+        finally:
+            self.tmp.unlink(missing_ok=True)
 
 
 @contextmanager
@@ -122,6 +149,9 @@ def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterato
     output = AtomicFile(path, inputs=inputs)
     try:
         yield output.handle
+    except OSError as err:
+        output.discard()
+        raise OutputError(f"{output.path}: cannot write: {err.strerror or err}") from None
     except BaseException:
         output.discard()
         raise

@@ -26,7 +26,8 @@ The reference strain is taken from the good rows only when it shares the row's t
 its own time column (``strain_time``, as in ``cb_pdms``) every row with a finite position
 and time counts. Bad rows are counted by reason and dropped before they reach the
 recording: unparsable or missing fields, NaN/inf, resistance <= 0, and time not
-increasing past the last good row (repeated or backwards). Dropping (rather than keeping
+increasing past the last good row (repeated or backwards), time beyond the 2^31 s a bag
+holds (epoch milli- or nanoseconds need ``scales``). Dropping (rather than keeping
 and flagging) is deliberate: an imported recording is training/evaluation data; fault
 handling is exercised on bags.
 """
@@ -34,6 +35,7 @@ handling is exercised on bags.
 from __future__ import annotations
 
 import csv
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +44,7 @@ import numpy as np
 
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
+from strain_comp.io.bag.schemas import MAX_TIME_S
 from strain_comp.io.recording import Recording, align
 
 FORMATS = ("cb_pdms", "fiber", "generic")
@@ -52,6 +55,8 @@ _DEFAULT_COLUMNS: dict[str, dict[str, int | str]] = {
     "generic": {},
 }
 _WIDTH = {"cb_pdms": 7, "fiber": 4}
+_LINES = re.compile(r"\r\n|\r|\n")
+"""Line ends of a CSV (not the other Unicode line separators ``str.splitlines`` knows)."""
 
 
 @dataclass
@@ -101,19 +106,19 @@ def detect_delimiter(lines: Sequence[str]) -> str:
 
 
 def _read_rows(path: Path, delimiter: str | None) -> tuple[list[list[str]], str]:
-    try:
-        with path.open(newline="", encoding="utf-8", errors="replace") as f:
-            text = f.read().splitlines()
+    try:  # utf-8-sig: a byte-order mark is not part of the first field
+        with path.open(newline="", encoding="utf-8-sig", errors="replace") as f:
+            text = _LINES.split(f.read())
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from exc
-    if delimiter is None:
-        delimiter = detect_delimiter(text[:40])
     try:
+        if delimiter is None:
+            delimiter = detect_delimiter(text[:40])
         if delimiter == _WHITESPACE:
             rows = [line.split() for line in text]
         else:
             rows = list(csv.reader(text, delimiter=delimiter))
-    except csv.Error as exc:
+    except csv.Error as exc:  # e.g. a field over the csv module's limit of 128 KiB
         raise InputError(f"{path}: not a CSV file ({exc})") from exc
     rows = [row for row in rows if any(x.strip() for x in row)]
     if delimiter != ",":
@@ -129,21 +134,27 @@ def _to_float(text: str) -> float:
         return np.nan
 
 
-def _numeric(rows: list[list[str]], width: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, width) float array (NaN where unparsable) and a mask of short/unparsable rows."""
-    table = np.full((len(rows), width), np.nan)
+def _numeric(rows: list[list[str]], width: int, columns: list[int]
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(n, len(columns)) float array of those columns (NaN where unparsable) and a mask of
+    rows shorter than ``width``; memory O(rows x columns used), whatever the indices."""
+    table = np.full((len(rows), len(columns)), np.nan)
     short = np.zeros(len(rows), bool)
     for i, row in enumerate(rows):
         if len(row) < width:
             short[i] = True
-        for j, text in enumerate(row[:width]):
-            table[i, j] = _to_float(text)
+        for j, c in enumerate(columns):
+            if c < len(row):
+                table[i, j] = _to_float(row[c])
     return table, short
 
 
 def _column(name: str, key: int | str, header: list[str] | None, path: Path) -> int:
-    if isinstance(key, int) or (isinstance(key, str) and key.lstrip("-").isdigit()):
-        return int(key)
+    if isinstance(key, int) or (isinstance(key, str) and re.fullmatch(r"-?[0-9]+", key)):
+        index = int(key)
+        if index < 0:
+            raise InputError(f"{path}: column {name}={key!r}: an index counts from 0")
+        return index
     if header is None or key not in [h.strip() for h in header]:
         raise InputError(f"{path}: column {name}={key!r} not found in the header "
                          f"{header if header else '(no header)'}")
@@ -205,28 +216,43 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     if not rows:
         raise InputError(f"{path}: no data rows")
     cols = {k: _column(k, v, head, path) for k, v in mapping.items()}
+    widest = max(len(row) for row in rows)
+    for k, c in cols.items():
+        if c >= widest:
+            raise InputError(f"{path}: column {k}={c}: the widest row has {widest} fields "
+                             "(columns count from 0)")
     width = max(_WIDTH.get(fmt, 0), max(cols.values()) + 1)
-    table, short = _numeric(rows, width)
+    used = sorted(set(cols.values()))
+    table, short = _numeric(rows, width, used)
     report.rows = len(rows)
     factor = {k: 1.0 for k in cols} | dict(scales or {})
-    t = table[:, cols["time"]] * factor["time"]
-    r = table[:, cols["resistance"]] * factor["resistance"]
-    s_raw = table[:, cols["strain"]] * factor["strain"] if "strain" in cols else None
-    t_s = table[:, cols["strain_time"]] * factor["strain_time"] if "strain_time" in cols else t
+
+    def col(key: str) -> np.ndarray:
+        return table[:, used.index(cols[key])] * factor[key]
+
+    t = col("time")
+    r = col("resistance")
+    s_raw = col("strain") if "strain" in cols else None
+    t_s = col("strain_time") if "strain_time" in cols else t
 
     unparsable = short | ~np.isfinite(t) | np.isnan(r)
     not_finite = ~unparsable & ~np.isfinite(r)
     non_positive = ~unparsable & ~not_finite & (r <= 0)
     candidate = ~(unparsable | not_finite | non_positive)
+    beyond = candidate & ((t < 0) | (t > MAX_TIME_S))
+    candidate &= ~beyond
     running = np.maximum.accumulate(np.concatenate(([-np.inf], np.where(candidate, t, -np.inf))))
     backwards = candidate & (t <= running[:-1])
     good = candidate & ~backwards
     report.dropped = {"unparsable or missing field": int(unparsable.sum()),
                       "resistance not finite": int(not_finite.sum()),
                       "resistance <= 0 ohm": int(non_positive.sum()),
+                      f"time < 0 or beyond {MAX_TIME_S} s": int(beyond.sum()),
                       "time not increasing": int(backwards.sum())}
     if not good.any():
-        raise InputError(f"{path}: no good row (format {fmt})")
+        hint = (f"; times beyond {MAX_TIME_S} s: epoch milli- or nanoseconds? scale them "
+                "(--scales time=1e-9)" if beyond.any() else "")
+        raise InputError(f"{path}: no good row (format {fmt}){hint}")
 
     strain = None
     if s_raw is not None:

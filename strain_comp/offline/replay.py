@@ -48,6 +48,9 @@ from strain_comp.io.recording import array_sensor_names, hold_latest
 OUTPUTS = ("strain", "direction", "status")
 STAMPED = "strain_stamped"
 """The JointState output beside ``OUTPUTS`` (module docstring)."""
+RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
+                    "std_msgs/msg/Float64MultiArray")
+"""Message types a ``/NAME/resistance`` input is read from; other types are copied only."""
 
 
 @dataclass
@@ -74,6 +77,8 @@ def _input(topic: str, contents: BagContents, calibration: Calibration) -> _Inpu
     """The input a ``/NAME/resistance`` topic is, or None (copied through only)."""
     series = contents.series[topic]
     name = topic[1:].rsplit("/", 1)[0]
+    if contents.types.get(topic) not in RESISTANCE_TYPES:  # e.g. Temperature: never ohm
+        return None
     if series.values.ndim == 1 and name in calibration.sensors:
         return _Input(topic, name, [name], False)
     if series.values.ndim == 2:

@@ -36,15 +36,17 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
 import numpy as np
 
+from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import (
     USED,
     ArrayOutput,
     Engine,
+    SensorHealth,
     SensorOutput,
     Status,
     diagnostics,
@@ -63,16 +65,30 @@ TARE_WINDOW_S = 0.5
 """``~/tare``: the rest resistance is the median of the good samples of this last span [s]."""
 RING = 4096
 """Recent samples kept per input for the tare."""
+MAX_START_SAMPLES = 2**17
+"""Samples an input's pending automatic tare may log (``TARE_WINDOW`` = 5 s at 26 kHz); a
+clock that does not advance (a paused sim clock) would otherwise let it grow without end:
+past it the automatic tare is declined, the calibration's zero stays."""
 BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
               Status.TIME_NOT_INCREASING: "time not increasing",
               Status.OPEN_CIRCUIT: "open circuit", Status.SHORT_CIRCUIT: "short circuit"}
 ERROR, STALE, WARN, OK = 2, 3, 1, 0
+MAX_REFUSAL_KEYS = 32
+"""Distinct refusal reasons counted (``NAME: reason``), each a /diagnostics value; further
+reasons count under ``NAME: other reasons`` (a peer varying a message cannot grow them)."""
+MAX_REASON_CHARS = 160
+"""A refusal reason longer than this is cut in its counter's key."""
+_COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
-def array_values(data: Any, offset: int, sizes: list[int], k: int) -> np.ndarray:
-    """The k values of a Float64MultiArray: ``data[offset:offset + dim[0].size]``.
+def array_values(data: Any, offset: int, sizes: list[int], k: int, label: str = "",
+                 sensors: list[str] | None = None) -> np.ndarray:
+    """The k values of a Float64MultiArray: ``data[offset:offset + dim[0].size]``, in the
+    order of ``sensors`` when ``label`` (``dim[0].label``, comma-separated sensor names, as
+    the node publishes and ``replay`` reads) is given: values are matched by name.
 
-    InputError with the reason when the layout does not describe k values inside ``data``.
+    InputError with the reason when the layout does not describe k values inside ``data``
+    or the label names other sensors.
     """
     values = np.asarray(data, dtype=np.float64)
     size = sizes[0] if sizes else values.size - offset
@@ -83,7 +99,14 @@ def array_values(data: Any, offset: int, sizes: list[int], k: int) -> np.ndarray
                          f"{values.size} values")
     if size != k:
         raise InputError(f"expected {k} values, got {size}")
-    return values[offset:offset + k]
+    values = values[offset:offset + k]
+    names = [x.strip() for x in label.split(",")] if label.strip() else []
+    if names and sensors is not None and names != sensors:
+        if sorted(names) != sorted(sensors):
+            raise InputError(f"layout dim[0].label does not name the sensors "
+                             f"{','.join(sensors)}")
+        values = values[[names.index(s) for s in sensors]]
+    return values
 
 
 class ClockGate:
@@ -161,19 +184,23 @@ class _StartLog(_Samples):
 
     SIZE = 256
 
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray, *, keep_from: float) -> None:
+    def add(self, t: float, raw: np.ndarray, status: np.ndarray, *, keep_from: float) -> bool:
         """Log a sample; when full, first drop the samples before ``keep_from`` [s], then
-        double if still more than half full (amortised O(1) per sample)."""
+        double if still more than half full (amortised O(1) per sample). False (nothing
+        logged) when that would pass ``MAX_START_SAMPLES``."""
         if self.n == self.t.size:
             keep = np.flatnonzero(self.t[:self.n] >= keep_from)
             self.n = keep.size
             self.t[:self.n], self.raw[:self.n], self.good[:self.n] = (
                 self.t[keep], self.raw[keep], self.good[keep])
+            if self.n == self.t.size and self.n >= MAX_START_SAMPLES:
+                return False
             if 2 * self.n > self.t.size:
                 self.t = np.concatenate([self.t, np.full(self.t.size, -math.inf)])
                 self.raw = np.concatenate([self.raw, np.zeros(self.raw.shape)])
                 self.good = np.concatenate([self.good, np.zeros(self.good.shape, dtype=bool)])
         self._store(self.n, t, raw, status)
+        return True
 
 
 class LiveCompensator:
@@ -202,6 +229,8 @@ class LiveCompensator:
                        if self._auto else {})
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
+        self._counted_before: dict[str, SensorHealth] = {}
+        """Health counters of the calibrations this one replaced (``reload``)."""
         self.tare_log: list[str] = []
 
     # --- messages -------------------------------------------------------------------------
@@ -220,23 +249,39 @@ class LiveCompensator:
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
+        if not math.isfinite(out.strain):
+            raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
-                 sizes: list[int] | None = None) -> ArrayOutput | None:
-        """Feed one array message (its ``data``, ``layout.data_offset``, ``dim[*].size``)."""
-        values = array_values(data, offset, sizes or [], len(self._inputs[name]))
+                 sizes: list[int] | None = None, label: str = "") -> ArrayOutput | None:
+        """Feed one array message (its ``data``, ``layout.data_offset``, ``dim[*].size``,
+        ``dim[0].label``)."""
+        sensors = self._inputs[name]
+        values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
         self._seen(name, t, values, out.status, out.direction)
+        if not np.isfinite(out.strain).all():
+            raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 
     def refuse(self, name: str, reason: str) -> None:
-        """Count a message that could not be handled, by input and reason."""
-        self.refused[f"{name}: {reason}"] += 1
+        """Count a message that could not be handled, by input and reason (at most
+        ``MAX_REFUSAL_KEYS`` distinct keys)."""
+        key = f"{name}: {reason[:MAX_REASON_CHARS]}"
+        if key not in self.refused and len(self.refused) >= MAX_REFUSAL_KEYS:
+            key = f"{name}: other reasons"
+        self.refused[key] += 1
 
     def on_temperature(self, name: str, value: float) -> None:
-        """Remember a sensor's latest temperature [deg C] for its effect terms."""
-        self.temperature[name] = float(value)
+        """Remember a sensor's latest temperature [deg C] for its effect terms; a reading
+        outside ``TEMPERATURE_RANGE`` is refused and counted, the previous one stays."""
+        value = float(value)
+        if not TEMPERATURE_RANGE[0] <= value <= TEMPERATURE_RANGE[1]:
+            self.refuse(f"{name}/temperature", "temperature outside "
+                        f"[{TEMPERATURE_RANGE[0]:g}, {TEMPERATURE_RANGE[1]:g}] degC")
+            return
+        self.temperature[name] = value
 
     def _seen(self, name: str, t: float, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
@@ -246,9 +291,16 @@ class LiveCompensator:
         start = self._start.get(name)
         if start is not None:
             firsts = [self._auto[s] for s in self._inputs[name] if s in self._auto]
-            start.add(t, raw, status, keep_from=min((f for f in firsts if not math.isnan(f)),
-                                                    default=math.inf))
-            self._auto_tare(name, t, start, status, direction)
+            if start.add(t, raw, status, keep_from=min((f for f in firsts if not math.isnan(f)),
+                                                       default=math.inf)):
+                self._auto_tare(name, t, start, status, direction)
+            else:
+                for sensor in self._inputs[name]:
+                    if self._auto.pop(sensor, None) is not None:
+                        self.tare_log.append(
+                            f"{sensor}: auto tare declined: {MAX_START_SAMPLES} samples within "
+                            f"{TARE_WINDOW:g} s of clock time (is the clock paused?); the "
+                            "calibration's zero stays (call ~/tare at rest)")
             if not any(s in self._auto for s in self._inputs[name]):
                 del self._start[name]
 
@@ -352,7 +404,19 @@ class LiveCompensator:
         fresh = LiveCompensator(params)
         if [i.sensors for i in params.inputs] != [i.sensors for i in self.params.inputs]:
             raise StrainCompError("the reloaded calibration changes the sensors")
+        fresh.refused, fresh._refused_seen = self.refused, self._refused_seen
+        fresh._counted_before = self.health()  # the counters go on from here
+        fresh._last_message = dict(self._last_message)
         return fresh
+
+    def health(self, now: float | None = None) -> dict[str, SensorHealth]:
+        """The engine's health with the counters of replaced calibrations added."""
+        health = self.engine.health(now)
+        for sensor, before in self._counted_before.items():
+            for name in _COUNTS:
+                setattr(health[sensor], name,
+                        getattr(health[sensor], name) + getattr(before, name))
+        return health
 
     # --- diagnostics ----------------------------------------------------------------------
 
@@ -365,7 +429,7 @@ class LiveCompensator:
         The transport is WARN while messages were refused since the previous call.
         """
         out = []
-        health = self.engine.health(now)
+        health = self.health(now)
         last_message = {s: self._last_message.get(i.name) for i in self.params.inputs
                         for s in i.sensors}
         for name, level, message, values in diagnostics(health):

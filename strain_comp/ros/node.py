@@ -123,6 +123,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from rclpy.duration import Duration
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
+    from rclpy.time_source import USE_SIM_TIME_NAME as USE_SIM_TIME
     from sensor_msgs.msg import Temperature
     from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension
     from std_srvs.srv import Trigger
@@ -138,6 +139,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                          if k.split(".")[0] not in ROS_OWNED}
             self.base_dir = base_dir
             self.gate = ClockGate()
+            self._guard_clock()
             self._jump = self.get_clock().create_jump_callback(
                 JumpThreshold(min_forward=Duration(nanoseconds=1), min_backward=None,
                               on_clock_change=False), post_callback=self._on_tick)
@@ -179,6 +181,25 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.create_service(Trigger, "~/reload_calibration", self._reload)
             self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
                                    + f"; tare {params.tare}")
+
+        def _guard_clock(self) -> None:
+            """/clock through ``_on_clock`` (rclpy's own callback raises on a negative time,
+            which would end the node), also when sim time is on from the start."""
+            source = self._time_source
+            self._clock_callback = source.clock_callback
+            source.clock_callback = self._on_clock  # the subscription's callback from now on
+            if source._clock_sub is not None:
+                self.destroy_subscription(source._clock_sub)
+                source._clock_sub = None
+                source._subscribe_to_clock_topic()
+
+        def _on_clock(self, msg: Any) -> None:
+            """A /clock tick from any peer: a time rclpy cannot hold (negative) is refused
+            and counted under ``/clock``; the clock keeps its time."""
+            if msg.clock.sec < 0:
+                self._refuse("/clock", ValueError("negative time"))
+                return
+            self._clock_callback(msg)
 
         def _receiver(self, name: str, handler: Any, pubs: list[Any]) -> Callable[[Any], None]:
             def receive(msg: Any) -> None:
@@ -223,7 +244,9 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             try:
                 out = self.live.on_array(name, stamp * 1e-9, msg.data,
                                          offset=msg.layout.data_offset,
-                                         sizes=[d.size for d in msg.layout.dim])
+                                         sizes=[d.size for d in msg.layout.dim],
+                                         label=msg.layout.dim[0].label if msg.layout.dim
+                                         else "")
                 if out is not None:
                     for pub, values in zip(pubs, (out.strain, out.direction), strict=True):
                         reply = Float64MultiArray()
@@ -249,6 +272,11 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.diag_pub.publish(msg)
 
         def _on_set(self, params: list[Any]) -> Any:
+            for p in params:  # any peer may call set_parameters: the time source is fixed
+                if p.name == USE_SIM_TIME and p.value != self.get_parameter(USE_SIM_TIME).value:
+                    return SetParametersResult(successful=False, reason=(
+                        f"{USE_SIM_TIME} is fixed at start (params file or -p "
+                        f"{USE_SIM_TIME}:=...); restart the node to change it"))
             try:
                 for p in params:  # validate all first, then apply
                     if p.name in TUNABLE:

@@ -42,7 +42,14 @@ from mcap_ros2.decoder import DecoderFactory
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
-from strain_comp.io.bag.schemas import MAGIC, SCHEMAS, BagContents, Series, norm_type
+from strain_comp.io.bag.schemas import (
+    MAGIC,
+    MAX_TIME_S,
+    SCHEMAS,
+    BagContents,
+    Series,
+    norm_type,
+)
 from strain_comp.io.safe_yaml import LimitError, load_limited
 
 _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
@@ -105,6 +112,21 @@ def _scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return ops[:count], starts[:count], lens[:count], pos
 
 
+@njit
+def _compact(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Copy the spans buf[starts[i] : starts[i] + lens[i]] into one new buffer; their new
+    starts. The source (a whole decompressed chunk) can then be released."""
+    out = np.empty(lens.sum(), np.uint8)
+    new = np.empty(starts.shape[0], np.int64)
+    pos = 0
+    for i in range(starts.shape[0]):
+        new[i] = pos
+        out[pos:pos + lens[i]] = buf[starts[i]:starts[i] + lens[i]]
+        pos += lens[i]
+    return out, new
+
+
 def _gather(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     """Bytes buf[starts[i] : starts[i] + width] as an (n, width) uint8 array."""
     return buf[starts[:, None] + np.arange(width)]
@@ -125,6 +147,8 @@ class _Collector:
         self.msg_start: list[np.ndarray] = []
         self.msg_len: list[np.ndarray] = []
         self.problems: list[str] = []
+        self.held = 0
+        """Message bytes held undecoded in ``blocks``."""
         self.file_index = 0
         self.chunk_start = 0
         """Largest message start time [ns] of the chunks read so far (or log time of the
@@ -141,14 +165,28 @@ class _Collector:
             return
         s = starts[is_msg]
         head = _gather(buf, s, 22)
+        channel = head[:, 0:2].copy().view("<u2")[:, 0].astype(np.int32)
+        wanted = np.array([self._wanted(int(c)) for c in np.unique(channel)], bool)
+        keep = wanted[np.searchsorted(np.unique(channel), channel)]
+        if not keep.any():
+            return
+        # only the wanted payloads are kept: the decompressed chunk is released
+        payload, start = _compact(buf, s[keep] + 22, lens[is_msg][keep] - 22)
         block = len(self.blocks)
-        self.blocks.append(buf)
+        self.blocks.append(payload)
+        self.held += payload.size
         self.block_file.append(self.file_index)
-        self.msg_block.append(np.full(s.shape, block, np.int32))
-        self.msg_channel.append(head[:, 0:2].copy().view("<u2")[:, 0].astype(np.int32))
-        self.msg_time.append(head[:, 6:14].copy().view("<u8")[:, 0].astype(np.int64))
-        self.msg_start.append(s + 22)
-        self.msg_len.append(lens[is_msg] - 22)
+        self.msg_block.append(np.full(start.shape, block, np.int32))
+        self.msg_channel.append(channel[keep])
+        self.msg_time.append(head[keep, 6:14].copy().view("<u8")[:, 0].astype(np.int64))
+        self.msg_start.append(start)
+        self.msg_len.append(lens[is_msg][keep] - 22)
+
+    def _wanted(self, channel_id: int) -> bool:
+        """Are the messages of ``channel_id`` (of the current file) to be kept? All when no
+        topics were asked for, and those of a channel not yet seen (reported later)."""
+        channel = self.channels.get((self.file_index, channel_id))
+        return self.topics is None or channel is None or channel.topic in self.topics
 
     def add_small_record(self, opcode: int, content: bytes, where: str) -> None:
         try:
@@ -163,16 +201,38 @@ class _Collector:
             self.problems.append(f"{where}: unreadable {Opcode(opcode).name} record ({exc})")
 
 
+MAX_CHUNK_BYTES = 64 * 2**20
+"""Decompressed size budget of one chunk [bytes]: a chunk that claims more, or whose data
+expands beyond the size it claims, is skipped and named in ``problems`` (a writer's chunk
+is a few MiB; rosbag2's default is 4 MiB)."""
+MAX_HELD_BYTES = 256 * 2**20
+"""Message bytes held undecoded at once [bytes]. ``iter_bag`` cuts a piece when the held
+messages reach it (at the latest chunk's start, else all held: later messages may then
+come late, counted), so it holds at most this plus one chunk; ``read_bag`` (the whole bag in
+memory) refuses a bag holding more than ``MAX_BAG_BYTES``."""
+MAX_BAG_BYTES = 2**30
+"""Message bytes ``read_bag`` holds for one whole bag [bytes]; past it: BagError."""
+
+
 def _chunk_payload(chunk: Chunk) -> bytes:
-    if chunk.compression == "zstd":
-        return zstandard.ZstdDecompressor().decompress(
-            chunk.data, max_output_size=max(chunk.uncompressed_size, 1))
-    if chunk.compression == "lz4":
-        import lz4.frame
-        return lz4.frame.decompress(chunk.data)
+    """The chunk's records, decompressed within ``MAX_CHUNK_BYTES`` and its claimed size."""
     if chunk.compression == "":
         return chunk.data
-    raise BagError(f"unsupported chunk compression {chunk.compression!r}")
+    claimed = chunk.uncompressed_size
+    if claimed > MAX_CHUNK_BYTES:
+        raise BagError(f"claims {claimed} bytes decompressed, over the budget of "
+                       f"{MAX_CHUNK_BYTES} bytes per chunk")
+    if chunk.compression == "zstd":
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data))
+        data = reader.read(claimed + 1)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=claimed + 1)
+    else:
+        raise BagError(f"unsupported chunk compression {chunk.compression!r}")
+    if len(data) > claimed:
+        raise BagError(f"expands beyond the {claimed} bytes it claims")
+    return data
 
 
 def _add_chunk(col: _Collector, chunk: Chunk, where: str) -> None:
@@ -191,13 +251,22 @@ def _add_chunk(col: _Collector, chunk: Chunk, where: str) -> None:
     col.add_block(buf, ops, starts, lens, where)
 
 
-def _plausible_chunk(data: bytes | mmap.mmap, pos: int) -> bool:
-    """Does a valid Chunk record start at ``pos`` (structure, compression, CRC)?"""
+def _plausible_chunk(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> bool:
+    """Does a valid Chunk record start at ``pos`` (structure, compression, CRC)? The fixed
+    fields are checked in place first, so a candidate costs O(1) unless its lengths agree;
+    then its bytes are copied and checked and taken from ``budget[0]``."""
     if pos + 9 + 40 > len(data) or data[pos] != Opcode.CHUNK:
         return False
     (length,) = struct.unpack_from("<Q", data, pos + 1)
     if pos + 9 + length > len(data):
         return False
+    (n_compression,) = struct.unpack_from("<I", data, pos + 9 + 28)
+    if n_compression > 4 or 40 + n_compression > length:
+        return False
+    (n_records,) = struct.unpack_from("<Q", data, pos + 9 + 32 + n_compression)
+    if 40 + n_compression + n_records != length or length > 2 * MAX_CHUNK_BYTES:
+        return False
+    budget[0] -= length
     try:
         chunk = Chunk.read(ReadDataStream(io.BytesIO(data[pos + 9:pos + 9 + length])))
         if chunk.compression not in ("", "zstd", "lz4") or chunk.uncompressed_crc == 0:
@@ -207,12 +276,20 @@ def _plausible_chunk(data: bytes | mmap.mmap, pos: int) -> bool:
         return False
 
 
-def _resync(data: bytes | mmap.mmap, pos: int) -> int | None:
-    """Offset of the next valid chunk record after ``pos``, or None."""
-    arr = np.frombuffer(data, dtype=np.uint8)
-    for cand in np.flatnonzero(arr[pos:] == Opcode.CHUNK) + pos:
-        if _plausible_chunk(data, int(cand)):
-            return int(cand)
+RESYNC_BYTES = 4 * MAX_CHUNK_BYTES
+"""Bytes of candidate chunks one file's recovery may copy and check [bytes] (candidates
+whose fixed fields disagree cost nothing); past it the rest of the file is skipped."""
+
+
+def _resync(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> int | None:
+    """Offset of the next valid chunk record after ``pos``, or None; ``budget[0]``: the
+    candidate bytes still allowed (``RESYNC_BYTES`` per file), spent here."""
+    marker = bytes([Opcode.CHUNK])
+    cand = data.find(marker, pos)
+    while cand >= 0 and budget[0] > 0:
+        if _plausible_chunk(data, cand, budget):
+            return cand
+        cand = data.find(marker, cand + 1)
     return None
 
 
@@ -231,6 +308,7 @@ def _read_file(col: _Collector, data: bytes | mmap.mmap, name: str) -> Iterator[
         raise BagError(f"{name}: not an MCAP file (bad magic)")
     pos = len(MAGIC)
     loose_msgs: list[Message] = []
+    budget = [RESYNC_BYTES]
     while pos < len(data):
         problem = None
         if pos + 9 > len(data):
@@ -261,8 +339,11 @@ def _read_file(col: _Collector, data: bytes | mmap.mmap, name: str) -> Iterator[
             yield pos
             continue
         col.problems.append(f"{name}: {problem}; messages before it are kept")
-        nxt = _resync(data, pos + 1)
+        nxt = _resync(data, pos + 1, budget)
         if nxt is None:
+            if budget[0] <= 0:
+                col.problems.append(f"{name}: recovery budget ({RESYNC_BYTES} bytes of "
+                                    "candidate chunks) spent; the rest of the file is skipped")
             break
         col.problems.append(f"{name}: resumed at the next intact chunk, byte {nxt}")
         pos = nxt
@@ -377,7 +458,9 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
         except OSError as exc:
             raise BagError(f"{file}: cannot read ({exc.strerror})") from exc
         for _ in _read_file(col, data, str(file)):
-            pass
+            if col.held > MAX_BAG_BYTES:
+                raise BagError(f"{file}: more than {MAX_BAG_BYTES} bytes of messages to hold "
+                               "at once (the whole-bag reader's budget)")
     contents = _decode(col)
     contents.problems[:] = located(path, contents.problems)
     return contents
@@ -416,8 +499,10 @@ def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
                 if page > released:
                     data.madvise(mmap.MADV_DONTNEED, released, page - released)
                     released = page
-                if sum(m.size for m in col.msg_time) >= window:
+                if sum(m.size for m in col.msg_time) >= window or col.held >= MAX_HELD_BYTES:
                     piece, cut = _take(col, col.chunk_start, cut)
+                    if piece is None and col.held >= MAX_HELD_BYTES:  # no cut frees memory
+                        piece, cut = _take(col, None, cut)
                     if piece is not None:
                         piece.problems[:] = located(path, piece.problems)
                         yield piece
@@ -458,6 +543,7 @@ def _take(col: _Collector, upto: int | None, cut: int | None
     remap = np.full(len(col.blocks), -1, np.int32)
     remap[used] = np.arange(used.size, dtype=np.int32)
     col.blocks = [col.blocks[b] for b in used]
+    col.held = sum(b.size for b in col.blocks)
     col.block_file = [col.block_file[b] for b in used]
     col.msg_time, col.msg_block, col.msg_channel = [time[keep]], [remap[block[keep]]], \
         [channel[keep]]
@@ -472,9 +558,8 @@ def located(path: str | os.PathLike[str], problems: Iterable[str]) -> list[str]:
     return [p if p.startswith(prefix) else f"{prefix}: {p}" for p in problems]
 
 
-MAX_LOG_NS = (2**31 - 1) * 10**9
-"""The latest log time kept [ns]: 2038-01-19, the last second a ROS 2 header stamp
-(builtin_interfaces/Time, int32 seconds) can hold. A later (or negative) log time is a
+MAX_LOG_NS = MAX_TIME_S * 10**9
+"""The latest log time kept [ns] (``MAX_TIME_S``). A later (or negative) log time is a
 damaged record: its message is skipped and counted in ``problems``."""
 
 
@@ -495,12 +580,13 @@ def _decode(col: _Collector) -> BagContents:
                             "2^31 s (2038-01-19) skipped")
     # channel ids are per file: key messages by (file, channel id)
     key = np.array(col.block_file, dtype=np.int64)[block] * 65536 + np.concatenate(col.msg_channel)
-    per_topic: dict[str, tuple[Schema, list[np.ndarray]]] = {}
-    for k in np.unique(key):
-        f, cid = divmod(int(k), 65536)
-        idx = np.flatnonzero((key == k) & ~late)
-        if idx.size == 0:
-            continue
+    per_type: dict[tuple[str, str], tuple[Schema, list[np.ndarray]]] = {}
+    valid = np.flatnonzero(~late)
+    order = valid[np.argsort(key[valid], kind="stable")]  # grouped by channel in one sort
+    keys, first = np.unique(key[order], return_index=True)
+    groups = np.split(order, first[1:]) if keys.size else []
+    for k, idx in zip(keys.tolist(), groups, strict=True):
+        f, cid = divmod(k, 65536)
         channel = col.channels.get((f, cid))
         if channel is None:
             out.problems.append(f"{idx.size} messages on unknown channel id {cid} skipped")
@@ -512,14 +598,34 @@ def _decode(col: _Collector) -> BagContents:
             out.problems.append(f"{channel.topic}: no ros2msg schema / cdr encoding; "
                                 f"{idx.size} messages skipped")
             continue
-        out.types[channel.topic] = norm_type(schema.name)
-        per_topic.setdefault(channel.topic, (schema, []))[1].append(idx)
-    for topic, (schema, parts) in per_topic.items():
+        per_type.setdefault((channel.topic, norm_type(schema.name)), (schema, []))[1].append(idx)
+    for topic, kind, schema, parts in _one_type_per_topic(out, per_type):
+        out.types[topic] = kind
         idx = np.concatenate(parts)
         idx = idx[np.argsort(log_ns[idx], kind="stable")]
         _decode_topic(out, topic, schema, blob, start[idx], length[idx],
                       log_ns[idx].astype(np.float64) * 1e-9)
     return out
+
+
+def _one_type_per_topic(out: BagContents,
+                        per_type: dict[tuple[str, str], tuple[Schema, list[np.ndarray]]]
+                        ) -> list[tuple[str, str, Schema, list[np.ndarray]]]:
+    """(topic, type, schema, message indices) with one type per topic: a topic recorded on
+    channels of different types keeps the type with the most messages (the first seen on a
+    tie); the others are never read as it: they are skipped, counted in ``problems``."""
+    kept: dict[str, tuple[str, Schema, list[np.ndarray]]] = {}
+    for (topic, kind), (schema, parts) in per_type.items():
+        n = sum(p.size for p in parts)
+        other = kept.get(topic)
+        if other is None or n > sum(p.size for p in other[2]):
+            kept[topic] = (kind, schema, parts)
+    for (topic, kind), (_, parts) in per_type.items():
+        if kept[topic][0] != kind:
+            out.problems.append(f"{topic}: recorded with two message types; its "
+                                f"{sum(p.size for p in parts)} {kind} messages skipped "
+                                f"(the topic is read as {kept[topic][0]})")
+    return [(topic, kind, schema, parts) for topic, (kind, schema, parts) in kept.items()]
 
 
 def _decode_topic(out: BagContents, topic: str, schema: Schema, blob: np.ndarray,
@@ -609,21 +715,32 @@ def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
         dtype = "<f8" if ref[1] & 1 else ">f8"
         values[same] = raw.copy().view(dtype)[..., 0]
     keep = same.copy()
-    bad = 0
+    bad = relabelled = 0
+    names = out.labels.get(topic)
     for j in np.flatnonzero(~same):
         try:
-            data = np.asarray(decoder(blob[start[j]:start[j] + length[j]].tobytes()).data,
-                              np.float64)
+            msg = decoder(blob[start[j]:start[j] + length[j]].tobytes())
+            data = np.asarray(msg.data, np.float64)
+            label = str(msg.layout.dim[0].label) if msg.layout.dim else ""
         except _PAYLOAD_ERRORS:  # malformed payload: count it, keep going
             bad += 1
             continue
-        if data.shape == (k,):
-            values[j] = data
-            keep[j] = True
-        else:
+        if data.shape != (k,):
             bad += 1
+            continue
+        given = [x.strip() for x in label.split(",")] if label.strip() else []
+        if names and given and given != names:  # matched by label, as the node does
+            if sorted(given) != sorted(names):
+                relabelled += 1
+                continue
+            data = data[[given.index(s) for s in names]]
+        values[j] = data
+        keep[j] = True
     if bad:
         out.problems.append(f"{topic}: {bad} malformed or wrong-size arrays skipped")
+    if relabelled:
+        out.problems.append(f"{topic}: {relabelled} arrays whose dim[0].label names other "
+                            f"sensors than {','.join(names or [])} skipped")
     out.series[topic] = Series(t[keep], values[keep])
 
 

@@ -13,6 +13,9 @@ MAGIC = b"\x89MCAP0\r\n"
 PROFILE = "ros2"
 LIBRARY = "strain_comp.io.bag"
 CHUNK_SIZE = 1 << 20  # uncompressed bytes per chunk
+MAX_TIME_S = 2**31 - 1
+"""The latest message time a bag holds [s]: 2038-01-19, the last second a ROS 2 header
+stamp (builtin_interfaces/Time, int32 seconds) can hold."""
 
 _SEP = "=" * 80 + "\n"
 _TIME = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"

@@ -42,7 +42,15 @@ from strain_comp._numba import njit
 from strain_comp.errors import BagError
 from strain_comp.io.atomic import AtomicFile, check_output
 from strain_comp.io.bag import cdr
-from strain_comp.io.bag.schemas import CHUNK_SIZE, LIBRARY, MAGIC, PROFILE, SCHEMAS, Status
+from strain_comp.io.bag.schemas import (
+    CHUNK_SIZE,
+    LIBRARY,
+    MAGIC,
+    MAX_TIME_S,
+    PROFILE,
+    SCHEMAS,
+    Status,
+)
 
 OFFERED_QOS = ("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n"
         "  deadline:\n    sec: 9223372036\n    nsec: 854775807\n"
@@ -57,6 +65,9 @@ def _ns(t: npt.ArrayLike) -> np.ndarray:
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     if not np.isfinite(t).all() or (t < 0).any():
         raise BagError("message times must be finite and >= 0 s")
+    if (t > MAX_TIME_S).any():
+        raise BagError(f"message times beyond {MAX_TIME_S} s (2038-01-19) cannot be stored "
+                       f"(got {t.max():.6g} s; epoch milli- or nanoseconds?)")
     return np.round(t * 1e9).astype(np.int64)
 
 
@@ -297,7 +308,10 @@ class _Stream:
         self._write(MAGIC + _record(Header(profile=PROFILE, library=LIBRARY)))
 
     def _write(self, data: bytes) -> None:
-        self.file.write(data)
+        try:
+            self.file.write(data)
+        except OSError as exc:  # a full disk, ``ulimit -f``: the message names the file
+            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from None
         self.pos += len(data)
 
     def _declare(self, topics: Mapping[str, _Topic]) -> None:
