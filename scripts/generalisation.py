@@ -17,9 +17,12 @@ For every sensor in ``../shared/data/measured`` (carbon black ``cb``, conductive
 
    * ``plain``: ``evaluate`` as is (``--tare calibration``);
    * ``tare``: ``--tare auto``, the rest level read at the start of B;
-   * ``recal``: ``--tare auto`` and the output gain and offset of ``recalibrate``
-     fitted on B's first cycle only (the reference strain of the first load and unload,
-     what a user can measure at the start of a session; ``first_cycle``);
+   * ``recal``: ``--tare auto`` and the output gain and offset of ``recalibrate --from B
+     --first SECONDS``, B's first cycle only (the reference strain of the first load and
+     unload, what a user can measure at the start of a session; ``first_cycle``);
+   * ``span``: ``recalibrate --input --from B --first SECONDS``: the input zero and span
+     from the first rest and the largest strain of that cycle;
+   * ``span_recal``: ``span``, then ``recal``'s output map on the same cycle;
    * ``loop`` (with ``--loop``): ``recal`` on the calibration the residual loop
      (``strain-comp diagnose``) made from A, validated on a third run C.
 
@@ -56,9 +59,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured"
 DEFAULT_MODELS = ("cubic", "mpi", "apl")
-WORKFLOWS = ("plain", "tare", "recal")
+WORKFLOWS = ("plain", "tare", "recal", "span", "span_recal")
 HEADLINE = "recal"
 """The workflow the targets are judged on: what a user runs by default."""
+HEADLINE_FORM, HEADLINE_TARE = "output", "auto"
+"""The recalibration form and tare of the headline workflow (the loop's runs use them)."""
 TARGET_MEDIAN, TARGET_WORST = 1.3, 2.5
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
@@ -128,13 +133,6 @@ def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
         if back.size:
             return min(float(t[up[0] + back[0]] - t[0]), cap)
     return cap
-
-
-def head(rec: Any, seconds: float) -> Any:
-    """The recording's first ``seconds``."""
-    n = int(np.searchsorted(rec.t, rec.t[0] + seconds, side="right"))
-    return replace(rec, t=rec.t[:n], r=rec.r[:n], s=None if rec.s is None else rec.s[:n],
-                   temperature=None if rec.temperature is None else rec.temperature[:n])
 
 
 def code_hash() -> str:
@@ -221,33 +219,39 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration") -> float:
     return float(result.sensors[rec.name].stats.rmse)
 
 
-def recalibrated(rec: Any, cal: Any, seconds: float) -> Any:
-    """``cal`` after ``recalibrate --from`` on the first ``seconds`` of ``rec`` (tare auto):
-    an output gain and offset by least squares over that first cycle."""
-    from strain_comp.offline.evaluate import evaluate_recordings
-    from strain_comp.offline.recalibrate import apply_map, map_from_pairs
+def recalibrated(rec: Any, cal: Any, seconds: float, form: str = "output",
+                 tare: str = "auto") -> Any:
+    """``cal`` after ``recalibrate --from B --first SECONDS`` (``--input`` for the input
+    form; the output form with ``--tare auto``)."""
+    from strain_comp.offline.recalibrate import recalibrate_recordings
 
-    first = head(rec, seconds)
-    ev = evaluate_recordings({rec.name: first}, cal, tare="auto").sensors[rec.name]
-    a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
-    out = dict(cal.sensors)
-    out[rec.name] = apply_map(out[rec.name], a, b, {"first": seconds})
-    return type(cal)(out)
+    return recalibrate_recordings(cal, {rec.name: rec}, form=form, first=seconds,
+                                  tare=tare)[0]
 
 
 def workflows(rec: Any, cal: Any, loop_cal: Any | None = None) -> dict[str, float]:
-    """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``)."""
+    """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``).
+    A recalibration that cannot be made (InputError: no rest in the first cycle, a strain
+    the calibration never outputs) leaves the calibration as it was, as for a user."""
     from strain_comp.errors import StrainCompError
 
     out = {"plain": rmse(rec, cal), "tare": rmse(rec, cal, tare="auto")}
     seconds = first_cycle(rec.t, rec.s)
-    for name, base in (("recal", cal), ("loop", loop_cal)):
-        if base is None:
-            continue
+    steps = [("recal", cal, "output", "auto"), ("span", cal, "input", "calibration")]
+    if loop_cal is not None:
+        steps.append(("loop", loop_cal, HEADLINE_FORM, HEADLINE_TARE))
+    made: dict[str, Any] = {}
+    for name, base, form, tare in steps:
         try:
-            out[name] = rmse(rec, recalibrated(rec, base, seconds), tare="auto")
+            made[name] = recalibrated(rec, base, seconds, form)
         except StrainCompError:
-            out[name] = out["tare"] if name == "recal" else rmse(rec, base, tare="auto")
+            made[name] = base
+        out[name] = rmse(rec, made[name], tare=tare)
+    try:  # the input zero and span, then the output map on the same first cycle
+        both = recalibrated(rec, made["span"], seconds, "output", tare="calibration")
+    except StrainCompError:
+        both = made["span"]
+    out["span_recal"] = rmse(rec, both)
     return out
 
 

@@ -303,14 +303,23 @@ class _Sensor:
                    corrector=_corrector(cal))
 
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(resistance [ohm] x the tare gain, forced status) from the raw input values."""
+        """(resistance [ohm] x the tare gain, through the input zero and span, forced
+        status) from the raw input values."""
         forced = np.zeros(raw.shape, dtype=np.int8)
         if self.cal.input.kind != "divider":
-            return raw * self.gain if self.gain != 1.0 else raw, forced
+            return self.span(raw * self.gain if self.gain != 1.0 else raw), forced
         _, vin = self.cal.input.divider()
         forced[raw <= 0.0] = Status.OPEN_CIRCUIT
         forced[raw >= vin] = Status.SHORT_CIRCUIT
-        return self.cal.input.to_ohm(raw) * self.gain, forced
+        return self.span(self.cal.input.to_ohm(raw) * self.gain), forced
+
+    def span(self, ohm: Any) -> Any:
+        """``ohm`` through the calibration's input zero and span (``InputSettings.
+        zero_span``; unchanged without one)."""
+        if self.cal.input.zero_span is None:
+            return ohm
+        k, c = self.cal.input.span_map()
+        return k * ohm + c
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
@@ -473,11 +482,14 @@ class Engine:
     def tare(self, sensor: str, rest_resistance: float) -> float:
         """Make ``rest_resistance`` [ohm] (measured now, at rest) this sensor's zero.
 
-        Multiplicative: the models see R x (calibration's rest resistance / rest_resistance).
+        Multiplicative: the models see R x (calibration's rest resistance / rest_resistance);
+        with an input zero and span (``InputSettings.zero_span``) the gain is (its rest /
+        rest_resistance), so the rest now reads as the calibrated rest through the span.
         Returns the new gain; ``ParameterError`` if the calibration stores no rest resistance
         or the value is not finite and > 0 (the old gain then stays).
         """
-        reference = self._sensor(sensor).cal.rest_resistance
+        cal = self._sensor(sensor).cal
+        reference = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
                                  "the calibration stores none, so it cannot be tared")
@@ -561,7 +573,7 @@ class Engine:
             r_arr, f_arr = s.to_ohm(np.array([raw]))
             raw, forced = float(r_arr[0]), int(f_arr[0])
         else:
-            raw *= s.gain
+            raw = s.span(raw * s.gain)
         code, reset = screen_one(t, raw, forced, s.last_good_t, s.r_short, s.r_open,
                                   s.r_lo, s.r_hi, sc.gap_for(s.cal.sample_interval,
                                                              self.gap_reset))
@@ -832,6 +844,7 @@ class _ArrayGroup:
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
         if not all(type(s.model).array_kernel and not s.cal.input.filtered
+                   and s.cal.input.zero_span is None
                    and s.cal.sample_interval is None for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray
