@@ -67,6 +67,8 @@ HEADLINE_FORM, HEADLINE_TARE = "output", "auto"
 TARGET_MEDIAN, TARGET_WORST = 1.3, 2.5
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
+ENGINE = {"out_of_range": "clamp"}
+"""Engine options of every evaluation (``--out-of-range``)."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
 
 
@@ -215,7 +217,8 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration") -> float:
     """``strain-comp evaluate`` RMSE of ``cal`` on ``rec``."""
     from strain_comp.offline.evaluate import evaluate_recordings
 
-    result = evaluate_recordings({rec.name: rec}, cal, tare=tare)
+    result = evaluate_recordings({rec.name: rec}, cal, tare=tare,
+                                 out_of_range=ENGINE["out_of_range"])
     return float(result.sensors[rec.name].stats.rmse)
 
 
@@ -455,12 +458,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loop", action="store_true",
                         help="also the residual loop's calibration (diagnose on a third run)")
     parser.add_argument("--refit", action="store_true", help="ignore cached fits")
+    parser.add_argument("--out-of-range", choices=("clamp", "extrapolate"), default="clamp",
+                        help="evaluate's --out-of-range")
     parser.add_argument("--json", type=Path, help="write the results here "
                         "(default OUT/generalisation.json)")
     parser.add_argument("--figures", type=Path, metavar="DIR", help="write the two PNGs here")
     args = parser.parse_args(argv)
 
     start = time.perf_counter()
+    ENGINE["out_of_range"] = args.out_of_range
     available = sensors_of(args.data)
     names = args.sensors or list(available)
     unknown = [n for n in names if n not in available]
@@ -477,8 +483,9 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(targets(pairs)))
     print(f"\n{len(pairs)} pairs in {seconds:.0f} s ({bench.fit_seconds:.0f} s of fitting; "
           "2 cores, timings vary by machine)")
-    meta = {"models": args.models, "sensors": names, "quick": args.quick, "loop": args.loop,
-            "seconds": seconds, "fit_seconds": bench.fit_seconds}
+    meta = {"out_of_range": args.out_of_range, "models": args.models, "sensors": names,
+            "quick": args.quick, "loop": args.loop, "seconds": seconds,
+            "fit_seconds": bench.fit_seconds}
     path = args.json or args.out / "generalisation.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(to_json(pairs, run_workflows, meta), indent=1) + "\n",

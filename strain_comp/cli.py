@@ -202,7 +202,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     # streamed; an error when nothing can be scored names what the bag reader skipped
     result, problems = evaluate_bag(args.bag, calibration, tare=args.tare,
-                                    plot_points=PLOT_POINTS if args.plots else 0)
+                                    plot_points=PLOT_POINTS if args.plots else 0,
+                                    out_of_range=args.out_of_range)
     if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
         in_run_bound(result, load_recordings(args.bag)[0], calibration)
     print(format_table(result))
@@ -365,6 +366,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--json", metavar="OUT.json", help="also write the errors as JSON")
     p.add_argument("--plots", metavar="DIR", help="also write PNG plots per sensor")
+    p.add_argument("--out-of-range", choices=("clamp", "extrapolate"), default="clamp",
+                   help="strain beyond the calibrated resistance range: clamped to the "
+                   "calibrated strain range (default), or extended with the model's end "
+                   "slope (flagged either way)")
     p.add_argument("--in-run-bound", action="store_true",
                    help="also fit the same model on this run itself and give its RMSE "
                    "(JSON key in_run_rmse; costs a fit)")
