@@ -203,7 +203,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     # streamed; an error when nothing can be scored names what the bag reader skipped
     result, problems = evaluate_bag(args.bag, calibration, tare=args.tare,
-                                    plot_points=PLOT_POINTS if args.plots else 0)
+                                    plot_points=PLOT_POINTS if args.plots else 0,
+                                    out_of_range=args.out_of_range)
     if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
         in_run_bound(result, load_recordings(args.bag)[0], calibration)
     print(format_table(result))
@@ -275,8 +276,11 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     points = [parse_point(p) for p in args.point or []]
     bag = None if args.from_bag is None else _bag(args.from_bag)
     _output(args.out, [args.calibration, bag])
+    if args.first is not None and bag is None:
+        raise InputError("recalibrate --first needs --from BAG.mcap")
     new, lines = recalibrate(calibration, points=points, bag=bag, sensors=args.sensor,
-                             tare=args.tare)
+                             tare=args.tare, form="input" if args.input else "output",
+                             first=args.first)
     save_calibration(new, args.out,
                      inputs=[p for p in (args.calibration, bag) if p is not None])
     print("\n".join(lines))
@@ -364,6 +368,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--json", metavar="OUT.json", help="also write the errors as JSON")
     p.add_argument("--plots", metavar="DIR", help="also write PNG plots per sensor")
+    p.add_argument("--out-of-range", choices=("clamp", "extrapolate"), default="clamp",
+                   help="strain beyond the calibrated resistance range: clamped to the "
+                   "calibrated strain range (default), or extended with the model's end "
+                   "slope (flagged either way)")
     p.add_argument("--in-run-bound", action="store_true",
                    help="also fit the same model on this run itself and give its RMSE "
                    "(JSON key in_run_rmse; costs a fit)")
@@ -388,7 +396,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("recalibrate",
-                       help="output gain and offset through two known strains or a bag")
+                       help="output gain and offset (or input zero and span) through two "
+                            "known strains or a bag")
     p.add_argument("calibration", metavar="CAL.yaml")
     p.add_argument("--point", action="append", metavar="R:S",
                    help="a resistance [ohm] and its known strain [%%] (give two)")
@@ -396,6 +405,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a bag with a strain reference (least-squares gain and offset)")
     p.add_argument("--sensor", action="append", metavar="NAME",
                    help="sensor to recalibrate (needed with --point if several)")
+    p.add_argument("--input", action="store_true",
+                   help="zero and span on the input resistance, R' = R_rest,cal + "
+                        "k (R - R_rest), instead of the output gain and offset (with --from: "
+                        "from the first rest and the largest strain)")
+    p.add_argument("--first", type=float, metavar="SECONDS",
+                   help="with --from: use only the bag's first SECONDS (its first cycle)")
     p.add_argument("--out", required=True, metavar="CAL2.yaml")
     _tare_flag(p)
     p.set_defaults(func=cmd_recalibrate)

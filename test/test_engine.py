@@ -312,3 +312,26 @@ def test_tare_uses_the_calibrations_rest_resistance() -> None:
     assert engine.input_gain("s1") == pytest.approx(0.8)
     with pytest.raises(ParameterError, match="rest_resistance"):
         Engine(Calibration({"s1": cubic_cal()})).tare("s1", 250.0)
+
+
+def test_extrapolate_extends_the_end_slope_beyond_the_range_and_step_equals_run() -> None:
+    from strain_comp.core.engine import END_SPAN
+
+    cal = cubic_cal()
+    r_hi = R_HI + RANGE_MARGIN * (R_HI - R_LO)  # the flag's edge
+    width = END_SPAN * (r_hi - (R_LO - RANGE_MARGIN * (R_HI - R_LO)))
+    inside = engine_of(cal).run("s1", [0.0, 1.0], [r_hi - width, r_hi]).strain
+    slope = (inside[1] - inside[0]) / width
+    t = np.arange(5) * 0.1
+    r = np.array([150.0, r_hi + 10.0, r_hi + 40.0, 150.0, R_LO * 0.5])
+    clamped = engine_of(cal).run("s1", t, r)
+    extended = engine_of(cal, out_of_range="extrapolate").run("s1", t, r)
+    np.testing.assert_allclose(extended.strain[[0, 3]], clamped.strain[[0, 3]])
+    np.testing.assert_allclose(extended.strain[1:3], clamped.strain[1:3] + slope
+                               * np.array([10.0, 40.0]), rtol=1e-9)
+    assert extended.strain[4] < clamped.strain[4]
+    assert list(extended.out_of_range) == list(clamped.out_of_range) == [False, True, True,
+                                                                         False, True]
+    engine = engine_of(cal, out_of_range="extrapolate")
+    stepped = [engine.step("s1", ti, ri).strain for ti, ri in zip(t, r, strict=True)]
+    np.testing.assert_allclose(stepped, extended.strain, rtol=1e-12)

@@ -293,3 +293,51 @@ def test_recalibration_reading_gives_the_offset_in_the_calibration_unit(
     assert lines[0].split("offset ")[1].split(" (")[0].endswith(" mm"), lines
     _, lines = recalibrate(cubic, points=points)
     assert "% strain (through 2 points)" in lines[0], lines
+
+
+def moved(s: np.ndarray) -> np.ndarray:
+    """The gauge after its rest level rose 10 % and its sensitivity 40 %: an affine map of
+    the calibrated resistance, reaching far above the calibrated range."""
+    return 1100.0 + 1.4 * (gauge(s) - R0)
+
+
+def test_input_zero_and_span_through_two_points_reads_the_moved_sensor(
+        cubic: Calibration, tmp_path: Path) -> None:
+    points = [(1100.0, 0.0), (float(moved(np.array(15.0))), 15.0)]
+    new, lines = recalibrate(cubic, points=points, form="input")
+    cal = new.sensors["s1"]
+    assert cal.input.zero_span == pytest.approx((1100.0, R0, 1.0 / 1.4), rel=1e-3)
+    assert "span gain" in lines[0] and cal.effects == []
+    for s in (3.0, 10.0, 18.0):
+        assert steady_output(cal, float(moved(np.array(s)))) == pytest.approx(s, abs=0.05)
+    path = tmp_path / "span.yaml"
+    save_calibration(new, path)
+    assert load_calibration(path).sensors["s1"].input == cal.input
+    text = path.read_text().replace("gain: ", "gain: -")
+    path.write_text(text)
+    with pytest.raises(Exception, match=r"zero_span\.gain"):
+        load_calibration(path)
+
+
+def test_cli_recalibrate_input_from_the_first_cycle_then_tare(cubic: Calibration,
+                                                              tmp_path: Path) -> None:
+    from strain_comp.io.csv_import import write_recording_bag
+
+    rec = run()
+    cal, bag, cal2 = tmp_path / "cal.yaml", tmp_path / "moved.mcap", tmp_path / "cal2.yaml"
+    save_calibration(cubic, cal)
+    write_recording_bag(Recording("s1", rec.t, moved(rec.s), rec.s), str(bag))
+    assert cli(["recalibrate", str(cal), "--input", "--from", str(bag), "--first", "15",
+                "--out", str(cal2)]) == 0
+    spanned = load_calibration(cal2)
+    before = evaluate_recordings({"s1": Recording("s1", rec.t, moved(rec.s), rec.s)}, cubic)
+    after = evaluate_recordings({"s1": Recording("s1", rec.t, moved(rec.s), rec.s)}, spanned)
+    assert before.sensors["s1"].stats.rmse > 2.0
+    assert after.sensors["s1"].stats.rmse < 0.1
+    # the rest moves again later: the tare still zeroes it, through the span
+    again = Recording("s1", rec.t, 1.05 * moved(rec.s), rec.s)
+    tared = evaluate_recordings({"s1": again}, spanned, tare="auto")
+    assert tared.sensors["s1"].stats.rmse < 0.6
+    assert evaluate_recordings({"s1": again}, spanned).sensors["s1"].stats.rmse > 1.0
+    assert cli(["recalibrate", str(cal), "--input", "--point", "1100:0", "--first", "3",
+                "--out", str(tmp_path / "x.yaml")]) == 2

@@ -11,7 +11,9 @@ sensors:
     input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
                                              # optional: alternation: true, pair: mean|upper|
                                              # lower (with alternation), despike: k,
-                                             # baseline_step: k (robust sigmas; true = default)
+                                             # baseline_step: k (robust sigmas; true = default),
+                                             # zero_span: {rest: ohm, rest_calibrated: ohm,
+                                             # gain: k}: R' = rest_calibrated + k (R - rest)
     valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
     rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
     strain_unit: mm                          # optional, default "%": the unit of the
@@ -90,6 +92,18 @@ class InputSettings:
     pair: str = "mean"
     despike: float | None = None
     baseline_step: float | None = None
+    zero_span: tuple[float, float, float] | None = None
+    """Input zero and span (``recalibrate``'s input form): (rest [ohm], rest_calibrated
+    [ohm], gain k); the models read R' = rest_calibrated + k (R - rest), R the measured
+    resistance (after a tare's gain), so a sensor whose rest level and sensitivity moved
+    reads as the calibrated one. None: R' = R."""
+
+    def span_map(self) -> tuple[float, float]:
+        """(k, c) of R' = k R + c (``zero_span``; (1, 0) without it)."""
+        if self.zero_span is None:
+            return 1.0, 0.0
+        rest, rest_cal, k = self.zero_span
+        return k, rest_cal - k * rest
 
     @property
     def filtered(self) -> bool:
@@ -104,6 +118,9 @@ class InputSettings:
             extra["despike"] = self.despike
         if self.baseline_step is not None:
             extra["baseline_step"] = self.baseline_step
+        if self.zero_span is not None:
+            rest, rest_cal, k = self.zero_span
+            extra["zero_span"] = {"rest": rest, "rest_calibrated": rest_cal, "gain": k}
         if self.kind == "divider":
             return {"kind": "divider", "r1": self.r1, "vin": self.vin, **extra}
         return {"kind": "resistance", **extra}
@@ -383,6 +400,17 @@ class _Reader:
             return default
         return self.number(node, key, where, lo=0.0, hi=1000.0, strict=True)
 
+    def zero_span(self, node: Any, where: str) -> tuple[float, float, float] | None:
+        """``input.zero_span``: absent or null, else rest and rest_calibrated in (0,
+        PARAM_MAX] ohm and a gain in (0, 1000]."""
+        if node is None:
+            return None
+        node = self.mapping(node, where)
+        rest = self.number(node, "rest", where, lo=0.0, hi=PARAM_MAX, strict=True)
+        rest_cal = self.number(node, "rest_calibrated", where, lo=0.0, hi=PARAM_MAX,
+                               strict=True)
+        return rest, rest_cal, self.number(node, "gain", where, lo=0.0, hi=1000.0, strict=True)
+
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)
         kind = node.get("kind", "resistance")
@@ -398,14 +426,15 @@ class _Reader:
                                              "the models see the samples themselves)")
         despike = self.sigmas(node, "despike", where, DESPIKE_K)
         step = self.sigmas(node, "baseline_step", where, STEP_K)
+        span = self.zero_span(node.get("zero_span"), f"{where}.zero_span")
         if kind == "resistance":
             return InputSettings(alternation=alternation, pair=pair, despike=despike,
-                                 baseline_step=step)
+                                 baseline_step=step, zero_span=span)
         if kind == "divider":
             return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
                                  vin=self.number(node, "vin", where, lo=0.0, strict=True),
                                  alternation=alternation, pair=pair, despike=despike,
-                                 baseline_step=step)
+                                 baseline_step=step, zero_span=span)
         raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
 
 

@@ -80,6 +80,13 @@ SHORT_FACTOR = 0.01
 """0 < R below this fraction of the bottom of the valid resistance range is a short."""
 RANGE_MARGIN = 0.05
 """Fraction of the valid range's span added on each side before flagging / clamping."""
+OUT_OF_RANGE_MODES = ("clamp", "extrapolate")
+"""Strain of a sample beyond the valid resistance range: clamped to the valid strain range
+(plus the margin), or that plus the model's end slope times the resistance beyond it."""
+END_SPAN = 0.05
+"""Share of the valid resistance range at each end over which the end slope is taken."""
+SETTLE = 200
+"""Samples at a constant resistance (at 10 Hz) before a model's output counts as steady."""
 GAP_RESET = sc.DEFAULT_GAP_RESET
 """Default ``gap_reset`` [s]: a longer jump between good samples resets the state."""
 
@@ -265,6 +272,34 @@ class _Sensor:
     """Latest used resistance [ohm] (for pair means when the input alternates)."""
     corrector: ChainCorrector | None = None
     """Spike and baseline-step correction when the calibration's input asks for it."""
+    slopes: tuple[float, float] | None = None
+    """(dS/dR at r_lo, at r_hi) of the model's steady output when the engine extrapolates
+    out of range (``OUT_OF_RANGE_MODES``), else None (clamped)."""
+
+    def beyond(self, ohm: np.ndarray, strain: np.ndarray) -> np.ndarray:
+        """``strain`` clamped to the strain range, plus, with ``slopes``, the end slope
+        times the resistance beyond the valid range (continuous at its ends)."""
+        out = np.clip(strain, self.s_lo, self.s_hi)
+        if self.slopes is None:
+            return out
+        lo, hi = self.slopes
+        return out + np.where(ohm > self.r_hi, hi * (ohm - self.r_hi), 0.0) \
+            + np.where(ohm < self.r_lo, lo * (ohm - self.r_lo), 0.0)
+
+    def end_slopes(self) -> tuple[float, float]:
+        """dS/dR of the model's steady output (``SETTLE`` samples at 10 Hz at a constant
+        resistance) over the last ``END_SPAN`` of the valid range at each end."""
+        width = END_SPAN * (self.r_hi - self.r_lo)
+        model = self.cal.build_model()
+
+        def steady(r: float) -> float:
+            model.reset()
+            t = 0.1 * np.arange(SETTLE)
+            return float(model.run(t, np.full(t.size, r))[-1])
+
+        lo = (steady(self.r_lo + width) - steady(self.r_lo)) / width
+        hi = (steady(self.r_hi) - steady(self.r_hi - width)) / width
+        return (lo if math.isfinite(lo) else 0.0), (hi if math.isfinite(hi) else 0.0)
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -290,27 +325,40 @@ class _Sensor:
         return ohm, events
 
     @classmethod
-    def build(cls, cal: SensorCalibration, deadzone_scale: float) -> _Sensor:
+    def build(cls, cal: SensorCalibration, deadzone_scale: float,
+              out_of_range: str = "clamp") -> _Sensor:
         vr = cal.valid_range
         r_margin = RANGE_MARGIN * (vr.r_hi - vr.r_lo)
         s_margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
-        return cls(cal=cal, model=cal.build_model(),
-                   detector=DirectionDetector(_scaled(cal.direction, deadzone_scale)),
-                   r_short=SHORT_FACTOR * vr.r_lo, r_open=OPEN_FACTOR * vr.r_hi,
-                   r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
-                   s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin,
-                   effects=EffectTerms.from_dicts(cal.effects),
-                   corrector=_corrector(cal))
+        sensor = cls(cal=cal, model=cal.build_model(),
+                     detector=DirectionDetector(_scaled(cal.direction, deadzone_scale)),
+                     r_short=SHORT_FACTOR * vr.r_lo, r_open=OPEN_FACTOR * vr.r_hi,
+                     r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
+                     s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin,
+                     effects=EffectTerms.from_dicts(cal.effects),
+                     corrector=_corrector(cal))
+        if out_of_range == "extrapolate":
+            sensor.slopes = sensor.end_slopes()
+        return sensor
 
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(resistance [ohm] x the tare gain, forced status) from the raw input values."""
+        """(resistance [ohm] x the tare gain, through the input zero and span, forced
+        status) from the raw input values."""
         forced = np.zeros(raw.shape, dtype=np.int8)
         if self.cal.input.kind != "divider":
-            return raw * self.gain if self.gain != 1.0 else raw, forced
+            return self.span(raw * self.gain if self.gain != 1.0 else raw), forced
         _, vin = self.cal.input.divider()
         forced[raw <= 0.0] = Status.OPEN_CIRCUIT
         forced[raw >= vin] = Status.SHORT_CIRCUIT
-        return self.cal.input.to_ohm(raw) * self.gain, forced
+        return self.span(self.cal.input.to_ohm(raw) * self.gain), forced
+
+    def span(self, ohm: Any) -> Any:
+        """``ohm`` through the calibration's input zero and span (``InputSettings.
+        zero_span``; unchanged without one)."""
+        if self.cal.input.zero_span is None:
+            return ohm
+        k, c = self.cal.input.span_map()
+        return k * ohm + c
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
@@ -423,7 +471,12 @@ class Engine:
 
     def __init__(self, calibration: Calibration, *,
                  arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
-                 stale_after: float = 1.0, deadzone_scale: float = 1.0) -> None:
+                 stale_after: float = 1.0, deadzone_scale: float = 1.0,
+                 out_of_range: str = "clamp") -> None:
+        if out_of_range not in OUT_OF_RANGE_MODES:
+            raise ParameterError("out_of_range", f"must be one of "
+                                 f"{', '.join(OUT_OF_RANGE_MODES)}, got {out_of_range!r}")
+        self.out_of_range = out_of_range
         if not gap_reset > 0:
             raise ParameterError("gap_reset", f"must be > 0 s, got {gap_reset}")
         if not deadzone_scale > 0:
@@ -432,7 +485,7 @@ class Engine:
         self.gap_reset = float(gap_reset)
         self.stale_after = float(stale_after)
         self.deadzone_scale = float(deadzone_scale)
-        self._sensors = {name: _Sensor.build(cal, self.deadzone_scale)
+        self._sensors = {name: _Sensor.build(cal, self.deadzone_scale, out_of_range)
                          for name, cal in calibration.sensors.items()}
         self._arrays: dict[str, _ArrayGroup] = {}
         for array, names in (arrays or {}).items():
@@ -461,7 +514,8 @@ class Engine:
 
     def reset(self) -> None:
         """Fresh model and detector state, zeroed counters, no held output (tare gains kept)."""
-        self._sensors = {name: replace(_Sensor.build(s.cal, self.deadzone_scale), gain=s.gain)
+        self._sensors = {name: replace(_Sensor.build(s.cal, self.deadzone_scale,
+                                                     self.out_of_range), gain=s.gain)
                          for name, s in self._sensors.items()}
         for group in self._arrays.values():
             group.rebuild()
@@ -473,11 +527,14 @@ class Engine:
     def tare(self, sensor: str, rest_resistance: float) -> float:
         """Make ``rest_resistance`` [ohm] (measured now, at rest) this sensor's zero.
 
-        Multiplicative: the models see R x (calibration's rest resistance / rest_resistance).
+        Multiplicative: the models see R x (calibration's rest resistance / rest_resistance);
+        with an input zero and span (``InputSettings.zero_span``) the gain is (its rest /
+        rest_resistance), so the rest now reads as the calibrated rest through the span.
         Returns the new gain; ``ParameterError`` if the calibration stores no rest resistance
         or the value is not finite and > 0 (the old gain then stays).
         """
-        reference = self._sensor(sensor).cal.rest_resistance
+        cal = self._sensor(sensor).cal
+        reference = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
                                  "the calibration stores none, so it cannot be tared")
@@ -564,7 +621,7 @@ class Engine:
             r_arr, f_arr = s.to_ohm(np.array([raw]))
             raw, forced = float(r_arr[0]), int(f_arr[0])
         else:
-            raw *= s.gain
+            raw = s.span(raw * s.gain)
         code, reset = screen_one(t, raw, forced, s.last_good_t, s.r_short, s.r_open,
                                   s.r_lo, s.r_hi, sc.gap_for(s.cal.sample_interval,
                                                              self.gap_reset))
@@ -596,7 +653,8 @@ class Engine:
             strain = float(self._apply_effects(s, np.array([t]), np.array([raw]),
                                                np.array([strain]), np.array([direction]),
                                                np.array([temperature]), nbrs)[0])
-        strain = min(max(strain, s.s_lo), s.s_hi)
+        strain = float(s.beyond(np.array([raw]), np.array([strain]))[0]) \
+            if s.slopes is not None else min(max(strain, s.s_lo), s.s_hi)
         h = s.health
         s.last_good_t = t
         s.strain, s.direction = strain, direction
@@ -696,8 +754,12 @@ class Engine:
             strain_used = self._apply_effects(s, t[idx], p.ohm[idx], strain_used, dir_used,
                                               temp, nbrs, starts)
         # clamped; held outputs: each sample shows the latest used sample at or before it
+        s_lo, s_hi = s.s_lo, s.s_hi
+        if s.slopes is not None and idx.size:
+            strain_used = s.beyond(p.ohm[idx], strain_used)
+            s_lo, s_hi = -math.inf, math.inf
         strain, direction, out_of_range, counts = _hold(
-            status, reset, idx, strain_used, dir_used, s.strain, s.direction, s.s_lo, s.s_hi)
+            status, reset, idx, strain_used, dir_used, s.strain, s.direction, s_lo, s_hi)
         h = s.health
         _add_counts(h, counts)
         h.n_gaps += int(counts[-1])
@@ -835,6 +897,7 @@ class _ArrayGroup:
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
         if not all(type(s.model).array_kernel and not s.cal.input.filtered
+                   and s.cal.input.zero_span is None and s.slopes is None
                    and s.cal.sample_interval is None for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray

@@ -267,5 +267,6 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
             lines[name] = f"not tared: {err}"
             continue
         engine.tare(name, rest)
-        lines[name] = "tare: " + tare_reading(cal.rest_resistance, rest)
+        zero = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
+        lines[name] = "tare: " + tare_reading(zero, rest)
     return lines

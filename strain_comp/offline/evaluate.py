@@ -111,17 +111,18 @@ def _json_number(value: float | int) -> float | int | None:
 
 
 def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
-                        tare: str = "calibration") -> EvaluationResult:
+                        tare: str = "calibration", out_of_range: str = "clamp",
+                        ) -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
     ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
-    tare read goes to the notes). Raises InputError when no calibrated sensor can be scored
-    (names both sides).
+    tare read goes to the notes). ``out_of_range``: the engine's ``OUT_OF_RANGE_MODES``.
+    Raises InputError when no calibrated sensor can be scored (names both sides).
     """
     from strain_comp.core.engine import Engine, Status, used_mask
     from strain_comp.core.tare import tare_engine
 
-    engine = Engine(calibration)
+    engine = Engine(calibration, out_of_range=out_of_range)
     tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
     outputs = _array_outputs(engine, recordings, calibration)
     sensors: dict[str, SensorEvaluation] = {}
@@ -545,7 +546,8 @@ class _Stream:
 
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
-                 plot_points: int = 0) -> tuple[EvaluationResult, list[str]]:
+                 plot_points: int = 0, out_of_range: str = "clamp",
+                 ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
     is read. Returns the result and the bag's problem lines (reader first, then the
@@ -558,7 +560,8 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
     """
     from strain_comp.core.engine import Engine
 
-    stream = _Stream(calibration, Engine(calibration), tare, plot_points)
+    stream = _Stream(calibration, Engine(calibration, out_of_range=out_of_range), tare,
+                     plot_points)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
     stream.finish()

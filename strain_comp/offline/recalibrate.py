@@ -18,19 +18,43 @@ S_corrected = S_hat - sum c_j g_j, the new output a S_corrected + b is S_hat min
 by a. A second recalibration composes with the first (the coefficients add).
 Limits: ``strain_level`` reads the engine's estimate clamped to the valid strain range, so
 the map is exact inside that range.
+
+The input form (``form="input"``, ``recalibrate --input``) corrects the resistance instead,
+as one zeroes and spans a gauge: R' = R_rest,cal + k (R - R_rest,run), stored as the
+calibration's ``input.zero_span`` (``strain_comp.core.calibration.InputSettings``) and
+applied by the engine before the model, so the model's memory, its range flag and the
+effect terms that read resistance all see corrected resistance. Through two points
+(R_i, S_i): R'_i is the calibrated resistance whose steady output is S_i
+(``calibrated_resistance``, the steady output inverted on a grid over the valid range),
+k = (R'_2 - R'_1) / (R_2 - R_1), R_rest,run = R_1. From a bag's first ``first`` seconds
+(the first load and unload of a session): point 1 is the first rest (reference strain
+within ``REST_BAND`` of its minimum, ``rest_resistance_from_reference``), point 2 the
+samples within ``REST_BAND`` of the reference's maximum (medians of R and S). The measured
+points may lie outside the calibrated resistance range: a sensor that became more
+sensitive is what the input form is for. A new input form replaces an older one (both map
+measured resistance); the output gain and offset are kept.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.errors import InputError
 
+if TYPE_CHECKING:
+    from strain_comp.io.recording import Recording
+
+FORMS = ("output", "input")
+"""Where the two-point map acts: on the engine's output strain or on its input resistance."""
+EXTEND = 0.1
+"""A strain this share of the output span beyond the steady outputs is still inverted."""
+GRID_POINTS = 201
+"""Resistances of the steady-output grid that ``calibrated_resistance`` inverts."""
 SETTLE_SAMPLES = 200
 """Samples at a constant resistance (at 10 Hz) before the output is read."""
 GAIN_NAME = "recalibration_gain"
@@ -79,6 +103,103 @@ def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]
     return a, s1 - a * o1
 
 
+def steady_curve(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
+    """(resistances [ohm], steady outputs) on ``GRID_POINTS`` resistances over the valid
+    range, from the rest end (the low end for a sensor whose R rises with strain)."""
+    grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, GRID_POINTS)
+    if cal.direction.sign < 0:
+        grid = grid[::-1]
+    return grid, np.array([steady_output(cal, float(r)) for r in grid])
+
+
+def calibrated_resistance(cal: SensorCalibration, strain: float,
+                          curve: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """The resistance [ohm] whose steady output through ``cal`` is ``strain``: the first
+    crossing from the rest end of ``steady_curve``, interpolated linearly; a strain just
+    beyond what the range outputs (within ``EXTEND`` of the output span: the fit's own
+    error at the range's ends) extends the end segment. InputError when no resistance
+    gives that strain."""
+    grid, steady = curve if curve is not None else steady_curve(cal)
+    out = steady - strain
+    cross = np.flatnonzero(np.sign(out[:-1]) * np.sign(out[1:]) <= 0)
+    if cross.size:
+        j = int(cross[0])
+    else:
+        j = 0 if abs(out[0]) < abs(out[-1]) else GRID_POINTS - 2
+        if not abs(out[j + (j > 0)]) <= EXTEND * np.ptp(out):
+            raise InputError(f"the calibration outputs no strain of {strain:g} "
+                             f"{strain_unit_words(cal.strain_unit)} in its resistance range "
+                             f"(it gives {steady.min():.4g} to {steady.max():.4g})")
+    if out[j] == out[j + 1]:
+        return float(grid[j])
+    w = out[j] / (out[j] - out[j + 1])
+    return float(grid[j] + w * (grid[j + 1] - grid[j]))
+
+
+def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
+                     curve: tuple[np.ndarray, np.ndarray] | None = None,
+                     ) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) through two measured (R, S)
+    points, the first at rest (or the smaller strain)."""
+    if len(points) != 2:
+        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
+    (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
+    if not abs(r2 - r1) > 1e-12 * max(abs(r1), abs(r2)):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: one resistance at two "
+                         "strains gives no span")
+    curve = curve if curve is not None else steady_curve(cal)
+    c1, c2 = calibrated_resistance(cal, s1, curve), calibrated_resistance(cal, s2, curve)
+    k = (c2 - c1) / (r2 - r1)
+    if not (np.isfinite(k) and k > 0):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
+                         "against the calibration's direction (span gain "
+                         f"{k:.4g} must be > 0)")
+    return r1, c1, float(k)
+
+
+def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
+                            top: float = np.inf) -> list[tuple[float, float]]:
+    """(R, S) at the first rest and at a known stretch of a run's first cycle (``t``,
+    measured ``r`` [ohm], reference ``s``): the stretch is the largest strain of the cycle,
+    or ``top`` (the largest the calibration outputs) when lower; medians of the samples
+    within ``REST_BAND`` of the span of each. InputError when it does not rest or move."""
+    from strain_comp.core.tare import REST_BAND, rest_resistance_from_reference
+
+    ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
+    t, r, s = t[ok], r[ok], s[ok]
+    rest = rest_resistance_from_reference(t, r, s)
+    if rest is None:
+        raise InputError("recalibrate --first: the first cycle has no rest at its lowest "
+                         "strain or its reference strain never moves")
+    span = float(np.ptp(s))
+    low = s <= s.min() + REST_BAND * span
+    high = np.abs(s - min(float(s.max()), top)) <= REST_BAND * span
+    if not high.any():
+        raise InputError("recalibrate --first: no sample of the first cycle at a strain the "
+                         "calibration outputs")
+    return [(rest, float(np.median(s[low]))),
+            (float(np.median(r[high])), float(np.median(s[high])))]
+
+
+def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
+               record: Mapping[str, Any]) -> SensorCalibration:
+    """``cal`` reading its input through ``span`` (replacing an older one)."""
+    history = [*cal.provenance.get("recalibrations", []),
+               dict(record, rest=span[0], rest_calibrated=span[1], span_gain=span[2])]
+    return replace(cal, input=replace(cal.input, zero_span=span),
+                   provenance={**cal.provenance, "recalibrations": history})
+
+
+def span_reading(span: tuple[float, float, float]) -> str:
+    """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81
+    (sensitivity +23.5 %)``."""
+    from strain_comp.core.tare import ohms
+
+    rest, rest_cal, k = span
+    return (f"input zero {ohms((rest, rest_cal)).replace(' vs ', ' -> ')}, span gain "
+            f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")
+
+
 def map_from_pairs(estimate: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     """(a, b) of reference ~ a estimate + b by least squares over the finite pairs."""
     ok = np.isfinite(estimate) & np.isfinite(reference)
@@ -108,30 +229,87 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
                    provenance={**cal.provenance, "recalibrations": history})
 
 
+def head(recordings: Mapping[str, Recording], seconds: float | None,
+         ) -> dict[str, Recording]:
+    """Each recording's first ``seconds`` (all of it when None)."""
+    if seconds is None:
+        return dict(recordings)
+    if not (np.isfinite(seconds) and seconds > 0):
+        raise InputError(f"--first {seconds!r}: expected a duration > 0 s")
+    out = {}
+    for name, rec in recordings.items():
+        n = int(np.searchsorted(rec.t, rec.t[0] + seconds, side="right")) if rec.t.size else 0
+        out[name] = replace(rec, t=rec.t[:n], r=rec.r[:n],
+                            s=None if rec.s is None else rec.s[:n],
+                            temperature=None if rec.temperature is None
+                            else rec.temperature[:n])
+    return out
+
+
+def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Recording], *,
+                           form: str = "output", first: float | None = None,
+                           sensors: Sequence[str] | None = None, tare: str = "calibration",
+                           source: str = "") -> tuple[Calibration, list[str]]:
+    """``recalibrate`` from recordings with a reference strain (their first ``first``
+    seconds): the output map by least squares, or the input zero and span from the
+    first rest and the largest strain (``points_from_first_cycle``)."""
+    from strain_comp.offline.evaluate import evaluate_recordings
+
+    if form not in FORMS:
+        raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
+    recs = head(recordings, first)
+    out = dict(calibration.sensors)
+    lines = []
+    where = f"{source}{'' if first is None else f', first {first:g} s'}"
+    if form == "input":
+        for name, rec in recs.items():
+            if name not in calibration.sensors or rec.s is None or (sensors and
+                                                                     name not in sensors):
+                continue
+            cal = calibration.sensors[name]
+            curve = steady_curve(cal)
+            points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                             top=float(curve[1].max()))
+            span = span_from_points(cal, points, curve)
+            out[name] = apply_span(cal, span, {"from": source, "first": first})
+            lines.append(f"{name}: {span_reading(span)} (from {where})")
+        if not lines:
+            raise InputError(f"recalibrate: {source or 'the data'} has no calibrated sensor "
+                             "with a strain_reference")
+        return Calibration(out), lines
+    result = evaluate_recordings(recs, calibration, tare=tare)
+    for name, ev in result.sensors.items():
+        if sensors and name not in sensors:
+            continue
+        a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
+        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first})
+        lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "
+                     f"{int(ev.scored.sum())} samples)")
+    return Calibration(out), lines
+
+
 def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
                 bag: str | None = None, sensors: Sequence[str] | None = None,
-                tare: str = "calibration") -> tuple[Calibration, list[str]]:
+                tare: str = "calibration", form: str = "output",
+                first: float | None = None) -> tuple[Calibration, list[str]]:
     """The recalibrated calibration and one line per sensor (gain, offset, reading).
 
     ``points``: two (R, S) points (one sensor: ``sensors`` or the calibration's only one);
-    ``bag``: a bag with a reference strain (every calibrated sensor in it). Raises
-    InputError (the input calibration is untouched) when the map cannot be made.
+    ``bag``: a bag with a reference strain (every calibrated sensor in it; its first
+    ``first`` seconds). ``form``: ``output`` (gain and offset of the strain) or ``input``
+    (zero and span of the resistance). Raises InputError (the input calibration is
+    untouched) when the map cannot be made.
     """
-    from strain_comp.offline.evaluate import evaluate_recordings
-
+    if form not in FORMS:
+        raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     out = dict(calibration.sensors)
     lines = []
     if bag is not None:
         from strain_comp.io.recording import load_recordings
 
-        result = evaluate_recordings(load_recordings(bag)[0], calibration, tare=tare)
-        for name, ev in result.sensors.items():
-            if sensors and name not in sensors:
-                continue
-            a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
-            out[name] = apply_map(out[name], a, b, {"from": str(bag), "tare": tare})
-            lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {bag}, "
-                         f"{int(ev.scored.sum())} samples)")
+        return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
+                                      first=first, sensors=sensors, tare=tare,
+                                      source=str(bag))
     else:
         names = list(sensors or calibration.sensors)
         if len(names) != 1:
@@ -141,10 +319,15 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
         if name not in calibration.sensors:
             raise InputError(f"sensor {name!r} is not in the calibration "
                              f"({', '.join(calibration.sensors)})")
-        a, b = map_from_points(out[name], points)
-        out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
-        lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
-                     f"{len(points)} points)")
+        if form == "input":
+            span = span_from_points(out[name], points)
+            out[name] = apply_span(out[name], span, {"points": [list(p) for p in points]})
+            lines.append(f"{name}: {span_reading(span)} (through {len(points)} points)")
+        else:
+            a, b = map_from_points(out[name], points)
+            out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
+            lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
+                         f"{len(points)} points)")
     return Calibration(out), lines
 
 
