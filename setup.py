@@ -40,7 +40,6 @@ setup(
                 "ros-jazzy-diagnostic-msgs", "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs",
                 "colcon-common-extensions", "ros-jazzy-ament-package"],
     },
-    scripts=["bin/compensator"],
     zip_safe=False,
     maintainer="strain_comp developers",
     maintainer_email="strain_comp@example.org",
@@ -49,6 +48,9 @@ setup(
     entry_points={
         "console_scripts": [
             "strain-comp = strain_comp.cli:main",
+            # ament_python: setup.cfg installs console scripts into lib/strain_comp, where
+            # `ros2 run strain_comp compensator` (and `... strain-comp`) finds them
+            "compensator = strain_comp.ros.node:main",
         ],
     },
 )

@@ -115,3 +115,11 @@ def test_bundled_params_files_are_valid(name: str) -> None:
     """The bundled example files parse, and the calibrations they name load."""
     params = load_params(CONFIG / name)
     assert params.inputs
+
+
+def test_a_null_list_reads_as_empty(tmp_path: Path) -> None:
+    """``arrays: null`` (an empty list in an older ``ros2 param dump`` file) is no arrays."""
+    path = setup_files(tmp_path, "/compensator:\n  ros__parameters:\n    arrays: null\n"
+                                 "    sensors: [s1]\n    s1: {calibration: one.yaml}\n")
+    params = load_params(path)
+    assert [i.name for i in params.inputs] == ["s1"] and params.arrays == {}

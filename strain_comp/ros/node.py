@@ -73,6 +73,23 @@ def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
     return files, name, namespace
 
 
+def command_line_params(args: list[str]) -> dict[str, str]:
+    """The ``-p NAME:=VALUE`` (``--param``) overrides of the ``--ros-args`` part, as given."""
+    given: dict[str, str] = {}
+    inside = False
+    it = iter(args)
+    for arg in it:
+        if arg == "--ros-args":
+            inside = True
+        elif arg == "--":
+            inside = False
+        elif inside and arg in ("-p", "--param"):
+            rule = next(it, "")
+            key, _, _value = rule.partition(":=")
+            given[key.split(":", 1)[-1] if key.count(":") == 1 else key] = rule
+    return given
+
+
 def check_params_files(files: list[Path], name: str, namespace: str) -> Path | None:
     """The folder of the last params file holding a block for the node (relative calibration
     paths resolve there); StrainCompError naming the file when a file cannot be used."""
@@ -92,16 +109,15 @@ def check_params_files(files: list[Path], name: str, namespace: str) -> Path | N
 
 
 def _descriptor(spec: Any) -> Any:
+    """The ParameterDescriptor of a ``ParamSpec``: a fixed type (a refused set never changes
+    it), the range, the description, read-only."""
     from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType
 
-    kinds = {"string": ParameterType.PARAMETER_STRING,
+    kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
              "string_array": ParameterType.PARAMETER_STRING_ARRAY}
     descriptor = ParameterDescriptor(name=spec.name, description=spec.description,
-                                     read_only=spec.read_only)
-    if spec.type == "double":  # integers accepted too: the value is checked on change
-        descriptor.dynamic_typing = True
-    else:
-        descriptor.type = kinds[spec.type]
+                                     read_only=spec.read_only, type=kinds[spec.type],
+                                     dynamic_typing=False)
     if spec.range is not None:
         descriptor.floating_point_range = [FloatingPointRange(
             from_value=float(spec.range[0]), to_value=float(spec.range[1]), step=0.0)]
@@ -121,10 +137,12 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.clock import JumpThreshold, ROSClock
     from rclpy.duration import Duration
+    from builtin_interfaces.msg import Time
     from rclpy.node import Node
+    from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
     from rclpy.time_source import USE_SIM_TIME_NAME as USE_SIM_TIME
-    from sensor_msgs.msg import Temperature
+    from sensor_msgs.msg import JointState, Temperature
     from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension
     from std_srvs.srv import Trigger
 
@@ -148,17 +166,18 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             names = [i.name for i in params.inputs]
             for spec in structural_specs([i.name for i in params.inputs if not i.is_array],
                                          [i.name for i in params.inputs if i.is_array]):
-                value = self.flat.get(spec.name, spec.default)
-                self.declare_parameter(spec.name, value, _descriptor(spec), ignore_override=True)
+                self._declare(spec, self.flat.get(spec.name, spec.default))
             for name, value in params.tunables.items():
-                self.declare_parameter(name, value, _descriptor(TUNABLE[name]),
-                                       ignore_override=True)
+                self._declare(TUNABLE[name], value)
+            self.add_pre_set_parameters_callback(self._integers_as_doubles)
             ready = []
+            self.names = {i.name: list(i.sensors) for i in params.inputs}
             for inp in params.inputs:
                 kind = Float64MultiArray if inp.is_array else Float64
                 pubs = [self.create_publisher(kind, f"{inp.name}/strain", 10),
                         self.create_publisher(Float64MultiArray if inp.is_array else Int8,
-                                              f"{inp.name}/direction", 10)]
+                                              f"{inp.name}/direction", 10),
+                        self.create_publisher(JointState, f"{inp.name}/strain_stamped", 10)]
                 handler = self._on_array if inp.is_array else self._on_sensor
                 sub = self.create_subscription(
                     kind, inp.topic, self._receiver(inp.name, handler, pubs),
@@ -201,6 +220,31 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 return
             self._clock_callback(msg)
 
+        def _declare(self, spec: Any, value: Any) -> None:
+            """Declare a parameter with its fixed type; an empty (or, from a dump, null)
+            list stays a string array (rclpy would infer BYTE_ARRAY from [])."""
+            if spec.type == "string_array" and not value:
+                self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, _descriptor(spec),
+                                       ignore_override=True)
+                self._parameters[spec.name] = Parameter(spec.name, Parameter.Type.STRING_ARRAY,
+                                                        [])
+            else:
+                self.declare_parameter(spec.name, float(value) if spec.type == "double"
+                                       else value, _descriptor(spec), ignore_override=True)
+
+        def _integers_as_doubles(self, params: list[Any]) -> list[Any]:
+            """``ros2 param set deadzone_scale 2``: an integer for a double tunable is set as
+            a double (before rclpy's type check, which would refuse it)."""
+            return [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+                    if p.name in TUNABLE and p.type_ == Parameter.Type.INTEGER else p
+                    for p in params]
+
+        def _stamped(self, stamp: int, names: list[str], strain: Any) -> Any:
+            """``NAME/strain_stamped``: the strain with the stamp [ns] of its input."""
+            msg = JointState(name=names, position=strain)
+            msg.header.stamp = Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
+            return msg
+
         def _receiver(self, name: str, handler: Any, pubs: list[Any]) -> Callable[[Any], None]:
             def receive(msg: Any) -> None:
                 self._arrive(name, handler, msg, pubs)
@@ -236,6 +280,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 if out is not None:
                     pubs[0].publish(Float64(data=out.strain))
                     pubs[1].publish(Int8(data=int(out.direction)))
+                    pubs[2].publish(self._stamped(stamp, self.names[name], [out.strain]))
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
                 self._refuse(name, err)
             self._log_tare()
@@ -248,11 +293,14 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                                          label=msg.layout.dim[0].label if msg.layout.dim
                                          else "")
                 if out is not None:
-                    for pub, values in zip(pubs, (out.strain, out.direction), strict=True):
+                    strain = array("d", out.strain.astype(np.float64).tobytes())
+                    direction = array("d", out.direction.astype(np.float64).tobytes())
+                    for pub, values in ((pubs[0], strain), (pubs[1], direction)):
                         reply = Float64MultiArray()
-                        reply.data = array("d", values.astype(np.float64).tobytes())
+                        reply.data = values
                         reply.layout.dim = [self.dims[name]]
                         pub.publish(reply)
+                    pubs[2].publish(self._stamped(stamp, self.names[name], strain))
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
                 self._refuse(name, err)
             self._log_tare()
@@ -337,7 +385,13 @@ def main(args: list[str] | None = None) -> int:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
         node = create_node(name, base_dir=base_dir)
     except StrainCompError as err:
-        where = f"{files[-1]}: " if files and not str(err).startswith(str(files[-1])) else ""
+        given = command_line_params(argv).get(getattr(err, "field", ""))
+        if given is not None:  # -p wins over the params files: the command line is at fault
+            where = f"command line (-p {given}): "
+        elif files and not str(err).startswith(str(files[-1])):
+            where = f"{files[-1]}: "
+        else:
+            where = ""
         print(f"{NODE_NAME}: {where}" + " ".join(str(err).split()), file=sys.stderr)
         return EXIT_BAD_INPUT
     except start_errors as err:

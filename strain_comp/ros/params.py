@@ -202,7 +202,11 @@ def _string(flat: Mapping[str, Any], key: str, default: str | None = None) -> st
 
 
 def _names(flat: Mapping[str, Any], key: str) -> list[str]:
-    value = flat.get(key, [])
+    """A list of names; null (an empty list as older ``ros2 param dump`` files write it)
+    is the empty list."""
+    value = flat.get(key)
+    if value is None:
+        return []
     if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
         raise ParameterError(key, f"must be a list of names, got {value!r}")
     if len(set(value)) != len(value):
