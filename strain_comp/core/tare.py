@@ -264,7 +264,7 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
             rest = rest_resistance_at_start(t, cal.input.to_ohm(r), cal.direction,
                                             pair=cal.input.pair)
         except InputError as err:
-            lines[name] = f"not tared: {err}"
+            lines[name] = f"not tared: {str(err).removeprefix('tare: ')}"
             continue
         engine.tare(name, rest)
         lines[name] = "tare: " + tare_reading(cal.rest_resistance, rest)

@@ -52,6 +52,7 @@ from strain_comp.io.recording import (
 
 if TYPE_CHECKING:
     from strain_comp.core.engine import BatchOutput, Engine
+    from strain_comp.offline.series import SeriesCSV
 
 PLOT_POINTS = 50_000
 """Most samples per sensor ``evaluate_bag`` keeps for plots (evenly spaced)."""
@@ -79,6 +80,8 @@ class SensorEvaluation:
     """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
     unit: str = "%"
     """The unit of the strain and of the errors: the calibration's ``strain_unit``."""
+    errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
+    """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
@@ -263,7 +266,8 @@ def format_notes(result: EvaluationResult) -> list[str]:
                          "estimate held, not scored")
         if ev.n_out_of_range:
             lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
-                         "calibration's valid range (flagged, scored)")
+                         "calibration's valid range (flagged, scored); if the run's rest "
+                         "level moved, try --tare auto, or strain-comp recalibrate")
     return lines + list(result.notes)
 
 
@@ -342,7 +346,7 @@ class _Score:
             direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
             bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
-            unit=unit)
+            unit=unit, errors=self.errors)
 
 
 @dataclass
@@ -372,8 +376,10 @@ class _Stream:
     """``evaluate_recordings`` carried from one piece of a bag to the next."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
-                 plot_points: int) -> None:
+                 plot_points: int, series: SeriesCSV | None = None, bag: str = "") -> None:
         self.calibration = calibration
+        self.series = series
+        self.bag = bag
         self.engine = engine
         self.tare = tare
         self.plot_points = plot_points
@@ -521,6 +527,10 @@ class _Stream:
                     for j, name in enumerate(inp.names)}
         for name, j in column.items():
             self.scores[name].add(t, r[:, j], refs[name], outs[name])
+            if self.series is not None:
+                cal, out = self.calibration.sensors[name], outs[name]
+                self.series.add(name, t, cal.input.to_ohm(r[:, j]), out.strain, refs[name],
+                                out.direction, out.status, unit=cal.strain_unit, bag=self.bag)
 
     def result(self) -> EvaluationResult:
         referenced = {name for inp in self.inputs.values() if inp is not None
@@ -545,7 +555,8 @@ class _Stream:
 
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
-                 plot_points: int = 0) -> tuple[EvaluationResult, list[str]]:
+                 plot_points: int = 0, series: SeriesCSV | None = None
+                 ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
     is read. Returns the result and the bag's problem lines (reader first, then the
@@ -553,12 +564,14 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
 
     ``tare``: as in ``evaluate_recordings``, each input tared from the first piece it
     appears in (``replay_bag``'s rule). ``plot_points``: keep that many evenly spaced
-    samples per sensor for plots (0: none). Raises InputError when no calibrated sensor
+    samples per sensor for plots (0: none). ``series``: every sample's row goes there
+    (``evaluate --csv``; rows of a bag that fails are written before the error). Raises
+    InputError when no calibrated sensor
     can be scored (names both sides and the bag's problems).
     """
     from strain_comp.core.engine import Engine
 
-    stream = _Stream(calibration, Engine(calibration), tare, plot_points)
+    stream = _Stream(calibration, Engine(calibration), tare, plot_points, series, str(path))
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
     stream.finish()
