@@ -183,6 +183,8 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
         scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
+    for line in result.report.warnings:
+        _note(args, f"{PROG}: warning: {line}")
     _note(args, f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
     return 0
 
@@ -283,7 +285,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.plots:
         from strain_comp.offline.plots import plot_evaluation
 
-        written = plot_evaluation(result, args.plots, inputs=inputs)
+        written = plot_evaluation(result, args.plots, inputs=inputs, calibration=calibration,
+                                  bag=bag, calibration_path=args.calibration, tare=args.tare)
         _note(args, f"wrote {len(written)} plots to {args.plots}")
     if args.csv not in (None, "-"):
         _note(args, f"wrote {args.csv}")

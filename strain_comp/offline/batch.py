@@ -92,8 +92,9 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
         if plots_dir is not None:
             from strain_comp.offline.plots import plot_evaluation
 
-            outcome.plots = [str(p) for p in plot_evaluation(result, plots_dir,
-                                                             inputs=inputs)]
+            outcome.plots = [str(p) for p in plot_evaluation(
+                result, plots_dir, inputs=inputs, calibration=calibration, bag=bag,
+                calibration_path=calibration_path, tare=tare)]
         for ev in result.sensors.values():  # the arrays went into the plots
             ev.t = ev.r = ev.reference = ev.estimate = ev.direction = ev.scored = \
                 ev.t[:0]

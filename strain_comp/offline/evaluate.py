@@ -80,6 +80,12 @@ class SensorEvaluation:
     """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
     unit: str = "%"
     """The unit of the strain and of the errors: the calibration's ``strain_unit``."""
+    out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+    """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
+    input_unit: str = "ohm"
+    """The unit of ``r``: ohm, or V for a voltage divider's input."""
+    input_gain: float = 1.0
+    """The tare's gain: the model saw ``r`` (in ohm) times this."""
     errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
     """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
 
@@ -152,7 +158,9 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             t=t, r=r, reference=s, estimate=estimate,
             direction=np.asarray(out.direction), scored=scored, n_samples=int(t.size),
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
-            bad_by_status=bad_by_status, unit=cal.strain_unit)
+            bad_by_status=bad_by_status, unit=cal.strain_unit,
+            out_of_range=np.asarray(out.out_of_range, bool), input_unit=_input_unit(cal),
+            input_gain=engine.input_gain(name))
         if rec.temperature is None:
             notes += _temperature_missing(name, calibration.sensors[name])
         notes += _crosstalk_off_tick(name, cal, {
@@ -161,6 +169,10 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     if not sensors:
         raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def _input_unit(cal: SensorCalibration) -> str:
+    return "V" if cal.input.kind == "divider" else "ohm"
 
 
 def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
@@ -278,7 +290,7 @@ class _Kept:
     """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
     more, every other kept sample goes and the stride doubles)."""
 
-    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored")
+    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range")
 
     def __init__(self, cap: int) -> None:
         self.cap = cap
@@ -334,9 +346,11 @@ class _Score:
             self.bad[int(v)] = self.bad.get(int(v), 0) + int(c)
         if self.kept is not None:
             self.kept.add(t=t, r=r, reference=s, estimate=estimate,
-                          direction=np.asarray(out.direction), scored=scored)
+                          direction=np.asarray(out.direction), scored=scored,
+                          out_of_range=np.asarray(out.out_of_range, bool))
 
-    def evaluation(self, name: str, model: str, unit: str) -> SensorEvaluation:
+    def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
+                   ) -> SensorEvaluation:
         from strain_comp.core.engine import Status
 
         kept = self.kept or _Kept(0)
@@ -346,7 +360,8 @@ class _Score:
             direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
             bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
-            unit=unit, errors=self.errors)
+            unit=unit, errors=self.errors,
+            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit)
 
 
 @dataclass
@@ -544,7 +559,9 @@ class _Stream:
                 notes.append(f"{name}: no strain_reference in the data, not scored")
             else:
                 sensors[name] = self.scores[name].evaluation(name, cal.model,
-                                                                cal.strain_unit)
+                                                                cal.strain_unit,
+                                                                _input_unit(cal))
+                sensors[name].input_gain = self.engine.input_gain(name)
                 if name not in self.with_temperature:
                     notes += _temperature_missing(name, cal)
                 notes += _crosstalk_off_tick(name, cal, next(
