@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Run every strain_comp benchmark in turn (on demand; not part of the test suite) and
-# regenerate README.md's performance table from their ROW lines (bench/perf_table.py).
+# regenerate docs/performance.md's table from their ROW lines (bench/perf_table.py).
 #   bash bench/run_all.sh [--quick]
-# --quick: smaller sizes (a smoke run of the scripts; the README is not rewritten).
+# --quick: smaller sizes (a smoke run of the scripts; the table is not rewritten).
 # Each script prints its own figures and the ratio against its baseline. The full run takes
 # a while (the 1e7-message replay alone a few minutes); the log is kept in $TMPDIR.
 set -euo pipefail

@@ -12,6 +12,11 @@ blocks on one. Every output goes through ``strain_comp.io.atomic`` with the comm
 inputs, so an output that is an input (the same file, or a hard or symbolic link to it) or
 not a regular file is refused before any work is done, and a kill leaves the old file or
 the complete new one.
+
+Results (tables, readings, ``-`` outputs) go to stdout; notes (what was written, tares,
+out-of-range counts, skipped data) and progress go to stderr, and ``--quiet`` drops the
+notes. ``--json -`` and ``--csv -`` write to stdout; the table then goes to stderr, so stdout
+holds the JSON or CSV alone.
 """
 
 from __future__ import annotations
@@ -22,13 +27,17 @@ import math
 import os
 import stat
 import sys
-from collections.abc import Sequence
-from typing import NoReturn
+import textwrap
+from collections.abc import Callable, Sequence
+from typing import NoReturn, TextIO
 
+from strain_comp import __version__
 from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.atomic import check_distinct, check_output, write_text
 
 PROG = "strain-comp"
+OUT_OF_RANGE_HINT = ("samples out of the calibrated range: if the run's rest level moved, "
+                     "try --tare auto, or strain-comp recalibrate")
 
 
 class UsageError(StrainCompError):
@@ -49,8 +58,24 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(0)
 
 
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions and examples (epilogs) printed as written."""
+
+
 def _err(line: str) -> None:
     print(line, file=sys.stderr)
+
+
+def _note(args: argparse.Namespace, line: str) -> None:
+    """A note on stderr, unless ``--quiet``."""
+    if not getattr(args, "quiet", False):
+        _err(line)
+
+
+def _results(args: argparse.Namespace) -> TextIO:
+    """Where the command's table goes: stdout, or stderr when stdout carries ``-`` output."""
+    dash = "-" in (getattr(args, "json", None), getattr(args, "csv", None))
+    return sys.stderr if dash else sys.stdout
 
 
 def _existing(path: str, what: str, *, directory: bool = False) -> str:
@@ -91,8 +116,13 @@ def _finite(value: object) -> object:
 
 
 def _write_json(path: str, data: object, inputs: Sequence[str]) -> None:
+    """JSON to ``path`` (atomically) or to stdout for ``-``."""
     text = json.dumps(_finite(data), indent=2, allow_nan=False) + "\n"
-    write_text(path, text, inputs=inputs)
+    if path == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        write_text(path, text, inputs=inputs)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -105,13 +135,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(rig.RigEffects.describe())
         return 0
     if not args.scenario or not args.out:
-        raise InputError("simulate needs --scenario NAME and --out BAG.mcap (or --list)")
+        raise InputError("simulate needs --scenario NAME and --out BAG.mcap (or --list; "
+                         "see strain-comp simulate --help)")
     rig.check_size(args.scenario, seed=args.seed, duration=args.duration)
     effects = rig.RigEffects.parse(args.effect) if args.effect else None
     _output(args.out, [])
     run = rig.simulate(args.scenario, seed=args.seed, effects=effects, duration=args.duration)
     rig.write_sim_bag(run, args.out)
-    print(f"wrote {args.out} (scenario {args.scenario}, seed {args.seed})")
+    _note(args, f"wrote {args.out} (scenario {args.scenario}, seed {args.seed})")
     return 0
 
 
@@ -152,7 +183,9 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
         scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
-    print(f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
+    for line in result.report.warnings:
+        _note(args, f"{PROG}: warning: {line}")
+    _note(args, f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
     return 0
 
 
@@ -166,10 +199,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     options = parse_options(args.option or [])
     check_fit_options(args.model, options)
+    if args.quiet and args.model in ("apl", "pl", "mpi"):
+        options.setdefault("progress", False)
     if not unit_ok(args.strain_unit):
         raise InputError(f"--strain-unit {args.strain_unit!r}: expected a unit such as % or "
                          "mm (1-16 letters, digits, %, / or .)")
-    calibration = fit_bags(args.bags, args.model, args.sensor, options, report=_err)
+    calibration = fit_bags(args.bags, args.model, args.sensor, options,
+                           report=lambda line: _note(args, line))
     for cal in calibration.sensors.values():
         cal.strain_unit = args.strain_unit
     save_calibration(calibration, args.out, inputs=args.bags)
@@ -179,17 +215,43 @@ def cmd_fit(args: argparse.Namespace) -> int:
               f"{prov['fit_seconds']:.2f} s, training RMSE {prov['fit_rmse']:.4f} "
               f"{strain_unit_words(cal.strain_unit)} "
               f"(dead zone {cal.direction.deadzone:.4g} ohm/s from {prov['direction_from']})")
-    print(f"wrote {args.out}")
+    _note(args, f"wrote {args.out}")
     return 0
 
 
+def _progress(args: argparse.Namespace) -> Callable[[int, int, str], None] | None:
+    """A progress line on stderr, rewritten in place; only where stderr is a terminal."""
+    if args.quiet or not sys.stderr.isatty():
+        return None
+
+    def show(done: int, total: int, bag: str) -> None:
+        end = "\n" if done == total else ""
+        sys.stderr.write(f"\r[{done}/{total}] {os.path.basename(bag.rstrip('/'))[:60]:<60}"
+                         + end)
+        sys.stderr.flush()
+    return show
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    _bag(args.bag)
+    from strain_comp.offline.batch import expand_bags
+
+    for bag in args.bags:
+        _bag(bag)
     _existing(args.calibration, "calibration file")
-    inputs = [args.bag, args.calibration]
-    check_distinct((args.json, args.plots))
-    if args.json:
-        _output(args.json, inputs)
+    bags = expand_bags(args.bags)
+    for bag in bags:
+        _bag(bag)
+    inputs = [*bags, args.calibration]
+    check_distinct((args.json, args.csv, args.plots))
+    if args.json == "-" and args.csv == "-":
+        raise InputError("--json - and --csv -: only one of them can go to stdout")
+    for out in (args.json, args.csv):
+        if out is not None and out != "-":
+            _output(out, inputs)
+    if len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
+            os.path.join(b, "metadata.yaml")) for b in args.bags):
+        return _evaluate_many(args, bags, inputs)
+    bag = bags[0]
     from strain_comp.core.calibration import load_calibration
     from strain_comp.io.recording import load_recordings
     from strain_comp.offline.evaluate import (
@@ -199,24 +261,77 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         format_table,
         in_run_bound,
     )
+    from strain_comp.offline.series import SeriesCSV
 
     calibration = load_calibration(args.calibration)
-    # streamed; an error when nothing can be scored names what the bag reader skipped
-    result, problems = evaluate_bag(args.bag, calibration, tare=args.tare,
-                                    plot_points=PLOT_POINTS if args.plots else 0,
-                                    out_of_range=args.out_of_range)
+    table = None if args.csv is None else SeriesCSV(args.csv, inputs=inputs)
+    try:
+        # streamed; an error when nothing can be scored names what the bag reader skipped
+        result, problems = evaluate_bag(bag, calibration, tare=args.tare,
+                                        plot_points=PLOT_POINTS if args.plots else 0,
+                                        series=table, out_of_range=args.out_of_range)
+    except BaseException:
+        if table is not None:
+            table.discard()
+        raise
+    if table is not None:
+        table.close()
     if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
-        in_run_bound(result, load_recordings(args.bag)[0], calibration)
-    print(format_table(result))
+        in_run_bound(result, load_recordings(bag)[0], calibration)
+    print(format_table(result), file=_results(args))
     for line in problems + format_notes(result):
-        print(line)
+        _note(args, line)
     if args.json:
         _write_json(args.json, result.to_json(), inputs)
     if args.plots:
         from strain_comp.offline.plots import plot_evaluation
 
-        written = plot_evaluation(result, args.plots, inputs=inputs)
-        print(f"wrote {len(written)} plots to {args.plots}")
+        written = plot_evaluation(result, args.plots, inputs=inputs, calibration=calibration,
+                                  bag=bag, calibration_path=args.calibration, tare=args.tare)
+        _note(args, f"wrote {len(written)} plots to {args.plots}")
+    if args.csv not in (None, "-"):
+        _note(args, f"wrote {args.csv}")
+    return 0
+
+
+def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str]) -> int:
+    """``evaluate`` over several bags (``strain_comp.offline.batch``)."""
+    from strain_comp.core.calibration import load_calibration
+    from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
+    from strain_comp.offline.evaluate import PLOT_POINTS
+    from strain_comp.offline.series import SeriesCSV
+
+    load_calibration(args.calibration)  # a bad calibration: one line before any bag
+    table = None if args.csv is None else SeriesCSV(args.csv, inputs=inputs, bag=True)
+    try:
+        outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
+                                 plot_points=PLOT_POINTS if args.plots else 0,
+                                 in_run=args.in_run_bound, plots=args.plots, series=table,
+                                 progress=_progress(args), out_of_range=args.out_of_range)
+    except BaseException:
+        if table is not None:
+            table.discard()
+        raise
+    if table is not None:
+        table.close()
+    results = _results(args)
+    for outcome in outcomes:
+        text, notes = format_bag(outcome)
+        print(text, file=results)
+        for line in notes:
+            _note(args, f"{outcome.bag}: {line}")
+        if outcome.plots:
+            _note(args, f"wrote {len(outcome.plots)} plots to "
+                  f"{os.path.dirname(outcome.plots[0])}")
+    print(format_aggregate(outcomes), file=results)
+    if args.json:
+        _write_json(args.json, to_json(outcomes), inputs)
+    if args.csv not in (None, "-"):
+        _note(args, f"wrote {args.csv}")
+    failed = [o for o in outcomes if o.error is not None]
+    if failed:
+        raise InputError(f"{len(failed)} of {len(outcomes)} bags could not be evaluated "
+                         f"(first: {failed[0].error})")
     return 0
 
 
@@ -224,20 +339,29 @@ def cmd_replay(args: argparse.Namespace) -> int:
     _bag(args.bag)
     _existing(args.calibration, "calibration file")
     _output(args.out, [args.bag, args.calibration])
+    if args.csv not in (None, "-"):
+        _output(args.csv, [args.bag, args.calibration, args.out])
     from strain_comp.core.calibration import load_calibration
     from strain_comp.offline.replay import replay_bag
 
     calibration = load_calibration(args.calibration)
     summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration],
-                         tare=args.tare)
-    print(f"replayed {summary.n_input_messages} input messages of {len(summary.sensors)} "
-          f"sensors into {args.out} ({summary.n_output_messages} output messages)")
+                         tare=args.tare, csv=args.csv)
+    results = _results(args)
+    print(f"replayed {summary.n_compensated} resistance messages of {len(summary.sensors)} "
+          f"sensors into {args.out} ({summary.n_output_messages} messages written, "
+          f"{summary.n_input_messages} of them input messages copied through)",
+          file=results)
     for name, health in summary.sensors.items():
         if health.n_bad or health.n_out_of_range or health.n_gaps:
             print(f"{name}: {health.n_bad} bad samples (estimate held), {health.n_out_of_range} "
-                  f"out of range, {health.n_gaps} gap resets")
+                  f"out of range, {health.n_gaps} gap resets", file=results)
+            if health.n_out_of_range:
+                _note(args, f"{name}: {OUT_OF_RANGE_HINT}")
     for problem in summary.problems:
-        print(problem)
+        _note(args, problem)
+    if args.csv not in (None, "-"):
+        _note(args, f"wrote {args.csv}")
     return 0
 
 
@@ -249,7 +373,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     inputs = [i for i in (args.bag, args.validate, args.calibration) if i is not None]
     check_distinct((args.out, args.json, args.plots))
     for out in (args.out, args.json):
-        if out is not None:
+        if out is not None and out != "-":
             _output(out, inputs)
     from strain_comp.core.calibration import load_calibration
     from strain_comp.diagnosis.loop import diagnose_bag
@@ -257,12 +381,12 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare)
-    print(report.summary())
+    print(report.summary(), file=_results(args))
     if args.json:
         _write_json(args.json, report.to_json(), inputs)
     if args.plots:
-        print(f"wrote plots to {args.plots}")
-    print(f"wrote {args.out}")
+        _note(args, f"wrote plots to {args.plots}")
+    _note(args, f"wrote {args.out}")
     return 0
 
 
@@ -284,7 +408,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     save_calibration(new, args.out,
                      inputs=[p for p in (args.calibration, bag) if p is not None])
     print("\n".join(lines))
-    print(f"wrote {args.out}")
+    _note(args, f"wrote {args.out}")
     return 0
 
 
@@ -302,7 +426,7 @@ def cmd_play(args: argparse.Namespace) -> int:
 
     n = play_main(args.bag, clock=args.clock, rate=args.rate, topics=args.topic,
                   lockstep=args.lockstep)
-    print(f"played {n} messages")
+    _note(args, f"played {n} messages")
     return 0
 
 
@@ -315,13 +439,26 @@ def _tare_flag(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser; subcommand names and flags as docs/design.md fixes them."""
     parser = _Parser(
-        prog=PROG, description="Calibrated strain from soft resistive strain sensors: "
-        "simulate or import data, fit, evaluate, replay, diagnose, run.")
+        prog=PROG, formatter_class=_Formatter,
+        description="Calibrated strain from soft resistive strain sensors: "
+        "simulate or import data, fit, evaluate, replay, diagnose, run.",
+        epilog="example:\n  strain-comp evaluate bags/demo_rates.mcap --calibration "
+        "config/demo_calibration.yaml\n\n'strain-comp COMMAND --help' describes a command.")
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("simulate", help="make a bag on the virtual test rig")
+    def command(name: str, summary: str, description: str, example: str
+                ) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=summary, description=textwrap.fill(description, 88),
+                              epilog="example:\n  " + example, formatter_class=_Formatter)
+
+    p = command("simulate", "make a bag on the virtual test rig",
+                "Record a scenario on the virtual test rig (a simulated tensile tester with "
+                "a soft sensor): /NAME/resistance and /NAME/strain_reference in an MCAP bag.",
+                "strain-comp simulate --scenario rates --out rates.mcap --seed 2 "
+                "--effect drift=0.05")
     p.add_argument("--scenario", metavar="NAME", help="scenario name (see --list)")
-    p.add_argument("--out", metavar="BAG.mcap", help="bag to write")
+    p.add_argument("--out", metavar="BAG.mcap", help="bag to write (replaced atomically)")
     p.add_argument("--seed", type=int, default=0,
                    help="random seed, 0 .. 2^63-1 (default 0)")
     p.add_argument("--effect", action="append", metavar="K=V",
@@ -332,13 +469,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("import-csv", help="turn a tensile-tester CSV into a bag")
-    p.add_argument("csv", metavar="IN.csv")
-    p.add_argument("--out", required=True, metavar="BAG.mcap")
-    p.add_argument("--sensor", required=True, metavar="NAME")
-    p.add_argument("--format", required=True, choices=("cb_pdms", "fiber", "generic"))
+    p = command("import-csv", "turn a tensile-tester CSV into a bag",
+                "Read a tensile tester's CSV into a bag: /NAME/resistance [ohm] and "
+                "/NAME/strain_reference [%, or the unit the CSV gives]. Presets: cb_pdms (7 "
+                "columns: R outer, R inner, t_R, position mm, t_pos, force, t_force; strain "
+                "= 100 |position| / 40 mm), fiber (4 columns: time s, extension mm, force, "
+                "R ohm; strain in mm unless --gauge-length-mm), generic (--columns). Bad rows "
+                "are dropped and counted; suspicious references get a warning on stderr.",
+                "strain-comp import-csv run.csv --out run.mcap --sensor s1 --format generic "
+                "--columns time=time_ms,resistance=R_kohm,strain=strain "
+                "--scales time=1e-3,resistance=1000,strain=100")
+    p.add_argument("csv", metavar="IN.csv", help="the CSV file (delimiter, decimal comma "
+                   "and header detected)")
+    p.add_argument("--out", required=True, metavar="BAG.mcap",
+                   help="bag to write (replaced atomically)")
+    p.add_argument("--sensor", required=True, metavar="NAME",
+                   help="sensor name: the topics become /NAME/resistance, "
+                   "/NAME/strain_reference")
+    p.add_argument("--format", required=True, choices=("cb_pdms", "fiber", "generic"),
+                   help="column layout: a preset, or generic with --columns")
     p.add_argument("--gauge-length-mm", type=float, metavar="X",
-                   help="gauge length for strain in %% (fiber: else strain = extension in mm)")
+                   help="gauge length [mm] for strain in %% (default: cb_pdms 40 mm; fiber "
+                   "none, the reference is then the extension in mm)")
     p.add_argument("--columns", action="append", metavar="KEY=COL,...",
                    help="column mapping (index or header name) for keys time, resistance, "
                    "strain, strain_time, e.g. time=0,resistance=3,strain=1")
@@ -349,58 +501,116 @@ def build_parser() -> argparse.ArgumentParser:
                    help="field delimiter (default: detected among tab ; , | and spaces)")
     p.set_defaults(func=cmd_import_csv)
 
-    p = sub.add_parser("fit", help="fit a model to bags with a strain reference")
-    p.add_argument("bags", nargs="+", metavar="BAG.mcap")
+    from strain_comp.offline.options import describe_options
+
+    p = sub.add_parser(
+        "fit", help="fit a model to bags with a strain reference", formatter_class=_Formatter,
+        description=textwrap.fill(
+            "Fit a compensation model (resistance in, strain out) to recordings with a "
+            "reference strain and write a calibration file. The file passes the checks "
+            "every reader applies before it is written; a fit that would not load is "
+            "refused.", 88),
+        epilog=describe_options() + "\n\nexample:\n  strain-comp fit run1.mcap run2.mcap "
+        "--model apl --sensor s1 --out s1.yaml --option N=11")
+    p.add_argument("bags", nargs="+", metavar="BAG.mcap",
+                   help="recordings with /NAME/resistance and /NAME/strain_reference")
     p.add_argument("--model", required=True, metavar="MODEL",
                    help="apl, pl, mpi, cubic, sinh_pl, rational, spike_decay")
     p.add_argument("--sensor", required=True, action="append", metavar="NAME",
                    help="sensor to fit (repeatable), or 'all'")
-    p.add_argument("--out", required=True, metavar="CAL.yaml")
+    p.add_argument("--out", required=True, metavar="CAL.yaml",
+                   help="calibration file to write (replaced atomically)")
     p.add_argument("--option", action="append", metavar="K=V",
-                   help="fit option, e.g. N=11, M=9, mode=split, k_sigma=3 (repeatable)")
+                   help="fit option (repeatable), e.g. N=11; the list below")
     p.add_argument("--strain-unit", default="%", metavar="UNIT",
                    help="unit of the bags' strain_reference (default %%; mm for an extension "
-                   "imported without a gauge length): errors and readings are given in it")
+                   "imported without a gauge length): errors, plots and readings are given "
+                   "in it")
     p.set_defaults(func=cmd_fit)
 
-    p = sub.add_parser("evaluate", help="error table of a calibration on a bag")
-    p.add_argument("bag", metavar="BAG.mcap")
-    p.add_argument("--calibration", required=True, metavar="CAL.yaml")
-    p.add_argument("--json", metavar="OUT.json", help="also write the errors as JSON")
-    p.add_argument("--plots", metavar="DIR", help="also write PNG plots per sensor")
+    p = command("evaluate", "error table of a calibration on one or many bags",
+                "Run a calibration over recordings with a reference strain and print the "
+                "errors per sensor (n, RMSE, MAE, max |error| in the calibration's strain "
+                "unit, R^2). Several bags or a folder: a table per bag and the errors pooled "
+                "over all of them.",
+                "strain-comp evaluate run3.mcap run4.mcap --calibration s1.yaml "
+                "--csv series.csv --json errors.json --jobs 2")
+    p.add_argument("bags", nargs="+", metavar="BAG.mcap",
+                   help="bags (MCAP files, rosbag2 directories) or folders of them")
+    p.add_argument("--calibration", required=True, metavar="CAL.yaml",
+                   help="calibration file (from fit, diagnose or recalibrate)")
+    p.add_argument("--json", metavar="OUT.json",
+                   help="also write the errors as JSON ('-': stdout; several bags: keyed by "
+                   "bag, docs/design.md)")
+    p.add_argument("--csv", metavar="OUT.csv",
+                   help="also write every sample: time [s], resistance [ohm], estimate and "
+                   "reference [strain unit], direction, status per sensor ('-': stdout)")
+    p.add_argument("--plots", metavar="DIR",
+                   help="also write PNG plots per sensor (several bags: a folder per bag)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="bags evaluated at once, in N processes (default 1)")
     p.add_argument("--out-of-range", choices=("clamp", "extrapolate"), default="clamp",
                    help="strain beyond the calibrated resistance range: clamped to the "
                    "calibrated strain range (default), or extended with the model's end "
                    "slope (flagged either way)")
     p.add_argument("--in-run-bound", action="store_true",
-                   help="also fit the same model on this run itself and give its RMSE "
-                   "(JSON key in_run_rmse; costs a fit)")
+                   help="also fit the same model on each run itself and give its RMSE "
+                   "(JSON key in_run_rmse; costs a fit per bag)")
     _tare_flag(p)
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("replay", help="write estimated strain and direction into a new bag")
-    p.add_argument("bag", metavar="IN.mcap")
-    p.add_argument("--calibration", required=True, metavar="CAL.yaml")
-    p.add_argument("--out", required=True, metavar="OUT.mcap")
+    p = command("replay", "write estimated strain and direction into a new bag",
+                "Run a calibration over a bag as the node would: a new bag with every input "
+                "and /NAME/strain, /NAME/direction, /NAME/status and /diagnostics at each "
+                "input's time; --csv also writes the series as a table.",
+                "strain-comp replay run3.mcap --calibration s1.yaml --out run3_strain.mcap "
+                "--csv run3_strain.csv")
+    p.add_argument("bag", metavar="IN.mcap", help="bag with /NAME/resistance")
+    p.add_argument("--calibration", required=True, metavar="CAL.yaml",
+                   help="calibration file")
+    p.add_argument("--out", required=True, metavar="OUT.mcap",
+                   help="bag to write (replaced atomically)")
+    p.add_argument("--csv", metavar="OUT.csv",
+                   help="also write the series: time [s], resistance [ohm], estimate and "
+                   "reference [strain unit], direction, status per sensor ('-': stdout)")
     _tare_flag(p)
     p.set_defaults(func=cmd_replay)
 
-    p = sub.add_parser("diagnose", help="find the effect a calibration lacks and add it")
-    p.add_argument("bag", metavar="BAG.mcap")
-    p.add_argument("--calibration", required=True, metavar="CAL.yaml")
-    p.add_argument("--validate", metavar="BAG2.mcap", help="held-out bag for before/after")
-    p.add_argument("--out", required=True, metavar="CAL2.yaml")
-    p.add_argument("--json", metavar="OUT.json")
-    p.add_argument("--plots", metavar="DIR")
+    p = command("diagnose", "find the effect a calibration lacks and add it",
+                "The residual loop: score candidate effects (rate, relaxation, drift, "
+                "temperature, Mullins, cross-talk, the measurement chain, the tare) on "
+                "held-out blocks of time, add those that lower the held-out error, and "
+                "write the calibration with them (docs/loop.md).",
+                "strain-comp diagnose run3.mcap --calibration s1.yaml --validate run4.mcap "
+                "--out s1_v2.yaml --json report.json")
+    p.add_argument("bag", metavar="BAG.mcap", help="bag with a strain reference")
+    p.add_argument("--calibration", required=True, metavar="CAL.yaml",
+                   help="calibration file to improve")
+    p.add_argument("--validate", metavar="BAG2.mcap",
+                   help="held-out bag for the before/after error (default: held-out blocks "
+                   "of BAG)")
+    p.add_argument("--out", required=True, metavar="CAL2.yaml",
+                   help="calibration to write, with the added terms (replaced atomically)")
+    p.add_argument("--json", metavar="OUT.json",
+                   help="also write the report as JSON ('-': stdout)")
+    p.add_argument("--plots", metavar="DIR",
+                   help="also write residual plots per sensor (PNG)")
     _tare_flag(p)
     p.set_defaults(func=cmd_diagnose)
 
-    p = sub.add_parser("recalibrate",
-                       help="output gain and offset (or input zero and span) through two "
-                            "known strains or a bag")
-    p.add_argument("calibration", metavar="CAL.yaml")
+    p = command("recalibrate", "output gain and offset (or input zero and span) through "
+                "two known strains or a bag",
+                "Re-span a calibration in the field: a gain and offset on its output through "
+                "two known (resistance, strain) points, or by least squares over a bag with "
+                "a reference, stored as effect terms every reader applies alike. With "
+                "--input: zero and span on the input resistance instead (the rest and one "
+                "known stretch, or a bag's first cycle).",
+                "strain-comp recalibrate s1.yaml --point 35200:0 --point 44100:20 "
+                "--out s1_field.yaml")
+    p.add_argument("calibration", metavar="CAL.yaml", help="calibration file to re-span")
     p.add_argument("--point", action="append", metavar="R:S",
-                   help="a resistance [ohm] and its known strain [%%] (give two)")
+                   help="a resistance [ohm] and its known strain [the calibration's strain "
+                   "unit, %% by default] (give two)")
     p.add_argument("--from", dest="from_bag", metavar="BAG.mcap",
                    help="a bag with a strain reference (least-squares gain and offset)")
     p.add_argument("--sensor", action="append", metavar="NAME",
@@ -411,17 +621,26 @@ def build_parser() -> argparse.ArgumentParser:
                         "from the first rest and the largest strain)")
     p.add_argument("--first", type=float, metavar="SECONDS",
                    help="with --from: use only the bag's first SECONDS (its first cycle)")
-    p.add_argument("--out", required=True, metavar="CAL2.yaml")
+    p.add_argument("--out", required=True, metavar="CAL2.yaml",
+                   help="calibration to write (replaced atomically)")
     _tare_flag(p)
     p.set_defaults(func=cmd_recalibrate)
 
-    p = sub.add_parser("node", help="run the rclpy compensator node (as `ros2 run` does)")
-    p.add_argument("--params", required=True, metavar="FILE", help="node parameter YAML")
+    p = command("node", "run the rclpy compensator node (as `ros2 run` does)",
+                "The live node (needs the ros extra: pip install '.[ros]'): "
+                "/NAME/resistance in, /NAME/strain, /NAME/direction and /diagnostics out "
+                "(docs/ros.md).",
+                "strain-comp node --params config/compensator_params.yaml")
+    p.add_argument("--params", required=True, metavar="FILE",
+                   help="node parameter YAML (sensors, calibrations, tunables)")
     p.set_defaults(func=cmd_node)
 
-    p = sub.add_parser("play", help="publish a bag's messages over ROS 2 (ros2 bag play "
-                       "where ROS is installed)")
-    p.add_argument("bag", metavar="BAG.mcap")
+    p = command("play", "publish a bag's messages over ROS 2 (ros2 bag play where ROS is "
+                "installed)",
+                "Publish a bag's messages at their recorded times, for machines without "
+                "rosbag2 (needs the ros extra).",
+                "strain-comp play bags/demo_rates.mcap --clock --rate 2")
+    p.add_argument("bag", metavar="BAG.mcap", help="bag to play")
     p.add_argument("--clock", action="store_true",
                    help="publish /clock with each message's log time (for use_sim_time)")
     p.add_argument("--rate", type=float, default=1.0, metavar="X",
@@ -431,6 +650,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep", metavar="TOPIC",
                    help="after each message wait for one message on TOPIC (the node's answer)")
     p.set_defaults(func=cmd_play)
+    for p in sub.choices.values():
+        p.add_argument("-q", "--quiet", action="store_true",
+                       help="no notes on stderr (what was written, tares, skipped data); "
+                       "results and errors still print")
     return parser
 
 
@@ -439,12 +662,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
         try:
-            args = parser.parse_args(argv)
-        except SystemExit:  # --help or --list printed; nothing else exits
+            args, extra = parser.parse_known_args(argv)
+        except SystemExit:  # --help, --version or --list printed; nothing else exits
             return 0
+        if extra:
+            raise UsageError(f"{args.command}: unrecognized arguments: {' '.join(extra)} "
+                             f"(see {PROG} {args.command} --help)")
         return int(args.func(args))
     except StrainCompError as err:
         message = str(err)
+    except BrokenPipeError:  # the reader of stdout went away (e.g. `| head`)
+        sys.stdout = open(os.devnull, "w")  # no second error when Python flushes at exit
+        message = "stdout closed before the output was complete (broken pipe)"
     except OSError as err:
         where = err.filename if err.filename is not None else ""
         message = f"{where}: {err.strerror or err}" if where else str(err)

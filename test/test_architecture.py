@@ -1,5 +1,5 @@
 """The package's layers: each subpackage imports only from the layers below it, and only
-``strain_comp/ros/`` imports ROS (README, "Architecture"; docs/design.md, "Layout")."""
+``strain_comp/ros/`` imports ROS (docs/architecture.md; docs/design.md, "Layout")."""
 
 from __future__ import annotations
 

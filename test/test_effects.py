@@ -173,10 +173,14 @@ def test_bad_effect_entries_name_the_field(tmp_path: Path, effect: dict, field: 
     cal = make_calibration()
     cal.sensors["right"].effects = [{"name": "ok", "kind": "offset", "params": {}, "coef": 1.0},
                                     effect]
-    save_calibration(cal, tmp_path / "bad.yaml")
+    with pytest.raises(CalibrationError) as serr:  # the writer applies the reader's checks
+        save_calibration(cal, tmp_path / "bad.yaml")
+    assert serr.value.field == f"sensors.right.effects.1.{field}"
+    assert not (tmp_path / "bad.yaml").exists()
+    save_calibration(cal, tmp_path / "bad.yaml", check=False)
     with pytest.raises(CalibrationError) as cerr:
         load_calibration(tmp_path / "bad.yaml")
-    assert cerr.value.field == f"sensors.right.effects.1.{field}"
+    assert cerr.value.field == serr.value.field
 
 
 def test_baseline_captures_the_start_of_each_run() -> None:

@@ -83,11 +83,28 @@ def test_plots_are_written(tmp_path: Path) -> None:
     from strain_comp.offline.plots import plot_evaluation
 
     result = evaluate_recordings({"s1": recording()}, calibration())
-    written = plot_evaluation(result, tmp_path / "plots")
+    written = plot_evaluation(result, tmp_path / "plots", calibration=calibration(),
+                              bag="runs/b.mcap", calibration_path="c/cal.yaml", tare="auto")
     assert sorted(p.name for p in written) == ["s1_error_hist.png", "s1_loop.png",
-                                               "s1_time.png"]
+                                               "s1_raw.png", "s1_time.png"]
     for path in written:
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
+
+
+def test_plot_titles_name_bag_calibration_and_tare_and_axes_span_the_data() -> None:
+    from strain_comp.offline.evaluate import SensorEvaluation
+    from strain_comp.offline.plots import _context, _limits
+
+    result = evaluate_recordings({"s1": recording()}, calibration())
+    result.notes.append("s1: not tared: the run does not start at rest")
+    assert _context(result, "s1", "runs/b.mcap", "c/cal.yaml", "auto") == (
+        "bag b.mcap, calibration cal.yaml, tare auto (not tared: the run does not start at "
+        "rest)")
+    values = np.array([np.nan, -2.0, 3.0, np.inf, 8.0])
+    assert _limits(values) == (-2.5, 8.5)  # finite data plus 5 % of its span each side
+    assert _limits(np.array([np.nan])) is None
+    assert isinstance(result.sensors["s1"], SensorEvaluation)
+    assert result.sensors["s1"].out_of_range.shape == result.sensors["s1"].t.shape
 
 
 def test_a_temperature_term_without_temperature_in_the_data_is_noted(tmp_path: Path) -> None:

@@ -175,7 +175,7 @@ def test_plot_samples_are_bounded_and_evenly_spaced() -> None:
     for a in range(0, 100_000, 7_000):
         idx = np.arange(a, min(a + 7_000, 100_000)).astype(np.float64)
         kept.add(t=idx, r=idx, reference=idx, estimate=idx, direction=idx,
-                 scored=np.ones(idx.size, bool))
+                 scored=np.ones(idx.size, bool), out_of_range=np.zeros(idx.size, bool))
     t = kept.get("t")
     assert 500 < t.size <= 1000
     assert np.all(np.diff(t) == kept.stride) and t[0] == 0.0
@@ -194,7 +194,7 @@ def test_evaluate_command_json_and_plots_from_the_streamed_path(
     whole = evaluate_recordings(load_recordings(bag)[0], load_calibration(cal))
     assert json.loads(out.read_text()) == json.loads(json.dumps(whole.to_json()))
     assert format_table(whole) in capsys.readouterr().out
-    assert len(list((tmp_path / "plots").glob("*.png"))) == 3 * len(whole.sensors)
+    assert len(list((tmp_path / "plots").glob("*.png"))) == 4 * len(whole.sensors)
 
 
 def test_streamed_evaluate_of_an_unchunked_bag_equals_the_whole_series(tmp_path: Path) -> None:

@@ -35,7 +35,9 @@ magnitude, resistances in (0, ``PARAM_MAX``] ohm and strains within +/- ``STRAIN
 A cross-talk effect must read another sensor. Last, every sensor is run through the engine
 on a probe (``probe_calibration``): a calibration that gives a non-finite strain there is
 refused, so one that loads gives finite strain inside its declared range.
-Saving is atomic: a temporary file in the same directory, fsync, rename.
+Saving is atomic: a temporary file in the same directory, fsync, rename. Before it writes,
+``save_calibration`` applies the same checks to the text it would write
+(``check_calibration``, ``parse_calibration``): nothing it writes fails to load.
 Floats are written with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 """
 
@@ -245,14 +247,39 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def calibration_text(calibration: Calibration) -> str:
+    """The YAML text ``save_calibration`` writes."""
+    return yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
+                          default_flow_style=None, width=100)
+
+
+def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"
+                      ) -> None:
+    """The load-time checks on the file ``calibration`` would be: ``CalibrationError`` (the
+    field and the problem, as ``load_calibration`` would name them) if a reader would refuse
+    it. ``save_calibration`` runs it before writing, so nothing written fails to load."""
+    text = calibration_text(calibration)
+    reader = _Reader(str(path))
+    if len(text.encode("utf-8")) > MAX_FILE_BYTES:
+        raise reader.fail("file", f"refused: larger than {MAX_FILE_BYTES} bytes")
+    parse_calibration(text, str(path))
+
+
 def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
-                     inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
+                     inputs: Iterable[str | os.PathLike[str]] = (), check: bool = True) -> None:
     """Write atomically (``strain_comp.io.atomic``): a crash at any moment leaves the old or
     the new file, never a mix; a target that is one of ``inputs`` or not a regular file is
-    refused."""
-    text = yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
-                          default_flow_style=None, width=100)
-    write_text(path, text, inputs=inputs)
+    refused. With ``check`` (default) the file first passes ``check_calibration``, the
+    checks every reader applies; a file that would not load is not written
+    (``CalibrationError``, "not written: ..."). ``check=False`` writes it anyway (tests of
+    the loader's refusals)."""
+    if check:
+        try:
+            check_calibration(calibration, path)
+        except CalibrationError as err:
+            raise CalibrationError(err.path, err.field,
+                                   f"not written, it would not load: {err.problem}") from None
+    write_text(path, calibration_text(calibration), inputs=inputs)
 
 
 class _Reader:
@@ -472,9 +499,15 @@ def _read_text(reader: _Reader, path: str | os.PathLike[str]) -> str:
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     """Read and validate a calibration file; CalibrationError names the file and field."""
-    path_str = str(path)
-    reader = _Reader(path_str)
-    root = _parse_yaml(reader, _read_text(reader, path))
+    return parse_calibration(_read_text(_Reader(str(path)), path), str(path))
+
+
+def parse_calibration(text: str, path: str) -> Calibration:
+    """Validate the text of a calibration file (every load-time check: the limits, the
+    fields, the probe); CalibrationError names ``path`` and the field. The one validation
+    both ``load_calibration`` and ``check_calibration`` (before a write) apply."""
+    reader = _Reader(path)
+    root = _parse_yaml(reader, text)
     root = reader.mapping(root, "(top level)")
     fmt = reader.child(root, "format", "")
     if fmt != FORMAT:

@@ -79,6 +79,23 @@ class ErrorAccumulator:
         self.n, self.mean, self.m2 = n, mean, m2
         self.sum_e2, self.sum_abs, self.max_abs = sum_e2, sum_abs, max_abs
 
+    def merge(self, other: ErrorAccumulator) -> None:
+        """Take in everything ``other`` took in (the same pairwise update as ``add``): the
+        pooled statistics of several runs."""
+        if not other.n:
+            return
+        if not self.n:
+            self.__dict__.update(vars(other))
+            return
+        total = self.n + other.n
+        delta = other.mean - self.mean
+        self.m2 = self.m2 + other.m2 + delta * delta * (self.n * other.n / total)
+        self.mean = self.mean + delta * (other.n / total)
+        self.sum_e2 += other.sum_e2
+        self.sum_abs += other.sum_abs
+        self.max_abs = max(self.max_abs, other.max_abs)
+        self.n = total
+
     def stats(self) -> ErrorStats:
         """The statistics so far (all NaN and n = 0 before any finite pair)."""
         if not self.n:

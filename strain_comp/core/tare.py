@@ -264,7 +264,7 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
             rest = rest_resistance_at_start(t, cal.input.to_ohm(r), cal.direction,
                                             pair=cal.input.pair)
         except InputError as err:
-            lines[name] = f"not tared: {err}"
+            lines[name] = f"not tared: {str(err).removeprefix('tare: ')}"
             continue
         engine.tare(name, rest)
         zero = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance

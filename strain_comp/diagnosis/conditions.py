@@ -44,6 +44,7 @@ from strain_comp.core.chain import (
     correct,
     quantisation,
 )
+from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.io.recording import Recording
@@ -130,6 +131,20 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
     return found
 
 
+def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | None) -> str:
+    """What ``--tare auto`` did on each run, in words: the tare taken, or why it was
+    declined (the calibration's rest resistance then stays)."""
+    from strain_comp.core.engine import Engine
+
+    lines = []
+    for k, run in enumerate(r for r in runs if r is not None):
+        where = "training run" if k == 0 else "validation run"
+        outcome = tare_engine(Engine(calibration), {n: (rec.t, rec.r) for n, rec in run.items()},
+                              "auto")
+        lines += [f"{where} {name}: {line}" for name, line in outcome.items()]
+    return "; ".join(lines) or "no sensor with a rest resistance to tare"
+
+
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         validate_recordings: Mapping[str, Recording] | None = None,
                         tare: str = "calibration", margin: float = 0.03,
@@ -149,7 +164,8 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
         ("as calibrated", "the calibration's rest resistance and input", calibration,
          "calibration")]
     if tare == "auto":
-        runs.append(("tare", "each run tared at its start", calibration, "auto"))
+        runs.append(("tare", _tare_outcome(calibration, recordings, validate_recordings),
+                     calibration, "auto"))
     base = calibration
     if alternating:
         fixed = _with_input(calibration, alternating, alternation=True)

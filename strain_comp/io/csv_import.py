@@ -72,6 +72,9 @@ class ImportReport:
     glitches_repaired: int = 0
     strain_unit: str = "%"
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    """A reference that looks wrong (``reference_warnings``): one line each, saying what
+    to pass."""
 
     def lines(self) -> list[str]:
         """Human-readable summary, one fact per line."""
@@ -280,9 +283,48 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
         if outside:
             report.notes.append(f"{outside} samples outside the reference's time span "
                                 "have no reference (NaN)")
+        report.warnings = reference_warnings(
+            strain_src, ts, percent=report.strain_unit != "mm" and factor["strain"] == 1.0)
     report.kept = int(good.sum())
     rec = Recording(name=sensor, t=t[good], r=r[good], s=strain)
     return ImportResult(rec, report)
+
+
+FRACTION_SPAN = 1.0
+"""A reference in % whose span is below this looks like a fraction (0.3 for 30 %)."""
+MICROSTRAIN_SPAN = 1000.0
+"""A reference in % whose span is at least this looks like microstrain (3000 for 0.3 %)."""
+
+
+def reference_warnings(values: np.ndarray, t: np.ndarray, *, percent: bool) -> list[str]:
+    """What looks wrong in a reference column as read (before any gauge length), one line
+    each saying what to pass: a signed position (mostly below zero: the fit would take
+    the most negative value, the largest stretch, for the rest), a time column that runs
+    backwards, and, when the reference is taken as % (``percent``), a span that looks like
+    a fraction or like microstrain."""
+    ok = np.isfinite(values) & np.isfinite(t)
+    values, t = values[ok], t[ok]
+    if values.size < 2:
+        return []
+    lines = []
+    lo, hi = float(values.min()), float(values.max())
+    if lo < 0.0 and hi <= 0.1 * -lo:
+        lines.append(f"the reference runs from {hi + 0.0:.4g} to {lo:.4g}, below zero: a signed "
+                     "stage position? pass --scales strain=-1 so that stretch is positive")
+    back = int(np.sum(np.diff(t) < 0))
+    if back:
+        lines.append(f"the reference's time runs backwards at {back} rows: check the "
+                     "time column of --columns (strain_time, else time)")
+    span = hi - lo
+    if percent and 0.0 < span < FRACTION_SPAN:
+        lines.append(f"the reference spans only {span:.3g}: if it is a fraction, pass "
+                     "--scales strain=100 (to %); if it is in another unit, fit with "
+                     "--strain-unit UNIT")
+    elif percent and span >= MICROSTRAIN_SPAN:
+        lines.append(f"the reference spans {span:.4g}: if it is microstrain, pass --scales "
+                     "strain=1e-4 (to %); if it is in another unit, fit with --strain-unit "
+                     "UNIT")
+    return lines
 
 
 def write_recording_bag(recording: Recording, out_path: str | Path, *,
@@ -300,5 +342,5 @@ def write_recording_bag(recording: Recording, out_path: str | Path, *,
             writer.write_temperature(f"{prefix}/temperature", recording.t, recording.temperature)
 
 
-__all__ = ["FORMATS", "ImportReport", "ImportResult", "import_csv",
+__all__ = ["FORMATS", "ImportReport", "ImportResult", "import_csv", "reference_warnings",
            "repair_position_glitches", "write_recording_bag"]

@@ -54,7 +54,7 @@ on the bundled rig bags and the measured recordings: compare them with
 ``strain-comp fit ... --option output_nfev=0`` (the QP alone) or ``--option
 cell_weights=free`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
 never much worse than free ones and keep free weights from overfitting a noisy sensor.
-The current held-out figures of every model are the README's tables
+The current held-out figures of every model are in docs/measured.md
 (``scripts/compare_models.py``, ``scripts/measured.py``).
 """
 

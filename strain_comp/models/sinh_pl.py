@@ -68,20 +68,22 @@ _START_SAMPLES = 5000  # starts see at most about this many samples
 
 @njit
 def _cell_step(u: float, e: float, dt: float, i_s: float, v_t: float) -> tuple[float, float]:
-    """One linearly implicit step of u' = f(e - u); returns (u_new, d u_new / d e)."""
+    """One linearly implicit step of u' = f(e - u); returns (u_new, d u_new / d e).
+
+    With x = (e - u) / V_T, m = exp(|x|) and q = 1 / m, numerator and denominator are
+    divided by m, so a steep cell (large I_S, small V_T, |x| up to 700) gives the finite
+    limit du -> V_T sign(x) instead of inf / inf."""
     x = (e - u) / v_t
     if x > 700.0:
         x = 700.0
     elif x < -700.0:
         x = -700.0
-    ex = math.exp(x)
-    emx = 1.0 / ex
-    g = i_s * (ex - emx)
+    q = math.exp(-abs(x))
+    sign = 1.0 if x >= 0.0 else -1.0
     c = 2.0 * i_s / v_t
-    gp = 0.5 * c * (ex + emx)
-    den = 1.0 + dt * gp
-    du = dt * g / den
-    slope = dt * (gp + dt * c * c) / (den * den)
+    d = q + 0.5 * dt * c * (1.0 + q * q)  # (1 + dt g') / m
+    du = dt * i_s * sign * (1.0 - q * q) / d  # dt g / (1 + dt g')
+    slope = dt * (0.5 * c * (1.0 + q * q) * q + dt * c * c * q * q) / (d * d)
     return u + du, slope
 
 

@@ -52,6 +52,7 @@ from strain_comp.io.recording import (
 
 if TYPE_CHECKING:
     from strain_comp.core.engine import BatchOutput, Engine
+    from strain_comp.offline.series import SeriesCSV
 
 PLOT_POINTS = 50_000
 """Most samples per sensor ``evaluate_bag`` keeps for plots (evenly spaced)."""
@@ -79,6 +80,14 @@ class SensorEvaluation:
     """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
     unit: str = "%"
     """The unit of the strain and of the errors: the calibration's ``strain_unit``."""
+    out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+    """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
+    input_unit: str = "ohm"
+    """The unit of ``r``: ohm, or V for a voltage divider's input."""
+    input_gain: float = 1.0
+    """The tare's gain: the model saw ``r`` (in ohm) times this."""
+    errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
+    """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
@@ -150,7 +159,9 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             t=t, r=r, reference=s, estimate=estimate,
             direction=np.asarray(out.direction), scored=scored, n_samples=int(t.size),
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
-            bad_by_status=bad_by_status, unit=cal.strain_unit)
+            bad_by_status=bad_by_status, unit=cal.strain_unit,
+            out_of_range=np.asarray(out.out_of_range, bool), input_unit=_input_unit(cal),
+            input_gain=engine.input_gain(name))
         if rec.temperature is None:
             notes += _temperature_missing(name, calibration.sensors[name])
         notes += _crosstalk_off_tick(name, cal, {
@@ -159,6 +170,10 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     if not sensors:
         raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def _input_unit(cal: SensorCalibration) -> str:
+    return "V" if cal.input.kind == "divider" else "ohm"
 
 
 def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
@@ -264,7 +279,8 @@ def format_notes(result: EvaluationResult) -> list[str]:
                          "estimate held, not scored")
         if ev.n_out_of_range:
             lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
-                         "calibration's valid range (flagged, scored)")
+                         "calibration's valid range (flagged, scored); if the run's rest "
+                         "level moved, try --tare auto, or strain-comp recalibrate")
     return lines + list(result.notes)
 
 
@@ -275,7 +291,7 @@ class _Kept:
     """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
     more, every other kept sample goes and the stride doubles)."""
 
-    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored")
+    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range")
 
     def __init__(self, cap: int) -> None:
         self.cap = cap
@@ -331,9 +347,11 @@ class _Score:
             self.bad[int(v)] = self.bad.get(int(v), 0) + int(c)
         if self.kept is not None:
             self.kept.add(t=t, r=r, reference=s, estimate=estimate,
-                          direction=np.asarray(out.direction), scored=scored)
+                          direction=np.asarray(out.direction), scored=scored,
+                          out_of_range=np.asarray(out.out_of_range, bool))
 
-    def evaluation(self, name: str, model: str, unit: str) -> SensorEvaluation:
+    def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
+                   ) -> SensorEvaluation:
         from strain_comp.core.engine import Status
 
         kept = self.kept or _Kept(0)
@@ -343,7 +361,8 @@ class _Score:
             direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
             bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
-            unit=unit)
+            unit=unit, errors=self.errors,
+            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit)
 
 
 @dataclass
@@ -373,8 +392,10 @@ class _Stream:
     """``evaluate_recordings`` carried from one piece of a bag to the next."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
-                 plot_points: int) -> None:
+                 plot_points: int, series: SeriesCSV | None = None, bag: str = "") -> None:
         self.calibration = calibration
+        self.series = series
+        self.bag = bag
         self.engine = engine
         self.tare = tare
         self.plot_points = plot_points
@@ -522,6 +543,10 @@ class _Stream:
                     for j, name in enumerate(inp.names)}
         for name, j in column.items():
             self.scores[name].add(t, r[:, j], refs[name], outs[name])
+            if self.series is not None:
+                cal, out = self.calibration.sensors[name], outs[name]
+                self.series.add(name, t, cal.input.to_ohm(r[:, j]), out.strain, refs[name],
+                                out.direction, out.status, unit=cal.strain_unit, bag=self.bag)
 
     def result(self) -> EvaluationResult:
         referenced = {name for inp in self.inputs.values() if inp is not None
@@ -535,7 +560,9 @@ class _Stream:
                 notes.append(f"{name}: no strain_reference in the data, not scored")
             else:
                 sensors[name] = self.scores[name].evaluation(name, cal.model,
-                                                                cal.strain_unit)
+                                                                cal.strain_unit,
+                                                                _input_unit(cal))
+                sensors[name].input_gain = self.engine.input_gain(name)
                 if name not in self.with_temperature:
                     notes += _temperature_missing(name, cal)
                 notes += _crosstalk_off_tick(name, cal, next(
@@ -546,7 +573,8 @@ class _Stream:
 
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
-                 plot_points: int = 0, out_of_range: str = "clamp",
+                 plot_points: int = 0, series: SeriesCSV | None = None,
+                 out_of_range: str = "clamp",
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
@@ -555,13 +583,15 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
 
     ``tare``: as in ``evaluate_recordings``, each input tared from the first piece it
     appears in (``replay_bag``'s rule). ``plot_points``: keep that many evenly spaced
-    samples per sensor for plots (0: none). Raises InputError when no calibrated sensor
+    samples per sensor for plots (0: none). ``series``: every sample's row goes there
+    (``evaluate --csv``; rows of a bag that fails are written before the error). Raises
+    InputError when no calibrated sensor
     can be scored (names both sides and the bag's problems).
     """
     from strain_comp.core.engine import Engine
 
     stream = _Stream(calibration, Engine(calibration, out_of_range=out_of_range), tare,
-                     plot_points)
+                     plot_points, series, str(path))
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
     stream.finish()

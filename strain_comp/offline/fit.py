@@ -69,10 +69,12 @@ import numpy as np
 import yaml
 
 from strain_comp.core.calibration import (
+    STRAIN_MAX,
     Calibration,
     InputSettings,
     SensorCalibration,
     ValidRange,
+    check_calibration,
     provenance,
 )
 from strain_comp.core.chain import PAIR_BRANCHES, alternation, pair_branch, pair_values
@@ -81,7 +83,7 @@ from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.tare import rest_resistance_from_reference
-from strain_comp.errors import FitError, InputError
+from strain_comp.errors import CalibrationError, FitError, InputError
 from strain_comp.models import Normalisation, Segment, model_class
 
 if TYPE_CHECKING:
@@ -410,6 +412,12 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
         raise FitError(f"sensor {name!r}: the training data span no range of resistance "
                        "or strain")
+    span = valid_range(segments)
+    if not max(abs(span.s_lo), abs(span.s_hi)) <= STRAIN_MAX:
+        raise FitError(f"sensor {name!r}: the reference strain spans {s_all.min():.4g} to "
+                       f"{s_all.max():.4g}, beyond the +/- {STRAIN_MAX:g} a calibration "
+                       "holds; import it in a larger unit (microstrain to %: import-csv "
+                       "--scales strain=1e-4)")
     r_raw = np.concatenate([np.asarray(rec.r) for rec in recordings])
     chain = alternation(r_raw)
     alternating = bool(options.get("alternation", chain.present))
@@ -437,6 +445,12 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         input=InputSettings(alternation=alternating, pair=pair),
         rest_resistance=training_rest_resistance(recordings, pair=pair),
         sample_interval=interval)
+    try:  # the checks every reader applies, in the user's terms
+        check_calibration(Calibration({name: calibration}))
+    except CalibrationError as err:
+        raise FitError(f"sensor {name!r}: the {model} fit cannot be used, nothing written: "
+                       f"{err.field.removeprefix(f'sensors.{name}.')}: {err.problem}; try "
+                       "another model (apl, cubic)") from None
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "

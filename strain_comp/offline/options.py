@@ -97,8 +97,53 @@ def model_options(model: str) -> dict[str, Check]:
 
 DIRECTION_OPTIONS: dict[str, Check] = {
     "deadzone": _number(0.0, strict=True), "k_sigma": _number(0.0, strict=True),
-    "tau": _number(0.0),
+    "tau": _number(0.0), "alternation": _boolean, "pair": _choice("mean", "upper", "lower"),
 }
+"""Options every model takes: the direction detector and the measurement chain."""
+
+MEANINGS: dict[str, str] = {
+    "N": "creep-play cells (default 11)",
+    "M": "segments of the output map f (default 9)",
+    "sigma_grid": "creep rates to search [1/s] (default 13 from the data's time scales)",
+    "p_grid": "creep exponents to search (default 0.3 .. 3)",
+    "refine": "output-error refinement after the QP (default true)",
+    "cell_weights": "signed as in the paper, or free (default signed)",
+    "eps": "lowest slope of f, normalised (default 1e-3)",
+    "ridge": "ridge on f's slopes and the cell weights (default 1e-6)",
+    "output_nfev": "evaluations of the final refinement, 0 = the QP only (default 100)",
+    "search_nfev": "evaluations per scored grid point (default 10)",
+    "search_top": "grid points re-scored (default 5)",
+    "progress": "a line per grid row on stderr for long fits (default true)",
+    "n_cells": "sinh cells (default 1)",
+    "max_nfev": "least-squares evaluations (default 100)",
+    "mode": "combined, or split: loading and unloading fits (default combined)",
+    "hold_rate": "a hold moves slower than this [strain unit/s] (default 0.2 % of span/s)",
+    "min_hold": "shortest hold [s] (default 1)",
+    "deadzone": "direction dead zone [ohm/s] (default k_sigma x noise of a hold)",
+    "k_sigma": "dead zone in noise sigmas (default 4)",
+    "tau": "low-pass of dR/dt [s] (default from the data)",
+    "alternation": "read the input in pairs (default: detected)",
+    "pair": "pair value: mean, upper or lower (default: detected)",
+}
+"""What each option sets, with its default (``strain-comp fit --help``)."""
+
+
+def requirement(check: Check) -> str:
+    """What ``check`` accepts, in words (its answer to a value no check accepts)."""
+    return check(object()) or ""
+
+
+def describe_options() -> str:
+    """Every model's options with meaning and range, for ``strain-comp fit --help``."""
+    groups = (("apl, pl, mpi", "apl"), ("sinh_pl", "sinh_pl"), ("rational", "rational"),
+              ("spike_decay", "spike_decay"), ("every model", None))
+    lines = ["fit options (--option K=V; cubic has only those of every model):"]
+    for title, model in groups:
+        lines.append(f"  {title}:")
+        table = DIRECTION_OPTIONS if model is None else model_options(model)
+        for key, check in table.items():
+            lines.append(f"    {key:<13}{MEANINGS.get(key, '')}; {requirement(check)}")
+    return "\n".join(lines)
 
 
 def check_fit_options(model: str, options: Mapping[str, Any]) -> None:

@@ -3,8 +3,12 @@
 Per sensor (slashes in NAME become ``_``): ``NAME_time.png`` (estimate and reference
 strain over time, resistance below), ``NAME_loop.png`` (estimate against reference with
 the identity line; a perfect compensator lies on it, hysteresis left in the estimate
-shows as a loop) and
-``NAME_error_hist.png`` (histogram of S_hat - S over the scored samples).
+shows as a loop), ``NAME_raw.png`` (the recorded resistance against the reference strain,
+what the model inverts, with the calibration's resistance range) and
+``NAME_error_hist.png`` (histogram of S_hat - S over the scored samples). Titles name the
+bag, the calibration and the tare; samples outside the calibrated range are marked in
+orange; axes span the data (5 % margin); strain in the calibration's unit, resistance in
+a readable prefix (or V for a divider input).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from strain_comp.io.atomic import atomic_output
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+    from strain_comp.core.calibration import Calibration
     from strain_comp.offline.evaluate import EvaluationResult, SensorEvaluation
 
 
@@ -40,51 +45,139 @@ def _save(fig: Figure, path: Path, inputs: Sequence[str | Path] = ()) -> Path:
     return path
 
 
-def _title(ev: SensorEvaluation) -> str:
+def _title(ev: SensorEvaluation, context: str = "") -> str:
     st = ev.stats
-    return (f"{ev.name} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max {st.max_abs:.3g} "
+    head = (f"{ev.name} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max {st.max_abs:.3g} "
             f"{ev.unit}, n = {st.n}")
+    return f"{head}\n{context}" if context else head
 
 
-def plot_time(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = ()) -> Path:
-    """Estimate and reference strain over time, resistance on a second panel."""
+def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | None:
+    """The finite data's range widened by ``pad`` of its span (None without data)."""
+    finite = [a[np.isfinite(a)] for a in arrays]
+    finite = [a for a in finite if a.size]
+    if not finite:
+        return None
+    lo = float(min(a.min() for a in finite))
+    hi = float(max(a.max() for a in finite))
+    span = hi - lo if hi > lo else max(abs(hi), 1.0)
+    return lo - pad * span, hi + pad * span
+
+
+def _resistance_axis(ev: SensorEvaluation) -> tuple[np.ndarray, str, float]:
+    """The input in a readable prefix (ohm, kohm, Mohm; V for a divider), its label and
+    the factor it was divided by."""
+    r = np.asarray(ev.r, dtype=np.float64)
+    if ev.input_unit != "ohm":
+        return r, f"input [{ev.input_unit}]", 1.0
+    top = float(np.nanmax(np.abs(r))) if np.isfinite(r).any() else 0.0
+    scale, prefix = next(((f, p) for f, p in ((1e6, "M"), (1e3, "k")) if top >= f), (1.0, ""))
+    return r / scale, f"resistance [{prefix}ohm]", scale
+
+
+def _out_of_range(ev: SensorEvaluation) -> np.ndarray:
+    mask = np.asarray(ev.out_of_range, bool)
+    return mask if mask.shape == ev.t.shape else np.zeros(ev.t.shape, bool)
+
+
+def plot_time(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
+              context: str = "") -> Path:
+    """Estimate and reference strain over time, resistance on a second panel; samples
+    outside the calibrated range marked on both."""
     fig = _figure(2, height=3.2)
     top, bottom = fig.subplots(2, 1, sharex=True)
     t = ev.t - ev.t[0] if ev.t.size else ev.t
+    outside = _out_of_range(ev)
     top.plot(t, ev.reference, color="0.2", lw=1.0, label="reference S")
     top.plot(t, ev.estimate, color="tab:red", lw=0.8, alpha=0.85, label="estimate S_hat")
+    r, r_label, _ = _resistance_axis(ev)
+    if outside.any():
+        top.plot(t[outside], ev.estimate[outside], ".", color="tab:orange", ms=2.5,
+                 label=f"outside the calibrated range ({int(ev.n_out_of_range)})")
+        bottom.plot(t[outside], r[outside], ".", color="tab:orange", ms=2.5)
     top.set_ylabel(f"strain [{ev.unit}]")
-    top.set_title(_title(ev))
+    lim = _limits(ev.reference, ev.estimate)
+    if lim is not None:
+        top.set_ylim(*lim)
+    top.set_title(_title(ev, context), fontsize=10)
     top.legend(loc="upper right")
     top.grid(alpha=0.3)
-    bottom.plot(t, ev.r, color="tab:blue", lw=0.8, label="resistance R")
+    bottom.plot(t, r, color="tab:blue", lw=0.8, label="R" if ev.input_unit == "ohm"
+                else "input")
+    lim = _limits(r)
+    if lim is not None:
+        bottom.set_ylim(*lim)
+    if t.size:
+        bottom.set_xlim(float(t[0]), float(t[-1]) if t[-1] > t[0] else float(t[0]) + 1.0)
     bottom.set_xlabel("time since start [s]")
-    bottom.set_ylabel("resistance [ohm]")
+    bottom.set_ylabel(r_label)
     bottom.legend(loc="upper right")
     bottom.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
 
-def plot_loop(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = ()) -> Path:
-    """S_hat against S with the identity line."""
+def plot_loop(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
+              context: str = "") -> Path:
+    """S_hat against S with the identity line; out-of-range samples marked."""
     fig = _figure(height=6.0)
     ax = fig.subplots()
     s, s_hat = ev.reference[ev.scored], ev.estimate[ev.scored]
     ax.plot(s, s_hat, color="tab:red", lw=0.6, alpha=0.8, label="estimate")
-    if s.size:
-        lo = float(min(s.min(), s_hat.min()))
-        hi = float(max(s.max(), s_hat.max()))
-        ax.plot([lo, hi], [lo, hi], color="0.3", ls="--", lw=1.0, label="identity S_hat = S")
+    outside = _out_of_range(ev)[ev.scored]
+    if outside.any():
+        ax.plot(s[outside], s_hat[outside], ".", color="tab:orange", ms=2.5,
+                label="outside the calibrated range")
+    lim = _limits(s, s_hat)
+    if lim is not None:
+        ax.plot(lim, lim, color="0.3", ls="--", lw=1.0, label="identity S_hat = S")
+        ax.set_xlim(*lim)
+        ax.set_ylim(*lim)
+        ax.set_aspect("equal")
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
-    ax.set_title(_title(ev))
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(_title(ev, context), fontsize=10)
     ax.legend(loc="upper left")
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
 
-def plot_error_hist(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = ()) -> Path:
+def plot_raw(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
+             context: str = "", r_range: tuple[float, float] | None = None) -> Path:
+    """The sensor as recorded: resistance against the reference strain (what the model
+    inverts), with the calibration's resistance range (``r_range``, ohm) as lines, moved
+    by the tare's gain into the recorded resistance."""
+    fig = _figure(height=5.0)
+    ax = fig.subplots()
+    r, r_label, scale = _resistance_axis(ev)
+    ax.plot(ev.reference, r, color="tab:blue", lw=0.6, alpha=0.8, label="recorded")
+    outside = _out_of_range(ev)
+    if outside.any():
+        ax.plot(ev.reference[outside], r[outside], ".", color="tab:orange", ms=2.5,
+                label="outside the calibrated range")
+    lim = _limits(r)
+    if r_range is not None and ev.input_unit == "ohm":
+        scale *= ev.input_gain
+        for k, bound in enumerate(r_range):
+            ax.axhline(bound / scale, color="0.4", ls=":", lw=1.0,
+                       label=("calibrated range" + (" (through the tare)"
+                                                    if ev.input_gain != 1.0 else ""))
+                       if k == 0 else None)
+        lim = _limits(r, np.asarray(r_range) / scale)
+    if lim is not None:
+        ax.set_ylim(*lim)
+    xlim = _limits(ev.reference)
+    if xlim is not None:
+        ax.set_xlim(*xlim)
+    ax.set_xlabel(f"reference strain S [{ev.unit}]")
+    ax.set_ylabel(r_label)
+    ax.set_title(_title(ev, context), fontsize=10)
+    ax.legend(loc="upper left")
+    ax.grid(alpha=0.3)
+    return _save(fig, path, inputs)
+
+
+def plot_error_hist(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
+                    context: str = "") -> Path:
     """Histogram of the error S_hat - S over the scored samples."""
     fig = _figure(height=4.0)
     ax = fig.subplots()
@@ -94,22 +187,48 @@ def plot_error_hist(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | 
     ax.axvline(0.0, color="0.3", lw=1.0)
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
-    ax.set_title(_title(ev))
+    ax.set_title(_title(ev, context), fontsize=10)
     ax.legend(loc="upper right")
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
 
 def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
-                    inputs: Sequence[str | Path] = ()) -> list[Path]:
-    """The three plots for every evaluated sensor in ``out_dir`` (created); paths written.
-    Each is written atomically; a plot path that is one of ``inputs`` is refused."""
+                    inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
+                    bag: str = "", calibration_path: str = "", tare: str = "") -> list[Path]:
+    """The four plots for every evaluated sensor in ``out_dir`` (created); paths written.
+    Titles name the ``bag``, the ``calibration_path`` and the ``tare`` (with what the tare
+    did, from the result's notes); ``calibration`` gives the raw panel its resistance
+    range. Each is written atomically; a plot path that is one of ``inputs`` is refused."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, ev in result.sensors.items():
         stem = name.strip("/").replace("/", "_")  # sensor names may hold slashes
-        written.append(plot_time(ev, out / f"{stem}_time.png", inputs=inputs))
-        written.append(plot_loop(ev, out / f"{stem}_loop.png", inputs=inputs))
-        written.append(plot_error_hist(ev, out / f"{stem}_error_hist.png", inputs=inputs))
+        context = _context(result, name, bag, calibration_path, tare)
+        cal = calibration.sensors.get(name) if calibration is not None else None
+        r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
+        written.append(plot_time(ev, out / f"{stem}_time.png", inputs=inputs,
+                                 context=context))
+        written.append(plot_loop(ev, out / f"{stem}_loop.png", inputs=inputs,
+                                 context=context))
+        written.append(plot_raw(ev, out / f"{stem}_raw.png", inputs=inputs, context=context,
+                                r_range=r_range))
+        written.append(plot_error_hist(ev, out / f"{stem}_error_hist.png", inputs=inputs,
+                                       context=context))
     return written
+
+
+def _context(result: EvaluationResult, name: str, bag: str, calibration_path: str,
+             tare: str) -> str:
+    """``bag demo.mcap, calibration cal.yaml, tare auto: rest resistance 2.1 % below ...``"""
+    parts = []
+    if bag:
+        parts.append(f"bag {Path(bag.rstrip('/')).name}")
+    if calibration_path:
+        parts.append(f"calibration {Path(calibration_path).name}")
+    if tare:
+        done = next((note.split(": ", 1)[1] for note in result.notes
+                     if note.startswith(f"{name}: ") and "tare" in note), "")
+        parts.append(f"tare {tare}" + (f" ({done})" if done else ""))
+    return ", ".join(parts)

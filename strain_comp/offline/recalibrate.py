@@ -43,8 +43,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
-from strain_comp.errors import InputError
+from strain_comp.core.calibration import (
+    STRAIN_MAX,
+    Calibration,
+    SensorCalibration,
+    check_calibration,
+    strain_unit_words,
+)
+from strain_comp.errors import CalibrationError, InputError
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -69,7 +75,10 @@ def parse_point(text: str) -> tuple[float, float]:
     except ValueError:
         r, s = float("nan"), float("nan")
     if not sep or not (np.isfinite(r) and np.isfinite(s) and r > 0):
-        raise InputError(f"--point {text!r}: expected R:S with R > 0 ohm and S in %")
+        raise InputError(f"--point {text!r}: expected R:S with R > 0 ohm and S in the "
+                         "calibration's strain unit (% unless it says otherwise)")
+    if not abs(s) <= STRAIN_MAX:
+        raise InputError(f"--point {text!r}: the strain must be within +/- {STRAIN_MAX:g}")
     return r, s
 
 
@@ -225,8 +234,16 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
         else:
             old["coef"] = float(old["coef"]) + coef
     history = [*cal.provenance.get("recalibrations", []), dict(record, gain=a, offset=b)]
-    return replace(cal, effects=effects,
-                   provenance={**cal.provenance, "recalibrations": history})
+    new = replace(cal, effects=effects,
+                  provenance={**cal.provenance, "recalibrations": history})
+    try:  # the checks every reader applies, in the user's terms
+        check_calibration(Calibration({cal.name: new}))
+    except CalibrationError as err:
+        raise InputError(f"recalibration of {cal.name!r}: {reading(a, b, unit=cal.strain_unit)}"
+                         f" gives a calibration that would not load ({err.problem}); check "
+                         f"the known strains (in {strain_unit_words(cal.strain_unit)})"
+                         ) from None
+    return new
 
 
 def head(recordings: Mapping[str, Recording], seconds: float | None,

@@ -44,6 +44,7 @@ from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.recording import array_sensor_names, hold_latest
+from strain_comp.offline.series import PendingSeries, SeriesCSV
 
 OUTPUTS = ("strain", "direction", "status")
 STAMPED = "strain_stamped"
@@ -61,8 +62,11 @@ class ReplaySummary:
     sensors: dict[str, SensorHealth]
     arrays: dict[str, list[str]]
     n_input_messages: int
+    """Every input message copied through (references, temperatures and others included)."""
     n_output_messages: int
     problems: list[str] = field(default_factory=list)
+    n_compensated: int = 0
+    """Resistance messages run through the engine (an array message counts once)."""
 
 
 @dataclass
@@ -93,8 +97,10 @@ class _Replay:
     """The state carried from one piece of the bag to the next."""
 
     def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
-                 period: float, tare: str) -> None:
+                 period: float, tare: str, series: SeriesCSV | None = None) -> None:
         self.calibration = calibration
+        self.series = series
+        self.pending: dict[str, PendingSeries] = {}
         self.tare = tare
         self.writer = writer
         self.engine = engine
@@ -107,6 +113,7 @@ class _Replay:
         """Per sensor, its latest temperature sample so far (t, value), to hold across pieces."""
         self.n_in = 0
         self.n_out = 0
+        self.n_compensated = 0
         self.problems: list[str] = []
         self.reported: set[str] = set()
         self.written: set[str] = {"/diagnostics"}
@@ -158,6 +165,9 @@ class _Replay:
         for inp, series in inputs:
             outs = self._outputs(inp, series.t, series.values,
                                  {s: temps[s] for s in inp.sensors})
+            self.n_compensated += series.t.size
+            if self.series is not None:
+                self._series(contents, inp, series, outs)
             if now.size:
                 for sensor, out in outs.items():
                     at_ticks[sensor] = health_at(before[sensor], series.t, out, now,
@@ -167,6 +177,33 @@ class _Replay:
             diagnostics({name: _stale(hs[k], tick, stale_for[name])
                          for name, hs in at_ticks.items()})
             for k, tick in enumerate(now.tolist())])
+
+    def _series(self, contents: BagContents, inp: _Input, series: Series,
+                outs: dict[str, BatchOutput]) -> None:
+        """Queue the piece's rows of ``replay --csv`` with the piece's reference samples."""
+        assert self.series is not None
+        values = series.values if series.values.ndim == 2 else series.values[:, None]
+        ref = contents.series.get(f"/{inp.name}/strain_reference")
+        labels = contents.labels.get(f"/{inp.name}/strain_reference") or inp.sensors
+        for j, name in enumerate(inp.sensors):
+            cal = self.calibration.sensors[name]
+            pending = self.pending.setdefault(name, PendingSeries(name, cal.strain_unit))
+            ref_t, ref_v = np.empty(0), np.empty(0)
+            if ref is not None and ref.values.ndim == (2 if inp.is_array else 1):
+                if not inp.is_array:
+                    ref_t, ref_v = ref.t, ref.values
+                elif name in labels and labels.index(name) < ref.values.shape[1]:
+                    ref_t, ref_v = ref.t, ref.values[:, labels.index(name)]
+            out = outs[name]
+            pending.add(series.t, cal.input.to_ohm(values[:, j]), out.strain, out.direction,
+                        out.status, ref_t, ref_v)
+            pending.flush(self.series)
+
+    def finish_series(self) -> None:
+        """Write every row still waiting for its reference."""
+        if self.series is not None:
+            for pending in self.pending.values():
+                pending.flush(self.series, final=True)
 
     def write_tick(self, t: float) -> None:
         self._write_diagnostics(np.array([t]), [diagnostics(self.engine.health(now=t))])
@@ -227,7 +264,8 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
                gap_reset: float = GAP_RESET, stale_after: float = 1.0,
                window: int = WINDOW, tare: str = "calibration",
-               inputs: Sequence[str | os.PathLike[str]] = ()) -> ReplaySummary:
+               inputs: Sequence[str | os.PathLike[str]] = (),
+               csv: str | os.PathLike[str] | None = None) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
     calibration file) is refused before anything is read.
@@ -241,27 +279,38 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
 
     ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine`` on the first
     seconds of each input, from the first piece it appears in, before it is replayed; the
-    readings go to the problems list).
+    readings go to the problems list). ``csv``: also write the series
+    (``strain_comp.offline.series``) there, atomically, or to stdout for ``-``.
     """
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
     out_path = Path(out_path)
-    with BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
-        state = _Replay(calibration, writer, engine, diagnostics_period, tare)
-        for contents in iter_bag(in_path, window=window):
-            state.piece(contents)
-        inputs = [i for i in state.inputs.values() if i is not None]
-        if not inputs:
-            raise BagError(f"no /NAME/resistance topic for any calibrated sensor "
-                           f"({', '.join(calibration.sensors)})")
-        for t in state.ticks:
-            state.write_tick(float(t))
+    table = None if csv is None else SeriesCSV(csv, inputs=[in_path, *inputs, out_path])
+    try:
+        with BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
+            state = _Replay(calibration, writer, engine, diagnostics_period, tare, table)
+            for contents in iter_bag(in_path, window=window):
+                state.piece(contents)
+            inputs = [i for i in state.inputs.values() if i is not None]
+            if not inputs:
+                raise BagError(f"no /NAME/resistance topic for any calibrated sensor "
+                               f"({', '.join(calibration.sensors)})")
+            for t in state.ticks:
+                state.write_tick(float(t))
+            state.finish_series()
+    except BaseException:
+        if table is not None:
+            table.discard()
+        raise
+    if table is not None:
+        table.close()
     replayed = {s for i in inputs for s in i.sensors}
     problems = state.problems + [
         f"calibrated sensor {s!r} has no input topic in the bag: not replayed "
         "(STALE in /diagnostics)" for s in calibration.sensors if s not in replayed]
     return ReplaySummary(out_path, engine.health(), {i.name: i.sensors for i in inputs
                                                     if i.is_array},
-                         state.n_in, state.n_out + state.n_in, located(in_path, problems))
+                         state.n_in, state.n_out + state.n_in, located(in_path, problems),
+                         state.n_compensated)
 
 
 def _copy_through(contents: BagContents, writer: BagWriter, written: set[str],

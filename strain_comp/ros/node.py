@@ -133,11 +133,11 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from array import array
 
     import numpy as np
+    from builtin_interfaces.msg import Time
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.clock import JumpThreshold, ROSClock
     from rclpy.duration import Duration
-    from builtin_interfaces.msg import Time
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data

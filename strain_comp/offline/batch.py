@@ -1,0 +1,215 @@
+"""``evaluate`` over many bags: one table per bag and the pooled errors of all of them.
+
+A study has dozens of runs. ``expand_bags`` turns the command line's paths into bags (an
+MCAP file, a rosbag2 directory, or a folder of them); ``evaluate_bags`` evaluates each one
+exactly as a single ``evaluate`` would (``evaluate_bag``, streamed), serially or in a pool
+of ``jobs`` processes, and pools each sensor's errors over the bags it was scored in
+(``ErrorAccumulator.merge``: the RMSE, MAE, max and R^2 of all the samples together, not a
+mean of per-bag figures). A bag that cannot be evaluated is reported with its one-line
+reason and the others still are; the command then exits 2 after writing everything.
+
+JSON (``evaluate --json`` with more than one bag; one bag keeps the single-bag shape)::
+
+    {"bags": {"BAG": {"sensors": {...}} | {"error": "..."}, ...},
+     "aggregate": {"sensors": {"NAME": {"rmse", "mae", "max_abs", "r2", "n", "n_bags",
+                                        "unit"}}}}
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+from strain_comp.core.calibration import load_calibration, strain_unit_words
+from strain_comp.core.metrics import ErrorAccumulator
+from strain_comp.errors import InputError, StrainCompError
+from strain_comp.offline.evaluate import EvaluationResult, format_notes, format_table
+from strain_comp.offline.series import SeriesCSV
+
+MAX_JOBS = 64
+
+
+def _is_bag_dir(path: Path) -> bool:
+    return (path / "metadata.yaml").is_file()
+
+
+def expand_bags(paths: Sequence[str]) -> list[str]:
+    """The bags named by ``paths``: MCAP files and rosbag2 directories as given; a folder
+    that is not a rosbag2 directory stands for its ``*.mcap`` files and rosbag2
+    directories (sorted by name, not recursively). InputError for a folder without any."""
+    bags: list[str] = []
+    for text in paths:
+        path = Path(text)
+        if path.is_dir() and not _is_bag_dir(path):
+            found = sorted(str(p) for p in path.iterdir()
+                           if (p.suffix == ".mcap" and p.is_file()) or
+                           (p.is_dir() and _is_bag_dir(p)))
+            if not found:
+                raise InputError(f"{text}: a folder without .mcap files or rosbag2 "
+                                 "directories")
+            bags += found
+        else:
+            bags.append(text)
+    return list(dict.fromkeys(bags))
+
+
+@dataclass
+class BagOutcome:
+    """One bag's evaluation, or the one line why it could not be evaluated."""
+
+    bag: str
+    result: EvaluationResult | None = None
+    problems: list[str] = field(default_factory=list)
+    error: str | None = None
+    plots: list[str] = field(default_factory=list)
+    series: str = ""
+    """``evaluate --csv`` rows of this bag (pool workers only)."""
+
+
+def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
+                  in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
+                  inputs: Sequence[str], out_of_range: str = "clamp") -> BagOutcome:
+    """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
+    ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
+    (a pool worker)."""
+    from strain_comp.io.recording import load_recordings
+    from strain_comp.offline.evaluate import evaluate_bag, in_run_bound
+
+    table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
+    try:
+        calibration = load_calibration(calibration_path)
+        result, problems = evaluate_bag(bag, calibration, tare=tare, plot_points=plot_points,
+                                        series=table, out_of_range=out_of_range)
+        if in_run:
+            in_run_bound(result, load_recordings(bag)[0], calibration)
+        outcome = BagOutcome(bag, result, problems)
+        if plots_dir is not None:
+            from strain_comp.offline.plots import plot_evaluation
+
+            outcome.plots = [str(p) for p in plot_evaluation(
+                result, plots_dir, inputs=inputs, calibration=calibration, bag=bag,
+                calibration_path=calibration_path, tare=tare)]
+        for ev in result.sensors.values():  # the arrays went into the plots
+            ev.t = ev.r = ev.reference = ev.estimate = ev.direction = ev.scored = \
+                ev.t[:0]
+    except StrainCompError as err:
+        outcome = BagOutcome(bag, error=" ".join(str(err).split()))
+    except BrokenPipeError:  # stdout closed: the command ends, not this bag
+        raise
+    except OSError as err:
+        outcome = BagOutcome(bag, error=f"{err.filename or bag}: {err.strerror or err}")
+    if isinstance(series_to, str) and table is not None:
+        table.close()
+        text = Path(series_to).read_text(encoding="utf-8")
+        outcome.series = text.split("\n", 1)[1] if "\n" in text else ""
+    return outcome
+
+
+def _plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
+    """A subfolder of ``plots`` per bag, named by its stem (numbered when stems repeat)."""
+    if plots is None:
+        return [None] * len(bags)
+    stems = [Path(b.rstrip("/")).stem or "bag" for b in bags]
+    out: list[str | None] = []
+    for k, stem in enumerate(stems):
+        name = stem if stems.count(stem) == 1 else f"{k + 1:03d}_{stem}"
+        out.append(str(Path(plots) / name))
+    return out
+
+
+def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "calibration",
+                  jobs: int = 1, plot_points: int = 0, in_run: bool = False,
+                  plots: str | None = None, series: SeriesCSV | None = None,
+                  progress: Callable[[int, int, str], None] | None = None,
+                  out_of_range: str = "clamp") -> list[BagOutcome]:
+    """Every bag evaluated (module docstring), in the order given; ``jobs`` > 1 runs them
+    in a pool of that many processes. ``progress(done, total, bag)`` after each bag."""
+    if not 1 <= jobs <= MAX_JOBS:
+        raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
+    inputs = [*bags, calibration_path]
+    dirs = _plot_dirs(bags, plots)
+    outcomes: list[BagOutcome] = []
+    if jobs == 1 or len(bags) == 1:
+        for k, bag in enumerate(bags):
+            outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
+                                          dirs[k], series, inputs, out_of_range))
+            if progress is not None:
+                progress(k + 1, len(bags), bag)
+        return outcomes
+    with tempfile.TemporaryDirectory(prefix="strain_comp_") as tmp, \
+            ProcessPoolExecutor(max_workers=min(jobs, len(bags)),
+                                mp_context=get_context("spawn")) as pool:
+        parts = [None if series is None else os.path.join(tmp, f"{k}.csv")
+                 for k in range(len(bags))]
+        futures = [pool.submit(_evaluate_one, bag, calibration_path, tare, plot_points,
+                               in_run, dirs[k], parts[k], inputs, out_of_range)
+                   for k, bag in enumerate(bags)]
+        for k, future in enumerate(futures):  # in order: the CSV keeps the bags' order
+            outcome = future.result()
+            if series is not None and outcome.series:
+                series.add_text(outcome.series)
+                outcome.series = ""
+            outcomes.append(outcome)
+            if progress is not None:
+                progress(k + 1, len(bags), bags[k])
+    return outcomes
+
+
+def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulator, int, str,
+                                                                    str]]:
+    """Per sensor: the errors pooled over the bags, how many bags, model and unit."""
+    pooled: dict[str, tuple[ErrorAccumulator, int, str, str]] = {}
+    for outcome in outcomes:
+        if outcome.result is None:
+            continue
+        for name, ev in outcome.result.sensors.items():
+            acc, n_bags, _, _ = pooled.get(name, (ErrorAccumulator(), 0, ev.model, ev.unit))
+            if ev.errors is not None:
+                acc.merge(ev.errors)
+            pooled[name] = (acc, n_bags + 1, ev.model, ev.unit)
+    return pooled
+
+
+def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
+    """The pooled table: every sensor over every bag it was scored in."""
+    header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
+              f"{'max':>9} {'R^2':>8}")
+    done = sum(o.result is not None for o in outcomes)
+    lines = [f"== {done} of {len(outcomes)} bags evaluated: errors pooled over them",
+             header, "-" * len(header)]
+    units = set()
+    for name, (acc, n_bags, model, unit) in aggregate(outcomes).items():
+        st = acc.stats()
+        units.add(unit)
+        lines.append(f"{name:<16} {model:<11} {n_bags:>4d} {st.n:>8d} {st.rmse:>9.4f} "
+                     f"{st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}")
+    words = ", ".join(strain_unit_words(u) for u in sorted(units)) or "% strain"
+    lines.append(f"errors in {words}, over all samples of all bags together")
+    return "\n".join(lines)
+
+
+def format_bag(outcome: BagOutcome) -> tuple[str, list[str]]:
+    """One bag's heading and table (stdout) and its notes (stderr)."""
+    if outcome.result is None:
+        return f"== {outcome.bag}\nnot evaluated: {outcome.error}", []
+    notes = outcome.problems + format_notes(outcome.result)
+    return f"== {outcome.bag}\n{format_table(outcome.result)}", notes
+
+
+def to_json(outcomes: Sequence[BagOutcome]) -> dict[str, Any]:
+    """The multi-bag JSON (module docstring)."""
+    bags: dict[str, Any] = {}
+    for outcome in outcomes:
+        bags[outcome.bag] = ({"error": outcome.error} if outcome.result is None
+                             else outcome.result.to_json())
+    pooled = {}
+    for name, (acc, n_bags, model, unit) in aggregate(outcomes).items():
+        pooled[name] = {**acc.stats().to_dict(), "n_bags": n_bags, "model": model,
+                        "unit": unit}
+    return {"bags": bags, "aggregate": {"sensors": pooled}}

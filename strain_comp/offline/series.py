@@ -1,0 +1,127 @@
+"""The compensated series as CSV: ``replay --csv`` and ``evaluate --csv``.
+
+One row per sample and sensor (long format, so an array of any size has the same columns):
+
+    sensor,time_s,resistance_ohm,estimate,reference,unit,direction,status
+
+``estimate`` and ``reference`` are in ``unit``, the calibration's strain unit (% unless it
+says otherwise); ``reference`` is empty where the bag has none; ``direction`` is +1
+loading, 0 hold, -1 unloading; ``status`` the engine's sample status in words (``good``,
+``out_of_range``, ``not_finite``, ... ``strain_comp.core.engine.Status``). ``evaluate`` over
+several bags puts a ``bag`` column first. A spreadsheet or ``pandas.read_csv`` reads it as
+it is. The file is written atomically (``strain_comp.io.atomic``); ``-`` writes to stdout.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from strain_comp.core.engine import Status
+from strain_comp.io.atomic import AtomicFile
+from strain_comp.io.recording import PieceAlign
+
+COLUMNS = ("sensor", "time_s", "resistance_ohm", "estimate", "reference", "unit",
+           "direction", "status")
+_STATUS = {int(s): s.name.lower() for s in Status}
+
+
+def _number(values: np.ndarray) -> list[str]:
+    """Shortest round-trip text of each value; empty for NaN (a missing cell)."""
+    return ["" if v != v else repr(v) for v in values.tolist()]
+
+
+class SeriesCSV:
+    """Rows of the module's columns, streamed into ``path`` (atomically) or stdout (``-``).
+
+    ``bag``: with a ``bag`` column (``evaluate`` over several bags). ``close()`` commits
+    the file; ``discard()`` (on an error) leaves the target as it was."""
+
+    def __init__(self, path: str | os.PathLike[str], *,
+                 inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False) -> None:
+        self.stdout = str(path) == "-"
+        self.file = None if self.stdout else AtomicFile(path, inputs=inputs)
+        self.bag = bag
+        self._write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
+
+    def _write(self, text: str) -> None:
+        if self.file is None:
+            sys.stdout.write(text)
+        else:
+            self.file.handle.write(text.encode("utf-8"))
+
+    def add(self, sensor: str, t: np.ndarray, resistance: np.ndarray, estimate: np.ndarray,
+            reference: np.ndarray | None, direction: np.ndarray, status: np.ndarray, *,
+            unit: str, bag: str = "") -> None:
+        """Rows for one sensor's samples (arrays of equal length)."""
+        n = int(np.asarray(t).size)
+        if n == 0:
+            return
+        ref = np.full(n, np.nan) if reference is None else np.asarray(reference, np.float64)
+        head = f"{_cell(bag)},{_cell(sensor)}" if self.bag else _cell(sensor)
+        tail = _cell(unit)
+        buf = io.StringIO()
+        for row in zip(_number(np.asarray(t, np.float64)),
+                       _number(np.asarray(resistance, np.float64)),
+                       _number(np.asarray(estimate, np.float64)), _number(ref),
+                       np.asarray(direction).astype(int).tolist(),
+                       np.asarray(status).astype(int).tolist(), strict=True):
+            buf.write(f"{head},{row[0]},{row[1]},{row[2]},{row[3]},{tail},{row[4]},"
+                      f"{_STATUS.get(row[5], str(row[5]))}\n")
+        self._write(buf.getvalue())
+
+    def add_text(self, text: str) -> None:
+        """Rows already formatted (a worker's part of ``evaluate --jobs``), header-less."""
+        self._write(text)
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.commit()
+        else:
+            sys.stdout.flush()
+
+    def discard(self) -> None:
+        if self.file is not None:
+            self.file.discard()
+
+
+def _cell(text: str) -> str:
+    """A text cell, quoted when it holds a comma, a quote or a line break."""
+    if any(c in text for c in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
+class PendingSeries:
+    """One replayed sensor's rows waiting for its reference (``PieceAlign``, the alignment
+    ``evaluate`` uses), so ``replay --csv`` gives the reference ``evaluate --csv`` gives."""
+
+    def __init__(self, name: str, unit: str) -> None:
+        self.name = name
+        self.unit = unit
+        self.align = PieceAlign()
+        self.columns: list[np.ndarray] = [np.empty(0)] * 5
+
+    def add(self, t: np.ndarray, resistance: np.ndarray, estimate: np.ndarray,
+            direction: np.ndarray, status: np.ndarray, ref_t: np.ndarray,
+            ref_v: np.ndarray) -> None:
+        """A piece's outputs and the piece's reference samples (may be empty)."""
+        self.align.add(t, ref_t, ref_v)
+        new: Sequence[np.ndarray] = (t, resistance, estimate, direction, status)
+        self.columns = [np.concatenate((old, np.asarray(v, np.float64)))
+                        for old, v in zip(self.columns, new, strict=True)]
+
+    def flush(self, out: SeriesCSV, *, final: bool = False) -> None:
+        """Write the rows whose reference is known (all of them with ``final``)."""
+        if final:
+            self.align.finish()
+        n = int(np.searchsorted(self.columns[0], self.align.horizon(), side="right"))
+        if n == 0:
+            return
+        t, r, est, direction, status = (c[:n] for c in self.columns)
+        self.columns = [c[n:] for c in self.columns]
+        out.add(self.name, t, r, est, self.align.take(t), direction, status, unit=self.unit)
