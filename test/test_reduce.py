@@ -4,6 +4,8 @@ fit on the reduction against the fit on every sample."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from strain_comp.io.recording import Recording
@@ -26,7 +28,7 @@ def _protocol() -> tuple[np.ndarray, np.ndarray, list[float], list[float]]:
     """t, strain of ramps (10 %/s) between levels, with holds: reversal times, hold edges."""
     levels = [0.0, 12.0, 4.0, 20.0, 20.0, 6.0, 15.0, 0.0]  # the 20 -> 20 leg is a 3 s hold
     t_knots, s_knots = [0.0], [0.0]
-    for a, b in zip(levels, levels[1:], strict=False):
+    for a, b in itertools.pairwise(levels):
         t_knots.append(t_knots[-1] + (abs(b - a) / 10.0 if b != a else 3.0))
         s_knots.append(b)
     t = np.arange(0.0, t_knots[-1], 1.0 / FS)
