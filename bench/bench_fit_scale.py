@@ -16,6 +16,9 @@ default budget gives ``--samples``; the same ``--small`` samples fitted on every
 (the baseline both sizes can afford); then ``--samples`` with the default budget
 (``strain_comp.offline.reduce``). Each prints the fit error ``fit_rmse`` (the engine over
 the FULL training data), the reduction factor, the fit and wall time and the peak RSS.
+Then ``strain-comp diagnose`` (``diagnose_bag``) on both bags with a ``--diagnose-model``
+calibration fitted on the small one: time, peak RSS, held-out RMSE before and after and
+the terms added (``--only fit|diagnose`` runs one part).
 Goal: 1e7 samples in <= 2 GB and minutes, with a full-data
 error close to the unreduced fit's on the size both can handle.
 """
@@ -55,6 +58,24 @@ with open("/proc/self/status") as status:  # VmHWM: this process's peak since ex
 print(json.dumps({"seconds": seconds, "peak_mb": peak, **cal.provenance}))
 """
 
+DIAGNOSE_ONE = """
+import json, sys, time
+from strain_comp.core.calibration import Calibration
+from strain_comp.diagnosis.loop import diagnose_bag
+from strain_comp.io.recording import load_recordings
+from strain_comp.offline.fit import fit_sensor
+small, bag, model = sys.argv[1], sys.argv[2], sys.argv[3]
+cal = Calibration({"s1": fit_sensor([load_recordings(small)[0]["s1"]], model, name="s1")})
+start = time.perf_counter()
+result = diagnose_bag(bag, cal)
+seconds = time.perf_counter() - start
+with open("/proc/self/status") as status:
+    peak = next(int(ln.split()[1]) for ln in status if ln.startswith("VmHWM")) / 1024
+print(json.dumps({"seconds": seconds, "peak_mb": peak, "before": result.before["rmse"],
+                  "after": result.after["rmse"], "added": [a.name for a in result.added],
+                  "message": result.sensors["s1"].message}))
+"""
+
 
 def make_bag(path: Path, n: int) -> None:
     """``n`` samples of the rig's ``rates`` run, resampled (module docstring)."""
@@ -80,33 +101,20 @@ def child(args: list[str]) -> tuple[dict[str, object], float]:
     return json.loads([ln for ln in done.stdout.splitlines() if ln.startswith("{")][-1]), wall
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--samples", type=int, default=10_000_000)
-    parser.add_argument("--small", type=int, default=100_000)
-    parser.add_argument("--model", default="apl")
-    args = parser.parse_args()
+def fits(args: argparse.Namespace, small: Path, large: Path) -> None:
+    """The three fit rows (module docstring) and the goal line."""
     factor = max(2, math.ceil(args.samples / FIT_SAMPLE_BUDGET))
-    with tempfile.TemporaryDirectory() as tmp:
-        small, large = Path(tmp) / "small.mcap", Path(tmp) / "large.mcap"
-        start = time.perf_counter()
-        make_bag(small, args.small)
-        make_bag(large, args.samples)
-        print(f"bags: {args.small:,} and {args.samples:,} samples "
-              f"({large.stat().st_size / 1e6:.0f} MB), made in "
-              f"{time.perf_counter() - start:.0f} s; {os.cpu_count()} cores; "
-              f"model {args.model}; budget {FIT_SAMPLE_BUDGET:,} samples")
-        runs = []
-        for label, bag, budget in (
-                (f"{args.small:,}, reduced by {factor} (budget forced)", small,
-                 args.small // factor),
-                (f"{args.small:,}, every sample", small, 10**12),
-                (f"{args.samples:,}, default budget", large, FIT_SAMPLE_BUDGET)):
-            info, wall = child([sys.executable, "-c", FIT_ONE, str(bag), args.model,
-                                str(budget)])
-            runs.append((label, info, wall, float(info["peak_mb"])))
-    print(f"{'fit':<40}{'fit_rmse %':>11}{'factor':>8}{'fit s':>8}{'wall s':>8}"
-          f"{'peak MB':>9}")
+    runs = []
+    for label, bag, budget in (
+            (f"{args.small:,}, reduced by {factor} (budget forced)", small,
+             args.small // factor),
+            (f"{args.small:,}, every sample", small, 10**12),
+            (f"{args.samples:,}, default budget", large, FIT_SAMPLE_BUDGET)):
+        info, wall = child([sys.executable, "-c", FIT_ONE, str(bag), args.model,
+                            str(budget)])
+        runs.append((label, info, wall, float(info["peak_mb"])))
+    print(f"{'fit (' + args.model + ')':<40}{'fit_rmse %':>11}{'factor':>8}{'fit s':>8}"
+          f"{'wall s':>8}{'peak MB':>9}")
     for label, info, wall, peak in runs:
         red = info.get("fit_reduction") or {"factor": 1}
         assert isinstance(red, dict)
@@ -120,6 +128,45 @@ def main() -> None:
         f"{args.small:,} samples unreduced: fit_rmse {float(full['fit_rmse']):.3f} %",
         f"{float(reduced['fit_rmse']) / float(full['fit_rmse']):.3f} error ratio reduced/"
         f"full at {args.small:,}", memory_mb=peak)
+
+
+def diagnoses(args: argparse.Namespace, small: Path, large: Path) -> None:
+    """``diagnose_bag`` on both bags (calibration fitted on the small one)."""
+    print(f"diagnose (calibration: {args.diagnose_model} fitted on the {args.small:,}-sample "
+          "bag; s = diagnose_bag alone, peak = the whole process):")
+    print(f"{'bag':<14}{'s':>8}{'peak MB':>9}  held-out RMSE before -> after, added")
+    for label, bag in ((f"{args.small:,}", small), (f"{args.samples:,}", large)):
+        d, _ = child([sys.executable, "-c", DIAGNOSE_ONE, str(small), str(bag),
+                      args.diagnose_model])
+        print(f"{label:<14}{float(d['seconds']):>8.1f}{float(d['peak_mb']):>9.0f}  "
+              f"{float(d['before']):.4f} -> {float(d['after']):.4f} %, {d['added']}")
+        if bag is large:
+            print(f"  {d['message']}")
+            row(f"`diagnose` on {args.samples:,} samples (`bench_fit_scale.py`)",
+                f"{float(d['seconds']):.0f} s", "-", "-", memory_mb=float(d["peak_mb"]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=10_000_000)
+    parser.add_argument("--small", type=int, default=100_000)
+    parser.add_argument("--model", default="apl")
+    parser.add_argument("--diagnose-model", default="cubic")
+    parser.add_argument("--only", choices=("fit", "diagnose"), default=None)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        small, large = Path(tmp) / "small.mcap", Path(tmp) / "large.mcap"
+        start = time.perf_counter()
+        make_bag(small, args.small)
+        make_bag(large, args.samples)
+        print(f"bags: {args.small:,} and {args.samples:,} samples "
+              f"({large.stat().st_size / 1e6:.0f} MB), made in "
+              f"{time.perf_counter() - start:.0f} s; {os.cpu_count()} cores; "
+              f"budget {FIT_SAMPLE_BUDGET:,} samples")
+        if args.only in (None, "fit"):
+            fits(args, small, large)
+        if args.only in (None, "diagnose"):
+            diagnoses(args, small, large)
 
 
 if __name__ == "__main__":
