@@ -104,6 +104,16 @@ from strain_comp.diagnosis.selection import (
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording, hold_latest, load_recordings
 
+ROW_BUDGET = 250_000
+"""Samples of one sensor (over its fit recordings; validation recordings apart) up to which
+the loop keeps every used sample. Above it, every k-th (k = ceil(samples / budget)) after
+the regressors have run online over all of them: the candidates' memory and state see the
+full rate, and only the rows of the least-squares problems are thinned. A fixed-stride
+subsample keeps the residual's RMSE and MAE unbiased estimates of the full data's (a
+low-pass would shrink the noise no term can explain and inflate every gain), and the
+regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
+regressor matrix holds at most about ``ROW_BUDGET`` rows."""
+
 
 @dataclass
 class _Series:
@@ -196,8 +206,9 @@ def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], ba
 
 def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
             runs: Mapping[str, _Run], candidates: Sequence[dict[str, Any]],
-            n_blocks: int) -> _Series | None:
-    """Residual and candidate regressors of one sensor in one bag (None: nothing usable)."""
+            n_blocks: int, stride: int = 1) -> _Series | None:
+    """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
+    at every ``stride``-th of the samples kept (the regressors run over all of them)."""
     rec = bag[sensor]
     if rec.s is None or sensor not in runs:
         return None
@@ -220,18 +231,26 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
         lambda b: terms.run(b.t, b.r, b.s_hat, b.direction, b.temperature, b.neighbours),
         terms.reset, batch, run.starts)
     keep = ok[used]
-    regressors = [regressor_from_dict(c) for c in candidates]
-    g = np.column_stack([_segmented(reg.run, reg.reset, batch, run.starts)
-                         for reg in regressors])
     s = np.asarray(rec.s, dtype=np.float64)[used]
-    e = corrected - s
     unsettled = unsettled_start(rec.t, cal.input.to_ohm(rec.r), rec.s, pair=cal.input.pair)
     if unsettled[0] > 0:  # seconds from the first sample with a reference
         keep &= t > t[keep][0] + unsettled[0]
     if keep.sum() < 2 * n_blocks:
         return None
-    return _Series(e=e[keep], g=g[keep], t=t[keep], block=_block_ids(t[keep], n_blocks),
-                   s=s[keep], unsettled=unsettled)
+    rows = np.flatnonzero(keep)[::stride]
+    regressors = [regressor_from_dict(c) for c in candidates]
+    g = np.empty((rows.size, len(regressors)))
+    for j, reg in enumerate(regressors):  # each online over every sample, then the rows
+        g[:, j] = _segmented(reg.run, reg.reset, batch, run.starts)[rows]
+    return _Series(e=(corrected - s)[rows], g=g, t=t[rows],
+                   block=_block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
+
+
+def _stride(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
+    """Every how many-th used sample of ``sensor`` the loop keeps in ``bags`` (1 up to
+    ``ROW_BUDGET`` samples; see there)."""
+    total = sum(b[sensor].t.size for b in bags if sensor in b)
+    return max(1, math.ceil(total / ROW_BUDGET))
 
 
 def _rmse_stats(e: np.ndarray) -> dict[str, float]:
@@ -290,8 +309,11 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         kinds.append("offset")
     offset = kinds.index("offset")
     baselines = [j for j, k in enumerate(kinds) if k == "baseline"]
+    stride = _stride(bags, sensor)
+    val_stride = 1 if validate is None else _stride(validate, sensor)
     series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-              for s in [_series(sensor, cal, b, runs, candidates, n_blocks)] if s is not None]
+              for s in [_series(sensor, cal, b, runs, candidates, n_blocks, stride)]
+              if s is not None]
     if not series:
         return None
     period = _holdout_period(holdout_fraction) if validate is None else 0
@@ -310,7 +332,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
 
     if validate is not None:
         val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
-                      for s in [_series(sensor, cal, b, runs, candidates, n_blocks)]
+                      for s in [_series(sensor, cal, b, runs, candidates, n_blocks,
+                                        val_stride)]
                       if s is not None]
         if not val_series:
             raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
@@ -388,6 +411,10 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         message += (f"; the first {seconds:.0f} s{others}, before the reference first moves, "
                     f"are left out: the resistance still relaxes there from an earlier "
                     f"stretch ({100 * drift:+.2f} % over {TARE_WINDOW:g} s)")
+    if stride > 1 or val_stride > 1:
+        message += (f"; fitted and scored on every {stride}-th sample"
+                    + (f" (validation: every {val_stride}-th)" if validate is not None else "")
+                    + f" of a run longer than {ROW_BUDGET:,} samples")
     plot = {}
     if winner is not None:
         plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],

@@ -50,6 +50,10 @@ data and fills in what a calibration file needs besides the parameters:
   pair_branch``; the carbon-black strip), stored as ``input.pair``.
   Options ``alternation`` (true/false) and ``pair`` (mean/upper/lower) override the
   detection; the provenance records the reading (``measurement_chain``).
+* **Long runs**: above ``strain_comp.offline.reduce.FIT_SAMPLE_BUDGET`` good samples the
+  model is fitted on an anti-aliased reduction of the segments that keeps every reversal
+  and hold (``strain_comp.offline.reduce``); everything else above, and the fit error, is
+  computed on the full data. The provenance records the factor (``fit_reduction``).
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
@@ -85,6 +89,7 @@ from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import CalibrationError, FitError, InputError
 from strain_comp.models import Normalisation, Segment, model_class
+from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -389,12 +394,13 @@ def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "me
 
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-               ) -> SensorCalibration:
+               budget: int = FIT_SAMPLE_BUDGET) -> SensorCalibration:
     """Fit ``model`` to one sensor's recordings (each with a reference strain).
 
     ``options`` go to the model's ``fit`` (N, M, mode, ...) except ``deadzone``, ``k_sigma``
-    and ``tau``, which set the direction detector. Raises FitError when the data cannot
-    support a fit (no reference, too few good samples, no range of R or S).
+    and ``tau``, which set the direction detector. ``budget``: good samples above which
+    the model is fitted on a reduction (module docstring, Long runs). Raises FitError
+    when the data cannot support a fit (no reference, too few good samples, no range of R or S).
     """
     options = dict(options or {})
     cls = model_class(model)
@@ -437,7 +443,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     model_options = {k: v for k, v in options.items() if k not in _DIRECTION_OPTIONS}
     _check_options(cls.fit, model, model_options)
     start = time.perf_counter()
-    compensator = cls.fit(segments, normalisation, direction=direction, **model_options)
+    fit_segments, factor = reduce_segments(segments, budget)
+    compensator = cls.fit(fit_segments, normalisation, direction=direction, **model_options)
     fit_seconds = time.perf_counter() - start
     calibration = SensorCalibration(
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
@@ -461,7 +468,10 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         measurement_chain=(chain.reading() + (f", read through the pair {pair}" if alternating
                                               else "")
                            if chain.present else "no alternation found"),
-        options=model_options)
+        options=model_options,
+        **({"fit_reduction": {"factor": factor,
+                              "samples": sum(seg.t.size for seg in fit_segments)}}
+           if factor > 1 else {}))
     return calibration
 
 
