@@ -249,7 +249,7 @@ class LiveCompensator:
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
-        if not math.isfinite(out.strain):
+        if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 
@@ -261,7 +261,7 @@ class LiveCompensator:
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
         self._seen(name, t, values, out.status, out.direction)
-        if not np.isfinite(out.strain).all():
+        if (used_mask(out.status) & ~np.isfinite(out.strain)).any():  # good samples: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 
