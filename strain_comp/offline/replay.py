@@ -235,9 +235,10 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
         for contents in iter_bag(in_path, window=window):
             state.piece(contents)
         inputs = [i for i in state.inputs.values() if i is not None]
-        if not inputs:
-            raise BagError(f"no /NAME/resistance topic for any calibrated sensor "
-                           f"({', '.join(calibration.sensors)})")
+        if not inputs:  # the bag's damage, if any, may be why
+            raise BagError("; ".join([f"no /NAME/resistance topic for any calibrated sensor "
+                                      f"({', '.join(calibration.sensors)})",
+                                      *located(in_path, state.problems)]))
         for t in state.ticks:
             state.write_tick(float(t))
     replayed = {s for i in inputs for s in i.sensors}
