@@ -344,7 +344,7 @@ def test_csv_text_hazards_lose_no_row(tmp_path: Path) -> None:
 
 
 def test_play_takes_message_types_from_its_fixed_registry_only(tmp_path: Path) -> None:
-    """A bag naming ``tf2_msgs/msg/TFMessage`` (or any module, a module that would run code on import)
+    """A bag naming ``tf2_msgs/msg/TFMessage`` (or a module that would run code on import)
     imports nothing: such messages are not played; a bag holding only them is refused in
     one line before anything is published."""
     from strain_comp.errors import BagError
