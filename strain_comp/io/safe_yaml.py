@@ -64,7 +64,7 @@ _LimitedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
 
 _CSafeLoader: Any = getattr(yaml, "CSafeLoader", None)
 if _CSafeLoader is not None:
-    class _LimitedCLoader(_CSafeLoader):  # type: ignore[misc, valid-type]
+    class _LimitedCLoader(_CSafeLoader):
         """libyaml's SafeLoader refusing integers that no float can hold."""
 
     _LimitedCLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
