@@ -204,8 +204,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if not unit_ok(args.strain_unit):
         raise InputError(f"--strain-unit {args.strain_unit!r}: expected a unit such as % or "
                          "mm (1-16 letters, digits, %, / or .)")
-    calibration = fit_bags(args.bags, args.model, args.sensor, options,
-                           report=lambda line: _note(args, line))
+    notes: list[str] = []  # damage the reader skipped: noted once, in the error if any
+    try:
+        calibration = fit_bags(args.bags, args.model, args.sensor, options, report=notes.append)
+    except StrainCompError as err:
+        raise InputError("; ".join([str(err), *notes])) from None
+    for line in notes:
+        _note(args, line)
     for cal in calibration.sensors.values():
         cal.strain_unit = args.strain_unit
     save_calibration(calibration, args.out, inputs=args.bags)

@@ -341,3 +341,22 @@ def test_csv_text_hazards_lose_no_row(tmp_path: Path) -> None:
     wide = _csv(tmp_path, "0.0," + "9" * 200_000 + "\n0.1,100\n")
     with pytest.raises(InputError, match="field larger than field limit"):
         import_csv(wide, fmt="generic", sensor="s1", columns={"time": 0, "resistance": 1})
+
+
+def test_play_takes_message_types_from_its_fixed_registry_only(tmp_path: Path) -> None:
+    """A bag naming ``tf2_msgs/msg/TFMessage`` (or a module that would run code on import)
+    imports nothing: such messages are not played; a bag holding only them is refused in
+    one line before anything is published."""
+    from strain_comp.errors import BagError
+    from strain_comp.ros.player import PLAYABLE, message_class, play
+
+    for name in ("tf2_msgs/msg/TFMessage", "no_such_pkg/msg/X", "os/msg/system"):
+        assert message_class(name) is None
+        assert name.split("/")[0] not in sys.modules or name.startswith("os/")
+    assert all(message_class(kind).__name__ == kind.rsplit("/", 1)[1] for kind in PLAYABLE)
+    schema = Schema(id=1, name="no_such_pkg/msg/X", encoding="ros2msg", data=b"float64 x")
+    records = (_records(schema, _channel(1, 1, "/x")) + _messages(1, [1.0], _cdr_float64, 10**9))
+    path = _bag(tmp_path / "foreign.mcap", _chunk(records, t0=10**9))
+    with pytest.raises(BagError, match="no message of a type play publishes"):
+        play(path, wait_s=0.1)
+    assert "no_such_pkg" not in sys.modules

@@ -4,6 +4,9 @@ orders or names the sensors differently, and a flood of distinct refusal reasons
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -11,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_env import use_ros_env
+from ros_env import ros_env, use_ros_env
 
 use_ros_env(7)
 
@@ -154,3 +157,25 @@ def test_refusal_counters_stay_bounded(sim: Peer) -> None:
     refused = sim.node.live.refused
     assert len(refused) == MAX_REFUSAL_KEYS + 1 and sum(refused.values()) == 200
     assert refused["array: other reasons"] == 200 - MAX_REFUSAL_KEYS
+
+
+@pytest.mark.parametrize(("entry", "field"), [
+    ("sensors: [finger-1]\n    finger-1: {calibration: CAL}", "sensors"),
+    ("sensors: [s1]\n    s1: {topic: s1/re sistance, calibration: CAL}", "s1.topic"),
+    ("sensors: [s1]\n    s1: {topic: 1s/resistance, calibration: CAL}", "s1.topic"),
+    ("arrays: [hand]\n    hand: {sensors: [a1, 'a,2'], calibration: CAL}", "hand.sensors"),
+])
+def test_an_invalid_ros_name_in_the_params_file_is_one_line(tmp_path: Path, entry: str,
+                                                            field: str) -> None:
+    """``finger-1`` and friends: ``compensator`` exits 2 with one line naming the field and
+    the rule, never a traceback from rclpy."""
+    params = tmp_path / "params.yaml"
+    params.write_text("compensator:\n  ros__parameters:\n    "
+                      + entry.replace("CAL", str(CONFIG / "demo_calibration.yaml")) + "\n")
+    done = subprocess.run(
+        [sys.executable, "-c", "import sys; from strain_comp.ros.node import main; "
+         "sys.exit(main(sys.argv))", "--ros-args", "--params-file", str(params)],
+        capture_output=True, text=True, timeout=60, env={**os.environ, **ros_env(7)})
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert field in lines[0] and "not a valid ROS" in lines[0], lines[0]

@@ -28,6 +28,8 @@ sensors:
 Loading validates everything and raises one ``CalibrationError`` naming the file and the
 dotted field. Limits (a calibration is a small machine-written file; anything beyond these
 is refused, never half-read): a regular file of at most ``MAX_FILE_BYTES``; at most
+``MAX_SENSORS`` sensors and ``MAX_EFFECTS`` effect terms in all (the probe below runs each,
+so these bound the load time: a reload in the node stays short); at most
 ``MAX_ALIASES`` YAML aliases and ``MAX_NODES`` values once aliases are expanded (no "billion
 laughs"); nesting at most ``MAX_DEPTH`` deep (aliases included); integers within float
 range; every number of a model's parameters and of an effect at most ``PARAM_MAX`` in
@@ -66,9 +68,11 @@ from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float
 
 FORMAT = "strain_comp/calibration/v1"
-MAX_FILE_BYTES = 8 * 2**20
+MAX_FILE_BYTES = 256 * 2**10
+MAX_SENSORS = 128
+MAX_EFFECTS = 256
 MAX_ALIASES = 100
-MAX_NODES = 1_000_000
+MAX_NODES = 50_000
 MAX_DEPTH = 64
 PARAM_MAX = 1e12
 STRAIN_MAX = 1e6
@@ -515,6 +519,13 @@ def parse_calibration(text: str, path: str) -> Calibration:
     sensors = reader.mapping(reader.child(root, "sensors", ""), "sensors")
     if not sensors:
         raise reader.fail("sensors", "must name at least one sensor")
+    if len(sensors) > MAX_SENSORS:
+        raise reader.fail("sensors", f"refused: {len(sensors)} sensors, at most {MAX_SENSORS}")
+    n_effects = sum(len(n.get("effects") or []) for n in sensors.values()
+                    if isinstance(n, dict) and isinstance(n.get("effects"), list))
+    if n_effects > MAX_EFFECTS:
+        raise reader.fail("sensors", f"refused: {n_effects} effect terms in all, at most "
+                          f"{MAX_EFFECTS}")
     calibration = Calibration({str(name): reader.sensor(str(name), node)
                                for name, node in sensors.items()})
     for name, cal in calibration.sensors.items():

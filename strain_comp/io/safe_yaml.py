@@ -4,7 +4,10 @@
 expanding a "billion laughs" document, recursing into 1,000 levels of nesting
 (``RecursionError``) or building an integer no float can hold (``OverflowError`` later);
 every other fault is the usual ``yaml.YAMLError``. Used for calibration files and rosbag2
-``metadata.yaml``.
+``metadata.yaml``. With libyaml (``yaml.CSafeLoader``) the limits are checked on libyaml's
+event stream first (no nesting or alias beyond them reaches the composer), then the
+document is composed by libyaml: about 5x faster than the pure-Python loader, which is
+used otherwise.
 """
 
 from __future__ import annotations
@@ -43,19 +46,53 @@ class _LimitedLoader(yaml.SafeLoader):
         finally:
             self.depth -= 1
 
-    def construct_yaml_int(self, node: Any) -> int:
-        try:
-            value = super().construct_yaml_int(node)
-        except ValueError:  # beyond Python's digit limit for int()
-            value = None
-        if value is None or abs(value) > sys.float_info.max:
-            text = node.value if len(node.value) <= 20 else node.value[:20] + "..."
-            raise yaml.constructor.ConstructorError(
-                None, None, f"integer {text} beyond float range", node.start_mark)
-        return value
+
+def _construct_int(loader: Any, node: Any) -> int:
+    """An integer; a ConstructorError for one that no float can hold."""
+    try:
+        value = yaml.constructor.SafeConstructor.construct_yaml_int(loader, node)
+    except ValueError:  # beyond Python's digit limit for int()
+        value = None
+    if value is None or abs(value) > sys.float_info.max:
+        text = node.value if len(node.value) <= 20 else node.value[:20] + "..."
+        raise yaml.constructor.ConstructorError(
+            None, None, f"integer {text} beyond float range", node.start_mark)
+    return value
 
 
-_LimitedLoader.add_constructor("tag:yaml.org,2002:int", _LimitedLoader.construct_yaml_int)
+_LimitedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+
+_CSafeLoader: Any = getattr(yaml, "CSafeLoader", None)
+if _CSafeLoader is not None:
+    class _LimitedCLoader(_CSafeLoader):
+        """libyaml's SafeLoader refusing integers that no float can hold."""
+
+    _LimitedCLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+
+
+def _check_events(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> int:
+    """The alias and nesting limits on libyaml's events (iterative), as ``_LimitedLoader``
+    counts them while composing: a node's depth counts the collections around it, plus 1.
+    Returns the number of aliases (none: the document holds at most ``max_nodes`` values)."""
+    depth = aliases = nodes = 0
+    for event in yaml.parse(text, Loader=_CSafeLoader):
+        if isinstance(event, yaml.AliasEvent):
+            aliases += 1
+            if aliases > max_aliases:
+                raise LimitError(f"more than {max_aliases} YAML aliases")
+        if isinstance(event, (yaml.CollectionStartEvent, yaml.ScalarEvent, yaml.AliasEvent)) \
+                and depth + 1 > max_depth:
+            raise LimitError(f"nested more than {max_depth} deep")
+        if isinstance(event, (yaml.CollectionStartEvent, yaml.ScalarEvent)):
+            nodes += 1
+            if nodes > max_nodes:
+                raise LimitError(f"more than {max_nodes} values once YAML aliases are "
+                                 "expanded")
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+    return aliases
 
 
 def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
@@ -93,13 +130,19 @@ def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
 def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_000,
                  max_depth: int = 64) -> Any:
     """The single YAML document in ``text`` (None if empty), within the limits."""
-    loader = None
+    loader: Any = None
+    aliases = 1  # unknown: the expansion is checked
     try:
-        loader = _LimitedLoader(text, max_aliases, max_depth)
+        if _CSafeLoader is not None:
+            aliases = _check_events(text, max_aliases, max_nodes, max_depth)
+            loader = _LimitedCLoader(text)
+        else:
+            loader = _LimitedLoader(text, max_aliases, max_depth)
         node = loader.get_single_node()
         if node is None:
             return None
-        _check_expansion(node, max_nodes, max_depth)
+        if aliases:  # without aliases nothing expands: the events' checks were the limits
+            _check_expansion(node, max_nodes, max_depth)
         return loader.construct_document(node)
     finally:
         if loader is not None:

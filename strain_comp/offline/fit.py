@@ -73,6 +73,7 @@ import numpy as np
 import yaml
 
 from strain_comp.core.calibration import (
+    PARAM_MAX,
     STRAIN_MAX,
     Calibration,
     InputSettings,
@@ -98,6 +99,10 @@ GAP_SECONDS = GAP_RESET
 """A step between good samples longer than this [s] cuts a segment (engine ``gap_reset``)."""
 MIN_SEGMENT = 8
 """Segments with fewer good samples are not used for fitting."""
+MIN_SPAN = 1e-9
+"""Smallest span of the training resistance [ohm] and reference strain a fit accepts: a
+finer one (a reference near 1e-300) is a unit mistake that the least-squares solvers
+cannot resolve (LAPACK fails)."""
 RANGE_MARGIN = 0.05
 """Valid range = training range widened by this fraction of its span on each side."""
 HOLD_RATE_FRACTION = 0.01
@@ -424,6 +429,13 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                        f"{s_all.max():.4g}, beyond the +/- {STRAIN_MAX:g} a calibration "
                        "holds; import it in a larger unit (microstrain to %: import-csv "
                        "--scales strain=1e-4)")
+    for what, values, top in (("resistance", r_all, PARAM_MAX), ("strain", s_all, STRAIN_MAX)):
+        # a span a float64 fit cannot resolve (1e-300) or values a calibration cannot hold
+        if np.ptp(values) < MIN_SPAN or np.abs(values).max() > top:
+            raise FitError(f"sensor {name!r}: the training {what} spans "
+                           f"[{values.min():.3g}, {values.max():.3g}]: a fit needs a span of "
+                           f"at least {MIN_SPAN:g} and values within +/- {top:g} "
+                           "(a unit or scale mistake?)")
     r_raw = np.concatenate([np.asarray(rec.r) for rec in recordings])
     chain = alternation(r_raw)
     alternating = bool(options.get("alternation", chain.present))

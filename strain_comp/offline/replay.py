@@ -291,9 +291,10 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             for contents in iter_bag(in_path, window=window):
                 state.piece(contents)
             inputs = [i for i in state.inputs.values() if i is not None]
-            if not inputs:
-                raise BagError(f"no /NAME/resistance topic for any calibrated sensor "
-                               f"({', '.join(calibration.sensors)})")
+            if not inputs:  # the bag's damage, if any, may be why
+                raise BagError("; ".join([f"no /NAME/resistance topic for any calibrated "
+                                          f"sensor ({', '.join(calibration.sensors)})",
+                                          *located(in_path, state.problems)]))
             for t in state.ticks:
                 state.write_tick(float(t))
             state.finish_series()

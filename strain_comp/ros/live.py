@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
@@ -82,7 +83,7 @@ _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
 def array_values(data: Any, offset: int, sizes: list[int], k: int, label: str = "",
-                 sensors: list[str] | None = None) -> np.ndarray:
+                 sensors: Sequence[str] | None = None) -> np.ndarray:
     """The k values of a Float64MultiArray: ``data[offset:offset + dim[0].size]``, in the
     order of ``sensors`` when ``label`` (``dim[0].label``, comma-separated sensor names, as
     the node publishes and ``replay`` reads) is given: values are matched by name.
@@ -101,7 +102,7 @@ def array_values(data: Any, offset: int, sizes: list[int], k: int, label: str = 
         raise InputError(f"expected {k} values, got {size}")
     values = values[offset:offset + k]
     names = [x.strip() for x in label.split(",")] if label.strip() else []
-    if names and sensors is not None and names != sensors:
+    if names and sensors is not None and names != list(sensors):
         if sorted(names) != sorted(sensors):
             raise InputError(f"layout dim[0].label does not name the sensors "
                              f"{','.join(sensors)}")
@@ -249,7 +250,7 @@ class LiveCompensator:
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
-        if not math.isfinite(out.strain):
+        if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 
@@ -261,7 +262,7 @@ class LiveCompensator:
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
         self._seen(name, t, values, out.status, out.direction)
-        if not np.isfinite(out.strain).all():
+        if (used_mask(out.status) & ~np.isfinite(out.strain)).any():  # good samples: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
         return out if self._due(name, t) else None
 

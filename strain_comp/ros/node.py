@@ -206,7 +206,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             which would end the node), also when sim time is on from the start."""
             source = self._time_source
             self._clock_callback = source.clock_callback
-            source.clock_callback = self._on_clock  # the subscription's callback from now on
+            source.clock_callback = self._on_clock  # type: ignore[method-assign]
             if source._clock_sub is not None:
                 self.destroy_subscription(source._clock_sub)
                 source._clock_sub = None

@@ -18,7 +18,9 @@ tunables have a type, a range and a description in one table (``TUNABLES``) that
 turns into ParameterDescriptors. Topic names follow ROS name resolution: relative names
 (the defaults) resolve in the node's namespace. Integers are accepted where a float is
 expected (ROS users write ``2`` for ``2.0``). An unknown key is refused with the closest
-valid name.
+valid name. Sensor and array names (they prefix the output topics) and topics must be
+valid ROS names (``NAME_RULE``), checked here so a bad one is one line, not a traceback
+from rclpy.
 
 A relative calibration path resolves against the params file's directory (when known,
 else the working directory), then the installed package share directory (its ``config/``
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import re
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -201,6 +204,25 @@ def _string(flat: Mapping[str, Any], key: str, default: str | None = None) -> st
     return value
 
 
+_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
+NAME_RULE = ("letters, digits and underscores, not starting with a digit, no double "
+             "underscore")
+"""ROS 2's rule for a name token (a sensor or array name; each part of a topic)."""
+
+
+def _ros_name(value: str, key: str, *, topic: bool = False) -> str:
+    """``value`` if it is a valid ROS name token (a topic: tokens joined by ``/``, optionally
+    absolute ``/...`` or private ``~/...``); ParameterError naming the rule otherwise."""
+    body = value[2:] if topic and value.startswith("~/") else (
+        value[1:] if topic and value.startswith("/") else value)
+    pattern = rf"{_TOKEN}(/{_TOKEN})*" if topic else _TOKEN
+    if not re.fullmatch(pattern, body) or "__" in value:
+        what = "topic name" if topic else "name"
+        raise ParameterError(key, f"{value!r} is not a valid ROS {what} ({NAME_RULE}"
+                             + ("; parts joined by '/'" if topic else "") + ")")
+    return value
+
+
 def _names(flat: Mapping[str, Any], key: str) -> list[str]:
     """A list of names; null (an empty list as older ``ros2 param dump`` files write it)
     is the empty list."""
@@ -211,7 +233,7 @@ def _names(flat: Mapping[str, Any], key: str) -> list[str]:
         raise ParameterError(key, f"must be a list of names, got {value!r}")
     if len(set(value)) != len(value):
         raise ParameterError(key, f"names repeat: {value}")
-    return value
+    return [_ros_name(v, key) for v in value]
 
 
 def _sensor_from(calibration: Calibration, name: str, where: str) -> SensorCalibration:
@@ -240,7 +262,8 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
     for name, is_array in [(n, False) for n in sensors] + [(n, True) for n in arrays]:
-        topic = _string(flat, f"{name}.topic", f"{name}/resistance")
+        topic = _ros_name(_string(flat, f"{name}.topic", f"{name}/resistance"),
+                          f"{name}.topic", topic=True)
         path = resolve_path(_string(flat, f"{name}.calibration"), base_dir)
         if path not in loaded:
             loaded[path] = load_calibration(path)

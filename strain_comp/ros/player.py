@@ -10,12 +10,16 @@ message, so a node with ``use_sim_time`` stamps the input with its recorded time
 on TOPIC (the node's answer) before the next one, instead of keeping the recorded pace: what
 a test or an offline comparison needs, as nothing then queues up in the node. Playing waits
 for every played topic to have a subscriber (at most ``wait_s``) before the first message.
+
+Message types come from a fixed registry (``PLAYABLE``: the types strain_comp reads and
+writes), never by importing a module a bag or a peer names; messages of any other type are
+not played and counted.
 """
 
 from __future__ import annotations
 
-import importlib
 import struct
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +28,7 @@ from typing import Any
 from mcap.exceptions import McapError
 
 from strain_comp.errors import BagError
+from strain_comp.io.bag.schemas import norm_type
 
 LOCKSTEP_TIMEOUT_S = 1.0
 
@@ -55,10 +60,22 @@ def bag_messages(path: str | Path, topics: list[str] | None = None) -> list[Play
     return out
 
 
+PLAYABLE = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Int8",
+            "std_msgs/msg/Float64MultiArray", "sensor_msgs/msg/Temperature",
+            "diagnostic_msgs/msg/DiagnosticArray")
+"""The message types ``play`` publishes (and a lockstep topic may have)."""
+
+
 def message_class(type_name: str) -> Any:
-    """The Python class of a ROS type name such as ``std_msgs/msg/Float64``."""
-    package, kind, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+    """The Python class of one of the ``PLAYABLE`` types (e.g. ``std_msgs/msg/Float64``);
+    None for any other type name."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import Temperature
+    from std_msgs.msg import Float32, Float64, Float64MultiArray, Int8
+
+    classes = dict(zip(PLAYABLE, (Float64, Float32, Int8, Float64MultiArray, Temperature,
+                                  DiagnosticArray), strict=True))
+    return classes.get(norm_type(type_name))
 
 
 def _wait(node: Any, executor: Any, ready: Any, timeout: float) -> bool:
@@ -79,6 +96,15 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
     from rosgraph_msgs.msg import Clock
 
     messages = bag_messages(path, topics)
+    skipped = sorted({m.type_name for m in messages if message_class(m.type_name) is None})
+    if skipped:
+        n = sum(1 for m in messages if message_class(m.type_name) is None)
+        print(f"play: {n} messages of types not played: {', '.join(skipped)}"[:500],
+              file=sys.stderr)
+        messages = [m for m in messages if message_class(m.type_name) is not None]
+        if not messages:
+            raise BagError(f"{path}: no message of a type play publishes "
+                           f"({', '.join(PLAYABLE)})")
     node = Node("strain_comp_player")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
@@ -94,6 +120,8 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
                          wait_s):
                 raise BagError(f"lockstep topic {lockstep} does not appear within {wait_s} s")
             kind = message_class(dict(node.get_topic_names_and_types())[lockstep][0])
+            if kind is None:
+                raise BagError(f"lockstep topic {lockstep} has a type play does not read")
             node.create_subscription(kind, lockstep,
                                      lambda _msg: answers.__setitem__(0, answers[0] + 1), 100)
             if not _wait(node, executor, lambda: node.count_publishers(lockstep) > 0, wait_s):
