@@ -67,7 +67,7 @@ HEADLINE_FORM, HEADLINE_TARE = "output", "auto"
 TARGET_MEDIAN, TARGET_WORST = 1.3, 2.5
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
-ENGINE = {"out_of_range": "clamp"}
+ENGINE = {"out_of_range": "clamp", "tracking": "off"}
 """Engine options of every evaluation (``--out-of-range``)."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
 
@@ -218,7 +218,8 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration") -> float:
     from strain_comp.offline.evaluate import evaluate_recordings
 
     result = evaluate_recordings({rec.name: rec}, cal, tare=tare,
-                                 out_of_range=ENGINE["out_of_range"])
+                                 out_of_range=ENGINE["out_of_range"],
+                                 tracking=ENGINE["tracking"])
     return float(result.sensors[rec.name].stats.rmse)
 
 
@@ -460,13 +461,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--refit", action="store_true", help="ignore cached fits")
     parser.add_argument("--out-of-range", choices=("clamp", "extrapolate"), default="clamp",
                         help="evaluate's --out-of-range")
+    parser.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
+                        help="evaluate's --baseline-tracking")
     parser.add_argument("--json", type=Path, help="write the results here "
                         "(default OUT/generalisation.json)")
     parser.add_argument("--figures", type=Path, metavar="DIR", help="write the two PNGs here")
     args = parser.parse_args(argv)
 
     start = time.perf_counter()
-    ENGINE["out_of_range"] = args.out_of_range
+    ENGINE.update(out_of_range=args.out_of_range, tracking=args.baseline_tracking)
     available = sensors_of(args.data)
     names = args.sensors or list(available)
     unknown = [n for n in names if n not in available]
@@ -483,7 +486,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(targets(pairs)))
     print(f"\n{len(pairs)} pairs in {seconds:.0f} s ({bench.fit_seconds:.0f} s of fitting; "
           "2 cores, timings vary by machine)")
-    meta = {"out_of_range": args.out_of_range, "models": args.models, "sensors": names,
+    meta = {"out_of_range": args.out_of_range, "baseline_tracking": args.baseline_tracking,
+            "models": args.models, "sensors": names,
             "quick": args.quick, "loop": args.loop, "seconds": seconds,
             "fit_seconds": bench.fit_seconds}
     path = args.json or args.out / "generalisation.json"

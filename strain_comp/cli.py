@@ -203,7 +203,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     # streamed; an error when nothing can be scored names what the bag reader skipped
     result, problems = evaluate_bag(args.bag, calibration, tare=args.tare,
                                     plot_points=PLOT_POINTS if args.plots else 0,
-                                    out_of_range=args.out_of_range)
+                                    out_of_range=args.out_of_range,
+                                    tracking=args.baseline_tracking)
     if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
         in_run_bound(result, load_recordings(args.bag)[0], calibration)
     print(format_table(result))
@@ -228,7 +229,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     calibration = load_calibration(args.calibration)
     summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration],
-                         tare=args.tare)
+                         tare=args.tare, tracking=args.baseline_tracking)
     print(f"replayed {summary.n_input_messages} input messages of {len(summary.sensors)} "
           f"sensors into {args.out} ({summary.n_output_messages} output messages)")
     for name, health in summary.sensors.items():
@@ -304,6 +305,13 @@ def cmd_play(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tracking_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
+                   help="let the rest level follow slowly while the sensor rests "
+                   "(zero-tracking after OIML R76: at hold, near rest, bounded rate; off "
+                   "by default, see docs/generalisation.md)")
+
+
 def _tare_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tare", choices=("calibration", "auto"), default="calibration",
                    help="rest resistance from the calibration (default) or from the run's "
@@ -370,6 +378,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="strain beyond the calibrated resistance range: clamped to the "
                    "calibrated strain range (default), or extended with the model's end "
                    "slope (flagged either way)")
+    _tracking_flag(p)
     p.add_argument("--in-run-bound", action="store_true",
                    help="also fit the same model on this run itself and give its RMSE "
                    "(JSON key in_run_rmse; costs a fit)")
@@ -381,6 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, metavar="CAL.yaml")
     p.add_argument("--out", required=True, metavar="OUT.mcap")
     _tare_flag(p)
+    _tracking_flag(p)
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("diagnose", help="find the effect a calibration lacks and add it")
