@@ -274,7 +274,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         # streamed; an error when nothing can be scored names what the bag reader skipped
         result, problems = evaluate_bag(bag, calibration, tare=args.tare,
                                         plot_points=PLOT_POINTS if args.plots else 0,
-                                        series=table, out_of_range=args.out_of_range)
+                                        series=table, out_of_range=args.out_of_range,
+                                        tracking=args.baseline_tracking)
     except BaseException:
         if table is not None:
             table.discard()
@@ -312,7 +313,8 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
                                  plot_points=PLOT_POINTS if args.plots else 0,
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
-                                 progress=_progress(args), out_of_range=args.out_of_range)
+                                 progress=_progress(args), out_of_range=args.out_of_range,
+                                 tracking=args.baseline_tracking)
     except BaseException:
         if table is not None:
             table.discard()
@@ -351,7 +353,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     calibration = load_calibration(args.calibration)
     summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration],
-                         tare=args.tare, csv=args.csv)
+                         tare=args.tare, csv=args.csv,
+                         tracking=args.baseline_tracking)
     results = _results(args)
     print(f"replayed {summary.n_compensated} resistance messages of {len(summary.sensors)} "
           f"sensors into {args.out} ({summary.n_output_messages} messages written, "
@@ -433,6 +436,13 @@ def cmd_play(args: argparse.Namespace) -> int:
                   lockstep=args.lockstep)
     _note(args, f"played {n} messages")
     return 0
+
+
+def _tracking_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
+                   help="let the rest level follow slowly while the sensor rests "
+                   "(zero-tracking after OIML R76: at hold, near rest, bounded rate; off "
+                   "by default, see docs/generalisation.md)")
 
 
 def _tare_flag(p: argparse.ArgumentParser) -> None:
@@ -558,6 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="strain beyond the calibrated resistance range: clamped to the "
                    "calibrated strain range (default), or extended with the model's end "
                    "slope (flagged either way)")
+    _tracking_flag(p)
     p.add_argument("--in-run-bound", action="store_true",
                    help="also fit the same model on each run itself and give its RMSE "
                    "(JSON key in_run_rmse; costs a fit per bag)")
@@ -579,6 +590,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the series: time [s], resistance [ohm], estimate and "
                    "reference [strain unit], direction, status per sensor ('-': stdout)")
     _tare_flag(p)
+    _tracking_flag(p)
     p.set_defaults(func=cmd_replay)
 
     p = command("diagnose", "find the effect a calibration lacks and add it",

@@ -119,6 +119,11 @@ class SensorHealth:
     last_good_t: float | None = None
     last_status: Status | None = None
     stale: bool = False
+    baseline_tracked_s: float = 0.0
+    """Seconds at rest over which baseline tracking moved the zero
+    (``strain_comp.core.tracking``)."""
+    baseline_correction: float = 0.0
+    """Its total change of the tare gain (share: +0.02 is 2 % more gain)."""
 
     def count(self, status: Status, n: int = 1) -> None:
         """Add ``n`` samples of ``status`` to the counters (``STATUS_RULES``)."""
@@ -158,6 +163,9 @@ class SensorHealth:
                                      if f.name.startswith("n_")}
         values["last_good_t"] = "none" if self.last_good_t is None else repr(self.last_good_t)
         values["last_status"] = "none" if last is None else last.name
+        if self.baseline_tracked_s > 0:
+            values["baseline_tracked_s"] = f"{self.baseline_tracked_s:.6g}"
+            values["baseline_correction"] = f"{self.baseline_correction:.6g}"
         return level, message, {k: str(v) for k, v in values.items()}
 
 
@@ -203,6 +211,15 @@ class BatchOutput:
     corrections: np.ndarray | None = None
     """Where the input corrector removed a spike (``chain.SPIKE``) or confirmed a
     baseline step (``chain.STEP``), else 0; None without a corrector."""
+
+
+def concatenate(outs: Sequence[BatchOutput]) -> BatchOutput:
+    """One ``BatchOutput`` of consecutive ones (``run`` over pieces of a stream)."""
+    def join(key: str) -> np.ndarray | None:
+        values = [getattr(o, key) for o in outs]
+        return None if any(v is None for v in values) else np.concatenate(values)
+
+    return BatchOutput(*(join(f.name) for f in fields(BatchOutput)))  # type: ignore[arg-type]
 
 
 @dataclass
@@ -562,6 +579,15 @@ class Engine:
         for group in self._arrays.values():
             if sensor in group.names and group.kernel is not None:
                 group.set_gain(group.names.index(sensor), float(gain))
+
+    def track_baseline(self, sensor: str, gain: float, seconds: float) -> None:
+        """``set_input_gain`` by baseline tracking after ``seconds`` at rest: counted in
+        the sensor's health (``baseline_tracked_s``, ``baseline_correction``)."""
+        s = self._sensor(sensor)
+        factor = gain / s.gain
+        self.set_input_gain(sensor, gain)
+        s.health.baseline_tracked_s += seconds
+        s.health.baseline_correction = (1.0 + s.health.baseline_correction) * factor - 1.0
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Change the dead-zone scale (a node tunable); the detectors restart from rest."""

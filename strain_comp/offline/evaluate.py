@@ -38,6 +38,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
+from strain_comp.core.tracking import tracker_for
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -52,6 +53,7 @@ from strain_comp.io.recording import (
 
 if TYPE_CHECKING:
     from strain_comp.core.engine import BatchOutput, Engine
+    from strain_comp.core.tracking import BaselineTracker
     from strain_comp.offline.series import SeriesCSV
 
 PLOT_POINTS = 50_000
@@ -88,6 +90,8 @@ class SensorEvaluation:
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
     errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
     """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
+    tracking: dict[str, float] | None = None
+    """What baseline tracking did (``_tracked``), when it ran."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
@@ -97,6 +101,8 @@ class SensorEvaluation:
                       unit=self.unit)
         if self.in_run_rmse is not None:
             record["in_run_rmse"] = _json_number(self.in_run_rmse)
+        if self.tracking is not None:
+            record["baseline_tracking"] = {k: _json_number(v) for k, v in self.tracking.items()}
         return record
 
 
@@ -121,11 +127,13 @@ def _json_number(value: float | int) -> float | int | None:
 
 def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         tare: str = "calibration", out_of_range: str = "clamp",
-                        ) -> EvaluationResult:
+                        tracking: str = "off") -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
     ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
     tare read goes to the notes). ``out_of_range``: the engine's ``OUT_OF_RANGE_MODES``.
+    ``tracking``: ``on`` runs each sensor not in an array through a
+    ``strain_comp.core.tracking.BaselineTracker``.
     Raises InputError when no calibrated sensor can be scored (names both sides).
     """
     from strain_comp.core.engine import Engine, Status, used_mask
@@ -134,6 +142,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     engine = Engine(calibration, out_of_range=out_of_range)
     tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
     outputs = _array_outputs(engine, recordings, calibration)
+    tracker = tracker_for(engine, tracking)
     sensors: dict[str, SensorEvaluation] = {}
     notes: list[str] = [f"{name}: {line}" for name, line in tared.items()]
     for name, cal in calibration.sensors.items():
@@ -147,7 +156,9 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         t = np.asarray(rec.t, dtype=np.float64)
         r = np.asarray(rec.r, dtype=np.float64)
         s = np.asarray(rec.s, dtype=np.float64)
-        out = outputs.get(name) or engine.run(name, t, r, temperature=rec.temperature)
+        out = outputs.get(name) or (
+            tracker.run(name, t, r, rec.temperature) if tracker is not None
+            else engine.run(name, t, r, temperature=rec.temperature))
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
         good = used_mask(status)
@@ -161,7 +172,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
             bad_by_status=bad_by_status, unit=cal.strain_unit,
             out_of_range=np.asarray(out.out_of_range, bool), input_unit=_input_unit(cal),
-            input_gain=engine.input_gain(name))
+            input_gain=engine.input_gain(name), tracking=_tracked(tracker, name))
         if rec.temperature is None:
             notes += _temperature_missing(name, calibration.sensors[name])
         notes += _crosstalk_off_tick(name, cal, {
@@ -174,6 +185,15 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 
 def _input_unit(cal: SensorCalibration) -> str:
     return "V" if cal.input.kind == "divider" else "ohm"
+
+
+def _tracked(tracker: BaselineTracker | None, name: str) -> dict[str, float] | None:
+    """What tracking did to ``name`` (seconds at rest it moved the zero, total change of
+    the tare gain), None without tracking."""
+    if tracker is None:
+        return None
+    h = tracker.engine.health()[name]
+    return {"seconds": h.baseline_tracked_s, "correction": h.baseline_correction}
 
 
 def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
@@ -392,11 +412,13 @@ class _Stream:
     """``evaluate_recordings`` carried from one piece of a bag to the next."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
-                 plot_points: int, series: SeriesCSV | None = None, bag: str = "") -> None:
+                 plot_points: int, series: SeriesCSV | None = None, bag: str = "",
+                 tracking: str = "off") -> None:
         self.calibration = calibration
         self.series = series
         self.bag = bag
         self.engine = engine
+        self.tracker = tracker_for(engine, tracking)
         self.tare = tare
         self.plot_points = plot_points
         self.inputs: dict[str, _Input | None] = {}
@@ -539,7 +561,8 @@ class _Stream:
             outs = self.engine.run_array(inp.group, t, r[:, [column[g] for g in inp.group]],
                                          {g: temp for g in inp.group})
         else:
-            outs = {name: self.engine.run(name, t, r[:, j], temperature=temp)
+            outs = {name: self.tracker.run(name, t, r[:, j], temp) if self.tracker
+                    else self.engine.run(name, t, r[:, j], temperature=temp)
                     for j, name in enumerate(inp.names)}
         for name, j in column.items():
             self.scores[name].add(t, r[:, j], refs[name], outs[name])
@@ -563,6 +586,7 @@ class _Stream:
                                                                 cal.strain_unit,
                                                                 _input_unit(cal))
                 sensors[name].input_gain = self.engine.input_gain(name)
+                sensors[name].tracking = _tracked(self.tracker, name)
                 if name not in self.with_temperature:
                     notes += _temperature_missing(name, cal)
                 notes += _crosstalk_off_tick(name, cal, next(
@@ -574,7 +598,7 @@ class _Stream:
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
                  plot_points: int = 0, series: SeriesCSV | None = None,
-                 out_of_range: str = "clamp",
+                 out_of_range: str = "clamp", tracking: str = "off",
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
@@ -591,7 +615,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
     from strain_comp.core.engine import Engine
 
     stream = _Stream(calibration, Engine(calibration, out_of_range=out_of_range), tare,
-                     plot_points, series, str(path))
+                     plot_points, series, str(path), tracking)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
     stream.finish()

@@ -39,6 +39,7 @@ from strain_comp.core.engine import (
     health_at,
 )
 from strain_comp.core.tare import tare_engine
+from strain_comp.core.tracking import tracker_for
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -97,11 +98,13 @@ class _Replay:
     """The state carried from one piece of the bag to the next."""
 
     def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
-                 period: float, tare: str, series: SeriesCSV | None = None) -> None:
+                 period: float, tare: str, series: SeriesCSV | None = None,
+                 tracking: str = "off") -> None:
         self.calibration = calibration
         self.series = series
         self.pending: dict[str, PendingSeries] = {}
         self.tare = tare
+        self.tracker = tracker_for(engine, tracking)
         self.writer = writer
         self.engine = engine
         self.period = period
@@ -226,7 +229,8 @@ class _Replay:
                     self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
         else:
-            out = self.engine.run(inp.name, t, values, temps[inp.name])
+            out = (self.tracker.run(inp.name, t, values, temps[inp.name]) if self.tracker
+                   else self.engine.run(inp.name, t, values, temps[inp.name]))
             self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
             self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
                                           out.strain[:, None])
@@ -265,7 +269,8 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                gap_reset: float = GAP_RESET, stale_after: float = 1.0,
                window: int = WINDOW, tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = (),
-               csv: str | os.PathLike[str] | None = None) -> ReplaySummary:
+               csv: str | os.PathLike[str] | None = None,
+               tracking: str = "off") -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
     calibration file) is refused before anything is read.
@@ -281,13 +286,16 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     seconds of each input, from the first piece it appears in, before it is replayed; the
     readings go to the problems list). ``csv``: also write the series
     (``strain_comp.offline.series``) there, atomically, or to stdout for ``-``.
+    ``tracking``: ``on`` lets the rest level of each single sensor follow
+    (``strain_comp.core.tracking``; reported in /diagnostics).
     """
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
     out_path = Path(out_path)
     table = None if csv is None else SeriesCSV(csv, inputs=[in_path, *inputs, out_path])
     try:
         with BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
-            state = _Replay(calibration, writer, engine, diagnostics_period, tare, table)
+            state = _Replay(calibration, writer, engine, diagnostics_period, tare, table,
+                            tracking)
             for contents in iter_bag(in_path, window=window):
                 state.piece(contents)
             inputs = [i for i in state.inputs.values() if i is not None]

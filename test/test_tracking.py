@@ -1,0 +1,66 @@
+"""Baseline tracking (strain_comp.core.tracking) against a known drifting rest level."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.engine import Engine
+from strain_comp.core.tracking import BaselineTracker
+from strain_comp.io.recording import Recording
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.fit import fit_sensor
+
+R0 = 1000.0
+
+
+def gauge(s: np.ndarray) -> np.ndarray:
+    return R0 * (1.0 + 0.02 * s + 2e-4 * s ** 2)
+
+
+def staircase(t: np.ndarray) -> np.ndarray:
+    """Rest 10 s, then 20 s cycles: 3 s ramp to a level, 7 s hold there, 3 s back, 7 s rest."""
+    phase = np.clip(t - 10.0, 0.0, None) % 20.0
+    level = 5.0 + 5.0 * (np.clip(t - 10.0, 0.0, None) // 20.0 % 3)
+    up = np.clip(phase / 3.0, 0.0, 1.0) - np.clip((phase - 10.0) / 3.0, 0.0, 1.0)
+    return np.where(t < 10.0, 0.0, level * up)
+
+
+@pytest.fixture(scope="module")
+def cubic() -> Calibration:
+    t = np.arange(0.0, 70.0, 0.1)
+    s = staircase(t)
+    return Calibration({"s1": fit_sensor([Recording("s1", t, gauge(s), s)], "cubic",
+                                         name="s1")})
+
+
+def test_a_rest_level_that_falls_after_each_release_is_followed(cubic: Calibration) -> None:
+    t = np.arange(0.0, 190.0, 0.1)
+    s = staircase(t)
+    released = np.clip(np.floor((t - 10.0) / 20.0), 0.0, None)  # releases so far
+    rest_fall = 1.0 - 0.01 * released  # the rest falls 1 % after every release
+    rec = Recording("s1", t, gauge(s) * rest_fall, s)
+    off = evaluate_recordings({"s1": rec}, cubic).sensors["s1"]
+    on = evaluate_recordings({"s1": rec}, cubic, tracking="on").sensors["s1"]
+    at_rest = (s == 0.0) & (t > 100.0)
+    err_off = np.sqrt(np.mean((off.estimate - s)[at_rest] ** 2))
+    err_on = np.sqrt(np.mean((on.estimate - s)[at_rest] ** 2))
+    assert err_on < 0.5 * err_off
+    assert on.stats.rmse < off.stats.rmse
+    assert on.to_dict()["baseline_tracking"]["correction"] > 0.02  # the gain rose
+    assert "baseline_tracking" not in off.to_dict()
+    engine = Engine(cubic)
+    BaselineTracker(engine).run("s1", rec.t, rec.r)
+    values = engine.health()["s1"].to_diagnostic()[2]
+    assert float(values["baseline_correction"]) == pytest.approx(
+        on.tracking["correction"] if on.tracking else 0.0)
+    assert "baseline_correction" not in Engine(cubic).health()["s1"].to_diagnostic()[2]
+
+
+def test_a_held_strain_is_not_tracked(cubic: Calibration) -> None:
+    t = np.arange(0.0, 60.0, 0.1)
+    s = np.where(t < 5.0, 0.0, np.clip((t - 5.0) / 3.0, 0.0, 1.0) * 15.0)  # then held
+    rec = Recording("s1", t, gauge(s), s)
+    on = evaluate_recordings({"s1": rec}, cubic, tracking="on").sensors["s1"]
+    assert on.tracking == {"seconds": 0.0, "correction": 0.0}
