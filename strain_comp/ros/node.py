@@ -30,6 +30,7 @@ SHUTDOWN_S = 1.5
 """Longest clean shutdown after SIGINT/SIGTERM before the process exits regardless [s]."""
 EXIT_BAD_INPUT = 2
 _stop = threading.Event()
+_stopped_by: list[str] = []
 
 # what handling one message or service call can raise: the engine's input errors, and a
 # message of the wrong shape or type (no ``data`` field, values that do not convert to float,
@@ -42,6 +43,7 @@ def _exit_now(signum: int, frame: Any) -> None:
 
 
 def _request_stop(signum: int, frame: Any) -> None:
+    _stopped_by.append(signal.Signals(signum).name)
     _stop.set()
     watchdog = threading.Timer(SHUTDOWN_S, os._exit, args=(0,))
     watchdog.daemon = True
@@ -133,11 +135,11 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from array import array
 
     import numpy as np
+    from builtin_interfaces.msg import Time
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.clock import JumpThreshold, ROSClock
     from rclpy.duration import Duration
-    from builtin_interfaces.msg import Time
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
@@ -350,6 +352,7 @@ def main(args: list[str] | None = None) -> int:
         import rclpy
         from rclpy.exceptions import ParameterException
         from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+        from rclpy.experimental import EventsExecutor
         from rclpy.signals import SignalHandlerOptions
 
         start_errors = (*start_errors, ParameterException)
@@ -371,7 +374,10 @@ def main(args: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
-    executor = SingleThreadedExecutor()
+    # rclpy 7.1.6's EventsExecutor loses inputs under use_sim_time (docs/node.md)
+    sim_time = node.get_parameter("use_sim_time").value
+    executor = (EventsExecutor() if node.live.params.executor == "events" and not sim_time
+                else SingleThreadedExecutor())
     executor.add_node(node)
     try:
         while not _stop.is_set() and rclpy.ok():
@@ -379,6 +385,8 @@ def main(args: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        if _stopped_by:
+            node.get_logger().info(f"{_stopped_by[0]}: stopped")
         signal.signal(signal.SIGINT, _exit_now)
         signal.signal(signal.SIGTERM, _exit_now)
         executor.shutdown(timeout_sec=0.5)
