@@ -3,8 +3,9 @@
     python bench/bench_node_throughput.py [--seconds S] [--rates 1000,2000] [--overload]
 
 The node (``strain_comp.ros.node``, another process) is pinned to core 1 with taskset; this
-process publishes on core 0 at a fixed rate for S seconds and counts the answers on
-``NAME/strain`` (what a controller reads; the other outputs are built only when subscribed).
+process publishes on core 0 at a fixed rate for S seconds (at most 4500 messages) and counts
+the answers on ``NAME/strain`` (what a controller reads; the other outputs are built only
+when subscribed).
 1. One std_msgs/Float64 topic, APL calibration, at each of ``--rates``: the node as shipped
    (EventsExecutor) and with ``executor:=single_threaded``; goal at 1 kHz: >= 99.9 %
    answered with <= 30 % of a core.
@@ -33,6 +34,11 @@ from _common import calibration, resistance
 from _ros import cpu_seconds, start_node, stop_node
 from bench_latency import ECHO
 
+MAX_ANSWERS = 4500
+"""Messages per window at most: the answers wait in the counting subscription's history,
+which Fast DDS's default resource limits cap at 5000 samples (a longer window at 2 kHz
+counted exactly 5010 answers, whatever the node did)."""
+
 
 def drive(topic: str, out_topic: str, kind: str, k: int, rate: float, seconds: float,
           pid: int, *, extra: tuple[tuple[str, Any], ...] = ()) -> tuple[float, float]:
@@ -48,7 +54,7 @@ def drive(topic: str, out_topic: str, kind: str, k: int, rate: float, seconds: f
     executor.add_node(node)
     count = [0]
     pub = node.create_publisher(cls, topic, 100)
-    n = int(rate * seconds)
+    n = min(int(rate * seconds), MAX_ANSWERS)
     sub = node.create_subscription(cls, out_topic,  # history holds every answer: read later
                                    lambda _m: count.__setitem__(0, count[0] + 1), n + 100)
     others = [node.create_subscription(t, name, lambda _m: None, 10) for name, t in extra]
