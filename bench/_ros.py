@@ -1,7 +1,8 @@
 """Shared set-up of the ROS benchmarks: the compensator node in a child process.
 
 Discovery stays on this machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on a domain of its
-own; the node is ``bin/compensator`` started as ``ros2 run`` starts it, with a params file
+own; the node is ``strain_comp.ros.node``'s main (what ``ros2 run`` starts; ``args`` follow
+``--ros-args``), with a params file
 for a calibration written to a temporary folder; ``cpu`` pins it to one core (taskset).
 """
 
@@ -21,8 +22,8 @@ os.environ.update({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
                    "ROS_DOMAIN_ID": str(150 + os.getpid() % 50)})
 
 
-def start_node(calibration: Calibration, *, array: str | None = None, cpu: int | None = None
-               ) -> subprocess.Popen[bytes]:
+def start_node(calibration: Calibration, *args: str, array: str | None = None,
+               cpu: int | None = None) -> subprocess.Popen[bytes]:
     """The node on ``calibration`` (one Float64 input per sensor, or one array input named
     ``array`` holding every sensor), once its 'ready' line is out."""
     tmp = Path(tempfile.mkdtemp(prefix="strain_comp_bench_"))
@@ -34,8 +35,8 @@ def start_node(calibration: Calibration, *, array: str | None = None, cpu: int |
                f"    sensors: [{', '.join(names)}]\n"
                + "".join(f"    {n}: {{calibration: cal.yaml}}\n" for n in names)))
     (tmp / "params.yaml").write_text(body)
-    cmd = [sys.executable, str(ROOT / "bin/compensator"), "--ros-args", "--params-file",
-           str(tmp / "params.yaml")]
+    cmd = [sys.executable, "-m", "strain_comp.ros.node", "--ros-args", "--params-file",
+           str(tmp / "params.yaml"), *args]
     if cpu is not None:
         cmd = ["taskset", "-c", str(cpu), *cmd]
     log = open(tmp / "node.log", "w+b")

@@ -1,6 +1,7 @@
 """Launch the compensator with the bundled parameters (or params_file:=...).
 
-ros2 launch strain_comp compensator.launch.py [params_file:=/path/params.yaml] [use_sim_time:=true]
+ros2 launch strain_comp compensator.launch.py [params_file:=/path/params.yaml]
+    [use_sim_time:=true] [namespace:=robot1]
 """
 
 import os
@@ -10,6 +11,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -20,8 +22,11 @@ def generate_launch_description() -> LaunchDescription:
                               description="Node parameters (<node>: ros__parameters: ...)."),
         DeclareLaunchArgument("use_sim_time", default_value="false",
                               description="Use /clock, e.g. with ros2 bag play --clock."),
+        DeclareLaunchArgument("namespace", default_value="",
+                              description="Namespace of the node and its relative topics."),
         Node(package="strain_comp", executable="compensator", name="compensator",
-             output="screen",
+             namespace=LaunchConfiguration("namespace"), output="screen",
              parameters=[LaunchConfiguration("params_file"),
-                         {"use_sim_time": LaunchConfiguration("use_sim_time")}]),
+                         {"use_sim_time": ParameterValue(LaunchConfiguration("use_sim_time"),
+                                                         value_type=bool)}]),
     ])

@@ -2,7 +2,9 @@
 # The real ROS 2 command line (ros2 run|launch|param|service|topic) in .venv-ros2, for the
 # tests that drive the colcon-built package through it (test/test_ros2_cli.py): built by the
 # kit ../shared/ros2cli/make_venv.sh (STRAIN_COMP_ROS2CLI names another folder) with Python
-# 3.12, Jazzy's, where installed (else python3), plus strain_comp's run requirements.
+# 3.12, Jazzy's, where installed (else python3), plus strain_comp's run requirements, and in
+# .venv-ros2/setuptools68 Ubuntu 24.04's setuptools (the venv has the ROS wheels' >= 76) so
+# the tests build the package with both.
 # Cached: a second run compares a stamp and returns at once. Without the kit it says so and
 # exits 0 (those tests then skip), except under CI=true, where it fails.
 set -euo pipefail
@@ -40,7 +42,9 @@ log=$VENV/build.log
 echo "ros2_venv: building $VENV with $PY (log: $log)" >&2
 if ! { bash "$KIT/make_venv.sh" "$VENV" "$PY" &&
        mapfile -t reqs < <(requirements) &&
-       "$VENV/bin/python" -m pip install --disable-pip-version-check -q "${reqs[@]}"; } >"$log" 2>&1
+       "$VENV/bin/python" -m pip install --disable-pip-version-check -q "${reqs[@]}" &&
+       "$VENV/bin/python" -m pip install --disable-pip-version-check -q --no-deps \
+         --target "$VENV/setuptools68" setuptools==68.1.2; } >"$log" 2>&1
 then
   tail -n 30 "$log" >&2
   echo "ros2_venv: failed (full log: $log)" >&2

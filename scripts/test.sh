@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# Set up (see bootstrap.sh), lint, type-check (mypy, configured in setup.cfg), then run the
-# whole test suite.
+# Set up (see bootstrap.sh and ros2_venv.sh), lint, type-check (mypy, configured in
+# setup.cfg), then run the whole test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
+bash scripts/ros2_venv.sh  # the real ros2 command line for test/test_ros2_cli.py (cached)
 .venv/bin/ruff check strain_comp test bench scripts
 .venv/bin/mypy
 exec .venv/bin/python -m pytest -q "$@"

@@ -336,3 +336,21 @@ def test_array_layout_honoured_or_refused(array: Harness) -> None:
     statuses = array.diagnostics()
     assert statuses["strain_comp: a1"][:2] == (2, "non-finite input: estimate held")
     assert statuses["strain_comp: a2"][0] == 0
+
+
+@pytest.mark.parametrize("names", [["s1"], ["a", "bc", "def", "ghij", "k"],
+                                   [f"x{i}" for i in range(256)]])
+def test_stamped_bytes_decode_as_joint_state(names: list[str]) -> None:
+    """The node's hand-built CDR of NAME/strain_stamped is what rclpy's own type support
+    reads: the names, the stamp, the positions, empty velocity and effort."""
+    from rclpy.serialization import deserialize_message
+
+    from strain_comp.ros.stamped import StampedEncoder
+
+    position = np.random.default_rng(len(names)).normal(size=len(names))
+    for stamp_ns in (1_795_498_137_622_557_762, 0, 5):
+        msg = deserialize_message(StampedEncoder(names).encode(stamp_ns, position), JointState)
+        assert list(msg.name) == names and msg.header.frame_id == ""
+        assert msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec == stamp_ns
+        np.testing.assert_array_equal(msg.position, position)
+        assert list(msg.velocity) == [] and list(msg.effort) == []

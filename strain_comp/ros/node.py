@@ -20,7 +20,9 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
+from copy import copy
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -29,7 +31,12 @@ NODE_NAME = "compensator"
 SHUTDOWN_S = 1.5
 """Longest clean shutdown after SIGINT/SIGTERM before the process exits regardless [s]."""
 EXIT_BAD_INPUT = 2
+INPUT_DEPTH = 50
+"""Inputs are best effort (sensor-data QoS) keeping the latest 50 messages: 50 ms of a 1 kHz
+stream, so a scheduling stall on a busy computer costs no sample, while an input rate beyond
+the node's drops the oldest instead of queuing without bound."""
 _stop = threading.Event()
+_stopped_by: list[str] = []
 
 # what handling one message or service call can raise: the engine's input errors, and a
 # message of the wrong shape or type (no ``data`` field, values that do not convert to float,
@@ -42,6 +49,7 @@ def _exit_now(signum: int, frame: Any) -> None:
 
 
 def _request_stop(signum: int, frame: Any) -> None:
+    _stopped_by.append(signal.Signals(signum).name)
     _stop.set()
     watchdog = threading.Timer(SHUTDOWN_S, os._exit, args=(0,))
     watchdog.daemon = True
@@ -124,6 +132,13 @@ def _descriptor(spec: Any) -> Any:
     return descriptor
 
 
+def _send(publisher: Any, message: Callable[[], Any]) -> None:
+    """Build and publish a message only when a subscription is matched: at 1 kHz the
+    building and serialising of an unread output is most of the node's CPU."""
+    if publisher.get_subscription_count():
+        publisher.publish(message())
+
+
 def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 **node_options: Any) -> Any:
     """Build the node (rclpy must be initialised); StrainCompError on bad parameters.
@@ -149,6 +164,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from strain_comp.errors import ParameterError, StrainCompError
     from strain_comp.ros.live import ClockGate, LiveCompensator
     from strain_comp.ros.params import ROS_OWNED, TUNABLE, parse_values, structural_specs
+    from strain_comp.ros.stamped import StampedEncoder
 
     class CompensatorNode(Node):
         def __init__(self) -> None:
@@ -171,7 +187,9 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 self._declare(TUNABLE[name], value)
             self.add_pre_set_parameters_callback(self._integers_as_doubles)
             ready = []
-            self.names = {i.name: list(i.sensors) for i in params.inputs}
+            input_qos = copy(qos_profile_sensor_data)
+            input_qos.depth = INPUT_DEPTH
+            self.stamped = {i.name: StampedEncoder(list(i.sensors)) for i in params.inputs}
             for inp in params.inputs:
                 kind = Float64MultiArray if inp.is_array else Float64
                 pubs = [self.create_publisher(kind, f"{inp.name}/strain", 10),
@@ -180,8 +198,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                         self.create_publisher(JointState, f"{inp.name}/strain_stamped", 10)]
                 handler = self._on_array if inp.is_array else self._on_sensor
                 sub = self.create_subscription(
-                    kind, inp.topic, self._receiver(inp.name, handler, pubs),
-                    qos_profile_sensor_data)
+                    kind, inp.topic, self._receiver(inp.name, handler, pubs), input_qos)
                 if not inp.is_array:  # the array tick has no temperature input
                     self.create_subscription(
                         Temperature, f"{inp.name}/temperature",
@@ -239,12 +256,6 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                     if p.name in TUNABLE and p.type_ == Parameter.Type.INTEGER else p
                     for p in params]
 
-        def _stamped(self, stamp: int, names: list[str], strain: Any) -> Any:
-            """``NAME/strain_stamped``: the strain with the stamp [ns] of its input."""
-            msg = JointState(name=names, position=strain)
-            msg.header.stamp = Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
-            return msg
-
         def _receiver(self, name: str, handler: Any, pubs: list[Any]) -> Callable[[Any], None]:
             def receive(msg: Any) -> None:
                 self._arrive(name, handler, msg, pubs)
@@ -255,10 +266,12 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
 
         def _arrive(self, name: str, handler: Any, msg: Any, pubs: list[Any]) -> None:
             clock = self.get_clock()
-            now = clock.now().nanoseconds
             if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
-                handler(name, now, msg, pubs)
+                # the system time, which the ROS clock reads without /clock (cheaper than
+                # clock.now() at 1 kHz)
+                handler(name, time.time_ns(), msg, pubs)
                 return
+            now = clock.now().nanoseconds
             for stamp, (h, m, p) in self.gate.arrive(name, now, (handler, msg, pubs)):
                 h(name, stamp, m, p)
 
@@ -278,9 +291,10 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             try:
                 out = self.live.on_sensor(name, stamp * 1e-9, msg.data)
                 if out is not None:
-                    pubs[0].publish(Float64(data=out.strain))
-                    pubs[1].publish(Int8(data=int(out.direction)))
-                    pubs[2].publish(self._stamped(stamp, self.names[name], [out.strain]))
+                    value, direction = out.strain, int(out.direction)
+                    _send(pubs[0], lambda: Float64(data=value))
+                    _send(pubs[1], lambda: Int8(data=direction))
+                    _send(pubs[2], lambda: self.stamped[name].encode(stamp, np.array([value])))
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
                 self._refuse(name, err)
             self._log_tare()
@@ -294,16 +308,21 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                                          else "")
                 if out is not None:
                     strain = array("d", out.strain.astype(np.float64).tobytes())
-                    direction = array("d", out.direction.astype(np.float64).tobytes())
-                    for pub, values in ((pubs[0], strain), (pubs[1], direction)):
-                        reply = Float64MultiArray()
-                        reply.data = values
-                        reply.layout.dim = [self.dims[name]]
-                        pub.publish(reply)
-                    pubs[2].publish(self._stamped(stamp, self.names[name], strain))
+                    directions = out.direction
+                    _send(pubs[0], lambda: self._vector(name, strain))
+                    _send(pubs[1], lambda: self._vector(
+                        name, array("d", directions.astype(np.float64).tobytes())))
+                    _send(pubs[2], lambda: self.stamped[name].encode(stamp, out.strain))
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
                 self._refuse(name, err)
             self._log_tare()
+
+        def _vector(self, name: str, values: Any) -> Any:
+            """An array output: ``values`` with ``dim[0]`` labelled by the sensor names."""
+            reply = Float64MultiArray()
+            reply.data = values
+            reply.layout.dim = [self.dims[name]]
+            return reply
 
         def _log_tare(self) -> None:
             while self.live.tare_log:
@@ -378,6 +397,7 @@ def main(args: list[str] | None = None) -> int:
         import rclpy
         from rclpy.exceptions import ParameterException
         from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+        from rclpy.experimental import EventsExecutor
         from rclpy.signals import SignalHandlerOptions
 
         start_errors = (*start_errors, ParameterException)
@@ -399,7 +419,10 @@ def main(args: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
-    executor = SingleThreadedExecutor()
+    # rclpy 7.1.6's EventsExecutor loses inputs under use_sim_time (docs/node.md)
+    sim_time = node.get_parameter("use_sim_time").value
+    executor = (EventsExecutor() if node.live.params.executor == "events" and not sim_time
+                else SingleThreadedExecutor())
     executor.add_node(node)
     try:
         while not _stop.is_set() and rclpy.ok():
@@ -407,6 +430,8 @@ def main(args: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        if _stopped_by:
+            node.get_logger().info(f"{_stopped_by[0]}: stopped")
         signal.signal(signal.SIGINT, _exit_now)
         signal.signal(signal.SIGTERM, _exit_now)
         executor.shutdown(timeout_sec=0.5)

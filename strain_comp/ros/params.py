@@ -78,6 +78,8 @@ TUNABLE = {spec.name: spec for spec in TUNABLES}
 TARE_MODES = ("calibration", "auto")
 """``tare``: ``calibration`` uses the calibration as fitted (input gain 1); ``auto`` takes the
 rest resistance from the first seconds of good samples at rest (``strain_comp.ros.live``)."""
+EXECUTORS = ("events", "single_threaded")
+"""``executor``: how the node spins (``strain_comp.ros.node``)."""
 ROS_OWNED = ("use_sim_time", "qos_overrides", "start_type_description_service")
 """Parameters ROS itself declares; accepted in a params file and ignored here."""
 
@@ -90,7 +92,10 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
                        "Names of sensor arrays, each with a NAME.* map.", True),
              ParamSpec("tare", "string", "calibration", None,
                        "calibration: the calibrated zero; auto: the rest resistance of the "
-                       "first seconds at rest becomes the zero.", True)]
+                       "first seconds at rest becomes the zero.", True),
+             ParamSpec("executor", "string", "events", None,
+                       "events: rclpy's EventsExecutor (about 3x less CPU per message); "
+                       "single_threaded: rclpy's SingleThreadedExecutor.", True)]
     for name in sensors:
         specs += [ParamSpec(f"{name}.topic", "string", f"{name}/resistance", None,
                             "Input topic (std_msgs/Float64, ohm or divider volts).", True),
@@ -139,6 +144,7 @@ class NodeParams:
     calibration: Calibration
     tunables: dict[str, float] = field(default_factory=dict)
     tare: str = "calibration"
+    executor: str = "events"
 
     @property
     def arrays(self) -> dict[str, list[str]]:
@@ -258,6 +264,10 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     tare = _string(flat, "tare", "calibration")
     if tare not in TARE_MODES:
         raise ParameterError("tare", f"must be one of {', '.join(TARE_MODES)}, got {tare!r}")
+    executor = _string(flat, "executor", "events")
+    if executor not in EXECUTORS:
+        raise ParameterError("executor", f"must be one of {', '.join(EXECUTORS)}, "
+                                         f"got {executor!r}")
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
@@ -281,7 +291,7 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
         raise ParameterError("topic", f"two inputs share a topic: {topics}")
     tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
                 for spec in TUNABLES}
-    return NodeParams(inputs, Calibration(merged), tunables, tare)
+    return NodeParams(inputs, Calibration(merged), tunables, tare, executor)
 
 
 def unknown_hint(key: str, known: set[str], names: list[str]) -> str:
