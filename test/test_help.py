@@ -56,10 +56,11 @@ def test_version_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
 def test_a_declined_tare_says_why_once() -> None:
     from conftest import cubic_cal, engine_of
 
-    engine = engine_of(cubic_cal())
+    engine = engine_of(cubic_cal(rest_resistance=1000.0))
     t = np.arange(0.0, 10.0, 0.1)
     lines = tare_engine(engine, {"s1": (t, 1000.0 + 50.0 * t)}, "auto")  # moving from the start
-    assert lines["s1"].startswith("not tared: ") and "tare:" not in lines["s1"]
+    assert lines["s1"].startswith("not tared: the run does not start at rest")
+    assert "tare:" not in lines["s1"]
 
 
 def test_replay_counts_the_resistance_messages_it_compensated(
@@ -79,3 +80,22 @@ def test_replay_counts_the_resistance_messages_it_compensated(
                  str(tmp_path / "o.mcap"), "-q"]) == 0
     out = capsys.readouterr().out
     assert out.startswith(f"replayed {n_resistance} resistance messages")
+
+
+def test_diagnose_says_what_the_automatic_tare_did_on_each_run() -> None:
+    """``diagnose --tare auto``'s tare condition reads the tare taken or declined per run,
+    never "tared at its start" for a run that was not."""
+    from conftest import cubic_cal
+
+    from strain_comp.core.calibration import Calibration
+    from strain_comp.diagnosis.conditions import _tare_outcome
+    from strain_comp.io.recording import Recording
+
+    cal = cubic_cal(rest_resistance=1000.0)
+    t = np.arange(0.0, 10.0, 0.1)
+    moving = Recording("s1", t, 1000.0 + 50.0 * t, None)
+    at_rest = Recording("s1", t, np.where(t < 3.0, 1010.0, 1010.0 + 50.0 * (t - 3.0)), None)
+    text = _tare_outcome(Calibration({"s1": cal}), {"s1": moving}, {"s1": at_rest})
+    first, second = text.split("; ")
+    assert first.startswith("training run s1: not tared: ")
+    assert second.startswith("validation run s1: rest resistance ")
