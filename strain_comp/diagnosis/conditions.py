@@ -141,7 +141,8 @@ def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | Non
         where = "training run" if k == 0 else "validation run"
         outcome = tare_engine(Engine(calibration), {n: (rec.t, rec.r) for n, rec in run.items()},
                               "auto")
-        lines += [f"{where} {name}: {line}" for name, line in outcome.items()]
+        lines += [f"{where} {name}: {line.removeprefix('tare: ')}"
+                  for name, line in outcome.items()]
     return "; ".join(lines) or "no sensor with a rest resistance to tare"
 
 
