@@ -194,7 +194,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         _bag(bag)
     _output(args.out, args.bags)
     from strain_comp.core.calibration import save_calibration, strain_unit_words, unit_ok
-    from strain_comp.offline.fit import fit_bags, parse_options
+    from strain_comp.offline.fit import fit_bags, memoryless_note, parse_options
     from strain_comp.offline.options import check_fit_options
 
     options = parse_options(args.option or [])
@@ -211,8 +211,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise InputError("; ".join([str(err), *notes])) from None
     for line in notes:
         _note(args, line)
-    for cal in calibration.sensors.values():
+    for name, cal in calibration.sensors.items():
         cal.strain_unit = args.strain_unit
+        note = memoryless_note(name, cal)
+        if note:
+            _note(args, note)
     save_calibration(calibration, args.out, inputs=args.bags)
     for name, cal in calibration.sensors.items():
         prov = cal.provenance

@@ -26,9 +26,16 @@ Fitting, step 1 (the paper's QP, done as bounded linear least squares): for fixe
 p the cell states do not depend on w, mu, and f(psi_meas) = w . [xi, x_1..x_N, 1] is linear
 in (w, segment slopes of f). The scale is fixed by the central slope of f = 1, the other
 slopes are bounded below by ``eps`` (f strictly increasing), the cell weights w_1..w_N
-take the sign of the sensor's gauge (so the model loop is a proper counterclockwise
-hysteresis operator, as Table I of the paper has them) unless ``cell_weights="free"``,
-and a small ridge pulls slopes to 1 and weights to 0 where the data say nothing.
+take one sign (the inverse of a Prandtl-Ishlinskii operator with a positive density has
+weights of one sign), and a small ridge pulls slopes to 1 and weights to 0 where the data
+say nothing. Which sign is the sensor's loop: the gauge's sign when the resistance leads
+the strain (higher on loading than on unloading: a clockwise S-R loop, the paper's sensor,
+Table I, and the rig), the opposite sign when it lags (a counter-clockwise loop, e.g. a
+viscoelastic silver-nylon thread). Held to the wrong sign the QP sets every cell to zero
+and the model is a static map. ``cell_weights="signed"`` (default) chooses the sign from
+the training data (``_FitProblem.loop_sign``), ``"lead"`` / ``"lag"`` fix it, ``"free"``
+drops the constraint. The fit reports the share of the output its cells give and
+``memoryless`` when it is below 1 % (``_FitProblem.memory_report``).
 
 Step 2 (a choice beyond the paper): output-error refinement. The QP minimises the
 *equation* error f(psi_meas) - w . z; with a noisy resistance the regressors z (xi and the
@@ -52,7 +59,7 @@ costs ~3.5x the fit time for the same result on the rig bags.)
 Both choices (output-error refinement, signed cell weights) were made on held-out error,
 on the bundled rig bags and the measured recordings: compare them with
 ``strain-comp fit ... --option output_nfev=0`` (the QP alone) or ``--option
-cell_weights=free`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
+cell_weights=free|lead|lag`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
 never much worse than free ones and keep free weights from overfitting a noisy sensor.
 The current held-out figures of every model are in docs/measured.md
 (``scripts/compare_models.py``, ``scripts/measured.py``).
@@ -91,6 +98,15 @@ from strain_comp.models.base import (
 N_MAX = 200
 M_MAX = 201
 P_MAX = 20.0
+CELL_WEIGHTS = ("signed", "lead", "lag", "free")
+"""Constraints on the cell weights: one sign, the loop's orientation chosen from the
+training data (``_FitProblem.loop_sign``); one sign, for a resistance that leads the strain
+(the paper's orientation) or lags it; none."""
+LOOP_SWITCH_GAIN = 0.05
+"""``signed`` holds the cells to a lagging loop only when that lowers the training output
+RMSE by more than this share against the paper's leading loop (docs/hysteresis_fit.md)."""
+MEMORYLESS_SHARE = 0.01
+"""Below this share of the output from the cells (``memory_report``) a fit is memoryless."""
 P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
 """The default grid of p searched by the fit."""
 
@@ -270,8 +286,8 @@ class _CellModel(Compensator):
             raise FitError(f"{cls.name}: {exc}") from None
         if workers is not None and not (isinstance(workers, int) and workers >= 1):
             raise FitError(f"{cls.name}: workers must be an integer >= 1")
-        if cell_weights not in ("signed", "free"):
-            raise FitError(f"{cls.name}: cell_weights must be 'signed' or 'free'")
+        if cell_weights not in CELL_WEIGHTS:
+            raise FitError(f"{cls.name}: cell_weights must be one of {', '.join(CELL_WEIGHTS)}")
         counts = (output_nfev, search_nfev, search_top)
         if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counts):
             raise FitError(f"{cls.name}: output_nfev, search_nfev and search_top must be "
@@ -280,10 +296,12 @@ class _CellModel(Compensator):
                               cell_weights=cell_weights, search_nfev=search_nfev)
         if cls.kind == kern.KIND_APL and problem.gauge < 0:
             problem.orient(-1)
+        problem.set_weight_sign()
         if not cls.rate_dependent:
             result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
             model = problem.build(result)
-            model.fit_report = {"rmse": result.rmse, "evaluations": 1}
+            model.fit_report = {"rmse": result.rmse, "evaluations": 1,
+                                **problem.memory_report(result)}
             return model
         sigmas = (problem.default_sigma_grid() if sigma_grid is None
                   else np.asarray(sigma_grid, dtype=np.float64))
@@ -310,7 +328,8 @@ class _CellModel(Compensator):
             say(f"output error: rmse {best.rmse:.4g} %")
         model = problem.build(best)
         model.fit_report = {"rmse": best.rmse, "evaluations": problem.evaluations,
-                            "seconds": time.monotonic() - problem.started}
+                            "seconds": time.monotonic() - problem.started,
+                            **problem.memory_report(best)}
         return model
 
 
@@ -457,6 +476,7 @@ class _FitProblem:
         self.orientation = 1
         self.cell_weights = cell_weights
         self.gauge = float(np.sign(np.corrcoef(self.xi, self.psi)[0, 1]) or 1.0)
+        self.weight_sign = self.gauge
         self._set_bounds()
         # Ridge rows: weights (cells only) -> 0, slopes -> 1, scaled with the sample count.
         lam = math.sqrt(ridge * self.t.size)
@@ -468,12 +488,13 @@ class _FitProblem:
         self.ridge_b[n:] = lam
 
     def _set_bounds(self) -> None:
-        """Bounds of [w, free slopes]: slopes >= eps, cell weights of the gauge's sign."""
+        """Bounds of [w, free slopes]: slopes >= eps, cell weights of ``weight_sign``
+        (unless free)."""
         n_w = self.n + 2
         lo = np.full(n_w + self.m - 1, -np.inf)
         hi = np.full(n_w + self.m - 1, np.inf)
-        if self.cell_weights == "signed":
-            (lo if self.gauge > 0 else hi)[1:self.n + 1] = 0.0
+        if self.cell_weights != "free":
+            (lo if self.weight_sign > 0 else hi)[1:self.n + 1] = 0.0
         lo[n_w:] = self.eps
         self.bounds = (lo, hi)
 
@@ -482,8 +503,58 @@ class _FitProblem:
         if orientation != self.orientation:
             self.xi = -self.xi
             self.gauge = -self.gauge
+            self.weight_sign = self.gauge
             self.orientation = orientation
             self._set_bounds()
+
+    def loop_sign(self) -> int:
+        """The sign the training loop asks of the cell weights (as a multiple of the
+        gauge's sign: 1 a leading, -1 a lagging resistance).
+
+        Positive cell weights (for a rising gauge) put the strain lower, at a given
+        resistance, while the input rises: the resistance is higher on loading than on
+        unloading, it leads the strain (a clockwise S-R loop, as the paper's sensor and the
+        rig have it). Negative ones: the resistance lags the strain (counter-clockwise,
+        e.g. a viscoelastic thread). The inverse of a Prandtl-Ishlinskii operator with
+        positive weights has weights of one sign, so one sign for all cells is the right
+        constraint, but which sign is the sensor's. The loop is the sensor's, not the
+        model's: both signs are fitted with the MPI's cells (symmetric play operators, no
+        creep) for every model of the family, and the lagging loop is taken when it lowers
+        the output RMSE by more than ``LOOP_SWITCH_GAIN``, else the paper's."""
+        scores = {}
+        for loop in (1, -1):
+            self.weight_sign = loop * self.gauge
+            self._set_bounds()
+            scores[loop] = self.solve(0.0, 1.0, output_nfev=self.search_nfev, play=True).rmse
+        return -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
+
+    def set_weight_sign(self) -> None:
+        """The cell weights' sign for ``cell_weights`` (``CELL_WEIGHTS``)."""
+        loop = {"lead": 1, "lag": -1}.get(self.cell_weights)
+        if loop is None:
+            loop = self.loop_sign() if self.cell_weights == "signed" else 1
+        self.weight_sign = loop * self.gauge
+        self._set_bounds()
+
+    def memory_report(self, result: _Solution) -> dict[str, Any]:
+        """How much of the fitted output comes from the cells' memory: ``memory_share``,
+        the RMS over the training data of what the cells' term sum_k w_k x_k adds beyond
+        any cubic in xi (its least-squares residual on 1, xi, xi^2, xi^3: a cell that
+        follows the input, or sits at a constant offset from it, is no memory) over the
+        RMS of w . z about its mean; ``memoryless`` when it is below
+        ``MEMORYLESS_SHARE``; ``loop`` the S-R loop orientation the cell weights were
+        held to (``lead``: resistance higher on loading, ``lag``: lower, ``free``: not
+        held)."""
+        z = self.design(result.sigma, result.p)
+        term = z[:, 1:self.n + 1] @ result.w[1:self.n + 1]
+        static = np.column_stack([np.ones_like(self.xi), self.xi, self.xi ** 2, self.xi ** 3])
+        cells = term - static @ np.linalg.lstsq(static, term, rcond=None)[0]
+        y = z @ result.w
+        spread = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
+        share = float(np.sqrt(np.mean(cells ** 2))) / spread if spread > 0 else 0.0
+        loop = ("free" if self.cell_weights == "free"
+                else "lead" if self.weight_sign * self.gauge > 0 else "lag")
+        return {"memory_share": share, "memoryless": share < MEMORYLESS_SHARE, "loop": loop}
 
     def default_sigma_grid(self) -> np.ndarray:
         lo = 0.02 / max(max(self.durations), 1e-9)
@@ -492,10 +563,16 @@ class _FitProblem:
             hi = lo * 1e3
         return np.geomspace(lo, hi, 13)
 
-    def design(self, sigma: float, p: float) -> np.ndarray:
-        """z = [xi, x_1..x_N, 1] per training sample (rows) for this sigma, p."""
-        states = kern.states_kernel(self.t, self.xi, self.starts, self.cls.kind, sigma, p,
-                                    self.rho, self.inv_width)
+    def design(self, sigma: float, p: float, *, play: bool = False) -> np.ndarray:
+        """z = [xi, x_1..x_N, 1] per training sample (rows) for this sigma, p; with
+        ``play`` the cells are the MPI's symmetric play operators whatever the model."""
+        if play:
+            rho = thresholds(self.n, kern.KIND_PL)
+            states = kern.states_kernel(self.t, self.xi, self.starts, kern.KIND_PL, 0.0, 1.0,
+                                        rho, inverse_widths(rho, kern.KIND_PL))
+        else:
+            states = kern.states_kernel(self.t, self.xi, self.starts, self.cls.kind, sigma,
+                                        p, self.rho, self.inv_width)
         z = np.empty((self.t.size, self.n + 2))
         z[:, 0] = self.xi
         z[:, 1:self.n + 1] = states
@@ -568,11 +645,13 @@ class _FitProblem:
             return theta, start
         return found, psi_of(found)
 
-    def solve(self, sigma: float, p: float, *, output_nfev: int = 0) -> _Solution:
-        """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it."""
+    def solve(self, sigma: float, p: float, *, output_nfev: int = 0,
+              play: bool = False) -> _Solution:
+        """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it;
+        ``play``: with the MPI's cells (``design``)."""
         with self._lock:
             self.evaluations += 1
-        z = self.design(sigma, p)
+        z = self.design(sigma, p, play=play)
         theta = self.equation_error(z)
         psi_hat = self.predict(z, theta)
         if output_nfev > 0 and math.isfinite(self.rmse(psi_hat)):

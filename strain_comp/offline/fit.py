@@ -470,6 +470,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         raise FitError(f"sensor {name!r}: the {model} fit cannot be used, nothing written: "
                        f"{err.field.removeprefix(f'sensors.{name}.')}: {err.problem}; try "
                        "another model (apl, cubic)") from None
+    memory = memory_reading(compensator)
     rmse = training_error(calibration, segments)
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "
@@ -483,8 +484,30 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         options=model_options,
         **({"fit_reduction": {"factor": factor,
                               "samples": sum(seg.t.size for seg in fit_segments)}}
-           if factor > 1 else {}))
+           if factor > 1 else {}),
+        **({"memory": memory} if memory else {}))
     return calibration
+
+
+def memory_reading(compensator: Any) -> dict[str, Any] | None:
+    """What a model with memory cells (APL, PL, MPI) kept of its memory, from its fit
+    report: ``memory_share`` (rounded), ``memoryless`` and the ``loop`` orientation its
+    cell weights were held to; None for models without cells."""
+    report = getattr(compensator, "fit_report", None)
+    if not report or "memoryless" not in report:
+        return None
+    return {"memory_share": round(float(report["memory_share"]), 4),
+            "memoryless": bool(report["memoryless"]), "loop": str(report["loop"])}
+
+
+def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
+    """The one-line note for a fit whose memory model ended up memoryless, else None."""
+    memory = calibration.provenance.get("memory")
+    if not memory or not memory.get("memoryless"):
+        return None
+    return (f"note: sensor {name!r}: {calibration.model} ended up memoryless (its cells give "
+            f"{100 * memory['memory_share']:.2g} % of the output): on these data it is a "
+            "static map, no better than the cubic")
 
 
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,

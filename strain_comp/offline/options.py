@@ -69,7 +69,7 @@ def _apl_options() -> dict[str, Check]:
     return {
         "N": _integer(1, N_MAX), "M": _integer(1, M_MAX, odd=True),
         "sigma_grid": _number_list(0.0, strict=True), "p_grid": _number_list(P_MIN),
-        "refine": _boolean, "cell_weights": _choice("signed", "free"),
+        "refine": _boolean, "cell_weights": _choice("signed", "lead", "lag", "free"),
         "eps": _number(0.0, strict=True), "ridge": _number(0.0),
         "output_nfev": _integer(0, MAX_COUNT), "search_nfev": _integer(0, MAX_COUNT),
         "search_top": _integer(0, MAX_COUNT), "progress": _boolean,
