@@ -130,4 +130,22 @@ def test_joint_state_rows_equal_the_message_encoder(tmp_path: Any) -> None:
     assert got["/s/strain_stamped"] == [
         cdr.joint_state(*cdr.stamp_of(int(s)), "", ["s"], p[:1])
         for s, p in zip(lg, pos, strict=True)]
-    assert "JointState" in str(read_bag(path).types)
+    contents = read_bag(path)  # read back quietly: the types listed, no problem lines
+    assert contents.types["/s/strain_stamped"] == "sensor_msgs/msg/JointState"
+    assert contents.problems == []
+
+
+def test_long_strings_and_late_stamps(tmp_path: Any) -> None:
+    """A string longer than the cache's limit encodes like a short one; a JointState stamp
+    past int32 seconds is refused with a BagError, not wrapped."""
+    from strain_comp.errors import BagError
+
+    kind = "diagnostic_msgs/msg/DiagnosticArray"
+    msg = {"header": {"stamp": {"sec": 1, "nanosec": 0}, "frame_id": ""},
+           "status": [{"level": 1, "name": "ü" * 300, "message": "m" * 1000,
+                       "hardware_id": "", "values": [{"key": "k", "value": "v" * 257}]}]}
+    assert cdr.message_encoder(kind)(msg) == bytes(STORE.serialize_cdr(_rosbags(kind, msg),
+                                                                       kind))
+    with BagWriter(tmp_path / "late.mcap") as writer, pytest.raises(BagError, match="2038"):
+        writer.write_joint_state("/s/strain_stamped", [1.0], ["s"], [[0.5]],
+                                 stamp=[2.0**31 + 1.0])

@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.io.bag import BagContents, Series, iter_bag, located
+from strain_comp.io.bag.reader import WINDOW
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -228,14 +229,14 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
     return out, problems
 
 
-def read_bag_pieces(path: str | Path) -> BagContents:
+def read_bag_pieces(path: str | Path, *, window: int = WINDOW) -> BagContents:
     """``read_bag``'s contents assembled from ``iter_bag``'s time-ordered pieces: memory
     about the decoded series, where ``read_bag`` also holds the whole file and all its
     decompressed chunks at once (5 GB at peak for a bag of 2e7 Float64 messages). A topic
     whose messages came late (overlapping chunks, a problem line) is sorted by time."""
     merged = BagContents()
     parts: dict[str, list[Series]] = {}
-    for piece in iter_bag(path):
+    for piece in iter_bag(path, window=window):
         for topic, series in piece.series.items():
             parts.setdefault(topic, []).append(series)
         for topic, labels in piece.labels.items():

@@ -148,7 +148,6 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from array import array
 
     import numpy as np
-    from builtin_interfaces.msg import Time
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.clock import JumpThreshold, ROSClock

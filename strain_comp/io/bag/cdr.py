@@ -29,9 +29,11 @@ _U32 = struct.Struct("<I")
 _STAMP = struct.Struct("<iI")
 _PAD = [b"\0" * k for k in range(8)]
 _STRING_CACHE = 4096
+_CACHED_LENGTH = 256
 _STRINGS: dict[str, bytes] = {}
-"""Encoded strings (length, UTF-8, NUL) by text: diagnostics repeat their names and keys
-in every message. Emptied when it reaches ``_STRING_CACHE`` entries."""
+"""Encoded strings (length, UTF-8, NUL) by text, those of at most ``_CACHED_LENGTH`` bytes:
+diagnostics repeat their names and keys in every message. Emptied when it reaches
+``_STRING_CACHE`` entries."""
 
 
 class CdrBuffer:
@@ -85,12 +87,14 @@ class CdrBuffer:
 
 
 def _encoded(text: str) -> bytes:
-    """``text`` as a CDR string (length with the NUL, UTF-8, NUL), kept in ``_STRINGS``."""
+    """``text`` as a CDR string (length with the NUL, UTF-8, NUL); short ones are kept in
+    ``_STRINGS``."""
     raw = text.encode()
     encoded = _U32.pack(len(raw) + 1) + raw + b"\0"
-    if len(_STRINGS) >= _STRING_CACHE:
-        _STRINGS.clear()
-    _STRINGS[text] = encoded
+    if len(raw) <= _CACHED_LENGTH:
+        if len(_STRINGS) >= _STRING_CACHE:
+            _STRINGS.clear()
+        _STRINGS[text] = encoded
     return encoded
 
 

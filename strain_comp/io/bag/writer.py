@@ -212,6 +212,9 @@ class BagWriter:
         s_ns = t_ns if stamp is None else _ns(stamp)
         if s_ns.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {s_ns.size} stamps")
+        if s_ns.size and int(s_ns.max()) >= 2**31 * 10**9:
+            raise BagError(f"{topic}: stamps after 2038-01-19 do not fit "
+                           "builtin_interfaces/Time")
         stamps = np.empty(t_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])
         stamps["sec"], stamps["nanosec"] = np.divmod(s_ns, 10**9)
         rows[:, 4:12] = stamps.view(np.uint8).reshape(-1, 8)
