@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Fuzz the calibration loader and the bag reader for a bounded time.
+"""Fuzz the calibration loader, the bag reader, the command line, the CSV importer and the
+live node for a bounded time.
 
 * **yaml**: random mutations of a valid calibration (every model, a divider input, every
   effect kind): byte flips, truncations, inserted YAML syntax, deleted lines, and
@@ -22,10 +23,26 @@
   and leave every input file byte for byte as it was. Runs that reach the command line's
   last-resort frame ("unexpected ...") are listed: they keep the contract but are faults.
 
+* **csv**: mutations of a small generic CSV (byte flips, a byte-order mark, Unicode line
+  separators, fields over 128 KiB, epoch nanoseconds, NaN, truncations, repeated spans)
+  imported with random column mappings (indices far past the row, ``²``, ``-1``, names).
+  ``import_csv`` may only raise ``InputError`` (one line); what it imports must be what the
+  bag readers keep (finite increasing times within 2^31 s, finite positive resistance),
+  every row kept or counted as dropped, and the bag must write.
+
+* **node**: ``compensator`` (sim time; one sensor with a temperature term and the 6-sensor
+  array) in its own process, and this process as a hostile peer: sensor values, temperatures
+  and arrays (NaN, inf, huge, tiny, wrong sizes, offsets and labels), /clock ticks
+  (negative, 2^31 - 1, backwards), ``set_parameters`` (``use_sim_time`` flips, bad values
+  and types, read-only and unknown names), ``~/tare`` and ``~/reload_calibration``. Every
+  strain the node publishes must be finite; it must stay alive and print no traceback; its
+  RSS is sampled every second and reported.
+
 Anything else is a crash: the input and its traceback are saved under ``--out``. Inputs
 that take longer than ``--timeout`` seconds count as hangs (saved too).
 
-    python scripts/fuzz.py --seconds 120 [--target yaml|bag|cli|all] [--seed 0] [--out DIR]
+    python scripts/fuzz.py --seconds 120 [--target yaml|bag|cli|csv|node|all] [--seed 0]
+        [--out DIR]
 """
 
 from __future__ import annotations
@@ -572,6 +589,278 @@ def fuzz_cli(fitted: dict[str, SensorCalibration], rng: np.random.Generator, wor
         signal.signal(signal.SIGALRM, previous)
     return stats
 
+# ---------------------------------------------------------------- CSV importer
+
+CSV_HOSTILE = [b"\xef\xbb\xbf", "\u2028".encode(), "\u0085".encode(), b"\r", b"\x0b",
+               b"\x00", b'"', b'""', b",,,,", b";", b"\t", b"nan", b"-inf", b"1e308",
+               b"-1", b"0", b"1700000000000000000", b"1e-300", b"\xff\xfe", b"x" * 200_000]
+CSV_COLUMNS = [0, 1, 2, 3, "0", "2", "600000", "1000000000", "\u00b2", "-1", "time",
+               "resistance", "strain", "nope"]
+
+
+def seed_csv() -> bytes:
+    """A generic three-column CSV with a header: time [s], resistance [ohm], strain [%]."""
+    t = np.arange(200) * 0.01
+    rows = [f"{ti:.2f},{100 + 10 * math.sin(ti):.4f},{20 + 20 * math.sin(ti):.4f}" for ti in t]
+    return ("time,resistance,strain\n" + "\n".join(rows) + "\n").encode()
+
+
+def mutate_csv(data: bytes, rng: np.random.Generator) -> bytes:
+    """Byte flips, hostile snippets (a byte-order mark, Unicode line separators, huge
+    fields, epoch nanoseconds, NaN), truncations and duplicated spans."""
+    buf = bytearray(data)
+    for _ in range(int(rng.integers(1, 5))):
+        op = int(rng.integers(0, 4))
+        pos = int(rng.integers(0, len(buf) + 1))
+        if op == 0 and buf:
+            buf[min(pos, len(buf) - 1)] ^= 1 << int(rng.integers(0, 8))
+        elif op == 1:
+            buf[pos:pos] = CSV_HOSTILE[int(rng.integers(0, len(CSV_HOSTILE)))]
+        elif op == 2:
+            del buf[pos:]
+        else:
+            end = min(len(buf), pos + int(rng.integers(1, 400)))
+            buf[pos:pos] = buf[pos:end] * int(rng.integers(1, 20))
+    return bytes(buf)
+
+
+def check_csv(path: Path, rng: np.random.Generator) -> bool:
+    """True if the file imported (consistently) and was written as a bag; False if refused
+    with InputError (one line); raises else."""
+    from strain_comp.errors import InputError
+    from strain_comp.io.bag.schemas import MAX_TIME_S
+    from strain_comp.io.csv_import import import_csv, write_recording_bag
+
+    columns = {key: CSV_COLUMNS[int(rng.integers(0, len(CSV_COLUMNS)))]
+               for key in ("time", "resistance", "strain") if key != "strain" or rng.random() < 0.7}
+    scales = {"time": 1e-9} if rng.random() < 0.1 else None
+    try:
+        result = import_csv(path, fmt="generic", sensor="s1", columns=columns, scales=scales)
+    except InputError as err:
+        if "\n" in str(err):
+            raise AssertionError(f"error message not one line: {err}") from None
+        return False
+    rec = result.recording
+    t, r = np.asarray(rec.t), np.asarray(rec.r)
+    if not (np.isfinite(t).all() and (np.diff(t) > 0).all() and t.min() >= 0
+            and t.max() <= MAX_TIME_S and np.isfinite(r).all() and (r > 0).all()):
+        raise AssertionError("imported samples that the bag readers would skip")
+    if result.report.kept + sum(result.report.dropped.values()) != result.report.rows:
+        raise AssertionError("rows lost: kept + dropped != rows")
+    write_recording_bag(rec, path.with_suffix(".mcap"))
+    return True
+
+
+def fuzz_csv(rng: np.random.Generator, work: Path, **limits: Any) -> Stats:
+    """Fuzz ``import_csv`` (random column mappings too) and the bag it writes."""
+    seed = seed_csv()
+    return run_target(Stats("csv"), lambda: mutate_csv(seed, rng),
+                      lambda path: check_csv(path, rng), work / "in.csv", **limits)
+
+
+# ---------------------------------------------------------------- the live node
+
+@dataclass
+class NodeStats:
+    """What the node fuzzer sent, what came back, and how the node process fared."""
+
+    sent: dict[str, int] = field(default_factory=dict)
+    outputs: int = 0
+    non_finite: list[str] = field(default_factory=list)
+    rss_mib: list[float] = field(default_factory=list)
+    alive: bool = True
+    tracebacks: list[str] = field(default_factory=list)
+    refused_params: int = 0
+
+    def line(self) -> str:
+        sent = ", ".join(f"{k} {v}" for k, v in sorted(self.sent.items()))
+        warm = self.rss_mib[min(5, len(self.rss_mib) - 1)] if self.rss_mib else math.nan
+        rss = (f"RSS {warm:.0f} MiB at 5 s, {self.rss_mib[-1]:.0f} at the end, max "
+               f"{max(self.rss_mib):.0f}" if self.rss_mib else "RSS unknown")
+        return (f"node: sent {sum(self.sent.values())} ({sent}); {self.outputs} outputs, "
+                f"{len(self.non_finite)} non-finite; {rss}; "
+                f"{'alive' if self.alive else 'DIED'}; {len(self.tracebacks)} tracebacks; "
+                f"{self.refused_params} parameter sets refused")
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.non_finite or not self.alive or self.tracebacks)
+
+
+def _rss_mib(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+NODE_VALUES = [15.0, 20.0, 25.0, math.nan, math.inf, -math.inf, 0.0, -5.0, 1e308, 1e-300,
+               5e-324, 1e12]
+NODE_TEMPERATURES = [20.0, 35.0, 1e308, -1e308, math.nan, math.inf, -300.0, 1000.5]
+NODE_PARAMETERS: list[tuple[str, Any]] = [
+    ("use_sim_time", False), ("use_sim_time", True), ("deadzone_scale", 2.0),
+    ("deadzone_scale", -1.0), ("deadzone_scale", math.nan), ("gap_reset_s", 1e308),
+    ("gap_reset_s", "x"), ("stale_after_s", 0.5), ("publish_rate_limit_hz", 1e9),
+    ("diagnostics_period_s", 0.01), ("no_such_parameter", 1.0), ("s1.topic", "/elsewhere"),
+    ("tare", "auto"), ("deadzone_scale", [1.0, 2.0])]
+
+
+def _node_params(work: Path) -> Path:
+    """Params for one sensor (its calibration with a temperature term) and the 6-sensor
+    array of the bundled configs, under sim time."""
+    config = Path(__file__).resolve().parent.parent / "config"
+    cal = load_calibration(config / "demo_calibration.yaml")
+    s1 = cal.sensors["s1"]
+    cal.sensors["s1"] = SensorCalibration(**{
+        **vars(s1), "rest_resistance": 11.0,
+        "effects": [{"name": "t", "kind": "temperature",
+                     "params": {"form": "offset", "t_ref": 20.0}, "coef": 0.05}]})
+    save_calibration(cal, work / "s1.yaml")
+    params = work / "params.yaml"
+    params.write_text(
+        "compensator:\n  ros__parameters:\n"
+        f"    sensors: [s1]\n    s1: {{calibration: {work / 's1.yaml'}}}\n"
+        f"    arrays: [array]\n    array: {{sensors: [a1, a2, a3, a4, a5, a6], "
+        f"calibration: {config / 'array_calibration.yaml'}}}\n"
+        "    diagnostics_period_s: 0.2\n")
+    return params
+
+
+def fuzz_node(rng: np.random.Generator, work: Path, *, seconds: float) -> NodeStats:
+    """Start ``compensator`` (sim time) as its own process, then from this process send it
+    hostile sensor, temperature and array messages, /clock ticks and parameter sets and
+    call its services for ``seconds``; every strain it publishes must be finite, it must
+    live, print no traceback, and its RSS is sampled every second."""
+    import os
+    import subprocess
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import Temperature
+    from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+    from std_srvs.srv import Trigger
+
+    work.mkdir(parents=True, exist_ok=True)
+    params = _node_params(work)
+    log = (work / "node.log").open("w")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from strain_comp.ros.node import main; "
+         "sys.exit(main(sys.argv))", "--ros-args", "--params-file", str(params),
+         "-p", "use_sim_time:=true"], stdout=log, stderr=subprocess.STDOUT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    stats = NodeStats()
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    peer = rclpy.create_node("hostile_peer", context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(peer)
+    pubs = {"s1": peer.create_publisher(Float64, "/s1/resistance", 10),
+            "temperature": peer.create_publisher(Temperature, "/s1/temperature", 10),
+            "array": peer.create_publisher(Float64MultiArray, "/array/resistance", 10),
+            "clock": peer.create_publisher(Clock, "/clock", 10)}
+
+    def got(topic: str, msg: Any) -> None:
+        stats.outputs += 1
+        values = np.atleast_1d(np.asarray(msg.data, dtype=np.float64))
+        if not np.isfinite(values).all():
+            stats.non_finite.append(f"{topic}: {values.tolist()[:6]}")
+
+    for topic, kind in (("/s1/strain", Float64), ("/array/strain", Float64MultiArray)):
+        peer.create_subscription(kind, topic, lambda m, t=topic: got(t, m), 100)
+    client = AsyncParameterClient(peer, "compensator")
+    services = {name: peer.create_client(Trigger, f"/compensator/{name}")
+                for name in ("tare", "reload_calibration")}
+    pending: list[Any] = []
+    t_ns = 10**9
+    labels = ["a1", "a2", "a3", "a4", "a5", "a6"]
+
+    def count(kind: str) -> None:
+        stats.sent[kind] = stats.sent.get(kind, 0) + 1
+
+    start = time.monotonic()
+    deadline = start + seconds
+    next_rss = start
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            op = int(rng.integers(0, 10))
+            if op <= 2:
+                t_ns += int(rng.integers(1, 20)) * 10**6
+                clock = Clock()
+                clock.clock.sec, clock.clock.nanosec = divmod(t_ns, 10**9)
+                if rng.random() < 0.2:  # hostile: negative, huge, backwards, odd nanoseconds
+                    clock.clock.sec = int(rng.choice([-1, -2**31, 2**31 - 1, 0]))
+                    clock.clock.nanosec = int(rng.integers(0, 2**32))
+                pubs["clock"].publish(clock)
+                count("clock")
+            elif op <= 4:
+                pubs["s1"].publish(Float64(data=float(rng.choice(NODE_VALUES)
+                                                      if rng.random() < 0.4
+                                                      else rng.uniform(10.5, 29.0))))
+                count("resistance")
+            elif op == 5:
+                msg = Temperature()
+                msg.temperature = float(rng.choice(NODE_TEMPERATURES))
+                pubs["temperature"].publish(msg)
+                count("temperature")
+            elif op <= 7:
+                n = int(rng.choice([6, 6, 6, 0, 5, 7, 8, 64]))
+                msg = Float64MultiArray()
+                msg.data = [float(rng.choice(NODE_VALUES)) if rng.random() < 0.2
+                            else float(rng.uniform(12.0, 16.0)) for _ in range(n)]
+                if rng.random() < 0.5:
+                    order = list(rng.permutation(labels)) if rng.random() < 0.7 else \
+                        [*labels[:5], str(rng.choice(["x", "a1", "", "a,b", "é" * 100]))]
+                    msg.layout.dim = [MultiArrayDimension(
+                        label=",".join(order), size=int(rng.choice([6, 6, 5, 2**32 - 1])),
+                        stride=6)]
+                    msg.layout.data_offset = int(rng.choice([0, 0, 1, 2**32 - 1]))
+                pubs["array"].publish(msg)
+                count("array")
+            elif op == 8:
+                name, value = NODE_PARAMETERS[int(rng.integers(0, len(NODE_PARAMETERS)))]
+                try:
+                    future = client.set_parameters([Parameter(name, value=value)])
+                except (TypeError, ValueError):  # rclpy refuses the value itself
+                    continue
+                pending.append(future)
+                count("set_parameters")
+            elif rng.random() < 0.2:
+                name = "reload_calibration" if rng.random() < 0.3 else "tare"
+                if services[name].service_is_ready():
+                    services[name].call_async(Trigger.Request())
+                    count(name)
+            executor.spin_once(timeout_sec=0.002)
+            for future in [f for f in pending if f.done()]:
+                pending.remove(future)
+                result = future.result()
+                stats.refused_params += sum(not r.successful for r in result.results)
+            if time.monotonic() >= next_rss:
+                rss = _rss_mib(proc.pid)
+                if rss is not None:
+                    stats.rss_mib.append(rss)
+                next_rss += 1.0
+    finally:
+        stats.alive = proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+        executor.shutdown(timeout_sec=0.5)
+        peer.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    text = (work / "node.log").read_text(errors="replace")
+    stats.tracebacks = [chunk[:2000] for chunk in text.split("Traceback")[1:]]
+    return stats
+
 
 class HangBase(BaseException):
     """A command line ran past the time limit (a BaseException: the command line's
@@ -584,7 +873,7 @@ def _alarm_base(signum: int, frame: Any) -> None:
 
 def save_crashes(stats: Stats, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    suffix = ".yaml" if stats.target == "yaml" else ".mcap"
+    suffix = {"yaml": ".yaml", "csv": ".csv"}.get(stats.target, ".mcap")
     for k, (data, trace) in enumerate(stats.crashes):
         (out / f"{stats.target}_crash_{k}{suffix}").write_bytes(data)
         (out / f"{stats.target}_crash_{k}.txt").write_text(trace)
@@ -595,14 +884,16 @@ def save_crashes(stats: Stats, out: Path) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="total fuzzing time")
-    parser.add_argument("--target", choices=("yaml", "bag", "cli", "all"), default="all")
+    parser.add_argument("--target", choices=("yaml", "bag", "cli", "csv", "node", "all"),
+                        default="all")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "strain_fuzz")
     parser.add_argument("--replay-every", type=int, default=10)
     parser.add_argument("--timeout", type=float, default=10.0, help="seconds per input")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
-    targets = ["yaml", "bag", "cli"] if args.target == "all" else [args.target]
+    targets = (["yaml", "bag", "cli", "csv", "node"] if args.target == "all"
+               else [args.target])
     share = args.seconds / len(targets)
     failures = 0
     with tempfile.TemporaryDirectory() as tmp:
@@ -613,6 +904,19 @@ def main() -> int:
         save_calibration(calibration, seed_yaml)
         check_yaml(seed_yaml)  # the seed itself must load and run
         for target in targets:
+            if target == "node":
+                node = fuzz_node(rng, work / "node", seconds=share)
+                print(node.line(), flush=True)
+                for line in node.non_finite[:5] + node.tracebacks[:3]:
+                    print("  " + line.strip().replace("\n", "\n  "))
+                failures += node.failed
+                continue
+            if target == "csv":
+                stats = fuzz_csv(rng, work, seconds=share, timeout=args.timeout)
+                print(stats.line(), flush=True)
+                save_crashes(stats, args.out)
+                failures += len(stats.crashes)
+                continue
             if target == "cli":
                 cli = fuzz_cli(fitted, rng, work / "cli", seconds=share,
                                timeout=max(args.timeout, 60.0))

@@ -160,3 +160,22 @@ def test_regression_labels_that_do_not_match_the_values(fuzz, every_model,
     assert any("2 sensor labels for 3 values" in p for p in contents.problems)
     with pytest.raises(BagError, match="no /NAME/resistance"):
         replay_bag(path, fuzz.replay_calibration(every_model), tmp_path / "out.mcap")
+
+
+def test_fuzz_csv_importer(fuzz, tmp_path: Path) -> None:
+    stats = fuzz.fuzz_csv(np.random.default_rng(0), tmp_path, iterations=150, timeout=20.0)
+    assert not stats.crashes, _report(stats)
+    assert stats.accepted and stats.rejected
+
+
+def test_fuzz_live_node_for_a_few_seconds(fuzz, tmp_path: Path,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """The node in its own process under a hostile peer: alive, no traceback, every strain
+    it published finite (the long run: ``scripts/fuzz.py --target node``)."""
+    from ros_env import ros_env
+
+    for key, value in ros_env(9).items():
+        monkeypatch.setenv(key, value)
+    stats = fuzz.fuzz_node(np.random.default_rng(0), tmp_path / "node", seconds=6.0)
+    assert not stats.failed, stats.line() + "\n" + "\n".join(stats.tracebacks[:2])
+    assert stats.outputs > 0 and stats.sent.get("clock", 0) > 0

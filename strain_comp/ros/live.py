@@ -246,25 +246,26 @@ class LiveCompensator:
         return True
 
     def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
-        """Feed one resistance message; the output to publish, or None (rate limited)."""
+        """Feed one resistance message; the output to publish, or None (rate limited, or no
+        estimate yet: a bad sample before any good one holds no finite strain)."""
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
         if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
-        return out if self._due(name, t) else None
+        return out if math.isfinite(out.strain) and self._due(name, t) else None
 
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
                  sizes: list[int] | None = None, label: str = "") -> ArrayOutput | None:
         """Feed one array message (its ``data``, ``layout.data_offset``, ``dim[*].size``,
-        ``dim[0].label``)."""
+        ``dim[0].label``); None as ``on_sensor`` (until every sensor has an estimate)."""
         sensors = self._inputs[name]
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
         self._seen(name, t, values, out.status, out.direction)
         if (used_mask(out.status) & ~np.isfinite(out.strain)).any():  # good samples: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
-        return out if self._due(name, t) else None
+        return out if np.isfinite(out.strain).all() and self._due(name, t) else None
 
     def refuse(self, name: str, reason: str) -> None:
         """Count a message that could not be handled, by input and reason (at most
