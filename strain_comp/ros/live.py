@@ -36,11 +36,12 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
+from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import (
     USED,
     ArrayOutput,
@@ -321,6 +322,51 @@ class LiveCompensator:
         self._start.clear()  # no automatic tare is pending any more
         return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
                                     for s, r in rests.items())
+
+    def span(self) -> tuple[LiveCompensator, str]:
+        """``~/span``: every sensor is held at the known strain ``span_strain`` now; its
+        input zero and span (``recalibrate --input``, ``InputSettings.zero_span``) through
+        its rest (the zero of its latest tare, else the calibration's) and the median of
+        its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
+        calibration (state restarts, as after a reload; the rest now reads as the
+        calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
+        from strain_comp.core.engine import RANGE_MARGIN
+        from strain_comp.offline.recalibrate import span_from_points, span_reading
+
+        strain = self.tunables.get("span_strain", 0.0)
+        if not strain > 0:
+            raise ParameterError("span_strain", "set it to the known strain the sensors are "
+                                 "held at before calling ~/span")
+        sensors = dict(self.params.calibration.sensors)
+        lines, problems = [], []
+        for name, names in self._inputs.items():
+            recent = self._recent[name]
+            latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
+            for column, sensor in enumerate(names):
+                cal = sensors[sensor]
+                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
+                zero = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
+                if zero is None or values.size == 0:
+                    problems.append(f"{sensor}: " + ("the calibration stores no "
+                                    "rest_resistance" if zero is None else
+                                    f"no good sample in the last {TARE_WINDOW_S} s"))
+                    continue
+                vr = cal.valid_range
+                rest_strain = vr.s_lo + RANGE_MARGIN * (vr.s_hi - vr.s_lo) / (
+                    1.0 + 2.0 * RANGE_MARGIN)
+                points = [(zero / self.engine.input_gain(sensor), rest_strain),
+                          (rest_level(values, pair=cal.input.pair), strain)]
+                try:
+                    span = span_from_points(cal, points)
+                except StrainCompError as err:
+                    problems.append(f"{sensor}: {err}")
+                    continue
+                sensors[sensor] = replace(cal, input=replace(cal.input, zero_span=span))
+                lines.append(f"{sensor}: {span_reading(span)}")
+        if problems:
+            raise ParameterError("span", "refused: " + "; ".join(problems))
+        fresh = self.reload(replace(self.params, calibration=Calibration(sensors)))
+        return fresh, "spanned " + "; ".join(lines)
 
     # --- parameters -----------------------------------------------------------------------
 

@@ -70,6 +70,9 @@ TUNABLES: tuple[ParamSpec, ...] = (
               "A jump between good samples longer than this resets the model state [s].", False),
     ParamSpec("diagnostics_period_s", "double", 1.0, (0.01, 60.0),
               "Period of the /diagnostics publication [s].", True),
+    ParamSpec("span_strain", "double", 0.0, (0.0, 1e6),
+              "The known strain (calibration's unit) every sensor is held at when ~/span is "
+              "called; 0: not set (~/span refuses).", False),
 )
 TUNABLE = {spec.name: spec for spec in TUNABLES}
 TARE_MODES = ("calibration", "auto")
