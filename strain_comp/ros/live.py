@@ -57,6 +57,7 @@ from strain_comp.core.tare import (
     rest_resistance_at_start,
     rest_resistance_when_decided,
 )
+from strain_comp.core.tracking import tracker_for
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
@@ -201,6 +202,7 @@ class LiveCompensator:
                                         if params.tare == "auto" else {})
         self._start = ({i.name: _StartLog(len(i.sensors)) for i in params.inputs}
                        if self._auto else {})
+        self.tracker = tracker_for(self.engine, params.baseline_tracking)
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self.tare_log: list[str] = []
@@ -219,6 +221,8 @@ class LiveCompensator:
     def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
         """Feed one resistance message; the output to publish, or None (rate limited)."""
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
+        if self.tracker is not None:
+            self.tracker.observe(name, t, out, self.engine.model_input(name, value))
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
         return out if self._due(name, t) else None

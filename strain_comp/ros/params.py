@@ -90,7 +90,11 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
                        "Names of sensor arrays, each with a NAME.* map.", True),
              ParamSpec("tare", "string", "calibration", None,
                        "calibration: the calibrated zero; auto: the rest resistance of the "
-                       "first seconds at rest becomes the zero.", True)]
+                       "first seconds at rest becomes the zero.", True),
+             ParamSpec("baseline_tracking", "string", "off", None,
+                       "off, or on: the rest level of each single sensor follows slowly while "
+                       "it rests (zero-tracking after OIML R76; shown in /diagnostics).",
+                       True)]
     for name in sensors:
         specs += [ParamSpec(f"{name}.topic", "string", f"{name}/resistance", None,
                             "Input topic (std_msgs/Float64, ohm or divider volts).", True),
@@ -139,6 +143,8 @@ class NodeParams:
     calibration: Calibration
     tunables: dict[str, float] = field(default_factory=dict)
     tare: str = "calibration"
+    baseline_tracking: str = "off"
+    """``off`` or ``on``: the rest level follows at rest (``strain_comp.core.tracking``)."""
 
     @property
     def arrays(self) -> dict[str, list[str]]:
@@ -235,6 +241,9 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     tare = _string(flat, "tare", "calibration")
     if tare not in TARE_MODES:
         raise ParameterError("tare", f"must be one of {', '.join(TARE_MODES)}, got {tare!r}")
+    tracking = _string(flat, "baseline_tracking", "off")
+    if tracking not in ("off", "on"):
+        raise ParameterError("baseline_tracking", f"must be off or on, got {tracking!r}")
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
@@ -257,7 +266,7 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
         raise ParameterError("topic", f"two inputs share a topic: {topics}")
     tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
                 for spec in TUNABLES}
-    return NodeParams(inputs, Calibration(merged), tunables, tare)
+    return NodeParams(inputs, Calibration(merged), tunables, tare, tracking)
 
 
 def unknown_hint(key: str, known: set[str], names: list[str]) -> str:
