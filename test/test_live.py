@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cubic_cal
+from conftest import S_HI, S_LO, cubic_cal
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.tare import TARE_WINDOW, rest_resistance_at_start, tare_engine
@@ -184,3 +184,52 @@ def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
         node.on_sensor("s1", float(ti), 120.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
     assert not node.tare_log and not node._start
+
+
+def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) -> None:
+    from strain_comp.offline.recalibrate import calibrated_resistance
+
+    cal = cubic_cal("s1")
+    rest_strain = S_LO + 0.05 * (S_HI - S_LO) / 1.1  # the fitted minimum of the range
+    r0, r10 = calibrated_resistance(cal, rest_strain), calibrated_resistance(cal, 10.0)
+    node = live(tmp_path, rest=r0)
+    moved = 155.0 + 1.5 * (r10 - r0)  # rest moved to 155 ohm, 50 % more sensitive
+    with pytest.raises(ParameterError, match="span_strain"):
+        node.span()
+    node.on_sensor("s1", 1.0, 155.0)
+    node.tare()  # the zero of the moved sensor
+    node.set_tunable("span_strain", 10.0)
+    for i in range(5):
+        node.on_sensor("s1", 2.0 + 0.1 * i, moved)
+    fresh, message = node.span()
+    assert "span gain" in message
+    assert fresh.params.calibration.sensors["s1"].input.zero_span == pytest.approx(
+        (155.0, r0, 1.0 / 1.5), rel=1e-6)
+    assert fresh.tunables["span_strain"] == 10.0
+    out = [fresh.on_sensor("s1", 5.0 + 0.1 * i, moved) for i in range(100)][-1]
+    assert out is not None and out.strain == pytest.approx(10.0, abs=0.05)
+    out = [fresh.on_sensor("s1", 20.0 + 0.1 * i, 155.0) for i in range(100)][-1]
+    assert out is not None and out.strain == pytest.approx(rest_strain, abs=0.05)
+
+
+def test_baseline_tracking_parameter_follows_a_rest_that_fell(tmp_path: Path) -> None:
+    from strain_comp.core.calibration import save_calibration
+    from strain_comp.offline.recalibrate import calibrated_resistance
+
+    cal = cubic_cal("s1")
+    rest_strain = S_LO + 0.05 * (S_HI - S_LO) / 1.1
+    r0 = calibrated_resistance(cal, rest_strain)
+    save_calibration(Calibration({"s1": replace(cal, rest_resistance=r0)}),
+                     tmp_path / "c.yaml")
+    flat = {"sensors": ["s1"], "s1.calibration": "c.yaml", "baseline_tracking": "on"}
+    node = LiveCompensator(parse_values(flat, base_dir=tmp_path), warm_up=False)
+    fallen = r0 - 3.0  # the rest fell 3 ohm below the calibrated rest
+    outs = [node.on_sensor("s1", 0.1 * i, fallen) for i in range(600)]  # 60 s at rest
+    first, last = outs[0], outs[-1]
+    assert first is not None and last is not None
+    assert last.strain == pytest.approx(rest_strain, abs=0.05)
+    assert abs(first.strain - rest_strain) > 1.0
+    values = node.diagnostics(60.0)[0][3]
+    assert float(values["baseline_correction"]) == pytest.approx(r0 / fallen - 1.0, rel=1e-3)
+    with pytest.raises(ParameterError, match="baseline_tracking"):
+        parse_values({**flat, "baseline_tracking": "yes"}, base_dir=tmp_path)

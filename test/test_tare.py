@@ -341,3 +341,11 @@ def test_cli_recalibrate_input_from_the_first_cycle_then_tare(cubic: Calibration
     assert evaluate_recordings({"s1": again}, spanned).sensors["s1"].stats.rmse > 1.0
     assert cli(["recalibrate", str(cal), "--input", "--point", "1100:0", "--first", "3",
                 "--out", str(tmp_path / "x.yaml")]) == 2
+
+
+def test_a_second_input_span_replaces_the_first(cubic: Calibration) -> None:
+    points = [(1100.0, 0.0), (float(moved(np.array(15.0))), 15.0)]
+    once = recalibrate(cubic, points=points, form="input")[0]
+    twice = recalibrate(once, points=points, form="input")[0]
+    assert twice.sensors["s1"].input.zero_span == pytest.approx(
+        once.sensors["s1"].input.zero_span, rel=1e-12)

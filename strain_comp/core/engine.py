@@ -580,6 +580,11 @@ class Engine:
             if sensor in group.names and group.kernel is not None:
                 group.set_gain(group.names.index(sensor), float(gain))
 
+    def model_input(self, sensor: str, raw: float) -> float:
+        """The resistance [ohm] a raw input value reaches the model as (converted, times
+        the tare gain, through the input zero and span; before the pair statistic)."""
+        return float(self._sensor(sensor).to_ohm(np.array([float(raw)]))[0][0])
+
     def track_baseline(self, sensor: str, gain: float, seconds: float) -> None:
         """``set_input_gain`` by baseline tracking after ``seconds`` at rest: counted in
         the sensor's health (``baseline_tracked_s``, ``baseline_correction``)."""

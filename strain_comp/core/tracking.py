@@ -22,7 +22,7 @@ exactly, so between corrections the numbers are the batch path's.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,7 +31,7 @@ from strain_comp.core.tare import REST_BAND
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:
-    from strain_comp.core.engine import BatchOutput, Engine
+    from strain_comp.core.engine import BatchOutput, Engine, SensorOutput
 
 TRACKING_MODES = ("off", "on")
 """Baseline tracking off (default: the benchmark shows no gain, docs/generalisation.md)
@@ -59,6 +59,9 @@ class BaselineTracker:
     engine: Engine
     rate: float = RATE
     band: float = BAND
+    pending: dict[str, list[tuple[float, float, int, int, float]]] = field(
+        default_factory=dict)
+    """Per sensor, the stepped samples of its current stretch (``observe``)."""
 
     def run(self, name: str, t: np.ndarray, r: np.ndarray,
             temperature: np.ndarray | None = None) -> BatchOutput:
@@ -76,6 +79,20 @@ class BaselineTracker:
             self.update(name, t[a:b], out)
             outs.append(out)
         return concatenate(outs)
+
+    def observe(self, name: str, t: float, out: SensorOutput, ohm: float) -> None:
+        """One stepped sample (the node): kept until its stretch of ``CHUNK_SECONDS`` is
+        complete, which is then judged as in ``run``. ``ohm``: what the model read
+        (``Engine.model_input``)."""
+        from strain_comp.core.engine import BatchOutput
+
+        kept = self.pending.setdefault(name, [])
+        if kept and np.floor((t - kept[0][0]) / CHUNK_SECONDS) > 0:
+            ts, strain, direction, status, r = (np.array(c) for c in zip(*kept, strict=True))
+            kept.clear()
+            self.update(name, ts, BatchOutput(strain, direction, status.astype(np.int8),
+                                              np.zeros(ts.size, bool), r))
+        kept.append((t, out.strain, out.direction, int(out.status), ohm))
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""

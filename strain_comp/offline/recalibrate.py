@@ -114,11 +114,14 @@ def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]
 
 def steady_curve(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
     """(resistances [ohm], steady outputs) on ``GRID_POINTS`` resistances over the valid
-    range, from the rest end (the low end for a sensor whose R rises with strain)."""
+    range, from the rest end (the low end for a sensor whose R rises with strain), read
+    by the models directly (an existing input zero and span left out: the resistances are
+    the calibrated ones)."""
+    bare = replace(cal, input=replace(cal.input, zero_span=None))
     grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, GRID_POINTS)
     if cal.direction.sign < 0:
         grid = grid[::-1]
-    return grid, np.array([steady_output(cal, float(r)) for r in grid])
+    return grid, np.array([steady_output(bare, float(r)) for r in grid])
 
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,

@@ -37,11 +37,12 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
+from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import (
     USED,
@@ -59,6 +60,7 @@ from strain_comp.core.tare import (
     rest_resistance_at_start,
     rest_resistance_when_decided,
 )
+from strain_comp.core.tracking import tracker_for
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
@@ -228,6 +230,7 @@ class LiveCompensator:
                                         if params.tare == "auto" else {})
         self._start = ({i.name: _StartLog(len(i.sensors)) for i in params.inputs}
                        if self._auto else {})
+        self.tracker = tracker_for(self.engine, params.baseline_tracking)
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
@@ -249,6 +252,8 @@ class LiveCompensator:
         """Feed one resistance message; the output to publish, or None (rate limited, or no
         estimate yet: a bad sample before any good one holds no finite strain)."""
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
+        if self.tracker is not None:
+            self.tracker.observe(name, t, out, self.engine.model_input(name, value))
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
         if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
@@ -375,6 +380,51 @@ class LiveCompensator:
         self._start.clear()  # no automatic tare is pending any more
         return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
                                     for s, r in rests.items())
+
+    def span(self) -> tuple[LiveCompensator, str]:
+        """``~/span``: every sensor is held at the known strain ``span_strain`` now; its
+        input zero and span (``recalibrate --input``, ``InputSettings.zero_span``) through
+        its rest (the zero of its latest tare, else the calibration's) and the median of
+        its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
+        calibration (state restarts, as after a reload; the rest now reads as the
+        calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
+        from strain_comp.core.engine import RANGE_MARGIN
+        from strain_comp.offline.recalibrate import span_from_points, span_reading
+
+        strain = self.tunables.get("span_strain", 0.0)
+        if not strain > 0:
+            raise ParameterError("span_strain", "set it to the known strain the sensors are "
+                                 "held at before calling ~/span")
+        sensors = dict(self.params.calibration.sensors)
+        lines, problems = [], []
+        for name, names in self._inputs.items():
+            recent = self._recent[name]
+            latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
+            for column, sensor in enumerate(names):
+                cal = sensors[sensor]
+                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
+                zero = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
+                if zero is None or values.size == 0:
+                    problems.append(f"{sensor}: " + ("the calibration stores no "
+                                    "rest_resistance" if zero is None else
+                                    f"no good sample in the last {TARE_WINDOW_S} s"))
+                    continue
+                vr = cal.valid_range
+                rest_strain = vr.s_lo + RANGE_MARGIN * (vr.s_hi - vr.s_lo) / (
+                    1.0 + 2.0 * RANGE_MARGIN)
+                points = [(zero / self.engine.input_gain(sensor), rest_strain),
+                          (rest_level(values, pair=cal.input.pair), strain)]
+                try:
+                    span = span_from_points(cal, points)
+                except StrainCompError as err:
+                    problems.append(f"{sensor}: {err}")
+                    continue
+                sensors[sensor] = replace(cal, input=replace(cal.input, zero_span=span))
+                lines.append(f"{sensor}: {span_reading(span)}")
+        if problems:
+            raise ParameterError("span", "refused: " + "; ".join(problems))
+        fresh = self.reload(replace(self.params, calibration=Calibration(sensors)))
+        return fresh, "spanned " + "; ".join(lines)
 
     # --- parameters -----------------------------------------------------------------------
 

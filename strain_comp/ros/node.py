@@ -3,7 +3,8 @@
 ``ros2 run strain_comp compensator --ros-args --params-file config/compensator_params.yaml``.
 Parameters as in ``strain_comp.ros.params`` (structural ones read-only, tunables ranged and
 validated, integers accepted for floats); inputs with sensor-data QoS, topic names resolved
-in the node's namespace, ``/diagnostics`` absolute; services ``~/tare`` and
+in the node's namespace, ``/diagnostics`` absolute; services ``~/tare``, ``~/span`` (input
+zero and span at the known strain ``span_strain``, ``LiveCompensator.span``) and
 ``~/reload_calibration`` (std_srvs/Trigger). Each input is stamped with the node clock when
 its callback runs, so ``use_sim_time`` follows /clock.
 
@@ -213,6 +214,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
             self.add_on_set_parameters_callback(self._on_set)
             self.create_service(Trigger, "~/tare", self._tare)
+            self.create_service(Trigger, "~/span", self._span)
             self.create_service(Trigger, "~/reload_calibration", self._reload)
             self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
                                    + f"; tare {params.tare}")
@@ -357,6 +359,15 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
         def _tare(self, request: Any, response: Any) -> Any:
             try:
                 response.message = self.live.tare()
+                response.success = True
+                self.get_logger().info(response.message)
+            except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
+                response.success, response.message = False, " ".join(str(err).split())
+            return response
+
+        def _span(self, request: Any, response: Any) -> Any:
+            try:
+                self.live, response.message = self.live.span()
                 response.success = True
                 self.get_logger().info(response.message)
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node

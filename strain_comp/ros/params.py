@@ -73,6 +73,9 @@ TUNABLES: tuple[ParamSpec, ...] = (
               "A jump between good samples longer than this resets the model state [s].", False),
     ParamSpec("diagnostics_period_s", "double", 1.0, (0.01, 60.0),
               "Period of the /diagnostics publication [s].", True),
+    ParamSpec("span_strain", "double", 0.0, (0.0, 1e6),
+              "The known strain (calibration's unit) every sensor is held at when ~/span is "
+              "called; 0: not set (~/span refuses).", False),
 )
 TUNABLE = {spec.name: spec for spec in TUNABLES}
 TARE_MODES = ("calibration", "auto")
@@ -95,7 +98,11 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
                        "first seconds at rest becomes the zero.", True),
              ParamSpec("executor", "string", "events", None,
                        "events: rclpy's EventsExecutor (about 3x less CPU per message); "
-                       "single_threaded: rclpy's SingleThreadedExecutor.", True)]
+                       "single_threaded: rclpy's SingleThreadedExecutor.", True),
+             ParamSpec("baseline_tracking", "string", "off", None,
+                       "off, or on: the rest level of each single sensor follows slowly while "
+                       "it rests (zero-tracking after OIML R76; shown in /diagnostics).",
+                       True)]
     for name in sensors:
         specs += [ParamSpec(f"{name}.topic", "string", f"{name}/resistance", None,
                             "Input topic (std_msgs/Float64, ohm or divider volts).", True),
@@ -145,6 +152,8 @@ class NodeParams:
     tunables: dict[str, float] = field(default_factory=dict)
     tare: str = "calibration"
     executor: str = "events"
+    baseline_tracking: str = "off"
+    """``off`` or ``on``: the rest level follows at rest (``strain_comp.core.tracking``)."""
 
     @property
     def arrays(self) -> dict[str, list[str]]:
@@ -268,6 +277,9 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     if executor not in EXECUTORS:
         raise ParameterError("executor", f"must be one of {', '.join(EXECUTORS)}, "
                                          f"got {executor!r}")
+    tracking = _string(flat, "baseline_tracking", "off")
+    if tracking not in ("off", "on"):
+        raise ParameterError("baseline_tracking", f"must be off or on, got {tracking!r}")
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
@@ -291,7 +303,7 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
         raise ParameterError("topic", f"two inputs share a topic: {topics}")
     tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
                 for spec in TUNABLES}
-    return NodeParams(inputs, Calibration(merged), tunables, tare, executor)
+    return NodeParams(inputs, Calibration(merged), tunables, tare, executor, tracking)
 
 
 def unknown_hint(key: str, known: set[str], names: list[str]) -> str:
