@@ -340,17 +340,23 @@ def test_array_layout_honoured_or_refused(array: Harness) -> None:
 
 @pytest.mark.parametrize("names", [["s1"], ["a", "bc", "def", "ghij", "k"],
                                    [f"x{i}" for i in range(256)]])
-def test_stamped_bytes_decode_as_joint_state(names: list[str]) -> None:
-    """The node's hand-built CDR of NAME/strain_stamped is what rclpy's own type support
-    reads: the names, the stamp, the positions, empty velocity and effort."""
+def test_output_bytes_decode_as_their_messages(names: list[str]) -> None:
+    """The node's hand-built CDR of ``strain_stamped`` and of an array's ``strain`` is what
+    rclpy's own type support reads: names, stamp, values, empty velocity and effort; the
+    layout labelled with the names."""
     from rclpy.serialization import deserialize_message
 
-    from strain_comp.ros.stamped import StampedEncoder
+    from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
 
-    position = np.random.default_rng(len(names)).normal(size=len(names))
+    values = np.random.default_rng(len(names)).normal(size=len(names))
     for stamp_ns in (1_795_498_137_622_557_762, 0, 5):
-        msg = deserialize_message(StampedEncoder(names).encode(stamp_ns, position), JointState)
+        msg = deserialize_message(StampedEncoder(names).encode(stamp_ns, values), JointState)
         assert list(msg.name) == names and msg.header.frame_id == ""
         assert msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec == stamp_ns
-        np.testing.assert_array_equal(msg.position, position)
+        np.testing.assert_array_equal(msg.position, values)
         assert list(msg.velocity) == [] and list(msg.effort) == []
+    vector = deserialize_message(VectorEncoder(names).encode(values), Float64MultiArray)
+    np.testing.assert_array_equal(vector.data, values)
+    assert [(d.label, d.size, d.stride) for d in vector.layout.dim] == [
+        (",".join(names), len(names), len(names))]
+    assert vector.layout.data_offset == 0

@@ -146,7 +146,6 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
 
     Parameters come from the node's overrides (params files, ``-p``, ``parameter_overrides``).
     """
-    from array import array
 
     import numpy as np
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -158,13 +157,13 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from rclpy.qos import qos_profile_sensor_data
     from rclpy.time_source import USE_SIM_TIME_NAME as USE_SIM_TIME
     from sensor_msgs.msg import JointState, Temperature
-    from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension
+    from std_msgs.msg import Float64, Float64MultiArray, Int8
     from std_srvs.srv import Trigger
 
     from strain_comp.errors import ParameterError, StrainCompError
+    from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
     from strain_comp.ros.live import ClockGate, LiveCompensator
     from strain_comp.ros.params import ROS_OWNED, TUNABLE, parse_values, structural_specs
-    from strain_comp.ros.stamped import StampedEncoder
 
     class CompensatorNode(Node):
         def __init__(self) -> None:
@@ -207,9 +206,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                                           for s in inp.sensors}))
                 ready.append(f"{inp.name} [{','.join(inp.sensors)}] ({models}) "
                              f"{sub.topic_name} -> {pubs[0].topic_name}")
-            self.dims = {i.name: MultiArrayDimension(label=",".join(i.sensors),
-                                                     size=len(i.sensors), stride=len(i.sensors))
-                         for i in params.inputs if i.is_array}
+            self.vector = {i.name: VectorEncoder(list(i.sensors)) for i in params.inputs}
             self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
             self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
             self.add_on_set_parameters_callback(self._on_set)
@@ -308,22 +305,13 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                                          label=msg.layout.dim[0].label if msg.layout.dim
                                          else "")
                 if out is not None:
-                    strain = array("d", out.strain.astype(np.float64).tobytes())
-                    directions = out.direction
-                    _send(pubs[0], lambda: self._vector(name, strain))
-                    _send(pubs[1], lambda: self._vector(
-                        name, array("d", directions.astype(np.float64).tobytes())))
-                    _send(pubs[2], lambda: self.stamped[name].encode(stamp, out.strain))
+                    strain, direction, vector = out.strain, out.direction, self.vector[name]
+                    _send(pubs[0], lambda: vector.encode(strain))
+                    _send(pubs[1], lambda: vector.encode(direction))
+                    _send(pubs[2], lambda: self.stamped[name].encode(stamp, strain))
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
                 self._refuse(name, err)
             self._log_tare()
-
-        def _vector(self, name: str, values: Any) -> Any:
-            """An array output: ``values`` with ``dim[0]`` labelled by the sensor names."""
-            reply = Float64MultiArray()
-            reply.data = values
-            reply.layout.dim = [self.dims[name]]
-            return reply
 
         def _log_tare(self) -> None:
             while self.live.tare_log:
