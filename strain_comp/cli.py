@@ -22,6 +22,7 @@ holds the JSON or CSV alone.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import os
@@ -407,8 +408,16 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _require_ros(command: str) -> None:
+    """InputError saying how to get ROS 2's Python client when rclpy is not installed."""
+    if importlib.util.find_spec("rclpy") is None:
+        raise InputError(f"{command} needs ROS 2's Python client (rclpy): pip install "
+                         "'.[ros]' in this project, or source a ROS 2 Jazzy installation")
+
+
 def cmd_node(args: argparse.Namespace) -> int:
     _existing(args.params, "parameter file")
+    _require_ros("strain-comp node")
     from strain_comp.ros.node import main as node_main
 
     code = node_main(["--ros-args", "--params-file", str(args.params)])
@@ -417,6 +426,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 def cmd_play(args: argparse.Namespace) -> int:
     _existing(args.bag, "bag")
+    _require_ros("strain-comp play")
     from strain_comp.ros.player import main as play_main
 
     n = play_main(args.bag, clock=args.clock, rate=args.rate, topics=args.topic,
