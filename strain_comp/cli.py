@@ -234,8 +234,10 @@ def _progress(args: argparse.Namespace) -> Callable[[int, int, str], None] | Non
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from strain_comp.offline.batch import expand_bags
+    from strain_comp.offline.batch import MAX_JOBS, expand_bags
 
+    if not 1 <= args.jobs <= MAX_JOBS:
+        raise InputError(f"--jobs {args.jobs}: must be 1 to {MAX_JOBS}")
     for bag in args.bags:
         _bag(bag)
     _existing(args.calibration, "calibration file")
