@@ -23,6 +23,7 @@ if (( quick )); then
   run bench/bench_fit.py --samples 5000 --models apl,mpi,cubic,rational \
     --rational-sizes 20000,200000
   run bench/bench_startup.py --warm-runs 1 --no-node
+  run bench/bench_batch.py --bags 3 --duration 200
   run bench/bench_latency.py --messages 2000 --round-trips 200
   run bench/bench_node_throughput.py --seconds 2 --rates 250,1000
 else
@@ -34,6 +35,7 @@ else
   run bench/bench_replay_memory.py
   run bench/bench_fit.py
   run bench/bench_startup.py
+  run bench/bench_batch.py
   run bench/bench_latency.py
   run bench/bench_node_throughput.py
 fi

@@ -22,6 +22,7 @@ holds the JSON or CSV alone.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import os
@@ -241,8 +242,10 @@ def _progress(args: argparse.Namespace) -> Callable[[int, int, str], None] | Non
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from strain_comp.offline.batch import expand_bags
+    from strain_comp.offline.batch import MAX_JOBS, expand_bags
 
+    if not 1 <= args.jobs <= MAX_JOBS:
+        raise InputError(f"--jobs {args.jobs}: must be 1 to {MAX_JOBS}")
     for bag in args.bags:
         _bag(bag)
     _existing(args.calibration, "calibration file")
@@ -423,8 +426,16 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _require_ros(command: str) -> None:
+    """InputError saying how to get ROS 2's Python client when rclpy is not installed."""
+    if importlib.util.find_spec("rclpy") is None:
+        raise InputError(f"{command} needs ROS 2's Python client (rclpy): pip install "
+                         "'.[ros]' in this project, or source a ROS 2 Jazzy installation")
+
+
 def cmd_node(args: argparse.Namespace) -> int:
     _existing(args.params, "parameter file")
+    _require_ros("strain-comp node")
     from strain_comp.ros.node import main as node_main
 
     code = node_main(["--ros-args", "--params-file", str(args.params)])
@@ -433,6 +444,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 def cmd_play(args: argparse.Namespace) -> int:
     _existing(args.bag, "bag")
+    _require_ros("strain-comp play")
     from strain_comp.ros.player import main as play_main
 
     n = play_main(args.bag, clock=args.clock, rate=args.rate, topics=args.topic,

@@ -99,3 +99,16 @@ def test_diagnose_says_what_the_automatic_tare_did_on_each_run() -> None:
     first, second = text.split("; ")
     assert first.startswith("training run s1: not tared: ")
     assert second.startswith("validation run s1: rest resistance ")
+
+
+def test_node_without_rclpy_says_how_to_install_it(monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "rclpy" else real(name, *a))
+    params = Path(__file__).resolve().parents[1] / "config" / "compensator_params.yaml"
+    capsys.readouterr()
+    assert main(["node", "--params", str(params)]) == 2
+    assert "pip install '.[ros]'" in capsys.readouterr().err

@@ -18,11 +18,13 @@ JSON (``evaluate --json`` with more than one bag; one bag keeps the single-bag s
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing import get_context
+from multiprocessing.context import BaseContext
 from pathlib import Path
 from typing import Any
 
@@ -125,6 +127,13 @@ def _plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
     return out
 
 
+def _context() -> BaseContext:
+    """Fork on Linux (a worker starts without importing strain_comp and numba again: spawn
+    cost about 2 s per worker, more than a bag takes; the parent has no threads running
+    here), spawn elsewhere (macOS: fork is unsafe)."""
+    return get_context("fork" if sys.platform == "linux" else "spawn")
+
+
 def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "calibration",
                   jobs: int = 1, plot_points: int = 0, in_run: bool = False,
                   plots: str | None = None, series: SeriesCSV | None = None,
@@ -148,7 +157,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         return outcomes
     with tempfile.TemporaryDirectory(prefix="strain_comp_") as tmp, \
             ProcessPoolExecutor(max_workers=min(jobs, len(bags)),
-                                mp_context=get_context("spawn")) as pool:
+                                mp_context=_context()) as pool:
         parts = [None if series is None else os.path.join(tmp, f"{k}.csv")
                  for k in range(len(bags))]
         futures = [pool.submit(_evaluate_one, bag, calibration_path, tare, plot_points,
