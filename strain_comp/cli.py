@@ -394,7 +394,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     calibration = load_calibration(args.calibration)
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
-                          plots=args.plots, inputs=[args.calibration], tare=args.tare)
+                          plots=args.plots, inputs=[args.calibration], tare=args.tare,
+                          stretch_history=args.stretch_history)
     print(report.summary(), file=_results(args))
     if args.json:
         _write_json(args.json, report.to_json(), inputs)
@@ -628,6 +629,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", metavar="DIR",
                    help="also write residual plots per sensor (PNG)")
     _tare_flag(p)
+    p.add_argument("--stretch-history", action="store_true",
+                   help="also try terms for a rest level or a sensitivity that moves with "
+                        "the stretch done (effect kind stretch)")
     p.set_defaults(func=cmd_diagnose)
 
     p = command("recalibrate", "output gain and offset (or input zero and span) through "

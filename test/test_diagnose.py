@@ -375,3 +375,46 @@ def test_a_long_run_is_thinned_to_the_row_budget_and_finds_the_same(
     for which in ("before", "after"):
         assert getattr(thinned, which)["rmse"] == pytest.approx(getattr(full, which)["rmse"],
                                                                 rel=0.1)
+
+
+def settling_thread(seed: int, *, shift: float, pause: tuple[float, float]) -> Recording:
+    """Triangles 0 -> A -> 0 % (A random in 10..50 %, 0.5..5 %/s, rests of 0..10 s) at
+    5 Hz over 900 s, at rest during ``pause`` (start, end) [s]; the rest resistance falls
+    by ``shift`` x 100 % of R0 as the stretch done accumulates (settling over 1000 % of
+    travel, a textile thread's contacts rearranging), however long that takes."""
+    rng = np.random.default_rng(seed)
+    knots_t, knots_s = [0.0], [0.0]
+    while knots_t[-1] < 900.0:
+        if pause[0] <= knots_t[-1] < pause[1]:
+            knots_t.append(pause[1])
+            knots_s.append(0.0)
+            continue
+        amp = float(rng.uniform(10.0, 50.0))
+        ramp = amp / float(rng.uniform(0.5, 5.0))
+        rest = float(rng.uniform(0.0, 10.0))
+        knots_t += [knots_t[-1] + ramp, knots_t[-1] + 2 * ramp, knots_t[-1] + 2 * ramp + rest]
+        knots_s += [amp, 0.0, 0.0]
+    t = np.arange(0.0, 900.0, 0.2)
+    s = np.interp(t, knots_t, knots_s)
+    travel = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(s)))))
+    r = (1000.0 * (1.0 + 0.02 * s - shift * (1.0 - np.exp(-travel / 1000.0)))
+         + 0.2 * rng.standard_normal(t.size))
+    return Recording("s1", t, r, s)
+
+
+def test_a_rest_level_that_moves_with_the_stretch_done_is_found() -> None:
+    """Calibrated on a settled thread, run on one whose rest falls with its stretch
+    history, with a 300 s pause (there the stretch done stands still while the time goes
+    on): the loop adds a ``stretch`` term of the rest form, kept on a second run paused
+    elsewhere, and its reading says what moved."""
+    calibration = Calibration({"s1": fit_sensor(
+        [settling_thread(0, shift=0.0, pause=(0.0, 0.0))], "cubic", name="s1")})
+    result = diagnose({"s1": settling_thread(1, shift=0.04, pause=(200.0, 500.0))},
+                      calibration, validate_recordings={
+                          "s1": settling_thread(2, shift=0.04, pause=(100.0, 400.0))},
+                      stretch_history=True)
+    first = result.added[0]
+    assert first.kind == "stretch" and first.params["form"].startswith("rest"), \
+        result.summary()
+    assert "rest level that moves with the stretch done" in first.to_json()["reading"]
+    assert result.after["rmse"] < 0.5 * result.before["rmse"], result.summary()

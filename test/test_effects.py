@@ -36,7 +36,7 @@ def random_inputs(n: int = 400, seed: int = 0) -> Batch:
     return Batch.of(t, 100 + s_hat, s_hat, direction, temperature, {"left": nb})
 
 
-ALL = [*default_candidates(temperature_ref=24.0, neighbours=["left"]),
+ALL = [*default_candidates(temperature_ref=24.0, neighbours=["left"], stretch_history=True),
        {"name": "x", "kind": "elapsed", "params": {}, "coef": 0.0}]
 
 
@@ -246,3 +246,36 @@ def test_resistance_memory_against_references() -> None:
     for form in ("relaxation", "peak", "trough"):
         np.testing.assert_allclose(_memory(form, tau, b, 37.0 * r), _memory(form, tau, b, r),
                                    atol=1e-9)
+
+
+def _stretch_reference(s: np.ndarray, form: str, scale: float, band: float) -> list[float]:
+    """Slow reference: travel of S_hat through a play of +-band, then the form."""
+    out, play, travel = [], float(s[0]), 0.0
+    for v in s:
+        moved = min(max(play, v - band), v + band)
+        travel += abs(moved - play)
+        play = moved
+        h = (1 - math.exp(-travel / scale) if form in ("rest", "gain")
+             else math.log(1 + travel / scale))
+        out.append(h * v if form.startswith("gain") else h)
+    return out
+
+
+@pytest.mark.parametrize("form", ["rest", "rest_log", "gain", "gain_log"])
+def test_stretch_history_against_a_slow_reference(form: str) -> None:
+    """The stretch terms against a plain loop; a 0 -> 50 -> 0 % cycle adds 100 % of
+    travel; noise inside the play band adds none."""
+    b = random_inputs(seed=7)
+    g = regressor_from_dict({"name": "x", "kind": "stretch", "coef": 0.0,
+                             "params": {"form": form, "scale": 150.0, "band": 0.3}})
+    np.testing.assert_allclose(g.run(b), _stretch_reference(b.s_hat, form, 150.0, 0.3),
+                               rtol=1e-12, atol=1e-12)
+    cycle = np.r_[np.linspace(0, 50, 51), np.linspace(49, 0, 50)]
+    quiet = 0.5 + 0.2 * np.sin(np.arange(300))  # about where the play rests: no travel
+    s = np.r_[cycle, quiet]
+    t = np.arange(s.size, dtype=float)
+    rest = regressor_from_dict({"name": "x", "kind": "stretch", "coef": 0.0,
+                                "params": {"form": "rest_log", "scale": 100.0, "band": 0.5}})
+    g_s = rest.run(Batch.of(t, 100 + s, s, np.zeros(s.size)))
+    # up 0 -> 50 moves the play 0 -> 49.5, down to 0 moves it back to 0.5: 98.5 % of travel
+    assert g_s[-1] == pytest.approx(math.log(1 + 98.5 / 100.0), rel=1e-9)

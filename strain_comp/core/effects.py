@@ -646,6 +646,70 @@ class Mullins(Regressor):
                    _positive(params, "n0", 1.0))
 
 
+_STRETCH_FORMS = ("rest", "rest_log", "gain", "gain_log")
+
+
+@njit
+def _stretch_kernel(s: np.ndarray, band: float, scale: float, form: int,
+                    state: np.ndarray) -> np.ndarray:
+    """Stretch travel (|movement| of S_hat through a play of +-band) -> history regressor."""
+    play, travel, started = state[0], state[1], state[2]
+    out = np.empty(s.size)
+    for k in range(s.size):
+        if not math.isfinite(s[k]):
+            out[k] = math.nan
+            continue
+        if started == 0.0:
+            play, started = s[k], 1.0
+        moved = min(max(play, s[k] - band), s[k] + band)
+        travel += abs(moved - play)
+        play = moved
+        h = 1.0 - math.exp(-travel / scale) if form in (0, 2) else math.log1p(travel / scale)
+        out[k] = h * s[k] if form >= 2 else h
+    state[0], state[1], state[2] = play, travel, started
+    return out
+
+
+class Stretch(Regressor):
+    """Stretch history: what the sensor has been through since the run started, as the
+    strain travel x = sum |dS_hat| [%] counted through a play of +-``band`` % (so that
+    noise at rest adds nothing; a 0 -> 50 -> 0 % cycle adds 100).
+
+    ``form``: ``rest`` g = 1 - exp(-x / scale) (a rest level that moves with the stretch
+    done and settles: the resistance at rest falling, or rising, a little after every
+    release, as a textile thread's contacts rearrange), ``rest_log`` g = log(1 + x / scale)
+    (one that keeps moving, ever slower), ``gain`` g = S_hat (1 - exp(-x / scale)) (a
+    sensitivity that grows, or falls, over the first cycles and settles), ``gain_log``
+    g = S_hat log(1 + x / scale) (one that keeps growing). Unlike ``mullins`` (cycles
+    counted by the detector, the peak reached) it reads the amount of stretching, so a run
+    of small cycles and one of few large ones age it alike.
+    """
+
+    kind = "stretch"
+    param_names = ("form", "scale", "band")
+
+    def __init__(self, form: str = "rest", scale: float = 1000.0, band: float = 0.5) -> None:
+        self.form = form
+        self.scale = scale
+        self.band = band
+        self._code = _STRETCH_FORMS.index(form)
+        self.reset()
+
+    def reset(self) -> None:
+        self._state = np.zeros(3)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _stretch_kernel(batch.s_hat, self.band, self.scale, self._code, self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"form": self.form, "scale": self.scale, "band": self.band}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Stretch:
+        return cls(_choice(params, "form", _STRETCH_FORMS, "rest"),
+                   _positive(params, "scale", 1000.0), _number(params, "band", 0.5, lo=0.0))
+
+
 class Crosstalk(Regressor):
     """Cross-talk in an array: g = the S_hat of the neighbour sensor ``neighbour``.
 
@@ -748,7 +812,7 @@ class Baseline(Regressor):
 
 KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
     Offset, Rate, Direction, Relaxation, ResistanceMemory, Elapsed, Temperature, StrainLevel,
-    Mullins, Crosstalk, Baseline)}
+    Mullins, Stretch, Crosstalk, Baseline)}
 
 
 def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:

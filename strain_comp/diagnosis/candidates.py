@@ -16,18 +16,27 @@ RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
 (fine enough that the nearest one is within 19 % of any time constant in that span)."""
 MEMORY_TAUS = tuple(float(2 ** k) for k in range(9))
 """Time constants [s] of the resistance-memory candidates: 1 s to 256 s, a factor 2 apart."""
+STRETCH_SCALES = (200.0, 2000.0)
+"""Strain travel [%] over which a ``stretch`` candidate's history term grows: about one
+full 0 -> 100 -> 0 % cycle, and ten."""
+STRETCH_BAND = 0.5
+"""Play [% strain] through which a ``stretch`` candidate counts travel (noise adds none)."""
 BASELINE_WINDOW = 5.0
 """Seconds at the start of a run over which a ``baseline`` candidate averages S_hat."""
 
 
 def default_candidates(*, temperature_ref: float | None = None,
                        neighbours: Sequence[str] = (),
-                       baseline_rest: float = 0.0) -> list[dict[str, Any]]:
+                       baseline_rest: float = 0.0,
+                       stretch_history: bool = False) -> list[dict[str, Any]]:
     """The generic candidate effects (calibration-file dicts with ``coef: 0``).
 
     ``temperature_ref`` [deg C]: include temperature terms around it (None: no temperature
     series); ``neighbours``: array neighbours to test for cross-talk; ``baseline_rest`` [%]:
-    the strain runs start at (the ``rest`` of the per-run ``baseline`` candidate).
+    the strain runs start at (the ``rest`` of the per-run ``baseline`` candidate);
+    ``stretch_history``: also the ``stretch`` terms (a rest level or a sensitivity that
+    moves with the stretch done; opt-in: on the measured within-run tables they were
+    chosen where a time drift carried better, docs/hysteresis_fit.md).
     """
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
@@ -60,6 +69,10 @@ def default_candidates(*, temperature_ref: float | None = None,
              "params": {"form": "cycles_exp", "n0": n0}} for n0 in (1.0, 3.0)]
     out.append({"name": "mullins_peak_strain", "kind": "mullins",
                 "params": {"form": "peak_strain", "n0": 1.0}})
+    if stretch_history:
+        out += [{"name": f"stretch_{form}_x{scale:g}", "kind": "stretch",
+                 "params": {"form": form, "scale": scale, "band": STRETCH_BAND}}
+                for form in ("rest", "rest_log", "gain", "gain_log") for scale in STRETCH_SCALES]
     out.append({"name": "baseline", "kind": "baseline",
                 "params": {"window": BASELINE_WINDOW, "rest": float(baseline_rest)}})
     out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}

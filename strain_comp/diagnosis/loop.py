@@ -288,8 +288,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
                      validate: list[Mapping[str, Recording]] | None,
                      base_fit: list[dict[str, _Run]], base_val: list[dict[str, _Run]],
                      candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
-                     n_blocks: int, margin: float, max_effects: int
-                     ) -> SensorDiagnosis | None:
+                     n_blocks: int, margin: float, max_effects: int,
+                     stretch_history: bool = False) -> SensorDiagnosis | None:
     if candidates is None:
         temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
                  if sensor in b and b[sensor].temperature is not None]
@@ -299,7 +299,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         nbrs = sorted({n for b, runs in zip(bags, base_fit, strict=True) if sensor in b
                        for n in _neighbours(b[sensor], b) if n in runs})
         candidates = default_candidates(temperature_ref=t_ref, neighbours=nbrs,
-                                        baseline_rest=_baseline_rest(bags, sensor))
+                                        baseline_rest=_baseline_rest(bags, sensor),
+                                        stretch_history=stretch_history)
     candidates = [dict(c, coef=0.0) for c in candidates]
     names = [str(c["name"]) for c in candidates]
     kinds = [str(c["kind"]) for c in candidates]
@@ -429,11 +430,12 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              | None = None, holdout_fraction: float = 0.3,
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
              margin: float = 0.03, max_effects: int = 3,
-             tare: str = "calibration") -> DiagnoseResult:
+             tare: str = "calibration", stretch_history: bool = False) -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
-    ``candidates``: effect dicts to test instead of ``default_candidates``. ``margin``: the
+    ``candidates``: effect dicts to test instead of ``default_candidates`` (with the
+    ``stretch`` terms when ``stretch_history``). ``margin``: the
     least relative drop of the cross-validated RMSE for an effect to be added. ``tare``:
     ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
     """
@@ -449,7 +451,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     results: dict[str, SensorDiagnosis] = {}
     for sensor, cal in calibration.sensors.items():
         found = _diagnose_sensor(sensor, cal, bags, validate, base_fit, base_val or [],
-                                 candidates, holdout_fraction, n_blocks, margin, max_effects)
+                                 candidates, holdout_fraction, n_blocks, margin, max_effects,
+                                 stretch_history)
         if found is not None:
             results[sensor] = found
     if not results:

@@ -97,6 +97,13 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
         return f"temperature offset {coef:+.3g} {u}/K"
     if kind == "mullins":
         return f"Mullins-type softening ({params.get('form')}){size}"
+    if kind == "stretch":
+        scale = params.get("scale")
+        if str(params.get("form", "rest")).startswith("gain"):
+            return (f"sensitivity {100.0 * coef:+.3g} % that comes with the stretch done "
+                    f"({params.get('form')}, over {scale} % of travel)")
+        return (f"rest level that moves with the stretch done, {coef:+.3g} {u} "
+                f"({params.get('form')}, over {scale} % of travel)")
     if kind == "crosstalk":
         return f"cross-talk {100.0 * coef:+.3g} % of {params.get('neighbour')}'s strain"
     if kind == "baseline":
