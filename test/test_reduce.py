@@ -140,3 +140,13 @@ def test_fit_budget_option() -> None:
     for bad in (10, "many", 5000.5, True):
         with pytest.raises(FitError, match="fit_budget"):
             fit_sensor([rec], "cubic", name="s1", options={"fit_budget": bad})
+
+
+def test_a_noisy_signal_cannot_inflate_the_reduction() -> None:
+    """White noise far above the reversal swing: the reduction stays near n / f samples."""
+    rng = np.random.default_rng(2)
+    n = 100_000
+    t = np.arange(n) / FS
+    seg = Segment(t, 100.0 + rng.standard_normal(n), rng.standard_normal(n))
+    reduced = reduce_segment(seg, FACTOR)
+    assert reduced.t.size <= 4 * n // FACTOR
