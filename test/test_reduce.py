@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 
 from strain_comp.io.recording import Recording
 from strain_comp.models import Segment
@@ -125,3 +126,27 @@ def test_reduced_fit_error_on_the_full_data_is_close_to_the_full_fit() -> None:
     span = float(np.ptp(rec.s))
     assert reduced.provenance["fit_rmse"] <= 1.05 * full.provenance["fit_rmse"] + 1e-3 * span
     assert full.provenance["fit_rmse"] < 0.01 * span  # and both are good fits
+
+
+def test_fit_budget_option() -> None:
+    """``--option fit_budget=N`` sets the budget; a bad value is a FitError naming it."""
+    from strain_comp.errors import FitError
+
+    t, s, _, _ = _protocol()
+    rec = Recording("s1", t, 100.0 + 2.0 * s + 0.01 * np.sin(t), s)
+    cal = fit_sensor([rec], "cubic", name="s1", options={"fit_budget": 2000})
+    assert cal.provenance["fit_reduction"]["factor"] == -(-t.size // 2000)
+    assert "fit_budget" not in cal.provenance["options"]
+    for bad in (10, "many", 5000.5, True):
+        with pytest.raises(FitError, match="fit_budget"):
+            fit_sensor([rec], "cubic", name="s1", options={"fit_budget": bad})
+
+
+def test_a_noisy_signal_cannot_inflate_the_reduction() -> None:
+    """White noise far above the reversal swing: the reduction stays near n / f samples."""
+    rng = np.random.default_rng(2)
+    n = 100_000
+    t = np.arange(n) / FS
+    seg = Segment(t, 100.0 + rng.standard_normal(n), rng.standard_normal(n))
+    reduced = reduce_segment(seg, FACTOR)
+    assert reduced.t.size <= 4 * n // FACTOR

@@ -121,7 +121,9 @@ DEADZONE_FRACTION = 0.5
 STILL_FRACTION = 0.001
 """The reference strain is still where it moves by at most this share of its span in 1 s
 (half the slowest ramp in the measured data: the fibre moves 0.2 % of its span per s)."""
-_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair")
+_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair", "fit_budget")
+"""Options ``fit_sensor`` takes itself (direction detector, measurement chain, the sample
+budget of a fit); the others go to the model's ``fit``."""
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
@@ -403,9 +405,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     """Fit ``model`` to one sensor's recordings (each with a reference strain).
 
     ``options`` go to the model's ``fit`` (N, M, mode, ...) except ``deadzone``, ``k_sigma``
-    and ``tau``, which set the direction detector. ``budget``: good samples above which
-    the model is fitted on a reduction (module docstring, Long runs). Raises FitError
-    when the data cannot support a fit (no reference, too few good samples, no range of R or S).
+    and ``tau``, which set the direction detector, ``alternation`` and ``pair`` (the
+    measurement chain) and ``fit_budget`` (overrides ``budget``: good samples above which
+    the model is fitted on a reduction, module docstring, Long runs). Raises FitError
+    when the data cannot support a fit (no reference, too few good samples, no range of
+    R or S).
     """
     options = dict(options or {})
     cls = model_class(model)
@@ -454,6 +458,10 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
     model_options = {k: v for k, v in options.items() if k not in _DIRECTION_OPTIONS}
     _check_options(cls.fit, model, model_options)
+    budget = options.get("fit_budget", budget)
+    if not (isinstance(budget, int) and not isinstance(budget, bool) and budget >= 1000):
+        raise FitError(f"sensor {name!r}: option fit_budget must be an integer >= 1000, "
+                       f"got {budget!r}")
     start = time.perf_counter()
     fit_segments, factor = reduce_segments(segments, budget)
     compensator = cls.fit(fit_segments, normalisation, direction=direction, **model_options)

@@ -146,9 +146,15 @@ def describe_options() -> str:
     return "\n".join(lines)
 
 
+FIT_OPTIONS: dict[str, Check] = {
+    "fit_budget": _integer(1000, 10**12),  # strain_comp.offline.reduce.FIT_SAMPLE_BUDGET
+}
+"""Options of the fit itself, for every model."""
+
+
 def check_fit_options(model: str, options: Mapping[str, Any]) -> None:
     """InputError naming the first option ``model`` does not take or whose value is bad."""
-    known = {**model_options(model), **DIRECTION_OPTIONS}
+    known = {**model_options(model), **DIRECTION_OPTIONS, **FIT_OPTIONS}
     for key, value in options.items():
         if key not in known:
             raise InputError(f"--option {key}: model {model!r} has no such option; its "

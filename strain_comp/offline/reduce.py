@@ -21,7 +21,9 @@ Per segment (``reduce_segment``):
 3. **Reversals**: every turning point of the filtered S and of the filtered R whose swing
    to the next one is at least ``REVERSAL_FRACTION`` of the segment's span (a peak-valley
    scan with that hysteresis, so noise does not count) is kept at its own sample: the
-   extremes that set a hysteresis model's memory survive exactly where they were.
+   extremes that set a hysteresis model's memory survive exactly where they were. At most
+   as many as the decimated samples: for a signal noisier than that, the swing doubles
+   until they fit, so a reduction never holds more than about 4 n / f samples.
 4. **Holds**: the first and last sample of every stretch of at least 2f samples where the
    filtered S is still (``|dS/dt|`` at most ``HOLD_RATE_FRACTION`` of the segment's
    99.5th-percentile rate, the rule ``fit.find_hold`` uses), so a hold starts and ends
@@ -117,6 +119,16 @@ def turning_points(x: np.ndarray, swing: float) -> np.ndarray:
     return out[:count]
 
 
+def _reversals(x: np.ndarray, swing: float, limit: int) -> np.ndarray:
+    """``turning_points(x, swing)``, the swing doubled until at most ``limit`` remain (a
+    signal noisier than the swing would otherwise keep most of its samples)."""
+    found = turning_points(x, swing)
+    while found.size > limit:
+        swing *= 2.0
+        found = turning_points(x, swing)
+    return found
+
+
 def hold_edges(t: np.ndarray, s: np.ndarray, min_length: int) -> np.ndarray:
     """First and last index of every still stretch of ``s`` of ``min_length`` samples or
     more (still: ``|dS/dt|`` <= ``HOLD_RATE_FRACTION`` x its 99.5th percentile)."""
@@ -141,7 +153,7 @@ def reduce_segment(seg: Segment, factor: int) -> Segment:
     for x in (r, s):
         span = float(np.ptp(x))
         if span > 0.0:
-            keep.append(turning_points(x, REVERSAL_FRACTION * span))
+            keep.append(_reversals(x, REVERSAL_FRACTION * span, n // factor))
     keep.append(hold_edges(seg.t, s, 2 * factor))
     idx = np.unique(np.concatenate(keep))
     return Segment(seg.t[idx], r[idx], s[idx])
