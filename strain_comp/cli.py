@@ -433,7 +433,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = parser.parse_args(argv)
         except SystemExit:  # --help or --list printed; nothing else exits
             return 0
-        return int(args.func(args))
+        import numpy as np
+
+        # overflow on hostile data gives inf / NaN, which the commands screen where it
+        # matters; numpy's warning lines would break the one-line contract
+        with np.errstate(all="ignore"):
+            return int(args.func(args))
     except StrainCompError as err:
         message = str(err)
     except OSError as err:
