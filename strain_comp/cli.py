@@ -704,7 +704,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if extra:
             raise UsageError(f"{args.command}: unrecognized arguments: {' '.join(extra)} "
                              f"(see {PROG} {args.command} --help)")
-        return int(args.func(args))
+        import numpy as np
+
+        # overflow on hostile data gives inf / NaN, which the commands screen where it
+        # matters; numpy's warning lines would break the one-line contract
+        with np.errstate(all="ignore"):
+            return int(args.func(args))
     except StrainCompError as err:
         message = str(err)
     except BrokenPipeError:  # the reader of stdout went away (e.g. `| head`)

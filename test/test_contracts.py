@@ -10,12 +10,13 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from strain_comp.cli import main as cli
+from strain_comp.cli import main as run_cli
 from strain_comp.core.calibration import load_calibration
 from strain_comp.io.bag import BagWriter
 
@@ -51,6 +52,15 @@ def _hostile_bag(path: Path, seed: int) -> Path:
         writer.write_float64("/s1/resistance", t, r)
         writer.write_float64("/s1/strain_reference", t, s)
     return path
+
+
+def cli(args: list[str]) -> int:
+    """The command line in this process; it must emit no warning (a line on stderr)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = run_cli(args)
+    assert not [str(w.message) for w in caught if w.category is RuntimeWarning], caught
+    return code
 
 
 def _one_line_or_loadable(code: int, err: str, out: Path) -> None:
