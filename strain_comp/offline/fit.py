@@ -515,7 +515,7 @@ def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
         return None
     return (f"note: sensor {name!r}: {calibration.model} ended up memoryless (its cells give "
             f"{100 * memory['memory_share']:.2g} % of the output): on these data it is a "
-            "static map, no better than the cubic")
+            f"static map of R (the cells' sign: --option cell_weights=lead|lag|free)")
 
 
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
