@@ -124,6 +124,10 @@ def test_a_decompression_bomb_is_skipped_within_the_chunk_budget(tmp_path: Path)
     pieces = list(iter_bag(path))
     assert sum(p.series["/s1/resistance"].t.size for p in pieces
                if "/s1/resistance" in p.series) == 3
+    from strain_comp.ros.player import bag_messages  # play reads with the same budgets
+
+    played = bag_messages(path)
+    assert [struct.unpack("<d", m.data[4:])[0] for m in played] == [10.0, 11.0, 12.0]
 
 
 def test_held_message_bytes_cut_pieces_and_bound_the_whole_bag_reader(

@@ -11,21 +11,19 @@ on TOPIC (the node's answer) before the next one, instead of keeping the recorde
 a test or an offline comparison needs, as nothing then queues up in the node. Playing waits
 for every played topic to have a subscriber (at most ``wait_s``) before the first message.
 
-Message types come from a fixed registry (``PLAYABLE``: the types strain_comp reads and
-writes), never by importing a module a bag or a peer names; messages of any other type are
-not played and counted.
+The bag is read by the bag reader's own walk within its budgets (decompressed bytes per
+chunk and held; ``strain_comp.io.bag.reader.raw_messages``). Message types come from a
+fixed registry (``PLAYABLE``: the types strain_comp reads and writes), never by importing a
+module a bag or a peer names; messages of any other type are not played and counted.
 """
 
 from __future__ import annotations
 
-import struct
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-from mcap.exceptions import McapError
 
 from strain_comp.errors import BagError
 from strain_comp.io.bag.schemas import norm_type
@@ -42,19 +40,15 @@ class PlayedMessage:
 
 
 def bag_messages(path: str | Path, topics: list[str] | None = None) -> list[PlayedMessage]:
-    """A bag's CDR messages in log-time order (only ``topics`` when given)."""
-    from mcap.reader import make_reader
+    """A bag's CDR messages in log-time order (only ``topics`` when given), read by the bag
+    reader's walk within its budgets (``strain_comp.io.bag.reader.raw_messages``); what it
+    skipped goes to stderr, one line each."""
+    from strain_comp.io.bag.reader import raw_messages
 
-    try:
-        with open(path, "rb") as stream:
-            out = [PlayedMessage(channel.topic, schema.name, message.log_time, message.data)
-                   for schema, channel, message in make_reader(stream).iter_messages(
-                       topics=topics, log_time_order=True)
-                   if schema is not None and channel.message_encoding == "cdr"]
-    except OSError as err:
-        raise BagError(f"{path}: cannot read bag: {err.strerror or err}") from None
-    except (McapError, struct.error, ValueError, UnicodeDecodeError) as err:
-        raise BagError(f"{path}: not a readable MCAP bag: {err}") from None
+    messages, problems = raw_messages(path, topics)
+    for problem in problems:
+        print(f"play: {problem}", file=sys.stderr)
+    out = [PlayedMessage(*m) for m in messages]
     if not out:
         raise BagError(f"{path}: no CDR messages" + (f" on {', '.join(topics)}" if topics else ""))
     return out

@@ -450,6 +450,13 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
     line in ``problems``.
     """
     path = Path(path)
+    contents = _decode(_collect(path, topics))
+    contents.problems[:] = located(path, contents.problems)
+    return contents
+
+
+def _collect(path: Path, topics: Iterable[str] | None) -> _Collector:
+    """Every message of the bag at ``path`` located, within ``MAX_BAG_BYTES``."""
     col = _Collector(set(topics) if topics is not None else None)
     for index, file in enumerate(_bag_paths(path)):
         col.file_index = index
@@ -461,9 +468,37 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
             if col.held > MAX_BAG_BYTES:
                 raise BagError(f"{file}: more than {MAX_BAG_BYTES} bytes of messages to hold "
                                "at once (the whole-bag reader's budget)")
-    contents = _decode(col)
-    contents.problems[:] = located(path, contents.problems)
-    return contents
+    return col
+
+
+def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
+                 ) -> tuple[list[tuple[str, str, int, bytes]], list[str]]:
+    """Every CDR message of a bag as (topic, type name, log time [ns], payload) in log-time
+    order, read with ``read_bag``'s walk and budgets (not decoded), and the problems."""
+    path = Path(path)
+    col = _collect(path, topics)
+    out: list[tuple[str, str, int, bytes]] = []
+    if col.msg_time:
+        block = np.concatenate(col.msg_block)
+        start, length = np.concatenate(col.msg_start), np.concatenate(col.msg_len)
+        log_ns, channel_id = np.concatenate(col.msg_time), np.concatenate(col.msg_channel)
+        files = np.array(col.block_file, dtype=np.int64)[block]
+        skipped = 0
+        for i in np.argsort(log_ns, kind="stable").tolist():
+            channel = col.channels.get((int(files[i]), int(channel_id[i])))
+            schema = None if channel is None else col.schemas.get((int(files[i]),
+                                                                   channel.schema_id))
+            if (channel is None or schema is None or channel.message_encoding != "cdr"
+                    or not 0 <= log_ns[i] <= MAX_LOG_NS):
+                skipped += 1
+                continue
+            if col.topics is None or channel.topic in col.topics:
+                payload = col.blocks[block[i]][start[i]:start[i] + length[i]].tobytes()
+                out.append((channel.topic, schema.name, int(log_ns[i]), payload))
+        if skipped:
+            col.problems.append(f"{skipped} messages without a known CDR channel or with a "
+                                "log time beyond 2^31 s skipped")
+    return out, located(path, col.problems)
 
 
 def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
