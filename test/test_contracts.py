@@ -87,8 +87,6 @@ def test_fit_on_hostile_data_gives_one_line_or_a_loadable_file(
         assert code == 0 or (code == 2 and len(err) == 1), err
 
 
-@pytest.mark.xfail(strict=False, reason="recalibrate validates its result before writing "
-                   "once the validation of fit/recalibrate outputs is merged")
 @pytest.mark.parametrize("seed", range(12))
 def test_recalibrate_on_hostile_points_and_bags_gives_one_line_or_a_loadable_file(
         tmp_path: Path, capfd: pytest.CaptureFixture[str], seed: int) -> None:
