@@ -729,6 +729,10 @@ def _node_params(work: Path) -> Path:
     return params
 
 
+NODE_START_S = 60.0
+"""How long ``fuzz_node`` waits for the node to subscribe before it starts the clock."""
+
+
 def fuzz_node(rng: np.random.Generator, work: Path, *, seconds: float) -> NodeStats:
     """Start ``compensator`` (sim time) as its own process, then from this process send it
     hostile sensor, temperature and array messages, /clock ticks and parameter sets and
@@ -783,6 +787,10 @@ def fuzz_node(rng: np.random.Generator, work: Path, *, seconds: float) -> NodeSt
     def count(kind: str) -> None:
         stats.sent[kind] = stats.sent.get(kind, 0) + 1
 
+    ready_by = time.monotonic() + NODE_START_S  # the fuzzing time counts once it listens
+    while (pubs["s1"].get_subscription_count() == 0 and proc.poll() is None
+           and time.monotonic() < ready_by):
+        executor.spin_once(timeout_sec=0.05)
     start = time.monotonic()
     deadline = start + seconds
     next_rss = start
