@@ -68,7 +68,7 @@ HEADLINE_FORMS = {"recal": ("output",), "span": ("input",), "span_recal": ("inpu
 TARGET_MEDIAN, TARGET_WORST = 1.3, 2.5
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
-ENGINE = {"out_of_range": "clamp", "tracking": "off"}
+ENGINE = {"out_of_range": "extend", "tracking": "off"}
 """Engine options of every evaluation (``--out-of-range``)."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
 
@@ -465,7 +465,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loop", action="store_true",
                         help="also the residual loop's calibration (diagnose on a third run)")
     parser.add_argument("--refit", action="store_true", help="ignore cached fits")
-    parser.add_argument("--out-of-range", choices=("clamp", "extrapolate"), default="clamp",
+    parser.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
+                        default="extend",
                         help="evaluate's --out-of-range")
     parser.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
                         help="evaluate's --baseline-tracking")

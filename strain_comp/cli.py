@@ -580,10 +580,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write PNG plots per sensor (several bags: a folder per bag)")
     p.add_argument("--jobs", type=int, default=1, metavar="N",
                    help="bags evaluated at once, in N processes (default 1)")
-    p.add_argument("--out-of-range", choices=("clamp", "extrapolate"), default="clamp",
-                   help="strain beyond the calibrated resistance range: clamped to the "
-                   "calibrated strain range (default), or extended with the model's end "
-                   "slope (flagged either way)")
+    p.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
+                   default="extend",
+                   help="strain beyond the calibrated resistance range: extended with a "
+                   "bounded slope within a bounded reach (extend, default), clamped to the "
+                   "calibrated strain range, or extended with the model's end slope "
+                   "(flagged in every mode; docs/design.md)")
     _tracking_flag(p)
     p.add_argument("--in-run-bound", action="store_true",
                    help="also fit the same model on each run itself and give its RMSE "

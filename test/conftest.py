@@ -35,7 +35,13 @@ from strain_comp.core.calibration import (
     provenance,
 )
 from strain_comp.core.direction import DirectionSettings
-from strain_comp.core.engine import OPEN_FACTOR, RANGE_MARGIN, SHORT_FACTOR, Engine
+from strain_comp.core.engine import (
+    EXTEND_REACH,
+    OPEN_FACTOR,
+    RANGE_MARGIN,
+    SHORT_FACTOR,
+    Engine,
+)
 from strain_comp.io.recording import Recording
 from strain_comp.models.base import Compensator, Normalisation, Segment
 from strain_comp.offline.fit import fit_sensor
@@ -168,11 +174,17 @@ def calibration_of(model: str, name: str = "s1") -> Calibration:
     return Calibration({name: SensorCalibration(**{**vars(cal), "name": name})})
 
 
-def strain_bounds(cal: SensorCalibration) -> tuple[float, float]:
-    """The engine's clamp: the valid strain range widened by ``RANGE_MARGIN`` of its span."""
+def strain_bounds(cal: SensorCalibration, out_of_range: str = "extend"
+                  ) -> tuple[float, float]:
+    """The bounds of the engine's estimate: with ``clamp``, the valid strain range widened
+    by ``RANGE_MARGIN`` of its span; with ``extend`` (the default), that widened further by
+    ``EXTEND_REACH`` spans above and, below, down to zero strain at most."""
     vr = cal.valid_range
-    margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
-    return vr.s_lo - margin, vr.s_hi + margin
+    span = vr.s_hi - vr.s_lo
+    lo, hi = vr.s_lo - RANGE_MARGIN * span, vr.s_hi + RANGE_MARGIN * span
+    if out_of_range == "clamp":
+        return lo, hi
+    return min(lo, max(0.0, vr.s_lo - EXTEND_REACH * span)), vr.s_hi + EXTEND_REACH * span
 
 
 def measured_data_dir() -> Path | None:

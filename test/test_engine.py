@@ -150,7 +150,7 @@ def test_out_of_range_is_flagged_fed_and_clamped() -> None:
     s_top = S_HI + RANGE_MARGIN * (S_HI - S_LO)
     t = np.arange(4) * 0.1
     r = np.array([150.0, R_HI + 0.5 * margin_r, R_HI + 2 * margin_r, 400.0])
-    engine = engine_of(lag_cal())
+    engine = engine_of(lag_cal(), out_of_range="clamp")
     out = stream(engine, "s1", t, r)
     assert out["out_of_range"].tolist() == [False, False, True, True]
     assert out["status"].tolist() == [Status.GOOD, Status.GOOD, Status.OUT_OF_RANGE,
@@ -324,7 +324,7 @@ def test_extrapolate_extends_the_end_slope_beyond_the_range_and_step_equals_run(
     slope = (inside[1] - inside[0]) / width
     t = np.arange(5) * 0.1
     r = np.array([150.0, r_hi + 10.0, r_hi + 40.0, 150.0, R_LO * 0.5])
-    clamped = engine_of(cal).run("s1", t, r)
+    clamped = engine_of(cal, out_of_range="clamp").run("s1", t, r)
     extended = engine_of(cal, out_of_range="extrapolate").run("s1", t, r)
     np.testing.assert_allclose(extended.strain[[0, 3]], clamped.strain[[0, 3]])
     np.testing.assert_allclose(extended.strain[1:3], clamped.strain[1:3] + slope

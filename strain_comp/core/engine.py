@@ -18,9 +18,11 @@ Per sample, in this order:
    that far *before* it (a bag loop or a sim-time reset), resets model and detector first
    (status ``GAP_RESET``, counted in ``n_gaps``). Smaller backward steps are rejected.
 4. Out of range: R outside the valid resistance range widened by ``RANGE_MARGIN`` of its
-   span is flagged (status ``OUT_OF_RANGE``) but still fed to the model, whose state must
-   follow the sensor; the estimate of every sample is clamped to the valid strain range
-   widened by the same margin, so it is never silently extrapolated far. With an input
+   span is flagged (status ``OUT_OF_RANGE``) and still fed to the model; the estimate of
+   every sample is clamped to the valid strain range widened by the same margin, and then,
+   by ``out_of_range`` (``OUT_OF_RANGE_MODES``, default ``extend``), extended beyond it
+   with a bounded slope within a bounded reach (the model reading R held at the range's
+   end: ``_Sensor.bounded_slopes``), or with the model's end slope, or not. With an input
    filter (``input.alternation``, ``despike``, ``baseline_step``) the flag is taken on the
    filtered value the model reads (a pair mean, a removed spike), not on the raw sample.
 5. The direction output comes from a ``DirectionDetector`` with the calibration's settings
@@ -80,13 +82,26 @@ SHORT_FACTOR = 0.01
 """0 < R below this fraction of the bottom of the valid resistance range is a short."""
 RANGE_MARGIN = 0.05
 """Fraction of the valid range's span added on each side before flagging / clamping."""
-OUT_OF_RANGE_MODES = ("clamp", "extrapolate")
+OUT_OF_RANGE_MODES = ("clamp", "extrapolate", "extend")
 """Strain of a sample beyond the valid resistance range: clamped to the valid strain range
-(plus the margin), or that plus the model's end slope times the resistance beyond it."""
+(plus the margin); or that plus the model's end slope times the resistance beyond it; or
+that plus a bounded slope, within a bounded reach (``_Sensor.bounded_slopes``)."""
 END_SPAN = 0.05
 """Share of the valid resistance range at each end over which the end slope is taken."""
+DEFAULT_OUT_OF_RANGE = "extend"
+"""Chosen on the generalisation benchmark (docs/generalisation.md): the lowest median and
+worst ratio over every sensor and model on the headline workflow."""
+EXTEND_SLOPE = (0.5, 2.0)
+"""``extend``: the end slope is kept within these multiples of the secant slope."""
+EXTEND_MONOTONE = 0.25
+"""``extend``: a branch that ends this share of the strain span or more below the top of
+the calibrated strain at the top of the resistance range (the resistance peaked before
+the strain did) is not extended."""
+EXTEND_REACH = 1.0
+"""``extend``: calibrated strain spans the estimate reaches at most beyond the range."""
 SETTLE = 200
-"""Samples at a constant resistance (at 10 Hz) before a model's output counts as steady."""
+"""Steps (at 10 Hz) of the slow ramp over the valid range the out-of-range slopes are read
+on, each way (``_Sensor.branches``)."""
 GAP_RESET = sc.DEFAULT_GAP_RESET
 """Default ``gap_reset`` [s]: a longer jump between good samples resets the state."""
 
@@ -290,33 +305,82 @@ class _Sensor:
     corrector: ChainCorrector | None = None
     """Spike and baseline-step correction when the calibration's input asks for it."""
     slopes: tuple[float, float] | None = None
-    """(dS/dR at r_lo, at r_hi) of the model's steady output when the engine extrapolates
+    """(dS/dR at r_lo, at r_hi) beyond the valid range when the engine extends the estimate
     out of range (``OUT_OF_RANGE_MODES``), else None (clamped)."""
+    reach: tuple[float, float] = (-math.inf, math.inf)
+    """Lowest and highest strain an extended estimate reaches (``extend``)."""
+    saturate: bool = False
+    """``extend``: the model reads the resistance clipped to the valid range, so that its
+    output beyond the range is its output at the range's end (a polynomial that turns back
+    past the end, or cells driven where no data were, do not move it)."""
+
+    def model_input(self, ohm: np.ndarray) -> np.ndarray:
+        """What the model reads of used samples ``ohm`` (``saturate``)."""
+        return np.clip(ohm, self.r_lo, self.r_hi) if self.saturate else ohm
 
     def beyond(self, ohm: np.ndarray, strain: np.ndarray) -> np.ndarray:
-        """``strain`` clamped to the strain range, plus, with ``slopes``, the end slope
-        times the resistance beyond the valid range (continuous at its ends)."""
+        """``strain`` clamped to the strain range, plus, with ``slopes``, the slope times
+        the resistance beyond the valid range (continuous at its ends), within ``reach``."""
         out = np.clip(strain, self.s_lo, self.s_hi)
         if self.slopes is None:
             return out
         lo, hi = self.slopes
-        return out + np.where(ohm > self.r_hi, hi * (ohm - self.r_hi), 0.0) \
+        out = out + np.where(ohm > self.r_hi, hi * (ohm - self.r_hi), 0.0) \
             + np.where(ohm < self.r_lo, lo * (ohm - self.r_lo), 0.0)
+        return np.clip(out, *self.reach)
+
+    def branches(self) -> tuple[np.ndarray, np.ndarray]:
+        """The model's output along a slow ramp over the valid range and back from a fresh
+        state (``SETTLE`` steps each way at 10 Hz): (loading branch, unloading branch),
+        both at the resistances ``np.linspace(r_lo, r_hi, SETTLE + 1)``. A sensor leaves
+        the range at the top while loading and at the bottom while unloading."""
+        up = np.linspace(self.r_lo, self.r_hi, SETTLE + 1)
+        r = np.concatenate([up, up[-2::-1]])
+        out = self.cal.build_model().run(0.1 * np.arange(r.size), r)
+        return out[:SETTLE + 1], out[SETTLE:][::-1]
 
     def end_slopes(self) -> tuple[float, float]:
-        """dS/dR of the model's steady output (``SETTLE`` samples at 10 Hz at a constant
-        resistance) over the last ``END_SPAN`` of the valid range at each end."""
-        width = END_SPAN * (self.r_hi - self.r_lo)
-        model = self.cal.build_model()
-
-        def steady(r: float) -> float:
-            model.reset()
-            t = 0.1 * np.arange(SETTLE)
-            return float(model.run(t, np.full(t.size, r))[-1])
-
-        lo = (steady(self.r_lo + width) - steady(self.r_lo)) / width
-        hi = (steady(self.r_hi) - steady(self.r_hi - width)) / width
+        """dS/dR of the model's unloading branch over the first ``END_SPAN`` of the valid
+        range and of its loading branch over the last (``branches``): ``extrapolate``."""
+        loading, unloading = self.branches()
+        k = max(1, round(END_SPAN * SETTLE))
+        width = k * (self.r_hi - self.r_lo) / SETTLE
+        lo = float(unloading[k] - unloading[0]) / width
+        hi = float(loading[-1] - loading[-1 - k]) / width
         return (lo if math.isfinite(lo) else 0.0), (hi if math.isfinite(hi) else 0.0)
+
+    def bounded_slopes(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """``extend``: (slopes, reach). Each end slope kept within ``EXTEND_SLOPE`` x the
+        secant slope of the model over the valid range (``branches``: the top of its
+        loading branch to the bottom of its unloading one); zero (the range's end is held)
+        where the map does not rise the way the gauge does (a secant against
+        ``direction.sign``) or turns back at that end (an end slope against the secant,
+        as past the resistance peak of a carbon-black strip); nor where the branch that
+        reads the top of the strain ends ``EXTEND_MONOTONE`` of the span short of it: the
+        training resistance peaked before the strain did. The extended estimate reaches
+        at most ``EXTEND_REACH`` calibrated strain spans above the range, and below it
+        never past zero strain: a resistance under the calibrated rest is far more often a
+        rest level that moved than a compression."""
+        lo_end, hi_end = self.end_slopes()
+        loading, unloading = self.branches()
+        secant = float(loading[-1] - unloading[0]) / (self.r_hi - self.r_lo)
+        low, high = EXTEND_SLOPE
+
+        def bounded(end: float) -> float:
+            if not (math.isfinite(secant) and secant * self.cal.direction.sign > 0.0
+                    and end * secant > 0.0):
+                return 0.0
+            return float(secant * min(max(end / secant, low), high))
+
+        vr = self.cal.valid_range
+        span = vr.s_hi - vr.s_lo
+        slopes = [bounded(lo_end), bounded(hi_end)]
+        top = 1 if secant > 0.0 else 0  # the end whose branch reads the strain's top
+        if (loading[-1] if top else unloading[0]) < vr.s_hi - EXTEND_MONOTONE * span:
+            slopes[top] = 0.0
+        reach = (min(self.s_lo, max(0.0, vr.s_lo - EXTEND_REACH * span)),
+                 max(self.s_hi, vr.s_hi + EXTEND_REACH * span))
+        return (slopes[0], slopes[1]), reach
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -356,6 +420,9 @@ class _Sensor:
                      corrector=_corrector(cal))
         if out_of_range == "extrapolate":
             sensor.slopes = sensor.end_slopes()
+        elif out_of_range == "extend":
+            sensor.slopes, sensor.reach = sensor.bounded_slopes()
+            sensor.saturate = True
         return sensor
 
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -489,7 +556,7 @@ class Engine:
     def __init__(self, calibration: Calibration, *,
                  arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
                  stale_after: float = 1.0, deadzone_scale: float = 1.0,
-                 out_of_range: str = "clamp") -> None:
+                 out_of_range: str = DEFAULT_OUT_OF_RANGE) -> None:
         if out_of_range not in OUT_OF_RANGE_MODES:
             raise ParameterError("out_of_range", f"must be one of "
                                  f"{', '.join(OUT_OF_RANGE_MODES)}, got {out_of_range!r}")
@@ -673,7 +740,8 @@ class Engine:
             status = Status(int(_range_status(np.array([raw]), np.array([reset]),
                                               s.r_lo, s.r_hi)[0]))
         direction = int(s.detector.step(t, raw)) * s.cal.direction.sign
-        return _Pending(t, raw, status, float(s.model.step(t, raw)), direction)
+        read = min(max(raw, s.r_lo), s.r_hi) if s.saturate else raw
+        return _Pending(t, raw, status, float(s.model.step(t, read)), direction)
 
     def _step_finish(self, s: _Sensor, p: _Pending, temperature: float,
                      neighbours: Mapping[str, float] | None = None) -> SensorOutput:
@@ -746,7 +814,7 @@ class Engine:
             if events is not None:
                 corrections = events
             dir_used = s.detector.run(t, ohm)
-            strain_used = s.model.run(t, ohm)
+            strain_used = s.model.run(t, s.model_input(ohm))
         else:
             strain_used = np.empty(idx.size)
             dir_used = np.empty(idx.size, dtype=np.int8)
@@ -764,7 +832,7 @@ class Engine:
                 if corrections is not None and events is not None:
                     corrections[a:b] = events
                 dir_used[a:b] = s.detector.run(t[seg], seg_ohm)
-                strain_used[a:b] = s.model.run(t[seg], seg_ohm)
+                strain_used[a:b] = s.model.run(t[seg], s.model_input(seg_ohm))
         if s.cal.input.filtered:  # the range flag of what the model reads
             status[idx] = _range_status(ohm[idx], reset[idx], s.r_lo, s.r_hi)
         if s.cal.direction.sign < 0:
@@ -855,7 +923,9 @@ class Engine:
 # columns of the fused tick's per-sensor parameter table
 _GAIN, _R1, _VIN, _R_SHORT, _R_OPEN, _R_LO, _R_HI, _S_LO, _S_HI, _DEADZONE, _TAU, _SIGN = \
     range(12)
-_N_PARAMS = 12
+# out of range (``_Sensor.beyond``): slopes below / above, reach low / high, saturate
+_SLOPE_LO, _SLOPE_HI, _REACH_LO, _REACH_HI, _SATURATE = range(12, 17)
+_N_PARAMS = 17
 # columns of its per-sensor held state
 _LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS = range(4)
 
@@ -897,13 +967,25 @@ def _array_tick(t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
             clock[k, :] = 0.0
             det[k, :] = 0.0
             counts[k, counts.shape[1] - 1] += 1
-        estimate = step_sensor(k, t, ohm, x, clock, kind, sigma, p, rho, inv_width, w, norm,
+        read = _clamp(ohm, par[k, _R_LO], par[k, _R_HI]) if par[k, _SATURATE] else ohm
+        estimate = step_sensor(k, t, read, x, clock, kind, sigma, p, rho, inv_width, w, norm,
                                b, f_at_b, inv_slopes)
         model_out[k] = estimate
         held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                                par[k, _TAU]) * par[k, _SIGN]
-        held[k, _STRAIN] = _clamp(estimate, par[k, _S_LO], par[k, _S_HI])
+        held[k, _STRAIN] = _beyond(ohm, _clamp(estimate, par[k, _S_LO], par[k, _S_HI]),
+                                   par[k])
         held[k, _LAST_GOOD_T] = t
+
+
+@njit
+def _beyond(ohm: float, strain: float, par: np.ndarray) -> float:
+    """``_Sensor.beyond`` of one sample from a row of the fused tick's parameter table."""
+    if ohm > par[_R_HI]:
+        strain += par[_SLOPE_HI] * (ohm - par[_R_HI])
+    elif ohm < par[_R_LO]:
+        strain += par[_SLOPE_LO] * (ohm - par[_R_LO])
+    return _clamp(strain, par[_REACH_LO], par[_REACH_HI])
 
 
 class _ArrayGroup:
@@ -928,7 +1010,7 @@ class _ArrayGroup:
         self.sensors = [self.engine._sensors[n] for n in self.names]
         self.kernel = None
         if not all(type(s.model).array_kernel and not s.cal.input.filtered
-                   and s.cal.input.zero_span is None and s.slopes is None
+                   and s.cal.input.zero_span is None
                    and s.cal.sample_interval is None for s in self.sensors):
             return
         from strain_comp.models.apl import APLArray
@@ -945,6 +1027,9 @@ class _ArrayGroup:
             par[i, _R_SHORT:_S_HI + 1] = (s.r_short, s.r_open, s.r_lo, s.r_hi, s.s_lo, s.s_hi)
             par[i, _TAU] = s.cal.direction.tau
             par[i, _SIGN] = s.cal.direction.sign
+            par[i, _SLOPE_LO:_REACH_LO] = s.slopes if s.slopes is not None else (0.0, 0.0)
+            par[i, _REACH_LO:_SATURATE] = s.reach
+            par[i, _SATURATE] = s.saturate
         par[:, _GAIN] = [s.gain for s in self.sensors]
         self.par = par
         self.held = np.zeros((k, 4))
@@ -1007,7 +1092,8 @@ class _ArrayGroup:
             strain = self.engine._apply_effects(
                 s, np.array([t]), ohm, self.model_out[i:i + 1],
                 self.held[i:i + 1, _DIRECTION].astype(np.int8), np.array([math.nan]), nbrs)
-            self.held[i, _STRAIN] = min(max(float(strain[0]), s.s_lo), s.s_hi)
+            self.held[i, _STRAIN] = float(s.beyond(ohm, strain)[0]) if s.slopes is not None \
+                else min(max(float(strain[0]), s.s_lo), s.s_hi)
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``kernel`` is set)."""

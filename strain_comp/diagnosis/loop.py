@@ -83,7 +83,7 @@ from strain_comp.core.effects import (
     regressor_from_dict,
     run_segments,
 )
-from strain_comp.core.engine import Engine, used_mask
+from strain_comp.core.engine import RANGE_MARGIN, Engine, used_mask
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import gap_for
 from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
@@ -144,12 +144,15 @@ class _Run:
     """The stripped calibration's engine output for one sensor of one bag."""
 
     s_hat: np.ndarray
+    """The estimate clamped to the valid strain range (what the effect terms read)."""
     direction: np.ndarray
     resistance: np.ndarray
     """What the model read (``BatchOutput.resistance``): the effect terms' R."""
     used: np.ndarray
     starts: list[int]
     """Positions among the used samples where the engine reset after a gap."""
+    beyond: np.ndarray
+    """What the engine adds beyond the valid range (its ``out_of_range`` extension)."""
 
 
 def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
@@ -169,8 +172,11 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
         dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
         gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
         starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
-        out[name] = _Run(result.strain, result.direction.astype(np.float64), result.resistance,
-                         used, starts)
+        vr = stripped.sensors[name].valid_range
+        margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
+        s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
+        out[name] = _Run(s_hat, result.direction.astype(np.float64), result.resistance,
+                         used, starts, result.strain - s_hat)
     return out
 
 
@@ -242,7 +248,7 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
     g = np.empty((rows.size, len(regressors)))
     for j, reg in enumerate(regressors):  # each online over every sample, then the rows
         g[:, j] = _segmented(reg.run, reg.reset, batch, run.starts)[rows]
-    return _Series(e=(corrected - s)[rows], g=g, t=t[rows],
+    return _Series(e=(corrected + run.beyond[used] - s)[rows], g=g, t=t[rows],
                    block=_block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
 
 

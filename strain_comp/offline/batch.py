@@ -76,7 +76,7 @@ class BagOutcome:
 
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
-                  inputs: Sequence[str], out_of_range: str = "clamp",
+                  inputs: Sequence[str], out_of_range: str = "extend",
                   tracking: str = "off") -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
     ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
@@ -138,7 +138,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   jobs: int = 1, plot_points: int = 0, in_run: bool = False,
                   plots: str | None = None, series: SeriesCSV | None = None,
                   progress: Callable[[int, int, str], None] | None = None,
-                  out_of_range: str = "clamp", tracking: str = "off"
+                  out_of_range: str = "extend", tracking: str = "off"
                   ) -> list[BagOutcome]:
     """Every bag evaluated (module docstring), in the order given; ``jobs`` > 1 runs them
     in a pool of that many processes. ``progress(done, total, bag)`` after each bag."""

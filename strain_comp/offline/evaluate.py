@@ -126,7 +126,7 @@ def _json_number(value: float | int) -> float | int | None:
 
 
 def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
-                        tare: str = "calibration", out_of_range: str = "clamp",
+                        tare: str = "calibration", out_of_range: str = "extend",
                         tracking: str = "off") -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
@@ -598,7 +598,7 @@ class _Stream:
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
                  plot_points: int = 0, series: SeriesCSV | None = None,
-                 out_of_range: str = "clamp", tracking: str = "off",
+                 out_of_range: str = "extend", tracking: str = "off",
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next

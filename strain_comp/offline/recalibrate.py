@@ -63,6 +63,12 @@ GRID_POINTS = 201
 """Resistances of the steady-output grid that ``calibrated_resistance`` inverts."""
 SETTLE_SAMPLES = 200
 """Samples at a constant resistance (at 10 Hz) before the output is read."""
+STATIC_TOLERANCE = 0.01
+"""Share of the strain span within which a model's ramp equals its steady outputs."""
+SPAN_FIT_EVALUATIONS = 80
+"""Engine runs over the first cycle the input zero and span from a recording may take."""
+SPAN_FIT_MIN_SAMPLES = 20
+"""Fewer scored samples in the first cycle: the two-point span is kept as it is."""
 GAIN_NAME = "recalibration_gain"
 OFFSET_NAME = "recalibration_offset"
 
@@ -202,6 +208,60 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
                    provenance={**cal.provenance, "recalibrations": history})
 
 
+def follows_steady_curve(cal: SensorCalibration,
+                         curve: tuple[np.ndarray, np.ndarray]) -> bool:
+    """True when the calibration's output along a slow ramp over its resistance range and
+    back (10 Hz, ``steady_curve``'s grid) is its steady output at each resistance within
+    ``STATIC_TOLERANCE`` of the strain span: a static map, which two points invert
+    exactly. A model with memory is on a loading or unloading branch in use instead."""
+    from strain_comp.core.engine import Engine
+
+    grid, steady = curve
+    bare = replace(cal, input=replace(cal.input, zero_span=None))
+    path = np.concatenate([grid, grid[::-1]])
+    out = Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
+                                                    path).strain
+    span = cal.valid_range.s_hi - cal.valid_range.s_lo
+    return bool(np.max(np.abs(out - np.concatenate([steady, steady[::-1]])))
+                <= STATIC_TOLERANCE * span)
+
+
+def span_through_run(cal: SensorCalibration, rec: Recording,
+                     start: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) whose engine output over ``rec``
+    (the first cycle) is closest to its reference strain (least squares, Nelder-Mead from
+    ``start``, the two-point span; the measured rest kept): for a model that does not
+    follow its steady outputs (``follows_steady_curve``). The engine runs the model along
+    the path the sensor took, so a memory model is spanned on its loading and unloading
+    branches, not on a constant-resistance map it does not follow in use. ``start`` is
+    kept unless the fit lowers the error."""
+    from scipy.optimize import minimize
+
+    from strain_comp.core.engine import Engine
+
+    if rec.s is None or np.isfinite(rec.s).sum() < SPAN_FIT_MIN_SAMPLES:
+        return start
+    rest, rest_cal, k = start
+    width = cal.valid_range.r_hi - cal.valid_range.r_lo
+    ok = np.isfinite(rec.s)
+    reference = rec.s[ok]
+
+    def error(x: np.ndarray) -> float:
+        span = (rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1])))
+        trial = replace(cal, input=replace(cal.input, zero_span=span))
+        strain = Engine(Calibration({cal.name: trial})).run(cal.name, rec.t, rec.r).strain
+        value = float(np.sqrt(np.mean((strain[ok] - reference) ** 2)))
+        return value if np.isfinite(value) else np.inf
+
+    first = error(np.zeros(2))
+    best = minimize(error, np.zeros(2), method="Nelder-Mead",
+                    options={"initial_simplex": [[0.0, 0.0], [0.05, 0.0], [0.0, 0.2]],
+                             "xatol": 1e-3, "fatol": 1e-4, "maxfev": SPAN_FIT_EVALUATIONS})
+    if not (np.isfinite(best.fun) and best.fun < first):
+        return start
+    return rest, rest_cal + width * float(best.x[0]), k * float(np.exp(best.x[1]))
+
+
 def span_reading(span: tuple[float, float, float]) -> str:
     """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81
     (sensitivity +23.5 %)``."""
@@ -291,6 +351,8 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
             points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                              top=float(curve[1].max()))
             span = span_from_points(cal, points, curve)
+            if not follows_steady_curve(cal, curve):
+                span = span_through_run(cal, rec, span)
             out[name] = apply_span(cal, span, {"from": source, "first": first})
             lines.append(f"{name}: {span_reading(span)} (from {where})")
         if not lines:
