@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""What the decoder budgets cost and save (docs/reliability_budgets.md).
+"""What the decoder budgets cost and save (docs/reliability.md, "Budgets").
 
     python bench/bench_budgets.py
 

@@ -5,7 +5,7 @@ The ``ros2`` command comes from a ROS 2 Jazzy installation (``ros2`` on PATH) or
 Jazzy's; CI builds it). One ``colcon build`` per session (with that environment's setuptools,
 >= 76 in the kit), one more with Ubuntu 24.04's setuptools 68 for ``ros2 run``. Then:
 ``ros2 run`` (both builds, and the ``strain-comp`` tools), ``ros2 param get|set|describe|dump``
-(every refusal printed as docs/node.md quotes it; a dumped file restarts the node),
+(every refusal printed as docs/ros.md quotes it; a dumped file restarts the node),
 ``ros2 topic pub|echo|hz`` (the strain equals the engine's for the published resistance; the
 stamped twin carries the node clock's time), ``ros2 service call`` (``~/tare``,
 ``~/reload_calibration``), ``ros2 launch`` with every launch argument, and Ctrl-C (SIGINT: one
@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 VENV = Path(os.environ.get("STRAIN_COMP_ROS2_VENV", ROOT / ".venv-ros2"))
 PACKAGE_FILES = ("setup.py", "setup.cfg", "package.xml", "resource", "strain_comp", "config",
                  "launch")
-DOCS = ROOT / "docs" / "node.md"
+DOCS = ROOT / "docs" / "ros.md"
 CUBIC = [-40.0, 2.5, 0.0, 0.0]
 """A memoryless calibration: the strain of a resistance depends on nothing else."""
 
@@ -209,8 +209,8 @@ def node_params(folder: Path, rest: float | None = None) -> Path:
 
 
 def documented(line: str) -> None:
-    """A message the ros2 command printed is quoted, verbatim, in docs/node.md."""
-    assert line in DOCS.read_text(), f"docs/node.md does not quote: {line}"
+    """A message the ros2 command printed is quoted, verbatim, in docs/ros.md."""
+    assert line in DOCS.read_text(), f"docs/ros.md does not quote: {line}"
 
 
 @pytest.mark.parametrize("setuptools", ["environment", "68"])

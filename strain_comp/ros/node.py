@@ -417,7 +417,7 @@ def main(args: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
-    # rclpy 7.1.6's EventsExecutor loses inputs under use_sim_time (docs/node.md)
+    # rclpy 7.1.6's EventsExecutor loses inputs under use_sim_time (docs/ros.md)
     sim_time = node.get_parameter("use_sim_time").value
     executor = (EventsExecutor() if node.live.params.executor == "events" and not sim_time
                 else SingleThreadedExecutor())
