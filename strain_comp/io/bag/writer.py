@@ -192,9 +192,8 @@ class BagWriter:
         if any("," in x for x in labels):
             raise BagError(f"{topic}: sensor labels must not contain commas")
         k = v.shape[1]
-        sample = cdr.float64_multiarray([(",".join(labels), k, k)], 0, np.zeros(k))
-        self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t),
-                  _cdr_rows(sample[:len(sample) - 8 * k], v))
+        head = cdr.float64_multiarray_head([(",".join(labels), k, k)], 0, k)
+        self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t), _cdr_rows(head, v))
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
                           position: npt.ArrayLike, velocity: npt.ArrayLike | None = None, *,
