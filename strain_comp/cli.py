@@ -272,22 +272,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         format_table,
         in_run_bound,
     )
-    from strain_comp.offline.series import SeriesCSV
+    from strain_comp.offline.series import series_csv
 
     calibration = load_calibration(args.calibration)
-    table = None if args.csv is None else SeriesCSV(args.csv, inputs=inputs)
-    try:
+    with series_csv(args.csv, inputs=inputs) as table:
         # streamed; an error when nothing can be scored names what the bag reader skipped
         result, problems = evaluate_bag(bag, calibration, tare=args.tare,
                                         plot_points=PLOT_POINTS if args.plots else 0,
                                         series=table, out_of_range=args.out_of_range,
                                         tracking=args.baseline_tracking)
-    except BaseException:
-        if table is not None:
-            table.discard()
-        raise
-    if table is not None:
-        table.close()
     if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
         in_run_bound(result, load_recordings(bag)[0], calibration)
     print(format_table(result), file=_results(args))
@@ -311,22 +304,15 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
     from strain_comp.core.calibration import load_calibration
     from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
-    from strain_comp.offline.series import SeriesCSV
+    from strain_comp.offline.series import series_csv
 
     load_calibration(args.calibration)  # a bad calibration: one line before any bag
-    table = None if args.csv is None else SeriesCSV(args.csv, inputs=inputs, bag=True)
-    try:
+    with series_csv(args.csv, inputs=inputs, bag=True) as table:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
                                  plot_points=PLOT_POINTS if args.plots else 0,
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
                                  progress=_progress(args), out_of_range=args.out_of_range,
                                  tracking=args.baseline_tracking)
-    except BaseException:
-        if table is not None:
-            table.discard()
-        raise
-    if table is not None:
-        table.close()
     results = _results(args)
     for outcome in outcomes:
         text, notes = format_bag(outcome)
