@@ -43,6 +43,7 @@ import yaml
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
 from strain_comp.core.engine import GAP_RESET
+from strain_comp.core.tracking import TRACKING_MODES
 from strain_comp.errors import InputError, ParameterError
 
 PACKAGE = "strain_comp"
@@ -278,8 +279,9 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
         raise ParameterError("executor", f"must be one of {', '.join(EXECUTORS)}, "
                                          f"got {executor!r}")
     tracking = _string(flat, "baseline_tracking", "off")
-    if tracking not in ("off", "on"):
-        raise ParameterError("baseline_tracking", f"must be off or on, got {tracking!r}")
+    if tracking not in TRACKING_MODES:
+        raise ParameterError("baseline_tracking", f"must be {' or '.join(TRACKING_MODES)}, "
+                                                  f"got {tracking!r}")
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
