@@ -1,4 +1,4 @@
-"""The dedicated CDR encoders (strain_comp.io.bag.cdr) against rosbags' serialiser, an
+"""The dedicated CDR encoders (strain_comp.io.cdr) against rosbags' serialiser, an
 independent implementation of the ROS 2 types: byte for byte over random messages with
 empty sequences, unicode strings and every alignment case."""
 
@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from strain_comp.io.bag import SCHEMAS, BagWriter, cdr, read_bag
+from strain_comp.io import cdr
+from strain_comp.io.bag import SCHEMAS, BagWriter, read_bag
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
 STORE = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_JAZZY)

@@ -7,17 +7,17 @@ every time), a tenth of a core at 1 kHz. These encoders build the constant part 
 message is then the changing fields around it, published as bytes (``Publisher.publish``
 accepts a serialised message).
 
-The wire format is the bag writer's (``strain_comp.io.bag.cdr``, byte-equal to rosbags'
+The wire format is the bag writer's (``strain_comp.io.cdr``, byte-equal to rosbags'
 serialiser): the constant blocks are cut from its ``joint_state_layout`` and
 ``float64_multiarray_head``. The tests decode the bytes with rclpy's own type support and
-compare them with ``strain_comp.io.bag.cdr``'s per-message encoders.
+compare them with ``strain_comp.io.cdr``'s per-message encoders.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from strain_comp.io.bag import cdr
+from strain_comp.io import cdr
 
 
 def _doubles(values: np.ndarray, k: int) -> bytes:

@@ -1,4 +1,6 @@
-"""CDR encoding of the fixed message types a strain_comp bag holds (``schemas.SCHEMAS``).
+"""CDR encoding of the fixed message types strain_comp writes: those a bag holds
+(``strain_comp.io.bag.schemas.SCHEMAS``) and the node's outputs (``strain_comp.ros.cdr``
+prebuilds its constant blocks from the layouts here), so the wire format is defined once.
 
 ROS 2 serialises messages as OMG CDR (XCDR1, plain little endian, rmw's encapsulation
 ``00 01 00 00``): each primitive is aligned to its own size counted from the end of the
@@ -238,6 +240,7 @@ _DICT_ENCODERS: dict[str, Callable[[Mapping[str, Any]], bytes]] = {
 
 
 def message_encoder(kind: str) -> Callable[[Mapping[str, Any]], bytes]:
-    """CDR encoder of ``kind`` (a type of ``schemas.SCHEMAS``) for a message given as
-    nested dicts with the standard field names (KeyError for another type)."""
+    """CDR encoder of ``kind`` (a type of ``strain_comp.io.bag.schemas.SCHEMAS``) for a
+    message given as nested dicts with the standard field names (KeyError for another
+    type)."""
     return _DICT_ENCODERS[kind]
