@@ -62,6 +62,7 @@ from strain_comp.core.tare import (
 )
 from strain_comp.core.tracking import fitted_rest, tracker_for
 from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.io.labels import label_order
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
 TARE_WINDOW_S = 0.5
@@ -103,12 +104,14 @@ def array_values(data: Any, offset: int, sizes: list[int], k: int, label: str = 
     if size != k:
         raise InputError(f"expected {k} values, got {size}")
     values = values[offset:offset + k]
-    names = [x.strip() for x in label.split(",")] if label.strip() else []
-    if names and sensors is not None and names != list(sensors):
-        if sorted(names) != sorted(sensors):
+    if label and sensors is not None:
+        try:
+            order = label_order(label, tuple(sensors))
+        except ValueError:
             raise InputError(f"layout dim[0].label does not name the sensors "
-                             f"{','.join(sensors)}")
-        values = values[[names.index(s) for s in sensors]]
+                             f"{','.join(sensors)}") from None
+        if order is not None:
+            values = values[order]
     return values
 
 
