@@ -229,8 +229,7 @@ class _Replay:
                     self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
         else:
-            out = (self.tracker.run(inp.name, t, values, temps[inp.name]) if self.tracker
-                   else self.engine.run(inp.name, t, values, temps[inp.name]))
+            out = (self.tracker or self.engine).run(inp.name, t, values, temps[inp.name])
             self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
             self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
                                           out.strain[:, None])
