@@ -343,23 +343,24 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 return SetParametersResult(successful=False, reason=str(err))
             return SetParametersResult(successful=True)
 
-        def _tare(self, request: Any, response: Any) -> Any:
+        def _answer(self, response: Any, act: Callable[[], str]) -> Any:
+            """A Trigger response: ``act()``'s summary (logged), or its error in one line."""
             try:
-                response.message = self.live.tare()
+                response.message = act()
                 response.success = True
                 self.get_logger().info(response.message)
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
                 response.success, response.message = False, " ".join(str(err).split())
             return response
 
+        def _tare(self, request: Any, response: Any) -> Any:
+            return self._answer(response, self.live.tare)
+
         def _span(self, request: Any, response: Any) -> Any:
-            try:
-                self.live, response.message = self.live.span()
-                response.success = True
-                self.get_logger().info(response.message)
-            except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
-                response.success, response.message = False, " ".join(str(err).split())
-            return response
+            def span() -> str:
+                self.live, summary = self.live.span()
+                return summary
+            return self._answer(response, span)
 
         def _reload(self, request: Any, response: Any) -> Any:
             try:
