@@ -464,10 +464,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    def command(name: str, summary: str, description: str, example: str
+    def command(name: str, summary: str, description: str, example: str, notes: str = ""
                 ) -> argparse.ArgumentParser:
         return sub.add_parser(name, help=summary, description=textwrap.fill(description, 88),
-                              epilog="example:\n  " + example, formatter_class=_Formatter)
+                              epilog=(notes + "\n\n" if notes else "") + "example:\n  "
+                              + example, formatter_class=_Formatter)
 
     p = command("simulate", "make a bag on the virtual test rig",
                 "Record a scenario on the virtual test rig (a simulated tensile tester with "
@@ -520,15 +521,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     from strain_comp.offline.options import describe_options
 
-    p = sub.add_parser(
-        "fit", help="fit a model to bags with a strain reference", formatter_class=_Formatter,
-        description=textwrap.fill(
-            "Fit a compensation model (resistance in, strain out) to recordings with a "
-            "reference strain and write a calibration file. The file passes the checks "
-            "every reader applies before it is written; a fit that would not load is "
-            "refused.", 88),
-        epilog=describe_options() + "\n\nexample:\n  strain-comp fit run1.mcap run2.mcap "
-        "--model apl --sensor s1 --out s1.yaml --option N=11")
+    p = command("fit", "fit a model to bags with a strain reference",
+                "Fit a compensation model (resistance in, strain out) to recordings with a "
+                "reference strain and write a calibration file. The file passes the checks "
+                "every reader applies before it is written; a fit that would not load is "
+                "refused.",
+                "strain-comp fit run1.mcap run2.mcap --model apl --sensor s1 --out s1.yaml "
+                "--option N=11", notes=describe_options())
     p.add_argument("bags", nargs="+", metavar="BAG.mcap",
                    help="recordings with /NAME/resistance and /NAME/strain_reference")
     p.add_argument("--model", required=True, metavar="MODEL",
