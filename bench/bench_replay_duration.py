@@ -11,7 +11,7 @@ writes the same strain / direction / status / strain_stamped outputs for both, p
 so the long bag carries ``--long / --short`` times more DiagnosticArray messages.
 
 Timed (best of ``--repeat``, kernels warm), with the package's CDR encoder
-(``strain_comp.io.bag.cdr``) and, as the baseline in the same run, with the generic encoder
+(``strain_comp.io.cdr``) and, as the baseline in the same run, with the generic encoder
 the writer used before (``mcap_ros2._dynamic.serialize_dynamic`` on the schema text, the
 message built as nested dicts): long / short ratio for each, and old / new per bag.
 Goal: long / short close to 1 (cost linear in messages, not in duration).
@@ -33,7 +33,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, calibration, resistance, row
 
-from strain_comp.io.bag import SCHEMAS, BagWriter, cdr
+from strain_comp.io import cdr
+from strain_comp.io.bag import SCHEMAS, BagWriter
 from strain_comp.offline.replay import replay_bag
 
 

@@ -272,22 +272,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         format_table,
         in_run_bound,
     )
-    from strain_comp.offline.series import SeriesCSV
+    from strain_comp.offline.series import series_csv
 
     calibration = load_calibration(args.calibration)
-    table = None if args.csv is None else SeriesCSV(args.csv, inputs=inputs)
-    try:
+    with series_csv(args.csv, inputs=inputs) as table:
         # streamed; an error when nothing can be scored names what the bag reader skipped
         result, problems = evaluate_bag(bag, calibration, tare=args.tare,
                                         plot_points=PLOT_POINTS if args.plots else 0,
                                         series=table, out_of_range=args.out_of_range,
                                         tracking=args.baseline_tracking)
-    except BaseException:
-        if table is not None:
-            table.discard()
-        raise
-    if table is not None:
-        table.close()
     if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
         in_run_bound(result, load_recordings(bag)[0], calibration)
     print(format_table(result), file=_results(args))
@@ -311,22 +304,15 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
     from strain_comp.core.calibration import load_calibration
     from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
-    from strain_comp.offline.series import SeriesCSV
+    from strain_comp.offline.series import series_csv
 
     load_calibration(args.calibration)  # a bad calibration: one line before any bag
-    table = None if args.csv is None else SeriesCSV(args.csv, inputs=inputs, bag=True)
-    try:
+    with series_csv(args.csv, inputs=inputs, bag=True) as table:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
                                  plot_points=PLOT_POINTS if args.plots else 0,
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
                                  progress=_progress(args), out_of_range=args.out_of_range,
                                  tracking=args.baseline_tracking)
-    except BaseException:
-        if table is not None:
-            table.discard()
-        raise
-    if table is not None:
-        table.close()
     results = _results(args)
     for outcome in outcomes:
         text, notes = format_bag(outcome)
@@ -478,10 +464,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    def command(name: str, summary: str, description: str, example: str
+    def command(name: str, summary: str, description: str, example: str, notes: str = ""
                 ) -> argparse.ArgumentParser:
         return sub.add_parser(name, help=summary, description=textwrap.fill(description, 88),
-                              epilog="example:\n  " + example, formatter_class=_Formatter)
+                              epilog=(notes + "\n\n" if notes else "") + "example:\n  "
+                              + example, formatter_class=_Formatter)
 
     p = command("simulate", "make a bag on the virtual test rig",
                 "Record a scenario on the virtual test rig (a simulated tensile tester with "
@@ -534,15 +521,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     from strain_comp.offline.options import describe_options
 
-    p = sub.add_parser(
-        "fit", help="fit a model to bags with a strain reference", formatter_class=_Formatter,
-        description=textwrap.fill(
-            "Fit a compensation model (resistance in, strain out) to recordings with a "
-            "reference strain and write a calibration file. The file passes the checks "
-            "every reader applies before it is written; a fit that would not load is "
-            "refused.", 88),
-        epilog=describe_options() + "\n\nexample:\n  strain-comp fit run1.mcap run2.mcap "
-        "--model apl --sensor s1 --out s1.yaml --option N=11")
+    p = command("fit", "fit a model to bags with a strain reference",
+                "Fit a compensation model (resistance in, strain out) to recordings with a "
+                "reference strain and write a calibration file. The file passes the checks "
+                "every reader applies before it is written; a fit that would not load is "
+                "refused.",
+                "strain-comp fit run1.mcap run2.mcap --model apl --sensor s1 --out s1.yaml "
+                "--option N=11", notes=describe_options())
     p.add_argument("bags", nargs="+", metavar="BAG.mcap",
                    help="recordings with /NAME/resistance and /NAME/strain_reference")
     p.add_argument("--model", required=True, metavar="MODEL",

@@ -9,6 +9,8 @@
   uses, so the calibrations carry a real valid range and direction settings.
 * ``measured_data``: the lab recordings, found through ``STRAIN_COMP_MEASURED_DATA`` or
   ``../shared/data/measured`` relative to the project root (not part of the repository).
+* ``context``: an rclpy context per test module (rclpy imported only then, after the
+  module has set its ROS environment with ``ros_env.use_ros_env``).
 
 Test modules take the fixtures as arguments and the plain factories with
 ``from conftest import ...``; no test module imports another.
@@ -19,7 +21,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -227,3 +229,14 @@ def make_calibration() -> Calibration:
             provenance=provenance(["a.mcap"], fit_rmse=0.1234567890123, n_samples=20000),
         )
     return Calibration(sensors)
+
+
+@pytest.fixture(scope="module")
+def context() -> Iterator[Any]:
+    """An rclpy context for the module's nodes, shut down after its last test."""
+    import rclpy
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)

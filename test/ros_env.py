@@ -1,9 +1,16 @@
 """ROS 2 environment for tests that start ROS: discovery on this machine only, and a domain
-per test module and process, so parallel runs do not see each other's nodes."""
+per test module and process, so parallel runs do not see each other's nodes; the package's
+sources for a colcon workspace; spinning an executor until a condition holds. Imports no
+ROS module (a test module sets its environment before importing rclpy)."""
 
 from __future__ import annotations
 
 import os
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 DOMAINS = 100
 """Domain ids 1..100 (Fast DDS ports stay valid up to 232)."""
@@ -20,3 +27,30 @@ def use_ros_env(slot: int) -> dict[str, str]:
     env = ros_env(slot)
     os.environ.update(env)
     return env
+
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE_FILES = ("setup.py", "setup.cfg", "package.xml", "resource", "strain_comp", "config",
+                 "launch")
+"""What ``colcon build`` of the package needs."""
+
+
+def copy_package(src: Path) -> None:
+    """The package's ``PACKAGE_FILES`` into ``src`` (created), caches left out."""
+    src.mkdir(parents=True)
+    for name in PACKAGE_FILES:
+        path = ROOT / name
+        if path.is_dir():
+            shutil.copytree(path, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(path, src / name)
+
+
+def spin_until(executor: Any, done: Callable[[], bool], timeout: float = 5.0) -> bool:
+    """Spin ``executor`` until ``done()``; False when ``timeout`` [s] passes first."""
+    deadline = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        executor.spin_once(timeout_sec=0.01)
+    return True

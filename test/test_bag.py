@@ -14,7 +14,7 @@ from rosbags.highlevel import AnyReader
 import strain_comp.io.bag.writer as bag_module
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagWriter, read_bag
-from strain_comp.io.bag.cdr import message_encoder
+from strain_comp.io.cdr import message_encoder
 
 N = 3000
 T = 1.0 + np.arange(N) * 0.01
@@ -305,7 +305,7 @@ def _plain(msg: object) -> object:
 
 @pytest.mark.parametrize("kind", sorted(MESSAGES))
 def test_every_encoder_matches_the_rosbags_deserialiser(kind: str) -> None:
-    """The writer's CDR encoders (strain_comp.io.bag.cdr) decoded by rosbags, an
+    """The writer's CDR encoders (strain_comp.io.cdr) decoded by rosbags, an
     independent implementation of the ROS 2 types (test_cdr compares the bytes)."""
     from rosbags.typesys import Stores, get_typestore
 

@@ -1,4 +1,4 @@
-"""The dedicated CDR encoders (strain_comp.io.bag.cdr) against rosbags' serialiser, an
+"""The dedicated CDR encoders (strain_comp.io.cdr) against rosbags' serialiser, an
 independent implementation of the ROS 2 types: byte for byte over random messages with
 empty sequences, unicode strings and every alignment case."""
 
@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from strain_comp.io.bag import SCHEMAS, BagWriter, cdr, read_bag
+from strain_comp.io import cdr
+from strain_comp.io.bag import SCHEMAS, BagWriter, read_bag
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
 STORE = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_JAZZY)
@@ -149,3 +150,23 @@ def test_long_strings_and_late_stamps(tmp_path: Any) -> None:
     with BagWriter(tmp_path / "late.mcap") as writer, pytest.raises(BagError, match="2038"):
         writer.write_joint_state("/s/strain_stamped", [1.0], ["s"], [[0.5]],
                                  stamp=[2.0**31 + 1.0])
+
+
+@pytest.mark.parametrize("names", [[], ["s1"], ["a", "bé", "ccc", "温度"],
+                                   [f"x{i}" for i in range(256)]])
+def test_node_encoders_equal_the_message_encoders(names: list[str]) -> None:
+    """The node's prebuilt-block encoders (strain_comp.ros.cdr) write the bytes of this
+    module's per-message encoders: JointState with empty velocity and effort, and the
+    Float64MultiArray labelled with the names (one wire format for bags and the node)."""
+    from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
+
+    rng = np.random.default_rng(len(names))
+    stamped, vector = StampedEncoder(names), VectorEncoder(names)
+    k = len(names)
+    for stamp_ns in (1_795_498_137_622_557_762, 0, 5, -1_500_000_000):
+        values = _floats(rng, k)
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        assert stamped.encode(stamp_ns, values) == cdr.joint_state(sec, nanosec, "", names,
+                                                                   values)
+        assert vector.encode(values) == cdr.float64_multiarray(
+            [(",".join(names), k, k)], 0, values)

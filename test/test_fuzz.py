@@ -109,7 +109,7 @@ def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
     from mcap.writer import Writer
 
     import strain_comp.io.bag.writer as bag_module
-    from strain_comp.io.bag.cdr import message_encoder
+    from strain_comp.io.cdr import message_encoder
 
     kind = "std_msgs/msg/Float64MultiArray"
     encode = message_encoder(kind)

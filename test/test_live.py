@@ -48,6 +48,24 @@ def test_array_layout() -> None:
             array_values(data, offset, sizes, 3)
 
 
+def test_array_values_follow_the_label() -> None:
+    """Values are matched to the sensors by ``dim[0].label``, whatever order (and spacing)
+    a peer labels them in, the same when the label's order is looked up again (cached);
+    a label naming other sensors is refused."""
+    rng = np.random.default_rng(5)
+    sensors = [f"s{i}" for i in range(40)]
+    value_of = {s: float(i) for i, s in enumerate(sensors)}
+    for _ in range(3):
+        for order in (sensors, list(rng.permutation(sensors))):
+            label = " , ".join(order) if rng.random() < 0.5 else ",".join(order)
+            got = array_values([value_of[s] for s in order], 0, [40], 40, label, sensors)
+            assert got.tolist() == [value_of[s] for s in sensors]
+    assert array_values([1.0, 2.0], 0, [2], 2, "", ["a", "b"]).tolist() == [1.0, 2.0]
+    for label in ("a,c", "a,a", "a,"):
+        with pytest.raises(InputError, match="label does not name the sensors"):
+            array_values([1.0, 2.0], 0, [2], 2, label, ["a", "b"])
+
+
 def test_tare_takes_the_recent_median_all_or_nothing(tmp_path: Path) -> None:
     node = live(tmp_path)
     with pytest.raises(ParameterError, match="no good sample"):

@@ -10,20 +10,18 @@ from __future__ import annotations
 
 import math
 import shutil
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from ros_env import use_ros_env
+from ros_env import spin_until, use_ros_env
 
 use_ros_env(1)
 
-import rclpy  # noqa: E402  (imported after the environment is set; never skipped)
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import ReliabilityPolicy  # noqa: E402
@@ -40,14 +38,6 @@ from strain_comp.ros.player import bag_messages  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "config"
 N_BAG = 400
-
-
-@pytest.fixture(scope="module")
-def context() -> Iterator[Any]:
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 class Harness:
@@ -73,12 +63,7 @@ class Harness:
         return got
 
     def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while not done():
-            if time.monotonic() > deadline:
-                return False
-            self.executor.spin_once(timeout_sec=0.01)
-        return True
+        return spin_until(self.executor, done, timeout)
 
     def tick(self, t_ns: int) -> None:
         """Publish /clock = t_ns and wait until the node's clock shows it."""

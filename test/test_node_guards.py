@@ -7,19 +7,17 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from ros_env import ros_env, use_ros_env
+from ros_env import ros_env, spin_until, use_ros_env
 
 use_ros_env(7)
 
-import rclpy  # noqa: E402  (imported after the environment is set; never skipped)
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
@@ -33,14 +31,6 @@ from strain_comp.ros.node import create_node  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 SENSORS = [f"a{i}" for i in range(1, 7)]
-
-
-@pytest.fixture(scope="module")
-def context() -> Iterator[Any]:
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 class Peer:
@@ -57,12 +47,7 @@ class Peer:
         self.clock = self.peer.create_publisher(Clock, "/clock", 10)
 
     def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while not done():
-            if time.monotonic() > deadline:
-                return False
-            self.executor.spin_once(timeout_sec=0.01)
-        return True
+        return spin_until(self.executor, done, timeout)
 
     def tick(self, sec: int, nanosec: int = 0) -> None:
         msg = Clock()

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_env import ros_env, use_ros_env
+from ros_env import copy_package, ros_env, use_ros_env
 
 ENV = use_ros_env(2)
 
@@ -39,8 +39,6 @@ from strain_comp.io.bag import read_bag  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 N_MESSAGES = 1500
 N_WALL = 300
-PACKAGE_FILES = ("setup.py", "setup.cfg", "package.xml", "resource", "strain_comp", "config",
-                 "launch")
 
 
 @pytest.fixture(scope="module")
@@ -48,13 +46,7 @@ def workspace(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, An
     """One colcon build of this package into a temporary workspace."""
     ws = tmp_path_factory.mktemp("ws")
     src = ws / "src" / "strain_comp"
-    src.mkdir(parents=True)
-    for name in PACKAGE_FILES:
-        path = ROOT / name
-        if path.is_dir():
-            shutil.copytree(path, src / name, ignore=shutil.ignore_patterns("__pycache__"))
-        else:
-            shutil.copy(path, src / name)
+    copy_package(src)
     colcon = Path(sys.executable).parent / "colcon"
     done = subprocess.run(
         [str(colcon), "build", "--packages-select", "strain_comp", "--base-paths", str(ws / "src"),

@@ -28,15 +28,13 @@ from pathlib import Path
 
 import pytest
 import yaml
-from ros_env import ros_env
+from ros_env import copy_package, ros_env
 
 from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
 from strain_comp.core.engine import Engine
 
 ROOT = Path(__file__).resolve().parent.parent
 VENV = Path(os.environ.get("STRAIN_COMP_ROS2_VENV", ROOT / ".venv-ros2"))
-PACKAGE_FILES = ("setup.py", "setup.cfg", "package.xml", "resource", "strain_comp", "config",
-                 "launch")
 DOCS = ROOT / "docs" / "ros.md"
 CUBIC = [-40.0, 2.5, 0.0, 0.0]
 """A memoryless calibration: the strain of a resistance depends on nothing else."""
@@ -105,13 +103,7 @@ def no_leftovers() -> Iterator[None]:
 def build(root: Path, env: dict[str, str]) -> Workspace:
     """``colcon build`` of this package in ``root``; the workspace with its setup sourced."""
     src = root / "src" / "strain_comp"
-    src.mkdir(parents=True)
-    for name in PACKAGE_FILES:
-        path = ROOT / name
-        if path.is_dir():
-            shutil.copytree(path, src / name, ignore=shutil.ignore_patterns("__pycache__"))
-        else:
-            shutil.copy(path, src / name)
+    copy_package(src)
     done = subprocess.run(["colcon", "build", "--packages-select", "strain_comp"], cwd=root,
                           env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]

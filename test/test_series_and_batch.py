@@ -190,3 +190,27 @@ def test_csv_to_fit_to_csv_round_trip(tmp_path: Path, capsys: pytest.CaptureFixt
     np.testing.assert_allclose([float(x["resistance_ohm"]) for x in rows], r * 1000, rtol=1e-6)
     np.testing.assert_allclose([float(x["reference"]) for x in rows], 100 * s, atol=1e-4)
     np.testing.assert_allclose([float(x["estimate"]) for x in rows], 100 * s, atol=0.05)
+
+
+def test_a_failed_command_leaves_the_csv_as_it_was(tmp_path: Path) -> None:
+    """``series_csv`` (evaluate, replay): an error in the block keeps the earlier file and
+    leaves no temporary beside it; a clean end commits header and rows."""
+    from strain_comp.offline.series import COLUMNS, series_csv
+
+    target = tmp_path / "s.csv"
+    target.write_text("earlier\n", encoding="utf-8")
+    with pytest.raises(RuntimeError), series_csv(target) as table:
+        assert table is not None
+        table.add("s1", np.array([0.5]), np.array([100.0]), np.array([1.0]), None,
+                  np.array([1]), np.array([0]), unit="%")
+        raise RuntimeError("failed mid-run")
+    assert target.read_text(encoding="utf-8") == "earlier\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv"]
+    with series_csv(None) as none:
+        assert none is None
+    with series_csv(target) as table:
+        assert table is not None
+        table.add("s1", np.array([0.5]), np.array([100.0]), np.array([1.0]), None,
+                  np.array([1]), np.array([0]), unit="%")
+    assert read_rows(target) == [dict(zip(COLUMNS, ["s1", "0.5", "100.0", "1.0", "", "%",
+                                                    "1", "good"], strict=True))]

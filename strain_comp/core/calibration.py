@@ -183,6 +183,14 @@ class SensorCalibration:
     DEFAULT_GAP_RESET``): the engine then resets the state only after a pause of that many
     intervals, not at every sample."""
 
+    @property
+    def input_rest(self) -> float | None:
+        """The measured resistance at rest [ohm] a tare refers to: the rest of the input
+        zero and span (``InputSettings.zero_span``) when there is one, else
+        ``rest_resistance`` (None: neither stored)."""
+        span = self.input.zero_span
+        return span[0] if span is not None else self.rest_resistance
+
     def build_model(self) -> Compensator:
         """A fresh compensator with these parameters."""
         return model_class(self.model).from_params(self.params, self.normalisation,

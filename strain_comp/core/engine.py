@@ -617,8 +617,7 @@ class Engine:
         Returns the new gain; ``ParameterError`` if the calibration stores no rest resistance
         or the value is not finite and > 0 (the old gain then stays).
         """
-        cal = self._sensor(sensor).cal
-        reference = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
+        reference = self._sensor(sensor).cal.input_rest
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
                                  "the calibration stores none, so it cannot be tared")

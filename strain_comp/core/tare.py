@@ -257,7 +257,8 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
         if name not in engine.sensors:
             continue
         cal = engine.calibration.sensors[name]
-        if cal.rest_resistance is None:
+        zero = cal.input_rest
+        if cal.rest_resistance is None or zero is None:
             lines[name] = "not tared: the calibration stores no rest_resistance (refit it)"
             continue
         try:
@@ -267,6 +268,5 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
             lines[name] = f"not tared: {str(err).removeprefix('tare: ')}"
             continue
         engine.tare(name, rest)
-        zero = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
         lines[name] = "tare: " + tare_reading(zero, rest)
     return lines

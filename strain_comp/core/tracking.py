@@ -31,6 +31,7 @@ from strain_comp.core.tare import REST_BAND
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:
+    from strain_comp.core.calibration import ValidRange
     from strain_comp.core.engine import BatchOutput, Engine, SensorOutput
 
 TRACKING_MODES = ("off", "on")
@@ -50,6 +51,15 @@ def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
         raise InputError(f"--baseline-tracking {mode!r}: expected one of "
                          f"{', '.join(TRACKING_MODES)}")
     return BaselineTracker(engine) if mode == "on" else None
+
+
+def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
+    """(rest strain, strain span) the calibration was fitted over: its valid strain range
+    less the ``RANGE_MARGIN`` of the span the fit adds on each side."""
+    from strain_comp.core.engine import RANGE_MARGIN
+
+    span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE_MARGIN)
+    return valid_range.s_lo + RANGE_MARGIN * span, span
 
 
 @dataclass
@@ -96,7 +106,7 @@ class BaselineTracker:
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""
-        from strain_comp.core.engine import RANGE_MARGIN, used_mask
+        from strain_comp.core.engine import used_mask
 
         cal = self.engine.calibration.sensors[name]
         used = used_mask(np.asarray(out.status))
@@ -110,9 +120,7 @@ class BaselineTracker:
         if rest is None:
             return
         level = float(np.median(np.asarray(out.resistance)[used]))
-        vr = cal.valid_range
-        s_span = (vr.s_hi - vr.s_lo) / (1.0 + 2.0 * RANGE_MARGIN)  # the fitted span
-        s_rest = vr.s_lo + RANGE_MARGIN * s_span
+        s_rest, s_span = fitted_rest(cal.valid_range)
         estimate = float(np.median(np.asarray(out.strain)[used]))
         below = (level - rest) * cal.direction.sign <= 0.0
         if not (below or abs(estimate - s_rest) <= self.band * s_span):

@@ -156,9 +156,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         t = np.asarray(rec.t, dtype=np.float64)
         r = np.asarray(rec.r, dtype=np.float64)
         s = np.asarray(rec.s, dtype=np.float64)
-        out = outputs.get(name) or (
-            tracker.run(name, t, r, rec.temperature) if tracker is not None
-            else engine.run(name, t, r, temperature=rec.temperature))
+        out = outputs.get(name) or (tracker or engine).run(name, t, r, rec.temperature)
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
         good = used_mask(status)
@@ -561,9 +559,8 @@ class _Stream:
             outs = self.engine.run_array(inp.group, t, r[:, [column[g] for g in inp.group]],
                                          {g: temp for g in inp.group})
         else:
-            outs = {name: self.tracker.run(name, t, r[:, j], temp) if self.tracker
-                    else self.engine.run(name, t, r[:, j], temperature=temp)
-                    for j, name in enumerate(inp.names)}
+            run = (self.tracker or self.engine).run  # tracking between stretches if on
+            outs = {name: run(name, t, r[:, j], temp) for j, name in enumerate(inp.names)}
         for name, j in column.items():
             self.scores[name].add(t, r[:, j], refs[name], outs[name])
             if self.series is not None:

@@ -45,7 +45,7 @@ from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.recording import array_sensor_names, hold_latest
-from strain_comp.offline.series import PendingSeries, SeriesCSV
+from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")
 STAMPED = "strain_stamped"
@@ -229,8 +229,7 @@ class _Replay:
                     self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
         else:
-            out = (self.tracker.run(inp.name, t, values, temps[inp.name]) if self.tracker
-                   else self.engine.run(inp.name, t, values, temps[inp.name]))
+            out = (self.tracker or self.engine).run(inp.name, t, values, temps[inp.name])
             self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
             self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
                                           out.strain[:, None])
@@ -291,27 +290,20 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     """
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
     out_path = Path(out_path)
-    table = None if csv is None else SeriesCSV(csv, inputs=[in_path, *inputs, out_path])
-    try:
-        with BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
-            state = _Replay(calibration, writer, engine, diagnostics_period, tare, table,
-                            tracking)
-            for contents in iter_bag(in_path, window=window):
-                state.piece(contents)
-            inputs = [i for i in state.inputs.values() if i is not None]
-            if not inputs:  # the bag's damage, if any, may be why
-                raise BagError("; ".join([f"no /NAME/resistance topic for any calibrated "
-                                          f"sensor ({', '.join(calibration.sensors)})",
-                                          *located(in_path, state.problems)]))
-            for t in state.ticks:
-                state.write_tick(float(t))
-            state.finish_series()
-    except BaseException:
-        if table is not None:
-            table.discard()
-        raise
-    if table is not None:
-        table.close()
+    with series_csv(csv, inputs=[in_path, *inputs, out_path]) as table, \
+            BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
+        state = _Replay(calibration, writer, engine, diagnostics_period, tare, table,
+                        tracking)
+        for contents in iter_bag(in_path, window=window):
+            state.piece(contents)
+        inputs = [i for i in state.inputs.values() if i is not None]
+        if not inputs:  # the bag's damage, if any, may be why
+            raise BagError("; ".join([f"no /NAME/resistance topic for any calibrated "
+                                      f"sensor ({', '.join(calibration.sensors)})",
+                                      *located(in_path, state.problems)]))
+        for t in state.ticks:
+            state.write_tick(float(t))
+        state.finish_series()
     replayed = {s for i in inputs for s in i.sensors}
     problems = state.problems + [
         f"calibrated sensor {s!r} has no input topic in the bag: not replayed "

@@ -17,7 +17,8 @@ from __future__ import annotations
 import io
 import os
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -87,6 +88,24 @@ class SeriesCSV:
     def discard(self) -> None:
         if self.file is not None:
             self.file.discard()
+
+
+@contextmanager
+def series_csv(path: str | os.PathLike[str] | None, *,
+               inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False
+               ) -> Iterator[SeriesCSV | None]:
+    """A ``SeriesCSV`` for ``path`` (None: no table, the block gets None), committed when
+    the block ends and discarded, the target left as it was, when it raises."""
+    if path is None:
+        yield None
+        return
+    table = SeriesCSV(path, inputs=inputs, bag=bag)
+    try:
+        yield table
+    except BaseException:
+        table.discard()
+        raise
+    table.close()
 
 
 def _cell(text: str) -> str:

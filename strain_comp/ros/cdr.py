@@ -7,35 +7,17 @@ every time), a tenth of a core at 1 kHz. These encoders build the constant part 
 message is then the changing fields around it, published as bytes (``Publisher.publish``
 accepts a serialised message).
 
-Layout (OMG CDR, little endian, as rmw_fastrtps writes it): the 4-byte encapsulation header
-``00 01 00 00``, then the fields in order, each aligned to its size relative to the byte
-after that header; a string is a uint32 length counting its NUL, the bytes and the NUL; a
-sequence is a uint32 count and its elements.
-- JointState: header.stamp (int32 sec, uint32 nanosec), header.frame_id, name, position
-  (8-aligned float64s), velocity, effort.
-- std_msgs/msg/Float64MultiArray: layout.dim (one MultiArrayDimension: label, uint32 size,
-  uint32 stride), layout.data_offset (uint32), data (8-aligned float64s).
-The tests decode the bytes with rclpy's own type support.
+The wire format is the bag writer's (``strain_comp.io.cdr``, byte-equal to rosbags'
+serialiser): the constant blocks are cut from its ``joint_state_layout`` and
+``float64_multiarray_head``. The tests decode the bytes with rclpy's own type support and
+compare them with ``strain_comp.io.cdr``'s per-message encoders.
 """
 
 from __future__ import annotations
 
-import struct
-
 import numpy as np
 
-ENCAPSULATION = b"\x00\x01\x00\x00"
-"""CDR, little endian."""
-
-
-def _pad(size: int, alignment: int) -> bytes:
-    return b"\x00" * (-size % alignment)
-
-
-def _sequence_head(body: bytearray, count: int) -> None:
-    """A sequence's count, then the padding before 8-byte elements."""
-    body += _pad(len(body), 4) + struct.pack("<I", count)
-    body += _pad(len(body), 8) if count else b""
+from strain_comp.io import cdr
 
 
 def _doubles(values: np.ndarray, k: int) -> bytes:
@@ -45,45 +27,34 @@ def _doubles(values: np.ndarray, k: int) -> bytes:
     return data.tobytes()
 
 
-def _string(body: bytearray, text: str) -> None:
-    data = text.encode("utf-8") + b"\x00"
-    body += _pad(len(body), 4) + struct.pack("<I", len(data)) + data
-
-
 class StampedEncoder:
-    """Serialised JointState messages for a fixed list of names, frame_id ''."""
+    """Serialised JointState messages for a fixed list of names, frame_id '', velocity and
+    effort empty."""
 
     def __init__(self, names: list[str]) -> None:
         self.k = len(names)
-        body = bytearray(8)  # the stamp's place
-        _string(body, "")  # frame_id
-        body += _pad(len(body), 4) + struct.pack("<I", self.k)
-        for name in names:
-            _string(body, name)
-        _sequence_head(body, self.k)
-        self._middle = bytes(body[8:])
-        self._tail = struct.pack("<II", 0, 0)  # velocity, effort: empty
+        template, pos_at, _ = cdr.joint_state_layout("", names, velocity=False)
+        self._middle = template[4 + cdr.STAMP.size:pos_at]  # frame_id .. position's head
+        self._tail = template[pos_at + 8 * self.k:]  # velocity, effort
 
     def encode(self, stamp_ns: int, position: np.ndarray) -> bytes:
         """The message for a stamp [ns since the epoch] and ``k`` positions (strain)."""
         sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
         if not -2**31 <= sec < 2**31:
             raise ValueError(f"stamp {stamp_ns} ns does not fit builtin_interfaces/Time")
-        return b"".join((ENCAPSULATION, struct.pack("<iI", sec, nanosec), self._middle,
+        return b"".join((cdr.ENCAPSULATION, cdr.STAMP.pack(sec, nanosec), self._middle,
                          _doubles(position, self.k), self._tail))
 
 
 class VectorEncoder:
     """Serialised Float64MultiArray messages of ``k`` values whose ``dim[0]`` is labelled with
-    the sensor names (size = stride = k, data_offset 0)."""
+    the sensor names (size = stride = k, data_offset 0), as the bag writer's
+    ``write_float64_array``."""
 
     def __init__(self, names: list[str]) -> None:
         self.k = len(names)
-        body = bytearray(struct.pack("<I", 1))
-        _string(body, ",".join(names))
-        body += _pad(len(body), 4) + struct.pack("<III", self.k, self.k, 0)
-        _sequence_head(body, self.k)
-        self._head = ENCAPSULATION + bytes(body)
+        self._head = cdr.float64_multiarray_head([(",".join(names), self.k, self.k)], 0,
+                                                 self.k)
 
     def encode(self, values: np.ndarray) -> bytes:
         """The message for ``k`` values."""

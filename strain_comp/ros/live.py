@@ -60,8 +60,9 @@ from strain_comp.core.tare import (
     rest_resistance_at_start,
     rest_resistance_when_decided,
 )
-from strain_comp.core.tracking import tracker_for
+from strain_comp.core.tracking import fitted_rest, tracker_for
 from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.io.labels import label_order
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
 TARE_WINDOW_S = 0.5
@@ -103,12 +104,14 @@ def array_values(data: Any, offset: int, sizes: list[int], k: int, label: str = 
     if size != k:
         raise InputError(f"expected {k} values, got {size}")
     values = values[offset:offset + k]
-    names = [x.strip() for x in label.split(",")] if label.strip() else []
-    if names and sensors is not None and names != list(sensors):
-        if sorted(names) != sorted(sensors):
+    if label and sensors is not None:
+        try:
+            order = label_order(label, tuple(sensors))
+        except ValueError:
             raise InputError(f"layout dim[0].label does not name the sensors "
-                             f"{','.join(sensors)}")
-        values = values[[names.index(s) for s in sensors]]
+                             f"{','.join(sensors)}") from None
+        if order is not None:
+            values = values[order]
     return values
 
 
@@ -388,7 +391,6 @@ class LiveCompensator:
         its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
         calibration (state restarts, as after a reload; the rest now reads as the
         calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
-        from strain_comp.core.engine import RANGE_MARGIN
         from strain_comp.offline.recalibrate import span_from_points, span_reading
 
         strain = self.tunables.get("span_strain", 0.0)
@@ -403,16 +405,13 @@ class LiveCompensator:
             for column, sensor in enumerate(names):
                 cal = sensors[sensor]
                 values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
-                zero = cal.input.zero_span[0] if cal.input.zero_span else cal.rest_resistance
+                zero = cal.input_rest
                 if zero is None or values.size == 0:
                     problems.append(f"{sensor}: " + ("the calibration stores no "
                                     "rest_resistance" if zero is None else
                                     f"no good sample in the last {TARE_WINDOW_S} s"))
                     continue
-                vr = cal.valid_range
-                rest_strain = vr.s_lo + RANGE_MARGIN * (vr.s_hi - vr.s_lo) / (
-                    1.0 + 2.0 * RANGE_MARGIN)
-                points = [(zero / self.engine.input_gain(sensor), rest_strain),
+                points = [(zero / self.engine.input_gain(sensor), fitted_rest(cal.valid_range)[0]),
                           (rest_level(values, pair=cal.input.pair), strain)]
                 try:
                     span = span_from_points(cal, points)

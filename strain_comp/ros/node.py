@@ -22,7 +22,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from copy import copy
 from functools import partial
 from pathlib import Path
@@ -57,10 +57,8 @@ def _request_stop(signum: int, frame: Any) -> None:
     watchdog.start()
 
 
-def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
-    """(params files, node name, namespace) from the ``--ros-args`` part of ``args``."""
-    files: list[Path] = []
-    name, namespace = NODE_NAME, "/"
+def _ros_flags(args: list[str], flags: tuple[str, ...]) -> Iterator[tuple[str, str]]:
+    """(flag, its value) for each of ``flags`` in the ``--ros-args`` part of ``args``."""
     inside = False
     it = iter(args)
     for arg in it:
@@ -68,35 +66,36 @@ def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
             inside = True
         elif arg == "--":
             inside = False
-        elif inside and arg == "--params-file":
-            files.append(Path(next(it, "")))
-        elif inside and arg in ("-r", "--remap"):
-            rule = next(it, "")
-            if ":=" in rule:
-                key, value = rule.split(":=", 1)
-                key = key.split(":", 1)[-1] if key.count(":") == 1 else key
-                if key == "__node" or key == "__name":
-                    name = value
-                elif key == "__ns":
-                    namespace = value
+        elif inside and arg in flags:
+            yield arg, next(it, "")
+
+
+def _unqualified(key: str) -> str:
+    """A rule's key without its ``node:`` prefix (``name:key`` -> ``key``)."""
+    return key.split(":", 1)[-1] if key.count(":") == 1 else key
+
+
+def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
+    """(params files, node name, namespace) from the ``--ros-args`` part of ``args``."""
+    files: list[Path] = []
+    name, namespace = NODE_NAME, "/"
+    for flag, value in _ros_flags(args, ("--params-file", "-r", "--remap")):
+        if flag == "--params-file":
+            files.append(Path(value))
+        elif ":=" in value:
+            key, target = value.split(":=", 1)
+            key = _unqualified(key)
+            if key == "__node" or key == "__name":
+                name = target
+            elif key == "__ns":
+                namespace = target
     return files, name, namespace
 
 
 def command_line_params(args: list[str]) -> dict[str, str]:
     """The ``-p NAME:=VALUE`` (``--param``) overrides of the ``--ros-args`` part, as given."""
-    given: dict[str, str] = {}
-    inside = False
-    it = iter(args)
-    for arg in it:
-        if arg == "--ros-args":
-            inside = True
-        elif arg == "--":
-            inside = False
-        elif inside and arg in ("-p", "--param"):
-            rule = next(it, "")
-            key, _, _value = rule.partition(":=")
-            given[key.split(":", 1)[-1] if key.count(":") == 1 else key] = rule
-    return given
+    return {_unqualified(rule.partition(":=")[0]): rule
+            for _, rule in _ros_flags(args, ("-p", "--param"))}
 
 
 def check_params_files(files: list[Path], name: str, namespace: str) -> Path | None:
@@ -344,23 +343,24 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 return SetParametersResult(successful=False, reason=str(err))
             return SetParametersResult(successful=True)
 
-        def _tare(self, request: Any, response: Any) -> Any:
+        def _answer(self, response: Any, act: Callable[[], str]) -> Any:
+            """A Trigger response: ``act()``'s summary (logged), or its error in one line."""
             try:
-                response.message = self.live.tare()
+                response.message = act()
                 response.success = True
                 self.get_logger().info(response.message)
             except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
                 response.success, response.message = False, " ".join(str(err).split())
             return response
 
+        def _tare(self, request: Any, response: Any) -> Any:
+            return self._answer(response, self.live.tare)
+
         def _span(self, request: Any, response: Any) -> Any:
-            try:
-                self.live, response.message = self.live.span()
-                response.success = True
-                self.get_logger().info(response.message)
-            except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
-                response.success, response.message = False, " ".join(str(err).split())
-            return response
+            def span() -> str:
+                self.live, summary = self.live.span()
+                return summary
+            return self._answer(response, span)
 
         def _reload(self, request: Any, response: Any) -> Any:
             try:

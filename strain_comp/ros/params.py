@@ -43,6 +43,7 @@ import yaml
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
 from strain_comp.core.engine import GAP_RESET
+from strain_comp.core.tracking import TRACKING_MODES
 from strain_comp.errors import InputError, ParameterError
 
 PACKAGE = "strain_comp"
@@ -219,6 +220,15 @@ def _string(flat: Mapping[str, Any], key: str, default: str | None = None) -> st
     return value
 
 
+def _choice(flat: Mapping[str, Any], key: str, default: str, choices: tuple[str, ...]
+            ) -> str:
+    """A string parameter that is one of ``choices``."""
+    value = _string(flat, key, default)
+    if value not in choices:
+        raise ParameterError(key, f"must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
 _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 NAME_RULE = ("letters, digits and underscores, not starting with a digit, no double "
              "underscore")
@@ -270,16 +280,9 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     for key in flat:
         if key not in known and key.split(".")[0] not in ROS_OWNED:
             raise ParameterError(key, unknown_hint(key, known, sensors + arrays))
-    tare = _string(flat, "tare", "calibration")
-    if tare not in TARE_MODES:
-        raise ParameterError("tare", f"must be one of {', '.join(TARE_MODES)}, got {tare!r}")
-    executor = _string(flat, "executor", "events")
-    if executor not in EXECUTORS:
-        raise ParameterError("executor", f"must be one of {', '.join(EXECUTORS)}, "
-                                         f"got {executor!r}")
-    tracking = _string(flat, "baseline_tracking", "off")
-    if tracking not in ("off", "on"):
-        raise ParameterError("baseline_tracking", f"must be off or on, got {tracking!r}")
+    tare = _choice(flat, "tare", "calibration", TARE_MODES)
+    executor = _choice(flat, "executor", "events", EXECUTORS)
+    tracking = _choice(flat, "baseline_tracking", "off", TRACKING_MODES)
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}

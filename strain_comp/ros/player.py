@@ -90,12 +90,13 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
     from rosgraph_msgs.msg import Clock
 
     messages = bag_messages(path, topics)
-    skipped = sorted({m.type_name for m in messages if message_class(m.type_name) is None})
+    kinds = {name: message_class(name) for name in {m.type_name for m in messages}}
+    skipped = sorted(name for name, kind in kinds.items() if kind is None)
     if skipped:
-        n = sum(1 for m in messages if message_class(m.type_name) is None)
+        n = sum(1 for m in messages if kinds[m.type_name] is None)
         print(f"play: {n} messages of types not played: {', '.join(skipped)}"[:500],
               file=sys.stderr)
-        messages = [m for m in messages if message_class(m.type_name) is not None]
+        messages = [m for m in messages if kinds[m.type_name] is not None]
         if not messages:
             raise BagError(f"{path}: no message of a type play publishes "
                            f"({', '.join(PLAYABLE)})")
@@ -105,7 +106,7 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
     pubs = {}
     for m in messages:
         if m.topic not in pubs:
-            pubs[m.topic] = node.create_publisher(message_class(m.type_name), m.topic, 100)
+            pubs[m.topic] = node.create_publisher(kinds[m.type_name], m.topic, 100)
     clock_pub = node.create_publisher(Clock, "/clock", 100) if clock else None
     answers = [0]
     try:

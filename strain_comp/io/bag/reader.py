@@ -50,6 +50,7 @@ from strain_comp.io.bag.schemas import (
     Series,
     norm_type,
 )
+from strain_comp.io.labels import label_order
 from strain_comp.io.safe_yaml import LimitError, load_limited
 
 _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
@@ -763,12 +764,14 @@ def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
         if data.shape != (k,):
             bad += 1
             continue
-        given = [x.strip() for x in label.split(",")] if label.strip() else []
-        if names and given and given != names:  # matched by label, as the node does
-            if sorted(given) != sorted(names):
+        if names:  # matched by label, as the node does
+            try:
+                order = label_order(label, tuple(names))
+            except ValueError:
                 relabelled += 1
                 continue
-            data = data[[given.index(s) for s in names]]
+            if order is not None:
+                data = data[order]
         values[j] = data
         keep[j] = True
     if bad:

@@ -3,7 +3,7 @@
 ``BagWriter`` writes a header with profile ``ros2``, ros2msg schemas, channels with ``cdr``
 encoding, chunks with CRCs and message indexes, and a summary with schemas, channels,
 statistics, chunk indexes and summary offsets, so ``ros2 bag play``, ``rosbags`` and Foxglove
-read it. Payloads are CDR (``strain_comp.io.bag.cdr``): Float64, Int8, Float64MultiArray and
+read it. Payloads are CDR (``strain_comp.io.cdr``): Float64, Int8, Float64MultiArray and
 JointState runs are built as numpy byte rows of one template (their layout is fixed for a
 topic), Temperature and DiagnosticArray message by message; records are assembled per chunk
 with numpy scatter, not per message. Times are log times in seconds
@@ -40,8 +40,8 @@ from mcap.records import (
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
+from strain_comp.io import cdr
 from strain_comp.io.atomic import AtomicFile, check_output
-from strain_comp.io.bag import cdr
 from strain_comp.io.bag.schemas import (
     CHUNK_SIZE,
     LIBRARY,
@@ -192,9 +192,8 @@ class BagWriter:
         if any("," in x for x in labels):
             raise BagError(f"{topic}: sensor labels must not contain commas")
         k = v.shape[1]
-        sample = cdr.float64_multiarray([(",".join(labels), k, k)], 0, np.zeros(k))
-        self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t),
-                  _cdr_rows(sample[:len(sample) - 8 * k], v))
+        head = cdr.float64_multiarray_head([(",".join(labels), k, k)], 0, k)
+        self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t), _cdr_rows(head, v))
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
                           position: npt.ArrayLike, velocity: npt.ArrayLike | None = None, *,

@@ -1,4 +1,6 @@
-"""CDR encoding of the fixed message types a strain_comp bag holds (``schemas.SCHEMAS``).
+"""CDR encoding of the fixed message types strain_comp writes: those a bag holds
+(``strain_comp.io.bag.schemas.SCHEMAS``) and the node's outputs (``strain_comp.ros.cdr``
+prebuilds its constant blocks from the layouts here), so the wire format is defined once.
 
 ROS 2 serialises messages as OMG CDR (XCDR1, plain little endian, rmw's encapsulation
 ``00 01 00 00``): each primitive is aligned to its own size counted from the end of the
@@ -26,7 +28,8 @@ ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR little endian, no options."""
 
 _U32 = struct.Struct("<I")
-_STAMP = struct.Struct("<iI")
+STAMP = struct.Struct("<iI")
+"""builtin_interfaces/Time: int32 sec, uint32 nanosec (4-aligned)."""
 _PAD = [b"\0" * k for k in range(8)]
 _STRING_CACHE = 4096
 _CACHED_LENGTH = 256
@@ -52,9 +55,9 @@ class CdrBuffer:
         self.data += _U32.pack(value)
 
     def stamp(self, sec: int, nanosec: int) -> None:
-        """builtin_interfaces/Time: int32 sec, uint32 nanosec."""
+        """builtin_interfaces/Time (``STAMP``)."""
         self.align(4)
-        self.data += _STAMP.pack(sec, nanosec)
+        self.data += STAMP.pack(sec, nanosec)
 
     def f64(self, *values: float) -> None:
         self.align(8)
@@ -131,6 +134,15 @@ def float64_multiarray(dims: Sequence[tuple[str, int, int]], data_offset: int,
     buf.u32(data_offset)
     buf.f64_seq(data)
     return buf.payload()
+
+
+def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: int,
+                            n: int) -> bytes:
+    """The bytes of a ``float64_multiarray`` message of ``n`` values before its first value:
+    for a fixed layout and ``n`` every message is this head and the values (little-endian
+    float64), so runs and live messages are written around it."""
+    payload = float64_multiarray(dims, data_offset, np.zeros(n))
+    return payload[:len(payload) - 8 * n]
 
 
 def temperature(sec: int, nanosec: int, frame_id: str, value: float,
@@ -228,6 +240,7 @@ _DICT_ENCODERS: dict[str, Callable[[Mapping[str, Any]], bytes]] = {
 
 
 def message_encoder(kind: str) -> Callable[[Mapping[str, Any]], bytes]:
-    """CDR encoder of ``kind`` (a type of ``schemas.SCHEMAS``) for a message given as
-    nested dicts with the standard field names (KeyError for another type)."""
+    """CDR encoder of ``kind`` (a type of ``strain_comp.io.bag.schemas.SCHEMAS``) for a
+    message given as nested dicts with the standard field names (KeyError for another
+    type)."""
     return _DICT_ENCODERS[kind]
