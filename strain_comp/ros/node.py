@@ -19,6 +19,7 @@ the signal handlers are in place before anything slow is imported.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -154,6 +155,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.clock import JumpThreshold, ROSClock
     from rclpy.duration import Duration
+    from rclpy.exceptions import InvalidHandle
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
@@ -413,7 +415,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 outcome = " ".join(str(err).split()) or type(err).__name__
             finally:
                 self._loaded = outcome
-                self._loaded_wake.trigger()
+                with contextlib.suppress(InvalidHandle):  # the node shut down meanwhile
+                    self._loaded_wake.trigger()
 
         def _adopt(self) -> None:
             """Executor thread, between two messages: swap the loaded compensator in
