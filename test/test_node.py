@@ -287,7 +287,7 @@ def reload_result(h: Harness) -> str:
     calibration status on /diagnostics."""
     reply = h.call("/compensator/reload_calibration")
     assert reply.success and reply.message.startswith("loading "), reply.message
-    assert h.spin_until(lambda: h.node._loading is None)
+    assert h.spin_until(lambda: h.node._loaded is not None)  # swapped in at the next tick
     return h.diagnostics()["strain_comp: calibration"][1]
 
 
@@ -347,7 +347,7 @@ def test_reload_loads_off_the_executor_and_swaps_between_messages(
         assert strain[-1].data == expect(old_ref, value)
     assert node._loading is not None and node._loading.is_alive()
     release.set()
-    assert single.spin_until(lambda: node._loading is None)
+    assert single.spin_until(lambda: node._loaded is not None)  # loaded, not yet swapped
     new_ref = LiveCompensator(parse_values(node.flat, base_dir=base), warm_up=False)
     for value in values[6:]:  # swapped: the new calibration, its state from the swap on
         assert single.feed(pub, Float64(data=value), strain)

@@ -19,7 +19,6 @@ the signal handlers are in place before anything slow is imported.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import sys
@@ -155,7 +154,6 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.clock import JumpThreshold, ROSClock
     from rclpy.duration import Duration
-    from rclpy.exceptions import InvalidHandle
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
@@ -172,6 +170,11 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
     class CompensatorNode(Node):
         def __init__(self) -> None:
             super().__init__(node_name, **node_options)
+            self._loading: threading.Thread | None = None
+            self._loaded: Any = None
+            """The finished load (a LiveCompensator, or the reason it was refused), swapped
+            in by ``_adopt`` before the next message or diagnostics tick (rclpy's
+            EventsExecutor has no guard conditions to wake the executor with)."""
             self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                          if k.split(".")[0] not in ROS_OWNED}
             self.base_dir = base_dir
@@ -217,10 +220,6 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.create_service(Trigger, "~/tare", self._tare)
             self.create_service(Trigger, "~/span", self._span)
             self.create_service(Trigger, "~/reload_calibration", self._reload)
-            self._loading: threading.Thread | None = None
-            self._loaded: Any = None
-            """The finished load (a LiveCompensator, or the reason it was refused)."""
-            self._loaded_wake = self.create_guard_condition(self._adopt)
             self.calibration_status = (OK, "loaded " + self._paths(self.live))
             self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
                                    + f"; tare {params.tare}")
@@ -272,6 +271,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.live.on_temperature(sensor, msg.temperature)
 
         def _arrive(self, name: str, handler: Any, msg: Any, pubs: list[Any]) -> None:
+            if self._loaded is not None:
+                self._adopt()
             clock = self.get_clock()
             if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
                 # the system time, which the ROS clock reads without /clock (cheaper than
@@ -283,6 +284,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 h(name, stamp, m, p)
 
         def _on_tick(self, jump: Any) -> None:
+            if self._loaded is not None:
+                self._adopt()
             now = self.get_clock().now().nanoseconds
             names = list(self.gate.held)
             for name, (stamp, (h, m, p)) in zip(names, self.gate.tick(now), strict=True):
@@ -327,6 +330,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 self.get_logger().info(self.live.tare_log.pop(0))
 
         def _diagnostics(self) -> None:
+            self._adopt()
             now = self.get_clock().now()
             msg = DiagnosticArray(status=[
                 DiagnosticStatus(level=bytes([level]), name=name, message=message,
@@ -406,8 +410,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             return response
 
         def _load(self, current: Any) -> None:
-            """Worker thread: read, validate and build the new compensator (``successor``),
-            leave it (or the reason it was refused) in ``_loaded`` and wake the executor."""
+            """Worker thread: read, validate and build the new compensator (``successor``)
+            and leave it (or the reason it was refused) in ``_loaded``."""
             outcome: Any = "the load ended without a result"
             try:
                 outcome = current.successor(parse_values(self.flat, base_dir=self.base_dir))
@@ -415,16 +419,14 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 outcome = " ".join(str(err).split()) or type(err).__name__
             finally:
                 self._loaded = outcome
-                with contextlib.suppress(InvalidHandle):  # the node shut down meanwhile
-                    self._loaded_wake.trigger()
 
         def _adopt(self) -> None:
-            """Executor thread, between two messages: swap the loaded compensator in
-            (``hand_over``: counters carry on), or log the refusal; the old one keeps
-            running until then, and after a refusal."""
-            outcome, self._loaded = self._loaded, None
-            if outcome is None:
+            """Executor thread, before a message or diagnostics tick: once the load has
+            finished, swap the loaded compensator in (``hand_over``: counters carry on) or
+            log the refusal; the old one keeps running until then, and after a refusal."""
+            if self._loaded is None:
                 return
+            outcome, self._loaded = self._loaded, None
             if self._loading is not None:
                 self._loading.join()  # it has left its result: done in a moment
             self._loading = None
