@@ -313,3 +313,38 @@ def test_every_encoder_matches_the_rosbags_deserialiser(kind: str) -> None:
     data = message_encoder(kind)(MESSAGES[kind])
     decoded = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(data, kind)
     assert _plain(decoded) == MESSAGES[kind]
+
+
+def test_array_values_are_matched_by_label_whatever_the_first_message_says(
+        tmp_path: Path) -> None:
+    """An array topic whose first message carries 2 labels for 3 values, then arrays in the
+    sensors' order, reversed with reversed labels, behind a data_offset, unlabelled, and
+    labelled with another sensor: every labelled array is read by name as the node reads it
+    (``array_values``), the two whose labels do not name the sensors are skipped and counted.
+    The truth: the rows written, in the order a, b, c."""
+    from mcap_ros2.writer import Writer
+
+    from strain_comp.io.bag.schemas import SCHEMAS
+
+    rows = np.random.default_rng(25).uniform(10.0, 30.0, (6, 3))
+    kind = "std_msgs/msg/Float64MultiArray"
+    sent = [("a,b", 0, rows[0]), ("a,b,c", 0, rows[1]), ("c,b,a", 0, rows[2][::-1]),
+            ("b,c,a", 1, np.r_[-1.0, rows[3][[1, 2, 0]]]), ("", 0, rows[4]),
+            ("a,b,x", 0, rows[5])]
+    path = tmp_path / "labels.mcap"
+    with path.open("wb") as handle:
+        writer = Writer(handle)
+        schema = writer.register_msgdef(kind, SCHEMAS[kind])
+        for i, (label, offset, data) in enumerate(sent):
+            writer.write_message("/arr/resistance", schema, {
+                "layout": {"dim": [{"label": label, "size": 3, "stride": 3}],
+                           "data_offset": offset},
+                "data": data.tolist()}, log_time=10**9 * (i + 1), publish_time=10**9 * (i + 1))
+        writer.finish()
+    contents = read_bag(path)
+    assert contents.labels["/arr/resistance"] == ["a", "b", "c"]
+    series = contents.series["/arr/resistance"]
+    np.testing.assert_array_equal(series.t, [2.0, 3.0, 4.0, 5.0])
+    np.testing.assert_array_equal(series.values, rows[1:5])
+    assert contents.problems == [f"{path}: /arr/resistance: 2 arrays whose dim[0].label "
+                                 "does not name the sensors a,b,c skipped"]

@@ -147,7 +147,8 @@ def test_regression_labels_that_do_not_match_the_values(fuzz, every_model,
                                                         tmp_path: Path) -> None:
     """Found while turning the fuzz crashes into tests: an array whose label list has more
     or fewer names than values made replay fail inside the engine (InputError without the
-    file); the reader now drops such labels and says so, and replay refuses cleanly."""
+    file); the reader now skips and counts such arrays (as the node refuses them: a given
+    label must name the sensors), and replay refuses cleanly."""
     from strain_comp.errors import BagError
     from strain_comp.io.bag import read_bag
     from strain_comp.offline.replay import replay_bag
@@ -155,9 +156,10 @@ def test_regression_labels_that_do_not_match_the_values(fuzz, every_model,
     path = tmp_path / "labels.mcap"
     _raw_array_bag(path, [("s1,p", [15.0, 16.0, 17.0])] * 4)
     contents = read_bag(path)
-    assert contents.series["/a/resistance"].values.shape == (4, 3)
+    assert contents.series["/a/resistance"].values.shape == (0, 3)
     assert "/a/resistance" not in contents.labels
-    assert any("2 sensor labels for 3 values" in p for p in contents.problems)
+    assert any("4 arrays whose dim[0].label does not name one sensor for each of the 3 "
+               "values skipped" in p for p in contents.problems)
     with pytest.raises(BagError, match="no /NAME/resistance"):
         replay_bag(path, fuzz.replay_calibration(every_model), tmp_path / "out.mcap")
 

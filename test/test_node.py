@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import shutil
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -266,19 +267,79 @@ def test_tare_service_and_diagnostics(single: Harness) -> None:
     assert strain[-1].data != fresh.step("s1", 0.0, 12.2).strain
 
 
+def reload_result(h: Harness) -> str:
+    """Call ``~/reload_calibration`` (it answers at once) and wait for its result, the
+    calibration status on /diagnostics."""
+    reply = h.call("/compensator/reload_calibration")
+    assert reply.success and reply.message.startswith("loading "), reply.message
+    assert h.spin_until(lambda: h.node._loaded is not None)  # swapped in at the next tick
+    return h.diagnostics()["strain_comp: calibration"][1]
+
+
 def test_reload_refuses_a_bad_file_and_keeps_running(single: Harness) -> None:
     cal = single.node.base_dir / "demo_calibration.yaml"
     good = cal.read_text()
     cal.write_text("format: strain_comp/calibration/v1\nsensors: {s1: {model: nope}}\n")
-    reply = single.call("/compensator/reload_calibration")
-    assert not reply.success and "old calibration keeps running" in reply.message
+    assert "old calibration keeps running" in reload_result(single)
     strain = single.listen("/s1/strain", Float64)
     pub = single.probe.create_publisher(Float64, "/s1/resistance", 10)
     single.wait_matched(pub)
     assert single.feed(pub, Float64(data=15.0), strain)
     cal.write_text(good)
+    assert reload_result(single).startswith("reloaded ")
+
+
+def test_reload_loads_off_the_executor_and_swaps_between_messages(
+        single: Harness, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A load held up on its worker thread: every input meanwhile is answered by the old
+    calibration, a second reload is refused, then the new calibration answers from the
+    next message on; the health counters go on. The truth: a LiveCompensator on each
+    calibration fed the same samples (the new one from the swap on)."""
+    from strain_comp.ros.live import LiveCompensator
+    from strain_comp.ros.params import parse_values
+
+    release = threading.Event()
+    successor = LiveCompensator.successor
+
+    def slow_successor(self: LiveCompensator, params: Any) -> LiveCompensator:
+        release.wait(30.0)  # a large file: the load takes until the test lets it go
+        return successor(self, params)
+
+    monkeypatch.setattr(LiveCompensator, "successor", slow_successor)
+    node, base = single.node, single.node.base_dir
+    old_ref = LiveCompensator(parse_values(node.flat, base_dir=base), warm_up=False)
+    cal = base / "demo_calibration.yaml"
+    cal.write_text(cal.read_text().replace("r0: 8.83269945355191", "r0: 9.5"))
+    strain = single.listen("/s1/strain", Float64)
+    pub = single.probe.create_publisher(Float64, "/s1/resistance", 10)
+    single.wait_matched(pub)
+    values = [12.0, 12.5, 13.5, 15.0, 17.0, 19.0, 20.0, 18.0, 16.0, 14.0]
+
+    def expect(ref: LiveCompensator, value: float) -> float:
+        out = ref.on_sensor("s1", single.t_ns * 1e-9, value)
+        assert out is not None
+        return out.strain
+
+    for value in values[:3]:
+        assert single.feed(pub, Float64(data=value), strain)
+        assert strain[-1].data == expect(old_ref, value)
     reply = single.call("/compensator/reload_calibration")
-    assert reply.success, reply.message
+    assert reply.success and reply.message == f"loading {cal}", reply.message
+    second = single.call("/compensator/reload_calibration")
+    assert not second.success and "in flight" in second.message
+    for value in values[3:6]:  # the load is under way: outputs go on, old calibration
+        assert single.feed(pub, Float64(data=value), strain)
+        assert strain[-1].data == expect(old_ref, value)
+    assert node._loading is not None and node._loading.is_alive()
+    release.set()
+    assert single.spin_until(lambda: node._loaded is not None)  # loaded, not yet swapped
+    new_ref = LiveCompensator(parse_values(node.flat, base_dir=base), warm_up=False)
+    for value in values[6:]:  # swapped: the new calibration, its state from the swap on
+        assert single.feed(pub, Float64(data=value), strain)
+        assert strain[-1].data == expect(new_ref, value) != expect(old_ref, value)
+    status = single.diagnostics()
+    assert status["strain_comp: calibration"][:2] == (0, f"reloaded {cal}")
+    assert status["strain_comp: s1"][2]["n_good"] == str(len(values))
 
 
 def array_msg(values: list[float], *, offset: int = 0, size: int | None = None) -> Any:

@@ -320,7 +320,8 @@ def test_ros2_topic_pub_echo_hz_and_service_call(ws: Workspace, tmp_path: Path) 
     assert "success=True" in tared and "tared s1 (rest 20 ohm, gain 1)" in tared
     reloaded = ws.run("ros2", "service", "call", "/compensator/reload_calibration",
                       "std_srvs/srv/Trigger", slot=42).stdout
-    assert "success=True" in reloaded and "reloaded " in reloaded
+    assert "success=True" in reloaded and "loading " in reloaded
+    wait_for(log, "reloaded ", node, timeout=30.0)  # the load's result goes to the log
     stop_tool(pub)
     assert "Traceback" not in log.read_text()
     ctrl_c(node, log)

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar
 
@@ -62,7 +61,7 @@ from strain_comp.core.tare import (
 )
 from strain_comp.core.tracking import fitted_rest, tracker_for
 from strain_comp.errors import InputError, ParameterError, StrainCompError
-from strain_comp.io.labels import label_order
+from strain_comp.io.multiarray import array_values
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
 TARE_WINDOW_S = 0.5
@@ -83,36 +82,6 @@ reasons count under ``NAME: other reasons`` (a peer varying a message cannot gro
 MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
 _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
-
-
-def array_values(data: Any, offset: int, sizes: list[int], k: int, label: str = "",
-                 sensors: Sequence[str] | None = None) -> np.ndarray:
-    """The k values of a Float64MultiArray: ``data[offset:offset + dim[0].size]``, in the
-    order of ``sensors`` when ``label`` (``dim[0].label``, comma-separated sensor names, as
-    the node publishes and ``replay`` reads) is given: values are matched by name.
-
-    InputError with the reason when the layout does not describe k values inside ``data``
-    or the label names other sensors.
-    """
-    values = np.asarray(data, dtype=np.float64)
-    size = sizes[0] if sizes else values.size - offset
-    if sizes and size != k:
-        raise InputError(f"layout dim[0].size {size} != {k} sensors")
-    if offset < 0 or offset + size > values.size:
-        raise InputError(f"layout data_offset {offset} + size {size} exceeds the "
-                         f"{values.size} values")
-    if size != k:
-        raise InputError(f"expected {k} values, got {size}")
-    values = values[offset:offset + k]
-    if label and sensors is not None:
-        try:
-            order = label_order(label, tuple(sensors))
-        except ValueError:
-            raise InputError(f"layout dim[0].label does not name the sensors "
-                             f"{','.join(sensors)}") from None
-        if order is not None:
-            values = values[order]
-    return values
 
 
 class ClockGate:
@@ -436,7 +405,9 @@ class LiveCompensator:
 
     def set_tunable(self, name: str, value: Any) -> None:
         """Validate (``check_tunable``) and apply a tunable."""
-        value = self.check_tunable(name, value)
+        self._apply(name, self.check_tunable(name, value))
+
+    def _apply(self, name: str, value: float) -> None:
         self.tunables[name] = value
         if name == "deadzone_scale":
             self.engine.set_deadzone_scale(value)
@@ -446,15 +417,29 @@ class LiveCompensator:
             self.engine.stale_after = value
 
     def reload(self, params: NodeParams) -> LiveCompensator:
-        """A new LiveCompensator on ``params``'s calibration with this one's tunables.
+        """A new LiveCompensator on ``params``'s calibration carrying on from this one
+        (``successor`` then ``hand_over``). StrainCompError if the new one cannot run."""
+        return self.hand_over(self.successor(params))
 
-        Model state restarts and the input gains return to 1 (a new calibration brings its
-        own zero; ``tare: auto`` tares again). StrainCompError if the new one cannot run.
-        """
+    def successor(self, params: NodeParams) -> LiveCompensator:
+        """The slow half of a reload: a LiveCompensator built on ``params``'s calibration
+        (engine built and warmed up) with this one's tunables, not yet carrying anything
+        over. Reads only this one's inputs and tunables, so the node runs it on a worker
+        thread while this one keeps handling messages. StrainCompError if it cannot run."""
         params.tunables = dict(self.tunables)
         fresh = LiveCompensator(params)
         if [i.sensors for i in params.inputs] != [i.sensors for i in self.params.inputs]:
             raise StrainCompError("the reloaded calibration changes the sensors")
+        return fresh
+
+    def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
+        """``fresh`` (from ``successor``) carrying on from this one, as of now: its health
+        and refusal counters go on from this one's, its tunables are this one's current
+        ones, its inputs' last message times are this one's. Model state restarts and the
+        input gains return to 1 (a new calibration brings its own zero; ``tare: auto``
+        tares again). Quick: the node calls it between two messages."""
+        for name, value in self.tunables.items():
+            fresh._apply(name, value)
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen
         fresh._counted_before = self.health()  # the counters go on from here
         fresh._last_message = dict(self._last_message)

@@ -5,8 +5,10 @@ Parameters as in ``strain_comp.ros.params`` (structural ones read-only, tunables
 validated, integers accepted for floats); inputs with sensor-data QoS, topic names resolved
 in the node's namespace, ``/diagnostics`` absolute; services ``~/tare``, ``~/span`` (input
 zero and span at the known strain ``span_strain``, ``LiveCompensator.span``) and
-``~/reload_calibration`` (std_srvs/Trigger). Each input is stamped with the node clock when
-its callback runs, so ``use_sim_time`` follows /clock.
+``~/reload_calibration`` (std_srvs/Trigger: answers "loading ..." at once; a worker
+thread loads, the executor swaps the result in between two messages, so outputs go on
+while a large file loads; the result goes to the log and /diagnostics). Each input is
+stamped with the node clock when its callback runs, so ``use_sim_time`` follows /clock.
 
 Start-up problems (params file missing or not YAML, no block for the node's name, a bad or
 unknown parameter, a missing calibration) print one line ``compensator: ...`` and exit 2.
@@ -161,12 +163,17 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
 
     from strain_comp.errors import ParameterError, StrainCompError
     from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
-    from strain_comp.ros.live import ClockGate, LiveCompensator
+    from strain_comp.ros.live import OK, WARN, ClockGate, LiveCompensator
     from strain_comp.ros.params import ROS_OWNED, TUNABLE, parse_values, structural_specs
 
     class CompensatorNode(Node):
         def __init__(self) -> None:
             super().__init__(node_name, **node_options)
+            self._loading: threading.Thread | None = None
+            self._loaded: Any = None
+            """The finished load (a LiveCompensator, or the reason it was refused), swapped
+            in by ``_adopt`` before the next message or diagnostics tick (rclpy's
+            EventsExecutor has no guard conditions to wake the executor with)."""
             self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                          if k.split(".")[0] not in ROS_OWNED}
             self.base_dir = base_dir
@@ -212,6 +219,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.create_service(Trigger, "~/tare", self._tare)
             self.create_service(Trigger, "~/span", self._span)
             self.create_service(Trigger, "~/reload_calibration", self._reload)
+            self.calibration_status = (OK, "loaded " + self._paths(self.live))
             self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
                                    + f"; tare {params.tare}")
 
@@ -262,6 +270,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.live.on_temperature(sensor, msg.temperature)
 
         def _arrive(self, name: str, handler: Any, msg: Any, pubs: list[Any]) -> None:
+            if self._loaded is not None:
+                self._adopt()
             clock = self.get_clock()
             if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
                 # the system time, which the ROS clock reads without /clock (cheaper than
@@ -273,6 +283,8 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 h(name, stamp, m, p)
 
         def _on_tick(self, jump: Any) -> None:
+            if self._loaded is not None:
+                self._adopt()
             now = self.get_clock().now().nanoseconds
             names = list(self.gate.held)
             for name, (stamp, (h, m, p)) in zip(names, self.gate.tick(now), strict=True):
@@ -317,11 +329,14 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 self.get_logger().info(self.live.tare_log.pop(0))
 
         def _diagnostics(self) -> None:
+            self._adopt()
             now = self.get_clock().now()
             msg = DiagnosticArray(status=[
                 DiagnosticStatus(level=bytes([level]), name=name, message=message,
                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
-                for name, level, message, values in self.live.diagnostics(now.nanoseconds * 1e-9)
+                for name, level, message, values in [
+                    *self.live.diagnostics(now.nanoseconds * 1e-9),
+                    ("strain_comp: calibration", *self.calibration_status, {})]
             ])
             msg.header.stamp = now.to_msg()
             self.diag_pub.publish(msg)
@@ -343,8 +358,20 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 return SetParametersResult(successful=False, reason=str(err))
             return SetParametersResult(successful=True)
 
+        def _busy(self, response: Any) -> bool:
+            """Refuse a call into ``response`` while a reload is in flight (its result
+            would replace what the call changes)."""
+            if self._loading is None:
+                return False
+            response.success = False
+            response.message = "refused: a calibration reload is in flight; call again"
+            return True
+
         def _answer(self, response: Any, act: Callable[[], str]) -> Any:
-            """A Trigger response: ``act()``'s summary (logged), or its error in one line."""
+            """A Trigger response: ``act()``'s summary (logged), or its error in one line;
+            refused while a reload is in flight."""
+            if self._busy(response):
+                return response
             try:
                 response.message = act()
                 response.success = True
@@ -362,18 +389,54 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 return summary
             return self._answer(response, span)
 
+        @staticmethod
+        def _paths(live: Any) -> str:
+            return ", ".join(sorted({str(i.calibration_path) for i in live.params.inputs}))
+
         def _reload(self, request: Any, response: Any) -> Any:
-            try:
-                self.live = self.live.reload(parse_values(self.flat, base_dir=self.base_dir))
-                response.success = True
-                response.message = "reloaded " + ", ".join(
-                    str(i.calibration_path) for i in self.live.params.inputs)
-                self.get_logger().info(response.message)
-            except (StrainCompError, OSError, *_MESSAGE_ERRORS) as err:
-                response.success = False
-                response.message = ("refused, the old calibration keeps running: "
-                                    + " ".join(str(err).split()))
+            """Start loading the calibration files on a worker thread and answer at once
+            ("loading ..."); the result goes to the log and /diagnostics. A call while a
+            load is in flight is refused."""
+            if self._busy(response):
+                return response
+            current = self.live
+            self._loading = threading.Thread(target=self._load, args=(current,),
+                                             name="reload_calibration", daemon=True)
+            self.calibration_status = (OK, "loading " + self._paths(current))
+            response.success, response.message = True, self.calibration_status[1]
+            self.get_logger().info(response.message)
+            self._loading.start()
             return response
+
+        def _load(self, current: Any) -> None:
+            """Worker thread: read, validate and build the new compensator (``successor``)
+            and leave it (or the reason it was refused) in ``_loaded``."""
+            outcome: Any = "the load ended without a result"
+            try:
+                outcome = current.successor(parse_values(self.flat, base_dir=self.base_dir))
+            except Exception as err:  # a worker thread: whatever ends the load is its reason
+                outcome = " ".join(str(err).split()) or type(err).__name__
+            finally:
+                self._loaded = outcome
+
+        def _adopt(self) -> None:
+            """Executor thread, before a message or diagnostics tick: once the load has
+            finished, swap the loaded compensator in (``hand_over``: counters carry on) or
+            log the refusal; the old one keeps running until then, and after a refusal."""
+            if self._loaded is None:
+                return
+            outcome, self._loaded = self._loaded, None
+            if self._loading is not None:
+                self._loading.join()  # it has left its result: done in a moment
+            self._loading = None
+            if isinstance(outcome, str):
+                self.calibration_status = (WARN, "reload refused, the old calibration keeps "
+                                           "running: " + outcome)
+                self.get_logger().error(self.calibration_status[1])
+                return
+            self.live = self.live.hand_over(outcome)
+            self.calibration_status = (OK, "reloaded " + self._paths(self.live))
+            self.get_logger().info(self.calibration_status[1])
 
     return CompensatorNode()
 

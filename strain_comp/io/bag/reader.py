@@ -41,7 +41,7 @@ from mcap.records import (
 from mcap_ros2.decoder import DecoderFactory
 
 from strain_comp._numba import njit
-from strain_comp.errors import BagError
+from strain_comp.errors import BagError, InputError
 from strain_comp.io.bag.schemas import (
     MAGIC,
     MAX_TIME_S,
@@ -50,7 +50,7 @@ from strain_comp.io.bag.schemas import (
     Series,
     norm_type,
 )
-from strain_comp.io.labels import label_order
+from strain_comp.io.multiarray import array_values, label_names
 from strain_comp.io.safe_yaml import LimitError, load_limited
 
 _FIXED_SCALAR = {  # type -> (payload byte offset, numpy little-endian dtype)
@@ -717,68 +717,82 @@ def _decode_topic(out: BagContents, topic: str, schema: Schema, blob: np.ndarray
 
 def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
                   start: np.ndarray, length: np.ndarray, t: np.ndarray) -> None:
-    """Float64MultiArray: bulk path when every message shares the first one's layout bytes."""
+    """Float64MultiArray, read as the node reads it (``array_values``: the layout's offset and
+    size honoured, values matched by label wherever a label is given). The first message
+    with a well-formed layout fixes the number of values k; the first label naming k
+    distinct sensors names the topic's columns; a message whose label names other sensors
+    is skipped and counted. Bulk path: the messages byte-identical to the first up to their
+    values, when the first is a plain array (offset 0, k values) read by position."""
     first = None
     for i in range(start.size):
         try:  # the first message that decodes into a well-formed array fixes the layout
             msg = decoder(blob[start[i]:start[i] + length[i]].tobytes())
-            if len(msg.data) == 0:  # an empty array cannot fix the layout
+            sizes = [int(d.size) for d in msg.layout.dim]
+            offset = int(msg.layout.data_offset)
+            k = sizes[0] if sizes else len(msg.data) - offset
+            if k <= 0:  # an empty array cannot fix the layout
                 continue
-            first = (len(msg.data), [str(d.label) for d in msg.layout.dim])
+            array_values(msg.data, offset, sizes, k)
+            first = (msg, k, offset)
             break
-        except _PAYLOAD_ERRORS:  # find the first decodable message
+        except (*_PAYLOAD_ERRORS, InputError):  # find the first decodable message
             continue
     if first is None:
         out.problems.append(f"{topic}: no decodable Float64MultiArray message; skipped")
         return
-    k, dim_labels = first
-    if dim_labels:
-        labels = [x.strip() for x in dim_labels[0].split(",") if x.strip()]
-        if len(labels) == k:
-            out.labels[topic] = labels
-        else:
-            out.problems.append(f"{topic}: {len(labels)} sensor labels for {k} values; "
-                                "labels ignored")
+    msg, k, offset = first
     n0 = int(length[i])
     prefix_len = n0 - 8 * k
     ref = blob[start[i]:start[i] + prefix_len]
     same = length == n0
     if same.any() and prefix_len > 0:
         same[same] = (_gather(blob, start[same], prefix_len) == ref).all(axis=1)
+    label0 = label_names(str(msg.layout.dim[0].label) if msg.layout.dim else "")
+    names = label0 if len(set(label0)) == len(label0) == k else _first_names(
+        decoder, blob, start[~same], length[~same], k)
+    if names is not None:
+        out.labels[topic] = names
     values = np.full((start.size, k), np.nan)
-    if same.any():
+    if offset == 0 and len(msg.data) == k and (not label0 or label0 == names):
         raw = _gather(blob, start[same] + prefix_len, 8 * k).reshape(-1, k, 8)
         dtype = "<f8" if ref[1] & 1 else ">f8"
         values[same] = raw.copy().view(dtype)[..., 0]
+    else:
+        same[:] = False
     keep = same.copy()
-    bad = relabelled = 0
-    names = out.labels.get(topic)
+    bad = mismatched = 0
     for j in np.flatnonzero(~same):
         try:
             msg = decoder(blob[start[j]:start[j] + length[j]].tobytes())
-            data = np.asarray(msg.data, np.float64)
             label = str(msg.layout.dim[0].label) if msg.layout.dim else ""
-        except _PAYLOAD_ERRORS:  # malformed payload: count it, keep going
-            bad += 1
-            continue
-        if data.shape != (k,):
-            bad += 1
-            continue
-        if names:  # matched by label, as the node does
-            try:
-                order = label_order(label, tuple(names))
-            except ValueError:
-                relabelled += 1
+            given = label_names(label)
+            if given and sorted(given) != sorted(names or []):
+                mismatched += 1
                 continue
-            if order is not None:
-                data = data[order]
-        values[j] = data
+            values[j] = array_values(msg.data, int(msg.layout.data_offset),
+                                     [int(d.size) for d in msg.layout.dim], k, label, names)
+        except (*_PAYLOAD_ERRORS, InputError):  # malformed payload: count it, keep going
+            bad += 1
+            continue
         keep[j] = True
     if bad:
         out.problems.append(f"{topic}: {bad} malformed or wrong-size arrays skipped")
-    if relabelled:
-        out.problems.append(f"{topic}: {relabelled} arrays whose dim[0].label names other "
-                            f"sensors than {','.join(names or [])} skipped")
+    if mismatched:
+        out.problems.append(f"{topic}: {mismatched} arrays whose dim[0].label does not name "
+                            + (f"the sensors {','.join(names)}" if names else
+                               f"one sensor for each of the {k} values") + " skipped")
     out.series[topic] = Series(t[keep], values[keep])
 
 
+def _first_names(decoder: Any, blob: np.ndarray, start: np.ndarray, length: np.ndarray,
+                 k: int) -> list[str] | None:
+    """The first ``dim[0].label`` among these messages that names k distinct sensors."""
+    for s, n in zip(start.tolist(), length.tolist(), strict=True):
+        try:
+            msg = decoder(blob[s:s + n].tobytes())
+            names = label_names(str(msg.layout.dim[0].label) if msg.layout.dim else "")
+        except _PAYLOAD_ERRORS:
+            continue
+        if len(set(names)) == len(names) == k:
+            return names
+    return None
