@@ -78,7 +78,7 @@ def rational_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, coef: np.n
             row = int(state[active])
         num = (coef[row, 0] * x + coef[row, 1]) * x + coef[row, 2]
         den = (x + coef[row, 3]) * x + coef[row, 4]
-        out[n] = num / den
+        out[n] = num / den if den != 0.0 else np.nan  # on a pole: no strain, screened
     return out
 
 

@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.direction import STATE_SIZE, DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models.base import Normalisation, Segment
-from strain_comp.models.rational import Rational, fit_rat22
+from strain_comp.models.rational import Rational, fit_rat22, rational_kernel
 
 DIRECTION = DirectionSettings(deadzone=0.05, tau=0.05)
 
@@ -143,3 +143,16 @@ def test_analytic_jacobians_match_finite_differences() -> None:
     np.testing.assert_allclose(_jac_free(z, x),
                                approx_derivative(lambda v: _eval(_free(v), x), z),
                                rtol=1e-6, atol=1e-9)
+
+
+def test_a_sample_on_a_pole_reads_nan_instead_of_raising() -> None:
+    """Found by scripts/fuzz.py: a mutated calibration whose denominator q2 is 0 put a pole
+    at xi = 0; the engine's range probe hit it exactly and numba raised ZeroDivisionError
+    through the loader. On a pole the kernel now gives NaN (screened like any non-finite
+    strain); next to it the strain is the rational's own value."""
+    coef = np.tile([1.0, 2.0, 3.0, 1.0, 0.0], (3, 1))  # den = (xi + 1) xi
+    xi = np.array([0.0, 0.5])
+    out = rational_kernel(np.zeros(STATE_SIZE + 1), np.array([0.0, 0.1]), xi, coef,
+                          False, 0.0, 0.1)
+    assert np.isnan(out[0])
+    assert out[1] == pytest.approx((0.25 + 1.0 + 3.0) / (1.5 * 0.5))
