@@ -106,7 +106,7 @@ def test_steep_sinh_cell_step_is_finite_and_tends_to_its_limit() -> None:
 
 def test_refused_writes_name_the_problem_in_the_users_terms(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The issue's cases: a microstrain reference beyond what a calibration holds, and a
+    """A microstrain reference beyond what a calibration holds, and a
     recalibration through a strain of 1e300: one line, exit 2, nothing written."""
     rec = triangles(1, amplitude=10.0, rest=1000.0, gain=2.0, curve=0.0, lag=0.5, noise=0.0,
                     rate=10.0)
