@@ -580,8 +580,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("replay", "write estimated strain and direction into a new bag",
                 "Run a calibration over a bag as the node would: a new bag with every input "
-                "and /NAME/strain, /NAME/direction, /NAME/status and /diagnostics at each "
-                "input's time; --csv also writes the series as a table.",
+                "and /NAME/strain, /NAME/direction, /NAME/status, /NAME/strain_stamped "
+                "(sensor_msgs/JointState) and /diagnostics at each input's time; --csv also "
+                "writes the series as a table.",
                 "strain-comp replay run3.mcap --calibration s1.yaml --out run3_strain.mcap "
                 "--csv run3_strain.csv")
     p.add_argument("bag", metavar="IN.mcap", help="bag with /NAME/resistance")
