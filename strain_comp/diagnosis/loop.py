@@ -127,6 +127,10 @@ class _Series:
     block: np.ndarray
     s: np.ndarray
     """Reference strain [%]."""
+    extended: np.ndarray
+    """Samples whose estimate the engine extended beyond the valid range: no effect term
+    reads that extension (they read the estimate clamped), so the terms are not fitted
+    there; they are still scored."""
     unsettled: tuple[float, float] = (0.0, 0.0)
     """Seconds left out at the start (the sensor still relaxing there) and the drift seen
     (``strain_comp.core.tare.unsettled_start``)."""
@@ -249,6 +253,7 @@ def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
     for j, reg in enumerate(regressors):  # each online over every sample, then the rows
         g[:, j] = _segmented(reg.run, reg.reset, batch, run.starts)[rows]
     return _Series(e=(corrected + run.beyond[used] - s)[rows], g=g, t=t[rows],
+                   extended=(run.beyond[used] != 0.0)[rows],
                    block=_block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
 
 
@@ -330,10 +335,12 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     fold_of_block = np.cumsum([not (period and b % period == period - 1)
                                for b in range(n_blocks)]) - 1
     n_folds = int(fold_of_block.max()) + 1
-    e_fit = np.concatenate([s.e[~h] for s, h in zip(series, held_out, strict=True)])
-    g_fit = np.concatenate([s.g[~h] for s, h in zip(series, held_out, strict=True)])
-    fold = np.concatenate([fold_of_block[s.block[~h]]
-                           for s, h in zip(series, held_out, strict=True)])
+    # fit rows: not held out, and within the range the terms read
+    fits = [~h & ~s.extended for s, h in zip(series, held_out, strict=True)]
+    e_fit = np.concatenate([s.e[f] for s, f in zip(series, fits, strict=True)])
+    g_fit = np.concatenate([s.g[f] for s, f in zip(series, fits, strict=True)])
+    fold = np.concatenate([fold_of_block[s.block[f]]
+                           for s, f in zip(series, fits, strict=True)])
     gram = Gram(g_fit, e_fit, fold, n_folds)
     scores = candidate_scores(gram, len(names), offset)
 
