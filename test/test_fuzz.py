@@ -103,6 +103,26 @@ def test_regression_fuzz_effect_of_wrong_type(every_model, tmp_path: Path, effec
     assert str(info.value).startswith(f"{path}: sensors.s.{field}: "), str(info.value)
 
 
+def test_regression_fuzz_rational_pole_inside_the_valid_range(every_model,
+                                                               tmp_path: Path) -> None:
+    """Found by scripts/fuzz.py: a mutated denominator put a rational's pole inside its
+    valid range; the engine raised ZeroDivisionError, then read NaN at a good sample. The
+    loader refuses it in one line naming the resistance."""
+    path = tmp_path / "cal.yaml"
+    save_calibration(Calibration({"s": replace(every_model["rational"], name="s")}), path)
+    data = yaml.safe_load(path.read_text())
+    sensor = data["sensors"]["s"]
+    params, norm = sensor["model"]["params"], sensor["normalisation"]
+    lo, hi = sensor["valid_range"]["resistance"]
+    r_mid = 0.5 * (lo + hi)
+    for branch in ("combined", "loading", "unloading"):
+        if branch in params:  # den = (xi - xi_mid) xi: a pole at the middle of the range
+            params[branch]["q"] = [-(r_mid / norm["r0"] + norm["alpha"]), 0.0]
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationError, match=r"no finite strain at R = .* \(a pole\)"):
+        load_calibration(path)
+
+
 def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
     """Float64MultiArray messages on /a/resistance with the given (labels, data), as
     a foreign or damaged recorder might write them (BagWriter refuses such rows)."""

@@ -537,6 +537,10 @@ def parse_calibration(text: str, path: str) -> Calibration:
     calibration = Calibration({str(name): reader.sensor(str(name), node)
                                for name, node in sensors.items()})
     for name, cal in calibration.sensors.items():
+        pole = cal.build_model().singular_in(cal.valid_range.r_lo, cal.valid_range.r_hi)
+        if pole is not None:
+            raise reader.fail(f"sensors.{name}.model", f"has no finite strain at R = "
+                              f"{pole:.6g} ohm, inside its valid range (a pole)")
         where = probe_calibration(cal)
         if where is not None:
             raise reader.fail(f"sensors.{name}", f"gives a non-finite strain ({where}); "

@@ -130,6 +130,11 @@ class Compensator(ABC):
         movement direction (rational, spike_decay) run their own detector with them.
         """
 
+    def singular_in(self, r_lo: float, r_hi: float) -> float | None:
+        """A resistance [ohm] in [r_lo, r_hi] where the model has no finite strain (a
+        rational's pole), or None: the loader refuses a calibration singular in its range."""
+        return None
+
     @classmethod
     @abstractmethod
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,

@@ -222,6 +222,17 @@ class Rational(Compensator):
         den = [1.0, r0 * (2 * al + q1), r0**2 * (al * al + q1 * al + q2)]
         return {"p": [float(v) for v in num], "q": [float(v) for v in den[1:]]}
 
+    def singular_in(self, r_lo: float, r_hi: float) -> float | None:
+        """The first resistance in [r_lo, r_hi] where a branch's denominator has a real root
+        (the fit keeps every branch pole-free there, ``fit_rat22``), or None."""
+        lo, hi = self.normalisation.xi(np.array([r_lo, r_hi]))
+        for row in self.coef:
+            poles = _real_poles(row[3:])
+            inside = poles[(poles >= min(lo, hi)) & (poles <= max(lo, hi))]
+            if inside.size:
+                return float((inside[0] - self.normalisation.alpha) * self.normalisation.r0)
+        return None
+
     def to_params(self) -> dict[str, Any]:
         params: dict[str, Any] = {"mode": self.mode}
         branches = _BRANCHES if self.mode == "split" else ("combined",)
