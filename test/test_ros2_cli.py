@@ -90,14 +90,14 @@ STARTED: list[subprocess.Popen[str]] = []
 @pytest.fixture(autouse=True)
 def no_leftovers() -> Iterator[None]:
     """A test that fails half-way leaves no node or tool running: every process group it
-    started and that still runs is killed."""
+    started is killed, also when its leader has ended (``ros2 launch`` gone, its node
+    still running)."""
     yield
     while STARTED:
         proc = STARTED.pop()
-        if proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):  # the group ended meanwhile
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        with contextlib.suppress(ProcessLookupError):  # the whole group ended meanwhile
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
 
 
 def build(root: Path, env: dict[str, str]) -> Workspace:
