@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -54,3 +55,14 @@ def spin_until(executor: Any, done: Callable[[], bool], timeout: float = 5.0) ->
             return False
         executor.spin_once(timeout_sec=0.01)
     return True
+
+
+def wait_for(log: Path, text: str, proc: subprocess.Popen[str], timeout: float = 90.0) -> str:
+    """Until ``text`` is in the process's ``log`` (which is returned); fails with the log
+    when the process ends first or ``timeout`` [s] passes."""
+    deadline = time.monotonic() + timeout
+    while text not in log.read_text():
+        assert proc.poll() is None, log.read_text()
+        assert time.monotonic() < deadline, f"no {text!r} within {timeout} s: {log.read_text()}"
+        time.sleep(0.05)
+    return log.read_text()

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_env import copy_package, ros_env, use_ros_env
+from ros_env import copy_package, ros_env, use_ros_env, wait_for
 
 ENV = use_ros_env(2)
 
@@ -109,14 +109,6 @@ def start(cmd: list[str], env: dict[str, str], log: Path, cwd: Path | None = Non
     with open(log, "w") as stream:
         return subprocess.Popen(cmd, env=env, stdout=stream, stderr=subprocess.STDOUT,
                                 text=True, cwd=cwd)
-
-
-def wait_for(log: Path, text: str, proc: subprocess.Popen[str], timeout: float = 90.0) -> None:
-    deadline = time.monotonic() + timeout
-    while text not in log.read_text():
-        assert proc.poll() is None, log.read_text()
-        assert time.monotonic() < deadline, f"no {text!r} within {timeout} s: {log.read_text()}"
-        time.sleep(0.05)
 
 
 def stop(proc: subprocess.Popen[str], sig: int = signal.SIGINT) -> tuple[int, float]:

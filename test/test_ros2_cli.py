@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from ros_env import copy_package, ros_env
+from ros_env import copy_package, ros_env, wait_for
 
 from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
 from strain_comp.core.engine import Engine
@@ -143,15 +143,6 @@ def ws(ros2_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> It
 
 SLOTS = range(40, 46)
 """Test slots (ros_env domain ids) of this module."""
-
-
-def wait_for(log: Path, text: str, proc: subprocess.Popen[str], timeout: float = 90.0) -> str:
-    deadline = time.monotonic() + timeout
-    while text not in log.read_text():
-        assert proc.poll() is None, log.read_text()
-        assert time.monotonic() < deadline, f"no {text!r} within {timeout} s: {log.read_text()}"
-        time.sleep(0.1)
-    return log.read_text()
 
 
 def ctrl_c(proc: subprocess.Popen[str], log: Path) -> list[str]:
