@@ -68,7 +68,7 @@ HEADLINE_FORMS = {"recal": ("output",), "span": ("input",), "span_recal": ("inpu
 TARGET_MEDIAN, TARGET_WORST = 1.3, 2.5
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
-ENGINE = {"out_of_range": "extend", "tracking": "off"}
+ENGINE = {"out_of_range": "extend", "tracking": "on"}
 """Engine options of every evaluation (``--out-of-range``)."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
 
@@ -468,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
                         default="extend",
                         help="evaluate's --out-of-range")
-    parser.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
+    parser.add_argument("--baseline-tracking", choices=("off", "on"), default="on",
                         help="evaluate's --baseline-tracking")
     parser.add_argument("--json", type=Path, help="write the results here "
                         "(default OUT/generalisation.json)")

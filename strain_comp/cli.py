@@ -242,10 +242,9 @@ def _progress(args: argparse.Namespace) -> Callable[[int, int, str], None] | Non
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from strain_comp.offline.batch import MAX_JOBS, expand_bags
+    from strain_comp.offline.batch import check_jobs, expand_bags
 
-    if not 1 <= args.jobs <= MAX_JOBS:
-        raise InputError(f"--jobs {args.jobs}: must be 1 to {MAX_JOBS}")
+    check_jobs(args.jobs)  # before any bag is read
     for bag in args.bags:
         _bag(bag)
     _existing(args.calibration, "calibration file")
@@ -441,9 +440,9 @@ def cmd_play(args: argparse.Namespace) -> int:
 
 
 def _tracking_flag(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
+    p.add_argument("--baseline-tracking", choices=("off", "on"), default="on",
                    help="let the rest level follow slowly while the sensor rests "
-                   "(zero-tracking after OIML R76: at hold, near rest, bounded rate; off "
+                   "(zero-tracking after OIML R76: at hold, near rest, bounded rate; on "
                    "by default, see docs/generalisation.md)")
 
 

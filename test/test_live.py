@@ -17,14 +17,15 @@ from strain_comp.ros.live import ClockGate, LiveCompensator, array_values
 from strain_comp.ros.params import parse_values
 
 
-def live(tmp_path: Path, *, tare: str = "calibration",
-         rest: float | None = 150.0) -> LiveCompensator:
+def live(tmp_path: Path, *, tare: str = "calibration", rest: float | None = 150.0,
+         tracking: str = "on") -> LiveCompensator:
     from strain_comp.core.calibration import save_calibration
 
     save_calibration(Calibration({"s1": replace(cubic_cal("s1"), rest_resistance=rest)}),
                      tmp_path / "c.yaml")
     return LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml",
-                                         "tare": tare}, base_dir=tmp_path), warm_up=False)
+                                         "tare": tare, "baseline_tracking": tracking},
+                                        base_dir=tmp_path), warm_up=False)
 
 
 def test_clock_gate_gives_each_input_its_own_tick() -> None:
@@ -193,7 +194,7 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
 def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
     """``~/tare`` within the first seconds of ``tare: auto``: its zero stays, no automatic
     tare follows, and nothing more is logged for one."""
-    node = live(tmp_path, tare="auto")
+    node = live(tmp_path, tare="auto", tracking="off")  # on, the zero would follow the rest
     for ti in np.arange(0.0, 1.0, 0.01):
         node.on_sensor("s1", float(ti), 140.0)
     node.tare()

@@ -33,6 +33,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from strain_comp.core.calibration import load_calibration, save_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
+from strain_comp.core.tracking import BaselineTracker  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.player import bag_messages  # noqa: E402
 
@@ -170,7 +171,7 @@ def test_relative_names_follow_the_namespace(context: Any) -> None:
         h.close()
 
 
-def test_outputs_equal_replay_in_sim_time(single: Harness) -> None:
+def test_outputs_equal_replay_in_sim_time(single: Harness, tmp_path: Path) -> None:
     from strain_comp.io.bag import read_bag
 
     messages = [m for m in bag_messages(ROOT / "bags/demo_rates.mcap", ["/s1/resistance"])]
@@ -184,8 +185,9 @@ def test_outputs_equal_replay_in_sim_time(single: Harness) -> None:
         assert single.feed(pub, m.data, strain, m.log_time_ns)
     assert single.spin_until(lambda: len(direction) == N_BAG and len(stamped) == N_BAG)
     series = read_bag(ROOT / "bags/demo_rates.mcap").series["/s1/resistance"]
-    engine = Engine(load_calibration(CONFIG / "demo_calibration.yaml"))
-    truth = engine.run("s1", series.t[:N_BAG], np.asarray(series.values).reshape(-1)[:N_BAG])
+    engine = Engine(load_calibration(tmp_path / "demo_calibration.yaml"))  # single's
+    truth = BaselineTracker(engine).run(  # the node's default: baseline tracking on
+        "s1", series.t[:N_BAG], np.asarray(series.values).reshape(-1)[:N_BAG])
     got = np.array([m.data for m in strain])
     np.testing.assert_allclose(got, truth.strain, rtol=0, atol=1e-9)
     np.testing.assert_array_equal([m.data for m in direction], truth.direction)

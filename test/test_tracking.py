@@ -41,7 +41,7 @@ def test_a_rest_level_that_falls_after_each_release_is_followed(cubic: Calibrati
     released = np.clip(np.floor((t - 10.0) / 20.0), 0.0, None)  # releases so far
     rest_fall = 1.0 - 0.01 * released  # the rest falls 1 % after every release
     rec = Recording("s1", t, gauge(s) * rest_fall, s)
-    off = evaluate_recordings({"s1": rec}, cubic).sensors["s1"]
+    off = evaluate_recordings({"s1": rec}, cubic, tracking="off").sensors["s1"]
     on = evaluate_recordings({"s1": rec}, cubic, tracking="on").sensors["s1"]
     at_rest = (s == 0.0) & (t > 100.0)
     err_off = np.sqrt(np.mean((off.estimate - s)[at_rest] ** 2))
@@ -64,3 +64,38 @@ def test_a_held_strain_is_not_tracked(cubic: Calibration) -> None:
     rec = Recording("s1", t, gauge(s), s)
     on = evaluate_recordings({"s1": rec}, cubic, tracking="on").sensors["s1"]
     assert on.tracking == {"seconds": 0.0, "correction": 0.0}
+
+
+def test_a_calibration_that_reads_its_rest_as_a_strain_is_not_tracked(
+        cubic: Calibration) -> None:
+    """A rest resistance the map reads as 10 % strain (taken while the sensor still relaxed,
+    say): following it would move the zero, so nothing is tracked; the true rest is."""
+    from dataclasses import replace
+
+    from strain_comp.core.tracking import BAND, rest_is_read_as_rest
+
+    sensor = cubic.sensors["s1"]
+    assert rest_is_read_as_rest(sensor, R0, BAND)
+    assert not rest_is_read_as_rest(sensor, float(gauge(np.array(10.0))), BAND)
+    wrong = Calibration({"s1": replace(sensor, rest_resistance=float(gauge(np.array(10.0))))})
+    t = np.arange(0.0, 60.0, 0.1)
+    rec = Recording("s1", t, np.full(t.size, 0.97 * R0), np.zeros(t.size))  # a fallen rest
+    assert evaluate_recordings({"s1": rec}, cubic).sensors["s1"].tracking["correction"] > 0
+    on = evaluate_recordings({"s1": rec}, wrong).sensors["s1"]
+    assert on.tracking == {"seconds": 0.0, "correction": 0.0}
+
+
+def test_a_rest_on_the_strain_side_only_undoes_the_trackers_own_correction(
+        cubic: Calibration) -> None:
+    """A rest that fell (R 3 % low) is followed; when it comes back, the correction is
+    undone to none and no further; a rest reading a small strain is never followed."""
+    t = np.arange(0.0, 120.0, 0.1)
+    fell = np.where(t < 40.0, 0.97 * R0, R0)  # fallen, then back where it was
+    back = evaluate_recordings({"s1": Recording("s1", t, fell, np.zeros(t.size))}, cubic)
+    tracked = back.sensors["s1"].tracking
+    assert tracked is not None and tracked["seconds"] == pytest.approx(2 * 0.03 / 0.002 / 0.97,
+                                                                      abs=0.5)  # there, back
+    assert tracked["correction"] == pytest.approx(0.0, abs=1e-12)
+    risen = np.full(t.size, float(gauge(np.array(0.5))))  # reads 0.5 % strain
+    held = evaluate_recordings({"s1": Recording("s1", t, risen, np.zeros(t.size))}, cubic)
+    assert held.sensors["s1"].tracking == {"seconds": 0.0, "correction": 0.0}

@@ -8,11 +8,19 @@ calibration's rest again, but only:
 
 * while the direction detector says hold (0) over a whole ``CHUNK_SECONDS`` stretch of used
   samples (no movement),
-* when that stretch reads at rest: its estimate within ``BAND`` of the calibrated strain
-  span of the fitted rest strain, or its resistance at or beyond the calibrated rest on the
-  rest side (below it for a sensor whose R rises with strain: a rest that fell after a
-  release reads below the calibrated range and pins the estimate to the range floor),
-* by at most ``RATE`` of the rest level per second.
+* when that stretch reads a rest that moved to the rest side: its resistance at or beyond
+  the calibrated rest on the rest side (below it for a sensor whose R rises with strain:
+  a rest that fell after a release reads below the calibrated range and pins the
+  estimate to the range floor) and its estimate at most ``BAND`` of the calibrated strain
+  span above the fitted rest strain (a resistance that peaks and falls with strain, as
+  carbon black's, reads a rest resistance at a large strain). A stretch on the strain side
+  only undoes the tracker's own correction (where it would read at or beyond the rest
+  without it: the rest came back), never beyond it: a rest that rose, a held small strain
+  and a resistance still relaxing down after an unload (carbon black) read the same, and a
+  strain is never tracked,
+* by at most ``RATE`` of the rest level per second,
+* and only for a calibration that reads its own rest resistance as its rest strain
+  (``rest_is_read_as_rest``).
 
 A held strain (detector at hold, estimate far from rest) is never tracked. The engine runs
 the samples in stretches of ``CHUNK_SECONDS``; its state carries from one to the next
@@ -31,18 +39,22 @@ from strain_comp.core.tare import REST_BAND
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:
-    from strain_comp.core.calibration import ValidRange
+    from strain_comp.core.calibration import SensorCalibration, ValidRange
     from strain_comp.core.engine import BatchOutput, Engine, SensorOutput
 
 TRACKING_MODES = ("off", "on")
-"""Baseline tracking off (default: the benchmark shows no gain, docs/generalisation.md)
-or on."""
+"""Baseline tracking off or on."""
+DEFAULT_TRACKING = "on"
+"""The default of evaluate, replay and the node, chosen on ``scripts/generalisation.py``
+(docs/generalisation.md: lower or equal medians on every model)."""
 CHUNK_SECONDS = 1.0
 """Length of the stretches the tracker judges [s]."""
 BAND = REST_BAND
 """An estimate within this share of the calibrated strain span of the rest strain is rest."""
 RATE = 0.002
 """Largest change of the rest level per second (share of it)."""
+SETTLE_SECONDS = 20.0
+"""Seconds at the rest resistance before its reading is taken (``rest_is_read_as_rest``)."""
 
 
 def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
@@ -62,6 +74,23 @@ def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
     return valid_range.s_lo + RANGE_MARGIN * span, span
 
 
+def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -> bool:
+    """Whether ``cal``, run from a fresh state for ``SETTLE_SECONDS`` at the measured
+    resistance ``raw_rest`` that it maps to its rest resistance, reads the fitted rest
+    strain within ``band`` of the strain span. Tracking moves the rest toward that
+    resistance; where the map reads it as a strain (a rest resistance taken while the
+    sensor still relaxed, a map that is flat near rest), tracking would move the zero."""
+    from strain_comp.core.calibration import Calibration
+    from strain_comp.core.engine import Engine
+
+    t = np.arange(0.0, SETTLE_SECONDS, 0.1)
+    if not (raw_rest > 0 and math.isfinite(raw_rest)):
+        return False
+    out = Engine(Calibration({cal.name: cal})).run(cal.name, t, np.full(t.size, raw_rest))
+    s_rest, s_span = fitted_rest(cal.valid_range)
+    return bool(abs(float(out.strain[-1]) - s_rest) <= band * s_span)
+
+
 @dataclass
 class BaselineTracker:
     """Tracks the rest level of every sensor of ``engine`` it is asked to run."""
@@ -69,9 +98,17 @@ class BaselineTracker:
     engine: Engine
     rate: float = RATE
     band: float = BAND
-    pending: dict[str, list[tuple[float, float, int, int, float]]] = field(
-        default_factory=dict)
-    """Per sensor, the stepped samples of its current stretch (``observe``)."""
+    pending: dict[str, list[tuple[np.ndarray, BatchOutput]]] = field(default_factory=dict)
+    """Per sensor, the samples of its current stretch, not yet judged."""
+    reads_rest: dict[str, bool] = field(default_factory=dict)
+    """Per sensor, whether its calibration reads its own rest resistance as the rest
+    strain (``rest_is_read_as_rest``); a sensor whose does not is never tracked."""
+    applied: dict[str, float] = field(default_factory=dict)
+    """Per sensor, the product of the gain factors the tracker applied."""
+    origin: dict[str, float] = field(default_factory=dict)
+    """Per sensor, the time of its first sample: stretches of ``CHUNK_SECONDS`` are counted
+    from it, so a run in one batch, in streamed windows (replay) or sample by sample (the
+    node) is tracked alike."""
 
     def run(self, name: str, t: np.ndarray, r: np.ndarray,
             temperature: np.ndarray | None = None) -> BatchOutput:
@@ -81,28 +118,39 @@ class BaselineTracker:
         t = np.asarray(t, dtype=np.float64)
         if t.size == 0:
             return self.engine.run(name, t, r, temperature)
-        edges = np.flatnonzero(np.diff(np.floor((t - t[0]) / CHUNK_SECONDS))) + 1
+        origin = self.origin.setdefault(name, float(t[0]))
+        edges = np.flatnonzero(np.diff(np.floor((t - origin) / CHUNK_SECONDS))) + 1
         outs = []
         for a, b in zip([0, *edges.tolist()], [*edges.tolist(), t.size], strict=True):
+            self.advance(name, float(t[a]))
             temp = None if temperature is None else temperature[a:b]
             out = self.engine.run(name, t[a:b], np.asarray(r)[a:b], temp)
-            self.update(name, t[a:b], out)
+            self.pending.setdefault(name, []).append((t[a:b], out))
             outs.append(out)
         return concatenate(outs)
 
+    def advance(self, name: str, t: float) -> None:
+        """Before samples from ``t`` on are run: if ``t`` starts a new stretch, judge the
+        stretch kept so far (``update``), so its correction applies from ``t`` on."""
+        from strain_comp.core.engine import concatenate
+
+        kept = self.pending.get(name)
+        origin = self.origin.setdefault(name, t)
+        if kept and (np.floor((t - origin) / CHUNK_SECONDS)
+                     != np.floor((kept[0][0][0] - origin) / CHUNK_SECONDS)):
+            ts = np.concatenate([k[0] for k in kept])
+            out = concatenate([k[1] for k in kept])
+            kept.clear()
+            self.update(name, ts, out)
+
     def observe(self, name: str, t: float, out: SensorOutput, ohm: float) -> None:
-        """One stepped sample (the node): kept until its stretch of ``CHUNK_SECONDS`` is
-        complete, which is then judged as in ``run``. ``ohm``: what the model read
-        (``Engine.model_input``)."""
+        """One stepped sample (the node; ``advance`` first), kept until its stretch is
+        judged. ``ohm``: what the model read (``Engine.model_input``)."""
         from strain_comp.core.engine import BatchOutput
 
-        kept = self.pending.setdefault(name, [])
-        if kept and np.floor((t - kept[0][0]) / CHUNK_SECONDS) > 0:
-            ts, strain, direction, status, r = (np.array(c) for c in zip(*kept, strict=True))
-            kept.clear()
-            self.update(name, ts, BatchOutput(strain, direction, status.astype(np.int8),
-                                              np.zeros(ts.size, bool), r))
-        kept.append((t, out.strain, out.direction, int(out.status), ohm))
+        self.pending.setdefault(name, []).append((np.array([t]), BatchOutput(
+            np.array([out.strain]), np.array([out.direction]),
+            np.array([int(out.status)], np.int8), np.zeros(1, bool), np.array([ohm]))))
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""
@@ -122,16 +170,27 @@ class BaselineTracker:
         level = float(np.median(np.asarray(out.resistance)[used]))
         s_rest, s_span = fitted_rest(cal.valid_range)
         estimate = float(np.median(np.asarray(out.strain)[used]))
-        below = (level - rest) * cal.direction.sign <= 0.0
-        if not (below or abs(estimate - s_rest) <= self.band * s_span):
-            return
         k, c = cal.input.span_map()
+        applied = self.applied.get(name, 1.0)
+        sign = cal.direction.sign
+        below = (level - rest) * sign <= 0.0
+        if below and estimate - s_rest > self.band * s_span:
+            return  # read as a strain: a resistance that peaks and falls (carbon black)
+        if not below and (applied == 1.0 or (c + (level - c) / applied - rest) * sign > 0.0):
+            return  # on the strain side without the tracker's correction too: never tracked
+        if name not in self.reads_rest:
+            self.reads_rest[name] = rest_is_read_as_rest(cal, (rest - c) / k, self.band)
+        if not self.reads_rest[name]:
+            return
         gain = self.engine.input_gain(name)
         raw = (level - c) / (k * gain)  # the measured resistance at this rest
         if not (raw > 0 and math.isfinite(raw)):
             return
         target = (rest - c) / (k * raw)
         step = self.rate * duration
-        new = gain * float(np.clip(target / gain, 1.0 - step, 1.0 + step))
-        if new != gain:
-            self.engine.track_baseline(name, new, duration)
+        factor = float(np.clip(target / gain, 1.0 - step, 1.0 + step))
+        if not below and (applied * factor - 1.0) * (applied - 1.0) < 0.0:
+            factor = 1.0 / applied  # the tracker's correction undone, no further
+        if factor != 1.0:
+            self.applied[name] = applied * factor
+            self.engine.track_baseline(name, gain * factor, duration)

@@ -30,6 +30,7 @@ from typing import Any
 
 from strain_comp.core.calibration import load_calibration, strain_unit_words
 from strain_comp.core.metrics import ErrorAccumulator
+from strain_comp.core.tracking import DEFAULT_TRACKING
 from strain_comp.errors import InputError, StrainCompError
 from strain_comp.offline.evaluate import EvaluationResult, format_notes, format_table
 from strain_comp.offline.series import SeriesCSV
@@ -77,7 +78,7 @@ class BagOutcome:
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
                   inputs: Sequence[str], out_of_range: str = "extend",
-                  tracking: str = "off") -> BagOutcome:
+                  tracking: str = DEFAULT_TRACKING) -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
     ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
     (a pool worker)."""
@@ -134,16 +135,21 @@ def _context() -> BaseContext:
     return get_context("fork" if sys.platform == "linux" else "spawn")
 
 
+def check_jobs(jobs: int) -> None:
+    """InputError unless ``jobs`` is 1 to ``MAX_JOBS``."""
+    if not 1 <= jobs <= MAX_JOBS:
+        raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
+
+
 def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "calibration",
                   jobs: int = 1, plot_points: int = 0, in_run: bool = False,
                   plots: str | None = None, series: SeriesCSV | None = None,
                   progress: Callable[[int, int, str], None] | None = None,
-                  out_of_range: str = "extend", tracking: str = "off"
+                  out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING
                   ) -> list[BagOutcome]:
     """Every bag evaluated (module docstring), in the order given; ``jobs`` > 1 runs them
     in a pool of that many processes. ``progress(done, total, bag)`` after each bag."""
-    if not 1 <= jobs <= MAX_JOBS:
-        raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
+    check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = _plot_dirs(bags, plots)
     outcomes: list[BagOutcome] = []

@@ -38,7 +38,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
-from strain_comp.core.tracking import tracker_for
+from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -127,7 +127,7 @@ def _json_number(value: float | int) -> float | int | None:
 
 def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         tare: str = "calibration", out_of_range: str = "extend",
-                        tracking: str = "off") -> EvaluationResult:
+                        tracking: str = DEFAULT_TRACKING) -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
     ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
@@ -411,7 +411,7 @@ class _Stream:
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int, series: SeriesCSV | None = None, bag: str = "",
-                 tracking: str = "off") -> None:
+                 tracking: str = DEFAULT_TRACKING) -> None:
         self.calibration = calibration
         self.series = series
         self.bag = bag
@@ -595,7 +595,7 @@ class _Stream:
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
                  plot_points: int = 0, series: SeriesCSV | None = None,
-                 out_of_range: str = "extend", tracking: str = "off",
+                 out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next

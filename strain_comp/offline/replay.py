@@ -39,7 +39,7 @@ from strain_comp.core.engine import (
     health_at,
 )
 from strain_comp.core.tare import tare_engine
-from strain_comp.core.tracking import tracker_for
+from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -99,7 +99,7 @@ class _Replay:
 
     def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
                  period: float, tare: str, series: SeriesCSV | None = None,
-                 tracking: str = "off") -> None:
+                 tracking: str = DEFAULT_TRACKING) -> None:
         self.calibration = calibration
         self.series = series
         self.pending: dict[str, PendingSeries] = {}
@@ -269,7 +269,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                window: int = WINDOW, tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
-               tracking: str = "off") -> ReplaySummary:
+               tracking: str = DEFAULT_TRACKING) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
     calibration file) is refused before anything is read.

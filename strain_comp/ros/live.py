@@ -223,6 +223,8 @@ class LiveCompensator:
     def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
         """Feed one resistance message; the output to publish, or None (rate limited, or no
         estimate yet: a bad sample before any good one holds no finite strain)."""
+        if self.tracker is not None:
+            self.tracker.advance(name, t)
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         if self.tracker is not None:
             self.tracker.observe(name, t, out, self.engine.model_input(name, value))

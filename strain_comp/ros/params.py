@@ -43,7 +43,7 @@ import yaml
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
 from strain_comp.core.engine import GAP_RESET
-from strain_comp.core.tracking import TRACKING_MODES
+from strain_comp.core.tracking import DEFAULT_TRACKING, TRACKING_MODES
 from strain_comp.errors import InputError, ParameterError
 
 PACKAGE = "strain_comp"
@@ -100,9 +100,10 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
              ParamSpec("executor", "string", "events", None,
                        "events: rclpy's EventsExecutor (about 3x less CPU per message); "
                        "single_threaded: rclpy's SingleThreadedExecutor.", True),
-             ParamSpec("baseline_tracking", "string", "off", None,
-                       "off, or on: the rest level of each single sensor follows slowly while "
-                       "it rests (zero-tracking after OIML R76; shown in /diagnostics).",
+             ParamSpec("baseline_tracking", "string", DEFAULT_TRACKING, None,
+                       "on (default) or off: the rest level of each single sensor follows "
+                       "slowly where it fell while the sensor rests (zero-tracking after OIML "
+                       "R76; shown in /diagnostics).",
                        True)]
     for name in sensors:
         specs += [ParamSpec(f"{name}.topic", "string", f"{name}/resistance", None,
@@ -153,7 +154,7 @@ class NodeParams:
     tunables: dict[str, float] = field(default_factory=dict)
     tare: str = "calibration"
     executor: str = "events"
-    baseline_tracking: str = "off"
+    baseline_tracking: str = DEFAULT_TRACKING
     """``off`` or ``on``: the rest level follows at rest (``strain_comp.core.tracking``)."""
 
     @property
@@ -282,7 +283,7 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
             raise ParameterError(key, unknown_hint(key, known, sensors + arrays))
     tare = _choice(flat, "tare", "calibration", TARE_MODES)
     executor = _choice(flat, "executor", "events", EXECUTORS)
-    tracking = _choice(flat, "baseline_tracking", "off", TRACKING_MODES)
+    tracking = _choice(flat, "baseline_tracking", DEFAULT_TRACKING, TRACKING_MODES)
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
