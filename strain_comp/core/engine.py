@@ -196,6 +196,9 @@ class SensorOutput:
     direction: int
     status: Status
     out_of_range: bool
+    resistance: float = math.nan
+    """The resistance [ohm] the model read (as ``BatchOutput.resistance``); NaN for a bad
+    sample."""
 
 
 @dataclass(frozen=True)
@@ -646,11 +649,6 @@ class Engine:
             if sensor in group.names and group.kernel is not None:
                 group.set_gain(group.names.index(sensor), float(gain))
 
-    def model_input(self, sensor: str, raw: float) -> float:
-        """The resistance [ohm] a raw input value reaches the model as (converted, times
-        the tare gain, through the input zero and span; before the pair statistic)."""
-        return float(self._sensor(sensor).to_ohm(np.array([float(raw)]))[0][0])
-
     def track_baseline(self, sensor: str, gain: float, seconds: float) -> None:
         """``set_input_gain`` by baseline tracking after ``seconds`` at rest: counted in
         the sensor's health (``baseline_tracked_s``, ``baseline_correction``)."""
@@ -759,7 +757,7 @@ class Engine:
         h.count(status)
         h.last_good_t = t
         h.last_status = status
-        return SensorOutput(strain, direction, status, status is Status.OUT_OF_RANGE)
+        return SensorOutput(strain, direction, status, status is Status.OUT_OF_RANGE, raw)
 
     def run(self, sensor: str, t: npt.ArrayLike, r: npt.ArrayLike,
             temperature: npt.ArrayLike | None = None, *,

@@ -143,14 +143,15 @@ class BaselineTracker:
             kept.clear()
             self.update(name, ts, out)
 
-    def observe(self, name: str, t: float, out: SensorOutput, ohm: float) -> None:
+    def observe(self, name: str, t: float, out: SensorOutput) -> None:
         """One stepped sample (the node; ``advance`` first), kept until its stretch is
-        judged. ``ohm``: what the model read (``Engine.model_input``)."""
+        judged."""
         from strain_comp.core.engine import BatchOutput
 
         self.pending.setdefault(name, []).append((np.array([t]), BatchOutput(
             np.array([out.strain]), np.array([out.direction]),
-            np.array([int(out.status)], np.int8), np.zeros(1, bool), np.array([ohm]))))
+            np.array([int(out.status)], np.int8), np.zeros(1, bool),
+            np.array([out.resistance]))))
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""

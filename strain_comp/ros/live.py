@@ -227,7 +227,7 @@ class LiveCompensator:
             self.tracker.advance(name, t)
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         if self.tracker is not None:
-            self.tracker.observe(name, t, out, self.engine.model_input(name, value))
+            self.tracker.observe(name, t, out)
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
         if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
