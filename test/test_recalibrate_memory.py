@@ -12,6 +12,8 @@ for this sensor spans a fraction of the strain range, must not decide the span.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -61,7 +63,7 @@ def session(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 @pytest.mark.parametrize("gain", [GAIN, 1.0 / GAIN])
 def test_input_span_of_a_memory_model_recovers_a_sensitivity_change(gain: float,
-                                                                       tmp_path) -> None:
+                                                                       tmp_path: Path) -> None:
     cal = truth()
     t, r, s = session(cal)
     moved = Recording("s1", t, REST + gain * (r - 1.0), s)

@@ -31,8 +31,12 @@ k = (R'_2 - R'_1) / (R_2 - R_1), R_rest,run = R_1. From a bag's first ``first`` 
 within ``REST_BAND`` of its minimum, ``rest_resistance_from_reference``), point 2 the
 samples within ``REST_BAND`` of the reference's maximum (medians of R and S). The measured
 points may lie outside the calibrated resistance range: a sensor that became more
-sensitive is what the input form is for. A new input form replaces an older one (both map
-measured resistance); the output gain and offset are kept.
+sensitive is what the input form is for. A memory model (one that does not follow its
+steady outputs along a slow ramp, ``follows_steady_curve``) is not on its held map in
+use: its rest point is read on its unloading branch and the stretch on its loading branch
+(``branches``, ``span_on_branches``), and the span is then refined by least squares of
+the engine's output over the cycle (``span_through_run``). A new input form replaces an
+older one (both map measured resistance); the output gain and offset are kept.
 """
 
 from __future__ import annotations
