@@ -81,3 +81,18 @@ def test_input_span_of_a_memory_model_recovers_a_sensitivity_change(gain: float,
     save_calibration(spanned, tmp_path / "spanned.yaml")
     assert load_calibration(tmp_path / "spanned.yaml").sensors["s1"].input.zero_span == \
         pytest.approx((rest, rest_cal, k))
+
+
+def test_branch_resistance_inverts_a_branch_and_takes_the_nearest_output_beyond_it() -> None:
+    """Truth: a branch S = 10 (R - 1) on R in [1, 2] with a dip below its end value: the
+    first crossing from the rest end, linear between grid points; a strain the branch never
+    outputs reads at the resistance of its nearest output."""
+    from strain_comp.offline.recalibrate import branch_resistance
+
+    grid = np.linspace(1.0, 2.0, 11)
+    out = 10.0 * (grid - 1.0)
+    assert branch_resistance(grid, out, 4.25) == pytest.approx(1.425)
+    assert branch_resistance(grid, out, 12.0) == pytest.approx(2.0)
+    dipped = out.copy()
+    dipped[:3] = [2.0, 1.5, 2.5]
+    assert branch_resistance(grid, dipped, 0.0) == pytest.approx(1.1)

@@ -35,8 +35,10 @@ sensitive is what the input form is for. A memory model (one that does not follo
 steady outputs along a slow ramp, ``follows_steady_curve``) is not on its held map in
 use: its rest point is read on its unloading branch and the stretch on its loading branch
 (``branches``, ``span_on_branches``), and the span is then refined by least squares of
-the engine's output over the cycle (``span_through_run``). A new input form replaces an
-older one (both map measured resistance); the output gain and offset are kept.
+the engine's output over the cycle (``span_through_run``); a static model's point whose
+strain its held map never outputs is read at the map's nearest output
+(``span_of_first_cycle``). A new input form replaces an older one (both map measured
+resistance); the output gain and offset are kept.
 """
 
 from __future__ import annotations
@@ -261,9 +263,10 @@ def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float
 def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                      grid: np.ndarray, branch: tuple[np.ndarray, np.ndarray],
                      ) -> tuple[float, float, float]:
-    """The input zero and span of a memory model through two measured (R, S) points: the
-    rest point read on the unloading branch, the stretch on the loading branch
-    (``branches``)."""
+    """The input zero and span through two measured (R, S) points read on two branches of
+    outputs over ``grid`` (``branch_resistance``): the rest point on the first (a memory
+    model's unloading branch, ``branches``), the stretch on the second (its loading
+    branch); a static model's held map for both."""
     (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
     c1 = branch_resistance(grid, branch[0], s1)
     c2 = branch_resistance(grid, branch[1], s2)
@@ -273,6 +276,29 @@ def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float
                          "against the calibration's direction (span gain "
                          f"{k:.4g} must be > 0)")
     return r1, c1, float(k)
+
+
+def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle ``rec``
+    (``points_from_first_cycle``). A static model: its held map inverted at the two points
+    (``span_from_points``); where the map never outputs a point's strain, the resistance
+    of its nearest output (the output map made after the span corrects what remains). A
+    memory model: the two points read on its branches (``span_on_branches``), then the
+    span refined through the run (``span_through_run``)."""
+    if rec.s is None:
+        raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
+    curve = steady_curve(cal)
+    if follows_steady_curve(cal, curve):
+        points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                         top=float(curve[1].max()))
+        try:
+            return span_from_points(cal, points, curve)
+        except InputError:
+            return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
+    branch = branches(cal, curve[0])
+    points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                     top=float(branch[1].max()))
+    return span_through_run(cal, rec, span_on_branches(cal, points, curve[0], branch))
 
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
@@ -396,17 +422,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
                                                                      name not in sensors):
                 continue
             cal = calibration.sensors[name]
-            curve = steady_curve(cal)
-            if follows_steady_curve(cal, curve):
-                points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
-                                                 top=float(curve[1].max()))
-                span = span_from_points(cal, points, curve)
-            else:
-                branch = branches(cal, curve[0])
-                points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
-                                                 top=float(branch[1].max()))
-                span = span_on_branches(cal, points, curve[0], branch)
-                span = span_through_run(cal, rec, span)
+            span = span_of_first_cycle(cal, rec)
             out[name] = apply_span(cal, span, {"from": source, "first": first})
             lines.append(f"{name}: {span_reading(span)} (from {where})")
         if not lines:
