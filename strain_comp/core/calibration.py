@@ -49,7 +49,7 @@ import math
 import os
 import stat
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -564,13 +564,16 @@ def probe_resistance(cal: SensorCalibration) -> tuple[Any, Any]:
 
 def probe_calibration(cal: SensorCalibration) -> str | None:
     """Where the engine gives a non-finite strain on this sensor's probe
-    (``probe_resistance``, with a temperature of 25 deg C), or None."""
+    (``probe_resistance``, with a temperature of 25 deg C), or None. The probe is the
+    resistance the model reads: an input zero and span (an affine map checked on its own)
+    is left out, else a probe value it maps below the short level is screened out."""
     import numpy as np
 
     from strain_comp.core.engine import Engine
 
-    probe = SensorCalibration(**{**vars(cal), "effects": [
-        e for e in cal.effects if e.get("kind") != "crosstalk"]})
+    probe = SensorCalibration(**{**vars(cal), "input": replace(cal.input, zero_span=None),
+                                 "effects": [e for e in cal.effects
+                                             if e.get("kind") != "crosstalk"]})
     engine = Engine(Calibration({cal.name: probe}))
     t, r = probe_resistance(cal)
     with np.errstate(all="ignore"):

@@ -31,8 +31,14 @@ k = (R'_2 - R'_1) / (R_2 - R_1), R_rest,run = R_1. From a bag's first ``first`` 
 within ``REST_BAND`` of its minimum, ``rest_resistance_from_reference``), point 2 the
 samples within ``REST_BAND`` of the reference's maximum (medians of R and S). The measured
 points may lie outside the calibrated resistance range: a sensor that became more
-sensitive is what the input form is for. A new input form replaces an older one (both map
-measured resistance); the output gain and offset are kept.
+sensitive is what the input form is for. A memory model (one that does not follow its
+steady outputs along a slow ramp, ``follows_steady_curve``) is not on its held map in
+use: its rest point is read on its unloading branch and the stretch on its loading branch
+(``branches``, ``span_on_branches``), and the span is then refined by least squares of
+the engine's output over the cycle (``span_through_run``); a static model's point whose
+strain its held map never outputs is read at the map's nearest output
+(``span_of_first_cycle``). A new input form replaces an older one (both map measured
+resistance); the output gain and offset are kept.
 """
 
 from __future__ import annotations
@@ -208,22 +214,91 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
                    provenance={**cal.provenance, "recalibrations": history})
 
 
+def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
+    """The calibration's output along a slow ramp over ``grid`` and back (10 Hz, from a
+    fresh state at the rest end; an existing input zero and span left out)."""
+    from strain_comp.core.engine import Engine
+
+    bare = replace(cal, input=replace(cal.input, zero_span=None))
+    path = np.concatenate([grid, grid[::-1]])
+    return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
+                                                     path).strain
+
+
 def follows_steady_curve(cal: SensorCalibration,
                          curve: tuple[np.ndarray, np.ndarray]) -> bool:
     """True when the calibration's output along a slow ramp over its resistance range and
-    back (10 Hz, ``steady_curve``'s grid) is its steady output at each resistance within
-    ``STATIC_TOLERANCE`` of the strain span: a static map, which two points invert
-    exactly. A model with memory is on a loading or unloading branch in use instead."""
-    from strain_comp.core.engine import Engine
-
+    back (``ramp_output`` on ``steady_curve``'s grid) is its steady output at each
+    resistance within ``STATIC_TOLERANCE`` of the strain span: a static map, which two
+    points invert exactly. A model with memory is on a loading or unloading branch in use
+    instead."""
     grid, steady = curve
-    bare = replace(cal, input=replace(cal.input, zero_span=None))
-    path = np.concatenate([grid, grid[::-1]])
-    out = Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
-                                                    path).strain
+    out = ramp_output(cal, grid)
     span = cal.valid_range.s_hi - cal.valid_range.s_lo
     return bool(np.max(np.abs(out - np.concatenate([steady, steady[::-1]])))
                 <= STATIC_TOLERANCE * span)
+
+
+def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unloading, loading) outputs of a memory model on ``grid`` (from its rest end): a
+    slow ramp up, down and up again; the unloading branch from the top, the loading branch
+    after that full unload, as a sensor at the start of a session was last unloaded."""
+    n = grid.size
+    out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
+    return out[n:2 * n][::-1], out[2 * n:3 * n]
+
+
+def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float:
+    """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end
+    (linear between grid points), else the grid point of the nearest output."""
+    d = out - strain
+    cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
+    if not cross.size:
+        return float(grid[int(np.argmin(np.abs(d)))])
+    j = int(cross[0])
+    w = d[j] / (d[j] - d[j + 1]) if d[j] != d[j + 1] else 0.0
+    return float(grid[j] + w * (grid[j + 1] - grid[j]))
+
+
+def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
+                     grid: np.ndarray, branch: tuple[np.ndarray, np.ndarray],
+                     ) -> tuple[float, float, float]:
+    """The input zero and span through two measured (R, S) points read on two branches of
+    outputs over ``grid`` (``branch_resistance``): the rest point on the first (a memory
+    model's unloading branch, ``branches``), the stretch on the second (its loading
+    branch); a static model's held map for both."""
+    (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
+    c1 = branch_resistance(grid, branch[0], s1)
+    c2 = branch_resistance(grid, branch[1], s2)
+    k = (c2 - c1) / (r2 - r1) if r2 != r1 else float("nan")
+    if not (np.isfinite(k) and k > 0):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
+                         "against the calibration's direction (span gain "
+                         f"{k:.4g} must be > 0)")
+    return r1, c1, float(k)
+
+
+def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle ``rec``
+    (``points_from_first_cycle``). A static model: its held map inverted at the two points
+    (``span_from_points``); where the map never outputs a point's strain, the resistance
+    of its nearest output (the output map made after the span corrects what remains). A
+    memory model: the two points read on its branches (``span_on_branches``), then the
+    span refined through the run (``span_through_run``)."""
+    if rec.s is None:
+        raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
+    curve = steady_curve(cal)
+    if follows_steady_curve(cal, curve):
+        points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                         top=float(curve[1].max()))
+        try:
+            return span_from_points(cal, points, curve)
+        except InputError:
+            return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
+    branch = branches(cal, curve[0])
+    points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                     top=float(branch[1].max()))
+    return span_through_run(cal, rec, span_on_branches(cal, points, curve[0], branch))
 
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
@@ -347,12 +422,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
                                                                      name not in sensors):
                 continue
             cal = calibration.sensors[name]
-            curve = steady_curve(cal)
-            points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
-                                             top=float(curve[1].max()))
-            span = span_from_points(cal, points, curve)
-            if not follows_steady_curve(cal, curve):
-                span = span_through_run(cal, rec, span)
+            span = span_of_first_cycle(cal, rec)
             out[name] = apply_span(cal, span, {"from": source, "first": first})
             lines.append(f"{name}: {span_reading(span)} (from {where})")
         if not lines:
