@@ -53,6 +53,9 @@ BAND = REST_BAND
 """An estimate within this share of the calibrated strain span of the rest strain is rest."""
 RATE = 0.002
 """Largest change of the rest level per second (share of it)."""
+SETTLE_RATE = 0.02
+"""A rest whose resistance still moves by more than this share per second of its distance
+from the calibrated rest is relaxing (a time constant under 50 s) and is not tracked."""
 SETTLE_SECONDS = 20.0
 """Seconds at the rest resistance before its reading is taken (``rest_is_read_as_rest``)."""
 
@@ -103,6 +106,9 @@ class BaselineTracker:
     reads_rest: dict[str, bool] = field(default_factory=dict)
     """Per sensor, whether its calibration reads its own rest resistance as the rest
     strain (``rest_is_read_as_rest``); a sensor whose does not is never tracked."""
+    last_hold: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """Per sensor, (mean time, measured resistance) of the last stretch judged, if it was
+    at hold."""
     applied: dict[str, float] = field(default_factory=dict)
     """Per sensor, the product of the gain factors the tracker applied."""
     origin: dict[str, float] = field(default_factory=dict)
@@ -159,19 +165,29 @@ class BaselineTracker:
 
         cal = self.engine.calibration.sensors[name]
         used = used_mask(np.asarray(out.status))
+        previous = self.last_hold.pop(name, None)
         if used.sum() < 2 or np.any(np.asarray(out.direction)[used] != 0):
             return
         duration = float(t[used][-1] - t[used][0])
-        if not duration > 0:
-            return
         span = cal.input.zero_span
         rest = span[1] if span is not None else cal.rest_resistance
-        if rest is None:
+        if not duration > 0 or rest is None:
             return
         level = float(np.median(np.asarray(out.resistance)[used]))
+        k, c = cal.input.span_map()
+        gain = self.engine.input_gain(name)
+        raw = (level - c) / (k * gain)  # the measured resistance at this rest
+        if not (raw > 0 and math.isfinite(raw)):
+            return
+        now = float(np.mean(t[used]))
+        self.last_hold[name] = (now, raw)
+        off_rest = abs(raw - (rest - c) / (k * gain))
+        if previous is None or not now - previous[0] <= 2.0 * CHUNK_SECONDS:
+            return  # the first stretch of a hold: whether it settled is not known yet
+        if abs(raw - previous[1]) > SETTLE_RATE * off_rest * (now - previous[0]):
+            return  # still relaxing toward where it was: left to relax
         s_rest, s_span = fitted_rest(cal.valid_range)
         estimate = float(np.median(np.asarray(out.strain)[used]))
-        k, c = cal.input.span_map()
         applied = self.applied.get(name, 1.0)
         sign = cal.direction.sign
         below = (level - rest) * sign <= 0.0
@@ -182,10 +198,6 @@ class BaselineTracker:
         if name not in self.reads_rest:
             self.reads_rest[name] = rest_is_read_as_rest(cal, (rest - c) / k, self.band)
         if not self.reads_rest[name]:
-            return
-        gain = self.engine.input_gain(name)
-        raw = (level - c) / (k * gain)  # the measured resistance at this rest
-        if not (raw > 0 and math.isfinite(raw)):
             return
         target = (rest - c) / (k * raw)
         step = self.rate * duration
