@@ -129,3 +129,15 @@ def test_stepped_tracking_equals_the_batch_with_a_pair_statistic_and_a_despiker(
     np.testing.assert_allclose(stepped, batch.strain, rtol=0, atol=1e-9)
     assert engine.input_gain("s1") == pytest.approx(batch_engine.input_gain("s1"), abs=1e-12)
     assert batch_engine.input_gain("s1") > 1.02  # the rest that fell was followed
+
+
+def test_a_rest_that_relaxes_back_after_a_release_is_left_to_relax(cubic: Calibration) -> None:
+    """After each release the resistance undershoots by 2 % and recovers with a 20 s time
+    constant (a viscoelastic sensor): it is not a rest that moved, nothing is tracked."""
+    t = np.arange(0.0, 190.0, 0.1)
+    s = staircase(t)
+    since = np.clip(t - 10.0, 0.0, None) % 20.0 - 13.0  # seconds since the last release
+    undershoot = np.where((t > 10.0) & (since >= 0.0), 0.02 * np.exp(-since / 20.0), 0.0)
+    rec = Recording("s1", t, gauge(s) * (1.0 - undershoot), s)
+    on = evaluate_recordings({"s1": rec}, cubic).sensors["s1"]
+    assert on.tracking == {"seconds": 0.0, "correction": 0.0}
