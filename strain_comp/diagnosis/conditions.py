@@ -199,4 +199,6 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
     conditions += [{"name": "measurement chain", "reading": line, "before": float("nan"),
                     "after": float("nan"), "chosen": False}
                    for line in readings if "alternation" not in line]
+    conditions += [{k: d.session[k] for k in ("name", "reading", "before", "after", "chosen")}
+                   for d in results[best].sensors.values() if d.session]
     return dataclasses.replace(results[best], conditions=conditions)

@@ -75,7 +75,12 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, save_calibration
+from strain_comp.core.calibration import (
+    Calibration,
+    SensorCalibration,
+    save_calibration,
+    strain_unit_words,
+)
 from strain_comp.core.effects import (
     Batch,
     EffectTerms,
@@ -98,9 +103,11 @@ from strain_comp.diagnosis.selection import (
     Gram,
     candidate_scores,
     keep_on_held_out,
+    linear_held_out,
     rms,
     select_forward,
 )
+from strain_comp.diagnosis.session import SessionHeldOut
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording, hold_latest, load_recordings
 
@@ -113,6 +120,10 @@ subsample keeps the residual's RMSE and MAE unbiased estimates of the full data'
 low-pass would shrink the noise no term can explain and inflate every gain), and the
 regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
 regressor matrix holds at most about ``ROW_BUDGET`` rows."""
+GAIN_CHANGE = 0.05
+"""A sensitivity against the calibration this far from 1 (the session start's input span
+on the validation run), which that session start corrects, is read as a gain change
+between runs."""
 
 
 @dataclass
@@ -295,12 +306,14 @@ def _baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> floa
     return float(np.mean(values)) if values else 0.0
 
 
-def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str, Recording]],
+def _diagnose_sensor(sensor: str, calibration: Calibration,
+                     bags: list[Mapping[str, Recording]],
                      validate: list[Mapping[str, Recording]] | None,
                      base_fit: list[dict[str, _Run]], base_val: list[dict[str, _Run]],
                      candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
                      n_blocks: int, margin: float, max_effects: int,
                      stretch_history: bool = False) -> SensorDiagnosis | None:
+    cal = calibration.sensors[sensor]
     if candidates is None:
         temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
                  if sensor in b and b[sensor].temperature is not None]
@@ -363,8 +376,14 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
         s_out = np.concatenate([s.s[h] for s, h in zip(series, held_out, strict=True)])
 
+    linear = linear_held_out(e_out, g_out)
+    session = (None if validate is None
+               else SessionHeldOut(calibration, sensor, validate, candidates))
+    if session is not None and not session.usable():
+        session = None
+    held_out = linear if session is None else session
     chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
-    best = keep_on_held_out(gram, chosen, None, offset, e_out, g_out, n_folds, margin)
+    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out)
     rmse_none = gram.cv_rmse([])
     for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
         shifted = Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
@@ -374,11 +393,12 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
                             auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, e_out, g_out, n_folds, margin)
+        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
 
-    rmse_before = rms(e_out)
+    e_before = held_out([], np.zeros(0))
+    rmse_before = rms(e_before)
     terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
         + best.kept
     coefs = ([1.0] if terms[:1] == [best.shift] else []) + list(best.coef)
@@ -402,7 +422,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
             if kinds[j] == "baseline":
                 row.magnitude = float(np.sqrt(np.mean(g_out[:, j] ** 2)))
         rows.append(row)
-    e_after = best.e_after
+    e_after = held_out(terms, np.array(coefs))
     order = [j for j in terms if j != offset] or terms
     winner = names[order[0]] if order else None
     if winner is None:
@@ -416,7 +436,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     else:
         parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
-                   f"{rms(e_after):.4g} {cal.strain_unit}")
+                   f"{rms(e_after):.4g} {cal.strain_unit}"
+                   + ("" if session is None else " after the session-start recalibration"))
     left_out = [x.unsettled for x in [*series, *val_series] if x.unsettled[0] > 0]
     if left_out:
         seconds, drift = left_out[0]
@@ -429,12 +450,47 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         message += (f"; fitted and scored on every {stride}-th sample"
                     + (f" (validation: every {val_stride}-th)" if validate is not None else "")
                     + f" of a run longer than {ROW_BUDGET:,} samples")
+    e_linear = linear(terms, np.array(coefs))
     plot = {}
     if winner is not None:
-        plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],
+        plot = {"t": t_out, "e_before": e_out, "e_after": e_linear, "g": g_out[:, order[0]],
                 "s": s_out}
-    return SensorDiagnosis(name=sensor, before=_rmse_stats(e_out), after=_rmse_stats(e_after),
-                           scores=rows, added=added, message=message, plot=plot, winner=winner)
+    found = SensorDiagnosis(name=sensor, before=_rmse_stats(e_before),
+                            after=_rmse_stats(e_after), scores=rows, added=added,
+                            message=message, plot=plot, winner=winner)
+    if session is not None:
+        found.as_calibrated = {"before": _rmse_stats(e_out), "after": _rmse_stats(e_linear)}
+        found.session = _session_record(cal, session, e_out, e_before, margin)
+    return found
+
+
+def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.ndarray,
+                    e_start: np.ndarray, margin: float) -> dict[str, Any]:
+    """What the session start did on the validation runs, and the gain change between runs
+    it shows: the sensitivity against the calibration (the input span gain k: the sensor
+    reads 1 / k - 1 more) where it is at least ``GAIN_CHANGE`` and the session start lowers
+    the validation error by more than ``margin``."""
+    starts = session.starts()
+    changes = [100.0 * (1.0 / s.calibration.sensors[session.sensor].input.zero_span[2] - 1.0)
+               for s in starts if "input" in s.steps]
+    before, after = rms(e_raw), rms(e_start)
+    shown = bool(changes) and max(abs(c) for c in changes) >= 100.0 * GAIN_CHANGE \
+        and after < (1.0 - margin) * before
+    seconds = ", ".join(f"{seconds:.3g}" for _, seconds in session.runs)
+    u = strain_unit_words(cal.strain_unit)
+    made = "; ".join(line.split(" (from ")[0].removeprefix(f"{session.sensor}: ")
+                     for s in starts for line in s.lines)
+    reading = (f"{session.sensor}: session start on the first {seconds} s of the validation "
+               f"run ({made}); validation RMSE before the loop {before:.4g} -> {after:.4g} {u}")
+    if shown:
+        reading = (f"{session.sensor}: sensitivity differs from the calibration by "
+                   + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
+                   "recalibrate --input --from RUN --first SECONDS, then recalibrate --from "
+                   "RUN --first SECONDS, at the start of each session; " + reading)
+    return {"name": "gain change between runs" if shown else "session start",
+            "reading": reading, "before": before, "after": after, "chosen": False,
+            "sensitivity_change": changes, "seconds": [s for _, s in session.runs],
+            "steps": [s.steps for s in starts]}
 
 
 def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]],
@@ -462,8 +518,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     base_val = (None if validate is None
                 else [_base_runs(b, calibration, tare=tare) for b in validate])
     results: dict[str, SensorDiagnosis] = {}
-    for sensor, cal in calibration.sensors.items():
-        found = _diagnose_sensor(sensor, cal, bags, validate, base_fit, base_val or [],
+    for sensor in calibration.sensors:
+        found = _diagnose_sensor(sensor, calibration, bags, validate, base_fit, base_val or [],
                                  candidates, holdout_fraction, n_blocks, margin, max_effects,
                                  stretch_history)
         if found is not None:
@@ -485,7 +541,13 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     else:
         validated_on = "validate"
         validation = {"kind": "validation recordings",
-                      "sensors": sorted({n for b in validate for n in b})}
+                      "sensors": sorted({n for b in validate for n in b}),
+                      "session_start": sorted(n for n, d in results.items() if d.session)}
+        if validation["session_start"]:
+            validation["session_start_procedure"] = (
+                "before and after measured on the whole validation run after recalibrate "
+                "--input --from RUN --first SECONDS, then recalibrate --from RUN --first "
+                "SECONDS, on its first load and unload")
     return DiagnoseResult(sensors=results, before=pooled_before, after=pooled_after,
                           validated_on=validated_on, validation=validation,
                           calibration=Calibration(sensors_out))

@@ -126,10 +126,22 @@ class SensorDiagnosis:
     """Held-out t, s (reference), e_before, e_after and ``g`` = the winning regressor
     (empty: none)."""
     winner: str | None = None
+    as_calibrated: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Before and after without the session-start recalibration (the loop's own residual on
+    the validation samples it reads), when ``before`` and ``after`` are measured after it."""
+    session: dict[str, Any] = field(default_factory=dict)
+    """The session start on the validation runs (``loop._session_record``; empty: the
+    before and after are measured without one)."""
 
     def to_json(self) -> dict[str, Any]:
-        return {"before": self.before, "after": self.after, "message": self.message,
-                "winner": self.winner, "added": self.added}
+        out = {"before": self.before, "after": self.after, "message": self.message,
+               "winner": self.winner, "added": self.added}
+        if self.session:
+            out["after_session_start"] = True
+            out["as_calibrated"] = self.as_calibrated
+            out["session_start"] = {k: self.session[k] for k in
+                                    ("reading", "sensitivity_change", "seconds", "steps")}
+        return out
 
 
 @dataclass
