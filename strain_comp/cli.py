@@ -381,7 +381,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare,
-                          stretch_history=args.stretch_history)
+                          stretch_history=args.stretch_history,
+                          session_start=args.session_start == "on")
     print(report.summary(), file=_results(args))
     if args.json:
         _write_json(args.json, report.to_json(), inputs)
@@ -620,6 +621,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stretch-history", action="store_true",
                    help="also try terms for a rest level or a sensitivity that moves with "
                         "the stretch done (effect kind stretch)")
+    p.add_argument("--session-start", choices=("on", "off"), default="on",
+                   help="on (default): measure the --validate run after recalibrating it "
+                        "on its first cycle (recalibrate --input, then the output map), "
+                        "as a session is used; off: as calibrated")
     p.set_defaults(func=cmd_diagnose)
 
     p = command("recalibrate", "output gain and offset (or input zero and span) through "

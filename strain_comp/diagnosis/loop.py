@@ -168,6 +168,8 @@ class _Run:
     """Positions among the used samples where the engine reset after a gap."""
     beyond: np.ndarray
     """What the engine adds beyond the valid range (its ``out_of_range`` extension)."""
+    cal: SensorCalibration
+    """The sensor's calibration this run was read with."""
 
 
 def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
@@ -191,7 +193,7 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
         margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
         s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
         out[name] = _Run(s_hat, result.direction.astype(np.float64), result.resistance,
-                         used, starts, result.strain - s_hat)
+                         used, starts, result.strain - s_hat, calibration.sensors[name])
     return out
 
 
@@ -225,15 +227,16 @@ def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], ba
         reset, batch.t.size, starts)
 
 
-def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
-            runs: Mapping[str, _Run], candidates: Sequence[dict[str, Any]],
-            n_blocks: int, stride: int = 1) -> _Series | None:
+def _series(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, _Run],
+            candidates: Sequence[dict[str, Any]], n_blocks: int, stride: int = 1
+            ) -> _Series | None:
     """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
     at every ``stride``-th of the samples kept (the regressors run over all of them)."""
     rec = bag[sensor]
     if rec.s is None or sensor not in runs:
         return None
     run = runs[sensor]
+    cal = run.cal
     used = run.used
     ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
     if ok.sum() < 2 * n_blocks:
@@ -312,7 +315,9 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
                      base_fit: list[dict[str, _Run]], base_val: list[dict[str, _Run]],
                      candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
                      n_blocks: int, margin: float, max_effects: int,
-                     stretch_history: bool = False) -> SensorDiagnosis | None:
+                     stretch_history: bool = False, session_start: bool = True,
+                     ) -> SensorDiagnosis | None:
+    """One sensor's loop (module docstring)."""
     cal = calibration.sensors[sensor]
     if candidates is None:
         temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
@@ -334,10 +339,14 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
         kinds.append("offset")
     offset = kinds.index("offset")
     baselines = [j for j, k in enumerate(kinds) if k == "baseline"]
+    session = (None if validate is None or not session_start
+               else SessionHeldOut(calibration, sensor, validate, candidates))
+    if session is not None and not session.usable():
+        session = None
     stride = _stride(bags, sensor)
     val_stride = 1 if validate is None else _stride(validate, sensor)
     series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-              for s in [_series(sensor, cal, b, runs, candidates, n_blocks, stride)]
+              for s in [_series(sensor, b, runs, candidates, n_blocks, stride)]
               if s is not None]
     if not series:
         return None
@@ -359,8 +368,7 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
 
     if validate is not None:
         val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
-                      for s in [_series(sensor, cal, b, runs, candidates, n_blocks,
-                                        val_stride)]
+                      for s in [_series(sensor, b, runs, candidates, n_blocks, val_stride)]
                       if s is not None]
         if not val_series:
             raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
@@ -377,10 +385,6 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
         s_out = np.concatenate([s.s[h] for s, h in zip(series, held_out, strict=True)])
 
     linear = linear_held_out(e_out, g_out)
-    session = (None if validate is None
-               else SessionHeldOut(calibration, sensor, validate, candidates))
-    if session is not None and not session.usable():
-        session = None
     held_out = linear if session is None else session
     chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
     best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out)
@@ -499,7 +503,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              | None = None, holdout_fraction: float = 0.3,
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
              margin: float = 0.03, max_effects: int = 3,
-             tare: str = "calibration", stretch_history: bool = False) -> DiagnoseResult:
+             tare: str = "calibration", stretch_history: bool = False,
+             session_start: bool = True) -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
@@ -507,6 +512,9 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     ``stretch`` terms when ``stretch_history``). ``margin``: the
     least relative drop of the cross-validated RMSE for an effect to be added. ``tare``:
     ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
+    ``session_start``: with validation recordings, measure before and after on them after
+    the session-start recalibration on their first cycle (``strain_comp.diagnosis.session``;
+    a run where it cannot be made is measured as calibrated).
     """
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
@@ -521,7 +529,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     for sensor in calibration.sensors:
         found = _diagnose_sensor(sensor, calibration, bags, validate, base_fit, base_val or [],
                                  candidates, holdout_fraction, n_blocks, margin, max_effects,
-                                 stretch_history)
+                                 stretch_history, session_start)
         if found is not None:
             results[sensor] = found
     if not results:

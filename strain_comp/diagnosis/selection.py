@@ -207,9 +207,11 @@ def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
 
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
                      n_folds: int, margin: float, held_out: HeldOut) -> Branch:
-    """The held-out veto (module docstring, step 6) on one branch's selected terms: each
-    term, fitted on all fit folds of ``gram``, is kept while ``held_out`` says it lowers
-    the held-out RMSE by more than ``margin``; ``shift`` enters with coefficient 1."""
+    """The held-out veto (module docstring, step 6) on one branch's selected terms, in
+    their order: a term, fitted on all fit folds of ``gram`` with those kept before it,
+    is kept if ``held_out`` says it lowers the held-out RMSE by more than ``margin``
+    (a term that does not, e.g. an intercept the session-start recalibration makes anyway,
+    is left out and the later ones are still tried); ``shift`` enters with coefficient 1."""
     all_folds = np.arange(n_folds)
     head = [] if shift is None else [shift]
     auto = shift is None
@@ -232,8 +234,7 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
         helps = rmse < (1.0 - margin) * current
         if auto and j != offset:  # it must also beat the intercept alone
             helps = helps and rmse < rms(trial(with_intercept([*kept, offset], offset))[1])
-        if not helps:
-            break
-        kept, current = cols, rmse
+        if helps:  # one that does not is left out; the later ones are still tried
+            kept, current = cols, rmse
     coef, e_after = trial(kept)
     return Branch(shift, selection, kept, coef, e_after, rms(e_after))

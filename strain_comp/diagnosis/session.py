@@ -163,3 +163,4 @@ class SessionHeldOut:
         names = self._names(self.calibration) + [
             str(c["params"]["neighbour"]) for c in self.candidates if c["kind"] == "crosstalk"]
         return {n: bag[n] for n in names if n in bag}
+
