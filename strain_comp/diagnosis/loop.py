@@ -475,8 +475,9 @@ def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.n
     reads 1 / k - 1 more) where it is at least ``GAIN_CHANGE`` and the session start lowers
     the validation error by more than ``margin``."""
     starts = session.starts()
-    changes = [100.0 * (1.0 / s.calibration.sensors[session.sensor].input.zero_span[2] - 1.0)
-               for s in starts if "input" in s.steps]
+    spans = [s.calibration.sensors[session.sensor].input.zero_span for s in starts]
+    changes = [100.0 * (1.0 / span[2] - 1.0) for span, s in zip(spans, starts, strict=True)
+               if span is not None and "input" in s.steps]
     before, after = rms(e_raw), rms(e_start)
     shown = bool(changes) and max(abs(c) for c in changes) >= 100.0 * GAIN_CHANGE \
         and after < (1.0 - margin) * before

@@ -134,8 +134,9 @@ class SensorDiagnosis:
     before and after are measured without one)."""
 
     def to_json(self) -> dict[str, Any]:
-        out = {"before": self.before, "after": self.after, "message": self.message,
-               "winner": self.winner, "added": self.added}
+        out: dict[str, Any] = {"before": self.before, "after": self.after,
+                               "message": self.message, "winner": self.winner,
+                               "added": self.added}
         if self.session:
             out["after_session_start"] = True
             out["as_calibrated"] = self.as_calibrated
