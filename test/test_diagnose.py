@@ -182,6 +182,34 @@ def test_per_run_baseline_only_when_runs_shift(bags: BagMaker, calibration: Cali
     assert not level.added, level.summary()
 
 
+def sensitised(recordings: dict[str, Recording], factor: float) -> dict[str, Recording]:
+    """A run whose sensitivity is ``factor`` x the calibration's: R moves ``factor`` x as far
+    from its rest (the median of the first 20 samples) for the same strain."""
+    out = {}
+    for name, rec in recordings.items():
+        rest = float(np.median(rec.r[:20]))
+        out[name] = dataclasses.replace(rec, r=rest + factor * (rec.r - rest))
+    return out
+
+
+def test_a_gain_change_between_runs_is_read_with_its_size(bags: BagMaker,
+                                                          calibration: Calibration) -> None:
+    """A validation run 20 % more sensitive than the calibration: the session start on its
+    first cycle reads +20 % and names its remedy; a run at the calibration's sensitivity
+    shows no gain change."""
+    result = diagnose_conditions(bags("random", 2), calibration,
+                                 validate_recordings=sensitised(bags("patterns", 3), 1.2))
+    row = next(c for c in result.conditions if c["name"] == "gain change between runs")
+    (change,) = result.sensors["s1"].session["sensitivity_change"]
+    assert change == pytest.approx(20.0, abs=1.0), row["reading"]
+    assert f"{change:+.1f} %" in row["reading"] and "recalibrate --input" in row["reading"]
+    assert row["after"] < 0.2 * row["before"] and not row["chosen"]
+    same = diagnose_conditions(bags("random", 2), calibration,
+                               validate_recordings=bags("patterns", 3))
+    assert [c["name"] for c in same.conditions if c["name"] in SESSION] == ["session start"]
+    assert abs(same.sensors["s1"].session["sensitivity_change"][0]) < 2.0
+
+
 def test_json_contract_validation_bag_and_cal2(bags: BagMaker, calibration: Calibration,
                                                tmp_path: Path) -> None:
     data, val = bags("long", 6, drift=0.05), bags("long", 7, drift=0.05)

@@ -96,7 +96,8 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
             return f"temperature sensitivity {100.0 * coef:+.3g} %/K"
         return f"temperature offset {coef:+.3g} {u}/K"
     if kind == "mullins":
-        return f"Mullins-type softening ({params.get('form')}){size}"
+        return _mullins_reading(str(params.get("form")), float(params.get("n0", 1.0)), coef,
+                                u, size)
     if kind == "stretch":
         scale = params.get("scale")
         if str(params.get("form", "rest")).startswith("gain"):
@@ -109,6 +110,26 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
     if kind == "baseline":
         return f"per-run baseline: each run re-zeroed at its start{size}"
     return f"{kind}{size}"
+
+
+def _mullins_reading(form: str, n0: float, coef: float, u: str, size: str) -> str:
+    """A ``mullins`` term in words: the sensitivity against calibration it stands for (the
+    output carries + coef g; ``strain_comp.core.effects.Mullins`` for g)."""
+    pct = 100.0 * coef
+    if form == "cycles_log":
+        return (f"sensitivity that moves with the load cycles done: {pct:+.3g} % x ln(1 + "
+                f"cycles) against calibration ({pct * math.log(11.0):+.3g} % after 10 "
+                f"cycles){size}")
+    if form == "cycles_exp":
+        return (f"sensitivity {pct:+.3g} % against calibration at the first cycle, dying out "
+                f"over about {n0:g} load cycles{size}")
+    if form == "peak_strain":
+        return (f"sensitivity {10.0 * pct:+.3g} % per 10 {u} of the largest strain reached "
+                f"so far (Mullins-type damage){size}")
+    if form == "gap":
+        return (f"below the largest strain reached so far, {pct:+.3g} % of the distance to it "
+                f"(Mullins-type softening){size}")
+    return f"Mullins-type softening ({form}){size}"
 
 
 @dataclass
