@@ -28,7 +28,7 @@ from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
-from strain_comp.diagnosis.report import write_plots
+from strain_comp.diagnosis.report import SESSION_RECORDS, write_plots
 from strain_comp.diagnosis.session import first_cycle, session_errors
 from strain_comp.io.recording import Recording, load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
@@ -39,8 +39,6 @@ MIN_DROP = 0.6
 """Least relative fall of the validation RMSE when the missing effect is added."""
 CLEAN = {"hysteresis": 0.0, "relaxation": 0.0}
 BagMaker = Callable[..., dict[str, Recording]]
-SESSION = ("session start", "gain change between runs")
-"""The session-start records among ``conditions`` (readings, never chosen)."""
 
 
 def as_used(calibration: Calibration, recordings: dict[str, Recording]) -> float:
@@ -206,7 +204,8 @@ def test_a_gain_change_between_runs_is_read_with_its_size(bags: BagMaker,
     assert row["after"] < 0.2 * row["before"] and not row["chosen"]
     same = diagnose_conditions(bags("random", 2), calibration,
                                validate_recordings=bags("patterns", 3))
-    assert [c["name"] for c in same.conditions if c["name"] in SESSION] == ["session start"]
+    names = [c["name"] for c in same.conditions if c["name"] in SESSION_RECORDS]
+    assert names == ["session start"]
     assert abs(same.sensors["s1"].session["sensitivity_change"][0]) < 2.0
 
 
@@ -279,7 +278,7 @@ def test_a_clean_bag_gets_no_chain_condition(bags: BagMaker, calibration: Calibr
     for seed in (2, 5):
         result = diagnose_conditions(bags("random", seed), calibration,
                                      validate_recordings=bags("patterns", seed + 1))
-        names = [c["name"] for c in result.conditions if c["name"] not in SESSION]
+        names = [c["name"] for c in result.conditions if c["name"] not in SESSION_RECORDS]
         assert names == ["as calibrated"], result.conditions
 
 

@@ -94,6 +94,7 @@ from strain_comp.core.samples import gap_for
 from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
 from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
 from strain_comp.diagnosis.report import (
+    SESSION_RECORDS,
     DiagnoseResult,
     EffectScore,
     SensorDiagnosis,
@@ -492,7 +493,7 @@ def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.n
                    + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
                    "recalibrate --input --from RUN --first SECONDS, then recalibrate --from "
                    "RUN --first SECONDS, at the start of each session; " + reading)
-    return {"name": "gain change between runs" if shown else "session start",
+    return {"name": SESSION_RECORDS[1] if shown else SESSION_RECORDS[0],
             "reading": reading, "before": before, "after": after, "chosen": False,
             "sensitivity_change": changes, "seconds": [s for _, s in session.runs],
             "steps": [s.steps for s in starts]}

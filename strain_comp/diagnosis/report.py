@@ -14,6 +14,10 @@ import numpy as np
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
 
+SESSION_RECORDS = ("session start", "gain change between runs")
+"""Names of the ``conditions`` records of the session start on the validation runs
+(readings, never chosen; ``strain_comp.diagnosis.loop``)."""
+
 
 @dataclass
 class EffectScore:
@@ -210,8 +214,8 @@ class DiagnoseResult:
         lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} {u}, "
                  f"after {self.after['rmse']:.4g} {u}"]
         for c in self.conditions:
-            if c["name"] == "measurement chain":
-                lines.append(f"  measurement chain: {c['reading']}")
+            if c["name"] in ("measurement chain", *SESSION_RECORDS):
+                lines.append(f"  {c['name']}: {c['reading']}")
                 continue
             verdict = "chosen" if c["chosen"] else "not chosen"
             lines.append(f"  {c['name']}: {c['reading']}; held-out RMSE after the loop "
