@@ -121,6 +121,9 @@ subsample keeps the residual's RMSE and MAE unbiased estimates of the full data'
 low-pass would shrink the noise no term can explain and inflate every gain), and the
 regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
 regressor matrix holds at most about ``ROW_BUDGET`` rows."""
+HELD_OUT_BLOCKS = True
+"""After the session start, a term must also lower the validation run's error consistently
+over its ``n_blocks`` time blocks (one standard error, ``selection.held_out_better``)."""
 GAIN_CHANGE = 0.05
 """A sensitivity against the calibration this far from 1 (the session start's input span
 on the validation run), which that session start corrects, is read as a gain change
@@ -387,8 +390,9 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
 
     linear = linear_held_out(e_out, g_out)
     held_out = linear if session is None else session
+    blocks = None if session is None or not HELD_OUT_BLOCKS else session.blocks(n_blocks)
     chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
-    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out)
+    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, blocks)
     rmse_none = gram.cv_rmse([])
     for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
         shifted = Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
@@ -398,7 +402,8 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
                             auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out)
+        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
+                                  blocks)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
 
