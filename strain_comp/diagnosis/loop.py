@@ -55,6 +55,15 @@ Per calibrated sensor that has a recording with a reference strain:
    the veto of step 6: given a ``--validate`` recording of another run it is a cross-run
    test; on held-out blocks of one run the two tie and the constant hypothesis stays.
 
+8. **Session start.** With ``validate_recordings`` (and ``session_start``), every held-out
+   figure of steps 6-7 is the validation run's RMSE as the product is used: the calibration
+   with the terms recalibrated on that run's first load and unload (``recalibrate --input``,
+   then the output map; ``strain_comp.diagnosis.session``), then evaluated over the whole
+   run. The per-run ``baseline`` hypothesis is then not tried: that recalibration re-zeroes
+   every run itself, and a baseline term (whose steady output is the rest strain at any
+   resistance) would leave it no input span to make. A validation run whose first cycle
+   allows neither step is measured as calibrated.
+
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
 margin); effect state is reset at the engine's gap resets, in diagnosis as online.
@@ -121,9 +130,6 @@ subsample keeps the residual's RMSE and MAE unbiased estimates of the full data'
 low-pass would shrink the noise no term can explain and inflate every gain), and the
 regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
 regressor matrix holds at most about ``ROW_BUDGET`` rows."""
-HELD_OUT_BLOCKS = True
-"""After the session start, a term must also lower the validation run's error consistently
-over its ``n_blocks`` time blocks (one standard error, ``selection.held_out_better``)."""
 GAIN_CHANGE = 0.05
 """A sensitivity against the calibration this far from 1 (the session start's input span
 on the validation run), which that session start corrects, is read as a gain change
@@ -390,20 +396,20 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
 
     linear = linear_held_out(e_out, g_out)
     held_out = linear if session is None else session
-    blocks = None if session is None or not HELD_OUT_BLOCKS else session.blocks(n_blocks)
     chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
-    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, blocks)
+    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out)
     rmse_none = gram.cv_rmse([])
     for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
         shifted = Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
         rmse_b = shifted.cv_rmse([])
         scores[b] = 1.0 - (rmse_b / rmse_none) ** 2 if rmse_none > 0 else 0.0
+        if session is not None:  # the session start re-zeroes every run itself (step 8)
+            continue
         selection = select_forward(shifted, len(names), offset, margin, max_effects - 1,
                             auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
-                                  blocks)
+        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
 

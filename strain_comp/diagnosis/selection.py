@@ -205,31 +205,13 @@ def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
     return lambda cols, coef: e - g[:, list(cols)] @ coef if len(cols) else e
 
 
-def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
-                    blocks: np.ndarray | None = None) -> bool:
-    """Is the held-out RMSE of ``e_new`` below that of ``e_old`` by more than ``margin``
-    (relative), and, given the held-out samples' time ``blocks``, is the block-wise drop
-    of the squared error consistently > 0 (``significant``)?"""
-    if not rms(e_new) < (1.0 - margin) * rms(e_old):
-        return False
-    if blocks is None or not e_new.size == e_old.size == blocks.size:
-        return True
-    n = int(blocks.max()) + 1
-    return significant(np.bincount(blocks, weights=e_old**2, minlength=n),
-                       np.bincount(blocks, weights=e_new**2, minlength=n),
-                       np.bincount(blocks, minlength=n).astype(np.float64))
-
-
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
-                     n_folds: int, margin: float, held_out: HeldOut,
-                     blocks: np.ndarray | None = None) -> Branch:
+                     n_folds: int, margin: float, held_out: HeldOut) -> Branch:
     """The held-out veto (module docstring, step 6) on one branch's selected terms, in
     their order: a term, fitted on all fit folds of ``gram`` with those kept before it,
     is kept if ``held_out`` says it lowers the held-out RMSE by more than ``margin``
     (a term that does not, e.g. an intercept the session-start recalibration makes anyway,
-    is left out and the later ones are still tried); ``shift`` enters with coefficient 1.
-    With ``blocks`` (the time block of each held-out sample) a term must also pass the
-    one-standard-error test over those blocks (``held_out_better``)."""
+    is left out and the later ones are still tried); ``shift`` enters with coefficient 1."""
     all_folds = np.arange(n_folds)
     head = [] if shift is None else [shift]
     auto = shift is None
@@ -240,19 +222,19 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
 
     kept: list[int] = []
     e_none = held_out([], np.zeros(0))
-    current = e_none
+    current = rms(e_none)
     if shift is not None:
-        e_shift = held_out(head, np.ones(1))
-        if not held_out_better(e_shift, current, margin, blocks):
-            return Branch(None, selection, [], np.zeros(0), e_none, rms(e_none))
-        current = e_shift
+        rmse = rms(held_out(head, np.ones(1)))
+        if not rmse < (1.0 - margin) * current:
+            return Branch(None, selection, [], np.zeros(0), e_none, current)
+        current = rmse
     for j in selection.chosen:
         cols = with_intercept([*kept, j], offset) if auto else [*kept, j]
-        e_j = trial(cols)[1]
-        helps = held_out_better(e_j, current, margin, blocks)
+        rmse = rms(trial(cols)[1])
+        helps = rmse < (1.0 - margin) * current
         if auto and j != offset:  # it must also beat the intercept alone
-            helps = helps and rms(e_j) < rms(trial(with_intercept([*kept, offset], offset))[1])
+            helps = helps and rmse < rms(trial(with_intercept([*kept, offset], offset))[1])
         if helps:  # one that does not is left out; the later ones are still tried
-            kept, current = cols, e_j
+            kept, current = cols, rmse
     coef, e_after = trial(kept)
     return Branch(shift, selection, kept, coef, e_after, rms(e_after))

@@ -89,18 +89,11 @@ def session_errors(calibration: Calibration, recordings: Mapping[str, Recording]
                    sensor: str, seconds: float) -> np.ndarray:
     """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
     ``recordings`` after the session-start recalibration on their first ``seconds``."""
-    return session_scored(calibration, recordings, sensor, seconds)[1]
-
-
-def session_scored(calibration: Calibration, recordings: Mapping[str, Recording],
-                   sensor: str, seconds: float) -> tuple[np.ndarray, np.ndarray]:
-    """(times, errors) of ``session_errors``."""
     from strain_comp.offline.evaluate import evaluate_recordings
 
     spanned = session_start(calibration, recordings, seconds).calibration
     ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
-    return (np.asarray(ev.t[ev.scored], dtype=np.float64),
-            np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64))
+    return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)
 
 
 class SessionHeldOut:
@@ -127,19 +120,6 @@ class SessionHeldOut:
         """The session start of each validation run with the calibration as given."""
         return [session_start(self._restricted(self.calibration, bag), self._bag(bag),
                               seconds) for bag, seconds in self.runs]
-
-    def blocks(self, n_blocks: int) -> np.ndarray:
-        """Contiguous time blocks of the scored samples, ``n_blocks`` per run, numbered
-        on across runs (the errors' order)."""
-        out = []
-        for k, (bag, seconds) in enumerate(self.runs):
-            t = session_scored(self._restricted(self.calibration, bag), self._bag(bag),
-                               self.sensor, seconds)[0]
-            span = t[-1] - t[0] if t.size else 0.0
-            ids = (np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
-                   if span > 0 else np.zeros(t.size, dtype=np.intp))
-            out.append(ids + k * n_blocks)
-        return np.concatenate(out)
 
     def usable(self) -> bool:
         """A validation run whose session start makes at least one step."""
