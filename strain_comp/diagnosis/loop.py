@@ -61,8 +61,12 @@ Per calibrated sensor that has a recording with a reference strain:
    then the output map; ``strain_comp.diagnosis.session``), then evaluated over the whole
    run. The per-run ``baseline`` hypothesis is then not tried: that recalibration re-zeroes
    every run itself, and a baseline term (whose steady output is the rest strain at any
-   resistance) would leave it no input span to make. A validation run whose first cycle
-   allows neither step is measured as calibrated.
+   resistance) would leave it no input span to make. Nor are an intercept (``offset``) or
+   a plain gain (``strain_level`` of power 1) written or scored: the output map of that
+   recalibration makes its own, and through the steady outputs the input span reads
+   they would only move where that span lands. The terms are still fitted with the
+   intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
+   run whose first cycle allows neither step is measured as calibrated.
 
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
@@ -418,6 +422,9 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
     terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
         + best.kept
     coefs = ([1.0] if terms[:1] == [best.shift] else []) + list(best.coef)
+    if session is not None:  # what the session start makes itself is not written
+        kept = [k for k, j in enumerate(terms) if not session.redundant(j)]
+        terms, coefs = [terms[k] for k in kept], [coefs[k] for k in kept]
     gains = best.selection.gains
     taken = {str(e["name"]) for e in cal.effects}
     added = [effect_dict(_unique(names[j], taken), regressor_from_dict(candidates[j]), c)

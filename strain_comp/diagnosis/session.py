@@ -137,7 +137,16 @@ class SessionHeldOut:
             out.append(effect_dict(name, regressor_from_dict(self.candidates[j]), float(c)))
         return out
 
+    def redundant(self, j: int) -> bool:
+        """Is candidate ``j`` what the session start makes itself (an output offset or
+        gain)? Such a term is neither scored nor written after it."""
+        kind = self.candidates[j]["kind"]
+        return kind == "offset" or (kind == "strain_level"
+                                    and self.candidates[j]["params"].get("power", 1) == 1)
+
     def __call__(self, cols: Sequence[int], coef: np.ndarray) -> np.ndarray:
+        keep = [k for k, j in enumerate(cols) if not self.redundant(j)]
+        cols, coef = [cols[k] for k in keep], np.asarray(coef)[keep]
         key = tuple((int(j), float(c)) for j, c in zip(cols, coef, strict=True))
         if key not in self._cache:
             cal = self.calibration.sensors[self.sensor]
