@@ -24,7 +24,10 @@ For every sensor in ``../shared/data/measured`` (carbon black ``cb``, conductive
      from the first rest and the largest strain of that cycle;
    * ``span_recal``: ``span``, then ``recal``'s output map on the same cycle;
    * ``loop`` (with ``--loop``): the headline workflow on the calibration the residual loop
-     (``strain-comp diagnose``) made from A, validated on a third run C.
+     (``strain-comp diagnose A --validate C --tare auto``) made from A, C a third run (the
+     first other than A and B); the loop scores its terms on C after C's own session start
+     (``--loop-session-start off``: as calibrated; ``--loop-stretch-history on``: with the
+     ``stretch`` candidates).
 
 The *in-run bound* of B is the same model fitted on B itself and scored on B (the
 ``evaluate --in-run-bound`` number). The **ratio** of a pair is the workflow's RMSE on B
