@@ -501,6 +501,7 @@ def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.n
     shown = bool(changes) and max(abs(c) for c in changes) >= 100.0 * GAIN_CHANGE \
         and after < (1.0 - margin) * before
     seconds = ", ".join(f"{seconds:.3g}" for _, seconds in session.runs)
+    first = session.runs[0][1]
     u = strain_unit_words(cal.strain_unit)
     made = "; ".join(line.split(" (from ")[0].removeprefix(f"{session.sensor}: ")
                      for s in starts for line in s.lines)
@@ -509,8 +510,9 @@ def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.n
     if shown:
         reading = (f"{session.sensor}: sensitivity differs from the calibration by "
                    + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
-                   "recalibrate --input --from RUN --first SECONDS, then recalibrate --from "
-                   "RUN --first SECONDS, at the start of each session; " + reading)
+                   f"recalibrate --input --from RUN --first {first:.3g}, then recalibrate "
+                   f"--from RUN --first {first:.3g} (its first load and unload), at the start "
+                   "of each session; " + reading)
     return {"name": SESSION_RECORDS[1] if shown else SESSION_RECORDS[0],
             "reading": reading, "before": before, "after": after, "chosen": False,
             "sensitivity_change": changes, "seconds": [s for _, s in session.runs],
