@@ -367,10 +367,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     _bag(args.bag)
-    if args.validate:
-        _bag(args.validate, "validation bag")
+    for validate in args.validate or ():
+        _bag(validate, "validation bag")
     _existing(args.calibration, "calibration file")
-    inputs = [i for i in (args.bag, args.validate, args.calibration) if i is not None]
+    inputs = [args.bag, *(args.validate or ()), args.calibration]
     check_distinct((args.out, args.json, args.plots))
     for out in (args.out, args.json):
         if out is not None and out != "-":
@@ -608,9 +608,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG.mcap", help="bag with a strain reference")
     p.add_argument("--calibration", required=True, metavar="CAL.yaml",
                    help="calibration file to improve")
-    p.add_argument("--validate", metavar="BAG2.mcap",
-                   help="held-out bag for the before/after error (default: held-out blocks "
-                   "of BAG)")
+    p.add_argument("--validate", metavar="BAG2.mcap", nargs="+",
+                   help="held-out bag(s) for the before/after error (default: held-out "
+                   "blocks of BAG); with several, a term must also lower the median run's")
     p.add_argument("--out", required=True, metavar="CAL2.yaml",
                    help="calibration to write, with the added terms (replaced atomically)")
     p.add_argument("--json", metavar="OUT.json",

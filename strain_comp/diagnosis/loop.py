@@ -400,8 +400,13 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
 
     linear = linear_held_out(e_out, g_out)
     held_out = linear if session is None else session
+    runs = None  # the validation run of each held-out sample
+    if session is not None:
+        runs = session.runs_of_samples()
+    elif val_series:
+        runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(val_series)])
     chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
-    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out)
+    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
     for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
         shifted = Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
@@ -413,7 +418,8 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
                             auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out)
+        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
+                                  runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
 
@@ -592,16 +598,19 @@ def _pool(results: Mapping[str, SensorDiagnosis], which: str) -> dict[str, float
 
 
 def diagnose_bag(bag: str | Path, calibration: Calibration, *,
-                 validate: str | Path | None = None, out: str | Path | None = None,
-                 plots: str | Path | None = None, inputs: Sequence[str | Path] = (),
-                 **options: Any) -> DiagnoseResult:
+                 validate: str | Path | Sequence[str | Path] | None = None,
+                 out: str | Path | None = None, plots: str | Path | None = None,
+                 inputs: Sequence[str | Path] = (), **options: Any) -> DiagnoseResult:
     """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots
-    (atomically; an output that is a bag or one of ``inputs`` is refused)."""
+    (atomically; an output that is a bag or one of ``inputs`` is refused). ``validate``:
+    one validation bag or several (each a run of its own)."""
     from strain_comp.diagnosis.conditions import diagnose_conditions
 
-    inputs = [bag, *([] if validate is None else [validate]), *inputs]
+    paths = [] if validate is None else [validate] if isinstance(validate, str | Path) \
+        else list(validate)
+    inputs = [bag, *paths, *inputs]
     recordings, _ = load_recordings(bag)
-    val = None if validate is None else load_recordings(validate)[0]
+    val = [load_recordings(p)[0] for p in paths] or None
     result = diagnose_conditions(recordings, calibration, validate_recordings=val,
                                  **options)
     if out is not None:

@@ -121,6 +121,13 @@ class SessionHeldOut:
         return [session_start(self._restricted(self.calibration, bag), self._bag(bag),
                               seconds) for bag, seconds in self.runs]
 
+    def runs_of_samples(self) -> np.ndarray:
+        """The validation run (0..k-1) of each error sample, in the errors' order."""
+        return np.concatenate([np.full(session_errors(self._restricted(self.calibration, bag),
+                                                      self._bag(bag), self.sensor,
+                                                      seconds).size, k)
+                               for k, (bag, seconds) in enumerate(self.runs)])
+
     def usable(self) -> bool:
         """A validation run whose session start makes at least one step."""
         return any(start.steps for start in self.starts())
