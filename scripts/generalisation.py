@@ -24,10 +24,11 @@ For every sensor in ``../shared/data/measured`` (carbon black ``cb``, conductive
      from the first rest and the largest strain of that cycle;
    * ``span_recal``: ``span``, then ``recal``'s output map on the same cycle;
    * ``loop`` (with ``--loop``): the headline workflow on the calibration the residual loop
-     (``strain-comp diagnose A --validate C --tare auto``) made from A, C a third run (the
-     first other than A and B); the loop scores its terms on C after C's own session start
-     (``--loop-session-start off``: as calibrated; ``--loop-stretch-history on``: with the
-     ``stretch`` candidates).
+     (``strain-comp diagnose A --validate C... --tare auto``) made from A, validated on up
+     to three other runs C (the first runs other than A and B; ``--loop-validate N``); the
+     loop scores its terms on each C after C's own session start and keeps those that lower
+     the pooled and the median run's error (``--loop-session-start off``: as calibrated;
+     ``--loop-stretch-history on``: with the ``stretch`` candidates).
 
 The *in-run bound* of B is the same model fitted on B itself and scored on B (the
 ``evaluate --in-run-bound`` number). The **ratio** of a pair is the workflow's RMSE on B
@@ -74,9 +75,9 @@ FIRST_CYCLE_CAP = 0.4
 same as ``strain_comp.diagnosis.session.FIRST_CYCLE_CAP``)."""
 ENGINE = {"out_of_range": "extend", "tracking": "off"}
 """Engine options of every evaluation (``--out-of-range``)."""
-LOOP = {"stretch_history": False, "session_start": True}
+LOOP = {"stretch_history": False, "session_start": True, "validate": 3}
 """Options of the loop workflow's ``diagnose`` (``--loop-stretch-history``,
-``--loop-session-start``)."""
+``--loop-session-start``) and how many other runs it validates on (``--loop-validate``)."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
 
 
@@ -265,22 +266,26 @@ def chain(rec: Any, cal: Any, seconds: float, forms: Sequence[str]) -> Any:
     return cal
 
 
-def looped(bench: Bench, sensor: Sensor, train: Run, validate: Run, model: str) -> Any:
-    """The calibration ``strain-comp diagnose TRAIN --validate VALIDATE`` makes, cached."""
+def looped(bench: Bench, sensor: Sensor, train: Run, validate: Sequence[Run], model: str
+           ) -> Any:
+    """The calibration ``strain-comp diagnose TRAIN --validate VALIDATE...`` makes, cached."""
     from strain_comp.core.calibration import load_calibration
     from strain_comp.diagnosis.loop import diagnose_bag
 
     options = ("_stretch" if LOOP["stretch_history"] else "") + (
         "" if LOOP["session_start"] else "_nosession")
     path = bench.out / "cache" / (f"{sensor.name}_{train.label}_{model}_loop_"
-                                  f"{validate.label}{options}_{bench.key}.yaml")
+                                  f"{'+'.join(r.label for r in validate)}{options}_"
+                                  f"{bench.key}.yaml")
     if not path.is_file() or bench.refit:
         cal = bench.fit(sensor, train, model)
         src = bench.out / "cache" / f"{sensor.name}_{train.label}_{model}_{bench.key}.yaml"
         with contextlib.redirect_stdout(sys.stderr):
             diagnose_bag(str(bench.bag(sensor, train)), cal,
-                         validate=str(bench.bag(sensor, validate)), out=str(path),
-                         plots=None, inputs=[str(src)], tare="auto", **LOOP)
+                         validate=[str(bench.bag(sensor, r)) for r in validate],
+                         out=str(path), plots=None, inputs=[str(src)], tare="auto",
+                         stretch_history=LOOP["stretch_history"],
+                         session_start=LOOP["session_start"])
     return load_calibration(path)
 
 
@@ -327,9 +332,10 @@ def run_benchmark(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str]
                         break
                     loop_cal = None
                     if loop:
-                        third = [r for r in sensor.runs if r not in (train, test)]
-                        if third:
-                            loop_cal = looped(bench, sensor, train, third[0], model)
+                        others = [r for r in sensor.runs if r not in (train, test)]
+                        if others:
+                            loop_cal = looped(bench, sensor, train,
+                                              others[:int(LOOP["validate"])], model)
                     rec = bench.recording(sensor, test)
                     pair = Pair(sensor.name, model, train.label, test.label,
                                 in_run[test.label], workflows(rec, cal, loop_cal))
@@ -470,6 +476,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="the loop's diagnose --stretch-history")
     parser.add_argument("--loop-session-start", choices=("on", "off"), default="on",
                         help="the loop's diagnose --session-start")
+    parser.add_argument("--loop-validate", type=int, default=3, metavar="N",
+                        help="the loop validates on the first N runs other than A and B "
+                             "(default 3)")
     parser.add_argument("--refit", action="store_true", help="ignore cached fits")
     parser.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
                         default="extend",
@@ -484,7 +493,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     ENGINE.update(out_of_range=args.out_of_range, tracking=args.baseline_tracking)
     LOOP.update(stretch_history=args.loop_stretch_history == "on",
-                session_start=args.loop_session_start == "on")
+                session_start=args.loop_session_start == "on", validate=args.loop_validate)
     available = sensors_of(args.data)
     names = args.sensors or list(available)
     unknown = [n for n in names if n not in available]
