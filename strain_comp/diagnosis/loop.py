@@ -41,10 +41,11 @@ Per calibrated sensor that has a recording with a reference strain:
    measured against the current model *with* the intercept, so an effect never gets the
    credit of a mere offset (the offset competes as a candidate of its own).
 6. **Report.** The selected terms are fitted on all fit data; RMSE before and after is
-   measured on the held-out blocks or on the ``validate_recordings``. Added effects are
-   kept only while each one lowers that held-out RMSE by more than ``margin``, below both
-   the model before it and that model with an intercept (an effect that does not is not
-   added); the result says when nothing helps. The output calibration is the input plus
+   measured on the held-out blocks or on the ``validate_recordings``. An effect is kept
+   if it lowers that held-out RMSE by more than ``margin``, below both the model before it
+   and that model with an intercept (with several validation runs, the median run's RMSE
+   too); one that does not is not added, and the later ones are still tried. The result
+   says when nothing helps. The output calibration is the input plus
    the added effect entries, with the coefficients whose held-out error is reported.
 7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
    run, minus the strain runs start at) is a per-run intercept: inside one run it cannot be
