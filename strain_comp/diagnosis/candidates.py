@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from strain_comp.core.effects import STRETCH_FORMS
+from strain_comp.core.effects import STRETCH_FORMS, effect_dict, regressor_from_dict
 
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
 """Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
@@ -81,4 +81,20 @@ def default_candidates(*, temperature_ref: float | None = None,
             for nb in neighbours]
     for entry in out:
         entry["coef"] = 0.0
+    return out
+
+
+def added_effects(candidates: Sequence[dict[str, Any]], cols: Sequence[int],
+                  coefs: Sequence[float], existing: Sequence[dict[str, Any]] = ()
+                  ) -> list[dict[str, Any]]:
+    """Calibration-file entries of candidates ``cols`` with ``coefs``, each named after its
+    candidate (``_2``, ``_3``... where the name is taken by ``existing`` or an earlier one)."""
+    taken = {str(e["name"]) for e in existing}
+    out = []
+    for j, c in zip(cols, coefs, strict=True):
+        name, k = str(candidates[j]["name"]), 2
+        while name in taken:
+            name, k = f"{candidates[j]['name']}_{k}", k + 1
+        taken.add(name)
+        out.append(effect_dict(name, regressor_from_dict(candidates[j]), float(c)))
     return out

@@ -98,7 +98,6 @@ from strain_comp.core.calibration import (
 from strain_comp.core.effects import (
     Batch,
     EffectTerms,
-    effect_dict,
     regressor_from_dict,
     run_segments,
 )
@@ -106,7 +105,11 @@ from strain_comp.core.engine import RANGE_MARGIN, Engine, used_mask
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import gap_for
 from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
-from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
+from strain_comp.diagnosis.candidates import (
+    BASELINE_WINDOW,
+    added_effects,
+    default_candidates,
+)
 from strain_comp.diagnosis.report import (
     SESSION_RECORDS,
     DiagnoseResult,
@@ -298,14 +301,6 @@ def _rmse_stats(e: np.ndarray) -> dict[str, float]:
     return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
 
 
-def _unique(name: str, taken: set[str]) -> str:
-    out, k = name, 2
-    while out in taken:
-        out, k = f"{name}_{k}", k + 1
-    taken.add(out)
-    return out
-
-
 def _holdout_period(holdout_fraction: float) -> int:
     """Every how many-th time block is held out (module docstring, step 3)."""
     return max(2, round(1.0 / holdout_fraction))
@@ -433,9 +428,7 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
         kept = [k for k, j in enumerate(terms) if not session.redundant(j)]
         terms, coefs = [terms[k] for k in kept], [coefs[k] for k in kept]
     gains = best.selection.gains
-    taken = {str(e["name"]) for e in cal.effects}
-    added = [effect_dict(_unique(names[j], taken), regressor_from_dict(candidates[j]), c)
-             for j, c in zip(terms, coefs, strict=True)]
+    added = added_effects(candidates, terms, coefs, cal.effects)
     std_fit = np.std(g_fit, axis=0)
     coef_of = dict(zip(terms, coefs, strict=True))
     rows = []

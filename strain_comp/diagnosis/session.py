@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.effects import effect_dict, regressor_from_dict
+from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 
@@ -132,18 +132,6 @@ class SessionHeldOut:
         """A validation run whose session start makes at least one step."""
         return any(start.steps for start in self.starts())
 
-    def effects(self, cols: Sequence[int], coef: np.ndarray) -> list[dict[str, Any]]:
-        """The effect entries of ``cols`` with ``coef`` (unique names)."""
-        taken = {str(e["name"]) for e in self.calibration.sensors[self.sensor].effects}
-        out = []
-        for j, c in zip(cols, coef, strict=True):
-            name, k = str(self.candidates[j]["name"]), 2
-            while name in taken:
-                name, k = f"{self.candidates[j]['name']}_{k}", k + 1
-            taken.add(name)
-            out.append(effect_dict(name, regressor_from_dict(self.candidates[j]), float(c)))
-        return out
-
     def redundant(self, j: int) -> bool:
         """Is candidate ``j`` what the session start makes itself (an output offset or
         gain)? Such a term is neither scored nor written after it."""
@@ -158,7 +146,8 @@ class SessionHeldOut:
         if key not in self._cache:
             cal = self.calibration.sensors[self.sensor]
             trial = Calibration({**self.calibration.sensors, self.sensor: replace(
-                cal, effects=[*cal.effects, *self.effects(cols, coef)])})
+                cal, effects=[*cal.effects, *added_effects(self.candidates, cols, list(coef),
+                                                           cal.effects)])})
             self._cache[key] = np.concatenate(
                 [session_errors(self._restricted(trial, bag), self._bag(bag), self.sensor,
                                 seconds) for bag, seconds in self.runs])
