@@ -17,9 +17,8 @@ this run (a tare), an alternation of the excitation every other sample (pair mea
    that stays without relaxing): ``input.baseline_step`` on, like 4.
 
 The condition whose held-out RMSE after the loop is lowest is chosen, but a condition other
-than the reference only if it beats it by more than ``margin`` (relative), pooled and, over
-several validation runs, on the median run: a tare or a filter that worsens held-out error,
-or that one validation run alone wants, is not chosen. Every condition is reported with its
+than the reference only if it beats it by more than ``margin`` (relative): a tare or a
+filter that worsens held-out error is not chosen. Every condition is reported with its
 reading (e.g. ``alternation +-340 ohm every other sample``) and its before/after RMSE.
 Quantisation found in the data is reported as a reading only: a quantisation step cannot
 be undone by a causal term without lag (any dequantiser is a low-pass filter, which delays
@@ -147,19 +146,6 @@ def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | Non
     return "; ".join(lines) or "no sensor with a rest resistance to tare"
 
 
-def _better(new: DiagnoseResult, old: DiagnoseResult, margin: float) -> bool:
-    """Is ``new``'s RMSE after the loop below ``old``'s by more than ``margin``, pooled and,
-    over several validation runs, on the median run (each sensor's runs in turn)?"""
-    if not new.after["rmse"] < (1.0 - margin) * old.after["rmse"]:
-        return False
-    per_new = [x for d in new.sensors.values() for x in d.after_runs]
-    per_old = [x for d in old.sensors.values() for x in d.after_runs]
-    if len(per_new) < 2 or len(per_new) != len(per_old):
-        return True
-    ratios = [a / b if b > 0 else 1.0 for a, b in zip(per_new, per_old, strict=True)]
-    return bool(np.median(ratios) < 1.0 - margin)
-
-
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         validate_recordings: Mapping[str, Recording]
                         | Sequence[Mapping[str, Recording]] | None = None,
@@ -206,7 +192,8 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                         margin=margin, tare=mode, **options) for _, _, cal, mode in runs]
     best = 0
     for k, result in enumerate(results[1:], start=1):
-        if _better(result, results[best], margin) and _better(result, results[0], margin):
+        if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \
+                and result.after["rmse"] < (1.0 - margin) * results[0].after["rmse"]:
             best = k
     conditions = [{"name": name, "reading": reading, "before": r.before["rmse"],
                    "after": r.after["rmse"], "chosen": k == best}

@@ -481,8 +481,6 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
     found = SensorDiagnosis(name=sensor, before=_rmse_stats(e_before),
                             after=_rmse_stats(e_after), scores=rows, added=added,
                             message=message, plot=plot, winner=winner)
-    if runs is not None and runs.size == e_after.size:
-        found.after_runs = [rms(e_after[runs == k]) for k in np.unique(runs)]
     if session is not None:
         found.as_calibrated = {"before": _rmse_stats(e_out), "after": _rmse_stats(e_linear)}
         found.session = _session_record(cal, session, e_out, e_before, margin)

@@ -154,8 +154,6 @@ class SensorDiagnosis:
     as_calibrated: dict[str, dict[str, float]] = field(default_factory=dict)
     """Before and after without the session-start recalibration (the loop's own residual on
     the validation samples it reads), when ``before`` and ``after`` are measured after it."""
-    after_runs: list[float] = field(default_factory=list)
-    """``after``'s RMSE on each validation run (empty: held-out blocks)."""
     session: dict[str, Any] = field(default_factory=dict)
     """The session start on the validation runs (``loop._session_record``; empty: the
     before and after are measured without one)."""
