@@ -24,7 +24,11 @@ For every sensor in ``../shared/data/measured`` (carbon black ``cb``, conductive
      from the first rest and the largest strain of that cycle;
    * ``span_recal``: ``span``, then ``recal``'s output map on the same cycle;
    * ``loop`` (with ``--loop``): the headline workflow on the calibration the residual loop
-     (``strain-comp diagnose``) made from A, validated on a third run C.
+     (``strain-comp diagnose A --validate C... --tare auto``) made from A, validated on up
+     to three other runs C (the first runs other than A and B; ``--loop-validate N``); the
+     loop scores its terms on each C after C's own session start and keeps those that lower
+     the pooled and the median run's error (``--loop-session-start off``: as calibrated;
+     ``--loop-stretch-history on``: with the ``stretch`` candidates).
 
 The *in-run bound* of B is the same model fitted on B itself and scored on B (the
 ``evaluate --in-run-bound`` number). The **ratio** of a pair is the workflow's RMSE on B
@@ -67,9 +71,13 @@ HEADLINE_FORMS = {"recal": ("output",), "span": ("input",), "span_recal": ("inpu
 """The recalibrations of each workflow (the loop's calibration gets the headline's)."""
 TARGET_MEDIAN, TARGET_WORST = 1.3, 2.5
 FIRST_CYCLE_CAP = 0.4
-"""The first cycle is at most this share of a run (a run that never returns to rest)."""
+"""The first cycle is at most this share of a run (a run that never returns to rest; the
+same as ``strain_comp.diagnosis.session.FIRST_CYCLE_CAP``)."""
 ENGINE = {"out_of_range": "extend", "tracking": "on"}
 """Engine options of every evaluation (``--out-of-range``)."""
+LOOP = {"stretch_history": False, "session_start": True, "validate": 3}
+"""Options of the loop workflow's ``diagnose`` (``--loop-stretch-history``,
+``--loop-session-start``) and how many other runs it validates on (``--loop-validate``)."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
 
 
@@ -123,19 +131,12 @@ def quick(sensor: Sensor) -> Sensor:
 
 
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
-    """Seconds from the start of a run to the end of its first load and unload: the first
-    return of the reference ``s`` to within 10 % of its span above the minimum after first
-    passing half the span; at most ``FIRST_CYCLE_CAP`` of the run."""
-    ok = np.isfinite(t) & np.isfinite(s)
-    t, s = t[ok], s[ok]
-    lo, hi = np.percentile(s, [1, 99])
-    cap = FIRST_CYCLE_CAP * float(t[-1] - t[0])
-    up = np.flatnonzero(s > lo + 0.5 * (hi - lo))
-    if up.size:
-        back = np.flatnonzero(s[up[0]:] < lo + 0.1 * (hi - lo))
-        if back.size:
-            return min(float(t[up[0] + back[0]] - t[0]), cap)
-    return cap
+    """Seconds of a run's first load and unload (``strain_comp.diagnosis.session``, the
+    cycle the loop's session start uses too; at most ``FIRST_CYCLE_CAP`` of the run)."""
+    from strain_comp.diagnosis.session import first_cycle as cycle
+
+    seconds = cycle(t, s)
+    return FIRST_CYCLE_CAP * float(t[-1] - t[0]) if seconds is None else seconds
 
 
 def code_hash() -> str:
@@ -265,20 +266,26 @@ def chain(rec: Any, cal: Any, seconds: float, forms: Sequence[str]) -> Any:
     return cal
 
 
-def looped(bench: Bench, sensor: Sensor, train: Run, validate: Run, model: str) -> Any:
-    """The calibration ``strain-comp diagnose TRAIN --validate VALIDATE`` makes, cached."""
+def looped(bench: Bench, sensor: Sensor, train: Run, validate: Sequence[Run], model: str
+           ) -> Any:
+    """The calibration ``strain-comp diagnose TRAIN --validate VALIDATE...`` makes, cached."""
     from strain_comp.core.calibration import load_calibration
     from strain_comp.diagnosis.loop import diagnose_bag
 
+    options = ("_stretch" if LOOP["stretch_history"] else "") + (
+        "" if LOOP["session_start"] else "_nosession")
     path = bench.out / "cache" / (f"{sensor.name}_{train.label}_{model}_loop_"
-                                  f"{validate.label}_{bench.key}.yaml")
+                                  f"{'+'.join(r.label for r in validate)}{options}_"
+                                  f"{bench.key}.yaml")
     if not path.is_file() or bench.refit:
         cal = bench.fit(sensor, train, model)
         src = bench.out / "cache" / f"{sensor.name}_{train.label}_{model}_{bench.key}.yaml"
         with contextlib.redirect_stdout(sys.stderr):
             diagnose_bag(str(bench.bag(sensor, train)), cal,
-                         validate=str(bench.bag(sensor, validate)), out=str(path),
-                         plots=None, inputs=[str(src)], tare="auto")
+                         validate=[str(bench.bag(sensor, r)) for r in validate],
+                         out=str(path), plots=None, inputs=[str(src)], tare="auto",
+                         stretch_history=LOOP["stretch_history"],
+                         session_start=LOOP["session_start"])
     return load_calibration(path)
 
 
@@ -325,9 +332,10 @@ def run_benchmark(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str]
                         break
                     loop_cal = None
                     if loop:
-                        third = [r for r in sensor.runs if r not in (train, test)]
-                        if third:
-                            loop_cal = looped(bench, sensor, train, third[0], model)
+                        others = [r for r in sensor.runs if r not in (train, test)]
+                        if others:
+                            loop_cal = looped(bench, sensor, train,
+                                              others[:int(LOOP["validate"])], model)
                     rec = bench.recording(sensor, test)
                     pair = Pair(sensor.name, model, train.label, test.label,
                                 in_run[test.label], workflows(rec, cal, loop_cal))
@@ -464,6 +472,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="three runs per sensor")
     parser.add_argument("--loop", action="store_true",
                         help="also the residual loop's calibration (diagnose on a third run)")
+    parser.add_argument("--loop-stretch-history", choices=("off", "on"), default="off",
+                        help="the loop's diagnose --stretch-history")
+    parser.add_argument("--loop-session-start", choices=("on", "off"), default="on",
+                        help="the loop's diagnose --session-start")
+    parser.add_argument("--loop-validate", type=int, default=3, metavar="N",
+                        help="the loop validates on the first N runs other than A and B "
+                             "(default 3)")
     parser.add_argument("--refit", action="store_true", help="ignore cached fits")
     parser.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
                         default="extend",
@@ -477,6 +492,8 @@ def main(argv: list[str] | None = None) -> int:
 
     start = time.perf_counter()
     ENGINE.update(out_of_range=args.out_of_range, tracking=args.baseline_tracking)
+    LOOP.update(stretch_history=args.loop_stretch_history == "on",
+                session_start=args.loop_session_start == "on", validate=args.loop_validate)
     available = sensors_of(args.data)
     names = args.sensors or list(available)
     unknown = [n for n in names if n not in available]
@@ -495,7 +512,8 @@ def main(argv: list[str] | None = None) -> int:
           "2 cores, timings vary by machine)")
     meta = {"out_of_range": args.out_of_range, "baseline_tracking": args.baseline_tracking,
             "models": args.models, "sensors": names,
-            "quick": args.quick, "loop": args.loop, "seconds": seconds,
+            "quick": args.quick, "loop": args.loop, "loop_options": dict(LOOP),
+            "seconds": seconds,
             "fit_seconds": bench.fit_seconds}
     path = args.json or args.out / "generalisation.json"
     path.parent.mkdir(parents=True, exist_ok=True)

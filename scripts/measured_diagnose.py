@@ -21,7 +21,10 @@ Each CSV is imported with ``strain_comp.io.csv_import.import_csv`` (the importer
 ``strain-comp import-csv``), the calibration is fitted with ``strain_comp.offline.fit.fit_sensor``
 (``strain-comp fit``) and ``strain_comp.diagnosis.loop.diagnose`` (``strain-comp diagnose
 --validate``) adds what lowers the error on the validation run. "before" and "after" are
-the RMSE on the validation run through the engine, without and with the added terms.
+the RMSE on the validation run without and with the added terms, after the session-start
+recalibration on its first cycle (``--session-start on``, the default, as ``diagnose``;
+``off``: through the engine as calibrated). With it on, the last column but one gives the
+chosen result's figures without that recalibration as well.
 
 Prints a Markdown table (data set x model: before, after, effects added), writes
 ``results.json``, the diagnosed calibrations (``<set>_<model>_diagnosed.yaml``) and the
@@ -55,6 +58,14 @@ DATASETS = {
 }
 
 
+def without(row: dict) -> str:
+    """The chosen result's before -> after without the session start ("-": none made)."""
+    if not row["as_calibrated"]:
+        return "-"
+    return (f"{row['as_calibrated']['before']:.3f} -> {row['as_calibrated']['after']:.3f} "
+            f"{row['unit']}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA,
@@ -62,11 +73,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=REPO / "out" / "diagnose")
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS),
                         help=f"models to fit (default {' '.join(DEFAULT_MODELS)})")
+    parser.add_argument("--session-start", choices=("on", "off"), default="on",
+                        help="diagnose --session-start (default on)")
     args = parser.parse_args(argv)
 
     from strain_comp.core.calibration import Calibration, save_calibration
     from strain_comp.diagnosis.conditions import diagnose_conditions
-    from strain_comp.diagnosis.report import effect_reading, write_plots
+    from strain_comp.diagnosis.report import SESSION_RECORDS, effect_reading, write_plots
     from strain_comp.errors import StrainCompError
     from strain_comp.io.csv_import import import_csv
     from strain_comp.offline.fit import fit_sensor
@@ -91,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
                 cal = Calibration({name: fitted})
                 result = diagnose_conditions({name: recs["diagnose"]}, cal,
                                              validate_recordings={name: recs["validate"]},
-                                             tare="auto")
+                                             tare="auto",
+                                             session_start=args.session_start == "on")
             except StrainCompError as err:
                 failures.append(f"{name}/{model}: {err}")
                 continue
@@ -103,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
                 "data": name, "model": model, "unit": spec["unit"],
                 "fit": spec["fit"], "diagnose": spec["diagnose"], "validate": spec["validate"],
                 "before": result.before["rmse"], "after": result.after["rmse"],
+                "as_calibrated": {k: v["rmse"] for k, v in
+                                  result.sensors[name].as_calibrated.items()},
                 "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
                            "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
                                                      a.magnitude, unit=spec["unit"])}
@@ -115,8 +131,9 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
     print("| data (fit -> diagnose -> validate) | model | validation RMSE after the loop: "
           "as calibrated | with tare | with alternation correction | with despike | with "
-          "baseline-step correction | chosen: before -> after | effects added (reading) |")
-    print("|---|---|---:|---:|---:|---:|---:|---|---|")
+          "baseline-step correction | chosen: before -> after | chosen, without the session "
+          "start: before -> after | effects added (reading) |")
+    print("|---|---|---:|---:|---:|---:|---:|---|---|---|")
     for row in rows:
         short = {"cb_pdms": "cb_pdms (v16 -> v19 -> v10)",
                  "cb_levels": "cb_pdms (v16 -> rand_sawtooth -> v9)",
@@ -133,7 +150,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {short} | {row['model']} | {cell('as calibrated')} | {cell('tare')} | "
               f"{cell('alternation')} | {cell('despike')} | {cell('baseline step')} | "
               f"{chosen}: {row['before']:.3f} -> "
-              f"{row['after']:.3f} {row['unit']} | {effects} |")
+              f"{row['after']:.3f} {row['unit']} | {without(row)} | {effects} |")
+    starts = [f"{row['data']}/{row['model']}: {c['reading']}" for row in rows
+              for c in row["conditions"] if c["name"] in SESSION_RECORDS]
+    if starts:
+        print("\nsession start on the validation runs: " + "; ".join(starts))
     readings = dict.fromkeys(c["reading"] for row in rows for c in row["conditions"]
                              if c["name"] == "measurement chain")
     if readings:

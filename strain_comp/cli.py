@@ -366,10 +366,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     _bag(args.bag)
-    if args.validate:
-        _bag(args.validate, "validation bag")
+    for validate in args.validate or ():
+        _bag(validate, "validation bag")
     _existing(args.calibration, "calibration file")
-    inputs = [i for i in (args.bag, args.validate, args.calibration) if i is not None]
+    inputs = [args.bag, *(args.validate or ()), args.calibration]
     check_distinct((args.out, args.json, args.plots))
     for out in (args.out, args.json):
         if out is not None and out != "-":
@@ -380,7 +380,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare,
-                          stretch_history=args.stretch_history)
+                          stretch_history=args.stretch_history,
+                          session_start=args.session_start == "on")
     print(report.summary(), file=_results(args))
     if args.json:
         _write_json(args.json, report.to_json(), inputs)
@@ -606,9 +607,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", metavar="BAG.mcap", help="bag with a strain reference")
     p.add_argument("--calibration", required=True, metavar="CAL.yaml",
                    help="calibration file to improve")
-    p.add_argument("--validate", metavar="BAG2.mcap",
-                   help="held-out bag for the before/after error (default: held-out blocks "
-                   "of BAG)")
+    p.add_argument("--validate", metavar="BAG2.mcap", nargs="+",
+                   help="held-out bag(s) for the before/after error (default: held-out "
+                   "blocks of BAG); with several, a term must also lower the median run's")
     p.add_argument("--out", required=True, metavar="CAL2.yaml",
                    help="calibration to write, with the added terms (replaced atomically)")
     p.add_argument("--json", metavar="OUT.json",
@@ -619,6 +620,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stretch-history", action="store_true",
                    help="also try terms for a rest level or a sensitivity that moves with "
                         "the stretch done (effect kind stretch)")
+    p.add_argument("--session-start", choices=("on", "off"), default="on",
+                   help="on (default): measure the --validate run after recalibrating it "
+                        "on its first cycle (recalibrate --input, then the output map), "
+                        "as a session is used; off: as calibrated")
     p.set_defaults(func=cmd_diagnose)
 
     p = command("recalibrate", "output gain and offset (or input zero and span) through "

@@ -53,9 +53,10 @@ def test_alternation_is_found_corrected_and_reported(calibration: Calibration) -
 
 def test_a_tare_that_worsens_held_out_error_is_not_chosen(calibration: Calibration) -> None:
     # the runs do not start at their rest level: a tare reads a warm-up transient
+    # (judged as calibrated: the session start re-zeroes the validation run itself)
     result = diagnose_conditions({"s1": run(3, start_bump=40.0)}, calibration,
                                  validate_recordings={"s1": run(5, start_bump=-40.0)},
-                                 tare="auto")
+                                 tare="auto", session_start=False)
     rows = {c["name"]: c for c in result.conditions}
     assert rows["tare"]["after"] > rows["as calibrated"]["after"]
     assert chosen(result) == ["as calibrated"]
@@ -65,8 +66,16 @@ def test_a_tare_that_helps_is_chosen(calibration: Calibration) -> None:
     plain = run(4)
     shifted = replace(plain, r=1.3 * plain.r)
     result = diagnose_conditions({"s1": shifted}, calibration,
-                                 validate_recordings={"s1": shifted}, tare="auto")
+                                 validate_recordings={"s1": shifted}, tare="auto",
+                                 session_start=False)
     assert chosen(result) == ["tare"]
+    # after the session start on the validation run, which re-zeroes and re-spans it, the
+    # tare gets no credit: the 30 % higher resistance is read as a sensitivity change
+    used = diagnose_conditions({"s1": shifted}, calibration,
+                               validate_recordings={"s1": shifted}, tare="auto")
+    assert chosen(used) == ["as calibrated"]
+    untared = next(c for c in result.conditions if c["name"] == "as calibrated")
+    assert used.after["rmse"] < 0.5 * untared["before"]
 
 
 def test_readings_name_the_physics() -> None:

@@ -8,7 +8,9 @@ import pytest
 from strain_comp.diagnosis.selection import (
     Gram,
     candidate_scores,
+    held_out_better,
     keep_on_held_out,
+    linear_held_out,
     select_forward,
     significant,
 )
@@ -42,7 +44,7 @@ def test_forward_selection_finds_the_true_effect_only() -> None:
     assert selection.chosen == [1]  # the intercept comes with it, not as a choice
     scores = candidate_scores(gram, g.shape[1], 0)
     assert scores[1] > 0.9 and max(scores[j] for j in (2, 3, 4)) < 0.01
-    branch = keep_on_held_out(gram, selection, None, 0, e, g, 6, 0.03)
+    branch = keep_on_held_out(gram, selection, None, 0, 6, 0.03, linear_held_out(e, g))
     assert sorted(branch.kept) == [0, 1]
     assert branch.coef[branch.kept.index(0)] == pytest.approx(0.5, abs=0.05)
     assert branch.coef[branch.kept.index(1)] == pytest.approx(2.0, abs=0.05)
@@ -56,3 +58,16 @@ def test_significance_rejects_a_gain_of_one_fold() -> None:
     lucky[0] -= 6.0
     lucky[1:] += 1.0
     assert not significant(before, lucky, np.ones(6))
+
+
+def test_several_validation_runs_decide_by_their_median() -> None:
+    """A term that lowers the pooled validation error through one run while the others
+    get worse is not kept; one that lowers most runs' errors is (one run: pooled only)."""
+    runs = np.repeat([0, 1, 2], 100)
+    old = np.concatenate([np.full(100, 10.0), np.ones(100), np.ones(100)])
+    one_run = old * np.repeat([0.5, 1.1, 1.1], 100)
+    most_runs = old * np.repeat([0.9, 0.9, 1.02], 100)
+    assert held_out_better(one_run, old, 0.03)  # pooled alone, it would pass
+    assert not held_out_better(one_run, old, 0.03, runs)
+    assert held_out_better(most_runs, old, 0.03, runs)
+    assert held_out_better(one_run[:100], old[:100], 0.03, np.zeros(100, dtype=int))

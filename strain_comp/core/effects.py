@@ -646,7 +646,8 @@ class Mullins(Regressor):
                    _positive(params, "n0", 1.0))
 
 
-_STRETCH_FORMS = ("rest", "rest_log", "gain", "gain_log")
+STRETCH_FORMS = ("rest", "rest_log", "gain", "gain_log")
+"""The forms of ``Stretch`` (its docstring), in the order of the kernel's codes."""
 
 
 @njit
@@ -692,7 +693,7 @@ class Stretch(Regressor):
         self.form = form
         self.scale = scale
         self.band = band
-        self._code = _STRETCH_FORMS.index(form)
+        self._code = STRETCH_FORMS.index(form)
         self.reset()
 
     def reset(self) -> None:
@@ -706,7 +707,7 @@ class Stretch(Regressor):
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> Stretch:
-        return cls(_choice(params, "form", _STRETCH_FORMS, "rest"),
+        return cls(_choice(params, "form", STRETCH_FORMS, "rest"),
                    _positive(params, "scale", 1000.0), _number(params, "band", 0.5, lo=0.0))
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from strain_comp.core.effects import STRETCH_FORMS, effect_dict, regressor_from_dict
+
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
 """Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
 (fine enough that the nearest one is within 19 % of any time constant in that span)."""
@@ -72,11 +74,27 @@ def default_candidates(*, temperature_ref: float | None = None,
     if stretch_history:
         out += [{"name": f"stretch_{form}_x{scale:g}", "kind": "stretch",
                  "params": {"form": form, "scale": scale, "band": STRETCH_BAND}}
-                for form in ("rest", "rest_log", "gain", "gain_log") for scale in STRETCH_SCALES]
+                for form in STRETCH_FORMS for scale in STRETCH_SCALES]
     out.append({"name": "baseline", "kind": "baseline",
                 "params": {"window": BASELINE_WINDOW, "rest": float(baseline_rest)}})
     out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}
             for nb in neighbours]
     for entry in out:
         entry["coef"] = 0.0
+    return out
+
+
+def added_effects(candidates: Sequence[dict[str, Any]], cols: Sequence[int],
+                  coefs: Sequence[float], existing: Sequence[dict[str, Any]] = ()
+                  ) -> list[dict[str, Any]]:
+    """Calibration-file entries of candidates ``cols`` with ``coefs``, each named after its
+    candidate (``_2``, ``_3``... where the name is taken by ``existing`` or an earlier one)."""
+    taken = {str(e["name"]) for e in existing}
+    out = []
+    for j, c in zip(cols, coefs, strict=True):
+        name, k = str(candidates[j]["name"]), 2
+        while name in taken:
+            name, k = f"{candidates[j]['name']}_{k}", k + 1
+        taken.add(name)
+        out.append(effect_dict(name, regressor_from_dict(candidates[j]), float(c)))
     return out

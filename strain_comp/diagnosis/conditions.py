@@ -30,7 +30,7 @@ noise).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -147,15 +147,18 @@ def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | Non
 
 
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
-                        validate_recordings: Mapping[str, Recording] | None = None,
+                        validate_recordings: Mapping[str, Recording]
+                        | Sequence[Mapping[str, Recording]] | None = None,
                         tare: str = "calibration", margin: float = 0.03,
                         **options: Any) -> DiagnoseResult:
     """``diagnose`` under each condition of the module docstring; the chosen result, with
     every condition's record in ``conditions``."""
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
-    if validate_recordings is not None:  # what the validation runs show is tested as well
-        more = chain_findings(validate_recordings, calibration)
+    validate = ([] if validate_recordings is None else [validate_recordings]
+                if isinstance(validate_recordings, Mapping) else list(validate_recordings))
+    for bag in validate:  # what the validation runs show is tested as well
+        more = chain_findings(bag, calibration)
         for key in ("alternating", "spiky", "stepped"):
             getattr(found, key).update(getattr(more, key))
         readings += [f"{line} (validation run)"
@@ -165,7 +168,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
         ("as calibrated", "the calibration's rest resistance and input", calibration,
          "calibration")]
     if tare == "auto":
-        runs.append(("tare", _tare_outcome(calibration, recordings, validate_recordings),
+        runs.append(("tare", _tare_outcome(calibration, recordings, *validate),
                      calibration, "auto"))
     base = calibration
     if alternating:
@@ -199,4 +202,6 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
     conditions += [{"name": "measurement chain", "reading": line, "before": float("nan"),
                     "after": float("nan"), "chosen": False}
                    for line in readings if "alternation" not in line]
+    conditions += [{k: d.session[k] for k in ("name", "reading", "before", "after", "chosen")}
+                   for d in results[best].sensors.values() if d.session]
     return dataclasses.replace(results[best], conditions=conditions)

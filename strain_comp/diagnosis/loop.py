@@ -41,10 +41,11 @@ Per calibrated sensor that has a recording with a reference strain:
    measured against the current model *with* the intercept, so an effect never gets the
    credit of a mere offset (the offset competes as a candidate of its own).
 6. **Report.** The selected terms are fitted on all fit data; RMSE before and after is
-   measured on the held-out blocks or on the ``validate_recordings``. Added effects are
-   kept only while each one lowers that held-out RMSE by more than ``margin``, below both
-   the model before it and that model with an intercept (an effect that does not is not
-   added); the result says when nothing helps. The output calibration is the input plus
+   measured on the held-out blocks or on the ``validate_recordings``. An effect is kept
+   if it lowers that held-out RMSE by more than ``margin``, below both the model before it
+   and that model with an intercept (with several validation runs, the median run's RMSE
+   too); one that does not is not added, and the later ones are still tried. The result
+   says when nothing helps. The output calibration is the input plus
    the added effect entries, with the coefficients whose held-out error is reported.
 7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
    run, minus the strain runs start at) is a per-run intercept: inside one run it cannot be
@@ -54,6 +55,19 @@ Per calibrated sensor that has a recording with a reference strain:
    RMSE is lower by more than ``margin``. That choice is made on the held-out data, like
    the veto of step 6: given a ``--validate`` recording of another run it is a cross-run
    test; on held-out blocks of one run the two tie and the constant hypothesis stays.
+
+8. **Session start.** With ``validate_recordings`` (and ``session_start``), every held-out
+   figure of steps 6-7 is the validation run's RMSE as the product is used: the calibration
+   with the terms recalibrated on that run's first load and unload (``recalibrate --input``,
+   then the output map; ``strain_comp.diagnosis.session``), then evaluated over the whole
+   run. The per-run ``baseline`` hypothesis is then not tried: that recalibration re-zeroes
+   every run itself, and a baseline term (whose steady output is the rest strain at any
+   resistance) would leave it no input span to make. Nor are an intercept (``offset``) or
+   a plain gain (``strain_level`` of power 1) written or scored: the output map of that
+   recalibration makes its own, and through the steady outputs the input span reads
+   they would only move where that span lands. The terms are still fitted with the
+   intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
+   run whose first cycle allows neither step is measured as calibrated.
 
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
@@ -75,11 +89,15 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, save_calibration
+from strain_comp.core.calibration import (
+    Calibration,
+    SensorCalibration,
+    save_calibration,
+    strain_unit_words,
+)
 from strain_comp.core.effects import (
     Batch,
     EffectTerms,
-    effect_dict,
     regressor_from_dict,
     run_segments,
 )
@@ -87,8 +105,13 @@ from strain_comp.core.engine import RANGE_MARGIN, Engine, used_mask
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import gap_for
 from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
-from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
+from strain_comp.diagnosis.candidates import (
+    BASELINE_WINDOW,
+    added_effects,
+    default_candidates,
+)
 from strain_comp.diagnosis.report import (
+    SESSION_RECORDS,
     DiagnoseResult,
     EffectScore,
     SensorDiagnosis,
@@ -98,9 +121,11 @@ from strain_comp.diagnosis.selection import (
     Gram,
     candidate_scores,
     keep_on_held_out,
+    linear_held_out,
     rms,
     select_forward,
 )
+from strain_comp.diagnosis.session import SessionHeldOut
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording, hold_latest, load_recordings
 
@@ -113,6 +138,10 @@ subsample keeps the residual's RMSE and MAE unbiased estimates of the full data'
 low-pass would shrink the noise no term can explain and inflate every gain), and the
 regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
 regressor matrix holds at most about ``ROW_BUDGET`` rows."""
+GAIN_CHANGE = 0.05
+"""A sensitivity against the calibration this far from 1 (the session start's input span
+on the validation run), which that session start corrects, is read as a gain change
+between runs."""
 
 
 @dataclass
@@ -157,6 +186,8 @@ class _Run:
     """Positions among the used samples where the engine reset after a gap."""
     beyond: np.ndarray
     """What the engine adds beyond the valid range (its ``out_of_range`` extension)."""
+    cal: SensorCalibration
+    """The sensor's calibration this run was read with."""
 
 
 def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
@@ -180,7 +211,7 @@ def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
         margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
         s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
         out[name] = _Run(s_hat, result.direction.astype(np.float64), result.resistance,
-                         used, starts, result.strain - s_hat)
+                         used, starts, result.strain - s_hat, calibration.sensors[name])
     return out
 
 
@@ -214,15 +245,16 @@ def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], ba
         reset, batch.t.size, starts)
 
 
-def _series(sensor: str, cal: SensorCalibration, bag: Mapping[str, Recording],
-            runs: Mapping[str, _Run], candidates: Sequence[dict[str, Any]],
-            n_blocks: int, stride: int = 1) -> _Series | None:
+def _series(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, _Run],
+            candidates: Sequence[dict[str, Any]], n_blocks: int, stride: int = 1
+            ) -> _Series | None:
     """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
     at every ``stride``-th of the samples kept (the regressors run over all of them)."""
     rec = bag[sensor]
     if rec.s is None or sensor not in runs:
         return None
     run = runs[sensor]
+    cal = run.cal
     used = run.used
     ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
     if ok.sum() < 2 * n_blocks:
@@ -269,14 +301,6 @@ def _rmse_stats(e: np.ndarray) -> dict[str, float]:
     return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
 
 
-def _unique(name: str, taken: set[str]) -> str:
-    out, k = name, 2
-    while out in taken:
-        out, k = f"{name}_{k}", k + 1
-    taken.add(out)
-    return out
-
-
 def _holdout_period(holdout_fraction: float) -> int:
     """Every how many-th time block is held out (module docstring, step 3)."""
     return max(2, round(1.0 / holdout_fraction))
@@ -295,12 +319,16 @@ def _baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> floa
     return float(np.mean(values)) if values else 0.0
 
 
-def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str, Recording]],
+def _diagnose_sensor(sensor: str, calibration: Calibration,
+                     bags: list[Mapping[str, Recording]],
                      validate: list[Mapping[str, Recording]] | None,
                      base_fit: list[dict[str, _Run]], base_val: list[dict[str, _Run]],
                      candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
                      n_blocks: int, margin: float, max_effects: int,
-                     stretch_history: bool = False) -> SensorDiagnosis | None:
+                     stretch_history: bool = False, session_start: bool = True,
+                     ) -> SensorDiagnosis | None:
+    """One sensor's loop (module docstring)."""
+    cal = calibration.sensors[sensor]
     if candidates is None:
         temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
                  if sensor in b and b[sensor].temperature is not None]
@@ -321,10 +349,14 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         kinds.append("offset")
     offset = kinds.index("offset")
     baselines = [j for j, k in enumerate(kinds) if k == "baseline"]
+    session = (None if validate is None or not session_start
+               else SessionHeldOut(calibration, sensor, validate, candidates))
+    if session is not None and not session.usable():
+        session = None
     stride = _stride(bags, sensor)
     val_stride = 1 if validate is None else _stride(validate, sensor)
     series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-              for s in [_series(sensor, cal, b, runs, candidates, n_blocks, stride)]
+              for s in [_series(sensor, b, runs, candidates, n_blocks, stride)]
               if s is not None]
     if not series:
         return None
@@ -346,8 +378,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
 
     if validate is not None:
         val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
-                      for s in [_series(sensor, cal, b, runs, candidates, n_blocks,
-                                        val_stride)]
+                      for s in [_series(sensor, b, runs, candidates, n_blocks, val_stride)]
                       if s is not None]
         if not val_series:
             raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
@@ -363,29 +394,41 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
         s_out = np.concatenate([s.s[h] for s, h in zip(series, held_out, strict=True)])
 
+    linear = linear_held_out(e_out, g_out)
+    held_out = linear if session is None else session
+    runs = None  # the validation run of each held-out sample
+    if session is not None:
+        runs = session.runs_of_samples()
+    elif val_series:
+        runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(val_series)])
     chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
-    best = keep_on_held_out(gram, chosen, None, offset, e_out, g_out, n_folds, margin)
+    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
     for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
         shifted = Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
         rmse_b = shifted.cv_rmse([])
         scores[b] = 1.0 - (rmse_b / rmse_none) ** 2 if rmse_none > 0 else 0.0
+        if session is not None:  # the session start re-zeroes every run itself (step 8)
+            continue
         selection = select_forward(shifted, len(names), offset, margin, max_effects - 1,
                             auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, e_out, g_out, n_folds, margin)
+        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
+                                  runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
 
-    rmse_before = rms(e_out)
+    e_before = held_out([], np.zeros(0))
+    rmse_before = rms(e_before)
     terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
         + best.kept
     coefs = ([1.0] if terms[:1] == [best.shift] else []) + list(best.coef)
+    if session is not None:  # what the session start makes itself is not written
+        kept = [k for k, j in enumerate(terms) if not session.redundant(j)]
+        terms, coefs = [terms[k] for k in kept], [coefs[k] for k in kept]
     gains = best.selection.gains
-    taken = {str(e["name"]) for e in cal.effects}
-    added = [effect_dict(_unique(names[j], taken), regressor_from_dict(candidates[j]), c)
-             for j, c in zip(terms, coefs, strict=True)]
+    added = added_effects(candidates, terms, coefs, cal.effects)
     std_fit = np.std(g_fit, axis=0)
     coef_of = dict(zip(terms, coefs, strict=True))
     rows = []
@@ -402,7 +445,7 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
             if kinds[j] == "baseline":
                 row.magnitude = float(np.sqrt(np.mean(g_out[:, j] ** 2)))
         rows.append(row)
-    e_after = best.e_after
+    e_after = held_out(terms, np.array(coefs))
     order = [j for j in terms if j != offset] or terms
     winner = names[order[0]] if order else None
     if winner is None:
@@ -416,7 +459,8 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
     else:
         parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
-                   f"{rms(e_after):.4g} {cal.strain_unit}")
+                   f"{rms(e_after):.4g} {cal.strain_unit}"
+                   + ("" if session is None else " after the session-start recalibration"))
     left_out = [x.unsettled for x in [*series, *val_series] if x.unsettled[0] > 0]
     if left_out:
         seconds, drift = left_out[0]
@@ -429,12 +473,50 @@ def _diagnose_sensor(sensor: str, cal: SensorCalibration, bags: list[Mapping[str
         message += (f"; fitted and scored on every {stride}-th sample"
                     + (f" (validation: every {val_stride}-th)" if validate is not None else "")
                     + f" of a run longer than {ROW_BUDGET:,} samples")
+    e_linear = linear(terms, np.array(coefs))
     plot = {}
     if winner is not None:
-        plot = {"t": t_out, "e_before": e_out, "e_after": e_after, "g": g_out[:, order[0]],
+        plot = {"t": t_out, "e_before": e_out, "e_after": e_linear, "g": g_out[:, order[0]],
                 "s": s_out}
-    return SensorDiagnosis(name=sensor, before=_rmse_stats(e_out), after=_rmse_stats(e_after),
-                           scores=rows, added=added, message=message, plot=plot, winner=winner)
+    found = SensorDiagnosis(name=sensor, before=_rmse_stats(e_before),
+                            after=_rmse_stats(e_after), scores=rows, added=added,
+                            message=message, plot=plot, winner=winner)
+    if session is not None:
+        found.as_calibrated = {"before": _rmse_stats(e_out), "after": _rmse_stats(e_linear)}
+        found.session = _session_record(cal, session, e_out, e_before, margin)
+    return found
+
+
+def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.ndarray,
+                    e_start: np.ndarray, margin: float) -> dict[str, Any]:
+    """What the session start did on the validation runs, and the gain change between runs
+    it shows: the sensitivity against the calibration (the input span gain k: the sensor
+    reads 1 / k - 1 more) where it is at least ``GAIN_CHANGE`` and the session start lowers
+    the validation error by more than ``margin``."""
+    starts = session.starts()
+    spans = [s.calibration.sensors[session.sensor].input.zero_span for s in starts]
+    changes = [100.0 * (1.0 / span[2] - 1.0) for span, s in zip(spans, starts, strict=True)
+               if span is not None and "input" in s.steps]
+    before, after = rms(e_raw), rms(e_start)
+    shown = bool(changes) and max(abs(c) for c in changes) >= 100.0 * GAIN_CHANGE \
+        and after < (1.0 - margin) * before
+    seconds = ", ".join(f"{seconds:.3g}" for _, seconds in session.runs)
+    first = session.runs[0][1]
+    u = strain_unit_words(cal.strain_unit)
+    made = "; ".join(line.split(" (from ")[0].removeprefix(f"{session.sensor}: ")
+                     for s in starts for line in s.lines)
+    reading = (f"{session.sensor}: session start on the first {seconds} s of the validation "
+               f"run ({made}); validation RMSE before the loop {before:.4g} -> {after:.4g} {u}")
+    if shown:
+        reading = (f"{session.sensor}: sensitivity differs from the calibration by "
+                   + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
+                   f"recalibrate --input --from RUN --first {first:.3g}, then recalibrate "
+                   f"--from RUN --first {first:.3g} (its first load and unload), at the start "
+                   "of each session; " + reading)
+    return {"name": SESSION_RECORDS[1] if shown else SESSION_RECORDS[0],
+            "reading": reading, "before": before, "after": after, "chosen": False,
+            "sensitivity_change": changes, "seconds": [s for _, s in session.runs],
+            "steps": [s.steps for s in starts]}
 
 
 def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]],
@@ -443,7 +525,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              | None = None, holdout_fraction: float = 0.3,
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
              margin: float = 0.03, max_effects: int = 3,
-             tare: str = "calibration", stretch_history: bool = False) -> DiagnoseResult:
+             tare: str = "calibration", stretch_history: bool = False,
+             session_start: bool = True) -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
@@ -451,6 +534,9 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     ``stretch`` terms when ``stretch_history``). ``margin``: the
     least relative drop of the cross-validated RMSE for an effect to be added. ``tare``:
     ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
+    ``session_start``: with validation recordings, measure before and after on them after
+    the session-start recalibration on their first cycle (``strain_comp.diagnosis.session``;
+    a run where it cannot be made is measured as calibrated).
     """
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
@@ -462,10 +548,10 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     base_val = (None if validate is None
                 else [_base_runs(b, calibration, tare=tare) for b in validate])
     results: dict[str, SensorDiagnosis] = {}
-    for sensor, cal in calibration.sensors.items():
-        found = _diagnose_sensor(sensor, cal, bags, validate, base_fit, base_val or [],
+    for sensor in calibration.sensors:
+        found = _diagnose_sensor(sensor, calibration, bags, validate, base_fit, base_val or [],
                                  candidates, holdout_fraction, n_blocks, margin, max_effects,
-                                 stretch_history)
+                                 stretch_history, session_start)
         if found is not None:
             results[sensor] = found
     if not results:
@@ -485,7 +571,13 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     else:
         validated_on = "validate"
         validation = {"kind": "validation recordings",
-                      "sensors": sorted({n for b in validate for n in b})}
+                      "sensors": sorted({n for b in validate for n in b}),
+                      "session_start": sorted(n for n, d in results.items() if d.session)}
+        if validation["session_start"]:
+            validation["session_start_procedure"] = (
+                "before and after measured on the whole validation run after recalibrate "
+                "--input --from RUN --first SECONDS, then recalibrate --from RUN --first "
+                "SECONDS, on its first load and unload")
     return DiagnoseResult(sensors=results, before=pooled_before, after=pooled_after,
                           validated_on=validated_on, validation=validation,
                           calibration=Calibration(sensors_out))
@@ -500,16 +592,19 @@ def _pool(results: Mapping[str, SensorDiagnosis], which: str) -> dict[str, float
 
 
 def diagnose_bag(bag: str | Path, calibration: Calibration, *,
-                 validate: str | Path | None = None, out: str | Path | None = None,
-                 plots: str | Path | None = None, inputs: Sequence[str | Path] = (),
-                 **options: Any) -> DiagnoseResult:
+                 validate: str | Path | Sequence[str | Path] | None = None,
+                 out: str | Path | None = None, plots: str | Path | None = None,
+                 inputs: Sequence[str | Path] = (), **options: Any) -> DiagnoseResult:
     """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots
-    (atomically; an output that is a bag or one of ``inputs`` is refused)."""
+    (atomically; an output that is a bag or one of ``inputs`` is refused). ``validate``:
+    one validation bag or several (each a run of its own)."""
     from strain_comp.diagnosis.conditions import diagnose_conditions
 
-    inputs = [bag, *([] if validate is None else [validate]), *inputs]
+    paths = [] if validate is None else [validate] if isinstance(validate, str | Path) \
+        else list(validate)
+    inputs = [bag, *paths, *inputs]
     recordings, _ = load_recordings(bag)
-    val = None if validate is None else load_recordings(validate)[0]
+    val = [load_recordings(p)[0] for p in paths] or None
     result = diagnose_conditions(recordings, calibration, validate_recordings=val,
                                  **options)
     if out is not None:

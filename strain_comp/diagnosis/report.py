@@ -14,6 +14,10 @@ import numpy as np
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
 
+SESSION_RECORDS = ("session start", "gain change between runs")
+"""Names of the ``conditions`` records of the session start on the validation runs
+(readings, never chosen; ``strain_comp.diagnosis.loop``)."""
+
 
 @dataclass
 class EffectScore:
@@ -96,7 +100,8 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
             return f"temperature sensitivity {100.0 * coef:+.3g} %/K"
         return f"temperature offset {coef:+.3g} {u}/K"
     if kind == "mullins":
-        return f"Mullins-type softening ({params.get('form')}){size}"
+        return _mullins_reading(str(params.get("form")), float(params.get("n0", 1.0)), coef,
+                                u, size)
     if kind == "stretch":
         scale = params.get("scale")
         if str(params.get("form", "rest")).startswith("gain"):
@@ -109,6 +114,26 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
     if kind == "baseline":
         return f"per-run baseline: each run re-zeroed at its start{size}"
     return f"{kind}{size}"
+
+
+def _mullins_reading(form: str, n0: float, coef: float, u: str, size: str) -> str:
+    """A ``mullins`` term in words: the sensitivity against calibration it stands for (the
+    output carries + coef g; ``strain_comp.core.effects.Mullins`` for g)."""
+    pct = 100.0 * coef
+    if form == "cycles_log":
+        return (f"sensitivity that moves with the load cycles done: {pct:+.3g} % x ln(1 + "
+                f"cycles) against calibration ({pct * math.log(11.0):+.3g} % after 10 "
+                f"cycles){size}")
+    if form == "cycles_exp":
+        return (f"sensitivity {pct:+.3g} % against calibration at the first cycle, dying out "
+                f"over about {n0:g} load cycles{size}")
+    if form == "peak_strain":
+        return (f"sensitivity {10.0 * pct:+.3g} % per 10 {u} of the largest strain reached "
+                f"so far (Mullins-type damage){size}")
+    if form == "gap":
+        return (f"below the largest strain reached so far, {pct:+.3g} % of the distance to it "
+                f"(Mullins-type softening){size}")
+    return f"Mullins-type softening ({form}){size}"
 
 
 @dataclass
@@ -126,10 +151,23 @@ class SensorDiagnosis:
     """Held-out t, s (reference), e_before, e_after and ``g`` = the winning regressor
     (empty: none)."""
     winner: str | None = None
+    as_calibrated: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Before and after without the session-start recalibration (the loop's own residual on
+    the validation samples it reads), when ``before`` and ``after`` are measured after it."""
+    session: dict[str, Any] = field(default_factory=dict)
+    """The session start on the validation runs (``loop._session_record``; empty: the
+    before and after are measured without one)."""
 
     def to_json(self) -> dict[str, Any]:
-        return {"before": self.before, "after": self.after, "message": self.message,
-                "winner": self.winner, "added": self.added}
+        out: dict[str, Any] = {"before": self.before, "after": self.after,
+                               "message": self.message, "winner": self.winner,
+                               "added": self.added}
+        if self.session:
+            out["after_session_start"] = True
+            out["as_calibrated"] = self.as_calibrated
+            out["session_start"] = {k: self.session[k] for k in
+                                    ("reading", "sensitivity_change", "seconds", "steps")}
+        return out
 
 
 @dataclass
@@ -176,8 +214,8 @@ class DiagnoseResult:
         lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} {u}, "
                  f"after {self.after['rmse']:.4g} {u}"]
         for c in self.conditions:
-            if c["name"] == "measurement chain":
-                lines.append(f"  measurement chain: {c['reading']}")
+            if c["name"] in ("measurement chain", *SESSION_RECORDS):
+                lines.append(f"  {c['name']}: {c['reading']}")
                 continue
             verdict = "chosen" if c["chosen"] else "not chosen"
             lines.append(f"  {c['name']}: {c['reading']}; held-out RMSE after the loop "

@@ -9,7 +9,7 @@ Blocked cross-validation from per-fold sums (``Gram``), the fold-wise significan
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -194,32 +194,63 @@ class Branch:
     rmse: float
 
 
+HeldOut = Callable[[Sequence[int], np.ndarray], np.ndarray]
+"""The held-out residual of a set of terms: (columns, coefficients) -> errors over the
+held-out data (``strain_comp.diagnosis.loop``: the validation run's, after the
+session-start recalibration when it can be made)."""
+
+
+def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
+    """``HeldOut`` of held-out residuals ``e`` and regressors ``g``: e - g[:, cols] c."""
+    return lambda cols, coef: e - g[:, list(cols)] @ coef if len(cols) else e
+
+
+def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
+                    runs: np.ndarray | None = None) -> bool:
+    """Does ``e_new`` lower the held-out RMSE of ``e_old`` by more than ``margin``
+    (relative)? Given the validation run of each sample (``runs``, 0..k-1) and more than
+    one run, also the median run's: the generalisation benchmark's statistic, so that one
+    run does not decide alone."""
+    if not rms(e_new) < (1.0 - margin) * rms(e_old):
+        return False
+    if runs is None or not e_new.size == e_old.size == runs.size or runs.max() < 1:
+        return True
+    ratios = [rms(e_new[runs == k]) / rms(e_old[runs == k]) for k in np.unique(runs)]
+    return bool(np.median(ratios) < 1.0 - margin)
+
+
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
-          e_out: np.ndarray, g_out: np.ndarray, n_folds: int, margin: float) -> Branch:
-    """The held-out veto (module docstring, step 6) on one branch's selected terms."""
+                     n_folds: int, margin: float, held_out: HeldOut,
+                     runs: np.ndarray | None = None) -> Branch:
+    """The held-out veto (module docstring, step 6) on one branch's selected terms, in
+    their order: a term, fitted on all fit folds of ``gram`` with those kept before it,
+    is kept if ``held_out`` says it lowers the held-out RMSE by more than ``margin``
+    (a term that does not, e.g. an intercept the session-start recalibration makes anyway,
+    is left out and the later ones are still tried); ``shift`` enters with coefficient 1.
+    ``runs``: the validation run of each held-out sample (``held_out_better``)."""
     all_folds = np.arange(n_folds)
-    target = e_out - g_out[:, shift] if shift is not None else e_out
+    head = [] if shift is None else [shift]
     auto = shift is None
 
-    def held_out(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    def trial(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
         c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
-        return c, target - g_out[:, cols] @ c
+        return c, held_out([*head, *cols], np.concatenate([np.ones(len(head)), c]))
 
     kept: list[int] = []
-    current = rms(e_out)
+    e_none = held_out([], np.zeros(0))
+    current = e_none
     if shift is not None:
-        rmse = rms(target)
-        if not rmse < (1.0 - margin) * current:
-            return Branch(None, selection, [], np.zeros(0), e_out, current)
-        current = rmse
+        e_shift = held_out(head, np.ones(1))
+        if not held_out_better(e_shift, current, margin, runs):
+            return Branch(None, selection, [], np.zeros(0), e_none, rms(e_none))
+        current = e_shift
     for j in selection.chosen:
-        trial = with_intercept([*kept, j], offset) if auto else [*kept, j]
-        rmse = rms(held_out(trial)[1])
-        helps = rmse < (1.0 - margin) * current
+        cols = with_intercept([*kept, j], offset) if auto else [*kept, j]
+        e_j = trial(cols)[1]
+        helps = held_out_better(e_j, current, margin, runs)
         if auto and j != offset:  # it must also beat the intercept alone
-            helps = helps and rmse < rms(held_out(with_intercept([*kept, offset], offset))[1])
-        if not helps:
-            break
-        kept, current = trial, rmse
-    coef, e_after = held_out(kept)
+            helps = helps and rms(e_j) < rms(trial(with_intercept([*kept, offset], offset))[1])
+        if helps:  # one that does not is left out; the later ones are still tried
+            kept, current = cols, e_j
+    coef, e_after = trial(kept)
     return Branch(shift, selection, kept, coef, e_after, rms(e_after))

@@ -1,0 +1,171 @@
+"""The session-start recalibration, as a user makes it on the first load and unload of a run.
+
+``recalibrate --input --from BAG --first SECONDS`` (the input zero and span from the first
+rest and the largest strain of the first cycle), then ``recalibrate --from BAG --first
+SECONDS`` (the output gain and offset by least squares over the same cycle, on the spanned
+input), then ``evaluate`` (``strain_comp.offline.recalibrate``, ``strain_comp.offline.evaluate``):
+the headline workflow of the generalisation benchmark (docs/generalisation.md). The
+residual loop scores its terms after it (``strain_comp.diagnosis.loop``), so that a term
+that only does what this recalibration does anyway gets no credit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.diagnosis.candidates import added_effects
+from strain_comp.errors import StrainCompError
+from strain_comp.io.recording import Recording
+
+FIRST_CYCLE_CAP = 0.4
+"""The first cycle is at most this share of a run (a run that never returns to rest)."""
+FORMS = ("input", "output")
+"""The two steps, in order: the input zero and span, then the output gain and offset."""
+
+
+def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
+    """Seconds from the start of a run to the end of its first load and unload: the first
+    return of the reference ``s`` to within 10 % of its span above the minimum after first
+    passing half the span; at most ``FIRST_CYCLE_CAP`` of the run. None when the reference
+    never moves."""
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(s)
+    t, s = t[ok], s[ok]
+    if t.size < 2:
+        return None
+    lo, hi = np.percentile(s, [1, 99])
+    if not hi > lo:
+        return None
+    cap = FIRST_CYCLE_CAP * float(t[-1] - t[0])
+    up = np.flatnonzero(s > lo + 0.5 * (hi - lo))
+    if up.size:
+        back = np.flatnonzero(s[up[0]:] < lo + 0.1 * (hi - lo))
+        if back.size:
+            return min(float(t[up[0] + back[0]] - t[0]), cap)
+    return cap
+
+
+@dataclass
+class SessionStart:
+    """A calibration after the session-start recalibration on one run."""
+
+    calibration: Calibration
+    seconds: float
+    lines: list[str] = field(default_factory=list)
+    """What each step did (``recalibrate``'s lines), or why it could not be made."""
+    steps: list[str] = field(default_factory=list)
+    """The forms made (``input``, ``output``)."""
+
+
+def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
+                  seconds: float) -> SessionStart:
+    """``calibration`` after ``recalibrate --input --from RUN --first seconds`` and then
+    ``recalibrate --from RUN --first seconds`` (the output form on the spanned input, tare
+    ``calibration``). A step that cannot be made (no rest in the cycle, a strain the
+    calibration never outputs) is skipped, as it is for a user, and says why."""
+    from strain_comp.offline.recalibrate import recalibrate_recordings
+
+    out = SessionStart(calibration, seconds)
+    for form in FORMS:
+        tare = "calibration" if form == "output" else "auto"
+        try:
+            out.calibration, lines = recalibrate_recordings(
+                out.calibration, recordings, form=form, first=seconds, tare=tare)
+        except StrainCompError as err:
+            out.lines.append(f"recalibrate {'--input ' if form == 'input' else ''}"
+                             f"not made: {err}")
+            continue
+        out.steps.append(form)
+        out.lines += lines
+    return out
+
+
+def session_errors(calibration: Calibration, recordings: Mapping[str, Recording],
+                   sensor: str, seconds: float) -> np.ndarray:
+    """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
+    ``recordings`` after the session-start recalibration on their first ``seconds``."""
+    from strain_comp.offline.evaluate import evaluate_recordings
+
+    spanned = session_start(calibration, recordings, seconds).calibration
+    ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
+    return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)
+
+
+class SessionHeldOut:
+    """The loop's held-out residual (``strain_comp.diagnosis.selection.HeldOut``) of one
+    sensor's terms on validation runs as the product is used: the calibration with the
+    terms added, recalibrated at the start of each run (``session_start``), evaluated over
+    the whole run. Cached by terms and coefficients."""
+
+    def __init__(self, calibration: Calibration, sensor: str,
+                 runs: Sequence[Mapping[str, Recording]], candidates: Sequence[dict[str, Any]]
+                 ) -> None:
+        self.calibration = calibration
+        self.sensor = sensor
+        self.candidates = candidates
+        self.runs: list[tuple[dict[str, Recording], float]] = []
+        for bag in runs:
+            rec = bag.get(sensor)
+            seconds = None if rec is None or rec.s is None else first_cycle(rec.t, rec.s)
+            if seconds is not None:
+                self.runs.append((dict(bag), seconds))
+        self._cache: dict[tuple[tuple[int, float], ...], np.ndarray] = {}
+
+    def starts(self) -> list[SessionStart]:
+        """The session start of each validation run with the calibration as given."""
+        return [session_start(self._restricted(self.calibration, bag), self._bag(bag),
+                              seconds) for bag, seconds in self.runs]
+
+    def runs_of_samples(self) -> np.ndarray:
+        """The validation run (0..k-1) of each error sample, in the errors' order."""
+        return np.concatenate([np.full(session_errors(self._restricted(self.calibration, bag),
+                                                      self._bag(bag), self.sensor,
+                                                      seconds).size, k)
+                               for k, (bag, seconds) in enumerate(self.runs)])
+
+    def usable(self) -> bool:
+        """A validation run whose session start makes at least one step."""
+        return any(start.steps for start in self.starts())
+
+    def redundant(self, j: int) -> bool:
+        """Is candidate ``j`` what the session start makes itself (an output offset or
+        gain)? Such a term is neither scored nor written after it."""
+        kind = self.candidates[j]["kind"]
+        return kind == "offset" or (kind == "strain_level"
+                                    and self.candidates[j]["params"].get("power", 1) == 1)
+
+    def __call__(self, cols: Sequence[int], coef: np.ndarray) -> np.ndarray:
+        keep = [k for k, j in enumerate(cols) if not self.redundant(j)]
+        cols, coef = [cols[k] for k in keep], np.asarray(coef)[keep]
+        key = tuple((int(j), float(c)) for j, c in zip(cols, coef, strict=True))
+        if key not in self._cache:
+            cal = self.calibration.sensors[self.sensor]
+            trial = Calibration({**self.calibration.sensors, self.sensor: replace(
+                cal, effects=[*cal.effects, *added_effects(self.candidates, cols, list(coef),
+                                                           cal.effects)])})
+            self._cache[key] = np.concatenate(
+                [session_errors(self._restricted(trial, bag), self._bag(bag), self.sensor,
+                                seconds) for bag, seconds in self.runs])
+        return self._cache[key]
+
+    def _names(self, calibration: Calibration) -> list[str]:
+        """The sensor and the neighbours its cross-talk terms read."""
+        effects = calibration.sensors[self.sensor].effects
+        return [self.sensor, *(str(e["params"]["neighbour"]) for e in effects
+                               if e.get("kind") == "crosstalk")]
+
+    def _restricted(self, calibration: Calibration, bag: Mapping[str, Recording]
+                    ) -> Calibration:
+        names = [n for n in self._names(calibration) if n in calibration.sensors and n in bag]
+        return Calibration({n: calibration.sensors[n] for n in names})
+
+    def _bag(self, bag: Mapping[str, Recording]) -> dict[str, Recording]:
+        names = self._names(self.calibration) + [
+            str(c["params"]["neighbour"]) for c in self.candidates if c["kind"] == "crosstalk"]
+        return {n: bag[n] for n in names if n in bag}
+
