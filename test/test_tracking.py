@@ -141,3 +141,23 @@ def test_a_rest_that_relaxes_back_after_a_release_is_left_to_relax(cubic: Calibr
     rec = Recording("s1", t, gauge(s) * (1.0 - undershoot), s)
     on = evaluate_recordings({"s1": rec}, cubic).sensors["s1"]
     assert on.tracking == {"seconds": 0.0, "correction": 0.0}
+
+
+def test_a_calibration_with_loop_terms_is_not_tracked(cubic: Calibration) -> None:
+    """A temperature term (the residual loop's) already moves the reading with the rest
+    level; tracking as well would correct twice: a fallen rest is left to the terms. An
+    output gain and offset alone (``recalibrate``) is tracked."""
+    from dataclasses import replace
+
+    from strain_comp.offline.recalibrate import recalibrate
+
+    t = np.arange(0.0, 60.0, 0.1)
+    rec = Recording("s1", t, np.full(t.size, 0.97 * R0), np.zeros(t.size))  # a fallen rest
+    term = {"name": "temperature_offset", "kind": "temperature", "coef": 0.0,
+            "params": {"form": "offset", "t_ref": 20.0}}
+    sensor = cubic.sensors["s1"]
+    with_term = Calibration({"s1": replace(sensor, effects=[term])})
+    on = evaluate_recordings({"s1": rec}, with_term).sensors["s1"]
+    assert on.tracking == {"seconds": 0.0, "correction": 0.0}
+    mapped = recalibrate(cubic, points=[(R0, 0.0), (float(gauge(np.array(10.0))), 11.0)])[0]
+    assert evaluate_recordings({"s1": rec}, mapped).sensors["s1"].tracking["correction"] > 0

@@ -490,6 +490,9 @@ class Elapsed(Regressor):
                    _positive(params, "scale", 100.0))
 
 
+RECALIBRATION_TERMS = ("recalibration_gain", "recalibration_offset")
+"""Names of the two terms of an output gain and offset (``strain_comp.offline.recalibrate``):
+a map of the output, not a term that models what moves."""
 TEMPERATURE_RANGE = (-273.15, 1000.0)
 """Temperatures [deg C] a temperature term reads; one outside (below absolute zero, a
 finite 1e308, NaN, inf) is a bad reading, treated as missing."""

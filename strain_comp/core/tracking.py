@@ -20,7 +20,8 @@ calibration's rest again, but only:
   strain is never tracked,
 * by at most ``RATE`` of the rest level per second,
 * and only for a calibration that reads its own rest resistance as its rest strain
-  (``rest_is_read_as_rest``).
+  (``rest_is_read_as_rest``) and has no effect terms but an output gain and offset
+  (``models_what_moves``: the loop's terms already model what moves).
 
 A held strain (detector at hold, estimate far from rest) is never tracked. The engine runs
 the samples in stretches of ``CHUNK_SECONDS``; its state carries from one to the next
@@ -35,6 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.tare import REST_BAND
 from strain_comp.errors import InputError
 
@@ -77,6 +79,13 @@ def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
     return valid_range.s_lo + RANGE_MARGIN * span, span
 
 
+def models_what_moves(cal: SensorCalibration) -> bool:
+    """Whether ``cal`` has effect terms (the residual loop's: temperature, drift,
+    relaxation, ...) beyond an output gain and offset. They model how the reading moves,
+    the rest level included; tracking the rest as well would correct it twice."""
+    return any(e.get("name") not in RECALIBRATION_TERMS for e in cal.effects)
+
+
 def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -> bool:
     """Whether ``cal``, run from a fresh state for ``SETTLE_SECONDS`` at the measured
     resistance ``raw_rest`` that it maps to its rest resistance, reads the fitted rest
@@ -104,8 +113,9 @@ class BaselineTracker:
     pending: dict[str, list[tuple[np.ndarray, BatchOutput]]] = field(default_factory=dict)
     """Per sensor, the samples of its current stretch, not yet judged."""
     reads_rest: dict[str, bool] = field(default_factory=dict)
-    """Per sensor, whether its calibration reads its own rest resistance as the rest
-    strain (``rest_is_read_as_rest``); a sensor whose does not is never tracked."""
+    """Per sensor, whether it may be tracked: its calibration reads its own rest resistance
+    as the rest strain and models nothing that moves (``rest_is_read_as_rest``,
+    ``models_what_moves``)."""
     last_hold: dict[str, tuple[float, float]] = field(default_factory=dict)
     """Per sensor, (mean time, measured resistance) of the last stretch judged, if it was
     at hold."""
@@ -196,7 +206,8 @@ class BaselineTracker:
         if not below and (applied == 1.0 or (c + (level - c) / applied - rest) * sign > 0.0):
             return  # on the strain side without the tracker's correction too: never tracked
         if name not in self.reads_rest:
-            self.reads_rest[name] = rest_is_read_as_rest(cal, (rest - c) / k, self.band)
+            self.reads_rest[name] = (not models_what_moves(cal)
+                                     and rest_is_read_as_rest(cal, (rest - c) / k, self.band))
         if not self.reads_rest[name]:
             return
         target = (rest - c) / (k * raw)

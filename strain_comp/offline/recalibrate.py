@@ -56,6 +56,7 @@ from strain_comp.core.calibration import (
     check_calibration,
     strain_unit_words,
 )
+from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.errors import CalibrationError, InputError
 
 if TYPE_CHECKING:
@@ -75,8 +76,7 @@ SPAN_FIT_EVALUATIONS = 80
 """Engine runs over the first cycle the input zero and span from a recording may take."""
 SPAN_FIT_MIN_SAMPLES = 20
 """Fewer scored samples in the first cycle: the two-point span is kept as it is."""
-GAIN_NAME = "recalibration_gain"
-OFFSET_NAME = "recalibration_offset"
+GAIN_NAME, OFFSET_NAME = RECALIBRATION_TERMS
 
 
 def parse_point(text: str) -> tuple[float, float]:
