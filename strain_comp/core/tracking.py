@@ -47,8 +47,8 @@ if TYPE_CHECKING:
 TRACKING_MODES = ("off", "on")
 """Baseline tracking off or on."""
 DEFAULT_TRACKING = "on"
-"""The default of evaluate, replay and the node, chosen on ``scripts/generalisation.py``
-(docs/generalisation.md: lower or equal medians on every model)."""
+"""The default of evaluate, replay and the node (docs/generalisation.md: neutral on
+``scripts/generalisation.py``, no measured table worse, a rest that fell followed)."""
 CHUNK_SECONDS = 1.0
 """Length of the stretches the tracker judges [s]."""
 BAND = REST_BAND
