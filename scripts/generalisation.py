@@ -70,9 +70,6 @@ recommends (chosen on this benchmark's overall medians)."""
 HEADLINE_FORMS = {"recal": ("output",), "span": ("input",), "span_recal": ("input", "output")}
 """The recalibrations of each workflow (the loop's calibration gets the headline's)."""
 TARGET_MEDIAN, TARGET_WORST = 1.3, 2.5
-FIRST_CYCLE_CAP = 0.4
-"""The first cycle is at most this share of a run (a run that never returns to rest; the
-same as ``strain_comp.diagnosis.session.FIRST_CYCLE_CAP``)."""
 ENGINE = {"out_of_range": "extend", "tracking": "on"}
 """Engine options of every evaluation (``--out-of-range``)."""
 LOOP = {"stretch_history": False, "session_start": True, "validate": 3}
@@ -132,7 +129,8 @@ def quick(sensor: Sensor) -> Sensor:
 
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
     """Seconds of a run's first load and unload (``strain_comp.diagnosis.session``, the
-    cycle the loop's session start uses too; at most ``FIRST_CYCLE_CAP`` of the run)."""
+    cycle the loop's session start uses too; at most its ``FIRST_CYCLE_CAP`` of the run)."""
+    from strain_comp.diagnosis.session import FIRST_CYCLE_CAP
     from strain_comp.diagnosis.session import first_cycle as cycle
 
     seconds = cycle(t, s)

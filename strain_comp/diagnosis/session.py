@@ -114,19 +114,22 @@ class SessionHeldOut:
             seconds = None if rec is None or rec.s is None else first_cycle(rec.t, rec.s)
             if seconds is not None:
                 self.runs.append((dict(bag), seconds))
-        self._cache: dict[tuple[tuple[int, float], ...], np.ndarray] = {}
+        self._cache: dict[tuple[tuple[int, float], ...], list[np.ndarray]] = {}
+        self._starts: list[SessionStart] | None = None
 
     def starts(self) -> list[SessionStart]:
-        """The session start of each validation run with the calibration as given."""
-        return [session_start(self._restricted(self.calibration, bag), self._bag(bag),
-                              seconds) for bag, seconds in self.runs]
+        """The session start of each validation run with the calibration as given (made
+        once)."""
+        if self._starts is None:
+            self._starts = [session_start(self._restricted(self.calibration, bag),
+                                          self._bag(bag), seconds)
+                            for bag, seconds in self.runs]
+        return self._starts
 
     def runs_of_samples(self) -> np.ndarray:
         """The validation run (0..k-1) of each error sample, in the errors' order."""
-        return np.concatenate([np.full(session_errors(self._restricted(self.calibration, bag),
-                                                      self._bag(bag), self.sensor,
-                                                      seconds).size, k)
-                               for k, (bag, seconds) in enumerate(self.runs)])
+        return np.concatenate([np.full(e.size, k)
+                               for k, e in enumerate(self._per_run([], np.zeros(0)))])
 
     def usable(self) -> bool:
         """A validation run whose session start makes at least one step."""
@@ -140,6 +143,10 @@ class SessionHeldOut:
                                     and self.candidates[j]["params"].get("power", 1) == 1)
 
     def __call__(self, cols: Sequence[int], coef: np.ndarray) -> np.ndarray:
+        return np.concatenate(self._per_run(cols, coef))
+
+    def _per_run(self, cols: Sequence[int], coef: np.ndarray) -> list[np.ndarray]:
+        """The errors of each validation run with terms ``cols`` (cached)."""
         keep = [k for k, j in enumerate(cols) if not self.redundant(j)]
         cols, coef = [cols[k] for k in keep], np.asarray(coef)[keep]
         key = tuple((int(j), float(c)) for j, c in zip(cols, coef, strict=True))
@@ -148,9 +155,9 @@ class SessionHeldOut:
             trial = Calibration({**self.calibration.sensors, self.sensor: replace(
                 cal, effects=[*cal.effects, *added_effects(self.candidates, cols, list(coef),
                                                            cal.effects)])})
-            self._cache[key] = np.concatenate(
-                [session_errors(self._restricted(trial, bag), self._bag(bag), self.sensor,
-                                seconds) for bag, seconds in self.runs])
+            self._cache[key] = [session_errors(self._restricted(trial, bag), self._bag(bag),
+                                               self.sensor, seconds)
+                                for bag, seconds in self.runs]
         return self._cache[key]
 
     def _names(self, calibration: Calibration) -> list[str]:
