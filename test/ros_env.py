@@ -1,7 +1,8 @@
 """ROS 2 environment for tests that start ROS: discovery on this machine only, and a domain
 per test module and process, so parallel runs do not see each other's nodes; the package's
-sources for a colcon workspace; spinning an executor until a condition holds. Imports no
-ROS module (a test module sets its environment before importing rclpy)."""
+sources for a colcon workspace (``strain_comp.ros.player.spin_until`` spins an executor
+until a condition holds). Imports no ROS module (a test module sets its environment
+before importing rclpy)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,7 @@ import os
 import shutil
 import subprocess
 import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 DOMAINS = 100
 """Domain ids 1..100 (Fast DDS ports stay valid up to 232)."""
@@ -45,16 +44,6 @@ def copy_package(src: Path) -> None:
             shutil.copytree(path, src / name, ignore=shutil.ignore_patterns("__pycache__"))
         else:
             shutil.copy(path, src / name)
-
-
-def spin_until(executor: Any, done: Callable[[], bool], timeout: float = 5.0) -> bool:
-    """Spin ``executor`` until ``done()``; False when ``timeout`` [s] passes first."""
-    deadline = time.monotonic() + timeout
-    while not done():
-        if time.monotonic() > deadline:
-            return False
-        executor.spin_once(timeout_sec=0.01)
-    return True
 
 
 def wait_for(log: Path, text: str, proc: subprocess.Popen[str], timeout: float = 90.0) -> str:

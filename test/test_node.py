@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_env import spin_until, use_ros_env
+from ros_env import use_ros_env
 
 use_ros_env(1)
 
@@ -35,7 +35,7 @@ from strain_comp.core.calibration import load_calibration, save_calibration  # n
 from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.core.tracking import BaselineTracker  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
-from strain_comp.ros.player import bag_messages  # noqa: E402
+from strain_comp.ros.player import bag_messages, spin_until  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "config"

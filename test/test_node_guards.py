@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_env import ros_env, spin_until, use_ros_env
+from ros_env import ros_env, use_ros_env
 
 use_ros_env(7)
 
@@ -28,6 +28,7 @@ from strain_comp.core.calibration import load_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.ros.live import MAX_REFUSAL_KEYS  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
+from strain_comp.ros.player import spin_until  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 SENSORS = [f"a{i}" for i in range(1, 7)]

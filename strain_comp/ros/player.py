@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -72,7 +73,8 @@ def message_class(type_name: str) -> Any:
     return classes.get(norm_type(type_name))
 
 
-def _wait(node: Any, executor: Any, ready: Any, timeout: float) -> bool:
+def spin_until(executor: Any, ready: Callable[..., bool], timeout: float = 5.0) -> bool:
+    """Spin ``executor`` until ``ready()``; False when ``timeout`` [s] passes first."""
     deadline = time.monotonic() + timeout
     while not ready():
         if time.monotonic() > deadline:
@@ -111,7 +113,7 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
     answers = [0]
     try:
         if lockstep is not None:
-            if not _wait(node, executor, lambda: lockstep in dict(node.get_topic_names_and_types()),
+            if not spin_until(executor, lambda: lockstep in dict(node.get_topic_names_and_types()),
                          wait_s):
                 raise BagError(f"lockstep topic {lockstep} does not appear within {wait_s} s")
             kind = message_class(dict(node.get_topic_names_and_types())[lockstep][0])
@@ -119,10 +121,10 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
                 raise BagError(f"lockstep topic {lockstep} has a type play does not read")
             node.create_subscription(kind, lockstep,
                                      lambda _msg: answers.__setitem__(0, answers[0] + 1), 100)
-            if not _wait(node, executor, lambda: node.count_publishers(lockstep) > 0, wait_s):
+            if not spin_until(executor, lambda: node.count_publishers(lockstep) > 0, wait_s):
                 raise BagError(f"no publisher on {lockstep} within {wait_s} s")
         for topic, pub in pubs.items():
-            if not _wait(node, executor, lambda p=pub: p.get_subscription_count() > 0, wait_s):
+            if not spin_until(executor, lambda p=pub: p.get_subscription_count() > 0, wait_s):
                 raise BagError(f"no subscriber on {topic} within {wait_s} s")
         time.sleep(0.2)  # let the subscribers' matching of the publishers complete too
         t0_ns, start = messages[0].log_time_ns, time.monotonic()
@@ -138,7 +140,7 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
             expected = answers[0] + 1
             pubs[m.topic].publish(m.data)
             if lockstep is not None:
-                _wait(node, executor, lambda e=expected: answers[0] >= e, LOCKSTEP_TIMEOUT_S)
+                spin_until(executor, lambda e=expected: answers[0] >= e, LOCKSTEP_TIMEOUT_S)
     finally:
         executor.shutdown(timeout_sec=0.5)
         node.destroy_node()
