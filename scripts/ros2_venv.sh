@@ -25,7 +25,7 @@ for n in ast.walk(ast.parse(open("setup.py").read())):
     if isinstance(n, ast.keyword) and n.arg == "install_requires":
         print("\n".join(ast.literal_eval(n.value)))'
 }
-stamp=$( { cat "$KIT/make_venv.sh"; ls "$KIT/wheels"; requirements; } | sha1sum | cut -d' ' -f1)
+stamp=$( { cat "$KIT/make_venv.sh"; ls "$KIT/wheels"; requirements; cat constraints.txt; } | sha1sum | cut -d' ' -f1)
 if [ -f "$VENV/.stamp" ] && [ "$(cat "$VENV/.stamp")" = "$stamp" ]; then
   exit 0
 fi
@@ -42,7 +42,8 @@ log=$VENV/build.log
 echo "ros2_venv: building $VENV with $PY (log: $log)" >&2
 if ! { bash "$KIT/make_venv.sh" "$VENV" "$PY" &&
        mapfile -t reqs < <(requirements) &&
-       "$VENV/bin/python" -m pip install --disable-pip-version-check -q "${reqs[@]}" &&
+       "$VENV/bin/python" -m pip install --disable-pip-version-check -q -c constraints.txt \
+         "${reqs[@]}" &&
        "$VENV/bin/python" -m pip install --disable-pip-version-check -q --no-deps \
          --target "$VENV/setuptools68" setuptools==68.1.2; } >"$log" 2>&1
 then

@@ -12,6 +12,7 @@ used otherwise.
 
 from __future__ import annotations
 
+import re
 import sys
 from typing import Any
 
@@ -95,6 +96,24 @@ def _check_events(text: str, max_aliases: int, max_nodes: int, max_depth: int) -
     return aliases
 
 
+_FLOW_BRACKET = re.compile(r"[\[\]{}]")
+
+
+def _check_flow_depth(text: str, max_depth: int) -> None:
+    """LimitError when flow brackets open more than ``max_depth`` deep, checked on the text
+    before any YAML scanner runs (libyaml's own scanner refuses deep flow nesting with its
+    own words and limit, which differ between releases). Brackets inside quoted scalars are
+    counted too: only a document nested absurdly deep can be refused by them."""
+    depth = 0
+    for match in _FLOW_BRACKET.finditer(text):
+        if match.group() in "[{":
+            depth += 1
+            if depth > max_depth:
+                raise LimitError(f"nested more than {max_depth} deep")
+        elif depth:
+            depth -= 1
+
+
 def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
     """LimitError when ``root`` with every alias expanded holds more than ``max_nodes``
     values or is nested more than ``max_depth`` deep (iterative: no recursion)."""
@@ -132,6 +151,7 @@ def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_00
     """The single YAML document in ``text`` (None if empty), within the limits."""
     loader: Any = None
     aliases = 1  # unknown: the expansion is checked
+    _check_flow_depth(text, max_depth)
     try:
         if _CSafeLoader is not None:
             aliases = _check_events(text, max_aliases, max_nodes, max_depth)
