@@ -186,7 +186,7 @@ def blas_threads(rec: Recording, direction: DirectionSettings) -> int:
 def _gil_free_share(segments: list[Segment], norm: Normalisation, serial: float) -> float:
     """Share of the serial default grid's wall time ``serial`` that its cell-state kernel
     (nogil) takes, timed alone over the same points."""
-    from strain_comp.models import _apl_kernels as kern
+    from strain_comp.models import apl_kernels as kern
     from strain_comp.models.apl import P_GRID, _FitProblem
 
     problem = _FitProblem(APL, segments, norm, n=11, m=9, eps=1e-3, ridge=1e-6,

@@ -70,7 +70,8 @@ from strain_comp.core.calibration import (
     save_calibration,
 )
 from strain_comp.core.effects import KINDS
-from strain_comp.core.engine import Engine, used_mask
+from strain_comp.core.engine import Engine
+from strain_comp.core.samples import used_mask
 from strain_comp.errors import BagError, CalibrationError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording

@@ -46,7 +46,8 @@ def with_effects(cal, train: list, effects: list[str]):  # type: ignore[no-untyp
     samples with a reference; the terms run over every sample the engine used, as online."""
     from strain_comp.core.calibration import Calibration
     from strain_comp.core.effects import Batch, regressor_from_dict
-    from strain_comp.core.engine import Engine, used_mask
+    from strain_comp.core.engine import Engine
+    from strain_comp.core.samples import used_mask
     from strain_comp.diagnosis.candidates import default_candidates
 
     known = {c["name"]: c for c in default_candidates()}

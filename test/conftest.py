@@ -37,12 +37,12 @@ from strain_comp.core.calibration import (
     provenance,
 )
 from strain_comp.core.direction import DirectionSettings
-from strain_comp.core.engine import (
+from strain_comp.core.engine import Engine
+from strain_comp.core.range_policy import (
     EXTEND_REACH,
     OPEN_FACTOR,
     RANGE_MARGIN,
     SHORT_FACTOR,
-    Engine,
 )
 from strain_comp.io.recording import Recording
 from strain_comp.models.base import Compensator, Normalisation, Segment

@@ -26,7 +26,8 @@ from strain_comp.core.chain import (
     pair_values,
     quantisation,
 )
-from strain_comp.core.engine import Engine, health_at
+from strain_comp.core.engine import Engine
+from strain_comp.core.health import health_at
 from strain_comp.errors import CalibrationError, FitError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings

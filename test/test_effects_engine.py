@@ -19,7 +19,8 @@ from strain_comp.core.calibration import (
 )
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import Batch, regressor_from_dict
-from strain_comp.core.engine import RANGE_MARGIN, used_mask
+from strain_comp.core.range_policy import RANGE_MARGIN
+from strain_comp.core.samples import used_mask
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording

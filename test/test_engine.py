@@ -36,7 +36,9 @@ from strain_comp.core.calibration import (
     load_calibration,
 )
 from strain_comp.core.direction import DirectionDetector
-from strain_comp.core.engine import RANGE_MARGIN, Engine, Status
+from strain_comp.core.engine import Engine
+from strain_comp.core.range_policy import RANGE_MARGIN
+from strain_comp.core.samples import Status
 from strain_comp.errors import ParameterError
 from strain_comp.models.base import Segment
 
@@ -315,7 +317,7 @@ def test_tare_uses_the_calibrations_rest_resistance() -> None:
 
 
 def test_extrapolate_extends_the_end_slope_beyond_the_range_and_step_equals_run() -> None:
-    from strain_comp.core.engine import END_SPAN
+    from strain_comp.core.range_policy import END_SPAN
 
     cal = cubic_cal()
     r_hi = R_HI + RANGE_MARGIN * (R_HI - R_LO)  # the flag's edge

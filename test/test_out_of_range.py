@@ -15,12 +15,12 @@ import pytest
 from conftest import R_HI, R_LO, S_HI, S_LO, calibration_of, cubic_cal, engine_of
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
-from strain_comp.core.engine import (
+from strain_comp.core.engine import Engine
+from strain_comp.core.range_policy import (
     DEFAULT_OUT_OF_RANGE,
     EXTEND_REACH,
     EXTEND_SLOPE,
     RANGE_MARGIN,
-    Engine,
 )
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import fit_sensor

@@ -24,7 +24,9 @@ from conftest import calibration_of, fitted, strain_bounds
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
 from strain_comp.core.calibration import save_calibration as save
-from strain_comp.core.engine import OPEN_FACTOR, SHORT_FACTOR, Engine, Status
+from strain_comp.core.engine import Engine
+from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
+from strain_comp.core.samples import Status
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.models import MODEL_NAMES

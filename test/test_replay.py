@@ -10,7 +10,8 @@ import pytest
 from conftest import cubic_cal, lag_cal, noisy_stream
 
 from strain_comp.core.calibration import Calibration, load_calibration
-from strain_comp.core.engine import Engine, Status
+from strain_comp.core.engine import Engine
+from strain_comp.core.samples import Status
 from strain_comp.core.tare import rest_resistance_at_start
 from strain_comp.core.tracking import BaselineTracker
 from strain_comp.errors import BagError

@@ -140,7 +140,7 @@ def test_fit_segments_cut_at_a_long_step_back_in_time() -> None:
 
 
 def test_replay_diagnostics_equal_the_engine_stepped_up_to_each_tick(tmp_path: Path) -> None:
-    from strain_comp.core.engine import diagnostics
+    from strain_comp.core.health import diagnostics
 
     calibration = load_calibration(ROOT / "config" / "demo_calibration.yaml")
     bag = ROOT / "bags" / "steps.mcap"

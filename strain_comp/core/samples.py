@@ -167,3 +167,8 @@ def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *
 def good_mask(t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
     """True where a sample may be fed to a model (``USED``)."""
     return USED_CODE[classify(t, r)]
+
+
+def used_mask(status: npt.ArrayLike) -> np.ndarray:
+    """True where a sample's ``Status`` is in ``USED`` (it was fed to the model)."""
+    return USED_CODE[np.asarray(status)]

@@ -42,7 +42,8 @@ from strain_comp.errors import InputError
 
 if TYPE_CHECKING:
     from strain_comp.core.calibration import SensorCalibration, ValidRange
-    from strain_comp.core.engine import BatchOutput, Engine, SensorOutput
+    from strain_comp.core.engine import Engine
+    from strain_comp.core.outputs import BatchOutput, SensorOutput
 
 TRACKING_MODES = ("off", "on")
 """Baseline tracking off or on."""
@@ -73,7 +74,7 @@ def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
 def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
     """(rest strain, strain span) the calibration was fitted over: its valid strain range
     less the ``RANGE_MARGIN`` of the span the fit adds on each side."""
-    from strain_comp.core.engine import RANGE_MARGIN
+    from strain_comp.core.range_policy import RANGE_MARGIN
 
     span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE_MARGIN)
     return valid_range.s_lo + RANGE_MARGIN * span, span
@@ -129,7 +130,7 @@ class BaselineTracker:
     def run(self, name: str, t: np.ndarray, r: np.ndarray,
             temperature: np.ndarray | None = None) -> BatchOutput:
         """``engine.run`` over ``t``, ``r`` in stretches, tracking between them."""
-        from strain_comp.core.engine import concatenate
+        from strain_comp.core.outputs import concatenate
 
         t = np.asarray(t, dtype=np.float64)
         if t.size == 0:
@@ -148,7 +149,7 @@ class BaselineTracker:
     def advance(self, name: str, t: float) -> None:
         """Before samples from ``t`` on are run: if ``t`` starts a new stretch, judge the
         stretch kept so far (``update``), so its correction applies from ``t`` on."""
-        from strain_comp.core.engine import concatenate
+        from strain_comp.core.outputs import concatenate
 
         kept = self.pending.get(name)
         origin = self.origin.setdefault(name, t)
@@ -162,7 +163,7 @@ class BaselineTracker:
     def observe(self, name: str, t: float, out: SensorOutput) -> None:
         """One stepped sample (the node; ``advance`` first), kept until its stretch is
         judged."""
-        from strain_comp.core.engine import BatchOutput
+        from strain_comp.core.outputs import BatchOutput
 
         self.pending.setdefault(name, []).append((np.array([t]), BatchOutput(
             np.array([out.strain]), np.array([out.direction]),
@@ -171,7 +172,7 @@ class BaselineTracker:
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""
-        from strain_comp.core.engine import used_mask
+        from strain_comp.core.samples import used_mask
 
         cal = self.engine.calibration.sensors[name]
         used = used_mask(np.asarray(out.status))

@@ -101,9 +101,10 @@ from strain_comp.core.effects import (
     regressor_from_dict,
     run_segments,
 )
-from strain_comp.core.engine import RANGE_MARGIN, Engine, used_mask
+from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
-from strain_comp.core.samples import gap_for
+from strain_comp.core.range_policy import RANGE_MARGIN
+from strain_comp.core.samples import gap_for, used_mask
 from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
 from strain_comp.diagnosis.candidates import (
     BASELINE_WINDOW,

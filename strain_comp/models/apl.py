@@ -19,7 +19,7 @@ not set.
 
 Output (eq. (2)): psi = f^-1(w_0 xi + sum_k w_k x_k + w_{N+1}), strain S = s0 (psi - beta),
 f the strictly increasing piecewise-affine map of eq. (3) (basis: ``strain_comp.models.pwa``).
-Time stepping, initial state and bad-sample handling: ``strain_comp.models._apl_kernels``.
+Time stepping, initial state and bad-sample handling: ``strain_comp.models.apl_kernels``.
 sigma is in normalised units per second, t in seconds.
 
 Fitting, step 1 (the paper's QP, done as bounded linear least squares): for fixed sigma,
@@ -44,7 +44,7 @@ the shape of f: on a noisy measured sensor the QP solution fits worse than the c
 output collapsing toward the mean on held-out runs.
 So from the QP solution (w, slopes) are refined, same bounds and ridge, to minimise the
 *output* error sum (f^-1(w . z) - psi_meas)^2 with the cell states fixed for the given
-sigma, p, by a bounded Levenberg-Marquardt (``strain_comp.models._apl_refine``; analytic
+sigma, p, by a bounded Levenberg-Marquardt (``strain_comp.models.apl_refine``; analytic
 Jacobian, since f^-1 is piecewise affine). A refined point is kept only if its output RMSE
 is not above the QP's. ``output_nfev=0`` gives the paper's QP alone.
 
@@ -83,9 +83,9 @@ from threadpoolctl import threadpool_limits
 
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
-from strain_comp.models import _apl_kernels as kern
+from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
-from strain_comp.models._apl_refine import bounded_lm, output_jacobian
+from strain_comp.models.apl_refine import bounded_lm, output_jacobian
 from strain_comp.models.base import (
     Compensator,
     Normalisation,

@@ -52,7 +52,8 @@ from strain_comp.io.recording import (
 )
 
 if TYPE_CHECKING:
-    from strain_comp.core.engine import BatchOutput, Engine
+    from strain_comp.core.engine import Engine
+    from strain_comp.core.outputs import BatchOutput
     from strain_comp.core.tracking import BaselineTracker
     from strain_comp.offline.series import SeriesCSV
 
@@ -136,7 +137,8 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     ``strain_comp.core.tracking.BaselineTracker``.
     Raises InputError when no calibrated sensor can be scored (names both sides).
     """
-    from strain_comp.core.engine import Engine, Status, used_mask
+    from strain_comp.core.engine import Engine
+    from strain_comp.core.samples import Status, used_mask
     from strain_comp.core.tare import tare_engine
 
     engine = Engine(calibration, out_of_range=out_of_range)
@@ -350,7 +352,7 @@ class _Score:
         self.kept = _Kept(plot_points) if plot_points > 0 else None
 
     def add(self, t: np.ndarray, r: np.ndarray, s: np.ndarray, out: BatchOutput) -> None:
-        from strain_comp.core.engine import used_mask
+        from strain_comp.core.samples import used_mask
 
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
@@ -370,7 +372,7 @@ class _Score:
 
     def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
                    ) -> SensorEvaluation:
-        from strain_comp.core.engine import Status
+        from strain_comp.core.samples import Status
 
         kept = self.kept or _Kept(0)
         return SensorEvaluation(

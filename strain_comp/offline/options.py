@@ -63,8 +63,8 @@ def _number_list(lo: float, *, strict: bool = False) -> Check:
 
 
 def _apl_options() -> dict[str, Check]:
-    from strain_comp.models._apl_kernels import P_MIN
     from strain_comp.models.apl import M_MAX, N_MAX
+    from strain_comp.models.apl_kernels import P_MIN
 
     return {
         "N": _integer(1, N_MAX), "M": _integer(1, M_MAX, odd=True),

@@ -30,14 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.engine import (
-    GAP_RESET,
-    BatchOutput,
-    Engine,
-    SensorHealth,
-    diagnostics,
-    health_at,
-)
+from strain_comp.core.engine import GAP_RESET, Engine
+from strain_comp.core.health import SensorHealth, diagnostics, health_at
+from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.tare import tare_engine
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import BagError

@@ -22,7 +22,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from strain_comp.core.engine import Status
+from strain_comp.core.samples import Status
 from strain_comp.io.atomic import AtomicFile
 from strain_comp.io.recording import PieceAlign
 

@@ -43,16 +43,10 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import TEMPERATURE_RANGE
-from strain_comp.core.engine import (
-    USED,
-    ArrayOutput,
-    Engine,
-    SensorHealth,
-    SensorOutput,
-    Status,
-    diagnostics,
-    used_mask,
-)
+from strain_comp.core.engine import Engine
+from strain_comp.core.health import SensorHealth, diagnostics
+from strain_comp.core.outputs import ArrayOutput, SensorOutput
+from strain_comp.core.samples import USED, Status, used_mask
 from strain_comp.core.tare import (
     TARE_WINDOW,
     rest_level,

@@ -10,7 +10,7 @@ import pytest
 
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
-from strain_comp.models import _apl_kernels as kern
+from strain_comp.models import apl_kernels as kern
 from strain_comp.models import model_class
 from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.base import Normalisation, Segment

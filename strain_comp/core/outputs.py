@@ -1,0 +1,65 @@
+"""What the engine returns: one sample, one array tick, one batch (docs/design.md,
+"Outputs")."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from strain_comp.core.samples import Status
+
+
+@dataclass(frozen=True)
+class SensorOutput:
+    """One sample's result: strain [%] (held if bad), direction (+1/0/-1), status, flag."""
+
+    strain: float
+    direction: int
+    status: Status
+    out_of_range: bool
+    resistance: float = math.nan
+    """The resistance [ohm] the model read (as ``BatchOutput.resistance``); NaN for a bad
+    sample."""
+
+
+@dataclass(frozen=True)
+class ArrayOutput:
+    """One array tick's result, in the array's sensor order."""
+
+    strain: np.ndarray
+    direction: np.ndarray
+    status: np.ndarray
+    out_of_range: np.ndarray
+
+
+@dataclass(frozen=True)
+class BatchOutput:
+    """``run``'s result: one entry per input sample."""
+
+    strain: np.ndarray
+    direction: np.ndarray
+    status: np.ndarray
+    out_of_range: np.ndarray
+    resistance: np.ndarray
+    """The resistance [ohm] the model read at each used sample (converted, times the tare
+    gain, after the input corrections: what effect terms read); other samples hold their
+    converted input. Read-only: it may share memory with the caller's input."""
+    reset: np.ndarray | None = None
+    """True where a gap reset the state before the sample (counted in ``n_gaps``); None
+    when not known (no resets assumed)."""
+    corrections: np.ndarray | None = None
+    """Where the input corrector removed a spike (``chain.SPIKE``) or confirmed a
+    baseline step (``chain.STEP``), else 0; None without a corrector."""
+
+
+def concatenate(outs: Sequence[BatchOutput]) -> BatchOutput:
+    """One ``BatchOutput`` of consecutive ones (``run`` over pieces of a stream)."""
+    def join(key: str) -> np.ndarray | None:
+        values = [getattr(o, key) for o in outs]
+        return None if any(v is None for v in values) else np.concatenate(values)
+
+    return BatchOutput(*(join(f.name) for f in fields(BatchOutput)))  # type: ignore[arg-type]
+

@@ -1,0 +1,159 @@
+"""The out-of-range policy: where a sample is flagged, an open circuit or a short, and what
+strain a resistance beyond the valid range gives (docs/design.md, "Out of range").
+
+A sensor's ``SensorRange`` holds the limits the stages read (``strain_comp.core.stages``):
+R outside the valid range widened by ``RANGE_MARGIN`` of its span is flagged; the estimate
+is clamped to the strain range widened the same way and then, by ``out_of_range``
+(``OUT_OF_RANGE_MODES``), extended beyond it with a bounded slope within a bounded reach
+(``bounded_slopes``), or with the model's end slope (``end_slopes``), or not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from strain_comp.core.calibration import SensorCalibration
+from strain_comp.core.stages import RANGE_COLUMNS, bound_all, saturate_all
+
+OPEN_FACTOR = 100.0
+"""R above this many times the top of the valid resistance range is an open circuit."""
+SHORT_FACTOR = 0.01
+"""0 < R below this fraction of the bottom of the valid resistance range is a short."""
+RANGE_MARGIN = 0.05
+"""Fraction of the valid range's span added on each side before flagging / clamping."""
+OUT_OF_RANGE_MODES = ("clamp", "extrapolate", "extend")
+"""Strain of a sample beyond the valid resistance range: clamped to the valid strain range
+(plus the margin); or that plus the model's end slope times the resistance beyond it; or
+that plus a bounded slope, within a bounded reach (``bounded_slopes``)."""
+END_SPAN = 0.05
+"""Share of the valid resistance range at each end over which the end slope is taken."""
+DEFAULT_OUT_OF_RANGE = "extend"
+"""Chosen on the generalisation benchmark (docs/generalisation.md): the lowest median and
+worst ratio over every sensor and model on the headline workflow."""
+EXTEND_SLOPE = (0.5, 2.0)
+"""``extend``: the end slope is kept within these multiples of the secant slope."""
+EXTEND_MONOTONE = 0.25
+"""``extend``: a branch that ends this share of the strain span or more below the top of
+the calibrated strain at the top of the resistance range (the resistance peaked before
+the strain did) is not extended."""
+EXTEND_REACH = 1.0
+"""``extend``: calibrated strain spans the estimate reaches at most beyond the range."""
+SETTLE = 200
+"""Steps (at 10 Hz) of the slow ramp over the valid range the out-of-range slopes are read
+on, each way (``branches``)."""
+
+
+@dataclass(frozen=True)
+class SensorRange:
+    """One sensor's limits [ohm, %] and out-of-range extension."""
+
+    r_short: float
+    r_open: float
+    r_lo: float
+    r_hi: float
+    s_lo: float
+    s_hi: float
+    slopes: tuple[float, float] | None = None
+    """(dS/dR at r_lo, at r_hi) beyond the valid range when the estimate is extended out
+    of range (``OUT_OF_RANGE_MODES``), else None (clamped)."""
+    reach: tuple[float, float] = (-math.inf, math.inf)
+    """Lowest and highest strain an extended estimate reaches (``extend``)."""
+    saturate: bool = False
+    """``extend``: the model reads the resistance clipped to the valid range, so that its
+    output beyond the range is its output at the range's end (a polynomial that turns back
+    past the end, or cells driven where no data were, do not move it)."""
+
+    @classmethod
+    def build(cls, cal: SensorCalibration, out_of_range: str = "clamp") -> SensorRange:
+        """The limits of ``cal``'s valid range under the policy ``out_of_range``."""
+        vr = cal.valid_range
+        r_margin = RANGE_MARGIN * (vr.r_hi - vr.r_lo)
+        s_margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
+        plain = cls(r_short=SHORT_FACTOR * vr.r_lo, r_open=OPEN_FACTOR * vr.r_hi,
+                    r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
+                    s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin)
+        if out_of_range == "extrapolate":
+            return cls(**{**vars(plain), "slopes": end_slopes(cal, plain)})
+        if out_of_range == "extend":
+            slopes, reach = bounded_slopes(cal, plain)
+            return cls(**{**vars(plain), "slopes": slopes, "reach": reach, "saturate": True})
+        return plain
+
+    @cached_property
+    def row(self) -> np.ndarray:
+        """The limits as the stage kernels read them (``stages.RANGE_COLUMNS``)."""
+        slopes = self.slopes if self.slopes is not None else (0.0, 0.0)
+        values = {"r_lo": self.r_lo, "r_hi": self.r_hi, "s_lo": self.s_lo, "s_hi": self.s_hi,
+                  "slope_lo": slopes[0], "slope_hi": slopes[1], "reach_lo": self.reach[0],
+                  "reach_hi": self.reach[1], "saturate": float(self.saturate)}
+        return np.array([values[name] for name in RANGE_COLUMNS])
+
+    def model_input(self, ohm: np.ndarray) -> np.ndarray:
+        """What the model reads of used samples ``ohm`` (``saturate``)."""
+        return saturate_all(ohm, self.row)
+
+    def beyond(self, ohm: np.ndarray, strain: np.ndarray) -> np.ndarray:
+        """``strain`` clamped to the strain range, plus, with ``slopes``, the slope times
+        the resistance beyond the valid range (continuous at its ends), within ``reach``."""
+        return bound_all(np.ascontiguousarray(ohm, dtype=np.float64),
+                         np.ascontiguousarray(strain, dtype=np.float64), self.row)
+
+
+def branches(cal: SensorCalibration, limits: SensorRange) -> tuple[np.ndarray, np.ndarray]:
+    """The model's output along a slow ramp over the valid range and back from a fresh
+    state (``SETTLE`` steps each way at 10 Hz): (loading branch, unloading branch), both at
+    the resistances ``np.linspace(r_lo, r_hi, SETTLE + 1)``. A sensor leaves the range at
+    the top while loading and at the bottom while unloading."""
+    up = np.linspace(limits.r_lo, limits.r_hi, SETTLE + 1)
+    r = np.concatenate([up, up[-2::-1]])
+    out = cal.build_model().run(0.1 * np.arange(r.size), r)
+    return out[:SETTLE + 1], out[SETTLE:][::-1]
+
+
+def end_slopes(cal: SensorCalibration, limits: SensorRange) -> tuple[float, float]:
+    """dS/dR of the model's unloading branch over the first ``END_SPAN`` of the valid
+    range and of its loading branch over the last (``branches``): ``extrapolate``."""
+    loading, unloading = branches(cal, limits)
+    k = max(1, round(END_SPAN * SETTLE))
+    width = k * (limits.r_hi - limits.r_lo) / SETTLE
+    lo = float(unloading[k] - unloading[0]) / width
+    hi = float(loading[-1] - loading[-1 - k]) / width
+    return (lo if math.isfinite(lo) else 0.0), (hi if math.isfinite(hi) else 0.0)
+
+
+def bounded_slopes(cal: SensorCalibration, limits: SensorRange
+                   ) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``extend``: (slopes, reach). Each end slope kept within ``EXTEND_SLOPE`` x the
+    secant slope of the model over the valid range (``branches``: the top of its loading
+    branch to the bottom of its unloading one); zero (the range's end is held) where the
+    map does not rise the way the gauge does (a secant against ``direction.sign``) or turns
+    back at that end (an end slope against the secant, as past the resistance peak of a
+    carbon-black strip); nor where the branch that reads the top of the strain ends
+    ``EXTEND_MONOTONE`` of the span short of it: the training resistance peaked before the
+    strain did. The extended estimate reaches at most ``EXTEND_REACH`` calibrated strain
+    spans above the range, and below it never past zero strain: a resistance under the
+    calibrated rest is far more often a rest level that moved than a compression."""
+    lo_end, hi_end = end_slopes(cal, limits)
+    loading, unloading = branches(cal, limits)
+    secant = float(loading[-1] - unloading[0]) / (limits.r_hi - limits.r_lo)
+    low, high = EXTEND_SLOPE
+
+    def bounded(end: float) -> float:
+        if not (math.isfinite(secant) and secant * cal.direction.sign > 0.0
+                and end * secant > 0.0):
+            return 0.0
+        return float(secant * min(max(end / secant, low), high))
+
+    vr = cal.valid_range
+    span = vr.s_hi - vr.s_lo
+    slopes = [bounded(lo_end), bounded(hi_end)]
+    top = 1 if secant > 0.0 else 0  # the end whose branch reads the strain's top
+    if (loading[-1] if top else unloading[0]) < vr.s_hi - EXTEND_MONOTONE * span:
+        slopes[top] = 0.0
+    reach = (min(limits.s_lo, max(0.0, vr.s_lo - EXTEND_REACH * span)),
+             max(limits.s_hi, vr.s_hi + EXTEND_REACH * span))
+    return (slopes[0], slopes[1]), reach

@@ -1,0 +1,344 @@
+"""One sensor in the engine: its calibration, model, detector, effect terms, input
+corrector, limits, held output and health, and the per-sample path through them
+(docs/design.md, "The engine"; the stages are ``strain_comp.core.stages``).
+
+Per sample, in this order: input conversion (and tare gain, input zero and span);
+screening (``strain_comp.core.samples.screen_one``); a gap reset of model, detector and
+effect terms; the input corrections (``input.filtered``: pair means, spikes, baseline
+steps; ``strain_comp.core.chain``); the detector and the model (reading ``model_read``);
+the effect terms (``strain_comp.core.effects``) on the clamped estimate; the range stage
+(``bound``); the hold. ``step_model`` / ``step_finish`` run one sample, ``run_model`` /
+``run_finish`` a batch through the same stages (lifted), so ``run`` equals repeated
+``step`` exactly.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp.core import samples as sc
+from strain_comp.core.calibration import SensorCalibration
+from strain_comp.core.chain import DESPIKE_K, SPIKE, STEP, ChainCorrector, pair_values
+from strain_comp.core.conversion import resistance_to_divider
+from strain_comp.core.direction import DirectionDetector, DirectionSettings
+from strain_comp.core.effects import EffectTerms, run_segments
+from strain_comp.core.health import STATUSES, SensorHealth, add_counts
+from strain_comp.core.outputs import BatchOutput, SensorOutput
+from strain_comp.core.range_policy import SensorRange
+from strain_comp.core.samples import USED, Status, screen_one
+from strain_comp.core.stages import (
+    bound,
+    bound_all,
+    divider_all,
+    divider_ohm,
+    hold,
+    model_read,
+    range_status,
+    screen_batch,
+)
+from strain_comp.errors import InputError
+from strain_comp.models.base import Compensator
+
+Latest = Callable[[str], float]
+"""A sensor name -> its latest clamped pre-effect strain (what cross-talk terms read)."""
+
+
+@dataclass
+class Pending:
+    """One used sample after screening, model and detector, before the effect terms."""
+
+    t: float
+    r: float
+    status: Status
+    strain: float
+    direction: int
+
+    def base(self, sensor: SensorState) -> float:
+        """The clamped pre-effect estimate (what neighbours' cross-talk terms read)."""
+        return min(max(self.strain, sensor.limits.s_lo), sensor.limits.s_hi)
+
+
+@dataclass
+class PendingBatch:
+    """``run``'s first stage: screening, model and detector over a batch."""
+
+    t: np.ndarray
+    ohm: np.ndarray
+    temperature: np.ndarray | None
+    status: np.ndarray
+    reset: np.ndarray
+    last_good_t: float
+    idx: np.ndarray
+    """Indices of the used samples."""
+    bounds: list[int]
+    """Segment bounds in ``idx`` (a reset starts a segment)."""
+    strain_used: np.ndarray
+    dir_used: np.ndarray
+    corrections: np.ndarray | None
+    """The corrector's event per used sample (``BatchOutput.corrections``), if any."""
+
+    def base(self, sensor: SensorState) -> np.ndarray:
+        """Clamped pre-effect estimate at every sample, NaN where the sample was bad."""
+        out = np.full(self.t.size, np.nan)
+        out[self.idx] = np.clip(self.strain_used, sensor.limits.s_lo, sensor.limits.s_hi)
+        return out
+
+
+
+@dataclass
+class SensorState:
+    """Everything the engine keeps for one sensor."""
+
+    cal: SensorCalibration
+    model: Compensator
+    detector: DirectionDetector
+    limits: SensorRange
+    health: SensorHealth = field(default_factory=SensorHealth)
+    last_good_t: float = -math.inf
+    strain: float = math.nan
+    direction: int = 0
+    effects: EffectTerms = field(default_factory=lambda: EffectTerms([], [], []))
+    base: float = math.nan
+    """Latest clamped strain before effect terms (what neighbours' cross-talk terms read)."""
+    gain: float = 1.0
+    """Input gain (tare): the models see ``gain`` x the measured resistance."""
+    previous: float = math.nan
+    """Latest used resistance [ohm] (for pair means when the input alternates)."""
+    corrector: ChainCorrector | None = None
+    """Spike and baseline-step correction when the calibration's input asks for it."""
+
+    @classmethod
+    def build(cls, cal: SensorCalibration, deadzone_scale: float,
+              out_of_range: str = "clamp") -> SensorState:
+        """A fresh sensor: model, detector (dead zone x ``deadzone_scale``), limits under
+        the policy ``out_of_range``, effect terms and input corrector of ``cal``."""
+        return cls(cal=cal, model=cal.build_model(),
+                   detector=DirectionDetector(scaled(cal.direction, deadzone_scale)),
+                   limits=SensorRange.build(cal, out_of_range),
+                   effects=EffectTerms.from_dicts(cal.effects), corrector=_corrector(cal))
+
+    def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+        """What the models see of used samples ``ohm`` at times ``t``: the calibration's pair
+        statistic (``input.pair``) when its input alternates, then the spike / baseline-step
+        corrector when set (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used
+        sample before them (NaN after a reset, which also restarts the corrector's
+        references); with the corrector's event per sample (spikes and confirmed steps,
+        also counted in ``health``), None without a corrector."""
+        if not self.cal.input.filtered or not ohm.size:
+            return ohm, None
+        self.previous = float(ohm[-1])
+        if self.cal.input.alternation:
+            ohm = pair_values(ohm, previous, self.cal.input.pair)
+        if self.corrector is None:
+            return ohm, None
+        if math.isnan(previous):
+            self.corrector.restart()
+        ohm, events = self.corrector.run(t, ohm)
+        events = np.where((events == SPIKE) | (events == STEP), events, 0).astype(np.int8)
+        self.health.n_spikes += int(np.count_nonzero(events == SPIKE))
+        self.health.n_baseline_steps += int(np.count_nonzero(events == STEP))
+        return ohm, events
+
+    def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(resistance [ohm] x the tare gain, through the input zero and span, forced
+        status) from the raw input values (the input-fix stage over a batch)."""
+        if self.cal.input.kind != "divider":
+            forced = np.zeros(raw.shape, dtype=np.int8)
+            return self.span(raw * self.gain if self.gain != 1.0 else raw), forced
+        ohm, forced = divider_all(raw, *self.cal.input.divider())
+        return self.span(ohm * self.gain), forced
+
+    def one_ohm(self, raw: float) -> tuple[float, int]:
+        """``to_ohm`` of one raw value (the input-fix stage on one sample)."""
+        if self.cal.input.kind != "divider":
+            return self.span(raw * self.gain), sc.GOOD
+        ohm, forced = divider_ohm(raw, *self.cal.input.divider())
+        return self.span(ohm * self.gain), forced
+
+    def span(self, ohm: Any) -> Any:
+        """``ohm`` through the calibration's input zero and span (``InputSettings.
+        zero_span``; unchanged without one)."""
+        if self.cal.input.zero_span is None:
+            return ohm
+        k, c = self.cal.input.span_map()
+        return k * ohm + c
+
+    def mid_raw(self) -> float:
+        """A raw input value in the middle of the valid range (for warming up kernels)."""
+        r_mid = 0.5 * (self.cal.valid_range.r_lo + self.cal.valid_range.r_hi)
+        if self.cal.input.kind != "divider":
+            return r_mid
+        return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
+
+    def reset_state(self) -> None:
+        """A gap reset: model, detector and effect terms start afresh."""
+        self.model.reset()
+        self.detector.reset()
+        self.effects.reset()
+
+    def apply_effects(self, t: np.ndarray, r: np.ndarray, strain: np.ndarray,
+                      direction: np.ndarray, temperature: np.ndarray, latest: Latest,
+                      neighbours: Mapping[str, np.ndarray] | None = None,
+                      starts: Sequence[int] = ()) -> np.ndarray:
+        """The one place where a calibration's effect terms correct the strain.
+
+        The terms (``strain_comp.core.effects``) read the model's estimate clamped to the
+        valid strain range, as ``strain_comp.diagnosis.loop`` fitted them. ``neighbours``:
+        array neighbours' clamped pre-effect strain at these samples; where not given, each
+        neighbour's latest value (``latest``) is held. ``starts``: sample positions where a
+        gap reset starts a new segment: the terms' state is reset there, as the model's is.
+        """
+        base = np.clip(strain, self.limits.s_lo, self.limits.s_hi)
+        given = neighbours or {}
+        nbrs = {n: given[n] if n in given else np.full(t.size, latest(n))
+                for n in self.effects.neighbours}
+        self.base = float(base[-1])
+        corrected = run_segments(
+            lambda k: self.effects.run(t[k], r[k], base[k], direction[k], temperature[k],
+                                       {n: v[k] for n, v in nbrs.items()}),
+            self.effects.reset, t.size, starts)
+        # a correction that overflows (extreme inputs or coefficients) is not applied: the
+        # estimate never becomes NaN; +-inf is clamped to the valid range by the caller
+        return np.where(np.isnan(corrected), base, corrected)
+
+    def latest_base(self) -> float:
+        """The latest clamped strain before the effect terms (NaN before any)."""
+        return self.base if self.effects else self.strain
+
+    def step_model(self, t: float, raw: float, gap_reset: float) -> SensorOutput | Pending:
+        """Input fix, screening, gap reset, input corrections, detector and model of one
+        sample (a bad one: its held output)."""
+        ohm, forced = self.one_ohm(raw)
+        lim = self.limits
+        code, reset = screen_one(t, ohm, forced, self.last_good_t, lim.r_short, lim.r_open,
+                                 lim.r_lo, lim.r_hi, sc.gap_for(self.cal.sample_interval,
+                                                                gap_reset))
+        status = Status(code)
+        h = self.health
+        if status not in USED:
+            h.count(status)
+            h.last_status = status
+            return SensorOutput(self.strain, self.direction, status, False)
+        if reset:
+            self.reset_state()
+            h.n_gaps += 1
+        if self.cal.input.filtered:
+            ohm = float(self.pair(np.array([t]), np.array([ohm]),
+                                  math.nan if reset else self.previous)[0][0])
+            status = Status(int(range_status(np.array([ohm]), np.array([reset]),
+                                             lim.r_lo, lim.r_hi)[0]))
+        direction = int(self.detector.step(t, ohm)) * self.cal.direction.sign
+        strain = float(self.model.step(t, model_read(ohm, lim.row)))
+        return Pending(t, ohm, status, strain, direction)
+
+    def step_finish(self, p: Pending, temperature: float, latest: Latest,
+                    neighbours: Mapping[str, float] | None = None) -> SensorOutput:
+        """Effect terms, range, held output and counters of one used sample."""
+        t, ohm, status, strain, direction = p.t, p.r, p.status, p.strain, p.direction
+        if self.cal.effects:
+            nbrs = {n: np.array([v]) for n, v in (neighbours or {}).items()}
+            strain = float(self.apply_effects(np.array([t]), np.array([ohm]),
+                                              np.array([strain]), np.array([direction]),
+                                              np.array([temperature]), latest, nbrs)[0])
+        strain = bound(ohm, strain, self.limits.row)
+        h = self.health
+        self.last_good_t = t
+        self.strain, self.direction = strain, direction
+        h.count(status)
+        h.last_good_t = t
+        h.last_status = status
+        return SensorOutput(strain, direction, status, status is Status.OUT_OF_RANGE, ohm)
+
+    def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
+                  temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:
+        """``run``'s first stage: input fix, screening, gap resets, input corrections,
+        detector and model over a batch."""
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        raw = np.ascontiguousarray(r, dtype=np.float64)
+        if t.ndim != 1 or t.shape != raw.shape:
+            raise InputError("run: t and r must be 1-D arrays of one length")
+        temp = (None if temperature is None
+                else np.ascontiguousarray(temperature, dtype=np.float64))
+        ohm, forced = self.to_ohm(raw)
+        lim = self.limits
+        status, reset, last_good_t, idx, resets = screen_batch(
+            t, ohm, forced, self.last_good_t, lim.r_short, lim.r_open, lim.r_lo, lim.r_hi,
+            sc.gap_for(self.cal.sample_interval, gap_reset))
+        if self.cal.input.filtered:
+            ohm = ohm.copy()  # corrected samples replace the used ones below; raw intact
+        bounds = [0, *resets.tolist(), idx.size] if resets.size else [0, idx.size]
+        corrections = np.zeros(idx.size, np.int8) if self.corrector is not None else None
+        strain_used = np.empty(idx.size)
+        dir_used = np.empty(idx.size, dtype=np.int8)
+        for k, (a, b) in enumerate(itertools.pairwise(bounds)):
+            if b == a:
+                continue
+            if k > 0:
+                self.model.reset()
+                self.detector.reset()
+            seg = idx[a:b] if idx.size < t.size else slice(a, b)
+            seg_ohm, events = self.pair(t[seg], ohm[seg], self.previous if k == 0 else math.nan)
+            if self.cal.input.filtered:
+                ohm[seg] = seg_ohm
+            if corrections is not None and events is not None:
+                corrections[a:b] = events
+            dir_used[a:b] = self.detector.run(t[seg], seg_ohm)
+            strain_used[a:b] = self.model.run(t[seg], lim.model_input(seg_ohm))
+        if self.cal.input.filtered:  # the range flag of what the model reads
+            status[idx] = range_status(ohm[idx], reset[idx], lim.r_lo, lim.r_hi)
+        if self.cal.direction.sign < 0:
+            dir_used = -dir_used
+        return PendingBatch(t, ohm, temp, status, reset, last_good_t, idx, bounds,
+                            strain_used, dir_used, corrections)
+
+    def run_finish(self, p: PendingBatch, latest: Latest,
+                   neighbours: Mapping[str, np.ndarray]) -> BatchOutput:
+        """``run``'s second stage: effect terms, range, held outputs and counters."""
+        t, status, reset, last_good_t, idx = p.t, p.status, p.reset, p.last_good_t, p.idx
+        strain_used, dir_used = p.strain_used, p.dir_used
+        if self.cal.effects and idx.size:
+            nbrs = {n: v[idx] for n, v in neighbours.items()}
+            starts = p.bounds[1:-1]  # a reset at the first sample resets at once
+            temp = (np.full(idx.size, np.nan) if p.temperature is None
+                    else p.temperature[idx])
+            strain_used = self.apply_effects(t[idx], p.ohm[idx], strain_used, dir_used, temp,
+                                             latest, nbrs, starts)
+        strain_used = bound_all(p.ohm[idx], strain_used, self.limits.row)
+        strain, direction, out_of_range, counts = hold(
+            status, reset, idx, strain_used, dir_used, self.strain, self.direction)
+        h = self.health
+        add_counts(h, counts)
+        h.n_gaps += int(counts[-1])
+        if status.size:
+            h.last_status = STATUSES[status[-1]]
+        if idx.size:
+            self.last_good_t = last_good_t
+            h.last_good_t = last_good_t
+            self.strain, self.direction = float(strain_used[-1]), int(dir_used[-1])
+        corrections = None
+        if p.corrections is not None:
+            corrections = np.zeros(t.size, np.int8)
+            corrections[idx] = p.corrections
+        return BatchOutput(strain, direction, status, out_of_range, p.ohm, reset, corrections)
+
+
+def scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
+    """``settings`` with the dead zone times ``scale``."""
+    return replace(settings, deadzone=settings.deadzone * scale)
+
+
+def _corrector(cal: SensorCalibration) -> ChainCorrector | None:
+    settings = cal.input
+    if settings.despike is None and settings.baseline_step is None:
+        return None
+    return ChainCorrector(k=settings.despike if settings.despike is not None else DESPIKE_K,
+                          alternating=settings.alternation,
+                          step_k=settings.baseline_step or 0.0)

@@ -1,0 +1,151 @@
+"""The per-sample stages every path runs: input fix, screen, model read, range, hold.
+
+Each stage is one scalar kernel (``divider_ohm``, ``strain_comp.core.samples.screen_one``,
+``model_read``, ``bound``); ``Engine.step`` calls it on one sample, the fused array tick
+(``strain_comp.core.array``) on each sensor of a tick, and ``Engine.run`` through its lift
+over a batch (``divider_all``, ``screen_batch``, ``saturate_all``, ``bound_all``,
+``hold``), as numbagg lifts a 1-D kernel: one rule, written once (docs/design.md, "The
+engine").
+
+The range stages read one sensor's limits as a row (``RANGE_COLUMNS``, from
+``strain_comp.core.range_policy.SensorRange.row``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from strain_comp._numba import njit
+from strain_comp.core import samples as sc
+from strain_comp.core.samples import screen_all
+
+RANGE_COLUMNS = ("r_lo", "r_hi", "s_lo", "s_hi", "slope_lo", "slope_hi", "reach_lo",
+                 "reach_hi", "saturate")
+"""Columns of a sensor's range row: valid resistance [ohm] and strain [%] ranges (margins
+included), the slopes [%/ohm] below and above the range, the reach [%] of an extended
+estimate, and 1.0 when the model reads the resistance clipped to the range."""
+R_LO, R_HI, S_LO, S_HI, SLOPE_LO, SLOPE_HI, REACH_LO, REACH_HI, SATURATE = \
+    range(len(RANGE_COLUMNS))
+
+
+@njit
+def clamp(value: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one value (NaN stays NaN)."""
+    return value if value != value else min(max(value, lo), hi)
+
+
+@njit(error_model="numpy")
+def divider_ohm(v: float, r1: float, vin: float) -> tuple[float, int]:
+    """Input fix of a divider reading: (R = R1 (Vin - V_R1) / V_R1 [ohm], forced status)
+    ([Electrolycra] section II.A); V_R1 <= 0 is an open circuit, V_R1 >= Vin a short
+    (NaN resistance)."""
+    if v <= 0.0:
+        return np.nan, sc.OPEN_CIRCUIT
+    if v >= vin:
+        return np.nan, sc.SHORT_CIRCUIT
+    return r1 * (vin - v) / v, sc.GOOD
+
+
+@njit
+def divider_all(v: np.ndarray, r1: float, vin: float) -> tuple[np.ndarray, np.ndarray]:
+    """``divider_ohm`` over a batch."""
+    ohm = np.empty(v.size)
+    forced = np.empty(v.size, np.int8)
+    for i in range(v.size):
+        ohm[i], forced[i] = divider_ohm(v[i], r1, vin)
+    return ohm, forced
+
+
+@njit
+def model_read(ohm: float, row: np.ndarray) -> float:
+    """The resistance the model reads: ``ohm``, clipped to the range when ``saturate``."""
+    return clamp(ohm, row[R_LO], row[R_HI]) if row[SATURATE] else ohm
+
+
+@njit
+def saturate_all(ohm: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """``model_read`` over a batch."""
+    out = np.empty(ohm.size)
+    for i in range(ohm.size):
+        out[i] = model_read(ohm[i], row)
+    return out
+
+
+@njit
+def bound(ohm: float, strain: float, row: np.ndarray) -> float:
+    """The range stage: ``strain`` clamped to the strain range, plus the slope times the
+    resistance beyond the valid range (continuous at its ends), within the reach."""
+    strain = clamp(strain, row[S_LO], row[S_HI])
+    if ohm > row[R_HI]:
+        strain += row[SLOPE_HI] * (ohm - row[R_HI])
+    elif ohm < row[R_LO]:
+        strain += row[SLOPE_LO] * (ohm - row[R_LO])
+    return clamp(strain, row[REACH_LO], row[REACH_HI])
+
+
+@njit
+def bound_all(ohm: np.ndarray, strain: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """``bound`` over a batch."""
+    out = np.empty(strain.size)
+    for i in range(strain.size):
+        out[i] = bound(ohm[i], strain[i], row)
+    return out
+
+
+
+@njit
+def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t: float,
+                 r_short: float, r_open: float, r_lo: float, r_hi: float, gap: float
+                 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
+    """``screen_all``, plus the indices of the used samples and the positions among them
+    where a gap reset starts a segment."""
+    status, reset, last = screen_all(t, ohm, forced, last_good_t, r_short, r_open, r_lo,
+                                     r_hi, gap)
+    idx = np.empty(t.size, np.int64)
+    starts = np.empty(t.size, np.int64)
+    m = 0
+    n_starts = 0
+    for i in range(t.size):
+        if sc.is_used(status[i]):
+            if reset[i]:
+                starts[n_starts] = m
+                n_starts += 1
+            idx[m] = i
+            m += 1
+    return status, reset, last, idx[:m], starts[:n_starts]
+
+
+def range_status(ohm: np.ndarray, reset: np.ndarray, r_lo: float, r_hi: float) -> np.ndarray:
+    """Status codes of used samples from the resistance the model reads: out of range
+    outside [r_lo, r_hi], else a gap reset or good (``screen_one``'s last rule)."""
+    inside = np.where(reset, sc.GAP_RESET, sc.GOOD)
+    return np.where((ohm < r_lo) | (ohm > r_hi), sc.OUT_OF_RANGE, inside).astype(np.int8)
+
+
+@njit
+def hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np.ndarray,
+         dir_used: np.ndarray, strain: float, direction: int
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The hold stage over a batch: each sample shows the strain and direction of the latest
+    used sample at or before it (``strain``, ``direction`` before the first). Also returns
+    the out-of-range flags and the samples per status code, then the number of resets."""
+    n = status.size
+    out_s = np.empty(n)
+    out_d = np.empty(n, np.int8)
+    oor = np.empty(n, np.bool_)
+    counts = np.zeros(sc.OUT_OF_RANGE + 2, np.int64)
+    j = 0
+    for i in range(n):
+        counts[status[i]] += 1
+        oor[i] = status[i] == sc.OUT_OF_RANGE
+        if reset[i]:
+            counts[counts.size - 1] += 1
+        if j < idx.size and idx[j] == i:
+            strain = strain_used[j]
+            direction = dir_used[j]
+            j += 1
+        out_s[i] = strain
+        out_d[i] = direction
+    return out_s, out_d, oor, counts
+
+
