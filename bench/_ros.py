@@ -15,7 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from strain_comp.core.calibration import Calibration, save_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import save_calibration
 
 ROOT = Path(__file__).resolve().parent.parent
 os.environ.update({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",

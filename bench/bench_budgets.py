@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT / "test"))
 
 from test_budgets import _bag, _chunk, _good_chunk  # noqa: E402
 
-from strain_comp.core.calibration import load_calibration  # noqa: E402
+from strain_comp.core.calibration_file import load_calibration  # noqa: E402
 from strain_comp.errors import InputError  # noqa: E402
 from strain_comp.io.bag import read_bag  # noqa: E402
 from strain_comp.io.bag.reader import MAX_CHUNK_BYTES  # noqa: E402

@@ -47,7 +47,8 @@ from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.models import Normalisation
-from strain_comp.models.apl import APL, available_cores
+from strain_comp.models.apl import APL
+from strain_comp.models.apl_fit import available_cores
 from strain_comp.models.base import Segment
 from strain_comp.offline import rig
 from strain_comp.offline.fit import fit_sensor, split_segments
@@ -187,7 +188,7 @@ def _gil_free_share(segments: list[Segment], norm: Normalisation, serial: float)
     """Share of the serial default grid's wall time ``serial`` that its cell-state kernel
     (nogil) takes, timed alone over the same points."""
     from strain_comp.models import apl_kernels as kern
-    from strain_comp.models.apl import P_GRID, _FitProblem
+    from strain_comp.models.apl_fit import P_GRID, _FitProblem
 
     problem = _FitProblem(APL, segments, norm, n=11, m=9, eps=1e-3, ridge=1e-6,
                           cell_weights="signed", search_nfev=0)

@@ -61,7 +61,7 @@ print(json.dumps({"seconds": seconds, "peak_mb": peak, **cal.provenance}))
 DIAGNOSE_ONE = """
 import json, sys, time
 from strain_comp.core.calibration import Calibration
-from strain_comp.diagnosis.loop import diagnose_bag
+from strain_comp.diagnosis.command import diagnose_bag
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.fit import fit_sensor
 small, bag, model = sys.argv[1], sys.argv[2], sys.argv[3]

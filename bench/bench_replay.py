@@ -35,7 +35,7 @@ from rosbags.highlevel import AnyReader
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, calibration, resistance, row
 
-from strain_comp.core.calibration import load_calibration, save_calibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.offline.evaluate import evaluate_bag
 from strain_comp.offline.replay import replay_bag

@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import R_HI, R_LO, calibration, resistance, row
 
-from strain_comp.core.calibration import save_calibration
+from strain_comp.core.calibration_file import save_calibration
 from strain_comp.io.bag import BagWriter
 
 CHILD = """

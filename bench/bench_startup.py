@@ -31,7 +31,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import calibration
 
-from strain_comp.core.calibration import save_calibration
+from strain_comp.core.calibration_file import save_calibration
 
 REPO = Path(__file__).resolve().parent.parent
 

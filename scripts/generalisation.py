@@ -191,7 +191,7 @@ class Bench:
 
     def fit(self, sensor: Sensor, run: Run, model: str) -> Any:
         """``strain-comp fit RUN --model MODEL`` (default options), cached."""
-        from strain_comp.core.calibration import load_calibration, save_calibration
+        from strain_comp.core.calibration_file import load_calibration, save_calibration
         from strain_comp.offline.fit import fit_bags
 
         path = self.out / "cache" / f"{sensor.name}_{run.label}_{model}_{self.key}.yaml"
@@ -267,8 +267,8 @@ def chain(rec: Any, cal: Any, seconds: float, forms: Sequence[str]) -> Any:
 def looped(bench: Bench, sensor: Sensor, train: Run, validate: Sequence[Run], model: str
            ) -> Any:
     """The calibration ``strain-comp diagnose TRAIN --validate VALIDATE...`` makes, cached."""
-    from strain_comp.core.calibration import load_calibration
-    from strain_comp.diagnosis.loop import diagnose_bag
+    from strain_comp.core.calibration_file import load_calibration
+    from strain_comp.diagnosis.command import diagnose_bag
 
     options = ("_stretch" if LOOP["stretch_history"] else "") + (
         "" if LOOP["session_start"] else "_nosession")

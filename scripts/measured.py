@@ -114,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="skip the in-run bound (a fit per model and held-out file)")
     args = parser.parse_args(argv)
 
-    from strain_comp.core.calibration import Calibration, save_calibration
+    from strain_comp.core.calibration import Calibration
+    from strain_comp.core.calibration_file import save_calibration
     from strain_comp.errors import StrainCompError
     from strain_comp.io.recording import load_recordings
     from strain_comp.offline.evaluate import evaluate_recordings, in_run_bound

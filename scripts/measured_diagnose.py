@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="diagnose --session-start (default on)")
     args = parser.parse_args(argv)
 
-    from strain_comp.core.calibration import Calibration, save_calibration
+    from strain_comp.core.calibration import Calibration
+    from strain_comp.core.calibration_file import save_calibration
     from strain_comp.diagnosis.conditions import diagnose_conditions
     from strain_comp.diagnosis.report import SESSION_RECORDS, effect_reading, write_plots
     from strain_comp.errors import StrainCompError

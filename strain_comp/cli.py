@@ -194,7 +194,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     for bag in args.bags:
         _bag(bag)
     _output(args.out, args.bags)
-    from strain_comp.core.calibration import save_calibration, strain_unit_words, unit_ok
+    from strain_comp.core.calibration import strain_unit_words, unit_ok
+    from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.fit import fit_bags, memoryless_note, parse_options
     from strain_comp.offline.options import check_fit_options
 
@@ -262,7 +263,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             os.path.join(b, "metadata.yaml")) for b in args.bags):
         return _evaluate_many(args, bags, inputs)
     bag = bags[0]
-    from strain_comp.core.calibration import load_calibration
+    from strain_comp.core.calibration_file import load_calibration
     from strain_comp.io.recording import load_recordings
     from strain_comp.offline.evaluate import (
         PLOT_POINTS,
@@ -300,7 +301,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str]) -> int:
     """``evaluate`` over several bags (``strain_comp.offline.batch``)."""
-    from strain_comp.core.calibration import load_calibration
+    from strain_comp.core.calibration_file import load_calibration
     from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.series import series_csv
@@ -339,7 +340,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     _output(args.out, [args.bag, args.calibration])
     if args.csv not in (None, "-"):
         _output(args.csv, [args.bag, args.calibration, args.out])
-    from strain_comp.core.calibration import load_calibration
+    from strain_comp.core.calibration_file import load_calibration
     from strain_comp.offline.replay import replay_bag
 
     calibration = load_calibration(args.calibration)
@@ -374,8 +375,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for out in (args.out, args.json):
         if out is not None and out != "-":
             _output(out, inputs)
-    from strain_comp.core.calibration import load_calibration
-    from strain_comp.diagnosis.loop import diagnose_bag
+    from strain_comp.core.calibration_file import load_calibration
+    from strain_comp.diagnosis.command import diagnose_bag
 
     calibration = load_calibration(args.calibration)
     report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
@@ -392,7 +393,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def cmd_recalibrate(args: argparse.Namespace) -> int:
-    from strain_comp.core.calibration import load_calibration, save_calibration
+    from strain_comp.core.calibration_file import load_calibration, save_calibration
     from strain_comp.offline.recalibrate import parse_point, recalibrate
 
     if bool(args.point) == bool(args.from_bag):

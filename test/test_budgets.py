@@ -25,7 +25,8 @@ from conftest import cubic_cal
 from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Schema
 
-from strain_comp.core.calibration import Calibration, save_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import save_calibration
 from strain_comp.io.bag import iter_bag, read_bag, reader
 from strain_comp.io.bag.schemas import MAGIC, SCHEMAS
 from strain_comp.ros import live as live_module

@@ -9,10 +9,7 @@ import pytest
 import yaml
 from conftest import make_calibration
 
-from strain_comp.core.calibration import (
-    load_calibration,
-    save_calibration,
-)
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.errors import CalibrationError
 
 

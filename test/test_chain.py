@@ -9,13 +9,8 @@ import numpy as np
 import pytest
 from conftest import fitted, training_recording
 
-from strain_comp.core.calibration import (
-    Calibration,
-    InputSettings,
-    SensorCalibration,
-    load_calibration,
-    save_calibration,
-)
+from strain_comp.core.calibration import Calibration, InputSettings, SensorCalibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.chain import (
     DESPIKE_K,
     SPIKE,

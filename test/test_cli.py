@@ -47,7 +47,7 @@ def run_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 
 
 def test_fit_evaluate_replay(workdir: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from strain_comp.core.calibration import load_calibration
+    from strain_comp.core.calibration_file import load_calibration
     from strain_comp.io.bag import read_bag
 
     calibration = load_calibration(workdir / "cal.yaml")

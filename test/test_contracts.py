@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from strain_comp.cli import main as run_cli
-from strain_comp.core.calibration import load_calibration
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.io.bag import BagWriter
 
 ROOT = Path(__file__).resolve().parent.parent

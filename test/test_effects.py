@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.core.calibration import load_calibration, save_calibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.effects import (
     KINDS,
     Batch,

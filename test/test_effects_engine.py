@@ -11,12 +11,8 @@ import numpy as np
 import pytest
 from conftest import DIRECTION, NORM, R_LO, S_HI, S_LO, cubic_cal, engine_of
 
-from strain_comp.core.calibration import (
-    Calibration,
-    SensorCalibration,
-    load_calibration,
-    save_calibration,
-)
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import Batch, regressor_from_dict
 from strain_comp.core.range_policy import RANGE_MARGIN

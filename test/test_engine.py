@@ -33,8 +33,8 @@ from strain_comp.core.calibration import (
     InputSettings,
     SensorCalibration,
     ValidRange,
-    load_calibration,
 )
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.direction import DirectionDetector
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import RANGE_MARGIN

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from conftest import BAGS, CONFIG, cubic_cal
 
-from strain_comp.core.calibration import Calibration, load_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.metrics import ErrorAccumulator, error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter

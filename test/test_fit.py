@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
 from strain_comp.errors import FitError, InputError, ParameterError

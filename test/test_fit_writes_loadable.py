@@ -13,8 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from strain_comp.cli import main
-from strain_comp.core.calibration import (
-    Calibration,
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import (
     check_calibration,
     load_calibration,
     save_calibration,

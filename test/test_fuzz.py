@@ -18,7 +18,8 @@ import pytest
 import yaml
 from conftest import fitted
 
-from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.errors import CalibrationError
 from strain_comp.models import MODEL_NAMES
 

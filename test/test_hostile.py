@@ -35,8 +35,8 @@ from strain_comp.core.calibration import (
     PARAM_MAX,
     Calibration,
     SensorCalibration,
-    load_calibration,
 )
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import GAP_RESET, Engine
 from strain_comp.diagnosis.loop import default_candidates
 from strain_comp.errors import BagError, CalibrationError, InputError

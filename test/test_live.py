@@ -19,7 +19,7 @@ from strain_comp.ros.params import parse_values
 
 def live(tmp_path: Path, *, tare: str = "calibration", rest: float | None = 150.0,
          tracking: str = "on") -> LiveCompensator:
-    from strain_comp.core.calibration import save_calibration
+    from strain_comp.core.calibration_file import save_calibration
 
     save_calibration(Calibration({"s1": replace(cubic_cal("s1"), rest_resistance=rest)}),
                      tmp_path / "c.yaml")
@@ -177,7 +177,7 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
     """An array whose second sensor never gives a usable sample: the first is tared after
     ``TARE_WINDOW``, the second stays pending, and the start log keeps no more than a few
     hundred samples however long the input runs."""
-    from strain_comp.core.calibration import save_calibration
+    from strain_comp.core.calibration_file import save_calibration
 
     save_calibration(Calibration({n: replace(cubic_cal(n), rest_resistance=150.0)
                                   for n in ("a", "b")}), tmp_path / "c.yaml")
@@ -232,7 +232,7 @@ def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) ->
 
 
 def test_baseline_tracking_parameter_follows_a_rest_that_fell(tmp_path: Path) -> None:
-    from strain_comp.core.calibration import save_calibration
+    from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.recalibrate import calibrated_resistance
 
     cal = cubic_cal("s1")

@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from strain_comp.core.calibration import load_calibration, save_calibration  # noqa: E402
+from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.core.tracking import BaselineTracker  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402

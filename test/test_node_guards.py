@@ -24,7 +24,7 @@ from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
 
-from strain_comp.core.calibration import load_calibration  # noqa: E402
+from strain_comp.core.calibration_file import load_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.ros.live import MAX_REFUSAL_KEYS  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402

@@ -33,7 +33,8 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from strain_comp.cli import main as cli_main  # noqa: E402
-from strain_comp.core.calibration import Calibration, load_calibration, save_calibration  # noqa: E402
+from strain_comp.core.calibration import Calibration  # noqa: E402
+from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.io.bag import read_bag  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -8,7 +8,8 @@ from typing import Any
 import pytest
 from conftest import cubic_cal
 
-from strain_comp.core.calibration import Calibration, save_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLES, load_params, parse_values, validate_tunable
 

@@ -17,13 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.core.calibration import (
-    Calibration,
-    SensorCalibration,
-    ValidRange,
-    load_calibration,
-    save_calibration,
-)
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.io.recording import Recording

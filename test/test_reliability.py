@@ -22,8 +22,9 @@ import numpy as np
 import pytest
 from conftest import calibration_of, fitted, strain_bounds
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
-from strain_comp.core.calibration import save_calibration as save
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.calibration_file import load_calibration
+from strain_comp.core.calibration_file import save_calibration as save
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.core.samples import Status

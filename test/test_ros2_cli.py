@@ -30,7 +30,8 @@ import pytest
 import yaml
 from ros_env import copy_package, ros_env, wait_for
 
-from strain_comp.core.calibration import Calibration, load_calibration, save_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.engine import Engine
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strain_comp.core.calibration import load_calibration
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.io.bag import BagContents, BagWriter, iter_bag, read_bag
 from strain_comp.offline.replay import replay_bag

@@ -25,31 +25,27 @@ sensors:
     provenance: {bags: [..], created: .., fit_rmse: .., n_samples: .., tool: ..}
 ```
 
-Loading validates everything and raises one ``CalibrationError`` naming the file and the
-dotted field. Limits (a calibration is a small machine-written file; anything beyond these
-is refused, never half-read): a regular file of at most ``MAX_FILE_BYTES``; at most
-``MAX_SENSORS`` sensors and ``MAX_EFFECTS`` effect terms in all (the probe below runs each,
-so these bound the load time: a reload in the node stays short); at most
-``MAX_ALIASES`` YAML aliases and ``MAX_NODES`` values once aliases are expanded (no "billion
-laughs"); nesting at most ``MAX_DEPTH`` deep (aliases included); integers within float
-range; every number of a model's parameters and of an effect at most ``PARAM_MAX`` in
-magnitude, resistances in (0, ``PARAM_MAX``] ohm and strains within +/- ``STRAIN_MAX`` %.
-A cross-talk effect must read another sensor. Last, every sensor is run through the engine
-on a probe (``probe_calibration``): a calibration that gives a non-finite strain there is
-refused, so one that loads gives finite strain inside its declared range.
-Saving is atomic: a temporary file in the same directory, fsync, rename. Before it writes,
-``save_calibration`` applies the same checks to the text it would write
-(``check_calibration``, ``parse_calibration``): nothing it writes fails to load.
-Floats are written with Python's shortest round-trip repr, so load(save(c)) == c exactly.
+Parsing (``parse_fields``) validates every field without running a model and raises one
+``CalibrationError`` naming the file and the dotted field. Limits (a calibration is a small
+machine-written file; anything beyond these is refused, never half-read): a regular file of
+at most ``MAX_FILE_BYTES``; at most ``MAX_SENSORS`` sensors and ``MAX_EFFECTS`` effect terms
+in all (the load-time probe runs each, so these bound the load time: a reload in the node
+stays short); at most ``MAX_ALIASES`` YAML aliases and ``MAX_NODES`` values once aliases
+are expanded (no "billion laughs"); nesting at most ``MAX_DEPTH`` deep (aliases included);
+integers within float range; every number of a model's parameters and of an effect at most
+``PARAM_MAX`` in magnitude, resistances in (0, ``PARAM_MAX``] ohm and strains within +/-
+``STRAIN_MAX`` %. A cross-talk effect must read another sensor; no model may have a pole
+inside its valid range. Loading, the probe that runs the engine and saving are
+``strain_comp.core.calibration_file``. Floats are written with Python's shortest
+round-trip repr, so load(save(c)) == c exactly.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import stat
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -62,7 +58,6 @@ from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
 from strain_comp.errors import CalibrationError, ParameterError
-from strain_comp.io.atomic import write_text
 from strain_comp.io.safe_yaml import LimitError, load_limited
 from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float
@@ -263,35 +258,6 @@ def calibration_text(calibration: Calibration) -> str:
     """The YAML text ``save_calibration`` writes."""
     return yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
                           default_flow_style=None, width=100)
-
-
-def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"
-                      ) -> None:
-    """The load-time checks on the file ``calibration`` would be: ``CalibrationError`` (the
-    field and the problem, as ``load_calibration`` would name them) if a reader would refuse
-    it. ``save_calibration`` runs it before writing, so nothing written fails to load."""
-    text = calibration_text(calibration)
-    reader = _Reader(str(path))
-    if len(text.encode("utf-8")) > MAX_FILE_BYTES:
-        raise reader.fail("file", f"refused: larger than {MAX_FILE_BYTES} bytes")
-    parse_calibration(text, str(path))
-
-
-def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
-                     inputs: Iterable[str | os.PathLike[str]] = (), check: bool = True) -> None:
-    """Write atomically (``strain_comp.io.atomic``): a crash at any moment leaves the old or
-    the new file, never a mix; a target that is one of ``inputs`` or not a regular file is
-    refused. With ``check`` (default) the file first passes ``check_calibration``, the
-    checks every reader applies; a file that would not load is not written
-    (``CalibrationError``, "not written: ..."). ``check=False`` writes it anyway (tests of
-    the loader's refusals)."""
-    if check:
-        try:
-            check_calibration(calibration, path)
-        except CalibrationError as err:
-            raise CalibrationError(err.path, err.field,
-                                   f"not written, it would not load: {err.problem}") from None
-    write_text(path, calibration_text(calibration), inputs=inputs)
 
 
 class _Reader:
@@ -509,15 +475,16 @@ def _read_text(reader: _Reader, path: str | os.PathLike[str]) -> str:
         raise reader.fail("file", f"cannot read: {err}") from None
 
 
-def load_calibration(path: str | os.PathLike[str]) -> Calibration:
-    """Read and validate a calibration file; CalibrationError names the file and field."""
-    return parse_calibration(_read_text(_Reader(str(path)), path), str(path))
+def read_text(path: str | os.PathLike[str]) -> str:
+    """The text of the calibration file ``path`` within the limits; CalibrationError
+    naming the file otherwise."""
+    return _read_text(_Reader(str(path)), path)
 
 
-def parse_calibration(text: str, path: str) -> Calibration:
-    """Validate the text of a calibration file (every load-time check: the limits, the
-    fields, the probe); CalibrationError names ``path`` and the field. The one validation
-    both ``load_calibration`` and ``check_calibration`` (before a write) apply."""
+def parse_fields(text: str, path: str) -> Calibration:
+    """Validate the text of a calibration file without running a model: the limits, the
+    fields and the poles (``strain_comp.core.calibration_file.parse_calibration`` adds the
+    probe); CalibrationError names ``path`` and the field."""
     reader = _Reader(path)
     root = _parse_yaml(reader, text)
     root = reader.mapping(root, "(top level)")
@@ -541,42 +508,4 @@ def parse_calibration(text: str, path: str) -> Calibration:
         if pole is not None:
             raise reader.fail(f"sensors.{name}.model", f"has no finite strain at R = "
                               f"{pole:.6g} ohm, inside its valid range (a pole)")
-        where = probe_calibration(cal)
-        if where is not None:
-            raise reader.fail(f"sensors.{name}", f"gives a non-finite strain ({where}); "
-                              "its parameters are out of any usable range")
     return calibration
-
-
-def probe_resistance(cal: SensorCalibration) -> tuple[Any, Any]:
-    """A probe of one sensor: times [s] and resistances [ohm] sweeping log-spaced from the
-    shortest to the most open value the engine feeds a model (0.01 x the bottom to 100 x
-    the top of the valid range) and back, slowly, fast, and with a long hold."""
-    import numpy as np
-
-    lo, hi = math.log(cal.valid_range.r_lo * 0.011), math.log(cal.valid_range.r_hi * 99.0)
-    up = np.exp(np.linspace(lo, hi, 200))
-    sweep = np.concatenate([up, up[::-1], up[::4], up[::-4], np.full(50, up[100])])
-    t = np.concatenate([np.arange(400) * 0.05, 20.0 + np.arange(100) * 0.01,
-                        21.0 + np.arange(50) * 2.0])
-    return t, sweep
-
-
-def probe_calibration(cal: SensorCalibration) -> str | None:
-    """Where the engine gives a non-finite strain on this sensor's probe
-    (``probe_resistance``, with a temperature of 25 deg C), or None. The probe is the
-    resistance the model reads: an input zero and span (an affine map checked on its own)
-    is left out, else a probe value it maps below the short level is screened out."""
-    import numpy as np
-
-    from strain_comp.core.engine import Engine
-
-    probe = SensorCalibration(**{**vars(cal), "input": replace(cal.input, zero_span=None),
-                                 "effects": [e for e in cal.effects
-                                             if e.get("kind") != "crosstalk"]})
-    engine = Engine(Calibration({cal.name: probe}))
-    t, r = probe_resistance(cal)
-    with np.errstate(all="ignore"):
-        out = engine.run(cal.name, t, r, np.full(t.size, 25.0))
-    bad = np.flatnonzero(~np.isfinite(out.strain))
-    return None if bad.size == 0 else f"R = {r[bad[0]]:.6g} ohm at t = {t[bad[0]]:g} s"

@@ -32,18 +32,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.effects import RECALIBRATION_TERMS
+from strain_comp.core.engine import Engine
+from strain_comp.core.outputs import BatchOutput, SensorOutput, concatenate
+from strain_comp.core.range_policy import RANGE_MARGIN
+from strain_comp.core.samples import used_mask
 from strain_comp.core.tare import REST_BAND
 from strain_comp.errors import InputError
-
-if TYPE_CHECKING:
-    from strain_comp.core.calibration import SensorCalibration, ValidRange
-    from strain_comp.core.engine import Engine
-    from strain_comp.core.outputs import BatchOutput, SensorOutput
 
 TRACKING_MODES = ("off", "on")
 """Baseline tracking off or on."""
@@ -74,8 +73,6 @@ def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
 def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
     """(rest strain, strain span) the calibration was fitted over: its valid strain range
     less the ``RANGE_MARGIN`` of the span the fit adds on each side."""
-    from strain_comp.core.range_policy import RANGE_MARGIN
-
     span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE_MARGIN)
     return valid_range.s_lo + RANGE_MARGIN * span, span
 
@@ -93,9 +90,6 @@ def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -
     strain within ``band`` of the strain span. Tracking moves the rest toward that
     resistance; where the map reads it as a strain (a rest resistance taken while the
     sensor still relaxed, a map that is flat near rest), tracking would move the zero."""
-    from strain_comp.core.calibration import Calibration
-    from strain_comp.core.engine import Engine
-
     t = np.arange(0.0, SETTLE_SECONDS, 0.1)
     if not (raw_rest > 0 and math.isfinite(raw_rest)):
         return False
@@ -130,8 +124,6 @@ class BaselineTracker:
     def run(self, name: str, t: np.ndarray, r: np.ndarray,
             temperature: np.ndarray | None = None) -> BatchOutput:
         """``engine.run`` over ``t``, ``r`` in stretches, tracking between them."""
-        from strain_comp.core.outputs import concatenate
-
         t = np.asarray(t, dtype=np.float64)
         if t.size == 0:
             return self.engine.run(name, t, r, temperature)
@@ -149,8 +141,6 @@ class BaselineTracker:
     def advance(self, name: str, t: float) -> None:
         """Before samples from ``t`` on are run: if ``t`` starts a new stretch, judge the
         stretch kept so far (``update``), so its correction applies from ``t`` on."""
-        from strain_comp.core.outputs import concatenate
-
         kept = self.pending.get(name)
         origin = self.origin.setdefault(name, t)
         if kept and (np.floor((t - origin) / CHUNK_SECONDS)
@@ -163,8 +153,6 @@ class BaselineTracker:
     def observe(self, name: str, t: float, out: SensorOutput) -> None:
         """One stepped sample (the node; ``advance`` first), kept until its stretch is
         judged."""
-        from strain_comp.core.outputs import BatchOutput
-
         self.pending.setdefault(name, []).append((np.array([t]), BatchOutput(
             np.array([out.strain]), np.array([out.direction]),
             np.array([int(out.status)], np.int8), np.zeros(1, bool),
@@ -172,8 +160,6 @@ class BaselineTracker:
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""
-        from strain_comp.core.samples import used_mask
-
         cal = self.engine.calibration.sensors[name]
         used = used_mask(np.asarray(out.status))
         previous = self.last_hold.pop(name, None)

@@ -44,6 +44,7 @@ from strain_comp.core.chain import (
     correct,
     quantisation,
 )
+from strain_comp.core.engine import Engine
 from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import DiagnoseResult
@@ -134,8 +135,6 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
 def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | None) -> str:
     """What ``--tare auto`` did on each run, in words: the tare taken, or why it was
     declined (the calibration's rest resistance then stays)."""
-    from strain_comp.core.engine import Engine
-
     lines = []
     for k, run in enumerate(r for r in runs if r is not None):
         where = "training run" if k == 0 else "validation run"

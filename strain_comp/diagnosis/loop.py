@@ -84,17 +84,11 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import (
-    Calibration,
-    SensorCalibration,
-    save_calibration,
-    strain_unit_words,
-)
+from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.core.effects import (
     Batch,
     EffectTerms,
@@ -116,7 +110,6 @@ from strain_comp.diagnosis.report import (
     DiagnoseResult,
     EffectScore,
     SensorDiagnosis,
-    write_plots,
 )
 from strain_comp.diagnosis.selection import (
     Gram,
@@ -128,7 +121,7 @@ from strain_comp.diagnosis.selection import (
 )
 from strain_comp.diagnosis.session import SessionHeldOut
 from strain_comp.errors import InputError
-from strain_comp.io.recording import Recording, hold_latest, load_recordings
+from strain_comp.io.recording import Recording, hold_latest
 
 ROW_BUDGET = 250_000
 """Samples of one sensor (over its fit recordings; validation recordings apart) up to which
@@ -590,26 +583,3 @@ def _pool(results: Mapping[str, SensorDiagnosis], which: str) -> dict[str, float
     sse = sum(getattr(d, which)["rmse"] ** 2 * getattr(d, which)["n"] for d in results.values())
     sae = sum(getattr(d, which)["mae"] * getattr(d, which)["n"] for d in results.values())
     return {"rmse": math.sqrt(sse / n), "mae": sae / n, "n": n}
-
-
-def diagnose_bag(bag: str | Path, calibration: Calibration, *,
-                 validate: str | Path | Sequence[str | Path] | None = None,
-                 out: str | Path | None = None, plots: str | Path | None = None,
-                 inputs: Sequence[str | Path] = (), **options: Any) -> DiagnoseResult:
-    """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots
-    (atomically; an output that is a bag or one of ``inputs`` is refused). ``validate``:
-    one validation bag or several (each a run of its own)."""
-    from strain_comp.diagnosis.conditions import diagnose_conditions
-
-    paths = [] if validate is None else [validate] if isinstance(validate, str | Path) \
-        else list(validate)
-    inputs = [bag, *paths, *inputs]
-    recordings, _ = load_recordings(bag)
-    val = [load_recordings(p)[0] for p in paths] or None
-    result = diagnose_conditions(recordings, calibration, validate_recordings=val,
-                                 **options)
-    if out is not None:
-        save_calibration(result.calibration, out, inputs=inputs)
-    if plots is not None:
-        write_plots(result, plots, inputs=inputs)
-    return result

@@ -21,6 +21,8 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.recalibrate import recalibrate_recordings
 
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
@@ -68,8 +70,6 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
     ``recalibrate --from RUN --first seconds`` (the output form on the spanned input, tare
     ``calibration``). A step that cannot be made (no rest in the cycle, a strain the
     calibration never outputs) is skipped, as it is for a user, and says why."""
-    from strain_comp.offline.recalibrate import recalibrate_recordings
-
     out = SessionStart(calibration, seconds)
     for form in FORMS:
         tare = "calibration" if form == "output" else "auto"
@@ -89,8 +89,6 @@ def session_errors(calibration: Calibration, recordings: Mapping[str, Recording]
                    sensor: str, seconds: float) -> np.ndarray:
     """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
     ``recordings`` after the session-start recalibration on their first ``seconds``."""
-    from strain_comp.offline.evaluate import evaluate_recordings
-
     spanned = session_start(calibration, recordings, seconds).calibration
     ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
     return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)

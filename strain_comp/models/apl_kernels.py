@@ -62,6 +62,8 @@ KIND_PL = 1
 
 P_MIN = 0.05
 """Smallest exponent p accepted (z^p for tiny z must stay negligible)."""
+P_MAX = 20.0
+"""Largest exponent p accepted."""
 
 
 _Codegen = Callable[[Any, Any, Any, Any], Any]
@@ -284,3 +286,14 @@ def states_kernel(t: np.ndarray, xi: np.ndarray, starts: np.ndarray, kind: int, 
         t_prev = t[i]
         states[i, :] = x[:rho.size]
     return states
+
+
+def thresholds(n: int, kind: int) -> np.ndarray:
+    """rho_k, k = 1..N: 2k/(N+1) - 1 for APL (eq. (1)), k/(N+1) for PL (eq. (6))."""
+    k = np.arange(1, n + 1, dtype=np.float64)
+    return 2.0 * k / (n + 1) - 1.0 if kind == KIND_APL else k / (n + 1)
+
+
+def inverse_widths(rho: np.ndarray, kind: int) -> np.ndarray:
+    """1 / (rho_k + 1) for APL, 1 / rho_k for PL: the normalisers of the power law."""
+    return 1.0 / (rho + 1.0) if kind == KIND_APL else 1.0 / rho

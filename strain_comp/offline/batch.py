@@ -28,11 +28,20 @@ from multiprocessing.context import BaseContext
 from pathlib import Path
 from typing import Any
 
-from strain_comp.core.calibration import load_calibration, strain_unit_words
+from strain_comp.core.calibration import strain_unit_words
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.tracking import DEFAULT_TRACKING
 from strain_comp.errors import InputError, StrainCompError
-from strain_comp.offline.evaluate import EvaluationResult, format_notes, format_table
+from strain_comp.io.recording import load_recordings
+from strain_comp.offline.evaluate import (
+    EvaluationResult,
+    evaluate_bag,
+    format_notes,
+    format_table,
+    in_run_bound,
+)
+from strain_comp.offline.plots import plot_evaluation
 from strain_comp.offline.series import SeriesCSV
 
 MAX_JOBS = 64
@@ -82,9 +91,6 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
     ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
     (a pool worker)."""
-    from strain_comp.io.recording import load_recordings
-    from strain_comp.offline.evaluate import evaluate_bag, in_run_bound
-
     table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
     try:
         calibration = load_calibration(calibration_path)
@@ -95,8 +101,6 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
             in_run_bound(result, load_recordings(bag)[0], calibration)
         outcome = BagOutcome(bag, result, problems)
         if plots_dir is not None:
-            from strain_comp.offline.plots import plot_evaluation
-
             outcome.plots = [str(p) for p in plot_evaluation(
                 result, plots_dir, inputs=inputs, calibration=calibration, bag=bag,
                 calibration_path=calibration_path, tare=tare)]

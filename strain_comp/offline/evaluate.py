@@ -37,9 +37,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
+from strain_comp.core.samples import Status, used_mask
+from strain_comp.core.tare import tare_engine
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
-from strain_comp.errors import InputError
+from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.bag import BagContents, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import (
@@ -50,9 +53,9 @@ from strain_comp.io.recording import (
     Recording,
     array_sensor_names,
 )
+from strain_comp.offline.fit import fit_sensor
 
 if TYPE_CHECKING:
-    from strain_comp.core.engine import Engine
     from strain_comp.core.outputs import BatchOutput
     from strain_comp.core.tracking import BaselineTracker
     from strain_comp.offline.series import SeriesCSV
@@ -137,10 +140,6 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     ``strain_comp.core.tracking.BaselineTracker``.
     Raises InputError when no calibrated sensor can be scored (names both sides).
     """
-    from strain_comp.core.engine import Engine
-    from strain_comp.core.samples import Status, used_mask
-    from strain_comp.core.tare import tare_engine
-
     engine = Engine(calibration, out_of_range=out_of_range)
     tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
     outputs = _array_outputs(engine, recordings, calibration)
@@ -232,9 +231,6 @@ def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
     the evaluated run itself and scored on it, i.e. what that model family can reach on
     this run; the gap to ``rmse`` is what does not transfer from the training runs. A run
     the model cannot be fitted to gets NaN and a note."""
-    from strain_comp.errors import StrainCompError
-    from strain_comp.offline.fit import fit_sensor
-
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
         try:
@@ -352,8 +348,6 @@ class _Score:
         self.kept = _Kept(plot_points) if plot_points > 0 else None
 
     def add(self, t: np.ndarray, r: np.ndarray, s: np.ndarray, out: BatchOutput) -> None:
-        from strain_comp.core.samples import used_mask
-
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
         good = used_mask(status)
@@ -372,8 +366,6 @@ class _Score:
 
     def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
                    ) -> SensorEvaluation:
-        from strain_comp.core.samples import Status
-
         kept = self.kept or _Kept(0)
         return SensorEvaluation(
             name=name, model=model, stats=self.errors.stats(), t=kept.get("t"),
@@ -462,8 +454,6 @@ class _Stream:
     def _input(self, topic: str, contents: BagContents) -> _Input | None:
         """What a resistance topic first seen in ``contents`` is (as ``load_recordings``
         reads it), tared from this first piece (as ``replay`` does)."""
-        from strain_comp.core.tare import tare_engine
-
         prefix = topic[:-len(RESISTANCE)]
         series = contents.series[topic]
         single = series.values.ndim == 1
@@ -611,8 +601,6 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
     InputError when no calibrated sensor
     can be scored (names both sides and the bag's problems).
     """
-    from strain_comp.core.engine import Engine
-
     stream = _Stream(calibration, Engine(calibration, out_of_range=out_of_range), tare,
                      plot_points, series, str(path), tracking)
     for contents in iter_bag(path, window=window):

@@ -79,16 +79,17 @@ from strain_comp.core.calibration import (
     InputSettings,
     SensorCalibration,
     ValidRange,
-    check_calibration,
     provenance,
 )
+from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.chain import PAIR_BRANCHES, alternation, pair_branch, pair_values
 from strain_comp.core.direction import DirectionSettings, estimate_deadzone
-from strain_comp.core.engine import GAP_RESET
+from strain_comp.core.engine import GAP_RESET, Engine
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import CalibrationError, FitError, InputError
+from strain_comp.io.recording import load_recordings
 from strain_comp.models import Normalisation, Segment, model_class
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
 
@@ -336,8 +337,6 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
     fit error equals what ``strain-comp evaluate`` reports (the engine clamps estimates to
     the valid strain range plus its margin, which a raw model output is not).
     """
-    from strain_comp.core.engine import Engine
-
     engine = Engine(Calibration({calibration.name: calibration}))
     estimates, references = [], []
     for seg in segments:
@@ -528,8 +527,6 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
     Each sensor is fitted to its recordings from every bag that has it. Bag problems
     (skipped chunks, unknown schemas) go to ``report``, one line each.
     """
-    from strain_comp.io.recording import load_recordings
-
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
     for path in paths:
         recordings, problems = load_recordings(path)

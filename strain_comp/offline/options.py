@@ -15,6 +15,10 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from strain_comp.errors import InputError
+from strain_comp.models import MODEL_NAMES
+from strain_comp.models.apl import M_MAX, N_MAX
+from strain_comp.models.apl_kernels import P_MIN
+from strain_comp.models.rational import MODES
 
 Check = Callable[[Any], str | None]
 """None when the value is acceptable, else what it must be."""
@@ -63,9 +67,6 @@ def _number_list(lo: float, *, strict: bool = False) -> Check:
 
 
 def _apl_options() -> dict[str, Check]:
-    from strain_comp.models.apl import M_MAX, N_MAX
-    from strain_comp.models.apl_kernels import P_MIN
-
     return {
         "N": _integer(1, N_MAX), "M": _integer(1, M_MAX, odd=True),
         "sigma_grid": _number_list(0.0, strict=True), "p_grid": _number_list(P_MIN),
@@ -78,15 +79,11 @@ def _apl_options() -> dict[str, Check]:
 
 def model_options(model: str) -> dict[str, Check]:
     """The options of ``model``'s fit (without the direction options)."""
-    from strain_comp.models import MODEL_NAMES
-
     if model in ("apl", "pl", "mpi"):
         return _apl_options()
     if model == "sinh_pl":
         return {"n_cells": _integer(1, 3), "max_nfev": _integer(1, MAX_COUNT)}
     if model == "rational":
-        from strain_comp.models.rational import MODES
-
         return {"mode": _choice(*MODES)}
     if model == "spike_decay":
         return {"hold_rate": _number(0.0, strict=True), "min_hold": _number(0.0, strict=True)}

@@ -53,11 +53,15 @@ from strain_comp.core.calibration import (
     STRAIN_MAX,
     Calibration,
     SensorCalibration,
-    check_calibration,
     strain_unit_words,
 )
+from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.effects import RECALIBRATION_TERMS
+from strain_comp.core.engine import Engine
+from strain_comp.core.tare import REST_BAND, ohms, rest_resistance_from_reference
 from strain_comp.errors import CalibrationError, InputError
+from strain_comp.io.recording import load_recordings
+from strain_comp.offline.evaluate import evaluate_recordings
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -96,8 +100,6 @@ def parse_point(text: str) -> tuple[float, float]:
 
 def steady_output(cal: SensorCalibration, r: float) -> float:
     """The calibration's output [%] after ``SETTLE_SAMPLES`` samples at constant ``r``."""
-    from strain_comp.core.engine import Engine
-
     engine = Engine(Calibration({cal.name: cal}))
     t = 0.1 * np.arange(SETTLE_SAMPLES)
     return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
@@ -187,8 +189,6 @@ def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
     measured ``r`` [ohm], reference ``s``): the stretch is the largest strain of the cycle,
     or ``top`` (the largest the calibration outputs) when lower; medians of the samples
     within ``REST_BAND`` of the span of each. InputError when it does not rest or move."""
-    from strain_comp.core.tare import REST_BAND, rest_resistance_from_reference
-
     ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
@@ -217,8 +217,6 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
     """The calibration's output along a slow ramp over ``grid`` and back (10 Hz, from a
     fresh state at the rest end; an existing input zero and span left out)."""
-    from strain_comp.core.engine import Engine
-
     bare = replace(cal, input=replace(cal.input, zero_span=None))
     path = np.concatenate([grid, grid[::-1]])
     return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
@@ -312,7 +310,6 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
     kept unless the fit lowers the error."""
     from scipy.optimize import minimize
 
-    from strain_comp.core.engine import Engine
 
     if rec.s is None or np.isfinite(rec.s).sum() < SPAN_FIT_MIN_SAMPLES:
         return start
@@ -340,8 +337,6 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
 def span_reading(span: tuple[float, float, float]) -> str:
     """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81
     (sensitivity +23.5 %)``."""
-    from strain_comp.core.tare import ohms
-
     rest, rest_cal, k = span
     return (f"input zero {ohms((rest, rest_cal)).replace(' vs ', ' -> ')}, span gain "
             f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")
@@ -408,8 +403,6 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     """``recalibrate`` from recordings with a reference strain (their first ``first``
     seconds): the output map by least squares, or the input zero and span from the
     first rest and the largest strain (``points_from_first_cycle``)."""
-    from strain_comp.offline.evaluate import evaluate_recordings
-
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     recs = head(recordings, first)
@@ -457,8 +450,6 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
     out = dict(calibration.sensors)
     lines = []
     if bag is not None:
-        from strain_comp.io.recording import load_recordings
-
         return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
                                       first=first, sensors=sensors, tare=tare,
                                       source=str(bag))

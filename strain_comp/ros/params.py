@@ -41,7 +41,8 @@ from typing import Any
 
 import yaml
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, load_calibration
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.tracking import DEFAULT_TRACKING, TRACKING_MODES
 from strain_comp.errors import InputError, ParameterError

@@ -412,7 +412,7 @@ def test_grid_search_in_threads_gives_the_serial_result() -> None:
 
 
 def test_grid_threads_follow_cores_and_problem_size(monkeypatch):
-    from strain_comp.models import apl
+    from strain_comp.models import apl_fit as apl
 
     monkeypatch.setattr(apl, "available_cores", lambda: 4)
     assert apl.grid_workers(None, 117, 20_000) == 4

@@ -1,0 +1,105 @@
+"""Calibration files read and written with every load-time check, the probe included:
+each sensor is run through the engine on a probe (``probe_calibration``), and a
+calibration that gives a non-finite strain there is refused, so one that loads gives
+finite strain inside its declared range (docs/design.md, "Calibration file").
+
+The fields are parsed and checked without a model run in ``strain_comp.core.calibration``;
+this module sits above the engine, which it runs. Saving is atomic
+(``strain_comp.io.atomic``), and ``save_calibration`` first applies the same checks to the
+text it would write (``check_calibration``): nothing it writes fails to load.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable
+from dataclasses import replace
+
+import numpy as np
+
+from strain_comp.core.calibration import (
+    MAX_FILE_BYTES,
+    Calibration,
+    SensorCalibration,
+    calibration_text,
+    parse_fields,
+    read_text,
+)
+from strain_comp.core.engine import Engine
+from strain_comp.errors import CalibrationError
+from strain_comp.io.atomic import write_text
+
+
+def load_calibration(path: str | os.PathLike[str]) -> Calibration:
+    """Read and validate a calibration file; CalibrationError names the file and field."""
+    return parse_calibration(read_text(path), str(path))
+
+
+def parse_calibration(text: str, path: str) -> Calibration:
+    """Validate the text of a calibration file (every load-time check: the limits, the
+    fields, the probe); CalibrationError names ``path`` and the field. The one validation
+    both ``load_calibration`` and ``check_calibration`` (before a write) apply."""
+    calibration = parse_fields(text, path)
+    for name, cal in calibration.sensors.items():
+        where = probe_calibration(cal)
+        if where is not None:
+            raise CalibrationError(path, f"sensors.{name}", f"gives a non-finite strain "
+                                   f"({where}); its parameters are out of any usable range")
+    return calibration
+
+
+def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"
+                      ) -> None:
+    """The load-time checks on the file ``calibration`` would be: ``CalibrationError`` (the
+    field and the problem, as ``load_calibration`` would name them) if a reader would refuse
+    it. ``save_calibration`` runs it before writing, so nothing written fails to load."""
+    text = calibration_text(calibration)
+    if len(text.encode("utf-8")) > MAX_FILE_BYTES:
+        raise CalibrationError(str(path), "file", f"refused: larger than {MAX_FILE_BYTES} bytes")
+    parse_calibration(text, str(path))
+
+
+def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
+                     inputs: Iterable[str | os.PathLike[str]] = (), check: bool = True) -> None:
+    """Write atomically (``strain_comp.io.atomic``): a crash at any moment leaves the old or
+    the new file, never a mix; a target that is one of ``inputs`` or not a regular file is
+    refused. With ``check`` (default) the file first passes ``check_calibration``, the
+    checks every reader applies; a file that would not load is not written
+    (``CalibrationError``, "not written: ..."). ``check=False`` writes it anyway (tests of
+    the loader's refusals)."""
+    if check:
+        try:
+            check_calibration(calibration, path)
+        except CalibrationError as err:
+            raise CalibrationError(err.path, err.field,
+                                   f"not written, it would not load: {err.problem}") from None
+    write_text(path, calibration_text(calibration), inputs=inputs)
+
+
+def probe_resistance(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
+    """A probe of one sensor: times [s] and resistances [ohm] sweeping log-spaced from the
+    shortest to the most open value the engine feeds a model (0.01 x the bottom to 100 x
+    the top of the valid range) and back, slowly, fast, and with a long hold."""
+    lo, hi = math.log(cal.valid_range.r_lo * 0.011), math.log(cal.valid_range.r_hi * 99.0)
+    up = np.exp(np.linspace(lo, hi, 200))
+    sweep = np.concatenate([up, up[::-1], up[::4], up[::-4], np.full(50, up[100])])
+    t = np.concatenate([np.arange(400) * 0.05, 20.0 + np.arange(100) * 0.01,
+                        21.0 + np.arange(50) * 2.0])
+    return t, sweep
+
+
+def probe_calibration(cal: SensorCalibration) -> str | None:
+    """Where the engine gives a non-finite strain on this sensor's probe
+    (``probe_resistance``, with a temperature of 25 deg C), or None. The probe is the
+    resistance the model reads: an input zero and span (an affine map checked on its own)
+    is left out, else a probe value it maps below the short level is screened out."""
+    probe = SensorCalibration(**{**vars(cal), "input": replace(cal.input, zero_span=None),
+                                 "effects": [e for e in cal.effects
+                                             if e.get("kind") != "crosstalk"]})
+    engine = Engine(Calibration({cal.name: probe}))
+    t, r = probe_resistance(cal)
+    with np.errstate(all="ignore"):
+        out = engine.run(cal.name, t, r, np.full(t.size, 25.0))
+    bad = np.flatnonzero(~np.isfinite(out.strain))
+    return None if bad.size == 0 else f"R = {r[bad[0]]:.6g} ohm at t = {t[bad[0]]:g} s"

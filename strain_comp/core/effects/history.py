@@ -1,0 +1,319 @@
+"""Effect terms of the run's history: direction, elapsed time, Mullins softening,
+stretch travel and the run's baseline."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp._numba import njit
+from strain_comp.core.effects.regressor import (
+    Batch,
+    Regressor,
+    Sample,
+    choice_param,
+    ffill,
+    number_param,
+    positive_param,
+)
+from strain_comp.errors import ParameterError
+
+
+class Direction(Regressor):
+    """The detector's direction d ([EGaIn] section V.E) as a regressor.
+
+    ``mode: sign`` gives d; ``mode: strain`` gives d * S_hat (a hysteresis loop whose width
+    grows with strain). With ``hold: true`` a hold (d = 0) keeps the last moving
+    direction, as hysteresis persists while the strain is held.
+
+    d is the detector's output at the *previous* sample (0 at the first): the output at
+    sample k follows dR/dt, which carries that sample's own read-out noise, as does the
+    residual at k; a term using it would "correct" noise (a correlation the residual loop
+    would find on any noisy record, effect or not). One sample of lag costs nothing for
+    hysteresis, which persists over many samples.
+    """
+
+    kind = "direction"
+    param_names = ("mode", "hold")
+
+    def __init__(self, mode: str = "sign", hold: bool = False) -> None:
+        self.mode = mode
+        self.hold = hold
+        self.reset()
+
+    def reset(self) -> None:
+        self._last = 0.0  # the last moving direction (hold) up to the previous sample
+        self._prev = 0.0  # the previous sample's direction
+
+    def run(self, batch: Batch) -> np.ndarray:
+        d = np.concatenate(([self._prev], batch.direction[:-1]))
+        if batch.direction.size:
+            self._prev = float(batch.direction[-1])
+        if self.hold:
+            last = ffill(np.where(batch.direction != 0.0, batch.direction, np.nan),
+                          self._last)
+            d = np.concatenate(([self._last], last[:-1]))[:batch.t.size]
+            if last.size:
+                self._last = float(last[-1])
+        return d * batch.s_hat if self.mode == "strain" else d
+
+    def params(self) -> dict[str, Any]:
+        return {"mode": self.mode, "hold": self.hold}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Direction:
+        hold = params.get("hold", False)
+        if not isinstance(hold, bool):
+            raise ParameterError("params.hold", f"must be true or false, got {hold!r}")
+        return cls(choice_param(params, "mode", ("sign", "strain"), "sign"), hold)
+
+
+
+
+class Elapsed(Regressor):
+    """Slow drift: a function of the time since the first sample, x = (t - t0) / scale.
+
+    ``form``: ``linear`` x, ``sqrt`` sqrt(x) (diffusion-limited ageing, swelling) or
+    ``log`` log(1 + x) (creep of a polymer matrix); ``linear_strain`` x * S_hat: a drift
+    of the *gain*. A resistance that drifts in proportion to itself, R (1 + d t), which is
+    how contact and filler-network ageing usually act, shifts the strain estimate by about
+    (1/G + S) d t for a gauge factor G: an offset drift plus this gain drift. ``scale`` [s]
+    only sets the units of the coefficient (and the knee of ``log``). t0 is the first
+    sample after ``reset``.
+    """
+
+    kind = "elapsed"
+    param_names = ("form", "scale")
+
+    def __init__(self, form: str = "linear", scale: float = 100.0) -> None:
+        self.form = form
+        self.scale = scale
+        self._t0 = math.nan
+
+    def reset(self) -> None:
+        self._t0 = math.nan
+
+    def _g(self, x: npt.ArrayLike) -> np.ndarray:
+        x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
+        if self.form == "sqrt":
+            return np.sqrt(x)
+        if self.form == "log":
+            return np.log1p(x)
+        return x
+
+    def step(self, sample: Sample) -> float:
+        if math.isnan(self._t0):
+            self._t0 = sample.t
+        g = float(self._g((sample.t - self._t0) / self.scale))
+        return g * sample.s_hat if self.form == "linear_strain" else g
+
+    def run(self, batch: Batch) -> np.ndarray:
+        if batch.t.size and math.isnan(self._t0):
+            self._t0 = float(batch.t[0])
+        g = self._g((batch.t - self._t0) / self.scale)
+        return g * batch.s_hat if self.form == "linear_strain" else g
+
+    def params(self) -> dict[str, Any]:
+        return {"form": self.form, "scale": self.scale}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Elapsed:
+        return cls(choice_param(params, "form", ("linear", "sqrt", "log", "linear_strain"),
+                           "linear"),
+                   positive_param(params, "scale", 100.0))
+
+
+
+
+_MULLINS_FORMS = ("gap", "gap_strain", "cycles_log", "cycles_exp", "peak_strain")
+
+
+@njit
+def _mullins_kernel(s: np.ndarray, d: np.ndarray, form: int, n0: float,
+                    state: np.ndarray) -> np.ndarray:
+    """Running peak of S_hat and count of completed load cycles -> softening regressor."""
+    peak, cycles, last = state[0], state[1], state[2]
+    out = np.empty(s.size)
+    for k in range(s.size):
+        if s[k] > peak:
+            peak = s[k]
+        if d[k] != 0:
+            if last < 0 and d[k] > 0:
+                cycles += 1.0
+            last = d[k]
+        if form == 0:
+            out[k] = peak - s[k]
+        elif form == 1:
+            out[k] = s[k] * (peak - s[k])
+        elif form == 2:
+            out[k] = s[k] * math.log1p(cycles)
+        elif form == 3:
+            out[k] = s[k] * math.exp(-cycles / n0)
+        else:
+            out[k] = s[k] * peak
+    state[0], state[1], state[2] = peak, cycles, last
+    return out
+
+
+class Mullins(Regressor):
+    """Mullins-type softening: the response depends on the strain history's peak and on
+    how many load cycles the sensor has done (elastomers soften over the first cycles and
+    below a previously reached strain).
+
+    State: peak = running max of S_hat; cycles = completed load cycles (an unloading ->
+    loading turn of the detector, holds ignored). ``form``: ``gap`` peak - S_hat (zero on
+    virgin loading), ``gap_strain`` S_hat (peak - S_hat), ``cycles_log`` S_hat log(1 +
+    cycles) (progressive softening), ``cycles_exp`` S_hat exp(-cycles / n0) (a gain excess
+    that dies out over the first ~n0 cycles), ``peak_strain`` S_hat * peak (a gain loss
+    that grows with the largest strain reached so far: the first-order form of the Mullins
+    damage models, which soften the material in proportion to the maximum previous strain;
+    it changes only while loading to a new peak, so it is told from a constant gain error
+    by data whose peak grows over time).
+    """
+
+    kind = "mullins"
+    param_names = ("form", "n0")
+
+    def __init__(self, form: str = "cycles_exp", n0: float = 1.0) -> None:
+        self.form = form
+        self.n0 = n0
+        self._code = _MULLINS_FORMS.index(form)
+        self.reset()
+
+    def reset(self) -> None:
+        self._state = np.array([-np.inf, 0.0, 0.0])
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _mullins_kernel(batch.s_hat, batch.direction, self._code, self.n0, self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"form": self.form, "n0": self.n0}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Mullins:
+        return cls(choice_param(params, "form", _MULLINS_FORMS, "cycles_exp"),
+                   positive_param(params, "n0", 1.0))
+
+
+STRETCH_FORMS = ("rest", "rest_log", "gain", "gain_log")
+"""The forms of ``Stretch`` (its docstring), in the order of the kernel's codes."""
+
+
+@njit
+def _stretch_kernel(s: np.ndarray, band: float, scale: float, form: int,
+                    state: np.ndarray) -> np.ndarray:
+    """Stretch travel (|movement| of S_hat through a play of +-band) -> history regressor."""
+    play, travel, started = state[0], state[1], state[2]
+    out = np.empty(s.size)
+    for k in range(s.size):
+        if not math.isfinite(s[k]):
+            out[k] = math.nan
+            continue
+        if started == 0.0:
+            play, started = s[k], 1.0
+        moved = min(max(play, s[k] - band), s[k] + band)
+        travel += abs(moved - play)
+        play = moved
+        h = 1.0 - math.exp(-travel / scale) if form in (0, 2) else math.log1p(travel / scale)
+        out[k] = h * s[k] if form >= 2 else h
+    state[0], state[1], state[2] = play, travel, started
+    return out
+
+
+class Stretch(Regressor):
+    """Stretch history: what the sensor has been through since the run started, as the
+    strain travel x = sum |dS_hat| [%] counted through a play of +-``band`` % (so that
+    noise at rest adds nothing; a 0 -> 50 -> 0 % cycle adds 100).
+
+    ``form``: ``rest`` g = 1 - exp(-x / scale) (a rest level that moves with the stretch
+    done and settles: the resistance at rest falling, or rising, a little after every
+    release, as a textile thread's contacts rearrange), ``rest_log`` g = log(1 + x / scale)
+    (one that keeps moving, ever slower), ``gain`` g = S_hat (1 - exp(-x / scale)) (a
+    sensitivity that grows, or falls, over the first cycles and settles), ``gain_log``
+    g = S_hat log(1 + x / scale) (one that keeps growing). Unlike ``mullins`` (cycles
+    counted by the detector, the peak reached) it reads the amount of stretching, so a run
+    of small cycles and one of few large ones age it alike.
+    """
+
+    kind = "stretch"
+    param_names = ("form", "scale", "band")
+
+    def __init__(self, form: str = "rest", scale: float = 1000.0, band: float = 0.5) -> None:
+        self.form = form
+        self.scale = scale
+        self.band = band
+        self._code = STRETCH_FORMS.index(form)
+        self.reset()
+
+    def reset(self) -> None:
+        self._state = np.zeros(3)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _stretch_kernel(batch.s_hat, self.band, self.scale, self._code, self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"form": self.form, "scale": self.scale, "band": self.band}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Stretch:
+        return cls(choice_param(params, "form", STRETCH_FORMS, "rest"),
+                   positive_param(params, "scale", 1000.0),
+                   number_param(params, "band", 0.5, lo=0.0))
+
+
+
+
+@njit
+def _baseline_kernel(t: np.ndarray, s: np.ndarray, window: float,
+                     state: np.ndarray) -> np.ndarray:
+    """Running mean of S_hat over the first ``window`` seconds after (re)start, then held."""
+    t0, total, count = state[0], state[1], state[2]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        if count == 0.0:
+            t0 = t[k]
+        if t[k] - t0 <= window:
+            total += s[k]
+            count += 1.0
+        out[k] = total / count
+    state[0], state[1], state[2] = t0, total, count
+    return out
+
+
+class Baseline(Regressor):
+    """Run-to-run baseline shift: g = b - rest, with b the mean of S_hat over the first
+    ``window`` seconds of samples after a start (or a gap reset of the engine) and ``rest``
+    [%] the strain the sensor is at when a run starts (what the calibration should read).
+
+    Soft sensors often start each run at another resistance level (contact resistance,
+    ageing, a different clamping): the whole run is then shifted by about the same
+    amount, which a calibration fitted on one run cannot know. Captured online at the
+    start of each run, b measures that shift; during the window g is the running mean so
+    far (causal). The residual loop gives this term the coefficient 1 (the shift seen at
+    rest is removed whole) and tells it from a constant ``offset`` only across runs.
+    """
+
+    kind = "baseline"
+    param_names = ("window", "rest")
+
+    def __init__(self, window: float = 5.0, rest: float = 0.0) -> None:
+        self.window = window
+        self.rest = rest
+        self._state = np.zeros(3)
+
+    def reset(self) -> None:
+        self._state = np.zeros(3)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _baseline_kernel(batch.t, batch.s_hat, self.window, self._state) - self.rest
+
+    def params(self) -> dict[str, Any]:
+        return {"window": self.window, "rest": self.rest}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Baseline:
+        return cls(positive_param(params, "window", 5.0), number_param(params, "rest", 0.0))

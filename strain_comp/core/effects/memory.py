@@ -1,0 +1,210 @@
+"""Effect terms with a fading memory: exponentially weighted rate, relaxation after
+strain steps, and the memory of the resistance itself."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from strain_comp._numba import njit
+from strain_comp.core.effects.regressor import (
+    Batch,
+    Regressor,
+    choice_param,
+    positive_param,
+)
+
+
+@njit
+def _rate_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, direction_mode: bool,
+                 state: np.ndarray) -> np.ndarray:
+    """Low-passed derivative y' = (du/dt - y) / tau, exact for piecewise-constant du/dt."""
+    y, u_prev, t_prev, started = state[0], state[1], state[2], state[3]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        if started > 0.0:
+            dt = t[k] - t_prev
+            if dt > 0.0:
+                y += (1.0 - math.exp(-dt / tau)) * ((u[k] - u_prev) / dt - y)
+        started = 1.0
+        u_prev = u[k]
+        t_prev = t[k]
+        out[k] = d[k] * y if direction_mode else y
+    state[0], state[1], state[2], state[3] = y, u_prev, t_prev, started
+    return out
+
+
+class Rate(Regressor):
+    """Signed strain rate dS_hat/dt [%/s], low-passed with time constant ``tau`` [s].
+
+    Viscoelastic sensors lag or lead the strain by an amount proportional to its rate
+    (rate-dependent hysteresis, [Electrolycra] section I). ``mode: direction`` gives
+    d * rate (the detector's direction times the rate): an error of one sign whenever the
+    sensor moves, whatever the direction (e.g. self-heating or a rate-dependent gain).
+    """
+
+    kind = "rate"
+    param_names = ("tau", "mode")
+
+    def __init__(self, tau: float = 1.0, mode: str = "signed") -> None:
+        self.tau = tau
+        self.mode = mode
+        self._state = np.zeros(4)
+
+    def reset(self) -> None:
+        self._state = np.zeros(4)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _rate_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
+                            self.mode == "direction", self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"tau": self.tau, "mode": self.mode}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Rate:
+        return cls(positive_param(params, "tau", 1.0),
+                   choice_param(params, "mode", ("signed", "direction"), "signed"))
+
+
+
+
+_BRANCHES = ("both", "loading", "unloading")
+
+
+@njit
+def _relaxation_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, branch: int,
+                       state: np.ndarray) -> np.ndarray:
+    """h_k = h_{k-1} exp(-dt/tau) + du_k [d_k in branch]: decaying memory of S_hat steps."""
+    h, u_prev, t_prev, started = state[0], state[1], state[2], state[3]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        if started > 0.0:
+            h *= math.exp(-(t[k] - t_prev) / tau)
+            if branch == 0 or (branch == 1 and d[k] > 0) or (branch == 2 and d[k] < 0):
+                h += u[k] - u_prev
+        started = 1.0
+        u_prev = u[k]
+        t_prev = t[k]
+        out[k] = h
+    state[0], state[1], state[2], state[3] = h, u_prev, t_prev, started
+    return out
+
+
+class Relaxation(Regressor):
+    """Exponentially decaying memory of recent strain change: relaxation after steps.
+
+    The first-order filter x' = (S_hat - x) / tau gives the regressor h = S_hat - x, which
+    jumps with every change of S_hat and decays with time constant ``tau`` [s] once the
+    strain is held. A sensor that overshoots after a step and relaxes back (the
+    Electrolycra's creep, [Electrolycra] section III; the spike-and-decay of
+    [Nanocomposite] eq. (1)) leaves a residual c * h. ``branch: loading``
+    (or ``unloading``) accumulates only the changes made while the detector says loading
+    (unloading), since relaxation is often strong on loading and weak on unloading.
+    Discretised exactly for a piecewise-constant input: h_k = h_{k-1} e^{-dt/tau} + dS_k.
+    """
+
+    kind = "relaxation"
+    param_names = ("tau", "branch")
+
+    def __init__(self, tau: float = 10.0, branch: str = "both") -> None:
+        self.tau = tau
+        self.branch = branch
+        self._code = _BRANCHES.index(branch)
+        self._state = np.zeros(4)
+
+    def reset(self) -> None:
+        self._state = np.zeros(4)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _relaxation_kernel(batch.t, batch.s_hat, batch.direction, self.tau, self._code,
+                                  self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"tau": self.tau, "branch": self.branch}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Relaxation:
+        return cls(positive_param(params, "tau", 10.0),
+                   choice_param(params, "branch", _BRANCHES, "both"))
+
+
+_MEMORY_FORMS = ("relaxation", "peak", "trough")
+
+
+@njit
+def _resistance_memory_kernel(t: np.ndarray, r: np.ndarray, tau: float, form: int,
+                              state: np.ndarray) -> np.ndarray:
+    """y = 100 ln R, held between samples; m relaxes towards it with ``tau`` (``peak``:
+    m = max(m, y); ``trough``: m = min(m, y)); g = y - m (``peak``: m - y)."""
+    m, y_prev, t_prev, started = state[0], state[1], state[2], state[3]
+    out = np.empty(t.size)
+    for k in range(t.size):
+        y = 100.0 * math.log(max(r[k], 1e-300))
+        if started > 0.0:
+            m = y_prev + (m - y_prev) * math.exp(-(t[k] - t_prev) / tau)
+        else:
+            m = y
+        if form == 1:
+            m = max(m, y)
+        elif form == 2:
+            m = min(m, y)
+        started = 1.0
+        y_prev = y
+        t_prev = t[k]
+        out[k] = m - y if form == 1 else y - m
+    state[0], state[1], state[2], state[3] = m, y_prev, t_prev, started
+    return out
+
+
+class ResistanceMemory(Regressor):
+    """Fading memory of the resistance itself: the part of R still relaxing, or how far R
+    stands from a recent spike. It reads R (the resistance the model sees), not S_hat,
+    because where R is not monotone in strain (the carbon-black shoulder) or a step's
+    overshoot runs past the calibrated range, S_hat has lost what R still shows.
+
+    With y = 100 ln R (so the term does not change with a multiplicative tare) and a
+    first-order memory of time constant ``tau`` [s]:
+
+    * ``relaxation``: g = y - m, m' = (y - m) / tau, the share of R [%] above its recent
+      average: a relaxation that follows every step of R, whatever its sign;
+    * ``peak``: g = p - y, p the peak of y relaxing towards y with ``tau`` and never below
+      it: how far R [%] has fallen from a recent spike, the decaying spike of
+      [Nanocomposite] eq. (3), read without knowing the step that caused it;
+    * ``trough``: g = y - q, the mirror of ``peak`` for sensors whose steps undershoot.
+
+    A bank of such filters followed by a static map approximates any fading-memory
+    operator (Boyd and Chua, 1985); the loop adds the few that pay on held-out data.
+    Discretised exactly for a piecewise-constant input, as ``Relaxation``: the
+    ``relaxation`` form is ``Relaxation`` (branch ``both``) applied to y.
+    """
+
+    kind = "resistance_memory"
+    param_names = ("tau", "form")
+
+    def __init__(self, tau: float = 10.0, form: str = "relaxation") -> None:
+        self.tau = tau
+        self.form = form
+        self._code = _MEMORY_FORMS.index(form)
+        self._state = np.zeros(4)
+
+    def reset(self) -> None:
+        self._state = np.zeros(4)
+
+    def rescale(self, factor: float) -> None:
+        """y and its memory shift by 100 ln(factor): g is unchanged."""
+        self._state[:2] += 100.0 * math.log(factor)
+
+    def run(self, batch: Batch) -> np.ndarray:
+        return _resistance_memory_kernel(batch.t, batch.r, self.tau, self._code, self._state)
+
+    def params(self) -> dict[str, Any]:
+        return {"tau": self.tau, "form": self.form}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> ResistanceMemory:
+        return cls(positive_param(params, "tau", 10.0),
+                   choice_param(params, "form", _MEMORY_FORMS, "relaxation"))

@@ -1,0 +1,133 @@
+"""A sensor's effect terms as the engine runs them (S_corrected = S_hat - sum_j c_j
+g_j), the registry of kinds and the calibration-file entries."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp.core.effects.history import Baseline, Direction, Elapsed, Mullins, Stretch
+from strain_comp.core.effects.memory import Rate, Relaxation, ResistanceMemory
+from strain_comp.core.effects.regressor import (
+    Batch,
+    Regressor,
+    Sample,
+)
+from strain_comp.core.effects.static import Crosstalk, Offset, StrainLevel, Temperature
+from strain_comp.errors import ParameterError
+from strain_comp.models.base import require_float
+
+RECALIBRATION_TERMS = ("recalibration_gain", "recalibration_offset")
+"""Names of the two terms of an output gain and offset (``strain_comp.offline.recalibrate``):
+a map of the output, not a term that models what moves."""
+
+
+KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
+    Offset, Rate, Direction, Relaxation, ResistanceMemory, Elapsed, Temperature, StrainLevel,
+    Mullins, Stretch, Crosstalk, Baseline)}
+
+
+def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
+    """The regressor of one effect entry; ParameterError(field, problem) if bad."""
+    if not isinstance(effect, Mapping):
+        raise ParameterError("(effect)", f"must be a mapping, got {type(effect).__name__}")
+    name = effect.get("name")
+    if not isinstance(name, str) or not name:
+        raise ParameterError("name", "missing or not a string")
+    kind = effect.get("kind")
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise ParameterError("kind", f"must be one of {', '.join(KINDS)}; got {kind!r}")
+    params = effect.get("params", {})
+    if params is None:
+        params = {}
+    if not isinstance(params, Mapping):
+        raise ParameterError("params", f"must be a mapping, got {type(params).__name__}")
+    cls = KINDS[kind]
+    unknown = sorted(str(k) for k in params if k not in cls.param_names)
+    if unknown:
+        raise ParameterError(f"params.{unknown[0]}", f"unknown parameter of kind {kind!r}")
+    return cls.from_params(params)
+
+
+def validate_effect_dict(effect: Mapping[str, Any]) -> None:
+    """Check one calibration-file effect entry; ParameterError(field, problem) if bad."""
+    regressor_from_dict(effect)
+    require_float(effect, "coef")
+
+
+def effect_dict(name: str, regressor: Regressor, coef: float) -> dict[str, Any]:
+    """The calibration-file entry of a regressor with its coefficient."""
+    return {"name": name, "kind": regressor.kind, "params": regressor.params(),
+            "coef": float(coef)}
+
+
+class EffectTerms:
+    """The effect terms of one sensor, as the engine uses them:
+    S_corrected = S_hat - sum_j coef_j g_j.
+    """
+
+    def __init__(self, names: Sequence[str], regressors: Sequence[Regressor],
+                 coefs: npt.ArrayLike) -> None:
+        self.names = list(names)
+        self.regressors = list(regressors)
+        self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
+        if not len(self.names) == len(self.regressors) == self.coefs.size:
+            raise ValueError("EffectTerms: names, regressors and coefs differ in length")
+
+    @classmethod
+    def from_dicts(cls, effects: Sequence[Mapping[str, Any]]) -> EffectTerms:
+        """From a calibration's ``effects`` list; ParameterError names ``<i>.<field>``."""
+        regressors, coefs = [], []
+        for i, effect in enumerate(effects):
+            try:
+                validate_effect_dict(effect)
+            except ParameterError as err:
+                raise ParameterError(f"{i}.{err.field}", err.problem) from None
+            regressors.append(regressor_from_dict(effect))
+            coefs.append(float(effect["coef"]))
+        return cls([str(e["name"]) for e in effects], regressors, coefs)
+
+    def to_dicts(self) -> list[dict[str, Any]]:
+        rows = zip(self.names, self.regressors, self.coefs, strict=True)
+        return [effect_dict(n, g, c) for n, g, c in rows]
+
+    def __bool__(self) -> bool:
+        return bool(self.regressors)
+
+    @property
+    def neighbours(self) -> list[str]:
+        """Names of the array neighbours whose S_hat these terms read."""
+        return [g.neighbour for g in self.regressors if g.neighbour is not None]
+
+    def reset(self) -> None:
+        for g in self.regressors:
+            g.reset()
+
+    def rescale(self, factor: float) -> None:
+        """The resistance these terms read is ``factor`` x what it was (``Regressor.rescale``)."""
+        for g in self.regressors:
+            g.rescale(factor)
+
+    def step(self, t: float, r: float, s_hat: float, direction: int,
+             temperature: float = math.nan,
+             neighbours: Mapping[str, float] | None = None) -> float:
+        """Corrected strain of one sample (advances every regressor's state)."""
+        sample = Sample(t, r, s_hat, direction, temperature, neighbours)
+        out = float(s_hat)
+        for g, c in zip(self.regressors, self.coefs, strict=True):
+            out -= c * g.step(sample)
+        return out
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
+            direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
+            neighbours: Mapping[str, npt.ArrayLike] | None = None) -> np.ndarray:
+        """Batch equivalent of repeated ``step``: corrected strain over arrays."""
+        batch = Batch.of(t, r, s_hat, direction, temperature, neighbours)
+        out = batch.s_hat.copy()
+        for g, c in zip(self.regressors, self.coefs, strict=True):
+            out -= c * g.run(batch)
+        return out

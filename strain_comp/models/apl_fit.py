@@ -1,0 +1,424 @@
+"""The fit of the APL, PL and MPI models ([Electrolycra] section III): the paper's QP on
+the cell states, a search over sigma and p, and the output-error refinement
+(``strain_comp.models.apl_refine``); ``strain_comp.models.apl``'s module docstring gives
+the method."""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import lsq_linear, minimize
+from threadpoolctl import threadpool_limits
+
+from strain_comp.errors import FitError
+from strain_comp.models import apl_kernels as kern
+from strain_comp.models import pwa
+from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
+from strain_comp.models.apl_refine import bounded_lm, output_jacobian
+from strain_comp.models.base import Normalisation, Segment
+
+if TYPE_CHECKING:
+    from strain_comp.models.apl import _CellModel
+
+CELL_WEIGHTS = ("signed", "lead", "lag", "free")
+"""Constraints on the cell weights: one sign, the loop's orientation chosen from the
+training data (``_FitProblem.loop_sign``); one sign, for a resistance that leads the strain
+(the paper's orientation) or lags it; none."""
+LOOP_SWITCH_GAIN = 0.05
+"""``signed`` holds the cells to a lagging loop only when that lowers the training output
+RMSE by more than this share against the paper's leading loop (docs/hysteresis_fit.md)."""
+MEMORYLESS_SHARE = 0.01
+"""Below this share of the output from the cells (``memory_report``) a fit is memoryless."""
+P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
+"""The default grid of p searched by the fit."""
+
+
+@threadpool_limits.wrap(limits=1, user_api="blas")
+def fit_cells(cls: type[_CellModel], segments: Sequence[Segment], normalisation: Normalisation,
+              *, n: int, m: int, sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None,
+              refine: bool, cell_weights: str, eps: float, ridge: float, output_nfev: int,
+              search_nfev: int, search_top: int, workers: int | None,
+              progress: bool | Callable[[str], None]) -> _CellModel:
+    """The fit of an APL, PL or MPI model (``APL.fit``, whose arguments were checked):
+    the QP, the sigma / p grid, the output-error refinement (``strain_comp.models.apl``'s
+    module docstring). BLAS is held to one thread (``APL.fit``)."""
+    problem = _FitProblem(cls, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
+                          cell_weights=cell_weights, search_nfev=search_nfev)
+    if cls.kind == kern.KIND_APL and problem.gauge < 0:
+        problem.orient(-1)
+    problem.set_weight_sign()
+    if not cls.rate_dependent:
+        result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
+        model = problem.build(result)
+        model.fit_report = {"rmse": result.rmse, "evaluations": 1,
+                            **problem.memory_report(result)}
+        return model
+    sigmas = (problem.default_sigma_grid() if sigma_grid is None
+              else np.asarray(sigma_grid, dtype=np.float64))
+    ps = np.asarray(P_GRID if p_grid is None else p_grid, dtype=np.float64)
+    if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
+        raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
+    say = _progress_printer(progress, cls.name)
+    grid = score_grid(problem, sigmas, ps,
+                      workers=grid_workers(workers, sigmas.size * ps.size, problem.t.size),
+                      say=say)
+    best = min(grid, key=_by_rmse)
+    if search_nfev > 0:
+        ranked = sorted(grid, key=_by_rmse)[:search_top]
+        best = min((problem.solve(g.sigma, g.p, output_nfev=search_nfev) for g in ranked),
+                   key=_by_rmse)
+        say(f"output error on the best {len(ranked)} grid points: rmse {best.rmse:.4g} % "
+            f"at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+    if refine:
+        best = problem.refine(best)
+        say(f"refined: rmse {best.rmse:.4g} % at sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+    if output_nfev > search_nfev:
+        final = problem.solve(best.sigma, best.p, output_nfev=output_nfev)
+        best = min(final, best, key=_by_rmse)
+        say(f"output error: rmse {best.rmse:.4g} %")
+    model = problem.build(best)
+    model.fit_report = {"rmse": best.rmse, "evaluations": problem.evaluations,
+                        "seconds": time.monotonic() - problem.started,
+                        **problem.memory_report(best)}
+    return model
+
+
+
+
+def _by_rmse(solution: _Solution) -> float:
+    return solution.rmse
+
+
+MIN_THREADED_SAMPLES = 2000
+"""Below this many training samples a grid point takes well under a millisecond and the
+grid is scored serially: thread hand-offs would cost more than they save."""
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the system tells it)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def grid_workers(requested: int | None, points: int, samples: int) -> int:
+    """Threads to score a sigma/p grid of ``points`` points on ``samples`` training samples:
+    ``requested``, else one per available core; never more than half the points (each
+    thread gets two or more), and 1 (serial, no thread pool) on one core or below
+    ``MIN_THREADED_SAMPLES`` samples unless requested."""
+    if requested is not None:
+        return max(1, min(requested, points))
+    if samples < MIN_THREADED_SAMPLES:
+        return 1
+    return max(1, min(available_cores(), points // 2))
+
+
+def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *, workers: int,
+               say: Callable[[str], None]) -> list[_Solution]:
+    """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads
+    (the points are independent; the cell-state kernel, numpy's array operations and BLAS
+    release the GIL). ``APL.fit`` calls it with BLAS held to one thread, so the grid
+    threads do not start BLAS threads of their own. The result does not depend on
+    ``workers``."""
+    grid: list[_Solution] = []
+    if workers <= 1:
+        for i, sigma in enumerate(sigmas):
+            grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
+            _say_row(say, grid, i, sigmas.size, sigma)
+        return grid
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        jobs = [[pool.submit(problem.solve, float(sigma), float(p)) for p in ps]
+                for sigma in sigmas]
+        for i, (sigma, row) in enumerate(zip(sigmas, jobs, strict=True)):
+            grid.extend(job.result() for job in row)
+            _say_row(say, grid, i, sigmas.size, sigma)
+    return grid
+
+
+def _say_row(say: Callable[[str], None], grid: list[_Solution], i: int, rows: int,
+             sigma: float) -> None:
+    best = min(grid, key=_by_rmse)
+    say(f"grid row {i + 1}/{rows} (sigma={sigma:.3g}/s): best rmse {best.rmse:.4g} % at "
+        f"sigma={best.sigma:.3g}/s, p={best.p:.3g}")
+
+
+def _progress_printer(progress: bool | Callable[[str], None], name: str) -> Callable[[str], None]:
+    started = time.monotonic()
+
+    def say(line: str) -> None:
+        if callable(progress):
+            progress(f"{name} fit: {line}")
+        elif progress and time.monotonic() - started > 2.0:
+            print(f"{name} fit: {line}", file=sys.stderr, flush=True)
+
+    return say
+
+
+class _Solution:
+    """One solved point of the search: sigma, p, parameter vector and output RMSE [%]."""
+
+    def __init__(self, sigma: float, p: float, w: np.ndarray, slopes: np.ndarray,
+                 rmse: float) -> None:
+        self.sigma, self.p, self.w, self.slopes, self.rmse = sigma, p, w, slopes, rmse
+
+
+class _FitProblem:
+    """The training data prepared once; ``solve(sigma, p)`` is one QP + output error."""
+
+    def __init__(self, cls: type[_CellModel], segments: Sequence[Segment],
+                 normalisation: Normalisation, *, n: int, m: int, eps: float, ridge: float,
+                 cell_weights: str, search_nfev: int) -> None:
+        self.cls, self.norm, self.n, self.m = cls, normalisation, n, m
+        self.search_nfev = search_nfev
+        self.eps, self.started, self.evaluations = eps, time.monotonic(), 0
+        self._lock = threading.Lock()
+        segments = [seg for seg in segments if seg.t.size > 0]
+        if not segments:
+            raise FitError(f"{cls.name}: no training samples")
+        self.t = np.concatenate([seg.t for seg in segments])
+        r = np.concatenate([seg.r for seg in segments])
+        s = np.concatenate([seg.s for seg in segments])
+        if not (np.all(np.isfinite(self.t)) and np.all(np.isfinite(r)) and np.all(r > 0)
+                and np.all(np.isfinite(s))):
+            raise FitError(f"{cls.name}: training samples must be finite with R > 0")
+        n_params = n + m + 1
+        if self.t.size < max(50, 5 * n_params):
+            raise FitError(f"{cls.name}: needs at least {max(50, 5 * n_params)} samples for "
+                           f"N={n}, M={m}, got {self.t.size}")
+        self.xi = normalisation.xi(r)
+        self.psi = normalisation.psi(s)
+        if np.ptp(self.xi) < 1e-6 or np.ptp(self.psi) < 1e-6:
+            raise FitError(f"{cls.name}: no excitation (resistance or strain is constant)")
+        self.starts = np.zeros(self.t.size, dtype=np.bool_)
+        self.starts[np.cumsum([0] + [seg.t.size for seg in segments[:-1]])] = True
+        self.durations = [float(seg.t[-1] - seg.t[0]) for seg in segments]
+        self.median_dt = float(np.median(np.concatenate(
+            [np.diff(seg.t) for seg in segments if seg.t.size > 1] or [np.array([1.0])])))
+        self.rho = thresholds(n, cls.kind)
+        self.inv_width = inverse_widths(self.rho, cls.kind)
+        # f(psi) = G @ slopes; the central slope is fixed to 1 (scale of the problem).
+        g = pwa.path_matrix(self.psi, m)
+        self.c = (m - 1) // 2
+        self.free = np.array([j for j in range(m) if j != self.c], dtype=np.int64)
+        self.rhs = g[:, self.c]
+        self.neg_g = -g[:, self.free]
+        self.orientation = 1
+        self.cell_weights = cell_weights
+        self.gauge = float(np.sign(np.corrcoef(self.xi, self.psi)[0, 1]) or 1.0)
+        self.weight_sign = self.gauge
+        self._set_bounds()
+        # Ridge rows: weights (cells only) -> 0, slopes -> 1, scaled with the sample count.
+        lam = math.sqrt(ridge * self.t.size)
+        k, n_w = n + m - 1, n + 2
+        self.ridge_a = np.zeros((k, n_w + m - 1))
+        self.ridge_b = np.zeros(k)
+        self.ridge_a[np.arange(n), 1 + np.arange(n)] = lam
+        self.ridge_a[n + np.arange(m - 1), n_w + np.arange(m - 1)] = lam
+        self.ridge_b[n:] = lam
+
+    def _set_bounds(self) -> None:
+        """Bounds of [w, free slopes]: slopes >= eps, cell weights of ``weight_sign``
+        (unless free)."""
+        n_w = self.n + 2
+        lo = np.full(n_w + self.m - 1, -np.inf)
+        hi = np.full(n_w + self.m - 1, np.inf)
+        if self.cell_weights != "free":
+            (lo if self.weight_sign > 0 else hi)[1:self.n + 1] = 0.0
+        lo[n_w:] = self.eps
+        self.bounds = (lo, hi)
+
+    def orient(self, orientation: int) -> None:
+        """Drive the cells by orientation * xi (module docstring); before any solve."""
+        if orientation != self.orientation:
+            self.xi = -self.xi
+            self.gauge = -self.gauge
+            self.weight_sign = self.gauge
+            self.orientation = orientation
+            self._set_bounds()
+
+    def loop_sign(self) -> int:
+        """The sign the training loop asks of the cell weights (as a multiple of the
+        gauge's sign: 1 a leading, -1 a lagging resistance).
+
+        Positive cell weights (for a rising gauge) put the strain lower, at a given
+        resistance, while the input rises: the resistance is higher on loading than on
+        unloading, it leads the strain (a clockwise S-R loop, as the paper's sensor and the
+        rig have it). Negative ones: the resistance lags the strain (counter-clockwise,
+        e.g. a viscoelastic thread). The inverse of a Prandtl-Ishlinskii operator with
+        positive weights has weights of one sign, so one sign for all cells is the right
+        constraint, but which sign is the sensor's. The loop is the sensor's, not the
+        model's: both signs are fitted with the MPI's cells (symmetric play operators, no
+        creep) for every model of the family, and the lagging loop is taken when it lowers
+        the output RMSE by more than ``LOOP_SWITCH_GAIN``, else the paper's."""
+        scores = {}
+        for loop in (1, -1):
+            self.weight_sign = loop * self.gauge
+            self._set_bounds()
+            scores[loop] = self.solve(0.0, 1.0, output_nfev=self.search_nfev, play=True).rmse
+        return -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
+
+    def set_weight_sign(self) -> None:
+        """The cell weights' sign for ``cell_weights`` (``CELL_WEIGHTS``)."""
+        loop = {"lead": 1, "lag": -1}.get(self.cell_weights)
+        if loop is None:
+            loop = self.loop_sign() if self.cell_weights == "signed" else 1
+        self.weight_sign = loop * self.gauge
+        self._set_bounds()
+
+    def memory_report(self, result: _Solution) -> dict[str, Any]:
+        """How much of the fitted output comes from the cells' memory: ``memory_share``,
+        the RMS over the training data of what the cells' term sum_k w_k x_k adds beyond
+        any cubic in xi (its least-squares residual on 1, xi, xi^2, xi^3: a cell that
+        follows the input, or sits at a constant offset from it, is no memory) over the
+        RMS of w . z about its mean; ``memoryless`` when it is below
+        ``MEMORYLESS_SHARE``; ``loop`` the S-R loop orientation the cell weights were
+        held to (``lead``: resistance higher on loading, ``lag``: lower, ``free``: not
+        held)."""
+        z = self.design(result.sigma, result.p)
+        term = z[:, 1:self.n + 1] @ result.w[1:self.n + 1]
+        static = np.column_stack([np.ones_like(self.xi), self.xi, self.xi ** 2, self.xi ** 3])
+        cells = term - static @ np.linalg.lstsq(static, term, rcond=None)[0]
+        y = z @ result.w
+        spread = float(np.sqrt(np.mean((y - y.mean()) ** 2)))
+        share = float(np.sqrt(np.mean(cells ** 2))) / spread if spread > 0 else 0.0
+        loop = ("free" if self.cell_weights == "free"
+                else "lead" if self.weight_sign * self.gauge > 0 else "lag")
+        return {"memory_share": share, "memoryless": share < MEMORYLESS_SHARE, "loop": loop}
+
+    def default_sigma_grid(self) -> np.ndarray:
+        lo = 0.02 / max(max(self.durations), 1e-9)
+        hi = 0.2 / max(self.median_dt, 1e-9)
+        if hi <= lo:
+            hi = lo * 1e3
+        return np.geomspace(lo, hi, 13)
+
+    def design(self, sigma: float, p: float, *, play: bool = False) -> np.ndarray:
+        """z = [xi, x_1..x_N, 1] per training sample (rows) for this sigma, p; with
+        ``play`` the cells are the MPI's symmetric play operators whatever the model."""
+        if play:
+            rho = thresholds(self.n, kern.KIND_PL)
+            states = kern.states_kernel(self.t, self.xi, self.starts, kern.KIND_PL, 0.0, 1.0,
+                                        rho, inverse_widths(rho, kern.KIND_PL))
+        else:
+            states = kern.states_kernel(self.t, self.xi, self.starts, self.cls.kind, sigma,
+                                        p, self.rho, self.inv_width)
+        z = np.empty((self.t.size, self.n + 2))
+        z[:, 0] = self.xi
+        z[:, 1:self.n + 1] = states
+        z[:, self.n + 1] = 1.0
+        return z
+
+    def equation_error(self, z: np.ndarray) -> np.ndarray:
+        """The paper's QP: theta = [w, free slopes] minimising ||f(psi) - w . z||^2 + ridge."""
+        a = np.hstack([z, self.neg_g, self.rhs[:, None]])
+        # Reduce the tall problem to its triangular factor: [A b] = QR, so ||A theta - b||
+        # = ||R_A theta - r_b|| + const. R from the Cholesky factor of the Gram matrix
+        # (tall-skinny QR is ten times slower here); the jitter keeps exactly collinear
+        # columns (a cell pinned to xi + 1 over all data) factorable, the ridge rows below
+        # then decide them.
+        gram = a.T @ a
+        gram[np.diag_indices_from(gram)] += 1e-12 * np.trace(gram) / gram.shape[0]
+        r_full = np.linalg.cholesky(gram).T
+        a_red = np.vstack([r_full[:-1, :-1], self.ridge_a])
+        b_red = np.concatenate([r_full[:-1, -1], self.ridge_b])
+        theta = lsq_linear(a_red, b_red, bounds=self.bounds, method="bvls").x
+        return np.clip(theta, *self.bounds)
+
+    def predict(self, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """psi_hat = f^-1(w . z) (eq. (2)) for the parameter vector theta."""
+        b, f_at_b, inv_slopes = pwa.inverse_tables(pwa.mu_from_slopes(self.slopes(theta)))
+        return pwa.finv_array(z @ theta[:self.n + 2], b, f_at_b, inv_slopes)
+
+    def slopes(self, theta: np.ndarray) -> np.ndarray:
+        return np.insert(theta[self.n + 2:], self.c, 1.0)
+
+    def rmse(self, psi_hat: np.ndarray) -> float:
+        value = float(self.norm.s0 * np.sqrt(np.mean((psi_hat - self.psi) ** 2)))
+        return value if math.isfinite(value) else math.inf
+
+    def output_error(self, z: np.ndarray, theta: np.ndarray, *,
+                     max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
+        """Minimise sum (f^-1(w . z) - psi)^2 + ridge over theta from ``theta`` (bounded
+        Levenberg-Marquardt, same bounds as the QP); returns (theta, psi_hat), the start
+        when the refinement does not lower the output RMSE.
+
+        Jacobian: with y = w . z and f(psi_hat) = G(psi_hat) . slopes = y, implicit
+        differentiation gives d psi_hat / d w = z / f'(psi_hat) and d psi_hat / d slope_j =
+        -G_j(psi_hat) / f'(psi_hat) (G: the path matrix, f' the slope of the segment
+        psi_hat lies in).
+        """
+        n_w = self.n + 2
+        edges = pwa.breakpoints(self.m)
+        cache: dict[str, np.ndarray] = {}
+
+        def psi_of(x: np.ndarray) -> np.ndarray:
+            if "x" not in cache or not np.array_equal(cache["x"], x):
+                cache["x"], cache["psi"] = x.copy(), self.predict(z, x)
+            return cache["psi"]
+
+        def residuals(x: np.ndarray) -> np.ndarray:
+            return np.concatenate([psi_of(x) - self.psi, self.ridge_a @ x - self.ridge_b])
+
+        jac = np.empty((self.t.size, n_w + self.m))
+        ridge_gram = self.ridge_a.T @ self.ridge_a
+
+        def normal_equations(x: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            output_jacobian(z, psi_of(x), res, self.slopes(x), edges, self.c, jac)
+            both = jac.T @ jac
+            return (both[:-1, :-1] + ridge_gram,
+                    both[:-1, -1] + self.ridge_a.T @ res[self.t.size:])
+
+        start = self.predict(z, theta)
+        found = bounded_lm(residuals, normal_equations, theta, *self.bounds, max_nfev=max_nfev)
+        if not self.rmse(psi_of(found)) <= self.rmse(start):
+            return theta, start
+        return found, psi_of(found)
+
+    def solve(self, sigma: float, p: float, *, output_nfev: int = 0,
+              play: bool = False) -> _Solution:
+        """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it;
+        ``play``: with the MPI's cells (``design``)."""
+        with self._lock:
+            self.evaluations += 1
+        z = self.design(sigma, p, play=play)
+        theta = self.equation_error(z)
+        psi_hat = self.predict(z, theta)
+        if output_nfev > 0 and math.isfinite(self.rmse(psi_hat)):
+            theta, psi_hat = self.output_error(z, theta, max_nfev=output_nfev)
+        return _Solution(sigma, p, theta[:self.n + 2].copy(), self.slopes(theta),
+                         self.rmse(psi_hat))
+
+    def refine(self, best: _Solution, *, max_evaluations: int = 30) -> _Solution:
+        """A short Nelder-Mead in (log10 sigma, p) from the best grid point."""
+        found = {"best": best}
+
+        def objective(v: np.ndarray) -> float:
+            p = float(np.clip(v[1], kern.P_MIN, P_MAX))
+            result = self.solve(float(10.0 ** v[0]), p, output_nfev=self.search_nfev)
+            if result.rmse < found["best"].rmse:
+                found["best"] = result
+            return result.rmse
+
+        start = np.array([math.log10(best.sigma), best.p])
+        simplex = start + np.array([[0.0, 0.0], [0.15, 0.0], [0.0, 0.1 * best.p]])
+        minimize(objective, start, method="Nelder-Mead",
+                 options={"maxfev": max_evaluations, "initial_simplex": simplex,
+                          "xatol": 1e-3, "fatol": 1e-6})
+        return found["best"]
+
+    def build(self, result: _Solution) -> _CellModel:
+        return self.cls(n=self.n, m=self.m, sigma=result.sigma, p=result.p, w=result.w,
+                        mu=pwa.mu_from_slopes(result.slopes), normalisation=self.norm,
+                        orientation=self.orientation)
+
+
