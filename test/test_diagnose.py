@@ -428,11 +428,11 @@ def test_a_long_run_is_thinned_to_the_row_budget_and_finds_the_same(
     """Above ``ROW_BUDGET`` samples the loop keeps every k-th row after the regressors ran
     over all samples: on a run 5x over a lowered budget it adds the same effect with about
     the same coefficient, and its held-out RMSE estimates equal the full rows' closely."""
-    import strain_comp.diagnosis.loop as loop
+    import strain_comp.diagnosis.residuals as residuals
 
     data, val = bags("random", 2, drift=0.5), bags("patterns", 3, drift=0.5)
     full = diagnose(data, calibration, validate_recordings=val)
-    monkeypatch.setattr(loop, "ROW_BUDGET", data["s1"].t.size // 5)
+    monkeypatch.setattr(residuals, "ROW_BUDGET", data["s1"].t.size // 5)
     thinned = diagnose(data, calibration, validate_recordings=val)
     assert "every 6-th sample" in thinned.sensors["s1"].message
     assert [a.name for a in thinned.added] == [a.name for a in full.added]

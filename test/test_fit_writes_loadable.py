@@ -1,5 +1,5 @@
 """Whatever ``fit``, ``recalibrate`` and ``diagnose`` write, every reader loads: the writer
-applies the loader's checks (``core.calibration.check_calibration``) and a fit that would
+applies the loader's checks (``core.calibration_file.check_calibration``) and a fit that would
 not load is repaired or refused with one line, never written."""
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Truth is the strain of a synthetic sensor whose resistance law is known (linear, power
 law, a carbon-black-like law whose resistance peaks and falls), calibrated on part of its
 stroke with ``strain-comp fit``'s code and used beyond it; and, for the bounds, the
-definition of the extension (``_Sensor.bounded_slopes``).
+definition of the extension (``core.range_policy.bounded_slopes``).
 """
 
 from __future__ import annotations

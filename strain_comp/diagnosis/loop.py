@@ -82,7 +82,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -90,18 +90,10 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.core.effects import (
-    Batch,
-    EffectTerms,
     regressor_from_dict,
-    run_segments,
 )
-from strain_comp.core.engine import Engine
-from strain_comp.core.metrics import error_stats
-from strain_comp.core.range_policy import RANGE_MARGIN
-from strain_comp.core.samples import gap_for, used_mask
-from strain_comp.core.tare import TARE_WINDOW, tare_engine, unsettled_start
+from strain_comp.core.tare import TARE_WINDOW
 from strain_comp.diagnosis.candidates import (
-    BASELINE_WINDOW,
     added_effects,
     default_candidates,
 )
@@ -110,6 +102,19 @@ from strain_comp.diagnosis.report import (
     DiagnoseResult,
     EffectScore,
     SensorDiagnosis,
+)
+from strain_comp.diagnosis.residuals import (
+    ROW_BUDGET,
+    Run,
+    Series,
+    as_bags,
+    base_runs,
+    baseline_rest,
+    holdout_period,
+    neighbours_of,
+    rmse_stats,
+    series_of,
+    stride_of,
 )
 from strain_comp.diagnosis.selection import (
     Gram,
@@ -121,17 +126,8 @@ from strain_comp.diagnosis.selection import (
 )
 from strain_comp.diagnosis.session import SessionHeldOut
 from strain_comp.errors import InputError
-from strain_comp.io.recording import Recording, hold_latest
+from strain_comp.io.recording import Recording
 
-ROW_BUDGET = 250_000
-"""Samples of one sensor (over its fit recordings; validation recordings apart) up to which
-the loop keeps every used sample. Above it, every k-th (k = ceil(samples / budget)) after
-the regressors have run online over all of them: the candidates' memory and state see the
-full rate, and only the rows of the least-squares problems are thinned. A fixed-stride
-subsample keeps the residual's RMSE and MAE unbiased estimates of the full data's (a
-low-pass would shrink the noise no term can explain and inflate every gain), and the
-regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
-regressor matrix holds at most about ``ROW_BUDGET`` rows."""
 GAIN_CHANGE = 0.05
 """A sensitivity against the calibration this far from 1 (the session start's input span
 on the validation run), which that session start corrects, is read as a gain change
@@ -139,190 +135,23 @@ between runs."""
 
 
 @dataclass
-class _Series:
-    """One recording of one sensor after the engine: used samples only."""
+class _Candidates:
+    """The candidate effects of one sensor, with an offset always among them."""
 
-    e: np.ndarray
-    """Residual S_corrected - S."""
-    g: np.ndarray
-    """Candidate regressors, (n, k)."""
-    t: np.ndarray
-    block: np.ndarray
-    s: np.ndarray
-    """Reference strain [%]."""
-    extended: np.ndarray
-    """Samples whose estimate the engine extended beyond the valid range: no effect term
-    reads that extension (they read the estimate clamped), so the terms are not fitted
-    there; they are still scored."""
-    unsettled: tuple[float, float] = (0.0, 0.0)
-    """Seconds left out at the start (the sensor still relaxing there) and the drift seen
-    (``strain_comp.core.tare.unsettled_start``)."""
+    entries: list[dict[str, Any]]
+    names: list[str]
+    kinds: list[str]
+    offset: int
+    """Index of the offset."""
+    baselines: list[int]
+    """Indices of the per-run baseline candidates."""
 
 
-def _as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
-             ) -> list[Mapping[str, Recording]]:
-    if isinstance(recordings, Mapping):
-        return [recordings]
-    return list(recordings)
-
-
-@dataclass
-class _Run:
-    """The stripped calibration's engine output for one sensor of one bag."""
-
-    s_hat: np.ndarray
-    """The estimate clamped to the valid strain range (what the effect terms read)."""
-    direction: np.ndarray
-    resistance: np.ndarray
-    """What the model read (``BatchOutput.resistance``): the effect terms' R."""
-    used: np.ndarray
-    starts: list[int]
-    """Positions among the used samples where the engine reset after a gap."""
-    beyond: np.ndarray
-    """What the engine adds beyond the valid range (its ``out_of_range`` extension)."""
-    cal: SensorCalibration
-    """The sensor's calibration this run was read with."""
-
-
-def _base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
-               tare: str = "calibration") -> dict[str, _Run]:
-    """S_hat without effects, direction, used mask and gap resets per calibrated sensor
-    (each run tared by ``tare``, as ``evaluate`` does)."""
-    stripped = Calibration({n: dataclasses.replace(c, effects=[])
-                            for n, c in calibration.sensors.items()})
-    engine = Engine(stripped)  # sensors are independent: effect terms (cross-talk) stripped
-    tare_engine(engine, {n: (rec.t, rec.r) for n, rec in bag.items()}, tare)
-    out = {}
-    for name, rec in bag.items():
-        if name not in stripped.sensors:
-            continue
-        result = engine.run(name, rec.t, rec.r, rec.temperature)
-        used = used_mask(result.status)
-        dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
-        gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
-        starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
-        vr = stripped.sensors[name].valid_range
-        margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
-        s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
-        out[name] = _Run(s_hat, result.direction.astype(np.float64), result.resistance,
-                         used, starts, result.strain - s_hat, calibration.sensors[name])
-    return out
-
-
-def _neighbours(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
-    """Array neighbours at index +-1 of ``rec``, in index order."""
-    if rec.array is None or rec.index is None:
-        return []
-    found = {other.index: name for name, other in bag.items()
-             if other.array == rec.array and other.index in (rec.index - 1, rec.index + 1)}
-    return [found[i] for i in sorted(found)]
-
-
-def _block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
-    """Contiguous time blocks 0..n_blocks-1 of equal duration."""
-    if t.size == 0:
-        return np.zeros(0, dtype=np.intp)
-    span = t[-1] - t[0]
-    if not span > 0:
-        return np.zeros(t.size, dtype=np.intp)
-    return np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
-
-
-def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], batch: Batch,
-               starts: Sequence[int]) -> np.ndarray:
-    """``run`` over the segments between the engine's gap resets, ``reset`` between them
-    (the engine resets effect state where it resets the model)."""
-    return run_segments(
-        lambda k: run(Batch(batch.t[k], batch.r[k], batch.s_hat[k], batch.direction[k],
-                            None if batch.temperature is None else batch.temperature[k],
-                            {name: v[k] for name, v in batch.neighbours.items()})),
-        reset, batch.t.size, starts)
-
-
-def _series(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, _Run],
-            candidates: Sequence[dict[str, Any]], n_blocks: int, stride: int = 1
-            ) -> _Series | None:
-    """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
-    at every ``stride``-th of the samples kept (the regressors run over all of them)."""
-    rec = bag[sensor]
-    if rec.s is None or sensor not in runs:
-        return None
-    run = runs[sensor]
-    cal = run.cal
-    used = run.used
-    ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
-    if ok.sum() < 2 * n_blocks:
-        return None
-    t = np.asarray(rec.t, dtype=np.float64)[used]
-    temperature = None if rec.temperature is None else np.asarray(rec.temperature)[used]
-    nbrs = {}
-    for name in _neighbours(rec, bag):
-        if name in runs:
-            nbrs[name] = hold_latest(np.asarray(rec.t, np.float64),
-                                  np.asarray(bag[name].t, np.float64), runs[name].s_hat)[used]
-    batch = Batch.of(t, run.resistance[used], run.s_hat[used], run.direction[used],
-                     temperature, nbrs)
-    terms = EffectTerms.from_dicts(cal.effects)
-    corrected = _segmented(
-        lambda b: terms.run(b.t, b.r, b.s_hat, b.direction, b.temperature, b.neighbours),
-        terms.reset, batch, run.starts)
-    keep = ok[used]
-    s = np.asarray(rec.s, dtype=np.float64)[used]
-    unsettled = unsettled_start(rec.t, cal.input.to_ohm(rec.r), rec.s, pair=cal.input.pair)
-    if unsettled[0] > 0:  # seconds from the first sample with a reference
-        keep &= t > t[keep][0] + unsettled[0]
-    if keep.sum() < 2 * n_blocks:
-        return None
-    rows = np.flatnonzero(keep)[::stride]
-    regressors = [regressor_from_dict(c) for c in candidates]
-    g = np.empty((rows.size, len(regressors)))
-    for j, reg in enumerate(regressors):  # each online over every sample, then the rows
-        g[:, j] = _segmented(reg.run, reg.reset, batch, run.starts)[rows]
-    return _Series(e=(corrected + run.beyond[used] - s)[rows], g=g, t=t[rows],
-                   extended=(run.beyond[used] != 0.0)[rows],
-                   block=_block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
-
-
-def _stride(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
-    """Every how many-th used sample of ``sensor`` the loop keeps in ``bags`` (1 up to
-    ``ROW_BUDGET`` samples; see there)."""
-    total = sum(b[sensor].t.size for b in bags if sensor in b)
-    return max(1, math.ceil(total / ROW_BUDGET))
-
-
-def _rmse_stats(e: np.ndarray) -> dict[str, float]:
-    stats = error_stats(e, np.zeros_like(e))
-    return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
-
-
-def _holdout_period(holdout_fraction: float) -> int:
-    """Every how many-th time block is held out (module docstring, step 3)."""
-    return max(2, round(1.0 / holdout_fraction))
-
-
-def _baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:
-    """Mean reference strain over the first ``BASELINE_WINDOW`` s of the fit recordings:
-    the strain a run starts at (what a baseline term should read at rest)."""
-    values = []
-    for bag in bags:
-        rec = bag.get(sensor)
-        if rec is None or rec.s is None or rec.t.size == 0:
-            continue
-        s = np.asarray(rec.s, dtype=np.float64)[rec.t - rec.t[0] <= BASELINE_WINDOW]
-        values.extend(s[np.isfinite(s)].tolist())
-    return float(np.mean(values)) if values else 0.0
-
-
-def _diagnose_sensor(sensor: str, calibration: Calibration,
-                     bags: list[Mapping[str, Recording]],
-                     validate: list[Mapping[str, Recording]] | None,
-                     base_fit: list[dict[str, _Run]], base_val: list[dict[str, _Run]],
-                     candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
-                     n_blocks: int, margin: float, max_effects: int,
-                     stretch_history: bool = False, session_start: bool = True,
-                     ) -> SensorDiagnosis | None:
-    """One sensor's loop (module docstring)."""
-    cal = calibration.sensors[sensor]
+def _candidates(sensor: str, bags: list[Mapping[str, Recording]], base_fit: list[dict[str, Run]],
+                candidates: Sequence[dict[str, Any]] | None, stretch_history: bool
+                ) -> _Candidates:
+    """The given candidates, or ``default_candidates`` for what the recordings hold
+    (temperature, array neighbours), each with coefficient 0, plus an offset."""
     if candidates is None:
         temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
                  if sensor in b and b[sensor].temperature is not None]
@@ -330,89 +159,187 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
         have_temp = any(x.size and np.ptp(x) > 0 for x in temps)
         t_ref = float(np.mean(np.concatenate(temps))) if have_temp else None
         nbrs = sorted({n for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-                       for n in _neighbours(b[sensor], b) if n in runs})
+                       for n in neighbours_of(b[sensor], b) if n in runs})
         candidates = default_candidates(temperature_ref=t_ref, neighbours=nbrs,
-                                        baseline_rest=_baseline_rest(bags, sensor),
+                                        baseline_rest=baseline_rest(bags, sensor),
                                         stretch_history=stretch_history)
-    candidates = [dict(c, coef=0.0) for c in candidates]
-    names = [str(c["name"]) for c in candidates]
-    kinds = [str(c["kind"]) for c in candidates]
-    if "offset" not in kinds:
-        candidates.append({"name": "offset", "kind": "offset", "params": {}, "coef": 0.0})
-        names.append("offset")
-        kinds.append("offset")
-    offset = kinds.index("offset")
-    baselines = [j for j, k in enumerate(kinds) if k == "baseline"]
-    session = (None if validate is None or not session_start
-               else SessionHeldOut(calibration, sensor, validate, candidates))
-    if session is not None and not session.usable():
-        session = None
-    stride = _stride(bags, sensor)
-    val_stride = 1 if validate is None else _stride(validate, sensor)
-    series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-              for s in [_series(sensor, b, runs, candidates, n_blocks, stride)]
-              if s is not None]
-    if not series:
-        return None
-    period = _holdout_period(holdout_fraction) if validate is None else 0
+    entries = [dict(c, coef=0.0) for c in candidates]
+    if "offset" not in [str(c["kind"]) for c in entries]:
+        entries.append({"name": "offset", "kind": "offset", "params": {}, "coef": 0.0})
+    kinds = [str(c["kind"]) for c in entries]
+    return _Candidates(entries, [str(c["name"]) for c in entries], kinds,
+                       kinds.index("offset"), [j for j, k in enumerate(kinds) if k == "baseline"])
+
+
+@dataclass
+class _Rows:
+    """The loop's rows: the fit rows (cross-validation folds) and the held-out rows."""
+
+    series: list[Series]
+    val_series: list[Series]
+    g_fit: np.ndarray
+    e_fit: np.ndarray
+    fold: np.ndarray
+    n_folds: int
+    e_out: np.ndarray
+    g_out: np.ndarray
+    t_out: np.ndarray
+    s_out: np.ndarray
+
+
+def _rows(sensor: str, series: list[Series], validate: list[Mapping[str, Recording]] | None,
+          base_val: list[dict[str, Run]], entries: list[dict[str, Any]], n_blocks: int,
+          period: int, val_stride: int) -> _Rows:
+    """Fit rows (not held out, within the range the terms read) with their fold (the
+    position of the block among the fit blocks of its recording), and the held-out rows:
+    the validation recordings', or every ``period``-th block's without them."""
     held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
                 for s in series]
-    # folds: position of the block among the fit blocks of its recording
     fold_of_block = np.cumsum([not (period and b % period == period - 1)
                                for b in range(n_blocks)]) - 1
-    n_folds = int(fold_of_block.max()) + 1
-    # fit rows: not held out, and within the range the terms read
     fits = [~h & ~s.extended for s, h in zip(series, held_out, strict=True)]
     e_fit = np.concatenate([s.e[f] for s, f in zip(series, fits, strict=True)])
     g_fit = np.concatenate([s.g[f] for s, f in zip(series, fits, strict=True)])
     fold = np.concatenate([fold_of_block[s.block[f]]
                            for s, f in zip(series, fits, strict=True)])
-    gram = Gram(g_fit, e_fit, fold, n_folds)
-    scores = candidate_scores(gram, len(names), offset)
-
     if validate is not None:
         val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
-                      for s in [_series(sensor, b, runs, candidates, n_blocks, val_stride)]
+                      for s in [series_of(sensor, b, runs, entries, n_blocks, val_stride)]
                       if s is not None]
         if not val_series:
             raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
                              "samples with a reference strain")
-        e_out = np.concatenate([s.e for s in val_series])
-        g_out = np.concatenate([s.g for s in val_series])
-        t_out = np.concatenate([s.t for s in val_series])
-        s_out = np.concatenate([s.s for s in val_series])
+        out = [(s.e, s.g, s.t, s.s) for s in val_series]
     else:
         val_series = []
-        e_out = np.concatenate([s.e[h] for s, h in zip(series, held_out, strict=True)])
-        g_out = np.concatenate([s.g[h] for s, h in zip(series, held_out, strict=True)])
-        t_out = np.concatenate([s.t[h] for s, h in zip(series, held_out, strict=True)])
-        s_out = np.concatenate([s.s[h] for s, h in zip(series, held_out, strict=True)])
+        out = [(s.e[h], s.g[h], s.t[h], s.s[h]) for s, h in zip(series, held_out, strict=True)]
+    e_out, g_out, t_out, s_out = (np.concatenate([o[k] for o in out]) for k in range(4))
+    return _Rows(series, val_series, g_fit, e_fit, fold, int(fold_of_block.max()) + 1,
+                 e_out, g_out, t_out, s_out)
 
-    linear = linear_held_out(e_out, g_out)
-    held_out = linear if session is None else session
-    runs = None  # the validation run of each held-out sample
-    if session is not None:
-        runs = session.runs_of_samples()
-    elif val_series:
-        runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(val_series)])
-    chosen = select_forward(gram, len(names), offset, margin, max_effects, skip=baselines)
-    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, runs)
+
+def _choose(gram: Gram, rows: _Rows, cands: _Candidates, scores: dict[int, float],
+            margin: float, max_effects: int, held_out: Any, runs: np.ndarray | None,
+            session: SessionHeldOut | None) -> Any:
+    """Forward selection kept on the held-out rows, and for each baseline candidate the
+    per-run hypothesis (the start-of-run shift removed whole) when it wins by ``margin``;
+    ``scores`` of the baselines are set here."""
+    n, offset, baselines = len(cands.names), cands.offset, cands.baselines
+    chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines)
+    best = keep_on_held_out(gram, chosen, None, offset, rows.n_folds, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
-    for b in baselines:  # the per-run hypothesis: the start-of-run shift removed whole
-        shifted = Gram(g_fit, e_fit - g_fit[:, b], fold, n_folds)
+    for b in baselines:
+        shifted = Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
         rmse_b = shifted.cv_rmse([])
         scores[b] = 1.0 - (rmse_b / rmse_none) ** 2 if rmse_none > 0 else 0.0
         if session is not None:  # the session start re-zeroes every run itself (step 8)
             continue
-        selection = select_forward(shifted, len(names), offset, margin, max_effects - 1,
-                            auto_intercept=False, skip=baselines)
+        selection = select_forward(shifted, n, offset, margin, max_effects - 1,
+                                   auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
-                                  runs)
+        branch = keep_on_held_out(shifted, selection, b, offset, rows.n_folds, margin,
+                                  held_out, runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
+    return best
 
+
+def _score_rows(sensor: str, cal: SensorCalibration, cands: _Candidates, rows: _Rows,
+                scores: dict[int, float], terms: list[int], coefs: list[float],
+                gains: Mapping[int, float]) -> list[EffectScore]:
+    """The evidence of every candidate: its score and, for an added one, its rank, gain,
+    coefficient and magnitude."""
+    std_fit = np.std(rows.g_fit, axis=0)
+    coef_of = dict(zip(terms, coefs, strict=True))
+    found = []
+    for j, name in enumerate(cands.names):
+        row = EffectScore(sensor=sensor, name=name, kind=cands.kinds[j],
+                          params=regressor_from_dict(cands.entries[j]).params(),
+                          score=scores[j], unit=cal.strain_unit)
+        if j in coef_of:
+            row.added = True
+            row.rank = terms.index(j)
+            row.gain = gains.get(j)
+            row.coef = float(coef_of[j])
+            row.magnitude = float(abs(coef_of[j]) * (std_fit[j] if j != cands.offset else 1.0))
+            if cands.kinds[j] == "baseline":
+                row.magnitude = float(np.sqrt(np.mean(rows.g_out[:, j] ** 2)))
+        found.append(row)
+    return found
+
+
+def _message(cal: SensorCalibration, cands: _Candidates, rows: _Rows, best: Any,
+             scores: dict[int, float], order: list[int], gains: Mapping[int, float],
+             margin: float, before: float, after: float, session: bool,
+             strides: tuple[int, int | None]) -> str:
+    """The loop's finding for one sensor, in words."""
+    names = cands.names
+    if not order:
+        top = max((j for j in scores if j not in cands.baselines), key=scores.__getitem__)
+        message = (f"no candidate effect lowers the held-out error by more than "
+                   f"{100 * margin:.0f} %; nothing added (best: {names[top]}, "
+                   f"score {scores[top]:.3f})")
+        if best.selection.chosen:
+            message = (f"{names[best.selection.chosen[0]]} looked useful in cross-validation "
+                       "but did not lower the held-out error; nothing added")
+    else:
+        parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
+        message = (f"added {parts}; held-out RMSE {before:.4g} -> {after:.4g} "
+                   f"{cal.strain_unit}"
+                   + ("" if not session else " after the session-start recalibration"))
+    left_out = [x.unsettled for x in [*rows.series, *rows.val_series] if x.unsettled[0] > 0]
+    if left_out:
+        seconds, drift = left_out[0]
+        others = (f" (and the start of {len(left_out) - 1} more runs)" if len(left_out) > 1
+                  else "")
+        message += (f"; the first {seconds:.0f} s{others}, before the reference first moves, "
+                    f"are left out: the resistance still relaxes there from an earlier "
+                    f"stretch ({100 * drift:+.2f} % over {TARE_WINDOW:g} s)")
+    stride, val_stride = strides
+    if stride > 1 or (val_stride or 1) > 1:
+        message += (f"; fitted and scored on every {stride}-th sample"
+                    + (f" (validation: every {val_stride}-th)" if val_stride is not None
+                       else "")
+                    + f" of a run longer than {ROW_BUDGET:,} samples")
+    return message
+
+
+def _diagnose_sensor(sensor: str, calibration: Calibration,
+                     bags: list[Mapping[str, Recording]],
+                     validate: list[Mapping[str, Recording]] | None,
+                     base_fit: list[dict[str, Run]], base_val: list[dict[str, Run]],
+                     candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
+                     n_blocks: int, margin: float, max_effects: int,
+                     stretch_history: bool = False, session_start: bool = True,
+                     ) -> SensorDiagnosis | None:
+    """One sensor's loop (module docstring)."""
+    cal = calibration.sensors[sensor]
+    cands = _candidates(sensor, bags, base_fit, candidates, stretch_history)
+    session = (None if validate is None or not session_start
+               else SessionHeldOut(calibration, sensor, validate, cands.entries))
+    if session is not None and not session.usable():
+        session = None
+    stride = stride_of(bags, sensor)
+    val_stride = 1 if validate is None else stride_of(validate, sensor)
+    series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
+              for s in [series_of(sensor, b, runs, cands.entries, n_blocks, stride)]
+              if s is not None]
+    if not series:
+        return None
+    period = holdout_period(holdout_fraction) if validate is None else 0
+    rows = _rows(sensor, series, validate, base_val, cands.entries, n_blocks, period,
+                 val_stride)
+    gram = Gram(rows.g_fit, rows.e_fit, rows.fold, rows.n_folds)
+    scores = candidate_scores(gram, len(cands.names), cands.offset)
+    linear = linear_held_out(rows.e_out, rows.g_out)
+    held_out = linear if session is None else session
+    runs = None  # the validation run of each held-out sample
+    if session is not None:
+        runs = session.runs_of_samples()
+    elif rows.val_series:
+        runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(rows.val_series)])
+    best = _choose(gram, rows, cands, scores, margin, max_effects, held_out, runs, session)
     e_before = held_out([], np.zeros(0))
     rmse_before = rms(e_before)
     terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
@@ -422,62 +349,25 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
         kept = [k for k, j in enumerate(terms) if not session.redundant(j)]
         terms, coefs = [terms[k] for k in kept], [coefs[k] for k in kept]
     gains = best.selection.gains
-    added = added_effects(candidates, terms, coefs, cal.effects)
-    std_fit = np.std(g_fit, axis=0)
-    coef_of = dict(zip(terms, coefs, strict=True))
-    rows = []
-    for j in range(len(names)):
-        row = EffectScore(sensor=sensor, name=names[j], kind=kinds[j],
-                          params=regressor_from_dict(candidates[j]).params(), score=scores[j],
-                          unit=cal.strain_unit)
-        if j in coef_of:
-            row.added = True
-            row.rank = terms.index(j)
-            row.gain = gains.get(j)
-            row.coef = float(coef_of[j])
-            row.magnitude = float(abs(coef_of[j]) * (std_fit[j] if j != offset else 1.0))
-            if kinds[j] == "baseline":
-                row.magnitude = float(np.sqrt(np.mean(g_out[:, j] ** 2)))
-        rows.append(row)
     e_after = held_out(terms, np.array(coefs))
-    order = [j for j in terms if j != offset] or terms
-    winner = names[order[0]] if order else None
-    if winner is None:
-        top = max((j for j in scores if j not in baselines), key=scores.__getitem__)
-        message = (f"no candidate effect lowers the held-out error by more than "
-                   f"{100 * margin:.0f} %; nothing added (best: {names[top]}, "
-                   f"score {scores[top]:.3f})")
-        if best.selection.chosen:
-            message = (f"{names[best.selection.chosen[0]]} looked useful in cross-validation "
-                       "but did not lower the held-out error; nothing added")
-    else:
-        parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
-        message = (f"added {parts}; held-out RMSE {rmse_before:.4g} -> "
-                   f"{rms(e_after):.4g} {cal.strain_unit}"
-                   + ("" if session is None else " after the session-start recalibration"))
-    left_out = [x.unsettled for x in [*series, *val_series] if x.unsettled[0] > 0]
-    if left_out:
-        seconds, drift = left_out[0]
-        others = (f" (and the start of {len(left_out) - 1} more runs)" if len(left_out) > 1
-                  else "")
-        message += (f"; the first {seconds:.0f} s{others}, before the reference first moves, "
-                    f"are left out: the resistance still relaxes there from an earlier "
-                    f"stretch ({100 * drift:+.2f} % over {TARE_WINDOW:g} s)")
-    if stride > 1 or val_stride > 1:
-        message += (f"; fitted and scored on every {stride}-th sample"
-                    + (f" (validation: every {val_stride}-th)" if validate is not None else "")
-                    + f" of a run longer than {ROW_BUDGET:,} samples")
+    order = [j for j in terms if j != cands.offset] or terms
+    message = _message(cal, cands, rows, best, scores, order, gains, margin, rmse_before,
+                       rms(e_after), session is not None,
+                       (stride, val_stride if validate is not None else None))
     e_linear = linear(terms, np.array(coefs))
+    winner = cands.names[order[0]] if order else None
     plot = {}
     if winner is not None:
-        plot = {"t": t_out, "e_before": e_out, "e_after": e_linear, "g": g_out[:, order[0]],
-                "s": s_out}
-    found = SensorDiagnosis(name=sensor, before=_rmse_stats(e_before),
-                            after=_rmse_stats(e_after), scores=rows, added=added,
-                            message=message, plot=plot, winner=winner)
+        plot = {"t": rows.t_out, "e_before": rows.e_out, "e_after": e_linear,
+                "g": rows.g_out[:, order[0]], "s": rows.s_out}
+    found = SensorDiagnosis(
+        name=sensor, before=rmse_stats(e_before), after=rmse_stats(e_after),
+        scores=_score_rows(sensor, cal, cands, rows, scores, terms, coefs, gains),
+        added=added_effects(cands.entries, terms, coefs, cal.effects), message=message,
+        plot=plot, winner=winner)
     if session is not None:
-        found.as_calibrated = {"before": _rmse_stats(e_out), "after": _rmse_stats(e_linear)}
-        found.session = _session_record(cal, session, e_out, e_before, margin)
+        found.as_calibrated = {"before": rmse_stats(rows.e_out), "after": rmse_stats(e_linear)}
+        found.session = _session_record(cal, session, rows.e_out, e_before, margin)
     return found
 
 
@@ -536,11 +426,11 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
     if n_blocks < 3:
         raise InputError(f"n_blocks must be >= 3, got {n_blocks}")
-    bags = _as_bags(recordings)
-    validate = None if validate_recordings is None else _as_bags(validate_recordings)
-    base_fit = [_base_runs(b, calibration, tare=tare) for b in bags]
+    bags = as_bags(recordings)
+    validate = None if validate_recordings is None else as_bags(validate_recordings)
+    base_fit = [base_runs(b, calibration, tare=tare) for b in bags]
     base_val = (None if validate is None
-                else [_base_runs(b, calibration, tare=tare) for b in validate])
+                else [base_runs(b, calibration, tare=tare) for b in validate])
     results: dict[str, SensorDiagnosis] = {}
     for sensor in calibration.sensors:
         found = _diagnose_sensor(sensor, calibration, bags, validate, base_fit, base_val or [],
@@ -561,7 +451,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     if validate is None:
         validated_on = "holdout"
         validation = {"kind": "held-out time blocks of the input", "n_blocks": n_blocks,
-                      "held_out_every": _holdout_period(holdout_fraction)}
+                      "held_out_every": holdout_period(holdout_fraction)}
     else:
         validated_on = "validate"
         validation = {"kind": "validation recordings",

@@ -1,0 +1,214 @@
+"""The residual loop's data (docs/design.md, "The residual loop", steps 1-3): each
+recording run through the engine with the calibration's effect terms removed
+(``base_runs``), the residual and the candidate regressors over its used samples, cut into
+time blocks (``series_of``), and the row budget of a long run (``stride_of``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.effects import (
+    Batch,
+    EffectTerms,
+    regressor_from_dict,
+    run_segments,
+)
+from strain_comp.core.engine import Engine
+from strain_comp.core.metrics import error_stats
+from strain_comp.core.range_policy import RANGE_MARGIN
+from strain_comp.core.samples import gap_for, used_mask
+from strain_comp.core.tare import tare_engine, unsettled_start
+from strain_comp.diagnosis.candidates import BASELINE_WINDOW
+from strain_comp.io.recording import Recording, hold_latest
+
+ROW_BUDGET = 250_000
+"""Samples of one sensor (over its fit recordings; validation recordings apart) up to which
+the loop keeps every used sample. Above it, every k-th (k = ceil(samples / budget)) after
+the regressors have run online over all of them: the candidates' memory and state see the
+full rate, and only the rows of the least-squares problems are thinned. A fixed-stride
+subsample keeps the residual's RMSE and MAE unbiased estimates of the full data's (a
+low-pass would shrink the noise no term can explain and inflate every gain), and the
+regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
+regressor matrix holds at most about ``ROW_BUDGET`` rows."""
+
+
+@dataclass
+class Series:
+    """One recording of one sensor after the engine: used samples only."""
+
+    e: np.ndarray
+    """Residual S_corrected - S."""
+    g: np.ndarray
+    """Candidate regressors, (n, k)."""
+    t: np.ndarray
+    block: np.ndarray
+    s: np.ndarray
+    """Reference strain [%]."""
+    extended: np.ndarray
+    """Samples whose estimate the engine extended beyond the valid range: no effect term
+    reads that extension (they read the estimate clamped), so the terms are not fitted
+    there; they are still scored."""
+    unsettled: tuple[float, float] = (0.0, 0.0)
+    """Seconds left out at the start (the sensor still relaxing there) and the drift seen
+    (``strain_comp.core.tare.unsettled_start``)."""
+
+
+def as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
+             ) -> list[Mapping[str, Recording]]:
+    if isinstance(recordings, Mapping):
+        return [recordings]
+    return list(recordings)
+
+
+@dataclass
+class Run:
+    """The stripped calibration's engine output for one sensor of one bag."""
+
+    s_hat: np.ndarray
+    """The estimate clamped to the valid strain range (what the effect terms read)."""
+    direction: np.ndarray
+    resistance: np.ndarray
+    """What the model read (``BatchOutput.resistance``): the effect terms' R."""
+    used: np.ndarray
+    starts: list[int]
+    """Positions among the used samples where the engine reset after a gap."""
+    beyond: np.ndarray
+    """What the engine adds beyond the valid range (its ``out_of_range`` extension)."""
+    cal: SensorCalibration
+    """The sensor's calibration this run was read with."""
+
+
+def base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
+               tare: str = "calibration") -> dict[str, Run]:
+    """S_hat without effects, direction, used mask and gap resets per calibrated sensor
+    (each run tared by ``tare``, as ``evaluate`` does)."""
+    stripped = Calibration({n: dataclasses.replace(c, effects=[])
+                            for n, c in calibration.sensors.items()})
+    engine = Engine(stripped)  # sensors are independent: effect terms (cross-talk) stripped
+    tare_engine(engine, {n: (rec.t, rec.r) for n, rec in bag.items()}, tare)
+    out = {}
+    for name, rec in bag.items():
+        if name not in stripped.sensors:
+            continue
+        result = engine.run(name, rec.t, rec.r, rec.temperature)
+        used = used_mask(result.status)
+        dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
+        gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
+        starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
+        vr = stripped.sensors[name].valid_range
+        margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
+        s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
+        out[name] = Run(s_hat, result.direction.astype(np.float64), result.resistance,
+                         used, starts, result.strain - s_hat, calibration.sensors[name])
+    return out
+
+
+def neighbours_of(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
+    """Array neighbours at index +-1 of ``rec``, in index order."""
+    if rec.array is None or rec.index is None:
+        return []
+    found = {other.index: name for name, other in bag.items()
+             if other.array == rec.array and other.index in (rec.index - 1, rec.index + 1)}
+    return [found[i] for i in sorted(found)]
+
+
+def block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
+    """Contiguous time blocks 0..n_blocks-1 of equal duration."""
+    if t.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    span = t[-1] - t[0]
+    if not span > 0:
+        return np.zeros(t.size, dtype=np.intp)
+    return np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
+
+
+def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], batch: Batch,
+               starts: Sequence[int]) -> np.ndarray:
+    """``run`` over the segments between the engine's gap resets, ``reset`` between them
+    (the engine resets effect state where it resets the model)."""
+    return run_segments(
+        lambda k: run(Batch(batch.t[k], batch.r[k], batch.s_hat[k], batch.direction[k],
+                            None if batch.temperature is None else batch.temperature[k],
+                            {name: v[k] for name, v in batch.neighbours.items()})),
+        reset, batch.t.size, starts)
+
+
+def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run],
+            candidates: Sequence[dict[str, Any]], n_blocks: int, stride: int = 1
+            ) -> Series | None:
+    """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
+    at every ``stride``-th of the samples kept (the regressors run over all of them)."""
+    rec = bag[sensor]
+    if rec.s is None or sensor not in runs:
+        return None
+    run = runs[sensor]
+    cal = run.cal
+    used = run.used
+    ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
+    if ok.sum() < 2 * n_blocks:
+        return None
+    t = np.asarray(rec.t, dtype=np.float64)[used]
+    temperature = None if rec.temperature is None else np.asarray(rec.temperature)[used]
+    nbrs = {}
+    for name in neighbours_of(rec, bag):
+        if name in runs:
+            nbrs[name] = hold_latest(np.asarray(rec.t, np.float64),
+                                  np.asarray(bag[name].t, np.float64), runs[name].s_hat)[used]
+    batch = Batch.of(t, run.resistance[used], run.s_hat[used], run.direction[used],
+                     temperature, nbrs)
+    terms = EffectTerms.from_dicts(cal.effects)
+    corrected = _segmented(
+        lambda b: terms.run(b.t, b.r, b.s_hat, b.direction, b.temperature, b.neighbours),
+        terms.reset, batch, run.starts)
+    keep = ok[used]
+    s = np.asarray(rec.s, dtype=np.float64)[used]
+    unsettled = unsettled_start(rec.t, cal.input.to_ohm(rec.r), rec.s, pair=cal.input.pair)
+    if unsettled[0] > 0:  # seconds from the first sample with a reference
+        keep &= t > t[keep][0] + unsettled[0]
+    if keep.sum() < 2 * n_blocks:
+        return None
+    rows = np.flatnonzero(keep)[::stride]
+    regressors = [regressor_from_dict(c) for c in candidates]
+    g = np.empty((rows.size, len(regressors)))
+    for j, reg in enumerate(regressors):  # each online over every sample, then the rows
+        g[:, j] = _segmented(reg.run, reg.reset, batch, run.starts)[rows]
+    return Series(e=(corrected + run.beyond[used] - s)[rows], g=g, t=t[rows],
+                   extended=(run.beyond[used] != 0.0)[rows],
+                   block=block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
+
+
+def stride_of(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
+    """Every how many-th used sample of ``sensor`` the loop keeps in ``bags`` (1 up to
+    ``ROW_BUDGET`` samples; see there)."""
+    total = sum(b[sensor].t.size for b in bags if sensor in b)
+    return max(1, math.ceil(total / ROW_BUDGET))
+
+
+def rmse_stats(e: np.ndarray) -> dict[str, float]:
+    stats = error_stats(e, np.zeros_like(e))
+    return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
+
+
+def holdout_period(holdout_fraction: float) -> int:
+    """Every how many-th time block is held out (module docstring, step 3)."""
+    return max(2, round(1.0 / holdout_fraction))
+
+
+def baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:
+    """Mean reference strain over the first ``BASELINE_WINDOW`` s of the fit recordings:
+    the strain a run starts at (what a baseline term should read at rest)."""
+    values = []
+    for bag in bags:
+        rec = bag.get(sensor)
+        if rec is None or rec.s is None or rec.t.size == 0:
+            continue
+        s = np.asarray(rec.s, dtype=np.float64)[rec.t - rec.t[0] <= BASELINE_WINDOW]
+        values.extend(s[np.isfinite(s)].tolist())
+    return float(np.mean(values)) if values else 0.0
