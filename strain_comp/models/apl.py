@@ -73,6 +73,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
+from threadpoolctl import threadpool_limits
 
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
@@ -222,6 +223,7 @@ class _CellModel(Compensator):
                    orientation=orientation)
 
     @classmethod
+    @threadpool_limits.wrap(limits=1, user_api="blas")
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, N: int = 11, M: int = 9,
             sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import lsq_linear, minimize
-from threadpoolctl import threadpool_limits
 
 from strain_comp.errors import FitError
 from strain_comp.models import apl_kernels as kern
@@ -42,7 +41,6 @@ P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
 """The default grid of p searched by the fit."""
 
 
-@threadpool_limits.wrap(limits=1, user_api="blas")
 def fit_cells(cls: type[_CellModel], segments: Sequence[Segment], normalisation: Normalisation,
               *, n: int, m: int, sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None,
               refine: bool, cell_weights: str, eps: float, ridge: float, output_nfev: int,
@@ -50,7 +48,7 @@ def fit_cells(cls: type[_CellModel], segments: Sequence[Segment], normalisation:
               progress: bool | Callable[[str], None]) -> _CellModel:
     """The fit of an APL, PL or MPI model (``APL.fit``, whose arguments were checked):
     the QP, the sigma / p grid, the output-error refinement (``strain_comp.models.apl``'s
-    module docstring). BLAS is held to one thread (``APL.fit``)."""
+    module docstring), called by ``APL.fit``, which holds BLAS to one thread."""
     problem = _FitProblem(cls, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
     if cls.kind == kern.KIND_APL and problem.gauge < 0:
