@@ -2,7 +2,7 @@
 "Arrays").
 
 When every sensor's model supplies a per-sensor kernel for the array form (the APL
-family, same N and M: ``strain_comp.models.apl.APLArray``, whose kernel
+family, same N and M: ``strain_comp.models.apl_array.APLArray``, whose kernel
 ``strain_comp.models.apl_kernels.step_sensor`` steps one sensor's row) and no sensor's
 input is corrected, one tick is one call of ``array_tick``: the stages of
 ``strain_comp.core.stages`` run over the sensors around that kernel (input fix, screen,
@@ -29,7 +29,7 @@ from strain_comp.core.samples import USED_CODE, Status, screen_one
 from strain_comp.core.sensor import Latest, Pending, SensorState
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
 from strain_comp.errors import ParameterError
-from strain_comp.models.apl import APLArray
+from strain_comp.models.apl_array import APLArray
 from strain_comp.models.apl_kernels import step_sensor
 
 # columns of the fused tick's per-sensor parameter table, then the range row (``RANGE_COLUMNS``)

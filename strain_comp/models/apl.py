@@ -162,6 +162,11 @@ class _CellModel(Compensator):
         self.fit_report: dict[str, Any] | None = None
         self.reset()
 
+    def array_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(norm, b, f_at_b, inv_slopes): the per-sensor tables the array kernel reads
+        (``strain_comp.models.apl_array``)."""
+        return self._norm, self._b, self._f_at_b, self._inv_slopes
+
     def reset(self) -> None:
         """Forget the state: the next good sample re-initialises the cells (relaxed)."""
         self.x[:] = 0.0
@@ -290,69 +295,3 @@ class MPI(_CellModel):
     name = "mpi"
     kind = kern.KIND_PL
     rate_dependent = False
-
-
-class APLArray:
-    """K sensors of the APL family (same N and M) stepped together in one kernel call.
-
-    Built from per-sensor models (APL, PL or MPI, mixed allowed); each sensor keeps its own
-    state and previous time. ``step(t, r)`` gives exactly what each model's own ``step``
-    would give; a bad r[s] (not finite or <= 0) leaves sensor s untouched and gives NaN.
-    """
-
-    def __init__(self, models: Sequence[_CellModel]) -> None:
-        if not models:
-            raise ParameterError("models", "an array needs at least one sensor")
-        n, m = models[0].N, models[0].M
-        for i, model in enumerate(models):
-            if not isinstance(model, _CellModel):
-                raise ParameterError(f"models.{i}", f"not an APL-family model: {model!r}")
-            if (model.N, model.M) != (n, m):
-                raise ParameterError(f"models.{i}", f"N, M = {model.N}, {model.M} differ "
-                                                    f"from the first sensor's {n}, {m}")
-        self.models = list(models)
-        k = len(models)
-        self.kind = np.array([mdl.kind for mdl in models], dtype=np.int64)
-        self.sigma = np.array([mdl.sigma for mdl in models])
-        self.p = np.array([mdl.p for mdl in models])
-        self.rho = np.vstack([thresholds(n, kern.KIND_APL), thresholds(n, kern.KIND_PL)])
-        self.inv_width = np.vstack([inverse_widths(self.rho[0], kern.KIND_APL),
-                                    inverse_widths(self.rho[1], kern.KIND_PL)])
-        self.w = np.vstack([mdl.w for mdl in models])
-        self.norm = np.vstack([mdl._norm for mdl in models])
-        self.b = models[0]._b
-        self.f_at_b = np.ascontiguousarray(np.vstack([mdl._f_at_b for mdl in models])
-                                           .reshape(k, m - 1))
-        self.inv_slopes = np.vstack([mdl._inv_slopes for mdl in models])
-        self.x = np.zeros((k, n))
-        self.clock = np.zeros((k, 2))
-        self.reset()
-
-    @classmethod
-    def from_models(cls, models: Sequence[Compensator]) -> APLArray:
-        """The array of ``models``; ParameterError if one is not of the APL family."""
-        cells = [model for model in models if isinstance(model, _CellModel)]
-        if len(cells) != len(models):
-            i = next(i for i, model in enumerate(models) if not isinstance(model, _CellModel))
-            raise ParameterError(f"models.{i}", f"not an APL-family model: {models[i]!r}")
-        return cls(cells)
-
-    def __len__(self) -> int:
-        return len(self.models)
-
-    def reset(self) -> None:
-        """Forget every sensor's state."""
-        self.x[:] = 0.0
-        self.clock[:] = 0.0
-
-    def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
-        """Advance all sensors by one tick at time t [s]; strain % per sensor."""
-        r = np.ascontiguousarray(r, dtype=np.float64)
-        if r.shape != (len(self.models),):
-            raise ValueError(f"r must have shape ({len(self.models)},), got {r.shape}")
-        if out is None:
-            out = np.empty(r.size)
-        kern.step_array_kernel(float(t), r, self.x, self.clock, out, self.kind, self.sigma,
-                               self.p, self.rho, self.inv_width, self.w, self.norm, self.b,
-                               self.f_at_b, self.inv_slopes)
-        return out

@@ -99,7 +99,7 @@ class Compensator(ABC):
     """Model name as written in calibration files and on the command line."""
     array_kernel: ClassVar[bool] = False
     """True when sensors of this model can be stepped together in one array kernel
-    (``strain_comp.models.apl.APLArray``; the engine's fused array tick)."""
+    (``strain_comp.models.apl_array.APLArray``; the engine's fused array tick)."""
 
     def __init__(self, normalisation: Normalisation) -> None:
         self.normalisation = normalisation
