@@ -243,23 +243,6 @@ def provenance(bags: list[str], fit_rmse: float, n_samples: int, **extra: Any) -
     return record
 
 
-def _plain(value: Any) -> Any:
-    """Numpy scalars/arrays and tuples to plain Python, recursively, for safe YAML."""
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if hasattr(value, "tolist"):
-        return _plain(value.tolist())
-    return value
-
-
-def calibration_text(calibration: Calibration) -> str:
-    """The YAML text ``save_calibration`` writes."""
-    return yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
-                          default_flow_style=None, width=100)
-
-
 class _Reader:
     """Validating reader that turns every problem into one CalibrationError."""
 

@@ -13,22 +13,40 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
+import yaml
 
 from strain_comp.core.calibration import (
     MAX_FILE_BYTES,
     Calibration,
     SensorCalibration,
-    calibration_text,
     parse_fields,
     read_text,
 )
 from strain_comp.core.engine import Engine
 from strain_comp.errors import CalibrationError
 from strain_comp.io.atomic import write_text
+
+
+def _plain(value: Any) -> Any:
+    """Numpy scalars/arrays and tuples to plain Python, recursively, for safe YAML."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "tolist"):
+        return _plain(value.tolist())
+    return value
+
+
+def calibration_text(calibration: Calibration) -> str:
+    """The YAML text ``save_calibration`` writes."""
+    return yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
+                          default_flow_style=None, width=100)
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
