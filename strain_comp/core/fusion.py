@@ -36,7 +36,10 @@ or estimates, a wrong type and a time before the previous reference are refused 
 refusal is counted by its reason, the state unchanged.
 
 The scales are set per sensor from its calibrated strain span (``FusionSettings.for_span``),
-so one default serves a sensor calibrated in % and one in mm. ``SparseFusion`` feeds a
+so one default serves a sensor calibrated in % and one in mm; their values were chosen on
+``scripts/references.py`` (docs/fusion.md): a gain prior of 0.3 beats 0.1 and an offset
+alone (the error is a gain error), and a gain that walks 0.15 a minute beats slower walks
+(the sensitivity moves within a run). ``SparseFusion`` feeds a
 run's own reference at a fixed spacing (``evaluate --references-every``): the sample
 nearest each multiple of the spacing from the run's first sample, each affecting only the
 samples after it.
@@ -46,20 +49,27 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from strain_comp.errors import InputError
+
+if TYPE_CHECKING:
+    from strain_comp.core.calibration import SensorCalibration
+    from strain_comp.core.engine import BatchOutput
 
 GAIN_SD = 0.3
 """Prior standard deviation of the gain around 1 (a sensitivity 30 % off is plausible)."""
 OFFSET_SHARE = 0.05
 """Prior standard deviation of the offset around 0, share of the calibrated strain span."""
-GAIN_WALK = 0.3 / math.sqrt(3600.0)
-"""Random walk of the gain [1/sqrt(s)]: its prior spread again after about an hour."""
-OFFSET_WALK_SHARE = 0.05 / math.sqrt(3600.0)
-"""Random walk of the offset [span share/sqrt(s)]: its prior spread again after an hour."""
-NOISE_SHARE = 0.05
+GAIN_WALK = 0.02
+"""Random walk of the gain [1/sqrt(s)]: 0.15 in a minute (the thread's sensitivity moves
+within a run; docs/fusion.md)."""
+OFFSET_WALK_SHARE = 0.2 / 60.0
+"""Random walk of the offset [span share/sqrt(s)]: 2.6 % of the span in a minute."""
+NOISE_SHARE = 0.1
 """Standard deviation of what a gain and offset do not explain (the model's error, the
 reference's), share of the calibrated strain span."""
 GATE = 5.0
@@ -191,8 +201,8 @@ class OutputFusion:
 class SparseFusion:
     """One sensor's run fused with its own reference every ``every`` seconds, streamed in
     consecutive pieces (``run``): the reference of the eligible sample nearest each
-    multiple of ``every`` after the run's first sample (eligible: used by the engine,
-    finite reference and estimate; none farther than ``every`` / 2 from the multiple),
+    multiple of ``every`` after the run's first sample (eligible: ``fuse``; none farther
+    than ``every`` / 2 from the multiple),
     fused at that sample's time and applied to the samples after it."""
 
     fusion: OutputFusion
@@ -247,3 +257,39 @@ class SparseFusion:
             self.k = max(self.k + 1, math.floor((t_ref - self.origin) / self.every) + 1)
         out[pos:] = self.fusion.apply(estimate[pos:])
         return out
+
+    @classmethod
+    def for_calibration(cls, cal: SensorCalibration, every: float) -> SparseFusion:
+        """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds."""
+        from strain_comp.core.tracking import fitted_rest
+
+        return cls(OutputFusion.for_span(fitted_rest(cal.valid_range)[1]),
+                   check_every(every))
+
+    def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
+        """``out`` (the engine's, for samples ``t``) with its strain fused (``run``); the
+        eligible samples: used, within the calibrated range (beyond it the estimate is
+        held or extended, not a gain of the strain), with a finite reference and
+        estimate."""
+        from strain_comp.core.engine import used_mask
+
+        strain = np.asarray(out.strain, dtype=np.float64)
+        reference = np.asarray(reference, dtype=np.float64)
+        eligible = (used_mask(out.status) & ~np.asarray(out.out_of_range, bool)
+                    & np.isfinite(reference) & np.isfinite(strain))
+        return replace(out, strain=self.run(t, strain, reference, eligible))
+
+
+def check_every(every: float) -> float:
+    """``every`` if it is a spacing of references (finite, > 0 s); InputError otherwise."""
+    if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
+        raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
+    return float(every)
+
+
+def fusion_note(name: str, state: dict[str, Any], every: float, unit: str) -> str:
+    """One line on what the fusion of ``name`` did (``OutputFusion.state``)."""
+    refused = ", ".join(f"{k} {v}" for k, v in state["refused"].items())
+    return (f"{name}: a reference every {every:g} s: {state['n_used']} used, "
+            f"{state['n_refused']} refused{' (' + refused + ')' if refused else ''}; "
+            f"output gain {state['gain']:.4g}, offset {state['offset']:.4g} {unit}")
