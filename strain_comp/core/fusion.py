@@ -74,8 +74,6 @@ NOISE_SHARE = 0.1
 reference's), share of the calibrated strain span."""
 GATE = 5.0
 """A reference beyond this many innovation standard deviations is refused."""
-FUSION_MODES = ("off", "on")
-"""The node's ``fuse_references``."""
 
 
 @dataclass(frozen=True)
@@ -158,6 +156,12 @@ class OutputFusion:
         self.covariance = 0.5 * (self.covariance + self.covariance.T)
         self.n_used += 1
         return None
+
+    def refuse(self, reason: str) -> str:
+        """Count a reference refused before it reached ``update`` (no estimate to pair it
+        with, a sensor out of its calibrated range); the reason."""
+        self.refused[reason] += 1
+        return reason
 
     def _screen(self, t: float, estimate: float, reference: Any) -> str | None:
         if isinstance(reference, bool) or not isinstance(reference, (int, float, np.floating,
