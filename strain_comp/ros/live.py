@@ -224,8 +224,14 @@ class LiveCompensator:
             if params.fuse_references else {})
         """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
         self._estimate: dict[str, tuple[float, float, bool]] = {}
-        """Per sensor, its latest estimate before fusion: (time, strain, within the
+        """Per single sensor, its latest estimate before fusion: (time, strain, within the
         calibrated range), of a sample the model used."""
+        self._array_estimate: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        """Per array, the same as three vectors (times, NaN before a first used sample;
+        strains; within the range), updated in place each tick."""
+        self._column = {s: (i.name, j) for i in params.inputs if i.is_array
+                        for j, s in enumerate(i.sensors)}
+        """Array sensors: (array, column)."""
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         """Per array, its sensors' fused gains and offsets (``_fused_array``)."""
 
@@ -276,10 +282,12 @@ class LiveCompensator:
         """``out`` with each sensor's fused gain and offset applied; its used samples'
         estimates kept for the references."""
         used = used_mask(out.status)
-        inside = out.status != int(Status.OUT_OF_RANGE)
-        for column, sensor in enumerate(self._inputs[name]):
-            if used[column]:
-                self._estimate[sensor] = (t, float(out.strain[column]), bool(inside[column]))
+        k = used.size
+        times, strains, inside = self._array_estimate.setdefault(
+            name, (np.full(k, np.nan), np.full(k, np.nan), np.zeros(k, bool)))
+        times[used] = t
+        strains[used] = out.strain[used]
+        inside[used] = out.status[used] != int(Status.OUT_OF_RANGE)
         if name not in self._maps:
             self._maps[name] = (np.array([self.fusion[s].gain for s in self._inputs[name]]),
                                 np.array([self.fusion[s].offset for s in self._inputs[name]]))
@@ -296,7 +304,7 @@ class LiveCompensator:
         if fusion is None:
             raise InputError(f"no sensor {sensor!r} in the calibration" if self.fusion else
                              "fuse_references is false")
-        latest = self._estimate.get(sensor)
+        latest = self._latest(sensor)
         if latest is None:
             return fusion.refuse("no estimate yet")
         if not latest[2]:
@@ -309,6 +317,16 @@ class LiveCompensator:
                 if sensor in sensors:
                     self._maps.pop(array, None)
         return reason
+
+    def _latest(self, sensor: str) -> tuple[float, float, bool] | None:
+        """A sensor's latest estimate before fusion (time, strain, within the range)."""
+        if sensor not in self._column:
+            return self._estimate.get(sensor)
+        array, column = self._column[sensor]
+        vectors = self._array_estimate.get(array)
+        if vectors is None or np.isnan(vectors[0][column]):
+            return None
+        return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
 
     def on_reference_array(self, name: str, t: float, data: Any, *, offset: int = 0,
                            sizes: list[int] | None = None, label: str = ""
@@ -331,7 +349,7 @@ class LiveCompensator:
         strain = self.tunables["known_strain"]
         lines, refused = [], []
         for sensor, fusion in self.fusion.items():
-            latest = self._estimate.get(sensor)
+            latest = self._latest(sensor)
             reason = (fusion.refuse("no estimate yet") if latest is None else
                       self.on_reference(sensor, latest[0] if now is None else now, strain))
             if reason is None:
