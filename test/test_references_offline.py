@@ -136,6 +136,13 @@ def test_replay_writes_the_fused_strain_that_evaluate_scores(
     written = read_bag(out).series["/s1/strain"]
     ev = evaluate_recordings(load_recordings(bag)[0], calibration(), references_every=30.0)
     assert np.allclose(written.values, ev.sensors["s1"].estimate, rtol=0, atol=1e-9)
+    # /diagnostics carries the fusion state as of each tick, as the node's does
+    used = [(t, int(values["fusion_n_used"])) for t, statuses in read_bag(out).diagnostics
+            for name, _, _, values in statuses if name == "strain_comp: s1"]
+    assert len(used) > 250
+    for t, n in used:  # a reference at each multiple of 30 s (ticks at one aside)
+        if abs(t - 30.0 * round(t / 30.0)) > 0.1:
+            assert n == min(9, int(t // 30.0)), t
     assert main(["replay", str(bag), "--calibration", str(cal), "--out",
                  str(tmp_path / "cli.mcap"), "--references-every", "30"]) == 0
     assert "a reference every 30 s: 9 used, 0 refused" in capsys.readouterr().err

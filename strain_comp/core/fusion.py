@@ -217,6 +217,9 @@ class SparseFusion:
     before: tuple[float, float, float] | None = None
     """The latest eligible sample of earlier pieces (t, estimate, reference), a candidate
     for the next multiple."""
+    judged: list[tuple[float, dict[str, str]]] = field(default_factory=list)
+    """(time, ``OutputFusion.diagnostic_values`` after it) of every reference judged since
+    the reader last cleared it (replay's /diagnostics ticks)."""
 
     def run(self, t: np.ndarray, estimate: np.ndarray, reference: np.ndarray,
             eligible: np.ndarray) -> np.ndarray:
@@ -256,6 +259,7 @@ class SparseFusion:
                 out[pos:index + 1] = self.fusion.apply(estimate[pos:index + 1])
                 pos = index + 1
                 self.fusion.update(t_ref, s_hat, y)
+                self.judged.append((t_ref, self.fusion.diagnostic_values()))
                 idx = idx[idx > index]
                 self.before = None
             self.k = max(self.k + 1, math.floor((t_ref - self.origin) / self.every) + 1)
