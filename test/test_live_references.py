@@ -123,3 +123,13 @@ def test_array_references_nan_for_none_and_the_label_honoured(tmp_path: Path) ->
         node.on_reference_array("arr", 1.05, [1.0])
     fresh = node.reload(node.params)  # a reload restarts the estimate, counts go on
     assert fresh.fusion["a"].gain == 1.0 and fresh.fusion["a"].n_used == 1
+
+
+def test_fuse_references_is_a_bool_parameter(tmp_path: Path) -> None:
+    save_calibration(Calibration({"s1": cubic_cal("s1")}), tmp_path / "c.yaml")
+    flat = {"sensors": ["s1"], "s1.calibration": "c.yaml"}
+    assert parse_values(flat, base_dir=tmp_path).fuse_references is False
+    assert parse_values({**flat, "fuse_references": True}, base_dir=tmp_path).fuse_references
+    for bad in ("on", 1, None):
+        with pytest.raises(ParameterError, match="fuse_references: must be true or false"):
+            parse_values({**flat, "fuse_references": bad}, base_dir=tmp_path)
