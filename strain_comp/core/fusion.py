@@ -23,14 +23,14 @@ forgetting factor is the special case of Q proportional to P): with h = (s_hat, 
 Why a Kalman filter on (g, b) and not RLS with exponential forgetting: the references are
 sparse and often at one strain (rest), which excites only b; forgetting then inflates the
 gain's covariance without bound between informative references (covariance windup, Ljung
-section 11.6), while the random walk (2) grows it by a bounded Q dt per second. Its prior
+ch. 11), while the random walk (2) grows it by a bounded Q dt per second. Its prior
 theta_0 ~ N((1, 0), P_0) regularises toward the calibration as it stands, and the split of
 one reference between gain and offset follows from P_0 and h: a reference at rest (s_hat
 about 0) moves only the offset, one at a large strain mostly the gain.
 
 The *gate* refuses a reference whose innovation is beyond ``gate`` x sqrt(S) (the
 normalised innovation test of tracking filters; Bar-Shalom, Li, Kirubarajan, *Estimation
-with Applications to Tracking and Navigation*, 2001, section 5.4): a reference that
+with Applications to Tracking and Navigation*, 2001): a reference that
 contradicts the estimate that far is a wrong reference, not a drift. Non-finite references
 or estimates, a wrong type and a time before the previous reference are refused too; each
 refusal is counted by its reason, the state unchanged.
