@@ -178,11 +178,13 @@ class OutputFusion:
         return None
 
     def state(self) -> dict[str, Any]:
-        """What /diagnostics and the JSON show: gain, offset, their standard deviations,
-        references used and refused (by reason), the latest reference's time."""
+        """What /diagnostics and the JSON show: gain, offset, their standard deviations and
+        covariance, references used and refused (by reason), the latest reference's
+        time."""
         return {"gain": self.gain, "offset": self.offset,
                 "gain_sd": math.sqrt(max(float(self.covariance[0, 0]), 0.0)),
                 "offset_sd": math.sqrt(max(float(self.covariance[1, 1]), 0.0)),
+                "gain_offset_cov": float(self.covariance[0, 1]),
                 "n_used": self.n_used, "n_refused": self.n_refused,
                 "refused": dict(self.refused),
                 "last_reference_t": (math.nan if self.last_reference_t is None
@@ -192,7 +194,7 @@ class OutputFusion:
         """``state`` as /diagnostics key-values (``fusion_*``)."""
         st = self.state()
         values = {f"fusion_{k}": f"{st[k]:.6g}" for k in ("gain", "offset", "gain_sd",
-                                                          "offset_sd")}
+                                                          "offset_sd", "gain_offset_cov")}
         values["fusion_n_used"] = str(self.n_used)
         values["fusion_n_refused"] = str(self.n_refused)
         values["fusion_last_reference_t"] = ("none" if self.last_reference_t is None
