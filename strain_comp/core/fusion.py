@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.samples import used_mask
+from strain_comp.core.tracking import fitted_rest
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:
@@ -272,8 +273,6 @@ class SparseFusion:
     @classmethod
     def for_calibration(cls, cal: SensorCalibration, every: float) -> SparseFusion:
         """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds."""
-        from strain_comp.core.tracking import fitted_rest
-
         return cls(OutputFusion.for_span(fitted_rest(cal.valid_range)[1]),
                    check_every(every))
 
