@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from conftest import cubic_cal
 
-from strain_comp.core.calibration import Calibration, save_calibration
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values

@@ -22,7 +22,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from strain_comp.core.calibration import load_calibration  # noqa: E402
+from strain_comp.core.calibration_file import load_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.player import spin_until  # noqa: E402

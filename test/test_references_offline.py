@@ -12,13 +12,8 @@ import pytest
 from conftest import BAGS, CONFIG
 
 from strain_comp.cli import main
-from strain_comp.core.calibration import (
-    Calibration,
-    SensorCalibration,
-    ValidRange,
-    load_calibration,
-    save_calibration,
-)
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter, read_bag
