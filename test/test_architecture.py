@@ -1,5 +1,6 @@
 """The package's layers (docs/architecture.md): every import goes to a strictly lower rank,
-no module imports itself back through others, imports of the package's own modules sit at
+no module imports itself back through others, no private module is imported from
+outside its package, imports of the package's own modules sit at
 module level outside the command line and ros/ (optional dependencies such as matplotlib
 may load late anywhere), only ``strain_comp/ros/`` imports ROS, and
 docs/architecture.md names every module.
@@ -115,6 +116,22 @@ def test_no_late_imports_of_the_package(path: Path) -> None:
         return
     late = [name for name, nested in _imports(path) if nested and _own(name) is not None]
     assert not late, f"{module} imports {late} inside a function"
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_private_modules_stay_in_their_package(path: Path) -> None:
+    """A module whose name starts with ``_`` is imported only from its own package (the
+    package's ``_numba`` set-up is everyone's)."""
+    module = _module(path)
+    for name, _ in _imports(path):
+        target = _own(name)
+        if target is None or target == "strain_comp._numba":
+            continue
+        private = [i for i, part in enumerate(target.split(".")) if part.startswith("_")
+                   and part != "__init__"]
+        if private:
+            package = ".".join(target.split(".")[:private[0]])
+            assert module.startswith(package + "."), f"{module} imports private {target}"
 
 
 def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
