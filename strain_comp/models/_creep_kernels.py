@@ -1,8 +1,8 @@
 """numba kernels of the creep_pi model (``strain_comp.models.creep_pi``).
 
-One state update (``advance``) and one feature map (``features``) serve the streaming
-kernel (``run_kernel``: ``run`` and ``step``) and the fitting kernel
-(``features_kernel``), so the fitted and the streamed model compute the same numbers.
+One state update (``advance``) serves the streaming kernel (``run_kernel``: ``run`` and
+``step``) and the fitting kernel (``features_kernel``, with the feature map ``features``),
+so the fitted and the streamed model compute the same states.
 
 State of one sensor: ``z`` (K,) the low-pass states of xi, ``play`` (J + 1,) the play
 operators (the last one the direction play of width ``widths[J]``), ``clock`` =
@@ -38,7 +38,7 @@ N_FIXED = 5
 """Features besides the play and creep ones: xi, xi^2, xi^3, d, d xi."""
 
 
-@njit(fastmath=FASTMATH, error_model="numpy")
+@njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def advance(ti: float, xi: float, z: np.ndarray, play: np.ndarray, clock: np.ndarray,
             decay: np.ndarray, tau: np.ndarray, widths: np.ndarray) -> None:
     """One sample's state update in place (module docstring)."""
@@ -61,7 +61,7 @@ def advance(ti: float, xi: float, z: np.ndarray, play: np.ndarray, clock: np.nda
     clock[0] = ti
 
 
-@njit(fastmath=FASTMATH, error_model="numpy")
+@njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def features(row: np.ndarray, xi: float, z: np.ndarray, play: np.ndarray) -> None:
     """The feature vector of the current state into ``row`` (module docstring)."""
     n_play = play.size - 1
@@ -84,10 +84,20 @@ def run_kernel(t: np.ndarray, r: np.ndarray, z: np.ndarray, play: np.ndarray,
     """Advance one sensor over arrays (t, r); strain % into ``out``.
 
     ``norm`` = [r0, alpha, s0, beta]; psi = bias + w . features (``w`` the weights of the
-    raw features, the standardisation folded in).
+    raw features, the standardisation folded in), summed as a polynomial in xi minus the
+    weighted states (the same sum, regrouped: ``features`` is not built per sample).
     """
     r0, alpha, s0, beta = norm[0], norm[1], norm[2], norm[3]
-    row = np.empty(w.size)
+    n_play = play.size - 1
+    n_tau = z.size
+    # w . features regrouped: the memory features' xi parts join the linear coefficient
+    c1 = w[0]
+    for j in range(n_play + n_tau):
+        c1 += w[3 + j]
+    c2, c3 = w[1], w[2]
+    w_play = w[3:3 + n_play]
+    w_creep = w[3 + n_play:3 + n_play + n_tau]
+    w_d, w_dx = w[3 + n_play + n_tau], w[4 + n_play + n_tau]
     for i in range(t.size):
         ti = t[i]
         ri = r[i]
@@ -96,10 +106,12 @@ def run_kernel(t: np.ndarray, r: np.ndarray, z: np.ndarray, play: np.ndarray,
             continue
         xi = ri / r0 + alpha
         advance(ti, xi, z, play, clock, decay, tau, widths)
-        features(row, xi, z, play)
-        psi = bias
-        for j in range(w.size):
-            psi += w[j] * row[j]
+        psi = bias + xi * (c1 + xi * (c2 + xi * c3))
+        for j in range(n_play):
+            psi -= w_play[j] * play[j]
+        for k in range(n_tau):
+            psi -= w_creep[k] * z[k]
+        psi += (xi - play[n_play]) * (w_d + w_dx * xi)
         out[i] = (psi - beta) * s0
 
 
