@@ -124,6 +124,7 @@ class CreepPI(Compensator):
     (module docstring)."""
 
     name = "creep_pi"
+    fit_full_rate = True
 
     def __init__(self, *, taus: npt.ArrayLike, thresholds: npt.ArrayLike,
                  direction_width: float, mean: npt.ArrayLike, scale: npt.ArrayLike,

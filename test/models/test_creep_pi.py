@@ -237,6 +237,20 @@ def test_cross_validation_picks_an_inner_penalty_on_noisy_data() -> None:
     assert fixed.penalty == 0.0 and fixed.fit_report == {"penalty": 0.0, "folds": 4}
 
 
+def test_fit_sensor_gives_it_every_sample_above_the_budget() -> None:
+    from strain_comp.io.recording import Recording
+    from strain_comp.offline.fit import fit_sensor
+
+    t, s = protocol(31, n=3000)
+    rec = Recording("s1", t, sensor(t, s, np.random.default_rng(1), 1e-4), s)
+    cal = fit_sensor([rec], "creep_pi", name="s1", options={"fit_budget": 1000})
+    assert "fit_reduction" not in cal.provenance
+    direct = CreepPI.fit([Segment(t, rec.r, s)], cal.normalisation, direction=DIRECTION)
+    assert cal.params["weights"] == direct.to_params()["weights"]
+    reduced = fit_sensor([rec], "cubic", name="s1", options={"fit_budget": 1000})
+    assert reduced.provenance["fit_reduction"]["factor"] == 3
+
+
 def test_single_segment_and_bad_options() -> None:
     t, s = protocol(30, n=2000)
     seg = Segment(t, sensor(t, s, np.random.default_rng(0), 1e-4), s)
