@@ -58,7 +58,7 @@ def fit_one(bench: gen.Bench, sensor: gen.Sensor, run: gen.Run, model: str,
 def fitted(bench: gen.Bench, sensor: gen.Sensor, runs: Sequence[gen.Run], model: str,
            options: Mapping[str, Any], stem: str) -> Any:
     """``strain-comp fit RUNS... --model MODEL --option ...``, cached under ``stem``."""
-    from strain_comp.core.calibration import load_calibration, save_calibration
+    from strain_comp.core.calibration_file import load_calibration, save_calibration
     from strain_comp.offline.fit import fit_bags
 
     tag = hashlib.sha256(json.dumps(dict(options), sort_keys=True).encode()).hexdigest()[:8]

@@ -14,7 +14,7 @@ instead carried by the creep states, and the whole map stays linear in its weigh
 is fitted by one ridge regression rather than a QP inside a nonlinear search.
 
 The model. Input xi = R / r0 + alpha (``Normalisation``, the training range on [-1, 1]).
-State and features per sample: ``strain_comp.models._creep_kernels`` (xi, xi^2, xi^3 (the
+State and features per sample: ``strain_comp.models.creep_kernels`` (xi, xi^2, xi^3 (the
 cubic of [Electrolycra] eq. (4)); xi - p_j for J play operators of thresholds
 r_j = j / (J + 1) (as the MPI's, eq. (6)); xi - z_k for the low-pass states at the time
 constants tau_k (default 0.3, 3, 30, 300 s; exact for irregular sampling); a direction
@@ -58,7 +58,7 @@ import numpy.typing as npt
 
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
-from strain_comp.models import _creep_kernels as kern
+from strain_comp.models import creep_kernels as kern
 from strain_comp.models.base import (
     Compensator,
     Normalisation,
@@ -266,7 +266,7 @@ class CreepPI(Compensator):
 
 class CreepPIArray:
     """K creep_pi sensors (same numbers of play operators and time constants) stepped
-    together in one kernel call (``_creep_kernels.step_array_kernel``).
+    together in one kernel call (``creep_kernels.step_array_kernel``).
 
     Built from per-sensor models; each keeps its own state and previous time.
     ``step(t, r)`` gives exactly what each model's own ``step`` would give; a bad r[s]

@@ -18,6 +18,7 @@ from strain_comp.errors import InputError
 from strain_comp.models import MODEL_NAMES
 from strain_comp.models.apl import M_MAX, N_MAX
 from strain_comp.models.apl_kernels import P_MIN
+from strain_comp.models.creep_pi import LAM_MAX, N_PLAY_MAX, N_TAU_MAX, TAU_RANGE
 from strain_comp.models.rational import MODES
 
 Check = Callable[[Any], str | None]
@@ -90,8 +91,6 @@ def model_options(model: str) -> dict[str, Check]:
     if model == "spike_decay":
         return {"hold_rate": _number(0.0, strict=True), "min_hold": _number(0.0, strict=True)}
     if model == "creep_pi":
-        from strain_comp.models.creep_pi import LAM_MAX, N_PLAY_MAX, N_TAU_MAX, TAU_RANGE
-
         return {"taus": _number_list(TAU_RANGE[0], hi=TAU_RANGE[1], max_len=N_TAU_MAX),
                 "n_play": _integer(1, N_PLAY_MAX), "lam": _number(0.0, hi=LAM_MAX)}
     if model == "cubic":

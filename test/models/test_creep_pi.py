@@ -11,13 +11,8 @@ import pytest
 import yaml
 from scipy.signal import lfilter
 
-from strain_comp.core.calibration import (
-    Calibration,
-    SensorCalibration,
-    ValidRange,
-    load_calibration,
-    save_calibration,
-)
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import CalibrationError, FitError, ParameterError
 from strain_comp.models import model_class

@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from strain_comp._numba import njit
-from strain_comp.models._apl_kernels import FASTMATH
+from strain_comp.models.apl_kernels import FASTMATH
 
 DT_TOLERANCE = 1e-6
 """A step within this share of the cached dt reuses its decays: the same as a time stamp
