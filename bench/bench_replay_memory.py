@@ -39,7 +39,7 @@ CHILD = """
 import json, resource, sys, time
 import numpy as np
 import strain_comp.offline.evaluate, strain_comp.offline.replay
-from strain_comp.core.calibration import load_calibration
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.io.bag import iter_bag
 done, sizes = [], []
 def timed(*args, **kwargs):  # when each piece has been read and processed

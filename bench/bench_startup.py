@@ -39,7 +39,7 @@ CHILD = """
 import json, sys, time
 t0 = time.perf_counter()
 import numpy as np
-from strain_comp.core.calibration import load_calibration
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 t1 = time.perf_counter()
 cal = load_calibration(sys.argv[1])

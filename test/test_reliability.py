@@ -57,7 +57,8 @@ WRITER = """
 import os, sys, time
 import yaml
 from strain_comp.core.calibration import (Calibration, InputSettings, SensorCalibration,
-                                     ValidRange, save_calibration)
+                                     ValidRange)
+from strain_comp.core.calibration_file import save_calibration
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.models import Normalisation
 

@@ -7,7 +7,7 @@ One row per sample and sensor (long format, so an array of any size has the same
 ``estimate`` and ``reference`` are in ``unit``, the calibration's strain unit (% unless it
 says otherwise); ``reference`` is empty where the bag has none; ``direction`` is +1
 loading, 0 hold, -1 unloading; ``status`` the engine's sample status in words (``good``,
-``out_of_range``, ``not_finite``, ... ``strain_comp.core.engine.Status``). ``evaluate`` over
+``out_of_range``, ``not_finite``, ... ``strain_comp.core.samples.Status``). ``evaluate`` over
 several bags puts a ``bag`` column first. A spreadsheet or ``pandas.read_csv`` reads it as
 it is. The file is written atomically (``strain_comp.io.atomic``); ``-`` writes to stdout.
 """
