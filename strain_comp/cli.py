@@ -26,7 +26,6 @@ import importlib.util
 import json
 import math
 import os
-import stat
 import sys
 import textwrap
 from collections.abc import Callable, Sequence
@@ -35,6 +34,7 @@ from typing import NoReturn, TextIO
 from strain_comp import __version__
 from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.atomic import check_distinct, check_output, write_text
+from strain_comp.io.inputs import existing
 
 PROG = "strain-comp"
 OUT_OF_RANGE_HINT = ("samples out of the calibrated range: if the run's rest level moved, "
@@ -80,18 +80,8 @@ def _results(args: argparse.Namespace) -> TextIO:
 
 
 def _existing(path: str, what: str, *, directory: bool = False) -> str:
-    """``path`` if it is a regular file (or, with ``directory``, a directory); InputError
-    naming it otherwise, before anything opens it (a FIFO would block a reader)."""
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        raise InputError(f"{path}: {what} not found") from None
-    except OSError as err:
-        raise InputError(f"{path}: {what} cannot be read ({err.strerror})") from None
-    if not (stat.S_ISREG(mode) or (directory and stat.S_ISDIR(mode))):
-        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
-        raise InputError(f"{path}: {what} is {kind}")
-    return path
+    """``path`` if it is a regular file (or a directory); InputError naming it otherwise."""
+    return existing(path, what, directory=directory)
 
 
 def _bag(path: str, what: str = "bag") -> str:
@@ -194,26 +184,27 @@ def cmd_fit(args: argparse.Namespace) -> int:
     for bag in args.bags:
         _bag(bag)
     _output(args.out, args.bags)
+    from strain_comp import api
     from strain_comp.core.calibration import save_calibration, strain_unit_words, unit_ok
-    from strain_comp.offline.fit import fit_bags, memoryless_note, parse_options
+    from strain_comp.offline.fit import memoryless_note, parse_options
     from strain_comp.offline.options import check_fit_options
+    from strain_comp.progress import wanted
 
     options = parse_options(args.option or [])
     check_fit_options(args.model, options)
-    if args.quiet and args.model in ("apl", "pl", "mpi"):
-        options.setdefault("progress", False)
     if not unit_ok(args.strain_unit):
         raise InputError(f"--strain-unit {args.strain_unit!r}: expected a unit such as % or "
                          "mm (1-16 letters, digits, %, / or .)")
     notes: list[str] = []  # damage the reader skipped: noted once, in the error if any
     try:
-        calibration = fit_bags(args.bags, args.model, args.sensor, options, report=notes.append)
+        calibration = api.fit(args.bags, args.model, sensors=args.sensor,
+                              strain_unit=args.strain_unit, report=notes.append,
+                              progress=wanted(args.quiet), **options)
     except StrainCompError as err:
         raise InputError("; ".join([str(err), *notes])) from None
     for line in notes:
         _note(args, line)
     for name, cal in calibration.sensors.items():
-        cal.strain_unit = args.strain_unit
         note = memoryless_note(name, cal)
         if note:
             _note(args, note)
@@ -262,31 +253,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             os.path.join(b, "metadata.yaml")) for b in args.bags):
         return _evaluate_many(args, bags, inputs)
     bag = bags[0]
-    from strain_comp.core.calibration import load_calibration
-    from strain_comp.io.recording import load_recordings
-    from strain_comp.offline.evaluate import (
-        PLOT_POINTS,
-        evaluate_bag,
-        format_notes,
-        format_table,
-        in_run_bound,
-    )
-    from strain_comp.offline.series import series_csv
+    from strain_comp import api
+    from strain_comp.offline.evaluate import PLOT_POINTS, format_notes
 
-    calibration = load_calibration(args.calibration)
-    with series_csv(args.csv, inputs=inputs) as table:
-        # streamed; an error when nothing can be scored names what the bag reader skipped
-        result, problems = evaluate_bag(bag, calibration, tare=args.tare,
-                                        plot_points=PLOT_POINTS if args.plots else 0,
-                                        series=table, out_of_range=args.out_of_range,
-                                        tracking=args.baseline_tracking)
-    if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
-        in_run_bound(result, load_recordings(bag)[0], calibration)
-    print(format_table(result), file=_results(args))
-    for line in problems + format_notes(result):
+    calibration = api.load_calibration(args.calibration)
+    # streamed; an error when nothing can be scored names what the bag reader skipped
+    evaluation = api.evaluate(calibration, bag, tare=args.tare,
+                              out_of_range=args.out_of_range,
+                              tracking=args.baseline_tracking, in_run_bound=args.in_run_bound,
+                              plot_points=PLOT_POINTS if args.plots else 0, csv=args.csv,
+                              inputs=[args.calibration])
+    result = evaluation.result
+    print(evaluation.table(), file=_results(args))
+    for line in evaluation.problems + format_notes(result):
         _note(args, line)
     if args.json:
-        _write_json(args.json, result.to_json(), inputs)
+        _write_json(args.json, evaluation.to_json(), inputs)
     if args.plots:
         from strain_comp.offline.plots import plot_evaluation
 
@@ -374,11 +356,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for out in (args.out, args.json):
         if out is not None and out != "-":
             _output(out, inputs)
-    from strain_comp.core.calibration import load_calibration
-    from strain_comp.diagnosis.loop import diagnose_bag
+    from strain_comp import api
 
-    calibration = load_calibration(args.calibration)
-    report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
+    calibration = api.load_calibration(args.calibration)
+    report = api.diagnose(calibration, args.bag, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare,
                           stretch_history=args.stretch_history,
                           session_start=args.session_start == "on")
@@ -392,20 +373,21 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def cmd_recalibrate(args: argparse.Namespace) -> int:
-    from strain_comp.core.calibration import load_calibration, save_calibration
-    from strain_comp.offline.recalibrate import parse_point, recalibrate
+    from strain_comp import api
+    from strain_comp.core.calibration import save_calibration
+    from strain_comp.offline.recalibrate import parse_point
 
     if bool(args.point) == bool(args.from_bag):
         raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
-    calibration = load_calibration(_existing(args.calibration, "calibration file"))
+    calibration = api.load_calibration(_existing(args.calibration, "calibration file"))
     points = [parse_point(p) for p in args.point or []]
     bag = None if args.from_bag is None else _bag(args.from_bag)
     _output(args.out, [args.calibration, bag])
     if args.first is not None and bag is None:
         raise InputError("recalibrate --first needs --from BAG.mcap")
-    new, lines = recalibrate(calibration, points=points, bag=bag, sensors=args.sensor,
-                             tare=args.tare, form="input" if args.input else "output",
-                             first=args.first)
+    new, lines = api.recalibrate(calibration, bag, points=points, sensors=args.sensor,
+                                 tare=args.tare, form="input" if args.input else "output",
+                                 first=args.first)
     save_calibration(new, args.out,
                      inputs=[p for p in (args.calibration, bag) if p is not None])
     print("\n".join(lines))

@@ -10,7 +10,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "strain_comp"
 LAYER = {"errors": 0, "_numba": 0, "io": 1, "models": 2, "core": 2, "offline": 3,
-         "diagnosis": 3, "ros": 4, "cli": 4, "__init__": 4}
+         "diagnosis": 3, "ros": 4, "cli": 4, "api": 4, "__init__": 4, "progress": 0}
 """Rank of each top-level module or subpackage; an import may only go to an equal or lower
 rank (equal: the core's models and engine use each other, as do fit and the loop)."""
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "sensor_msgs", "diagnostic_msgs",
