@@ -135,7 +135,7 @@ def _recordings(data: object) -> dict[str, Recording]:
 
 def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         sensors: Sequence[str] | None = None, strain_unit: str = "%",
-        report: Callable[[str], None] | None = None, progress: bool = False,
+        report: Callable[[str], None] | None = None, progress_bar: bool = False,
         **options: Any) -> Calibration:
     """Fit ``model`` (apl, pl, mpi, cubic, sinh_pl, rational, spike_decay) to recordings
     with a reference strain: one calibration, one entry per sensor.
@@ -144,7 +144,7 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     a run; several runs of one sensor are fitted together). ``sensors``: which to fit
     (default: every one with a reference). ``options``: the model's fit options, as
     ``strain-comp fit --option K=V`` takes them (``strain-comp fit --help`` lists them).
-    ``report``: where notes go (skipped bag damage, a sensor left out). ``progress``: a
+    ``report``: where notes go (skipped bag damage, a sensor left out). ``progress_bar``: a
     bar on stderr over an APL-family fit's grid (``strain_comp.progress``).
     """
     from strain_comp.offline.options import check_fit_options, model_options
@@ -156,9 +156,9 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     from strain_comp.progress import bar, grid_progress
 
     grid = "progress" in model_options(model) and "progress" not in options
-    with bar(None, f"{model} fit", enabled=grid and progress) as shown:
+    with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
         if grid:  # the grid's own lines give way to the bar (or to silence)
-            options = {**options, "progress": grid_progress(shown) if progress else False}
+            options = {**options, "progress": grid_progress(shown) if progress_bar else False}
         calibration = _fit(data, model, sensors, report, options)
     for cal in calibration.sensors.values():
         cal.strain_unit = strain_unit

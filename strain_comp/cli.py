@@ -199,7 +199,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     try:
         calibration = api.fit(args.bags, args.model, sensors=args.sensor,
                               strain_unit=args.strain_unit, report=notes.append,
-                              progress=wanted(args.quiet), **options)
+                              progress_bar=wanted(args.quiet), **options)
     except StrainCompError as err:
         raise InputError("; ".join([str(err), *notes])) from None
     for line in notes:
@@ -412,7 +412,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 
 def cmd_play(args: argparse.Namespace) -> int:
-    _existing(args.bag, "bag")
+    _bag(args.bag)
     _require_ros("strain-comp play")
     from strain_comp.ros.player import main as play_main
 

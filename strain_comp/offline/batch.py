@@ -44,17 +44,17 @@ def _is_bag_dir(path: Path) -> bool:
 
 def expand_bags(paths: Sequence[str]) -> list[str]:
     """The bags named by ``paths``: MCAP files and rosbag2 directories as given; a folder
-    that is not a rosbag2 directory stands for its ``*.mcap`` files and rosbag2
+    that is not a rosbag2 directory stands for its ``*.mcap``, ``*.db3`` files and rosbag2
     directories (sorted by name, not recursively). InputError for a folder without any."""
     bags: list[str] = []
     for text in paths:
         path = Path(text)
         if path.is_dir() and not _is_bag_dir(path):
             found = sorted(str(p) for p in path.iterdir()
-                           if (p.suffix == ".mcap" and p.is_file()) or
+                           if (p.suffix in (".mcap", ".db3") and p.is_file()) or
                            (p.is_dir() and _is_bag_dir(p)))
             if not found:
-                raise InputError(f"{text}: a folder without .mcap files or rosbag2 "
+                raise InputError(f"{text}: a folder without .mcap or .db3 files or rosbag2 "
                                  "directories")
             bags += found
         else:
