@@ -251,6 +251,11 @@ class Evaluation:
     """The full result: per sensor its statistics and (decimated) arrays for plots."""
     problems: list[str] = field(default_factory=list)
     """What the bag reader skipped."""
+    calibration: Calibration | None = None
+    """The calibration scored."""
+    source: str = "recordings"
+    """The bag's path, or ``recordings``."""
+    tare: str = "calibration"
 
     @property
     def notes(self) -> list[str]:
@@ -281,6 +286,23 @@ class Evaluation:
         """``scores`` as a pandas DataFrame, one row per sensor (needs pandas)."""
         return _pandas().DataFrame.from_dict(self.scores, orient="index")
 
+    def to_html(self, calibration_path: str = "") -> str:
+        """The ``evaluate --report`` page (``strain_comp.offline.report_page``): the table,
+        the plots (of the samples kept: ``plot_points``) and the calibration's provenance;
+        ``calibration_path`` names the calibration on the page."""
+        from strain_comp.offline.report_page import (
+            BagSection,
+            evaluation_figures,
+            evaluation_page,
+        )
+
+        cal = self.calibration or Calibration({})
+        figures = evaluation_figures(self.result, cal, bag=self.source,
+                                     calibration_path=calibration_path, tare=self.tare)
+        return evaluation_page([BagSection(self.source, self.result,
+                                           problems=self.problems, figures=figures)],
+                               cal, calibration_path or "(in memory)", tare=self.tare)
+
 
 def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibration",
              out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
@@ -290,9 +312,10 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
     ``strain-comp evaluate`` reads it), a Recording or a dict of them.
 
     ``in_run_bound``: also the RMSE of the same model fitted on this run. ``plot_points``:
-    keep that many evenly spaced samples per sensor in ``result`` (a bag; recordings keep
-    all). ``csv``: also write every sample there (``evaluate --csv``; ``inputs``: files it
-    must not overwrite). Raises InputError when no calibrated sensor can be scored.
+    keep that many evenly spaced samples per sensor in ``result`` for plots and
+    ``to_html`` (a bag; recordings keep all). ``csv``: also write every sample there
+    (``evaluate --csv``; ``inputs``: files it must not overwrite). Raises InputError when
+    no calibrated sensor can be scored.
     """
     from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
     from strain_comp.offline.evaluate import in_run_bound as _in_run_bound
@@ -308,7 +331,7 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
                                             tracking=tracking)
         if in_run_bound:
             _in_run_bound(result, read_recordings(paths[0]), cal)
-        return Evaluation(result, problems)
+        return Evaluation(result, problems, cal, paths[0], tare)
     if csv is not None:
         raise InputError("evaluate: csv= is for a bag; with recordings, estimate gives the "
                          "series as arrays")
@@ -317,7 +340,7 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
                                  tracking=tracking)
     if in_run_bound:
         _in_run_bound(result, recordings, cal)
-    return Evaluation(result)
+    return Evaluation(result, [], cal, "recordings", tare)
 
 
 # --------------------------------------------------------------------- recalibrate
@@ -376,6 +399,13 @@ class Diagnosis:
     before and after, and the calibration with the added terms."""
 
     result: DiagnoseResult
+    diagnosed: Calibration | None = None
+    """The calibration diagnosed (without the added terms)."""
+    source: str = "recordings"
+    """The run's bag path, or ``recordings``."""
+    validate: list[str] = field(default_factory=list)
+    """The validation bags' paths (none: held-out time blocks, or recordings)."""
+    tare: str = "calibration"
 
     @property
     def calibration(self) -> Calibration:
@@ -408,6 +438,16 @@ class Diagnosis:
         """What ``diagnose --json`` writes (docs/design.md)."""
         return self.result.to_json()
 
+    def to_html(self, calibration_path: str = "") -> str:
+        """The ``diagnose --report`` page (``strain_comp.offline.report_page``): before and
+        after, each effect with its reading, the residual plots, the provenance of the
+        calibration diagnosed (named ``calibration_path`` on the page)."""
+        from strain_comp.offline.report_page import diagnosis_page
+
+        return diagnosis_page(self.result, self.diagnosed or self.result.calibration,
+                              calibration_path or "(in memory)", self.source,
+                              validate=self.validate, tare=self.tare)
+
 
 def diagnose(calibration: CalibrationLike, data: Data, *,
              validate: Data | Sequence[Data] | None = None, tare: str = "calibration",
@@ -430,10 +470,12 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
     written = [os.fspath(p) for p in inputs]
     paths = _paths(data)
     if paths is not None and all(_paths(v) is not None for v in runs):  # the command's way
+        validated = [os.fspath(v) for v in runs]
         return Diagnosis(diagnose_bag(
-            paths[0], cal, validate=[os.fspath(v) for v in runs] or None,
+            paths[0], cal, validate=validated or None,
             out=out, plots=None if plots is None else os.fspath(plots), inputs=written,
-            tare=tare, stretch_history=stretch_history, session_start=session_start))
+            tare=tare, stretch_history=stretch_history, session_start=session_start),
+            cal, paths[0], validated, tare)
     val = [_run(v) for v in runs] or None
     result = diagnose_conditions(_run(data), cal, validate_recordings=val, tare=tare,
                                  stretch_history=stretch_history, session_start=session_start)
@@ -442,4 +484,5 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
         _save(result.calibration, out, inputs=written)
     if plots is not None:
         write_plots(result, os.fspath(plots), inputs=written)
-    return Diagnosis(result)
+    return Diagnosis(result, cal, paths[0] if paths else "recordings",
+                     [p for v in runs for p in _paths(v) or []], tare)

@@ -243,10 +243,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for bag in bags:
         _bag(bag)
     inputs = [*bags, args.calibration]
-    check_distinct((args.json, args.csv, args.plots))
+    check_distinct((args.json, args.csv, args.plots, args.report))
     if args.json == "-" and args.csv == "-":
         raise InputError("--json - and --csv -: only one of them can go to stdout")
-    for out in (args.json, args.csv):
+    for out in (args.json, args.csv, args.report):
         if out is not None and out != "-":
             _output(out, inputs)
     if len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
@@ -261,8 +261,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     evaluation = api.evaluate(calibration, bag, tare=args.tare,
                               out_of_range=args.out_of_range,
                               tracking=args.baseline_tracking, in_run_bound=args.in_run_bound,
-                              plot_points=PLOT_POINTS if args.plots else 0, csv=args.csv,
-                              inputs=[args.calibration])
+                              plot_points=PLOT_POINTS if args.plots or args.report else 0,
+                              csv=args.csv, inputs=[args.calibration])
     result = evaluation.result
     print(evaluation.table(), file=_results(args))
     for line in evaluation.problems + format_notes(result):
@@ -275,6 +275,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         written = plot_evaluation(result, args.plots, inputs=inputs, calibration=calibration,
                                   bag=bag, calibration_path=args.calibration, tare=args.tare)
         _note(args, f"wrote {len(written)} plots to {args.plots}")
+    if args.report:
+        write_text(args.report, evaluation.to_html(args.calibration), inputs=inputs)
+        _note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):
         _note(args, f"wrote {args.csv}")
     return 0
@@ -287,13 +290,14 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.series import series_csv
 
-    load_calibration(args.calibration)  # a bad calibration: one line before any bag
+    calibration = load_calibration(args.calibration)  # a bad one: one line before any bag
     with series_csv(args.csv, inputs=inputs, bag=True) as table:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
-                                 plot_points=PLOT_POINTS if args.plots else 0,
+                                 plot_points=PLOT_POINTS if args.plots or args.report else 0,
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
                                  progress=_progress(args), out_of_range=args.out_of_range,
-                                 tracking=args.baseline_tracking)
+                                 tracking=args.baseline_tracking,
+                                 figures=bool(args.report))
     results = _results(args)
     for outcome in outcomes:
         text, notes = format_bag(outcome)
@@ -306,6 +310,15 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
     print(format_aggregate(outcomes), file=results)
     if args.json:
         _write_json(args.json, to_json(outcomes), inputs)
+    if args.report:
+        from strain_comp.offline.batch import aggregate
+        from strain_comp.offline.report_page import BagSection, evaluation_page
+
+        page = evaluation_page([BagSection(o.bag, o.result, o.error, o.problems, o.figures)
+                                for o in outcomes], calibration, args.calibration,
+                               tare=args.tare, pooled=aggregate(outcomes))
+        write_text(args.report, page, inputs=inputs)
+        _note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):
         _note(args, f"wrote {args.csv}")
     failed = [o for o in outcomes if o.error is not None]
@@ -352,8 +365,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         _bag(validate, "validation bag")
     _existing(args.calibration, "calibration file")
     inputs = [args.bag, *(args.validate or ()), args.calibration]
-    check_distinct((args.out, args.json, args.plots))
-    for out in (args.out, args.json):
+    check_distinct((args.out, args.json, args.plots, args.report))
+    for out in (args.out, args.json, args.report):
         if out is not None and out != "-":
             _output(out, inputs)
     from strain_comp import api
@@ -366,6 +379,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     print(report.summary(), file=_results(args))
     if args.json:
         _write_json(args.json, report.to_json(), inputs)
+    if args.report:
+        write_text(args.report, report.to_html(args.calibration), inputs=inputs)
+        _note(args, f"wrote {args.report}")
     if args.plots:
         _note(args, f"wrote plots to {args.plots}")
     _note(args, f"wrote {args.out}")
@@ -545,6 +561,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "reference [strain unit], direction, status per sensor ('-': stdout)")
     p.add_argument("--plots", metavar="DIR",
                    help="also write PNG plots per sensor (several bags: a folder per bag)")
+    p.add_argument("--report", metavar="OUT.html",
+                   help="also write one self-contained HTML page: the tables, the plots "
+                   "and the calibration's provenance (opens without a network)")
     p.add_argument("--jobs", type=int, default=1, metavar="N",
                    help="bags evaluated at once, in N processes (default 1)")
     p.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
@@ -598,6 +617,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the report as JSON ('-': stdout)")
     p.add_argument("--plots", metavar="DIR",
                    help="also write residual plots per sensor (PNG)")
+    p.add_argument("--report", metavar="OUT.html",
+                   help="also write one self-contained HTML page: each effect found with "
+                   "its reading, the error before and after, the residual plots and the "
+                   "calibration's provenance")
     _tare_flag(p)
     p.add_argument("--stretch-history", action="store_true",
                    help="also try terms for a rest level or a sensitivity that moves with "

@@ -71,6 +71,8 @@ class BagOutcome:
     problems: list[str] = field(default_factory=list)
     error: str | None = None
     plots: list[str] = field(default_factory=list)
+    figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
+    """``evaluate --report``: per sensor its plots as (caption, PNG bytes)."""
     series: str = ""
     """``evaluate --csv`` rows of this bag (pool workers only)."""
 
@@ -78,7 +80,7 @@ class BagOutcome:
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
                   inputs: Sequence[str], out_of_range: str = "extend",
-                  tracking: str = DEFAULT_TRACKING) -> BagOutcome:
+                  tracking: str = DEFAULT_TRACKING, figures: bool = False) -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
     ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
     (a pool worker)."""
@@ -100,6 +102,11 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
             outcome.plots = [str(p) for p in plot_evaluation(
                 result, plots_dir, inputs=inputs, calibration=calibration, bag=bag,
                 calibration_path=calibration_path, tare=tare)]
+        if figures:
+            from strain_comp.offline.report_page import evaluation_figures
+
+            outcome.figures = evaluation_figures(result, calibration, bag=bag,
+                                                 calibration_path=calibration_path, tare=tare)
         for ev in result.sensors.values():  # the arrays went into the plots
             ev.t = ev.r = ev.reference = ev.estimate = ev.direction = ev.scored = \
                 ev.t[:0]
@@ -145,10 +152,11 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   jobs: int = 1, plot_points: int = 0, in_run: bool = False,
                   plots: str | None = None, series: SeriesCSV | None = None,
                   progress: Callable[[int, int, str], None] | None = None,
-                  out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING
-                  ) -> list[BagOutcome]:
+                  out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
+                  figures: bool = False) -> list[BagOutcome]:
     """Every bag evaluated (module docstring), in the order given; ``jobs`` > 1 runs them
-    in a pool of that many processes. ``progress(done, total, bag)`` after each bag."""
+    in a pool of that many processes. ``progress(done, total, bag)`` after each bag.
+    ``figures``: keep each bag's plots as PNG bytes (``evaluate --report``)."""
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = _plot_dirs(bags, plots)
@@ -157,7 +165,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
                                           dirs[k], series, inputs, out_of_range,
-                                          tracking))
+                                          tracking, figures))
             if progress is not None:
                 progress(k + 1, len(bags), bag)
         return outcomes
@@ -167,7 +175,8 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         parts = [None if series is None else os.path.join(tmp, f"{k}.csv")
                  for k in range(len(bags))]
         futures = [pool.submit(_evaluate_one, bag, calibration_path, tare, plot_points,
-                               in_run, dirs[k], parts[k], inputs, out_of_range, tracking)
+                               in_run, dirs[k], parts[k], inputs, out_of_range, tracking,
+                               figures)
                    for k, bag in enumerate(bags)]
         for k, future in enumerate(futures):  # in order: the CSV keeps the bags' order
             outcome = future.result()
