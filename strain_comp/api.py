@@ -453,11 +453,23 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
              validate: Data | Sequence[Data] | None = None, tare: str = "calibration",
              stretch_history: bool = False, session_start: bool = True,
              out: PathLike | None = None, plots: PathLike | None = None,
-             inputs: Sequence[PathLike] = ()) -> Diagnosis:
+             inputs: Sequence[PathLike] = (), progress_bar: bool = False) -> Diagnosis:
     """``strain-comp diagnose``: find the effects ``calibration`` lacks on ``data`` (a bag or
     recordings with a reference) and add those that lower the held-out error; held out are
     time blocks of ``data``, or the ``validate`` run(s). ``out`` / ``plots``: also write the
-    new calibration / the residual plots (``inputs``: files they must not overwrite)."""
+    new calibration / the residual plots (``inputs``: files they must not overwrite).
+    ``progress_bar``: a bar on stderr over the sensors and conditions tried."""
+    from strain_comp.progress import bar, counter
+
+    with bar(None, "diagnose", enabled=progress_bar) as shown:
+        return _diagnose(calibration, data, validate, tare, stretch_history, session_start,
+                         out, plots, inputs, counter(shown) if progress_bar else None)
+
+
+def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequence[Data] | None,
+              tare: str, stretch_history: bool, session_start: bool, out: PathLike | None,
+              plots: PathLike | None, inputs: Sequence[PathLike],
+              progress: Callable[[int, int], None] | None) -> Diagnosis:
     from strain_comp.core.calibration import save_calibration as _save
     from strain_comp.diagnosis.conditions import diagnose_conditions
     from strain_comp.diagnosis.loop import diagnose_bag
@@ -474,11 +486,12 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
         return Diagnosis(diagnose_bag(
             paths[0], cal, validate=validated or None,
             out=out, plots=None if plots is None else os.fspath(plots), inputs=written,
-            tare=tare, stretch_history=stretch_history, session_start=session_start),
-            cal, paths[0], validated, tare)
+            tare=tare, stretch_history=stretch_history, session_start=session_start,
+            progress=progress), cal, paths[0], validated, tare)
     val = [_run(v) for v in runs] or None
     result = diagnose_conditions(_run(data), cal, validate_recordings=val, tare=tare,
-                                 stretch_history=stretch_history, session_start=session_start)
+                                 stretch_history=stretch_history, session_start=session_start,
+                                 progress=progress)
     written += [p for v in [data, *runs] for p in _paths(v) or []]
     if out is not None:
         _save(result.calibration, out, inputs=written)

@@ -28,7 +28,7 @@ import math
 import os
 import sys
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import NoReturn, TextIO
 
 from strain_comp import __version__
@@ -219,19 +219,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(args: argparse.Namespace) -> Callable[[int, int, str], None] | None:
-    """A progress line on stderr, rewritten in place; only where stderr is a terminal."""
-    if args.quiet or not sys.stderr.isatty():
-        return None
-
-    def show(done: int, total: int, bag: str) -> None:
-        end = "\n" if done == total else ""
-        sys.stderr.write(f"\r[{done}/{total}] {os.path.basename(bag.rstrip('/'))[:60]:<60}"
-                         + end)
-        sys.stderr.flush()
-    return show
-
-
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from strain_comp.offline.batch import check_jobs, expand_bags
 
@@ -289,13 +276,16 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
     from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.series import series_csv
+    from strain_comp.progress import bar, wanted
 
     calibration = load_calibration(args.calibration)  # a bad one: one line before any bag
-    with series_csv(args.csv, inputs=inputs, bag=True) as table:
+    with series_csv(args.csv, inputs=inputs, bag=True) as table, \
+            bar(len(bags), "evaluate", enabled=wanted(args.quiet)) as shown:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
                                  plot_points=PLOT_POINTS if args.plots or args.report else 0,
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
-                                 progress=_progress(args), out_of_range=args.out_of_range,
+                                 progress=lambda done, total, bag: shown.update(1),
+                                 out_of_range=args.out_of_range,
                                  tracking=args.baseline_tracking,
                                  figures=bool(args.report))
     results = _results(args)
@@ -370,12 +360,14 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if out is not None and out != "-":
             _output(out, inputs)
     from strain_comp import api
+    from strain_comp.progress import wanted
 
     calibration = api.load_calibration(args.calibration)
     report = api.diagnose(calibration, args.bag, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare,
                           stretch_history=args.stretch_history,
-                          session_start=args.session_start == "on")
+                          session_start=args.session_start == "on",
+                          progress_bar=wanted(args.quiet))
     print(report.summary(), file=_results(args))
     if args.json:
         _write_json(args.json, report.to_json(), inputs)

@@ -1,8 +1,9 @@
 """Progress bars for long work (an APL fit's grid, diagnose, many bags), with tqdm.
 
-A bar is drawn on stderr only when stderr is a terminal and the command is not ``--quiet``:
-a CI log (not a terminal) and a quiet command get nothing. Each caller asks ``bar`` for one
-and updates it; a disabled bar costs nothing.
+A bar is drawn on stderr only when stderr is a terminal and the command is not ``--quiet``
+(``wanted``): a CI log (not a terminal) and a quiet command get nothing. Each caller opens
+one with ``bar`` and hands the long work a callable that moves it (``counter`` for done of
+total, ``grid_progress`` for an APL fit's grid lines); a disabled bar costs nothing.
 """
 
 from __future__ import annotations
@@ -31,6 +32,15 @@ def bar(total: int | None, what: str, *, enabled: bool) -> Iterator[Any]:
     with tqdm(total=total, desc=what, disable=not enabled, file=sys.stderr, leave=False,
               dynamic_ncols=True) as shown:
         yield shown
+
+
+def counter(shown: Any) -> Callable[[int, int], None]:
+    """A ``progress(done, total)`` callable that moves ``shown`` to done of total."""
+    def step(done: int, total: int) -> None:
+        if shown.total != total:
+            shown.total = total
+        shown.update(done - shown.n)
+    return step
 
 
 def grid_progress(shown: Any) -> Callable[[str], None]:

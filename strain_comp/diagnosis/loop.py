@@ -526,7 +526,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
              margin: float = 0.03, max_effects: int = 3,
              tare: str = "calibration", stretch_history: bool = False,
-             session_start: bool = True) -> DiagnoseResult:
+             session_start: bool = True,
+             on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
@@ -536,7 +537,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
     ``session_start``: with validation recordings, measure before and after on them after
     the session-start recalibration on their first cycle (``strain_comp.diagnosis.session``;
-    a run where it cannot be made is measured as calibrated).
+    a run where it cannot be made is measured as calibrated). ``on_sensor``: called with
+    each sensor's name once it is done.
     """
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
@@ -554,6 +556,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
                                  stretch_history, session_start)
         if found is not None:
             results[sensor] = found
+        if on_sensor is not None:  # progress (strain_comp.progress)
+            on_sensor(sensor)
     if not results:
         raise InputError("no calibrated sensor has a recording with a strain_reference "
                          f"(calibrated: {', '.join(calibration.sensors)})")
