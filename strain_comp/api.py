@@ -406,6 +406,8 @@ class Diagnosis:
     validate: list[str] = field(default_factory=list)
     """The validation bags' paths (none: held-out time blocks, or recordings)."""
     tare: str = "calibration"
+    data: Any = None
+    """The run diagnosed (a bag's path or recordings), for ``to_html``'s evaluations."""
 
     @property
     def calibration(self) -> Calibration:
@@ -440,13 +442,28 @@ class Diagnosis:
 
     def to_html(self, calibration_path: str = "") -> str:
         """The ``diagnose --report`` page (``strain_comp.offline.report_page``): before and
-        after, each effect with its reading, the residual plots, the provenance of the
-        calibration diagnosed (named ``calibration_path`` on the page)."""
-        from strain_comp.offline.report_page import diagnosis_page
+        after, each effect with its reading, the residual plots, the run evaluated through
+        the calibration diagnosed and through the one with the terms added (tables and
+        plots), the provenance of the calibration diagnosed (named ``calibration_path``)."""
+        from strain_comp.offline.evaluate import PLOT_POINTS
+        from strain_comp.offline.report_page import (
+            BagSection,
+            diagnosis_page,
+            evaluation_figures,
+        )
 
-        return diagnosis_page(self.result, self.diagnosed or self.result.calibration,
-                              calibration_path or "(in memory)", self.source,
-                              validate=self.validate, tare=self.tare)
+        diagnosed = self.diagnosed or self.result.calibration
+        runs = []
+        if self.data is not None:
+            for heading, cal in (("the run through the calibration diagnosed", diagnosed),
+                                 ("the run through it with the terms added",
+                                  self.result.calibration)):
+                ev = evaluate(cal, self.data, tare=self.tare, plot_points=PLOT_POINTS)
+                figures = evaluation_figures(ev.result, cal, bag=self.source, tare=self.tare)
+                runs.append((heading, BagSection(self.source, ev.result,
+                                                 problems=ev.problems, figures=figures)))
+        return diagnosis_page(self.result, diagnosed, calibration_path or "(in memory)",
+                              self.source, validate=self.validate, tare=self.tare, runs=runs)
 
 
 def diagnose(calibration: CalibrationLike, data: Data, *,
@@ -487,7 +504,7 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
             paths[0], cal, validate=validated or None,
             out=out, plots=None if plots is None else os.fspath(plots), inputs=written,
             tare=tare, stretch_history=stretch_history, session_start=session_start,
-            progress=progress), cal, paths[0], validated, tare)
+            progress=progress), cal, paths[0], validated, tare, paths[0])
     val = [_run(v) for v in runs] or None
     result = diagnose_conditions(_run(data), cal, validate_recordings=val, tare=tare,
                                  stretch_history=stretch_history, session_start=session_start,
@@ -498,4 +515,5 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
     if plots is not None:
         write_plots(result, os.fspath(plots), inputs=written)
     return Diagnosis(result, cal, paths[0] if paths else "recordings",
-                     [p for v in runs for p in _paths(v) or []], tare)
+                     [p for v in runs for p in _paths(v) or []], tare,
+                     paths[0] if paths else _run(data))

@@ -144,6 +144,15 @@ def test_diagnose_report_holds_each_effect_and_the_error_before_and_after(
         assert page.cell(table="effects", effect=e["name"], key="gain") == e.get("gain")
     _self_contained(page)
     assert page.provenance["model"] == "apl"
+    # the run through each calibration: evaluate's figures
+    for heading, cal in (("the run through the calibration diagnosed", CAL),
+                         ("the run through it with the terms added", tmp_path / "v2.yaml")):
+        assert main(["evaluate", BAG, "--calibration", str(cal), "--json",
+                     str(tmp_path / "e.json"), "-q"]) == 0
+        record = json.loads((tmp_path / "e.json").read_text())["sensors"]["s1"]
+        for key in ("n", "rmse", "r2"):
+            assert page.cell(table="scores", bag=heading, sensor="s1", key=key) == record[key]
+    assert len(page.images) == 1 + 2 * 4  # the residuals, each run's four plots
 
 
 def test_a_report_over_an_input_is_refused_before_any_work(

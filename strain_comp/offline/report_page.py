@@ -205,6 +205,29 @@ def _page(title: str, body: Sequence[str]) -> str:
         *body, "</body></html>", ""])
 
 
+def _bag_section(section: BagSection, heading: str = "") -> list[str]:
+    """One bag's heading, table, notes and plots."""
+    from strain_comp.offline.evaluate import format_notes
+
+    body = [f"<h2>{escape(heading or section.bag)}</h2>"]
+    if section.result is None:
+        return [*body, f'<p class="error">not evaluated: {escape(section.error or "")}</p>']
+    result = section.result
+    bound = any(ev.in_run_rmse is not None for ev in result.sensors.values())
+    body.append(_scores_table(
+        ((name, ev.model, ev.stats, ev.unit,
+          {"n_out_of_range": ev.n_out_of_range, "n_bad": ev.n_bad,
+           **({"in_run_rmse": ev.in_run_rmse} if ev.in_run_rmse is not None else {})})
+         for name, ev in result.sensors.items()), heading or section.bag,
+        [("n_out_of_range", "out of range"), ("n_bad", "bad"),
+         *([("in_run_rmse", "in-run RMSE")] if bound else [])]))
+    body.append(_notes(section.problems + format_notes(result)))
+    for name, figures in section.figures.items():
+        body.append(f"<h3>{escape(name)}</h3>")
+        body += [_image(caption, png) for caption, png in figures]
+    return body
+
+
 def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
                     calibration_path: str, *, tare: str = "",
                     pooled: Mapping[str, tuple[Any, int, str, str]] | None = None) -> str:
@@ -219,27 +242,9 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
                                   "(pooled)", [("n_bags", "bags")]))
     notes: list[str] = []
     for section in sections:
-        body.append(f"<h2>{escape(section.bag)}</h2>")
-        if section.result is None:
-            body.append(f'<p class="error">not evaluated: {escape(section.error or "")}</p>')
-            continue
-        from strain_comp.offline.evaluate import format_notes
-
-        result = section.result
-        body.append(_scores_table(
-            ((name, ev.model, ev.stats, ev.unit,
-              {"n_out_of_range": ev.n_out_of_range, "n_bad": ev.n_bad,
-               **({"in_run_rmse": ev.in_run_rmse} if ev.in_run_rmse is not None else {})})
-             for name, ev in result.sensors.items()), section.bag,
-            [("n_out_of_range", "out of range"), ("n_bad", "bad"),
-             *([("in_run_rmse", "in-run RMSE")]
-               if any(ev.in_run_rmse is not None for ev in result.sensors.values())
-               else [])]))
-        body.append(_notes(section.problems + format_notes(result)))
-        notes += result.notes
-        for name, figures in section.figures.items():
-            body.append(f"<h3>{escape(name)}</h3>")
-            body += [_image(caption, png) for caption, png in figures]
+        body += _bag_section(section)
+        if section.result is not None:
+            notes += section.result.notes
     body.append(provenance_section(calibration, calibration_path, tare=tare, notes=notes))
     names = ", ".join(Path(s.bag.rstrip("/")).name for s in sections[:3])
     more = f" and {len(sections) - 3} more" if len(sections) > 3 else ""
@@ -247,10 +252,12 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
 
 
 def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration_path: str,
-                   bag: str, *, validate: Sequence[str] = (), tare: str = "") -> str:
+                   bag: str, *, validate: Sequence[str] = (), tare: str = "",
+                   runs: Sequence[tuple[str, BagSection]] = ()) -> str:
     """The ``diagnose --report`` page: the held-out error before and after, each effect
-    found with its reading, the conditions tried, the residual plots, the provenance of
-    the calibration diagnosed."""
+    found with its reading, the conditions tried, the residual plots, ``runs`` (headed
+    evaluations of the run: its table and plots) and the provenance of the calibration
+    diagnosed."""
     from strain_comp.diagnosis.report import residual_figure
 
     body = [f"<p>Run <code>{escape(bag)}</code>; held out: "
@@ -284,7 +291,8 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
         body.append(_notes(f"{c['name']}: {c['reading']}"
                            + (f"; held-out RMSE after the loop {c['after']:.4g}, "
                               + ("chosen" if c.get("chosen") else "not chosen")
-                              if isinstance(c.get("after"), float) else "")
+                              if isinstance(c.get("after"), float)
+                              and math.isfinite(c["after"]) else "")
                            for c in result.conditions))
     for name, d in result.sensors.items():
         unit = result.calibration.sensors[name].strain_unit
@@ -308,5 +316,7 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
             body.append(_image("residual before and after against the winning term's "
                                "regressor, time and strain (held-out samples)",
                                buffer.getvalue()))
+    for heading, section in runs:
+        body += _bag_section(section, heading)
     body.append(provenance_section(calibration, calibration_path, tare=tare))
     return _page(f"strain_comp diagnose: {Path(bag.rstrip('/')).name}", body)
