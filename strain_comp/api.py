@@ -332,6 +332,9 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
         if in_run_bound:
             _in_run_bound(result, read_recordings(paths[0]), cal)
         return Evaluation(result, problems, cal, paths[0], tare)
+    if paths is not None:
+        raise InputError("evaluate scores one run: call it once per bag (the pooled "
+                         "figures of several: strain-comp evaluate BAG1 BAG2 ...)")
     if csv is not None:
         raise InputError("evaluate: csv= is for a bag; with recordings, estimate gives the "
                          "series as arrays")
