@@ -507,12 +507,15 @@ def _read_db3(col: _Collector, file: Path, compressed: bool) -> Iterator[int]:
     """The messages of a ``.db3`` file (``db3.db3_messages``) collected as MCAP records of
     one channel per topic and type, as an unchunked MCAP's are: decoded alike after."""
     channels: dict[tuple[str, str], int] = {}
-    skipped = 0
+    skipped = crowded = 0
     for n, block in enumerate(db3_messages(file, col.problems, compressed=compressed)):
         messages = []
         for topic, kind, stamp, data in block:
             if not 0 <= stamp <= MAX_LOG_NS:
                 skipped += 1
+                continue
+            if (topic, kind) not in channels and len(channels) >= MAX_DB3_CHANNELS:
+                crowded += 1
                 continue
             cid = channels.setdefault((topic, kind), len(channels) + 1)
             if (col.file_index, cid) not in col.channels:
@@ -528,6 +531,13 @@ def _read_db3(col: _Collector, file: Path, compressed: bool) -> Iterator[int]:
     if skipped:
         col.problems.append(f"{file}: {skipped} messages with a time stamp beyond 2^31 s "
                             "(2038-01-19) or before 1970 skipped")
+    if crowded:
+        col.problems.append(f"{file}: {crowded} messages on topics past the first "
+                            f"{MAX_DB3_CHANNELS} skipped")
+
+
+MAX_DB3_CHANNELS = 65535
+"""Topics (with their type) read from one .db3 file: an MCAP channel id has 16 bits."""
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagContents:
