@@ -171,3 +171,49 @@ def test_play_gets_the_same_messages(db3_bag: Path) -> None:
     from_mcap, _ = raw_messages(MCAP)
     from_db3, problems = raw_messages(db3_bag)
     assert problems == [] and from_db3 == from_mcap
+
+
+def test_damaged_db3_files_read_or_are_refused_in_one_line(db3_bag: Path,
+                                                           tmp_path: Path) -> None:
+    """A seeded run of byte flips, overwritten spans, truncations and duplicated or
+    deleted spans of a small .db3 (the MCAP fuzzer's mutations, scripts/fuzz.py): reading
+    may only refuse with BagError (one line) or return consistent series."""
+    from strain_comp.errors import BagError
+
+    seed = tmp_path / "seed"
+    messages, _ = raw_messages(ROOT / "bags" / "steps.mcap")
+    with Writer(seed, version=8) as writer:
+        connections = {}
+        for topic, kind, stamp, payload in messages[:3000]:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, kind, typestore=TYPESTORE)
+            writer.write(connections[topic], stamp, payload)
+    data = next(seed.glob("*.db3")).read_bytes()
+    rng = np.random.default_rng(0)
+    outcomes = {"read": 0, "refused": 0}
+    for k in range(150):
+        buf = bytearray(data)
+        for _ in range(int(rng.integers(1, 5))):
+            i = int(rng.integers(0, len(buf)))
+            op = int(rng.integers(0, 4))
+            if op == 0:
+                buf[i] ^= 1 << int(rng.integers(0, 8))
+            elif op == 1:
+                buf[i:i + 16] = bytes([int(rng.integers(0, 256))]) * len(buf[i:i + 16])
+            elif op == 2:
+                del buf[max(i, 200):]
+            else:
+                buf[i:i] = buf[i:i + int(rng.integers(1, 64))]
+        path = tmp_path / f"damaged_{k}.db3"
+        path.write_bytes(bytes(buf))
+        try:
+            contents = read_bag(path)
+        except BagError as err:
+            assert "\n" not in str(err) and str(path) in str(err)
+            outcomes["refused"] += 1
+            continue
+        for series in contents.series.values():
+            assert series.t.shape[0] == series.values.shape[0]
+            assert np.isfinite(series.t).all()
+        outcomes["read"] += 1
+    assert outcomes["read"] > 0 and outcomes["refused"] > 0, outcomes
