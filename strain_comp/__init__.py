@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 __all__ = ["Calibration", "Diagnosis", "Estimate", "Evaluation", "Recalibration", "Recording",
            "StrainCompError", "__version__", "diagnose", "estimate", "evaluate", "fit",
-           "load_calibration", "read_recordings", "recalibrate", "save_calibration",
+           "load_calibration", "read_recordings", "recalibrate", "replay", "save_calibration",
            "session_start"]
 
 if TYPE_CHECKING:
@@ -32,6 +32,7 @@ if TYPE_CHECKING:
         load_calibration,
         read_recordings,
         recalibrate,
+        replay,
         save_calibration,
         session_start,
     )

@@ -35,10 +35,11 @@ from strain_comp.io.recording import Recording
 if TYPE_CHECKING:
     from strain_comp.diagnosis.report import DiagnoseResult
     from strain_comp.offline.evaluate import EvaluationResult
+    from strain_comp.offline.replay import ReplaySummary
 
 __all__ = ["Calibration", "Diagnosis", "Estimate", "Evaluation", "Recalibration", "Recording",
            "StrainCompError", "diagnose", "estimate", "evaluate", "fit", "load_calibration",
-           "read_recordings", "recalibrate", "save_calibration", "session_start"]
+           "read_recordings", "recalibrate", "replay", "save_calibration", "session_start"]
 
 PathLike = str | Path
 Data = PathLike | Recording | Sequence[Recording] | Mapping[str, Recording]
@@ -344,6 +345,22 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
     if in_run_bound:
         _in_run_bound(result, recordings, cal)
     return Evaluation(result, [], cal, "recordings", tare)
+
+
+def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
+           tare: str = "calibration", tracking: str = DEFAULT_TRACKING,
+           csv: PathLike | None = None, inputs: Sequence[PathLike] = ()) -> ReplaySummary:
+    """``strain-comp replay``: a new MCAP bag at ``out`` with every message of ``bag`` and
+    the node's outputs (strain, direction, status, stamped strain, /diagnostics) at each
+    input's time; ``csv``: also the series as a table. ``inputs``: files the outputs must
+    not overwrite. Returns what was replayed (sensors' health, messages, problems)."""
+    from strain_comp.offline.replay import replay_bag
+
+    cal = _calibration(calibration)
+    paths = _paths(bag)
+    assert paths is not None
+    return replay_bag(paths[0], cal, out, inputs=list(inputs), tare=tare,
+                      csv=None if csv is None else os.fspath(csv), tracking=tracking)
 
 
 # --------------------------------------------------------------------- recalibrate

@@ -324,12 +324,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     _output(args.out, [args.bag, args.calibration])
     if args.csv not in (None, "-"):
         _output(args.csv, [args.bag, args.calibration, args.out])
-    from strain_comp.core.calibration import load_calibration
-    from strain_comp.offline.replay import replay_bag
+    from strain_comp import api
 
-    calibration = load_calibration(args.calibration)
-    summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration],
-                         tare=args.tare, csv=args.csv,
+    summary = api.replay(api.load_calibration(args.calibration), args.bag, args.out,
+                         inputs=[args.calibration], tare=args.tare, csv=args.csv,
                          tracking=args.baseline_tracking)
     results = _results(args)
     print(f"replayed {summary.n_compensated} resistance messages of {len(summary.sensors)} "
