@@ -1,6 +1,7 @@
-"""Progress bars (strain_comp.progress): drawn for fit (an APL grid), diagnose and
-many-bag evaluate when stderr is a terminal, absent from a log (not a terminal) and with
---quiet. The terminal is a pseudo-terminal the command's stderr is attached to."""
+"""Progress bars (strain_comp.progress): drawn for fit (an APL grid), diagnose, many-bag
+evaluate and scripts/generalisation.py when stderr is a terminal, absent from a log (not a
+terminal) and with --quiet. The terminal is a pseudo-terminal the command's stderr is
+attached to."""
 
 from __future__ import annotations
 
@@ -28,13 +29,16 @@ def commands(out: Path) -> dict[str, list[str]]:
                     str(out / "apl.yaml"), "--option", "N=5", "--option", "M=3"],
         "evaluate": ["evaluate", STEPS, RATES, "--calibration", CAL],
         "diagnose": ["diagnose", STEPS, "--calibration", CAL, "--out", str(out / "v2.yaml")],
+        "benchmark": [str(ROOT / "scripts" / "generalisation.py"), "--sensors", "rig",
+                      "--quick", "--models", "cubic", "--out", str(out / "generalisation")],
     }
 
 
 def stderr_of(argv: list[str], *, terminal: bool) -> str:
     """What ``strain-comp argv`` writes to stderr: a pseudo-terminal's or a pipe's."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "100"}
-    command = [sys.executable, "-m", "strain_comp.cli", *argv]
+    script = argv[0].endswith(".py")
+    command = [sys.executable, *([] if script else ["-m", "strain_comp.cli"]), *argv]
     if not terminal:
         done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600,
                               check=True)
@@ -65,7 +69,7 @@ def stderr_of(argv: list[str], *, terminal: bool) -> str:
     return b"".join(chunks).decode("utf-8", "replace")
 
 
-@pytest.mark.parametrize("what", ["apl fit", "evaluate", "diagnose"])
+@pytest.mark.parametrize("what", ["apl fit", "evaluate", "diagnose", "benchmark"])
 def test_a_bar_on_a_terminal_none_in_a_log_none_when_quiet(what: str, tmp_path: Path) -> None:
     argv = commands(tmp_path)[what]
     shown = stderr_of(argv, terminal=True)
