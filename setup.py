@@ -31,9 +31,11 @@ setup(
         "mcap-ros2-support>=0.6,<0.7",  # io/bag/reader.py: its public DecoderFactory
         "matplotlib>=3.7",
         "threadpoolctl>=3.1",  # models/apl.py: one BLAS thread while the fit grid is scored
+        "rosbags>=0.11",  # io/bag/db3.py: rosbag2's sqlite3 storage (.db3)
+        "tqdm>=4.60",  # progress.py: progress bars on a terminal
     ],
     extras_require={
-        "test": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "ruff", "mypy>=1.16",
+        "test": ["pytest>=7", "hypothesis>=6", "ruff", "mypy>=1.16",
                  "types-PyYAML"],
         "fast": ["intel-cmplr-lib-rt"],
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-std-msgs", "ros-jazzy-sensor-msgs",

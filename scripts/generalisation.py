@@ -305,8 +305,9 @@ class Pair:
 
 
 def run_benchmark(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str], *,
-                  loop: bool = False) -> list[Pair]:
-    """Every ordered pair of runs of every sensor, for every model."""
+                  loop: bool = False, step: Callable[[], None] = lambda: None) -> list[Pair]:
+    """Every ordered pair of runs of every sensor, for every model; ``step()`` after each
+    in-run fit and each pair (a progress bar)."""
     from strain_comp.errors import StrainCompError
 
     pairs: list[Pair] = []
@@ -319,9 +320,13 @@ def run_benchmark(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str]
                                              bench.fit(sensor, run, model))
                 except StrainCompError as err:
                     bench.log(f"## {sensor.name}/{run.label} {model}: no in-run bound ({err})")
+                step()
             for train in sensor.runs:
                 for test in sensor.runs:
-                    if train == test or test.label not in in_run:
+                    if train == test:
+                        continue
+                    step()
+                    if test.label not in in_run:
                         continue
                     try:
                         cal = bench.fit(sensor, train, model)
@@ -486,7 +491,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="write the results here "
                         "(default OUT/generalisation.json)")
     parser.add_argument("--figures", type=Path, metavar="DIR", help="write the two PNGs here")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar and no per-pair lines on stderr")
     args = parser.parse_args(argv)
+
+    from strain_comp.progress import bar, wanted
 
     start = time.perf_counter()
     ENGINE.update(out_of_range=args.out_of_range, tracking=args.baseline_tracking)
@@ -498,9 +507,13 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown or missing sensors {unknown}; present: {list(available)}")
     sensors = [quick(available[n]) if args.quick else available[n] for n in names]
-    bench = Bench(args.data, args.out, refit=args.refit,
-                  log=lambda line: print(line, file=sys.stderr))
-    pairs = run_benchmark(bench, sensors, args.models, loop=args.loop)
+    steps = sum(len(s.runs) ** 2 for s in sensors) * len(args.models)
+    with bar(steps, "benchmark", enabled=wanted(args.quiet)) as shown:
+        bench = Bench(args.data, args.out, refit=args.refit,
+                      log=(lambda line: None) if args.quiet else
+                      lambda line: shown.write(line, file=sys.stderr))
+        pairs = run_benchmark(bench, sensors, args.models, loop=args.loop,
+                              step=lambda: shown.update(1))
     run_workflows = [*WORKFLOWS, *(["loop"] if args.loop else [])]
     seconds = time.perf_counter() - start
     print(markdown(pairs, run_workflows))

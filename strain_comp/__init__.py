@@ -7,3 +7,42 @@ docstrings cite by key and equation number: docs/references.md.
 """
 
 __version__ = "0.1.0"
+
+
+from typing import TYPE_CHECKING, Any
+
+__all__ = ["Calibration", "Diagnosis", "Estimate", "Evaluation", "Recalibration", "Recording",
+           "StrainCompError", "__version__", "diagnose", "estimate", "evaluate", "fit",
+           "load_calibration", "read_recordings", "recalibrate", "replay", "save_calibration",
+           "session_start"]
+
+if TYPE_CHECKING:
+    from strain_comp.api import (
+        Calibration,
+        Diagnosis,
+        Estimate,
+        Evaluation,
+        Recalibration,
+        Recording,
+        StrainCompError,
+        diagnose,
+        estimate,
+        evaluate,
+        fit,
+        load_calibration,
+        read_recordings,
+        recalibrate,
+        replay,
+        save_calibration,
+        session_start,
+    )
+
+
+def __getattr__(name: str) -> Any:
+    """``strain_comp.fit`` and the rest of ``strain_comp.api``, imported on first use, so
+    ``strain-comp --version`` and ``--help`` do not load numpy."""
+    if name in __all__:
+        from strain_comp import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'strain_comp' has no attribute {name!r}")

@@ -26,15 +26,15 @@ import importlib.util
 import json
 import math
 import os
-import stat
 import sys
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import NoReturn, TextIO
 
 from strain_comp import __version__
 from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.atomic import check_distinct, check_output, write_text
+from strain_comp.io.inputs import existing
 
 PROG = "strain-comp"
 OUT_OF_RANGE_HINT = ("samples out of the calibrated range: if the run's rest level moved, "
@@ -80,18 +80,8 @@ def _results(args: argparse.Namespace) -> TextIO:
 
 
 def _existing(path: str, what: str, *, directory: bool = False) -> str:
-    """``path`` if it is a regular file (or, with ``directory``, a directory); InputError
-    naming it otherwise, before anything opens it (a FIFO would block a reader)."""
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        raise InputError(f"{path}: {what} not found") from None
-    except OSError as err:
-        raise InputError(f"{path}: {what} cannot be read ({err.strerror})") from None
-    if not (stat.S_ISREG(mode) or (directory and stat.S_ISDIR(mode))):
-        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
-        raise InputError(f"{path}: {what} is {kind}")
-    return path
+    """``path`` if it is a regular file (or a directory); InputError naming it otherwise."""
+    return existing(path, what, directory=directory)
 
 
 def _bag(path: str, what: str = "bag") -> str:
@@ -194,27 +184,28 @@ def cmd_fit(args: argparse.Namespace) -> int:
     for bag in args.bags:
         _bag(bag)
     _output(args.out, args.bags)
+    from strain_comp import api
     from strain_comp.core.calibration import strain_unit_words, unit_ok
     from strain_comp.core.calibration_file import save_calibration
-    from strain_comp.offline.fit import fit_bags, memoryless_note, parse_options
+    from strain_comp.offline.fit import memoryless_note, parse_options
     from strain_comp.offline.options import check_fit_options
+    from strain_comp.progress import wanted
 
     options = parse_options(args.option or [])
     check_fit_options(args.model, options)
-    if args.quiet and args.model in ("apl", "pl", "mpi"):
-        options.setdefault("progress", False)
     if not unit_ok(args.strain_unit):
         raise InputError(f"--strain-unit {args.strain_unit!r}: expected a unit such as % or "
                          "mm (1-16 letters, digits, %, / or .)")
     notes: list[str] = []  # damage the reader skipped: noted once, in the error if any
     try:
-        calibration = fit_bags(args.bags, args.model, args.sensor, options, report=notes.append)
+        calibration = api.fit(args.bags, args.model, sensors=args.sensor,
+                              strain_unit=args.strain_unit, report=notes.append,
+                              progress_bar=wanted(args.quiet), **options)
     except StrainCompError as err:
         raise InputError("; ".join([str(err), *notes])) from None
     for line in notes:
         _note(args, line)
     for name, cal in calibration.sensors.items():
-        cal.strain_unit = args.strain_unit
         note = memoryless_note(name, cal)
         if note:
             _note(args, note)
@@ -227,19 +218,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
               f"(dead zone {cal.direction.deadzone:.4g} ohm/s from {prov['direction_from']})")
     _note(args, f"wrote {args.out}")
     return 0
-
-
-def _progress(args: argparse.Namespace) -> Callable[[int, int, str], None] | None:
-    """A progress line on stderr, rewritten in place; only where stderr is a terminal."""
-    if args.quiet or not sys.stderr.isatty():
-        return None
-
-    def show(done: int, total: int, bag: str) -> None:
-        end = "\n" if done == total else ""
-        sys.stderr.write(f"\r[{done}/{total}] {os.path.basename(bag.rstrip('/'))[:60]:<60}"
-                         + end)
-        sys.stderr.flush()
-    return show
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -256,48 +234,42 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for bag in bags:
         _bag(bag)
     inputs = [*bags, args.calibration]
-    check_distinct((args.json, args.csv, args.plots))
+    check_distinct((args.json, args.csv, args.plots, args.report))
     if args.json == "-" and args.csv == "-":
         raise InputError("--json - and --csv -: only one of them can go to stdout")
-    for out in (args.json, args.csv):
+    for out in (args.json, args.csv, args.report):
         if out is not None and out != "-":
             _output(out, inputs)
     if len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
             os.path.join(b, "metadata.yaml")) for b in args.bags):
         return _evaluate_many(args, bags, inputs)
     bag = bags[0]
-    from strain_comp.core.calibration_file import load_calibration
-    from strain_comp.io.recording import load_recordings
-    from strain_comp.offline.evaluate import (
-        PLOT_POINTS,
-        evaluate_bag,
-        format_notes,
-        format_table,
-        in_run_bound,
-    )
-    from strain_comp.offline.series import series_csv
+    from strain_comp import api
+    from strain_comp.offline.evaluate import PLOT_POINTS, format_notes
 
-    calibration = load_calibration(args.calibration)
-    with series_csv(args.csv, inputs=inputs) as table:
-        # streamed; an error when nothing can be scored names what the bag reader skipped
-        result, problems = evaluate_bag(bag, calibration, tare=args.tare,
-                                        plot_points=PLOT_POINTS if args.plots else 0,
-                                        series=table, out_of_range=args.out_of_range,
-                                        tracking=args.baseline_tracking,
-                                        references_every=args.references_every)
-    if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
-        in_run_bound(result, load_recordings(bag)[0], calibration)
-    print(format_table(result), file=_results(args))
-    for line in problems + format_notes(result):
+    calibration = api.load_calibration(args.calibration)
+    # streamed; an error when nothing can be scored names what the bag reader skipped
+    evaluation = api.evaluate(calibration, bag, tare=args.tare,
+                              out_of_range=args.out_of_range,
+                              tracking=args.baseline_tracking, in_run_bound=args.in_run_bound,
+                              plot_points=PLOT_POINTS if args.plots or args.report else 0,
+                              references_every=args.references_every,
+                              csv=args.csv, inputs=[args.calibration])
+    result = evaluation.result
+    print(evaluation.table(), file=_results(args))
+    for line in evaluation.problems + format_notes(result):
         _note(args, line)
     if args.json:
-        _write_json(args.json, result.to_json(), inputs)
+        _write_json(args.json, evaluation.to_json(), inputs)
     if args.plots:
         from strain_comp.offline.plots import plot_evaluation
 
         written = plot_evaluation(result, args.plots, inputs=inputs, calibration=calibration,
                                   bag=bag, calibration_path=args.calibration, tare=args.tare)
         _note(args, f"wrote {len(written)} plots to {args.plots}")
+    if args.report:
+        write_text(args.report, evaluation.to_html(args.calibration), inputs=inputs)
+        _note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):
         _note(args, f"wrote {args.csv}")
     return 0
@@ -309,15 +281,19 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
     from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.series import series_csv
+    from strain_comp.progress import bar, wanted
 
-    load_calibration(args.calibration)  # a bad calibration: one line before any bag
-    with series_csv(args.csv, inputs=inputs, bag=True) as table:
+    calibration = load_calibration(args.calibration)  # a bad one: one line before any bag
+    with series_csv(args.csv, inputs=inputs, bag=True) as table, \
+            bar(len(bags), "evaluate", enabled=wanted(args.quiet)) as shown:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
-                                 plot_points=PLOT_POINTS if args.plots else 0,
+                                 plot_points=PLOT_POINTS if args.plots or args.report else 0,
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
-                                 progress=_progress(args), out_of_range=args.out_of_range,
+                                 progress=lambda done, total, bag: shown.update(1),
+                                 out_of_range=args.out_of_range,
                                  tracking=args.baseline_tracking,
-                                 references_every=args.references_every)
+                                 references_every=args.references_every,
+                                 figures=bool(args.report))
     results = _results(args)
     for outcome in outcomes:
         text, notes = format_bag(outcome)
@@ -330,6 +306,15 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
     print(format_aggregate(outcomes), file=results)
     if args.json:
         _write_json(args.json, to_json(outcomes), inputs)
+    if args.report:
+        from strain_comp.offline.batch import aggregate
+        from strain_comp.offline.report_page import BagSection, evaluation_page
+
+        page = evaluation_page([BagSection(o.bag, o.result, o.error, o.problems, o.figures)
+                                for o in outcomes], calibration, args.calibration,
+                               tare=args.tare, pooled=aggregate(outcomes))
+        write_text(args.report, page, inputs=inputs)
+        _note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):
         _note(args, f"wrote {args.csv}")
     failed = [o for o in outcomes if o.error is not None]
@@ -345,17 +330,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
     _output(args.out, [args.bag, args.calibration])
     if args.csv not in (None, "-"):
         _output(args.csv, [args.bag, args.calibration, args.out])
-    from strain_comp.core.calibration_file import load_calibration
+    from strain_comp import api
     from strain_comp.core.fusion import check_every, fusion_note
-    from strain_comp.offline.replay import replay_bag
 
     if args.references_every is not None:
         check_every(args.references_every)
-
-    calibration = load_calibration(args.calibration)
-    summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration],
-                         tare=args.tare, csv=args.csv,
-                         tracking=args.baseline_tracking,
+    calibration = api.load_calibration(args.calibration)
+    summary = api.replay(calibration, args.bag, args.out, inputs=[args.calibration],
+                         tare=args.tare, csv=args.csv, tracking=args.baseline_tracking,
                          references_every=args.references_every)
     results = _results(args)
     print(f"replayed {summary.n_compensated} resistance messages of {len(summary.sensors)} "
@@ -384,21 +366,25 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         _bag(validate, "validation bag")
     _existing(args.calibration, "calibration file")
     inputs = [args.bag, *(args.validate or ()), args.calibration]
-    check_distinct((args.out, args.json, args.plots))
-    for out in (args.out, args.json):
+    check_distinct((args.out, args.json, args.plots, args.report))
+    for out in (args.out, args.json, args.report):
         if out is not None and out != "-":
             _output(out, inputs)
-    from strain_comp.core.calibration_file import load_calibration
-    from strain_comp.diagnosis.command import diagnose_bag
+    from strain_comp import api
+    from strain_comp.progress import wanted
 
-    calibration = load_calibration(args.calibration)
-    report = diagnose_bag(args.bag, calibration, validate=args.validate, out=args.out,
+    calibration = api.load_calibration(args.calibration)
+    report = api.diagnose(calibration, args.bag, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare,
                           stretch_history=args.stretch_history,
-                          session_start=args.session_start == "on")
+                          session_start=args.session_start == "on",
+                          progress_bar=wanted(args.quiet))
     print(report.summary(), file=_results(args))
     if args.json:
         _write_json(args.json, report.to_json(), inputs)
+    if args.report:
+        write_text(args.report, report.to_html(args.calibration), inputs=inputs)
+        _note(args, f"wrote {args.report}")
     if args.plots:
         _note(args, f"wrote plots to {args.plots}")
     _note(args, f"wrote {args.out}")
@@ -406,20 +392,21 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def cmd_recalibrate(args: argparse.Namespace) -> int:
-    from strain_comp.core.calibration_file import load_calibration, save_calibration
-    from strain_comp.offline.recalibrate import parse_point, recalibrate
+    from strain_comp import api
+    from strain_comp.core.calibration_file import save_calibration
+    from strain_comp.offline.recalibrate import parse_point
 
     if bool(args.point) == bool(args.from_bag):
         raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
-    calibration = load_calibration(_existing(args.calibration, "calibration file"))
+    calibration = api.load_calibration(_existing(args.calibration, "calibration file"))
     points = [parse_point(p) for p in args.point or []]
     bag = None if args.from_bag is None else _bag(args.from_bag)
     _output(args.out, [args.calibration, bag])
     if args.first is not None and bag is None:
         raise InputError("recalibrate --first needs --from BAG.mcap")
-    new, lines = recalibrate(calibration, points=points, bag=bag, sensors=args.sensor,
-                             tare=args.tare, form="input" if args.input else "output",
-                             first=args.first)
+    new, lines = api.recalibrate(calibration, bag, points=points, sensors=args.sensor,
+                                 tare=args.tare, form="input" if args.input else "output",
+                                 first=args.first)
     save_calibration(new, args.out,
                      inputs=[p for p in (args.calibration, bag) if p is not None])
     print("\n".join(lines))
@@ -444,7 +431,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 
 def cmd_play(args: argparse.Namespace) -> int:
-    _existing(args.bag, "bag")
+    _bag(args.bag)
     _require_ros("strain-comp play")
     from strain_comp.ros.player import main as play_main
 
@@ -584,6 +571,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "reference [strain unit], direction, status per sensor ('-': stdout)")
     p.add_argument("--plots", metavar="DIR",
                    help="also write PNG plots per sensor (several bags: a folder per bag)")
+    p.add_argument("--report", metavar="OUT.html",
+                   help="also write one self-contained HTML page: the tables, the plots "
+                   "and the calibration's provenance (opens without a network)")
     p.add_argument("--jobs", type=int, default=1, metavar="N",
                    help="bags evaluated at once, in N processes (default 1)")
     p.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
@@ -639,6 +629,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the report as JSON ('-': stdout)")
     p.add_argument("--plots", metavar="DIR",
                    help="also write residual plots per sensor (PNG)")
+    p.add_argument("--report", metavar="OUT.html",
+                   help="also write one self-contained HTML page: each effect found with "
+                   "its reading, the error before and after, the residual plots and the "
+                   "calibration's provenance")
     _tare_flag(p)
     p.add_argument("--stretch-history", action="store_true",
                    help="also try terms for a rest level or a sensitivity that moves with "

@@ -93,11 +93,11 @@ def test_plots_are_written(tmp_path: Path) -> None:
 
 def test_plot_titles_name_bag_calibration_and_tare_and_axes_span_the_data() -> None:
     from strain_comp.offline.evaluate import SensorEvaluation
-    from strain_comp.offline.plots import _context, _limits
+    from strain_comp.offline.plots import _limits, context_line
 
     result = evaluate_recordings({"s1": recording()}, calibration())
     result.notes.append("s1: not tared: the run does not start at rest")
-    assert _context(result, "s1", "runs/b.mcap", "c/cal.yaml", "auto") == (
+    assert context_line(result, "s1", "runs/b.mcap", "c/cal.yaml", "auto") == (
         "bag b.mcap, calibration cal.yaml, tare auto (not tared: the run does not start at "
         "rest)")
     values = np.array([np.nan, -2.0, 3.0, np.inf, 8.0])

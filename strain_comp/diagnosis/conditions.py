@@ -30,7 +30,7 @@ noise).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -149,9 +149,11 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                         validate_recordings: Mapping[str, Recording]
                         | Sequence[Mapping[str, Recording]] | None = None,
                         tare: str = "calibration", margin: float = 0.03,
+                        progress: Callable[[int, int], None] | None = None,
                         **options: Any) -> DiagnoseResult:
     """``diagnose`` under each condition of the module docstring; the chosen result, with
-    every condition's record in ``conditions``."""
+    every condition's record in ``conditions``. ``progress(done, total)``: after each
+    sensor of each condition."""
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
     validate = ([] if validate_recordings is None else [validate_recordings]
@@ -187,8 +189,16 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
         text = "; ".join(line for line in readings if "baseline step" in line)
         runs.append((f"baseline step{then}", f"jumps re-based online: {text}",
                      _with_input(base, found.stepped, baseline_step=STEP_K), tare))
+    total = len(runs) * len(calibration.sensors)
+    done: list[str] = []
+
+    def step(sensor: str) -> None:
+        done.append(sensor)
+        if progress is not None:
+            progress(len(done), total)
     results = [diagnose(recordings, cal, validate_recordings=validate_recordings,
-                        margin=margin, tare=mode, **options) for _, _, cal, mode in runs]
+                        margin=margin, tare=mode, on_sensor=step, **options)
+               for _, _, cal, mode in runs]
     best = 0
     for k, result in enumerate(results[1:], start=1):
         if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \

@@ -82,7 +82,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -410,7 +410,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
              margin: float = 0.03, max_effects: int = 3,
              tare: str = "calibration", stretch_history: bool = False,
-             session_start: bool = True) -> DiagnoseResult:
+             session_start: bool = True,
+             on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
@@ -420,7 +421,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
     ``session_start``: with validation recordings, measure before and after on them after
     the session-start recalibration on their first cycle (``strain_comp.diagnosis.session``;
-    a run where it cannot be made is measured as calibrated).
+    a run where it cannot be made is measured as calibrated). ``on_sensor``: called with
+    each sensor's name once it is done.
     """
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
@@ -438,6 +440,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
                                  stretch_history, session_start)
         if found is not None:
             results[sensor] = found
+        if on_sensor is not None:  # progress (strain_comp.progress)
+            on_sensor(sensor)
     if not results:
         raise InputError("no calibrated sensor has a recording with a strain_reference "
                          f"(calibrated: {', '.join(calibration.sensors)})")

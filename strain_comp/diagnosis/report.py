@@ -7,12 +7,15 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 SESSION_RECORDS = ("session start", "gain change between runs")
 """Names of the ``conditions`` records of the session start on the validation runs
@@ -237,44 +240,52 @@ def _num(value: float) -> float | None:
 def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
     """Residual before and after against the winning regressor, time and strain (one PNG
-    per sensor), each written atomically; a plot path that is one of ``inputs`` is
-    refused."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    per sensor, ``residual_figure``), each written atomically; a plot path that is one of
+    ``inputs`` is refused."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, d in result.sensors.items():
-        if not d.plot:
+    for name in result.sensors:
+        fig = residual_figure(result, name)
+        if fig is None:
             continue
-        fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(16, 4.2))
-        p = d.plot
-        u = result.calibration.sensors[name].strain_unit
-        ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
-        ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-        ax1.set_xlabel(f"regressor {d.winner}")
-        ax1.set_ylabel(f"residual S_hat - S [{u}]")
-        ax1.legend(markerscale=4)
-        ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
-        ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
-        ax2.set_xlabel("time [s] (held-out samples)")
-        ax2.set_ylabel(f"residual [{u}]")
-        ax2.legend(markerscale=4)
-        ax3.plot(p["s"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
-        ax3.plot(p["s"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-        ax3.set_xlabel(f"reference strain [{u}] (held-out samples)")
-        ax3.set_ylabel(f"residual [{u}]")
-        ax3.legend(markerscale=4)
-        fig.suptitle(f"{name}: {d.message}", fontsize=8)
-        fig.tight_layout()
         path = out_dir / f"diagnose_{name}.png"
-        try:
-            with atomic_output(path, inputs=inputs) as handle:
-                fig.savefig(handle, dpi=110, format="png")
-        finally:
-            plt.close(fig)
+        with atomic_output(path, inputs=inputs) as handle:
+            fig.savefig(handle, dpi=110, format="png")
         written.append(path)
     return written
+
+
+def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
+    """Sensor ``name``'s residual before and after against the winning regressor, time and
+    strain (held-out samples); None when the loop kept no arrays for it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    d = result.sensors[name]
+    if not d.plot:
+        return None
+    fig = Figure(figsize=(16, 4.2))
+    ax1, ax2, ax3 = fig.subplots(1, 3)
+    p = d.plot
+    u = result.calibration.sensors[name].strain_unit
+    ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
+    ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
+    ax1.set_xlabel(f"regressor {d.winner}")
+    ax1.set_ylabel(f"residual S_hat - S [{u}]")
+    ax1.legend(markerscale=4)
+    ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
+    ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
+    ax2.set_xlabel("time [s] (held-out samples)")
+    ax2.set_ylabel(f"residual [{u}]")
+    ax2.legend(markerscale=4)
+    ax3.plot(p["s"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
+    ax3.plot(p["s"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
+    ax3.set_xlabel(f"reference strain [{u}] (held-out samples)")
+    ax3.set_ylabel(f"residual [{u}]")
+    ax3.legend(markerscale=4)
+    fig.suptitle(f"{name}: {d.message}", fontsize=8)
+    fig.tight_layout()
+    return fig

@@ -16,10 +16,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 
@@ -44,6 +46,61 @@ class Recording:
 
     def __len__(self) -> int:
         return int(self.t.size)
+
+    @classmethod
+    def from_arrays(cls, t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike | None = None,
+                    *, name: str = "s1", temperature: npt.ArrayLike | None = None
+                    ) -> Recording:
+        """A recording from arrays: time [s], resistance [ohm], optionally the reference
+        strain [%, or the calibration's unit] and temperature [deg C], all of one length.
+        Raises InputError for arrays that are not 1-D numbers of one length; bad samples
+        (NaN, R <= 0, time not increasing) are kept: the engine screens them."""
+        columns = {"t": t, "r": r, "s": s, "temperature": temperature}
+        arrays: dict[str, np.ndarray | None] = {}
+        for key, value in columns.items():
+            if value is None:
+                arrays[key] = None
+                continue
+            try:
+                array = np.array(value, dtype=np.float64)
+            except (TypeError, ValueError) as err:
+                raise InputError(f"recording {name!r}: {key} is not numbers ({err})") from None
+            if array.ndim != 1:
+                raise InputError(f"recording {name!r}: {key} must be 1-D, got shape "
+                                 f"{array.shape}")
+            arrays[key] = array
+        t_array = arrays["t"]
+        assert t_array is not None
+        for key, array in arrays.items():
+            if array is not None and array.size != t_array.size:
+                raise InputError(f"recording {name!r}: {key} has {array.size} samples, t has "
+                                 f"{t_array.size}")
+        if not name or not isinstance(name, str):
+            raise InputError(f"recording name must be a non-empty string, got {name!r}")
+        r_array = arrays["r"]
+        assert r_array is not None
+        return cls(name, t_array, r_array, arrays["s"], arrays["temperature"])
+
+    @classmethod
+    def from_frame(cls, frame: Any, *, name: str = "s1", time: str = "time_s",
+                   resistance: str = "resistance_ohm", reference: str | None = "reference",
+                   temperature: str | None = None) -> Recording:
+        """A recording from the columns of a table: a pandas DataFrame, or any mapping of
+        column names to arrays. The default names are those of ``evaluate --csv``;
+        ``reference`` (when the table has that column) and ``temperature`` are optional."""
+        def column(key: str | None, required: bool) -> Any:
+            if key is None:
+                return None
+            try:
+                return np.asarray(frame[key], dtype=np.float64)
+            except KeyError:
+                if not required:
+                    return None
+                raise InputError(f"recording {name!r}: no column {key!r} in the table") \
+                    from None
+        return cls.from_arrays(column(time, True), column(resistance, True),
+                               column(reference, False), name=name,
+                               temperature=column(temperature, temperature is not None))
 
 
 def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:

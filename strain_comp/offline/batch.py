@@ -42,6 +42,7 @@ from strain_comp.offline.evaluate import (
     in_run_bound,
 )
 from strain_comp.offline.plots import plot_evaluation
+from strain_comp.offline.report_page import evaluation_figures
 from strain_comp.offline.series import SeriesCSV
 
 MAX_JOBS = 64
@@ -53,17 +54,17 @@ def _is_bag_dir(path: Path) -> bool:
 
 def expand_bags(paths: Sequence[str]) -> list[str]:
     """The bags named by ``paths``: MCAP files and rosbag2 directories as given; a folder
-    that is not a rosbag2 directory stands for its ``*.mcap`` files and rosbag2
+    that is not a rosbag2 directory stands for its ``*.mcap``, ``*.db3`` files and rosbag2
     directories (sorted by name, not recursively). InputError for a folder without any."""
     bags: list[str] = []
     for text in paths:
         path = Path(text)
         if path.is_dir() and not _is_bag_dir(path):
             found = sorted(str(p) for p in path.iterdir()
-                           if (p.suffix == ".mcap" and p.is_file()) or
+                           if (p.suffix in (".mcap", ".db3") and p.is_file()) or
                            (p.is_dir() and _is_bag_dir(p)))
             if not found:
-                raise InputError(f"{text}: a folder without .mcap files or rosbag2 "
+                raise InputError(f"{text}: a folder without .mcap or .db3 files or rosbag2 "
                                  "directories")
             bags += found
         else:
@@ -80,6 +81,8 @@ class BagOutcome:
     problems: list[str] = field(default_factory=list)
     error: str | None = None
     plots: list[str] = field(default_factory=list)
+    figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
+    """``evaluate --report``: per sensor its plots as (caption, PNG bytes)."""
     series: str = ""
     """``evaluate --csv`` rows of this bag (pool workers only)."""
 
@@ -88,7 +91,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
                   inputs: Sequence[str], out_of_range: str = "extend",
                   tracking: str = DEFAULT_TRACKING,
-                  references_every: float | None = None) -> BagOutcome:
+                  references_every: float | None = None, figures: bool = False) -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
     ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
     (a pool worker)."""
@@ -105,6 +108,9 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
             outcome.plots = [str(p) for p in plot_evaluation(
                 result, plots_dir, inputs=inputs, calibration=calibration, bag=bag,
                 calibration_path=calibration_path, tare=tare)]
+        if figures:
+            outcome.figures = evaluation_figures(result, calibration, bag=bag,
+                                                 calibration_path=calibration_path, tare=tare)
         for ev in result.sensors.values():  # the arrays went into the plots
             ev.t = ev.r = ev.reference = ev.estimate = ev.direction = ev.scored = \
                 ev.t[:0]
@@ -151,9 +157,11 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   plots: str | None = None, series: SeriesCSV | None = None,
                   progress: Callable[[int, int, str], None] | None = None,
                   out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
-                  references_every: float | None = None) -> list[BagOutcome]:
+                  references_every: float | None = None,
+                  figures: bool = False) -> list[BagOutcome]:
     """Every bag evaluated (module docstring), in the order given; ``jobs`` > 1 runs them
-    in a pool of that many processes. ``progress(done, total, bag)`` after each bag."""
+    in a pool of that many processes. ``progress(done, total, bag)`` after each bag.
+    ``figures``: keep each bag's plots as PNG bytes (``evaluate --report``)."""
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = _plot_dirs(bags, plots)
@@ -162,7 +170,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
                                           dirs[k], series, inputs, out_of_range,
-                                          tracking, references_every))
+                                          tracking, references_every, figures))
             if progress is not None:
                 progress(k + 1, len(bags), bag)
         return outcomes
@@ -173,7 +181,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                  for k in range(len(bags))]
         futures = [pool.submit(_evaluate_one, bag, calibration_path, tare, plot_points,
                                in_run, dirs[k], parts[k], inputs, out_of_range, tracking,
-                               references_every)
+                               references_every, figures)
                    for k, bag in enumerate(bags)]
         for k, future in enumerate(futures):  # in order: the CSV keeps the bags' order
             outcome = future.result()

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -28,6 +28,9 @@ if TYPE_CHECKING:
     from strain_comp.core.calibration import Calibration
     from strain_comp.offline.evaluate import EvaluationResult, SensorEvaluation
 
+Target = TypeVar("Target", Path, IO[bytes])
+"""Where a plot goes: a PNG file's path, or an open binary file."""
+
 
 def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
     import matplotlib
@@ -38,8 +41,12 @@ def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
     return Figure(figsize=(9.0, height * rows), layout="constrained")
 
 
-def _save(fig: Figure, path: Path, inputs: Sequence[str | Path] = ()) -> Path:
-    """PNG written atomically (``strain_comp.io.atomic``); a path that is an input is refused."""
+def _save(fig: Figure, path: Target, inputs: Sequence[str | Path] = ()) -> Target:
+    """PNG written atomically (``strain_comp.io.atomic``); a path that is an input is
+    refused. An open binary file (``report_page`` embeds the bytes) is written as is."""
+    if not isinstance(path, (str, Path)):
+        fig.savefig(path, dpi=110, format="png")
+        return path
     with atomic_output(path, inputs=inputs) as handle:
         fig.savefig(handle, dpi=110, format="png")
     return path
@@ -80,8 +87,8 @@ def _out_of_range(ev: SensorEvaluation) -> np.ndarray:
     return mask if mask.shape == ev.t.shape else np.zeros(ev.t.shape, bool)
 
 
-def plot_time(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
-              context: str = "") -> Path:
+def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
+              context: str = "") -> Target:
     """Estimate and reference strain over time, resistance on a second panel; samples
     outside the calibrated range marked on both."""
     fig = _figure(2, height=3.2)
@@ -116,8 +123,8 @@ def plot_time(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] 
     return _save(fig, path, inputs)
 
 
-def plot_loop(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
-              context: str = "") -> Path:
+def plot_loop(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
+              context: str = "") -> Target:
     """S_hat against S with the identity line; out-of-range samples marked."""
     fig = _figure(height=6.0)
     ax = fig.subplots()
@@ -141,8 +148,8 @@ def plot_loop(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] 
     return _save(fig, path, inputs)
 
 
-def plot_raw(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
-             context: str = "", r_range: tuple[float, float] | None = None) -> Path:
+def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
+             context: str = "", r_range: tuple[float, float] | None = None) -> Target:
     """The sensor as recorded: resistance against the reference strain (what the model
     inverts), with the calibration's resistance range (``r_range``, ohm) as lines, moved
     by the tare's gain into the recorded resistance."""
@@ -176,8 +183,8 @@ def plot_raw(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] =
     return _save(fig, path, inputs)
 
 
-def plot_error_hist(ev: SensorEvaluation, path: Path, *, inputs: Sequence[str | Path] = (),
-                    context: str = "") -> Path:
+def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
+                    context: str = "") -> Target:
     """Histogram of the error S_hat - S over the scored samples."""
     fig = _figure(height=4.0)
     ax = fig.subplots()
@@ -205,7 +212,7 @@ def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
     written = []
     for name, ev in result.sensors.items():
         stem = name.strip("/").replace("/", "_")  # sensor names may hold slashes
-        context = _context(result, name, bag, calibration_path, tare)
+        context = context_line(result, name, bag, calibration_path, tare)
         cal = calibration.sensors.get(name) if calibration is not None else None
         r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
         written.append(plot_time(ev, out / f"{stem}_time.png", inputs=inputs,
@@ -219,7 +226,7 @@ def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
     return written
 
 
-def _context(result: EvaluationResult, name: str, bag: str, calibration_path: str,
+def context_line(result: EvaluationResult, name: str, bag: str, calibration_path: str,
              tare: str) -> str:
     """``bag demo.mcap, calibration cal.yaml, tare auto: rest resistance 2.1 % below ...``"""
     parts = []

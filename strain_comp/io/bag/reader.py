@@ -12,7 +12,9 @@ flag. Float64MultiArray (when the layout varies), Temperature and DiagnosticArra
 by message through ``mcap_ros2``'s public ``DecoderFactory``, built on the standard ROS 2
 definitions of those types (``schemas.SCHEMAS``), not on the schema text found in the bag:
 these are fixed message types, so a damaged schema text in a bag costs nothing. A rosbag2
-directory (``metadata.yaml`` + ``.mcap`` files) reads as one bag.
+directory (``metadata.yaml`` + ``.mcap`` files) reads as one bag. rosbag2's sqlite3 storage
+(``.db3`` files, bare or in a directory; Humble's and Iron's default) reads through
+``strain_comp.io.bag.db3``: its messages become MCAP message records, decoded as above.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from strain_comp._numba import njit
 from strain_comp.errors import BagError, InputError
+from strain_comp.io.bag.db3 import DECOMPRESS_HINT, db3_messages, refuse_compressed_file
 from strain_comp.io.bag.schemas import (
     MAGIC,
     MAX_TIME_S,
@@ -391,10 +394,9 @@ def _inside(path: Path, file: Path) -> bool:
         return False
 
 
-def _metadata_files(path: Path, meta: Path) -> list[Path]:
-    """The files ``metadata.yaml`` lists (``rosbag2_bagfile_information.
-    relative_file_paths``) that exist; BagError (one line) for unreadable metadata, a field
-    of the wrong type, or a path that is absolute, holds ``..`` or leads out of ``path``."""
+def _metadata(meta: Path) -> dict[str, Any]:
+    """rosbag2's metadata.yaml within ``MAX_METADATA_BYTES``; BagError (one line) when it is
+    unreadable or ``rosbag2_bagfile_information`` is not a mapping."""
     try:
         with meta.open("rb") as handle:
             data = handle.read(MAX_METADATA_BYTES + 1)
@@ -407,6 +409,15 @@ def _metadata_files(path: Path, meta: Path) -> list[Path]:
     where = "rosbag2_bagfile_information"
     if not isinstance(info, dict) or not isinstance(info.get(where, {}), dict):
         raise BagError(f"{meta}: {where} must be a mapping")
+    return info
+
+
+def _metadata_files(path: Path, meta: Path) -> list[Path]:
+    """The files ``metadata.yaml`` lists (``rosbag2_bagfile_information.
+    relative_file_paths``) that exist; BagError (one line) for unreadable metadata, a field
+    of the wrong type, or a path that is absolute, holds ``..`` or leads out of ``path``."""
+    info = _metadata(meta)
+    where = "rosbag2_bagfile_information"
     rel = info.get(where, {}).get("relative_file_paths", [])
     if not isinstance(rel, list) or not all(isinstance(p, str) for p in rel):
         raise BagError(f"{meta}: {where}.relative_file_paths must be a list of strings")
@@ -422,25 +433,111 @@ def _metadata_files(path: Path, meta: Path) -> list[Path]:
 
 
 def _bag_files(path: Path) -> list[Path]:
-    """The .mcap files of a rosbag2 directory, in metadata.yaml order when it lists them;
-    only regular files inside the directory (a symbolic link out of it is not read)."""
+    """The .mcap (or .db3) files of a rosbag2 directory, in metadata.yaml order when it
+    lists them; only regular files inside the directory (a symbolic link out of it is not
+    read). Files compressed whole (``.zstd``) are refused, with how to decompress them."""
     meta = path / "metadata.yaml"
     files = _metadata_files(path, meta) if _inside(path, meta) else []
     if not files:
-        files = [f for f in sorted(path.glob("*.mcap")) if _inside(path, f)]
+        files = [f for pattern in ("*.mcap", "*.db3", "*.mcap.zstd", "*.db3.zstd")
+                 for f in sorted(path.glob(pattern)) if _inside(path, f)]
     if not files:
-        raise BagError(f"{path}: directory holds no .mcap file")
+        raise BagError(f"{path}: directory holds no .mcap or .db3 file")
+    for file in files:
+        if file.suffix == ".zstd":
+            refuse_compressed_file(file)
     return files
 
 
 def _bag_paths(path: Path) -> list[Path]:
-    """The MCAP files of a bare ``.mcap`` or a rosbag2 directory; BagError before anything
-    is opened for a missing path or one that is neither (a FIFO would block)."""
+    """The storage files (MCAP, sqlite3) of a bare ``.mcap`` or ``.db3`` or a rosbag2
+    directory; BagError before anything is opened for a missing path or one that is
+    neither (a FIFO would block)."""
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     if not (path.is_dir() or path.is_file()):
         raise BagError(f"{path}: not a regular file or a rosbag2 directory")
+    if path.is_file() and path.suffix == ".zstd":
+        refuse_compressed_file(path)
     return _bag_files(path) if path.is_dir() else [path]
+
+
+def _per_message_zstd(path: Path, file: Path) -> bool:
+    """Are the messages of ``file`` (of the bag at ``path``) compressed one by one? A
+    rosbag2 directory says so in metadata.yaml (``compression_mode: message``); only zstd
+    is read, and only for .db3 files."""
+    meta = path / "metadata.yaml"
+    if not (path.is_dir() and _inside(path, meta)):
+        return False
+    info = _metadata(meta).get("rosbag2_bagfile_information", {})
+    mode = str(info.get("compression_mode") or "").lower()
+    if mode in ("", "none"):
+        return False
+    kind = str(info.get("compression_format") or "")
+    if mode != "message" or kind != "zstd" or file.suffix != ".db3":
+        raise BagError(f"{meta}: compression {kind or '?'} per {mode} is not read here; "
+                       + DECOMPRESS_HINT)
+    return True
+
+
+def _storage_file(col: _Collector, path: Path, file: Path) -> Iterator[int]:
+    """Collect the messages of one storage file of the bag at ``path``; yields after each
+    record (MCAP, the file mapped and the pages walked released) or block (sqlite3)."""
+    if file.suffix == ".db3":
+        yield from _read_db3(col, file, _per_message_zstd(path, file))
+        return
+    try:
+        with file.open("rb") as handle:
+            if os.fstat(handle.fileno()).st_size < len(MAGIC):
+                raise BagError(f"{file}: not an MCAP file (bad magic)")
+            data = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
+    except OSError as exc:
+        raise BagError(f"{file}: cannot read ({exc.strerror})") from exc
+    with data:
+        released = 0
+        for pos in _read_file(col, data, str(file)):
+            page = pos - pos % mmap.PAGESIZE
+            if page > released:
+                data.madvise(mmap.MADV_DONTNEED, released, page - released)
+                released = page
+            yield pos
+
+
+def _read_db3(col: _Collector, file: Path, compressed: bool) -> Iterator[int]:
+    """The messages of a ``.db3`` file (``db3.db3_messages``) collected as MCAP records of
+    one channel per topic and type, as an unchunked MCAP's are: decoded alike after."""
+    channels: dict[tuple[str, str], int] = {}
+    skipped = crowded = 0
+    for n, block in enumerate(db3_messages(file, col.problems, compressed=compressed)):
+        messages = []
+        for topic, kind, stamp, data in block:
+            if not 0 <= stamp <= MAX_LOG_NS:
+                skipped += 1
+                continue
+            if (topic, kind) not in channels and len(channels) >= MAX_DB3_CHANNELS:
+                crowded += 1
+                continue
+            cid = channels.setdefault((topic, kind), len(channels) + 1)
+            if (col.file_index, cid) not in col.channels:
+                col.schemas[(col.file_index, cid)] = Schema(id=cid, name=kind,
+                                                            encoding="ros2msg", data=b"")
+                col.channels[(col.file_index, cid)] = Channel(
+                    id=cid, topic=topic, message_encoding="cdr", metadata={}, schema_id=cid)
+            messages.append(Message(channel_id=cid, log_time=stamp, data=data,
+                                    publish_time=stamp, sequence=0))
+        if messages:
+            _add_loose(col, messages, str(file))
+        yield n
+    if skipped:
+        col.problems.append(f"{file}: {skipped} messages with a time stamp beyond 2^31 s "
+                            "(2038-01-19) or before 1970 skipped")
+    if crowded:
+        col.problems.append(f"{file}: {crowded} messages on topics past the first "
+                            f"{MAX_DB3_CHANNELS} skipped")
+
+
+MAX_DB3_CHANNELS = 65535
+"""Topics (with their type) read from one .db3 file: an MCAP channel id has 16 bits."""
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagContents:
@@ -461,11 +558,7 @@ def _collect(path: Path, topics: Iterable[str] | None) -> _Collector:
     col = _Collector(set(topics) if topics is not None else None)
     for index, file in enumerate(_bag_paths(path)):
         col.file_index = index
-        try:
-            data = file.read_bytes()
-        except OSError as exc:
-            raise BagError(f"{file}: cannot read ({exc.strerror})") from exc
-        for _ in _read_file(col, data, str(file)):
+        for _ in _storage_file(col, path, file):
             if col.held > MAX_BAG_BYTES:
                 raise BagError(f"{file}: more than {MAX_BAG_BYTES} bytes of messages to hold "
                                "at once (the whole-bag reader's budget)")
@@ -521,27 +614,14 @@ def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     cut: int | None = None
     for index, file in enumerate(_bag_paths(path)):
         col.file_index = index
-        try:
-            with file.open("rb") as handle:
-                if os.fstat(handle.fileno()).st_size < len(MAGIC):
-                    raise BagError(f"{file}: not an MCAP file (bad magic)")
-                data = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
-        except OSError as exc:
-            raise BagError(f"{file}: cannot read ({exc.strerror})") from exc
-        with data:
-            released = 0
-            for pos in _read_file(col, data, str(file)):
-                page = pos - pos % mmap.PAGESIZE
-                if page > released:
-                    data.madvise(mmap.MADV_DONTNEED, released, page - released)
-                    released = page
-                if sum(m.size for m in col.msg_time) >= window or col.held >= MAX_HELD_BYTES:
-                    piece, cut = _take(col, col.chunk_start, cut)
-                    if piece is None and col.held >= MAX_HELD_BYTES:  # no cut frees memory
-                        piece, cut = _take(col, None, cut)
-                    if piece is not None:
-                        piece.problems[:] = located(path, piece.problems)
-                        yield piece
+        for _ in _storage_file(col, path, file):
+            if sum(m.size for m in col.msg_time) >= window or col.held >= MAX_HELD_BYTES:
+                piece, cut = _take(col, col.chunk_start, cut)
+                if piece is None and col.held >= MAX_HELD_BYTES:  # no cut frees memory
+                    piece, cut = _take(col, None, cut)
+                if piece is not None:
+                    piece.problems[:] = located(path, piece.problems)
+                    yield piece
     piece, _ = _take(col, None, cut)
     if piece is None:
         piece = BagContents(problems=col.problems)

@@ -1,0 +1,249 @@
+"""One page to look at: ``evaluate --report`` and ``diagnose --report`` as a single HTML file.
+
+The page holds everything in itself (styles inline, plots as base64 PNG: it opens without
+a network and can be mailed): the error table per bag and sensor, the evaluation plots of
+``strain_comp.offline.plots`` (estimate and reference over time, estimate against
+reference, resistance against reference with the calibrated range, error histogram;
+samples outside the calibrated range in orange), the calibration's provenance (model,
+options, what it was fitted on, rest resistance, effect terms, recalibrations, the tare
+of this run) and, for ``diagnose`` (``strain_comp.diagnosis.report_page``, built from
+these parts), each effect found with its reading and the held-out error before and
+after. Every figure of a table carries its full value in ``data-value`` (what ``--json``
+holds), the text shows it rounded.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from html import escape
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from strain_comp import __version__
+from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.offline.evaluate import format_notes
+from strain_comp.offline.plots import (
+    context_line,
+    plot_error_hist,
+    plot_loop,
+    plot_raw,
+    plot_time,
+)
+
+if TYPE_CHECKING:
+    from strain_comp.core.metrics import ErrorStats
+    from strain_comp.offline.evaluate import EvaluationResult
+
+STYLE = """
+body { font: 14px/1.45 system-ui, sans-serif; margin: 2em auto; max-width: 1100px;
+       color: #222; padding: 0 1em; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.25em; margin-top: 2em;
+       border-bottom: 1px solid #ccc; } h3 { font-size: 1.05em; }
+table { border-collapse: collapse; margin: 0.6em 0; }
+th, td { padding: 3px 10px; border-bottom: 1px solid #e4e4e4; text-align: left; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+th { background: #f4f4f4; }
+img { max-width: 100%; border: 1px solid #eee; margin: 0.4em 0; }
+.note { color: #555; } .error { color: #a00; } code { background: #f4f4f4; }
+figure { margin: 0.6em 0; } figcaption { color: #555; font-size: 0.9em; }
+"""
+
+FIGURES = ("estimate and reference over time, resistance below",
+           "estimate against reference (a loop left is hysteresis the model missed)",
+           "recorded resistance against reference, with the calibrated range (dotted); "
+           "samples outside it in orange",
+           "error histogram")
+"""Captions of the evaluation plots, in the order ``evaluation_figures`` draws them."""
+
+SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
+              ("max_abs", "max", ".4f"), ("r2", "R^2", ".5f"))
+"""Table columns: JSON key, heading, format of the shown text."""
+
+
+@dataclass
+class BagSection:
+    """One evaluated bag: its result (None when it failed: ``error``), the reader's
+    problems and, per sensor, the plots as (caption, PNG bytes)."""
+
+    bag: str
+    result: EvaluationResult | None
+    error: str | None = None
+    problems: list[str] = field(default_factory=list)
+    figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
+
+
+def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
+                       calibration_path: str = "", tare: str = ""
+                       ) -> dict[str, list[tuple[str, bytes]]]:
+    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
+    out: dict[str, list[tuple[str, bytes]]] = {}
+    for name, ev in result.sensors.items():
+        if not ev.t.size:
+            continue
+        context = context_line(result, name, bag, calibration_path, tare)
+        cal = calibration.sensors.get(name)
+        r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
+        buffers = [io.BytesIO() for _ in range(4)]
+        plot_time(ev, buffers[0], context=context)
+        plot_loop(ev, buffers[1], context=context)
+        plot_raw(ev, buffers[2], context=context, r_range=r_range)
+        plot_error_hist(ev, buffers[3], context=context)
+        shown = [(caption, buffer.getvalue()) for caption, buffer in zip(FIGURES, buffers,
+                                                                       strict=True)]
+        out[name] = shown
+    return out
+
+
+def _value(value: Any) -> str:
+    """``data-value``: the number as JSON writes it (null for NaN / inf)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "null"
+    return json.dumps(value)
+
+
+def html_cell(value: Any, fmt: str, key: str) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        text = "n/a"
+    else:
+        text = format(value, fmt)
+    return f'<td class="num" data-key="{key}" data-value="{escape(_value(value))}">{text}</td>'
+
+
+def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]]],
+                  bag: str, extra: Sequence[tuple[str, str]] = ()) -> str:
+    """A table of (sensor, model, stats, unit, extra values) rows."""
+    head = "".join(f"<th>{h}</th>" for h in ("sensor", "model",
+                                            *(h for _, h, _ in SCORE_KEYS), "unit",
+                                            *(h for _, h in extra)))
+    lines = [f'<table class="scores" data-bag="{escape(bag)}"><tr>{head}</tr>']
+    for name, model, stats, unit, more in rows:
+        record = stats.to_dict()
+        cells = "".join(html_cell(record[k], fmt, k) for k, _, fmt in SCORE_KEYS)
+        cells += f"<td>{escape(strain_unit_words(unit))}</td>"
+        cells += "".join(html_cell(more.get(k), "d" if isinstance(more.get(k), int) else ".4g", k)
+                         for k, _ in extra)
+        lines.append(f'<tr data-sensor="{escape(name)}"><td>{escape(name)}</td>'
+                     f"<td>{escape(model)}</td>{cells}</tr>")
+    lines.append("</table>")
+    return "\n".join(lines)
+
+
+def html_image(caption: str, png: bytes) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    return (f'<figure><img alt="{escape(caption)}" src="data:image/png;base64,{data}">'
+            f"<figcaption>{escape(caption)}</figcaption></figure>")
+
+
+def html_notes(lines: Iterable[str], cls: str = "note") -> str:
+    items = "".join(f"<li>{escape(line)}</li>" for line in lines)
+    return f'<ul class="{cls}">{items}</ul>' if items else ""
+
+
+def plain_text(value: Any) -> str:
+    """A provenance value in one line (mappings and lists as compact JSON)."""
+    if isinstance(value, (Mapping, list, tuple)):
+        return json.dumps(value, default=str, separators=(", ", ": "))
+    return str(value)
+
+
+def provenance_section(calibration: Calibration, path: str, *, tare: str = "",
+                       notes: Sequence[str] = ()) -> str:
+    """What the calibration is and where it came from, per sensor."""
+    parts = [f"<h2>Calibration</h2><p><code>{escape(path)}</code>"
+             + (f", tare <code>{escape(tare)}</code>" if tare else "") + "</p>"]
+    for name, cal in calibration.sensors.items():
+        parts.append(f"<h3>{escape(name)}</h3><table class=\"provenance\">")
+        for key, value in _provenance_rows(cal):
+            parts.append(f'<tr data-key="{escape(key)}"><th>{escape(key)}</th>'
+                         f"<td>{escape(value)}</td></tr>")
+        tared = [n.split(": ", 1)[1] for n in notes if n.startswith(f"{name}: ")
+                 and "tare" in n]
+        if tared:
+            parts.append(f"<tr><th>tare of this run</th><td>{escape('; '.join(tared))}"
+                         "</td></tr>")
+        parts.append("</table>")
+    return "\n".join(parts)
+
+
+def _provenance_rows(cal: SensorCalibration) -> list[tuple[str, str]]:
+    prov = cal.provenance
+    vr = cal.valid_range
+    rows = [("model", cal.model), ("strain unit", strain_unit_words(cal.strain_unit)),
+            ("options", plain_text(prov.get("options") or {})),
+            ("fitted on", ", ".join(str(b) for b in prov.get("bags", [])) or "not recorded"),
+            ("samples fitted", plain_text(prov.get("n_samples", "not recorded"))),
+            ("training RMSE", plain_text(prov.get("fit_rmse", "not recorded"))),
+            ("created", f"{prov.get('created', '?')} by {prov.get('tool', '?')}"),
+            ("valid range", f"R {vr.r_lo:.6g} to {vr.r_hi:.6g} ohm, S {vr.s_lo:.4g} to "
+                            f"{vr.s_hi:.4g} {cal.strain_unit}"),
+            ("rest resistance", plain_text(cal.rest_resistance)),
+            ("input", plain_text(cal.input.to_dict()))]
+    if "memory" in prov:
+        rows.append(("memory", plain_text(prov["memory"])))
+    rows.append(("effect terms", "; ".join(
+        f"{e.get('name')} ({e.get('kind')}, coef {float(e.get('coef', 0.0)):.4g})"
+        for e in cal.effects) or "none"))
+    rows.append(("recalibrations", "; ".join(plain_text(r) for r in prov.get("recalibrations", []))
+                 or "none"))
+    return rows
+
+
+def html_page(title: str, body: Sequence[str]) -> str:
+    stamp = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return "\n".join([
+        "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{escape(title)}</title><style>{STYLE}</style></head><body>",
+        f"<h1>{escape(title)}</h1>",
+        f'<p class="note">strain_comp {__version__}, {stamp}. Errors S_hat - S in the '
+        "calibration's strain unit over the scored samples; RMSE [Electrolycra] eq. (5).</p>",
+        *body, "</body></html>", ""])
+
+
+def bag_section(section: BagSection, heading: str = "") -> list[str]:
+    """One bag's heading, table, notes and plots."""
+    body = [f"<h2>{escape(heading or section.bag)}</h2>"]
+    if section.result is None:
+        return [*body, f'<p class="error">not evaluated: {escape(section.error or "")}</p>']
+    result = section.result
+    bound = any(ev.in_run_rmse is not None for ev in result.sensors.values())
+    body.append(_scores_table(
+        ((name, ev.model, ev.stats, ev.unit,
+          {"n_out_of_range": ev.n_out_of_range, "n_bad": ev.n_bad,
+           **({"in_run_rmse": ev.in_run_rmse} if ev.in_run_rmse is not None else {})})
+         for name, ev in result.sensors.items()), heading or section.bag,
+        [("n_out_of_range", "out of range"), ("n_bad", "bad"),
+         *([("in_run_rmse", "in-run RMSE")] if bound else [])]))
+    body.append(html_notes(section.problems + format_notes(result)))
+    for name, figures in section.figures.items():
+        body.append(f"<h3>{escape(name)}</h3>")
+        body += [html_image(caption, png) for caption, png in figures]
+    return body
+
+
+def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
+                    calibration_path: str, *, tare: str = "",
+                    pooled: Mapping[str, tuple[Any, int, str, str]] | None = None) -> str:
+    """The ``evaluate --report`` page: one section per bag, the pooled table for several
+    (``strain_comp.offline.batch.aggregate``), then the calibration's provenance."""
+    body: list[str] = []
+    if pooled is not None:
+        done = sum(s.result is not None for s in sections)
+        body.append(f"<h2>All bags: errors pooled over {done} of {len(sections)}</h2>")
+        body.append(_scores_table(((name, model, acc.stats(), unit, {"n_bags": n_bags})
+                                   for name, (acc, n_bags, model, unit) in pooled.items()),
+                                  "(pooled)", [("n_bags", "bags")]))
+    notes: list[str] = []
+    for section in sections:
+        body += bag_section(section)
+        if section.result is not None:
+            notes += section.result.notes
+    body.append(provenance_section(calibration, calibration_path, tare=tare, notes=notes))
+    names = ", ".join(Path(s.bag.rstrip("/")).name for s in sections[:3])
+    more = f" and {len(sections) - 3} more" if len(sections) > 3 else ""
+    return html_page(f"strain_comp evaluate: {names}{more}", body)

@@ -1,0 +1,58 @@
+"""Progress bars for long work (an APL fit's grid, diagnose, many bags), with tqdm.
+
+A bar is drawn on stderr only when stderr is a terminal and the command is not ``--quiet``
+(``wanted``): a CI log (not a terminal) and a quiet command get nothing. Each caller opens
+one with ``bar`` and hands the long work a callable that moves it (``counter`` for done of
+total, ``grid_progress`` for an APL fit's grid lines); a disabled bar costs nothing.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+GRID_ROW = re.compile(r"grid row (\d+)/(\d+)")
+"""How an APL-family fit reports a row of its sigma/p grid (``models.apl``'s progress)."""
+
+
+def wanted(quiet: bool = False) -> bool:
+    """Draw bars? Only on a terminal, and not when quiet."""
+    return not quiet and sys.stderr.isatty()
+
+
+@contextmanager
+def bar(total: int | None, what: str, *, enabled: bool) -> Iterator[Any]:
+    """A tqdm bar of ``total`` steps named ``what`` on stderr, or (disabled) one that draws
+    nothing; closed on leaving the block. ``update(n)`` advances it."""
+    from tqdm import tqdm
+
+    with tqdm(total=total, desc=what, disable=not enabled, file=sys.stderr, leave=False,
+              dynamic_ncols=True) as shown:
+        yield shown
+
+
+def counter(shown: Any) -> Callable[[int, int], None]:
+    """A ``progress(done, total)`` callable that moves ``shown`` to done of total."""
+    def step(done: int, total: int) -> None:
+        if shown.total != total:
+            shown.total = total
+        shown.update(done - shown.n)
+    return step
+
+
+def grid_progress(shown: Any) -> Callable[[str], None]:
+    """The ``progress`` callable of an APL-family fit: each ``grid row i/n`` line moves
+    ``shown`` to i of n; its other lines (refinement) name the step."""
+    def say(line: str) -> None:
+        match = GRID_ROW.search(line)
+        if match is None:
+            shown.set_postfix_str(line.split(": ", 1)[-1][:40], refresh=True)
+            return
+        done, total = int(match.group(1)), int(match.group(2))
+        if shown.total != total:
+            shown.reset(total=total)
+        shown.update(done - shown.n)
+    return say
