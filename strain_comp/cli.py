@@ -207,7 +207,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
                          "mm (1-16 letters, digits, %, / or .)")
     notes: list[str] = []  # damage the reader skipped: noted once, in the error if any
     try:
-        calibration = fit_bags(args.bags, args.model, args.sensor, options, report=notes.append)
+        calibration = fit_bags(args.bags, args.model, args.sensor, options,
+                               report=notes.append, pool=args.pool)
     except StrainCompError as err:
         raise InputError("; ".join([str(err), *notes])) from None
     for line in notes:
@@ -393,7 +394,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def cmd_recalibrate(args: argparse.Namespace) -> int:
     from strain_comp.core.calibration import load_calibration, save_calibration
-    from strain_comp.offline.recalibrate import parse_point, recalibrate
+    from strain_comp.offline.recalibrate import parse_point, parse_window, recalibrate
 
     if bool(args.point) == bool(args.from_bag):
         raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
@@ -403,9 +404,14 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     _output(args.out, [args.calibration, bag])
     if args.first is not None and bag is None:
         raise InputError("recalibrate --first needs --from BAG.mcap")
+    if args.window is not None and bag is None:
+        raise InputError("recalibrate --window needs --from BAG.mcap")
+    if args.window is not None and args.first is not None:
+        raise InputError("recalibrate: give --first or --window, not both")
+    span = None if args.window is None else parse_window(args.window)
     new, lines = recalibrate(calibration, points=points, bag=bag, sensors=args.sensor,
                              tare=args.tare, form="input" if args.input else "output",
-                             first=args.first)
+                             first=args.first, span=span)
     save_calibration(new, args.out,
                      inputs=[p for p in (args.calibration, bag) if p is not None])
     print("\n".join(lines))
@@ -542,6 +548,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="unit of the bags' strain_reference (default %%; mm for an extension "
                    "imported without a gauge length): errors, plots and readings are given "
                    "in it")
+    p.add_argument("--pool", choices=("spanned", "raw"), default="spanned",
+                   help="several bags of a sensor: spanned (default) puts each run's input "
+                        "zero and span onto the run of median sensitivity before pooling "
+                        "(as recalibrate --input does); raw pools the resistance as recorded")
     p.set_defaults(func=cmd_fit)
 
     p = command("evaluate", "error table of a calibration on one or many bags",
@@ -648,7 +658,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "k (R - R_rest), instead of the output gain and offset (with --from: "
                         "from the first rest and the largest strain)")
     p.add_argument("--first", type=float, metavar="SECONDS",
-                   help="with --from: use only the bag's first SECONDS (its first cycle)")
+                   help="with --from: use only the bag's first SECONDS (its first cycle; "
+                        "= --window 0:SECONDS)")
+    p.add_argument("--window", metavar="START:END",
+                   help="with --from: use only the bag's samples from START to END seconds "
+                        "after its start, which must hold a load and unload (the "
+                        "calibration stretch after a warm-up stretch)")
     p.add_argument("--out", required=True, metavar="CAL2.yaml",
                    help="calibration to write (replaced atomically)")
     _tare_flag(p)

@@ -384,47 +384,143 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
     return new
 
 
+CYCLE_UP, CYCLE_BACK = 0.5, 0.1
+"""A cycle (``cycle_end``): the reference passes this share of its span above its minimum,
+then returns to within the second share of it."""
+
+
+def cycle_end(t: np.ndarray, s: np.ndarray) -> float | None:
+    """Seconds from ``t[0]`` to the end of the first stretch and return of the reference
+    ``s``: its first return to within ``CYCLE_BACK`` of its span (1st to 99th percentile)
+    above the minimum after first passing ``CYCLE_UP`` of it. None when there is none."""
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(s)
+    t, s = t[ok], s[ok]
+    if t.size < 2:
+        return None
+    lo, hi = np.percentile(s, [1, 99])
+    if not hi > lo:
+        return None
+    up = np.flatnonzero(s > lo + CYCLE_UP * (hi - lo))
+    if not up.size:
+        return None
+    back = np.flatnonzero(s[up[0]:] < lo + CYCLE_BACK * (hi - lo))
+    return float(t[up[0] + back[0]] - t[0]) if back.size else None
+
+
+MIN_CYCLE_SHARE = 0.1
+"""A window's stretch must span at least this share of the calibration's strain range."""
+
+
+def stretch_and_return(s: np.ndarray, strain_range: float) -> bool:
+    """True when the reference ``s`` of a window rises from within ``CYCLE_UP`` of its span
+    above its minimum to its maximum and falls back there, over at least
+    ``MIN_CYCLE_SHARE`` of ``strain_range`` (the calibration's): a load and unload."""
+    s = np.asarray(s, dtype=np.float64)
+    s = s[np.isfinite(s)]
+    if s.size < 3 or not np.ptp(s) >= MIN_CYCLE_SHARE * strain_range:
+        return False
+    low = s <= s.min() + CYCLE_UP * np.ptp(s)
+    top = int(np.argmax(s))
+    return bool(low[:top].any() and low[top:].any())
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise."""
+    a_text, sep, b_text = text.partition(":")
+    try:
+        start, end = float(a_text), float(b_text)
+    except ValueError:
+        start, end = float("nan"), float("nan")
+    if not (sep and np.isfinite(start) and np.isfinite(end) and start >= 0):
+        raise InputError(f"--window {text!r}: expected START:END in seconds from the bag's "
+                         "start, START >= 0")
+    if not end > start:
+        raise InputError(f"--window {text!r}: END must be after START")
+    return start, end
+
+
 def head(recordings: Mapping[str, Recording], seconds: float | None,
          ) -> dict[str, Recording]:
-    """Each recording's first ``seconds`` (all of it when None)."""
+    """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds)."""
     if seconds is None:
         return dict(recordings)
     if not (np.isfinite(seconds) and seconds > 0):
         raise InputError(f"--first {seconds!r}: expected a duration > 0 s")
+    return {name: cut(rec, 0.0, seconds) for name, rec in recordings.items()}
+
+
+def cut(rec: Recording, start: float, end: float) -> Recording:
+    """The samples of ``rec`` from ``start`` to ``end`` seconds after its first sample."""
+    if not rec.t.size:
+        return rec
+    a = int(np.searchsorted(rec.t, rec.t[0] + start, side="left"))
+    b = int(np.searchsorted(rec.t, rec.t[0] + end, side="right"))
+    return replace(rec, t=rec.t[a:b], r=rec.r[a:b], s=None if rec.s is None else rec.s[a:b],
+                   temperature=None if rec.temperature is None else rec.temperature[a:b])
+
+
+def window(recordings: Mapping[str, Recording], span: tuple[float, float],
+           calibration: Calibration, source: str = "the bag") -> dict[str, Recording]:
+    """Each referenced recording's samples from ``span[0]`` to ``span[1]`` seconds after its
+    start (``recalibrate --window``). InputError for a window beyond a recording's end or
+    one in which its reference strain makes no stretch and return (``stretch_and_return``
+    over the strain range of its sensor's calibration)."""
+    start, end = span
     out = {}
     for name, rec in recordings.items():
-        n = int(np.searchsorted(rec.t, rec.t[0] + seconds, side="right")) if rec.t.size else 0
-        out[name] = replace(rec, t=rec.t[:n], r=rec.r[:n],
-                            s=None if rec.s is None else rec.s[:n],
-                            temperature=None if rec.temperature is None
-                            else rec.temperature[:n])
+        if rec.s is None or not rec.t.size:
+            continue
+        length = float(rec.t[-1] - rec.t[0])
+        if end > length + float(np.median(np.diff(rec.t)) if rec.t.size > 1 else 0.0):
+            raise InputError(f"--window {start:g}:{end:g}: {source} has {length:.4g} s of "
+                             f"sensor {name!r}, the window runs beyond it")
+        part = cut(rec, start, end)
+        vr = calibration.sensors[name].valid_range
+        if part.s is None or not stretch_and_return(part.s, vr.s_hi - vr.s_lo):
+            raise InputError(f"--window {start:g}:{end:g}: the reference strain of {name!r} "
+                             f"makes no stretch and return in it (record a load and unload "
+                             f"there)")
+        out[name] = part
     return out
 
 
 def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Recording], *,
                            form: str = "output", first: float | None = None,
                            sensors: Sequence[str] | None = None, tare: str = "calibration",
-                           source: str = "") -> tuple[Calibration, list[str]]:
+                           source: str = "", span: tuple[float, float] | None = None,
+                           ) -> tuple[Calibration, list[str]]:
     """``recalibrate`` from recordings with a reference strain (their first ``first``
-    seconds): the output map by least squares, or the input zero and span from the
-    first rest and the largest strain (``points_from_first_cycle``)."""
+    seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
+    map by least squares, or the input zero and span from the first rest and the largest
+    strain (``points_from_first_cycle``)."""
     from strain_comp.offline.evaluate import evaluate_recordings
 
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
-    recs = head(recordings, first)
+    if span is not None and first is not None:
+        raise InputError("recalibrate: give --first or --window, not both")
+    if span is not None:
+        chosen = {n: r for n, r in recordings.items()
+                  if n in calibration.sensors and not (sensors and n not in sensors)}
+        recs = window(chosen, span, calibration, source or "the bag")
+        where = f"{source}, {span[0]:g} to {span[1]:g} s"
+    else:
+        recs = head(recordings, first)
+        where = f"{source}{'' if first is None else f', first {first:g} s'}"
     out = dict(calibration.sensors)
     lines = []
-    where = f"{source}{'' if first is None else f', first {first:g} s'}"
     if form == "input":
         for name, rec in recs.items():
             if name not in calibration.sensors or rec.s is None or (sensors and
                                                                      name not in sensors):
                 continue
             cal = calibration.sensors[name]
-            span = span_of_first_cycle(cal, rec)
-            out[name] = apply_span(cal, span, {"from": source, "first": first})
-            lines.append(f"{name}: {span_reading(span)} (from {where})")
+            zero_span = span_of_first_cycle(cal, rec)
+            out[name] = apply_span(cal, zero_span, {"from": source, "first": first,
+                                                    "window": None if span is None
+                                                    else list(span)})
+            lines.append(f"{name}: {span_reading(zero_span)} (from {where})")
         if not lines:
             raise InputError(f"recalibrate: {source or 'the data'} has no calibrated sensor "
                              "with a strain_reference")
@@ -434,7 +530,8 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
         if sensors and name not in sensors:
             continue
         a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
-        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first})
+        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first,
+                                                "window": None if span is None else list(span)})
         lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "
                      f"{int(ev.scored.sum())} samples)")
     return Calibration(out), lines
@@ -443,13 +540,15 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
 def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
                 bag: str | None = None, sensors: Sequence[str] | None = None,
                 tare: str = "calibration", form: str = "output",
-                first: float | None = None) -> tuple[Calibration, list[str]]:
+                first: float | None = None, span: tuple[float, float] | None = None,
+                ) -> tuple[Calibration, list[str]]:
     """The recalibrated calibration and one line per sensor (gain, offset, reading).
 
     ``points``: two (R, S) points (one sensor: ``sensors`` or the calibration's only one);
     ``bag``: a bag with a reference strain (every calibrated sensor in it; its first
-    ``first`` seconds). ``form``: ``output`` (gain and offset of the strain) or ``input``
-    (zero and span of the resistance). Raises InputError (the input calibration is
+    ``first`` seconds, or ``span``: the window (START, END) seconds after its start, which
+    must hold a stretch and return). ``form``: ``output`` (gain and offset of the strain)
+    or ``input`` (zero and span of the resistance). Raises InputError (the input calibration is
     untouched) when the map cannot be made.
     """
     if form not in FORMS:
@@ -461,7 +560,7 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
 
         return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
                                       first=first, sensors=sensors, tare=tare,
-                                      source=str(bag))
+                                      source=str(bag), span=span)
     else:
         names = list(sensors or calibration.sensors)
         if len(names) != 1:
