@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Kernel throughput of the models that ``bench/bench_kernels.py`` (APL family, cubic) does
-not cover: sinh_pl, rational (split mode), spike_decay.
+not cover: sinh_pl, rational (split mode), spike_decay, creep_pi.
 
     python bench/bench_models.py [--samples 1000000] [--reference-samples 5000]
 
@@ -10,7 +10,11 @@ same equations that the model's own tests check the kernel against
 (``test/models/test_{sinh_pl,rational,spike_decay}.py``), timed in the same run on
 ``--reference-samples`` samples, and the largest difference between the two there.
 Parameters and inputs are those of the tests: sinh_pl with 2 cells on a modulated sine,
-rat22 split into loading / unloading fits on a random walk, spike_decay on a staircase.
+rat22 split into loading / unloading fits on a random walk, spike_decay on a staircase,
+creep_pi with its default 8 play operators and 4 time constants on a noisy 1 kHz sine.
+creep_pi's goal is 5 M samples/s for one sensor; its ``run`` and ``step`` are also given as
+a ratio to the cubic's ``run`` (``strain_comp.models.cubic``, numpy, no state) timed in the
+same run on the same samples.
 """
 
 from __future__ import annotations
@@ -23,12 +27,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test" / "models"))
+import test_creep_pi
 import test_rational
 import test_sinh_pl
 import test_spike_decay
 from _common import best_time, row
 
 from strain_comp.models.base import Normalisation
+from strain_comp.models.creep_pi import TAUS
+from strain_comp.models.cubic import Cubic
 from strain_comp.models.rational import Rational
 
 
@@ -79,6 +86,46 @@ def spike_decay(n: int):
     return "spike_decay", m, t, r, slow
 
 
+def creep_pi(n: int):
+    m = test_creep_pi.random_model(n_play=8, taus=TAUS)
+    t = np.arange(n) * 1e-3
+    r = 12.0 + 1.5 * np.sin(2 * np.pi * 0.3 * t) + np.random.default_rng(0).normal(0, 0.01, n)
+
+    def slow(k: int) -> np.ndarray:
+        return np.array(test_creep_pi.reference(m, t[:k], r[:k]))
+
+    return "creep_pi (8 play, 4 tau)", m, t, r, slow
+
+
+def against_cubic(n: int) -> None:
+    """creep_pi's run and step against the cubic's run on the same samples."""
+    _, m, t, r, _ = creep_pi(n)
+    cubic = Cubic([0.0, 1.0, 0.1, 0.01], m.normalisation)
+    m.run(t[:100], r[:100])
+    cubic.run(t[:100], r[:100])
+
+    def go() -> None:
+        m.reset()
+        m.run(t, r)
+
+    k = min(n, 200_000)
+
+    def steps() -> None:
+        m.reset()
+        for a, b in zip(t[:k].tolist(), r[:k].tolist(), strict=True):
+            m.step(a, b)
+
+    fast = n / best_time(go, 3)
+    base = n / best_time(lambda: cubic.run(t, r), 3)
+    stepped = k / best_time(steps, 1)
+    print(f"creep_pi run {fast / 1e6:.1f} M samples/s = {fast / base:.2f} x the cubic's run "
+          f"({base / 1e6:.1f} M/s); step {stepped / 1e3:.0f} k samples/s "
+          f"(goal: run >= 5 M/s)")
+    row("creep_pi kernel `run` against the cubic's (`bench_models.py`)",
+        f"{fast / 1e6:.1f} M samples/s", f"cubic: {base / 1e6:.1f} M/s",
+        f"{fast / base:.2f}x")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=1_000_000)
@@ -88,7 +135,7 @@ def main() -> None:
     print(f"kernel throughput, run() on {n:,} samples, one core; pure-Python reference of "
           f"the same equations (from the model's tests) on {k:,} samples:")
     print(f"{'model':<26}{'samples/s':>14}{'reference':>12}{'ratio':>9}{'max |diff| %':>14}")
-    for build in (sinh_pl, rational, spike_decay):
+    for build in (sinh_pl, rational, spike_decay, creep_pi):
         name, model, t, r, slow = build(n)
         model.reset()
         model.run(t[:100], r[:100])  # compile / load the kernel
@@ -106,6 +153,7 @@ def main() -> None:
         row(f"{name} kernel `run`, one core (`bench_models.py`)",
             f"{fast / 1e6:.1f} M samples/s", f"pure-Python reference: {ref / 1e3:.0f} k/s",
             f"{fast / ref:.0f}x")
+    against_cubic(n)
 
 
 if __name__ == "__main__":

@@ -4,8 +4,9 @@
 For each model (fitted once on a simulated rig run, as ``strain-comp fit`` does):
 
 1. a *probe* (full-range sweeps 10 % beyond both ends of the valid range, which wipe out
-   the rate-independent hysteresis memory, a 300 s hold, which lets every fading memory
-   (creep cells, sinh cells, spike decay, detector filter) settle, then two triangle
+   the rate-independent hysteresis memory, a 300 s hold (30 time constants for creep_pi's
+   longest), which lets every fading memory (creep cells and states, sinh cells, spike
+   decay, detector filter) settle, then two triangle
    cycles) on the fresh model;
 2. ``--samples`` random-walk resistances inside the valid range, with jittered 100 Hz
    time stamps, through ``run`` in chunks of ``--chunk``, then ``--steps`` more through
@@ -91,13 +92,21 @@ PROBE_CYCLES = 1600
 """The probe's last samples, two triangle cycles: the drift comparison."""
 
 
+HOLD = 300.0
+"""The probe's hold [s]; at least ``HOLD_TAUS`` of a model's longest time constant."""
+HOLD_TAUS = 30.0
+"""exp(-30) ~ 1e-13: a first-order memory held this many time constants has faded."""
+
+
 def probe(cal: SensorCalibration, t0: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sweeps to 10 % beyond both ends of the valid range, a 300 s hold, two triangles."""
+    """Sweeps to 10 % beyond both ends of the valid range, a hold (``HOLD``, longer for a
+    model with longer time constants: creep_pi's ``taus``), two triangles."""
     lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
     span = hi - lo
+    hold = max(HOLD, HOLD_TAUS * max(cal.params.get("taus", [0.0])))
     legs = [np.linspace(lo - 0.1 * span, hi + 0.1 * span, 500),
             np.linspace(hi + 0.1 * span, lo - 0.1 * span, 500),
-            np.full(30_000, lo - 0.1 * span)]
+            np.full(round(hold / DT), lo - 0.1 * span)]
     tri = np.concatenate([np.linspace(lo, hi, PROBE_CYCLES // 4),
                           np.linspace(hi, lo, PROBE_CYCLES // 4)])
     r = np.concatenate([*legs, tri, tri])

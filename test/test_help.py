@@ -37,9 +37,10 @@ def test_fit_help_lists_every_model_option_with_meaning_and_range(
         capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["fit", "--help"]) == 0
     text = capsys.readouterr().out
-    for model in ("apl", "sinh_pl", "rational", "spike_decay", "cubic"):
+    for model in ("apl", "sinh_pl", "rational", "spike_decay", "creep_pi", "cubic"):
         for key in {**model_options(model), **DIRECTION_OPTIONS}:
-            line = next(line for line in text.splitlines() if line.strip().startswith(key))
+            line = next(line for line in text.splitlines()
+                        if line.split() and line.split()[0] == key)
             assert MEANINGS[key] in line, key
     assert "an odd integer in [1," in text  # M's range, from the same table the check uses
 

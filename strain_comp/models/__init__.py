@@ -19,6 +19,7 @@ _REGISTRY: dict[str, str] = {
     "sinh_pl": "strain_comp.models.sinh_pl:SinhPL",
     "rational": "strain_comp.models.rational:Rational",
     "spike_decay": "strain_comp.models.spike_decay:SpikeDecay",
+    "creep_pi": "strain_comp.models.creep_pi:CreepPI",
 }
 
 MODEL_NAMES: tuple[str, ...] = tuple(_REGISTRY)

@@ -51,14 +51,16 @@ def _boolean(value: Any) -> str | None:
     return None if isinstance(value, bool) else "true or false"
 
 
-def _number_list(lo: float, *, strict: bool = False) -> Check:
-    item = _number(lo, strict=strict)
+def _number_list(lo: float, *, strict: bool = False, hi: float = math.inf,
+                 max_len: int = MAX_LIST) -> Check:
+    item = _number(lo, strict=strict, hi=hi)
 
     def check(value: Any) -> str | None:
-        ok = (isinstance(value, list) and 1 <= len(value) <= MAX_LIST
+        ok = (isinstance(value, list) and 1 <= len(value) <= max_len
               and all(item(v) is None for v in value))
-        return None if ok else (f"a list of 1 to {MAX_LIST} numbers "
-                                f"{'>' if strict else '>='} {lo:g}")
+        return None if ok else (f"a list of 1 to {max_len} numbers "
+                                f"{'>' if strict else '>='} {lo:g}"
+                                + (f" and <= {hi:g}" if math.isfinite(hi) else ""))
     return check
 
 
@@ -90,6 +92,11 @@ def model_options(model: str) -> dict[str, Check]:
         return {"mode": _choice(*MODES)}
     if model == "spike_decay":
         return {"hold_rate": _number(0.0, strict=True), "min_hold": _number(0.0, strict=True)}
+    if model == "creep_pi":
+        from strain_comp.models.creep_pi import LAM_MAX, N_PLAY_MAX, N_TAU_MAX, TAU_RANGE
+
+        return {"taus": _number_list(TAU_RANGE[0], hi=TAU_RANGE[1], max_len=N_TAU_MAX),
+                "n_play": _integer(1, N_PLAY_MAX), "lam": _number(0.0, hi=LAM_MAX)}
     if model == "cubic":
         return {}
     raise InputError(f"--model {model!r}: unknown model; known: {', '.join(MODEL_NAMES)}")
@@ -119,6 +126,9 @@ MEANINGS: dict[str, str] = {
     "mode": "combined, or split: loading and unloading fits (default combined)",
     "hold_rate": "a hold moves slower than this [strain unit/s] (default 0.2 % of span/s)",
     "min_hold": "shortest hold [s] (default 1)",
+    "taus": "creep time constants [s] (default [0.3, 3, 30, 300])",
+    "n_play": "play operators (default 8)",
+    "lam": "ridge penalty (default: chosen by cross-validation over the runs)",
     "deadzone": "direction dead zone [ohm/s] (default k_sigma x noise of a hold)",
     "k_sigma": "dead zone in noise sigmas (default 4)",
     "tau": "low-pass of dR/dt [s] (default from the data)",
@@ -136,7 +146,8 @@ def requirement(check: Check) -> str:
 def describe_options() -> str:
     """Every model's options with meaning and range, for ``strain-comp fit --help``."""
     groups = (("apl, pl, mpi", "apl"), ("sinh_pl", "sinh_pl"), ("rational", "rational"),
-              ("spike_decay", "spike_decay"), ("every model", None))
+              ("spike_decay", "spike_decay"), ("creep_pi", "creep_pi"),
+              ("every model", None))
     lines = ["fit options (--option K=V; cubic has only those of every model):"]
     for title, model in groups:
         lines.append(f"  {title}:")

@@ -1,0 +1,323 @@
+"""creep_pi: play operators and Prony-series creep states, linear in its weights.
+
+The physics. A viscoelastic material's creep (and relaxation) is the superposition of
+first-order responses: the creep compliance as a Prony series
+J(t) = J_0 + sum_k J_k (1 - exp(-t / tau_k)) (generalised Kelvin-Voigt; the spike-decay seed,
+[nanocomposite spike-decay], writes the relaxation after a step as such exponentials). By
+Boltzmann superposition the output is then J_0 xi + sum_k J_k z_k, with z_k the first-order
+low-pass of the input at tau_k: the creep is linear in the low-pass states. The
+rate-independent hysteresis is a Prandtl-Ishlinskii operator, a weighted sum of play
+operators ([Electrolycra] appendix eq. (6) with sigma = 0, the MPI cells); a
+rate-dependent Prandtl-Ishlinskii model adds rate dependence to it, which [Electrolycra]
+eq. (1)-(2) does through power-law creep in each cell (APL). Here the rate dependence is
+instead carried by the creep states, and the whole map stays linear in its weights, so it
+is fitted by one ridge regression rather than a QP inside a nonlinear search.
+
+The model. Input xi = R / r0 + alpha (``Normalisation``, the training range on [-1, 1]).
+State and features per sample: ``strain_comp.models._creep_kernels`` (xi, xi^2, xi^3 (the
+cubic of [Electrolycra] eq. (4)); xi - p_j for J play operators of thresholds
+r_j = j / (J + 1) (as the MPI's, eq. (6)); xi - z_k for the low-pass states at the time
+constants tau_k (default 0.3, 3, 30, 300 s; exact for irregular sampling); a direction
+term d = xi - p_dir from a play operator of small width r_dir and d xi). Output
+psi = intercept + sum_i weights_i (feature_i - mean_i) / scale_i, strain
+S = s0 (psi - beta).
+
+Why the two direction terms: d (about +-r_dir, the sign of the last movement) lets the
+loading and unloading branches sit apart by a constant even where the play operators have
+not yet left their band, e.g. at the first small reversal; d xi lets that offset grow with
+the input, as a loop that opens with strain does. r_dir (``DIRECTION_WIDTH``, 2.5 % of the
+training span) is wide enough that sensor noise does not flip it, narrow enough that the
+branch switches within a small fraction of a cycle.
+
+The fit. The features of every training segment are computed at its full rate from the
+rest state at its first sample (the sensor starts at rest: z_k = xi, every play operator at
+xi), and only their Gram matrices (features x features) are kept, per cross-validation
+fold: so a long run costs time in proportion to its samples and no memory beyond one chunk
+of them, and no decimation ever touches the low-pass states. The features are standardised
+over the training data; the weights minimise the mean squared error of psi plus
+``penalty`` times their squared norm (the intercept unpenalised). The penalty, unless
+given (``lam``), is the one on ``LAM_GRID`` with the lowest cross-validated mean squared
+error: leave-one-segment-out over the training segments when there are two or more (each
+run held out in turn, the folds' errors pooled: the penalty that carries to a run not
+seen), else ``CV_BLOCKS`` contiguous blocks of the one segment, scored by the median
+block. Blocks of one run are not alike as runs are: the first alone holds the start from
+rest, whose states (a 300 s low-pass far from its input) the other blocks never show, so
+its error measures an extrapolation and, pooled, would set the penalty alone (on every
+thread run it asked for 1e3-1e5 times the penalty the three other blocks agree on, and
+doubled the in-run error).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp.core.direction import DirectionSettings
+from strain_comp.errors import FitError, ParameterError
+from strain_comp.models import _creep_kernels as kern
+from strain_comp.models.base import (
+    Compensator,
+    Normalisation,
+    Segment,
+    as_float_arrays,
+    require_float,
+    require_vector,
+)
+
+TAUS = (0.3, 3.0, 30.0, 300.0)
+"""Default time constants [s] of the creep states."""
+N_PLAY = 8
+"""Default number of play operators."""
+DIRECTION_WIDTH = 0.05
+"""Width r_dir of the direction play operator, normalised input (2.5 % of the span)."""
+TAU_RANGE = (1e-3, 1e6)
+"""Time constants [s] a calibration may hold."""
+N_TAU_MAX = 12
+N_PLAY_MAX = 50
+WIDTH_MAX = 100.0
+"""Largest play threshold (normalised input; the training range spans 2)."""
+SCALE_MIN = 1e-12
+LAM_MAX = 1e6
+LAM_GRID = np.geomspace(1e-9, 1e1, 41)
+"""Penalties searched by cross-validation (per sample, on standardised features)."""
+CV_BLOCKS = 4
+"""Contiguous folds of a single training segment."""
+CHUNK = 1 << 16
+"""Samples whose features are held at once during a fit."""
+FLAT = 1e-9
+"""A feature whose training standard deviation is below this is constant: scale 1."""
+
+
+def n_features(n_play: int, n_tau: int) -> int:
+    """Features per sample for J play operators and K time constants."""
+    return kern.N_FIXED + n_play + n_tau
+
+
+def play_thresholds(n_play: int) -> np.ndarray:
+    """r_j = j / (J + 1), j = 1..J ([Electrolycra] eq. (6))."""
+    return np.arange(1, n_play + 1, dtype=np.float64) / (n_play + 1)
+
+
+def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
+             lo: float = -math.inf, hi: float = math.inf, strict: bool = False) -> np.ndarray:
+    array = np.ascontiguousarray(values, dtype=np.float64)
+    if array.ndim != 1 or not length[0] <= array.size <= length[1]:
+        size = length[0] if length[0] == length[1] else f"{length[0]} to {length[1]}"
+        raise ParameterError(name, f"must hold {size} numbers, got {array.size}")
+    if not np.all(np.isfinite(array)):
+        raise ParameterError(name, "must hold finite numbers only")
+    bad = (array <= lo) if strict else (array < lo)
+    bad |= array > hi
+    if np.any(bad):
+        j = int(np.argmax(bad))
+        raise ParameterError(f"{name}.{j}", f"must be in {'(' if strict else '['}{lo:g}, "
+                                            f"{hi:g}], got {array[j]:g}")
+    return array
+
+
+class CreepPI(Compensator):
+    """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``
+    (module docstring)."""
+
+    name = "creep_pi"
+
+    def __init__(self, *, taus: npt.ArrayLike, thresholds: npt.ArrayLike,
+                 direction_width: float, mean: npt.ArrayLike, scale: npt.ArrayLike,
+                 weights: npt.ArrayLike, intercept: float, penalty: float,
+                 normalisation: Normalisation) -> None:
+        super().__init__(normalisation)
+        self.taus = _checked("taus", taus, length=(1, N_TAU_MAX), lo=TAU_RANGE[0],
+                             hi=TAU_RANGE[1])
+        self.thresholds = _checked("thresholds", thresholds, length=(1, N_PLAY_MAX), lo=0.0,
+                                   hi=WIDTH_MAX, strict=True)
+        self.direction_width = float(_checked("direction_width", [direction_width],
+                                              length=(1, 1), lo=0.0, hi=WIDTH_MAX,
+                                              strict=True)[0])
+        n_f = n_features(self.thresholds.size, self.taus.size)
+        self.mean = _checked("mean", mean, length=(n_f, n_f))
+        self.scale = _checked("scale", scale, length=(n_f, n_f), lo=SCALE_MIN)
+        self.weights = _checked("weights", weights, length=(n_f, n_f))
+        self.intercept = float(_checked("intercept", [intercept], length=(1, 1))[0])
+        self.penalty = float(_checked("penalty", [penalty], length=(1, 1), lo=0.0)[0])
+        # The standardisation folded into the weights of the raw features.
+        self._w = np.ascontiguousarray(self.weights / self.scale)
+        self._bias = float(self.intercept - np.dot(self._w, self.mean))
+        if not (np.all(np.isfinite(self._w)) and math.isfinite(self._bias)):
+            raise ParameterError("weights", "weights / scale overflow")
+        self._widths = np.append(self.thresholds, self.direction_width)
+        self._norm = np.array([normalisation.r0, normalisation.alpha, normalisation.s0,
+                               normalisation.beta])
+        self.z = np.zeros(self.taus.size)
+        self.play = np.zeros(self._widths.size)
+        self._clock = np.zeros(3)
+        self._decay = np.zeros(self.taus.size)
+        self._t1 = np.zeros(1)
+        self._r1 = np.zeros(1)
+        self._o1 = np.zeros(1)
+        self.fit_report: dict[str, Any] | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the state: the next good sample starts it at rest at its input."""
+        self.z[:] = 0.0
+        self.play[:] = 0.0
+        self._clock[:] = (0.0, 0.0, -1.0)
+
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        kern.run_kernel(t, r, self.z, self.play, self._clock, self._decay, out, self._norm,
+                        self.taus, self._widths, self._w, self._bias)
+
+    def step(self, t: float, r: float) -> float:
+        self._t1[0] = t
+        self._r1[0] = r
+        self._run_into(self._t1, self._r1, self._o1)
+        return float(self._o1[0])
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        t, r = as_float_arrays(t, r)
+        out = np.empty(t.size)
+        self._run_into(t, r, out)
+        return out
+
+    def to_params(self) -> dict[str, Any]:
+        def plain(values: np.ndarray) -> list[float]:
+            return [float(v) for v in values]
+
+        return {"taus": plain(self.taus), "thresholds": plain(self.thresholds),
+                "direction_width": self.direction_width, "mean": plain(self.mean),
+                "scale": plain(self.scale), "weights": plain(self.weights),
+                "intercept": self.intercept, "penalty": self.penalty}
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
+                    direction: DirectionSettings) -> CreepPI:
+        taus = require_vector(params, "taus")
+        thresholds = require_vector(params, "thresholds")
+        n_f = n_features(thresholds.size, taus.size)
+        return cls(taus=taus, thresholds=thresholds,
+                   direction_width=require_float(params, "direction_width", lo=0.0,
+                                                 strict=True),
+                   mean=require_vector(params, "mean", length=n_f),
+                   scale=require_vector(params, "scale", length=n_f),
+                   weights=require_vector(params, "weights", length=n_f),
+                   intercept=require_float(params, "intercept"),
+                   penalty=require_float(params, "penalty", lo=0.0),
+                   normalisation=normalisation)
+
+    @classmethod
+    def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
+            direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
+            lam: float | None = None, **options: Any) -> CreepPI:
+        """Ridge fit of the weights (module docstring). ``taus``: time constants [s];
+        ``n_play``: play operators; ``lam``: a fixed penalty instead of cross-validation."""
+        if options:
+            raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
+        try:
+            tau = _checked("taus", list(taus), length=(1, N_TAU_MAX), lo=TAU_RANGE[0],
+                           hi=TAU_RANGE[1])
+        except (ParameterError, TypeError, ValueError) as exc:
+            raise FitError(f"{cls.name}: option taus: {exc}") from None
+        if isinstance(n_play, bool) or not (isinstance(n_play, int) and 1 <= n_play <= N_PLAY_MAX):
+            raise FitError(f"{cls.name}: option n_play must be an integer in [1, {N_PLAY_MAX}]")
+        if lam is not None and not (isinstance(lam, (int, float)) and not isinstance(lam, bool)
+                                    and 0.0 <= lam <= LAM_MAX):
+            raise FitError(f"{cls.name}: option lam must be a number in [0, {LAM_MAX:g}]")
+        thresholds = play_thresholds(n_play)
+        grams = fold_grams(segments, normalisation, tau, thresholds)
+        n_f = n_features(n_play, tau.size)
+        total = grams.sum(axis=0)
+        n = total[0, 0]
+        if n < n_f + 2:
+            raise FitError(f"{cls.name}: needs at least {n_f + 2} samples, got {int(n)}")
+        mean = total[0, 1:n_f + 1] / n
+        var = np.diag(total)[1:n_f + 1] / n - mean ** 2
+        scale = np.sqrt(np.maximum(var, 0.0))
+        scale[scale < FLAT] = 1.0
+        # [1, f, y] -> [1, (f - mean) / scale, y]
+        to_std = np.eye(n_f + 2)
+        to_std[0, 1:n_f + 1] = -mean / scale
+        to_std[1:n_f + 1, 1:n_f + 1] = np.diag(1.0 / scale)
+        grams = np.einsum("ji,fjk,kl->fil", to_std, grams, to_std)
+        total = grams.sum(axis=0)
+        report: dict[str, Any] = {"folds": int(grams.shape[0])}
+        if lam is None:
+            if grams.shape[0] < 2:
+                raise FitError(f"{cls.name}: cross-validation needs at least {CV_BLOCKS} "
+                               "samples per fold; give a penalty (--option lam=...)")
+            errors = cross_validate(grams, LAM_GRID) / grams[:, 0, 0]
+            cv = np.median(errors, axis=1) if len(segments) == 1 else errors.mean(axis=1)
+            best = int(np.argmin(cv))
+            lam = float(LAM_GRID[best])
+            report.update(cv_rmse=float(normalisation.s0 * math.sqrt(cv[best])),
+                          at_grid_edge=best in (0, LAM_GRID.size - 1))
+        theta = ridge(total, float(lam))
+        model = cls(taus=tau, thresholds=thresholds, direction_width=DIRECTION_WIDTH,
+                    mean=mean, scale=scale, weights=theta[1:n_f + 1], intercept=theta[0],
+                    penalty=float(lam), normalisation=normalisation)
+        model.fit_report = {"penalty": float(lam), **report}
+        return model
+
+
+def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
+               thresholds: np.ndarray) -> np.ndarray:
+    """Gram matrices of [1, features, psi] per cross-validation fold (folds, n_f + 2,
+    n_f + 2): one fold per segment when there are two or more, else ``CV_BLOCKS``
+    contiguous blocks of the one (fewer when it is short)."""
+    widths = np.append(thresholds, DIRECTION_WIDTH)
+    n_f = n_features(thresholds.size, tau.size)
+    single = len(segments) == 1
+    n_folds = (min(CV_BLOCKS, segments[0].t.size // CV_BLOCKS) or 1) if single else len(segments)
+    grams = np.zeros((n_folds, n_f + 2, n_f + 2))
+    rows = np.empty((min(CHUNK, max(seg.t.size for seg in segments)), n_f + 2))
+    rows[:, 0] = 1.0
+    for s, seg in enumerate(segments):
+        xi = normalisation.xi(seg.r)
+        psi = normalisation.psi(seg.s)
+        z, play = np.zeros(tau.size), np.zeros(widths.size)
+        clock, decay = np.array([0.0, 0.0, -1.0]), np.zeros(tau.size)
+        size = seg.t.size
+        fold = (np.arange(size) * n_folds // size if single else np.full(size, s))
+        for lo in range(0, size, CHUNK):
+            hi = min(lo + CHUNK, size)
+            block = rows[:hi - lo]
+            kern.features_kernel(seg.t[lo:hi], xi[lo:hi], z, play, clock, decay, tau, widths,
+                                 block[:, 1:n_f + 1])
+            block[:, n_f + 1] = psi[lo:hi]
+            for f in np.unique(fold[lo:hi]):
+                part = block[fold[lo:hi] == f]
+                grams[f] += part.T @ part
+    return grams
+
+
+def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
+    """theta = [intercept, weights, -1] minimising the mean squared error of psi plus
+    ``lam`` |weights|^2 over the samples of ``gram`` (Gram of [1, features, psi]); the
+    residual of a sample with row a is a . theta, so its squared sum is theta' G theta."""
+    p = gram.shape[0] - 2
+    n = gram[0, 0]
+    mx = gram[0, 1:p + 1] / n
+    my = gram[0, p + 1] / n
+    cxx = gram[1:p + 1, 1:p + 1] - n * np.outer(mx, mx)
+    cxy = gram[1:p + 1, p + 1] - n * mx * my
+    a = cxx + (lam * n + 1e-12 * max(np.trace(cxx), 1e-300) / p) * np.eye(p)
+    w = np.linalg.solve(a, cxy)
+    return np.concatenate([[my - mx @ w], w, [-1.0]])
+
+
+def cross_validate(grams: np.ndarray, lams: np.ndarray) -> np.ndarray:
+    """Held-out squared error (penalties, folds): each fold's samples predicted by the
+    fit on all the others, per penalty in ``lams``."""
+    total = grams.sum(axis=0)
+    errors = np.zeros((lams.size, grams.shape[0]))
+    for i, lam in enumerate(lams):
+        for f, gram in enumerate(grams):
+            theta = ridge(total - gram, float(lam))
+            errors[i, f] = max(float(theta @ gram @ theta), 0.0)
+    return errors
+
+
+__all__ = ["DIRECTION_WIDTH", "LAM_GRID", "TAUS", "CreepPI", "play_thresholds"]
