@@ -243,9 +243,12 @@ def _progress(args: argparse.Namespace) -> Callable[[int, int, str], None] | Non
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from strain_comp.core.fusion import check_every
     from strain_comp.offline.batch import check_jobs, expand_bags
 
     check_jobs(args.jobs)  # before any bag is read
+    if args.references_every is not None:
+        check_every(args.references_every)
     for bag in args.bags:
         _bag(bag)
     _existing(args.calibration, "calibration file")
@@ -280,7 +283,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         result, problems = evaluate_bag(bag, calibration, tare=args.tare,
                                         plot_points=PLOT_POINTS if args.plots else 0,
                                         series=table, out_of_range=args.out_of_range,
-                                        tracking=args.baseline_tracking)
+                                        tracking=args.baseline_tracking,
+                                        references_every=args.references_every)
     if args.in_run_bound:  # fits a model to each whole run: loads the recordings whole
         in_run_bound(result, load_recordings(bag)[0], calibration)
     print(format_table(result), file=_results(args))
@@ -312,7 +316,8 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
                                  plot_points=PLOT_POINTS if args.plots else 0,
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
                                  progress=_progress(args), out_of_range=args.out_of_range,
-                                 tracking=args.baseline_tracking)
+                                 tracking=args.baseline_tracking,
+                                 references_every=args.references_every)
     results = _results(args)
     for outcome in outcomes:
         text, notes = format_bag(outcome)
@@ -341,12 +346,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.csv not in (None, "-"):
         _output(args.csv, [args.bag, args.calibration, args.out])
     from strain_comp.core.calibration import load_calibration
+    from strain_comp.core.fusion import check_every, fusion_note
     from strain_comp.offline.replay import replay_bag
+
+    if args.references_every is not None:
+        check_every(args.references_every)
 
     calibration = load_calibration(args.calibration)
     summary = replay_bag(args.bag, calibration, args.out, inputs=[args.calibration],
                          tare=args.tare, csv=args.csv,
-                         tracking=args.baseline_tracking)
+                         tracking=args.baseline_tracking,
+                         references_every=args.references_every)
     results = _results(args)
     print(f"replayed {summary.n_compensated} resistance messages of {len(summary.sensors)} "
           f"sensors into {args.out} ({summary.n_output_messages} messages written, "
@@ -360,6 +370,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 _note(args, f"{name}: {OUT_OF_RANGE_HINT}")
     for problem in summary.problems:
         _note(args, problem)
+    for name, state in summary.references.items():
+        unit = calibration.sensors[name].strain_unit
+        _note(args, fusion_note(name, state, state["every"], unit))
     if args.csv not in (None, "-"):
         _note(args, f"wrote {args.csv}")
     return 0
@@ -451,6 +464,13 @@ def _tracking_flag(p: argparse.ArgumentParser) -> None:
                    help="let the rest level follow slowly while the sensor rests "
                    "(zero-tracking after OIML R76: at hold, near rest, bounded rate; on "
                    "by default, see docs/generalisation.md)")
+
+
+def _references_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--references-every", type=float, metavar="SECONDS",
+                   help="fuse the bag's own /NAME/strain_reference every SECONDS into the "
+                   "output gain and offset, causally (a known strain now and then, as a robot "
+                   "may have; scored on every sample; docs/fusion.md)")
 
 
 def _tare_flag(p: argparse.ArgumentParser) -> None:
@@ -586,6 +606,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also fit the same model on each run itself and give its RMSE "
                    "(JSON key in_run_rmse; costs a fit per bag)")
     _tare_flag(p)
+    _references_flag(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = command("replay", "write estimated strain and direction into a new bag",
@@ -605,6 +626,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "reference [strain unit], direction, status per sensor ('-': stdout)")
     _tare_flag(p)
     _tracking_flag(p)
+    _references_flag(p)
     p.set_defaults(func=cmd_replay)
 
     p = command("diagnose", "find the effect a calibration lacks and add it",

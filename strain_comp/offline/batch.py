@@ -78,7 +78,8 @@ class BagOutcome:
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
                   inputs: Sequence[str], out_of_range: str = "extend",
-                  tracking: str = DEFAULT_TRACKING) -> BagOutcome:
+                  tracking: str = DEFAULT_TRACKING,
+                  references_every: float | None = None) -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
     ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
     (a pool worker)."""
@@ -90,7 +91,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
         calibration = load_calibration(calibration_path)
         result, problems = evaluate_bag(bag, calibration, tare=tare, plot_points=plot_points,
                                         series=table, out_of_range=out_of_range,
-                                        tracking=tracking)
+                                        tracking=tracking, references_every=references_every)
         if in_run:
             in_run_bound(result, load_recordings(bag)[0], calibration)
         outcome = BagOutcome(bag, result, problems)
@@ -145,8 +146,8 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   jobs: int = 1, plot_points: int = 0, in_run: bool = False,
                   plots: str | None = None, series: SeriesCSV | None = None,
                   progress: Callable[[int, int, str], None] | None = None,
-                  out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING
-                  ) -> list[BagOutcome]:
+                  out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
+                  references_every: float | None = None) -> list[BagOutcome]:
     """Every bag evaluated (module docstring), in the order given; ``jobs`` > 1 runs them
     in a pool of that many processes. ``progress(done, total, bag)`` after each bag."""
     check_jobs(jobs)
@@ -157,7 +158,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
                                           dirs[k], series, inputs, out_of_range,
-                                          tracking))
+                                          tracking, references_every))
             if progress is not None:
                 progress(k + 1, len(bags), bag)
         return outcomes
@@ -167,7 +168,8 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         parts = [None if series is None else os.path.join(tmp, f"{k}.csv")
                  for k in range(len(bags))]
         futures = [pool.submit(_evaluate_one, bag, calibration_path, tare, plot_points,
-                               in_run, dirs[k], parts[k], inputs, out_of_range, tracking)
+                               in_run, dirs[k], parts[k], inputs, out_of_range, tracking,
+                               references_every)
                    for k, bag in enumerate(bags)]
         for k, future in enumerate(futures):  # in order: the CSV keeps the bags' order
             outcome = future.result()

@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.core.fusion import SparseFusion, check_every, fusion_note
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats, error_stats
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import InputError
@@ -92,6 +93,8 @@ class SensorEvaluation:
     """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
     tracking: dict[str, float] | None = None
     """What baseline tracking did (``_tracked``), when it ran."""
+    references: dict[str, Any] | None = None
+    """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
@@ -103,6 +106,9 @@ class SensorEvaluation:
             record["in_run_rmse"] = _json_number(self.in_run_rmse)
         if self.tracking is not None:
             record["baseline_tracking"] = {k: _json_number(v) for k, v in self.tracking.items()}
+        if self.references is not None:
+            record["references"] = {k: v if isinstance(v, dict) else _json_number(v)
+                                    for k, v in self.references.items()}
         return record
 
 
@@ -127,18 +133,26 @@ def _json_number(value: float | int) -> float | int | None:
 
 def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         tare: str = "calibration", out_of_range: str = "extend",
-                        tracking: str = DEFAULT_TRACKING) -> EvaluationResult:
+                        tracking: str = DEFAULT_TRACKING,
+                        references_every: float | None = None) -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
     ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
     tare read goes to the notes). ``out_of_range``: the engine's ``OUT_OF_RANGE_MODES``.
     ``tracking``: ``on`` runs each sensor not in an array through a
-    ``strain_comp.core.tracking.BaselineTracker``.
+    ``strain_comp.core.tracking.BaselineTracker``. ``references_every``: the recording's
+    own reference every that many seconds fused into the output gain and offset
+    (``strain_comp.core.fusion.SparseFusion``: causal, scored on every sample as before);
+    InputError when a calibrated sensor in the data has no reference.
     Raises InputError when no calibrated sensor can be scored (names both sides).
     """
     from strain_comp.core.engine import Engine, Status, used_mask
     from strain_comp.core.tare import tare_engine
 
+    if references_every is not None:
+        check_every(references_every)
+        _references_needed(calibration, {n: r.s is not None for n, r in recordings.items()},
+                           references_every)
     engine = Engine(calibration, out_of_range=out_of_range)
     tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
     outputs = _array_outputs(engine, recordings, calibration)
@@ -157,6 +171,10 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         r = np.asarray(rec.r, dtype=np.float64)
         s = np.asarray(rec.s, dtype=np.float64)
         out = outputs.get(name) or (tracker or engine).run(name, t, r, rec.temperature)
+        fused = None
+        if references_every is not None:
+            fused = SparseFusion.for_calibration(cal, references_every)
+            out = fused.fuse(t, out, s)
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
         good = used_mask(status)
@@ -170,7 +188,8 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
             bad_by_status=bad_by_status, unit=cal.strain_unit,
             out_of_range=np.asarray(out.out_of_range, bool), input_unit=_input_unit(cal),
-            input_gain=engine.input_gain(name), tracking=_tracked(tracker, name))
+            input_gain=engine.input_gain(name), tracking=_tracked(tracker, name),
+            references=_fusion_state(fused))
         if rec.temperature is None:
             notes += _temperature_missing(name, calibration.sensors[name])
         notes += _crosstalk_off_tick(name, cal, {
@@ -179,6 +198,22 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     if not sensors:
         raise InputError(_nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def _references_needed(calibration: Calibration, referenced: Mapping[str, bool],
+                       every: float) -> None:
+    """InputError naming the calibrated sensors of the data without a reference: the
+    references to fuse every ``every`` s are the data's own."""
+    missing = [n for n in calibration.sensors if n in referenced and not referenced[n]]
+    if missing:
+        raise InputError(f"--references-every {every:g}: {', '.join(missing)} has no "
+                         "strain_reference in the data (the references fused are the data's "
+                         "own /NAME/strain_reference)")
+
+
+def _fusion_state(fused: SparseFusion | None) -> dict[str, Any] | None:
+    """The JSON record of a sensor's fusion: its state and the spacing."""
+    return None if fused is None else {"every": fused.every, **fused.fusion.state()}
 
 
 def _input_unit(cal: SensorCalibration) -> str:
@@ -299,6 +334,8 @@ def format_notes(result: EvaluationResult) -> list[str]:
             lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
                          "calibration's valid range (flagged, scored); if the run's rest "
                          "level moved, try --tare auto, or strain-comp recalibrate")
+        if ev.references is not None:
+            lines.append(fusion_note(name, ev.references, ev.references["every"], ev.unit))
     return lines + list(result.notes)
 
 
@@ -411,8 +448,11 @@ class _Stream:
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int, series: SeriesCSV | None = None, bag: str = "",
-                 tracking: str = DEFAULT_TRACKING) -> None:
+                 tracking: str = DEFAULT_TRACKING,
+                 references_every: float | None = None) -> None:
         self.calibration = calibration
+        self.references_every = references_every
+        self.fused: dict[str, SparseFusion] = {}
         self.series = series
         self.bag = bag
         self.engine = engine
@@ -491,6 +531,9 @@ class _Stream:
         self.notes += [f"{name}: {line}" for name, line in tared.items()]
         for name in names:
             self.scores[name] = _Score(self.plot_points)
+            if self.references_every is not None:
+                self.fused[name] = SparseFusion.for_calibration(self.calibration.sensors[name],
+                                                                self.references_every)
         group = [] if single or len(names) < 2 else \
             [n for n in self.calibration.sensors if n in names]
         effects = any(self.calibration.sensors[n].effects for n in names)
@@ -561,6 +604,9 @@ class _Stream:
         else:
             run = (self.tracker or self.engine).run  # tracking between stretches if on
             outs = {name: run(name, t, r[:, j], temp) for j, name in enumerate(inp.names)}
+        for name, fused in self.fused.items():
+            if name in outs:
+                outs[name] = fused.fuse(t, outs[name], refs[name])
         for name, j in column.items():
             self.scores[name].add(t, r[:, j], refs[name], outs[name])
             if self.series is not None:
@@ -571,6 +617,9 @@ class _Stream:
     def result(self) -> EvaluationResult:
         referenced = {name for inp in self.inputs.values() if inp is not None
                       for name in inp.ref_columns or {}}
+        if self.references_every is not None:
+            _references_needed(self.calibration, {n: n in referenced for n in self.names},
+                               self.references_every)
         sensors: dict[str, SensorEvaluation] = {}
         notes = list(self.notes)
         for name, cal in self.calibration.sensors.items():
@@ -584,6 +633,7 @@ class _Stream:
                                                                 _input_unit(cal))
                 sensors[name].input_gain = self.engine.input_gain(name)
                 sensors[name].tracking = _tracked(self.tracker, name)
+                sensors[name].references = _fusion_state(self.fused.get(name))
                 if name not in self.with_temperature:
                     notes += _temperature_missing(name, cal)
                 notes += _crosstalk_off_tick(name, cal, next(
@@ -596,6 +646,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
                  plot_points: int = 0, series: SeriesCSV | None = None,
                  out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
+                 references_every: float | None = None,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
@@ -607,12 +658,15 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
     samples per sensor for plots (0: none). ``series``: every sample's row goes there
     (``evaluate --csv``; rows of a bag that fails are written before the error). Raises
     InputError when no calibrated sensor
-    can be scored (names both sides and the bag's problems).
+    can be scored (names both sides and the bag's problems). ``references_every``: as in
+    ``evaluate_recordings``.
     """
     from strain_comp.core.engine import Engine
 
+    if references_every is not None:
+        check_every(references_every)
     stream = _Stream(calibration, Engine(calibration, out_of_range=out_of_range), tare,
-                     plot_points, series, str(path), tracking)
+                     plot_points, series, str(path), tracking, references_every)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
     stream.finish()

@@ -38,9 +38,10 @@ from strain_comp.core.engine import (
     diagnostics,
     health_at,
 )
+from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.tare import tare_engine
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
-from strain_comp.errors import BagError
+from strain_comp.errors import BagError, InputError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.bag.schemas import Status as DiagnosticStatus
@@ -68,6 +69,9 @@ class ReplaySummary:
     problems: list[str] = field(default_factory=list)
     n_compensated: int = 0
     """Resistance messages run through the engine (an array message counts once)."""
+    references: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Per sensor, what the fused references did (``OutputFusion.state`` and ``every``),
+    with ``references_every``."""
 
 
 @dataclass
@@ -99,8 +103,15 @@ class _Replay:
 
     def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
                  period: float, tare: str, series: SeriesCSV | None = None,
-                 tracking: str = DEFAULT_TRACKING) -> None:
+                 tracking: str = DEFAULT_TRACKING,
+                 references_every: float | None = None) -> None:
         self.calibration = calibration
+        self.references_every = references_every
+        self.fused: dict[str, SparseFusion] = {}
+        self.referenced: set[str] = set()
+        """Sensors with a reference sample in a piece read so far."""
+        self.reference: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        """Per sensor, its latest reference sample so far (t, value), held across pieces."""
         self.series = series
         self.pending: dict[str, PendingSeries] = {}
         self.tare = tare
@@ -120,6 +131,7 @@ class _Replay:
         self.problems: list[str] = []
         self.reported: set[str] = set()
         self.written: set[str] = {"/diagnostics"}
+        self._contents = BagContents()
 
     def piece(self, contents: BagContents) -> None:
         """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs."""
@@ -136,6 +148,11 @@ class _Replay:
                                                       for j, s in enumerate(inp.sensors)},
                                         self.tare)
                     self.problems += [f"{s}: {line}" for s, line in tared.items()]
+                    if self.references_every is not None:
+                        self.fused.update({s: SparseFusion.for_calibration(
+                            self.calibration.sensors[s], self.references_every)
+                            for s in inp.sensors})
+        self._contents = contents
         inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
                   if inp is not None and topic in contents.series
                   and contents.series[topic].t.size]
@@ -220,7 +237,7 @@ class _Replay:
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
         if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
-            outs = self.engine.run_array(inp.sensors, t, values, temps)
+            outs = self._fused(inp, t, self.engine.run_array(inp.sensors, t, values, temps))
             for what in OUTPUTS:
                 stacked = np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
                 self.writer.write_float64_array(f"/{inp.name}/{what}", t,
@@ -230,6 +247,7 @@ class _Replay:
                                                   stacked)
         else:
             out = (self.tracker or self.engine).run(inp.name, t, values, temps[inp.name])
+            out = self._fused(inp, t, {inp.name: out})[inp.name]
             self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
             self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
                                           out.strain[:, None])
@@ -237,6 +255,36 @@ class _Replay:
             self.writer.write_int8(f"/{inp.name}/status", t, out.status)
             outs = {inp.name: out}
         self.n_out += (len(OUTPUTS) + 1) * t.size
+        return outs
+
+    def _fused(self, inp: _Input, t: np.ndarray, outs: dict[str, BatchOutput]
+               ) -> dict[str, BatchOutput]:
+        """``outs`` with the sensors' references fused (``references_every``); the reference
+        at each sample is the latest at or before it (as the node holds it)."""
+        if self.references_every is None:
+            return outs
+        contents = self._contents
+        topic = f"/{inp.name}/strain_reference"
+        ref = contents.series.get(topic)
+        labels = contents.labels.get(topic) or inp.sensors
+        for name in inp.sensors:
+            src_t, src_v = np.empty(0), np.empty(0)
+            if ref is not None and ref.values.ndim == (2 if inp.is_array else 1):
+                if not inp.is_array:
+                    src_t, src_v = ref.t, ref.values
+                elif name in labels and labels.index(name) < ref.values.shape[1]:
+                    src_t, src_v = ref.t, ref.values[:, labels.index(name)]
+            held = self.reference.get(name)
+            if held is not None:
+                src_t, src_v = np.concatenate((held[0], src_t)), np.concatenate((held[1], src_v))
+            ok = np.isfinite(src_t) & np.isfinite(src_v)
+            src_t, src_v = src_t[ok], src_v[ok]
+            if src_t.size:
+                self.referenced.add(name)
+                order = np.argsort(src_t, kind="stable")
+                self.reference[name] = (src_t[order][-1:], src_v[order][-1:])
+            values = hold_latest(t, src_t, src_v) if src_t.size else np.full(t.size, np.nan)
+            outs[name] = self.fused[name].fuse(t, outs[name], values)
         return outs
 
     def _temperature(self, contents: BagContents, name: str, t: np.ndarray
@@ -269,7 +317,8 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                window: int = WINDOW, tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
-               tracking: str = DEFAULT_TRACKING) -> ReplaySummary:
+               tracking: str = DEFAULT_TRACKING,
+               references_every: float | None = None) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
     calibration file) is refused before anything is read.
@@ -287,13 +336,19 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     (``strain_comp.offline.series``) there, atomically, or to stdout for ``-``.
     ``tracking``: ``on`` lets the rest level of each single sensor follow
     (``strain_comp.core.tracking``; reported in /diagnostics).
+    ``references_every``: the bag's own ``/NAME/strain_reference`` fused every that many
+    seconds into each sensor's output gain and offset (``strain_comp.core.fusion``, the
+    reference at a sample being the latest at or before it); InputError, nothing written,
+    when a replayed sensor has no reference in the bag.
     """
+    if references_every is not None:
+        check_every(references_every)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
     out_path = Path(out_path)
     with series_csv(csv, inputs=[in_path, *inputs, out_path]) as table, \
             BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
         state = _Replay(calibration, writer, engine, diagnostics_period, tare, table,
-                        tracking)
+                        tracking, references_every)
         for contents in iter_bag(in_path, window=window):
             state.piece(contents)
         inputs = [i for i in state.inputs.values() if i is not None]
@@ -301,6 +356,11 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             raise BagError("; ".join([f"no /NAME/resistance topic for any calibrated "
                                       f"sensor ({', '.join(calibration.sensors)})",
                                       *located(in_path, state.problems)]))
+        missing = [s for s in state.fused if s not in state.referenced]
+        if missing:
+            raise InputError(f"--references-every {references_every:g}: {', '.join(missing)} "
+                             "has no strain_reference in the bag (the references fused are "
+                             "the bag's own /NAME/strain_reference)")
         for t in state.ticks:
             state.write_tick(float(t))
         state.finish_series()
@@ -311,7 +371,9 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     return ReplaySummary(out_path, engine.health(), {i.name: i.sensors for i in inputs
                                                     if i.is_array},
                          state.n_in, state.n_out + state.n_in, located(in_path, problems),
-                         state.n_compensated)
+                         state.n_compensated,
+                         {s: {"every": f.every, **f.fusion.state()}
+                          for s, f in state.fused.items()})
 
 
 def _copy_through(contents: BagContents, writer: BagWriter, written: set[str],

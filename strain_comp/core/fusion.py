@@ -1,0 +1,295 @@
+"""Sparse references fused online: the output gain and offset, estimated causally.
+
+A robot sometimes knows its strain (a joint at a mechanical stop, a gripper open at rest, a
+test rig's reference). Each such *reference* y at time t, beside the engine's estimate
+s_hat at t, is an observation of the output map
+
+    y = g s_hat + b + v,          v ~ N(0, R)                                      (1)
+
+whose gain g and offset b drift slowly between references (a sensitivity that changed
+since the session start is the largest share of a calibration's error on another run: the
+estimate's error is mostly a gain error). The state theta = (g, b) is a random walk,
+
+    theta_k = theta_{k-1} + w_k,  w_k ~ N(0, Q dt_k),  Q = diag(q_g^2, q_b^2)      (2)
+
+(dt_k the seconds since the previous reference), estimated by the Kalman filter
+(Kalman 1960; for parameter tracking: Ljung, *System Identification*, 2nd ed., 1999,
+chapter 11, "Recursive estimation methods", where recursive least squares with a
+forgetting factor is the special case of Q proportional to P): with h = (s_hat, 1),
+
+    P^- = P + Q dt,   e = y - h theta,   S = h P^- h' + R,
+    K = P^- h' / S,   theta <- theta + K e,   P <- (I - K h) P^-.                  (3)
+
+Why a Kalman filter on (g, b) and not RLS with exponential forgetting: the references are
+sparse and often at one strain (rest), which excites only b; forgetting then inflates the
+gain's covariance without bound between informative references (covariance windup, Ljung
+section 11.6), while the random walk (2) grows it by a bounded Q dt per second. Its prior
+theta_0 ~ N((1, 0), P_0) regularises toward the calibration as it stands, and the split of
+one reference between gain and offset follows from P_0 and h: a reference at rest (s_hat
+about 0) moves only the offset, one at a large strain mostly the gain.
+
+The *gate* refuses a reference whose innovation is beyond ``gate`` x sqrt(S) (the
+normalised innovation test of tracking filters; Bar-Shalom, Li, Kirubarajan, *Estimation
+with Applications to Tracking and Navigation*, 2001, section 5.4): a reference that
+contradicts the estimate that far is a wrong reference, not a drift. Non-finite references
+or estimates, a wrong type and a time before the previous reference are refused too; each
+refusal is counted by its reason, the state unchanged.
+
+The scales are set per sensor from its calibrated strain span (``FusionSettings.for_span``),
+so one default serves a sensor calibrated in % and one in mm; their values were chosen on
+``scripts/references.py`` (docs/fusion.md): a gain prior of 0.3 beats 0.1 and an offset
+alone (the error is a gain error), and a gain that walks 0.15 a minute beats slower walks
+(the sensitivity moves within a run). ``SparseFusion`` feeds a
+run's own reference at a fixed spacing (``evaluate --references-every``): the sample
+nearest each multiple of the spacing from the run's first sample, each affecting only the
+samples after it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.errors import InputError
+
+if TYPE_CHECKING:
+    from strain_comp.core.calibration import SensorCalibration
+    from strain_comp.core.engine import BatchOutput
+
+GAIN_SD = 0.3
+"""Prior standard deviation of the gain around 1 (a sensitivity 30 % off is plausible)."""
+OFFSET_SHARE = 0.05
+"""Prior standard deviation of the offset around 0, share of the calibrated strain span."""
+GAIN_WALK = 0.02
+"""Random walk of the gain [1/sqrt(s)]: 0.15 in a minute (the thread's sensitivity moves
+within a run; docs/fusion.md)."""
+OFFSET_WALK_SHARE = 0.2 / 60.0
+"""Random walk of the offset [span share/sqrt(s)]: 2.6 % of the span in a minute."""
+NOISE_SHARE = 0.1
+"""Standard deviation of what a gain and offset do not explain (the model's error, the
+reference's), share of the calibrated strain span."""
+GATE = 5.0
+"""A reference beyond this many innovation standard deviations is refused."""
+FUSION_MODES = ("off", "on")
+"""The node's ``fuse_references``."""
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Prior, random walk, noise and gate of one sensor's fusion (in its strain unit)."""
+
+    gain_sd: float
+    offset_sd: float
+    gain_walk: float
+    offset_walk: float
+    noise_sd: float
+    gate: float = GATE
+
+    @classmethod
+    def for_span(cls, span: float) -> FusionSettings:
+        """The defaults for a sensor calibrated over a strain span ``span`` (> 0)."""
+        span = span if math.isfinite(span) and span > 0 else 1.0
+        return cls(gain_sd=GAIN_SD, offset_sd=OFFSET_SHARE * span, gain_walk=GAIN_WALK,
+                   offset_walk=OFFSET_WALK_SHARE * span, noise_sd=NOISE_SHARE * span)
+
+
+@dataclass
+class OutputFusion:
+    """The Kalman filter (3) on one sensor's output gain and offset."""
+
+    settings: FusionSettings
+    gain: float = 1.0
+    offset: float = 0.0
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    n_used: int = 0
+    refused: Counter[str] = field(default_factory=Counter)
+    last_reference_t: float | None = None
+    """Time of the latest reference used or refused for its value [s]."""
+    last_innovation: float = math.nan
+    """Reference minus fused estimate of the latest reference judged."""
+
+    def __post_init__(self) -> None:
+        if not self.covariance.any():
+            self.covariance = np.diag([self.settings.gain_sd ** 2,
+                                       self.settings.offset_sd ** 2])
+
+    @classmethod
+    def for_span(cls, span: float) -> OutputFusion:
+        return cls(FusionSettings.for_span(span))
+
+    @property
+    def n_refused(self) -> int:
+        return sum(self.refused.values())
+
+    def apply(self, estimate: Any) -> Any:
+        """The fused strain g s_hat + b of an estimate (a float or an array)."""
+        return self.gain * estimate + self.offset
+
+    def update(self, t: float, estimate: float, reference: Any) -> str | None:
+        """Fuse the reference ``reference`` known at time ``t`` [s] beside the engine's
+        estimate ``estimate`` at ``t``; None when used, else the reason it was refused
+        (counted; the state is unchanged)."""
+        reason = self._screen(t, estimate, reference)
+        if reason is not None:
+            self.refused[reason] += 1
+            return reason
+        s = self.settings
+        dt = 0.0 if self.last_reference_t is None else t - self.last_reference_t
+        p = self.covariance + np.diag([s.gain_walk ** 2, s.offset_walk ** 2]) * dt
+        h = np.array([estimate, 1.0])
+        innovation = float(reference) - (self.gain * estimate + self.offset)
+        var = float(h @ p @ h) + s.noise_sd ** 2
+        self.last_reference_t = t
+        self.last_innovation = innovation
+        if abs(innovation) > s.gate * math.sqrt(var):
+            reason = (f"beyond the gate ({s.gate:g} sd): innovation {innovation:.4g} against "
+                      f"sd {math.sqrt(var):.4g}")
+            self.refused["beyond the gate"] += 1
+            self.covariance = p  # the time still passed
+            return reason
+        k = p @ h / var
+        self.gain += float(k[0]) * innovation
+        self.offset += float(k[1]) * innovation
+        self.covariance = p - np.outer(k, h @ p)
+        self.covariance = 0.5 * (self.covariance + self.covariance.T)
+        self.n_used += 1
+        return None
+
+    def _screen(self, t: float, estimate: float, reference: Any) -> str | None:
+        if isinstance(reference, bool) or not isinstance(reference, (int, float, np.floating,
+                                                                     np.integer)):
+            return "not a number"
+        if not math.isfinite(float(reference)):
+            return "non-finite reference"
+        if not math.isfinite(estimate):
+            return "no estimate yet"
+        if not math.isfinite(t):
+            return "non-finite time"
+        if self.last_reference_t is not None and t < self.last_reference_t:
+            return "time before the previous reference"
+        return None
+
+    def state(self) -> dict[str, Any]:
+        """What /diagnostics and the JSON show: gain, offset, their standard deviations,
+        references used and refused (by reason), the latest reference's time."""
+        return {"gain": self.gain, "offset": self.offset,
+                "gain_sd": math.sqrt(max(float(self.covariance[0, 0]), 0.0)),
+                "offset_sd": math.sqrt(max(float(self.covariance[1, 1]), 0.0)),
+                "n_used": self.n_used, "n_refused": self.n_refused,
+                "refused": dict(self.refused),
+                "last_reference_t": (math.nan if self.last_reference_t is None
+                                     else self.last_reference_t)}
+
+    def diagnostic_values(self) -> dict[str, str]:
+        """``state`` as /diagnostics key-values (``fusion_*``)."""
+        st = self.state()
+        values = {f"fusion_{k}": f"{st[k]:.6g}" for k in ("gain", "offset", "gain_sd",
+                                                          "offset_sd")}
+        values["fusion_n_used"] = str(self.n_used)
+        values["fusion_n_refused"] = str(self.n_refused)
+        values["fusion_last_reference_t"] = ("none" if self.last_reference_t is None
+                                             else repr(self.last_reference_t))
+        values.update({f"fusion_refused[{k}]": str(v) for k, v in sorted(self.refused.items())})
+        return values
+
+
+@dataclass
+class SparseFusion:
+    """One sensor's run fused with its own reference every ``every`` seconds, streamed in
+    consecutive pieces (``run``): the reference of the eligible sample nearest each
+    multiple of ``every`` after the run's first sample (eligible: ``fuse``; none farther
+    than ``every`` / 2 from the multiple),
+    fused at that sample's time and applied to the samples after it."""
+
+    fusion: OutputFusion
+    every: float
+    origin: float | None = None
+    k: int = 1
+    """The next multiple of ``every`` waiting for its reference."""
+    before: tuple[float, float, float] | None = None
+    """The latest eligible sample of earlier pieces (t, estimate, reference), a candidate
+    for the next multiple."""
+
+    def run(self, t: np.ndarray, estimate: np.ndarray, reference: np.ndarray,
+            eligible: np.ndarray) -> np.ndarray:
+        """The fused estimate of one piece (the engine's ``estimate`` and the run's
+        ``reference`` at its samples ``t``)."""
+        t = np.asarray(t, dtype=np.float64)
+        estimate = np.asarray(estimate, dtype=np.float64)
+        out = np.array(estimate, dtype=np.float64)
+        if t.size == 0:
+            return out
+        if self.origin is None:
+            self.origin = float(t[0])
+        idx = np.flatnonzero(eligible)
+        pos = 0
+        half = 0.5 * self.every
+        while True:
+            target = self.origin + self.k * self.every
+            j = int(np.searchsorted(t[idx], target, side="left"))
+            if j == idx.size:  # no eligible sample at or after the target in this piece
+                if idx.size:
+                    last = int(idx[-1])
+                    self.before = (float(t[last]), float(estimate[last]), float(reference[last]))
+                break
+            after = int(idx[j])
+            candidates: list[tuple[float, int, tuple[float, float, float]]] = []
+            if j > 0:
+                i = int(idx[j - 1])
+                candidates.append((target - t[i], i,
+                                   (float(t[i]), float(estimate[i]), float(reference[i]))))
+            elif self.before is not None:
+                candidates.append((target - self.before[0], -1, self.before))
+            candidates.append((t[after] - target, after,
+                               (float(t[after]), float(estimate[after]),
+                                float(reference[after]))))
+            distance, index, (t_ref, s_hat, y) = min(candidates, key=lambda c: c[0])
+            if distance <= half:
+                out[pos:index + 1] = self.fusion.apply(estimate[pos:index + 1])
+                pos = index + 1
+                self.fusion.update(t_ref, s_hat, y)
+                idx = idx[idx > index]
+                self.before = None
+            self.k = max(self.k + 1, math.floor((t_ref - self.origin) / self.every) + 1)
+        out[pos:] = self.fusion.apply(estimate[pos:])
+        return out
+
+    @classmethod
+    def for_calibration(cls, cal: SensorCalibration, every: float) -> SparseFusion:
+        """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds."""
+        from strain_comp.core.tracking import fitted_rest
+
+        return cls(OutputFusion.for_span(fitted_rest(cal.valid_range)[1]),
+                   check_every(every))
+
+    def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
+        """``out`` (the engine's, for samples ``t``) with its strain fused (``run``); the
+        eligible samples: used, within the calibrated range (beyond it the estimate is
+        held or extended, not a gain of the strain), with a finite reference and
+        estimate."""
+        from strain_comp.core.engine import used_mask
+
+        strain = np.asarray(out.strain, dtype=np.float64)
+        reference = np.asarray(reference, dtype=np.float64)
+        eligible = (used_mask(out.status) & ~np.asarray(out.out_of_range, bool)
+                    & np.isfinite(reference) & np.isfinite(strain))
+        return replace(out, strain=self.run(t, strain, reference, eligible))
+
+
+def check_every(every: float) -> float:
+    """``every`` if it is a spacing of references (finite, > 0 s); InputError otherwise."""
+    if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
+        raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
+    return float(every)
+
+
+def fusion_note(name: str, state: dict[str, Any], every: float, unit: str) -> str:
+    """One line on what the fusion of ``name`` did (``OutputFusion.state``)."""
+    refused = ", ".join(f"{k} {v}" for k, v in state["refused"].items())
+    return (f"{name}: a reference every {every:g} s: {state['n_used']} used, "
+            f"{state['n_refused']} refused{' (' + refused + ')' if refused else ''}; "
+            f"output gain {state['gain']:.4g}, offset {state['offset']:.4g} {unit}")

@@ -1,0 +1,127 @@
+"""Sparse references fused into the output gain and offset (strain_comp.core.fusion),
+against a run whose true gain and offset are known."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from strain_comp.core.fusion import OutputFusion, SparseFusion
+
+GAIN, OFFSET = 1.25, -1.5
+"""The truth: reference = GAIN x estimate + OFFSET (+ noise)."""
+
+
+def run(seconds: float = 1200.0, rate: float = 20.0, seed: int = 3
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, estimate, reference) of a sensor cycled between 0 and 40 % strain whose
+    estimate reads a gain and offset off, with noise on the reference."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    truth = 20.0 * (1.0 - np.cos(2 * np.pi * t / 17.0))
+    estimate = (truth - OFFSET) / GAIN
+    reference = truth + rng.normal(0.0, 0.5, t.size)
+    return t, estimate, reference
+
+
+def test_sparse_noisy_references_recover_the_gain_and_offset() -> None:
+    t, estimate, reference = run()
+    sparse = SparseFusion(OutputFusion.for_span(40.0), every=20.0)
+    fused = sparse.run(t, estimate, reference, np.ones(t.size, bool))
+    fusion = sparse.fusion
+    assert fusion.n_used == 59 and fusion.n_refused == 0
+    assert fusion.gain == pytest.approx(GAIN, abs=0.02)
+    assert fusion.offset == pytest.approx(OFFSET, abs=0.5)
+    truth = GAIN * estimate + OFFSET
+    late = t > 600.0
+    raw_error = np.sqrt(np.mean((estimate - truth)[late] ** 2))
+    fused_error = np.sqrt(np.mean((fused - truth)[late] ** 2))
+    assert fused_error < 0.1 * raw_error
+    st = fusion.state()
+    assert st["gain_sd"] < 0.5 * fusion.settings.gain_sd
+    assert st["last_reference_t"] == pytest.approx(1180.0)
+
+
+def test_a_reference_changes_nothing_before_its_time() -> None:
+    t, estimate, reference = run(seconds=300.0)
+    every = np.ones(t.size, bool)
+    base = SparseFusion(OutputFusion.for_span(40.0), every=30.0).run(t, estimate, reference,
+                                                                      every)
+    cut = 150.0
+    changed = np.where(t > cut - 1e-9, reference + 7.0, reference)  # from the 150 s one on
+    other = SparseFusion(OutputFusion.for_span(40.0), every=30.0).run(t, estimate, changed,
+                                                                       every)
+    at_or_before = t <= cut + 1e-9
+    assert np.array_equal(base[at_or_before], other[at_or_before])
+    assert not np.allclose(base[~at_or_before], other[~at_or_before])
+    # before the first reference (30 s) the output is the engine's
+    assert np.array_equal(base[t <= 30.0 + 1e-9], estimate[t <= 30.0 + 1e-9])
+    assert not np.array_equal(base[t > 30.0 + 1e-9], estimate[t > 30.0 + 1e-9])
+
+
+def test_pieces_give_the_one_run_and_the_nearest_sample_is_used() -> None:
+    t, estimate, reference = run(seconds=300.0, rate=3.0)
+    ok = np.ones(t.size, bool)
+    ok[::7] = False  # some samples not eligible (bad, or no reference)
+    whole = SparseFusion(OutputFusion.for_span(40.0), every=25.0)
+    one = whole.run(t, estimate, reference, ok)
+    pieces = SparseFusion(OutputFusion.for_span(40.0), every=25.0)
+    edges = [0, 1, 74, 75, 76, 300, 301, 640, t.size]
+    parts = [pieces.run(t[a:b], estimate[a:b], reference[a:b], ok[a:b])
+             for a, b in itertools.pairwise(edges)]
+    assert np.array_equal(one, np.concatenate(parts))
+    assert whole.fusion.gain == pieces.fusion.gain
+    # a slow independent reading of the rule: the used references' times
+    times = []
+    for k in range(1, 12):
+        target = k * 25.0
+        cand = np.flatnonzero(ok)
+        i = cand[np.argmin(np.abs(t[cand] - target))]
+        times.append(t[i])
+    assert whole.fusion.n_used == len(times)
+    assert whole.fusion.last_reference_t == pytest.approx(times[-1])
+
+
+def test_one_reference_at_rest_moves_the_offset_and_one_at_strain_mostly_the_gain() -> None:
+    rest = OutputFusion.for_span(40.0)
+    assert rest.update(1.0, 0.0, 1.0) is None
+    # eq. (3) with h = (0, 1): K_b = P_b / (P_b + R), the first reference has no walk
+    k_b = rest.settings.offset_sd ** 2 / (rest.settings.offset_sd ** 2
+                                           + rest.settings.noise_sd ** 2)
+    assert rest.gain == 1.0 and rest.offset == pytest.approx(k_b * 1.0)
+    strained = OutputFusion.for_span(40.0)
+    assert strained.update(1.0, 30.0, 36.0) is None  # a sensitivity 20 % low
+    assert strained.gain - 1.0 > 0.15
+    assert abs(strained.offset) < 0.1 * 30.0 * (strained.gain - 1.0)
+
+
+def test_the_gate_refuses_an_outlier_and_the_state_stays() -> None:
+    t, estimate, reference = run(seconds=600.0)
+    sparse = SparseFusion(OutputFusion.for_span(40.0), every=30.0)
+    sparse.run(t, estimate, reference, np.ones(t.size, bool))
+    fusion = sparse.fusion
+    before = fusion.state()
+    reason = fusion.update(700.0, 20.0, 400.0)
+    assert reason is not None and reason.startswith("beyond the gate")
+    assert fusion.refused["beyond the gate"] == 1 and fusion.n_used == before["n_used"]
+    assert (fusion.gain, fusion.offset) == (before["gain"], before["offset"])
+    assert fusion.update(701.0, 20.0, GAIN * 20.0 + OFFSET) is None  # a good one still goes
+
+
+@pytest.mark.parametrize("reference, reason", [
+    (math.nan, "non-finite reference"), (math.inf, "non-finite reference"),
+    ("12.0", "not a number"), (None, "not a number"), (True, "not a number")])
+def test_non_finite_or_wrong_typed_references_are_refused(reference: object, reason: str
+                                                          ) -> None:
+    fusion = OutputFusion.for_span(40.0)
+    assert fusion.update(1.0, 10.0, reference) == reason
+    assert fusion.refused[reason] == 1 and fusion.n_used == 0
+    assert (fusion.gain, fusion.offset) == (1.0, 0.0)
+    assert fusion.update(2.0, math.nan, 10.0) == "no estimate yet"
+    assert fusion.update(3.0, 10.0, 11.0) is None
+    assert fusion.update(2.5, 10.0, 11.0) == "time before the previous reference"
+    values = fusion.diagnostic_values()
+    assert values["fusion_n_used"] == "1" and values["fusion_n_refused"] == "3"

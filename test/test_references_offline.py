@@ -1,0 +1,140 @@
+"""``evaluate --references-every`` and ``replay --references-every``: the bag's own
+reference fused at a spacing, on a sensor whose sensitivity changed by a known factor."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import BAGS, CONFIG
+
+from strain_comp.cli import main
+from strain_comp.core.calibration import (
+    Calibration,
+    SensorCalibration,
+    ValidRange,
+    load_calibration,
+    save_calibration,
+)
+from strain_comp.core.direction import DirectionSettings
+from strain_comp.errors import InputError
+from strain_comp.io.bag import BagWriter, read_bag
+from strain_comp.io.recording import Recording, load_recordings
+from strain_comp.models import Normalisation
+from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
+from strain_comp.offline.replay import replay_bag
+
+SENSITIVITY = 0.8
+"""The sensor now reads 0.8 x the strain it was calibrated for."""
+
+
+def calibration() -> Calibration:
+    """S = 0.5 R - 50 ([Electrolycra] eq. (4) with c1 = 0.5, c0 = -50), R in 100..150."""
+    cal = SensorCalibration(
+        name="s1", model="cubic", params={"c": [-50.0, 0.5, 0.0, 0.0]},
+        normalisation=Normalisation.from_ranges(100.0, 150.0, 0.0, 25.0),
+        valid_range=ValidRange(95.0, 155.0, -2.5, 27.5),
+        direction=DirectionSettings(deadzone=0.5, tau=0.0, k_sigma=4.0))
+    return Calibration({"s1": cal})
+
+
+def changed_run(seconds: float = 300.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, R, reference): 12 s cycles to 10-25 % strain; the resistance follows
+    ``SENSITIVITY`` x the strain, so the calibration reads that share of it."""
+    rng = np.random.default_rng(2)
+    t = np.arange(0.0, seconds, 0.05)
+    peak = 10.0 + 15.0 * (np.floor(t / 12.0) % 4) / 3.0
+    s = peak * 0.5 * (1.0 - np.cos(2 * np.pi * t / 12.0))
+    r = (SENSITIVITY * s + 50.0) / 0.5 + rng.normal(0.0, 0.2, t.size)
+    return t, r, s
+
+
+def write(path: Path, *, reference: bool = True) -> Path:
+    t, r, s = changed_run()
+    with BagWriter(path, chunk_size=500) as w:
+        w.write_float64("/s1/resistance", t, r)
+        if reference:
+            w.write_float64("/s1/strain_reference", t, s)
+    return path
+
+
+def test_references_every_30_s_recover_a_changed_sensitivity(tmp_path: Path) -> None:
+    t, r, s = changed_run()
+    rec = {"s1": Recording("s1", t, r, s)}
+    plain = evaluate_recordings(rec, calibration()).sensors["s1"]
+    fused = evaluate_recordings(rec, calibration(), references_every=30.0).sensors["s1"]
+    assert plain.stats.rmse > 2.0  # a 20 % gain error on strains up to 25 %
+    assert fused.stats.rmse < 0.35 * plain.stats.rmse
+    late = t > 100.0  # after three references
+    assert np.sqrt(np.mean((fused.estimate - s)[late] ** 2)) < 0.15 * np.sqrt(
+        np.mean((plain.estimate - s)[late] ** 2))
+    assert fused.references is not None
+    assert fused.references["n_used"] == 9 and fused.references["n_refused"] == 0
+    assert fused.references["gain"] == pytest.approx(1.0 / SENSITIVITY, rel=0.05)
+    # before the first reference the estimate is the engine's own
+    first = t <= 30.0
+    assert np.array_equal(fused.estimate[first], plain.estimate[first])
+    # streamed in pieces, the same numbers
+    streamed, _ = evaluate_bag(write(tmp_path / "run.mcap"), calibration(), window=700,
+                               references_every=30.0)
+    got = streamed.sensors["s1"]
+    assert got.stats.rmse == pytest.approx(fused.stats.rmse, rel=1e-9)
+    assert got.references == fused.references
+    record = json.loads(json.dumps(fused.to_dict()))
+    assert record["references"]["every"] == 30.0 and record["references"]["n_used"] == 9
+
+
+@pytest.mark.parametrize(("bag", "cal"), [("demo_rates", "demo_calibration"),
+                                          ("array", "array_calibration")])
+def test_streamed_fusion_of_the_bundled_bags_equals_the_whole_series(bag: str, cal: str
+                                                                      ) -> None:
+    calibration = load_calibration(CONFIG / f"{cal}.yaml")
+    recordings, _ = load_recordings(BAGS / f"{bag}.mcap")
+    whole = evaluate_recordings(recordings, calibration, references_every=5.0)
+    pieces, _ = evaluate_bag(BAGS / f"{bag}.mcap", calibration, window=900,
+                             references_every=5.0)
+    for name, ev in whole.sensors.items():
+        assert ev.references is not None and ev.references["n_used"] > 0
+        assert pieces.sensors[name].references == ev.references
+        assert pieces.sensors[name].stats.rmse == pytest.approx(ev.stats.rmse, rel=1e-9)
+
+
+def test_no_reference_or_a_bad_spacing_is_one_line_and_exit_2(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    t, r, _ = changed_run(60.0)
+    with pytest.raises(InputError, match="s1 has no strain_reference"):
+        evaluate_recordings({"s1": Recording("s1", t, r, None)}, calibration(),
+                            references_every=10.0)
+    bare = write(tmp_path / "bare.mcap", reference=False)
+    cal = tmp_path / "cal.yaml"
+    save_calibration(calibration(), cal)
+    for argv in (["evaluate", str(bare), "--calibration", str(cal), "--references-every",
+                  "10"],
+                 ["replay", str(bare), "--calibration", str(cal), "--out",
+                  str(tmp_path / "out.mcap"), "--references-every", "10"],
+                 ["evaluate", str(write(tmp_path / "ok.mcap")), "--calibration", str(cal),
+                  "--references-every", "-5"]):
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("strain-comp: error: ")
+        assert "--references-every" in err[0]
+    assert not (tmp_path / "out.mcap").exists()  # nothing half written
+
+
+def test_replay_writes_the_fused_strain_that_evaluate_scores(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = write(tmp_path / "run.mcap")
+    cal = tmp_path / "cal.yaml"
+    save_calibration(calibration(), cal)
+    out = tmp_path / "out.mcap"
+    summary = replay_bag(bag, calibration(), out, window=700, references_every=30.0)
+    assert summary.references["s1"]["n_used"] == 9
+    written = read_bag(out).series["/s1/strain"]
+    ev = evaluate_recordings(load_recordings(bag)[0], calibration(), references_every=30.0)
+    assert np.allclose(written.values, ev.sensors["s1"].estimate, rtol=0, atol=1e-9)
+    assert main(["replay", str(bag), "--calibration", str(cal), "--out",
+                 str(tmp_path / "cli.mcap"), "--references-every", "30"]) == 0
+    assert "a reference every 30 s: 9 used, 0 refused" in capsys.readouterr().err
