@@ -134,3 +134,16 @@ def test_cli_fit_pools_in_one_space_unless_asked_raw(tmp_path: Path) -> None:
                     "--out", str(out), "--quiet"]) == 0
         prov = load_calibration(out).sensors["s1"].provenance
         assert ("pooled_runs" in prov) == (pool == "spanned")
+
+
+def test_a_window_keeps_the_warm_up_unreferenced_for_the_engine() -> None:
+    """The engine runs from the bag's start (a memory model enters the window in the state
+    the warm-up left); only the window's reference is fitted to."""
+    from strain_comp.offline.recalibrate import window
+
+    cal = Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")})
+    part = window({"s1": NEW}, (12.0, 22.0), cal)["s1"]
+    assert part.t[0] == NEW.t[0] and part.t[-1] == pytest.approx(22.0, abs=0.05)
+    assert part.s is not None and NEW.s is not None
+    assert np.isnan(part.s[part.t < 12.0]).all()
+    assert part.s[part.t >= 12.0] == pytest.approx(NEW.s[(NEW.t >= 12.0) & (NEW.t <= 22.0)])

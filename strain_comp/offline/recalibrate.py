@@ -193,13 +193,13 @@ def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
     if rest is None:
-        raise InputError("recalibrate --first: the first cycle has no rest at its lowest "
+        raise InputError("recalibrate --first/--window: the cycle has no rest at its lowest "
                          "strain or its reference strain never moves")
     span = float(np.ptp(s))
     low = s <= s.min() + REST_BAND * span
     high = np.abs(s - min(float(s.max()), top)) <= REST_BAND * span
     if not high.any():
-        raise InputError("recalibrate --first: no sample of the first cycle at a strain the "
+        raise InputError("recalibrate --first/--window: no sample of the cycle at a strain the "
                          "calibration outputs")
     return [(rest, float(np.median(s[low]))),
             (float(np.median(r[high])), float(np.median(s[high])))]
@@ -462,10 +462,12 @@ def cut(rec: Recording, start: float, end: float) -> Recording:
 
 def window(recordings: Mapping[str, Recording], span: tuple[float, float],
            calibration: Calibration, source: str = "the bag") -> dict[str, Recording]:
-    """Each referenced recording's samples from ``span[0]`` to ``span[1]`` seconds after its
-    start (``recalibrate --window``). InputError for a window beyond a recording's end or
-    one in which its reference strain makes no stretch and return (``stretch_and_return``
-    over the strain range of its sensor's calibration)."""
+    """Each referenced recording up to ``span[1]`` seconds after its start, its reference
+    strain left out (NaN) before ``span[0]`` (``recalibrate --window``): the engine runs the
+    calibration from the bag's start, so a memory model enters the window in the state the
+    warm-up left, and only the window's reference is fitted to. InputError for a window
+    beyond a recording's end or one in which its reference strain makes no stretch and
+    return (``stretch_and_return`` over the strain range of its sensor's calibration)."""
     start, end = span
     out = {}
     for name, rec in recordings.items():
@@ -481,7 +483,9 @@ def window(recordings: Mapping[str, Recording], span: tuple[float, float],
             raise InputError(f"--window {start:g}:{end:g}: the reference strain of {name!r} "
                              f"makes no stretch and return in it (record a load and unload "
                              f"there)")
-        out[name] = part
+        whole = cut(rec, 0.0, end)
+        assert whole.s is not None
+        out[name] = replace(whole, s=np.where(whole.t < rec.t[0] + start, np.nan, whole.s))
     return out
 
 
