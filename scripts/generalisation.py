@@ -25,15 +25,16 @@ numbers ``strain-comp evaluate`` prints):
   S``, then ``recalibrate --from B --first S`` (the output gain and offset on the spanned
   input); S the end of the first stretch and return (``first_cycle``);
 * ``warmup``: the same session start on B's *second* cycle (``--window S1:S2``): the first
-  stretch is a warm-up whose reference is ignored;
+  stretch is a warm-up whose reference is ignored; where B has no second cycle, or a step
+  on it is refused and the first cycle makes more steps, the first cycle's (the README's
+  procedure: a refused calibration stretch is redone on the warm-up, ``--first``);
 * ``refs_60``: ``warmup``, then ``evaluate --references-every 60``: B's own reference every
   60 s fused online into the output gain and offset (scored on all samples);
 * ``loop`` (``pair`` only, with ``--loop``): ``warmup`` on the calibration ``strain-comp
   diagnose A --validate C...`` made (the first ``--loop-validate`` runs other than A, B).
 
 A step of a session start that cannot be made (no rest in the window, a strain the
-calibration never outputs) leaves the calibration as it was, as for a user; a run without
-a second cycle gets its first-cycle session start in ``warmup`` (logged).
+calibration never outputs) leaves the calibration as it was, as for a user.
 
 Reported per scheme, model and sensor: the median and the worst absolute RMSE over the test
 runs (each sensor's unit: fibre mm, else % strain), and the **ratio** to the *best in-run
@@ -252,37 +253,44 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration",
     return float(result.sensors[rec.name].stats.rmse)
 
 
-def session_start(rec: Any, cal: Any, span: tuple[float, float]) -> Any:
+def session_start(rec: Any, cal: Any, span: tuple[float, float]) -> tuple[Any, int]:
     """``cal`` after ``recalibrate --input --from B --window START:END`` and then
-    ``recalibrate --from B --window START:END`` (the output map on the spanned input); a
-    step that cannot be made is skipped, as for a user."""
+    ``recalibrate --from B --window START:END`` (the output map on the spanned input), and
+    how many of the two steps were made; a step that cannot be made is skipped, as for a
+    user."""
     from strain_comp.errors import StrainCompError
     from strain_comp.offline.recalibrate import recalibrate_recordings
 
+    made = 0
     for form in ("input", "output"):
         try:
             cal = recalibrate_recordings(cal, {rec.name: rec}, form=form, span=span,
                                          tare="calibration" if form == "output" else "auto",
                                          first=None)[0]
+            made += 1
         except StrainCompError:
             continue
-    return cal
+    return cal, made
 
 
 def workflows(rec: Any, cal: Any, loop_cal: Any | None = None, *,
               log: Callable[[str], None] = print) -> dict[str, float]:
-    """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``)."""
+    """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``).
+    ``warmup`` falls back to the first cycle where the run has no second one or a step on
+    it is refused and the first cycle makes more (the README's procedure)."""
     first = (0.0, first_cycle(rec.t, rec.s))
     second = second_cycle(rec.t, rec.s)
-    if second is None:
-        log(f"## {rec.name}: no second cycle, warmup = first")
-    at_first = session_start(rec, cal, first)
+    at_first, made_first = session_start(rec, cal, first)
     out = {"as_is": rmse(rec, cal, tare="auto"), "first": rmse(rec, at_first)}
-    started = at_first if second is None else session_start(rec, cal, second)
-    out["warmup"] = out["first"] if second is None else rmse(rec, started)
+    started, made = (at_first, made_first) if second is None else session_start(rec, cal,
+                                                                                 second)
+    if made < made_first:
+        started, made = at_first, made_first
+        log(f"## {rec.name}: the second cycle refused, warmup = first")
+    out["warmup"] = out["first"] if started is at_first else rmse(rec, started)
     out["refs_60"] = rmse(rec, started, references_every=REFERENCE_SECONDS)
     if loop_cal is not None:
-        out["loop"] = rmse(rec, session_start(rec, loop_cal, second or first))
+        out["loop"] = rmse(rec, session_start(rec, loop_cal, second or first)[0])
     return out
 
 

@@ -283,8 +283,9 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, 
     (``points_from_first_cycle``). A static model: its held map inverted at the two points
     (``span_from_points``); where the map never outputs a point's strain, the resistance
     of its nearest output (the output map made after the span corrects what remains). A
-    memory model: the two points read on its branches (``span_on_branches``), then the
-    span refined through the run (``span_through_run``)."""
+    memory model: the two points read on its branches (``span_on_branches``; where they
+    give no span, the calibration as tared: the run's rest onto its rest resistance, gain
+    1), then the span refined through the run (``span_through_run``)."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     curve = steady_curve(cal)
@@ -298,7 +299,13 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, 
     branch = branches(cal, curve[0])
     points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                      top=float(branch[1].max()))
-    return span_through_run(cal, rec, span_on_branches(cal, points, curve[0], branch))
+    try:
+        start = span_on_branches(cal, points, curve[0], branch)
+    except InputError:
+        if cal.rest_resistance is None:
+            raise
+        start = (min(points, key=lambda p: p[1])[0], cal.rest_resistance, 1.0)
+    return span_through_run(cal, rec, start)
 
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
@@ -308,8 +315,11 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
     ``start``, the two-point span; the measured rest kept): for a model that does not
     follow its steady outputs (``follows_steady_curve``). The engine runs the model along
     the path the sensor took, so a memory model is spanned on its loading and unloading
-    branches, not on a constant-resistance map it does not follow in use. ``start`` is
-    kept unless the fit lowers the error."""
+    branches, not on a constant-resistance map it does not follow in use. The search starts
+    from ``start`` or from the calibration as tared (the run's rest onto the calibration's
+    rest resistance, span gain 1), whichever reads the cycle better (a model whose held
+    outputs have not settled in ``SETTLE_SAMPLES``, such as slow creep states, can give a
+    far-off two-point span), and keeps that start unless the fit lowers the error."""
     from scipy.optimize import minimize
 
     from strain_comp.core.engine import Engine
@@ -328,13 +338,18 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
         value = float(np.sqrt(np.mean((strain[ok] - reference) ** 2)))
         return value if np.isfinite(value) else np.inf
 
-    first = error(np.zeros(2))
-    best = minimize(error, np.zeros(2), method="Nelder-Mead",
-                    options={"initial_simplex": [[0.0, 0.0], [0.05, 0.0], [0.0, 0.2]],
+    origin = np.zeros(2)
+    first = error(origin)
+    if cal.rest_resistance is not None:  # the calibration as tared: a zero, no span
+        tared = np.array([(cal.rest_resistance - rest_cal) / width, -np.log(k)])
+        if (tared_error := error(tared)) < first:
+            origin, first = tared, tared_error
+    best = minimize(error, origin, method="Nelder-Mead",
+                    options={"initial_simplex": origin + np.array([[0.0, 0.0], [0.05, 0.0],
+                                                                   [0.0, 0.2]]),
                              "xatol": 1e-3, "fatol": 1e-4, "maxfev": SPAN_FIT_EVALUATIONS})
-    if not (np.isfinite(best.fun) and best.fun < first):
-        return start
-    return rest, rest_cal + width * float(best.x[0]), k * float(np.exp(best.x[1]))
+    x = best.x if np.isfinite(best.fun) and best.fun < first else origin
+    return rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1]))
 
 
 def span_reading(span: tuple[float, float, float]) -> str:
