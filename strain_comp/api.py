@@ -158,7 +158,7 @@ def _recordings(data: object) -> dict[str, Recording]:
 def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         sensors: Sequence[str] | None = None, strain_unit: str = "%",
         report: Callable[[str], None] | None = None, progress_bar: bool = False,
-        **options: Any) -> Calibration:
+        pool: str = "spanned", **options: Any) -> Calibration:
     """Fit ``model`` (apl, pl, mpi, cubic, sinh_pl, rational, spike_decay) to recordings
     with a reference strain: one calibration, one entry per sensor.
 
@@ -167,7 +167,9 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     (default: every one with a reference). ``options``: the model's fit options, as
     ``strain-comp fit --option K=V`` takes them (``strain-comp fit --help`` lists them).
     ``report``: where notes go (skipped bag damage, a sensor left out). ``progress_bar``: a
-    bar on stderr over an APL-family fit's grid (``strain_comp.progress``).
+    bar on stderr over an APL-family fit's grid (``strain_comp.progress``). ``pool``: how
+    several runs of a sensor are pooled, ``"spanned"`` (each run's input zero and span put
+    onto the run of median sensitivity) or ``"raw"`` (``strain-comp fit --pool``).
     """
 
     check_fit_options(model, options)
@@ -179,7 +181,7 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
         if grid:  # the grid's own lines give way to the bar (or to silence)
             options = {**options, "progress": grid_progress(shown) if progress_bar else False}
-        calibration = _fit(data, model, sensors, report, options)
+        calibration = _fit(data, model, sensors, report, options, pool)
     for cal in calibration.sensors.values():
         cal.strain_unit = strain_unit
         if grid:  # how the fit was shown is no fit option
@@ -188,11 +190,12 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
 
 
 def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | None,
-         report: Callable[[str], None] | None, options: Mapping[str, Any]) -> Calibration:
+         report: Callable[[str], None] | None, options: Mapping[str, Any],
+         pool: str = "spanned") -> Calibration:
 
     paths = _paths(data)
     if paths is not None:
-        return fit_bags(paths, model, sensors, options, report=report)
+        return fit_bags(paths, model, sensors, options, report=report, pool=pool)
     runs = [data] if isinstance(data, (Recording, Mapping)) else list(data)  # type: ignore[arg-type]
     by_sensor: dict[str, list[Recording]] = {}
     for run in runs:
@@ -208,7 +211,7 @@ def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | N
             raise InputError(f"sensor {name!r} is not in the recordings "
                              f"(sensors found: {', '.join(by_sensor)})")
         fitted[name] = fit_sensor(by_sensor[name], model, name=name,
-                                  bags=[f"(arrays: {name})"], options=options)
+                                  bags=[f"(arrays: {name})"], options=options, pool=pool)
     return Calibration(fitted)
 
 
@@ -387,11 +390,14 @@ class Recalibration(NamedTuple):
 def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
                 points: Iterable[tuple[float, float]] = (), form: str = "output",
                 first: float | None = None, sensors: Sequence[str] | None = None,
-                tare: str = "calibration") -> Recalibration:
+                tare: str = "calibration",
+                window: tuple[float, float] | None = None) -> Recalibration:
     """``strain-comp recalibrate``: ``form="output"`` fits a gain and offset on the strain,
     ``form="input"`` a zero and span on the resistance; through two known
     ``points`` (resistance [ohm], strain) or over ``data`` with a reference strain (a bag
-    or recordings; its first ``first`` seconds). The input calibration is not changed."""
+    or recordings; its first ``first`` seconds, or the ``window`` (START, END) seconds after
+    its start: ``strain-comp recalibrate --window``). The input calibration is not
+    changed."""
 
     cal = _calibration(calibration)
     pts = [(float(r), float(s)) for r, s in points]
@@ -402,10 +408,11 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
     if data is None or paths is not None:
         bag = None if paths is None else paths[0]
         new, lines = _recalibrate(cal, points=pts, bag=bag, sensors=sensors, tare=tare,
-                                  form=form, first=first)
+                                  form=form, first=first, span=window)
     else:
         new, lines = recalibrate_recordings(cal, _recordings(data), form=form, first=first,
-                                            sensors=sensors, tare=tare, source="recordings")
+                                            sensors=sensors, tare=tare, source="recordings",
+                                            span=window)
     return Recalibration(new, lines)
 
 

@@ -200,7 +200,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     try:
         calibration = api.fit(args.bags, args.model, sensors=args.sensor,
                               strain_unit=args.strain_unit, report=notes.append,
-                              progress_bar=wanted(args.quiet), **options)
+                              progress_bar=wanted(args.quiet), pool=args.pool, **options)
     except StrainCompError as err:
         raise InputError("; ".join([str(err), *notes])) from None
     for line in notes:
@@ -394,7 +394,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 def cmd_recalibrate(args: argparse.Namespace) -> int:
     from strain_comp import api
     from strain_comp.core.calibration_file import save_calibration
-    from strain_comp.offline.recalibrate import parse_point
+    from strain_comp.offline.recalibrate import parse_point, parse_window
 
     if bool(args.point) == bool(args.from_bag):
         raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
@@ -404,9 +404,14 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     _output(args.out, [args.calibration, bag])
     if args.first is not None and bag is None:
         raise InputError("recalibrate --first needs --from BAG.mcap")
+    if args.window is not None and bag is None:
+        raise InputError("recalibrate --window needs --from BAG.mcap")
+    if args.window is not None and args.first is not None:
+        raise InputError("recalibrate: give --first or --window, not both")
+    window = None if args.window is None else parse_window(args.window)
     new, lines = api.recalibrate(calibration, bag, points=points, sensors=args.sensor,
                                  tare=args.tare, form="input" if args.input else "output",
-                                 first=args.first)
+                                 first=args.first, window=window)
     save_calibration(new, args.out,
                      inputs=[p for p in (args.calibration, bag) if p is not None])
     print("\n".join(lines))
@@ -550,6 +555,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="unit of the bags' strain_reference (default %%; mm for an extension "
                    "imported without a gauge length): errors, plots and readings are given "
                    "in it")
+    p.add_argument("--pool", choices=("spanned", "raw"), default="spanned",
+                   help="several bags of a sensor: spanned (default) puts each run's input "
+                        "zero and span onto the run of median sensitivity before pooling "
+                        "(as recalibrate --input does); raw pools the resistance as recorded")
     p.set_defaults(func=cmd_fit)
 
     p = command("evaluate", "error table of a calibration on one or many bags",
@@ -665,7 +674,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "k (R - R_rest), instead of the output gain and offset (with --from: "
                         "from the first rest and the largest strain)")
     p.add_argument("--first", type=float, metavar="SECONDS",
-                   help="with --from: use only the bag's first SECONDS (its first cycle)")
+                   help="with --from: use only the bag's first SECONDS (its first cycle; "
+                        "= --window 0:SECONDS)")
+    p.add_argument("--window", metavar="START:END",
+                   help="with --from: use only the bag's samples from START to END seconds "
+                        "after its start, which must hold a load and unload (the "
+                        "calibration stretch after a warm-up stretch)")
     p.add_argument("--out", required=True, metavar="CAL2.yaml",
                    help="calibration to write (replaced atomically)")
     _tare_flag(p)

@@ -22,7 +22,7 @@ from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import recalibrate_recordings
+from strain_comp.offline.recalibrate import cycle_end, recalibrate_recordings
 
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
@@ -31,25 +31,18 @@ FORMS = ("input", "output")
 
 
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
-    """Seconds from the start of a run to the end of its first load and unload: the first
-    return of the reference ``s`` to within 10 % of its span above the minimum after first
-    passing half the span; at most ``FIRST_CYCLE_CAP`` of the run. None when the reference
-    never moves."""
+    """Seconds from the start of a run to the end of its first load and unload
+    (``strain_comp.offline.recalibrate.cycle_end``); at most ``FIRST_CYCLE_CAP`` of the run.
+    None when the reference never moves."""
+
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     t, s = t[ok], s[ok]
-    if t.size < 2:
-        return None
-    lo, hi = np.percentile(s, [1, 99])
-    if not hi > lo:
+    if t.size < 2 or not np.percentile(s, 99) > np.percentile(s, 1):
         return None
     cap = FIRST_CYCLE_CAP * float(t[-1] - t[0])
-    up = np.flatnonzero(s > lo + 0.5 * (hi - lo))
-    if up.size:
-        back = np.flatnonzero(s[up[0]:] < lo + 0.1 * (hi - lo))
-        if back.size:
-            return min(float(t[up[0] + back[0]] - t[0]), cap)
-    return cap
+    end = cycle_end(t, s)
+    return cap if end is None else min(end, cap)
 
 
 @dataclass

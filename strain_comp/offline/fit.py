@@ -56,6 +56,16 @@ data and fills in what a calibration file needs besides the parameters:
   computed on the full data. The provenance records the factor (``fit_reduction``). A
   model whose fit takes every sample in bounded memory (``Compensator.fit_full_rate``:
   creep_pi, whose low-pass states a decimation would alter) gets the full data.
+* **Pooling runs** (``pool``, ``strain-comp fit --pool``): several training runs of one
+  sensor are first put into one input space, as ``recalibrate --input`` zeroes and spans a
+  run: R' = R_0,ref + k (R - R_0,run) with k = g_ref / g_run, where R_0 + g S is the run's
+  least-squares line of resistance on reference strain (its zero and sensitivity) and the
+  reference line is the run of median sensitivity (``pooled_input``). Runs of one thread
+  differ in sensitivity by up to 2x; pooled raw, the model fits their average and carries to
+  none (docs/generalisation.md). The calibration's rest resistance and range are those of the
+  spanned runs, so a session start (``recalibrate --input``) on a new run maps it into the
+  same space. ``pool="raw"``: the runs as recorded. The provenance records each run's map
+  (``pooled_runs``).
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
@@ -124,6 +134,9 @@ DEADZONE_FRACTION = 0.5
 STILL_FRACTION = 0.001
 """The reference strain is still where it moves by at most this share of its span in 1 s
 (half the slowest ramp in the measured data: the fibre moves 0.2 % of its span per s)."""
+POOLS = ("spanned", "raw")
+"""How ``fit_sensor`` pools several runs: each run's input zero and span put onto a reference
+run's first (default, module docstring), or the resistance as recorded."""
 _DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair", "fit_budget")
 """Options ``fit_sensor`` takes itself (direction detector, measurement chain, the sample
 budget of a fit); the others go to the model's ``fit``."""
@@ -400,9 +413,87 @@ def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "me
     return float(np.median(found)) if found else None
 
 
+def run_line(rec: Recording) -> tuple[float, float] | None:
+    """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples
+    (its input zero [ohm] and sensitivity [ohm per strain unit]); None without a range of
+    strain or a finite line."""
+    if rec.s is None:
+        return None
+    ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
+    s, r = np.asarray(rec.s, dtype=np.float64)[ok], np.asarray(rec.r, dtype=np.float64)[ok]
+    if s.size < 2 or not np.ptp(s) > 0:
+        return None
+    g, r0 = np.polyfit(s, r, 1)
+    return (float(r0), float(g)) if np.isfinite(r0) and np.isfinite(g) and g != 0 else None
+
+
+POOL_DEGREE = 3
+"""Degree of the pooled curve of strain on mapped resistance the input maps are fitted
+through (``pooled_input``): the cubic model's."""
+POOL_SAMPLES = 4000
+"""Samples of each run (evenly thinned) the input maps are fitted on."""
+
+
+def pooled_input(recordings: Sequence[Recording], pool: str = "spanned",
+                 ) -> tuple[list[Recording], list[dict[str, float]]]:
+    """The runs put into one input space for a pooled fit (module docstring, Pooling runs)
+    and each run's map (``rest``, ``rest_calibrated``, ``span_gain``: the form of
+    ``recalibrate --input``, R' = rest_calibrated + span_gain (R - rest)).
+
+    The maps are a per-run affine nuisance fitted jointly with a pooled cubic of strain on
+    mapped resistance (least squares over the maps, the cubic solved for at each step),
+    started from each run's line of resistance on strain (``run_line``) and anchored on the
+    run of median sensitivity (its map stays the identity), then dropped: the model is
+    fitted on the mapped runs. The runs as recorded
+    (no maps) for ``pool="raw"``, a single run, or runs whose lines disagree in sign."""
+    from scipy.optimize import least_squares
+
+    if pool not in POOLS:
+        raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
+    lines = [run_line(rec) for rec in recordings]
+    if pool == "raw" or len(recordings) < 2 or any(line is None for line in lines):
+        return list(recordings), []
+    found = [line for line in lines if line is not None]
+    if len({np.sign(g) for _, g in found}) > 1:
+        return list(recordings), []
+    anchor = int(np.argsort([abs(g) for _, g in found])[(len(found) - 1) // 2])
+    r0_ref, g_ref = found[anchor]
+    data = []
+    for rec in recordings:
+        assert rec.s is not None  # run_line found a line
+        ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
+        step = max(1, int(ok.sum()) // POOL_SAMPLES)
+        data.append((np.asarray(rec.r, dtype=np.float64)[ok][::step],
+                     np.asarray(rec.s, dtype=np.float64)[ok][::step]))
+    # map of run i: R' = r0_ref + k_i (R - z_i); started on the lines: z = R_0, k = g_ref / g
+    start = np.array([v for i, (r0, g) in enumerate(found) if i != anchor
+                      for v in (r0, g_ref / g)])
+    scale = float(np.median(np.concatenate([np.abs(r) for r, _ in data])))
+    s_all = np.concatenate([s for _, s in data])
+
+    def unpack(x: np.ndarray) -> list[tuple[float, float]]:
+        pairs = iter(zip(x[::2], x[1::2], strict=True))
+        return [(r0_ref, 1.0) if i == anchor else next(pairs) for i in range(len(data))]
+
+    def residual(x: np.ndarray) -> np.ndarray:  # the cubic solved for, given the maps
+        mapped = np.concatenate([(r0_ref + k * (r - z)) / scale
+                                 for (r, _), (z, k) in zip(data, unpack(x), strict=True)])
+        return np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped) - s_all
+
+    gains = start[1::2]
+    lower = np.ravel([(-np.inf, 0.2 * k) for k in gains])
+    upper = np.ravel([(np.inf, 5.0 * k) for k in gains])
+    fitted = least_squares(residual, start, x_scale=np.ravel([(scale, 1.0)] * gains.size),
+                           bounds=(lower, upper), xtol=1e-10)
+    maps = unpack(fitted.x if fitted.success and np.all(np.isfinite(fitted.x)) else start)
+    out = [replace(rec, r=r0_ref + k * (np.asarray(rec.r, dtype=np.float64) - z))
+           for rec, (z, k) in zip(recordings, maps, strict=True)]
+    return out, [{"rest": z, "rest_calibrated": r0_ref, "span_gain": k} for z, k in maps]
+
+
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-               budget: int = FIT_SAMPLE_BUDGET) -> SensorCalibration:
+               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
     """Fit ``model`` to one sensor's recordings (each with a reference strain).
 
     ``options`` go to the model's ``fit`` (N, M, mode, ...) except ``deadzone``, ``k_sigma``
@@ -410,10 +501,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     measurement chain) and ``fit_budget`` (overrides ``budget``: good samples above which
     the model is fitted on a reduction, module docstring, Long runs). Raises FitError
     when the data cannot support a fit (no reference, too few good samples, no range of
-    R or S).
+    R or S). Several runs are pooled in one input space (``pool``, module docstring).
     """
     options = dict(options or {})
     cls = model_class(model)
+    recordings, pool_maps = pooled_input(recordings, pool)
     segments: list[Segment] = []
     interval = slow_sample_interval(recordings)
     for rec in recordings:
@@ -492,6 +584,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                                               else "")
                            if chain.present else "no alternation found"),
         options=model_options,
+        **({"pooled_runs": [{k: round(v, 6) for k, v in m.items()} for m in pool_maps]}
+           if pool_maps else {}),
         **({"fit_reduction": {"factor": factor,
                               "samples": sum(seg.t.size for seg in fit_segments)}}
            if factor > 1 else {}),
@@ -522,12 +616,14 @@ def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
 
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
              options: Mapping[str, Any] | None = None, *,
-             report: Callable[[str], None] | None = None) -> Calibration:
+             report: Callable[[str], None] | None = None,
+             pool: str = "spanned") -> Calibration:
     """One calibration for ``sensors`` (None or ``["all"]``: every sensor with a reference;
     one of those that cannot be fitted, e.g. a reference that is NaN throughout, is left
     out with a line to ``report``, unless none can be).
 
-    Each sensor is fitted to its recordings from every bag that has it. Bag problems
+    Each sensor is fitted to its recordings from every bag that has it, pooled in one
+    input space (``pool``, ``fit_sensor``). Bag problems
     (skipped chunks, unknown schemas) go to ``report``, one line each.
     """
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
@@ -560,7 +656,7 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
         try:
             calibrations[sensor] = fit_sensor([rec for _, rec in pairs], model, name=sensor,
                                               bags=[path for path, _ in pairs],
-                                              options=options)
+                                              options=options, pool=pool)
         except FitError as err:
             if not every or len(names) == 1:
                 raise

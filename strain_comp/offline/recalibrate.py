@@ -193,13 +193,13 @@ def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
     if rest is None:
-        raise InputError("recalibrate --first: the first cycle has no rest at its lowest "
+        raise InputError("recalibrate --first/--window: the cycle has no rest at its lowest "
                          "strain or its reference strain never moves")
     span = float(np.ptp(s))
     low = s <= s.min() + REST_BAND * span
     high = np.abs(s - min(float(s.max()), top)) <= REST_BAND * span
     if not high.any():
-        raise InputError("recalibrate --first: no sample of the first cycle at a strain the "
+        raise InputError("recalibrate --first/--window: no sample of the cycle at a strain the "
                          "calibration outputs")
     return [(rest, float(np.median(s[low]))),
             (float(np.median(r[high])), float(np.median(s[high])))]
@@ -281,8 +281,9 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, 
     (``points_from_first_cycle``). A static model: its held map inverted at the two points
     (``span_from_points``); where the map never outputs a point's strain, the resistance
     of its nearest output (the output map made after the span corrects what remains). A
-    memory model: the two points read on its branches (``span_on_branches``), then the
-    span refined through the run (``span_through_run``)."""
+    memory model: the two points read on its branches (``span_on_branches``; where they
+    give no span, the calibration as tared: the run's rest onto its rest resistance, gain
+    1), then the span refined through the run (``span_through_run``)."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     curve = steady_curve(cal)
@@ -296,7 +297,13 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, 
     branch = branches(cal, curve[0])
     points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                      top=float(branch[1].max()))
-    return span_through_run(cal, rec, span_on_branches(cal, points, curve[0], branch))
+    try:
+        start = span_on_branches(cal, points, curve[0], branch)
+    except InputError:
+        if cal.rest_resistance is None:
+            raise
+        start = (min(points, key=lambda p: p[1])[0], cal.rest_resistance, 1.0)
+    return span_through_run(cal, rec, start)
 
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
@@ -306,8 +313,11 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
     ``start``, the two-point span; the measured rest kept): for a model that does not
     follow its steady outputs (``follows_steady_curve``). The engine runs the model along
     the path the sensor took, so a memory model is spanned on its loading and unloading
-    branches, not on a constant-resistance map it does not follow in use. ``start`` is
-    kept unless the fit lowers the error."""
+    branches, not on a constant-resistance map it does not follow in use. The search starts
+    from ``start`` or from the calibration as tared (the run's rest onto the calibration's
+    rest resistance, span gain 1), whichever reads the cycle better (a model whose held
+    outputs have not settled in ``SETTLE_SAMPLES``, such as slow creep states, can give a
+    far-off two-point span), and keeps that start unless the fit lowers the error."""
     from scipy.optimize import minimize
 
 
@@ -325,13 +335,18 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
         value = float(np.sqrt(np.mean((strain[ok] - reference) ** 2)))
         return value if np.isfinite(value) else np.inf
 
-    first = error(np.zeros(2))
-    best = minimize(error, np.zeros(2), method="Nelder-Mead",
-                    options={"initial_simplex": [[0.0, 0.0], [0.05, 0.0], [0.0, 0.2]],
+    origin = np.zeros(2)
+    first = error(origin)
+    if cal.rest_resistance is not None:  # the calibration as tared: a zero, no span
+        tared = np.array([(cal.rest_resistance - rest_cal) / width, -np.log(k)])
+        if (tared_error := error(tared)) < first:
+            origin, first = tared, tared_error
+    best = minimize(error, origin, method="Nelder-Mead",
+                    options={"initial_simplex": origin + np.array([[0.0, 0.0], [0.05, 0.0],
+                                                                   [0.0, 0.2]]),
                              "xatol": 1e-3, "fatol": 1e-4, "maxfev": SPAN_FIT_EVALUATIONS})
-    if not (np.isfinite(best.fun) and best.fun < first):
-        return start
-    return rest, rest_cal + width * float(best.x[0]), k * float(np.exp(best.x[1]))
+    x = best.x if np.isfinite(best.fun) and best.fun < first else origin
+    return rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1]))
 
 
 def span_reading(span: tuple[float, float, float]) -> str:
@@ -379,45 +394,145 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
     return new
 
 
+CYCLE_UP, CYCLE_BACK = 0.5, 0.1
+"""A cycle (``cycle_end``): the reference passes this share of its span above its minimum,
+then returns to within the second share of it."""
+
+
+def cycle_end(t: np.ndarray, s: np.ndarray) -> float | None:
+    """Seconds from ``t[0]`` to the end of the first stretch and return of the reference
+    ``s``: its first return to within ``CYCLE_BACK`` of its span (1st to 99th percentile)
+    above the minimum after first passing ``CYCLE_UP`` of it. None when there is none."""
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(s)
+    t, s = t[ok], s[ok]
+    if t.size < 2:
+        return None
+    lo, hi = np.percentile(s, [1, 99])
+    if not hi > lo:
+        return None
+    up = np.flatnonzero(s > lo + CYCLE_UP * (hi - lo))
+    if not up.size:
+        return None
+    back = np.flatnonzero(s[up[0]:] < lo + CYCLE_BACK * (hi - lo))
+    return float(t[up[0] + back[0]] - t[0]) if back.size else None
+
+
+MIN_CYCLE_SHARE = 0.1
+"""A window's stretch must span at least this share of the calibration's strain range."""
+
+
+def stretch_and_return(s: np.ndarray, strain_range: float) -> bool:
+    """True when the reference ``s`` of a window rises from within ``CYCLE_UP`` of its span
+    above its minimum to its maximum and falls back there, over at least
+    ``MIN_CYCLE_SHARE`` of ``strain_range`` (the calibration's): a load and unload."""
+    s = np.asarray(s, dtype=np.float64)
+    s = s[np.isfinite(s)]
+    if s.size < 3 or not np.ptp(s) >= MIN_CYCLE_SHARE * strain_range:
+        return False
+    low = s <= s.min() + CYCLE_UP * np.ptp(s)
+    top = int(np.argmax(s))
+    return bool(low[:top].any() and low[top:].any())
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise."""
+    a_text, sep, b_text = text.partition(":")
+    try:
+        start, end = float(a_text), float(b_text)
+    except ValueError:
+        start, end = float("nan"), float("nan")
+    if not (sep and np.isfinite(start) and np.isfinite(end) and start >= 0):
+        raise InputError(f"--window {text!r}: expected START:END in seconds from the bag's "
+                         "start, START >= 0")
+    if not end > start:
+        raise InputError(f"--window {text!r}: END must be after START")
+    return start, end
+
+
 def head(recordings: Mapping[str, Recording], seconds: float | None,
          ) -> dict[str, Recording]:
-    """Each recording's first ``seconds`` (all of it when None)."""
+    """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds)."""
     if seconds is None:
         return dict(recordings)
     if not (np.isfinite(seconds) and seconds > 0):
         raise InputError(f"--first {seconds!r}: expected a duration > 0 s")
+    return {name: cut(rec, 0.0, seconds) for name, rec in recordings.items()}
+
+
+def cut(rec: Recording, start: float, end: float) -> Recording:
+    """The samples of ``rec`` from ``start`` to ``end`` seconds after its first sample."""
+    if not rec.t.size:
+        return rec
+    a = int(np.searchsorted(rec.t, rec.t[0] + start, side="left"))
+    b = int(np.searchsorted(rec.t, rec.t[0] + end, side="right"))
+    return replace(rec, t=rec.t[a:b], r=rec.r[a:b], s=None if rec.s is None else rec.s[a:b],
+                   temperature=None if rec.temperature is None else rec.temperature[a:b])
+
+
+def window(recordings: Mapping[str, Recording], span: tuple[float, float],
+           calibration: Calibration, source: str = "the bag") -> dict[str, Recording]:
+    """Each referenced recording up to ``span[1]`` seconds after its start, its reference
+    strain left out (NaN) before ``span[0]`` (``recalibrate --window``): the engine runs the
+    calibration from the bag's start, so a memory model enters the window in the state the
+    warm-up left, and only the window's reference is fitted to. InputError for a window
+    beyond a recording's end or one in which its reference strain makes no stretch and
+    return (``stretch_and_return`` over the strain range of its sensor's calibration)."""
+    start, end = span
     out = {}
     for name, rec in recordings.items():
-        n = int(np.searchsorted(rec.t, rec.t[0] + seconds, side="right")) if rec.t.size else 0
-        out[name] = replace(rec, t=rec.t[:n], r=rec.r[:n],
-                            s=None if rec.s is None else rec.s[:n],
-                            temperature=None if rec.temperature is None
-                            else rec.temperature[:n])
+        if rec.s is None or not rec.t.size:
+            continue
+        length = float(rec.t[-1] - rec.t[0])
+        if end > length + float(np.median(np.diff(rec.t)) if rec.t.size > 1 else 0.0):
+            raise InputError(f"--window {start:g}:{end:g}: {source} has {length:.4g} s of "
+                             f"sensor {name!r}, the window runs beyond it")
+        part = cut(rec, start, end)
+        vr = calibration.sensors[name].valid_range
+        if part.s is None or not stretch_and_return(part.s, vr.s_hi - vr.s_lo):
+            raise InputError(f"--window {start:g}:{end:g}: the reference strain of {name!r} "
+                             f"makes no stretch and return in it (record a load and unload "
+                             f"there)")
+        whole = cut(rec, 0.0, end)
+        assert whole.s is not None
+        out[name] = replace(whole, s=np.where(whole.t < rec.t[0] + start, np.nan, whole.s))
     return out
 
 
 def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Recording], *,
                            form: str = "output", first: float | None = None,
                            sensors: Sequence[str] | None = None, tare: str = "calibration",
-                           source: str = "") -> tuple[Calibration, list[str]]:
+                           source: str = "", span: tuple[float, float] | None = None,
+                           ) -> tuple[Calibration, list[str]]:
     """``recalibrate`` from recordings with a reference strain (their first ``first``
-    seconds): the output map by least squares, or the input zero and span from the
-    first rest and the largest strain (``points_from_first_cycle``)."""
+    seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
+    map by least squares, or the input zero and span from the first rest and the largest
+    strain (``points_from_first_cycle``)."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
-    recs = head(recordings, first)
+    if span is not None and first is not None:
+        raise InputError("recalibrate: give --first or --window, not both")
+    if span is not None:
+        chosen = {n: r for n, r in recordings.items()
+                  if n in calibration.sensors and not (sensors and n not in sensors)}
+        recs = window(chosen, span, calibration, source or "the bag")
+        where = f"{source}, {span[0]:g} to {span[1]:g} s"
+    else:
+        recs = head(recordings, first)
+        where = f"{source}{'' if first is None else f', first {first:g} s'}"
     out = dict(calibration.sensors)
     lines = []
-    where = f"{source}{'' if first is None else f', first {first:g} s'}"
     if form == "input":
         for name, rec in recs.items():
             if name not in calibration.sensors or rec.s is None or (sensors and
                                                                      name not in sensors):
                 continue
             cal = calibration.sensors[name]
-            span = span_of_first_cycle(cal, rec)
-            out[name] = apply_span(cal, span, {"from": source, "first": first})
-            lines.append(f"{name}: {span_reading(span)} (from {where})")
+            zero_span = span_of_first_cycle(cal, rec)
+            out[name] = apply_span(cal, zero_span, {"from": source, "first": first,
+                                                    "window": None if span is None
+                                                    else list(span)})
+            lines.append(f"{name}: {span_reading(zero_span)} (from {where})")
         if not lines:
             raise InputError(f"recalibrate: {source or 'the data'} has no calibrated sensor "
                              "with a strain_reference")
@@ -427,7 +542,8 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
         if sensors and name not in sensors:
             continue
         a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
-        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first})
+        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first,
+                                                "window": None if span is None else list(span)})
         lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "
                      f"{int(ev.scored.sum())} samples)")
     return Calibration(out), lines
@@ -436,13 +552,15 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
 def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
                 bag: str | None = None, sensors: Sequence[str] | None = None,
                 tare: str = "calibration", form: str = "output",
-                first: float | None = None) -> tuple[Calibration, list[str]]:
+                first: float | None = None, span: tuple[float, float] | None = None,
+                ) -> tuple[Calibration, list[str]]:
     """The recalibrated calibration and one line per sensor (gain, offset, reading).
 
     ``points``: two (R, S) points (one sensor: ``sensors`` or the calibration's only one);
     ``bag``: a bag with a reference strain (every calibrated sensor in it; its first
-    ``first`` seconds). ``form``: ``output`` (gain and offset of the strain) or ``input``
-    (zero and span of the resistance). Raises InputError (the input calibration is
+    ``first`` seconds, or ``span``: the window (START, END) seconds after its start, which
+    must hold a stretch and return). ``form``: ``output`` (gain and offset of the strain)
+    or ``input`` (zero and span of the resistance). Raises InputError (the input calibration is
     untouched) when the map cannot be made.
     """
     if form not in FORMS:
@@ -452,7 +570,7 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
     if bag is not None:
         return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
                                       first=first, sensors=sensors, tare=tare,
-                                      source=str(bag))
+                                      source=str(bag), span=span)
     else:
         names = list(sensors or calibration.sensors)
         if len(names) != 1:
