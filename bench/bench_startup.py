@@ -11,6 +11,9 @@
 2. Node start-up: ``bin/compensator --ros-args --params-file config/array_params.yaml``
    (the rclpy node, bundled 6-sensor APL array, discovery on this machine) until it logs
    its ``ready:`` line.
+3. Command-line start-up: ``python -m strain_comp.cli --version`` and ``--help`` (the
+   parser assembled from every command's module, no command's machinery imported), median
+   of ``--cli-runs`` spawns; baseline in the same run: ``python -c pass``.
 
 Cold: ``NUMBA_CACHE_DIR`` is a new, empty directory (every kernel compiled). Warm: the
 same directory again (kernels loaded from the cache). Baseline in the same run: the
@@ -91,11 +94,35 @@ def median(values: list[float]) -> float:
     return sorted(values)[len(values) // 2]
 
 
+def spawn(argv: list[str]) -> float:
+    """Wall s of one ``python`` subprocess running ``argv`` to its end."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    start = time.perf_counter()
+    subprocess.run([sys.executable, *argv], env=env, check=True, capture_output=True)
+    return time.perf_counter() - start
+
+
+def cli_start(runs: int) -> None:
+    """``strain-comp --version`` and ``--help`` against a bare interpreter."""
+    base = median([spawn(["-c", "pass"]) for _ in range(runs)])
+    print(f"command line (median of {runs} spawns): python -c pass {base * 1e3:.0f} ms")
+    for flag in ("--version", "--help"):
+        wall = median([spawn(["-m", "strain_comp.cli", flag]) for _ in range(runs)])
+        print(f"  strain-comp {flag:<10}{wall * 1e3:>6.0f} ms ({wall / base:.1f}x the bare "
+              "interpreter)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--warm-runs", type=int, default=3)
     parser.add_argument("--no-node", action="store_true")
+    parser.add_argument("--cli-runs", type=int, default=9)
+    parser.add_argument("--cli-only", action="store_true",
+                        help="only the command line's start-up")
     args = parser.parse_args()
+    cli_start(args.cli_runs)
+    if args.cli_only:
+        return
     with tempfile.TemporaryDirectory(prefix="strain_comp_startup_") as tmp:
         tmp_path = Path(tmp)
         names = ["s_apl", "s_cubic"] + [f"a{i:02d}" for i in range(16)]

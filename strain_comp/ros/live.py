@@ -209,6 +209,10 @@ class LiveCompensator:
         self.tracker = tracker_for(self.engine, params.baseline_tracking)
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
+        self.faults: Counter[str] = Counter()
+        """Program errors by where and exception type (``fault``): a bug, not a message's
+        content; counted apart from the refusals."""
+        self._faults_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
         self.tare_log: list[str] = []
@@ -362,6 +366,14 @@ class LiveCompensator:
         if key not in self.refused and len(self.refused) >= MAX_REFUSAL_KEYS:
             key = f"{name}: other reasons"
         self.refused[key] += 1
+
+    def fault(self, name: str, error: BaseException) -> None:
+        """Count a program error raised while handling input ``name`` (a message, a
+        service call), by input and exception type (at most ``MAX_REFUSAL_KEYS`` keys)."""
+        key = f"{name}: {type(error).__name__}"
+        if key not in self.faults and len(self.faults) >= MAX_REFUSAL_KEYS:
+            key = f"{name}: other errors"
+        self.faults[key] += 1
 
     def on_temperature(self, name: str, value: float) -> None:
         """Remember a sensor's latest temperature [deg C] for its effect terms; a reading
@@ -552,6 +564,7 @@ class LiveCompensator:
         for name, value in self.tunables.items():
             fresh._apply(name, value)
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen
+        fresh.faults, fresh._faults_seen = self.faults, self._faults_seen
         fresh._counted_before = self.health()  # the counters go on from here
         fresh._last_message = dict(self._last_message)
         for sensor, fusion in self.fusion.items():  # the estimate restarts, its counts go on
@@ -572,12 +585,14 @@ class LiveCompensator:
     # --- diagnostics ----------------------------------------------------------------------
 
     def diagnostics(self, now: float) -> list[tuple[str, int, str, dict[str, str]]]:
-        """Statuses at clock time ``now`` [s]: one per sensor, then the transport's.
+        """Statuses at clock time ``now`` [s]: one per sensor, the program errors', then the
+        transport's.
 
         A sensor is ERROR with the reason while its latest sample is bad (e.g. "non-finite
         input"), STALE when no message arrived for ``stale_after_s`` (two sample intervals
         of a slow instrument, ``Engine.stale_for``), else as the engine says.
-        The transport is WARN while messages were refused since the previous call.
+        The program errors are ERROR while the node raised (``fault``) since the previous
+        call; the transport is WARN while messages were refused since the previous call.
         """
         out = []
         health = self.health(now)
@@ -602,6 +617,13 @@ class LiveCompensator:
             if sensor in self.fusion:
                 values.update(self.fusion[sensor].diagnostic_values())
             out.append((name, level, message, values))
+        errors = sum(self.faults.values())
+        raised, self._faults_seen = errors - self._faults_seen, errors
+        out.append(("strain_comp: program errors", ERROR if raised else OK,
+                    f"{raised} program errors recently, a bug: the log has the traceback"
+                    if raised else "ok",
+                    {"n_errors": str(errors), "n_errors_recent": str(raised),
+                     **{f"error[{k}]": str(v) for k, v in sorted(self.faults.items())}}))
         total = sum(self.refused.values())
         recent, self._refused_seen = total - self._refused_seen, total
         reasons = {f"refused[{k}]": str(v) for k, v in sorted(self.refused.items())}

@@ -1,0 +1,143 @@
+"""The ``strain-comp`` command line (docs/design.md, "Command line": a contract): one module
+per command (``NAME``, ``SUMMARY``, ``DESCRIPTION``, ``EXAMPLE``, ``add_arguments(parser)``,
+``run(args) -> int``), the parser assembled from them here, what they share in
+``strain_comp.cli.common``.
+
+Every command imports its machinery only when it runs, so ``strain-comp --help`` and
+``--version`` stay fast. Exit codes are 0 (done), 2 (refused or failed), 70 (a fault of
+strain-comp itself) and 130 (interrupted), nothing else. Every ``StrainCompError``,
+unreadable or missing file and usage error (argparse's included) ends the command with exit
+code 2 and exactly one line on stderr, ``strain-comp: error: ...``. Any other exception is
+a bug, not the user's: one line ``strain-comp: internal error: ...`` naming a file that
+holds the traceback (``--debug``: the traceback on stderr), exit code 70.
+
+Inputs (bags, CSV files, calibrations, parameter files) must be regular files (a bag may be
+a rosbag2 directory): a FIFO or a device is refused before it is opened, so a command never
+blocks on one. Every output goes through ``strain_comp.io.atomic`` with the command's
+inputs, so an output that is an input (the same file, or a hard or symbolic link to it) or
+not a regular file is refused before any work is done, and a kill leaves the old file or
+the complete new one.
+
+Results (tables, readings, ``-`` outputs) go to stdout; notes (what was written, tares,
+out-of-range counts, skipped data) and progress go to stderr, and ``--quiet`` drops the
+notes. ``--json -`` and ``--csv -`` write to stdout; the table then goes to stderr, so stdout
+holds the JSON or CSV alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import textwrap
+import traceback
+from collections.abc import Sequence
+
+from strain_comp import __version__
+from strain_comp.cli import (
+    diagnose,
+    evaluate,
+    fit,
+    import_csv,
+    node,
+    play,
+    recalibrate,
+    replay,
+    simulate,
+)
+from strain_comp.cli.common import PROG, Command, Formatter, Parser, UsageError, err
+from strain_comp.errors import StrainCompError
+
+COMMANDS: tuple[Command, ...] = (simulate, import_csv, fit, evaluate, replay, diagnose,
+                                 recalibrate, node, play)
+"""Every command, in the order ``strain-comp --help`` lists them."""
+EXIT_USER = 2
+"""Bad input, refused output or a usage error: one line ``strain-comp: error: ...``."""
+EXIT_BUG = 70
+"""A fault of strain_comp itself (EX_SOFTWARE of sysexits.h): one line naming the file that
+holds the traceback."""
+EXIT_INTERRUPTED = 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser; subcommand names and flags as docs/design.md fixes them."""
+    parser = Parser(
+        prog=PROG, formatter_class=Formatter,
+        description="Calibrated strain from soft resistive strain sensors: "
+        "simulate or import data, fit, evaluate, replay, diagnose, run.",
+        epilog="example:\n  strain-comp evaluate bags/demo_rates.mcap --calibration "
+        "config/demo_calibration.yaml\n\n'strain-comp COMMAND --help' describes a command.")
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        p = sub.add_parser(command.NAME, help=command.SUMMARY,
+                           description=textwrap.fill(command.DESCRIPTION, 88),
+                           epilog="example:\n  " + command.EXAMPLE, formatter_class=Formatter)
+        command.add_arguments(p)
+        p.set_defaults(func=command.run)
+        p.add_argument("-q", "--quiet", action="store_true",
+                       help="no notes on stderr (what was written, tares, skipped data); "
+                       "results and errors still print")
+        p.add_argument("--debug", action="store_true",
+                       help="on a fault of strain-comp itself, print the traceback instead "
+                       "of writing it to a file")
+    return parser
+
+
+def internal_error(error: BaseException, debug: bool) -> int:
+    """A fault of the program, not of the input: one line that says so, the traceback in a
+    file it names (on stderr with ``--debug``); exit code ``EXIT_BUG``."""
+    text = "".join(traceback.format_exception(error))
+    what = " ".join(f"{type(error).__name__}: {error}".split())
+    if debug:
+        sys.stderr.write(text)
+        where = "the traceback is above"
+    else:
+        try:
+            fd, path = tempfile.mkstemp(prefix="strain-comp-", suffix=".log")
+            with os.fdopen(fd, "w", encoding="utf-8") as log:
+                log.write(f"{PROG} {__version__}\n{text}")
+            where = f"the traceback is in {path}"
+        except OSError as failed:
+            where = f"the traceback could not be written ({failed}); rerun with --debug"
+    err(f"{PROG}: internal error: {what} (a bug: {where}; please report it)")
+    return EXIT_BUG
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (0 ok, 2 bad input, 70 a fault of
+    strain-comp, 130 interrupted)."""
+    debug = False
+    try:
+        parser = build_parser()
+        try:
+            args, extra = parser.parse_known_args(argv)
+        except SystemExit:  # --help, --version or --list printed; nothing else exits
+            return 0
+        debug = bool(args.debug)
+        if extra:
+            raise UsageError(f"{args.command}: unrecognized arguments: {' '.join(extra)} "
+                             f"(see {PROG} {args.command} --help)")
+        import numpy as np
+
+        # overflow on hostile data gives inf / NaN, which the commands screen where it
+        # matters; numpy's warning lines would break the one-line contract
+        with np.errstate(all="ignore"):
+            return int(args.func(args))
+    except StrainCompError as error:
+        message = str(error)
+    except BrokenPipeError:  # the reader of stdout went away (e.g. `| head`)
+        sys.stdout = open(os.devnull, "w")  # no second error when Python flushes at exit
+        message = "stdout closed before the output was complete (broken pipe)"
+    except OSError as error:  # a file the user named cannot be read or written
+        where = error.filename if error.filename is not None else ""
+        message = f"{where}: {error.strerror or error}" if where else str(error)
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except SystemExit as error:  # a library asked to exit: still one line
+        message = f"unexpected SystemExit: {error}"
+    except Exception as error:  # a fault of strain_comp, said as such
+        return internal_error(error, debug)
+    err(f"{PROG}: error: " + " ".join(message.split()))
+    return EXIT_USER

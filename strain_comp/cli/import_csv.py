@@ -1,0 +1,91 @@
+"""``strain-comp import-csv``: a tensile tester's CSV file as a bag (docs/design.md)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+
+from strain_comp.cli.common import PROG, note, output
+from strain_comp.errors import InputError
+from strain_comp.io.inputs import existing
+
+NAME = "import-csv"
+SUMMARY = "turn a tensile-tester CSV into a bag"
+DESCRIPTION = (
+    "Read a tensile tester's CSV into a bag: /NAME/resistance [ohm] and "
+    "/NAME/strain_reference [%, or the unit the CSV gives]. Presets: cb_pdms (7 "
+    "columns: R outer, R inner, t_R, position mm, t_pos, force, t_force; strain "
+    "= 100 |position| / 40 mm), fiber (4 columns: time s, extension mm, force, "
+    "R ohm; strain in mm unless --gauge-length-mm), generic (--columns). Bad rows "
+    "are dropped and counted; suspicious references get a warning on stderr.")
+EXAMPLE = ("strain-comp import-csv run.csv --out run.mcap --sensor s1 --format generic "
+           "--columns time=time_ms,resistance=R_kohm,strain=strain "
+           "--scales time=1e-3,resistance=1000,strain=100")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The CSV file, the bag to write, the sensor, the column layout."""
+    p.add_argument("csv", metavar="IN.csv", help="the CSV file (delimiter, decimal comma "
+                   "and header detected)")
+    p.add_argument("--out", required=True, metavar="BAG.mcap",
+                   help="bag to write (replaced atomically)")
+    p.add_argument("--sensor", required=True, metavar="NAME",
+                   help="sensor name: the topics become /NAME/resistance, "
+                   "/NAME/strain_reference")
+    p.add_argument("--format", required=True, choices=("cb_pdms", "fiber", "generic"),
+                   help="column layout: a preset, or generic with --columns")
+    p.add_argument("--gauge-length-mm", type=float, metavar="X",
+                   help="gauge length [mm] for strain in %% (default: cb_pdms 40 mm; fiber "
+                   "none, the reference is then the extension in mm)")
+    p.add_argument("--columns", action="append", metavar="KEY=COL,...",
+                   help="column mapping (index or header name) for keys time, resistance, "
+                   "strain, strain_time, e.g. time=0,resistance=3,strain=1")
+    p.add_argument("--scales", action="append", metavar="KEY=FACTOR,...",
+                   help="factor per column key into s, ohm and the strain unit, e.g. "
+                   "time=1e-3 (ms),resistance=1000 (kohm),strain=100 (a fraction)")
+    p.add_argument("--delimiter", metavar="C",
+                   help="field delimiter (default: detected among tab ; , | and spaces)")
+
+
+def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
+    """``["time=0,resistance=3", "strain=ext_mm"]`` -> {key: column index or header name}."""
+    columns: dict[str, int | str] = {}
+    for item in (part for text in items for part in text.split(",") if part.strip()):
+        key, sep, column = item.partition("=")
+        if not sep or not key.strip() or not column.strip():
+            raise InputError(f"--columns {item!r}: expected KEY=COLUMN (index or header name)")
+        column = column.strip()
+        columns[key.strip()] = int(column) if column.isdigit() else column
+    return columns
+
+
+def parse_scales(items: Sequence[str]) -> dict[str, float]:
+    """``["time=1e-3,resistance=1000"]`` -> {key: factor}."""
+    scales: dict[str, float] = {}
+    for item in (part for text in items for part in text.split(",") if part.strip()):
+        key, sep, value = item.partition("=")
+        try:
+            scales[key.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep or not key.strip():
+            raise InputError(f"--scales {item!r}: expected KEY=FACTOR, e.g. time=1e-3")
+    return scales
+
+
+def run(args: argparse.Namespace) -> int:
+    """The CSV read, checked and written as a bag; the import report on stdout."""
+    existing(args.csv, "CSV file")
+    output(args.out, [args.csv])
+    from strain_comp.io import csv_import
+
+    result = csv_import.import_csv(
+        args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
+        columns=parse_columns(args.columns) if args.columns else None,
+        scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
+    csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
+    print("\n".join(result.report.lines()))
+    for line in result.report.warnings:
+        note(args, f"{PROG}: warning: {line}")
+    note(args, f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
+    return 0

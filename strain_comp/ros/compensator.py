@@ -1,0 +1,472 @@
+"""The compensator node: ROS topics, services and parameters around the ``LiveCompensator``
+it owns (the per-message logic, no ROS), as imu_tools' node owns its filter (docs/ros.md).
+
+A message is refused for what it carries, checked before use (``sensor_value``,
+``array_layout``, and the engine's and ``LiveCompensator``'s own checks, which raise
+``StrainCompError``): counted by input and reason under ``strain_comp: transport`` in
+/diagnostics. Anything else a callback raises is a fault of the program, not of the message:
+logged with its traceback, counted under ``strain_comp: program errors``, and the node goes
+on with the next message. ``ros/node.py`` starts it (signals, arguments, the executor).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from copy import copy
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+from rclpy.clock import JumpThreshold, ROSClock
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.time_source import USE_SIM_TIME_NAME as USE_SIM_TIME
+from sensor_msgs.msg import JointState, Temperature
+from std_msgs.msg import Float64, Float64MultiArray, Int8
+from std_srvs.srv import Trigger
+
+from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
+from strain_comp.ros.live import OK, WARN, ClockGate, LiveCompensator
+from strain_comp.ros.params import ROS_OWNED, TUNABLE, ParamSpec, parse_values, structural_specs
+
+INPUT_DEPTH = 50
+"""Inputs are best effort (sensor-data QoS) keeping the latest 50 messages: 50 ms of a 1 kHz
+stream, so a scheduling stall on a busy computer costs no sample, while an input rate beyond
+the node's drops the oldest instead of queuing without bound."""
+LOG_THROTTLE_S = 5.0
+"""A refusal or a program error of one kind is logged at most once per this many seconds."""
+
+Handler = Callable[[str, int, Any, list[Publisher]], None]
+"""A resistance handler: (input name, stamp [ns], message, its three publishers)."""
+
+
+def sensor_value(msg: Any, field: str = "data") -> float:
+    """A scalar message's value (``std_msgs/Float64.data``, ``Temperature.temperature``);
+    InputError when it is not a number. NaN and inf pass: the engine screens them."""
+    value = getattr(msg, field, None)
+    if isinstance(value, bool) or not isinstance(value, (float, int)):
+        raise InputError(f"{field} is not a number ({type(value).__name__})")
+    return float(value)
+
+
+def array_layout(msg: Any) -> tuple[Any, int, list[int], str]:
+    """A Float64MultiArray's (data, ``layout.data_offset``, ``dim[*].size``,
+    ``dim[0].label``), each checked for its type; InputError naming what is wrong. The
+    sizes and the offset are then checked against the sensors by ``array_values``."""
+    layout = getattr(msg, "layout", None)
+    data = getattr(msg, "data", None)
+    offset = getattr(layout, "data_offset", None)
+    dims = getattr(layout, "dim", None)
+    if data is None or isinstance(data, (str, bytes)) or not hasattr(data, "__len__"):
+        raise InputError("data is not a sequence of numbers")
+    if isinstance(offset, bool) or not isinstance(offset, int):
+        raise InputError("layout data_offset is not an integer")
+    if dims is None or not hasattr(dims, "__iter__"):
+        raise InputError("layout dim is not a list")
+    sizes = [getattr(d, "size", None) for d in dims]
+    if any(isinstance(s, bool) or not isinstance(s, int) for s in sizes):
+        raise InputError("layout dim[*].size is not an integer")
+    label = getattr(dims[0], "label", "") if sizes else ""
+    if not isinstance(label, str):
+        raise InputError("layout dim[0].label is not a string")
+    return data, offset, [int(s) for s in sizes if s is not None], label
+
+
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The ParameterDescriptor of a ``ParamSpec``: a fixed type (a refused set never changes
+    it), the range, the description, read-only."""
+    kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
+             "bool": ParameterType.PARAMETER_BOOL,
+             "string_array": ParameterType.PARAMETER_STRING_ARRAY}
+    described = ParameterDescriptor(name=spec.name, description=spec.description,
+                                    read_only=spec.read_only, type=kinds[spec.type],
+                                    dynamic_typing=False)
+    if spec.range is not None:
+        described.floating_point_range = [FloatingPointRange(
+            from_value=float(spec.range[0]), to_value=float(spec.range[1]), step=0.0)]
+    return described
+
+
+def send(publisher: Publisher, message: Callable[[], Any]) -> None:
+    """Build and publish a message only when a subscription is matched: at 1 kHz the
+    building and serialising of an unread output is most of the node's CPU."""
+    if publisher.get_subscription_count():
+        publisher.publish(message())
+
+
+def one_line(error: BaseException) -> str:
+    """An error's message on one line (its type's name when it has none)."""
+    return " ".join(str(error).split()) or type(error).__name__
+
+
+class CompensatorNode(Node):
+    """The node (rclpy must be initialised); StrainCompError on bad parameters.
+
+    Parameters come from the node's overrides (params files, ``-p``, ``parameter_overrides``);
+    ``base_dir`` is where relative calibration paths resolve.
+    """
+
+    def __init__(self, node_name: str, *, base_dir: Path | None = None,
+                 **node_options: Any) -> None:
+        super().__init__(node_name, **node_options)
+        self._loading: threading.Thread | None = None
+        self._loaded: LiveCompensator | str | None = None
+        """The finished load (a LiveCompensator, or the reason it was refused), swapped in
+        by ``_adopt`` before the next message or diagnostics tick (rclpy's EventsExecutor
+        has no guard conditions to wake the executor with)."""
+        self.flat = {k: p.value for k, p in self._parameter_overrides.items()
+                     if k.split(".")[0] not in ROS_OWNED}
+        self.base_dir = base_dir
+        self.gate = ClockGate()
+        self._guard_clock()
+        self._jump = self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=Duration(nanoseconds=1), min_backward=None,
+                          on_clock_change=False), post_callback=self._on_tick)
+        self.live = LiveCompensator(parse_values(self.flat, base_dir=base_dir))
+        params = self.live.params
+        for spec in structural_specs([i.name for i in params.inputs if not i.is_array],
+                                     [i.name for i in params.inputs if i.is_array]):
+            self._declare(spec, self.flat.get(spec.name, spec.default))
+        for name, value in params.tunables.items():
+            self._declare(TUNABLE[name], value)
+        self.add_pre_set_parameters_callback(self._integers_as_doubles)
+        self.stamped = {i.name: StampedEncoder(list(i.sensors)) for i in params.inputs}
+        self.vector = {i.name: VectorEncoder(list(i.sensors)) for i in params.inputs}
+        ready = [self._connect(i.name) for i in params.inputs]
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
+        self.add_on_set_parameters_callback(self._on_set)
+        self.create_service(Trigger, "~/tare", self._tare)
+        self.create_service(Trigger, "~/span", self._span)
+        self.create_service(Trigger, "~/reference", self._reference)
+        self.create_service(Trigger, "~/reload_calibration", self._reload)
+        self.calibration_status = (OK, "loaded " + self._paths(self.live))
+        self.get_logger().info(f"ready: {len(ready)} inputs: " + "; ".join(ready)
+                               + f"; tare {params.tare}; fuse_references "
+                               f"{params.fuse_references}")
+
+    def _connect(self, name: str) -> str:
+        """The publishers and subscriptions of input ``name``; its line of the ready log."""
+        params = self.live.params
+        inp = next(i for i in params.inputs if i.name == name)
+        input_qos = copy(qos_profile_sensor_data)
+        input_qos.depth = INPUT_DEPTH
+        kind = Float64MultiArray if inp.is_array else Float64
+        pubs = [self.create_publisher(kind, f"{name}/strain", 10),
+                self.create_publisher(Float64MultiArray if inp.is_array else Int8,
+                                      f"{name}/direction", 10),
+                self.create_publisher(JointState, f"{name}/strain_stamped", 10)]
+        handler = self._on_array if inp.is_array else self._on_sensor
+        sub = self.create_subscription(kind, inp.topic,
+                                       partial(self._arrive, name, handler, pubs=pubs),
+                                       input_qos)
+        if not inp.is_array:  # the array tick has no temperature input
+            self.create_subscription(Temperature, f"{name}/temperature",
+                                     partial(self._on_temperature, name),
+                                     qos_profile_sensor_data)
+        if params.fuse_references:
+            self.create_subscription(kind, f"{name}/strain_reference",
+                                     partial(self._on_reference, name, inp.is_array),
+                                     input_qos)
+        models = ",".join(sorted({params.calibration.sensors[s].model for s in inp.sensors}))
+        return (f"{name} [{','.join(inp.sensors)}] ({models}) {sub.topic_name} -> "
+                f"{pubs[0].topic_name}")
+
+    # --- what goes wrong ------------------------------------------------------------------
+
+    def _refuse(self, name: str, reason: str) -> None:
+        """A message (or /clock tick) refused for what it carries: counted, logged."""
+        reason = " ".join(reason.split())
+        self.live.refuse(name, reason)
+        self.get_logger().warning(f"{name}: message refused: {reason}",
+                                  throttle_duration_sec=LOG_THROTTLE_S)
+
+    def _fault(self, name: str, error: Exception) -> None:
+        """A program error while handling ``name``: counted apart, logged with its
+        traceback; the node goes on."""
+        self.live.fault(name, error)
+        self.get_logger().error(
+            f"{name}: program error (a bug, not the message): {type(error).__name__}: "
+            f"{one_line(error)}\n" + "".join(traceback.format_exception(error)).rstrip(),
+            throttle_duration_sec=LOG_THROTTLE_S)
+
+    def _guarded(self, name: str, act: Callable[[], None]) -> None:
+        """``act()``; a refusal (StrainCompError) or a program error is counted, never
+        ends the node."""
+        try:
+            act()
+        except StrainCompError as err:
+            self._refuse(name, str(err))
+        except Exception as err:  # a fault of the program: reported as one, the node goes on
+            self._fault(name, err)
+
+    # --- the clock ------------------------------------------------------------------------
+
+    def _guard_clock(self) -> None:
+        """/clock through ``_on_clock`` (rclpy's own callback raises on a negative time,
+        which would end the node), also when sim time is on from the start."""
+        source = self._time_source
+        self._clock_callback = source.clock_callback
+        source.clock_callback = self._on_clock  # type: ignore[method-assign]
+        if source._clock_sub is not None:
+            self.destroy_subscription(source._clock_sub)
+            source._clock_sub = None
+            source._subscribe_to_clock_topic()
+
+    def _on_clock(self, msg: Any) -> None:
+        """A /clock tick from any peer: a time rclpy cannot hold (negative) is refused and
+        counted under ``/clock``; the clock keeps its time."""
+        def tick() -> None:
+            sec = getattr(getattr(msg, "clock", None), "sec", None)
+            if isinstance(sec, bool) or not isinstance(sec, int):
+                raise InputError("clock.sec is not an integer")
+            if sec < 0:
+                raise InputError("negative time")
+            self._clock_callback(msg)
+        self._guarded("/clock", tick)
+
+    def _now_ns(self) -> int:
+        """The node clock [ns]: the system time, or /clock under sim time."""
+        clock = self.get_clock()
+        if isinstance(clock, ROSClock) and clock.ros_time_is_active:
+            return int(clock.now().nanoseconds)
+        return time.time_ns()
+
+    def _on_tick(self, jump: Any) -> None:
+        """The sim clock moved: the inputs held for it are handled, stamped with it."""
+        if self._loaded is not None:
+            self._adopt()
+        now = self.get_clock().now().nanoseconds
+        names = list(self.gate.held)
+        for name, (stamp, (h, m, p)) in zip(names, self.gate.tick(now), strict=True):
+            h(name, stamp, m, p)
+
+    # --- parameters -----------------------------------------------------------------------
+
+    def _declare(self, spec: ParamSpec, value: Any) -> None:
+        """Declare a parameter with its fixed type; an empty (or, from a dump, null) list
+        stays a string array (rclpy would infer BYTE_ARRAY from [])."""
+        if spec.type == "string_array" and not value:
+            self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, descriptor(spec),
+                                   ignore_override=True)
+            self._parameters[spec.name] = Parameter(spec.name, Parameter.Type.STRING_ARRAY, [])
+        else:
+            self.declare_parameter(spec.name, float(value) if spec.type == "double"
+                                   else value, descriptor(spec), ignore_override=True)
+
+    def _integers_as_doubles(self, params: list[Parameter]) -> list[Parameter]:
+        """``ros2 param set deadzone_scale 2``: an integer for a double tunable is set as a
+        double (before rclpy's type check, which would refuse it)."""
+        return [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+                if p.name in TUNABLE and p.type_ == Parameter.Type.INTEGER else p
+                for p in params]
+
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
+        """Tunables checked all first, then applied; ``use_sim_time`` fixed at start."""
+        for p in params:  # any peer may call set_parameters: the time source is fixed
+            if p.name == USE_SIM_TIME and p.value != self.get_parameter(USE_SIM_TIME).value:
+                return SetParametersResult(successful=False, reason=(
+                    f"{USE_SIM_TIME} is fixed at start (params file or -p "
+                    f"{USE_SIM_TIME}:=...); restart the node to change it"))
+        try:
+            for p in params:  # validate all first, then apply
+                if p.name in TUNABLE:
+                    self.live.check_tunable(p.name, p.value)
+            for p in params:
+                if p.name in TUNABLE:
+                    self.live.set_tunable(p.name, p.value)
+        except ParameterError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    # --- messages -------------------------------------------------------------------------
+
+    def _arrive(self, name: str, handler: Handler, msg: Any, *,
+                pubs: list[Publisher]) -> None:
+        """A resistance message: handled now (system time), or once the sim clock moves."""
+        if self._loaded is not None:
+            self._adopt()
+        clock = self.get_clock()
+        if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
+            # the system time, which the ROS clock reads without /clock (cheaper than
+            # clock.now() at 1 kHz)
+            handler(name, time.time_ns(), msg, pubs)
+            return
+        now = clock.now().nanoseconds
+        for stamp, (h, m, p) in self.gate.arrive(name, now, (handler, msg, pubs)):
+            h(name, stamp, m, p)
+
+    def _on_sensor(self, name: str, stamp: int, msg: Any, pubs: list[Publisher]) -> None:
+        def handle() -> None:
+            out = self.live.on_sensor(name, stamp * 1e-9, sensor_value(msg))
+            if out is not None:
+                value, direction = out.strain, int(out.direction)
+                send(pubs[0], lambda: Float64(data=value))
+                send(pubs[1], lambda: Int8(data=direction))
+                send(pubs[2], lambda: self.stamped[name].encode(stamp, np.array([value])))
+        self._guarded(name, handle)
+        self._log_tare()
+
+    def _on_array(self, name: str, stamp: int, msg: Any, pubs: list[Publisher]) -> None:
+        def handle() -> None:
+            data, offset, sizes, label = array_layout(msg)
+            out = self.live.on_array(name, stamp * 1e-9, data, offset=offset, sizes=sizes,
+                                     label=label)
+            if out is not None:
+                strain, direction, vector = out.strain, out.direction, self.vector[name]
+                send(pubs[0], lambda: vector.encode(strain))
+                send(pubs[1], lambda: vector.encode(direction))
+                send(pubs[2], lambda: self.stamped[name].encode(stamp, strain))
+        self._guarded(name, handle)
+        self._log_tare()
+
+    def _on_temperature(self, sensor: str, msg: Any) -> None:
+        self._guarded(f"{sensor}/temperature", lambda: self.live.on_temperature(
+            sensor, sensor_value(msg, "temperature")))
+
+    def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
+        """A known strain of a sensor (Float64) or of an array's sensors (Float64MultiArray,
+        NaN: none), stamped on arrival; a refusal is counted in the sensor's /diagnostics
+        and logged, a malformed message under the transport."""
+        if self._loaded is not None:
+            self._adopt()
+
+        def handle() -> None:
+            t = self._now_ns() * 1e-9
+            if is_array:
+                data, offset, sizes, label = array_layout(msg)
+                refused = self.live.on_reference_array(name, t, data, offset=offset,
+                                                       sizes=sizes, label=label)
+            else:
+                refused = {name: self.live.on_reference(name, t, sensor_value(msg))}
+            for sensor, reason in refused.items():
+                if reason is not None:
+                    self.get_logger().warning(f"{sensor}: reference refused: {reason}",
+                                              throttle_duration_sec=LOG_THROTTLE_S)
+        self._guarded(f"{name}/strain_reference", handle)
+
+    def _log_tare(self) -> None:
+        while self.live.tare_log:
+            self.get_logger().info(self.live.tare_log.pop(0))
+
+    def _diagnostics(self) -> None:
+        def publish() -> None:
+            self._adopt()
+            now = self.get_clock().now()
+            msg = DiagnosticArray(status=[
+                DiagnosticStatus(level=bytes([level]), name=name, message=message,
+                                 values=[KeyValue(key=k, value=v) for k, v in values.items()])
+                for name, level, message, values in [
+                    *self.live.diagnostics(now.nanoseconds * 1e-9),
+                    ("strain_comp: calibration", *self.calibration_status, {})]
+            ])
+            msg.header.stamp = now.to_msg()
+            self.diag_pub.publish(msg)
+        self._guarded("/diagnostics", publish)
+
+    # --- services -------------------------------------------------------------------------
+
+    def _busy(self, response: Any) -> bool:
+        """Refuse a call into ``response`` while a reload is in flight (its result would
+        replace what the call changes)."""
+        if self._loading is None:
+            return False
+        response.success = False
+        response.message = "refused: a calibration reload is in flight; call again"
+        return True
+
+    def _answer(self, service: str, response: Any, act: Callable[[], str]) -> Any:
+        """A Trigger response: ``act()``'s summary (logged), or its error in one line (a
+        program error said as such, logged with its traceback); refused while a reload is
+        in flight."""
+        if self._busy(response):
+            return response
+        try:
+            response.message = act()
+            response.success = True
+            self.get_logger().info(response.message)
+        except StrainCompError as err:
+            response.success, response.message = False, one_line(err)
+        except Exception as err:  # a fault of the program: answered and reported as one
+            self._fault(service, err)
+            response.success = False
+            response.message = (f"internal error: {type(err).__name__}: {one_line(err)} "
+                                "(a bug: the node's log has the traceback)")
+        return response
+
+    def _tare(self, request: Any, response: Any) -> Any:
+        return self._answer("~/tare", response, self.live.tare)
+
+    def _reference(self, request: Any, response: Any) -> Any:
+        return self._answer("~/reference", response,
+                            lambda: self.live.reference_now(self._now_ns() * 1e-9))
+
+    def _span(self, request: Any, response: Any) -> Any:
+        def span() -> str:
+            self.live, summary = self.live.span()
+            return summary
+        return self._answer("~/span", response, span)
+
+    @staticmethod
+    def _paths(live: LiveCompensator) -> str:
+        return ", ".join(sorted({str(i.calibration_path) for i in live.params.inputs}))
+
+    def _reload(self, request: Any, response: Any) -> Any:
+        """Start loading the calibration files on a worker thread and answer at once
+        ("loading ..."); the result goes to the log and /diagnostics. A call while a load is
+        in flight is refused."""
+        if self._busy(response):
+            return response
+        current = self.live
+        self._loading = threading.Thread(target=self._load, args=(current,),
+                                         name="reload_calibration", daemon=True)
+        self.calibration_status = (OK, "loading " + self._paths(current))
+        response.success, response.message = True, self.calibration_status[1]
+        self.get_logger().info(response.message)
+        self._loading.start()
+        return response
+
+    def _load(self, current: LiveCompensator) -> None:
+        """Worker thread: read, validate and build the new compensator (``successor``) and
+        leave it (or the reason it was refused) in ``_loaded``."""
+        outcome: LiveCompensator | str = "the load ended without a result"
+        try:
+            outcome = current.successor(parse_values(self.flat, base_dir=self.base_dir))
+        except Exception as err:  # a worker thread: whatever ends the load is its reason
+            outcome = one_line(err)
+        finally:
+            self._loaded = outcome
+
+    def _adopt(self) -> None:
+        """Executor thread, before a message or diagnostics tick: once the load has
+        finished, swap the loaded compensator in (``hand_over``: counters carry on) or log
+        the refusal; the old one keeps running until then, and after a refusal."""
+        if self._loaded is None:
+            return
+        outcome, self._loaded = self._loaded, None
+        if self._loading is not None:
+            self._loading.join()  # it has left its result: done in a moment
+        self._loading = None
+        if isinstance(outcome, str):
+            self.calibration_status = (WARN, "reload refused, the old calibration keeps "
+                                       "running: " + outcome)
+            self.get_logger().error(self.calibration_status[1])
+            return
+        self.live = self.live.hand_over(outcome)
+        self.calibration_status = (OK, "reloaded " + self._paths(self.live))
+        self.get_logger().info(self.calibration_status[1])
