@@ -19,9 +19,10 @@ live node for a bounded time.
   options) and hostile files (empty, random bytes, non-UTF-8, "billion laughs" and deeply
   nested YAML, a FIFO, a directory, symbolic, hard and looping links, a rosbag2 directory
   whose metadata leaves it, ``/dev/null``) as inputs and as outputs. Every run must exit
-  0, 2 or 130 with no traceback and exactly one ``strain-comp: error:`` line when it fails,
-  and leave every input file byte for byte as it was. Runs that reach the command line's
-  last-resort frame ("unexpected ...") are listed: they keep the contract but are faults.
+  0, 2, 70 or 130 with no traceback and exactly one ``strain-comp: error:`` line when the
+  input fails, and leave every input file byte for byte as it was. Runs that end in a fault
+  of the program (exit 70, one ``strain-comp: internal error:`` line naming the traceback's
+  file) are listed: they keep the contract but are bugs.
 
 * **csv**: mutations of a small generic CSV (byte flips, a byte-order mark, Unicode line
   separators, fields over 128 KiB, epoch nanoseconds, NaN, truncations, repeated spans)
@@ -518,8 +519,8 @@ def _restore(directory: Path, pristine: dict[Path, bytes]) -> None:
 
 def check_cli(argv: list[str], inputs: list[str]) -> tuple[int, str]:
     """Run ``strain-comp argv`` in this process; (exit code, stderr). AssertionError when
-    the contract breaks: an exit code other than 0, 2, 130; an exception out of ``main``;
-    more than one error line or a traceback on stderr; an input file changed."""
+    the contract breaks: an exit code other than 0, 2, 70, 130; an exception out of
+    ``main``; more than one error line or a traceback on stderr; an input file changed."""
     import contextlib
     import io
 
@@ -531,9 +532,12 @@ def check_cli(argv: list[str], inputs: list[str]) -> tuple[int, str]:
         code = cli_main(argv)
     text = err.getvalue()
     errors = [line for line in text.splitlines() if line.startswith("strain-comp: error:")]
-    assert code in (0, 2, 130), f"exit code {code}"
+    faults = [line for line in text.splitlines()
+              if line.startswith("strain-comp: internal error:")]
+    assert code in (0, 2, 70, 130), f"exit code {code}"
     assert "Traceback" not in text, text
     assert len(errors) == (1 if code == 2 else 0), text
+    assert len(faults) == (1 if code == 70 else 0), text
     assert _digest(inputs) == before, "an input file changed"
     return code, text
 
@@ -545,14 +549,14 @@ class CliStats:
     runs: int = 0
     exits: dict[int, int] = field(default_factory=dict)
     unexpected: list[tuple[list[str], str]] = field(default_factory=list)
-    """Runs that ended in the command line's last-resort frame ("unexpected ..."): the
-    contract held (exit 2, one line) but strain_comp had a fault."""
+    """Runs that ended in a fault of the program (exit 70, one ``internal error`` line):
+    the contract held but strain_comp had a bug."""
     crashes: list[tuple[list[str], str]] = field(default_factory=list)
 
     def line(self) -> str:
         codes = ", ".join(f"exit {k}: {v}" for k, v in sorted(self.exits.items()))
-        return (f"cli: {self.runs} command lines ({codes}), {len(self.unexpected)} unexpected "
-                f"exceptions caught by the last-resort frame, {len(self.crashes)} crashes")
+        return (f"cli: {self.runs} command lines ({codes}), {len(self.unexpected)} faults of "
+                f"the program (exit 70), {len(self.crashes)} crashes")
 
 
 def fuzz_cli(fitted: dict[str, SensorCalibration], rng: np.random.Generator, work: Path, *,
@@ -579,7 +583,7 @@ def fuzz_cli(fitted: dict[str, SensorCalibration], rng: np.random.Generator, wor
                 signal.setitimer(signal.ITIMER_REAL, 0.0)
                 _restore(work / "in", pristine)
             stats.exits[code] = stats.exits.get(code, 0) + 1
-            if "error: unexpected " in text:
+            if code == 70:
                 stats.unexpected.append((argv, text.strip()))
     finally:
         signal.signal(signal.SIGALRM, previous)
