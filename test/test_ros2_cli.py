@@ -328,7 +328,7 @@ def test_ros2_launch_with_every_argument(ws: Workspace, tmp_path: Path) -> None:
     log = tmp_path / "launch.log"
     proc = ws.start("ros2", "launch", "strain_comp", "compensator.launch.py",
                     *(f"{k}:={v}" for k, v in arguments.items()), slot=43, log=log)
-    wait_for(log, "ready: 1 inputs: array [a1,a2,a3,a4,a5,a6]", proc)
+    wait_for(log, "ready: 1 inputs: array [6 sensors: a1 .. a6]", proc)
     assert "/robot1/array/resistance -> /robot1/array/strain" in log.read_text()
     got = ros2(ws, 43, "param", "get", "/robot1/compensator", "use_sim_time")
     assert got == "Boolean value is: True"

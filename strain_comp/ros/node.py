@@ -210,7 +210,9 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                         partial(self._on_temperature, inp.name), qos_profile_sensor_data)
                 models = ",".join(sorted({params.calibration.sensors[s].model
                                           for s in inp.sensors}))
-                ready.append(f"{inp.name} [{','.join(inp.sensors)}] ({models}) "
+                members = (f"{len(inp.sensors)} sensors: {inp.sensors[0]} .. "
+                           f"{inp.sensors[-1]}" if inp.is_array else ",".join(inp.sensors))
+                ready.append(f"{inp.name} [{members}] ({models}) "
                              f"{sub.topic_name} -> {pubs[0].topic_name}")
             self.vector = {i.name: VectorEncoder(list(i.sensors)) for i in params.inputs}
             self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
