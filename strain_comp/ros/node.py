@@ -396,13 +396,23 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             return ", ".join(sorted({str(i.calibration_path) for i in live.params.inputs}))
 
         def _reload(self, request: Any, response: Any) -> Any:
-            """Start loading the calibration files on a worker thread and answer at once
-            ("loading ..."); the result goes to the log and /diagnostics. A call while a
-            load is in flight is refused."""
+            """Read and validate the calibration files (every load-time check), then answer:
+            success=false with the reason for files that will be refused (the old
+            calibration keeps running), success=true ("loading ...") for files that will be
+            used, whose compensator is then built on a worker thread while the outputs go
+            on; its result goes to the log and /diagnostics. A call while a load is in
+            flight is refused."""
             if self._busy(response):
                 return response
             current = self.live
-            self._loading = threading.Thread(target=self._load, args=(current,),
+            try:
+                params = parse_values(self.flat, base_dir=self.base_dir)
+                current.check_successor(params)
+            except (StrainCompError, OSError, *_MESSAGE_ERRORS) as err:  # the answer's reason
+                self._refused_reload(" ".join(str(err).split()) or type(err).__name__)
+                response.success, response.message = False, self.calibration_status[1]
+                return response
+            self._loading = threading.Thread(target=self._load, args=(current, params),
                                              name="reload_calibration", daemon=True)
             self.calibration_status = (OK, "loading " + self._paths(current))
             response.success, response.message = True, self.calibration_status[1]
@@ -410,12 +420,17 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self._loading.start()
             return response
 
-        def _load(self, current: Any) -> None:
-            """Worker thread: read, validate and build the new compensator (``successor``)
-            and leave it (or the reason it was refused) in ``_loaded``."""
+        def _refused_reload(self, reason: str) -> None:
+            self.calibration_status = (WARN, "reload refused, the old calibration keeps "
+                                       "running: " + reason)
+            self.get_logger().error(self.calibration_status[1])
+
+        def _load(self, current: Any, params: Any) -> None:
+            """Worker thread: build the new compensator (``successor``) on the validated
+            ``params`` and leave it (or the reason it failed) in ``_loaded``."""
             outcome: Any = "the load ended without a result"
             try:
-                outcome = current.successor(parse_values(self.flat, base_dir=self.base_dir))
+                outcome = current.successor(params)
             except Exception as err:  # a worker thread: whatever ends the load is its reason
                 outcome = " ".join(str(err).split()) or type(err).__name__
             finally:
@@ -432,9 +447,7 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 self._loading.join()  # it has left its result: done in a moment
             self._loading = None
             if isinstance(outcome, str):
-                self.calibration_status = (WARN, "reload refused, the old calibration keeps "
-                                           "running: " + outcome)
-                self.get_logger().error(self.calibration_status[1])
+                self._refused_reload(outcome)
                 return
             self.live = self.live.hand_over(outcome)
             self.calibration_status = (OK, "reloaded " + self._paths(self.live))
