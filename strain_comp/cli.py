@@ -155,7 +155,8 @@ def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
         if not sep or not key.strip() or not column.strip():
             raise InputError(f"--columns {item!r}: expected KEY=COLUMN (index or header name)")
         column = column.strip()
-        columns[key.strip()] = int(column) if column.isdigit() else column
+        # an index is ASCII digits only ("²" is a digit to str.isdigit, not to int)
+        columns[key.strip()] = int(column) if column.isascii() and column.isdigit() else column
     return columns
 
 
@@ -184,6 +185,8 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
         scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
+    for line in result.report.notes:
+        _note(args, f"{PROG}: note: {line}")
     for line in result.report.warnings:
         _note(args, f"{PROG}: warning: {line}")
     _note(args, f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
