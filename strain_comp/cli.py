@@ -26,14 +26,16 @@ import importlib.util
 import json
 import math
 import os
+import signal
 import stat
 import sys
 import textwrap
+import threading
 from collections.abc import Callable, Sequence
 from typing import NoReturn, TextIO
 
 from strain_comp import __version__
-from strain_comp.errors import InputError, StrainCompError
+from strain_comp.errors import InputError, StrainCompError, Terminated, raise_terminated
 from strain_comp.io.atomic import check_distinct, check_output, write_text
 
 PROG = "strain-comp"
@@ -315,6 +317,8 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
                                  progress=_progress(args), out_of_range=args.out_of_range,
                                  tracking=args.baseline_tracking)
+        if args.json:  # the table is committed only once the JSON is written too
+            _write_json(args.json, to_json(outcomes), inputs)
     results = _results(args)
     for outcome in outcomes:
         text, notes = format_bag(outcome)
@@ -325,8 +329,6 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
             _note(args, f"wrote {len(outcome.plots)} plots to "
                   f"{os.path.dirname(outcome.plots[0])}")
     print(format_aggregate(outcomes), file=results)
-    if args.json:
-        _write_json(args.json, to_json(outcomes), inputs)
     if args.csv not in (None, "-"):
         _note(args, f"wrote {args.csv}")
     failed = [o for o in outcomes if o.error is not None]
@@ -689,7 +691,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (0 ok, 2 bad input, 130 interrupted)."""
+    """Run the command line; returns the exit code (0 ok, 2 bad input, 130 interrupted,
+    143 terminated by SIGTERM)."""
+    handler = signal.getsignal(signal.SIGTERM)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, raise_terminated)
+    try:
+        return _main(argv)
+    except Terminated:
+        return 143
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if handler is None else handler)
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    """``main`` under its SIGTERM handler."""
     try:
         parser = build_parser()
         try:
