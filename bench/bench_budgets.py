@@ -99,7 +99,8 @@ def main() -> None:
             print(f"calibration load: 1024 sensors, 2 terms each, "
                   f"{'alike (the demo sensor)' if alike else 'all different'} "
                   f"({big.stat().st_size} B) {t_big:.3f} s wall, {cpu:.3f} s CPU   "
-                  f"{'goal met' if t_big <= 1.0 else 'goal missed'} (<= 1 s); bundled "
+                  f"{'goal met' if cpu <= 1.0 else 'goal missed'} (<= 1 s of CPU: the wall "
+                  "time counts the machine's other work); bundled "
                   f"6-sensor array ({bundled.stat().st_size} B) {t_small:.3f} s; ratio "
                   f"{t_big / t_small:.0f}")
 
