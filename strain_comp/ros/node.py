@@ -34,10 +34,13 @@ NODE_NAME = "compensator"
 SHUTDOWN_S = 1.5
 """Longest clean shutdown after SIGINT/SIGTERM before the process exits regardless [s]."""
 EXIT_BAD_INPUT = 2
-INPUT_DEPTH = 50
-"""Inputs are best effort (sensor-data QoS) keeping the latest 50 messages: 50 ms of a 1 kHz
-stream, so a scheduling stall on a busy computer costs no sample, while an input rate beyond
-the node's drops the oldest instead of queuing without bound."""
+INPUT_DEPTH = 200
+"""Inputs are best effort (sensor-data QoS) keeping the latest 200 messages: 200 ms of a
+1 kHz stream, so a scheduling stall on a shared computer costs no sample (docs/ros.md,
+"Rates on one core"), while an input rate beyond the node's drops the oldest instead of
+queuing without bound."""
+OUTPUT_DEPTH = 100
+"""Outputs are reliable, keeping 100 messages for a subscriber not scheduled in time."""
 _stop = threading.Event()
 _stopped_by: list[str] = []
 
@@ -216,10 +219,11 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.stamped = {i.name: StampedEncoder(list(i.sensors)) for i in params.inputs}
             for inp in params.inputs:
                 kind = Float64MultiArray if inp.is_array else Float64
-                pubs = [self.create_publisher(kind, f"{inp.name}/strain", 10),
+                pubs = [self.create_publisher(kind, f"{inp.name}/strain", OUTPUT_DEPTH),
                         self.create_publisher(Float64MultiArray if inp.is_array else Int8,
-                                              f"{inp.name}/direction", 10),
-                        self.create_publisher(JointState, f"{inp.name}/strain_stamped", 10)]
+                                              f"{inp.name}/direction", OUTPUT_DEPTH),
+                        self.create_publisher(JointState, f"{inp.name}/strain_stamped",
+                                              OUTPUT_DEPTH)]
                 handler = self._on_array if inp.is_array else self._on_sensor
                 sub = self.create_subscription(
                     kind, inp.topic, self._receiver(inp.name, handler, pubs), input_qos)
