@@ -3,10 +3,11 @@
 
     python bench/bench_budgets.py
 
-1. Calibration load time: the largest file the budgets accept (128 sensors, 2 temperature
-   terms each, ~170 kB) against the bundled 6-sensor array calibration; best of 3, after a
-   first load (imports, kernel cache). The node's ``~/reload_calibration`` blocks output
-   for about this long.
+1. Calibration load time of a 1024-sensor array, 2 temperature terms per sensor: every
+   sensor config/demo_calibration.yaml's (1.4 MB; alike sensors are probed once), and 1024
+   different APL sensors (``_common.calibration``); against the bundled 6-sensor array
+   calibration; best of 3, after a first load (imports, kernel cache). Goal: <= 1 s. The
+   node's ``~/reload_calibration`` validates for about this long before it answers.
 2. Bag reader: peak traced memory (tracemalloc) and time of ``read_bag`` on a bag holding a
    decompression bomb (a chunk of 80 MiB of zeros, 2.6 kB compressed, skipped) and a good
    chunk, against the good chunk alone.
@@ -27,28 +28,32 @@ import tempfile
 import time
 import tracemalloc
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
-
-import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "test"))
 
+from _common import calibration  # noqa: E402
 from test_budgets import _bag, _chunk, _good_chunk  # noqa: E402
 
-from strain_comp.core.calibration_file import load_calibration  # noqa: E402
+from strain_comp.core.calibration import Calibration  # noqa: E402
+from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.errors import InputError  # noqa: E402
 from strain_comp.io.bag import read_bag  # noqa: E402
 from strain_comp.io.bag.reader import MAX_CHUNK_BYTES  # noqa: E402
 from strain_comp.io.csv_import import import_csv  # noqa: E402
 
 
-def best(fn: Callable[[], object], repeat: int = 3) -> float:
+def best(fn: Callable[[], object], repeat: int = 3,
+         clock: Callable[[], float] = time.perf_counter) -> float:
+    """The least time of ``repeat`` calls on ``clock`` (wall; ``time.process_time``: the
+    CPU time of this process, less dependent on the machine's other work)."""
     times = []
     for _ in range(repeat):
-        start = time.perf_counter()
+        start = clock()
         fn()
-        times.append(time.perf_counter() - start)
+        times.append(clock() - start)
     return min(times)
 
 
@@ -61,23 +66,19 @@ def peak_mib(fn: Callable[[], object]) -> float:
         tracemalloc.stop()
 
 
-def largest_calibration(path: Path) -> Path:
-    base = yaml.safe_load((ROOT / "config" / "array_calibration.yaml").read_text())
-    first = base["sensors"][next(iter(base["sensors"]))]
-    sensors = {}
-    for i in range(128):
-        cal = copy.deepcopy(first)
-        cal["effects"] = [{"name": f"t{j}", "kind": "temperature",
-                           "params": {"form": "offset", "t_ref": 20.0}, "coef": 0.001}
-                          for j in range(2)]
-        sensors[f"a{i}"] = cal
-
-    class NoAliases(yaml.SafeDumper):
-        def ignore_aliases(self, data: object) -> bool:
-            return True
-
-    path.write_text(yaml.dump({"format": base["format"], "sensors": sensors}, Dumper=NoAliases,
-                              default_flow_style=None, width=100))
+def array_calibration(path: Path, alike: bool, k: int = 1024) -> Path:
+    """``k`` sensors with two temperature terms each: the demo's sensor (``alike``) or
+    different APL fits; written as ``save_calibration`` writes them."""
+    terms = [{"name": f"t{j}", "kind": "temperature",
+              "params": {"form": "offset", "t_ref": 20.0}, "coef": 0.001} for j in range(2)]
+    names = [f"a{i}" for i in range(k)]
+    if alike:
+        demo = load_calibration(ROOT / "config" / "demo_calibration.yaml").sensors["s1"]
+        sensors = {n: replace(demo, name=n, effects=copy.deepcopy(terms)) for n in names}
+    else:
+        sensors = {n: replace(c, effects=copy.deepcopy(terms))
+                   for n, c in calibration(names, ["apl"]).sensors.items()}
+    save_calibration(Calibration(sensors), path)
     return path
 
 
@@ -86,13 +87,19 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         bundled = ROOT / "config" / "array_calibration.yaml"
-        big = largest_calibration(work / "big.yaml")
         load_calibration(bundled)
-        t_big = best(lambda: load_calibration(big))
         t_small = best(lambda: load_calibration(bundled))
-        print(f"calibration load: largest accepted ({big.stat().st_size} B, 128 sensors) "
-              f"{t_big:.3f} s; bundled array ({bundled.stat().st_size} B) {t_small:.3f} s; "
-              f"ratio {t_big / t_small:.0f}")
+        for alike in (True, False):
+            big = array_calibration(work / "big.yaml", alike)
+            t_big = best(lambda b=big: load_calibration(b))
+            cpu = best(lambda b=big: load_calibration(b), clock=time.process_time)
+            print(f"calibration load: 1024 sensors, 2 terms each, "
+                  f"{'alike (the demo sensor)' if alike else 'all different'} "
+                  f"({big.stat().st_size} B) {t_big:.3f} s wall, {cpu:.3f} s CPU   "
+                  f"{'goal met' if cpu <= 1.0 else 'goal missed'} (<= 1 s of CPU: the wall "
+                  "time counts the machine's other work); bundled "
+                  f"6-sensor array ({bundled.stat().st_size} B) {t_small:.3f} s; ratio "
+                  f"{t_big / t_small:.0f}")
 
         good = _good_chunk([10.0 + 0.01 * i for i in range(1000)])
         bomb = _chunk(b"", payload=bytes(MAX_CHUNK_BYTES + 16 * 2**20))

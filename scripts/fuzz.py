@@ -37,12 +37,20 @@ live node for a bounded time.
   (negative, 2^31 - 1, backwards), ``set_parameters`` (``use_sim_time`` flips, bad values
   and types, read-only and unknown names), ``~/tare`` and ``~/reload_calibration``. Every
   strain the node publishes must be finite; it must stay alive and print no traceback; its
-  RSS is sampled every second and reported.
+  RSS is sampled every second and must stay flat (the last quarter's median within
+  ``RSS_GROWTH_MIB`` of the second quarter's). The clock runs, stands still (/clock
+  silent while inputs keep coming) and runs backwards in stretches of 2 s.
+
+* **evaluate**: ``evaluate FOLDER --csv --json --plots --jobs 1|2`` over folders of one to
+  five seed and damaged bags (names that repeat a stem, ``...mcap``). The command line's
+  contract (``check_cli``) and its outputs: no temporary file, nothing outside ``--plots``
+  but the table and the JSON, a JSON that parses with no non-finite number.
 
 Anything else is a crash: the input and its traceback are saved under ``--out``. Inputs
 that take longer than ``--timeout`` seconds count as hangs (saved too).
 
-    python scripts/fuzz.py --seconds 120 [--target yaml|bag|cli|csv|node|all] [--seed 0]
+    python scripts/fuzz.py --seconds 120 [--target yaml|bag|cli|csv|node|evaluate|all]
+        [--seed 0]
         [--out DIR]
 """
 
@@ -589,6 +597,92 @@ def fuzz_cli(fitted: dict[str, SensorCalibration], rng: np.random.Generator, wor
         signal.signal(signal.SIGALRM, previous)
     return stats
 
+# ---------------------------------------------------------------- many-bag evaluate
+
+BAG_NAMES = ["a.mcap", "b.mcap", "...mcap", "x.mcap", "run 1.mcap", "bag.mcap", "bag_2.mcap"]
+
+
+@dataclass
+class EvaluateStats:
+    """Counts of a many-bag ``evaluate`` fuzz run."""
+
+    runs: int = 0
+    exits: dict[int, int] = field(default_factory=dict)
+    crashes: list[tuple[list[str], str]] = field(default_factory=list)
+
+    def line(self) -> str:
+        codes = ", ".join(f"exit {k}: {v}" for k, v in sorted(self.exits.items()))
+        return f"evaluate: {self.runs} folders ({codes}), {len(self.crashes)} crashes"
+
+
+def check_outputs(out: Path, code: int) -> None:
+    """What a many-bag ``evaluate`` may leave in ``out``: the table, the JSON and plots
+    only under ``plots/``, no temporary file; when it wrote them, a table with a header and
+    a JSON that parses, every number in it finite or null."""
+    import json
+
+    for p in out.rglob("*"):
+        if p.name.endswith(".tmp") or (p.name.startswith(".") and p.is_file()):
+            raise AssertionError(f"a temporary file is left: {p}")
+        if p.is_file() and p.parent != out and out / "plots" not in p.parents:
+            raise AssertionError(f"written outside the plots folder: {p}")
+        if p.is_file() and p.parent == out and p.name not in ("out.csv", "out.json"):
+            raise AssertionError(f"an unexpected file: {p}")
+    if (out / "out.json").exists():
+        text = (out / "out.json").read_text()
+        if "NaN" in text or "Infinity" in text:
+            raise AssertionError("a non-finite number in the JSON")
+        json.loads(text)
+    if (out / "out.csv").exists() and not (out / "out.csv").read_text().startswith("bag,"):
+        raise AssertionError("the table has no header")
+    if code == 0 and not (out / "out.json").exists():
+        raise AssertionError("exit 0 without its JSON")
+
+
+def fuzz_evaluate(seeds: list[bytes], calibration: Calibration, rng: np.random.Generator,
+                  work: Path, *, seconds: float | None = None, iterations: int | None = None,
+                  timeout: float = 120.0) -> EvaluateStats:
+    """``evaluate FOLDER --csv --json --plots --jobs 1|2`` over folders of 1 to 5 seed and
+    damaged bags (names that repeat, ``...mcap``), checked by ``check_cli`` and
+    ``check_outputs``."""
+    import shutil
+
+    work.mkdir(parents=True, exist_ok=True)
+    cal = work / "cal.yaml"
+    save_calibration(calibration, cal)
+    stats = EvaluateStats()
+    deadline = time.monotonic() + (seconds if seconds is not None else math.inf)
+    previous = signal.signal(signal.SIGALRM, _alarm_base)
+    try:
+        while time.monotonic() < deadline and (iterations is None or stats.runs < iterations):
+            folder, out = work / "bags", work / "out"
+            for d in (folder, out):
+                shutil.rmtree(d, ignore_errors=True)
+                d.mkdir()
+            names = rng.choice(BAG_NAMES, size=int(rng.integers(1, 6)), replace=False)
+            for name in names:
+                seed = seeds[int(rng.integers(0, len(seeds)))]
+                (folder / str(name)).write_bytes(seed if rng.random() < 0.5
+                                                 else mutate_bag(seed, rng))
+            argv = ["evaluate", str(folder), "--calibration", str(cal), "--csv",
+                    str(out / "out.csv"), "--json", str(out / "out.json"), "--plots",
+                    str(out / "plots"), "--jobs", str(int(rng.choice([1, 2]))), "-q"]
+            stats.runs += 1
+            signal.setitimer(signal.ITIMER_REAL, timeout)
+            try:
+                code, _ = check_cli(argv, [str(folder), str(cal)])
+                check_outputs(out, code)
+            except (Exception, HangBase):
+                stats.crashes.append((argv, traceback.format_exc()))
+                continue
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0.0)
+            stats.exits[code] = stats.exits.get(code, 0) + 1
+    finally:
+        signal.signal(signal.SIGALRM, previous)
+    return stats
+
+
 # ---------------------------------------------------------------- CSV importer
 
 CSV_HOSTILE = [b"\xef\xbb\xbf", "\u2028".encode(), "\u0085".encode(), b"\r", b"\x0b",
@@ -671,20 +765,34 @@ class NodeStats:
     alive: bool = True
     tracebacks: list[str] = field(default_factory=list)
     refused_params: int = 0
+    clock_modes: dict[str, int] = field(default_factory=dict)
+    """How many stretches of ``CLOCK_MODE_SECONDS`` the clock ran, stood still, ran back."""
+
+    @property
+    def rss_growth(self) -> float:
+        """MiB the RSS's last quarter (median) exceeds its second quarter's (0 if unknown)."""
+        n = len(self.rss_mib)
+        if n < 8:
+            return 0.0
+        second, last = self.rss_mib[n // 4:n // 2], self.rss_mib[3 * n // 4:]
+        return float(np.median(last) - np.median(second))
 
     def line(self) -> str:
         sent = ", ".join(f"{k} {v}" for k, v in sorted(self.sent.items()))
+        modes = ", ".join(f"{k} {v}" for k, v in sorted(self.clock_modes.items()))
         warm = self.rss_mib[min(5, len(self.rss_mib) - 1)] if self.rss_mib else math.nan
         rss = (f"RSS {warm:.0f} MiB at 5 s, {self.rss_mib[-1]:.0f} at the end, max "
                f"{max(self.rss_mib):.0f}" if self.rss_mib else "RSS unknown")
         return (f"node: sent {sum(self.sent.values())} ({sent}); {self.outputs} outputs, "
                 f"{len(self.non_finite)} non-finite; {rss}; "
+                f"RSS growth {self.rss_growth:+.1f} MiB (last quarter vs second); "
                 f"{'alive' if self.alive else 'DIED'}; {len(self.tracebacks)} tracebacks; "
-                f"{self.refused_params} parameter sets refused")
+                f"{self.refused_params} parameter sets refused; clock stretches: {modes}")
 
     @property
     def failed(self) -> bool:
-        return bool(self.non_finite or not self.alive or self.tracebacks)
+        return bool(self.non_finite or not self.alive or self.tracebacks
+                    or self.rss_growth > RSS_GROWTH_MIB)
 
 
 def _rss_mib(pid: int) -> float | None:
@@ -730,6 +838,12 @@ def _node_params(work: Path) -> Path:
 
 
 NODE_START_S = 60.0
+CLOCK_MODES = ("run", "paused", "backwards")
+CLOCK_MODE_SECONDS = 2.0
+"""How long the node target keeps one clock mode."""
+RSS_GROWTH_MIB = 32.0
+"""The node's RSS over the last quarter of a run may exceed that of the second quarter
+(after start-up and the first compilations) by at most this much: flat."""
 """How long ``fuzz_node`` waits for the node to subscribe before it starts the clock."""
 
 
@@ -794,11 +908,19 @@ def fuzz_node(rng: np.random.Generator, work: Path, *, seconds: float) -> NodeSt
     start = time.monotonic()
     deadline = start + seconds
     next_rss = start
+    next_mode, mode = start, "run"
     try:
         while time.monotonic() < deadline and proc.poll() is None:
+            if time.monotonic() >= next_mode:  # the clock runs, stands still or runs back
+                mode = str(rng.choice(CLOCK_MODES, p=[0.5, 0.25, 0.25]))
+                stats.clock_modes[mode] = stats.clock_modes.get(mode, 0) + 1
+                next_mode += CLOCK_MODE_SECONDS
             op = int(rng.integers(0, 10))
+            if op <= 2 and mode == "paused":  # /clock silent: the inputs keep coming
+                op = 3
             if op <= 2:
-                t_ns += int(rng.integers(1, 20)) * 10**6
+                step = int(rng.integers(1, 20)) * 10**6
+                t_ns = max(10**9, t_ns - step) if mode == "backwards" else t_ns + step
                 clock = Clock()
                 clock.clock.sec, clock.clock.nanosec = divmod(t_ns, 10**9)
                 if rng.random() < 0.2:  # hostile: negative, huge, backwards, odd nanoseconds
@@ -892,7 +1014,8 @@ def save_crashes(stats: Stats, out: Path) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="total fuzzing time")
-    parser.add_argument("--target", choices=("yaml", "bag", "cli", "csv", "node", "all"),
+    parser.add_argument("--target", choices=("yaml", "bag", "cli", "csv", "node", "evaluate",
+                                             "all"),
                         default="all")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "strain_fuzz")
@@ -900,7 +1023,7 @@ def main() -> int:
     parser.add_argument("--timeout", type=float, default=10.0, help="seconds per input")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
-    targets = (["yaml", "bag", "cli", "csv", "node"] if args.target == "all"
+    targets = (["yaml", "bag", "cli", "csv", "node", "evaluate"] if args.target == "all"
                else [args.target])
     share = args.seconds / len(targets)
     failures = 0
@@ -918,6 +1041,16 @@ def main() -> int:
                 for line in node.non_finite[:5] + node.tracebacks[:3]:
                     print("  " + line.strip().replace("\n", "\n  "))
                 failures += node.failed
+                continue
+            if target == "evaluate":
+                many = fuzz_evaluate(seed_bags(work), replay_calibration(fitted), rng,
+                                     work / "evaluate", seconds=share,
+                                     timeout=max(args.timeout, 120.0))
+                print(many.line(), flush=True)
+                for argv, text in many.crashes:
+                    print("  strain-comp " + " ".join(argv) + "\n    " +
+                          text.strip().splitlines()[-1])
+                failures += len(many.crashes)
                 continue
             if target == "csv":
                 stats = fuzz_csv(rng, work, seconds=share, timeout=args.timeout)

@@ -51,3 +51,13 @@ class ParameterError(StrainCompError):
 
 class OutputError(StrainCompError):
     """An output path cannot be written: it is an input, or not a regular file."""
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived (``kill``, ``timeout``, a scheduler): a command unwinds as on Ctrl-C,
+    every ``with`` block removing its temporary files and ending its workers (exit 143)."""
+
+
+def raise_terminated(signum: int, frame: object) -> None:
+    """A SIGTERM handler: raise ``Terminated`` where the main thread is."""
+    raise Terminated

@@ -202,3 +202,14 @@ def test_fuzz_live_node_for_a_few_seconds(fuzz, tmp_path: Path,
     stats = fuzz.fuzz_node(np.random.default_rng(0), tmp_path / "node", seconds=6.0)
     assert not stats.failed, stats.line() + "\n" + "\n".join(stats.tracebacks[:2])
     assert stats.outputs > 0 and stats.sent.get("clock", 0) > 0
+    assert sum(stats.clock_modes.values()) >= 3  # the clock changed its mode on the way
+
+
+def test_fuzz_evaluate_over_folders_of_damaged_bags(fuzz, every_model, tmp_path: Path) -> None:
+    """``evaluate FOLDER --csv --json --plots --jobs 1|2`` over seed and damaged bags (the
+    long run: ``scripts/fuzz.py --target evaluate``): one line on failure, no temporary
+    file, nothing outside ``--plots``."""
+    stats = fuzz.fuzz_evaluate(fuzz.seed_bags(tmp_path), fuzz.replay_calibration(every_model),
+                               np.random.default_rng(0), tmp_path / "evaluate", iterations=6)
+    assert not stats.crashes, "\n\n".join(trace for _, trace in stats.crashes[:2])
+    assert stats.runs == 6

@@ -278,11 +278,25 @@ def reload_result(h: Harness) -> str:
     return h.diagnostics()["strain_comp: calibration"][1]
 
 
-def test_reload_refuses_a_bad_file_and_keeps_running(single: Harness) -> None:
+@pytest.mark.parametrize("bad", [
+    "format: strain_comp/calibration/v1\nsensors: {s1: {model: nope}}\n",
+    "a: [unclosed\n", "<17 effect terms>"])
+def test_reload_refuses_a_bad_file_in_its_answer_and_keeps_running(single: Harness,
+                                                                    bad: str) -> None:
+    """A file that will be refused is refused in the answer (success=false, the reason),
+    also on /diagnostics; nothing is loaded; the old calibration answers on."""
     cal = single.node.base_dir / "demo_calibration.yaml"
     good = cal.read_text()
-    cal.write_text("format: strain_comp/calibration/v1\nsensors: {s1: {model: nope}}\n")
-    assert "old calibration keeps running" in reload_result(single)
+    if bad == "<17 effect terms>":  # beyond the budget per sensor
+        bad = good.replace("effects: []", "effects: [" + ", ".join(
+            f"{{name: o{i}, kind: offset, params: {{}}, coef: 0.0}}" for i in range(17)) + "]")
+        assert bad != good
+    cal.write_text(bad)
+    reply = single.call("/compensator/reload_calibration")
+    assert not reply.success and "old calibration keeps running" in reply.message
+    assert str(cal) in reply.message, reply.message
+    assert single.node._loading is None
+    assert single.diagnostics()["strain_comp: calibration"][:2] == (1, reply.message)
     strain = single.listen("/s1/strain", Float64)
     pub = single.probe.create_publisher(Float64, "/s1/resistance", 10)
     single.wait_matched(pub)

@@ -329,7 +329,7 @@ def test_ros2_launch_with_every_argument(ws: Workspace, tmp_path: Path) -> None:
     log = tmp_path / "launch.log"
     proc = ws.start("ros2", "launch", "strain_comp", "compensator.launch.py",
                     *(f"{k}:={v}" for k, v in arguments.items()), slot=43, log=log)
-    wait_for(log, "ready: 1 inputs: array [a1,a2,a3,a4,a5,a6]", proc)
+    wait_for(log, "ready: 1 inputs: array [6 sensors: a1 .. a6]", proc)
     assert "/robot1/array/resistance -> /robot1/array/strain" in log.read_text()
     got = ros2(ws, 43, "param", "get", "/robot1/compensator", "use_sim_time")
     assert got == "Boolean value is: True"
@@ -339,3 +339,40 @@ def test_ros2_launch_with_every_argument(ws: Workspace, tmp_path: Path) -> None:
         assert time.monotonic() < deadline, topics  # discovery may take a moment
     after = ctrl_c(proc, log)
     assert any("[robot1.compensator]: SIGINT: stopped" in line for line in after), after
+
+
+def test_ros2_launch_under_sim_time_answers_every_lockstep_message(ws: Workspace,
+                                                                   tmp_path: Path) -> None:
+    """``ros2 launch ... use_sim_time:=true`` and ``strain-comp play BAG --clock --lockstep
+    /s1/strain``: the node uses every message (``n_good`` on /diagnostics reaches the
+    bag's count) and publishes /diagnostics under sim time (the bag spans 8 s of it). The
+    calibration is named relative to its params file, which ``ros2 launch`` follows with
+    a file of its own for ``use_sim_time``: the path still resolves beside the first."""
+    import numpy as np
+
+    from strain_comp.io.bag import BagWriter
+
+    n = 600
+    bag = tmp_path / "run.mcap"
+    t = np.append(1.0 + np.arange(n) * 0.01, 9.0)  # the last: a tick after the others
+    with BagWriter(bag) as writer:
+        writer.write_float64("/s1/resistance", t, 15.0 + 4.0 * np.sin(t))
+    log = tmp_path / "launch.log"
+    proc = ws.start("ros2", "launch", "strain_comp", "compensator.launch.py",
+                    f"params_file:={node_params(tmp_path)}", "use_sim_time:=true", slot=44,
+                    log=log)
+    wait_for(log, "ready: 1 inputs: s1 [s1]", proc)
+    echo_log = tmp_path / "diagnostics.log"
+    echo = ws.start("ros2", "topic", "echo", "/diagnostics",
+                    "diagnostic_msgs/msg/DiagnosticArray", slot=44, log=echo_log)
+    time.sleep(3.0)  # the echo subscribes before the first tick
+    played = ws.run("ros2", "run", "strain_comp", "strain-comp", "play", str(bag), "--clock",
+                    "--lockstep", "/s1/strain", slot=44, timeout=300)
+    assert played.returncode == 0, played.stdout + played.stderr
+    time.sleep(2.0)
+    stop_tool(echo)
+    text = echo_log.read_text()
+    counts = [int(v) for v in re.findall(r"key: n_good\s+value: '(\d+)'", text)]
+    assert counts, f"no /diagnostics under sim time: {text[-2000:]}"
+    assert max(counts) >= n, (max(counts), log.read_text()[-2000:])  # every one before it
+    ctrl_c(proc, log)

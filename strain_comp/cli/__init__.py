@@ -5,11 +5,12 @@ per command (``NAME``, ``SUMMARY``, ``DESCRIPTION``, ``EXAMPLE``, ``add_argument
 
 Every command imports its machinery only when it runs, so ``strain-comp --help`` and
 ``--version`` stay fast. Exit codes are 0 (done), 2 (refused or failed), 70 (a fault of
-strain-comp itself) and 130 (interrupted), nothing else. Every ``StrainCompError``,
-unreadable or missing file and usage error (argparse's included) ends the command with exit
-code 2 and exactly one line on stderr, ``strain-comp: error: ...``. Any other exception is
-a bug, not the user's: one line ``strain-comp: internal error: ...`` naming a file that
-holds the traceback (``--debug``: the traceback on stderr), exit code 70.
+strain-comp itself), 130 (interrupted) and 143 (terminated by SIGTERM), nothing else.
+Every ``StrainCompError``, unreadable or missing file and usage error (argparse's
+included) ends the command with exit code 2 and exactly one line on stderr,
+``strain-comp: error: ...``. Any other exception is a bug, not the user's: one line
+``strain-comp: internal error: ...`` naming a file that holds the traceback
+(``--debug``: the traceback on stderr), exit code 70.
 
 Inputs (bags, CSV files, calibrations, parameter files) must be regular files (a bag may be
 a rosbag2 directory): a FIFO or a device is refused before it is opened, so a command never
@@ -28,9 +29,11 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import tempfile
 import textwrap
+import threading
 import traceback
 from collections.abc import Sequence
 
@@ -47,7 +50,7 @@ from strain_comp.cli import (
     simulate,
 )
 from strain_comp.cli.common import PROG, Command, Formatter, Parser, UsageError, err
-from strain_comp.errors import StrainCompError
+from strain_comp.errors import StrainCompError, Terminated, raise_terminated
 
 COMMANDS: tuple[Command, ...] = (simulate, import_csv, fit, evaluate, replay, diagnose,
                                  recalibrate, node, play)
@@ -58,6 +61,7 @@ EXIT_BUG = 70
 """A fault of strain_comp itself (EX_SOFTWARE of sysexits.h): one line naming the file that
 holds the traceback."""
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -107,7 +111,21 @@ def internal_error(error: BaseException, debug: bool) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 2 bad input, 70 a fault of
-    strain-comp, 130 interrupted)."""
+    strain-comp, 130 interrupted, 143 terminated by SIGTERM)."""
+    handler = signal.getsignal(signal.SIGTERM)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, raise_terminated)
+    try:
+        return _main(argv)
+    except Terminated:
+        return EXIT_TERMINATED
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if handler is None else handler)
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    """``main`` under its SIGTERM handler."""
     debug = False
     try:
         parser = build_parser()

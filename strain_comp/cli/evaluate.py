@@ -143,6 +143,8 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
                                  tracking=args.baseline_tracking,
                                  references_every=args.references_every,
                                  figures=bool(args.report))
+        if args.json:  # the table is committed only once the JSON is written too
+            write_json(args.json, to_json(outcomes), inputs)
     stream = results(args)
     for outcome in outcomes:
         text, notes = format_bag(outcome)
@@ -153,8 +155,6 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
             note(args, f"wrote {len(outcome.plots)} plots to "
                  f"{os.path.dirname(outcome.plots[0])}")
     print(format_aggregate(outcomes), file=stream)
-    if args.json:
-        write_json(args.json, to_json(outcomes), inputs)
     if args.report:
         from strain_comp.offline.batch import aggregate
         from strain_comp.offline.report_page import BagSection, evaluation_page

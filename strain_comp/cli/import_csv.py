@@ -55,7 +55,8 @@ def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
         if not sep or not key.strip() or not column.strip():
             raise InputError(f"--columns {item!r}: expected KEY=COLUMN (index or header name)")
         column = column.strip()
-        columns[key.strip()] = int(column) if column.isdigit() else column
+        # an index is ASCII digits only ("²" is a digit to str.isdigit, not to int)
+        columns[key.strip()] = int(column) if column.isascii() and column.isdigit() else column
     return columns
 
 
@@ -85,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
         scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
+    for line in result.report.notes:
+        note(args, f"{PROG}: note: {line}")
     for line in result.report.warnings:
         note(args, f"{PROG}: warning: {line}")
     note(args, f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")

@@ -26,22 +26,24 @@ sensors:
 ```
 
 Parsing (``parse_fields``) validates every field without running a model and raises one
-``CalibrationError`` naming the file and the dotted field. Limits (a calibration is a small
-machine-written file; anything beyond these is refused, never half-read): a regular file of
-at most ``MAX_FILE_BYTES``; at most ``MAX_SENSORS`` sensors and ``MAX_EFFECTS`` effect terms
-in all (the load-time probe runs each, so these bound the load time: a reload in the node
-stays short); at most ``MAX_ALIASES`` YAML aliases and ``MAX_NODES`` values once aliases
-are expanded (no "billion laughs"); nesting at most ``MAX_DEPTH`` deep (aliases included);
-integers within float range; every number of a model's parameters and of an effect at most
-``PARAM_MAX`` in magnitude, resistances in (0, ``PARAM_MAX``] ohm and strains within +/-
-``STRAIN_MAX`` %. A cross-talk effect must read another sensor; no model may have a pole
-inside its valid range. Loading, the probe that runs the engine and saving are
-``strain_comp.core.calibration_file``. Floats are written with Python's shortest
-round-trip repr, so load(save(c)) == c exactly.
+``CalibrationError`` naming the file and the dotted field. Limits bound the work per sensor
+and per term, so an array of any size the node can run loads and a hostile file is refused,
+never half-read: a regular file of at most ``MAX_SENSOR_BYTES`` per sensor (plus
+``MAX_SENSOR_BYTES`` for the header) and at most ``MAX_FILE_BYTES`` in all (``MAX_SENSORS``
+sensors); at most ``MAX_SENSOR_EFFECTS`` effect terms per sensor (the load-time probe runs
+each, so these bound the load time per sensor); at most ``MAX_ALIASES`` YAML aliases and
+``MAX_NODES`` values once aliases are expanded (no "billion laughs"); nesting at most
+``MAX_DEPTH`` deep (aliases included); integers within float range; every number of a
+model's parameters and of an effect at most ``PARAM_MAX`` in magnitude, resistances in (0,
+``PARAM_MAX``] ohm and strains within +/- ``STRAIN_MAX`` %. A cross-talk effect must read
+another sensor; no model may have a pole inside its valid range. Loading, the probe that
+runs the engine and saving are ``strain_comp.core.calibration_file``. Floats are written
+with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 """
 
 from __future__ import annotations
 
+import gc
 import os
 import stat
 from collections.abc import Mapping
@@ -63,11 +65,14 @@ from strain_comp.models import Compensator, Normalisation, model_class
 from strain_comp.models.base import require_float
 
 FORMAT = "strain_comp/calibration/v1"
-MAX_FILE_BYTES = 256 * 2**10
-MAX_SENSORS = 128
-MAX_EFFECTS = 256
+MAX_SENSORS = 4096
+MAX_SENSOR_BYTES = 8 * 2**10
+"""Bytes per sensor: an APL sensor with two effect terms and its provenance is ~1.3 kB."""
+MAX_FILE_BYTES = 8 * 2**20
+"""Bytes of any file before it is parsed: 4096 sensors of 2 KiB."""
+MAX_SENSOR_EFFECTS = 16
 MAX_ALIASES = 100
-MAX_NODES = 50_000
+MAX_NODES = 256 * MAX_SENSORS
 MAX_DEPTH = 64
 PARAM_MAX = 1e12
 STRAIN_MAX = 1e6
@@ -467,7 +472,20 @@ def read_text(path: str | os.PathLike[str]) -> str:
 def parse_fields(text: str, path: str) -> Calibration:
     """Validate the text of a calibration file without running a model: the limits, the
     fields and the poles (``strain_comp.core.calibration_file.parse_calibration`` adds the
-    probe); CalibrationError names ``path`` and the field."""
+    probe); CalibrationError names ``path`` and the field. The cyclic garbage collector is
+    paused meanwhile (``safe_yaml.load_limited``: a large array's many small objects, no
+    cycles)."""
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        return _parse_fields(text, path)
+    finally:
+        if collecting:
+            gc.enable()
+
+
+def _parse_fields(text: str, path: str) -> Calibration:
+    """``parse_fields`` with the collector as it is."""
     reader = _Reader(path)
     root = _parse_yaml(reader, text)
     root = reader.mapping(root, "(top level)")
@@ -479,11 +497,15 @@ def parse_fields(text: str, path: str) -> Calibration:
         raise reader.fail("sensors", "must name at least one sensor")
     if len(sensors) > MAX_SENSORS:
         raise reader.fail("sensors", f"refused: {len(sensors)} sensors, at most {MAX_SENSORS}")
-    n_effects = sum(len(n.get("effects") or []) for n in sensors.values()
-                    if isinstance(n, dict) and isinstance(n.get("effects"), list))
-    if n_effects > MAX_EFFECTS:
-        raise reader.fail("sensors", f"refused: {n_effects} effect terms in all, at most "
-                          f"{MAX_EFFECTS}")
+    size = len(text.encode("utf-8"))
+    if size > MAX_SENSOR_BYTES * (len(sensors) + 1):
+        raise reader.fail("file", f"refused: {size} bytes for {len(sensors)} sensors, at most "
+                          f"{MAX_SENSOR_BYTES} per sensor")
+    for name, node in sensors.items():
+        effects = node.get("effects") if isinstance(node, dict) else None
+        if isinstance(effects, list) and len(effects) > MAX_SENSOR_EFFECTS:
+            raise reader.fail(f"sensors.{name}.effects", f"refused: {len(effects)} effect "
+                              f"terms, at most {MAX_SENSOR_EFFECTS} per sensor")
     calibration = Calibration({str(name): reader.sensor(str(name), node)
                                for name, node in sensors.items()})
     for name, cal in calibration.sensors.items():

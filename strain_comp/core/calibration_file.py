@@ -59,12 +59,22 @@ def parse_calibration(text: str, path: str) -> Calibration:
     fields, the probe); CalibrationError names ``path`` and the field. The one validation
     both ``load_calibration`` and ``check_calibration`` (before a write) apply."""
     calibration = parse_fields(text, path)
+    probed: dict[str, str | None] = {}
     for name, cal in calibration.sensors.items():
-        where = probe_calibration(cal)
+        key = probe_key(cal)
+        if key not in probed:
+            probed[key] = probe_calibration(cal)
+        where = probed[key]
         if where is not None:
             raise CalibrationError(path, f"sensors.{name}", f"gives a non-finite strain "
                                    f"({where}); its parameters are out of any usable range")
     return calibration
+
+
+def probe_key(cal: SensorCalibration) -> str:
+    """What the load-time probe of ``cal`` depends on: everything but its name and
+    provenance (sensors of an array written from one fit are probed once)."""
+    return repr({**cal.to_dict(), "provenance": None})
 
 
 def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"

@@ -25,13 +25,19 @@ calibration's rest again, but only:
 
 A held strain (detector at hold, estimate far from rest) is never tracked. The engine runs
 the samples in stretches of ``CHUNK_SECONDS``; its state carries from one to the next
-exactly, so between corrections the numbers are the batch path's.
+exactly, so between corrections the numbers are the batch path's. A run of stretches that
+cannot be corrected between (each with fewer than two samples, as a slow stream's) is run
+in one call: the cost is linear in the samples, whatever time they span. A stretch keeps
+only its used samples, and at most ``MAX_STRETCH_SAMPLES`` of them: a stopped clock
+(repeated stamps are not used) or one that runs backwards holds O(1) state per sensor.
 """
 
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -40,7 +46,7 @@ from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.engine import Engine
 from strain_comp.core.outputs import BatchOutput, SensorOutput, concatenate
 from strain_comp.core.range_policy import RANGE_MARGIN
-from strain_comp.core.samples import used_mask
+from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import REST_BAND
 from strain_comp.errors import InputError
 
@@ -60,6 +66,9 @@ SETTLE_RATE = 0.02
 from the calibrated rest is relaxing (a time constant under 50 s) and is not tracked."""
 SETTLE_SECONDS = 20.0
 """Seconds at the rest resistance before its reading is taken (``rest_is_read_as_rest``)."""
+MAX_STRETCH_SAMPLES = 2**16
+"""Used samples one stretch keeps at most (65 kHz over ``CHUNK_SECONDS``, 2 MiB); a stretch
+with more, only from a clock that steps by microseconds, is not judged."""
 
 
 def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
@@ -99,14 +108,50 @@ def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -
 
 
 @dataclass
+class _Stretch:
+    """The used samples of one sensor's current stretch (``index``: its number from the
+    sensor's first sample), at most ``MAX_STRETCH_SAMPLES``: time, strain, direction and the
+    resistance the model read."""
+
+    index: float
+    columns: tuple[array[float], ...] = field(
+        default_factory=lambda: tuple(array("d") for _ in range(4)))
+    full: bool = False
+    """More used samples than ``MAX_STRETCH_SAMPLES`` came: none are kept, it is not judged."""
+
+    def add(self, t: np.ndarray, out: BatchOutput) -> None:
+        used = used_mask(np.asarray(out.status))
+        n = int(np.count_nonzero(used))
+        if self.full or n == 0:
+            return
+        if len(self.columns[0]) + n > MAX_STRETCH_SAMPLES:
+            self.full = True
+            self.columns = ()
+            return
+        for column, values in zip(self.columns, (t, out.strain, out.direction,
+                                                 out.resistance), strict=True):
+            column.frombytes(np.ascontiguousarray(np.asarray(values, np.float64)[used])
+                             .tobytes())
+
+    def output(self) -> tuple[np.ndarray, BatchOutput] | None:
+        """(times, output) of the kept samples, all used; None for a full stretch."""
+        if self.full:
+            return None
+        t, strain, direction, resistance = (np.frombuffer(c, np.float64)
+                                            for c in self.columns)
+        return t, BatchOutput(strain, direction, np.full(t.size, int(Status.GOOD), np.int8),
+                              np.zeros(t.size, bool), resistance)
+
+
+@dataclass
 class BaselineTracker:
     """Tracks the rest level of every sensor of ``engine`` it is asked to run."""
 
     engine: Engine
     rate: float = RATE
     band: float = BAND
-    pending: dict[str, list[tuple[np.ndarray, BatchOutput]]] = field(default_factory=dict)
-    """Per sensor, the samples of its current stretch, not yet judged."""
+    pending: dict[str, _Stretch] = field(default_factory=dict)
+    """Per sensor, the used samples of its current stretch, not yet judged."""
     reads_rest: dict[str, bool] = field(default_factory=dict)
     """Per sensor, whether it may be tracked: its calibration reads its own rest resistance
     as the rest strain and models nothing that moves (``rest_is_read_as_rest``,
@@ -121,42 +166,61 @@ class BaselineTracker:
     from it, so a run in one batch, in streamed windows (replay) or sample by sample (the
     node) is tracked alike."""
 
+    def _index(self, name: str, t: np.ndarray | float) -> np.ndarray:
+        return np.floor((np.asarray(t, np.float64) - self.origin[name]) / CHUNK_SECONDS)
+
     def run(self, name: str, t: np.ndarray, r: np.ndarray,
             temperature: np.ndarray | None = None) -> BatchOutput:
-        """``engine.run`` over ``t``, ``r`` in stretches, tracking between them."""
+        """``engine.run`` over ``t``, ``r`` in stretches, tracking between them. A stretch
+        with two samples or more ends a call (its judgement may correct the next); the
+        stretches before it, each too short to judge, run in that same call."""
         t = np.asarray(t, dtype=np.float64)
         if t.size == 0:
             return self.engine.run(name, t, r, temperature)
-        origin = self.origin.setdefault(name, float(t[0]))
-        edges = np.flatnonzero(np.diff(np.floor((t - origin) / CHUNK_SECONDS))) + 1
+        self.origin.setdefault(name, float(t[0]))
+        index = self._index(name, t)
+        edges = np.flatnonzero(np.diff(index)) + 1
+        starts = np.concatenate([[0], edges])
+        ends = np.concatenate([edges, [t.size]])
+        judged = ends - starts >= 2
+        if name in self.pending and index[0] == self.pending[name].index:
+            judged[0] = True  # continues the kept stretch: judged with it
+        cuts = [0, *ends[judged & (ends < t.size)].tolist(), t.size]
         outs = []
-        for a, b in zip([0, *edges.tolist()], [*edges.tolist(), t.size], strict=True):
+        for a, b in pairwise(cuts):
             self.advance(name, float(t[a]))
             temp = None if temperature is None else temperature[a:b]
             out = self.engine.run(name, t[a:b], np.asarray(r)[a:b], temp)
-            self.pending.setdefault(name, []).append((t[a:b], out))
+            last = int(np.searchsorted(index[a:b], index[b - 1]))  # the last stretch's start
+            if last > 0:  # whole stretches before it: fewer than two samples each
+                self.pending.pop(name, None)
+                self.last_hold.pop(name, None)
+            stretch = self.pending.setdefault(name, _Stretch(float(index[b - 1])))
+            stretch.add(t[a + last:b], _part(out, last))
             outs.append(out)
         return concatenate(outs)
 
     def advance(self, name: str, t: float) -> None:
         """Before samples from ``t`` on are run: if ``t`` starts a new stretch, judge the
         stretch kept so far (``update``), so its correction applies from ``t`` on."""
+        self.origin.setdefault(name, t)
         kept = self.pending.get(name)
-        origin = self.origin.setdefault(name, t)
-        if kept and (np.floor((t - origin) / CHUNK_SECONDS)
-                     != np.floor((kept[0][0][0] - origin) / CHUNK_SECONDS)):
-            ts = np.concatenate([k[0] for k in kept])
-            out = concatenate([k[1] for k in kept])
-            kept.clear()
-            self.update(name, ts, out)
+        if kept is not None and float(self._index(name, t)) != kept.index:
+            del self.pending[name]
+            judged = kept.output()
+            if judged is None:
+                self.last_hold.pop(name, None)
+            else:
+                self.update(name, *judged)
 
     def observe(self, name: str, t: float, out: SensorOutput) -> None:
         """One stepped sample (the node; ``advance`` first), kept until its stretch is
         judged."""
-        self.pending.setdefault(name, []).append((np.array([t]), BatchOutput(
+        stretch = self.pending.setdefault(name, _Stretch(float(self._index(name, t))))
+        stretch.add(np.array([t]), BatchOutput(
             np.array([out.strain]), np.array([out.direction]),
             np.array([int(out.status)], np.int8), np.zeros(1, bool),
-            np.array([out.resistance]))))
+            np.array([out.resistance])))
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""
@@ -205,3 +269,9 @@ class BaselineTracker:
         if factor != 1.0:
             self.applied[name] = applied * factor
             self.engine.track_baseline(name, gain * factor, duration)
+
+
+def _part(out: BatchOutput, start: int) -> BatchOutput:
+    """``out`` from sample ``start`` on (the fields the tracker reads)."""
+    return BatchOutput(out.strain[start:], out.direction[start:], out.status[start:],
+                       out.out_of_range[start:], out.resistance[start:])

@@ -77,13 +77,13 @@ class ImportReport:
     to pass."""
 
     def lines(self) -> list[str]:
-        """Human-readable summary, one fact per line."""
+        """Human-readable summary, one fact per line (the notes are printed apart, on
+        stderr)."""
         out = [f"{self.path} ({self.fmt}): {self.rows} rows, {self.kept} kept"]
         out += [f"  dropped {n} rows: {reason}" for reason, n in self.dropped.items() if n]
         if self.fmt == "cb_pdms" or self.glitches_repaired:
             out.append(f"  position glitches repaired: {self.glitches_repaired}")
         out.append(f"  strain stored in {self.strain_unit}")
-        out += [f"  note: {n}" for n in self.notes]
         return out
 
 
@@ -231,7 +231,13 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     factor = {k: 1.0 for k in cols} | dict(scales or {})
 
     def col(key: str) -> np.ndarray:
-        return table[:, used.index(cols[key])] * factor[key]
+        raw = table[:, used.index(cols[key])]
+        with np.errstate(over="ignore", invalid="ignore"):
+            scaled = raw * factor[key]
+        if np.any(np.isfinite(raw) & ~np.isfinite(scaled)):
+            raise InputError(f"{path}: --scales {key}={factor[key]:g}: the scaled values "
+                             "overflow (beyond 1.8e308); check the factor")
+        return scaled
 
     t = col("time")
     r = col("resistance")

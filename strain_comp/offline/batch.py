@@ -18,6 +18,7 @@ JSON (``evaluate --json`` with more than one bag; one bag keeps the single-bag s
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import tempfile
 from collections.abc import Callable, Sequence
@@ -32,7 +33,13 @@ from strain_comp.core.calibration import strain_unit_words
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.tracking import DEFAULT_TRACKING
-from strain_comp.errors import InputError, StrainCompError
+from strain_comp.errors import (
+    InputError,
+    OutputError,
+    StrainCompError,
+    Terminated,
+    raise_terminated,
+)
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import (
     EvaluationResult,
@@ -46,6 +53,8 @@ from strain_comp.offline.report_page import evaluation_figures
 from strain_comp.offline.series import SeriesCSV
 
 MAX_JOBS = 64
+STOP_SECONDS = 30.0
+"""How long a stopped pool worker may take to remove its temporary files and exit."""
 
 
 def _is_bag_dir(path: Path) -> bool:
@@ -83,8 +92,6 @@ class BagOutcome:
     plots: list[str] = field(default_factory=list)
     figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
     """``evaluate --report``: per sensor its plots as (caption, PNG bytes)."""
-    series: str = ""
-    """``evaluate --csv`` rows of this bag (pool workers only)."""
 
 
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
@@ -93,8 +100,9 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   tracking: str = DEFAULT_TRACKING,
                   references_every: float | None = None, figures: bool = False) -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
-    ``series_to``: the open CSV (serial) or a temporary path whose rows come back as text
-    (a pool worker)."""
+    ``series_to``: the open CSV (serial) or the path of a temporary part (a pool worker;
+    the parent copies it into the table). A failed write of an output (``OutputError``)
+    ends the command: it is not the bag's error."""
     table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
     try:
         calibration = load_calibration(calibration_path)
@@ -114,6 +122,10 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
         for ev in result.sensors.values():  # the arrays went into the plots
             ev.t = ev.r = ev.reference = ev.estimate = ev.direction = ev.scored = \
                 ev.t[:0]
+    except OutputError:  # an output could not be written: the command fails, not the bag
+        if isinstance(series_to, str) and table is not None:
+            table.discard()
+        raise
     except StrainCompError as err:
         outcome = BagOutcome(bag, error=" ".join(str(err).split()))
     except BrokenPipeError:  # stdout closed: the command ends, not this bag
@@ -121,22 +133,87 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
     except OSError as err:
         outcome = BagOutcome(bag, error=f"{err.filename or bag}: {err.strerror or err}")
     if isinstance(series_to, str) and table is not None:
-        table.close()
-        text = Path(series_to).read_text(encoding="utf-8")
-        outcome.series = text.split("\n", 1)[1] if "\n" in text else ""
+        table.close()  # the parent copies the part into the table (``_copy_part``)
     return outcome
 
 
 def _plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
-    """A subfolder of ``plots`` per bag, named by its stem (numbered when stems repeat)."""
+    """A subfolder of ``plots`` per bag, named by its stem, always directly inside
+    ``plots`` and one per bag: a stem that is not a plain name (``..`` of a bag named
+    ``...mcap`` or of a path ending in ``/..``, ``.``, empty, hidden) becomes ``bag``; a
+    name taken already (a repeated stem, or one equal to another's numbered name) gets
+    ``_2``, ``_3``, ... until it is free."""
     if plots is None:
         return [None] * len(bags)
-    stems = [Path(b.rstrip("/")).stem or "bag" for b in bags]
+    taken: set[str] = set()
     out: list[str | None] = []
-    for k, stem in enumerate(stems):
-        name = stem if stems.count(stem) == 1 else f"{k + 1:03d}_{stem}"
+    for bag in bags:
+        stem = Path(bag.rstrip("/")).stem
+        base = stem if stem and not stem.startswith(".") and "/" not in stem else "bag"
+        name, k = base, 2
+        while name in taken:
+            name, k = f"{base}_{k}", k + 1
+        taken.add(name)
         out.append(str(Path(plots) / name))
     return out
+
+
+def _copy_part(part: str, table: SeriesCSV, target: str) -> None:
+    """A worker's CSV part (header first) streamed into the table in blocks; an error
+    names the table's target, not the part."""
+    try:
+        with open(part, encoding="utf-8") as handle:
+            handle.readline()  # the part's own header
+            while block := handle.read(2**20):
+                table.add_text(block)
+    except OSError as err:
+        raise OutputError(f"{target}: cannot write: {err.strerror or err}") from None
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Cancel what has not started, send SIGTERM to every worker (``_worker_signals``: its
+    bag unwinds, removing its temporary files, and it exits) and wait for each, at most
+    ``STOP_SECONDS`` before SIGKILL. The pool keeps its processes in a private attribute:
+    no public API reaches them."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:  # each removes its temporary files, then exits
+        process.join(timeout=STOP_SECONDS)
+        if process.is_alive():
+            process.kill()
+            process.join()
+
+
+_in_bag = False
+"""In a pool worker: True while it evaluates a bag."""
+
+
+def _worker_signals() -> None:
+    """A pool worker's SIGTERM: inside a bag it raises ``Terminated`` (the bag's ``with``
+    blocks remove their temporary files), then the worker exits; between bags it exits
+    at once. Either way it takes no further bag."""
+    def on_term(signum: int, frame: object) -> None:
+        if _in_bag:
+            raise_terminated(signum, frame)
+        os._exit(143)
+
+    signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends us
+
+
+def _evaluate_in_worker(*args: Any) -> BagOutcome:
+    """``_evaluate_one`` in a pool worker (``_worker_signals``)."""
+    global _in_bag
+    _in_bag = True
+    try:
+        return _evaluate_one(*args)
+    except Terminated:  # its temporary files are gone: end here, take no further bag
+        os._exit(143)
+    finally:
+        _in_bag = False
 
 
 def _context() -> BaseContext:
@@ -175,22 +252,32 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                 progress(k + 1, len(bags), bag)
         return outcomes
     with tempfile.TemporaryDirectory(prefix="strain_comp_") as tmp, \
-            ProcessPoolExecutor(max_workers=min(jobs, len(bags)),
-                                mp_context=_context()) as pool:
+            ProcessPoolExecutor(max_workers=min(jobs, len(bags)), mp_context=_context(),
+                                initializer=_worker_signals) as pool:
         parts = [None if series is None else os.path.join(tmp, f"{k}.csv")
                  for k in range(len(bags))]
-        futures = [pool.submit(_evaluate_one, bag, calibration_path, tare, plot_points,
-                               in_run, dirs[k], parts[k], inputs, out_of_range, tracking,
-                               references_every, figures)
-                   for k, bag in enumerate(bags)]
-        for k, future in enumerate(futures):  # in order: the CSV keeps the bags' order
-            outcome = future.result()
-            if series is not None and outcome.series:
-                series.add_text(outcome.series)
-                outcome.series = ""
-            outcomes.append(outcome)
-            if progress is not None:
-                progress(k + 1, len(bags), bags[k])
+        try:
+            futures = [pool.submit(_evaluate_in_worker, bag, calibration_path, tare,
+                                   plot_points, in_run, dirs[k], parts[k], inputs, out_of_range,
+                                   tracking, references_every, figures)
+                       for k, bag in enumerate(bags)]
+            for k, future in enumerate(futures):  # in order: the CSV keeps the bags' order
+                try:
+                    outcome = future.result()
+                except OutputError as err:  # a worker's part: the error names the table
+                    part = parts[k]
+                    raise OutputError(str(err) if series is None or part is None else
+                                      str(err).replace(part, str(series.path))) from None
+                part = parts[k]
+                if series is not None and part is not None and os.path.exists(part):
+                    _copy_part(part, series, str(series.path))
+                    os.unlink(part)
+                outcomes.append(outcome)
+                if progress is not None:
+                    progress(k + 1, len(bags), bags[k])
+        except BaseException:  # SIGTERM, Ctrl-C, a failed output: end every worker first
+            _stop_workers(pool)
+            raise
     return outcomes
 
 

@@ -55,6 +55,7 @@ from strain_comp.io.recording import (
     array_sensor_names,
 )
 from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.options import model_options
 
 if TYPE_CHECKING:
     from strain_comp.core.outputs import BatchOutput
@@ -268,9 +269,11 @@ def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
     the model cannot be fitted to gets NaN and a note."""
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
+        options = cal.provenance.get("options") or {}
+        if isinstance(options, Mapping) and "progress" in model_options(cal.model):
+            options = {**options, "progress": False}  # a refit inside evaluate: no grid lines
         try:
-            own = fit_sensor([recordings[name]], cal.model, name=name,
-                             options=cal.provenance.get("options") or None)
+            own = fit_sensor([recordings[name]], cal.model, name=name, options=options or None)
             again = evaluate_recordings({name: recordings[name]}, Calibration({name: own}))
             ev.in_run_rmse = again.sensors[name].stats.rmse
         except StrainCompError as err:

@@ -58,7 +58,9 @@ from strain_comp.core.calibration import (
 from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.engine import Engine
+from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.core.tare import REST_BAND, ohms, rest_resistance_from_reference
+from strain_comp.core.tracking import fitted_rest
 from strain_comp.errors import CalibrationError, InputError
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
@@ -170,6 +172,12 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
+    lo, hi = SHORT_FACTOR * cal.valid_range.r_lo, OPEN_FACTOR * cal.valid_range.r_hi
+    for r, s in ((r1, s1), (r2, s2)):  # the engine screens such a reading as a short or open
+        if not lo < r < hi:
+            raise InputError(f"--point {r:g}:{s:g}: {r:g} ohm is beyond what the engine reads "
+                             f"for this sensor ({lo:.4g} to {hi:.4g} ohm: below is a short, "
+                             "above an open circuit)")
     if not abs(r2 - r1) > 1e-12 * max(abs(r1), abs(r2)):
         raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: one resistance at two "
                          "strains gives no span")
@@ -357,12 +365,26 @@ def span_reading(span: tuple[float, float, float]) -> str:
             f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")
 
 
-def map_from_pairs(estimate: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
-    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs."""
+FROM_SAMPLES = 20
+"""Scored samples ``recalibrate --from`` needs at least."""
+FROM_COVER = 0.25
+"""Share of the calibrated strain span the reference must move through for ``--from``: a
+gain and offset are fitted over a stretch of the range, not a point of it."""
+
+
+def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
+                   span: float | None = None) -> tuple[float, float]:
+    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs: at
+    least ``FROM_SAMPLES`` of them, the reference moving through ``FROM_COVER`` of the
+    calibrated strain ``span`` (when given)."""
     ok = np.isfinite(estimate) & np.isfinite(reference)
-    if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
-        raise InputError("recalibrate --from: the bag gives too few scored samples or no "
-                         "range of estimated strain")
+    if ok.sum() < FROM_SAMPLES or not np.ptp(estimate[ok]) > 0:
+        raise InputError(f"recalibrate --from: the bag gives {int(ok.sum())} scored samples "
+                         f"(at least {FROM_SAMPLES} needed) or no range of estimated strain")
+    if span is not None and not np.ptp(reference[ok]) >= FROM_COVER * span:
+        raise InputError(f"recalibrate --from: the reference moves through "
+                         f"{np.ptp(reference[ok]):.4g} of the calibrated span {span:.4g}; a "
+                         f"gain needs a stretch of at least {FROM_COVER:.0%} of it")
     a, b = np.polyfit(estimate[ok], reference[ok], 1)
     return float(a), float(b)
 
@@ -541,7 +563,8 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     for name, ev in result.sensors.items():
         if sensors and name not in sensors:
             continue
-        a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored])
+        a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored],
+                              span=fitted_rest(calibration.sensors[name].valid_range)[1])
         out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first,
                                                 "window": None if span is None else list(span)})
         lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "

@@ -7,7 +7,9 @@ One row per sample and sensor (long format, so an array of any size has the same
 ``estimate`` and ``reference`` are in ``unit``, the calibration's strain unit (% unless it
 says otherwise); ``reference`` is empty where the bag has none; ``direction`` is +1
 loading, 0 hold, -1 unloading; ``status`` the engine's sample status in words (``good``,
-``out_of_range``, ``not_finite``, ... ``strain_comp.core.samples.Status``). ``evaluate`` over
+``out_of_range``, ``not_finite``, ... ``strain_comp.core.samples.Status``). A number that is
+not finite is written ``nan``, ``inf`` or ``-inf``; the one empty cell is a missing
+reference. ``evaluate`` over
 several bags puts a ``bag`` column first. A spreadsheet or ``pandas.read_csv`` reads it as
 it is. The file is written atomically (``strain_comp.io.atomic``); ``-`` writes to stdout.
 """
@@ -23,6 +25,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from strain_comp.core.samples import Status
+from strain_comp.errors import OutputError
 from strain_comp.io.atomic import AtomicFile
 from strain_comp.io.recording import PieceAlign
 
@@ -31,9 +34,11 @@ COLUMNS = ("sensor", "time_s", "resistance_ohm", "estimate", "reference", "unit"
 _STATUS = {int(s): s.name.lower() for s in Status}
 
 
-def _number(values: np.ndarray) -> list[str]:
-    """Shortest round-trip text of each value; empty for NaN (a missing cell)."""
-    return ["" if v != v else repr(v) for v in values.tolist()]
+def _number(values: np.ndarray, missing: str = "nan") -> list[str]:
+    """Shortest round-trip text of each value (``inf``, ``-inf`` as Python writes them);
+    ``missing`` for NaN: ``nan`` for a measured value that is not a number, an empty cell
+    for a reference the bag does not have."""
+    return [missing if v != v else repr(v) for v in values.tolist()]
 
 
 class SeriesCSV:
@@ -45,6 +50,7 @@ class SeriesCSV:
     def __init__(self, path: str | os.PathLike[str], *,
                  inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False) -> None:
         self.stdout = str(path) == "-"
+        self.path = path
         self.file = None if self.stdout else AtomicFile(path, inputs=inputs)
         self.bag = bag
         self._write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
@@ -53,7 +59,12 @@ class SeriesCSV:
         if self.file is None:
             sys.stdout.write(text)
         else:
-            self.file.handle.write(text.encode("utf-8"))
+            try:
+                self.file.handle.write(text.encode("utf-8"))
+            except OSError as err:  # a full disk, ``ulimit -f``: named, nothing left
+                self.file.discard()
+                raise OutputError(f"{self.path}: cannot write: {err.strerror or err}"
+                                  ) from None
 
     def add(self, sensor: str, t: np.ndarray, resistance: np.ndarray, estimate: np.ndarray,
             reference: np.ndarray | None, direction: np.ndarray, status: np.ndarray, *,
@@ -68,7 +79,7 @@ class SeriesCSV:
         buf = io.StringIO()
         for row in zip(_number(np.asarray(t, np.float64)),
                        _number(np.asarray(resistance, np.float64)),
-                       _number(np.asarray(estimate, np.float64)), _number(ref),
+                       _number(np.asarray(estimate, np.float64)), _number(ref, ""),
                        np.asarray(direction).astype(int).tolist(),
                        np.asarray(status).astype(int).tolist(), strict=True):
             buf.write(f"{head},{row[0]},{row[1]},{row[2]},{row[3]},{tail},{row[4]},"

@@ -42,12 +42,22 @@ from std_srvs.srv import Trigger
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
 from strain_comp.ros.live import OK, WARN, ClockGate, LiveCompensator
-from strain_comp.ros.params import ROS_OWNED, TUNABLE, ParamSpec, parse_values, structural_specs
+from strain_comp.ros.params import (
+    ROS_OWNED,
+    TUNABLE,
+    NodeParams,
+    ParamSpec,
+    parse_values,
+    structural_specs,
+)
 
-INPUT_DEPTH = 50
-"""Inputs are best effort (sensor-data QoS) keeping the latest 50 messages: 50 ms of a 1 kHz
-stream, so a scheduling stall on a busy computer costs no sample, while an input rate beyond
-the node's drops the oldest instead of queuing without bound."""
+INPUT_DEPTH = 200
+"""Inputs are best effort (sensor-data QoS) keeping the latest 200 messages: 200 ms of a
+1 kHz stream, so a scheduling stall on a shared computer costs no sample (docs/ros.md,
+"Rates on one core"), while an input rate beyond the node's drops the oldest instead of
+queuing without bound."""
+OUTPUT_DEPTH = 100
+"""Outputs are reliable, keeping 100 messages for a subscriber not scheduled in time."""
 LOG_THROTTLE_S = 5.0
 """A refusal or a program error of one kind is logged at most once per this many seconds."""
 
@@ -167,10 +177,10 @@ class CompensatorNode(Node):
         input_qos = copy(qos_profile_sensor_data)
         input_qos.depth = INPUT_DEPTH
         kind = Float64MultiArray if inp.is_array else Float64
-        pubs = [self.create_publisher(kind, f"{name}/strain", 10),
+        pubs = [self.create_publisher(kind, f"{name}/strain", OUTPUT_DEPTH),
                 self.create_publisher(Float64MultiArray if inp.is_array else Int8,
-                                      f"{name}/direction", 10),
-                self.create_publisher(JointState, f"{name}/strain_stamped", 10)]
+                                      f"{name}/direction", OUTPUT_DEPTH),
+                self.create_publisher(JointState, f"{name}/strain_stamped", OUTPUT_DEPTH)]
         handler = self._on_array if inp.is_array else self._on_sensor
         sub = self.create_subscription(kind, inp.topic,
                                        partial(self._arrive, name, handler, pubs=pubs),
@@ -184,8 +194,9 @@ class CompensatorNode(Node):
                                      partial(self._on_reference, name, inp.is_array),
                                      input_qos)
         models = ",".join(sorted({params.calibration.sensors[s].model for s in inp.sensors}))
-        return (f"{name} [{','.join(inp.sensors)}] ({models}) {sub.topic_name} -> "
-                f"{pubs[0].topic_name}")
+        members = (f"{len(inp.sensors)} sensors: {inp.sensors[0]} .. {inp.sensors[-1]}"
+                   if inp.is_array else ",".join(inp.sensors))
+        return f"{name} [{members}] ({models}) {sub.topic_name} -> {pubs[0].topic_name}"
 
     # --- what goes wrong ------------------------------------------------------------------
 
@@ -427,13 +438,28 @@ class CompensatorNode(Node):
         return ", ".join(sorted({str(i.calibration_path) for i in live.params.inputs}))
 
     def _reload(self, request: Any, response: Any) -> Any:
-        """Start loading the calibration files on a worker thread and answer at once
-        ("loading ..."); the result goes to the log and /diagnostics. A call while a load is
-        in flight is refused."""
+        """Read and validate the calibration files (every load-time check), then answer:
+        success=false with the reason for files that will be refused (the old calibration
+        keeps running), success=true ("loading ...") for files that will be used, whose
+        compensator is then built on a worker thread while the outputs go on; its result
+        goes to the log and /diagnostics. A call while a load is in flight is refused."""
         if self._busy(response):
             return response
         current = self.live
-        self._loading = threading.Thread(target=self._load, args=(current,),
+        try:
+            params = parse_values(self.flat, base_dir=self.base_dir)
+            current.check_successor(params)
+        except (StrainCompError, OSError) as err:  # the files' fault: the answer's reason
+            self._refused_reload(one_line(err))
+            response.success, response.message = False, self.calibration_status[1]
+            return response
+        except Exception as err:  # a fault of the program: answered and reported as one
+            self._fault("~/reload_calibration", err)
+            self._refused_reload(f"internal error: {type(err).__name__}: {one_line(err)} "
+                                 "(a bug: the node's log has the traceback)")
+            response.success, response.message = False, self.calibration_status[1]
+            return response
+        self._loading = threading.Thread(target=self._load, args=(current, params),
                                          name="reload_calibration", daemon=True)
         self.calibration_status = (OK, "loading " + self._paths(current))
         response.success, response.message = True, self.calibration_status[1]
@@ -441,12 +467,17 @@ class CompensatorNode(Node):
         self._loading.start()
         return response
 
-    def _load(self, current: LiveCompensator) -> None:
-        """Worker thread: read, validate and build the new compensator (``successor``) and
-        leave it (or the reason it was refused) in ``_loaded``."""
+    def _refused_reload(self, reason: str) -> None:
+        self.calibration_status = (WARN, "reload refused, the old calibration keeps "
+                                   "running: " + reason)
+        self.get_logger().error(self.calibration_status[1])
+
+    def _load(self, current: LiveCompensator, params: NodeParams) -> None:
+        """Worker thread: build the new compensator (``successor``) on the validated
+        ``params`` and leave it (or the reason it failed) in ``_loaded``."""
         outcome: LiveCompensator | str = "the load ended without a result"
         try:
-            outcome = current.successor(parse_values(self.flat, base_dir=self.base_dir))
+            outcome = current.successor(params)
         except Exception as err:  # a worker thread: whatever ends the load is its reason
             outcome = one_line(err)
         finally:
@@ -463,9 +494,7 @@ class CompensatorNode(Node):
             self._loading.join()  # it has left its result: done in a moment
         self._loading = None
         if isinstance(outcome, str):
-            self.calibration_status = (WARN, "reload refused, the old calibration keeps "
-                                       "running: " + outcome)
-            self.get_logger().error(self.calibration_status[1])
+            self._refused_reload(outcome)
             return
         self.live = self.live.hand_over(outcome)
         self.calibration_status = (OK, "reloaded " + self._paths(self.live))

@@ -549,11 +549,15 @@ class LiveCompensator:
         (engine built and warmed up) with this one's tunables, not yet carrying anything
         over. Reads only this one's inputs and tunables, so the node runs it on a worker
         thread while this one keeps handling messages. StrainCompError if it cannot run."""
+        self.check_successor(params)
         params.tunables = dict(self.tunables)
-        fresh = LiveCompensator(params)
+        return LiveCompensator(params)
+
+    def check_successor(self, params: NodeParams) -> None:
+        """StrainCompError if ``params`` (read and validated by ``parse_values``) cannot
+        replace this one's: a reload keeps the inputs and their sensors."""
         if [i.sensors for i in params.inputs] != [i.sensors for i in self.params.inputs]:
             raise StrainCompError("the reloaded calibration changes the sensors")
-        return fresh
 
     def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
         """``fresh`` (from ``successor``) carrying on from this one, as of now: its health

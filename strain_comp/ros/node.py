@@ -95,22 +95,41 @@ def command_line_params(args: list[str]) -> dict[str, str]:
             for _, rule in _ros_flags(args, ("-p", "--param"))}
 
 
+def _names_a_calibration(block: Any) -> bool:
+    """Whether a node block's ``ros__parameters`` set a ``calibration`` (at any depth)."""
+    params = block.get("ros__parameters") if isinstance(block, dict) else None
+    stack = [params]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, dict):
+            if "calibration" in node:
+                return True
+            stack.extend(node.values())
+    return False
+
+
 def check_params_files(files: list[Path], name: str, namespace: str) -> Path | None:
-    """The folder of the last params file holding a block for the node (relative calibration
-    paths resolve there); StrainCompError naming the file when a file cannot be used."""
+    """The folder of the last params file whose block for the node names a calibration
+    (relative calibration paths resolve there; a file that sets other parameters only, as
+    the one ``ros2 launch`` writes for ``use_sim_time:=true``, does not move it), else of
+    the last with a block for the node; StrainCompError naming the file when a file cannot
+    be used."""
     from strain_comp.errors import InputError
     from strain_comp.ros.params import block_names, read_blocks
 
-    base = None
+    base = named = None
     for path in files:
         blocks = read_blocks(path)
-        if any(b in blocks for b in block_names(name, namespace)):
+        mine = [blocks[b] for b in block_names(name, namespace) if b in blocks]
+        if mine:
             base = path.resolve().parent
+            if any(_names_a_calibration(block) for block in mine):
+                named = base
         elif name != NODE_NAME or len(files) == 1:
             fqn = f"{namespace.rstrip('/')}/{name}"
             raise InputError(f"{path}: no parameters for node {fqn!r} (the file holds: "
                              f"{', '.join(blocks)}); name a block '{fqn}' or '/**/{name}'")
-    return base
+    return named or base
 
 
 def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,

@@ -253,10 +253,15 @@ class BagWriter:
                             round(before * 1e9))
 
     def close(self) -> None:
-        """Write the remaining messages, the summary and the footer (once)."""
+        """Write the remaining messages, the summary and the footer (once); if that fails
+        (a full disk, ``ulimit -f``), the temporary file is deleted (``abort``)."""
         if self._closed:
             return
-        self._write_pending(final=True)
+        try:
+            self._write_pending(final=True)
+        except BaseException:
+            self.abort()
+            raise
         self._closed = True
         assert self._out is not None
         self._out.finish()

@@ -1,0 +1,27 @@
+"""Which folder a relative calibration path resolves in when ``ros2 launch`` adds a params
+file of its own (``use_sim_time:=true``) after the user's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from strain_comp.ros.node import check_params_files
+
+
+def test_a_params_file_without_a_calibration_does_not_move_the_base(tmp_path: Path) -> None:
+    mine, launch = tmp_path / "robot", tmp_path / "tmp"
+    mine.mkdir()
+    launch.mkdir()
+    (mine / "params.yaml").write_text("/**/compensator:\n  ros__parameters:\n"
+                                      "    sensors: [s1]\n    s1: {calibration: cubic.yaml}\n")
+    (launch / "launch_params.yaml").write_text("/**:\n  ros__parameters:\n"
+                                               "    use_sim_time: true\n")
+    files = [mine / "params.yaml", launch / "launch_params.yaml"]
+    assert check_params_files(files, "compensator", "/") == mine.resolve()
+    # a later file that names a calibration moves it, as before
+    (launch / "more.yaml").write_text("/**/compensator:\n  ros__parameters:\n"
+                                      "    s1: {calibration: other.yaml}\n")
+    assert check_params_files([*files, launch / "more.yaml"], "compensator", "/") == \
+        launch.resolve()
+    # a file with no calibration alone: its folder, as before
+    assert check_params_files(files[1:], "compensator", "/") == launch.resolve()
