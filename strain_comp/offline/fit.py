@@ -415,16 +415,20 @@ def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "me
 
 def run_line(rec: Recording) -> tuple[float, float] | None:
     """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples
-    (its input zero [ohm] and sensitivity [ohm per strain unit]); None without a range of
-    strain or a finite line."""
+    (its input zero [ohm] and sensitivity [ohm per strain unit]), in closed form (no LAPACK
+    call to fail on a reference near 1e-300 or 1e300); None without a range of strain or a
+    finite line."""
     if rec.s is None:
         return None
     ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
     s, r = np.asarray(rec.s, dtype=np.float64)[ok], np.asarray(rec.r, dtype=np.float64)[ok]
     if s.size < 2 or not np.ptp(s) > 0:
         return None
-    g, r0 = np.polyfit(s, r, 1)
-    return (float(r0), float(g)) if np.isfinite(r0) and np.isfinite(g) and g != 0 else None
+    with np.errstate(all="ignore"):
+        ds, r_mean = s - s.mean(), r.mean()
+        g = float(np.dot(ds, r - r_mean) / np.dot(ds, ds))
+        r0 = float(r_mean - g * s.mean())
+    return (r0, g) if np.isfinite(r0) and np.isfinite(g) and g != 0 else None
 
 
 POOL_DEGREE = 3
@@ -450,8 +454,10 @@ def pooled_input(recordings: Sequence[Recording], pool: str = "spanned",
 
     if pool not in POOLS:
         raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
+    if pool == "raw" or len(recordings) < 2:
+        return list(recordings), []
     lines = [run_line(rec) for rec in recordings]
-    if pool == "raw" or len(recordings) < 2 or any(line is None for line in lines):
+    if any(line is None for line in lines):
         return list(recordings), []
     found = [line for line in lines if line is not None]
     if len({np.sign(g) for _, g in found}) > 1:
