@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     from strain_comp.core.calibration import Calibration
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.diagnosis.conditions import diagnose_conditions
-    from strain_comp.diagnosis.report import SESSION_RECORDS, effect_reading, write_plots
+    from strain_comp.diagnosis.report import SESSION_RECORDS, write_plots
     from strain_comp.errors import StrainCompError
     from strain_comp.io.csv_import import import_csv
     from strain_comp.offline.fit import fit_sensor
@@ -121,8 +121,7 @@ def main(argv: list[str] | None = None) -> int:
                 "as_calibrated": {k: v["rmse"] for k, v in
                                   result.sensors[name].as_calibrated.items()},
                 "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
-                           "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
-                                                     a.magnitude, unit=spec["unit"])}
+                           "reading": a.reading()}
                           for a in added],
                 "conditions": result.conditions,
                 "message": result.sensors[name].message, "seconds": round(seconds, 2),
