@@ -91,3 +91,18 @@ def test_no_creep_adds_nothing_and_says_why(calibration: Calibration) -> None:
     assert ";" not in message and len(message) < 250, message  # one line, one reason
     reading = result.sensors["s1"].session["reading"]
     assert "after the session start, what remains is" in reading, reading
+
+
+def test_creep_readings_say_which_way_how_much_and_how_slow() -> None:
+    from strain_comp.diagnosis.report import creep_tau, effect_reading
+
+    assert effect_reading("relaxation", {"tau": 8.0, "branch": "both"}, -0.05, 1.0,
+                          span=50.0) == (
+        "creep (Prony series, tau = 8 s, a state of the estimate): the estimate lags the "
+        "reference after each change by typically 2 % of the span (1 % strain), catching "
+        "up with a time constant of 8 s")
+    assert "overshoots the reference" in effect_reading(
+        "resistance_memory", {"tau": 45.25, "form": "relaxation"}, 0.1, 2.0, unit="mm",
+        span=70.0, lag=False)
+    assert creep_tau("relaxation", {"tau": 4.0, "branch": "loading"}) is None
+    assert creep_tau("resistance_memory", {"tau": 4.0, "form": "peak"}) is None
