@@ -132,6 +132,9 @@ def carry(args: argparse.Namespace) -> int:
                                          tare="auto")
             d = result.sensors[name]
             found = "; ".join(f"{a.name}: {a.reading()}" for a in result.added) or d.message
+            chosen = next(c for c in result.conditions if c.get("chosen"))
+            if chosen["name"] != "as calibrated":
+                found = f"condition {chosen['name']} ({chosen['reading']}); {found}"
             for run in spec["evaluate"]:
                 before, after = used(cal, name, recs[run]), used(result.calibration, name,
                                                                  recs[run])

@@ -106,3 +106,16 @@ def test_creep_readings_say_which_way_how_much_and_how_slow() -> None:
         span=70.0, lag=False)
     assert creep_tau("relaxation", {"tau": 4.0, "branch": "loading"}) is None
     assert creep_tau("resistance_memory", {"tau": 4.0, "form": "peak"}) is None
+
+
+def test_a_term_that_raises_one_validation_run_beyond_the_margin_is_not_kept() -> None:
+    """Two of three validation runs 10 % better, the third 10 % worse: the pooled and the
+    median error fall, and still the term does not carry; 2 % worse is within the margin."""
+    from strain_comp.diagnosis.selection import held_out_better
+
+    runs = np.repeat([0, 1, 2], 100)
+    old = np.ones(300)
+    assert held_out_better(old * np.repeat([0.9, 0.9, 1.02], 100), old, 0.03, runs)
+    worse = old * np.repeat([0.8, 0.8, 1.1], 100)
+    assert held_out_better(worse, old, 0.03)  # pooled alone it would pass
+    assert not held_out_better(worse, old, 0.03, runs)
