@@ -26,6 +26,17 @@ recalibration on its first cycle (``--session-start on``, the default, as ``diag
 ``off``: through the engine as calibrated). With it on, the last column but one gives the
 chosen result's figures without that recalibration as well.
 
+``--carry`` (``CARRY``) judges the loop where the condition changes between runs, as the
+product is used: per sensor (carbon black, fibre, silver-nylon thread, the virtual rig) the
+model is fitted on one run, ``diagnose`` (``--tare auto``) works on that run and validates on
+two others after their session start (the fibre has one other), and the calibration as fitted
+and as diagnosed is then used on each later run after that run's own session start
+(``recalibrate --input --from RUN --first S`` then ``recalibrate --from RUN --first S``, S its
+first cycle). Prints a table (later run: before -> after the loop, the change, what the loop
+found or why it added nothing) and writes ``carry.json`` into ``--out``:
+
+    python scripts/measured_diagnose.py --carry --models cubic mpi --out out/carry
+
 Prints a Markdown table (data set x model: before, after, effects added), writes
 ``results.json``, the diagnosed calibrations (``<set>_<model>_diagnosed.yaml``) and the
 residual plots (``plots/``) into ``--out``.
@@ -134,7 +145,7 @@ def carry(args: argparse.Namespace) -> int:
             found = "; ".join(f"{a.name}: {a.reading()}" for a in result.added) or d.message
             chosen = next(c for c in result.conditions if c.get("chosen"))
             if chosen["name"] != "as calibrated":
-                found = f"condition {chosen['name']} ({chosen['reading']}); {found}"
+                found = f"condition {chosen['name']} chosen; {found}"
             for run in spec["evaluate"]:
                 before, after = used(cal, name, recs[run]), used(result.calibration, name,
                                                                  recs[run])
