@@ -17,8 +17,9 @@ Per calibrated sensor that has a recording with a reference strain:
    with. The engine still applies the terms there online; the message says what was left
    out.
 2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.core.effects``: rate,
-   direction, relaxation over time constants 0.5-128 s and three branches, a fading
-   memory of the resistance itself (relaxation, peak, trough of 100 ln R, 1-256 s),
+   direction, creep (one Prony-series state of the estimate or of 100 ln R each, 0.25-362
+   s; ``report.creep_tau``), relaxation after loading or unloading steps only (0.5-128 s),
+   a fading memory of the resistance itself (peak, trough of 100 ln R, 1-256 s),
    elapsed-time drift, temperature when a temperature series exists, strain level,
    Mullins-type history incl. the peak strain, cross-talk from array neighbours at index
    +-1, and a per-run ``baseline``) is computed online over each recording, exactly as
@@ -44,7 +45,8 @@ Per calibrated sensor that has a recording with a reference strain:
    measured on the held-out blocks or on the ``validate_recordings``. An effect is kept
    if it lowers that held-out RMSE by more than ``margin``, below both the model before it
    and that model with an intercept (with several validation runs, the median run's RMSE
-   too); one that does not is not added, and the later ones are still tried. The result
+   too, and no run's may rise by more than ``margin``); one that does not is not added,
+   and the later ones are still tried. The result
    says when nothing helps. The output calibration is the input plus
    the added effect entries, with the coefficients whose held-out error is reported.
 7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
