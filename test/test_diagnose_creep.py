@@ -69,7 +69,9 @@ def test_a_creep_the_calibration_lacks_is_named_and_carries(calibration: Calibra
     assert first.family == "creep", result.summary()
     read = float(first.params["tau"])
     assert tau / 2 <= read <= 2 * tau, result.summary()
-    reading = first.to_json()["reading"]
+    record = first.to_json()
+    assert record["family"] == "creep" and record["time_constant"] == read
+    reading = record["reading"]
     assert reading.startswith(f"creep (Prony series, tau = {read:g} s"), reading
     assert "lags the reference" in reading and "% of the span" in reading, reading
     assert f"creep, tau {read:g} s" in result.sensors["s1"].message
