@@ -309,10 +309,14 @@ def _message(cal: SensorCalibration, cands: _Candidates, rows: _Rows, best: Any,
             message = (f"{names[best.selection.chosen[0]]} looked useful in cross-validation "
                        "but did not lower the held-out error; nothing added")
         if session:
-            why = (f"{names[best.selection.chosen[0]]}, useful in cross-validation on the "
-                   "diagnosed run, does not carry to them" if best.selection.chosen else
+            chosen = best.selection.chosen
+            why = (f"{names[chosen[0]]}, useful in cross-validation on the diagnosed run, "
+                   "does not carry to them" if chosen else
                    f"no candidate explains it (best in cross-validation: {names[top]}, "
                    f"score {scores[top]:.3f})")
+            if chosen and all(_gain_or_offset(cands, j) for j in chosen):
+                why = ("what helped on the diagnosed run is an output gain or offset, which "
+                       "the session start makes itself")
             message = (f"after the session start, what remains on the validation runs is "
                        f"{before:.4g} {cal.strain_unit} (as calibrated {rms(rows.e_out):.4g}) "
                        f"and {why}: nothing added")
@@ -337,6 +341,13 @@ def _message(cal: SensorCalibration, cands: _Candidates, rows: _Rows, best: Any,
                        else "")
                     + f" of a run longer than {ROW_BUDGET:,} samples")
     return message
+
+
+def _gain_or_offset(cands: _Candidates, j: int) -> bool:
+    """Is candidate ``j`` an output offset or a plain gain (what the session start makes)?"""
+    return cands.kinds[j] == "offset" or (
+        cands.kinds[j] == "strain_level" and cands.entries[j].get("params", {}).get("power", 1)
+        == 1)
 
 
 def _family(cands: _Candidates, j: int) -> str:
