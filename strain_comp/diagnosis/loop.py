@@ -459,8 +459,9 @@ def _remains(before: float, after: float, unit_words: str) -> str:
     """One line on what the session start leaves: the share of the validation runs' squared
     error that was their own gain and offset (their input space), which no term need make."""
     if not before > 0 or not after < before:
-        return (f"after the session start, what remains is all of the error ({after:.4g} "
-                f"{unit_words}): the runs' gain and offset do not explain it")
+        return (f"after the session start, what remains is all of the error and more ("
+                f"{before:.4g} -> {after:.4g} {unit_words}): the runs' own gain and offset are "
+                "not what the calibration lacks")
     share = 1.0 - (after / before) ** 2
     return (f"after the session start, what remains is {after:.4g} of {before:.4g} "
             f"{unit_words}: {100 * share:.0f} % of the squared error was each run's own gain "
