@@ -51,7 +51,12 @@ class DirectionSettings:
             raise ParameterError("direction.sign", f"must be +1 or -1, got {self.sign!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        """The settings as the calibration file's ``direction`` mapping."""
+        """The settings.
+
+        Returns:
+            The calibration file's ``direction`` mapping.
+
+        """
         return {"deadzone": self.deadzone, "tau": self.tau, "k_sigma": self.k_sigma,
                 "sign": self.sign}
 

@@ -21,7 +21,12 @@ class ErrorStats:
     n: int
 
     def to_dict(self) -> dict[str, float | int]:
-        """The fields by name (the JSON report's form)."""
+        """The statistics as a mapping.
+
+        Returns:
+            The fields by name (the JSON report's form).
+
+        """
         return asdict(self)
 
 

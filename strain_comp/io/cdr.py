@@ -48,39 +48,75 @@ class CdrBuffer:
         self.data = bytearray(ENCAPSULATION)
 
     def align(self, size: int) -> None:
-        """Pad to a multiple of ``size`` bytes, counted after the encapsulation header."""
+        """Pad to a multiple of ``size`` bytes, counted after the encapsulation header.
+
+        Args:
+            size: The alignment [bytes]: 1, 2, 4 or 8.
+
+        """
         self.data += _PAD[-(len(self.data) - 4) % size]
 
     def u32(self, value: int) -> None:
-        """A uint32, 4-aligned."""
+        """Append a uint32, 4-aligned.
+
+        Args:
+            value: The value (0 to 2^32 - 1).
+
+        """
         self.align(4)
         self.data += _U32.pack(value)
 
     def stamp(self, sec: int, nanosec: int) -> None:
-        """builtin_interfaces/Time (``STAMP``)."""
+        """Append a builtin_interfaces/Time (``STAMP``).
+
+        Args:
+            sec: Seconds.
+            nanosec: Nanoseconds (0 to 999 999 999).
+
+        """
         self.align(4)
         self.data += STAMP.pack(sec, nanosec)
 
     def f64(self, *values: float) -> None:
-        """Consecutive float64 fields, 8-aligned."""
+        """Append consecutive float64 fields, 8-aligned.
+
+        Args:
+            *values: The fields' values.
+
+        """
         self.align(8)
         self.data += struct.pack(f"<{len(values)}d", *values)
 
     def string(self, text: str) -> None:
-        """A string: uint32 length with the NUL, UTF-8 bytes, NUL."""
+        """Append a string: uint32 length with the NUL, UTF-8 bytes, NUL.
+
+        Args:
+            text: The string.
+
+        """
         data = self.data
         data += _PAD[-len(data) % 4]  # the 4-byte encapsulation keeps 4-alignment
         data += _STRINGS.get(text) or _encoded(text)
 
     def strings(self, texts: Sequence[str]) -> None:
-        """A string sequence: uint32 count, then each string."""
+        """Append a string sequence: uint32 count, then each string.
+
+        Args:
+            texts: The strings.
+
+        """
         self.u32(len(texts))
         for text in texts:
             self.string(text)
 
     def f64_seq(self, values: npt.ArrayLike) -> None:
-        """A float64 sequence: uint32 count, then the values 8-aligned (no padding when
-        empty)."""
+        """Append a float64 sequence: uint32 count, then the values 8-aligned (no padding
+        when empty).
+
+        Args:
+            values: The values (flattened).
+
+        """
         v = np.asarray(values, dtype="<f8").reshape(-1)
         self.u32(v.size)
         if v.size:
@@ -88,12 +124,24 @@ class CdrBuffer:
             self.data += v.tobytes()
 
     def header(self, sec: int, nanosec: int, frame_id: str) -> None:
-        """std_msgs/Header: stamp, frame_id."""
+        """Append a std_msgs/Header: stamp, frame_id.
+
+        Args:
+            sec: ``stamp.sec``.
+            nanosec: ``stamp.nanosec``.
+            frame_id: ``frame_id``.
+
+        """
         self.stamp(sec, nanosec)
         self.string(frame_id)
 
     def payload(self) -> bytes:
-        """The message as written so far."""
+        """The message as written so far.
+
+        Returns:
+            The CDR payload, encapsulation header included.
+
+        """
         return bytes(self.data)
 
 

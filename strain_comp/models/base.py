@@ -116,7 +116,12 @@ class Normalisation:
         return (np.asarray(psi, dtype=np.float64) - self.beta) * self.s0
 
     def to_dict(self) -> dict[str, float]:
-        """The four coefficients as the calibration file's ``normalisation`` mapping."""
+        """The four coefficients.
+
+        Returns:
+            The calibration file's ``normalisation`` mapping.
+
+        """
         return {"r0": self.r0, "alpha": self.alpha, "s0": self.s0, "beta": self.beta}
 
 
