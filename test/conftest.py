@@ -364,21 +364,26 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
     ),
 }
 """Per module, the tests (by function name: every parameter set) that take about a second
-or more in a module of fast ones (marked ``slow``): measured with ``pytest --durations=0``
-on the 2-core machine of docs/performance.md."""
+or more in a module of fast ones (marked ``slow``): 1.5 s or more in one full run with
+``pytest --durations=0`` on the shared 2-core machine of docs/performance.md (load average
+about 5)."""
 
 
-def _check_marked_modules() -> None:
-    """A marked module that no longer exists is a mark lost: fail the collection."""
-    found = {path.stem for path in Path(__file__).parent.rglob("test_*.py")}
-    missing = (ROS_MODULES | SLOW_MODULES | set(SLOW_TESTS)) - found
+def _check_marked_names() -> None:
+    """A marked module or test that no longer exists is a mark lost: fail the collection."""
+    files = {path.stem: path for path in Path(__file__).parent.rglob("test_*.py")}
+    missing = sorted((ROS_MODULES | SLOW_MODULES | set(SLOW_TESTS)) - set(files))
+    for module, names in SLOW_TESTS.items():
+        if module in files:
+            text = files[module].read_text(encoding="utf-8")
+            missing += [f"{module}::{name}" for name in names if f"def {name}(" not in text]
     if missing:
-        raise pytest.UsageError(f"test/conftest.py marks missing test modules {sorted(missing)}")
+        raise pytest.UsageError(f"test/conftest.py marks tests that do not exist: {missing}")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Mark each collected test ``ros`` and/or ``slow`` from the tables above."""
-    _check_marked_modules()
+    _check_marked_names()
     for item in items:
         module = item.path.stem
         name = getattr(item, "originalname", item.name)
