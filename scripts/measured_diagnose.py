@@ -26,6 +26,17 @@ recalibration on its first cycle (``--session-start on``, the default, as ``diag
 ``off``: through the engine as calibrated). With it on, the last column but one gives the
 chosen result's figures without that recalibration as well.
 
+``--carry`` (``CARRY``) judges the loop where the condition changes between runs, as the
+product is used: per sensor (carbon black, fibre, silver-nylon thread, the virtual rig) the
+model is fitted on one run, ``diagnose`` (``--tare auto``) works on that run and validates on
+two others after their session start (the fibre has one other), and the calibration as fitted
+and as diagnosed is then used on each later run after that run's own session start
+(``recalibrate --input --from RUN --first S`` then ``recalibrate --from RUN --first S``, S its
+first cycle). Prints a table (later run: before -> after the loop, the change, what the loop
+found or why it added nothing) and writes ``carry.json`` into ``--out``:
+
+    python scripts/measured_diagnose.py --carry --models cubic mpi --out out/carry
+
 Prints a Markdown table (data set x model: before, after, effects added), writes
 ``results.json``, the diagnosed calibrations (``<set>_<model>_diagnosed.yaml``) and the
 residual plots (``plots/``) into ``--out``.
@@ -38,6 +49,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured"
@@ -58,6 +70,117 @@ DATASETS = {
 }
 
 
+NYLON = {"dir": "nylon_silver/session1_100Hz", "format": "generic", "unit": "%",
+         "columns": {"time": "time_s", "resistance": "r_over_r0", "strain": "position"},
+         "scales": {"strain": 100.0}}
+CARRY = {
+    "cb": {"dir": "cb_pdms_7p5wt", "format": "cb_pdms", "unit": "%",
+           "diagnose": "2_7-5_E4pin_20mm_v16_0.3Strain.csv",
+           "validate": ["2_7-5_E4pin_20mm_v19_0.3Strain.csv", "2_7-5_4Epin_rand_sawtooth.csv"],
+           "evaluate": ["2_7-5_E4pin_20mm_v10_0.3Strain.csv",
+                        "2_7-5_E4pin_20mm_v9_0.2Strain_velocityprof.csv"]},
+    "fiber": {"dir": "conductive_fiber", "format": "fiber", "unit": "mm",
+              "diagnose": "oldthread_sensorfiber_5x_1_synced.csv",
+              "validate": ["oldthread_sensorfiber_5x_3_synced.csv"],
+              "evaluate": ["oldthread_sensorfiber_5x_4_synced.csv"]},
+    "nylon": {**NYLON, "diagnose": "sin_20.csv", "validate": ["tri_50.csv", "mixed_10_20.csv"],
+              "evaluate": ["sin_30.csv", "sin_40.csv", "mixed_15_25.csv", "mixed_20_30.csv"]},
+    "rig": {"dir": "rig:", "format": "rig", "unit": "%", "diagnose": "random",
+            "validate": ["steps", "patterns"], "evaluate": ["triangle", "rates"]},
+}
+"""``--carry``: per sensor, the run a calibration is fitted on and diagnosed, the runs the
+loop validates on (two where the data have them; the fibre has three runs in all), and the
+later runs it is judged on, fixed in advance by file."""
+
+
+def carry_recording(spec: dict, run: str, name: str) -> Any:
+    """One run of ``CARRY`` as a Recording named ``name`` (the rig: ``simulate``, seed 1,
+    its default effects)."""
+    from strain_comp.io.csv_import import import_csv
+    from strain_comp.io.recording import Recording
+    from strain_comp.offline.rig import simulate
+
+    if spec["format"] == "rig":
+        sim = simulate(run, seed=1).sensors["s1"]
+        return Recording(name, sim.t, sim.resistance, sim.strain)
+    return import_csv(Path(spec["data"]) / spec["dir"] / run, fmt=spec["format"], sensor=name,
+                      columns=spec.get("columns"), scales=spec.get("scales")).recording
+
+
+def carry(args: argparse.Namespace) -> int:
+    """The loop judged on later runs after their session start (module docstring)."""
+    import numpy as np
+
+    from strain_comp.core.calibration import Calibration
+    from strain_comp.diagnosis.conditions import diagnose_conditions
+    from strain_comp.diagnosis.session import first_cycle, session_errors
+    from strain_comp.offline.fit import fit_sensor
+
+    def used(cal: Calibration, name: str, rec: Any) -> float:
+        seconds = first_cycle(rec.t, rec.s)
+        if seconds is None:
+            raise SystemExit(f"{name}: the reference of a later run never moves")
+        errors = session_errors(cal, {name: rec}, name, seconds)
+        return float(np.sqrt(np.mean(errors ** 2)))
+
+    rows = []
+    for name, spec in CARRY.items():
+        if args.sensors and name not in args.sensors:
+            continue
+        spec = {**spec, "data": args.data}
+        recs = {run: carry_recording(spec, run, name)
+                for run in [spec["diagnose"], *spec["validate"], *spec["evaluate"]]}
+        for model in args.models:
+            start = time.perf_counter()
+            fitted = fit_sensor([recs[spec["diagnose"]]], model, name=name,
+                                options={"progress": False} if model in ("apl", "pl", "mpi")
+                                else {})
+            fitted.strain_unit = spec["unit"]
+            cal = Calibration({name: fitted})
+            result = diagnose_conditions({name: recs[spec["diagnose"]]}, cal,
+                                         validate_recordings=[{name: recs[v]}
+                                                              for v in spec["validate"]],
+                                         tare="auto")
+            d = result.sensors[name]
+            found = "; ".join(f"{a.name}: {a.reading()}" for a in result.added) or d.message
+            chosen = next(c for c in result.conditions if c.get("chosen"))
+            if chosen["name"] != "as calibrated":
+                found = f"condition {chosen['name']} chosen; {found}"
+            for run in spec["evaluate"]:
+                before, after = used(cal, name, recs[run]), used(result.calibration, name,
+                                                                 recs[run])
+                rows.append({"sensor": name, "model": model, "unit": spec["unit"],
+                             "diagnose": spec["diagnose"], "validate": spec["validate"],
+                             "evaluate": run, "before": before, "after": after,
+                             "added": [a.name for a in result.added], "found": found,
+                             "seconds": round(time.perf_counter() - start, 1)})
+            print(f"## {name}/{model}: {d.message} ({time.perf_counter() - start:.1f} s)",
+                  file=sys.stderr)
+    print("| sensor | model | fit + diagnose | validate | later run | RMSE after its session "
+          "start: before -> after the loop | change | what the loop found |")
+    print("|---|---|---|---|---|---|---:|---|")
+    for row in rows:
+        change = 100.0 * (row["after"] / row["before"] - 1.0) if row["before"] > 0 else 0.0
+        print(f"| {row['sensor']} | {row['model']} | {short(row['diagnose'])} | "
+              f"{', '.join(short(v) for v in row['validate'])} | {short(row['evaluate'])} | "
+              f"{row['before']:.3f} -> {row['after']:.3f} {row['unit']} | {change:+.0f} % | "
+              f"{row['found']} |")
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "carry.json").write_text(json.dumps({"rows": rows}, indent=2) + "\n",
+                                         encoding="utf-8")
+    return 0
+
+
+def short(run: str) -> str:
+    """A run's short label: v16, run 1, sin_20, rig:random."""
+    stem = run.removesuffix(".csv")
+    for prefix, label in (("2_7-5_E4pin_20mm_", ""), ("2_7-5_4Epin_", ""),
+                          ("oldthread_sensorfiber_5x_", "run ")):
+        if stem.startswith(prefix):
+            stem = label + stem.removeprefix(prefix).split("_")[0].removesuffix("_synced")
+    return stem if stem != "rand" else "sawtooth"
+
+
 def without(row: dict) -> str:
     """The chosen result's before -> after without the session start ("-": none made)."""
     if not row["as_calibrated"]:
@@ -75,12 +198,18 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"models to fit (default {' '.join(DEFAULT_MODELS)})")
     parser.add_argument("--session-start", choices=("on", "off"), default="on",
                         help="diagnose --session-start (default on)")
+    parser.add_argument("--carry", action="store_true",
+                        help="the loop judged on later runs after their session start (CARRY)")
+    parser.add_argument("--sensors", nargs="+", choices=sorted(CARRY),
+                        help="with --carry: these sensors only (default all)")
     args = parser.parse_args(argv)
+    if args.carry:
+        return carry(args)
 
     from strain_comp.core.calibration import Calibration
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.diagnosis.conditions import diagnose_conditions
-    from strain_comp.diagnosis.report import SESSION_RECORDS, effect_reading, write_plots
+    from strain_comp.diagnosis.report import SESSION_RECORDS, write_plots
     from strain_comp.errors import StrainCompError
     from strain_comp.io.csv_import import import_csv
     from strain_comp.offline.fit import fit_sensor
@@ -121,8 +250,7 @@ def main(argv: list[str] | None = None) -> int:
                 "as_calibrated": {k: v["rmse"] for k, v in
                                   result.sensors[name].as_calibrated.items()},
                 "added": [{"name": a.name, "kind": a.kind, "coef": a.coef,
-                           "reading": effect_reading(a.kind, a.params, a.coef or 0.0,
-                                                     a.magnitude, unit=spec["unit"])}
+                           "reading": a.reading()}
                           for a in added],
                 "conditions": result.conditions,
                 "message": result.sensors[name].message, "seconds": round(seconds, 2),

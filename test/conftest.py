@@ -231,6 +231,168 @@ def make_calibration() -> Calibration:
     return Calibration(sensors)
 
 
+# ---------------------------------------------------------------------------- markers
+# ``pytest -m "not slow and not ros"`` is the quick run; scripts/test.sh (CI) runs all.
+# The marks are given here, by module and test name, so that a test module needs no edit.
+
+ROS_MODULES = frozenset({
+    "test_node", "test_node_faults", "test_node_guards", "test_node_process",
+    "test_node_references", "test_ros2_cli",
+})
+"""Modules that need rclpy, the ros2 command line or colcon (marked ``ros``; so is any test
+that takes the ``context`` fixture)."""
+
+SLOW_MODULES = frozenset({"test_api_doc", "test_numba_setup", "test_progress"})
+"""Modules whose every test takes about a second or more (marked ``slow``)."""
+
+SLOW_TESTS: dict[str, tuple[str, ...]] = {
+    "test_api": (
+        "test_diagnose_gives_the_commands_report",
+        "test_fit_options_and_unit",
+        "test_recalibrate_prints_the_commands_readings",
+        "test_the_api_writes_nothing_unless_asked",
+    ),
+    "test_apl": (
+        "test_array_kernel_matches_per_sensor_models",
+        "test_falling_resistance_sensor_fits_as_well_as_its_rising_mirror",
+        "test_fit_recovers_known_forward_models",
+        "test_kernel_matches_reference",
+        "test_rate_sweep_apl_beats_mpi_beats_cubic",
+    ),
+    "test_budgets": (
+        "test_a_write_past_ulimit_f_names_the_path_and_leaves_no_temporary_file",
+        "test_two_outputs_of_one_command_on_one_path_are_refused",
+    ),
+    "test_calibration": (
+        "test_round_trip_is_exact",
+    ),
+    "test_cli": (
+        "test_console_script_runs_as_a_process",
+    ),
+    "test_contracts": (
+        "test_fit_on_hostile_data_gives_one_line_or_a_loadable_file",
+    ),
+    "test_creep_pi": (
+        "test_array_steps_each_sensor_as_its_own_step",
+    ),
+    "test_csv_import": (
+        "test_measured_files",
+    ),
+    "test_db3": (
+        "test_a_zstd_bomb_per_message_is_skipped_and_counted",
+        "test_damaged_db3_files_read_or_are_refused_in_one_line",
+        "test_db3_evaluates_digit_for_digit",
+        "test_db3_reads_as_the_mcap",
+        "test_db3_replays_fits_and_diagnoses_like_the_mcap",
+        "test_zstd_per_message_reads",
+    ),
+    "test_diagnose": (
+        "test_a_clean_bag_gets_no_chain_condition",
+        "test_a_long_run_is_thinned_to_the_row_budget_and_finds_the_same",
+        "test_a_relaxing_start_is_left_out_and_the_spike_memory_found",
+        "test_a_rest_level_that_moves_with_the_stretch_done_is_found",
+        "test_finds_and_corrects_the_measurement_chain",
+        "test_finds_crosstalk_between_array_neighbours",
+        "test_finds_the_undeclared_effect",
+        "test_json_contract_validation_bag_and_cal2",
+        "test_no_missing_effect_adds_nothing",
+        "test_per_run_baseline_only_when_runs_shift",
+        "test_readings_and_errors_are_in_the_calibration_strain_unit",
+    ),
+    "test_diagnose_conditions": (
+        "test_alternation_is_found_corrected_and_reported",
+    ),
+    "test_effects_engine": (
+        "test_array_crosstalk_replay_equals_step_array",
+    ),
+    "test_engine": (
+        "test_batch_reads_but_never_writes_its_input",
+    ),
+    "test_evaluate": (
+        "test_plots_are_written",
+    ),
+    "test_evaluate_stream": (
+        "test_evaluate_command_json_and_plots_from_the_streamed_path",
+        "test_nothing_to_score_names_both_sides",
+        "test_streamed_evaluate_of_an_unchunked_bag_equals_the_whole_series",
+        "test_streamed_evaluate_with_interpolated_references_equals_the_whole_series",
+    ),
+    "test_fit": (
+        "test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample",
+    ),
+    "test_fit_writes_loadable": (
+        "test_sinh_pl_on_the_fibre_runs_writes_what_evaluate_loads",
+        "test_whatever_fit_writes_evaluate_loads",
+    ),
+    "test_fuzz": (
+        "test_calibration_truncated_at_any_line_loads_or_is_refused_cleanly",
+        "test_fuzz_bag_reader_and_replay",
+        "test_fuzz_calibration_loader",
+        "test_fuzz_live_node_for_a_few_seconds",
+    ),
+    "test_generalisation": (
+        "test_cases_of_two_rig_runs",
+    ),
+    "test_hostile": (
+        "test_a_killed_bag_writer_leaves_the_old_or_the_new_bag",
+        "test_a_killed_replay_leaves_the_old_or_the_complete_new_output",
+        "test_accepted_fit_options_always_fit_and_refused_ones_name_the_option",
+        "test_concurrent_writers_end_with_one_complete_bag",
+    ),
+    "test_rational": (
+        "test_split_beats_combined_on_hysteresis",
+    ),
+    "test_reduce": (
+        "test_reduced_fit_error_on_the_full_data_is_close_to_the_full_fit",
+    ),
+    "test_reliability": (
+        "test_killed_writer_leaves_the_old_or_the_new_file",
+        "test_short_soak_every_model",
+    ),
+    "test_report_page": (
+        "test_diagnose_report_holds_each_effect_and_the_error_before_and_after",
+        "test_evaluate_report_over_several_bags",
+    ),
+    "test_series_and_batch": (
+        "test_many_bags_a_table_each_and_errors_pooled",
+    ),
+    "test_sinh_pl": (
+        "test_fit_recovers_forward_model",
+    ),
+    "test_spike_decay": (
+        "test_kernel_matches_reference_and_step",
+    ),
+}
+"""Per module, the tests (by function name: every parameter set) that take about a second
+or more in a module of fast ones (marked ``slow``): 1.5 s or more in one full run with
+``pytest --durations=0`` on the shared 2-core machine of docs/performance.md (load average
+about 5)."""
+
+
+def _check_marked_names() -> None:
+    """A marked module or test that no longer exists is a mark lost: fail the collection."""
+    files = {path.stem: path for path in Path(__file__).parent.rglob("test_*.py")}
+    missing = sorted((ROS_MODULES | SLOW_MODULES | set(SLOW_TESTS)) - set(files))
+    for module, names in SLOW_TESTS.items():
+        if module in files:
+            text = files[module].read_text(encoding="utf-8")
+            missing += [f"{module}::{name}" for name in names if f"def {name}(" not in text]
+    if missing:
+        raise pytest.UsageError(f"test/conftest.py marks tests that do not exist: {missing}")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark each collected test ``ros`` and/or ``slow`` from the tables above."""
+    _check_marked_names()
+    for item in items:
+        module = item.path.stem
+        name = getattr(item, "originalname", item.name)
+        if module in ROS_MODULES or "context" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.ros)
+        if module in SLOW_MODULES or name in SLOW_TESTS.get(module, ()):
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture(scope="module")
 def context() -> Iterator[Any]:
     """An rclpy context for the module's nodes, shut down after its last test."""

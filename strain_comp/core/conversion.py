@@ -11,10 +11,18 @@ import numpy.typing as npt
 
 
 def divider_to_resistance(v_r1: npt.ArrayLike, r1: float, vin: float) -> np.ndarray:
-    """Sensor resistance [ohm] from the voltage across the series resistor R1 [V].
+    """Sensor resistance from the voltage across the series resistor, R = R1 (Vin - V) / V.
 
-    Readings with V_R1 <= 0 or V_R1 >= Vin give a non-positive or infinite resistance
-    (open circuit / short); they come back as NaN so that the bad-sample path counts them.
+    Args:
+        v_r1: Voltage across R1 [V].
+        r1: The series resistor [ohm].
+        vin: The supply voltage [V].
+
+    Returns:
+        Resistance [ohm]; NaN where V_R1 <= 0 or V_R1 >= Vin (an open circuit or a short,
+        which would give a non-positive or infinite resistance), so that the bad-sample
+        path counts them.
+
     """
     v = np.asarray(v_r1, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -23,5 +31,15 @@ def divider_to_resistance(v_r1: npt.ArrayLike, r1: float, vin: float) -> np.ndar
 
 
 def resistance_to_divider(r: npt.ArrayLike, r1: float, vin: float) -> np.ndarray:
-    """Voltage across R1 [V] for a sensor resistance r [ohm]: V_R1 = Vin R1 / (R1 + R)."""
+    """Voltage across the series resistor for a sensor resistance, V_R1 = Vin R1 / (R1 + R).
+
+    Args:
+        r: Sensor resistance [ohm].
+        r1: The series resistor [ohm].
+        vin: The supply voltage [V].
+
+    Returns:
+        Voltage across R1 [V].
+
+    """
     return vin * r1 / (r1 + np.asarray(r, dtype=np.float64))

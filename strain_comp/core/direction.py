@@ -51,22 +51,43 @@ class DirectionSettings:
             raise ParameterError("direction.sign", f"must be +1 or -1, got {self.sign!r}")
 
     def to_dict(self) -> dict[str, Any]:
+        """The settings.
+
+        Returns:
+            The calibration file's ``direction`` mapping.
+
+        """
         return {"deadzone": self.deadzone, "tau": self.tau, "k_sigma": self.k_sigma,
                 "sign": self.sign}
 
 
 def new_state() -> np.ndarray:
-    """A fresh detector state vector (nothing seen yet)."""
+    """A fresh detector state vector.
+
+    Returns:
+        The state of a detector that has seen nothing (``STATE_SIZE`` zeros).
+
+    """
     return np.zeros(STATE_SIZE, dtype=np.float64)
 
 
 @njit
 def direction_update(state: np.ndarray, t: float, r: float, deadzone: float,
                      tau: float) -> int:
-    """Advance the detector ``state`` (see ``STATE_SIZE``) by one sample; return -1, 0 or +1.
+    """Advance the detector by one sample.
 
-    The first sample only primes the state (output 0). A sample whose time does not move
-    forward leaves the state untouched and repeats the last output.
+    Args:
+        state: The detector state (``STATE_SIZE`` float64), updated in place.
+        t: Time [s].
+        r: Resistance [ohm].
+        deadzone: Dead zone on the filtered dR/dt [ohm/s].
+        tau: Low-pass time constant [s]; 0 keeps the raw difference.
+
+    Returns:
+        +1 (R rising), 0 (hold) or -1 (R falling). The first sample only primes the state
+        (0); a sample whose time does not move forward leaves the state untouched and
+        repeats the last output.
+
     """
     if state[0] == 0.0:
         state[0] = 1.0
@@ -128,6 +149,15 @@ class DirectionDetector:
     """Streaming dead-zone direction detector; ``step`` and ``run`` share one kernel."""
 
     def __init__(self, settings: DirectionSettings) -> None:
+        """A detector that has seen nothing.
+
+        Args:
+            settings: Dead zone and filter time constant.
+
+        Raises:
+            ParameterError: The dead zone or ``tau`` is not finite and >= 0.
+
+        """
         _check_settings(settings)
         self.settings = settings
         self.state = new_state()
@@ -137,12 +167,33 @@ class DirectionDetector:
         self.state[:] = 0.0
 
     def step(self, t: float, r: float) -> int:
-        """State after sample (t [s], r [ohm]): +1 R rising, 0 hold, -1 R falling."""
+        """Advance by one sample.
+
+        Args:
+            t: Time [s].
+            r: Resistance [ohm].
+
+        Returns:
+            +1 (R rising), 0 (hold) or -1 (R falling).
+
+        """
         return int(direction_update(self.state, float(t), float(r), self.settings.deadzone,
                                     self.settings.tau))
 
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        """States (int8) for whole arrays, continuing from the current state."""
+        """Advance over whole arrays, continuing from the current state.
+
+        Args:
+            t: Times [s].
+            r: Resistances [ohm], same length.
+
+        Returns:
+            The state after each sample (int8: +1, 0 or -1).
+
+        Raises:
+            ValueError: ``t`` and ``r`` are not 1-D arrays of one length.
+
+        """
         t = np.ascontiguousarray(t, dtype=np.float64)
         r = np.ascontiguousarray(r, dtype=np.float64)
         if t.ndim != 1 or t.shape != r.shape:
@@ -154,8 +205,21 @@ def derivative_noise(t: npt.ArrayLike, r: npt.ArrayLike, tau: float = 0.0) -> fl
     """Robust sigma [ohm/s] of the detector's filtered dR/dt on a segment where nothing moves.
 
     A linear trend of the derivative (slow drift, [EGaIn] Fig. 7b) is removed
-    first; sigma = 1.4826 * MAD of what is left, so a few glitches do not inflate it. With
-    ``tau > 0`` the first 5 tau of the segment (the filter's start-up) are skipped.
+    first; sigma = 1.4826 * MAD of what is left, so a few glitches do not inflate it.
+
+    Args:
+        t: Times [s] of the hold segment.
+        r: Resistances [ohm], same length; non-finite samples are dropped.
+        tau: The detector's low-pass time constant [s]; with ``tau > 0`` the first 5 tau
+            of the segment (the filter's start-up) are skipped.
+
+    Returns:
+        sigma [ohm/s].
+
+    Raises:
+        InputError: The arrays are not 1-D of one length, time does not increase, or the
+            segment is too short (fewer than 10 derivatives).
+
     """
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
@@ -183,6 +247,21 @@ def estimate_deadzone(t: npt.ArrayLike, r: npt.ArrayLike, *, k_sigma: float = 4.
     """Dead zone = k_sigma * sigma of the filtered derivative on a hold segment (section V.E).
 
     The paper suggests 3 sigma (99.73 %) or 4 sigma (99.99 %) of the derivative noise.
+
+    Args:
+        t: Times [s] of a segment where nothing moves.
+        r: Resistances [ohm], same length.
+        k_sigma: The dead zone in sigmas of the derivative noise.
+        tau: The detector's low-pass time constant [s].
+
+    Returns:
+        The detector settings (``deadzone`` in ohm/s, ``k_sigma`` recorded).
+
+    Raises:
+        ParameterError: ``k_sigma`` is not finite and > 0, or ``tau`` not finite and >= 0.
+        InputError: The segment is unusable (``derivative_noise``) or shows no noise at all
+            (constant readings).
+
     """
     if not (math.isfinite(k_sigma) and k_sigma > 0.0):
         raise ParameterError("k_sigma", f"must be finite and > 0, got {k_sigma}")

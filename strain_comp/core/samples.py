@@ -52,9 +52,18 @@ GAP_INTERVALS = 10.0
 
 
 def gap_for(sample_interval: float | None, gap: float = DEFAULT_GAP_RESET) -> float:
-    """The gap [s] of a sensor sampled every ``sample_interval`` s (None: not recorded):
-    ``gap``, or ``GAP_INTERVALS`` intervals when that is longer (a 0.1 Hz instrument
-    would otherwise start afresh at every sample)."""
+    """The gap of a sensor: ``gap``, or ``GAP_INTERVALS`` intervals when that is longer.
+
+    A 0.1 Hz instrument would otherwise start afresh at every sample.
+
+    Args:
+        sample_interval: The sensor's sample interval [s]; None when not recorded.
+        gap: The gap for a fast sensor [s].
+
+    Returns:
+        The gap [s].
+
+    """
     return gap if sample_interval is None else max(gap, GAP_INTERVALS * sample_interval)
 
 SampleStatus = Status
@@ -95,7 +104,23 @@ USED_CODE: Final = np.array([STATUS_RULES[Status(c)][0] for c in range(len(Statu
 @njit
 def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: float,
                r_open: float, r_lo: float, r_hi: float, gap: float) -> tuple[int, bool]:
-    """Status of one sample and whether it resets the state (rules in the module doc)."""
+    """Screen one sample by the rules of the module docstring.
+
+    Args:
+        t: Time [s].
+        r: Resistance [ohm].
+        forced: A status the input conversion forced (``GOOD``: none).
+        last_good_t: Time of the last used sample (-inf: none yet).
+        r_short: Short-circuit threshold [ohm].
+        r_open: Open-circuit threshold [ohm].
+        r_lo: Lower end of the calibrated range [ohm].
+        r_hi: Upper end of the calibrated range [ohm].
+        gap: Gap [s] after (or before) the last used sample that resets the state.
+
+    Returns:
+        The ``Status`` code and whether the state is reset before the sample.
+
+    """
     if not (math.isfinite(t) and math.isfinite(r)):
         return NOT_FINITE if forced == GOOD else forced, False
     if forced != GOOD:
@@ -119,7 +144,15 @@ def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: flo
 
 @njit
 def is_used(code: int) -> bool:
-    """Was a sample with this status fed to the model (``USED``)?"""
+    """Whether a sample with this status is fed to the model (``USED``).
+
+    Args:
+        code: A ``Status`` code.
+
+    Returns:
+        True for ``GOOD``, ``GAP_RESET`` and ``OUT_OF_RANGE``.
+
+    """
     return code == GOOD or code == GAP_RESET or code == OUT_OF_RANGE
 
 
@@ -131,7 +164,24 @@ if {Status(c) for c in range(len(Status)) if is_used.py_func(c)} != USED:
 def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: float,
                r_short: float, r_open: float, r_lo: float, r_hi: float,
                gap: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """``screen_one`` over a sequence; returns (status, reset, last good time)."""
+    """``screen_one`` over a sequence, in order.
+
+    Args:
+        t: Times [s].
+        r: Resistances [ohm].
+        forced: Forced status per sample (int8, ``GOOD``: none).
+        last_good_t: Time of the last used sample before the first (-inf: none).
+        r_short: Short-circuit threshold [ohm].
+        r_open: Open-circuit threshold [ohm].
+        r_lo: Lower end of the calibrated range [ohm].
+        r_hi: Upper end of the calibrated range [ohm].
+        gap: Gap [s] that resets the state.
+
+    Returns:
+        The status per sample (int8), the reset flag per sample, and the time of the last
+        used sample after the sequence.
+
+    """
     n = t.size
     status = np.empty(n, dtype=np.int8)
     reset = np.zeros(n, dtype=np.bool_)
@@ -151,10 +201,19 @@ def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *
     with no resistance range (what the fit can know): GOOD, NOT_FINITE, NON_POSITIVE,
     TIME_NOT_INCREASING or GAP_RESET.
 
-    Time must exceed the time of the last *good* sample before it (``last_good_t`` for
-    the first), so a short step back rejects only the samples that go back, not the ones
-    after the clock catches up again; a step back longer than ``gap`` [s] (the engine's
-    default ``gap_reset``) starts afresh (GAP_RESET), as the engine does.
+    Time must exceed the time of the last *good* sample before it, so a short step back
+    rejects only the samples that go back, not the ones after the clock catches up again.
+
+    Args:
+        t: Times [s].
+        r: Resistances [ohm], same length.
+        last_good_t: Time of the last good sample before the first (-inf: none).
+        gap: A step back longer than this [s] (the engine's default ``gap_reset``) starts
+            afresh (GAP_RESET), as the engine does.
+
+    Returns:
+        The int8 status codes.
+
     """
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
@@ -165,10 +224,27 @@ def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *
 
 
 def good_mask(t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-    """True where a sample may be fed to a model (``USED``)."""
+    """Where a sample may be fed to a model, judged by ``classify``.
+
+    Args:
+        t: Times [s].
+        r: Resistances [ohm], same length.
+
+    Returns:
+        A boolean mask, True where the status is in ``USED``.
+
+    """
     return USED_CODE[classify(t, r)]
 
 
 def used_mask(status: npt.ArrayLike) -> np.ndarray:
-    """True where a sample's ``Status`` is in ``USED`` (it was fed to the model)."""
+    """Where a sample was fed to the model.
+
+    Args:
+        status: ``Status`` codes.
+
+    Returns:
+        A boolean mask, True where the status is in ``USED``.
+
+    """
     return USED_CODE[np.asarray(status)]

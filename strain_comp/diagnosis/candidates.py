@@ -14,10 +14,16 @@ from typing import Any
 from strain_comp.core.effects import STRETCH_FORMS, effect_dict, regressor_from_dict
 
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
-"""Time constants [s] of the relaxation candidates: 0.5 s to 128 s, a factor sqrt(2) apart
-(fine enough that the nearest one is within 19 % of any time constant in that span)."""
+"""Time constants [s] of the relaxation candidates after loading or unloading steps only:
+0.5 s to 128 s, a factor sqrt(2) apart (fine enough that the nearest one is within 19 % of
+any time constant in that span)."""
+CREEP_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-4, 18))
+"""Time constants [s] of the creep candidates (one Prony-series state each, of the estimate
+or of the resistance): 0.25 s to 362 s, a factor sqrt(2) apart, covering the 0.3-300 s of
+``creep_pi``'s states (docs/creep.md)."""
 MEMORY_TAUS = tuple(float(2 ** k) for k in range(9))
-"""Time constants [s] of the resistance-memory candidates: 1 s to 256 s, a factor 2 apart."""
+"""Time constants [s] of the resistance peak and trough candidates: 1 s to 256 s, a factor
+2 apart."""
 STRETCH_SCALES = (200.0, 2000.0)
 """Strain travel [%] over which a ``stretch`` candidate's history term grows: about one
 full 0 -> 100 -> 0 % cycle, and ten."""
@@ -32,6 +38,11 @@ def default_candidates(*, temperature_ref: float | None = None,
                        baseline_rest: float = 0.0,
                        stretch_history: bool = False) -> list[dict[str, Any]]:
     """The generic candidate effects (calibration-file dicts with ``coef: 0``).
+
+    The creep family (``report.creep_tau``) is a Prony series read one state at a time:
+    ``relaxation`` of branch ``both`` (S_hat minus its first-order low-pass) and
+    ``resistance_memory`` of form ``relaxation`` (100 ln R minus its low-pass), each at
+    ``CREEP_TAUS``; the differences u - z_k that ``creep_pi`` fits (docs/creep.md).
 
     ``temperature_ref`` [deg C]: include temperature terms around it (None: no temperature
     series); ``neighbours``: array neighbours to test for cross-talk; ``baseline_rest`` [%]:
@@ -50,10 +61,12 @@ def default_candidates(*, temperature_ref: float | None = None,
              "params": {"mode": "strain", "hold": True}}]
     for branch in ("both", "loading", "unloading"):
         out += [{"name": f"relaxation_{branch}_tau{tau:g}", "kind": "relaxation",
-                 "params": {"tau": tau, "branch": branch}} for tau in RELAXATION_TAUS]
+                 "params": {"tau": tau, "branch": branch}}
+                for tau in (CREEP_TAUS if branch == "both" else RELAXATION_TAUS)]
     for form in ("relaxation", "peak", "trough"):
         out += [{"name": f"resistance_{form}_tau{tau:g}", "kind": "resistance_memory",
-                 "params": {"tau": tau, "form": form}} for tau in MEMORY_TAUS]
+                 "params": {"tau": tau, "form": form}}
+                for tau in (CREEP_TAUS if form == "relaxation" else MEMORY_TAUS)]
     out += [{"name": f"drift_{form}", "kind": "elapsed", "params": {"form": form, "scale": 100.0}}
             for form in ("linear", "sqrt", "log", "linear_strain")]
     if temperature_ref is not None:

@@ -17,8 +17,9 @@ Per calibrated sensor that has a recording with a reference strain:
    with. The engine still applies the terms there online; the message says what was left
    out.
 2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.core.effects``: rate,
-   direction, relaxation over time constants 0.5-128 s and three branches, a fading
-   memory of the resistance itself (relaxation, peak, trough of 100 ln R, 1-256 s),
+   direction, creep (one Prony-series state of the estimate or of 100 ln R each, 0.25-362
+   s; ``report.creep_tau``), relaxation after loading or unloading steps only (0.5-128 s),
+   a fading memory of the resistance itself (peak, trough of 100 ln R, 1-256 s),
    elapsed-time drift, temperature when a temperature series exists, strain level,
    Mullins-type history incl. the peak strain, cross-talk from array neighbours at index
    +-1, and a per-run ``baseline``) is computed online over each recording, exactly as
@@ -44,7 +45,8 @@ Per calibrated sensor that has a recording with a reference strain:
    measured on the held-out blocks or on the ``validate_recordings``. An effect is kept
    if it lowers that held-out RMSE by more than ``margin``, below both the model before it
    and that model with an intercept (with several validation runs, the median run's RMSE
-   too); one that does not is not added, and the later ones are still tried. The result
+   too, and no run's may rise by more than ``margin``); one that does not is not added,
+   and the later ones are still tried. The result
    says when nothing helps. The output calibration is the input plus
    the added effect entries, with the coefficients whose held-out error is reported.
 7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
@@ -102,6 +104,7 @@ from strain_comp.diagnosis.report import (
     DiagnoseResult,
     EffectScore,
     SensorDiagnosis,
+    creep_tau,
 )
 from strain_comp.diagnosis.residuals import (
     ROW_BUDGET,
@@ -252,11 +255,12 @@ def _score_rows(sensor: str, cal: SensorCalibration, cands: _Candidates, rows: _
     coefficient and magnitude."""
     std_fit = np.std(rows.g_fit, axis=0)
     coef_of = dict(zip(terms, coefs, strict=True))
+    vr = cal.valid_range
     found = []
     for j, name in enumerate(cands.names):
         row = EffectScore(sensor=sensor, name=name, kind=cands.kinds[j],
                           params=regressor_from_dict(cands.entries[j]).params(),
-                          score=scores[j], unit=cal.strain_unit)
+                          score=scores[j], unit=cal.strain_unit, span=vr.s_hi - vr.s_lo)
         if j in coef_of:
             row.added = True
             row.rank = terms.index(j)
@@ -265,8 +269,29 @@ def _score_rows(sensor: str, cal: SensorCalibration, cands: _Candidates, rows: _
             row.magnitude = float(abs(coef_of[j]) * (std_fit[j] if j != cands.offset else 1.0))
             if cands.kinds[j] == "baseline":
                 row.magnitude = float(np.sqrt(np.mean(rows.g_out[:, j] ** 2)))
+            row.lag = _lags(cands, rows, j, row.coef)
         found.append(row)
     return found
+
+
+def _lags(cands: _Candidates, rows: _Rows, j: int, coef: float) -> bool | None:
+    """Does creep term ``j`` (``report.creep_tau``) stand for an estimate that lags the
+    reference after a change? Its correction coef g set against the same time constant's
+    state of the estimate (S_hat minus its low-pass, positive after a rise of the strain):
+    of opposite sign on the fit rows, the estimate stays behind. None: not a creep term, or
+    no such state among the candidates."""
+    tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
+    if tau is None:
+        return None
+    if cands.kinds[j] == "relaxation":
+        return coef < 0
+    for k, entry in enumerate(cands.entries):
+        if cands.kinds[k] == "relaxation" and creep_tau("relaxation", entry.get("params", {})) \
+                == tau:
+            h, g = rows.g_fit[:, k], coef * rows.g_fit[:, j]
+            if np.std(h) > 0 and np.std(g) > 0:
+                return bool(np.corrcoef(h, g)[0, 1] < 0)
+    return None
 
 
 def _message(cal: SensorCalibration, cands: _Candidates, rows: _Rows, best: Any,
@@ -283,8 +308,21 @@ def _message(cal: SensorCalibration, cands: _Candidates, rows: _Rows, best: Any,
         if best.selection.chosen:
             message = (f"{names[best.selection.chosen[0]]} looked useful in cross-validation "
                        "but did not lower the held-out error; nothing added")
+        if session:
+            chosen = best.selection.chosen
+            why = (f"{names[chosen[0]]}, useful in cross-validation on the diagnosed run, "
+                   "does not carry to them" if chosen else
+                   f"no candidate explains it (best in cross-validation: {names[top]}, "
+                   f"score {scores[top]:.3f})")
+            if chosen and all(_gain_or_offset(cands, j) for j in chosen):
+                why = ("what helped on the diagnosed run is an output gain or offset, which "
+                       "the session start makes itself")
+            message = (f"after the session start, what remains on the validation runs is "
+                       f"{before:.4g} {cal.strain_unit} (as calibrated {rms(rows.e_out):.4g}) "
+                       f"and {why}: nothing added")
     else:
-        parts = ", ".join(f"{names[j]} (gain {gains[j]:.1%})" for j in order if j in gains)
+        parts = ", ".join(f"{names[j]} ({_family(cands, j)}gain {gains[j]:.1%})"
+                          for j in order if j in gains)
         message = (f"added {parts}; held-out RMSE {before:.4g} -> {after:.4g} "
                    f"{cal.strain_unit}"
                    + ("" if not session else " after the session-start recalibration"))
@@ -303,6 +341,19 @@ def _message(cal: SensorCalibration, cands: _Candidates, rows: _Rows, best: Any,
                        else "")
                     + f" of a run longer than {ROW_BUDGET:,} samples")
     return message
+
+
+def _gain_or_offset(cands: _Candidates, j: int) -> bool:
+    """Is candidate ``j`` an output offset or a plain gain (what the session start makes)?"""
+    return cands.kinds[j] == "offset" or (
+        cands.kinds[j] == "strain_level" and cands.entries[j].get("params", {}).get("power", 1)
+        == 1)
+
+
+def _family(cands: _Candidates, j: int) -> str:
+    """``creep, tau X s, `` for a creep term (its family named in the message), else ``""``."""
+    tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
+    return "" if tau is None else f"creep, tau {tau:g} s, "
 
 
 def _diagnose_sensor(sensor: str, calibration: Calibration,
@@ -390,7 +441,8 @@ def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.n
     made = "; ".join(line.split(" (from ")[0].removeprefix(f"{session.sensor}: ")
                      for s in starts for line in s.lines)
     reading = (f"{session.sensor}: session start on the first {seconds} s of the validation "
-               f"run ({made}); validation RMSE before the loop {before:.4g} -> {after:.4g} {u}")
+               f"run ({made}); validation RMSE before the loop {before:.4g} -> {after:.4g} {u}"
+               f"; {_remains(before, after, u)}")
     if shown:
         reading = (f"{session.sensor}: sensitivity differs from the calibration by "
                    + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
@@ -401,6 +453,19 @@ def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.n
             "reading": reading, "before": before, "after": after, "chosen": False,
             "sensitivity_change": changes, "seconds": [s for _, s in session.runs],
             "steps": [s.steps for s in starts]}
+
+
+def _remains(before: float, after: float, unit_words: str) -> str:
+    """One line on what the session start leaves: the share of the validation runs' squared
+    error that was their own gain and offset (their input space), which no term need make."""
+    if not before > 0 or not after < before:
+        return (f"after the session start, what remains is all of the error and more ("
+                f"{before:.4g} -> {after:.4g} {unit_words}): the runs' own gain and offset are "
+                "not what the calibration lacks")
+    share = 1.0 - (after / before) ** 2
+    return (f"after the session start, what remains is {after:.4g} of {before:.4g} "
+            f"{unit_words}: {100 * share:.0f} % of the squared error was each run's own gain "
+            "and offset, which the session start removes and no term need make")
 
 
 def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]],

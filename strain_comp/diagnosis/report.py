@@ -42,6 +42,22 @@ class EffectScore:
     """Order of addition (0 first); None when not added."""
     unit: str = "%"
     """The calibration's strain unit, the unit of coef and magnitude."""
+    span: float | None = None
+    """The calibration's strain span (its valid range) [unit]: creep sizes are read in % of it."""
+    lag: bool | None = None
+    """A creep term: True when the estimate lags the reference after a change (catching up
+    with the term's time constant), False when it overshoots and relaxes back; None: not
+    known."""
+
+    @property
+    def family(self) -> str | None:
+        """``creep`` for a Prony-series state (``creep_tau``), else None."""
+        return "creep" if creep_tau(self.kind, self.params) is not None else None
+
+    def reading(self) -> str:
+        """``effect_reading`` of this term (an added one: with its coefficient)."""
+        return effect_reading(self.kind, self.params, self.coef or 0.0, self.magnitude,
+                              unit=self.unit, span=self.span, lag=self.lag)
 
     def to_json(self) -> dict[str, Any]:
         record: dict[str, Any] = {"name": self.name, "score": _num(self.score),
@@ -49,24 +65,64 @@ class EffectScore:
                                   "params": self.params}
         if self.params.get("tau") is not None:
             record["time_constant"] = self.params["tau"]
+        if self.family is not None:
+            record["family"] = self.family
         for key in ("gain", "coef", "magnitude"):
             value = getattr(self, key)
             if value is not None:
                 record[key] = _num(value)
         if self.added and self.coef is not None:
-            record["reading"] = effect_reading(self.kind, self.params, self.coef,
-                                               self.magnitude, unit=self.unit)
+            record["reading"] = self.reading()
         return record
 
 
+def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
+    """The time constant [s] of a creep term, None for any other: one state of a Prony
+    series u - z_k, z_k' = (u - z_k) / tau_k (viscoelastic creep, the generalised Maxwell
+    form; ``creep_pi``, docs/creep.md), u being the estimate (``relaxation`` of branch
+    ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``)."""
+    if (kind == "relaxation" and params.get("branch", "both") == "both") or (
+            kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):
+        return float(params.get("tau", 10.0))
+    return None
+
+
+def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
+                  span: float | None, lag: bool | None) -> str:
+    """A creep term in words: which way the estimate errs after a change, by how much (in %
+    of the span where known) and with what time constant."""
+    u = strain_unit_words(unit)
+    how = {True: "the estimate lags the reference after each change",
+           False: "the estimate overshoots the reference after each change",
+           None: "the estimate errs after each change"}[lag]
+    size = ""
+    if magnitude is not None:
+        size = f" by typically {abs(magnitude):.2g} {u}"
+        if span is not None and span > 0:
+            size = (f" by typically {100.0 * abs(magnitude) / span:.2g} % of the span "
+                    f"({abs(magnitude):.2g} {u})")
+    then = {True: ", catching up", False: ", relaxing back", None: ", decaying"}[lag]
+    return (f"creep (Prony series, tau = {tau:g} s, a state of the {of}): {how}{size}"
+            f"{then} with a time constant of {tau:g} s")
+
+
 def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
-                   magnitude: float | None = None, *, unit: str = "%") -> str:
+                   magnitude: float | None = None, *, unit: str = "%",
+                   span: float | None = None, lag: bool | None = None) -> str:
     """An added term in physical words. The model's output carries + coef g (the term
     removes it), so the reading describes the sensor against its calibration. Sizes are
     in the calibration's strain ``unit`` (``% strain``, or e.g. ``mm`` for an extension);
-    relative readings (sensitivity, gain drift) are in % of the output."""
+    relative readings (sensitivity, gain drift) are in % of the output; a creep term's in %
+    of the strain ``span`` as well, and ``lag`` says which way it errs (``creep_reading``;
+    a state of the estimate knows it from the sign of ``coef``)."""
     u = strain_unit_words(unit)
     size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
+    tau = creep_tau(kind, params)
+    if tau is not None:
+        if kind == "relaxation":
+            return creep_reading(tau, "estimate", magnitude, unit, span,
+                                 None if coef == 0 else coef < 0)
+        return creep_reading(tau, "resistance", magnitude, unit, span, lag)
     if kind == "offset":
         return f"output offset {coef:+.3g} {u}"
     if kind == "strain_level":
@@ -227,9 +283,7 @@ class DiagnoseResult:
             lines.append(f"  {name}: {d.message}")
             for e in d.scores:
                 if e.added and e.coef is not None:
-                    reading = effect_reading(e.kind, e.params, e.coef, e.magnitude,
-                                             unit=e.unit)
-                    lines.append(f"    + {e.name}: {reading}")
+                    lines.append(f"    + {e.name}: {e.reading()}")
         return "\n".join(lines)
 
 

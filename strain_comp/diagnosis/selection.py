@@ -209,14 +209,15 @@ def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
                     runs: np.ndarray | None = None) -> bool:
     """Does ``e_new`` lower the held-out RMSE of ``e_old`` by more than ``margin``
     (relative)? Given the validation run of each sample (``runs``, 0..k-1) and more than
-    one run, also the median run's: the generalisation benchmark's statistic, so that one
-    run does not decide alone."""
+    one run, also the median run's (the generalisation benchmark's statistic, so that one
+    run does not decide alone), and no run's may rise by more than ``margin``: a term that
+    helps some runs of another condition and hurts others does not carry."""
     if not rms(e_new) < (1.0 - margin) * rms(e_old):
         return False
     if runs is None or not e_new.size == e_old.size == runs.size or runs.max() < 1:
         return True
     ratios = [rms(e_new[runs == k]) / rms(e_old[runs == k]) for k in np.unique(runs)]
-    return bool(np.median(ratios) < 1.0 - margin)
+    return bool(np.median(ratios) < 1.0 - margin and max(ratios) <= 1.0 + margin)
 
 
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,

@@ -28,7 +28,21 @@ PathLike = str | os.PathLike[str]
 
 
 def check_output(path: PathLike, inputs: Iterable[PathLike] = ()) -> Path:
-    """``path`` as a Path if it may be written; ``OutputError`` naming why not."""
+    """Check that ``path`` may be written by a command reading ``inputs``.
+
+    Args:
+        path: The file to be written.
+        inputs: The command's input files or bag directories.
+
+    Returns:
+        ``path`` as a Path.
+
+    Raises:
+        OutputError: ``path`` exists and is not a regular file (a directory, a device, a
+            FIFO, a symbolic link), is one of ``inputs`` or lies inside an input bag
+            directory, or cannot be checked.
+
+    """
     target = Path(path)
     try:
         info = target.lstat()
@@ -49,8 +63,15 @@ def check_output(path: PathLike, inputs: Iterable[PathLike] = ()) -> Path:
 
 
 def check_distinct(outputs: Iterable[PathLike | None]) -> None:
-    """``OutputError`` when two of one command's outputs (None: not asked for) are one path
-    or one existing file: the second write would replace the first."""
+    """Check that no two of one command's outputs are one path or one existing file.
+
+    Args:
+        outputs: The output paths; None for an output not asked for.
+
+    Raises:
+        OutputError: Two outputs are one path (the second write would replace the first).
+
+    """
     seen: list[Path] = []
     for out in outputs:
         if out is None:
@@ -81,7 +102,15 @@ def _file_mode(path: Path) -> int:
 
 
 def fsync_directory(directory: Path) -> None:
-    """Make a rename in ``directory`` durable."""
+    """Make a rename in ``directory`` durable.
+
+    Args:
+        directory: The directory the rename happened in.
+
+    Raises:
+        OSError: The directory cannot be opened or synced.
+
+    """
     fd = os.open(directory, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -98,6 +127,17 @@ class AtomicFile:
     """
 
     def __init__(self, path: PathLike, *, inputs: Iterable[PathLike] = ()) -> None:
+        """Open the temporary file beside ``path``.
+
+        Args:
+            path: The target file.
+            inputs: The command's inputs, which the target must not be.
+
+        Raises:
+            OutputError: The target may not be written (``check_output``) or the
+                temporary file cannot be created.
+
+        """
         self.inputs = list(inputs)
         self.path = check_output(path, self.inputs)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -111,7 +151,14 @@ class AtomicFile:
         self.done = False
 
     def commit(self) -> None:
-        """Flush, fsync, rename over the target and fsync the directory (once)."""
+        """Flush, fsync, rename over the target and fsync the directory (once).
+
+        Raises:
+            OutputError: The write or the rename failed, or the target became a path that
+                may not be written; the temporary file is removed and the target is left
+                as it was.
+
+        """
         if self.done:
             return
         try:
@@ -145,7 +192,20 @@ class AtomicFile:
 
 @contextmanager
 def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterator[BinaryIO]:
-    """A binary file that replaces ``path`` only once it is complete (see the module)."""
+    """A binary file that replaces ``path`` only once it is complete.
+
+    Args:
+        path: The target file.
+        inputs: The command's inputs, which the target must not be.
+
+    Yields:
+        The binary file to write to (a temporary file beside ``path``).
+
+    Raises:
+        OutputError: The target may not be written, or a write, the sync or the rename
+            failed; nothing is left half written.
+
+    """
     output = AtomicFile(path, inputs=inputs)
     try:
         yield output.handle
@@ -159,11 +219,31 @@ def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterato
 
 
 def write_bytes(path: PathLike, data: bytes, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``data`` to ``path`` atomically."""
+    """Write ``data`` to ``path`` atomically.
+
+    Args:
+        path: The target file.
+        data: The whole content.
+        inputs: The command's inputs, which the target must not be.
+
+    Raises:
+        OutputError: As ``atomic_output``.
+
+    """
     with atomic_output(path, inputs=inputs) as handle:
         handle.write(data)
 
 
 def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write UTF-8 ``text`` to ``path`` atomically."""
+    """Write ``text`` to ``path`` atomically, UTF-8 encoded.
+
+    Args:
+        path: The target file.
+        text: The whole content.
+        inputs: The command's inputs, which the target must not be.
+
+    Raises:
+        OutputError: As ``atomic_output``.
+
+    """
     write_bytes(path, text.encode("utf-8"), inputs=inputs)

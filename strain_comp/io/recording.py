@@ -1,14 +1,8 @@
 """Recordings: one sensor's resistance with its reference strain and temperature, from a bag.
 
-Topic conventions (docs/design.md, "Topics"): per sensor ``/NAME/resistance`` (Float64, ohm),
-``/NAME/strain_reference`` (Float64, %), ``/NAME/temperature`` (sensor_msgs/Temperature);
-arrays ``/ARRAY/resistance`` + ``/ARRAY/strain_reference`` (Float64MultiArray, one column
-per sensor, names from ``layout.dim[0].label``) and optionally ``/ARRAY/temperature``
-(one temperature for the whole array). ``NAME`` may contain slashes (``/robot/finger``).
-
-Alignment: the reference and the temperature are put on the resistance time stamps.
-Identical stamps are copied exactly; otherwise they are linearly interpolated inside the
-reference's time span and NaN outside it (never extrapolated).
+The topics read are those of docs/design.md, "Topics" (``NAME`` may contain slashes; an
+array's ``/ARRAY/temperature`` is one temperature for the whole array). The reference and
+the temperature are put on the resistance time stamps (``align``).
 """
 
 from __future__ import annotations
@@ -51,10 +45,25 @@ class Recording:
     def from_arrays(cls, t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike | None = None,
                     *, name: str = "s1", temperature: npt.ArrayLike | None = None
                     ) -> Recording:
-        """A recording from arrays: time [s], resistance [ohm], optionally the reference
-        strain [%, or the calibration's unit] and temperature [deg C], all of one length.
-        Raises InputError for arrays that are not 1-D numbers of one length; bad samples
-        (NaN, R <= 0, time not increasing) are kept: the engine screens them."""
+        """A recording from arrays, all of one length.
+
+        Bad samples (NaN, R <= 0, time not increasing) are kept: the engine screens them.
+
+        Args:
+            t: Time [s].
+            r: Resistance [ohm].
+            s: Reference strain [%, or the calibration's unit]; None: no reference.
+            name: The sensor's name.
+            temperature: Temperature [deg C]; None: not recorded.
+
+        Returns:
+            The recording (float64 copies of the arrays).
+
+        Raises:
+            InputError: An array is not 1-D numbers, the lengths differ, or the name is
+                empty.
+
+        """
         columns = {"t": t, "r": r, "s": s, "temperature": temperature}
         arrays: dict[str, np.ndarray | None] = {}
         for key, value in columns.items():
@@ -85,9 +94,27 @@ class Recording:
     def from_frame(cls, frame: Any, *, name: str = "s1", time: str = "time_s",
                    resistance: str = "resistance_ohm", reference: str | None = "reference",
                    temperature: str | None = None) -> Recording:
-        """A recording from the columns of a table: a pandas DataFrame, or any mapping of
-        column names to arrays. The default names are those of ``evaluate --csv``;
-        ``reference`` (when the table has that column) and ``temperature`` are optional."""
+        """A recording from the columns of a table.
+
+        The default column names are those of ``evaluate --csv``.
+
+        Args:
+            frame: A pandas DataFrame, or any mapping of column names to arrays.
+            name: The sensor's name.
+            time: The time column [s].
+            resistance: The resistance column [ohm].
+            reference: The reference strain column, used when the table has it (None:
+                none).
+            temperature: The temperature column [deg C], required when given (None: none).
+
+        Returns:
+            The recording.
+
+        Raises:
+            InputError: A required column is missing, or the columns are not 1-D numbers
+                of one length (``from_arrays``).
+
+        """
         def column(key: str | None, required: bool) -> Any:
             if key is None:
                 return None
@@ -104,11 +131,20 @@ class Recording:
 
 
 def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
-    """``values`` sampled at ``t_src`` put on times ``t``: exact copy when the stamps are the
-    same, else linear interpolation inside the source span, NaN outside it.
+    """Put ``values`` sampled at ``t_src`` on the times ``t``.
 
     Non-finite source samples are dropped first; unsorted source times are sorted (stable)
     and for repeated stamps the last sample wins.
+
+    Args:
+        t: Target times [s].
+        t_src: Source times [s].
+        values: Source values, same length as ``t_src``.
+
+    Returns:
+        An exact copy of ``values`` when the stamps are the same; else the values linearly
+        interpolated inside the source's time span and NaN outside it (never extrapolated).
+
     """
     t = np.asarray(t, dtype=np.float64)
     t_src = np.asarray(t_src, dtype=np.float64)
@@ -152,7 +188,14 @@ class PieceAlign:
         self.src_v = np.empty(0)
 
     def add(self, t: np.ndarray, t_src: np.ndarray, values: np.ndarray) -> None:
-        """The next piece: its target stamps ``t`` and its source samples."""
+        """Take in the next piece.
+
+        Args:
+            t: The piece's target stamps [s].
+            t_src: The piece's source stamps [s].
+            values: The piece's source values, same length as ``t_src``.
+
+        """
         t_src = np.asarray(t_src, dtype=np.float64)
         values = np.asarray(values, dtype=np.float64)
         if self.exact and t_src.shape == t.shape and np.array_equal(t_src, t):
@@ -177,13 +220,26 @@ class PieceAlign:
         self.finished = True
 
     def horizon(self) -> float:
-        """The latest target time whose value is known."""
+        """The latest target time whose value is known.
+
+        Returns:
+            That time [s]; inf while the stamps are identical or after ``finish``.
+
+        """
         if self.exact or self.finished or self.src_t.size == 0:
             return math.inf
         return float(self.src_t[-1])
 
     def take(self, t: np.ndarray) -> np.ndarray:
-        """Values at the next waiting targets ``t`` (in order, none after ``horizon``)."""
+        """Values at the next waiting targets.
+
+        Args:
+            t: The next waiting target stamps [s], in order, none after ``horizon``.
+
+        Returns:
+            The values, NaN outside the source's time span.
+
+        """
         out = np.full(t.size, np.nan)
         done = 0
         while self.copied and done < t.size:
@@ -205,9 +261,19 @@ class PieceAlign:
 
 
 def hold_latest(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
-    """``values`` sampled at ``t_src`` held to the times ``t``: the latest at or before each
-    (as a live node holds it), NaN before the first. Unsorted source times are sorted
-    (stable); for repeated stamps the last sample wins."""
+    """Hold ``values`` sampled at ``t_src`` to the times ``t``, as a live node holds them.
+
+    Unsorted source times are sorted (stable); for repeated stamps the last sample wins.
+
+    Args:
+        t: Target times [s].
+        t_src: Source times [s].
+        values: Source values, same length as ``t_src``.
+
+    Returns:
+        The latest source value at or before each target time; NaN before the first.
+
+    """
     t_src = np.asarray(t_src, dtype=np.float64)
     values = np.asarray(values)
     order = np.argsort(t_src, kind="stable")
@@ -221,15 +287,32 @@ def _align_columns(t: np.ndarray, src: Series, k: int) -> np.ndarray:
 
 
 def recordings_from_bag(contents: BagContents) -> dict[str, Recording]:
-    """One Recording per sensor found in ``contents`` (per-sensor and array topics)."""
+    """The recordings of a bag's decoded contents.
+
+    Args:
+        contents: A bag's series (``read_bag`` or ``read_bag_pieces``).
+
+    Returns:
+        One Recording per sensor found, from per-sensor and array topics, by name.
+
+    """
     recordings, _ = _recordings(contents)
     return recordings
 
 
 def array_sensor_names(topic: str, labels: list[str], k: int) -> tuple[list[str], str | None]:
-    """Sensor names of the k columns of array topic ``/ARRAY/resistance``: its labels when
-    there is one per column, else ``ARRAY_0`` ... ``ARRAY_{k-1}`` (with a problem line when
-    labels were there but did not fit)."""
+    """Sensor names of the k columns of an array topic.
+
+    Args:
+        topic: The array topic, ``/ARRAY/resistance``.
+        labels: The names its ``dim[0].label`` gives.
+        k: The number of columns.
+
+    Returns:
+        The labels when there is one per column, else ``ARRAY_0`` ... ``ARRAY_{k-1}``; and
+        a problem line when labels were there but did not fit (else None).
+
+    """
     if len(labels) == k:
         return labels, None
     prefix = topic[:-len(RESISTANCE)].lstrip("/")
@@ -287,10 +370,23 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
 
 
 def read_bag_pieces(path: str | Path, *, window: int = WINDOW) -> BagContents:
-    """``read_bag``'s contents assembled from ``iter_bag``'s time-ordered pieces: memory
-    about the decoded series, where ``read_bag`` also holds the whole file and all its
-    decompressed chunks at once (5 GB at peak for a bag of 2e7 Float64 messages). A topic
-    whose messages came late (overlapping chunks, a problem line) is sorted by time."""
+    """``read_bag``'s contents, assembled from ``iter_bag``'s time-ordered pieces.
+
+    Memory is about the decoded series, where ``read_bag`` also holds the whole file and
+    all its decompressed chunks at once (5 GB at peak for a bag of 2e7 Float64 messages).
+
+    Args:
+        path: The bag file or directory.
+        window: Messages ``iter_bag`` lets wait before it cuts a piece.
+
+    Returns:
+        The contents; a topic whose messages came late (overlapping chunks, a problem
+        line) is sorted by time.
+
+    Raises:
+        BagError: The bag is unreadable.
+
+    """
     merged = BagContents()
     parts: dict[str, list[Series]] = {}
     for piece in iter_bag(path, window=window):
@@ -319,9 +415,19 @@ def read_bag_pieces(path: str | Path, *, window: int = WINDOW) -> BagContents:
 
 
 def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
-    """Read a bag (file or rosbag2 directory) into recordings (``read_bag_pieces``);
-    returns (recordings, problems), the bag reader's problems first. Raises BagError if
-    the bag is unreadable."""
+    """Read a bag into recordings (through ``read_bag_pieces``).
+
+    Args:
+        path: The bag file or rosbag2 directory.
+
+    Returns:
+        The recordings by sensor name, and the problem lines (the bag reader's first),
+        each naming the bag.
+
+    Raises:
+        BagError: The bag is unreadable.
+
+    """
     contents = read_bag_pieces(path)
     recordings, problems = _recordings(contents)
     return recordings, contents.problems + located(path, problems)

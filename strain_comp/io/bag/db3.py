@@ -33,17 +33,38 @@ Message = tuple[str, str, int, bytes]
 
 
 def refuse_compressed_file(path: Path) -> None:
-    """BagError for a storage file compressed whole (``x.db3.zstd``, ``x.mcap.zstd``)."""
+    """Refuse a storage file compressed whole (``x.db3.zstd``, ``x.mcap.zstd``).
+
+    Args:
+        path: The storage file.
+
+    Raises:
+        BagError: Always, with the way to decompress it.
+
+    """
     raise BagError(f"{path}: compressed per file ({path.suffix.lstrip('.')}); "
                    + DECOMPRESS_HINT)
 
 
 def db3_messages(path: Path, problems: list[str], *, compressed: bool = False
                  ) -> Iterator[list[Message]]:
-    """The messages of one ``.db3`` file in blocks of ``BLOCK``, in time order; lines for
-    what was skipped go to ``problems``. ``compressed``: payloads are zstd frames (a bag
-    directory's ``compression_mode: message``). Raises BagError (one line) when the file is
-    not a readable rosbag2 database."""
+    """The messages of one ``.db3`` file, in time order.
+
+    Args:
+        path: The rosbag2 sqlite3 database.
+        problems: Lines for what was skipped are appended here (topics not in CDR,
+            oversized or undecompressable messages, a damaged database after its readable
+            messages).
+        compressed: The payloads are zstd frames (a bag directory's
+            ``compression_mode: message``).
+
+    Yields:
+        Blocks of at most ``BLOCK`` messages, each (topic, type name, time [ns], payload).
+
+    Raises:
+        BagError: The file is not a readable rosbag2 database (one line).
+
+    """
     import apsw
     from rosbags.rosbag2 import ReaderError
     from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader

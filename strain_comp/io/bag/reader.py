@@ -541,11 +541,20 @@ MAX_DB3_CHANNELS = 65535
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagContents:
-    """Read a bare ``.mcap`` file or a rosbag2 directory (metadata.yaml + .mcap files).
+    """Read a whole bag: a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory.
 
-    ``topics`` limits decoding to those topics. Raises ``BagError`` when the path is
-    missing, is not MCAP, or nothing at all can be read; every lesser fault becomes a
-    line in ``problems``.
+    Args:
+        path: The bag file or directory (``metadata.yaml`` and its storage files).
+        topics: Decode only these topics (None: all).
+
+    Returns:
+        The decoded series per topic; every fault short of an unreadable bag is a line in
+        ``problems``, naming the bag.
+
+    Raises:
+        BagError: The path is missing, is not a bag, nothing at all can be read, or the
+            messages exceed the whole-bag reader's memory budget.
+
     """
     path = Path(path)
     contents = _decode(_collect(path, topics))
@@ -567,8 +576,21 @@ def _collect(path: Path, topics: Iterable[str] | None) -> _Collector:
 
 def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
                  ) -> tuple[list[tuple[str, str, int, bytes]], list[str]]:
-    """Every CDR message of a bag as (topic, type name, log time [ns], payload) in log-time
-    order, read with ``read_bag``'s walk and budgets (not decoded), and the problems."""
+    """Every CDR message of a bag, not decoded, in log-time order.
+
+    Read with ``read_bag``'s walk and budgets.
+
+    Args:
+        path: The bag file or directory.
+        topics: Keep only these topics (None: all).
+
+    Returns:
+        The messages as (topic, type name, log time [ns], payload), and the problem lines.
+
+    Raises:
+        BagError: As ``read_bag``.
+
+    """
     path = Path(path)
     col = _collect(path, topics)
     out: list[tuple[str, str, int, bytes]] = []
@@ -608,6 +630,19 @@ def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     counts them. Messages stored outside chunks (an unchunked MCAP) are taken in blocks of
     ``LOOSE_BLOCK`` in file order and cut the same way, at the latest log time read (an
     earlier one after it is delivered late, with the problem line).
+
+    Args:
+        path: The bag file or directory.
+        topics: Decode only these topics (None: all).
+        window: Messages that may wait before a piece is cut.
+
+    Yields:
+        The pieces in log-time order; the last one carries the remaining problem lines
+        (there is always at least one piece).
+
+    Raises:
+        BagError: The path is missing or is not a bag.
+
     """
     path = Path(path)
     col = _Collector(set(topics) if topics is not None else None)
@@ -669,7 +704,16 @@ def _take(col: _Collector, upto: int | None, cut: int | None
 
 
 def located(path: str | os.PathLike[str], problems: Iterable[str]) -> list[str]:
-    """Problem lines that all name the bag: ``path: ...`` (kept if they already do)."""
+    """Problem lines that all name the bag.
+
+    Args:
+        path: The bag.
+        problems: Problem lines.
+
+    Returns:
+        The lines as ``path: ...`` (a line that already starts with the path is kept).
+
+    """
     prefix = str(path)
     return [p if p.startswith(prefix) else f"{prefix}: {p}" for p in problems]
 

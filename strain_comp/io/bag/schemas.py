@@ -76,6 +76,14 @@ class BagContents:
 
 
 def norm_type(name: str) -> str:
-    """``pkg/Type`` -> ``pkg/msg/Type`` (both spellings occur in the wild)."""
+    """A message type name in its ``pkg/msg/Type`` spelling (both occur in the wild).
+
+    Args:
+        name: ``pkg/Type`` or ``pkg/msg/Type``.
+
+    Returns:
+        ``pkg/msg/Type``.
+
+    """
     parts = name.split("/")
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
