@@ -40,9 +40,25 @@ def apl_params(rng: np.random.Generator | None = None) -> dict[str, object]:
             "w": [float(v) for v in w], "mu": list(MU)}
 
 
+def creep_params(rng: np.random.Generator | None = None) -> dict[str, object]:
+    """``CreepPI.to_params()`` format: default time constants and 8 play operators, weights
+    of a loop that lags with creep (perturbed when ``rng`` is given)."""
+    from strain_comp.models.creep_pi import DIRECTION_WIDTH, TAUS, play_thresholds
+
+    w = np.array([1.0, 0.05, 0.02, *[-0.05] * 8, 0.1, 0.05, 0.03, 0.02, 0.5, 0.1])
+    if rng is not None:
+        w = w * rng.uniform(0.9, 1.1, w.size)
+    return {"taus": list(TAUS), "thresholds": [float(v) for v in play_thresholds(8)],
+            "direction_width": DIRECTION_WIDTH, "mean": [0.0] * w.size,
+            "scale": [1.0] * w.size, "weights": [float(v) for v in w], "intercept": 0.0,
+            "penalty": 0.0}
+
+
 def sensor(name: str, model: str, rng: np.random.Generator | None = None) -> SensorCalibration:
-    """A calibration of one sensor (``apl`` or ``cubic``) built from parameters."""
-    params = apl_params(rng) if model == "apl" else {"c": list(CUBIC)}
+    """A calibration of one sensor (``apl``, ``creep_pi`` or ``cubic``) built from
+    parameters."""
+    params = (apl_params(rng) if model == "apl" else creep_params(rng) if model == "creep_pi"
+              else {"c": list(CUBIC)})
     return SensorCalibration(name=name, model=model, params=params, normalisation=NORM,
                              valid_range=RANGE, direction=DIRECTION)
 

@@ -2,6 +2,11 @@
 """An array of 256 APL sensors (N = 11, M = 9) stepped by the engine at 1 kHz in real time.
 
     python bench/bench_array.py [--sensors 256] [--seconds 60] [--baseline-ticks 1000] [--no-gc]
+                                [--model apl|creep_pi]
+
+``--model creep_pi``: the same with creep_pi sensors (``bench/_common.py``), which the
+engine steps by its per-sensor loop (its fused tick is the APL family's); the bare kernel
+compared is then ``CreepPIArray.step``.
 
 ``Engine(calibration, arrays={"arr": names}).step_array`` is called once per tick for
 ``--seconds`` of 1 kHz data (60 000 ticks by default), each call timed on its own
@@ -29,6 +34,7 @@ from _common import calibration, resistance, row
 
 from strain_comp.core.engine import Engine
 from strain_comp.models.apl import APLArray
+from strain_comp.models.creep_pi import CreepPIArray
 
 
 def run_fixed_cost(cal: object, name: str, t: np.ndarray, r: np.ndarray,
@@ -61,12 +67,13 @@ def main() -> None:
     parser.add_argument("--sensors", type=int, default=256)
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--baseline-ticks", type=int, default=1000)
+    parser.add_argument("--model", choices=("apl", "creep_pi"), default="apl")
     parser.add_argument("--no-gc", action="store_true",
                         help="disable Python's garbage collector during the timed ticks")
     args = parser.parse_args()
     k, ticks = args.sensors, round(args.seconds * 1000)
     names = [f"x{i:03d}" for i in range(k)]
-    cal = calibration(names, ["apl"], seed=3)
+    cal = calibration(names, [args.model], seed=3)
     t = np.arange(ticks) * 1e-3
     r = resistance(t, k, seed=4)
 
@@ -88,7 +95,9 @@ def main() -> None:
             strain_array[i] = out.strain
     gc.enable()
 
-    kernel = APLArray.from_models([c.build_model() for c in cal.sensors.values()])
+    models = [c.build_model() for c in cal.sensors.values()]
+    kernel: APLArray | CreepPIArray = (APLArray.from_models(models) if args.model == "apl"
+                                       else CreepPIArray(models))  # type: ignore[arg-type]
     kernel_cost = np.empty(min(ticks, 10_000))
     for i in range(kernel_cost.size):
         start = time.perf_counter()
@@ -112,12 +121,14 @@ def main() -> None:
     us = cost * 1e6
     med, p99, worst = np.median(us), np.percentile(us, 99), us.max()
     base_med = np.median(base_cost) * 1e6
-    print(f"Engine.step_array, {k} APL sensors (N=11, M=9), {ticks:,} ticks at 1 kHz "
+    label = "APL sensors (N=11, M=9)" if args.model == "apl" else "creep_pi sensors"
+    kname = type(kernel).__name__
+    print(f"Engine.step_array, {k} {label}, {ticks:,} ticks at 1 kHz "
           f"({args.seconds:g} s of data){', gc off' if args.no_gc else ''}; {path}")
     print(f"  per tick: median {med:.1f} us, p99 {p99:.1f} us, max {worst:.0f} us; "
           f"median uses {med / 10:.1f} % of the 1 ms budget (p99 {p99 / 10:.1f} %); "
           f"{int((us > 1000).sum())} ticks over budget")
-    print(f"  of which APLArray.step alone (the APL kernel, {kernel_cost.size:,} ticks): median "
+    print(f"  bare {kname}.step ({kernel_cost.size:,} ticks): median "
           f"{np.median(kernel_cost) * 1e6:.1f} us; the rest is screening, the direction "
           f"kernel and the output arrays")
     print(f"  {k / np.median(cost):,.0f} sensor-samples/s; total {cost.sum():.2f} s for "
@@ -134,9 +145,9 @@ def main() -> None:
     print(f"goal 'step_array {goal}': {'holds' if held else 'does NOT hold'} "
           f"({med:.1f} us, {med / k_med:.2f}x the kernel)")
     run_fixed_cost(cal, names[0], t, r[:, 0])
-    row(f"`Engine.step_array`, {k} APL sensors at 1 kHz, fused tick "
+    row(f"`Engine.step_array`, {k} {label} at 1 kHz, {'fused tick' if group.kernel else 'loop'} "
         f"(`bench_array.py --sensors {k}`)", f"median {med:.1f} us/tick, p99 {p99:.0f} us",
-        f"bare APL kernel (`APLArray.step`) {k_med:.1f} us; loop of `Engine.step` "
+        f"bare kernel (`{kname}.step`) {k_med:.1f} us; loop of `Engine.step` "
         f"{base_med:.0f} us", f"{med / k_med:.2f}x the kernel; {base_med / med:.0f}x faster "
         f"than the loop")
 

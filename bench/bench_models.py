@@ -14,13 +14,16 @@ rat22 split into loading / unloading fits on a random walk, spike_decay on a sta
 creep_pi with its default 8 play operators and 4 time constants on a noisy 1 kHz sine.
 creep_pi's goal is 5 M samples/s for one sensor; its ``run`` and ``step`` are also given as
 a ratio to the cubic's ``run`` (``strain_comp.models.cubic``, numpy, no state) timed in the
-same run on the same samples.
+same run on the same samples. Then one tick of 256 sensors: ``CreepPIArray.step`` against
+``APLArray.step`` (N = 11, M = 9, ``bench/_common.py``), the kernel of the engine's fused
+array tick, median per tick over 5000 ticks at 1 kHz.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -31,10 +34,11 @@ import test_creep_pi
 import test_rational
 import test_sinh_pl
 import test_spike_decay
-from _common import best_time, row
+from _common import best_time, calibration, resistance, row
 
+from strain_comp.models.apl import APLArray
 from strain_comp.models.base import Normalisation
-from strain_comp.models.creep_pi import TAUS
+from strain_comp.models.creep_pi import TAUS, CreepPIArray
 from strain_comp.models.cubic import Cubic
 from strain_comp.models.rational import Rational
 
@@ -126,6 +130,33 @@ def against_cubic(n: int) -> None:
         f"{fast / base:.2f}x")
 
 
+def array_tick(k: int = 256, ticks: int = 5000) -> None:
+    """Median time of one tick of k sensors: CreepPIArray.step against APLArray.step."""
+    t = np.arange(ticks) * 1e-3
+    r = resistance(t, k, seed=4)
+    apl = APLArray.from_models([c.build_model() for c in
+                                calibration([f"x{i}" for i in range(k)], ["apl"]).sensors.values()])
+    creep = CreepPIArray([test_creep_pi.random_model(seed, n_play=8, taus=TAUS)
+                          for seed in range(k)])
+    out = np.empty(k)
+    medians = []
+    for kernel in (creep, apl):
+        kernel.step(t[0], r[0], out)
+        kernel.reset()
+        cost = np.empty(ticks)
+        for i in range(ticks):
+            start = time.perf_counter()
+            kernel.step(t[i], r[i], out)
+            cost[i] = time.perf_counter() - start
+        medians.append(float(np.median(cost)) * 1e6)
+    print(f"{k} sensors, one tick: CreepPIArray.step median {medians[0]:.1f} us, "
+          f"APLArray.step {medians[1]:.1f} us ({medians[0] / medians[1]:.2f}x); "
+          f"{k / medians[0]:.1f} M sensor-samples/s")
+    row(f"`CreepPIArray.step`, {k} creep_pi sensors, one tick (`bench_models.py`)",
+        f"median {medians[0]:.1f} us", f"`APLArray.step` {medians[1]:.1f} us",
+        f"{medians[0] / medians[1]:.2f}x")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=1_000_000)
@@ -154,6 +185,7 @@ def main() -> None:
             f"{fast / 1e6:.1f} M samples/s", f"pure-Python reference: {ref / 1e3:.0f} k/s",
             f"{fast / ref:.0f}x")
     against_cubic(n)
+    array_tick()
 
 
 if __name__ == "__main__":

@@ -21,15 +21,18 @@ and sensors as ``scripts/generalisation.py`` makes them, fits cached in ``OUT/ca
      unreferenced warm-up cycle, then the calibration cycle), scored on what follows the
      warm-up.
 
-``--quick``: the thread only, creep_pi and cubic.
+``--quick``: the thread only, creep_pi and cubic. ``--option K=V`` (repeatable): a fit
+option of creep_pi (``strain-comp fit --option``), e.g. ``--option taus=[0.3,3]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
+import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,35 +46,56 @@ TARGET_MEDIAN, TARGET_WORST = 5.0, 7.5
 """Thread, leave-one-run-out, warm-up + session start [% strain]."""
 
 
-def in_run(bench: gen.Bench, sensors: Sequence[gen.Sensor], models: Sequence[str]) -> str:
-    """Table 1: per run, each model's in-run RMSE and creep_pi's ratio to the cubic's."""
+def fit_one(bench: gen.Bench, sensor: gen.Sensor, run: gen.Run, model: str,
+            options: Mapping[str, Any]) -> Any:
+    """``strain-comp fit RUN --model MODEL`` (``options`` for creep_pi), cached."""
+    if model != "creep_pi" or not options:
+        return bench.fit(sensor, run, model)
+    return fitted(bench, sensor, [r for r in sensor.runs if r == run], model, options,
+                  f"{sensor.name}_{run.label}_{model}")
+
+
+def fitted(bench: gen.Bench, sensor: gen.Sensor, runs: Sequence[gen.Run], model: str,
+           options: Mapping[str, Any], stem: str) -> Any:
+    """``strain-comp fit RUNS... --model MODEL --option ...``, cached under ``stem``."""
+    from strain_comp.core.calibration import load_calibration, save_calibration
+    from strain_comp.offline.fit import fit_bags
+
+    tag = hashlib.sha256(json.dumps(dict(options), sort_keys=True).encode()).hexdigest()[:8]
+    path = bench.out / "cache" / f"{stem}_{tag}_{bench.key}.yaml"
+    if path.is_file() and not bench.refit:
+        return load_calibration(path)
+    with contextlib.redirect_stdout(sys.stderr):
+        cal = fit_bags([bench.bag(sensor, run) for run in runs], model, [sensor.name],
+                       dict(options))
+    cal.sensors[sensor.name].strain_unit = sensor.unit
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_calibration(cal, path)
+    return cal
+
+
+def in_run(bench: gen.Bench, sensors: Sequence[gen.Sensor], models: Sequence[str],
+           options: Mapping[str, Any]) -> str:
+    """Table 1: per run, each model's in-run RMSE."""
     lines = ["| sensor | run | " + " | ".join(models) + " |",
              "|---|---|" + "---:|" * len(models)]
     for sensor in sensors:
         for run in sensor.runs:
             rec = bench.recording(sensor, run)
-            cells = [f"{gen.rmse(rec, bench.fit(sensor, run, m)):.2f}" for m in models]
+            cells = [f"{gen.rmse(rec, fit_one(bench, sensor, run, m, options)):.2f}"
+                     for m in models]
             lines.append(f"| {sensor.name} ({sensor.unit}) | {run.label} | "
                          + " | ".join(cells) + " |")
             print(lines[-1], file=sys.stderr, flush=True)
     return "\n".join(lines)
 
 
-def loo_fit(bench: gen.Bench, sensor: gen.Sensor, left_out: gen.Run, model: str) -> Any:
+def loo_fit(bench: gen.Bench, sensor: gen.Sensor, left_out: gen.Run, model: str,
+            options: Mapping[str, Any]) -> Any:
     """``strain-comp fit`` on every run of ``sensor`` but ``left_out``, cached."""
-    from strain_comp.core.calibration import load_calibration, save_calibration
-    from strain_comp.offline.fit import fit_bags
-
-    path = bench.out / "cache" / f"{sensor.name}_loo_{left_out.label}_{model}_{bench.key}.yaml"
-    if path.is_file() and not bench.refit:
-        return load_calibration(path)
-    bags = [bench.bag(sensor, run) for run in sensor.runs if run != left_out]
-    with contextlib.redirect_stdout(sys.stderr):
-        cal = fit_bags(bags, model, [sensor.name])
-    cal.sensors[sensor.name].strain_unit = sensor.unit
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_calibration(cal, path)
-    return cal
+    return fitted(bench, sensor, [run for run in sensor.runs if run != left_out], model,
+                  options if model == "creep_pi" else {},
+                  f"{sensor.name}_loo_{left_out.label}_{model}")
 
 
 def after_warm_up(rec: Any) -> Any:
@@ -82,8 +106,8 @@ def after_warm_up(rec: Any) -> Any:
     return Recording(rec.name, rec.t[keep], rec.r[keep], rec.s[keep])
 
 
-def loo(bench: gen.Bench, sensor: gen.Sensor, models: Sequence[str]
-        ) -> tuple[str, dict[str, dict[str, list[float]]]]:
+def loo(bench: gen.Bench, sensor: gen.Sensor, models: Sequence[str],
+        options: Mapping[str, Any]) -> tuple[str, dict[str, dict[str, list[float]]]]:
     """Table 2 and its numbers {model: {workflow: [RMSE per left-out run]}}."""
     workflows = ("plain", "session start", "warm-up + session start")
     both = ("input", "output")
@@ -95,7 +119,7 @@ def loo(bench: gen.Bench, sensor: gen.Sensor, models: Sequence[str]
         cut = after_warm_up(rec)
         cells = []
         for model in models:
-            cal = loo_fit(bench, sensor, run, model)
+            cal = loo_fit(bench, sensor, run, model, options)
             values = (gen.rmse(rec, cal),
                       gen.rmse(rec, gen.chain(rec, cal, gen.first_cycle(rec.t, rec.s), both)),
                       gen.rmse(cut, gen.chain(cut, cal, gen.first_cycle(cut.t, cut.s), both)))
@@ -117,7 +141,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--models", default=",".join(MODELS))
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--refit", action="store_true")
+    parser.add_argument("--option", action="append", default=[], metavar="K=V",
+                        help="a fit option of creep_pi (as strain-comp fit --option)")
     args = parser.parse_args(argv)
+    from strain_comp.offline.fit import parse_options
+    from strain_comp.offline.options import check_fit_options
+
+    options = parse_options(args.option)
+    check_fit_options("creep_pi", options)
     models = ["creep_pi", "cubic"] if args.quick else args.models.split(",")
     sensors = gen.sensors_of(args.data)
     if "nylon" not in sensors:
@@ -127,8 +158,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     bench = gen.Bench(args.data, args.out, refit=args.refit,
                       log=lambda line: print(line, file=sys.stderr))
     print("## In-run RMSE (fitted and scored on the same run)\n")
-    print(in_run(bench, measured, models))
-    table, scores = loo(bench, sensors["nylon"], models)
+    if options:
+        print(f"creep_pi fitted with {options}\n")
+    print(in_run(bench, measured, models, options))
+    table, scores = loo(bench, sensors["nylon"], models, options)
     print("\n## Thread, leave-one-run-out (fitted on the 6 other runs) [% strain]\n")
     print(table)
     print()

@@ -1,13 +1,16 @@
 """numba kernels of the creep_pi model (``strain_comp.models.creep_pi``).
 
-One state update (``advance``) serves the streaming kernel (``run_kernel``: ``run`` and
-``step``) and the fitting kernel (``features_kernel``, with the feature map ``features``),
-so the fitted and the streamed model compute the same states.
+One state update (``advance``) serves the streaming kernels (``run_kernel``: ``run`` and
+``step``; ``step_array_kernel``: K sensors per tick) and the fitting kernel
+(``features_kernel``, with the feature map ``features``), so the fitted and the streamed
+model compute the same states; the streaming kernels sum the output as ``output``
+regroups the features' weights (``folded``).
 
 State of one sensor: ``z`` (K,) the low-pass states of xi, ``play`` (J + 1,) the play
 operators (the last one the direction play of width ``widths[J]``), ``clock`` =
 [t_prev, started, dt of the cached decays], ``decay`` (K,) = 1 - exp(-dt / tau_k) for that
-dt (recomputed only when dt changes: at a fixed sample rate the exponentials are paid once).
+dt (recomputed only when dt changes by more than ``DT_TOLERANCE``: at a fixed sample rate
+the exponentials are paid once).
 
 Per good sample xi at time t (dt = t - t_prev, a negative dt taken as 0):
 
@@ -34,6 +37,11 @@ import numpy as np
 from strain_comp._numba import njit
 from strain_comp.models._apl_kernels import FASTMATH
 
+DT_TOLERANCE = 1e-6
+"""A step within this share of the cached dt reuses its decays: the same as a time stamp
+off by a millionth of the step, far below any sensor clock's error, while stamps of a
+fixed rate that float64 rounding (or a bag's nanosecond stamps) jitter in their last
+digits stop paying four exponentials per sample."""
 N_FIXED = 5
 """Features besides the play and creep ones: xi, xi^2, xi^3, d, d xi."""
 
@@ -48,9 +56,10 @@ def advance(ti: float, xi: float, z: np.ndarray, play: np.ndarray, clock: np.nda
         for j in range(play.size):
             play[j] = xi
         clock[1] = 1.0
+        clock[2] = -1.0  # the cached decays are of no dt yet (a reset may zero the clock)
     else:
         dt = max(ti - clock[0], 0.0)
-        if dt != clock[2]:
+        if abs(dt - clock[2]) > DT_TOLERANCE * dt:
             for k in range(z.size):
                 decay[k] = -math.expm1(-dt / tau[k])
             clock[2] = dt
@@ -77,27 +86,43 @@ def features(row: np.ndarray, xi: float, z: np.ndarray, play: np.ndarray) -> Non
     row[4 + n_play + z.size] = d * xi
 
 
+def folded(w: np.ndarray, n_play: int, n_tau: int) -> np.ndarray:
+    """The weights ``w`` of the raw features regrouped for ``output``: [c1, c2, c3, then
+    -w of each play operator and each low-pass state, w_d, w_dx], c1 the weight of xi plus
+    those of every memory feature (each holds xi once)."""
+    coef = np.empty(w.size)
+    coef[0] = w[0] + w[3:3 + n_play + n_tau].sum()
+    coef[1:3] = w[1:3]
+    coef[3:3 + n_play + n_tau] = -w[3:3 + n_play + n_tau]
+    coef[3 + n_play + n_tau:] = w[3 + n_play + n_tau:]
+    return coef
+
+
+@njit(fastmath=FASTMATH, error_model="numpy", inline="always")
+def output(xi: float, z: np.ndarray, play: np.ndarray, coef: np.ndarray, bias: float
+           ) -> float:
+    """psi = bias + w . features, as bias + c1 xi + c2 xi^2 + c3 xi^3 + the folded weights
+    times the states + (xi - p_dir) (w_d + w_dx xi) (``folded``)."""
+    n_play = play.size - 1
+    psi = bias + xi * (coef[0] + xi * (coef[1] + xi * coef[2]))
+    for j in range(n_play):
+        psi += coef[3 + j] * play[j]
+    for k in range(z.size):
+        psi += coef[3 + n_play + k] * z[k]
+    return psi + (xi - play[n_play]) * (coef[3 + n_play + z.size]
+                                        + coef[4 + n_play + z.size] * xi)
+
+
 @njit(fastmath=FASTMATH, error_model="numpy")
 def run_kernel(t: np.ndarray, r: np.ndarray, z: np.ndarray, play: np.ndarray,
                clock: np.ndarray, decay: np.ndarray, out: np.ndarray, norm: np.ndarray,
-               tau: np.ndarray, widths: np.ndarray, w: np.ndarray, bias: float) -> None:
+               tau: np.ndarray, widths: np.ndarray, coef: np.ndarray, bias: float) -> None:
     """Advance one sensor over arrays (t, r); strain % into ``out``.
 
-    ``norm`` = [r0, alpha, s0, beta]; psi = bias + w . features (``w`` the weights of the
-    raw features, the standardisation folded in), summed as a polynomial in xi minus the
-    weighted states (the same sum, regrouped: ``features`` is not built per sample).
+    ``norm`` = [r0, alpha, s0, beta]; ``coef``, ``bias``: the weights of the raw features
+    (the standardisation folded in) as ``folded`` regroups them.
     """
     r0, alpha, s0, beta = norm[0], norm[1], norm[2], norm[3]
-    n_play = play.size - 1
-    n_tau = z.size
-    # w . features regrouped: the memory features' xi parts join the linear coefficient
-    c1 = w[0]
-    for j in range(n_play + n_tau):
-        c1 += w[3 + j]
-    c2, c3 = w[1], w[2]
-    w_play = w[3:3 + n_play]
-    w_creep = w[3 + n_play:3 + n_play + n_tau]
-    w_d, w_dx = w[3 + n_play + n_tau], w[4 + n_play + n_tau]
     for i in range(t.size):
         ti = t[i]
         ri = r[i]
@@ -106,13 +131,33 @@ def run_kernel(t: np.ndarray, r: np.ndarray, z: np.ndarray, play: np.ndarray,
             continue
         xi = ri / r0 + alpha
         advance(ti, xi, z, play, clock, decay, tau, widths)
-        psi = bias + xi * (c1 + xi * (c2 + xi * c3))
-        for j in range(n_play):
-            psi -= w_play[j] * play[j]
-        for k in range(n_tau):
-            psi -= w_creep[k] * z[k]
-        psi += (xi - play[n_play]) * (w_d + w_dx * xi)
-        out[i] = (psi - beta) * s0
+        out[i] = (output(xi, z, play, coef, bias) - beta) * s0
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def step_sensor(s: int, t: float, ri: float, z: np.ndarray, play: np.ndarray,
+                clock: np.ndarray, decay: np.ndarray, norm: np.ndarray, tau: np.ndarray,
+                widths: np.ndarray, coef: np.ndarray, bias: np.ndarray) -> float:
+    """Advance sensor s of an array (row s of every argument, as ``run_kernel`` takes
+    them for one sensor) by a good sample; strain %."""
+    xi = ri / norm[s, 0] + norm[s, 1]
+    advance(t, xi, z[s], play[s], clock[s], decay[s], tau[s], widths[s])
+    return (output(xi, z[s], play[s], coef[s], bias[s]) - norm[s, 3]) * norm[s, 2]
+
+
+@njit(fastmath=FASTMATH, error_model="numpy")
+def step_array_kernel(t: float, r: np.ndarray, z: np.ndarray, play: np.ndarray,
+                      clock: np.ndarray, decay: np.ndarray, out: np.ndarray,
+                      norm: np.ndarray, tau: np.ndarray, widths: np.ndarray,
+                      coef: np.ndarray, bias: np.ndarray) -> None:
+    """Advance K sensors (same numbers of play operators and time constants) by one tick
+    at time t; strain % into ``out`` (K,). A bad r[s] leaves sensor s untouched."""
+    for s in range(r.size):
+        ri = r[s]
+        if not (math.isfinite(t) and math.isfinite(ri) and ri > 0.0):
+            out[s] = np.nan
+            continue
+        out[s] = step_sensor(s, t, ri, z, play, clock, decay, norm, tau, widths, coef, bias)
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")

@@ -93,13 +93,17 @@ class Segment:
 
 
 class Compensator(ABC):
-    """Base class of the seven inverse models; see the module docstring for the contract."""
+    """Base class of the eight inverse models; see the module docstring for the contract."""
 
     name: ClassVar[str]
     """Model name as written in calibration files and on the command line."""
     array_kernel: ClassVar[bool] = False
     """True when sensors of this model can be stepped together in one array kernel
     (``strain_comp.models.apl.APLArray``; the engine's fused array tick)."""
+    fit_full_rate: ClassVar[bool] = False
+    """True when ``fit`` takes every sample of any number of them in bounded memory
+    (creep_pi): the fit then skips the budget's reduction (``strain_comp.offline.reduce``),
+    which would low-pass and decimate what its states are computed from."""
 
     def __init__(self, normalisation: Normalisation) -> None:
         self.normalisation = normalisation

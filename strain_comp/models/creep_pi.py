@@ -124,6 +124,7 @@ class CreepPI(Compensator):
     (module docstring)."""
 
     name = "creep_pi"
+    fit_full_rate = True
 
     def __init__(self, *, taus: npt.ArrayLike, thresholds: npt.ArrayLike,
                  direction_width: float, mean: npt.ArrayLike, scale: npt.ArrayLike,
@@ -144,9 +145,10 @@ class CreepPI(Compensator):
         self.intercept = float(_checked("intercept", [intercept], length=(1, 1))[0])
         self.penalty = float(_checked("penalty", [penalty], length=(1, 1), lo=0.0)[0])
         # The standardisation folded into the weights of the raw features.
-        self._w = np.ascontiguousarray(self.weights / self.scale)
-        self._bias = float(self.intercept - np.dot(self._w, self.mean))
-        if not (np.all(np.isfinite(self._w)) and math.isfinite(self._bias)):
+        w = self.weights / self.scale
+        self._bias = float(self.intercept - np.dot(w, self.mean))
+        self._coef = kern.folded(w, self.thresholds.size, self.taus.size)
+        if not (np.all(np.isfinite(self._coef)) and math.isfinite(self._bias)):
             raise ParameterError("weights", "weights / scale overflow")
         self._widths = np.append(self.thresholds, self.direction_width)
         self._norm = np.array([normalisation.r0, normalisation.alpha, normalisation.s0,
@@ -169,7 +171,7 @@ class CreepPI(Compensator):
 
     def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
         kern.run_kernel(t, r, self.z, self.play, self._clock, self._decay, out, self._norm,
-                        self.taus, self._widths, self._w, self._bias)
+                        self.taus, self._widths, self._coef, self._bias)
 
     def step(self, t: float, r: float) -> float:
         self._t1[0] = t
@@ -262,6 +264,59 @@ class CreepPI(Compensator):
         return model
 
 
+class CreepPIArray:
+    """K creep_pi sensors (same numbers of play operators and time constants) stepped
+    together in one kernel call (``_creep_kernels.step_array_kernel``).
+
+    Built from per-sensor models; each keeps its own state and previous time.
+    ``step(t, r)`` gives exactly what each model's own ``step`` would give; a bad r[s]
+    (not finite or <= 0) leaves sensor s untouched and gives NaN. ``reset`` restarts all.
+    """
+
+    def __init__(self, models: Sequence[CreepPI]) -> None:
+        if not models:
+            raise ParameterError("models", "an array needs at least one sensor")
+        shape = (models[0].thresholds.size, models[0].taus.size)
+        for i, model in enumerate(models):
+            if not isinstance(model, CreepPI):
+                raise ParameterError(f"models.{i}", f"not a creep_pi model: {model!r}")
+            if (model.thresholds.size, model.taus.size) != shape:
+                raise ParameterError(f"models.{i}", "numbers of play operators and time "
+                                                    "constants differ from the first sensor's")
+        self.models = list(models)
+        k = len(models)
+        self.norm = np.vstack([m._norm for m in models])
+        self.tau = np.vstack([m.taus for m in models])
+        self.widths = np.vstack([m._widths for m in models])
+        self.coef = np.vstack([m._coef for m in models])
+        self.bias = np.array([m._bias for m in models])
+        self.z = np.zeros((k, shape[1]))
+        self.play = np.zeros((k, shape[0] + 1))
+        self.clock = np.zeros((k, 3))
+        self.decay = np.zeros((k, shape[1]))
+        self.reset()
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def reset(self) -> None:
+        """Forget every sensor's state."""
+        self.z[:] = 0.0
+        self.play[:] = 0.0
+        self.clock[:] = 0.0
+
+    def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
+        """Advance all sensors by one tick at time t [s]; strain % per sensor."""
+        r = np.ascontiguousarray(r, dtype=np.float64)
+        if r.shape != (len(self.models),):
+            raise ValueError(f"r must have shape ({len(self.models)},), got {r.shape}")
+        if out is None:
+            out = np.empty(r.size)
+        kern.step_array_kernel(float(t), r, self.z, self.play, self.clock, self.decay, out,
+                               self.norm, self.tau, self.widths, self.coef, self.bias)
+        return out
+
+
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
                thresholds: np.ndarray) -> np.ndarray:
     """Gram matrices of [1, features, psi] per cross-validation fold (folds, n_f + 2,
@@ -320,4 +375,4 @@ def cross_validate(grams: np.ndarray, lams: np.ndarray) -> np.ndarray:
     return errors
 
 
-__all__ = ["DIRECTION_WIDTH", "LAM_GRID", "TAUS", "CreepPI", "play_thresholds"]
+__all__ = ["DIRECTION_WIDTH", "LAM_GRID", "TAUS", "CreepPI", "CreepPIArray", "play_thresholds"]

@@ -53,7 +53,9 @@ data and fills in what a calibration file needs besides the parameters:
 * **Long runs**: above ``strain_comp.offline.reduce.FIT_SAMPLE_BUDGET`` good samples the
   model is fitted on an anti-aliased reduction of the segments that keeps every reversal
   and hold (``strain_comp.offline.reduce``); everything else above, and the fit error, is
-  computed on the full data. The provenance records the factor (``fit_reduction``).
+  computed on the full data. The provenance records the factor (``fit_reduction``). A
+  model whose fit takes every sample in bounded memory (``Compensator.fit_full_rate``:
+  creep_pi, whose low-pass states a decimation would alter) gets the full data.
 * **Pooling runs** (``pool``, ``strain-comp fit --pool``): several training runs of one
   sensor are first put into one input space, as ``recalibrate --input`` zeroes and spans a
   run: R' = R_0,ref + k (R - R_0,run), each run's zero and sensitivity fitted jointly with
@@ -572,7 +574,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         raise FitError(f"sensor {name!r}: option fit_budget must be an integer >= 1000, "
                        f"got {budget!r}")
     start = time.perf_counter()
-    fit_segments, factor = reduce_segments(segments, budget)
+    fit_segments, factor = ((segments, 1) if cls.fit_full_rate
+                            else reduce_segments(segments, budget))
     compensator = cls.fit(fit_segments, normalisation, direction=direction, **model_options)
     fit_seconds = time.perf_counter() - start
     calibration = SensorCalibration(

@@ -22,7 +22,7 @@ from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import CalibrationError, FitError, ParameterError
 from strain_comp.models import model_class
 from strain_comp.models.base import Normalisation, Segment
-from strain_comp.models.creep_pi import LAM_GRID, CreepPI, play_thresholds
+from strain_comp.models.creep_pi import LAM_GRID, CreepPI, CreepPIArray, play_thresholds
 from strain_comp.models.cubic import Cubic
 
 DIRECTION = DirectionSettings(deadzone=1e-3)
@@ -97,6 +97,23 @@ def test_run_and_step_follow_the_recursion() -> None:
     np.testing.assert_allclose(np.concatenate([head, model.run(t[700:], r[700:])]), ran,
                                rtol=0, atol=1e-12)
     assert np.isnan(ran[1500]) and np.isnan(ran[1503]) and np.isfinite(ran[1504])
+
+
+def test_array_steps_each_sensor_as_its_own_step() -> None:
+    models = [random_model(seed) for seed in range(4)]
+    array = CreepPIArray(models)
+    t, r = irregular_input(400)
+    rows = np.stack([r, r * 1.01, r[::-1], r + 0.3], axis=1)
+    rows[50, 2] = np.nan  # a bad sample leaves that sensor alone
+    got = np.array([array.step(ti, row) for ti, row in zip(t, rows, strict=True)])
+    for k, model in enumerate(models):
+        model.reset()
+        expected = [model.step(float(ti), float(v)) for ti, v in zip(t, rows[:, k], strict=True)]
+        np.testing.assert_allclose(got[:, k], expected, rtol=0, atol=1e-12)
+    array.reset()
+    np.testing.assert_allclose(array.step(t[0], rows[0]), got[0], rtol=0, atol=1e-12)
+    with pytest.raises(ParameterError, match=r"models\.1"):
+        CreepPIArray([models[0], random_model(n_play=3)])
 
 
 def test_params_round_trip_through_a_calibration_file(tmp_path) -> None:
@@ -218,6 +235,20 @@ def test_cross_validation_picks_an_inner_penalty_on_noisy_data() -> None:
     assert LAM_GRID[0] < model.penalty < LAM_GRID[-1]
     fixed = CreepPI.fit(train, norm, direction=DIRECTION, n_play=20, lam=0.0)
     assert fixed.penalty == 0.0 and fixed.fit_report == {"penalty": 0.0, "folds": 4}
+
+
+def test_fit_sensor_gives_it_every_sample_above_the_budget() -> None:
+    from strain_comp.io.recording import Recording
+    from strain_comp.offline.fit import fit_sensor
+
+    t, s = protocol(31, n=3000)
+    rec = Recording("s1", t, sensor(t, s, np.random.default_rng(1), 1e-4), s)
+    cal = fit_sensor([rec], "creep_pi", name="s1", options={"fit_budget": 1000})
+    assert "fit_reduction" not in cal.provenance
+    direct = CreepPI.fit([Segment(t, rec.r, s)], cal.normalisation, direction=DIRECTION)
+    assert cal.params["weights"] == direct.to_params()["weights"]
+    reduced = fit_sensor([rec], "cubic", name="s1", options={"fit_budget": 1000})
+    assert reduced.provenance["fit_reduction"]["factor"] == 3
 
 
 def test_single_segment_and_bad_options() -> None:
