@@ -6,13 +6,17 @@
 For the silver-nylon thread session (``nylon_silver/session1_100Hz``, seven runs, imported
 as the README's "Your own CSV") and for the other measured sensors (carbon black, fibre)
 and the virtual rig: every model in ``--models`` fitted on one run (``strain-comp fit
-RUN``), used on every other run B of the same sensor after the session start on B's first
-cycle (``recalibrate --input --from B --first S``, then ``recalibrate --from B --first S``,
-S the first load and unload: ``strain_comp.diagnosis.session.first_cycle``), then scored
+RUN``; ``--protocol loro``: on all other runs, ``strain-comp fit A B C ...``), used on
+every other run B of the same sensor after the session start on B's first cycle
+(``recalibrate --input --from B --first S``, then ``recalibrate --from B --first S``, S the
+first load and unload: ``strain_comp.diagnosis.session.first_cycle``; ``--session-cycle
+2``: on B's second cycle, the first one an unreferenced warm-up), then scored
 on all of B (``strain-comp evaluate``) without references and with B's own reference every
 N seconds fused (``--references-every N``), with baseline tracking on and off. Prints a
 Markdown table of the median and worst RMSE per sensor, model and workflow (errors in the
-sensor's unit) and writes ``OUT/references.json``.
+sensor's unit) and writes ``OUT/references.json``; ``--variants`` adds a table of other
+fusion settings (the offset alone, a tighter gain prior, slower random walks) and of the
+per-run least-squares gain and offset.
 """
 
 from __future__ import annotations
@@ -69,18 +73,61 @@ def bag(data: Path, out: Path, sensor: str, label: str, source: str,
     return path
 
 
-def session_start(cal: Any, rec: Any) -> Any:
-    """``recalibrate --input --from B --first S`` then ``recalibrate --from B --first S``
-    (a step that cannot be made is skipped, as for a user)."""
+def cycle_seconds(rec: Any) -> float:
+    """Seconds of the recording's first load and unload (``first_cycle``, capped)."""
     from strain_comp.diagnosis.session import FIRST_CYCLE_CAP, first_cycle
+
+    return first_cycle(rec.t, rec.s) or FIRST_CYCLE_CAP * float(rec.t[-1] - rec.t[0])
+
+
+def session_start(cal: Any, rec: Any, cycle: int = 1) -> Any:
+    """``recalibrate --input --from B --first S`` then ``recalibrate --from B --first S``
+    on B's first cycle (``cycle`` 1), or on its second one after an unreferenced warm-up
+    cycle (``cycle`` 2: the recording from the end of the first cycle on, as a window);
+    a step that cannot be made is skipped, as for a user."""
+    from dataclasses import replace
+
     from strain_comp.errors import StrainCompError
     from strain_comp.offline.recalibrate import recalibrate_recordings
 
-    seconds = first_cycle(rec.t, rec.s) or FIRST_CYCLE_CAP * float(rec.t[-1] - rec.t[0])
+    if cycle == 2:
+        k = int(np.searchsorted(rec.t, rec.t[0] + cycle_seconds(rec), side="left"))
+        rec = replace(rec, t=rec.t[k:], r=rec.r[k:], s=rec.s[k:],
+                      temperature=None if rec.temperature is None else rec.temperature[k:])
+    seconds = cycle_seconds(rec)
     for form in ("input", "output"):
         with contextlib.suppress(StrainCompError):
             cal = recalibrate_recordings(cal, {rec.name: rec}, form=form, first=seconds)[0]
     return cal
+
+
+def variants(ev: Any, span: float, every: float) -> dict[str, float]:
+    """RMSE of the fused output under other fusion settings (``--variants``), from the
+    engine's estimate ``ev`` (no references), and of the per-run least-squares gain and
+    offset over the whole run (an oracle: it knows every reference of the run)."""
+    from dataclasses import replace
+
+    from strain_comp.core.fusion import FusionSettings, OutputFusion, SparseFusion
+
+    base = FusionSettings.for_span(span)
+    settings = {
+        "default": base,
+        "offset alone": replace(base, gain_sd=1e-9, gain_walk=0.0),
+        "gain prior 0.1": replace(base, gain_sd=0.1, gain_walk=base.gain_walk / 3.0),
+        "walks 4x slower": replace(base, gain_walk=base.gain_walk / 4.0,
+                                   offset_walk=base.offset_walk / 4.0),
+    }
+    eligible = ev.scored & ~ev.out_of_range
+    out = {}
+    for name, setting in settings.items():
+        fused = SparseFusion(OutputFusion(setting), every).run(ev.t, ev.estimate,
+                                                              ev.reference, eligible)
+        out[name] = float(np.sqrt(np.mean((fused - ev.reference)[ev.scored] ** 2)))
+    a = np.column_stack([ev.estimate[eligible], np.ones(int(eligible.sum()))])
+    g, b = np.linalg.lstsq(a, ev.reference[eligible], rcond=None)[0]
+    out["oracle"] = float(np.sqrt(np.mean((g * ev.estimate + b - ev.reference)[ev.scored]
+                                          ** 2)))
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -90,6 +137,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--every", default="60,30", help="spacings [s], comma separated")
     parser.add_argument("--models", default="cubic,mpi")
     parser.add_argument("--sensors", default="nylon,cb,fiber,rig")
+    parser.add_argument("--protocol", choices=("pairs", "loro"), default="pairs",
+                        help="pairs: fit on one run, used on each other; loro: fit on all "
+                        "other runs of the session (strain-comp fit A B C ...)")
+    parser.add_argument("--session-cycle", type=int, choices=(1, 2), default=1,
+                        help="the session start on the test run's first cycle, or on its "
+                        "second after a warm-up cycle")
+    parser.add_argument("--variants", action="store_true",
+                        help="also other fusion settings at the first spacing, and the "
+                        "per-run least-squares gain and offset (a table of medians)")
     args = parser.parse_args(argv)
     from strain_comp.io.recording import load_recordings
     from strain_comp.offline.evaluate import evaluate_recordings
@@ -110,25 +166,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         for model in args.models.split(","):
             cals = {}
             for label, path in bags.items():
+                training = ([path] if args.protocol == "pairs" else
+                            [p for k, p in bags.items() if k != label])
                 with contextlib.redirect_stdout(sys.stderr):
-                    cals[label] = fit_bags([path], model, [name])
+                    cals[label] = fit_bags(training, model, [name])
             for train in bags:
                 for test in bags:
-                    if train == test:
+                    if (train == test) != (args.protocol == "loro"):
                         continue
                     rec = recs[test]
-                    cal = session_start(cals[train], rec)
-                    row: dict[str, Any] = {"sensor": sensor, "model": model, "train": train,
-                                           "test": test}
+                    cal = session_start(cals[train], rec, args.session_cycle)
+                    row: dict[str, Any] = {"sensor": sensor, "model": model, "test": test,
+                                           "train": train if args.protocol == "pairs" else
+                                           "all others"}
                     for tracking in ("on", "off"):
                         for every in [None, *spacings]:
                             ev = evaluate_recordings({name: rec}, cal, tracking=tracking,
                                                      references_every=every).sensors[name]
                             key = f"{'none' if every is None else f'{every:g}s'}_{tracking}"
                             row[key] = float(ev.stats.rmse)
+                            if tracking == "on" and every is None and ev.tracking is not None:
+                                row["tracked_s"] = ev.tracking["seconds"]
                             if every is not None and ev.references is not None:
                                 row[key + "_used"] = ev.references["n_used"]
                                 row[key + "_refused"] = ev.references["n_refused"]
+                    if args.variants:
+                        from strain_comp.core.tracking import fitted_rest
+
+                        ev = evaluate_recordings({name: rec}, cal).sensors[name]
+                        span = fitted_rest(cal.sensors[name].valid_range)[1]
+                        row["variants"] = variants(ev, span, spacings[0])
                     rows.append(row)
                     print(f"## {sensor} {model} {train} -> {test}: " + ", ".join(
                         f"{k} {v:.2f}" for k, v in row.items()
@@ -146,9 +213,22 @@ def main(argv: Sequence[str] | None = None) -> int:
                 v = np.array([r[k] for r in sel])
                 cells.append(f"{np.median(v):.2f} / {np.max(v):.2f}")
             print(f"| {sensor} | {model} | {len(sel)} | " + " | ".join(cells) + " |")
+    if args.variants:
+        names = list(rows[0]["variants"]) if rows else []
+        print(f"\n| sensor | model | {' | '.join(names)} (median RMSE, every "
+              f"{spacings[0]:g} s) |")
+        print("|---|---|" + "---|" * len(names))
+        for sensor in dict.fromkeys(r["sensor"] for r in rows):
+            for model in dict.fromkeys(r["model"] for r in rows if r["sensor"] == sensor):
+                sel = [r for r in rows if r["sensor"] == sensor and r["model"] == model]
+                print(f"| {sensor} | {model} | " + " | ".join(
+                    f"{np.median([r['variants'][n] for r in sel]):.2f}" for n in names)
+                    + " |")
     refused = sum(r.get(k + "_refused", 0) for r in rows for k in keys)
     used = sum(r.get(k + "_used", 0) for r in rows for k in keys)
-    print(f"\nreferences used {used}, refused {refused}; "
+    tracked = sum(r.get("tracked_s", 0.0) > 0 for r in rows)
+    print(f"\nbaseline tracking acted on {tracked} of {len(rows)} runs (no references)")
+    print(f"references used {used}, refused {refused}; "
           f"{time.perf_counter() - start:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "references.json").write_text(json.dumps(

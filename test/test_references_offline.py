@@ -4,6 +4,7 @@ reference fused at a spacing, on a sensor whose sensitivity changed by a known f
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +136,39 @@ def test_replay_writes_the_fused_strain_that_evaluate_scores(
     written = read_bag(out).series["/s1/strain"]
     ev = evaluate_recordings(load_recordings(bag)[0], calibration(), references_every=30.0)
     assert np.allclose(written.values, ev.sensors["s1"].estimate, rtol=0, atol=1e-9)
+    # /diagnostics carries the fusion state as of each tick, as the node's does
+    used = [(t, int(values["fusion_n_used"])) for t, statuses in read_bag(out).diagnostics
+            for name, _, _, values in statuses if name == "strain_comp: s1"]
+    assert len(used) > 250
+    for t, n in used:  # a reference at each multiple of 30 s (ticks at one aside)
+        if abs(t - 30.0 * round(t / 30.0)) > 0.1:
+            assert n == min(9, int(t // 30.0)), t
     assert main(["replay", str(bag), "--calibration", str(cal), "--out",
                  str(tmp_path / "cli.mcap"), "--references-every", "30"]) == 0
     assert "a reference every 30 s: 9 used, 0 refused" in capsys.readouterr().err
+
+
+def test_fusion_composes_with_the_tare_tracking_and_a_session_start() -> None:
+    """The fusion is a stage after the engine's output: with ``--tare auto``, baseline
+    tracking and a calibration recalibrated on the run's first cycle it still recovers
+    the changed sensitivity."""
+    from strain_comp.offline.recalibrate import recalibrate_recordings
+
+    t, r, s = changed_run()
+    rec = {"s1": Recording("s1", t, r, s)}
+    cal = replace(calibration().sensors["s1"], rest_resistance=100.0)
+    started = recalibrate_recordings(Calibration({"s1": cal}), rec, form="input",
+                                     first=12.0)[0]
+    assert started.sensors["s1"].input.zero_span is not None
+    runs = {}
+    for key, calib, tare in (("tared", Calibration({"s1": cal}), "auto"),
+                             ("started", started, "calibration")):
+        plain = evaluate_recordings(rec, calib, tare=tare, tracking="on").sensors["s1"]
+        fused = evaluate_recordings(rec, calib, tare=tare, tracking="on",
+                                    references_every=30.0).sensors["s1"]
+        assert fused.references is not None and fused.references["n_used"] == 9
+        runs[key] = (plain.stats.rmse, fused.stats.rmse, fused.references["gain"])
+    plain, fused, gain = runs["tared"]  # the tare does not see a sensitivity: fusion does
+    assert fused < 0.35 * plain and gain == pytest.approx(1.0 / SENSITIVITY, rel=0.05)
+    plain, fused, gain = runs["started"]  # the input span corrected it: fusion keeps it
+    assert plain < 0.3 and fused <= 1.05 * plain and gain == pytest.approx(1.0, abs=0.05)

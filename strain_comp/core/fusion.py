@@ -23,14 +23,14 @@ forgetting factor is the special case of Q proportional to P): with h = (s_hat, 
 Why a Kalman filter on (g, b) and not RLS with exponential forgetting: the references are
 sparse and often at one strain (rest), which excites only b; forgetting then inflates the
 gain's covariance without bound between informative references (covariance windup, Ljung
-section 11.6), while the random walk (2) grows it by a bounded Q dt per second. Its prior
+ch. 11), while the random walk (2) grows it by a bounded Q dt per second. Its prior
 theta_0 ~ N((1, 0), P_0) regularises toward the calibration as it stands, and the split of
 one reference between gain and offset follows from P_0 and h: a reference at rest (s_hat
 about 0) moves only the offset, one at a large strain mostly the gain.
 
 The *gate* refuses a reference whose innovation is beyond ``gate`` x sqrt(S) (the
 normalised innovation test of tracking filters; Bar-Shalom, Li, Kirubarajan, *Estimation
-with Applications to Tracking and Navigation*, 2001, section 5.4): a reference that
+with Applications to Tracking and Navigation*, 2001): a reference that
 contradicts the estimate that far is a wrong reference, not a drift. Non-finite references
 or estimates, a wrong type and a time before the previous reference are refused too; each
 refusal is counted by its reason, the state unchanged.
@@ -74,8 +74,6 @@ NOISE_SHARE = 0.1
 reference's), share of the calibrated strain span."""
 GATE = 5.0
 """A reference beyond this many innovation standard deviations is refused."""
-FUSION_MODES = ("off", "on")
-"""The node's ``fuse_references``."""
 
 
 @dataclass(frozen=True)
@@ -159,6 +157,12 @@ class OutputFusion:
         self.n_used += 1
         return None
 
+    def refuse(self, reason: str) -> str:
+        """Count a reference refused before it reached ``update`` (no estimate to pair it
+        with, a sensor out of its calibrated range); the reason."""
+        self.refused[reason] += 1
+        return reason
+
     def _screen(self, t: float, estimate: float, reference: Any) -> str | None:
         if isinstance(reference, bool) or not isinstance(reference, (int, float, np.floating,
                                                                      np.integer)):
@@ -174,11 +178,13 @@ class OutputFusion:
         return None
 
     def state(self) -> dict[str, Any]:
-        """What /diagnostics and the JSON show: gain, offset, their standard deviations,
-        references used and refused (by reason), the latest reference's time."""
+        """What /diagnostics and the JSON show: gain, offset, their standard deviations and
+        covariance, references used and refused (by reason), the latest reference's
+        time."""
         return {"gain": self.gain, "offset": self.offset,
                 "gain_sd": math.sqrt(max(float(self.covariance[0, 0]), 0.0)),
                 "offset_sd": math.sqrt(max(float(self.covariance[1, 1]), 0.0)),
+                "gain_offset_cov": float(self.covariance[0, 1]),
                 "n_used": self.n_used, "n_refused": self.n_refused,
                 "refused": dict(self.refused),
                 "last_reference_t": (math.nan if self.last_reference_t is None
@@ -188,7 +194,7 @@ class OutputFusion:
         """``state`` as /diagnostics key-values (``fusion_*``)."""
         st = self.state()
         values = {f"fusion_{k}": f"{st[k]:.6g}" for k in ("gain", "offset", "gain_sd",
-                                                          "offset_sd")}
+                                                          "offset_sd", "gain_offset_cov")}
         values["fusion_n_used"] = str(self.n_used)
         values["fusion_n_refused"] = str(self.n_refused)
         values["fusion_last_reference_t"] = ("none" if self.last_reference_t is None
@@ -213,6 +219,9 @@ class SparseFusion:
     before: tuple[float, float, float] | None = None
     """The latest eligible sample of earlier pieces (t, estimate, reference), a candidate
     for the next multiple."""
+    judged: list[tuple[float, dict[str, str]]] = field(default_factory=list)
+    """(time, ``OutputFusion.diagnostic_values`` after it) of every reference judged since
+    the reader last cleared it (replay's /diagnostics ticks)."""
 
     def run(self, t: np.ndarray, estimate: np.ndarray, reference: np.ndarray,
             eligible: np.ndarray) -> np.ndarray:
@@ -252,6 +261,7 @@ class SparseFusion:
                 out[pos:index + 1] = self.fusion.apply(estimate[pos:index + 1])
                 pos = index + 1
                 self.fusion.update(t_ref, s_hat, y)
+                self.judged.append((t_ref, self.fusion.diagnostic_values()))
                 idx = idx[idx > index]
                 self.before = None
             self.k = max(self.k + 1, math.floor((t_ref - self.origin) / self.every) + 1)

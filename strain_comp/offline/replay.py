@@ -181,6 +181,7 @@ class _Replay:
         # each input runs once over the piece; the health at each tick inside it comes
         # from the cumulative status counts of the samples at or before the tick
         before = self.engine.health()
+        fusion_before = {s: f.fusion.diagnostic_values() for s, f in self.fused.items()}
         at_ticks = {name: [h] * now.size for name, h in before.items()}
         for inp, series in inputs:
             outs = self._outputs(inp, series.t, series.values,
@@ -194,9 +195,28 @@ class _Replay:
                                                  stale_after=self.engine.stale_for(sensor))
         stale_for = {name: self.engine.stale_for(name) for name in at_ticks}
         self._write_diagnostics(now, [
-            diagnostics({name: _stale(hs[k], tick, stale_for[name])
-                         for name, hs in at_ticks.items()})
+            self._with_fusion(diagnostics({name: _stale(hs[k], tick, stale_for[name])
+                                           for name, hs in at_ticks.items()}),
+                              tick, fusion_before)
             for k, tick in enumerate(now.tolist())])
+        for fused in self.fused.values():
+            fused.judged.clear()
+
+    def _with_fusion(self, statuses: list[DiagnosticStatus], tick: float,
+                     before: dict[str, dict[str, str]]) -> list[DiagnosticStatus]:
+        """``statuses`` with each fused sensor's fusion state as of ``tick`` (the node's
+        ``fusion_*`` values): after the last reference judged at or before it, else as
+        before the piece (``before``)."""
+        for name, _, _, values in statuses:
+            sensor = name.split(": ", 1)[1]
+            fused = self.fused.get(sensor)
+            if fused is not None:
+                state = before[sensor]
+                for t, judged in fused.judged:
+                    if t <= tick:
+                        state = judged
+                values.update(state)
+        return statuses
 
     def _series(self, contents: BagContents, inp: _Input, series: Series,
                 outs: dict[str, BatchOutput]) -> None:
@@ -226,7 +246,9 @@ class _Replay:
                 pending.flush(self.series, final=True)
 
     def write_tick(self, t: float) -> None:
-        self._write_diagnostics(np.array([t]), [diagnostics(self.engine.health(now=t))])
+        now = {s: f.fusion.diagnostic_values() for s, f in self.fused.items()}
+        self._write_diagnostics(np.array([t]), [
+            self._with_fusion(diagnostics(self.engine.health(now=t)), t, now)])
 
     def _write_diagnostics(self, t: np.ndarray, statuses: list[list[DiagnosticStatus]]) -> None:
         """One /diagnostics message per time of ``t`` (one writer call for them all)."""

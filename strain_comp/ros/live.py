@@ -30,6 +30,15 @@ moved out of the range is what a tare corrects.
   did not start at rest is not tared (logged with the reason), as offline: a later hold
   may be under load, no zero to take; the calibration's zero stays until ``~/tare`` is
   called at a known rest.
+
+Known strains (``fuse_references: true``; ``strain_comp.core.fusion``): a reference on
+``NAME/strain_reference`` (``on_reference``), on ``ARRAY/strain_reference`` (one value per
+sensor, NaN for none; ``on_reference_array``) or from ``~/reference`` (every sensor is at
+``known_strain`` now; ``reference_now``) is paired with the sensor's latest estimate and
+fused into its output gain and offset; every later output is g x estimate + b. A
+reference is refused and counted (by reason, in the sensor's /diagnostics) when the sensor
+has no recent estimate within its calibrated range, or the fusion refuses it (non-finite,
+beyond the gate); one naming a sensor not calibrated is refused as a message.
 """
 
 from __future__ import annotations
@@ -53,6 +62,7 @@ from strain_comp.core.engine import (
     diagnostics,
     used_mask,
 )
+from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.tare import (
     TARE_WINDOW,
     rest_level,
@@ -208,6 +218,22 @@ class LiveCompensator:
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
         self.tare_log: list[str] = []
+        self.fusion: dict[str, OutputFusion] = (
+            {s: OutputFusion.for_span(fitted_rest(c.valid_range)[1])
+             for s, c in params.calibration.sensors.items()}
+            if params.fuse_references else {})
+        """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
+        self._estimate: dict[str, tuple[float, float, bool]] = {}
+        """Per single sensor, its latest estimate before fusion: (time, strain, within the
+        calibrated range), of a sample the model used."""
+        self._array_estimate: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        """Per array, the same as three vectors (times, NaN before a first used sample;
+        strains; within the range), updated in place each tick."""
+        self._column = {s: (i.name, j) for i in params.inputs if i.is_array
+                        for j, s in enumerate(i.sensors)}
+        """Array sensors: (array, column)."""
+        self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        """Per array, its sensors' fused gains and offsets (``_fused_array``)."""
 
     # --- messages -------------------------------------------------------------------------
 
@@ -232,6 +258,10 @@ class LiveCompensator:
                    np.array([out.direction]))
         if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
+        if self.fusion:
+            if out.status in USED:
+                self._estimate[name] = (t, out.strain, out.status != Status.OUT_OF_RANGE)
+            out = replace(out, strain=self.fusion[name].apply(out.strain))
         return out if math.isfinite(out.strain) and self._due(name, t) else None
 
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
@@ -244,7 +274,92 @@ class LiveCompensator:
         self._seen(name, t, values, out.status, out.direction)
         if (used_mask(out.status) & ~np.isfinite(out.strain)).any():  # good samples: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
+        if self.fusion:
+            out = self._fused_array(name, t, out)
         return out if np.isfinite(out.strain).all() and self._due(name, t) else None
+
+    def _fused_array(self, name: str, t: float, out: ArrayOutput) -> ArrayOutput:
+        """``out`` with each sensor's fused gain and offset applied; its used samples'
+        estimates kept for the references."""
+        used = used_mask(out.status)
+        k = used.size
+        times, strains, inside = self._array_estimate.setdefault(
+            name, (np.full(k, np.nan), np.full(k, np.nan), np.zeros(k, bool)))
+        times[used] = t
+        strains[used] = out.strain[used]
+        inside[used] = out.status[used] != int(Status.OUT_OF_RANGE)
+        if name not in self._maps:
+            self._maps[name] = (np.array([self.fusion[s].gain for s in self._inputs[name]]),
+                                np.array([self.fusion[s].offset for s in self._inputs[name]]))
+        gain, offset = self._maps[name]
+        return replace(out, strain=gain * out.strain + offset)
+
+    # --- known strains --------------------------------------------------------------------
+
+    def on_reference(self, sensor: str, t: float, value: Any) -> str | None:
+        """A known strain of ``sensor`` at time ``t`` [s] (its ``strain_reference`` topic):
+        fused (None) or refused and counted (the reason). InputError for a sensor that is
+        not calibrated here or while ``fuse_references`` is false."""
+        fusion = self.fusion.get(sensor)
+        if fusion is None:
+            raise InputError(f"no sensor {sensor!r} in the calibration" if self.fusion else
+                             "fuse_references is false")
+        latest = self._latest(sensor)
+        if latest is None:
+            return fusion.refuse("no estimate yet")
+        if not latest[2]:
+            return fusion.refuse("estimate out of the calibrated range")
+        if not t - latest[0] <= self.engine.stale_for(sensor):
+            return fusion.refuse("no recent estimate")
+        reason = fusion.update(t, latest[1], value)
+        if reason is None:
+            for array, sensors in self._inputs.items():
+                if sensor in sensors:
+                    self._maps.pop(array, None)
+        return reason
+
+    def _latest(self, sensor: str) -> tuple[float, float, bool] | None:
+        """A sensor's latest estimate before fusion (time, strain, within the range)."""
+        if sensor not in self._column:
+            return self._estimate.get(sensor)
+        array, column = self._column[sensor]
+        vectors = self._array_estimate.get(array)
+        if vectors is None or np.isnan(vectors[0][column]):
+            return None
+        return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
+
+    def on_reference_array(self, name: str, t: float, data: Any, *, offset: int = 0,
+                           sizes: list[int] | None = None, label: str = ""
+                           ) -> dict[str, str | None]:
+        """An array's known strains (layout as ``on_array``; NaN: no reference for that
+        sensor): per sensor given, None when fused or the reason it was refused."""
+        sensors = self._inputs[name]
+        values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
+        return {sensor: self.on_reference(sensor, t, float(value))
+                for sensor, value in zip(sensors, values, strict=True) if not np.isnan(value)}
+
+    def reference_now(self, now: float | None = None) -> str:
+        """``~/reference``: every sensor is at ``known_strain`` at the clock time ``now``
+        [s] (None: each sensor's latest sample's time). The summary; ParameterError when
+        ``fuse_references`` is false or a sensor's reference was refused (the others are
+        fused; each refusal counted)."""
+        if not self.fusion:
+            raise ParameterError("fuse_references", "false: set it to true in the params file "
+                                 "to fuse known strains")
+        strain = self.tunables["known_strain"]
+        lines, refused = [], []
+        for sensor, fusion in self.fusion.items():
+            latest = self._latest(sensor)
+            reason = (fusion.refuse("no estimate yet") if latest is None else
+                      self.on_reference(sensor, latest[0] if now is None else now, strain))
+            if reason is None:
+                lines.append(f"{sensor}: gain {fusion.gain:.6g}, offset {fusion.offset:.6g}")
+            else:
+                refused.append(f"{sensor}: {reason}")
+        if refused:
+            raise ParameterError("known_strain", f"{strain:g} refused for " + "; ".join(refused)
+                                 + ("; fused for " + "; ".join(lines) if lines else ""))
+        return f"known strain {strain:g} fused: " + "; ".join(lines)
 
     def refuse(self, name: str, reason: str) -> None:
         """Count a message that could not be handled, by input and reason (at most
@@ -445,6 +560,10 @@ class LiveCompensator:
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen
         fresh._counted_before = self.health()  # the counters go on from here
         fresh._last_message = dict(self._last_message)
+        for sensor, fusion in self.fusion.items():  # the estimate restarts, its counts go on
+            if sensor in fresh.fusion:
+                fresh.fusion[sensor].n_used += fusion.n_used
+                fresh.fusion[sensor].refused.update(fusion.refused)
         return fresh
 
     def health(self, now: float | None = None) -> dict[str, SensorHealth]:
@@ -486,6 +605,8 @@ class LiveCompensator:
             values["rest_resistance"] = ("none" if cal.rest_resistance is None
                                          else repr(cal.rest_resistance / gain))
             values["model"] = cal.model
+            if sensor in self.fusion:
+                values.update(self.fusion[sensor].diagnostic_values())
             out.append((name, level, message, values))
         total = sum(self.refused.values())
         recent, self._refused_seen = total - self._refused_seen, total

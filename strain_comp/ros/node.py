@@ -3,7 +3,10 @@
 ``ros2 run strain_comp compensator --ros-args --params-file config/compensator_params.yaml``.
 Parameters as in ``strain_comp.ros.params`` (structural ones read-only, tunables ranged and
 validated, integers accepted for floats); inputs with sensor-data QoS, topic names resolved
-in the node's namespace, ``/diagnostics`` absolute; services ``~/tare``, ``~/span`` (input
+in the node's namespace, ``/diagnostics`` absolute; with ``fuse_references: true`` a
+``NAME/strain_reference`` input per sensor or array (``LiveCompensator.on_reference``);
+services ``~/tare``, ``~/reference`` (every sensor is at ``known_strain`` now: fused into
+its output gain and offset, ``LiveCompensator.reference_now``), ``~/span`` (input
 zero and span at the known strain ``span_strain``, ``LiveCompensator.span``) and
 ``~/reload_calibration`` (std_srvs/Trigger: answers "loading ..." at once; a worker
 thread loads, the executor swaps the result in between two messages, so outputs go on
@@ -124,6 +127,7 @@ def _descriptor(spec: Any) -> Any:
     from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType
 
     kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
+             "bool": ParameterType.PARAMETER_BOOL,
              "string_array": ParameterType.PARAMETER_STRING_ARRAY}
     descriptor = ParameterDescriptor(name=spec.name, description=spec.description,
                                      read_only=spec.read_only, type=kinds[spec.type],
@@ -208,6 +212,10 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                     self.create_subscription(
                         Temperature, f"{inp.name}/temperature",
                         partial(self._on_temperature, inp.name), qos_profile_sensor_data)
+                if params.fuse_references:
+                    self.create_subscription(
+                        kind, f"{inp.name}/strain_reference",
+                        partial(self._on_reference, inp.name, inp.is_array), input_qos)
                 models = ",".join(sorted({params.calibration.sensors[s].model
                                           for s in inp.sensors}))
                 ready.append(f"{inp.name} [{','.join(inp.sensors)}] ({models}) "
@@ -218,10 +226,12 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
             self.add_on_set_parameters_callback(self._on_set)
             self.create_service(Trigger, "~/tare", self._tare)
             self.create_service(Trigger, "~/span", self._span)
+            self.create_service(Trigger, "~/reference", self._reference)
             self.create_service(Trigger, "~/reload_calibration", self._reload)
             self.calibration_status = (OK, "loaded " + self._paths(self.live))
             self.get_logger().info(f"ready: {len(names)} inputs: " + "; ".join(ready)
-                                   + f"; tare {params.tare}")
+                                   + f"; tare {params.tare}; fuse_references "
+                                   f"{params.fuse_references}")
 
         def _guard_clock(self) -> None:
             """/clock through ``_on_clock`` (rclpy's own callback raises on a negative time,
@@ -268,6 +278,37 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
 
         def _on_temperature(self, sensor: str, msg: Any) -> None:
             self.live.on_temperature(sensor, msg.temperature)
+
+        def _now_ns(self) -> int:
+            """The node clock [ns]: the system time, or /clock under sim time."""
+            clock = self.get_clock()
+            if isinstance(clock, ROSClock) and clock.ros_time_is_active:
+                return int(clock.now().nanoseconds)
+            return time.time_ns()
+
+        def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
+            """A known strain of a sensor (Float64) or of an array's sensors
+            (Float64MultiArray, NaN: none), stamped on arrival; a refusal is counted in
+            the sensor's /diagnostics and logged, a malformed message under the transport."""
+            if self._loaded is not None:
+                self._adopt()
+            topic = f"{name}/strain_reference"
+            try:
+                t = self._now_ns() * 1e-9
+                if is_array:
+                    refused = self.live.on_reference_array(
+                        name, t, msg.data, offset=msg.layout.data_offset,
+                        sizes=[d.size for d in msg.layout.dim],
+                        label=msg.layout.dim[0].label if msg.layout.dim else "")
+                else:
+                    refused = {name: self.live.on_reference(name, t, msg.data)}
+            except (StrainCompError, *_MESSAGE_ERRORS) as err:  # never stops the node
+                self._refuse(topic, err)
+                return
+            for sensor, reason in refused.items():
+                if reason is not None:
+                    self.get_logger().warning(f"{sensor}: reference refused: {reason}",
+                                              throttle_duration_sec=5.0)
 
         def _arrive(self, name: str, handler: Any, msg: Any, pubs: list[Any]) -> None:
             if self._loaded is not None:
@@ -382,6 +423,9 @@ def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
 
         def _tare(self, request: Any, response: Any) -> Any:
             return self._answer(response, self.live.tare)
+
+        def _reference(self, request: Any, response: Any) -> Any:
+            return self._answer(response, lambda: self.live.reference_now(self._now_ns() * 1e-9))
 
         def _span(self, request: Any, response: Any) -> Any:
             def span() -> str:

@@ -54,7 +54,7 @@ class ParamSpec:
     """One parameter: ROS type name, default, inclusive range, description, read-only."""
 
     name: str
-    type: str  # "double" | "integer" | "string" | "string_array"
+    type: str  # "double" | "integer" | "string" | "string_array" | "bool"
     default: Any
     range: tuple[float, float] | None
     description: str
@@ -77,6 +77,9 @@ TUNABLES: tuple[ParamSpec, ...] = (
     ParamSpec("span_strain", "double", 0.0, (0.0, 1e6),
               "The known strain (calibration's unit) every sensor is held at when ~/span is "
               "called; 0: not set (~/span refuses).", False),
+    ParamSpec("known_strain", "double", 0.0, (-1e6, 1e6),
+              "The known strain (calibration's unit) every sensor is at when ~/reference is "
+              "called (fuse_references: true); 0 (default): at rest.", False),
 )
 TUNABLE = {spec.name: spec for spec in TUNABLES}
 TARE_MODES = ("calibration", "auto")
@@ -104,7 +107,12 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
                        "on (default) or off: the rest level of each single sensor follows "
                        "slowly where it fell while the sensor rests (zero-tracking after OIML "
                        "R76; shown in /diagnostics).",
-                       True)]
+                       True),
+             ParamSpec("fuse_references", "bool", False, None,
+                       "false (default) or true: known strains on NAME/strain_reference (an "
+                       "array: ARRAY/strain_reference, NaN for none) and ~/reference "
+                       "(known_strain) are fused into each sensor's output gain and offset "
+                       "(shown in /diagnostics).", True)]
     for name in sensors:
         specs += [ParamSpec(f"{name}.topic", "string", f"{name}/resistance", None,
                             "Input topic (std_msgs/Float64, ohm or divider volts).", True),
@@ -156,6 +164,8 @@ class NodeParams:
     executor: str = "events"
     baseline_tracking: str = DEFAULT_TRACKING
     """``off`` or ``on``: the rest level follows at rest (``strain_comp.core.tracking``)."""
+    fuse_references: bool = False
+    """Known strains fused into the output (``strain_comp.core.fusion``)."""
 
     @property
     def arrays(self) -> dict[str, list[str]]:
@@ -284,6 +294,9 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     tare = _choice(flat, "tare", "calibration", TARE_MODES)
     executor = _choice(flat, "executor", "events", EXECUTORS)
     tracking = _choice(flat, "baseline_tracking", DEFAULT_TRACKING, TRACKING_MODES)
+    fuse = flat.get("fuse_references", False)
+    if not isinstance(fuse, bool):
+        raise ParameterError("fuse_references", f"must be true or false, got {fuse!r}")
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
@@ -307,7 +320,7 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
         raise ParameterError("topic", f"two inputs share a topic: {topics}")
     tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
                 for spec in TUNABLES}
-    return NodeParams(inputs, Calibration(merged), tunables, tare, executor, tracking)
+    return NodeParams(inputs, Calibration(merged), tunables, tare, executor, tracking, fuse)
 
 
 def unknown_hint(key: str, known: set[str], names: list[str]) -> str:
