@@ -257,16 +257,18 @@ def session_start(rec: Any, cal: Any, span: tuple[float, float]) -> tuple[Any, i
     """``cal`` after ``recalibrate --input --from B --window START:END`` and then
     ``recalibrate --from B --window START:END`` (the output map on the spanned input), and
     how many of the two steps were made; a step that cannot be made is skipped, as for a
-    user."""
+    user. A window from 0 is ``--first END``."""
     from strain_comp.errors import StrainCompError
     from strain_comp.offline.recalibrate import recalibrate_recordings
 
     made = 0
     for form in ("input", "output"):
         try:
-            cal = recalibrate_recordings(cal, {rec.name: rec}, form=form, span=span,
+            cal = recalibrate_recordings(cal, {rec.name: rec}, form=form,
+                                         span=None if span[0] == 0.0 else span,
+                                         first=span[1] if span[0] == 0.0 else None,
                                          tare="calibration" if form == "output" else "auto",
-                                         first=None)[0]
+                                         )[0]
             made += 1
         except StrainCompError:
             continue

@@ -42,7 +42,9 @@ NEW = run(1120.0, 1.25, 30.0)
 
 
 def test_pooled_input_puts_every_run_onto_the_anchor_curve() -> None:
-    _, maps = pooled_input(RUNS)
+    _, maps, reading = pooled_input(RUNS)
+    assert reading["pool"] == "spanned"
+    assert reading["curve_rmse"]["spanned"] < 0.01 * reading["curve_rmse"]["raw"]
     truth = ((1000.0, 1.0, 30.0), (1080.0, 1.5, 20.0), (950.0, 0.7, 40.0))
     anchor = [i for i, m in enumerate(maps) if m["span_gain"] == 1.0
               and m["rest"] == m["rest_calibrated"]]
@@ -54,7 +56,12 @@ def test_pooled_input_puts_every_run_onto_the_anchor_curve() -> None:
                                                              - m["rest"])
         expected = za + ga * (gauge(s) - 1000.0)
         assert through == pytest.approx(expected, abs=1e-3 * np.ptp(expected))
-    assert pooled_input(RUNS, "raw") == (RUNS, [])
+    assert pooled_input(RUNS, "raw") == (RUNS, [], {"pool": "raw"})
+    # runs of one gauge with no difference of zero or sensitivity: nothing to map
+    rng = np.random.default_rng(1)
+    same = [run(1000.0, 1.0, top) for top in (20.0, 30.0, 40.0)]
+    same = [Recording("s1", r.t, r.r + rng.normal(0.0, 2.0, r.t.size), r.s) for r in same]
+    assert pooled_input(same)[2]["pool"] == "raw"
     with pytest.raises(InputError, match="--pool"):
         pooled_input(RUNS, "median")
 
