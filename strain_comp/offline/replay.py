@@ -44,6 +44,9 @@ from strain_comp.io.recording import array_sensor_names, hold_latest
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")
+TICK_BATCH = 256
+"""/diagnostics ticks whose healths are built at once: a piece of a long, sparse bag holds
+thousands of ticks."""
 STAMPED = "strain_stamped"
 """The JointState output beside ``OUTPUTS`` (module docstring)."""
 RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
@@ -177,23 +180,27 @@ class _Replay:
         # from the cumulative status counts of the samples at or before the tick
         before = self.engine.health()
         fusion_before = {s: f.fusion.diagnostic_values() for s, f in self.fused.items()}
-        at_ticks = {name: [h] * now.size for name, h in before.items()}
+        runs: list[tuple[np.ndarray, dict[str, BatchOutput]]] = []
         for inp, series in inputs:
             outs = self._outputs(inp, series.t, series.values,
                                  {s: temps[s] for s in inp.sensors})
             self.n_compensated += series.t.size
             if self.series is not None:
                 self._series(contents, inp, series, outs)
-            if now.size:
+            runs.append((series.t, outs))
+        stale_for = {name: self.engine.stale_for(name) for name in before}
+        for a in range(0, now.size, TICK_BATCH):  # the healths of a batch of ticks at a time:
+            ticks = now[a:a + TICK_BATCH]        # memory bounded however long the piece lasts
+            at_ticks = {name: [h] * ticks.size for name, h in before.items()}
+            for t, outs in runs:
                 for sensor, out in outs.items():
-                    at_ticks[sensor] = health_at(before[sensor], series.t, out, now,
-                                                 stale_after=self.engine.stale_for(sensor))
-        stale_for = {name: self.engine.stale_for(name) for name in at_ticks}
-        self._write_diagnostics(now, [
-            self._with_fusion(diagnostics({name: _stale(hs[k], tick, stale_for[name])
-                                           for name, hs in at_ticks.items()}),
-                              tick, fusion_before)
-            for k, tick in enumerate(now.tolist())])
+                    at_ticks[sensor] = health_at(before[sensor], t, out, ticks,
+                                                 stale_after=stale_for[sensor])
+            self._write_diagnostics(ticks, [
+                self._with_fusion(diagnostics({name: _stale(hs[k], tick, stale_for[name])
+                                               for name, hs in at_ticks.items()}),
+                                  tick, fusion_before)
+                for k, tick in enumerate(ticks.tolist())])
         for fused in self.fused.values():
             fused.judged.clear()
 
