@@ -98,7 +98,7 @@ def spawn(argv: list[str]) -> float:
     """Wall s of one ``python`` subprocess running ``argv`` to its end."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     start = time.perf_counter()
-    subprocess.run([sys.executable, *argv], env=env, check=True, capture_output=True)
+    subprocess.run([sys.executable, *argv], env=env, cwd=REPO, check=True, capture_output=True)
     return time.perf_counter() - start
 
 
