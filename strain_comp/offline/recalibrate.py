@@ -289,9 +289,12 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, 
     (``points_from_first_cycle``). A static model: its held map inverted at the two points
     (``span_from_points``); where the map never outputs a point's strain, the resistance
     of its nearest output (the output map made after the span corrects what remains). A
-    memory model: the two points read on its branches (``span_on_branches``; where they
-    give no span, the calibration as tared: the run's rest onto its rest resistance, gain
-    1), then the span refined through the run (``span_through_run``)."""
+    memory model: the two points read on its branches (``span_on_branches``), then the
+    span refined through the run (``span_through_run``); where the branches give no span,
+    the calibration as tared (the run's rest onto its rest resistance, gain 1) if that
+    reads the cycle better than the calibration as it is (``cycle_error``), not refined
+    (a refinement from there fits the cycle, not the run: a loop's exact memory term lost
+    half its gain on the run after it)."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     curve = steady_curve(cal)
@@ -310,8 +313,21 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording) -> tuple[float, 
     except InputError:
         if cal.rest_resistance is None:
             raise
-        start = (min(points, key=lambda p: p[1])[0], cal.rest_resistance, 1.0)
+        tared = (min(points, key=lambda p: p[1])[0], cal.rest_resistance, 1.0)
+        if not cycle_error(replace(cal, input=replace(cal.input, zero_span=tared)), rec) < \
+                cycle_error(cal, rec):
+            raise
+        return tared
     return span_through_run(cal, rec, start)
+
+
+def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
+    """RMSE of the engine's output over ``rec`` against its finite reference strain."""
+    assert rec.s is not None
+    ok = np.isfinite(rec.s)
+    strain = Engine(Calibration({cal.name: cal})).run(cal.name, rec.t, rec.r).strain
+    value = float(np.sqrt(np.mean((strain[ok] - rec.s[ok]) ** 2)))
+    return value if np.isfinite(value) else np.inf
 
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
