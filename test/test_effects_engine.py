@@ -67,7 +67,7 @@ def test_array_crosstalk_replay_equals_step_array(tmp_path: Path, family: str) -
     replay_bag(tmp_path / "in.mcap", calibration, tmp_path / "out.mcap", gap_reset=1.0)
     replayed = read_bag(tmp_path / "out.mcap").series
     engine = engine_of(*cals, arrays={"arr": NAMES}, gap_reset=1.0)
-    assert (engine._arrays["arr"].kernel is not None) == (family == "apl")
+    assert engine._arrays["arr"].fused == (family == "apl")
     outs = [engine.step_array("arr", ti, ri) for ti, ri in zip(t, r, strict=True)]
     stepped = np.array([o.strain for o in outs])
     np.testing.assert_allclose(replayed["/arr/strain"].values, stepped, rtol=1e-12, atol=1e-12)
@@ -138,7 +138,7 @@ def test_apl_array_kernel_publishes_the_signed_direction() -> None:
     t = 100.0 + np.arange(300) * 0.02
     r = np.stack([150 + 30 * np.sin(t)] * len(NAMES), axis=1)
     engine = engine_of(*cals, arrays={"arr": NAMES})
-    assert engine._arrays["arr"].kernel is not None
+    assert engine._arrays["arr"].fused
     ticks = np.array([engine.step_array("arr", ti, ri).direction for ti, ri in zip(t, r,
                                                                                     strict=True)])
     raw = engine_of(cals[0]).run("a", t, r[:, 0]).direction
