@@ -48,7 +48,7 @@ FamilyArray = APLArray | CreepPIArray
 """The model array of one family's sensors in a fused tick."""
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", inline="always")
 def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
                  counts: np.ndarray, det: np.ndarray, gap: float, model_out: np.ndarray,
                  status: np.ndarray, reset: np.ndarray) -> tuple[float, bool]:
@@ -75,7 +75,7 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
     return ohm, True
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", inline="always")
 def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
                 held: np.ndarray, det: np.ndarray, model_out: np.ndarray) -> None:
     """The stages after the model for a used sample of sensor ``k``: the unclamped
