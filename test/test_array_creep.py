@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import DIRECTION, NORM, R_HI, R_LO, S_HI, S_LO, engine_of
+from conftest import DIRECTION, NORM, R_HI, R_LO, S_HI, S_LO, cubic_cal, engine_of
 
 from strain_comp.core.calibration import InputSettings, SensorCalibration, ValidRange
 from strain_comp.core.engine import Engine
@@ -115,7 +115,5 @@ def test_mixed_families_run_one_tick_each_and_equal_each_sensor_alone(
 
 
 def test_a_sensor_without_array_kernel_keeps_the_loop(creep: list[SensorCalibration]) -> None:
-    from conftest import cubic_cal
-
     engine = engine_of(creep[0], cubic_cal("c"), arrays={"arr": [creep[0].name, "c"]})
     assert not engine._arrays["arr"].fused
