@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import cast
 
 import numpy as np
 
@@ -142,19 +143,19 @@ def creep_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
 def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, FamilyArray]] | None:
     """(rows in ``sensors``, model array) per family present, or None when a sensor's
     model has no array kernel or a family's sensors differ in shape (the loop path)."""
-    apl = [i for i, s in enumerate(sensors) if type(s.model).array_kernel]
-    creep = [s.model for s in sensors if isinstance(s.model, CreepPI)]
+    models = [s.model for s in sensors]
+    apl = [i for i, m in enumerate(models) if type(m).array_kernel]
+    creep = [i for i, m in enumerate(models) if isinstance(m, CreepPI)]
     if len(apl) + len(creep) != len(sensors):
         return None
     out: list[tuple[np.ndarray, FamilyArray]] = []
     try:
         if apl:
             out.append((np.array(apl, dtype=np.int64),
-                        APLArray.from_models([sensors[i].model for i in apl])))
+                        APLArray.from_models([models[i] for i in apl])))
         if creep:
-            out.append((np.array([i for i, s in enumerate(sensors)
-                                  if isinstance(s.model, CreepPI)], dtype=np.int64),
-                        CreepPIArray(creep)))
+            out.append((np.array(creep, dtype=np.int64),
+                        CreepPIArray([cast(CreepPI, models[i]) for i in creep])))
     except ParameterError:  # different shapes within a family
         return None
     return out
