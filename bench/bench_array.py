@@ -4,15 +4,17 @@
     python bench/bench_array.py [--sensors 256] [--seconds 60] [--baseline-ticks 1000] [--no-gc]
                                 [--model apl|creep_pi]
 
-``--model creep_pi``: the same with creep_pi sensors (``bench/_common.py``), which the
-engine steps by its per-sensor loop (its fused tick is the APL family's); the bare kernel
-compared is then ``CreepPIArray.step``.
+``--model creep_pi``: the same with creep_pi sensors (``bench/_common.py``: 8 play
+operators, the default time constants), stepped by the engine's fused creep_pi tick
+(``strain_comp.core.array.creep_tick``); the bare kernel compared is then
+``CreepPIArray.step``.
 
 ``Engine(calibration, arrays={"arr": names}).step_array`` is called once per tick for
 ``--seconds`` of 1 kHz data (60 000 ticks by default), each call timed on its own
-(Python call, screening, the APL kernel, the direction kernel and the output arrays
+(Python call, screening, the model kernel, the direction kernel and the output arrays
 included). Printed: per-tick cost median / p99 / max and the share of the 1 ms budget,
-and the median of ``APLArray.step`` alone (the one kernel call per tick) for comparison.
+and the median of the bare model array's ``step`` alone (``APLArray`` or
+``CreepPIArray``: one kernel call per tick, no screening) in the same run for comparison.
 
 Baseline in the same run: the same ticks fed through a Python loop over the sensors,
 ``Engine.step(sensor, t, r)`` per sensor (an engine without the array registered), on
@@ -37,7 +39,7 @@ from strain_comp.models.apl_array import APLArray
 from strain_comp.models.creep_pi import CreepPIArray
 
 
-def run_fixed_cost(cal: object, name: str, t: np.ndarray, r: np.ndarray,
+def run_fixed_cost(cal: object, name: str, model: str, t: np.ndarray, r: np.ndarray,
                    calls: int = 3000) -> None:
     """``Engine.run`` on one sample at a time (its fixed cost) against ``Engine.step``."""
     engine = Engine(cal)
@@ -57,7 +59,7 @@ def run_fixed_cost(cal: object, name: str, t: np.ndarray, r: np.ndarray,
     print(f"Engine.run on one sample (fixed cost), {n} calls: median {med_run:.1f} us; "
           f"Engine.step median {med_step:.1f} us; goal '< 20 us': "
           f"{'holds' if med_run < 20 else 'does NOT hold'}")
-    row("`Engine.run` fixed cost: one APL sample per call (`bench_array.py`)",
+    row(f"`Engine.run` fixed cost: one {model} sample per call (`bench_array.py`)",
         f"median {med_run:.1f} us", f"`Engine.step` on one sample: {med_step:.1f} us",
         f"{med_run / med_step:.1f}x step")
 
@@ -79,8 +81,9 @@ def main() -> None:
 
     engine = Engine(cal, arrays={"arr": names})
     group = engine._arrays["arr"]
-    path = (f"kernel path: one {type(group.kernel).__name__}.step call for all {k} sensors"
-            if group.kernel is not None else "FALLBACK: Python loop of Engine.step")
+    path = (f"fused tick: {', '.join(type(kern).__name__ for _, kern in group.kernels)} "
+            f"kernel for all {k} sensors" if group.fused
+            else "FALLBACK: Python loop of Engine.step")
     engine.warm_up()
     gc.collect()
     if args.no_gc:
@@ -144,9 +147,10 @@ def main() -> None:
     held = med <= 2 * k_med if k >= 256 else med <= 20.0
     print(f"goal 'step_array {goal}': {'holds' if held else 'does NOT hold'} "
           f"({med:.1f} us, {med / k_med:.2f}x the kernel)")
-    run_fixed_cost(cal, names[0], t, r[:, 0])
-    row(f"`Engine.step_array`, {k} {label} at 1 kHz, {'fused tick' if group.kernel else 'loop'} "
-        f"(`bench_array.py --sensors {k}`)", f"median {med:.1f} us/tick, p99 {p99:.0f} us",
+    run_fixed_cost(cal, names[0], args.model, t, r[:, 0])
+    flags = f"--sensors {k}" + ("" if args.model == "apl" else f" --model {args.model}")
+    row(f"`Engine.step_array`, {k} {label} at 1 kHz, {'fused tick' if group.fused else 'loop'} "
+        f"(`bench_array.py {flags}`)", f"median {med:.1f} us/tick, p99 {p99:.0f} us",
         f"bare kernel (`{kname}.step`) {k_med:.1f} us; loop of `Engine.step` "
         f"{base_med:.0f} us", f"{med / k_med:.2f}x the kernel; {base_med / med:.0f}x faster "
         f"than the loop")

@@ -18,6 +18,7 @@ if (( quick )); then
   run bench/bench_models.py --samples 200000 --reference-samples 2000
   run bench/bench_array.py --seconds 5 --baseline-ticks 200
   run bench/bench_array.py --sensors 16 --seconds 5 --baseline-ticks 200
+  run bench/bench_array.py --model creep_pi --seconds 5 --baseline-ticks 200
   run bench/bench_replay.py --messages 100000 --repeat 1
   run bench/bench_replay_memory.py --messages 100000,1000000
   run bench/bench_fit.py --samples 5000 --models apl,mpi,cubic,rational \
@@ -31,6 +32,7 @@ else
   run bench/bench_models.py
   run bench/bench_array.py
   run bench/bench_array.py --sensors 16
+  run bench/bench_array.py --model creep_pi
   run bench/bench_replay.py
   run bench/bench_replay_memory.py
   run bench/bench_fit.py

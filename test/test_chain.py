@@ -276,7 +276,7 @@ def test_an_array_with_a_corrected_sensor_steps_as_its_sensors_do() -> None:
     t, r = rec.t[:400], np.array(rec.r[:400], dtype=float)
     r[[150, 300]] *= 1.5  # spikes
     engine = Engine(cal, arrays={"pair": ["a1", "a2"]})
-    assert engine._arrays["pair"].kernel is None  # the per-sensor path
+    assert not engine._arrays["pair"].fused  # the per-sensor path
     ticks = np.array([engine.step_array("pair", a, np.array([b, b])).strain
                       for a, b in zip(t, r, strict=True)])
     for j, name in enumerate(("a1", "a2")):

@@ -55,11 +55,21 @@ def apl_cals(effects: dict[str, list[dict]]) -> list[SensorCalibration]:
                     effects=effects.get(n, [])) for n in NAMES]
 
 
-@pytest.mark.parametrize("family", ["cubic", "apl"])
+def creep_cals(effects: dict[str, list[dict]]) -> list[SensorCalibration]:
+    t = np.arange(400) * 0.01
+    r_true = 150.0 + 40.0 * np.sin(2 * np.pi * 0.5 * t)
+    model = model_class("creep_pi").fit([Segment(t, r_true, 0.5 * (r_true - R_LO))], NORM,
+                                        direction=DIRECTION, taus=[0.3, 3.0], n_play=3)
+    base = cubic_cal("x")
+    return [replace(base, name=n, model="creep_pi", params=model.to_params(),
+                    effects=effects.get(n, [])) for n in NAMES]
+
+
+@pytest.mark.parametrize("family", ["cubic", "apl", "creep_pi"])
 def test_array_crosstalk_replay_equals_step_array(tmp_path: Path, family: str) -> None:
     effects = {"a": crosstalk(["b"]), "b": crosstalk(["a", "c"], -0.3), "c": crosstalk(["b"])}
     cals = ([cubic_cal(n, effects=effects[n]) for n in NAMES] if family == "cubic"
-            else apl_cals(effects))
+            else apl_cals(effects) if family == "apl" else creep_cals(effects))
     t, r = array_stream()
     with BagWriter(tmp_path / "in.mcap") as writer:
         writer.write_float64_array("/arr/resistance", t, r, NAMES)
@@ -67,7 +77,7 @@ def test_array_crosstalk_replay_equals_step_array(tmp_path: Path, family: str) -
     replay_bag(tmp_path / "in.mcap", calibration, tmp_path / "out.mcap", gap_reset=1.0)
     replayed = read_bag(tmp_path / "out.mcap").series
     engine = engine_of(*cals, arrays={"arr": NAMES}, gap_reset=1.0)
-    assert (engine._arrays["arr"].kernel is not None) == (family == "apl")
+    assert engine._arrays["arr"].fused == (family != "cubic")
     outs = [engine.step_array("arr", ti, ri) for ti, ri in zip(t, r, strict=True)]
     stepped = np.array([o.strain for o in outs])
     np.testing.assert_allclose(replayed["/arr/strain"].values, stepped, rtol=1e-12, atol=1e-12)
@@ -138,7 +148,7 @@ def test_apl_array_kernel_publishes_the_signed_direction() -> None:
     t = 100.0 + np.arange(300) * 0.02
     r = np.stack([150 + 30 * np.sin(t)] * len(NAMES), axis=1)
     engine = engine_of(*cals, arrays={"arr": NAMES})
-    assert engine._arrays["arr"].kernel is not None
+    assert engine._arrays["arr"].fused
     ticks = np.array([engine.step_array("arr", ti, ri).direction for ti, ri in zip(t, r,
                                                                                     strict=True)])
     raw = engine_of(cals[0]).run("a", t, r[:, 0]).direction

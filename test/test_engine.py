@@ -215,7 +215,7 @@ def test_apl_array_is_one_kernel_and_equals_per_sensor() -> None:
     r[200:230, 1] += 150.0  # out of range on one sensor only
     r[250:320, 2] = np.nan  # a long outage on one sensor: it alone gets reset
     engine = engine_of(*cals, arrays={"arr": names}, gap_reset=0.5)
-    assert engine._arrays["arr"].kernel is not None
+    assert engine._arrays["arr"].fused
     outs = [engine.step_array("arr", ti, ri) for ti, ri in zip(t, r, strict=True)]
     for k, name in enumerate(names):
         ref_engine = engine_of(cals[k], gap_reset=0.5)

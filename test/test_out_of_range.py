@@ -147,7 +147,7 @@ def test_an_array_on_the_fused_kernel_extends_as_each_sensor_alone() -> None:
     vr = apl.valid_range
     fused = Engine(cal, arrays={"arr": ["a", "b"]})
     alone = Engine(cal)
-    assert DEFAULT_OUT_OF_RANGE == "extend" and fused._arrays["arr"].kernel is not None
+    assert DEFAULT_OUT_OF_RANGE == "extend" and fused._arrays["arr"].fused
     t = np.arange(60) * 0.02
     r = vr.r_lo + (vr.r_hi - vr.r_lo) * np.stack([1.6 * np.sin(t) ** 2 - 0.3,
                                                   np.linspace(1.4, -0.4, t.size)], axis=1)

@@ -145,7 +145,7 @@ class Engine:
         s.effects.rescale(factor)
         s.gain = float(gain)
         for group in self._arrays.values():
-            if sensor in group.names and group.kernel is not None:
+            if sensor in group.names and group.fused:
                 group.set_gain(group.names.index(sensor), float(gain))
 
     def track_baseline(self, sensor: str, gain: float, seconds: float) -> None:
@@ -229,7 +229,7 @@ class Engine:
         """Copies of every sensor's counters; with ``now`` [s], stale is evaluated."""
         kernel_health: dict[str, SensorHealth] = {}
         for group in self._arrays.values():
-            if group.kernel is not None:
+            if group.fused:
                 kernel_health.update(group.health())
         out = {}
         for name, s in self._sensors.items():

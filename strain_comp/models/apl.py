@@ -82,10 +82,9 @@ from strain_comp.models import pwa
 from strain_comp.models.apl_fit import CELL_WEIGHTS, fit_cells
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 from strain_comp.models.base import (
-    Compensator,
+    KernelCompensator,
     Normalisation,
     Segment,
-    as_float_arrays,
     require_float,
     require_vector,
 )
@@ -112,7 +111,7 @@ def _check_shape(n: int, m: int) -> None:
         raise ParameterError("M", f"must be odd and in [1, {M_MAX}], got {m}")
 
 
-class _CellModel(Compensator):
+class _CellModel(KernelCompensator):
     """Shared implementation of APL, PL and MPI; ``kind`` selects the cell law."""
 
     kind: ClassVar[int]
@@ -156,9 +155,6 @@ class _CellModel(Compensator):
                                normalisation.s0, normalisation.beta])
         self.x = np.zeros(n)
         self._clock = np.zeros(2)
-        self._t1 = np.zeros(1)
-        self._r1 = np.zeros(1)
-        self._o1 = np.zeros(1)
         self.fit_report: dict[str, Any] | None = None
         self.reset()
 
@@ -176,18 +172,6 @@ class _CellModel(Compensator):
         kern.run_kernel(t, r, self.x, self._clock, out, self.kind, self.sigma, self.p,
                         self.rho, self._inv_width, self.w, self._norm, self._b,
                         self._f_at_b, self._inv_slopes)
-
-    def step(self, t: float, r: float) -> float:
-        self._t1[0] = t
-        self._r1[0] = r
-        self._run_into(self._t1, self._r1, self._o1)
-        return float(self._o1[0])
-
-    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        t, r = as_float_arrays(t, r)
-        out = np.empty(t.size)
-        self._run_into(t, r, out)
-        return out
 
     def f(self, psi: npt.ArrayLike) -> np.ndarray:
         """The output map f(psi) of eq. (3)."""

@@ -264,6 +264,35 @@ class Compensator(ABC):
         """
 
 
+class KernelCompensator(Compensator):
+    """A compensator whose ``run`` and ``step`` are one numba kernel over arrays
+    (``_run_into``): ``step`` runs it on a one-sample view, so both paths share every
+    floating-point operation."""
+
+    def __init__(self, normalisation: Normalisation) -> None:
+        super().__init__(normalisation)
+        self._t1 = np.zeros(1)
+        self._r1 = np.zeros(1)
+        self._o1 = np.zeros(1)
+
+    @abstractmethod
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        """Advance over contiguous float64 arrays of good samples, writing strain % to
+        ``out``."""
+
+    def step(self, t: float, r: float) -> float:
+        self._t1[0] = t
+        self._r1[0] = r
+        self._run_into(self._t1, self._r1, self._o1)
+        return float(self._o1[0])
+
+    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+        t, r = as_float_arrays(t, r)
+        out = np.empty(t.size)
+        self._run_into(t, r, out)
+        return out
+
+
 def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = None,
                   hi: float | None = None, strict: bool = False) -> float:
     """Read ``params[key]`` as a finite float within [lo, hi].

@@ -60,10 +60,9 @@ from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import creep_kernels as kern
 from strain_comp.models.base import (
-    Compensator,
+    KernelCompensator,
     Normalisation,
     Segment,
-    as_float_arrays,
     require_float,
     require_vector,
 )
@@ -119,7 +118,7 @@ def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
     return array
 
 
-class CreepPI(Compensator):
+class CreepPI(KernelCompensator):
     """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``
     (module docstring)."""
 
@@ -157,9 +156,6 @@ class CreepPI(Compensator):
         self.play = np.zeros(self._widths.size)
         self._clock = np.zeros(3)
         self._decay = np.zeros(self.taus.size)
-        self._t1 = np.zeros(1)
-        self._r1 = np.zeros(1)
-        self._o1 = np.zeros(1)
         self.fit_report: dict[str, Any] | None = None
         self.reset()
 
@@ -172,18 +168,6 @@ class CreepPI(Compensator):
     def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
         kern.run_kernel(t, r, self.z, self.play, self._clock, self._decay, out, self._norm,
                         self.taus, self._widths, self._coef, self._bias)
-
-    def step(self, t: float, r: float) -> float:
-        self._t1[0] = t
-        self._r1[0] = r
-        self._run_into(self._t1, self._r1, self._o1)
-        return float(self._o1[0])
-
-    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        t, r = as_float_arrays(t, r)
-        out = np.empty(t.size)
-        self._run_into(t, r, out)
-        return out
 
     def to_params(self) -> dict[str, Any]:
         def plain(values: np.ndarray) -> list[float]:
