@@ -24,8 +24,9 @@ from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from strain_comp.errors import InputError  # noqa: E402
-from strain_comp.ros.compensator import CompensatorNode, array_layout, sensor_value  # noqa: E402
+from strain_comp.ros.compensator import CompensatorNode  # noqa: E402
 from strain_comp.ros.live import LiveCompensator  # noqa: E402
+from strain_comp.ros.messages import array_layout, sensor_value  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.params import parse_values  # noqa: E402
 from strain_comp.ros.player import spin_until  # noqa: E402

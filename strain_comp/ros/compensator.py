@@ -1,8 +1,8 @@
 """The compensator node: ROS topics, services and parameters around the ``LiveCompensator``
 it owns (the per-message logic, no ROS), as imu_tools' node owns its filter (docs/ros.md).
 
-A message is refused for what it carries, checked before use (``sensor_value``,
-``array_layout``, and the engine's and ``LiveCompensator``'s own checks, which raise
+A message is refused for what it carries, checked before use (``strain_comp.ros.messages``,
+then the engine's and ``LiveCompensator``'s own checks, which raise
 ``StrainCompError``): counted by input and reason under ``strain_comp: transport`` in
 /diagnostics. Anything else a callback raises is a fault of the program, not of the message:
 logged with its traceback, counted under ``strain_comp: program errors``, and the node goes
@@ -42,6 +42,7 @@ from std_srvs.srv import Trigger
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
 from strain_comp.ros.live import OK, WARN, ClockGate, LiveCompensator
+from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
     TUNABLE,
@@ -63,38 +64,6 @@ LOG_THROTTLE_S = 5.0
 
 Handler = Callable[[str, int, Any, list[Publisher]], None]
 """A resistance handler: (input name, stamp [ns], message, its three publishers)."""
-
-
-def sensor_value(msg: Any, field: str = "data") -> float:
-    """A scalar message's value (``std_msgs/Float64.data``, ``Temperature.temperature``);
-    InputError when it is not a number. NaN and inf pass: the engine screens them."""
-    value = getattr(msg, field, None)
-    if isinstance(value, bool) or not isinstance(value, (float, int)):
-        raise InputError(f"{field} is not a number ({type(value).__name__})")
-    return float(value)
-
-
-def array_layout(msg: Any) -> tuple[Any, int, list[int], str]:
-    """A Float64MultiArray's (data, ``layout.data_offset``, ``dim[*].size``,
-    ``dim[0].label``), each checked for its type; InputError naming what is wrong. The
-    sizes and the offset are then checked against the sensors by ``array_values``."""
-    layout = getattr(msg, "layout", None)
-    data = getattr(msg, "data", None)
-    offset = getattr(layout, "data_offset", None)
-    dims = getattr(layout, "dim", None)
-    if data is None or isinstance(data, (str, bytes)) or not hasattr(data, "__len__"):
-        raise InputError("data is not a sequence of numbers")
-    if isinstance(offset, bool) or not isinstance(offset, int):
-        raise InputError("layout data_offset is not an integer")
-    if dims is None or not hasattr(dims, "__iter__"):
-        raise InputError("layout dim is not a list")
-    sizes = [getattr(d, "size", None) for d in dims]
-    if any(isinstance(s, bool) or not isinstance(s, int) for s in sizes):
-        raise InputError("layout dim[*].size is not an integer")
-    label = getattr(dims[0], "label", "") if sizes else ""
-    if not isinstance(label, str):
-        raise InputError("layout dim[0].label is not a string")
-    return data, offset, [int(s) for s in sizes if s is not None], label
 
 
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
@@ -122,6 +91,12 @@ def send(publisher: Publisher, message: Callable[[], Any]) -> None:
 def one_line(error: BaseException) -> str:
     """An error's message on one line (its type's name when it has none)."""
     return " ".join(str(error).split()) or type(error).__name__
+
+
+def internal(error: BaseException) -> str:
+    """A program error as a service answers it."""
+    return (f"internal error: {type(error).__name__}: {one_line(error)} (a bug: the node's "
+            "log has the traceback)")
 
 
 class CompensatorNode(Node):
@@ -415,9 +390,7 @@ class CompensatorNode(Node):
             response.success, response.message = False, one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault(service, err)
-            response.success = False
-            response.message = (f"internal error: {type(err).__name__}: {one_line(err)} "
-                                "(a bug: the node's log has the traceback)")
+            response.success, response.message = False, internal(err)
         return response
 
     def _tare(self, request: Any, response: Any) -> Any:
@@ -455,8 +428,7 @@ class CompensatorNode(Node):
             return response
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault("~/reload_calibration", err)
-            self._refused_reload(f"internal error: {type(err).__name__}: {one_line(err)} "
-                                 "(a bug: the node's log has the traceback)")
+            self._refused_reload(internal(err))
             response.success, response.message = False, self.calibration_status[1]
             return response
         self._loading = threading.Thread(target=self._load, args=(current, params),
