@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from ros_env import ros_env
 
 from strain_comp.core.calibration import (
     Calibration,
@@ -391,6 +392,16 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.ros)
         if module in SLOW_MODULES or name in SLOW_TESTS.get(module, ()):
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def module_ros_env(request: pytest.FixtureRequest) -> None:
+    """A module that starts ROS (``ROS_SLOT``) gets its own domain while its tests run:
+    every module sets its environment when imported, and pytest imports them all before the
+    first test, so the last one imported would otherwise speak for all."""
+    slot = getattr(request.module, "ROS_SLOT", None)
+    if slot is not None:
+        os.environ.update(ros_env(slot))
 
 
 @pytest.fixture(scope="module")

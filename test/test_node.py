@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 from ros_env import use_ros_env
 
-use_ros_env(1)
+ROS_SLOT = 1
+use_ros_env(ROS_SLOT)
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from ros_env import ros_env, use_ros_env
 
-use_ros_env(7)
+ROS_SLOT = 7
+use_ros_env(ROS_SLOT)
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
 from rclpy.node import Node  # noqa: E402

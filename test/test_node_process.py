@@ -26,7 +26,8 @@ import numpy as np
 import pytest
 from ros_env import copy_package, ros_env, use_ros_env, wait_for
 
-ENV = use_ros_env(2)
+ROS_SLOT = 2
+ENV = use_ros_env(ROS_SLOT)
 
 import rclpy  # noqa: E402  (after the environment is set; never skipped)
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
