@@ -15,7 +15,8 @@ from typing import Any
 import pytest
 from ros_env import use_ros_env
 
-use_ros_env(17)
+ROS_SLOT = 17
+use_ros_env(ROS_SLOT)
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
