@@ -14,7 +14,7 @@ import numpy.typing as npt
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models.apl_kernels import inverse_widths, thresholds
-from strain_comp.models.base import Compensator
+from strain_comp.models.base import Compensator, tick_arrays
 
 
 class CellModel(Protocol):
@@ -86,11 +86,7 @@ class APLArray:
 
     def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
         """Advance all sensors by one tick at time t [s]; strain % per sensor."""
-        r = np.ascontiguousarray(r, dtype=np.float64)
-        if r.shape != (len(self.models),):
-            raise ValueError(f"r must have shape ({len(self.models)},), got {r.shape}")
-        if out is None:
-            out = np.empty(r.size)
+        r, out = tick_arrays(r, len(self.models), out)
         kern.step_array_kernel(float(t), r, self.x, self.clock, out, self.kind, self.sigma,
                                self.p, self.rho, self.inv_width, self.w, self.norm, self.b,
                                self.f_at_b, self.inv_slopes)

@@ -65,6 +65,7 @@ from strain_comp.models.base import (
     Segment,
     require_float,
     require_vector,
+    tick_arrays,
 )
 
 TAUS = (0.3, 3.0, 30.0, 300.0)
@@ -291,11 +292,7 @@ class CreepPIArray:
 
     def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
         """Advance all sensors by one tick at time t [s]; strain % per sensor."""
-        r = np.ascontiguousarray(r, dtype=np.float64)
-        if r.shape != (len(self.models),):
-            raise ValueError(f"r must have shape ({len(self.models)},), got {r.shape}")
-        if out is None:
-            out = np.empty(r.size)
+        r, out = tick_arrays(r, len(self.models), out)
         kern.step_array_kernel(float(t), r, self.z, self.play, self.clock, self.decay, out,
                                self.norm, self.tau, self.widths, self.coef, self.bias)
         return out
