@@ -183,7 +183,7 @@ def _unchunked(path: Path, n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_unchunked_bag_comes_in_bounded_time_ordered_pieces(tmp_path: Path) -> None:
-    from strain_comp.io.bag.reader import LOOSE_BLOCK
+    from strain_comp.io.bag.walk import LOOSE_BLOCK
 
     path = tmp_path / "flat.mcap"
     _unchunked(path, 30_000)
