@@ -29,7 +29,7 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
 from strain_comp.io.bag import chunks, iter_bag, read_bag, reader
 from strain_comp.io.bag.schemas import MAGIC, SCHEMAS
-from strain_comp.ros import live as live_module
+from strain_comp.ros import live_tare
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
@@ -212,12 +212,12 @@ def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
     """Every sample at one clock time (a paused sim clock): the start log stops at its
     budget and the automatic tare is declined with a log line; the calibration's zero
     stays (gain 1)."""
-    monkeypatch.setattr(live_module, "MAX_START_SAMPLES", 1024)
+    monkeypatch.setattr(live_tare, "MAX_START_SAMPLES", 1024)
     node = _live(tmp_path, "auto")
     for _ in range(5000):
         node.on_sensor("s1", 3.0, 150.0)
-    assert node._start == {} or node._start["s1"].t.size <= 1024
-    assert any("auto tare declined: 1024 samples" in line for line in node.tare_log)
+    assert node.taring.start == {} or node.taring.start["s1"].t.size <= 1024
+    assert any("auto tare declined: 1024 samples" in line for line in node.taring.log)
     assert node.engine.input_gain("s1") == 1.0
 
 

@@ -13,7 +13,9 @@ from conftest import S_HI, S_LO, cubic_cal
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.tare import TARE_WINDOW, rest_resistance_at_start, tare_engine
 from strain_comp.errors import InputError, ParameterError
-from strain_comp.ros.live import ClockGate, LiveCompensator, array_values
+from strain_comp.io.multiarray import array_values
+from strain_comp.ros.clock_gate import ClockGate
+from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
 
@@ -90,7 +92,7 @@ def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
     for ti in t:
         node.on_sensor("s1", float(ti), 140.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
-    assert node.tare_log and "auto tare" in node.tare_log[0]
+    assert node.taring.log and "auto tare" in node.taring.log[0]
     with pytest.raises(ParameterError, match="auto needs 'rest_resistance'"):
         live(tmp_path, tare="auto", rest=None)
 
@@ -103,10 +105,10 @@ def test_auto_tare_at_1_khz_reads_the_whole_window_as_offline(tmp_path: Path) ->
     r = np.where(t < 2.5, 140.0, 140.3) + 0.1 * np.random.default_rng(1).standard_normal(t.size)
     for ti, ri in zip(t, r, strict=True):
         node.on_sensor("s1", float(ti), float(ri))
-    assert node.tare_log and "auto tare: rest resistance" in node.tare_log[0]
+    assert node.taring.log and "auto tare: rest resistance" in node.taring.log[0]
     expected = rest_resistance_at_start(t, r, node.params.calibration.sensors["s1"].direction)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / expected, rel=1e-12)
-    assert not node._start  # the start log is dropped once every sensor is decided
+    assert not node.taring.start  # the start log is dropped once every sensor is decided
 
 
 def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path) -> None:
@@ -117,7 +119,7 @@ def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path
     r = 140.0 + 2.0 * (-1.0) ** np.arange(t.size) + np.where(t > 1.0, 60.0 * (t - 1.0), 0.0)
     for ti, ri in zip(t, r, strict=True):
         node.on_sensor("s1", float(ti), float(ri))
-    assert node.tare_log, "no auto tare although the run started at rest"
+    assert node.taring.log, "no auto tare although the run started at rest"
     direction = node.params.calibration.sensors["s1"].direction
     expected = rest_resistance_at_start(t, r, direction)
     assert expected == pytest.approx(140.0, abs=0.5)
@@ -137,7 +139,7 @@ def test_auto_tare_declines_a_run_that_starts_moving_and_never_tares_later(
     with pytest.raises(InputError):
         rest_resistance_at_start(t, r, direction)
     assert node.engine.input_gain("s1") == 1.0
-    assert len(node.tare_log) == 1 and "auto tare declined" in node.tare_log[0]
+    assert len(node.taring.log) == 1 and "auto tare declined" in node.taring.log[0]
 
 
 def test_diagnostics_error_stale_and_transport_recovery(tmp_path: Path) -> None:
@@ -188,7 +190,7 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
         node.on_array("m", float(ti), [140.0, math.nan])
     assert node.engine.input_gain("a") == pytest.approx(150.0 / 140.0)
     assert node.engine.input_gain("b") == 1.0
-    assert node._start["m"].n <= 512
+    assert node.taring.start["m"].n <= 512
 
 
 def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
@@ -198,11 +200,11 @@ def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
     for ti in np.arange(0.0, 1.0, 0.01):
         node.on_sensor("s1", float(ti), 140.0)
     node.tare()
-    assert not node._start
+    assert not node.taring.start
     for ti in np.arange(1.0, 2.0 * TARE_WINDOW, 0.01):
         node.on_sensor("s1", float(ti), 120.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
-    assert not node.tare_log and not node._start
+    assert not node.taring.log and not node.taring.start
 
 
 def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) -> None:

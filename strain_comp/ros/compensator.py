@@ -41,7 +41,8 @@ from std_srvs.srv import Trigger
 
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
-from strain_comp.ros.live import OK, WARN, ClockGate, LiveCompensator
+from strain_comp.ros.clock_gate import ClockGate
+from strain_comp.ros.live import OK, WARN, LiveCompensator
 from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
@@ -347,8 +348,8 @@ class CompensatorNode(Node):
         self._guarded(f"{name}/strain_reference", handle)
 
     def _log_tare(self) -> None:
-        while self.live.tare_log:
-            self.get_logger().info(self.live.tare_log.pop(0))
+        while self.live.taring.log:
+            self.get_logger().info(self.live.taring.log.pop(0))
 
     def _diagnostics(self) -> None:
         def publish() -> None:
