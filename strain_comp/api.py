@@ -37,14 +37,9 @@ from strain_comp.diagnosis.report_page import diagnosis_page
 from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.inputs import existing
 from strain_comp.io.recording import Recording, load_recordings
-from strain_comp.offline.evaluate import (
-    PLOT_POINTS,
-    evaluate_bag,
-    evaluate_recordings,
-    format_notes,
-    format_table,
-)
+from strain_comp.offline.evaluate import PLOT_POINTS, evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluate import in_run_bound as _in_run_bound
+from strain_comp.offline.evaluation import format_notes, format_table
 from strain_comp.offline.fit import fit_bags, fit_sensor
 from strain_comp.offline.options import check_fit_options, model_options
 from strain_comp.offline.recalibrate import recalibrate as _recalibrate
@@ -56,7 +51,7 @@ from strain_comp.progress import bar, counter, grid_progress
 
 if TYPE_CHECKING:
     from strain_comp.diagnosis.report import DiagnoseResult
-    from strain_comp.offline.evaluate import EvaluationResult
+    from strain_comp.offline.evaluation import EvaluationResult
     from strain_comp.offline.replay import ReplaySummary
 
 __all__ = ["Calibration", "Diagnosis", "Estimate", "Evaluation", "Recalibration", "Recording",
