@@ -1,4 +1,4 @@
-"""The fused array tick with creep_pi sensors (``strain_comp.core.array.creep_tick``), alone
+"""The fused array tick with creep_pi sensors (``strain_comp.core.array.family_tick``), alone
 and beside APL-family sensors: each sensor's published strain, direction, status and
 counters equal that sensor stepped alone through ``Engine.step`` (the per-sample path),
 over a run with bad samples, an outage longer than the gap reset, out-of-range samples,

@@ -384,7 +384,7 @@ def in_mm(recordings: dict[str, Recording]) -> dict[str, Recording]:
 def test_readings_and_errors_are_in_the_calibration_strain_unit(
         bags: BagMaker, tmp_path: Path) -> None:
     from strain_comp.errors import CalibrationError
-    from strain_comp.offline.evaluate import format_table
+    from strain_comp.offline.evaluation import format_table
 
     cal = fit_sensor([in_mm(bags("patterns", 0))["s1"]], "cubic", name="s1")
     cal = Calibration({"s1": dataclasses.replace(cal, strain_unit="mm")})

@@ -14,7 +14,8 @@ from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.models import Normalisation
-from strain_comp.offline.evaluate import evaluate_recordings, format_notes, format_table
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.evaluation import format_notes, format_table
 
 C = [-50.0, 0.5, 0.0, 0.0]  # S = 0.5 R - 50: R in [100, 150] ohm -> S in [0, 25] %
 
@@ -92,7 +93,7 @@ def test_plots_are_written(tmp_path: Path) -> None:
 
 
 def test_plot_titles_name_bag_calibration_and_tare_and_axes_span_the_data() -> None:
-    from strain_comp.offline.evaluate import SensorEvaluation
+    from strain_comp.offline.evaluation import SensorEvaluation
     from strain_comp.offline.plots import _limits, context_line
 
     result = evaluate_recordings({"s1": recording()}, calibration())

@@ -30,7 +30,8 @@ from strain_comp.core.tare import rest_resistance_at_start
 from strain_comp.io.csv_import import repair_position_glitches
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.fit import fit_sensor, pair_side
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.input_chain import pair_side
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("STRAIN_COMP_MEASURED_DATA", ROOT.parent / "shared" / "data"

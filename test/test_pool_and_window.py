@@ -14,7 +14,8 @@ from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.fit import fit_sensor, pooled_input
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.pool import pooled_input
 from strain_comp.offline.recalibrate import recalibrate_recordings, stretch_and_return
 
 

@@ -20,18 +20,14 @@ from strain_comp.api.inputs import (
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.tracking import DEFAULT_TRACKING
 from strain_comp.errors import InputError
-from strain_comp.offline.evaluate import (
-    evaluate_bag,
-    evaluate_recordings,
-    format_notes,
-    format_table,
-)
+from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluate import in_run_bound as _in_run_bound
+from strain_comp.offline.evaluation import format_notes, format_table
 from strain_comp.offline.report_page import BagSection, evaluation_figures, evaluation_page
 from strain_comp.offline.series import series_csv
 
 if TYPE_CHECKING:
-    from strain_comp.offline.evaluate import EvaluationResult
+    from strain_comp.offline.evaluation import EvaluationResult
 
 
 def _pandas() -> Any:

@@ -26,7 +26,7 @@ Per segment (``reduce_segment``):
    until they fit, so a reduction never holds more than about 4 n / f samples.
 4. **Holds**: the first and last sample of every stretch of at least 2f samples where the
    filtered S is still (``|dS/dt|`` at most ``HOLD_RATE_FRACTION`` of the segment's
-   99.5th-percentile rate, the rule ``fit.find_hold`` uses), so a hold starts and ends
+   99.5th-percentile rate, the rule ``deadzone.find_hold`` uses), so a hold starts and ends
    where it did; inside it the decimated samples carry its relaxation.
 
 Kept samples are the union, in time order, with the filtered values. What a reduction
