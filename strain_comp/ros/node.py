@@ -158,8 +158,11 @@ def main(args: list[str] | None = None) -> int:
         import rclpy
         from rclpy.exceptions import ParameterException
         from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-        from rclpy.experimental import EventsExecutor
+        from rclpy.experimental.events_executor import EventsExecutor
         from rclpy.signals import SignalHandlerOptions
+        from rclpy.utilities import ok, try_shutdown
+
+        from strain_comp.ros.rclpy_typed import destroy, logger
 
         start_errors = (*start_errors, ParameterException)
 
@@ -186,18 +189,18 @@ def main(args: list[str] | None = None) -> int:
                 else SingleThreadedExecutor())
     executor.add_node(node)
     try:
-        while not _stop.is_set() and rclpy.ok():
+        while not _stop.is_set() and ok():
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if _stopped_by:
-            node.get_logger().info(f"{_stopped_by[0]}: stopped")
+            logger(node).info(f"{_stopped_by[0]}: stopped")
         signal.signal(signal.SIGINT, _exit_now)
         signal.signal(signal.SIGTERM, _exit_now)
         executor.shutdown(timeout_sec=0.5)
-        node.destroy_node()
-        rclpy.try_shutdown()
+        destroy(node)
+        try_shutdown()
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(0)  # the interpreter's own teardown of the DDS library can take over a second

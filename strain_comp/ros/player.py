@@ -91,6 +91,8 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
 
+    from strain_comp.ros.rclpy_typed import destroy
+
     messages = bag_messages(path, topics)
     kinds = {name: message_class(name) for name in {m.type_name for m in messages}}
     skipped = sorted(name for name, kind in kinds.items() if kind is None)
@@ -143,16 +145,17 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
                 spin_until(executor, lambda e=expected: answers[0] >= e, LOCKSTEP_TIMEOUT_S)
     finally:
         executor.shutdown(timeout_sec=0.5)
-        node.destroy_node()
+        destroy(node)
     return len(messages)
 
 
 def main(path: str | Path, **options: Any) -> int:
     """``strain-comp play``: init rclpy, play, shut down; the messages published."""
     import rclpy
+    from rclpy.utilities import try_shutdown
 
     rclpy.init()
     try:
         return play(path, **options)
     finally:
-        rclpy.try_shutdown()
+        try_shutdown()
