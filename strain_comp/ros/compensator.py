@@ -28,7 +28,7 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.clock import JumpThreshold, ROSClock
+from rclpy.clock import JumpThreshold, ROSClock, TimeJump
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -235,7 +235,7 @@ class CompensatorNode(Node):
             return int(clock.now().nanoseconds)
         return time.time_ns()
 
-    def _on_tick(self, jump: Any) -> None:
+    def _on_tick(self, jump: TimeJump) -> None:
         """The sim clock moved: the inputs held for it are handled, stamped with it."""
         if self._loaded is not None:
             self._adopt()

@@ -29,6 +29,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -42,11 +43,11 @@ _stop = threading.Event()
 _stopped_by: list[str] = []
 
 
-def _exit_now(signum: int, frame: Any) -> None:
+def _exit_now(signum: int, frame: FrameType | None) -> None:
     os._exit(0)
 
 
-def _request_stop(signum: int, frame: Any) -> None:
+def _request_stop(signum: int, frame: FrameType | None) -> None:
     _stopped_by.append(signal.Signals(signum).name)
     _stop.set()
     watchdog = threading.Timer(SHUTDOWN_S, os._exit, args=(0,))
@@ -95,7 +96,7 @@ def command_line_params(args: list[str]) -> dict[str, str]:
             for _, rule in _ros_flags(args, ("-p", "--param"))}
 
 
-def _names_a_calibration(block: Any) -> bool:
+def _names_a_calibration(block: object) -> bool:
     """Whether a node block's ``ros__parameters`` set a ``calibration`` (at any depth)."""
     params = block.get("ros__parameters") if isinstance(block, dict) else None
     stack = [params]
