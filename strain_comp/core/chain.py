@@ -74,9 +74,9 @@ class Alternation:
                 f"(white noise {self.noise:.3g} ohm)")
 
 
-def _finite(r: npt.ArrayLike) -> np.ndarray:
-    r = np.asarray(r, dtype=np.float64)
-    return r[np.isfinite(r) & (r > 0)]
+def _finite(r: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    x = np.asarray(r, dtype=np.float64)
+    return x[np.isfinite(x) & (x > 0)]
 
 
 def _robust_sigma(x: np.ndarray) -> float:
@@ -110,15 +110,15 @@ PAIR_BRANCHES = ("mean", "upper", "lower")
 """The pair statistics an alternating input can be read through (``pair_values``)."""
 
 
-def pair_values(r: np.ndarray, previous: float = math.nan, branch: str = "mean",
+def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: str = "mean",
                 ) -> np.ndarray:
     """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
     first one with ``previous`` (itself when NaN)."""
     if branch == "mean":
         return pair_means(r, previous)
     before = np.concatenate(([previous], r[:-1])) if r.size else r
-    pick = np.fmax if branch == "upper" else np.fmin  # fmax/fmin: a NaN previous is skipped
-    return pick(r, before)
+    # fmax/fmin: a NaN previous is skipped
+    return np.fmax(r, before) if branch == "upper" else np.fmin(r, before)
 
 
 def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
@@ -200,7 +200,7 @@ def _scale(window: np.ndarray) -> float:
     """Robust sigma of innovations: 1.4826 x their median |value|, but at least 1.2533 x
     their mean |value| (equal for Gaussian noise; on a quantised series, whose median
     change may be 0, the mean still sees the noise)."""
-    return max(1.4826 * np.median(window), 1.2533 * np.mean(window))
+    return float(max(1.4826 * np.median(window), 1.2533 * np.mean(window)))
 
 
 QUANT_STEPS = 3.0

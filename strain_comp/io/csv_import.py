@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
@@ -320,8 +321,8 @@ def _scaled(path: Path, key: str, raw: np.ndarray, factor: float) -> np.ndarray:
     return scaled
 
 
-def _good_rows(path: Path, fmt: str, t: np.ndarray, r: np.ndarray, short: np.ndarray,
-               report: ImportReport) -> np.ndarray:
+def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
+               short: npt.NDArray[np.bool_], report: ImportReport) -> npt.NDArray[np.bool_]:
     """The rows kept (rules in the module docstring), the others counted by reason in
     ``report.dropped``; InputError when no row is good."""
     unparsable = short | ~np.isfinite(t) | np.isnan(r)

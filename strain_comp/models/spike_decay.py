@@ -124,7 +124,7 @@ class SpikeDecay(Compensator):
     def f(self, eps: npt.ArrayLike) -> np.ndarray:
         """Quasi-static resistance f(eps) [ohm], eq. (4), for strain eps [%]."""
         eps = np.asarray(eps, dtype=np.float64)
-        return np.vectorize(lambda e: f_eval(self.knots, self.c, float(e)))(eps)
+        return np.asarray(np.vectorize(lambda e: f_eval(self.knots, self.c, float(e)))(eps))
 
     def spike(self, rate: float, eps: float, *, loading: bool = True) -> tuple[float, float]:
         """(S, lambda) from the tables for a movement at ``rate`` [%/s] ending at ``eps`` [%]."""

@@ -96,7 +96,7 @@ def _fit_decay(th: np.ndarray, rh: np.ndarray, r_inf: float
     s0 = float(rh[0] / r_inf - 1.0)
 
     def res(z: np.ndarray) -> np.ndarray:
-        return z[0] * (1.0 + z[1] * np.exp(-np.exp(z[2]) * th)) - rh
+        return np.asarray(z[0] * (1.0 + z[1] * np.exp(-np.exp(z[2]) * th)) - rh)
 
     z0 = np.array([r_inf, s0, math.log(min(max(5.0 / duration, lam_lo * 1.01), lam_hi * 0.99))])
     try:

@@ -26,7 +26,7 @@ def f_eval(knots: np.ndarray, c: np.ndarray, eps: float) -> float:
     while i + 1 < knots.size and eps >= knots[i + 1]:
         i += 1
     d = eps - knots[i]
-    return ((c[i, 3] * d + c[i, 2]) * d + c[i, 1]) * d + c[i, 0]
+    return float(((c[i, 3] * d + c[i, 2]) * d + c[i, 1]) * d + c[i, 0])
 
 
 @njit
@@ -73,8 +73,8 @@ def table_lookup(table: np.ndarray, log_rates: np.ndarray, strains: np.ndarray, 
     j, v = _axis(strains, eps)
     i1 = min(i + 1, log_rates.size - 1)
     j1 = min(j + 1, strains.size - 1)
-    return ((1 - u) * (1 - v) * table[i, j] + u * (1 - v) * table[i1, j]
-            + (1 - u) * v * table[i, j1] + u * v * table[i1, j1])
+    return float((1 - u) * (1 - v) * table[i, j] + u * (1 - v) * table[i1, j]
+                 + (1 - u) * v * table[i, j1] + u * v * table[i1, j1])
 
 
 @njit

@@ -83,7 +83,8 @@ def _plausible_chunk(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> bo
         return False
     budget[0] -= length
     try:
-        chunk = Chunk.read(ReadDataStream(io.BytesIO(data[pos + 9:pos + 9 + length])))
+        # mcap leaves Chunk.read's return unannotated
+        chunk: Chunk = Chunk.read(ReadDataStream(io.BytesIO(data[pos + 9:pos + 9 + length])))
         if chunk.compression not in ("", "zstd", "lz4") or chunk.uncompressed_crc == 0:
             return False
         return zlib.crc32(_chunk_payload(chunk)) == chunk.uncompressed_crc

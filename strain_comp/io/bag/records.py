@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import struct
+from collections.abc import Callable
 
 import numpy as np
 from mcap.data_stream import ReadDataStream, RecordBuilder
@@ -146,6 +147,7 @@ def add_loose(col: Collector, msgs: list[Message], name: str) -> None:
     for m in msgs:
         m.write(builder)
     col.chunk_start = max(col.chunk_start, max(m.log_time for m in msgs))
-    buf = np.frombuffer(builder.end(), dtype=np.uint8)
+    end: Callable[[], bytes] = builder.end  # mcap leaves it unannotated; it returns the bytes
+    buf = np.frombuffer(end(), dtype=np.uint8)
     ops, starts, lens, _ = scan_records(buf)
     col.add_block(buf, ops, starts, lens, name)
