@@ -70,7 +70,8 @@ def njit(function: _F | None = None, /,
     options.setdefault("nogil", True)
 
     def compile_(python_function: _F) -> Dispatcher[_F]:
-        return numba.njit(python_function, **options)
+        dispatcher: Dispatcher[_F] = numba.njit(python_function, **options)
+        return dispatcher
 
     return compile_ if function is None else compile_(function)
 

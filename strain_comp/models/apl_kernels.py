@@ -252,7 +252,7 @@ def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
         advance_cells(xs, xi, sigma[s] * max(dt, 0.0), p[s], rho[ks], inv_width[ks], ks)
     clock[s, 0] = t
     psi = output(xs, xi, w[s], b, f_at_b[s], inv_slopes[s])
-    return (psi - norm[s, 3]) * norm[s, 2]
+    return float((psi - norm[s, 3]) * norm[s, 2])
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")

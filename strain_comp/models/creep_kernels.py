@@ -36,7 +36,7 @@ import math
 import numpy as np
 
 from strain_comp._numba import njit
-from strain_comp.models.apl_kernels import FASTMATH
+from strain_comp.models.apl_kernels import FASTMATH as FASTMATH
 
 DT_TOLERANCE = 1e-6
 """A step within this share of the cached dt reuses its decays: the same as a time stamp
@@ -110,8 +110,8 @@ def output(xi: float, z: np.ndarray, play: np.ndarray, coef: np.ndarray, bias: f
         psi += coef[3 + j] * play[j]
     for k in range(z.size):
         psi += coef[3 + n_play + k] * z[k]
-    return psi + (xi - play[n_play]) * (coef[3 + n_play + z.size]
-                                        + coef[4 + n_play + z.size] * xi)
+    return float(psi + (xi - play[n_play]) * (coef[3 + n_play + z.size]
+                                              + coef[4 + n_play + z.size] * xi))
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")
@@ -143,7 +143,7 @@ def step_sensor(s: int, t: float, ri: float, z: np.ndarray, play: np.ndarray,
     them for one sensor) by a good sample; strain %."""
     xi = ri / norm[s, 0] + norm[s, 1]
     advance(t, xi, z[s], play[s], clock[s], decay[s], tau[s], widths[s])
-    return (output(xi, z[s], play[s], coef[s], bias[s]) - norm[s, 3]) * norm[s, 2]
+    return float((output(xi, z[s], play[s], coef[s], bias[s]) - norm[s, 3]) * norm[s, 2])
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")

@@ -19,6 +19,7 @@ strain), so the published direction is +1 on loading for every sensor
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -74,7 +75,7 @@ def _noise_sigma(segments: Sequence[Segment]) -> float:
     if d2.size == 0:
         return 0.0
     sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
-    return (sigma or float(np.std(d2))) / np.sqrt(6.0)
+    return (sigma or float(np.std(d2))) / math.sqrt(6.0)
 
 
 def movement_rate(segments: Sequence[Segment]) -> float:
@@ -166,7 +167,8 @@ def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
     grid = np.arange(t[0], t[-1] + 0.5 * step, step)
     if grid.size < 2:
         return np.zeros(t.size)
-    return np.interp(t, grid, np.gradient(np.interp(grid, t, s), grid))
+    rate: np.ndarray = np.interp(t, grid, np.gradient(np.interp(grid, t, s), grid))
+    return rate
 
 
 def _tau_grid(segments: Sequence[Segment]) -> list[float]:

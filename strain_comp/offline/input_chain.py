@@ -54,7 +54,8 @@ def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
     t = np.asarray(t, dtype=np.float64)
     lo = np.searchsorted(t, t - 0.5)
     hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
-    return s[hi] - s[lo]
+    change: np.ndarray = s[hi] - s[lo]
+    return change
 
 
 def pair_side(recordings: Sequence[Recording]) -> str:

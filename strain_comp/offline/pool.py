@@ -108,7 +108,8 @@ def pooled_input(recordings: Sequence[Recording], pool: str = "spanned",
     def residual(x: np.ndarray) -> np.ndarray:  # the cubic solved for, given the maps
         mapped = np.concatenate([(r0_ref + k * (r - z)) / scale
                                  for (r, _), (z, k) in zip(data, unpack(x), strict=True)])
-        return np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped) - s_all
+        fitted: np.ndarray = np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped)
+        return fitted - s_all
 
     gains = start[1::2]
     lower = np.ravel([(-np.inf, 0.2 * k) for k in gains])
