@@ -42,7 +42,7 @@ from strain_comp.core.samples import Status
 from strain_comp.errors import ParameterError
 from strain_comp.models.base import Segment
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 def stream(engine: Engine, sensor: str, t: np.ndarray, r: np.ndarray) -> dict[str, np.ndarray]:
     outs = [engine.step(sensor, ti, ri) for ti, ri in zip(t, r, strict=True)]

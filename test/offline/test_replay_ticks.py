@@ -13,7 +13,7 @@ from strain_comp.core.calibration_file import load_calibration
 from strain_comp.io.bag import BagWriter
 from strain_comp.offline import replay
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_diagnostics_in_tick_batches_equal_all_at_once(tmp_path: Path,

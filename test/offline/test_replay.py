@@ -177,7 +177,7 @@ def test_array_without_labels_replays_under_column_names(tmp_path) -> None:
 def test_replay_with_auto_tare_equals_the_engine_tared_at_the_run_start(tmp_path: Path) -> None:
     """``tare="auto"``: the streamed replay tares each sensor from the start of its run,
     exactly as an engine tared by hand with ``rest_resistance_at_start``."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     bag = root / "bags" / "demo_rates.mcap"
     demo = load_calibration(root / "config" / "demo_calibration.yaml")
     name, sensor = next(iter(demo.sensors.items()))

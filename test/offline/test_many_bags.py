@@ -17,7 +17,7 @@ import pytest
 from strain_comp.cli import main
 from strain_comp.offline.batch import _plot_dirs
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 ERROR = "strain-comp: error: "
 
 

@@ -13,7 +13,7 @@ from strain_comp.core.engine import Engine
 from strain_comp.io.bag import BagContents, BagWriter, iter_bag, read_bag
 from strain_comp.offline.replay import replay_bag
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _concat(pieces: list, topic: str) -> tuple[np.ndarray, np.ndarray]:

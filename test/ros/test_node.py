@@ -38,7 +38,7 @@ from strain_comp.core.tracking import BaselineTracker  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.player import bag_messages, spin_until  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
 N_BAG = 400
 

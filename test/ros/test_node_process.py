@@ -38,7 +38,7 @@ from strain_comp.core.calibration import Calibration  # noqa: E402
 from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.io.bag import read_bag  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 N_MESSAGES = 1500
 N_WALL = 300
 

@@ -17,7 +17,7 @@ from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.errors import CalibrationError
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DEMO = yaml.safe_load((ROOT / "config" / "demo_calibration.yaml").read_text())
 
 

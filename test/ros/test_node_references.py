@@ -28,7 +28,7 @@ from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.player import spin_until  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
 
 

@@ -33,7 +33,7 @@ from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.input_chain import pair_side
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get("STRAIN_COMP_MEASURED_DATA", ROOT.parent / "shared" / "data"
                           / "measured"))
 V9 = DATA / "cb_pdms_7p5wt" / "2_7-5_E4pin_20mm_v9_0.2Strain_velocityprof.csv"

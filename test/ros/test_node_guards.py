@@ -31,7 +31,7 @@ from strain_comp.ros.live import MAX_REFUSAL_KEYS  # noqa: E402
 from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.player import spin_until  # noqa: E402
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 SENSORS = [f"a{i}" for i in range(1, 7)]
 
 

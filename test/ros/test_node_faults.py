@@ -32,7 +32,7 @@ from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.params import parse_values  # noqa: E402
 from strain_comp.ros.player import spin_until  # noqa: E402
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 
 class Rig:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CAL = str(ROOT / "config" / "demo_calibration.yaml")
 STEPS = str(ROOT / "bags" / "steps.mcap")
 RATES = str(ROOT / "bags" / "demo_rates.mcap")

@@ -10,7 +10,7 @@ import pytest
 from strain_comp.cli import main
 from strain_comp.models import apl_fit
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 class _SlowClock:

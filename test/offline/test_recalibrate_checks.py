@@ -11,7 +11,7 @@ import pytest
 from strain_comp.cli import main
 from strain_comp.io.bag import BagWriter
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CAL = ROOT / "config" / "demo_calibration.yaml"
 ERROR = "strain-comp: error: "
 

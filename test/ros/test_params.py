@@ -13,7 +13,7 @@ from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.params import TUNABLES, load_params, parse_values, validate_tunable
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 
 def setup_files(tmp_path: Path, body: str) -> Path:

@@ -14,7 +14,7 @@ import numpy as np
 from strain_comp.io.recording import Recording
 from strain_comp.offline.rig import simulate
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "measured.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "measured.py"
 
 
 @functools.cache

@@ -109,7 +109,7 @@ def test_node_without_rclpy_says_how_to_install_it(monkeypatch: pytest.MonkeyPat
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec",
                         lambda name, *a: None if name == "rclpy" else real(name, *a))
-    params = Path(__file__).resolve().parents[1] / "config" / "compensator_params.yaml"
+    params = Path(__file__).resolve().parents[2] / "config" / "compensator_params.yaml"
     capsys.readouterr()
     assert main(["node", "--params", str(params)]) == 2
     assert "pip install '.[ros]'" in capsys.readouterr().err

@@ -34,7 +34,7 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.engine import Engine
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 VENV = Path(os.environ.get("STRAIN_COMP_ROS2_VENV", ROOT / ".venv-ros2"))
 DOCS = ROOT / "docs" / "ros.md"
 CUBIC = [-40.0, 2.5, 0.0, 0.0]

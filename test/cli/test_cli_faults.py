@@ -17,7 +17,7 @@ from strain_comp import cli
 from strain_comp.cli import COMMANDS, EXIT_BUG, build_parser, main
 from strain_comp.errors import InputError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _broken(args: argparse.Namespace) -> int:

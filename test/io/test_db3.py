@@ -21,7 +21,7 @@ from strain_comp.cli import main
 from strain_comp.io.bag import read_bag
 from strain_comp.io.bag.reader import raw_messages
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MCAP = ROOT / "bags" / "demo_rates.mcap"
 ARRAY = ROOT / "bags" / "array.mcap"
 CAL = str(ROOT / "config" / "demo_calibration.yaml")

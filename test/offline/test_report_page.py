@@ -15,7 +15,7 @@ import pytest
 
 from strain_comp.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BAG = str(ROOT / "bags" / "demo_rates.mcap")
 STEPS = str(ROOT / "bags" / "steps.mcap")
 CAL = str(ROOT / "config" / "demo_calibration.yaml")
