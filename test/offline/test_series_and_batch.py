@@ -168,7 +168,7 @@ def test_error_accumulators_merge_into_the_statistics_of_all_samples() -> None:
 
 def test_csv_to_fit_to_csv_round_trip(tmp_path: Path, capsys: pytest.CaptureFixture[str]
                                       ) -> None:
-    """The README's generic mapping (ms, kohm, a fraction, decimal commas) imported, fitted
+    """docs/csv.md's generic mapping (ms, kohm, a fraction, decimal commas) imported, fitted
     and evaluated back out as a table; its estimate tracks the CSV's strain."""
     t = np.arange(0.0, 60.0, 0.02)
     s = 0.1 * np.abs(((t / 10.0) % 2.0) - 1.0)
