@@ -284,14 +284,18 @@ class _Reader:
         return lo, hi
 
     def bounded(self, node: Any, where: str, limit: float = PARAM_MAX) -> None:
-        """Every number inside ``node`` finite and at most ``limit`` in magnitude."""
+        """Every number inside ``node`` finite and at most ``limit`` in magnitude (the
+        place named only for a number refused: a large array has many)."""
         if isinstance(node, Mapping):
             for key, value in node.items():
                 self.bounded(value, f"{where}.{key}", limit)
         elif isinstance(node, list):
+            if all(type(value) is float and abs(value) <= limit for value in node):
+                return
             for i, value in enumerate(node):
                 self.bounded(value, f"{where}.{i}", limit)
-        elif isinstance(node, (int, float)) and not isinstance(node, bool):
+        elif type(node) in (int, float) or (isinstance(node, (int, float))
+                                            and not isinstance(node, bool)):
             if not abs(node) <= limit:
                 raise self.fail(where, f"must be finite and at most {limit:g} in magnitude, "
                                 f"got {node!r}")
@@ -369,10 +373,14 @@ class _Reader:
             input=input_settings, effects=[dict(e) for e in effects], provenance=dict(prov),
             rest_resistance=rest, strain_unit=unit, sample_interval=interval)
         try:
-            calibration.build_model()
+            model = calibration.build_model()
         except ParameterError as err:
             prefix = f"{where}.model" if err.field == "name" else f"{where}.model.params"
             raise self.fail(f"{prefix}.{err.field}", err.problem) from None
+        pole = model.singular_in(r_lo, r_hi)
+        if pole is not None:
+            raise self.fail(f"{where}.model", f"has no finite strain at R = {pole:.6g} ohm, "
+                            "inside its valid range (a pole)")
         return calibration
 
     def sign(self, node: Mapping[str, Any], where: str) -> int:
@@ -506,11 +514,5 @@ def _parse_fields(text: str, path: str) -> Calibration:
         if isinstance(effects, list) and len(effects) > MAX_SENSOR_EFFECTS:
             raise reader.fail(f"sensors.{name}.effects", f"refused: {len(effects)} effect "
                               f"terms, at most {MAX_SENSOR_EFFECTS} per sensor")
-    calibration = Calibration({str(name): reader.sensor(str(name), node)
-                               for name, node in sensors.items()})
-    for name, cal in calibration.sensors.items():
-        pole = cal.build_model().singular_in(cal.valid_range.r_lo, cal.valid_range.r_hi)
-        if pole is not None:
-            raise reader.fail(f"sensors.{name}.model", f"has no finite strain at R = "
-                              f"{pole:.6g} ohm, inside its valid range (a pole)")
-    return calibration
+    return Calibration({str(name): reader.sensor(str(name), node)
+                        for name, node in sensors.items()})
