@@ -11,10 +11,10 @@ sqrt(6) sigma for white noise), and ``estimate_deadzone`` is given a synthetic h
 white noise with that sigma at the longest segment's own sample times (fixed seed, so fits
 are reproducible). Noise-free data get a tiny floor. The provenance records which of these
 set the dead zone (``direction_from``). Options ``deadzone`` (the input's unit per s,
-ohm/s by default; set directly), ``k_sigma`` and ``tau`` override this and are not passed to the model. ``sign`` is the sign
-of the correlation of R and S in the training data (-1 for a sensor whose R falls with
-strain), so the published direction is +1 on loading for every sensor
-(``strain_comp.core.engine``).
+ohm/s by default; set directly), ``k_sigma`` and ``tau`` override this and are not passed
+to the model. ``sign`` is the sign of the correlation of R and S in the training data (-1
+for a sensor whose R falls with strain), so the published direction is +1 on loading for
+every sensor (``strain_comp.core.engine``).
 """
 
 from __future__ import annotations
