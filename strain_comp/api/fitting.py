@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from strain_comp.api.inputs import Data, PathLike, as_recordings, paths_of
@@ -17,7 +18,7 @@ from strain_comp.progress import bar, grid_progress
 def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         sensors: Sequence[str] | None = None, strain_unit: str = "%",
         report: Callable[[str], None] | None = None, progress_bar: bool = False,
-        pool: str = "spanned", **options: Any) -> Calibration:
+        pool: str = "spanned", input_unit: str = "ohm", **options: Any) -> Calibration:
     """Fit ``model`` (apl, pl, mpi, cubic, sinh_pl, rational, spike_decay) to recordings
     with a reference strain: one calibration, one entry per sensor.
 
@@ -29,11 +30,17 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     bar on stderr over an APL-family fit's grid (``strain_comp.progress``). ``pool``: how
     several runs of a sensor are pooled, ``"spanned"`` (each run's input zero and span put
     onto the run of median sensitivity) or ``"raw"`` (``strain-comp fit --pool``).
+    ``input_unit``: the unit of the recordings' resistance, ohm or another for an input not
+    in ohm (``R/R0``): stored in the calibration's input (``InputSettings.unit``), so the
+    dead zone is read in it per second (``strain-comp fit --input-unit``).
     """
 
     check_fit_options(model, options)
     if not unit_ok(strain_unit):
         raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "
+                         "(1-16 letters, digits, %, / or .)")
+    if not unit_ok(input_unit):
+        raise InputError(f"input unit {input_unit!r}: expected a unit such as ohm or R/R0 "
                          "(1-16 letters, digits, %, / or .)")
 
     grid = "progress" in model_options(model) and "progress" not in options
@@ -43,6 +50,11 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         calibration = _fit(data, model, sensors, report, options, pool)
     for cal in calibration.sensors.values():
         cal.strain_unit = strain_unit
+        if input_unit != "ohm":
+            if cal.input.kind != "resistance":
+                raise InputError(f"input unit {input_unit!r}: {cal.name}'s input is a "
+                                 f"{cal.input.kind}, whose resistance is in ohm")
+            cal.input = replace(cal.input, unit=input_unit)
         if grid:  # how the fit was shown is no fit option
             cal.provenance.get("options", {}).pop("progress", None)
     return calibration

@@ -43,6 +43,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="unit of the bags' strain_reference (default %%; mm for an extension "
                    "imported without a gauge length): errors, plots and readings are given "
                    "in it")
+    p.add_argument("--input-unit", default="ohm", metavar="UNIT",
+                   help="unit of the bags' resistance (default ohm; e.g. R/R0 for a "
+                   "resistance divided by its first sample): stored in the calibration, "
+                   "the dead zone is given in it per second")
     p.add_argument("--pool", choices=("spanned", "raw"), default="spanned",
                    help="several bags of a sensor: spanned (default) puts each run's input "
                         "zero and span onto the run of median sensitivity before pooling "
@@ -63,13 +67,15 @@ def run(args: argparse.Namespace) -> int:
 
     options = parse_options(args.option or [])
     check_fit_options(args.model, options)
-    if not unit_ok(args.strain_unit):
-        raise InputError(f"--strain-unit {args.strain_unit!r}: expected a unit such as % or "
-                         "mm (1-16 letters, digits, %, / or .)")
+    for flag, unit in (("--strain-unit", args.strain_unit), ("--input-unit", args.input_unit)):
+        if not unit_ok(unit):
+            raise InputError(f"{flag} {unit!r}: expected a unit such as % or mm for strain, "
+                             "ohm or R/R0 for the input (1-16 letters, digits, %, / or .)")
     notes: list[str] = []  # damage the reader skipped: noted once, in the error if any
     try:
         calibration = api.fit(args.bags, args.model, sensors=args.sensor,
-                              strain_unit=args.strain_unit, report=notes.append,
+                              strain_unit=args.strain_unit, input_unit=args.input_unit,
+                              report=notes.append,
                               progress_bar=wanted(args.quiet), pool=args.pool, **options)
     except StrainCompError as err:
         raise InputError("; ".join([str(err), *notes])) from None
@@ -85,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name}: {cal.model} fitted on {prov['n_samples']} samples in "
               f"{prov['fit_seconds']:.2f} s, training RMSE {prov['fit_rmse']:.4f} "
               f"{strain_unit_words(cal.strain_unit)} "
-              f"(dead zone {cal.direction.deadzone:.4g} ohm/s from {prov['direction_from']})")
+              f"(dead zone {cal.direction.deadzone:.4g} {cal.input.rate_unit} from "
+              f"{prov['direction_from']})")
     note(args, f"wrote {args.out}")
     return 0

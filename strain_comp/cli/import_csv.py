@@ -12,7 +12,7 @@ from strain_comp.io.inputs import existing
 NAME = "import-csv"
 SUMMARY = "turn a tensile-tester CSV into a bag"
 DESCRIPTION = (
-    "Read a tensile tester's CSV into a bag: /NAME/resistance [ohm] and "
+    "Read a tensile tester's CSV into a bag: /NAME/resistance [ohm, or --resistance-unit] and "
     "/NAME/strain_reference [%, or the unit the CSV gives]. Presets: cb_pdms (7 "
     "columns: R outer, R inner, t_R, position mm, t_pos, force, t_force; strain "
     "= 100 |position| / 40 mm), fiber (4 columns: time s, extension mm, force, "
@@ -43,6 +43,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scales", action="append", metavar="KEY=FACTOR,...",
                    help="factor per column key into s, ohm and the strain unit, e.g. "
                    "time=1e-3 (ms),resistance=1000 (kohm),strain=100 (a fraction)")
+    p.add_argument("--resistance-unit", default="ohm", metavar="UNIT",
+                   help="unit of the resistance column after --scales (default ohm; e.g. "
+                   "R/R0 for a resistance divided by its first sample): fit the bag with "
+                   "--input-unit UNIT")
     p.add_argument("--delimiter", metavar="C",
                    help="field delimiter (default: detected among tab ; , | and spaces)")
 
@@ -78,12 +82,18 @@ def run(args: argparse.Namespace) -> int:
     """The CSV read, checked and written as a bag; the import report on stdout."""
     existing(args.csv, "CSV file")
     output(args.out, [args.csv])
+    from strain_comp.core.calibration import unit_ok
     from strain_comp.io import csv_import
+
+    if not unit_ok(args.resistance_unit):
+        raise InputError(f"--resistance-unit {args.resistance_unit!r}: expected a unit such "
+                         "as ohm or R/R0 (1-16 letters, digits, %, / or .)")
 
     result = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
         columns=parse_columns(args.columns) if args.columns else None,
-        scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter)
+        scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter,
+        resistance_unit=args.resistance_unit)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))
     for line in result.report.notes:

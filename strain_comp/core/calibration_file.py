@@ -3,8 +3,9 @@ each sensor is run through the engine on a probe (``probe_calibration``), and a
 calibration that gives a non-finite strain there is refused, so one that loads gives
 finite strain inside its declared range (docs/design.md, "Calibration file").
 
-The fields are parsed and checked without a model run in ``strain_comp.core.calibration``;
-this module sits above the engine, which it runs. Saving is atomic
+The fields are parsed and checked (each model built, not run) in
+``strain_comp.core.calibration_reader``; this module sits above the engine, which it runs.
+Saving is atomic
 (``strain_comp.io.atomic``), and ``save_calibration`` first applies the same checks to the
 text it would write (``check_calibration``): nothing it writes fails to load.
 """
@@ -20,13 +21,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from strain_comp.core.calibration import (
-    MAX_FILE_BYTES,
-    Calibration,
-    SensorCalibration,
-    parse_fields,
-    read_text,
-)
+from strain_comp.core.calibration import MAX_FILE_BYTES, Calibration, SensorCalibration
+from strain_comp.core.calibration_reader import parse_fields, read_text
 from strain_comp.core.engine import Engine
 from strain_comp.errors import CalibrationError
 from strain_comp.io.atomic import write_text

@@ -18,6 +18,7 @@ import numpy as np
 
 from strain_comp.core.calibration import SensorCalibration
 from strain_comp.core.stages import RANGE_COLUMNS, bound_all, saturate_all
+from strain_comp.models.base import Compensator
 
 OPEN_FACTOR = 100.0
 """R above this many times the top of the valid resistance range is an open circuit."""
@@ -68,8 +69,10 @@ class SensorRange:
     past the end, or cells driven where no data were, do not move it)."""
 
     @classmethod
-    def build(cls, cal: SensorCalibration, out_of_range: str = "clamp") -> SensorRange:
-        """The limits of ``cal``'s valid range under the policy ``out_of_range``."""
+    def build(cls, cal: SensorCalibration, out_of_range: str = "clamp",
+              model: Compensator | None = None) -> SensorRange:
+        """The limits of ``cal``'s valid range under the policy ``out_of_range``; ``model``:
+        ``cal``'s model to read the slopes on (``branches``; None: a new one)."""
         vr = cal.valid_range
         r_margin = RANGE_MARGIN * (vr.r_hi - vr.r_lo)
         s_margin = RANGE_MARGIN * (vr.s_hi - vr.s_lo)
@@ -77,9 +80,9 @@ class SensorRange:
                     r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
                     s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin)
         if out_of_range == "extrapolate":
-            return cls(**{**vars(plain), "slopes": end_slopes(cal, plain)})
+            return cls(**{**vars(plain), "slopes": end_slopes(cal, plain, model)})
         if out_of_range == "extend":
-            slopes, reach = bounded_slopes(cal, plain)
+            slopes, reach = bounded_slopes(cal, plain, model)
             return cls(**{**vars(plain), "slopes": slopes, "reach": reach, "saturate": True})
         return plain
 
@@ -103,21 +106,33 @@ class SensorRange:
                          np.ascontiguousarray(strain, dtype=np.float64), self.row)
 
 
-def branches(cal: SensorCalibration, limits: SensorRange) -> tuple[np.ndarray, np.ndarray]:
+def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """The model's output along a slow ramp over the valid range and back from a fresh
     state (``SETTLE`` steps each way at 10 Hz): (loading branch, unloading branch), both at
     the resistances ``np.linspace(r_lo, r_hi, SETTLE + 1)``. A sensor leaves the range at
-    the top while loading and at the bottom while unloading."""
+    the top while loading and at the bottom while unloading. ``model``: ``cal``'s model,
+    reset before and after the ramp (None: a new one)."""
     up = np.linspace(limits.r_lo, limits.r_hi, SETTLE + 1)
     r = np.concatenate([up, up[-2::-1]])
-    out = cal.build_model().run(0.1 * np.arange(r.size), r)
+    if model is None:
+        model = cal.build_model()
+    model.reset()
+    out = model.run(0.1 * np.arange(r.size), r)
+    model.reset()
     return out[:SETTLE + 1], out[SETTLE:][::-1]
 
 
-def end_slopes(cal: SensorCalibration, limits: SensorRange) -> tuple[float, float]:
+def end_slopes(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
+               ) -> tuple[float, float]:
     """dS/dR of the model's unloading branch over the first ``END_SPAN`` of the valid
     range and of its loading branch over the last (``branches``): ``extrapolate``."""
-    loading, unloading = branches(cal, limits)
+    return _end_slopes(*branches(cal, limits, model), limits)
+
+
+def _end_slopes(loading: np.ndarray, unloading: np.ndarray, limits: SensorRange
+                ) -> tuple[float, float]:
+    """``end_slopes`` of the branches ``loading`` and ``unloading`` (``branches``)."""
     k = max(1, round(END_SPAN * SETTLE))
     width = k * (limits.r_hi - limits.r_lo) / SETTLE
     lo = float(unloading[k] - unloading[0]) / width
@@ -125,7 +140,8 @@ def end_slopes(cal: SensorCalibration, limits: SensorRange) -> tuple[float, floa
     return (lo if math.isfinite(lo) else 0.0), (hi if math.isfinite(hi) else 0.0)
 
 
-def bounded_slopes(cal: SensorCalibration, limits: SensorRange
+def bounded_slopes(cal: SensorCalibration, limits: SensorRange,
+                   model: Compensator | None = None
                    ) -> tuple[tuple[float, float], tuple[float, float]]:
     """``extend``: (slopes, reach). Each end slope kept within ``EXTEND_SLOPE`` x the
     secant slope of the model over the valid range (``branches``: the top of its loading
@@ -137,8 +153,8 @@ def bounded_slopes(cal: SensorCalibration, limits: SensorRange
     strain did. The extended estimate reaches at most ``EXTEND_REACH`` calibrated strain
     spans above the range, and below it never past zero strain: a resistance under the
     calibrated rest is far more often a rest level that moved than a compression."""
-    lo_end, hi_end = end_slopes(cal, limits)
-    loading, unloading = branches(cal, limits)
+    loading, unloading = branches(cal, limits, model)
+    lo_end, hi_end = _end_slopes(loading, unloading, limits)
     secant = float(loading[-1] - unloading[0]) / (limits.r_hi - limits.r_lo)
     low, high = EXTEND_SLOPE
 

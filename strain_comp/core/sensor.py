@@ -119,9 +119,10 @@ class SensorState:
               out_of_range: str = "clamp") -> SensorState:
         """A fresh sensor: model, detector (dead zone x ``deadzone_scale``), limits under
         the policy ``out_of_range``, effect terms and input corrector of ``cal``."""
-        return cls(cal=cal, model=cal.build_model(),
+        model = cal.build_model()
+        return cls(cal=cal, model=model,
                    detector=DirectionDetector(scaled(cal.direction, deadzone_scale)),
-                   limits=SensorRange.build(cal, out_of_range),
+                   limits=SensorRange.build(cal, out_of_range, model),
                    effects=EffectTerms.from_dicts(cal.effects), corrector=_corrector(cal))
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float

@@ -72,6 +72,8 @@ class ImportReport:
     dropped: dict[str, int] = field(default_factory=dict)
     glitches_repaired: int = 0
     strain_unit: str = "%"
+    resistance_unit: str = "ohm"
+    """The unit of the stored resistance: ohm, or the one given (``R/R0``)."""
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     """A reference that looks wrong (``reference_warnings``): one line each, saying what
@@ -89,6 +91,8 @@ class ImportReport:
         if self.fmt == "cb_pdms" or self.glitches_repaired:
             out.append(f"  position glitches repaired: {self.glitches_repaired}")
         out.append(f"  strain stored in {self.strain_unit}")
+        if self.resistance_unit != "ohm":
+            out.append(f"  resistance stored in {self.resistance_unit}")
         return out
 
 
@@ -201,7 +205,8 @@ def repair_position_glitches(pos: np.ndarray, *, threshold_mm: float = 0.5
 def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: float | None = None,
                columns: Mapping[str, int | str] | None = None,
                scales: Mapping[str, float] | None = None, delimiter: str | None = None,
-               header: bool | None = None, glitch_threshold_mm: float = 0.5) -> ImportResult:
+               header: bool | None = None, glitch_threshold_mm: float = 0.5,
+               resistance_unit: str = "ohm") -> ImportResult:
     """Import one tensile-tester CSV as a Recording (formats in the module docstring).
 
     Args:
@@ -215,6 +220,8 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
         delimiter: The delimiter; None: detected (``detect_delimiter``).
         header: Whether the first row is a header; None: detected.
         glitch_threshold_mm: ``repair_position_glitches``' threshold.
+        resistance_unit: The unit of the resistance column after ``scales``: ohm, or
+            another for a column not in ohm (``R/R0``); the report and its note name it.
 
     Returns:
         The recording and the import report.
@@ -227,7 +234,10 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     path = Path(path)
     mapping = _mapping(path, fmt, gauge_length_mm, columns, scales)
     rows, _ = _read_rows(path, delimiter)
-    report = ImportReport(path=str(path), fmt=fmt)
+    report = ImportReport(path=str(path), fmt=fmt, resistance_unit=resistance_unit)
+    if resistance_unit != "ohm":
+        report.notes.append(f"the 'resistance' topic holds the input in {resistance_unit}, "
+                            f"not ohm (fit it with --input-unit {resistance_unit})")
     head, rows = _split_header(path, rows, header)
     fields, short = _fields(path, fmt, rows, head, mapping, scales)
     report.rows = len(rows)
@@ -336,7 +346,7 @@ def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[
     good = candidate & ~backwards
     report.dropped = {"unparsable or missing field": int(unparsable.sum()),
                       "resistance not finite": int(not_finite.sum()),
-                      "resistance <= 0 ohm": int(non_positive.sum()),
+                      f"resistance <= 0 {report.resistance_unit}": int(non_positive.sum()),
                       f"time < 0 or beyond {MAX_TIME_S} s": int(beyond.sum()),
                       "time not increasing": int(backwards.sum())}
     if not good.any():

@@ -4,10 +4,14 @@
 expanding a "billion laughs" document, recursing into 1,000 levels of nesting
 (``RecursionError``) or building an integer no float can hold (``OverflowError`` later);
 every other fault is the usual ``yaml.YAMLError``. Used for calibration files and rosbag2
-``metadata.yaml``. With libyaml (``yaml.CSafeLoader``) the limits are checked on libyaml's
-event stream first (no nesting or alias beyond them reaches the composer), then the
-document is composed by libyaml: about 5x faster than the pure-Python loader, which is
-used otherwise.
+``metadata.yaml``. With libyaml (``yaml.CSafeLoader``) a document of plain mappings,
+sequences and untagged scalars (what ``yaml.safe_dump`` writes without shared values: every
+calibration file) is built straight from libyaml's event stream in one pass, with the
+limits counted on the way (``_build_plain``): the text is parsed once and no node tree is
+built. Any other document (an anchor, an alias, an explicit tag, a timestamp, a merge key)
+has the limits checked on the event stream first (no nesting or alias beyond them reaches
+the composer), then is composed and constructed by libyaml's loader. Without libyaml the
+pure-Python loader counts the limits while it composes.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import gc
 import re
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 import yaml
@@ -64,7 +69,8 @@ def _construct_int(loader: Any, node: Any) -> int:
 
 _LimitedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
 
-_STR, _FLOAT, _INT = (f"tag:yaml.org,2002:{kind}" for kind in ("str", "float", "int"))
+_STR, _FLOAT, _INT, _BOOL, _NULL = (f"tag:yaml.org,2002:{kind}"
+                                    for kind in ("str", "float", "int", "bool", "null"))
 _CSafeLoader: Any = getattr(yaml, "CSafeLoader", None)
 if _CSafeLoader is not None:
     class _LimitedCLoader(_CSafeLoader):
@@ -83,6 +89,98 @@ if _CSafeLoader is not None:
             return super().construct_object(node, deep)
 
     _LimitedCLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+
+
+class _NotPlain(Exception):
+    """The document holds more than ``_build_plain`` builds (an anchor, an alias, a tag)."""
+
+
+_RESOLVERS: dict[str | None, list[tuple[str, re.Pattern[str]]]] = {
+    first: [*rules, *yaml.resolver.Resolver.yaml_implicit_resolvers.get(None, [])]
+    for first, rules in yaml.resolver.Resolver.yaml_implicit_resolvers.items()}
+_UNSET = object()
+"""A mapping's key not read yet."""
+_SEQUENCE = object()
+"""In place of a key: the open collection is a sequence."""
+
+
+def _plain_scalar(event: Any, constructor: yaml.constructor.SafeConstructor) -> Any:
+    """The value of an untagged scalar, as ``yaml.safe_load`` resolves and constructs it:
+    a string, float, integer (within float range), bool or null; ``_NotPlain`` for any
+    other implicit type (a timestamp, a merge key)."""
+    value = event.value
+    tag = _STR
+    if event.implicit[0]:  # plain: the implicit resolvers of yaml.SafeLoader, in order
+        for rule, pattern in _RESOLVERS.get(value[:1], _RESOLVERS.get(None, [])):
+            if pattern.match(value):
+                tag = rule
+                break
+    if tag == _STR:
+        return value
+    if tag == _FLOAT:
+        digits = value.replace("_", "").lower()
+        if ":" not in digits and "." in digits and "inf" not in digits and "nan" not in digits:
+            return float(digits)
+    if tag in (_FLOAT, _INT, _BOOL, _NULL):
+        node = yaml.ScalarNode(tag, value, event.start_mark, event.end_mark)
+        return _construct_int(constructor, node) if tag == _INT else \
+            constructor.construct_object(node)
+    raise _NotPlain
+
+
+def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
+    """The single YAML document in ``text`` built from libyaml's events (iterative), within
+    the node and nesting limits as ``_check_events`` counts them; ``_NotPlain`` for a
+    document holding an anchor, an alias, an explicit tag, a complex key, a scalar other
+    than a string, float, integer, bool or null, or a second document."""
+    constructor = yaml.constructor.SafeConstructor()
+    open_: list[Any] = []  # the collections being filled, outermost first
+    keys: list[Any] = []  # per open collection: its pending key, _UNSET or _SEQUENCE
+    root: Any = None
+    nodes = 0
+    documents = 0
+    events: Iterator[Any] = yaml.parse(text, Loader=_CSafeLoader)
+    for event in events:
+        kind = event.__class__
+        if kind is yaml.ScalarEvent or kind is yaml.MappingStartEvent \
+                or kind is yaml.SequenceStartEvent:
+            if event.anchor is not None or event.tag is not None:
+                raise _NotPlain
+            value: Any = (_plain_scalar(event, constructor) if kind is yaml.ScalarEvent
+                          else {} if kind is yaml.MappingStartEvent else [])
+        elif kind is yaml.MappingEndEvent or kind is yaml.SequenceEndEvent:
+            open_.pop()
+            keys.pop()
+            continue
+        elif kind is yaml.DocumentStartEvent:
+            documents += 1
+            if documents > 1:
+                raise _NotPlain  # the composer names the fault
+            continue
+        elif kind is yaml.AliasEvent:
+            raise _NotPlain
+        else:
+            continue
+        nodes += 1
+        if len(open_) + 1 > max_depth:
+            raise LimitError(f"nested more than {max_depth} deep")
+        if nodes > max_nodes:
+            raise LimitError(f"more than {max_nodes} values once YAML aliases are expanded")
+        if not open_:
+            root = value
+        elif keys[-1] is _SEQUENCE:
+            open_[-1].append(value)
+        elif keys[-1] is _UNSET:
+            if kind is not yaml.ScalarEvent:
+                raise _NotPlain  # a complex key
+            keys[-1] = value
+        else:
+            open_[-1][keys[-1]] = value
+            keys[-1] = _UNSET
+        if kind is not yaml.ScalarEvent:
+            open_.append(value)
+            keys.append(_UNSET if kind is yaml.MappingStartEvent else _SEQUENCE)
+    return root
 
 
 def _check_events(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> int:
@@ -196,6 +294,11 @@ def _load(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> Any:
     loader: Any = None
     aliases = 1  # unknown: the expansion is checked
     _check_flow_depth(text, max_depth)
+    if _CSafeLoader is not None:
+        try:
+            return _build_plain(text, max_nodes, max_depth)
+        except _NotPlain:
+            pass
     try:
         if _CSafeLoader is not None:
             aliases = _check_events(text, max_aliases, max_nodes, max_depth)

@@ -157,7 +157,7 @@ class _CellModel(KernelCompensator):
                                        f"slope {slopes[j]:.6g}")
         self.rho = thresholds(n, self.kind)
         self._inv_width = inverse_widths(self.rho, self.kind)
-        self._b, self._f_at_b, self._inv_slopes = pwa.inverse_tables(self.mu)
+        self._b, self._f_at_b, self._inv_slopes = pwa.slope_tables(slopes)
         self.orientation = int(orientation)
         # The cells' input orientation * xi, as orientation * (R / r0 + alpha).
         self._norm = np.array([orientation * normalisation.r0, orientation * normalisation.alpha,

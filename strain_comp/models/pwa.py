@@ -20,6 +20,8 @@ exact, including linear extrapolation at both ends.
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 import numpy.typing as npt
 
@@ -46,9 +48,8 @@ def slopes_from_mu(mu: npt.ArrayLike) -> np.ndarray:
     """Slopes of the M segments (left to right) of f with basis coefficients ``mu``."""
     mu = np.asarray(mu, dtype=np.float64)
     m = mu.size
-    b = breakpoints(m)
     slopes = np.full(m, mu[0])
-    for i, bi in enumerate(b):
+    for i, bi in enumerate(_breakpoint_paths(m)[0].tolist()):
         if bi > 0:
             slopes[i + 1:] += mu[1 + i]   # right of b_i
         else:
@@ -83,12 +84,24 @@ def path_matrix(psi: npt.ArrayLike, m: int) -> np.ndarray:
 
 def inverse_tables(mu: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(b, F, inv_slopes): breakpoints, f at the breakpoints, 1 / segment slopes for ``finv``."""
-    mu = np.asarray(mu, dtype=np.float64)
-    m = mu.size
+    return slope_tables(slopes_from_mu(mu))
+
+
+def slope_tables(slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``inverse_tables`` of f given by its M segment slopes (``slopes_from_mu``)."""
+    b, paths = _breakpoint_paths(slopes.size)
+    return b.copy(), paths @ slopes, 1.0 / slopes
+
+
+@cache
+def _breakpoint_paths(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(breakpoints, ``path_matrix`` at them) of M segments, read-only: what every f of M
+    segments shares (computed once per M: a large array's models are built fast)."""
     b = breakpoints(m)
-    slopes = slopes_from_mu(mu)
-    f_at_b = path_matrix(b, m) @ slopes
-    return b, f_at_b, 1.0 / slopes
+    paths = path_matrix(b, m)
+    b.flags.writeable = False
+    paths.flags.writeable = False
+    return b, paths
 
 
 def evaluate(psi: npt.ArrayLike, mu: npt.ArrayLike) -> np.ndarray:

@@ -10,11 +10,11 @@ record (MAD of the second difference of R, which cancels any smooth motion: std(
 sqrt(6) sigma for white noise), and ``estimate_deadzone`` is given a synthetic hold of
 white noise with that sigma at the longest segment's own sample times (fixed seed, so fits
 are reproducible). Noise-free data get a tiny floor. The provenance records which of these
-set the dead zone (``direction_from``). Options ``deadzone`` (ohm/s, set directly),
-``k_sigma`` and ``tau`` override this and are not passed to the model. ``sign`` is the sign
-of the correlation of R and S in the training data (-1 for a sensor whose R falls with
-strain), so the published direction is +1 on loading for every sensor
-(``strain_comp.core.engine``).
+set the dead zone (``direction_from``). Options ``deadzone`` (the input's unit per s,
+ohm/s by default; set directly), ``k_sigma`` and ``tau`` override this and are not passed
+to the model. ``sign`` is the sign of the correlation of R and S in the training data (-1
+for a sensor whose R falls with strain), so the published direction is +1 on loading for
+every sensor (``strain_comp.core.engine``).
 """
 
 from __future__ import annotations
@@ -125,7 +125,7 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
     if "deadzone" in options:
         deadzone = float(options["deadzone"])
         if not deadzone > 0:
-            raise InputError(f"option deadzone must be > 0 ohm/s, got {deadzone}")
+            raise InputError(f"option deadzone must be > 0 (input unit/s), got {deadzone}")
         tau = float(options.get("tau", 0.0))
         return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
     taus = [float(options["tau"])] if "tau" in options else _tau_grid(segments)

@@ -47,7 +47,8 @@ class SensorEvaluation:
     out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
     """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
     input_unit: str = "ohm"
-    """The unit of ``r``: ohm, or V for a voltage divider's input."""
+    """The unit of ``r``: ohm (or the calibration's input unit), or V for a voltage
+    divider's input."""
     input_gain: float = 1.0
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
     errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
@@ -109,8 +110,9 @@ def fusion_state(fused: SparseFusion | None) -> dict[str, Any] | None:
 
 
 def input_unit(cal: SensorCalibration) -> str:
-    """The unit of the input a sensor's run holds: V for a voltage divider, else ohm."""
-    return "V" if cal.input.kind == "divider" else "ohm"
+    """The unit of the input a sensor's run holds: V for a voltage divider, else the
+    resistance's own (ohm, or the calibration's ``input.unit``)."""
+    return "V" if cal.input.kind == "divider" else cal.input.unit
 
 
 def tracked(tracker: BaselineTracker | None, name: str) -> dict[str, float] | None:

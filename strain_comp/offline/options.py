@@ -125,7 +125,8 @@ MEANINGS: dict[str, str] = {
     "taus": "creep time constants [s] (default [0.3, 3, 30, 300])",
     "n_play": "play operators (default 8)",
     "lam": "ridge penalty (default: chosen by cross-validation over the runs)",
-    "deadzone": "direction dead zone [ohm/s] (default k_sigma x noise of a hold)",
+    "deadzone": "direction dead zone [input unit/s: ohm/s, or as --input-unit] (default "
+                "k_sigma x noise of a hold)",
     "k_sigma": "dead zone in noise sigmas (default 4)",
     "tau": "low-pass of dR/dt [s] (default from the data)",
     "alternation": "read the input in pairs (default: detected)",

@@ -180,8 +180,10 @@ def _provenance_rows(cal: SensorCalibration) -> list[tuple[str, str]]:
             ("samples fitted", plain_text(prov.get("n_samples", "not recorded"))),
             ("training RMSE", plain_text(prov.get("fit_rmse", "not recorded"))),
             ("created", f"{prov.get('created', '?')} by {prov.get('tool', '?')}"),
-            ("valid range", f"R {vr.r_lo:.6g} to {vr.r_hi:.6g} ohm, S {vr.s_lo:.4g} to "
-                            f"{vr.s_hi:.4g} {cal.strain_unit}"),
+            ("valid range", f"R {vr.r_lo:.6g} to {vr.r_hi:.6g} {cal.input.unit}, S "
+                            f"{vr.s_lo:.4g} to {vr.s_hi:.4g} {cal.strain_unit}"),
+            ("direction", f"dead zone {cal.direction.deadzone:.4g} {cal.input.rate_unit}, "
+                          f"tau {cal.direction.tau:g} s"),
             ("rest resistance", plain_text(cal.rest_resistance)),
             ("input", plain_text(cal.input.to_dict()))]
     if "memory" in prov:

@@ -1,15 +1,17 @@
 """import-csv on stderr and stdout: notes on stderr, each on its own line, silenced by
 ``-q``; ``--columns`` takes ASCII digits or a header name; a scale that overflows is one
-clear line."""
+clear line; an input not in ohm is named in its unit from the import to the dead zone."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from strain_comp.cli import main
+from strain_comp.core.calibration_file import load_calibration
 from strain_comp.io.recording import load_recordings
 
 PROG = "strain-comp"
@@ -64,3 +66,43 @@ def test_a_scale_that_overflows_is_one_clear_line(
     assert code == 2 and len(err) == 1, err
     assert "--scales strain=1e+308" in err[0] and "overflow" in err[0], err[0]
     assert "time span" not in err[0] and not (tmp_path / "o.mcap").exists()
+
+
+def r_over_r0_csv(path: Path, seed: int) -> Path:
+    """A generic CSV whose resistance column is R/R0 (about 1 to 1.3), seeded: triangles
+    of stretch with holds and noise, a header naming the columns."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 200.0, 0.05)
+    strain = 30.0 * np.clip(1.2 * np.abs((t / 40.0) % 2.0 - 1.0) - 0.1, 0.0, 1.0)
+    ratio = 1.0 + 0.01 * strain + 1e-4 * strain**2 + rng.normal(0.0, 2e-4, t.size)
+    rows = np.column_stack([t, ratio, strain])
+    path.write_text("time_s,r_over_r0,position\n"
+                    + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in rows.tolist()))
+    return path
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_an_input_not_in_ohm_is_named_from_import_to_the_dead_zone(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], seed: int) -> None:
+    """import-csv --resistance-unit notes the unit on stderr on a line of its own; fit
+    --input-unit stores it in the calibration and prints the dead zone in it per second,
+    equal to the dead zone the calibration holds."""
+    csv = r_over_r0_csv(tmp_path / "r.csv", seed)
+    bag, cal_path = tmp_path / "r.mcap", tmp_path / "r.yaml"
+    assert main(["import-csv", str(csv), "--out", str(bag), "--sensor", "s1", "--format",
+                 "generic", "--columns", "time=time_s,resistance=r_over_r0,strain=position",
+                 "--resistance-unit", "R/R0"]) == 0
+    out, err = capsys.readouterr()
+    assert "note:" not in out and "  resistance stored in R/R0" in out.splitlines()
+    notes = [line for line in err.splitlines() if "note:" in line]
+    assert notes == [f"{PROG}: note: the 'resistance' topic holds the input in R/R0, not ohm "
+                     "(fit it with --input-unit R/R0)"]
+    assert main(["fit", str(bag), "--model", "cubic", "--sensor", "s1", "--out",
+                 str(cal_path), "--input-unit", "R/R0"]) == 0
+    out = capsys.readouterr().out
+    printed = re.search(r"dead zone (\S+) (\S+) from", out)
+    assert printed is not None, out
+    cal = load_calibration(cal_path).sensors["s1"]
+    assert cal.input.unit == "R/R0" and printed.group(2) == "R/R0/s"
+    assert float(printed.group(1)) == float(f"{cal.direction.deadzone:.4g}")
+    assert "ohm" not in out

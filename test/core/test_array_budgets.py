@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -12,8 +13,13 @@ import numpy as np
 import pytest
 import yaml
 
-from strain_comp.core.calibration import MAX_SENSOR_BYTES, MAX_SENSOR_EFFECTS, MAX_SENSORS
-from strain_comp.core.calibration_file import load_calibration
+from strain_comp.core.calibration import (
+    MAX_SENSOR_BYTES,
+    MAX_SENSOR_EFFECTS,
+    MAX_SENSORS,
+    Calibration,
+)
+from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.errors import CalibrationError
 
@@ -61,6 +67,42 @@ def test_a_1024_sensor_array_with_two_terms_each_loads_and_runs(tmp_path: Path) 
     want = one.run("s1", t, r, temp).strain
     got = Engine(cal).run("a1023", t, r, temp).strain
     np.testing.assert_array_equal(got, want)
+
+
+def test_1024_different_sensors_with_two_terms_each_load_as_written(tmp_path: Path) -> None:
+    """Every sensor its own seeded APL parameters, normalisation, range and terms: the file
+    ``save_calibration`` writes loads back equal, sensor by sensor, in order; one sensor's
+    estimate equals that of a file holding it alone."""
+    rng = np.random.default_rng(7)
+    demo = load_calibration(ROOT / "config" / "demo_calibration.yaml").sensors["s1"]
+    sensors = {}
+    for i in range(1024):
+        params = {**demo.params, "sigma": demo.params["sigma"] * rng.uniform(0.5, 2.0),
+                  "p": demo.params["p"] * rng.uniform(0.8, 1.2),
+                  "w": [w * rng.uniform(0.9, 1.1) for w in demo.params["w"]]}
+        scale = rng.uniform(0.5, 2.0)
+        norm = replace(demo.normalisation, r0=demo.normalisation.r0 * scale)
+        r_range = replace(demo.valid_range, r_lo=demo.valid_range.r_lo * scale,
+                          r_hi=demo.valid_range.r_hi * scale)
+        terms = [{"name": f"t{j}", "kind": "temperature",
+                  "params": {"form": "offset", "t_ref": float(rng.uniform(15.0, 30.0))},
+                  "coef": float(rng.normal(0.0, 0.01))} for j in range(2)]
+        sensors[f"a{i}"] = replace(demo, name=f"a{i}", params=params, normalisation=norm,
+                                   valid_range=r_range, effects=terms)
+    written = Calibration(sensors)
+    path = tmp_path / "array.yaml"
+    save_calibration(written, path)
+    loaded = load_calibration(path)
+    assert list(loaded.sensors) == list(sensors)
+    assert loaded == written
+    pick = "a517"
+    alone = tmp_path / "one.yaml"
+    save_calibration(Calibration({pick: sensors[pick]}), alone)
+    t = np.linspace(0.0, 4.0, 400)
+    r = np.linspace(sensors[pick].valid_range.r_lo, sensors[pick].valid_range.r_hi, 400)
+    temp = np.full(t.size, 28.0)
+    np.testing.assert_array_equal(Engine(loaded).run(pick, t, r, temp).strain,
+                                  Engine(load_calibration(alone)).run(pick, t, r, temp).strain)
 
 
 def test_every_distinct_sensor_of_an_array_is_probed(tmp_path: Path) -> None:

@@ -23,6 +23,25 @@ def test_round_trip_is_exact(tmp_path: Path) -> None:
     assert (tmp_path / "again.yaml").read_text() == path.read_text()
 
 
+def test_the_input_unit_is_optional_and_kept(tmp_path: Path) -> None:
+    """A file without ``input.unit`` (every file before it) reads ohm, and its text is as
+    before; a unit written is read back, and the dead zone is in it per second."""
+    path = tmp_path / "cal.yaml"
+    save_calibration(make_calibration(), path)
+    assert "unit:" not in path.read_text().replace("strain_unit", "")
+    old = load_calibration(path).sensors["left"]
+    assert old.input.unit == "ohm" and old.input.rate_unit == "ohm/s"
+    data = yaml.safe_load(path.read_text())
+    data["sensors"]["left"]["input"]["unit"] = "R/R0"
+    path.write_text(yaml.safe_dump(data))
+    loaded = load_calibration(path)
+    assert loaded.sensors["left"].input.unit == "R/R0"
+    assert loaded.sensors["left"].input.rate_unit == "R/R0/s"
+    assert loaded.sensors["right"].input.unit == "ohm"
+    save_calibration(loaded, tmp_path / "again.yaml")
+    assert load_calibration(tmp_path / "again.yaml") == loaded
+
+
 def test_loaded_model_computes_eq4(tmp_path: Path) -> None:
     path = tmp_path / "cal.yaml"
     save_calibration(make_calibration(), path)
@@ -86,6 +105,10 @@ def _edit(tmp_path: Path, change) -> Path:
     (lambda d: d["sensors"]["right"]["input"].update(kind="current"),
      "sensors.right.input.kind", "divider"),
     (lambda d: d["sensors"]["right"]["input"].pop("r1"), "sensors.right.input.r1", "missing"),
+    (lambda d: d["sensors"]["left"]["input"].update(unit="ohm per day!"),
+     "sensors.left.input.unit", "must be a unit"),
+    (lambda d: d["sensors"]["right"]["input"].update(unit="R/R0"),
+     "sensors.right.input.unit", "in ohm"),
     (lambda d: d["sensors"]["right"].update(effects={"name": "x"}),
      "sensors.right.effects", "list"),
 ])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import json
 import shutil
+from dataclasses import replace
 from html.parser import HTMLParser
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,9 @@ from typing import Any
 import pytest
 
 from strain_comp.cli import main
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import load_calibration
+from strain_comp.offline.report_page import provenance_section
 
 ROOT = Path(__file__).resolve().parents[2]
 BAG = str(ROOT / "bags" / "demo_rates.mcap")
@@ -165,3 +169,16 @@ def test_a_report_over_an_input_is_refused_before_any_work(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("strain-comp: error: ")
     assert cal.read_bytes() == before
+
+
+@pytest.mark.parametrize("unit", ["ohm", "R/R0"])
+def test_the_report_gives_the_dead_zone_in_the_input_unit(unit: str) -> None:
+    """The calibration's dead zone as the file holds it, per second of the input's unit
+    (``input.unit``, ohm when absent), and the valid range in that unit."""
+    cal = load_calibration(CAL).sensors["s1"]
+    cal = replace(cal, input=replace(cal.input, unit=unit))
+    page = Page(provenance_section(Calibration({"s1": cal}), CAL))
+    deadzone = float(page.provenance["direction"].split()[2])
+    assert deadzone == float(f"{cal.direction.deadzone:.4g}")
+    assert page.provenance["direction"].startswith(f"dead zone {deadzone:g} {unit}/s, tau ")
+    assert f" {unit}, S " in page.provenance["valid range"]
