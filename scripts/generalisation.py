@@ -159,7 +159,7 @@ def code_hash() -> str:
     """Hash of the fitting code: a cached fit is reused only while it is unchanged."""
     digest = hashlib.sha256()
     files = sorted((REPO / "strain_comp" / "models").rglob("*.py"))
-    for path in [*files, REPO / "strain_comp" / "offline" / "fit.py"]:
+    for path in [*files, *(REPO / "strain_comp" / "offline" / f for f in ("fit.py", "pool.py"))]:
         digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
 
