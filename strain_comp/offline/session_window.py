@@ -41,9 +41,6 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     return float(t[up[0] + back[0]] - t[0]) if back.size else None
 
 
-MIN_CYCLE_SHARE = 0.1
-"""A window's stretch must span at least this share of the calibration's strain range."""
-
 
 def stretch_and_return(s: np.ndarray, strain_range: float,
                        policy: SpanPolicy | None = None) -> bool:
