@@ -319,7 +319,7 @@ def test_tare_uses_the_calibrations_rest_resistance() -> None:
 def test_extrapolate_extends_the_end_slope_beyond_the_range_and_step_equals_run() -> None:
     cal = cubic_cal()
     r_hi = R_HI + RANGE.margin * (R_HI - R_LO)  # the flag's edge
-    width = RANGE.end_span * (r_hi - (R_LO - RANGE.margin * (R_HI - R_LO)))
+    width = (r_hi - (R_LO - RANGE.margin * (R_HI - R_LO))) / RANGE.settle_steps  # one step
     inside = engine_of(cal).run("s1", [0.0, 1.0], [r_hi - width, r_hi]).strain
     slope = (inside[1] - inside[0]) / width
     t = np.arange(5) * 0.1

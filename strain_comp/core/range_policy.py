@@ -43,9 +43,6 @@ class RangePolicy:
     """Share of the valid range's span added on each side before flagging / clamping
     [share of the span]; the fit widens its training range by the same share
     (``offline/fit.py``), which ``tracking.fitted_rest`` undoes."""
-    end_span: float = 0.05
-    """Share of the valid resistance range at each end over which the end slope is taken
-    [share of the span]."""
     extend_slope: tuple[float, float] = (0.5, 2.0)
     """``extend``: the end slope is kept within these multiples of the secant slope
     [multiples of the secant]."""
@@ -141,15 +138,13 @@ def branches(cal: SensorCalibration, limits: SensorRange, policy: RangePolicy | 
 
 def end_slopes(cal: SensorCalibration, limits: SensorRange, policy: RangePolicy | None = None,
                ) -> tuple[float, float]:
-    """dS/dR of the model's unloading branch over the first ``policy.end_span`` of the
-    valid range and of its loading branch over the last (``branches``): ``extrapolate``."""
+    """dS/dR of the model's unloading branch over the first step of the ramp over the valid
+    range and of its loading branch over the last (``branches``): ``extrapolate``."""
     policy = RANGE if policy is None else policy
     loading, unloading = branches(cal, limits, policy)
-    n = policy.settle_steps
-    k = max(1, round(policy.end_span * n))
-    width = k * (limits.r_hi - limits.r_lo) / n
-    lo = float(unloading[k] - unloading[0]) / width
-    hi = float(loading[-1] - loading[-1 - k]) / width
+    width = (limits.r_hi - limits.r_lo) / policy.settle_steps
+    lo = float(unloading[1] - unloading[0]) / width
+    hi = float(loading[-1] - loading[-2]) / width
     return (lo if math.isfinite(lo) else 0.0), (hi if math.isfinite(hi) else 0.0)
 
 

@@ -28,7 +28,7 @@ the samples in stretches of ``chunk_seconds``; its state carries from one to the
 exactly, so between corrections the numbers are the batch path's. A run of stretches that
 cannot be corrected between (each with fewer than two samples, as a slow stream's) is run
 in one call: the cost is linear in the samples, whatever time they span. A stretch keeps
-only its used samples, and at most ``max_stretch_samples`` of them: a stopped clock
+only its used samples (at most ``chunk_seconds`` times the sample rate): a stopped clock
 (repeated stamps are not used) or one that runs backwards holds O(1) state per sensor.
 The numbers are the fields of ``TrackingPolicy`` (``TRACKING``; docs/policies.md gives
 what keeps each).
@@ -74,13 +74,6 @@ class TrackingPolicy:
     """A rest whose resistance still moves by more than this share per second of its
     distance from the calibrated rest is relaxing (a time constant under 50 s) and is not
     tracked [share per s]."""
-    settle_seconds: float = 20.0
-    """Seconds at the rest resistance before its reading is taken
-    (``rest_is_read_as_rest``) [s]."""
-    max_stretch_samples: int = 2**16
-    """Used samples one stretch keeps at most (65 kHz over ``chunk_seconds``, 2 MiB); a
-    stretch with more, only from a clock that steps by microseconds, is not judged
-    [samples]."""
 
 
 TRACKING = TrackingPolicy()
@@ -109,19 +102,15 @@ def models_what_moves(cal: SensorCalibration) -> bool:
     return any(e.get("name") not in RECALIBRATION_TERMS for e in cal.effects)
 
 
-def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float,
-                         settle_seconds: float | None = None) -> bool:
-    """Whether ``cal``, run from a fresh state for ``settle_seconds`` (the policy's when
-    None) at the measured
-    resistance ``raw_rest`` that it maps to its rest resistance, reads the fitted rest
-    strain within ``band`` of the strain span. Tracking moves the rest toward that
-    resistance; where the map reads it as a strain (a rest resistance taken while the
-    sensor still relaxed, a map that is flat near rest), tracking would move the zero."""
-    seconds = TRACKING.settle_seconds if settle_seconds is None else settle_seconds
-    t = np.arange(0.0, seconds, 0.1)
+def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -> bool:
+    """Whether ``cal``, from a fresh state at the measured resistance ``raw_rest`` that it
+    maps to its rest resistance, reads the fitted rest strain within ``band`` of the strain
+    span. Tracking moves the rest toward that resistance; where the map reads it as a
+    strain (a rest resistance taken while the sensor still relaxed, a map that is flat
+    near rest), tracking would move the zero."""
     if not (raw_rest > 0 and math.isfinite(raw_rest)):
         return False
-    out = Engine(Calibration({cal.name: cal})).run(cal.name, t, np.full(t.size, raw_rest))
+    out = Engine(Calibration({cal.name: cal})).run(cal.name, np.zeros(1), np.array([raw_rest]))
     s_rest, s_span = fitted_rest(cal.valid_range)
     return bool(abs(float(out.strain[-1]) - s_rest) <= band * s_span)
 
@@ -129,34 +118,23 @@ def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float,
 @dataclass
 class _Stretch:
     """The used samples of one sensor's current stretch (``index``: its number from the
-    sensor's first sample), at most ``limit``: time, strain, direction and the resistance
-    the model read."""
+    sensor's first sample): time, strain, direction and the resistance the model read."""
 
     index: float
-    limit: int
     columns: tuple[array[float], ...] = field(
         default_factory=lambda: tuple(array("d") for _ in range(4)))
-    full: bool = False
-    """More used samples than ``limit`` came: none are kept, it is not judged."""
 
     def add(self, t: np.ndarray, out: BatchOutput) -> None:
         used = used_mask(np.asarray(out.status))
-        n = int(np.count_nonzero(used))
-        if self.full or n == 0:
-            return
-        if len(self.columns[0]) + n > self.limit:
-            self.full = True
-            self.columns = ()
+        if not used.any():
             return
         for column, values in zip(self.columns, (t, out.strain, out.direction,
                                                  out.resistance), strict=True):
             column.frombytes(np.ascontiguousarray(np.asarray(values, np.float64)[used])
                              .tobytes())
 
-    def output(self) -> tuple[np.ndarray, BatchOutput] | None:
-        """(times, output) of the kept samples, all used; None for a full stretch."""
-        if self.full:
-            return None
+    def output(self) -> tuple[np.ndarray, BatchOutput]:
+        """(times, output) of the kept samples, all used."""
         t, strain, direction, resistance = (np.frombuffer(c, np.float64)
                                             for c in self.columns)
         return t, BatchOutput(strain, direction, np.full(t.size, int(Status.GOOD), np.int8),
@@ -214,8 +192,7 @@ class BaselineTracker:
             if last > 0:  # whole stretches before it: fewer than two samples each
                 self.pending.pop(name, None)
                 self.last_hold.pop(name, None)
-            stretch = self.pending.setdefault(name, _Stretch(
-                float(index[b - 1]), self.policy.max_stretch_samples))
+            stretch = self.pending.setdefault(name, _Stretch(float(index[b - 1])))
             stretch.add(t[a + last:b], _part(out, last))
             outs.append(out)
         return concatenate(outs)
@@ -227,17 +204,12 @@ class BaselineTracker:
         kept = self.pending.get(name)
         if kept is not None and float(self._index(name, t)) != kept.index:
             del self.pending[name]
-            judged = kept.output()
-            if judged is None:
-                self.last_hold.pop(name, None)
-            else:
-                self.update(name, *judged)
+            self.update(name, *kept.output())
 
     def observe(self, name: str, t: float, out: SensorOutput) -> None:
         """One stepped sample (the node; ``advance`` first), kept until its stretch is
         judged."""
-        stretch = self.pending.setdefault(name, _Stretch(
-            float(self._index(name, t)), self.policy.max_stretch_samples))
+        stretch = self.pending.setdefault(name, _Stretch(float(self._index(name, t))))
         stretch.add(np.array([t]), BatchOutput(
             np.array([out.strain]), np.array([out.direction]),
             np.array([int(out.status)], np.int8), np.zeros(1, bool),
@@ -280,8 +252,7 @@ class BaselineTracker:
             return  # on the strain side without the tracker's correction too: never tracked
         if name not in self.reads_rest:
             self.reads_rest[name] = (not models_what_moves(cal)
-                                     and rest_is_read_as_rest(cal, (rest - c) / k, policy.band,
-                                                              policy.settle_seconds))
+                                     and rest_is_read_as_rest(cal, (rest - c) / k, policy.band))
         if not self.reads_rest[name]:
             return
         target = (rest - c) / (k * raw)

@@ -102,13 +102,13 @@ def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
                    span: float | None = None, policy: SpanPolicy | None = None,
                    ) -> tuple[float, float]:
     """(a, b) of reference ~ a estimate + b by least squares over the finite pairs: at
-    least ``from_samples`` of them, the reference moving through ``from_cover`` of the
+    least two of them, the reference moving through ``from_cover`` of the
     calibrated strain ``span`` (when given; ``policy``, ``SPAN`` when None)."""
     policy = SPAN if policy is None else policy
     ok = np.isfinite(estimate) & np.isfinite(reference)
-    if ok.sum() < policy.from_samples or not np.ptp(estimate[ok]) > 0:
+    if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
         raise InputError(f"recalibrate --from: the bag gives {int(ok.sum())} scored samples "
-                         f"(at least {policy.from_samples} needed) or no range of estimated "
+                         "(at least two needed) or no range of estimated "
                          "strain")
     if span is not None and not np.ptp(reference[ok]) >= policy.from_cover * span:
         raise InputError(f"recalibrate --from: the reference moves through "

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) -> float | None:
     """Seconds from ``t[0]`` to the end of the first stretch and return of the reference
-    ``s``: its first return to within ``cycle_back`` of its span (``cycle_percentiles``)
+    ``s``: its first return to within ``cycle_back`` of its span
     above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN`` when
     None). None when there is none."""
     policy = SPAN if policy is None else policy
@@ -31,7 +31,7 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     t, s = t[ok], s[ok]
     if t.size < 2:
         return None
-    lo, hi = np.percentile(s, list(policy.cycle_percentiles))
+    lo, hi = float(s.min()), float(s.max())
     if not hi > lo:
         return None
     up = np.flatnonzero(s > lo + policy.cycle_up * (hi - lo))

@@ -18,9 +18,6 @@ class SpanPolicy:
     grid_points: int = 201
     """Resistances of the steady-output grid over the valid range that
     ``calibrated_resistance`` inverts [points]."""
-    invert_extend: float = 0.1
-    """A strain this share of the output span beyond the steady outputs is still inverted
-    (the fit's own error at the range's ends) [share of the output span]."""
     static_tolerance: float = 0.01
     """A model whose slow ramp stays this close to its steady outputs is static (two
     points invert it); else it has memory and is spanned on its branches and through the
@@ -28,16 +25,12 @@ class SpanPolicy:
     fit_evaluations: int = 80
     """Engine runs over the calibration stretch the search of a memory model's zero and
     span may take (Nelder-Mead; 0: the two-point span is kept) [runs]."""
-    fit_min_samples: int = 20
-    """Fewer referenced samples in the stretch: the two-point span is kept [samples]."""
     fit_step: tuple[float, float] = (0.05, 0.2)
     """The search's first steps: of the calibrated rest resistance [share of the valid
     resistance range] and of the log of the span gain [1]."""
     fit_tolerance: tuple[float, float] = (1e-3, 1e-4)
     """The search stops when its steps fall under the first [as ``fit_step``] and its
     RMSE changes less than the second [strain unit]."""
-    from_samples: int = 20
-    """Scored samples ``recalibrate --from`` needs at least [samples]."""
     from_cover: float = 0.1
     """Share of the calibrated strain span the reference must move through for ``--from``:
     a gain and offset are fitted over a stretch of the range, not a point of it (the
@@ -48,9 +41,6 @@ class SpanPolicy:
     its span above its minimum [share of the reference's span] ..."""
     cycle_back: float = 0.1
     """... then returns to within this share of it [share of the reference's span]."""
-    cycle_percentiles: tuple[float, float] = (1.0, 99.0)
-    """The reference's span for ``cycle_end``: from this low to this high percentile (a
-    glitch does not set it) [percent of the samples]."""
     min_cycle_share: float = 0.1
     """A ``--window``'s stretch must span at least this share of the calibration's strain
     range [share of the strain span]."""
