@@ -41,7 +41,6 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     return float(t[up[0] + back[0]] - t[0]) if back.size else None
 
 
-
 def stretch_and_return(s: np.ndarray, strain_range: float,
                        policy: SpanPolicy | None = None) -> bool:
     """True when the reference ``s`` of a window rises from within ``cycle_up`` of its span
