@@ -152,3 +152,22 @@ def test_an_array_on_the_fused_kernel_extends_as_each_sensor_alone() -> None:
         np.testing.assert_allclose(out.strain, [o.strain for o in one], rtol=1e-9, atol=1e-9)
         assert list(out.out_of_range) == [o.out_of_range for o in one]
     assert fused.health()["a"].n_out_of_range > 5
+
+
+def test_a_range_policy_passed_in_sets_the_limits() -> None:
+    """``SensorRange.build`` under a policy with another margin and reach: the flag's edges
+    widened by that share of the span, the extension reaching that many strain spans above
+    the calibrated strain (the definitions, docs/design.md "Out of range")."""
+    from dataclasses import replace
+
+    from strain_comp.core.range_policy import SensorRange
+
+    cal = cubic_cal()
+    vr = cal.valid_range
+    policy = replace(RANGE, margin=0.1, extend_reach=0.5)
+    limits = SensorRange.build(cal, "extend", policy)
+    assert limits.r_hi == pytest.approx(vr.r_hi + 0.1 * (vr.r_hi - vr.r_lo))
+    assert limits.s_lo == pytest.approx(vr.s_lo - 0.1 * (vr.s_hi - vr.s_lo))
+    assert limits.reach[1] == pytest.approx(vr.s_hi + 0.5 * (vr.s_hi - vr.s_lo))
+    assert SensorRange.build(cal, "extend").reach[1] == pytest.approx(
+        vr.s_hi + RANGE.extend_reach * (vr.s_hi - vr.s_lo))

@@ -350,3 +350,18 @@ def test_a_second_input_span_replaces_the_first(cubic: Calibration) -> None:
     twice = recalibrate(once, points=points, form="input")[0]
     assert twice.sensors["s1"].input.zero_span == pytest.approx(
         once.sensors["s1"].input.zero_span, rel=1e-12)
+
+
+def test_a_tare_policy_passed_in_is_the_one_applied() -> None:
+    """The relaxing start the default ``TARE`` declines (``max_rest_drift`` 0.5 %) is tared
+    under a policy that accepts a 5 % drift, at the median of its first ``window`` seconds;
+    the default instance is left as it was."""
+    from dataclasses import replace
+
+    t = np.arange(0.0, 20.0, 0.1)
+    relaxing = R0 * (1.0 + 0.2 * np.exp(-t / 60.0))
+    lenient = replace(TARE, max_rest_drift=0.05, window=3.0)
+    rest = rest_resistance_at_start(t, relaxing, DirectionSettings(deadzone=50.0),
+                                    policy=lenient)
+    assert rest == pytest.approx(float(np.median(relaxing[t <= 3.0])), rel=1e-3)
+    assert TARE.max_rest_drift == 0.005 and TARE.window == 5.0
