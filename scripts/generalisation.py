@@ -142,9 +142,9 @@ def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
 def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
     """(START, END) seconds of a run's second load and unload (``recalibrate --window``):
     from the end of the first cycle to the end of the next stretch and return
-    (``strain_comp.offline.recalibrate.cycle_end`` on the rest of the run, whose percentiles
-    set the span as for the first); None when the rest of the run has none."""
-    from strain_comp.offline.recalibrate import cycle_end
+    (``strain_comp.offline.session_window.cycle_end`` on the rest of the run, whose
+    extremes set the span as for the first); None when the rest of the run has none."""
+    from strain_comp.offline.session_window import cycle_end
 
     start = first_cycle(t, s)
     rest = t >= t[0] + start

@@ -62,20 +62,32 @@ if TYPE_CHECKING:
     from strain_comp.core.calibration import SensorCalibration
     from strain_comp.core.outputs import BatchOutput
 
-GAIN_SD = 0.3
-"""Prior standard deviation of the gain around 1 (a sensitivity 30 % off is plausible)."""
-OFFSET_SHARE = 0.05
-"""Prior standard deviation of the offset around 0, share of the calibrated strain span."""
-GAIN_WALK = 0.02
-"""Random walk of the gain [1/sqrt(s)]: 0.15 in a minute (the thread's sensitivity moves
-within a run; docs/fusion.md)."""
-OFFSET_WALK_SHARE = 0.2 / 60.0
-"""Random walk of the offset [span share/sqrt(s)]: 2.6 % of the span in a minute."""
-NOISE_SHARE = 0.1
-"""Standard deviation of what a gain and offset do not explain (the model's error, the
-reference's), share of the calibrated strain span."""
-GATE = 5.0
-"""A reference beyond this many innovation standard deviations is refused."""
+
+
+@dataclass(frozen=True)
+class FusionPolicy:
+    """The tuned numbers of the reference fusion, in shares of the calibrated strain span
+    where a strain is meant (docs/policies.md: each one's measure)."""
+
+    gain_sd: float = 0.3
+    """Prior standard deviation of the gain around 1 (a sensitivity 30 % off is
+    plausible) [1]."""
+    offset_share: float = 0.05
+    """Prior standard deviation of the offset around 0 [share of the strain span]."""
+    gain_walk: float = 0.02
+    """Random walk of the gain: 0.15 in a minute (the thread's sensitivity moves within a
+    run; docs/fusion.md) [1/sqrt(s)]."""
+    offset_walk_share: float = 0.2 / 60.0
+    """Random walk of the offset: 2.6 % of the span in a minute [span share/sqrt(s)]."""
+    noise_share: float = 0.1
+    """Standard deviation of what a gain and offset do not explain (the model's error, the
+    reference's) [share of the strain span]."""
+    gate: float = 5.0
+    """A reference beyond this many innovation standard deviations is refused [sd]."""
+
+
+FUSION = FusionPolicy()
+"""The policy every fusion uses unless given another."""
 
 
 @dataclass(frozen=True)
@@ -87,14 +99,17 @@ class FusionSettings:
     gain_walk: float
     offset_walk: float
     noise_sd: float
-    gate: float = GATE
+    gate: float = FUSION.gate
 
     @classmethod
-    def for_span(cls, span: float) -> FusionSettings:
-        """The defaults for a sensor calibrated over a strain span ``span`` (> 0)."""
+    def for_span(cls, span: float, policy: FusionPolicy | None = None) -> FusionSettings:
+        """The settings of ``policy`` (``FUSION`` when None) for a sensor calibrated over
+        a strain span ``span`` (> 0)."""
+        policy = FUSION if policy is None else policy
         span = span if math.isfinite(span) and span > 0 else 1.0
-        return cls(gain_sd=GAIN_SD, offset_sd=OFFSET_SHARE * span, gain_walk=GAIN_WALK,
-                   offset_walk=OFFSET_WALK_SHARE * span, noise_sd=NOISE_SHARE * span)
+        return cls(gain_sd=policy.gain_sd, offset_sd=policy.offset_share * span,
+                   gain_walk=policy.gain_walk, offset_walk=policy.offset_walk_share * span,
+                   noise_sd=policy.noise_share * span, gate=policy.gate)
 
 
 @dataclass

@@ -6,30 +6,32 @@ gain (``Engine.track_baseline``, counted in the sensor's health and so in /diagn
 is nudged so that the resistance read at rest becomes the
 calibration's rest again, but only:
 
-* while the direction detector says hold (0) over a whole ``CHUNK_SECONDS`` stretch of used
+* while the direction detector says hold (0) over a whole ``chunk_seconds`` stretch of used
   samples (no movement),
 * when that stretch reads a rest that moved to the rest side: its resistance at or beyond
   the calibrated rest on the rest side (below it for a sensor whose R rises with strain:
   a rest that fell after a release reads below the calibrated range and pins the
-  estimate to the range floor) and its estimate at most ``BAND`` of the calibrated strain
+  estimate to the range floor) and its estimate at most ``band`` of the calibrated strain
   span above the fitted rest strain (a resistance that peaks and falls with strain, as
   carbon black's, reads a rest resistance at a large strain). A stretch on the strain side
   only undoes the tracker's own correction (where it would read at or beyond the rest
   without it: the rest came back), never beyond it: a rest that rose, a held small strain
   and a resistance still relaxing down after an unload (carbon black) read the same, and a
   strain is never tracked,
-* by at most ``RATE`` of the rest level per second,
+* by at most ``rate`` of the rest level per second,
 * and only for a calibration that reads its own rest resistance as its rest strain
   (``rest_is_read_as_rest``) and has no effect terms but an output gain and offset
   (``models_what_moves``: the loop's terms already model what moves).
 
 A held strain (detector at hold, estimate far from rest) is never tracked. The engine runs
-the samples in stretches of ``CHUNK_SECONDS``; its state carries from one to the next
+the samples in stretches of ``chunk_seconds``; its state carries from one to the next
 exactly, so between corrections the numbers are the batch path's. A run of stretches that
 cannot be corrected between (each with fewer than two samples, as a slow stream's) is run
 in one call: the cost is linear in the samples, whatever time they span. A stretch keeps
-only its used samples, and at most ``MAX_STRETCH_SAMPLES`` of them: a stopped clock
+only its used samples (at most ``chunk_seconds`` times the sample rate): a stopped clock
 (repeated stamps are not used) or one that runs backwards holds O(1) state per sensor.
+The numbers are the fields of ``TrackingPolicy`` (``TRACKING``; docs/policies.md gives
+what keeps each).
 """
 
 from __future__ import annotations
@@ -45,9 +47,9 @@ from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRa
 from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.engine import Engine
 from strain_comp.core.outputs import BatchOutput, SensorOutput, concatenate
-from strain_comp.core.range_policy import RANGE_MARGIN
+from strain_comp.core.range_policy import RANGE
 from strain_comp.core.samples import Status, used_mask
-from strain_comp.core.tare import REST_BAND
+from strain_comp.core.tare import TARE
 from strain_comp.errors import InputError
 
 TRACKING_MODES = ("off", "on")
@@ -55,20 +57,27 @@ TRACKING_MODES = ("off", "on")
 DEFAULT_TRACKING = "on"
 """The default of evaluate, replay and the node (docs/generalisation.md: neutral on
 ``scripts/generalisation.py``, no measured table worse, a rest that fell followed)."""
-CHUNK_SECONDS = 1.0
-"""Length of the stretches the tracker judges [s]."""
-BAND = REST_BAND
-"""An estimate within this share of the calibrated strain span of the rest strain is rest."""
-RATE = 0.002
-"""Largest change of the rest level per second (share of it)."""
-SETTLE_RATE = 0.02
-"""A rest whose resistance still moves by more than this share per second of its distance
-from the calibrated rest is relaxing (a time constant under 50 s) and is not tracked."""
-SETTLE_SECONDS = 20.0
-"""Seconds at the rest resistance before its reading is taken (``rest_is_read_as_rest``)."""
-MAX_STRETCH_SAMPLES = 2**16
-"""Used samples one stretch keeps at most (65 kHz over ``CHUNK_SECONDS``, 2 MiB); a stretch
-with more, only from a clock that steps by microseconds, is not judged."""
+
+
+@dataclass(frozen=True)
+class TrackingPolicy:
+    """The tuned numbers of baseline tracking (docs/policies.md: each one's measure)."""
+
+    chunk_seconds: float = 1.0
+    """Length of the stretches the tracker judges [s]."""
+    band: float = TARE.rest_band
+    """An estimate within this share of the calibrated strain span of the rest strain is
+    rest [share of the strain span] (the tare's rest band)."""
+    rate: float = 0.002
+    """Largest change of the rest level per second [share of the level per s]."""
+    settle_rate: float = 0.02
+    """A rest whose resistance still moves by more than this share per second of its
+    distance from the calibrated rest is relaxing (a time constant under 50 s) and is not
+    tracked [share per s]."""
+
+
+TRACKING = TrackingPolicy()
+"""The policy every tracker uses unless given another."""
 
 
 def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
@@ -81,9 +90,9 @@ def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
 
 def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
     """(rest strain, strain span) the calibration was fitted over: its valid strain range
-    less the ``RANGE_MARGIN`` of the span the fit adds on each side."""
-    span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE_MARGIN)
-    return valid_range.s_lo + RANGE_MARGIN * span, span
+    less the ``RangePolicy.margin`` of the span the fit adds on each side."""
+    span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE.margin)
+    return valid_range.s_lo + RANGE.margin * span, span
 
 
 def models_what_moves(cal: SensorCalibration) -> bool:
@@ -94,15 +103,14 @@ def models_what_moves(cal: SensorCalibration) -> bool:
 
 
 def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -> bool:
-    """Whether ``cal``, run from a fresh state for ``SETTLE_SECONDS`` at the measured
-    resistance ``raw_rest`` that it maps to its rest resistance, reads the fitted rest
-    strain within ``band`` of the strain span. Tracking moves the rest toward that
-    resistance; where the map reads it as a strain (a rest resistance taken while the
-    sensor still relaxed, a map that is flat near rest), tracking would move the zero."""
-    t = np.arange(0.0, SETTLE_SECONDS, 0.1)
+    """Whether ``cal``, from a fresh state at the measured resistance ``raw_rest`` that it
+    maps to its rest resistance, reads the fitted rest strain within ``band`` of the strain
+    span. Tracking moves the rest toward that resistance; where the map reads it as a
+    strain (a rest resistance taken while the sensor still relaxed, a map that is flat
+    near rest), tracking would move the zero."""
     if not (raw_rest > 0 and math.isfinite(raw_rest)):
         return False
-    out = Engine(Calibration({cal.name: cal})).run(cal.name, t, np.full(t.size, raw_rest))
+    out = Engine(Calibration({cal.name: cal})).run(cal.name, np.zeros(1), np.array([raw_rest]))
     s_rest, s_span = fitted_rest(cal.valid_range)
     return bool(abs(float(out.strain[-1]) - s_rest) <= band * s_span)
 
@@ -110,33 +118,23 @@ def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -
 @dataclass
 class _Stretch:
     """The used samples of one sensor's current stretch (``index``: its number from the
-    sensor's first sample), at most ``MAX_STRETCH_SAMPLES``: time, strain, direction and the
-    resistance the model read."""
+    sensor's first sample): time, strain, direction and the resistance the model read."""
 
     index: float
     columns: tuple[array[float], ...] = field(
         default_factory=lambda: tuple(array("d") for _ in range(4)))
-    full: bool = False
-    """More used samples than ``MAX_STRETCH_SAMPLES`` came: none are kept, it is not judged."""
 
     def add(self, t: np.ndarray, out: BatchOutput) -> None:
         used = used_mask(np.asarray(out.status))
-        n = int(np.count_nonzero(used))
-        if self.full or n == 0:
-            return
-        if len(self.columns[0]) + n > MAX_STRETCH_SAMPLES:
-            self.full = True
-            self.columns = ()
+        if not used.any():
             return
         for column, values in zip(self.columns, (t, out.strain, out.direction,
                                                  out.resistance), strict=True):
             column.frombytes(np.ascontiguousarray(np.asarray(values, np.float64)[used])
                              .tobytes())
 
-    def output(self) -> tuple[np.ndarray, BatchOutput] | None:
-        """(times, output) of the kept samples, all used; None for a full stretch."""
-        if self.full:
-            return None
+    def output(self) -> tuple[np.ndarray, BatchOutput]:
+        """(times, output) of the kept samples, all used."""
         t, strain, direction, resistance = (np.frombuffer(c, np.float64)
                                             for c in self.columns)
         return t, BatchOutput(strain, direction, np.full(t.size, int(Status.GOOD), np.int8),
@@ -148,8 +146,7 @@ class BaselineTracker:
     """Tracks the rest level of every sensor of ``engine`` it is asked to run."""
 
     engine: Engine
-    rate: float = RATE
-    band: float = BAND
+    policy: TrackingPolicy = field(default_factory=lambda: TRACKING)
     pending: dict[str, _Stretch] = field(default_factory=dict)
     """Per sensor, the used samples of its current stretch, not yet judged."""
     reads_rest: dict[str, bool] = field(default_factory=dict)
@@ -162,12 +159,12 @@ class BaselineTracker:
     applied: dict[str, float] = field(default_factory=dict)
     """Per sensor, the product of the gain factors the tracker applied."""
     origin: dict[str, float] = field(default_factory=dict)
-    """Per sensor, the time of its first sample: stretches of ``CHUNK_SECONDS`` are counted
+    """Per sensor, the time of its first sample: stretches of ``policy.chunk_seconds`` are counted
     from it, so a run in one batch, in streamed windows (replay) or sample by sample (the
     node) is tracked alike."""
 
     def _index(self, name: str, t: np.ndarray | float) -> np.ndarray:
-        return np.floor((np.asarray(t, np.float64) - self.origin[name]) / CHUNK_SECONDS)
+        return np.floor((np.asarray(t, np.float64) - self.origin[name]) / self.policy.chunk_seconds)
 
     def run(self, name: str, t: np.ndarray, r: np.ndarray,
             temperature: np.ndarray | None = None) -> BatchOutput:
@@ -207,11 +204,7 @@ class BaselineTracker:
         kept = self.pending.get(name)
         if kept is not None and float(self._index(name, t)) != kept.index:
             del self.pending[name]
-            judged = kept.output()
-            if judged is None:
-                self.last_hold.pop(name, None)
-            else:
-                self.update(name, *judged)
+            self.update(name, *kept.output())
 
     def observe(self, name: str, t: float, out: SensorOutput) -> None:
         """One stepped sample (the node; ``advance`` first), kept until its stretch is
@@ -225,6 +218,7 @@ class BaselineTracker:
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""
         cal = self.engine.calibration.sensors[name]
+        policy = self.policy
         used = used_mask(np.asarray(out.status))
         previous = self.last_hold.pop(name, None)
         if used.sum() < 2 or np.any(np.asarray(out.direction)[used] != 0):
@@ -243,26 +237,26 @@ class BaselineTracker:
         now = float(np.mean(t[used]))
         self.last_hold[name] = (now, raw)
         off_rest = abs(raw - (rest - c) / (k * gain))
-        if previous is None or not now - previous[0] <= 2.0 * CHUNK_SECONDS:
-            return  # the first stretch of a hold: whether it settled is not known yet
-        if abs(raw - previous[1]) > SETTLE_RATE * off_rest * (now - previous[0]):
+        if previous is None or not now - previous[0] <= 2.0 * policy.chunk_seconds:
+            return  # the first stretch of a hold (the last judged was not the one before)
+        if abs(raw - previous[1]) > policy.settle_rate * off_rest * (now - previous[0]):
             return  # still relaxing toward where it was: left to relax
         s_rest, s_span = fitted_rest(cal.valid_range)
         estimate = float(np.median(np.asarray(out.strain)[used]))
         applied = self.applied.get(name, 1.0)
         sign = cal.direction.sign
         below = (level - rest) * sign <= 0.0
-        if below and estimate - s_rest > self.band * s_span:
+        if below and estimate - s_rest > policy.band * s_span:
             return  # read as a strain: a resistance that peaks and falls (carbon black)
         if not below and (applied == 1.0 or (c + (level - c) / applied - rest) * sign > 0.0):
             return  # on the strain side without the tracker's correction too: never tracked
         if name not in self.reads_rest:
             self.reads_rest[name] = (not models_what_moves(cal)
-                                     and rest_is_read_as_rest(cal, (rest - c) / k, self.band))
+                                     and rest_is_read_as_rest(cal, (rest - c) / k, policy.band))
         if not self.reads_rest[name]:
             return
         target = (rest - c) / (k * raw)
-        step = self.rate * duration
+        step = policy.rate * duration
         factor = float(np.clip(target / gain, 1.0 - step, 1.0 + step))
         if not below and (applied * factor - 1.0) * (applied - 1.0) < 0.0:
             factor = 1.0 / applied  # the tracker's correction undone, no further

@@ -22,7 +22,8 @@ from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import cycle_end, recalibrate_recordings
+from strain_comp.offline.recalibrate import recalibrate_recordings
+from strain_comp.offline.session_window import cycle_end
 
 FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""

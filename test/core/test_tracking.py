@@ -72,11 +72,11 @@ def test_a_calibration_that_reads_its_rest_as_a_strain_is_not_tracked(
     say): following it would move the zero, so nothing is tracked; the true rest is."""
     from dataclasses import replace
 
-    from strain_comp.core.tracking import BAND, rest_is_read_as_rest
+    from strain_comp.core.tracking import TRACKING, rest_is_read_as_rest
 
     sensor = cubic.sensors["s1"]
-    assert rest_is_read_as_rest(sensor, R0, BAND)
-    assert not rest_is_read_as_rest(sensor, float(gauge(np.array(10.0))), BAND)
+    assert rest_is_read_as_rest(sensor, R0, TRACKING.band)
+    assert not rest_is_read_as_rest(sensor, float(gauge(np.array(10.0))), TRACKING.band)
     wrong = Calibration({"s1": replace(sensor, rest_resistance=float(gauge(np.array(10.0))))})
     t = np.arange(0.0, 60.0, 0.1)
     rec = Recording("s1", t, np.full(t.size, 0.97 * R0), np.zeros(t.size))  # a fallen rest

@@ -1,0 +1,301 @@
+"""The input zero and span of a recalibration: R' = R_rest,cal + k (R - R_rest,run), as
+one zeroes and spans a gauge (``recalibrate --input``; docs/design.md, "Calibration
+file", ``input.zero_span``).
+
+Through two points (R_i, S_i): R'_i is the calibrated resistance whose steady output is S_i
+(``calibrated_resistance``, the steady output inverted on a grid over the valid range),
+k = (R'_2 - R'_1) / (R_2 - R_1), R_rest,run = R_1. From a recording's first cycle: point 1
+is the first rest, point 2 the largest strain (``points_from_first_cycle``). A memory model
+(one that does not follow its steady outputs along a slow ramp, ``follows_steady_curve``)
+is not on its held map in use: its rest point is read on its unloading branch and the
+stretch on its loading branch (``span_on_branches``), and the span is then refined by
+least squares of the engine's output over the cycle (``span_through_run``). The numbers
+are the fields of ``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.core.engine import Engine
+from strain_comp.core.range_policy import RANGE
+from strain_comp.core.tare import TARE, ohms, rest_resistance_from_reference
+from strain_comp.errors import InputError
+from strain_comp.offline.span_policy import SPAN, SpanPolicy
+
+if TYPE_CHECKING:
+    from strain_comp.io.recording import Recording
+
+
+def steady_output(cal: SensorCalibration, r: float, policy: SpanPolicy | None = None) -> float:
+    """The calibration's output [%] after ``policy.settle_samples`` samples at constant
+    ``r`` (``SPAN`` when None)."""
+    engine = Engine(Calibration({cal.name: cal}))
+    t = 0.1 * np.arange((SPAN if policy is None else policy).settle_samples)
+    return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
+
+
+def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(resistances [ohm], steady outputs) on ``policy.grid_points`` resistances over the valid
+    range, from the rest end (the low end for a sensor whose R rises with strain), read
+    by the models directly (an existing input zero and span left out: the resistances are
+    the calibrated ones)."""
+    bare = replace(cal, input=replace(cal.input, zero_span=None))
+    policy = SPAN if policy is None else policy
+    grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, policy.grid_points)
+    if cal.direction.sign < 0:
+        grid = grid[::-1]
+    return grid, np.array([steady_output(bare, float(r), policy) for r in grid])
+
+
+def calibrated_resistance(cal: SensorCalibration, strain: float,
+                          curve: tuple[np.ndarray, np.ndarray] | None = None,
+                          policy: SpanPolicy | None = None) -> float:
+    """The resistance [ohm] whose steady output through ``cal`` is ``strain``: the first
+    crossing from the rest end of ``steady_curve``, interpolated linearly. InputError when
+    no resistance of the valid range gives that strain."""
+    grid, steady = curve if curve is not None else steady_curve(cal, policy)
+    out = steady - strain
+    cross = np.flatnonzero(np.sign(out[:-1]) * np.sign(out[1:]) <= 0)
+    if not cross.size:
+        raise InputError(f"the calibration outputs no strain of {strain:g} "
+                         f"{strain_unit_words(cal.strain_unit)} in its resistance range "
+                         f"(it gives {steady.min():.4g} to {steady.max():.4g})")
+    j = int(cross[0])
+    if out[j] == out[j + 1]:
+        return float(grid[j])
+    w = out[j] / (out[j] - out[j + 1])
+    return float(grid[j] + w * (grid[j + 1] - grid[j]))
+
+
+def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
+                     curve: tuple[np.ndarray, np.ndarray] | None = None,
+                     policy: SpanPolicy | None = None) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) through two measured (R, S)
+    points, the first at rest (or the smaller strain); numbers: ``policy`` (``SPAN`` when
+    None)."""
+    if len(points) != 2:
+        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
+    (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
+    lo, hi = RANGE.short_factor * cal.valid_range.r_lo, RANGE.open_factor * cal.valid_range.r_hi
+    for r, s in ((r1, s1), (r2, s2)):  # the engine screens such a reading as a short or open
+        if not lo < r < hi:
+            raise InputError(f"--point {r:g}:{s:g}: {r:g} ohm is beyond what the engine reads "
+                             f"for this sensor ({lo:.4g} to {hi:.4g} ohm: below is a short, "
+                             "above an open circuit)")
+    if not abs(r2 - r1) > 1e-12 * max(abs(r1), abs(r2)):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: one resistance at two "
+                         "strains gives no span")
+    curve = curve if curve is not None else steady_curve(cal, policy)
+    c1 = calibrated_resistance(cal, s1, curve, policy)
+    c2 = calibrated_resistance(cal, s2, curve, policy)
+    k = (c2 - c1) / (r2 - r1)
+    if not (np.isfinite(k) and k > 0):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
+                         "against the calibration's direction (span gain "
+                         f"{k:.4g} must be > 0)")
+    return r1, c1, float(k)
+
+
+def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
+                            top: float = np.inf) -> list[tuple[float, float]]:
+    """(R, S) at the first rest and at a known stretch of a run's first cycle (``t``,
+    measured ``r`` [ohm], reference ``s``): the stretch is the largest strain of the cycle,
+    or ``top`` (the largest the calibration outputs) when lower; medians of the samples
+    within the tare's ``rest_band`` of the span of each. InputError when it does not rest
+    or move."""
+    ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
+    t, r, s = t[ok], r[ok], s[ok]
+    rest = rest_resistance_from_reference(t, r, s)
+    if rest is None:
+        raise InputError("recalibrate --first/--window: the cycle has no rest at its lowest "
+                         "strain or its reference strain never moves")
+    span = float(np.ptp(s))
+    low = s <= s.min() + TARE.rest_band * span
+    high = np.abs(s - min(float(s.max()), top)) <= TARE.rest_band * span
+    if not high.any():
+        raise InputError("recalibrate --first/--window: no sample of the cycle at a strain the "
+                         "calibration outputs")
+    return [(rest, float(np.median(s[low]))),
+            (float(np.median(r[high])), float(np.median(s[high])))]
+
+
+def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
+               record: Mapping[str, Any]) -> SensorCalibration:
+    """``cal`` reading its input through ``span`` (replacing an older one)."""
+    history = [*cal.provenance.get("recalibrations", []),
+               dict(record, rest=span[0], rest_calibrated=span[1], span_gain=span[2])]
+    return replace(cal, input=replace(cal.input, zero_span=span),
+                   provenance={**cal.provenance, "recalibrations": history})
+
+
+def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
+    """The calibration's output along a slow ramp over ``grid`` and back (10 Hz, from a
+    fresh state at the rest end; an existing input zero and span left out)."""
+    bare = replace(cal, input=replace(cal.input, zero_span=None))
+    path = np.concatenate([grid, grid[::-1]])
+    return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
+                                                     path).strain
+
+
+def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.ndarray],
+                         policy: SpanPolicy | None = None) -> bool:
+    """True when the calibration's output along a slow ramp over its resistance range and
+    back (``ramp_output`` on ``steady_curve``'s grid) is its steady output at each
+    resistance within ``policy.static_tolerance`` of the strain span: a static map, which two
+    points invert exactly. A model with memory is on a loading or unloading branch in use
+    instead."""
+    grid, steady = curve
+    out = ramp_output(cal, grid)
+    span = cal.valid_range.s_hi - cal.valid_range.s_lo
+    return bool(np.max(np.abs(out - np.concatenate([steady, steady[::-1]])))
+                <= (SPAN if policy is None else policy).static_tolerance * span)
+
+
+def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unloading, loading) outputs of a memory model on ``grid`` (from its rest end): a
+    slow ramp up, down and up again; the unloading branch from the top, the loading branch
+    after that full unload, as a sensor at the start of a session was last unloaded."""
+    n = grid.size
+    out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
+    return out[n:2 * n][::-1], out[2 * n:3 * n]
+
+
+def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float:
+    """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end
+    (linear between grid points), else the grid point of the nearest output."""
+    d = out - strain
+    cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
+    if not cross.size:
+        return float(grid[int(np.argmin(np.abs(d)))])
+    j = int(cross[0])
+    w = d[j] / (d[j] - d[j + 1]) if d[j] != d[j + 1] else 0.0
+    return float(grid[j] + w * (grid[j + 1] - grid[j]))
+
+
+def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
+                     grid: np.ndarray, branch: tuple[np.ndarray, np.ndarray],
+                     ) -> tuple[float, float, float]:
+    """The input zero and span through two measured (R, S) points read on two branches of
+    outputs over ``grid`` (``branch_resistance``): the rest point on the first (a memory
+    model's unloading branch, ``branches``), the stretch on the second (its loading
+    branch); a static model's held map for both."""
+    (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
+    c1 = branch_resistance(grid, branch[0], s1)
+    c2 = branch_resistance(grid, branch[1], s2)
+    k = (c2 - c1) / (r2 - r1) if r2 != r1 else float("nan")
+    if not (np.isfinite(k) and k > 0):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
+                         "against the calibration's direction (span gain "
+                         f"{k:.4g} must be > 0)")
+    return r1, c1, float(k)
+
+
+def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
+                        policy: SpanPolicy | None = None) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle ``rec``
+    (``points_from_first_cycle``). A static model: its held map inverted at the two points
+    (``span_from_points``); where the map never outputs a point's strain, the resistance
+    of its nearest output (the output map made after the span corrects what remains). A
+    memory model: the two points read on its branches (``span_on_branches``), then the
+    span refined through the run (``span_through_run``); where the branches give no span,
+    the calibration as tared (the run's rest onto its rest resistance, gain 1) if that
+    reads the cycle better than the calibration as it is (``cycle_error``), not refined
+    (a refinement from there fits the cycle, not the run: a loop's exact memory term lost
+    half its gain on the run after it). Numbers: ``policy`` (``SPAN`` when None)."""
+    if rec.s is None:
+        raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
+    policy = SPAN if policy is None else policy
+    curve = steady_curve(cal, policy)
+    if follows_steady_curve(cal, curve, policy):
+        points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                         top=float(curve[1].max()))
+        try:
+            return span_from_points(cal, points, curve, policy)
+        except InputError:
+            return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
+    branch = branches(cal, curve[0])
+    points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                     top=float(branch[1].max()))
+    try:
+        start = span_on_branches(cal, points, curve[0], branch)
+    except InputError:
+        if cal.rest_resistance is None:
+            raise
+        tared = (min(points, key=lambda p: p[1])[0], cal.rest_resistance, 1.0)
+        if not cycle_error(replace(cal, input=replace(cal.input, zero_span=tared)), rec) < \
+                cycle_error(cal, rec):
+            raise
+        return tared
+    return span_through_run(cal, rec, start, policy)
+
+
+def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
+    """RMSE of the engine's output over ``rec`` against its finite reference strain."""
+    assert rec.s is not None
+    ok = np.isfinite(rec.s)
+    strain = Engine(Calibration({cal.name: cal})).run(cal.name, rec.t, rec.r).strain
+    value = float(np.sqrt(np.mean((strain[ok] - rec.s[ok]) ** 2)))
+    return value if np.isfinite(value) else np.inf
+
+
+def span_through_run(cal: SensorCalibration, rec: Recording,
+                     start: tuple[float, float, float], policy: SpanPolicy | None = None,
+                     ) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) whose engine output over ``rec``
+    (the first cycle) is closest to its reference strain (least squares, Nelder-Mead from
+    ``start``, the two-point span; the measured rest kept): for a model that does not
+    follow its steady outputs (``follows_steady_curve``). The engine runs the model along
+    the path the sensor took, so a memory model is spanned on its loading and unloading
+    branches, not on a constant-resistance map it does not follow in use. The search starts
+    from ``start`` or from the calibration as tared (the run's rest onto the calibration's
+    rest resistance, span gain 1), whichever reads the cycle better (a model whose held
+    outputs have not settled in ``settle_samples``, such as slow creep states, can give a
+    far-off two-point span), and keeps that start unless the fit lowers the error. The
+    search's numbers: ``policy`` (``SPAN`` when None); none when it allows no evaluation
+    or the stretch has no referenced sample."""
+    from scipy.optimize import minimize
+
+    policy = SPAN if policy is None else policy
+    if (rec.s is None or policy.fit_evaluations <= 0
+            or not np.isfinite(rec.s).any()):
+        return start
+    rest, rest_cal, k = start
+    width = cal.valid_range.r_hi - cal.valid_range.r_lo
+    ok = np.isfinite(rec.s)
+    reference = rec.s[ok]
+
+    def error(x: np.ndarray) -> float:
+        span = (rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1])))
+        trial = replace(cal, input=replace(cal.input, zero_span=span))
+        strain = Engine(Calibration({cal.name: trial})).run(cal.name, rec.t, rec.r).strain
+        value = float(np.sqrt(np.mean((strain[ok] - reference) ** 2)))
+        return value if np.isfinite(value) else np.inf
+
+    origin = np.zeros(2)
+    first = error(origin)
+    if cal.rest_resistance is not None:  # the calibration as tared: a zero, no span
+        tared = np.array([(cal.rest_resistance - rest_cal) / width, -np.log(k)])
+        if (tared_error := error(tared)) < first:
+            origin, first = tared, tared_error
+    step_zero, step_gain = policy.fit_step
+    simplex = origin + np.array([[0.0, 0.0], [step_zero, 0.0], [0.0, step_gain]])
+    best = minimize(error, origin, method="Nelder-Mead",
+                    options={"initial_simplex": simplex, "xatol": policy.fit_tolerance[0],
+                             "fatol": policy.fit_tolerance[1], "maxfev": policy.fit_evaluations})
+    x = best.x if np.isfinite(best.fun) and best.fun < first else origin
+    return rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1]))
+
+
+def span_reading(span: tuple[float, float, float]) -> str:
+    """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81
+    (sensitivity +23.5 %)``."""
+    rest, rest_cal, k = span
+    return (f"input zero {ohms((rest, rest_cal)).replace(' vs ', ' -> ')}, span gain "
+            f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")
