@@ -17,7 +17,7 @@ this run (a tare), an alternation of the excitation every other sample (pair mea
    that stays without relaxing): ``input.baseline_step`` on, like 4.
 
 The condition whose held-out RMSE after the loop is lowest is chosen, but a condition other
-than the reference only if it beats it by more than ``margin`` (relative): a tare or a
+than the reference only if it beats it by more than ``LoopPolicy.margin`` (relative): a tare or a
 filter that worsens held-out error is not chosen. Every condition is reported with its
 reading (e.g. ``alternation +-340 ohm every other sample``) and its before/after RMSE.
 Quantisation found in the data is reported as a reading only: a quantisation step cannot
@@ -47,6 +47,7 @@ from strain_comp.core.chain import (
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
+from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.io.recording import Recording
 
@@ -148,7 +149,7 @@ def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | Non
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         validate_recordings: Mapping[str, Recording]
                         | Sequence[Mapping[str, Recording]] | None = None,
-                        tare: str = "calibration", margin: float = 0.03,
+                        tare: str = "calibration", policy: LoopPolicy = LOOP_POLICY,
                         progress: Callable[[int, int], None] | None = None,
                         **options: Any) -> DiagnoseResult:
     """``diagnose`` under each condition of the module docstring; the chosen result, with
@@ -197,8 +198,9 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
         if progress is not None:
             progress(len(done), total)
     results = [diagnose(recordings, cal, validate_recordings=validate_recordings,
-                        margin=margin, tare=mode, on_sensor=step, **options)
+                        policy=policy, tare=mode, on_sensor=step, **options)
                for _, _, cal, mode in runs]
+    margin = policy.margin
     best = 0
     for k, result in enumerate(results[1:], start=1):
         if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \
