@@ -275,6 +275,8 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     if session is not None:
         found.as_calibrated = {"before": rmse_stats(rows.e_out), "after": rmse_stats(e_linear)}
         found.session = session_record(cal, session, rows.e_out, e_before, policy.margin)
+        assert runs is not None
+        found.runs_after = [rms(e_after[runs == k]) for k in np.unique(runs)]
     return found
 
 

@@ -28,7 +28,7 @@ class LoopPolicy:
     ratios over the runs it was not fitted on (the diagnosed run's held-out folds, each
     validation run after its session start) plus this many of their standard
     deviations: what a later run may get, given how much runs differ."""
-    tried: int = 8
+    tried: int = 16
     """[candidates per step] The candidates that pass on the diagnosed run, best first,
     scored on the validation runs at each step (each costs one session start and one
     ``evaluate`` per validation run)."""
