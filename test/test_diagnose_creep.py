@@ -124,7 +124,7 @@ def test_a_term_that_raises_one_validation_run_beyond_the_margin_is_not_kept() -
     assert not held_out_better(worse, old, 0.03, runs)
 
 
-def carried_case(shares: tuple[float, ...], seed: int = 0) -> tuple[Any, ...]:
+def carried_case(shares: tuple[float, ...], seed: int = 0) -> tuple[Any, Any]:
     """A fit residual e = 2 g + noise over 10 folds, and validation runs in which the same
     regressor explains ``shares[k]`` of the term (run k's e = 2 shares[k] g + noise)."""
     from strain_comp.diagnosis.selection import Gram, linear_held_out
@@ -138,7 +138,8 @@ def carried_case(shares: tuple[float, ...], seed: int = 0) -> tuple[Any, ...]:
     share = np.repeat(shares, n)
     e_val = 2.0 * share * g_val[:, 1] + 0.3 * rng.standard_normal(share.size)
     runs = np.repeat(np.arange(len(shares)), n)
-    return gram, linear_held_out(e_val, g_val), runs
+    held_out = linear_held_out(e_val, g_val)
+    return gram, lambda cols, coef: [held_out(cols, coef)[runs == k] for k in range(len(shares))]
 
 
 def test_a_term_is_added_only_where_it_carries_beyond_the_spread_between_runs() -> None:
@@ -147,19 +148,19 @@ def test_a_term_is_added_only_where_it_carries_beyond_the_spread_between_runs() 
     each; with one validation run: not added (no spread to judge by)."""
     from strain_comp.diagnosis.selection import select_carried, upper_bound
 
-    gram, held_out, runs = carried_case((1.0, 0.9))
-    found = select_carried(gram, 2, 0, held_out, runs)
+    gram, held_out = carried_case((1.0, 0.9))
+    found = select_carried(gram, 2, 0, held_out)
     assert found.selection.chosen == [1] and found.refused is None
     assert found.coef[1] == pytest.approx(2.0, rel=0.02)
-    gram, held_out, runs = carried_case((1.0, 0.0))
-    found = select_carried(gram, 2, 0, held_out, runs)
+    gram, held_out = carried_case((1.0, 0.0))
+    found = select_carried(gram, 2, 0, held_out)
     assert found.selection.chosen == [] and found.refused is not None
     down, up = found.refused.log_ratios
     assert down < math.log(0.5) and up > math.log(2.0)
     assert found.refused.bound == pytest.approx(
         np.mean([down, up]) + 2.0 * np.std([down, up], ddof=1))
-    gram, held_out, runs = carried_case((1.0,))
-    found = select_carried(gram, 2, 0, held_out, runs)
+    gram, held_out = carried_case((1.0,))
+    found = select_carried(gram, 2, 0, held_out)
     assert found.selection.chosen == [] and found.refused is not None
     assert found.refused.log_ratios[0] < math.log(0.5)  # it helps, but one run shows no spread
     assert upper_bound([-0.1], 2.0) == math.inf

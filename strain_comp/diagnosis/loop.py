@@ -187,8 +187,7 @@ def _select(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float],
     if session is not None:
         n = len(cands.names)
         skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
-        assert runs is not None
-        carried = select_carried(gram, n, cands.offset, session, runs, policy, skip)
+        carried = select_carried(gram, n, cands.offset, session.per_run, policy, skip)
         kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
         return _Selected([carried.kept[k] for k in kept], [float(carried.coef[k]) for k in kept],
                          carried.selection.gains, carried.selection.chosen, carried.refused)
@@ -248,10 +247,8 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     cands, rows, session = setup.cands, setup.rows, setup.session
     linear = linear_held_out(rows.e_out, rows.g_out)
     held_out: HeldOut = linear if session is None else session
-    runs = None  # the validation run of each held-out sample
-    if session is not None:
-        runs = session.runs_of_samples()
-    elif rows.val_series:
+    runs = None  # the validation run of each held-out sample (without a session start)
+    if session is None and rows.val_series:
         runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(rows.val_series)])
     picked = _select(setup.gram, rows, cands, setup.scores, policy, held_out, runs, session)
     terms, coefs = picked.terms, picked.coefs
@@ -275,8 +272,7 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     if session is not None:
         found.as_calibrated = {"before": rmse_stats(rows.e_out), "after": rmse_stats(e_linear)}
         found.session = session_record(cal, session, rows.e_out, e_before, policy.margin)
-        assert runs is not None
-        found.runs_after = [rms(e_after[runs == k]) for k in np.unique(runs)]
+        found.runs_after = [rms(e) for e in session.per_run(terms, np.array(coefs))]
     return found
 
 

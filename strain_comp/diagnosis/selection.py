@@ -267,11 +267,16 @@ def upper_bound(log_ratios: Sequence[float], spread: float) -> float:
     return float(x.mean() + spread * x.std(ddof=1))
 
 
-def run_log_ratios(e_new: np.ndarray, e_old: np.ndarray, runs: np.ndarray) -> list[float]:
-    """ln(RMSE new / RMSE old) of each run (``runs``: the run 0..k-1 of each sample)."""
-    return [math.log(rms(e_new[runs == k]) / rms(e_old[runs == k]))
-            if rms(e_old[runs == k]) > 0 and rms(e_new[runs == k]) > 0 else math.inf
-            for k in np.unique(runs)]
+RunsHeldOut = Callable[[Sequence[int], np.ndarray], list[np.ndarray]]
+"""The held-out residual of a set of terms on each validation run: (columns, coefficients)
+-> one array of errors per run (``session.SessionHeldOut.per_run``: a run may score a
+different number of samples with other terms, so the runs are kept apart)."""
+
+
+def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> list[float]:
+    """ln(RMSE new / RMSE old) of each run."""
+    return [math.log(rms(a) / rms(b)) if rms(a) > 0 and rms(b) > 0 else math.inf
+            for a, b in zip(e_new, e_old, strict=True)]
 
 
 @dataclass
@@ -318,17 +323,17 @@ def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequen
     return gains
 
 
-def select_carried(gram: Gram, n_cols: int, offset: int, held_out: HeldOut, runs: np.ndarray,
+def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
                    policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Carried:
     """Greedy selection scored as the product is used (``strain_comp.diagnosis.loop``,
     step 8). At each step the candidates that pass on the diagnosed run (``_passing``),
     the ``policy.tried`` best, are each fitted there (with the terms already added and the
-    intercept) and scored on the validation runs by ``held_out`` (the errors after each
-    run's session start; ``runs`` gives the run of each sample). The one with the lowest
-    ``upper_bound`` of its log RMSE ratios (the diagnosed run's held-out folds and every
-    validation run) is added if that bound is below ln(1 - margin): it lowers the error
-    by more than the margin beyond the spread between runs. ``skip``: columns never
-    tried (what the session start makes itself)."""
+    intercept) and scored on the validation runs by ``held_out`` (the errors of each run
+    after its session start). The one with the lowest ``upper_bound`` of its log RMSE
+    ratios over the validation runs is added if that bound is below ln(1 - margin): it
+    lowers the error by more than the margin beyond the spread between runs (with one
+    validation run there is no spread to judge by, and nothing is added). ``skip``: columns
+    never tried (what the session start makes itself)."""
     all_folds = np.arange(gram.n.size)
     chosen: list[int] = []
     gains: dict[int, float] = {}
@@ -339,12 +344,12 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: HeldOut, runs
     while len(chosen) < policy.max_effects:
         passing = _passing(gram, chosen, offset, n_cols, skip, policy)
         passed = bool(passing)
-        tried: list[tuple[Tried, np.ndarray, np.ndarray]] = []
+        tried: list[tuple[Tried, np.ndarray, list[np.ndarray]]] = []
         for j in sorted(passing, key=passing.__getitem__, reverse=True)[:policy.tried]:
             cols = with_intercept([*chosen, j], offset)
             c = gram.solve(cols, all_folds) / gram.scale[cols]
             e_j = held_out(cols, c)
-            ratios = run_log_ratios(e_j, current, runs)
+            ratios = run_log_ratios(e_j, current)
             tried.append((Tried(j, math.log(1.0 - passing[j]), ratios,
                                 upper_bound(ratios, policy.spread)), c, e_j))
         if not tried:
@@ -354,7 +359,8 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: HeldOut, runs
             refused = best
             break
         chosen.append(best.column)
-        gains[best.column] = 1.0 - rms(e_j) / rms(current)
+        gains[best.column] = 1.0 - rms(np.concatenate(e_j)) / rms(np.concatenate(current))
         current, coef, refused = e_j, c, None
     kept = with_intercept(chosen, offset) if chosen else []
-    return Carried(Selection(chosen, gains), kept, coef, current, passed, refused)
+    return Carried(Selection(chosen, gains), kept, coef, np.concatenate(current), passed,
+                   refused)
