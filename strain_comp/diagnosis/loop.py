@@ -46,7 +46,7 @@ Per calibrated sensor that has a recording with a reference strain:
    if it lowers that held-out RMSE by more than ``margin``, below both the model before it
    and that model with an intercept (with several validation runs, the median run's RMSE
    too, and no run's may rise by more than ``margin``); one that does not is not added,
-   and the later ones are still tried. The result
+   and the later ones are still tried (without a session start; with one, step 8). The result
    says when nothing helps. The output calibration is the input plus
    the added effect entries, with the coefficients whose held-out error is reported.
 7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
