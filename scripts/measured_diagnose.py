@@ -107,6 +107,22 @@ def carry_recording(spec: dict, run: str, name: str) -> Any:
                       columns=spec.get("columns"), scales=spec.get("scales")).recording
 
 
+def policy_of(changes: list[str]) -> Any:
+    """``LOOP_POLICY`` with the fields ``FIELD=VALUE`` of ``changes`` changed."""
+    import dataclasses
+
+    from strain_comp.diagnosis.policy import LOOP_POLICY
+
+    fields = {f.name: f.type for f in dataclasses.fields(LOOP_POLICY)}
+    values: dict[str, Any] = {}
+    for change in changes:
+        key, _, value = change.partition("=")
+        if key not in fields:
+            raise SystemExit(f"--policy: no field {key!r} (fields: {', '.join(fields)})")
+        values[key] = int(value) if fields[key] in (int, "int") else float(value)
+    return dataclasses.replace(LOOP_POLICY, **values)
+
+
 def carry(args: argparse.Namespace) -> int:
     """The loop judged on later runs after their session start (module docstring)."""
     import numpy as np
@@ -123,6 +139,7 @@ def carry(args: argparse.Namespace) -> int:
         errors = session_errors(cal, {name: rec}, name, seconds)
         return float(np.sqrt(np.mean(errors ** 2)))
 
+    policy = policy_of(args.policy)
     rows = []
     for name, spec in CARRY.items():
         if args.sensors and name not in args.sensors:
@@ -140,7 +157,7 @@ def carry(args: argparse.Namespace) -> int:
             result = diagnose_conditions({name: recs[spec["diagnose"]]}, cal,
                                          validate_recordings=[{name: recs[v]}
                                                               for v in spec["validate"]],
-                                         tare="auto")
+                                         tare="auto", policy=policy)
             d = result.sensors[name]
             found = "; ".join(f"{a.name}: {a.reading()}" for a in result.added) or d.message
             chosen = next(c for c in result.conditions if c.get("chosen"))
@@ -202,6 +219,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="the loop judged on later runs after their session start (CARRY)")
     parser.add_argument("--sensors", nargs="+", choices=sorted(CARRY),
                         help="with --carry: these sensors only (default all)")
+    parser.add_argument("--policy", nargs="+", default=[], metavar="FIELD=VALUE",
+                        help="with --carry: the loop's policy with these fields changed "
+                             "(strain_comp.diagnosis.policy.LoopPolicy, e.g. spread=1)")
     args = parser.parse_args(argv)
     if args.carry:
         return carry(args)

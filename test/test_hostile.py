@@ -38,7 +38,7 @@ from strain_comp.core.calibration import (
 )
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import GAP_RESET, Engine
-from strain_comp.diagnosis.loop import default_candidates
+from strain_comp.diagnosis.candidates import default_candidates
 from strain_comp.errors import BagError, CalibrationError, InputError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.models import MODEL_NAMES

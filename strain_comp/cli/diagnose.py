@@ -26,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="calibration file to improve")
     p.add_argument("--validate", metavar="BAG2.mcap", nargs="+",
                    help="held-out bag(s) for the before/after error (default: held-out "
-                   "blocks of BAG); with several, a term must also lower the median run's")
+                   "blocks of BAG); after the session start a term is added only if it "
+                   "lowers their error beyond the spread between them: give two or more")
     p.add_argument("--out", required=True, metavar="CAL2.yaml",
                    help="calibration to write, with the added terms (replaced atomically)")
     p.add_argument("--json", metavar="OUT.json",

@@ -17,8 +17,11 @@ this run (a tare), an alternation of the excitation every other sample (pair mea
    that stays without relaxing): ``input.baseline_step`` on, like 4.
 
 The condition whose held-out RMSE after the loop is lowest is chosen, but a condition other
-than the reference only if it beats it by more than ``margin`` (relative): a tare or a
-filter that worsens held-out error is not chosen. Every condition is reported with its
+than the reference only if it beats it by more than ``LoopPolicy.margin`` (relative) and,
+with two or more validation runs after their session start, its log RMSE ratios to the
+reference over those runs have an upper bound below ln(1 - margin), as a term's
+(``selection.upper_bound``): a tare or a filter that worsens held-out error, or helps one
+run and costs the others, is not chosen. Every condition is reported with its
 reading (e.g. ``alternation +-340 ohm every other sample``) and its before/after RMSE.
 Quantisation found in the data is reported as a reading only: a quantisation step cannot
 be undone by a causal term without lag (any dequantiser is a low-pass filter, which delays
@@ -30,6 +33,7 @@ noise).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -47,7 +51,9 @@ from strain_comp.core.chain import (
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
+from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult
+from strain_comp.diagnosis.selection import upper_bound
 from strain_comp.io.recording import Recording
 
 
@@ -145,10 +151,21 @@ def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | Non
     return "; ".join(lines) or "no sensor with a rest resistance to tare"
 
 
+def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPolicy) -> bool:
+    """Does the condition of ``result`` lower the validation runs' error against the
+    calibration as given (``reference``) beyond the spread between runs (each sensor's
+    validation runs after their session start; ``selection.upper_bound``, as a term)?
+    True with fewer than two such runs: the pooled figure decides alone."""
+    ratios = [math.log(a / b) for name, d in result.sensors.items() if name in reference.sensors
+              for a, b in zip(d.runs_after, reference.sensors[name].runs_after, strict=False)
+              if a > 0 and b > 0]
+    return len(ratios) < 2 or upper_bound(ratios, policy.spread) < math.log(1.0 - policy.margin)
+
+
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         validate_recordings: Mapping[str, Recording]
                         | Sequence[Mapping[str, Recording]] | None = None,
-                        tare: str = "calibration", margin: float = 0.03,
+                        tare: str = "calibration", policy: LoopPolicy = LOOP_POLICY,
                         progress: Callable[[int, int], None] | None = None,
                         **options: Any) -> DiagnoseResult:
     """``diagnose`` under each condition of the module docstring; the chosen result, with
@@ -197,12 +214,14 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
         if progress is not None:
             progress(len(done), total)
     results = [diagnose(recordings, cal, validate_recordings=validate_recordings,
-                        margin=margin, tare=mode, on_sensor=step, **options)
+                        policy=policy, tare=mode, on_sensor=step, **options)
                for _, _, cal, mode in runs]
+    margin = policy.margin
     best = 0
     for k, result in enumerate(results[1:], start=1):
         if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \
-                and result.after["rmse"] < (1.0 - margin) * results[0].after["rmse"]:
+                and result.after["rmse"] < (1.0 - margin) * results[0].after["rmse"] \
+                and _carries(result, results[0], policy):
             best = k
     conditions = [{"name": name, "reading": reading, "before": r.before["rmse"],
                    "after": r.after["rmse"], "chosen": k == best}

@@ -46,7 +46,7 @@ Per calibrated sensor that has a recording with a reference strain:
    if it lowers that held-out RMSE by more than ``margin``, below both the model before it
    and that model with an intercept (with several validation runs, the median run's RMSE
    too, and no run's may rise by more than ``margin``); one that does not is not added,
-   and the later ones are still tried. The result
+   and the later ones are still tried (without a session start; with one, step 8). The result
    says when nothing helps. The output calibration is the input plus
    the added effect entries, with the coefficients whose held-out error is reported.
 7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
@@ -70,14 +70,25 @@ Per calibrated sensor that has a recording with a reference strain:
    they would only move where that span lands. The terms are still fitted with the
    intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
    run whose first cycle allows neither step is measured as calibrated.
+   Steps 5-6 are then one (``selection.select_carried``): at each step the candidates
+   that pass step 5 on the diagnosed run, the ``LoopPolicy.tried`` best, are each fitted
+   there and scored on every validation run after its session start; the one whose log
+   RMSE ratios (the diagnosed run's held-out folds and each validation run) have the
+   lowest upper bound, mean plus ``LoopPolicy.spread`` standard deviations, is added if
+   that bound is below ln(1 - margin): it lowers the error beyond the spread between
+   runs. The terms are thus chosen by what carries, not by what fits the diagnosed run
+   best (a drift that two runs share and a third does not, a memory that ratchets on
+   another run's noise, are seen as the spread they make).
 
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
 margin); effect state is reset at the engine's gap resets, in diagnosis as online.
 
-The package: ``candidates`` (step 2), ``selection`` (steps 4-6, testable alone),
-``report`` (results, readings, plots), this module (residuals, blocks, the per-sensor
-loop) and ``conditions`` (tare and measurement-chain hypotheses around the whole loop).
+The package: ``candidates`` (step 2), ``residuals`` and ``rows`` (steps 1-3),
+``selection`` (steps 4-6 and 8, testable alone) with its numbers in ``policy``,
+``session`` (the session start), ``findings`` (the message and records), ``report``
+(results, readings, plots), this module (the per-sensor loop) and ``conditions`` (tare
+and measurement-chain hypotheses around the whole loop).
 """
 
 from __future__ import annotations
@@ -90,153 +101,50 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
-from strain_comp.core.effects import (
-    regressor_from_dict,
-)
-from strain_comp.core.tare import TARE_WINDOW
-from strain_comp.diagnosis.candidates import (
-    added_effects,
-    default_candidates,
-)
-from strain_comp.diagnosis.report import (
-    SESSION_RECORDS,
-    DiagnoseResult,
-    EffectScore,
-    SensorDiagnosis,
-    creep_tau,
-)
+from strain_comp.core.calibration import Calibration
+from strain_comp.diagnosis.candidates import added_effects
+from strain_comp.diagnosis.findings import message_of, score_rows, session_record
+from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
+from strain_comp.diagnosis.report import DiagnoseResult, SensorDiagnosis
 from strain_comp.diagnosis.residuals import (
-    ROW_BUDGET,
     Run,
-    Series,
     as_bags,
     base_runs,
-    baseline_rest,
     holdout_period,
-    neighbours_of,
     rmse_stats,
     series_of,
     stride_of,
 )
+from strain_comp.diagnosis.rows import Candidates, Rows, candidates_of, rows_of
 from strain_comp.diagnosis.selection import (
     Gram,
+    HeldOut,
+    Tried,
     candidate_scores,
     keep_on_held_out,
     linear_held_out,
     rms,
+    select_carried,
     select_forward,
 )
 from strain_comp.diagnosis.session import SessionHeldOut
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 
-GAIN_CHANGE = 0.05
-"""A sensitivity against the calibration this far from 1 (the session start's input span
-on the validation run), which that session start corrects, is read as a gain change
-between runs."""
 
-
-@dataclass
-class _Candidates:
-    """The candidate effects of one sensor, with an offset always among them."""
-
-    entries: list[dict[str, Any]]
-    names: list[str]
-    kinds: list[str]
-    offset: int
-    """Index of the offset."""
-    baselines: list[int]
-    """Indices of the per-run baseline candidates."""
-
-
-def _candidates(sensor: str, bags: list[Mapping[str, Recording]], base_fit: list[dict[str, Run]],
-                candidates: Sequence[dict[str, Any]] | None, stretch_history: bool
-                ) -> _Candidates:
-    """The given candidates, or ``default_candidates`` for what the recordings hold
-    (temperature, array neighbours), each with coefficient 0, plus an offset."""
-    if candidates is None:
-        temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
-                 if sensor in b and b[sensor].temperature is not None]
-        temps = [x[np.isfinite(x)] for x in temps]
-        have_temp = any(x.size and np.ptp(x) > 0 for x in temps)
-        t_ref = float(np.mean(np.concatenate(temps))) if have_temp else None
-        nbrs = sorted({n for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-                       for n in neighbours_of(b[sensor], b) if n in runs})
-        candidates = default_candidates(temperature_ref=t_ref, neighbours=nbrs,
-                                        baseline_rest=baseline_rest(bags, sensor),
-                                        stretch_history=stretch_history)
-    entries = [dict(c, coef=0.0) for c in candidates]
-    if "offset" not in [str(c["kind"]) for c in entries]:
-        entries.append({"name": "offset", "kind": "offset", "params": {}, "coef": 0.0})
-    kinds = [str(c["kind"]) for c in entries]
-    return _Candidates(entries, [str(c["name"]) for c in entries], kinds,
-                       kinds.index("offset"), [j for j, k in enumerate(kinds) if k == "baseline"])
-
-
-@dataclass
-class _Rows:
-    """The loop's rows: the fit rows (cross-validation folds) and the held-out rows."""
-
-    series: list[Series]
-    val_series: list[Series]
-    g_fit: np.ndarray
-    e_fit: np.ndarray
-    fold: np.ndarray
-    n_folds: int
-    e_out: np.ndarray
-    g_out: np.ndarray
-    t_out: np.ndarray
-    s_out: np.ndarray
-
-
-def _rows(sensor: str, series: list[Series], validate: list[Mapping[str, Recording]] | None,
-          base_val: list[dict[str, Run]], entries: list[dict[str, Any]], n_blocks: int,
-          period: int, val_stride: int) -> _Rows:
-    """Fit rows (not held out, within the range the terms read) with their fold (the
-    position of the block among the fit blocks of its recording), and the held-out rows:
-    the validation recordings', or every ``period``-th block's without them."""
-    held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
-                for s in series]
-    fold_of_block = np.cumsum([not (period and b % period == period - 1)
-                               for b in range(n_blocks)]) - 1
-    fits = [~h & ~s.extended for s, h in zip(series, held_out, strict=True)]
-    e_fit = np.concatenate([s.e[f] for s, f in zip(series, fits, strict=True)])
-    g_fit = np.concatenate([s.g[f] for s, f in zip(series, fits, strict=True)])
-    fold = np.concatenate([fold_of_block[s.block[f]]
-                           for s, f in zip(series, fits, strict=True)])
-    if validate is not None:
-        val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
-                      for s in [series_of(sensor, b, runs, entries, n_blocks, val_stride)]
-                      if s is not None]
-        if not val_series:
-            raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
-                             "samples with a reference strain")
-        out = [(s.e, s.g, s.t, s.s) for s in val_series]
-    else:
-        val_series = []
-        out = [(s.e[h], s.g[h], s.t[h], s.s[h]) for s, h in zip(series, held_out, strict=True)]
-    e_out, g_out, t_out, s_out = (np.concatenate([o[k] for o in out]) for k in range(4))
-    return _Rows(series, val_series, g_fit, e_fit, fold, int(fold_of_block.max()) + 1,
-                 e_out, g_out, t_out, s_out)
-
-
-def _choose(gram: Gram, rows: _Rows, cands: _Candidates, scores: dict[int, float],
-            margin: float, max_effects: int, held_out: Any, runs: np.ndarray | None,
-            session: SessionHeldOut | None) -> Any:
+def _choose(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float],
+            policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None) -> Any:
     """Forward selection kept on the held-out rows, and for each baseline candidate the
-    per-run hypothesis (the start-of-run shift removed whole) when it wins by ``margin``;
-    ``scores`` of the baselines are set here."""
+    per-run hypothesis (the start-of-run shift removed whole) when it wins by the margin
+    (without a session start: steps 5-7)."""
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
+    margin, max_effects = policy.margin, policy.max_effects
     chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines)
     best = keep_on_held_out(gram, chosen, None, offset, rows.n_folds, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
     for b in baselines:
         shifted = Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
         rmse_b = shifted.cv_rmse([])
-        scores[b] = 1.0 - (rmse_b / rmse_none) ** 2 if rmse_none > 0 else 0.0
-        if session is not None:  # the session start re-zeroes every run itself (step 8)
-            continue
         selection = select_forward(shifted, n, offset, margin, max_effects - 1,
                                    auto_intercept=False, skip=baselines)
         selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
@@ -248,125 +156,69 @@ def _choose(gram: Gram, rows: _Rows, cands: _Candidates, scores: dict[int, float
     return best
 
 
-def _score_rows(sensor: str, cal: SensorCalibration, cands: _Candidates, rows: _Rows,
-                scores: dict[int, float], terms: list[int], coefs: list[float],
-                gains: Mapping[int, float]) -> list[EffectScore]:
-    """The evidence of every candidate: its score and, for an added one, its rank, gain,
-    coefficient and magnitude."""
-    std_fit = np.std(rows.g_fit, axis=0)
-    coef_of = dict(zip(terms, coefs, strict=True))
-    vr = cal.valid_range
-    found = []
-    for j, name in enumerate(cands.names):
-        row = EffectScore(sensor=sensor, name=name, kind=cands.kinds[j],
-                          params=regressor_from_dict(cands.entries[j]).params(),
-                          score=scores[j], unit=cal.strain_unit, span=vr.s_hi - vr.s_lo)
-        if j in coef_of:
-            row.added = True
-            row.rank = terms.index(j)
-            row.gain = gains.get(j)
-            row.coef = float(coef_of[j])
-            row.magnitude = float(abs(coef_of[j]) * (std_fit[j] if j != cands.offset else 1.0))
-            if cands.kinds[j] == "baseline":
-                row.magnitude = float(np.sqrt(np.mean(rows.g_out[:, j] ** 2)))
-            row.lag = _lags(cands, rows, j, row.coef)
-        found.append(row)
-    return found
+def _baseline_scores(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float]
+                     ) -> None:
+    """``scores`` of the per-run baseline candidates: the share of the cross-validated
+    residual variance their start-of-run shift, removed whole, explains (step 7)."""
+    rmse_none = gram.cv_rmse([])
+    for b in cands.baselines:
+        shifted = Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
+        scores[b] = 1.0 - (shifted.cv_rmse([]) / rmse_none) ** 2 if rmse_none > 0 else 0.0
 
 
-def _lags(cands: _Candidates, rows: _Rows, j: int, coef: float) -> bool | None:
-    """Does creep term ``j`` (``report.creep_tau``) stand for an estimate that lags the
-    reference after a change? Its correction coef g set against the same time constant's
-    state of the estimate (S_hat minus its low-pass, positive after a rise of the strain):
-    of opposite sign on the fit rows, the estimate stays behind. None: not a creep term, or
-    no such state among the candidates."""
-    tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
-    if tau is None:
-        return None
-    if cands.kinds[j] == "relaxation":
-        return coef < 0
-    for k, entry in enumerate(cands.entries):
-        if cands.kinds[k] == "relaxation" and creep_tau("relaxation", entry.get("params", {})) \
-                == tau:
-            h, g = rows.g_fit[:, k], coef * rows.g_fit[:, j]
-            if np.std(h) > 0 and np.std(g) > 0:
-                return bool(np.corrcoef(h, g)[0, 1] < 0)
-    return None
+@dataclass
+class _Selected:
+    """The terms one sensor's loop adds (columns, coefficients), their gains, the terms
+    selected on the diagnosed run alone (without a session start) and the best candidate
+    scored after the session start and not added."""
+
+    terms: list[int]
+    coefs: list[float]
+    gains: dict[int, float]
+    chosen: list[int]
+    refused: Tried | None
 
 
-def _message(cal: SensorCalibration, cands: _Candidates, rows: _Rows, best: Any,
-             scores: dict[int, float], order: list[int], gains: Mapping[int, float],
-             margin: float, before: float, after: float, session: bool,
-             strides: tuple[int, int | None]) -> str:
-    """The loop's finding for one sensor, in words."""
-    names = cands.names
-    if not order:
-        top = max((j for j in scores if j not in cands.baselines), key=scores.__getitem__)
-        message = (f"no candidate effect lowers the held-out error by more than "
-                   f"{100 * margin:.0f} %; nothing added (best: {names[top]}, "
-                   f"score {scores[top]:.3f})")
-        if best.selection.chosen:
-            message = (f"{names[best.selection.chosen[0]]} looked useful in cross-validation "
-                       "but did not lower the held-out error; nothing added")
-        if session:
-            chosen = best.selection.chosen
-            why = (f"{names[chosen[0]]}, useful in cross-validation on the diagnosed run, "
-                   "does not carry to them" if chosen else
-                   f"no candidate explains it (best in cross-validation: {names[top]}, "
-                   f"score {scores[top]:.3f})")
-            if chosen and all(_gain_or_offset(cands, j) for j in chosen):
-                why = ("what helped on the diagnosed run is an output gain or offset, which "
-                       "the session start makes itself")
-            message = (f"after the session start, what remains on the validation runs is "
-                       f"{before:.4g} {cal.strain_unit} (as calibrated {rms(rows.e_out):.4g}) "
-                       f"and {why}: nothing added")
-    else:
-        parts = ", ".join(f"{names[j]} ({_family(cands, j)}gain {gains[j]:.1%})"
-                          for j in order if j in gains)
-        message = (f"added {parts}; held-out RMSE {before:.4g} -> {after:.4g} "
-                   f"{cal.strain_unit}"
-                   + ("" if not session else " after the session-start recalibration"))
-    left_out = [x.unsettled for x in [*rows.series, *rows.val_series] if x.unsettled[0] > 0]
-    if left_out:
-        seconds, drift = left_out[0]
-        others = (f" (and the start of {len(left_out) - 1} more runs)" if len(left_out) > 1
-                  else "")
-        message += (f"; the first {seconds:.0f} s{others}, before the reference first moves, "
-                    f"are left out: the resistance still relaxes there from an earlier "
-                    f"stretch ({100 * drift:+.2f} % over {TARE_WINDOW:g} s)")
-    stride, val_stride = strides
-    if stride > 1 or (val_stride or 1) > 1:
-        message += (f"; fitted and scored on every {stride}-th sample"
-                    + (f" (validation: every {val_stride}-th)" if val_stride is not None
-                       else "")
-                    + f" of a run longer than {ROW_BUDGET:,} samples")
-    return message
+def _select(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float],
+            policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None,
+            session: SessionHeldOut | None) -> _Selected:
+    """Steps 5-7, or with a session start step 8 (what the session start makes itself,
+    the per-run baseline among it, is neither tried nor written)."""
+    if session is not None:
+        n = len(cands.names)
+        skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
+        carried = select_carried(gram, n, cands.offset, session.per_run, policy, skip)
+        kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
+        return _Selected([carried.kept[k] for k in kept], [float(carried.coef[k]) for k in kept],
+                         carried.selection.gains, carried.selection.chosen, carried.refused)
+    best = _choose(gram, rows, cands, scores, policy, held_out, runs)
+    rmse_before = rms(held_out([], np.zeros(0)))
+    terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
+        + best.kept
+    coefs = ([1.0] if terms[:1] == [best.shift] else []) + [float(c) for c in best.coef]
+    return _Selected(terms, coefs, best.selection.gains, best.selection.chosen, None)
 
 
-def _gain_or_offset(cands: _Candidates, j: int) -> bool:
-    """Is candidate ``j`` an output offset or a plain gain (what the session start makes)?"""
-    return cands.kinds[j] == "offset" or (
-        cands.kinds[j] == "strain_level" and cands.entries[j].get("params", {}).get("power", 1)
-        == 1)
+@dataclass
+class _Setup:
+    """One sensor's candidates, rows, cross-validation sums and first-round scores, and
+    the held-out measure (the validation runs after their session start, or linear)."""
+
+    cands: Candidates
+    rows: Rows
+    gram: Gram
+    scores: dict[int, float]
+    session: SessionHeldOut | None
+    strides: tuple[int, int | None]
 
 
-def _family(cands: _Candidates, j: int) -> str:
-    """``creep, tau X s, `` for a creep term (its family named in the message), else ``""``."""
-    tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
-    return "" if tau is None else f"creep, tau {tau:g} s, "
-
-
-def _diagnose_sensor(sensor: str, calibration: Calibration,
-                     bags: list[Mapping[str, Recording]],
-                     validate: list[Mapping[str, Recording]] | None,
-                     base_fit: list[dict[str, Run]], base_val: list[dict[str, Run]],
-                     candidates: Sequence[dict[str, Any]] | None, holdout_fraction: float,
-                     n_blocks: int, margin: float, max_effects: int,
-                     stretch_history: bool = False, session_start: bool = True,
-                     ) -> SensorDiagnosis | None:
-    """One sensor's loop (module docstring)."""
-    cal = calibration.sensors[sensor]
-    cands = _candidates(sensor, bags, base_fit, candidates, stretch_history)
+def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Recording]],
+           validate: list[Mapping[str, Recording]] | None, base_fit: list[dict[str, Run]],
+           base_val: list[dict[str, Run]], candidates: Sequence[dict[str, Any]] | None,
+           holdout_fraction: float, n_blocks: int, stretch_history: bool,
+           session_start: bool) -> _Setup | None:
+    """Steps 1-4 for one sensor (None: no usable recording)."""
+    cands = candidates_of(sensor, bags, base_fit, candidates, stretch_history)
     session = (None if validate is None or not session_start
                else SessionHeldOut(calibration, sensor, validate, cands.entries))
     if session is not None and not session.usable():
@@ -379,32 +231,33 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
     if not series:
         return None
     period = holdout_period(holdout_fraction) if validate is None else 0
-    rows = _rows(sensor, series, validate, base_val, cands.entries, n_blocks, period,
-                 val_stride)
+    rows = rows_of(sensor, series, validate, base_val, cands.entries, n_blocks, period,
+                   val_stride)
     gram = Gram(rows.g_fit, rows.e_fit, rows.fold, rows.n_folds)
     scores = candidate_scores(gram, len(cands.names), cands.offset)
+    _baseline_scores(gram, rows, cands, scores)
+    return _Setup(cands, rows, gram, scores, session,
+                  (stride, val_stride if validate is not None else None))
+
+
+def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
+                     policy: LoopPolicy) -> SensorDiagnosis:
+    """One sensor's loop (module docstring) on its ``setup``."""
+    cal = calibration.sensors[sensor]
+    cands, rows, session = setup.cands, setup.rows, setup.session
     linear = linear_held_out(rows.e_out, rows.g_out)
-    held_out = linear if session is None else session
-    runs = None  # the validation run of each held-out sample
-    if session is not None:
-        runs = session.runs_of_samples()
-    elif rows.val_series:
+    held_out: HeldOut = linear if session is None else session
+    runs = None  # the validation run of each held-out sample (without a session start)
+    if session is None and rows.val_series:
         runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(rows.val_series)])
-    best = _choose(gram, rows, cands, scores, margin, max_effects, held_out, runs, session)
+    picked = _select(setup.gram, rows, cands, setup.scores, policy, held_out, runs, session)
+    terms, coefs = picked.terms, picked.coefs
     e_before = held_out([], np.zeros(0))
-    rmse_before = rms(e_before)
-    terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
-        + best.kept
-    coefs = ([1.0] if terms[:1] == [best.shift] else []) + list(best.coef)
-    if session is not None:  # what the session start makes itself is not written
-        kept = [k for k, j in enumerate(terms) if not session.redundant(j)]
-        terms, coefs = [terms[k] for k in kept], [coefs[k] for k in kept]
-    gains = best.selection.gains
     e_after = held_out(terms, np.array(coefs))
     order = [j for j in terms if j != cands.offset] or terms
-    message = _message(cal, cands, rows, best, scores, order, gains, margin, rmse_before,
-                       rms(e_after), session is not None,
-                       (stride, val_stride if validate is not None else None))
+    message = message_of(cal, cands, rows, picked.chosen, picked.refused, setup.scores, order,
+                         picked.gains, policy.margin, rms(e_before), rms(e_after),
+                         session is not None, setup.strides)
     e_linear = linear(terms, np.array(coefs))
     winner = cands.names[order[0]] if order else None
     plot = {}
@@ -413,59 +266,14 @@ def _diagnose_sensor(sensor: str, calibration: Calibration,
                 "g": rows.g_out[:, order[0]], "s": rows.s_out}
     found = SensorDiagnosis(
         name=sensor, before=rmse_stats(e_before), after=rmse_stats(e_after),
-        scores=_score_rows(sensor, cal, cands, rows, scores, terms, coefs, gains),
+        scores=score_rows(sensor, cal, cands, rows, setup.scores, terms, coefs, picked.gains),
         added=added_effects(cands.entries, terms, coefs, cal.effects), message=message,
         plot=plot, winner=winner)
     if session is not None:
         found.as_calibrated = {"before": rmse_stats(rows.e_out), "after": rmse_stats(e_linear)}
-        found.session = _session_record(cal, session, rows.e_out, e_before, margin)
+        found.session = session_record(cal, session, rows.e_out, e_before, policy.margin)
+        found.runs_after = [rms(e) for e in session.per_run(terms, np.array(coefs))]
     return found
-
-
-def _session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.ndarray,
-                    e_start: np.ndarray, margin: float) -> dict[str, Any]:
-    """What the session start did on the validation runs, and the gain change between runs
-    it shows: the sensitivity against the calibration (the input span gain k: the sensor
-    reads 1 / k - 1 more) where it is at least ``GAIN_CHANGE`` and the session start lowers
-    the validation error by more than ``margin``."""
-    starts = session.starts()
-    spans = [s.calibration.sensors[session.sensor].input.zero_span for s in starts]
-    changes = [100.0 * (1.0 / span[2] - 1.0) for span, s in zip(spans, starts, strict=True)
-               if span is not None and "input" in s.steps]
-    before, after = rms(e_raw), rms(e_start)
-    shown = bool(changes) and max(abs(c) for c in changes) >= 100.0 * GAIN_CHANGE \
-        and after < (1.0 - margin) * before
-    seconds = ", ".join(f"{seconds:.3g}" for _, seconds in session.runs)
-    first = session.runs[0][1]
-    u = strain_unit_words(cal.strain_unit)
-    made = "; ".join(line.split(" (from ")[0].removeprefix(f"{session.sensor}: ")
-                     for s in starts for line in s.lines)
-    reading = (f"{session.sensor}: session start on the first {seconds} s of the validation "
-               f"run ({made}); validation RMSE before the loop {before:.4g} -> {after:.4g} {u}"
-               f"; {_remains(before, after, u)}")
-    if shown:
-        reading = (f"{session.sensor}: sensitivity differs from the calibration by "
-                   + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
-                   f"recalibrate --input --from RUN --first {first:.3g}, then recalibrate "
-                   f"--from RUN --first {first:.3g} (its first load and unload), at the start "
-                   "of each session; " + reading)
-    return {"name": SESSION_RECORDS[1] if shown else SESSION_RECORDS[0],
-            "reading": reading, "before": before, "after": after, "chosen": False,
-            "sensitivity_change": changes, "seconds": [s for _, s in session.runs],
-            "steps": [s.steps for s in starts]}
-
-
-def _remains(before: float, after: float, unit_words: str) -> str:
-    """One line on what the session start leaves: the share of the validation runs' squared
-    error that was their own gain and offset (their input space), which no term need make."""
-    if not before > 0 or not after < before:
-        return (f"after the session start, what remains is all of the error and more ("
-                f"{before:.4g} -> {after:.4g} {unit_words}): the runs' own gain and offset are "
-                "not what the calibration lacks")
-    share = 1.0 - (after / before) ** 2
-    return (f"after the session start, what remains is {after:.4g} of {before:.4g} "
-            f"{unit_words}: {100 * share:.0f} % of the squared error was each run's own gain "
-            "and offset, which the session start removes and no term need make")
 
 
 def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]],
@@ -473,16 +281,16 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              validate_recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
              | None = None, holdout_fraction: float = 0.3,
              candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
-             margin: float = 0.03, max_effects: int = 3,
-             tare: str = "calibration", stretch_history: bool = False,
+             policy: LoopPolicy = LOOP_POLICY, tare: str = "calibration",
+             stretch_history: bool = False,
              session_start: bool = True,
              on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
     """Run the residual loop (module docstring) on every calibrated sensor with a reference.
 
     ``recordings``: one bag's recordings by sensor name, or a list of such (several bags).
     ``candidates``: effect dicts to test instead of ``default_candidates`` (with the
-    ``stretch`` terms when ``stretch_history``). ``margin``: the
-    least relative drop of the cross-validated RMSE for an effect to be added. ``tare``:
+    ``stretch`` terms when ``stretch_history``). ``policy``: the numbers of the
+    selection (``strain_comp.diagnosis.policy``). ``tare``:
     ``calibration`` or ``auto`` (every run, fit and validation alike, tared at its start).
     ``session_start``: with validation recordings, measure before and after on them after
     the session-start recalibration on their first cycle (``strain_comp.diagnosis.session``;
@@ -500,11 +308,10 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
                 else [base_runs(b, calibration, tare=tare) for b in validate])
     results: dict[str, SensorDiagnosis] = {}
     for sensor in calibration.sensors:
-        found = _diagnose_sensor(sensor, calibration, bags, validate, base_fit, base_val or [],
-                                 candidates, holdout_fraction, n_blocks, margin, max_effects,
-                                 stretch_history, session_start)
-        if found is not None:
-            results[sensor] = found
+        setup = _setup(sensor, calibration, bags, validate, base_fit, base_val or [],
+                       candidates, holdout_fraction, n_blocks, stretch_history, session_start)
+        if setup is not None:
+            results[sensor] = _diagnose_sensor(sensor, calibration, setup, policy)
         if on_sensor is not None:  # progress (strain_comp.progress)
             on_sensor(sensor)
     if not results:

@@ -214,8 +214,11 @@ class SensorDiagnosis:
     """Before and after without the session-start recalibration (the loop's own residual on
     the validation samples it reads), when ``before`` and ``after`` are measured after it."""
     session: dict[str, Any] = field(default_factory=dict)
-    """The session start on the validation runs (``loop._session_record``; empty: the
+    """The session start on the validation runs (``findings.session_record``; empty: the
     before and after are measured without one)."""
+    runs_after: list[float] = field(default_factory=list)
+    """RMSE of each validation run after its session start, with the added terms (empty:
+    measured without a session start)."""
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"before": self.before, "after": self.after,

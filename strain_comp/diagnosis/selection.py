@@ -2,8 +2,10 @@
 
 Blocked cross-validation from per-fold sums (``Gram``), the fold-wise significance test
 (``significant``), greedy forward selection (``select_forward``), first-round scores
-(``candidate_scores``) and the held-out veto (``keep_on_held_out``). See
-``strain_comp.diagnosis.loop`` (steps 4-6) for how the loop uses them.
+(``candidate_scores``), the held-out veto (``keep_on_held_out``) and the selection on
+validation runs after their session start (``select_carried``, ``upper_bound``). See
+``strain_comp.diagnosis.loop`` (steps 4-6) for how the loop uses them; the numbers are
+``strain_comp.diagnosis.policy.LoopPolicy``'s.
 """
 
 from __future__ import annotations
@@ -15,11 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from strain_comp._numba import njit
-
-SIGNIFICANCE = 1.0
-"""A term is added only if its fold-wise cross-validated gain exceeds this many standard
-errors (``significant``)."""
-
+from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 
 RESOLUTION = 1e-6
 """Forward selection stops once the cross-validated RMSE is below this fraction of the
@@ -98,10 +96,12 @@ class Gram:
         return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
 
 
-def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray) -> bool:
+def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray,
+                sigmas: float = LOOP_POLICY.significance) -> bool:
     """Is the fold-wise drop of the cross-validated squared error consistently > 0?
 
-    One-sided test over the folds: mean drop > ``SIGNIFICANCE`` standard errors. A term
+    One-sided test over the folds: mean drop > ``sigmas`` standard errors
+    (``LoopPolicy.significance``). A term
     that explains variance in some stretches of the record and hurts in others (it fits a
     coincidence of the profile, not a physical effect) fails it even when the pooled
     error falls a little.
@@ -109,7 +109,7 @@ def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray) -> bool:
     d = (before - after)[n > 0]
     if d.size < 2:
         return bool(d.sum() > 0)
-    return bool(d.mean() > SIGNIFICANCE * d.std(ddof=1) / math.sqrt(d.size))
+    return bool(d.mean() > sigmas * d.std(ddof=1) / math.sqrt(d.size))
 
 
 @dataclass
@@ -255,3 +255,112 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
             kept, current = cols, e_j
     coef, e_after = trial(kept)
     return Branch(shift, selection, kept, coef, e_after, rms(e_after))
+
+
+def upper_bound(log_ratios: Sequence[float], spread: float) -> float:
+    """What a later run may get from a term: the mean of its log RMSE ratios over the
+    validation runs plus ``spread`` of their standard deviations (``LoopPolicy.spread``);
+    +inf with fewer than two runs (no spread between runs to judge by)."""
+    x = np.asarray(log_ratios, dtype=np.float64)
+    if x.size < 2 or not np.all(np.isfinite(x)):
+        return math.inf
+    return float(x.mean() + spread * x.std(ddof=1))
+
+
+RunsHeldOut = Callable[[Sequence[int], np.ndarray], list[np.ndarray]]
+"""The held-out residual of a set of terms on each validation run: (columns, coefficients)
+-> one array of errors per run (``session.SessionHeldOut.per_run``: a run may score a
+different number of samples with other terms, so the runs are kept apart)."""
+
+
+def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> list[float]:
+    """ln(RMSE new / RMSE old) of each run."""
+    return [math.log(rms(a) / rms(b)) if rms(a) > 0 and rms(b) > 0 else math.inf
+            for a, b in zip(e_new, e_old, strict=True)]
+
+
+@dataclass
+class Tried:
+    """A candidate scored on the validation runs: the log RMSE ratio on the diagnosed run's
+    held-out folds, each validation run's, and their upper bound."""
+
+    column: int
+    fit_ratio: float
+    log_ratios: list[float]
+    bound: float
+
+
+@dataclass
+class Carried:
+    """The terms ``select_carried`` adds, in order, their fit (scaled back), the held-out
+    errors with them, and the best candidate it tried and did not add (None: every
+    candidate it tried was added, or none passed on the diagnosed run)."""
+
+    selection: Selection
+    kept: list[int]
+    coef: np.ndarray
+    e_after: np.ndarray
+    passed: bool
+    """Did any candidate pass on the diagnosed run at the last step?"""
+    refused: Tried | None
+
+
+def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequence[int],
+             policy: LoopPolicy) -> dict[int, float]:
+    """The candidates that lower the diagnosed run's cross-validated RMSE (with ``cols``
+    and the intercept) by more than the margin, significantly: their gain."""
+    ref = gram.fold_sse(with_intercept([*cols, offset], offset))
+    if not ref.sum() > RESOLUTION ** 2 * gram.ee.sum():
+        return {}
+    gains = {}
+    for j in range(n_cols):
+        if j in cols or j in skip or j == offset:
+            continue
+        after = gram.fold_sse(with_intercept([*cols, j], offset))
+        gain = 1.0 - math.sqrt(after.sum() / ref.sum())
+        if gain > policy.margin and significant(ref, after, gram.n, policy.significance):
+            gains[j] = gain
+    return gains
+
+
+def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
+                   policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Carried:
+    """Greedy selection scored as the product is used (``strain_comp.diagnosis.loop``,
+    step 8). At each step the candidates that pass on the diagnosed run (``_passing``),
+    the ``policy.tried`` best, are each fitted there (with the terms already added and the
+    intercept) and scored on the validation runs by ``held_out`` (the errors of each run
+    after its session start). The one with the lowest ``upper_bound`` of its log RMSE
+    ratios over the validation runs is added if that bound is below ln(1 - margin): it
+    lowers the error by more than the margin beyond the spread between runs (with one
+    validation run there is no spread to judge by, and nothing is added). ``skip``: columns
+    never tried (what the session start makes itself)."""
+    all_folds = np.arange(gram.n.size)
+    chosen: list[int] = []
+    gains: dict[int, float] = {}
+    current = held_out([], np.zeros(0))
+    coef = np.zeros(0)
+    refused: Tried | None = None
+    passed = False
+    while len(chosen) < policy.max_effects:
+        passing = _passing(gram, chosen, offset, n_cols, skip, policy)
+        passed = bool(passing)
+        tried: list[tuple[Tried, np.ndarray, list[np.ndarray]]] = []
+        for j in sorted(passing, key=passing.__getitem__, reverse=True)[:policy.tried]:
+            cols = with_intercept([*chosen, j], offset)
+            c = gram.solve(cols, all_folds) / gram.scale[cols]
+            e_j = held_out(cols, c)
+            ratios = run_log_ratios(e_j, current)
+            tried.append((Tried(j, math.log(1.0 - passing[j]), ratios,
+                                upper_bound(ratios, policy.spread)), c, e_j))
+        if not tried:
+            break
+        best, c, e_j = min(tried, key=lambda x: (x[0].bound, float(np.mean(x[0].log_ratios))))
+        if not best.bound < math.log(1.0 - policy.margin):
+            refused = best
+            break
+        chosen.append(best.column)
+        gains[best.column] = 1.0 - rms(np.concatenate(e_j)) / rms(np.concatenate(current))
+        current, coef, refused = e_j, c, None
+    kept = with_intercept(chosen, offset) if chosen else []
+    return Carried(Selection(chosen, gains), kept, coef, np.concatenate(current), passed,
+                   refused)

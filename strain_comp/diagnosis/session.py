@@ -118,11 +118,6 @@ class SessionHeldOut:
                             for bag, seconds in self.runs]
         return self._starts
 
-    def runs_of_samples(self) -> np.ndarray:
-        """The validation run (0..k-1) of each error sample, in the errors' order."""
-        return np.concatenate([np.full(e.size, k)
-                               for k, e in enumerate(self._per_run([], np.zeros(0)))])
-
     def usable(self) -> bool:
         """A validation run whose session start makes at least one step."""
         return any(start.steps for start in self.starts())
@@ -135,9 +130,9 @@ class SessionHeldOut:
                                     and self.candidates[j]["params"].get("power", 1) == 1)
 
     def __call__(self, cols: Sequence[int], coef: np.ndarray) -> np.ndarray:
-        return np.concatenate(self._per_run(cols, coef))
+        return np.concatenate(self.per_run(cols, coef))
 
-    def _per_run(self, cols: Sequence[int], coef: np.ndarray) -> list[np.ndarray]:
+    def per_run(self, cols: Sequence[int], coef: np.ndarray) -> list[np.ndarray]:
         """The errors of each validation run with terms ``cols`` (cached)."""
         keep = [k for k, j in enumerate(cols) if not self.redundant(j)]
         cols, coef = [cols[k] for k in keep], np.asarray(coef)[keep]

@@ -9,8 +9,10 @@ scenario (0-50 %). A cubic is a static map, so the rig's viscous branches are sw
 on): with them on, the cubic lacks rate-dependent hysteresis, which is then a real missing
 effect, not a clean bag. Each test bag adds one rig effect; ``diagnose`` knows nothing of
 how the data were made, works on the bag and is scored on a *separate* validation bag (other
-seed, and where the effect allows another scenario). It must name the effect (the kind of
-the first added effect) and cut the validation RMSE by at least ``MIN_DROP``.
+seed, and where the effect allows another scenario), two runs of it: a term is added only
+if it lowers their error after the session start beyond the spread between runs
+(docs/loop.md). It must name the effect (the kind of the first added effect) and cut the
+validation RMSE by at least ``MIN_DROP``.
 """
 
 from __future__ import annotations
@@ -42,13 +44,16 @@ CLEAN = {"hysteresis": 0.0, "relaxation": 0.0}
 BagMaker = Callable[..., dict[str, Recording]]
 
 
-def as_used(calibration: Calibration, recordings: dict[str, Recording]) -> float:
-    """RMSE of s1 on ``recordings`` after the session-start recalibration on their first
+def as_used(calibration: Calibration, *runs: dict[str, Recording]) -> float:
+    """RMSE of s1 over ``runs`` after the session-start recalibration on each run's first
     cycle, then ``evaluate`` (the product's path, independent of the loop's arrays)."""
-    rec = recordings["s1"]
-    seconds = first_cycle(rec.t, rec.s)
-    assert seconds is not None
-    return float(np.sqrt(np.mean(session_errors(calibration, recordings, "s1", seconds) ** 2)))
+    errors = []
+    for recordings in runs:
+        rec = recordings["s1"]
+        seconds = first_cycle(rec.t, rec.s)
+        assert seconds is not None
+        errors.append(session_errors(calibration, recordings, "s1", seconds))
+    return float(np.sqrt(np.mean(np.concatenate(errors) ** 2)))
 
 
 @pytest.fixture(scope="module")
@@ -72,13 +77,17 @@ def calibration(bags: BagMaker) -> Calibration:
     return Calibration({"s1": fit_sensor([bags("patterns", 0)["s1"]], "cubic", name="s1")})
 
 
-CASES = [  # effect, rig switch, bag scenario, validation scenario, expected kind
-    ("relaxation after steps", {"relaxation": 0.3}, "random", "steps", "relaxation"),
-    ("slow drift", {"drift": 0.05}, "long", "long", "elapsed"),
+CASES = [  # effect, rig switch, bag scenario, validation scenario, expected kind(s)
+    # relaxation: a memory of the estimate's steps, or of the resistance (the rig's
+    # relaxation is five times weaker on unloading: "rising back from a recent dip")
+    ("relaxation after steps", {"relaxation": 0.3}, "random", "steps",
+     ("relaxation", "resistance_memory")),
+    ("slow drift", {"drift": 0.05}, "long", "long", ("elapsed",)),
     ("fast drift, validated on other strain levels", {"drift": 0.5}, "random", "patterns",
-     "elapsed"),
-    ("temperature (TCR)", {"temperature": 0.004}, "temperature", "temperature", "temperature"),
-    ("Mullins softening", {"mullins": 0.3}, "patterns", "random", "mullins"),
+     ("elapsed",)),
+    ("temperature (TCR)", {"temperature": 0.004}, "temperature", "temperature",
+     ("temperature",)),
+    ("Mullins softening", {"mullins": 0.3}, "patterns", "random", ("mullins",)),
 ]
 
 
@@ -86,14 +95,15 @@ CASES = [  # effect, rig switch, bag scenario, validation scenario, expected kin
                          ids=[c[0] for c in CASES])
 def test_finds_the_undeclared_effect(bags: BagMaker, calibration: Calibration, effect: str,
                                      switch: dict, scenario: str, val_scenario: str,
-                                     kind: str) -> None:
+                                     kind: tuple[str, ...]) -> None:
     data = bags(scenario, 2, **switch)
-    if kind == "temperature":  # the /s1/temperature topic reaches the recording
+    if kind == ("temperature",):  # the /s1/temperature topic reaches the recording
         assert data["s1"].temperature is not None and np.ptp(data["s1"].temperature) > 5
-    result = diagnose(data, calibration, validate_recordings=bags(val_scenario, 3, **switch))
+    val = [bags(val_scenario, seed, **switch) for seed in (3, 4)]
+    result = diagnose(data, calibration, validate_recordings=val)
     added = result.added
     assert added, result.summary()
-    assert added[0].kind == kind, result.summary()
+    assert added[0].kind in kind, result.summary()
     assert result.validated_on == "validate"
     drop = 1 - result.after["rmse"] / result.before["rmse"]
     print(f"{effect}: {added[0].name}, validation RMSE {result.before['rmse']:.4f} -> "
@@ -106,12 +116,12 @@ def test_finds_the_undeclared_effect(bags: BagMaker, calibration: Calibration, e
     # before and after are the validation run's as the product is used: recalibrated at
     # its start; without that recalibration, the engine's online output gives the JSON's
     # "as_calibrated" figure
-    val = bags(val_scenario, 3, **switch)
-    assert as_used(result.calibration, val) == pytest.approx(result.after["rmse"], rel=1e-9)
-    assert as_used(calibration, val) == pytest.approx(result.before["rmse"], rel=1e-9)
-    rec = val["s1"]
-    online = Engine(result.calibration).run("s1", rec.t, rec.r, rec.temperature).strain
-    assert np.sqrt(np.mean((online - rec.s) ** 2)) == pytest.approx(
+    assert as_used(result.calibration, *val) == pytest.approx(result.after["rmse"], rel=1e-9)
+    assert as_used(calibration, *val) == pytest.approx(result.before["rmse"], rel=1e-9)
+    online = [Engine(result.calibration).run("s1", v["s1"].t, v["s1"].r,
+                                             v["s1"].temperature).strain - v["s1"].s
+              for v in val]
+    assert np.sqrt(np.mean(np.concatenate(online) ** 2)) == pytest.approx(
         result.sensors["s1"].as_calibrated["after"]["rmse"], rel=1e-6)
 
 
@@ -119,7 +129,8 @@ def test_finds_crosstalk_between_array_neighbours(bags: BagMaker) -> None:
     clean = bags("array", 0)
     calibration = Calibration({n: fit_sensor([rec], "cubic", name=n) for n, rec in clean.items()})
     result = diagnose(bags("array", 2, crosstalk=0.05), calibration,
-                      validate_recordings=bags("array", 3, crosstalk=0.05))
+                      validate_recordings=[bags("array", seed, crosstalk=0.05)
+                                           for seed in (3, 4)])
     names = list(clean)
     for i, name in enumerate(names):
         d = result.sensors[name]
@@ -214,7 +225,7 @@ def test_a_gain_change_between_runs_is_read_with_its_size(bags: BagMaker,
 def test_json_contract_validation_bag_and_cal2(bags: BagMaker, calibration: Calibration,
                                                tmp_path: Path) -> None:
     data, val = bags("long", 6, drift=0.05), bags("long", 7, drift=0.05)
-    result = diagnose(data, calibration, validate_recordings=val)
+    result = diagnose(data, calibration, validate_recordings=[val, bags("long", 8, drift=0.05)])
     record = json.loads(json.dumps(result.to_json()))
     assert set(record) >= {"before", "after", "effects", "validated_on"}
     assert record["validated_on"] == "validate"
@@ -227,15 +238,18 @@ def test_json_contract_validation_bag_and_cal2(bags: BagMaker, calibration: Cali
     assert record["after"]["rmse"] < 0.3 * record["before"]["rmse"]
     assert record["validation"]["session_start"] == ["s1"]
     assert record["sensors"]["s1"]["after_session_start"] is True
-    # CAL2: the input plus the added effects; recalibrated at the validation run's start,
+    # CAL2: the input plus the added effects; recalibrated at the validation runs' start,
     # it reproduces "after", and the engine's online output "as_calibrated"
     save_calibration(result.calibration, tmp_path / "cal2.yaml")
     cal2 = load_calibration(tmp_path / "cal2.yaml")
-    assert as_used(cal2, val) == pytest.approx(record["after"]["rmse"], rel=1e-9)
+    val2 = bags("long", 8, drift=0.05)
+    assert as_used(cal2, val, val2) == pytest.approx(record["after"]["rmse"], rel=1e-9)
     rec = val["s1"]
     engine = Engine(cal2)
     estimate = engine.run("s1", rec.t, rec.r).strain
-    rmse = float(np.sqrt(np.mean((estimate - rec.s) ** 2)))
+    online = np.concatenate([estimate - rec.s, Engine(cal2).run(
+        "s1", val2["s1"].t, val2["s1"].r).strain - val2["s1"].s])
+    rmse = float(np.sqrt(np.mean(online ** 2)))
     assert rmse == pytest.approx(record["sensors"]["s1"]["as_calibrated"]["after"]["rmse"],
                                  rel=1e-6)
     stepper = Engine(cal2)
@@ -335,7 +349,8 @@ def test_a_relaxing_start_is_left_out_and_the_spike_memory_found() -> None:
     train = spiking_run(0, relaxing_start=True)
     calibration = Calibration({"s1": fit_sensor([train], "cubic", name="s1")})
     result = diagnose({"s1": train}, calibration,
-                      validate_recordings={"s1": spiking_run(1, relaxing_start=False)})
+                      validate_recordings=[{"s1": spiking_run(seed, relaxing_start=False)}
+                                           for seed in (1, 2)])
     message = result.sensors["s1"].message
     assert "the first 100 s, before the reference first moves, are left out" in message
     assert any(a.kind == "resistance_memory" for a in result.added), result.summary()
@@ -391,9 +406,9 @@ def test_readings_and_errors_are_in_the_calibration_strain_unit(
     path = tmp_path / "mm.yaml"
     save_calibration(cal, path)
     assert load_calibration(path).sensors["s1"].strain_unit == "mm"
-    data, val = (in_mm(bags(sc, seed, drift=0.5)) for sc, seed in (("random", 2),
-                                                                   ("patterns", 3)))
-    result = diagnose(data, load_calibration(path), validate_recordings=val)
+    data, val, val2 = (in_mm(bags(sc, seed, drift=0.5)) for sc, seed in (
+        ("random", 2), ("patterns", 3), ("patterns", 4)))
+    result = diagnose(data, load_calibration(path), validate_recordings=[val, val2])
     readings = [e.to_json()["reading"] for e in result.added]
     assert readings and any(" mm" in r for r in readings), readings
     text = result.summary() + " ".join(readings)
@@ -430,7 +445,8 @@ def test_a_long_run_is_thinned_to_the_row_budget_and_finds_the_same(
     the same coefficient, and its held-out RMSE estimates equal the full rows' closely."""
     import strain_comp.diagnosis.residuals as residuals
 
-    data, val = bags("random", 2, drift=0.5), bags("patterns", 3, drift=0.5)
+    data = bags("random", 2, drift=0.5)
+    val = [bags("patterns", seed, drift=0.5) for seed in (3, 4)]
     full = diagnose(data, calibration, validate_recordings=val)
     monkeypatch.setattr(residuals, "ROW_BUDGET", data["s1"].t.size // 5)
     thinned = diagnose(data, calibration, validate_recordings=val)
@@ -476,8 +492,9 @@ def test_a_rest_level_that_moves_with_the_stretch_done_is_found() -> None:
     calibration = Calibration({"s1": fit_sensor(
         [settling_thread(0, shift=0.0, pause=(0.0, 0.0))], "cubic", name="s1")})
     result = diagnose({"s1": settling_thread(1, shift=0.04, pause=(200.0, 500.0))},
-                      calibration, validate_recordings={
-                          "s1": settling_thread(2, shift=0.04, pause=(100.0, 400.0))},
+                      calibration, validate_recordings=[
+                          {"s1": settling_thread(2, shift=0.04, pause=(100.0, 400.0))},
+                          {"s1": settling_thread(3, shift=0.04, pause=(600.0, 800.0))}],
                       stretch_history=True)
     first = result.added[0]
     assert first.kind == "stretch" and first.params["form"].startswith("rest"), \

@@ -12,6 +12,7 @@ on a fourth run it never saw, after that run's session start.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -121,3 +122,45 @@ def test_a_term_that_raises_one_validation_run_beyond_the_margin_is_not_kept() -
     worse = old * np.repeat([0.8, 0.8, 1.1], 100)
     assert held_out_better(worse, old, 0.03)  # pooled alone it would pass
     assert not held_out_better(worse, old, 0.03, runs)
+
+
+def carried_case(shares: tuple[float, ...], seed: int = 0) -> tuple[Any, Any]:
+    """A fit residual e = 2 g + noise over 10 folds, and validation runs in which the same
+    regressor explains ``shares[k]`` of the term (run k's e = 2 shares[k] g + noise)."""
+    from strain_comp.diagnosis.selection import Gram, linear_held_out
+
+    rng = np.random.default_rng(seed)
+    n = 2000
+    g_fit = np.column_stack([np.ones(n), rng.standard_normal(n)])
+    e_fit = 2.0 * g_fit[:, 1] + 0.3 * rng.standard_normal(n)
+    gram = Gram(g_fit, e_fit, np.repeat(np.arange(10), n // 10), 10)
+    g_val = np.column_stack([np.ones(n * len(shares)), rng.standard_normal(n * len(shares))])
+    share = np.repeat(shares, n)
+    e_val = 2.0 * share * g_val[:, 1] + 0.3 * rng.standard_normal(share.size)
+    runs = np.repeat(np.arange(len(shares)), n)
+    held_out = linear_held_out(e_val, g_val)
+    return gram, lambda cols, coef: [held_out(cols, coef)[runs == k] for k in range(len(shares))]
+
+
+def test_a_term_is_added_only_where_it_carries_beyond_the_spread_between_runs() -> None:
+    """The term explains both validation runs: added, with its coefficient (2); it explains
+    one run and harms the other: not added, and the refused candidate says what it did to
+    each; with one validation run: not added (no spread to judge by)."""
+    from strain_comp.diagnosis.selection import select_carried, upper_bound
+
+    gram, held_out = carried_case((1.0, 0.9))
+    found = select_carried(gram, 2, 0, held_out)
+    assert found.selection.chosen == [1] and found.refused is None
+    assert found.coef[1] == pytest.approx(2.0, rel=0.02)
+    gram, held_out = carried_case((1.0, 0.0))
+    found = select_carried(gram, 2, 0, held_out)
+    assert found.selection.chosen == [] and found.refused is not None
+    down, up = found.refused.log_ratios
+    assert down < math.log(0.5) and up > math.log(2.0)
+    assert found.refused.bound == pytest.approx(
+        np.mean([down, up]) + 2.0 * np.std([down, up], ddof=1))
+    gram, held_out = carried_case((1.0,))
+    found = select_carried(gram, 2, 0, held_out)
+    assert found.selection.chosen == [] and found.refused is not None
+    assert found.refused.log_ratios[0] < math.log(0.5)  # it helps, but one run shows no spread
+    assert upper_bound([-0.1], 2.0) == math.inf

@@ -1,0 +1,40 @@
+"""The residual loop's selection rule in numbers (docs/loop.md, "The loop's policy").
+
+Every number that decides whether the loop (``strain_comp.diagnosis.loop``) adds a term is a
+field of ``LoopPolicy``, with its unit; docs/loop.md gives for each the measured figure
+that keeps it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class LoopPolicy:
+    """How the loop decides (docs/loop.md, "The loop's policy")."""
+
+    margin: float = 0.03
+    """[1, relative RMSE] Least fall of the error for a term (or a condition) to count:
+    of the cross-validated RMSE on the diagnosed run, and of the validation runs' upper
+    bound below (a term must lower it below ln(1 - margin))."""
+    significance: float = 1.0
+    """[standard errors over the cross-validation folds] The fold-wise drop of the
+    squared error on the diagnosed run must exceed this many standard errors
+    (``selection.significant``): a term that helps in a few stretches and hurts in
+    others fits a coincidence of the profile."""
+    spread: float = 2.0
+    """[standard deviations over runs] A term's upper bound is the mean of its log RMSE
+    ratios over the runs it was not fitted on (the diagnosed run's held-out folds, each
+    validation run after its session start) plus this many of their standard
+    deviations: what a later run may get, given how much runs differ."""
+    tried: int = 16
+    """[candidates per step] The candidates that pass on the diagnosed run, best first,
+    scored on the validation runs at each step (each costs one session start and one
+    ``evaluate`` per validation run)."""
+    max_effects: int = 3
+    """[terms] The most terms one diagnosis adds to a sensor."""
+
+
+LOOP_POLICY = LoopPolicy()
+"""The product's policy."""
