@@ -61,8 +61,6 @@ class RangePolicy:
 
 RANGE = RangePolicy()
 """The policy every engine uses unless given another."""
-RANGE_MARGIN = RANGE.margin
-"""``RANGE.margin``, for the readers of that one value (the residual loop)."""
 
 
 @dataclass(frozen=True)

@@ -73,8 +73,6 @@ class TarePolicy:
 
 TARE = TarePolicy()
 """The policy every tare uses unless given another."""
-TARE_WINDOW = TARE.window
-"""``TARE.window``, for the readers of that one value (the node, the residual loop)."""
 
 
 def rest_level(r: np.ndarray, *, pair: str = "mean") -> float:

@@ -15,7 +15,7 @@
   sees the same. Each recording starts a new
   segment (model state is reset per segment). Segments shorter than ``MIN_SEGMENT``
   samples are dropped.
-* **Valid range**: the training range of R and S widened by ``RANGE_MARGIN`` (5 %) of its
+* **Valid range**: the training range of R and S widened by ``TRAINING_WIDENING`` (5 %) of its
   span on each side (the resistance floor is kept above half the smallest training R, so it
   stays > 0 ohm). Inputs outside it are flagged as out of range, not silently trusted.
 """
@@ -46,8 +46,9 @@ MIN_SPAN = 1e-9
 """Smallest span of the training resistance [ohm] and reference strain a fit accepts: a
 finer one (a reference near 1e-300) is a unit mistake that the least-squares solvers
 cannot resolve (LAPACK fails)."""
-RANGE_MARGIN = 0.05
-"""Valid range = training range widened by this fraction of its span on each side."""
+TRAINING_WIDENING = 0.05
+"""Valid range = training range widened by this fraction of its span on each side (the
+engine then flags beyond ``core.range_policy.RANGE.margin`` more)."""
 
 
 def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
@@ -108,7 +109,7 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
                            "(a unit or scale mistake?)")
 
 
-def valid_range(segments: Sequence[Segment], *, margin: float = RANGE_MARGIN) -> ValidRange:
+def valid_range(segments: Sequence[Segment], *, margin: float = TRAINING_WIDENING) -> ValidRange:
     """Training range of R and S widened by ``margin`` x span on each side (R kept > 0)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])

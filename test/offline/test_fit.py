@@ -15,7 +15,7 @@ from strain_comp.errors import FitError, InputError, ParameterError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.deadzone import DEADZONE_FRACTION, find_hold, movement_rate
 from strain_comp.offline.fit import fit_sensor, parse_options
-from strain_comp.offline.training import GAP_SECONDS, MIN_SEGMENT, RANGE_MARGIN, split_segments
+from strain_comp.offline.training import GAP_SECONDS, MIN_SEGMENT, TRAINING_WIDENING, split_segments
 
 C_TRUE = np.array([-40.0, 0.5, -2e-3, 1e-5])  # S = c0 + c1 R + c2 R^2 + c3 R^3, R in ohm
 
@@ -54,8 +54,8 @@ def test_fit_recovers_cubic_and_round_trips(tmp_path: Path) -> None:
     assert cal.provenance["bags"] == ["a.mcap"]
     assert cal.provenance["n_samples"] == t.size
     # valid range: training range widened by the documented margin
-    r_pad = RANGE_MARGIN * (r.max() - r.min())
-    s_pad = RANGE_MARGIN * (s.max() - s.min())
+    r_pad = TRAINING_WIDENING * (r.max() - r.min())
+    s_pad = TRAINING_WIDENING * (s.max() - s.min())
     vr = cal.valid_range
     assert (vr.r_lo, vr.r_hi) == pytest.approx((r.min() - r_pad, r.max() + r_pad))
     assert (vr.s_lo, vr.s_hi) == pytest.approx((s.min() - s_pad, s.max() + s_pad))
