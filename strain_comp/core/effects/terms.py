@@ -32,7 +32,19 @@ KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
 
 
 def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
-    """The regressor of one effect entry; ParameterError(field, problem) if bad."""
+    """The regressor of one calibration-file effect entry.
+
+    Args:
+        effect: The entry (name, kind, params).
+
+    Returns:
+        The regressor.
+
+    Raises:
+        ParameterError: The entry is not a mapping, lacks a name, has an unknown kind or
+            parameter, or a parameter is out of range.
+
+    """
     if not isinstance(effect, Mapping):
         raise ParameterError("(effect)", f"must be a mapping, got {type(effect).__name__}")
     name = effect.get("name")
@@ -54,13 +66,31 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
 
 
 def validate_effect_dict(effect: Mapping[str, Any]) -> None:
-    """Check one calibration-file effect entry; ParameterError(field, problem) if bad."""
+    """Check one calibration-file effect entry.
+
+    Args:
+        effect: The entry (name, kind, params).
+
+    Raises:
+        ParameterError: The entry is bad (``regressor_from_dict``).
+
+    """
     regressor_from_dict(effect)
     require_float(effect, "coef")
 
 
 def effect_dict(name: str, regressor: Regressor, coef: float) -> dict[str, Any]:
-    """The calibration-file entry of a regressor with its coefficient."""
+    """The calibration-file entry of a regressor with its coefficient.
+
+    Args:
+        name: The effect's name.
+        regressor: The regressor.
+        coef: Its coefficient in the sum.
+
+    Returns:
+        The entry (name, kind, params, coef).
+
+    """
     return {"name": name, "kind": regressor.kind, "params": regressor.params(),
             "coef": float(coef)}
 
