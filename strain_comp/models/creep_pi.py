@@ -217,8 +217,25 @@ class CreepPI(KernelCompensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
             lam: float | None = None, **options: Any) -> CreepPI:
-        """Ridge fit of the weights (module docstring). ``taus``: time constants [s];
-        ``n_play``: play operators; ``lam``: a fixed penalty instead of cross-validation."""
+        """Ridge fit of the weights (module docstring).
+
+        Args:
+            segments: The training segments.
+            normalisation: The model's normalisation.
+            direction: The direction detector's settings.
+            taus: The low-pass time constants [s] (1 to ``N_TAU_MAX`` in ``TAU_RANGE``).
+            n_play: Play operators (1 to ``N_PLAY_MAX``).
+            lam: A fixed ridge penalty in [0, ``LAM_MAX``] instead of cross-validation.
+            **options: None taken (an unknown option is refused).
+
+        Returns:
+            The fitted model; ``fit_report`` holds the penalty and the cross-validated RMSE.
+
+        Raises:
+            FitError: An unknown or bad option, too few samples, or too few per fold to
+                cross-validate without ``lam``.
+
+        """
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
         try:

@@ -178,8 +178,16 @@ class Regressor(ABC):
         """Restore the initial state."""
 
     def step(self, sample: Sample) -> float:
-        """Advance by one sample and return g at that sample: ``run`` on a batch of one, so
-        a regressor with a compiled kernel has that one implementation."""
+        """Advance by one sample: ``run`` on a batch of one, so a regressor with a compiled
+        kernel has that one implementation.
+
+        Args:
+            sample: The sample.
+
+        Returns:
+            g at that sample.
+
+        """
         neighbours = {n: [v] for n, v in (sample.neighbours or {}).items()}
         return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
                                        [sample.direction], [sample.temperature],
@@ -187,7 +195,15 @@ class Regressor(ABC):
 
     @abstractmethod
     def run(self, batch: Batch) -> np.ndarray:
-        """g over a batch, continuing from (and updating) the current state."""
+        """g over a batch, continuing from (and updating) the current state.
+
+        Args:
+            batch: The samples.
+
+        Returns:
+            g per sample.
+
+        """
 
     @abstractmethod
     def params(self) -> dict[str, Any]:
@@ -196,7 +212,18 @@ class Regressor(ABC):
     @classmethod
     @abstractmethod
     def from_params(cls, params: Mapping[str, Any]) -> Regressor:
-        """Build from ``params``; ParameterError naming ``params.<key>`` if bad."""
+        """Build from ``params``.
+
+        Args:
+            params: The calibration file's ``params`` of the effect.
+
+        Returns:
+            The regressor, at its initial state.
+
+        Raises:
+            ParameterError: A bad parameter, named ``params.<key>``.
+
+        """
 
     @property
     def neighbour(self) -> str | None:

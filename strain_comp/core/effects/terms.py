@@ -102,6 +102,17 @@ class EffectTerms:
 
     def __init__(self, names: Sequence[str], regressors: Sequence[Regressor],
                  coefs: npt.ArrayLike) -> None:
+        """Hold the terms.
+
+        Args:
+            names: The effects' names.
+            regressors: Their regressors.
+            coefs: Their coefficients c_j.
+
+        Raises:
+            ValueError: The three differ in length.
+
+        """
         self.names = list(names)
         self.regressors = list(regressors)
         self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
@@ -110,7 +121,18 @@ class EffectTerms:
 
     @classmethod
     def from_dicts(cls, effects: Sequence[Mapping[str, Any]]) -> EffectTerms:
-        """From a calibration's ``effects`` list; ParameterError names ``<i>.<field>``."""
+        """From a calibration's ``effects`` list.
+
+        Args:
+            effects: The entries (name, kind, params, coef).
+
+        Returns:
+            The terms.
+
+        Raises:
+            ParameterError: A bad entry, its field named ``<i>.<field>``.
+
+        """
         regressors, coefs = [], []
         for i, effect in enumerate(effects):
             try:
@@ -145,7 +167,20 @@ class EffectTerms:
     def step(self, t: float, r: float, s_hat: float, direction: int,
              temperature: float = math.nan,
              neighbours: Mapping[str, float] | None = None) -> float:
-        """Corrected strain of one sample (advances every regressor's state)."""
+        """Corrected strain of one sample (advances every regressor's state).
+
+        Args:
+            t: Time [s].
+            r: Resistance the model reads [ohm].
+            s_hat: The model's strain [%].
+            direction: +1 loading, 0 hold, -1 unloading.
+            temperature: Temperature [deg C]; NaN when not measured.
+            neighbours: Array neighbour -> its clamped pre-effect strain [%].
+
+        Returns:
+            S_hat - sum_j c_j g_j [%].
+
+        """
         sample = Sample(t, r, s_hat, direction, temperature, neighbours)
         out = float(s_hat)
         for g, c in zip(self.regressors, self.coefs, strict=True):
@@ -155,7 +190,20 @@ class EffectTerms:
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
             direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> np.ndarray:
-        """Batch equivalent of repeated ``step``: corrected strain over arrays."""
+        """Batch equivalent of repeated ``step``: corrected strain over arrays.
+
+        Args:
+            t: Time [s] per sample.
+            r: Resistance the model reads [ohm] per sample.
+            s_hat: The model's strain [%] per sample.
+            direction: +1 loading, 0 hold, -1 unloading, per sample.
+            temperature: Temperature [deg C] per sample; None when not measured.
+            neighbours: Array neighbour -> its clamped pre-effect strain [%] per sample.
+
+        Returns:
+            S_hat - sum_j c_j g_j [%] per sample.
+
+        """
         batch = Batch.of(t, r, s_hat, direction, temperature, neighbours)
         out = np.copy(batch.s_hat, order="C")
         for g, c in zip(self.regressors, self.coefs, strict=True):
