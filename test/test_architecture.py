@@ -240,15 +240,14 @@ def test_the_limits_catch_a_long_module_and_function(tmp_path: Path) -> None:
     assert _over_limits(short) == []
 
 
-DOCSTRINGS_NOT_YET = {"_numba.py", "cli/__init__.py", "cli/diagnose.py", "cli/evaluate.py",
-                      "cli/fit.py", "cli/import_csv.py", "cli/node.py", "cli/play.py",
-                      "cli/recalibrate.py", "cli/replay.py", "cli/simulate.py", "core/chain.py",
-                      "core/fusion.py", "core/health.py", "core/range_policy.py", "core/tare.py",
-                      "core/tracking.py", "diagnosis/candidates.py", "diagnosis/command.py",
-                      "diagnosis/conditions.py", "diagnosis/loop.py", "diagnosis/report.py",
-                      "diagnosis/report_page.py", "diagnosis/residuals.py",
-                      "diagnosis/selection.py", "diagnosis/session.py", "errors.py",
-                      "offline/recalibrate.py", "offline/replay.py", "progress.py"}
+DOCSTRINGS_NOT_YET = {"cli/__init__.py", "cli/diagnose.py", "cli/evaluate.py", "cli/fit.py",
+                      "cli/import_csv.py", "cli/node.py", "cli/play.py", "cli/recalibrate.py",
+                      "cli/replay.py", "cli/simulate.py", "core/chain.py", "core/fusion.py",
+                      "core/health.py", "core/range_policy.py", "core/tare.py", "core/tracking.py",
+                      "diagnosis/candidates.py", "diagnosis/command.py", "diagnosis/conditions.py",
+                      "diagnosis/loop.py", "diagnosis/report.py", "diagnosis/report_page.py",
+                      "diagnosis/residuals.py", "diagnosis/selection.py", "diagnosis/session.py",
+                      "offline/recalibrate.py", "offline/replay.py"}
 """Modules (paths under strain_comp/) whose public functions do not yet all give ``Args:``
 and ``Returns:``: each is removed from this set when they do
 (``test_docstrings_not_yet_still_lack_a_section`` says when)."""
@@ -261,8 +260,9 @@ def _docstring_gaps(path: Path) -> list[str]:
     gaps = []
     for node in ast.parse(path.read_text(encoding="utf-8")).body:
         if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) \
-                or node.name.startswith("_"):
-            continue
+                or node.name.startswith("_") \
+                or any(ast.unparse(d).endswith("overload") for d in node.decorator_list):
+            continue  # a typing overload is a signature; its implementation is documented
         doc = ast.get_docstring(node) or ""
         args = node.args
         takes = args.posonlyargs + args.args + args.kwonlyargs + \
@@ -300,5 +300,6 @@ def test_the_docstring_rule_catches_a_missing_section(tmp_path: Path) -> None:
     module.write_text('def f(x: int) -> int:\n    """Twice x."""\n    return 2 * x\n\n\n'
                       'def g(x: int) -> None:\n    """Print x.\n\n    Args:\n        x: A '
                       'number.\n\n    """\n\n\ndef h() -> int:\n    return 1\n\n\n'
-                      'def _p(x: int) -> int:\n    return x\n', encoding="utf-8")
+                      'def _p(x: int) -> int:\n    return x\n\n\n@overload\n'
+                      'def q(x: int) -> int: ...\n', encoding="utf-8")
     assert _docstring_gaps(module) == ["f: no Args:, Returns:", "h: no docstring"]
