@@ -250,7 +250,8 @@ DOCSTRINGS_NOT_YET = {"cli/__init__.py", "cli/diagnose.py", "cli/evaluate.py", "
                       "offline/recalibrate.py", "offline/replay.py"}
 """Modules (paths under strain_comp/) whose public functions do not yet all give ``Args:``
 and ``Returns:``: each is removed from this set when they do
-(``test_docstrings_not_yet_still_lack_a_section`` says when)."""
+(``test_docstrings_not_yet_still_lack_a_section`` says when). ``core/chain.py`` is at the
+module limit: its sections come with its split."""
 
 
 def _docstring_gaps(path: Path) -> list[str]:
