@@ -82,11 +82,21 @@ class Diagnosis:
                 for e in self.result.added for record in [e.to_json()]]
 
     def summary(self) -> str:
-        """The lines ``strain-comp diagnose`` prints."""
+        """The lines ``strain-comp diagnose`` prints.
+
+        Returns:
+            The text.
+
+        """
         return self.result.summary()
 
     def to_json(self) -> dict[str, Any]:
-        """What ``diagnose --json`` writes (docs/design.md)."""
+        """What ``diagnose --json`` writes (docs/design.md).
+
+        Returns:
+            The JSON document.
+
+        """
         return self.result.to_json()
 
     def to_html(self, calibration_path: str = "") -> str:

@@ -70,12 +70,22 @@ class Evaluation:
                 for name, ev in self.result.sensors.items()}
 
     def table(self) -> str:
-        """The table ``strain-comp evaluate`` prints."""
+        """The table ``strain-comp evaluate`` prints.
+
+        Returns:
+            The table's text, one row per sensor.
+
+        """
 
         return format_table(self.result)
 
     def to_json(self) -> dict[str, Any]:
-        """What ``evaluate --json`` writes (docs/design.md)."""
+        """What ``evaluate --json`` writes (docs/design.md).
+
+        Returns:
+            The JSON document.
+
+        """
         return self.result.to_json()
 
     def to_frame(self) -> Any:
