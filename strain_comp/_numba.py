@@ -65,6 +65,14 @@ def njit(function: _F | None = None, /,
 
     Use as ``@njit`` or ``@njit(fastmath=True)``. The dispatcher is typed with the
     signature of the Python function it compiles.
+
+    Args:
+        function: The function (``@njit``), or None (``@njit(...)``).
+        **options: ``numba.njit`` options.
+
+    Returns:
+        The dispatcher, or a decorator that makes one.
+
     """
     options.setdefault("cache", True)
     options.setdefault("nogil", True)

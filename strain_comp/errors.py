@@ -59,5 +59,14 @@ class Terminated(BaseException):
 
 
 def raise_terminated(signum: int, frame: object) -> None:
-    """A SIGTERM handler: raise ``Terminated`` where the main thread is."""
+    """A SIGTERM handler: raise ``Terminated`` where the main thread is.
+
+    Args:
+        signum: The signal's number.
+        frame: The frame it interrupted.
+
+    Raises:
+        Terminated: Always.
+
+    """
     raise Terminated

@@ -237,3 +237,71 @@ def test_the_limits_catch_a_long_module_and_function(tmp_path: Path) -> None:
     short = tmp_path / "short.py"
     short.write_text(f"def f() -> None:\n{body[:body.rindex(chr(10))]}\n", encoding="utf-8")
     assert _over_limits(short) == []
+
+
+DOCSTRINGS_NOT_YET = {"cli/__init__.py", "cli/diagnose.py", "cli/evaluate.py", "cli/fit.py",
+                      "cli/import_csv.py", "cli/node.py", "cli/play.py", "cli/recalibrate.py",
+                      "cli/replay.py", "cli/simulate.py", "core/chain.py", "core/fusion.py",
+                      "core/health.py", "core/range_policy.py", "core/tare.py", "core/tracking.py",
+                      "diagnosis/candidates.py", "diagnosis/command.py", "diagnosis/conditions.py",
+                      "diagnosis/findings.py", "diagnosis/rows.py", "offline/session_window.py",
+                      "offline/span.py",
+                      "diagnosis/loop.py", "diagnosis/report.py", "diagnosis/report_page.py",
+                      "diagnosis/residuals.py", "diagnosis/selection.py", "diagnosis/session.py",
+                      "offline/recalibrate.py", "offline/replay.py"}
+"""Modules (paths under strain_comp/) whose public functions do not yet all give ``Args:``
+and ``Returns:``: each is removed from this set when they do
+(``test_docstrings_not_yet_still_lack_a_section`` says when). ``core/chain.py`` is at the
+module limit: its sections come with its split."""
+
+
+def _docstring_gaps(path: Path) -> list[str]:
+    """Public module-level functions of ``path`` whose docstring lacks a section, as
+    rosbags writes them: ``Args:`` when the function takes arguments, ``Returns:`` (or
+    ``Yields:``) when it returns something other than None."""
+    gaps = []
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) \
+                or node.name.startswith("_") \
+                or any(ast.unparse(d).endswith("overload") for d in node.decorator_list):
+            continue  # a typing overload is a signature; its implementation is documented
+        doc = ast.get_docstring(node) or ""
+        args = node.args
+        takes = args.posonlyargs + args.args + args.kwonlyargs + \
+            [a for a in (args.vararg, args.kwarg) if a is not None]
+        returns = node.returns is not None and ast.unparse(node.returns) != "None"
+        if not doc:
+            missing = ["docstring"]
+        else:
+            missing = [section for section, needed in (("Args:", bool(takes)),
+                                                       ("Returns:", returns))
+                       if needed and section not in doc
+                       and not (section == "Returns:" and "Yields:" in doc)]
+        if missing:
+            gaps.append(f"{node.name}: no {', '.join(missing)}")
+    return gaps
+
+
+@pytest.mark.parametrize("path", [p for p in SOURCES
+                                  if p.relative_to(PACKAGE).as_posix() not in DOCSTRINGS_NOT_YET],
+                         ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_public_functions_give_args_and_returns(path: Path) -> None:
+    assert _docstring_gaps(path) == []
+
+
+@pytest.mark.parametrize("rel", sorted(DOCSTRINGS_NOT_YET))
+def test_docstrings_not_yet_still_lack_a_section(rel: str) -> None:
+    """A module whose functions are all documented is taken out of ``DOCSTRINGS_NOT_YET``."""
+    path = PACKAGE / rel
+    assert path.is_file() and _docstring_gaps(path), \
+        f"{rel} documents every public function: remove it from DOCSTRINGS_NOT_YET"
+
+
+def test_the_docstring_rule_catches_a_missing_section(tmp_path: Path) -> None:
+    module = tmp_path / "m.py"
+    module.write_text('def f(x: int) -> int:\n    """Twice x."""\n    return 2 * x\n\n\n'
+                      'def g(x: int) -> None:\n    """Print x.\n\n    Args:\n        x: A '
+                      'number.\n\n    """\n\n\ndef h() -> int:\n    return 1\n\n\n'
+                      'def _p(x: int) -> int:\n    return x\n\n\n@overload\n'
+                      'def q(x: int) -> int: ...\n', encoding="utf-8")
+    assert _docstring_gaps(module) == ["f: no Args:, Returns:", "h: no docstring"]

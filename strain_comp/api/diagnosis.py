@@ -82,18 +82,36 @@ class Diagnosis:
                 for e in self.result.added for record in [e.to_json()]]
 
     def summary(self) -> str:
-        """The lines ``strain-comp diagnose`` prints."""
+        """The lines ``strain-comp diagnose`` prints.
+
+        Returns:
+            The text.
+
+        """
         return self.result.summary()
 
     def to_json(self) -> dict[str, Any]:
-        """What ``diagnose --json`` writes (docs/design.md)."""
+        """What ``diagnose --json`` writes (docs/design.md).
+
+        Returns:
+            The JSON document.
+
+        """
         return self.result.to_json()
 
     def to_html(self, calibration_path: str = "") -> str:
         """The ``diagnose --report`` page (``strain_comp.offline.report_page``): before and
-        after, each effect with its reading, the residual plots, the run evaluated through
-        the calibration diagnosed and through the one with the terms added (tables and
-        plots), the provenance of the calibration diagnosed (named ``calibration_path``)."""
+        after, each effect with its reading, the residual plots, the run evaluated through the
+        calibration diagnosed and through the one with the terms added, and the provenance.
+
+        Args:
+            calibration_path: How the page names the calibration diagnosed (default:
+                ``(in memory)``).
+
+        Returns:
+            The page, one self-contained HTML document.
+
+        """
 
         diagnosed = self.diagnosed or self.result.calibration
         runs = []
@@ -114,11 +132,32 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
              stretch_history: bool = False, session_start: bool = True,
              out: PathLike | None = None, plots: PathLike | None = None,
              inputs: Sequence[PathLike] = (), progress_bar: bool = False) -> Diagnosis:
-    """``strain-comp diagnose``: find the effects ``calibration`` lacks on ``data`` (a bag or
-    recordings with a reference) and add those that lower the held-out error; held out are
-    time blocks of ``data``, or the ``validate`` run(s). ``out`` / ``plots``: also write the
-    new calibration / the residual plots (``inputs``: files they must not overwrite).
-    ``progress_bar``: a bar on stderr over the sensors and conditions tried."""
+    """``strain-comp diagnose``: find the effects ``calibration`` lacks on ``data`` and add
+    those that lower the held-out error.
+
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+        data: A bag or recordings with a reference strain.
+        validate: Held-out run(s); None holds out time blocks of ``data``.
+        tare: As ``--tare``.
+        stretch_history: Also try the stretch-history terms (``--stretch-history``).
+        session_start: Re-span on the run's start before diagnosing, as a session does.
+        out: Also write the new calibration there.
+        plots: Also write the residual plots into this directory.
+        inputs: Files ``out`` and ``plots`` must not overwrite.
+        progress_bar: A bar on stderr over the sensors and conditions tried.
+
+    Returns:
+        The effects added, the held-out error before and after, and the new calibration.
+
+    Raises:
+        InputError: A path cannot be read, or the data has no calibrated sensor with a
+            reference.
+        CalibrationError: The calibration file cannot be read.
+        BagError: A bag cannot be read.
+        OutputError: An output would overwrite an input or cannot be written.
+
+    """
 
     with bar(None, "diagnose", enabled=progress_bar) as shown:
         return _diagnose(calibration, data, validate, tare, stretch_history, session_start,

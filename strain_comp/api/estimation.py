@@ -35,10 +35,31 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
              sensor: str | None = None, temperature: npt.ArrayLike | None = None,
              tare: str = "calibration", out_of_range: str = "extend",
              tracking: str = DEFAULT_TRACKING) -> Estimate:
-    """Strain and direction for time ``t`` [s] and resistance ``r`` [ohm] through the
-    calibration's sensor ``sensor`` (default: its only one), by the engine the node and
-    ``replay`` run: the same numbers. ``tare``, ``out_of_range`` and ``tracking`` are the
-    commands' ``--tare``, ``--out-of-range`` and ``--baseline-tracking``."""
+    """Strain and direction of one sensor's samples, by the engine the node and ``replay``
+    run: the same numbers.
+
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+        t: Time stamps [s], increasing.
+        r: Resistance [ohm] (or the calibration's input unit), one per time stamp.
+        sensor: The calibration's sensor to use (default: its only one).
+        temperature: Temperature [degC] per sample, for a calibration with a temperature
+            term.
+        tare: As the commands' ``--tare``: ``calibration`` or ``auto`` (the run's start).
+        out_of_range: As ``--out-of-range``: ``extend``, ``clamp`` or ``extrapolate``.
+        tracking: As ``--baseline-tracking``.
+
+    Returns:
+        Strain in the calibration's unit and direction (+1, 0, -1) per sample.
+
+    Raises:
+        InputError: The sensor is not in the calibration (or not named when it has
+            several), the arrays are not 1-D numbers of one length, an unknown ``tare``
+            or ``tracking``, or the run cannot be tared.
+        CalibrationError: The calibration file cannot be read.
+        ParameterError: ``out_of_range`` is not a known policy.
+
+    """
 
     cal = as_calibration(calibration)
     name = _sensor_name(cal, sensor)
@@ -67,11 +88,29 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
            tare: str = "calibration", tracking: str = DEFAULT_TRACKING,
            references_every: float | None = None,
            csv: PathLike | None = None, inputs: Sequence[PathLike] = ()) -> ReplaySummary:
-    """``strain-comp replay``: a new MCAP bag at ``out`` with every message of ``bag`` and
-    the node's outputs (strain, direction, status, stamped strain, /diagnostics) at each
-    input's time; ``csv``: also the series as a table. ``inputs``: files the outputs must
-    not overwrite. ``references_every``: as in ``evaluate``. Returns what was replayed
-    (sensors' health, messages, problems)."""
+    """``strain-comp replay``: a new MCAP bag with every message of ``bag`` and the node's
+    outputs (strain, direction, status, stamped strain, /diagnostics) at each input's time.
+
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+        bag: The input bag (MCAP file, rosbag2 directory or ``.db3``).
+        out: The output MCAP file, written atomically.
+        tare: As ``--tare``.
+        tracking: As ``--baseline-tracking``.
+        references_every: As in ``evaluate`` [s]; None fuses no reference.
+        csv: Also write the series there as a table.
+        inputs: Files the outputs must not overwrite.
+
+    Returns:
+        What was replayed: sensors' health, message counts, problems.
+
+    Raises:
+        InputError: A path cannot be read, or an option is bad.
+        CalibrationError: The calibration file cannot be read.
+        BagError: The bag cannot be read or has no resistance topic of a calibrated sensor.
+        OutputError: An output would overwrite an input or cannot be written.
+
+    """
 
     cal = as_calibration(calibration)
     paths = paths_of(bag)

@@ -70,22 +70,47 @@ class Evaluation:
                 for name, ev in self.result.sensors.items()}
 
     def table(self) -> str:
-        """The table ``strain-comp evaluate`` prints."""
+        """The table ``strain-comp evaluate`` prints.
+
+        Returns:
+            The table's text, one row per sensor.
+
+        """
 
         return format_table(self.result)
 
     def to_json(self) -> dict[str, Any]:
-        """What ``evaluate --json`` writes (docs/design.md)."""
+        """What ``evaluate --json`` writes (docs/design.md).
+
+        Returns:
+            The JSON document.
+
+        """
         return self.result.to_json()
 
     def to_frame(self) -> Any:
-        """``scores`` as a pandas DataFrame, one row per sensor (needs pandas)."""
+        """``scores`` as a pandas DataFrame, one row per sensor.
+
+        Returns:
+            The DataFrame.
+
+        Raises:
+            InputError: pandas (optional) is not installed.
+
+        """
         return _pandas().DataFrame.from_dict(self.scores, orient="index")
 
     def to_html(self, calibration_path: str = "") -> str:
-        """The ``evaluate --report`` page (``strain_comp.offline.report_page``): the table,
-        the plots (of the samples kept: ``plot_points``) and the calibration's provenance;
-        ``calibration_path`` names the calibration on the page."""
+        """The ``evaluate --report`` page (``strain_comp.offline.report_page``): the table, the
+        plots (of the samples kept: ``plot_points``) and the calibration's provenance.
+
+        Args:
+            calibration_path: How the page names the calibration (default: ``(in memory)``).
+
+        Returns:
+            The page, one self-contained HTML document.
+
+        """
 
         cal = self.calibration or Calibration({})
         figures = evaluation_figures(self.result, cal, bag=self.source,
@@ -100,16 +125,34 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
              in_run_bound: bool = False, plot_points: int = 0,
              references_every: float | None = None,
              csv: PathLike | None = None, inputs: Sequence[PathLike] = ()) -> Evaluation:
-    """Score ``calibration`` on one run with a reference strain: a bag (streamed, as
-    ``strain-comp evaluate`` reads it), a Recording or a dict of them.
+    """Score ``calibration`` on one run with a reference strain (``strain-comp evaluate``).
 
-    ``in_run_bound``: also the RMSE of the same model fitted on this run. ``plot_points``:
-    keep that many evenly spaced samples per sensor in ``result`` for plots and
-    ``to_html`` (a bag; recordings keep all). ``csv``: also write every sample there
-    (``evaluate --csv``; ``inputs``: files it must not overwrite). ``references_every``:
-    the run's own reference every that many seconds fused into each sensor's output gain and
-    offset (``evaluate --references-every``; docs/fusion.md). Raises InputError when no
-    calibrated sensor can be scored.
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+        data: One bag (streamed, as ``strain-comp evaluate`` reads it), a Recording or a
+            dict of them.
+        tare: As ``--tare``.
+        out_of_range: As ``--out-of-range``.
+        tracking: As ``--baseline-tracking``.
+        in_run_bound: Also the RMSE of the same model fitted on this run.
+        plot_points: Keep that many evenly spaced samples per sensor in ``result`` for
+            plots and ``to_html`` (a bag; recordings keep all).
+        references_every: The run's own reference every that many seconds fused into each
+            sensor's output gain and offset (``evaluate --references-every``;
+            docs/fusion.md); None fuses none.
+        csv: Also write every sample there (``evaluate --csv``; a bag only).
+        inputs: Files ``csv`` must not overwrite.
+
+    Returns:
+        The scores per sensor, with what the reader skipped.
+
+    Raises:
+        InputError: No calibrated sensor can be scored, several bags, ``csv`` with
+            recordings, or a path that cannot be read.
+        CalibrationError: The calibration file cannot be read.
+        BagError: The bag cannot be read.
+        OutputError: ``csv`` would overwrite an input or cannot be written.
+
     """
 
     cal = as_calibration(calibration)

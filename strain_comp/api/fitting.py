@@ -19,20 +19,35 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         sensors: Sequence[str] | None = None, strain_unit: str = "%",
         report: Callable[[str], None] | None = None, progress_bar: bool = False,
         pool: str = "spanned", input_unit: str = "ohm", **options: Any) -> Calibration:
-    """Fit ``model`` (apl, pl, mpi, cubic, sinh_pl, rational, spike_decay) to recordings
-    with a reference strain: one calibration, one entry per sensor.
+    """Fit ``model`` to recordings with a reference strain: one calibration, one entry per
+    sensor (``strain-comp fit``).
 
-    ``data``: bag paths (one or several runs), a Recording, or a list of Recordings (each
-    a run; several runs of one sensor are fitted together). ``sensors``: which to fit
-    (default: every one with a reference). ``options``: the model's fit options, as
-    ``strain-comp fit --option K=V`` takes them (``strain-comp fit --help`` lists them).
-    ``report``: where notes go (skipped bag damage, a sensor left out). ``progress_bar``: a
-    bar on stderr over an APL-family fit's grid (``strain_comp.progress``). ``pool``: how
-    several runs of a sensor are pooled, ``"spanned"`` (each run's input zero and span put
-    onto the run of median sensitivity) or ``"raw"`` (``strain-comp fit --pool``).
-    ``input_unit``: the unit of the recordings' resistance, ohm or another for an input not
-    in ohm (``R/R0``): stored in the calibration's input (``InputSettings.unit``), so the
-    dead zone is read in it per second (``strain-comp fit --input-unit``).
+    Args:
+        data: Bag paths (one or several runs), a Recording, or a list of Recordings (each
+            a run; several runs of one sensor are fitted together).
+        model: apl, pl, mpi, cubic, sinh_pl, rational or spike_decay.
+        sensors: Which sensors to fit (default: every one with a reference).
+        strain_unit: The reference strain's unit (``%``, ``mm``), stored in the calibration.
+        report: Where notes go (skipped bag damage, a sensor left out); None drops them.
+        progress_bar: A bar on stderr over an APL-family fit's grid (``strain_comp.progress``).
+        pool: How several runs of a sensor are pooled: ``"spanned"`` (each run's input zero
+            and span put onto the run of median sensitivity) or ``"raw"``
+            (``strain-comp fit --pool``).
+        input_unit: The unit of the recordings' resistance: ohm, or another for an input
+            not in ohm (``R/R0``), stored in ``InputSettings.unit`` so the dead zone is read
+            in it per second (``strain-comp fit --input-unit``).
+        **options: The model's fit options, as ``strain-comp fit --option K=V`` takes them
+            (``strain-comp fit --help`` lists them).
+
+    Returns:
+        The calibration, one ``SensorCalibration`` per sensor fitted.
+
+    Raises:
+        InputError: An unknown model or option, a bad unit, a sensor not in the data or
+            without a reference, or a bag path that cannot be read.
+        BagError: A bag cannot be read.
+        FitError: The model cannot be fitted to a sensor's data.
+
     """
 
     check_fit_options(model, options)

@@ -23,12 +23,31 @@ CalibrationLike = Calibration | PathLike
 
 
 def is_path(data: object) -> bool:
-    """Is ``data`` one path (str or ``os.PathLike``)?"""
+    """Is ``data`` one path (str or ``os.PathLike``)?
+
+    Args:
+        data: Anything a function of the API takes as data.
+
+    Returns:
+        True for a str or ``os.PathLike``.
+
+    """
     return isinstance(data, (str, os.PathLike))
 
 
 def paths_of(data: object) -> list[str] | None:
-    """``data`` as bag paths when it is one path or a non-empty list of them, else None."""
+    """``data`` as bag paths when it is one path or a non-empty list of them, else None.
+
+    Args:
+        data: Anything a function of the API takes as data.
+
+    Returns:
+        The bag paths, each checked to exist, or None when ``data`` is not paths.
+
+    Raises:
+        InputError: A path is missing, unreadable, or neither a file nor a directory.
+
+    """
     if isinstance(data, (str, os.PathLike)):
         return [existing(data, "bag", directory=True)]
     if isinstance(data, (list, tuple)) and data and all(is_path(p) for p in data):
@@ -37,17 +56,52 @@ def paths_of(data: object) -> list[str] | None:
 
 
 def load_calibration(path: PathLike) -> Calibration:
-    """Read and check a calibration file (``CalibrationError`` naming the file and field)."""
+    """Read and check a calibration file.
+
+    Args:
+        path: The calibration file (YAML).
+
+    Returns:
+        The calibration, every sensor's parameters checked.
+
+    Raises:
+        InputError: The path is missing, unreadable or not a regular file.
+        CalibrationError: The file is malformed or a field out of range, naming the file
+            and the field.
+
+    """
     return _load_calibration(existing(path, "calibration file"))
 
 
 def save_calibration(calibration: Calibration, path: PathLike) -> None:
-    """Write ``calibration`` to ``path`` atomically, after the checks every reader applies."""
+    """Write ``calibration`` to ``path`` atomically, after the checks every reader applies.
+
+    Args:
+        calibration: The calibration to write.
+        path: The output file; nothing is left half written.
+
+    Raises:
+        CalibrationError: A sensor fails the reader's checks (nothing is written).
+        OutputError: The path cannot be written or is not a regular file.
+
+    """
     _save_calibration(calibration, path)
 
 
 def as_calibration(calibration: CalibrationLike) -> Calibration:
-    """``calibration`` itself, or the calibration file at that path, read and checked."""
+    """``calibration`` itself, or the calibration file at that path, read and checked.
+
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+
+    Returns:
+        The calibration.
+
+    Raises:
+        InputError: ``calibration`` is neither, or the path cannot be read.
+        CalibrationError: The file is malformed or a field out of range.
+
+    """
     if isinstance(calibration, Calibration):
         return calibration
     if isinstance(calibration, (str, os.PathLike)):
@@ -58,9 +112,22 @@ def as_calibration(calibration: CalibrationLike) -> Calibration:
 
 def read_recordings(path: PathLike, *, report: Callable[[str], None] | None = None
                     ) -> dict[str, Recording]:
-    """Every sensor of a bag (MCAP file, rosbag2 directory or ``.db3``) as a Recording,
-    the reference and temperature put on the resistance's time stamps. What the reader
-    skipped (damage, unknown types) goes to ``report``, one line each."""
+    """Every sensor of a bag as a Recording, the reference and temperature put on the
+    resistance's time stamps.
+
+    Args:
+        path: An MCAP file, a rosbag2 directory or a ``.db3`` file.
+        report: Where what the reader skipped (damage, unknown types) goes, one line each;
+            None drops it.
+
+    Returns:
+        Sensor name -> recording.
+
+    Raises:
+        InputError: The path is missing or unreadable.
+        BagError: The bag cannot be read.
+
+    """
 
     recordings, problems = load_recordings(existing(path, "bag", directory=True))
     for line in problems:
@@ -70,7 +137,19 @@ def read_recordings(path: PathLike, *, report: Callable[[str], None] | None = No
 
 
 def as_recordings(data: object) -> dict[str, Recording]:
-    """Sensor name -> recording, for one bag's worth of recordings."""
+    """Sensor name -> recording, for one bag's worth of recordings.
+
+    Args:
+        data: A Recording, a mapping of sensor name to Recording, or a sequence of
+            Recordings of different sensors.
+
+    Returns:
+        Sensor name -> recording.
+
+    Raises:
+        InputError: ``data`` is none of these, or names one sensor twice.
+
+    """
     if isinstance(data, Recording):
         return {data.name: data}
     if isinstance(data, Mapping):

@@ -25,12 +25,31 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
                 first: float | None = None, sensors: Sequence[str] | None = None,
                 tare: str = "calibration",
                 window: tuple[float, float] | None = None) -> Recalibration:
-    """``strain-comp recalibrate``: ``form="output"`` fits a gain and offset on the strain,
-    ``form="input"`` a zero and span on the resistance; through two known
-    ``points`` (resistance [ohm], strain) or over ``data`` with a reference strain (a bag
-    or recordings; its first ``first`` seconds, or the ``window`` (START, END) seconds after
-    its start: ``strain-comp recalibrate --window``). The input calibration is not
-    changed."""
+    """``strain-comp recalibrate``: a new calibration re-spanned through two points or over
+    a run with a reference; the input calibration is not changed.
+
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+        data: A bag or recordings with a reference strain; None with ``points``.
+        points: Two known points (resistance [ohm], strain in the calibration's unit).
+        form: ``"output"`` fits a gain and offset on the strain, ``"input"`` a zero and
+            span on the resistance.
+        first: Use the run's first that many seconds [s].
+        sensors: Which sensors to recalibrate (default: every calibrated one in the data).
+        tare: As ``--tare``.
+        window: Use the (START, END) seconds after the run's start
+            (``strain-comp recalibrate --window``).
+
+    Returns:
+        The new calibration and one line per sensor saying what changed.
+
+    Raises:
+        InputError: Neither or both of ``points`` and ``data``, an unknown ``form``, points
+            the calibration cannot pass through, or a run too short or without a reference.
+        CalibrationError: The calibration file cannot be read.
+        BagError: The bag cannot be read.
+
+    """
 
     cal = as_calibration(calibration)
     pts = [(float(r), float(s)) for r, s in points]
@@ -53,7 +72,23 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30
                   tare: str = "calibration") -> Recalibration:
     """The start of a session (README): on the first ``first`` seconds of a run with a
     reference (a known stretch and back), first the input zero and span, then the output
-    gain and offset."""
+    gain and offset.
+
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+        data: A bag or recordings with a reference strain.
+        first: How much of the run's start to use [s].
+        tare: As ``--tare``.
+
+    Returns:
+        The calibration with both and the lines of each step.
+
+    Raises:
+        InputError: The run's start has no usable stretch and back, or no reference.
+        CalibrationError: The calibration file cannot be read.
+        BagError: The bag cannot be read.
+
+    """
     spanned = recalibrate(calibration, data, form="input", first=first, tare=tare)
     mapped = recalibrate(spanned.calibration, data, form="output", first=first, tare=tare)
     return Recalibration(mapped.calibration, spanned.readings + mapped.readings)

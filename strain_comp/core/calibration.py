@@ -1,34 +1,6 @@
-"""Calibration files: YAML, one per sensor or one for an array.
-
-Format ``strain_comp/calibration/v1``:
-
-```yaml
-format: strain_comp/calibration/v1
-sensors:
-  s1:
-    model: {name: apl, params: {...}}        # every model parameter (see strain_comp.models)
-    normalisation: {r0: .., alpha: .., s0: .., beta: ..}   # xi = R/r0 + alpha, psi = S/s0 + beta
-    input: {kind: resistance}                # or {kind: divider, r1: ohm, vin: volt}
-                                             # optional: unit: ohm (default; a divider's
-                                             # always), or the unit of a resistance input
-                                             # that is not in ohm (R/R0): the dead zone and
-                                             # every resistance number are in it;
-                                             # alternation: true, pair: mean|upper|
-                                             # lower (with alternation), despike: k,
-                                             # baseline_step: k (robust sigmas; true = default),
-                                             # zero_span: {rest: ohm, rest_calibrated: ohm,
-                                             # gain: k}: R' = rest_calibrated + k (R - rest)
-    valid_range: {resistance: [lo, hi], strain: [lo, hi]}  # ohm, %
-    rest_resistance: ohm                     # optional: R at rest when fitted (the tare's zero)
-    strain_unit: mm                          # optional, default "%": the unit of the
-                                             # reference the model was fitted to
-    sample_interval: s                       # optional: median sample interval of a slow
-                                             # instrument (gaps are counted in it)
-    direction: {deadzone: unit/s, tau: s, k_sigma: null|number, sign: 1|-1}  # sign optional
-                                             # (unit: the input's, ohm by default)
-    effects: []                              # added effect terms (strain_comp.core.effects)
-    provenance: {bags: [..], created: .., fit_rmse: .., n_samples: .., tool: ..}
-```
+"""Calibration files in memory: ``Calibration`` (one or more sensors), each a
+``SensorCalibration`` with its ``InputSettings`` and ``ValidRange``, in the format
+``strain_comp/calibration/v1`` (docs/design.md, "Calibration file", gives every field).
 
 The limits below bound what a file may hold; the reader that checks every field against
 them is ``strain_comp.core.calibration_reader`` (``parse_fields``); loading, the probe that
@@ -221,18 +193,44 @@ class Calibration:
 
 
 def unit_ok(unit: str) -> bool:
-    """A strain or input unit a file may name: 1-16 letters, digits, ``%``, ``/`` or
-    ``.``."""
+    """Is ``unit`` a strain or input unit a file may name?
+
+    Args:
+        unit: The unit's text.
+
+    Returns:
+        True for 1-16 letters, digits, ``%``, ``/`` or ``.``.
+
+    """
     return 0 < len(unit) <= 16 and all(c.isalnum() or c in "%/." for c in unit)
 
 
 def strain_unit_words(unit: str) -> str:
-    """How a number in ``unit`` reads: ``% strain`` for percent, else the unit."""
+    """How a number in ``unit`` reads.
+
+    Args:
+        unit: A strain unit.
+
+    Returns:
+        ``% strain`` for percent, else the unit.
+
+    """
     return "% strain" if unit == "%" else unit
 
 
 def provenance(bags: list[str], fit_rmse: float, n_samples: int, **extra: Any) -> dict[str, Any]:
-    """A provenance record: source bags, time of the fit (UTC, ISO 8601), fit error."""
+    """A provenance record of a fit.
+
+    Args:
+        bags: The source bags.
+        fit_rmse: The fit's RMSE, in the strain unit.
+        n_samples: The samples fitted.
+        **extra: Further fields to record (options, pool, ...).
+
+    Returns:
+        The record: bags, time of the fit (UTC, ISO 8601), fit error, samples and ``extra``.
+
+    """
     from datetime import datetime, timezone
 
     record: dict[str, Any] = {

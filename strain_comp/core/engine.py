@@ -33,19 +33,29 @@ GAP_RESET = sc.DEFAULT_GAP_RESET
 
 
 class Engine:
-    """Calibrated strain, direction and health for every sensor of a calibration.
-
-    ``arrays`` maps an array name to its ordered sensor names (all in ``calibration``).
-    ``gap_reset`` [s]: a larger jump between good samples resets model and detector;
-    ``stale_after`` [s]: ``health(now)`` reports a sensor stale after that long without a
-    good sample; ``deadzone_scale`` multiplies every direction dead zone;
-    ``out_of_range``: the policy beyond the valid range (``OUT_OF_RANGE_MODES``).
-    """
+    """Calibrated strain, direction and health for every sensor of a calibration."""
 
     def __init__(self, calibration: Calibration, *,
                  arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
                  stale_after: float = 1.0, deadzone_scale: float = 1.0,
                  out_of_range: str = DEFAULT_OUT_OF_RANGE) -> None:
+        """Build one state per sensor and one group per array.
+
+        Args:
+            calibration: The calibration of every sensor.
+            arrays: Array name -> its ordered sensor names (all in ``calibration``).
+            gap_reset: A larger jump between good samples resets model and detector [s].
+            stale_after: ``health(now)`` reports a sensor stale after that long without a
+                good sample [s].
+            deadzone_scale: Multiplies every direction dead zone.
+            out_of_range: The policy beyond the valid range (``OUT_OF_RANGE_MODES``).
+
+        Raises:
+            ParameterError: An unknown ``out_of_range``, or ``gap_reset`` or
+                ``deadzone_scale`` not > 0.
+            InputError: An array names a sensor not in the calibration, or none.
+
+        """
         if out_of_range not in OUT_OF_RANGE_MODES:
             raise ParameterError("out_of_range", f"must be one of "
                                  f"{', '.join(OUT_OF_RANGE_MODES)}, got {out_of_range!r}")
@@ -107,17 +117,39 @@ class Engine:
             group.rebuild()
 
     def input_gain(self, sensor: str) -> float:
-        """The tare gain of ``sensor``: its models see this x the measured resistance."""
+        """The tare gain of ``sensor``: its models see this x the measured resistance.
+
+        Args:
+            sensor: The sensor's name.
+
+        Returns:
+            The gain (1 untared).
+
+        Raises:
+            InputError: An unknown sensor.
+
+        """
         return self._sensor(sensor).gain
 
     def tare(self, sensor: str, rest_resistance: float) -> float:
-        """Make ``rest_resistance`` [ohm] (measured now, at rest) this sensor's zero.
+        """Make ``rest_resistance`` (measured now, at rest) this sensor's zero.
 
         Multiplicative: the models see R x (calibration's rest resistance / rest_resistance);
         with an input zero and span (``InputSettings.zero_span``) the gain is (its rest /
         rest_resistance), so the rest now reads as the calibrated rest through the span.
-        Returns the new gain; ``ParameterError`` if the calibration stores no rest resistance
-        or the value is not finite and > 0 (the old gain then stays).
+
+        Args:
+            sensor: The sensor's name.
+            rest_resistance: Its resistance at rest now [ohm].
+
+        Returns:
+            The new gain.
+
+        Raises:
+            InputError: An unknown sensor.
+            ParameterError: The calibration stores no rest resistance, or the value is not
+                finite and > 0 (the old gain then stays).
+
         """
         reference = self._sensor(sensor).cal.input_rest
         if reference is None:
@@ -131,10 +163,20 @@ class Engine:
         return gain
 
     def set_input_gain(self, sensor: str, gain: float) -> None:
-        """Set the tare gain of ``sensor`` (effective from the next sample; state kept, the
-        input corrector's and the pair statistic's references carried over to the new gain,
-        so the change is not taken for a baseline step, and so is the memory of effect terms
-        that read the resistance, so the change is no step for them either)."""
+        """Set the tare gain of ``sensor``, effective from the next sample. The state is kept:
+        the input corrector's and the pair statistic's references are carried over to the new
+        gain, so the change is not taken for a baseline step, and so is the memory of effect
+        terms that read the resistance, so the change is no step for them either.
+
+        Args:
+            sensor: The sensor's name.
+            gain: The new gain on the measured resistance.
+
+        Raises:
+            InputError: An unknown sensor.
+            ParameterError: ``gain`` is not finite and > 0.
+
+        """
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
         s = self._sensor(sensor)
@@ -149,8 +191,19 @@ class Engine:
                 group.set_gain(group.names.index(sensor), float(gain))
 
     def track_baseline(self, sensor: str, gain: float, seconds: float) -> None:
-        """``set_input_gain`` by baseline tracking after ``seconds`` at rest: counted in
-        the sensor's health (``baseline_tracked_s``, ``baseline_correction``)."""
+        """``set_input_gain`` by baseline tracking after ``seconds`` at rest: counted in the
+        sensor's health (``baseline_tracked_s``, ``baseline_correction``).
+
+        Args:
+            sensor: The sensor's name.
+            gain: The new gain on the measured resistance.
+            seconds: The rest it was found over [s].
+
+        Raises:
+            InputError: An unknown sensor.
+            ParameterError: ``gain`` is not finite and > 0.
+
+        """
         s = self._sensor(sensor)
         factor = gain / s.gain
         self.set_input_gain(sensor, gain)
@@ -158,7 +211,15 @@ class Engine:
         s.health.baseline_correction = (1.0 + s.health.baseline_correction) * factor - 1.0
 
     def set_deadzone_scale(self, scale: float) -> None:
-        """Change the dead-zone scale (a node tunable); the detectors restart from rest."""
+        """Change the dead-zone scale (a node tunable); the detectors restart from rest.
+
+        Args:
+            scale: The factor on every direction dead zone.
+
+        Raises:
+            ParameterError: ``scale`` is not > 0.
+
+        """
         if not scale > 0:
             raise ParameterError("deadzone_scale", f"must be > 0, got {scale}")
         self.deadzone_scale = float(scale)
@@ -169,12 +230,34 @@ class Engine:
 
 
     def base_strain(self, name: str) -> float:
-        """A sensor's latest clamped strain before its effect terms (NaN if unknown)."""
+        """A sensor's latest clamped strain before its effect terms.
+
+        Args:
+            name: The sensor's name.
+
+        Returns:
+            The strain, NaN for an unknown sensor or before its first sample.
+
+        """
         other = self._sensors.get(name)
         return math.nan if other is None else other.latest_base()
 
     def step(self, sensor: str, t: float, r: float, temperature: float = math.nan) -> SensorOutput:
-        """One sample of one sensor: time [s], raw input (ohm or divider volts)."""
+        """One sample of one sensor.
+
+        Args:
+            sensor: The sensor's name.
+            t: Time [s].
+            r: Raw input: resistance [ohm], or volts for a divider input.
+            temperature: Temperature [deg C]; NaN when not measured.
+
+        Returns:
+            The published strain, direction and status.
+
+        Raises:
+            InputError: An unknown sensor.
+
+        """
         s = self._sensor(sensor)
         pending = s.step_model(float(t), float(r), self._gap_reset)
         if isinstance(pending, SensorOutput):
@@ -186,8 +269,20 @@ class Engine:
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> BatchOutput:
         """Batch path over whole arrays; identical to ``step`` sample by sample.
 
-        ``neighbours``: for cross-talk effect terms, the named array neighbours' clamped
-        pre-effect strain at the times ``t`` (else their latest values are held).
+        Args:
+            sensor: The sensor's name.
+            t: Time [s] per sample, increasing.
+            r: Raw input per sample: resistance [ohm], or volts for a divider input.
+            temperature: Temperature [deg C] per sample; None when not measured.
+            neighbours: For cross-talk effect terms, the named array neighbours' clamped
+                pre-effect strain at the times ``t`` (else their latest values are held).
+
+        Returns:
+            Strain, direction and status per sample.
+
+        Raises:
+            InputError: An unknown sensor, or ``t`` and ``r`` not 1-D of one length.
+
         """
         s = self._sensor(sensor)
         pending = s.run_model(t, r, temperature, self._gap_reset)
@@ -198,9 +293,23 @@ class Engine:
     def run_array(self, sensors: Sequence[str], t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: Mapping[str, npt.ArrayLike | None] | None = None
                   ) -> dict[str, BatchOutput]:
-        """Batch path for sensors sampled together (an array topic): ``r`` is (n, k) in the
-        order of ``sensors``. Equal, tick by tick, to ``step_array``: every cross-talk term
-        reads its neighbours' clamped pre-effect estimate of the same tick."""
+        """Batch path for sensors sampled together (an array topic). Equal, tick by tick, to
+        ``step_array``: every cross-talk term reads its neighbours' clamped pre-effect estimate
+        of the same tick.
+
+        Args:
+            sensors: The sensors' names, in the order of ``r``'s columns.
+            t: Time [s] per tick.
+            r: Raw input, (n, k) in the order of ``sensors``.
+            temperature: Sensor name -> temperature [deg C] per tick.
+
+        Returns:
+            Sensor name -> its strain, direction and status per tick.
+
+        Raises:
+            InputError: An unknown sensor, or ``r`` not (n, k).
+
+        """
         r = np.asarray(r, dtype=np.float64)
         if r.ndim != 2 or r.shape[1] != len(sensors):
             raise InputError(f"run_array: r must be (n, {len(sensors)}), got shape {r.shape}")
@@ -213,7 +322,20 @@ class Engine:
                 for name, p in pending.items()}
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
-        """One tick of an array: ``r_vector`` in the array's sensor order."""
+        """One tick of an array.
+
+        Args:
+            array: The array's name.
+            t: Time [s].
+            r_vector: Raw input per sensor, in the array's sensor order.
+
+        Returns:
+            The published strain, direction and status per sensor.
+
+        Raises:
+            InputError: An unknown array, or a vector of the wrong length.
+
+        """
         try:
             group = self._arrays[array]
         except KeyError:
@@ -226,7 +348,15 @@ class Engine:
         return group.step(float(t), raw)
 
     def health(self, now: float | None = None) -> dict[str, SensorHealth]:
-        """Copies of every sensor's counters; with ``now`` [s], stale is evaluated."""
+        """Copies of every sensor's counters.
+
+        Args:
+            now: The current time [s]; with it, stale is evaluated.
+
+        Returns:
+            Sensor name -> its health.
+
+        """
         kernel_health: dict[str, SensorHealth] = {}
         for group in self._arrays.values():
             if group.fused:
@@ -240,9 +370,20 @@ class Engine:
         return out
 
     def stale_for(self, sensor: str) -> float:
-        """The silence [s] after which ``sensor`` is stale: ``stale_after``, or two of its
-        sample intervals for a slow instrument (``SensorCalibration.sample_interval``),
-        which is otherwise stale between every two samples."""
+        """The silence after which ``sensor`` is stale: ``stale_after``, or two of its sample
+        intervals for a slow instrument (``SensorCalibration.sample_interval``), which is
+        otherwise stale between every two samples.
+
+        Args:
+            sensor: The sensor's name.
+
+        Returns:
+            The silence [s].
+
+        Raises:
+            InputError: An unknown sensor.
+
+        """
         interval = self._sensor(sensor).cal.sample_interval
         return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 

@@ -332,7 +332,16 @@ class SensorState:
 
 
 def scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
-    """``settings`` with the dead zone times ``scale``."""
+    """``settings`` with the dead zone times ``scale``.
+
+    Args:
+        settings: The direction detector's settings.
+        scale: The factor on the dead zone.
+
+    Returns:
+        A copy with the dead zone scaled.
+
+    """
     return replace(settings, deadzone=settings.deadzone * scale)
 
 

@@ -1,35 +1,9 @@
-"""CSV import of tensile-tester recordings into Recordings (and bags).
+"""CSV import of tensile-tester recordings into Recordings (and bags): the formats
+``cb_pdms``, ``fiber`` and ``generic``, the delimiter, decimal comma and header detected,
+and bad rows counted by reason and dropped (docs/csv.md gives the columns and units).
 
-Formats (see ``shared/data/measured/README.md``):
-
-``cb_pdms``  7 columns, no header: R_outer [ohm], R_inner [ohm], t_R [s], stage position
-             [mm], t_pos [s], force [N], t_force [s]. Resistance from column 0 (override
-             with ``columns={"resistance": 1}``), time from column 2, strain
-             S = 100 |pos| / gauge length (default 40 mm). Single-sample position read
-             glitches to 0 mm (|pos| < 1e-9 while both neighbours exceed
-             ``glitch_threshold_mm``) are replaced by linear interpolation between the
-             neighbours and counted. The reference is then interpolated from t_pos onto t_R.
-``fiber``    4 columns, no header: time [s], extension [mm], force [N], resistance [ohm].
-             Strain = 100 extension / gauge length when ``gauge_length_mm`` is given;
-             otherwise the extension in mm is stored as the "strain" and the report says so.
-``generic``  a column mapping ``columns`` with keys ``time``, ``resistance`` and
-             optionally ``strain`` and ``strain_time`` (indices or header names),
-             ``scales`` (factor per key, e.g. ``{"time": 1e-3}`` for ms), ``delimiter``
-             and ``header`` (True, False or None = detect: a non-numeric first row).
-
-The delimiter (every format) is detected unless given: the first of tab, ``;``, ``,``
-and ``|`` that splits the first 20 lines into the same number (at least 2) of fields,
-else runs of white space; with a delimiter other than ``,``, a decimal comma
-(``11,51``, as spreadsheets in many locales write) reads as a decimal point.
-
-The reference strain is taken from the good rows only when it shares the row's time; with
-its own time column (``strain_time``, as in ``cb_pdms``) every row with a finite position
-and time counts. Bad rows are counted by reason and dropped before they reach the
-recording: unparsable or missing fields, NaN/inf, resistance <= 0, and time not
-increasing past the last good row (repeated or backwards), time beyond the 2^31 s a bag
-holds (epoch milli- or nanoseconds need ``scales``). Dropping (rather than keeping
-and flagging) is deliberate: an imported recording is training/evaluation data; fault
-handling is exercised on bags.
+Dropping rather than keeping and flagging is deliberate: an imported recording is
+training and evaluation data; fault handling is exercised on bags.
 """
 
 from __future__ import annotations

@@ -35,11 +35,23 @@ NormalEquations = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarra
 def bounded_lm(residuals: Residuals, normal_equations: NormalEquations, theta: np.ndarray,
                lo: np.ndarray, hi: np.ndarray, *, max_nfev: int, ftol: float = 1e-9,
                lam: float = 1e-3) -> np.ndarray:
-    """theta (within [lo, hi]) with sum residuals(theta)^2 no larger than at the start.
+    """theta (within [lo, hi]) with sum residuals(theta)^2 no larger than at the start; a
+    bounded Levenberg-Marquardt. Stops when a step lowers the cost by less than ``ftol``
+    times the cost, or when the damping cannot find a lower cost.
 
-    ``normal_equations(theta, res)`` gives (J^T J, J^T res) at the last accepted point;
-    ``max_nfev`` bounds the residual evaluations. Stops when a step lowers the cost by less
-    than ``ftol`` times the cost, or when the damping cannot find a lower cost.
+    Args:
+        residuals: theta -> the residual vector.
+        normal_equations: (theta, res) -> (J^T J, J^T res) at the last accepted point.
+        theta: The start.
+        lo: Lower bounds of theta.
+        hi: Upper bounds of theta.
+        max_nfev: Bound on the residual evaluations.
+        ftol: The relative cost decrease below which it stops.
+        lam: The initial damping.
+
+    Returns:
+        The best theta found.
+
     """
     theta = np.clip(np.asarray(theta, dtype=np.float64), lo, hi)
     res = residuals(theta)
@@ -78,11 +90,22 @@ def bounded_lm(residuals: Residuals, normal_equations: NormalEquations, theta: n
 @njit(fastmath=True)
 def output_jacobian(z: np.ndarray, psi_hat: np.ndarray, res: np.ndarray, slopes: np.ndarray,
                     edges: np.ndarray, c: int, out: np.ndarray) -> None:
-    """Rows [z_i / f'(psi_hat_i), -G_j(psi_hat_i) / f'(psi_hat_i) for j != c, res_i] into
-    ``out`` (n, N + 2 + M - 1 + 1): the Jacobian of psi_hat = f^-1(w . z) with respect to
-    (w, slopes of f except the fixed central one ``c``), plus the residuals as a last column,
-    so that one matrix product gives J^T J and J^T res. G_j is the signed length of segment
-    j on the path 0 -> psi (``pwa.path_matrix``); ``edges`` are f's M - 1 breakpoints."""
+    """Rows [z_i / f'(psi_hat_i), -G_j(psi_hat_i) / f'(psi_hat_i) for j != c, res_i]: the
+    Jacobian of psi_hat = f^-1(w . z) with respect to (w, slopes of f except the fixed
+    central one ``c``), plus the residuals as a last column, so that one matrix product gives
+    J^T J and J^T res. G_j is the signed length of segment j on the path 0 -> psi
+    (``pwa.path_matrix``).
+
+    Args:
+        z: Regressors per sample (n, N + 2).
+        psi_hat: The model's normalised strain per sample.
+        res: The residual per sample.
+        slopes: f's segment slopes (M).
+        edges: f's M - 1 breakpoints.
+        c: The fixed central segment.
+        out: (n, N + 2 + M - 1 + 1), written.
+
+    """
     n_w = z.shape[1]
     m = slopes.size
     last = out.shape[1] - 1

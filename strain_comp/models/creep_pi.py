@@ -94,12 +94,29 @@ FLAT = 1e-9
 
 
 def n_features(n_play: int, n_tau: int) -> int:
-    """Features per sample for J play operators and K time constants."""
+    """Features per sample for J play operators and K time constants.
+
+    Args:
+        n_play: J.
+        n_tau: K.
+
+    Returns:
+        The number of features.
+
+    """
     return kern.N_FIXED + n_play + n_tau
 
 
 def play_thresholds(n_play: int) -> np.ndarray:
-    """r_j = j / (J + 1), j = 1..J ([Electrolycra] eq. (6))."""
+    """r_j = j / (J + 1), j = 1..J ([Electrolycra] eq. (6)).
+
+    Args:
+        n_play: J.
+
+    Returns:
+        The thresholds (J).
+
+    """
     return np.arange(1, n_play + 1, dtype=np.float64) / (n_play + 1)
 
 
@@ -200,8 +217,25 @@ class CreepPI(KernelCompensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
             lam: float | None = None, **options: Any) -> CreepPI:
-        """Ridge fit of the weights (module docstring). ``taus``: time constants [s];
-        ``n_play``: play operators; ``lam``: a fixed penalty instead of cross-validation."""
+        """Ridge fit of the weights (module docstring).
+
+        Args:
+            segments: The training segments.
+            normalisation: The model's normalisation.
+            direction: The direction detector's settings.
+            taus: The low-pass time constants [s] (1 to ``N_TAU_MAX`` in ``TAU_RANGE``).
+            n_play: Play operators (1 to ``N_PLAY_MAX``).
+            lam: A fixed ridge penalty in [0, ``LAM_MAX``] instead of cross-validation.
+            **options: None taken (an unknown option is refused).
+
+        Returns:
+            The fitted model; ``fit_report`` holds the penalty and the cross-validated RMSE.
+
+        Raises:
+            FitError: An unknown or bad option, too few samples, or too few per fold to
+                cross-validate without ``lam``.
+
+        """
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
         try:
@@ -292,9 +326,20 @@ class CreepPIArray(LiftedArray):
 
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
                thresholds: np.ndarray) -> np.ndarray:
-    """Gram matrices of [1, features, psi] per cross-validation fold (folds, n_f + 2,
-    n_f + 2): one fold per segment when there are two or more, else ``CV_BLOCKS``
-    contiguous blocks of the one (fewer when it is short)."""
+    """Gram matrices of [1, features, psi] per cross-validation fold: one fold per segment
+    when there are two or more, else ``CV_BLOCKS`` contiguous blocks of the one (fewer when
+    it is short).
+
+    Args:
+        segments: The training segments.
+        normalisation: The model's normalisation.
+        tau: The low-pass time constants [s] (K).
+        thresholds: The play thresholds (J).
+
+    Returns:
+        Shape (folds, n_f + 2, n_f + 2).
+
+    """
     widths = np.append(thresholds, DIRECTION_WIDTH)
     n_f = n_features(thresholds.size, tau.size)
     single = len(segments) == 1
@@ -323,8 +368,17 @@ def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: n
 
 def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
     """theta = [intercept, weights, -1] minimising the mean squared error of psi plus
-    ``lam`` |weights|^2 over the samples of ``gram`` (Gram of [1, features, psi]); the
-    residual of a sample with row a is a . theta, so its squared sum is theta' G theta."""
+    ``lam`` |weights|^2 over the samples of ``gram``; the residual of a sample with row a is
+    a . theta, so its squared sum is theta' G theta.
+
+    Args:
+        gram: The Gram matrix of [1, features, psi].
+        lam: The ridge penalty.
+
+    Returns:
+        theta.
+
+    """
     p = gram.shape[0] - 2
     n = gram[0, 0]
     mx = gram[0, 1:p + 1] / n
@@ -337,8 +391,17 @@ def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
 
 
 def cross_validate(grams: np.ndarray, lams: np.ndarray) -> np.ndarray:
-    """Held-out squared error (penalties, folds): each fold's samples predicted by the
-    fit on all the others, per penalty in ``lams``."""
+    """Held-out squared error: each fold's samples predicted by the fit on all the others,
+    per penalty in ``lams``.
+
+    Args:
+        grams: Gram matrices per fold (``fold_grams``).
+        lams: The ridge penalties.
+
+    Returns:
+        Shape (penalties, folds).
+
+    """
     total = grams.sum(axis=0)
     errors = np.zeros((lams.size, grams.shape[0]))
     for i, lam in enumerate(lams):

@@ -91,7 +91,22 @@ def _cell_step(u: float, e: float, dt: float, i_s: float, v_t: float) -> tuple[f
 def sinh_pl_forward_kernel(state: np.ndarray, t: np.ndarray, psi: np.ndarray, w0: float,
                            vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
                            ) -> np.ndarray:
-    """Forward model eq. (2): psi (input e) -> xi (output i). state = [started, t, u_1..u_N]."""
+    """Forward model eq. (2): psi (input e) -> xi (output i).
+
+    Args:
+        state: [started, t, u_1..u_N], updated in place.
+        t: Time [s] per sample.
+        psi: Normalised strain per sample.
+        w0: The direct weight.
+        vb: The bias.
+        w: Cell weights (N).
+        i_s: Cell saturation currents (N).
+        v_t: Cell thermal voltages (N).
+
+    Returns:
+        xi per sample.
+
+    """
     n_cells = w.size
     out = np.empty(t.size)
     for n in range(t.size):
@@ -117,7 +132,22 @@ def sinh_pl_forward_kernel(state: np.ndarray, t: np.ndarray, psi: np.ndarray, w0
 def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0: float,
                            vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
                            ) -> np.ndarray:
-    """Compensator eq. (3), exact inverse of the discrete forward model: xi -> psi."""
+    """Compensator eq. (3), exact inverse of the discrete forward model: xi -> psi.
+
+    Args:
+        state: [started, t, u_1..u_N], updated in place.
+        t: Time [s] per sample.
+        xi: Normalised input per sample.
+        w0: The direct weight.
+        vb: The bias.
+        w: Cell weights (N).
+        i_s: Cell saturation currents (N).
+        v_t: Cell thermal voltages (N).
+
+    Returns:
+        psi per sample.
+
+    """
     n_cells = w.size
     out = np.empty(t.size)
     gain = w0

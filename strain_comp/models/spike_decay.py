@@ -250,11 +250,24 @@ def _require_matrix(params: Mapping[str, Any], key: str, shape: tuple[int, int])
 
 def recalibrate_two_point(model: SpikeDecay, point_a: tuple[float, float],
                           point_b: tuple[float, float]) -> SpikeDecay:
-    """A copy of ``model`` with f scaled and shifted (a f + b) through two (strain %, R ohm).
+    """A copy of ``model`` with f scaled and shifted (a f + b) through two points.
 
     The paper's calibration of a new sensor of the same make: S and lambda tables and the
-    monotone range are kept. Give settled resistances (a reading taken during a spike
-    should first be divided by 1 + S, as the paper does).
+    monotone range are kept. Give settled resistances (a reading taken during a spike should
+    first be divided by 1 + S, as the paper does).
+
+    Args:
+        model: The fitted model.
+        point_a: (strain [%], settled resistance [ohm]).
+        point_b: (strain [%], settled resistance [ohm]).
+
+    Returns:
+        The recalibrated copy.
+
+    Raises:
+        ParameterError: The two strains give one resistance on f, or the two resistances
+            are equal.
+
     """
     (eps_a, r_a), (eps_b, r_b) = point_a, point_b
     f_a, f_b = (f_eval(model.knots, model.c, float(e)) for e in (eps_a, eps_b))

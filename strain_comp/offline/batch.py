@@ -59,7 +59,18 @@ def _is_bag_dir(path: Path) -> bool:
 def expand_bags(paths: Sequence[str]) -> list[str]:
     """The bags named by ``paths``: MCAP files and rosbag2 directories as given; a folder
     that is not a rosbag2 directory stands for its ``*.mcap``, ``*.db3`` files and rosbag2
-    directories (sorted by name, not recursively). InputError for a folder without any."""
+    directories (sorted by name, not recursively).
+
+    Args:
+        paths: Bags and folders, as the command line names them.
+
+    Returns:
+        The bags, in the order given.
+
+    Raises:
+        InputError: A folder without any bag.
+
+    """
     bags: list[str] = []
     for text in paths:
         path = Path(text)
@@ -219,7 +230,15 @@ def _context() -> BaseContext:
 
 
 def check_jobs(jobs: int) -> None:
-    """InputError unless ``jobs`` is 1 to ``MAX_JOBS``."""
+    """Check ``--jobs``.
+
+    Args:
+        jobs: The processes asked for.
+
+    Raises:
+        InputError: ``jobs`` is not 1 to ``MAX_JOBS``.
+
+    """
     if not 1 <= jobs <= MAX_JOBS:
         raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
 
@@ -231,9 +250,30 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
                   references_every: float | None = None,
                   figures: bool = False) -> list[BagOutcome]:
-    """Every bag evaluated (module docstring), in the order given; ``jobs`` > 1 runs them
-    in a pool of that many processes. ``progress(done, total, bag)`` after each bag.
-    ``figures``: keep each bag's plots as PNG bytes (``evaluate --report``)."""
+    """Every bag evaluated (module docstring), in the order given.
+
+    Args:
+        bags: The bags.
+        calibration_path: The calibration file (each process reads it).
+        tare: As ``--tare``.
+        jobs: Processes; > 1 runs the bags in a pool.
+        plot_points: Samples kept per sensor for plots.
+        in_run: Also the in-run bound (``in_run_bound``).
+        plots: Write each bag's plots into this directory.
+        series: Every sample's row goes there (``evaluate --csv``).
+        progress: Called as ``progress(done, total, bag)`` after each bag.
+        out_of_range: As ``--out-of-range``.
+        tracking: As ``--baseline-tracking``.
+        references_every: As ``--references-every`` [s].
+        figures: Keep each bag's plots as PNG bytes (``evaluate --report``).
+
+    Returns:
+        One outcome per bag: its result, or the one line why it could not be evaluated.
+
+    Raises:
+        OutputError: The table cannot be written.
+
+    """
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = _plot_dirs(bags, plots)
@@ -278,7 +318,15 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
 
 def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulator, int, str,
                                                                     str]]:
-    """Per sensor: the errors pooled over the bags, how many bags, model and unit."""
+    """The errors of every sensor pooled over the bags.
+
+    Args:
+        outcomes: The bags' outcomes.
+
+    Returns:
+        Sensor -> (errors pooled, bags, model, unit).
+
+    """
     pooled: dict[str, tuple[ErrorAccumulator, int, str, str]] = {}
     for outcome in outcomes:
         if outcome.result is None:
@@ -292,7 +340,15 @@ def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulato
 
 
 def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
-    """The pooled table: every sensor over every bag it was scored in."""
+    """The pooled table: every sensor over every bag it was scored in.
+
+    Args:
+        outcomes: The bags' outcomes.
+
+    Returns:
+        The table's text.
+
+    """
     header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
               f"{'max':>9} {'R^2':>8}")
     done = sum(o.result is not None for o in outcomes)
@@ -310,7 +366,15 @@ def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
 
 
 def format_bag(outcome: BagOutcome) -> tuple[str, list[str]]:
-    """One bag's heading and table (stdout) and its notes (stderr)."""
+    """One bag's heading and table (stdout) and its notes (stderr).
+
+    Args:
+        outcome: The bag's outcome.
+
+    Returns:
+        The heading and table, and the note lines.
+
+    """
     if outcome.result is None:
         return f"== {outcome.bag}\nnot evaluated: {outcome.error}", []
     notes = outcome.problems + format_notes(outcome.result)
@@ -318,7 +382,15 @@ def format_bag(outcome: BagOutcome) -> tuple[str, list[str]]:
 
 
 def to_json(outcomes: Sequence[BagOutcome]) -> dict[str, Any]:
-    """The multi-bag JSON (module docstring)."""
+    """The multi-bag JSON (module docstring).
+
+    Args:
+        outcomes: The bags' outcomes.
+
+    Returns:
+        The JSON document.
+
+    """
     bags: dict[str, Any] = {}
     for outcome in outcomes:
         bags[outcome.bag] = ({"error": outcome.error} if outcome.result is None

@@ -44,7 +44,15 @@ DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
 
 def find_hold(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray] | None:
-    """(t, r) of the second half of the longest still stretch of the reference, or None."""
+    """The second half of the longest still stretch of the reference.
+
+    Args:
+        segments: The training segments.
+
+    Returns:
+        Its (t [s], r [ohm]), or None without one.
+
+    """
     rates = [np.abs(np.gradient(seg.s, seg.t)) for seg in segments]
     moving = np.concatenate(rates)
     scale = float(np.percentile(moving, 99.5)) if moving.size else 0.0
@@ -79,10 +87,18 @@ def _noise_sigma(segments: Sequence[Segment]) -> float:
 
 
 def movement_rate(segments: Sequence[Segment]) -> float:
-    """Typical |dR/dt| [ohm/s] while the reference moves: the gauge slope |dR/dS| (a line
-    through all samples) times the median |dS/dt| of the moving samples (the reference is
-    clean, so this is not inflated by resistance noise; on samples stamped in bursts dS/dt
-    is taken on a regular grid, ``_regular_gradient``)."""
+    """Typical |dR/dt| while the reference moves: the gauge slope |dR/dS| (a line through all
+    samples) times the median |dS/dt| of the moving samples (the reference is clean, so this
+    is not inflated by resistance noise; on samples stamped in bursts dS/dt is taken on a
+    regular grid, ``_regular_gradient``).
+
+    Args:
+        segments: The training segments.
+
+    Returns:
+        The rate [ohm/s].
+
+    """
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     gradient = np.gradient if _bursts(segments) is None else _regular_gradient
@@ -113,13 +129,24 @@ def _hold_samples(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray, 
 
 def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
         DirectionSettings, str]:
-    """Dead-zone settings and their source: ``given``, ``hold``, ``noise`` or ``floor``.
+    """Dead-zone settings and their source.
 
     Without a ``tau`` option the derivative filter is the shortest on ``TAU_GRID`` whose
-    dead zone (k sigma of the filtered derivative noise) stays below ``DEADZONE_FRACTION``
-    of the typical movement rate: a raw first difference of a noisy, fast-sampled signal
-    can have a 4-sigma dead zone above the slowest ramps, and the detector would never
-    leave hold. When even the longest filter cannot get there, it is used anyway.
+    dead zone (k sigma of the filtered derivative noise) stays below ``DEADZONE_FRACTION`` of
+    the typical movement rate: a raw first difference of a noisy, fast-sampled signal can
+    have a 4-sigma dead zone above the slowest ramps, and the detector would never leave
+    hold. When even the longest filter cannot get there, it is used anyway.
+
+    Args:
+        segments: The training segments.
+        options: The fit options (``deadzone`` [input unit/s], ``k_sigma``, ``tau`` [s]).
+
+    Returns:
+        The settings and their source: ``given``, ``hold``, ``noise`` or ``floor``.
+
+    Raises:
+        InputError: A ``deadzone`` option not > 0.
+
     """
     k_sigma = float(options.get("k_sigma", DEFAULT_K_SIGMA))
     if "deadzone" in options:
@@ -185,6 +212,15 @@ def _tau_grid(segments: Sequence[Segment]) -> list[float]:
 
 
 def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
-    """+1 when R rises with strain in the training data, -1 when it falls (the sign of
-    their correlation; 0 correlation counts as +1). Sets ``DirectionSettings.sign``."""
+    """The sign of the gauge, for ``DirectionSettings.sign``: the sign of the correlation of
+    R and S (0 correlation counts as +1).
+
+    Args:
+        r: Resistance [ohm] per sample.
+        s: Reference strain per sample.
+
+    Returns:
+        +1 when R rises with strain in the training data, -1 when it falls.
+
+    """
     return -1 if float(np.mean((r - r.mean()) * (s - s.mean()))) < 0 else 1

@@ -74,14 +74,26 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
                         references_every: float | None = None) -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
-    ``tare``: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
-    tare read goes to the notes). ``out_of_range``: the engine's ``OUT_OF_RANGE_MODES``.
-    ``tracking``: ``on`` runs each sensor not in an array through a
-    ``strain_comp.core.tracking.BaselineTracker``. ``references_every``: the recording's
-    own reference every that many seconds fused into the output gain and offset
-    (``strain_comp.core.fusion.SparseFusion``: causal, scored on every sample as before);
-    InputError when a calibrated sensor in the data has no reference.
-    Raises InputError when no calibrated sensor can be scored (names both sides).
+    Args:
+        recordings: Sensor name -> recording.
+        calibration: The calibration.
+        tare: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
+            tare read goes to the notes).
+        out_of_range: The engine's ``OUT_OF_RANGE_MODES``.
+        tracking: ``on`` runs each sensor not in an array through a
+            ``strain_comp.core.tracking.BaselineTracker``.
+        references_every: The recording's own reference every that many seconds fused into
+            the output gain and offset (``strain_comp.core.fusion.SparseFusion``: causal,
+            scored on every sample as before).
+
+    Returns:
+        The scores per sensor.
+
+    Raises:
+        InputError: No calibrated sensor can be scored (names both sides), a calibrated
+            sensor in the data has no reference with ``references_every``, or the run
+            cannot be tared.
+
     """
     if references_every is not None:
         check_every(references_every)
@@ -137,9 +149,16 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
                  calibration: Calibration) -> None:
     """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
-    the evaluated run itself and scored on it, i.e. what that model family can reach on
-    this run; the gap to ``rmse`` is what does not transfer from the training runs. A run
-    the model cannot be fitted to gets NaN and a note."""
+    the evaluated run itself and scored on it, i.e. what that model family can reach on this
+    run; the gap to ``rmse`` is what does not transfer from the training runs. A run the
+    model cannot be fitted to gets NaN and a note.
+
+    Args:
+        result: The evaluation, updated in place.
+        recordings: The run's recordings.
+        calibration: The calibration evaluated.
+
+    """
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
         options = cal.provenance.get("options") or {}
@@ -183,16 +202,30 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
-    is read. Returns the result and the bag's problem lines (reader first, then the
-    recordings' as ``load_recordings`` gives them).
+    is read.
 
-    ``tare``: as in ``evaluate_recordings``, each input tared from the first piece it
-    appears in (``replay_bag``'s rule). ``plot_points``: keep that many evenly spaced
-    samples per sensor for plots (0: none). ``series``: every sample's row goes there
-    (``evaluate --csv``; rows of a bag that fails are written before the error). Raises
-    InputError when no calibrated sensor
-    can be scored (names both sides and the bag's problems). ``references_every``: as in
-    ``evaluate_recordings``.
+    Args:
+        path: The bag.
+        calibration: The calibration.
+        tare: As in ``evaluate_recordings``, each input tared from the first piece it
+            appears in (``replay_bag``'s rule).
+        window: Messages per piece.
+        plot_points: Keep that many evenly spaced samples per sensor for plots (0: none).
+        series: Every sample's row goes there (``evaluate --csv``; rows of a bag that
+            fails are written before the error).
+        out_of_range: As in ``evaluate_recordings``.
+        tracking: As in ``evaluate_recordings``.
+        references_every: As in ``evaluate_recordings`` [s].
+
+    Returns:
+        The result and the bag's problem lines (reader first, then the recordings' as
+        ``load_recordings`` gives them).
+
+    Raises:
+        InputError: No calibrated sensor can be scored (names both sides and the bag's
+            problems), or a tare or reference option cannot be met.
+        BagError: The bag cannot be read.
+
     """
     if references_every is not None:
         check_every(references_every)

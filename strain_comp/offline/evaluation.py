@@ -95,8 +95,17 @@ def _json_number(value: float | int) -> float | int | None:
 
 def references_needed(calibration: Calibration, referenced: Mapping[str, bool],
                       every: float) -> None:
-    """InputError naming the calibrated sensors of the data without a reference: the
-    references to fuse every ``every`` s are the data's own."""
+    """Check that the data holds the references to fuse every ``every`` s.
+
+    Args:
+        calibration: The calibration.
+        referenced: Sensor name -> whether the data has its reference.
+        every: The fusion's spacing [s].
+
+    Raises:
+        InputError: A calibrated sensor of the data has no reference, naming them.
+
+    """
     missing = [n for n in calibration.sensors if n in referenced and not referenced[n]]
     if missing:
         raise InputError(f"--references-every {every:g}: {', '.join(missing)} has no "
@@ -105,19 +114,43 @@ def references_needed(calibration: Calibration, referenced: Mapping[str, bool],
 
 
 def fusion_state(fused: SparseFusion | None) -> dict[str, Any] | None:
-    """The JSON record of a sensor's fusion: its state and the spacing."""
+    """The JSON record of a sensor's fusion.
+
+    Args:
+        fused: The sensor's fusion, or None.
+
+    Returns:
+        Its state and the spacing, or None without fusion.
+
+    """
     return None if fused is None else {"every": fused.every, **fused.fusion.state()}
 
 
 def input_unit(cal: SensorCalibration) -> str:
-    """The unit of the input a sensor's run holds: V for a voltage divider, else the
-    resistance's own (ohm, or the calibration's ``input.unit``)."""
+    """The unit of the input a sensor's run holds.
+
+    Args:
+        cal: The sensor's calibration.
+
+    Returns:
+        V for a voltage divider, else the resistance's own (ohm, or ``input.unit``).
+
+    """
     return "V" if cal.input.kind == "divider" else cal.input.unit
 
 
 def tracked(tracker: BaselineTracker | None, name: str) -> dict[str, float] | None:
-    """What tracking did to ``name`` (seconds at rest it moved the zero, total change of
-    the tare gain), None without tracking."""
+    """What tracking did to ``name``.
+
+    Args:
+        tracker: The tracker, or None without tracking.
+        name: The sensor's name.
+
+    Returns:
+        Seconds at rest it moved the zero and total change of the tare gain, or None
+        without tracking.
+
+    """
     if tracker is None:
         return None
     h = tracker.engine.health()[name]
@@ -125,10 +158,20 @@ def tracked(tracker: BaselineTracker | None, name: str) -> dict[str, float] | No
 
 
 def crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
-    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic (the
-    sensors of ``same_tick``): offline such a term reads the neighbour's latest estimate of
-    the previous batch, not of the same instant (``Engine.run``; the node, stepping each
-    message, reads the latest one), so its correction is not the one diagnosed."""
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic:
+    offline such a term reads the neighbour's latest estimate of the previous batch, not of
+    the same instant (``Engine.run``; the node, stepping each message, reads the latest one),
+    so its correction is not the one diagnosed.
+
+    Args:
+        name: The sensor's name.
+        cal: Its calibration.
+        same_tick: The sensors on its array topic.
+
+    Returns:
+        The note lines (none when every neighbour is on the topic).
+
+    """
     off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
            if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
            and str(e["params"].get("neighbour")) not in same_tick]
@@ -141,7 +184,16 @@ def crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -
 
 def temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
     """The note for a run without temperature scored through a calibration with a
-    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    temperature term: the term reads g = 0 (``core.effects``), it is not applied.
+
+    Args:
+        name: The sensor's name.
+        cal: Its calibration.
+
+    Returns:
+        The note lines (none without a temperature term).
+
+    """
     terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
     if not terms:
         return []
@@ -150,13 +202,30 @@ def temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
 
 
 def nothing_scored(calibration: Calibration, names: list[str]) -> str:
-    """The error when no calibrated sensor can be scored, naming both sides."""
+    """The error when no calibrated sensor can be scored, naming both sides.
+
+    Args:
+        calibration: The calibration.
+        names: The sensors in the data.
+
+    Returns:
+        The message.
+
+    """
     return ("no calibrated sensor has a strain_reference in the data (calibration: "
             f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
 
 
 def format_table(result: EvaluationResult) -> str:
-    """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
+    """Fixed-width error table, errors in each calibration's strain unit (% strain).
+
+    Args:
+        result: The evaluation.
+
+    Returns:
+        The table's text.
+
+    """
     header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
               f"{'R^2':>8}")
     lines = [header, "-" * len(header)]
@@ -177,7 +246,15 @@ def format_table(result: EvaluationResult) -> str:
 
 
 def format_notes(result: EvaluationResult) -> list[str]:
-    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors."""
+    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors.
+
+    Args:
+        result: The evaluation.
+
+    Returns:
+        The lines.
+
+    """
     lines = []
     for name, ev in result.sensors.items():
         if ev.n_bad:

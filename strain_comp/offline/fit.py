@@ -72,7 +72,18 @@ budget of a fit); the others go to the model's ``fit``."""
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
-    """``["N=11", "mode=split", "sigmas=[0.1, 0.3]"]`` -> dict; values are parsed as YAML."""
+    """``["N=11", "mode=split", "sigmas=[0.1, 0.3]"]`` -> dict; values are parsed as YAML.
+
+    Args:
+        items: The ``--option`` values.
+
+    Returns:
+        Option -> value.
+
+    Raises:
+        InputError: An item without ``=``, or a value that is not valid YAML.
+
+    """
     options: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
@@ -100,12 +111,20 @@ def _check_options(fit: Callable[..., Any], model: str, options: Mapping[str, An
 
 
 def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) -> float:
-    """RMSE [% strain] on the training segments through the engine's batch path.
+    """RMSE on the training segments through the engine's batch path.
 
     The engine (``strain_comp.core.engine.Engine``) is reset before every segment; it is the
-    code ``evaluate``, ``replay`` and the node run, so on a training bag without gaps the
-    fit error equals what ``strain-comp evaluate`` reports (the engine clamps estimates to
-    the valid strain range plus its margin, which a raw model output is not).
+    code ``evaluate``, ``replay`` and the node run, so on a training bag without gaps the fit
+    error equals what ``strain-comp evaluate`` reports (the engine clamps estimates to the
+    valid strain range plus its margin, which a raw model output is not).
+
+    Args:
+        calibration: The sensor's calibration.
+        segments: The training segments.
+
+    Returns:
+        The RMSE, in the strain unit (% strain).
+
     """
     engine = Engine(Calibration({calibration.name: calibration}))
     estimates, references = [], []
@@ -119,15 +138,29 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
-    """Fit ``model`` to one sensor's recordings (each with a reference strain).
+    """Fit ``model`` to one sensor's recordings (each with a reference strain). Several runs
+    are pooled in one input space (``pool``, ``strain_comp.offline.pool``).
 
-    ``options`` go to the model's ``fit`` (N, M, mode, ...) except ``deadzone``, ``k_sigma``
-    and ``tau``, which set the direction detector, ``alternation`` and ``pair`` (the
-    measurement chain) and ``fit_budget`` (overrides ``budget``: good samples above which
-    the model is fitted on a reduction, module docstring, Long runs). Raises FitError
-    when the data cannot support a fit (no reference, too few good samples, no range of
-    R or S). Several runs are pooled in one input space (``pool``,
-    ``strain_comp.offline.pool``).
+    Args:
+        recordings: The sensor's runs.
+        model: The model's name.
+        name: The sensor's name.
+        bags: The source bags, for the provenance.
+        options: The model's ``fit`` options (N, M, mode, ...), except ``deadzone``,
+            ``k_sigma`` and ``tau`` (the direction detector), ``alternation`` and ``pair``
+            (the measurement chain) and ``fit_budget`` (overrides ``budget``).
+        budget: Good samples above which the model is fitted on a reduction (module
+            docstring, Long runs).
+        pool: ``spanned`` or ``raw``.
+
+    Returns:
+        The sensor's calibration.
+
+    Raises:
+        FitError: The data cannot support a fit (no reference, too few good samples, no
+            range of R or S), or the fit gives non-finite strain on its own data.
+        InputError: An unknown pool, or a bad option.
+
     """
     options = dict(options or {})
     cls = model_class(model)
@@ -207,9 +240,16 @@ def _chain_reading(chain: Alternation, alternating: bool, pair: str) -> str:
 
 
 def memory_reading(compensator: Any) -> dict[str, Any] | None:
-    """What a model with memory cells (APL, PL, MPI) kept of its memory, from its fit
-    report: ``memory_share`` (rounded), ``memoryless`` and the ``loop`` orientation its
-    cell weights were held to; None for models without cells."""
+    """What a model with memory cells (APL, PL, MPI) kept of its memory, from its fit report.
+
+    Args:
+        compensator: The fitted model.
+
+    Returns:
+        ``memory_share`` (rounded), ``memoryless`` and the ``loop`` orientation its cell
+        weights were held to; None for models without cells.
+
+    """
     report = getattr(compensator, "fit_report", None)
     if not report or "memoryless" not in report:
         return None
@@ -218,7 +258,16 @@ def memory_reading(compensator: Any) -> dict[str, Any] | None:
 
 
 def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
-    """The one-line note for a fit whose memory model ended up memoryless, else None."""
+    """The one-line note for a fit whose memory model ended up memoryless.
+
+    Args:
+        name: The sensor's name.
+        calibration: Its calibration.
+
+    Returns:
+        The note, or None.
+
+    """
     memory = calibration.provenance.get("memory")
     if not memory or not memory.get("memoryless"):
         return None
@@ -231,13 +280,28 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None,
              pool: str = "spanned") -> Calibration:
-    """One calibration for ``sensors`` (None or ``["all"]``: every sensor with a reference;
-    one of those that cannot be fitted, e.g. a reference that is NaN throughout, is left
-    out with a line to ``report``, unless none can be).
+    """One calibration for ``sensors``; each sensor is fitted to its recordings from every
+    bag that has it, pooled in one input space (``pool``, ``fit_sensor``).
 
-    Each sensor is fitted to its recordings from every bag that has it, pooled in one
-    input space (``pool``, ``fit_sensor``). Bag problems
-    (skipped chunks, unknown schemas) go to ``report``, one line each.
+    Args:
+        paths: The bags.
+        model: The model's name.
+        sensors: The sensors; None or ``["all"]``: every sensor with a reference (one of
+            those that cannot be fitted is left out with a line to ``report``, unless none
+            can be).
+        options: As ``fit_sensor``.
+        report: Where bag problems (skipped chunks, unknown schemas) and the sensors left
+            out go, one line each.
+        pool: As ``fit_sensor``.
+
+    Returns:
+        The calibration.
+
+    Raises:
+        InputError: A sensor not in the bags or without a reference, or no sensor with one.
+        BagError: A bag cannot be read.
+        FitError: No sensor could be fitted, or a named sensor cannot.
+
     """
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
     for path in paths:

@@ -41,10 +41,17 @@ POOL_SAMPLES = 4000
 
 
 def run_line(rec: Recording) -> tuple[float, float] | None:
-    """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples
-    (its input zero [ohm] and sensitivity [ohm per strain unit]), in closed form (no LAPACK
-    call to fail on a reference near 1e-300 or 1e300); None without a range of strain or a
-    finite line."""
+    """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples, in
+    closed form (no LAPACK call to fail on a reference near 1e-300 or 1e300).
+
+    Args:
+        rec: The run.
+
+    Returns:
+        Its input zero R_0 [ohm] and sensitivity g [ohm per strain unit]; None without a
+        range of strain or a finite line.
+
+    """
     if rec.s is None:
         return None
     ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
@@ -60,19 +67,30 @@ def run_line(rec: Recording) -> tuple[float, float] | None:
 
 def pooled_input(recordings: Sequence[Recording], pool: str = "spanned",
                  ) -> tuple[list[Recording], list[dict[str, float]], dict[str, Any]]:
-    """The runs put into one input space for a pooled fit (module docstring, Pooling runs)
-    and each run's map (``rest``, ``rest_calibrated``, ``span_gain``: the form of
-    ``recalibrate --input``, R' = rest_calibrated + span_gain (R - rest)).
+    """The runs put into one input space for a pooled fit (module docstring, Pooling runs).
 
     The maps are a per-run affine nuisance fitted jointly with a pooled cubic of strain on
     mapped resistance (least squares over the maps, the cubic solved for at each step),
     started from each run's line of resistance on strain (``run_line``) and anchored on the
-    run of median sensitivity (its map stays the identity), then dropped: the model is
-    fitted on the mapped runs, where the maps lower the pooled cubic's RMSE to at most
-    ``POOL_GAIN`` of its RMSE on the runs as recorded (runs that differ in zero and
-    sensitivity, not in rate or memory). The runs as recorded (no maps) otherwise, for
-    ``pool="raw"``, a single run, or runs whose lines disagree in sign. The third item says
-    which, with both RMSEs (the provenance's ``pooling``)."""
+    run of median sensitivity (its map stays the identity), then dropped: the model is fitted
+    on the mapped runs, where the maps lower the pooled cubic's RMSE to at most ``POOL_GAIN``
+    of its RMSE on the runs as recorded (runs that differ in zero and sensitivity, not in
+    rate or memory). The runs as recorded (no maps) otherwise, for ``pool="raw"``, a single
+    run, or runs whose lines disagree in sign.
+
+    Args:
+        recordings: The sensor's runs.
+        pool: ``spanned`` or ``raw``.
+
+    Returns:
+        The runs as fitted, each run's map (``rest``, ``rest_calibrated``, ``span_gain``:
+        R' = rest_calibrated + span_gain (R - rest), the form of ``recalibrate --input``),
+        and which was chosen with both RMSEs (the provenance's ``pooling``).
+
+    Raises:
+        InputError: An unknown ``pool``.
+
+    """
     from scipy.optimize import least_squares
 
     if pool not in POOLS:

@@ -81,7 +81,19 @@ class BagSection:
 def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
                        calibration_path: str = "", tare: str = ""
                        ) -> dict[str, list[tuple[str, bytes]]]:
-    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
+    """The four evaluation plots of every sensor with kept samples, as PNG bytes.
+
+    Args:
+        result: The evaluation.
+        calibration: Gives the raw panel its resistance range.
+        bag: Named in the titles.
+        calibration_path: Named in the titles.
+        tare: Named in the titles.
+
+    Returns:
+        Sensor -> (caption, PNG bytes) per plot.
+
+    """
     out: dict[str, list[tuple[str, bytes]]] = {}
     for name, ev in result.sensors.items():
         if not ev.t.size:
@@ -108,6 +120,17 @@ def _value(value: Any) -> str:
 
 
 def html_cell(value: Any, fmt: str, key: str) -> str:
+    """A table cell of a number, sortable by its value.
+
+    Args:
+        value: The number (None or non-finite: ``n/a``).
+        fmt: Its format.
+        key: The column's key.
+
+    Returns:
+        The ``<td>`` element.
+
+    """
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         text = "n/a"
     else:
@@ -135,18 +158,46 @@ def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]
 
 
 def html_image(caption: str, png: bytes) -> str:
+    """A PNG as an inline figure.
+
+    Args:
+        caption: The caption (escaped).
+        png: The PNG bytes.
+
+    Returns:
+        The ``<figure>`` element.
+
+    """
     data = base64.b64encode(png).decode("ascii")
     return (f'<figure><img alt="{escape(caption)}" src="data:image/png;base64,{data}">'
             f"<figcaption>{escape(caption)}</figcaption></figure>")
 
 
 def html_notes(lines: Iterable[str], cls: str = "note") -> str:
+    """Lines as a list.
+
+    Args:
+        lines: The lines (escaped).
+        cls: The list's class.
+
+    Returns:
+        The ``<ul>`` element, or "" without lines.
+
+    """
     items = "".join(f"<li>{escape(line)}</li>" for line in lines)
     return f'<ul class="{cls}">{items}</ul>' if items else ""
 
 
 def plain_text(value: Any) -> str:
-    """A provenance value in one line (mappings and lists as compact JSON)."""
+    """A provenance value in one line (mappings and lists as compact JSON).
+
+    Args:
+        value: The value.
+
+    Returns:
+        The line.
+
+    """
     if isinstance(value, (Mapping, list, tuple)):
         return json.dumps(value, default=str, separators=(", ", ": "))
     return str(value)
@@ -154,7 +205,18 @@ def plain_text(value: Any) -> str:
 
 def provenance_section(calibration: Calibration, path: str, *, tare: str = "",
                        notes: Sequence[str] = ()) -> str:
-    """What the calibration is and where it came from, per sensor."""
+    """What the calibration is and where it came from, per sensor.
+
+    Args:
+        calibration: The calibration.
+        path: Its file's name.
+        tare: The tare mode, named.
+        notes: Lines shown above the table.
+
+    Returns:
+        The section's HTML.
+
+    """
     parts = [f"<h2>Calibration</h2><p><code>{escape(path)}</code>"
              + (f", tare <code>{escape(tare)}</code>" if tare else "") + "</p>"]
     for name, cal in calibration.sensors.items():
@@ -197,6 +259,16 @@ def _provenance_rows(cal: SensorCalibration) -> list[tuple[str, str]]:
 
 
 def html_page(title: str, body: Sequence[str]) -> str:
+    """A self-contained page: the style, the title, the version and time, then ``body``.
+
+    Args:
+        title: The title (escaped).
+        body: The HTML parts.
+
+    Returns:
+        The page.
+
+    """
     stamp = datetime.now(timezone.utc).isoformat(timespec="seconds")
     return "\n".join([
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -208,7 +280,16 @@ def html_page(title: str, body: Sequence[str]) -> str:
 
 
 def bag_section(section: BagSection, heading: str = "") -> list[str]:
-    """One bag's heading, table, notes and plots."""
+    """One bag's heading, table, notes and plots.
+
+    Args:
+        section: The bag's evaluation and figures.
+        heading: The heading (default: the bag's name).
+
+    Returns:
+        The HTML parts.
+
+    """
     body = [f"<h2>{escape(heading or section.bag)}</h2>"]
     if section.result is None:
         return [*body, f'<p class="error">not evaluated: {escape(section.error or "")}</p>']
@@ -232,7 +313,19 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
                     calibration_path: str, *, tare: str = "",
                     pooled: Mapping[str, tuple[Any, int, str, str]] | None = None) -> str:
     """The ``evaluate --report`` page: one section per bag, the pooled table for several
-    (``strain_comp.offline.batch.aggregate``), then the calibration's provenance."""
+    (``strain_comp.offline.batch.aggregate``), then the calibration's provenance.
+
+    Args:
+        sections: One per bag.
+        calibration: The calibration evaluated.
+        calibration_path: Its file's name.
+        tare: The tare mode.
+        pooled: The pooled errors (``aggregate``), or None.
+
+    Returns:
+        The page.
+
+    """
     body: list[str] = []
     if pooled is not None:
         done = sum(s.result is not None for s in sections)

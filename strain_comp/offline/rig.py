@@ -8,44 +8,7 @@ relaxation after loading steps that is negligible after unloading steps, a volta
 read-out (R1 = 10.5 ohm, Vin = 3.2 V) and a specimen of L0 = 100 mm (so 50 mm/min is
 50 %/min).
 
-Forward model, per sensor (S strain in %, t in s, all effects listed in ``RigEffects``):
-
-1. quasi-static response with mild saturation and Mullins softening::
-
-       g(S)  = G * S_sat * tanh(S / S_sat)                    (fractional change, G per %)
-       m(t)  = max(0.1, 1 - mullins * S_peak(t) / 100),  S_peak(t) = max_{t' <= t} S(t')
-       u(t)  = m(t) * g(S(t))
-
-   During first loading to a new peak the response follows the virgin curve; any later
-   cycle below that peak is softer, and nothing recovers (the Mullins effect).
-2. viscoelastic (Maxwell-type) branches k with time constants tau_k and weights a_k::
-
-       dq_k/dt = (u - q_k) / tau_k,     x_k = u - q_k
-       phi(x)  = x for x >= 0,  rho * x for x < 0       (rho = relaxation_unloading_ratio)
-       R_mech  = R0 * (1 + u + sum_k a_k phi(x_k))
-
-   Two fast branches (tau = 1 s and 6 s, a = hysteresis / 2 each) make the rate-dependent
-   hysteresis: x_k is about (du/dt) tau_k while loading, so the loading branch lies above
-   the quasi-static curve (the loop is traversed clockwise) and rises with the rate (the
-   loop rotates counter-clockwise); the asymmetric phi keeps the unloading branch, and so
-   the lower-left corner, close to the quasi-static curve (the rate-dependent play of the
-   APL cells, eq. (1), seen from the forward side). One slow branch (tau = relaxation_tau,
-   a = relaxation) gives the exponential relaxation after steps: an overshoot of
-   R0 * relaxation * du after a loading step, only rho times that after an unloading step.
-   The branch filters are integrated exactly for piecewise-linear u (first-order hold is
-   approximated by the exact zero-order-hold exponential at the sample rate).
-3. environment: ``R = R_mech * (1 + tcr (T - T_ref)) * (1 + drift * t / 3600 s)``, plus, in
-   an array, ``crosstalk * (R_mech_j - R0_j)`` from each neighbour j = i +- 1.
-4. measurement chain: ``+-alternation`` every other sample, ``baseline_step`` ohm in
-   series from ``baseline_step_at`` on, isolated spikes of ``spike_size`` ohm on a share
-   ``spikes`` of the samples (none of them in ``resistance_true``); then the read-out:
-   Gaussian noise (std ``noise`` ohm), then the voltage divider
-   V_R1 = Vin R1 / (R1 + R) quantised to ``adc_bits`` and converted back with
-   ``strain_comp.core.conversion.divider_to_resistance`` ([Electrolycra] section II.A).
-
-The temperature profile (slow sinusoid plus a square wave of steps) is published on
-``/NAME/temperature`` when ``temperature`` (the TCR) is non-zero or the scenario is
-``temperature``. Everything is deterministic for a seed.
+The forward model, per sensor, and its effects (``RigEffects``): docs/rig.md.
 """
 
 from __future__ import annotations
@@ -319,8 +282,19 @@ SEED_MAX = 2**63 - 1
 
 
 def check_size(scenario: str, *, seed: int = 0, duration: float | None = None) -> None:
-    """ParameterError unless ``seed`` is in [0, SEED_MAX] and the run holds at most
-    ``MAX_SAMPLES`` samples over all its sensors (a 50 Hz single sensor: 40,000 s)."""
+    """Check a scenario's size before it runs.
+
+    Args:
+        scenario: The scenario (``SCENARIOS``).
+        seed: The random seed.
+        duration: The run's length [s], or None for the scenario's own.
+
+    Raises:
+        ParameterError: An unknown scenario, a seed not in [0, SEED_MAX], a duration not
+            > 0, or more than ``MAX_SAMPLES`` samples over all sensors (a 50 Hz single
+            sensor: 40,000 s).
+
+    """
     if scenario not in _SCENARIOS:
         raise ParameterError("scenario", f"unknown scenario {scenario!r}; one of "
                              f"{', '.join(SCENARIOS)}")
@@ -382,7 +356,16 @@ def _mechanical(strain: np.ndarray, spec: SensorSpec, fx: RigEffects, fs: float)
 
 
 def temperature_profile(t: np.ndarray, fx: RigEffects) -> np.ndarray:
-    """T(t) [deg C]: T_ref + slow sinusoid + a square wave of steps."""
+    """T(t): T_ref + slow sinusoid + a square wave of steps.
+
+    Args:
+        t: Time [s] per sample.
+        fx: The rig's effects.
+
+    Returns:
+        Temperature [deg C] per sample.
+
+    """
     square = (np.floor(t / fx.temperature_step_period) % 2) * fx.temperature_step
     return T_REF + fx.temperature_amplitude * np.sin(2 * np.pi * t / fx.temperature_period) \
         + square
@@ -413,12 +396,21 @@ def _read_out(r: np.ndarray, fx: RigEffects, rng: np.random.Generator) -> np.nda
 
 def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
              duration: float | None = None) -> SimRun:
-    """Run a scenario (``SCENARIOS``) on the rig.
+    """Run a scenario on the rig; deterministic for a seed.
 
-    ``effects=None`` uses ``RigEffects()`` with the scenario's own switches (``long``: drift,
-    ``temperature``: TCR); explicit effects are used as given. ``duration`` [s] cuts the
-    scenario short or repeats its strain profile. Deterministic for a seed. Size limits:
-    ``check_size``.
+    Args:
+        scenario: The scenario (``SCENARIOS``).
+        seed: The random seed.
+        effects: The effects; None uses ``RigEffects()`` with the scenario's own switches
+            (``long``: drift, ``temperature``: TCR).
+        duration: Cuts the scenario short or repeats its strain profile [s].
+
+    Returns:
+        The sensors' resistance, reference and temperature.
+
+    Raises:
+        ParameterError: The size limits of ``check_size``.
+
     """
     check_size(scenario, seed=seed, duration=duration)
     sc = _SCENARIOS[scenario]
@@ -461,10 +453,16 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
 
 def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:
     """Write a SimRun as an MCAP bag: per sensor ``/NAME/resistance``,
-    ``/NAME/strain_reference`` and (when simulated) ``/NAME/temperature`` at
-    ``temperature_rate`` Hz; for an array ``/ARRAY/resistance`` and
-    ``/ARRAY/strain_reference`` (Float64MultiArray, labels = sensor names) and
-    ``/ARRAY/temperature``."""
+    ``/NAME/strain_reference`` and (when simulated) ``/NAME/temperature``; for an array
+    ``/ARRAY/resistance`` and ``/ARRAY/strain_reference`` (Float64MultiArray, labels = sensor
+    names) and ``/ARRAY/temperature``.
+
+    Args:
+        run: The simulated run.
+        path: The bag.
+        temperature_rate: The temperature's rate [Hz].
+
+    """
     first = next(iter(run.sensors.values()))
     step = max(1, round(run.fs / temperature_rate))
     with BagWriter(path) as writer:

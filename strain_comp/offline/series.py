@@ -105,8 +105,21 @@ class SeriesCSV:
 def series_csv(path: str | os.PathLike[str] | None, *,
                inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False
                ) -> Iterator[SeriesCSV | None]:
-    """A ``SeriesCSV`` for ``path`` (None: no table, the block gets None), committed when
-    the block ends and discarded, the target left as it was, when it raises."""
+    """A ``SeriesCSV`` for ``path``, committed when the block ends and discarded, the target
+    left as it was, when it raises.
+
+    Args:
+        path: The table; ``-`` writes to stdout; None: no table, the block gets None.
+        inputs: Files the table must not overwrite.
+        bag: A ``bag`` column first (``evaluate`` over several bags).
+
+    Yields:
+        The table, or None.
+
+    Raises:
+        OutputError: ``path`` is an input or cannot be written.
+
+    """
     if path is None:
         yield None
         return

@@ -53,8 +53,19 @@ engine then flags beyond ``core.range_policy.RANGE.margin`` more)."""
 
 def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
                    gap: float = GAP_SECONDS) -> list[Segment]:
-    """Good, referenced samples of one recording cut into segments (see module docstring)
-    wherever the time steps back or forward by more than ``gap`` [s]."""
+    """Good, referenced samples of one recording cut into segments (module docstring)
+    wherever the time steps back or forward by more than ``gap``.
+
+    Args:
+        t: Time [s] per sample.
+        r: Resistance [ohm] per sample.
+        s: Reference strain per sample.
+        gap: The longest step within a segment [s].
+
+    Returns:
+        The segments.
+
+    """
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64)
@@ -72,8 +83,20 @@ def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
 def training_segments(recordings: Sequence[Recording], name: str,
                       interval: float | None) -> list[Segment]:
     """Every recording's segments (``split_segments``, the gap of a slow instrument's
-    ``interval``). Raises FitError for a recording without a reference and when no
-    segment is left."""
+    ``interval``).
+
+    Args:
+        recordings: The sensor's runs.
+        name: The sensor's name.
+        interval: A slow instrument's sample interval [s], or None.
+
+    Returns:
+        The segments.
+
+    Raises:
+        FitError: A recording without a reference, or no segment left.
+
+    """
     segments: list[Segment] = []
     for rec in recordings:
         if rec.s is None:
@@ -86,9 +109,18 @@ def training_segments(recordings: Sequence[Recording], name: str,
 
 
 def check_training_span(segments: Sequence[Segment], name: str) -> None:
-    """FitError when the training data span no range of R or S, a reference strain beyond
-    what a calibration holds (``STRAIN_MAX``), or a span a float64 fit cannot resolve
-    (``MIN_SPAN``) or values beyond ``PARAM_MAX`` (a unit or scale mistake)."""
+    """Check that the training data can be fitted in float64.
+
+    Args:
+        segments: The training segments.
+        name: The sensor's name.
+
+    Raises:
+        FitError: The data span no range of R or S, a reference strain beyond what a
+            calibration holds (``STRAIN_MAX``), a span a float64 fit cannot resolve
+            (``MIN_SPAN``), or values beyond ``PARAM_MAX`` (a unit or scale mistake).
+
+    """
     r_all = np.concatenate([seg.r for seg in segments])
     s_all = np.concatenate([seg.s for seg in segments])
     if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
@@ -110,7 +142,16 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
 
 
 def valid_range(segments: Sequence[Segment], *, margin: float = TRAINING_WIDENING) -> ValidRange:
-    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0)."""
+    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0).
+
+    Args:
+        segments: The training segments.
+        margin: The widening, as a share of the span.
+
+    Returns:
+        The valid range.
+
+    """
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     r_lo, r_hi = float(r.min()), float(r.max())
@@ -120,8 +161,16 @@ def valid_range(segments: Sequence[Segment], *, margin: float = TRAINING_WIDENIN
 
 
 def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
-    """The median interval [s] between the recordings' good samples when ``GAP_INTERVALS``
-    of it exceed ``GAP_SECONDS`` (a slow instrument, module docstring), else None."""
+    """The median interval between the recordings' good samples when ``GAP_INTERVALS`` of it
+    exceed ``GAP_SECONDS`` (a slow instrument, module docstring).
+
+    Args:
+        recordings: The sensor's runs.
+
+    Returns:
+        The interval [s], or None.
+
+    """
     steps = [np.diff(np.asarray(rec.t, dtype=np.float64)[good_mask(rec.t, rec.r)])
              for rec in recordings]
     dt = np.concatenate(steps) if steps else np.empty(0)
@@ -134,9 +183,18 @@ def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
 
 def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "mean",
                              ) -> float | None:
-    """The calibration's rest resistance [ohm]: the median over the training runs of each
-    run's leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``,
-    the statistic an automatic tare uses at run time); None when no run starts at rest."""
+    """The calibration's rest resistance: the median over the training runs of each run's
+    leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``, the
+    statistic an automatic tare uses at run time).
+
+    Args:
+        recordings: The sensor's runs.
+        pair: The pair statistic the input is read through.
+
+    Returns:
+        The rest resistance [ohm]; None when no run starts at rest.
+
+    """
     levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s, pair=pair)
               for rec in recordings
               if rec.s is not None]

@@ -1,12 +1,7 @@
 """The compensator node: ROS topics, services and parameters around the ``LiveCompensator``
-it owns (the per-message logic, no ROS), as imu_tools' node owns its filter (docs/ros.md).
-
-A message is refused for what it carries, checked before use (``strain_comp.ros.messages``,
-then the engine's and ``LiveCompensator``'s own checks, which raise
-``StrainCompError``): counted by input and reason under ``strain_comp: transport`` in
-/diagnostics. Anything else a callback raises is a fault of the program, not of the message:
-logged with its traceback, counted under ``strain_comp: program errors``, and the node goes
-on with the next message. ``ros/node.py`` starts it (signals, arguments, the executor).
+it owns (no ROS in it), as imu_tools' node owns its filter; ``ros/node.py`` starts it.
+A message is refused for what it carries, a fault of the program is logged and counted
+apart, and the node goes on (docs/ros.md; docs/reliability.md, "The live node").
 """
 
 from __future__ import annotations
@@ -70,7 +65,15 @@ Handler = Callable[[str, int, Any, list[Publisher]], None]
 
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """The ParameterDescriptor of a ``ParamSpec``: a fixed type (a refused set never changes
-    it), the range, the description, read-only."""
+    it), the range, the description, read-only.
+
+    Args:
+        spec: The parameter's spec.
+
+    Returns:
+        The descriptor.
+
+    """
     kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
              "bool": ParameterType.PARAMETER_BOOL,
              "string_array": ParameterType.PARAMETER_STRING_ARRAY}
@@ -85,18 +88,40 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
 
 def send(publisher: Publisher, message: Callable[[], Any]) -> None:
     """Build and publish a message only when a subscription is matched: at 1 kHz the
-    building and serialising of an unread output is most of the node's CPU."""
+    building and serialising of an unread output is most of the node's CPU.
+
+    Args:
+        publisher: The output's publisher.
+        message: Builds the message.
+
+    """
     if publisher.get_subscription_count():
         publisher.publish(message())
 
 
 def one_line(error: BaseException) -> str:
-    """An error's message on one line (its type's name when it has none)."""
+    """An error's message on one line (its type's name when it has none).
+
+    Args:
+        error: The error.
+
+    Returns:
+        The line.
+
+    """
     return " ".join(str(error).split()) or type(error).__name__
 
 
 def internal(error: BaseException) -> str:
-    """A program error as a service answers it."""
+    """A program error as a service answers it.
+
+    Args:
+        error: The error.
+
+    Returns:
+        The answer's message.
+
+    """
     return (f"internal error: {type(error).__name__}: {one_line(error)} (a bug: the node's "
             "log has the traceback)")
 

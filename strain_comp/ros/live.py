@@ -56,6 +56,17 @@ class LiveCompensator:
     """One engine plus the per-input bookkeeping of a live node."""
 
     def __init__(self, params: NodeParams, *, warm_up: bool = True) -> None:
+        """Build the engine of ``params``.
+
+        Args:
+            params: The node's parameters, calibrations loaded.
+            warm_up: Compile every kernel now, not on the first message.
+
+        Raises:
+            ParameterError: ``tare: auto`` with a sensor whose calibration stores no rest
+                resistance.
+
+        """
         self.params = params
         self.tunables = dict(params.tunables)
         self.engine: Engine = params.build_engine()
@@ -111,8 +122,22 @@ class LiveCompensator:
         return True
 
     def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
-        """Feed one resistance message; the output to publish, or None (rate limited, or no
-        estimate yet: a bad sample before any good one holds no finite strain)."""
+        """Feed one resistance message.
+
+        Args:
+            name: The sensor's name.
+            t: The message's time [s].
+            value: Its resistance [ohm] (or divider volts).
+
+        Returns:
+            The output to publish, or None (rate limited, or no estimate yet: a bad sample
+            before any good one holds no finite strain).
+
+        Raises:
+            InputError: An unknown sensor, or a good sample the calibration gives a non-finite
+                strain for (not published).
+
+        """
         if self.tracker is not None:
             self.tracker.advance(name, t)
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
@@ -130,8 +155,25 @@ class LiveCompensator:
 
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
                  sizes: list[int] | None = None, label: str = "") -> ArrayOutput | None:
-        """Feed one array message (its ``data``, ``layout.data_offset``, ``dim[*].size``,
-        ``dim[0].label``); None as ``on_sensor`` (until every sensor has an estimate)."""
+        """Feed one array message.
+
+        Args:
+            name: The array's name.
+            t: The message's time [s].
+            data: The message's ``data``.
+            offset: Its ``layout.data_offset``.
+            sizes: Its ``dim[*].size``.
+            label: Its ``dim[0].label``.
+
+        Returns:
+            The outputs to publish, or None as ``on_sensor`` (until every sensor has an
+            estimate).
+
+        Raises:
+            InputError: A layout that does not match the array's sensors, or a good sample the
+                calibration gives a non-finite strain for (not published).
+
+        """
         sensors = self._inputs[name]
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
@@ -161,9 +203,21 @@ class LiveCompensator:
     # --- known strains --------------------------------------------------------------------
 
     def on_reference(self, sensor: str, t: float, value: Any) -> str | None:
-        """A known strain of ``sensor`` at time ``t`` [s] (its ``strain_reference`` topic):
-        fused (None) or refused and counted (the reason). InputError for a sensor that is
-        not calibrated here or while ``fuse_references`` is false."""
+        """A known strain of ``sensor`` (its ``strain_reference`` topic), fused or refused and
+        counted.
+
+        Args:
+            sensor: The sensor's name.
+            t: The message's time [s].
+            value: The known strain.
+
+        Returns:
+            None when fused, else the reason it was refused.
+
+        Raises:
+            InputError: A sensor not calibrated here, or ``fuse_references`` is false.
+
+        """
         fusion = self.fusion.get(sensor)
         if fusion is None:
             raise InputError(f"no sensor {sensor!r} in the calibration" if self.fusion else

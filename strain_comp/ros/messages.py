@@ -11,8 +11,20 @@ from strain_comp.errors import InputError
 
 
 def sensor_value(msg: Any, field: str = "data") -> float:
-    """A scalar message's value (``std_msgs/Float64.data``, ``Temperature.temperature``);
-    InputError when it is not a number. NaN and inf pass: the engine screens them."""
+    """A scalar message's value (``std_msgs/Float64.data``, ``Temperature.temperature``). NaN
+    and inf pass: the engine screens them.
+
+    Args:
+        msg: The message.
+        field: The field holding the value.
+
+    Returns:
+        The value.
+
+    Raises:
+        InputError: The value is not a number.
+
+    """
     value = getattr(msg, field, None)
     if isinstance(value, bool) or not isinstance(value, (float, int)):
         raise InputError(f"{field} is not a number ({type(value).__name__})")
@@ -20,9 +32,19 @@ def sensor_value(msg: Any, field: str = "data") -> float:
 
 
 def array_layout(msg: Any) -> tuple[Any, int, list[int], str]:
-    """A Float64MultiArray's (data, ``layout.data_offset``, ``dim[*].size``,
-    ``dim[0].label``), each checked for its type; InputError naming what is wrong. The
-    sizes and the offset are then checked against the sensors by ``array_values``."""
+    """A Float64MultiArray's fields, each checked for its type. The sizes and the offset are
+    then checked against the sensors by ``array_values``.
+
+    Args:
+        msg: The message.
+
+    Returns:
+        ``data``, ``layout.data_offset``, ``dim[*].size`` and ``dim[0].label``.
+
+    Raises:
+        InputError: A field of the wrong type, naming it.
+
+    """
     layout = getattr(msg, "layout", None)
     data = getattr(msg, "data", None)
     offset = getattr(layout, "data_offset", None)

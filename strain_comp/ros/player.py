@@ -44,9 +44,21 @@ class PlayedMessage:
 
 
 def bag_messages(path: str | Path, topics: list[str] | None = None) -> list[PlayedMessage]:
-    """A bag's CDR messages in log-time order (only ``topics`` when given), read by the bag
-    reader's walk within its budgets (``strain_comp.io.bag.reader.raw_messages``); what it
-    skipped goes to stderr, one line each."""
+    """A bag's CDR messages in log-time order, read by the bag reader's walk within its
+    budgets (``strain_comp.io.bag.reader.raw_messages``); what it skipped goes to stderr, one
+    line each.
+
+    Args:
+        path: The bag.
+        topics: Only these topics (None: all).
+
+    Returns:
+        The messages.
+
+    Raises:
+        BagError: The bag cannot be read or has no CDR message (on ``topics``).
+
+    """
     from strain_comp.io.bag.reader import raw_messages
 
     messages, problems = raw_messages(path, topics)
@@ -65,8 +77,15 @@ PLAYABLE = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Int8",
 
 
 def message_class(type_name: str) -> type | None:
-    """The Python class of one of the ``PLAYABLE`` types (e.g. ``std_msgs/msg/Float64``);
-    None for any other type name."""
+    """The Python class of one of the ``PLAYABLE`` types.
+
+    Args:
+        type_name: A type name, e.g. ``std_msgs/msg/Float64``.
+
+    Returns:
+        The class, or None for any other type name.
+
+    """
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import Temperature
     from std_msgs.msg import Float32, Float64, Float64MultiArray, Int8
@@ -77,7 +96,17 @@ def message_class(type_name: str) -> type | None:
 
 
 def spin_until(executor: Executor, ready: Callable[..., bool], timeout: float = 5.0) -> bool:
-    """Spin ``executor`` until ``ready()``; False when ``timeout`` [s] passes first."""
+    """Spin ``executor`` until ``ready()``.
+
+    Args:
+        executor: The executor.
+        ready: The condition.
+        timeout: The longest wait [s].
+
+    Returns:
+        False when ``timeout`` passes first.
+
+    """
     deadline = time.monotonic() + timeout
     while not ready():
         if time.monotonic() > deadline:
@@ -89,7 +118,23 @@ def spin_until(executor: Executor, ready: Callable[..., bool], timeout: float = 
 def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
          topics: list[str] | None = None, lockstep: str | None = None,
          wait_s: float = 10.0) -> int:
-    """Play the bag (rclpy must be initialised); the number of messages published."""
+    """Play the bag; rclpy must be initialised.
+
+    Args:
+        path: The bag.
+        clock: Also publish /clock from the bag's log times.
+        rate: Playback speed (1: real time; 0: as fast as possible).
+        topics: Only these topics (None: all).
+        lockstep: Publish the next message once this topic answered the last one.
+        wait_s: The longest wait for the node's publishers and subscribers [s].
+
+    Returns:
+        The number of messages published.
+
+    Raises:
+        BagError: Nothing to play, or no lockstep topic, publisher or subscriber in ``wait_s``.
+
+    """
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
@@ -153,7 +198,19 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
 
 
 def main(path: str | Path, **options: Any) -> int:
-    """``strain-comp play``: init rclpy, play, shut down; the messages published."""
+    """``strain-comp play``: init rclpy, play, shut down.
+
+    Args:
+        path: The bag.
+        **options: As ``play`` takes them.
+
+    Returns:
+        The number of messages published.
+
+    Raises:
+        BagError: As ``play``.
+
+    """
     import rclpy
     from rclpy.utilities import try_shutdown
 

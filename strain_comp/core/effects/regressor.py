@@ -63,7 +63,21 @@ class Batch:
 
 def choice_param(params: Mapping[str, Any], key: str, options: Sequence[str], default: str
                  ) -> str:
-    """``params[key]``, one of ``options`` (``default`` if absent); ParameterError if not."""
+    """``params[key]``, one of ``options``.
+
+    Args:
+        params: An effect's parameters.
+        key: The parameter's name.
+        options: The values allowed.
+        default: The value when ``key`` is absent.
+
+    Returns:
+        The value.
+
+    Raises:
+        ParameterError: The value is not one of ``options``.
+
+    """
     value = params.get(key, default)
     if value not in options:
         raise ParameterError(f"params.{key}", f"must be one of {', '.join(options)}; got {value!r}")
@@ -71,7 +85,21 @@ def choice_param(params: Mapping[str, Any], key: str, options: Sequence[str], de
 
 
 def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: Any) -> float:
-    """``params[key]`` as a finite float within ``bounds`` (see require_float), or default."""
+    """``params[key]`` as a finite float within ``bounds``.
+
+    Args:
+        params: An effect's parameters.
+        key: The parameter's name.
+        default: The value when ``key`` is absent.
+        **bounds: The bounds ``require_float`` takes (``lo``, ``hi``, ``strict``).
+
+    Returns:
+        The value.
+
+    Raises:
+        ParameterError: The value is not a finite number within ``bounds``.
+
+    """
     if key not in params:
         return default
     try:
@@ -81,12 +109,34 @@ def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: 
 
 
 def positive_param(params: Mapping[str, Any], key: str, default: float) -> float:
-    """``params[key]`` as a finite float > 0, or ``default``."""
+    """``params[key]`` as a finite float > 0.
+
+    Args:
+        params: An effect's parameters.
+        key: The parameter's name.
+        default: The value when ``key`` is absent.
+
+    Returns:
+        The value.
+
+    Raises:
+        ParameterError: The value is not a finite number > 0.
+
+    """
     return number_param(params, key, default, lo=0.0, strict=True)
 
 
 def ffill(values: np.ndarray, last: float) -> np.ndarray:
-    """Hold the last finite value (``last`` before the first one; NaN if none yet)."""
+    """Hold the last finite value.
+
+    Args:
+        values: Values per sample, NaN where missing.
+        last: The value held before the first one (NaN if none yet).
+
+    Returns:
+        The values with each NaN replaced by the last finite one.
+
+    """
     ok = np.isfinite(values)
     idx = np.where(ok, np.arange(values.size), -1)
     np.maximum.accumulate(idx, out=idx)
@@ -96,7 +146,18 @@ def ffill(values: np.ndarray, last: float) -> np.ndarray:
 def run_segments(run: Callable[[slice], np.ndarray], reset: Callable[[], None], n: int,
                  starts: Sequence[int]) -> np.ndarray:
     """``run`` over the n samples in segments cut at ``starts`` (where the engine reset after
-    a gap), calling ``reset`` between segments, as the engine resets effect state there."""
+    a gap), calling ``reset`` between segments, as the engine resets effect state there.
+
+    Args:
+        run: The regressor over a slice of the samples.
+        reset: Resets the regressor's state.
+        n: The number of samples.
+        starts: Where the segments after the first start.
+
+    Returns:
+        The regressor's value per sample.
+
+    """
     out = np.empty(n)
     for k, (a, b) in enumerate(pairwise([0, *starts, n])):
         if k > 0:
@@ -117,8 +178,16 @@ class Regressor(ABC):
         """Restore the initial state."""
 
     def step(self, sample: Sample) -> float:
-        """Advance by one sample and return g at that sample: ``run`` on a batch of one, so
-        a regressor with a compiled kernel has that one implementation."""
+        """Advance by one sample: ``run`` on a batch of one, so a regressor with a compiled
+        kernel has that one implementation.
+
+        Args:
+            sample: The sample.
+
+        Returns:
+            g at that sample.
+
+        """
         neighbours = {n: [v] for n, v in (sample.neighbours or {}).items()}
         return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
                                        [sample.direction], [sample.temperature],
@@ -126,7 +195,15 @@ class Regressor(ABC):
 
     @abstractmethod
     def run(self, batch: Batch) -> np.ndarray:
-        """g over a batch, continuing from (and updating) the current state."""
+        """g over a batch, continuing from (and updating) the current state.
+
+        Args:
+            batch: The samples.
+
+        Returns:
+            g per sample.
+
+        """
 
     @abstractmethod
     def params(self) -> dict[str, Any]:
@@ -135,7 +212,18 @@ class Regressor(ABC):
     @classmethod
     @abstractmethod
     def from_params(cls, params: Mapping[str, Any]) -> Regressor:
-        """Build from ``params``; ParameterError naming ``params.<key>`` if bad."""
+        """Build from ``params``.
+
+        Args:
+            params: The calibration file's ``params`` of the effect.
+
+        Returns:
+            The regressor, at its initial state.
+
+        Raises:
+            ParameterError: A bad parameter, named ``params.<key>``.
+
+        """
 
     @property
     def neighbour(self) -> str | None:

@@ -50,7 +50,15 @@ finite 1e308, NaN, inf) is a bad reading, treated as missing."""
 
 
 def valid_temperature(temp: np.ndarray) -> np.ndarray:
-    """Mask of readings inside ``TEMPERATURE_RANGE``."""
+    """Mask of readings inside ``TEMPERATURE_RANGE``.
+
+    Args:
+        temp: Temperature [deg C] per sample.
+
+    Returns:
+        True where the reading is finite and in range.
+
+    """
     return (temp >= TEMPERATURE_RANGE[0]) & (temp <= TEMPERATURE_RANGE[1])
 
 

@@ -80,9 +80,20 @@ def _bag_files(path: Path) -> list[Path]:
 
 
 def bag_paths(path: Path) -> list[Path]:
-    """The storage files (MCAP, sqlite3) of a bare ``.mcap`` or ``.db3`` or a rosbag2
-    directory; BagError before anything is opened for a missing path or one that is
-    neither (a FIFO would block)."""
+    """The storage files (MCAP, sqlite3) of a bag, checked before anything is opened (a FIFO
+    would block).
+
+    Args:
+        path: A bare ``.mcap`` or ``.db3`` file or a rosbag2 directory.
+
+    Returns:
+        The storage files, in the order metadata.yaml lists them for a directory.
+
+    Raises:
+        BagError: The path is missing, neither a regular file nor a directory, a file
+            compressed whole, or a directory whose metadata.yaml cannot be read.
+
+    """
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     if not (path.is_dir() or path.is_file()):
@@ -93,9 +104,20 @@ def bag_paths(path: Path) -> list[Path]:
 
 
 def per_message_zstd(path: Path, file: Path) -> bool:
-    """Are the messages of ``file`` (of the bag at ``path``) compressed one by one? A
-    rosbag2 directory says so in metadata.yaml (``compression_mode: message``); only zstd
-    is read, and only for .db3 files."""
+    """Are the messages of ``file`` compressed one by one? A rosbag2 directory says so in
+    metadata.yaml (``compression_mode: message``).
+
+    Args:
+        path: The bag.
+        file: One storage file of it.
+
+    Returns:
+        True for zstd per message on a ``.db3`` file; False for none.
+
+    Raises:
+        BagError: Another compression (only zstd per message on .db3 is read).
+
+    """
     meta = path / "metadata.yaml"
     if not (path.is_dir() and _inside(path, meta)):
         return False

@@ -97,8 +97,21 @@ def _read_top_record(col: Collector, opcode: int, content: bytes, where: str,
 
 
 def storage_file(col: Collector, path: Path, file: Path) -> Iterator[int]:
-    """Collect the messages of one storage file of the bag at ``path``; yields after each
-    record (MCAP, the file mapped and the pages walked released) or block (sqlite3)."""
+    """Collect the messages of one storage file of the bag at ``path``.
+
+    Args:
+        col: The collector of the bag being read.
+        path: The bag.
+        file: One storage file of it (MCAP or ``.db3``).
+
+    Yields:
+        The offset [bytes] after each record (MCAP; the pages walked are released) or a
+        count after each block (sqlite3).
+
+    Raises:
+        BagError: The file cannot be opened, is not MCAP, or is compressed in a way not read.
+
+    """
     if file.suffix == ".db3":
         yield from _read_db3(col, file, per_message_zstd(path, file))
         return
