@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,21 +32,21 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import GAP_RESET, Engine
 from strain_comp.core.fusion import SparseFusion, check_every
-from strain_comp.core.health import SensorHealth, diagnostics, health_at
+from strain_comp.core.health import HealthCounter, SensorHealth
 from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.tare import tare_engine
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import BagError, InputError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
-from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.recording import array_sensor_names, hold_latest
+from strain_comp.offline.diagnostic_ticks import FusionTicks, diagnostic_payloads
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")
-TICK_BATCH = 256
-"""/diagnostics ticks whose healths are built at once: a piece of a long, sparse bag holds
-thousands of ticks."""
+TICK_BATCH = 1024
+"""/diagnostics ticks whose healths are counted and encoded at once: a piece of a long,
+sparse bag holds thousands of ticks."""
 STAMPED = "strain_stamped"
 """The JointState output beside ``OUTPUTS`` (module docstring)."""
 RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
@@ -188,37 +188,14 @@ class _Replay:
             if self.series is not None:
                 self._series(contents, inp, series, outs)
             runs.append((series.t, outs))
-        stale_for = {name: self.engine.stale_for(name) for name in before}
-        for a in range(0, now.size, TICK_BATCH):  # the healths of a batch of ticks at a time:
-            ticks = now[a:a + TICK_BATCH]        # memory bounded however long the piece lasts
-            at_ticks = {name: [h] * ticks.size for name, h in before.items()}
-            for t, outs in runs:
-                for sensor, out in outs.items():
-                    at_ticks[sensor] = health_at(before[sensor], t, out, ticks,
-                                                 stale_after=stale_for[sensor])
-            self._write_diagnostics(ticks, [
-                self._with_fusion(diagnostics({name: _stale(hs[k], tick, stale_for[name])
-                                               for name, hs in at_ticks.items()}),
-                                  tick, fusion_before)
-                for k, tick in enumerate(ticks.tolist())])
+        ran = {sensor: (t, out) for t, outs in runs for sensor, out in outs.items()}
+        counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
+                    for name, h in before.items()}
+        fusion = {s: FusionTicks.of(fusion_before[s], f.judged) for s, f in self.fused.items()}
+        for a in range(0, now.size, TICK_BATCH):  # a batch of ticks at a time: memory
+            self._write_diagnostics(now[a:a + TICK_BATCH], counters, fusion)  # bounded
         for fused in self.fused.values():
             fused.judged.clear()
-
-    def _with_fusion(self, statuses: list[DiagnosticStatus], tick: float,
-                     before: dict[str, dict[str, str]]) -> list[DiagnosticStatus]:
-        """``statuses`` with each fused sensor's fusion state as of ``tick`` (the node's
-        ``fusion_*`` values): after the last reference judged at or before it, else as
-        before the piece (``before``)."""
-        for name, _, _, values in statuses:
-            sensor = name.split(": ", 1)[1]
-            fused = self.fused.get(sensor)
-            if fused is not None:
-                state = before[sensor]
-                for t, judged in fused.judged:
-                    if t <= tick:
-                        state = judged
-                values.update(state)
-        return statuses
 
     def _series(self, contents: BagContents, inp: _Input, series: Series,
                 outs: dict[str, BatchOutput]) -> None:
@@ -247,16 +224,22 @@ class _Replay:
             for pending in self.pending.values():
                 pending.flush(self.series, final=True)
 
-    def write_tick(self, t: float) -> None:
-        now = {s: f.fusion.diagnostic_values() for s, f in self.fused.items()}
-        self._write_diagnostics(np.array([t]), [
-            self._with_fusion(diagnostics(self.engine.health(now=t)), t, now)])
+    def write_ticks(self, ticks: np.ndarray) -> None:
+        """The /diagnostics of ``ticks`` after the last input (the engine's health now)."""
+        self._write_diagnostics(ticks, {name: HealthCounter(h)
+                                        for name, h in self.engine.health().items()},
+                                {s: FusionTicks.of(f.fusion.diagnostic_values(), [])
+                                 for s, f in self.fused.items()})
 
-    def _write_diagnostics(self, t: np.ndarray, statuses: list[list[DiagnosticStatus]]) -> None:
-        """One /diagnostics message per time of ``t`` (one writer call for them all)."""
-        if t.size:
-            self.writer.write_diagnostics(t, statuses)
-            self.n_out += t.size
+    def _write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
+                           fusion: dict[str, FusionTicks]) -> None:
+        """One /diagnostics message per tick (``diagnostic_ticks``): every sensor's health
+        at the tick, a fused sensor's fusion state."""
+        healths = {name: c.at(ticks, stale_after=self.engine.stale_for(name))
+                   for name, c in counters.items()}
+        for run, blob, lengths in diagnostic_payloads(ticks, healths, fusion):
+            self.writer.write_diagnostic_payloads(ticks[run], blob, lengths)
+        self.n_out += ticks.size
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
@@ -329,12 +312,6 @@ class _Replay:
         return hold_latest(t, src_t, src_v)
 
 
-def _stale(h: SensorHealth, now: float, stale_after: float) -> SensorHealth:
-    """``h`` with ``stale`` evaluated at ``now`` (as ``Engine.health(now)`` does)."""
-    stale = h.last_good_t is None or now - h.last_good_t > stale_after
-    return h if h.stale == stale else replace(h, stale=stale)
-
-
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
                gap_reset: float = GAP_RESET, stale_after: float = 1.0,
@@ -385,8 +362,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             raise InputError(f"--references-every {references_every:g}: {', '.join(missing)} "
                              "has no strain_reference in the bag (the references fused are "
                              "the bag's own /NAME/strain_reference)")
-        for t in state.ticks:
-            state.write_tick(float(t))
+        state.write_ticks(state.ticks)
         state.finish_series()
     replayed = {s for i in inputs for s in i.sensors}
     problems = state.problems + [

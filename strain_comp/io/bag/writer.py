@@ -99,8 +99,8 @@ class BagWriter:
         if self._out is not None:
             self._out.abort()
 
-    def _add(self, topic: str, kind: str, t_ns: np.ndarray, rows: np.ndarray | list[bytes]
-             ) -> None:
+    def _add(self, topic: str, kind: str, t_ns: np.ndarray,
+             rows: np.ndarray | list[bytes] | tuple[np.ndarray, np.ndarray]) -> None:
         if self._closed:
             raise BagError(f"{self.path}: writer already closed")
         if not topic.startswith("/"):
@@ -108,7 +108,9 @@ class BagWriter:
         entry = self._topics.setdefault(topic, Topic(len(self._topics) + 1, kind))
         if entry.type != kind:
             raise BagError(f"topic {topic} already holds {entry.type}, not {kind}")
-        if isinstance(rows, np.ndarray):
+        if isinstance(rows, tuple):
+            blob, lengths = rows
+        elif isinstance(rows, np.ndarray):
             lengths = np.full(rows.shape[0], rows.shape[1], np.int64)
             blob = rows.reshape(-1)
         else:
@@ -279,6 +281,23 @@ class BagWriter:
                                       for name, level, message, values in st])
                 for ns, st in zip(t_ns.tolist(), statuses, strict=False)]
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns, rows)
+
+    def write_diagnostic_payloads(self, t: npt.ArrayLike, blob: np.ndarray,
+                                  lengths: np.ndarray, *, topic: str = "/diagnostics") -> None:
+        """Add diagnostic_msgs/msg/DiagnosticArray messages already encoded
+        (``strain_comp.io.diagnostic_arrays``), one per time.
+
+        Args:
+            t: Log times [s].
+            blob: Their payloads joined (uint8).
+            lengths: Each payload's length [bytes].
+            topic: The topic.
+
+        Raises:
+            BagError: As ``write_diagnostics``.
+
+        """
+        self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", _ns(t), (blob, lengths))
 
     def flush(self, *, before: float | None = None) -> None:
         """Write the buffered messages as complete chunks; the rest stays buffered.
