@@ -26,9 +26,8 @@ from strain_comp.core.samples import STATUS_RULES, USED, Status
 from strain_comp.io import cdr, diagnostic_arrays
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording
-from strain_comp.offline import diagnostic_ticks
+from strain_comp.offline import diagnostic_ticks, replay
 from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.replay import replay_bag
 
 PERIOD = 0.5
 
@@ -90,7 +89,7 @@ def test_replay_diagnostics_equal_the_engine_stepped_tick_by_tick(tmp_path: Path
                                                                   window: int) -> None:
     cal = Calibration({"s1": lag_cal("s1"), "s2": cubic_cal("s2"), "s3": lag_cal("s3")})
     streams = _bag(tmp_path / "in.mcap")
-    replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=window,
+    replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=window,
                diagnostics_period=PERIOD, tracking="off")
     found, expected = _found(tmp_path / "out.mcap"), _stepped(cal, streams)
     assert len(found) == len(expected) > 500
@@ -120,7 +119,7 @@ def test_fused_replay_diagnostics_equal_the_fusion_judged_tick_by_tick(tmp_path:
     before the tick, the whole run fused at once; health from the engine stepped."""
     cal = reference_calibration()
     t, r, s = _fused_bag(tmp_path / "in.mcap")
-    replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=700,
+    replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=700,
                diagnostics_period=PERIOD, tracking="off", references_every=5.0)
     fusion = SparseFusion.for_calibration(cal.sensors["s1"], 5.0)
     state0 = fusion.fusion.diagnostic_values()
@@ -155,7 +154,7 @@ def test_tracked_fused_replay_encodes_as_message_by_message(tmp_path: Path,
     with BagWriter(tmp_path / "in.mcap") as w:
         w.write_float64("/s1/resistance", t, r)
         w.write_float64("/s1/strain_reference", t, s + 50.0 * (np.abs(t - 95.0) < 3.0))
-    replay_bag(tmp_path / "in.mcap", cal, tmp_path / "fast.mcap", window=300,
+    replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "fast.mcap", window=300,
                references_every=5.0)
 
     def one_by_one(t_ns: np.ndarray, frame_id: str, statuses: list[diagnostic_arrays.Status]
@@ -169,7 +168,7 @@ def test_tracked_fused_replay_encodes_as_message_by_message(tmp_path: Path,
                 np.array([len(p) for p in payloads], np.int64))
 
     monkeypatch.setattr(diagnostic_ticks, "diagnostic_arrays", one_by_one)
-    replay_bag(tmp_path / "in.mcap", cal, tmp_path / "slow.mcap", window=300,
+    replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "slow.mcap", window=300,
                references_every=5.0)
     fast = _found(tmp_path / "fast.mcap")
     assert fast == _found(tmp_path / "slow.mcap")
@@ -253,3 +252,63 @@ def test_diagnostic_arrays_equal_diagnostic_array_per_message() -> None:
             (name, int(lv[j]), _at(msg, j), hw, [(key, _at(v, j)) for key, v in values])
             for lv, name, msg, hw, values in statuses])
         assert blob[ends[j] - lengths[j]:ends[j]].tobytes() == expected
+
+
+def test_ticks_flushed_batch_by_batch_keep_the_order_of_one_log_time(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Inputs stamped on the ticks themselves (outputs, /diagnostics and copied inputs of
+    one log time), a /diagnostics input copied through, a first piece without a tick: the
+    bag written a few ticks at a time, each batch flushed (``BagWriter.rank``,
+    ``declare``), is the bag written in one go."""
+    t = np.arange(0.0, 600.0, 0.5)
+    with BagWriter(tmp_path / "in.mcap") as writer:
+        writer.write_float64("/s1/resistance", t, 150.0 + 30.0 * np.sin(0.05 * t))
+        writer.write_float64("/s2/resistance", t[::3], 140.0 + 20.0 * np.cos(0.03 * t[::3]))
+        writer.write_temperature("/s1/temperature", t[::7], 25.0 + 0.01 * t[::7])
+        writer.write_diagnostics(t[::40], [[("rig", 0, "ok", {"k": "v"})]] * t[::40].size)
+    cal = Calibration({"s1": cubic_cal("s1"), "s2": cubic_cal("s2")})
+    outputs = []
+    for batch in (3, 10**9):
+        monkeypatch.setattr(replay, "TICK_BATCH", batch)
+        out = tmp_path / f"out_{batch}.mcap"
+        replay.replay_bag(tmp_path / "in.mcap", cal, out, window=500)
+        outputs.append(out.read_bytes())
+    assert outputs[0] == outputs[1]
+    # as written unbatched: at one log time the outputs, then /diagnostics, then the
+    # copied inputs; channels numbered in that order
+    with (tmp_path / "out_3.mcap").open("rb") as handle:
+        reader = make_reader(handle)
+        summary = reader.get_summary()
+        order = [(m.log_time, _role(c.topic, m.data))
+                 for _, c, m in reader.iter_messages(log_time_order=False)]
+    assert summary is not None
+    assert order == sorted(order)
+    assert len({time for time, _ in order}) < len(order)  # times shared
+    assert {role for _, role in order} == {0, 1, 2}
+    ids = sorted(summary.channels.values(), key=lambda c: c.id)
+    roles = [_role(c.topic, b"") for c in ids]
+    assert roles == sorted(roles), [c.topic for c in ids]
+
+
+def _role(topic: str, data: bytes) -> int:
+    """0: an output, 1: replay's /diagnostics, 2: a copied input (the rig's diagnostics)."""
+    if topic == "/diagnostics":
+        return 2 if b"rig" in data else 1
+    return 2 if topic.endswith(("/resistance", "/temperature")) else 0
+
+
+def test_a_higher_rank_added_first_is_written_after_at_one_time(tmp_path: Path) -> None:
+    """``BagWriter.rank`` orders the messages of one log time before the order added."""
+    t = np.array([1.0, 2.0, 2.0, 3.0])
+    with BagWriter(tmp_path / "plain.mcap", chunk_size=64) as writer:
+        writer.write_float64("/a", t, [1.0, 2.0, 3.0, 4.0])
+        writer.write_float64("/b", t, [5.0, 6.0, 7.0, 8.0])
+    with BagWriter(tmp_path / "ranked.mcap", chunk_size=64) as writer:
+        writer.declare("/a", "std_msgs/msg/Float64")
+        writer.rank = 1
+        writer.write_float64("/b", t, [5.0, 6.0, 7.0, 8.0])
+        writer.rank = 0
+        writer.write_float64("/a", t[:2], [1.0, 2.0])
+        writer.flush(before=2.0)
+        writer.write_float64("/a", t[2:], [3.0, 4.0])
+    assert (tmp_path / "ranked.mcap").read_bytes() == (tmp_path / "plain.mcap").read_bytes()

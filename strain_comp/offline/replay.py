@@ -132,8 +132,34 @@ class _Replay:
         self._contents = BagContents()
 
     def piece(self, contents: BagContents) -> None:
-        """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs."""
+        """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs (in that
+        order among messages of one log time: ``BagWriter.rank``); the diagnostics are
+        written a batch of ticks at a time, each flushed before the next is built, so
+        memory is bounded however long the piece lasts."""
         self.problems += contents.problems
+        self._discover(contents)
+        self._contents = contents
+        inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
+                  if inp is not None and topic in contents.series
+                  and contents.series[topic].t.size]
+        rank = self.writer.rank = self.writer.rank + 3
+        now, counters, fusion = self._run(contents, inputs) if inputs else (np.empty(0), {}, {})
+        if now.size:  # its channel where it would have been named, before the copies
+            self.writer.declare("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")
+        self.writer.rank = rank + 2
+        self.n_in += _copy_through(contents, self.writer, self.written, self._problem)
+        self.writer.rank = rank + 1
+        for a in range(0, now.size, TICK_BATCH):
+            self._write_diagnostics(now[a:a + TICK_BATCH], counters, fusion)
+            if a + TICK_BATCH < now.size:
+                self.writer.flush(before=float(now[a + TICK_BATCH]))
+        for fused in self.fused.values():
+            fused.judged.clear()
+        self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
+
+    def _discover(self, contents: BagContents) -> None:
+        """Take each new ``/NAME/resistance`` topic of ``contents`` as an input or not; an
+        input's sensors are tared (``tare``) and, with ``references_every``, fused."""
         for topic in contents.series:
             if topic.endswith("/resistance") and topic not in self.inputs:
                 inp = _input(topic, contents, self.calibration)
@@ -150,21 +176,16 @@ class _Replay:
                         self.fused.update({s: SparseFusion.for_calibration(
                             self.calibration.sensors[s], self.references_every)
                             for s in inp.sensors})
-        self._contents = contents
-        inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
-                  if inp is not None and topic in contents.series
-                  and contents.series[topic].t.size]
-        if inputs:
-            self._run(contents, inputs)
-        self.n_in += _copy_through(contents, self.writer, self.written, self._problem)
-        self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
 
     def _problem(self, line: str) -> None:
         if line not in self.reported:
             self.reported.add(line)
             self.problems.append(line)
 
-    def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]) -> None:
+    def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]
+             ) -> tuple[np.ndarray, dict[str, HealthCounter], dict[str, FusionTicks]]:
+        """Write the outputs of the piece's ``inputs``; the diagnostics ticks it completes,
+        each sensor's health over the piece and a fused sensor's fusion states."""
         t_all = np.concatenate([series.t for _, series in inputs])
         if self.t0 is None:
             self.t0 = float(t_all.min())
@@ -191,11 +212,9 @@ class _Replay:
         ran = {sensor: (t, out) for t, outs in runs for sensor, out in outs.items()}
         counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
                     for name, h in before.items()}
-        fusion = {s: FusionTicks.of(fusion_before[s], f.judged) for s, f in self.fused.items()}
-        for a in range(0, now.size, TICK_BATCH):  # a batch of ticks at a time: memory
-            self._write_diagnostics(now[a:a + TICK_BATCH], counters, fusion)  # bounded
-        for fused in self.fused.values():
-            fused.judged.clear()
+        fusion = {s: FusionTicks.of(fusion_before[s], list(f.judged))
+                  for s, f in self.fused.items()}
+        return now, counters, fusion
 
     def _series(self, contents: BagContents, inp: _Input, series: Series,
                 outs: dict[str, BatchOutput]) -> None:
@@ -226,6 +245,7 @@ class _Replay:
 
     def write_ticks(self, ticks: np.ndarray) -> None:
         """The /diagnostics of ``ticks`` after the last input (the engine's health now)."""
+        self.writer.rank += 3
         self._write_diagnostics(ticks, {name: HealthCounter(h)
                                         for name, h in self.engine.health().items()},
                                 {s: FusionTicks.of(f.fusion.diagnostic_values(), [])

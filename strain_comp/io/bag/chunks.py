@@ -49,11 +49,13 @@ class Topic:
 
 @dataclass
 class Pending:
-    """Messages buffered since the last flush: times [ns], channels, sequences, payloads."""
+    """Messages buffered since the last flush: times [ns], channels, sequences, ranks (the
+    order among messages of one time, before the order added), payloads."""
 
     t_ns: list[np.ndarray] = field(default_factory=list)
     chan: list[np.ndarray] = field(default_factory=list)
     seq: list[np.ndarray] = field(default_factory=list)
+    rank: list[np.ndarray] = field(default_factory=list)
     lengths: list[np.ndarray] = field(default_factory=list)
     payloads: list[np.ndarray] = field(default_factory=list)
     nbytes: int = 0
@@ -121,14 +123,15 @@ class Stream:
         chunk and the messages at or after ``before`` [ns] are returned (sorted) instead."""
         self._declare(topics)
         t_ns = np.concatenate(p.t_ns)
-        order = np.argsort(t_ns, kind="stable")
-        t_ns = t_ns[order]
+        rank = np.concatenate(p.rank)
+        order = np.lexsort((rank, t_ns))  # stable: the order added within a rank
+        t_ns, rank = t_ns[order], rank[order]
         chan = np.concatenate(p.chan)[order]
         seq = np.concatenate(p.seq)[order]
         plen = np.concatenate(p.lengths)
         poff = (np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64))[order]
         plen = plen[order]
-        blob = np.concatenate(p.payloads) if len(p.payloads) > 1 else p.payloads[0]
+        blob = _joined(p.payloads)
         n = t_ns.size if before is None or final else int(np.searchsorted(t_ns, before))
         rec_end = np.cumsum(31 + plen[:n])
         cuts = [0]
@@ -143,8 +146,8 @@ class Stream:
                 cuts.pop()
             a = cuts[-1]
             if a < t_ns.size:
-                keep = Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [plen[a:].copy()],
-                                [_take_payloads(blob, poff[a:], plen[a:])])
+                keep = Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [rank[a:]],
+                               [plen[a:].copy()], [_take_payloads(blob, poff[a:], plen[a:])])
                 keep.nbytes = keep.payloads[0].size
         for a, b in itertools.pairwise(cuts):
             if b == a:
@@ -204,6 +207,21 @@ class Stream:
     def abort(self) -> None:
         """Drop the temporary file (nothing replaces the target)."""
         self._output.discard()
+
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray:
+    """``parts`` joined into one array, each let go (``parts`` emptied) once copied: the
+    result's pages are touched as it fills, so the peak is about one copy, not two."""
+    if len(parts) == 1:
+        return parts.pop()
+    out = np.empty(sum(part.size for part in parts), np.uint8)
+    at = 0
+    parts.reverse()
+    while parts:
+        part = parts.pop()
+        out[at:at + part.size] = part
+        at += part.size
+    return out
 
 
 def _take_payloads(blob: np.ndarray, poff: np.ndarray, plen: np.ndarray) -> np.ndarray:
