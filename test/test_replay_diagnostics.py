@@ -254,18 +254,20 @@ def test_diagnostic_arrays_equal_diagnostic_array_per_message() -> None:
         assert blob[ends[j] - lengths[j]:ends[j]].tobytes() == expected
 
 
+@pytest.mark.parametrize("rig", [False, True])
 def test_ticks_flushed_batch_by_batch_keep_the_order_of_one_log_time(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, rig: bool) -> None:
     """Inputs stamped on the ticks themselves (outputs, /diagnostics and copied inputs of
-    one log time), a /diagnostics input copied through, a first piece without a tick: the
-    bag written a few ticks at a time, each batch flushed (``BagWriter.rank``,
-    ``declare``), is the bag written in one go."""
+    one log time), with or without a /diagnostics input copied through: the bag written a
+    few ticks at a time, each batch's slice of log time flushed (``offline.staging``), is
+    the bag written in one go, in the order replay adds a piece's messages."""
     t = np.arange(0.0, 600.0, 0.5)
     with BagWriter(tmp_path / "in.mcap") as writer:
         writer.write_float64("/s1/resistance", t, 150.0 + 30.0 * np.sin(0.05 * t))
         writer.write_float64("/s2/resistance", t[::3], 140.0 + 20.0 * np.cos(0.03 * t[::3]))
         writer.write_temperature("/s1/temperature", t[::7], 25.0 + 0.01 * t[::7])
-        writer.write_diagnostics(t[::40], [[("rig", 0, "ok", {"k": "v"})]] * t[::40].size)
+        if rig:
+            writer.write_diagnostics(t[::40], [[("rig", 0, "ok", {"k": "v"})]] * t[::40].size)
     cal = Calibration({"s1": cubic_cal("s1"), "s2": cubic_cal("s2")})
     outputs = []
     for batch in (3, 10**9):
@@ -285,6 +287,7 @@ def test_ticks_flushed_batch_by_batch_keep_the_order_of_one_log_time(
     assert order == sorted(order)
     assert len({time for time, _ in order}) < len(order)  # times shared
     assert {role for _, role in order} == {0, 1, 2}
+    assert any(b"rig" in p for _, p in _found(tmp_path / "out_3.mcap")) == rig
     ids = sorted(summary.channels.values(), key=lambda c: c.id)
     roles = [_role(c.topic, b"") for c in ids]
     assert roles == sorted(roles), [c.topic for c in ids]
@@ -295,20 +298,3 @@ def _role(topic: str, data: bytes) -> int:
     if topic == "/diagnostics":
         return 2 if b"rig" in data else 1
     return 2 if topic.endswith(("/resistance", "/temperature")) else 0
-
-
-def test_a_higher_rank_added_first_is_written_after_at_one_time(tmp_path: Path) -> None:
-    """``BagWriter.rank`` orders the messages of one log time before the order added."""
-    t = np.array([1.0, 2.0, 2.0, 3.0])
-    with BagWriter(tmp_path / "plain.mcap", chunk_size=64) as writer:
-        writer.write_float64("/a", t, [1.0, 2.0, 3.0, 4.0])
-        writer.write_float64("/b", t, [5.0, 6.0, 7.0, 8.0])
-    with BagWriter(tmp_path / "ranked.mcap", chunk_size=64) as writer:
-        writer.declare("/a", "std_msgs/msg/Float64")
-        writer.rank = 1
-        writer.write_float64("/b", t, [5.0, 6.0, 7.0, 8.0])
-        writer.rank = 0
-        writer.write_float64("/a", t[:2], [1.0, 2.0])
-        writer.flush(before=2.0)
-        writer.write_float64("/a", t[2:], [3.0, 4.0])
-    assert (tmp_path / "ranked.mcap").read_bytes() == (tmp_path / "plain.mcap").read_bytes()

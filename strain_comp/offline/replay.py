@@ -22,6 +22,8 @@ DiagnosticArray) is copied through; anything else is listed in the summary's pro
 
 from __future__ import annotations
 
+import itertools
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -42,6 +44,7 @@ from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import array_sensor_names, hold_latest
 from strain_comp.offline.diagnostic_ticks import FusionTicks, diagnostic_payloads
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
+from strain_comp.offline.staging import StagedWrites
 
 OUTPUTS = ("strain", "direction", "status")
 TICK_BATCH = 1024
@@ -115,6 +118,8 @@ class _Replay:
         self.tare = tare
         self.tracker = tracker_for(engine, tracking)
         self.writer = writer
+        self.out = StagedWrites()
+        """The piece's outputs, written with its /diagnostics slice by slice (``piece``)."""
         self.engine = engine
         self.period = period
         self.inputs: dict[str, _Input | None] = {}
@@ -133,26 +138,32 @@ class _Replay:
 
     def piece(self, contents: BagContents) -> None:
         """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs (in that
-        order among messages of one log time: ``BagWriter.rank``); the diagnostics are
-        written a batch of ticks at a time, each flushed before the next is built, so
-        memory is bounded however long the piece lasts."""
+        order among messages of one log time); the diagnostics a batch of ticks at a time,
+        each batch's slice of log time flushed before the next is built
+        (``strain_comp.offline.staging``), so memory is bounded however long the piece
+        lasts."""
         self.problems += contents.problems
         self._discover(contents)
         self._contents = contents
         inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
                   if inp is not None and topic in contents.series
                   and contents.series[topic].t.size]
-        rank = self.writer.rank = self.writer.rank + 3
+        self.out = StagedWrites()
         now, counters, fusion = self._run(contents, inputs) if inputs else (np.empty(0), {}, {})
-        if now.size:  # its channel where it would have been named, before the copies
-            self.writer.declare("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")
-        self.writer.rank = rank + 2
-        self.n_in += _copy_through(contents, self.writer, self.written, self._problem)
-        self.writer.rank = rank + 1
-        for a in range(0, now.size, TICK_BATCH):
-            self._write_diagnostics(now[a:a + TICK_BATCH], counters, fusion)
-            if a + TICK_BATCH < now.size:
-                self.writer.flush(before=float(now[a + TICK_BATCH]))
+        copies = StagedWrites()
+        self.n_in += _copy_through(contents, copies, self.written, self._problem)
+        # a bag's own /diagnostics shares the channel: copied after all the piece's ticks,
+        # as its sequence numbers have always counted them, so the piece is one slice
+        shared = "/diagnostics" in contents.types
+        edges = [] if shared else now[TICK_BATCH::TICK_BATCH].tolist()
+        for k, (lo, hi) in enumerate(itertools.pairwise([-math.inf, *edges, None])):
+            self.out.write(self.writer, lo, hi)
+            ticks = now if shared else now[k * TICK_BATCH:(k + 1) * TICK_BATCH]
+            for a in range(0, ticks.size, TICK_BATCH):
+                self._write_diagnostics(ticks[a:a + TICK_BATCH], counters, fusion)
+            copies.write(self.writer, lo, hi)
+            if hi is not None:
+                self.writer.flush(before=hi)
         for fused in self.fused.values():
             fused.judged.clear()
         self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
@@ -245,7 +256,6 @@ class _Replay:
 
     def write_ticks(self, ticks: np.ndarray) -> None:
         """The /diagnostics of ``ticks`` after the last input (the engine's health now)."""
-        self.writer.rank += 3
         self._write_diagnostics(ticks, {name: HealthCounter(h)
                                         for name, h in self.engine.health().items()},
                                 {s: FusionTicks.of(f.fusion.diagnostic_values(), [])
@@ -267,19 +277,19 @@ class _Replay:
             outs = self._fused(inp, t, self.engine.run_array(inp.sensors, t, values, temps))
             for what in OUTPUTS:
                 stacked = np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
-                self.writer.write_float64_array(f"/{inp.name}/{what}", t,
+                self.out.write_float64_array(f"/{inp.name}/{what}", t,
                                                 stacked.astype(np.float64), inp.sensors)
                 if what == "strain":
-                    self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
+                    self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
         else:
             out = (self.tracker or self.engine).run(inp.name, t, values, temps[inp.name])
             out = self._fused(inp, t, {inp.name: out})[inp.name]
-            self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
-            self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
+            self.out.write_float64(f"/{inp.name}/strain", t, out.strain)
+            self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
                                           out.strain[:, None])
-            self.writer.write_int8(f"/{inp.name}/direction", t, out.direction)
-            self.writer.write_int8(f"/{inp.name}/status", t, out.status)
+            self.out.write_int8(f"/{inp.name}/direction", t, out.direction)
+            self.out.write_int8(f"/{inp.name}/status", t, out.status)
             outs = {inp.name: out}
         self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs
@@ -396,7 +406,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                           for s, f in state.fused.items()})
 
 
-def _copy_through(contents: BagContents, writer: BagWriter, written: set[str],
+def _copy_through(contents: BagContents, writer: StagedWrites, written: set[str],
                   problem: Callable[[str], None]) -> int:
     """Write the input topics into the output bag; the number of messages copied."""
     n = 0

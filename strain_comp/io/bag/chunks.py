@@ -49,13 +49,11 @@ class Topic:
 
 @dataclass
 class Pending:
-    """Messages buffered since the last flush: times [ns], channels, sequences, ranks (the
-    order among messages of one time, before the order added), payloads."""
+    """Messages buffered since the last flush: times [ns], channels, sequences, payloads."""
 
     t_ns: list[np.ndarray] = field(default_factory=list)
     chan: list[np.ndarray] = field(default_factory=list)
     seq: list[np.ndarray] = field(default_factory=list)
-    rank: list[np.ndarray] = field(default_factory=list)
     lengths: list[np.ndarray] = field(default_factory=list)
     payloads: list[np.ndarray] = field(default_factory=list)
     nbytes: int = 0
@@ -123,9 +121,8 @@ class Stream:
         chunk and the messages at or after ``before`` [ns] are returned (sorted) instead."""
         self._declare(topics)
         t_ns = np.concatenate(p.t_ns)
-        rank = np.concatenate(p.rank)
-        order = np.lexsort((rank, t_ns))  # stable: the order added within a rank
-        t_ns, rank = t_ns[order], rank[order]
+        order = np.argsort(t_ns, kind="stable")
+        t_ns = t_ns[order]
         chan = np.concatenate(p.chan)[order]
         seq = np.concatenate(p.seq)[order]
         plen = np.concatenate(p.lengths)
@@ -146,8 +143,8 @@ class Stream:
                 cuts.pop()
             a = cuts[-1]
             if a < t_ns.size:
-                keep = Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [rank[a:]],
-                               [plen[a:].copy()], [_take_payloads(blob, poff[a:], plen[a:])])
+                keep = Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [plen[a:].copy()],
+                               [_take_payloads(blob, poff[a:], plen[a:])])
                 keep.nbytes = keep.payloads[0].size
         for a, b in itertools.pairwise(cuts):
             if b == a:

@@ -60,9 +60,6 @@ class BagWriter:
     The file is written through ``strain_comp.io.atomic.atomic_output`` (``inputs``: paths
     it must not overwrite); an exception inside the context leaves no output.
     Times are log times in seconds (>= 0). A topic keeps the type of its first write.
-    Messages of one log time are written in the order of their ``rank`` (the attribute's
-    value when each was added), then in the order added: a caller that flushes part of its
-    work early adds the rest out of order with a higher rank, and the file is the same.
     """
 
     def __init__(self, path: str | Path, *, chunk_size: int = CHUNK_SIZE,
@@ -84,8 +81,6 @@ class BagWriter:
         check_output(self.path, self.inputs)  # refused before anything is computed
         self._topics: dict[str, Topic] = {}
         self._pending = Pending()
-        self.rank = 0
-        """Where messages added now go among those of the same log time (see the class)."""
         self._closed = False
         self._out: Stream | None = None
 
@@ -104,17 +99,8 @@ class BagWriter:
         if self._out is not None:
             self._out.abort()
 
-    def declare(self, topic: str, kind: str) -> None:
-        """Give ``topic`` (of message type ``kind``) its channel now, its messages to be
-        added later: channel ids follow the order topics are first named.
-
-        Raises:
-            BagError: As ``write_float64``.
-
-        """
-        self._topic(topic, kind)
-
-    def _topic(self, topic: str, kind: str) -> Topic:
+    def _add(self, topic: str, kind: str, t_ns: np.ndarray,
+             rows: np.ndarray | list[bytes] | tuple[np.ndarray, np.ndarray]) -> None:
         if self._closed:
             raise BagError(f"{self.path}: writer already closed")
         if not topic.startswith("/"):
@@ -122,11 +108,6 @@ class BagWriter:
         entry = self._topics.setdefault(topic, Topic(len(self._topics) + 1, kind))
         if entry.type != kind:
             raise BagError(f"topic {topic} already holds {entry.type}, not {kind}")
-        return entry
-
-    def _add(self, topic: str, kind: str, t_ns: np.ndarray,
-             rows: np.ndarray | list[bytes] | tuple[np.ndarray, np.ndarray]) -> None:
-        entry = self._topic(topic, kind)
         if isinstance(rows, tuple):
             blob, lengths = rows
         elif isinstance(rows, np.ndarray):
@@ -141,7 +122,6 @@ class BagWriter:
         p.t_ns.append(t_ns)
         p.chan.append(np.full(t_ns.size, entry.id, np.uint16))
         p.seq.append(np.arange(entry.n + 1, entry.n + 1 + t_ns.size, dtype=np.uint32))
-        p.rank.append(np.full(t_ns.size, self.rank, np.int64))
         p.lengths.append(lengths)
         p.payloads.append(blob)
         p.nbytes += blob.size
