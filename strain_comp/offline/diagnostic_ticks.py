@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,13 +17,22 @@ from strain_comp.core.health import HealthTicks, status_name
 from strain_comp.io.diagnostic_arrays import Status, diagnostic_arrays
 
 
-@dataclass
 class FusionTicks:
     """A fused sensor's ``fusion_*`` key-values at any tick of a piece: ``states[0]`` before
     it, ``states[i]`` after the reference judged at ``times[i - 1]``."""
 
-    states: list[dict[str, str]]
-    times: np.ndarray
+    def __init__(self, states: list[dict[str, str]], times: np.ndarray) -> None:
+        self.states = states
+        order = np.argsort(times, kind="stable")
+        self.sorted_times = times[order]
+        self.latest = np.maximum.accumulate(order + 1) if order.size else order
+        """Per time in order, the last state judged at or before it."""
+        key_sets = [tuple(state) for state in states]
+        ids = {keys: n for n, keys in enumerate(dict.fromkeys(key_sets))}
+        self.key_sets = list(ids)
+        """The sets of keys its states have, in order of appearance."""
+        self.key_set = np.array([ids[keys] for keys in key_sets], np.int64)
+        """Per state, its set of keys (index into ``key_sets``)."""
 
     @classmethod
     def of(cls, before: dict[str, str], judged: list[tuple[float, dict[str, str]]]
@@ -35,11 +43,9 @@ class FusionTicks:
     def at(self, ticks: np.ndarray) -> np.ndarray:
         """Index into ``states`` at each of ``ticks``: the last reference judged at or
         before the tick (in the order judged), else 0."""
-        order = np.argsort(self.times, kind="stable")
-        latest = np.maximum.accumulate(order + 1) if order.size else order
-        pos = np.searchsorted(self.times[order], ticks, side="right")
+        pos = np.searchsorted(self.sorted_times, ticks, side="right")
         found = np.zeros(ticks.size, np.int64)
-        found[pos > 0] = latest[pos[pos > 0] - 1]
+        found[pos > 0] = self.latest[pos[pos > 0] - 1]
         return found
 
     def columns(self, keys: tuple[str, ...], index: np.ndarray
@@ -63,11 +69,9 @@ def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
         return
     t_ns = np.round(ticks * 1e9).astype(np.int64)  # as the writer stamps its messages
     index = {name: f.at(ticks) for name, f in fusion.items()}
-    key_sets = {name: [tuple(state) for state in f.states] for name, f in fusion.items()}
     changed = np.zeros(max(ticks.size - 1, 0), bool)  # where a fused sensor's keys change
     for name, i in index.items():
-        ids = {keys: n for n, keys in enumerate(dict.fromkeys(key_sets[name]))}
-        changed |= np.diff(np.array([ids[k] for k in key_sets[name]])[i]) != 0
+        changed |= np.diff(fusion[name].key_set[i]) != 0
     cuts = [0, *(np.flatnonzero(changed) + 1).tolist(), ticks.size]
     columns = {name: h.diagnostic() for name, h in healths.items()}
     for a, b in itertools.pairwise(cuts):
@@ -75,7 +79,8 @@ def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
         for name, (levels, messages, values) in columns.items():
             run = [(key, v[a:b]) for key, v in values]
             if name in fusion:
-                keys = key_sets[name][int(index[name][a])]
+                f = fusion[name]
+                keys = f.key_sets[f.key_set[index[name][a]]]
                 run += fusion[name].columns(keys, index[name][a:b])
             statuses.append((levels[a:b], status_name(name), messages[a:b], "", run))
         yield slice(a, b), *diagnostic_arrays(t_ns[a:b], "", statuses)
