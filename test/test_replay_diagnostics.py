@@ -121,7 +121,7 @@ def test_fused_replay_diagnostics_equal_the_fusion_judged_tick_by_tick(tmp_path:
     t, r, s = _fused_bag(tmp_path / "in.mcap")
     replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=700,
                diagnostics_period=PERIOD, tracking="off", references_every=5.0)
-    fusion = SparseFusion.for_calibration(cal.sensors["s1"], 5.0)
+    fusion = SparseFusion.for_calibration(cal.sensors["s1"], 5.0, record=True)
     state0 = fusion.fusion.diagnostic_values()
     fusion.fuse(t, Engine(cal).run("s1", t, r), s)
     engine, expected, i = Engine(cal), [], 0

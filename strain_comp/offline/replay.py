@@ -185,7 +185,7 @@ class _Replay:
                     self.problems += [f"{s}: {line}" for s, line in tared.items()]
                     if self.references_every is not None:
                         self.fused.update({s: SparseFusion.for_calibration(
-                            self.calibration.sensors[s], self.references_every)
+                            self.calibration.sensors[s], self.references_every, record=True)
                             for s in inp.sensors})
 
     def _problem(self, line: str) -> None:
