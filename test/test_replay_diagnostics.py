@@ -242,7 +242,8 @@ def test_diagnostic_arrays_equal_diagnostic_array_per_message() -> None:
     levels = [rng.integers(0, 4, k).astype(np.uint8) for _ in range(3)]
     numbers = rng.integers(-10**12, 10**12, k) // 10 ** rng.integers(0, 13, k)
     statuses: list[diagnostic_arrays.Status] = [
-        (levels[0], "strain_comp: a", columns[0], "", [("n", columns[1]), ("count", numbers)]),
+        (levels[0], "strain_comp: a", columns[0], "",
+         [("n", columns[1]), ("count", numbers), ("held", np.repeat(numbers[::4], 4))]),
         (levels[1], "é", "ok", "hw", []),
         (levels[2], "c", columns[2], "", [("k1", "v"), ("kk2", columns[3])])]
     blob, lengths = diagnostic_arrays.diagnostic_arrays(t_ns, "frame", statuses)

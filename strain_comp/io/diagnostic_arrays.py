@@ -54,7 +54,8 @@ def _place(ops: np.ndarray, pool: np.ndarray, texts: np.ndarray, text_len: np.nd
     ``out`` is empty, else the payloads written one after the other into ``out``."""
     write = out.size > 0
     at = 0
-    digits = np.empty(24, np.uint8)
+    digits = np.zeros((int_cols.shape[0], 24), np.uint8)  # each integer column's latest
+    n_digits = np.zeros(int_cols.shape[0], np.int64)
     for k in range(t_ns.size):
         begin = at
         for j in range(ops.shape[0]):
@@ -77,7 +78,12 @@ def _place(ops: np.ndarray, pool: np.ndarray, texts: np.ndarray, text_len: np.nd
                         out[at + 4 + i] = (nanosec >> (8 * i)) & 0xFF
                 at += 8
             else:
-                n = text_len[a, k] if kind == _TEXT else _digits(int_cols[a, k], digits)
+                if kind == _TEXT:
+                    n = text_len[a, k]
+                elif k == 0 or int_cols[a, k] != int_cols[a, k - 1]:  # counters seldom move
+                    n = n_digits[a] = _digits(int_cols[a, k], digits[a])
+                else:
+                    n = n_digits[a]
                 if write:
                     for i in range(4):
                         out[at + i] = ((n + 1) >> (8 * i)) & 0xFF
@@ -85,7 +91,7 @@ def _place(ops: np.ndarray, pool: np.ndarray, texts: np.ndarray, text_len: np.nd
                         out[at + 4:at + 4 + n] = texts[a, k, :n]
                     else:
                         for i in range(n):
-                            out[at + 4 + i] = digits[n - 1 - i]
+                            out[at + 4 + i] = digits[a, n - 1 - i]
                     out[at + 4 + n] = 0
                 at += n + 5
         lengths[k] = at - begin

@@ -238,9 +238,12 @@ def _fill_records(raw: np.ndarray, head: np.ndarray, start: np.ndarray, poff: np
         for j in range(width):
             raw[s + j] = head[i, j]
         s += width
-        o = poff[i]
-        for j in range(plen[i]):
-            raw[s + j] = blob[o + j]
+        o, n = poff[i], plen[i]
+        if n > 64:  # a long payload (a DiagnosticArray) as one block copy
+            raw[s:s + n] = blob[o:o + n]
+        else:
+            for j in range(n):
+                raw[s + j] = blob[o + j]
 
 
 def _chunk(t_ns: np.ndarray, chan: np.ndarray, seq: np.ndarray, poff: np.ndarray,
