@@ -6,8 +6,9 @@ statistics, chunk indexes and summary offsets, so ``ros2 bag play``, ``rosbags``
 read it. Payloads are CDR (``strain_comp.io.cdr``): Float64, Int8, Float64MultiArray and
 JointState runs are built as numpy byte rows of one template (their layout is fixed for a
 topic), Temperature and DiagnosticArray message by message (or already encoded for many
-messages at once: ``write_payloads``); the file's records are ``strain_comp.io.bag.chunks``'.
-Times are log times in seconds (float64), stored as integer ns.
+messages at once: ``write_diagnostic_payloads``). The file's records (chunks, indexes,
+summary) are written by ``strain_comp.io.bag.chunks``. Times are log times in seconds
+(float64), stored as integer ns.
 """
 
 from __future__ import annotations
