@@ -7,7 +7,7 @@ read it. Payloads are CDR (``strain_comp.io.cdr``): Float64, Int8, Float64MultiA
 JointState runs are built as numpy byte rows of one template (their layout is fixed for a
 topic), Temperature and DiagnosticArray message by message (or already encoded for many
 messages at once: ``write_diagnostic_payloads``). The file's records (chunks, indexes,
-summary) are written by ``strain_comp.io.bag.chunks``. Times are log times in seconds
+summary) are written by ``strain_comp.io.bag.stream``. Times are log times in seconds
 (float64), stored as integer ns.
 """
 
@@ -23,8 +23,8 @@ import numpy.typing as npt
 from strain_comp.errors import BagError
 from strain_comp.io import cdr
 from strain_comp.io.atomic import check_output
-from strain_comp.io.bag.chunks import Pending, Stream, Topic
 from strain_comp.io.bag.schemas import CHUNK_SIZE, MAX_TIME_S, Status
+from strain_comp.io.bag.stream import Pending, Stream, Topic
 
 
 def _ns(t: npt.ArrayLike) -> np.ndarray:
