@@ -5,8 +5,8 @@
                                 [--model apl|creep_pi]
 
 ``--model creep_pi``: the same with creep_pi sensors (``bench/_common.py``: 8 play
-operators, the default time constants), stepped by the engine's fused creep_pi tick
-(``strain_comp.core.array.creep_tick``); the bare kernel compared is then
+operators, the default time constants), stepped by the engine's fused tick bound to the
+creep_pi kernel (``strain_comp.core.array.family_tick``); the bare kernel compared is then
 ``CreepPIArray.step``.
 
 ``Engine(calibration, arrays={"arr": names}).step_array`` is called once per tick for

@@ -41,7 +41,7 @@ from strain_comp.core.calibration import Calibration  # noqa: E402
 from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.errors import InputError  # noqa: E402
 from strain_comp.io.bag import read_bag  # noqa: E402
-from strain_comp.io.bag.reader import MAX_CHUNK_BYTES  # noqa: E402
+from strain_comp.io.bag.chunks import MAX_CHUNK_BYTES  # noqa: E402
 from strain_comp.io.csv_import import import_csv  # noqa: E402
 
 

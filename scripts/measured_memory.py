@@ -84,7 +84,7 @@ def scored_errors(rec, train: list, model: str, options: dict,  # type: ignore[n
 
 def phases(rec) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
     """Loading / unloading / hold masks of a run from its reference strain."""
-    from strain_comp.offline.fit import STILL_FRACTION, strain_change
+    from strain_comp.offline.input_chain import STILL_FRACTION, strain_change
 
     s = np.asarray(rec.s, dtype=np.float64)
     moved = strain_change(rec.t, s)

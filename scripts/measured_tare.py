@@ -40,7 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     from strain_comp.core.tare import rest_resistance_at_start, rest_resistance_from_reference
     from strain_comp.errors import InputError
     from strain_comp.io.csv_import import import_csv
-    from strain_comp.offline.fit import direction_settings, split_segments
+    from strain_comp.offline.deadzone import direction_settings
+    from strain_comp.offline.training import split_segments
 
     recs = {k: import_csv(args.data / "cb_pdms_7p5wt" / v, fmt="cb_pdms", sensor="cb").recording
             for k, v in RUNS.items()}

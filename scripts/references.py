@@ -4,7 +4,7 @@
     python scripts/references.py --every 60,30 --out out/references
 
 For the silver-nylon thread session (``nylon_silver/session1_100Hz``, seven runs, imported
-as the README's "Your own CSV") and for the other measured sensors (carbon black, fibre)
+as docs/csv.md's generic format) and for the other measured sensors (carbon black, fibre)
 and the virtual rig: every model in ``--models`` fitted on one run (``strain-comp fit
 RUN``; ``--protocol loro``: on all other runs, ``strain-comp fit A B C ...``), used on
 every other run B of the same sensor after the session start on B's first cycle

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The real ROS 2 command line (ros2 run|launch|param|service|topic) in .venv-ros2, for the
-# tests that drive the colcon-built package through it (test/test_ros2_cli.py): built by the
+# tests that drive the colcon-built package through it (test/ros/test_ros2_cli.py): built by the
 # kit ../shared/ros2cli/make_venv.sh (STRAIN_COMP_ROS2CLI names another folder) with Python
 # 3.12, Jazzy's, where installed (else python3), plus strain_comp's run requirements, and in
 # .venv-ros2/setuptools68 Ubuntu 24.04's setuptools (the venv has the ROS wheels' >= 76) so

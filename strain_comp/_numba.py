@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from types import FunctionType
 from typing import TYPE_CHECKING, Any, TypeVar, overload
 
 if TYPE_CHECKING:
@@ -69,8 +70,58 @@ def njit(function: _F | None = None, /,
     options.setdefault("nogil", True)
 
     def compile_(python_function: _F) -> Dispatcher[_F]:
-        return numba.njit(python_function, **options)
+        dispatcher: Dispatcher[_F] = numba.njit(python_function, **options)
+        return dispatcher
 
     return compile_ if function is None else compile_(function)
 
-__all__ = ["njit", "numba"]
+
+_SPECIALISED: set[str] = set()
+
+
+def specialise(template: Callable[..., Any], bound: Mapping[str, Dispatcher[Any]],
+               **options: Any) -> Dispatcher[Any]:
+    """``template`` compiled (``njit``) with its global names ``bound`` to these kernels.
+
+    One source serves every model family: the template calls ``kernel`` (a global name of
+    its module), and each specialisation binds it to one family's kernel. numba's disk
+    cache keys a function by its qualified name, its bytecode and the contents of its
+    closure; a closure over a kernel (or a kernel passed as an argument) carries the
+    kernel's dispatcher, which pickles with a new id in every process, so it would compile
+    at every start. Globals are read at compile time and are not in the key: each
+    specialisation gets its own qualified name (the template's and the bound kernels'),
+    its own cache file. The template's module globals are those at the call, so a template
+    is specialised after everything it calls is defined.
+
+    A template is compiled without numba's reference counts (``_nrt=False``): it loops over
+    tables its caller owns and allocates nothing, and the counts of the arrays it hands the
+    kernel out of a tuple (an atomic increment and decrement per array per sensor, not
+    pruned by numba) cost more than the creep_pi kernel itself (``bench/bench_array.py``).
+
+    Args:
+        template: A plain function (not yet compiled).
+        bound: Global name -> compiled kernel.
+        **options: ``njit`` options.
+
+    Returns:
+        The compiled specialisation.
+
+    Raises:
+        ValueError: The same template and kernels were specialised before (one dispatcher
+            per cache file).
+
+    """
+    name = "__".join([template.__name__, *(
+        f"{key}_{kernel.py_func.__module__.replace('.', '_')}_{kernel.py_func.__name__}"
+        for key, kernel in sorted(bound.items()))])
+    if name in _SPECIALISED:
+        raise ValueError(f"{name} is specialised already")
+    _SPECIALISED.add(name)
+    function = FunctionType(template.__code__, {**template.__globals__, **bound}, name,
+                            template.__defaults__)
+    function.__qualname__ = name
+    function.__doc__ = template.__doc__
+    options.setdefault("_nrt", False)
+    return njit(function, **options)
+
+__all__ = ["njit", "numba", "specialise"]

@@ -27,9 +27,9 @@ from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Schem
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
-from strain_comp.io.bag import iter_bag, read_bag, reader
+from strain_comp.io.bag import chunks, iter_bag, read_bag, reader
 from strain_comp.io.bag.schemas import MAGIC, SCHEMAS
-from strain_comp.ros import live as live_module
+from strain_comp.ros import live_tare
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
@@ -109,7 +109,7 @@ def test_a_decompression_bomb_is_skipped_within_the_chunk_budget(tmp_path: Path)
     """A chunk of zeros expanding to 80 MiB (over the 64 MiB budget) from 2 kB: honest
     about its size, or claiming 100 bytes. Both are skipped and named; the good chunk after
     them is read; the reader never holds the expanded bytes."""
-    size = reader.MAX_CHUNK_BYTES + 16 * 2**20
+    size = chunks.MAX_CHUNK_BYTES + 16 * 2**20
     zeros = bytes(size)
     honest = _chunk(b"", payload=zeros)
     liar = _chunk(b"", payload=zeros, claimed=100)
@@ -137,10 +137,10 @@ def test_held_message_bytes_cut_pieces_and_bound_the_whole_bag_reader(
     budget it delivers what it holds (every message once, in order per piece); ``read_bag``
     refuses past its own budget."""
     values = [[float(10 * c + i) for i in range(50)] for c in range(6)]
-    chunks = [_chunk(_records(_schema(1, FLOAT64), _channel(1, 1, "/s1/resistance"))
-                     + _messages(1, v, _cdr_float64, 10**9 + c * 10**9), t0=0)
-              for c, v in enumerate(values)]
-    path = _bag(tmp_path / "held.mcap", *chunks)
+    written = [_chunk(_records(_schema(1, FLOAT64), _channel(1, 1, "/s1/resistance"))
+                      + _messages(1, v, _cdr_float64, 10**9 + c * 10**9), t0=0)
+               for c, v in enumerate(values)]
+    path = _bag(tmp_path / "held.mcap", *written)
     monkeypatch.setattr(reader, "MAX_HELD_BYTES", 1000)  # 2 chunks of payload (600 B each)
     pieces = [p.series["/s1/resistance"].values for p in iter_bag(path, window=10**9)
               if "/s1/resistance" in p.series]
@@ -182,7 +182,7 @@ def test_recovery_checks_each_candidate_in_place(tmp_path: Path) -> None:
     path = _bag(tmp_path / "resync.mcap", _good_chunk([1.0]), damaged, bytes(junk),
                 _good_chunk([2.0, 3.0], t0_ns=5 * 10**9))
     seen = [0]
-    plausible = reader._plausible_chunk
+    plausible = chunks._plausible_chunk
 
     def counting(data: bytes, pos: int, budget: list[int]) -> bool:
         before = budget[0]
@@ -190,11 +190,11 @@ def test_recovery_checks_each_candidate_in_place(tmp_path: Path) -> None:
         seen[0] += before != budget[0]
         return ok
 
-    reader._plausible_chunk = counting  # type: ignore[assignment]
+    chunks._plausible_chunk = counting  # type: ignore[assignment]
     try:
         contents = read_bag(path)
     finally:
-        reader._plausible_chunk = plausible  # type: ignore[assignment]
+        chunks._plausible_chunk = plausible  # type: ignore[assignment]
     np.testing.assert_array_equal(contents.series["/s1/resistance"].values, [1.0, 2.0, 3.0])
     assert seen[0] <= 1  # only the intact chunk was copied and checked
     assert any("resumed at the next intact chunk" in p for p in contents.problems)
@@ -212,12 +212,12 @@ def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
     """Every sample at one clock time (a paused sim clock): the start log stops at its
     budget and the automatic tare is declined with a log line; the calibration's zero
     stays (gain 1)."""
-    monkeypatch.setattr(live_module, "MAX_START_SAMPLES", 1024)
+    monkeypatch.setattr(live_tare, "MAX_START_SAMPLES", 1024)
     node = _live(tmp_path, "auto")
     for _ in range(5000):
         node.on_sensor("s1", 3.0, 150.0)
-    assert node._start == {} or node._start["s1"].t.size <= 1024
-    assert any("auto tare declined: 1024 samples" in line for line in node.tare_log)
+    assert node.taring.start == {} or node.taring.start["s1"].t.size <= 1024
+    assert any("auto tare declined: 1024 samples" in line for line in node.taring.log)
     assert node.engine.input_gain("s1") == 1.0
 
 

@@ -94,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
 def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str]) -> int:
     """``evaluate`` over one bag (``api.evaluate``, streamed)."""
     from strain_comp import api
-    from strain_comp.offline.evaluate import PLOT_POINTS, format_notes
+    from strain_comp.offline.evaluate import PLOT_POINTS
+    from strain_comp.offline.evaluation import format_notes
 
     calibration = api.load_calibration(args.calibration)
     # streamed; an error when nothing can be scored names what the bag reader skipped

@@ -1,32 +1,30 @@
 """Sensors sampled together (an array topic), stepped as one tick (docs/design.md,
 "Arrays").
 
-When every sensor's model belongs to a family with a per-sensor kernel for the array form
-and no sensor's input is corrected, one tick is one numba call per family: the APL family
-(``strain_comp.models.apl_array.APLArray``, same N and M, kernel
-``strain_comp.models.apl_kernels.step_sensor``) through ``apl_tick``, creep_pi
-(``strain_comp.models.creep_pi.CreepPIArray``, same numbers of play operators and time
-constants, kernel ``strain_comp.models.creep_kernels.step_sensor``) through
-``creep_tick``. Each family's tick is a thin loop over its sensors: the shared stages
-``sensor_front`` (input fix, screen, counts, detector reset on a gap; the stage kernels of
-``strain_comp.core.stages``), the gap reset of the model's state rows, the model read,
-the family's kernel, then ``sensor_back`` (detector, range, hold): the lifted form of the
-per-sample path. An array mixing the two families runs both ticks, each over its own
-sensors. The group then keeps the array's state, counters and held outputs itself, and
-its sensors should not also be fed through ``Engine.step``. Sensors with effect terms are
-corrected after the kernels, one by one (the slower path). Otherwise a tick is a loop of
-the per-sample path over the sensors.
+When every sensor's model belongs to a family with an array form (``FAMILIES``:
+``strain_comp.models.apl_array.APLArray``, same N and M;
+``strain_comp.models.creep_pi.CreepPIArray``, same numbers of play operators and time
+constants) and no sensor's input is corrected, one tick is one numba call per family:
+``family_tick`` bound to the family's per-sensor kernel (``strain_comp.models.lift``), a
+thin loop over the family's sensors of the shared stages ``sensor_front`` (input fix,
+screen, counts, detector reset on a gap; the stage kernels of ``strain_comp.core.stages``),
+the gap reset of the model's state rows, the model read, the family's kernel, then
+``sensor_back`` (detector, range, hold): the lifted form of the per-sample path. An array
+mixing families runs each family's tick over its own sensors. The group then keeps the
+array's state, counters and held outputs itself, and its sensors should not also be fed
+through ``Engine.step``. Sensors with effect terms are corrected after the kernels, one by
+one (the slower path). Otherwise a tick is a loop of the per-sample path over the sensors.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp._numba import njit
+from strain_comp._numba import njit, specialise
 from strain_comp.core import samples as sc
 from strain_comp.core.direction import STATE_SIZE, direction_update
 from strain_comp.core.health import SensorHealth, add_counts
@@ -35,18 +33,18 @@ from strain_comp.core.samples import USED_CODE, Status, screen_one
 from strain_comp.core.sensor import Latest, Pending, SensorState
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
 from strain_comp.errors import ParameterError
-from strain_comp.models import apl_kernels, creep_kernels
 from strain_comp.models.apl_array import APLArray
-from strain_comp.models.creep_pi import CreepPI, CreepPIArray
+from strain_comp.models.creep_pi import CreepPIArray
+from strain_comp.models.lift import LiftedArray, kernel
+
+if TYPE_CHECKING:
+    from numba.core.dispatcher import Dispatcher
 
 # columns of the fused tick's per-sensor parameter table, then the range row (``RANGE_COLUMNS``)
 _GAIN, _R1, _VIN, _R_SHORT, _R_OPEN, _DEADZONE, _TAU, _SIGN, _RANGE = range(9)
 _N_PARAMS = _RANGE + len(RANGE_COLUMNS)
 # columns of its per-sensor held state
 _LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS = range(4)
-
-FamilyArray = APLArray | CreepPIArray
-"""The model array of one family's sensors in a fused tick."""
 
 
 @njit(error_model="numpy", inline="always")
@@ -89,17 +87,16 @@ def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
     held[k, _LAST_GOOD_T] = t
 
 
-@njit(error_model="numpy")
-def apl_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
-             counts: np.ndarray, det: np.ndarray, gap: float, model_out: np.ndarray,
-             status: np.ndarray, reset: np.ndarray, x: np.ndarray, clock: np.ndarray,
-             kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, rho: np.ndarray,
-             inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
-             f_at_b: np.ndarray, inv_slopes: np.ndarray) -> None:
-    """One tick of the array's APL-family sensors (``idx``: their rows of the group's
-    tables; row j of the model arrays is sensor ``idx[j]``). ``held[k]`` gets the published
-    strain / direction / status; ``counts[k]`` = samples per status code, then gap
-    resets."""
+def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
+                held: np.ndarray, counts: np.ndarray, det: np.ndarray, gap: float,
+                model_out: np.ndarray, status: np.ndarray, reset: np.ndarray,
+                state: tuple[np.ndarray, ...], params: tuple[Any, ...]) -> None:
+    """Template: one tick of the array's sensors of one family (``idx``: their rows of the
+    group's tables; row j of the family's ``state`` and ``params`` is sensor ``idx[j]``),
+    around the family's kernel (``strain_comp.models.lift``). ``held[k]`` gets the
+    published strain / direction / status; ``counts[k]`` = samples per status code, then
+    gap resets; a gap reset zeroes the sensor's state rows (a sensor at rest)."""
+    arrays = state + params
     for j in range(idx.size):
         k = idx[j]
         ohm, used = sensor_front(k, t, raw, par, held, counts, det, gap, model_out, status,
@@ -107,58 +104,32 @@ def apl_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray, held: 
         if not used:
             continue
         if reset[k]:
-            x[j, :] = 0.0
-            clock[j, :] = 0.0
-        estimate = apl_kernels.step_sensor(j, t, model_read(ohm, par[k, _RANGE:]), x, clock,
-                                           kind, sigma, p, rho, inv_width, w, norm, b,
-                                           f_at_b, inv_slopes)
+            for rows in state:
+                rows[j, :] = 0.0
+        estimate = kernel(j, t, model_read(ohm, par[k, _RANGE:]), *arrays)
         sensor_back(k, t, ohm, estimate, par, held, det, model_out)
 
 
-@njit(error_model="numpy")
-def creep_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
-               held: np.ndarray, counts: np.ndarray, det: np.ndarray, gap: float,
-               model_out: np.ndarray, status: np.ndarray, reset: np.ndarray, z: np.ndarray,
-               play: np.ndarray, clock: np.ndarray, decay: np.ndarray, norm: np.ndarray,
-               tau: np.ndarray, widths: np.ndarray, coef: np.ndarray, bias: np.ndarray
-               ) -> None:
-    """``apl_tick`` for the array's creep_pi sensors: a gap reset zeroes the sensor's
-    state rows (a zeroed clock restarts it at rest at its next input)."""
-    for j in range(idx.size):
-        k = idx[j]
-        ohm, used = sensor_front(k, t, raw, par, held, counts, det, gap, model_out, status,
-                                 reset)
-        if not used:
-            continue
-        if reset[k]:
-            z[j, :] = 0.0
-            play[j, :] = 0.0
-            clock[j, :] = 0.0
-            decay[j, :] = 0.0
-        estimate = creep_kernels.step_sensor(j, t, model_read(ohm, par[k, _RANGE:]), z, play,
-                                             clock, decay, norm, tau, widths, coef, bias)
-        sensor_back(k, t, ohm, estimate, par, held, det, model_out)
+FAMILIES: tuple[type[LiftedArray], ...] = (APLArray, CreepPIArray)
+"""The model families with an array form, in the order a tick runs them."""
+TICKS: dict[type[LiftedArray], Dispatcher[Any]] = {
+    family: specialise(family_tick, {"kernel": family.kernel}, error_model="numpy")
+    for family in FAMILIES}
+"""Each family's tick: ``family_tick`` bound to the family's kernel."""
 
 
-def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, FamilyArray]] | None:
+def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedArray]] | None:
     """(rows in ``sensors``, model array) per family present, or None when a sensor's
     model has no array kernel or a family's sensors differ in shape (the loop path)."""
     models = [s.model for s in sensors]
-    apl = [i for i, m in enumerate(models) if type(m).array_kernel]
-    creep = [i for i, m in enumerate(models) if isinstance(m, CreepPI)]
-    if len(apl) + len(creep) != len(sensors):
+    rows = [[i for i, m in enumerate(models) if family.accepts(m)] for family in FAMILIES]
+    if sum(len(r) for r in rows) != len(sensors):
         return None
-    out: list[tuple[np.ndarray, FamilyArray]] = []
     try:
-        if apl:
-            out.append((np.array(apl, dtype=np.int64),
-                        APLArray.from_models([models[i] for i in apl])))
-        if creep:
-            out.append((np.array(creep, dtype=np.int64),
-                        CreepPIArray([cast(CreepPI, models[i]) for i in creep])))
+        return [(np.array(r, dtype=np.int64), family([models[i] for i in r]))
+                for family, r in zip(FAMILIES, rows, strict=True) if r]
     except ParameterError:  # different shapes within a family
         return None
-    return out
 
 
 class ArrayGroup:
@@ -171,7 +142,7 @@ class ArrayGroup:
         self.gap_reset = gap_reset
         self.deadzone_scale = deadzone_scale
         self.latest = latest
-        self.kernels: list[tuple[np.ndarray, FamilyArray]] = []
+        self.kernels: list[tuple[np.ndarray, LiftedArray]] = []
         self.rebuild()
 
     @property
@@ -230,16 +201,9 @@ class ArrayGroup:
         if not self.kernels:
             return self._loop(t, raw)
         for idx, kern in self.kernels:
-            if isinstance(kern, APLArray):
-                apl_tick(t, idx, raw, self.par, self.held, self.counts, self.states,
-                         self.gap_reset, self.model_out, self.status, self.reset, kern.x,
-                         kern.clock, kern.kind, kern.sigma, kern.p, kern.rho, kern.inv_width,
-                         kern.w, kern.norm, kern.b, kern.f_at_b, kern.inv_slopes)
-            else:
-                creep_tick(t, idx, raw, self.par, self.held, self.counts, self.states,
-                           self.gap_reset, self.model_out, self.status, self.reset, kern.z,
-                           kern.play, kern.clock, kern.decay, kern.norm, kern.tau,
-                           kern.widths, kern.coef, kern.bias)
+            TICKS[type(kern)](t, idx, raw, self.par, self.held, self.counts, self.states,
+                              self.gap_reset, self.model_out, self.status, self.reset,
+                              kern.state, kern.params)
         status = self.status.copy()
         if self.effects:
             self._effects(t, raw)

@@ -74,9 +74,9 @@ class Alternation:
                 f"(white noise {self.noise:.3g} ohm)")
 
 
-def _finite(r: npt.ArrayLike) -> np.ndarray:
-    r = np.asarray(r, dtype=np.float64)
-    return r[np.isfinite(r) & (r > 0)]
+def _finite(r: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    x = np.asarray(r, dtype=np.float64)
+    return x[np.isfinite(x) & (x > 0)]
 
 
 def _robust_sigma(x: np.ndarray) -> float:
@@ -110,15 +110,15 @@ PAIR_BRANCHES = ("mean", "upper", "lower")
 """The pair statistics an alternating input can be read through (``pair_values``)."""
 
 
-def pair_values(r: np.ndarray, previous: float = math.nan, branch: str = "mean",
+def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: str = "mean",
                 ) -> np.ndarray:
     """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
     first one with ``previous`` (itself when NaN)."""
     if branch == "mean":
         return pair_means(r, previous)
     before = np.concatenate(([previous], r[:-1])) if r.size else r
-    pick = np.fmax if branch == "upper" else np.fmin  # fmax/fmin: a NaN previous is skipped
-    return pick(r, before)
+    # fmax/fmin: a NaN previous is skipped
+    return np.fmax(r, before) if branch == "upper" else np.fmin(r, before)
 
 
 def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
@@ -200,7 +200,7 @@ def _scale(window: np.ndarray) -> float:
     """Robust sigma of innovations: 1.4826 x their median |value|, but at least 1.2533 x
     their mean |value| (equal for Gaussian noise; on a quantised series, whose median
     change may be 0, the mean still sees the noise)."""
-    return max(1.4826 * np.median(window), 1.2533 * np.mean(window))
+    return float(max(1.4826 * np.median(window), 1.2533 * np.mean(window)))
 
 
 QUANT_STEPS = 3.0
@@ -252,6 +252,88 @@ def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: in
 
 
 @njit(error_model="numpy")
+def _is_step(st: np.ndarray, buf: np.ndarray, pre: np.ndarray, nbuf: int, sigma: float,
+             step_k: float) -> tuple[bool, float]:
+    """(is a step, its jump) of the ``nbuf`` watched samples ``buf`` against the ring
+    ``pre`` before them: a step is a jump over ``step_k`` sigma, with no bend of a
+    relaxation and no more scatter than the noise."""
+    jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf, int(st[_NPEND]))
+    noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
+    bend = (_slope(buf[:nbuf]) - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
+    bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
+    scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
+    return (abs(jump) > step_k * sigma
+            and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
+            and scatter <= NOISE_RATIO * sigma), jump
+
+
+@njit(error_model="numpy")
+def _watch(st: np.ndarray, xi: float, dt: float, thr: float, sigma: float, step_k: float,
+           buf: np.ndarray, pre: np.ndarray) -> tuple[bool, bool, float]:
+    """One sample while a jump that stayed is watched, against the trend before it:
+    (accepted, a step found, its jump). A sample that moves on ends the watch (a strain
+    change); after ``STEP_SAMPLES`` held ones the jump is judged (``_is_step``)."""
+    drift = st[_DRIFT0] * dt
+    nbuf = int(st[_NBUF])
+    if abs(xi - buf[nbuf - 1] - drift) > thr:  # moves on: a strain change
+        st[_MODE] = _NORMAL
+        return True, False, 0.0
+    buf[nbuf] = xi
+    nbuf += 1
+    st[_NBUF] = nbuf
+    if nbuf != STEP_SAMPLES:
+        return False, False, 0.0
+    st[_MODE] = _NORMAL
+    stepped, jump = _is_step(st, buf, pre, nbuf, sigma, step_k)
+    return True, stepped, jump
+
+
+@njit(error_model="numpy")
+def _judge(st: np.ndarray, xi: float, pred: float, dt: float, rate: float, thr: float,
+           sigma: float, width: int, step_k: float, buf: np.ndarray, pre: np.ndarray,
+           trend: np.ndarray) -> tuple[float, float, bool, int]:
+    """One sample through the corrector's modes (normal, suspect, watch) against its
+    prediction ``pred`` and threshold ``thr``: (xi, its innovation e, accepted, event); a
+    step found is taken out of xi and e and added to the offset."""
+    e = xi - pred
+    mode = int(st[_MODE])
+    accept = True
+    event = 0
+    if mode == _NORMAL:
+        if abs(e) > thr:
+            st[_MODE] = _SUSPECT
+            st[_FIRST] = e
+            st[_NPEND] = 1
+            st[_DRIFT0] = rate
+            accept = False
+    elif mode == _SUSPECT:
+        if abs(e) <= thr:  # back: the held samples were a spike
+            event = SPIKE
+            st[_MODE] = _NORMAL
+        elif st[_NPEND] < width:  # a spike may last ``width`` samples
+            st[_NPEND] += 1
+            st[_FIRST] = e
+            accept = False
+        elif abs(e - st[_FIRST]) <= thr and step_k > 0.0:  # stays: watch for a step
+            st[_MODE] = _WATCH
+            buf[0] = xi
+            st[_NBUF] = 1
+            accept = False
+        else:  # a real change: let it through, and follow its rate at once
+            st[_MODE] = _NORMAL
+            trend[:] = (xi - st[_LASTX]) / dt if dt > 0.0 else 0.0
+            st[_TN] = TREND
+    else:  # watching a jump that stayed
+        accept, stepped, jump = _watch(st, xi, dt, thr, sigma, step_k, buf, pre)
+        if stepped:
+            st[_OFFSET] += jump
+            xi -= jump
+            e = xi - pred
+            event = STEP
+    return xi, e, accept, event
+
+
+@njit(error_model="numpy")
 def _correct(t: np.ndarray, x: np.ndarray, st: np.ndarray, win: np.ndarray, trend: np.ndarray,
              buf: np.ndarray, pre: np.ndarray, k: float, width: int, step_k: float,
              events: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -267,64 +349,14 @@ def _correct(t: np.ndarray, x: np.ndarray, st: np.ndarray, win: np.ndarray, tren
             rate = np.median(trend[:int(st[_TN])]) if st[_TN] > 0 else 0.0
             drift = rate * dt
             pred = st[_LAST] + drift
-            e = xi - pred
             n_win = int(st[_WN])
             sigma = _scale(win[:n_win]) if n_win >= WINDOW_MIN else np.inf
             thr = (max(k * sigma, QUANT_STEPS * _least_change(win[:n_win])) if sigma > 0.0
                    else np.inf)
             mode = int(st[_MODE])
-            accept = True
-            if mode == _NORMAL:
-                if abs(e) > thr:
-                    st[_MODE] = _SUSPECT
-                    st[_FIRST] = e
-                    st[_NPEND] = 1
-                    st[_DRIFT0] = rate
-                    accept = False
-            elif mode == _SUSPECT:
-                if abs(e) <= thr:  # back: the held samples were a spike
-                    events[i] = SPIKE
-                    st[_MODE] = _NORMAL
-                elif st[_NPEND] < width:  # a spike may last ``width`` samples
-                    st[_NPEND] += 1
-                    st[_FIRST] = e
-                    accept = False
-                elif abs(e - st[_FIRST]) <= thr and step_k > 0.0:  # stays: watch for a step
-                    st[_MODE] = _WATCH
-                    buf[0] = xi
-                    st[_NBUF] = 1
-                    accept = False
-                else:  # a real change: let it through, and follow its rate at once
-                    st[_MODE] = _NORMAL
-                    trend[:] = (xi - st[_LASTX]) / dt if dt > 0.0 else 0.0
-                    st[_TN] = TREND
-            else:  # watching a jump that stayed, against the trend before it
-                drift = st[_DRIFT0] * dt
-                nbuf = int(st[_NBUF])
-                if abs(xi - buf[nbuf - 1] - drift) > thr:  # moves on: a strain change
-                    st[_MODE] = _NORMAL
-                else:
-                    buf[nbuf] = xi
-                    nbuf += 1
-                    st[_NBUF] = nbuf
-                    accept = False
-                    if nbuf == STEP_SAMPLES:
-                        st[_MODE] = _NORMAL
-                        accept = True
-                        jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf,
-                                                  int(st[_NPEND]))
-                        noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
-                        bend = (_slope(buf[:nbuf])
-                                - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
-                        bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
-                        scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
-                        if (abs(jump) > step_k * sigma
-                                and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
-                                and scatter <= NOISE_RATIO * sigma):
-                            st[_OFFSET] += jump
-                            xi -= jump
-                            e = xi - pred
-                            events[i] = STEP
+            xi, e, accept, event = _judge(st, xi, pred, dt, rate, thr, sigma, width, step_k,
+                                          buf, pre, trend)
+            events[i] = event
             if accept:
                 out = xi
                 if abs(e) <= thr or mode == _SUSPECT:  # a real change teaches the scale

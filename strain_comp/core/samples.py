@@ -97,7 +97,8 @@ if set(STATUS_RULES) != set(Status):
 
 USED: Final = frozenset(s for s, (used, _) in STATUS_RULES.items() if used)
 """The statuses of samples fed to the model (all others are bad: estimate held)."""
-USED_CODE: Final = np.array([STATUS_RULES[Status(c)][0] for c in range(len(Status))])
+USED_CODE: Final[npt.NDArray[np.bool_]] = np.array(
+    [STATUS_RULES[Status(c)][0] for c in range(len(Status))], dtype=np.bool_)
 """``USED`` as a lookup table by status code (for arrays and kernels)."""
 
 
@@ -223,7 +224,7 @@ def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *
     return status
 
 
-def good_mask(t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
+def good_mask(t: npt.ArrayLike, r: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     """Where a sample may be fed to a model, judged by ``classify``.
 
     Args:
@@ -234,10 +235,10 @@ def good_mask(t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
         A boolean mask, True where the status is in ``USED``.
 
     """
-    return USED_CODE[classify(t, r)]
+    return np.take(USED_CODE, classify(t, r))
 
 
-def used_mask(status: npt.ArrayLike) -> np.ndarray:
+def used_mask(status: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     """Where a sample was fed to the model.
 
     Args:
@@ -247,4 +248,4 @@ def used_mask(status: npt.ArrayLike) -> np.ndarray:
         A boolean mask, True where the status is in ``USED``.
 
     """
-    return USED_CODE[np.asarray(status)]
+    return np.take(USED_CODE, np.asarray(status))

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
@@ -224,6 +225,33 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
 
     """
     path = Path(path)
+    mapping = _mapping(path, fmt, gauge_length_mm, columns, scales)
+    rows, _ = _read_rows(path, delimiter)
+    report = ImportReport(path=str(path), fmt=fmt)
+    head, rows = _split_header(path, rows, header)
+    fields, short = _fields(path, fmt, rows, head, mapping, scales)
+    report.rows = len(rows)
+    t = fields["time"]
+    good = _good_rows(path, fmt, t, fields["resistance"], short, report)
+    strain = None
+    if "strain" in fields:
+        strain = _reference(fields, good, report, gauge_length_mm=gauge_length_mm,
+                            glitch_threshold_mm=glitch_threshold_mm,
+                            strain_factor=(scales or {}).get("strain", 1.0))
+    report.kept = int(good.sum())
+    rec = Recording(name=sensor, t=t[good], r=fields["resistance"][good], s=strain)
+    return ImportResult(rec, report)
+
+
+_KEYS = ("time", "resistance", "strain", "strain_time")
+"""The fields a column mapping may name, in the order they are read."""
+
+
+def _mapping(path: Path, fmt: str, gauge_length_mm: float | None,
+             columns: Mapping[str, int | str] | None, scales: Mapping[str, float] | None
+             ) -> dict[str, int | str]:
+    """The column mapping (the format's defaults under ``columns``), with the format, the
+    file, the gauge length and the scales checked; InputError for the first fault."""
     if fmt not in FORMATS:
         raise InputError(f"unknown CSV format {fmt!r}; one of {', '.join(FORMATS)}")
     if not path.is_file():
@@ -234,18 +262,23 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     for key in ("time", "resistance"):
         if key not in mapping:
             raise InputError(f"{path}: the column mapping needs '{key}'")
-    unknown = set(mapping) - {"time", "resistance", "strain", "strain_time"}
+    unknown = set(mapping) - set(_KEYS)
     if unknown:
         raise InputError(f"{path}: unknown column keys {sorted(unknown)}")
     for key, factor in (scales or {}).items():
-        if key not in ("time", "resistance", "strain", "strain_time"):
+        if key not in _KEYS:
             raise InputError(f"{path}: unknown scale key {key!r}")
         sign_ok = factor != 0 if key == "strain" else factor > 0
         if not (isinstance(factor, (int, float)) and np.isfinite(factor) and sign_ok):
             need = "a number other than 0" if key == "strain" else "a number > 0"
             raise InputError(f"{path}: scale {key}={factor!r} must be {need}")
-    rows, _ = _read_rows(path, delimiter)
-    report = ImportReport(path=str(path), fmt=fmt)
+    return mapping
+
+
+def _split_header(path: Path, rows: list[list[str]], header: bool | None
+                  ) -> tuple[list[str] | None, list[list[str]]]:
+    """The header row (None: none; ``header`` None: a non-numeric first row is one) and the
+    data rows; InputError when no data row is left."""
     head: list[str] | None = None
     has_header = header
     if has_header is None:
@@ -254,6 +287,15 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
         head, rows = rows[0], rows[1:]
     if not rows:
         raise InputError(f"{path}: no data rows")
+    return head, rows
+
+
+def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
+            mapping: Mapping[str, int | str], scales: Mapping[str, float] | None
+            ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Each mapped field's values, scaled (NaN where unparsable), and the mask of rows
+    shorter than the format's width; InputError for a column past the widest row or a
+    scale that overflows."""
     cols = {k: _column(k, v, head, path) for k, v in mapping.items()}
     widest = max(len(row) for row in rows)
     for k, c in cols.items():
@@ -263,23 +305,26 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     width = max(_WIDTH.get(fmt, 0), max(cols.values()) + 1)
     used = sorted(set(cols.values()))
     table, short = _numeric(rows, width, used)
-    report.rows = len(rows)
     factor = {k: 1.0 for k in cols} | dict(scales or {})
+    fields = {key: _scaled(path, key, table[:, used.index(cols[key])], factor[key])
+              for key in _KEYS if key in cols}
+    return fields, short
 
-    def col(key: str) -> np.ndarray:
-        raw = table[:, used.index(cols[key])]
-        with np.errstate(over="ignore", invalid="ignore"):
-            scaled = raw * factor[key]
-        if np.any(np.isfinite(raw) & ~np.isfinite(scaled)):
-            raise InputError(f"{path}: --scales {key}={factor[key]:g}: the scaled values "
-                             "overflow (beyond 1.8e308); check the factor")
-        return scaled
 
-    t = col("time")
-    r = col("resistance")
-    s_raw = col("strain") if "strain" in cols else None
-    t_s = col("strain_time") if "strain_time" in cols else t
+def _scaled(path: Path, key: str, raw: np.ndarray, factor: float) -> np.ndarray:
+    """``raw`` times its scale ``factor``; InputError when a finite value overflows."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        scaled = raw * factor
+    if np.any(np.isfinite(raw) & ~np.isfinite(scaled)):
+        raise InputError(f"{path}: --scales {key}={factor:g}: the scaled values "
+                         "overflow (beyond 1.8e308); check the factor")
+    return scaled
 
+
+def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
+               short: npt.NDArray[np.bool_], report: ImportReport) -> npt.NDArray[np.bool_]:
+    """The rows kept (rules in the module docstring), the others counted by reason in
+    ``report.dropped``; InputError when no row is good."""
     unparsable = short | ~np.isfinite(t) | np.isnan(r)
     not_finite = ~unparsable & ~np.isfinite(r)
     non_positive = ~unparsable & ~not_finite & (r <= 0)
@@ -298,38 +343,51 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
         hint = (f"; times beyond {MAX_TIME_S} s: epoch milli- or nanoseconds? scale them "
                 "(--scales time=1e-9)" if beyond.any() else "")
         raise InputError(f"{path}: no good row (format {fmt}){hint}")
+    return good
 
-    strain = None
-    if s_raw is not None:
-        ok = np.isfinite(s_raw) & np.isfinite(t_s)
-        if "strain_time" not in cols:  # the reference shares the row: only good rows count
-            ok &= good
-        pos, ts = s_raw[ok], t_s[ok]
-        if fmt == "cb_pdms":
-            pos, report.glitches_repaired = repair_position_glitches(
-                np.abs(pos), threshold_mm=glitch_threshold_mm)
-            strain_src = 100.0 * pos / (gauge_length_mm or CB_PDMS_GAUGE_MM)
-        elif fmt == "fiber" and gauge_length_mm is None:
-            strain_src = pos
-            report.strain_unit = "mm"
-            report.notes.append("no --gauge-length-mm: the 'strain' topic holds the "
-                                "extension in mm, not % (fit it with --strain-unit mm)")
-        elif gauge_length_mm is not None:
-            strain_src = 100.0 * pos / gauge_length_mm
-        else:
-            strain_src = pos
-            report.strain_unit = ("the file's unit" if factor["strain"] == 1.0
-                                  else f"the file's unit x {factor['strain']:g}")
-        strain = align(t[good], ts, strain_src)
-        outside = int(np.isnan(strain).sum())
-        if outside:
-            report.notes.append(f"{outside} samples outside the reference's time span "
-                                "have no reference (NaN)")
-        report.warnings = reference_warnings(
-            strain_src, ts, percent=report.strain_unit != "mm" and factor["strain"] == 1.0)
-    report.kept = int(good.sum())
-    rec = Recording(name=sensor, t=t[good], r=r[good], s=strain)
-    return ImportResult(rec, report)
+
+def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: ImportReport, *,
+               gauge_length_mm: float | None, glitch_threshold_mm: float,
+               strain_factor: float) -> np.ndarray:
+    """The reference strain on the good rows' times (NaN outside its span), read from the
+    good rows only unless it has its own time column; its notes and warnings in ``report``."""
+    t = fields["time"]
+    s_raw = fields["strain"]
+    t_s = fields.get("strain_time", t)
+    ok = np.isfinite(s_raw) & np.isfinite(t_s)
+    if "strain_time" not in fields:  # the reference shares the row: only good rows count
+        ok &= good
+    ts = t_s[ok]
+    strain_src = _strain(s_raw[ok], report, gauge_length_mm=gauge_length_mm,
+                         glitch_threshold_mm=glitch_threshold_mm, strain_factor=strain_factor)
+    strain = align(t[good], ts, strain_src)
+    outside = int(np.isnan(strain).sum())
+    if outside:
+        report.notes.append(f"{outside} samples outside the reference's time span "
+                            "have no reference (NaN)")
+    report.warnings = reference_warnings(
+        strain_src, ts, percent=report.strain_unit != "mm" and strain_factor == 1.0)
+    return strain
+
+
+def _strain(pos: np.ndarray, report: ImportReport, *, gauge_length_mm: float | None,
+            glitch_threshold_mm: float, strain_factor: float) -> np.ndarray:
+    """The reference column as strain by the format's rule (module docstring); the unit
+    stored, a repaired glitch count and a note in ``report``."""
+    if report.fmt == "cb_pdms":
+        pos, report.glitches_repaired = repair_position_glitches(
+            np.abs(pos), threshold_mm=glitch_threshold_mm)
+        return 100.0 * pos / (gauge_length_mm or CB_PDMS_GAUGE_MM)
+    if report.fmt == "fiber" and gauge_length_mm is None:
+        report.strain_unit = "mm"
+        report.notes.append("no --gauge-length-mm: the 'strain' topic holds the "
+                            "extension in mm, not % (fit it with --strain-unit mm)")
+        return pos
+    if gauge_length_mm is not None:
+        return 100.0 * pos / gauge_length_mm
+    report.strain_unit = ("the file's unit" if strain_factor == 1.0
+                          else f"the file's unit x {strain_factor:g}")
+    return pos
 
 
 FRACTION_SPAN = 1.0

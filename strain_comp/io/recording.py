@@ -150,7 +150,7 @@ def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.n
     t_src = np.asarray(t_src, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if t_src.shape == t.shape and np.array_equal(t_src, t):
-        return values.copy()
+        return np.copy(values, order="C")
     ok = np.isfinite(t_src) & np.isfinite(values)
     t_src, values = t_src[ok], values[ok]
     out = np.full(t.shape, np.nan)

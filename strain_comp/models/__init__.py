@@ -30,7 +30,10 @@ def model_class(name: str) -> type[Compensator]:
     if name not in _REGISTRY:
         raise ParameterError("name", f"unknown model {name!r}; known: {', '.join(MODEL_NAMES)}")
     module_name, class_name = _REGISTRY[name].split(":")
-    return getattr(importlib.import_module(module_name), class_name)
+    found = getattr(importlib.import_module(module_name), class_name)
+    if not (isinstance(found, type) and issubclass(found, Compensator)):
+        raise TypeError(f"{_REGISTRY[name]} is not a Compensator")
+    return found
 
 
 __all__ = ["MODEL_NAMES", "Compensator", "Normalisation", "Segment", "model_class"]

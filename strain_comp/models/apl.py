@@ -69,7 +69,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -91,6 +91,15 @@ from strain_comp.models.base import (
 
 N_MAX = 200
 M_MAX = 201
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _one_blas_thread(function: _F) -> _F:
+    """``function`` with BLAS held to one thread while it runs: threadpoolctl's
+    ``threadpool_limits.wrap``, which keeps the signature (threadpoolctl ships no types)."""
+    wrapped: _F = threadpool_limits.wrap(limits=1, user_api="blas")(function)
+    return wrapped
 
 
 def _require_int(params: Mapping[str, Any], key: str, lo: int, hi: int) -> int:
@@ -212,7 +221,7 @@ class _CellModel(KernelCompensator):
                    orientation=orientation)
 
     @classmethod
-    @threadpool_limits.wrap(limits=1, user_api="blas")
+    @_one_blas_thread
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, N: int = 11, M: int = 9,
             sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,

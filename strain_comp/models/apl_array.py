@@ -9,12 +9,12 @@ from collections.abc import Sequence
 from typing import Protocol, cast
 
 import numpy as np
-import numpy.typing as npt
 
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models.apl_kernels import inverse_widths, thresholds
-from strain_comp.models.base import Compensator, tick_arrays
+from strain_comp.models.base import Compensator
+from strain_comp.models.lift import LiftedArray, lift
 
 
 class CellModel(Protocol):
@@ -32,7 +32,8 @@ class CellModel(Protocol):
         ...
 
 
-class APLArray:
+@lift(kern.step_sensor, fastmath=kern.FASTMATH)
+class APLArray(LiftedArray):
     """K sensors of the APL family (same N and M) stepped together in one kernel call.
 
     Built from per-sensor models (APL, PL or MPI, mixed allowed); each sensor keeps its own
@@ -40,19 +41,16 @@ class APLArray:
     would give; a bad r[s] (not finite or <= 0) leaves sensor s untouched and gives NaN.
     """
 
+    family = "an APL-family"
+
     def __init__(self, models: Sequence[Compensator]) -> None:
-        if not models:
-            raise ParameterError("models", "an array needs at least one sensor")
-        for i, model in enumerate(models):
-            if not type(model).array_kernel:
-                raise ParameterError(f"models.{i}", f"not an APL-family model: {model!r}")
+        super().__init__(models)
         cells = [cast(CellModel, model) for model in models]
         n, m = cells[0].N, cells[0].M
         for i, model in enumerate(cells):
             if (model.N, model.M) != (n, m):
                 raise ParameterError(f"models.{i}", f"N, M = {model.N}, {model.M} differ "
                                                     f"from the first sensor's {n}, {m}")
-        self.models = cells
         k = len(cells)
         tables = [mdl.array_tables() for mdl in cells]
         self.kind = np.array([mdl.kind for mdl in cells], dtype=np.int64)
@@ -69,25 +67,16 @@ class APLArray:
         self.inv_slopes = np.vstack([inv for _, _, _, inv in tables])
         self.x = np.zeros((k, n))
         self.clock = np.zeros((k, 2))
-        self.reset()
+        self.state = (self.x, self.clock)
+        self.params = (self.kind, self.sigma, self.p, self.rho, self.inv_width, self.w,
+                       self.norm, self.b, self.f_at_b, self.inv_slopes)
+
+    @classmethod
+    def accepts(cls, model: Compensator) -> bool:
+        """True for the APL family (APL, PL, MPI: ``Compensator.array_kernel``)."""
+        return type(model).array_kernel
 
     @classmethod
     def from_models(cls, models: Sequence[Compensator]) -> APLArray:
         """The array of ``models``; ParameterError if one is not of the APL family."""
         return cls(models)
-
-    def __len__(self) -> int:
-        return len(self.models)
-
-    def reset(self) -> None:
-        """Forget every sensor's state."""
-        self.x[:] = 0.0
-        self.clock[:] = 0.0
-
-    def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
-        """Advance all sensors by one tick at time t [s]; strain % per sensor."""
-        r, out = tick_arrays(r, len(self.models), out)
-        kern.step_array_kernel(float(t), r, self.x, self.clock, out, self.kind, self.sigma,
-                               self.p, self.rho, self.inv_width, self.w, self.norm, self.b,
-                               self.f_at_b, self.inv_slopes)
-        return out

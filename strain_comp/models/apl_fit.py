@@ -329,7 +329,9 @@ class _FitProblem:
         r_full = np.linalg.cholesky(gram).T
         a_red = np.vstack([r_full[:-1, :-1], self.ridge_a])
         b_red = np.concatenate([r_full[:-1, -1], self.ridge_b])
-        theta = lsq_linear(a_red, b_red, bounds=self.bounds, method="bvls").x
+        # scipy ships no types: the solution of lsq_linear is a float64 vector
+        theta: npt.NDArray[np.float64] = lsq_linear(a_red, b_red, bounds=self.bounds,
+                                                    method="bvls").x
         return np.clip(theta, *self.bounds)
 
     def predict(self, z: np.ndarray, theta: np.ndarray) -> np.ndarray:

@@ -1,7 +1,8 @@
 """numba kernels of the APL / PL / MPI cells ([Electrolycra] eq. (1), (2), appendix eq. (6)).
 
 One cell update (``advance_cells``) is shared by the single-sensor run/step kernel, the
-multi-sensor array kernel and the fitting kernel, so every path computes the same numbers.
+per-sensor array kernel ``step_sensor`` (lifted to K sensors by ``strain_comp.models.lift``)
+and the fitting kernel, so every path computes the same numbers.
 
 Time stepping (the paper gives the implicit form h_k(x_k, xdot_k, t) = 0 only). For a new
 sample xi at time step dt = t - t_prev (dt < 0 is taken as 0):
@@ -233,7 +234,13 @@ def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
                 kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, rho: np.ndarray,
                 inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
                 f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
-    """Advance sensor s of an array (see ``step_array_kernel``) by a good sample; strain %."""
+    """Advance sensor s of an array by a good sample; strain % (the family kernel of
+    ``strain_comp.models.lift``).
+
+    Per sensor s: state ``x[s]`` (N,), ``clock[s]`` = [t_prev, started], parameters in row
+    s of ``sigma, p, kind, w, norm, f_at_b, inv_slopes``; ``rho`` and ``inv_width`` are
+    (2, N): row 0 for APL cells, row 1 for PL cells.
+    """
     xi = ri / norm[s, 0] + norm[s, 1]
     ks = kind[s]
     xs = x[s]
@@ -245,27 +252,7 @@ def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
         advance_cells(xs, xi, sigma[s] * max(dt, 0.0), p[s], rho[ks], inv_width[ks], ks)
     clock[s, 0] = t
     psi = output(xs, xi, w[s], b, f_at_b[s], inv_slopes[s])
-    return (psi - norm[s, 3]) * norm[s, 2]
-
-
-@njit(fastmath=FASTMATH, error_model="numpy")
-def step_array_kernel(t: float, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
-                      out: np.ndarray, kind: np.ndarray, sigma: np.ndarray, p: np.ndarray,
-                      rho: np.ndarray, inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray,
-                      b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) -> None:
-    """Advance K sensors (same N and M) by one tick at time t; strain % into ``out`` (K,).
-
-    Per sensor s: state ``x[s]`` (N,), ``clock[s]`` = [t_prev, started], parameters in row
-    s of ``sigma, p, kind, w, norm, f_at_b, inv_slopes``; ``rho`` and ``inv_width`` are
-    (2, N): row 0 for APL cells, row 1 for PL cells. A bad r[s] leaves sensor s untouched.
-    """
-    for s in range(r.size):
-        ri = r[s]
-        if not (math.isfinite(t) and math.isfinite(ri) and ri > 0.0):
-            out[s] = np.nan
-            continue
-        out[s] = step_sensor(s, t, ri, x, clock, kind, sigma, p, rho, inv_width, w, norm, b,
-                             f_at_b, inv_slopes)
+    return float((psi - norm[s, 3]) * norm[s, 2])
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")

@@ -293,16 +293,6 @@ class KernelCompensator(Compensator):
         return out
 
 
-def tick_arrays(r: npt.ArrayLike, k: int, out: np.ndarray | None
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """The resistances of one array tick as a contiguous float64 vector of the array's
-    ``k`` sensors (ValueError otherwise), and ``out`` or a new vector for its strains."""
-    r = np.ascontiguousarray(r, dtype=np.float64)
-    if r.shape != (k,):
-        raise ValueError(f"r must have shape ({k},), got {r.shape}")
-    return r, np.empty(k) if out is None else out
-
-
 def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = None,
                   hi: float | None = None, strict: bool = False) -> float:
     """Read ``params[key]`` as a finite float within [lo, hi].

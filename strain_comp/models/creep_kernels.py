@@ -1,7 +1,8 @@
 """numba kernels of the creep_pi model (``strain_comp.models.creep_pi``).
 
 One state update (``advance``) serves the streaming kernels (``run_kernel``: ``run`` and
-``step``; ``step_array_kernel``: K sensors per tick) and the fitting kernel
+``step``; ``step_sensor``: sensor s of an array, lifted to K sensors per tick by
+``strain_comp.models.lift``) and the fitting kernel
 (``features_kernel``, with the feature map ``features``), so the fitted and the streamed
 model compute the same states; the streaming kernels sum the output as ``output``
 regroups the features' weights (``folded``).
@@ -35,7 +36,7 @@ import math
 import numpy as np
 
 from strain_comp._numba import njit
-from strain_comp.models.apl_kernels import FASTMATH
+from strain_comp.models.apl_kernels import FASTMATH as FASTMATH
 
 DT_TOLERANCE = 1e-6
 """A step within this share of the cached dt reuses its decays: the same as a time stamp
@@ -109,8 +110,8 @@ def output(xi: float, z: np.ndarray, play: np.ndarray, coef: np.ndarray, bias: f
         psi += coef[3 + j] * play[j]
     for k in range(z.size):
         psi += coef[3 + n_play + k] * z[k]
-    return psi + (xi - play[n_play]) * (coef[3 + n_play + z.size]
-                                        + coef[4 + n_play + z.size] * xi)
+    return float(psi + (xi - play[n_play]) * (coef[3 + n_play + z.size]
+                                              + coef[4 + n_play + z.size] * xi))
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")
@@ -142,22 +143,7 @@ def step_sensor(s: int, t: float, ri: float, z: np.ndarray, play: np.ndarray,
     them for one sensor) by a good sample; strain %."""
     xi = ri / norm[s, 0] + norm[s, 1]
     advance(t, xi, z[s], play[s], clock[s], decay[s], tau[s], widths[s])
-    return (output(xi, z[s], play[s], coef[s], bias[s]) - norm[s, 3]) * norm[s, 2]
-
-
-@njit(fastmath=FASTMATH, error_model="numpy")
-def step_array_kernel(t: float, r: np.ndarray, z: np.ndarray, play: np.ndarray,
-                      clock: np.ndarray, decay: np.ndarray, out: np.ndarray,
-                      norm: np.ndarray, tau: np.ndarray, widths: np.ndarray,
-                      coef: np.ndarray, bias: np.ndarray) -> None:
-    """Advance K sensors (same numbers of play operators and time constants) by one tick
-    at time t; strain % into ``out`` (K,). A bad r[s] leaves sensor s untouched."""
-    for s in range(r.size):
-        ri = r[s]
-        if not (math.isfinite(t) and math.isfinite(ri) and ri > 0.0):
-            out[s] = np.nan
-            continue
-        out[s] = step_sensor(s, t, ri, z, play, clock, decay, norm, tau, widths, coef, bias)
+    return float((output(xi, z[s], play[s], coef[s], bias[s]) - norm[s, 3]) * norm[s, 2])
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -60,13 +60,14 @@ from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import creep_kernels as kern
 from strain_comp.models.base import (
+    Compensator,
     KernelCompensator,
     Normalisation,
     Segment,
     require_float,
     require_vector,
-    tick_arrays,
 )
+from strain_comp.models.lift import LiftedArray, lift
 
 TAUS = (0.3, 3.0, 30.0, 300.0)
 """Default time constants [s] of the creep states."""
@@ -249,53 +250,44 @@ class CreepPI(KernelCompensator):
         return model
 
 
-class CreepPIArray:
+@lift(kern.step_sensor, fastmath=kern.FASTMATH)
+class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same numbers of play operators and time constants) stepped
-    together in one kernel call (``creep_kernels.step_array_kernel``).
+    together in one kernel call (``strain_comp.models.lift``, kernel
+    ``creep_kernels.step_sensor``).
 
     Built from per-sensor models; each keeps its own state and previous time.
     ``step(t, r)`` gives exactly what each model's own ``step`` would give; a bad r[s]
     (not finite or <= 0) leaves sensor s untouched and gives NaN. ``reset`` restarts all.
     """
 
-    def __init__(self, models: Sequence[CreepPI]) -> None:
-        if not models:
-            raise ParameterError("models", "an array needs at least one sensor")
-        shape = (models[0].thresholds.size, models[0].taus.size)
-        for i, model in enumerate(models):
-            if not isinstance(model, CreepPI):
-                raise ParameterError(f"models.{i}", f"not a creep_pi model: {model!r}")
+    family = "a creep_pi"
+
+    def __init__(self, models: Sequence[Compensator]) -> None:
+        super().__init__(models)
+        creep = [cast(CreepPI, model) for model in models]
+        shape = (creep[0].thresholds.size, creep[0].taus.size)
+        for i, model in enumerate(creep):
             if (model.thresholds.size, model.taus.size) != shape:
                 raise ParameterError(f"models.{i}", "numbers of play operators and time "
                                                     "constants differ from the first sensor's")
-        self.models = list(models)
-        k = len(models)
-        self.norm = np.vstack([m._norm for m in models])
-        self.tau = np.vstack([m.taus for m in models])
-        self.widths = np.vstack([m._widths for m in models])
-        self.coef = np.vstack([m._coef for m in models])
-        self.bias = np.array([m._bias for m in models])
+        k = len(creep)
+        self.norm = np.vstack([m._norm for m in creep])
+        self.tau = np.vstack([m.taus for m in creep])
+        self.widths = np.vstack([m._widths for m in creep])
+        self.coef = np.vstack([m._coef for m in creep])
+        self.bias = np.array([m._bias for m in creep])
         self.z = np.zeros((k, shape[1]))
         self.play = np.zeros((k, shape[0] + 1))
         self.clock = np.zeros((k, 3))
         self.decay = np.zeros((k, shape[1]))
-        self.reset()
+        self.state = (self.z, self.play, self.clock, self.decay)
+        self.params = (self.norm, self.tau, self.widths, self.coef, self.bias)
 
-    def __len__(self) -> int:
-        return len(self.models)
-
-    def reset(self) -> None:
-        """Forget every sensor's state."""
-        self.z[:] = 0.0
-        self.play[:] = 0.0
-        self.clock[:] = 0.0
-
-    def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
-        """Advance all sensors by one tick at time t [s]; strain % per sensor."""
-        r, out = tick_arrays(r, len(self.models), out)
-        kern.step_array_kernel(float(t), r, self.z, self.play, self.clock, self.decay, out,
-                               self.norm, self.tau, self.widths, self.coef, self.bias)
-        return out
+    @classmethod
+    def accepts(cls, model: Compensator) -> bool:
+        """True for creep_pi."""
+        return isinstance(model, CreepPI)
 
 
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,

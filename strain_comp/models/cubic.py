@@ -43,7 +43,7 @@ class Cubic(Compensator):
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
         _, r = as_float_arrays(t, r)
         c0, c1, c2, c3 = self.c
-        return ((c3 * r + c2) * r + c1) * r + c0
+        return np.asarray(((c3 * r + c2) * r + c1) * r + c0)
 
     def to_params(self) -> dict[str, Any]:
         return {"c": [float(v) for v in self.c]}

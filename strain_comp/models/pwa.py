@@ -31,7 +31,7 @@ def breakpoints(m: int) -> np.ndarray:
     return -1.0 + 2.0 * np.arange(1, m) / m
 
 
-def basis(psi: npt.ArrayLike, m: int) -> np.ndarray:
+def basis(psi: npt.ArrayLike, m: int) -> npt.NDArray[np.float64]:
     """The M basis functions phi_j(psi) as columns, shape (n, M) (eq. (3))."""
     psi = np.atleast_1d(np.asarray(psi, dtype=np.float64))
     b = breakpoints(m)
@@ -74,10 +74,11 @@ def path_matrix(psi: npt.ArrayLike, m: int) -> np.ndarray:
     f is linear in its segment slopes, which is what the fit uses (slopes >= eps keep f
     strictly increasing as simple bounds).
     """
-    psi = np.atleast_1d(np.asarray(psi, dtype=np.float64))
+    x = np.atleast_1d(np.asarray(psi, dtype=np.float64))
     edges = np.concatenate(([-np.inf], breakpoints(m), [np.inf]))
     lo, hi = edges[:-1], edges[1:]
-    return np.clip(psi[:, None], lo, hi) - np.clip(0.0, lo, hi)
+    origin: npt.NDArray[np.float64] = np.clip(0.0, lo, hi)  # 0 clipped into each segment
+    return np.clip(x[:, None], lo, hi) - origin
 
 
 def inverse_tables(mu: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -92,8 +93,8 @@ def inverse_tables(mu: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 def evaluate(psi: npt.ArrayLike, mu: npt.ArrayLike) -> np.ndarray:
     """f(psi) (eq. (3))."""
-    mu = np.asarray(mu, dtype=np.float64)
-    return basis(psi, mu.size) @ mu
+    coef = np.asarray(mu, dtype=np.float64)
+    return basis(psi, coef.size) @ coef
 
 
 @njit
@@ -105,9 +106,9 @@ def finv(y: float, b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) ->
         j += 1
     if j == 0:
         if nb == 0:
-            return y * inv_slopes[0]
-        return b[0] + (y - f_at_b[0]) * inv_slopes[0]
-    return b[j - 1] + (y - f_at_b[j - 1]) * inv_slopes[j]
+            return float(y * inv_slopes[0])
+        return float(b[0] + (y - f_at_b[0]) * inv_slopes[0])
+    return float(b[j - 1] + (y - f_at_b[j - 1]) * inv_slopes[j])
 
 
 @njit

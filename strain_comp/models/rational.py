@@ -106,7 +106,7 @@ def _pole_free(q: np.ndarray, lo: float, hi: float) -> bool:
 
 
 def _eval(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
-    return ((coef[0] * x + coef[1]) * x + coef[2]) / ((x + coef[3]) * x + coef[4])
+    return np.asarray(((coef[0] * x + coef[1]) * x + coef[2]) / ((x + coef[3]) * x + coef[4]))
 
 
 def _jac(coef: np.ndarray, x: np.ndarray) -> np.ndarray:

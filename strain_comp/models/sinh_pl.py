@@ -253,7 +253,9 @@ class SinhPL(Compensator):
             return (x[0], x[1], x[2:2 + n_cells], np.exp(x[2 + n_cells:2 + 2 * n_cells]),
                     np.exp(x[2 + 2 * n_cells:]))
 
-        def residual(x: np.ndarray, data: list = data) -> np.ndarray:
+        def residual(x: np.ndarray,
+                     data: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = data
+                     ) -> np.ndarray:
             w0, vb, w, i_s, v_t = unpack(x)
             parts = []
             for t, xi, psi in data:

@@ -4,7 +4,7 @@
 option, an option the model has no use for (every model, ``cubic`` included) and a value
 of the wrong type or out of range, before any bag is read. The table mirrors the keyword
 arguments of each model's ``fit`` (``strain_comp.models``) and the direction-detector
-options every model takes (``strain_comp.offline.fit.direction_settings``). The APL grid
+options every model takes (``strain_comp.offline.deadzone.direction_settings``). The APL grid
 sizes are capped by the kernels (``N_MAX``, ``M_MAX``); lists hold at most 100 values.
 """
 

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from strain_comp.core.calibration import Calibration
-    from strain_comp.offline.evaluate import EvaluationResult, SensorEvaluation
+    from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation
 
 Target = TypeVar("Target", Path, IO[bytes])
 """Where a plot goes: a PNG file's path, or an open binary file."""

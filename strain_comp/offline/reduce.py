@@ -26,7 +26,7 @@ Per segment (``reduce_segment``):
    until they fit, so a reduction never holds more than about 4 n / f samples.
 4. **Holds**: the first and last sample of every stretch of at least 2f samples where the
    filtered S is still (``|dS/dt|`` at most ``HOLD_RATE_FRACTION`` of the segment's
-   99.5th-percentile rate, the rule ``fit.find_hold`` uses), so a hold starts and ends
+   99.5th-percentile rate, the rule ``deadzone.find_hold`` uses), so a hold starts and ends
    where it did; inside it the decimated samples carry its relaxation.
 
 Kept samples are the union, in time order, with the filtered values. What a reduction
@@ -41,6 +41,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from strain_comp._numba import njit
 from strain_comp.models import Segment
@@ -58,10 +59,10 @@ def moving_average(x: np.ndarray, width: int) -> np.ndarray:
     """Centred moving average of ``width`` samples (odd widths centred exactly, even ones
     half a sample late), over the samples that exist near the ends."""
     n = x.size
-    c = np.concatenate(([0.0], np.cumsum(x)))
+    c: npt.NDArray[np.float64] = np.concatenate(([0.0], np.cumsum(x)))
     i = np.arange(n)
-    lo = np.maximum(i - (width - 1) // 2, 0)
-    hi = np.minimum(i + width // 2 + 1, n)
+    lo: npt.NDArray[np.int_] = np.maximum(i - (width - 1) // 2, 0)
+    hi: npt.NDArray[np.int_] = np.minimum(i + width // 2 + 1, n)
     return (c[hi] - c[lo]) / (hi - lo)
 
 
@@ -70,7 +71,7 @@ def lowpass(x: np.ndarray, factor: int) -> np.ndarray:
     ``x`` extended by its odd reflection at both ends (a ramp stays exact up to the end)."""
     k = min(factor, x.size - 1)
     if k < 1:
-        return x.copy()
+        return np.copy(x, order="C")
     padded = np.concatenate((2.0 * x[0] - x[k:0:-1], x, 2.0 * x[-1] - x[-2:-k - 2:-1]))
     smooth = moving_average(moving_average(padded, factor)[::-1], factor)[::-1]
     return smooth[k:k + x.size]

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from strain_comp import __version__
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
-from strain_comp.offline.evaluate import format_notes
+from strain_comp.offline.evaluation import format_notes
 from strain_comp.offline.plots import (
     context_line,
     plot_error_hist,
@@ -38,7 +38,7 @@ from strain_comp.offline.plots import (
 
 if TYPE_CHECKING:
     from strain_comp.core.metrics import ErrorStats
-    from strain_comp.offline.evaluate import EvaluationResult
+    from strain_comp.offline.evaluation import EvaluationResult
 
 STYLE = """
 body { font: 14px/1.45 system-ui, sans-serif; margin: 2em auto; max-width: 1100px;

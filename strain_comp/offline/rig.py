@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 from scipy.signal import lfilter
 
 from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
@@ -357,9 +358,10 @@ def _array_profiles(fs: float, duration: float | None) -> tuple[np.ndarray, np.n
 # --------------------------------------------------------------------------- physics
 
 
-def _branch(u: np.ndarray, tau: float, fs: float) -> np.ndarray:
+def _branch(u: npt.NDArray[np.float64], tau: float, fs: float) -> npt.NDArray[np.float64]:
     """x = u - q with dq/dt = (u - q)/tau, exact exponential update, q(0) = u(0)."""
     e = np.exp(-1.0 / (tau * fs))
+    q: npt.NDArray[np.float64]  # scipy ships no types: lfilter of a float64 u is float64
     q, _ = lfilter([1.0 - e], [1.0, -e], u, zi=[e * u[0]])
     return u - q
 
@@ -387,15 +389,15 @@ def temperature_profile(t: np.ndarray, fx: RigEffects) -> np.ndarray:
 
 
 def _chain(t: np.ndarray, r: np.ndarray, fx: RigEffects, rng: np.random.Generator
-           ) -> np.ndarray:
+           ) -> npt.NDArray[np.float64]:
     """The measurement chain's own effects (item 4): alternation, spikes, baseline step."""
-    r = r + fx.alternation * (-1.0) ** np.arange(r.size)
-    r = r + fx.baseline_step * (t >= fx.baseline_step_at)
+    out: npt.NDArray[np.float64] = r + fx.alternation * (-1.0) ** np.arange(r.size)
+    out = out + fx.baseline_step * (t >= fx.baseline_step_at)
     if fx.spikes > 0:
-        hit = rng.random(r.size) < fx.spikes
+        hit = rng.random(out.size) < fx.spikes
         hit[1:] &= ~hit[:-1]  # isolated: never two in a row
-        r = r + hit * fx.spike_size * rng.choice([-1.0, 1.0], r.size)
-    return r
+        out = out + hit * fx.spike_size * rng.choice([-1.0, 1.0], out.size)
+    return out
 
 
 def _read_out(r: np.ndarray, fx: RigEffects, rng: np.random.Generator) -> np.ndarray:

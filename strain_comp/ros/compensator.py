@@ -28,7 +28,7 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.clock import JumpThreshold, ROSClock
+from rclpy.clock import JumpThreshold, ROSClock, TimeJump
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -41,7 +41,8 @@ from std_srvs.srv import Trigger
 
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
-from strain_comp.ros.live import OK, WARN, ClockGate, LiveCompensator
+from strain_comp.ros.clock_gate import ClockGate
+from strain_comp.ros.live import OK, WARN, LiveCompensator
 from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
@@ -51,6 +52,7 @@ from strain_comp.ros.params import (
     parse_values,
     structural_specs,
 )
+from strain_comp.ros.rclpy_typed import logger, parameter
 
 INPUT_DEPTH = 200
 """Inputs are best effort (sensor-data QoS) keeping the latest 200 messages: 200 ms of a
@@ -141,7 +143,7 @@ class CompensatorNode(Node):
         self.create_service(Trigger, "~/reference", self._reference)
         self.create_service(Trigger, "~/reload_calibration", self._reload)
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
-        self.get_logger().info(f"ready: {len(ready)} inputs: " + "; ".join(ready)
+        logger(self).info(f"ready: {len(ready)} inputs: " + "; ".join(ready)
                                + f"; tare {params.tare}; fuse_references "
                                f"{params.fuse_references}")
 
@@ -179,14 +181,14 @@ class CompensatorNode(Node):
         """A message (or /clock tick) refused for what it carries: counted, logged."""
         reason = " ".join(reason.split())
         self.live.refuse(name, reason)
-        self.get_logger().warning(f"{name}: message refused: {reason}",
+        logger(self).warning(f"{name}: message refused: {reason}",
                                   throttle_duration_sec=LOG_THROTTLE_S)
 
     def _fault(self, name: str, error: Exception) -> None:
         """A program error while handling ``name``: counted apart, logged with its
         traceback; the node goes on."""
         self.live.fault(name, error)
-        self.get_logger().error(
+        logger(self).error(
             f"{name}: program error (a bug, not the message): {type(error).__name__}: "
             f"{one_line(error)}\n" + "".join(traceback.format_exception(error)).rstrip(),
             throttle_duration_sec=LOG_THROTTLE_S)
@@ -233,7 +235,7 @@ class CompensatorNode(Node):
             return int(clock.now().nanoseconds)
         return time.time_ns()
 
-    def _on_tick(self, jump: Any) -> None:
+    def _on_tick(self, jump: TimeJump) -> None:
         """The sim clock moved: the inputs held for it are handled, stamped with it."""
         if self._loaded is not None:
             self._adopt()
@@ -250,7 +252,7 @@ class CompensatorNode(Node):
         if spec.type == "string_array" and not value:
             self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, descriptor(spec),
                                    ignore_override=True)
-            self._parameters[spec.name] = Parameter(spec.name, Parameter.Type.STRING_ARRAY, [])
+            self._parameters[spec.name] = parameter(spec.name, Parameter.Type.STRING_ARRAY, [])
         else:
             self.declare_parameter(spec.name, float(value) if spec.type == "double"
                                    else value, descriptor(spec), ignore_override=True)
@@ -258,7 +260,7 @@ class CompensatorNode(Node):
     def _integers_as_doubles(self, params: list[Parameter]) -> list[Parameter]:
         """``ros2 param set deadzone_scale 2``: an integer for a double tunable is set as a
         double (before rclpy's type check, which would refuse it)."""
-        return [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+        return [parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
                 if p.name in TUNABLE and p.type_ == Parameter.Type.INTEGER else p
                 for p in params]
 
@@ -342,13 +344,13 @@ class CompensatorNode(Node):
                 refused = {name: self.live.on_reference(name, t, sensor_value(msg))}
             for sensor, reason in refused.items():
                 if reason is not None:
-                    self.get_logger().warning(f"{sensor}: reference refused: {reason}",
+                    logger(self).warning(f"{sensor}: reference refused: {reason}",
                                               throttle_duration_sec=LOG_THROTTLE_S)
         self._guarded(f"{name}/strain_reference", handle)
 
     def _log_tare(self) -> None:
-        while self.live.tare_log:
-            self.get_logger().info(self.live.tare_log.pop(0))
+        while self.live.taring.log:
+            logger(self).info(self.live.taring.log.pop(0))
 
     def _diagnostics(self) -> None:
         def publish() -> None:
@@ -385,7 +387,7 @@ class CompensatorNode(Node):
         try:
             response.message = act()
             response.success = True
-            self.get_logger().info(response.message)
+            logger(self).info(response.message)
         except StrainCompError as err:
             response.success, response.message = False, one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
@@ -435,14 +437,14 @@ class CompensatorNode(Node):
                                          name="reload_calibration", daemon=True)
         self.calibration_status = (OK, "loading " + self._paths(current))
         response.success, response.message = True, self.calibration_status[1]
-        self.get_logger().info(response.message)
+        logger(self).info(response.message)
         self._loading.start()
         return response
 
     def _refused_reload(self, reason: str) -> None:
         self.calibration_status = (WARN, "reload refused, the old calibration keeps "
                                    "running: " + reason)
-        self.get_logger().error(self.calibration_status[1])
+        logger(self).error(self.calibration_status[1])
 
     def _load(self, current: LiveCompensator, params: NodeParams) -> None:
         """Worker thread: build the new compensator (``successor``) on the validated
@@ -470,4 +472,4 @@ class CompensatorNode(Node):
             return
         self.live = self.live.hand_over(outcome)
         self.calibration_status = (OK, "reloaded " + self._paths(self.live))
-        self.get_logger().info(self.calibration_status[1])
+        logger(self).info(self.calibration_status[1])

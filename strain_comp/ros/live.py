@@ -1,52 +1,28 @@
-"""What the live node does with each message, free of any transport.
+"""What the live node does with each message, free of any transport (docs/ros.md).
 
 The rclpy node holds one ``LiveCompensator``: it builds the engine from validated node
 parameters, compiles its kernels at start-up (not on the first message), reads a
 Float64MultiArray's layout, applies the publish-rate limit and tunable changes, keeps the
-recent good samples the tare needs, and turns health into diagnostic statuses. The node
-only moves messages, so a bag played through it gives what ``replay`` gives.
+recent good samples the tare needs (``live_tare``), and turns health into diagnostic
+statuses. The node only moves messages, so a bag played through it gives what ``replay``
+gives. Every input is stamped with the node's clock when its callback runs (ROS time, i.e.
+/clock under ``use_sim_time``; ``clock_gate``).
 
-Time: every input is stamped with the node's clock when its callback runs (std_msgs/Float64
-and Float64MultiArray carry no stamp): ROS time, i.e. /clock under ``use_sim_time``. Under
-sim time a player publishes a /clock tick before each input, but the two travel on different
-topics and may arrive in either order; ``ClockGate`` therefore holds an input whose clock
-reading equals the previous input's stamp until the next tick (one held input per topic),
-so the input takes its own tick's time either way.
-
-Tare (multiplicative, ``Engine.tare``): the zero is a rest resistance R0 measured now, the
-models then see R x (calibration rest resistance / R0). A good sample here is one the engine
-fed to its model (``USED``), also when it lies outside the calibrated range: a rest that
-moved out of the range is what a tare corrects.
-
-- ``tare()`` (the node's ``~/tare`` service): R0 = ``core.tare.rest_level`` (median of pair
-  means) of each sensor's good samples of the last ``TARE_WINDOW_S`` seconds; all sensors or
-  none (a refusal names each reason).
-- ``tare: auto`` (parameter): R0 = ``core.tare.rest_resistance_at_start``, the rule
-  ``--tare auto`` applies offline, on the good samples since a sensor's first good sample,
-  evaluated once the rule's own detector (on pair values) leaves hold or
-  ``core.tare.TARE_WINDOW`` seconds have passed (``core.tare.rest_resistance_when_decided``;
-  every sample since then, however fast the input), so it takes the zero ``--tare auto``
-  takes offline. A run that
-  did not start at rest is not tared (logged with the reason), as offline: a later hold
-  may be under load, no zero to take; the calibration's zero stays until ``~/tare`` is
-  called at a known rest.
-
-Known strains (``fuse_references: true``; ``strain_comp.core.fusion``): a reference on
-``NAME/strain_reference`` (``on_reference``), on ``ARRAY/strain_reference`` (one value per
-sensor, NaN for none; ``on_reference_array``) or from ``~/reference`` (every sensor is at
-``known_strain`` now; ``reference_now``) is paired with the sensor's latest estimate and
-fused into its output gain and offset; every later output is g x estimate + b. A
-reference is refused and counted (by reason, in the sensor's /diagnostics) when the sensor
-has no recent estimate within its calibrated range, or the fusion refuses it (non-finite,
-beyond the gate); one naming a sensor not calibrated is refused as a message.
+Known strains (``fuse_references: true``; ``strain_comp.core.fusion``; docs/ros.md, "Known
+strains"): a reference on ``NAME/strain_reference`` (``on_reference``), on
+``ARRAY/strain_reference`` (one value per sensor, NaN for none; ``on_reference_array``) or
+from ``~/reference`` (``reference_now``) is paired with the sensor's latest estimate and
+fused into its output gain and offset. A reference is refused and counted (by reason, in
+the sensor's /diagnostics) when the sensor has no recent estimate within its calibrated
+range, or the fusion refuses it; one naming a sensor not calibrated is refused as a message.
 """
 
 from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, field, fields, replace
-from typing import Any, ClassVar
+from dataclasses import fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -57,25 +33,13 @@ from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, SensorOutput
 from strain_comp.core.samples import USED, Status, used_mask
-from strain_comp.core.tare import (
-    TARE_WINDOW,
-    rest_level,
-    rest_resistance_at_start,
-    rest_resistance_when_decided,
-)
+from strain_comp.core.tare import rest_level
 from strain_comp.core.tracking import fitted_rest, tracker_for
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.io.multiarray import array_values
+from strain_comp.ros.live_tare import TARE_WINDOW_S, LiveTare
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
-TARE_WINDOW_S = 0.5
-"""``~/tare``: the rest resistance is the median of the good samples of this last span [s]."""
-RING = 4096
-"""Recent samples kept per input for the tare."""
-MAX_START_SAMPLES = 2**17
-"""Samples an input's pending automatic tare may log (``TARE_WINDOW`` = 5 s at 26 kHz); a
-clock that does not advance (a paused sim clock) would otherwise let it grow without end:
-past it the automatic tare is declined, the calibration's zero stays."""
 BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
               Status.TIME_NOT_INCREASING: "time not increasing",
               Status.OPEN_CIRCUIT: "open circuit", Status.SHORT_CIRCUIT: "short circuit"}
@@ -86,100 +50,6 @@ reasons count under ``NAME: other reasons`` (a peer varying a message cannot gro
 MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
 _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
-
-
-class ClockGate:
-    """Under sim time: an input whose clock reading [ns] equals the previous input's stamp on
-    the same topic waits for the next clock tick; a second such input releases the first at
-    the unchanged time (it then counts as time-not-increasing, as it would without the gate).
-    """
-
-    def __init__(self) -> None:
-        self.last: dict[str, int] = {}
-        self.held: dict[str, Any] = {}
-
-    def arrive(self, name: str, now_ns: int, item: Any) -> list[tuple[int, Any]]:
-        """(stamp, item) pairs to process now, in order."""
-        out = []
-        if name in self.held:
-            out.append((now_ns, self.held.pop(name)))
-        elif self.last.get(name) == now_ns:
-            self.held[name] = item
-            return out
-        self.last[name] = now_ns
-        out.append((now_ns, item))
-        return out
-
-    def tick(self, now_ns: int) -> list[tuple[int, Any]]:
-        """The clock moved to ``now_ns``: the held inputs to process now, stamped with it."""
-        out = [(now_ns, item) for item in self.held.values()]
-        for name in self.held:
-            self.last[name] = now_ns
-        self.held.clear()
-        return out
-
-
-@dataclass
-class _Samples:
-    """An input's raw samples (columns: its sensors) with their good flags (good: fed to the
-    model, ``USED``, also when out of the calibrated range); ``SIZE`` rows at first."""
-
-    SIZE: ClassVar[int] = RING
-    k: int
-    t: np.ndarray = field(init=False)
-    raw: np.ndarray = field(init=False)
-    good: np.ndarray = field(init=False)
-    n: int = 0
-
-    def __post_init__(self) -> None:
-        self.t = np.full(self.SIZE, -math.inf)
-        self.raw = np.zeros((self.SIZE, self.k))
-        self.good = np.zeros((self.SIZE, self.k), dtype=bool)
-
-    def _store(self, i: int, t: float, raw: np.ndarray, status: np.ndarray) -> None:
-        self.t[i], self.raw[i] = t, raw
-        self.good[i] = used_mask(status)
-        self.n += 1
-
-    def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
-        """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
-        m = min(self.n, self.t.size)
-        mask = (self.t[:m] >= t0) & self.good[:m, column]
-        order = np.argsort(self.t[:m][mask], kind="stable")
-        return self.t[:m][mask][order], self.raw[:m, column][mask][order]
-
-
-class _Recent(_Samples):
-    """Ring of an input's latest ``RING`` samples (for ``~/tare``)."""
-
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
-        self._store(self.n % RING, t, raw, status)
-
-
-class _StartLog(_Samples):
-    """Every sample of an input since the earliest first good sample of a sensor whose
-    automatic tare is pending (``keep_from``): about ``TARE_WINDOW`` seconds, nothing while
-    no pending sensor has had a good sample."""
-
-    SIZE = 256
-
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray, *, keep_from: float) -> bool:
-        """Log a sample; when full, first drop the samples before ``keep_from`` [s], then
-        double if still more than half full (amortised O(1) per sample). False (nothing
-        logged) when that would pass ``MAX_START_SAMPLES``."""
-        if self.n == self.t.size:
-            keep = np.flatnonzero(self.t[:self.n] >= keep_from)
-            self.n = keep.size
-            self.t[:self.n], self.raw[:self.n], self.good[:self.n] = (
-                self.t[keep], self.raw[keep], self.good[keep])
-            if self.n == self.t.size and self.n >= MAX_START_SAMPLES:
-                return False
-            if 2 * self.n > self.t.size:
-                self.t = np.concatenate([self.t, np.full(self.t.size, -math.inf)])
-                self.raw = np.concatenate([self.raw, np.zeros(self.raw.shape)])
-                self.good = np.concatenate([self.good, np.zeros(self.good.shape, dtype=bool)])
-        self._store(self.n, t, raw, status)
-        return True
 
 
 class LiveCompensator:
@@ -200,12 +70,9 @@ class LiveCompensator:
         self._last_publish: dict[str, float] = {}
         self.temperature: dict[str, float] = {}
         self._inputs = {i.name: i.sensors for i in params.inputs}
-        self._recent = {i.name: _Recent(len(i.sensors)) for i in params.inputs}
+        self.taring = LiveTare(self.engine, params)
+        """The zero: ``~/tare`` and ``tare: auto`` (its log: the tares taken)."""
         self._last_message: dict[str, float] = {}
-        self._auto: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
-                                        if params.tare == "auto" else {})
-        self._start = ({i.name: _StartLog(len(i.sensors)) for i in params.inputs}
-                       if self._auto else {})
         self.tracker = tracker_for(self.engine, params.baseline_tracking)
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
@@ -215,7 +82,6 @@ class LiveCompensator:
         self._faults_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
-        self.tare_log: list[str] = []
         self.fusion: dict[str, OutputFusion] = (
             {s: OutputFusion.for_span(fitted_rest(c.valid_range)[1])
              for s, c in params.calibration.sensors.items()}
@@ -387,94 +253,22 @@ class LiveCompensator:
 
     def _seen(self, name: str, t: float, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
-        recent = self._recent[name]
-        recent.add(t, raw, status)
+        self.taring.seen(name, t, raw, status, direction)
         self._last_message[name] = t
-        start = self._start.get(name)
-        if start is not None:
-            firsts = [self._auto[s] for s in self._inputs[name] if s in self._auto]
-            if start.add(t, raw, status, keep_from=min((f for f in firsts if not math.isnan(f)),
-                                                       default=math.inf)):
-                self._auto_tare(name, t, start, status, direction)
-            else:
-                for sensor in self._inputs[name]:
-                    if self._auto.pop(sensor, None) is not None:
-                        self.tare_log.append(
-                            f"{sensor}: auto tare declined: {MAX_START_SAMPLES} samples within "
-                            f"{TARE_WINDOW:g} s of clock time (is the clock paused?); the "
-                            "calibration's zero stays (call ~/tare at rest)")
-            if not any(s in self._auto for s in self._inputs[name]):
-                del self._start[name]
 
     # --- tare -----------------------------------------------------------------------------
 
-    def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
-        return self.params.calibration.sensors[sensor].input.to_ohm(raw)
-
-    def _auto_tare(self, name: str, t: float, log: _StartLog, status: np.ndarray,
-                   direction: np.ndarray) -> None:
-        for column, sensor in enumerate(self._inputs[name]):
-            start = self._auto.get(sensor)
-            if start is None:
-                continue
-            good = bool(used_mask(status[column]))
-            if math.isnan(start):
-                if good:
-                    self._auto[sensor] = t
-                continue
-            if t - start < TARE_WINDOW and not (good and direction[column] != 0):
-                continue
-            times, raw = log.since(start, column)
-            cal = self.params.calibration.sensors[sensor]
-            ohm = self._ohm(sensor, raw)
-            try:
-                if t - start >= TARE_WINDOW:  # decided
-                    rest = rest_resistance_at_start(times, ohm, cal.direction,
-                                                    pair=cal.input.pair)
-                else:  # the engine's detector moved; the rule's (on pairs) may not have yet
-                    found = rest_resistance_when_decided(times, ohm, cal.direction,
-                                                         pair=cal.input.pair)
-                    if found is None:
-                        continue
-                    rest = found
-            except InputError as err:
-                del self._auto[sensor]
-                self.tare_log.append(f"{sensor}: auto tare declined: {err}; the calibration's "
-                                     "zero stays (call ~/tare at rest)")
-                continue
-            gain = self.engine.tare(sensor, rest)
-            del self._auto[sensor]
-            self.tare_log.append(f"{sensor}: auto tare: rest resistance {rest:.6g} ohm, "
-                                 f"input gain {gain:.6g}")
-
     def tare(self) -> str:
-        """Make each sensor's current rest resistance its zero (all or none); the summary.
+        """``~/tare`` (``LiveTare.tare``): each sensor's current rest resistance its zero.
 
-        ParameterError naming every sensor that cannot be tared (no rest resistance in its
-        calibration, no good sample in the last ``TARE_WINDOW_S``); the gains then stay.
+        Returns:
+            The summary.
+
+        Raises:
+            ParameterError: A sensor cannot be tared (each named); no gain changed.
+
         """
-        rests: dict[str, float] = {}
-        problems = []
-        for name, sensors in self._inputs.items():
-            recent = self._recent[name]
-            latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
-            for column, sensor in enumerate(sensors):
-                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
-                cal = self.params.calibration.sensors[sensor]
-                if cal.rest_resistance is None:
-                    problems.append(f"{sensor}: the calibration stores no rest_resistance")
-                elif values.size == 0:
-                    problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
-                else:
-                    rests[sensor] = rest_level(values, pair=cal.input.pair)
-        if problems:
-            raise ParameterError("tare", "refused: " + "; ".join(problems))
-        for sensor, rest in rests.items():
-            self.engine.tare(sensor, rest)
-            self._auto.pop(sensor, None)
-        self._start.clear()  # no automatic tare is pending any more
-        return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
-                                    for s, r in rests.items())
+        return self.taring.tare()
 
     def span(self) -> tuple[LiveCompensator, str]:
         """``~/span``: every sensor is held at the known strain ``span_strain`` now; its
@@ -491,27 +285,23 @@ class LiveCompensator:
                                  "held at before calling ~/span")
         sensors = dict(self.params.calibration.sensors)
         lines, problems = [], []
-        for name, names in self._inputs.items():
-            recent = self._recent[name]
-            latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
-            for column, sensor in enumerate(names):
-                cal = sensors[sensor]
-                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
-                zero = cal.input_rest
-                if zero is None or values.size == 0:
-                    problems.append(f"{sensor}: " + ("the calibration stores no "
-                                    "rest_resistance" if zero is None else
-                                    f"no good sample in the last {TARE_WINDOW_S} s"))
-                    continue
-                points = [(zero / self.engine.input_gain(sensor), fitted_rest(cal.valid_range)[0]),
-                          (rest_level(values, pair=cal.input.pair), strain)]
-                try:
-                    span = span_from_points(cal, points)
-                except StrainCompError as err:
-                    problems.append(f"{sensor}: {err}")
-                    continue
-                sensors[sensor] = replace(cal, input=replace(cal.input, zero_span=span))
-                lines.append(f"{sensor}: {span_reading(span)}")
+        for sensor, values in self.taring.at_rest():
+            cal = sensors[sensor]
+            zero = cal.input_rest
+            if zero is None or values.size == 0:
+                problems.append(f"{sensor}: " + ("the calibration stores no "
+                                "rest_resistance" if zero is None else
+                                f"no good sample in the last {TARE_WINDOW_S} s"))
+                continue
+            points = [(zero / self.engine.input_gain(sensor), fitted_rest(cal.valid_range)[0]),
+                      (rest_level(values, pair=cal.input.pair), strain)]
+            try:
+                span = span_from_points(cal, points)
+            except StrainCompError as err:
+                problems.append(f"{sensor}: {err}")
+                continue
+            sensors[sensor] = replace(cal, input=replace(cal.input, zero_span=span))
+            lines.append(f"{sensor}: {span_reading(span)}")
         if problems:
             raise ParameterError("span", "refused: " + "; ".join(problems))
         fresh = self.reload(replace(self.params, calibration=Calibration(sensors)))

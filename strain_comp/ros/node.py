@@ -29,6 +29,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -42,11 +43,11 @@ _stop = threading.Event()
 _stopped_by: list[str] = []
 
 
-def _exit_now(signum: int, frame: Any) -> None:
+def _exit_now(signum: int, frame: FrameType | None) -> None:
     os._exit(0)
 
 
-def _request_stop(signum: int, frame: Any) -> None:
+def _request_stop(signum: int, frame: FrameType | None) -> None:
     _stopped_by.append(signal.Signals(signum).name)
     _stop.set()
     watchdog = threading.Timer(SHUTDOWN_S, os._exit, args=(0,))
@@ -95,7 +96,7 @@ def command_line_params(args: list[str]) -> dict[str, str]:
             for _, rule in _ros_flags(args, ("-p", "--param"))}
 
 
-def _names_a_calibration(block: Any) -> bool:
+def _names_a_calibration(block: object) -> bool:
     """Whether a node block's ``ros__parameters`` set a ``calibration`` (at any depth)."""
     params = block.get("ros__parameters") if isinstance(block, dict) else None
     stack = [params]
@@ -158,8 +159,11 @@ def main(args: list[str] | None = None) -> int:
         import rclpy
         from rclpy.exceptions import ParameterException
         from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-        from rclpy.experimental import EventsExecutor
+        from rclpy.experimental.events_executor import EventsExecutor
         from rclpy.signals import SignalHandlerOptions
+        from rclpy.utilities import ok, try_shutdown
+
+        from strain_comp.ros.rclpy_typed import destroy, logger
 
         start_errors = (*start_errors, ParameterException)
 
@@ -186,18 +190,18 @@ def main(args: list[str] | None = None) -> int:
                 else SingleThreadedExecutor())
     executor.add_node(node)
     try:
-        while not _stop.is_set() and rclpy.ok():
+        while not _stop.is_set() and ok():
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if _stopped_by:
-            node.get_logger().info(f"{_stopped_by[0]}: stopped")
+            logger(node).info(f"{_stopped_by[0]}: stopped")
         signal.signal(signal.SIGINT, _exit_now)
         signal.signal(signal.SIGTERM, _exit_now)
         executor.shutdown(timeout_sec=0.5)
-        node.destroy_node()
-        rclpy.try_shutdown()
+        destroy(node)
+        try_shutdown()
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(0)  # the interpreter's own teardown of the DDS library can take over a second

@@ -24,10 +24,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from strain_comp.errors import BagError
 from strain_comp.io.bag.schemas import norm_type
+
+if TYPE_CHECKING:
+    from rclpy.executors import Executor
 
 LOCKSTEP_TIMEOUT_S = 1.0
 
@@ -61,7 +64,7 @@ PLAYABLE = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Int8",
 """The message types ``play`` publishes (and a lockstep topic may have)."""
 
 
-def message_class(type_name: str) -> Any:
+def message_class(type_name: str) -> type | None:
     """The Python class of one of the ``PLAYABLE`` types (e.g. ``std_msgs/msg/Float64``);
     None for any other type name."""
     from diagnostic_msgs.msg import DiagnosticArray
@@ -73,7 +76,7 @@ def message_class(type_name: str) -> Any:
     return classes.get(norm_type(type_name))
 
 
-def spin_until(executor: Any, ready: Callable[..., bool], timeout: float = 5.0) -> bool:
+def spin_until(executor: Executor, ready: Callable[..., bool], timeout: float = 5.0) -> bool:
     """Spin ``executor`` until ``ready()``; False when ``timeout`` [s] passes first."""
     deadline = time.monotonic() + timeout
     while not ready():
@@ -90,6 +93,8 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
+
+    from strain_comp.ros.rclpy_typed import destroy
 
     messages = bag_messages(path, topics)
     kinds = {name: message_class(name) for name in {m.type_name for m in messages}}
@@ -143,16 +148,17 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
                 spin_until(executor, lambda e=expected: answers[0] >= e, LOCKSTEP_TIMEOUT_S)
     finally:
         executor.shutdown(timeout_sec=0.5)
-        node.destroy_node()
+        destroy(node)
     return len(messages)
 
 
 def main(path: str | Path, **options: Any) -> int:
     """``strain-comp play``: init rclpy, play, shut down; the messages published."""
     import rclpy
+    from rclpy.utilities import try_shutdown
 
     rclpy.init()
     try:
         return play(path, **options)
     finally:
-        rclpy.try_shutdown()
+        try_shutdown()

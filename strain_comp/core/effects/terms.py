@@ -127,7 +127,7 @@ class EffectTerms:
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> np.ndarray:
         """Batch equivalent of repeated ``step``: corrected strain over arrays."""
         batch = Batch.of(t, r, s_hat, direction, temperature, neighbours)
-        out = batch.s_hat.copy()
+        out = np.copy(batch.s_hat, order="C")
         for g, c in zip(self.regressors, self.coefs, strict=True):
             out -= c * g.run(batch)
         return out

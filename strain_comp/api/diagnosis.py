@@ -1,0 +1,157 @@
+"""``diagnose`` from Python: ``strain-comp diagnose`` on a bag or recordings, and its result
+(``Diagnosis``: effects, before and after, JSON, report page; docs/api.md)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from strain_comp.api.evaluation import evaluate
+from strain_comp.api.inputs import (
+    CalibrationLike,
+    Data,
+    PathLike,
+    as_calibration,
+    as_recordings,
+    is_path,
+    paths_of,
+    read_recordings,
+)
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import save_calibration as _save_calibration
+from strain_comp.diagnosis.command import diagnose_bag
+from strain_comp.diagnosis.conditions import diagnose_conditions
+from strain_comp.diagnosis.report import write_plots
+from strain_comp.diagnosis.report_page import diagnosis_page
+from strain_comp.io.recording import Recording
+from strain_comp.offline.evaluate import PLOT_POINTS
+from strain_comp.offline.report_page import BagSection, evaluation_figures
+from strain_comp.progress import bar, counter
+
+if TYPE_CHECKING:
+    from strain_comp.diagnosis.report import DiagnoseResult
+
+
+def _run(data: object) -> dict[str, Recording]:
+    """One run's recordings by sensor name: read from a bag path, or as given."""
+    paths = paths_of(data)
+    if paths is not None and len(paths) == 1:
+        return read_recordings(paths[0])
+    return as_recordings(data)
+
+
+@dataclass
+class Diagnosis:
+    """What ``diagnose`` found: the effects added with their readings, the held-out error
+    before and after, and the calibration with the added terms."""
+
+    result: DiagnoseResult
+    diagnosed: Calibration | None = None
+    """The calibration diagnosed (without the added terms)."""
+    source: str = "recordings"
+    """The run's bag path, or ``recordings``."""
+    validate: list[str] = field(default_factory=list)
+    """The validation bags' paths (none: held-out time blocks, or recordings)."""
+    tare: str = "calibration"
+    data: Any = None
+    """The run diagnosed (a bag's path or recordings), for ``to_html``'s evaluations."""
+
+    @property
+    def calibration(self) -> Calibration:
+        """The calibration with the added effect terms (save it with save_calibration)."""
+        return self.result.calibration
+
+    @property
+    def before(self) -> dict[str, float]:
+        """Held-out RMSE, MAE and n before the added terms (pooled over the sensors)."""
+        return self.result.before
+
+    @property
+    def after(self) -> dict[str, float]:
+        """The same after them."""
+        return self.result.after
+
+    @property
+    def effects(self) -> list[dict[str, Any]]:
+        """The effects added, in order: sensor, name, kind, reading, gain (the relative
+        drop of the held-out RMSE when it was added)."""
+        return [{"sensor": e.sensor, "name": e.name, "kind": e.kind,
+                 "reading": record.get("reading", ""), "gain": e.gain}
+                for e in self.result.added for record in [e.to_json()]]
+
+    def summary(self) -> str:
+        """The lines ``strain-comp diagnose`` prints."""
+        return self.result.summary()
+
+    def to_json(self) -> dict[str, Any]:
+        """What ``diagnose --json`` writes (docs/design.md)."""
+        return self.result.to_json()
+
+    def to_html(self, calibration_path: str = "") -> str:
+        """The ``diagnose --report`` page (``strain_comp.offline.report_page``): before and
+        after, each effect with its reading, the residual plots, the run evaluated through
+        the calibration diagnosed and through the one with the terms added (tables and
+        plots), the provenance of the calibration diagnosed (named ``calibration_path``)."""
+
+        diagnosed = self.diagnosed or self.result.calibration
+        runs = []
+        if self.data is not None:
+            for heading, cal in (("the run through the calibration diagnosed", diagnosed),
+                                 ("the run through it with the terms added",
+                                  self.result.calibration)):
+                ev = evaluate(cal, self.data, tare=self.tare, plot_points=PLOT_POINTS)
+                figures = evaluation_figures(ev.result, cal, bag=self.source, tare=self.tare)
+                runs.append((heading, BagSection(self.source, ev.result,
+                                                 problems=ev.problems, figures=figures)))
+        return diagnosis_page(self.result, diagnosed, calibration_path or "(in memory)",
+                              self.source, validate=self.validate, tare=self.tare, runs=runs)
+
+
+def diagnose(calibration: CalibrationLike, data: Data, *,
+             validate: Data | Sequence[Data] | None = None, tare: str = "calibration",
+             stretch_history: bool = False, session_start: bool = True,
+             out: PathLike | None = None, plots: PathLike | None = None,
+             inputs: Sequence[PathLike] = (), progress_bar: bool = False) -> Diagnosis:
+    """``strain-comp diagnose``: find the effects ``calibration`` lacks on ``data`` (a bag or
+    recordings with a reference) and add those that lower the held-out error; held out are
+    time blocks of ``data``, or the ``validate`` run(s). ``out`` / ``plots``: also write the
+    new calibration / the residual plots (``inputs``: files they must not overwrite).
+    ``progress_bar``: a bar on stderr over the sensors and conditions tried."""
+
+    with bar(None, "diagnose", enabled=progress_bar) as shown:
+        return _diagnose(calibration, data, validate, tare, stretch_history, session_start,
+                         out, plots, inputs, counter(shown) if progress_bar else None)
+
+
+def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequence[Data] | None,
+              tare: str, stretch_history: bool, session_start: bool, out: PathLike | None,
+              plots: PathLike | None, inputs: Sequence[PathLike],
+              progress: Callable[[int, int], None] | None) -> Diagnosis:
+
+    cal = as_calibration(calibration)
+    runs: list[Any] = [] if validate is None else [validate] if (
+        is_path(validate) or isinstance(validate, (Recording, Mapping))) \
+        else list(validate)  # type: ignore[arg-type]
+    written = [os.fspath(p) for p in inputs]
+    paths = paths_of(data)
+    if paths is not None and all(paths_of(v) is not None for v in runs):  # the command's way
+        validated = [os.fspath(v) for v in runs]
+        return Diagnosis(diagnose_bag(
+            paths[0], cal, validate=validated or None,
+            out=out, plots=None if plots is None else os.fspath(plots), inputs=written,
+            tare=tare, stretch_history=stretch_history, session_start=session_start,
+            progress=progress), cal, paths[0], validated, tare, paths[0])
+    val = [_run(v) for v in runs] or None
+    result = diagnose_conditions(_run(data), cal, validate_recordings=val, tare=tare,
+                                 stretch_history=stretch_history, session_start=session_start,
+                                 progress=progress)
+    written += [p for v in [data, *runs] for p in paths_of(v) or []]
+    if out is not None:
+        _save_calibration(result.calibration, out, inputs=written)
+    if plots is not None:
+        write_plots(result, os.fspath(plots), inputs=written)
+    return Diagnosis(result, cal, paths[0] if paths else "recordings",
+                     [p for v in runs for p in paths_of(v) or []], tare,
+                     paths[0] if paths else _run(data))

@@ -1,0 +1,138 @@
+"""``evaluate`` from Python: ``strain-comp evaluate`` on one run, and its result
+(``Evaluation``: scores, table, JSON, frame, report page; docs/api.md)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from strain_comp.api.inputs import (
+    CalibrationLike,
+    Data,
+    PathLike,
+    as_calibration,
+    as_recordings,
+    paths_of,
+    read_recordings,
+)
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.tracking import DEFAULT_TRACKING
+from strain_comp.errors import InputError
+from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
+from strain_comp.offline.evaluate import in_run_bound as _in_run_bound
+from strain_comp.offline.evaluation import format_notes, format_table
+from strain_comp.offline.report_page import BagSection, evaluation_figures, evaluation_page
+from strain_comp.offline.series import series_csv
+
+if TYPE_CHECKING:
+    from strain_comp.offline.evaluation import EvaluationResult
+
+
+def _pandas() -> Any:
+    """pandas, or InputError saying it is optional and missing."""
+    try:
+        import pandas
+    except ImportError:
+        raise InputError("to_frame needs pandas (optional: pip install pandas); the arrays "
+                         "and dicts work without it") from None
+    return pandas
+
+
+@dataclass
+class Evaluation:
+    """A calibration scored on one run: per sensor n, RMSE, MAE, max |error| and R^2 in
+    the calibration's strain unit (``evaluate``'s table and JSON)."""
+
+    result: EvaluationResult
+    """The full result: per sensor its statistics and (decimated) arrays for plots."""
+    problems: list[str] = field(default_factory=list)
+    """What the bag reader skipped."""
+    calibration: Calibration | None = None
+    """The calibration scored."""
+    source: str = "recordings"
+    """The bag's path, or ``recordings``."""
+    tare: str = "calibration"
+
+    @property
+    def notes(self) -> list[str]:
+        """What the table does not show: bad and out-of-range samples, tares, unscored."""
+
+        return format_notes(self.result)
+
+    @property
+    def scores(self) -> dict[str, dict[str, Any]]:
+        """Sensor -> {model, n, rmse, mae, max_abs, r2, unit}."""
+        return {name: {"model": ev.model, "n": ev.stats.n, "rmse": ev.stats.rmse,
+                       "mae": ev.stats.mae, "max_abs": ev.stats.max_abs, "r2": ev.stats.r2,
+                       "unit": ev.unit}
+                for name, ev in self.result.sensors.items()}
+
+    def table(self) -> str:
+        """The table ``strain-comp evaluate`` prints."""
+
+        return format_table(self.result)
+
+    def to_json(self) -> dict[str, Any]:
+        """What ``evaluate --json`` writes (docs/design.md)."""
+        return self.result.to_json()
+
+    def to_frame(self) -> Any:
+        """``scores`` as a pandas DataFrame, one row per sensor (needs pandas)."""
+        return _pandas().DataFrame.from_dict(self.scores, orient="index")
+
+    def to_html(self, calibration_path: str = "") -> str:
+        """The ``evaluate --report`` page (``strain_comp.offline.report_page``): the table,
+        the plots (of the samples kept: ``plot_points``) and the calibration's provenance;
+        ``calibration_path`` names the calibration on the page."""
+
+        cal = self.calibration or Calibration({})
+        figures = evaluation_figures(self.result, cal, bag=self.source,
+                                     calibration_path=calibration_path, tare=self.tare)
+        return evaluation_page([BagSection(self.source, self.result,
+                                           problems=self.problems, figures=figures)],
+                               cal, calibration_path or "(in memory)", tare=self.tare)
+
+
+def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibration",
+             out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
+             in_run_bound: bool = False, plot_points: int = 0,
+             references_every: float | None = None,
+             csv: PathLike | None = None, inputs: Sequence[PathLike] = ()) -> Evaluation:
+    """Score ``calibration`` on one run with a reference strain: a bag (streamed, as
+    ``strain-comp evaluate`` reads it), a Recording or a dict of them.
+
+    ``in_run_bound``: also the RMSE of the same model fitted on this run. ``plot_points``:
+    keep that many evenly spaced samples per sensor in ``result`` for plots and
+    ``to_html`` (a bag; recordings keep all). ``csv``: also write every sample there
+    (``evaluate --csv``; ``inputs``: files it must not overwrite). ``references_every``:
+    the run's own reference every that many seconds fused into each sensor's output gain and
+    offset (``evaluate --references-every``; docs/fusion.md). Raises InputError when no
+    calibrated sensor can be scored.
+    """
+
+    cal = as_calibration(calibration)
+    paths = paths_of(data)
+    if paths is not None and len(paths) == 1:
+        with series_csv(None if csv is None else os.fspath(csv),
+                        inputs=[*paths, *(os.fspath(i) for i in inputs)]) as table:
+            result, problems = evaluate_bag(paths[0], cal, tare=tare, plot_points=plot_points,
+                                            series=table, out_of_range=out_of_range,
+                                            tracking=tracking,
+                                            references_every=references_every)
+        if in_run_bound:
+            _in_run_bound(result, read_recordings(paths[0]), cal)
+        return Evaluation(result, problems, cal, paths[0], tare)
+    if paths is not None:
+        raise InputError("evaluate scores one run: call it once per bag (the pooled "
+                         "figures of several: strain-comp evaluate BAG1 BAG2 ...)")
+    if csv is not None:
+        raise InputError("evaluate: csv= is for a bag; with recordings, estimate gives the "
+                         "series as arrays")
+    recordings = as_recordings(data)
+    result = evaluate_recordings(recordings, cal, tare=tare, out_of_range=out_of_range,
+                                 tracking=tracking, references_every=references_every)
+    if in_run_bound:
+        _in_run_bound(result, recordings, cal)
+    return Evaluation(result, [], cal, "recordings", tare)

@@ -1,0 +1,74 @@
+"""``fit`` from Python: ``strain-comp fit`` on bags, recordings or arrays (docs/api.md)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+from strain_comp.api.inputs import Data, PathLike, as_recordings, paths_of
+from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
+from strain_comp.errors import InputError
+from strain_comp.io.recording import Recording
+from strain_comp.offline.fit import fit_bags, fit_sensor
+from strain_comp.offline.options import check_fit_options, model_options
+from strain_comp.progress import bar, grid_progress
+
+
+def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
+        sensors: Sequence[str] | None = None, strain_unit: str = "%",
+        report: Callable[[str], None] | None = None, progress_bar: bool = False,
+        pool: str = "spanned", **options: Any) -> Calibration:
+    """Fit ``model`` (apl, pl, mpi, cubic, sinh_pl, rational, spike_decay) to recordings
+    with a reference strain: one calibration, one entry per sensor.
+
+    ``data``: bag paths (one or several runs), a Recording, or a list of Recordings (each
+    a run; several runs of one sensor are fitted together). ``sensors``: which to fit
+    (default: every one with a reference). ``options``: the model's fit options, as
+    ``strain-comp fit --option K=V`` takes them (``strain-comp fit --help`` lists them).
+    ``report``: where notes go (skipped bag damage, a sensor left out). ``progress_bar``: a
+    bar on stderr over an APL-family fit's grid (``strain_comp.progress``). ``pool``: how
+    several runs of a sensor are pooled, ``"spanned"`` (each run's input zero and span put
+    onto the run of median sensitivity) or ``"raw"`` (``strain-comp fit --pool``).
+    """
+
+    check_fit_options(model, options)
+    if not unit_ok(strain_unit):
+        raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "
+                         "(1-16 letters, digits, %, / or .)")
+
+    grid = "progress" in model_options(model) and "progress" not in options
+    with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
+        if grid:  # the grid's own lines give way to the bar (or to silence)
+            options = {**options, "progress": grid_progress(shown) if progress_bar else False}
+        calibration = _fit(data, model, sensors, report, options, pool)
+    for cal in calibration.sensors.values():
+        cal.strain_unit = strain_unit
+        if grid:  # how the fit was shown is no fit option
+            cal.provenance.get("options", {}).pop("progress", None)
+    return calibration
+
+
+def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | None,
+         report: Callable[[str], None] | None, options: Mapping[str, Any],
+         pool: str = "spanned") -> Calibration:
+
+    paths = paths_of(data)
+    if paths is not None:
+        return fit_bags(paths, model, sensors, options, report=report, pool=pool)
+    runs = [data] if isinstance(data, (Recording, Mapping)) else list(data)  # type: ignore[arg-type]
+    by_sensor: dict[str, list[Recording]] = {}
+    for run in runs:
+        for name, rec in as_recordings(run).items():
+            by_sensor.setdefault(name, []).append(rec)
+    names = list(sensors) if sensors and "all" not in sensors else \
+        [n for n, recs in by_sensor.items() if any(r.s is not None for r in recs)]
+    if not names:
+        raise InputError("no recording with a reference strain to fit to")
+    fitted: dict[str, SensorCalibration] = {}
+    for name in names:
+        if name not in by_sensor:
+            raise InputError(f"sensor {name!r} is not in the recordings "
+                             f"(sensors found: {', '.join(by_sensor)})")
+        fitted[name] = fit_sensor(by_sensor[name], model, name=name,
+                                  bags=[f"(arrays: {name})"], options=options, pool=pool)
+    return Calibration(fitted)

@@ -1,0 +1,110 @@
+"""A bag's storage files: a bare ``.mcap`` or ``.db3``, or a rosbag2 directory read through
+its ``metadata.yaml`` (docs/reliability.md, "Bags")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from strain_comp.errors import BagError
+from strain_comp.io.bag.db3 import DECOMPRESS_HINT, refuse_compressed_file
+from strain_comp.io.safe_yaml import LimitError, load_limited
+
+MAX_METADATA_BYTES = 2**20
+"""rosbag2 metadata.yaml larger than this is refused (a real one is a few kB)."""
+
+
+def _inside(path: Path, file: Path) -> bool:
+    """``file`` is a regular file that resolves (symbolic links followed) into ``path``."""
+    try:
+        return file.resolve().is_relative_to(path.resolve()) and file.is_file()
+    except (OSError, RuntimeError):  # a symbolic link loop
+        return False
+
+
+def _metadata(meta: Path) -> dict[str, Any]:
+    """rosbag2's metadata.yaml within ``MAX_METADATA_BYTES``; BagError (one line) when it is
+    unreadable or ``rosbag2_bagfile_information`` is not a mapping."""
+    try:
+        with meta.open("rb") as handle:
+            data = handle.read(MAX_METADATA_BYTES + 1)
+        if len(data) > MAX_METADATA_BYTES:
+            raise BagError(f"{meta}: rosbag2 metadata larger than {MAX_METADATA_BYTES} bytes")
+        info = load_limited(data.decode("utf-8")) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, LimitError) as exc:
+        detail = " ".join(str(exc).split())
+        raise BagError(f"{meta}: unreadable rosbag2 metadata ({detail})") from None
+    where = "rosbag2_bagfile_information"
+    if not isinstance(info, dict) or not isinstance(info.get(where, {}), dict):
+        raise BagError(f"{meta}: {where} must be a mapping")
+    return info
+
+
+def _metadata_files(path: Path, meta: Path) -> list[Path]:
+    """The files ``metadata.yaml`` lists (``rosbag2_bagfile_information.
+    relative_file_paths``) that exist; BagError (one line) for unreadable metadata, a field
+    of the wrong type, or a path that is absolute, holds ``..`` or leads out of ``path``."""
+    info = _metadata(meta)
+    where = "rosbag2_bagfile_information"
+    rel = info.get(where, {}).get("relative_file_paths", [])
+    if not isinstance(rel, list) or not all(isinstance(p, str) for p in rel):
+        raise BagError(f"{meta}: {where}.relative_file_paths must be a list of strings")
+    for p in rel:
+        if Path(p).is_absolute() or ".." in Path(p).parts:
+            raise BagError(f"{meta}: relative_file_paths: {p!r} leaves the bag directory")
+    files = [path / p for p in rel if (path / p).exists()]
+    for file in files:
+        if not _inside(path, file):
+            raise BagError(f"{meta}: relative_file_paths: {file.name!r} is not a regular "
+                           "file inside the bag directory")
+    return files
+
+
+def _bag_files(path: Path) -> list[Path]:
+    """The .mcap (or .db3) files of a rosbag2 directory, in metadata.yaml order when it
+    lists them; only regular files inside the directory (a symbolic link out of it is not
+    read). Files compressed whole (``.zstd``) are refused, with how to decompress them."""
+    meta = path / "metadata.yaml"
+    files = _metadata_files(path, meta) if _inside(path, meta) else []
+    if not files:
+        files = [f for pattern in ("*.mcap", "*.db3", "*.mcap.zstd", "*.db3.zstd")
+                 for f in sorted(path.glob(pattern)) if _inside(path, f)]
+    if not files:
+        raise BagError(f"{path}: directory holds no .mcap or .db3 file")
+    for file in files:
+        if file.suffix == ".zstd":
+            refuse_compressed_file(file)
+    return files
+
+
+def bag_paths(path: Path) -> list[Path]:
+    """The storage files (MCAP, sqlite3) of a bare ``.mcap`` or ``.db3`` or a rosbag2
+    directory; BagError before anything is opened for a missing path or one that is
+    neither (a FIFO would block)."""
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
+    if not (path.is_dir() or path.is_file()):
+        raise BagError(f"{path}: not a regular file or a rosbag2 directory")
+    if path.is_file() and path.suffix == ".zstd":
+        refuse_compressed_file(path)
+    return _bag_files(path) if path.is_dir() else [path]
+
+
+def per_message_zstd(path: Path, file: Path) -> bool:
+    """Are the messages of ``file`` (of the bag at ``path``) compressed one by one? A
+    rosbag2 directory says so in metadata.yaml (``compression_mode: message``); only zstd
+    is read, and only for .db3 files."""
+    meta = path / "metadata.yaml"
+    if not (path.is_dir() and _inside(path, meta)):
+        return False
+    info = _metadata(meta).get("rosbag2_bagfile_information", {})
+    mode = str(info.get("compression_mode") or "").lower()
+    if mode in ("", "none"):
+        return False
+    kind = str(info.get("compression_format") or "")
+    if mode != "message" or kind != "zstd" or file.suffix != ".db3":
+        raise BagError(f"{meta}: compression {kind or '?'} per {mode} is not read here; "
+                       + DECOMPRESS_HINT)
+    return True

@@ -1,0 +1,116 @@
+"""A model family's array form lifted from its per-sensor kernel, as numbagg lifts a 1-D
+kernel: a family writes one numba kernel that advances sensor ``s`` of its tables by one
+good sample, and gets the array step over every sensor (``LiftedArray.step``) and the
+engine's array tick (``strain_comp.core.array``) without writing either.
+
+The kernel's contract: ``kernel(s, t, r, *state, *params) -> strain [%]`` advances row
+``s`` of each ``state`` array (2-D float64, one row per sensor, a zeroed row is a sensor at
+rest: construction, ``reset`` and the engine's gap reset zero it) by the good sample ``r``
+[ohm] at ``t`` [s], reading row ``s`` (or all) of the ``params`` arrays. The lifts bind it
+with ``strain_comp._numba.specialise`` (one compiled and cached dispatcher per family).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+from strain_comp._numba import specialise
+from strain_comp.errors import ParameterError
+from strain_comp.models.base import Compensator
+
+if TYPE_CHECKING:
+    from numba.core.dispatcher import Dispatcher
+
+_Family = TypeVar("_Family", bound="LiftedArray")
+
+
+def kernel(s: int, t: float, r: float, *arrays: np.ndarray) -> float:
+    """The name a template (``array_step``, ``strain_comp.core.array.family_tick``) calls
+    the family's kernel by; each specialisation binds its own, this one is never called."""
+    raise TypeError("a template's kernel is bound by strain_comp._numba.specialise")
+
+
+def array_step(t: float, r: np.ndarray, out: np.ndarray, state: tuple[np.ndarray, ...],
+               params: tuple[Any, ...]) -> None:
+    """Template: advance every sensor by one tick at ``t``; strain % into ``out`` (K,). A
+    bad r[s] (not finite or <= 0) or t leaves sensor s untouched and gives NaN."""
+    arrays = state + params
+    for s in range(r.size):
+        ri = r[s]
+        if not (math.isfinite(t) and math.isfinite(ri) and ri > 0.0):
+            out[s] = np.nan
+            continue
+        out[s] = kernel(s, t, ri, *arrays)
+
+
+def tick_arrays(r: npt.ArrayLike, k: int, out: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The resistances of one array tick as a contiguous float64 vector of the array's
+    ``k`` sensors (ValueError otherwise), and ``out`` or a new vector for its strains."""
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    if r.shape != (k,):
+        raise ValueError(f"r must have shape ({k},), got {r.shape}")
+    return r, np.empty(k) if out is None else out
+
+
+class LiftedArray(ABC):
+    """K sensors of one family stepped together through the family's lifted kernel.
+
+    A family's class names its kernel (``lift``), builds its tables from the per-sensor
+    models and sets ``state`` and ``params`` (module docstring). ``step(t, r)`` gives
+    exactly what each model's own ``step`` would give.
+    """
+
+    family: ClassVar[str]
+    """The family's name in errors (``an APL-family``, ``a creep_pi``)."""
+    kernel: ClassVar[Dispatcher[Any]]
+    """The family's per-sensor kernel (module docstring)."""
+    array_step: ClassVar[Dispatcher[Any]]
+    """``array_step`` bound to ``kernel``."""
+    state: tuple[np.ndarray, ...]
+    params: tuple[Any, ...]
+
+    def __init__(self, models: Sequence[Compensator]) -> None:
+        if not models:
+            raise ParameterError("models", "an array needs at least one sensor")
+        for i, model in enumerate(models):
+            if not self.accepts(model):
+                raise ParameterError(f"models.{i}", f"not {self.family} model: {model!r}")
+        self.models = list(models)
+
+    @classmethod
+    @abstractmethod
+    def accepts(cls, model: Compensator) -> bool:
+        """True when ``model`` belongs to this family."""
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def reset(self) -> None:
+        """Forget every sensor's state."""
+        for rows in self.state:
+            rows[:] = 0.0
+
+    def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
+        """Advance all sensors by one tick at time t [s]; strain % per sensor."""
+        r, out = tick_arrays(r, len(self.models), out)
+        type(self).array_step(float(t), r, out, self.state, self.params)
+        return out
+
+
+def lift(family_kernel: Dispatcher[Any], **options: Any
+         ) -> Callable[[type[_Family]], type[_Family]]:
+    """Class decorator: a ``LiftedArray`` family stepped by ``family_kernel``, its array
+    step compiled with the kernel's ``njit`` ``options`` (its fast-math flags)."""
+    def decorate(cls: type[_Family]) -> type[_Family]:
+        cls.kernel = family_kernel
+        cls.array_step = specialise(array_step, {"kernel": family_kernel},
+                                    error_model="numpy", **options)
+        return cls
+    return decorate

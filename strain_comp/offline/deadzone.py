@@ -1,0 +1,190 @@
+"""The direction detector's settings from training data ([EGaIn] section V.E: dead zone =
+k sigma of dR/dt noise on a hold).
+
+The hold is the longest stretch where the *reference* strain is still (``|dS/dt|`` below
+``HOLD_RATE_FRACTION`` of the 99.5th-percentile rate, at least ``MIN_HOLD_SAMPLES``
+samples). Its second half is used, so that relaxation right after the stop does not count
+as noise, and ``strain_comp.core.direction.estimate_deadzone`` sets the dead zone from it.
+Without a usable hold, the resistance noise sigma is estimated robustly from the whole
+record (MAD of the second difference of R, which cancels any smooth motion: std(d2 R) =
+sqrt(6) sigma for white noise), and ``estimate_deadzone`` is given a synthetic hold of
+white noise with that sigma at the longest segment's own sample times (fixed seed, so fits
+are reproducible). Noise-free data get a tiny floor. The provenance records which of these
+set the dead zone (``direction_from``). Options ``deadzone`` (ohm/s, set directly),
+``k_sigma`` and ``tau`` override this and are not passed to the model. ``sign`` is the sign
+of the correlation of R and S in the training data (-1 for a sensor whose R falls with
+strain), so the published direction is +1 on loading for every sensor
+(``strain_comp.core.engine``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from strain_comp.core.direction import DirectionSettings, estimate_deadzone
+from strain_comp.errors import InputError
+from strain_comp.models import Segment
+
+HOLD_RATE_FRACTION = 0.01
+"""|dS/dt| below this fraction of the 99.5th-percentile |dS/dt| counts as a hold (the high
+percentile is a moving rate even when fast steps take only a few % of the record)."""
+MIN_HOLD_SAMPLES = 40
+"""A hold must have at least this many samples to set the dead zone."""
+DEFAULT_K_SIGMA = 4.0
+"""Dead zone = k sigma of the derivative noise ([EGaIn] section V.E: 3 or 4)."""
+TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+"""Derivative low-pass time constants [s] tried, shortest (least lag) first."""
+BURST_FRACTION = 0.25
+"""Sample intervals shorter than this fraction of the median are bursts (``_tau_grid``)."""
+DEADZONE_FRACTION = 0.5
+"""The dead zone must stay below this fraction of the typical dR/dt while moving."""
+
+def find_hold(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray] | None:
+    """(t, r) of the second half of the longest still stretch of the reference, or None."""
+    rates = [np.abs(np.gradient(seg.s, seg.t)) for seg in segments]
+    moving = np.concatenate(rates)
+    scale = float(np.percentile(moving, 99.5)) if moving.size else 0.0
+    if scale <= 0.0:
+        return None
+    best: tuple[int, int, int] | None = None  # (length, segment index, start)
+    for index, rate in enumerate(rates):
+        still = np.concatenate(([False], rate <= HOLD_RATE_FRACTION * scale, [False]))
+        edges = np.flatnonzero(np.diff(still.astype(np.int8)))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if best is None or stop - start > best[0]:
+                best = (int(stop - start), index, int(start))
+    if best is None or best[0] < MIN_HOLD_SAMPLES:
+        return None
+    length, index, start = best
+    half = start + length // 2
+    seg = segments[index]
+    return seg.t[half:start + length], seg.r[half:start + length]
+
+
+def _noise_sigma(segments: Sequence[Segment]) -> float:
+    """Robust white-noise sigma of R [ohm] from second differences (smooth motion cancels).
+
+    sigma = 1.4826 MAD(d2 R) / sqrt(6); when the MAD is zero (coarse ADC steps: most second
+    differences are exactly 0) the plain standard deviation of d2 R / sqrt(6) is used.
+    """
+    d2 = np.concatenate([np.diff(seg.r, 2) for seg in segments if seg.r.size >= 3])
+    if d2.size == 0:
+        return 0.0
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
+    return (sigma or float(np.std(d2))) / math.sqrt(6.0)
+
+
+def movement_rate(segments: Sequence[Segment]) -> float:
+    """Typical |dR/dt| [ohm/s] while the reference moves: the gauge slope |dR/dS| (a line
+    through all samples) times the median |dS/dt| of the moving samples (the reference is
+    clean, so this is not inflated by resistance noise; on samples stamped in bursts dS/dt
+    is taken on a regular grid, ``_regular_gradient``)."""
+    r = np.concatenate([seg.r for seg in segments])
+    s = np.concatenate([seg.s for seg in segments])
+    gradient = np.gradient if _bursts(segments) is None else _regular_gradient
+    rates = np.concatenate([np.abs(gradient(seg.s, seg.t)) for seg in segments])
+    scale = float(np.percentile(rates, 99.5))
+    moving = rates > 10 * HOLD_RATE_FRACTION * scale
+    if scale <= 0.0 or not moving.any():
+        return 0.0
+    gain = abs(float(np.polyfit(s, r, 1)[0]))
+    return gain * float(np.median(rates[moving]))
+
+
+def _hold_samples(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """(t, r, source) of what nothing-moves noise looks like: the reference's longest hold,
+    else white noise of the record's robust sigma at the longest segment's sample times
+    (fixed seed); None for noise-free data."""
+    hold = find_hold(segments)
+    if hold is not None and np.ptp(hold[1]) > 0:
+        return hold[0], hold[1], "hold"
+    sigma = _noise_sigma(segments)
+    longest = max(segments, key=lambda seg: seg.t.size)
+    if sigma > 0 and longest.t.size >= 12:
+        rng = np.random.default_rng(0)
+        r_hold = float(np.median(longest.r)) + sigma * rng.standard_normal(longest.t.size)
+        return longest.t, r_hold, "noise"
+    return None
+
+
+def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
+        DirectionSettings, str]:
+    """Dead-zone settings and their source: ``given``, ``hold``, ``noise`` or ``floor``.
+
+    Without a ``tau`` option the derivative filter is the shortest on ``TAU_GRID`` whose
+    dead zone (k sigma of the filtered derivative noise) stays below ``DEADZONE_FRACTION``
+    of the typical movement rate: a raw first difference of a noisy, fast-sampled signal
+    can have a 4-sigma dead zone above the slowest ramps, and the detector would never
+    leave hold. When even the longest filter cannot get there, it is used anyway.
+    """
+    k_sigma = float(options.get("k_sigma", DEFAULT_K_SIGMA))
+    if "deadzone" in options:
+        deadzone = float(options["deadzone"])
+        if not deadzone > 0:
+            raise InputError(f"option deadzone must be > 0 ohm/s, got {deadzone}")
+        tau = float(options.get("tau", 0.0))
+        return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
+    taus = [float(options["tau"])] if "tau" in options else _tau_grid(segments)
+    hold = _hold_samples(segments)
+    if hold is None:
+        # Noise-free data (a clean simulation): a dead zone far below any real motion,
+        # 1e-6 of the training R span per second of the longest segment.
+        longest = max(segments, key=lambda seg: seg.t.size)
+        t_span = float(longest.t[-1] - longest.t[0]) or 1.0
+        r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
+        return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=taus[0],
+                                 k_sigma=None), "floor"
+    t_hold, r_hold, source = hold
+    target = DEADZONE_FRACTION * movement_rate(segments)
+    for tau in taus:
+        settings = estimate_deadzone(t_hold, r_hold, k_sigma=k_sigma, tau=tau)
+        if settings.deadzone <= target:
+            break
+    return settings, source
+
+
+def _bursts(segments: Sequence[Segment]) -> float | None:
+    """The median sample interval when the samples come in bursts (more than 1 % of the
+    intervals below ``BURST_FRACTION`` of the median: stamps taken on arrival, as a bag's
+    log time is), else None."""
+    dt = np.concatenate([np.diff(seg.t) for seg in segments])
+    if dt.size < 2:
+        return None
+    median = float(np.median(dt))
+    return median if float(np.percentile(dt, 1)) < BURST_FRACTION * median else None
+
+
+def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """dS/dt at the samples, from S interpolated onto a grid of the median interval (a
+    burst's microseconds would turn the reference's own steps into huge rates)."""
+    if t.size < 3:
+        return np.zeros(t.size)
+    step = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1] + 0.5 * step, step)
+    if grid.size < 2:
+        return np.zeros(t.size)
+    rate: np.ndarray = np.interp(t, grid, np.gradient(np.interp(grid, t, s), grid))
+    return rate
+
+
+def _tau_grid(segments: Sequence[Segment]) -> list[float]:
+    """``TAU_GRID``, without the filters shorter than two median sample intervals when the
+    samples come in bursts (``_bursts``). A first difference over a
+    burst's microseconds turns read-out noise into a derivative thousands of times its
+    size (its dead zone then hides every movement, or the detector flickers); a filter of
+    at least two sample intervals weights each difference by its dt and averages over the
+    bursts, as a regular instrument's difference would be."""
+    median = _bursts(segments)
+    if median is None:
+        return list(TAU_GRID)
+    return [tau for tau in TAU_GRID if tau >= 2.0 * median] or [TAU_GRID[-1]]
+
+
+def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
+    """+1 when R rises with strain in the training data, -1 when it falls (the sign of
+    their correlation; 0 correlation counts as +1). Sets ``DirectionSettings.sign``."""
+    return -1 if float(np.mean((r - r.mean()) * (s - s.mean()))) < 0 else 1

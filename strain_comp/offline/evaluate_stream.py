@@ -1,0 +1,340 @@
+"""``evaluate_recordings`` carried from one piece of a bag to the next (``evaluate_bag``).
+
+The engine carries its state from piece to piece exactly, the reference and temperature are
+aligned across pieces (``strain_comp.io.recording.PieceAlign``), the statistics are running
+sums (``strain_comp.core.metrics.ErrorAccumulator``) and the status counts cumulative. What
+waits between pieces is the samples after the latest reference (or temperature) sample read
+so far. Arrays for plots are kept only when asked for, decimated to at most a given number
+of evenly spaced samples per sensor (the statistics use every sample).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.engine import Engine
+from strain_comp.core.fusion import SparseFusion
+from strain_comp.core.metrics import ErrorAccumulator
+from strain_comp.core.samples import Status, used_mask
+from strain_comp.core.tare import tare_engine
+from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
+from strain_comp.io.bag import BagContents
+from strain_comp.io.recording import (
+    REFERENCE,
+    RESISTANCE,
+    TEMPERATURE,
+    PieceAlign,
+    array_sensor_names,
+)
+from strain_comp.offline.evaluation import (
+    EvaluationResult,
+    SensorEvaluation,
+    crosstalk_off_tick,
+    fusion_state,
+    input_unit,
+    references_needed,
+    temperature_missing,
+    tracked,
+)
+
+if TYPE_CHECKING:
+    from strain_comp.core.outputs import BatchOutput
+    from strain_comp.offline.series import SeriesCSV
+
+
+class _Kept:
+    """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
+    more, every other kept sample goes and the stride doubles)."""
+
+    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range")
+
+    def __init__(self, cap: int) -> None:
+        self.cap = cap
+        self.stride = 1
+        self.n = 0
+        self.index = np.empty(0, np.int64)
+        self.columns: dict[str, np.ndarray] = {}
+
+    def add(self, **columns: np.ndarray) -> None:
+        size = columns["t"].size
+        index = np.arange(self.n, self.n + size)
+        self.n += size
+        take = index % self.stride == 0
+        self.index = np.concatenate((self.index, index[take]))
+        for key in self.FIELDS:
+            new = columns[key][take]
+            self.columns[key] = new if key not in self.columns else \
+                np.concatenate((self.columns[key], new))
+        while self.index.size > self.cap:
+            self.stride *= 2
+            take = self.index % self.stride == 0
+            self.index = self.index[take]
+            self.columns = {k: v[take] for k, v in self.columns.items()}
+
+    def get(self, key: str) -> np.ndarray:
+        return self.columns.get(key, np.empty(0))
+
+
+class _Score:
+    """One sensor's running statistics and cumulative status counts."""
+
+    def __init__(self, plot_points: int) -> None:
+        self.errors = ErrorAccumulator()
+        self.n_samples = 0
+        self.n_bad = 0
+        self.n_out_of_range = 0
+        self.bad: dict[int, int] = {}
+        self.kept = _Kept(plot_points) if plot_points > 0 else None
+
+    def add(self, t: np.ndarray, r: np.ndarray, s: np.ndarray, out: BatchOutput) -> None:
+        estimate = np.asarray(out.strain, dtype=np.float64)
+        status = np.asarray(out.status)
+        good = used_mask(status)
+        scored = good & np.isfinite(s) & np.isfinite(estimate)
+        self.errors.add(estimate[scored], s[scored])
+        self.n_samples += int(t.size)
+        self.n_bad += int(np.sum(~good))
+        self.n_out_of_range += int(np.sum(np.asarray(out.out_of_range)))
+        values, counts = np.unique(status[~good], return_counts=True)
+        for v, c in zip(values.tolist(), counts.tolist(), strict=True):
+            self.bad[int(v)] = self.bad.get(int(v), 0) + int(c)
+        if self.kept is not None:
+            self.kept.add(t=t, r=r, reference=s, estimate=estimate,
+                          direction=np.asarray(out.direction), scored=scored,
+                          out_of_range=np.asarray(out.out_of_range, bool))
+
+    def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
+                   ) -> SensorEvaluation:
+        kept = self.kept or _Kept(0)
+        return SensorEvaluation(
+            name=name, model=model, stats=self.errors.stats(), t=kept.get("t"),
+            r=kept.get("r"), reference=kept.get("reference"), estimate=kept.get("estimate"),
+            direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
+            n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
+            bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
+            unit=unit, errors=self.errors,
+            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit)
+
+
+@dataclass
+class _Input:
+    """One ``/PREFIX/resistance`` topic: its calibrated columns and what waits for the
+    reference (or temperature) to arrive."""
+
+    prefix: str
+    names: list[str]
+    """Calibrated sensors, in column order of ``columns``."""
+    columns: list[int]
+    single: bool
+    group: list[str]
+    """Sensors run together by ``Engine.run_array`` (calibration order), else empty."""
+    temperature: PieceAlign | None
+    """Only when an effect term of a sensor here could read it."""
+    reference: dict[str, PieceAlign]
+    """Per sensor its reference alignment (PieceAlign)."""
+    ref_columns: dict[str, int | None] | None = None
+    """Per sensor its reference column (None: a 1-D reference); None until the reference
+    topic is first seen; empty when it does not fit."""
+    t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    r: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+
+
+class EvaluationStream:
+    """``evaluate_recordings`` carried from one piece of a bag to the next."""
+
+    def __init__(self, calibration: Calibration, engine: Engine, tare: str,
+                 plot_points: int, series: SeriesCSV | None = None, bag: str = "",
+                 tracking: str = DEFAULT_TRACKING,
+                 references_every: float | None = None) -> None:
+        self.calibration = calibration
+        self.references_every = references_every
+        self.fused: dict[str, SparseFusion] = {}
+        self.series = series
+        self.bag = bag
+        self.engine = engine
+        self.tracker = tracker_for(engine, tracking)
+        self.tare = tare
+        self.plot_points = plot_points
+        self.inputs: dict[str, _Input | None] = {}
+        self.names: list[str] = []
+        """Every sensor found in the data, in ``load_recordings`` order."""
+        self.scores: dict[str, _Score] = {}
+        self.notes: list[str] = []
+        self.bag_problems: list[str] = []
+        self.problems: list[str] = []
+        self.references: set[str] = set()
+        self.with_temperature: set[str] = set()
+        """Sensors whose input has a temperature sample in a piece read so far."""
+
+    def _problem(self, line: str) -> None:
+        if line not in self.problems:
+            self.problems.append(line)
+
+    def piece(self, contents: BagContents) -> None:
+        self.bag_problems += contents.problems
+        for topic in sorted(contents.series):
+            if topic.endswith(REFERENCE):
+                self.references.add(topic)
+            if topic.endswith(RESISTANCE) and topic not in self.inputs:
+                self.inputs[topic] = self._input(topic, contents)
+        for topic, inp in self.inputs.items():
+            if inp is not None:
+                self._add(inp, topic, contents)
+                self._run(inp)
+
+    def finish(self) -> None:
+        for inp in self.inputs.values():
+            if inp is not None:
+                for align in [inp.temperature, *inp.reference.values()]:
+                    if align is not None:
+                        align.finish()
+                self._run(inp)
+        for topic in sorted(self.references):
+            if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
+                self._problem(f"{topic}: reference without a resistance topic; ignored")
+
+    def _input(self, topic: str, contents: BagContents) -> _Input | None:
+        """What a resistance topic first seen in ``contents`` is (as ``load_recordings``
+        reads it), tared from this first piece (as ``replay`` does)."""
+        prefix = topic[:-len(RESISTANCE)]
+        series = contents.series[topic]
+        single = series.values.ndim == 1
+        if single:
+            labels = [prefix.lstrip("/")]
+        else:
+            labels, problem = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                                 series.values.shape[1])
+            if problem is not None:
+                self._problem(problem)
+        names: list[str] = []
+        columns: list[int] = []
+        for j, name in enumerate(labels):
+            if not single and name in self.names:
+                self._problem(f"{topic}: sensor {name} appears twice; column {j} skipped")
+                continue
+            self.names.append(name)
+            if name in self.calibration.sensors:
+                names.append(name)
+                columns.append(j)
+        if not names:
+            return None
+        values = series.values if not single else series.values[:, None]
+        tared = tare_engine(self.engine, {n: (series.t, values[:, j])
+                                          for n, j in zip(names, columns, strict=True)},
+                            self.tare)
+        self.notes += [f"{name}: {line}" for name, line in tared.items()]
+        for name in names:
+            self.scores[name] = _Score(self.plot_points)
+            if self.references_every is not None:
+                self.fused[name] = SparseFusion.for_calibration(self.calibration.sensors[name],
+                                                               self.references_every)
+        group = [] if single or len(names) < 2 else \
+            [n for n in self.calibration.sensors if n in names]
+        effects = any(self.calibration.sensors[n].effects for n in names)
+        return _Input(prefix, names, columns, single, group,
+                      PieceAlign() if effects else None,
+                      {n: PieceAlign() for n in names}, r=np.empty((0, len(names))))
+
+    def _ref_columns(self, inp: _Input, topic: str, contents: BagContents
+                     ) -> dict[str, int | None]:
+        """Reference column of each sensor of ``inp`` (``load_recordings``'s rules)."""
+        ref = contents.series[inp.prefix + REFERENCE]
+        if inp.single:
+            if ref.values.ndim == 1:
+                return {inp.names[0]: None}
+            self._problem(f"{inp.prefix + REFERENCE}: an array reference for a single sensor")
+            return {}
+        labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                       contents.series[topic].values.shape[1])
+        ref_labels = contents.labels.get(inp.prefix + REFERENCE) or labels
+        if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
+                and set(labels) <= set(ref_labels):
+            return {n: ref_labels.index(n) for n in inp.names}
+        self._problem(f"{inp.prefix + REFERENCE}: columns do not match {topic}; ignored")
+        return {}
+
+    def _add(self, inp: _Input, topic: str, contents: BagContents) -> None:
+        """Queue a piece's samples of ``inp`` and feed its alignments."""
+        empty = np.empty(0)
+        series = contents.series.get(topic)
+        t = series.t if series is not None else empty
+        if series is not None and t.size:
+            values = series.values[:, None] if inp.single else series.values
+            inp.t = np.concatenate((inp.t, t))
+            inp.r = np.concatenate((inp.r, values[:, inp.columns]))
+        if inp.temperature is not None:
+            temp = contents.series.get(inp.prefix + TEMPERATURE)
+            if temp is not None and temp.values.ndim == 1:
+                inp.temperature.add(t, temp.t, temp.values)
+                if temp.t.size:
+                    self.with_temperature.update(inp.names)
+            else:
+                inp.temperature.add(t, empty, empty)
+        ref = contents.series.get(inp.prefix + REFERENCE)
+        if ref is not None and inp.ref_columns is None:
+            inp.ref_columns = self._ref_columns(inp, topic, contents)
+        for name, align in inp.reference.items():
+            column = (inp.ref_columns or {}).get(name, -1)
+            if ref is None or column == -1:
+                align.add(t, empty, empty)
+            else:
+                align.add(t, ref.t, ref.values if column is None else ref.values[:, column])
+
+    def _run(self, inp: _Input) -> None:
+        """Compensate and score the queued samples whose reference is known."""
+        horizon = min(a.horizon() for a in [inp.temperature, *inp.reference.values()]
+                      if a is not None)
+        n = int(np.searchsorted(inp.t, horizon, side="right"))
+        if n == 0:
+            return
+        t, r = inp.t[:n], inp.r[:n]
+        inp.t, inp.r = inp.t[n:], inp.r[n:]
+        temp = None if inp.temperature is None else inp.temperature.take(t)
+        refs = {name: align.take(t) for name, align in inp.reference.items()}
+        column = {name: j for j, name in enumerate(inp.names)}
+        if inp.group:
+            outs = self.engine.run_array(inp.group, t, r[:, [column[g] for g in inp.group]],
+                                         {g: temp for g in inp.group})
+        else:
+            run = (self.tracker or self.engine).run  # tracking between stretches if on
+            outs = {name: run(name, t, r[:, j], temp) for j, name in enumerate(inp.names)}
+        for name, fused in self.fused.items():
+            if name in outs:
+                outs[name] = fused.fuse(t, outs[name], refs[name])
+        for name, j in column.items():
+            self.scores[name].add(t, r[:, j], refs[name], outs[name])
+            if self.series is not None:
+                cal, out = self.calibration.sensors[name], outs[name]
+                self.series.add(name, t, cal.input.to_ohm(r[:, j]), out.strain, refs[name],
+                                out.direction, out.status, unit=cal.strain_unit, bag=self.bag)
+
+    def result(self) -> EvaluationResult:
+        referenced = {name for inp in self.inputs.values() if inp is not None
+                      for name in inp.ref_columns or {}}
+        if self.references_every is not None:
+            references_needed(self.calibration, {n: n in referenced for n in self.names},
+                              self.references_every)
+        sensors: dict[str, SensorEvaluation] = {}
+        notes = list(self.notes)
+        for name, cal in self.calibration.sensors.items():
+            if name not in self.names:
+                notes.append(f"{name}: calibrated but not in the data")
+            elif name not in referenced:
+                notes.append(f"{name}: no strain_reference in the data, not scored")
+            else:
+                sensors[name] = self.scores[name].evaluation(name, cal.model,
+                                                                cal.strain_unit,
+                                                                input_unit(cal))
+                sensors[name].input_gain = self.engine.input_gain(name)
+                sensors[name].tracking = tracked(self.tracker, name)
+                sensors[name].references = fusion_state(self.fused.get(name))
+                if name not in self.with_temperature:
+                    notes += temperature_missing(name, cal)
+                notes += crosstalk_off_tick(name, cal, next(
+                    (set(inp.names) for inp in self.inputs.values()
+                     if inp is not None and not inp.single and name in inp.names), set()))
+        return EvaluationResult(sensors, notes)

@@ -1,0 +1,191 @@
+"""An evaluation's result: each sensor's run and error statistics, its table and its notes.
+
+``strain_comp.offline.evaluate`` makes it (``evaluate_recordings``, ``evaluate_bag``); the
+errors are in % strain (``strain_comp.core.metrics.error_stats``: RMSE per [Electrolycra]
+eq. (5), MAE, max |e|, R^2) over the samples the engine used whose reference is finite.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.core.fusion import SparseFusion, fusion_note
+from strain_comp.core.metrics import ErrorAccumulator, ErrorStats
+from strain_comp.errors import InputError
+
+if TYPE_CHECKING:
+    from strain_comp.core.tracking import BaselineTracker
+
+@dataclass
+class SensorEvaluation:
+    """One sensor's run: the arrays (for plots) and its error statistics."""
+
+    name: str
+    model: str
+    stats: ErrorStats
+    t: np.ndarray
+    r: np.ndarray
+    reference: np.ndarray
+    estimate: np.ndarray
+    direction: np.ndarray
+    scored: np.ndarray
+    """Boolean mask of the samples the statistics were taken over."""
+    n_samples: int
+    n_bad: int
+    n_out_of_range: int
+    bad_by_status: dict[str, int] = field(default_factory=dict)
+    in_run_rmse: float | None = None
+    """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
+    unit: str = "%"
+    """The unit of the strain and of the errors: the calibration's ``strain_unit``."""
+    out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+    """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
+    input_unit: str = "ohm"
+    """The unit of ``r``: ohm, or V for a voltage divider's input."""
+    input_gain: float = 1.0
+    """The tare's gain: the model saw ``r`` (in ohm) times this."""
+    errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
+    """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
+    tracking: dict[str, float] | None = None
+    """What baseline tracking did (``tracked``), when it ran."""
+    references: dict[str, Any] | None = None
+    """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON record: the docs/design.md keys first, then extra keys."""
+        record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
+        record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
+                      n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status,
+                      unit=self.unit)
+        if self.in_run_rmse is not None:
+            record["in_run_rmse"] = _json_number(self.in_run_rmse)
+        if self.tracking is not None:
+            record["baseline_tracking"] = {k: _json_number(v) for k, v in self.tracking.items()}
+        if self.references is not None:
+            record["references"] = {k: v if isinstance(v, dict) else _json_number(v)
+                                    for k, v in self.references.items()}
+        return record
+
+
+@dataclass
+class EvaluationResult:
+    """Per-sensor evaluations plus notes (calibrated sensors the data could not score)."""
+
+    sensors: dict[str, SensorEvaluation]
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"sensors": {NAME: {"rmse", "mae", "max_abs", "r2", "n", ...}}}`` (docs/design.md)."""
+        return {"sensors": {name: ev.to_dict() for name, ev in self.sensors.items()}}
+
+
+def _json_number(value: float | int) -> float | int | None:
+    """NaN/inf are not JSON: write them as null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def references_needed(calibration: Calibration, referenced: Mapping[str, bool],
+                      every: float) -> None:
+    """InputError naming the calibrated sensors of the data without a reference: the
+    references to fuse every ``every`` s are the data's own."""
+    missing = [n for n in calibration.sensors if n in referenced and not referenced[n]]
+    if missing:
+        raise InputError(f"--references-every {every:g}: {', '.join(missing)} has no "
+                         "strain_reference in the data (the references fused are the data's "
+                         "own /NAME/strain_reference)")
+
+
+def fusion_state(fused: SparseFusion | None) -> dict[str, Any] | None:
+    """The JSON record of a sensor's fusion: its state and the spacing."""
+    return None if fused is None else {"every": fused.every, **fused.fusion.state()}
+
+
+def input_unit(cal: SensorCalibration) -> str:
+    """The unit of the input a sensor's run holds: V for a voltage divider, else ohm."""
+    return "V" if cal.input.kind == "divider" else "ohm"
+
+
+def tracked(tracker: BaselineTracker | None, name: str) -> dict[str, float] | None:
+    """What tracking did to ``name`` (seconds at rest it moved the zero, total change of
+    the tare gain), None without tracking."""
+    if tracker is None:
+        return None
+    h = tracker.engine.health()[name]
+    return {"seconds": h.baseline_tracked_s, "correction": h.baseline_correction}
+
+
+def crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic (the
+    sensors of ``same_tick``): offline such a term reads the neighbour's latest estimate of
+    the previous batch, not of the same instant (``Engine.run``; the node, stepping each
+    message, reads the latest one), so its correction is not the one diagnosed."""
+    off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
+           if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
+           and str(e["params"].get("neighbour")) not in same_tick]
+    if not off:
+        return []
+    return [f"{name}: cross-talk term {', '.join(off)} reads a sensor not recorded on its "
+            "array topic: offline it sees that sensor's estimate batch by batch, not tick by "
+            "tick, and this error is not the calibration's (record the array on one topic)"]
+
+
+def temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
+    """The note for a run without temperature scored through a calibration with a
+    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
+    if not terms:
+        return []
+    return [f"{name}: no temperature in the data: the calibration's temperature term "
+            f"{', '.join(terms)} is not applied"]
+
+
+def nothing_scored(calibration: Calibration, names: list[str]) -> str:
+    """The error when no calibrated sensor can be scored, naming both sides."""
+    return ("no calibrated sensor has a strain_reference in the data (calibration: "
+            f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
+
+
+def format_table(result: EvaluationResult) -> str:
+    """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
+    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
+              f"{'R^2':>8}")
+    lines = [header, "-" * len(header)]
+    for name, ev in result.sensors.items():
+        st = ev.stats
+        lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
+                     f"{st.max_abs:>9.4f} {st.r2:>8.5f}")
+        if ev.in_run_rmse is not None:
+            lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
+                         f"{ev.in_run_rmse:.4f}")
+    units = sorted({ev.unit for ev in result.sensors.values()} or {"%"})
+    words = strain_unit_words(units[0])
+    if len(units) > 1:
+        words = ", ".join(strain_unit_words(u) + " (" + ", ".join(
+            n for n, ev in result.sensors.items() if ev.unit == u) + ")" for u in units)
+    lines.append(f"errors in {words}; RMSE [Electrolycra] eq. (5)")
+    return "\n".join(lines)
+
+
+def format_notes(result: EvaluationResult) -> list[str]:
+    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors."""
+    lines = []
+    for name, ev in result.sensors.items():
+        if ev.n_bad:
+            kinds = ", ".join(f"{k} {v}" for k, v in ev.bad_by_status.items())
+            lines.append(f"{name}: {ev.n_bad} of {ev.n_samples} samples bad ({kinds}); "
+                         "estimate held, not scored")
+        if ev.n_out_of_range:
+            lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
+                         "calibration's valid range (flagged, scored); if the run's rest "
+                         "level moved, try --tare auto, or strain-comp recalibrate")
+        if ev.references is not None:
+            lines.append(fusion_note(name, ev.references, ev.references["every"], ev.unit))
+    return lines + list(result.notes)

@@ -1,0 +1,76 @@
+"""The measurement chain read from the training runs: an alternating excitation and its pair.
+
+An alternation of the excitation every other sample (``strain_comp.core.chain.alternation``,
+found from R alone) switches on the calibration's ``input.alternation``: the models are
+fitted to, and the engine feeds them, a pair statistic of R[i] and R[i-1], so the
+alternation never reaches a model's memory or the detector: the mean, or the upper or
+lower of the two when the steps of the alternation's size while the reference strain is
+still (``STILL_FRACTION`` of its span within a window) show the alternation on one side of
+the signal (``strain_comp.core.chain.pair_branch``; the carbon-black strip), stored as
+``input.pair``. Options ``alternation`` (true/false) and ``pair`` (mean/upper/lower)
+override the detection; the provenance records the reading (``measurement_chain``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.core.chain import PAIR_BRANCHES, Alternation, alternation, pair_branch
+from strain_comp.errors import FitError
+
+if TYPE_CHECKING:
+    from strain_comp.io.recording import Recording
+
+STILL_FRACTION = 0.001
+"""The reference strain is still where it moves by at most this share of its span in 1 s
+(half the slowest ramp in the measured data: the fibre moves 0.2 % of its span per s)."""
+
+
+def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str, Any],
+                ) -> tuple[Alternation, bool, str]:
+    """(the alternation read from R, whether the input is read in pairs, the pair
+    statistic) of sensor ``name``'s training runs, with the options ``alternation`` and
+    ``pair`` over the detection. Raises FitError for an unknown pair or a pair without an
+    alternating input."""
+    r_raw = np.concatenate([np.asarray(rec.r) for rec in recordings])
+    chain = alternation(r_raw)
+    alternating = bool(options.get("alternation", chain.present))
+    pair = str(options.get("pair", pair_side(recordings) if alternating else "mean"))
+    if pair not in PAIR_BRANCHES:
+        raise FitError(f"sensor {name!r}: option pair must be one of "
+                       f"{', '.join(PAIR_BRANCHES)}, got {pair!r}")
+    if pair != "mean" and not alternating:
+        raise FitError(f"sensor {name!r}: option pair={pair} needs an alternating input "
+                       "(found none; set alternation=true)")
+    return chain, alternating, pair
+
+
+def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Change of the reference strain ``s`` over the second around each sample (from the
+    last sample at or after t - 0.5 s to the last at or before t + 0.5 s)."""
+    t = np.asarray(t, dtype=np.float64)
+    lo = np.searchsorted(t, t - 0.5)
+    hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
+    change: np.ndarray = s[hi] - s[lo]
+    return change
+
+
+def pair_side(recordings: Sequence[Recording]) -> str:
+    """``strain_comp.core.chain.pair_branch`` over the training runs, still where the
+    reference strain moves by at most ``STILL_FRACTION`` of its span over 1 s around a
+    sample."""
+    r_all, still_all = [], []
+    for rec in recordings:
+        if rec.s is None:
+            continue
+        s = np.asarray(rec.s, dtype=np.float64)
+        span = float(np.nanmax(s) - np.nanmin(s)) if np.any(np.isfinite(s)) else 0.0
+        moved = np.abs(strain_change(rec.t, s))
+        r_all.append(np.asarray(rec.r, dtype=np.float64))
+        still_all.append(np.isfinite(moved) & (moved <= STILL_FRACTION * span))
+    if not r_all:
+        return "mean"
+    return pair_branch(np.concatenate(r_all), np.concatenate(still_all))

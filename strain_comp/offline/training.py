@@ -1,0 +1,143 @@
+"""The training data of a fit: screened samples cut into segments, checked, and their range.
+
+* **Screening**: a sample is used only when ``strain_comp.core.samples.good_mask`` accepts it
+  (the engine's rule: finite, R > 0 ohm, time increasing) and its reference strain is
+  finite. As in the engine, a step back in time longer than ``GAP_SECONDS`` (a looped bag,
+  a sim-time reset) is not a run of rejected samples but a new start: it cuts a segment.
+* **Segments**: good samples are cut into ``Segment``s wherever the time between two
+  consecutive good samples exceeds ``GAP_SECONDS`` (a recording pause, or a long stretch of
+  bad samples), the engine's default ``gap_reset``: training resets model state exactly
+  where the engine does. For an instrument so slow that ``GAP_INTERVALS`` of its median
+  sample interval exceed that, the gap is that many intervals, and the calibration stores
+  the interval (``sample_interval``) so that the engine counts gaps alike (a 0.1 Hz
+  logger was cut at every sample and could not be fitted at all). Isolated bad samples
+  do not cut a segment: online, a bad sample is skipped and the state kept, and the fit
+  sees the same. Each recording starts a new
+  segment (model state is reset per segment). Segments shorter than ``MIN_SEGMENT``
+  samples are dropped.
+* **Valid range**: the training range of R and S widened by ``RANGE_MARGIN`` (5 %) of its
+  span on each side (the resistance floor is kept above half the smallest training R, so it
+  stays > 0 ohm). Inputs outside it are flagged as out of range, not silently trusted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from itertools import pairwise
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from strain_comp.core.calibration import PARAM_MAX, STRAIN_MAX, ValidRange
+from strain_comp.core.engine import GAP_RESET
+from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
+from strain_comp.core.tare import rest_resistance_from_reference
+from strain_comp.errors import FitError
+from strain_comp.models import Segment
+
+if TYPE_CHECKING:
+    from strain_comp.io.recording import Recording
+
+GAP_SECONDS = GAP_RESET
+"""A step between good samples longer than this [s] cuts a segment (engine ``gap_reset``)."""
+MIN_SEGMENT = 8
+"""Segments with fewer good samples are not used for fitting."""
+MIN_SPAN = 1e-9
+"""Smallest span of the training resistance [ohm] and reference strain a fit accepts: a
+finer one (a reference near 1e-300) is a unit mistake that the least-squares solvers
+cannot resolve (LAPACK fails)."""
+RANGE_MARGIN = 0.05
+"""Valid range = training range widened by this fraction of its span on each side."""
+
+
+def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
+                   gap: float = GAP_SECONDS) -> list[Segment]:
+    """Good, referenced samples of one recording cut into segments (see module docstring)
+    wherever the time steps back or forward by more than ``gap`` [s]."""
+    t = np.asarray(t, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)
+    keep = good_mask(t, r) & np.isfinite(s)
+    t, r, s = t[keep], r[keep], s[keep]
+    if t.size < 2:
+        return []
+    step = np.diff(t)
+    cuts = np.flatnonzero((step > gap) | (step < 0.0)) + 1
+    bounds = np.concatenate(([0], cuts, [t.size]))
+    return [Segment(t[a:b], r[a:b], s[a:b]) for a, b in pairwise(bounds)
+            if b - a >= MIN_SEGMENT]
+
+
+def training_segments(recordings: Sequence[Recording], name: str,
+                      interval: float | None) -> list[Segment]:
+    """Every recording's segments (``split_segments``, the gap of a slow instrument's
+    ``interval``). Raises FitError for a recording without a reference and when no
+    segment is left."""
+    segments: list[Segment] = []
+    for rec in recordings:
+        if rec.s is None:
+            raise FitError(f"sensor {name!r}: recording has no strain_reference to fit to")
+        segments.extend(split_segments(rec.t, rec.r, rec.s, gap=gap_for(interval)))
+    if not segments:
+        raise FitError(f"sensor {name!r}: no stretch of {MIN_SEGMENT} or more good samples "
+                       "with a finite reference strain")
+    return segments
+
+
+def check_training_span(segments: Sequence[Segment], name: str) -> None:
+    """FitError when the training data span no range of R or S, a reference strain beyond
+    what a calibration holds (``STRAIN_MAX``), or a span a float64 fit cannot resolve
+    (``MIN_SPAN``) or values beyond ``PARAM_MAX`` (a unit or scale mistake)."""
+    r_all = np.concatenate([seg.r for seg in segments])
+    s_all = np.concatenate([seg.s for seg in segments])
+    if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
+        raise FitError(f"sensor {name!r}: the training data span no range of resistance "
+                       "or strain")
+    span = valid_range(segments)
+    if not max(abs(span.s_lo), abs(span.s_hi)) <= STRAIN_MAX:
+        raise FitError(f"sensor {name!r}: the reference strain spans {s_all.min():.4g} to "
+                       f"{s_all.max():.4g}, beyond the +/- {STRAIN_MAX:g} a calibration "
+                       "holds; import it in a larger unit (microstrain to %: import-csv "
+                       "--scales strain=1e-4)")
+    for what, values, top in (("resistance", r_all, PARAM_MAX), ("strain", s_all, STRAIN_MAX)):
+        # a span a float64 fit cannot resolve (1e-300) or values a calibration cannot hold
+        if np.ptp(values) < MIN_SPAN or np.abs(values).max() > top:
+            raise FitError(f"sensor {name!r}: the training {what} spans "
+                           f"[{values.min():.3g}, {values.max():.3g}]: a fit needs a span of "
+                           f"at least {MIN_SPAN:g} and values within +/- {top:g} "
+                           "(a unit or scale mistake?)")
+
+
+def valid_range(segments: Sequence[Segment], *, margin: float = RANGE_MARGIN) -> ValidRange:
+    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0)."""
+    r = np.concatenate([seg.r for seg in segments])
+    s = np.concatenate([seg.s for seg in segments])
+    r_lo, r_hi = float(r.min()), float(r.max())
+    s_lo, s_hi = float(s.min()), float(s.max())
+    r_pad, s_pad = margin * (r_hi - r_lo), margin * (s_hi - s_lo)
+    return ValidRange(max(r_lo - r_pad, 0.5 * r_lo), r_hi + r_pad, s_lo - s_pad, s_hi + s_pad)
+
+
+def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
+    """The median interval [s] between the recordings' good samples when ``GAP_INTERVALS``
+    of it exceed ``GAP_SECONDS`` (a slow instrument, module docstring), else None."""
+    steps = [np.diff(np.asarray(rec.t, dtype=np.float64)[good_mask(rec.t, rec.r)])
+             for rec in recordings]
+    dt = np.concatenate(steps) if steps else np.empty(0)
+    dt = dt[dt > 0.0]
+    if not dt.size:
+        return None
+    interval = float(np.median(dt))
+    return interval if GAP_INTERVALS * interval > GAP_SECONDS else None
+
+
+def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "mean",
+                             ) -> float | None:
+    """The calibration's rest resistance [ohm]: the median over the training runs of each
+    run's leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``,
+    the statistic an automatic tare uses at run time); None when no run starts at rest."""
+    levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s, pair=pair)
+              for rec in recordings
+              if rec.s is not None]
+    found = [level for level in levels if level is not None]
+    return float(np.median(found)) if found else None

@@ -1,0 +1,41 @@
+"""Typed views of the rclpy calls the node and the player make that rclpy 7 (ROS 2 Jazzy)
+leaves unannotated (``Node.get_logger``, the logger's methods, ``Node.destroy_node``,
+``Parameter(...)``), so ros/ type-checks under strict mypy. Each view states the type the
+call has at run time; the call itself is rclpy's own."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+
+class Logger(Protocol):
+    """The methods of rclpy's ``RcutilsLogger`` the package calls (each returns False when
+    a filter such as the throttle skipped the message)."""
+
+    def info(self, message: str, *, throttle_duration_sec: float = ...) -> bool: ...
+
+    def warning(self, message: str, *, throttle_duration_sec: float = ...) -> bool: ...
+
+    def error(self, message: str, *, throttle_duration_sec: float = ...) -> bool: ...
+
+
+def logger(node: Node) -> Logger:
+    """``node.get_logger()``: the node's ``RcutilsLogger``."""
+    get: Callable[[], Logger] = node.get_logger
+    return get()
+
+
+def destroy(node: Node) -> None:
+    """``node.destroy_node()``: frees its publishers, subscriptions, services and timers."""
+    destroy_node: Callable[[], None] = node.destroy_node
+    destroy_node()
+
+
+def parameter(name: str, type_: Parameter.Type, value: object) -> Parameter:
+    """``Parameter(name, type_, value)``; ValueError when ``value`` is not of ``type_``."""
+    make: Callable[[str, Parameter.Type, object], Parameter] = Parameter
+    return make(name, type_, value)

@@ -1,0 +1,158 @@
+"""Pooled fits in one input space and the session start on a window, against known truth:
+runs of one static gauge seen through a different input zero and sensitivity each."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from strain_comp.cli import main as cli
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration_file import load_calibration, save_calibration
+from strain_comp.errors import InputError
+from strain_comp.io.recording import Recording
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.pool import pooled_input
+from strain_comp.offline.recalibrate import recalibrate_recordings, stretch_and_return
+
+
+def gauge(s: np.ndarray) -> np.ndarray:
+    """The sensor's true curve: R = 1000 (1 + 0.02 S + 2e-4 S^2) [ohm]."""
+    return 1000.0 * (1.0 + 0.02 * s + 2e-4 * s ** 2)
+
+
+def triangles(top: float, seconds: float = 60.0, period: float = 10.0) -> tuple[
+        np.ndarray, np.ndarray]:
+    """2 s of rest, then 0 -> ``top`` % triangles."""
+    t = np.arange(0.0, seconds, 0.05)
+    phase = np.clip(t - 2.0, 0.0, None) % period
+    return t, np.where(t < 2.0, 0.0, top * (1.0 - np.abs(phase - period / 2) / (period / 2)))
+
+
+def run(zero: float, gain: float, top: float) -> Recording:
+    """The gauge read through R = zero + gain (R_true - 1000): its own zero and sensitivity."""
+    t, s = triangles(top)
+    return Recording("s1", t, zero + gain * (gauge(s) - 1000.0), s)
+
+
+RUNS = [run(1000.0, 1.0, 30.0), run(1080.0, 1.5, 20.0), run(950.0, 0.7, 40.0)]
+NEW = run(1120.0, 1.25, 30.0)
+
+
+def test_pooled_input_puts_every_run_onto_the_anchor_curve() -> None:
+    _, maps, reading = pooled_input(RUNS)
+    assert reading["pool"] == "spanned"
+    assert reading["curve_rmse"]["spanned"] < 0.01 * reading["curve_rmse"]["raw"]
+    truth = ((1000.0, 1.0, 30.0), (1080.0, 1.5, 20.0), (950.0, 0.7, 40.0))
+    anchor = [i for i, m in enumerate(maps) if m["span_gain"] == 1.0
+              and m["rest"] == m["rest_calibrated"]]
+    assert len(anchor) == 1  # the run of median sensitivity is the space
+    za, ga, _ = truth[anchor[0]]
+    for (z, g, top), m in zip(truth, maps, strict=True):
+        s = np.linspace(0.0, top, 9)  # over the strains the run saw
+        through = m["rest_calibrated"] + m["span_gain"] * (z + g * (gauge(s) - 1000.0)
+                                                             - m["rest"])
+        expected = za + ga * (gauge(s) - 1000.0)
+        assert through == pytest.approx(expected, abs=1e-3 * np.ptp(expected))
+    assert pooled_input(RUNS, "raw") == (RUNS, [], {"pool": "raw"})
+    # runs of one gauge with no difference of zero or sensitivity: nothing to map
+    rng = np.random.default_rng(1)
+    same = [run(1000.0, 1.0, top) for top in (20.0, 30.0, 40.0)]
+    same = [Recording("s1", r.t, r.r + rng.normal(0.0, 2.0, r.t.size), r.s) for r in same]
+    assert pooled_input(same)[2]["pool"] == "raw"
+    with pytest.raises(InputError, match="--pool"):
+        pooled_input(RUNS, "median")
+
+
+@pytest.mark.parametrize("pool, limit", [("spanned", 0.1), ("raw", None)])
+def test_a_pooled_fit_carries_to_a_new_run_after_its_session_start(pool: str,
+                                                                   limit: float | None
+                                                                   ) -> None:
+    cal = Calibration({"s1": fit_sensor(RUNS, "cubic", name="s1", pool=pool)})
+    fit_rmse = cal.sensors["s1"].provenance["fit_rmse"]
+    started, _ = recalibrate_recordings(cal, {"s1": NEW}, form="input", span=(0.0, 12.0))
+    error = evaluate_recordings({"s1": NEW}, started).sensors["s1"].stats.rmse
+    if limit is not None:  # one space: the fit is exact and the session start finds the map
+        assert fit_rmse < 0.05 and error < limit
+        assert len(cal.sensors["s1"].provenance["pooled_runs"]) == 3
+    else:  # as recorded: the fit is an average of three curves and misreads every run
+        assert fit_rmse > 1.0 and error > 0.5
+
+
+def test_a_window_spans_on_the_cycle_after_a_warm_up(tmp_path: Path) -> None:
+    """The first stretch reads 30 % more sensitive (a warm-up); the second is the sensor's."""
+    cal = Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")})
+    t, s = triangles(30.0)
+    r = 1120.0 + 1.25 * (gauge(s) - 1000.0)
+    r = np.where(t < 12.0, 1120.0 + 1.25 * 1.3 * (gauge(s) - 1000.0), r)
+    rec = Recording("s1", t, r, s)
+    first, _ = recalibrate_recordings(cal, {"s1": rec}, form="input", first=12.0)
+    second, lines = recalibrate_recordings(cal, {"s1": rec}, form="input", span=(12.0, 22.0))
+    late = Recording("s1", t[t > 12.0], r[t > 12.0], s[t > 12.0])
+    assert evaluate_recordings({"s1": late}, second).sensors["s1"].stats.rmse < 0.1
+    assert evaluate_recordings({"s1": late}, first).sensors["s1"].stats.rmse > 1.0
+    assert "12 to 22 s" in lines[0]
+    # --first S is --window 0:S
+    a = recalibrate_recordings(cal, {"s1": rec}, first=12.0)[0]
+    b = recalibrate_recordings(cal, {"s1": rec}, span=(0.0, 12.0))[0]
+    assert a.sensors["s1"].effects == b.sensors["s1"].effects
+
+
+def test_a_stretch_and_return_is_a_load_and_unload() -> None:
+    _, s = triangles(30.0)
+    assert stretch_and_return(s[:240], 30.0)  # rest, up, down
+    assert not stretch_and_return(s[40:140], 30.0)  # up only
+    assert not stretch_and_return(np.full(100, 5.0), 30.0)
+    assert not stretch_and_return(0.01 * np.sin(np.arange(100.0)), 30.0)  # a hold's noise
+
+
+@pytest.mark.parametrize("window, words", [("50:90", "runs beyond"), ("20:10", "after START"),
+                                           ("0:1.5", "no stretch and return"),
+                                           ("x:3", "START:END")])
+def test_cli_refuses_a_bad_window_in_one_line(window: str, words: str, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    from strain_comp.io.csv_import import write_recording_bag
+
+    path, bag, out = tmp_path / "cal.yaml", tmp_path / "run.mcap", tmp_path / "out.yaml"
+    save_calibration(Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")}), path)
+    write_recording_bag(NEW, str(bag))
+    assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window", window,
+                "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("strain-comp: error:") and words in err[0]
+    assert not out.exists()
+    assert cli(["recalibrate", str(path), "--from", str(bag), "--window", "12:22",
+                "--out", str(out)]) == 0
+    assert load_calibration(out).sensors["s1"].provenance["recalibrations"][0]["window"] == [
+        12.0, 22.0]
+
+
+def test_cli_fit_pools_in_one_space_unless_asked_raw(tmp_path: Path) -> None:
+    from strain_comp.io.csv_import import write_recording_bag
+
+    bags = []
+    for i, rec in enumerate(RUNS):
+        bags.append(str(tmp_path / f"run{i}.mcap"))
+        write_recording_bag(rec, bags[-1])
+    for pool in ("spanned", "raw"):
+        out = tmp_path / f"{pool}.yaml"
+        assert cli(["fit", *bags, "--model", "cubic", "--sensor", "s1", "--pool", pool,
+                    "--out", str(out), "--quiet"]) == 0
+        prov = load_calibration(out).sensors["s1"].provenance
+        assert ("pooled_runs" in prov) == (pool == "spanned")
+
+
+def test_a_window_keeps_the_warm_up_unreferenced_for_the_engine() -> None:
+    """The engine runs from the bag's start (a memory model enters the window in the state
+    the warm-up left); only the window's reference is fitted to."""
+    from strain_comp.offline.recalibrate import window
+
+    cal = Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")})
+    part = window({"s1": NEW}, (12.0, 22.0), cal)["s1"]
+    assert part.t[0] == NEW.t[0] and part.t[-1] == pytest.approx(22.0, abs=0.05)
+    assert part.s is not None and NEW.s is not None
+    assert np.isnan(part.s[part.t < 12.0]).all()
+    assert part.s[part.t >= 12.0] == pytest.approx(NEW.s[(NEW.t >= 12.0) & (NEW.t <= 22.0)])

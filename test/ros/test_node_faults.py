@@ -1,0 +1,180 @@
+"""A fault of the program inside the node, under the real rclpy in one process: reported as
+a program error (logged with its traceback, counted apart on /diagnostics, a service's
+answer saying so), never as a refused message, and the node goes on with the next message.
+A malformed message is still refused for what it carries.
+
+The truth for "goes on": the outputs equal a fresh ``LiveCompensator``'s on the same samples
+with the faulty one left out."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from ros_env import use_ros_env
+
+ROS_SLOT = 17
+use_ros_env(ROS_SLOT)
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
+from rclpy.node import Node  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from strain_comp.errors import InputError  # noqa: E402
+from strain_comp.ros.compensator import CompensatorNode  # noqa: E402
+from strain_comp.ros.live import LiveCompensator  # noqa: E402
+from strain_comp.ros.messages import array_layout, sensor_value  # noqa: E402
+from strain_comp.ros.node import create_node  # noqa: E402
+from strain_comp.ros.params import parse_values  # noqa: E402
+from strain_comp.ros.player import spin_until  # noqa: E402
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+
+
+class Rig:
+    """The node (config/compensator_params.yaml, system time), a probe node, an executor."""
+
+    def __init__(self, ctx: Any) -> None:
+        args = ["--ros-args", "--params-file", str(CONFIG / "compensator_params.yaml"),
+                "-p", "diagnostics_period_s:=0.05"]
+        self.node: CompensatorNode = create_node(base_dir=CONFIG, context=ctx, cli_args=args)
+        self.probe = Node("probe", context=ctx)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.probe)
+        self.strain: list[Any] = []
+        self.diags: list[Any] = []
+        self.probe.create_subscription(Float64, "/s1/strain", self.strain.append, 100)
+        self.probe.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 100)
+        self.pub = self.probe.create_publisher(Float64, "/s1/resistance", 10)
+        assert self.spin_until(lambda: self.pub.get_subscription_count() > 0)
+
+    def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
+        return spin_until(self.executor, done, timeout)
+
+    def send(self, value: float) -> None:
+        """Publish one good resistance and spin until its strain came back."""
+        n = len(self.strain)
+        self.pub.publish(Float64(data=value))
+        assert self.spin_until(lambda: len(self.strain) > n)
+
+    def status(self, name: str) -> tuple[int, str, dict[str, str]]:
+        """``name``'s status in a /diagnostics message published from now on."""
+        n = len(self.diags)
+        assert self.spin_until(lambda: len(self.diags) > n + 1)
+        found = {s.name: (s.level[0], s.message, {kv.key: kv.value for kv in s.values})
+                 for s in self.diags[-1].status}
+        return found[name]
+
+    def call(self, service: str) -> Any:
+        client = self.probe.create_client(Trigger, service)
+        assert self.spin_until(client.service_is_ready)
+        future = client.call_async(Trigger.Request())
+        assert self.spin_until(future.done)
+        return future.result()
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.probe.destroy_node()
+
+
+@pytest.fixture()
+def rig(context: Any) -> Iterator[Rig]:
+    r = Rig(context)
+    yield r
+    r.close()
+
+
+def test_a_program_error_in_a_callback_is_reported_as_such_and_the_node_goes_on(
+        rig: Rig, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = rig.node.live.on_sensor
+    calls: list[tuple[float, float]] = []
+
+    def faulty(name: str, t: float, value: float) -> Any:
+        calls.append((t, value))
+        if value == 13.0:
+            raise TypeError("unsupported operand type(s) for +: 'float' and 'NoneType'")
+        return real(name, t, value)
+
+    monkeypatch.setattr(rig.node.live, "on_sensor", faulty)
+    logged: list[str] = []
+    logger = rig.node.get_logger()
+    monkeypatch.setattr(type(logger), "error",
+                        lambda self, message, **kw: logged.append(message) or True)
+    rig.send(12.0)
+    rig.pub.publish(Float64(data=13.0))
+    assert rig.spin_until(lambda: sum(rig.node.live.faults.values()) == 1)
+    rig.send(14.0)  # alive: 14 ohm answered
+    assert [v for _, v in calls] == [12.0, 13.0, 14.0]
+
+    truth = LiveCompensator(parse_values(rig.node.flat, base_dir=CONFIG), warm_up=False)
+    expected = [truth.on_sensor("s1", t, v) for t, v in calls if v != 13.0]  # 13 left out
+    assert [m.data for m in rig.strain] == [o.strain for o in expected if o is not None]
+    assert rig.node.live.faults == {"s1: TypeError": 1}
+    assert sum(rig.node.live.refused.values()) == 0  # not a refused message
+    assert any("s1: program error (a bug, not the message): TypeError" in line
+               and "Traceback (most recent call last)" in line for line in logged)
+    level, _, values = rig.status("strain_comp: program errors")
+    assert (level, values["n_errors"]) in ((2, "1"), (0, "1"))  # ERROR in the first after
+    assert values["error[s1: TypeError]"] == "1"
+    transport = rig.status("strain_comp: transport")
+    assert transport[2]["n_refused"] == "0"
+    assert rig.status("strain_comp: program errors")[:2] == (0, "ok")  # until the next one
+
+
+def test_a_program_error_in_a_service_answers_so_and_is_counted(
+        rig: Rig, monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken() -> str:
+        raise KeyError("s1")
+
+    monkeypatch.setattr(rig.node.live, "tare", broken)
+    reply = rig.call("/compensator/tare")
+    assert not reply.success
+    assert reply.message.startswith("internal error: KeyError: 's1' (a bug")
+    assert rig.node.live.faults == {"~/tare: KeyError": 1}
+    monkeypatch.undo()
+    reply = rig.call("/compensator/tare")  # the real one: refused for what it has
+    assert not reply.success and reply.message.startswith("tare: refused: s1: ")
+    assert rig.node.live.faults == {"~/tare: KeyError": 1}
+
+
+class _Dim:
+    def __init__(self, size: Any, label: Any = "") -> None:
+        self.size, self.label = size, label
+
+
+class _Layout:
+    def __init__(self, offset: Any, dims: Any) -> None:
+        self.data_offset, self.dim = offset, dims
+
+
+class _Array:
+    def __init__(self, data: Any, offset: Any = 0, dims: Any = ()) -> None:
+        self.data, self.layout = data, _Layout(offset, list(dims))
+
+
+@pytest.mark.parametrize(("msg", "reason"), [
+    (_Array("12,13"), "data is not a sequence"),
+    (_Array(None), "data is not a sequence"),
+    (_Array([1.0], offset="0"), "data_offset is not an integer"),
+    (_Array([1.0], offset=True), "data_offset is not an integer"),
+    (_Array([1.0], dims=[_Dim(1.5)]), "size is not an integer"),
+    (_Array([1.0], dims=[_Dim(1, label=3)]), "label is not a string"),
+])
+def test_a_malformed_array_is_refused_for_what_it_carries(msg: Any, reason: str) -> None:
+    with pytest.raises(InputError, match=reason):
+        array_layout(msg)
+
+
+def test_array_layout_and_value_as_the_messages_give_them() -> None:
+    assert array_layout(_Array([1.0, 2.0], 1, [_Dim(1, "a")])) == ([1.0, 2.0], 1, [1], "a")
+    assert array_layout(_Array([1.0], 0, [])) == ([1.0], 0, [], "")
+    assert sensor_value(Float64(data=12.5)) == 12.5
+    for bad in (None, "12", True):
+        with pytest.raises(InputError, match="data is not a number"):
+            sensor_value(type("M", (), {"data": bad})())
