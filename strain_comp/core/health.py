@@ -139,20 +139,30 @@ class HealthTicks:
     stale: np.ndarray
     """(K,) bool: no good sample for longer than the sensor's stale time."""
 
-    def diagnostic(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, np.ndarray]]]:
+    def diagnostic(self, good_t: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, np.ndarray]]]:
         """(levels, messages, [(key, values)]) as ``SensorHealth.to_diagnostic`` gives them
         at each tick: the texts as UTF-8 byte-string arrays, the counters as integers
-        (``str`` of each is the text)."""
+        (``str`` of each is the text); ``good_t``: ``times_text(last_good_t)`` if known."""
         state = np.where(self.stale, 0, self.last_status + 2)
         values = [(name, self.counters[:, j]) for j, name in enumerate(COUNTERS)]
-        known = ~np.isnan(self.last_good_t)
-        good_t = np.full(self.stale.size, b"none", dtype="S32")
-        good_t[known] = [repr(v).encode() for v in self.last_good_t[known].tolist()]
+        good_t = times_text(self.last_good_t) if good_t is None else good_t
         values += [("last_good_t", good_t), ("last_status", _LAST_STATUS[self.last_status + 1])]
         extra = self.before.to_diagnostic()[2]  # the tracked baseline: constant over the ticks
         values += [(key, np.full(self.stale.size, extra[key].encode()))
                    for key in ("baseline_tracked_s", "baseline_correction") if key in extra]
         return LEVELS[state], MESSAGES[state], values
+
+
+def times_text(t: np.ndarray) -> np.ndarray:
+    """``repr`` of each time [s] as UTF-8 bytes, ``none`` for NaN: each distinct time
+    formatted once (the sensors of one instrument share their stamps)."""
+    found = np.full(t.size, b"none", dtype="S32")
+    known = ~np.isnan(t)
+    bits, where = np.unique(t[known].view(np.int64), return_inverse=True)  # -0.0 kept apart
+    found[known] = np.array([repr(v).encode() for v in bits.view(np.float64).tolist()],
+                            dtype="S32")[where]
+    return found
 
 
 class HealthCounter:

@@ -13,7 +13,7 @@ from collections.abc import Iterator, Mapping
 
 import numpy as np
 
-from strain_comp.core.health import HealthTicks, status_name
+from strain_comp.core.health import HealthTicks, status_name, times_text
 from strain_comp.io.diagnostic_arrays import Status, diagnostic_arrays
 
 
@@ -73,7 +73,11 @@ def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
     for name, i in index.items():
         changed |= np.diff(fusion[name].key_set[i]) != 0
     cuts = [0, *(np.flatnonzero(changed) + 1).tolist(), ticks.size]
-    columns = {name: h.diagnostic() for name, h in healths.items()}
+    good_t = np.split(times_text(np.concatenate([np.empty(0),
+                                                 *(h.last_good_t for h in healths.values())])),
+                      np.cumsum([h.last_good_t.size for h in healths.values()])[:-1])
+    columns = {name: h.diagnostic(texts)
+               for (name, h), texts in zip(healths.items(), good_t, strict=True)}
     for a, b in itertools.pairwise(cuts):
         statuses: list[Status] = []
         for name, (levels, messages, values) in columns.items():

@@ -19,7 +19,13 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.chain import HELD, SPIKE, STEP
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion
-from strain_comp.core.health import COUNTERS, HealthCounter, SensorHealth, diagnostics
+from strain_comp.core.health import (
+    COUNTERS,
+    HealthCounter,
+    SensorHealth,
+    diagnostics,
+    times_text,
+)
 from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.samples import STATUS_RULES, USED, Status
 from strain_comp.io import cdr, diagnostic_arrays
@@ -239,6 +245,9 @@ def test_health_counter_equals_the_counts_sample_by_sample() -> None:
             level, message, expected = h.to_diagnostic()
             assert (int(levels[k]), messages[k].decode()) == (level, message)
             assert {key: _at(v, k) for key, v in values} == expected
+    odd = np.array([0.0, -0.0, np.nan, 1e-7, 1e22, 0.1 + 0.2, 2.0**31, 0.0, 1e-7])
+    assert times_text(odd).tolist() == [b"none" if v != v else repr(v).encode()
+                                        for v in odd.tolist()]
     silent = HealthCounter(replace(before, stale=False)).at(ticks, stale_after=0.4)
     assert silent.stale.tolist() == (ticks - 9.5 > 0.4).tolist()
 
