@@ -261,10 +261,10 @@ def _chunk(t_ns: np.ndarray, chan: np.ndarray, seq: np.ndarray, poff: np.ndarray
     head["log"] = t_ns
     head["pub"] = t_ns
     _fill_records(raw, head.view(np.uint8).reshape(n, 31), start, poff, plen, blob)
-    data = raw.tobytes()
+    data = raw.data  # the records as they are (a memoryview), not a copy
     compressed = zstandard.ZstdCompressor(level=3).compress(data)
     chunk = Chunk(message_start_time=int(t_ns[0]), message_end_time=int(t_ns[-1]),
-                  uncompressed_size=len(data), uncompressed_crc=zlib.crc32(data),
+                  uncompressed_size=raw.size, uncompressed_crc=zlib.crc32(data),
                   compression="zstd", data=compressed)
     pieces = [_record(chunk)]
     index_pos = pos + len(pieces[0])
@@ -285,7 +285,7 @@ def _chunk(t_ns: np.ndarray, chan: np.ndarray, seq: np.ndarray, poff: np.ndarray
                        chunk_length=len(pieces[0]), message_index_offsets=index_offsets,
                        message_index_length=index_pos - pos - len(pieces[0]),
                        compression="zstd", compressed_size=len(compressed),
-                       uncompressed_size=len(data))
+                       uncompressed_size=raw.size)
     return pieces, index
 
 
