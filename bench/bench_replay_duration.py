@@ -4,17 +4,18 @@
     python bench/bench_replay_duration.py [--messages 100000] [--short 10] [--long 10000]
                                           [--model cubic] [--repeat 3]
 
-Two bags of ``--messages`` std_msgs/Float64 messages on ``/s0/resistance``, evenly spread
-over ``--short`` and ``--long`` seconds (written into a temporary directory). ``replay_bag``
-writes the same strain / direction / status / strain_stamped outputs for both, plus one
-/diagnostics message per second of log time that holds input (``diagnostics_period`` 1 s),
-so the long bag carries ``--long / --short`` times more DiagnosticArray messages.
+Two bags of ``--messages`` std_msgs/Float64 messages on ``/s0/resistance`` (one sensor),
+evenly spread over ``--short`` and ``--long`` seconds (written into a temporary directory).
+``replay_bag`` writes the same strain / direction / status / strain_stamped outputs for
+both, plus one /diagnostics message per second of log time that holds input
+(``diagnostics_period`` 1 s), so the long bag carries ``--long / --short`` times more
+DiagnosticArray messages, and at 10 messages a second of the long bag every 1 s stretch of
+baseline tracking holds enough samples to be judged.
 
-Timed (best of ``--repeat``, kernels warm), with the package's CDR encoder
-(``strain_comp.io.cdr``) and, as the baseline in the same run, with the generic encoder
-the writer used before (``mcap_ros2._dynamic.serialize_dynamic`` on the schema text, the
-message built as nested dicts): long / short ratio for each, and old / new per bag.
-Goal: long / short close to 1 (cost linear in messages, not in duration).
+Timed (best of ``--repeat``, kernels warm) with baseline tracking on (the default) and, as
+the baseline in the same run, off: long / short ratio for each. Goal: long / short close
+to 1 (cost linear in messages, not in duration); ``bench_duration.py`` measures the same
+for ten sensors in fresh processes, with peak memory.
 """
 
 from __future__ import annotations
@@ -23,50 +24,18 @@ import argparse
 import os
 import sys
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, calibration, resistance, row
 
-from strain_comp.io import cdr
-from strain_comp.io.bag import SCHEMAS, BagWriter
+from strain_comp.io.bag import BagWriter
 from strain_comp.offline.replay import replay_bag
 
-
-def generic_diagnostic_array() -> Callable[..., bytes]:
-    """``cdr.diagnostic_array``'s signature through mcap_ros2's generic encoder (the
-    writer's former path; a private module, used here only as the baseline)."""
-    from mcap_ros2._dynamic import serialize_dynamic
-
-    kind = "diagnostic_msgs/msg/DiagnosticArray"
-    encode = serialize_dynamic(kind, SCHEMAS[kind])[kind]
-
-    def diagnostic_array(sec: int, nanosec: int, frame_id: str,
-                         statuses: Sequence[tuple[str, int, str, str, Any]]) -> bytes:
-        return encode({"header": {"stamp": {"sec": sec, "nanosec": nanosec},
-                                  "frame_id": frame_id},
-                       "status": [{"level": level, "name": name, "message": message,
-                                   "hardware_id": hw,
-                                   "values": [{"key": k, "value": v} for k, v in values]}
-                                  for name, level, message, hw, values in statuses]})
-
-    return diagnostic_array
-
-
-@contextmanager
-def encoder(fn: Callable[..., bytes]) -> Iterator[None]:
-    """Make the writer encode DiagnosticArray messages with ``fn`` inside the block."""
-    saved = cdr.diagnostic_array
-    cdr.diagnostic_array = fn  # type: ignore[assignment]
-    try:
-        yield
-    finally:
-        cdr.diagnostic_array = saved  # type: ignore[assignment]
+MODES = ("on", "off")
+"""Baseline tracking: the default, then the baseline."""
 
 
 def main() -> None:
@@ -79,7 +48,6 @@ def main() -> None:
     args = parser.parse_args()
     cal = calibration(["s0"], [args.model])
     r = resistance(np.arange(args.messages) * 1e-3, 1, seed=1)[:, 0]
-    old = generic_diagnostic_array()
     times: dict[tuple[str, float], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for duration in (args.short, args.long):
@@ -89,31 +57,25 @@ def main() -> None:
                                      np.linspace(0.0, duration, args.messages), r)
             out = Path(tmp) / "out.mcap"
             replay_bag(bag, cal, out)  # warm-up: compile every kernel the replay uses
-            for name, fn in (("generic (mcap_ros2)", old), ("cdr.py", cdr.diagnostic_array)):
-                with encoder(fn):
-                    times[name, duration] = best_time(lambda b=bag, o=out: replay_bag(b, cal, o),
-                                                      args.repeat)
+            for mode in MODES:
+                times[mode, duration] = best_time(
+                    lambda b=bag, o=out, m=mode: replay_bag(b, cal, o, tracking=m), args.repeat)
     n = args.messages
     print(f"replay of {n:,} Float64 messages ({args.model} calibration), over "
           f"{args.short:g} s ({int(args.short):,} /diagnostics) and {args.long:g} s "
           f"({int(args.long):,} /diagnostics); best of {args.repeat}; "
-          f"{os.cpu_count()} cores")
-    print(f"{'DiagnosticArray encoder':<22}{'short s':>9}{'long s':>9}{'long/short':>12}")
-    for name in ("generic (mcap_ros2)", "cdr.py"):
-        short, long_ = times[name, args.short], times[name, args.long]
-        print(f"{name:<22}{short:>9.3f}{long_:>9.3f}{long_ / short:>11.2f}x")
-    new_l, old_l = times["cdr.py", args.long], times["generic (mcap_ros2)", args.long]
-    new_s = times["cdr.py", args.short]
-    per_diag = (new_l - new_s) / (int(args.long) - int(args.short)) * 1e6
-    per_diag_old = (old_l - times["generic (mcap_ros2)", args.short]) / (
-        int(args.long) - int(args.short)) * 1e6
-    print(f"long bag, old / new encoder: {old_l / new_l:.1f}x; cost of one /diagnostics "
-          f"message (long - short, per message): {per_diag:.0f} us new, {per_diag_old:.0f} us "
-          "old")
-    row(f"replay of {n:,} messages over {args.long:g} s vs over {args.short:g} s "
-        "(`bench_replay_duration.py`)", f"{new_l:.2f} s vs {new_s:.2f} s",
-        f"generic encoder: {old_l:.2f} s vs {times['generic (mcap_ros2)', args.short]:.2f} s",
-        f"{new_l / new_s:.2f}x long/short ({old_l / new_l:.1f}x faster than generic)")
+          f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
+    print(f"{'baseline tracking':<22}{'short s':>9}{'long s':>9}{'long/short':>12}")
+    for mode in MODES:
+        short, long_ = times[mode, args.short], times[mode, args.long]
+        print(f"{mode:<22}{short:>9.3f}{long_:>9.3f}{long_ / short:>11.2f}x")
+    on_s, on_l = times["on", args.short], times["on", args.long]
+    off_s, off_l = times["off", args.short], times["off", args.long]
+    row(f"replay of {n:,} messages of one sensor over {args.long:g} s vs over "
+        f"{args.short:g} s (`bench_replay_duration.py`)",
+        f"tracking on: {on_l:.2f} s vs {on_s:.2f} s",
+        f"tracking off: {off_l:.2f} s vs {off_s:.2f} s",
+        f"{on_l / on_s:.2f}x long/short on, {off_l / off_s:.2f}x off")
 
 
 if __name__ == "__main__":

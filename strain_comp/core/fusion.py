@@ -236,9 +236,11 @@ class SparseFusion:
     before: tuple[float, float, float] | None = None
     """The latest eligible sample of earlier pieces (t, estimate, reference), a candidate
     for the next multiple."""
+    record: bool = False
+    """Keep ``judged`` (replay's /diagnostics ticks read it)."""
     judged: list[tuple[float, dict[str, str]]] = field(default_factory=list)
-    """(time, ``OutputFusion.diagnostic_values`` after it) of every reference judged since
-    the reader last cleared it (replay's /diagnostics ticks)."""
+    """With ``record``: (time, ``OutputFusion.diagnostic_values`` after it) of every
+    reference judged since the reader last cleared it."""
 
     def run(self, t: np.ndarray, estimate: np.ndarray, reference: np.ndarray,
             eligible: np.ndarray) -> np.ndarray:
@@ -252,44 +254,50 @@ class SparseFusion:
         if self.origin is None:
             self.origin = float(t[0])
         idx = np.flatnonzero(eligible)
+        t_idx = t[idx]
+        lo = 0  # the eligible samples not yet passed: idx[lo:]
         pos = 0
         half = 0.5 * self.every
         while True:
             target = self.origin + self.k * self.every
-            j = int(np.searchsorted(t[idx], target, side="left"))
+            j = lo + int(np.searchsorted(t_idx[lo:], target, side="left"))
             if j == idx.size:  # no eligible sample at or after the target in this piece
-                if idx.size:
+                if lo < idx.size:
                     last = int(idx[-1])
                     self.before = (float(t[last]), float(estimate[last]), float(reference[last]))
                 break
             after = int(idx[j])
             candidates: list[tuple[float, int, tuple[float, float, float]]] = []
-            if j > 0:
+            if j > lo:
                 i = int(idx[j - 1])
-                candidates.append((target - t[i], i,
+                candidates.append((target - t[i], j - 1,
                                    (float(t[i]), float(estimate[i]), float(reference[i]))))
             elif self.before is not None:
                 candidates.append((target - self.before[0], -1, self.before))
-            candidates.append((t[after] - target, after,
+            candidates.append((t[after] - target, j,
                                (float(t[after]), float(estimate[after]),
                                 float(reference[after]))))
-            distance, index, (t_ref, s_hat, y) = min(candidates, key=lambda c: c[0])
+            distance, chosen, (t_ref, s_hat, y) = min(candidates, key=lambda c: c[0])
             if distance <= half:
+                index = int(idx[chosen]) if chosen >= 0 else -1
                 out[pos:index + 1] = self.fusion.apply(estimate[pos:index + 1])
                 pos = index + 1
                 self.fusion.update(t_ref, s_hat, y)
-                self.judged.append((t_ref, self.fusion.diagnostic_values()))
-                idx = idx[idx > index]
+                if self.record:
+                    self.judged.append((t_ref, self.fusion.diagnostic_values()))
+                lo = max(lo, chosen + 1)
                 self.before = None
             self.k = max(self.k + 1, math.floor((t_ref - self.origin) / self.every) + 1)
         out[pos:] = self.fusion.apply(estimate[pos:])
         return out
 
     @classmethod
-    def for_calibration(cls, cal: SensorCalibration, every: float) -> SparseFusion:
-        """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds."""
+    def for_calibration(cls, cal: SensorCalibration, every: float, *, record: bool = False
+                        ) -> SparseFusion:
+        """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds
+        (``record``: keep ``judged``)."""
         return cls(OutputFusion.for_span(fitted_rest(cal.valid_range)[1]),
-                   check_every(every))
+                   check_every(every), record=record)
 
     def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
         """``out`` (the engine's, for samples ``t``) with its strain fused (``run``); the

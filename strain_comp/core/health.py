@@ -1,5 +1,7 @@
 """Per-sensor health: counters by sample status, the diagnostic level and message
-(diagnostic_msgs/DiagnosticStatus), and the health a batch had at given times."""
+(diagnostic_msgs/DiagnosticStatus), and the health a batch had at given times, as arrays
+(``HealthCounter``: cumulative counts summed once a run, every tick a lookup; its
+key-values as columns for ``strain_comp.io.diagnostic_arrays``)."""
 
 from __future__ import annotations
 
@@ -104,41 +106,119 @@ def add_counts(h: SensorHealth, counts: np.ndarray) -> None:
                 setattr(h, name, getattr(h, name) + n)
 
 
-def health_at(before: SensorHealth, t: np.ndarray, out: BatchOutput, ticks: np.ndarray, *,
-              stale_after: float) -> list[SensorHealth]:
-    """A sensor's health at each of ``ticks`` [s] from one ``run``'s statuses: ``before``
-    (its health when the run started) plus the counts of the samples at or before each tick
-    (``t`` in order), what ``Engine.health(now=tick)`` would have said had the run been cut
-    there."""
-    n = t.size
-    pos = np.searchsorted(np.maximum.accumulate(t), ticks, side="right")
-    cum = np.zeros((n + 1, len(Status) + 1), np.int64)
-    cum[1:, :len(Status)] = np.cumsum(
-        out.status[:, None].astype(np.int64) == np.arange(len(Status)), axis=0)
-    if out.reset is not None:
-        cum[1:, -1] = np.cumsum(out.reset)
-    fixes = np.zeros((n + 1, 2), np.int64)
-    if out.corrections is not None:
-        fixes[1:] = np.cumsum(out.corrections[:, None] == np.array([SPIKE, STEP]), axis=0)
-    last_used = np.maximum.accumulate(np.where(USED_CODE[out.status], np.arange(n), -1))
-    found = []
-    for now, k in zip(ticks.tolist(), pos.tolist(), strict=True):
-        h = replace(before)
-        add_counts(h, cum[k, :-1])
-        h.n_gaps += int(cum[k, -1])
-        h.n_spikes += int(fixes[k, 0])
-        h.n_baseline_steps += int(fixes[k, 1])
-        if k:
-            h.last_status = Status(int(out.status[k - 1]))
-            if last_used[k - 1] >= 0:
-                h.last_good_t = float(t[last_used[k - 1]])
-        h.stale = h.last_good_t is None or now - h.last_good_t > stale_after
-        found.append(h)
+COUNTERS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
+"""The counters of ``SensorHealth``, in the order ``to_diagnostic`` lists them."""
+_ADDS = np.zeros((len(Status) + 3, len(COUNTERS)), np.int64)
+"""Counters (columns) one event adds to: each status code (``STATUS_RULES``), then a gap
+reset, a spike and a baseline step (rows)."""
+for _code, _names in enumerate(_COUNTERS):
+    for _name in _names:
+        _ADDS[_code, COUNTERS.index(_name)] = 1
+for _row, _name in enumerate(("n_gaps", "n_spikes", "n_baseline_steps"), len(Status)):
+    _ADDS[_row, COUNTERS.index(_name)] = 1
+_STATES = [SensorHealth(stale=True).to_diagnostic()[:2],
+           *(SensorHealth(last_status=s).to_diagnostic()[:2] for s in (None, *STATUSES))]
+"""(level, message) when stale, then with no sample yet and after each status code (row:
+code + 2)."""
+LEVELS = np.array([level for level, _ in _STATES], np.uint8)
+MESSAGES = np.array([message.encode() for _, message in _STATES])
+_LAST_STATUS = np.array([b"none", *(s.name.encode() for s in STATUSES)])
+
+
+@dataclass(frozen=True)
+class HealthTicks:
+    """A sensor's health at each of K ticks: ``before`` plus the counts up to each tick."""
+
+    before: SensorHealth
+    counters: np.ndarray
+    """(K, len(COUNTERS)) int64."""
+    last_status: np.ndarray
+    """(K,) status code, -1: none yet."""
+    last_good_t: np.ndarray
+    """(K,) [s], NaN: none yet."""
+    stale: np.ndarray
+    """(K,) bool: no good sample for longer than the sensor's stale time."""
+
+    def diagnostic(self, good_t: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, np.ndarray]]]:
+        """(levels, messages, [(key, values)]) as ``SensorHealth.to_diagnostic`` gives them
+        at each tick: the texts as UTF-8 byte-string arrays, the counters as integers
+        (``str`` of each is the text); ``good_t``: ``times_text(last_good_t)`` if known."""
+        state = np.where(self.stale, 0, self.last_status + 2)
+        values = [(name, self.counters[:, j]) for j, name in enumerate(COUNTERS)]
+        good_t = times_text(self.last_good_t) if good_t is None else good_t
+        values += [("last_good_t", good_t), ("last_status", _LAST_STATUS[self.last_status + 1])]
+        extra = self.before.to_diagnostic()[2]  # the tracked baseline: constant over the ticks
+        values += [(key, np.full(self.stale.size, extra[key].encode()))
+                   for key in ("baseline_tracked_s", "baseline_correction") if key in extra]
+        return LEVELS[state], MESSAGES[state], values
+
+
+def times_text(t: np.ndarray) -> np.ndarray:
+    """``repr`` of each time [s] as UTF-8 bytes, ``none`` for NaN: each distinct time
+    formatted once (the sensors of one instrument share their stamps)."""
+    found = np.full(t.size, b"none", dtype="S32")
+    known = ~np.isnan(t)
+    bits, where = np.unique(t[known].view(np.int64), return_inverse=True)  # -0.0 kept apart
+    found[known] = np.array([repr(v).encode() for v in bits.view(np.float64).tolist()],
+                            dtype="S32")[where]
     return found
+
+
+class HealthCounter:
+    """A sensor's health at any tick of one run: its health ``before`` the run plus the
+    cumulative counts of the run's samples ``t`` (in order; ``out`` their results; None:
+    the sensor ran nothing), summed once per run, so a tick costs a lookup, not a
+    ``SensorHealth``: what ``Engine.health(now=tick)`` would have said had the run been cut
+    at the tick."""
+
+    def __init__(self, before: SensorHealth, t: np.ndarray | None = None,
+                 out: BatchOutput | None = None) -> None:
+        self.before = before
+        self.t = np.empty(0) if t is None or out is None else t
+        n = self.t.size
+        self.counts = np.array([[getattr(before, name) for name in COUNTERS]], np.int64)
+        self.status = np.empty(0, np.int64)
+        self.last_used = np.empty(0, np.int64)
+        if out is not None and n:
+            events = np.zeros((n + 1, _ADDS.shape[0]), np.int64)
+            events[1:, :len(Status)] = out.status[:, None] == np.arange(len(Status))
+            if out.reset is not None:
+                events[1:, len(Status)] = out.reset
+            if out.corrections is not None:
+                events[1:, len(Status) + 1:] = (out.corrections[:, None]
+                                                == np.array([SPIKE, STEP]))
+            self.counts = self.counts + np.cumsum(events, axis=0) @ _ADDS
+            self.status = out.status.astype(np.int64)
+            self.last_used = np.maximum.accumulate(
+                np.where(USED_CODE[out.status], np.arange(n), -1))
+        self.order = np.maximum.accumulate(self.t)
+
+    def at(self, ticks: np.ndarray, *, stale_after: float) -> HealthTicks:
+        """The health at each of ``ticks`` [s], stale after ``stale_after`` [s] without a
+        good sample (as ``Engine.health(now=tick)``)."""
+        before = self.before
+        pos = np.searchsorted(self.order, ticks, side="right")
+        last_status = np.full(ticks.size, -1 if before.last_status is None
+                              else before.last_status.value, np.int64)
+        last_good_t = np.full(ticks.size, np.nan if before.last_good_t is None
+                              else before.last_good_t)
+        seen = pos > 0
+        last_status[seen] = self.status[pos[seen] - 1]
+        used = np.full(ticks.size, -1)
+        used[seen] = self.last_used[pos[seen] - 1]
+        last_good_t[used >= 0] = self.t[used[used >= 0]]
+        stale = np.isnan(last_good_t) | (ticks - last_good_t > stale_after)
+        return HealthTicks(replace(before), self.counts[pos], last_status, last_good_t, stale)
 
 
 def diagnostics(health: Mapping[str, SensorHealth], *, prefix: str = "strain_comp"
                 ) -> list[tuple[str, int, str, dict[str, str]]]:
     """``(name, level, message, values)`` per sensor, as BagWriter and the nodes publish."""
-    return [(f"{prefix}: {name}", *h.to_diagnostic()) for name, h in health.items()]
+    return [(status_name(name, prefix), *h.to_diagnostic()) for name, h in health.items()]
+
+
+def status_name(sensor: str, prefix: str = "strain_comp") -> str:
+    """The DiagnosticStatus name of ``sensor``'s health."""
+    return f"{prefix}: {sensor}"
 

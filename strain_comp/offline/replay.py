@@ -22,9 +22,11 @@ DiagnosticArray) is copied through; anything else is listed in the summary's pro
 
 from __future__ import annotations
 
+import itertools
+import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,21 +34,22 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import GAP_RESET, Engine
 from strain_comp.core.fusion import SparseFusion, check_every
-from strain_comp.core.health import SensorHealth, diagnostics, health_at
+from strain_comp.core.health import HealthCounter, SensorHealth
 from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.tare import tare_engine
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import BagError, InputError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
-from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.recording import array_sensor_names, hold_latest
+from strain_comp.offline.diagnostic_ticks import FusionTicks, diagnostic_payloads
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
+from strain_comp.offline.staging import StagedWrites
 
 OUTPUTS = ("strain", "direction", "status")
-TICK_BATCH = 256
-"""/diagnostics ticks whose healths are built at once: a piece of a long, sparse bag holds
-thousands of ticks."""
+TICK_BATCH = 1024
+"""/diagnostics ticks whose healths are counted and encoded at once: a piece of a long,
+sparse bag holds thousands of ticks."""
 STAMPED = "strain_stamped"
 """The JointState output beside ``OUTPUTS`` (module docstring)."""
 RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
@@ -115,6 +118,8 @@ class _Replay:
         self.tare = tare
         self.tracker = tracker_for(engine, tracking)
         self.writer = writer
+        self.out = StagedWrites()
+        """The piece's outputs, written with its /diagnostics slice by slice (``piece``)."""
         self.engine = engine
         self.period = period
         self.inputs: dict[str, _Input | None] = {}
@@ -132,8 +137,40 @@ class _Replay:
         self._contents = BagContents()
 
     def piece(self, contents: BagContents) -> None:
-        """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs."""
+        """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs (in that
+        order among messages of one log time); the diagnostics a batch of ticks at a time,
+        each batch's slice of log time flushed before the next is built
+        (``strain_comp.offline.staging``), so memory is bounded however long the piece
+        lasts."""
         self.problems += contents.problems
+        self._discover(contents)
+        self._contents = contents
+        inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
+                  if inp is not None and topic in contents.series
+                  and contents.series[topic].t.size]
+        self.out = StagedWrites()
+        now, counters, fusion = self._run(contents, inputs) if inputs else (np.empty(0), {}, {})
+        copies = StagedWrites()
+        self.n_in += _copy_through(contents, copies, self.written, self._problem)
+        # a bag's own /diagnostics shares the channel: copied after all the piece's ticks,
+        # as its sequence numbers have always counted them, so the piece is one slice
+        shared = "/diagnostics" in contents.types
+        edges = [] if shared else now[TICK_BATCH::TICK_BATCH].tolist()
+        for k, (lo, hi) in enumerate(itertools.pairwise([-math.inf, *edges, None])):
+            self.out.write(self.writer, lo, hi)
+            ticks = now if shared else now[k * TICK_BATCH:(k + 1) * TICK_BATCH]
+            for a in range(0, ticks.size, TICK_BATCH):
+                self._write_diagnostics(ticks[a:a + TICK_BATCH], counters, fusion)
+            copies.write(self.writer, lo, hi)
+            if hi is not None:
+                self.writer.flush(before=hi)
+        for fused in self.fused.values():
+            fused.judged.clear()
+        self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
+
+    def _discover(self, contents: BagContents) -> None:
+        """Take each new ``/NAME/resistance`` topic of ``contents`` as an input or not; an
+        input's sensors are tared (``tare``) and, with ``references_every``, fused."""
         for topic in contents.series:
             if topic.endswith("/resistance") and topic not in self.inputs:
                 inp = _input(topic, contents, self.calibration)
@@ -148,23 +185,18 @@ class _Replay:
                     self.problems += [f"{s}: {line}" for s, line in tared.items()]
                     if self.references_every is not None:
                         self.fused.update({s: SparseFusion.for_calibration(
-                            self.calibration.sensors[s], self.references_every)
+                            self.calibration.sensors[s], self.references_every, record=True)
                             for s in inp.sensors})
-        self._contents = contents
-        inputs = [(inp, contents.series[topic]) for topic, inp in self.inputs.items()
-                  if inp is not None and topic in contents.series
-                  and contents.series[topic].t.size]
-        if inputs:
-            self._run(contents, inputs)
-        self.n_in += _copy_through(contents, self.writer, self.written, self._problem)
-        self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
 
     def _problem(self, line: str) -> None:
         if line not in self.reported:
             self.reported.add(line)
             self.problems.append(line)
 
-    def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]) -> None:
+    def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]
+             ) -> tuple[np.ndarray, dict[str, HealthCounter], dict[str, FusionTicks]]:
+        """Write the outputs of the piece's ``inputs``; the diagnostics ticks it completes,
+        each sensor's health over the piece and a fused sensor's fusion states."""
         t_all = np.concatenate([series.t for _, series in inputs])
         if self.t0 is None:
             self.t0 = float(t_all.min())
@@ -188,37 +220,12 @@ class _Replay:
             if self.series is not None:
                 self._series(contents, inp, series, outs)
             runs.append((series.t, outs))
-        stale_for = {name: self.engine.stale_for(name) for name in before}
-        for a in range(0, now.size, TICK_BATCH):  # the healths of a batch of ticks at a time:
-            ticks = now[a:a + TICK_BATCH]        # memory bounded however long the piece lasts
-            at_ticks = {name: [h] * ticks.size for name, h in before.items()}
-            for t, outs in runs:
-                for sensor, out in outs.items():
-                    at_ticks[sensor] = health_at(before[sensor], t, out, ticks,
-                                                 stale_after=stale_for[sensor])
-            self._write_diagnostics(ticks, [
-                self._with_fusion(diagnostics({name: _stale(hs[k], tick, stale_for[name])
-                                               for name, hs in at_ticks.items()}),
-                                  tick, fusion_before)
-                for k, tick in enumerate(ticks.tolist())])
-        for fused in self.fused.values():
-            fused.judged.clear()
-
-    def _with_fusion(self, statuses: list[DiagnosticStatus], tick: float,
-                     before: dict[str, dict[str, str]]) -> list[DiagnosticStatus]:
-        """``statuses`` with each fused sensor's fusion state as of ``tick`` (the node's
-        ``fusion_*`` values): after the last reference judged at or before it, else as
-        before the piece (``before``)."""
-        for name, _, _, values in statuses:
-            sensor = name.split(": ", 1)[1]
-            fused = self.fused.get(sensor)
-            if fused is not None:
-                state = before[sensor]
-                for t, judged in fused.judged:
-                    if t <= tick:
-                        state = judged
-                values.update(state)
-        return statuses
+        ran = {sensor: (t, out) for t, outs in runs for sensor, out in outs.items()}
+        counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
+                    for name, h in before.items()}
+        fusion = {s: FusionTicks.of(fusion_before[s], list(f.judged))
+                  for s, f in self.fused.items()}
+        return now, counters, fusion
 
     def _series(self, contents: BagContents, inp: _Input, series: Series,
                 outs: dict[str, BatchOutput]) -> None:
@@ -247,16 +254,22 @@ class _Replay:
             for pending in self.pending.values():
                 pending.flush(self.series, final=True)
 
-    def write_tick(self, t: float) -> None:
-        now = {s: f.fusion.diagnostic_values() for s, f in self.fused.items()}
-        self._write_diagnostics(np.array([t]), [
-            self._with_fusion(diagnostics(self.engine.health(now=t)), t, now)])
+    def write_ticks(self, ticks: np.ndarray) -> None:
+        """The /diagnostics of ``ticks`` after the last input (the engine's health now)."""
+        self._write_diagnostics(ticks, {name: HealthCounter(h)
+                                        for name, h in self.engine.health().items()},
+                                {s: FusionTicks.of(f.fusion.diagnostic_values(), [])
+                                 for s, f in self.fused.items()})
 
-    def _write_diagnostics(self, t: np.ndarray, statuses: list[list[DiagnosticStatus]]) -> None:
-        """One /diagnostics message per time of ``t`` (one writer call for them all)."""
-        if t.size:
-            self.writer.write_diagnostics(t, statuses)
-            self.n_out += t.size
+    def _write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
+                           fusion: dict[str, FusionTicks]) -> None:
+        """One /diagnostics message per tick (``diagnostic_ticks``): every sensor's health
+        at the tick, a fused sensor's fusion state."""
+        healths = {name: c.at(ticks, stale_after=self.engine.stale_for(name))
+                   for name, c in counters.items()}
+        for run, blob, lengths in diagnostic_payloads(ticks, healths, fusion):
+            self.writer.write_diagnostic_payloads(ticks[run], blob, lengths)
+        self.n_out += ticks.size
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
@@ -264,19 +277,19 @@ class _Replay:
             outs = self._fused(inp, t, self.engine.run_array(inp.sensors, t, values, temps))
             for what in OUTPUTS:
                 stacked = np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
-                self.writer.write_float64_array(f"/{inp.name}/{what}", t,
+                self.out.write_float64_array(f"/{inp.name}/{what}", t,
                                                 stacked.astype(np.float64), inp.sensors)
                 if what == "strain":
-                    self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
+                    self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
         else:
             out = (self.tracker or self.engine).run(inp.name, t, values, temps[inp.name])
             out = self._fused(inp, t, {inp.name: out})[inp.name]
-            self.writer.write_float64(f"/{inp.name}/strain", t, out.strain)
-            self.writer.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
+            self.out.write_float64(f"/{inp.name}/strain", t, out.strain)
+            self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
                                           out.strain[:, None])
-            self.writer.write_int8(f"/{inp.name}/direction", t, out.direction)
-            self.writer.write_int8(f"/{inp.name}/status", t, out.status)
+            self.out.write_int8(f"/{inp.name}/direction", t, out.direction)
+            self.out.write_int8(f"/{inp.name}/status", t, out.status)
             outs = {inp.name: out}
         self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs
@@ -329,12 +342,6 @@ class _Replay:
         return hold_latest(t, src_t, src_v)
 
 
-def _stale(h: SensorHealth, now: float, stale_after: float) -> SensorHealth:
-    """``h`` with ``stale`` evaluated at ``now`` (as ``Engine.health(now)`` does)."""
-    stale = h.last_good_t is None or now - h.last_good_t > stale_after
-    return h if h.stale == stale else replace(h, stale=stale)
-
-
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
                gap_reset: float = GAP_RESET, stale_after: float = 1.0,
@@ -385,8 +392,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             raise InputError(f"--references-every {references_every:g}: {', '.join(missing)} "
                              "has no strain_reference in the bag (the references fused are "
                              "the bag's own /NAME/strain_reference)")
-        for t in state.ticks:
-            state.write_tick(float(t))
+        state.write_ticks(state.ticks)
         state.finish_series()
     replayed = {s for i in inputs for s in i.sensors}
     problems = state.problems + [
@@ -400,7 +406,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                           for s, f in state.fused.items()})
 
 
-def _copy_through(contents: BagContents, writer: BagWriter, written: set[str],
+def _copy_through(contents: BagContents, writer: StagedWrites, written: set[str],
                   problem: Callable[[str], None]) -> int:
     """Write the input topics into the output bag; the number of messages copied."""
     n = 0

@@ -22,7 +22,7 @@ from strain_comp.core.chain import (
     quantisation,
 )
 from strain_comp.core.engine import Engine
-from strain_comp.core.health import health_at
+from strain_comp.core.health import COUNTERS, HealthCounter
 from strain_comp.errors import CalibrationError, FitError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
@@ -179,7 +179,7 @@ def test_corrector_is_identical_in_step_and_run_and_across_batches_and_gaps() ->
 def test_health_counts_the_corrections_alike_in_step_run_and_replay_ticks() -> None:
     """The spikes kept from the model and the steps re-based are health counters (the
     node's /diagnostics): the same from ``step``, from ``run`` in pieces, and from
-    ``health_at`` (replay's diagnostics) at any tick."""
+    ``HealthCounter`` (replay's diagnostics) at any tick."""
     t, r, s = smooth_run(16, n=600)
     cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
     cal = corrected(cal, despike=8.0, baseline_step=16.0)
@@ -195,10 +195,11 @@ def test_health_counts_the_corrections_alike_in_step_run_and_replay_ticks() -> N
     out = engine.run("s1", t[:450], r[:450])
     assert out.corrections is not None
     ticks = np.array([t[99], t[101], t[449]])
-    at = health_at(before, t[:450], out, ticks, stale_after=1.0)
-    assert [h.n_spikes for h in at] == [0, 1, 2]
-    assert at[-1].n_baseline_steps == 1
-    assert at[-1].n_spikes == engine.health()["s1"].n_spikes
+    at = HealthCounter(before, t[:450], out).at(ticks, stale_after=1.0).counters
+    spikes, steps = COUNTERS.index("n_spikes"), COUNTERS.index("n_baseline_steps")
+    assert at[:, spikes].tolist() == [0, 1, 2]
+    assert at[-1, steps] == 1
+    assert at[-1, spikes] == engine.health()["s1"].n_spikes
     engine.run("s1", t[450:], r[450:])
     run = engine.health()["s1"]
     assert (run.n_spikes, run.n_baseline_steps) == (stepped.n_spikes, stepped.n_baseline_steps)

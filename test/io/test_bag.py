@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rosbags.highlevel import AnyReader
 
-import strain_comp.io.bag.writer as bag_module
+import strain_comp.io.bag.schemas as bag_module
 from strain_comp.errors import BagError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.cdr import message_encoder

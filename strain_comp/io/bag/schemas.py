@@ -87,3 +87,12 @@ def norm_type(name: str) -> str:
     """
     parts = name.split("/")
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
+
+
+OFFERED_QOS = (
+    "- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n"
+    "  deadline:\n    sec: 9223372036\n    nsec: 854775807\n"
+    "  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n  liveliness: 1\n"
+    "  liveliness_lease_duration:\n    sec: 9223372036\n    nsec: 854775807\n"
+    "  avoid_ros_namespace_conventions: false")
+"""The QoS rosbag2 records for a topic it offers (channel metadata ``offered_qos_profiles``)."""
