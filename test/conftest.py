@@ -228,6 +228,60 @@ def make_calibration() -> Calibration:
     return Calibration(sensors)
 
 
+# ------------------------------------------------------ drifting rests and changed gains
+
+TRACK_R0 = 1000.0
+"""Rest resistance of the baseline-tracking gauge [ohm]."""
+
+
+def tracking_gauge(s: np.ndarray) -> np.ndarray:
+    """R of the baseline-tracking gauge at strain ``s`` (%): a mild quadratic."""
+    return TRACK_R0 * (1.0 + 0.02 * s + 2e-4 * s ** 2)
+
+
+def staircase(t: np.ndarray) -> np.ndarray:
+    """Rest 10 s, then 20 s cycles: 3 s ramp to a level, 7 s hold there, 3 s back, 7 s rest."""
+    phase = np.clip(t - 10.0, 0.0, None) % 20.0
+    level = 5.0 + 5.0 * (np.clip(t - 10.0, 0.0, None) // 20.0 % 3)
+    up = np.clip(phase / 3.0, 0.0, 1.0) - np.clip((phase - 10.0) / 3.0, 0.0, 1.0)
+    return np.where(t < 10.0, 0.0, level * up)
+
+
+@functools.cache
+def staircase_calibration() -> Calibration:
+    """A cubic fitted on 70 s of ``staircase`` through ``tracking_gauge``."""
+    t = np.arange(0.0, 70.0, 0.1)
+    s = staircase(t)
+    return Calibration({"s1": fit_sensor([Recording("s1", t, tracking_gauge(s), s)], "cubic",
+                                         name="s1")})
+
+
+CHANGED_SENSITIVITY = 0.8
+"""Share of the strain ``changed_run``'s resistance follows: its calibration (``line_calibration``)
+reads this share of the true strain."""
+
+
+def line_calibration() -> Calibration:
+    """S = 0.5 R - 50 ([Electrolycra] eq. (4) with c1 = 0.5, c0 = -50), R in 100..150."""
+    cal = SensorCalibration(
+        name="s1", model="cubic", params={"c": [-50.0, 0.5, 0.0, 0.0]},
+        normalisation=Normalisation.from_ranges(100.0, 150.0, 0.0, 25.0),
+        valid_range=ValidRange(95.0, 155.0, -2.5, 27.5),
+        direction=DirectionSettings(deadzone=0.5, tau=0.0, k_sigma=4.0))
+    return Calibration({"s1": cal})
+
+
+def changed_run(seconds: float = 300.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, R, reference): 12 s cycles to 10-25 % strain; the resistance follows
+    ``CHANGED_SENSITIVITY`` x the strain, so ``line_calibration`` reads that share of it."""
+    rng = np.random.default_rng(2)
+    t = np.arange(0.0, seconds, 0.05)
+    peak = 10.0 + 15.0 * (np.floor(t / 12.0) % 4) / 3.0
+    s = peak * 0.5 * (1.0 - np.cos(2 * np.pi * t / 12.0))
+    r = (CHANGED_SENSITIVITY * s + 50.0) / 0.5 + rng.normal(0.0, 0.2, t.size)
+    return t, r, s
+
+
 # ---------------------------------------------------------------------------- markers
 # ``pytest -m "not slow and not ros"`` is the quick run; scripts/test.sh (CI) runs all.
 # The marks are given here, by module and test name, so that a test module needs no edit.

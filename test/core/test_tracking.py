@@ -4,35 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import TRACK_R0, staircase, staircase_calibration, tracking_gauge
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.tracking import BaselineTracker
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.fit import fit_sensor
-
-R0 = 1000.0
-
-
-def gauge(s: np.ndarray) -> np.ndarray:
-    return R0 * (1.0 + 0.02 * s + 2e-4 * s ** 2)
-
-
-def staircase(t: np.ndarray) -> np.ndarray:
-    """Rest 10 s, then 20 s cycles: 3 s ramp to a level, 7 s hold there, 3 s back, 7 s rest."""
-    phase = np.clip(t - 10.0, 0.0, None) % 20.0
-    level = 5.0 + 5.0 * (np.clip(t - 10.0, 0.0, None) // 20.0 % 3)
-    up = np.clip(phase / 3.0, 0.0, 1.0) - np.clip((phase - 10.0) / 3.0, 0.0, 1.0)
-    return np.where(t < 10.0, 0.0, level * up)
 
 
 @pytest.fixture(scope="module")
 def cubic() -> Calibration:
-    t = np.arange(0.0, 70.0, 0.1)
-    s = staircase(t)
-    return Calibration({"s1": fit_sensor([Recording("s1", t, gauge(s), s)], "cubic",
-                                         name="s1")})
+    return staircase_calibration()
 
 
 def test_a_rest_level_that_falls_after_each_release_is_followed(cubic: Calibration) -> None:
@@ -40,7 +23,7 @@ def test_a_rest_level_that_falls_after_each_release_is_followed(cubic: Calibrati
     s = staircase(t)
     released = np.clip(np.floor((t - 10.0) / 20.0), 0.0, None)  # releases so far
     rest_fall = 1.0 - 0.01 * released  # the rest falls 1 % after every release
-    rec = Recording("s1", t, gauge(s) * rest_fall, s)
+    rec = Recording("s1", t, tracking_gauge(s) * rest_fall, s)
     off = evaluate_recordings({"s1": rec}, cubic, tracking="off").sensors["s1"]
     on = evaluate_recordings({"s1": rec}, cubic, tracking="on").sensors["s1"]
     at_rest = (s == 0.0) & (t > 100.0)
@@ -61,7 +44,7 @@ def test_a_rest_level_that_falls_after_each_release_is_followed(cubic: Calibrati
 def test_a_held_strain_is_not_tracked(cubic: Calibration) -> None:
     t = np.arange(0.0, 60.0, 0.1)
     s = np.where(t < 5.0, 0.0, np.clip((t - 5.0) / 3.0, 0.0, 1.0) * 15.0)  # then held
-    rec = Recording("s1", t, gauge(s), s)
+    rec = Recording("s1", t, tracking_gauge(s), s)
     on = evaluate_recordings({"s1": rec}, cubic, tracking="on").sensors["s1"]
     assert on.tracking == {"seconds": 0.0, "correction": 0.0}
 
@@ -75,11 +58,12 @@ def test_a_calibration_that_reads_its_rest_as_a_strain_is_not_tracked(
     from strain_comp.core.tracking import TRACKING, rest_is_read_as_rest
 
     sensor = cubic.sensors["s1"]
-    assert rest_is_read_as_rest(sensor, R0, TRACKING.band)
-    assert not rest_is_read_as_rest(sensor, float(gauge(np.array(10.0))), TRACKING.band)
-    wrong = Calibration({"s1": replace(sensor, rest_resistance=float(gauge(np.array(10.0))))})
+    assert rest_is_read_as_rest(sensor, TRACK_R0, TRACKING.band)
+    at_10 = float(tracking_gauge(np.array(10.0)))
+    assert not rest_is_read_as_rest(sensor, at_10, TRACKING.band)
+    wrong = Calibration({"s1": replace(sensor, rest_resistance=at_10)})
     t = np.arange(0.0, 60.0, 0.1)
-    rec = Recording("s1", t, np.full(t.size, 0.97 * R0), np.zeros(t.size))  # a fallen rest
+    rec = Recording("s1", t, np.full(t.size, 0.97 * TRACK_R0), np.zeros(t.size))  # a fallen rest
     assert evaluate_recordings({"s1": rec}, cubic).sensors["s1"].tracking["correction"] > 0
     on = evaluate_recordings({"s1": rec}, wrong).sensors["s1"]
     assert on.tracking == {"seconds": 0.0, "correction": 0.0}
@@ -90,13 +74,13 @@ def test_a_rest_on_the_strain_side_only_undoes_the_trackers_own_correction(
     """A rest that fell (R 3 % low) is followed; when it comes back, the correction is
     undone to none and no further; a rest reading a small strain is never followed."""
     t = np.arange(0.0, 120.0, 0.1)
-    fell = np.where(t < 40.0, 0.97 * R0, R0)  # fallen, then back where it was
+    fell = np.where(t < 40.0, 0.97 * TRACK_R0, TRACK_R0)  # fallen, then back where it was
     back = evaluate_recordings({"s1": Recording("s1", t, fell, np.zeros(t.size))}, cubic)
     tracked = back.sensors["s1"].tracking
     assert tracked is not None and tracked["seconds"] == pytest.approx(2 * 0.03 / 0.002 / 0.97,
                                                                       abs=0.5)  # there, back
     assert tracked["correction"] == pytest.approx(0.0, abs=1e-12)
-    risen = np.full(t.size, float(gauge(np.array(0.5))))  # reads 0.5 % strain
+    risen = np.full(t.size, float(tracking_gauge(np.array(0.5))))  # reads 0.5 % strain
     held = evaluate_recordings({"s1": Recording("s1", t, risen, np.zeros(t.size))}, cubic)
     assert held.sensors["s1"].tracking == {"seconds": 0.0, "correction": 0.0}
 
@@ -114,7 +98,8 @@ def test_stepped_tracking_equals_the_batch_with_a_pair_statistic_and_a_despiker(
     t = np.arange(0.0, 190.0, 0.1)
     s = staircase(t)
     fall = 1.0 - 0.01 * np.clip(np.floor((t - 10.0) / 20.0), 0.0, None)
-    r = gauge(s) * fall + np.where(np.arange(t.size) % 2, 0.3, -0.3)  # alternating excitation
+    excitation = np.where(np.arange(t.size) % 2, 0.3, -0.3)  # alternating
+    r = tracking_gauge(s) * fall + excitation
     r[500] += 40.0  # a spike
     batch_engine = Engine(cal)
     batch = BaselineTracker(batch_engine).run("s1", t, r)
@@ -138,7 +123,7 @@ def test_a_rest_that_relaxes_back_after_a_release_is_left_to_relax(cubic: Calibr
     s = staircase(t)
     since = np.clip(t - 10.0, 0.0, None) % 20.0 - 13.0  # seconds since the last release
     undershoot = np.where((t > 10.0) & (since >= 0.0), 0.02 * np.exp(-since / 20.0), 0.0)
-    rec = Recording("s1", t, gauge(s) * (1.0 - undershoot), s)
+    rec = Recording("s1", t, tracking_gauge(s) * (1.0 - undershoot), s)
     on = evaluate_recordings({"s1": rec}, cubic).sensors["s1"]
     assert on.tracking == {"seconds": 0.0, "correction": 0.0}
 
@@ -152,12 +137,13 @@ def test_a_calibration_with_loop_terms_is_not_tracked(cubic: Calibration) -> Non
     from strain_comp.offline.recalibrate import recalibrate
 
     t = np.arange(0.0, 60.0, 0.1)
-    rec = Recording("s1", t, np.full(t.size, 0.97 * R0), np.zeros(t.size))  # a fallen rest
+    rec = Recording("s1", t, np.full(t.size, 0.97 * TRACK_R0), np.zeros(t.size))  # a fallen rest
     term = {"name": "temperature_offset", "kind": "temperature", "coef": 0.0,
             "params": {"form": "offset", "t_ref": 20.0}}
     sensor = cubic.sensors["s1"]
     with_term = Calibration({"s1": replace(sensor, effects=[term])})
     on = evaluate_recordings({"s1": rec}, with_term).sensors["s1"]
     assert on.tracking == {"seconds": 0.0, "correction": 0.0}
-    mapped = recalibrate(cubic, points=[(R0, 0.0), (float(gauge(np.array(10.0))), 11.0)])[0]
+    at_10 = float(tracking_gauge(np.array(10.0)))
+    mapped = recalibrate(cubic, points=[(TRACK_R0, 0.0), (at_10, 11.0)])[0]
     assert evaluate_recordings({"s1": rec}, mapped).sensors["s1"].tracking["correction"] > 0

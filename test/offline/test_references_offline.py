@@ -9,42 +9,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import BAGS, CONFIG
+from conftest import BAGS, CHANGED_SENSITIVITY, CONFIG, changed_run, line_calibration
 
 from strain_comp.cli import main
-from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
+from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording, load_recordings
-from strain_comp.models import Normalisation
 from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.replay import replay_bag
-
-SENSITIVITY = 0.8
-"""The sensor now reads 0.8 x the strain it was calibrated for."""
-
-
-def calibration() -> Calibration:
-    """S = 0.5 R - 50 ([Electrolycra] eq. (4) with c1 = 0.5, c0 = -50), R in 100..150."""
-    cal = SensorCalibration(
-        name="s1", model="cubic", params={"c": [-50.0, 0.5, 0.0, 0.0]},
-        normalisation=Normalisation.from_ranges(100.0, 150.0, 0.0, 25.0),
-        valid_range=ValidRange(95.0, 155.0, -2.5, 27.5),
-        direction=DirectionSettings(deadzone=0.5, tau=0.0, k_sigma=4.0))
-    return Calibration({"s1": cal})
-
-
-def changed_run(seconds: float = 300.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(t, R, reference): 12 s cycles to 10-25 % strain; the resistance follows
-    ``SENSITIVITY`` x the strain, so the calibration reads that share of it."""
-    rng = np.random.default_rng(2)
-    t = np.arange(0.0, seconds, 0.05)
-    peak = 10.0 + 15.0 * (np.floor(t / 12.0) % 4) / 3.0
-    s = peak * 0.5 * (1.0 - np.cos(2 * np.pi * t / 12.0))
-    r = (SENSITIVITY * s + 50.0) / 0.5 + rng.normal(0.0, 0.2, t.size)
-    return t, r, s
 
 
 def write(path: Path, *, reference: bool = True) -> Path:
@@ -59,8 +33,8 @@ def write(path: Path, *, reference: bool = True) -> Path:
 def test_references_every_30_s_recover_a_changed_sensitivity(tmp_path: Path) -> None:
     t, r, s = changed_run()
     rec = {"s1": Recording("s1", t, r, s)}
-    plain = evaluate_recordings(rec, calibration()).sensors["s1"]
-    fused = evaluate_recordings(rec, calibration(), references_every=30.0).sensors["s1"]
+    plain = evaluate_recordings(rec, line_calibration()).sensors["s1"]
+    fused = evaluate_recordings(rec, line_calibration(), references_every=30.0).sensors["s1"]
     assert plain.stats.rmse > 2.0  # a 20 % gain error on strains up to 25 %
     assert fused.stats.rmse < 0.35 * plain.stats.rmse
     late = t > 100.0  # after three references
@@ -68,12 +42,12 @@ def test_references_every_30_s_recover_a_changed_sensitivity(tmp_path: Path) -> 
         np.mean((plain.estimate - s)[late] ** 2))
     assert fused.references is not None
     assert fused.references["n_used"] == 9 and fused.references["n_refused"] == 0
-    assert fused.references["gain"] == pytest.approx(1.0 / SENSITIVITY, rel=0.05)
+    assert fused.references["gain"] == pytest.approx(1.0 / CHANGED_SENSITIVITY, rel=0.05)
     # before the first reference the estimate is the engine's own
     first = t <= 30.0
     assert np.array_equal(fused.estimate[first], plain.estimate[first])
     # streamed in pieces, the same numbers
-    streamed, _ = evaluate_bag(write(tmp_path / "run.mcap"), calibration(), window=700,
+    streamed, _ = evaluate_bag(write(tmp_path / "run.mcap"), line_calibration(), window=700,
                                references_every=30.0)
     got = streamed.sensors["s1"]
     assert got.stats.rmse == pytest.approx(fused.stats.rmse, rel=1e-9)
@@ -101,11 +75,11 @@ def test_no_reference_or_a_bad_spacing_is_one_line_and_exit_2(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     t, r, _ = changed_run(60.0)
     with pytest.raises(InputError, match="s1 has no strain_reference"):
-        evaluate_recordings({"s1": Recording("s1", t, r, None)}, calibration(),
+        evaluate_recordings({"s1": Recording("s1", t, r, None)}, line_calibration(),
                             references_every=10.0)
     bare = write(tmp_path / "bare.mcap", reference=False)
     cal = tmp_path / "cal.yaml"
-    save_calibration(calibration(), cal)
+    save_calibration(line_calibration(), cal)
     for argv in (["evaluate", str(bare), "--calibration", str(cal), "--references-every",
                   "10"],
                  ["replay", str(bare), "--calibration", str(cal), "--out",
@@ -124,12 +98,12 @@ def test_replay_writes_the_fused_strain_that_evaluate_scores(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag = write(tmp_path / "run.mcap")
     cal = tmp_path / "cal.yaml"
-    save_calibration(calibration(), cal)
+    save_calibration(line_calibration(), cal)
     out = tmp_path / "out.mcap"
-    summary = replay_bag(bag, calibration(), out, window=700, references_every=30.0)
+    summary = replay_bag(bag, line_calibration(), out, window=700, references_every=30.0)
     assert summary.references["s1"]["n_used"] == 9
     written = read_bag(out).series["/s1/strain"]
-    ev = evaluate_recordings(load_recordings(bag)[0], calibration(), references_every=30.0)
+    ev = evaluate_recordings(load_recordings(bag)[0], line_calibration(), references_every=30.0)
     assert np.allclose(written.values, ev.sensors["s1"].estimate, rtol=0, atol=1e-9)
     # /diagnostics carries the fusion state as of each tick, as the node's does
     used = [(t, int(values["fusion_n_used"])) for t, statuses in read_bag(out).diagnostics
@@ -151,7 +125,7 @@ def test_fusion_composes_with_the_tare_tracking_and_a_session_start() -> None:
 
     t, r, s = changed_run()
     rec = {"s1": Recording("s1", t, r, s)}
-    cal = replace(calibration().sensors["s1"], rest_resistance=100.0)
+    cal = replace(line_calibration().sensors["s1"], rest_resistance=100.0)
     started = recalibrate_recordings(Calibration({"s1": cal}), rec, form="input",
                                      first=12.0)[0]
     assert started.sensors["s1"].input.zero_span is not None
@@ -164,6 +138,6 @@ def test_fusion_composes_with_the_tare_tracking_and_a_session_start() -> None:
         assert fused.references is not None and fused.references["n_used"] == 9
         runs[key] = (plain.stats.rmse, fused.stats.rmse, fused.references["gain"])
     plain, fused, gain = runs["tared"]  # the tare does not see a sensitivity: fusion does
-    assert fused < 0.35 * plain and gain == pytest.approx(1.0 / SENSITIVITY, rel=0.05)
+    assert fused < 0.35 * plain and gain == pytest.approx(1.0 / CHANGED_SENSITIVITY, rel=0.05)
     plain, fused, gain = runs["started"]  # the input span corrected it: fusion keeps it
     assert plain < 0.3 and fused <= 1.05 * plain and gain == pytest.approx(1.0, abs=0.05)

@@ -10,10 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cubic_cal, lag_cal, noisy_stream
+from conftest import changed_run, cubic_cal, lag_cal, line_calibration, noisy_stream
 from mcap.reader import make_reader
-from test_references_offline import calibration as reference_calibration
-from test_references_offline import changed_run
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.chain import HELD, SPIKE, STEP
@@ -135,7 +133,7 @@ def test_fused_replay_diagnostics_equal_the_fusion_judged_tick_by_tick(tmp_path:
                                                                        ) -> None:
     """Each tick's ``fusion_*`` values: the fusion's after the last reference judged at or
     before the tick, the whole run fused at once; health from the engine stepped."""
-    cal = reference_calibration()
+    cal = line_calibration()
     t, r, s = _fused_bag(tmp_path / "in.mcap")
     replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=700,
                diagnostics_period=PERIOD, tracking="off", references_every=5.0)

@@ -9,7 +9,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from test_tracking import cubic, gauge, staircase  # noqa: F401  (a fixture)
+from conftest import staircase, staircase_calibration, tracking_gauge
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
@@ -22,9 +22,14 @@ def held_bytes() -> int:
     return tracemalloc.get_traced_memory()[0]
 
 
+
+@pytest.fixture(scope="module")
+def cubic() -> Calibration:
+    return staircase_calibration()
+
 @pytest.mark.parametrize("clock", ["stopped", "backwards"])
 def test_the_tracker_holds_constant_state_when_time_stands_still_or_runs_back(
-        cubic: Calibration, clock: str) -> None:  # noqa: F811
+        cubic: Calibration, clock: str) -> None:
     engine = Engine(cubic)
     tracker = BaselineTracker(engine)
     for ti in np.arange(0.0, 3.05, 0.1):  # a normal start: the stretch [3, 4) holds one
@@ -46,7 +51,7 @@ def test_the_tracker_holds_constant_state_when_time_stands_still_or_runs_back(
     assert grown < 64 * 1024, grown  # 40 000 inputs: under 2 bytes each
 
 
-R0_REST = float(gauge(np.zeros(1))[0])
+R0_REST = float(tracking_gauge(np.zeros(1))[0])
 
 
 def slow_and_fast(seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -62,12 +67,12 @@ def slow_and_fast(seed: int) -> tuple[np.ndarray, np.ndarray]:
             t.append(now)  # a repeated stamp
     times = np.array(t)
     fall = 1.0 - 0.01 * np.clip(np.floor((times - 10.0) / 20.0), 0.0, None)
-    return times, gauge(staircase(times)) * fall
+    return times, tracking_gauge(staircase(times)) * fall
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_tracking_a_slow_stream_is_alike_in_one_batch_in_windows_and_stepped(
-        cubic: Calibration, seed: int) -> None:  # noqa: F811
+        cubic: Calibration, seed: int) -> None:
     t, r = slow_and_fast(seed)
     batch_engine = Engine(cubic)
     batch = BaselineTracker(batch_engine).run("s1", t, r)
