@@ -82,7 +82,8 @@ def rest_level(r: np.ndarray, *, pair: str = "mean") -> float:
 
 
 def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
-    return np.isfinite(t) & np.isfinite(r) & (r > 0)
+    good: np.ndarray = np.isfinite(t) & np.isfinite(r) & (r > 0)
+    return good
 
 
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,

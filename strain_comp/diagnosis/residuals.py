@@ -126,7 +126,8 @@ def block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
     span = t[-1] - t[0]
     if not span > 0:
         return np.zeros(t.size, dtype=np.intp)
-    return np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
+    blocks: np.ndarray = np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
+    return blocks
 
 
 def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], batch: Batch,

@@ -71,13 +71,14 @@ class Gram:
         idx = np.asarray(cols)
         a = self.xx[np.ix_(folds, idx, idx)].sum(axis=0)
         b = self.xe[np.ix_(folds, idx)].sum(axis=0)
-        return np.linalg.lstsq(a, b, rcond=1e-12)[0]
+        coef: np.ndarray = np.linalg.lstsq(a, b, rcond=1e-12)[0]
+        return coef
 
     def fold_sse(self, cols: Sequence[int]) -> np.ndarray:
         """Blocked cross-validation: each fold's squared error under the fit on the others
         (0 for an empty fold)."""
         if not cols:
-            return self.ee.copy()
+            return np.copy(self.ee)
         idx = np.asarray(cols)
         xx_f = self.xx[:, idx[:, None], idx[None, :]]
         xe_f = self.xe[:, idx]

@@ -125,9 +125,9 @@ class SessionHeldOut:
     def redundant(self, j: int) -> bool:
         """Is candidate ``j`` what the session start makes itself (an output offset or
         gain)? Such a term is neither scored nor written after it."""
-        kind = self.candidates[j]["kind"]
-        return kind == "offset" or (kind == "strain_level"
-                                    and self.candidates[j]["params"].get("power", 1) == 1)
+        kind = str(self.candidates[j]["kind"])
+        power = self.candidates[j]["params"].get("power", 1)
+        return kind == "offset" or (kind == "strain_level" and bool(power == 1))
 
     def __call__(self, cols: Sequence[int], coef: np.ndarray) -> np.ndarray:
         return np.concatenate(self.per_run(cols, coef))

@@ -73,7 +73,7 @@ _STR, _FLOAT, _INT, _BOOL, _NULL = (f"tag:yaml.org,2002:{kind}"
                                     for kind in ("str", "float", "int", "bool", "null"))
 _CSafeLoader: Any = getattr(yaml, "CSafeLoader", None)
 if _CSafeLoader is not None:
-    class _LimitedCLoader(_CSafeLoader):
+    class _LimitedCLoader(yaml.CSafeLoader):
         """libyaml's SafeLoader refusing integers that no float can hold; plain strings,
         floats and integers are built without the generic constructor's bookkeeping (a
         third of a large calibration's load)."""

@@ -10,7 +10,7 @@ import itertools
 import os
 import struct
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,7 +62,8 @@ class Pending:
 def _record(record: Any) -> bytes:
     builder = RecordBuilder()
     record.write(builder)
-    return builder.end()
+    end: Callable[[], bytes] = builder.end  # mcap leaves it unannotated; it returns the bytes
+    return end()
 
 
 _MSG_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
