@@ -156,10 +156,10 @@ def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
 
 
 def code_hash() -> str:
-    """Hash of the fitting code: a cached fit is reused only while it is unchanged."""
+    """Hash of the package's code: a cached fit (or loop calibration) is reused only while
+    none of it changed (a fit reads models, offline and core; the loop reads diagnosis)."""
     digest = hashlib.sha256()
-    files = sorted((REPO / "strain_comp" / "models").rglob("*.py"))
-    for path in [*files, *(REPO / "strain_comp" / "offline" / f for f in ("fit.py", "pool.py"))]:
+    for path in sorted((REPO / "strain_comp").rglob("*.py")):
         digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
 
