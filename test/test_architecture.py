@@ -225,22 +225,6 @@ def test_the_limits_catch_a_long_module_and_function(tmp_path: Path) -> None:
     assert _over_limits(short) == []
 
 
-DOCSTRINGS_NOT_YET = {"cli/__init__.py", "cli/diagnose.py", "cli/evaluate.py", "cli/fit.py",
-                      "cli/import_csv.py", "cli/node.py", "cli/play.py", "cli/recalibrate.py",
-                      "cli/replay.py", "cli/simulate.py", "core/chain.py", "core/fusion.py",
-                      "core/health.py", "core/range_policy.py", "core/tare.py", "core/tracking.py",
-                      "diagnosis/candidates.py", "diagnosis/command.py", "diagnosis/conditions.py",
-                      "diagnosis/findings.py", "diagnosis/rows.py", "offline/session_window.py",
-                      "offline/span.py", "io/diagnostic_arrays.py", "offline/diagnostic_ticks.py",
-                      "diagnosis/loop.py", "diagnosis/report.py", "diagnosis/report_page.py",
-                      "diagnosis/residuals.py", "diagnosis/selection.py", "diagnosis/session.py",
-                      "offline/recalibrate.py", "offline/replay.py"}
-"""Modules (paths under strain_comp/) whose public functions do not yet all give ``Args:``
-and ``Returns:``: each is removed from this set when they do
-(``test_docstrings_not_yet_still_lack_a_section`` says when). ``core/chain.py`` is at the
-module limit: its sections come with its split."""
-
-
 def _docstring_gaps(path: Path) -> list[str]:
     """Public module-level functions of ``path`` whose docstring lacks a section, as
     rosbags writes them: ``Args:`` when the function takes arguments, ``Returns:`` (or
@@ -268,19 +252,9 @@ def _docstring_gaps(path: Path) -> list[str]:
     return gaps
 
 
-@pytest.mark.parametrize("path", [p for p in SOURCES
-                                  if p.relative_to(PACKAGE).as_posix() not in DOCSTRINGS_NOT_YET],
-                         ids=lambda p: str(p.relative_to(PACKAGE)))
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(PACKAGE)))
 def test_public_functions_give_args_and_returns(path: Path) -> None:
     assert _docstring_gaps(path) == []
-
-
-@pytest.mark.parametrize("rel", sorted(DOCSTRINGS_NOT_YET))
-def test_docstrings_not_yet_still_lack_a_section(rel: str) -> None:
-    """A module whose functions are all documented is taken out of ``DOCSTRINGS_NOT_YET``."""
-    path = PACKAGE / rel
-    assert path.is_file() and _docstring_gaps(path), \
-        f"{rel} documents every public function: remove it from DOCSTRINGS_NOT_YET"
 
 
 def test_the_docstring_rule_catches_a_missing_section(tmp_path: Path) -> None:

@@ -99,7 +99,13 @@ _COUNTERS = tuple((("n_good",) if used else ()) + ((counter,) if counter else ()
 
 def add_counts(h: SensorHealth, counts: np.ndarray) -> None:
     """Add per-``Status`` sample counts (indexed by status code; a further entry, the gap
-    resets, is left out) to ``h``'s counters."""
+    resets, is left out) to ``h``'s counters.
+
+    Args:
+        h: The sensor's health, updated in place.
+        counts: Samples per status code.
+
+    """
     for names, n in zip(_COUNTERS, counts.tolist(), strict=False):
         if n:
             for name in names:
@@ -156,7 +162,15 @@ class HealthTicks:
 
 def times_text(t: np.ndarray) -> np.ndarray:
     """``repr`` of each time [s] as UTF-8 bytes, ``none`` for NaN: each distinct time
-    formatted once (the sensors of one instrument share their stamps)."""
+    formatted once (the sensors of one instrument share their stamps).
+
+    Args:
+        t: Times [s]; NaN for none.
+
+    Returns:
+        One byte string per time (``S32``).
+
+    """
     found = np.full(t.size, b"none", dtype="S32")
     known = ~np.isnan(t)
     bits, where = np.unique(t[known].view(np.int64), return_inverse=True)  # -0.0 kept apart
@@ -214,11 +228,29 @@ class HealthCounter:
 
 def diagnostics(health: Mapping[str, SensorHealth], *, prefix: str = "strain_comp"
                 ) -> list[tuple[str, int, str, dict[str, str]]]:
-    """``(name, level, message, values)`` per sensor, as BagWriter and the nodes publish."""
+    """``(name, level, message, values)`` per sensor, as BagWriter and the nodes publish.
+
+    Args:
+        health: Sensor -> its health.
+        prefix: The status names' prefix.
+
+    Returns:
+        One (name, level, message, key -> value) per sensor.
+
+    """
     return [(status_name(name, prefix), *h.to_diagnostic()) for name, h in health.items()]
 
 
 def status_name(sensor: str, prefix: str = "strain_comp") -> str:
-    """The DiagnosticStatus name of ``sensor``'s health."""
+    """The DiagnosticStatus name of ``sensor``'s health.
+
+    Args:
+        sensor: The sensor.
+        prefix: The prefix (the node's name).
+
+    Returns:
+        ``prefix: sensor``.
+
+    """
     return f"{prefix}: {sensor}"
 

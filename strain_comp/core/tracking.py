@@ -81,7 +81,19 @@ TRACKING = TrackingPolicy()
 
 
 def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
-    """A tracker of ``engine`` for ``mode`` ``on``, None for ``off``; InputError else."""
+    """A tracker of ``engine`` for ``mode`` ``on``, None for ``off``; InputError else.
+
+    Args:
+        engine: The engine tracked.
+        mode: ``on`` or ``off``.
+
+    Returns:
+        The tracker, or None.
+
+    Raises:
+        InputError: ``mode`` is neither.
+
+    """
     if mode not in TRACKING_MODES:
         raise InputError(f"--baseline-tracking {mode!r}: expected one of "
                          f"{', '.join(TRACKING_MODES)}")
@@ -90,7 +102,15 @@ def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
 
 def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
     """(rest strain, strain span) the calibration was fitted over: its valid strain range
-    less the ``RangePolicy.margin`` of the span the fit adds on each side."""
+    less the ``RangePolicy.margin`` of the span the fit adds on each side.
+
+    Args:
+        valid_range: The calibration's valid range.
+
+    Returns:
+        The rest strain and the strain span, in the calibration's strain unit.
+
+    """
     span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE.margin)
     return valid_range.s_lo + RANGE.margin * span, span
 
@@ -98,7 +118,15 @@ def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
 def models_what_moves(cal: SensorCalibration) -> bool:
     """Whether ``cal`` has effect terms (the residual loop's: temperature, drift,
     relaxation, ...) beyond an output gain and offset. They model how the reading moves,
-    the rest level included; tracking the rest as well would correct it twice."""
+    the rest level included; tracking the rest as well would correct it twice.
+
+    Args:
+        cal: The sensor's calibration.
+
+    Returns:
+        True if it has such terms.
+
+    """
     return any(e.get("name") not in RECALIBRATION_TERMS for e in cal.effects)
 
 
@@ -107,7 +135,17 @@ def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -
     maps to its rest resistance, reads the fitted rest strain within ``band`` of the strain
     span. Tracking moves the rest toward that resistance; where the map reads it as a
     strain (a rest resistance taken while the sensor still relaxed, a map that is flat
-    near rest), tracking would move the zero."""
+    near rest), tracking would move the zero.
+
+    Args:
+        cal: The sensor's calibration.
+        raw_rest: The measured rest resistance [ohm].
+        band: The tolerance, a share of the strain span.
+
+    Returns:
+        True if the rest reads as rest (False for a resistance not finite and > 0).
+
+    """
     if not (raw_rest > 0 and math.isfinite(raw_rest)):
         return False
     out = Engine(Calibration({cal.name: cal})).run(cal.name, np.zeros(1), np.array([raw_rest]))

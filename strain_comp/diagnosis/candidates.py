@@ -50,6 +50,17 @@ def default_candidates(*, temperature_ref: float | None = None,
     ``stretch_history``: also the ``stretch`` terms (a rest level or a sensitivity that
     moves with the stretch done; opt-in: on the measured within-run tables they were
     chosen where a time drift carried better, docs/hysteresis_fit.md).
+
+    Args:
+        temperature_ref: Reference temperature [deg C] of the temperature terms; None leaves
+            them out.
+        neighbours: Array neighbours tested for cross-talk.
+        baseline_rest: Strain [%] the runs start at (the ``baseline`` candidate's ``rest``).
+        stretch_history: Also the ``stretch`` terms.
+
+    Returns:
+        The candidate effect dicts, in calibration-file form, each with ``coef`` 0.
+
     """
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
@@ -101,7 +112,18 @@ def added_effects(candidates: Sequence[dict[str, Any]], cols: Sequence[int],
                   coefs: Sequence[float], existing: Sequence[dict[str, Any]] = ()
                   ) -> list[dict[str, Any]]:
     """Calibration-file entries of candidates ``cols`` with ``coefs``, each named after its
-    candidate (``_2``, ``_3``... where the name is taken by ``existing`` or an earlier one)."""
+    candidate (``_2``, ``_3``... where the name is taken by ``existing`` or an earlier one).
+
+    Args:
+        candidates: The candidate effect dicts the loop scored.
+        cols: Indices into ``candidates`` of the terms added.
+        coefs: Their fitted coefficients, one per index.
+        existing: Effects the sensor already carries (names taken).
+
+    Returns:
+        The calibration-file effect dicts, in the order of ``cols``.
+
+    """
     taken = {str(e["name"]) for e in existing}
     out = []
     for j, c in zip(cols, coefs, strict=True):

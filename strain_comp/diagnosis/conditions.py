@@ -100,7 +100,16 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
                    ) -> ChainFindings:
     """What the measurement chain shows in ``recordings`` that ``calibration`` does not
     correct yet: the alternation statistics, and the spikes and baseline steps the
-    engine's online corrector (at the default thresholds) finds in each run."""
+    engine's online corrector (at the default thresholds) finds in each run.
+
+    Args:
+        recordings: One run's recordings by sensor name.
+        calibration: The calibration; sensors it lacks are skipped.
+
+    Returns:
+        The sensors that alternate, spike or step uncorrected, and a line on each finding.
+
+    """
     found = ChainFindings()
     for name, rec in recordings.items():
         if name not in calibration.sensors:
@@ -162,15 +171,44 @@ def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPoli
     return len(ratios) < 2 or upper_bound(ratios, policy.spread) < math.log(1.0 - policy.margin)
 
 
+def _chosen(results: Sequence[DiagnoseResult], policy: LoopPolicy) -> int:
+    """The index of the condition chosen: the last whose held-out RMSE is ``margin`` below
+    both the best one before it and the first (as calibrated), carried beyond the spread
+    between runs (``_carries``); 0 when none is."""
+    margin = policy.margin
+    best = 0
+    for k, result in enumerate(results[1:], start=1):
+        if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \
+                and result.after["rmse"] < (1.0 - margin) * results[0].after["rmse"] \
+                and _carries(result, results[0], policy):
+            best = k
+    return best
+
+
 def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         validate_recordings: Mapping[str, Recording]
                         | Sequence[Mapping[str, Recording]] | None = None,
                         tare: str = "calibration", policy: LoopPolicy = LOOP_POLICY,
                         progress: Callable[[int, int], None] | None = None,
                         **options: Any) -> DiagnoseResult:
-    """``diagnose`` under each condition of the module docstring; the chosen result, with
-    every condition's record in ``conditions``. ``progress(done, total)``: after each
-    sensor of each condition."""
+    """``diagnose`` under each condition of the module docstring; the chosen result.
+
+    Args:
+        recordings: The diagnosed run's recordings by sensor name.
+        calibration: The calibration diagnosed.
+        validate_recordings: One validation run or several; None holds out time blocks.
+        tare: ``calibration`` or ``auto`` (each run tared at its start, tried as a condition).
+        policy: The numbers of the selection and of the choice between conditions.
+        progress: Called with (sensors done, total) across all conditions; None: silent.
+        **options: Passed to ``diagnose``.
+
+    Returns:
+        The chosen condition's diagnosis, every condition's record in ``conditions``.
+
+    Raises:
+        InputError: An option is out of range, or no calibrated sensor has a reference.
+
+    """
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
     validate = ([] if validate_recordings is None else [validate_recordings]
@@ -216,13 +254,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
     results = [diagnose(recordings, cal, validate_recordings=validate_recordings,
                         policy=policy, tare=mode, on_sensor=step, **options)
                for _, _, cal, mode in runs]
-    margin = policy.margin
-    best = 0
-    for k, result in enumerate(results[1:], start=1):
-        if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \
-                and result.after["rmse"] < (1.0 - margin) * results[0].after["rmse"] \
-                and _carries(result, results[0], policy):
-            best = k
+    best = _chosen(results, policy)
     conditions = [{"name": name, "reading": reading, "before": r.before["rmse"],
                    "after": r.after["rmse"], "chosen": k == best}
                   for k, ((name, reading, _, _), r) in enumerate(zip(runs, results,

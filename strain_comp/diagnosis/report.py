@@ -80,7 +80,16 @@ def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
     """The time constant [s] of a creep term, None for any other: one state of a Prony
     series u - z_k, z_k' = (u - z_k) / tau_k (viscoelastic creep, the generalised Maxwell
     form; ``creep_pi``, docs/creep.md), u being the estimate (``relaxation`` of branch
-    ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``)."""
+    ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``).
+
+    Args:
+        kind: The term's kind.
+        params: Its parameters.
+
+    Returns:
+        tau [s], or None for a term other than creep.
+
+    """
     if (kind == "relaxation" and params.get("branch", "both") == "both") or (
             kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):
         return float(params.get("tau", 10.0))
@@ -90,7 +99,20 @@ def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
 def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
                   span: float | None, lag: bool | None) -> str:
     """A creep term in words: which way the estimate errs after a change, by how much (in %
-    of the span where known) and with what time constant."""
+    of the span where known) and with what time constant.
+
+    Args:
+        tau: The time constant [s].
+        of: What the state is of: ``estimate`` or ``resistance``.
+        magnitude: Typical size of the correction in ``unit``, or None.
+        unit: The calibration's strain unit.
+        span: The calibrated strain span in ``unit``, or None.
+        lag: True: the estimate lags; False: it overshoots; None: unknown.
+
+    Returns:
+        The reading.
+
+    """
     u = strain_unit_words(unit)
     how = {True: "the estimate lags the reference after each change",
            False: "the estimate overshoots the reference after each change",
@@ -113,8 +135,21 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
     removes it), so the reading describes the sensor against its calibration. Sizes are
     in the calibration's strain ``unit`` (``% strain``, or e.g. ``mm`` for an extension);
     relative readings (sensitivity, gain drift) are in % of the output; a creep term's in %
-    of the strain ``span`` as well, and ``lag`` says which way it errs (``creep_reading``;
-    a state of the estimate knows it from the sign of ``coef``)."""
+    of the strain ``span`` as well (``creep_reading``).
+
+    Args:
+        kind: The term's kind.
+        params: Its parameters.
+        coef: Its coefficient.
+        magnitude: Typical size of the correction in ``unit``, or None.
+        unit: The calibration's strain unit.
+        span: The calibrated strain span in ``unit``, or None.
+        lag: Does the estimate lag (a creep term of the resistance; None: unknown)?
+
+    Returns:
+        The reading.
+
+    """
     u = strain_unit_words(unit)
     size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
     tau = creep_tau(kind, params)
@@ -298,7 +333,20 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
     """Residual before and after against the winning regressor, time and strain (one PNG
     per sensor, ``residual_figure``), each written atomically; a plot path that is one of
-    ``inputs`` is refused."""
+    ``inputs`` is refused.
+
+    Args:
+        result: The diagnosis.
+        out_dir: The folder (made if missing).
+        inputs: Input files no plot may overwrite.
+
+    Returns:
+        The paths written.
+
+    Raises:
+        OutputError: A plot path is an input or not a regular file, or cannot be written.
+
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -315,7 +363,16 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
 
 def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     """Sensor ``name``'s residual before and after against the winning regressor, time and
-    strain (held-out samples); None when the loop kept no arrays for it."""
+    strain (held-out samples); None when the loop kept no arrays for it.
+
+    Args:
+        result: The diagnosis.
+        name: The sensor.
+
+    Returns:
+        The figure (three panels), or None.
+
+    """
     import matplotlib
 
     matplotlib.use("Agg")

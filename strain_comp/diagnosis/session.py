@@ -34,7 +34,16 @@ FORMS = ("input", "output")
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
     """Seconds from the start of a run to the end of its first load and unload
     (``strain_comp.offline.recalibrate.cycle_end``); at most ``FIRST_CYCLE_CAP`` of the run.
-    None when the reference never moves."""
+    None when the reference never moves.
+
+    Args:
+        t: Sample times [s].
+        s: Reference strain, one per sample.
+
+    Returns:
+        The seconds, or None.
+
+    """
 
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
@@ -63,7 +72,17 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
     """``calibration`` after ``recalibrate --input --from RUN --first seconds`` and then
     ``recalibrate --from RUN --first seconds`` (the output form on the spanned input, tare
     ``calibration``). A step that cannot be made (no rest in the cycle, a strain the
-    calibration never outputs) is skipped, as it is for a user, and says why."""
+    calibration never outputs) is skipped, as it is for a user, and says why.
+
+    Args:
+        calibration: The calibration.
+        recordings: The run's recordings by sensor name.
+        seconds: The length [s] of the start read.
+
+    Returns:
+        The calibration after the steps made, the steps and a line on each.
+
+    """
     out = SessionStart(calibration, seconds)
     for form in FORMS:
         tare = "calibration" if form == "output" else "auto"
@@ -82,7 +101,21 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
 def session_errors(calibration: Calibration, recordings: Mapping[str, Recording],
                    sensor: str, seconds: float) -> np.ndarray:
     """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
-    ``recordings`` after the session-start recalibration on their first ``seconds``."""
+    ``recordings`` after the session-start recalibration on their first ``seconds``.
+
+    Args:
+        calibration: The calibration.
+        recordings: The run's recordings by sensor name.
+        sensor: The sensor scored.
+        seconds: The length [s] of the start read.
+
+    Returns:
+        The errors, in the calibration's strain unit.
+
+    Raises:
+        InputError: No sensor of ``recordings`` can be scored.
+
+    """
     spanned = session_start(calibration, recordings, seconds).calibration
     ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
     return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)

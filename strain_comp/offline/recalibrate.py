@@ -63,7 +63,18 @@ GAIN_NAME, OFFSET_NAME = RECALIBRATION_TERMS
 
 
 def parse_point(text: str) -> tuple[float, float]:
-    """``"R:S"`` (ohm, % strain) -> (R, S); InputError naming the flag otherwise."""
+    """``"R:S"`` (ohm, % strain) -> (R, S); InputError naming the flag otherwise.
+
+    Args:
+        text: The ``--point`` value.
+
+    Returns:
+        R [ohm] and S [calibration's strain unit].
+
+    Raises:
+        InputError: The text is not R:S with R > 0, or S is beyond +/- ``STRAIN_MAX``.
+
+    """
     r_text, sep, s_text = text.partition(":")
     try:
         r, s = float(r_text), float(s_text)
@@ -79,7 +90,21 @@ def parse_point(text: str) -> tuple[float, float]:
 
 def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                     policy: SpanPolicy | None = None) -> tuple[float, float]:
-    """(a, b) through two (R [ohm], S [%]) points (steady outputs: ``policy``)."""
+    """(a, b) through two (R [ohm], S [%]) points (steady outputs: ``policy``).
+
+    Args:
+        cal: The sensor's calibration.
+        points: Two (R [ohm], S [strain unit]) points.
+        policy: The numbers of the steady output; None: ``SPAN``.
+
+    Returns:
+        The gain a and offset b [strain unit] of the output map.
+
+    Raises:
+        InputError: Not two points, a resistance outside the calibration's range, or the
+            same output at both.
+
+    """
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = points
@@ -103,7 +128,22 @@ def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
                    ) -> tuple[float, float]:
     """(a, b) of reference ~ a estimate + b by least squares over the finite pairs: at
     least two of them, the reference moving through ``from_cover`` of the
-    calibrated strain ``span`` (when given; ``policy``, ``SPAN`` when None)."""
+    calibrated strain ``span`` (when given; ``policy``, ``SPAN`` when None).
+
+    Args:
+        estimate: The calibration's output, one per sample [strain unit].
+        reference: The reference strain, one per sample.
+        span: The calibrated strain span, or None not to check the reference's travel.
+        policy: The numbers (``from_cover``); None: ``SPAN``.
+
+    Returns:
+        The gain a and offset b [strain unit].
+
+    Raises:
+        InputError: Fewer than two finite pairs, an estimate that does not move, or a
+            reference that moves through less than ``from_cover`` of ``span``.
+
+    """
     policy = SPAN if policy is None else policy
     ok = np.isfinite(estimate) & np.isfinite(reference)
     if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
@@ -120,7 +160,21 @@ def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
 
 def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, Any],
               ) -> SensorCalibration:
-    """``cal`` whose output is a x (old output) + b, with ``record`` in its provenance."""
+    """``cal`` whose output is a x (old output) + b, with ``record`` in its provenance.
+
+    Args:
+        cal: The sensor's calibration.
+        a: The gain, > 0.
+        b: The offset [strain unit].
+        record: What the map was made from, for the provenance.
+
+    Returns:
+        The recalibrated sensor (its effect terms scaled by ``a``).
+
+    Raises:
+        InputError: ``a`` is not finite and > 0, or the result would not load.
+
+    """
     if not (np.isfinite(a) and np.isfinite(b) and a > 0):
         raise InputError(f"recalibration of {cal.name!r}: gain {a:.4g} must be finite and "
                          "> 0 (the points contradict the calibration's direction)")
@@ -154,7 +208,27 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     """``recalibrate`` from recordings with a reference strain (their first ``first``
     seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
     map by least squares, or the input zero and span from the first rest and the largest
-    strain (``span.span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None)."""
+    strain (``span.span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None).
+
+    Args:
+        calibration: The calibration.
+        recordings: The run's recordings by sensor name.
+        form: ``output`` (gain and offset of the strain) or ``input`` (zero and span).
+        first: The seconds from the start read; None: all (or ``span``).
+        sensors: The sensors recalibrated; None or empty: every one with a reference.
+        tare: ``calibration`` or ``auto``, for the output map.
+        source: The bag's name, for the lines and the provenance.
+        span: The window (START, END) [s] after the start; not with ``first``.
+        policy: The numbers; None: ``SPAN``.
+
+    Returns:
+        The recalibrated calibration and one line per sensor.
+
+    Raises:
+        InputError: An unknown ``form``, both ``first`` and ``span``, a bad window or
+            ``first``, no sensor with a reference, or a map that cannot be made.
+
+    """
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if span is not None and first is not None:
@@ -205,13 +279,27 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
                 policy: SpanPolicy | None = None) -> tuple[Calibration, list[str]]:
     """The recalibrated calibration and one line per sensor (gain, offset, reading).
 
-    ``points``: two (R, S) points (one sensor: ``sensors`` or the calibration's only one);
-    ``bag``: a bag with a reference strain (every calibrated sensor in it; its first
-    ``first`` seconds, or ``span``: the window (START, END) seconds after its start, which
-    must hold a stretch and return). ``form``: ``output`` (gain and offset of the strain)
-    or ``input`` (zero and span of the resistance); the numbers: ``policy`` (``SPAN`` when
-    None). Raises InputError (the input calibration is untouched) when the map cannot be
-    made.
+    Args:
+        calibration: The calibration.
+        points: Two (R [ohm], S [strain unit]) points, when no ``bag``.
+        bag: A bag with a reference strain (every calibrated sensor in it), or None for
+            ``points``.
+        sensors: The sensors recalibrated (with ``points``: one, or the calibration's
+            only one).
+        tare: ``calibration`` or ``auto``, for the output map from a bag.
+        form: ``output`` or ``input``.
+        first: The seconds from the bag's start read; None: all (or ``span``).
+        span: The window (START, END) [s] after the bag's start, which must hold a stretch
+            and return.
+        policy: The numbers; None: ``SPAN``.
+
+    Returns:
+        The recalibrated calibration and one line per sensor.
+
+    Raises:
+        InputError: The map cannot be made (the input calibration is untouched).
+        BagError: The bag cannot be read.
+
     """
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
@@ -245,6 +333,16 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
 def reading(a: float, b: float, *, unit: str = "%") -> str:
     """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
     (the sensor's sensitivity against the calibration's is 1 / a; the offset in the
-    calibration's strain ``unit``)."""
+    calibration's strain ``unit``).
+
+    Args:
+        a: The gain.
+        b: The offset, in ``unit``.
+        unit: The calibration's strain unit.
+
+    Returns:
+        The reading.
+
+    """
     return (f"output gain {a:.4g} (sensitivity {100.0 * (1.0 / a - 1.0):+.1f} %), "
             f"offset {b:+.3g} {strain_unit_words(unit)}")

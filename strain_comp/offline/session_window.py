@@ -24,7 +24,17 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     """Seconds from ``t[0]`` to the end of the first stretch and return of the reference
     ``s``: its first return to within ``cycle_back`` of its span
     above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN`` when
-    None). None when there is none."""
+    None). None when there is none.
+
+    Args:
+        t: Sample times [s].
+        s: The reference strain, one per sample.
+        policy: The numbers; None: ``SPAN``.
+
+    Returns:
+        The seconds, or None.
+
+    """
     policy = SPAN if policy is None else policy
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
@@ -46,7 +56,17 @@ def stretch_and_return(s: np.ndarray, strain_range: float,
     """True when the reference ``s`` of a window rises from within ``cycle_up`` of its span
     above its minimum to its maximum and falls back there, over at least
     ``min_cycle_share`` of ``strain_range`` (the calibration's): a load and unload
-    (``policy``, ``SPAN`` when None)."""
+    (``policy``, ``SPAN`` when None).
+
+    Args:
+        s: The window's reference strain.
+        strain_range: The calibration's strain range, in the same unit.
+        policy: The numbers; None: ``SPAN``.
+
+    Returns:
+        True for a load and unload.
+
+    """
     policy = SPAN if policy is None else policy
     s = np.asarray(s, dtype=np.float64)
     s = s[np.isfinite(s)]
@@ -58,7 +78,18 @@ def stretch_and_return(s: np.ndarray, strain_range: float,
 
 
 def parse_window(text: str) -> tuple[float, float]:
-    """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise."""
+    """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise.
+
+    Args:
+        text: The ``--window`` value.
+
+    Returns:
+        START and END [s].
+
+    Raises:
+        InputError: Not two finite numbers with 0 <= START < END.
+
+    """
     a_text, sep, b_text = text.partition(":")
     try:
         start, end = float(a_text), float(b_text)
@@ -74,7 +105,19 @@ def parse_window(text: str) -> tuple[float, float]:
 
 def head(recordings: Mapping[str, Recording], seconds: float | None,
          ) -> dict[str, Recording]:
-    """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds)."""
+    """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds).
+
+    Args:
+        recordings: The recordings by sensor name.
+        seconds: The duration [s], or None.
+
+    Returns:
+        The cut recordings by sensor name.
+
+    Raises:
+        InputError: ``seconds`` is not finite and > 0.
+
+    """
     if seconds is None:
         return dict(recordings)
     if not (np.isfinite(seconds) and seconds > 0):
@@ -83,7 +126,17 @@ def head(recordings: Mapping[str, Recording], seconds: float | None,
 
 
 def cut(rec: Recording, start: float, end: float) -> Recording:
-    """The samples of ``rec`` from ``start`` to ``end`` seconds after its first sample."""
+    """The samples of ``rec`` from ``start`` to ``end`` seconds after its first sample.
+
+    Args:
+        rec: The recording.
+        start: Seconds after its first sample.
+        end: Seconds after its first sample, included.
+
+    Returns:
+        The cut recording (``rec`` itself when empty).
+
+    """
     if not rec.t.size:
         return rec
     a = int(np.searchsorted(rec.t, rec.t[0] + start, side="left"))
@@ -100,7 +153,23 @@ def window(recordings: Mapping[str, Recording], span: tuple[float, float],
     calibration from the bag's start, so a memory model enters the window in the state the
     warm-up left, and only the window's reference is fitted to. InputError for a window
     beyond a recording's end or one in which its reference strain makes no stretch and
-    return (``stretch_and_return`` over the strain range of its sensor's calibration)."""
+    return (``stretch_and_return`` over the strain range of its sensor's calibration).
+
+    Args:
+        recordings: The recordings by sensor name.
+        span: START and END [s] after the start.
+        calibration: The calibration (each sensor's strain range).
+        source: The bag's name, for the messages.
+        policy: The numbers; None: ``SPAN``.
+
+    Returns:
+        The referenced recordings cut, by sensor name.
+
+    Raises:
+        InputError: The window runs beyond a recording, or its reference makes no stretch and
+            return.
+
+    """
     start, end = span
     out = {}
     for name, rec in recordings.items():
