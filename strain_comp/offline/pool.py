@@ -127,8 +127,7 @@ def pooled_input(recordings: Sequence[Recording], pool: str = "spanned",
         mapped = np.concatenate([(r0_ref + k * (r - z)) / scale
                                  for (r, _), (z, k) in zip(data, unpack(x), strict=True)])
         fitted: np.ndarray = np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped)
-        misfit: np.ndarray = fitted - s_all
-        return misfit
+        return np.asarray(fitted - s_all, dtype=np.float64)
 
     gains = start[1::2]
     lower = np.ravel([(-np.inf, 0.2 * k) for k in gains])
