@@ -44,7 +44,8 @@ live node for a bounded time.
 * **evaluate**: ``evaluate FOLDER --csv --json --plots --jobs 1|2`` over folders of one to
   five seed and damaged bags (names that repeat a stem, ``...mcap``). The command line's
   contract (``check_cli``) and its outputs: no temporary file, nothing outside ``--plots``
-  but the table and the JSON, a JSON that parses with no non-finite number.
+  but the table and the JSON, a JSON that parses with no non-finite number; the RSS after
+  each folder stays flat (as the node's, below).
 
 Anything else is a crash: the input and its traceback are saved under ``--out``. Inputs
 that take longer than ``--timeout`` seconds count as hangs (saved too).
@@ -58,6 +59,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
 import tempfile
@@ -609,10 +611,20 @@ class EvaluateStats:
     runs: int = 0
     exits: dict[int, int] = field(default_factory=dict)
     crashes: list[tuple[list[str], str]] = field(default_factory=list)
+    rss_mib: list[float] = field(default_factory=list)
+    """The fuzzing process's RSS after each folder (the command runs in it, ``--jobs 2``
+    workers apart)."""
 
     def line(self) -> str:
         codes = ", ".join(f"exit {k}: {v}" for k, v in sorted(self.exits.items()))
-        return f"evaluate: {self.runs} folders ({codes}), {len(self.crashes)} crashes"
+        rss = (f"RSS {self.rss_mib[0]:.0f} MiB after the first folder, {self.rss_mib[-1]:.0f} "
+               f"at the end, max {max(self.rss_mib):.0f}" if self.rss_mib else "RSS unknown")
+        return (f"evaluate: {self.runs} folders ({codes}), {len(self.crashes)} crashes; {rss}; "
+                f"RSS growth {rss_growth(self.rss_mib):+.1f} MiB (last quarter vs second)")
+
+    @property
+    def failed(self) -> int:
+        return len(self.crashes) + (rss_growth(self.rss_mib) > RSS_GROWTH_MIB)
 
 
 def check_outputs(out: Path, code: int) -> None:
@@ -678,6 +690,9 @@ def fuzz_evaluate(seeds: list[bytes], calibration: Calibration, rng: np.random.G
             finally:
                 signal.setitimer(signal.ITIMER_REAL, 0.0)
             stats.exits[code] = stats.exits.get(code, 0) + 1
+            rss = _rss_mib(os.getpid())
+            if rss is not None:
+                stats.rss_mib.append(rss)
     finally:
         signal.signal(signal.SIGALRM, previous)
     return stats
@@ -770,12 +785,7 @@ class NodeStats:
 
     @property
     def rss_growth(self) -> float:
-        """MiB the RSS's last quarter (median) exceeds its second quarter's (0 if unknown)."""
-        n = len(self.rss_mib)
-        if n < 8:
-            return 0.0
-        second, last = self.rss_mib[n // 4:n // 2], self.rss_mib[3 * n // 4:]
-        return float(np.median(last) - np.median(second))
+        return rss_growth(self.rss_mib)
 
     def line(self) -> str:
         sent = ", ".join(f"{k} {v}" for k, v in sorted(self.sent.items()))
@@ -793,6 +803,15 @@ class NodeStats:
     def failed(self) -> bool:
         return bool(self.non_finite or not self.alive or self.tracebacks
                     or self.rss_growth > RSS_GROWTH_MIB)
+
+
+def rss_growth(samples: list[float]) -> float:
+    """MiB the last quarter of the RSS ``samples`` (median) exceeds their second quarter
+    (0 with fewer than 8 samples)."""
+    n = len(samples)
+    if n < 8:
+        return 0.0
+    return float(np.median(samples[3 * n // 4:]) - np.median(samples[n // 4:n // 2]))
 
 
 def _rss_mib(pid: int) -> float | None:
@@ -842,8 +861,9 @@ CLOCK_MODES = ("run", "paused", "backwards")
 CLOCK_MODE_SECONDS = 2.0
 """How long the node target keeps one clock mode."""
 RSS_GROWTH_MIB = 32.0
-"""The node's RSS over the last quarter of a run may exceed that of the second quarter
-(after start-up and the first compilations) by at most this much: flat."""
+"""The RSS (the node's; the evaluate fuzzer's own) over the last quarter of a run may exceed
+that of the second quarter (after start-up and the first compilations) by at most this
+much: flat."""
 """How long ``fuzz_node`` waits for the node to subscribe before it starts the clock."""
 
 
@@ -1050,7 +1070,7 @@ def main() -> int:
                 for argv, text in many.crashes:
                     print("  strain-comp " + " ".join(argv) + "\n    " +
                           text.strip().splitlines()[-1])
-                failures += len(many.crashes)
+                failures += many.failed
                 continue
             if target == "csv":
                 stats = fuzz_csv(rng, work, seconds=share, timeout=args.timeout)
