@@ -129,7 +129,7 @@ def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
     a foreign or damaged recorder might write them (BagWriter refuses such rows)."""
     from mcap.writer import Writer
 
-    import strain_comp.io.bag.writer as bag_module
+    from strain_comp.io.bag.schemas import SCHEMAS
     from strain_comp.io.cdr import message_encoder
 
     kind = "std_msgs/msg/Float64MultiArray"
@@ -137,7 +137,7 @@ def _raw_array_bag(path: Path, rows: list[tuple[str, list[float]]]) -> None:
     with path.open("wb") as f:
         writer = Writer(f)
         writer.start(profile="ros2")
-        schema = writer.register_schema(kind, "ros2msg", bag_module.SCHEMAS[kind].encode())
+        schema = writer.register_schema(kind, "ros2msg", SCHEMAS[kind].encode())
         channel = writer.register_channel("/a/resistance", "cdr", schema)
         for i, (labels, data) in enumerate(rows):
             payload = encode({"layout": {"dim": [{"label": labels, "size": len(data),
