@@ -310,6 +310,9 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
         "test_kernel_matches_reference",
         "test_rate_sweep_apl_beats_mpi_beats_cubic",
     ),
+    "test_array_budgets": (
+        "test_1024_different_sensors_with_two_terms_each_load_as_written",
+    ),
     "test_budgets": (
         "test_a_write_past_ulimit_f_names_the_path_and_leaves_no_temporary_file",
         "test_two_outputs_of_one_command_on_one_path_are_refused",
@@ -353,6 +356,9 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
     "test_diagnose_conditions": (
         "test_alternation_is_found_corrected_and_reported",
     ),
+    "test_diagnose_creep": (
+        "test_a_creep_the_calibration_lacks_is_named_and_carries",
+    ),
     "test_effects_engine": (
         "test_array_crosstalk_replay_equals_step_array",
     ),
@@ -368,6 +374,10 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
         "test_streamed_evaluate_of_an_unchunked_bag_equals_the_whole_series",
         "test_streamed_evaluate_with_interpolated_references_equals_the_whole_series",
     ),
+    "test_failed_writes": (
+        "test_a_failed_write_leaves_no_temporary_file_and_names_its_target",
+        "test_csv_writes_nan_and_inf_one_way",
+    ),
     "test_fit": (
         "test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample",
     ),
@@ -379,6 +389,7 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
         "test_calibration_truncated_at_any_line_loads_or_is_refused_cleanly",
         "test_fuzz_bag_reader_and_replay",
         "test_fuzz_calibration_loader",
+        "test_fuzz_evaluate_over_folders_of_damaged_bags",
         "test_fuzz_live_node_for_a_few_seconds",
     ),
     "test_generalisation": (
@@ -389,6 +400,14 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
         "test_a_killed_replay_leaves_the_old_or_the_complete_new_output",
         "test_accepted_fit_options_always_fit_and_refused_ones_name_the_option",
         "test_concurrent_writers_end_with_one_complete_bag",
+    ),
+    "test_many_bags": (
+        "test_a_bag_named_dots_gets_its_plots_inside_plots",
+        "test_a_table_that_cannot_be_written_fails_the_command_and_keeps_the_old_one",
+        "test_sigterm_ends_every_worker_and_removes_the_temporaries",
+    ),
+    "test_paused_clock": (
+        "test_the_tracker_holds_constant_state_when_time_stands_still_or_runs_back",
     ),
     "test_rational": (
         "test_split_beats_combined_on_hysteresis",
