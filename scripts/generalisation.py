@@ -275,24 +275,33 @@ def session_start(rec: Any, cal: Any, span: tuple[float, float]) -> tuple[Any, i
     return cal, made
 
 
-def workflows(rec: Any, cal: Any, loop_cal: Any | None = None, *,
-              log: Callable[[str], None] = print) -> dict[str, float]:
-    """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``).
-    ``warmup`` falls back to the first cycle where the run has no second one or a step on
-    it is refused and the first cycle makes more (the README's procedure)."""
+def warmup_start(rec: Any, cal: Any, log: Callable[[str], None] = print
+                 ) -> tuple[Any, Any]:
+    """``cal`` after the session start on ``rec``'s first cycle, and after the README's
+    procedure (``warmup``): the second cycle, or the first where the run has no second
+    one or a step on it is refused and the first cycle makes more."""
     first = (0.0, first_cycle(rec.t, rec.s))
     second = second_cycle(rec.t, rec.s)
     at_first, made_first = session_start(rec, cal, first)
-    out = {"as_is": rmse(rec, cal, tare="auto"), "first": rmse(rec, at_first)}
-    started, made = (at_first, made_first) if second is None else session_start(rec, cal,
-                                                                                 second)
+    if second is None:
+        return at_first, at_first
+    started, made = session_start(rec, cal, second)
     if made < made_first:
-        started, made = at_first, made_first
         log(f"## {rec.name}: the second cycle refused, warmup = first")
+        return at_first, at_first
+    return at_first, started
+
+
+def workflows(rec: Any, cal: Any, loop_cal: Any | None = None, *,
+              log: Callable[[str], None] = print) -> dict[str, float]:
+    """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``, with
+    the same session start as ``warmup``)."""
+    at_first, started = warmup_start(rec, cal, log)
+    out = {"as_is": rmse(rec, cal, tare="auto"), "first": rmse(rec, at_first)}
     out["warmup"] = out["first"] if started is at_first else rmse(rec, started)
     out["refs_60"] = rmse(rec, started, references_every=REFERENCE_SECONDS)
     if loop_cal is not None:
-        out["loop"] = rmse(rec, session_start(rec, loop_cal, second or first)[0])
+        out["loop"] = rmse(rec, warmup_start(rec, loop_cal, log)[1])
     return out
 
 
