@@ -351,59 +351,143 @@ class Case:
         return value / self.best_in_run if self.best_in_run > 0 else math.nan
 
 
+def in_run_bounds(bench: Bench, sensor: Sensor, models: Sequence[str],
+                  step: Callable[[], None] = lambda: None) -> dict[tuple[str, str], float]:
+    """(model, run) -> the model's in-run bound on the run (fitted and scored on it)."""
+    from strain_comp.errors import StrainCompError
+
+    bounds: dict[tuple[str, str], float] = {}
+    for model in models:
+        for run in sensor.runs:
+            try:
+                bounds[model, run.label] = rmse(bench.recording(sensor, run),
+                                                bench.fit(sensor, run, model))
+            except StrainCompError as err:
+                bench.log(f"## {sensor.name}/{run.label} {model}: no in-run bound ({err})")
+            step()
+    return bounds
+
+
+def test_cases(bench: Bench, sensor: Sensor, model: str, bounds: Mapping[tuple[str, str], float],
+               schemes: Sequence[str], loop: bool, step: Callable[[], None] = lambda: None
+               ) -> list[Case]:
+    """Every test run of one sensor and model in every scheme (``best_in_run`` not set)."""
+    from strain_comp.errors import StrainCompError
+
+    cases: list[Case] = []
+    for scheme in schemes:
+        for test in sensor.runs:
+            step()
+            if (model, test.label) not in bounds:
+                continue
+            others = [r for r in sensor.runs if r != test]
+            trainings = [(r,) for r in others] if scheme == "pair" else [tuple(others)]
+            pool = "raw" if scheme == "loro_raw" else "spanned"
+            for train in trainings:
+                try:
+                    cal = bench.fit(sensor, train, model, pool)
+                except StrainCompError as err:
+                    bench.log(f"## {sensor.name}/{train} {model}: {err}")
+                    continue
+                loop_cal = None
+                if loop and scheme == "pair":
+                    rest = [r for r in others if r != train[0]]
+                    if rest:
+                        loop_cal = looped(bench, sensor, train[0],
+                                          rest[:int(LOOP["validate"])], model)
+                rec = bench.recording(sensor, test)
+                case = Case(sensor.name, model, scheme, "+".join(r.label for r in train),
+                            test.label, bounds[model, test.label],
+                            workflows(rec, cal, loop_cal, log=bench.log))
+                cases.append(case)
+                bench.log(f"## {sensor.name} {model} {scheme} {case.train} -> {test.label}: "
+                          + ", ".join(f"{k} {v:.2f}" for k, v in case.rmse.items()))
+    return cases
+
+
+def set_best_in_run(cases: Sequence[Case], bounds: Mapping[tuple[str, str, str], float]
+                    ) -> None:
+    """Each case's ``best_in_run``: the lowest bound of any model on its test run
+    (``bounds``: (sensor, model, run) -> bound)."""
+    for case in cases:
+        found = [v for (name, _, label), v in bounds.items()
+                 if name == case.sensor and label == case.test]
+        case.best_in_run = min(found) if found else math.nan
+
+
 def run_benchmark(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str], *,
                   schemes: Sequence[str] = SCHEMES, loop: bool = False,
                   step: Callable[[], None] = lambda: None) -> list[Case]:
     """Every test run of every sensor, scheme and model; ``step()`` after each in-run fit
     and each test run of a scheme (a progress bar)."""
-    from strain_comp.errors import StrainCompError
-
     cases: list[Case] = []
+    bounds: dict[tuple[str, str, str], float] = {}
     for sensor in sensors:
-        bounds: dict[tuple[str, str], float] = {}
+        found = in_run_bounds(bench, sensor, models, step)
+        bounds.update({(sensor.name, *key): v for key, v in found.items()})
         for model in models:
-            for run in sensor.runs:
-                try:
-                    bounds[model, run.label] = rmse(bench.recording(sensor, run),
-                                                    bench.fit(sensor, run, model))
-                except StrainCompError as err:
-                    bench.log(f"## {sensor.name}/{run.label} {model}: no in-run bound ({err})")
-                step()
-        for model in models:
-            for scheme in schemes:
-                for test in sensor.runs:
-                    step()
-                    if (model, test.label) not in bounds:
-                        continue
-                    others = [r for r in sensor.runs if r != test]
-                    trainings = ([(r,) for r in others] if scheme == "pair"
-                                 else [tuple(others)])
-                    pool = "raw" if scheme == "loro_raw" else "spanned"
-                    for train in trainings:
-                        try:
-                            cal = bench.fit(sensor, train, model, pool)
-                        except StrainCompError as err:
-                            bench.log(f"## {sensor.name}/{train} {model}: {err}")
-                            continue
-                        loop_cal = None
-                        if loop and scheme == "pair":
-                            rest = [r for r in others if r != train[0]]
-                            if rest:
-                                loop_cal = looped(bench, sensor, train[0],
-                                                  rest[:int(LOOP["validate"])], model)
-                        rec = bench.recording(sensor, test)
-                        case = Case(sensor.name, model, scheme,
-                                    "+".join(r.label for r in train), test.label,
-                                    bounds[model, test.label],
-                                    workflows(rec, cal, loop_cal, log=bench.log))
-                        cases.append(case)
-                        bench.log(f"## {sensor.name} {model} {scheme} {case.train} -> "
-                                  f"{test.label}: " + ", ".join(
-                                      f"{k} {v:.2f}" for k, v in case.rmse.items()))
-        for case in cases:
-            if case.sensor == sensor.name:
-                found = [v for (m, label), v in bounds.items() if label == case.test]
-                case.best_in_run = min(found) if found else math.nan
+            cases += test_cases(bench, sensor, model, found, schemes, loop, step)
+    set_best_in_run(cases, bounds)
+    return cases
+
+
+@dataclass(frozen=True)
+class Task:
+    """One sensor and model of the benchmark, run in a worker process (``--jobs``)."""
+
+    data: Path
+    out: Path
+    refit: bool
+    sensor: Sensor
+    model: str
+    schemes: tuple[str, ...]
+    loop: bool
+    engine: dict[str, str]
+    loop_options: dict[str, Any]
+
+
+def run_task(task: Task) -> tuple[list[Case], dict[tuple[str, str], float], float, list[str]]:
+    """A task's cases, in-run bounds, seconds of fitting and log lines."""
+    ENGINE.update(task.engine)
+    LOOP.update(task.loop_options)
+    lines: list[str] = []
+    bench = Bench(task.data, task.out, refit=task.refit, log=lines.append)
+    bounds = in_run_bounds(bench, task.sensor, [task.model])
+    cases = test_cases(bench, task.sensor, task.model, bounds, task.schemes, task.loop)
+    return cases, bounds, bench.fit_seconds, lines
+
+
+def run_parallel(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str], jobs: int,
+                 *, schemes: Sequence[str] = SCHEMES, loop: bool = False,
+                 step: Callable[[int], None] = lambda n: None) -> list[Case]:
+    """``run_benchmark`` over ``jobs`` processes, one task per sensor and model (the
+    largest first); the bags are made here first. ``step(n)`` after each task."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from multiprocessing import get_context
+
+    for sensor in sensors:
+        for run in sensor.runs:
+            bench.bag(sensor, run)
+    tasks = sorted((Task(bench.data, bench.out, bench.refit, sensor, model, tuple(schemes),
+                         loop, dict(ENGINE), dict(LOOP))
+                    for sensor in sensors for model in models),
+                   key=lambda t: -len(t.sensor.runs))
+    cases: list[Case] = []
+    bounds: dict[tuple[str, str, str], float] = {}
+    with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+        futures = {pool.submit(run_task, task): task for task in tasks}
+        for future in as_completed(futures):
+            task = futures[future]
+            found_cases, found, seconds, lines = future.result()
+            for line in lines:
+                bench.log(line)
+            cases += found_cases
+            bounds.update({(task.sensor.name, *key): v for key, v in found.items()})
+            bench.fit_seconds += seconds
+            step(len(task.sensor.runs) * (1 + len(schemes)))
+    order = {(s.name, m): i for i, (s, m) in enumerate((s, m) for s in sensors for m in models)}
+    cases.sort(key=lambda c: order[c.sensor, c.model])
+    set_best_in_run(cases, bounds)
     return cases
 
 
@@ -559,6 +643,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the loop validates on the first N runs other than A and B "
                              "(default 3)")
     parser.add_argument("--refit", action="store_true", help="ignore cached fits")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="worker processes, one sensor and model each (default 1)")
     parser.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
                         default="extend", help="evaluate's --out-of-range")
     parser.add_argument("--baseline-tracking", choices=("off", "on"), default="on",
@@ -588,8 +674,12 @@ def main(argv: list[str] | None = None) -> int:
         bench = Bench(args.data, args.out, refit=args.refit,
                       log=(lambda line: None) if args.quiet else
                       lambda line: shown.write(line, file=sys.stderr))
-        cases = run_benchmark(bench, sensors, args.models, schemes=schemes, loop=args.loop,
-                              step=lambda: shown.update(1))
+        if args.jobs > 1:
+            cases = run_parallel(bench, sensors, args.models, args.jobs, schemes=schemes,
+                                 loop=args.loop, step=shown.update)
+        else:
+            cases = run_benchmark(bench, sensors, args.models, schemes=schemes,
+                                  loop=args.loop, step=lambda: shown.update(1))
     run_workflows = [*WORKFLOWS, *(["loop"] if args.loop else [])]
     seconds = time.perf_counter() - start
     print("Median / worst RMSE over the test runs (each sensor's unit), in brackets the "
@@ -603,6 +693,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"out_of_range": args.out_of_range, "baseline_tracking": args.baseline_tracking,
             "models": args.models, "sensors": names, "schemes": schemes,
             "quick": args.quick, "loop": args.loop, "loop_options": dict(LOOP),
+            "jobs": args.jobs,
             "seconds": seconds, "fit_seconds": bench.fit_seconds}
     path = args.json or args.out / "generalisation.json"
     path.parent.mkdir(parents=True, exist_ok=True)

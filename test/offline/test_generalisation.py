@@ -2,13 +2,14 @@
 
 The in-run bound of a case must be a fit through ``fit_sensor`` on the recording (not the
 script's cached bag fit), its ratio the RMSE of ``evaluate`` over the lowest bound of any
-model, leaving one of two runs out the pair's case, and the first and second cycles of a
-triangle the times of its first and second returns to rest.
+model, leaving one of two runs out the pair's case, two worker processes (``--jobs``) the
+serial run's cases, and the first and second cycles of a triangle the times of its first
+and second returns to rest.
 """
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -24,13 +25,10 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("strain_comp_generalisation",
-                                                  ROOT / "scripts" / "generalisation.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    """The script as the module ``generalisation`` (as its worker processes import it)."""
+    if str(ROOT / "scripts") not in sys.path:
+        sys.path.insert(0, str(ROOT / "scripts"))
+    return importlib.import_module("generalisation")
 
 
 def test_first_cycle_of_a_triangle() -> None:
@@ -85,6 +83,11 @@ def test_cases_of_two_rig_runs(tmp_path: Path) -> None:
         loro = next(c for c in cases if c.scheme == "loro" and c.model == "cubic"
                     and c.test == case.test)
         assert loro.rmse == case.rmse
+    # two worker processes, one model each, give the same cases
+    parallel = gen.run_parallel(bench, [sensor], ["cubic", "rational"], 2)
+    assert [(c.model, c.scheme, c.train, c.test, c.in_run, c.best_in_run, c.rmse)
+            for c in parallel] == [(c.model, c.scheme, c.train, c.test, c.in_run,
+                                    c.best_in_run, c.rmse) for c in cases]
     table = gen.summary(cases, "pair", "as_is")["cubic"]
     assert table["overall"]["ratio_worst"] == max(c.ratio("as_is") for c in pairs)
     assert table["rig"]["worst"] == max(c.rmse["as_is"] for c in pairs)
