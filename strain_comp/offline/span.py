@@ -45,9 +45,31 @@ def steady_output(cal: SensorCalibration, r: float, policy: SpanPolicy | None = 
         The output [strain unit].
 
     """
+    return float(steady_outputs(cal, np.array([r]), policy)[0])
+
+
+def steady_outputs(cal: SensorCalibration, r: np.ndarray, policy: SpanPolicy | None = None
+                   ) -> np.ndarray:
+    """``steady_output`` at each resistance of ``r``, each from a fresh state (one engine,
+    reset between them).
+
+    Args:
+        cal: The sensor's calibration.
+        r: The resistances [ohm].
+        policy: The numbers; None: ``SPAN``.
+
+    Returns:
+        The output at each [strain unit].
+
+    """
     engine = Engine(Calibration({cal.name: cal}))
     t = 0.1 * np.arange((SPAN if policy is None else policy).settle_samples)
-    return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
+    out = np.empty(len(r))
+    for i, ri in enumerate(r):
+        if i:
+            engine.reset()
+        out[i] = engine.run(cal.name, t, np.full(t.size, float(ri))).strain[-1]
+    return out
 
 
 def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
@@ -70,7 +92,7 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
     grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, policy.grid_points)
     if cal.direction.sign < 0:
         grid = grid[::-1]
-    return grid, np.array([steady_output(bare, float(r), policy) for r in grid])
+    return grid, steady_outputs(bare, grid, policy)
 
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,
