@@ -15,6 +15,7 @@ are the fields of ``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -77,7 +78,9 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
     """(resistances [ohm], steady outputs) on ``policy.grid_points`` resistances over the valid
     range, from the rest end (the low end for a sensor whose R rises with strain), read
     by the models directly (an existing input zero and span left out: the resistances are
-    the calibrated ones).
+    the calibrated ones). Kept for the last ``CURVES_KEPT`` calibrations (by their whole
+    content; the arrays are read-only): a session start spans every run with the same
+    calibration.
 
     Args:
         cal: The sensor's calibration.
@@ -89,10 +92,25 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
     """
     bare = replace(cal, input=replace(cal.input, zero_span=None))
     policy = SPAN if policy is None else policy
+    key = pickle.dumps((bare, policy), protocol=pickle.HIGHEST_PROTOCOL)
+    kept = _CURVES.get(key)
+    if kept is not None:
+        return kept
     grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, policy.grid_points)
     if cal.direction.sign < 0:
         grid = grid[::-1]
-    return grid, steady_outputs(bare, grid, policy)
+    curve = (grid, steady_outputs(bare, grid, policy))
+    for values in curve:
+        values.setflags(write=False)
+    if len(_CURVES) >= CURVES_KEPT:
+        del _CURVES[next(iter(_CURVES))]
+    _CURVES[key] = curve
+    return curve
+
+
+CURVES_KEPT = 64
+"""Most steady curves ``steady_curve`` keeps (the oldest goes first)."""
+_CURVES: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,
