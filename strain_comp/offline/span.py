@@ -46,31 +46,9 @@ def steady_output(cal: SensorCalibration, r: float, policy: SpanPolicy | None = 
         The output [strain unit].
 
     """
-    return float(steady_outputs(cal, np.array([r]), policy)[0])
-
-
-def steady_outputs(cal: SensorCalibration, r: np.ndarray, policy: SpanPolicy | None = None
-                   ) -> np.ndarray:
-    """``steady_output`` at each resistance of ``r``, each from a fresh state (one engine,
-    reset between them).
-
-    Args:
-        cal: The sensor's calibration.
-        r: The resistances [ohm].
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The output at each [strain unit].
-
-    """
     engine = Engine(Calibration({cal.name: cal}))
     t = 0.1 * np.arange((SPAN if policy is None else policy).settle_samples)
-    out = np.empty(len(r))
-    for i, ri in enumerate(r):
-        if i:
-            engine.reset()
-        out[i] = engine.run(cal.name, t, np.full(t.size, float(ri))).strain[-1]
-    return out
+    return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
 
 
 def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
@@ -99,7 +77,12 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
     grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, policy.grid_points)
     if cal.direction.sign < 0:
         grid = grid[::-1]
-    curve = (grid, steady_outputs(bare, grid, policy))
+    engine = Engine(Calibration({bare.name: bare}))  # reset before each: steady_output's
+    t = 0.1 * np.arange(policy.settle_samples)
+    curve = (grid, np.empty(grid.size))
+    for i, r in enumerate(grid):
+        engine.reset()
+        curve[1][i] = engine.run(bare.name, t, np.full(t.size, float(r))).strain[-1]
     for values in curve:
         values.setflags(write=False)
     if len(_CURVES) >= CURVES_KEPT:
