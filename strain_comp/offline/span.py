@@ -15,6 +15,7 @@ are the fields of ``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
 
 from __future__ import annotations
 
+import functools
 import pickle
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -69,13 +70,21 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
 
     """
     bare = replace(cal, input=replace(cal.input, zero_span=None))
-    policy = SPAN if policy is None else policy
-    key = pickle.dumps((bare, policy), protocol=pickle.HIGHEST_PROTOCOL)
-    kept = _CURVES.get(key)
-    if kept is not None:
-        return kept
-    grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, policy.grid_points)
-    if cal.direction.sign < 0:
+    return _steady_curve(pickle.dumps((bare, SPAN if policy is None else policy),
+                                      protocol=pickle.HIGHEST_PROTOCOL))
+
+
+CURVES_KEPT = 64
+"""Most steady curves ``steady_curve`` keeps (the least recently used goes first)."""
+
+
+@functools.lru_cache(maxsize=CURVES_KEPT)
+def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """``steady_curve`` of the pickled (calibration without its input zero and span,
+    policy) ``key``."""
+    bare, policy = pickle.loads(key)  # the bytes steady_curve just made
+    grid = np.linspace(bare.valid_range.r_lo, bare.valid_range.r_hi, policy.grid_points)
+    if bare.direction.sign < 0:
         grid = grid[::-1]
     engine = Engine(Calibration({bare.name: bare}))  # reset before each: steady_output's
     t = 0.1 * np.arange(policy.settle_samples)
@@ -85,15 +94,7 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
         curve[1][i] = engine.run(bare.name, t, np.full(t.size, float(r))).strain[-1]
     for values in curve:
         values.setflags(write=False)
-    if len(_CURVES) >= CURVES_KEPT:
-        del _CURVES[next(iter(_CURVES))]
-    _CURVES[key] = curve
     return curve
-
-
-CURVES_KEPT = 64
-"""Most steady curves ``steady_curve`` keeps (the oldest goes first)."""
-_CURVES: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,
