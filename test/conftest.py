@@ -11,6 +11,9 @@
   ``../shared/data/measured`` relative to the project root (not part of the repository).
 * ``context``: an rclpy context per test module (rclpy imported only then, after the
   module has set its ROS environment with ``ros_env.use_ros_env``).
+* ``NodeUnderTest``: the node in this process with a probe node on one executor, and the
+  probe's side of the harness (matched publishers, Trigger calls) the in-process ROS tests
+  share (rclpy imported only when one is made).
 
 Test modules take the fixtures as arguments and the plain factories with
 ``from conftest import ...``; no test module imports another.
@@ -21,7 +24,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -482,3 +485,48 @@ def context() -> Iterator[Any]:
     rclpy.init(context=ctx)
     yield ctx
     rclpy.try_shutdown(context=ctx)
+
+
+class NodeUnderTest:
+    """The node (``strain_comp.ros.node.create_node`` with ``cli_args``, calibration paths
+    relative to ``base_dir``), a probe node named ``probe_name`` and one executor spinning
+    both, in this process."""
+
+    def __init__(self, ctx: Any, base_dir: Path, cli_args: list[str],
+                 probe_name: str = "probe") -> None:
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+
+        from strain_comp.ros.node import create_node
+
+        self.node = create_node(base_dir=base_dir, context=ctx, cli_args=cli_args)
+        self.probe = Node(probe_name, context=ctx)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.probe)
+
+    def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
+        """Spin until ``done()`` holds (True) or ``timeout`` seconds passed (False)."""
+        from strain_comp.ros.player import spin_until
+
+        return spin_until(self.executor, done, timeout)
+
+    def wait_matched(self, pub: Any) -> Any:
+        """``pub`` (a probe publisher) once the node subscribes to its topic."""
+        assert self.spin_until(lambda: pub.get_subscription_count() > 0)
+        return pub
+
+    def call(self, service: str) -> Any:
+        """The answer of the node's Trigger ``service``."""
+        from std_srvs.srv import Trigger
+
+        client = self.probe.create_client(Trigger, service)
+        assert self.spin_until(client.service_is_ready)
+        future = client.call_async(Trigger.Request())
+        assert self.spin_until(future.done)
+        return future.result()
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.probe.destroy_node()

@@ -129,7 +129,11 @@ def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "
             problem, as ``load_calibration`` would.
 
     """
-    text = calibration_text(calibration)
+    _check_text(calibration_text(calibration), path)
+
+
+def _check_text(text: str, path: str | os.PathLike[str]) -> None:
+    """``check_calibration`` of the calibration whose ``calibration_text`` is ``text``."""
     if len(text.encode("utf-8")) > MAX_FILE_BYTES:
         raise CalibrationError(str(path), "file", f"refused: larger than {MAX_FILE_BYTES} bytes")
     parse_calibration(text, str(path))
@@ -153,13 +157,14 @@ def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
         OutputError: The target is one of ``inputs``, not a regular file, or cannot be written.
 
     """
+    text = calibration_text(calibration)  # made once: checked, then written
     if check:
         try:
-            check_calibration(calibration, path)
+            _check_text(text, path)
         except CalibrationError as err:
             raise CalibrationError(err.path, err.field,
                                    f"not written, it would not load: {err.problem}") from None
-    write_text(path, calibration_text(calibration), inputs=inputs)
+    write_text(path, text, inputs=inputs)
 
 
 def probe_resistance(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:

@@ -111,7 +111,7 @@ class Engine:
     def reset(self) -> None:
         """Fresh model and detector state, zeroed counters, no held output (tare gains kept)."""
         self._sensors = {name: replace(SensorState.build(s.cal, self.deadzone_scale,
-                                                     self.out_of_range), gain=s.gain)
+                                                     self.out_of_range, s.limits), gain=s.gain)
                          for name, s in self._sensors.items()}
         for group in self._arrays.values():
             group.rebuild()

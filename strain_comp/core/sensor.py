@@ -116,14 +116,21 @@ class SensorState:
 
     @classmethod
     def build(cls, cal: SensorCalibration, deadzone_scale: float,
-              out_of_range: str = "clamp") -> SensorState:
+              out_of_range: str = "clamp", limits: SensorRange | None = None
+              ) -> SensorState:
         """A fresh sensor: model, detector (dead zone x ``deadzone_scale``), limits under
-        the policy ``out_of_range``, effect terms and input corrector of ``cal``."""
+        the policy ``out_of_range``, effect terms and input corrector of ``cal``.
+        ``limits``: the limits already built for ``cal`` and ``out_of_range`` (they depend
+        on nothing else; building them runs the model along a ramp), None to build them."""
         model = cal.build_model()
+        if limits is None:
+            limits = SensorRange.build(cal, out_of_range, model)
+        else:
+            model.reset()  # as SensorRange.build leaves it
         return cls(cal=cal, model=model,
                    detector=DirectionDetector(scaled(cal.direction, deadzone_scale)),
-                   limits=SensorRange.build(cal, out_of_range, model),
-                   effects=EffectTerms.from_dicts(cal.effects), corrector=_corrector(cal))
+                   limits=limits, effects=EffectTerms.from_dicts(cal.effects),
+                   corrector=_corrector(cal))
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:

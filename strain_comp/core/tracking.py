@@ -208,10 +208,13 @@ class BaselineTracker:
             temperature: np.ndarray | None = None) -> BatchOutput:
         """``engine.run`` over ``t``, ``r`` in stretches, tracking between them. A stretch
         with two samples or more ends a call (its judgement may correct the next); the
-        stretches before it, each too short to judge, run in that same call."""
+        stretches before it, each too short to judge, run in that same call. A sensor that is
+        never tracked (``models_what_moves``) is run in one call: the engine's state carries
+        across stretches exactly, so its output is the same."""
         t = np.asarray(t, dtype=np.float64)
-        if t.size == 0:
-            return self.engine.run(name, t, r, temperature)
+        cal = self.engine.calibration.sensors.get(name)
+        if t.size == 0 or (cal is not None and models_what_moves(cal)):
+            return self.engine.run(name, t, r, temperature)  # nothing to judge or never tracked
         self.origin.setdefault(name, float(t[0]))
         index = self._index(name, t)
         edges = np.flatnonzero(np.diff(index)) + 1

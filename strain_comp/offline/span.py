@@ -15,6 +15,8 @@ are the fields of ``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
 
 from __future__ import annotations
 
+import functools
+import pickle
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -55,7 +57,9 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
     """(resistances [ohm], steady outputs) on ``policy.grid_points`` resistances over the valid
     range, from the rest end (the low end for a sensor whose R rises with strain), read
     by the models directly (an existing input zero and span left out: the resistances are
-    the calibrated ones).
+    the calibrated ones). Kept for the last ``CURVES_KEPT`` calibrations (by their whole
+    content; the arrays are read-only): a session start spans every run with the same
+    calibration.
 
     Args:
         cal: The sensor's calibration.
@@ -66,11 +70,31 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
 
     """
     bare = replace(cal, input=replace(cal.input, zero_span=None))
-    policy = SPAN if policy is None else policy
-    grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, policy.grid_points)
-    if cal.direction.sign < 0:
+    return _steady_curve(pickle.dumps((bare, SPAN if policy is None else policy),
+                                      protocol=pickle.HIGHEST_PROTOCOL))
+
+
+CURVES_KEPT = 64
+"""Most steady curves ``steady_curve`` keeps (the least recently used goes first)."""
+
+
+@functools.lru_cache(maxsize=CURVES_KEPT)
+def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """``steady_curve`` of the pickled (calibration without its input zero and span,
+    policy) ``key``."""
+    bare, policy = pickle.loads(key)  # the bytes steady_curve just made
+    grid = np.linspace(bare.valid_range.r_lo, bare.valid_range.r_hi, policy.grid_points)
+    if bare.direction.sign < 0:
         grid = grid[::-1]
-    return grid, np.array([steady_output(bare, float(r), policy) for r in grid])
+    engine = Engine(Calibration({bare.name: bare}))  # reset before each: steady_output's
+    t = 0.1 * np.arange(policy.settle_samples)
+    curve = (grid, np.empty(grid.size))
+    for i, r in enumerate(grid):
+        engine.reset()
+        curve[1][i] = engine.run(bare.name, t, np.full(t.size, float(r))).strain[-1]
+    for values in curve:
+        values.setflags(write=False)
+    return curve
 
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,

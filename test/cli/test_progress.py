@@ -13,6 +13,7 @@ import subprocess
 import sys
 import termios
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -71,11 +72,17 @@ def stderr_of(argv: list[str], *, terminal: bool) -> str:
 
 @pytest.mark.parametrize("what", ["apl fit", "evaluate", "diagnose", "benchmark"])
 def test_a_bar_on_a_terminal_none_in_a_log_none_when_quiet(what: str, tmp_path: Path) -> None:
-    argv = commands(tmp_path)[what]
-    shown = stderr_of(argv, terminal=True)
+    """The three runs (a terminal, a log, a terminal with --quiet) are independent
+    processes, each writing to a folder of its own: they run side by side."""
+    runs = {"shown": (True, []), "logged": (False, []), "quiet": (True, ["--quiet"])}
+    for name in runs:
+        (tmp_path / name).mkdir()
+    with ThreadPoolExecutor(len(runs)) as pool:
+        futures = {name: pool.submit(stderr_of, [*commands(tmp_path / name)[what], *extra],
+                                     terminal=terminal)
+                   for name, (terminal, extra) in runs.items()}
+    shown, logged, quiet = (futures[name].result() for name in runs)
     assert f"\r{what}:" in shown  # tqdm's bar, redrawn in place
-    logged = stderr_of(argv, terminal=False)
     assert f"{what}:" not in logged and "\r" not in logged
     assert "grid row" not in logged  # the APL grid's own lines gave way too
-    quiet = stderr_of([*argv, "--quiet"], terminal=True)
     assert quiet == ""

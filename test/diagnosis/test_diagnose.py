@@ -21,6 +21,7 @@ import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -31,7 +32,7 @@ from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
-from strain_comp.diagnosis.report import SESSION_RECORDS, write_plots
+from strain_comp.diagnosis.report import SESSION_RECORDS, DiagnoseResult, write_plots
 from strain_comp.diagnosis.session import first_cycle, session_errors
 from strain_comp.io.recording import Recording, load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
@@ -77,6 +78,27 @@ def calibration(bags: BagMaker) -> Calibration:
     return Calibration({"s1": fit_sensor([bags("patterns", 0)["s1"]], "cubic", name="s1")})
 
 
+Diagnosed = tuple[dict[str, Recording], list[dict[str, Recording]], DiagnoseResult]
+
+
+@pytest.fixture(scope="module")
+def diagnosed(bags: BagMaker, calibration: Calibration) -> Callable[..., Diagnosed]:
+    """(scenario, validation scenario, **effects) -> the bag of seed 2, the validation bags
+    of seeds 3 and 4, and ``diagnose`` of them with ``calibration``: made once per module,
+    whichever test asks first (tests that read one diagnosis share it)."""
+    made: dict[tuple[Any, ...], Diagnosed] = {}
+
+    def of(scenario: str, val_scenario: str, **effects: float) -> Diagnosed:
+        key = (scenario, val_scenario, *sorted(effects.items()))
+        if key not in made:
+            data = bags(scenario, 2, **effects)
+            val = [bags(val_scenario, seed, **effects) for seed in (3, 4)]
+            made[key] = data, val, diagnose(data, calibration, validate_recordings=val)
+        return made[key]
+
+    return of
+
+
 CASES = [  # effect, rig switch, bag scenario, validation scenario, expected kind(s)
     # relaxation: a memory of the estimate's steps, or of the resistance (the rig's
     # relaxation is five times weaker on unloading: "rising back from a recent dip")
@@ -93,14 +115,13 @@ CASES = [  # effect, rig switch, bag scenario, validation scenario, expected kin
 
 @pytest.mark.parametrize(("effect", "switch", "scenario", "val_scenario", "kind"), CASES,
                          ids=[c[0] for c in CASES])
-def test_finds_the_undeclared_effect(bags: BagMaker, calibration: Calibration, effect: str,
-                                     switch: dict, scenario: str, val_scenario: str,
+def test_finds_the_undeclared_effect(diagnosed: Callable[..., Diagnosed],
+                                     calibration: Calibration, effect: str, switch: dict,
+                                     scenario: str, val_scenario: str,
                                      kind: tuple[str, ...]) -> None:
-    data = bags(scenario, 2, **switch)
+    data, val, result = diagnosed(scenario, val_scenario, **switch)
     if kind == ("temperature",):  # the /s1/temperature topic reaches the recording
         assert data["s1"].temperature is not None and np.ptp(data["s1"].temperature) > 5
-    val = [bags(val_scenario, seed, **switch) for seed in (3, 4)]
-    result = diagnose(data, calibration, validate_recordings=val)
     added = result.added
     assert added, result.summary()
     assert added[0].kind in kind, result.summary()
@@ -439,15 +460,14 @@ def test_a_reference_the_sensor_does_not_follow_gets_one_term_and_no_rounding_te
 
 
 def test_a_long_run_is_thinned_to_the_row_budget_and_finds_the_same(
-        bags: BagMaker, calibration: Calibration, monkeypatch: pytest.MonkeyPatch) -> None:
+        diagnosed: Callable[..., Diagnosed], calibration: Calibration,
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """Above ``ROW_BUDGET`` samples the loop keeps every k-th row after the regressors ran
     over all samples: on a run 5x over a lowered budget it adds the same effect with about
     the same coefficient, and its held-out RMSE estimates equal the full rows' closely."""
     import strain_comp.diagnosis.residuals as residuals
 
-    data = bags("random", 2, drift=0.5)
-    val = [bags("patterns", seed, drift=0.5) for seed in (3, 4)]
-    full = diagnose(data, calibration, validate_recordings=val)
+    data, val, full = diagnosed("random", "patterns", drift=0.5)
     monkeypatch.setattr(residuals, "ROW_BUDGET", data["s1"].t.size // 5)
     thinned = diagnose(data, calibration, validate_recordings=val)
     assert "every 6-th sample" in thinned.sensors["s1"].message

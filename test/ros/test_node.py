@@ -11,50 +11,43 @@ from __future__ import annotations
 import math
 import shutil
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from conftest import NodeUnderTest
 from ros_env import use_ros_env
 
 ROS_SLOT = 1
 use_ros_env(ROS_SLOT)
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402  (after the environment is set)
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
 
 from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.core.tracking import BaselineTracker  # noqa: E402
-from strain_comp.ros.node import create_node  # noqa: E402
-from strain_comp.ros.player import bag_messages, spin_until  # noqa: E402
+from strain_comp.ros.player import bag_messages  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
 N_BAG = 400
 
 
-class Harness:
+class Harness(NodeUnderTest):
     """The node under test, a probe node, one executor, a sim clock."""
 
     def __init__(self, ctx: Any, params_file: Path, *extra: str) -> None:
-        self.ctx = ctx
-        args = ["--ros-args", "--params-file", str(params_file), "-p", "use_sim_time:=true",
-                "-p", "diagnostics_period_s:=0.1", *extra]
-        self.node = create_node(base_dir=params_file.parent, context=ctx, cli_args=args)
-        self.probe = Node("probe", context=ctx)
-        self.executor = SingleThreadedExecutor(context=ctx)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.probe)
+        super().__init__(ctx, params_file.parent, [
+            "--ros-args", "--params-file", str(params_file), "-p", "use_sim_time:=true",
+            "-p", "diagnostics_period_s:=0.1", *extra])
         self.clock_pub = self.probe.create_publisher(Clock, "/clock", 10)
         self.received: dict[str, list[Any]] = {}
         self.t_ns = 1_000_000_000
@@ -64,9 +57,6 @@ class Harness:
         self.probe.create_subscription(kind, topic, got.append, 100)
         self.received[topic] = got
         return got
-
-    def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
-        return spin_until(self.executor, done, timeout)
 
     def tick(self, t_ns: int) -> None:
         """Publish /clock = t_ns and wait until the node's clock shows it."""
@@ -83,16 +73,6 @@ class Harness:
         pub.publish(msg)
         return self.spin_until(lambda: len(answer) > n, 2.0)
 
-    def wait_matched(self, pub: Any) -> None:
-        assert self.spin_until(lambda: pub.get_subscription_count() > 0)
-
-    def call(self, service: str) -> Any:
-        client = self.probe.create_client(Trigger, service)
-        assert self.spin_until(client.service_is_ready)
-        future = client.call_async(Trigger.Request())
-        assert self.spin_until(future.done)
-        return future.result()
-
     def diagnostics(self) -> dict[str, tuple[int, str, dict[str, str]]]:
         """The statuses of a /diagnostics message published after the clock moved on."""
         got = self.received.get("/diagnostics") or self.listen("/diagnostics", DiagnosticArray)
@@ -102,11 +82,6 @@ class Harness:
         assert self.spin_until(lambda: len(got) > n)
         return {s.name: (s.level[0], s.message, {kv.key: kv.value for kv in s.values})
                 for s in got[-1].status}
-
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.probe.destroy_node()
 
 
 @pytest.fixture()

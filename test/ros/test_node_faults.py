@@ -8,53 +8,42 @@ with the faulty one left out."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import NodeUnderTest
 from ros_env import use_ros_env
 
 ROS_SLOT = 17
 use_ros_env(ROS_SLOT)
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
-from rclpy.node import Node  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402  (after the environment is set)
 from std_msgs.msg import Float64  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
 
 from strain_comp.errors import InputError  # noqa: E402
 from strain_comp.ros.compensator import CompensatorNode  # noqa: E402
 from strain_comp.ros.live import LiveCompensator  # noqa: E402
 from strain_comp.ros.messages import array_layout, sensor_value  # noqa: E402
-from strain_comp.ros.node import create_node  # noqa: E402
 from strain_comp.ros.params import parse_values  # noqa: E402
-from strain_comp.ros.player import spin_until  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 
-class Rig:
+class Rig(NodeUnderTest):
     """The node (config/compensator_params.yaml, system time), a probe node, an executor."""
 
     def __init__(self, ctx: Any) -> None:
-        args = ["--ros-args", "--params-file", str(CONFIG / "compensator_params.yaml"),
-                "-p", "diagnostics_period_s:=0.05"]
-        self.node: CompensatorNode = create_node(base_dir=CONFIG, context=ctx, cli_args=args)
-        self.probe = Node("probe", context=ctx)
-        self.executor = SingleThreadedExecutor(context=ctx)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.probe)
+        super().__init__(ctx, CONFIG, ["--ros-args", "--params-file",
+                                       str(CONFIG / "compensator_params.yaml"),
+                                       "-p", "diagnostics_period_s:=0.05"])
+        self.node: CompensatorNode
         self.strain: list[Any] = []
         self.diags: list[Any] = []
         self.probe.create_subscription(Float64, "/s1/strain", self.strain.append, 100)
         self.probe.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 100)
-        self.pub = self.probe.create_publisher(Float64, "/s1/resistance", 10)
-        assert self.spin_until(lambda: self.pub.get_subscription_count() > 0)
-
-    def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
-        return spin_until(self.executor, done, timeout)
+        self.pub = self.wait_matched(self.probe.create_publisher(Float64, "/s1/resistance", 10))
 
     def send(self, value: float) -> None:
         """Publish one good resistance and spin until its strain came back."""
@@ -69,18 +58,6 @@ class Rig:
         found = {s.name: (s.level[0], s.message, {kv.key: kv.value for kv in s.values})
                  for s in self.diags[-1].status}
         return found[name]
-
-    def call(self, service: str) -> Any:
-        client = self.probe.create_client(Trigger, service)
-        assert self.spin_until(client.service_is_ready)
-        future = client.call_async(Trigger.Request())
-        assert self.spin_until(future.done)
-        return future.result()
-
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.probe.destroy_node()
 
 
 @pytest.fixture()

@@ -7,20 +7,19 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from conftest import NodeUnderTest
 from ros_env import ros_env, use_ros_env
 
 ROS_SLOT = 7
 use_ros_env(ROS_SLOT)
 
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
-from rclpy.node import Node  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402  (after the environment is set)
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
@@ -28,38 +27,25 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
 from strain_comp.core.calibration_file import load_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
 from strain_comp.ros.live import MAX_REFUSAL_KEYS  # noqa: E402
-from strain_comp.ros.node import create_node  # noqa: E402
-from strain_comp.ros.player import spin_until  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 SENSORS = [f"a{i}" for i in range(1, 7)]
 
 
-class Peer:
+class Peer(NodeUnderTest):
     """The node (array config) and a hostile peer node on one executor."""
 
     def __init__(self, ctx: Any, sim_time: bool) -> None:
-        args = ["--ros-args", "--params-file", str(CONFIG / "array_params.yaml"),
-                "-p", f"use_sim_time:={str(sim_time).lower()}"]
-        self.node = create_node(base_dir=CONFIG, context=ctx, cli_args=args)
-        self.peer = Node("peer", context=ctx)
-        self.executor = SingleThreadedExecutor(context=ctx)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.peer)
-        self.clock = self.peer.create_publisher(Clock, "/clock", 10)
-
-    def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
-        return spin_until(self.executor, done, timeout)
+        super().__init__(ctx, CONFIG, ["--ros-args", "--params-file",
+                                       str(CONFIG / "array_params.yaml"),
+                                       "-p", f"use_sim_time:={str(sim_time).lower()}"],
+                         probe_name="peer")
+        self.clock = self.probe.create_publisher(Clock, "/clock", 10)
 
     def tick(self, sec: int, nanosec: int = 0) -> None:
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = sec, nanosec
         self.clock.publish(msg)
-
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.peer.destroy_node()
 
 
 @pytest.fixture()
@@ -70,7 +56,7 @@ def sim(context: Any) -> Iterator[Peer]:
 
 
 def test_a_negative_clock_is_refused_and_counted_not_fatal(sim: Peer) -> None:
-    assert sim.spin_until(lambda: sim.clock.get_subscription_count() > 0)
+    sim.wait_matched(sim.clock)
     sim.tick(5)
     assert sim.spin_until(lambda: sim.node.get_clock().now().nanoseconds == 5 * 10**9)
     for n in range(1, 4):  # rclpy's own clock callback raises ValueError here
@@ -86,7 +72,7 @@ def test_a_peer_cannot_switch_use_sim_time(context: Any, sim_time: bool) -> None
     """Through the standard set_parameters service, from another node."""
     p = Peer(context, sim_time)
     try:
-        client = AsyncParameterClient(p.peer, "compensator")
+        client = AsyncParameterClient(p.probe, "compensator")
         assert p.spin_until(client.services_are_ready)
         future = client.set_parameters([Parameter("use_sim_time", value=not sim_time)])
         assert p.spin_until(future.done)
@@ -112,9 +98,9 @@ def test_array_values_are_matched_by_label_and_refused_when_labels_differ(sim: P
     labels gives the same strains (the engine's, sensor by sensor); labels naming another
     sensor are refused and counted."""
     strain: list[Any] = []
-    sim.peer.create_subscription(Float64MultiArray, "/array/strain", strain.append, 10)
-    pub = sim.peer.create_publisher(Float64MultiArray, "/array/resistance", 10)
-    assert sim.spin_until(lambda: pub.get_subscription_count() > 0)
+    sim.probe.create_subscription(Float64MultiArray, "/array/strain", strain.append, 10)
+    pub = sim.probe.create_publisher(Float64MultiArray, "/array/resistance", 10)
+    sim.wait_matched(pub)
     engine = Engine(load_calibration(CONFIG / "array_calibration.yaml"),
                     arrays={"array": SENSORS})
     rows = [[12.0, 14.0, 13.0, 15.0, 14.5, 16.0], [12.5, 14.2, 13.1, 15.5, 14.0, 16.5]]

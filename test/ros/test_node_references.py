@@ -11,55 +11,35 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import NodeUnderTest
 from ros_env import use_ros_env
 
 ROS_SLOT = 13
 use_ros_env(ROS_SLOT)
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402  (after the environment is set)
-from rclpy.node import Node  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402  (after the environment is set)
 from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
 
 from strain_comp.core.calibration_file import load_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
-from strain_comp.ros.node import create_node  # noqa: E402
-from strain_comp.ros.player import spin_until  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
 
 
-class Harness:
+class Harness(NodeUnderTest):
     """The node (wall clock) with ``fuse_references: true``, a probe node, one executor."""
 
     def __init__(self, ctx: Any, params_file: Path, fuse: str = "true") -> None:
-        args = ["--ros-args", "--params-file", str(params_file), "-p",
-                "diagnostics_period_s:=0.05", "-p", f"fuse_references:={fuse}"]
-        self.node = create_node(base_dir=params_file.parent, context=ctx, cli_args=args)
-        self.probe = Node("probe", context=ctx)
-        self.executor = SingleThreadedExecutor(context=ctx)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.probe)
+        super().__init__(ctx, params_file.parent, [
+            "--ros-args", "--params-file", str(params_file), "-p",
+            "diagnostics_period_s:=0.05", "-p", f"fuse_references:={fuse}"])
         self.diag: list[Any] = []
         self.probe.create_subscription(DiagnosticArray, "/diagnostics", self.diag.append, 10)
 
-    def spin_until(self, done: Callable[[], bool], timeout: float = 5.0) -> bool:
-        return spin_until(self.executor, done, timeout)
-
     def publisher(self, kind: Any, topic: str) -> Any:
-        pub = self.probe.create_publisher(kind, topic, 10)
-        assert self.spin_until(lambda: pub.get_subscription_count() > 0)
-        return pub
-
-    def call(self, service: str) -> Any:
-        client = self.probe.create_client(Trigger, service)
-        assert self.spin_until(client.service_is_ready)
-        future = client.call_async(Trigger.Request())
-        assert self.spin_until(future.done)
-        return future.result()
+        return self.wait_matched(self.probe.create_publisher(kind, topic, 10))
 
     def status(self, name: str, done: Callable[[dict[str, str]], bool]) -> dict[str, str]:
         """The key-values of ``name`` in the first /diagnostics for which ``done`` holds."""
@@ -77,11 +57,6 @@ class Harness:
 
         assert self.spin_until(check), found
         return found
-
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.probe.destroy_node()
 
 
 @pytest.fixture()
