@@ -928,11 +928,13 @@ def fuzz_node(rng: np.random.Generator, work: Path, *, seconds: float) -> NodeSt
     start = time.monotonic()
     deadline = start + seconds
     next_rss = start
-    next_mode, mode = start, "run"
+    modes = np.random.default_rng(int(rng.integers(2**63)))  # the seed's alone, not timing's
+    next_mode, mode = start + CLOCK_MODE_SECONDS, "run"  # a clock first runs
+    stats.clock_modes[mode] = 1
     try:
         while time.monotonic() < deadline and proc.poll() is None:
             if time.monotonic() >= next_mode:  # the clock runs, stands still or runs back
-                mode = str(rng.choice(CLOCK_MODES, p=[0.5, 0.25, 0.25]))
+                mode = str(modes.choice(CLOCK_MODES, p=[0.5, 0.25, 0.25]))
                 stats.clock_modes[mode] = stats.clock_modes.get(mode, 0) + 1
                 next_mode += CLOCK_MODE_SECONDS
             op = int(rng.integers(0, 10))
