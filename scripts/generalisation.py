@@ -140,19 +140,12 @@ def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
 
 
 def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
-    """(START, END) seconds of a run's second load and unload (``recalibrate --window``):
-    from the end of the first cycle to the end of the next stretch and return
-    (``strain_comp.offline.session_window.cycle_end`` on the rest of the run, whose
-    extremes set the span as for the first); None when the rest of the run has none."""
-    from strain_comp.offline.session_window import cycle_end
+    """(START, END) seconds of a run's second load and unload (``recalibrate --window``;
+    ``strain_comp.diagnosis.session.second_cycle``, the window the loop's session start
+    reads too); None when the run has none."""
+    from strain_comp.diagnosis.session import second_cycle as window
 
-    start = first_cycle(t, s)
-    rest = t >= t[0] + start
-    end = cycle_end(t[rest], s[rest]) if rest.sum() > 1 else None
-    if end is None:
-        return None
-    offset = float(t[rest][0] - t[0])
-    return offset, offset + end
+    return window(t, s)
 
 
 def code_hash() -> str:

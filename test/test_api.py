@@ -16,6 +16,7 @@ import pytest
 
 import strain_comp as sc
 from strain_comp.cli import main
+from strain_comp.diagnosis.session import second_cycle
 from strain_comp.io.bag import read_bag
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,6 +110,19 @@ def test_recalibrate_prints_the_commands_readings(tmp_path: Path,
     session = sc.session_start(CAL, BAG, first=30)
     assert session.calibration.to_dict() == \
         sc.load_calibration(tmp_path / "field.yaml").to_dict()
+    # the README's procedure: the calibration stretch after a warm-up one (--window)
+    run = sc.read_recordings(BAG)["s1"]
+    window = second_cycle(run.t, run.s)
+    assert window is not None
+    flag = ["--window", f"{window[0]!r}:{window[1]!r}"]
+    assert main(["recalibrate", CAL, "--input", "--from", BAG, *flag, "--out", str(out),
+                 "-q"]) == 0
+    assert main(["recalibrate", str(out), "--from", BAG, *flag, "--out",
+                 str(tmp_path / "field.yaml"), "-q"]) == 0
+    warmed = sc.session_start(CAL, BAG, window=window)
+    assert warmed.calibration.to_dict() == \
+        sc.load_calibration(tmp_path / "field.yaml").to_dict()
+    assert warmed.calibration.to_dict() != session.calibration.to_dict()
 
 
 def test_diagnose_gives_the_commands_report(tmp_path: Path) -> None:

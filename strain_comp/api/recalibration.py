@@ -69,26 +69,32 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
 
 
 def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30.0,
-                  tare: str = "calibration") -> Recalibration:
-    """The start of a session (README): on the first ``first`` seconds of a run with a
-    reference (a known stretch and back), first the input zero and span, then the output
-    gain and offset.
+                  tare: str = "calibration",
+                  window: tuple[float, float] | None = None) -> Recalibration:
+    """The start of a session (README): on a run with a reference, first the input zero
+    and span, then the output gain and offset, over the calibration stretch ``window``
+    (after a warm-up stretch), or over the run's first ``first`` seconds.
 
     Args:
         calibration: A ``Calibration`` or the path of a calibration file.
         data: A bag or recordings with a reference strain.
-        first: How much of the run's start to use [s].
+        first: How much of the run's start to use [s] when ``window`` is None.
         tare: As ``--tare``.
+        window: The calibration stretch, (START, END) seconds after the run's start
+            (``recalibrate --window``).
 
     Returns:
         The calibration with both and the lines of each step.
 
     Raises:
-        InputError: The run's start has no usable stretch and back, or no reference.
+        InputError: The stretch read has no usable load and unload, or no reference.
         CalibrationError: The calibration file cannot be read.
         BagError: The bag cannot be read.
 
     """
-    spanned = recalibrate(calibration, data, form="input", first=first, tare=tare)
-    mapped = recalibrate(spanned.calibration, data, form="output", first=first, tare=tare)
+    head = first if window is None else None
+    spanned = recalibrate(calibration, data, form="input", first=head, tare=tare,
+                          window=window)
+    mapped = recalibrate(spanned.calibration, data, form="output", first=head, tare=tare,
+                         window=window)
     return Recalibration(mapped.calibration, spanned.readings + mapped.readings)

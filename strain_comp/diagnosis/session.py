@@ -55,6 +55,32 @@ def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
     return cap if end is None else min(end, cap)
 
 
+def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
+    """(START, END) seconds of a run's second load and unload, the calibration stretch of
+    the README's session start after a warm-up one (``recalibrate --window``): from the end
+    of the first cycle (``first_cycle``) to the end of the next stretch and return
+    (``cycle_end`` on the rest of the run). None when the rest of the run has none.
+
+    Args:
+        t: Sample times [s].
+        s: Reference strain, one per sample.
+
+    Returns:
+        The window, or None.
+
+    """
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    first = first_cycle(t, s)
+    if first is None:
+        return None
+    rest = t >= t[0] + first
+    end = cycle_end(t[rest], s[rest]) if rest.sum() > 1 else None
+    if end is None:
+        return None
+    start = float(t[rest][0] - t[0])
+    return start, start + end
+
+
 @dataclass
 class SessionStart:
     """A calibration after the session-start recalibration on one run."""
