@@ -11,6 +11,7 @@ tick by tick.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -209,6 +210,42 @@ class Engine:
         self.set_input_gain(sensor, gain)
         s.health.baseline_tracked_s += seconds
         s.health.baseline_correction = (1.0 + s.health.baseline_correction) * factor - 1.0
+
+    def save_state(self, sensor: str) -> SensorState:
+        """A copy of everything ``sensor`` carries from one sample to the next (model,
+        detector, effect terms, input corrector, held output, tare gain, counters), for
+        ``restore_state``; the calibration and limits are shared (never changed).
+
+        Args:
+            sensor: The sensor's name.
+
+        Returns:
+            The copy.
+
+        Raises:
+            InputError: An unknown sensor.
+
+        """
+        s = self._sensor(sensor)
+        return copy.deepcopy(s, {id(s.cal): s.cal, id(s.limits): s.limits})
+
+    def restore_state(self, sensor: str, state: SensorState) -> None:
+        """Continue ``sensor`` exactly from ``state`` (a ``save_state``, used once): the
+        samples run since are forgotten, counters included.
+
+        Args:
+            sensor: The sensor's name.
+            state: The saved state.
+
+        Raises:
+            InputError: An unknown sensor.
+
+        """
+        self._sensor(sensor)
+        self._sensors[sensor] = state
+        for group in self._arrays.values():
+            if sensor in group.names and group.fused:
+                group.set_gain(group.names.index(sensor), state.gain)
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Change the dead-zone scale (a node tunable); the detectors restart from rest.

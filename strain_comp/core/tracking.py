@@ -23,13 +23,20 @@ calibration's rest again, but only:
   (``rest_is_read_as_rest``) and has no effect terms but an output gain and offset
   (``models_what_moves``: the loop's terms already model what moves).
 
-A held strain (detector at hold, estimate far from rest) is never tracked. The engine runs
-the samples in stretches of ``chunk_seconds``; its state carries from one to the next
-exactly, so between corrections the numbers are the batch path's. A run of stretches that
-cannot be corrected between (each with fewer than two samples, as a slow stream's) is run
-in one call: the cost is linear in the samples, whatever time they span. A stretch keeps
-only its used samples (at most ``chunk_seconds`` times the sample rate): a stopped clock
-(repeated stamps are not used) or one that runs backwards holds O(1) state per sensor.
+A held strain (detector at hold, estimate far from rest) is never tracked. The numbers are
+those of running the engine once per judged stretch of ``chunk_seconds``, each judged
+before the next runs; the engine's state carries from one call to the next exactly, so
+``run`` runs many stretches in one call and judges them afterwards, in order. Where a
+judgement corrects the gain (rare: only at a rest), the engine rewinds to that stretch's
+end (``Engine.save_state`` / ``restore_state``, then the samples since the save again) and
+goes on from the corrected gain. A stretch whose judgement, and the next one's, cannot
+correct (not a hold, or a hold on the strain side with no correction to undo) is judged
+from counts over the call's output, without keeping its samples: the cost is linear in the
+samples, whatever time they span, but at a rest being corrected (one call per stretch, a
+call after a correction running one piece, then twice as many each time). A stretch
+keeps only its used samples (at most ``chunk_seconds`` times the sample rate): a stopped
+clock (repeated stamps are not used) or one that runs backwards holds O(1) state per
+sensor.
 The numbers are the fields of ``TrackingPolicy`` (``TRACKING``; docs/policies.md gives
 what keeps each).
 """
@@ -38,8 +45,7 @@ from __future__ import annotations
 
 import math
 from array import array
-from dataclasses import dataclass, field
-from itertools import pairwise
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -78,6 +84,8 @@ class TrackingPolicy:
 
 TRACKING = TrackingPolicy()
 """The policy every tracker uses unless given another."""
+MAX_BATCH = 1024
+"""Most pieces (each ending with a judged stretch) the engine runs in one call."""
 
 
 def tracker_for(engine: Engine, mode: str) -> BaselineTracker | None:
@@ -153,6 +161,50 @@ def rest_is_read_as_rest(cal: SensorCalibration, raw_rest: float, band: float) -
     return bool(abs(float(out.strain[-1]) - s_rest) <= band * s_span)
 
 
+@dataclass(frozen=True)
+class _Stream:
+    """One ``run``'s samples, each one's stretch ``index``, and the ``cuts`` between the
+    pieces the tracker judges (a piece ends with a stretch of two samples or more)."""
+
+    t: np.ndarray
+    r: np.ndarray
+    temperature: np.ndarray | None
+    index: np.ndarray
+    cuts: list[int]
+
+    def part(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(t, r, temperature) of samples ``lo`` to ``hi``."""
+        temp = None if self.temperature is None else self.temperature[lo:hi]
+        return self.t[lo:hi], self.r[lo:hi], temp
+
+
+@dataclass(frozen=True)
+class _Holds:
+    """Counts over one engine call's output, from its first sample to each sample: used
+    samples, used samples off hold (direction not 0) and used samples that read strictly
+    on the strain side of the rest resistance."""
+
+    used: np.ndarray
+    moving: np.ndarray
+    strained: np.ndarray
+
+    @classmethod
+    def of(cls, out: BatchOutput, rest: float, sign: int) -> _Holds:
+        used = used_mask(np.asarray(out.status))
+        moving = used & (np.asarray(out.direction) != 0)
+        strained = used & ((np.asarray(out.resistance) - rest) * sign > 0.0)
+        return cls(*(np.concatenate([[0], np.cumsum(c)]) for c in (used, moving, strained)))
+
+    def may_correct(self, a: int, b: int, undoing: bool) -> bool:
+        """Whether ``judge`` could correct after samples ``a`` to ``b``: two used samples or
+        more, all at hold, and (unless the tracker has a correction to undo, ``undoing``)
+        no more than half of them on the strain side (else their median is too)."""
+        n = self.used[b] - self.used[a]
+        if n < 2 or self.moving[b] != self.moving[a]:
+            return False
+        return undoing or not 2 * (self.strained[b] - self.strained[a]) > n
+
+
 @dataclass
 class _Stretch:
     """The used samples of one sensor's current stretch (``index``: its number from the
@@ -196,6 +248,8 @@ class BaselineTracker:
     at hold."""
     applied: dict[str, float] = field(default_factory=dict)
     """Per sensor, the product of the gain factors the tracker applied."""
+    batch: dict[str, int] = field(default_factory=dict)
+    """Per sensor, how many pieces its next engine call runs (``run``)."""
     origin: dict[str, float] = field(default_factory=dict)
     """Per sensor, the time of its first sample: stretches of ``policy.chunk_seconds`` are counted
     from it, so a run in one batch, in streamed windows (replay) or sample by sample (the
@@ -206,11 +260,15 @@ class BaselineTracker:
 
     def run(self, name: str, t: np.ndarray, r: np.ndarray,
             temperature: np.ndarray | None = None) -> BatchOutput:
-        """``engine.run`` over ``t``, ``r`` in stretches, tracking between them. A stretch
-        with two samples or more ends a call (its judgement may correct the next); the
-        stretches before it, each too short to judge, run in that same call. A sensor that is
-        never tracked (``models_what_moves``) is run in one call: the engine's state carries
-        across stretches exactly, so its output is the same."""
+        """``engine.run`` over ``t``, ``r``, judging every stretch of two samples or more
+        after it ran (stretches each too short to judge run with the next). The engine runs
+        many stretches in one call (``MAX_BATCH`` at most, twice as many after each call
+        without a correction, one after one); where a judgement corrects the gain, it
+        rewinds to that stretch's end (``Engine.restore_state``, then the samples before it
+        again) and goes on from the corrected gain, so the numbers are those of one call per
+        judged stretch. A sensor that is never tracked (``models_what_moves``) is run in
+        one call: the engine's state carries across stretches exactly, so its output is the
+        same."""
         t = np.asarray(t, dtype=np.float64)
         cal = self.engine.calibration.sensors.get(name)
         if t.size == 0 or (cal is not None and models_what_moves(cal)):
@@ -223,29 +281,100 @@ class BaselineTracker:
         judged = ends - starts >= 2
         if name in self.pending and index[0] == self.pending[name].index:
             judged[0] = True  # continues the kept stretch: judged with it
-        cuts = [0, *ends[judged & (ends < t.size)].tolist(), t.size]
-        outs = []
-        for a, b in pairwise(cuts):
-            self.advance(name, float(t[a]))
-            temp = None if temperature is None else temperature[a:b]
-            out = self.engine.run(name, t[a:b], np.asarray(r)[a:b], temp)
-            last = int(np.searchsorted(index[a:b], index[b - 1]))  # the last stretch's start
-            if last > 0:  # whole stretches before it: fewer than two samples each
-                self.pending.pop(name, None)
-                self.last_hold.pop(name, None)
-            stretch = self.pending.setdefault(name, _Stretch(float(index[b - 1])))
-            stretch.add(t[a + last:b], _part(out, last))
-            outs.append(out)
+        stream = _Stream(t, np.asarray(r), temperature, index,
+                         [0, *ends[judged & (ends < t.size)].tolist(), t.size])
+        outs: list[BatchOutput] = []
+        piece = 0
+        while piece < len(stream.cuts) - 1:
+            piece = self._run_batch(name, stream, piece, outs)
         return concatenate(outs)
+
+    def _run_batch(self, name: str, stream: _Stream, first: int,
+                   outs: list[BatchOutput]) -> int:
+        """Run the pieces of ``stream`` from ``first`` on in one engine call, judging each
+        one's kept stretch before the next; append what stands to ``outs``; return the
+        first piece not run."""
+        correction = self._judge_kept(name, float(stream.t[stream.cuts[first]]))
+        if correction is not None:
+            self._correct(name, *correction)
+        span = 1 if correction is not None else self.batch.get(name, 1)
+        last = min(first + span, len(stream.cuts) - 1)
+        lo, hi = stream.cuts[first], stream.cuts[last]
+        saved = self.engine.save_state(name) if last - first > 1 else None
+        out = self.engine.run(name, *stream.part(lo, hi))
+        kept, quiet = self._kept(name, stream, (first, last), out)
+        for piece in range(first, last):
+            a, b = stream.cuts[piece], stream.cuts[piece + 1]
+            correction = (None if piece == first
+                          else self._judge_kept(name, float(stream.t[a])))
+            if correction is not None and saved is not None:
+                self.engine.restore_state(name, saved)  # back to where the correction applies
+                self.engine.run(name, *stream.part(lo, a))
+                self._correct(name, *correction)
+                self.batch[name] = 1
+                outs.append(_slice(out, 0, a - lo))
+                return piece
+            self._keep(name, (a, b), kept[piece - first], stream, out, lo,
+                       quiet[piece - first])
+        outs.append(out)
+        self.batch[name] = min(2 * span, MAX_BATCH)
+        return last
+
+    def _kept(self, name: str, stream: _Stream, pieces: tuple[int, int], out: BatchOutput
+              ) -> tuple[list[int], list[bool]]:
+        """For each of ``pieces`` (first, end) run in ``out``: where its last stretch starts,
+        and whether that stretch is quiet (``_keep``): neither its judgement nor the next
+        one's, which alone reads what it leaves, can correct (``_Holds.may_correct``), and
+        the next is judged in this call."""
+        first, end = pieces
+        cuts, index = stream.cuts, stream.index
+        kept = [a + int(np.searchsorted(index[a:b], index[b - 1]))  # the last stretch's start
+                for a, b in zip(cuts[first:end], cuts[first + 1:end + 1], strict=True)]
+        if end - first < 3:
+            return kept, [False] * len(kept)
+        cal = self.engine.calibration.sensors[name]
+        span = cal.input.zero_span
+        rest = span[1] if span is not None else cal.rest_resistance
+        may = [False] * len(kept)  # no rest resistance: ``judge`` never corrects
+        if rest is not None:
+            lo = cuts[first]
+            holds = _Holds.of(out, rest, cal.direction.sign)
+            undoing = self.applied.get(name, 1.0) != 1.0
+            may = [holds.may_correct(a - lo, b - lo, undoing)
+                   for a, b in zip(kept, cuts[first + 1:end + 1], strict=True)]
+        return kept, [not (may[j] or may[j + 1]) for j in range(len(kept) - 2)] + [False] * 2
+
+    def _keep(self, name: str, piece: tuple[int, int], start: int, stream: _Stream,
+              out: BatchOutput, lo: int, quiet: bool) -> None:
+        """Keep the last stretch of ``piece`` (samples ``start`` to its end; ``out`` starts
+        at sample ``lo``) until it is judged; the stretches before it in the piece (fewer
+        than two samples each) end any hold. A ``quiet`` one (``_kept``) is judged at once:
+        what its judgement leaves is never read, so it only ends the hold remembered."""
+        a, b = piece
+        if start > a:  # whole stretches before it: fewer than two samples each
+            self.pending.pop(name, None)
+            self.last_hold.pop(name, None)
+        if quiet and name not in self.pending:
+            self.last_hold.pop(name, None)
+            return
+        stretch = self.pending.setdefault(name, _Stretch(float(stream.index[b - 1])))
+        stretch.add(stream.t[start:b], _slice(out, start - lo, b - lo))
 
     def advance(self, name: str, t: float) -> None:
         """Before samples from ``t`` on are run: if ``t`` starts a new stretch, judge the
         stretch kept so far (``update``), so its correction applies from ``t`` on."""
         self.origin.setdefault(name, t)
+        correction = self._judge_kept(name, t)
+        if correction is not None:
+            self._correct(name, *correction)
+
+    def _judge_kept(self, name: str, t: float) -> tuple[float, float] | None:
+        """If ``t`` starts a new stretch, judge the stretch kept so far (``judge``)."""
         kept = self.pending.get(name)
-        if kept is not None and float(self._index(name, t)) != kept.index:
-            del self.pending[name]
-            self.update(name, *kept.output())
+        if kept is None or float(self._index(name, t)) == kept.index:
+            return None
+        del self.pending[name]
+        return self.judge(name, *kept.output())
 
     def observe(self, name: str, t: float, out: SensorOutput) -> None:
         """One stepped sample (the node; ``advance`` first), kept until its stretch is
@@ -258,55 +387,65 @@ class BaselineTracker:
 
     def update(self, name: str, t: np.ndarray, out: BatchOutput) -> None:
         """Nudge ``name``'s tare gain after one stretch ``out`` (if it was a rest)."""
+        correction = self.judge(name, t, out)
+        if correction is not None:
+            self._correct(name, *correction)
+
+    def _correct(self, name: str, factor: float, duration: float) -> None:
+        """Apply a judgement: the tare gain times ``factor`` after ``duration`` at rest."""
+        self.applied[name] = self.applied.get(name, 1.0) * factor
+        self.engine.track_baseline(name, self.engine.input_gain(name) * factor, duration)
+
+    def judge(self, name: str, t: np.ndarray, out: BatchOutput) -> tuple[float, float] | None:
+        """(factor on the tare gain, seconds at rest) after one stretch ``out``, if it was
+        a rest to correct; None else. Changes only what the tracker remembers of holds."""
         cal = self.engine.calibration.sensors[name]
         policy = self.policy
         used = used_mask(np.asarray(out.status))
         previous = self.last_hold.pop(name, None)
         if used.sum() < 2 or np.any(np.asarray(out.direction)[used] != 0):
-            return
+            return None
         duration = float(t[used][-1] - t[used][0])
         span = cal.input.zero_span
         rest = span[1] if span is not None else cal.rest_resistance
         if not duration > 0 or rest is None:
-            return
+            return None
         level = float(np.median(np.asarray(out.resistance)[used]))
         k, c = cal.input.span_map()
         gain = self.engine.input_gain(name)
         raw = (level - c) / (k * gain)  # the measured resistance at this rest
         if not (raw > 0 and math.isfinite(raw)):
-            return
+            return None
         now = float(np.mean(t[used]))
         self.last_hold[name] = (now, raw)
         off_rest = abs(raw - (rest - c) / (k * gain))
         if previous is None or not now - previous[0] <= 2.0 * policy.chunk_seconds:
-            return  # the first stretch of a hold (the last judged was not the one before)
+            return None  # the first stretch of a hold (the last judged was not the one before)
         if abs(raw - previous[1]) > policy.settle_rate * off_rest * (now - previous[0]):
-            return  # still relaxing toward where it was: left to relax
+            return None  # still relaxing toward where it was: left to relax
         s_rest, s_span = fitted_rest(cal.valid_range)
         estimate = float(np.median(np.asarray(out.strain)[used]))
         applied = self.applied.get(name, 1.0)
         sign = cal.direction.sign
         below = (level - rest) * sign <= 0.0
         if below and estimate - s_rest > policy.band * s_span:
-            return  # read as a strain: a resistance that peaks and falls (carbon black)
+            return None  # read as a strain: a resistance that peaks and falls (carbon black)
         if not below and (applied == 1.0 or (c + (level - c) / applied - rest) * sign > 0.0):
-            return  # on the strain side without the tracker's correction too: never tracked
+            return None  # on the strain side without the tracker's correction too: never tracked
         if name not in self.reads_rest:
             self.reads_rest[name] = (not models_what_moves(cal)
                                      and rest_is_read_as_rest(cal, (rest - c) / k, policy.band))
         if not self.reads_rest[name]:
-            return
+            return None
         target = (rest - c) / (k * raw)
         step = policy.rate * duration
         factor = float(np.clip(target / gain, 1.0 - step, 1.0 + step))
         if not below and (applied * factor - 1.0) * (applied - 1.0) < 0.0:
             factor = 1.0 / applied  # the tracker's correction undone, no further
-        if factor != 1.0:
-            self.applied[name] = applied * factor
-            self.engine.track_baseline(name, gain * factor, duration)
+        return (factor, duration) if factor != 1.0 else None
 
 
-def _part(out: BatchOutput, start: int) -> BatchOutput:
-    """``out`` from sample ``start`` on (the fields the tracker reads)."""
-    return BatchOutput(out.strain[start:], out.direction[start:], out.status[start:],
-                       out.out_of_range[start:], out.resistance[start:])
+def _slice(out: BatchOutput, start: int, stop: int) -> BatchOutput:
+    """``out``'s samples ``start`` to ``stop`` (every field)."""
+    return replace(out, **{f.name: getattr(out, f.name)[start:stop] for f in fields(out)
+                           if getattr(out, f.name) is not None})
