@@ -250,6 +250,23 @@ def staircase(t: np.ndarray) -> np.ndarray:
     return np.where(t < 10.0, 0.0, level * up)
 
 
+def tracked_step_by_step(cal: Calibration, t: np.ndarray, r: np.ndarray
+                         ) -> tuple[np.ndarray, Engine]:
+    """Sensor s1's strain as the node makes it: ``Engine.step`` per sample with baseline
+    tracking (``advance`` before the sample, ``observe`` after); and the engine."""
+    from strain_comp.core.tracking import BaselineTracker
+
+    engine = Engine(cal)
+    tracker = BaselineTracker(engine)
+    stepped = []
+    for ti, ri in zip(t, r, strict=True):
+        tracker.advance("s1", float(ti))
+        out = engine.step("s1", float(ti), float(ri))
+        tracker.observe("s1", float(ti), out)
+        stepped.append(out.strain)
+    return np.array(stepped), engine
+
+
 @functools.cache
 def staircase_calibration() -> Calibration:
     """A cubic fitted on 70 s of ``staircase`` through ``tracking_gauge``."""

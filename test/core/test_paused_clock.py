@@ -9,7 +9,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from conftest import staircase, staircase_calibration, tracking_gauge
+from conftest import staircase, staircase_calibration, tracked_step_by_step, tracking_gauge
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
@@ -81,14 +81,7 @@ def test_tracking_a_slow_stream_is_alike_in_one_batch_in_windows_and_stepped(
     cuts = np.sort(np.random.default_rng(seed).choice(t.size, 12, replace=False))
     windowed = np.concatenate([windows.run("s1", t[a:b], r[a:b]).strain for a, b in
                                zip([0, *cuts], [*cuts, t.size], strict=True) if b > a])
-    engine = Engine(cubic)
-    tracker = BaselineTracker(engine)
-    stepped = []
-    for ti, ri in zip(t, r, strict=True):
-        tracker.advance("s1", float(ti))
-        out = engine.step("s1", float(ti), float(ri))
-        tracker.observe("s1", float(ti), out)
-        stepped.append(out.strain)
+    stepped, engine = tracked_step_by_step(cubic, t, r)
     np.testing.assert_allclose(windowed, batch.strain, rtol=0, atol=1e-9)
     np.testing.assert_allclose(stepped, batch.strain, rtol=0, atol=1e-9)
     assert window_engine.input_gain("s1") == pytest.approx(batch_engine.input_gain("s1"),

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import TRACK_R0, staircase, staircase_calibration, tracking_gauge
+from conftest import (
+    TRACK_R0,
+    staircase,
+    staircase_calibration,
+    tracked_step_by_step,
+    tracking_gauge,
+)
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
@@ -103,14 +109,7 @@ def test_stepped_tracking_equals_the_batch_with_a_pair_statistic_and_a_despiker(
     r[500] += 40.0  # a spike
     batch_engine = Engine(cal)
     batch = BaselineTracker(batch_engine).run("s1", t, r)
-    engine = Engine(cal)
-    tracker = BaselineTracker(engine)
-    stepped = []
-    for ti, ri in zip(t, r, strict=True):
-        tracker.advance("s1", float(ti))
-        out = engine.step("s1", float(ti), float(ri))
-        tracker.observe("s1", float(ti), out)
-        stepped.append(out.strain)
+    stepped, engine = tracked_step_by_step(cal, t, r)
     np.testing.assert_allclose(stepped, batch.strain, rtol=0, atol=1e-9)
     assert engine.input_gain("s1") == pytest.approx(batch_engine.input_gain("s1"), abs=1e-12)
     assert batch_engine.input_gain("s1") > 1.02  # the rest that fell was followed
