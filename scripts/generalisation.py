@@ -246,43 +246,22 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration",
     return float(result.sensors[rec.name].stats.rmse)
 
 
-def session_start(rec: Any, cal: Any, span: tuple[float, float]) -> tuple[Any, int]:
-    """``cal`` after ``recalibrate --input --from B --window START:END`` and then
-    ``recalibrate --from B --window START:END`` (the output map on the spanned input), and
-    how many of the two steps were made; a step that cannot be made is skipped, as for a
-    user. A window from 0 is ``--first END``."""
-    from strain_comp.errors import StrainCompError
-    from strain_comp.offline.recalibrate import recalibrate_recordings
-
-    made = 0
-    for form in ("input", "output"):
-        try:
-            cal = recalibrate_recordings(cal, {rec.name: rec}, form=form,
-                                         span=None if span[0] == 0.0 else span,
-                                         first=span[1] if span[0] == 0.0 else None,
-                                         tare="calibration" if form == "output" else "auto",
-                                         )[0]
-            made += 1
-        except StrainCompError:
-            continue
-    return cal, made
-
-
 def warmup_start(rec: Any, cal: Any, log: Callable[[str], None] = print
                  ) -> tuple[Any, Any]:
-    """``cal`` after the session start on ``rec``'s first cycle, and after the README's
-    procedure (``warmup``): the second cycle, or the first where the run has no second
-    one or a step on it is refused and the first cycle makes more."""
-    first = (0.0, first_cycle(rec.t, rec.s))
-    second = second_cycle(rec.t, rec.s)
-    at_first, made_first = session_start(rec, cal, first)
-    if second is None:
-        return at_first, at_first
-    started, made = session_start(rec, cal, second)
-    if made < made_first:
+    """``cal`` after the session start on ``rec``'s first cycle (``recalibrate --input --from
+    B --first S`` then ``recalibrate --from B --first S``), and after the README's procedure
+    (``warmup``): ``strain_comp.diagnosis.session.warmup_start``, the loop's session start
+    too (the second cycle, or the first where the run has no second one or a step on it is
+    refused and the first cycle makes more)."""
+    from strain_comp.diagnosis.session import Stretches, session_start
+    from strain_comp.diagnosis.session import warmup_start as warm
+
+    stretches = Stretches(first_cycle(rec.t, rec.s), second_cycle(rec.t, rec.s))
+    at_first = session_start(cal, {rec.name: rec}, (0.0, stretches.first))
+    started = warm(cal, {rec.name: rec}, stretches, at_first)
+    if started is at_first and stretches.second is not None:
         log(f"## {rec.name}: the second cycle refused, warmup = first")
-        return at_first, at_first
-    return at_first, started
+    return at_first.calibration, started.calibration
 
 
 def workflows(rec: Any, cal: Any, loop_cal: Any | None = None, *,

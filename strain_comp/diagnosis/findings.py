@@ -17,7 +17,7 @@ from strain_comp.diagnosis.report import SESSION_RECORDS, EffectScore, creep_tau
 from strain_comp.diagnosis.residuals import ROW_BUDGET
 from strain_comp.diagnosis.rows import Candidates, Rows
 from strain_comp.diagnosis.selection import Tried, rms
-from strain_comp.diagnosis.session import SessionHeldOut
+from strain_comp.diagnosis.session import SessionHeldOut, window_flag
 
 GAIN_CHANGE = 0.05
 """A sensitivity against the calibration this far from 1 (the session start's input span
@@ -222,7 +222,7 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
 
     Returns:
         The condition's record: name, reading, before, after, chosen, the sensitivity
-        changes [%], the seconds used and the steps made per run.
+        changes [%], the stretch read and the steps made per run.
 
     """
     starts = session.starts()
@@ -232,24 +232,25 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
     before, after = rms(e_raw), rms(e_start)
     shown = bool(changes) and max(abs(c) for c in changes) >= 100.0 * GAIN_CHANGE \
         and after < (1.0 - margin) * before
-    seconds = ", ".join(f"{seconds:.3g}" for _, seconds in session.runs)
-    first = session.runs[0][1]
+    read = ", ".join(window_flag(s.window) for s in starts)
     u = strain_unit_words(cal.strain_unit)
     made = "; ".join(line.split(" (from ")[0].removeprefix(f"{session.sensor}: ")
                      for s in starts for line in s.lines)
-    reading = (f"{session.sensor}: session start on the first {seconds} s of the validation "
-               f"run ({made}); validation RMSE before the loop {before:.4g} -> {after:.4g} {u}"
+    reading = (f"{session.sensor}: session start on the validation run ({read}: {made}); "
+               f"validation RMSE before the loop {before:.4g} -> {after:.4g} {u}"
                f"; {remains(before, after, u)}")
     if shown:
+        flag = window_flag(starts[0].window)
         reading = (f"{session.sensor}: sensitivity differs from the calibration by "
                    + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
-                   f"recalibrate --input --from RUN --first {first:.3g}, then recalibrate "
-                   f"--from RUN --first {first:.3g} (its first load and unload), at the start "
-                   "of each session; " + reading)
+                   f"recalibrate --input --from RUN {flag}, then recalibrate --from RUN "
+                   f"{flag} (a warm-up load and unload, then the next one), at the start of "
+                   "each session; " + reading)
     return {"name": SESSION_RECORDS[1] if shown else SESSION_RECORDS[0],
             "reading": reading, "before": before, "after": after, "chosen": False,
-            "sensitivity_change": changes, "seconds": [s for _, s in session.runs],
+            "sensitivity_change": changes, "windows": [list(s.window) for s in starts],
             "steps": [s.steps for s in starts]}
+
 
 
 def remains(before: float, after: float, unit_words: str) -> str:

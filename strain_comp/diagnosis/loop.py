@@ -60,16 +60,18 @@ Per calibrated sensor that has a recording with a reference strain:
 
 8. **Session start.** With ``validate_recordings`` (and ``session_start``), every held-out
    figure of steps 6-7 is the validation run's RMSE as the product is used: the calibration
-   with the terms recalibrated on that run's first load and unload (``recalibrate --input``,
-   then the output map; ``strain_comp.diagnosis.session``), then evaluated over the whole
-   run. The per-run ``baseline`` hypothesis is then not tried: that recalibration re-zeroes
-   every run itself, and a baseline term (whose steady output is the rest strain at any
-   resistance) would leave it no input span to make. Nor are an intercept (``offset``) or
+   with the terms recalibrated on that run's second load and unload, after a warm-up one
+   (``recalibrate --input``, then the output map; on the first where the run has no second
+   or a step is refused there: ``strain_comp.diagnosis.session.warmup_start``, the
+   benchmark's procedure), then evaluated over the whole run. The per-run ``baseline``
+   hypothesis is then not tried: that recalibration re-zeroes every run itself, and a
+   baseline term (whose steady output is the rest strain at any resistance) would leave
+   it no input span to make. Nor are an intercept (``offset``) or
    a plain gain (``strain_level`` of power 1) written or scored: the output map of that
    recalibration makes its own, and through the steady outputs the input span reads
    they would only move where that span lands. The terms are still fitted with the
    intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
-   run whose first cycle allows neither step is measured as calibrated.
+   run whose stretches allow neither step is measured as calibrated.
    Steps 5-6 are then one (``selection.select_carried``): at each step the candidates
    that pass step 5 on the diagnosed run, the ``LoopPolicy.tried`` best, are each fitted
    there and scored on every validation run after its session start; the one whose log
@@ -299,7 +301,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
         tare: ``calibration`` or ``auto`` (every run, fit and validation, tared at its start).
         stretch_history: Also test the ``stretch`` terms.
         session_start: With validation recordings, measure them after the session-start
-            recalibration on their first cycle (``strain_comp.diagnosis.session``; a run
+            recalibration after a warm-up stretch (``strain_comp.diagnosis.session``; a run
             where it cannot be made is measured as calibrated).
         on_sensor: Called with each sensor's name once it is done; None: silent.
 
@@ -351,8 +353,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
         if validation["session_start"]:
             validation["session_start_procedure"] = (
                 "before and after measured on the whole validation run after recalibrate "
-                "--input --from RUN --first SECONDS, then recalibrate --from RUN --first "
-                "SECONDS, on its first load and unload")
+                "--input --from RUN --window START:END, then recalibrate --from RUN --window "
+                "START:END on its second load and unload (else --first END on its first)")
     return DiagnoseResult(sensors=results, before=pooled_before, after=pooled_after,
                           validated_on=validated_on, validation=validation,
                           calibration=Calibration(sensors_out))

@@ -263,7 +263,7 @@ class SensorDiagnosis:
             out["after_session_start"] = True
             out["as_calibrated"] = self.as_calibrated
             out["session_start"] = {k: self.session[k] for k in
-                                    ("reading", "sensitivity_change", "seconds", "steps")}
+                                    ("reading", "sensitivity_change", "windows", "steps")}
         return out
 
 

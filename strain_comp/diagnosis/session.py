@@ -1,12 +1,16 @@
-"""The session-start recalibration, as a user makes it on the first load and unload of a run.
+"""The session-start recalibration, as a user makes it: the README's procedure, one
+unreferenced warm-up load and unload, then the calibration stretch (``warmup_start``).
 
-``recalibrate --input --from BAG --first SECONDS`` (the input zero and span from the first
-rest and the largest strain of the first cycle), then ``recalibrate --from BAG --first
-SECONDS`` (the output gain and offset by least squares over the same cycle, on the spanned
-input), then ``evaluate`` (``strain_comp.offline.recalibrate``, ``strain_comp.offline.evaluate``):
-the headline workflow of the generalisation benchmark (docs/generalisation.md). The
-residual loop scores its terms after it (``strain_comp.diagnosis.loop``), so that a term
-that only does what this recalibration does anyway gets no credit.
+``recalibrate --input --from BAG --window START:END`` (the input zero and span from the
+rest and the largest strain of the run's second load and unload), then ``recalibrate --from
+BAG --window START:END`` (the output gain and offset by least squares over the same
+stretch, on the spanned input), then ``evaluate`` (``strain_comp.offline.recalibrate``,
+``strain_comp.offline.evaluate``); on the first stretch (``--first SECONDS``) where the run
+has no second one or a step is refused on it that the first makes. The headline workflow
+of the generalisation benchmark (docs/generalisation.md, ``warmup``), which calls
+``warmup_start`` too. The residual loop scores its terms after it
+(``strain_comp.diagnosis.loop``), so that a term that only does what this recalibration
+does anyway gets no credit.
 """
 
 from __future__ import annotations
@@ -29,6 +33,9 @@ FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
 FORMS = ("input", "output")
 """The two steps, in order: the input zero and span, then the output gain and offset."""
+Window = tuple[float, float]
+"""(START, END) seconds after a run's start of the stretch a session start reads; START 0
+is ``--first END``, any other ``--window START:END``."""
 
 
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
@@ -81,12 +88,54 @@ def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
     return start, start + end
 
 
+@dataclass(frozen=True)
+class Stretches:
+    """The stretches a run offers a session start: its first load and unload, and its
+    second one (None: the run has none)."""
+
+    first: float
+    """Seconds from the start to the end of the first stretch (``first_cycle``)."""
+    second: Window | None
+    """The second stretch (``second_cycle``)."""
+
+    @classmethod
+    def of(cls, t: np.ndarray, s: np.ndarray) -> Stretches | None:
+        """The stretches of a run's reference ``s`` at times ``t``; None when it never
+        moves.
+
+        Args:
+            t: Sample times [s].
+            s: Reference strain, one per sample.
+
+        Returns:
+            The stretches, or None.
+
+        """
+        first = first_cycle(t, s)
+        return None if first is None else cls(first, second_cycle(t, s))
+
+
+def window_flag(window: Window) -> str:
+    """``recalibrate``'s flag for a session start's stretch: ``--first END`` for a window
+    from 0, else ``--window START:END``.
+
+    Args:
+        window: (START, END) [s] after the run's start.
+
+    Returns:
+        The flag with its value.
+
+    """
+    if window[0] == 0.0:
+        return f"--first {window[1]:.3g}"
+    return f"--window {window[0]:.3g}:{window[1]:.3g}"
+
 @dataclass
 class SessionStart:
     """A calibration after the session-start recalibration on one run."""
 
     calibration: Calibration
-    seconds: float
+    window: Window
     lines: list[str] = field(default_factory=list)
     """What each step did (``recalibrate``'s lines), or why it could not be made."""
     steps: list[str] = field(default_factory=list)
@@ -94,27 +143,30 @@ class SessionStart:
 
 
 def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
-                  seconds: float) -> SessionStart:
-    """``calibration`` after ``recalibrate --input --from RUN --first seconds`` and then
-    ``recalibrate --from RUN --first seconds`` (the output form on the spanned input, tare
-    ``calibration``). A step that cannot be made (no rest in the cycle, a strain the
-    calibration never outputs) is skipped, as it is for a user, and says why.
+                  window: Window) -> SessionStart:
+    """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
+    ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
+    output form on the spanned input, tare ``calibration``). A step that cannot be made (no
+    rest in the stretch, a strain the calibration never outputs) is skipped, as it is for a
+    user, and says why.
 
     Args:
         calibration: The calibration.
         recordings: The run's recordings by sensor name.
-        seconds: The length [s] of the start read.
+        window: The stretch read, (START, END) [s] after the run's start.
 
     Returns:
         The calibration after the steps made, the steps and a line on each.
 
     """
-    out = SessionStart(calibration, seconds)
+    out = SessionStart(calibration, window)
+    head = window[0] == 0.0
     for form in FORMS:
         tare = "calibration" if form == "output" else "auto"
         try:
             out.calibration, lines = recalibrate_recordings(
-                out.calibration, recordings, form=form, first=seconds, tare=tare)
+                out.calibration, recordings, form=form, tare=tare,
+                first=window[1] if head else None, span=None if head else window)
         except StrainCompError as err:
             out.lines.append(f"recalibrate {'--input ' if form == 'input' else ''}"
                              f"not made: {err}")
@@ -124,16 +176,42 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
     return out
 
 
+def warmup_start(calibration: Calibration, recordings: Mapping[str, Recording],
+                 stretches: Stretches, at_first: SessionStart | None = None) -> SessionStart:
+    """The README's session start: ``session_start`` on the run's second stretch, after an
+    unreferenced warm-up one; on its first stretch (``at_first`` when given, the same
+    object) where the run has no second stretch or the second makes fewer steps than the
+    first (a step refused there that the first makes).
+
+    Args:
+        calibration: The calibration.
+        recordings: The run's recordings by sensor name.
+        stretches: The run's stretches (``Stretches.of`` its reference).
+        at_first: The session start on the first stretch, when already made.
+
+    Returns:
+        The session start made.
+
+    """
+    warm = None
+    if stretches.second is not None:
+        warm = session_start(calibration, recordings, stretches.second)
+        if len(warm.steps) == len(FORMS):  # the first cannot make more
+            return warm
+    first = at_first or session_start(calibration, recordings, (0.0, stretches.first))
+    return first if warm is None or len(warm.steps) < len(first.steps) else warm
+
+
 def session_errors(calibration: Calibration, recordings: Mapping[str, Recording],
-                   sensor: str, seconds: float) -> np.ndarray:
+                   sensor: str, stretches: Stretches) -> np.ndarray:
     """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
-    ``recordings`` after the session-start recalibration on their first ``seconds``.
+    ``recordings`` after the session start (``warmup_start``) on their ``stretches``.
 
     Args:
         calibration: The calibration.
         recordings: The run's recordings by sensor name.
         sensor: The sensor scored.
-        seconds: The length [s] of the start read.
+        stretches: The run's stretches.
 
     Returns:
         The errors, in the calibration's strain unit.
@@ -142,7 +220,7 @@ def session_errors(calibration: Calibration, recordings: Mapping[str, Recording]
         InputError: No sensor of ``recordings`` can be scored.
 
     """
-    spanned = session_start(calibration, recordings, seconds).calibration
+    spanned = warmup_start(calibration, recordings, stretches).calibration
     ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
     return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)
 
@@ -150,8 +228,10 @@ def session_errors(calibration: Calibration, recordings: Mapping[str, Recording]
 class SessionHeldOut:
     """The loop's held-out residual (``strain_comp.diagnosis.selection.HeldOut``) of one
     sensor's terms on validation runs as the product is used: the calibration with the
-    terms added, recalibrated at the start of each run (``session_start``), evaluated over
-    the whole run. Cached by terms and coefficients."""
+    terms added, recalibrated at the start of each run (``warmup_start``), evaluated over
+    the whole run. In an array the sensor's neighbours are recalibrated with it on the
+    sensor's stretches, as a user recalibrates the whole array: a stretch refused for one of
+    them is refused for all. Cached by terms and coefficients."""
 
     def __init__(self, calibration: Calibration, sensor: str,
                  runs: Sequence[Mapping[str, Recording]], candidates: Sequence[dict[str, Any]]
@@ -159,12 +239,12 @@ class SessionHeldOut:
         self.calibration = calibration
         self.sensor = sensor
         self.candidates = candidates
-        self.runs: list[tuple[dict[str, Recording], float]] = []
+        self.runs: list[tuple[dict[str, Recording], Stretches]] = []
         for bag in runs:
             rec = bag.get(sensor)
-            seconds = None if rec is None or rec.s is None else first_cycle(rec.t, rec.s)
-            if seconds is not None:
-                self.runs.append((dict(bag), seconds))
+            stretches = None if rec is None or rec.s is None else Stretches.of(rec.t, rec.s)
+            if stretches is not None:
+                self.runs.append((dict(bag), stretches))
         self._cache: dict[tuple[tuple[int, float], ...], list[np.ndarray]] = {}
         self._starts: list[SessionStart] | None = None
 
@@ -172,9 +252,9 @@ class SessionHeldOut:
         """The session start of each validation run with the calibration as given (made
         once)."""
         if self._starts is None:
-            self._starts = [session_start(self._restricted(self.calibration, bag),
-                                          self._bag(bag), seconds)
-                            for bag, seconds in self.runs]
+            self._starts = [warmup_start(self._restricted(self.calibration, bag),
+                                         self._bag(bag), stretches)
+                            for bag, stretches in self.runs]
         return self._starts
 
     def usable(self) -> bool:
@@ -202,23 +282,21 @@ class SessionHeldOut:
                 cal, effects=[*cal.effects, *added_effects(self.candidates, cols, list(coef),
                                                            cal.effects)])})
             self._cache[key] = [session_errors(self._restricted(trial, bag), self._bag(bag),
-                                               self.sensor, seconds)
-                                for bag, seconds in self.runs]
+                                               self.sensor, stretches)
+                                for bag, stretches in self.runs]
         return self._cache[key]
 
-    def _names(self, calibration: Calibration) -> list[str]:
-        """The sensor and the neighbours its cross-talk terms read."""
-        effects = calibration.sensors[self.sensor].effects
-        return [self.sensor, *(str(e["params"]["neighbour"]) for e in effects
-                               if e.get("kind") == "crosstalk")]
+    def _names(self) -> list[str]:
+        """The sensor and the neighbours its cross-talk terms and candidates read."""
+        effects = [*self.calibration.sensors[self.sensor].effects, *self.candidates]
+        return list(dict.fromkeys([self.sensor, *(str(e["params"]["neighbour"]) for e in effects
+                                                  if e.get("kind") == "crosstalk")]))
 
     def _restricted(self, calibration: Calibration, bag: Mapping[str, Recording]
                     ) -> Calibration:
-        names = [n for n in self._names(calibration) if n in calibration.sensors and n in bag]
+        names = [n for n in self._names() if n in calibration.sensors and n in bag]
         return Calibration({n: calibration.sensors[n] for n in names})
 
     def _bag(self, bag: Mapping[str, Recording]) -> dict[str, Recording]:
-        names = self._names(self.calibration) + [
-            str(c["params"]["neighbour"]) for c in self.candidates if c["kind"] == "crosstalk"]
-        return {n: bag[n] for n in names if n in bag}
+        return {n: bag[n] for n in self._names() if n in bag}
 

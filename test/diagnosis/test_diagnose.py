@@ -33,7 +33,7 @@ from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import SESSION_RECORDS, DiagnoseResult, write_plots
-from strain_comp.diagnosis.session import first_cycle, session_errors
+from strain_comp.diagnosis.session import Stretches, session_errors
 from strain_comp.io.recording import Recording, load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
@@ -46,14 +46,15 @@ BagMaker = Callable[..., dict[str, Recording]]
 
 
 def as_used(calibration: Calibration, *runs: dict[str, Recording]) -> float:
-    """RMSE of s1 over ``runs`` after the session-start recalibration on each run's first
-    cycle, then ``evaluate`` (the product's path, independent of the loop's arrays)."""
+    """RMSE of s1 over ``runs`` after the session-start recalibration after each run's
+    warm-up stretch, then ``evaluate`` (the product's path, independent of the loop's
+    arrays)."""
     errors = []
     for recordings in runs:
         rec = recordings["s1"]
-        seconds = first_cycle(rec.t, rec.s)
-        assert seconds is not None
-        errors.append(session_errors(calibration, recordings, "s1", seconds))
+        stretches = Stretches.of(rec.t, rec.s)
+        assert stretches is not None
+        errors.append(session_errors(calibration, recordings, "s1", stretches))
     return float(np.sqrt(np.mean(np.concatenate(errors) ** 2)))
 
 
@@ -227,8 +228,8 @@ def sensitised(recordings: dict[str, Recording], factor: float) -> dict[str, Rec
 def test_a_gain_change_between_runs_is_read_with_its_size(bags: BagMaker,
                                                           calibration: Calibration) -> None:
     """A validation run 20 % more sensitive than the calibration: the session start on its
-    first cycle reads +20 % and names its remedy; a run at the calibration's sensitivity
-    shows no gain change."""
+    calibration stretch reads +20 % and names its remedy; a run at the calibration's
+    sensitivity shows no gain change."""
     result = diagnose_conditions(bags("random", 2), calibration,
                                  validate_recordings=sensitised(bags("patterns", 3), 1.2))
     row = next(c for c in result.conditions if c["name"] == "gain change between runs")
@@ -296,7 +297,7 @@ def test_finds_and_corrects_the_measurement_chain(bags: BagMaker, calibration: C
                                                    effect: str, switch: dict,
                                                    val_switch: dict, condition: str) -> None:
     # the alternation is judged without the session start: recalibrate --input reads the
-    # first cycle's rest and peak as medians of the raw two-level resistance, not of the
+    # stretch's rest and peak as medians of the raw two-level resistance, not of the
     # pair means the engine then reads, so its input span is off by up to the alternation
     result = diagnose_conditions(bags("random", 2, **switch), calibration,
                                  validate_recordings=bags("patterns", 3, **val_switch),
@@ -529,7 +530,7 @@ def test_a_run_beyond_the_calibrated_range_still_finds_its_effect(bags: BagMaker
     ``extend`` carries on): no effect term reads that extension, so the terms are fitted
     within the range and the undeclared Mullins softening is still found; scored on every
     sample (fitted on the extension too, the loop added nothing). Scored without the
-    session start: recalibrated on the validation run's first cycle, which reaches past
+    session start: recalibrated on the validation run's stretch, which reaches past
     the calibrated range, the calibration as given already errs 0.64 % instead of 2.2 %,
     and no term lowers that by 3 %."""
     full = bags("patterns", 0)["s1"]
