@@ -49,8 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the stretch done (effect kind stretch)")
     p.add_argument("--session-start", choices=("on", "off"), default="on",
                    help="on (default): measure the --validate run after recalibrating it "
-                        "on its first cycle (recalibrate --input, then the output map), "
-                        "as a session is used; off: as calibrated")
+                        "on its second cycle after a warm-up one, or on its first where "
+                        "that is refused (recalibrate --input, then the output map), as a "
+                        "session is started; off: as calibrated")
 
 
 def run(args: argparse.Namespace) -> int:
