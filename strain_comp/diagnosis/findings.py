@@ -240,12 +240,14 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
                f"validation RMSE before the loop {before:.4g} -> {after:.4g} {u}"
                f"; {remains(before, after, u)}")
     if shown:
-        flag = window_flag(starts[0].window)
+        window = starts[0].window
+        which = ("its first load and unload" if window[0] == 0.0
+                 else "a warm-up load and unload, then the next one")
         reading = (f"{session.sensor}: sensitivity differs from the calibration by "
                    + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
-                   f"recalibrate --input --from RUN {flag}, then recalibrate --from RUN "
-                   f"{flag} (a warm-up load and unload, then the next one), at the start of "
-                   "each session; " + reading)
+                   f"recalibrate --input --from RUN {window_flag(window)}, then recalibrate "
+                   f"--from RUN {window_flag(window)} ({which}), at the start of each "
+                   "session; " + reading)
     return {"name": SESSION_RECORDS[1] if shown else SESSION_RECORDS[0],
             "reading": reading, "before": before, "after": after, "chosen": False,
             "sensitivity_change": changes, "windows": [list(s.window) for s in starts],
