@@ -254,7 +254,6 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
             "steps": [s.steps for s in starts]}
 
 
-
 def remains(before: float, after: float, unit_words: str) -> str:
     """One line on what the session start leaves: the share of the validation runs' squared
     error that was their own gain and offset (their input space), which no term need make.

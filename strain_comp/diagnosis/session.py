@@ -130,6 +130,7 @@ def window_flag(window: Window) -> str:
         return f"--first {window[1]:.3g}"
     return f"--window {window[0]:.3g}:{window[1]:.3g}"
 
+
 @dataclass
 class SessionStart:
     """A calibration after the session-start recalibration on one run."""
