@@ -12,7 +12,9 @@ For every sensor in ``../shared/data/measured`` (carbon black ``cb``, conductive
 * ``pair``: the model fitted on one other run A (every ordered pair A, B);
 * ``loro`` (leave one run out): the model fitted on all other runs of the sensor at once
   (``strain-comp fit A C D ...``, runs pooled in one input space, ``fit --pool spanned``);
-  ``loro_raw`` (with ``--pool-raw``): the same, pooled as recorded (``--pool raw``).
+  ``loro_raw`` (with ``--pool-raw``): the same, pooled as recorded (``--pool raw``);
+  ``loro_joint``, ``loro_stretch``: pooled in that input space (``--pool joint|stretch``),
+  not the one ``spanned`` chooses.
 
 Runs are imported with ``strain-comp import-csv`` and the sensor's preset (``simulate``'s
 own bag writer for the rig); fits are ``fit_bags``, the code of ``strain-comp fit``, with
@@ -130,10 +132,10 @@ def quick(sensor: Sensor) -> Sensor:
 
 
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
-    """Seconds of a run's first load and unload (``strain_comp.diagnosis.session``, the
+    """Seconds of a run's first load and unload (``strain_comp.offline.session_window``, the
     cycle the loop's session start uses too; at most its ``FIRST_CYCLE_CAP`` of the run)."""
-    from strain_comp.diagnosis.session import FIRST_CYCLE_CAP
-    from strain_comp.diagnosis.session import first_cycle as cycle
+    from strain_comp.offline.session_window import FIRST_CYCLE_CAP
+    from strain_comp.offline.session_window import first_cycle as cycle
 
     seconds = cycle(t, s)
     return FIRST_CYCLE_CAP * float(t[-1] - t[0]) if seconds is None else seconds
@@ -141,9 +143,9 @@ def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
 
 def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
     """(START, END) seconds of a run's second load and unload (``recalibrate --window``;
-    ``strain_comp.diagnosis.session.second_cycle``, the window the loop's session start
+    ``strain_comp.offline.session_window.second_cycle``, the window the loop's session start
     reads too); None when the run has none."""
-    from strain_comp.diagnosis.session import second_cycle as window
+    from strain_comp.offline.session_window import second_cycle as window
 
     return window(t, s)
 
@@ -354,7 +356,7 @@ def test_cases(bench: Bench, sensor: Sensor, model: str, bounds: Mapping[tuple[s
                 continue
             others = [r for r in sensor.runs if r != test]
             trainings = [(r,) for r in others] if scheme == "pair" else [tuple(others)]
-            pool = "raw" if scheme == "loro_raw" else "spanned"
+            pool = scheme.removeprefix("loro_") if scheme.startswith("loro_") else "spanned"
             for train in trainings:
                 try:
                     cal = bench.fit(sensor, train, model, pool)
@@ -600,7 +602,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sensors", nargs="+", metavar="NAME",
                         help="cb, fiber, nylon, rig (default: all present)")
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS))
-    parser.add_argument("--schemes", nargs="+", choices=("pair", "loro", "loro_raw"),
+    parser.add_argument("--schemes", nargs="+",
+                        choices=("pair", "loro", "loro_raw", "loro_joint", "loro_stretch"),
                         default=list(SCHEMES))
     parser.add_argument("--pool-raw", action="store_true",
                         help="also leave-one-run-out pooled as recorded (fit --pool raw)")

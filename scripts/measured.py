@@ -118,8 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.errors import StrainCompError
     from strain_comp.io.recording import load_recordings
-    from strain_comp.offline.evaluate import evaluate_recordings, in_run_bound
-    from strain_comp.offline.fit import fit_bags
+    from strain_comp.offline.evaluate import evaluate_recordings
+    from strain_comp.offline.fit import fit_bags, in_run_bound
     from strain_comp.offline.plots import plot_time
 
     args.out.mkdir(parents=True, exist_ok=True)

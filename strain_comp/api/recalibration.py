@@ -6,11 +6,18 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
-from strain_comp.api.inputs import CalibrationLike, Data, as_calibration, as_recordings, paths_of
+from strain_comp.api.inputs import (
+    CalibrationLike,
+    Data,
+    as_calibration,
+    as_recordings,
+    paths_of,
+    read_recordings,
+)
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
+from strain_comp.offline.recalibrate import forms_of, recalibrate_recordings
 from strain_comp.offline.recalibrate import recalibrate as _recalibrate
-from strain_comp.offline.recalibrate import recalibrate_recordings
 
 
 class Recalibration(NamedTuple):
@@ -72,7 +79,8 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30
                   tare: str = "calibration",
                   window: tuple[float, float] | None = None) -> Recalibration:
     """The start of a session (README): on a run with a reference, first the input zero
-    and span, then the output gain and offset, over the calibration stretch ``window``
+    and span, then the output gain and offset (not on a sensor with a stretch
+    line: ``recalibrate.session_forms``), over the calibration stretch ``window``
     (after a warm-up stretch), or over the run's first ``first`` seconds.
 
     Args:
@@ -95,6 +103,11 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30
     head = first if window is None else None
     spanned = recalibrate(calibration, data, form="input", first=head, tare=tare,
                           window=window)
+    paths = paths_of(data)
+    held = as_recordings(data) if paths is None else read_recordings(paths[0])
+    takes_output = forms_of(spanned.calibration, held).get("output")
+    if not takes_output:
+        return spanned
     mapped = recalibrate(spanned.calibration, data, form="output", first=head, tare=tare,
-                         window=window)
+                         window=window, sensors=takes_output)
     return Recalibration(mapped.calibration, spanned.readings + mapped.readings)

@@ -52,10 +52,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="unit of the bags' resistance (default ohm; e.g. R/R0 for a "
                    "resistance divided by its first sample): stored in the calibration, "
                    "the dead zone is given in it per second")
-    p.add_argument("--pool", choices=("spanned", "raw"), default="spanned",
-                   help="several bags of a sensor: spanned (default) puts each run's input "
-                        "zero and span onto the run of median sensitivity before pooling "
-                        "(as recalibrate --input does); raw pools the resistance as recorded")
+    p.add_argument("--pool", choices=("spanned", "joint", "stretch", "raw"), default="spanned",
+                   help="several bags of a sensor: put each run's input zero and span onto "
+                        "the run of median sensitivity before pooling (as recalibrate "
+                        "--input does); spanned (default) keeps the session start that "
+                        "reads the runs left out best: joint (the calibration's steady "
+                        "outputs, then an output gain and offset) or stretch (a new run's "
+                        "stretch line put onto the line the training runs' stretches "
+                        "share); raw pools the resistance as recorded")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -61,6 +61,12 @@ class InputSettings:
     [ohm], gain k); the models read R' = rest_calibrated + k (R - rest), R the measured
     resistance (after a tare's gain), so a sensor whose rest level and sensitivity moved
     reads as the calibrated one. None: R' = R."""
+    stretch_line: tuple[float, float] | None = None
+    """A calibration pooled with the stretch session start (``fit --pool stretch``): (R_0
+    [ohm], g [ohm per strain unit]) of the line R = R_0 + g S its training runs' calibration
+    stretches share in the calibrated input space; ``recalibrate --input`` puts a new
+    run's stretch line onto it (``strain_comp.offline.stretch_line``). None: the input
+    step reads the calibration's steady outputs (``strain_comp.offline.span``)."""
     unit: str = "ohm"
     """The unit of the resistance the models and the direction detector read: ohm, or that
     of an input given in another (``R/R0`` for a resistance divided by its first sample).
@@ -94,6 +100,9 @@ class InputSettings:
         if self.zero_span is not None:
             rest, rest_cal, k = self.zero_span
             extra["zero_span"] = {"rest": rest, "rest_calibrated": rest_cal, "gain": k}
+        if self.stretch_line is not None:
+            extra["stretch_line"] = {"rest": self.stretch_line[0],
+                                     "slope": self.stretch_line[1]}
         if self.unit != "ohm":
             extra["unit"] = self.unit
         if self.kind == "divider":

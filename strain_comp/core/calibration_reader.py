@@ -235,6 +235,19 @@ class _Reader:
                                strict=True)
         return rest, rest_cal, self.number(node, "gain", where, lo=0.0, hi=1000.0, strict=True)
 
+    def stretch_line(self, node: Any, where: str) -> tuple[float, float] | None:
+        """``input.stretch_line``: absent or null, else a rest in (0, PARAM_MAX] ohm and a
+        slope of magnitude in (0, PARAM_MAX] ohm per strain unit."""
+        if node is None:
+            return None
+        node = self.mapping(node, where)
+        rest = self.number(node, "rest", where, lo=0.0, hi=PARAM_MAX, strict=True)
+        slope = self.number(node, "slope", where, lo=-PARAM_MAX, hi=PARAM_MAX)
+        if slope == 0.0:
+            raise self.fail(f"{where}.slope", "must not be 0 (a resistance that moves with "
+                                              "strain)")
+        return rest, slope
+
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)
         kind = node.get("kind", "resistance")
@@ -251,13 +264,15 @@ class _Reader:
         despike = self.sigmas(node, "despike", where, DESPIKE_K)
         step = self.sigmas(node, "baseline_step", where, STEP_K)
         span = self.zero_span(node.get("zero_span"), f"{where}.zero_span")
+        line = self.stretch_line(node.get("stretch_line"), f"{where}.stretch_line")
         unit = node.get("unit", "ohm")
         if not (isinstance(unit, str) and unit_ok(unit)):
             raise self.fail(f"{where}.unit", "must be a unit such as 'ohm' or 'R/R0' (1-16 "
                             f"letters, digits, %, / or .), got {unit!r}")
         if kind == "resistance":
             return InputSettings(alternation=alternation, pair=pair, despike=despike,
-                                 baseline_step=step, zero_span=span, unit=unit)
+                                 baseline_step=step, zero_span=span, stretch_line=line,
+                                 unit=unit)
         if kind != "divider":
             raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
         if unit != "ohm":
@@ -266,7 +281,7 @@ class _Reader:
         return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
                              vin=self.number(node, "vin", where, lo=0.0, strict=True),
                              alternation=alternation, pair=pair, despike=despike,
-                             baseline_step=step, zero_span=span)
+                             baseline_step=step, zero_span=span, stretch_line=line)
 
 
 def _parse_yaml(reader: _Reader, text: str) -> Any:

@@ -26,66 +26,12 @@ from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import recalibrate_recordings
-from strain_comp.offline.session_window import cycle_end
+from strain_comp.offline.recalibrate import forms_of, recalibrate_recordings
+from strain_comp.offline.session_window import first_cycle, second_cycle
 
-FIRST_CYCLE_CAP = 0.4
-"""The first cycle is at most this share of a run (a run that never returns to rest)."""
-FORMS = ("input", "output")
-"""The two steps, in order: the input zero and span, then the output gain and offset."""
 Window = tuple[float, float]
 """(START, END) seconds after a run's start of the stretch a session start reads; START 0
 is ``--first END``, any other ``--window START:END``."""
-
-
-def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
-    """Seconds from the start of a run to the end of its first load and unload
-    (``strain_comp.offline.recalibrate.cycle_end``); at most ``FIRST_CYCLE_CAP`` of the run.
-    None when the reference never moves.
-
-    Args:
-        t: Sample times [s].
-        s: Reference strain, one per sample.
-
-    Returns:
-        The seconds, or None.
-
-    """
-
-    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
-    ok = np.isfinite(t) & np.isfinite(s)
-    t, s = t[ok], s[ok]
-    if t.size < 2 or not np.percentile(s, 99) > np.percentile(s, 1):
-        return None
-    cap = FIRST_CYCLE_CAP * float(t[-1] - t[0])
-    end = cycle_end(t, s)
-    return cap if end is None else min(end, cap)
-
-
-def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
-    """(START, END) seconds of a run's second load and unload, the calibration stretch of
-    the README's session start after a warm-up one (``recalibrate --window``): from the end
-    of the first cycle (``first_cycle``) to the end of the next stretch and return
-    (``cycle_end`` on the rest of the run). None when the rest of the run has none.
-
-    Args:
-        t: Sample times [s].
-        s: Reference strain, one per sample.
-
-    Returns:
-        The window, or None.
-
-    """
-    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
-    first = first_cycle(t, s)
-    if first is None:
-        return None
-    rest = t >= t[0] + first
-    end = cycle_end(t[rest], s[rest]) if rest.sum() > 1 else None
-    if end is None:
-        return None
-    start = float(t[rest][0] - t[0])
-    return start, start + end
 
 
 @dataclass(frozen=True)
@@ -147,7 +93,8 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
                   window: Window) -> SessionStart:
     """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
     ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
-    output form on the spanned input, tare ``calibration``). A step that cannot be made (no
+    output form on the spanned input, tare ``calibration``), the output step only on the
+    sensors that take one (``recalibrate.session_forms``). A step that cannot be made (no
     rest in the stretch, a strain the calibration never outputs) is skipped, as it is for a
     user, and says why.
 
@@ -162,11 +109,15 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
     """
     out = SessionStart(calibration, window)
     head = window[0] == 0.0
-    for form in FORMS:
+    forms = forms_of(calibration, recordings)
+    if not forms:
+        out.lines.append("recalibrate not made: the run holds no calibrated sensor with a "
+                         "strain reference")
+    for form, sensors in forms.items():
         tare = "calibration" if form == "output" else "auto"
         try:
             out.calibration, lines = recalibrate_recordings(
-                out.calibration, recordings, form=form, tare=tare,
+                out.calibration, recordings, form=form, tare=tare, sensors=sensors,
                 first=window[1] if head else None, span=None if head else window)
         except StrainCompError as err:
             out.lines.append(f"recalibrate {'--input ' if form == 'input' else ''}"
@@ -197,7 +148,7 @@ def warmup_start(calibration: Calibration, recordings: Mapping[str, Recording],
     warm = None
     if stretches.second is not None:
         warm = session_start(calibration, recordings, stretches.second)
-        if len(warm.steps) == len(FORMS):  # the first cannot make more
+        if len(warm.steps) == len(forms_of(calibration, recordings)):  # none refused
             return warm
     first = at_first or session_start(calibration, recordings, (0.0, stretches.first))
     return first if warm is None or len(warm.steps) < len(first.steps) else warm

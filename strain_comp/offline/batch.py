@@ -41,8 +41,9 @@ from strain_comp.errors import (
     raise_terminated,
 )
 from strain_comp.io.recording import load_recordings
-from strain_comp.offline.evaluate import evaluate_bag, in_run_bound
+from strain_comp.offline.evaluate import evaluate_bag
 from strain_comp.offline.evaluation import EvaluationResult, format_notes, format_table
+from strain_comp.offline.fit import in_run_bound
 from strain_comp.offline.plots import plot_evaluation
 from strain_comp.offline.report_page import evaluation_figures
 from strain_comp.offline.series import SeriesCSV

@@ -22,13 +22,12 @@ one piece gives the same bits). What waits between pieces is the samples after t
 reference (or temperature) sample read so far: bounded when the reference runs with the
 resistance, the whole tail when a reference stops before the bag ends. Arrays for plots are
 kept only when asked for, decimated to at most ``PLOT_POINTS`` evenly spaced samples per
-sensor (the statistics use every sample). ``in_run_bound`` fits a model to the whole run:
-it needs the recordings loaded whole (``load_recordings``).
+sensor (the statistics use every sample). The in-run bound (``fit.in_run_bound``) fits a
+model to the whole run: it needs the recordings loaded whole (``load_recordings``).
 """
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
@@ -42,7 +41,7 @@ from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import tare_engine
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
-from strain_comp.errors import InputError, StrainCompError
+from strain_comp.errors import InputError
 from strain_comp.io.bag import iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import Recording
@@ -58,8 +57,6 @@ from strain_comp.offline.evaluation import (
     temperature_missing,
     tracked,
 )
-from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.options import model_options
 
 if TYPE_CHECKING:
     from strain_comp.offline.series import SeriesCSV
@@ -144,33 +141,6 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     if not sensors:
         raise InputError(nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
-
-
-def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
-                 calibration: Calibration) -> None:
-    """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
-    the evaluated run itself and scored on it, i.e. what that model family can reach on this
-    run; the gap to ``rmse`` is what does not transfer from the training runs. A run the
-    model cannot be fitted to gets NaN and a note.
-
-    Args:
-        result: The evaluation, updated in place.
-        recordings: The run's recordings.
-        calibration: The calibration evaluated.
-
-    """
-    for name, ev in result.sensors.items():
-        cal = calibration.sensors[name]
-        options = cal.provenance.get("options") or {}
-        if isinstance(options, Mapping) and "progress" in model_options(cal.model):
-            options = {**options, "progress": False}  # a refit inside evaluate: no grid lines
-        try:
-            own = fit_sensor([recordings[name]], cal.model, name=name, options=options or None)
-            again = evaluate_recordings({name: recordings[name]}, Calibration({name: own}))
-            ev.in_run_rmse = again.sensors[name].stats.rmse
-        except StrainCompError as err:
-            ev.in_run_rmse = math.nan
-            result.notes.append(f"{name}: no in-run bound ({err})")
 
 
 def _array_outputs(engine: Any, recordings: Mapping[str, Recording],

@@ -6,7 +6,8 @@ equations and their fits live in ``strain_comp.models``; the steps before the mo
 each have their module:
 
 * **Pooling runs** (``strain_comp.offline.pool``, ``--pool``): several training runs of one
-  sensor put into one input space first.
+  sensor put into one input space first, the space chosen by leaving out each run in turn
+  (``strain_comp.offline.space_choice``).
 * **Training data** (``strain_comp.offline.training``): screening, segments cut where the
   engine resets, the checks of the data's span, the valid range and the rest resistance.
 * **Measurement chain** (``strain_comp.offline.input_chain``): an alternating excitation
@@ -29,6 +30,7 @@ each have their module:
 from __future__ import annotations
 
 import inspect
+import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
@@ -48,13 +50,17 @@ from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.chain import Alternation, pair_values
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
-from strain_comp.errors import CalibrationError, FitError, InputError
+from strain_comp.errors import CalibrationError, FitError, InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.models import Normalisation, Segment, model_class
 from strain_comp.offline.deadzone import direction_settings, resistance_sign
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.evaluation import EvaluationResult
 from strain_comp.offline.input_chain import input_chain
-from strain_comp.offline.pool import pooled_input
+from strain_comp.offline.options import model_options
+from strain_comp.offline.pool import Pooled, gate, pooled_input
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
+from strain_comp.offline.space_choice import choose_space
 from strain_comp.offline.training import (
     check_training_span,
     slow_sample_interval,
@@ -135,6 +141,45 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
     return error_stats(np.concatenate(estimates), np.concatenate(references)).rmse
 
 
+def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
+              options: Mapping[str, Any]) -> Pooled:
+    """The training runs as ``fit_sensor`` pools them (``strain_comp.offline.pool``): with
+    ``spanned``, as recorded unless the runs pass the pooling's ``gate``, and then in one
+    input space with the session start ``space_choice.choose_space`` measures best for the
+    cubic fitted with the same direction and measurement-chain options.
+
+    Args:
+        recordings: The sensor's runs.
+        pool: ``spanned``, ``joint``, ``stretch`` or ``raw``.
+        name: The sensor's name.
+        options: The fit's options.
+
+    Returns:
+        The runs as pooled.
+
+    Raises:
+        InputError: An unknown pool.
+
+    """
+    if pool != "spanned":
+        return pooled_input(recordings, pool)
+    if len(recordings) < 2:
+        return pooled_input(recordings, "raw")
+    gated = gate(recordings)
+    passed = gated.pop("pass")
+    if not passed:
+        return Pooled(list(recordings), [], {"pool": "raw", **gated})
+    own = {k: v for k, v in options.items() if k in _DIRECTION_OPTIONS}
+
+    def cubic(runs: Sequence[Recording]) -> SensorCalibration:
+        return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
+
+    space, measured = choose_space(recordings, cubic)
+    pooled = pooled_input(recordings, space)
+    pooled.record.update(gated, chosen_by=measured)
+    return pooled
+
+
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
@@ -164,7 +209,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     """
     options = dict(options or {})
     cls = model_class(model)
-    recordings, pool_maps, pooling = pooled_input(recordings, pool)
+    pooled = pool_runs(recordings, pool, name, options)
+    recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
     interval = slow_sample_interval(recordings)
     segments = training_segments(recordings, name, interval)
     check_training_span(segments, name)
@@ -187,7 +233,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     calibration = SensorCalibration(
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
         valid_range=valid_range(segments), direction=direction,
-        input=InputSettings(alternation=alternating, pair=pair),
+        input=InputSettings(alternation=alternating, pair=pair,
+                            stretch_line=pooled.stretch_line),
         rest_resistance=training_rest_resistance(recordings, pair=pair),
         sample_interval=interval)
     _check_usable(calibration)
@@ -201,7 +248,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         fit_seconds=round(fit_seconds, 3), direction_from=direction_source,
         measurement_chain=_chain_reading(chain, alternating, pair),
         options=model_options,
-        **({"pooling": pooling} if len(bags) > 1 or pool_maps else {}),
+        **({"pooling": pooling} if len(recordings) > 1 else {}),
         **({"pooled_runs": [{k: round(v, 6) for k, v in m.items()} for m in pool_maps]}
            if pool_maps else {}),
         **({"fit_reduction": {"factor": factor,
@@ -342,3 +389,30 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
     if not calibrations:
         raise FitError(f"{bag_list}: no sensor could be fitted")
     return Calibration(calibrations)
+
+
+def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
+                 calibration: Calibration) -> None:
+    """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
+    the evaluated run itself and scored on it, i.e. what that model family can reach on this
+    run; the gap to ``rmse`` is what does not transfer from the training runs. A run the
+    model cannot be fitted to gets NaN and a note.
+
+    Args:
+        result: The evaluation, updated in place.
+        recordings: The run's recordings.
+        calibration: The calibration evaluated.
+
+    """
+    for name, ev in result.sensors.items():
+        cal = calibration.sensors[name]
+        options = cal.provenance.get("options") or {}
+        if isinstance(options, Mapping) and "progress" in model_options(cal.model):
+            options = {**options, "progress": False}  # a refit inside evaluate: no grid lines
+        try:
+            own = fit_sensor([recordings[name]], cal.model, name=name, options=options or None)
+            again = evaluate_recordings({name: recordings[name]}, Calibration({name: own}))
+            ev.in_run_rmse = again.sensors[name].stats.rmse
+        except StrainCompError as err:
+            ev.in_run_rmse = math.nan
+            result.notes.append(f"{name}: no in-run bound ({err})")

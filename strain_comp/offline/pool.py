@@ -1,125 +1,153 @@
 """Several training runs of one sensor put into one input space (``strain-comp fit --pool``).
 
-As ``recalibrate --input`` zeroes and spans a run: R' = R_0,ref + k (R - R_0,run), each
-run's zero and sensitivity fitted jointly with one cubic through all mapped runs and
-anchored on the run of median sensitivity (``pooled_input``), where that lowers the cubic's
-error to at most ``POOL_GAIN`` of its error on the runs as recorded. Runs of one thread
-differ in sensitivity by up to 2x; pooled raw, the model fits their average and carries to
-none (docs/generalisation.md). The calibration's rest resistance and range are those of the
-spanned runs, so a session start (``recalibrate --input``) on a new run maps it into the
-same space. ``pool="raw"``: the runs as recorded. The provenance records the choice
+As ``recalibrate --input`` zeroes and spans a run, each run is mapped by R' = R_0,ref + k (R
+- R_0,run) onto the run of median sensitivity, its zero and sensitivity fitted jointly with
+one cubic through all mapped runs (``joint_maps``). The session start then places a new run
+in that space one of two ways:
+
+* ``joint``: by the calibration's steady outputs, then an output gain and offset
+  (``strain_comp.offline.span``), as for a calibration of one run;
+* ``stretch``: by its calibration stretch's line of resistance on strain, put onto the line
+  the training runs' stretches share in the space (``stretch_space``, kept as
+  ``InputSettings.stretch_line``; ``strain_comp.offline.stretch_line``), so a sensitivity
+  that moves after the stretch as it did on the training runs is placed as they were.
+
+Runs of one thread differ in sensitivity by up to 2x; pooled raw, the model fits their
+average and carries to none (docs/generalisation.md). ``spanned`` (the default) keeps the
+maps where they lower the pooled cubic's error to at most ``POOL_GAIN`` of its error on
+the runs as recorded (``gate``), and ``strain_comp.offline.space_choice`` picks the session
+start by leaving out each training run in turn. The calibration's rest resistance and range
+are those of the mapped runs. ``raw``: the runs as recorded. The provenance records the choice
 (``pooling``) and each run's map (``pooled_runs``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from strain_comp.core.samples import good_mask
 from strain_comp.errors import InputError
+from strain_comp.offline.session_window import calibration_stretch, cut
+from strain_comp.offline.stretch_line import Line, run_line
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
-POOLS = ("spanned", "raw")
-"""How ``fit_sensor`` pools several runs: each run's input zero and span put onto a reference
-run's first (default, module docstring), or the resistance as recorded."""
+POOLS = ("spanned", "joint", "stretch", "raw")
+"""How ``fit_sensor`` pools several runs (module docstring): in one input space with the
+session start chosen by measurement (default), ``joint`` or ``stretch``, or as recorded."""
+SPACES = ("joint", "stretch")
+"""The session starts ``spanned`` chooses between."""
 POOL_GAIN = 0.7
 """The per-run maps are kept where they lower the pooled cubic's RMSE to at most this share
-of its RMSE on the runs as recorded (``pooled_input``; docs/generalisation.md: 0.31-0.62 on
-the thread and the fibre, where pooling in one space helps, 0.82-1.25 on the carbon black
+of its RMSE on the runs as recorded (``gate``; docs/generalisation.md: 0.31-0.62 on
+the thread and the fibre, where pooling in one space helps, 0.80-1.00 on the carbon black
 and the rig, where it does not)."""
 POOL_DEGREE = 3
 """Degree of the pooled curve of strain on mapped resistance the input maps are fitted
-through (``pooled_input``): the cubic model's."""
+through (``joint_maps``): the cubic model's."""
 POOL_SAMPLES = 4000
 """Samples of each run (evenly thinned) the input maps are fitted on."""
 
-
-def run_line(rec: Recording) -> tuple[float, float] | None:
-    """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples, in
-    closed form (no LAPACK call to fail on a reference near 1e-300 or 1e300).
-
-    Args:
-        rec: The run.
-
-    Returns:
-        Its input zero R_0 [ohm] and sensitivity g [ohm per strain unit]; None without a
-        range of strain or a finite line.
-
-    """
-    if rec.s is None:
-        return None
-    ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
-    s, r = np.asarray(rec.s, dtype=np.float64)[ok], np.asarray(rec.r, dtype=np.float64)[ok]
-    if s.size < 2 or not np.ptp(s) > 0:
-        return None
-    with np.errstate(all="ignore"):
-        ds, r_mean = s - s.mean(), r.mean()
-        g = float(np.dot(ds, r - r_mean) / np.dot(ds, ds))
-        r0 = float(r_mean - g * s.mean())
-    return (r0, g) if np.isfinite(r0) and np.isfinite(g) and g != 0 else None
+Map = tuple[float, float]
+"""(z, k) of a run's map R' = R_0,ref + k (R - z)."""
 
 
-def pooled_input(recordings: Sequence[Recording], pool: str = "spanned",
-                 ) -> tuple[list[Recording], list[dict[str, float]], dict[str, Any]]:
-    """The runs put into one input space for a pooled fit (module docstring, Pooling runs).
+@dataclass
+class Pooled:
+    """Training runs as a pooled fit reads them."""
 
-    The maps are a per-run affine nuisance fitted jointly with a pooled cubic of strain on
-    mapped resistance (least squares over the maps, the cubic solved for at each step),
-    started from each run's line of resistance on strain (``run_line``) and anchored on the
-    run of median sensitivity (its map stays the identity), then dropped: the model is fitted
-    on the mapped runs, where the maps lower the pooled cubic's RMSE to at most ``POOL_GAIN``
-    of its RMSE on the runs as recorded (runs that differ in zero and sensitivity, not in
-    rate or memory). The runs as recorded (no maps) otherwise, for ``pool="raw"``, a single
-    run, or runs whose lines disagree in sign.
+    runs: list[Recording]
+    """The runs, mapped (or as recorded)."""
+    maps: list[dict[str, float]]
+    """Each run's map (``rest``, ``rest_calibrated``, ``span_gain``: R' = rest_calibrated +
+    span_gain (R - rest), the form of ``recalibrate --input``); empty as recorded."""
+    record: dict[str, Any]
+    """The provenance's ``pooling``: the space (``pool``) and the figures it was chosen on."""
+    stretch_line: Line | None = None
+    """The line the stretches share (``InputSettings.stretch_line``), for ``stretch``."""
 
-    Args:
-        recordings: The sensor's runs.
-        pool: ``spanned`` or ``raw``.
 
-    Returns:
-        The runs as fitted, each run's map (``rest``, ``rest_calibrated``, ``span_gain``:
-        R' = rest_calibrated + span_gain (R - rest), the form of ``recalibrate --input``),
-        and which was chosen with both RMSEs (the provenance's ``pooling``).
-
-    Raises:
-        InputError: An unknown ``pool``.
-
-    """
-    from scipy.optimize import least_squares
-
-    if pool not in POOLS:
-        raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
-    as_recorded: dict[str, Any] = {"pool": "raw"}
-    if pool == "raw" or len(recordings) < 2:
-        return list(recordings), [], as_recorded
+def _lines(recordings: Sequence[Recording]) -> list[Line] | None:
+    """Each run's line (``run_line``), or None where one has none or their signs differ."""
     lines = [run_line(rec) for rec in recordings]
-    if any(line is None for line in lines):
-        return list(recordings), [], as_recorded
     found = [line for line in lines if line is not None]
-    if len({np.sign(g) for _, g in found}) > 1:
-        return list(recordings), [], {"pool": "raw", "why": "the runs' lines disagree in sign"}
-    anchor = int(np.argsort([abs(g) for _, g in found])[(len(found) - 1) // 2])
-    r0_ref, g_ref = found[anchor]
+    if len(found) < len(lines) or len({np.sign(g) for _, g in found}) > 1:
+        return None
+    return found
+
+
+def _anchor(lines: Sequence[Line]) -> int:
+    """The run of median sensitivity (the lower middle one of an even count)."""
+    return int(np.argsort([abs(g) for _, g in lines])[(len(lines) - 1) // 2])
+
+
+def _thinned(recordings: Sequence[Recording]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each run's good, referenced (R, S), evenly thinned to about ``POOL_SAMPLES``."""
     data = []
     for rec in recordings:
-        assert rec.s is not None  # run_line found a line
+        assert rec.s is not None  # the runs have lines
         ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
         step = max(1, int(ok.sum()) // POOL_SAMPLES)
         data.append((np.asarray(rec.r, dtype=np.float64)[ok][::step],
                      np.asarray(rec.s, dtype=np.float64)[ok][::step]))
+    return data
+
+
+def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float) -> float:
+    """RMSE of the pooled cubic of strain on mapped resistance through the mapped runs.
+
+    Args:
+        recordings: The runs (with lines).
+        maps: Each run's (z, k).
+        r_ref: R_0,ref of the maps.
+
+    Returns:
+        The RMSE [strain unit].
+
+    """
+    data = _thinned(recordings)
+    mapped = np.concatenate([r_ref + k * (r - z) for (r, _), (z, k) in zip(data, maps,
+                                                                          strict=True)])
+    s_all = np.concatenate([s for _, s in data])
+    mapped = mapped / float(np.median(np.abs(mapped)))
+    fitted = np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped)
+    return float(np.sqrt(np.mean((fitted - s_all) ** 2)))
+
+
+def joint_maps(recordings: Sequence[Recording]) -> tuple[list[Map], float] | None:
+    """The ``joint`` space: a per-run affine nuisance fitted jointly with a pooled cubic of
+    strain on mapped resistance (least squares over the maps, the cubic solved for at each
+    step), started from each run's line of resistance on strain (``run_line``) and anchored
+    on the run of median sensitivity (its map stays the identity).
+
+    Args:
+        recordings: The runs (two or more).
+
+    Returns:
+        Each run's (z, k) and R_0,ref; None where a run has no line or the lines disagree
+        in sign.
+
+    """
+    from scipy.optimize import least_squares
+
+    found = _lines(recordings)
+    if found is None:
+        return None
+    anchor = _anchor(found)
+    r0_ref, g_ref = found[anchor]
+    data = _thinned(recordings)
     # map of run i: R' = r0_ref + k_i (R - z_i); started on the lines: z = R_0, k = g_ref / g
     start = np.array([v for i, (r0, g) in enumerate(found) if i != anchor
                       for v in (r0, g_ref / g)])
     scale = float(np.median(np.concatenate([np.abs(r) for r, _ in data])))
     s_all = np.concatenate([s for _, s in data])
 
-    def unpack(x: np.ndarray) -> list[tuple[float, float]]:
+    def unpack(x: np.ndarray) -> list[Map]:
         pairs = iter(zip(x[::2], x[1::2], strict=True))
         return [(r0_ref, 1.0) if i == anchor else next(pairs) for i in range(len(data))]
 
@@ -135,13 +163,95 @@ def pooled_input(recordings: Sequence[Recording], pool: str = "spanned",
     fitted = least_squares(residual, start, x_scale=np.ravel([(scale, 1.0)] * gains.size),
                            bounds=(lower, upper), xtol=1e-10)
     x = fitted.x if fitted.success and np.all(np.isfinite(fitted.x)) else start
-    rmse = {"raw": float(np.sqrt(np.mean(residual(np.tile([r0_ref, 1.0], gains.size)) ** 2))),
-            "spanned": float(np.sqrt(np.mean(residual(x) ** 2)))}
-    reading = {"curve_rmse": {k: round(v, 6) for k, v in rmse.items()}}
-    if not rmse["spanned"] <= POOL_GAIN * rmse["raw"]:
-        return list(recordings), [], {"pool": "raw", **reading}
-    maps = unpack(x)
-    out = [replace(rec, r=r0_ref + k * (np.asarray(rec.r, dtype=np.float64) - z))
+    return unpack(x), r0_ref
+
+
+def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float
+                  ) -> Line | None:
+    """The line the runs' calibration stretches share once mapped
+    (``stretch_line.run_line`` of their stretches, mapped and pooled).
+
+    Args:
+        recordings: The runs.
+        maps: Each run's (z, k) into the space.
+        r_ref: R_0,ref of the maps.
+
+    Returns:
+        The line, or None where a run has no stretch or the line's zero is not a
+        resistance above 0.
+
+    """
+    parts = []
+    for rec, (z, k) in zip(recordings, maps, strict=True):
+        stretch = None if rec.s is None else calibration_stretch(rec.t, rec.s)
+        if stretch is None:
+            return None
+        part = cut(rec, *stretch)
+        parts.append(replace(part, r=r_ref + k * (np.asarray(part.r, dtype=np.float64) - z)))
+    assert parts[0].s is not None  # every run has a stretch
+    pooled = replace(parts[0], t=np.arange(sum(p.t.size for p in parts), dtype=np.float64),
+                     r=np.concatenate([p.r for p in parts]),
+                     s=np.concatenate([p.s for p in parts if p.s is not None]),
+                     temperature=None)
+    line = run_line(pooled)
+    return line if line is not None and line[0] > 0 else None
+
+
+def gate(recordings: Sequence[Recording]) -> dict[str, Any]:
+    """Whether the runs differ in zero and sensitivity: the pooled cubic's RMSE through the
+    ``joint`` maps against the runs as recorded, kept where at most ``POOL_GAIN`` of it.
+
+    Args:
+        recordings: The runs (two or more).
+
+    Returns:
+        ``pass`` (bool) and ``curve_rmse`` (both RMSEs), or ``why`` where there are no maps.
+
+    """
+    joint = joint_maps(recordings)
+    if joint is None:
+        return {"pass": False, "why": "a run has no line, or the runs' lines disagree in sign"}
+    maps, r_ref = joint
+    rmse = {"raw": curve_rmse(recordings, [(r_ref, 1.0)] * len(maps), r_ref),
+            "spanned": curve_rmse(recordings, maps, r_ref)}
+    return {"pass": bool(rmse["spanned"] <= POOL_GAIN * rmse["raw"]),
+            "curve_rmse": {k: round(v, 6) for k, v in rmse.items()}}
+
+
+def pooled_input(recordings: Sequence[Recording], pool: str) -> Pooled:
+    """The runs in one input space (``joint`` and ``stretch``: the joint maps, and for
+    ``stretch`` the line the mapped stretches share; a single run's own stretch line) or as
+    recorded (``raw``, a single run, or where there are no maps; module docstring).
+
+    Args:
+        recordings: The sensor's runs.
+        pool: ``joint``, ``stretch`` or ``raw``.
+
+    Returns:
+        The runs as fitted, their maps, the record and the stretches' line.
+
+    Raises:
+        InputError: An unknown ``pool``.
+
+    """
+    if pool not in POOLS or pool == "spanned":
+        raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
+    as_recorded = Pooled(list(recordings), [], {"pool": "raw"})
+    if pool == "raw" or not recordings or (pool == "joint" and len(recordings) < 2):
+        return as_recorded
+    if len(recordings) < 2:  # stretch: the run's own stretch line, the run as recorded
+        own = stretch_space(recordings, [(0.0, 1.0)], 0.0)
+        return replace(as_recorded, record={"pool": "stretch"}, stretch_line=own) \
+            if own is not None else as_recorded
+    joint = joint_maps(recordings)
+    if joint is None:
+        return replace(as_recorded, record={"pool": "raw", "why": "no line of resistance on "
+                                            "strain, or lines that disagree in sign"})
+    maps, r_ref = joint
+    line = None if pool == "joint" else stretch_space(recordings, maps, r_ref)
+    if pool == "stretch" and line is None:
+        return replace(as_recorded, record={"pool": "raw", "why": "a run with no stretch"})
+    out = [replace(rec, r=r_ref + k * (np.asarray(rec.r, dtype=np.float64) - z))
            for rec, (z, k) in zip(recordings, maps, strict=True)]
-    return out, [{"rest": z, "rest_calibrated": r0_ref, "span_gain": k} for z, k in maps], {
-        "pool": "spanned", **reading}
+    return Pooled(out, [{"rest": z, "rest_calibrated": r_ref, "span_gain": k}
+                        for z, k in maps], {"pool": pool}, line)

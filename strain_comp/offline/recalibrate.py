@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.calibration import (
+    PARAM_MAX,
     STRAIN_MAX,
     Calibration,
     SensorCalibration,
@@ -53,6 +54,7 @@ from strain_comp.offline.span import (
     steady_output,
 )
 from strain_comp.offline.span_policy import SPAN, SpanPolicy
+from strain_comp.offline.stretch_line import onto, run_line
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -60,6 +62,74 @@ if TYPE_CHECKING:
 FORMS = ("output", "input")
 """Where the two-point map acts: on the engine's output strain or on its input resistance."""
 GAIN_NAME, OFFSET_NAME = RECALIBRATION_TERMS
+
+
+def session_forms(cal: SensorCalibration) -> tuple[str, ...]:
+    """The steps of a session start on a sensor, in order: the input zero and span, then the
+    output gain and offset; the input step alone for a calibration with a stretch line
+    (``InputSettings.stretch_line``), which places the run as the training runs' stretches
+    lay, gain and offset included (``strain_comp.offline.stretch_line``).
+
+    Args:
+        cal: The sensor's calibration.
+
+    Returns:
+        ``("input", "output")`` or ``("input",)``.
+
+    """
+    return ("input",) if cal.input.stretch_line is not None else ("input", "output")
+
+
+def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
+             ) -> dict[str, list[str]]:
+    """The session start's steps on a run, in order, each with the sensors it recalibrates
+    (``session_forms`` of each calibrated sensor the run holds with a reference).
+
+    Args:
+        calibration: The calibration.
+        recordings: The run's recordings by sensor name.
+
+    Returns:
+        Form -> sensor names, for the forms some sensor takes.
+
+    """
+    names = [n for n, rec in recordings.items() if n in calibration.sensors
+             and rec.s is not None]
+    by_form = {form: [n for n in names if form in session_forms(calibration.sensors[n])]
+               for form in ("input", "output")}
+    return {form: sensors for form, sensors in by_form.items() if sensors}
+
+
+def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
+    """The input zero and span that puts the line of the stretch ``rec`` holds (its
+    referenced samples) onto the calibration's stretch line (``stretch_line.onto``).
+
+    Args:
+        cal: The sensor's calibration, with a stretch line.
+        rec: The stretch read (samples outside it have a NaN reference).
+
+    Returns:
+        (rest, rest_calibrated, gain) of ``InputSettings.zero_span``.
+
+    Raises:
+        InputError: The stretch has no line, one against the calibration's direction, or
+            one that gives a zero and span no calibration file holds.
+
+    """
+    space = cal.input.stretch_line
+    assert space is not None
+    own = run_line(replace(rec, r=cal.input.to_ohm(rec.r)))
+    if own is None or np.sign(own[1]) != np.sign(space[1]) or not own[0] > 0:
+        raise InputError(f"recalibrate --input: sensor {cal.name!r}: its resistance does not "
+                         "move with the reference strain in the stretch read as the "
+                         "calibration's does (no line of resistance on strain there)")
+    zero_span = onto(own, space)
+    if not (0.0 < zero_span[0] <= PARAM_MAX and 0.0 < zero_span[2] <= 1000.0):
+        raise InputError(f"recalibrate --input: sensor {cal.name!r}: the stretch read puts "
+                         f"its rest at {zero_span[0]:.4g} ohm and its sensitivity "
+                         f"{1.0 / zero_span[2]:.4g} times the calibration's: no session start "
+                         "of this sensor (record a load and unload of it)")
+    return zero_span
 
 
 def parse_point(text: str) -> tuple[float, float]:
@@ -249,11 +319,15 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
                                                                      name not in sensors):
                 continue
             cal = calibration.sensors[name]
-            zero_span = span_of_first_cycle(cal, rec, policy)
+            by_line = cal.input.stretch_line is not None
+            zero_span = (stretch_span(cal, rec) if by_line
+                         else span_of_first_cycle(cal, rec, policy))
             out[name] = apply_span(cal, zero_span, {"from": source, "first": first,
                                                     "window": None if span is None
                                                     else list(span)})
-            lines.append(f"{name}: {span_reading(zero_span)} (from {where})")
+            lines.append(f"{name}: {span_reading(zero_span)} (from {where}"
+                         + ("; the stretch's line put onto the calibration's: the whole "
+                            "session start, no output step)" if by_line else ")"))
         if not lines:
             raise InputError(f"recalibrate: {source or 'the data'} has no calibrated sensor "
                              "with a strain_reference")

@@ -19,12 +19,15 @@ from strain_comp.offline.span_policy import SPAN, SpanPolicy
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
+FIRST_CYCLE_CAP = 0.4
+"""The first cycle is at most this share of a run (a run that never returns to rest)."""
+
 
 def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) -> float | None:
-    """Seconds from ``t[0]`` to the end of the first stretch and return of the reference
-    ``s``: its first return to within ``cycle_back`` of its span
-    above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN`` when
-    None). None when there is none.
+    """Seconds from the first sample (``t[0]``, referenced or not) to the end of the first
+    stretch and return of the reference ``s``: its first return to within ``cycle_back`` of
+    its span above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN``
+    when None). None when there is none.
 
     Args:
         t: Sample times [s].
@@ -37,9 +40,10 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     """
     policy = SPAN if policy is None else policy
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    origin = _origin(t)
     ok = np.isfinite(t) & np.isfinite(s)
     t, s = t[ok], s[ok]
-    if t.size < 2:
+    if t.size < 2 or origin is None:
         return None
     lo, hi = float(s.min()), float(s.max())
     if not hi > lo:
@@ -48,7 +52,14 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     if not up.size:
         return None
     back = np.flatnonzero(s[up[0]:] < lo + policy.cycle_back * (hi - lo))
-    return float(t[up[0] + back[0]] - t[0]) if back.size else None
+    return float(t[up[0] + back[0]] - origin) if back.size else None
+
+
+def _origin(t: np.ndarray) -> float | None:
+    """The first finite sample time: where a run's seconds count from (``cut``, ``--first``,
+    ``--window``), samples without a reference included."""
+    finite = t[np.isfinite(t)]
+    return float(finite[0]) if finite.size else None
 
 
 def stretch_and_return(s: np.ndarray, strain_range: float,
@@ -189,3 +200,71 @@ def window(recordings: Mapping[str, Recording], span: tuple[float, float],
         assert whole.s is not None
         out[name] = replace(whole, s=np.where(whole.t < rec.t[0] + start, np.nan, whole.s))
     return out
+
+
+def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
+    """Seconds from the start of a run (its first sample, referenced or not) to the end of
+    its first load and unload (``cycle_end``); at most ``FIRST_CYCLE_CAP`` of the run.
+    None when the reference never moves.
+
+    Args:
+        t: Sample times [s].
+        s: Reference strain, one per sample.
+
+    Returns:
+        The seconds, or None.
+
+    """
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(s)
+    if ok.sum() < 2 or not np.percentile(s[ok], 99) > np.percentile(s[ok], 1):
+        return None
+    finite = t[np.isfinite(t)]
+    cap = FIRST_CYCLE_CAP * float(finite[-1] - finite[0])
+    end = cycle_end(t, s)
+    return cap if end is None else min(end, cap)
+
+
+def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
+    """(START, END) seconds of a run's second load and unload, the calibration stretch of
+    the README's session start after a warm-up one (``recalibrate --window``): from the end
+    of the first cycle (``first_cycle``) to the end of the next stretch and return
+    (``cycle_end`` on the rest of the run). None when the rest of the run has none.
+
+    Args:
+        t: Sample times [s].
+        s: Reference strain, one per sample.
+
+    Returns:
+        The window, or None.
+
+    """
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    first, origin = first_cycle(t, s), _origin(t)
+    if first is None or origin is None:
+        return None
+    rest = t >= origin + first
+    end = cycle_end(t[rest], s[rest]) if rest.sum() > 1 else None
+    if end is None:
+        return None
+    start = float(t[rest][0] - origin)
+    return start, start + end
+
+
+def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
+    """The stretch the README's session start reads on a run: its second load and unload
+    after a warm-up one (``second_cycle``), else its first (START 0, ``first_cycle``).
+
+    Args:
+        t: Sample times [s].
+        s: Reference strain, one per sample.
+
+    Returns:
+        (START, END) [s] after the run's start, or None when the reference never moves.
+
+    """
+    second = second_cycle(t, s)
+    if second is not None:
+        return second
+    first = first_cycle(t, s)
+    return None if first is None else (0.0, first)

@@ -42,6 +42,22 @@ def test_the_input_unit_is_optional_and_kept(tmp_path: Path) -> None:
     assert load_calibration(tmp_path / "again.yaml") == loaded
 
 
+def test_a_stretch_line_is_optional_and_kept(tmp_path: Path) -> None:
+    """A calibration pooled with the stretch session start keeps its stretches' line; a
+    file without one (every other) reads None and its text has no such key."""
+    path = tmp_path / "cal.yaml"
+    save_calibration(make_calibration(), path)
+    assert "stretch_line" not in path.read_text()
+    assert load_calibration(path).sensors["left"].input.stretch_line is None
+    data = yaml.safe_load(path.read_text())
+    data["sensors"]["left"]["input"]["stretch_line"] = {"rest": 1003.5, "slope": -2.25}
+    path.write_text(yaml.safe_dump(data))
+    loaded = load_calibration(path)
+    assert loaded.sensors["left"].input.stretch_line == (1003.5, -2.25)
+    save_calibration(loaded, tmp_path / "again.yaml")
+    assert load_calibration(tmp_path / "again.yaml") == loaded
+
+
 def test_loaded_model_computes_eq4(tmp_path: Path) -> None:
     path = tmp_path / "cal.yaml"
     save_calibration(make_calibration(), path)
@@ -111,6 +127,15 @@ def _edit(tmp_path: Path, change) -> Path:
      "sensors.right.input.unit", "in ohm"),
     (lambda d: d["sensors"]["right"].update(effects={"name": "x"}),
      "sensors.right.effects", "list"),
+    (lambda d: d["sensors"]["left"]["input"].update(stretch_line={"rest": 1000.0, "slope": 0}),
+     "sensors.left.input.stretch_line.slope", "must not be 0"),
+    (lambda d: d["sensors"]["left"]["input"].update(stretch_line={"rest": -5.0, "slope": 2.0}),
+     "sensors.left.input.stretch_line.rest", "> 0"),
+    (lambda d: d["sensors"]["left"]["input"].update(
+        stretch_line={"rest": 1e3, "slope": float("nan")}),
+     "sensors.left.input.stretch_line.slope", "must be finite"),
+    (lambda d: d["sensors"]["left"]["input"].update(stretch_line=[1000.0, 2.0]),
+     "sensors.left.input.stretch_line", "mapping"),
 ])
 def test_malformed_field_is_named(tmp_path: Path, change, field: str, words: str) -> None:
     path = _edit(tmp_path, change)

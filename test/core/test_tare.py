@@ -219,7 +219,7 @@ def test_cli_recalibrate_refuses_its_input_as_output_and_keeps_it(cubic: Calibra
 
 def test_in_run_bound_is_the_same_model_fitted_on_the_evaluated_run(cubic: Calibration,
                                                                     tmp_path: Path) -> None:
-    from strain_comp.offline.evaluate import in_run_bound
+    from strain_comp.offline.fit import in_run_bound
 
     other = {"s1": run(1.2 * R0)}
     result = evaluate_recordings(other, cubic)

@@ -1,5 +1,7 @@
 """Pooled fits in one input space and the session start on a window, against known truth:
-runs of one static gauge seen through a different input zero and sensitivity each."""
+runs of one static gauge seen through a different input zero and sensitivity each (and,
+for the stretch session start, a sensitivity that moves after every run's calibration
+stretch)."""
 
 from __future__ import annotations
 
@@ -15,9 +17,10 @@ from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.pool import pooled_input
-from strain_comp.offline.recalibrate import recalibrate_recordings
-from strain_comp.offline.session_window import stretch_and_return
+from strain_comp.offline.pool import Pooled, gate, pooled_input
+from strain_comp.offline.recalibrate import recalibrate_recordings, session_forms
+from strain_comp.offline.session_window import calibration_stretch, stretch_and_return
+from strain_comp.offline.space_choice import choose_space, session_started
 
 
 def gauge(s: np.ndarray) -> np.ndarray:
@@ -44,9 +47,12 @@ NEW = run(1120.0, 1.25, 30.0)
 
 
 def test_pooled_input_puts_every_run_onto_the_anchor_curve() -> None:
-    _, maps, reading = pooled_input(RUNS)
-    assert reading["pool"] == "spanned"
+    reading = gate(RUNS)
+    assert reading["pass"]
     assert reading["curve_rmse"]["spanned"] < 0.01 * reading["curve_rmse"]["raw"]
+    pooled = pooled_input(RUNS, "joint")
+    maps = pooled.maps
+    assert pooled.record == {"pool": "joint"} and pooled.stretch_line is None
     truth = ((1000.0, 1.0, 30.0), (1080.0, 1.5, 20.0), (950.0, 0.7, 40.0))
     anchor = [i for i, m in enumerate(maps) if m["span_gain"] == 1.0
               and m["rest"] == m["rest_calibrated"]]
@@ -58,14 +64,78 @@ def test_pooled_input_puts_every_run_onto_the_anchor_curve() -> None:
                                                              - m["rest"])
         expected = za + ga * (gauge(s) - 1000.0)
         assert through == pytest.approx(expected, abs=1e-3 * np.ptp(expected))
-    assert pooled_input(RUNS, "raw") == (RUNS, [], {"pool": "raw"})
+    assert pooled_input(RUNS, "raw") == Pooled(RUNS, [], {"pool": "raw"})
     # runs of one gauge with no difference of zero or sensitivity: nothing to map
     rng = np.random.default_rng(1)
     same = [run(1000.0, 1.0, top) for top in (20.0, 30.0, 40.0)]
     same = [Recording("s1", r.t, r.r + rng.normal(0.0, 2.0, r.t.size), r.s) for r in same]
-    assert pooled_input(same)[2]["pool"] == "raw"
-    with pytest.raises(InputError, match="--pool"):
-        pooled_input(RUNS, "median")
+    assert not gate(same)["pass"]
+    assert fit_sensor(same, "cubic", name="s1").provenance["pooling"]["pool"] == "raw"
+    for pool in ("median", "spanned"):  # spanned is the fit's choice, not a space
+        with pytest.raises(InputError, match="--pool"):
+            pooled_input(RUNS, pool)
+
+
+def moving(zero: float, gain: float) -> Recording:
+    """The gauge 30 % more sensitive after the run's calibration stretch (its second
+    triangle, 12 to 22 s), as the thread's sensitivity moves after its stretch."""
+    t, s = triangles(30.0, seconds=90.0)
+    later = np.where(t > 22.0, 1.3, 1.0)
+    return Recording("s1", t, zero + gain * later * (gauge(s) - 1000.0), s)
+
+
+INPUTS = ((1000.0, 1.0), (1080.0, 1.5), (950.0, 0.7))
+MOVING = [moving(zero, gain) for zero, gain in INPUTS]
+
+
+def test_the_stretch_start_keeps_the_line_the_mapped_stretches_share() -> None:
+    pooled = pooled_input(MOVING, "stretch")
+    assert pooled.record == {"pool": "stretch"}
+    assert pooled.maps == pooled_input(MOVING, "joint").maps  # the same space
+    r0, slope = pooled.stretch_line or (0.0, 0.0)
+    s = np.linspace(0.0, 30.0, 31)  # the runs differ by an exact affine map of R
+    for (zero, gain), m in zip(INPUTS, pooled.maps, strict=True):
+        through = m["rest_calibrated"] + m["span_gain"] * (zero + gain * (gauge(s) - 1000.0)
+                                                             - m["rest"])
+        assert through == pytest.approx(gauge(s), rel=1e-6)
+    # the line is the anchor's (sensitivity 1) least-squares line over its second triangle
+    # (the stretch ends where the reference is back within 10 % of its span)
+    t, tri = MOVING[0].t, MOVING[0].s
+    assert tri is not None
+    start, end = calibration_stretch(t, tri) or (0.0, 0.0)
+    assert (start, end) == pytest.approx((11.5, 21.5), abs=0.1)
+    stretch = (t >= start) & (t <= end)
+    assert (slope, r0) == pytest.approx(np.polyfit(tri[stretch], gauge(tri[stretch]), 1),
+                                        rel=1e-6)
+
+
+def test_the_choice_of_space_follows_the_runs_left_out() -> None:
+    """Runs of other amplitudes whose sensitivity holds: the steady outputs place a new run
+    exactly and a stretch's line (a secant of the curve that depends on the amplitude) does
+    not; a sensitivity that moves after every stretch: only the stretch line places the
+    run as the training runs were placed."""
+    def cubic(runs: list[Recording]) -> object:
+        return fit_sensor(runs, "cubic", name="s1", pool="stretch")
+
+    for runs, wanted in ((RUNS, "joint"), (MOVING, "stretch")):
+        space, record = choose_space(runs, cubic)  # type: ignore[arg-type]
+        errors = record["left_out_rmse"]
+        assert space == wanted and errors[wanted] < 0.5 * errors[
+            "stretch" if wanted == "joint" else "joint"]
+        assert record["runs_left_out"] == 3
+        # two runs: each left out against a fit of the other (its own stretch line)
+        assert choose_space(runs[:2], cubic)[1]["runs_left_out"] == 2  # type: ignore[arg-type]
+        fitted = fit_sensor(runs, "cubic", name="s1")
+        assert fitted.provenance["pooling"]["pool"] == wanted
+        assert fitted.provenance["pooling"]["chosen_by"] == record
+    new = moving(1120.0, 1.25)
+    errors = {}
+    for space in ("joint", "stretch"):
+        cal = fit_sensor(MOVING, "cubic", name="s1", pool=space)
+        assert session_forms(cal) == (("input",) if space == "stretch" else ("input", "output"))
+        started = session_started(cal, new)
+        errors[space] = evaluate_recordings({"s1": new}, started).sensors["s1"].stats.rmse
+    assert errors["stretch"] < 0.5 * errors["joint"]
 
 
 @pytest.mark.parametrize("pool, limit", [("spanned", 0.1), ("raw", None)])
@@ -138,12 +208,14 @@ def test_cli_fit_pools_in_one_space_unless_asked_raw(tmp_path: Path) -> None:
     for i, rec in enumerate(RUNS):
         bags.append(str(tmp_path / f"run{i}.mcap"))
         write_recording_bag(rec, bags[-1])
-    for pool in ("spanned", "raw"):
+    for pool in ("spanned", "joint", "stretch", "raw"):
         out = tmp_path / f"{pool}.yaml"
         assert cli(["fit", *bags, "--model", "cubic", "--sensor", "s1", "--pool", pool,
                     "--out", str(out), "--quiet"]) == 0
-        prov = load_calibration(out).sensors["s1"].provenance
-        assert ("pooled_runs" in prov) == (pool == "spanned")
+        cal = load_calibration(out).sensors["s1"]
+        assert ("pooled_runs" in cal.provenance) == (pool != "raw")
+        assert cal.provenance["pooling"]["pool"] == ("joint" if pool == "spanned" else pool)
+        assert (cal.input.stretch_line is not None) == (pool == "stretch")
 
 
 def test_a_window_keeps_the_warm_up_unreferenced_for_the_engine() -> None:
@@ -157,3 +229,51 @@ def test_a_window_keeps_the_warm_up_unreferenced_for_the_engine() -> None:
     assert part.s is not None and NEW.s is not None
     assert np.isnan(part.s[part.t < 12.0]).all()
     assert part.s[part.t >= 12.0] == pytest.approx(NEW.s[(NEW.t >= 12.0) & (NEW.t <= 22.0)])
+
+
+def test_the_session_start_of_a_stretch_calibration_is_its_input_step(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``recalibrate --input`` puts a new run's stretch line onto the calibration's (exact
+    for a run that differs by an affine map of R) and says it is the whole session start;
+    ``session_start`` from Python makes no output step; a stretch whose resistance falls
+    with strain is refused in one line."""
+    import strain_comp as sc
+    from strain_comp.io.csv_import import write_recording_bag
+
+    path, bag, out = tmp_path / "cal.yaml", tmp_path / "start.mcap", tmp_path / "out.yaml"
+    save_calibration(Calibration({"s1": fit_sensor(MOVING, "cubic", name="s1",
+                                                   pool="stretch")}), path)
+    new = moving(1120.0, 1.25)
+    write_recording_bag(new, str(bag))
+    assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window",
+                "11.5:21.5", "--out", str(out)]) == 0
+    assert "no output step" in capsys.readouterr().out
+    started = load_calibration(out).sensors["s1"]
+    space = started.input.stretch_line
+    assert space is not None and started.input.zero_span is not None
+    rest, rest_cal, k = started.input.zero_span
+    s = np.linspace(0.0, 30.0, 7)  # the new run mapped reads as the anchor run (the gauge)
+    assert rest_cal + k * (1120.0 + 1.25 * (gauge(s) - 1000.0) - rest) == pytest.approx(
+        gauge(s), rel=1e-6)
+    python = sc.session_start(str(path), str(bag), window=(11.5, 21.5))
+    assert len(python.readings) == 1 and python.calibration.sensors["s1"].effects == []
+    assert python.calibration.sensors["s1"].input.zero_span == pytest.approx(
+        started.input.zero_span, rel=1e-12)
+    falling = Recording("s1", new.t, 3000.0 - new.r, new.s)
+    write_recording_bag(falling, str(bag))
+    assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window",
+                "11.5:21.5", "--out", str(tmp_path / "no.yaml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not move with the reference strain" in err[0]
+    assert not (tmp_path / "no.yaml").exists()
+
+
+def test_the_stretches_count_from_the_runs_first_sample() -> None:
+    """A reference that starts late (NaN for the first 5 s) moves the stretches by those
+    5 s: seconds count from the run's first sample, as ``--window`` and ``cut`` count."""
+    t, tri = MOVING[0].t, MOVING[0].s
+    assert tri is not None
+    late = np.concatenate([np.full(100, np.nan), tri])
+    t_late = np.concatenate([0.05 * np.arange(100), t + 5.0])
+    assert calibration_stretch(t, tri) == pytest.approx((11.5, 21.5), abs=0.1)
+    assert calibration_stretch(t_late, late) == pytest.approx((16.5, 26.5), abs=0.1)

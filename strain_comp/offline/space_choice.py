@@ -1,0 +1,108 @@
+"""Which session start a pooled fit takes (``fit A B C ...``, ``--pool spanned``), chosen by
+leaving out each training run in turn.
+
+For every training run j, the pooled cubic (``POOL_DEGREE``'s model, as the pooling's
+``gate``) is fitted on the other runs in one input space (``pool.joint_maps``), started on
+run j as a user starts a session (``session_started``: its calibration stretch, the
+README's procedure) both ways (``pool.SPACES``) and scored over all of run j. The start with
+the lower root mean square of those errors is the fit's. The two err in opposite ways:
+``joint`` reads the run's zero and span on its stretch through the calibration's steady
+outputs, right where the sensor holds its sensitivity through a run (the conductive
+fibre); ``stretch`` places the run where the training runs' stretches lay, so a
+sensitivity that moves after the stretch as it did on them (the silver-nylon thread) is
+placed as it was there (docs/generalisation.md, "Pooling runs in one input space").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.errors import StrainCompError
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.pool import SPACES
+from strain_comp.offline.recalibrate import recalibrate_recordings, session_forms
+from strain_comp.offline.session_window import calibration_stretch
+
+if TYPE_CHECKING:
+    from strain_comp.io.recording import Recording
+
+Fit = Callable[[Sequence["Recording"]], SensorCalibration]
+"""Fits the choice's model on runs pooled with the stretch line (``fit_sensor`` of the
+cubic, ``pool="stretch"``)."""
+
+
+def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
+    """``cal`` after the session start on ``rec``'s calibration stretch
+    (``session_window.calibration_stretch``): ``recalibrate --input``, then the output gain
+    and offset where the sensor takes one (``recalibrate.session_forms``); a step that
+    cannot be made is skipped, as for a user.
+
+    Args:
+        cal: The sensor's calibration.
+        rec: The run, with a reference strain.
+
+    Returns:
+        The started calibration.
+
+    """
+    calibration = Calibration({cal.name: cal})
+    stretch = None if rec.s is None else calibration_stretch(rec.t, rec.s)
+    if stretch is None:
+        return calibration
+    head = stretch[0] == 0.0
+    for form in session_forms(cal):
+        try:
+            calibration = recalibrate_recordings(
+                calibration, {cal.name: rec}, form=form, first=stretch[1] if head else None,
+                span=None if head else stretch,
+                tare="calibration" if form == "output" else "auto")[0]
+        except StrainCompError:
+            continue
+    return calibration
+
+
+def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
+    """The session start of a pooled fit (module docstring).
+
+    Args:
+        recordings: The training runs (two or more).
+        fit: Fits the choice's model on runs, with their stretches' line.
+
+    Returns:
+        ``joint`` or ``stretch``, and the record: each one's root mean square of the
+        left-out runs' RMSE, and how many runs it was measured on.
+
+    """
+    errors: dict[str, list[float]] = {space: [] for space in SPACES}
+    for j, held in enumerate(recordings):
+        rest = [rec for i, rec in enumerate(recordings) if i != j]
+        try:
+            cal = fit(rest)
+        except StrainCompError:
+            continue
+        if cal.input.stretch_line is None:
+            continue
+        fold = {}
+        for space in SPACES:
+            used = cal if space == "stretch" else replace(
+                cal, input=replace(cal.input, stretch_line=None))
+            try:
+                started = session_started(used, held)
+                ev = evaluate_recordings({cal.name: held}, started, tare="calibration")
+                fold[space] = float(ev.sensors[cal.name].stats.rmse)
+            except StrainCompError:
+                fold[space] = float("nan")
+        if all(np.isfinite(v) for v in fold.values()):
+            for space, value in fold.items():
+                errors[space].append(value)
+    measured = {space: float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
+                for space, v in errors.items()}
+    chosen = SPACES[1] if measured[SPACES[1]] < measured[SPACES[0]] else SPACES[0]
+    return chosen, {"left_out_rmse": {k: round(v, 6) if np.isfinite(v) else None
+                                      for k, v in measured.items()},
+                    "runs_left_out": len(errors[SPACES[0]])}
