@@ -31,9 +31,9 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         report: Where notes go (skipped bag damage, a sensor left out); None drops them.
         progress_bar: A bar on stderr over an APL-family fit's grid (``strain_comp.progress``).
         pool: How several runs of a sensor are pooled: ``"spanned"`` (each run's input zero
-            and span put onto the run of median sensitivity, in the space chosen by leaving
-            out each run), ``"joint"`` or ``"stretch"`` (that space) or ``"raw"``
-            (``strain-comp fit --pool``).
+            and span put onto the run of median sensitivity, with the session start chosen
+            by leaving out each run), ``"joint"`` or ``"stretch"`` (that session start) or
+            ``"raw"`` (``strain-comp fit --pool``).
         input_unit: The unit of the recordings' resistance: ohm, or another for an input
             not in ohm (``R/R0``), stored in ``InputSettings.unit`` so the dead zone is read
             in it per second (``strain-comp fit --input-unit``).

@@ -6,8 +6,8 @@ equations and their fits live in ``strain_comp.models``; the steps before the mo
 each have their module:
 
 * **Pooling runs** (``strain_comp.offline.pool``, ``--pool``): several training runs of one
-  sensor put into one input space first, the space chosen by leaving out each run in turn
-  (``strain_comp.offline.space_choice``).
+  sensor put into one input space first, with the session start that reads each run left
+  out in turn best (``strain_comp.offline.space_choice``).
 * **Training data** (``strain_comp.offline.training``): screening, segments cut where the
   engine resets, the checks of the data's span, the valid range and the rest resistance.
 * **Measurement chain** (``strain_comp.offline.input_chain``): an alternating excitation
