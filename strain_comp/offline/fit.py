@@ -72,6 +72,10 @@ from strain_comp.offline.training import (
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
+CHOICE_RUNS = 3
+"""Runs a pooled fit needs to choose its session start: each run left out must leave a
+pooled fit of two or more, made as the fit it stands for (with two, each fold would be a
+one-run fit, whose own stretch line is no pooled space; ``space_choice``)."""
 _DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair", "fit_budget")
 """Options ``fit_sensor`` takes itself (direction detector, measurement chain, the sample
 budget of a fit); the others go to the model's ``fit``."""
@@ -146,7 +150,8 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
     """The training runs as ``fit_sensor`` pools them (``strain_comp.offline.pool``): with
     ``spanned``, as recorded unless the runs pass the pooling's ``gate``, and then in one
     input space with the session start ``space_choice.choose_space`` measures best for the
-    cubic fitted with the same direction and measurement-chain options.
+    cubic fitted with the same direction and measurement-chain options; ``joint`` (the
+    session start of a one-run fit) with fewer than ``CHOICE_RUNS`` runs.
 
     Args:
         recordings: The sensor's runs.
@@ -169,6 +174,11 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
     passed = gated.pop("pass")
     if not passed:
         return Pooled(list(recordings), [], {"pool": "raw", **gated})
+    if len(recordings) < CHOICE_RUNS:
+        pooled = pooled_input(recordings, "joint")
+        pooled.record.update(gated, chosen_by={"why": f"fewer than {CHOICE_RUNS} runs: a run "
+                                               "left out leaves no pooled fit to start"})
+        return pooled
     own = {k: v for k, v in options.items() if k in _DIRECTION_OPTIONS}
 
     def cubic(runs: Sequence[Recording]) -> SensorCalibration:

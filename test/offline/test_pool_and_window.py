@@ -123,8 +123,11 @@ def test_the_choice_of_space_follows_the_runs_left_out() -> None:
         assert space == wanted and errors[wanted] < 0.5 * errors[
             "stretch" if wanted == "joint" else "joint"]
         assert record["runs_left_out"] == 3
-        # two runs: each left out against a fit of the other (its own stretch line)
-        assert choose_space(runs[:2], cubic)[1]["runs_left_out"] == 2  # type: ignore[arg-type]
+        # two runs: a run left out leaves no pooled fit, so the fit keeps the joint start
+        two = fit_sensor(runs[:2], "cubic", name="s1")
+        assert two.provenance["pooling"]["pool"] == "joint"
+        assert "fewer than 3 runs" in two.provenance["pooling"]["chosen_by"]["why"]
+        assert two.input.stretch_line is None
         fitted = fit_sensor(runs, "cubic", name="s1")
         assert fitted.provenance["pooling"]["pool"] == wanted
         assert fitted.provenance["pooling"]["chosen_by"] == record
