@@ -208,7 +208,8 @@ def guard(index: int) -> str:
     code = ("import sys, pytest, policy_ablation as p\n"
             f"with p.installed(*p.as_installed({index})):\n"
             "    sys.exit(pytest.main(sys.argv[1:]))\n")
-    files = [str(REPO / "test" / f) for f in GUARD_TESTS[ablation.policy]]
+    files = [str(path) for name in GUARD_TESTS[ablation.policy]
+             for path in sorted((REPO / "test").rglob(name))]
     done = subprocess.run([sys.executable, "-c", code, "-x", "-q", "-p", "no:cacheprovider",
                            *files], cwd=REPO, capture_output=True, text=True, check=False,
                           env={**os.environ, "PYTHONPATH": f"{REPO}:{REPO / 'scripts'}"})
