@@ -100,14 +100,16 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30
         BagError: The bag cannot be read.
 
     """
-    head = first if window is None else None
-    spanned = recalibrate(calibration, data, form="input", first=head, tare=tare,
-                          window=window)
+    cal = as_calibration(calibration)
     paths = paths_of(data)
     held = as_recordings(data) if paths is None else read_recordings(paths[0])
-    takes_output = forms_of(spanned.calibration, held).get("output")
-    if not takes_output:
-        return spanned
-    mapped = recalibrate(spanned.calibration, data, form="output", first=head, tare=tare,
-                         window=window, sensors=takes_output)
-    return Recalibration(mapped.calibration, spanned.readings + mapped.readings)
+    source = "recordings" if paths is None else paths[0]
+    head = first if window is None else None
+    cal, lines = recalibrate_recordings(cal, held, form="input", first=head, tare=tare,
+                                        source=source, span=window)
+    takes_output = forms_of(cal, held).get("output")
+    if takes_output:
+        cal, more = recalibrate_recordings(cal, held, form="output", first=head, tare=tare,
+                                           sensors=takes_output, source=source, span=window)
+        lines += more
+    return Recalibration(cal, lines)

@@ -1,5 +1,6 @@
 """The session-start recalibration, as a user makes it: the README's procedure, one
-unreferenced warm-up load and unload, then the calibration stretch (``warmup_start``).
+unreferenced warm-up load and unload, then the calibration stretch (``warmup_start``, on
+``strain_comp.offline.recalibrate.session_start``).
 
 ``recalibrate --input --from BAG --window START:END`` (the input zero and span from the
 rest and the largest strain of the run's second load and unload), then ``recalibrate --from
@@ -16,22 +17,17 @@ does anyway gets no credit.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.diagnosis.candidates import added_effects
-from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import forms_of, recalibrate_recordings
+from strain_comp.offline.recalibrate import SessionStart, Window, forms_of, session_start
 from strain_comp.offline.session_window import first_cycle, second_cycle
-
-Window = tuple[float, float]
-"""(START, END) seconds after a run's start of the stretch a session start reads; START 0
-is ``--first END``, any other ``--window START:END``."""
 
 
 @dataclass(frozen=True)
@@ -75,57 +71,6 @@ def window_flag(window: Window) -> str:
     if window[0] == 0.0:
         return f"--first {window[1]:.3g}"
     return f"--window {window[0]:.3g}:{window[1]:.3g}"
-
-
-@dataclass
-class SessionStart:
-    """A calibration after the session-start recalibration on one run."""
-
-    calibration: Calibration
-    window: Window
-    lines: list[str] = field(default_factory=list)
-    """What each step did (``recalibrate``'s lines), or why it could not be made."""
-    steps: list[str] = field(default_factory=list)
-    """The forms made (``input``, ``output``)."""
-
-
-def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
-                  window: Window) -> SessionStart:
-    """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
-    ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
-    output form on the spanned input, tare ``calibration``), the output step only on the
-    sensors that take one (``recalibrate.session_forms``). A step that cannot be made (no
-    rest in the stretch, a strain the calibration never outputs) is skipped, as it is for a
-    user, and says why.
-
-    Args:
-        calibration: The calibration.
-        recordings: The run's recordings by sensor name.
-        window: The stretch read, (START, END) [s] after the run's start.
-
-    Returns:
-        The calibration after the steps made, the steps and a line on each.
-
-    """
-    out = SessionStart(calibration, window)
-    head = window[0] == 0.0
-    forms = forms_of(calibration, recordings)
-    if not forms:
-        out.lines.append("recalibrate not made: the run holds no calibrated sensor with a "
-                         "strain reference")
-    for form, sensors in forms.items():
-        tare = "calibration" if form == "output" else "auto"
-        try:
-            out.calibration, lines = recalibrate_recordings(
-                out.calibration, recordings, form=form, tare=tare, sensors=sensors,
-                first=window[1] if head else None, span=None if head else window)
-        except StrainCompError as err:
-            out.lines.append(f"recalibrate {'--input ' if form == 'input' else ''}"
-                             f"not made: {err}")
-            continue
-        out.steps.append(form)
-        out.lines += lines
-    return out
 
 
 def warmup_start(calibration: Calibration, recordings: Mapping[str, Recording],

@@ -170,12 +170,11 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
         return pooled_input(recordings, pool)
     if len(recordings) < 2:
         return pooled_input(recordings, "raw")
-    gated = gate(recordings)
-    passed = gated.pop("pass")
-    if not passed:
+    gated, joint = gate(recordings)
+    if joint is None:
         return Pooled(list(recordings), [], {"pool": "raw", **gated})
     if len(recordings) < CHOICE_RUNS:
-        pooled = pooled_input(recordings, "joint")
+        pooled = pooled_input(recordings, "joint", joint)
         pooled.record.update(gated, chosen_by={"why": f"fewer than {CHOICE_RUNS} runs: a run "
                                                "left out leaves no pooled fit to start"})
         return pooled
@@ -185,7 +184,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
         return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
 
     space, measured = choose_space(recordings, cubic)
-    pooled = pooled_input(recordings, space)
+    pooled = pooled_input(recordings, space, joint)
     pooled.record.update(gated, chosen_by=measured)
     return pooled
 

@@ -55,6 +55,8 @@ POOL_SAMPLES = 4000
 
 Map = tuple[float, float]
 """(z, k) of a run's map R' = R_0,ref + k (R - z)."""
+Joint = tuple[list[Map], float]
+"""The joint space: each run's map and R_0,ref (``joint_maps``)."""
 
 
 @dataclass
@@ -119,7 +121,7 @@ def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: floa
     return float(np.sqrt(np.mean((fitted - s_all) ** 2)))
 
 
-def joint_maps(recordings: Sequence[Recording]) -> tuple[list[Map], float] | None:
+def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
     """The ``joint`` space: a per-run affine nuisance fitted jointly with a pooled cubic of
     strain on mapped resistance (least squares over the maps, the cubic solved for at each
     step), started from each run's line of resistance on strain (``run_line``) and anchored
@@ -197,7 +199,7 @@ def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: f
     return line if line is not None and line[0] > 0 else None
 
 
-def gate(recordings: Sequence[Recording]) -> dict[str, Any]:
+def gate(recordings: Sequence[Recording]) -> tuple[dict[str, Any], Joint | None]:
     """Whether the runs differ in zero and sensitivity: the pooled cubic's RMSE through the
     ``joint`` maps against the runs as recorded, kept where at most ``POOL_GAIN`` of it.
 
@@ -205,20 +207,22 @@ def gate(recordings: Sequence[Recording]) -> dict[str, Any]:
         recordings: The runs (two or more).
 
     Returns:
-        ``pass`` (bool) and ``curve_rmse`` (both RMSEs), or ``why`` where there are no maps.
+        The reading (``curve_rmse``, both RMSEs, or ``why`` where there are no maps), and
+        the joint maps where they are kept (None otherwise).
 
     """
     joint = joint_maps(recordings)
     if joint is None:
-        return {"pass": False, "why": "a run has no line, or the runs' lines disagree in sign"}
+        return {"why": "a run has no line, or the runs' lines disagree in sign"}, None
     maps, r_ref = joint
     rmse = {"raw": curve_rmse(recordings, [(r_ref, 1.0)] * len(maps), r_ref),
             "spanned": curve_rmse(recordings, maps, r_ref)}
-    return {"pass": bool(rmse["spanned"] <= POOL_GAIN * rmse["raw"]),
-            "curve_rmse": {k: round(v, 6) for k, v in rmse.items()}}
+    reading = {"curve_rmse": {k: round(v, 6) for k, v in rmse.items()}}
+    return reading, joint if rmse["spanned"] <= POOL_GAIN * rmse["raw"] else None
 
 
-def pooled_input(recordings: Sequence[Recording], pool: str) -> Pooled:
+def pooled_input(recordings: Sequence[Recording], pool: str, joint: Joint | None = None
+                 ) -> Pooled:
     """The runs in one input space (``joint`` and ``stretch``: the joint maps, and for
     ``stretch`` the line the mapped stretches share; a single run's own stretch line) or as
     recorded (``raw``, a single run, or where there are no maps; module docstring).
@@ -226,6 +230,7 @@ def pooled_input(recordings: Sequence[Recording], pool: str) -> Pooled:
     Args:
         recordings: The sensor's runs.
         pool: ``joint``, ``stretch`` or ``raw``.
+        joint: The runs' joint maps, when already fitted (``gate``); None: fitted here.
 
     Returns:
         The runs as fitted, their maps, the record and the stretches' line.
@@ -243,7 +248,7 @@ def pooled_input(recordings: Sequence[Recording], pool: str) -> Pooled:
         own = stretch_space(recordings, [(0.0, 1.0)], 0.0)
         return replace(as_recorded, record={"pool": "stretch"}, stretch_line=own) \
             if own is not None else as_recorded
-    joint = joint_maps(recordings)
+    joint = joint if joint is not None else joint_maps(recordings)
     if joint is None:
         return replace(as_recorded, record={"pool": "raw", "why": "no line of resistance on "
                                             "strain, or lines that disagree in sign"})

@@ -22,12 +22,16 @@ Limits: ``strain_level`` reads the engine's estimate clamped to the valid strain
 the map is exact inside that range. A new input form replaces an older one (both map
 measured resistance); the output gain and offset are kept. The numbers are the fields of
 ``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
+
+A session start (``session_start``) is the input step, then the output step on the sensors
+that take one (``session_forms``), over one stretch of a run, each step skipped where it
+cannot be made, as a user skips it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -42,7 +46,7 @@ from strain_comp.core.calibration import (
 from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.tracking import fitted_rest
-from strain_comp.errors import CalibrationError, InputError
+from strain_comp.errors import CalibrationError, InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.session_window import head, window
@@ -59,6 +63,9 @@ from strain_comp.offline.stretch_line import onto, run_line
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
+Window = tuple[float, float]
+"""(START, END) seconds after a run's start of the stretch a session start reads; START 0
+is ``--first END``, any other ``--window START:END``."""
 FORMS = ("output", "input")
 """Where the two-point map acts: on the engine's output strain or on its input resistance."""
 GAIN_NAME, OFFSET_NAME = RECALIBRATION_TERMS
@@ -98,6 +105,57 @@ def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
     by_form = {form: [n for n in names if form in session_forms(calibration.sensors[n])]
                for form in ("input", "output")}
     return {form: sensors for form, sensors in by_form.items() if sensors}
+
+
+@dataclass
+class SessionStart:
+    """A calibration after the session-start recalibration on one run."""
+
+    calibration: Calibration
+    window: Window
+    lines: list[str] = field(default_factory=list)
+    """What each step did (``recalibrate``'s lines), or why it could not be made."""
+    steps: list[str] = field(default_factory=list)
+    """The forms made (``input``, ``output``)."""
+
+
+def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
+                  window: Window) -> SessionStart:
+    """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
+    ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
+    output form on the spanned input, tare ``calibration``), the output step only on the
+    sensors that take one (``session_forms``). A step that cannot be made (no
+    rest in the stretch, a strain the calibration never outputs) is skipped, as it is for a
+    user, and says why.
+
+    Args:
+        calibration: The calibration.
+        recordings: The run's recordings by sensor name.
+        window: The stretch read, (START, END) [s] after the run's start.
+
+    Returns:
+        The calibration after the steps made, the steps and a line on each.
+
+    """
+    out = SessionStart(calibration, window)
+    head = window[0] == 0.0
+    forms = forms_of(calibration, recordings)
+    if not forms:
+        out.lines.append("recalibrate not made: the run holds no calibrated sensor with a "
+                         "strain reference")
+    for form, sensors in forms.items():
+        tare = "calibration" if form == "output" else "auto"
+        try:
+            out.calibration, lines = recalibrate_recordings(
+                out.calibration, recordings, form=form, tare=tare, sensors=sensors,
+                first=window[1] if head else None, span=None if head else window)
+        except StrainCompError as err:
+            out.lines.append(f"recalibrate {'--input ' if form == 'input' else ''}"
+                             f"not made: {err}")
+            continue
+        out.steps.append(form)
+        out.lines += lines
+    return out
 
 
 def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:

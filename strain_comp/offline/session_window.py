@@ -240,9 +240,15 @@ def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
 
     """
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
-    first, origin = first_cycle(t, s), _origin(t)
-    if first is None or origin is None:
-        return None
+    first = first_cycle(t, s)
+    return None if first is None else _cycle_after(t, s, first)
+
+
+def _cycle_after(t: np.ndarray, s: np.ndarray, first: float) -> tuple[float, float] | None:
+    """(START, END) [s] of the next load and unload after the first ``first`` seconds of a
+    run (``first_cycle``'s, so the run has finite sample times)."""
+    origin = _origin(t)
+    assert origin is not None  # first_cycle found finite samples
     rest = t >= origin + first
     end = cycle_end(t[rest], s[rest]) if rest.sum() > 1 else None
     if end is None:
@@ -263,8 +269,6 @@ def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | N
         (START, END) [s] after the run's start, or None when the reference never moves.
 
     """
-    second = second_cycle(t, s)
-    if second is not None:
-        return second
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     first = first_cycle(t, s)
-    return None if first is None else (0.0, first)
+    return None if first is None else _cycle_after(t, s, first) or (0.0, first)

@@ -25,7 +25,7 @@ from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.errors import StrainCompError
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.pool import SPACES
-from strain_comp.offline.recalibrate import recalibrate_recordings, session_forms
+from strain_comp.offline.recalibrate import session_start
 from strain_comp.offline.session_window import calibration_stretch
 
 if TYPE_CHECKING:
@@ -37,10 +37,8 @@ cubic, ``pool="stretch"``)."""
 
 
 def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
-    """``cal`` after the session start on ``rec``'s calibration stretch
-    (``session_window.calibration_stretch``): ``recalibrate --input``, then the output gain
-    and offset where the sensor takes one (``recalibrate.session_forms``); a step that
-    cannot be made is skipped, as for a user.
+    """``cal`` after the session start (``recalibrate.session_start``) on ``rec``'s
+    calibration stretch (``session_window.calibration_stretch``); as it is without one.
 
     Args:
         cal: The sensor's calibration.
@@ -54,16 +52,7 @@ def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
     stretch = None if rec.s is None else calibration_stretch(rec.t, rec.s)
     if stretch is None:
         return calibration
-    head = stretch[0] == 0.0
-    for form in session_forms(cal):
-        try:
-            calibration = recalibrate_recordings(
-                calibration, {cal.name: rec}, form=form, first=stretch[1] if head else None,
-                span=None if head else stretch,
-                tare="calibration" if form == "output" else "auto")[0]
-        except StrainCompError:
-            continue
-    return calibration
+    return session_start(calibration, {cal.name: rec}, stretch).calibration
 
 
 def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
