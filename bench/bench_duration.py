@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Replay's and evaluate's cost against the bag's duration: the same messages over a short
-and a long run, baseline tracking on (the default).
+and a long run.
 
     python bench/bench_duration.py [--messages 100000] [--sensors 10] [--short 10]
                                    [--long 10000] [--repeat 3]
@@ -75,13 +75,13 @@ def main() -> None:
             ratio_t = long_["seconds"] / short["seconds"]
             ratio_m = long_["rss_mb"] / short["rss_mb"]
             goal = "goal met" if ratio_t <= 1.5 and ratio_m <= 1.2 else "goal missed"
-            print(f"{c:>9} of {args.messages:,} messages on {args.sensors} sensors, tracking "
-                  f"on: over {args.short:g} s {short['seconds']:.2f} s, {short['rss_mb']:.0f} "
+            print(f"{c:>9} of {args.messages:,} messages on {args.sensors} sensors: "
+                  f"over {args.short:g} s {short['seconds']:.2f} s, {short['rss_mb']:.0f} "
                   f"MB; over {args.long:g} s {long_['seconds']:.2f} s, "
                   f"{long_['rss_mb']:.0f} MB; long/short time {ratio_t:.2f}x, memory "
                   f"{ratio_m:.2f}x   {goal} (<= 1.5x, <= 1.2x)")
-            row(f"{c} of {args.messages:,} messages over {args.long:g} s vs {args.short:g} s, "
-                "tracking on (`bench_duration.py`)",
+            row(f"{c} of {args.messages:,} messages over {args.long:g} s vs {args.short:g} s "
+                "(`bench_duration.py`)",
                 f"{long_['seconds']:.2f} s, {long_['rss_mb']:.0f} MB",
                 f"{short['seconds']:.2f} s, {short['rss_mb']:.0f} MB",
                 f"{ratio_t:.2f}x time, {ratio_m:.2f}x memory", memory_mb=long_["rss_mb"])

@@ -75,8 +75,8 @@ TARGETS = {("nylon", "loro", "warmup", "median"): 5.0, ("nylon", "loro", "warmup
 """Absolute RMSE targets [% strain]: (sensor, scheme, workflow, statistic) -> at most."""
 REFERENCE_SECONDS = 60.0
 """Spacing of the known strains of the ``refs_60`` workflow."""
-ENGINE = {"out_of_range": "extend", "tracking": "on"}
-"""Engine options of every evaluation (``--out-of-range``, ``--baseline-tracking``)."""
+ENGINE = {"out_of_range": "extend"}
+"""Engine options of every evaluation (``--out-of-range``)."""
 LOOP = {"stretch_history": False, "session_start": True, "validate": 3}
 """Options of the loop workflow's ``diagnose`` and how many other runs it validates on."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
@@ -243,7 +243,6 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration",
 
     result = evaluate_recordings({rec.name: rec}, cal, tare=tare,
                                  out_of_range=ENGINE["out_of_range"],
-                                 tracking=ENGINE["tracking"],
                                  references_every=references_every)
     return float(result.sensors[rec.name].stats.rmse)
 
@@ -622,8 +621,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="worker processes, one sensor and model each (default 1)")
     parser.add_argument("--out-of-range", choices=("clamp", "extrapolate", "extend"),
                         default="extend", help="evaluate's --out-of-range")
-    parser.add_argument("--baseline-tracking", choices=("off", "on"), default="on",
-                        help="evaluate's --baseline-tracking")
     parser.add_argument("--json", type=Path, help="write the results here "
                         "(default OUT/generalisation.json)")
     parser.add_argument("--figures", type=Path, metavar="DIR", help="write the PNG here")
@@ -634,7 +631,7 @@ def main(argv: list[str] | None = None) -> int:
     from strain_comp.progress import bar, wanted
 
     start = time.perf_counter()
-    ENGINE.update(out_of_range=args.out_of_range, tracking=args.baseline_tracking)
+    ENGINE.update(out_of_range=args.out_of_range)
     LOOP.update(stretch_history=args.loop_stretch_history == "on",
                 session_start=args.loop_session_start == "on", validate=args.loop_validate)
     available = sensors_of(args.data)
@@ -665,7 +662,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(targets(cases)))
     print(f"\n{len(cases)} cases in {seconds:.0f} s ({bench.fit_seconds:.0f} s of fitting; "
           "2 cores, timings vary by machine)")
-    meta = {"out_of_range": args.out_of_range, "baseline_tracking": args.baseline_tracking,
+    meta = {"out_of_range": args.out_of_range,
             "models": args.models, "sensors": names, "schemes": schemes,
             "quick": args.quick, "loop": args.loop, "loop_options": dict(LOOP),
             "jobs": args.jobs,

@@ -3,7 +3,7 @@
 
     python scripts/policy_ablation.py --out out/generalisation
 
-For every field of ``RangePolicy``, ``TrackingPolicy``, ``TarePolicy``, ``FusionPolicy`` and
+For every field of ``RangePolicy``, ``TarePolicy``, ``FusionPolicy`` and
 ``SpanPolicy`` (docs/policies.md), the generalisation benchmark's leave-one-run-out scheme
 (``scripts/generalisation.py``: fits pooled over the other runs, then the session start and
 the evaluation as a user makes them) is rerun with that field set to its neutral value (the
@@ -21,7 +21,7 @@ ablation changes how a calibration is used, not how it was fitted.
 
 Each row gives, per sensor, the change of the median RMSE (each sensor's unit: fibre mm,
 else % strain) of the workflow the field acts in: ``warmup`` (the README's session start)
-for the range, tracking and span policies, ``as_is`` (``evaluate --tare auto``) for the
+for the range and span policies, ``as_is`` (``evaluate --tare auto``) for the
 tare, ``refs_60`` (a known strain every 60 s) for the fusion; and the largest relative
 change of any case in any workflow. The benchmark is deterministic: a change is *beyond
 noise* when a sensor's median moves by more than ``NOISE_MEDIAN`` of itself or a case by
@@ -53,12 +53,11 @@ sys.path.insert(0, str(REPO / "scripts"))
 import generalisation as gen  # noqa: E402  (the benchmark's machinery, one file beside)
 
 POLICIES = {"range": ("strain_comp.core.range_policy", "RANGE"),
-            "tracking": ("strain_comp.core.tracking", "TRACKING"),
             "tare": ("strain_comp.core.tare", "TARE"),
             "fusion": ("strain_comp.core.fusion", "FUSION"),
             "span": ("strain_comp.offline.span_policy", "SPAN")}
 """Policy -> (module, name of its default instance)."""
-WORKFLOW = {"range": "warmup", "tracking": "warmup", "tare": "as_is", "fusion": "refs_60",
+WORKFLOW = {"range": "warmup", "tare": "as_is", "fusion": "refs_60",
             "span": "warmup", "mode": "warmup"}
 """The workflow whose median each policy's rows report."""
 NOISE_MEDIAN = 0.01
@@ -66,7 +65,6 @@ NOISE_MEDIAN = 0.01
 NOISE_CASE = 0.03
 """A case's RMSE moving by more than this share of itself is beyond noise."""
 GUARD_TESTS = {"range": ("test_out_of_range.py", "test_reliability.py", "test_engine.py"),
-               "tracking": ("test_tracking.py", "test_paused_clock.py"),
                "tare": ("test_tare.py",),
                "fusion": ("test_fusion.py",),
                "span": ("test_recalibrate_checks.py", "test_recalibrate_memory.py",
@@ -89,7 +87,6 @@ class Ablation:
 
 ABLATIONS = (
     Ablation("mode", "out_of_range", "clamp", "no extension beyond the valid range"),
-    Ablation("mode", "baseline_tracking", "off", "no baseline tracking"),
     Ablation("range", "open_factor", INF, "no open-circuit flag"),
     Ablation("range", "short_factor", 0.0, "no short-circuit flag"),
     Ablation("range", "margin", 0.0, "flag and clamp at the fitted range's edge"),
@@ -97,10 +94,6 @@ ABLATIONS = (
     Ablation("range", "extend_monotone", INF, "a branch that peaked is extended too"),
     Ablation("range", "extend_reach", INF, "extension without reach"),
     Ablation("range", "settle_steps", 50, "a 4x coarser, faster ramp"),
-    Ablation("tracking", "chunk_seconds", 5.0, "5x longer stretches"),
-    Ablation("tracking", "band", INF, "any estimate on the rest side is rest"),
-    Ablation("tracking", "rate", INF, "no rate bound"),
-    Ablation("tracking", "settle_rate", INF, "tracked while still relaxing"),
     Ablation("tare", "window", INF, "the whole leading rest"),
     Ablation("tare", "min_rest_samples", 1, "one sample is a rest"),
     Ablation("tare", "min_rest_seconds", 0.0, "no rest duration needed"),
@@ -132,7 +125,7 @@ def installed(policy: str, field: str, value: Any) -> Iterator[None]:
     default restored after; ``mode``: the benchmark's engine option."""
     if policy == "mode":
         old_engine = dict(gen.ENGINE)
-        gen.ENGINE.update({"out_of_range" if field == "out_of_range" else "tracking": value})
+        gen.ENGINE.update({field: value})
         try:
             yield
         finally:
@@ -258,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS))
     parser.add_argument("--runs", type=int, default=3, help="test runs per sensor (first N)")
     parser.add_argument("--only", nargs="+", metavar="POLICY[.FIELD]",
-                        help="only these rows (e.g. range tracking.rate)")
+                        help="only these rows (e.g. range tare.window)")
     parser.add_argument("--guards", action="store_true",
                         help="for a row within noise, the first test of the policy's faults "
                              "that fails with the field neutral (GUARD_TESTS)")

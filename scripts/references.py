@@ -12,7 +12,7 @@ every other run B of the same sensor after the session start on B's first cycle
 first load and unload: ``strain_comp.offline.session_window.first_cycle``; ``--session-cycle
 2``: on B's second cycle, the first one an unreferenced warm-up), then scored
 on all of B (``strain-comp evaluate``) without references and with B's own reference every
-N seconds fused (``--references-every N``), with baseline tracking on and off. Prints a
+N seconds fused (``--references-every N``). Prints a
 Markdown table of the median and worst RMSE per sensor, model and workflow (errors in the
 sensor's unit) and writes ``OUT/references.json``; ``--variants`` adds a table of other
 fusion settings (the offset alone, a tighter gain prior, slower random walks) and of the
@@ -179,19 +179,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                     row: dict[str, Any] = {"sensor": sensor, "model": model, "test": test,
                                            "train": train if args.protocol == "pairs" else
                                            "all others"}
-                    for tracking in ("on", "off"):
-                        for every in [None, *spacings]:
-                            ev = evaluate_recordings({name: rec}, cal, tracking=tracking,
-                                                     references_every=every).sensors[name]
-                            key = f"{'none' if every is None else f'{every:g}s'}_{tracking}"
-                            row[key] = float(ev.stats.rmse)
-                            if tracking == "on" and every is None and ev.tracking is not None:
-                                row["tracked_s"] = ev.tracking["seconds"]
-                            if every is not None and ev.references is not None:
-                                row[key + "_used"] = ev.references["n_used"]
-                                row[key + "_refused"] = ev.references["n_refused"]
+                    for every in [None, *spacings]:
+                        ev = evaluate_recordings({name: rec}, cal,
+                                                 references_every=every).sensors[name]
+                        key = "none" if every is None else f"{every:g}s"
+                        row[key] = float(ev.stats.rmse)
+                        if every is not None and ev.references is not None:
+                            row[key + "_used"] = ev.references["n_used"]
+                            row[key + "_refused"] = ev.references["n_refused"]
                     if args.variants:
-                        from strain_comp.core.tracking import fitted_rest
+                        from strain_comp.core.range_policy import fitted_rest
 
                         ev = evaluate_recordings({name: rec}, cal).sensors[name]
                         span = fitted_rest(cal.sensors[name].valid_range)[1]
@@ -200,10 +197,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     print(f"## {sensor} {model} {train} -> {test}: " + ", ".join(
                         f"{k} {v:.2f}" for k, v in row.items()
                         if isinstance(v, float)), file=sys.stderr)
-    keys = [f"{'none' if e is None else f'{e:g}s'}_{tr}" for tr in ("on", "off")
-            for e in [None, *spacings]]
+    keys = ["none" if e is None else f"{e:g}s" for e in [None, *spacings]]
     print("| sensor | model | pairs | " + " | ".join(
-        f"{k.replace('_', ', tracking ')} median / worst" for k in keys) + " |")
+        f"{k} median / worst" for k in keys) + " |")
     print("|---|---|---|" + "---|" * len(keys))
     for sensor in dict.fromkeys(r["sensor"] for r in rows):
         for model in dict.fromkeys(r["model"] for r in rows if r["sensor"] == sensor):
@@ -226,8 +222,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                     + " |")
     refused = sum(r.get(k + "_refused", 0) for r in rows for k in keys)
     used = sum(r.get(k + "_used", 0) for r in rows for k in keys)
-    tracked = sum(r.get("tracked_s", 0.0) > 0 for r in rows)
-    print(f"\nbaseline tracking acted on {tracked} of {len(rows)} runs (no references)")
     print(f"references used {used}, refused {refused}; "
           f"{time.perf_counter() - start:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)

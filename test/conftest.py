@@ -231,50 +231,7 @@ def make_calibration() -> Calibration:
     return Calibration(sensors)
 
 
-# ------------------------------------------------------ drifting rests and changed gains
-
-TRACK_R0 = 1000.0
-"""Rest resistance of the baseline-tracking gauge [ohm]."""
-
-
-def tracking_gauge(s: np.ndarray) -> np.ndarray:
-    """R of the baseline-tracking gauge at strain ``s`` (%): a mild quadratic."""
-    return TRACK_R0 * (1.0 + 0.02 * s + 2e-4 * s ** 2)
-
-
-def staircase(t: np.ndarray) -> np.ndarray:
-    """Rest 10 s, then 20 s cycles: 3 s ramp to a level, 7 s hold there, 3 s back, 7 s rest."""
-    phase = np.clip(t - 10.0, 0.0, None) % 20.0
-    level = 5.0 + 5.0 * (np.clip(t - 10.0, 0.0, None) // 20.0 % 3)
-    up = np.clip(phase / 3.0, 0.0, 1.0) - np.clip((phase - 10.0) / 3.0, 0.0, 1.0)
-    return np.where(t < 10.0, 0.0, level * up)
-
-
-def tracked_step_by_step(cal: Calibration, t: np.ndarray, r: np.ndarray
-                         ) -> tuple[np.ndarray, Engine]:
-    """Sensor s1's strain as the node makes it: ``Engine.step`` per sample with baseline
-    tracking (``advance`` before the sample, ``observe`` after); and the engine."""
-    from strain_comp.core.tracking import BaselineTracker
-
-    engine = Engine(cal)
-    tracker = BaselineTracker(engine)
-    stepped = []
-    for ti, ri in zip(t, r, strict=True):
-        tracker.advance("s1", float(ti))
-        out = engine.step("s1", float(ti), float(ri))
-        tracker.observe("s1", float(ti), out)
-        stepped.append(out.strain)
-    return np.array(stepped), engine
-
-
-@functools.cache
-def staircase_calibration() -> Calibration:
-    """A cubic fitted on 70 s of ``staircase`` through ``tracking_gauge``."""
-    t = np.arange(0.0, 70.0, 0.1)
-    s = staircase(t)
-    return Calibration({"s1": fit_sensor([Recording("s1", t, tracking_gauge(s), s)], "cubic",
-                                         name="s1")})
-
+# ------------------------------------------------------ changed gains
 
 CHANGED_SENSITIVITY = 0.8
 """Share of the strain ``changed_run``'s resistance follows: its calibration (``line_calibration``)
@@ -425,9 +382,6 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
         "test_a_bag_named_dots_gets_its_plots_inside_plots",
         "test_a_table_that_cannot_be_written_fails_the_command_and_keeps_the_old_one",
         "test_sigterm_ends_every_worker_and_removes_the_temporaries",
-    ),
-    "test_paused_clock": (
-        "test_the_tracker_holds_constant_state_when_time_stands_still_or_runs_back",
     ),
     "test_rational": (
         "test_split_beats_combined_on_hysteresis",

@@ -12,9 +12,8 @@ import numpy.typing as npt
 
 from strain_comp.api.inputs import CalibrationLike, PathLike, as_calibration, paths_of
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.engine import Engine
+from strain_comp.core.engine import Engine, tracking_off
 from strain_comp.core.tare import tare_engine
-from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.replay import replay_bag
@@ -34,7 +33,7 @@ class Estimate(NamedTuple):
 def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *,
              sensor: str | None = None, temperature: npt.ArrayLike | None = None,
              tare: str = "calibration", out_of_range: str = "extend",
-             tracking: str = DEFAULT_TRACKING) -> Estimate:
+             tracking: str = "off") -> Estimate:
     """Strain and direction of one sensor's samples, by the engine the node and ``replay``
     run: the same numbers.
 
@@ -47,7 +46,7 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
             term.
         tare: As the commands' ``--tare``: ``calibration`` or ``auto`` (the run's start).
         out_of_range: As ``--out-of-range``: ``extend``, ``clamp`` or ``extrapolate``.
-        tracking: As ``--baseline-tracking``.
+        tracking: As ``--baseline-tracking``: ``off``, the only value left.
 
     Returns:
         Strain in the calibration's unit and direction (+1, 0, -1) per sample.
@@ -55,19 +54,19 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
     Raises:
         InputError: The sensor is not in the calibration (or not named when it has
             several), the arrays are not 1-D numbers of one length, an unknown ``tare``
-            or ``tracking``, or the run cannot be tared.
+            or a ``tracking`` but ``off``, or the run cannot be tared.
         CalibrationError: The calibration file cannot be read.
         ParameterError: ``out_of_range`` is not a known policy.
 
     """
 
+    tracking_off(tracking)
     cal = as_calibration(calibration)
     name = _sensor_name(cal, sensor)
     rec = Recording.from_arrays(t, r, name=name, temperature=temperature)
     engine = Engine(cal, out_of_range=out_of_range)
     tare_engine(engine, {name: (rec.t, rec.r)}, tare)
-    runner = tracker_for(engine, tracking) or engine
-    out = runner.run(name, rec.t, rec.r, rec.temperature)
+    out = engine.run(name, rec.t, rec.r, rec.temperature)
     return Estimate(np.asarray(out.strain, dtype=np.float64),
                     np.asarray(out.direction, dtype=np.int8))
 
@@ -85,7 +84,7 @@ def _sensor_name(calibration: Calibration, sensor: str | None) -> str:
 
 
 def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
-           tare: str = "calibration", tracking: str = DEFAULT_TRACKING,
+           tare: str = "calibration", tracking: str = "off",
            references_every: float | None = None,
            csv: PathLike | None = None, inputs: Sequence[PathLike] = ()) -> ReplaySummary:
     """``strain-comp replay``: a new MCAP bag with every message of ``bag`` and the node's
@@ -96,7 +95,7 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
         bag: The input bag (MCAP file, rosbag2 directory or ``.db3``).
         out: The output MCAP file, written atomically.
         tare: As ``--tare``.
-        tracking: As ``--baseline-tracking``.
+        tracking: As ``--baseline-tracking``: ``off``, the only value left.
         references_every: As in ``evaluate`` [s]; None fuses no reference.
         csv: Also write the series there as a table.
         inputs: Files the outputs must not overwrite.
@@ -112,9 +111,10 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
 
     """
 
+    tracking_off(tracking)
     cal = as_calibration(calibration)
     paths = paths_of(bag)
     assert paths is not None
     return replay_bag(paths[0], cal, out, inputs=list(inputs), tare=tare,
-                      csv=None if csv is None else os.fspath(csv), tracking=tracking,
+                      csv=None if csv is None else os.fspath(csv),
                       references_every=references_every)

@@ -18,7 +18,7 @@ from strain_comp.api.inputs import (
     read_recordings,
 )
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.tracking import DEFAULT_TRACKING
+from strain_comp.core.engine import tracking_off
 from strain_comp.errors import InputError
 from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import format_notes, format_table
@@ -121,7 +121,7 @@ class Evaluation:
 
 
 def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibration",
-             out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
+             out_of_range: str = "extend", tracking: str = "off",
              in_run_bound: bool = False, plot_points: int = 0,
              references_every: float | None = None,
              csv: PathLike | None = None, inputs: Sequence[PathLike] = ()) -> Evaluation:
@@ -133,7 +133,7 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
             dict of them.
         tare: As ``--tare``.
         out_of_range: As ``--out-of-range``.
-        tracking: As ``--baseline-tracking``.
+        tracking: As ``--baseline-tracking``: ``off``, the only value left.
         in_run_bound: Also the RMSE of the same model fitted on this run.
         plot_points: Keep that many evenly spaced samples per sensor in ``result`` for
             plots and ``to_html`` (a bag; recordings keep all).
@@ -148,13 +148,14 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
 
     Raises:
         InputError: No calibrated sensor can be scored, several bags, ``csv`` with
-            recordings, or a path that cannot be read.
+            recordings, a path that cannot be read, or a ``tracking`` but ``off``.
         CalibrationError: The calibration file cannot be read.
         BagError: The bag cannot be read.
         OutputError: ``csv`` would overwrite an input or cannot be written.
 
     """
 
+    tracking_off(tracking)
     cal = as_calibration(calibration)
     paths = paths_of(data)
     if paths is not None and len(paths) == 1:
@@ -162,7 +163,6 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
                         inputs=[*paths, *(os.fspath(i) for i in inputs)]) as table:
             result, problems = evaluate_bag(paths[0], cal, tare=tare, plot_points=plot_points,
                                             series=table, out_of_range=out_of_range,
-                                            tracking=tracking,
                                             references_every=references_every)
         if in_run_bound:
             _in_run_bound(result, read_recordings(paths[0]), cal)
@@ -175,7 +175,7 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
                          "series as arrays")
     recordings = as_recordings(data)
     result = evaluate_recordings(recordings, cal, tare=tare, out_of_range=out_of_range,
-                                 tracking=tracking, references_every=references_every)
+                                 references_every=references_every)
     if in_run_bound:
         _in_run_bound(result, recordings, cal)
     return Evaluation(result, [], cal, "recordings", tare)

@@ -195,16 +195,11 @@ def require_ros(command: str) -> None:
 
 
 def tracking_flag(p: argparse.ArgumentParser) -> None:
-    """Add ``--baseline-tracking off|on``.
-
-    Args:
-        p: The command's parser.
-
-    """
-    p.add_argument("--baseline-tracking", choices=("off", "on"), default="on",
-                   help="let the rest level follow slowly while the sensor rests "
-                   "(zero-tracking after OIML R76: at hold, near rest, bounded rate; on "
-                   "by default, see docs/generalisation.md)")
+    """Add ``--baseline-tracking off``, kept for scripts: ``on`` is refused."""
+    p.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
+                   help="off (the only behaviour): the rest level is the calibration's or "
+                   "the tare's; baseline tracking was removed, on is refused "
+                   "(docs/policies.md)")
 
 
 def references_flag(p: argparse.ArgumentParser) -> None:

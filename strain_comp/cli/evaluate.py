@@ -87,10 +87,12 @@ def run(args: argparse.Namespace) -> int:
             written.
 
     """
+    from strain_comp.core.engine import tracking_off
     from strain_comp.core.fusion import check_every
     from strain_comp.offline.batch import check_jobs, expand_bags
 
     check_jobs(args.jobs)  # before any bag is read
+    tracking_off(args.baseline_tracking)
     if args.references_every is not None:
         check_every(args.references_every)
     for path in args.bags:
@@ -162,7 +164,6 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str])
                                  in_run=args.in_run_bound, plots=args.plots, series=table,
                                  progress=lambda done, total, bag: shown.update(1),
                                  out_of_range=args.out_of_range,
-                                 tracking=args.baseline_tracking,
                                  references_every=args.references_every,
                                  figures=bool(args.report))
         if args.json:  # the table is committed only once the JSON is written too

@@ -11,7 +11,6 @@ tick by tick.
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -32,6 +31,15 @@ from strain_comp.errors import InputError, ParameterError
 GAP_RESET = sc.DEFAULT_GAP_RESET
 """Default ``gap_reset`` [s]: a longer jump between good samples resets the state."""
 
+
+
+def tracking_off(mode: str) -> None:
+    """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/policies.md),
+    ``off`` is the behaviour that remains (the rest level is the calibration's or the
+    tare's)."""
+    if mode != "off":
+        raise InputError(f"--baseline-tracking {mode}: baseline tracking was removed (it "
+                         "never acted on the generalisation benchmark); only off remains")
 
 class Engine:
     """Calibrated strain, direction and health for every sensor of a calibration."""
@@ -190,62 +198,6 @@ class Engine:
         for group in self._arrays.values():
             if sensor in group.names and group.fused:
                 group.set_gain(group.names.index(sensor), float(gain))
-
-    def track_baseline(self, sensor: str, gain: float, seconds: float) -> None:
-        """``set_input_gain`` by baseline tracking after ``seconds`` at rest: counted in the
-        sensor's health (``baseline_tracked_s``, ``baseline_correction``).
-
-        Args:
-            sensor: The sensor's name.
-            gain: The new gain on the measured resistance.
-            seconds: The rest it was found over [s].
-
-        Raises:
-            InputError: An unknown sensor.
-            ParameterError: ``gain`` is not finite and > 0.
-
-        """
-        s = self._sensor(sensor)
-        factor = gain / s.gain
-        self.set_input_gain(sensor, gain)
-        s.health.baseline_tracked_s += seconds
-        s.health.baseline_correction = (1.0 + s.health.baseline_correction) * factor - 1.0
-
-    def save_state(self, sensor: str) -> SensorState:
-        """A copy of everything ``sensor`` carries from one sample to the next (model,
-        detector, effect terms, input corrector, held output, tare gain, counters), for
-        ``restore_state``; the calibration and limits are shared (never changed).
-
-        Args:
-            sensor: The sensor's name.
-
-        Returns:
-            The copy.
-
-        Raises:
-            InputError: An unknown sensor.
-
-        """
-        s = self._sensor(sensor)
-        return copy.deepcopy(s, {id(s.cal): s.cal, id(s.limits): s.limits})
-
-    def restore_state(self, sensor: str, state: SensorState) -> None:
-        """Continue ``sensor`` exactly from ``state`` (a ``save_state``, used once): the
-        samples run since are forgotten, counters included.
-
-        Args:
-            sensor: The sensor's name.
-            state: The saved state.
-
-        Raises:
-            InputError: An unknown sensor.
-
-        """
-        self._sensor(sensor)
-        self._sensors[sensor] = state
-        for group in self._arrays.values():
-            if sensor in group.names and group.fused:
-                group.set_gain(group.names.index(sensor), state.gain)
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Change the dead-zone scale (a node tunable); the detectors restart from rest.

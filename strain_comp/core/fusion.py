@@ -54,8 +54,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.samples import used_mask
-from strain_comp.core.tracking import fitted_rest
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:

@@ -36,11 +36,6 @@ class SensorHealth:
     last_good_t: float | None = None
     last_status: Status | None = None
     stale: bool = False
-    baseline_tracked_s: float = 0.0
-    """Seconds at rest over which baseline tracking moved the zero
-    (``strain_comp.core.tracking``)."""
-    baseline_correction: float = 0.0
-    """Its total change of the tare gain (share: +0.02 is 2 % more gain)."""
 
     def count(self, status: Status, n: int = 1) -> None:
         """Add ``n`` samples of ``status`` to the counters (``STATUS_RULES``)."""
@@ -80,9 +75,6 @@ class SensorHealth:
                                      if f.name.startswith("n_")}
         values["last_good_t"] = "none" if self.last_good_t is None else repr(self.last_good_t)
         values["last_status"] = "none" if last is None else last.name
-        if self.baseline_tracked_s > 0:
-            values["baseline_tracked_s"] = f"{self.baseline_tracked_s:.6g}"
-            values["baseline_correction"] = f"{self.baseline_correction:.6g}"
         return level, message, {k: str(v) for k, v in values.items()}
 
 
@@ -154,9 +146,6 @@ class HealthTicks:
         values = [(name, self.counters[:, j]) for j, name in enumerate(COUNTERS)]
         good_t = times_text(self.last_good_t) if good_t is None else good_t
         values += [("last_good_t", good_t), ("last_status", _LAST_STATUS[self.last_status + 1])]
-        extra = self.before.to_diagnostic()[2]  # the tracked baseline: constant over the ticks
-        values += [(key, np.full(self.stale.size, extra[key].encode()))
-                   for key in ("baseline_tracked_s", "baseline_correction") if key in extra]
         return LEVELS[state], MESSAGES[state], values
 
 

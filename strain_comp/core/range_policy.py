@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from strain_comp.core.calibration import SensorCalibration
+from strain_comp.core.calibration import SensorCalibration, ValidRange
 from strain_comp.core.stages import RANGE_COLUMNS, bound_all, saturate_all
 from strain_comp.models.base import Compensator
 
@@ -43,7 +43,7 @@ class RangePolicy:
     margin: float = 0.05
     """Share of the valid range's span added on each side before flagging / clamping
     [share of the span]; the fit widens its training range by the same share
-    (``offline/fit.py``), which ``tracking.fitted_rest`` undoes."""
+    (``offline/fit.py``), which ``fitted_rest`` undoes."""
     extend_slope: tuple[float, float] = (0.5, 2.0)
     """``extend``: the end slope is kept within these multiples of the secant slope
     [multiples of the secant]."""
@@ -61,6 +61,13 @@ class RangePolicy:
 
 RANGE = RangePolicy()
 """The policy every engine uses unless given another."""
+
+
+def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
+    """(rest strain, strain span) the calibration was fitted over: its valid strain range
+    less the ``RangePolicy.margin`` the fit adds on each side."""
+    span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE.margin)
+    return valid_range.s_lo + RANGE.margin * span, span
 
 
 @dataclass(frozen=True)

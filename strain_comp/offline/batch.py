@@ -32,7 +32,6 @@ from typing import Any
 from strain_comp.core.calibration import strain_unit_words
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.metrics import ErrorAccumulator
-from strain_comp.core.tracking import DEFAULT_TRACKING
 from strain_comp.errors import (
     InputError,
     OutputError,
@@ -104,7 +103,6 @@ class BagOutcome:
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
                   inputs: Sequence[str], out_of_range: str = "extend",
-                  tracking: str = DEFAULT_TRACKING,
                   references_every: float | None = None, figures: bool = False) -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
     ``series_to``: the open CSV (serial) or the path of a temporary part (a pool worker;
@@ -115,7 +113,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
         calibration = load_calibration(calibration_path)
         result, problems = evaluate_bag(bag, calibration, tare=tare, plot_points=plot_points,
                                         series=table, out_of_range=out_of_range,
-                                        tracking=tracking, references_every=references_every)
+                                        references_every=references_every)
         if in_run:
             in_run_bound(result, load_recordings(bag)[0], calibration)
         outcome = BagOutcome(bag, result, problems)
@@ -248,7 +246,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   jobs: int = 1, plot_points: int = 0, in_run: bool = False,
                   plots: str | None = None, series: SeriesCSV | None = None,
                   progress: Callable[[int, int, str], None] | None = None,
-                  out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
+                  out_of_range: str = "extend",
                   references_every: float | None = None,
                   figures: bool = False) -> list[BagOutcome]:
     """Every bag evaluated (module docstring), in the order given.
@@ -264,7 +262,6 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         series: Every sample's row goes there (``evaluate --csv``).
         progress: Called as ``progress(done, total, bag)`` after each bag.
         out_of_range: As ``--out-of-range``.
-        tracking: As ``--baseline-tracking``.
         references_every: As ``--references-every`` [s].
         figures: Keep each bag's plots as PNG bytes (``evaluate --report``).
 
@@ -283,7 +280,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
                                           dirs[k], series, inputs, out_of_range,
-                                          tracking, references_every, figures))
+                                          references_every, figures))
             if progress is not None:
                 progress(k + 1, len(bags), bag)
         return outcomes
@@ -295,7 +292,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
         try:
             futures = [pool.submit(_evaluate_in_worker, bag, calibration_path, tare,
                                    plot_points, in_run, dirs[k], parts[k], inputs, out_of_range,
-                                   tracking, references_every, figures)
+                                   references_every, figures)
                        for k, bag in enumerate(bags)]
             for k, future in enumerate(futures):  # in order: the CSV keeps the bags' order
                 try:

@@ -40,7 +40,6 @@ from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import tare_engine
-from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import InputError
 from strain_comp.io.bag import iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -55,7 +54,6 @@ from strain_comp.offline.evaluation import (
     nothing_scored,
     references_needed,
     temperature_missing,
-    tracked,
 )
 
 if TYPE_CHECKING:
@@ -67,7 +65,6 @@ PLOT_POINTS = 50_000
 
 def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         tare: str = "calibration", out_of_range: str = "extend",
-                        tracking: str = DEFAULT_TRACKING,
                         references_every: float | None = None) -> EvaluationResult:
     """Score every calibrated sensor that has a recording with a reference strain.
 
@@ -77,8 +74,6 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         tare: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
             tare read goes to the notes).
         out_of_range: The engine's ``OUT_OF_RANGE_MODES``.
-        tracking: ``on`` runs each sensor not in an array through a
-            ``strain_comp.core.tracking.BaselineTracker``.
         references_every: The recording's own reference every that many seconds fused into
             the output gain and offset (``strain_comp.core.fusion.SparseFusion``: causal,
             scored on every sample as before).
@@ -99,7 +94,6 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     engine = Engine(calibration, out_of_range=out_of_range)
     tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
     outputs = _array_outputs(engine, recordings, calibration)
-    tracker = tracker_for(engine, tracking)
     sensors: dict[str, SensorEvaluation] = {}
     notes: list[str] = [f"{name}: {line}" for name, line in tared.items()]
     for name, cal in calibration.sensors.items():
@@ -113,7 +107,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         t = np.asarray(rec.t, dtype=np.float64)
         r = np.asarray(rec.r, dtype=np.float64)
         s = np.asarray(rec.s, dtype=np.float64)
-        out = outputs.get(name) or (tracker or engine).run(name, t, r, rec.temperature)
+        out = outputs.get(name) or engine.run(name, t, r, rec.temperature)
         fused = None
         if references_every is not None:
             fused = SparseFusion.for_calibration(cal, references_every)
@@ -131,7 +125,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
             bad_by_status=bad_by_status, unit=cal.strain_unit,
             out_of_range=np.asarray(out.out_of_range, bool), input_unit=input_unit(cal),
-            input_gain=engine.input_gain(name), tracking=tracked(tracker, name),
+            input_gain=engine.input_gain(name),
             references=fusion_state(fused))
         if rec.temperature is None:
             notes += temperature_missing(name, calibration.sensors[name])
@@ -167,7 +161,7 @@ def _array_outputs(engine: Any, recordings: Mapping[str, Recording],
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
                  plot_points: int = 0, series: SeriesCSV | None = None,
-                 out_of_range: str = "extend", tracking: str = DEFAULT_TRACKING,
+                 out_of_range: str = "extend",
                  references_every: float | None = None,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
@@ -184,7 +178,6 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
         series: Every sample's row goes there (``evaluate --csv``; rows of a bag that
             fails are written before the error).
         out_of_range: As in ``evaluate_recordings``.
-        tracking: As in ``evaluate_recordings``.
         references_every: As in ``evaluate_recordings`` [s].
 
     Returns:
@@ -200,7 +193,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
     if references_every is not None:
         check_every(references_every)
     stream = EvaluationStream(calibration, Engine(calibration, out_of_range=out_of_range),
-                              tare, plot_points, series, str(path), tracking,
+                              tare, plot_points, series, str(path),
                               references_every)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)

@@ -21,7 +21,6 @@ from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import tare_engine
-from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.io.bag import BagContents
 from strain_comp.io.recording import (
     REFERENCE,
@@ -38,7 +37,6 @@ from strain_comp.offline.evaluation import (
     input_unit,
     references_needed,
     temperature_missing,
-    tracked,
 )
 
 if TYPE_CHECKING:
@@ -148,7 +146,6 @@ class EvaluationStream:
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int, series: SeriesCSV | None = None, bag: str = "",
-                 tracking: str = DEFAULT_TRACKING,
                  references_every: float | None = None) -> None:
         self.calibration = calibration
         self.references_every = references_every
@@ -156,7 +153,6 @@ class EvaluationStream:
         self.series = series
         self.bag = bag
         self.engine = engine
-        self.tracker = tracker_for(engine, tracking)
         self.tare = tare
         self.plot_points = plot_points
         self.inputs: dict[str, _Input | None] = {}
@@ -300,8 +296,8 @@ class EvaluationStream:
             outs = self.engine.run_array(inp.group, t, r[:, [column[g] for g in inp.group]],
                                          {g: temp for g in inp.group})
         else:
-            run = (self.tracker or self.engine).run  # tracking between stretches if on
-            outs = {name: run(name, t, r[:, j], temp) for j, name in enumerate(inp.names)}
+            outs = {name: self.engine.run(name, t, r[:, j], temp)
+                    for j, name in enumerate(inp.names)}
         for name, fused in self.fused.items():
             if name in outs:
                 outs[name] = fused.fuse(t, outs[name], refs[name])
@@ -330,7 +326,6 @@ class EvaluationStream:
                                                                 cal.strain_unit,
                                                                 input_unit(cal))
                 sensors[name].input_gain = self.engine.input_gain(name)
-                sensors[name].tracking = tracked(self.tracker, name)
                 sensors[name].references = fusion_state(self.fused.get(name))
                 if name not in self.with_temperature:
                     notes += temperature_missing(name, cal)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -19,8 +19,6 @@ from strain_comp.core.fusion import SparseFusion, fusion_note
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats
 from strain_comp.errors import InputError
 
-if TYPE_CHECKING:
-    from strain_comp.core.tracking import BaselineTracker
 
 @dataclass
 class SensorEvaluation:
@@ -53,8 +51,6 @@ class SensorEvaluation:
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
     errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
     """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
-    tracking: dict[str, float] | None = None
-    """What baseline tracking did (``tracked``), when it ran."""
     references: dict[str, Any] | None = None
     """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
 
@@ -66,8 +62,8 @@ class SensorEvaluation:
                       unit=self.unit)
         if self.in_run_rmse is not None:
             record["in_run_rmse"] = _json_number(self.in_run_rmse)
-        if self.tracking is not None:
-            record["baseline_tracking"] = {k: _json_number(v) for k, v in self.tracking.items()}
+        # docs/design.md's key, kept: baseline tracking was removed, so it never acts
+        record["baseline_tracking"] = {"seconds": 0.0, "correction": 0.0}
         if self.references is not None:
             record["references"] = {k: v if isinstance(v, dict) else _json_number(v)
                                     for k, v in self.references.items()}
@@ -137,24 +133,6 @@ def input_unit(cal: SensorCalibration) -> str:
 
     """
     return "V" if cal.input.kind == "divider" else cal.input.unit
-
-
-def tracked(tracker: BaselineTracker | None, name: str) -> dict[str, float] | None:
-    """What tracking did to ``name``.
-
-    Args:
-        tracker: The tracker, or None without tracking.
-        name: The sensor's name.
-
-    Returns:
-        Seconds at rest it moved the zero and total change of the tare gain, or None
-        without tracking.
-
-    """
-    if tracker is None:
-        return None
-    h = tracker.engine.health()[name]
-    return {"seconds": h.baseline_tracked_s, "correction": h.baseline_correction}
 
 
 def crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:

@@ -45,7 +45,7 @@ from strain_comp.core.calibration import (
 )
 from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.effects import RECALIBRATION_TERMS
-from strain_comp.core.tracking import fitted_rest
+from strain_comp.core.range_policy import fitted_rest
 from strain_comp.errors import CalibrationError, InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings

@@ -37,7 +37,6 @@ from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.health import HealthCounter, SensorHealth
 from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.tare import tare_engine
-from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import BagError, InputError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
@@ -112,7 +111,6 @@ class _Replay:
 
     def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
                  period: float, tare: str, series: SeriesCSV | None = None,
-                 tracking: str = DEFAULT_TRACKING,
                  references_every: float | None = None) -> None:
         self.calibration = calibration
         self.references_every = references_every
@@ -124,7 +122,6 @@ class _Replay:
         self.series = series
         self.pending: dict[str, PendingSeries] = {}
         self.tare = tare
-        self.tracker = tracker_for(engine, tracking)
         self.writer = writer
         self.out = StagedWrites()
         """The piece's outputs, written with its /diagnostics slice by slice (``piece``)."""
@@ -291,7 +288,7 @@ class _Replay:
                     self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
         else:
-            out = (self.tracker or self.engine).run(inp.name, t, values, temps[inp.name])
+            out = self.engine.run(inp.name, t, values, temps[inp.name])
             out = self._fused(inp, t, {inp.name: out})[inp.name]
             self.out.write_float64(f"/{inp.name}/strain", t, out.strain)
             self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
@@ -356,7 +353,6 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                window: int = WINDOW, tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
-               tracking: str = DEFAULT_TRACKING,
                references_every: float | None = None) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
@@ -377,8 +373,6 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
         inputs: Further input files no output may overwrite (e.g. the calibration file).
         csv: Also write the series (``strain_comp.offline.series``) there, atomically, or
             to stdout for ``-``; None: no series.
-        tracking: ``on`` lets the rest level of each single sensor follow
-            (``strain_comp.core.tracking``; reported in /diagnostics).
         references_every: Fuse the bag's own ``/NAME/strain_reference`` every that many
             seconds [s] into each sensor's output gain and offset
             (``strain_comp.core.fusion``, the reference at a sample being the latest at or
@@ -403,7 +397,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     with series_csv(csv, inputs=[in_path, *inputs, out_path]) as table, \
             BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
         state = _Replay(calibration, writer, engine, diagnostics_period, tare, table,
-                        tracking, references_every)
+                        references_every)
         for contents in iter_bag(in_path, window=window):
             state.piece(contents)
         inputs = [i for i in state.inputs.values() if i is not None]

@@ -32,9 +32,9 @@ from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, SensorOutput
+from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.samples import USED, Status, used_mask
 from strain_comp.core.tare import rest_level
-from strain_comp.core.tracking import fitted_rest, tracker_for
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.io.multiarray import array_values
 from strain_comp.ros.live_tare import TARE_WINDOW_S, LiveTare
@@ -84,7 +84,6 @@ class LiveCompensator:
         self.taring = LiveTare(self.engine, params)
         """The zero: ``~/tare`` and ``tare: auto`` (its log: the tares taken)."""
         self._last_message: dict[str, float] = {}
-        self.tracker = tracker_for(self.engine, params.baseline_tracking)
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self.faults: Counter[str] = Counter()
@@ -138,11 +137,7 @@ class LiveCompensator:
                 strain for (not published).
 
         """
-        if self.tracker is not None:
-            self.tracker.advance(name, t)
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
-        if self.tracker is not None:
-            self.tracker.observe(name, t, out)
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
         if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN

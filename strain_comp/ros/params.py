@@ -44,7 +44,6 @@ import yaml
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import GAP_RESET
-from strain_comp.core.tracking import DEFAULT_TRACKING, TRACKING_MODES
 from strain_comp.errors import InputError, ParameterError
 
 PACKAGE = "strain_comp"
@@ -113,11 +112,9 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
              ParamSpec("executor", "string", "events", None,
                        "events: rclpy's EventsExecutor (about 3x less CPU per message); "
                        "single_threaded: rclpy's SingleThreadedExecutor.", True),
-             ParamSpec("baseline_tracking", "string", DEFAULT_TRACKING, None,
-                       "on (default) or off: the rest level of each single sensor follows "
-                       "slowly where it fell while the sensor rests (zero-tracking after OIML "
-                       "R76; shown in /diagnostics).",
-                       True),
+             ParamSpec("baseline_tracking", "string", "off", None,
+                       "off, the only value: the rest level is the calibration's or the "
+                       "tare's (baseline tracking was removed; on is refused).", True),
              ParamSpec("fuse_references", "bool", False, None,
                        "false (default) or true: known strains on NAME/strain_reference (an "
                        "array: ARRAY/strain_reference, NaN for none) and ~/reference "
@@ -185,8 +182,6 @@ class NodeParams:
     tunables: dict[str, float] = field(default_factory=dict)
     tare: str = "calibration"
     executor: str = "events"
-    baseline_tracking: str = DEFAULT_TRACKING
-    """``off`` or ``on``: the rest level follows at rest (``strain_comp.core.tracking``)."""
     fuse_references: bool = False
     """Known strains fused into the output (``strain_comp.core.fusion``)."""
 
@@ -344,7 +339,9 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
             raise ParameterError(key, unknown_hint(key, known, sensors + arrays))
     tare = _choice(flat, "tare", "calibration", TARE_MODES)
     executor = _choice(flat, "executor", "events", EXECUTORS)
-    tracking = _choice(flat, "baseline_tracking", DEFAULT_TRACKING, TRACKING_MODES)
+    if _string(flat, "baseline_tracking", "off") != "off":
+        raise ParameterError("baseline_tracking", "baseline tracking was removed; only off "
+                             "remains")
     fuse = flat.get("fuse_references", False)
     if not isinstance(fuse, bool):
         raise ParameterError("fuse_references", f"must be true or false, got {fuse!r}")
@@ -371,7 +368,7 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
         raise ParameterError("topic", f"two inputs share a topic: {topics}")
     tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
                 for spec in TUNABLES}
-    return NodeParams(inputs, Calibration(merged), tunables, tare, executor, tracking, fuse)
+    return NodeParams(inputs, Calibration(merged), tunables, tare, executor, fuse)
 
 
 def unknown_hint(key: str, known: set[str], names: list[str]) -> str:

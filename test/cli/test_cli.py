@@ -64,6 +64,8 @@ def test_fit_evaluate_replay(workdir: Path, capsys: pytest.CaptureFixture[str]) 
         assert {"rmse", "mae", "max_abs", "r2", "n"} <= set(record)
         assert isinstance(record["n"], int) and record["n"] > 100
         assert 0 <= record["mae"] <= record["rmse"] <= record["max_abs"]
+        # docs/design.md's key, kept after baseline tracking went: it never acts
+        assert record["baseline_tracking"] == {"seconds": 0.0, "correction": 0.0}
         row = next(line for line in table.splitlines() if line.startswith(f"{name} "))
         assert row.split()[2:4] == [str(record["n"]), f"{record['rmse']:.4f}"]
     assert main(["replay", str(workdir / "sim.mcap"), "--calibration",
@@ -109,6 +111,10 @@ def test_bad_input_exits_2_with_one_line(workdir: Path, tmp_path: Path,
     line = run_error(["fit", bag, "--model", "cubic", "--sensor", "all", "--option", "N",
                       "--out", str(tmp_path / "x.yaml")], capsys)
     assert "key=value" in line
+    for command in (["evaluate", bag], ["replay", bag, "--out", str(tmp_path / "o.mcap")]):
+        line = run_error([*command, "--calibration", cal, "--baseline-tracking", "on"], capsys)
+        assert "baseline tracking was removed" in line and "only off" in line
+    assert not (tmp_path / "o.mcap").exists()
 
 
 def test_import_csv_then_fit(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

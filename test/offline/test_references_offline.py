@@ -117,10 +117,10 @@ def test_replay_writes_the_fused_strain_that_evaluate_scores(
     assert "a reference every 30 s: 9 used, 0 refused" in capsys.readouterr().err
 
 
-def test_fusion_composes_with_the_tare_tracking_and_a_session_start() -> None:
-    """The fusion is a stage after the engine's output: with ``--tare auto``, baseline
-    tracking and a calibration recalibrated on the run's first cycle it still recovers
-    the changed sensitivity."""
+def test_fusion_composes_with_the_tare_and_a_session_start() -> None:
+    """The fusion is a stage after the engine's output: with ``--tare auto`` and a
+    calibration recalibrated on the run's first cycle it still recovers the changed
+    sensitivity."""
     from strain_comp.offline.recalibrate import recalibrate_recordings
 
     t, r, s = changed_run()
@@ -132,8 +132,8 @@ def test_fusion_composes_with_the_tare_tracking_and_a_session_start() -> None:
     runs = {}
     for key, calib, tare in (("tared", Calibration({"s1": cal}), "auto"),
                              ("started", started, "calibration")):
-        plain = evaluate_recordings(rec, calib, tare=tare, tracking="on").sensors["s1"]
-        fused = evaluate_recordings(rec, calib, tare=tare, tracking="on",
+        plain = evaluate_recordings(rec, calib, tare=tare).sensors["s1"]
+        fused = evaluate_recordings(rec, calib, tare=tare,
                                     references_every=30.0).sensors["s1"]
         assert fused.references is not None and fused.references["n_used"] == 9
         runs[key] = (plain.stats.rmse, fused.stats.rmse, fused.references["gain"])

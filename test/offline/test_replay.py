@@ -14,7 +14,6 @@ from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.samples import Status
 from strain_comp.core.tare import rest_resistance_at_start
-from strain_comp.core.tracking import BaselineTracker
 from strain_comp.errors import BagError
 from strain_comp.io.bag import SCHEMAS, BagWriter, read_bag
 from strain_comp.offline.replay import replay_bag
@@ -187,6 +186,6 @@ def test_replay_with_auto_tare_equals_the_engine_tared_at_the_run_start(tmp_path
     replay_bag(bag, calibration, tmp_path / "out.mcap", tare="auto", window=5000)
     engine = Engine(calibration)
     assert engine.tare(name, rest) == pytest.approx(0.9)
-    expected = BaselineTracker(engine).run(name, series.t, series.values).strain  # default on
+    expected = engine.run(name, series.t, series.values).strain
     got = read_bag(tmp_path / "out.mcap").series[f"/{name}/strain"].values
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)

@@ -36,7 +36,7 @@ PERIOD = 0.5
 
 
 def gauge(s: np.ndarray) -> np.ndarray:
-    """A gauge's resistance at strain ``s`` (as ``test/core/test_tracking.py``'s)."""
+    """A gauge's resistance at strain ``s``: a mild quadratic."""
     return 1000.0 * (1.0 + 0.02 * s + 2e-4 * s ** 2)
 
 
@@ -106,7 +106,7 @@ def test_replay_diagnostics_equal_the_engine_stepped_tick_by_tick(tmp_path: Path
     cal = Calibration({"s1": lag_cal("s1"), "s2": cubic_cal("s2"), "s3": lag_cal("s3")})
     streams = _bag(tmp_path / "in.mcap")
     replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=window,
-               diagnostics_period=PERIOD, tracking="off")
+               diagnostics_period=PERIOD)
     found, expected = _found(tmp_path / "out.mcap"), _stepped(cal, streams)
     assert len(found) == len(expected) > 500
     assert found == expected
@@ -136,7 +136,7 @@ def test_fused_replay_diagnostics_equal_the_fusion_judged_tick_by_tick(tmp_path:
     cal = line_calibration()
     t, r, s = _fused_bag(tmp_path / "in.mcap")
     replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap", window=700,
-               diagnostics_period=PERIOD, tracking="off", references_every=5.0)
+               diagnostics_period=PERIOD, references_every=5.0)
     fusion = SparseFusion.for_calibration(cal.sensors["s1"], 5.0, record=True)
     state0 = fusion.fusion.diagnostic_values()
     fusion.fuse(t, Engine(cal).run("s1", t, r), s)
@@ -155,12 +155,10 @@ def test_fused_replay_diagnostics_equal_the_fusion_judged_tick_by_tick(tmp_path:
     assert 0 < len(refused) < len(found)  # the key set changed mid-run
 
 
-def test_tracked_fused_replay_encodes_as_message_by_message(tmp_path: Path,
-                                                            monkeypatch: pytest.MonkeyPatch
-                                                            ) -> None:
-    """Tracking on (a rest that falls after each release: its baseline keys) and fusion:
-    the columns encoded at once are the bytes of ``cdr.diagnostic_array`` per message of
-    the same columns."""
+def test_fused_replay_encodes_as_message_by_message(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A rest that falls after each release, fused: the columns encoded at once are the
+    bytes of ``cdr.diagnostic_array`` per message of the same columns."""
     t = np.arange(0.0, 70.0, 0.1)
     cal = Calibration({"s1": fit_sensor([Recording("s1", t, gauge(staircase(t)),
                                                    staircase(t))], "cubic", name="s1")})
@@ -188,7 +186,6 @@ def test_tracked_fused_replay_encodes_as_message_by_message(tmp_path: Path,
                references_every=5.0)
     fast = _found(tmp_path / "fast.mcap")
     assert fast == _found(tmp_path / "slow.mcap")
-    assert any(b"baseline_tracked_s" in p for _, p in fast)
     assert any(b"fusion_refused[beyond the gate]" in p for _, p in fast)
 
 
@@ -219,8 +216,8 @@ def _health_at(before: SensorHealth, t: np.ndarray, out: BatchOutput, tick: floa
 
 
 def test_health_counter_equals_the_counts_sample_by_sample() -> None:
-    """Field by field and as key-values, with a ``before`` that has counts and a tracked
-    baseline, resets, input corrections and time running back."""
+    """Field by field and as key-values, with a ``before`` that has counts, resets, input
+    corrections and time running back."""
     rng = np.random.default_rng(5)
     n = 400
     t = np.cumsum(rng.uniform(-0.05, 0.3, n)) + 10.0
@@ -230,8 +227,7 @@ def test_health_counter_equals_the_counts_sample_by_sample() -> None:
                       rng.choice(np.array([0, HELD, SPIKE, STEP], np.int8), n,
                                  p=[0.85, 0.05, 0.05, 0.05]))
     before = SensorHealth(n_good=7, n_nan=2, n_gaps=1, last_good_t=9.5,
-                          last_status=Status.NOT_FINITE, baseline_tracked_s=12.5,
-                          baseline_correction=-0.0123)
+                          last_status=Status.NOT_FINITE)
     ticks = np.concatenate(([5.0, 9.9], np.linspace(10.0, t.max() + 3.0, 300)))
     assert {c for _, c in STATUS_RULES.values() if c} <= set(COUNTERS)
     for b in (before, SensorHealth()):

@@ -19,14 +19,14 @@ from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
 
-def live(tmp_path: Path, *, tare: str = "calibration", rest: float | None = 150.0,
-         tracking: str = "on") -> LiveCompensator:
+def live(tmp_path: Path, *, tare: str = "calibration", rest: float | None = 150.0
+         ) -> LiveCompensator:
     from strain_comp.core.calibration_file import save_calibration
 
     save_calibration(Calibration({"s1": replace(cubic_cal("s1"), rest_resistance=rest)}),
                      tmp_path / "c.yaml")
     return LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml",
-                                         "tare": tare, "baseline_tracking": tracking},
+                                         "tare": tare},
                                         base_dir=tmp_path), warm_up=False)
 
 
@@ -196,7 +196,7 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
 def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
     """``~/tare`` within the first seconds of ``tare: auto``: its zero stays, no automatic
     tare follows, and nothing more is logged for one."""
-    node = live(tmp_path, tare="auto", tracking="off")  # on, the zero would follow the rest
+    node = live(tmp_path, tare="auto")
     for ti in np.arange(0.0, 1.0, 0.01):
         node.on_sensor("s1", float(ti), 140.0)
     node.tare()
@@ -233,24 +233,15 @@ def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) ->
     assert out is not None and out.strain == pytest.approx(rest_strain, abs=0.05)
 
 
-def test_baseline_tracking_parameter_follows_a_rest_that_fell(tmp_path: Path) -> None:
+def test_baseline_tracking_parameter_accepts_off_only(tmp_path: Path) -> None:
+    """Baseline tracking was removed: ``off`` is the node's behaviour, anything else is
+    refused in one line naming the parameter."""
     from strain_comp.core.calibration_file import save_calibration
-    from strain_comp.offline.span import calibrated_resistance
 
-    cal = cubic_cal("s1")
-    rest_strain = S_LO + 0.05 * (S_HI - S_LO) / 1.1
-    r0 = calibrated_resistance(cal, rest_strain)
-    save_calibration(Calibration({"s1": replace(cal, rest_resistance=r0)}),
-                     tmp_path / "c.yaml")
-    flat = {"sensors": ["s1"], "s1.calibration": "c.yaml", "baseline_tracking": "on"}
-    node = LiveCompensator(parse_values(flat, base_dir=tmp_path), warm_up=False)
-    fallen = r0 - 3.0  # the rest fell 3 ohm below the calibrated rest
-    outs = [node.on_sensor("s1", 0.1 * i, fallen) for i in range(600)]  # 60 s at rest
-    first, last = outs[0], outs[-1]
-    assert first is not None and last is not None
-    assert last.strain == pytest.approx(rest_strain, abs=0.05)
-    assert abs(first.strain - rest_strain) > 1.0
-    values = node.diagnostics(60.0)[0][3]
-    assert float(values["baseline_correction"]) == pytest.approx(r0 / fallen - 1.0, rel=1e-3)
-    with pytest.raises(ParameterError, match="baseline_tracking"):
-        parse_values({**flat, "baseline_tracking": "yes"}, base_dir=tmp_path)
+    save_calibration(Calibration({"s1": cubic_cal("s1")}), tmp_path / "c.yaml")
+    flat = {"sensors": ["s1"], "s1.calibration": "c.yaml", "baseline_tracking": "off"}
+    parse_values(flat, base_dir=tmp_path)
+    for value in ("on", "yes"):
+        with pytest.raises(ParameterError, match=r"baseline_tracking.*only off") as refused:
+            parse_values({**flat, "baseline_tracking": value}, base_dir=tmp_path)
+        assert "\n" not in str(refused.value)

@@ -33,7 +33,6 @@ from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension  
 
 from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
-from strain_comp.core.tracking import BaselineTracker  # noqa: E402
 from strain_comp.ros.player import bag_messages  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -162,7 +161,7 @@ def test_outputs_equal_replay_in_sim_time(single: Harness, tmp_path: Path) -> No
     assert single.spin_until(lambda: len(direction) == N_BAG and len(stamped) == N_BAG)
     series = read_bag(ROOT / "bags/demo_rates.mcap").series["/s1/resistance"]
     engine = Engine(load_calibration(tmp_path / "demo_calibration.yaml"))  # single's
-    truth = BaselineTracker(engine).run(  # the node's default: baseline tracking on
+    truth = engine.run(
         "s1", series.t[:N_BAG], np.asarray(series.values).reshape(-1)[:N_BAG])
     got = np.array([m.data for m in strain])
     np.testing.assert_allclose(got, truth.strain, rtol=0, atol=1e-9)
