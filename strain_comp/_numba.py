@@ -61,19 +61,7 @@ def njit(function: None = None, /, **options: Any) -> Callable[[_F], Dispatcher[
 
 def njit(function: _F | None = None, /,
          **options: Any) -> Dispatcher[_F] | Callable[[_F], Dispatcher[_F]]:
-    """``numba.njit`` with ``cache=True`` and ``nogil=True`` unless told otherwise.
-
-    Use as ``@njit`` or ``@njit(fastmath=True)``. The dispatcher is typed with the
-    signature of the Python function it compiles.
-
-    Args:
-        function: The function (``@njit``), or None (``@njit(...)``).
-        **options: ``numba.njit`` options.
-
-    Returns:
-        The dispatcher, or a decorator that makes one.
-
-    """
+    """``numba.njit`` with ``cache=True`` and ``nogil=True`` unless told otherwise."""
     options.setdefault("cache", True)
     options.setdefault("nogil", True)
 
@@ -89,36 +77,7 @@ _SPECIALISED: set[str] = set()
 
 def specialise(template: Callable[..., Any], bound: Mapping[str, Dispatcher[Any]],
                **options: Any) -> Dispatcher[Any]:
-    """``template`` compiled (``njit``) with its global names ``bound`` to these kernels.
-
-    One source serves every model family: the template calls ``kernel`` (a global name of
-    its module), and each specialisation binds it to one family's kernel. numba's disk
-    cache keys a function by its qualified name, its bytecode and the contents of its
-    closure; a closure over a kernel (or a kernel passed as an argument) carries the
-    kernel's dispatcher, which pickles with a new id in every process, so it would compile
-    at every start. Globals are read at compile time and are not in the key: each
-    specialisation gets its own qualified name (the template's and the bound kernels'),
-    its own cache file. The template's module globals are those at the call, so a template
-    is specialised after everything it calls is defined.
-
-    A template is compiled without numba's reference counts (``_nrt=False``): it loops over
-    tables its caller owns and allocates nothing, and the counts of the arrays it hands the
-    kernel out of a tuple (an atomic increment and decrement per array per sensor, not
-    pruned by numba) cost more than the creep_pi kernel itself (``bench/bench_array.py``).
-
-    Args:
-        template: A plain function (not yet compiled).
-        bound: Global name -> compiled kernel.
-        **options: ``njit`` options.
-
-    Returns:
-        The compiled specialisation.
-
-    Raises:
-        ValueError: The same template and kernels were specialised before (one dispatcher
-            per cache file).
-
-    """
+    """``template`` compiled (``njit``) with its global names ``bound`` to these kernels."""
     name = "__".join([template.__name__, *(
         f"{key}_{kernel.py_func.__module__.replace('.', '_')}_{kernel.py_func.__name__}"
         for key, kernel in sorted(bound.items()))])

@@ -11,11 +11,7 @@ class StrainCompError(Exception):
 
 
 class CalibrationError(StrainCompError):
-    """A calibration file is missing, malformed or out of range.
-
-    The message always names the file and the field, e.g.
-    ``config/a.yaml: sensors.s1.model.params.sigma: must be >= 0, got -1``.
-    """
+    """A calibration file is missing, malformed or out of range."""
 
     def __init__(self, path: str, field: str, problem: str) -> None:
         self.path = path
@@ -37,11 +33,7 @@ class InputError(StrainCompError):
 
 
 class ParameterError(StrainCompError):
-    """A model or setting parameter is missing or out of range.
-
-    ``field`` is the dotted path inside the parameter mapping (``"sigma"``, ``"w.3"``); the
-    calibration loader prefixes it with the file name and the path to the mapping.
-    """
+    """A model or setting parameter is missing or out of range."""
 
     def __init__(self, field: str, problem: str) -> None:
         self.field = field
@@ -59,14 +51,5 @@ class Terminated(BaseException):
 
 
 def raise_terminated(signum: int, frame: object) -> None:
-    """A SIGTERM handler: raise ``Terminated`` where the main thread is.
-
-    Args:
-        signum: The signal's number.
-        frame: The frame it interrupted.
-
-    Raises:
-        Terminated: Always.
-
-    """
+    """A SIGTERM handler: raise ``Terminated`` where the main thread is."""
     raise Terminated

@@ -19,32 +19,14 @@ GRID_ROW = re.compile(r"grid row (\d+)/(\d+)")
 
 
 def wanted(quiet: bool = False) -> bool:
-    """Draw bars? Only on a terminal, and not when quiet.
-
-    Args:
-        quiet: ``--quiet`` was given.
-
-    Returns:
-        True when stderr is a terminal and not ``quiet``.
-
-    """
+    """Draw bars? Only on a terminal, and not when quiet."""
     return not quiet and sys.stderr.isatty()
 
 
 @contextmanager
 def bar(total: int | None, what: str, *, enabled: bool) -> Iterator[Any]:
     """A tqdm bar on stderr, or (disabled) one that draws nothing; closed on leaving the
-    block. ``update(n)`` advances it.
-
-    Args:
-        total: The steps (None: unknown).
-        what: The bar's name.
-        enabled: Draw it.
-
-    Yields:
-        The bar.
-
-    """
+    block. ``update(n)`` advances it."""
     from tqdm import tqdm
 
     with tqdm(total=total, desc=what, disable=not enabled, file=sys.stderr, leave=False,
@@ -53,15 +35,7 @@ def bar(total: int | None, what: str, *, enabled: bool) -> Iterator[Any]:
 
 
 def counter(shown: Any) -> Callable[[int, int], None]:
-    """A ``progress(done, total)`` callable that moves ``shown`` to done of total.
-
-    Args:
-        shown: A bar (``bar``).
-
-    Returns:
-        The callable.
-
-    """
+    """A ``progress(done, total)`` callable that moves ``shown`` to done of total."""
     def step(done: int, total: int) -> None:
         if shown.total != total:
             shown.total = total
@@ -71,15 +45,7 @@ def counter(shown: Any) -> Callable[[int, int], None]:
 
 def grid_progress(shown: Any) -> Callable[[str], None]:
     """The ``progress`` callable of an APL-family fit: each ``grid row i/n`` line moves
-    ``shown`` to i of n; its other lines (refinement) name the step.
-
-    Args:
-        shown: A bar (``bar``).
-
-    Returns:
-        The callable.
-
-    """
+    ``shown`` to i of n; its other lines (refinement) name the step."""
     def say(line: str) -> None:
         match = GRID_ROW.search(line)
         if match is None:

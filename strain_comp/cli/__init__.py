@@ -65,12 +65,7 @@ EXIT_TERMINATED = 143
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser; subcommand names and flags as docs/design.md fixes them.
-
-    Returns:
-        The parser, each command's ``run`` as its ``func``.
-
-    """
+    """The argument parser; subcommand names and flags as docs/design.md fixes them."""
     parser = Parser(
         prog=PROG, formatter_class=Formatter,
         description="Calibrated strain from soft resistive strain sensors: "
@@ -96,16 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def internal_error(error: BaseException, debug: bool) -> int:
     """A fault of the program, not of the input: one line that says so, the traceback in a
-    file it names (on stderr with ``--debug``); exit code ``EXIT_BUG``.
-
-    Args:
-        error: The exception.
-        debug: Print the traceback on stderr instead of writing it to a file.
-
-    Returns:
-        ``EXIT_BUG``.
-
-    """
+    file it names (on stderr with ``--debug``); exit code ``EXIT_BUG``."""
     text = "".join(traceback.format_exception(error))
     what = " ".join(f"{type(error).__name__}: {error}".split())
     if debug:
@@ -125,15 +111,7 @@ def internal_error(error: BaseException, debug: bool) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 2 bad input, 70 a fault of
-    strain-comp, 130 interrupted, 143 terminated by SIGTERM).
-
-    Args:
-        argv: The arguments; None: ``sys.argv[1:]``.
-
-    Returns:
-        The exit code; bad input is one line on stderr and 2, never an exception.
-
-    """
+    strain-comp, 130 interrupted, 143 terminated by SIGTERM)."""
     handler = signal.getsignal(signal.SIGTERM)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, raise_terminated)

@@ -70,86 +70,35 @@ class Formatter(argparse.RawDescriptionHelpFormatter):
 
 
 def err(line: str) -> None:
-    """One line on stderr.
-
-    Args:
-        line: The line.
-
-    """
+    """One line on stderr."""
     print(line, file=sys.stderr)
 
 
 def note(args: argparse.Namespace, line: str) -> None:
-    """A note on stderr, unless ``--quiet``.
-
-    Args:
-        args: The parsed command line.
-        line: The note.
-
-    """
+    """A note on stderr, unless ``--quiet``."""
     if not getattr(args, "quiet", False):
         err(line)
 
 
 def results(args: argparse.Namespace) -> TextIO:
-    """Where the command's table goes.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        stdout, or stderr when stdout carries ``-`` output.
-
-    """
+    """Where the command's table goes."""
     dash = "-" in (getattr(args, "json", None), getattr(args, "csv", None))
     return sys.stderr if dash else sys.stdout
 
 
 def bag(path: str, what: str = "bag") -> str:
-    """An input bag: an MCAP file, a ``.db3`` file or a rosbag2 directory.
-
-    Args:
-        path: The path given.
-        what: What it is, for the message.
-
-    Returns:
-        ``path``.
-
-    Raises:
-        InputError: The path is missing, unreadable, or neither a file nor a directory.
-
-    """
+    """An input bag: an MCAP file, a ``.db3`` file or a rosbag2 directory."""
     return existing(path, what, directory=True)
 
 
 def output(path: str, inputs: Sequence[str | None]) -> str:
-    """``path`` if it may be written: not one of ``inputs``, not a non-regular file.
-
-    Args:
-        path: The output path.
-        inputs: The command's inputs (None entries ignored).
-
-    Returns:
-        ``path``.
-
-    Raises:
-        OutputError: ``path`` is an input, inside an input bag, or not a regular file.
-
-    """
+    """``path`` if it may be written: not one of ``inputs``, not a non-regular file."""
     check_output(path, [i for i in inputs if i is not None])
     return path
 
 
 def finite(value: object) -> object:
-    """NaN and inf (not JSON) as null, recursively.
-
-    Args:
-        value: A JSON-like value (dicts, lists, floats, ...).
-
-    Returns:
-        The value with every non-finite float None.
-
-    """
+    """NaN and inf (not JSON) as null, recursively."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
@@ -160,17 +109,7 @@ def finite(value: object) -> object:
 
 
 def write_json(path: str, data: object, inputs: Sequence[str]) -> None:
-    """JSON to ``path`` (atomically) or to stdout for ``-``.
-
-    Args:
-        path: The output path, or ``-``.
-        data: The JSON-like value (non-finite floats written as null).
-        inputs: Files it must not overwrite.
-
-    Raises:
-        OutputError: ``path`` is an input or cannot be written.
-
-    """
+    """JSON to ``path`` (atomically) or to stdout for ``-``."""
     text = json.dumps(finite(data), indent=2, allow_nan=False) + "\n"
     if path == "-":
         sys.stdout.write(text)
@@ -180,15 +119,7 @@ def write_json(path: str, data: object, inputs: Sequence[str]) -> None:
 
 
 def require_ros(command: str) -> None:
-    """Check that ROS 2's Python client is installed.
-
-    Args:
-        command: The command that needs it, for the message.
-
-    Raises:
-        InputError: rclpy is not installed, saying how to get it.
-
-    """
+    """Check that ROS 2's Python client is installed."""
     if importlib.util.find_spec("rclpy") is None:
         raise InputError(f"{command} needs ROS 2's Python client (rclpy): pip install "
                          "'.[ros]' in this project, or source a ROS 2 Jazzy installation")
@@ -203,12 +134,7 @@ def tracking_flag(p: argparse.ArgumentParser) -> None:
 
 
 def references_flag(p: argparse.ArgumentParser) -> None:
-    """Add ``--references-every SECONDS``.
-
-    Args:
-        p: The command's parser.
-
-    """
+    """Add ``--references-every SECONDS``."""
     p.add_argument("--references-every", type=float, metavar="SECONDS",
                    help="fuse the bag's own /NAME/strain_reference every SECONDS into the "
                    "output gain and offset, causally (a known strain now and then, as a robot "
@@ -216,12 +142,7 @@ def references_flag(p: argparse.ArgumentParser) -> None:
 
 
 def tare_flag(p: argparse.ArgumentParser) -> None:
-    """Add ``--tare calibration|auto``.
-
-    Args:
-        p: The command's parser.
-
-    """
+    """Add ``--tare calibration|auto``."""
     p.add_argument("--tare", choices=("calibration", "auto"), default="calibration",
                    help="rest resistance from the calibration (default) or from the run's "
                    "first seconds at rest (auto)")

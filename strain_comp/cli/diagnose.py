@@ -20,12 +20,7 @@ EXAMPLE = ("strain-comp diagnose run3.mcap --calibration s1.yaml --validate run4
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The bag, the calibration, the held-out bags, the outputs, the candidates.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The bag, the calibration, the held-out bags, the outputs, the candidates."""
     p.add_argument("bag", metavar="BAG.mcap", help="bag with a strain reference")
     p.add_argument("--calibration", required=True, metavar="CAL.yaml",
                    help="calibration file to improve")
@@ -55,23 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The loop run (``api.diagnose``); its summary, the calibration and reports written.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: A path is missing, an option is out of range, or no sensor has a
-            reference.
-        BagError: A bag cannot be read.
-        CalibrationError: The calibration file is bad, or CAL2 would not load.
-        OutputError: An output is an input, two outputs are one, or one cannot be
-            written.
-
-    """
+    """The loop run (``api.diagnose``); its summary, the calibration and reports written."""
     bag(args.bag)
     for validate in args.validate or ():
         bag(validate, "validation bag")

@@ -31,12 +31,7 @@ EXAMPLE = ("strain-comp evaluate run3.mcap run4.mcap --calibration s1.yaml "
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The bags, the calibration, the outputs, the engine's settings.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The bags, the calibration, the outputs, the engine's settings."""
     p.add_argument("bags", nargs="+", metavar="BAG.mcap",
                    help="bags (MCAP files, rosbag2 directories) or folders of them")
     p.add_argument("--calibration", required=True, metavar="CAL.yaml",
@@ -70,23 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Every input and output checked before any bag is read; one bag streamed through
-    ``api.evaluate``, several through ``offline.batch``.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: A path is missing, ``--jobs`` or ``--references-every`` is out of
-            range, both ``--json`` and ``--csv`` go to stdout, or nothing is scored.
-        BagError: A bag cannot be read.
-        CalibrationError: The calibration file is bad.
-        OutputError: An output is an input, two outputs are one, or one cannot be
-            written.
-
-    """
+    ``api.evaluate``, several through ``offline.batch``."""
     from strain_comp.core.engine import tracking_off
     from strain_comp.core.fusion import check_every
     from strain_comp.offline.batch import check_jobs, expand_bags

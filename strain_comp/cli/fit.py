@@ -26,12 +26,7 @@ def _options_help() -> str:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The bags, the model, the sensors, the file to write, the fit options.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The bags, the model, the sensors, the file to write, the fit options."""
     if isinstance(p, Parser):
         p.notes = _options_help
     p.add_argument("bags", nargs="+", metavar="BAG.mcap",
@@ -63,21 +58,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The model fitted (``api.fit``), the calibration written, one line per sensor.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: A bag is missing, an option or unit is bad, or the fit fails (its
-            error and what the reader skipped, in one line).
-        CalibrationError: The calibration would not load again (not written).
-        OutputError: The output is an input or cannot be written.
-
-    """
+    """The model fitted (``api.fit``), the calibration written, one line per sensor."""
     for path in args.bags:
         bag(path)
     output(args.out, args.bags)

@@ -24,12 +24,7 @@ EXAMPLE = ("strain-comp import-csv run.csv --out run.mcap --sensor s1 --format g
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The CSV file, the bag to write, the sensor, the column layout.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The CSV file, the bag to write, the sensor, the column layout."""
     p.add_argument("csv", metavar="IN.csv", help="the CSV file (delimiter, decimal comma "
                    "and header detected)")
     p.add_argument("--out", required=True, metavar="BAG.mcap",
@@ -57,18 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
-    """``["time=0,resistance=3", "strain=ext_mm"]`` -> {key: column index or header name}.
-
-    Args:
-        items: The ``--columns`` values.
-
-    Returns:
-        Key -> column index or header name.
-
-    Raises:
-        InputError: An item is not KEY=COLUMN.
-
-    """
+    """``["time=0,resistance=3", "strain=ext_mm"]`` -> {key: column index or header name}."""
     columns: dict[str, int | str] = {}
     for item in (part for text in items for part in text.split(",") if part.strip()):
         key, sep, column = item.partition("=")
@@ -81,18 +65,7 @@ def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
 
 
 def parse_scales(items: Sequence[str]) -> dict[str, float]:
-    """``["time=1e-3,resistance=1000"]`` -> {key: factor}.
-
-    Args:
-        items: The ``--scales`` values.
-
-    Returns:
-        Key -> factor.
-
-    Raises:
-        InputError: An item is not KEY=FACTOR with a number.
-
-    """
+    """``["time=1e-3,resistance=1000"]`` -> {key: factor}."""
     scales: dict[str, float] = {}
     for item in (part for text in items for part in text.split(",") if part.strip()):
         key, sep, value = item.partition("=")
@@ -106,20 +79,7 @@ def parse_scales(items: Sequence[str]) -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The CSV read, checked and written as a bag; the import report on stdout.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: The CSV file is missing or malformed, or a flag is bad.
-        OutputError: The bag is the CSV file or may not be written.
-        BagError: The bag's write failed.
-
-    """
+    """The CSV read, checked and written as a bag; the import report on stdout."""
     existing(args.csv, "CSV file")
     output(args.out, [args.csv])
     from strain_comp.core.calibration import unit_ok

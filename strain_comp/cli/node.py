@@ -17,29 +17,13 @@ EXAMPLE = "strain-comp node --params config/compensator_params.yaml"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The node's parameter file.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The node's parameter file."""
     p.add_argument("--params", required=True, metavar="FILE",
                    help="node parameter YAML (sensors, calibrations, tunables)")
 
 
 def run(args: argparse.Namespace) -> int:
-    """The node run until it is stopped; its exit code (0, 2 or 130).
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        The node's exit code: 0, 2 (bad input) or 130 (interrupted).
-
-    Raises:
-        InputError: The parameter file is missing, or ROS 2's rclpy is not installed.
-
-    """
+    """The node run until it is stopped; its exit code (0, 2 or 130)."""
     existing(args.params, "parameter file")
     require_ros("strain-comp node")
     from strain_comp.ros.node import main as node_main

@@ -15,12 +15,7 @@ EXAMPLE = "strain-comp play bags/demo_rates.mcap --clock --rate 2"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The bag, the clock, the rate, the topics, the lockstep topic.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The bag, the clock, the rate, the topics, the lockstep topic."""
     p.add_argument("bag", metavar="BAG.mcap", help="bag to play")
     p.add_argument("--clock", action="store_true",
                    help="publish /clock with each message's log time (for use_sim_time)")
@@ -33,20 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The bag played; how many messages on stderr.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: The bag is missing, or ROS 2's rclpy is not installed.
-        BagError: The bag cannot be read, holds nothing play publishes, or the lockstep
-            topic does not answer.
-
-    """
+    """The bag played; how many messages on stderr."""
     bag(args.bag)
     require_ros("strain-comp play")
     from strain_comp.ros.player import main as play_main

@@ -22,12 +22,7 @@ EXAMPLE = ("strain-comp recalibrate s1.yaml --point 35200:0 --point 44100:20 "
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The calibration, the points or the bag, the form, the file to write.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The calibration, the points or the bag, the form, the file to write."""
     p.add_argument("calibration", metavar="CAL.yaml", help="calibration file to re-span")
     p.add_argument("--point", action="append", metavar="R:S",
                    help="a resistance [ohm] and its known strain [the calibration's strain "
@@ -53,22 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The new map (``api.recalibrate``) written; one line per sensor on what changed.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: Neither or both of ``--point`` and ``--from``, a bad point or
-            window, or a map that cannot be made.
-        BagError: The bag cannot be read.
-        CalibrationError: The calibration file is bad.
-        OutputError: The output is an input or cannot be written.
-
-    """
+    """The new map (``api.recalibrate``) written; one line per sensor on what changed."""
     from strain_comp import api
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.recalibrate import parse_point

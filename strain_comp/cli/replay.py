@@ -28,12 +28,7 @@ EXAMPLE = ("strain-comp replay run3.mcap --calibration s1.yaml --out run3_strain
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The bag, the calibration, the bag and table to write, the engine's settings.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The bag, the calibration, the bag and table to write, the engine's settings."""
     p.add_argument("bag", metavar="IN.mcap", help="bag with /NAME/resistance")
     p.add_argument("--calibration", required=True, metavar="CAL.yaml",
                    help="calibration file")
@@ -49,22 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """The bag replayed (``api.replay``); what was compensated and held on the results
-    stream.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: A path is missing, ``--references-every`` is not > 0 s, or a
-            fused sensor has no reference in the bag.
-        BagError: The bag cannot be read, or has no input of a calibrated sensor.
-        CalibrationError: The calibration file is bad.
-        OutputError: An output is an input or cannot be written.
-
-    """
+    stream."""
     bag(args.bag)
     existing(args.calibration, "calibration file")
     output(args.out, [args.bag, args.calibration])

@@ -15,12 +15,7 @@ EXAMPLE = "strain-comp simulate --scenario rates --out rates.mcap --seed 2 --eff
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The scenario, the bag to write, the seed, the rig's effects.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The scenario, the bag to write, the seed, the rig's effects."""
     p.add_argument("--scenario", metavar="NAME", help="scenario name (see --list)")
     p.add_argument("--out", metavar="BAG.mcap", help="bag to write (replaced atomically)")
     p.add_argument("--seed", type=int, default=0,
@@ -34,21 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The scenario list, or the scenario simulated and written as a bag.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: Neither ``--list`` nor both ``--scenario`` and ``--out``.
-        ParameterError: An unknown scenario or effect, or a seed, duration or
-            effect out of range.
-        OutputError: The bag cannot be written.
-
-    """
+    """The scenario list, or the scenario simulated and written as a bag."""
     from strain_comp.offline import rig
 
     if args.list:

@@ -53,25 +53,7 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
                  status: np.ndarray, reset: np.ndarray) -> tuple[float, bool]:
     """The stages before the model for sensor ``k`` of a tick: input fix, tare gain, screen,
     counts. A sample not used gets NaN in ``model_out[k]``. On a gap reset the detector
-    restarts and the gap is counted; the caller zeroes the model's state rows (``reset[k]``).
-
-    Args:
-        k: The sensor's row in the group's tables.
-        t: The tick's time [s].
-        raw: The tick's raw inputs, one per sensor (ohm, or V for a divider).
-        par: Per-sensor parameters (input fix, gain, screen levels, range).
-        held: Per-sensor published strain, direction and status, updated in place.
-        counts: Per-sensor samples per status code, then gap resets, updated in place.
-        det: Per-sensor direction detector state, updated in place.
-        gap: Gap after which a sensor is reset [s].
-        model_out: Per-sensor model estimate (NaN when not used), updated in place.
-        status: Per-sensor status code of the tick, updated in place.
-        reset: Per-sensor gap-reset flag of the tick, updated in place.
-
-    Returns:
-        The resistance [ohm] and whether the sample is used.
-
-    """
+    restarts and the gap is counted; the caller zeroes the model's state rows (``reset[k]``)."""
     ri, forced = raw[k], sc.GOOD
     if par[k, _VIN] > 0.0:  # voltage divider
         ri, forced = divider_ohm(ri, par[k, _R1], par[k, _VIN])
@@ -96,19 +78,7 @@ def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
                 held: np.ndarray, det: np.ndarray, model_out: np.ndarray) -> None:
     """The stages after the model for a used sample of sensor ``k``: the unclamped estimate
     into ``model_out[k]`` (for the effect terms), the detector, the range bound and the hold
-    (``held[k]``).
-
-    Args:
-        k: The sensor's row in the group's tables.
-        t: The tick's time [s].
-        ohm: The sensor's resistance [ohm].
-        estimate: The model's strain for it.
-        par: Per-sensor parameters.
-        held: Per-sensor published strain, direction and status, updated in place.
-        det: Per-sensor direction detector state, updated in place.
-        model_out: Per-sensor model estimate, updated in place.
-
-    """
+    (``held[k]``)."""
     model_out[k] = estimate
     held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                            par[k, _TAU]) * par[k, _SIGN]
@@ -122,25 +92,7 @@ def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
                 state: tuple[np.ndarray, ...], params: tuple[Any, ...]) -> None:
     """Template: one tick of the array's sensors of one family, around the family's kernel
     (``strain_comp.models.lift``). A gap reset zeroes the sensor's state rows (a sensor at
-    rest).
-
-    Args:
-        t: The tick's time [s].
-        idx: The family's sensors' rows in the group's tables; row j of ``state`` and
-            ``params`` is sensor ``idx[j]``.
-        raw: The tick's raw inputs, one per sensor of the group.
-        par: Per-sensor parameters.
-        held: Per-sensor published strain, direction and status, updated in place.
-        counts: Per-sensor samples per status code, then gap resets, updated in place.
-        det: Per-sensor direction detector state, updated in place.
-        gap: Gap after which a sensor is reset [s].
-        model_out: Per-sensor model estimate, updated in place.
-        status: Per-sensor status code of the tick, updated in place.
-        reset: Per-sensor gap-reset flag of the tick, updated in place.
-        state: The family's state arrays, updated in place.
-        params: The family's parameter arrays.
-
-    """
+    rest)."""
     arrays = state + params
     for j in range(idx.size):
         k = idx[j]
@@ -164,16 +116,7 @@ TICKS: dict[type[LiftedArray], Dispatcher[Any]] = {
 
 
 def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedArray]] | None:
-    """The model arrays of the families present in ``sensors``.
-
-    Args:
-        sensors: The group's sensors.
-
-    Returns:
-        (rows in ``sensors``, model array) per family, or None when a sensor's model has no
-        array kernel or a family's sensors differ in shape (the loop path).
-
-    """
+    """The model arrays of the families present in ``sensors``."""
     models = [s.model for s in sensors]
     rows = [[i for i, m in enumerate(models) if family.accepts(m)] for family in FAMILIES]
     if sum(len(r) for r in rows) != len(sensors):

@@ -202,44 +202,17 @@ class Calibration:
 
 
 def unit_ok(unit: str) -> bool:
-    """Is ``unit`` a strain or input unit a file may name?
-
-    Args:
-        unit: The unit's text.
-
-    Returns:
-        True for 1-16 letters, digits, ``%``, ``/`` or ``.``.
-
-    """
+    """Is ``unit`` a strain or input unit a file may name?"""
     return 0 < len(unit) <= 16 and all(c.isalnum() or c in "%/." for c in unit)
 
 
 def strain_unit_words(unit: str) -> str:
-    """How a number in ``unit`` reads.
-
-    Args:
-        unit: A strain unit.
-
-    Returns:
-        ``% strain`` for percent, else the unit.
-
-    """
+    """How a number in ``unit`` reads."""
     return "% strain" if unit == "%" else unit
 
 
 def provenance(bags: list[str], fit_rmse: float, n_samples: int, **extra: Any) -> dict[str, Any]:
-    """A provenance record of a fit.
-
-    Args:
-        bags: The source bags.
-        fit_rmse: The fit's RMSE, in the strain unit.
-        n_samples: The samples fitted.
-        **extra: Further fields to record (options, pool, ...).
-
-    Returns:
-        The record: bags, time of the fit (UTC, ISO 8601), fit error, samples and ``extra``.
-
-    """
+    """A provenance record of a fit."""
     from datetime import datetime, timezone
 
     record: dict[str, Any] = {

@@ -40,54 +40,20 @@ def _plain(value: Any) -> Any:
 
 
 def calibration_text(calibration: Calibration) -> str:
-    """The YAML text ``save_calibration`` writes.
-
-    Args:
-        calibration: The calibration.
-
-    Returns:
-        The file's text.
-
-    """
+    """The YAML text ``save_calibration`` writes."""
     return yaml.safe_dump(_plain(calibration.to_dict()), sort_keys=False,
                           default_flow_style=None, width=100)
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
-    """Read and validate a calibration file.
-
-    Args:
-        path: The calibration file.
-
-    Returns:
-        The calibration, every check passed.
-
-    Raises:
-        CalibrationError: The file cannot be read, is too large or malformed, a field is
-            out of range, or the model gives a non-finite strain on its probe; it names the
-            file and the field.
-
-    """
+    """Read and validate a calibration file."""
     return parse_calibration(read_text(path), str(path))
 
 
 def parse_calibration(text: str, path: str) -> Calibration:
     """Validate the text of a calibration file (every load-time check: the limits, the
     fields, the probe). The one validation both ``load_calibration`` and
-    ``check_calibration`` (before a write) apply.
-
-    Args:
-        text: The file's text.
-        path: The file's name, for the messages.
-
-    Returns:
-        The calibration.
-
-    Raises:
-        CalibrationError: A field is malformed or out of range, or a sensor gives a
-            non-finite strain on its probe; it names ``path`` and the field.
-
-    """
+    ``check_calibration`` (before a write) apply."""
     calibration = parse_fields(text, path)
     probed: dict[str, str | None] = {}
     for name, cal in calibration.sensors.items():
@@ -103,32 +69,14 @@ def parse_calibration(text: str, path: str) -> Calibration:
 
 def probe_key(cal: SensorCalibration) -> str:
     """What the load-time probe of ``cal`` depends on: everything but its name and provenance
-    (sensors of an array written from one fit are probed once).
-
-    Args:
-        cal: One sensor's calibration.
-
-    Returns:
-        A key equal for sensors the probe cannot tell apart.
-
-    """
+    (sensors of an array written from one fit are probed once)."""
     return repr({**cal.to_dict(), "provenance": None})
 
 
 def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"
                       ) -> None:
     """The load-time checks on the file ``calibration`` would be. ``save_calibration`` runs
-    it before writing, so nothing written fails to load.
-
-    Args:
-        calibration: The calibration.
-        path: The file's name, for the messages.
-
-    Raises:
-        CalibrationError: A reader would refuse the file; it names the field and the
-            problem, as ``load_calibration`` would.
-
-    """
+    it before writing, so nothing written fails to load."""
     _check_text(calibration_text(calibration), path)
 
 
@@ -142,21 +90,7 @@ def _check_text(text: str, path: str | os.PathLike[str]) -> None:
 def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
                      inputs: Iterable[str | os.PathLike[str]] = (), check: bool = True) -> None:
     """Write atomically (``strain_comp.io.atomic``): a crash at any moment leaves the old or
-    the new file, never a mix.
-
-    Args:
-        calibration: The calibration.
-        path: The output file.
-        inputs: Files the output must not overwrite.
-        check: First pass ``check_calibration`` (the checks every reader applies), so a
-            file that would not load is not written; False writes it anyway (tests of the
-            loader's refusals).
-
-    Raises:
-        CalibrationError: With ``check``, a reader would refuse the file ("not written: ...").
-        OutputError: The target is one of ``inputs``, not a regular file, or cannot be written.
-
-    """
+    the new file, never a mix."""
     text = calibration_text(calibration)  # made once: checked, then written
     if check:
         try:
@@ -170,15 +104,7 @@ def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
 def probe_resistance(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
     """A probe of one sensor: log-spaced from the shortest to the most open value the engine
     feeds a model (0.01 x the bottom to 100 x the top of the valid range) and back, slowly,
-    fast, and with a long hold.
-
-    Args:
-        cal: One sensor's calibration.
-
-    Returns:
-        The probe's times [s] and resistances [ohm].
-
-    """
+    fast, and with a long hold."""
     lo, hi = math.log(cal.valid_range.r_lo * 0.011), math.log(cal.valid_range.r_hi * 99.0)
     up = np.exp(np.linspace(lo, hi, 200))
     sweep = np.concatenate([up, up[::-1], up[::4], up[::-4], np.full(50, up[100])])
@@ -191,15 +117,7 @@ def probe_calibration(cal: SensorCalibration) -> str | None:
     """Where the engine gives a non-finite strain on this sensor's probe
     (``probe_resistance``, with a temperature of 25 deg C). The probe is the resistance the
     model reads: an input zero and span (an affine map checked on its own) is left out, else
-    a probe value it maps below the short level is screened out.
-
-    Args:
-        cal: One sensor's calibration.
-
-    Returns:
-        The first such resistance and time, or None when every strain is finite.
-
-    """
+    a probe value it maps below the short level is screened out."""
     probe = SensorCalibration(**{**vars(cal), "input": replace(cal.input, zero_span=None),
                                  "effects": [e for e in cal.effects
                                              if e.get("kind") != "crosstalk"]})

@@ -317,18 +317,7 @@ def _read_text(reader: _Reader, path: str | os.PathLike[str]) -> str:
 
 
 def read_text(path: str | os.PathLike[str]) -> str:
-    """The text of the calibration file ``path`` within the limits.
-
-    Args:
-        path: The calibration file.
-
-    Returns:
-        Its text.
-
-    Raises:
-        CalibrationError: The file cannot be read or is too large; it names the file.
-
-    """
+    """The text of the calibration file ``path`` within the limits."""
     return _read_text(_Reader(str(path)), path)
 
 
@@ -336,20 +325,7 @@ def parse_fields(text: str, path: str) -> Calibration:
     """Validate the text of a calibration file without running a model: the limits, the
     fields and the poles (``strain_comp.core.calibration_file.parse_calibration`` adds the
     probe). The cyclic garbage collector is paused meanwhile (``safe_yaml.load_limited``: a
-    large array's many small objects, no cycles).
-
-    Args:
-        text: The file's text.
-        path: The file's name, for the messages.
-
-    Returns:
-        The calibration.
-
-    Raises:
-        CalibrationError: A field is malformed or out of range; it names ``path`` and the
-            field.
-
-    """
+    large array's many small objects, no cycles)."""
     collecting = gc.isenabled()
     gc.disable()
     try:

@@ -96,16 +96,7 @@ def _robust_sigma(x: np.ndarray) -> float:
 
 
 def alternation(r: npt.ArrayLike) -> Alternation:
-    """The alternation statistics of a resistance series (module docstring).
-
-    Args:
-        r: Resistance [ohm], one per sample (non-finite samples dropped).
-
-    Returns:
-        Amplitude A [ohm], white-noise sigma [ohm], sign agreement and its z; no alternation
-        for fewer than 8 samples.
-
-    """
+    """The alternation statistics of a resistance series (module docstring)."""
     r = _finite(r)
     if r.size < 8:
         return Alternation(0.0, 0.0, 0.5, 0.0)
@@ -122,16 +113,7 @@ def alternation(r: npt.ArrayLike) -> Alternation:
 
 
 def pair_means(r: np.ndarray, previous: float = math.nan) -> np.ndarray:
-    """(R[i] + R[i-1]) / 2, the first one with ``previous`` (itself when NaN).
-
-    Args:
-        r: Resistance [ohm], one per sample.
-        previous: The sample before ``r[0]`` [ohm], or NaN.
-
-    Returns:
-        The pair means [ohm], one per sample.
-
-    """
+    """(R[i] + R[i-1]) / 2, the first one with ``previous`` (itself when NaN)."""
     before = np.concatenate(([previous], r[:-1])) if r.size else r
     return np.where(np.isfinite(before), 0.5 * (r + before), r)
 
@@ -143,17 +125,7 @@ PAIR_BRANCHES = ("mean", "upper", "lower")
 def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: str = "mean",
                 ) -> np.ndarray:
     """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
-    first one with ``previous`` (itself when NaN).
-
-    Args:
-        r: Resistance [ohm], one per sample.
-        previous: The sample before ``r[0]`` [ohm], or NaN.
-        branch: ``mean``, ``upper`` or ``lower``.
-
-    Returns:
-        The pair statistic [ohm], one per sample.
-
-    """
+    first one with ``previous`` (itself when NaN)."""
     if branch == "mean":
         return pair_means(r, previous)
     before = np.concatenate(([previous], r[:-1])) if r.size else r
@@ -164,16 +136,7 @@ def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: 
 def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
     """The pair statistic (``PAIR_BRANCHES``) to read an alternating ``r`` through, from the
     steps of its size between windows where ``still`` (bool per sample: the strain is known
-    to be constant) holds (module docstring); ``mean`` when fewer than ``PAIR_MIN_STEPS``.
-
-    Args:
-        r: Resistance [ohm], one per sample.
-        still: True where the strain is known to be constant, one per sample.
-
-    Returns:
-        ``mean``, ``upper`` or ``lower``.
-
-    """
+    to be constant) holds (module docstring); ``mean`` when fewer than ``PAIR_MIN_STEPS``."""
     ra = np.asarray(r, dtype=np.float64)
     ok = np.isfinite(ra) & (ra > 0)
     ra, sa = ra[ok], np.asarray(still, dtype=bool)[ok]
@@ -194,15 +157,7 @@ def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
 
 
 def quantisation(r: npt.ArrayLike) -> float | None:
-    """The resistance step [ohm] of a quantised series, or None when R is not quantised.
-
-    Args:
-        r: Resistance [ohm] (or the raw input), one per sample.
-
-    Returns:
-        The step, in the unit of ``r``, or None.
-
-    """
+    """The resistance step [ohm] of a quantised series, or None when R is not quantised."""
     r = _finite(r)
     steps = np.abs(np.diff(r))
     steps = steps[steps > 0]
@@ -238,35 +193,7 @@ class BaselineStep:
 
 
 class ChainCorrector:
-    """Online, causal correction of isolated spikes and baseline steps of one sensor.
-
-    It reads what the models would see (pair means when the excitation alternates, so the
-    alternation is no innovation; a one-sample spike then spans two pair means). Each
-    sample is compared with its prediction: the latest output plus the median rate of the
-    latest ``TREND`` sample-to-sample changes times the time step (a ramp is not a jump,
-    also when the sampling is irregular). The threshold is
-    ``k`` robust sigmas (1.4826 x median |innovation| over the latest ``WINDOW`` accepted
-    samples, or 1.2533 x the mean where quantisation zeroes the median): learned from the
-    run itself, it follows the noise of the moment.
-
-    * A sample beyond the threshold is *held*: the models see the prediction instead. If
-      a sample within ``width`` (1; 2 on pair means) comes back within the threshold, the
-      held ones were a spike and are never seen (no latency). Otherwise the change was
-      real and passes from the next sample on: a jump larger than k sigmas costs ``width``
-      samples of lag.
-    * ``baseline_step``: a jump that stays at its new level is watched for
-      ``STEP_SAMPLES`` samples (held meanwhile). It is a baseline step when its size
-      against the median level before it (both carried by the trend) exceeds the
-      threshold, its trend does not bend (relaxation, a ramp starting or stopping: see
-      ``RELAX_FRAC``) and its scatter stays within ``NOISE_RATIO`` of the sigma
-      before. A contact resistance in series changed, which adds to R in ohm, so the
-      corrector subtracts the jump from every later sample. Otherwise the samples pass
-      again (a real fast strain change then costs up to ``STEP_SAMPLES`` + ``width``
-      samples of lag). The watch's hold also removes isolated spikes.
-
-    A gap reset clears the references (``restart``), not the learned scale or the offset:
-    a re-seated connector stays where it is.
-    """
+    """Online, causal correction of isolated spikes and baseline steps of one sensor."""
 
     def __init__(self, *, k: float = DESPIKE_K, alternating: bool = False,
                  step_k: float = 0.0) -> None:
@@ -323,21 +250,7 @@ def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
     """A whole run's finite positive samples through a fresh ``ChainCorrector``, after the
     pair statistic ``pair`` (``pair_values``) when the excitation alternates (when None:
     found from the data), as the engine feeds its models: (what the models see, event
-    codes, the corrector); NaN where bad.
-
-    Args:
-        t: Sample times [s].
-        r: Resistance [ohm], one per sample.
-        k: The spike threshold, in robust sigmas of the innovation.
-        step_k: The least baseline step, in robust sigmas; 0: no step correction.
-        alternating: Whether the excitation alternates; None: found from ``r``.
-        pair: The pair statistic read when it alternates.
-
-    Returns:
-        What the models see [ohm] (NaN where bad), the event codes, and the corrector (its
-        spike count and baseline steps).
-
-    """
+    codes, the corrector); NaN where bad."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)

@@ -186,26 +186,7 @@ def _judge(st: np.ndarray, xi: float, pred: float, dt: float, rate: float, thr: 
 def correct_samples(t: np.ndarray, x: np.ndarray, st: np.ndarray, win: np.ndarray,
                     trend: np.ndarray, buf: np.ndarray, pre: np.ndarray, k: float, width: int,
                     step_k: float, events: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """The corrector of ``ChainCorrector`` over consecutive used samples ``x`` [ohm].
-
-    Args:
-        t: Sample times [s].
-        x: Samples [ohm] (what the models would see).
-        st: The corrector's state (``STATE_SIZE``), updated in place.
-        win: Ring of the latest |innovation| values [ohm] (``WINDOW``), updated.
-        trend: Ring of the latest sample-to-sample rates [ohm/s] (``TREND``), updated.
-        buf: The watched samples after a jump (``STEP_SAMPLES``), updated.
-        pre: Ring of the samples before a jump (``STEP_SAMPLES``), updated.
-        k: The spike threshold, in robust sigmas of the innovation.
-        width: Samples a spike may last (1; 2 on pair means).
-        step_k: The least baseline step, in robust sigmas; 0: no step correction.
-        events: Filled with each sample's event code (0, ``HELD``, ``SPIKE``, ``STEP``).
-        offsets: Filled with the baseline offset [ohm] after each sample.
-
-    Returns:
-        The corrected samples [ohm]: a held sample replaced by its prediction.
-
-    """
+    """The corrector of ``ChainCorrector`` over consecutive used samples ``x`` [ohm]."""
     y = np.empty(x.size)
     for i in range(x.size):
         xi = x[i] - st[_OFFSET]

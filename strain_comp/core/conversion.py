@@ -11,19 +11,7 @@ import numpy.typing as npt
 
 
 def divider_to_resistance(v_r1: npt.ArrayLike, r1: float, vin: float) -> np.ndarray:
-    """Sensor resistance from the voltage across the series resistor, R = R1 (Vin - V) / V.
-
-    Args:
-        v_r1: Voltage across R1 [V].
-        r1: The series resistor [ohm].
-        vin: The supply voltage [V].
-
-    Returns:
-        Resistance [ohm]; NaN where V_R1 <= 0 or V_R1 >= Vin (an open circuit or a short,
-        which would give a non-positive or infinite resistance), so that the bad-sample
-        path counts them.
-
-    """
+    """Sensor resistance from the voltage across the series resistor, R = R1 (Vin - V) / V."""
     v = np.asarray(v_r1, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         r = r1 * (vin - v) / v
@@ -31,15 +19,5 @@ def divider_to_resistance(v_r1: npt.ArrayLike, r1: float, vin: float) -> np.ndar
 
 
 def resistance_to_divider(r: npt.ArrayLike, r1: float, vin: float) -> np.ndarray:
-    """Voltage across the series resistor for a sensor resistance, V_R1 = Vin R1 / (R1 + R).
-
-    Args:
-        r: Sensor resistance [ohm].
-        r1: The series resistor [ohm].
-        vin: The supply voltage [V].
-
-    Returns:
-        Voltage across R1 [V].
-
-    """
+    """Voltage across the series resistor for a sensor resistance, V_R1 = Vin R1 / (R1 + R)."""
     return vin * r1 / (r1 + np.asarray(r, dtype=np.float64))

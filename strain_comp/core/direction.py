@@ -31,15 +31,7 @@ _STARTED, _T, _R, _FILT, _OUT = range(STATE_SIZE)
 
 @dataclass(frozen=True)
 class DirectionSettings:
-    """Settings of the dead-zone direction detector.
-
-    ``deadzone`` [ohm/s] on the causal derivative of R, low-pass filtered with time
-    constant ``tau`` [s]; ``k_sigma`` records how the dead zone was set (k times the
-    derivative noise on a hold segment), or None when it was given in ohm/s. ``sign`` is
-    +1 for a sensor whose R rises with strain and -1 for one whose R falls (negative gauge
-    factor): the detector itself always follows dR/dt, and the engine multiplies the
-    *published* direction by ``sign`` so that +1 means loading (strain rising) for both.
-    """
+    """Settings of the dead-zone direction detector."""
 
     deadzone: float
     tau: float = 0.0
@@ -51,44 +43,20 @@ class DirectionSettings:
             raise ParameterError("direction.sign", f"must be +1 or -1, got {self.sign!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        """The settings.
-
-        Returns:
-            The calibration file's ``direction`` mapping.
-
-        """
+        """The settings."""
         return {"deadzone": self.deadzone, "tau": self.tau, "k_sigma": self.k_sigma,
                 "sign": self.sign}
 
 
 def new_state() -> np.ndarray:
-    """A fresh detector state vector.
-
-    Returns:
-        The state of a detector that has seen nothing (``STATE_SIZE`` zeros).
-
-    """
+    """A fresh detector state vector."""
     return np.zeros(STATE_SIZE, dtype=np.float64)
 
 
 @njit
 def direction_update(state: np.ndarray, t: float, r: float, deadzone: float,
                      tau: float) -> int:
-    """Advance the detector by one sample.
-
-    Args:
-        state: The detector state (``STATE_SIZE`` float64), updated in place.
-        t: Time [s].
-        r: Resistance [ohm].
-        deadzone: Dead zone on the filtered dR/dt [ohm/s].
-        tau: Low-pass time constant [s]; 0 keeps the raw difference.
-
-    Returns:
-        +1 (R rising), 0 (hold) or -1 (R falling). The first sample only primes the state
-        (0); a sample whose time does not move forward leaves the state untouched and
-        repeats the last output.
-
-    """
+    """Advance the detector by one sample."""
     if state[0] == 0.0:
         state[0] = 1.0
         state[1] = t
@@ -149,15 +117,7 @@ class DirectionDetector:
     """Streaming dead-zone direction detector; ``step`` and ``run`` share one kernel."""
 
     def __init__(self, settings: DirectionSettings) -> None:
-        """A detector that has seen nothing.
-
-        Args:
-            settings: Dead zone and filter time constant.
-
-        Raises:
-            ParameterError: The dead zone or ``tau`` is not finite and >= 0.
-
-        """
+        """A detector that has seen nothing."""
         _check_settings(settings)
         self.settings = settings
         self.state = new_state()
@@ -167,33 +127,12 @@ class DirectionDetector:
         self.state[:] = 0.0
 
     def step(self, t: float, r: float) -> int:
-        """Advance by one sample.
-
-        Args:
-            t: Time [s].
-            r: Resistance [ohm].
-
-        Returns:
-            +1 (R rising), 0 (hold) or -1 (R falling).
-
-        """
+        """Advance by one sample."""
         return int(direction_update(self.state, float(t), float(r), self.settings.deadzone,
                                     self.settings.tau))
 
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        """Advance over whole arrays, continuing from the current state.
-
-        Args:
-            t: Times [s].
-            r: Resistances [ohm], same length.
-
-        Returns:
-            The state after each sample (int8: +1, 0 or -1).
-
-        Raises:
-            ValueError: ``t`` and ``r`` are not 1-D arrays of one length.
-
-        """
+        """Advance over whole arrays, continuing from the current state."""
         t = np.ascontiguousarray(t, dtype=np.float64)
         r = np.ascontiguousarray(r, dtype=np.float64)
         if t.ndim != 1 or t.shape != r.shape:
@@ -205,22 +144,7 @@ def derivative_noise(t: npt.ArrayLike, r: npt.ArrayLike, tau: float = 0.0) -> fl
     """Robust sigma [ohm/s] of the detector's filtered dR/dt on a segment where nothing moves.
 
     A linear trend of the derivative (slow drift, [EGaIn] Fig. 7b) is removed
-    first; sigma = 1.4826 * MAD of what is left, so a few glitches do not inflate it.
-
-    Args:
-        t: Times [s] of the hold segment.
-        r: Resistances [ohm], same length; non-finite samples are dropped.
-        tau: The detector's low-pass time constant [s]; with ``tau > 0`` the first 5 tau
-            of the segment (the filter's start-up) are skipped.
-
-    Returns:
-        sigma [ohm/s].
-
-    Raises:
-        InputError: The arrays are not 1-D of one length, time does not increase, or the
-            segment is too short (fewer than 10 derivatives).
-
-    """
+    first; sigma = 1.4826 * MAD of what is left, so a few glitches do not inflate it."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
     if t.ndim != 1 or t.shape != r.shape:
@@ -244,25 +168,7 @@ def derivative_noise(t: npt.ArrayLike, r: npt.ArrayLike, tau: float = 0.0) -> fl
 
 def estimate_deadzone(t: npt.ArrayLike, r: npt.ArrayLike, *, k_sigma: float = 4.0,
                       tau: float = 0.0) -> DirectionSettings:
-    """Dead zone = k_sigma * sigma of the filtered derivative on a hold segment (section V.E).
-
-    The paper suggests 3 sigma (99.73 %) or 4 sigma (99.99 %) of the derivative noise.
-
-    Args:
-        t: Times [s] of a segment where nothing moves.
-        r: Resistances [ohm], same length.
-        k_sigma: The dead zone in sigmas of the derivative noise.
-        tau: The detector's low-pass time constant [s].
-
-    Returns:
-        The detector settings (``deadzone`` in ohm/s, ``k_sigma`` recorded).
-
-    Raises:
-        ParameterError: ``k_sigma`` is not finite and > 0, or ``tau`` not finite and >= 0.
-        InputError: The segment is unusable (``derivative_noise``) or shows no noise at all
-            (constant readings).
-
-    """
+    """Dead zone = k_sigma * sigma of the filtered derivative on a hold segment (section V.E)."""
     if not (math.isfinite(k_sigma) and k_sigma > 0.0):
         raise ParameterError("k_sigma", f"must be finite and > 0, got {k_sigma}")
     if not (math.isfinite(tau) and tau >= 0.0):

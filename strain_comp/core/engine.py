@@ -48,23 +48,7 @@ class Engine:
                  arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
                  stale_after: float = 1.0, deadzone_scale: float = 1.0,
                  out_of_range: str = DEFAULT_OUT_OF_RANGE) -> None:
-        """Build one state per sensor and one group per array.
-
-        Args:
-            calibration: The calibration of every sensor.
-            arrays: Array name -> its ordered sensor names (all in ``calibration``).
-            gap_reset: A larger jump between good samples resets model and detector [s].
-            stale_after: ``health(now)`` reports a sensor stale after that long without a
-                good sample [s].
-            deadzone_scale: Multiplies every direction dead zone.
-            out_of_range: The policy beyond the valid range (``OUT_OF_RANGE_MODES``).
-
-        Raises:
-            ParameterError: An unknown ``out_of_range``, or ``gap_reset`` or
-                ``deadzone_scale`` not > 0.
-            InputError: An array names a sensor not in the calibration, or none.
-
-        """
+        """Build one state per sensor and one group per array."""
         if out_of_range not in OUT_OF_RANGE_MODES:
             raise ParameterError("out_of_range", f"must be one of "
                                  f"{', '.join(OUT_OF_RANGE_MODES)}, got {out_of_range!r}")
@@ -126,40 +110,11 @@ class Engine:
             group.rebuild()
 
     def input_gain(self, sensor: str) -> float:
-        """The tare gain of ``sensor``: its models see this x the measured resistance.
-
-        Args:
-            sensor: The sensor's name.
-
-        Returns:
-            The gain (1 untared).
-
-        Raises:
-            InputError: An unknown sensor.
-
-        """
+        """The tare gain of ``sensor``: its models see this x the measured resistance."""
         return self._sensor(sensor).gain
 
     def tare(self, sensor: str, rest_resistance: float) -> float:
-        """Make ``rest_resistance`` (measured now, at rest) this sensor's zero.
-
-        Multiplicative: the models see R x (calibration's rest resistance / rest_resistance);
-        with an input zero and span (``InputSettings.zero_span``) the gain is (its rest /
-        rest_resistance), so the rest now reads as the calibrated rest through the span.
-
-        Args:
-            sensor: The sensor's name.
-            rest_resistance: Its resistance at rest now [ohm].
-
-        Returns:
-            The new gain.
-
-        Raises:
-            InputError: An unknown sensor.
-            ParameterError: The calibration stores no rest resistance, or the value is not
-                finite and > 0 (the old gain then stays).
-
-        """
+        """Make ``rest_resistance`` (measured now, at rest) this sensor's zero."""
         reference = self._sensor(sensor).cal.input_rest
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
@@ -175,17 +130,7 @@ class Engine:
         """Set the tare gain of ``sensor``, effective from the next sample. The state is kept:
         the input corrector's and the pair statistic's references are carried over to the new
         gain, so the change is not taken for a baseline step, and so is the memory of effect
-        terms that read the resistance, so the change is no step for them either.
-
-        Args:
-            sensor: The sensor's name.
-            gain: The new gain on the measured resistance.
-
-        Raises:
-            InputError: An unknown sensor.
-            ParameterError: ``gain`` is not finite and > 0.
-
-        """
+        terms that read the resistance, so the change is no step for them either."""
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
         s = self._sensor(sensor)
@@ -200,15 +145,7 @@ class Engine:
                 group.set_gain(group.names.index(sensor), float(gain))
 
     def set_deadzone_scale(self, scale: float) -> None:
-        """Change the dead-zone scale (a node tunable); the detectors restart from rest.
-
-        Args:
-            scale: The factor on every direction dead zone.
-
-        Raises:
-            ParameterError: ``scale`` is not > 0.
-
-        """
+        """Change the dead-zone scale (a node tunable); the detectors restart from rest."""
         if not scale > 0:
             raise ParameterError("deadzone_scale", f"must be > 0, got {scale}")
         self.deadzone_scale = float(scale)
@@ -219,34 +156,12 @@ class Engine:
 
 
     def base_strain(self, name: str) -> float:
-        """A sensor's latest clamped strain before its effect terms.
-
-        Args:
-            name: The sensor's name.
-
-        Returns:
-            The strain, NaN for an unknown sensor or before its first sample.
-
-        """
+        """A sensor's latest clamped strain before its effect terms."""
         other = self._sensors.get(name)
         return math.nan if other is None else other.latest_base()
 
     def step(self, sensor: str, t: float, r: float, temperature: float = math.nan) -> SensorOutput:
-        """One sample of one sensor.
-
-        Args:
-            sensor: The sensor's name.
-            t: Time [s].
-            r: Raw input: resistance [ohm], or volts for a divider input.
-            temperature: Temperature [deg C]; NaN when not measured.
-
-        Returns:
-            The published strain, direction and status.
-
-        Raises:
-            InputError: An unknown sensor.
-
-        """
+        """One sample of one sensor."""
         s = self._sensor(sensor)
         pending = s.step_model(float(t), float(r), self._gap_reset)
         if isinstance(pending, SensorOutput):
@@ -256,23 +171,7 @@ class Engine:
     def run(self, sensor: str, t: npt.ArrayLike, r: npt.ArrayLike,
             temperature: npt.ArrayLike | None = None, *,
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> BatchOutput:
-        """Batch path over whole arrays; identical to ``step`` sample by sample.
-
-        Args:
-            sensor: The sensor's name.
-            t: Time [s] per sample, increasing.
-            r: Raw input per sample: resistance [ohm], or volts for a divider input.
-            temperature: Temperature [deg C] per sample; None when not measured.
-            neighbours: For cross-talk effect terms, the named array neighbours' clamped
-                pre-effect strain at the times ``t`` (else their latest values are held).
-
-        Returns:
-            Strain, direction and status per sample.
-
-        Raises:
-            InputError: An unknown sensor, or ``t`` and ``r`` not 1-D of one length.
-
-        """
+        """Batch path over whole arrays; identical to ``step`` sample by sample."""
         s = self._sensor(sensor)
         pending = s.run_model(t, r, temperature, self._gap_reset)
         nbrs = ({n: np.asarray(v, dtype=np.float64) for n, v in neighbours.items()}
@@ -284,21 +183,7 @@ class Engine:
                   ) -> dict[str, BatchOutput]:
         """Batch path for sensors sampled together (an array topic). Equal, tick by tick, to
         ``step_array``: every cross-talk term reads its neighbours' clamped pre-effect estimate
-        of the same tick.
-
-        Args:
-            sensors: The sensors' names, in the order of ``r``'s columns.
-            t: Time [s] per tick.
-            r: Raw input, (n, k) in the order of ``sensors``.
-            temperature: Sensor name -> temperature [deg C] per tick.
-
-        Returns:
-            Sensor name -> its strain, direction and status per tick.
-
-        Raises:
-            InputError: An unknown sensor, or ``r`` not (n, k).
-
-        """
+        of the same tick."""
         r = np.asarray(r, dtype=np.float64)
         if r.ndim != 2 or r.shape[1] != len(sensors):
             raise InputError(f"run_array: r must be (n, {len(sensors)}), got shape {r.shape}")
@@ -311,20 +196,7 @@ class Engine:
                 for name, p in pending.items()}
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
-        """One tick of an array.
-
-        Args:
-            array: The array's name.
-            t: Time [s].
-            r_vector: Raw input per sensor, in the array's sensor order.
-
-        Returns:
-            The published strain, direction and status per sensor.
-
-        Raises:
-            InputError: An unknown array, or a vector of the wrong length.
-
-        """
+        """One tick of an array."""
         try:
             group = self._arrays[array]
         except KeyError:
@@ -337,15 +209,7 @@ class Engine:
         return group.step(float(t), raw)
 
     def health(self, now: float | None = None) -> dict[str, SensorHealth]:
-        """Copies of every sensor's counters.
-
-        Args:
-            now: The current time [s]; with it, stale is evaluated.
-
-        Returns:
-            Sensor name -> its health.
-
-        """
+        """Copies of every sensor's counters."""
         kernel_health: dict[str, SensorHealth] = {}
         for group in self._arrays.values():
             if group.fused:
@@ -361,18 +225,7 @@ class Engine:
     def stale_for(self, sensor: str) -> float:
         """The silence after which ``sensor`` is stale: ``stale_after``, or two of its sample
         intervals for a slow instrument (``SensorCalibration.sample_interval``), which is
-        otherwise stale between every two samples.
-
-        Args:
-            sensor: The sensor's name.
-
-        Returns:
-            The silence [s].
-
-        Raises:
-            InputError: An unknown sensor.
-
-        """
+        otherwise stale between every two samples."""
         interval = self._sensor(sensor).cal.sample_interval
         return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 

@@ -312,36 +312,14 @@ class SparseFusion:
 
 
 def check_every(every: float) -> float:
-    """``every`` if it is a spacing of references (finite, > 0 s); InputError otherwise.
-
-    Args:
-        every: The spacing [s].
-
-    Returns:
-        ``every`` as a float.
-
-    Raises:
-        InputError: ``every`` is not a finite number > 0.
-
-    """
+    """``every`` if it is a spacing of references (finite, > 0 s); InputError otherwise."""
     if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
         raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
     return float(every)
 
 
 def fusion_note(name: str, state: dict[str, Any], every: float, unit: str) -> str:
-    """One line on what the fusion of ``name`` did (``OutputFusion.state``).
-
-    Args:
-        name: The sensor.
-        state: ``OutputFusion.state``.
-        every: The spacing of the references [s].
-        unit: The calibration's strain unit.
-
-    Returns:
-        The line.
-
-    """
+    """One line on what the fusion of ``name`` did (``OutputFusion.state``)."""
     refused = ", ".join(f"{k} {v}" for k, v in state["refused"].items())
     return (f"{name}: a reference every {every:g} s: {state['n_used']} used, "
             f"{state['n_refused']} refused{' (' + refused + ')' if refused else ''}; "

@@ -52,12 +52,7 @@ class SensorHealth:
                 + self.n_short)
 
     def to_diagnostic(self) -> tuple[int, str, dict[str, str]]:
-        """(level, message, key-values) as diagnostic_msgs/DiagnosticStatus carries them.
-
-        STALE: no good sample for longer than ``stale_after`` (as of ``health(now)``);
-        ERROR: the latest sample was rejected (the estimate is being held); WARN: the
-        latest sample was out of range or followed a gap reset; OK otherwise.
-        """
+        """(level, message, key-values) as diagnostic_msgs/DiagnosticStatus carries them."""
         last = self.last_status
         if self.stale:
             level, message = _DIAG_STALE, "stale: no good sample recently"
@@ -91,13 +86,7 @@ _COUNTERS = tuple((("n_good",) if used else ()) + ((counter,) if counter else ()
 
 def add_counts(h: SensorHealth, counts: np.ndarray) -> None:
     """Add per-``Status`` sample counts (indexed by status code; a further entry, the gap
-    resets, is left out) to ``h``'s counters.
-
-    Args:
-        h: The sensor's health, updated in place.
-        counts: Samples per status code.
-
-    """
+    resets, is left out) to ``h``'s counters."""
     for names, n in zip(_COUNTERS, counts.tolist(), strict=False):
         if n:
             for name in names:
@@ -151,15 +140,7 @@ class HealthTicks:
 
 def times_text(t: np.ndarray) -> np.ndarray:
     """``repr`` of each time [s] as UTF-8 bytes, ``none`` for NaN: each distinct time
-    formatted once (the sensors of one instrument share their stamps).
-
-    Args:
-        t: Times [s]; NaN for none.
-
-    Returns:
-        One byte string per time (``S32``).
-
-    """
+    formatted once (the sensors of one instrument share their stamps)."""
     found = np.full(t.size, b"none", dtype="S32")
     known = ~np.isnan(t)
     bits, where = np.unique(t[known].view(np.int64), return_inverse=True)  # -0.0 kept apart
@@ -217,29 +198,11 @@ class HealthCounter:
 
 def diagnostics(health: Mapping[str, SensorHealth], *, prefix: str = "strain_comp"
                 ) -> list[tuple[str, int, str, dict[str, str]]]:
-    """``(name, level, message, values)`` per sensor, as BagWriter and the nodes publish.
-
-    Args:
-        health: Sensor -> its health.
-        prefix: The status names' prefix.
-
-    Returns:
-        One (name, level, message, key -> value) per sensor.
-
-    """
+    """``(name, level, message, values)`` per sensor, as BagWriter and the nodes publish."""
     return [(status_name(name, prefix), *h.to_diagnostic()) for name, h in health.items()]
 
 
 def status_name(sensor: str, prefix: str = "strain_comp") -> str:
-    """The DiagnosticStatus name of ``sensor``'s health.
-
-    Args:
-        sensor: The sensor.
-        prefix: The prefix (the node's name).
-
-    Returns:
-        ``prefix: sensor``.
-
-    """
+    """The DiagnosticStatus name of ``sensor``'s health."""
     return f"{prefix}: {sensor}"
 

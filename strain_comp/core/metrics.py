@@ -21,27 +21,12 @@ class ErrorStats:
     n: int
 
     def to_dict(self) -> dict[str, float | int]:
-        """The statistics as a mapping.
-
-        Returns:
-            The fields by name (the JSON report's form).
-
-        """
+        """The statistics as a mapping."""
         return asdict(self)
 
 
 def error_stats(estimate: npt.ArrayLike, reference: npt.ArrayLike) -> ErrorStats:
-    """RMSE = sqrt(mean((S_hat - S)^2)) ([Electrolycra] eq. (5)), MAE, max |e| and R^2.
-
-    Args:
-        estimate: The estimated strain S_hat.
-        reference: The reference strain S, same length.
-
-    Returns:
-        The statistics over the pairs where both are finite; all NaN with n = 0 when
-        there is none, R^2 NaN when the reference is constant.
-
-    """
+    """RMSE = sqrt(mean((S_hat - S)^2)) ([Electrolycra] eq. (5)), MAE, max |e| and R^2."""
     s_hat = np.asarray(estimate, dtype=np.float64)
     s = np.asarray(reference, dtype=np.float64)
     ok = np.isfinite(s_hat) & np.isfinite(s)
@@ -56,13 +41,7 @@ def error_stats(estimate: npt.ArrayLike, reference: npt.ArrayLike) -> ErrorStats
 
 
 class ErrorAccumulator:
-    """``error_stats`` over a series that arrives in pieces, in constant memory.
-
-    Running float64 sums of e^2 and |e|, the running max |e|, and the reference's mean and
-    sum of squared deviations merged piece by piece (Chan, Golub and LeVeque's pairwise
-    update), so R^2 needs no second pass. One piece gives exactly ``error_stats``'s numbers;
-    more pieces agree with it to rounding.
-    """
+    """``error_stats`` over a series that arrives in pieces, in constant memory."""
 
     def __init__(self) -> None:
         self.n = 0
@@ -73,13 +52,7 @@ class ErrorAccumulator:
         self.m2 = 0.0
 
     def add(self, estimate: npt.ArrayLike, reference: npt.ArrayLike) -> None:
-        """Take in the finite pairs of one piece.
-
-        Args:
-            estimate: The piece's estimated strain.
-            reference: The piece's reference strain, same length.
-
-        """
+        """Take in the finite pairs of one piece."""
         s_hat = np.asarray(estimate, dtype=np.float64)
         s = np.asarray(reference, dtype=np.float64)
         ok = np.isfinite(s_hat) & np.isfinite(s)
@@ -102,12 +75,7 @@ class ErrorAccumulator:
         self.sum_e2, self.sum_abs, self.max_abs = sum_e2, sum_abs, max_abs
 
     def merge(self, other: ErrorAccumulator) -> None:
-        """Take in everything ``other`` took in (the same pairwise update as ``add``).
-
-        Args:
-            other: The accumulator of another run; the pooled statistics of both result.
-
-        """
+        """Take in everything ``other`` took in (the same pairwise update as ``add``)."""
         if not other.n:
             return
         if not self.n:
@@ -123,12 +91,7 @@ class ErrorAccumulator:
         self.n = total
 
     def stats(self) -> ErrorStats:
-        """The statistics so far.
-
-        Returns:
-            The statistics over every finite pair taken in; all NaN with n = 0 before any.
-
-        """
+        """The statistics so far."""
         if not self.n:
             nan = float("nan")
             return ErrorStats(nan, nan, nan, nan, 0)
@@ -138,21 +101,7 @@ class ErrorAccumulator:
 
 
 def hysteresis_area(x: npt.ArrayLike, y: npt.ArrayLike, n_periods: int) -> float:
-    """Normalised hysteresis area, [ReducedPL] eq. (5).
-
-    A = (1/n) * integral of y_hat d x_hat over the n periods, with x_hat and y_hat
-    min-max normalised to [0, 1].
-
-    Args:
-        x: The loop's abscissa (e.g. strain).
-        y: The loop's ordinate (e.g. resistance), same length.
-        n_periods: The number of periods the samples cover.
-
-    Returns:
-        The area: positive for a loop travelled counter-clockwise, negative clockwise, about
-        0 for a single-valued curve.
-
-    """
+    """Normalised hysteresis area, [ReducedPL] eq. (5)."""
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     x_hat = (x - x.min()) / (x.max() - x.min())

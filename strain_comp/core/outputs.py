@@ -56,15 +56,7 @@ class BatchOutput:
 
 
 def concatenate(outs: Sequence[BatchOutput]) -> BatchOutput:
-    """One ``BatchOutput`` of consecutive ones (``run`` over pieces of a stream).
-
-    Args:
-        outs: The pieces, in time order.
-
-    Returns:
-        Their arrays joined.
-
-    """
+    """One ``BatchOutput`` of consecutive ones (``run`` over pieces of a stream)."""
     def join(key: str) -> np.ndarray | None:
         values = [getattr(o, key) for o in outs]
         return None if any(v is None for v in values) else np.concatenate(values)

@@ -137,18 +137,7 @@ def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | N
     state (``policy.settle_steps`` = n steps each way at 10 Hz): (loading branch, unloading
     branch), both at the resistances ``np.linspace(r_lo, r_hi, n + 1)``. A sensor leaves
     the range at the top while loading and at the bottom while unloading. ``model``:
-    ``cal``'s model, reset before and after the ramp (None: a new one).
-
-    Args:
-        cal: The sensor's calibration.
-        limits: The range ramped over (``r_lo`` to ``r_hi`` [ohm]).
-        model: ``cal``'s model, or None.
-        policy: The numbers; None: ``RANGE``.
-
-    Returns:
-        The loading and unloading outputs [strain unit], n + 1 each.
-
-    """
+    ``cal``'s model, reset before and after the ramp (None: a new one)."""
     n = (RANGE if policy is None else policy).settle_steps
     up = np.linspace(limits.r_lo, limits.r_hi, n + 1)
     r = np.concatenate([up, up[-2::-1]])
@@ -163,18 +152,7 @@ def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | N
 def end_slopes(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None,
                policy: RangePolicy | None = None) -> tuple[float, float]:
     """dS/dR of the model's unloading branch over the first step of the ramp over the valid
-    range and of its loading branch over the last (``branches``): ``extrapolate``.
-
-    Args:
-        cal: The sensor's calibration.
-        limits: The range ramped over.
-        model: ``cal``'s model, or None.
-        policy: The numbers; None: ``RANGE``.
-
-    Returns:
-        The slopes at the low and the high end [strain unit / ohm].
-
-    """
+    range and of its loading branch over the last (``branches``): ``extrapolate``."""
     return _end_slopes(*branches(cal, limits, model, policy), limits, policy)
 
 
@@ -200,19 +178,7 @@ def bounded_slopes(cal: SensorCalibration, limits: SensorRange,
     strain did. The extended estimate reaches at most ``extend_reach`` calibrated strain
     spans above the range, and below it never past zero strain: a resistance under the
     calibrated rest is far more often a rest level that moved than a compression (numbers:
-    ``policy``, ``RANGE`` when None).
-
-    Args:
-        cal: The sensor's calibration.
-        limits: The range ramped over.
-        model: ``cal``'s model, or None.
-        policy: The numbers; None: ``RANGE``.
-
-    Returns:
-        The slopes at the low and high end [strain unit / ohm] (0: held), and the lowest and
-        highest strain the extension reaches.
-
-    """
+    ``policy``, ``RANGE`` when None)."""
     policy = RANGE if policy is None else policy
     loading, unloading = branches(cal, limits, model, policy)
     lo_end, hi_end = _end_slopes(loading, unloading, limits, policy)

@@ -52,18 +52,7 @@ GAP_INTERVALS = 10.0
 
 
 def gap_for(sample_interval: float | None, gap: float = DEFAULT_GAP_RESET) -> float:
-    """The gap of a sensor: ``gap``, or ``GAP_INTERVALS`` intervals when that is longer.
-
-    A 0.1 Hz instrument would otherwise start afresh at every sample.
-
-    Args:
-        sample_interval: The sensor's sample interval [s]; None when not recorded.
-        gap: The gap for a fast sensor [s].
-
-    Returns:
-        The gap [s].
-
-    """
+    """The gap of a sensor: ``gap``, or ``GAP_INTERVALS`` intervals when that is longer."""
     return gap if sample_interval is None else max(gap, GAP_INTERVALS * sample_interval)
 
 SampleStatus = Status
@@ -105,23 +94,7 @@ USED_CODE: Final[npt.NDArray[np.bool_]] = np.array(
 @njit
 def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: float,
                r_open: float, r_lo: float, r_hi: float, gap: float) -> tuple[int, bool]:
-    """Screen one sample by the rules of the module docstring.
-
-    Args:
-        t: Time [s].
-        r: Resistance [ohm].
-        forced: A status the input conversion forced (``GOOD``: none).
-        last_good_t: Time of the last used sample (-inf: none yet).
-        r_short: Short-circuit threshold [ohm].
-        r_open: Open-circuit threshold [ohm].
-        r_lo: Lower end of the calibrated range [ohm].
-        r_hi: Upper end of the calibrated range [ohm].
-        gap: Gap [s] after (or before) the last used sample that resets the state.
-
-    Returns:
-        The ``Status`` code and whether the state is reset before the sample.
-
-    """
+    """Screen one sample by the rules of the module docstring."""
     if not (math.isfinite(t) and math.isfinite(r)):
         return NOT_FINITE if forced == GOOD else forced, False
     if forced != GOOD:
@@ -145,15 +118,7 @@ def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: flo
 
 @njit
 def is_used(code: int) -> bool:
-    """Whether a sample with this status is fed to the model (``USED``).
-
-    Args:
-        code: A ``Status`` code.
-
-    Returns:
-        True for ``GOOD``, ``GAP_RESET`` and ``OUT_OF_RANGE``.
-
-    """
+    """Whether a sample with this status is fed to the model (``USED``)."""
     return code == GOOD or code == GAP_RESET or code == OUT_OF_RANGE
 
 
@@ -165,24 +130,7 @@ if {Status(c) for c in range(len(Status)) if is_used.py_func(c)} != USED:
 def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: float,
                r_short: float, r_open: float, r_lo: float, r_hi: float,
                gap: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """``screen_one`` over a sequence, in order.
-
-    Args:
-        t: Times [s].
-        r: Resistances [ohm].
-        forced: Forced status per sample (int8, ``GOOD``: none).
-        last_good_t: Time of the last used sample before the first (-inf: none).
-        r_short: Short-circuit threshold [ohm].
-        r_open: Open-circuit threshold [ohm].
-        r_lo: Lower end of the calibrated range [ohm].
-        r_hi: Upper end of the calibrated range [ohm].
-        gap: Gap [s] that resets the state.
-
-    Returns:
-        The status per sample (int8), the reset flag per sample, and the time of the last
-        used sample after the sequence.
-
-    """
+    """``screen_one`` over a sequence, in order."""
     n = t.size
     status = np.empty(n, dtype=np.int8)
     reset = np.zeros(n, dtype=np.bool_)
@@ -200,22 +148,7 @@ def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *
              gap: float = DEFAULT_GAP_RESET) -> np.ndarray:
     """Status of every sample (int8 ``Status`` codes), judged in order by ``screen_one``
     with no resistance range (what the fit can know): GOOD, NOT_FINITE, NON_POSITIVE,
-    TIME_NOT_INCREASING or GAP_RESET.
-
-    Time must exceed the time of the last *good* sample before it, so a short step back
-    rejects only the samples that go back, not the ones after the clock catches up again.
-
-    Args:
-        t: Times [s].
-        r: Resistances [ohm], same length.
-        last_good_t: Time of the last good sample before the first (-inf: none).
-        gap: A step back longer than this [s] (the engine's default ``gap_reset``) starts
-            afresh (GAP_RESET), as the engine does.
-
-    Returns:
-        The int8 status codes.
-
-    """
+    TIME_NOT_INCREASING or GAP_RESET."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
     forced = np.zeros(t.shape, dtype=np.int8)
@@ -225,27 +158,10 @@ def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *
 
 
 def good_mask(t: npt.ArrayLike, r: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-    """Where a sample may be fed to a model, judged by ``classify``.
-
-    Args:
-        t: Times [s].
-        r: Resistances [ohm], same length.
-
-    Returns:
-        A boolean mask, True where the status is in ``USED``.
-
-    """
+    """Where a sample may be fed to a model, judged by ``classify``."""
     return np.take(USED_CODE, classify(t, r))
 
 
 def used_mask(status: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-    """Where a sample was fed to the model.
-
-    Args:
-        status: ``Status`` codes.
-
-    Returns:
-        A boolean mask, True where the status is in ``USED``.
-
-    """
+    """Where a sample was fed to the model."""
     return np.take(USED_CODE, np.asarray(status))

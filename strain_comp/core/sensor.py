@@ -196,14 +196,7 @@ class SensorState:
                       direction: np.ndarray, temperature: np.ndarray, latest: Latest,
                       neighbours: Mapping[str, np.ndarray] | None = None,
                       starts: Sequence[int] = ()) -> np.ndarray:
-        """The one place where a calibration's effect terms correct the strain.
-
-        The terms (``strain_comp.core.effects``) read the model's estimate clamped to the
-        valid strain range, as ``strain_comp.diagnosis.loop`` fitted them. ``neighbours``:
-        array neighbours' clamped pre-effect strain at these samples; where not given, each
-        neighbour's latest value (``latest``) is held. ``starts``: sample positions where a
-        gap reset starts a new segment: the terms' state is reset there, as the model's is.
-        """
+        """The one place where a calibration's effect terms correct the strain."""
         base = np.clip(strain, self.limits.s_lo, self.limits.s_hi)
         given = neighbours or {}
         nbrs = {n: given[n] if n in given else np.full(t.size, latest(n))
@@ -339,16 +332,7 @@ class SensorState:
 
 
 def scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
-    """``settings`` with the dead zone times ``scale``.
-
-    Args:
-        settings: The direction detector's settings.
-        scale: The factor on the dead zone.
-
-    Returns:
-        A copy with the dead zone scaled.
-
-    """
+    """``settings`` with the dead zone times ``scale``."""
     return replace(settings, deadzone=settings.deadzone * scale)
 
 

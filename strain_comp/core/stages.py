@@ -30,35 +30,14 @@ R_LO, R_HI, S_LO, S_HI, SLOPE_LO, SLOPE_HI, REACH_LO, REACH_HI, SATURATE = \
 
 @njit
 def clamp(value: float, lo: float, hi: float) -> float:
-    """``np.clip`` of one value (NaN stays NaN).
-
-    Args:
-        value: The value.
-        lo: The lower bound.
-        hi: The upper bound.
-
-    Returns:
-        ``value`` within [lo, hi].
-
-    """
+    """``np.clip`` of one value (NaN stays NaN)."""
     return value if value != value else min(max(value, lo), hi)
 
 
 @njit(error_model="numpy")
 def divider_ohm(v: float, r1: float, vin: float) -> tuple[float, int]:
     """Input fix of a divider reading, R = R1 (Vin - V_R1) / V_R1 ([Electrolycra] section
-    II.A).
-
-    Args:
-        v: The voltage across R1, V_R1 [V].
-        r1: The divider's fixed resistor [ohm].
-        vin: The divider's supply [V].
-
-    Returns:
-        The resistance [ohm] and the forced status: V_R1 <= 0 is an open circuit, V_R1 >=
-        Vin a short (NaN resistance); 0 when neither.
-
-    """
+    II.A)."""
     if v <= 0.0:
         return np.nan, sc.OPEN_CIRCUIT
     if v >= vin:
@@ -68,17 +47,7 @@ def divider_ohm(v: float, r1: float, vin: float) -> tuple[float, int]:
 
 @njit
 def divider_all(v: np.ndarray, r1: float, vin: float) -> tuple[np.ndarray, np.ndarray]:
-    """``divider_ohm`` over a batch.
-
-    Args:
-        v: The voltage across R1 [V] per sample.
-        r1: The divider's fixed resistor [ohm].
-        vin: The divider's supply [V].
-
-    Returns:
-        The resistance [ohm] and the forced status per sample.
-
-    """
+    """``divider_ohm`` over a batch."""
     ohm = np.empty(v.size)
     forced = np.empty(v.size, np.int8)
     for i in range(v.size):
@@ -88,31 +57,13 @@ def divider_all(v: np.ndarray, r1: float, vin: float) -> tuple[np.ndarray, np.nd
 
 @njit
 def model_read(ohm: float, row: np.ndarray) -> float:
-    """The resistance the model reads: ``ohm``, clipped to the range when ``saturate``.
-
-    Args:
-        ohm: The resistance [ohm].
-        row: The sensor's range row (``RANGE_COLUMNS``).
-
-    Returns:
-        The resistance [ohm] fed to the model.
-
-    """
+    """The resistance the model reads: ``ohm``, clipped to the range when ``saturate``."""
     return clamp(ohm, row[R_LO], row[R_HI]) if row[SATURATE] else ohm
 
 
 @njit
 def saturate_all(ohm: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """``model_read`` over a batch.
-
-    Args:
-        ohm: The resistance [ohm] per sample.
-        row: The sensor's range row (``RANGE_COLUMNS``).
-
-    Returns:
-        The resistance [ohm] fed to the model per sample.
-
-    """
+    """``model_read`` over a batch."""
     out = np.empty(ohm.size)
     for i in range(ohm.size):
         out[i] = model_read(ohm[i], row)
@@ -122,17 +73,7 @@ def saturate_all(ohm: np.ndarray, row: np.ndarray) -> np.ndarray:
 @njit
 def bound(ohm: float, strain: float, row: np.ndarray) -> float:
     """The range stage: ``strain`` clamped to the strain range, plus the slope times the
-    resistance beyond the valid range (continuous at its ends), within the reach.
-
-    Args:
-        ohm: The resistance [ohm].
-        strain: The model's strain [%].
-        row: The sensor's range row (``RANGE_COLUMNS``).
-
-    Returns:
-        The bounded strain [%].
-
-    """
+    resistance beyond the valid range (continuous at its ends), within the reach."""
     strain = clamp(strain, row[S_LO], row[S_HI])
     if ohm > row[R_HI]:
         strain += row[SLOPE_HI] * (ohm - row[R_HI])
@@ -143,17 +84,7 @@ def bound(ohm: float, strain: float, row: np.ndarray) -> float:
 
 @njit
 def bound_all(ohm: np.ndarray, strain: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """``bound`` over a batch.
-
-    Args:
-        ohm: The resistance [ohm] per sample.
-        strain: The model's strain [%] per sample.
-        row: The sensor's range row (``RANGE_COLUMNS``).
-
-    Returns:
-        The bounded strain [%] per sample.
-
-    """
+    """``bound`` over a batch."""
     out = np.empty(strain.size)
     for i in range(strain.size):
         out[i] = bound(ohm[i], strain[i], row)
@@ -166,24 +97,7 @@ def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t
                  r_short: float, r_open: float, r_lo: float, r_hi: float, gap: float
                  ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
     """``screen_all``, plus the indices of the used samples and the positions among them
-    where a gap reset starts a segment.
-
-    Args:
-        t: Time [s] per sample.
-        ohm: Resistance [ohm] per sample.
-        forced: The input fix's forced status per sample (0: none).
-        last_good_t: Time [s] of the last used sample before the batch.
-        r_short: Below it a sample is a short [ohm].
-        r_open: Above it a sample is an open circuit [ohm].
-        r_lo: The valid range's bottom [ohm].
-        r_hi: The valid range's top [ohm].
-        gap: Gap after which the sensor is reset [s].
-
-    Returns:
-        Status per sample, gap-reset flag per sample, the last used sample's time [s],
-        the indices of the used samples, and the segment starts among them.
-
-    """
+    where a gap reset starts a segment."""
     status, reset, last = screen_all(t, ohm, forced, last_good_t, r_short, r_open, r_lo,
                                      r_hi, gap)
     idx = np.empty(t.size, np.int64)
@@ -202,18 +116,7 @@ def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t
 
 def range_status(ohm: np.ndarray, reset: np.ndarray, r_lo: float, r_hi: float) -> np.ndarray:
     """Status codes of used samples from the resistance the model reads: out of range
-    outside [r_lo, r_hi], else a gap reset or good (``screen_one``'s last rule).
-
-    Args:
-        ohm: Resistance [ohm] per used sample.
-        reset: Gap-reset flag per used sample.
-        r_lo: The valid range's bottom [ohm].
-        r_hi: The valid range's top [ohm].
-
-    Returns:
-        The status code per used sample.
-
-    """
+    outside [r_lo, r_hi], else a gap reset or good (``screen_one``'s last rule)."""
     inside = np.where(reset, sc.GAP_RESET, sc.GOOD)
     return np.where((ohm < r_lo) | (ohm > r_hi), sc.OUT_OF_RANGE, inside).astype(np.int8)
 
@@ -223,22 +126,7 @@ def hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np
          dir_used: np.ndarray, strain: float, direction: int
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The hold stage over a batch: each sample shows the strain and direction of the latest
-    used sample at or before it.
-
-    Args:
-        status: Status code per sample.
-        reset: Gap-reset flag per sample.
-        idx: Indices of the used samples.
-        strain_used: Strain per used sample.
-        dir_used: Direction per used sample.
-        strain: The strain held before the batch.
-        direction: The direction held before the batch.
-
-    Returns:
-        Strain and direction per sample, the out-of-range flags, and the samples per status
-        code followed by the number of resets.
-
-    """
+    used sample at or before it."""
     n = status.size
     out_s = np.empty(n)
     out_d = np.empty(n, np.int8)

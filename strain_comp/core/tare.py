@@ -77,16 +77,7 @@ TARE = TarePolicy()
 
 def rest_level(r: np.ndarray, *, pair: str = "mean") -> float:
     """Median of the pair statistic ``pair`` (``strain_comp.core.chain.pair_values``; cancels
-    an alternation every other sample), which ignores spikes.
-
-    Args:
-        r: Resistance [ohm] of a rest stretch.
-        pair: The pair statistic.
-
-    Returns:
-        The rest level [ohm].
-
-    """
+    an alternation every other sample), which ignores spikes."""
     return float(np.median(pair_values(r, branch=pair)[1:] if r.size >= 2 else r))
 
 
@@ -98,29 +89,7 @@ def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
                              direction: DirectionSettings, *, window: float | None = None,
                              pair: str = "mean", policy: TarePolicy | None = None) -> float:
-    """Rest resistance [ohm] of a run from its first seconds (no reference needed).
-
-    Uses the samples before the detector (fed the pair statistic ``pair``) first leaves
-    hold, within ``window`` seconds of the first good sample.
-
-    Args:
-        t: Sample times [s] from the start of the run.
-        r: Resistance [ohm], one per sample (not finite or <= 0: skipped).
-        direction: The calibration's detector settings.
-        window: The seconds read; None: ``policy.window``.
-        pair: The pair statistic (``strain_comp.core.chain.pair_values``).
-        policy: The numbers; None: ``TARE``.
-
-    Returns:
-        The rest resistance [ohm].
-
-    Raises:
-        InputError: No good sample; fewer than ``min_rest_samples`` samples spanning less
-            than ``min_rest_seconds`` qualify (the run does not start at rest); or their
-            level drifts by more than ``max_rest_drift`` (``rest_drift``): the caller then
-            keeps the old tare.
-
-    """
+    """Rest resistance [ohm] of a run from its first seconds (no reference needed)."""
     policy = TARE if policy is None else policy
     window = policy.window if window is None else window
     ta, ra, stop, _ = _rest_stretch(t, r, direction, window, pair)
@@ -134,23 +103,7 @@ def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
     """``rest_resistance_at_start`` on the first samples of a run as they arrive: None while
     a longer start could still change the answer (the detector has not left hold and
     ``window`` seconds have not passed), else that answer (or its InputError). The node
-    calls it on each new sample, so it takes the zero ``--tare auto`` takes offline.
-
-    Args:
-        t: Sample times [s] from the start of the run, so far.
-        r: Resistance [ohm], one per sample.
-        direction: The calibration's detector settings.
-        window: The seconds read; None: ``policy.window``.
-        pair: The pair statistic.
-        policy: The numbers; None: ``TARE``.
-
-    Returns:
-        The rest resistance [ohm], or None while undecided.
-
-    Raises:
-        InputError: Decided, but the start is no rest (``rest_resistance_at_start``).
-
-    """
+    calls it on each new sample, so it takes the zero ``--tare auto`` takes offline."""
     policy = TARE if policy is None else policy
     window = policy.window if window is None else window
     ta, ra, stop, decided = _rest_stretch(t, r, direction, window, pair)
@@ -204,18 +157,7 @@ def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float | None = None,
     """Drift of a rest stretch over ``window`` s (``TARE.window`` when None), as a share of
     its level: the change of the ``rest_level`` of its second half against its first, per
     the time between the halves' centres; 0 when the stretch is too short to tell (fewer
-    than 4 samples).
-
-    Args:
-        t: Sample times [s] of the stretch.
-        r: Resistance [ohm], one per sample.
-        window: The time [s] the drift is given over; None: ``TARE.window``.
-        pair: The pair statistic.
-
-    Returns:
-        The drift over ``window``, a share of the level (0.01: 1 %).
-
-    """
+    than 4 samples)."""
     window = TARE.window if window is None else window
     if r.size < 4:
         return 0.0
@@ -244,27 +186,7 @@ def _referenced(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, min_sample
 def unsettled_start(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, *,
                     pair: str = "mean", policy: TarePolicy | None = None,
                     ) -> tuple[float, float]:
-    """(seconds, drift) of a run that starts while its resistance still relaxes.
-
-    The stretch before the reference strain ``s`` first moves (by ``rest_band`` x its
-    span) is a rest; when its level drifts over its first ``window`` s by more than
-    ``max_rest_drift`` (``rest_drift``, the rule that declines an automatic tare there),
-    the sensor is relaxing from a stretch before the recording, which no state started at
-    the first sample knows. Returns the stretch's length [s] and that drift; (0, drift)
-    at a settled rest, (0, 0) when the rest is shorter than the window. The numbers:
-    ``policy`` (``TARE`` when None).
-
-    Args:
-        t: Sample times [s].
-        r: Resistance [ohm], one per sample.
-        s: Reference strain, one per sample.
-        pair: The pair statistic.
-        policy: The numbers; None: ``TARE``.
-
-    Returns:
-        The seconds [s] left out and the drift (a share of the level over ``window``).
-
-    """
+    """(seconds, drift) of a run that starts while its resistance still relaxes."""
     policy = TARE if policy is None else policy
     referenced = _referenced(t, r, s, policy.min_rest_samples)
     if referenced is None:
@@ -284,27 +206,7 @@ def unsettled_start(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, *,
 def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike,
                                    *, pair: str = "mean", policy: TarePolicy | None = None,
                                    ) -> float | None:
-    """Rest resistance [ohm] of a training run: its first stay at minimum strain.
-
-    Rest samples have a reference strain ``s`` within ``rest_band`` x span of its minimum.
-    The run's first rest is used (at most ``window`` s of it, as at run time): the
-    leading rest samples when the run starts at rest (even one: the rest before the first
-    load is what an automatic tare sees at the start of a later run; the first return to
-    rest after loading sits higher, the material has softened), else the first stretch of
-    ``min_rest_samples`` or more. None when the run never rests that long. The numbers:
-    ``policy`` (``TARE`` when None).
-
-    Args:
-        t: Sample times [s].
-        r: Resistance [ohm], one per sample.
-        s: Reference strain, one per sample.
-        pair: The pair statistic.
-        policy: The numbers; None: ``TARE``.
-
-    Returns:
-        The rest resistance [ohm], or None.
-
-    """
+    """Rest resistance [ohm] of a training run: its first stay at minimum strain."""
     policy = TARE if policy is None else policy
     referenced = _referenced(t, r, s, policy.min_rest_samples)
     if referenced is None:
@@ -326,31 +228,14 @@ TARE_MODES = ("calibration", "auto")
 
 def ohms(values: tuple[float, ...]) -> str:
     """Resistances in the prefix that suits the largest: ``35.1 vs 39.9 kohm``, ``66.1 vs
-    71.8 ohm``, ``2.41 vs 2.45 Mohm``, ``0.521 vs 0.530 ohm``.
-
-    Args:
-        values: Resistances [ohm].
-
-    Returns:
-        The values joined by ``vs``, with the unit.
-
-    """
+    71.8 ohm``, ``2.41 vs 2.45 Mohm``, ``0.521 vs 0.530 ohm``."""
     top = max(abs(v) for v in values)
     scale, prefix = next(((f, p) for f, p in ((1e6, "M"), (1e3, "k")) if top >= f), (1.0, ""))
     return " vs ".join(f"{v / scale:.4g}" for v in values) + f" {prefix}ohm"
 
 
 def tare_reading(calibrated: float, measured: float) -> str:
-    """A tare in words: ``rest resistance 12.0 % below calibration (35.1 vs 39.9 kohm)``.
-
-    Args:
-        calibrated: The calibration's rest resistance [ohm].
-        measured: The rest resistance measured [ohm].
-
-    Returns:
-        The reading.
-
-    """
+    """A tare in words: ``rest resistance 12.0 % below calibration (35.1 vs 39.9 kohm)``."""
     change = 100.0 * (measured / calibrated - 1.0)
     side = "above" if change >= 0 else "below"
     return (f"rest resistance {abs(change):.1f} % {side} calibration "
@@ -359,26 +244,7 @@ def tare_reading(calibrated: float, measured: float) -> str:
 
 def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.ArrayLike]],
                 mode: str) -> dict[str, str]:
-    """Apply ``mode`` (``TARE_MODES``) to ``engine`` for the sensors of ``runs``.
-
-    ``calibration`` leaves every gain at 1. ``auto`` tares each calibrated sensor with
-    ``rest_resistance_at_start``; a failed tare never changes the gain.
-
-    Args:
-        engine: The engine tared.
-        runs: Sensor name -> (t [s], raw input: ohm, or divider volts) from the start of
-            the run.
-        mode: ``calibration`` or ``auto``.
-
-    Returns:
-        Sensor -> one line: the reading of its tare, or why it kept the calibration's rest
-        resistance (no stored rest resistance, no rest at the start); empty for
-        ``calibration``.
-
-    Raises:
-        InputError: ``mode`` is not one of ``TARE_MODES``.
-
-    """
+    """Apply ``mode`` (``TARE_MODES``) to ``engine`` for the sensors of ``runs``."""
     if mode not in TARE_MODES:
         raise InputError(f"--tare {mode!r}: expected one of {', '.join(TARE_MODES)}")
     lines: dict[str, str] = {}

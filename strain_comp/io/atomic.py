@@ -28,21 +28,7 @@ PathLike = str | os.PathLike[str]
 
 
 def check_output(path: PathLike, inputs: Iterable[PathLike] = ()) -> Path:
-    """Check that ``path`` may be written by a command reading ``inputs``.
-
-    Args:
-        path: The file to be written.
-        inputs: The command's input files or bag directories.
-
-    Returns:
-        ``path`` as a Path.
-
-    Raises:
-        OutputError: ``path`` exists and is not a regular file (a directory, a device, a
-            FIFO, a symbolic link), is one of ``inputs`` or lies inside an input bag
-            directory, or cannot be checked.
-
-    """
+    """Check that ``path`` may be written by a command reading ``inputs``."""
     target = Path(path)
     try:
         info = target.lstat()
@@ -63,15 +49,7 @@ def check_output(path: PathLike, inputs: Iterable[PathLike] = ()) -> Path:
 
 
 def check_distinct(outputs: Iterable[PathLike | None]) -> None:
-    """Check that no two of one command's outputs are one path or one existing file.
-
-    Args:
-        outputs: The output paths; None for an output not asked for.
-
-    Raises:
-        OutputError: Two outputs are one path (the second write would replace the first).
-
-    """
+    """Check that no two of one command's outputs are one path or one existing file."""
     seen: list[Path] = []
     for out in outputs:
         if out is None:
@@ -102,15 +80,7 @@ def _file_mode(path: Path) -> int:
 
 
 def fsync_directory(directory: Path) -> None:
-    """Make a rename in ``directory`` durable.
-
-    Args:
-        directory: The directory the rename happened in.
-
-    Raises:
-        OSError: The directory cannot be opened or synced.
-
-    """
+    """Make a rename in ``directory`` durable."""
     fd = os.open(directory, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -120,24 +90,10 @@ def fsync_directory(directory: Path) -> None:
 
 class AtomicFile:
     """An open temporary file beside ``path`` that ``commit()`` renames over ``path`` and
-    ``discard()`` deletes; for writers that stream into it over many calls (the bag writer).
-
-    The target is checked (``check_output``) when it is opened and again just before the
-    rename. ``handle`` is the binary file to write to.
-    """
+    ``discard()`` deletes; for writers that stream into it over many calls (the bag writer)."""
 
     def __init__(self, path: PathLike, *, inputs: Iterable[PathLike] = ()) -> None:
-        """Open the temporary file beside ``path``.
-
-        Args:
-            path: The target file.
-            inputs: The command's inputs, which the target must not be.
-
-        Raises:
-            OutputError: The target may not be written (``check_output``) or the
-                temporary file cannot be created.
-
-        """
+        """Open the temporary file beside ``path``."""
         self.inputs = list(inputs)
         self.path = check_output(path, self.inputs)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -151,14 +107,7 @@ class AtomicFile:
         self.done = False
 
     def commit(self) -> None:
-        """Flush, fsync, rename over the target and fsync the directory (once).
-
-        Raises:
-            OutputError: The write or the rename failed, or the target became a path that
-                may not be written; the temporary file is removed and the target is left
-                as it was.
-
-        """
+        """Flush, fsync, rename over the target and fsync the directory (once)."""
         if self.done:
             return
         try:
@@ -192,20 +141,7 @@ class AtomicFile:
 
 @contextmanager
 def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterator[BinaryIO]:
-    """A binary file that replaces ``path`` only once it is complete.
-
-    Args:
-        path: The target file.
-        inputs: The command's inputs, which the target must not be.
-
-    Yields:
-        The binary file to write to (a temporary file beside ``path``).
-
-    Raises:
-        OutputError: The target may not be written, or a write, the sync or the rename
-            failed; nothing is left half written.
-
-    """
+    """A binary file that replaces ``path`` only once it is complete."""
     output = AtomicFile(path, inputs=inputs)
     try:
         yield output.handle
@@ -219,31 +155,11 @@ def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterato
 
 
 def write_bytes(path: PathLike, data: bytes, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``data`` to ``path`` atomically.
-
-    Args:
-        path: The target file.
-        data: The whole content.
-        inputs: The command's inputs, which the target must not be.
-
-    Raises:
-        OutputError: As ``atomic_output``.
-
-    """
+    """Write ``data`` to ``path`` atomically."""
     with atomic_output(path, inputs=inputs) as handle:
         handle.write(data)
 
 
 def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``text`` to ``path`` atomically, UTF-8 encoded.
-
-    Args:
-        path: The target file.
-        text: The whole content.
-        inputs: The command's inputs, which the target must not be.
-
-    Raises:
-        OutputError: As ``atomic_output``.
-
-    """
+    """Write ``text`` to ``path`` atomically, UTF-8 encoded."""
     write_bytes(path, text.encode("utf-8"), inputs=inputs)

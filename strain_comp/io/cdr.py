@@ -48,75 +48,39 @@ class CdrBuffer:
         self.data = bytearray(ENCAPSULATION)
 
     def align(self, size: int) -> None:
-        """Pad to a multiple of ``size`` bytes, counted after the encapsulation header.
-
-        Args:
-            size: The alignment [bytes]: 1, 2, 4 or 8.
-
-        """
+        """Pad to a multiple of ``size`` bytes, counted after the encapsulation header."""
         self.data += _PAD[-(len(self.data) - 4) % size]
 
     def u32(self, value: int) -> None:
-        """Append a uint32, 4-aligned.
-
-        Args:
-            value: The value (0 to 2^32 - 1).
-
-        """
+        """Append a uint32, 4-aligned."""
         self.align(4)
         self.data += _U32.pack(value)
 
     def stamp(self, sec: int, nanosec: int) -> None:
-        """Append a builtin_interfaces/Time (``STAMP``).
-
-        Args:
-            sec: Seconds.
-            nanosec: Nanoseconds (0 to 999 999 999).
-
-        """
+        """Append a builtin_interfaces/Time (``STAMP``)."""
         self.align(4)
         self.data += STAMP.pack(sec, nanosec)
 
     def f64(self, *values: float) -> None:
-        """Append consecutive float64 fields, 8-aligned.
-
-        Args:
-            *values: The fields' values.
-
-        """
+        """Append consecutive float64 fields, 8-aligned."""
         self.align(8)
         self.data += struct.pack(f"<{len(values)}d", *values)
 
     def string(self, text: str) -> None:
-        """Append a string: uint32 length with the NUL, UTF-8 bytes, NUL.
-
-        Args:
-            text: The string.
-
-        """
+        """Append a string: uint32 length with the NUL, UTF-8 bytes, NUL."""
         data = self.data
         data += _PAD[-len(data) % 4]  # the 4-byte encapsulation keeps 4-alignment
         data += _STRINGS.get(text) or _encoded(text)
 
     def strings(self, texts: Sequence[str]) -> None:
-        """Append a string sequence: uint32 count, then each string.
-
-        Args:
-            texts: The strings.
-
-        """
+        """Append a string sequence: uint32 count, then each string."""
         self.u32(len(texts))
         for text in texts:
             self.string(text)
 
     def f64_seq(self, values: npt.ArrayLike) -> None:
         """Append a float64 sequence: uint32 count, then the values 8-aligned (no padding
-        when empty).
-
-        Args:
-            values: The values (flattened).
-
-        """
+        when empty)."""
         v = np.asarray(values, dtype="<f8").reshape(-1)
         self.u32(v.size)
         if v.size:
@@ -124,24 +88,12 @@ class CdrBuffer:
             self.data += v.tobytes()
 
     def header(self, sec: int, nanosec: int, frame_id: str) -> None:
-        """Append a std_msgs/Header: stamp, frame_id.
-
-        Args:
-            sec: ``stamp.sec``.
-            nanosec: ``stamp.nanosec``.
-            frame_id: ``frame_id``.
-
-        """
+        """Append a std_msgs/Header: stamp, frame_id."""
         self.stamp(sec, nanosec)
         self.string(frame_id)
 
     def payload(self) -> bytes:
-        """The message as written so far.
-
-        Returns:
-            The CDR payload, encapsulation header included.
-
-        """
+        """The message as written so far."""
         return bytes(self.data)
 
 
@@ -158,73 +110,28 @@ def _encoded(text: str) -> bytes:
 
 
 def stamp_of(t_ns: int) -> tuple[int, int]:
-    """Split a time into a ROS stamp.
-
-    Args:
-        t_ns: Time in integer ns (>= 0).
-
-    Returns:
-        (sec, nanosec).
-
-    """
+    """Split a time into a ROS stamp."""
     return t_ns // 1_000_000_000, t_ns % 1_000_000_000
 
 
 def float64(value: float) -> bytes:
-    """Encode a std_msgs/msg/Float64.
-
-    Args:
-        value: ``data``.
-
-    Returns:
-        The CDR payload.
-
-    """
+    """Encode a std_msgs/msg/Float64."""
     return ENCAPSULATION + struct.pack("<d", value)
 
 
 def float32(value: float) -> bytes:
-    """Encode a std_msgs/msg/Float32.
-
-    Args:
-        value: ``data``.
-
-    Returns:
-        The CDR payload.
-
-    """
+    """Encode a std_msgs/msg/Float32."""
     return ENCAPSULATION + struct.pack("<f", value)
 
 
 def int8(value: int) -> bytes:
-    """Encode a std_msgs/msg/Int8.
-
-    Args:
-        value: ``data`` (-128 to 127).
-
-    Returns:
-        The CDR payload.
-
-    Raises:
-        struct.error: ``value`` does not fit in an int8.
-
-    """
+    """Encode a std_msgs/msg/Int8."""
     return ENCAPSULATION + struct.pack("<b", value)
 
 
 def float64_multiarray(dims: Sequence[tuple[str, int, int]], data_offset: int,
                        data: npt.ArrayLike) -> bytes:
-    """Encode a std_msgs/msg/Float64MultiArray.
-
-    Args:
-        dims: ``layout.dim``, each as (label, size, stride).
-        data_offset: ``layout.data_offset``.
-        data: ``data``, float64 values.
-
-    Returns:
-        The CDR payload.
-
-    """
+    """Encode a std_msgs/msg/Float64MultiArray."""
     buf = CdrBuffer()
     buf.u32(len(dims))
     for label, size, stride in dims:
@@ -238,39 +145,14 @@ def float64_multiarray(dims: Sequence[tuple[str, int, int]], data_offset: int,
 
 def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: int,
                             n: int) -> bytes:
-    """The bytes of a ``float64_multiarray`` message of ``n`` values before its first value.
-
-    For a fixed layout and ``n`` every message is this head and the values (little-endian
-    float64), so runs and live messages are written around it.
-
-    Args:
-        dims: ``layout.dim``, each as (label, size, stride).
-        data_offset: ``layout.data_offset``.
-        n: The number of values.
-
-    Returns:
-        The head bytes, encapsulation header included.
-
-    """
+    """The bytes of a ``float64_multiarray`` message of ``n`` values before its first value."""
     payload = float64_multiarray(dims, data_offset, np.zeros(n))
     return payload[:len(payload) - 8 * n]
 
 
 def temperature(sec: int, nanosec: int, frame_id: str, value: float,
                 variance: float) -> bytes:
-    """Encode a sensor_msgs/msg/Temperature.
-
-    Args:
-        sec: ``header.stamp.sec``.
-        nanosec: ``header.stamp.nanosec``.
-        frame_id: ``header.frame_id``.
-        value: ``temperature`` [deg C].
-        variance: ``variance`` (0: unknown).
-
-    Returns:
-        The CDR payload.
-
-    """
+    """Encode a sensor_msgs/msg/Temperature."""
     buf = CdrBuffer()
     buf.header(sec, nanosec, frame_id)
     buf.f64(value, variance)
@@ -280,19 +162,7 @@ def temperature(sec: int, nanosec: int, frame_id: str, value: float,
 def diagnostic_array(sec: int, nanosec: int, frame_id: str,
                      statuses: Sequence[tuple[str, int, str, str, Sequence[tuple[str, str]]]]
                      ) -> bytes:
-    """Encode a diagnostic_msgs/msg/DiagnosticArray.
-
-    Args:
-        sec: ``header.stamp.sec``.
-        nanosec: ``header.stamp.nanosec``.
-        frame_id: ``header.frame_id``.
-        statuses: ``status[]``, each as (name, level, message, hardware_id,
-            [(key, value), ...]).
-
-    Returns:
-        The CDR payload.
-
-    """
+    """Encode a diagnostic_msgs/msg/DiagnosticArray."""
     buf = CdrBuffer()
     buf.header(sec, nanosec, frame_id)
     buf.u32(len(statuses))
@@ -316,21 +186,7 @@ def diagnostic_array(sec: int, nanosec: int, frame_id: str,
 def joint_state(sec: int, nanosec: int, frame_id: str, names: Sequence[str],
                 position: npt.ArrayLike, velocity: npt.ArrayLike = (),
                 effort: npt.ArrayLike = ()) -> bytes:
-    """Encode a sensor_msgs/msg/JointState.
-
-    Args:
-        sec: ``header.stamp.sec``.
-        nanosec: ``header.stamp.nanosec``.
-        frame_id: ``header.frame_id``.
-        names: ``name[]``.
-        position: ``position[]``.
-        velocity: ``velocity[]`` (may be empty).
-        effort: ``effort[]`` (may be empty).
-
-    Returns:
-        The CDR payload.
-
-    """
+    """Encode a sensor_msgs/msg/JointState."""
     buf = CdrBuffer()
     buf.header(sec, nanosec, frame_id)
     buf.strings(names)
@@ -342,21 +198,7 @@ def joint_state(sec: int, nanosec: int, frame_id: str, names: Sequence[str],
 
 def joint_state_layout(frame_id: str, names: Sequence[str], *, velocity: bool
                        ) -> tuple[bytes, int, int | None]:
-    """The template of every JointState message for fixed names.
-
-    Only the stamp (bytes 4..12) and the values differ between such messages, so whole runs
-    are written as numpy rows of this template.
-
-    Args:
-        frame_id: ``header.frame_id``.
-        names: ``name[]``.
-        velocity: Whether ``velocity[]`` holds one value per name (else it is empty).
-
-    Returns:
-        The payload with zero stamp and values, the byte offset of its first position
-        value, and that of its first velocity value (None: velocity empty).
-
-    """
+    """The template of every JointState message for fixed names."""
     n = len(names)
     buf = CdrBuffer()
     buf.header(0, 0, frame_id)
@@ -396,18 +238,5 @@ _DICT_ENCODERS: dict[str, Callable[[Mapping[str, Any]], bytes]] = {
 
 
 def message_encoder(kind: str) -> Callable[[Mapping[str, Any]], bytes]:
-    """The encoder of a message type for messages given as nested dicts.
-
-    Args:
-        kind: A type of ``strain_comp.io.bag.schemas.SCHEMAS``, e.g.
-            ``std_msgs/msg/Float64``.
-
-    Returns:
-        A function from a message with the standard field names (as rosbags and the ROS
-        message classes name them) to its CDR payload.
-
-    Raises:
-        KeyError: ``kind`` is not one of those types.
-
-    """
+    """The encoder of a message type for messages given as nested dicts."""
     return _DICT_ENCODERS[kind]

@@ -54,12 +54,7 @@ class ImportReport:
     to pass."""
 
     def lines(self) -> list[str]:
-        """Human-readable summary (the notes are printed apart, on stderr).
-
-        Returns:
-            One fact per line.
-
-        """
+        """Human-readable summary (the notes are printed apart, on stderr)."""
         out = [f"{self.path} ({self.fmt}): {self.rows} rows, {self.kept} kept"]
         out += [f"  dropped {n} rows: {reason}" for reason, n in self.dropped.items() if n]
         if self.fmt == "cb_pdms" or self.glitches_repaired:
@@ -81,15 +76,7 @@ _WHITESPACE = " "
 
 
 def detect_delimiter(lines: Sequence[str]) -> str:
-    """The delimiter of a CSV file (rules in the module docstring).
-
-    Args:
-        lines: The file's first lines.
-
-    Returns:
-        The delimiter; ``" "`` stands for runs of white space.
-
-    """
+    """The delimiter of a CSV file (rules in the module docstring)."""
     lines = [line for line in lines if line.strip()][:20]
     for delimiter in _DELIMITERS:
         counts = {len(row) for row in csv.reader(lines, delimiter=delimiter)}
@@ -156,16 +143,7 @@ def _column(name: str, key: int | str, header: list[str] | None, path: Path) -> 
 
 def repair_position_glitches(pos: np.ndarray, *, threshold_mm: float = 0.5
                              ) -> tuple[np.ndarray, int]:
-    """Replace isolated single-sample reads of 0 mm by the mean of their neighbours.
-
-    Args:
-        pos: Positions [mm].
-        threshold_mm: A 0 mm read is a glitch when both neighbours exceed this.
-
-    Returns:
-        The repaired copy and the number of samples repaired.
-
-    """
+    """Replace isolated single-sample reads of 0 mm by the mean of their neighbours."""
     pos = np.asarray(pos, dtype=np.float64).copy()
     if pos.size < 3:
         return pos, 0
@@ -181,30 +159,7 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
                scales: Mapping[str, float] | None = None, delimiter: str | None = None,
                header: bool | None = None, glitch_threshold_mm: float = 0.5,
                resistance_unit: str = "ohm") -> ImportResult:
-    """Import one tensile-tester CSV as a Recording (formats in the module docstring).
-
-    Args:
-        path: The CSV file.
-        fmt: The format, one of ``FORMATS``.
-        sensor: The recording's sensor name.
-        gauge_length_mm: Gauge length [mm] turning an extension into strain [%]; None:
-            the format's own unit.
-        columns: Column per field (index or header name), over the format's defaults.
-        scales: Factor per field applied after reading.
-        delimiter: The delimiter; None: detected (``detect_delimiter``).
-        header: Whether the first row is a header; None: detected.
-        glitch_threshold_mm: ``repair_position_glitches``' threshold.
-        resistance_unit: The unit of the resistance column after ``scales``: ohm, or
-            another for a column not in ohm (``R/R0``); the report and its note name it.
-
-    Returns:
-        The recording and the import report.
-
-    Raises:
-        InputError: The file is missing or unreadable, the format unknown, the column
-            mapping bad, or no row is good.
-
-    """
+    """Import one tensile-tester CSV as a Recording (formats in the module docstring)."""
     path = Path(path)
     mapping = _mapping(path, fmt, gauge_length_mm, columns, scales)
     rows, _ = _read_rows(path, delimiter)
@@ -381,20 +336,7 @@ MICROSTRAIN_SPAN = 1000.0
 
 
 def reference_warnings(values: np.ndarray, t: np.ndarray, *, percent: bool) -> list[str]:
-    """What looks wrong in a reference column as read (before any gauge length).
-
-    Args:
-        values: The reference as read.
-        t: Its times [s].
-        percent: The reference is taken as %: a span that looks like a fraction or like
-            microstrain is reported too.
-
-    Returns:
-        One line per finding, saying what to pass: a signed position (mostly below zero:
-        the fit would take the most negative value, the largest stretch, for the rest), a
-        time column that runs backwards, a span of a fraction or of microstrain.
-
-    """
+    """What looks wrong in a reference column as read (before any gauge length)."""
     ok = np.isfinite(values) & np.isfinite(t)
     values, t = values[ok], t[ok]
     if values.size < 2:
@@ -422,21 +364,7 @@ def reference_warnings(values: np.ndarray, t: np.ndarray, *, percent: bool) -> l
 
 def write_recording_bag(recording: Recording, out_path: str | Path, *,
                         inputs: Sequence[str | Path] = ()) -> None:
-    """Write a Recording into a new MCAP bag, atomically.
-
-    Samples whose reference is NaN are written too (the reader keeps them as NaN).
-
-    Args:
-        recording: Written as ``/NAME/resistance``, ``/NAME/strain_reference`` and
-            ``/NAME/temperature`` (each when present).
-        out_path: The bag file.
-        inputs: Paths the output must not overwrite.
-
-    Raises:
-        OutputError: ``out_path`` may not be written (e.g. it is one of ``inputs``).
-        BagError: The write failed.
-
-    """
+    """Write a Recording into a new MCAP bag, atomically."""
     prefix = "/" + recording.name.strip("/")
     with BagWriter(out_path, inputs=inputs) as writer:
         writer.write_float64(f"{prefix}/resistance", recording.t, recording.r)

@@ -101,18 +101,7 @@ def diagnostic_arrays(t_ns: np.ndarray, frame_id: str, statuses: Sequence[Status
                       ) -> tuple[np.ndarray, np.ndarray]:
     """``cdr.diagnostic_array`` of many messages: message k stamped ``t_ns[k]`` (integer
     ns, >= 0) holds ``statuses`` with each column's k-th entry; the payloads joined
-    (uint8) and each one's length.
-
-    Args:
-        t_ns: Each message's stamp [ns], integer, >= 0.
-        frame_id: The header's frame id.
-        statuses: Each status: its level per message, name, message, hardware id and
-            (key, value) pairs, each a text or a column with one entry per message.
-
-    Returns:
-        The payloads joined (uint8), and each one's length [bytes].
-
-    """
+    (uint8) and each one's length."""
     k = t_ns.size
     ops: list[tuple[int, int, int]] = []
     pool = bytearray()

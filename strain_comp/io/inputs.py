@@ -9,21 +9,7 @@ from strain_comp.errors import InputError
 
 
 def existing(path: str | os.PathLike[str], what: str, *, directory: bool = False) -> str:
-    """Check an input path before anything opens it (a FIFO would block a reader).
-
-    Args:
-        path: The input path.
-        what: What the path holds, for the message (``"bag"``, ``"calibration"``, ...).
-        directory: A directory is accepted too (a rosbag2 bag).
-
-    Returns:
-        ``path`` as a string.
-
-    Raises:
-        InputError: The path is missing, unreadable, or not a regular file (nor, with
-            ``directory``, a directory), naming it.
-
-    """
+    """Check an input path before anything opens it (a FIFO would block a reader)."""
     path = os.fspath(path)
     try:
         mode = os.stat(path).st_mode

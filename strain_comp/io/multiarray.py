@@ -13,37 +13,14 @@ from strain_comp.errors import InputError
 
 
 def label_names(label: str) -> list[str]:
-    """Split a ``dim[0].label`` into sensor names.
-
-    Args:
-        label: Comma-separated sensor names.
-
-    Returns:
-        The names, stripped; empty when the label is blank.
-
-    """
+    """Split a ``dim[0].label`` into sensor names."""
     return [x.strip() for x in label.split(",")] if label.strip() else []
 
 
 @functools.lru_cache(maxsize=64)
 def label_order(label: str, names: tuple[str, ...]) -> np.ndarray | None:
     """The indices that put the values of an array labelled ``label`` in the order of
-    ``names``.
-
-    Cached: a stream repeats its label in every message, and parsing a label of 256 names
-    costs about 60 us (the node reads up to 1 kHz).
-
-    Args:
-        label: The array's ``dim[0].label``.
-        names: The reader's sensor names, in its order.
-
-    Returns:
-        A read-only index array; None when the label is empty or already in that order.
-
-    Raises:
-        ValueError: The label names other sensors.
-
-    """
+    ``names``."""
     if not label.strip() or label == ",".join(names):
         return None
     given = label_names(label)
@@ -59,27 +36,7 @@ def label_order(label: str, names: tuple[str, ...]) -> np.ndarray | None:
 
 def array_values(data: Any, offset: int, sizes: list[int], k: int, label: str = "",
                  sensors: Sequence[str] | None = None) -> np.ndarray:
-    """The k values of a Float64MultiArray, ``data[offset:offset + dim[0].size]``.
-
-    The node and the bag reader both read arrays through this one function.
-
-    Args:
-        data: The message's ``data``.
-        offset: ``layout.data_offset``.
-        sizes: The ``size`` of each ``layout.dim`` (empty: no layout).
-        k: The number of sensors expected.
-        label: ``dim[0].label``, comma-separated sensor names (as the node publishes and
-            ``replay`` reads); when given with ``sensors``, values are matched by name.
-        sensors: The reader's sensor names, in its order.
-
-    Returns:
-        The k values as float64, in the order of ``sensors`` when the label names them.
-
-    Raises:
-        InputError: The layout does not describe k values inside ``data``, or the label
-            names other sensors.
-
-    """
+    """The k values of a Float64MultiArray, ``data[offset:offset + dim[0].size]``."""
     values = np.asarray(data, dtype=np.float64)
     size = sizes[0] if sizes else values.size - offset
     if sizes and size != k:

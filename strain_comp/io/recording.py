@@ -131,21 +131,7 @@ class Recording:
 
 
 def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
-    """Put ``values`` sampled at ``t_src`` on the times ``t``.
-
-    Non-finite source samples are dropped first; unsorted source times are sorted (stable)
-    and for repeated stamps the last sample wins.
-
-    Args:
-        t: Target times [s].
-        t_src: Source times [s].
-        values: Source values, same length as ``t_src``.
-
-    Returns:
-        An exact copy of ``values`` when the stamps are the same; else the values linearly
-        interpolated inside the source's time span and NaN outside it (never extrapolated).
-
-    """
+    """Put ``values`` sampled at ``t_src`` on the times ``t``."""
     t = np.asarray(t, dtype=np.float64)
     t_src = np.asarray(t_src, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
@@ -167,17 +153,7 @@ def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.n
 
 class PieceAlign:
     """``align`` of a source series onto target stamps when both arrive in time-ordered
-    pieces (``iter_bag``), equal to ``align`` over the whole series.
-
-    While every piece's target stamps are its source stamps, values are copied (``align``'s
-    exact case); from the first piece where they differ on, values are interpolated
-    between the finite source samples, NaN before the first and after the last. A target's
-    value is known once a finite source sample at or after it has arrived (or none has yet:
-    it lies before the first) or at ``finish``; ``horizon`` is the latest target time
-    known. Only the latest finite source sample at or before the known targets is held.
-    Pieces copied before the stamps first differ keep their copies (``align`` over the
-    whole series would interpolate them; the two differ only at NaN source values).
-    """
+    pieces (``iter_bag``), equal to ``align`` over the whole series."""
 
     def __init__(self) -> None:
         self.exact = True
@@ -188,14 +164,7 @@ class PieceAlign:
         self.src_v = np.empty(0)
 
     def add(self, t: np.ndarray, t_src: np.ndarray, values: np.ndarray) -> None:
-        """Take in the next piece.
-
-        Args:
-            t: The piece's target stamps [s].
-            t_src: The piece's source stamps [s].
-            values: The piece's source values, same length as ``t_src``.
-
-        """
+        """Take in the next piece."""
         t_src = np.asarray(t_src, dtype=np.float64)
         values = np.asarray(values, dtype=np.float64)
         if self.exact and t_src.shape == t.shape and np.array_equal(t_src, t):
@@ -220,26 +189,13 @@ class PieceAlign:
         self.finished = True
 
     def horizon(self) -> float:
-        """The latest target time whose value is known.
-
-        Returns:
-            That time [s]; inf while the stamps are identical or after ``finish``.
-
-        """
+        """The latest target time whose value is known."""
         if self.exact or self.finished or self.src_t.size == 0:
             return math.inf
         return float(self.src_t[-1])
 
     def take(self, t: np.ndarray) -> np.ndarray:
-        """Values at the next waiting targets.
-
-        Args:
-            t: The next waiting target stamps [s], in order, none after ``horizon``.
-
-        Returns:
-            The values, NaN outside the source's time span.
-
-        """
+        """Values at the next waiting targets."""
         out = np.full(t.size, np.nan)
         done = 0
         while self.copied and done < t.size:
@@ -261,19 +217,7 @@ class PieceAlign:
 
 
 def hold_latest(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
-    """Hold ``values`` sampled at ``t_src`` to the times ``t``, as a live node holds them.
-
-    Unsorted source times are sorted (stable); for repeated stamps the last sample wins.
-
-    Args:
-        t: Target times [s].
-        t_src: Source times [s].
-        values: Source values, same length as ``t_src``.
-
-    Returns:
-        The latest source value at or before each target time; NaN before the first.
-
-    """
+    """Hold ``values`` sampled at ``t_src`` to the times ``t``, as a live node holds them."""
     t_src = np.asarray(t_src, dtype=np.float64)
     values = np.asarray(values)
     order = np.argsort(t_src, kind="stable")
@@ -287,32 +231,13 @@ def _align_columns(t: np.ndarray, src: Series, k: int) -> np.ndarray:
 
 
 def recordings_from_bag(contents: BagContents) -> dict[str, Recording]:
-    """The recordings of a bag's decoded contents.
-
-    Args:
-        contents: A bag's series (``read_bag`` or ``read_bag_pieces``).
-
-    Returns:
-        One Recording per sensor found, from per-sensor and array topics, by name.
-
-    """
+    """The recordings of a bag's decoded contents."""
     recordings, _ = _recordings(contents)
     return recordings
 
 
 def array_sensor_names(topic: str, labels: list[str], k: int) -> tuple[list[str], str | None]:
-    """Sensor names of the k columns of an array topic.
-
-    Args:
-        topic: The array topic, ``/ARRAY/resistance``.
-        labels: The names its ``dim[0].label`` gives.
-        k: The number of columns.
-
-    Returns:
-        The labels when there is one per column, else ``ARRAY_0`` ... ``ARRAY_{k-1}``; and
-        a problem line when labels were there but did not fit (else None).
-
-    """
+    """Sensor names of the k columns of an array topic."""
     if len(labels) == k:
         return labels, None
     prefix = topic[:-len(RESISTANCE)].lstrip("/")
@@ -370,23 +295,7 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
 
 
 def read_bag_pieces(path: str | Path, *, window: int = WINDOW) -> BagContents:
-    """``read_bag``'s contents, assembled from ``iter_bag``'s time-ordered pieces.
-
-    Memory is about the decoded series, where ``read_bag`` also holds the whole file and
-    all its decompressed chunks at once (5 GB at peak for a bag of 2e7 Float64 messages).
-
-    Args:
-        path: The bag file or directory.
-        window: Messages ``iter_bag`` lets wait before it cuts a piece.
-
-    Returns:
-        The contents; a topic whose messages came late (overlapping chunks, a problem
-        line) is sorted by time.
-
-    Raises:
-        BagError: The bag is unreadable.
-
-    """
+    """``read_bag``'s contents, assembled from ``iter_bag``'s time-ordered pieces."""
     merged = BagContents()
     parts: dict[str, list[Series]] = {}
     for piece in iter_bag(path, window=window):
@@ -415,19 +324,7 @@ def read_bag_pieces(path: str | Path, *, window: int = WINDOW) -> BagContents:
 
 
 def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
-    """Read a bag into recordings (through ``read_bag_pieces``).
-
-    Args:
-        path: The bag file or rosbag2 directory.
-
-    Returns:
-        The recordings by sensor name, and the problem lines (the bag reader's first),
-        each naming the bag.
-
-    Raises:
-        BagError: The bag is unreadable.
-
-    """
+    """Read a bag into recordings (through ``read_bag_pieces``)."""
     contents = read_bag_pieces(path)
     recordings, problems = _recordings(contents)
     return recordings, contents.problems + located(path, problems)

@@ -26,20 +26,7 @@ MODEL_NAMES: tuple[str, ...] = tuple(_REGISTRY)
 
 
 def model_class(name: str) -> type[Compensator]:
-    """The compensator class registered under ``name``.
-
-    Args:
-        name: The model's name (``MODEL_NAMES``).
-
-    Returns:
-        The class.
-
-    Raises:
-        ParameterError: An unknown name.
-        TypeError: The registry names something that is not a Compensator (a program
-            error).
-
-    """
+    """The compensator class registered under ``name``."""
     if name not in _REGISTRY:
         raise ParameterError("name", f"unknown model {name!r}; known: {', '.join(MODEL_NAMES)}")
     module_name, class_name = _REGISTRY[name].split(":")

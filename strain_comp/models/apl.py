@@ -230,45 +230,7 @@ class _CellModel(KernelCompensator):
             search_top: int = 5, workers: int | None = None,
             progress: bool | Callable[[str], None] = True, **options: Any) -> _CellModel:
         """Fit w, mu by the QP and the output-error refinement, searching sigma and p (module
-        docstring).
-
-        BLAS is held to one thread during the fit: its matrices (samples x N + M + 2, and the
-        reduced QP) are too small to gain from BLAS threads, and BLAS threads spinning on a
-        machine with other work, or started from several grid threads at once, made the same fit
-        many times slower (``bench/bench_fit.py`` times both).
-
-        Args:
-            segments: The training segments.
-            normalisation: The model's normalisation.
-            direction: The direction detector's settings.
-            N: Cells.
-            M: Segments of the output function f.
-            sigma_grid: Rates searched [1/s]; default 13 log-spaced values between 0.02 /
-                (longest segment duration) and 0.2 / (median sample interval).
-            p_grid: Exponents searched; default 0.3 .. 3.
-            refine: Refine the best point's output error.
-            cell_weights: How the cell weights are bounded (``CELL_WEIGHTS``).
-            eps: The least slope of f's segments.
-            ridge: The QP's ridge penalty.
-            output_nfev: Residual evaluations of the final output-error refinement (0: the
-                paper's QP only).
-            search_nfev: Those per scored point of the search (0: the search scores the QP
-                solutions).
-            search_top: Grid points re-scored with ``search_nfev``.
-            workers: Threads scoring the grid (default ``grid_workers``: one per available core,
-                serial for a small problem; the result does not depend on it).
-            progress: True prints a line per grid row to stderr once the fit has run for more
-                than 2 s; a callable receives those lines instead; False is silent.
-            **options: None taken (an unknown option is refused).
-
-        Returns:
-            The fitted model.
-
-        Raises:
-            FitError: An unknown or bad option, a bad N or M, or training data the fit cannot
-                use (too few samples, no excitation).
-
-        """
+        docstring)."""
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
         try:

@@ -34,12 +34,7 @@ class CellModel(Protocol):
 
 @lift(kern.step_sensor, fastmath=kern.FASTMATH)
 class APLArray(LiftedArray):
-    """K sensors of the APL family (same N and M) stepped together in one kernel call.
-
-    Built from per-sensor models (APL, PL or MPI, mixed allowed); each sensor keeps its own
-    state and previous time. ``step(t, r)`` gives exactly what each model's own ``step``
-    would give; a bad r[s] (not finite or <= 0) leaves sensor s untouched and gives NaN.
-    """
+    """K sensors of the APL family (same N and M) stepped together in one kernel call."""
 
     family = "an APL-family"
 

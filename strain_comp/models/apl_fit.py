@@ -48,35 +48,7 @@ def fit_cells(cls: type[_CellModel], segments: Sequence[Segment], normalisation:
               progress: bool | Callable[[str], None]) -> _CellModel:
     """The fit of an APL, PL or MPI model (``APL.fit``, whose arguments were checked): the
     QP, the sigma / p grid, the output-error refinement (``strain_comp.models.apl``'s module
-    docstring), called by ``APL.fit``, which holds BLAS to one thread.
-
-    Args:
-        cls: The model class (APL, PL or MPI).
-        segments: The training segments.
-        normalisation: The model's normalisation.
-        n: Cells N.
-        m: Segments M of the output function f.
-        sigma_grid: The sigma values searched [1/s]; None: the default grid.
-        p_grid: The p values searched; None: the default grid.
-        refine: Refine the best point's output error.
-        cell_weights: How the cell weights are bounded (``CELL_WEIGHTS``).
-        eps: The least slope of f's segments.
-        ridge: The QP's ridge penalty.
-        output_nfev: Residual evaluations of the final refinement (0: the QP only).
-        search_nfev: Residual evaluations per scored grid point.
-        search_top: Grid points re-scored with ``search_nfev``.
-        workers: Threads scoring the grid (None: ``grid_workers``).
-        progress: True prints a line per grid row after 2 s, a callable receives them,
-            False is silent.
-
-    Returns:
-        The fitted model.
-
-    Raises:
-        FitError: A sigma or p grid value out of range, too few finite training samples
-            with R > 0, or no excitation.
-
-    """
+    docstring), called by ``APL.fit``, which holds BLAS to one thread."""
     problem = _FitProblem(cls, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
     if cls.kind == kern.KIND_APL and problem.gauge < 0:
@@ -130,12 +102,7 @@ grid is scored serially: thread hand-offs would cost more than they save."""
 
 
 def available_cores() -> int:
-    """Cores this process may run on (its CPU affinity where the system tells it).
-
-    Returns:
-        At least 1.
-
-    """
+    """Cores this process may run on (its CPU affinity where the system tells it)."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
@@ -145,17 +112,7 @@ def available_cores() -> int:
 def grid_workers(requested: int | None, points: int, samples: int) -> int:
     """Threads to score a sigma/p grid: ``requested``, else one per available core; never
     more than half the points (each thread gets two or more), and 1 (serial, no thread pool)
-    on one core or below ``MIN_THREADED_SAMPLES`` samples unless requested.
-
-    Args:
-        requested: The threads asked for, or None.
-        points: The grid's points.
-        samples: The training samples.
-
-    Returns:
-        The threads, at least 1.
-
-    """
+    on one core or below ``MIN_THREADED_SAMPLES`` samples unless requested."""
     if requested is not None:
         return max(1, min(requested, points))
     if samples < MIN_THREADED_SAMPLES:
@@ -168,19 +125,7 @@ def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *, work
     """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads (the
     points are independent; the cell-state kernel, numpy's array operations and BLAS release
     the GIL). ``APL.fit`` calls it with BLAS held to one thread, so the grid threads do not
-    start BLAS threads of their own. The result does not depend on ``workers``.
-
-    Args:
-        problem: The training data, prepared once.
-        sigmas: The sigma values [1/s].
-        ps: The p values.
-        workers: Threads.
-        say: Where the progress lines go.
-
-    Returns:
-        One solution per grid point, in grid order.
-
-    """
+    start BLAS threads of their own. The result does not depend on ``workers``."""
     grid: list[_Solution] = []
     if workers <= 1:
         for i, sigma in enumerate(sigmas):
@@ -403,13 +348,7 @@ class _FitProblem:
                      max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
         """Minimise sum (f^-1(w . z) - psi)^2 + ridge over theta from ``theta`` (bounded
         Levenberg-Marquardt, same bounds as the QP); returns (theta, psi_hat), the start
-        when the refinement does not lower the output RMSE.
-
-        Jacobian: with y = w . z and f(psi_hat) = G(psi_hat) . slopes = y, implicit
-        differentiation gives d psi_hat / d w = z / f'(psi_hat) and d psi_hat / d slope_j =
-        -G_j(psi_hat) / f'(psi_hat) (G: the path matrix, f' the slope of the segment
-        psi_hat lies in).
-        """
+        when the refinement does not lower the output RMSE."""
         n_w = self.n + 2
         edges = pwa.breakpoints(self.m)
         cache: dict[str, np.ndarray] = {}

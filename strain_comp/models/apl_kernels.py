@@ -97,16 +97,7 @@ _TINY = 1e-300
 
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def pow01(z: float, p: float) -> float:
-    """z^p for a positive normal z <= ~1 and p > 0 (results below ~1e-304 flush to ~0).
-
-    Args:
-        z: The base.
-        p: The exponent.
-
-    Returns:
-        z^p.
-
-    """
+    """z^p for a positive normal z <= ~1 and p > 0 (results below ~1e-304 flush to ~0)."""
     # numba passes the typing context of an intrinsic itself
     bits: int = _bits(z)  # type: ignore[call-arg]
     e = (bits >> 52) - 1023
@@ -139,18 +130,7 @@ def pow01(z: float, p: float) -> float:
 @njit(fastmath=FASTMATH, error_model="numpy")
 def advance_cells(x: np.ndarray, xi: float, sdt: float, p: float, rho: np.ndarray,
                   inv_width: np.ndarray, kind: int) -> None:
-    """One time step of all N cells in place. Branch-free inner loops (vectorised).
-
-    Args:
-        x: Cell states (N), updated in place.
-        xi: The normalised input.
-        sdt: sigma dt.
-        p: The power-law exponent.
-        rho: Cell thresholds (N).
-        inv_width: 1/(rho+1) for APL, 1/rho for PL (N).
-        kind: APL, PL or MPI.
-
-    """
+    """One time step of all N cells in place. Branch-free inner loops (vectorised)."""
     n = x.size
     if kind == KIND_APL:
         hi = xi + 1.0
@@ -176,14 +156,7 @@ def advance_cells(x: np.ndarray, xi: float, sdt: float, p: float, rho: np.ndarra
 
 @njit(fastmath=FASTMATH, error_model="numpy")
 def relax_cells(x: np.ndarray, xi: float, kind: int) -> None:
-    """Initial state at input xi: the creep equilibrium (xi + 1 for APL, xi for PL/MPI).
-
-    Args:
-        x: Cell states (N), written.
-        xi: The normalised input.
-        kind: APL, PL or MPI.
-
-    """
+    """Initial state at input xi: the creep equilibrium (xi + 1 for APL, xi for PL/MPI)."""
     value = xi + 1.0 if kind == KIND_APL else xi
     for k in range(x.size):
         x[k] = value
@@ -192,20 +165,7 @@ def relax_cells(x: np.ndarray, xi: float, kind: int) -> None:
 @njit(fastmath=FASTMATH, error_model="numpy")
 def output(x: np.ndarray, xi: float, w: np.ndarray, b: np.ndarray, f_at_b: np.ndarray,
            inv_slopes: np.ndarray) -> float:
-    """psi = f^-1(w_0 xi + sum_k w_k x_k + w_{N+1}) (eq. (2)).
-
-    Args:
-        x: Cell states (N).
-        xi: The normalised input.
-        w: Weights (N + 2).
-        b: f's breakpoints.
-        f_at_b: f at the breakpoints.
-        inv_slopes: 1 / f's segment slopes.
-
-    Returns:
-        The normalised strain psi.
-
-    """
+    """psi = f^-1(w_0 xi + sum_k w_k x_k + w_{N+1}) (eq. (2))."""
     n = x.size
     y = w[0] * xi + w[n + 1]
     for k in range(n):
@@ -221,17 +181,7 @@ LANES = 4
 def padded_cells(x: np.ndarray, rho: np.ndarray, inv_width: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Copies of the cell state and parameters padded to a multiple of ``LANES`` cells with
-    copies of the last cell, so the cell loop has no scalar remainder.
-
-    Args:
-        x: Cell states (N).
-        rho: Cell thresholds (N).
-        inv_width: Power-law normalisers (N).
-
-    Returns:
-        The padded state, thresholds and normalisers.
-
-    """
+    copies of the last cell, so the cell loop has no scalar remainder."""
     n = x.size
     m = -(-n // LANES) * LANES
     xp = np.empty(m)
@@ -252,26 +202,7 @@ def run_kernel(t: np.ndarray, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
                out: np.ndarray, kind: int, sigma: float, p: float, rho: np.ndarray,
                inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
                f_at_b: np.ndarray, inv_slopes: np.ndarray) -> None:
-    """Advance one sensor over arrays (t, r).
-
-    Args:
-        t: Time [s] per sample.
-        r: Resistance [ohm] per sample.
-        x: Cell states (N), updated in place.
-        clock: [t_prev, started], updated in place.
-        out: Strain [%] per sample, written.
-        kind: APL, PL or MPI.
-        sigma: The rate sigma [1/s].
-        p: The power-law exponent.
-        rho: Cell thresholds (N).
-        inv_width: Power-law normalisers (N).
-        w: Weights (N + 2).
-        norm: [r0, alpha, s0, beta].
-        b: f's breakpoints.
-        f_at_b: f at the breakpoints.
-        inv_slopes: 1 / f's segment slopes.
-
-    """
+    """Advance one sensor over arrays (t, r)."""
     r0, alpha, s0, beta = norm[0], norm[1], norm[2], norm[3]
     n = x.size
     xp, rho_p, inv_width_p = padded_cells(x, rho, inv_width)
@@ -300,29 +231,7 @@ def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
                 inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
                 f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
     """Advance sensor s of an array by a good sample (the family kernel of
-    ``strain_comp.models.lift``). Parameters are in row s of each array.
-
-    Args:
-        s: The sensor's row.
-        t: Time [s].
-        ri: Resistance [ohm].
-        x: Cell states (K, N), row s updated in place.
-        clock: [t_prev, started] per sensor, row s updated in place.
-        kind: APL, PL or MPI per sensor.
-        sigma: The rate sigma [1/s] per sensor.
-        p: The power-law exponent per sensor.
-        rho: (2, N): row 0 for APL cells, row 1 for PL cells.
-        inv_width: (2, N), as ``rho``.
-        w: Weights per sensor.
-        norm: [r0, alpha, s0, beta] per sensor.
-        b: f's breakpoints.
-        f_at_b: f at the breakpoints per sensor.
-        inv_slopes: 1 / f's segment slopes per sensor.
-
-    Returns:
-        The strain [%].
-
-    """
+    ``strain_comp.models.lift``). Parameters are in row s of each array."""
     xi = ri / norm[s, 0] + norm[s, 1]
     ks = kind[s]
     xs = x[s]
@@ -340,23 +249,7 @@ def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
 @njit(fastmath=FASTMATH, error_model="numpy")
 def states_kernel(t: np.ndarray, xi: np.ndarray, starts: np.ndarray, kind: int, sigma: float,
                   p: float, rho: np.ndarray, inv_width: np.ndarray) -> np.ndarray:
-    """Cell states over concatenated training segments.
-
-    Args:
-        t: Time [s] per sample.
-        xi: Normalised input per sample.
-        starts: True at each segment's first sample, where the cells are relaxed at that
-            input.
-        kind: APL, PL or MPI.
-        sigma: The rate sigma [1/s].
-        p: The power-law exponent.
-        rho: Cell thresholds (N).
-        inv_width: Power-law normalisers (N).
-
-    Returns:
-        Shape (n, N).
-
-    """
+    """Cell states over concatenated training segments."""
     n = t.size
     x, rho_p, inv_width_p = padded_cells(np.zeros(rho.size), rho, inv_width)
     states = np.empty((n, rho.size))
@@ -373,29 +266,11 @@ def states_kernel(t: np.ndarray, xi: np.ndarray, starts: np.ndarray, kind: int, 
 
 
 def thresholds(n: int, kind: int) -> np.ndarray:
-    """rho_k, k = 1..N: 2k/(N+1) - 1 for APL (eq. (1)), k/(N+1) for PL (eq. (6)).
-
-    Args:
-        n: Cells N.
-        kind: APL or PL.
-
-    Returns:
-        The thresholds (N).
-
-    """
+    """rho_k, k = 1..N: 2k/(N+1) - 1 for APL (eq. (1)), k/(N+1) for PL (eq. (6))."""
     k = np.arange(1, n + 1, dtype=np.float64)
     return 2.0 * k / (n + 1) - 1.0 if kind == KIND_APL else k / (n + 1)
 
 
 def inverse_widths(rho: np.ndarray, kind: int) -> np.ndarray:
-    """1 / (rho_k + 1) for APL, 1 / rho_k for PL: the normalisers of the power law.
-
-    Args:
-        rho: Cell thresholds (N).
-        kind: APL or PL.
-
-    Returns:
-        The normalisers (N).
-
-    """
+    """1 / (rho_k + 1) for APL, 1 / rho_k for PL: the normalisers of the power law."""
     return 1.0 / (rho + 1.0) if kind == KIND_APL else 1.0 / rho

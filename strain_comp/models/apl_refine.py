@@ -37,22 +37,7 @@ def bounded_lm(residuals: Residuals, normal_equations: NormalEquations, theta: n
                lam: float = 1e-3) -> np.ndarray:
     """theta (within [lo, hi]) with sum residuals(theta)^2 no larger than at the start; a
     bounded Levenberg-Marquardt. Stops when a step lowers the cost by less than ``ftol``
-    times the cost, or when the damping cannot find a lower cost.
-
-    Args:
-        residuals: theta -> the residual vector.
-        normal_equations: (theta, res) -> (J^T J, J^T res) at the last accepted point.
-        theta: The start.
-        lo: Lower bounds of theta.
-        hi: Upper bounds of theta.
-        max_nfev: Bound on the residual evaluations.
-        ftol: The relative cost decrease below which it stops.
-        lam: The initial damping.
-
-    Returns:
-        The best theta found.
-
-    """
+    times the cost, or when the damping cannot find a lower cost."""
     theta = np.clip(np.asarray(theta, dtype=np.float64), lo, hi)
     res = residuals(theta)
     cost = float(res @ res)
@@ -94,18 +79,7 @@ def output_jacobian(z: np.ndarray, psi_hat: np.ndarray, res: np.ndarray, slopes:
     Jacobian of psi_hat = f^-1(w . z) with respect to (w, slopes of f except the fixed
     central one ``c``), plus the residuals as a last column, so that one matrix product gives
     J^T J and J^T res. G_j is the signed length of segment j on the path 0 -> psi
-    (``pwa.path_matrix``).
-
-    Args:
-        z: Regressors per sample (n, N + 2).
-        psi_hat: The model's normalised strain per sample.
-        res: The residual per sample.
-        slopes: f's segment slopes (M).
-        edges: f's M - 1 breakpoints.
-        c: The fixed central segment.
-        out: (n, N + 2 + M - 1 + 1), written.
-
-    """
+    (``pwa.path_matrix``)."""
     n_w = z.shape[1]
     m = slopes.size
     last = out.shape[1] - 1

@@ -21,11 +21,7 @@ from strain_comp.errors import ParameterError
 
 @dataclass(frozen=True)
 class Normalisation:
-    """Affine maps to dimensionless input and output ([Electrolycra] section II.C).
-
-    xi = R / r0 + alpha and psi = S / s0 + beta, chosen so that the training data span
-    [-1, 1] in both.
-    """
+    """Affine maps to dimensionless input and output ([Electrolycra] section II.C)."""
 
     r0: float
     alpha: float
@@ -34,21 +30,7 @@ class Normalisation:
 
     @classmethod
     def from_ranges(cls, r_lo: float, r_hi: float, s_lo: float, s_hi: float) -> Normalisation:
-        """The normalisation that maps [r_lo, r_hi] and [s_lo, s_hi] onto [-1, 1].
-
-        Args:
-            r_lo: Lowest resistance [ohm].
-            r_hi: Highest resistance [ohm].
-            s_lo: Lowest strain [%].
-            s_hi: Highest strain [%].
-
-        Returns:
-            The normalisation.
-
-        Raises:
-            ParameterError: Either range is empty (``r_hi <= r_lo`` or ``s_hi <= s_lo``).
-
-        """
+        """The normalisation that maps [r_lo, r_hi] and [s_lo, s_hi] onto [-1, 1]."""
         if not (r_hi > r_lo and s_hi > s_lo):
             raise ParameterError("normalisation", "the data span no range of resistance or strain")
         r0 = (r_hi - r_lo) / 2.0
@@ -58,21 +40,7 @@ class Normalisation:
 
     @classmethod
     def fit(cls, r: npt.ArrayLike, s: npt.ArrayLike) -> Normalisation:
-        """The normalisation that maps the finite samples' ranges onto [-1, 1].
-
-        Args:
-            r: Resistances [ohm].
-            s: Reference strains [%], same length; pairs with a non-finite value are
-                left out.
-
-        Returns:
-            The normalisation.
-
-        Raises:
-            ParameterError: The finite samples span no range of resistance or strain.
-            ValueError: No pair is finite.
-
-        """
+        """The normalisation that maps the finite samples' ranges onto [-1, 1]."""
         r = np.asarray(r, dtype=np.float64)
         s = np.asarray(s, dtype=np.float64)
         ok = np.isfinite(r) & np.isfinite(s)
@@ -80,58 +48,25 @@ class Normalisation:
                                float(s[ok].min()), float(s[ok].max()))
 
     def xi(self, r: npt.ArrayLike) -> np.ndarray:
-        """Normalised input xi = R / r0 + alpha.
-
-        Args:
-            r: Resistance [ohm].
-
-        Returns:
-            xi, dimensionless.
-
-        """
+        """Normalised input xi = R / r0 + alpha."""
         return np.asarray(r, dtype=np.float64) / self.r0 + self.alpha
 
     def psi(self, s: npt.ArrayLike) -> np.ndarray:
-        """Normalised output psi = S / s0 + beta.
-
-        Args:
-            s: Strain [%].
-
-        Returns:
-            psi, dimensionless.
-
-        """
+        """Normalised output psi = S / s0 + beta."""
         return np.asarray(s, dtype=np.float64) / self.s0 + self.beta
 
     def strain(self, psi: npt.ArrayLike) -> np.ndarray:
-        """Strain from the normalised output, S = s0 (psi - beta).
-
-        Args:
-            psi: Normalised output.
-
-        Returns:
-            Strain [%].
-
-        """
+        """Strain from the normalised output, S = s0 (psi - beta)."""
         return (np.asarray(psi, dtype=np.float64) - self.beta) * self.s0
 
     def to_dict(self) -> dict[str, float]:
-        """The four coefficients.
-
-        Returns:
-            The calibration file's ``normalisation`` mapping.
-
-        """
+        """The four coefficients."""
         return {"r0": self.r0, "alpha": self.alpha, "s0": self.s0, "beta": self.beta}
 
 
 @dataclass(frozen=True)
 class Segment:
-    """One contiguous training recording: time [s], resistance [ohm], reference strain [%].
-
-    Model state is reset at the start of every segment; samples must be finite, R > 0 and
-    t strictly increasing (``strain_comp.core.samples`` cleans raw data into this form).
-    """
+    """One contiguous training recording: time [s], resistance [ohm], reference strain [%]."""
 
     t: np.ndarray
     r: np.ndarray
@@ -159,12 +94,7 @@ class Compensator(ABC):
     which would low-pass and decimate what its states are computed from."""
 
     def __init__(self, normalisation: Normalisation) -> None:
-        """A model mapping through ``normalisation``.
-
-        Args:
-            normalisation: The affine maps to the model's dimensionless input and output.
-
-        """
+        """A model mapping through ``normalisation``."""
         self.normalisation = normalisation
 
     @abstractmethod
@@ -173,95 +103,31 @@ class Compensator(ABC):
 
     @abstractmethod
     def step(self, t: float, r: float) -> float:
-        """Advance by one good sample.
-
-        Args:
-            t: Time [s].
-            r: Resistance [ohm].
-
-        Returns:
-            Strain [%].
-
-        """
+        """Advance by one good sample."""
 
     @abstractmethod
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        """Advance over arrays of good samples from the current state.
-
-        Args:
-            t: Times [s].
-            r: Resistances [ohm], same length.
-
-        Returns:
-            Strain [%] per sample; the state is left where ``step`` would leave it.
-
-        """
+        """Advance over arrays of good samples from the current state."""
 
     @abstractmethod
     def to_params(self) -> dict[str, Any]:
-        """Every parameter, as the calibration file's ``model.params``.
-
-        Returns:
-            YAML-safe plain Python (floats, ints, lists, dicts).
-
-        """
+        """Every parameter, as the calibration file's ``model.params``."""
 
     @classmethod
     @abstractmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
                     direction: DirectionSettings) -> Compensator:
-        """Build a model from ``to_params`` output.
-
-        Args:
-            params: The parameters (``model.params`` of a calibration file).
-            normalisation: The sensor's normalisation.
-            direction: The sensor's detector settings; models that switch on the movement
-                direction (rational, spike_decay) run their own detector with them.
-
-        Returns:
-            The model, in its initial state.
-
-        Raises:
-            ParameterError: A parameter is missing or out of range (naming the field).
-
-        """
+        """Build a model from ``to_params`` output."""
 
     def singular_in(self, r_lo: float, r_hi: float) -> float | None:
-        """Where in a resistance range the model has no finite strain (a rational's pole).
-
-        The loader refuses a calibration singular in its range.
-
-        Args:
-            r_lo: Lower end of the range [ohm].
-            r_hi: Upper end of the range [ohm].
-
-        Returns:
-            A resistance [ohm] in [r_lo, r_hi] without a finite strain, or None.
-
-        """
+        """Where in a resistance range the model has no finite strain (a rational's pole)."""
         return None
 
     @classmethod
     @abstractmethod
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, **options: Any) -> Compensator:
-        """Fit the model to training segments.
-
-        Args:
-            segments: The training recordings (state reset at each one's start).
-            normalisation: The normalisation of the training data.
-            direction: The sensor's detector settings.
-            **options: Model-specific options (N, M, search grids, ...).
-
-        Returns:
-            The fitted model, in its initial state.
-
-        Raises:
-            FitError: The data cannot be fitted (too few samples, no excitation, ...).
-            ParameterError: An option is out of range (models differ in which error an
-                unknown option raises).
-
-        """
+        """Fit the model to training segments."""
 
 
 class KernelCompensator(Compensator):
@@ -295,22 +161,7 @@ class KernelCompensator(Compensator):
 
 def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = None,
                   hi: float | None = None, strict: bool = False) -> float:
-    """Read ``params[key]`` as a finite float within [lo, hi].
-
-    Args:
-        params: The parameter mapping.
-        key: The field to read.
-        lo: Lowest allowed value (None: no bound).
-        hi: Highest allowed value (None: no bound).
-        strict: The bounds are open.
-
-    Returns:
-        The value as a float.
-
-    Raises:
-        ParameterError: The field is missing, not a number, not finite or out of bounds.
-
-    """
+    """Read ``params[key]`` as a finite float within [lo, hi]."""
     if key not in params:
         raise ParameterError(key, "missing")
     value = params[key]
@@ -328,22 +179,7 @@ def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = Non
 
 def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None,
                    min_length: int = 1) -> np.ndarray:
-    """Read ``params[key]`` as a list of finite floats.
-
-    Args:
-        params: The parameter mapping.
-        key: The field to read.
-        length: The number of entries required (None: any).
-        min_length: The fewest entries allowed.
-
-    Returns:
-        The values as a float64 array.
-
-    Raises:
-        ParameterError: The field is missing, not a list of finite numbers, or of the
-            wrong length.
-
-    """
+    """Read ``params[key]`` as a list of finite floats."""
     if key not in params:
         raise ParameterError(key, "missing")
     value = params[key]
@@ -363,19 +199,7 @@ def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = 
 
 
 def as_float_arrays(t: npt.ArrayLike, r: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    """Contiguous float64 copies of (t, r).
-
-    Args:
-        t: Times [s].
-        r: Resistances [ohm].
-
-    Returns:
-        ``t`` and ``r`` as contiguous float64 arrays.
-
-    Raises:
-        ValueError: They are not 1-D arrays of one length.
-
-    """
+    """Contiguous float64 copies of (t, r)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
     if t.ndim != 1 or t.shape != r.shape:

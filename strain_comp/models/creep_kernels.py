@@ -50,19 +50,7 @@ N_FIXED = 5
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def advance(ti: float, xi: float, z: np.ndarray, play: np.ndarray, clock: np.ndarray,
             decay: np.ndarray, tau: np.ndarray, widths: np.ndarray) -> None:
-    """One sample's state update in place (module docstring).
-
-    Args:
-        ti: Time [s].
-        xi: The normalised input.
-        z: Low-pass states (K), updated in place.
-        play: Play operator states (J), updated in place.
-        clock: [t_prev, started, ...], updated in place.
-        decay: Scratch for the low-pass decays (K).
-        tau: Low-pass time constants [s] (K).
-        widths: Play thresholds (J).
-
-    """
+    """One sample's state update in place (module docstring)."""
     if clock[1] == 0.0:
         for k in range(z.size):
             z[k] = xi
@@ -85,15 +73,7 @@ def advance(ti: float, xi: float, z: np.ndarray, play: np.ndarray, clock: np.nda
 
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def features(row: np.ndarray, xi: float, z: np.ndarray, play: np.ndarray) -> None:
-    """The feature vector of the current state into ``row`` (module docstring).
-
-    Args:
-        row: The features, written.
-        xi: The normalised input.
-        z: Low-pass states (K).
-        play: Play operator states (J).
-
-    """
+    """The feature vector of the current state into ``row`` (module docstring)."""
     n_play = play.size - 1
     row[0] = xi
     row[1] = xi * xi
@@ -110,17 +90,7 @@ def features(row: np.ndarray, xi: float, z: np.ndarray, play: np.ndarray) -> Non
 def folded(w: np.ndarray, n_play: int, n_tau: int) -> np.ndarray:
     """The weights ``w`` of the raw features regrouped for ``output``: [c1, c2, c3, then -w of
     each play operator and each low-pass state, w_d, w_dx], c1 the weight of xi plus those of
-    every memory feature (each holds xi once).
-
-    Args:
-        w: Weights of the raw features.
-        n_play: J.
-        n_tau: K.
-
-    Returns:
-        The folded weights.
-
-    """
+    every memory feature (each holds xi once)."""
     coef = np.empty(w.size)
     coef[0] = w[0] + w[3:3 + n_play + n_tau].sum()
     coef[1:3] = w[1:3]
@@ -133,19 +103,7 @@ def folded(w: np.ndarray, n_play: int, n_tau: int) -> np.ndarray:
 def output(xi: float, z: np.ndarray, play: np.ndarray, coef: np.ndarray, bias: float
            ) -> float:
     """psi = bias + w . features, as bias + c1 xi + c2 xi^2 + c3 xi^3 + the folded weights
-    times the states + (xi - p_dir) (w_d + w_dx xi) (``folded``).
-
-    Args:
-        xi: The normalised input.
-        z: Low-pass states (K).
-        play: Play operator states (J).
-        coef: The folded weights.
-        bias: The intercept.
-
-    Returns:
-        The normalised strain psi.
-
-    """
+    times the states + (xi - p_dir) (w_d + w_dx xi) (``folded``)."""
     n_play = play.size - 1
     psi = bias + xi * (coef[0] + xi * (coef[1] + xi * coef[2]))
     for j in range(n_play):
@@ -160,23 +118,7 @@ def output(xi: float, z: np.ndarray, play: np.ndarray, coef: np.ndarray, bias: f
 def run_kernel(t: np.ndarray, r: np.ndarray, z: np.ndarray, play: np.ndarray,
                clock: np.ndarray, decay: np.ndarray, out: np.ndarray, norm: np.ndarray,
                tau: np.ndarray, widths: np.ndarray, coef: np.ndarray, bias: float) -> None:
-    """Advance one sensor over arrays (t, r).
-
-    Args:
-        t: Time [s] per sample.
-        r: Resistance [ohm] per sample.
-        z: Low-pass states (K), updated in place.
-        play: Play operator states (J), updated in place.
-        clock: [t_prev, started, ...], updated in place.
-        decay: Scratch for the low-pass decays (K).
-        out: Strain [%] per sample, written.
-        norm: [r0, alpha, s0, beta].
-        tau: Low-pass time constants [s] (K).
-        widths: Play thresholds (J).
-        coef: The weights of the raw features, the standardisation folded in (``folded``).
-        bias: The intercept.
-
-    """
+    """Advance one sensor over arrays (t, r)."""
     r0, alpha, s0, beta = norm[0], norm[1], norm[2], norm[3]
     for i in range(t.size):
         ti = t[i]
@@ -194,26 +136,7 @@ def step_sensor(s: int, t: float, ri: float, z: np.ndarray, play: np.ndarray,
                 clock: np.ndarray, decay: np.ndarray, norm: np.ndarray, tau: np.ndarray,
                 widths: np.ndarray, coef: np.ndarray, bias: np.ndarray) -> float:
     """Advance sensor s of an array by a good sample (row s of every argument, as
-    ``run_kernel`` takes them for one sensor).
-
-    Args:
-        s: The sensor's row.
-        t: Time [s].
-        ri: Resistance [ohm].
-        z: Low-pass states per sensor.
-        play: Play operator states per sensor.
-        clock: Clocks per sensor.
-        decay: Scratch per sensor.
-        norm: [r0, alpha, s0, beta] per sensor.
-        tau: Low-pass time constants [s] per sensor.
-        widths: Play thresholds per sensor.
-        coef: Folded weights per sensor.
-        bias: Intercept per sensor.
-
-    Returns:
-        The strain [%].
-
-    """
+    ``run_kernel`` takes them for one sensor)."""
     xi = ri / norm[s, 0] + norm[s, 1]
     advance(t, xi, z[s], play[s], clock[s], decay[s], tau[s], widths[s])
     return float((output(xi, z[s], play[s], coef[s], bias[s]) - norm[s, 3]) * norm[s, 2])
@@ -224,20 +147,7 @@ def features_kernel(t: np.ndarray, xi: np.ndarray, z: np.ndarray, play: np.ndarr
                     clock: np.ndarray, decay: np.ndarray, tau: np.ndarray,
                     widths: np.ndarray, rows: np.ndarray) -> None:
     """Features of good samples from the given state, which is left where ``run_kernel`` would
-    leave it (a segment is fed in chunks).
-
-    Args:
-        t: Time [s] per sample.
-        xi: Normalised input per sample.
-        z: Low-pass states (K), updated in place.
-        play: Play operator states (J), updated in place.
-        clock: [t_prev, started, ...], updated in place.
-        decay: Scratch for the low-pass decays (K).
-        tau: Low-pass time constants [s] (K).
-        widths: Play thresholds (J).
-        rows: (n, N_FIXED + J + K), written.
-
-    """
+    leave it (a segment is fed in chunks)."""
     for i in range(t.size):
         advance(t[i], xi[i], z, play, clock, decay, tau, widths)
         features(rows[i], xi[i], z, play)

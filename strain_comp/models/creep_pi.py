@@ -94,29 +94,12 @@ FLAT = 1e-9
 
 
 def n_features(n_play: int, n_tau: int) -> int:
-    """Features per sample for J play operators and K time constants.
-
-    Args:
-        n_play: J.
-        n_tau: K.
-
-    Returns:
-        The number of features.
-
-    """
+    """Features per sample for J play operators and K time constants."""
     return kern.N_FIXED + n_play + n_tau
 
 
 def play_thresholds(n_play: int) -> np.ndarray:
-    """r_j = j / (J + 1), j = 1..J ([Electrolycra] eq. (6)).
-
-    Args:
-        n_play: J.
-
-    Returns:
-        The thresholds (J).
-
-    """
+    """r_j = j / (J + 1), j = 1..J ([Electrolycra] eq. (6))."""
     return np.arange(1, n_play + 1, dtype=np.float64) / (n_play + 1)
 
 
@@ -217,25 +200,7 @@ class CreepPI(KernelCompensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
             lam: float | None = None, **options: Any) -> CreepPI:
-        """Ridge fit of the weights (module docstring).
-
-        Args:
-            segments: The training segments.
-            normalisation: The model's normalisation.
-            direction: The direction detector's settings.
-            taus: The low-pass time constants [s] (1 to ``N_TAU_MAX`` in ``TAU_RANGE``).
-            n_play: Play operators (1 to ``N_PLAY_MAX``).
-            lam: A fixed ridge penalty in [0, ``LAM_MAX``] instead of cross-validation.
-            **options: None taken (an unknown option is refused).
-
-        Returns:
-            The fitted model; ``fit_report`` holds the penalty and the cross-validated RMSE.
-
-        Raises:
-            FitError: An unknown or bad option, too few samples, or too few per fold to
-                cross-validate without ``lam``.
-
-        """
+        """Ridge fit of the weights (module docstring)."""
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
         try:
@@ -288,12 +253,7 @@ class CreepPI(KernelCompensator):
 class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same numbers of play operators and time constants) stepped
     together in one kernel call (``strain_comp.models.lift``, kernel
-    ``creep_kernels.step_sensor``).
-
-    Built from per-sensor models; each keeps its own state and previous time.
-    ``step(t, r)`` gives exactly what each model's own ``step`` would give; a bad r[s]
-    (not finite or <= 0) leaves sensor s untouched and gives NaN. ``reset`` restarts all.
-    """
+    ``creep_kernels.step_sensor``)."""
 
     family = "a creep_pi"
 
@@ -328,18 +288,7 @@ def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: n
                thresholds: np.ndarray) -> np.ndarray:
     """Gram matrices of [1, features, psi] per cross-validation fold: one fold per segment
     when there are two or more, else ``CV_BLOCKS`` contiguous blocks of the one (fewer when
-    it is short).
-
-    Args:
-        segments: The training segments.
-        normalisation: The model's normalisation.
-        tau: The low-pass time constants [s] (K).
-        thresholds: The play thresholds (J).
-
-    Returns:
-        Shape (folds, n_f + 2, n_f + 2).
-
-    """
+    it is short)."""
     widths = np.append(thresholds, DIRECTION_WIDTH)
     n_f = n_features(thresholds.size, tau.size)
     single = len(segments) == 1
@@ -369,16 +318,7 @@ def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: n
 def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
     """theta = [intercept, weights, -1] minimising the mean squared error of psi plus
     ``lam`` |weights|^2 over the samples of ``gram``; the residual of a sample with row a is
-    a . theta, so its squared sum is theta' G theta.
-
-    Args:
-        gram: The Gram matrix of [1, features, psi].
-        lam: The ridge penalty.
-
-    Returns:
-        theta.
-
-    """
+    a . theta, so its squared sum is theta' G theta."""
     p = gram.shape[0] - 2
     n = gram[0, 0]
     mx = gram[0, 1:p + 1] / n
@@ -392,16 +332,7 @@ def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
 
 def cross_validate(grams: np.ndarray, lams: np.ndarray) -> np.ndarray:
     """Held-out squared error: each fold's samples predicted by the fit on all the others,
-    per penalty in ``lams``.
-
-    Args:
-        grams: Gram matrices per fold (``fold_grams``).
-        lams: The ridge penalties.
-
-    Returns:
-        Shape (penalties, folds).
-
-    """
+    per penalty in ``lams``."""
     total = grams.sum(axis=0)
     errors = np.zeros((lams.size, grams.shape[0]))
     for i, lam in enumerate(lams):

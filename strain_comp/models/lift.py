@@ -32,37 +32,14 @@ _Family = TypeVar("_Family", bound="LiftedArray")
 
 def kernel(s: int, t: float, r: float, *arrays: np.ndarray) -> float:
     """The name a template (``array_step``, ``strain_comp.core.array.family_tick``) calls the
-    family's kernel by; each specialisation binds its own, this one is never called.
-
-    Args:
-        s: The sensor's row.
-        t: Time [s].
-        r: Resistance [ohm].
-        *arrays: The family's state and parameter arrays.
-
-    Returns:
-        Never.
-
-    Raises:
-        TypeError: Always: a template's kernel is bound by ``strain_comp._numba.specialise``.
-
-    """
+    family's kernel by; each specialisation binds its own, this one is never called."""
     raise TypeError("a template's kernel is bound by strain_comp._numba.specialise")
 
 
 def array_step(t: float, r: np.ndarray, out: np.ndarray, state: tuple[np.ndarray, ...],
                params: tuple[Any, ...]) -> None:
     """Template: advance every sensor by one tick at ``t``. A bad r[s] (not finite or <= 0)
-    or t leaves sensor s untouched and gives NaN.
-
-    Args:
-        t: Time [s].
-        r: Resistance [ohm] per sensor (K).
-        out: Strain [%] per sensor (K), written.
-        state: The family's state arrays, updated in place.
-        params: The family's parameter arrays.
-
-    """
+    or t leaves sensor s untouched and gives NaN."""
     arrays = state + params
     for s in range(r.size):
         ri = r[s]
@@ -74,20 +51,7 @@ def array_step(t: float, r: np.ndarray, out: np.ndarray, state: tuple[np.ndarray
 
 def tick_arrays(r: npt.ArrayLike, k: int, out: np.ndarray | None
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """The resistances of one array tick as a contiguous float64 vector.
-
-    Args:
-        r: Resistance [ohm] per sensor.
-        k: The array's number of sensors.
-        out: A vector for the strains, or None for a new one.
-
-    Returns:
-        The resistances and the strain vector.
-
-    Raises:
-        ValueError: ``r`` is not of shape (k,).
-
-    """
+    """The resistances of one array tick as a contiguous float64 vector."""
     r = np.ascontiguousarray(r, dtype=np.float64)
     if r.shape != (k,):
         raise ValueError(f"r must have shape ({k},), got {r.shape}")
@@ -95,12 +59,7 @@ def tick_arrays(r: npt.ArrayLike, k: int, out: np.ndarray | None
 
 
 class LiftedArray(ABC):
-    """K sensors of one family stepped together through the family's lifted kernel.
-
-    A family's class names its kernel (``lift``), builds its tables from the per-sensor
-    models and sets ``state`` and ``params`` (module docstring). ``step(t, r)`` gives
-    exactly what each model's own ``step`` would give.
-    """
+    """K sensors of one family stepped together through the family's lifted kernel."""
 
     family: ClassVar[str]
     """The family's name in errors (``an APL-family``, ``a creep_pi``)."""
@@ -142,16 +101,7 @@ class LiftedArray(ABC):
 def lift(family_kernel: Dispatcher[Any], **options: Any
          ) -> Callable[[type[_Family]], type[_Family]]:
     """Class decorator: a ``LiftedArray`` family stepped by ``family_kernel``, its array step
-    compiled with the kernel's ``njit`` ``options`` (its fast-math flags).
-
-    Args:
-        family_kernel: The family's one-sensor kernel (``step_sensor``).
-        **options: ``njit`` options of the array step.
-
-    Returns:
-        The decorator.
-
-    """
+    compiled with the kernel's ``njit`` ``options`` (its fast-math flags)."""
     def decorate(cls: type[_Family]) -> type[_Family]:
         cls.kernel = family_kernel
         cls.array_step = specialise(array_step, {"kernel": family_kernel},

@@ -29,29 +29,12 @@ from strain_comp._numba import njit
 
 
 def breakpoints(m: int) -> np.ndarray:
-    """The M - 1 breakpoints b_i = -1 + 2 i / M, i = 1 .. M-1.
-
-    Args:
-        m: The number of segments M.
-
-    Returns:
-        The breakpoints.
-
-    """
+    """The M - 1 breakpoints b_i = -1 + 2 i / M, i = 1 .. M-1."""
     return -1.0 + 2.0 * np.arange(1, m) / m
 
 
 def basis(psi: npt.ArrayLike, m: int) -> npt.NDArray[np.float64]:
-    """The M basis functions phi_j(psi) as columns (eq. (3)).
-
-    Args:
-        psi: Normalised strain per sample.
-        m: The number of segments M.
-
-    Returns:
-        Shape (n, M).
-
-    """
+    """The M basis functions phi_j(psi) as columns (eq. (3))."""
     psi = np.atleast_1d(np.asarray(psi, dtype=np.float64))
     b = breakpoints(m)
     phi = np.empty((psi.size, m))
@@ -62,15 +45,7 @@ def basis(psi: npt.ArrayLike, m: int) -> npt.NDArray[np.float64]:
 
 
 def slopes_from_mu(mu: npt.ArrayLike) -> np.ndarray:
-    """Slopes of the M segments (left to right) of f with basis coefficients ``mu``.
-
-    Args:
-        mu: The basis coefficients (M).
-
-    Returns:
-        The slopes (M).
-
-    """
+    """Slopes of the M segments (left to right) of f with basis coefficients ``mu``."""
     mu = np.asarray(mu, dtype=np.float64)
     m = mu.size
     slopes = np.full(m, mu[0])
@@ -83,15 +58,7 @@ def slopes_from_mu(mu: npt.ArrayLike) -> np.ndarray:
 
 
 def mu_from_slopes(slopes: npt.ArrayLike) -> np.ndarray:
-    """Inverse of ``slopes_from_mu``.
-
-    Args:
-        slopes: The segment slopes (M).
-
-    Returns:
-        The basis coefficients (M).
-
-    """
+    """Inverse of ``slopes_from_mu``."""
     slopes = np.asarray(slopes, dtype=np.float64)
     m = slopes.size
     c = (m - 1) // 2
@@ -103,19 +70,7 @@ def mu_from_slopes(slopes: npt.ArrayLike) -> np.ndarray:
 
 
 def path_matrix(psi: npt.ArrayLike, m: int) -> np.ndarray:
-    """G (n, M) with f(psi) = G @ slopes: signed length of segment j on the path 0 -> psi.
-
-    f is linear in its segment slopes, which is what the fit uses (slopes >= eps keep f
-    strictly increasing as simple bounds).
-
-    Args:
-        psi: Normalised strain per sample.
-        m: The number of segments M.
-
-    Returns:
-        G, shape (n, M).
-
-    """
+    """G (n, M) with f(psi) = G @ slopes: signed length of segment j on the path 0 -> psi."""
     x = np.atleast_1d(np.asarray(psi, dtype=np.float64))
     edges = np.concatenate(([-np.inf], breakpoints(m), [np.inf]))
     lo, hi = edges[:-1], edges[1:]
@@ -124,28 +79,12 @@ def path_matrix(psi: npt.ArrayLike, m: int) -> np.ndarray:
 
 
 def inverse_tables(mu: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The tables ``finv`` reads.
-
-    Args:
-        mu: The basis coefficients (M).
-
-    Returns:
-        (b, F, inv_slopes): breakpoints, f at the breakpoints, 1 / segment slopes.
-
-    """
+    """The tables ``finv`` reads."""
     return slope_tables(slopes_from_mu(mu))
 
 
 def slope_tables(slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``inverse_tables`` of f given by its M segment slopes (``slopes_from_mu``).
-
-    Args:
-        slopes: The segment slopes (M).
-
-    Returns:
-        (b, F, inv_slopes), as ``inverse_tables``.
-
-    """
+    """``inverse_tables`` of f given by its M segment slopes (``slopes_from_mu``)."""
     b, paths = _breakpoint_paths(slopes.size)
     return b.copy(), paths @ slopes, 1.0 / slopes
 
@@ -162,34 +101,14 @@ def _breakpoint_paths(m: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def evaluate(psi: npt.ArrayLike, mu: npt.ArrayLike) -> np.ndarray:
-    """f(psi) (eq. (3)).
-
-    Args:
-        psi: Normalised strain per sample.
-        mu: The basis coefficients (M).
-
-    Returns:
-        f per sample.
-
-    """
+    """f(psi) (eq. (3))."""
     coef = np.asarray(mu, dtype=np.float64)
     return basis(psi, coef.size) @ coef
 
 
 @njit
 def finv(y: float, b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
-    """Exact inverse of the PWA f given its tables (see ``inverse_tables``).
-
-    Args:
-        y: A value of f.
-        b: The breakpoints.
-        f_at_b: f at the breakpoints.
-        inv_slopes: 1 / segment slopes.
-
-    Returns:
-        psi with f(psi) = y.
-
-    """
+    """Exact inverse of the PWA f given its tables (see ``inverse_tables``)."""
     j = 0
     nb = b.size
     while j < nb and f_at_b[j] < y:
@@ -204,18 +123,7 @@ def finv(y: float, b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) ->
 @njit
 def finv_array(y: np.ndarray, b: np.ndarray, f_at_b: np.ndarray,
                inv_slopes: np.ndarray) -> np.ndarray:
-    """``finv`` over an array.
-
-    Args:
-        y: Values of f.
-        b: The breakpoints.
-        f_at_b: f at the breakpoints.
-        inv_slopes: 1 / segment slopes.
-
-    Returns:
-        psi per value.
-
-    """
+    """``finv`` over an array."""
     out = np.empty(y.size)
     for i in range(y.size):
         out[i] = finv(y[i], b, f_at_b, inv_slopes)

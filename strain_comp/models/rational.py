@@ -60,22 +60,7 @@ _GUARD_MARGIN = 0.05
 @njit
 def rational_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, coef: np.ndarray,
                     split: bool, deadzone: float, tau: float) -> np.ndarray:
-    """S for each sample, through the combined or the direction's branch.
-
-    Args:
-        state: The detector state (STATE_SIZE entries) followed by the active branch index,
-            updated in place.
-        t: Time [s] per sample.
-        xi: Normalised input per sample.
-        coef: Rows combined, loading, unloading of [p1, p2, p3, q1, q2].
-        split: Read the loading and unloading branches (else the combined one).
-        deadzone: The detector's dead zone (xi per second).
-        tau: The detector's time constant [s].
-
-    Returns:
-        Strain [%] per sample.
-
-    """
+    """S for each sample, through the combined or the direction's branch."""
     out = np.empty(t.size)
     active = STATE_SIZE
     for n in range(t.size):
@@ -152,22 +137,7 @@ def _jac_free(z: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
               what: str = "rational") -> np.ndarray:
-    """The best pole-free rat22 fit of s(xi) (module docstring).
-
-    Args:
-        xi: Normalised resistance per sample.
-        s: Reference strain [%] per sample.
-        guard: The xi interval in which the denominator may have no real root.
-        what: The model's name, for the messages.
-
-    Returns:
-        [p1, p2, p3, q1, q2].
-
-    Raises:
-        FitError: Fewer than 5 samples, a resistance that does not vary, or no pole-free
-            fit.
-
-    """
+    """The best pole-free rat22 fit of s(xi) (module docstring)."""
     if xi.size < 5:
         raise FitError(f"{what}: needs at least 5 samples, got {xi.size}")
     if np.ptp(xi) <= 0.0:

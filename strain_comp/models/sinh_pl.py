@@ -68,11 +68,7 @@ _START_SAMPLES = 5000  # starts see at most about this many samples
 
 @njit
 def _cell_step(u: float, e: float, dt: float, i_s: float, v_t: float) -> tuple[float, float]:
-    """One linearly implicit step of u' = f(e - u); returns (u_new, d u_new / d e).
-
-    With x = (e - u) / V_T, m = exp(|x|) and q = 1 / m, numerator and denominator are
-    divided by m, so a steep cell (large I_S, small V_T, |x| up to 700) gives the finite
-    limit du -> V_T sign(x) instead of inf / inf."""
+    """One linearly implicit step of u' = f(e - u); returns (u_new, d u_new / d e)."""
     x = (e - u) / v_t
     if x > 700.0:
         x = 700.0
@@ -91,22 +87,7 @@ def _cell_step(u: float, e: float, dt: float, i_s: float, v_t: float) -> tuple[f
 def sinh_pl_forward_kernel(state: np.ndarray, t: np.ndarray, psi: np.ndarray, w0: float,
                            vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
                            ) -> np.ndarray:
-    """Forward model eq. (2): psi (input e) -> xi (output i).
-
-    Args:
-        state: [started, t, u_1..u_N], updated in place.
-        t: Time [s] per sample.
-        psi: Normalised strain per sample.
-        w0: The direct weight.
-        vb: The bias.
-        w: Cell weights (N).
-        i_s: Cell saturation currents (N).
-        v_t: Cell thermal voltages (N).
-
-    Returns:
-        xi per sample.
-
-    """
+    """Forward model eq. (2): psi (input e) -> xi (output i)."""
     n_cells = w.size
     out = np.empty(t.size)
     for n in range(t.size):
@@ -132,22 +113,7 @@ def sinh_pl_forward_kernel(state: np.ndarray, t: np.ndarray, psi: np.ndarray, w0
 def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0: float,
                            vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
                            ) -> np.ndarray:
-    """Compensator eq. (3), exact inverse of the discrete forward model: xi -> psi.
-
-    Args:
-        state: [started, t, u_1..u_N], updated in place.
-        t: Time [s] per sample.
-        xi: Normalised input per sample.
-        w0: The direct weight.
-        vb: The bias.
-        w: Cell weights (N).
-        i_s: Cell saturation currents (N).
-        v_t: Cell thermal voltages (N).
-
-    Returns:
-        psi per sample.
-
-    """
+    """Compensator eq. (3), exact inverse of the discrete forward model: xi -> psi."""
     n_cells = w.size
     out = np.empty(t.size)
     gain = w0

@@ -148,11 +148,7 @@ class SpikeDecay(Compensator):
 
     def predict_resistance(self, t: npt.ArrayLike, s: npt.ArrayLike, *,
                            hold_rate: float | None = None) -> np.ndarray:
-        """Forward eq. (3) for a known strain history s [%] (the paper's output prediction).
-
-        Movements are found in s as in ``fit``; each one's end is ts, its rate and end strain
-        pick (S, lambda); while a new movement is under way the previous spike decays on.
-        """
+        """Forward eq. (3) for a known strain history s [%] (the paper's output prediction)."""
         t, s = as_float_arrays(t, s)
         hold_rate = default_hold_rate(s) if hold_rate is None else hold_rate
         factor = np.ones(t.size)
@@ -250,25 +246,7 @@ def _require_matrix(params: Mapping[str, Any], key: str, shape: tuple[int, int])
 
 def recalibrate_two_point(model: SpikeDecay, point_a: tuple[float, float],
                           point_b: tuple[float, float]) -> SpikeDecay:
-    """A copy of ``model`` with f scaled and shifted (a f + b) through two points.
-
-    The paper's calibration of a new sensor of the same make: S and lambda tables and the
-    monotone range are kept. Give settled resistances (a reading taken during a spike should
-    first be divided by 1 + S, as the paper does).
-
-    Args:
-        model: The fitted model.
-        point_a: (strain [%], settled resistance [ohm]).
-        point_b: (strain [%], settled resistance [ohm]).
-
-    Returns:
-        The recalibrated copy.
-
-    Raises:
-        ParameterError: The two strains give one resistance on f, or the two resistances
-            are equal.
-
-    """
+    """A copy of ``model`` with f scaled and shifted (a f + b) through two points."""
     (eps_a, r_a), (eps_b, r_b) = point_a, point_b
     f_a, f_b = (f_eval(model.knots, model.c, float(e)) for e in (eps_a, eps_b))
     if f_a == f_b:

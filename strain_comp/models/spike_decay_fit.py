@@ -28,17 +28,7 @@ class Movement:
 
 
 def movements(t: np.ndarray, s: np.ndarray, hold_rate: float) -> list[Movement]:
-    """Maximal runs of sample intervals where |ds/dt| > hold_rate.
-
-    Args:
-        t: Time [s] per sample.
-        s: Reference strain [%] per sample.
-        hold_rate: Above it the strain moves [%/s].
-
-    Returns:
-        The movements, in time order.
-
-    """
+    """Maximal runs of sample intervals where |ds/dt| > hold_rate."""
     if t.size < 2:
         return []
     moving = np.abs(np.diff(s) / np.diff(t)) > hold_rate
@@ -49,15 +39,7 @@ def movements(t: np.ndarray, s: np.ndarray, hold_rate: float) -> list[Movement]:
 
 
 def default_hold_rate(s: np.ndarray) -> float:
-    """The default ``hold_rate`` for the reference ``s``: 0.2 % of its span per second.
-
-    Args:
-        s: Reference strain [%] per sample.
-
-    Returns:
-        The rate [%/s].
-
-    """
+    """The default ``hold_rate`` for the reference ``s``: 0.2 % of its span per second."""
     return 0.002 * max(float(np.ptp(s)), 1e-12)
 
 
@@ -75,18 +57,7 @@ def _cluster(values: np.ndarray, tol: float) -> list[list[int]]:
 
 def analyse_holds(segments: Sequence[Segment], hold_rate: float, min_hold: float
                    ) -> tuple[list[tuple[float, float]], list[tuple[float, ...]]]:
-    """The holds between movements and the steps into them.
-
-    Args:
-        segments: The training segments.
-        hold_rate: Above it the strain moves [%/s].
-        min_hold: The shortest hold used [s].
-
-    Returns:
-        Settled (strain [%], R_inf [ohm]) per hold, and (rate [%/s], strain [%], direction,
-        S, lambda [1/s], |step| [%]) per step.
-
-    """
+    """The holds between movements and the steps into them."""
     settled: list[tuple[float, float]] = []
     steps: list[tuple[float, ...]] = []
     for seg in segments:
@@ -143,19 +114,7 @@ def _fit_decay(th: np.ndarray, rh: np.ndarray, r_inf: float
 
 def fit_f(eps_pts: np.ndarray, r_pts: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
-    """PCHIP through the settled points in Table 2 form, and its longest monotone run.
-
-    Args:
-        eps_pts: Settled strains [%], increasing.
-        r_pts: Settled resistances [ohm].
-
-    Returns:
-        The knots, the piece coefficients, and the monotone strain range [%].
-
-    Raises:
-        FitError: The settled resistance does not change with strain.
-
-    """
+    """PCHIP through the settled points in Table 2 form, and its longest monotone run."""
     order = np.argsort(eps_pts)
     x, y = eps_pts[order], r_pts[order]
     pchip = PchipInterpolator(x, y)
@@ -177,21 +136,7 @@ def fit_f(eps_pts: np.ndarray, r_pts: np.ndarray
 
 def tabulate(steps: list[tuple[float, ...]], levels: np.ndarray,
               tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """S and lambda tables over (rate x strain) from the fitted steps; gaps filled.
-
-    Steps whose measured rate is not > 0 (a step too small or too fast to time) have no
-    place on the log-rate axis and are left out.
-
-    Args:
-        steps: (rate, strain, direction, S, lambda, |step|) per step (``analyse_holds``).
-        levels: The settled strains [%] (their mean is the one strain without steps).
-        tol: Strains closer than this are one level [%].
-
-    Returns:
-        The rates [%/s], the strains [%], and the S and lambda tables (direction x rate x
-        strain).
-
-    """
+    """S and lambda tables over (rate x strain) from the fitted steps; gaps filled."""
     steps = [st for st in steps if st[0] > 0.0]
     if not steps:
         return (np.array([1.0]), np.array([float(np.mean(levels))]), np.zeros((2, 1, 1)),
@@ -251,21 +196,7 @@ def settled_points(segments: Sequence[Segment], settled: list[tuple[float, float
     """The points f passes through and the steps the tables are made of: the holds' settled
     (strain, R), levels within ``tol`` averaged, and ``steps``; with fewer than two levels
     (no usable holds), the mean (strain, R) of each of ``_N_BINS`` strain bins of every
-    sample and no step (no spike).
-
-    Args:
-        segments: The training segments.
-        settled: Settled (strain [%], R [ohm]) per hold.
-        steps: The steps (``analyse_holds``).
-        tol: Strains closer than this are one level [%].
-
-    Returns:
-        The strains [%], the resistances [ohm], and the steps used.
-
-    Raises:
-        FitError: Too few samples spread over strain to fit f.
-
-    """
+    sample and no step (no spike)."""
     levels = _cluster(np.array([p[0] for p in settled]), tol) if settled else []
     if len(levels) >= 2:
         eps_pts = np.array([np.mean([settled[i][0] for i in g]) for g in levels])

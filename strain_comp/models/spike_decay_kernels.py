@@ -21,17 +21,7 @@ _BISECT = 60
 
 @njit
 def f_eval(knots: np.ndarray, c: np.ndarray, eps: float) -> float:
-    """Quasi-static curve eq. (4): the piece whose knot is the last one <= eps.
-
-    Args:
-        knots: The pieces' knots [%].
-        c: The pieces' cubic coefficients.
-        eps: Strain [%].
-
-    Returns:
-        The settled resistance [ohm].
-
-    """
+    """Quasi-static curve eq. (4): the piece whose knot is the last one <= eps."""
     i = 0
     while i + 1 < knots.size and eps >= knots[i + 1]:
         i += 1
@@ -41,19 +31,7 @@ def f_eval(knots: np.ndarray, c: np.ndarray, eps: float) -> float:
 
 @njit
 def f_invert(knots: np.ndarray, c: np.ndarray, lo: float, hi: float, r: float) -> float:
-    """eps in [lo, hi] with f(eps) = r on the monotone branch, clamped at the ends.
-
-    Args:
-        knots: The pieces' knots [%].
-        c: The pieces' cubic coefficients.
-        lo: The monotone range's bottom [%].
-        hi: The monotone range's top [%].
-        r: Settled resistance [ohm].
-
-    Returns:
-        Strain [%].
-
-    """
+    """eps in [lo, hi] with f(eps) = r on the monotone branch, clamped at the ends."""
     f_lo = f_eval(knots, c, lo)
     f_hi = f_eval(knots, c, hi)
     rising = f_hi > f_lo
@@ -89,19 +67,7 @@ def _axis(grid: np.ndarray, x: float) -> tuple[int, float]:
 @njit
 def table_lookup(table: np.ndarray, log_rates: np.ndarray, strains: np.ndarray, rate: float,
                  eps: float) -> float:
-    """Bilinear interpolation in (log10 rate, strain), clamped; rate <= 0 -> lowest rate.
-
-    Args:
-        table: Values (rates x strains).
-        log_rates: log10 of the rates [%/s].
-        strains: The strains [%].
-        rate: The rate [%/s].
-        eps: The strain [%].
-
-    Returns:
-        The interpolated value.
-
-    """
+    """Bilinear interpolation in (log10 rate, strain), clamped; rate <= 0 -> lowest rate."""
     x = math.log10(rate) if rate > 0.0 else -1e300
     i, u = _axis(log_rates, x)
     j, v = _axis(strains, eps)
@@ -116,25 +82,7 @@ def spike_decay_kernel(state: np.ndarray, t: np.ndarray, r: np.ndarray, knots: n
                        c: np.ndarray, lo: float, hi: float, log_rates: np.ndarray,
                        strains: np.ndarray, s_tab: np.ndarray, lam_tab: np.ndarray,
                        min_step: float, deadzone: float, tau: float) -> np.ndarray:
-    """Online inversion of eq. (3); see the module docstring for the steps.
-
-    Args:
-        state: Detector state then the kernel's slots (``STATE_LEN``), updated in place.
-        t: Time [s] per sample.
-        r: Resistance [ohm] per sample.
-        knots: f's knots [%].
-        c: f's cubic coefficients.
-        lo, hi: f's monotone range [%].
-        log_rates, strains: The tables' axes: log10 of the rates [%/s], strains [%].
-        s_tab, lam_tab: Spike heights S and decay rates lambda [1/s] (direction x rate x
-            strain).
-        min_step: The least strain step taken for a movement [%].
-        deadzone, tau: The detector's dead zone [ohm/s] and time constant [s].
-
-    Returns:
-        Strain [%] per sample.
-
-    """
+    """Online inversion of eq. (3); see the module docstring for the steps."""
     out = np.empty(t.size)
     for n in range(t.size):
         tn = t[n]

@@ -59,18 +59,7 @@ def _is_bag_dir(path: Path) -> bool:
 def expand_bags(paths: Sequence[str]) -> list[str]:
     """The bags named by ``paths``: MCAP files and rosbag2 directories as given; a folder
     that is not a rosbag2 directory stands for its ``*.mcap``, ``*.db3`` files and rosbag2
-    directories (sorted by name, not recursively).
-
-    Args:
-        paths: Bags and folders, as the command line names them.
-
-    Returns:
-        The bags, in the order given.
-
-    Raises:
-        InputError: A folder without any bag.
-
-    """
+    directories (sorted by name, not recursively)."""
     bags: list[str] = []
     for text in paths:
         path = Path(text)
@@ -229,15 +218,7 @@ def _context() -> BaseContext:
 
 
 def check_jobs(jobs: int) -> None:
-    """Check ``--jobs``.
-
-    Args:
-        jobs: The processes asked for.
-
-    Raises:
-        InputError: ``jobs`` is not 1 to ``MAX_JOBS``.
-
-    """
+    """Check ``--jobs``."""
     if not 1 <= jobs <= MAX_JOBS:
         raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
 
@@ -249,29 +230,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   out_of_range: str = "extend",
                   references_every: float | None = None,
                   figures: bool = False) -> list[BagOutcome]:
-    """Every bag evaluated (module docstring), in the order given.
-
-    Args:
-        bags: The bags.
-        calibration_path: The calibration file (each process reads it).
-        tare: As ``--tare``.
-        jobs: Processes; > 1 runs the bags in a pool.
-        plot_points: Samples kept per sensor for plots.
-        in_run: Also the in-run bound (``in_run_bound``).
-        plots: Write each bag's plots into this directory.
-        series: Every sample's row goes there (``evaluate --csv``).
-        progress: Called as ``progress(done, total, bag)`` after each bag.
-        out_of_range: As ``--out-of-range``.
-        references_every: As ``--references-every`` [s].
-        figures: Keep each bag's plots as PNG bytes (``evaluate --report``).
-
-    Returns:
-        One outcome per bag: its result, or the one line why it could not be evaluated.
-
-    Raises:
-        OutputError: The table cannot be written.
-
-    """
+    """Every bag evaluated (module docstring), in the order given."""
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = _plot_dirs(bags, plots)
@@ -316,15 +275,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
 
 def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulator, int, str,
                                                                     str]]:
-    """The errors of every sensor pooled over the bags.
-
-    Args:
-        outcomes: The bags' outcomes.
-
-    Returns:
-        Sensor -> (errors pooled, bags, model, unit).
-
-    """
+    """The errors of every sensor pooled over the bags."""
     pooled: dict[str, tuple[ErrorAccumulator, int, str, str]] = {}
     for outcome in outcomes:
         if outcome.result is None:
@@ -338,15 +289,7 @@ def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulato
 
 
 def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
-    """The pooled table: every sensor over every bag it was scored in.
-
-    Args:
-        outcomes: The bags' outcomes.
-
-    Returns:
-        The table's text.
-
-    """
+    """The pooled table: every sensor over every bag it was scored in."""
     header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
               f"{'max':>9} {'R^2':>8}")
     done = sum(o.result is not None for o in outcomes)
@@ -364,15 +307,7 @@ def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
 
 
 def format_bag(outcome: BagOutcome) -> tuple[str, list[str]]:
-    """One bag's heading and table (stdout) and its notes (stderr).
-
-    Args:
-        outcome: The bag's outcome.
-
-    Returns:
-        The heading and table, and the note lines.
-
-    """
+    """One bag's heading and table (stdout) and its notes (stderr)."""
     if outcome.result is None:
         return f"== {outcome.bag}\nnot evaluated: {outcome.error}", []
     notes = outcome.problems + format_notes(outcome.result)
@@ -380,15 +315,7 @@ def format_bag(outcome: BagOutcome) -> tuple[str, list[str]]:
 
 
 def to_json(outcomes: Sequence[BagOutcome]) -> dict[str, Any]:
-    """The multi-bag JSON (module docstring).
-
-    Args:
-        outcomes: The bags' outcomes.
-
-    Returns:
-        The JSON document.
-
-    """
+    """The multi-bag JSON (module docstring)."""
     bags: dict[str, Any] = {}
     for outcome in outcomes:
         bags[outcome.bag] = ({"error": outcome.error} if outcome.result is None

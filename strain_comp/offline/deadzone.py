@@ -44,15 +44,7 @@ DEADZONE_FRACTION = 0.5
 """The dead zone must stay below this fraction of the typical dR/dt while moving."""
 
 def find_hold(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray] | None:
-    """The second half of the longest still stretch of the reference.
-
-    Args:
-        segments: The training segments.
-
-    Returns:
-        Its (t [s], r [ohm]), or None without one.
-
-    """
+    """The second half of the longest still stretch of the reference."""
     rates = [np.abs(np.gradient(seg.s, seg.t)) for seg in segments]
     moving = np.concatenate(rates)
     scale = float(np.percentile(moving, 99.5)) if moving.size else 0.0
@@ -74,11 +66,7 @@ def find_hold(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray] | No
 
 
 def _noise_sigma(segments: Sequence[Segment]) -> float:
-    """Robust white-noise sigma of R [ohm] from second differences (smooth motion cancels).
-
-    sigma = 1.4826 MAD(d2 R) / sqrt(6); when the MAD is zero (coarse ADC steps: most second
-    differences are exactly 0) the plain standard deviation of d2 R / sqrt(6) is used.
-    """
+    """Robust white-noise sigma of R [ohm] from second differences (smooth motion cancels)."""
     d2 = np.concatenate([np.diff(seg.r, 2) for seg in segments if seg.r.size >= 3])
     if d2.size == 0:
         return 0.0
@@ -90,15 +78,7 @@ def movement_rate(segments: Sequence[Segment]) -> float:
     """Typical |dR/dt| while the reference moves: the gauge slope |dR/dS| (a line through all
     samples) times the median |dS/dt| of the moving samples (the reference is clean, so this
     is not inflated by resistance noise; on samples stamped in bursts dS/dt is taken on a
-    regular grid, ``_regular_gradient``).
-
-    Args:
-        segments: The training segments.
-
-    Returns:
-        The rate [ohm/s].
-
-    """
+    regular grid, ``_regular_gradient``)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     gradient = np.gradient if _bursts(segments) is None else _regular_gradient
@@ -129,25 +109,7 @@ def _hold_samples(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray, 
 
 def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
         DirectionSettings, str]:
-    """Dead-zone settings and their source.
-
-    Without a ``tau`` option the derivative filter is the shortest on ``TAU_GRID`` whose
-    dead zone (k sigma of the filtered derivative noise) stays below ``DEADZONE_FRACTION`` of
-    the typical movement rate: a raw first difference of a noisy, fast-sampled signal can
-    have a 4-sigma dead zone above the slowest ramps, and the detector would never leave
-    hold. When even the longest filter cannot get there, it is used anyway.
-
-    Args:
-        segments: The training segments.
-        options: The fit options (``deadzone`` [input unit/s], ``k_sigma``, ``tau`` [s]).
-
-    Returns:
-        The settings and their source: ``given``, ``hold``, ``noise`` or ``floor``.
-
-    Raises:
-        InputError: A ``deadzone`` option not > 0.
-
-    """
+    """Dead-zone settings and their source."""
     k_sigma = float(options.get("k_sigma", DEFAULT_K_SIGMA))
     if "deadzone" in options:
         deadzone = float(options["deadzone"])
@@ -213,14 +175,5 @@ def _tau_grid(segments: Sequence[Segment]) -> list[float]:
 
 def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
     """The sign of the gauge, for ``DirectionSettings.sign``: the sign of the correlation of
-    R and S (0 correlation counts as +1).
-
-    Args:
-        r: Resistance [ohm] per sample.
-        s: Reference strain per sample.
-
-    Returns:
-        +1 when R rises with strain in the training data, -1 when it falls.
-
-    """
+    R and S (0 correlation counts as +1)."""
     return -1 if float(np.mean((r - r.mean()) * (s - s.mean()))) < 0 else 1

@@ -64,17 +64,7 @@ def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
                         ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
     """The DiagnosticArray payloads of ``ticks`` [s] (a status per sensor of ``healths``,
     in its order), in runs of one fusion key set: (the run's ticks, payloads joined,
-    lengths); none for no ticks.
-
-    Args:
-        ticks: The tick times [s], ascending.
-        healths: Sensor -> its health at each tick.
-        fusion: Fused sensor -> its fusion state at each tick.
-
-    Yields:
-        The run's slice of ``ticks``, its payloads joined (uint8) and each one's length.
-
-    """
+    lengths); none for no ticks."""
     if not ticks.size:
         return
     t_ns = np.round(ticks * 1e9).astype(np.int64)  # as the writer stamps its messages

@@ -66,27 +66,7 @@ PLOT_POINTS = 50_000
 def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
                         tare: str = "calibration", out_of_range: str = "extend",
                         references_every: float | None = None) -> EvaluationResult:
-    """Score every calibrated sensor that has a recording with a reference strain.
-
-    Args:
-        recordings: Sensor name -> recording.
-        calibration: The calibration.
-        tare: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine``; what each
-            tare read goes to the notes).
-        out_of_range: The engine's ``OUT_OF_RANGE_MODES``.
-        references_every: The recording's own reference every that many seconds fused into
-            the output gain and offset (``strain_comp.core.fusion.SparseFusion``: causal,
-            scored on every sample as before).
-
-    Returns:
-        The scores per sensor.
-
-    Raises:
-        InputError: No calibrated sensor can be scored (names both sides), a calibrated
-            sensor in the data has no reference with ``references_every``, or the run
-            cannot be tared.
-
-    """
+    """Score every calibrated sensor that has a recording with a reference strain."""
     if references_every is not None:
         check_every(references_every)
         references_needed(calibration, {n: r.s is not None for n, r in recordings.items()},
@@ -166,30 +146,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
-    is read.
-
-    Args:
-        path: The bag.
-        calibration: The calibration.
-        tare: As in ``evaluate_recordings``, each input tared from the first piece it
-            appears in (``replay_bag``'s rule).
-        window: Messages per piece.
-        plot_points: Keep that many evenly spaced samples per sensor for plots (0: none).
-        series: Every sample's row goes there (``evaluate --csv``; rows of a bag that
-            fails are written before the error).
-        out_of_range: As in ``evaluate_recordings``.
-        references_every: As in ``evaluate_recordings`` [s].
-
-    Returns:
-        The result and the bag's problem lines (reader first, then the recordings' as
-        ``load_recordings`` gives them).
-
-    Raises:
-        InputError: No calibrated sensor can be scored (names both sides and the bag's
-            problems), or a tare or reference option cannot be met.
-        BagError: The bag cannot be read.
-
-    """
+    is read."""
     if references_every is not None:
         check_every(references_every)
     stream = EvaluationStream(calibration, Engine(calibration, out_of_range=out_of_range),

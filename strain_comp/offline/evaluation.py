@@ -91,17 +91,7 @@ def _json_number(value: float | int) -> float | int | None:
 
 def references_needed(calibration: Calibration, referenced: Mapping[str, bool],
                       every: float) -> None:
-    """Check that the data holds the references to fuse every ``every`` s.
-
-    Args:
-        calibration: The calibration.
-        referenced: Sensor name -> whether the data has its reference.
-        every: The fusion's spacing [s].
-
-    Raises:
-        InputError: A calibrated sensor of the data has no reference, naming them.
-
-    """
+    """Check that the data holds the references to fuse every ``every`` s."""
     missing = [n for n in calibration.sensors if n in referenced and not referenced[n]]
     if missing:
         raise InputError(f"--references-every {every:g}: {', '.join(missing)} has no "
@@ -110,28 +100,12 @@ def references_needed(calibration: Calibration, referenced: Mapping[str, bool],
 
 
 def fusion_state(fused: SparseFusion | None) -> dict[str, Any] | None:
-    """The JSON record of a sensor's fusion.
-
-    Args:
-        fused: The sensor's fusion, or None.
-
-    Returns:
-        Its state and the spacing, or None without fusion.
-
-    """
+    """The JSON record of a sensor's fusion."""
     return None if fused is None else {"every": fused.every, **fused.fusion.state()}
 
 
 def input_unit(cal: SensorCalibration) -> str:
-    """The unit of the input a sensor's run holds.
-
-    Args:
-        cal: The sensor's calibration.
-
-    Returns:
-        V for a voltage divider, else the resistance's own (ohm, or ``input.unit``).
-
-    """
+    """The unit of the input a sensor's run holds."""
     return "V" if cal.input.kind == "divider" else cal.input.unit
 
 
@@ -139,17 +113,7 @@ def crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -
     """The note for cross-talk terms whose neighbour is not on ``name``'s array topic:
     offline such a term reads the neighbour's latest estimate of the previous batch, not of
     the same instant (``Engine.run``; the node, stepping each message, reads the latest one),
-    so its correction is not the one diagnosed.
-
-    Args:
-        name: The sensor's name.
-        cal: Its calibration.
-        same_tick: The sensors on its array topic.
-
-    Returns:
-        The note lines (none when every neighbour is on the topic).
-
-    """
+    so its correction is not the one diagnosed."""
     off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
            if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
            and str(e["params"].get("neighbour")) not in same_tick]
@@ -162,16 +126,7 @@ def crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -
 
 def temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
     """The note for a run without temperature scored through a calibration with a
-    temperature term: the term reads g = 0 (``core.effects``), it is not applied.
-
-    Args:
-        name: The sensor's name.
-        cal: Its calibration.
-
-    Returns:
-        The note lines (none without a temperature term).
-
-    """
+    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
     terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
     if not terms:
         return []
@@ -180,30 +135,13 @@ def temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
 
 
 def nothing_scored(calibration: Calibration, names: list[str]) -> str:
-    """The error when no calibrated sensor can be scored, naming both sides.
-
-    Args:
-        calibration: The calibration.
-        names: The sensors in the data.
-
-    Returns:
-        The message.
-
-    """
+    """The error when no calibrated sensor can be scored, naming both sides."""
     return ("no calibrated sensor has a strain_reference in the data (calibration: "
             f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
 
 
 def format_table(result: EvaluationResult) -> str:
-    """Fixed-width error table, errors in each calibration's strain unit (% strain).
-
-    Args:
-        result: The evaluation.
-
-    Returns:
-        The table's text.
-
-    """
+    """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
     header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
               f"{'R^2':>8}")
     lines = [header, "-" * len(header)]
@@ -224,15 +162,7 @@ def format_table(result: EvaluationResult) -> str:
 
 
 def format_notes(result: EvaluationResult) -> list[str]:
-    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors.
-
-    Args:
-        result: The evaluation.
-
-    Returns:
-        The lines.
-
-    """
+    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors."""
     lines = []
     for name, ev in result.sensors.items():
         if ev.n_bad:

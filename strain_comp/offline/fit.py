@@ -82,18 +82,7 @@ budget of a fit); the others go to the model's ``fit``."""
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
-    """``["N=11", "mode=split", "sigmas=[0.1, 0.3]"]`` -> dict; values are parsed as YAML.
-
-    Args:
-        items: The ``--option`` values.
-
-    Returns:
-        Option -> value.
-
-    Raises:
-        InputError: An item without ``=``, or a value that is not valid YAML.
-
-    """
+    """``["N=11", "mode=split", "sigmas=[0.1, 0.3]"]`` -> dict; values are parsed as YAML."""
     options: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
@@ -121,21 +110,7 @@ def _check_options(fit: Callable[..., Any], model: str, options: Mapping[str, An
 
 
 def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) -> float:
-    """RMSE on the training segments through the engine's batch path.
-
-    The engine (``strain_comp.core.engine.Engine``) is reset before every segment; it is the
-    code ``evaluate``, ``replay`` and the node run, so on a training bag without gaps the fit
-    error equals what ``strain-comp evaluate`` reports (the engine clamps estimates to the
-    valid strain range plus its margin, which a raw model output is not).
-
-    Args:
-        calibration: The sensor's calibration.
-        segments: The training segments.
-
-    Returns:
-        The RMSE, in the strain unit (% strain).
-
-    """
+    """RMSE on the training segments through the engine's batch path."""
     engine = Engine(Calibration({calibration.name: calibration}))
     estimates, references = [], []
     for seg in segments:
@@ -151,21 +126,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
     ``spanned``, as recorded unless the runs pass the pooling's ``gate``, and then in one
     input space with the session start ``space_choice.choose_space`` measures best for the
     cubic fitted with the same direction and measurement-chain options; ``joint`` (the
-    session start of a one-run fit) with fewer than ``CHOICE_RUNS`` runs.
-
-    Args:
-        recordings: The sensor's runs.
-        pool: ``spanned``, ``joint``, ``stretch`` or ``raw``.
-        name: The sensor's name.
-        options: The fit's options.
-
-    Returns:
-        The runs as pooled.
-
-    Raises:
-        InputError: An unknown pool.
-
-    """
+    session start of a one-run fit) with fewer than ``CHOICE_RUNS`` runs."""
     if pool != "spanned":
         return pooled_input(recordings, pool)
     if len(recordings) < 2:
@@ -193,29 +154,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
     """Fit ``model`` to one sensor's recordings (each with a reference strain). Several runs
-    are pooled in one input space (``pool``, ``strain_comp.offline.pool``).
-
-    Args:
-        recordings: The sensor's runs.
-        model: The model's name.
-        name: The sensor's name.
-        bags: The source bags, for the provenance.
-        options: The model's ``fit`` options (N, M, mode, ...), except ``deadzone``,
-            ``k_sigma`` and ``tau`` (the direction detector), ``alternation`` and ``pair``
-            (the measurement chain) and ``fit_budget`` (overrides ``budget``).
-        budget: Good samples above which the model is fitted on a reduction (module
-            docstring, Long runs).
-        pool: ``spanned`` or ``raw``.
-
-    Returns:
-        The sensor's calibration.
-
-    Raises:
-        FitError: The data cannot support a fit (no reference, too few good samples, no
-            range of R or S), or the fit gives non-finite strain on its own data.
-        InputError: An unknown pool, or a bad option.
-
-    """
+    are pooled in one input space (``pool``, ``strain_comp.offline.pool``)."""
     options = dict(options or {})
     cls = model_class(model)
     pooled = pool_runs(recordings, pool, name, options)
@@ -296,16 +235,7 @@ def _chain_reading(chain: Alternation, alternating: bool, pair: str) -> str:
 
 
 def memory_reading(compensator: Any) -> dict[str, Any] | None:
-    """What a model with memory cells (APL, PL, MPI) kept of its memory, from its fit report.
-
-    Args:
-        compensator: The fitted model.
-
-    Returns:
-        ``memory_share`` (rounded), ``memoryless`` and the ``loop`` orientation its cell
-        weights were held to; None for models without cells.
-
-    """
+    """What a model with memory cells (APL, PL, MPI) kept of its memory, from its fit report."""
     report = getattr(compensator, "fit_report", None)
     if not report or "memoryless" not in report:
         return None
@@ -314,16 +244,7 @@ def memory_reading(compensator: Any) -> dict[str, Any] | None:
 
 
 def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
-    """The one-line note for a fit whose memory model ended up memoryless.
-
-    Args:
-        name: The sensor's name.
-        calibration: Its calibration.
-
-    Returns:
-        The note, or None.
-
-    """
+    """The one-line note for a fit whose memory model ended up memoryless."""
     memory = calibration.provenance.get("memory")
     if not memory or not memory.get("memoryless"):
         return None
@@ -337,28 +258,7 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
              report: Callable[[str], None] | None = None,
              pool: str = "spanned") -> Calibration:
     """One calibration for ``sensors``; each sensor is fitted to its recordings from every
-    bag that has it, pooled in one input space (``pool``, ``fit_sensor``).
-
-    Args:
-        paths: The bags.
-        model: The model's name.
-        sensors: The sensors; None or ``["all"]``: every sensor with a reference (one of
-            those that cannot be fitted is left out with a line to ``report``, unless none
-            can be).
-        options: As ``fit_sensor``.
-        report: Where bag problems (skipped chunks, unknown schemas) and the sensors left
-            out go, one line each.
-        pool: As ``fit_sensor``.
-
-    Returns:
-        The calibration.
-
-    Raises:
-        InputError: A sensor not in the bags or without a reference, or no sensor with one.
-        BagError: A bag cannot be read.
-        FitError: No sensor could be fitted, or a named sensor cannot.
-
-    """
+    bag that has it, pooled in one input space (``pool``, ``fit_sensor``)."""
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
     for path in paths:
         recordings, problems = load_recordings(path)
@@ -405,14 +305,7 @@ def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
     """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
     the evaluated run itself and scored on it, i.e. what that model family can reach on this
     run; the gap to ``rmse`` is what does not transfer from the training runs. A run the
-    model cannot be fitted to gets NaN and a note.
-
-    Args:
-        result: The evaluation, updated in place.
-        recordings: The run's recordings.
-        calibration: The calibration evaluated.
-
-    """
+    model cannot be fitted to gets NaN and a note."""
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
         options = cal.provenance.get("options") or {}

@@ -32,21 +32,7 @@ STILL_FRACTION = 0.001
 def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str, Any],
                 ) -> tuple[Alternation, bool, str]:
     """The measurement chain of sensor ``name``'s training runs, with the options
-    ``alternation`` and ``pair`` over the detection.
-
-    Args:
-        recordings: The training runs.
-        name: The sensor's name.
-        options: The fit options.
-
-    Returns:
-        The alternation read from R, whether the input is read in pairs, and the pair
-        statistic.
-
-    Raises:
-        FitError: An unknown pair, or a pair without an alternating input.
-
-    """
+    ``alternation`` and ``pair`` over the detection."""
     r_raw = np.concatenate([np.asarray(rec.r) for rec in recordings])
     chain = alternation(r_raw)
     alternating = bool(options.get("alternation", chain.present))
@@ -62,16 +48,7 @@ def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str
 
 def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Change of the reference strain over the second around each sample (from the last
-    sample at or after t - 0.5 s to the last at or before t + 0.5 s).
-
-    Args:
-        t: Time [s] per sample.
-        s: Reference strain per sample.
-
-    Returns:
-        The change per sample.
-
-    """
+    sample at or after t - 0.5 s to the last at or before t + 0.5 s)."""
     t = np.asarray(t, dtype=np.float64)
     lo = np.searchsorted(t, t - 0.5)
     hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
@@ -82,15 +59,7 @@ def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
 def pair_side(recordings: Sequence[Recording]) -> str:
     """``strain_comp.core.chain.pair_branch`` over the training runs, still where the
     reference strain moves by at most ``STILL_FRACTION`` of its span over 1 s around a
-    sample.
-
-    Args:
-        recordings: The training runs.
-
-    Returns:
-        The pair statistic.
-
-    """
+    sample."""
     r_all, still_all = [], []
     for rec in recordings:
         if rec.s is None:

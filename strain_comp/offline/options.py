@@ -81,18 +81,7 @@ def _apl_options() -> dict[str, Check]:
 
 
 def model_options(model: str) -> dict[str, Check]:
-    """The options of ``model``'s fit (without the direction options).
-
-    Args:
-        model: The model's name.
-
-    Returns:
-        Option -> its check.
-
-    Raises:
-        InputError: An unknown model.
-
-    """
+    """The options of ``model``'s fit (without the direction options)."""
     if model in ("apl", "pl", "mpi"):
         return _apl_options()
     if model == "sinh_pl":
@@ -147,25 +136,12 @@ MEANINGS: dict[str, str] = {
 
 
 def requirement(check: Check) -> str:
-    """What ``check`` accepts, in words (its answer to a value no check accepts).
-
-    Args:
-        check: An option's check.
-
-    Returns:
-        The words.
-
-    """
+    """What ``check`` accepts, in words (its answer to a value no check accepts)."""
     return check(object()) or ""
 
 
 def describe_options() -> str:
-    """Every model's options with meaning and range, for ``strain-comp fit --help``.
-
-    Returns:
-        The text.
-
-    """
+    """Every model's options with meaning and range, for ``strain-comp fit --help``."""
     groups = (("apl, pl, mpi", "apl"), ("sinh_pl", "sinh_pl"), ("rational", "rational"),
               ("spike_decay", "spike_decay"), ("creep_pi", "creep_pi"),
               ("every model", None))
@@ -185,17 +161,7 @@ FIT_OPTIONS: dict[str, Check] = {
 
 
 def check_fit_options(model: str, options: Mapping[str, Any]) -> None:
-    """Check the fit options of ``model``.
-
-    Args:
-        model: The model's name.
-        options: Option -> value.
-
-    Raises:
-        InputError: An unknown model, or the first option it does not take or whose value
-            is bad.
-
-    """
+    """Check the fit options of ``model``."""
     known = {**model_options(model), **DIRECTION_OPTIONS, **FIT_OPTIONS}
     for key, value in options.items():
         if key not in known:

@@ -90,21 +90,7 @@ def _out_of_range(ev: SensorEvaluation) -> np.ndarray:
 def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
               context: str = "") -> Target:
     """Estimate and reference strain over time, resistance on a second panel; samples
-    outside the calibrated range marked on both.
-
-    Args:
-        ev: The sensor's evaluation (its kept samples).
-        path: A PNG path (written atomically) or a binary stream.
-        inputs: Files the plot must not overwrite.
-        context: A line under the title (bag, calibration, tare).
-
-    Returns:
-        ``path``.
-
-    Raises:
-        OutputError: ``path`` is an input or cannot be written.
-
-    """
+    outside the calibrated range marked on both."""
     fig = _figure(2, height=3.2)
     top, bottom = fig.subplots(2, 1, sharex=True)
     t = ev.t - ev.t[0] if ev.t.size else ev.t
@@ -139,21 +125,7 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
 
 def plot_loop(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
               context: str = "") -> Target:
-    """S_hat against S with the identity line; out-of-range samples marked.
-
-    Args:
-        ev: The sensor's evaluation (its kept samples).
-        path: A PNG path (written atomically) or a binary stream.
-        inputs: Files the plot must not overwrite.
-        context: A line under the title (bag, calibration, tare).
-
-    Returns:
-        ``path``.
-
-    Raises:
-        OutputError: ``path`` is an input or cannot be written.
-
-    """
+    """S_hat against S with the identity line; out-of-range samples marked."""
     fig = _figure(height=6.0)
     ax = fig.subplots()
     s, s_hat = ev.reference[ev.scored], ev.estimate[ev.scored]
@@ -180,22 +152,7 @@ def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path]
              context: str = "", r_range: tuple[float, float] | None = None) -> Target:
     """The sensor as recorded: resistance against the reference strain (what the model
     inverts), with the calibration's resistance range as lines, moved by the tare's gain into
-    the recorded resistance.
-
-    Args:
-        ev: The sensor's evaluation (its kept samples).
-        path: A PNG path (written atomically) or a binary stream.
-        inputs: Files the plot must not overwrite.
-        context: A line under the title (bag, calibration, tare).
-        r_range: The calibration's resistance range [ohm], or None.
-
-    Returns:
-        ``path``.
-
-    Raises:
-        OutputError: ``path`` is an input or cannot be written.
-
-    """
+    the recorded resistance."""
     fig = _figure(height=5.0)
     ax = fig.subplots()
     r, r_label, scale = _resistance_axis(ev)
@@ -228,21 +185,7 @@ def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path]
 
 def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
                     context: str = "") -> Target:
-    """Histogram of the error S_hat - S over the scored samples.
-
-    Args:
-        ev: The sensor's evaluation (its kept samples).
-        path: A PNG path (written atomically) or a binary stream.
-        inputs: Files the plot must not overwrite.
-        context: A line under the title (bag, calibration, tare).
-
-    Returns:
-        ``path``.
-
-    Raises:
-        OutputError: ``path`` is an input or cannot be written.
-
-    """
+    """Histogram of the error S_hat - S over the scored samples."""
     fig = _figure(height=4.0)
     ax = fig.subplots()
     error = ev.estimate[ev.scored] - ev.reference[ev.scored]
@@ -260,24 +203,7 @@ def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str 
 def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
                     inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
                     bag: str = "", calibration_path: str = "", tare: str = "") -> list[Path]:
-    """The four plots for every evaluated sensor, each written atomically.
-
-    Args:
-        result: The evaluation.
-        out_dir: The directory (created).
-        inputs: Files the plots must not overwrite.
-        calibration: Gives the raw panel its resistance range.
-        bag: Named in the titles.
-        calibration_path: Named in the titles.
-        tare: Named in the titles, with what the tare did (from the result's notes).
-
-    Returns:
-        The paths written.
-
-    Raises:
-        OutputError: A plot path is one of ``inputs`` or cannot be written.
-
-    """
+    """The four plots for every evaluated sensor, each written atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -299,19 +225,7 @@ def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
 
 def context_line(result: EvaluationResult, name: str, bag: str, calibration_path: str,
              tare: str) -> str:
-    """``bag demo.mcap, calibration cal.yaml, tare auto: rest resistance 2.1 % below ...``
-
-    Args:
-        result: The evaluation.
-        name: The sensor's name.
-        bag: The bag's name.
-        calibration_path: The calibration's name.
-        tare: The tare mode.
-
-    Returns:
-        The line.
-
-    """
+    """``bag demo.mcap, calibration cal.yaml, tare auto: rest resistance 2.1 % below ...``"""
     parts = []
     if bag:
         parts.append(f"bag {Path(bag.rstrip('/')).name}")

@@ -101,17 +101,7 @@ def _thinned(recordings: Sequence[Recording]) -> list[tuple[np.ndarray, np.ndarr
 
 
 def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float) -> float:
-    """RMSE of the pooled cubic of strain on mapped resistance through the mapped runs.
-
-    Args:
-        recordings: The runs (with lines).
-        maps: Each run's (z, k).
-        r_ref: R_0,ref of the maps.
-
-    Returns:
-        The RMSE [strain unit].
-
-    """
+    """RMSE of the pooled cubic of strain on mapped resistance through the mapped runs."""
     data = _thinned(recordings)
     mapped = np.concatenate([r_ref + k * (r - z) for (r, _), (z, k) in zip(data, maps,
                                                                           strict=True)])
@@ -125,16 +115,7 @@ def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
     """The ``joint`` space: a per-run affine nuisance fitted jointly with a pooled cubic of
     strain on mapped resistance (least squares over the maps, the cubic solved for at each
     step), started from each run's line of resistance on strain (``run_line``) and anchored
-    on the run of median sensitivity (its map stays the identity).
-
-    Args:
-        recordings: The runs (two or more).
-
-    Returns:
-        Each run's (z, k) and R_0,ref; None where a run has no line or the lines disagree
-        in sign.
-
-    """
+    on the run of median sensitivity (its map stays the identity)."""
     from scipy.optimize import least_squares
 
     found = _lines(recordings)
@@ -171,18 +152,7 @@ def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
 def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float
                   ) -> Line | None:
     """The line the runs' calibration stretches share once mapped
-    (``stretch_line.run_line`` of their stretches, mapped and pooled).
-
-    Args:
-        recordings: The runs.
-        maps: Each run's (z, k) into the space.
-        r_ref: R_0,ref of the maps.
-
-    Returns:
-        The line, or None where a run has no stretch or the line's zero is not a
-        resistance above 0.
-
-    """
+    (``stretch_line.run_line`` of their stretches, mapped and pooled)."""
     parts = []
     for rec, (z, k) in zip(recordings, maps, strict=True):
         stretch = None if rec.s is None else calibration_stretch(rec.t, rec.s)
@@ -201,16 +171,7 @@ def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: f
 
 def gate(recordings: Sequence[Recording]) -> tuple[dict[str, Any], Joint | None]:
     """Whether the runs differ in zero and sensitivity: the pooled cubic's RMSE through the
-    ``joint`` maps against the runs as recorded, kept where at most ``POOL_GAIN`` of it.
-
-    Args:
-        recordings: The runs (two or more).
-
-    Returns:
-        The reading (``curve_rmse``, both RMSEs, or ``why`` where there are no maps), and
-        the joint maps where they are kept (None otherwise).
-
-    """
+    ``joint`` maps against the runs as recorded, kept where at most ``POOL_GAIN`` of it."""
     joint = joint_maps(recordings)
     if joint is None:
         return {"why": "a run has no line, or the runs' lines disagree in sign"}, None
@@ -225,20 +186,7 @@ def pooled_input(recordings: Sequence[Recording], pool: str, joint: Joint | None
                  ) -> Pooled:
     """The runs in one input space (``joint`` and ``stretch``: the joint maps, and for
     ``stretch`` the line the mapped stretches share; a single run's own stretch line) or as
-    recorded (``raw``, a single run, or where there are no maps; module docstring).
-
-    Args:
-        recordings: The sensor's runs.
-        pool: ``joint``, ``stretch`` or ``raw``.
-        joint: The runs' joint maps, when already fitted (``gate``); None: fitted here.
-
-    Returns:
-        The runs as fitted, their maps, the record and the stretches' line.
-
-    Raises:
-        InputError: An unknown ``pool``.
-
-    """
+    recorded (``raw``, a single run, or where there are no maps; module docstring)."""
     if pool not in POOLS or pool == "spanned":
         raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
     as_recorded = Pooled(list(recordings), [], {"pool": "raw"})

@@ -57,16 +57,7 @@ HOLD_RATE_FRACTION = 0.01
 
 def moving_average(x: np.ndarray, width: int) -> np.ndarray:
     """Centred moving average (odd widths centred exactly, even ones half a sample late),
-    over the samples that exist near the ends.
-
-    Args:
-        x: The samples.
-        width: Samples averaged.
-
-    Returns:
-        The average per sample.
-
-    """
+    over the samples that exist near the ends."""
     n = x.size
     c: npt.NDArray[np.float64] = np.concatenate(([0.0], np.cumsum(x)))
     i = np.arange(n)
@@ -77,16 +68,7 @@ def moving_average(x: np.ndarray, width: int) -> np.ndarray:
 
 def lowpass(x: np.ndarray, factor: int) -> np.ndarray:
     """The triangular anti-aliasing filter of step 1: two ``factor``-sample averages, over
-    ``x`` extended by its odd reflection at both ends (a ramp stays exact up to the end).
-
-    Args:
-        x: The samples.
-        factor: The reduction factor.
-
-    Returns:
-        The filtered samples.
-
-    """
+    ``x`` extended by its odd reflection at both ends (a ramp stays exact up to the end)."""
     k = min(factor, x.size - 1)
     if k < 1:
         return np.copy(x, order="C")
@@ -98,16 +80,7 @@ def lowpass(x: np.ndarray, factor: int) -> np.ndarray:
 @njit
 def turning_points(x: np.ndarray, swing: float) -> np.ndarray:
     """Indices of the alternating extremes of ``x`` that differ from their neighbours by at
-    least ``swing`` (peak-valley scan with hysteresis ``swing``).
-
-    Args:
-        x: The samples.
-        swing: The hysteresis, in the unit of ``x``.
-
-    Returns:
-        The indices, increasing.
-
-    """
+    least ``swing`` (peak-valley scan with hysteresis ``swing``)."""
     n = x.size
     out = np.empty(n, np.int64)
     count = 0
@@ -159,17 +132,7 @@ def _reversals(x: np.ndarray, swing: float, limit: int) -> np.ndarray:
 
 def hold_edges(t: np.ndarray, s: np.ndarray, min_length: int) -> np.ndarray:
     """First and last index of every still stretch of ``s`` (still: ``|dS/dt|`` <=
-    ``HOLD_RATE_FRACTION`` x its 99.5th percentile).
-
-    Args:
-        t: Time [s] per sample.
-        s: Reference strain per sample.
-        min_length: The fewest samples of a stretch.
-
-    Returns:
-        The indices.
-
-    """
+    ``HOLD_RATE_FRACTION`` x its 99.5th percentile)."""
     rate = np.abs(np.gradient(s, t))
     scale = float(np.percentile(rate, 99.5))
     if scale <= 0.0:
@@ -182,16 +145,7 @@ def hold_edges(t: np.ndarray, s: np.ndarray, min_length: int) -> np.ndarray:
 
 
 def reduce_segment(seg: Segment, factor: int) -> Segment:
-    """``seg`` reduced by ``factor`` (module docstring, steps 1-4).
-
-    Args:
-        seg: A training segment.
-        factor: The reduction factor.
-
-    Returns:
-        The reduced segment.
-
-    """
+    """``seg`` reduced by ``factor`` (module docstring, steps 1-4)."""
     n = seg.t.size
     if factor <= 1 or n <= 2 * factor:
         return seg
@@ -207,32 +161,14 @@ def reduce_segment(seg: Segment, factor: int) -> Segment:
 
 
 def reduction_factor(segments: Sequence[Segment], budget: int = FIT_SAMPLE_BUDGET) -> int:
-    """The factor that brings the segments within ``budget``.
-
-    Args:
-        segments: The training segments.
-        budget: The most samples fitted.
-
-    Returns:
-        1 when the segments hold at most ``budget`` samples, else ceil(samples / budget).
-
-    """
+    """The factor that brings the segments within ``budget``."""
     total = sum(seg.t.size for seg in segments)
     return 1 if total <= budget else math.ceil(total / budget)
 
 
 def reduce_segments(segments: Sequence[Segment], budget: int = FIT_SAMPLE_BUDGET
                     ) -> tuple[list[Segment], int]:
-    """The segments a model is fitted on.
-
-    Args:
-        segments: The training segments.
-        budget: The most samples fitted.
-
-    Returns:
-        The segments and the factor (1: unchanged, the same list).
-
-    """
+    """The segments a model is fitted on."""
     factor = reduction_factor(segments, budget)
     if factor == 1:
         return list(segments), 1

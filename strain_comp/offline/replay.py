@@ -99,15 +99,7 @@ def _input(topic: str, contents: BagContents, calibration: Calibration) -> _Inpu
 
 
 class _Replay:
-    """The state carried from one piece of the bag to the next.
-
-    Streams: the bag is read in time-ordered pieces of about ``window`` messages
-    (``iter_bag``), each replayed and written before the next is read, so memory does not
-    grow with the bag's length. Pieces change nothing in the output: the engine's batch
-    path carries its state from piece to piece exactly (``run`` over two halves equals
-    ``run`` over the whole), temperatures are held across pieces, and a diagnostics tick
-    is written once every message at or before it has been replayed.
-    """
+    """The state carried from one piece of the bag to the next."""
 
     def __init__(self, calibration: Calibration, writer: BagWriter, engine: Engine,
                  period: float, tare: str, series: SeriesCSV | None = None,
@@ -357,39 +349,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
     written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
     calibration file) is refused before anything is read. The bag streams through in
-    pieces (``_Replay``): memory does not grow with its length.
-
-    Args:
-        in_path: The bag replayed.
-        calibration: The calibration.
-        out_path: The bag written (MCAP).
-        diagnostics_period: Seconds [s] between /diagnostics ticks.
-        gap_reset: A larger jump between good samples resets model and detector [s].
-        stale_after: A sensor is STALE after that long without a good sample [s].
-        window: Messages per piece of the bag read.
-        tare: ``calibration`` or ``auto`` (``strain_comp.core.tare.tare_engine`` on the
-            first seconds of each input, from the first piece it appears in, before it is
-            replayed; the readings go to the problems list).
-        inputs: Further input files no output may overwrite (e.g. the calibration file).
-        csv: Also write the series (``strain_comp.offline.series``) there, atomically, or
-            to stdout for ``-``; None: no series.
-        references_every: Fuse the bag's own ``/NAME/strain_reference`` every that many
-            seconds [s] into each sensor's output gain and offset
-            (``strain_comp.core.fusion``, the reference at a sample being the latest at or
-            before it); None: no fusion.
-
-    Returns:
-        The sensors and arrays replayed, their health, the message counts, the problems
-        and each fusion's state.
-
-    Raises:
-        BagError: The bag cannot be read, or has no input topic of a calibrated sensor.
-        InputError: ``references_every`` is not > 0 s, or a replayed sensor fused has no
-            reference in the bag (nothing written).
-        ParameterError: ``gap_reset`` is not > 0 s.
-        OutputError: An output is ``in_path`` or one of ``inputs``, or cannot be written.
-
-    """
+    pieces (``_Replay``): memory does not grow with its length."""
     if references_every is not None:
         check_every(references_every)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)

@@ -37,12 +37,7 @@ def _effect(default: float, unit: str, doc: str) -> float:
 
 @dataclass(frozen=True)
 class RigEffects:
-    """Every physical effect of the rig: a named switch with its magnitude (0 = off).
-
-    Defaults: a typical sensor with hysteresis, relaxation, noise and a 12-bit ADC; drift,
-    temperature, crosstalk and mullins off. ``RigEffects.parse(["drift=0.05"])`` for the
-    command line; ``describe()`` lists them with units.
-    """
+    """Every physical effect of the rig: a named switch with its magnitude (0 = off)."""
 
     hysteresis: float = _effect(1.0, "1", "weight of the fast viscoelastic branches "
                                 "(tau 1 s, 6 s); 1 puts the loading curve about 0.08 R0 above "
@@ -282,19 +277,7 @@ SEED_MAX = 2**63 - 1
 
 
 def check_size(scenario: str, *, seed: int = 0, duration: float | None = None) -> None:
-    """Check a scenario's size before it runs.
-
-    Args:
-        scenario: The scenario (``SCENARIOS``).
-        seed: The random seed.
-        duration: The run's length [s], or None for the scenario's own.
-
-    Raises:
-        ParameterError: An unknown scenario, a seed not in [0, SEED_MAX], a duration not
-            > 0, or more than ``MAX_SAMPLES`` samples over all sensors (a 50 Hz single
-            sensor: 40,000 s).
-
-    """
+    """Check a scenario's size before it runs."""
     if scenario not in _SCENARIOS:
         raise ParameterError("scenario", f"unknown scenario {scenario!r}; one of "
                              f"{', '.join(SCENARIOS)}")
@@ -356,16 +339,7 @@ def _mechanical(strain: np.ndarray, spec: SensorSpec, fx: RigEffects, fs: float)
 
 
 def temperature_profile(t: np.ndarray, fx: RigEffects) -> np.ndarray:
-    """T(t): T_ref + slow sinusoid + a square wave of steps.
-
-    Args:
-        t: Time [s] per sample.
-        fx: The rig's effects.
-
-    Returns:
-        Temperature [deg C] per sample.
-
-    """
+    """T(t): T_ref + slow sinusoid + a square wave of steps."""
     square = (np.floor(t / fx.temperature_step_period) % 2) * fx.temperature_step
     return T_REF + fx.temperature_amplitude * np.sin(2 * np.pi * t / fx.temperature_period) \
         + square
@@ -396,22 +370,7 @@ def _read_out(r: np.ndarray, fx: RigEffects, rng: np.random.Generator) -> np.nda
 
 def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
              duration: float | None = None) -> SimRun:
-    """Run a scenario on the rig; deterministic for a seed.
-
-    Args:
-        scenario: The scenario (``SCENARIOS``).
-        seed: The random seed.
-        effects: The effects; None uses ``RigEffects()`` with the scenario's own switches
-            (``long``: drift, ``temperature``: TCR).
-        duration: Cuts the scenario short or repeats its strain profile [s].
-
-    Returns:
-        The sensors' resistance, reference and temperature.
-
-    Raises:
-        ParameterError: The size limits of ``check_size``.
-
-    """
+    """Run a scenario on the rig; deterministic for a seed."""
     check_size(scenario, seed=seed, duration=duration)
     sc = _SCENARIOS[scenario]
     fx = effects if effects is not None else dataclasses.replace(RigEffects(), **sc.effects)
@@ -455,14 +414,7 @@ def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.
     """Write a SimRun as an MCAP bag: per sensor ``/NAME/resistance``,
     ``/NAME/strain_reference`` and (when simulated) ``/NAME/temperature``; for an array
     ``/ARRAY/resistance`` and ``/ARRAY/strain_reference`` (Float64MultiArray, labels = sensor
-    names) and ``/ARRAY/temperature``.
-
-    Args:
-        run: The simulated run.
-        path: The bag.
-        temperature_rate: The temperature's rate [Hz].
-
-    """
+    names) and ``/ARRAY/temperature``."""
     first = next(iter(run.sensors.values()))
     step = max(1, round(run.fs / temperature_rate))
     with BagWriter(path) as writer:

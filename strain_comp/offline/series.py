@@ -42,10 +42,7 @@ def _number(values: np.ndarray, missing: str = "nan") -> list[str]:
 
 
 class SeriesCSV:
-    """Rows of the module's columns, streamed into ``path`` (atomically) or stdout (``-``).
-
-    ``bag``: with a ``bag`` column (``evaluate`` over several bags). ``close()`` commits
-    the file; ``discard()`` (on an error) leaves the target as it was."""
+    """Rows of the module's columns, streamed into ``path`` (atomically) or stdout (``-``)."""
 
     def __init__(self, path: str | os.PathLike[str], *,
                  inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False) -> None:
@@ -106,20 +103,7 @@ def series_csv(path: str | os.PathLike[str] | None, *,
                inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False
                ) -> Iterator[SeriesCSV | None]:
     """A ``SeriesCSV`` for ``path``, committed when the block ends and discarded, the target
-    left as it was, when it raises.
-
-    Args:
-        path: The table; ``-`` writes to stdout; None: no table, the block gets None.
-        inputs: Files the table must not overwrite.
-        bag: A ``bag`` column first (``evaluate`` over several bags).
-
-    Yields:
-        The table, or None.
-
-    Raises:
-        OutputError: ``path`` is an input or cannot be written.
-
-    """
+    left as it was, when it raises."""
     if path is None:
         yield None
         return

@@ -54,18 +54,7 @@ engine then flags beyond ``core.range_policy.RANGE.margin`` more)."""
 def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
                    gap: float = GAP_SECONDS) -> list[Segment]:
     """Good, referenced samples of one recording cut into segments (module docstring)
-    wherever the time steps back or forward by more than ``gap``.
-
-    Args:
-        t: Time [s] per sample.
-        r: Resistance [ohm] per sample.
-        s: Reference strain per sample.
-        gap: The longest step within a segment [s].
-
-    Returns:
-        The segments.
-
-    """
+    wherever the time steps back or forward by more than ``gap``."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64)
@@ -83,20 +72,7 @@ def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
 def training_segments(recordings: Sequence[Recording], name: str,
                       interval: float | None) -> list[Segment]:
     """Every recording's segments (``split_segments``, the gap of a slow instrument's
-    ``interval``).
-
-    Args:
-        recordings: The sensor's runs.
-        name: The sensor's name.
-        interval: A slow instrument's sample interval [s], or None.
-
-    Returns:
-        The segments.
-
-    Raises:
-        FitError: A recording without a reference, or no segment left.
-
-    """
+    ``interval``)."""
     segments: list[Segment] = []
     for rec in recordings:
         if rec.s is None:
@@ -109,18 +85,7 @@ def training_segments(recordings: Sequence[Recording], name: str,
 
 
 def check_training_span(segments: Sequence[Segment], name: str) -> None:
-    """Check that the training data can be fitted in float64.
-
-    Args:
-        segments: The training segments.
-        name: The sensor's name.
-
-    Raises:
-        FitError: The data span no range of R or S, a reference strain beyond what a
-            calibration holds (``STRAIN_MAX``), a span a float64 fit cannot resolve
-            (``MIN_SPAN``), or values beyond ``PARAM_MAX`` (a unit or scale mistake).
-
-    """
+    """Check that the training data can be fitted in float64."""
     r_all = np.concatenate([seg.r for seg in segments])
     s_all = np.concatenate([seg.s for seg in segments])
     if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
@@ -142,16 +107,7 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
 
 
 def valid_range(segments: Sequence[Segment], *, margin: float = TRAINING_WIDENING) -> ValidRange:
-    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0).
-
-    Args:
-        segments: The training segments.
-        margin: The widening, as a share of the span.
-
-    Returns:
-        The valid range.
-
-    """
+    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     r_lo, r_hi = float(r.min()), float(r.max())
@@ -162,15 +118,7 @@ def valid_range(segments: Sequence[Segment], *, margin: float = TRAINING_WIDENIN
 
 def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
     """The median interval between the recordings' good samples when ``GAP_INTERVALS`` of it
-    exceed ``GAP_SECONDS`` (a slow instrument, module docstring).
-
-    Args:
-        recordings: The sensor's runs.
-
-    Returns:
-        The interval [s], or None.
-
-    """
+    exceed ``GAP_SECONDS`` (a slow instrument, module docstring)."""
     steps = [np.diff(np.asarray(rec.t, dtype=np.float64)[good_mask(rec.t, rec.r)])
              for rec in recordings]
     dt = np.concatenate(steps) if steps else np.empty(0)
@@ -185,16 +133,7 @@ def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "me
                              ) -> float | None:
     """The calibration's rest resistance: the median over the training runs of each run's
     leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``, the
-    statistic an automatic tare uses at run time).
-
-    Args:
-        recordings: The sensor's runs.
-        pair: The pair statistic the input is read through.
-
-    Returns:
-        The rest resistance [ohm]; None when no run starts at rest.
-
-    """
+    statistic an automatic tare uses at run time)."""
     levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s, pair=pair)
               for rec in recordings
               if rec.s is not None]

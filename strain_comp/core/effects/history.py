@@ -24,18 +24,7 @@ from strain_comp.errors import ParameterError
 
 
 class Direction(Regressor):
-    """The detector's direction d ([EGaIn] section V.E) as a regressor.
-
-    ``mode: sign`` gives d; ``mode: strain`` gives d * S_hat (a hysteresis loop whose width
-    grows with strain). With ``hold: true`` a hold (d = 0) keeps the last moving
-    direction, as hysteresis persists while the strain is held.
-
-    d is the detector's output at the *previous* sample (0 at the first): the output at
-    sample k follows dR/dt, which carries that sample's own read-out noise, as does the
-    residual at k; a term using it would "correct" noise (a correlation the residual loop
-    would find on any noisy record, effect or not). One sample of lag costs nothing for
-    hysteresis, which persists over many samples.
-    """
+    """The detector's direction d ([EGaIn] section V.E) as a regressor."""
 
     kind = "direction"
     param_names = ("mode", "hold")
@@ -75,16 +64,7 @@ class Direction(Regressor):
 
 
 class Elapsed(Regressor):
-    """Slow drift: a function of the time since the first sample, x = (t - t0) / scale.
-
-    ``form``: ``linear`` x, ``sqrt`` sqrt(x) (diffusion-limited ageing, swelling) or
-    ``log`` log(1 + x) (creep of a polymer matrix); ``linear_strain`` x * S_hat: a drift
-    of the *gain*. A resistance that drifts in proportion to itself, R (1 + d t), which is
-    how contact and filler-network ageing usually act, shifts the strain estimate by about
-    (1/G + S) d t for a gauge factor G: an offset drift plus this gain drift. ``scale`` [s]
-    only sets the units of the coefficient (and the knee of ``log``). t0 is the first
-    sample after ``reset``.
-    """
+    """Slow drift: a function of the time since the first sample, x = (t - t0) / scale."""
 
     kind = "elapsed"
     param_names = ("form", "scale")
@@ -162,18 +142,7 @@ def _mullins_kernel(s: np.ndarray, d: np.ndarray, form: int, n0: float,
 class Mullins(Regressor):
     """Mullins-type softening: the response depends on the strain history's peak and on
     how many load cycles the sensor has done (elastomers soften over the first cycles and
-    below a previously reached strain).
-
-    State: peak = running max of S_hat; cycles = completed load cycles (an unloading ->
-    loading turn of the detector, holds ignored). ``form``: ``gap`` peak - S_hat (zero on
-    virgin loading), ``gap_strain`` S_hat (peak - S_hat), ``cycles_log`` S_hat log(1 +
-    cycles) (progressive softening), ``cycles_exp`` S_hat exp(-cycles / n0) (a gain excess
-    that dies out over the first ~n0 cycles), ``peak_strain`` S_hat * peak (a gain loss
-    that grows with the largest strain reached so far: the first-order form of the Mullins
-    damage models, which soften the material in proportion to the maximum previous strain;
-    it changes only while loading to a new peak, so it is told from a constant gain error
-    by data whose peak grows over time).
-    """
+    below a previously reached strain)."""
 
     kind = "mullins"
     param_names = ("form", "n0")
@@ -227,17 +196,7 @@ def _stretch_kernel(s: np.ndarray, band: float, scale: float, form: int,
 class Stretch(Regressor):
     """Stretch history: what the sensor has been through since the run started, as the
     strain travel x = sum |dS_hat| [%] counted through a play of +-``band`` % (so that
-    noise at rest adds nothing; a 0 -> 50 -> 0 % cycle adds 100).
-
-    ``form``: ``rest`` g = 1 - exp(-x / scale) (a rest level that moves with the stretch
-    done and settles: the resistance at rest falling, or rising, a little after every
-    release, as a textile thread's contacts rearrange), ``rest_log`` g = log(1 + x / scale)
-    (one that keeps moving, ever slower), ``gain`` g = S_hat (1 - exp(-x / scale)) (a
-    sensitivity that grows, or falls, over the first cycles and settles), ``gain_log``
-    g = S_hat log(1 + x / scale) (one that keeps growing). Unlike ``mullins`` (cycles
-    counted by the detector, the peak reached) it reads the amount of stretching, so a run
-    of small cycles and one of few large ones age it alike.
-    """
+    noise at rest adds nothing; a 0 -> 50 -> 0 % cycle adds 100)."""
 
     kind = "stretch"
     param_names = ("form", "scale", "band")
@@ -287,15 +246,7 @@ def _baseline_kernel(t: np.ndarray, s: np.ndarray, window: float,
 class Baseline(Regressor):
     """Run-to-run baseline shift: g = b - rest, with b the mean of S_hat over the first
     ``window`` seconds of samples after a start (or a gap reset of the engine) and ``rest``
-    [%] the strain the sensor is at when a run starts (what the calibration should read).
-
-    Soft sensors often start each run at another resistance level (contact resistance,
-    ageing, a different clamping): the whole run is then shifted by about the same
-    amount, which a calibration fitted on one run cannot know. Captured online at the
-    start of each run, b measures that shift; during the window g is the running mean so
-    far (causal). The residual loop gives this term the coefficient 1 (the shift seen at
-    rest is removed whole) and tells it from a constant ``offset`` only across runs.
-    """
+    [%] the strain the sensor is at when a run starts (what the calibration should read)."""
 
     kind = "baseline"
     param_names = ("window", "rest")

@@ -43,8 +43,7 @@ class Rate(Regressor):
     Viscoelastic sensors lag or lead the strain by an amount proportional to its rate
     (rate-dependent hysteresis, [Electrolycra] section I). ``mode: direction`` gives
     d * rate (the detector's direction times the rate): an error of one sign whenever the
-    sensor moves, whatever the direction (e.g. self-heating or a rate-dependent gain).
-    """
+    sensor moves, whatever the direction (e.g. self-heating or a rate-dependent gain)."""
 
     kind = "rate"
     param_names = ("tau", "mode")
@@ -104,8 +103,7 @@ class Relaxation(Regressor):
     [Nanocomposite] eq. (1)) leaves a residual c * h. ``branch: loading``
     (or ``unloading``) accumulates only the changes made while the detector says loading
     (unloading), since relaxation is often strong on loading and weak on unloading.
-    Discretised exactly for a piecewise-constant input: h_k = h_{k-1} e^{-dt/tau} + dS_k.
-    """
+    Discretised exactly for a piecewise-constant input: h_k = h_{k-1} e^{-dt/tau} + dS_k."""
 
     kind = "relaxation"
     param_names = ("tau", "branch")
@@ -166,21 +164,12 @@ class ResistanceMemory(Regressor):
     because where R is not monotone in strain (the carbon-black shoulder) or a step's
     overshoot runs past the calibrated range, S_hat has lost what R still shows.
 
-    With y = 100 ln R (so the term does not change with a multiplicative tare) and a
-    first-order memory of time constant ``tau`` [s]:
-
     * ``relaxation``: g = y - m, m' = (y - m) / tau, the share of R [%] above its recent
       average: a relaxation that follows every step of R, whatever its sign;
     * ``peak``: g = p - y, p the peak of y relaxing towards y with ``tau`` and never below
       it: how far R [%] has fallen from a recent spike, the decaying spike of
       [Nanocomposite] eq. (3), read without knowing the step that caused it;
-    * ``trough``: g = y - q, the mirror of ``peak`` for sensors whose steps undershoot.
-
-    A bank of such filters followed by a static map approximates any fading-memory
-    operator (Boyd and Chua, 1985); the loop adds the few that pay on held-out data.
-    Discretised exactly for a piecewise-constant input, as ``Relaxation``: the
-    ``relaxation`` form is ``Relaxation`` (branch ``both``) applied to y.
-    """
+    * ``trough``: g = y - q, the mirror of ``peak`` for sensors whose steps undershoot."""
 
     kind = "resistance_memory"
     param_names = ("tau", "form")

@@ -32,11 +32,7 @@ class Sample:
 
 @dataclass
 class Batch:
-    """Whole arrays of samples (inputs of ``Regressor.run``); all of one length n.
-
-    ``temperature`` may be None (no temperature topic); ``neighbours`` maps a neighbour
-    sensor's name to its S_hat at the same sample times (NaN where unknown).
-    """
+    """Whole arrays of samples (inputs of ``Regressor.run``); all of one length n."""
 
     t: np.ndarray
     r: np.ndarray
@@ -63,21 +59,7 @@ class Batch:
 
 def choice_param(params: Mapping[str, Any], key: str, options: Sequence[str], default: str
                  ) -> str:
-    """``params[key]``, one of ``options``.
-
-    Args:
-        params: An effect's parameters.
-        key: The parameter's name.
-        options: The values allowed.
-        default: The value when ``key`` is absent.
-
-    Returns:
-        The value.
-
-    Raises:
-        ParameterError: The value is not one of ``options``.
-
-    """
+    """``params[key]``, one of ``options``."""
     value = params.get(key, default)
     if value not in options:
         raise ParameterError(f"params.{key}", f"must be one of {', '.join(options)}; got {value!r}")
@@ -85,21 +67,7 @@ def choice_param(params: Mapping[str, Any], key: str, options: Sequence[str], de
 
 
 def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: Any) -> float:
-    """``params[key]`` as a finite float within ``bounds``.
-
-    Args:
-        params: An effect's parameters.
-        key: The parameter's name.
-        default: The value when ``key`` is absent.
-        **bounds: The bounds ``require_float`` takes (``lo``, ``hi``, ``strict``).
-
-    Returns:
-        The value.
-
-    Raises:
-        ParameterError: The value is not a finite number within ``bounds``.
-
-    """
+    """``params[key]`` as a finite float within ``bounds``."""
     if key not in params:
         return default
     try:
@@ -109,34 +77,12 @@ def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: 
 
 
 def positive_param(params: Mapping[str, Any], key: str, default: float) -> float:
-    """``params[key]`` as a finite float > 0.
-
-    Args:
-        params: An effect's parameters.
-        key: The parameter's name.
-        default: The value when ``key`` is absent.
-
-    Returns:
-        The value.
-
-    Raises:
-        ParameterError: The value is not a finite number > 0.
-
-    """
+    """``params[key]`` as a finite float > 0."""
     return number_param(params, key, default, lo=0.0, strict=True)
 
 
 def ffill(values: np.ndarray, last: float) -> np.ndarray:
-    """Hold the last finite value.
-
-    Args:
-        values: Values per sample, NaN where missing.
-        last: The value held before the first one (NaN if none yet).
-
-    Returns:
-        The values with each NaN replaced by the last finite one.
-
-    """
+    """Hold the last finite value."""
     ok = np.isfinite(values)
     idx = np.where(ok, np.arange(values.size), -1)
     np.maximum.accumulate(idx, out=idx)
@@ -146,18 +92,7 @@ def ffill(values: np.ndarray, last: float) -> np.ndarray:
 def run_segments(run: Callable[[slice], np.ndarray], reset: Callable[[], None], n: int,
                  starts: Sequence[int]) -> np.ndarray:
     """``run`` over the n samples in segments cut at ``starts`` (where the engine reset after
-    a gap), calling ``reset`` between segments, as the engine resets effect state there.
-
-    Args:
-        run: The regressor over a slice of the samples.
-        reset: Resets the regressor's state.
-        n: The number of samples.
-        starts: Where the segments after the first start.
-
-    Returns:
-        The regressor's value per sample.
-
-    """
+    a gap), calling ``reset`` between segments, as the engine resets effect state there."""
     out = np.empty(n)
     for k, (a, b) in enumerate(pairwise([0, *starts, n])):
         if k > 0:
@@ -179,15 +114,7 @@ class Regressor(ABC):
 
     def step(self, sample: Sample) -> float:
         """Advance by one sample: ``run`` on a batch of one, so a regressor with a compiled
-        kernel has that one implementation.
-
-        Args:
-            sample: The sample.
-
-        Returns:
-            g at that sample.
-
-        """
+        kernel has that one implementation."""
         neighbours = {n: [v] for n, v in (sample.neighbours or {}).items()}
         return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
                                        [sample.direction], [sample.temperature],
@@ -195,15 +122,7 @@ class Regressor(ABC):
 
     @abstractmethod
     def run(self, batch: Batch) -> np.ndarray:
-        """g over a batch, continuing from (and updating) the current state.
-
-        Args:
-            batch: The samples.
-
-        Returns:
-            g per sample.
-
-        """
+        """g over a batch, continuing from (and updating) the current state."""
 
     @abstractmethod
     def params(self) -> dict[str, Any]:
@@ -212,18 +131,7 @@ class Regressor(ABC):
     @classmethod
     @abstractmethod
     def from_params(cls, params: Mapping[str, Any]) -> Regressor:
-        """Build from ``params``.
-
-        Args:
-            params: The calibration file's ``params`` of the effect.
-
-        Returns:
-            The regressor, at its initial state.
-
-        Raises:
-            ParameterError: A bad parameter, named ``params.<key>``.
-
-        """
+        """Build from ``params``."""
 
     @property
     def neighbour(self) -> str | None:

@@ -50,25 +50,13 @@ finite 1e308, NaN, inf) is a bad reading, treated as missing."""
 
 
 def valid_temperature(temp: np.ndarray) -> np.ndarray:
-    """Mask of readings inside ``TEMPERATURE_RANGE``.
-
-    Args:
-        temp: Temperature [deg C] per sample.
-
-    Returns:
-        True where the reading is finite and in range.
-
-    """
+    """Mask of readings inside ``TEMPERATURE_RANGE``."""
     return (temp >= TEMPERATURE_RANGE[0]) & (temp <= TEMPERATURE_RANGE[1])
 
 
 class Temperature(Regressor):
     """Temperature dependence: g = T - t_ref (``form: offset``, a TCR shifting R) or
-    g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor).
-
-    A missing or bad temperature (outside ``TEMPERATURE_RANGE``) holds the last valid one;
-    before the first, g = 0.
-    """
+    g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor)."""
 
     kind = "temperature"
     param_names = ("form", "t_ref")
@@ -141,12 +129,7 @@ class StrainLevel(Regressor):
 
 
 class Crosstalk(Regressor):
-    """Cross-talk in an array: g = the S_hat of the neighbour sensor ``neighbour``.
-
-    A neighbour's stretch couples into this sensor's resistance (shared substrate, shared
-    return lead). A missing or NaN neighbour value holds the last valid one; before the
-    first, g = 0.
-    """
+    """Cross-talk in an array: g = the S_hat of the neighbour sensor ``neighbour``."""
 
     kind = "crosstalk"
     param_names = ("neighbour",)

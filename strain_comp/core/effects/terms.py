@@ -32,19 +32,7 @@ KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
 
 
 def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
-    """The regressor of one calibration-file effect entry.
-
-    Args:
-        effect: The entry (name, kind, params).
-
-    Returns:
-        The regressor.
-
-    Raises:
-        ParameterError: The entry is not a mapping, lacks a name, has an unknown kind or
-            parameter, or a parameter is out of range.
-
-    """
+    """The regressor of one calibration-file effect entry."""
     if not isinstance(effect, Mapping):
         raise ParameterError("(effect)", f"must be a mapping, got {type(effect).__name__}")
     name = effect.get("name")
@@ -66,53 +54,24 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
 
 
 def validate_effect_dict(effect: Mapping[str, Any]) -> None:
-    """Check one calibration-file effect entry.
-
-    Args:
-        effect: The entry (name, kind, params).
-
-    Raises:
-        ParameterError: The entry is bad (``regressor_from_dict``).
-
-    """
+    """Check one calibration-file effect entry."""
     regressor_from_dict(effect)
     require_float(effect, "coef")
 
 
 def effect_dict(name: str, regressor: Regressor, coef: float) -> dict[str, Any]:
-    """The calibration-file entry of a regressor with its coefficient.
-
-    Args:
-        name: The effect's name.
-        regressor: The regressor.
-        coef: Its coefficient in the sum.
-
-    Returns:
-        The entry (name, kind, params, coef).
-
-    """
+    """The calibration-file entry of a regressor with its coefficient."""
     return {"name": name, "kind": regressor.kind, "params": regressor.params(),
             "coef": float(coef)}
 
 
 class EffectTerms:
     """The effect terms of one sensor, as the engine uses them:
-    S_corrected = S_hat - sum_j coef_j g_j.
-    """
+    S_corrected = S_hat - sum_j coef_j g_j."""
 
     def __init__(self, names: Sequence[str], regressors: Sequence[Regressor],
                  coefs: npt.ArrayLike) -> None:
-        """Hold the terms.
-
-        Args:
-            names: The effects' names.
-            regressors: Their regressors.
-            coefs: Their coefficients c_j.
-
-        Raises:
-            ValueError: The three differ in length.
-
-        """
+        """Hold the terms."""
         self.names = list(names)
         self.regressors = list(regressors)
         self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
@@ -121,18 +80,7 @@ class EffectTerms:
 
     @classmethod
     def from_dicts(cls, effects: Sequence[Mapping[str, Any]]) -> EffectTerms:
-        """From a calibration's ``effects`` list.
-
-        Args:
-            effects: The entries (name, kind, params, coef).
-
-        Returns:
-            The terms.
-
-        Raises:
-            ParameterError: A bad entry, its field named ``<i>.<field>``.
-
-        """
+        """From a calibration's ``effects`` list."""
         regressors, coefs = [], []
         for i, effect in enumerate(effects):
             try:
@@ -167,20 +115,7 @@ class EffectTerms:
     def step(self, t: float, r: float, s_hat: float, direction: int,
              temperature: float = math.nan,
              neighbours: Mapping[str, float] | None = None) -> float:
-        """Corrected strain of one sample (advances every regressor's state).
-
-        Args:
-            t: Time [s].
-            r: Resistance the model reads [ohm].
-            s_hat: The model's strain [%].
-            direction: +1 loading, 0 hold, -1 unloading.
-            temperature: Temperature [deg C]; NaN when not measured.
-            neighbours: Array neighbour -> its clamped pre-effect strain [%].
-
-        Returns:
-            S_hat - sum_j c_j g_j [%].
-
-        """
+        """Corrected strain of one sample (advances every regressor's state)."""
         sample = Sample(t, r, s_hat, direction, temperature, neighbours)
         out = float(s_hat)
         for g, c in zip(self.regressors, self.coefs, strict=True):
@@ -190,20 +125,7 @@ class EffectTerms:
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
             direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> np.ndarray:
-        """Batch equivalent of repeated ``step``: corrected strain over arrays.
-
-        Args:
-            t: Time [s] per sample.
-            r: Resistance the model reads [ohm] per sample.
-            s_hat: The model's strain [%] per sample.
-            direction: +1 loading, 0 hold, -1 unloading, per sample.
-            temperature: Temperature [deg C] per sample; None when not measured.
-            neighbours: Array neighbour -> its clamped pre-effect strain [%] per sample.
-
-        Returns:
-            S_hat - sum_j c_j g_j [%] per sample.
-
-        """
+        """Batch equivalent of repeated ``step``: corrected strain over arrays."""
         batch = Batch.of(t, r, s_hat, direction, temperature, neighbours)
         out = np.copy(batch.s_hat, order="C")
         for g, c in zip(self.regressors, self.coefs, strict=True):

@@ -49,14 +49,7 @@ def _chunk_payload(chunk: Chunk) -> bytes:
 
 def add_chunk(col: Collector, chunk: Chunk, where: str) -> None:
     """Add the records of ``chunk`` to ``col``; a chunk that cannot be decompressed or fails
-    its CRC is skipped, a damaged record tail cut, each named in ``col.problems``.
-
-    Args:
-        col: The collector of the bag being read.
-        chunk: The chunk record.
-        where: Where the chunk was found (file and offset), for the problem lines.
-
-    """
+    its CRC is skipped, a damaged record tail cut, each named in ``col.problems``."""
     try:
         data = _chunk_payload(chunk)
     except _DECOMPRESS_ERRORS as exc:
@@ -104,18 +97,7 @@ whose fixed fields disagree cost nothing); past it the rest of the file is skipp
 
 
 def resync(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> int | None:
-    """Offset of the next valid chunk record after ``pos``.
-
-    Args:
-        data: The storage file's bytes (mapped).
-        pos: Where to start looking [bytes].
-        budget: ``budget[0]``: the candidate bytes still allowed (``RESYNC_BYTES`` per
-            file), spent here.
-
-    Returns:
-        The offset of the chunk's opcode, or None when none is found within the budget.
-
-    """
+    """Offset of the next valid chunk record after ``pos``."""
     marker = bytes([Opcode.CHUNK])
     cand = data.find(marker, pos)
     while cand >= 0 and budget[0] > 0:

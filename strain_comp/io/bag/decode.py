@@ -43,19 +43,7 @@ def _decoder(kind: str) -> Callable[[bytes], Any]:
 
 
 def decode(col: Collector) -> BagContents:
-    """The messages ``col`` located, decoded per topic in log-time order.
-
-    Args:
-        col: The collector after the bag's files were walked.
-
-    Returns:
-        The series per topic; what was skipped is a line in ``problems`` (those of
-        ``col`` first).
-
-    Raises:
-        BagError: A wanted type has no CDR decoder.
-
-    """
+    """The messages ``col`` located, decoded per topic in log-time order."""
     out = BagContents(problems=col.problems)
     if not col.msg_channel:
         return out

@@ -81,19 +81,7 @@ def _bag_files(path: Path) -> list[Path]:
 
 def bag_paths(path: Path) -> list[Path]:
     """The storage files (MCAP, sqlite3) of a bag, checked before anything is opened (a FIFO
-    would block).
-
-    Args:
-        path: A bare ``.mcap`` or ``.db3`` file or a rosbag2 directory.
-
-    Returns:
-        The storage files, in the order metadata.yaml lists them for a directory.
-
-    Raises:
-        BagError: The path is missing, neither a regular file nor a directory, a file
-            compressed whole, or a directory whose metadata.yaml cannot be read.
-
-    """
+    would block)."""
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     if not (path.is_dir() or path.is_file()):
@@ -105,19 +93,7 @@ def bag_paths(path: Path) -> list[Path]:
 
 def per_message_zstd(path: Path, file: Path) -> bool:
     """Are the messages of ``file`` compressed one by one? A rosbag2 directory says so in
-    metadata.yaml (``compression_mode: message``).
-
-    Args:
-        path: The bag.
-        file: One storage file of it.
-
-    Returns:
-        True for zstd per message on a ``.db3`` file; False for none.
-
-    Raises:
-        BagError: Another compression (only zstd per message on .db3 is read).
-
-    """
+    metadata.yaml (``compression_mode: message``)."""
     meta = path / "metadata.yaml"
     if not (path.is_dir() and _inside(path, meta)):
         return False

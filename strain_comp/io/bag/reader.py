@@ -36,21 +36,7 @@ MAX_BAG_BYTES = 2**30
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagContents:
-    """Read a whole bag: a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory.
-
-    Args:
-        path: The bag file or directory (``metadata.yaml`` and its storage files).
-        topics: Decode only these topics (None: all).
-
-    Returns:
-        The decoded series per topic; every fault short of an unreadable bag is a line in
-        ``problems``, naming the bag.
-
-    Raises:
-        BagError: The path is missing, is not a bag, nothing at all can be read, or the
-            messages exceed the whole-bag reader's memory budget.
-
-    """
+    """Read a whole bag: a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory."""
     path = Path(path)
     contents = decode(_collect(path, topics))
     contents.problems[:] = located(path, contents.problems)
@@ -71,21 +57,7 @@ def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
 
 def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
                  ) -> tuple[list[tuple[str, str, int, bytes]], list[str]]:
-    """Every CDR message of a bag, not decoded, in log-time order.
-
-    Read with ``read_bag``'s walk and budgets.
-
-    Args:
-        path: The bag file or directory.
-        topics: Keep only these topics (None: all).
-
-    Returns:
-        The messages as (topic, type name, log time [ns], payload), and the problem lines.
-
-    Raises:
-        BagError: As ``read_bag``.
-
-    """
+    """Every CDR message of a bag, not decoded, in log-time order."""
     path = Path(path)
     col = _collect(path, topics)
     out: list[tuple[str, str, int, bytes]] = []
@@ -114,31 +86,7 @@ def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = No
 
 def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
              window: int = WINDOW) -> Iterator[BagContents]:
-    """``read_bag`` piece by piece in log-time order, in memory bounded by ``window``.
-
-    Each piece holds the messages of a log-time interval [t_a, t_b) (per topic sorted as
-    ``read_bag`` sorts them), and the pieces follow each other in time. Files are mapped,
-    not read, and the pages already walked are released. A piece is cut once ``window``
-    messages are waiting, at the start time of the latest chunk read: chunks that overlap
-    in time are merged as long as no later chunk starts before an earlier one's cut. If
-    one does, its messages before the cut come in the next piece (late) and a problem line
-    counts them. Messages stored outside chunks (an unchunked MCAP) are taken in blocks of
-    ``LOOSE_BLOCK`` in file order and cut the same way, at the latest log time read (an
-    earlier one after it is delivered late, with the problem line).
-
-    Args:
-        path: The bag file or directory.
-        topics: Decode only these topics (None: all).
-        window: Messages that may wait before a piece is cut.
-
-    Yields:
-        The pieces in log-time order; the last one carries the remaining problem lines
-        (there is always at least one piece).
-
-    Raises:
-        BagError: The path is missing or is not a bag.
-
-    """
+    """``read_bag`` piece by piece in log-time order, in memory bounded by ``window``."""
     path = Path(path)
     col = Collector(set(topics) if topics is not None else None)
     cut: int | None = None
@@ -199,15 +147,6 @@ def _take(col: Collector, upto: int | None, cut: int | None
 
 
 def located(path: str | os.PathLike[str], problems: Iterable[str]) -> list[str]:
-    """Problem lines that all name the bag.
-
-    Args:
-        path: The bag.
-        problems: Problem lines.
-
-    Returns:
-        The lines as ``path: ...`` (a line that already starts with the path is kept).
-
-    """
+    """Problem lines that all name the bag."""
     prefix = str(path)
     return [p if p.startswith(prefix) else f"{prefix}: {p}" for p in problems]

@@ -28,16 +28,7 @@ damaged record: its message is skipped and counted in ``problems``."""
 
 @njit
 def scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.int64]:
-    """Walk the MCAP records of a decompressed chunk.
-
-    Args:
-        buf: The chunk's bytes (uint8).
-
-    Returns:
-        Per record its opcode, content start and content length [bytes], and the offset
-        where the walk ended (``buf``'s length unless the tail is damaged).
-
-    """
+    """Walk the MCAP records of a decompressed chunk."""
     n = buf.shape[0]
     cap = n // 9 + 1
     ops = np.empty(cap, np.uint8)
@@ -75,17 +66,7 @@ def _compact(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray
 
 
 def gather(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
-    """Bytes ``buf[starts[i] : starts[i] + width]`` side by side.
-
-    Args:
-        buf: The bytes (uint8).
-        starts: Start offsets [bytes].
-        width: Bytes per row.
-
-    Returns:
-        An (n, width) uint8 array.
-
-    """
+    """Bytes ``buf[starts[i] : starts[i] + width]`` side by side."""
     return buf[starts[:, None] + np.arange(width)]
 
 
@@ -93,12 +74,7 @@ class Collector:
     """Accumulates schemas, channels and message locations from one or more files."""
 
     def __init__(self, topics: set[str] | None) -> None:
-        """Start empty.
-
-        Args:
-            topics: The topics whose messages are kept; None keeps all.
-
-        """
+        """Start empty."""
         self.topics = topics
         self.schemas: dict[tuple[int, int], Schema] = {}
         self.channels: dict[tuple[int, int], Channel] = {}
@@ -119,16 +95,7 @@ class Collector:
 
     def add_block(self, buf: np.ndarray, ops: np.ndarray, starts: np.ndarray,
                   lens: np.ndarray, where: str) -> None:
-        """Register the records of one decompressed chunk (or of loose top-level messages).
-
-        Args:
-            buf: The records' bytes (uint8).
-            ops: Each record's opcode (``scan_records``).
-            starts: Each record's content start [bytes].
-            lens: Each record's content length [bytes].
-            where: Where the block was found, for the problem lines.
-
-        """
+        """Register the records of one decompressed chunk (or of loose top-level messages)."""
         for i in np.flatnonzero((ops == Opcode.SCHEMA) | (ops == Opcode.CHANNEL)):
             self.add_small_record(int(ops[i]), buf[starts[i]:starts[i] + lens[i]].tobytes(),
                                   where)
@@ -161,14 +128,7 @@ class Collector:
         return self.topics is None or channel is None or channel.topic in self.topics
 
     def add_small_record(self, opcode: int, content: bytes, where: str) -> None:
-        """Register a Schema or Channel record; an unreadable one is a line in ``problems``.
-
-        Args:
-            opcode: ``Opcode.SCHEMA`` or ``Opcode.CHANNEL``.
-            content: The record's content.
-            where: Where it was found, for the problem line.
-
-        """
+        """Register a Schema or Channel record; an unreadable one is a line in ``problems``."""
         try:
             stream = ReadDataStream(io.BytesIO(content))
             if opcode == Opcode.SCHEMA:
@@ -184,14 +144,7 @@ class Collector:
 def add_loose(col: Collector, msgs: list[Message], name: str) -> None:
     """Messages stored outside chunks, packed into one block of message records. They are in
     file order, which is log-time order: those before the latest log time are complete, as a
-    chunk's start time says for chunked messages.
-
-    Args:
-        col: The collector of the bag being read.
-        msgs: The messages, in file order (not empty).
-        name: The file's name, for the problem lines.
-
-    """
+    chunk's start time says for chunked messages."""
     builder = RecordBuilder()
     for m in msgs:
         m.write(builder)

@@ -59,14 +59,7 @@ class Series:
 
 @dataclass
 class BagContents:
-    """What ``read_bag`` found.
-
-    ``series``: numeric topics (Float64, Int8, Float32 -> (n,); Float64MultiArray -> (n, k);
-    Temperature -> (n,) temperature). ``labels``: sensor names of each array topic (from
-    ``layout.dim[0].label``, comma separated). ``diagnostics``: (time, statuses) per
-    DiagnosticArray message. ``types``: message type of every topic seen. ``problems``: one
-    line per thing skipped (damage, unknown schemas, malformed messages).
-    """
+    """What ``read_bag`` found."""
 
     series: dict[str, Series] = field(default_factory=dict)
     labels: dict[str, list[str]] = field(default_factory=dict)
@@ -76,15 +69,7 @@ class BagContents:
 
 
 def norm_type(name: str) -> str:
-    """A message type name in its ``pkg/msg/Type`` spelling (both occur in the wild).
-
-    Args:
-        name: ``pkg/Type`` or ``pkg/msg/Type``.
-
-    Returns:
-        ``pkg/msg/Type``.
-
-    """
+    """A message type name in its ``pkg/msg/Type`` spelling (both occur in the wild)."""
     parts = name.split("/")
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
 

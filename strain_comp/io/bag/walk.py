@@ -29,12 +29,7 @@ _OPCODES = {int(op) for op in Opcode}
 
 def _read_file(col: Collector, data: bytes | mmap.mmap, name: str) -> Iterator[int]:
     """Collect every complete record of one MCAP file held in memory (or mapped); yields
-    the end offset after each top-level record, so a caller may take what was collected.
-
-    The top-level walk is ours (so positions are exact and the summary is never needed);
-    each record's content is parsed by the ``mcap`` record classes and any failure is
-    caught per record: it is reported and the walk resynchronises on the next intact chunk.
-    """
+    the end offset after each top-level record, so a caller may take what was collected."""
     if len(data) < len(MAGIC) or data[:len(MAGIC)] != MAGIC:
         raise BagError(f"{name}: not an MCAP file (bad magic)")
     pos = len(MAGIC)
@@ -97,21 +92,7 @@ def _read_top_record(col: Collector, opcode: int, content: bytes, where: str,
 
 
 def storage_file(col: Collector, path: Path, file: Path) -> Iterator[int]:
-    """Collect the messages of one storage file of the bag at ``path``.
-
-    Args:
-        col: The collector of the bag being read.
-        path: The bag.
-        file: One storage file of it (MCAP or ``.db3``).
-
-    Yields:
-        The offset [bytes] after each record (MCAP; the pages walked are released) or a
-        count after each block (sqlite3).
-
-    Raises:
-        BagError: The file cannot be opened, is not MCAP, or is compressed in a way not read.
-
-    """
+    """Collect the messages of one storage file of the bag at ``path``."""
     if file.suffix == ".db3":
         yield from _read_db3(col, file, per_message_zstd(path, file))
         return

@@ -49,33 +49,11 @@ def _cdr_rows(header_and_prefix: bytes, values: np.ndarray) -> np.ndarray:
 
 
 class BagWriter:
-    """Write a ros2-profile MCAP bag; use as a context manager.
-
-    Every ``write_*`` call takes whole arrays. Messages are buffered; ``flush()`` writes
-    the buffered messages in log-time order as complete chunks (the last partial chunk
-    stays buffered), and the context exit (or ``close()``) writes the rest, the summary and
-    the footer. A caller that streams calls ``flush()`` once every message up to some time
-    has been written and no later call writes an earlier one: the file is then in log-time
-    order and memory is bounded by what was written between two flushes. Without
-    ``flush()`` everything is written, merged in log-time order, at the exit.
-    The file is written through ``strain_comp.io.atomic.atomic_output`` (``inputs``: paths
-    it must not overwrite); an exception inside the context leaves no output.
-    Times are log times in seconds (>= 0). A topic keeps the type of its first write.
-    """
+    """Write a ros2-profile MCAP bag; use as a context manager."""
 
     def __init__(self, path: str | Path, *, chunk_size: int = CHUNK_SIZE,
                  inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
-        """A writer for ``path``; nothing is written before the first ``flush`` or the exit.
-
-        Args:
-            path: The MCAP file to write.
-            chunk_size: Target uncompressed chunk size [bytes].
-            inputs: Paths the output must not overwrite.
-
-        Raises:
-            OutputError: ``path`` may not be written (``check_output``).
-
-        """
+        """A writer for ``path``; nothing is written before the first ``flush`` or the exit."""
         self.path = Path(path)
         self.chunk_size = chunk_size
         self.inputs = list(inputs)
@@ -129,37 +107,12 @@ class BagWriter:
         entry.n += t_ns.size
 
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        """Add std_msgs/msg/Float64 messages, one per (t, value).
-
-        Args:
-            topic: The topic, starting with ``/``.
-            t: Log times [s].
-            values: ``data`` per message, same length.
-
-        Raises:
-            BagError: The writer is closed, ``topic`` does not start with ``/`` or already
-                holds another type, the lengths differ, or a time is not finite, negative
-                or past 2038-01-19.
-
-        """
+        """Add std_msgs/msg/Float64 messages, one per (t, value)."""
         v = np.asarray(values, dtype="<f8").reshape(-1, 1)
         self._add(topic, "std_msgs/msg/Float64", _ns(t), _cdr_rows(b"\0\1\0\0", v))
 
     def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        """Add std_msgs/msg/Int8 messages, one per (t, value).
-
-        Args:
-            topic: The topic, starting with ``/``.
-            t: Log times [s].
-            values: ``data`` per message, in -128..127.
-
-        Raises:
-            BagError: The writer is closed, ``topic`` does not start with ``/`` or already
-                holds another type, the lengths differ, or a time is not finite, negative
-                or past 2038-01-19.
-            BagError: A value lies outside the Int8 range.
-
-        """
+        """Add std_msgs/msg/Int8 messages, one per (t, value)."""
         v = np.asarray(values)
         if v.size and (np.abs(v) > 128).any():
             raise BagError(f"{topic}: Int8 values out of range")
@@ -168,22 +121,7 @@ class BagWriter:
 
     def write_float64_array(self, topic: str, t: npt.ArrayLike, values2d: npt.ArrayLike,
                             labels: Sequence[str]) -> None:
-        """Add std_msgs/msg/Float64MultiArray messages, one per row.
-
-        Args:
-            topic: The topic, starting with ``/``.
-            t: Log times [s].
-            values2d: The values, (n, k): one row per message.
-            labels: The k sensor names; ``layout.dim[0]`` carries them joined by commas,
-                with size k and stride k.
-
-        Raises:
-            BagError: The writer is closed, ``topic`` does not start with ``/`` or already
-                holds another type, the lengths differ, or a time is not finite, negative
-                or past 2038-01-19.
-            BagError: ``values2d`` is not (n, k), or a label holds a comma.
-
-        """
+        """Add std_msgs/msg/Float64MultiArray messages, one per row."""
         v = np.asarray(values2d, dtype="<f8")
         if v.ndim != 2 or v.shape[1] != len(labels):
             raise BagError(f"{topic}: values must be (n, {len(labels)}) for {len(labels)} labels")
@@ -196,24 +134,7 @@ class BagWriter:
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
                           position: npt.ArrayLike, velocity: npt.ArrayLike | None = None, *,
                           stamp: npt.ArrayLike | None = None, frame_id: str = "") -> None:
-        """Add sensor_msgs/msg/JointState messages, one per row of ``position``.
-
-        Args:
-            topic: The topic, starting with ``/``.
-            t: Log times [s].
-            names: ``name`` of every message.
-            position: The positions, (n, len(names)).
-            velocity: The velocities, same shape; None: ``velocity`` empty.
-            stamp: ``header.stamp`` [s] per message; None: the log time ``t``.
-            frame_id: ``header.frame_id``.
-
-        Raises:
-            BagError: The writer is closed, ``topic`` does not start with ``/`` or already
-                holds another type, the lengths differ, or a time is not finite, negative
-                or past 2038-01-19.
-            BagError: A stamp is past 2038-01-19 (beyond builtin_interfaces/Time).
-
-        """
+        """Add sensor_msgs/msg/JointState messages, one per row of ``position``."""
         t_ns = _ns(t)
         k = len(names)
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, k)
@@ -238,21 +159,7 @@ class BagWriter:
 
     def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike, *,
                           frame_id: str = "", variance: float = 0.0) -> None:
-        """Add sensor_msgs/msg/Temperature messages, header stamp = log time.
-
-        Args:
-            topic: The topic, starting with ``/``.
-            t: Log times [s].
-            values: ``temperature`` [deg C] per message.
-            frame_id: ``header.frame_id``.
-            variance: ``variance`` of every message (0: unknown).
-
-        Raises:
-            BagError: The writer is closed, ``topic`` does not start with ``/`` or already
-                holds another type, the lengths differ, or a time is not finite, negative
-                or past 2038-01-19.
-
-        """
+        """Add sensor_msgs/msg/Temperature messages, header stamp = log time."""
         t_ns = _ns(t)
         v = np.asarray(values, dtype=np.float64).reshape(-1)
         rows = [cdr.temperature(*cdr.stamp_of(ns), frame_id, x, variance)
@@ -261,20 +168,7 @@ class BagWriter:
 
     def write_diagnostics(self, t: npt.ArrayLike, statuses: Sequence[Sequence[Status]], *,
                           topic: str = "/diagnostics") -> None:
-        """Add diagnostic_msgs/msg/DiagnosticArray messages, one per time.
-
-        Args:
-            t: Log times [s].
-            statuses: Per message its statuses, each (name, level 0..3, message,
-                {key: value}).
-            topic: The topic.
-
-        Raises:
-            BagError: The writer is closed, ``topic`` does not start with ``/`` or already
-                holds another type, the lengths differ, or a time is not finite, negative
-                or past 2038-01-19.
-
-        """
+        """Add diagnostic_msgs/msg/DiagnosticArray messages, one per time."""
         t_ns = _ns(t)
         rows = [cdr.diagnostic_array(*cdr.stamp_of(ns), "",
                                      [(name, int(level), message, "",
@@ -286,32 +180,11 @@ class BagWriter:
     def write_diagnostic_payloads(self, t: npt.ArrayLike, blob: np.ndarray,
                                   lengths: np.ndarray, *, topic: str = "/diagnostics") -> None:
         """Add diagnostic_msgs/msg/DiagnosticArray messages already encoded
-        (``strain_comp.io.diagnostic_arrays``), one per time.
-
-        Args:
-            t: Log times [s].
-            blob: Their payloads joined (uint8).
-            lengths: Each payload's length [bytes].
-            topic: The topic.
-
-        Raises:
-            BagError: As ``write_diagnostics``.
-
-        """
+        (``strain_comp.io.diagnostic_arrays``), one per time."""
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", _ns(t), (blob, lengths))
 
     def flush(self, *, before: float | None = None) -> None:
-        """Write the buffered messages as complete chunks; the rest stays buffered.
-
-        Args:
-            before: Write only messages before this log time [s]; None: all that fill
-                complete chunks.
-
-        Raises:
-            BagError: The writer is closed, or the write failed.
-            OutputError: The output may not be written.
-
-        """
+        """Write the buffered messages as complete chunks; the rest stays buffered."""
         if self._closed:
             raise BagError(f"{self.path}: writer already closed")
         self._write_pending(final=False, before=None if before is None else
@@ -319,13 +192,7 @@ class BagWriter:
 
     def close(self) -> None:
         """Write the remaining messages, the summary and the footer (once); if that fails
-        (a full disk, ``ulimit -f``), the temporary file is deleted (``abort``).
-
-        Raises:
-            BagError: The write failed (nothing is left at ``path``).
-            OutputError: The rename over ``path`` failed.
-
-        """
+        (a full disk, ``ulimit -f``), the temporary file is deleted (``abort``)."""
         if self._closed:
             return
         try:
