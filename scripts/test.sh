@@ -5,6 +5,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
 bash scripts/ros2_venv.sh  # the real ros2 command line for test/ros/test_ros2_cli.py (cached)
-.venv/bin/ruff check strain_comp test bench scripts
+.venv/bin/ruff check strain_comp test bench scripts studies
 .venv/bin/mypy
 exec .venv/bin/python -m pytest -q "$@"

@@ -178,7 +178,7 @@ DESPIKE_K = 8.0
 STEP_K = 12.0
 """Default least size of a baseline step, in robust sigmas of the innovation (1.5 times the
 spike threshold: a measured carbon-black run, v19, shows a change of 8-12 sigmas that stays
-while loading, which is strain, not a step; ``scripts/measured_chain.py``)."""
+while loading, which is strain, not a step; ``studies/measured_chain.py``)."""
 @dataclass(frozen=True)
 class BaselineStep:
     """A confirmed baseline step: time of confirmation [s] and size [ohm]."""

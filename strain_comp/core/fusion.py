@@ -37,7 +37,7 @@ refusal is counted by its reason, the state unchanged.
 
 The scales are set per sensor from its calibrated strain span (``FusionSettings.for_span``),
 so one default serves a sensor calibrated in % and one in mm; their values were chosen on
-``scripts/references.py`` (docs/fusion.md): a gain prior of 0.3 beats 0.1 and an offset
+``studies/references.py`` (docs/fusion.md): a gain prior of 0.3 beats 0.1 and an offset
 alone (the error is a gain error), and a gain that walks 0.15 a minute beats slower walks
 (the sensitivity moves within a run). ``SparseFusion`` feeds a
 run's own reference at a fixed spacing (``evaluate --references-every``): the sample

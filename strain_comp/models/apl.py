@@ -62,7 +62,7 @@ on the bundled rig bags and the measured recordings: compare them with
 cell_weights=free|lead|lag`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
 never much worse than free ones and keep free weights from overfitting a noisy sensor.
 The current held-out figures of every model are in docs/measured.md
-(``scripts/compare_models.py``, ``scripts/measured.py``).
+(``studies/compare_models.py``, ``studies/measured.py``).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""scripts/measured_memory.py --effect: the term fitted is the one the engine runs online."""
+"""studies/measured_memory.py --effect: the term fitted is the one the engine runs online."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.rig import simulate
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "measured_memory.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "measured_memory.py"
 
 
 def test_effect_fit_is_least_squares_on_the_online_term_across_reference_gaps() -> None:

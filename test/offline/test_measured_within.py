@@ -1,4 +1,4 @@
-"""The within-run tables of scripts/measured.py: the residual loop is chosen on the training
+"""The within-run tables of studies/measured.py: the residual loop is chosen on the training
 part alone, and what it adds is scored on the rest against the reference strain."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 from strain_comp.io.recording import Recording
 from strain_comp.offline.rig import simulate
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "measured.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "measured.py"
 
 
 @functools.cache

@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
+# Study: Where do memory models lose to the cubic within a run? (docs/measured.md)
 """Where the memory models lose to the cubic within one measured run, by phase and by block.
 
-    python scripts/measured_memory.py --data ../shared/data/measured --out out/memory
+    python studies/measured_memory.py --data ../shared/data/measured --out out/memory
 
-For each run (the CSVs of ``scripts/measured.py``): every model is fitted on the first 60 %
+For each run (the CSVs of ``studies/measured.py``): every model is fitted on the first 60 %
 of the run's time, run through the whole run (its state carried on, as online) and scored
 on the rest: overall, and split by the phase of the reference (loading, unloading, hold:
 the strain moves by at most ``STILL_FRACTION`` of its span in 1 s). Then blocked

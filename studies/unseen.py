@@ -1,3 +1,4 @@
+# Study: Does every model survive rig runs unlike the bundled ones? (docs/architecture.md)
 """Every model through the command line on rig recordings unlike the bundled ones.
 
 Each case turns two runs of the virtual rig (``strain_comp.offline.rig``, scenario ``random``
@@ -9,7 +10,7 @@ long. For every model, ``strain-comp fit`` on the first run and ``strain-comp ev
 held-out RMSE [% strain] against the reference's own standard deviation (an RMSE near that
 means the output carries no information).
 
-    python scripts/unseen.py [--models cubic,apl] [--cases negative,slow] [--out DIR]
+    python studies/unseen.py [--models cubic,apl] [--cases negative,slow] [--out DIR]
 
 The ``base`` case is the rig as it is; a model that does well there and badly in another
 case has a problem with what that case changes. Bags and calibrations go to ``--out``

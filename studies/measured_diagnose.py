@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
+# Study: What does the residual loop change on the real lab recordings? (docs/loop.md)
 """The residual loop on the real lab recordings (../shared/data/measured): before/after table.
 
-    python scripts/measured_diagnose.py --data ../shared/data/measured --out out/diagnose
+    python studies/measured_diagnose.py --data ../shared/data/measured --out out/diagnose
 
 Per data set, fixed in advance (by file, never by sample):
 
@@ -38,7 +39,7 @@ where the run has no second or a step is refused there:
 table (later run: before -> after the loop, the change, what the loop found or why it added
 nothing) and writes ``carry.json`` into ``--out``:
 
-    python scripts/measured_diagnose.py --carry --models cubic mpi --out out/carry
+    python studies/measured_diagnose.py --carry --models cubic mpi --out out/carry
 
 Prints a Markdown table (data set x model: before, after, effects added), writes
 ``results.json``, the diagnosed calibrations (``<set>_<model>_diagnosed.yaml``) and the

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
+# Study: What does a known strain every N seconds buy across runs? (docs/fusion.md)
 """What a known strain every N seconds buys across runs: ``evaluate --references-every``.
 
-    python scripts/references.py --every 60,30 --out out/references
+    python studies/references.py --every 60,30 --out out/references
 
 For the silver-nylon thread session (``nylon_silver/session1_100Hz``, seven runs, imported
 as docs/csv.md's generic format) and for the other measured sensors (carbon black, fibre)

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
+# Study: Does creep_pi beat the cubic, MPI and APL on the measured data? (docs/creep.md)
 """What creep memory buys: creep_pi against the cubic, MPI and APL on the measured data.
 
-    python scripts/creep_study.py --out out/creep [--models creep_pi,cubic,mpi,apl]
+    python studies/creep_study.py --out out/creep [--models creep_pi,cubic,mpi,apl]
 
 Two tables (RMSE in % strain, mm for the fibre), every number through the code of the
 command line (``strain-comp import-csv``, ``fit``, ``evaluate``, ``recalibrate``; bags, fits
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import generalisation as gen
 
 MODELS = ("creep_pi", "cubic", "mpi", "apl")

@@ -1,10 +1,11 @@
+# Study: Which model has the lowest held-out RMSE on the bundled bags? (docs/measured.md)
 """Held-out RMSE of every model on the bundled rig bags: a Markdown table, model x bag.
 
 Each model is fitted on the training bags (bags/train_random.mcap, bags/train_patterns.mcap)
 and evaluated on bags it never saw (bags/demo_rates.mcap: a rate sweep; bags/steps.mcap:
 steps with holds), through the same fit and evaluate code as the command line.
 
-    python scripts/compare_models.py [--models apl,mpi,rational:mode=split] [--bags DIR]
+    python studies/compare_models.py [--models apl,mpi,rational:mode=split] [--bags DIR]
 
 A model may carry fit options after a colon, as ``--option`` gives them on the command line.
 """

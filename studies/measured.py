@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
+# Study: Every model's held-out errors on the lab recordings? (docs/measured.md)
 """Held-out errors of every model on the real lab recordings (../shared/data/measured).
 
-    python scripts/measured.py --data ../shared/data/measured --out out/measured
+    python studies/measured.py --data ../shared/data/measured --out out/measured
 
 Steps: each CSV is imported into a bag with ``strain-comp import-csv`` (the importer repairs
 and counts reference glitches), each model is fitted on the training files with the same

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
+# Study: What does the input corrector find on each measured run? (docs/measured.md)
 """The spike and baseline-step corrector on every measured recording.
 
-    python scripts/measured_chain.py --data ../shared/data/measured
+    python studies/measured_chain.py --data ../shared/data/measured
 
 Per file (carbon black: R_outer and |stage position|; fibre: resistance and extension),
 through ``strain_comp.core.chain.correct`` at the default thresholds, as the engine feeds a

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
+# Study: Is the tare multiplicative or additive on carbon black? (docs/measured.md)
 """Multiplicative or additive tare? The evidence of the carbon-black runs.
 
-    python scripts/measured_tare.py --data ../shared/data/measured
+    python studies/measured_tare.py --data ../shared/data/measured
 
 Per run of ``cb_pdms_7p5wt``: the rest resistance at its start (the automatic tare,
 ``strain_comp.core.tare.rest_resistance_at_start``; the first good sample when the run

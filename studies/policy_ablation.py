@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
+# Study: What does each tuned number of the engine's policies buy? (docs/policies.md)
 """Policy ablation: what each tuned number of the engine's policies buys on the measured data.
 
-    python scripts/policy_ablation.py --out out/generalisation
+    python studies/policy_ablation.py --out out/generalisation
 
 For every field of ``RangePolicy``, ``TarePolicy``, ``FusionPolicy`` and
 ``SpanPolicy`` (docs/policies.md), the generalisation benchmark's leave-one-run-out scheme

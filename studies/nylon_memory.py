@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
+# Study: Do memory models lower the silver-nylon thread's error? (docs/hysteresis_fit.md)
 """In-run error of the memory models on the silver-nylon thread sensor, with the cell
 weights' sign chosen from the data (the default) and held to the paper's leading loop.
 
-    python scripts/nylon_memory.py --data ../shared/data/measured [--runs sin_20 tri_50]
+    python studies/nylon_memory.py --data ../shared/data/measured [--runs sin_20 tri_50]
 
 Each run of ``nylon_silver/session1_100Hz`` is imported as ``strain-comp import-csv
 --format generic --columns time=time_s,resistance=r_over_r0,strain=position --scales
