@@ -38,7 +38,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.engine import Engine
-from strain_comp.core.range_policy import RANGE
+from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.core.samples import used_mask
 from strain_comp.io.recording import Recording
 from strain_comp.models import MODEL_NAMES
@@ -168,8 +168,8 @@ def engine_soak(cal: SensorCalibration, rng: np.random.Generator, samples: int,
     """(bad samples counted, non-finite outputs after the first used sample)."""
     engine = Engine(Calibration({"s1": cal}))
     lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
-    bad_values = np.array([np.nan, np.inf, -np.inf, 0.0, -1.0, RANGE.open_factor * hi * 10,
-                           RANGE.short_factor * lo / 10])
+    bad_values = np.array([np.nan, np.inf, -np.inf, 0.0, -1.0, OPEN_FACTOR * hi * 10,
+                           SHORT_FACTOR * lo / 10])
     t_last, u, done, nonfinite, seen_good = 0.0, 0.5, 0, 0, False
     while done < samples:
         n = min(chunk, samples - done)

@@ -4,7 +4,8 @@
 
     python studies/policy_ablation.py --out out/generalisation
 
-For every field of ``RangePolicy``, ``TarePolicy``, ``FusionPolicy`` and
+For every number of the out-of-range rule, the tare and the fusion (module constants of
+``core/range_policy.py``, ``core/tare.py``, ``core/fusion.py``) and every field of
 ``SpanPolicy`` (docs/policies.md), the generalisation benchmark's leave-one-run-out scheme
 (``scripts/generalisation.py``: fits pooled over the other runs, then the session start and
 the evaluation as a user makes them) is rerun with that field set to its neutral value (the
@@ -53,11 +54,20 @@ sys.path.insert(0, str(REPO / "scripts"))
 
 import generalisation as gen  # noqa: E402  (the benchmark's machinery, one file beside)
 
-POLICIES = {"range": ("strain_comp.core.range_policy", "RANGE"),
-            "tare": ("strain_comp.core.tare", "TARE"),
-            "fusion": ("strain_comp.core.fusion", "FUSION"),
+POLICIES = {"range": ("strain_comp.core.range_policy", ""),
+            "tare": ("strain_comp.core.tare", ""),
+            "fusion": ("strain_comp.core.fusion", ""),
             "span": ("strain_comp.offline.span_policy", "SPAN")}
-"""Policy -> (module, name of its default instance)."""
+"""Policy -> (module, name of its default instance; empty: each number is a constant of
+the module, the field's name in capitals, ``REST_WINDOW`` for the tare's window)."""
+
+
+def _holder(policy: str, field: str) -> tuple[Any, str]:
+    """(the object holding the number, its attribute name): a module, or a policy instance."""
+    module, name = POLICIES[policy]
+    if name:
+        return getattr(importlib.import_module(module), name), field
+    return importlib.import_module(module), "REST_WINDOW" if field == "window" else field.upper()
 WORKFLOW = {"range": "warmup", "tare": "as_is", "fusion": "refs_60",
             "span": "warmup", "mode": "warmup"}
 """The workflow whose median each policy's rows report."""
@@ -121,9 +131,9 @@ ABLATIONS = (
 
 @contextlib.contextmanager
 def installed(policy: str, field: str, value: Any) -> Iterator[None]:
-    """The default instance of ``policy`` with ``field`` = ``value`` in every module of the
-    package that holds it (``from ... import RANGE`` binds the name in the importer), the
-    default restored after; ``mode``: the benchmark's engine option."""
+    """``policy.field`` = ``value`` (a module constant, or a field of the default instance)
+    in every module of the package that holds it (``from ... import MARGIN`` binds the name
+    in the importer), the default restored after; ``mode``: the benchmark's engine option."""
     if policy == "mode":
         old_engine = dict(gen.ENGINE)
         gen.ENGINE.update({field: value})
@@ -134,8 +144,13 @@ def installed(policy: str, field: str, value: Any) -> Iterator[None]:
             gen.ENGINE.update(old_engine)
         return
     module, name = POLICIES[policy]
-    old = getattr(importlib.import_module(module), name)
-    new = replace(old, **{field: value})
+    if name:
+        old = getattr(importlib.import_module(module), name)
+        new = replace(old, **{field: value})
+    else:  # a module constant: every module that imported it holds the name
+        name = _holder(policy, field)[1]
+        old = getattr(importlib.import_module(module), name)
+        new = value
     holders = [m for key, m in list(sys.modules.items())
                if key.startswith("strain_comp") and getattr(m, name, None) is old]
     for m in holders:
@@ -150,8 +165,7 @@ def installed(policy: str, field: str, value: Any) -> Iterator[None]:
 def default_value(ablation: Ablation) -> Any:
     if ablation.policy == "mode":
         return "extend" if ablation.field == "out_of_range" else "on"
-    module, name = POLICIES[ablation.policy]
-    return getattr(getattr(importlib.import_module(module), name), ablation.field)
+    return getattr(*_holder(ablation.policy, ablation.field))
 
 
 Cases = dict[tuple[str, str, str], dict[str, float]]
@@ -206,7 +220,8 @@ def guard(index: int) -> str:
              for path in sorted((REPO / "test").rglob(name))]
     done = subprocess.run([sys.executable, "-c", code, "-x", "-q", "-p", "no:cacheprovider",
                            *files], cwd=REPO, capture_output=True, text=True, check=False,
-                          env={**os.environ, "PYTHONPATH": f"{REPO}:{REPO / 'scripts'}"})
+                          env={**os.environ,
+                               "PYTHONPATH": f"{REPO}:{REPO / 'scripts'}:{REPO / 'studies'}"})
     failed = [line.split(" ", 1)[1].split(" - ")[0] for line in done.stdout.splitlines()
               if line.startswith("FAILED ")]
     if done.returncode == 0:

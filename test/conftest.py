@@ -42,7 +42,7 @@ from strain_comp.core.calibration import (
 )
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
-from strain_comp.core.range_policy import RANGE
+from strain_comp.core.range_policy import EXTEND_REACH, MARGIN, OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.io.recording import Recording
 from strain_comp.models.base import Compensator, Normalisation, Segment
 from strain_comp.offline.fit import fit_sensor
@@ -134,9 +134,9 @@ def noisy_stream(rng: np.random.Generator, n: int = 600) -> tuple[np.ndarray, np
         elif kind == 3:
             r[i] = 0.0
         elif kind == 4:
-            r[i] = R_HI * RANGE.open_factor * 2
+            r[i] = R_HI * OPEN_FACTOR * 2
         elif kind == 5:
-            r[i] = R_LO * RANGE.short_factor / 2
+            r[i] = R_LO * SHORT_FACTOR / 2
         elif kind == 6 and i > 0:
             t[i] = t[i - 1] - rng.uniform(0, 0.5)  # small step back: rejected
         elif kind == 7:
@@ -178,14 +178,14 @@ def calibration_of(model: str, name: str = "s1") -> Calibration:
 def strain_bounds(cal: SensorCalibration, out_of_range: str = "extend"
                   ) -> tuple[float, float]:
     """The bounds of the engine's estimate: with ``clamp``, the valid strain range widened
-    by ``RANGE.margin`` of its span; with ``extend`` (the default), that widened further by
-    ``RANGE.extend_reach`` spans above and, below, down to zero strain at most."""
+    by ``MARGIN`` of its span; with ``extend`` (the default), that widened further by
+    ``EXTEND_REACH`` spans above and, below, down to zero strain at most."""
     vr = cal.valid_range
     span = vr.s_hi - vr.s_lo
-    lo, hi = vr.s_lo - RANGE.margin * span, vr.s_hi + RANGE.margin * span
+    lo, hi = vr.s_lo - MARGIN * span, vr.s_hi + MARGIN * span
     if out_of_range == "clamp":
         return lo, hi
-    reach = RANGE.extend_reach * span
+    reach = EXTEND_REACH * span
     return min(lo, max(0.0, vr.s_lo - reach)), vr.s_hi + reach
 
 

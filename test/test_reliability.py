@@ -26,7 +26,7 @@ from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.calibration_file import save_calibration as save
 from strain_comp.core.engine import Engine
-from strain_comp.core.range_policy import RANGE
+from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.core.samples import Status
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter, read_bag
@@ -158,8 +158,8 @@ def test_replay_keeps_every_message_time_and_marks_bad_samples(tmp_path: Path) -
     expected = np.zeros(n, dtype=np.int8)
     faults = {20: (math.nan, Status.NOT_FINITE), 21: (math.inf, Status.NOT_FINITE),
               40: (-3.0, Status.NON_POSITIVE), 41: (0.0, Status.NON_POSITIVE),
-              60: (vr.r_hi * RANGE.open_factor * 5, Status.OPEN_CIRCUIT),
-              61: (vr.r_lo * RANGE.short_factor / 5, Status.SHORT_CIRCUIT)}
+              60: (vr.r_hi * OPEN_FACTOR * 5, Status.OPEN_CIRCUIT),
+              61: (vr.r_lo * SHORT_FACTOR / 5, Status.SHORT_CIRCUIT)}
     for i, (value, status) in faults.items():
         r[i], expected[i] = value, status
     t[[80, 81, 82]] = t[79]  # repeated stamps: rejected, the first one was used
@@ -247,7 +247,7 @@ def test_array_engine_survives_a_random_stream_of_good_and_bad_messages(models: 
         r = r_lo + u * (r_hi - r_lo)
         faults = rng.random(k) < 0.15
         choices = np.array([np.nan, np.inf, -np.inf, 0.0, -1.0, 1e300, 1e-300,
-                            1e3 * RANGE.open_factor, 1e-3 * RANGE.short_factor])
+                            1e3 * OPEN_FACTOR, 1e-3 * SHORT_FACTOR])
         r[faults] = choices[rng.integers(0, choices.size, faults.sum())]
         if rng.random() < 0.02:  # wrong vector length: rejected whole, state untouched
             before = engine.health()

@@ -64,30 +64,15 @@ if TYPE_CHECKING:
 
 
 
-@dataclass(frozen=True)
-class FusionPolicy:
-    """The tuned numbers of the reference fusion, in shares of the calibrated strain span
-    where a strain is meant (docs/policies.md: each one's measure)."""
-
-    gain_sd: float = 0.3
-    """Prior standard deviation of the gain around 1 (a sensitivity 30 % off is
-    plausible) [1]."""
-    offset_share: float = 0.05
-    """Prior standard deviation of the offset around 0 [share of the strain span]."""
-    gain_walk: float = 0.02
-    """Random walk of the gain: 0.15 in a minute (the thread's sensitivity moves within a
-    run; docs/fusion.md) [1/sqrt(s)]."""
-    offset_walk_share: float = 0.2 / 60.0
-    """Random walk of the offset: 2.6 % of the span in a minute [span share/sqrt(s)]."""
-    noise_share: float = 0.1
-    """Standard deviation of what a gain and offset do not explain (the model's error, the
-    reference's) [share of the strain span]."""
-    gate: float = 5.0
-    """A reference beyond this many innovation standard deviations is refused [sd]."""
-
-
-FUSION = FusionPolicy()
-"""The policy every fusion uses unless given another."""
+# The fusion's numbers, in shares of the calibrated strain span where a strain is meant.
+# docs/policies.md gives what keeps each: the largest change of a benchmark case with the
+# number set neutral.
+GAIN_SD = 0.3  # prior sd of the gain around 1: 30 % off is plausible (0: a case 15 %)
+OFFSET_SHARE = 0.05  # prior sd of the offset around 0 (0: a case 6 %)
+GAIN_WALK = 0.02  # gain random walk [1/sqrt(s)]: 0.15 in a minute (0: a case 40 %)
+OFFSET_WALK_SHARE = 0.2 / 60.0  # offset random walk [span/sqrt(s)]: 2.6 % a minute (0: 5 %)
+NOISE_SHARE = 0.1  # sd of what a gain and offset do not explain (0.001: a case 75 %)
+GATE = 5.0  # a reference beyond this many innovation sds is refused (inf: a case 45 %)
 
 
 @dataclass(frozen=True)
@@ -99,17 +84,15 @@ class FusionSettings:
     gain_walk: float
     offset_walk: float
     noise_sd: float
-    gate: float = FUSION.gate
+    gate: float = GATE
 
     @classmethod
-    def for_span(cls, span: float, policy: FusionPolicy | None = None) -> FusionSettings:
-        """The settings of ``policy`` (``FUSION`` when None) for a sensor calibrated over
-        a strain span ``span`` (> 0)."""
-        policy = FUSION if policy is None else policy
+    def for_span(cls, span: float) -> FusionSettings:
+        """The settings for a sensor calibrated over a strain span ``span`` (> 0)."""
         span = span if math.isfinite(span) and span > 0 else 1.0
-        return cls(gain_sd=policy.gain_sd, offset_sd=policy.offset_share * span,
-                   gain_walk=policy.gain_walk, offset_walk=policy.offset_walk_share * span,
-                   noise_sd=policy.noise_share * span, gate=policy.gate)
+        return cls(gain_sd=GAIN_SD, offset_sd=OFFSET_SHARE * span, gain_walk=GAIN_WALK,
+                   offset_walk=OFFSET_WALK_SHARE * span, noise_sd=NOISE_SHARE * span,
+                   gate=GATE)
 
 
 @dataclass

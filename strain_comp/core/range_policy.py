@@ -2,11 +2,11 @@
 strain a resistance beyond the valid range gives (docs/design.md, "Out of range").
 
 A sensor's ``SensorRange`` holds the limits the stages read (``strain_comp.core.stages``):
-R outside the valid range widened by ``RangePolicy.margin`` of its span is flagged; the
+R outside the valid range widened by ``MARGIN`` of its span is flagged; the
 estimate is clamped to the strain range widened the same way and then, by ``out_of_range``
 (``OUT_OF_RANGE_MODES``), extended beyond it with a bounded slope within a bounded reach
 (``bounded_slopes``), or with the model's end slope (``end_slopes``), or not. The numbers
-are the fields of ``RangePolicy`` (``RANGE``; docs/policies.md gives what keeps each).
+are the constants below (docs/policies.md gives what keeps each).
 """
 
 from __future__ import annotations
@@ -30,44 +30,22 @@ DEFAULT_OUT_OF_RANGE = "extend"
 worst ratio over every sensor and model on the headline workflow."""
 
 
-@dataclass(frozen=True)
-class RangePolicy:
-    """The tuned numbers of the out-of-range rule (docs/policies.md: each one's measure)."""
-
-    open_factor: float = 100.0
-    """R above this many times the top of the valid resistance range is an open circuit
-    [multiple of r_hi]."""
-    short_factor: float = 0.01
-    """0 < R below this fraction of the bottom of the valid resistance range is a short
-    [fraction of r_lo]."""
-    margin: float = 0.05
-    """Share of the valid range's span added on each side before flagging / clamping
-    [share of the span]; the fit widens its training range by the same share
-    (``offline/fit.py``), which ``fitted_rest`` undoes."""
-    extend_slope: tuple[float, float] = (0.5, 2.0)
-    """``extend``: the end slope is kept within these multiples of the secant slope
-    [multiples of the secant]."""
-    extend_monotone: float = 0.25
-    """``extend``: a branch that ends this share of the strain span or more below the top
-    of the calibrated strain at the top of the resistance range (the resistance peaked
-    before the strain did) is not extended [share of the strain span]."""
-    extend_reach: float = 1.0
-    """``extend``: calibrated strain spans the estimate reaches at most beyond the range
-    [strain spans]."""
-    settle_steps: int = 200
-    """Steps (at 10 Hz) of the slow ramp over the valid range the out-of-range slopes are
-    read on, each way (``branches``) [samples]."""
-
-
-RANGE = RangePolicy()
-"""The policy every engine uses unless given another."""
+# The out-of-range rule's numbers. docs/policies.md gives what keeps each: the largest
+# change of a benchmark case with the number set neutral, or the fault test it guards.
+OPEN_FACTOR = 100.0  # R above this x r_hi is an open circuit (a test_reliability fault test)
+SHORT_FACTOR = 0.01  # 0 < R below this x r_lo is a short circuit (the same fault test)
+MARGIN = 0.05  # share of the span widening the valid ranges and the fit's (0: a case 66 %)
+EXTEND_SLOPE = (0.5, 2.0)  # extend: end slope within these x the secant (unbounded: 17 %)
+EXTEND_MONOTONE = 0.25  # extend: none where the top branch ends this short of it (32 %)
+EXTEND_REACH = 1.0  # extend: strain spans the extension reaches at most (unbounded: 17 %)
+SETTLE_STEPS = 200  # steps each way of the 10 Hz ramp the end slopes are read on (50: 10 %)
 
 
 def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
     """(rest strain, strain span) the calibration was fitted over: its valid strain range
-    less the ``RangePolicy.margin`` the fit adds on each side."""
-    span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * RANGE.margin)
-    return valid_range.s_lo + RANGE.margin * span, span
+    less the ``MARGIN`` the fit adds on each side."""
+    span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * MARGIN)
+    return valid_range.s_lo + MARGIN * span, span
 
 
 @dataclass(frozen=True)
@@ -92,22 +70,19 @@ class SensorRange:
 
     @classmethod
     def build(cls, cal: SensorCalibration, out_of_range: str = "clamp",
-              model: Compensator | None = None, policy: RangePolicy | None = None
-              ) -> SensorRange:
-        """The limits of ``cal``'s valid range under the mode ``out_of_range`` and the
-        numbers of ``policy`` (``RANGE`` when None); ``model``: ``cal``'s model to read the
-        slopes on (``branches``; None: a new one)."""
-        policy = RANGE if policy is None else policy
+              model: Compensator | None = None) -> SensorRange:
+        """The limits of ``cal``'s valid range under the mode ``out_of_range``; ``model``:
+        ``cal``'s model to read the slopes on (``branches``; None: a new one)."""
         vr = cal.valid_range
-        r_margin = policy.margin * (vr.r_hi - vr.r_lo)
-        s_margin = policy.margin * (vr.s_hi - vr.s_lo)
-        plain = cls(r_short=policy.short_factor * vr.r_lo, r_open=policy.open_factor * vr.r_hi,
+        r_margin = MARGIN * (vr.r_hi - vr.r_lo)
+        s_margin = MARGIN * (vr.s_hi - vr.s_lo)
+        plain = cls(r_short=SHORT_FACTOR * vr.r_lo, r_open=OPEN_FACTOR * vr.r_hi,
                     r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
                     s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin)
         if out_of_range == "extrapolate":
-            return cls(**{**vars(plain), "slopes": end_slopes(cal, plain, model, policy)})
+            return cls(**{**vars(plain), "slopes": end_slopes(cal, plain, model)})
         if out_of_range == "extend":
-            slopes, reach = bounded_slopes(cal, plain, model, policy)
+            slopes, reach = bounded_slopes(cal, plain, model)
             return cls(**{**vars(plain), "slopes": slopes, "reach": reach, "saturate": True})
         return plain
 
@@ -131,14 +106,14 @@ class SensorRange:
                          np.ascontiguousarray(strain, dtype=np.float64), self.row)
 
 
-def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None,
-             policy: RangePolicy | None = None) -> tuple[np.ndarray, np.ndarray]:
+def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """The model's output along a slow ramp over the valid range and back from a fresh
-    state (``policy.settle_steps`` = n steps each way at 10 Hz): (loading branch, unloading
+    state (``SETTLE_STEPS`` = n steps each way at 10 Hz): (loading branch, unloading
     branch), both at the resistances ``np.linspace(r_lo, r_hi, n + 1)``. A sensor leaves
     the range at the top while loading and at the bottom while unloading. ``model``:
     ``cal``'s model, reset before and after the ramp (None: a new one)."""
-    n = (RANGE if policy is None else policy).settle_steps
+    n = SETTLE_STEPS
     up = np.linspace(limits.r_lo, limits.r_hi, n + 1)
     r = np.concatenate([up, up[-2::-1]])
     if model is None:
@@ -149,24 +124,24 @@ def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | N
     return out[:n + 1], out[n:][::-1]
 
 
-def end_slopes(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None,
-               policy: RangePolicy | None = None) -> tuple[float, float]:
+def end_slopes(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
+               ) -> tuple[float, float]:
     """dS/dR of the model's unloading branch over the first step of the ramp over the valid
     range and of its loading branch over the last (``branches``): ``extrapolate``."""
-    return _end_slopes(*branches(cal, limits, model, policy), limits, policy)
+    return _end_slopes(*branches(cal, limits, model), limits)
 
 
-def _end_slopes(loading: np.ndarray, unloading: np.ndarray, limits: SensorRange,
-                policy: RangePolicy | None = None) -> tuple[float, float]:
+def _end_slopes(loading: np.ndarray, unloading: np.ndarray, limits: SensorRange
+                ) -> tuple[float, float]:
     """``end_slopes`` of the branches ``loading`` and ``unloading`` (``branches``)."""
-    width = (limits.r_hi - limits.r_lo) / (RANGE if policy is None else policy).settle_steps
+    width = (limits.r_hi - limits.r_lo) / SETTLE_STEPS
     lo = float(unloading[1] - unloading[0]) / width
     hi = float(loading[-1] - loading[-2]) / width
     return (lo if math.isfinite(lo) else 0.0), (hi if math.isfinite(hi) else 0.0)
 
 
 def bounded_slopes(cal: SensorCalibration, limits: SensorRange,
-                   model: Compensator | None = None, policy: RangePolicy | None = None,
+                   model: Compensator | None = None,
                    ) -> tuple[tuple[float, float], tuple[float, float]]:
     """``extend``: (slopes, reach). Each end slope kept within ``extend_slope`` x the
     secant slope of the model over the valid range (``branches``: the top of its loading
@@ -177,13 +152,11 @@ def bounded_slopes(cal: SensorCalibration, limits: SensorRange,
     ``extend_monotone`` of the span short of it: the training resistance peaked before the
     strain did. The extended estimate reaches at most ``extend_reach`` calibrated strain
     spans above the range, and below it never past zero strain: a resistance under the
-    calibrated rest is far more often a rest level that moved than a compression (numbers:
-    ``policy``, ``RANGE`` when None)."""
-    policy = RANGE if policy is None else policy
-    loading, unloading = branches(cal, limits, model, policy)
-    lo_end, hi_end = _end_slopes(loading, unloading, limits, policy)
+    calibrated rest is far more often a rest level that moved than a compression."""
+    loading, unloading = branches(cal, limits, model)
+    lo_end, hi_end = _end_slopes(loading, unloading, limits)
     secant = float(loading[-1] - unloading[0]) / (limits.r_hi - limits.r_lo)
-    low, high = policy.extend_slope
+    low, high = EXTEND_SLOPE
 
     def bounded(end: float) -> float:
         if not (math.isfinite(secant) and secant * cal.direction.sign > 0.0
@@ -195,8 +168,8 @@ def bounded_slopes(cal: SensorCalibration, limits: SensorRange,
     span = vr.s_hi - vr.s_lo
     slopes = [bounded(lo_end), bounded(hi_end)]
     top = 1 if secant > 0.0 else 0  # the end whose branch reads the strain's top
-    if (loading[-1] if top else unloading[0]) < vr.s_hi - policy.extend_monotone * span:
+    if (loading[-1] if top else unloading[0]) < vr.s_hi - EXTEND_MONOTONE * span:
         slopes[top] = 0.0
-    reach = (min(limits.s_lo, max(0.0, vr.s_lo - policy.extend_reach * span)),
-             max(limits.s_hi, vr.s_hi + policy.extend_reach * span))
+    reach = (min(limits.s_lo, max(0.0, vr.s_lo - EXTEND_REACH * span)),
+             max(limits.s_hi, vr.s_hi + EXTEND_REACH * span))
     return (slopes[0], slopes[1]), reach

@@ -17,24 +17,22 @@ the excitation (an artefact every other sample); the median ignores isolated spi
 
 * ``rest_resistance_at_start`` (run time, no reference: ``--tare auto``, the node): the
   samples from the start while the calibration's direction detector says hold (0), at most
-  ``window`` seconds. The rest must last ``min_rest_samples`` samples or ``min_rest_seconds``
+  ``REST_WINDOW`` seconds. The rest must last ``MIN_REST_SAMPLES`` samples or ``MIN_REST_SECONDS``
   (a 1 Hz instrument gives one or two samples before any movement shows: a rule in samples
   alone never tares it; a detector cannot see movement before its second sample, so such a
   tare is off by at most half the first sample's change), and it must be settled: a start
-  whose level still drifts by more than ``max_rest_drift`` of itself over the window (a
+  whose level still drifts by more than ``MAX_REST_DRIFT`` of itself over the window (a
   sensor still relaxing from an earlier stretch, whose resistance falls for minutes; or a
   movement slower than the detector's dead zone) is no rest level and is declined.
 * ``rest_resistance_from_reference`` (fit time): the leading samples whose reference strain
-  is within ``rest_band`` of the span of its minimum.
+  is within ``REST_BAND`` of the span of its minimum.
 
-The numbers are the fields of ``TarePolicy`` (``TARE``; docs/policies.md gives what keeps
-each).
+The numbers are the constants below (docs/policies.md gives what keeps each).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -49,30 +47,15 @@ if TYPE_CHECKING:
 
 
 
-@dataclass(frozen=True)
-class TarePolicy:
-    """The tuned numbers of the tare (docs/policies.md: each one's measure)."""
-
-    window: float = 5.0
-    """Longest stretch at the start of a run that an automatic tare averages over [s]."""
-    min_rest_samples: int = 3
-    """Fewest rest samples a tare accepts (unless they span ``min_rest_seconds``)
-    [samples]."""
-    min_rest_seconds: float = 1.0
-    """A rest this long is enough whatever its sample count (slow instruments) [s]."""
-    max_rest_drift: float = 0.005
-    """Largest drift of the rest level over ``window`` a tare accepts [share of the level].
-
-    The tare corrects level changes of several % between runs; a level moving by more
-    than 0.5 % within the first seconds of a run is a relaxation that goes on for minutes
-    (an exponential decay settles slower than it starts), so its start is no rest level."""
-    rest_band: float = 0.02
-    """Reference strain within this share of its span above its minimum counts as rest
-    [share of the reference's span]."""
-
-
-TARE = TarePolicy()
-"""The policy every tare uses unless given another."""
+# The tare's numbers. docs/policies.md gives what keeps each: the largest change of a
+# benchmark case with the number set neutral.
+REST_WINDOW = 5.0  # s: longest leading stretch an automatic tare reads (inf: a case 20 %)
+MIN_REST_SAMPLES = 3  # fewest rest samples a tare accepts... (1: a case 62 %)
+MIN_REST_SECONDS = 1.0  # s: ...unless they span this long, a slow instrument (0: 62 %)
+# Largest drift of the rest level over REST_WINDOW a tare accepts (share of the level): a
+# level moving more within the first seconds is a relaxation going on for minutes (inf: 39 %).
+MAX_REST_DRIFT = 0.005
+REST_BAND = 0.02  # reference strain this share of its span above its minimum is rest (0.1: 93 %)
 
 
 def rest_level(r: np.ndarray, *, pair: str = "mean") -> float:
@@ -88,44 +71,42 @@ def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
                              direction: DirectionSettings, *, window: float | None = None,
-                             pair: str = "mean", policy: TarePolicy | None = None) -> float:
+                             pair: str = "mean") -> float:
     """Rest resistance [ohm] of a run from its first seconds (no reference needed)."""
-    policy = TARE if policy is None else policy
-    window = policy.window if window is None else window
+    window = REST_WINDOW if window is None else window
     ta, ra, stop, _ = _rest_stretch(t, r, direction, window, pair)
-    return _rest_of_stretch(ta, ra, stop, window, pair, policy)
+    return _rest_of_stretch(ta, ra, stop, window, pair)
 
 
 def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
                                  direction: DirectionSettings, *, window: float | None = None,
-                                 pair: str = "mean", policy: TarePolicy | None = None,
+                                 pair: str = "mean",
                                  ) -> float | None:
     """``rest_resistance_at_start`` on the first samples of a run as they arrive: None while
     a longer start could still change the answer (the detector has not left hold and
     ``window`` seconds have not passed), else that answer (or its InputError). The node
     calls it on each new sample, so it takes the zero ``--tare auto`` takes offline."""
-    policy = TARE if policy is None else policy
-    window = policy.window if window is None else window
+    window = REST_WINDOW if window is None else window
     ta, ra, stop, decided = _rest_stretch(t, r, direction, window, pair)
-    return _rest_of_stretch(ta, ra, stop, window, pair, policy) if decided else None
+    return _rest_of_stretch(ta, ra, stop, window, pair) if decided else None
 
 
 def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
-                     pair: str, policy: TarePolicy) -> float:
+                     pair: str) -> float:
     """The rest level of the first ``stop`` good samples ``ta``, ``ra``, or InputError when
     they are too few or still drift (``rest_resistance_at_start``)."""
     if ta.size == 0:
         raise InputError("tare: no good resistance sample at the start of the run")
-    if stop == 0 or (stop < policy.min_rest_samples
-                     and ta[stop - 1] - ta[0] < policy.min_rest_seconds):
+    if stop == 0 or (stop < MIN_REST_SAMPLES
+                     and ta[stop - 1] - ta[0] < MIN_REST_SECONDS):
         raise InputError(f"tare: the run does not start at rest (the direction detector "
-                         f"leaves hold after {stop} samples, {policy.min_rest_samples} or "
-                         f"{policy.min_rest_seconds:g} s needed)")
+                         f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} or "
+                         f"{MIN_REST_SECONDS:g} s needed)")
     drift = rest_drift(ta[:stop], ra[:stop], window=window, pair=pair)
-    if abs(drift) > policy.max_rest_drift:
+    if abs(drift) > MAX_REST_DRIFT:
         raise InputError(f"tare: the run starts while the resistance still drifts "
                          f"({100 * drift:+.2f} % over {window:g} s, at most "
-                         f"{100 * policy.max_rest_drift:g} % at rest): no rest level")
+                         f"{100 * MAX_REST_DRIFT:g} % at rest): no rest level")
     return rest_level(ra[:stop], pair=pair)
 
 
@@ -154,11 +135,11 @@ def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettin
 
 def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float | None = None,
                pair: str = "mean") -> float:
-    """Drift of a rest stretch over ``window`` s (``TARE.window`` when None), as a share of
+    """Drift of a rest stretch over ``window`` s (``REST_WINDOW`` when None), as a share of
     its level: the change of the ``rest_level`` of its second half against its first, per
     the time between the halves' centres; 0 when the stretch is too short to tell (fewer
     than 4 samples)."""
-    window = TARE.window if window is None else window
+    window = REST_WINDOW if window is None else window
     if r.size < 4:
         return 0.0
     half = r.size // 2
@@ -184,39 +165,37 @@ def _referenced(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, min_sample
 
 
 def unsettled_start(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, *,
-                    pair: str = "mean", policy: TarePolicy | None = None,
+                    pair: str = "mean",
                     ) -> tuple[float, float]:
     """(seconds, drift) of a run that starts while its resistance still relaxes."""
-    policy = TARE if policy is None else policy
-    referenced = _referenced(t, r, s, policy.min_rest_samples)
+    referenced = _referenced(t, r, s, MIN_REST_SAMPLES)
     if referenced is None:
         return 0.0, 0.0
     ta, ra, sa = referenced
-    moves = np.flatnonzero(np.abs(sa - sa[0]) > policy.rest_band * np.ptp(sa))
+    moves = np.flatnonzero(np.abs(sa - sa[0]) > REST_BAND * np.ptp(sa))
     stop = int(moves[0])  # the span is > 0, so the reference leaves the band somewhere
-    head = int(np.searchsorted(ta, ta[0] + policy.window, side="right"))
+    head = int(np.searchsorted(ta, ta[0] + REST_WINDOW, side="right"))
     if stop < head:  # a rest shorter than the window: no drift to judge
         return 0.0, 0.0
-    drift = rest_drift(ta[:head], ra[:head], window=policy.window, pair=pair)
-    if abs(drift) <= policy.max_rest_drift:
+    drift = rest_drift(ta[:head], ra[:head], window=REST_WINDOW, pair=pair)
+    if abs(drift) <= MAX_REST_DRIFT:
         return 0.0, drift
     return float(ta[stop] - ta[0]), drift
 
 
 def rest_resistance_from_reference(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike,
-                                   *, pair: str = "mean", policy: TarePolicy | None = None,
+                                   *, pair: str = "mean",
                                    ) -> float | None:
     """Rest resistance [ohm] of a training run: its first stay at minimum strain."""
-    policy = TARE if policy is None else policy
-    referenced = _referenced(t, r, s, policy.min_rest_samples)
+    referenced = _referenced(t, r, s, MIN_REST_SAMPLES)
     if referenced is None:
         return None
     ta, ra, sa = referenced
-    rest = np.concatenate(([False], sa <= sa.min() + policy.rest_band * np.ptp(sa), [False]))
+    rest = np.concatenate(([False], sa <= sa.min() + REST_BAND * np.ptp(sa), [False]))
     edges = np.flatnonzero(np.diff(rest.astype(np.int8)))
     for start, stop in zip(edges[::2], edges[1::2], strict=True):
-        if start == 0 or stop - start >= policy.min_rest_samples:
-            end = min(int(stop), int(np.searchsorted(ta, ta[start] + policy.window,
+        if start == 0 or stop - start >= MIN_REST_SAMPLES:
+            end = min(int(stop), int(np.searchsorted(ta, ta[start] + REST_WINDOW,
                                                      side="right")))
             return rest_level(ra[start:end], pair=pair)
     return None

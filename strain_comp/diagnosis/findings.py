@@ -12,7 +12,7 @@ import numpy as np
 
 from strain_comp.core.calibration import SensorCalibration, strain_unit_words
 from strain_comp.core.effects import regressor_from_dict
-from strain_comp.core.tare import TARE
+from strain_comp.core.tare import REST_WINDOW
 from strain_comp.diagnosis.report import SESSION_RECORDS, EffectScore, creep_tau
 from strain_comp.diagnosis.residuals import ROW_BUDGET
 from strain_comp.diagnosis.rows import Candidates, Rows
@@ -150,7 +150,7 @@ def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: li
                   else "")
         message += (f"; the first {seconds:.0f} s{others}, before the reference first moves, "
                     f"are left out: the resistance still relaxes there from an earlier "
-                    f"stretch ({100 * drift:+.2f} % over {TARE.window:g} s)")
+                    f"stretch ({100 * drift:+.2f} % over {REST_WINDOW:g} s)")
     stride, val_stride = strides
     if stride > 1 or (val_stride or 1) > 1:
         message += (f"; fitted and scored on every {stride}-th sample"

@@ -22,7 +22,7 @@ from strain_comp.core.effects import (
 )
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
-from strain_comp.core.range_policy import RANGE
+from strain_comp.core.range_policy import MARGIN
 from strain_comp.core.samples import gap_for, used_mask
 from strain_comp.core.tare import tare_engine, unsettled_start
 from strain_comp.diagnosis.candidates import BASELINE_WINDOW
@@ -122,7 +122,7 @@ def base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
         gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
         starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
         vr = stripped.sensors[name].valid_range
-        margin = RANGE.margin * (vr.s_hi - vr.s_lo)
+        margin = MARGIN * (vr.s_hi - vr.s_lo)
         s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
         out[name] = Run(s_hat, result.direction.astype(np.float64), result.resistance,
                          used, starts, result.strain - s_hat, calibration.sensors[name])

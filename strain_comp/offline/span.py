@@ -25,8 +25,8 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
 from strain_comp.core.engine import Engine
-from strain_comp.core.range_policy import RANGE
-from strain_comp.core.tare import TARE, ohms, rest_resistance_from_reference
+from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
+from strain_comp.core.tare import REST_BAND, ohms, rest_resistance_from_reference
 from strain_comp.errors import InputError
 from strain_comp.offline.span_policy import SPAN, SpanPolicy
 
@@ -155,7 +155,7 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
-    lo, hi = RANGE.short_factor * cal.valid_range.r_lo, RANGE.open_factor * cal.valid_range.r_hi
+    lo, hi = SHORT_FACTOR * cal.valid_range.r_lo, OPEN_FACTOR * cal.valid_range.r_hi
     for r, s in ((r1, s1), (r2, s2)):  # the engine screens such a reading as a short or open
         if not lo < r < hi:
             raise InputError(f"--point {r:g}:{s:g}: {r:g} ohm is beyond what the engine reads "
@@ -204,8 +204,8 @@ def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
         raise InputError("recalibrate --first/--window: the cycle has no rest at its lowest "
                          "strain or its reference strain never moves")
     span = float(np.ptp(s))
-    low = s <= s.min() + TARE.rest_band * span
-    high = np.abs(s - min(float(s.max()), top)) <= TARE.rest_band * span
+    low = s <= s.min() + REST_BAND * span
+    high = np.abs(s - min(float(s.max()), top)) <= REST_BAND * span
     if not high.any():
         raise InputError("recalibrate --first/--window: no sample of the cycle at a strain the "
                          "calibration outputs")

@@ -48,7 +48,7 @@ finer one (a reference near 1e-300) is a unit mistake that the least-squares sol
 cannot resolve (LAPACK fails)."""
 TRAINING_WIDENING = 0.05
 """Valid range = training range widened by this fraction of its span on each side (the
-engine then flags beyond ``core.range_policy.RANGE.margin`` more)."""
+engine then flags beyond ``MARGIN`` more)."""
 
 
 def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,

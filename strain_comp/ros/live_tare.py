@@ -18,7 +18,7 @@ import numpy as np
 from strain_comp.core.engine import Engine
 from strain_comp.core.samples import used_mask
 from strain_comp.core.tare import (
-    TARE,
+    REST_WINDOW,
     rest_level,
     rest_resistance_at_start,
     rest_resistance_when_decided,
@@ -31,7 +31,7 @@ TARE_WINDOW_S = 0.5
 RING = 4096
 """Recent samples kept per input for the tare."""
 MAX_START_SAMPLES = 2**17
-"""Samples an input's pending automatic tare may log (``TARE.window`` = 5 s at 26 kHz); a
+"""Samples an input's pending automatic tare may log (``REST_WINDOW`` = 5 s at 26 kHz); a
 clock that does not advance (a paused sim clock) would otherwise let it grow without end:
 past it the automatic tare is declined, the calibration's zero stays."""
 
@@ -75,7 +75,7 @@ class _Recent(_Samples):
 
 class _StartLog(_Samples):
     """Every sample of an input since the earliest first good sample of a sensor whose
-    automatic tare is pending (``keep_from``): about ``TARE.window`` seconds, nothing while
+    automatic tare is pending (``keep_from``): about ``REST_WINDOW`` seconds, nothing while
     no pending sensor has had a good sample."""
 
     SIZE = 256
@@ -134,7 +134,7 @@ class LiveTare:
                 if self.pending.pop(sensor, None) is not None:
                     self.log.append(
                         f"{sensor}: auto tare declined: {MAX_START_SAMPLES} samples within "
-                        f"{TARE.window:g} s of clock time (is the clock paused?); the "
+                        f"{REST_WINDOW:g} s of clock time (is the clock paused?); the "
                         "calibration's zero stays (call ~/tare at rest)")
         if not any(s in self.pending for s in self.inputs[name]):
             del self.start[name]
@@ -153,13 +153,13 @@ class LiveTare:
                 if good:
                     self.pending[sensor] = t
                 continue
-            if t - start < TARE.window and not (good and direction[column] != 0):
+            if t - start < REST_WINDOW and not (good and direction[column] != 0):
                 continue
             times, raw = log.since(start, column)
             cal = self.calibration.sensors[sensor]
             ohm = self._ohm(sensor, raw)
             try:
-                if t - start >= TARE.window:  # decided
+                if t - start >= REST_WINDOW:  # decided
                     rest = rest_resistance_at_start(times, ohm, cal.direction,
                                                     pair=cal.input.pair)
                 else:  # the engine's detector moved; the rule's (on pairs) may not have yet

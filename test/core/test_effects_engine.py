@@ -15,7 +15,7 @@ from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import Batch, regressor_from_dict
-from strain_comp.core.range_policy import RANGE
+from strain_comp.core.range_policy import MARGIN
 from strain_comp.core.samples import used_mask
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.bag import BagWriter, read_bag
@@ -194,7 +194,7 @@ def test_resistance_memory_reads_what_the_model_reads() -> None:
     np.testing.assert_allclose(base.resistance[used], 0.8 * r[used])
     g = regressor_from_dict(effect).run(Batch.of(t[used], base.resistance[used],
                                                  base.strain[used], base.direction[used]))
-    lo, hi = S_LO - RANGE.margin * (S_HI - S_LO), S_HI + RANGE.margin * (S_HI - S_LO)
+    lo, hi = S_LO - MARGIN * (S_HI - S_LO), S_HI + MARGIN * (S_HI - S_LO)
     expected = np.clip(np.clip(base.strain[used], lo, hi) - 0.4 * g, lo, hi)
     np.testing.assert_allclose(by_run.strain[used], expected, atol=1e-9)
 

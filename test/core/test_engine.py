@@ -37,7 +37,7 @@ from strain_comp.core.calibration import (
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.direction import DirectionDetector
 from strain_comp.core.engine import Engine
-from strain_comp.core.range_policy import RANGE
+from strain_comp.core.range_policy import MARGIN, SETTLE_STEPS
 from strain_comp.core.samples import Status
 from strain_comp.errors import ParameterError
 from strain_comp.models.base import Segment
@@ -148,8 +148,8 @@ def test_long_gap_or_clock_reset_restarts_the_state(jump: float) -> None:
 
 
 def test_out_of_range_is_flagged_fed_and_clamped() -> None:
-    margin_r = RANGE.margin * (R_HI - R_LO)
-    s_top = S_HI + RANGE.margin * (S_HI - S_LO)
+    margin_r = MARGIN * (R_HI - R_LO)
+    s_top = S_HI + MARGIN * (S_HI - S_LO)
     t = np.arange(4) * 0.1
     r = np.array([150.0, R_HI + 0.5 * margin_r, R_HI + 2 * margin_r, 400.0])
     engine = engine_of(lag_cal(), out_of_range="clamp")
@@ -318,8 +318,8 @@ def test_tare_uses_the_calibrations_rest_resistance() -> None:
 
 def test_extrapolate_extends_the_end_slope_beyond_the_range_and_step_equals_run() -> None:
     cal = cubic_cal()
-    r_hi = R_HI + RANGE.margin * (R_HI - R_LO)  # the flag's edge
-    width = (r_hi - (R_LO - RANGE.margin * (R_HI - R_LO))) / RANGE.settle_steps  # one step
+    r_hi = R_HI + MARGIN * (R_HI - R_LO)  # the flag's edge
+    width = (r_hi - (R_LO - MARGIN * (R_HI - R_LO))) / SETTLE_STEPS  # one step
     inside = engine_of(cal).run("s1", [0.0, 1.0], [r_hi - width, r_hi]).strain
     slope = (inside[1] - inside[0]) / width
     t = np.arange(5) * 0.1

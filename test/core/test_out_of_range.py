@@ -16,7 +16,7 @@ from conftest import R_HI, R_LO, S_HI, S_LO, calibration_of, cubic_cal, engine_o
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.engine import Engine
-from strain_comp.core.range_policy import DEFAULT_OUT_OF_RANGE, RANGE
+from strain_comp.core.range_policy import DEFAULT_OUT_OF_RANGE, EXTEND_REACH, EXTEND_SLOPE, MARGIN
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import fit_sensor
 
@@ -82,8 +82,8 @@ def test_past_a_resistance_peak_the_extension_does_not_run_away() -> None:
 
 def test_a_steep_end_is_held_to_twice_the_secant_and_the_reach() -> None:
     """A map whose end slope is far steeper than its secant (the end-slope runaway):
-    the extension beyond the top uses ``RANGE.extend_slope[1]`` x the secant and stops at
-    ``RANGE.extend_reach`` strain spans above the range, where ``extrapolate`` keeps going."""
+    the extension beyond the top uses ``EXTEND_SLOPE[1]`` x the secant and stops at
+    ``EXTEND_REACH`` strain spans above the range, where ``extrapolate`` keeps going."""
     # S = -12 + 0.56 (R - 100) + k (R - 100)^2 (R - 200), written as a cubic in R
     k = 2e-4
     c = np.polynomial.polynomial.polyadd(
@@ -92,16 +92,16 @@ def test_a_steep_end_is_held_to_twice_the_secant_and_the_reach() -> None:
     cal = cubic_cal(params={"c": c.tolist()}, valid_range=ValidRange(R_LO, R_HI, -12.0, 44.0))
     engine = engine_of(cal, out_of_range="extend")
     span = R_HI - R_LO
-    r_top, r_bottom = R_HI + RANGE.margin * span, R_LO - RANGE.margin * span  # the flag's edges
+    r_top, r_bottom = R_HI + MARGIN * span, R_LO - MARGIN * span  # the flag's edges
     cubic = np.polynomial.polynomial.Polynomial(c)
     secant = (cubic(r_top) - cubic(r_bottom)) / (r_top - r_bottom)
     end = cubic.deriv()(r_top)
     out = engine.run("s1", [0.0, 0.1, 0.2], [r_top, r_top + 10.0, r_top + 1000.0]).strain
     slope = (out[1] - out[0]) / 10.0
-    assert end > 2.0 * RANGE.extend_slope[1] * secant
-    assert slope == pytest.approx(RANGE.extend_slope[1] * secant)
-    assert out[0] == pytest.approx(min(cubic(r_top), 44.0 + RANGE.margin * 56.0))
-    assert out[2] == pytest.approx(44.0 + RANGE.extend_reach * 56.0)
+    assert end > 2.0 * EXTEND_SLOPE[1] * secant
+    assert slope == pytest.approx(EXTEND_SLOPE[1] * secant)
+    assert out[0] == pytest.approx(min(cubic(r_top), 44.0 + MARGIN * 56.0))
+    assert out[2] == pytest.approx(44.0 + EXTEND_REACH * 56.0)
     runaway = engine_of(cal, out_of_range="extrapolate").run("s1", [0.0], [r_top + 1000.0])
     assert runaway.strain[0] > 10.0 * out[2]
 
@@ -154,20 +154,20 @@ def test_an_array_on_the_fused_kernel_extends_as_each_sensor_alone() -> None:
     assert fused.health()["a"].n_out_of_range > 5
 
 
-def test_a_range_policy_passed_in_sets_the_limits() -> None:
-    """``SensorRange.build`` under a policy with another margin and reach: the flag's edges
-    widened by that share of the span, the extension reaching that many strain spans above
-    the calibrated strain (the definitions, docs/design.md "Out of range")."""
-    from dataclasses import replace
-
-    from strain_comp.core.range_policy import SensorRange
+def test_the_margin_and_reach_set_the_limits(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``SensorRange.build`` with another margin and reach (read when called, as
+    studies/policy_ablation.py sets them): the flag's edges widened by that share of the
+    span, the extension reaching that many strain spans above the calibrated strain (the
+    definitions, docs/design.md "Out of range")."""
+    from strain_comp.core import range_policy
 
     cal = cubic_cal()
     vr = cal.valid_range
-    policy = replace(RANGE, margin=0.1, extend_reach=0.5)
-    limits = SensorRange.build(cal, "extend", policy=policy)
+    default_reach = range_policy.SensorRange.build(cal, "extend").reach[1]
+    assert default_reach == pytest.approx(vr.s_hi + EXTEND_REACH * (vr.s_hi - vr.s_lo))
+    monkeypatch.setattr(range_policy, "MARGIN", 0.1)
+    monkeypatch.setattr(range_policy, "EXTEND_REACH", 0.5)
+    limits = range_policy.SensorRange.build(cal, "extend")
     assert limits.r_hi == pytest.approx(vr.r_hi + 0.1 * (vr.r_hi - vr.r_lo))
     assert limits.s_lo == pytest.approx(vr.s_lo - 0.1 * (vr.s_hi - vr.s_lo))
     assert limits.reach[1] == pytest.approx(vr.s_hi + 0.5 * (vr.s_hi - vr.s_lo))
-    assert SensorRange.build(cal, "extend").reach[1] == pytest.approx(
-        vr.s_hi + RANGE.extend_reach * (vr.s_hi - vr.s_lo))

@@ -6,9 +6,9 @@ so the calibrations carry a real valid range and direction settings. Hypothesis 
 draws irregular but increasing times and positive resistances, and checks:
 
 * the engine's strain is finite and inside the calibration's strain range widened by
-  ``RANGE.margin`` (NaN only before the first sample the engine uses);
+  ``MARGIN`` (NaN only before the first sample the engine uses);
 * the bare compensator is finite for every resistance the engine may feed it
-  (between the short and open-circuit limits, ``RANGE.short_factor`` / ``RANGE.open_factor``);
+  (between the short and open-circuit limits, ``SHORT_FACTOR`` / ``OPEN_FACTOR``);
 * batch equals streaming, for the models (``run`` vs ``step``) and the engine, to 1e-9;
 * ``reset`` restores the initial state (the same output as a fresh object);
 * the direction detector stays at 0 when |dR/dt| stays below its dead zone.
@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from strain_comp.core.direction import DirectionDetector, DirectionSettings
 from strain_comp.core.engine import Engine
-from strain_comp.core.range_policy import RANGE
+from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.models import MODEL_NAMES
 
 GAP_RESET = 5.0
@@ -60,7 +60,7 @@ def model_input(draw: st.DrawFn, *, wide: bool) -> tuple[str, np.ndarray, np.nda
     else:
         u = draw(st.lists(st.floats(-0.5, 1.5), min_size=n, max_size=n))
         r = vr.r_lo + np.array(u) * (vr.r_hi - vr.r_lo)
-        r = np.maximum(r, RANGE.short_factor * vr.r_lo)
+        r = np.maximum(r, SHORT_FACTOR * vr.r_lo)
     return model, t, r
 
 
@@ -94,7 +94,7 @@ def fed_input(draw: st.DrawFn) -> tuple[str, np.ndarray, np.ndarray]:
     n = draw(st.integers(1, 60))
     t = draw(increasing_times(n, max_dt=GAP_RESET))
     vr = fitted(model).valid_range
-    lo, hi = math.log10(RANGE.short_factor * vr.r_lo), math.log10(RANGE.open_factor * vr.r_hi)
+    lo, hi = math.log10(SHORT_FACTOR * vr.r_lo), math.log10(OPEN_FACTOR * vr.r_hi)
     exponents = draw(st.lists(st.floats(lo, hi), min_size=n, max_size=n))
     return model, t, 10.0 ** np.array(exponents)
 
@@ -135,7 +135,7 @@ def engine_stream(draw: st.DrawFn) -> tuple[str, np.ndarray, np.ndarray]:
     vr = fitted(model).valid_range
     kinds = draw(st.lists(st.integers(0, 12), min_size=n, max_size=n))
     bad = {0: math.nan, 1: math.inf, 2: -math.inf, 3: 0.0, 4: -5.0,
-           5: 1e3 * RANGE.open_factor * vr.r_hi, 6: 0.1 * RANGE.short_factor * vr.r_lo}
+           5: 1e3 * OPEN_FACTOR * vr.r_hi, 6: 0.1 * SHORT_FACTOR * vr.r_lo}
     r, t = r.copy(), t.copy()
     for i, kind in enumerate(kinds):
         if kind in bad:

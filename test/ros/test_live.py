@@ -11,7 +11,7 @@ import pytest
 from conftest import S_HI, S_LO, cubic_cal
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.tare import TARE, rest_resistance_at_start, tare_engine
+from strain_comp.core.tare import REST_WINDOW, rest_resistance_at_start, tare_engine
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.multiarray import array_values
 from strain_comp.ros.clock_gate import ClockGate
@@ -88,7 +88,7 @@ def test_tare_takes_the_recent_median_all_or_nothing(tmp_path: Path) -> None:
 
 def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
     node = live(tmp_path, tare="auto")
-    t = np.arange(0.0, TARE.window + 0.5, 0.01)
+    t = np.arange(0.0, REST_WINDOW + 0.5, 0.01)
     for ti in t:
         node.on_sensor("s1", float(ti), 140.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
@@ -98,10 +98,10 @@ def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
 
 
 def test_auto_tare_at_1_khz_reads_the_whole_window_as_offline(tmp_path: Path) -> None:
-    """At 1 kHz the ``TARE.window`` holds 5000 samples, more than the ``~/tare`` ring: the
+    """At 1 kHz the ``REST_WINDOW`` holds 5000 samples, more than the ``~/tare`` ring: the
     node still takes the rest level from the whole window, exactly as ``--tare auto``."""
     node = live(tmp_path, tare="auto")
-    t = np.arange(0.0, TARE.window + 0.2, 0.001)
+    t = np.arange(0.0, REST_WINDOW + 0.2, 0.001)
     r = np.where(t < 2.5, 140.0, 140.3) + 0.1 * np.random.default_rng(1).standard_normal(t.size)
     for ti, ri in zip(t, r, strict=True):
         node.on_sensor("s1", float(ti), float(ri))
@@ -131,7 +131,7 @@ def test_auto_tare_declines_a_run_that_starts_moving_and_never_tares_later(
     """A ramp from the first sample, then a long hold under load: no zero is taken (the
     offline rule declines the same samples), and the log says why."""
     node = live(tmp_path, tare="auto")
-    t = np.arange(0.0, 3.0 * TARE.window, 0.01)
+    t = np.arange(0.0, 3.0 * REST_WINDOW, 0.01)
     r = 140.0 + 60.0 * np.minimum(t, 1.0)
     for ti, ri in zip(t, r, strict=True):
         node.on_sensor("s1", float(ti), float(ri))
@@ -159,7 +159,7 @@ def test_auto_tare_of_a_rest_outside_the_calibrated_range_is_the_offline_one(
     """A rest at 60 ohm below a 100-200 ohm range (every sample flagged out of range, still
     fed to the model): the node tares it as ``--tare auto`` does offline, and ``~/tare``
     takes it too."""
-    t = np.arange(0.0, TARE.window + 0.5, 0.01)
+    t = np.arange(0.0, REST_WINDOW + 0.5, 0.01)
     r = 60.0 + 0.05 * np.random.default_rng(2).standard_normal(t.size)
     node = live(tmp_path, tare="auto")
     for ti, ri in zip(t, r, strict=True):
@@ -177,7 +177,7 @@ def test_auto_tare_of_a_rest_outside_the_calibrated_range_is_the_offline_one(
 
 def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) -> None:
     """An array whose second sensor never gives a usable sample: the first is tared after
-    ``TARE.window``, the second stays pending, and the start log keeps no more than a few
+    ``REST_WINDOW``, the second stays pending, and the start log keeps no more than a few
     hundred samples however long the input runs."""
     from strain_comp.core.calibration_file import save_calibration
 
@@ -201,7 +201,7 @@ def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
         node.on_sensor("s1", float(ti), 140.0)
     node.tare()
     assert not node.taring.start
-    for ti in np.arange(1.0, 2.0 * TARE.window, 0.01):
+    for ti in np.arange(1.0, 2.0 * REST_WINDOW, 0.01):
         node.on_sensor("s1", float(ti), 120.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
     assert not node.taring.log and not node.taring.start
