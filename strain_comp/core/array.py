@@ -32,7 +32,7 @@ from strain_comp.core.outputs import ArrayOutput, SensorOutput
 from strain_comp.core.samples import USED_CODE, Status, screen_one
 from strain_comp.core.sensor import Latest, Pending, SensorState
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
-from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma
+from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_one
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
 from strain_comp.models.apl_array import APLArray
@@ -121,7 +121,8 @@ def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
                                            par[k, _TAU]) * par[k, _SIGN]
     held[k, _STRAIN] = bound(ohm, estimate, par[k, _RANGE:])
     if par[k, _BAND] > 0.0:
-        features_one(t, held[k, _DIRECTION], ohm, estimate, band[k], par[k, _RANGE:], x)
+        features_one(t, held[k, _DIRECTION], ohm, held[k, _STRAIN], band[k], par[k, _RANGE:],
+                     x)
         held[k, _STD] = sigma(x, par[k, _WEIGHTS:])
     held[k, _LAST_GOOD_T] = t
 
@@ -319,6 +320,10 @@ class ArrayGroup:
                 self.held[i:i + 1, _DIRECTION].astype(np.int8), np.array([math.nan]),
                 self.latest, nbrs)
             self.held[i, _STRAIN] = bound(float(ohm[0]), float(strain[0]), s.limits.row)
+            if s.weights is not None:  # again on the corrected strain (the same state)
+                self.held[i, _STD] = std_one(t, self.held[i, _DIRECTION], float(ohm[0]),
+                                             self.held[i, _STRAIN], self.band[i],
+                                             s.limits.row, s.weights)
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``fused``)."""

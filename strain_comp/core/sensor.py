@@ -267,7 +267,7 @@ class SensorState:
                                               np.array([temperature]), latest, nbrs)[0])
         strain = bound(ohm, strain, self.limits.row)
         if self.weights is not None:
-            self.std = std_one(t, direction, ohm, p.strain, self.band, self.limits.row,
+            self.std = std_one(t, direction, ohm, strain, self.band, self.limits.row,
                                self.weights)
         h = self.health
         self.last_good_t = t
@@ -325,13 +325,6 @@ class SensorState:
         """``run``'s second stage: effect terms, range, held outputs and counters."""
         t, status, reset, last_good_t, idx = p.t, p.status, p.reset, p.last_good_t, p.idx
         strain_used, dir_used = p.strain_used, p.dir_used
-        std = None
-        if self.weights is not None:
-            std_used = std_run(t[idx], dir_used, p.ohm[idx], strain_used, self.band,
-                               self.limits.row, self.weights)
-            std = hold(status, reset, idx, std_used, dir_used, self.std, self.direction)[0]
-            if idx.size:
-                self.std = float(std_used[-1])
         if self.cal.effects and idx.size:
             nbrs = {n: v[idx] for n, v in neighbours.items()}
             starts = p.bounds[1:-1]  # a reset at the first sample resets at once
@@ -340,6 +333,13 @@ class SensorState:
             strain_used = self.apply_effects(t[idx], p.ohm[idx], strain_used, dir_used, temp,
                                              latest, nbrs, starts)
         strain_used = bound_all(p.ohm[idx], strain_used, self.limits.row)
+        std = None
+        if self.weights is not None:
+            std_used = std_run(t[idx], dir_used, p.ohm[idx], strain_used, self.band,
+                               self.limits.row, self.weights)
+            std = hold(status, reset, idx, std_used, dir_used, self.std, self.direction)[0]
+            if idx.size:
+                self.std = float(std_used[-1])
         strain, direction, out_of_range, counts = hold(
             status, reset, idx, strain_used, dir_used, self.strain, self.direction)
         h = self.health

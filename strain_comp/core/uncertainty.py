@@ -5,7 +5,7 @@ per sensor a log-linear variance model, log sigma^2 = w . x, over what the engin
 each used sample (``FEATURES``): the direction (loading, unloading, hold), the time since
 the direction last changed, how far the resistance lies outside the calibrated range, the
 time since the session started (the engine's first sample, a reset, a reload, a span or a
-session start) and the strain level. ``features_one`` is the one place these are computed:
+session start) and the published strain's level. ``features_one`` is the one place these are computed:
 ``Engine.step`` calls it through ``std_one``, ``Engine.run`` through ``std_run``, the
 learner through ``features_run``, and the array tick (``strain_comp.core.array``) inside
 its kernel, so every path gives the same numbers. A calibration without it gives no band (NaN).
@@ -26,7 +26,7 @@ FEATURES = ("bias", "loading", "unloading", "hold", "outside", "elapsed", "level
 """The regressors of log sigma^2, in order: 1; direction +1; direction -1; ln(1 + seconds
 since the direction last changed); the resistance's distance beyond the calibrated range
 (margins included) in spans of that range; ln(1 + minutes since the session started); the
-clamped model estimate's place in the calibrated strain range (0 at its bottom, 1 at its
+published estimate's place in the calibrated strain range (0 at its bottom, 1 at its
 top)."""
 N_FEATURES = len(FEATURES)
 STATE_SIZE = 3
@@ -78,7 +78,7 @@ def features_one(t: float, direction: float, ohm: float, strain: float, state: n
         t: Time [s].
         direction: The published direction (+1, 0, -1).
         ohm: The resistance the model read.
-        strain: The model's estimate before the effect terms.
+        strain: The published estimate.
         state: The sensor's ``STATE_SIZE`` state.
         row: The sensor's range row (``strain_comp.core.stages.RANGE_COLUMNS``).
         out: ``N_FEATURES`` values, written.
@@ -127,7 +127,7 @@ def std_one(t: float, direction: float, ohm: float, strain: float, state: np.nda
         t: Time [s].
         direction: The published direction.
         ohm: The resistance the model read.
-        strain: The model's estimate before the effect terms.
+        strain: The published estimate.
         state: The sensor's state, updated in place.
         row: The sensor's range row.
         weights: Its weights.
@@ -150,7 +150,7 @@ def features_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: 
         t: Time [s] per used sample.
         direction: The published direction per used sample.
         ohm: The resistance the model read per used sample.
-        strain: The model's estimate before the effect terms per used sample.
+        strain: The published estimate per used sample.
         state: The sensor's state, updated in place.
         row: The sensor's range row.
 
@@ -173,7 +173,7 @@ def std_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.nd
         t: Time [s] per used sample.
         direction: The published direction per used sample.
         ohm: The resistance the model read per used sample.
-        strain: The model's estimate before the effect terms per used sample.
+        strain: The published estimate per used sample.
         state: The sensor's state, updated in place.
         row: The sensor's range row.
         weights: Its weights.
