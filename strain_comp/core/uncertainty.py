@@ -5,8 +5,8 @@ per sensor a log-linear variance model, log sigma^2 = w . x, over what the engin
 each used sample (``FEATURES``): the direction (loading, unloading, hold), the time since
 the direction last changed, how far the resistance lies outside the calibrated range, the
 time since the session started (the engine's first sample, a reset, a reload, a span or a
-session start) and the published strain's level. ``features_one`` is the one place these are computed:
-``Engine.step`` calls it through ``std_one``, ``Engine.run`` through ``std_run``, the
+session start) and the published strain's level. ``features_one`` is the one place these
+are computed: ``Engine.step`` calls it through ``std_one``, ``Engine.run`` through ``std_run``, the
 learner through ``features_run``, and the array tick (``strain_comp.core.array``) inside
 its kernel, so every path gives the same numbers. A calibration without it gives no band (NaN).
 """

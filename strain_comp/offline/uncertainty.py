@@ -32,7 +32,7 @@ from strain_comp.core.uncertainty import (
     new_state,
 )
 from strain_comp.io.recording import Recording
-from strain_comp.offline.recalibrate import forms_of, session_start
+from strain_comp.offline.recalibrate import Window, forms_of, session_start
 from strain_comp.offline.session_window import first_cycle, second_cycle
 
 RIDGE = 1e-3
@@ -41,19 +41,24 @@ bias: a feature that never varies in the runs left out (no sample outside the ra
 weight 0 instead of an arbitrary one."""
 
 
-def start_run(calibration: Calibration, recordings: Mapping[str, Recording]) -> Calibration:
+def start_run(calibration: Calibration, recordings: Mapping[str, Recording],
+              window: Window | None = None) -> Calibration:
     """The session start a user makes on a run (the README's: the second stretch after a
-    warm-up one, else the first; ``strain_comp.diagnosis.session.warmup_start``'s rule).
-    The one call to swap for the ``start`` command's function.
+    warm-up one, else the first; ``strain_comp.diagnosis.session.warmup_start``'s rule), or
+    on the stretch ``window`` (the live ``~/start``'s, recorded from its call to the
+    stretch's return). The one call to swap for the ``start`` command's function.
 
     Args:
         calibration: The calibration fitted without this run.
         recordings: The run's recordings by sensor name (with references).
+        window: (START, END) [s] after the run's start of the stretch to read; None: found.
 
     Returns:
         The calibration after the steps the run allows (as given where none).
 
     """
+    if window is not None:
+        return session_start(calibration, recordings, window).calibration
     refs = [rec for name, rec in recordings.items()
             if name in calibration.sensors and rec.s is not None]
     if not refs:
