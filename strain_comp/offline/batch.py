@@ -404,7 +404,7 @@ def to_json(outcomes: Sequence[BagOutcome]) -> dict[str, Any]:
     for outcome in outcomes:
         bags[outcome.bag] = ({"error": outcome.error} if outcome.result is None
                              else outcome.result.to_json())
-    pooled = {}
+    pooled: dict[str, dict[str, Any]] = {}
     for name, (acc, n_bags, model, unit) in aggregate(outcomes).items():
         pooled[name] = {**acc.stats().to_dict(), "n_bags": n_bags, "model": model,
                         "unit": unit}

@@ -136,7 +136,8 @@ def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
 
     def hess(w: np.ndarray) -> np.ndarray:
         q = e2 * np.exp(-np.clip(x @ w, -700.0, 700.0))
-        return 0.5 * (x.T * (weight * q)) @ x + np.diag(ridge)
+        out: np.ndarray = 0.5 * (x.T * (weight * q)) @ x + np.diag(ridge)
+        return out
 
     w = minimize(nll, w0, jac=True, hess=hess, method="trust-exact").x
     ratio = np.sqrt(e2) / np.exp(0.5 * np.clip(x @ w, -700.0, 700.0))
