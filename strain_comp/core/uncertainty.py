@@ -64,7 +64,12 @@ class Uncertainty:
 
 
 def new_state() -> np.ndarray:
-    """A sensor's state before its first used sample."""
+    """A sensor's state before its first used sample.
+
+    Returns:
+        ``STATE_SIZE`` NaNs.
+
+    """
     return np.full(STATE_SIZE, np.nan)
 
 

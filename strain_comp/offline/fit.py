@@ -199,9 +199,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = True
                ) -> SensorCalibration:
     """Fit ``model`` to one sensor's recordings (each with a reference strain). Several runs
-    are pooled in one input space (``pool``, ``strain_comp.offline.pool``) and, with
-    ``band``, the uncertainty of every estimate is learned by leaving each run out
-    (``learned_band``).
+    are pooled in one input space (``pool``, ``strain_comp.offline.pool``); ``band``:
+    their uncertainty learned by leaving each run out (``learned_band``).
 
     Args:
         recordings: The sensor's runs.
@@ -214,8 +213,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         budget: Good samples above which the model is fitted on a reduction (module
             docstring, Long runs).
         pool: ``spanned`` or ``raw``.
-        band: Learn the uncertainty from two runs or more (the fits of the runs left out
-            learn none).
+        band: Learn the uncertainty from two runs or more (not in the folds' own fits).
 
     Returns:
         The sensor's calibration.
@@ -226,9 +224,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
         InputError: An unknown pool, or a bad option.
 
     """
-    options = dict(options or {})
-    cls = model_class(model)
-    runs = list(recordings)
+    options, cls, runs = dict(options or {}), model_class(model), list(recordings)
     pooled = pool_runs(recordings, pool, name, options)
     recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
     interval = slow_sample_interval(recordings)
@@ -276,12 +272,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
            if factor > 1 else {}),
         **({"memory": memory} if memory else {}))
     if band and len(runs) >= 2:
-        calibration.uncertainty = learned_band(runs, model, name=name, options=options,
-                                               budget=budget, pool=pool)
+        calibration.uncertainty = learned_band(runs, model, name, options, budget, pool)
     return calibration
 
 
-def learned_band(runs: Sequence[Recording], model: str, *, name: str,
+def learned_band(runs: Sequence[Recording], model: str, name: str,
                  options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
     """The uncertainty of ``fit_sensor``'s calibration: ``model`` fitted on all runs but
     one as ``fit_sensor`` fits it, started on the one left out (``start_run``), every run

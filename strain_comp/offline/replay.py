@@ -296,8 +296,8 @@ class _Replay:
                     self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
             if any(outs[s].std is not None for s in inp.sensors):
-                std = np.stack([np.full(t.size, np.nan) if outs[s].std is None
-                                else outs[s].std for s in inp.sensors], axis=1)
+                std = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None else v
+                                for s in inp.sensors], axis=1)
                 self.out.write_float64_array(f"/{inp.name}/{BAND[0]}", t, std, inp.sensors)
                 self.out.write_joint_state(f"/{inp.name}/{BAND[1]}", t, inp.sensors, std)
         else:

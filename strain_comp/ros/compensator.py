@@ -64,7 +64,7 @@ Handler = Callable[[str, int, Any, list[Publisher]], None]
 """A resistance handler: (input name, stamp [ns], message, its publishers)."""
 
 
-def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """The ParameterDescriptor of a ``ParamSpec``: a fixed type (a refused set never changes
     it), the range, the description, read-only."""
     kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
@@ -80,20 +80,26 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
 
 
 def send(publisher: Publisher, message: Callable[[], Any]) -> None:
-    """Build (``message()``) and publish a message only when a subscription is matched: at
-    1 kHz the building and serialising of an unread output is most of the node's CPU."""
+    """Build and publish a message only when a subscription is matched: at 1 kHz the
+    building and serialising of an unread output is most of the node's CPU.
+
+    Args:
+        publisher: The output's publisher.
+        message: Builds the message.
+
+    """
     if publisher.get_subscription_count():
         publisher.publish(message())
 
 
-def one_line(error: BaseException) -> str:
+def _one_line(error: BaseException) -> str:
     """An error's message on one line (its type's name when it has none)."""
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def internal(error: BaseException) -> str:
+def _internal(error: BaseException) -> str:
     """A program error as a service answers it."""
-    return (f"internal error: {type(error).__name__}: {one_line(error)} (a bug: the node's "
+    return (f"internal error: {type(error).__name__}: {_one_line(error)} (a bug: the node's "
             "log has the traceback)")
 
 
@@ -189,7 +195,7 @@ class CompensatorNode(Node):
         self.live.fault(name, error)
         logger(self).error(
             f"{name}: program error (a bug, not the message): {type(error).__name__}: "
-            f"{one_line(error)}\n" + "".join(traceback.format_exception(error)).rstrip(),
+            f"{_one_line(error)}\n" + "".join(traceback.format_exception(error)).rstrip(),
             throttle_duration_sec=LOG_THROTTLE_S)
 
     def _guarded(self, name: str, act: Callable[[], None]) -> None:
@@ -249,12 +255,12 @@ class CompensatorNode(Node):
         """Declare a parameter with its fixed type; an empty (or, from a dump, null) list
         stays a string array (rclpy would infer BYTE_ARRAY from [])."""
         if spec.type == "string_array" and not value:
-            self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, descriptor(spec),
+            self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, _descriptor(spec),
                                    ignore_override=True)
             self._parameters[spec.name] = parameter(spec.name, Parameter.Type.STRING_ARRAY, [])
         else:
             self.declare_parameter(spec.name, float(value) if spec.type == "double"
-                                   else value, descriptor(spec), ignore_override=True)
+                                   else value, _descriptor(spec), ignore_override=True)
 
     def _integers_as_doubles(self, params: list[Parameter]) -> list[Parameter]:
         """``ros2 param set deadzone_scale 2``: an integer for a double tunable is set as a
@@ -400,10 +406,10 @@ class CompensatorNode(Node):
             response.success = True
             logger(self).info(response.message)
         except StrainCompError as err:
-            response.success, response.message = False, one_line(err)
+            response.success, response.message = False, _one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault(service, err)
-            response.success, response.message = False, internal(err)
+            response.success, response.message = False, _internal(err)
         return response
 
     def _tare(self, request: Any, response: Any) -> Any:
@@ -442,12 +448,12 @@ class CompensatorNode(Node):
             params = parse_values(self.flat, base_dir=self.base_dir)
             current.check_successor(params)
         except (StrainCompError, OSError) as err:  # the files' fault: the answer's reason
-            self._refused_reload(one_line(err))
+            self._refused_reload(_one_line(err))
             response.success, response.message = False, self.calibration_status[1]
             return response
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault("~/reload_calibration", err)
-            self._refused_reload(internal(err))
+            self._refused_reload(_internal(err))
             response.success, response.message = False, self.calibration_status[1]
             return response
         self._loading = threading.Thread(target=self._load, args=(current, params),
@@ -470,7 +476,7 @@ class CompensatorNode(Node):
         try:
             outcome = current.successor(params)
         except Exception as err:  # a worker thread: whatever ends the load is its reason
-            outcome = one_line(err)
+            outcome = _one_line(err)
         finally:
             self._loaded = outcome
 
