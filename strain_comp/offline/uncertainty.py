@@ -7,9 +7,11 @@ scored sample of every pair it fits the variance model of
 - reference ~ N(0, exp(w . x)), x the engine's features at the sample (``features_run``),
 each run weighing the same whatever its length; the model is convex in w (a Newton
 solve). A final factor on sigma then makes the 95 % band (+-1.96 sigma) hold 95 % of the
-left-out samples (weighted as in the fit). ``fit`` calls it with the fitted model's own
-leave-one-run-out (``strain_comp.offline.fit``); a caller that already left runs out
-(``fit --model auto``) passes its pairs.
+samples of each run as the band learned on the other runs predicts them (``fit_weights``):
+a band learned in-sample holds less on a new run, whose errors differ from run to run.
+``fit`` calls it with the fitted model's own leave-one-run-out
+(``strain_comp.offline.fit``); a caller that already left runs out (``fit --model auto``)
+passes its pairs.
 """
 
 from __future__ import annotations
@@ -109,14 +111,14 @@ def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]
     return out
 
 
-def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
-    """The weights by maximum likelihood, scaled to a 95 % coverage (module docstring).
+def likelihood_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The weights by maximum likelihood over ``runs`` (module docstring), unscaled.
 
     Args:
         runs: (features, residuals) of each run left out.
 
     Returns:
-        The weights and the factor put on sigma (folded into the bias weight).
+        The weights.
 
     """
     x = np.concatenate([f for f, _ in runs])
@@ -139,11 +141,34 @@ def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
         out: np.ndarray = 0.5 * (x.T * (weight * q)) @ x + np.diag(ridge)
         return out
 
-    w = minimize(nll, w0, jac=True, hess=hess, method="trust-exact").x
-    ratio = np.sqrt(e2) / np.exp(0.5 * np.clip(x @ w, -700.0, 700.0))
+    found: np.ndarray = minimize(nll, w0, jac=True, hess=hess, method="trust-exact").x
+    return found
+
+
+def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
+    """The weights by maximum likelihood over every run, times the factor on sigma that
+    makes the 95 % band hold 95 % of each run's samples as a band learned without that run
+    holds them (each run weighing the same; in-sample with one run): the band is for a
+    run it has not seen.
+
+    Args:
+        runs: (features, residuals) of each run left out.
+
+    Returns:
+        The weights (the factor folded into the bias weight) and the factor.
+
+    """
+    ratios, weights = [], []
+    for j, (x, e) in enumerate(runs):
+        others = [r for k, r in enumerate(runs) if k != j] or runs
+        w = likelihood_weights(others)
+        ratios.append(np.abs(e) / np.exp(0.5 * np.clip(x @ w, -700.0, 700.0)))
+        weights.append(np.full(e.size, 1.0 / max(e.size, 1)))
+    ratio, weight = np.concatenate(ratios), np.concatenate(weights)
     order = np.argsort(ratio)
     cumulative = np.cumsum(weight[order]) / weight.sum()
-    factor = float(ratio[order][np.searchsorted(cumulative, 0.95)]) / Z_95
+    factor = float(ratio[order][min(np.searchsorted(cumulative, 0.95), ratio.size - 1)]) / Z_95
+    w = likelihood_weights(runs)
     w[0] += 2.0 * np.log(max(factor, 1e-150))
     return np.clip(w, -WEIGHT_MAX, WEIGHT_MAX), factor
 
