@@ -167,7 +167,8 @@ def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
     ratio, weight = np.concatenate(ratios), np.concatenate(weights)
     order = np.argsort(ratio)
     cumulative = np.cumsum(weight[order]) / weight.sum()
-    factor = float(ratio[order][min(np.searchsorted(cumulative, 0.95), ratio.size - 1)]) / Z_95
+    at = min(int(np.searchsorted(cumulative, 0.95)), ratio.size - 1)
+    factor = float(ratio[order][at]) / Z_95
     w = likelihood_weights(runs)
     w[0] += 2.0 * np.log(max(factor, 1e-150))
     return np.clip(w, -WEIGHT_MAX, WEIGHT_MAX), factor
