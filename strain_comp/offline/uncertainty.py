@@ -6,9 +6,10 @@ scored sample of every pair it fits the variance model of
 ``strain_comp.core.uncertainty`` by Gaussian maximum likelihood: the residual e = estimate
 - reference ~ N(0, exp(w . x)), x the engine's features at the sample (``features_run``),
 each run weighing the same whatever its length; the model is convex in w (a Newton
-solve). A final factor on sigma then makes the 95 % band (+-1.96 sigma) hold 95 % of the
-samples of each run as the band learned on the other runs predicts them (``fit_weights``):
-a band learned in-sample holds less on a new run, whose errors differ from run to run.
+solve). A final factor on sigma then makes the 95 % band (+-1.96 sigma) hold 95 % of a
+typical run's samples as the band learned on the other runs predicts them (the median over
+the runs, ``fit_weights``): a band learned in-sample holds less on a new run, whose errors
+differ from run to run.
 ``fit`` calls it with the fitted model's own leave-one-run-out
 (``strain_comp.offline.fit``); a caller that already left runs out (``fit --model auto``)
 passes its pairs.
@@ -146,10 +147,10 @@ def likelihood_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
 
 
 def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
-    """The weights by maximum likelihood over every run, times the factor on sigma that
-    makes the 95 % band hold 95 % of each run's samples as a band learned without that run
-    holds them (each run weighing the same; in-sample with one run): the band is for a
-    run it has not seen.
+    """The weights by maximum likelihood over every run, times the factor on sigma a new
+    run needs: for each run, the factor that makes the 95 % band of the weights learned
+    without it hold 95 % of its samples; their median over the runs (robust to one run
+    whose errors no other run foretold; in-sample with one run).
 
     Args:
         runs: (features, residuals) of each run left out.
@@ -158,17 +159,13 @@ def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
         The weights (the factor folded into the bias weight) and the factor.
 
     """
-    ratios, weights = [], []
+    factors = []
     for j, (x, e) in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j] or runs
         w = likelihood_weights(others)
-        ratios.append(np.abs(e) / np.exp(0.5 * np.clip(x @ w, -700.0, 700.0)))
-        weights.append(np.full(e.size, 1.0 / max(e.size, 1)))
-    ratio, weight = np.concatenate(ratios), np.concatenate(weights)
-    order = np.argsort(ratio)
-    cumulative = np.cumsum(weight[order]) / weight.sum()
-    at = min(int(np.searchsorted(cumulative, 0.95)), ratio.size - 1)
-    factor = float(ratio[order][at]) / Z_95
+        ratio = np.abs(e) / np.exp(0.5 * np.clip(x @ w, -700.0, 700.0))
+        factors.append(float(np.quantile(ratio, 0.95)) / Z_95 if ratio.size else np.nan)
+    factor = float(np.nanmedian(factors))
     w = likelihood_weights(runs)
     w[0] += 2.0 * np.log(max(factor, 1e-150))
     return np.clip(w, -WEIGHT_MAX, WEIGHT_MAX), factor
