@@ -65,7 +65,7 @@ class _Kept:
         self.n += size
         take = index % self.stride == 0
         self.index = np.concatenate((self.index, index[take]))
-        for key in self.FIELDS:
+        for key in (k for k in self.FIELDS if k in columns):  # std: only with a band
             new = columns[key][take]
             self.columns[key] = new if key not in self.columns else \
                 np.concatenate((self.columns[key], new))
@@ -107,7 +107,7 @@ class _Score:
             self.kept.add(t=t, r=r, reference=s, estimate=estimate,
                           direction=np.asarray(out.direction), scored=scored,
                           out_of_range=np.asarray(out.out_of_range, bool),
-                          std=np.full(t.size, np.nan) if std is None else std)
+                          **({} if std is None else {"std": std}))
 
     def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
                    ) -> SensorEvaluation:
