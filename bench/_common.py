@@ -12,11 +12,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.models.base import Normalisation
 
 NORM = Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0)
@@ -63,10 +65,19 @@ def sensor(name: str, model: str, rng: np.random.Generator | None = None) -> Sen
                              valid_range=RANGE, direction=DIRECTION)
 
 
-def calibration(names: Sequence[str], models: Sequence[str], *, seed: int = 0) -> Calibration:
-    """One calibration for ``names``, sensor i using ``models[i % len(models)]``."""
+BAND = Uncertainty.from_weights({"bias": -3.0, "loading": 0.4, "unloading": 0.7,
+                                 "hold": -0.2, "outside": 2.0, "elapsed": 0.3, "level": 1.1})
+"""An uncertainty for ``calibration(..., band=True)`` (every feature weighed)."""
+
+
+def calibration(names: Sequence[str], models: Sequence[str], *, seed: int = 0,
+                band: bool = False) -> Calibration:
+    """One calibration for ``names``, sensor i using ``models[i % len(models)]``; with
+    ``band``, each with the uncertainty ``BAND`` (the engine computes every estimate's
+    standard deviation)."""
     rng = np.random.default_rng(seed)
-    return Calibration({name: sensor(name, models[i % len(models)], rng)
+    return Calibration({name: replace(sensor(name, models[i % len(models)], rng),
+                                      uncertainty=BAND if band else None)
                         for i, name in enumerate(names)})
 
 

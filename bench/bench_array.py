@@ -70,12 +70,15 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--baseline-ticks", type=int, default=1000)
     parser.add_argument("--model", choices=("apl", "creep_pi"), default="apl")
+    parser.add_argument("--band", action="store_true",
+                        help="every sensor with an uncertainty (the standard deviation of "
+                             "each estimate computed too)")
     parser.add_argument("--no-gc", action="store_true",
                         help="disable Python's garbage collector during the timed ticks")
     args = parser.parse_args()
     k, ticks = args.sensors, round(args.seconds * 1000)
     names = [f"x{i:03d}" for i in range(k)]
-    cal = calibration(names, [args.model], seed=3)
+    cal = calibration(names, [args.model], seed=3, band=args.band)
     t = np.arange(ticks) * 1e-3
     r = resistance(t, k, seed=4)
 
@@ -126,8 +129,9 @@ def main() -> None:
     base_med = np.median(base_cost) * 1e6
     label = "APL sensors (N=11, M=9)" if args.model == "apl" else "creep_pi sensors"
     kname = type(kernel).__name__
-    print(f"Engine.step_array, {k} {label}, {ticks:,} ticks at 1 kHz "
-          f"({args.seconds:g} s of data){', gc off' if args.no_gc else ''}; {path}")
+    print(f"Engine.step_array, {k} {label}{', with the band' if args.band else ''}, "
+          f"{ticks:,} ticks at 1 kHz ({args.seconds:g} s of data)"
+          f"{', gc off' if args.no_gc else ''}; {path}")
     print(f"  per tick: median {med:.1f} us, p99 {p99:.1f} us, max {worst:.0f} us; "
           f"median uses {med / 10:.1f} % of the 1 ms budget (p99 {p99 / 10:.1f} %); "
           f"{int((us > 1000).sum())} ticks over budget")

@@ -2,6 +2,7 @@
 
     python bench/bench_node_throughput.py [--seconds S] [--rates 1000,2000] [--overload]
                                           [--arrays 256@1000,1024@250] [--arrays-only]
+                                          [--band]
 
 The node (``strain_comp.ros.node``, another process) is pinned to core 1 with taskset; this
 process publishes on core 0 at a fixed rate for S seconds (at most 4500 messages) and counts
@@ -106,7 +107,8 @@ def single_topic(args: argparse.Namespace) -> None:
     echo.terminate()
     echo.wait()
     for executor in ("events", "single_threaded"):
-        node = start_node(calibration(["s1"], ["apl"]), "-p", f"executor:={executor}", cpu=1)
+        node = start_node(calibration(["s1"], ["apl"], band=args.band), "-p",
+                          f"executor:={executor}", cpu=1)
         try:
             for rate in rates:
                 answered, cpu = drive("/s1/resistance", "/s1/strain", "single", 1, rate,
@@ -137,6 +139,9 @@ def main() -> None:
                         help="array sizes and rates, K@HZ,...")
     parser.add_argument("--arrays-only", action="store_true",
                         help="skip the single-topic and echo runs")
+    parser.add_argument("--band", action="store_true",
+                        help="calibrations with an uncertainty: the node computes every "
+                             "estimate's standard deviation (compare with a run without)")
     args = parser.parse_args()
     os.sched_setaffinity(0, {0})
     import rclpy
@@ -152,7 +157,7 @@ def main() -> None:
         k, rate = (float(v) for v in spec.split("@"))
         names = [f"x{i}" for i in range(int(k))]
         start = time.perf_counter()
-        node = start_node(calibration(names, ["apl"]), array="hand", cpu=1)
+        node = start_node(calibration(names, ["apl"], band=args.band), array="hand", cpu=1)
         print(f"{int(k)}-sensor array node: ready {time.perf_counter() - start:.1f} s after "
               "spawn (calibration load, engine build, kernel cache)")
         try:

@@ -123,6 +123,14 @@ def sensors_of(data: Path) -> dict[str, Sensor]:
             if k == "rig" or all((data / r.source).is_file() for r in v.runs)}
 
 
+def another_day(data: Path) -> Sensor:
+    """The thread's session 2 (another day, 10 Hz): the test runs of ``--coverage``'s
+    session 1 -> session 2 rows."""
+    return Sensor("nylon_day2", tuple(Run(k, f"nylon_silver/session2_10Hz/{k}.csv", (
+        "--format", "generic", "--columns", NYLON_COLUMNS, "--scales", "strain=100"))
+        for k in ("sin_20", "sin_40", "tri_20", "tri_30", "mixed_20_30")))
+
+
 def quick(sensor: Sensor) -> Sensor:
     """``--quick``: three runs per sensor."""
     return replace(sensor, runs=sensor.runs[:3])
@@ -299,6 +307,58 @@ def looped(bench: Bench, sensor: Sensor, train: Run, validate: Sequence[Run], mo
                          stretch_history=LOOP["stretch_history"],
                          session_start=LOOP["session_start"])
     return load_calibration(path)
+
+
+def band(rec: Any, cal: Any, log: Callable[[str], None] = print) -> tuple[float, float]:
+    """(RMSE, share of the scored samples inside the 95 % band) of ``cal`` on ``rec`` after
+    the headline session start (``warmup``): ``evaluate``'s ``coverage_95``."""
+    from strain_comp.offline.evaluate import evaluate_recordings
+
+    started = warmup_start(rec, cal, log)[1]
+    ev = evaluate_recordings({rec.name: rec}, started, out_of_range=ENGINE["out_of_range"],
+                             tracking=ENGINE["tracking"]).sensors[rec.name]
+    return float(ev.stats.rmse), math.nan if ev.coverage_95 is None else ev.coverage_95
+
+
+def coverage_table(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str],
+                   day2: Sensor | None) -> tuple[str, list[dict[str, Any]]]:
+    """``--coverage``: every run of every sensor left out of the model fitted on the others
+    (``fit``, which learns the band from its own runs left out), started on it (``warmup``)
+    and scored; with ``day2``, the thread's session-2 runs on the fit of all of session 1.
+    A Markdown table of the coverage per sensor and model, and the rows."""
+    from strain_comp.core.calibration import Calibration
+
+    rows: list[dict[str, Any]] = []
+    for model in models:
+        for sensor in sensors:
+            tests = [(tuple(r for r in sensor.runs if r != test), sensor, test)
+                     for test in sensor.runs]
+            if day2 is not None and sensor.name == "nylon":
+                tests += [(sensor.runs, day2, test) for test in day2.runs]
+            for train, tested, test in tests:
+                cal = bench.fit(sensor, train, model)
+                rec = bench.recording(tested, test)
+                rec = replace(rec, name=sensor.name)
+                error, share = band(rec, Calibration({sensor.name: cal.sensors[sensor.name]}),
+                                    bench.log)
+                rows.append({"sensor": tested.name, "model": model, "test": test.label,
+                             "rmse": error, "coverage_95": share,
+                             "n": int(rec.t.size)})
+                bench.log(f"## band {tested.name} {model} {test.label}: RMSE {error:.3f}, "
+                          f"in 95% {100 * share:.1f}%")
+    lines = ["| sensor | model | runs | coverage of the 95 % band: pooled (min-max over runs) "
+             "| median RMSE |", "|---|---|---:|---|---:|"]
+    keys = list(dict.fromkeys((r["sensor"], r["model"]) for r in rows))
+    for name, model in keys:
+        mine = [r for r in rows if (r["sensor"], r["model"]) == (name, model)]
+        share = np.array([r["coverage_95"] for r in mine])
+        n = np.array([r["n"] for r in mine], float)
+        ok = np.isfinite(share)
+        pooled = float(np.sum(share[ok] * n[ok]) / np.sum(n[ok])) if ok.any() else math.nan
+        lines.append(f"| {name} | {model} | {len(mine)} | {100 * pooled:.1f} % "
+                     f"({100 * np.nanmin(share):.1f}-{100 * np.nanmax(share):.1f}) | "
+                     f"{np.median([r['rmse'] for r in mine]):.2f} |")
+    return "\n".join(lines), rows
 
 
 # --------------------------------------------------------------------------- the benchmark
@@ -616,6 +676,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loop-validate", type=int, default=3, metavar="N",
                         help="the loop validates on the first N runs other than A and B "
                              "(default 3)")
+    parser.add_argument("--coverage", action="store_true",
+                        help="only the uncertainty band: its coverage on every run left out "
+                             "(leave one run out, warmup), and session 1 -> session 2 of "
+                             "the thread")
     parser.add_argument("--refit", action="store_true", help="ignore cached fits")
     parser.add_argument("--jobs", type=int, default=1, metavar="N",
                         help="worker processes, one sensor and model each (default 1)")
@@ -640,6 +704,21 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown or missing sensors {unknown}; present: {list(available)}")
     sensors = [quick(available[n]) if args.quick else available[n] for n in names]
+    if args.coverage:
+        day2 = another_day(args.data)
+        bench = Bench(args.data, args.out, refit=args.refit,
+                      log=(lambda line: None) if args.quiet else
+                      lambda line: print(line, file=sys.stderr))
+        table, rows = coverage_table(bench, sensors, args.models,
+                                     day2 if (args.data / day2.runs[0].source).is_file()
+                                     else None)
+        print(table)
+        path = args.json or args.out / "coverage.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"rows": rows, "seconds": time.perf_counter() - start},
+                                   indent=1) + "\n", encoding="utf-8")
+        print(f"wrote {path} ({time.perf_counter() - start:.0f} s)")
+        return 0
     schemes = list(dict.fromkeys([*args.schemes, *(["loro_raw"] if args.pool_raw else [])]))
     steps = sum(len(s.runs) for s in sensors) * len(args.models) * (1 + len(schemes))
     with bar(steps, "benchmark", enabled=wanted(args.quiet)) as shown:

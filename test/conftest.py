@@ -265,15 +265,17 @@ def changed_run(seconds: float = 300.0) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 ROS_MODULES = frozenset({
     "test_node", "test_node_faults", "test_node_guards", "test_node_process",
-    "test_node_references", "test_ros2_cli",
+    "test_node_references", "test_node_start", "test_ros2_cli",
 })
 """Modules that need rclpy, the ros2 command line or colcon (marked ``ros``; so is any test
 that takes the ``context`` fixture)."""
 
-SLOW_MODULES = frozenset({"test_api_doc", "test_numba_setup", "test_progress"})
+SLOW_MODULES = frozenset({"test_api_doc", "test_live_start", "test_numba_setup",
+                          "test_progress"})
 """Modules whose every test takes about a second or more (marked ``slow``)."""
 
 SLOW_TESTS: dict[str, tuple[str, ...]] = {
+    "test_uncertainty_learn": ("test_fit_learns_a_band_from_several_runs_only",),
     "test_api": (
         "test_diagnose_gives_the_commands_report",
         "test_fit_options_and_unit",

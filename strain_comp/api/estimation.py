@@ -22,12 +22,19 @@ if TYPE_CHECKING:
     from strain_comp.offline.replay import ReplaySummary
 
 
-class Estimate(NamedTuple):
-    """Strain per sample (in the calibration's unit; held over bad samples) and direction
-    (+1 loading, 0 hold, -1 unloading): the node's ``/NAME/strain`` and ``/NAME/direction``."""
-
+class _Pair(NamedTuple):
     strain: np.ndarray
     direction: np.ndarray
+
+
+class Estimate(_Pair):
+    """Strain per sample (in the calibration's unit; held over bad samples) and direction
+    (+1 loading, 0 hold, -1 unloading): the node's ``/NAME/strain`` and ``/NAME/direction``;
+    unpacked as the pair (``strain, direction = sc.estimate(...)``). ``std``: the
+    estimate's standard deviation per sample, the node's ``/NAME/strain_std`` (NaN where
+    the calibration holds no uncertainty)."""
+
+    std: np.ndarray
 
 
 def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *,
@@ -49,7 +56,8 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
         tracking: As ``--baseline-tracking``: ``off``, the only value left.
 
     Returns:
-        Strain in the calibration's unit and direction (+1, 0, -1) per sample.
+        Strain in the calibration's unit and direction (+1, 0, -1) per sample, with the
+        standard deviation per sample as ``.std``.
 
     Raises:
         InputError: The sensor is not in the calibration (or not named when it has
@@ -67,8 +75,11 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
     engine = Engine(cal, out_of_range=out_of_range)
     tare_engine(engine, {name: (rec.t, rec.r)}, tare)
     out = engine.run(name, rec.t, rec.r, rec.temperature)
-    return Estimate(np.asarray(out.strain, dtype=np.float64),
-                    np.asarray(out.direction, dtype=np.int8))
+    result = Estimate(np.asarray(out.strain, dtype=np.float64),
+                      np.asarray(out.direction, dtype=np.int8))
+    result.std = (np.full(result.strain.size, np.nan) if out.std is None
+                  else np.asarray(out.std, dtype=np.float64))
+    return result
 
 
 def _sensor_name(calibration: Calibration, sensor: str | None) -> str:

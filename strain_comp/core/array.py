@@ -32,6 +32,8 @@ from strain_comp.core.outputs import ArrayOutput, SensorOutput
 from strain_comp.core.samples import USED_CODE, Status, screen_one
 from strain_comp.core.sensor import Latest, Pending, SensorState
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
+from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_one
+from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
 from strain_comp.models.apl_array import APLArray
 from strain_comp.models.creep_pi import CreepPIArray
@@ -40,11 +42,13 @@ from strain_comp.models.lift import LiftedArray, kernel
 if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher
 
-# columns of the fused tick's per-sensor parameter table, then the range row (``RANGE_COLUMNS``)
-_GAIN, _R1, _VIN, _R_SHORT, _R_OPEN, _DEADZONE, _TAU, _SIGN, _RANGE = range(9)
-_N_PARAMS = _RANGE + len(RANGE_COLUMNS)
+# columns of the fused tick's per-sensor parameter table, then the range row (``RANGE_COLUMNS``),
+# then the uncertainty weights (``strain_comp.core.uncertainty.FEATURES``)
+_GAIN, _R1, _VIN, _R_SHORT, _R_OPEN, _DEADZONE, _TAU, _SIGN, _BAND, _RANGE = range(10)
+_WEIGHTS = _RANGE + len(RANGE_COLUMNS)
+_N_PARAMS = _WEIGHTS + N_FEATURES
 # columns of its per-sensor held state
-_LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS = range(4)
+_LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS, _STD = range(5)
 
 
 @njit(error_model="numpy", inline="always")
@@ -75,21 +79,27 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
 
 @njit(error_model="numpy", inline="always")
 def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
-                held: np.ndarray, det: np.ndarray, model_out: np.ndarray) -> None:
+                held: np.ndarray, det: np.ndarray, model_out: np.ndarray, band: np.ndarray,
+                x: np.ndarray) -> None:
     """The stages after the model for a used sample of sensor ``k``: the unclamped estimate
-    into ``model_out[k]`` (for the effect terms), the detector, the range bound and the hold
-    (``held[k]``)."""
+    into ``model_out[k]`` (for the effect terms), the detector, the range bound, the
+    standard deviation where the sensor has an uncertainty, and the hold (``held[k]``)."""
     model_out[k] = estimate
     held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                            par[k, _TAU]) * par[k, _SIGN]
     held[k, _STRAIN] = bound(ohm, estimate, par[k, _RANGE:])
+    if par[k, _BAND] > 0.0:
+        features_one(t, held[k, _DIRECTION], ohm, held[k, _STRAIN], band[k], par[k, _RANGE:],
+                     x)
+        held[k, _STD] = sigma(x, par[k, _WEIGHTS:])
     held[k, _LAST_GOOD_T] = t
 
 
 def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
                 held: np.ndarray, counts: np.ndarray, det: np.ndarray, gap: float,
                 model_out: np.ndarray, status: np.ndarray, reset: np.ndarray,
-                state: tuple[np.ndarray, ...], params: tuple[Any, ...]) -> None:
+                band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
+                params: tuple[Any, ...]) -> None:
     """Template: one tick of the array's sensors of one family, around the family's kernel
     (``strain_comp.models.lift``). A gap reset zeroes the sensor's state rows (a sensor at
     rest)."""
@@ -104,7 +114,7 @@ def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
             for rows in state:
                 rows[j, :] = 0.0
         estimate = kernel(j, t, model_read(ohm, par[k, _RANGE:]), *arrays)
-        sensor_back(k, t, ohm, estimate, par, held, det, model_out)
+        sensor_back(k, t, ohm, estimate, par, held, det, model_out, band, x)
 
 
 FAMILIES: tuple[type[LiftedArray], ...] = (APLArray, CreepPIArray)
@@ -165,12 +175,19 @@ class ArrayGroup:
             par[i, _R_SHORT], par[i, _R_OPEN] = s.limits.r_short, s.limits.r_open
             par[i, _TAU] = s.cal.direction.tau
             par[i, _SIGN] = s.cal.direction.sign
-            par[i, _RANGE:] = s.limits.row
+            par[i, _RANGE:_WEIGHTS] = s.limits.row
+            if s.weights is not None:
+                par[i, _BAND] = 1.0
+                par[i, _WEIGHTS:] = s.weights
         par[:, _GAIN] = [s.gain for s in self.sensors]
         self.par = par
-        self.held = np.zeros((k, 4))
+        self.held = np.zeros((k, 5))
         self.held[:, _LAST_GOOD_T] = -math.inf
         self.held[:, _STRAIN] = math.nan
+        self.held[:, _STD] = math.nan
+        self.band = np.full((k, BAND_SIZE), math.nan)
+        self.x = np.empty(N_FEATURES)
+        self.banded = any(s.weights is not None for s in self.sensors)
         self.held[:, _LAST_STATUS] = -1
         self.counts = np.zeros((k, len(Status) + 1), dtype=np.int64)
         self.states = np.zeros((k, STATE_SIZE))
@@ -199,13 +216,14 @@ class ArrayGroup:
         for idx, kern in self.kernels:
             TICKS[type(kern)](t, idx, raw, self.par, self.held, self.counts, self.states,
                               self.gap_reset, self.model_out, self.status, self.reset,
-                              kern.state, kern.params)
+                              self.band, self.x, kern.state, kern.params)
         status = self.status.copy()
         if self.effects:
             self._effects(t, raw)
         return ArrayOutput(self.held[:, _STRAIN].copy(),
                            self.held[:, _DIRECTION].astype(np.int8), status,
-                           status == sc.OUT_OF_RANGE)
+                           status == sc.OUT_OF_RANGE,
+                           self.held[:, _STD].copy() if self.banded else None)
 
     def _loop(self, t: float, raw: np.ndarray) -> ArrayOutput:
         """One tick as the per-sample path of each sensor (cross-talk terms read the
@@ -217,10 +235,12 @@ class ArrayGroup:
         outputs = [p if isinstance(p, SensorOutput) else
                    s.step_finish(p, math.nan, self.latest, bases)
                    for s, p in zip(self.sensors, pending, strict=True)]
+        banded = any(s.weights is not None for s in self.sensors)
         return ArrayOutput(np.array([o.strain for o in outputs]),
                            np.array([o.direction for o in outputs], dtype=np.int8),
                            np.array([o.status for o in outputs], dtype=np.int8),
-                           np.array([o.out_of_range for o in outputs]))
+                           np.array([o.out_of_range for o in outputs]),
+                           np.array([o.std for o in outputs]) if banded else None)
 
     def _effects(self, t: float, raw: np.ndarray) -> None:
         """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""
@@ -239,6 +259,10 @@ class ArrayGroup:
                 self.held[i:i + 1, _DIRECTION].astype(np.int8), np.array([math.nan]),
                 self.latest, nbrs)
             self.held[i, _STRAIN] = bound(float(ohm[0]), float(strain[0]), s.limits.row)
+            if s.weights is not None:  # again on the corrected strain (the same state)
+                self.held[i, _STD] = std_one(t, self.held[i, _DIRECTION], float(ohm[0]),
+                                             self.held[i, _STRAIN], self.band[i],
+                                             s.limits.row, s.weights)
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``fused``)."""

@@ -19,6 +19,7 @@ import numpy.typing as npt
 from strain_comp import __version__
 from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
+from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.errors import ParameterError
 from strain_comp.models import Compensator, Normalisation, model_class
 
@@ -160,6 +161,9 @@ class SensorCalibration:
     that ``GAP_INTERVALS`` of its intervals exceed the default gap (``samples.
     DEFAULT_GAP_RESET``): the engine then resets the state only after a pause of that many
     intervals, not at every sample."""
+    uncertainty: Uncertainty | None = None
+    """The learned standard deviation of every estimate (``strain_comp.core.uncertainty``);
+    None: no band (a file written before it, or a fit on one run)."""
 
     @property
     def input_rest(self) -> float | None:
@@ -184,6 +188,7 @@ class SensorCalibration:
             **({} if self.strain_unit == "%" else {"strain_unit": self.strain_unit}),
             **({} if self.sample_interval is None
                else {"sample_interval": self.sample_interval}),
+            **({} if self.uncertainty is None else {"uncertainty": self.uncertainty.to_dict()}),
             "direction": self.direction.to_dict(),
             "effects": self.effects,
             "provenance": self.provenance,

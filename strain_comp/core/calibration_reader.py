@@ -46,6 +46,7 @@ from strain_comp.core.calibration import (
 from strain_comp.core.chain import DESPIKE_K, PAIR_BRANCHES, STEP_K
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
+from strain_comp.core.uncertainty import FEATURES, WEIGHT_MAX, Uncertainty
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.safe_yaml import LimitError, load_limited
 from strain_comp.models import Normalisation
@@ -132,7 +133,8 @@ class _Reader:
             valid_range=self.valid_range(node, where), direction=self.direction(node, where),
             input=self.input(node.get("input", {"kind": "resistance"}), f"{where}.input"),
             effects=self.effects(name, node, where), provenance=dict(prov),
-            rest_resistance=rest, strain_unit=unit, sample_interval=interval)
+            rest_resistance=rest, strain_unit=unit, sample_interval=interval,
+            uncertainty=self.uncertainty(node.get("uncertainty"), f"{where}.uncertainty"))
         try:
             model = calibration.build_model()
         except ParameterError as err:
@@ -247,6 +249,28 @@ class _Reader:
             raise self.fail(f"{where}.slope", "must not be 0 (a resistance that moves with "
                                               "strain)")
         return rest, slope
+
+    def uncertainty(self, node: Any, where: str) -> Uncertainty | None:
+        """``uncertainty``: absent or null, else ``weights`` naming only ``FEATURES``, each
+        finite within ``WEIGHT_MAX``, and optional counts ``runs`` and ``samples``."""
+        if node is None:
+            return None
+        node = self.mapping(node, where)
+        unknown = sorted(set(node) - {"weights", "runs", "samples"})
+        if unknown:
+            raise self.fail(f"{where}.{unknown[0]}", "unknown key (known: weights, runs, "
+                            "samples)")
+        weights = self.mapping(self.child(node, "weights", where), f"{where}.weights")
+        unknown = sorted(str(k) for k in set(weights) - set(FEATURES))
+        if unknown:
+            raise self.fail(f"{where}.weights.{unknown[0]}",
+                            f"unknown feature (known: {', '.join(FEATURES)})")
+        values = {name: self.number(weights, name, f"{where}.weights", lo=-WEIGHT_MAX,
+                                    hi=WEIGHT_MAX) for name in weights}
+        counts = [0 if node.get(key) is None else
+                  int(self.number(node, key, where, lo=0.0, hi=1e15)) for key in ("runs",
+                                                                                "samples")]
+        return Uncertainty.from_weights(values, *counts)
 
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)

@@ -25,6 +25,30 @@ class ErrorStats:
         return asdict(self)
 
 
+Z_95 = 1.959963984540054
+"""The two-sided 95 % point of the normal distribution: the band is +-Z_95 sigma."""
+
+
+def band_counts(estimate: npt.ArrayLike, reference: npt.ArrayLike, std: npt.ArrayLike
+                ) -> tuple[int, int]:
+    """(pairs with a finite band, those inside it): |S_hat - S| <= ``Z_95`` sigma.
+
+    Args:
+        estimate: The estimated strain S_hat.
+        reference: The reference strain S, same length.
+        std: The estimate's standard deviation sigma, same length.
+
+    Returns:
+        The two counts over the pairs where all three are finite.
+
+    """
+    s_hat, s = np.asarray(estimate, np.float64), np.asarray(reference, np.float64)
+    sigma = np.asarray(std, np.float64)
+    ok = np.isfinite(s_hat) & np.isfinite(s) & np.isfinite(sigma)
+    inside = np.abs(s_hat[ok] - s[ok]) <= Z_95 * sigma[ok]
+    return int(ok.sum()), int(inside.sum())
+
+
 def error_stats(estimate: npt.ArrayLike, reference: npt.ArrayLike) -> ErrorStats:
     """RMSE = sqrt(mean((S_hat - S)^2)) ([Electrolycra] eq. (5)), MAE, max |e| and R^2."""
     s_hat = np.asarray(estimate, dtype=np.float64)
@@ -50,9 +74,16 @@ class ErrorAccumulator:
         self.max_abs = 0.0
         self.mean = 0.0
         self.m2 = 0.0
+        self.n_banded = 0
+        self.n_inside = 0
 
-    def add(self, estimate: npt.ArrayLike, reference: npt.ArrayLike) -> None:
-        """Take in the finite pairs of one piece."""
+    def add(self, estimate: npt.ArrayLike, reference: npt.ArrayLike,
+            std: npt.ArrayLike | None = None) -> None:
+        """Take in the finite pairs of one piece (and the band's counts where ``std``)."""
+        if std is not None:
+            banded, inside = band_counts(estimate, reference, std)
+            self.n_banded += banded
+            self.n_inside += inside
         s_hat = np.asarray(estimate, dtype=np.float64)
         s = np.asarray(reference, dtype=np.float64)
         ok = np.isfinite(s_hat) & np.isfinite(s)
@@ -76,10 +107,14 @@ class ErrorAccumulator:
 
     def merge(self, other: ErrorAccumulator) -> None:
         """Take in everything ``other`` took in (the same pairwise update as ``add``)."""
+        self.n_banded += other.n_banded
+        self.n_inside += other.n_inside
         if not other.n:
             return
         if not self.n:
+            banded, inside = self.n_banded, self.n_inside
             self.__dict__.update(vars(other))
+            self.n_banded, self.n_inside = banded, inside
             return
         total = self.n + other.n
         delta = other.mean - self.mean
@@ -89,6 +124,10 @@ class ErrorAccumulator:
         self.sum_abs += other.sum_abs
         self.max_abs = max(self.max_abs, other.max_abs)
         self.n = total
+
+    def coverage_95(self) -> float | None:
+        """The share of the pairs with a band that lie inside it (None: no band)."""
+        return self.n_inside / self.n_banded if self.n_banded else None
 
     def stats(self) -> ErrorStats:
         """The statistics so far."""

@@ -23,6 +23,9 @@ class SensorOutput:
     resistance: float = math.nan
     """The resistance [ohm] the model read (as ``BatchOutput.resistance``); NaN for a bad
     sample."""
+    std: float = math.nan
+    """The estimate's standard deviation (``strain_comp.core.uncertainty``; held with the
+    strain); NaN where the calibration holds no uncertainty."""
 
 
 @dataclass(frozen=True)
@@ -33,6 +36,9 @@ class ArrayOutput:
     direction: np.ndarray
     status: np.ndarray
     out_of_range: np.ndarray
+    std: np.ndarray | None = None
+    """The standard deviation per sensor (NaN for a sensor without an uncertainty); None
+    when no sensor of the array has one."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +59,9 @@ class BatchOutput:
     corrections: np.ndarray | None = None
     """Where the input corrector removed a spike (``chain.SPIKE``) or confirmed a
     baseline step (``chain.STEP``), else 0; None without a corrector."""
+    std: np.ndarray | None = None
+    """The estimate's standard deviation per sample (held with the strain); None where the
+    calibration holds no uncertainty."""
 
 
 def concatenate(outs: Sequence[BatchOutput]) -> BatchOutput:

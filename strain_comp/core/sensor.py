@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.core import samples as sc
+from strain_comp.core import uncertainty
 from strain_comp.core.calibration import SensorCalibration
 from strain_comp.core.chain import DESPIKE_K, SPIKE, STEP, ChainCorrector, pair_values
 from strain_comp.core.conversion import resistance_to_divider
@@ -43,6 +44,7 @@ from strain_comp.core.stages import (
     range_status,
     screen_batch,
 )
+from strain_comp.core.uncertainty import std_one, std_run
 from strain_comp.errors import InputError
 from strain_comp.models.base import Compensator
 
@@ -113,6 +115,12 @@ class SensorState:
     """Latest used resistance [ohm] (for pair means when the input alternates)."""
     corrector: ChainCorrector | None = None
     """Spike and baseline-step correction when the calibration's input asks for it."""
+    std: float = math.nan
+    """Latest standard deviation of the estimate (NaN: no band in the calibration)."""
+    band: np.ndarray = field(default_factory=uncertainty.new_state)
+    """The uncertainty features' state (``strain_comp.core.uncertainty``)."""
+    weights: np.ndarray | None = None
+    """The calibration's uncertainty weights (None: no band)."""
 
     @classmethod
     def build(cls, cal: SensorCalibration, deadzone_scale: float,
@@ -130,7 +138,8 @@ class SensorState:
         return cls(cal=cal, model=model,
                    detector=DirectionDetector(scaled(cal.direction, deadzone_scale)),
                    limits=limits, effects=EffectTerms.from_dicts(cal.effects),
-                   corrector=_corrector(cal))
+                   corrector=_corrector(cal),
+                   weights=None if cal.uncertainty is None else cal.uncertainty.vector())
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -227,7 +236,7 @@ class SensorState:
         if status not in USED:
             h.count(status)
             h.last_status = status
-            return SensorOutput(self.strain, self.direction, status, False)
+            return SensorOutput(self.strain, self.direction, status, False, std=self.std)
         if reset:
             self.reset_state()
             h.n_gaps += 1
@@ -250,13 +259,17 @@ class SensorState:
                                               np.array([strain]), np.array([direction]),
                                               np.array([temperature]), latest, nbrs)[0])
         strain = bound(ohm, strain, self.limits.row)
+        if self.weights is not None:
+            self.std = std_one(t, direction, ohm, strain, self.band, self.limits.row,
+                               self.weights)
         h = self.health
         self.last_good_t = t
         self.strain, self.direction = strain, direction
         h.count(status)
         h.last_good_t = t
         h.last_status = status
-        return SensorOutput(strain, direction, status, status is Status.OUT_OF_RANGE, ohm)
+        return SensorOutput(strain, direction, status, status is Status.OUT_OF_RANGE, ohm,
+                            self.std)
 
     def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:
@@ -313,6 +326,13 @@ class SensorState:
             strain_used = self.apply_effects(t[idx], p.ohm[idx], strain_used, dir_used, temp,
                                              latest, nbrs, starts)
         strain_used = bound_all(p.ohm[idx], strain_used, self.limits.row)
+        std = None
+        if self.weights is not None:
+            std_used = std_run(t[idx], dir_used, p.ohm[idx], strain_used, self.band,
+                               self.limits.row, self.weights)
+            std = hold(status, reset, idx, std_used, dir_used, self.std, self.direction)[0]
+            if idx.size:
+                self.std = float(std_used[-1])
         strain, direction, out_of_range, counts = hold(
             status, reset, idx, strain_used, dir_used, self.strain, self.direction)
         h = self.health
@@ -328,7 +348,8 @@ class SensorState:
         if p.corrections is not None:
             corrections = np.zeros(t.size, np.int8)
             corrections[idx] = p.corrections
-        return BatchOutput(strain, direction, status, out_of_range, p.ohm, reset, corrections)
+        return BatchOutput(strain, direction, status, out_of_range, p.ohm, reset, corrections,
+                           std)
 
 
 def scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:

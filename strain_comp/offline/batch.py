@@ -41,7 +41,12 @@ from strain_comp.errors import (
 )
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_bag
-from strain_comp.offline.evaluation import EvaluationResult, format_notes, format_table
+from strain_comp.offline.evaluation import (
+    EvaluationResult,
+    coverage_cell,
+    format_notes,
+    format_table,
+)
 from strain_comp.offline.fit import in_run_bound
 from strain_comp.offline.plots import plot_evaluation
 from strain_comp.offline.report_page import evaluation_figures
@@ -290,17 +295,20 @@ def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulato
 
 def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
     """The pooled table: every sensor over every bag it was scored in."""
+    pooled = aggregate(outcomes)
+    banded = any(acc.coverage_95() is not None for acc, *_ in pooled.values())
     header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
-              f"{'max':>9} {'R^2':>8}")
+              f"{'max':>9} {'R^2':>8}" + (f" {'in 95%':>7}" if banded else ""))
     done = sum(o.result is not None for o in outcomes)
     lines = [f"== {done} of {len(outcomes)} bags evaluated: errors pooled over them",
              header, "-" * len(header)]
     units = set()
-    for name, (acc, n_bags, model, unit) in aggregate(outcomes).items():
+    for name, (acc, n_bags, model, unit) in pooled.items():
         st = acc.stats()
         units.add(unit)
         lines.append(f"{name:<16} {model:<11} {n_bags:>4d} {st.n:>8d} {st.rmse:>9.4f} "
-                     f"{st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}")
+                     f"{st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}"
+                     + (coverage_cell(acc.coverage_95()) if banded else ""))
     words = ", ".join(strain_unit_words(u) for u in sorted(units)) or "% strain"
     lines.append(f"errors in {words}, over all samples of all bags together")
     return "\n".join(lines)
@@ -320,8 +328,10 @@ def to_json(outcomes: Sequence[BagOutcome]) -> dict[str, Any]:
     for outcome in outcomes:
         bags[outcome.bag] = ({"error": outcome.error} if outcome.result is None
                              else outcome.result.to_json())
-    pooled = {}
+    pooled: dict[str, dict[str, Any]] = {}
     for name, (acc, n_bags, model, unit) in aggregate(outcomes).items():
         pooled[name] = {**acc.stats().to_dict(), "n_bags": n_bags, "model": model,
                         "unit": unit}
+        if acc.coverage_95() is not None:
+            pooled[name]["coverage_95"] = acc.coverage_95()
     return {"bags": bags, "aggregate": {"sensors": pooled}}

@@ -37,7 +37,7 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion, check_every
-from strain_comp.core.metrics import error_stats
+from strain_comp.core.metrics import band_counts, error_stats
 from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
@@ -57,6 +57,7 @@ from strain_comp.offline.evaluation import (
 )
 
 if TYPE_CHECKING:
+    from strain_comp.core.outputs import BatchOutput
     from strain_comp.offline.series import SeriesCSV
 
 PLOT_POINTS = 50_000
@@ -106,7 +107,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
             bad_by_status=bad_by_status, unit=cal.strain_unit,
             out_of_range=np.asarray(out.out_of_range, bool), input_unit=input_unit(cal),
             input_gain=engine.input_gain(name),
-            references=fusion_state(fused))
+            references=fusion_state(fused), **band_of(out, estimate, s, scored))
         if rec.temperature is None:
             notes += temperature_missing(name, calibration.sensors[name])
         notes += crosstalk_off_tick(name, cal, {
@@ -115,6 +116,26 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     if not sensors:
         raise InputError(nothing_scored(calibration, list(recordings)))
     return EvaluationResult(sensors, notes)
+
+
+def band_of(out: BatchOutput, estimate: np.ndarray, reference: np.ndarray,
+            scored: np.ndarray) -> dict[str, Any]:
+    """``SensorEvaluation``'s ``std`` and ``coverage_95`` of a run (none without a band).
+
+    Args:
+        out: The engine's output.
+        estimate: The scored estimate per sample (fused where references are).
+        reference: The reference per sample.
+        scored: The samples scored.
+
+    Returns:
+        The two fields, or nothing.
+
+    """
+    if out.std is None:
+        return {}
+    banded, inside = band_counts(estimate[scored], reference[scored], out.std[scored])
+    return {"std": out.std, "coverage_95": inside / banded if banded else None}
 
 
 def _array_outputs(engine: Any, recordings: Mapping[str, Recording],

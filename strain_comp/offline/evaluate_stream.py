@@ -48,7 +48,7 @@ class _Kept:
     """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
     more, every other kept sample goes and the stride doubles)."""
 
-    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range")
+    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range", "std")
 
     def __init__(self, cap: int) -> None:
         self.cap = cap
@@ -63,7 +63,7 @@ class _Kept:
         self.n += size
         take = index % self.stride == 0
         self.index = np.concatenate((self.index, index[take]))
-        for key in self.FIELDS:
+        for key in (k for k in self.FIELDS if k in columns):  # std: only with a band
             new = columns[key][take]
             self.columns[key] = new if key not in self.columns else \
                 np.concatenate((self.columns[key], new))
@@ -93,7 +93,8 @@ class _Score:
         status = np.asarray(out.status)
         good = used_mask(status)
         scored = good & np.isfinite(s) & np.isfinite(estimate)
-        self.errors.add(estimate[scored], s[scored])
+        std = None if out.std is None else np.asarray(out.std, dtype=np.float64)
+        self.errors.add(estimate[scored], s[scored], None if std is None else std[scored])
         self.n_samples += int(t.size)
         self.n_bad += int(np.sum(~good))
         self.n_out_of_range += int(np.sum(np.asarray(out.out_of_range)))
@@ -103,7 +104,8 @@ class _Score:
         if self.kept is not None:
             self.kept.add(t=t, r=r, reference=s, estimate=estimate,
                           direction=np.asarray(out.direction), scored=scored,
-                          out_of_range=np.asarray(out.out_of_range, bool))
+                          out_of_range=np.asarray(out.out_of_range, bool),
+                          **({} if std is None else {"std": std}))
 
     def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
                    ) -> SensorEvaluation:
@@ -115,7 +117,9 @@ class _Score:
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
             bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
             unit=unit, errors=self.errors,
-            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit)
+            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit,
+            std=kept.get("std") if self.errors.n_banded else np.empty(0),
+            coverage_95=self.errors.coverage_95())
 
 
 @dataclass

@@ -53,6 +53,12 @@ class SensorEvaluation:
     """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
     references: dict[str, Any] | None = None
     """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
+    std: np.ndarray = field(default_factory=lambda: np.empty(0))
+    """The estimate's standard deviation per sample of ``t`` (empty: the calibration holds
+    no uncertainty)."""
+    coverage_95: float | None = None
+    """The share of the scored samples inside the 95 % band (+-1.96 sigma); None without
+    a band."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
@@ -60,6 +66,8 @@ class SensorEvaluation:
         record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
                       n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status,
                       unit=self.unit)
+        if self.coverage_95 is not None:
+            record["coverage_95"] = self.coverage_95
         if self.in_run_rmse is not None:
             record["in_run_rmse"] = _json_number(self.in_run_rmse)
         # docs/design.md's key, kept: baseline tracking was removed, so it never acts
@@ -142,13 +150,15 @@ def nothing_scored(calibration: Calibration, names: list[str]) -> str:
 
 def format_table(result: EvaluationResult) -> str:
     """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
+    banded = any(ev.coverage_95 is not None for ev in result.sensors.values())
     header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
-              f"{'R^2':>8}")
+              f"{'R^2':>8}" + (f" {'in 95%':>7}" if banded else ""))
     lines = [header, "-" * len(header)]
     for name, ev in result.sensors.items():
         st = ev.stats
         lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
-                     f"{st.max_abs:>9.4f} {st.r2:>8.5f}")
+                     f"{st.max_abs:>9.4f} {st.r2:>8.5f}"
+                     + (coverage_cell(ev.coverage_95) if banded else ""))
         if ev.in_run_rmse is not None:
             lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
                          f"{ev.in_run_rmse:.4f}")
@@ -157,8 +167,23 @@ def format_table(result: EvaluationResult) -> str:
     if len(units) > 1:
         words = ", ".join(strain_unit_words(u) + " (" + ", ".join(
             n for n, ev in result.sensors.items() if ev.unit == u) + ")" for u in units)
-    lines.append(f"errors in {words}; RMSE [Electrolycra] eq. (5)")
+    lines.append(f"errors in {words}; RMSE [Electrolycra] eq. (5)"
+                 + ("; in 95%: the scored samples inside the 95 % band (+-1.96 sigma)"
+                    if banded else ""))
     return "\n".join(lines)
+
+
+def coverage_cell(coverage: float | None) -> str:
+    """The table's ``in 95%`` cell: a percentage, ``-`` without a band.
+
+    Args:
+        coverage: The share inside the band, or None.
+
+    Returns:
+        The cell, with its leading space.
+
+    """
+    return f" {'-':>7}" if coverage is None else f" {100.0 * coverage:>6.1f}%"
 
 
 def format_notes(result: EvaluationResult) -> list[str]:

@@ -25,6 +25,9 @@ each have their module:
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
+* **Uncertainty** (``strain_comp.offline.uncertainty``): with two runs or more, the
+  standard deviation of every estimate, learned from the model fitted on all runs but one
+  and started on the one left out, every run in turn (``learned_band``).
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.chain import Alternation, pair_values
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
+from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.errors import CalibrationError, FitError, InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.models import Normalisation, Segment, model_class
@@ -68,6 +72,7 @@ from strain_comp.offline.training import (
     training_segments,
     valid_range,
 )
+from strain_comp.offline.uncertainty import learn, start_run
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -142,7 +147,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
     own = {k: v for k, v in options.items() if k in _DIRECTION_OPTIONS}
 
     def cubic(runs: Sequence[Recording]) -> SensorCalibration:
-        return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
+        return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch", band=False)
 
     space, measured = choose_space(recordings, cubic)
     pooled = pooled_input(recordings, space, joint)
@@ -152,11 +157,12 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
 
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
+               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = True
+               ) -> SensorCalibration:
     """Fit ``model`` to one sensor's recordings (each with a reference strain). Several runs
-    are pooled in one input space (``pool``, ``strain_comp.offline.pool``)."""
-    options = dict(options or {})
-    cls = model_class(model)
+    are pooled in one input space (``pool``, ``strain_comp.offline.pool``); ``band``:
+    their uncertainty learned by leaving each run out (``learned_band``)."""
+    options, cls, runs = dict(options or {}), model_class(model), list(recordings)
     pooled = pool_runs(recordings, pool, name, options)
     recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
     interval = slow_sample_interval(recordings)
@@ -203,7 +209,39 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                               "samples": sum(seg.t.size for seg in fit_segments)}}
            if factor > 1 else {}),
         **({"memory": memory} if memory else {}))
+    if band and len(runs) >= 2:
+        calibration.uncertainty = learned_band(runs, model, name, options, budget, pool)
     return calibration
+
+
+def learned_band(runs: Sequence[Recording], model: str, name: str,
+                 options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
+    """The uncertainty of ``fit_sensor``'s calibration: ``model`` fitted on all runs but
+    one as ``fit_sensor`` fits it, started on the one left out (``start_run``), every run
+    left out in turn (``strain_comp.offline.uncertainty.learn``).
+
+    Args:
+        runs: The sensor's runs (two or more).
+        model: The model's name.
+        name: The sensor's name.
+        options: As ``fit_sensor``.
+        budget: As ``fit_sensor``.
+        pool: As ``fit_sensor``.
+
+    Returns:
+        The uncertainty, None where fewer than two runs could be scored.
+
+    """
+    pairs = []
+    for j, run in enumerate(runs):
+        others = [r for k, r in enumerate(runs) if k != j]
+        try:  # a fold that cannot be fitted (its runs span too little) is left out
+            fitted = Calibration({name: fit_sensor(others, model, name=name, options=options,
+                                                   budget=budget, pool=pool, band=False)})
+        except FitError:
+            continue
+        pairs.append((start_run(fitted, {name: run}), {name: run}))
+    return learn(pairs).get(name)
 
 
 def _fit_budget(options: Mapping[str, Any], budget: int, name: str) -> int:

@@ -1,7 +1,8 @@
 """Evaluation plots (PNG, matplotlib's Agg backend, imported only when plots are asked for).
 
 Per sensor (slashes in NAME become ``_``): ``NAME_time.png`` (estimate and reference
-strain over time, resistance below), ``NAME_loop.png`` (estimate against reference with
+strain over time, with the estimate's 95 % band where the calibration holds an uncertainty,
+resistance below), ``NAME_loop.png`` (estimate against reference with
 the identity line; a perfect compensator lies on it, hysteresis left in the estimate
 shows as a loop), ``NAME_raw.png`` (the recorded resistance against the reference strain,
 what the model inverts, with the calibration's resistance range) and
@@ -20,6 +21,7 @@ from typing import IO, TYPE_CHECKING, TypeVar
 import numpy as np
 
 from strain_comp.core.calibration import strain_unit_words
+from strain_comp.core.metrics import Z_95
 from strain_comp.io.atomic import atomic_output
 
 if TYPE_CHECKING:
@@ -95,6 +97,11 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     top, bottom = fig.subplots(2, 1, sharex=True)
     t = ev.t - ev.t[0] if ev.t.size else ev.t
     outside = _out_of_range(ev)
+    if ev.std.size == t.size and t.size:
+        half = Z_95 * ev.std
+        share = "" if ev.coverage_95 is None else f", holds {100 * ev.coverage_95:.1f} %"
+        top.fill_between(t, ev.estimate - half, ev.estimate + half, color="tab:red",
+                         alpha=0.15, lw=0, label=f"95 % band of S_hat{share}")
     top.plot(t, ev.reference, color="0.2", lw=1.0, label="reference S")
     top.plot(t, ev.estimate, color="tab:red", lw=0.8, alpha=0.85, label="estimate S_hat")
     r, r_label, _ = _resistance_axis(ev)

@@ -14,7 +14,9 @@ Float64MultiArray on ``/ARRAY/strain``, ``/ARRAY/direction``, ``/ARRAY/status``;
 strain stamped with its input's time, ``/NAME/strain_stamped`` and ``/ARRAY/strain_stamped``
 (sensor_msgs/JointState: name = sensor names, position = strain, velocity and effort empty,
 header.stamp = the input message's log time, as Float64 and Float64MultiArray inputs
-carry no header; the node's topics of the same name);
+carry no header; the node's topics of the same name); where the calibration holds an
+uncertainty, the estimate's standard deviation on ``/NAME/strain_std`` (Float64; an
+array's Float64MultiArray) and ``/NAME/strain_std_stamped`` (JointState, position = std);
 ``/diagnostics`` at the end of every ``diagnostics_period`` of log time that holds input.
 Every input topic that can be written back (Float64, Int8, Float64MultiArray, Temperature,
 DiagnosticArray) is copied through; anything else is listed in the summary's problems.
@@ -51,6 +53,8 @@ TICK_BATCH = 1024
 sparse bag holds thousands of ticks."""
 STAMPED = "strain_stamped"
 """The JointState output beside ``OUTPUTS`` (module docstring)."""
+BAND = ("strain_std", "strain_std_stamped")
+"""The standard deviation's outputs, where the calibration holds an uncertainty."""
 RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
                     "std_msgs/msg/Float64MultiArray")
 """Message types a ``/NAME/resistance`` input is read from; other types are copied only."""
@@ -173,7 +177,8 @@ class _Replay:
                 inp = _input(topic, contents, self.calibration)
                 self.inputs[topic] = inp
                 if inp is not None:
-                    self.written.update(f"/{inp.name}/{what}" for what in (*OUTPUTS, STAMPED))
+                    self.written.update(f"/{inp.name}/{what}"
+                                        for what in (*OUTPUTS, STAMPED, *BAND))
                     series = contents.series[topic]
                     values = series.values if series.values.ndim == 2 else series.values[:, None]
                     tared = tare_engine(self.engine, {s: (series.t, values[:, j])
@@ -279,6 +284,11 @@ class _Replay:
                 if what == "strain":
                     self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
                                                   stacked)
+            if any(outs[s].std is not None for s in inp.sensors):
+                std = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None else v
+                                for s in inp.sensors], axis=1)
+                self.out.write_float64_array(f"/{inp.name}/{BAND[0]}", t, std, inp.sensors)
+                self.out.write_joint_state(f"/{inp.name}/{BAND[1]}", t, inp.sensors, std)
         else:
             out = self.engine.run(inp.name, t, values, temps[inp.name])
             out = self._fused(inp, t, {inp.name: out})[inp.name]
@@ -287,6 +297,10 @@ class _Replay:
                                           out.strain[:, None])
             self.out.write_int8(f"/{inp.name}/direction", t, out.direction)
             self.out.write_int8(f"/{inp.name}/status", t, out.status)
+            if out.std is not None:
+                self.out.write_float64(f"/{inp.name}/{BAND[0]}", t, out.std)
+                self.out.write_joint_state(f"/{inp.name}/{BAND[1]}", t, [inp.name],
+                                           out.std[:, None])
             outs = {inp.name: out}
         self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs

@@ -38,6 +38,7 @@ from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
 from strain_comp.ros.clock_gate import ClockGate
 from strain_comp.ros.live import OK, WARN, LiveCompensator
+from strain_comp.ros.live_start import start, start_reference
 from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
@@ -60,20 +61,12 @@ LOG_THROTTLE_S = 5.0
 """A refusal or a program error of one kind is logged at most once per this many seconds."""
 
 Handler = Callable[[str, int, Any, list[Publisher]], None]
-"""A resistance handler: (input name, stamp [ns], message, its three publishers)."""
+"""A resistance handler: (input name, stamp [ns], message, its publishers)."""
 
 
-def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """The ParameterDescriptor of a ``ParamSpec``: a fixed type (a refused set never changes
-    it), the range, the description, read-only.
-
-    Args:
-        spec: The parameter's spec.
-
-    Returns:
-        The descriptor.
-
-    """
+    it), the range, the description, read-only."""
     kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
              "bool": ParameterType.PARAMETER_BOOL,
              "string_array": ParameterType.PARAMETER_STRING_ARRAY}
@@ -99,30 +92,14 @@ def send(publisher: Publisher, message: Callable[[], Any]) -> None:
         publisher.publish(message())
 
 
-def one_line(error: BaseException) -> str:
-    """An error's message on one line (its type's name when it has none).
-
-    Args:
-        error: The error.
-
-    Returns:
-        The line.
-
-    """
+def _one_line(error: BaseException) -> str:
+    """An error's message on one line (its type's name when it has none)."""
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def internal(error: BaseException) -> str:
-    """A program error as a service answers it.
-
-    Args:
-        error: The error.
-
-    Returns:
-        The answer's message.
-
-    """
-    return (f"internal error: {type(error).__name__}: {one_line(error)} (a bug: the node's "
+def _internal(error: BaseException) -> str:
+    """A program error as a service answers it."""
+    return (f"internal error: {type(error).__name__}: {_one_line(error)} (a bug: the node's "
             "log has the traceback)")
 
 
@@ -166,6 +143,7 @@ class CompensatorNode(Node):
         self.create_service(Trigger, "~/tare", self._tare)
         self.create_service(Trigger, "~/span", self._span)
         self.create_service(Trigger, "~/reference", self._reference)
+        self.create_service(Trigger, "~/start", self._start)
         self.create_service(Trigger, "~/reload_calibration", self._reload)
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
         logger(self).info(f"ready: {len(ready)} inputs: " + "; ".join(ready)
@@ -183,6 +161,10 @@ class CompensatorNode(Node):
                 self.create_publisher(Float64MultiArray if inp.is_array else Int8,
                                       f"{name}/direction", OUTPUT_DEPTH),
                 self.create_publisher(JointState, f"{name}/strain_stamped", OUTPUT_DEPTH)]
+        if any(params.calibration.sensors[s].uncertainty for s in inp.sensors):  # the band
+            pubs += [self.create_publisher(kind, f"{name}/strain_std", OUTPUT_DEPTH),
+                     self.create_publisher(JointState, f"{name}/strain_std_stamped",
+                                           OUTPUT_DEPTH)]
         handler = self._on_array if inp.is_array else self._on_sensor
         sub = self.create_subscription(kind, inp.topic,
                                        partial(self._arrive, name, handler, pubs=pubs),
@@ -191,10 +173,8 @@ class CompensatorNode(Node):
             self.create_subscription(Temperature, f"{name}/temperature",
                                      partial(self._on_temperature, name),
                                      qos_profile_sensor_data)
-        if params.fuse_references:
-            self.create_subscription(kind, f"{name}/strain_reference",
-                                     partial(self._on_reference, name, inp.is_array),
-                                     input_qos)
+        self.create_subscription(kind, f"{name}/strain_reference",  # fused, or ~/start's
+                                 partial(self._on_reference, name, inp.is_array), input_qos)
         models = ",".join(sorted({params.calibration.sensors[s].model for s in inp.sensors}))
         members = (f"{len(inp.sensors)} sensors: {inp.sensors[0]} .. {inp.sensors[-1]}"
                    if inp.is_array else ",".join(inp.sensors))
@@ -215,7 +195,7 @@ class CompensatorNode(Node):
         self.live.fault(name, error)
         logger(self).error(
             f"{name}: program error (a bug, not the message): {type(error).__name__}: "
-            f"{one_line(error)}\n" + "".join(traceback.format_exception(error)).rstrip(),
+            f"{_one_line(error)}\n" + "".join(traceback.format_exception(error)).rstrip(),
             throttle_duration_sec=LOG_THROTTLE_S)
 
     def _guarded(self, name: str, act: Callable[[], None]) -> None:
@@ -275,12 +255,12 @@ class CompensatorNode(Node):
         """Declare a parameter with its fixed type; an empty (or, from a dump, null) list
         stays a string array (rclpy would infer BYTE_ARRAY from [])."""
         if spec.type == "string_array" and not value:
-            self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, descriptor(spec),
+            self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, _descriptor(spec),
                                    ignore_override=True)
             self._parameters[spec.name] = parameter(spec.name, Parameter.Type.STRING_ARRAY, [])
         else:
             self.declare_parameter(spec.name, float(value) if spec.type == "double"
-                                   else value, descriptor(spec), ignore_override=True)
+                                   else value, _descriptor(spec), ignore_override=True)
 
     def _integers_as_doubles(self, params: list[Parameter]) -> list[Parameter]:
         """``ros2 param set deadzone_scale 2``: an integer for a double tunable is set as a
@@ -332,6 +312,10 @@ class CompensatorNode(Node):
                 send(pubs[0], lambda: Float64(data=value))
                 send(pubs[1], lambda: Int8(data=direction))
                 send(pubs[2], lambda: self.stamped[name].encode(stamp, np.array([value])))
+                if len(pubs) > 3:
+                    std = out.std
+                    send(pubs[3], lambda: Float64(data=std))
+                    send(pubs[4], lambda: self.stamped[name].encode(stamp, np.array([std])))
         self._guarded(name, handle)
         self._log_tare()
 
@@ -345,6 +329,10 @@ class CompensatorNode(Node):
                 send(pubs[0], lambda: vector.encode(strain))
                 send(pubs[1], lambda: vector.encode(direction))
                 send(pubs[2], lambda: self.stamped[name].encode(stamp, strain))
+                if len(pubs) > 3 and out.std is not None:
+                    std = out.std
+                    send(pubs[3], lambda: vector.encode(std))
+                    send(pubs[4], lambda: self.stamped[name].encode(stamp, std))
         self._guarded(name, handle)
         self._log_tare()
 
@@ -363,10 +351,14 @@ class CompensatorNode(Node):
             t = self._now_ns() * 1e-9
             if is_array:
                 data, offset, sizes, label = array_layout(msg)
-                refused = self.live.on_reference_array(name, t, data, offset=offset,
-                                                       sizes=sizes, label=label)
+                given = self.live.array_references(name, data, offset=offset, sizes=sizes,
+                                                   label=label)
             else:
-                refused = {name: self.live.on_reference(name, t, sensor_value(msg))}
+                given = {name: sensor_value(msg)}
+            refused = ({s: self.live.on_reference(s, t, v) for s, v in given.items()}
+                       if self.live.fusion else {})
+            for sensor, value in given.items():
+                self.live = start_reference(self.live, sensor, t, value)
             for sensor, reason in refused.items():
                 if reason is not None:
                     logger(self).warning(f"{sensor}: reference refused: {reason}",
@@ -414,10 +406,10 @@ class CompensatorNode(Node):
             response.success = True
             logger(self).info(response.message)
         except StrainCompError as err:
-            response.success, response.message = False, one_line(err)
+            response.success, response.message = False, _one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault(service, err)
-            response.success, response.message = False, internal(err)
+            response.success, response.message = False, _internal(err)
         return response
 
     def _tare(self, request: Any, response: Any) -> Any:
@@ -432,6 +424,12 @@ class CompensatorNode(Node):
             self.live, summary = self.live.span()
             return summary
         return self._answer("~/span", response, span)
+
+    def _start(self, request: Any, response: Any) -> Any:
+        def begin() -> str:
+            self.live, summary = start(self.live, self._now_ns() * 1e-9)
+            return summary
+        return self._answer("~/start", response, begin)
 
     @staticmethod
     def _paths(live: LiveCompensator) -> str:
@@ -450,12 +448,12 @@ class CompensatorNode(Node):
             params = parse_values(self.flat, base_dir=self.base_dir)
             current.check_successor(params)
         except (StrainCompError, OSError) as err:  # the files' fault: the answer's reason
-            self._refused_reload(one_line(err))
+            self._refused_reload(_one_line(err))
             response.success, response.message = False, self.calibration_status[1]
             return response
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault("~/reload_calibration", err)
-            self._refused_reload(internal(err))
+            self._refused_reload(_internal(err))
             response.success, response.message = False, self.calibration_status[1]
             return response
         self._loading = threading.Thread(target=self._load, args=(current, params),
@@ -478,7 +476,7 @@ class CompensatorNode(Node):
         try:
             outcome = current.successor(params)
         except Exception as err:  # a worker thread: whatever ends the load is its reason
-            outcome = one_line(err)
+            outcome = _one_line(err)
         finally:
             self._loaded = outcome
 

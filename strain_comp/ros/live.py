@@ -37,6 +37,7 @@ from strain_comp.core.samples import USED, Status, used_mask
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.io.multiarray import array_values
+from strain_comp.ros.live_start import LiveStart
 from strain_comp.ros.live_tare import TARE_WINDOW_S, LiveTare
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
@@ -108,6 +109,8 @@ class LiveCompensator:
         """Array sensors: (array, column)."""
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         """Per array, its sensors' fused gains and offsets (``_fused_array``)."""
+        self.starting = LiveStart()
+        """``~/start``'s state and the samples it watches (``live_start``)."""
 
     # --- messages -------------------------------------------------------------------------
 
@@ -138,6 +141,8 @@ class LiveCompensator:
 
         """
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
+        if self.starting.series:
+            self.starting.seen_input(name, t, value)
         self._seen(name, t, np.array([value]), np.array([out.status]),
                    np.array([out.direction]))
         if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
@@ -172,6 +177,8 @@ class LiveCompensator:
         sensors = self._inputs[name]
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
+        for j, sensor in enumerate(sensors if self.starting.series else ()):
+            self.starting.seen_input(sensor, t, float(values[j]))
         self._seen(name, t, values, out.status, out.direction)
         if (used_mask(out.status) & ~np.isfinite(out.strain)).any():  # good samples: never NaN
             raise InputError("the calibration gave a non-finite strain; not published")
@@ -246,10 +253,16 @@ class LiveCompensator:
                            ) -> dict[str, str | None]:
         """An array's known strains (layout as ``on_array``; NaN: no reference for that
         sensor): per sensor given, None when fused or the reason it was refused."""
+        return {sensor: self.on_reference(sensor, t, value) for sensor, value in
+                self.array_references(name, data, offset=offset, sizes=sizes,
+                                      label=label).items()}
+
+    def array_references(self, name: str, data: Any, *, offset: int = 0,
+                         sizes: list[int] | None = None, label: str = "") -> dict[str, float]:
+        """An array's known strains by sensor (layout as ``on_array``; NaN ones left out)."""
         sensors = self._inputs[name]
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
-        return {sensor: self.on_reference(sensor, t, float(value))
-                for sensor, value in zip(sensors, values, strict=True) if not np.isnan(value)}
+        return {s: float(v) for s, v in zip(sensors, values, strict=True) if not np.isnan(v)}
 
     def reference_now(self, now: float | None = None) -> str:
         """``~/reference``: every sensor is at ``known_strain`` at the clock time ``now``
@@ -410,6 +423,7 @@ class LiveCompensator:
         fresh.faults, fresh._faults_seen = self.faults, self._faults_seen
         fresh._counted_before = self.health()  # the counters go on from here
         fresh._last_message = dict(self._last_message)
+        fresh.starting = self.starting
         for sensor, fusion in self.fusion.items():  # the estimate restarts, its counts go on
             if sensor in fresh.fusion:
                 fresh.fusion[sensor].n_used += fusion.n_used
@@ -467,6 +481,7 @@ class LiveCompensator:
                     if raised else "ok",
                     {"n_errors": str(errors), "n_errors_recent": str(raised),
                      **{f"error[{k}]": str(v) for k, v in sorted(self.faults.items())}}))
+        out.append(("strain_comp: session start", *self.starting.diagnostic()))
         total = sum(self.refused.values())
         recent, self._refused_seen = total - self._refused_seen, total
         reasons = {f"refused[{k}]": str(v) for k, v in sorted(self.refused.items())}

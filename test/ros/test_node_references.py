@@ -99,15 +99,17 @@ def test_reference_topic_and_service_update_the_output_and_diagnostics(
     single.status("strain_comp: s1", lambda v: v.get("fusion_n_used") == "2")
 
 
-def test_without_fusion_nothing_is_subscribed_and_the_service_refuses(
+def test_without_fusion_a_reference_is_not_fused_and_the_service_refuses(
         context: Any, tmp_path: Path) -> None:
+    """The reference topic is read (the stretch ``~/start`` watches), never fused."""
     shutil.copy(CONFIG / "compensator_params.yaml", tmp_path)
     shutil.copy(CONFIG / "demo_calibration.yaml", tmp_path)
     h = Harness(context, tmp_path / "compensator_params.yaml", fuse="false")
     try:
-        topics = [t for t, _ in h.node.get_subscriber_names_and_types_by_node("compensator",
-                                                                               "/")]
-        assert "/s1/strain_reference" not in topics
+        reference = h.publisher(Float64, "/s1/strain_reference")
+        reference.publish(Float64(data=5.0))
+        assert h.spin_until(lambda: "s1" in h.node.live.starting._last_reference)
+        assert not h.node.live.fusion
         answer = h.call("/compensator/reference")
         assert not answer.success and "fuse_references" in answer.message
     finally:

@@ -1,0 +1,195 @@
+"""The standard deviation of every estimate (docs/design.md, "Uncertainty").
+
+A calibration learned with several runs (``strain_comp.offline.uncertainty.learn``) holds
+per sensor a log-linear variance model, log sigma^2 = w . x, over what the engine knows at
+each used sample (``FEATURES``): the direction (loading, unloading, hold), the time since
+the direction last changed, how far the resistance lies outside the calibrated range, the
+time since the session started (the engine's first sample, a reset, a reload, a span or a
+session start) and the published strain's level. ``features_one`` is the one place these
+are computed: ``Engine.step`` calls it through ``std_one``, ``Engine.run`` through ``std_run``, the
+learner through ``features_run``, and the array tick (``strain_comp.core.array``) inside
+its kernel, so every path gives the same numbers. A calibration without it gives no band (NaN).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from strain_comp._numba import njit
+from strain_comp.core.stages import R_HI, R_LO, S_HI, S_LO
+
+FEATURES = ("bias", "loading", "unloading", "hold", "outside", "elapsed", "level")
+"""The regressors of log sigma^2, in order: 1; direction +1; direction -1; ln(1 + seconds
+since the direction last changed); the resistance's distance beyond the calibrated range
+(margins included) in spans of that range; ln(1 + minutes since the session started); the
+published estimate's place in the calibrated strain range (0 at its bottom, 1 at its
+top)."""
+N_FEATURES = len(FEATURES)
+STATE_SIZE = 3
+"""Per sensor: the direction of the previous used sample, the time it last changed, the
+session's first time (NaN before the first used sample)."""
+_LAST_DIRECTION, _CHANGED_T, _START_T = range(STATE_SIZE)
+WEIGHT_MAX = 100.0
+"""The largest magnitude of a weight a calibration file may hold."""
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """A sensor's learned variance model: one weight per ``FEATURES`` entry, and what it
+    was learned on."""
+
+    weights: tuple[float, ...]
+    runs: int = 0
+    """Runs left out in turn to learn it."""
+    samples: int = 0
+    """Left-out samples it was fitted on."""
+
+    def vector(self) -> np.ndarray:
+        """The weights as a float array (``FEATURES`` order)."""
+        return np.asarray(self.weights, dtype=np.float64)
+
+    def to_dict(self) -> dict[str, object]:
+        return {"weights": dict(zip(FEATURES, self.weights, strict=True)),
+                "runs": self.runs, "samples": self.samples}
+
+    @classmethod
+    def from_weights(cls, weights: Mapping[str, float], runs: int = 0, samples: int = 0
+                     ) -> Uncertainty:
+        """From a feature name -> weight mapping (missing features weigh 0)."""
+        return cls(tuple(float(weights.get(name, 0.0)) for name in FEATURES), runs, samples)
+
+
+def new_state() -> np.ndarray:
+    """A sensor's state before its first used sample.
+
+    Returns:
+        ``STATE_SIZE`` NaNs.
+
+    """
+    return np.full(STATE_SIZE, np.nan)
+
+
+@njit(inline="always")
+def features_one(t: float, direction: float, ohm: float, strain: float, state: np.ndarray,
+                 row: np.ndarray, out: np.ndarray) -> None:
+    """The features of one used sample into ``out`` (``FEATURES`` order); ``state``
+    updated in place.
+
+    Args:
+        t: Time [s].
+        direction: The published direction (+1, 0, -1).
+        ohm: The resistance the model read.
+        strain: The published estimate.
+        state: The sensor's ``STATE_SIZE`` state.
+        row: The sensor's range row (``strain_comp.core.stages.RANGE_COLUMNS``).
+        out: ``N_FEATURES`` values, written.
+
+    """
+    if math.isnan(state[_START_T]):
+        state[_START_T] = t
+    if math.isnan(state[_LAST_DIRECTION]) or direction != state[_LAST_DIRECTION]:
+        state[_LAST_DIRECTION] = direction
+        state[_CHANGED_T] = t
+    r_lo, r_hi, s_lo, s_hi = row[R_LO], row[R_HI], row[S_LO], row[S_HI]
+    out[0] = 1.0
+    out[1] = 1.0 if direction > 0 else 0.0
+    out[2] = 1.0 if direction < 0 else 0.0
+    out[3] = math.log1p(max(t - state[_CHANGED_T], 0.0))
+    out[4] = max(ohm - r_hi, r_lo - ohm, 0.0) / (r_hi - r_lo)
+    out[5] = math.log1p(max(t - state[_START_T], 0.0) / 60.0)
+    level = (min(max(strain, s_lo), s_hi) - s_lo) / (s_hi - s_lo)
+    out[6] = 0.0 if math.isnan(level) else level
+
+
+@njit(inline="always")
+def sigma(x: np.ndarray, weights: np.ndarray) -> float:
+    """sqrt(exp(w . x)): the standard deviation of features ``x``.
+
+    Args:
+        x: The features.
+        weights: The weights.
+
+    Returns:
+        The standard deviation, in the calibration's strain unit.
+
+    """
+    z = 0.0
+    for i in range(x.size):
+        z += weights[i] * x[i]
+    return math.exp(0.5 * min(z, 700.0))
+
+
+@njit
+def std_one(t: float, direction: float, ohm: float, strain: float, state: np.ndarray,
+            row: np.ndarray, weights: np.ndarray) -> float:
+    """The standard deviation of one used sample (``features_one`` then ``sigma``).
+
+    Args:
+        t: Time [s].
+        direction: The published direction.
+        ohm: The resistance the model read.
+        strain: The published estimate.
+        state: The sensor's state, updated in place.
+        row: The sensor's range row.
+        weights: Its weights.
+
+    Returns:
+        The standard deviation.
+
+    """
+    x = np.empty(N_FEATURES)
+    features_one(t, direction, ohm, strain, state, row, x)
+    return sigma(x, weights)
+
+
+@njit
+def features_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.ndarray,
+                 state: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """``features_one`` over used samples in time order, (n, ``N_FEATURES``).
+
+    Args:
+        t: Time [s] per used sample.
+        direction: The published direction per used sample.
+        ohm: The resistance the model read per used sample.
+        strain: The published estimate per used sample.
+        state: The sensor's state, updated in place.
+        row: The sensor's range row.
+
+    Returns:
+        The features, one row per sample.
+
+    """
+    out = np.empty((t.size, N_FEATURES))
+    for i in range(t.size):
+        features_one(t[i], float(direction[i]), ohm[i], strain[i], state, row, out[i])
+    return out
+
+
+@njit
+def std_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.ndarray,
+            state: np.ndarray, row: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``std_one`` over used samples in time order.
+
+    Args:
+        t: Time [s] per used sample.
+        direction: The published direction per used sample.
+        ohm: The resistance the model read per used sample.
+        strain: The published estimate per used sample.
+        state: The sensor's state, updated in place.
+        row: The sensor's range row.
+        weights: Its weights.
+
+    Returns:
+        The standard deviation per sample.
+
+    """
+    out = np.empty(t.size)
+    x = np.empty(N_FEATURES)
+    for i in range(t.size):
+        features_one(t[i], float(direction[i]), ohm[i], strain[i], state, row, x)
+        out[i] = sigma(x, weights)
+    return out

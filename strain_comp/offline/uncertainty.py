@@ -1,0 +1,199 @@
+"""The uncertainty learned from runs left out (docs/design.md, "Uncertainty").
+
+``learn`` takes (started calibration, recording) pairs: a calibration fitted without a run,
+then started on that run as a user starts it (``start_run``), and the run. Over every
+scored sample of every pair it fits the variance model of
+``strain_comp.core.uncertainty`` by Gaussian maximum likelihood: the residual e = estimate
+- reference ~ N(0, exp(w . x)), x the engine's features at the sample (``features_run``),
+each run weighing the same whatever its length; the model is convex in w (a Newton
+solve). A final factor on sigma then makes the 95 % band (+-1.96 sigma) hold 95 % of a
+typical run's samples as the band learned on the other runs predicts them (the median over
+the runs, ``fit_weights``): a band learned in-sample holds less on a new run, whose errors
+differ from run to run.
+``fit`` calls it with the fitted model's own leave-one-run-out
+(``strain_comp.offline.fit``); a caller that already left runs out (``fit --model auto``)
+passes its pairs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import minimize
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.core.engine import Engine
+from strain_comp.core.metrics import Z_95
+from strain_comp.core.samples import used_mask
+from strain_comp.core.uncertainty import (
+    FEATURES,
+    WEIGHT_MAX,
+    Uncertainty,
+    features_run,
+    new_state,
+)
+from strain_comp.io.recording import Recording
+from strain_comp.offline.recalibrate import Window, forms_of, session_start
+from strain_comp.offline.session_window import first_cycle, second_cycle
+
+RIDGE = 1e-3
+"""Weight of a penalty ||w - w_0||^2 / 2 per unit of run weight on the weights besides the
+bias: a feature that never varies in the runs left out (no sample outside the range) keeps
+weight 0 instead of an arbitrary one."""
+
+
+def start_run(calibration: Calibration, recordings: Mapping[str, Recording],
+              window: Window | None = None) -> Calibration:
+    """The session start a user makes on a run (the README's: the second stretch after a
+    warm-up one, else the first; ``strain_comp.diagnosis.session.warmup_start``'s rule), or
+    on the stretch ``window`` (the live ``~/start``'s, recorded from its call to the
+    stretch's return). The one call to swap for the ``start`` command's function.
+
+    Args:
+        calibration: The calibration fitted without this run.
+        recordings: The run's recordings by sensor name (with references).
+        window: (START, END) [s] after the run's start of the stretch to read; None: found.
+
+    Returns:
+        The calibration after the steps the run allows (as given where none).
+
+    """
+    if window is not None:
+        return session_start(calibration, recordings, window).calibration
+    refs = [rec for name, rec in recordings.items()
+            if name in calibration.sensors and rec.s is not None]
+    if not refs:
+        return calibration
+    t, s = refs[0].t, refs[0].s
+    assert s is not None
+    first = first_cycle(t, s)
+    if first is None:
+        return calibration
+    second = second_cycle(t, s)
+    warm = None if second is None else session_start(calibration, recordings, second)
+    if warm is not None and len(warm.steps) == len(forms_of(calibration, recordings)):
+        return warm.calibration
+    at_first = session_start(calibration, recordings, (0.0, first))
+    return (at_first if warm is None or len(warm.steps) < len(at_first.steps)
+            else warm).calibration
+
+
+def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]
+                     ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Every referenced sensor's features and residuals over its scored samples, the
+    engine run as ``evaluate`` runs it (tare ``calibration``).
+
+    Args:
+        started: The calibration started on the run.
+        recordings: The run's recordings by sensor name.
+
+    Returns:
+        Sensor name -> (features (n, ``len(FEATURES)``), residual estimate - reference).
+
+    """
+    engine = Engine(replace(started, sensors={
+        n: replace(c, uncertainty=None) for n, c in started.sensors.items()}))
+    out = {}
+    for name in started.sensors:
+        rec = recordings.get(name)
+        if rec is None or rec.s is None:
+            continue
+        batch = engine.run(name, rec.t, rec.r, rec.temperature)
+        used = used_mask(batch.status)
+        x = features_run(rec.t[used], batch.direction[used].astype(np.float64),
+                         np.ascontiguousarray(batch.resistance[used]),
+                         np.ascontiguousarray(batch.strain[used]),
+                         new_state(), engine.save_state(name).limits.row)
+        e = batch.strain[used] - rec.s[used]
+        keep = np.isfinite(e) & np.isfinite(x).all(axis=1)
+        out[name] = (x[keep], e[keep])
+    return out
+
+
+def likelihood_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The weights by maximum likelihood over ``runs`` (module docstring), unscaled.
+
+    Args:
+        runs: (features, residuals) of each run left out.
+
+    Returns:
+        The weights.
+
+    """
+    x = np.concatenate([f for f, _ in runs])
+    e2 = np.concatenate([e for _, e in runs]) ** 2
+    weight = np.concatenate([np.full(e.size, 1.0 / max(e.size, 1)) for _, e in runs])
+    w0 = np.zeros(x.shape[1])
+    w0[0] = np.log(max(float(np.average(e2, weights=weight)), 1e-300))
+    ridge = np.full(x.shape[1], RIDGE * weight.sum())
+    ridge[0] = 0.0
+
+    def nll(w: np.ndarray) -> tuple[float, np.ndarray]:
+        z = np.clip(x @ w, -700.0, 700.0)
+        q = e2 * np.exp(-z)
+        d = w - w0
+        value = 0.5 * float(weight @ (z + q)) + 0.5 * float(ridge @ (d * d))
+        return value, 0.5 * (x.T @ (weight * (1.0 - q))) + ridge * d
+
+    def hess(w: np.ndarray) -> np.ndarray:
+        q = e2 * np.exp(-np.clip(x @ w, -700.0, 700.0))
+        out: np.ndarray = 0.5 * (x.T * (weight * q)) @ x + np.diag(ridge)
+        return out
+
+    found: np.ndarray = minimize(nll, w0, jac=True, hess=hess, method="trust-exact").x
+    return found
+
+
+def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
+    """The weights by maximum likelihood over every run, times the factor on sigma a new
+    run needs: for each run, the factor that makes the 95 % band of the weights learned
+    without it hold 95 % of its samples; their median over the runs (robust to one run
+    whose errors no other run foretold; in-sample with one run).
+
+    Args:
+        runs: (features, residuals) of each run left out.
+
+    Returns:
+        The weights (the factor folded into the bias weight) and the factor.
+
+    """
+    factors = []
+    for j, (x, e) in enumerate(runs):
+        others = [r for k, r in enumerate(runs) if k != j] or runs
+        w = likelihood_weights(others)
+        ratio = np.abs(e) / np.exp(0.5 * np.clip(x @ w, -700.0, 700.0))
+        factors.append(float(np.quantile(ratio, 0.95)) / Z_95 if ratio.size else np.nan)
+    factor = float(np.nanmedian(factors))
+    w = likelihood_weights(runs)
+    w[0] += 2.0 * np.log(max(factor, 1e-150))
+    return np.clip(w, -WEIGHT_MAX, WEIGHT_MAX), factor
+
+
+def learn(pairs: Iterable[tuple[Calibration, Mapping[str, Recording]]]
+          ) -> dict[str, Uncertainty]:
+    """Each sensor's uncertainty from runs left out (module docstring).
+
+    Args:
+        pairs: (calibration fitted without the run and started on it, the run's recordings
+            by sensor name), one per run left out.
+
+    Returns:
+        Sensor name -> its uncertainty, for every sensor scored on at least two runs.
+
+    """
+    by_sensor: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for started, recordings in pairs:
+        for name, samples in left_out_samples(started, recordings).items():
+            if samples[1].size:
+                by_sensor.setdefault(name, []).append(samples)
+    out = {}
+    for name, runs in by_sensor.items():
+        if len(runs) < 2:
+            continue
+        w, _ = fit_weights(runs)
+        out[name] = Uncertainty(tuple(float(v) for v in w), runs=len(runs),
+                                samples=sum(e.size for _, e in runs))
+    assert all(len(u.weights) == len(FEATURES) for u in out.values())
+    return out

@@ -1,0 +1,211 @@
+"""The session start of a live node: ``~/start`` watches the next stretch and return on the
+sensors' reference topics and then applies the session start ``strain-comp`` makes offline
+(``strain_comp.offline.uncertainty.start_run``) to the calibration; no ROS (docs/ros.md,
+"Services").
+
+States, shown in /diagnostics (``strain_comp: session start``): ``idle`` (never called),
+``waiting`` (called, the reference has not yet moved by ``MIN_STRETCH`` of the calibrated
+strain range), ``recording`` (it has; waiting for its return), ``applied`` (with the
+stretch's RMSE after the start) and ``refused`` (with why). Without a recent reference on
+any sensor ``~/start`` is ``~/span`` (the operator's known strain ``span_strain``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration
+from strain_comp.errors import ParameterError
+from strain_comp.io.recording import Recording
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.session_window import cycle_end
+from strain_comp.offline.uncertainty import start_run
+
+if TYPE_CHECKING:
+    from strain_comp.ros.live import LiveCompensator
+
+RECENT_S = 5.0
+"""A sensor has a reference when one arrived within this many seconds of ``~/start``."""
+MIN_STRETCH = 0.1
+"""The stretch must move the reference over this share of the calibrated strain range (as
+``recalibrate --window`` requires)."""
+MAX_WATCH_S = 600.0
+"""A stretch not complete this long after ``~/start`` is refused."""
+MAX_SAMPLES = 2**20
+"""Samples kept per sensor while watching (past them the start is refused)."""
+CHECK_EVERY_S = 0.5
+"""The stretch is looked for at most this often [s of reference time]."""
+
+
+@dataclass
+class _Series:
+    """A sensor's samples since ``~/start``: inputs and references."""
+
+    t: list[float] = field(default_factory=list)
+    r: list[float] = field(default_factory=list)
+    ref_t: list[float] = field(default_factory=list)
+    ref: list[float] = field(default_factory=list)
+
+    def recording(self, name: str) -> Recording:
+        """The inputs with the latest reference at or before each (NaN before the first)."""
+        t, ref_t = np.array(self.t), np.array(self.ref_t)
+        at = np.searchsorted(ref_t, t, side="right") - 1
+        s = np.where(at >= 0, np.array(self.ref)[np.maximum(at, 0)], np.nan)
+        return Recording(name, t, np.array(self.r), s)
+
+
+class LiveStart:
+    """``~/start``'s state and the samples it watches (module docstring)."""
+
+    def __init__(self) -> None:
+        self.state = "idle"
+        self.detail = "~/start not called"
+        self.since = math.nan
+        self.series: dict[str, _Series] = {}
+        self._last_reference: dict[str, float] = {}
+        self._checked = -math.inf
+
+    @property
+    def watching(self) -> bool:
+        """True while a stretch is waited for or recorded."""
+        return self.state in ("waiting", "recording")
+
+    def request(self, now: float, sensors: list[str]) -> bool:
+        """``~/start`` at clock time ``now``: watch the sensors with a recent reference
+        (True), or none has one (False: the caller spans instead).
+
+        Raises:
+            ParameterError: A stretch is already being watched (nothing changes).
+
+        """
+        if self.watching:
+            raise ParameterError("start", f"refused: already {self.state} (since "
+                                 f"{self.since:.1f} s); the stretch applies when it returns")
+        referenced = [s for s in sensors
+                      if now - self._last_reference.get(s, -math.inf) <= RECENT_S]
+        if not referenced:
+            return False
+        self.series = {s: _Series() for s in referenced}
+        self.state, self.since, self._checked = "waiting", now, -math.inf
+        self.detail = ("waiting for a stretch and return on "
+                       + ", ".join(f"{s}/strain_reference" for s in referenced))
+        return True
+
+    def outcome(self, state: str, detail: str) -> str:
+        """Set a final state (``applied`` or ``refused``); the detail."""
+        self.state, self.detail, self.series = state, detail, {}
+        return detail
+
+    def seen_input(self, sensor: str, t: float, value: float) -> None:
+        """A raw input sample of ``sensor`` (kept while watching)."""
+        series = self.series.get(sensor)
+        if series is not None and len(series.t) < MAX_SAMPLES:
+            series.t.append(t)
+            series.r.append(value)
+
+    def seen_reference(self, sensor: str, t: float, value: float,
+                       calibration: Calibration) -> Calibration | None:
+        """A reference of ``sensor``: kept while watching; once every watched sensor's
+        stretch has returned, the calibration started on it (None until then, and after a
+        refusal, whose reason is ``detail``)."""
+        self._last_reference[sensor] = t
+        series = self.series.get(sensor)
+        if series is None or not math.isfinite(value):
+            return None
+        series.ref_t.append(t)
+        series.ref.append(float(value))
+        if t - self._checked < CHECK_EVERY_S:
+            return None
+        self._checked = t
+        if t - self.since > MAX_WATCH_S or len(series.t) >= MAX_SAMPLES:
+            self.outcome("refused", f"refused: no complete stretch and return within "
+                         f"{MAX_WATCH_S:g} s of ~/start")
+            return None
+        done = [self._progress(name, s, calibration) for name, s in self.series.items()]
+        if not all(done):
+            return None
+        return self._apply(calibration)
+
+    def _progress(self, name: str, series: _Series, calibration: Calibration) -> bool:
+        """Has ``name``'s stretch returned? (``recording`` once it moved far enough.)"""
+        vr = calibration.sensors[name].valid_range
+        ref = np.array(series.ref)
+        if ref.size < 2 or not ref.max() - ref.min() >= MIN_STRETCH * (vr.s_hi - vr.s_lo):
+            return False
+        if self.state == "waiting":
+            self.state = "recording"
+            self.detail = "recording the stretch on " + ", ".join(self.series)
+        return cycle_end(np.array(series.ref_t), ref) is not None
+
+    def _apply(self, calibration: Calibration) -> Calibration | None:
+        """The session start on the recorded stretch (``start_run``), its RMSE there."""
+        recordings = {name: s.recording(name) for name, s in self.series.items()}
+        watched = Calibration({n: calibration.sensors[n] for n in recordings})
+        ends = [float(r.t[-1] - r.t[0]) for r in recordings.values() if r.t.size]
+        started = start_run(watched, recordings, (0.0, max(ends, default=0.0)))
+        if started is watched:
+            self.outcome("refused", "refused: the session start could make no step on the "
+                         "stretch (no rest in it, or a strain the calibration never gives)")
+            return None
+        scores = evaluate_recordings(recordings, started).sensors
+        self.outcome("applied", "applied: stretch RMSE " + ", ".join(
+            f"{n} {ev.stats.rmse:.4g} {ev.unit}" for n, ev in scores.items()))
+        return Calibration({**calibration.sensors, **started.sensors})
+
+    def diagnostic(self) -> tuple[int, str, dict[str, str]]:
+        """(level, message, values) of the ``strain_comp: session start`` status."""
+        level = 1 if self.state == "refused" else 0
+        return level, f"{self.state}: {self.detail}", {"state": self.state}
+
+
+def start(live: LiveCompensator, now: float) -> tuple[LiveCompensator, str]:
+    """``~/start`` at clock time ``now``: watch the next stretch on the sensors with a
+    recent reference, else ``~/span`` on ``span_strain``.
+
+    Args:
+        live: The running compensator.
+        now: The clock time [s].
+
+    Returns:
+        The compensator to run on (a new one after a span) and the summary.
+
+    Raises:
+        ParameterError: A stretch is already watched, or the span is refused (the state
+            then says why).
+
+    """
+    if live.starting.request(now, list(live.params.calibration.sensors)):
+        return live, live.starting.detail
+    try:
+        fresh, summary = live.span()
+    except ParameterError as err:
+        live.starting.outcome("refused", f"refused: no reference and {err}")
+        raise
+    fresh.starting.outcome("applied", f"applied span_strain (no reference): {summary}")
+    return fresh, fresh.starting.detail
+
+
+def start_reference(live: LiveCompensator, sensor: str, t: float, value: float
+                    ) -> LiveCompensator:
+    """A reference of ``sensor`` for ``~/start``: the compensator on the started
+    calibration once the watched stretch has returned (model state restarts, as after a
+    reload), else ``live``.
+
+    Args:
+        live: The running compensator.
+        sensor: The sensor's name.
+        t: The reference's time [s].
+        value: The reference strain.
+
+    Returns:
+        The compensator to run on.
+
+    """
+    started = live.starting.seen_reference(sensor, t, value, live.params.calibration)
+    if started is None:
+        return live
+    return live.reload(replace(live.params, calibration=started))
