@@ -109,6 +109,10 @@ class Engine:
         for group in self._arrays.values():
             group.rebuild()
 
+    def limits_row(self, sensor: str) -> np.ndarray:
+        """The range bound's parameters of ``sensor`` (``SensorRange.row``)."""
+        return self._sensor(sensor).limits.row
+
     def input_gain(self, sensor: str) -> float:
         """The tare gain of ``sensor``: its models see this x the measured resistance."""
         return self._sensor(sensor).gain

@@ -105,7 +105,7 @@ def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]
         x = features_run(rec.t[used], batch.direction[used].astype(np.float64),
                          np.ascontiguousarray(batch.resistance[used]),
                          np.ascontiguousarray(batch.strain[used]),
-                         new_state(), engine.save_state(name).limits.row)
+                         new_state(), engine.limits_row(name))
         e = batch.strain[used] - rec.s[used]
         keep = np.isfinite(e) & np.isfinite(x).all(axis=1)
         out[name] = (x[keep], e[keep])
