@@ -210,3 +210,57 @@ def test_version_and_help_do_not_load_numpy() -> None:
                          env=env, check=True)
     assert out.stdout.strip() == "False"
     assert callable(sc.estimate) and "estimate" in sc.__all__
+
+
+# ------------------------------------------------- round five: what the API refuses, and how
+
+def _fit_args(run: sc.Recording) -> list[tuple[str, object]]:
+    """Calls with an argument of the wrong type, each with the argument the line names."""
+    cal = sc.load_calibration(CAL)
+    return [
+        ("strain_unit", lambda: sc.fit(run, strain_unit=5)),
+        ("sensor", lambda: sc.estimate(cal, run.t, run.r, sensor=["s1"])),
+        ("plot_points", lambda: sc.evaluate(cal, run, plot_points="50")),
+        ("window", lambda: sc.recalibrate(cal, run, window="20:45")),
+        ("first", lambda: sc.recalibrate(cal, run, first="30")),
+        ("point", lambda: sc.recalibrate(cal, points=["11.5,0", (19.0, 20.0)])),
+        ("data", lambda: sc.fit(run.t, run.r)),
+        ("Recording", lambda: sc.fit({"s1": 5})),
+        ("Recording", lambda: sc.evaluate(cal, {"s1": run.t})),
+        ("Recording", lambda: sc.session_start(cal, {"s1": None})),
+        ("'n/a'", lambda: sc.Recording.from_frame(
+            {"time_s": [0.0, 1.0], "resistance_ohm": ["11.5", "n/a"]})),
+        ("DataFrame", lambda: sc.Recording.from_frame([[0.0, 11.5], [1.0, 11.6]])),
+    ]
+
+
+def test_arguments_of_the_wrong_type_raise_one_line_naming_them() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    for words, call in _fit_args(run):
+        with pytest.raises(sc.StrainCompError) as err:
+            call()  # type: ignore[operator]
+        assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_from_frame_takes_import_csvs_scales() -> None:
+    t = np.arange(5.0)
+    table = {"time_ms": t * 1000.0, "r_kohm": (t + 11.0) / 1000.0, "fraction": t / 100.0}
+    rec = sc.Recording.from_frame(table, time="time_ms", resistance="r_kohm",
+                                  reference="fraction",
+                                  scales={"time": 1e-3, "resistance": 1000.0, "strain": 100.0})
+    np.testing.assert_allclose(rec.t, t)
+    np.testing.assert_allclose(rec.r, t + 11.0)
+    np.testing.assert_allclose(rec.s, t)
+    with pytest.raises(sc.StrainCompError, match="unknown scale key 'temp'"):
+        sc.Recording.from_frame(table, scales={"temp": 2.0})
+
+
+def test_recalibrate_through_points_too_close_is_refused_as_the_command_refuses(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    points = [(11.5, 0.0), (11.5 + 1e-10, 20.0)]
+    line = cli_error(["recalibrate", CAL, "--input", "--out", str(tmp_path / "x.yaml"),
+                      *(f"--point={r!r}:{s!r}" for r, s in points)], capsys)
+    with pytest.raises(sc.StrainCompError) as err:
+        sc.recalibrate(CAL, points=points, form="input")
+    assert str(err.value) == line and "span gain" in line
+    assert not (tmp_path / "x.yaml").exists()

@@ -10,7 +10,13 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.api.inputs import CalibrationLike, PathLike, as_calibration, paths_of
+from strain_comp.api.inputs import (
+    CalibrationLike,
+    PathLike,
+    as_calibration,
+    checked,
+    paths_of,
+)
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import tare_engine
@@ -61,6 +67,9 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
 
     """
 
+    for value, what in ((sensor, "sensor"), (tare, "tare"), (out_of_range, "out_of_range"),
+                        (tracking, "tracking")):
+        checked(value, "text", what)
     cal = as_calibration(calibration)
     name = _sensor_name(cal, sensor)
     rec = Recording.from_arrays(t, r, name=name, temperature=temperature)
@@ -112,9 +121,13 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
 
     """
 
+    for value, what in ((tare, "tare"), (tracking, "tracking")):
+        checked(value, "text", what)
+    checked(references_every, "seconds", "references_every")
     cal = as_calibration(calibration)
     paths = paths_of(bag)
-    assert paths is not None
+    if paths is None:
+        raise InputError(f"bag: expected the path of a bag, got {type(bag).__name__}")
     return replay_bag(paths[0], cal, out, inputs=list(inputs), tare=tare,
                       csv=None if csv is None else os.fspath(csv), tracking=tracking,
                       references_every=references_every)

@@ -14,6 +14,7 @@ from strain_comp.api.inputs import (
     PathLike,
     as_calibration,
     as_recordings,
+    checked,
     paths_of,
     read_recordings,
 )
@@ -155,6 +156,11 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
 
     """
 
+    checked(data, "data", "data")
+    for value, what in ((tare, "tare"), (out_of_range, "out_of_range"), (tracking, "tracking")):
+        checked(value, "text", what)
+    plot_points = checked(plot_points, "count", "plot_points")
+    references_every = checked(references_every, "seconds", "references_every")
     cal = as_calibration(calibration)
     paths = paths_of(data)
     if paths is not None and len(paths) == 1:

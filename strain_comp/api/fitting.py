@@ -6,7 +6,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
-from strain_comp.api.inputs import Data, PathLike, as_recordings, paths_of
+from strain_comp.api.inputs import Data, PathLike, as_recordings, checked, paths_of
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
@@ -44,13 +44,19 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         The calibration, one ``SensorCalibration`` per sensor fitted.
 
     Raises:
-        InputError: An unknown model or option, a bad unit, a sensor not in the data or
+        InputError: ``data`` or an argument of the wrong type (``api.inputs.checked``), an
+            unknown model or option, a bad unit, a sensor not in the data or
             without a reference, or a bag path that cannot be read.
         BagError: A bag cannot be read.
         FitError: The model cannot be fitted to a sensor's data.
 
     """
 
+    checked(data, "data", "data")
+    for value, what in ((model, "model"), (strain_unit, "strain_unit"), (pool, "pool"),
+                        (input_unit, "input_unit")):
+        checked(value, "text", what)
+    sensors = checked(sensors, "names", "sensors")
     check_fit_options(model, options)
     if not unit_ok(strain_unit):
         raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "

@@ -43,15 +43,15 @@ from strain_comp.core.calibration import (
     SensorCalibration,
     strain_unit_words,
 )
-from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.tracking import fitted_rest
-from strain_comp.errors import CalibrationError, InputError, StrainCompError
+from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.session_window import head, window
 from strain_comp.offline.span import (
     apply_span,
+    loadable,
     span_from_points,
     span_of_first_cycle,
     span_reading,
@@ -317,14 +317,7 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
     history = [*cal.provenance.get("recalibrations", []), dict(record, gain=a, offset=b)]
     new = replace(cal, effects=effects,
                   provenance={**cal.provenance, "recalibrations": history})
-    try:  # the checks every reader applies, in the user's terms
-        check_calibration(Calibration({cal.name: new}))
-    except CalibrationError as err:
-        raise InputError(f"recalibration of {cal.name!r}: {reading(a, b, unit=cal.strain_unit)}"
-                         f" gives a calibration that would not load ({err.problem}); check "
-                         f"the known strains (in {strain_unit_words(cal.strain_unit)})"
-                         ) from None
-    return new
+    return loadable(new, reading(a, b, unit=cal.strain_unit))
 
 
 def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Recording], *,
