@@ -15,6 +15,7 @@ from strain_comp.api.inputs import (
     PathLike,
     as_calibration,
     checked,
+    input_paths,
     paths_of,
 )
 from strain_comp.core.calibration import Calibration
@@ -108,7 +109,8 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
         tracking: As ``--baseline-tracking``.
         references_every: As in ``evaluate`` [s]; None fuses no reference.
         csv: Also write the series there as a table.
-        inputs: Files the outputs must not overwrite.
+        inputs: Files the outputs must not overwrite (besides the calibration's path and
+            the bag).
 
     Returns:
         What was replayed: sensors' health, message counts, problems.
@@ -128,6 +130,7 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
     paths = paths_of(bag)
     if paths is None:
         raise InputError(f"bag: expected the path of a bag, got {type(bag).__name__}")
-    return replay_bag(paths[0], cal, out, inputs=list(inputs), tare=tare,
+    return replay_bag(paths[0], cal, out, inputs=input_paths(calibration, list(inputs)),
+                      tare=tare,
                       csv=None if csv is None else os.fspath(csv), tracking=tracking,
                       references_every=references_every)

@@ -15,6 +15,7 @@ from strain_comp.api.inputs import (
     as_calibration,
     as_recordings,
     checked,
+    input_paths,
     paths_of,
     read_recordings,
 )
@@ -142,7 +143,8 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
             sensor's output gain and offset (``evaluate --references-every``;
             docs/fusion.md); None fuses none.
         csv: Also write every sample there (``evaluate --csv``; a bag only).
-        inputs: Files ``csv`` must not overwrite.
+        inputs: Files ``csv`` must not overwrite (besides the calibration's path and the
+            bag).
 
     Returns:
         The scores per sensor, with what the reader skipped.
@@ -165,7 +167,7 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
     paths = paths_of(data)
     if paths is not None and len(paths) == 1:
         with series_csv(None if csv is None else os.fspath(csv),
-                        inputs=[*paths, *(os.fspath(i) for i in inputs)]) as table:
+                        inputs=[*paths, *input_paths(calibration, list(inputs))]) as table:
             result, problems = evaluate_bag(paths[0], cal, tare=tare, plot_points=plot_points,
                                             series=table, out_of_range=out_of_range,
                                             tracking=tracking,

@@ -154,6 +154,26 @@ def paths_of(data: object) -> list[str] | None:
     return None
 
 
+def input_paths(*given: object) -> list[str]:
+    """The files a call reads, which none of its outputs may be (``io.atomic.check_output``):
+    each of ``given`` that is a path or a list of paths (a calibration's path, the bags,
+    ``inputs=``); recordings and calibrations in memory add none.
+
+    Args:
+        *given: The call's inputs, as given.
+
+    Returns:
+        The paths, as strings.
+
+    """
+    out: list[str] = []
+    for value in given:
+        for item in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(item, (str, os.PathLike)):
+                out.append(os.fspath(item))
+    return out
+
+
 def load_calibration(path: PathLike) -> Calibration:
     """Read and check a calibration file.
 

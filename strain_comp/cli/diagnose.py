@@ -68,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
             reference.
         BagError: A bag cannot be read.
         CalibrationError: The calibration file is bad, or CAL2 would not load.
-        OutputError: An output is an input, two outputs are one, or one cannot be
-            written.
+        OutputError: An output is an input, two outputs are one (a plot ``--plots``
+            writes too), or one cannot be written.
 
     """
     bag(args.bag)
@@ -77,14 +77,16 @@ def run(args: argparse.Namespace) -> int:
         bag(validate, "validation bag")
     existing(args.calibration, "calibration file")
     inputs = [args.bag, *(args.validate or ()), args.calibration]
-    check_distinct((args.out, args.json, args.plots, args.report))
-    for out in (args.out, args.json, args.report):
-        if out is not None and out != "-":
-            output(out, inputs)
     from strain_comp import api
+    from strain_comp.diagnosis.report import plot_file
     from strain_comp.progress import wanted
 
     calibration = api.load_calibration(args.calibration)
+    plots = [] if args.plots is None else [plot_file(args.plots, n) for n in calibration.sensors]
+    check_distinct((args.out, args.json, args.plots, args.report, *plots))
+    for out in (args.out, args.json, args.report):
+        if out is not None and out != "-":
+            output(out, inputs)
     report = api.diagnose(calibration, args.bag, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare,
                           stretch_history=args.stretch_history,

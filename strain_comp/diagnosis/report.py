@@ -329,6 +329,20 @@ def _num(value: float) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
 
 
+def plot_file(out_dir: str | Path, name: str) -> Path:
+    """The residual plot ``write_plots`` writes for sensor ``name`` into ``out_dir``.
+
+    Args:
+        out_dir: The plots' folder.
+        name: The sensor's name.
+
+    Returns:
+        ``out_dir/diagnose_NAME.png``.
+
+    """
+    return Path(out_dir) / f"diagnose_{name}.png"
+
+
 def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
     """Residual before and after against the winning regressor, time and strain (one PNG
@@ -354,7 +368,7 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
         fig = residual_figure(result, name)
         if fig is None:
             continue
-        path = out_dir / f"diagnose_{name}.png"
+        path = plot_file(out_dir, name)
         with atomic_output(path, inputs=inputs) as handle:
             fig.savefig(handle, dpi=110, format="png")
         written.append(path)

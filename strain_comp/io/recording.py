@@ -8,7 +8,7 @@ the temperature are put on the resistance time stamps (``align``).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,46 +19,11 @@ import numpy.typing as npt
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
+from strain_comp.io.inputs import check_scales, scaled
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
 TEMPERATURE = "/temperature"
-SCALE_KEYS = ("time", "resistance", "strain")
-"""The columns a table's ``scales`` (``import-csv --scales``) multiply."""
-
-
-def check_scales(scales: Mapping[str, float] | None, where: str,
-                 keys: Sequence[str] = SCALE_KEYS) -> None:
-    """Check factors per column (``import-csv --scales``, ``Recording.from_frame``).
-
-    Args:
-        scales: Column key -> factor; None: none.
-        where: The file or table, for the message.
-        keys: The keys allowed.
-
-    Raises:
-        InputError: An unknown key, or a factor that is not a finite number > 0 (other
-            than 0 for ``strain``, whose sign may flip).
-
-    """
-    for key, factor in (scales or {}).items():
-        if key not in keys:
-            raise InputError(f"{where}: unknown scale key {key!r} (one of {', '.join(keys)})")
-        sign_ok = isinstance(factor, (int, float)) and not isinstance(factor, bool) and (
-            factor != 0 if key == "strain" else factor > 0)
-        if not (sign_ok and np.isfinite(factor)):
-            need = "a number other than 0" if key == "strain" else "a number > 0"
-            raise InputError(f"{where}: scale {key}={factor!r} must be {need}")
-
-
-def scaled(where: str, key: str, raw: np.ndarray, factor: float) -> np.ndarray:
-    """``raw`` times its scale ``factor``; InputError when a finite value overflows."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        out = raw * factor
-    if np.any(np.isfinite(raw) & ~np.isfinite(out)):
-        raise InputError(f"{where}: --scales {key}={factor:g}: the scaled values "
-                         "overflow (beyond 1.8e308); check the factor")
-    return out
 
 
 @dataclass(frozen=True)
@@ -490,5 +455,5 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     return recordings, contents.problems + located(path, problems)
 
 
-__all__ = ["SCALE_KEYS", "PieceAlign", "Recording", "align", "array_sensor_names",
-           "check_scales", "hold_latest", "load_recordings", "recordings_from_bag", "scaled"]
+__all__ = ["PieceAlign", "Recording", "align", "array_sensor_names", "hold_latest",
+           "load_recordings", "recordings_from_bag"]

@@ -144,12 +144,21 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
     return outcome
 
 
-def _plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
+def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
     """A subfolder of ``plots`` per bag, named by its stem, always directly inside
     ``plots`` and one per bag: a stem that is not a plain name (``..`` of a bag named
     ``...mcap`` or of a path ending in ``/..``, ``.``, empty, hidden) becomes ``bag``; a
     name taken already (a repeated stem, or one equal to another's numbered name) gets
-    ``_2``, ``_3``, ... until it is free."""
+    ``_2``, ``_3``, ... until it is free.
+
+    Args:
+        bags: The bags, in order.
+        plots: The ``--plots`` directory; None: no plots.
+
+    Returns:
+        Each bag's plot folder (None without ``plots``).
+
+    """
     if plots is None:
         return [None] * len(bags)
     taken: set[str] = set()
@@ -277,7 +286,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
     """
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
-    dirs = _plot_dirs(bags, plots)
+    dirs = plot_dirs(bags, plots)
     outcomes: list[BagOutcome] = []
     if jobs == 1 or len(bags) == 1:
         for k, bag in enumerate(bags):

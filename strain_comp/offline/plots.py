@@ -257,6 +257,27 @@ def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str 
     return _save(fig, path, inputs)
 
 
+PLOT_KINDS = ("time", "loop", "raw", "error_hist")
+"""The plots per sensor, in the order written: ``NAME_KIND.png``."""
+
+
+def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
+    """The files ``plot_evaluation`` writes into ``out_dir`` for the sensors ``names``
+    (slashes in a name become ``_``), so a command can refuse another output among them
+    before anything is written (``io.atomic.check_distinct``).
+
+    Args:
+        out_dir: The plots' directory.
+        names: The sensors' names.
+
+    Returns:
+        The paths, per sensor in ``PLOT_KINDS`` order.
+
+    """
+    return [Path(out_dir) / f"{name.strip('/').replace('/', '_')}_{kind}.png"
+            for name in names for kind in PLOT_KINDS]
+
+
 def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
                     inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
                     bag: str = "", calibration_path: str = "", tare: str = "") -> list[Path]:
@@ -282,18 +303,14 @@ def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, ev in result.sensors.items():
-        stem = name.strip("/").replace("/", "_")  # sensor names may hold slashes
         context = context_line(result, name, bag, calibration_path, tare)
         cal = calibration.sensors.get(name) if calibration is not None else None
         r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-        written.append(plot_time(ev, out / f"{stem}_time.png", inputs=inputs,
-                                 context=context))
-        written.append(plot_loop(ev, out / f"{stem}_loop.png", inputs=inputs,
-                                 context=context))
-        written.append(plot_raw(ev, out / f"{stem}_raw.png", inputs=inputs, context=context,
-                                r_range=r_range))
-        written.append(plot_error_hist(ev, out / f"{stem}_error_hist.png", inputs=inputs,
-                                       context=context))
+        time, loop, raw, hist = plot_files(out, [name])
+        written.append(plot_time(ev, time, inputs=inputs, context=context))
+        written.append(plot_loop(ev, loop, inputs=inputs, context=context))
+        written.append(plot_raw(ev, raw, inputs=inputs, context=context, r_range=r_range))
+        written.append(plot_error_hist(ev, hist, inputs=inputs, context=context))
     return written
 
 

@@ -43,6 +43,7 @@ from strain_comp.core.calibration import (
     SensorCalibration,
     strain_unit_words,
 )
+from strain_comp.core.calibration_file import loadable
 from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.tracking import fitted_rest
 from strain_comp.errors import InputError, StrainCompError
@@ -51,7 +52,6 @@ from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.session_window import head, window
 from strain_comp.offline.span import (
     apply_span,
-    loadable,
     span_from_points,
     span_of_first_cycle,
     span_reading,

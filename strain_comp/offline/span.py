@@ -24,11 +24,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
-from strain_comp.core.calibration_file import check_calibration
+from strain_comp.core.calibration_file import loadable
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import RANGE
 from strain_comp.core.tare import TARE, ohms, rest_resistance_from_reference
-from strain_comp.errors import CalibrationError, InputError
+from strain_comp.errors import InputError
 from strain_comp.offline.span_policy import SPAN, SpanPolicy
 
 if TYPE_CHECKING:
@@ -236,30 +236,6 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
                   provenance={**cal.provenance, "recalibrations": history})
     return loadable(new, span_reading(span))
 
-
-def loadable(cal: SensorCalibration, change: str) -> SensorCalibration:
-    """``cal`` after the checks every calibration reader applies, so a recalibration
-    (``apply_span``, ``recalibrate.apply_map``) refuses in the API what the command line's
-    write refuses.
-
-    Args:
-        cal: The recalibrated sensor.
-        change: What the recalibration did, in words, for the message.
-
-    Returns:
-        ``cal``.
-
-    Raises:
-        InputError: ``cal`` would not load, saying what in the user's terms.
-
-    """
-    try:
-        check_calibration(Calibration({cal.name: cal}))
-    except CalibrationError as err:
-        raise InputError(f"recalibration of {cal.name!r}: {change} gives a calibration that "
-                         f"would not load ({err.problem}); check the known strains (in "
-                         f"{strain_unit_words(cal.strain_unit)}) and resistances") from None
-    return cal
 
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
