@@ -264,3 +264,56 @@ def test_recalibrate_through_points_too_close_is_refused_as_the_command_refuses(
         sc.recalibrate(CAL, points=points, form="input")
     assert str(err.value) == line and "span gain" in line
     assert not (tmp_path / "x.yaml").exists()
+
+
+def test_nan_in_gives_nan_out_with_a_validity_mask() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    r = run.r.copy()
+    r[100:110] = np.nan
+    est = sc.estimate(CAL, run.t, r)
+    assert np.isnan(est.strain[100:110]).all() and not est.valid[100:110].any()
+    assert est.valid.sum() == run.t.size - 10 and np.isfinite(est.strain[est.valid]).all()
+    # elsewhere the node's numbers: the clean run's strain up to the gap
+    clean = sc.estimate(CAL, run.t, run.r)
+    np.testing.assert_array_equal(est.strain[:100], clean.strain[:100])
+    strain, direction = est  # unpacks as before
+    assert strain is est.strain and direction is est.direction
+
+
+def test_time_that_does_not_increase_is_refused() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    with pytest.raises(sc.StrainCompError, match="time stamps must increase"):
+        sc.estimate(CAL, run.t[::-1], run.r)
+
+
+def test_evaluate_says_how_many_samples_it_left_out_for_want_of_a_reference() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    s = run.s.copy()
+    s[100:110] = np.nan
+    ev = sc.evaluate(CAL, sc.Recording.from_arrays(run.t, run.r, s, name="s1"))
+    assert ev.scores["s1"]["n"] == run.t.size - 10
+    assert any(note.startswith(f"s1: 10 of {run.t.size} samples without a finite reference")
+               for note in ev.notes), ev.notes
+
+
+def test_a_reference_beyond_what_a_calibration_holds_is_refused_as_fit_refuses(
+        tmp_path: Path) -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    s = run.s.copy()
+    s[50] = 1e200
+    huge = sc.Recording.from_arrays(run.t, run.r, s, name="s1")
+    with pytest.raises(sc.StrainCompError, match=r"reaches 1e\+200, beyond the \+/- 1e\+06"):
+        sc.evaluate(CAL, huge)
+    with pytest.raises(sc.StrainCompError, match=r"reaches 1e\+200, beyond the \+/- 1e\+06"):
+        sc.fit(huge, "cubic")
+
+
+def test_references_every_below_the_sampling_interval_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "e.json"
+    line = cli_error(["evaluate", BAG, "--calibration", CAL, "--references-every", "1e-6",
+                      "--json", str(out)], capsys)
+    assert "below the sampling interval (0.04 s)" in line and not out.exists()
+    with pytest.raises(sc.StrainCompError) as err:
+        sc.evaluate(CAL, sc.read_recordings(BAG), references_every=1e-6)
+    assert str(err.value) == line

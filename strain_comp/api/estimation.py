@@ -4,8 +4,9 @@ new bag (``strain-comp replay``), by the node's engine (docs/api.md)."""
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +21,7 @@ from strain_comp.api.inputs import (
 )
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
+from strain_comp.core.samples import used_mask
 from strain_comp.core.tare import tare_engine
 from strain_comp.core.tracking import DEFAULT_TRACKING, tracker_for
 from strain_comp.errors import InputError
@@ -30,12 +32,26 @@ if TYPE_CHECKING:
     from strain_comp.offline.replay import ReplaySummary
 
 
-class Estimate(NamedTuple):
-    """Strain per sample (in the calibration's unit; held over bad samples) and direction
-    (+1 loading, 0 hold, -1 unloading): the node's ``/NAME/strain`` and ``/NAME/direction``."""
+@dataclass(frozen=True)
+class Estimate:
+    """Strain per sample (in the calibration's unit) and direction (+1 loading, 0 hold, -1
+    unloading): the node's ``/NAME/strain`` and ``/NAME/direction``, and ``valid``, True
+    where the sample was read (False where the node screens it: a NaN or non-positive
+    resistance, a short or open circuit). The strain is NaN where not ``valid`` (the node
+    holds its last value there). Unpacks as ``strain, direction = sc.estimate(...)``."""
 
     strain: np.ndarray
     direction: np.ndarray
+    valid: np.ndarray
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        """``strain`` and ``direction``, so the result unpacks as the pair.
+
+        Returns:
+            An iterator over the two arrays.
+
+        """
+        return iter((self.strain, self.direction))
 
 
 def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *,
@@ -47,7 +63,7 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
 
     Args:
         calibration: A ``Calibration`` or the path of a calibration file.
-        t: Time stamps [s], increasing.
+        t: Time stamps [s], increasing (NaN: a bad sample).
         r: Resistance [ohm] (or the calibration's input unit), one per time stamp.
         sensor: The calibration's sensor to use (default: its only one).
         temperature: Temperature [degC] per sample, for a calibration with a temperature
@@ -57,11 +73,13 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
         tracking: As ``--baseline-tracking``.
 
     Returns:
-        Strain in the calibration's unit and direction (+1, 0, -1) per sample.
+        Strain in the calibration's unit (NaN where the sample is not valid), direction
+        (+1, 0, -1) and validity per sample (``Estimate``).
 
     Raises:
         InputError: The sensor is not in the calibration (or not named when it has
-            several), the arrays are not 1-D numbers of one length, an unknown ``tare``
+            several), the arrays are not 1-D numbers of one length, time stamps that do
+            not increase, an argument of the wrong type, an unknown ``tare``
             or ``tracking``, or the run cannot be tared.
         CalibrationError: The calibration file cannot be read.
         ParameterError: ``out_of_range`` is not a known policy.
@@ -74,12 +92,19 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
     cal = as_calibration(calibration)
     name = _sensor_name(cal, sensor)
     rec = Recording.from_arrays(t, r, name=name, temperature=temperature)
+    stamps = rec.t[np.isfinite(rec.t)]
+    back = np.flatnonzero(np.diff(stamps) <= 0)
+    if back.size:
+        raise InputError(f"t: time stamps must increase; {back.size} of {rec.t.size} do "
+                         f"not (first: {stamps[back[0] + 1]:.6g} s after {stamps[back[0]]:.6g}"
+                         " s); sort the samples by time")
     engine = Engine(cal, out_of_range=out_of_range)
     tare_engine(engine, {name: (rec.t, rec.r)}, tare)
     runner = tracker_for(engine, tracking) or engine
     out = runner.run(name, rec.t, rec.r, rec.temperature)
-    return Estimate(np.asarray(out.strain, dtype=np.float64),
-                    np.asarray(out.direction, dtype=np.int8))
+    valid = used_mask(out.status)
+    return Estimate(np.where(valid, np.asarray(out.strain, dtype=np.float64), np.nan),
+                    np.asarray(out.direction, dtype=np.int8), valid)
 
 
 def _sensor_name(calibration: Calibration, sensor: str | None) -> str:

@@ -19,7 +19,7 @@ import numpy.typing as npt
 from strain_comp import __version__
 from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import ParameterError
+from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.models import Compensator, Normalisation, model_class
 
 FORMAT = "strain_comp/calibration/v1"
@@ -34,6 +34,28 @@ MAX_NODES = 256 * MAX_SENSORS
 MAX_DEPTH = 64
 PARAM_MAX = 1e12
 STRAIN_MAX = 1e6
+
+
+def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -> None:
+    """The one check of a reference strain's size, for ``fit`` (training) and ``evaluate``
+    (scoring) alike: no finite value beyond +/- ``STRAIN_MAX``, what a calibration holds.
+
+    Args:
+        name: The sensor's name, for the message.
+        s: The reference strain (NaN: no reference there).
+        error: The error to raise (``FitError`` for a fit, ``InputError`` to score).
+
+    Raises:
+        StrainCompError: ``error`` naming the sensor and the largest value.
+
+    """
+    values = np.asarray(s, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        top = float(np.max(np.abs(values), initial=0.0, where=np.isfinite(values)))
+    if top > STRAIN_MAX:
+        raise error(f"sensor {name!r}: the reference strain reaches {top:.4g}, beyond the "
+                    f"+/- {STRAIN_MAX:g} a calibration holds; import it in a larger unit "
+                    "(microstrain to %: import-csv --scales strain=1e-4)")
 
 
 @dataclass(frozen=True)

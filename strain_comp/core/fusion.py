@@ -53,6 +53,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from strain_comp.core.samples import used_mask
 from strain_comp.core.tracking import fitted_rest
@@ -253,6 +254,7 @@ class SparseFusion:
             return out
         if self.origin is None:
             self.origin = float(t[0])
+            check_every(self.every, t)
         idx = np.flatnonzero(eligible)
         t_idx = t[idx]
         lo = 0  # the eligible samples not yet passed: idx[lo:]
@@ -311,21 +313,31 @@ class SparseFusion:
         return replace(out, strain=self.run(t, strain, reference, eligible))
 
 
-def check_every(every: float) -> float:
-    """``every`` if it is a spacing of references (finite, > 0 s); InputError otherwise.
+def check_every(every: float, t: npt.ArrayLike | None = None) -> float:
+    """``every`` if it is a spacing of references (finite, > 0 s) and, given a run's first
+    time stamps ``t``, not below its sampling interval (the median step): a reference per
+    sample at most, so the fusion's steps are bounded by the samples. InputError otherwise.
 
     Args:
         every: The spacing [s].
+        t: Time stamps of the run's start [s]; None: only the number is checked.
 
     Returns:
         ``every`` as a float.
 
     Raises:
-        InputError: ``every`` is not a finite number > 0.
+        InputError: ``every`` is not a finite number > 0, or is below the sampling
+            interval.
 
     """
     if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
         raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
+    steps = np.diff(np.asarray(t if t is not None else [], dtype=np.float64))
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    if steps.size and every < float(np.median(steps)):
+        raise InputError(f"--references-every {every:g}: below the sampling interval "
+                         f"({float(np.median(steps)):.4g} s), more references than samples; "
+                         f"give at least {float(np.median(steps)):.4g}")
     return float(every)
 
 

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, check_reference
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.metrics import error_stats
@@ -88,7 +88,8 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 
     Raises:
         InputError: No calibrated sensor can be scored (names both sides), a calibrated
-            sensor in the data has no reference with ``references_every``, or the run
+            sensor in the data has no reference with ``references_every``, a reference
+            beyond what a calibration holds (``check_reference``, as ``fit``), or the run
             cannot be tared.
 
     """
@@ -113,6 +114,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         t = np.asarray(rec.t, dtype=np.float64)
         r = np.asarray(rec.r, dtype=np.float64)
         s = np.asarray(rec.s, dtype=np.float64)
+        check_reference(name, s, InputError)
         out = outputs.get(name) or (tracker or engine).run(name, t, r, rec.temperature)
         fused = None
         if references_every is not None:

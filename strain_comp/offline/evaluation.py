@@ -246,7 +246,8 @@ def format_table(result: EvaluationResult) -> str:
 
 
 def format_notes(result: EvaluationResult) -> list[str]:
-    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors.
+    """Lines for what the table does not show: bad samples, samples without a reference,
+    out-of-range, unscored sensors.
 
     Args:
         result: The evaluation.
@@ -261,6 +262,11 @@ def format_notes(result: EvaluationResult) -> list[str]:
             kinds = ", ".join(f"{k} {v}" for k, v in ev.bad_by_status.items())
             lines.append(f"{name}: {ev.n_bad} of {ev.n_samples} samples bad ({kinds}); "
                          "estimate held, not scored")
+        unreferenced = ev.n_samples - ev.n_bad - ev.stats.n
+        if unreferenced > 0:
+            lines.append(f"{name}: {unreferenced} of {ev.n_samples} samples without a finite "
+                         "reference or estimate (NaN, or outside the reference's time span); "
+                         "not scored")
         if ev.n_out_of_range:
             lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
                          "calibration's valid range (flagged, scored); if the run's rest "
