@@ -93,10 +93,11 @@ def run(args: argparse.Namespace) -> int:
                           session_start=args.session_start == "on",
                           progress_bar=wanted(args.quiet))
     print(report.summary(), file=results(args))
+    page = report.to_html(args.calibration) if args.report else None  # drawn first
     if args.json:
         write_json(args.json, report.to_json(), inputs)
-    if args.report:
-        write_text(args.report, report.to_html(args.calibration), inputs=inputs)
+    if page is not None:
+        write_text(args.report, page, inputs=inputs)
         note(args, f"wrote {args.report}")
     if args.plots:
         note(args, f"wrote plots to {args.plots}")

@@ -140,16 +140,18 @@ def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str],
     print(evaluation.table(), file=results(args))
     for line in evaluation.problems + format_notes(result):
         note(args, line)
-    if args.json:
-        write_json(args.json, evaluation.to_json(), inputs)
+    # drawn before anything is written: a drawing that fails leaves no JSON behind
+    page = evaluation.to_html(args.calibration) if args.report else None
     if args.plots:
         from strain_comp.offline.plots import plot_evaluation
 
         written = plot_evaluation(result, args.plots, inputs=inputs, calibration=calibration,
                                   bag=path, calibration_path=args.calibration, tare=args.tare)
         note(args, f"wrote {len(written)} plots to {args.plots}")
-    if args.report:
-        write_text(args.report, evaluation.to_html(args.calibration), inputs=inputs)
+    if args.json:
+        write_json(args.json, evaluation.to_json(), inputs)
+    if page is not None:
+        write_text(args.report, page, inputs=inputs)
         note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):
         note(args, f"wrote {args.csv}")

@@ -13,6 +13,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
+from strain_comp.offline.plots import plain
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -401,7 +402,7 @@ def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     u = result.calibration.sensors[name].strain_unit
     ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
     ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-    ax1.set_xlabel(f"regressor {d.winner}")
+    ax1.set_xlabel(plain(f"regressor {d.winner}"))
     ax1.set_ylabel(f"residual S_hat - S [{u}]")
     ax1.legend(markerscale=4)
     ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
@@ -414,6 +415,6 @@ def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     ax3.set_xlabel(f"reference strain [{u}] (held-out samples)")
     ax3.set_ylabel(f"residual [{u}]")
     ax3.legend(markerscale=4)
-    fig.suptitle(f"{name}: {d.message}", fontsize=8)
+    fig.suptitle(plain(f"{name}: {d.message}"), fontsize=8)
     fig.tight_layout()
     return fig

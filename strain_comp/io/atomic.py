@@ -235,7 +235,8 @@ def write_bytes(path: PathLike, data: bytes, *, inputs: Iterable[PathLike] = ())
 
 
 def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``text`` to ``path`` atomically, UTF-8 encoded.
+    """Write ``text`` to ``path`` atomically, UTF-8 encoded (a character UTF-8 cannot hold,
+    a surrogate from an undecodable file name, as its ``\\udcff`` escape).
 
     Args:
         path: The target file.
@@ -246,4 +247,4 @@ def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) ->
         OutputError: As ``atomic_output``.
 
     """
-    write_bytes(path, text.encode("utf-8"), inputs=inputs)
+    write_bytes(path, text.encode("utf-8", "backslashreplace"), inputs=inputs)

@@ -52,11 +52,26 @@ def _save(fig: Figure, path: Target, inputs: Sequence[str | Path] = ()) -> Targe
     return path
 
 
+def plain(text: str) -> str:
+    """``text`` as matplotlib draws it literally: ``$`` escaped (no mathtext from a bag's
+    or a sensor's name), a character that cannot be encoded (a surrogate from an undecodable
+    file name) as its ``\\udcff`` escape.
+
+    Args:
+        text: A name or a line with names in it.
+
+    Returns:
+        The text to draw.
+
+    """
+    return text.encode("utf-8", "backslashreplace").decode("utf-8").replace("$", r"\$")
+
+
 def _title(ev: SensorEvaluation, context: str = "") -> str:
     st = ev.stats
-    head = (f"{ev.name} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max {st.max_abs:.3g} "
+    head = (f"{plain(ev.name)} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max {st.max_abs:.3g} "
             f"{ev.unit}, n = {st.n}")
-    return f"{head}\n{context}" if context else head
+    return f"{head}\n{plain(context)}" if context else head
 
 
 def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | None:
