@@ -34,6 +34,10 @@ MAX_NODES = 256 * MAX_SENSORS
 MAX_DEPTH = 64
 PARAM_MAX = 1e12
 STRAIN_MAX = 1e6
+SPAN_GAIN_MAX = 1000.0
+"""The most an input's sensitivity may differ from the calibration's, either way: the bound
+of ``InputSettings.zero_span``'s gain and of a stretch line's slope against the slope of
+the calibrated range (``calibration_reader``)."""
 
 
 def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -> None:
