@@ -198,8 +198,8 @@ def test_dataframes_in_and_out() -> None:
     frame = pd.DataFrame({"time_s": run.t, "resistance_ohm": run.r, "reference": run.s})
     ev = sc.evaluate(CAL, sc.Recording.from_frame(frame, name="s1"))
     table = ev.to_frame()
-    assert table.loc["s1", "rmse"] == pytest.approx(sc.evaluate(CAL, BAG).scores["s1"]["rmse"],
-                                                    rel=1e-12)
+    assert table.loc[("apl", "recordings", "s1"), "rmse"] == pytest.approx(
+        sc.evaluate(CAL, BAG).scores["s1"]["rmse"], rel=1e-12)
 
 
 def test_version_and_help_do_not_load_numpy() -> None:
@@ -317,3 +317,58 @@ def test_references_every_below_the_sampling_interval_is_refused(
     with pytest.raises(sc.StrainCompError) as err:
         sc.evaluate(CAL, sc.read_recordings(BAG), references_every=1e-6)
     assert str(err.value) == line
+
+
+def test_stacked_frames_of_models_and_runs_keep_a_unique_index() -> None:
+    pd = pytest.importorskip("pandas")
+    cubic = sc.fit(TRAIN, "cubic")
+    run = sc.read_recordings(BAG)["s1"]
+    frames = [sc.evaluate(cal, data).to_frame(run=label)
+              for cal in (CAL, cubic) for label, data in (("bag", BAG), ("arrays", run))]
+    table = pd.concat(frames)
+    assert table.index.is_unique and table.index.names == ["model", "run", "sensor"]
+    assert table.loc[("cubic", "bag", "s1"), "rmse"] == sc.evaluate(cubic, BAG).scores["s1"][
+        "rmse"]
+    assert list(table.columns) == ["n", "rmse", "mae", "max_abs", "r2", "unit"]
+
+
+def test_the_score_names_are_one_set_in_the_table_json_and_python() -> None:
+    ev = sc.evaluate(CAL, BAG)
+    keys = ["n", "rmse", "mae", "max_abs", "r2"]
+    assert [k for k in ev.scores["s1"] if k in keys] == keys
+    assert set(keys) <= set(ev.to_json()["sensors"]["s1"])
+    header = ev.table().splitlines()[0].split()
+    assert header[2:] == ["n", "RMSE", "MAE", "max_abs", "r2"]
+
+
+def test_a_notebook_sees_the_names_and_short_reprs() -> None:
+    code = ("import sys, strain_comp; names = dir(strain_comp); "
+            "print('fit' in names and 'StrainEstimator' in names and 'Any' not in names, "
+            "'numpy' in sys.modules)")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, check=True)
+    assert out.stdout.split() == ["True", "False"]
+    import pydoc
+    text = pydoc.plain(pydoc.render_doc(sc))
+    assert "FUNCTIONS" in text and "\n    evaluate(" in text
+    cal = sc.load_calibration(CAL)
+    assert repr(cal) == "Calibration(1 sensor: s1 (apl, fit RMSE 0.5303 % strain))"
+    ev = sc.evaluate(cal, BAG)
+    assert repr(ev) == f"Evaluation({BAG}: s1 (apl, n 14451, RMSE 0.4433 % strain))"
+    assert ev._repr_html_().startswith("<table") and "<td>s1</td>" in cal._repr_html_()
+
+
+def test_an_estimator_fits_predicts_and_scores_as_the_functions() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    model = sc.StrainEstimator("cubic").fit(TRAIN)
+    direct = sc.fit(TRAIN, "cubic")
+    assert model.calibration_ is not None
+    assert model.calibration_.sensors["s1"].params == direct.sensors["s1"].params
+    np.testing.assert_array_equal(model.predict(run.t, run.r),
+                                  sc.estimate(direct, run.t, run.r).strain)
+    assert model.score(BAG) == sc.evaluate(direct, BAG).scores
+    given = sc.StrainEstimator.from_calibration(CAL)
+    assert given.score(run)["s1"]["rmse"] == pytest.approx(0.4433, abs=5e-5)
+    with pytest.raises(sc.StrainCompError, match="call fit"):
+        sc.StrainEstimator().predict(run.t, run.r)

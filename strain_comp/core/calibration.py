@@ -11,6 +11,7 @@ with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from html import escape
 from typing import Any
 
 import numpy as np
@@ -187,6 +188,19 @@ class SensorCalibration:
     DEFAULT_GAP_RESET``): the engine then resets the state only after a pause of that many
     intervals, not at every sample."""
 
+    def __repr__(self) -> str:
+        """Short: the name, model, ranges and fit error, not the parameters (``to_dict``)."""
+        vr, fit = self.valid_range, self.fit_rmse()
+        return (f"SensorCalibration({self.name!r}, {self.model}, {vr.r_lo:.4g}-{vr.r_hi:.4g} "
+                f"{self.input.unit} -> {vr.s_lo:.4g}-{vr.s_hi:.4g} {self.strain_unit}"
+                + ("" if fit is None else f", fit RMSE {fit:.4g}") + ")")
+
+    def fit_rmse(self) -> float | None:
+        """The fit's RMSE from the provenance (None when it holds no number)."""
+        fit = self.provenance.get("fit_rmse")
+        return float(fit) if isinstance(fit, (int, float)) and not isinstance(fit, bool) \
+            else None
+
     @property
     def input_rest(self) -> float | None:
         """The measured resistance at rest [ohm] a tare refers to: the rest of the input
@@ -221,6 +235,27 @@ class Calibration:
     """A calibration file: sensors by name, in file order (the order of an array)."""
 
     sensors: dict[str, SensorCalibration]
+
+    def __repr__(self) -> str:
+        """Short: each sensor's name, model and fit error (``to_dict`` has everything)."""
+        parts = [f"{name} ({cal.model}" + ("" if cal.fit_rmse() is None else
+                                            f", fit RMSE {cal.fit_rmse():.4g} "
+                                            f"{strain_unit_words(cal.strain_unit)}") + ")"
+                 for name, cal in self.sensors.items()]
+        return f"Calibration({len(parts)} sensor{'s' if len(parts) != 1 else ''}: " \
+               f"{', '.join(parts)})"
+
+    def _repr_html_(self) -> str:
+        """A small table for a notebook: sensor, model, ranges, fit RMSE, unit."""
+        head = ("sensor", "model", "resistance range", "strain range", "fit RMSE", "unit")
+        rows = ["<tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
+        for name, cal in self.sensors.items():
+            vr, fit = cal.valid_range, cal.fit_rmse()
+            cells = (name, cal.model, f"{vr.r_lo:.4g} to {vr.r_hi:.4g} {cal.input.unit}",
+                     f"{vr.s_lo:.4g} to {vr.s_hi:.4g}",
+                     "" if fit is None else f"{fit:.4g}", strain_unit_words(cal.strain_unit))
+            rows.append("<tr>" + "".join(f"<td>{escape(str(c))}</td>" for c in cells) + "</tr>")
+        return "<table>" + "".join(rows) + "</table>"
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": FORMAT,

@@ -360,7 +360,7 @@ def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
 
     """
     header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
-              f"{'max':>9} {'R^2':>8}")
+              f"{'max_abs':>9} {'r2':>8}")
     done = sum(o.result is not None for o in outcomes)
     lines = [f"== {done} of {len(outcomes)} bags evaluated: errors pooled over them",
              header, "-" * len(header)]

@@ -226,8 +226,8 @@ def format_table(result: EvaluationResult) -> str:
         The table's text.
 
     """
-    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
-              f"{'R^2':>8}")
+    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max_abs':>9} "
+              f"{'r2':>8}")
     lines = [header, "-" * len(header)]
     for name, ev in result.sensors.items():
         st = ev.stats

@@ -62,7 +62,7 @@ FIGURES = ("estimate and reference over time, resistance below",
 """Captions of the evaluation plots, in the order ``evaluation_figures`` draws them."""
 
 SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
-              ("max_abs", "max", ".4f"), ("r2", "R^2", ".5f"))
+              ("max_abs", "max_abs", ".4f"), ("r2", "r2", ".5f"))
 """Table columns: JSON key, heading, format of the shown text."""
 
 
@@ -155,6 +155,21 @@ def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]
                      f"<td>{escape(model)}</td>{cells}</tr>")
     lines.append("</table>")
     return "\n".join(lines)
+
+
+def scores_table(result: EvaluationResult, bag: str) -> str:
+    """The scores of one evaluation as the page's HTML table (``Evaluation._repr_html_``).
+
+    Args:
+        result: The evaluation.
+        bag: The run's name, for the table's ``data-bag``.
+
+    Returns:
+        The table.
+
+    """
+    return _scores_table(((name, ev.model, ev.stats, ev.unit, {})
+                          for name, ev in result.sensors.items()), bag)
 
 
 def html_image(caption: str, png: bytes) -> str:
