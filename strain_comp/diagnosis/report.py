@@ -306,9 +306,13 @@ class DiagnoseResult:
                 "units": {n: self.calibration.sensors[n].strain_unit for n in self.sensors}}
 
     def summary(self) -> str:
-        """A few lines for the terminal."""
+        """A few lines for the terminal; one when nothing was kept."""
         units = {cal.strain_unit for cal in self.calibration.sensors.values()}
         u = units.pop() if len(units) == 1 else "(each sensor's unit)"
+        if not self.added and not any(c.get("chosen") for c in self.conditions):
+            return (f"held-out RMSE ({self.validated_on}) {self.before['rmse']:.4g} {u}: "
+                    "nothing kept, no effect term or condition lowered it (each one tried, "
+                    "with its reading: --json, --report)")
         lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} {u}, "
                  f"after {self.after['rmse']:.4g} {u}"]
         for c in self.conditions:
