@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -372,3 +373,22 @@ def test_an_estimator_fits_predicts_and_scores_as_the_functions() -> None:
     assert given.score(run)["s1"]["rmse"] == pytest.approx(0.4433, abs=5e-5)
     with pytest.raises(sc.StrainCompError, match="call fit"):
         sc.StrainEstimator().predict(run.t, run.r)
+
+
+def test_a_resistance_that_looks_like_a_ratio_is_warned_about_once(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run = sc.read_recordings(TRAIN[0])["s1"]
+    ratio = sc.Recording.from_arrays(run.t, run.r / run.r[0], run.s, name="s1")
+    with pytest.warns(UserWarning, match=r"looks like|ratio \(R/R0\)") as caught:
+        sc.fit(ratio, "cubic")
+    assert len(caught) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sc.fit(ratio, "cubic", input_unit="R/R0")  # said so: no warning
+        sc.fit(run, "cubic")  # ohm: none
+    from strain_comp.io.csv_import import write_recording_bag
+    write_recording_bag(ratio, tmp_path / "ratio.mcap")
+    assert main(["fit", str(tmp_path / "ratio.mcap"), "--model", "cubic", "--sensor", "s1",
+                 "--out", str(tmp_path / "c.yaml")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "R/R0" in line]
+    assert len(err) == 1 and err[0].startswith("sensor 's1': its resistance spans 0.88")
