@@ -268,7 +268,8 @@ def format_notes(result: EvaluationResult) -> list[str]:
                          "reference or estimate (NaN, or outside the reference's time span); "
                          "not scored")
         if ev.n_out_of_range:
-            lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
+            lines.append(f"{name}: {ev.n_out_of_range} of the {ev.n_samples} samples ("
+                         f"{ev.stats.n} scored) outside the "
                          "calibration's valid range (flagged, scored); if the run's rest "
                          "level moved, try --tare auto, or strain-comp recalibrate")
         if ev.references is not None:

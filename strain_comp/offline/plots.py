@@ -23,6 +23,7 @@ from strain_comp.core.calibration import strain_unit_words
 from strain_comp.io.atomic import atomic_output
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
     from strain_comp.core.calibration import Calibration
@@ -67,10 +68,32 @@ def plain(text: str) -> str:
     return text.encode("utf-8", "backslashreplace").decode("utf-8").replace("$", r"\$")
 
 
+def _legend(ax: Axes) -> None:
+    """The legend beside the axes, never over the data."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
+
+
+def tare_words(tare: str) -> str:
+    """What a ``--tare`` mode is, in words: ``rest level (tare) from the calibration``.
+
+    Args:
+        tare: ``calibration`` or ``auto`` (another: named as given).
+
+    Returns:
+        The words.
+
+    """
+    return {"calibration": "rest level (tare) from the calibration",
+            "auto": "rest level (tare) from the run's start (--tare auto)"}.get(
+                tare, f"tare {tare}")
+
+
 def _title(ev: SensorEvaluation, context: str = "") -> str:
     st = ev.stats
-    head = (f"{plain(ev.name)} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max {st.max_abs:.3g} "
-            f"{ev.unit}, n = {st.n}")
+    head = (f"{plain(ev.name)} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max_abs "
+            f"{st.max_abs:.3g} {ev.unit}, n = {st.n}")
+    if 0 < ev.t.size < ev.n_samples:
+        head += f" (shown: a subsample of {ev.t.size} of {ev.n_samples} samples)"
     return f"{head}\n{plain(context)}" if context else head
 
 
@@ -136,7 +159,7 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     if lim is not None:
         top.set_ylim(*lim)
     top.set_title(_title(ev, context), fontsize=10)
-    top.legend(loc="upper right")
+    _legend(top)
     top.grid(alpha=0.3)
     bottom.plot(t, r, color="tab:blue", lw=0.8, label="R" if ev.input_unit == "ohm"
                 else "input")
@@ -147,7 +170,7 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
         bottom.set_xlim(float(t[0]), float(t[-1]) if t[-1] > t[0] else float(t[0]) + 1.0)
     bottom.set_xlabel("time since start [s]")
     bottom.set_ylabel(r_label)
-    bottom.legend(loc="upper right")
+    _legend(bottom)
     bottom.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
@@ -186,7 +209,7 @@ def plot_loop(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
     ax.set_title(_title(ev, context), fontsize=10)
-    ax.legend(loc="upper left")
+    _legend(ax)
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
@@ -236,7 +259,7 @@ def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path]
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
     ax.set_title(_title(ev, context), fontsize=10)
-    ax.legend(loc="upper left")
+    _legend(ax)
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
@@ -261,13 +284,15 @@ def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str 
     fig = _figure(height=4.0)
     ax = fig.subplots()
     error = ev.estimate[ev.scored] - ev.reference[ev.scored]
+    shown = (f"a subsample of {error.size} of the {ev.stats.n} scored samples"
+             if error.size < ev.stats.n else f"{error.size} samples")
     ax.hist(error, bins=min(80, max(10, int(np.sqrt(error.size)))), color="tab:purple",
-            alpha=0.8, label=f"S_hat - S ({error.size} samples)")
+            alpha=0.8, label=f"S_hat - S ({shown})")
     ax.axvline(0.0, color="0.3", lw=1.0)
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
     ax.set_title(_title(ev, context), fontsize=10)
-    ax.legend(loc="upper right")
+    _legend(ax)
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
@@ -352,5 +377,5 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
     if tare:
         done = next((note.split(": ", 1)[1] for note in result.notes
                      if note.startswith(f"{name}: ") and "tare" in note), "")
-        parts.append(f"tare {tare}" + (f" ({done})" if done else ""))
+        parts.append(tare_words(tare) + (f" ({done})" if done else ""))
     return ", ".join(parts)

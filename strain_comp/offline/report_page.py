@@ -34,6 +34,7 @@ from strain_comp.offline.plots import (
     plot_loop,
     plot_raw,
     plot_time,
+    tare_words,
 )
 
 if TYPE_CHECKING:
@@ -204,7 +205,8 @@ def html_notes(lines: Iterable[str], cls: str = "note") -> str:
 
 
 def plain_text(value: Any) -> str:
-    """A provenance value in one line (mappings and lists as compact JSON).
+    """A provenance value in one line: numbers to 4 significant digits, mappings as
+    ``key: value; ...``, lists as ``a, b``.
 
     Args:
         value: The value.
@@ -213,8 +215,12 @@ def plain_text(value: Any) -> str:
         The line.
 
     """
-    if isinstance(value, (Mapping, list, tuple)):
-        return json.dumps(value, default=str, separators=(", ", ": "))
+    if isinstance(value, Mapping):
+        return "; ".join(f"{k}: {plain_text(v)}" for k, v in value.items()) or "none"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(plain_text(v) for v in value) or "none"
+    if isinstance(value, float):
+        return f"{value:.4g}"
     return str(value)
 
 
@@ -233,7 +239,7 @@ def provenance_section(calibration: Calibration, path: str, *, tare: str = "",
 
     """
     parts = [f"<h2>Calibration</h2><p><code>{escape(path)}</code>"
-             + (f", tare <code>{escape(tare)}</code>" if tare else "") + "</p>"]
+             + (f", {escape(tare_words(tare))}" if tare else "") + "</p>"]
     for name, cal in calibration.sensors.items():
         parts.append(f"<h3>{escape(name)}</h3><table class=\"provenance\">")
         for key, value in _provenance_rows(cal):
@@ -242,7 +248,7 @@ def provenance_section(calibration: Calibration, path: str, *, tare: str = "",
         tared = [n.split(": ", 1)[1] for n in notes if n.startswith(f"{name}: ")
                  and "tare" in n]
         if tared:
-            parts.append(f"<tr><th>tare of this run</th><td>{escape('; '.join(tared))}"
+            parts.append(f"<tr><th>rest level (tare) of this run</th><td>{escape('; '.join(tared))}"
                          "</td></tr>")
         parts.append("</table>")
     return "\n".join(parts)
