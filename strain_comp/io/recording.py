@@ -19,7 +19,7 @@ import numpy.typing as npt
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
-from strain_comp.io.inputs import check_scales, scaled
+from strain_comp.io.scales import check_scales, scaled
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
