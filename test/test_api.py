@@ -307,6 +307,12 @@ def test_a_reference_beyond_what_a_calibration_holds_is_refused_as_fit_refuses(
         sc.evaluate(CAL, huge)
     with pytest.raises(sc.StrainCompError, match=r"reaches 1e\+200, beyond the \+/- 1e\+06"):
         sc.fit(huge, "cubic")
+    from strain_comp.io.csv_import import write_recording_bag
+    write_recording_bag(huge, tmp_path / "huge.mcap")
+    out = tmp_path / "e.json"
+    assert main(["evaluate", str(tmp_path / "huge.mcap"), "--calibration", CAL, "--json",
+                 str(out), "-q"]) == 2  # the streamed bag too
+    assert not out.exists()
 
 
 def test_references_every_below_the_sampling_interval_is_refused(
