@@ -36,7 +36,8 @@ setup(
     ],
     extras_require={
         "test": ["pytest>=7", "hypothesis>=6", "ruff", "mypy>=1.16",
-                 "types-PyYAML"],
+                 "types-PyYAML",
+                 "pandas>=2"],  # docs/api.md's notebook (to_frame), run by test_api_doc
         "fast": ["intel-cmplr-lib-rt"],
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-std-msgs", "ros-jazzy-sensor-msgs",
                 "ros-jazzy-diagnostic-msgs", "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs",

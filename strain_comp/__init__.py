@@ -12,9 +12,9 @@ __version__ = "0.1.0"
 from typing import TYPE_CHECKING, Any
 
 __all__ = ["Calibration", "Diagnosis", "Estimate", "Evaluation", "Recalibration", "Recording",
-           "StrainCompError", "__version__", "diagnose", "estimate", "evaluate", "fit",
-           "load_calibration", "read_recordings", "recalibrate", "replay", "save_calibration",
-           "session_start"]
+           "StrainCompError", "StrainEstimator", "__version__", "diagnose", "estimate",
+           "evaluate", "fit", "load_calibration", "read_recordings", "recalibrate", "replay",
+           "save_calibration", "session_start"]
 
 if TYPE_CHECKING:
     from strain_comp.api import (
@@ -25,6 +25,7 @@ if TYPE_CHECKING:
         Recalibration,
         Recording,
         StrainCompError,
+        StrainEstimator,
         diagnose,
         estimate,
         evaluate,
@@ -36,6 +37,12 @@ if TYPE_CHECKING:
         save_calibration,
         session_start,
     )
+
+
+def __dir__() -> list[str]:
+    """The public names (``__all__``) with the module's own, for ``dir()``, tab completion
+    and ``help()``, without importing ``strain_comp.api``."""
+    return sorted({*__all__, *globals()} - {"Any", "TYPE_CHECKING"})
 
 
 def __getattr__(name: str) -> Any:

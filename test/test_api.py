@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -198,8 +199,8 @@ def test_dataframes_in_and_out() -> None:
     frame = pd.DataFrame({"time_s": run.t, "resistance_ohm": run.r, "reference": run.s})
     ev = sc.evaluate(CAL, sc.Recording.from_frame(frame, name="s1"))
     table = ev.to_frame()
-    assert table.loc["s1", "rmse"] == pytest.approx(sc.evaluate(CAL, BAG).scores["s1"]["rmse"],
-                                                    rel=1e-12)
+    assert table.loc[("apl", "recordings", "s1"), "rmse"] == pytest.approx(
+        sc.evaluate(CAL, BAG).scores["s1"]["rmse"], rel=1e-12)
 
 
 def test_version_and_help_do_not_load_numpy() -> None:
@@ -210,3 +211,190 @@ def test_version_and_help_do_not_load_numpy() -> None:
                          env=env, check=True)
     assert out.stdout.strip() == "False"
     assert callable(sc.estimate) and "estimate" in sc.__all__
+
+
+# ------------------------------------------------- round five: what the API refuses, and how
+
+def _fit_args(run: sc.Recording) -> list[tuple[str, object]]:
+    """Calls with an argument of the wrong type, each with the argument the line names."""
+    cal = sc.load_calibration(CAL)
+    return [
+        ("strain_unit", lambda: sc.fit(run, strain_unit=5)),
+        ("sensor", lambda: sc.estimate(cal, run.t, run.r, sensor=["s1"])),
+        ("plot_points", lambda: sc.evaluate(cal, run, plot_points="50")),
+        ("window", lambda: sc.recalibrate(cal, run, window="20:45")),
+        ("first", lambda: sc.recalibrate(cal, run, first="30")),
+        ("point", lambda: sc.recalibrate(cal, points=["11.5,0", (19.0, 20.0)])),
+        ("data", lambda: sc.fit(run.t, run.r)),
+        ("Recording", lambda: sc.fit({"s1": 5})),
+        ("Recording", lambda: sc.evaluate(cal, {"s1": run.t})),
+        ("Recording", lambda: sc.session_start(cal, {"s1": None})),
+        ("'n/a'", lambda: sc.Recording.from_frame(
+            {"time_s": [0.0, 1.0], "resistance_ohm": ["11.5", "n/a"]})),
+        ("DataFrame", lambda: sc.Recording.from_frame([[0.0, 11.5], [1.0, 11.6]])),
+    ]
+
+
+def test_arguments_of_the_wrong_type_raise_one_line_naming_them() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    for words, call in _fit_args(run):
+        with pytest.raises(sc.StrainCompError) as err:
+            call()  # type: ignore[operator]
+        assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_from_frame_takes_import_csvs_scales() -> None:
+    t = np.arange(5.0)
+    table = {"time_ms": t * 1000.0, "r_kohm": (t + 11.0) / 1000.0, "fraction": t / 100.0}
+    rec = sc.Recording.from_frame(table, time="time_ms", resistance="r_kohm",
+                                  reference="fraction",
+                                  scales={"time": 1e-3, "resistance": 1000.0, "strain": 100.0})
+    np.testing.assert_allclose(rec.t, t)
+    np.testing.assert_allclose(rec.r, t + 11.0)
+    np.testing.assert_allclose(rec.s, t)
+    with pytest.raises(sc.StrainCompError, match="unknown scale key 'temp'"):
+        sc.Recording.from_frame(table, scales={"temp": 2.0})
+
+
+def test_recalibrate_through_points_too_close_is_refused_as_the_command_refuses(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    points = [(11.5, 0.0), (11.5 + 1e-10, 20.0)]
+    line = cli_error(["recalibrate", CAL, "--input", "--out", str(tmp_path / "x.yaml"),
+                      *(f"--point={r!r}:{s!r}" for r, s in points)], capsys)
+    with pytest.raises(sc.StrainCompError) as err:
+        sc.recalibrate(CAL, points=points, form="input")
+    assert str(err.value) == line and "span gain" in line
+    assert not (tmp_path / "x.yaml").exists()
+
+
+def test_nan_in_gives_nan_out_with_a_validity_mask() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    r = run.r.copy()
+    r[100:110] = np.nan
+    est = sc.estimate(CAL, run.t, r)
+    assert np.isnan(est.strain[100:110]).all() and not est.valid[100:110].any()
+    assert est.valid.sum() == run.t.size - 10 and np.isfinite(est.strain[est.valid]).all()
+    # elsewhere the node's numbers: the clean run's strain up to the gap
+    clean = sc.estimate(CAL, run.t, run.r)
+    np.testing.assert_array_equal(est.strain[:100], clean.strain[:100])
+    strain, direction = est  # unpacks as before
+    assert strain is est.strain and direction is est.direction
+
+
+def test_time_that_does_not_increase_is_refused() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    with pytest.raises(sc.StrainCompError, match="time stamps must increase"):
+        sc.estimate(CAL, run.t[::-1], run.r)
+
+
+def test_evaluate_says_how_many_samples_it_left_out_for_want_of_a_reference() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    s = run.s.copy()
+    s[100:110] = np.nan
+    ev = sc.evaluate(CAL, sc.Recording.from_arrays(run.t, run.r, s, name="s1"))
+    assert ev.scores["s1"]["n"] == run.t.size - 10
+    assert any(note.startswith(f"s1: 10 of {run.t.size} samples without a finite reference")
+               for note in ev.notes), ev.notes
+
+
+def test_a_reference_beyond_what_a_calibration_holds_is_refused_as_fit_refuses(
+        tmp_path: Path) -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    s = run.s.copy()
+    s[50] = 1e200
+    huge = sc.Recording.from_arrays(run.t, run.r, s, name="s1")
+    with pytest.raises(sc.StrainCompError, match=r"reaches 1e\+200, beyond the \+/- 1e\+06"):
+        sc.evaluate(CAL, huge)
+    with pytest.raises(sc.StrainCompError, match=r"reaches 1e\+200, beyond the \+/- 1e\+06"):
+        sc.fit(huge, "cubic")
+    from strain_comp.io.csv_import import write_recording_bag
+    write_recording_bag(huge, tmp_path / "huge.mcap")
+    out = tmp_path / "e.json"
+    assert main(["evaluate", str(tmp_path / "huge.mcap"), "--calibration", CAL, "--json",
+                 str(out), "-q"]) == 2  # the streamed bag too
+    assert not out.exists()
+
+
+def test_references_every_below_the_sampling_interval_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "e.json"
+    line = cli_error(["evaluate", BAG, "--calibration", CAL, "--references-every", "1e-6",
+                      "--json", str(out)], capsys)
+    assert "below the sampling interval (0.04 s)" in line and not out.exists()
+    with pytest.raises(sc.StrainCompError) as err:
+        sc.evaluate(CAL, sc.read_recordings(BAG), references_every=1e-6)
+    assert str(err.value) == line
+
+
+def test_stacked_frames_of_models_and_runs_keep_a_unique_index() -> None:
+    pd = pytest.importorskip("pandas")
+    cubic = sc.fit(TRAIN, "cubic")
+    run = sc.read_recordings(BAG)["s1"]
+    frames = [sc.evaluate(cal, data).to_frame(run=label)
+              for cal in (CAL, cubic) for label, data in (("bag", BAG), ("arrays", run))]
+    table = pd.concat(frames)
+    assert table.index.is_unique and table.index.names == ["model", "run", "sensor"]
+    assert table.loc[("cubic", "bag", "s1"), "rmse"] == sc.evaluate(cubic, BAG).scores["s1"][
+        "rmse"]
+    assert list(table.columns) == ["n", "rmse", "mae", "max_abs", "r2", "unit"]
+
+
+def test_the_score_names_are_one_set_in_the_table_json_and_python() -> None:
+    ev = sc.evaluate(CAL, BAG)
+    keys = ["n", "rmse", "mae", "max_abs", "r2"]
+    assert [k for k in ev.scores["s1"] if k in keys] == keys
+    assert set(keys) <= set(ev.to_json()["sensors"]["s1"])
+    header = ev.table().splitlines()[0].split()
+    assert header[2:] == ["n", "RMSE", "MAE", "max_abs", "r2"]
+
+
+def test_a_notebook_sees_the_names_and_short_reprs() -> None:
+    code = ("import sys, strain_comp; names = dir(strain_comp); "
+            "print('fit' in names and 'StrainEstimator' in names and 'Any' not in names, "
+            "'numpy' in sys.modules)")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, check=True)
+    assert out.stdout.split() == ["True", "False"]
+    import pydoc
+    text = pydoc.plain(pydoc.render_doc(sc))
+    assert "FUNCTIONS" in text and "\n    evaluate(" in text
+    cal = sc.load_calibration(CAL)
+    assert repr(cal) == "Calibration(1 sensor: s1 (apl, fit RMSE 0.5303 % strain))"
+    ev = sc.evaluate(cal, BAG)
+    assert repr(ev) == f"Evaluation({BAG}: s1 (apl, n 14451, RMSE 0.4433 % strain))"
+    assert ev._repr_html_().startswith("<table") and "<td>s1</td>" in cal._repr_html_()
+
+
+def test_an_estimator_fits_predicts_and_scores_as_the_functions() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    model = sc.StrainEstimator("cubic").fit(TRAIN)
+    direct = sc.fit(TRAIN, "cubic")
+    assert model.calibration_ is not None
+    assert model.calibration_.sensors["s1"].params == direct.sensors["s1"].params
+    np.testing.assert_array_equal(model.predict(run.t, run.r),
+                                  sc.estimate(direct, run.t, run.r).strain)
+    assert model.score(BAG) == sc.evaluate(direct, BAG).scores
+    given = sc.StrainEstimator.from_calibration(CAL)
+    assert given.score(run)["s1"]["rmse"] == pytest.approx(0.4433, abs=5e-5)
+    with pytest.raises(sc.StrainCompError, match="call fit"):
+        sc.StrainEstimator().predict(run.t, run.r)
+
+
+def test_a_resistance_that_looks_like_a_ratio_is_warned_about_once(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run = sc.read_recordings(TRAIN[0])["s1"]
+    ratio = sc.Recording.from_arrays(run.t, run.r / run.r[0], run.s, name="s1")
+    with pytest.warns(UserWarning, match=r"looks like|ratio \(R/R0\)") as caught:
+        sc.fit(ratio, "cubic")
+    assert len(caught) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sc.fit(ratio, "cubic", input_unit="R/R0")  # said so: no warning
+        sc.fit(run, "cubic")  # ohm: none
+    from strain_comp.io.csv_import import write_recording_bag
+    write_recording_bag(ratio, tmp_path / "ratio.mcap")
+    assert main(["fit", str(tmp_path / "ratio.mcap"), "--model", "cubic", "--sensor", "s1",
+                 "--out", str(tmp_path / "c.yaml")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "R/R0" in line]
+    assert len(err) == 1 and err[0].startswith("sensor 's1': its resistance spans 0.88")

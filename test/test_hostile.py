@@ -29,6 +29,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
+import strain_comp as sc
 from strain_comp.cli import main
 from strain_comp.core.calibration import (
     MAX_FILE_BYTES,
@@ -39,7 +40,7 @@ from strain_comp.core.calibration import (
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import GAP_RESET, Engine
 from strain_comp.diagnosis.candidates import default_candidates
-from strain_comp.errors import BagError, CalibrationError, InputError
+from strain_comp.errors import BagError, CalibrationError, InputError, OutputError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.models import MODEL_NAMES
 from strain_comp.offline.options import check_fit_options
@@ -210,6 +211,38 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(
     code, err = run(argv, capsys)
     assert code == 2 and ("is the input" in err or "(a symbolic link)" in err), err
     assert sha(protected) == before
+
+
+def test_the_api_refuses_an_output_that_is_an_input_as_the_command_does(work: Path) -> None:
+    bag, cal = work / "sim.mcap", work / "cal.yaml"
+    before = sha(cal)
+    calls = [lambda: sc.replay(cal, bag, out=cal), lambda: sc.replay(str(cal), bag, out=bag),
+             lambda: sc.evaluate(cal, bag, csv=cal),
+             lambda: sc.diagnose(cal, bag, out=cal, session_start=False)]
+    for call in calls:
+        with pytest.raises(OutputError, match="is the input"):
+            call()
+    assert sha(cal) == before
+
+
+@pytest.mark.parametrize("which", ["json", "report", "csv", "two"])
+def test_outputs_that_collide_with_a_plot_or_each_other_are_refused_before_any_write(
+        work: Path, tmp_path: Path, which: str, capsys: pytest.CaptureFixture[str]) -> None:
+    plots = tmp_path / "plots"
+    name = next(iter(load_calibration(work / "cal.yaml").sensors))
+    target = plots / f"{name}_loop.png" if which != "two" else tmp_path / "same.json"
+    argv: list[object] = ["evaluate", work / "sim.mcap", "--calibration", work / "cal.yaml",
+                          "--plots", plots, f"--{which if which != 'two' else 'json'}", target]
+    if which == "two":
+        argv += ["--report", target]
+    code, err = run(argv, capsys)
+    assert code == 2 and "given for two outputs" in err, err
+    assert not target.exists() and not plots.exists()
+    diag = ["diagnose", work / "sim.mcap", "--calibration", work / "cal.yaml", "--plots",
+            plots, "--out", tmp_path / "x.yaml", "--json", plots / f"diagnose_{name}.png"]
+    code, err = run(diag, capsys)
+    assert code == 2 and "given for two outputs" in err, err
+    assert not (tmp_path / "x.yaml").exists()
 
 
 @pytest.mark.parametrize("kind", ["symlink", "fifo", "directory", "device"])

@@ -15,6 +15,7 @@ unless a path to write is given (``save_calibration``, ``csv=``, ``out=``, ``plo
 
 from strain_comp.api.diagnosis import Diagnosis, diagnose
 from strain_comp.api.estimation import Estimate, estimate, replay
+from strain_comp.api.estimator import StrainEstimator
 from strain_comp.api.evaluation import Evaluation, evaluate
 from strain_comp.api.fitting import fit
 from strain_comp.api.inputs import (
@@ -31,6 +32,6 @@ from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 
 __all__ = ["Calibration", "CalibrationLike", "Data", "Diagnosis", "Estimate", "Evaluation",
-           "PathLike", "Recalibration", "Recording", "StrainCompError", "diagnose", "estimate",
-           "evaluate", "fit", "load_calibration", "read_recordings", "recalibrate", "replay",
-           "save_calibration", "session_start"]
+           "PathLike", "Recalibration", "Recording", "StrainCompError", "StrainEstimator",
+           "diagnose", "estimate", "evaluate", "fit", "load_calibration", "read_recordings",
+           "recalibrate", "replay", "save_calibration", "session_start"]

@@ -15,6 +15,8 @@ from strain_comp.api.inputs import (
     PathLike,
     as_calibration,
     as_recordings,
+    checked,
+    input_paths,
     is_path,
     paths_of,
     read_recordings,
@@ -23,8 +25,9 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration as _save_calibration
 from strain_comp.diagnosis.command import diagnose_bag
 from strain_comp.diagnosis.conditions import diagnose_conditions
-from strain_comp.diagnosis.report import write_plots
+from strain_comp.diagnosis.report import plot_file, write_plots
 from strain_comp.diagnosis.report_page import diagnosis_page
+from strain_comp.io.atomic import check_distinct
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import PLOT_POINTS
 from strain_comp.offline.report_page import BagSection, evaluation_figures
@@ -144,7 +147,8 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
         session_start: Re-span on the run's start before diagnosing, as a session does.
         out: Also write the new calibration there.
         plots: Also write the residual plots into this directory.
-        inputs: Files ``out`` and ``plots`` must not overwrite.
+        inputs: Files ``out`` and ``plots`` must not overwrite (besides the calibration's
+            path and the bags).
         progress_bar: A bar on stderr over the sensors and conditions tried.
 
     Returns:
@@ -155,10 +159,13 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
             reference.
         CalibrationError: The calibration file cannot be read.
         BagError: A bag cannot be read.
-        OutputError: An output would overwrite an input or cannot be written.
+        OutputError: An output would overwrite an input or another output, or cannot be
+            written.
 
     """
 
+    checked(data, "data", "data")
+    checked(tare, "text", "tare")
     with bar(None, "diagnose", enabled=progress_bar) as shown:
         return _diagnose(calibration, data, validate, tare, stretch_history, session_start,
                          out, plots, inputs, counter(shown) if progress_bar else None)
@@ -173,7 +180,8 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
     runs: list[Any] = [] if validate is None else [validate] if (
         is_path(validate) or isinstance(validate, (Recording, Mapping))) \
         else list(validate)  # type: ignore[arg-type]
-    written = [os.fspath(p) for p in inputs]
+    written = input_paths(calibration, list(inputs))
+    check_distinct((out, plots, *(plot_file(plots, n) for n in cal.sensors if plots)))
     paths = paths_of(data)
     if paths is not None and all(paths_of(v) is not None for v in runs):  # the command's way
         validated = [os.fspath(v) for v in runs]

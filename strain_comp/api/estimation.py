@@ -4,15 +4,24 @@ new bag (``strain-comp replay``), by the node's engine (docs/api.md)."""
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.api.inputs import CalibrationLike, PathLike, as_calibration, paths_of
+from strain_comp.api.inputs import (
+    CalibrationLike,
+    PathLike,
+    as_calibration,
+    checked,
+    input_paths,
+    paths_of,
+)
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine, tracking_off
+from strain_comp.core.samples import used_mask
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
@@ -22,19 +31,30 @@ if TYPE_CHECKING:
     from strain_comp.offline.replay import ReplaySummary
 
 
-class _Pair(NamedTuple):
+@dataclass(frozen=True)
+class Estimate:
+    """Strain per sample (in the calibration's unit) and direction (+1 loading, 0 hold, -1
+    unloading): the node's ``/NAME/strain`` and ``/NAME/direction``; ``valid``, True
+    where the sample was read (False where the node screens it: a NaN or non-positive
+    resistance, a short or open circuit); ``std``, the estimate's standard deviation, the
+    node's ``/NAME/strain_std`` (NaN where the calibration holds no uncertainty). The strain
+    is NaN where not ``valid`` (the node holds its last value there). Unpacks as
+    ``strain, direction = sc.estimate(...)``."""
+
     strain: np.ndarray
     direction: np.ndarray
-
-
-class Estimate(_Pair):
-    """Strain per sample (in the calibration's unit; held over bad samples) and direction
-    (+1 loading, 0 hold, -1 unloading): the node's ``/NAME/strain`` and ``/NAME/direction``;
-    unpacked as the pair (``strain, direction = sc.estimate(...)``). ``std``: the
-    estimate's standard deviation per sample, the node's ``/NAME/strain_std`` (NaN where
-    the calibration holds no uncertainty)."""
-
+    valid: np.ndarray
     std: np.ndarray
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        """``strain`` and ``direction``, so the result unpacks as the pair.
+
+        Returns:
+            An iterator over the two arrays.
+
+        """
+        return iter((self.strain, self.direction))
+
 
 
 def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *,
@@ -46,7 +66,7 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
 
     Args:
         calibration: A ``Calibration`` or the path of a calibration file.
-        t: Time stamps [s], increasing.
+        t: Time stamps [s], increasing (NaN: a bad sample).
         r: Resistance [ohm] (or the calibration's input unit), one per time stamp.
         sensor: The calibration's sensor to use (default: its only one).
         temperature: Temperature [degC] per sample, for a calibration with a temperature
@@ -56,30 +76,40 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
         tracking: As ``--baseline-tracking``: ``off``, the only value left.
 
     Returns:
-        Strain in the calibration's unit and direction (+1, 0, -1) per sample, with the
-        standard deviation per sample as ``.std``.
+        Strain in the calibration's unit (NaN where the sample is not valid), direction
+        (+1, 0, -1), validity and standard deviation per sample (``Estimate``).
 
     Raises:
         InputError: The sensor is not in the calibration (or not named when it has
-            several), the arrays are not 1-D numbers of one length, an unknown ``tare``
+            several), the arrays are not 1-D numbers of one length, time stamps that do
+            not increase, an argument of the wrong type, an unknown ``tare``
             or a ``tracking`` but ``off``, or the run cannot be tared.
         CalibrationError: The calibration file cannot be read.
         ParameterError: ``out_of_range`` is not a known policy.
 
     """
 
+    for value, what in ((sensor, "sensor"), (tare, "tare"), (out_of_range, "out_of_range"),
+                        (tracking, "tracking")):
+        checked(value, "text", what)
     tracking_off(tracking)
     cal = as_calibration(calibration)
     name = _sensor_name(cal, sensor)
     rec = Recording.from_arrays(t, r, name=name, temperature=temperature)
+    stamps = rec.t[np.isfinite(rec.t)]
+    back = np.flatnonzero(np.diff(stamps) <= 0)
+    if back.size:
+        raise InputError(f"t: time stamps must increase; {back.size} of {rec.t.size} do "
+                         f"not (first: {stamps[back[0] + 1]:.6g} s after {stamps[back[0]]:.6g}"
+                         " s); sort the samples by time")
     engine = Engine(cal, out_of_range=out_of_range)
     tare_engine(engine, {name: (rec.t, rec.r)}, tare)
     out = engine.run(name, rec.t, rec.r, rec.temperature)
-    result = Estimate(np.asarray(out.strain, dtype=np.float64),
-                      np.asarray(out.direction, dtype=np.int8))
-    result.std = (np.full(result.strain.size, np.nan) if out.std is None
-                  else np.asarray(out.std, dtype=np.float64))
-    return result
+    valid = used_mask(out.status)
+    std = (np.full(valid.size, np.nan) if out.std is None
+           else np.asarray(out.std, dtype=np.float64))
+    return Estimate(np.where(valid, np.asarray(out.strain, dtype=np.float64), np.nan),
+                    np.asarray(out.direction, dtype=np.int8), valid, std)
 
 
 def _sensor_name(calibration: Calibration, sensor: str | None) -> str:
@@ -109,7 +139,8 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
         tracking: As ``--baseline-tracking``: ``off``, the only value left.
         references_every: As in ``evaluate`` [s]; None fuses no reference.
         csv: Also write the series there as a table.
-        inputs: Files the outputs must not overwrite.
+        inputs: Files the outputs must not overwrite (besides the calibration's path and
+            the bag).
 
     Returns:
         What was replayed: sensors' health, message counts, problems.
@@ -122,10 +153,15 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
 
     """
 
+    for value, what in ((tare, "tare"), (tracking, "tracking")):
+        checked(value, "text", what)
     tracking_off(tracking)
+    checked(references_every, "seconds", "references_every")
     cal = as_calibration(calibration)
     paths = paths_of(bag)
-    assert paths is not None
-    return replay_bag(paths[0], cal, out, inputs=list(inputs), tare=tare,
+    if paths is None:
+        raise InputError(f"bag: expected the path of a bag, got {type(bag).__name__}")
+    return replay_bag(paths[0], cal, out, inputs=input_paths(calibration, list(inputs)),
+                      tare=tare,
                       csv=None if csv is None else os.fspath(csv),
                       references_every=references_every)

@@ -14,16 +14,23 @@ from strain_comp.api.inputs import (
     PathLike,
     as_calibration,
     as_recordings,
+    checked,
+    input_paths,
     paths_of,
     read_recordings,
 )
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.core.engine import tracking_off
 from strain_comp.errors import InputError
 from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import format_notes, format_table
 from strain_comp.offline.fit import in_run_bound as _in_run_bound
-from strain_comp.offline.report_page import BagSection, evaluation_figures, evaluation_page
+from strain_comp.offline.report_page import (
+    BagSection,
+    evaluation_figures,
+    evaluation_page,
+    scores_table,
+)
 from strain_comp.offline.series import series_csv
 
 if TYPE_CHECKING:
@@ -88,17 +95,38 @@ class Evaluation:
         """
         return self.result.to_json()
 
-    def to_frame(self) -> Any:
-        """``scores`` as a pandas DataFrame, one row per sensor.
+    def __repr__(self) -> str:
+        """Short: the run and each sensor's model, n and RMSE (``table`` has the rest)."""
+        parts = [f"{name} ({row['model']}, n {row['n']}, RMSE {row['rmse']:.4g} "
+                 f"{strain_unit_words(row['unit'])})" for name, row in self.scores.items()]
+        return f"Evaluation({self.source}: {', '.join(parts)})"
+
+    def _repr_html_(self) -> str:
+        """The report page's table of the scores, for a notebook."""
+        return scores_table(self.result, self.source)
+
+    def to_frame(self, run: str | None = None) -> Any:
+        """``scores`` as a pandas DataFrame, one row per sensor, indexed by (model, run,
+        sensor): frames of several models and runs stay unique when concatenated
+        (``pd.concat([ev.to_frame() for ev in evaluations])``).
+
+        Args:
+            run: The index's run label (default: the bag's path, or ``recordings``; name
+                runs given as recordings here).
 
         Returns:
-            The DataFrame.
+            The DataFrame: columns n, rmse, mae, max_abs, r2, unit.
 
         Raises:
-            InputError: pandas (optional) is not installed.
+            InputError: pandas (optional) is not installed, or ``run`` is not text.
 
         """
-        return _pandas().DataFrame.from_dict(self.scores, orient="index")
+        run = checked(run, "text", "run") or self.source
+        pandas = _pandas()
+        rows = [{"model": row["model"], "run": run, "sensor": name,
+                 **{k: v for k, v in row.items() if k != "model"}}
+                for name, row in self.scores.items()]
+        return pandas.DataFrame(rows).set_index(["model", "run", "sensor"])
 
     def to_html(self, calibration_path: str = "") -> str:
         """The ``evaluate --report`` page (``strain_comp.offline.report_page``): the table, the
@@ -141,7 +169,8 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
             sensor's output gain and offset (``evaluate --references-every``;
             docs/fusion.md); None fuses none.
         csv: Also write every sample there (``evaluate --csv``; a bag only).
-        inputs: Files ``csv`` must not overwrite.
+        inputs: Files ``csv`` must not overwrite (besides the calibration's path and the
+            bag).
 
     Returns:
         The scores per sensor, with what the reader skipped.
@@ -155,12 +184,17 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
 
     """
 
+    checked(data, "data", "data")
+    for value, what in ((tare, "tare"), (out_of_range, "out_of_range"), (tracking, "tracking")):
+        checked(value, "text", what)
     tracking_off(tracking)
+    plot_points = checked(plot_points, "count", "plot_points")
+    references_every = checked(references_every, "seconds", "references_every")
     cal = as_calibration(calibration)
     paths = paths_of(data)
     if paths is not None and len(paths) == 1:
         with series_csv(None if csv is None else os.fspath(csv),
-                        inputs=[*paths, *(os.fspath(i) for i in inputs)]) as table:
+                        inputs=[*paths, *input_paths(calibration, list(inputs))]) as table:
             result, problems = evaluate_bag(paths[0], cal, tare=tare, plot_points=plot_points,
                                             series=table, out_of_range=out_of_range,
                                             references_every=references_every)

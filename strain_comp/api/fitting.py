@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
-from strain_comp.api.inputs import Data, PathLike, as_recordings, paths_of
+from strain_comp.api.inputs import Data, PathLike, as_recordings, checked, paths_of
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
@@ -28,7 +29,9 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         model: apl, pl, mpi, cubic, sinh_pl, rational or spike_decay.
         sensors: Which sensors to fit (default: every one with a reference).
         strain_unit: The reference strain's unit (``%``, ``mm``), stored in the calibration.
-        report: Where notes go (skipped bag damage, a sensor left out); None drops them.
+        report: Where notes go (skipped bag damage, a sensor left out, a resistance that
+            looks like a ratio: ``ratio_note``); None drops them, but for the last,
+            given as a ``UserWarning``.
         progress_bar: A bar on stderr over an APL-family fit's grid (``strain_comp.progress``).
         pool: How several runs of a sensor are pooled: ``"spanned"`` (each run's input zero
             and span put onto the run of median sensitivity, with the session start chosen
@@ -44,13 +47,19 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         The calibration, one ``SensorCalibration`` per sensor fitted.
 
     Raises:
-        InputError: An unknown model or option, a bad unit, a sensor not in the data or
+        InputError: ``data`` or an argument of the wrong type (``api.inputs.checked``), an
+            unknown model or option, a bad unit, a sensor not in the data or
             without a reference, or a bag path that cannot be read.
         BagError: A bag cannot be read.
         FitError: The model cannot be fitted to a sensor's data.
 
     """
 
+    checked(data, "data", "data")
+    for value, what in ((model, "model"), (strain_unit, "strain_unit"), (pool, "pool"),
+                        (input_unit, "input_unit")):
+        checked(value, "text", what)
+    sensors = checked(sensors, "names", "sensors")
     check_fit_options(model, options)
     if not unit_ok(strain_unit):
         raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "
@@ -73,7 +82,37 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
             cal.input = replace(cal.input, unit=input_unit)
         if grid:  # how the fit was shown is no fit option
             cal.provenance.get("options", {}).pop("progress", None)
+        line = ratio_note(cal)
+        if line is not None and report is not None:
+            report(line)
+        elif line is not None:
+            warnings.warn(line, UserWarning, stacklevel=2)
     return calibration
+
+
+RATIO_TOP = 5.0
+"""A resistance read in ohm whose whole calibrated range lies at or below this [ohm] looks
+like a ratio R/R0 (about 1 at rest): ``ratio_note`` says so."""
+
+
+def ratio_note(cal: SensorCalibration) -> str | None:
+    """One line when a sensor's resistance, read as ohm, looks like a ratio R/R0: its
+    calibrated range lies within (0, ``RATIO_TOP``] ohm (a soft sensor's rest is tens of
+    ohm to megaohm; a ratio is about 1 at rest). The dead zone and the plots would say ohm.
+
+    Args:
+        cal: A sensor's calibration, as fitted.
+
+    Returns:
+        The line, or None.
+
+    """
+    vr = cal.valid_range
+    if cal.input.kind != "resistance" or cal.input.unit != "ohm" or vr.r_hi > RATIO_TOP:
+        return None
+    return (f"sensor {cal.name!r}: its resistance spans {vr.r_lo:.3g} to {vr.r_hi:.3g}, "
+            "read as ohm; if it is a ratio (R/R0), fit with --input-unit R/R0 (Python: "
+            "input_unit='R/R0') so that the dead zone and the plots say so")
 
 
 def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | None,

@@ -3,9 +3,12 @@ their paths, each checked into the one form the commands use."""
 
 from __future__ import annotations
 
+import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+import reprlib
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import Any, Literal
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration as _load_calibration
@@ -20,6 +23,102 @@ Data = PathLike | Recording | Sequence[Recording] | Mapping[str, Recording]
 sensor name to recording (``read_recordings``)."""
 CalibrationLike = Calibration | PathLike
 """A ``Calibration`` or the path of a calibration file."""
+
+
+Kind = Literal["data", "text", "names", "count", "seconds", "window", "points"]
+"""What ``checked`` expects: ``data`` (a path, a Recording, a list or a dict: ``Data``;
+its items are checked where they are read), ``text`` (a str), ``names`` (a str or a list
+of str), ``count`` (an int >= 0), ``seconds`` (a finite number > 0), ``window`` ((START,
+END) seconds, 0 <= START < END) or ``points`` ((resistance, strain) pairs of numbers)."""
+_WANTED = {"data": "a bag path, a Recording, a list or a dict of Recordings (arrays: "
+                   "sc.Recording.from_arrays(t, r, s))", "text": "text",
+           "names": "a name or a list of names",
+           "count": "a whole number >= 0", "seconds": "a finite number of seconds > 0",
+           "window": "(START, END) seconds after the run's start, 0 <= START < END",
+           "points": "(resistance [ohm], strain) pairs of numbers"}
+
+
+def _items(value: object) -> list[Any] | None:
+    """The items of a list, tuple or other iterable that is not text nor a mapping."""
+    if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Iterable):
+        return None
+    return list(value)
+
+
+def _number(value: object) -> float | None:
+    """``value`` as a float when it is a real number (not a bool nor a str), else None."""
+    if isinstance(value, (bool, str, bytes)) or not hasattr(value, "__float__"):
+        return None
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def checked(value: Any, kind: Kind, what: str) -> Any:
+    """A keyword argument of the API checked to be of the kind it must be, the one check
+    every function runs on its options (None passes: the option's default).
+
+    Args:
+        value: The value given.
+        kind: What it must be (``Kind``).
+        what: The argument's name, for the message.
+
+    Returns:
+        ``value`` in its checked form: a str, a list of str, an int, a float, a (START,
+        END) tuple of floats or a list of (R, S) tuples of floats.
+
+    Raises:
+        InputError: ``value`` is not of that kind, naming the argument, what it must be
+            and what was given.
+
+    """
+    if value is None:
+        return None
+    if kind == "data":
+        if not (is_path(value) or isinstance(value, (Recording, Mapping, list, tuple))):
+            raise InputError(f"{what}: expected {_WANTED[kind]}, got {type(value).__name__}")
+        return value
+    bad = InputError(f"{what}={reprlib.repr(value)}: expected {_WANTED[kind]}, got "
+                     f"{type(value).__name__}")
+    if kind == "text":
+        if not isinstance(value, str):
+            raise bad
+        return value
+    if kind == "names":
+        names = [value] if isinstance(value, str) else value
+        if not (isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names)):
+            raise bad
+        return list(names)
+    if kind == "count":
+        number = _number(value)
+        if number is None or not (number.is_integer() and number >= 0):
+            raise bad
+        return int(number)
+    if kind == "seconds":
+        number = _number(value)
+        if number is None or not (math.isfinite(number) and number > 0):
+            raise bad
+        return number
+    if kind == "window":
+        items = _items(value) or []
+        pair = [n for n in (_number(v) for v in items) if n is not None]
+        if len(pair) != 2 or len(items) != 2 or \
+                not 0.0 <= pair[0] < pair[1] < math.inf:
+            raise bad
+        return pair[0], pair[1]
+    rows = _items(value)
+    if rows is None:
+        raise bad
+    points = []
+    for row in rows:
+        items = _items(row) or []
+        pair = [n for n in (_number(v) for v in items) if n is not None]
+        if len(pair) != 2 or len(items) != 2:
+            raise InputError(f"{what}: point {reprlib.repr(row)}: expected (resistance "
+                             "[ohm], strain), two numbers")
+        points.append((pair[0], pair[1]))
+    return points
 
 
 def is_path(data: object) -> bool:
@@ -53,6 +152,26 @@ def paths_of(data: object) -> list[str] | None:
     if isinstance(data, (list, tuple)) and data and all(is_path(p) for p in data):
         return [existing(p, "bag", directory=True) for p in data]
     return None
+
+
+def input_paths(*given: object) -> list[str]:
+    """The files a call reads, which none of its outputs may be (``io.atomic.check_output``):
+    each of ``given`` that is a path or a list of paths (a calibration's path, the bags,
+    ``inputs=``); recordings and calibrations in memory add none.
+
+    Args:
+        *given: The call's inputs, as given.
+
+    Returns:
+        The paths, as strings.
+
+    """
+    out: list[str] = []
+    for value in given:
+        for item in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(item, (str, os.PathLike)):
+                out.append(os.fspath(item))
+    return out
 
 
 def load_calibration(path: PathLike) -> Calibration:
@@ -147,12 +266,18 @@ def as_recordings(data: object) -> dict[str, Recording]:
         Sensor name -> recording.
 
     Raises:
-        InputError: ``data`` is none of these, or names one sensor twice.
+        InputError: ``data`` is none of these, names one sensor twice, or a dict's value
+            is not a Recording.
 
     """
     if isinstance(data, Recording):
         return {data.name: data}
     if isinstance(data, Mapping):
+        for name, rec in data.items():
+            if not isinstance(rec, Recording):
+                raise InputError(f"sensor {name!r}: expected a Recording, got "
+                                 f"{type(rec).__name__} (make one with "
+                                 "sc.Recording.from_arrays(t, r, s))")
         return dict(data)
     if isinstance(data, Sequence) and all(isinstance(r, Recording) for r in data):
         out: dict[str, Recording] = {}
@@ -163,4 +288,4 @@ def as_recordings(data: object) -> dict[str, Recording]:
             out[rec.name] = rec
         return out
     raise InputError(f"expected a bag path, a Recording, a list or a dict of Recordings, got "
-                     f"{type(data).__name__}")
+                     f"{type(data).__name__} (arrays: sc.Recording.from_arrays(t, r, s))")

@@ -11,6 +11,7 @@ from strain_comp.api.inputs import (
     Data,
     as_calibration,
     as_recordings,
+    checked,
     paths_of,
     read_recordings,
 )
@@ -58,8 +59,14 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
 
     """
 
+    checked(data, "data", "data")
+    checked(form, "text", "form")
+    checked(tare, "text", "tare")
+    pts = checked(points, "points", "points")
+    first = checked(first, "seconds", "first")
+    sensors = checked(sensors, "names", "sensors")
+    window = checked(window, "window", "window")
     cal = as_calibration(calibration)
-    pts = [(float(r), float(s)) for r, s in points]
     if (data is None) == (not pts):
         raise InputError("recalibrate needs either two points (R, S) or data with a "
                          "reference strain")
@@ -100,6 +107,10 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30
         BagError: The bag cannot be read.
 
     """
+    checked(data, "data", "data")
+    checked(tare, "text", "tare")
+    first = checked(first, "seconds", "first")
+    window = checked(window, "window", "window")
     cal = as_calibration(calibration)
     paths = paths_of(data)
     held = as_recordings(data) if paths is None else read_recordings(paths[0])

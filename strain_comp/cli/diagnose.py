@@ -56,24 +56,27 @@ def run(args: argparse.Namespace) -> int:
         bag(validate, "validation bag")
     existing(args.calibration, "calibration file")
     inputs = [args.bag, *(args.validate or ()), args.calibration]
-    check_distinct((args.out, args.json, args.plots, args.report))
-    for out in (args.out, args.json, args.report):
-        if out is not None and out != "-":
-            output(out, inputs)
     from strain_comp import api
+    from strain_comp.diagnosis.report import plot_file
     from strain_comp.progress import wanted
 
     calibration = api.load_calibration(args.calibration)
+    plots = [] if args.plots is None else [plot_file(args.plots, n) for n in calibration.sensors]
+    check_distinct((args.out, args.json, args.plots, args.report, *plots))
+    for out in (args.out, args.json, args.report):
+        if out is not None and out != "-":
+            output(out, inputs)
     report = api.diagnose(calibration, args.bag, validate=args.validate, out=args.out,
                           plots=args.plots, inputs=[args.calibration], tare=args.tare,
                           stretch_history=args.stretch_history,
                           session_start=args.session_start == "on",
                           progress_bar=wanted(args.quiet))
     print(report.summary(), file=results(args))
+    page = report.to_html(args.calibration) if args.report else None  # drawn first
     if args.json:
         write_json(args.json, report.to_json(), inputs)
-    if args.report:
-        write_text(args.report, report.to_html(args.calibration), inputs=inputs)
+    if page is not None:
+        write_text(args.report, page, inputs=inputs)
         note(args, f"wrote {args.report}")
     if args.plots:
         note(args, f"wrote plots to {args.plots}")

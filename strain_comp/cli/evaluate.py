@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from typing import TYPE_CHECKING
 
 from strain_comp.cli.common import (
     bag,
@@ -19,6 +20,9 @@ from strain_comp.cli.common import (
 from strain_comp.errors import InputError
 from strain_comp.io.atomic import check_distinct, write_text
 from strain_comp.io.inputs import existing
+
+if TYPE_CHECKING:
+    from strain_comp.core.calibration import Calibration
 
 NAME = "evaluate"
 SUMMARY = "error table of a calibration on one or many bags"
@@ -66,9 +70,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Every input and output checked before any bag is read; one bag streamed through
     ``api.evaluate``, several through ``offline.batch``."""
+    from strain_comp import api
     from strain_comp.core.engine import tracking_off
     from strain_comp.core.fusion import check_every
-    from strain_comp.offline.batch import check_jobs, expand_bags
+    from strain_comp.offline.batch import check_jobs, expand_bags, plot_dirs
+    from strain_comp.offline.plots import plot_files
 
     check_jobs(args.jobs)  # before any bag is read
     tracking_off(args.baseline_tracking)
@@ -81,25 +87,29 @@ def run(args: argparse.Namespace) -> int:
     for path in bags:
         bag(path)
     inputs = [*bags, args.calibration]
-    check_distinct((args.json, args.csv, args.plots, args.report))
+    calibration = api.load_calibration(args.calibration)  # a bad one: one line before any bag
+    many = len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
+        os.path.join(b, "metadata.yaml")) for b in args.bags)
+    plots = [p for d in (plot_dirs(bags, args.plots) if many else [args.plots])
+             if d is not None for p in plot_files(d, list(calibration.sensors))]
+    check_distinct((args.json, args.csv, args.plots, args.report, *plots))
     if args.json == "-" and args.csv == "-":
         raise InputError("--json - and --csv -: only one of them can go to stdout")
     for out in (args.json, args.csv, args.report):
         if out is not None and out != "-":
             output(out, inputs)
-    if len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
-            os.path.join(b, "metadata.yaml")) for b in args.bags):
-        return _evaluate_many(args, bags, inputs)
-    return _evaluate_one(args, bags[0], inputs)
+    if many:
+        return _evaluate_many(args, bags, inputs, calibration)
+    return _evaluate_one(args, bags[0], inputs, calibration)
 
 
-def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str]) -> int:
+def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str],
+                  calibration: Calibration) -> int:
     """``evaluate`` over one bag (``api.evaluate``, streamed)."""
     from strain_comp import api
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.evaluation import format_notes
 
-    calibration = api.load_calibration(args.calibration)
     # streamed; an error when nothing can be scored names what the bag reader skipped
     evaluation = api.evaluate(calibration, path, tare=args.tare,
                               out_of_range=args.out_of_range,
@@ -111,31 +121,32 @@ def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str]) -> int
     print(evaluation.table(), file=results(args))
     for line in evaluation.problems + format_notes(result):
         note(args, line)
-    if args.json:
-        write_json(args.json, evaluation.to_json(), inputs)
+    # drawn before anything is written: a drawing that fails leaves no JSON behind
+    page = evaluation.to_html(args.calibration) if args.report else None
     if args.plots:
         from strain_comp.offline.plots import plot_evaluation
 
         written = plot_evaluation(result, args.plots, inputs=inputs, calibration=calibration,
                                   bag=path, calibration_path=args.calibration, tare=args.tare)
         note(args, f"wrote {len(written)} plots to {args.plots}")
-    if args.report:
-        write_text(args.report, evaluation.to_html(args.calibration), inputs=inputs)
+    if args.json:
+        write_json(args.json, evaluation.to_json(), inputs)
+    if page is not None:
+        write_text(args.report, page, inputs=inputs)
         note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):
         note(args, f"wrote {args.csv}")
     return 0
 
 
-def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str]) -> int:
+def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str],
+                   calibration: Calibration) -> int:
     """``evaluate`` over several bags (``strain_comp.offline.batch``)."""
-    from strain_comp.core.calibration_file import load_calibration
     from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.series import series_csv
     from strain_comp.progress import bar, wanted
 
-    calibration = load_calibration(args.calibration)  # a bad one: one line before any bag
     with series_csv(args.csv, inputs=inputs, bag=True) as table, \
             bar(len(bags), "evaluate", enabled=wanted(args.quiet)) as shown:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,

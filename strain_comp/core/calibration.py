@@ -11,6 +11,7 @@ with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from html import escape
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from strain_comp import __version__
 from strain_comp.core.conversion import divider_to_resistance
 from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.uncertainty import Uncertainty
-from strain_comp.errors import ParameterError
+from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.models import Compensator, Normalisation, model_class
 
 FORMAT = "strain_comp/calibration/v1"
@@ -35,6 +36,32 @@ MAX_NODES = 256 * MAX_SENSORS
 MAX_DEPTH = 64
 PARAM_MAX = 1e12
 STRAIN_MAX = 1e6
+SPAN_GAIN_MAX = 1000.0
+"""The most an input's sensitivity may differ from the calibration's, either way: the bound
+of ``InputSettings.zero_span``'s gain and of a stretch line's slope against the slope of
+the calibrated range (``calibration_reader``)."""
+
+
+def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -> None:
+    """The one check of a reference strain's size, for ``fit`` (training) and ``evaluate``
+    (scoring) alike: no finite value beyond +/- ``STRAIN_MAX``, what a calibration holds.
+
+    Args:
+        name: The sensor's name, for the message.
+        s: The reference strain (NaN: no reference there).
+        error: The error to raise (``FitError`` for a fit, ``InputError`` to score).
+
+    Raises:
+        StrainCompError: ``error`` naming the sensor and the largest value.
+
+    """
+    values = np.asarray(s, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        top = float(np.max(np.abs(values), initial=0.0, where=np.isfinite(values)))
+    if top > STRAIN_MAX:
+        raise error(f"sensor {name!r}: the reference strain reaches {top:.4g}, beyond the "
+                    f"+/- {STRAIN_MAX:g} a calibration holds; import it in a larger unit "
+                    "(microstrain to %: import-csv --scales strain=1e-4)")
 
 
 @dataclass(frozen=True)
@@ -165,6 +192,19 @@ class SensorCalibration:
     """The learned standard deviation of every estimate (``strain_comp.core.uncertainty``);
     None: no band (a file written before it, or a fit on one run)."""
 
+    def __repr__(self) -> str:
+        """Short: the name, model, ranges and fit error, not the parameters (``to_dict``)."""
+        vr, fit = self.valid_range, self.fit_rmse()
+        return (f"SensorCalibration({self.name!r}, {self.model}, {vr.r_lo:.4g}-{vr.r_hi:.4g} "
+                f"{self.input.unit} -> {vr.s_lo:.4g}-{vr.s_hi:.4g} {self.strain_unit}"
+                + ("" if fit is None else f", fit RMSE {fit:.4g}") + ")")
+
+    def fit_rmse(self) -> float | None:
+        """The fit's RMSE from the provenance (None when it holds no number)."""
+        fit = self.provenance.get("fit_rmse")
+        return float(fit) if isinstance(fit, (int, float)) and not isinstance(fit, bool) \
+            else None
+
     @property
     def input_rest(self) -> float | None:
         """The measured resistance at rest [ohm] a tare refers to: the rest of the input
@@ -200,6 +240,27 @@ class Calibration:
     """A calibration file: sensors by name, in file order (the order of an array)."""
 
     sensors: dict[str, SensorCalibration]
+
+    def __repr__(self) -> str:
+        """Short: each sensor's name, model and fit error (``to_dict`` has everything)."""
+        parts = [f"{name} ({cal.model}" + ("" if cal.fit_rmse() is None else
+                                            f", fit RMSE {cal.fit_rmse():.4g} "
+                                            f"{strain_unit_words(cal.strain_unit)}") + ")"
+                 for name, cal in self.sensors.items()]
+        return f"Calibration({len(parts)} sensor{'s' if len(parts) != 1 else ''}: " \
+               f"{', '.join(parts)})"
+
+    def _repr_html_(self) -> str:
+        """A small table for a notebook: sensor, model, ranges, fit RMSE, unit."""
+        head = ("sensor", "model", "resistance range", "strain range", "fit RMSE", "unit")
+        rows = ["<tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
+        for name, cal in self.sensors.items():
+            vr, fit = cal.valid_range, cal.fit_rmse()
+            cells = (name, cal.model, f"{vr.r_lo:.4g} to {vr.r_hi:.4g} {cal.input.unit}",
+                     f"{vr.s_lo:.4g} to {vr.s_hi:.4g}",
+                     "" if fit is None else f"{fit:.4g}", strain_unit_words(cal.strain_unit))
+            rows.append("<tr>" + "".join(f"<td>{escape(str(c))}</td>" for c in cells) + "</tr>")
+        return "<table>" + "".join(rows) + "</table>"
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": FORMAT,

@@ -21,10 +21,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from strain_comp.core.calibration import MAX_FILE_BYTES, Calibration, SensorCalibration
+from strain_comp.core.calibration import (
+    MAX_FILE_BYTES,
+    Calibration,
+    SensorCalibration,
+    strain_unit_words,
+)
 from strain_comp.core.calibration_reader import parse_fields, read_text
 from strain_comp.core.engine import Engine
-from strain_comp.errors import CalibrationError
+from strain_comp.errors import CalibrationError, InputError
 from strain_comp.io.atomic import write_text
 
 
@@ -127,3 +132,28 @@ def probe_calibration(cal: SensorCalibration) -> str | None:
         out = engine.run(cal.name, t, r, np.full(t.size, 25.0))
     bad = np.flatnonzero(~np.isfinite(out.strain))
     return None if bad.size == 0 else f"R = {r[bad[0]]:.6g} ohm at t = {t[bad[0]]:g} s"
+
+
+def loadable(cal: SensorCalibration, change: str) -> SensorCalibration:
+    """``cal`` after the checks every calibration reader applies, so a recalibration
+    (``offline.span.apply_span``, ``offline.recalibrate.apply_map``) refuses in the API
+    what the command line's write refuses.
+
+    Args:
+        cal: The recalibrated sensor.
+        change: What the recalibration did, in words, for the message.
+
+    Returns:
+        ``cal``.
+
+    Raises:
+        InputError: ``cal`` would not load, saying what in the user's terms.
+
+    """
+    try:
+        check_calibration(Calibration({cal.name: cal}))
+    except CalibrationError as err:
+        raise InputError(f"recalibration of {cal.name!r}: {change} gives a calibration that "
+                         f"would not load ({err.problem}); check the known strains (in "
+                         f"{strain_unit_words(cal.strain_unit)}) and resistances") from None
+    return cal

@@ -36,6 +36,7 @@ from strain_comp.core.calibration import (
     MAX_SENSOR_EFFECTS,
     MAX_SENSORS,
     PARAM_MAX,
+    SPAN_GAIN_MAX,
     STRAIN_MAX,
     Calibration,
     InputSettings,
@@ -140,6 +141,7 @@ class _Reader:
         except ParameterError as err:
             prefix = f"{where}.model" if err.field == "name" else f"{where}.model.params"
             raise self.fail(f"{prefix}.{err.field}", err.problem) from None
+        self.line_slope(calibration, where)
         pole = model.singular_in(calibration.valid_range.r_lo, calibration.valid_range.r_hi)
         if pole is not None:
             raise self.fail(f"{where}.model", f"has no finite strain at R = {pole:.6g} ohm, "
@@ -228,14 +230,15 @@ class _Reader:
 
     def zero_span(self, node: Any, where: str) -> tuple[float, float, float] | None:
         """``input.zero_span``: absent or null, else rest and rest_calibrated in (0,
-        PARAM_MAX] ohm and a gain in (0, 1000]."""
+        PARAM_MAX] ohm and a gain in (0, SPAN_GAIN_MAX]."""
         if node is None:
             return None
         node = self.mapping(node, where)
         rest = self.number(node, "rest", where, lo=0.0, hi=PARAM_MAX, strict=True)
         rest_cal = self.number(node, "rest_calibrated", where, lo=0.0, hi=PARAM_MAX,
                                strict=True)
-        return rest, rest_cal, self.number(node, "gain", where, lo=0.0, hi=1000.0, strict=True)
+        return rest, rest_cal, self.number(node, "gain", where, lo=0.0, hi=SPAN_GAIN_MAX,
+                                           strict=True)
 
     def stretch_line(self, node: Any, where: str) -> tuple[float, float] | None:
         """``input.stretch_line``: absent or null, else a rest in (0, PARAM_MAX] ohm and a
@@ -271,6 +274,20 @@ class _Reader:
                   int(self.number(node, key, where, lo=0.0, hi=1e15)) for key in ("runs",
                                                                                 "samples")]
         return Uncertainty.from_weights(values, *counts)
+
+    def line_slope(self, cal: SensorCalibration, where: str) -> None:
+        """A stretch line's slope within ``SPAN_GAIN_MAX`` times, either way, of the slope
+        of the calibrated range (resistance span over strain span): a line flatter than
+        that reads every resistance alike (the zero_span gain's bound, on the line)."""
+        line, vr = cal.input.stretch_line, cal.valid_range
+        if line is None or not vr.s_hi > vr.s_lo:
+            return
+        ratio = abs(line[1]) / ((vr.r_hi - vr.r_lo) / (vr.s_hi - vr.s_lo))
+        if not 1.0 / SPAN_GAIN_MAX <= ratio <= SPAN_GAIN_MAX:
+            raise self.fail(f"{where}.input.stretch_line.slope",
+                            f"{line[1]:.4g} ohm per strain unit is {ratio:.3g} times the "
+                            f"slope of the calibrated range; it must lie within "
+                            f"{SPAN_GAIN_MAX:g} times of it either way")
 
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)

@@ -53,6 +53,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.samples import used_mask
@@ -236,6 +237,7 @@ class SparseFusion:
             return out
         if self.origin is None:
             self.origin = float(t[0])
+            check_every(self.every, t)
         idx = np.flatnonzero(eligible)
         t_idx = t[idx]
         lo = 0  # the eligible samples not yet passed: idx[lo:]
@@ -294,10 +296,18 @@ class SparseFusion:
         return replace(out, strain=self.run(t, strain, reference, eligible))
 
 
-def check_every(every: float) -> float:
-    """``every`` if it is a spacing of references (finite, > 0 s); InputError otherwise."""
+def check_every(every: float, t: npt.ArrayLike | None = None) -> float:
+    """``every`` if it is a spacing of references (finite, > 0 s) and, given a run's first
+    time stamps ``t``, not below its sampling interval (the median step): a reference per
+    sample at most, so the fusion's steps are bounded by the samples. InputError otherwise."""
     if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
         raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
+    steps = np.diff(np.asarray(t if t is not None else [], dtype=np.float64))
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    if steps.size and every < float(np.median(steps)):
+        raise InputError(f"--references-every {every:g}: below the sampling interval "
+                         f"({float(np.median(steps)):.4g} s), more references than samples; "
+                         f"give at least {float(np.median(steps)):.4g}")
     return float(every)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
+from strain_comp.offline.plots import plain
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -305,9 +306,13 @@ class DiagnoseResult:
                 "units": {n: self.calibration.sensors[n].strain_unit for n in self.sensors}}
 
     def summary(self) -> str:
-        """A few lines for the terminal."""
+        """A few lines for the terminal; one when nothing was kept."""
         units = {cal.strain_unit for cal in self.calibration.sensors.values()}
         u = units.pop() if len(units) == 1 else "(each sensor's unit)"
+        if not self.added and not any(c.get("chosen") for c in self.conditions):
+            return (f"held-out RMSE ({self.validated_on}) {self.before['rmse']:.4g} {u}: "
+                    "nothing kept, no effect term or condition lowered it (each one tried, "
+                    "with its reading: --json, --report)")
         lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} {u}, "
                  f"after {self.after['rmse']:.4g} {u}"]
         for c in self.conditions:
@@ -327,6 +332,20 @@ class DiagnoseResult:
 
 def _num(value: float) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
+
+
+def plot_file(out_dir: str | Path, name: str) -> Path:
+    """The residual plot ``write_plots`` writes for sensor ``name`` into ``out_dir``.
+
+    Args:
+        out_dir: The plots' folder.
+        name: The sensor's name.
+
+    Returns:
+        ``out_dir/diagnose_NAME.png``.
+
+    """
+    return Path(out_dir) / f"diagnose_{name}.png"
 
 
 def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
@@ -354,7 +373,7 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
         fig = residual_figure(result, name)
         if fig is None:
             continue
-        path = out_dir / f"diagnose_{name}.png"
+        path = plot_file(out_dir, name)
         with atomic_output(path, inputs=inputs) as handle:
             fig.savefig(handle, dpi=110, format="png")
         written.append(path)
@@ -387,7 +406,7 @@ def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     u = result.calibration.sensors[name].strain_unit
     ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
     ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-    ax1.set_xlabel(f"regressor {d.winner}")
+    ax1.set_xlabel(plain(f"regressor {d.winner}"))
     ax1.set_ylabel(f"residual S_hat - S [{u}]")
     ax1.legend(markerscale=4)
     ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
@@ -400,6 +419,6 @@ def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     ax3.set_xlabel(f"reference strain [{u}] (held-out samples)")
     ax3.set_ylabel(f"residual [{u}]")
     ax3.legend(markerscale=4)
-    fig.suptitle(f"{name}: {d.message}", fontsize=8)
+    fig.suptitle(plain(f"{name}: {d.message}"), fontsize=8)
     fig.tight_layout()
     return fig

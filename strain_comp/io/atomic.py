@@ -161,5 +161,6 @@ def write_bytes(path: PathLike, data: bytes, *, inputs: Iterable[PathLike] = ())
 
 
 def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``text`` to ``path`` atomically, UTF-8 encoded."""
-    write_bytes(path, text.encode("utf-8"), inputs=inputs)
+    """Write ``text`` to ``path`` atomically, UTF-8 encoded (a character UTF-8 cannot hold,
+    a surrogate from an undecodable file name, as its ``\\udcff`` escape)."""
+    write_bytes(path, text.encode("utf-8", "backslashreplace"), inputs=inputs)

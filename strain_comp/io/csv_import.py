@@ -21,6 +21,7 @@ from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
 from strain_comp.io.bag.schemas import MAX_TIME_S
 from strain_comp.io.recording import Recording, align
+from strain_comp.io.scales import check_scales, scaled
 
 FORMATS = ("cb_pdms", "fiber", "generic")
 CB_PDMS_GAUGE_MM = 40.0
@@ -204,13 +205,7 @@ def _mapping(path: Path, fmt: str, gauge_length_mm: float | None,
     unknown = set(mapping) - set(_KEYS)
     if unknown:
         raise InputError(f"{path}: unknown column keys {sorted(unknown)}")
-    for key, factor in (scales or {}).items():
-        if key not in _KEYS:
-            raise InputError(f"{path}: unknown scale key {key!r}")
-        sign_ok = factor != 0 if key == "strain" else factor > 0
-        if not (isinstance(factor, (int, float)) and np.isfinite(factor) and sign_ok):
-            need = "a number other than 0" if key == "strain" else "a number > 0"
-            raise InputError(f"{path}: scale {key}={factor!r} must be {need}")
+    check_scales(scales, str(path), _KEYS)
     return mapping
 
 
@@ -245,19 +240,10 @@ def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
     used = sorted(set(cols.values()))
     table, short = _numeric(rows, width, used)
     factor = {k: 1.0 for k in cols} | dict(scales or {})
-    fields = {key: _scaled(path, key, table[:, used.index(cols[key])], factor[key])
+    fields = {key: scaled(str(path), key, table[:, used.index(cols[key])], factor[key])
               for key in _KEYS if key in cols}
     return fields, short
 
-
-def _scaled(path: Path, key: str, raw: np.ndarray, factor: float) -> np.ndarray:
-    """``raw`` times its scale ``factor``; InputError when a finite value overflows."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        scaled = raw * factor
-    if np.any(np.isfinite(raw) & ~np.isfinite(scaled)):
-        raise InputError(f"{path}: --scales {key}={factor:g}: the scaled values "
-                         "overflow (beyond 1.8e308); check the factor")
-    return scaled
 
 
 def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[np.float64],

@@ -8,6 +8,7 @@ the temperature are put on the resistance time stamps (``align``).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ import numpy.typing as npt
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
+from strain_comp.io.scales import check_scales, scaled
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -93,7 +95,8 @@ class Recording:
     @classmethod
     def from_frame(cls, frame: Any, *, name: str = "s1", time: str = "time_s",
                    resistance: str = "resistance_ohm", reference: str | None = "reference",
-                   temperature: str | None = None) -> Recording:
+                   temperature: str | None = None,
+                   scales: Mapping[str, float] | None = None) -> Recording:
         """A recording from the columns of a table.
 
         The default column names are those of ``evaluate --csv``.
@@ -101,32 +104,51 @@ class Recording:
         Args:
             frame: A pandas DataFrame, or any mapping of column names to arrays.
             name: The sensor's name.
-            time: The time column [s].
-            resistance: The resistance column [ohm].
+            time: The time column [s, or another unit with a ``time`` scale].
+            resistance: The resistance column [ohm, or with a ``resistance`` scale].
             reference: The reference strain column, used when the table has it (None:
                 none).
             temperature: The temperature column [deg C], required when given (None: none).
+            scales: A factor per column, as ``import-csv --scales``: ``time`` (into s),
+                ``resistance`` (into ohm), ``strain`` (into the strain unit fitted, e.g.
+                100 for a fraction to %); None: the columns as they are.
 
         Returns:
             The recording.
 
         Raises:
-            InputError: A required column is missing, or the columns are not 1-D numbers
-                of one length (``from_arrays``).
+            InputError: ``frame`` is not a table, a required column is missing or holds
+                other than numbers, a bad scale, or the columns are not 1-D of one length
+                (``from_arrays``).
 
         """
-        def column(key: str | None, required: bool) -> Any:
+        if not (isinstance(frame, Mapping) or hasattr(frame, "columns")):
+            raise InputError(f"recording {name!r}: expected a pandas DataFrame or a mapping of "
+                             f"column names to arrays, got {type(frame).__name__}")
+        check_scales(scales, f"recording {name!r}")
+        factors = dict(scales or {})
+
+        def column(key: str | None, required: bool, scale: str = "") -> Any:
             if key is None:
                 return None
             try:
-                return np.asarray(frame[key], dtype=np.float64)
-            except KeyError:
+                values = frame[key]
+            except (KeyError, IndexError, TypeError):
                 if not required:
                     return None
                 raise InputError(f"recording {name!r}: no column {key!r} in the table") \
                     from None
-        return cls.from_arrays(column(time, True), column(resistance, True),
-                               column(reference, False), name=name,
+            try:
+                array = np.asarray(values, dtype=np.float64)
+            except (TypeError, ValueError) as err:
+                raise InputError(f"recording {name!r}: column {key!r} holds other than "
+                                 f"numbers ({err}); read missing values as NaN (pandas: "
+                                 "na_values)") from None
+            return scaled(f"recording {name!r}", scale, array, factors[scale]) \
+                if scale in factors else array
+        return cls.from_arrays(column(time, True, "time"),
+                               column(resistance, True, "resistance"),
+                               column(reference, False, "strain"), name=name,
                                temperature=column(temperature, temperature is not None))
 
 

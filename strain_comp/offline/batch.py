@@ -136,12 +136,21 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
     return outcome
 
 
-def _plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
+def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
     """A subfolder of ``plots`` per bag, named by its stem, always directly inside
     ``plots`` and one per bag: a stem that is not a plain name (``..`` of a bag named
     ``...mcap`` or of a path ending in ``/..``, ``.``, empty, hidden) becomes ``bag``; a
     name taken already (a repeated stem, or one equal to another's numbered name) gets
-    ``_2``, ``_3``, ... until it is free."""
+    ``_2``, ``_3``, ... until it is free.
+
+    Args:
+        bags: The bags, in order.
+        plots: The ``--plots`` directory; None: no plots.
+
+    Returns:
+        Each bag's plot folder (None without ``plots``).
+
+    """
     if plots is None:
         return [None] * len(bags)
     taken: set[str] = set()
@@ -238,7 +247,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
     """Every bag evaluated (module docstring), in the order given."""
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
-    dirs = _plot_dirs(bags, plots)
+    dirs = plot_dirs(bags, plots)
     outcomes: list[BagOutcome] = []
     if jobs == 1 or len(bags) == 1:
         for k, bag in enumerate(bags):
@@ -298,7 +307,7 @@ def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
     pooled = aggregate(outcomes)
     banded = any(acc.coverage_95() is not None for acc, *_ in pooled.values())
     header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
-              f"{'max':>9} {'R^2':>8}" + (f" {'in 95%':>7}" if banded else ""))
+              f"{'max_abs':>9} {'r2':>8}" + (f" {'in 95%':>7}" if banded else ""))
     done = sum(o.result is not None for o in outcomes)
     lines = [f"== {done} of {len(outcomes)} bags evaluated: errors pooled over them",
              header, "-" * len(header)]

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, check_reference
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.metrics import band_counts, error_stats
@@ -88,6 +88,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         t = np.asarray(rec.t, dtype=np.float64)
         r = np.asarray(rec.r, dtype=np.float64)
         s = np.asarray(rec.s, dtype=np.float64)
+        check_reference(name, s, InputError)
         out = outputs.get(name) or engine.run(name, t, r, rec.temperature)
         fused = None
         if references_every is not None:

@@ -15,12 +15,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration
+from strain_comp.core.calibration import Calibration, check_reference
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import tare_engine
+from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents
 from strain_comp.io.recording import (
     REFERENCE,
@@ -295,6 +296,8 @@ class EvaluationStream:
         inp.t, inp.r = inp.t[n:], inp.r[n:]
         temp = None if inp.temperature is None else inp.temperature.take(t)
         refs = {name: align.take(t) for name, align in inp.reference.items()}
+        for name, ref in refs.items():
+            check_reference(name, ref, InputError)
         column = {name: j for j, name in enumerate(inp.names)}
         if inp.group:
             outs = self.engine.run_array(inp.group, t, r[:, [column[g] for g in inp.group]],

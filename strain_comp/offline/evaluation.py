@@ -151,8 +151,8 @@ def nothing_scored(calibration: Calibration, names: list[str]) -> str:
 def format_table(result: EvaluationResult) -> str:
     """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
     banded = any(ev.coverage_95 is not None for ev in result.sensors.values())
-    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max':>9} "
-              f"{'R^2':>8}" + (f" {'in 95%':>7}" if banded else ""))
+    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max_abs':>9} "
+              f"{'r2':>8}" + (f" {'in 95%':>7}" if banded else ""))
     lines = [header, "-" * len(header)]
     for name, ev in result.sensors.items():
         st = ev.stats
@@ -174,28 +174,27 @@ def format_table(result: EvaluationResult) -> str:
 
 
 def coverage_cell(coverage: float | None) -> str:
-    """The table's ``in 95%`` cell: a percentage, ``-`` without a band.
-
-    Args:
-        coverage: The share inside the band, or None.
-
-    Returns:
-        The cell, with its leading space.
-
-    """
+    """The table's ``in 95%`` cell: a percentage, ``-`` without a band."""
     return f" {'-':>7}" if coverage is None else f" {100.0 * coverage:>6.1f}%"
 
 
 def format_notes(result: EvaluationResult) -> list[str]:
-    """Lines for what the table does not show: bad samples, out-of-range, unscored sensors."""
+    """Lines for what the table does not show: bad samples, samples without a reference,
+    out-of-range, unscored sensors."""
     lines = []
     for name, ev in result.sensors.items():
         if ev.n_bad:
             kinds = ", ".join(f"{k} {v}" for k, v in ev.bad_by_status.items())
             lines.append(f"{name}: {ev.n_bad} of {ev.n_samples} samples bad ({kinds}); "
                          "estimate held, not scored")
+        unreferenced = ev.n_samples - ev.n_bad - ev.stats.n
+        if unreferenced > 0:
+            lines.append(f"{name}: {unreferenced} of {ev.n_samples} samples without a finite "
+                         "reference or estimate (NaN, or outside the reference's time span); "
+                         "not scored")
         if ev.n_out_of_range:
-            lines.append(f"{name}: {ev.n_out_of_range} of {ev.n_samples} samples outside the "
+            lines.append(f"{name}: {ev.n_out_of_range} of the {ev.n_samples} samples ("
+                         f"{ev.stats.n} scored) outside the "
                          "calibration's valid range (flagged, scored); if the run's rest "
                          "level moved, try --tare auto, or strain-comp recalibrate")
         if ev.references is not None:

@@ -25,6 +25,7 @@ from strain_comp.core.metrics import Z_95
 from strain_comp.io.atomic import atomic_output
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
     from strain_comp.core.calibration import Calibration
@@ -54,11 +55,48 @@ def _save(fig: Figure, path: Target, inputs: Sequence[str | Path] = ()) -> Targe
     return path
 
 
+def plain(text: str) -> str:
+    """``text`` as matplotlib draws it literally: ``$`` escaped (no mathtext from a bag's
+    or a sensor's name), a character that cannot be encoded (a surrogate from an undecodable
+    file name) as its ``\\udcff`` escape.
+
+    Args:
+        text: A name or a line with names in it.
+
+    Returns:
+        The text to draw.
+
+    """
+    return text.encode("utf-8", "backslashreplace").decode("utf-8").replace("$", r"\$")
+
+
+def _legend(ax: Axes) -> None:
+    """The legend beside the axes, never over the data."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
+
+
+def tare_words(tare: str) -> str:
+    """What a ``--tare`` mode is, in words: ``rest level (tare) from the calibration``.
+
+    Args:
+        tare: ``calibration`` or ``auto`` (another: named as given).
+
+    Returns:
+        The words.
+
+    """
+    return {"calibration": "rest level (tare) from the calibration",
+            "auto": "rest level (tare) from the run's start (--tare auto)"}.get(
+                tare, f"tare {tare}")
+
+
 def _title(ev: SensorEvaluation, context: str = "") -> str:
     st = ev.stats
-    head = (f"{ev.name} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max {st.max_abs:.3g} "
-            f"{ev.unit}, n = {st.n}")
-    return f"{head}\n{context}" if context else head
+    head = (f"{plain(ev.name)} ({ev.model}): RMSE {st.rmse:.3g} {ev.unit}, max_abs "
+            f"{st.max_abs:.3g} {ev.unit}, n = {st.n}")
+    if 0 < ev.t.size < ev.n_samples:
+        head += f" (shown: a subsample of {ev.t.size} of {ev.n_samples} samples)"
+    return f"{head}\n{plain(context)}" if context else head
 
 
 def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | None:
@@ -114,7 +152,7 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     if lim is not None:
         top.set_ylim(*lim)
     top.set_title(_title(ev, context), fontsize=10)
-    top.legend(loc="upper right")
+    _legend(top)
     top.grid(alpha=0.3)
     bottom.plot(t, r, color="tab:blue", lw=0.8, label="R" if ev.input_unit == "ohm"
                 else "input")
@@ -125,7 +163,7 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
         bottom.set_xlim(float(t[0]), float(t[-1]) if t[-1] > t[0] else float(t[0]) + 1.0)
     bottom.set_xlabel("time since start [s]")
     bottom.set_ylabel(r_label)
-    bottom.legend(loc="upper right")
+    _legend(bottom)
     bottom.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
@@ -150,7 +188,7 @@ def plot_loop(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
     ax.set_title(_title(ev, context), fontsize=10)
-    ax.legend(loc="upper left")
+    _legend(ax)
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
@@ -185,7 +223,7 @@ def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path]
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
     ax.set_title(_title(ev, context), fontsize=10)
-    ax.legend(loc="upper left")
+    _legend(ax)
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
 
@@ -196,15 +234,38 @@ def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str 
     fig = _figure(height=4.0)
     ax = fig.subplots()
     error = ev.estimate[ev.scored] - ev.reference[ev.scored]
+    shown = (f"a subsample of {error.size} of the {ev.stats.n} scored samples"
+             if error.size < ev.stats.n else f"{error.size} samples")
     ax.hist(error, bins=min(80, max(10, int(np.sqrt(error.size)))), color="tab:purple",
-            alpha=0.8, label=f"S_hat - S ({error.size} samples)")
+            alpha=0.8, label=f"S_hat - S ({shown})")
     ax.axvline(0.0, color="0.3", lw=1.0)
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
     ax.set_title(_title(ev, context), fontsize=10)
-    ax.legend(loc="upper right")
+    _legend(ax)
     ax.grid(alpha=0.3)
     return _save(fig, path, inputs)
+
+
+PLOT_KINDS = ("time", "loop", "raw", "error_hist")
+"""The plots per sensor, in the order written: ``NAME_KIND.png``."""
+
+
+def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
+    """The files ``plot_evaluation`` writes into ``out_dir`` for the sensors ``names``
+    (slashes in a name become ``_``), so a command can refuse another output among them
+    before anything is written (``io.atomic.check_distinct``).
+
+    Args:
+        out_dir: The plots' directory.
+        names: The sensors' names.
+
+    Returns:
+        The paths, per sensor in ``PLOT_KINDS`` order.
+
+    """
+    return [Path(out_dir) / f"{name.strip('/').replace('/', '_')}_{kind}.png"
+            for name in names for kind in PLOT_KINDS]
 
 
 def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
@@ -215,18 +276,14 @@ def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, ev in result.sensors.items():
-        stem = name.strip("/").replace("/", "_")  # sensor names may hold slashes
         context = context_line(result, name, bag, calibration_path, tare)
         cal = calibration.sensors.get(name) if calibration is not None else None
         r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-        written.append(plot_time(ev, out / f"{stem}_time.png", inputs=inputs,
-                                 context=context))
-        written.append(plot_loop(ev, out / f"{stem}_loop.png", inputs=inputs,
-                                 context=context))
-        written.append(plot_raw(ev, out / f"{stem}_raw.png", inputs=inputs, context=context,
-                                r_range=r_range))
-        written.append(plot_error_hist(ev, out / f"{stem}_error_hist.png", inputs=inputs,
-                                       context=context))
+        time, loop, raw, hist = plot_files(out, [name])
+        written.append(plot_time(ev, time, inputs=inputs, context=context))
+        written.append(plot_loop(ev, loop, inputs=inputs, context=context))
+        written.append(plot_raw(ev, raw, inputs=inputs, context=context, r_range=r_range))
+        written.append(plot_error_hist(ev, hist, inputs=inputs, context=context))
     return written
 
 
@@ -241,5 +298,5 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
     if tare:
         done = next((note.split(": ", 1)[1] for note in result.notes
                      if note.startswith(f"{name}: ") and "tare" in note), "")
-        parts.append(f"tare {tare}" + (f" ({done})" if done else ""))
+        parts.append(tare_words(tare) + (f" ({done})" if done else ""))
     return ", ".join(parts)

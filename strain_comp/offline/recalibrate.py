@@ -38,15 +38,16 @@ import numpy as np
 
 from strain_comp.core.calibration import (
     PARAM_MAX,
+    SPAN_GAIN_MAX,
     STRAIN_MAX,
     Calibration,
     SensorCalibration,
     strain_unit_words,
 )
-from strain_comp.core.calibration_file import check_calibration
+from strain_comp.core.calibration_file import loadable
 from strain_comp.core.effects import RECALIBRATION_TERMS
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.errors import CalibrationError, InputError, StrainCompError
+from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.session_window import head, window
@@ -182,7 +183,8 @@ def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, 
                          "move with the reference strain in the stretch read as the "
                          "calibration's does (no line of resistance on strain there)")
     zero_span = onto(own, space)
-    if not (0.0 < zero_span[0] <= PARAM_MAX and 0.0 < zero_span[2] <= 1000.0):
+    if not (0.0 < zero_span[0] <= PARAM_MAX
+            and 1.0 / SPAN_GAIN_MAX <= zero_span[2] <= SPAN_GAIN_MAX):
         raise InputError(f"recalibrate --input: sensor {cal.name!r}: the stretch read puts "
                          f"its rest at {zero_span[0]:.4g} ohm and its sensitivity "
                          f"{1.0 / zero_span[2]:.4g} times the calibration's: no session start "
@@ -317,14 +319,19 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
     history = [*cal.provenance.get("recalibrations", []), dict(record, gain=a, offset=b)]
     new = replace(cal, effects=effects,
                   provenance={**cal.provenance, "recalibrations": history})
-    try:  # the checks every reader applies, in the user's terms
-        check_calibration(Calibration({cal.name: new}))
-    except CalibrationError as err:
-        raise InputError(f"recalibration of {cal.name!r}: {reading(a, b, unit=cal.strain_unit)}"
-                         f" gives a calibration that would not load ({err.problem}); check "
-                         f"the known strains (in {strain_unit_words(cal.strain_unit)})"
-                         ) from None
-    return new
+    return loadable(new, reading(a, b, unit=cal.strain_unit))
+
+
+def _check_named(calibration: Calibration, recordings: Mapping[str, Recording],
+                 sensors: Sequence[str] | None, source: str) -> None:
+    """InputError for a sensor named (``--sensor``) that the calibration or the run lacks."""
+    for name in sensors or ():
+        if name not in calibration.sensors:
+            raise InputError(f"recalibrate --sensor {name}: not in the calibration (its "
+                             f"sensors: {', '.join(calibration.sensors)})")
+        if name not in recordings or recordings[name].s is None:
+            raise InputError(f"recalibrate --sensor {name}: {source or 'the data'} holds no "
+                             "recording of it with a strain reference")
 
 
 def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Recording], *,
@@ -354,13 +361,15 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
 
     Raises:
         InputError: An unknown ``form``, both ``first`` and ``span``, a bad window or
-            ``first``, no sensor with a reference, or a map that cannot be made.
+            ``first``, a sensor named that the calibration or the run lacks, no sensor
+            with a reference, or a map that cannot be made.
 
     """
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if span is not None and first is not None:
         raise InputError("recalibrate: give --first or --window, not both")
+    _check_named(calibration, recordings, sensors, source)
     if span is not None:
         chosen = {n: r for n, r in recordings.items()
                   if n in calibration.sensors and not (sensors and n not in sensors)}

@@ -34,6 +34,7 @@ from strain_comp.offline.plots import (
     plot_loop,
     plot_raw,
     plot_time,
+    tare_words,
 )
 
 if TYPE_CHECKING:
@@ -62,7 +63,7 @@ FIGURES = ("estimate and reference over time, resistance below",
 """Captions of the evaluation plots, in the order ``evaluation_figures`` draws them."""
 
 SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
-              ("max_abs", "max", ".4f"), ("r2", "R^2", ".5f"))
+              ("max_abs", "max_abs", ".4f"), ("r2", "r2", ".5f"))
 """Table columns: JSON key, heading, format of the shown text."""
 
 
@@ -157,6 +158,21 @@ def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]
     return "\n".join(lines)
 
 
+def scores_table(result: EvaluationResult, bag: str) -> str:
+    """The scores of one evaluation as the page's HTML table (``Evaluation._repr_html_``).
+
+    Args:
+        result: The evaluation.
+        bag: The run's name, for the table's ``data-bag``.
+
+    Returns:
+        The table.
+
+    """
+    return _scores_table(((name, ev.model, ev.stats, ev.unit, {})
+                          for name, ev in result.sensors.items()), bag)
+
+
 def html_image(caption: str, png: bytes) -> str:
     """A PNG as an inline figure.
 
@@ -189,7 +205,8 @@ def html_notes(lines: Iterable[str], cls: str = "note") -> str:
 
 
 def plain_text(value: Any) -> str:
-    """A provenance value in one line (mappings and lists as compact JSON).
+    """A provenance value in one line: numbers to 4 significant digits, mappings as
+    ``key: value; ...``, lists as ``a, b``.
 
     Args:
         value: The value.
@@ -198,8 +215,12 @@ def plain_text(value: Any) -> str:
         The line.
 
     """
-    if isinstance(value, (Mapping, list, tuple)):
-        return json.dumps(value, default=str, separators=(", ", ": "))
+    if isinstance(value, Mapping):
+        return "; ".join(f"{k}: {plain_text(v)}" for k, v in value.items()) or "none"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(plain_text(v) for v in value) or "none"
+    if isinstance(value, float):
+        return f"{value:.4g}"
     return str(value)
 
 
@@ -218,7 +239,7 @@ def provenance_section(calibration: Calibration, path: str, *, tare: str = "",
 
     """
     parts = [f"<h2>Calibration</h2><p><code>{escape(path)}</code>"
-             + (f", tare <code>{escape(tare)}</code>" if tare else "") + "</p>"]
+             + (f", {escape(tare_words(tare))}" if tare else "") + "</p>"]
     for name, cal in calibration.sensors.items():
         parts.append(f"<h3>{escape(name)}</h3><table class=\"provenance\">")
         for key, value in _provenance_rows(cal):
@@ -227,7 +248,7 @@ def provenance_section(calibration: Calibration, path: str, *, tare: str = "",
         tared = [n.split(": ", 1)[1] for n in notes if n.startswith(f"{name}: ")
                  and "tare" in n]
         if tared:
-            parts.append(f"<tr><th>tare of this run</th><td>{escape('; '.join(tared))}"
+            parts.append(f"<tr><th>rest level (tare) of this run</th><td>{escape('; '.join(tared))}"
                          "</td></tr>")
         parts.append("</table>")
     return "\n".join(parts)

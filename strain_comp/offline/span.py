@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.core.calibration_file import loadable
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.core.tare import REST_BAND, ohms, rest_resistance_from_reference
@@ -225,11 +226,16 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
     Returns:
         The recalibrated sensor.
 
+    Raises:
+        InputError: The result would not load (``loadable``).
+
     """
     history = [*cal.provenance.get("recalibrations", []),
                dict(record, rest=span[0], rest_calibrated=span[1], span_gain=span[2])]
-    return replace(cal, input=replace(cal.input, zero_span=span),
-                   provenance={**cal.provenance, "recalibrations": history})
+    new = replace(cal, input=replace(cal.input, zero_span=span),
+                  provenance={**cal.provenance, "recalibrations": history})
+    return loadable(new, span_reading(span))
+
 
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:

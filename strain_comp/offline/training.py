@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from strain_comp.core.calibration import PARAM_MAX, STRAIN_MAX, ValidRange
+from strain_comp.core.calibration import PARAM_MAX, STRAIN_MAX, ValidRange, check_reference
 from strain_comp.core.engine import GAP_RESET
 from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.tare import rest_resistance_from_reference
@@ -91,12 +91,13 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
     if not (np.ptp(r_all) > 0 and np.ptp(s_all) > 0):
         raise FitError(f"sensor {name!r}: the training data span no range of resistance "
                        "or strain")
+    check_reference(name, s_all, FitError)
     span = valid_range(segments)
-    if not max(abs(span.s_lo), abs(span.s_hi)) <= STRAIN_MAX:
+    if not max(abs(span.s_lo), abs(span.s_hi)) <= STRAIN_MAX:  # widened beyond it
         raise FitError(f"sensor {name!r}: the reference strain spans {s_all.min():.4g} to "
                        f"{s_all.max():.4g}, beyond the +/- {STRAIN_MAX:g} a calibration "
-                       "holds; import it in a larger unit (microstrain to %: import-csv "
-                       "--scales strain=1e-4)")
+                       "holds once widened; import it in a larger unit (microstrain to %: "
+                       "import-csv --scales strain=1e-4)")
     for what, values, top in (("resistance", r_all, PARAM_MAX), ("strain", s_all, STRAIN_MAX)):
         # a span a float64 fit cannot resolve (1e-300) or values a calibration cannot hold
         if np.ptp(values) < MIN_SPAN or np.abs(values).max() > top:

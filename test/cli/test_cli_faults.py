@@ -109,3 +109,30 @@ def test_version_and_help_import_no_command_machinery() -> None:
     assert out.stdout.rstrip().endswith(describe_options() + "\n\nexample:\n  strain-comp fit "
                                         "run1.mcap run2.mcap --model apl --sensor s1 --out "
                                         "s1.yaml --option N=11")
+
+
+def test_names_with_mathtext_or_undecodable_bytes_are_drawn_as_plain_text(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import dataclasses
+    import json
+    import os
+
+    import strain_comp as sc
+    from strain_comp.io.csv_import import write_recording_bag
+
+    run = sc.read_recordings(ROOT / "bags" / "demo_rates.mcap")["s1"]
+    cal = sc.load_calibration(ROOT / "config" / "demo_calibration.yaml").sensors["s1"]
+    name = "s$^$_{x"  # not valid mathtext: matplotlib refuses to draw it as math
+    bag = tmp_path / os.fsdecode(b"run\xff$x^2$.mcap")  # a surrogate in the bag's name
+    write_recording_bag(sc.Recording.from_arrays(run.t[:2000], run.r[:2000], run.s[:2000],
+                                                 name=name), bag)
+    sc.save_calibration(sc.Calibration({name: dataclasses.replace(cal, name=name)}),
+                        tmp_path / "cal.yaml")
+    out = {k: tmp_path / f"out.{k}" for k in ("json", "html")}
+    assert main(["evaluate", str(bag), "--calibration", str(tmp_path / "cal.yaml"), "-q",
+                 "--json", str(out["json"]), "--plots", str(tmp_path / "plots"),
+                 "--report", str(out["html"])]) == 0, capsys.readouterr().err
+    assert name in json.loads(out["json"].read_text())["sensors"]
+    assert len(list((tmp_path / "plots").glob("*.png"))) == 4
+    page = out["html"].read_text(encoding="utf-8")
+    assert "run\\udcff$x^2$.mcap" in page and page.count("data:image/png;base64,") == 4

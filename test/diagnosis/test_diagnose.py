@@ -176,6 +176,8 @@ def test_no_missing_effect_adds_nothing(bags: BagMaker, calibration: Calibration
         assert not result.added, result.summary()
         assert result.after == result.before
         assert "nothing added" in result.sensors["s1"].message
+        summary = result.summary()  # one line on the terminal; the readings in the JSON
+        assert "\n" not in summary and "nothing kept" in summary, summary
         assert result.calibration.sensors["s1"].effects == []
     assert write_plots(result, tmp_path) == []
 

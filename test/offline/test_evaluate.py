@@ -99,8 +99,8 @@ def test_plot_titles_name_bag_calibration_and_tare_and_axes_span_the_data() -> N
     result = evaluate_recordings({"s1": recording()}, calibration())
     result.notes.append("s1: not tared: the run does not start at rest")
     assert context_line(result, "s1", "runs/b.mcap", "c/cal.yaml", "auto") == (
-        "bag b.mcap, calibration cal.yaml, tare auto (not tared: the run does not start at "
-        "rest)")
+        "bag b.mcap, calibration cal.yaml, rest level (tare) from the run's start (--tare "
+        "auto) (not tared: the run does not start at rest)")
     values = np.array([np.nan, -2.0, 3.0, np.inf, 8.0])
     assert _limits(values) == (-2.5, 8.5)  # finite data plus 5 % of its span each side
     assert _limits(np.array([np.nan])) is None

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from strain_comp.cli import main
-from strain_comp.offline.batch import _plot_dirs
+from strain_comp.offline.batch import plot_dirs
 
 ROOT = Path(__file__).resolve().parents[2]
 ERROR = "strain-comp: error: "
@@ -69,7 +69,7 @@ def test_plot_folders_stay_under_plots_and_are_one_per_bag(tmp_path: Path) -> No
     plots = tmp_path / "plots"
     bags = ["x/...mcap", "rig/run/..", "a/x.mcap", "b/x.mcap", "c/x_2.mcap", "d/.mcap",
             "e/x.mcap"]
-    dirs = [Path(str(d)) for d in _plot_dirs(bags, str(plots))]
+    dirs = [Path(str(d)) for d in plot_dirs(bags, str(plots))]
     assert len(set(dirs)) == len(bags)
     assert all(d.parent == plots and d.name not in ("", ".", "..") for d in dirs), dirs
     assert [d.name for d in dirs] == ["bag", "bag_2", "x", "x_2", "x_2_2", "bag_3", "x_3"]

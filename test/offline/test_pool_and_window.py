@@ -281,3 +281,43 @@ def test_the_stretches_count_from_the_runs_first_sample() -> None:
     t_late = np.concatenate([0.05 * np.arange(100), t + 5.0])
     assert calibration_stretch(t, tri) == pytest.approx((11.5, 21.5), abs=0.1)
     assert calibration_stretch(t_late, late) == pytest.approx((16.5, 26.5), abs=0.1)
+
+
+def test_a_stretch_line_too_flat_for_the_calibrated_range_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A stretch line of slope 1e-9 ohm per % (the range's slope is ~1 ohm per %) would
+    read every resistance alike: the reader refuses it, so recalibrate cannot start from
+    it; the line the fit gave loads."""
+    import yaml
+
+    path = tmp_path / "cal.yaml"
+    save_calibration(Calibration({"s1": fit_sensor(MOVING, "cubic", name="s1",
+                                                   pool="stretch")}), path)
+    assert load_calibration(path).sensors["s1"].input.stretch_line is not None
+    data = yaml.safe_load(path.read_text())
+    data["sensors"]["s1"]["input"]["stretch_line"]["slope"] = 1e-9
+    path.write_text(yaml.safe_dump(data))
+    bag = tmp_path / "start.mcap"
+    from strain_comp.io.csv_import import write_recording_bag
+    write_recording_bag(moving(1120.0, 1.25), str(bag))
+    assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window",
+                "11.5:21.5", "--out", str(tmp_path / "out.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "stretch_line.slope: 1e-09 ohm per strain unit" in err and "\n" not in err
+    assert not (tmp_path / "out.yaml").exists()
+
+
+def test_recalibrate_refuses_a_sensor_the_calibration_lacks(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from strain_comp.io.csv_import import write_recording_bag
+
+    path, bag = tmp_path / "cal.yaml", tmp_path / "run.mcap"
+    save_calibration(Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")}), path)
+    write_recording_bag(NEW, str(bag))
+    before = path.read_bytes()
+    assert cli(["recalibrate", str(path), "--from", str(bag), "--sensor", "S2", "--out",
+                str(path.with_name("out.yaml"))]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("strain-comp: error: recalibrate --sensor S2: not in the calibration (its "
+                   "sensors: s1)")
+    assert not path.with_name("out.yaml").exists() and path.read_bytes() == before

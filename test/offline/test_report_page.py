@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import shutil
 from dataclasses import replace
 from html.parser import HTMLParser
@@ -182,3 +183,34 @@ def test_the_report_gives_the_dead_zone_in_the_input_unit(unit: str) -> None:
     assert deadzone == float(f"{cal.direction.deadzone:.4g}")
     assert page.provenance["direction"].startswith(f"dead zone {deadzone:g} {unit}/s, tau ")
     assert f" {unit}, S " in page.provenance["valid range"]
+
+
+def test_provenance_is_rounded_and_readable_and_the_tare_said_in_words() -> None:
+    cal = load_calibration(CAL).sensors["s1"]
+    cal = replace(cal, provenance={**cal.provenance, "fit_rmse": 5.31314532867488,
+                                   "options": {"sigma": 0.123456789, "pair": "mean"}})
+    page_text = provenance_section(Calibration({"s1": cal}), CAL, tare="calibration")
+    page = Page(page_text)
+    assert page.provenance["training RMSE"] == "5.313"
+    assert page.provenance["options"] == "sigma: 0.1235; pair: mean"
+    assert "{" not in page.provenance["input"], page.provenance["input"]
+    assert "rest level (tare) from the calibration" in page_text
+    assert "tare <code>" not in page_text
+
+
+def test_plots_say_where_they_show_a_subsample_and_legends_sit_beside_the_data() -> None:
+    import numpy as np
+
+    import strain_comp as sc
+    from strain_comp.offline.plots import _figure, _legend
+
+    ev = sc.evaluate(CAL, BAG, plot_points=1000).result.sensors["s1"]
+    from strain_comp.offline.plots import _title
+    assert re.search(r"\(shown: a subsample of \d+ of 14451 samples\)$", _title(ev))
+    fig = _figure()
+    ax = fig.subplots()
+    ax.plot(np.arange(10.0), label="x")
+    _legend(ax)
+    fig.canvas.draw()
+    box = ax.get_legend().get_window_extent()
+    assert box.x0 >= ax.get_window_extent().x1  # right of the axes: over no data
