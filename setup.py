@@ -31,12 +31,12 @@ setup(
         "mcap-ros2-support>=0.6,<0.7",  # io/bag/reader.py: its public DecoderFactory
         "matplotlib>=3.7",
         "threadpoolctl>=3.1",  # models/apl.py: one BLAS thread while the fit grid is scored
-        "rosbags>=0.11",  # io/bag/db3.py: rosbag2's sqlite3 storage (.db3)
+        "apsw>=3.43",  # io/bag/db3.py: rosbag2's sqlite3 storage (.db3); octet_length
         "tqdm>=4.60",  # progress.py: progress bars on a terminal
     ],
     extras_require={
         "test": ["pytest>=7", "hypothesis>=6", "ruff", "mypy>=1.16",
-                 "types-PyYAML"],
+                 "types-PyYAML", "rosbags>=0.11"],  # rosbags: test/io/test_db3.py writes .db3
         "fast": ["intel-cmplr-lib-rt"],
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-std-msgs", "ros-jazzy-sensor-msgs",
                 "ros-jazzy-diagnostic-msgs", "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs",
