@@ -380,7 +380,7 @@ def test_blocks_stay_within_the_byte_budget(
     between blocks (4096 frames of 64 MiB were one block of 256 GiB)."""
     from strain_comp.io.bag import db3
 
-    bag, messages = small_db3
+    bag, _ = small_db3
     frame = zstandard.ZstdCompressor().compress(bytes(2**20))  # 1 MiB, ~50 bytes
     packed = altered(bag, tmp_path / "packed",
                      ("UPDATE messages SET data = ? WHERE id <= 40", (frame,)))
