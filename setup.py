@@ -4,11 +4,36 @@ The ``ros`` extra pulls ROS 2 Jazzy's Python client and messages from PyPI (whee
 node runs, and its tests run, without a ROS installation.
 """
 
+import os
+import subprocess
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.install import install
 
 PACKAGE = "strain_comp"
+
+
+class InstallPrimed(install):
+    """``install``, then (an install into a prefix, as colcon's; not a wheel's staging root)
+    the numba kernels of the bundled params files compiled into the installed package's
+    cache (``strain_comp.ros.live.prime_cache``), so the node's first start loads them
+    instead of compiling for seconds (docs/performance.md). STRAIN_COMP_NO_PRIME=1 skips it;
+    a failure is a note, never a failed install."""
+
+    def run(self) -> None:
+        super().run()
+        if self.root is not None or os.environ.get("STRAIN_COMP_NO_PRIME"):
+            return
+        # run in install_lib: `python -c` puts its folder first on sys.path, so the installed
+        # package is the one imported and its __pycache__ the one filled
+        done = subprocess.run(
+            [sys.executable, "-c", "import sys; from strain_comp.ros.live import prime_cache; "
+             "print('numba cache primed for', ', '.join(prime_cache(sys.argv[1])))",
+             os.path.abspath("config")], cwd=self.install_lib, check=False)
+        if done.returncode != 0:
+            print("strain_comp: numba cache not primed; the first start compiles")
 
 setup(
     name=PACKAGE,
@@ -42,6 +67,7 @@ setup(
                 "ros-jazzy-diagnostic-msgs", "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs",
                 "colcon-common-extensions", "ros-jazzy-ament-package"],
     },
+    cmdclass={"install": InstallPrimed},
     zip_safe=False,
     maintainer="strain_comp developers",
     maintainer_email="strain_comp@example.org",

@@ -179,6 +179,24 @@ def run_node(workspace: dict[str, Any], params: Path, log: Path, *extra: str
     return proc
 
 
+def test_a_fresh_colcon_install_starts_without_compiling(workspace: dict[str, Any],
+                                                        tmp_path: Path) -> None:
+    """colcon's install compiles the kernels of the bundled params files into the installed
+    package's numba cache (setup.py, ``prime_cache``): the first start of the install loads
+    every kernel and compiles none (it compiled into an empty cache, 9 s idle, a minute on a
+    loaded machine: docs/performance.md). First in this module: no node started before."""
+    site = Path(workspace["env"]["PYTHONPATH"])
+    assert list(site.glob("strain_comp/models/__pycache__/apl_kernels.*.nbi"))
+    log = tmp_path / "node.log"
+    proc = start([str(workspace["exe"]), "--ros-args", "--params-file",
+                  str(workspace["share"] / "config/compensator_params.yaml")],
+                 {**workspace["env"], "NUMBA_DEBUG_CACHE": "1"}, log)
+    wait_for(log, "ready:", proc)
+    code, _ = stop(proc)
+    text = log.read_text()
+    assert code == 0 and "[cache] data loaded" in text and "[cache] data saved" not in text
+
+
 def test_sim_time_play_equals_replay(workspace: dict[str, Any], recorder: Any,
                                      tmp_path: Path) -> None:
     bag = short_bag(tmp_path / "short.mcap", N_MESSAGES)
