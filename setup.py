@@ -18,7 +18,7 @@ PACKAGE = "strain_comp"
 class InstallPrimed(install):
     """``install``, then (an install into a prefix, as colcon's; not a wheel's staging root)
     the numba kernels of the bundled params files compiled into the installed package's
-    cache (``strain_comp.ros.live.prime_cache``), so the node's first start loads them
+    cache (``strain_comp.ros.node.prime_cache``), so the node's first start loads them
     instead of compiling for seconds (docs/performance.md). STRAIN_COMP_NO_PRIME=1 skips it;
     a failure is a note, never a failed install."""
 
@@ -29,7 +29,7 @@ class InstallPrimed(install):
         # run in install_lib: `python -c` puts its folder first on sys.path, so the installed
         # package is the one imported and its __pycache__ the one filled
         done = subprocess.run(
-            [sys.executable, "-c", "import sys; from strain_comp.ros.live import prime_cache; "
+            [sys.executable, "-c", "import sys; from strain_comp.ros.node import prime_cache; "
              "print('numba cache primed for', ', '.join(prime_cache(sys.argv[1])))",
              os.path.abspath("config")], cwd=self.install_lib, check=False)
         if done.returncode != 0:

@@ -268,5 +268,27 @@ def main(args: list[str] | None = None) -> int:
     os._exit(0)  # the interpreter's own teardown of the DDS library can take over a second
 
 
+def prime_cache(config: str) -> list[str]:
+    """Compile the kernels the params files in ``config`` need into numba's cache, as the
+    node's start-up does (``setup.py`` runs it once the package is installed, so a colcon
+    install's first start loads them instead of compiling: docs/performance.md).
+
+    Args:
+        config: A folder of ``*_params.yaml`` files (their calibrations beside them).
+
+    Returns:
+        The params files primed.
+
+    """
+    from strain_comp.ros.live import LiveCompensator
+    from strain_comp.ros.params import load_params
+
+    primed = []
+    for path in sorted(Path(config).glob("*_params.yaml")):
+        LiveCompensator(load_params(path))
+        primed.append(path.name)
+    return primed
+
+
 if __name__ == "__main__":
     sys.exit(main())
