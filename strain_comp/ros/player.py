@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from rclpy.executors import Executor
 
 LOCKSTEP_TIMEOUT_S = 1.0
-MATCH_S = 1.0
+MATCH_S = 2.0
 """How long play waits for the other topics' subscribers once one topic has one [s]: a node
 announces its subscriptions together."""
 
