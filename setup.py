@@ -4,11 +4,36 @@ The ``ros`` extra pulls ROS 2 Jazzy's Python client and messages from PyPI (whee
 node runs, and its tests run, without a ROS installation.
 """
 
+import os
+import subprocess
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.install import install
 
 PACKAGE = "strain_comp"
+
+
+class InstallPrimed(install):
+    """``install``, then (an install into a prefix, as colcon's; not a wheel's staging root)
+    the numba kernels of the bundled params files compiled into the installed package's
+    cache (``strain_comp.ros.node.prime_cache``), so the node's first start loads them
+    instead of compiling for seconds (docs/performance.md). STRAIN_COMP_NO_PRIME=1 skips it;
+    a failure is a note, never a failed install."""
+
+    def run(self) -> None:
+        super().run()
+        if self.root is not None or os.environ.get("STRAIN_COMP_NO_PRIME"):
+            return
+        # run in install_lib: `python -c` puts its folder first on sys.path, so the installed
+        # package is the one imported and its __pycache__ the one filled
+        done = subprocess.run(
+            [sys.executable, "-c", "import sys; from strain_comp.ros.node import prime_cache; "
+             "print('numba cache primed for', ', '.join(prime_cache(sys.argv[1])))",
+             os.path.abspath("config")], cwd=self.install_lib, check=False)
+        if done.returncode != 0:
+            print("strain_comp: numba cache not primed; the first start compiles")
 
 setup(
     name=PACKAGE,
@@ -31,18 +56,19 @@ setup(
         "mcap-ros2-support>=0.6,<0.7",  # io/bag/reader.py: its public DecoderFactory
         "matplotlib>=3.7",
         "threadpoolctl>=3.1",  # models/apl.py: one BLAS thread while the fit grid is scored
-        "rosbags>=0.11",  # io/bag/db3.py: rosbag2's sqlite3 storage (.db3)
+        "apsw>=3.43",  # io/bag/db3.py: rosbag2's sqlite3 storage (.db3); octet_length
         "tqdm>=4.60",  # progress.py: progress bars on a terminal
     ],
     extras_require={
         "test": ["pytest>=7", "hypothesis>=6", "ruff", "mypy>=1.16",
-                 "types-PyYAML",
+                 "types-PyYAML", "rosbags>=0.11",  # rosbags: test/io/test_db3.py writes .db3
                  "pandas>=2"],  # docs/api.md's notebook (to_frame), run by test_api_doc
         "fast": ["intel-cmplr-lib-rt"],
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-std-msgs", "ros-jazzy-sensor-msgs",
                 "ros-jazzy-diagnostic-msgs", "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs",
                 "colcon-common-extensions", "ros-jazzy-ament-package"],
     },
+    cmdclass={"install": InstallPrimed},
     zip_safe=False,
     maintainer="strain_comp developers",
     maintainer_email="strain_comp@example.org",

@@ -7,7 +7,8 @@ A virtual-rig rate sweep of SECONDS at 50 Hz (resistance and reference: 2 messag
 sample) is written as MCAP (``strain-comp simulate``) and copied message by message into a
 rosbag2 sqlite3 bag by rosbags (``test/io/test_db3.py``'s writer). Timed, best of 3: the whole
 read (``read_bag``) and ``evaluate`` of each, and their ratio db3 / MCAP. The .db3 path
-reads every row through rosbags and packs it as an MCAP record; MCAP is decoded in bulk.
+reads every row by its own sqlite query (apsw) and packs it as an MCAP record; MCAP is
+decoded in bulk.
 Timings vary by machine and load; state the machine with the figures.
 """
 
@@ -21,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "test"))
+sys.path.insert(0, str(ROOT / "test" / "io"))
 
 from test_db3 import write_db3  # noqa: E402
 

@@ -11,6 +11,10 @@
 2. Node start-up: ``bin/compensator --ros-args --params-file config/array_params.yaml``
    (the rclpy node, bundled 6-sensor APL array, discovery on this machine) until it logs
    its ``ready:`` line.
+   ``--colcon``: instead, the first and second start of a fresh ``colcon build`` of the
+   package (colcon beside this Python, as test/ros/test_node_process.py builds it; the
+   install's own numba cache) to ``ready:`` with ``config/compensator_params.yaml``, built
+   as shipped (the cache primed by setup.py) and with ``STRAIN_COMP_NO_PRIME=1``.
 3. Command-line start-up: ``python -m strain_comp.cli --version`` and ``--help`` (the
    parser assembled from every command's module, no command's machinery imported), median
    of ``--cli-runs`` spawns; baseline in the same run: ``python -c pass``.
@@ -90,6 +94,41 @@ def node_start(cache: Path) -> float:
     return ready
 
 
+def colcon_starts(tmp_path: Path, prime: bool) -> tuple[float, float]:
+    """(first, second) start [s] to ``ready:`` of a fresh colcon build's ``compensator``."""
+    sys.path.insert(0, str(REPO / "test"))
+    from ros_env import copy_package
+
+    ws = tmp_path / f"ws_{'primed' if prime else 'unprimed'}"
+    copy_package(ws / "src" / "strain_comp")
+    colcon = Path(sys.executable).parent / "colcon"
+    env = {**os.environ, "PATH": f"{colcon.parent}:{os.environ['PATH']}"}
+    if not prime:
+        env["STRAIN_COMP_NO_PRIME"] = "1"
+    subprocess.run([str(colcon), "build", "--packages-select", "strain_comp"], cwd=ws,
+                   env=env, check=True, capture_output=True, timeout=1200)
+    prefix = ws / "install" / "strain_comp"
+    env = {**os.environ, "PYTHONPATH": str(next(prefix.glob("lib/python3*/site-packages"))),
+           "AMENT_PREFIX_PATH": str(prefix), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+           "ROS_DOMAIN_ID": str(100 + os.getpid() % 50), "PYTHONUNBUFFERED": "1"}
+    env.pop("NUMBA_CACHE_DIR", None)
+    times = []
+    for _ in range(2):
+        start = time.perf_counter()
+        proc = subprocess.Popen([str(prefix / "lib" / "strain_comp" / "compensator"),
+                                 "--ros-args", "--params-file",
+                                 str(prefix / "share/strain_comp/config/compensator_params.yaml")],
+                                env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True)
+        line = ""
+        while "ready:" not in line and proc.poll() is None:
+            line = proc.stdout.readline()
+        times.append(time.perf_counter() - start)
+        proc.terminate()
+        proc.wait(timeout=10)
+    return times[0], times[1]
+
+
 def median(values: list[float]) -> float:
     return sorted(values)[len(values) // 2]
 
@@ -119,7 +158,17 @@ def main() -> None:
     parser.add_argument("--cli-runs", type=int, default=9)
     parser.add_argument("--cli-only", action="store_true",
                         help="only the command line's start-up")
+    parser.add_argument("--colcon", action="store_true",
+                        help="only a fresh colcon build's first and second node start")
     args = parser.parse_args()
+    if args.colcon:
+        with tempfile.TemporaryDirectory(prefix="strain_comp_colcon_") as tmp:
+            for prime in (True, False):
+                first, second = colcon_starts(Path(tmp), prime)
+                print(f"colcon install, cache {'primed' if prime else 'not primed'}: first "
+                      f"start {first:.2f} s, second {second:.2f} s to 'ready:' (load "
+                      f"{os.getloadavg()[0]:.1f})", flush=True)
+        return
     cli_start(args.cli_runs)
     if args.cli_only:
         return

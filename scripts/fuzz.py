@@ -374,6 +374,303 @@ def fuzz_bag(seeds: list[bytes], calibration: Calibration | None, rng: np.random
 
 
 
+# ---------------------------------------------------------------- rosbag2 .db3
+
+DB3_SCHEMA = """
+CREATE TABLE schema(schema_version INTEGER PRIMARY KEY, ros_distro TEXT NOT NULL);
+CREATE TABLE metadata(id INTEGER PRIMARY KEY, metadata_version INTEGER NOT NULL,
+                      metadata TEXT NOT NULL);
+CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+                    serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL,
+                    type_description_hash TEXT NOT NULL);
+CREATE TABLE message_definitions(id INTEGER PRIMARY KEY, topic_type TEXT NOT NULL,
+                                 encoding TEXT NOT NULL,
+                                 encoded_message_definition TEXT NOT NULL,
+                                 type_description_hash TEXT NOT NULL);
+CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+                      timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+CREATE INDEX timestamp_idx ON messages (timestamp ASC);
+INSERT INTO schema VALUES (4, 'jazzy');
+"""
+"""rosbag2's sqlite3 schema (version 4, Jazzy's), as ``ros2 bag record`` creates it."""
+DB3_METADATA = """rosbag2_bagfile_information:
+  version: 8
+  storage_identifier: sqlite3
+  relative_file_paths: [bag.db3]
+  compression_format: ''
+  compression_mode: ''
+"""
+HOSTILE_SQL = ["[" * 5000, "- 1\n- 2\n", "{a: &x [*x]}", "\x00\xff", "x" * 5000, "", "cdr",
+               "/s1/resistance", "std_msgs/msg/Float64", "cdr\n", "/s1/resistance\n"]
+
+
+def seed_db3(directory: Path) -> bytes:
+    """A small .db3 file (resistance, reference, array, temperature, diagnostics)."""
+    from strain_comp.io.bag.reader import raw_messages
+
+    mcap = directory / "seed_for_db3.mcap"
+    mcap.write_bytes(seed_bags(directory)[0])
+    messages, _ = raw_messages(mcap)
+    path = directory / "seed.db3"
+    path.unlink(missing_ok=True)
+    import sqlite3
+
+    with sqlite3.connect(path) as db:
+        db.executescript(DB3_SCHEMA)
+        ids: dict[tuple[str, str], int] = {}
+        for topic, kind, _, _ in messages:
+            if (topic, kind) not in ids:
+                ids[(topic, kind)] = len(ids) + 1
+                db.execute("INSERT INTO topics VALUES (?, ?, ?, 'cdr', '', '')",
+                           (ids[(topic, kind)], topic, kind))
+        db.executemany("INSERT INTO messages (topic_id, timestamp, data) VALUES (?, ?, ?)",
+                       [(ids[(t, k)], stamp, data) for t, k, stamp, data in messages])
+    return path.read_bytes()
+
+
+def _sql_value(rng: np.random.Generator) -> object:
+    """A value of a random sqlite type: integer (huge, negative), real, text, blob, NULL."""
+    pick = int(rng.integers(0, 9))
+    return [None, int(rng.integers(-5, 70)), 2**63 - 1, -(2**63), float("nan"), 1e300,
+            HOSTILE_SQL[int(rng.integers(0, len(HOSTILE_SQL)))],
+            bytes(rng.integers(0, 256, int(rng.integers(0, 64)), dtype=np.uint8)),
+            b"/s1/resistance"][pick]
+
+
+def mutate_db3(data: bytes, rng: np.random.Generator, work: Path) -> bytes:
+    """Damaged bytes (as ``mutate_bag``) or hostile rows: a random column of random rows
+    set to a value of another type, rows duplicated or deleted, the index or a table
+    dropped, a message as large as 3 MiB."""
+    if rng.random() < 0.4:
+        return mutate_bag(data, rng)
+    import sqlite3
+
+    path = work / "mutating.db3"
+    path.write_bytes(data)
+    with sqlite3.connect(path) as db:
+        for _ in range(int(rng.integers(1, 4))):
+            table, column = [("topics", "name"), ("topics", "type"), ("topics", "id"),
+                             ("topics", "serialization_format"),
+                             ("topics", "offered_qos_profiles"), ("messages", "data"),
+                             ("messages", "timestamp"), ("messages", "topic_id"),
+                             ("messages", "id")][int(rng.integers(0, 9))]
+            op = int(rng.integers(0, 10))
+            try:
+                if op < 6:
+                    db.execute(f"UPDATE {table} SET {column} = ? WHERE abs(random()) % ? = 0",
+                               (_sql_value(rng), int(rng.integers(1, 50))))
+                elif op == 6:
+                    db.execute(f"INSERT INTO {table} SELECT * FROM {table} "
+                               "WHERE abs(random()) % 20 = 0")
+                elif op == 7:
+                    db.execute(f"DELETE FROM {table} WHERE abs(random()) % 5 = 0")
+                elif op == 8:
+                    db.execute(["DROP INDEX timestamp_idx", "DROP TABLE topics",
+                                "ALTER TABLE messages DROP COLUMN data"][int(rng.integers(0, 3))])
+                else:
+                    db.execute("UPDATE messages SET data = zeroblob(?) WHERE id = ?",
+                               (int(rng.integers(0, 3 * 2**20)), int(rng.integers(1, 50))))
+            except sqlite3.Error:
+                pass  # a constraint the mutation broke: the file stays as it was
+    return path.read_bytes()
+
+
+def mutate_metadata(rng: np.random.Generator) -> str:
+    """metadata.yaml: the plain one, or hostile listings and compression fields."""
+    pick = int(rng.integers(0, 8))
+    if pick < 3:
+        return DB3_METADATA
+    listing = [["bag.db3"] * int(rng.integers(2, 3000)), ["./bag.db3", "bag.db3"],
+               [f"part_{i}.db3" for i in range(int(rng.integers(1, 5000)))],
+               ["../bag.db3"], "bag.db3", [1, None]][int(rng.integers(0, 6))]
+    extra = ["", "  compression_mode: MESSAGE\n  compression_format: zstd\n",
+             "  compression_mode: FILE\n", "  offered_qos_profiles: " + "[" * 3000 + "\n",
+             "  topics_with_message_count: [{topic_metadata: {offered_qos_profiles: "
+             "[1, 2]}}]\n"][int(rng.integers(0, 5))]
+    text = DB3_METADATA.replace("  relative_file_paths: [bag.db3]\n",
+                                f"  relative_file_paths: {yaml.safe_dump(listing)}"
+                                .rstrip("\n").replace("\n", " ") + "\n")
+    return text.replace("  compression_format: ''\n  compression_mode: ''\n", "") + extra \
+        if extra else text
+
+
+def fuzz_db3(rng: np.random.Generator, work: Path, **limits: Any) -> Stats:
+    """Fuzz the rosbag2 .db3 reader (``read_bag`` and ``raw_messages`` on a bag directory):
+    damaged sqlite files, hostile rows, hostile metadata.yaml."""
+    from strain_comp.io.bag.reader import raw_messages
+
+    work.mkdir(parents=True, exist_ok=True)
+    seed = seed_db3(work)
+    bag = work / "db3bag"
+    bag.mkdir(exist_ok=True)
+
+    def make() -> bytes:
+        (bag / "metadata.yaml").write_text(mutate_metadata(rng))
+        return mutate_db3(seed, rng, work)
+
+    def check(path: Path) -> bool:
+        try:
+            contents = read_bag(bag)
+            _, problems = raw_messages(bag)
+        except BagError as err:
+            if "\n" in str(err):
+                raise AssertionError(f"a BagError of several lines: {err}") from None
+            return False
+        for topic, series in contents.series.items():
+            if series.t.shape[0] != series.values.shape[0] or not np.isfinite(series.t).all():
+                raise AssertionError(f"{topic}: inconsistent series")
+        if not all(isinstance(p, str) and "\n" not in p for p in problems):
+            raise AssertionError("problems must be one-line strings")
+        return True
+
+    return run_target(Stats("db3"), make, check, bag / "bag.db3", **limits)
+
+
+# ---------------------------------------------------------------- Python API
+
+def _array(rng: np.random.Generator, n: int) -> Any:
+    """A random array-like of about ``n`` values: finite, with NaN/inf, negative, reversed,
+    constant, integers, strings, 2-D, empty, a list or a scalar."""
+    base = np.cumsum(rng.random(n) * 0.02) + 1.0
+    pick = int(rng.integers(0, 12))
+    if pick == 0:
+        base[rng.random(n) < 0.1] = np.nan
+    elif pick == 1:
+        base[rng.random(n) < 0.1] = np.inf
+    elif pick == 2:
+        base = -base
+    elif pick == 3:
+        base = base[::-1].copy()
+    elif pick == 4:
+        base = np.full(n, 3.0)
+    elif pick == 5:
+        return base.astype(np.int64)
+    elif pick == 6:
+        return base.astype(str)
+    elif pick == 7:
+        return base.reshape(1, -1) if n else base.reshape(0, 1)
+    elif pick == 8:
+        return base[:0]
+    elif pick == 9:
+        return base.tolist()
+    elif pick == 10:
+        return float(base[0]) if n else None
+    return base
+
+
+def _junk(rng: np.random.Generator) -> Any:
+    """A keyword value of a random type."""
+    return [None, 0, -1, 2.5, float("nan"), "", "x", "%", "calibration", "auto", "clamp",
+            "extend", "off", [], ["s1"], {"a": 1}, ("s1",), True, b"s1", np.float64(1.0),
+            object()][int(rng.integers(0, 21))]
+
+
+def api_call(rng: np.random.Generator, cal: Calibration) -> tuple[str, Callable[[], Any]]:
+    """One random call of sc.fit / sc.estimate / sc.evaluate / Recording.from_frame (arrays,
+    frames and keyword types hostile), as (a description, the call)."""
+    import strain_comp as sc
+
+    n = int(rng.choice([0, 1, 2, 5, 50, 400]))
+    t = np.arange(n) * 0.02 if rng.random() < 0.6 else _array(rng, n)
+    r = 1000.0 + 50.0 * np.sin(np.arange(n) * 0.05) if rng.random() < 0.5 else _array(rng, n)
+    s = 10.0 + 10.0 * np.sin(np.arange(n) * 0.05) if rng.random() < 0.5 else _array(rng, n)
+    columns = {"time_s": t, "resistance_ohm": r, "reference": s}
+    if rng.random() < 0.3:
+        columns.pop(list(columns)[int(rng.integers(0, 3))])
+    if rng.random() < 0.2:
+        columns["temperature"] = _array(rng, n)
+    frame_kw: dict[str, Any] = {k: _junk(rng) for k in ("name", "time", "resistance",
+                                                         "reference", "temperature")
+                                if rng.random() < 0.2}
+
+    def recording() -> Any:
+        return Recording.from_frame(columns, **frame_kw)
+
+    which = int(rng.integers(0, 4))
+    keys = ("tare", "out_of_range", "tracking")
+    kw: dict[str, Any] = {k: _junk(rng) for k in keys if rng.random() < 0.25}
+    if which == 0:
+        return f"Recording.from_frame({sorted(columns)}, n={n}, {frame_kw})", recording
+    if which == 1:
+        if rng.random() < 0.2:
+            kw["sensor"] = _junk(rng)
+        if rng.random() < 0.2:
+            kw["temperature"] = _array(rng, n)
+        return (f"estimate(n={n}, {kw})", lambda: sc.estimate(cal, t, r, **kw))
+    if which == 2:
+        if rng.random() < 0.2:
+            kw["references_every"] = _junk(rng)
+        return f"evaluate(n={n}, {kw})", lambda: sc.evaluate(
+            cal, recording() if rng.random() < 0.8 else _junk(rng), **kw)
+    model = str(rng.choice(["cubic", "pl", "rational", "cubic", "quintic"]))
+    fit_kw: dict[str, Any] = {k: _junk(rng) for k in ("sensors", "strain_unit", "pool",
+                                                       "input_unit") if rng.random() < 0.15}
+    if rng.random() < 0.15:
+        fit_kw[str(rng.choice(["N", "eps", "bogus", "ridge"]))] = _junk(rng)
+    return f"fit({model}, n={n}, {fit_kw})", lambda: sc.fit(
+        recording() if rng.random() < 0.85 else [recording(), recording()], model, **fit_kw)
+
+
+@dataclass
+class ApiStats:
+    """Counts of an API fuzz run: calls, clean refusals and internal errors by class."""
+
+    calls: int = 0
+    refused: int = 0
+    internal: dict[str, list[str]] = field(default_factory=dict)
+    rss_mib: list[float] = field(default_factory=list)
+
+    def line(self) -> str:
+        n = sum(len(v) for v in self.internal.values())
+        return (f"api: {self.calls} calls, {self.refused} refused cleanly, {n} internal "
+                f"errors in {len(self.internal)} classes; RSS {self.rss_mib[0]:.0f} -> "
+                f"{self.rss_mib[-1]:.0f} MiB (max {max(self.rss_mib):.0f})")
+
+
+def _own_rss() -> float:
+    """This process's resident memory [MiB] (``_rss_mib``)."""
+    return _rss_mib(os.getpid()) or 0.0
+
+
+def fuzz_api(rng: np.random.Generator, *, seconds: float | None = None,
+             iterations: int | None = None, timeout: float = 30.0) -> ApiStats:
+    """Random calls (``api_call``) against the demo calibration: anything raised that is
+    not a StrainCompError is an internal error, grouped by function, type and message."""
+    import warnings
+
+    from strain_comp.errors import StrainCompError
+
+    cal = load_calibration(Path(__file__).resolve().parent.parent / "config" /
+                           "demo_calibration.yaml")
+    stats = ApiStats(rss_mib=[_own_rss()])
+    deadline = time.monotonic() + (seconds if seconds is not None else math.inf)
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    try:
+        while time.monotonic() < deadline and (iterations is None or stats.calls < iterations):
+            what, call = api_call(rng, cal)
+            stats.calls += 1
+            try:
+                signal.setitimer(signal.ITIMER_REAL, timeout)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    call()
+            except StrainCompError as err:
+                stats.refused += 1
+                if "\n" in str(err):
+                    stats.internal.setdefault("multi-line error", []).append(what)
+            except Exception as err:  # what the fuzzer looks for
+                key = f"{what.split('(')[0]}: {type(err).__name__}: {str(err)[:70]}"
+                stats.internal.setdefault(key, []).append(what)
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0.0)
+            if stats.calls % 50 == 0:
+                stats.rss_mib.append(_own_rss())
+    finally:
+        signal.signal(signal.SIGALRM, previous)
+    stats.rss_mib.append(_own_rss())
+    return stats
+
+
 # ---------------------------------------------------------------- command line
 
 NUMBERS = ["0", "1", "3", "-1", "2.5", "1e12", "1e400", "-1e400", "nan", "inf", "abc", "",
@@ -1037,7 +1334,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="total fuzzing time")
     parser.add_argument("--target", choices=("yaml", "bag", "cli", "csv", "node", "evaluate",
-                                             "all"),
+                                             "db3", "api", "all"),
                         default="all")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "strain_fuzz")
@@ -1045,7 +1342,8 @@ def main() -> int:
     parser.add_argument("--timeout", type=float, default=10.0, help="seconds per input")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
-    targets = (["yaml", "bag", "cli", "csv", "node", "evaluate"] if args.target == "all"
+    targets = (["yaml", "bag", "cli", "csv", "node", "evaluate", "db3", "api"]
+               if args.target == "all"
                else [args.target])
     share = args.seconds / len(targets)
     failures = 0
@@ -1057,6 +1355,19 @@ def main() -> int:
         save_calibration(calibration, seed_yaml)
         check_yaml(seed_yaml)  # the seed itself must load and run
         for target in targets:
+            if target == "api":
+                api = fuzz_api(rng, seconds=share, timeout=max(args.timeout, 30.0))
+                print(api.line(), flush=True)
+                for key, calls in sorted(api.internal.items(), key=lambda kv: -len(kv[1])):
+                    print(f"  {len(calls)} x {key}\n    e.g. {calls[0][:200]}")
+                failures += sum(len(v) for v in api.internal.values())
+                continue
+            if target == "db3":
+                stats = fuzz_db3(rng, work / "db3", seconds=share, timeout=args.timeout)
+                print(stats.line() + f"; RSS {_own_rss():.0f} MiB at the end", flush=True)
+                save_crashes(stats, args.out)
+                failures += len(stats.crashes)
+                continue
             if target == "node":
                 node = fuzz_node(rng, work / "node", seconds=share)
                 print(node.line(), flush=True)

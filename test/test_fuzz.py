@@ -68,6 +68,16 @@ def test_fuzz_bag_reader_and_replay(fuzz, every_model, tmp_path: Path) -> None:
     assert stats.accepted > 50
 
 
+def test_fuzz_db3_reader(fuzz, tmp_path: Path) -> None:
+    """Damaged .db3 files, hostile rows (a column of another type, huge messages, dropped
+    tables) and hostile metadata.yaml (listings repeated thousands of times, QoS nested 3000
+    deep): only BagError, one line, or consistent series (``python scripts/fuzz.py --target
+    db3 --seconds 600`` for long runs)."""
+    stats = fuzz.fuzz_db3(np.random.default_rng(0), tmp_path, iterations=120, timeout=20.0)
+    assert not stats.crashes, _report(stats)
+    assert stats.accepted > 20 and stats.rejected > 20, stats.line()
+
+
 def test_calibration_truncated_at_any_line_loads_or_is_refused_cleanly(
         fuzz, every_model, tmp_path: Path) -> None:
     seed = tmp_path / "seed.yaml"

@@ -10,7 +10,8 @@ Every ``StrainCompError``, unreadable or missing file and usage error (argparse'
 included) ends the command with exit code 2 and exactly one line on stderr,
 ``strain-comp: error: ...``. Any other exception is a bug, not the user's: one line
 ``strain-comp: internal error: ...`` naming a file that holds the traceback
-(``--debug``: the traceback on stderr), exit code 70.
+(``--debug``: the traceback on stderr), exit code 70. Ctrl-C is one line
+``strain-comp: interrupted``, exit code 130.
 
 Inputs (bags, CSV files, calibrations, parameter files) must be regular files (a bag may be
 a rosbag2 directory): a FIFO or a device is refused before it is opened, so a command never
@@ -152,6 +153,7 @@ def _main(argv: Sequence[str] | None) -> int:
         where = error.filename if error.filename is not None else ""
         message = f"{where}: {error.strerror or error}" if where else str(error)
     except KeyboardInterrupt:
+        err(f"{PROG}: interrupted")
         return EXIT_INTERRUPTED
     except SystemExit as error:  # a library asked to exit: still one line
         message = f"unexpected SystemExit: {error}"

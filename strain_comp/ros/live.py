@@ -490,3 +490,4 @@ class LiveCompensator:
                     f"{recent} messages refused recently (most: {worst})" if recent else "ok",
                     {"n_refused": str(total), "n_refused_recent": str(recent), **reasons}))
         return out
+

@@ -16,9 +16,10 @@ stamped with the node clock when its callback runs, so ``use_sim_time`` follows 
 
 Start-up problems (params file missing or not YAML, no block for the node's name, a bad or
 unknown parameter, a missing calibration) print one line ``compensator: ...`` and exit 2.
-SIGINT / SIGTERM exit 0 at any moment: during start-up at once, while spinning after a clean
-shutdown bounded by ``SHUTDOWN_S``. Only the standard library is imported at module level, so
-the signal handlers are in place before anything slow is imported.
+SIGINT / SIGTERM exit 0 at any moment: during start-up at once with one line ``compensator:
+SIGINT: stopped during start-up``, while spinning after a clean shutdown bounded by
+``SHUTDOWN_S`` (its log line ``SIGINT: stopped``). Only the standard library is imported
+at module level, so the signal handlers are in place before anything slow is imported.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 if TYPE_CHECKING:
     from strain_comp.ros.compensator import CompensatorNode
@@ -44,6 +45,14 @@ _stopped_by: list[str] = []
 
 
 def _exit_now(signum: int, frame: FrameType | None) -> None:
+    os._exit(0)
+
+
+def _stopped_in_start_up(signum: int, frame: FrameType | None = None) -> NoReturn:
+    """SIGINT/SIGTERM before the node is up: one line, exit 0 (no traceback, at any moment:
+    the handler is main's first statement, before anything slow is imported)."""
+    os.write(2, f"{NODE_NAME}: {signal.Signals(signum).name}: stopped during start-up\n"
+             .encode())
     os._exit(0)
 
 
@@ -195,8 +204,8 @@ def main(args: list[str] | None = None) -> int:
         with 0).
 
     """
-    signal.signal(signal.SIGINT, _exit_now)
-    signal.signal(signal.SIGTERM, _exit_now)
+    signal.signal(signal.SIGINT, _stopped_in_start_up)
+    signal.signal(signal.SIGTERM, _stopped_in_start_up)
     argv = list(sys.argv if args is None else args)
     # rclpy's own argument and parameter-file errors (RCLError is a RuntimeError), and what
     # reading a params file can raise
@@ -232,6 +241,8 @@ def main(args: list[str] | None = None) -> int:
     except start_errors as err:
         print(f"{NODE_NAME}: cannot start: " + " ".join(str(err).split()[:40]), file=sys.stderr)
         return EXIT_BAD_INPUT
+    except KeyboardInterrupt:  # a library put Python's default SIGINT handler back
+        _stopped_in_start_up(signal.SIGINT)
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
     # rclpy 7.1.6's EventsExecutor loses inputs under use_sim_time (docs/ros.md)
@@ -255,6 +266,28 @@ def main(args: list[str] | None = None) -> int:
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(0)  # the interpreter's own teardown of the DDS library can take over a second
+
+
+def prime_cache(config: str) -> list[str]:
+    """Compile the kernels the params files in ``config`` need into numba's cache, as the
+    node's start-up does (``setup.py`` runs it once the package is installed, so a colcon
+    install's first start loads them instead of compiling: docs/performance.md).
+
+    Args:
+        config: A folder of ``*_params.yaml`` files (their calibrations beside them).
+
+    Returns:
+        The params files primed.
+
+    """
+    from strain_comp.ros.live import LiveCompensator
+    from strain_comp.ros.params import load_params
+
+    primed = []
+    for path in sorted(Path(config).glob("*_params.yaml")):
+        LiveCompensator(load_params(path))
+        primed.append(path.name)
+    return primed
 
 
 if __name__ == "__main__":

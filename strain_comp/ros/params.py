@@ -345,6 +345,9 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     fuse = flat.get("fuse_references", False)
     if not isinstance(fuse, bool):
         raise ParameterError("fuse_references", f"must be true or false, got {fuse!r}")
+    # before any calibration loads: its probe compiles kernels, seconds on a first start
+    tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
+                for spec in TUNABLES}
     inputs: list[InputTopic] = []
     merged: dict[str, SensorCalibration] = {}
     loaded: dict[Path, Calibration] = {}
@@ -366,8 +369,6 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
     topics = [i.topic for i in inputs]
     if len(set(topics)) != len(topics):
         raise ParameterError("topic", f"two inputs share a topic: {topics}")
-    tunables = {spec.name: validate_tunable(spec.name, flat.get(spec.name, spec.default))
-                for spec in TUNABLES}
     return NodeParams(inputs, Calibration(merged), tunables, tare, executor, fuse)
 
 

@@ -9,7 +9,9 @@ message, so a node with ``use_sim_time`` stamps the input with its recorded time
 ``lockstep=TOPIC``: after each message, wait (at most ``LOCKSTEP_TIMEOUT_S``) for one message
 on TOPIC (the node's answer) before the next one, instead of keeping the recorded pace: what
 a test or an offline comparison needs, as nothing then queues up in the node. Playing waits
-for every played topic to have a subscriber (at most ``wait_s``) before the first message.
+(at most ``wait_s``) for a subscriber on the bag's topics, then ``MATCH_S`` more for the
+rest of them, and plays the topics that have one: the others are named in one line on
+stderr (``--topic`` chooses the topics), and no topic with a subscriber is an error.
 
 The bag is read by the bag reader's own walk within its budgets (decompressed bytes per
 chunk and held; ``strain_comp.io.bag.reader.raw_messages``). Message types come from a
@@ -33,6 +35,9 @@ if TYPE_CHECKING:
     from rclpy.executors import Executor
 
 LOCKSTEP_TIMEOUT_S = 1.0
+MATCH_S = 2.0
+"""How long play waits for the other topics' subscribers once one topic has one [s]: a node
+announces its subscriptions together."""
 
 
 @dataclass(frozen=True)
@@ -132,7 +137,8 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
         The number of messages published.
 
     Raises:
-        BagError: Nothing to play, or no lockstep topic, publisher or subscriber in ``wait_s``.
+        BagError: Nothing to play, no lockstep topic or publisher in ``wait_s``, or no
+            subscriber on any of the bag's topics in ``wait_s``.
 
     """
     from rclpy.executors import SingleThreadedExecutor
@@ -173,9 +179,7 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
                                      lambda _msg: answers.__setitem__(0, answers[0] + 1), 100)
             if not spin_until(executor, lambda: node.count_publishers(lockstep) > 0, wait_s):
                 raise BagError(f"no publisher on {lockstep} within {wait_s} s")
-        for topic, pub in pubs.items():
-            if not spin_until(executor, lambda p=pub: p.get_subscription_count() > 0, wait_s):
-                raise BagError(f"no subscriber on {topic} within {wait_s} s")
+        messages = _subscribed(executor, pubs, messages, wait_s)
         time.sleep(0.2)  # let the subscribers' matching of the publishers complete too
         t0_ns, start = messages[0].log_time_ns, time.monotonic()
         for m in messages:
@@ -195,6 +199,28 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
         executor.shutdown(timeout_sec=0.5)
         destroy(node)
     return len(messages)
+
+
+def _subscribed(executor: Executor, pubs: dict[str, Any], messages: list[PlayedMessage],
+                wait_s: float) -> list[PlayedMessage]:
+    """The messages on topics that have a subscriber, waiting ``wait_s`` for the first one
+    and ``MATCH_S`` more for the others; the topics without one named in one line on stderr.
+    BagError when no topic has a subscriber."""
+    def heard() -> set[str]:
+        return {topic for topic, pub in pubs.items() if pub.get_subscription_count() > 0}
+
+    if not spin_until(executor, lambda: bool(heard()), wait_s):
+        raise BagError(f"no subscriber on {', '.join(pubs)} within {wait_s} s (is the node "
+                       "running, in this ROS_DOMAIN_ID?)")
+    spin_until(executor, lambda: len(heard()) == len(pubs), MATCH_S)
+    played = heard()
+    unheard = [topic for topic in pubs if topic not in played]
+    if unheard:
+        n = sum(1 for m in messages if m.topic not in played)
+        named = ", ".join(unheard[:5]) + (f" and {len(unheard) - 5} more" if unheard[5:] else "")
+        print(f"play: no subscriber on {named}: {n} messages not played (--topic TOPIC "
+              "chooses the topics to play)", file=sys.stderr)
+    return [m for m in messages if m.topic in played]
 
 
 def main(path: str | Path, **options: Any) -> int:

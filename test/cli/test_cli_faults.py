@@ -66,12 +66,17 @@ def test_errors_of_the_user_stay_one_line_and_exit_2(
     assert err.count("\n") == 1 and err.startswith("strain-comp: error: simulate: argument")
 
 
-def test_an_interrupt_is_130(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_an_interrupt_is_130(monkeypatch: pytest.MonkeyPatch,
+                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Ctrl-C: exit 130 and one line (``strain-comp node`` interrupted before the node's
+    own handlers are in place says it too)."""
     def interrupted(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     monkeypatch.setattr(cli.simulate, "run", interrupted)
+    capsys.readouterr()
     assert main(["simulate", "--list"]) == 130
+    assert capsys.readouterr().err == "strain-comp: interrupted\n"
 
 
 def test_the_parser_is_assembled_from_one_module_per_command() -> None:

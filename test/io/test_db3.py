@@ -217,3 +217,177 @@ def test_damaged_db3_files_read_or_are_refused_in_one_line(db3_bag: Path,
             assert np.isfinite(series.t).all()
         outcomes["read"] += 1
     assert outcomes["read"] > 0 and outcomes["refused"] > 0, outcomes
+
+
+@pytest.fixture(scope="module")
+def small_db3(tmp_path_factory: pytest.TempPathFactory
+              ) -> tuple[Path, list[tuple[str, str, int, bytes]]]:
+    """A rosbag2 directory of the first 6000 messages of demo_rates (3000 resistances and
+    3000 references, interleaved), and those messages."""
+    messages, _ = raw_messages(MCAP)
+    messages = messages[:6000]
+    bag = tmp_path_factory.mktemp("small") / "small"
+    with Writer(bag, version=8) as writer:
+        connections = {}
+        for topic, kind, stamp, payload in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, kind, typestore=TYPESTORE)
+            writer.write(connections[topic], stamp, payload)
+    return bag, messages
+
+
+def altered(bag: Path, target: Path, *statements: tuple[str, tuple[object, ...]]) -> Path:
+    """A copy of ``bag`` whose .db3 file had the SQL ``statements`` run on it."""
+    shutil.copytree(bag, target)
+    with sqlite3.connect(next(target.glob("*.db3"))) as conn:
+        for sql, args in statements:
+            conn.execute(sql, args)
+    return target
+
+
+@pytest.mark.parametrize("qos", ["[" * 5000, "- 1\n- 2\n", "{a: [1, {b: *x}]}", "\x00\xff"])
+def test_hostile_qos_profiles_are_never_parsed(
+        qos: str, small_db3: tuple[Path, list[tuple[str, str, int, bytes]]],
+        tmp_path: Path) -> None:
+    """rosbag2 stores each topic's offered QoS as YAML text; strain_comp does not need it,
+    so a hostile one (deep brackets that overflowed the YAML parser's recursion, a list where
+    a mapping belongs) reads as the untouched bag does."""
+    bag, messages = small_db3
+    hostile = altered(bag, tmp_path / "qos",
+                      ("UPDATE topics SET offered_qos_profiles = ?", (qos,)))
+    assert raw_messages(hostile) == (messages, [])
+
+
+def test_a_topic_name_stored_as_a_blob_skips_that_topic(
+        small_db3: tuple[Path, list[tuple[str, str, int, bytes]]], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A topic whose name (or type) is not text, or is longer than MAX_NAME_BYTES, is skipped
+    with a problem line; the other topics read exactly. With the resistance topic gone,
+    evaluate is one line, exit 2 (it was an internal error, exit 70)."""
+    bag, messages = small_db3
+    blob = altered(bag, tmp_path / "blob", (
+        "UPDATE topics SET name = CAST(name AS BLOB) WHERE name = '/s1/strain_reference'", ()))
+    got, problems = raw_messages(blob)
+    assert got == [m for m in messages if m[0] != "/s1/strain_reference"]
+    assert [p.split(": ", 2)[-1] for p in problems] == [
+        "1 topics skipped (a name, type or serialization format that is not text of at most "
+        "4096 bytes, or past the first 65535)",
+        "3000 messages on a topic not read (not listed, not cdr, or skipped) skipped"]
+    long_type = altered(bag, tmp_path / "long", (
+        "UPDATE topics SET type = ? WHERE name = '/s1/resistance'", ("x" * 4097,)))
+    assert raw_messages(long_type)[0] == [m for m in messages if m[0] != "/s1/resistance"]
+    capsys.readouterr()
+    assert main(["evaluate", str(long_type), "--calibration", CAL]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("strain-comp: error: ")
+
+
+def test_a_damaged_row_is_skipped_and_every_other_message_kept(
+        small_db3: tuple[Path, list[tuple[str, str, int, bytes]]], tmp_path: Path) -> None:
+    """A message row whose data, time or topic has the wrong type (here the 3000th's data is
+    an integer) is skipped and counted: the 2999 before it and the 3000 after it are kept
+    (every one was lost before: the block being filled was dropped with the error)."""
+    bag, messages = small_db3
+    damaged = altered(bag, tmp_path / "row", ("UPDATE messages SET data = 5 WHERE id = 3000", ()),
+                      ("UPDATE messages SET timestamp = 'late' WHERE id = 10", ()),
+                      ("UPDATE messages SET topic_id = 99 WHERE id = 20", ()))
+    got, problems = raw_messages(damaged)
+    assert got == [m for i, m in enumerate(messages, 1) if i not in (10, 20, 3000)]
+    assert any("2 messages whose time or data has the wrong type" in p for p in problems)
+    assert any("1 messages on a topic not read" in p for p in problems)
+
+
+def test_a_damaged_page_keeps_every_message_before_it(
+        small_db3: tuple[Path, list[tuple[str, str, int, bytes]]], tmp_path: Path) -> None:
+    """sqlite's own damage (a page of the messages table overwritten) ends the file: every
+    message stored before the damaged page is kept, with a problem line saying so."""
+    bag, messages = small_db3
+    damaged = tmp_path / "page"
+    shutil.copytree(bag, damaged)
+    db = next(damaged.glob("*.db3"))
+    data = bytearray(db.read_bytes())
+    page = int.from_bytes(data[16:18], "big")
+    at = data.find(messages[3000][3] + b"")  # the 3001st message's payload
+    assert at > 0
+    start = at - at % page
+    data[start:start + page] = b"\xee" * page
+    db.write_bytes(bytes(data))
+    got, problems = raw_messages(damaged)
+    assert 2000 < len(got) <= 3000
+    assert got == messages[:len(got)]
+    assert any("database damaged" in p and "the messages before it are kept" in p
+               for p in problems)
+
+
+def test_a_message_beyond_the_budget_is_never_fetched(
+        small_db3: tuple[Path, list[tuple[str, str, int, bytes]]], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The budget is checked on the size sqlite reads from the row's header, before the
+    data is fetched: a 24 MiB row against a 1 MiB budget is skipped and counted while the
+    Python heap's peak stays far below the row (it was fetched whole, then dropped)."""
+    import tracemalloc
+
+    from strain_comp.io.bag import db3
+
+    bag, messages = small_db3
+    big = altered(bag, tmp_path / "big",
+                  ("UPDATE messages SET data = zeroblob(24 * 1048576) WHERE id = 5", ()))
+    monkeypatch.setattr(db3, "MAX_MESSAGE_BYTES", 2**20)
+    tracemalloc.start()
+    try:
+        got, problems = raw_messages(big)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert got == messages[:4] + messages[5:]
+    assert any(f"1 messages larger than {2**20} bytes skipped" in p for p in problems)
+    assert peak < 8 * 2**20, peak
+
+
+def test_storage_files_listed_again_are_read_once(
+        small_db3: tuple[Path, list[tuple[str, str, int, bytes]]], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """metadata.yaml listing its one .db3 2000 times (also as ./NAME) reads it once: the
+    same messages as one listing (each listing was read again: 2000 x the samples); more
+    than MAX_STORAGE_FILES different files is one line, exit 2, before any is opened."""
+    from strain_comp.io.bag.layout import MAX_STORAGE_FILES
+
+    bag, messages = small_db3
+    name = next(bag.glob("*.db3")).name
+    many = tmp_path / "many"
+    shutil.copytree(bag, many)
+    meta = many / "metadata.yaml"
+    text = meta.read_text()
+    listing = "".join(f"  - {p}\n" for p in [name, f"./{name}"] * 1000)
+    meta.write_text(text.replace(f"  relative_file_paths:\n  - {name}\n",
+                                 f"  relative_file_paths:\n{listing}"))
+    assert meta.read_text().count(name) > 2000
+    assert raw_messages(many) == (messages, [])
+    listing = "".join(f"  - part_{i}.db3\n" for i in range(MAX_STORAGE_FILES + 1))
+    meta.write_text(text.replace(f"  relative_file_paths:\n  - {name}\n",
+                                 f"  relative_file_paths:\n{listing}"))
+    capsys.readouterr()
+    assert main(["evaluate", str(many), "--calibration", CAL]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"at most {MAX_STORAGE_FILES} are read" in err
+
+
+def test_blocks_stay_within_the_byte_budget(
+        small_db3: tuple[Path, list[tuple[str, str, int, bytes]]], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Per-message zstd frames of a few bytes each may expand to the message budget: a block
+    ends once it holds MAX_MESSAGE_BYTES, so the reader's held-bytes budgets are checked
+    between blocks (4096 frames of 64 MiB were one block of 256 GiB)."""
+    from strain_comp.io.bag import db3
+
+    bag, _ = small_db3
+    frame = zstandard.ZstdCompressor().compress(bytes(2**20))  # 1 MiB, ~50 bytes
+    packed = altered(bag, tmp_path / "packed",
+                     ("UPDATE messages SET data = ? WHERE id <= 40", (frame,)))
+    monkeypatch.setattr(db3, "MAX_MESSAGE_BYTES", 4 * 2**20)
+    problems: list[str] = []
+    blocks = list(db3.db3_messages(next(packed.glob("*.db3")), problems, compressed=True))
+    sizes = [sum(len(m[3]) for m in block) for block in blocks]
+    assert max(sizes) <= 8 * 2**20 and sum(sizes) >= 40 * 2**20, sizes
+    assert [m[3] for block in blocks for m in block][:40] == [bytes(2**20)] * 40
+    assert any("5960 messages whose zstd compression cannot be undone" in p for p in problems)

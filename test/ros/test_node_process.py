@@ -77,8 +77,8 @@ def recorder() -> Iterator[Any]:
     rclpy.try_shutdown(context=ctx)
 
 
-def short_bag(path: Path, n: int) -> Path:
-    """The first ``n`` /s1/resistance messages of bags/demo_rates.mcap, as recorded."""
+def short_bag(path: Path, n: int, topics: tuple[str, ...] = ("/s1/resistance",)) -> Path:
+    """The first ``n`` messages on ``topics`` of bags/demo_rates.mcap, as recorded."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -87,7 +87,7 @@ def short_bag(path: Path, n: int) -> Path:
         writer.start("ros2", "strain_comp test")
         channels: dict[int, int] = {}
         for k, (schema, channel, message) in enumerate(
-                make_reader(src).iter_messages(topics=["/s1/resistance"], log_time_order=True)):
+                make_reader(src).iter_messages(topics=list(topics), log_time_order=True)):
             if k == n:
                 break
             if channel.id not in channels:
@@ -130,11 +130,17 @@ def player(bag: Path, log: Path, *options: str) -> subprocess.Popen[str]:
     return start([sys.executable, "-m", "strain_comp.cli", "play", str(bag), *options], env, log)
 
 
-def record(recorder: Any, play_args: tuple[Any, ...], timeout: float) -> list[float]:
-    """Subscribe to /s1/strain, start the player once matched, record until it ends."""
+def record(recorder: Any, play_args: tuple[Any, ...], timeout: float,
+           diagnostics: list[Any] | None = None) -> list[float]:
+    """Subscribe to /s1/strain (and /diagnostics into ``diagnostics``), start the player
+    once matched, record until it ends."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
     node, executor = recorder
     got: list[float] = []
     sub = node.create_subscription(Float64, "/s1/strain", lambda m: got.append(m.data), 1000)
+    diag = None if diagnostics is None else node.create_subscription(
+        DiagnosticArray, "/diagnostics", diagnostics.append, 100)
     deadline = time.monotonic() + timeout
     try:
         while sub.get_publisher_count() == 0 and time.monotonic() < deadline:
@@ -148,6 +154,8 @@ def record(recorder: Any, play_args: tuple[Any, ...], timeout: float) -> list[fl
         assert play.wait(timeout=10) == 0, play_args[1].read_text()
     finally:
         node.destroy_subscription(sub)
+        if diag is not None:
+            node.destroy_subscription(diag)
     return got
 
 
@@ -171,6 +179,24 @@ def run_node(workspace: dict[str, Any], params: Path, log: Path, *extra: str
     return proc
 
 
+def test_a_fresh_colcon_install_starts_without_compiling(workspace: dict[str, Any],
+                                                        tmp_path: Path) -> None:
+    """colcon's install compiles the kernels of the bundled params files into the installed
+    package's numba cache (setup.py, ``prime_cache``): the first start of the install loads
+    every kernel and compiles none (it compiled into an empty cache, 9 s idle, a minute on a
+    loaded machine: docs/performance.md). First in this module: no node started before."""
+    site = Path(workspace["env"]["PYTHONPATH"])
+    assert list(site.glob("strain_comp/models/__pycache__/apl_kernels.*.nbi"))
+    log = tmp_path / "node.log"
+    proc = start([str(workspace["exe"]), "--ros-args", "--params-file",
+                  str(workspace["share"] / "config/compensator_params.yaml")],
+                 {**workspace["env"], "NUMBA_DEBUG_CACHE": "1"}, log)
+    wait_for(log, "ready:", proc)
+    code, _ = stop(proc)
+    text = log.read_text()
+    assert code == 0 and "[cache] data loaded" in text and "[cache] data saved" not in text
+
+
 def test_sim_time_play_equals_replay(workspace: dict[str, Any], recorder: Any,
                                      tmp_path: Path) -> None:
     bag = short_bag(tmp_path / "short.mcap", N_MESSAGES)
@@ -183,6 +209,27 @@ def test_sim_time_play_equals_replay(workspace: dict[str, Any], recorder: Any,
     assert code == 0 and seconds < 2.0 and "Traceback" not in (tmp_path / "node.log").read_text()
     assert len(got) >= 0.99 * N_MESSAGES
     assert aligned(got, truth) == len(got)
+
+
+def test_play_plays_the_topics_with_a_subscriber_and_names_the_others(
+        workspace: dict[str, Any], recorder: Any, tmp_path: Path) -> None:
+    """A bag with resistance and reference played with --clock into the default node under
+    sim time (it does not subscribe to the reference): the resistance is played and answered,
+    /diagnostics come under sim time, and one line names the topic without a subscriber and
+    --topic (play waited for a subscriber on every topic and failed after 10 s: 0 strains)."""
+    bag = short_bag(tmp_path / "both.mcap", 2 * N_WALL,
+                    ("/s1/resistance", "/s1/strain_reference"))
+    node = run_node(workspace, workspace["share"] / "config/compensator_params.yaml",
+                    tmp_path / "node.log", "-p", "use_sim_time:=true")
+    diagnostics: list[Any] = []
+    got = record(recorder, (bag, tmp_path / "play.log", "--clock", "--rate", "4"), 60.0,
+                 diagnostics)
+    code, _ = stop(node)
+    assert code == 0
+    assert len(got) >= 0.5 * N_WALL and diagnostics, (len(got), len(diagnostics))
+    assert tmp_path.joinpath("play.log").read_text().splitlines() == [
+        f"play: no subscriber on /s1/strain_reference: {N_WALL} messages not played "
+        "(--topic TOPIC chooses the topics to play)", f"played {N_WALL} messages"]
 
 
 def test_wall_clock_play_at_speed_equals_replay_for_a_memoryless_model(
@@ -217,20 +264,29 @@ def test_sigint_under_load_and_during_start_up(workspace: dict[str, Any],
     stop(play)
     assert code == 0 and seconds < 2.0
     assert "Traceback" not in (tmp_path / "node.log").read_text()
-    for delay in (None, 0.0, 0.3, 1.5):
-        log = tmp_path / f"early{delay}.log"
-        proc = start([str(workspace["exe"]), "--ros-args", "--params-file",
-                      str(workspace["share"] / "config/compensator_params.yaml")],
-                     workspace["env"], log)
-        if delay is None:  # within the interpreter's start and the console-script wrapper
-            time.sleep(0.1)  # SIGINT ends the process by Python's own KeyboardInterrupt
-        else:  # once main has installed its handlers: exit 0, no traceback
-            wait_for_handlers(proc)
-            time.sleep(delay)
-        code, seconds = stop(proc)
-        assert seconds < 2.0
-        if delay is not None:
-            assert code == 0 and "Traceback" not in log.read_text()
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:  # both cores kept busy: start-up stretched, every moment of it hit
+        for delay in (None, 0.0, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5):
+            log = tmp_path / f"early{delay}.log"
+            proc = start([str(workspace["exe"]), "--ros-args", "--params-file",
+                          str(workspace["share"] / "config/compensator_params.yaml")],
+                         workspace["env"], log)
+            if delay is None:  # within the interpreter's start and the console-script wrapper
+                time.sleep(0.1)  # SIGINT ends the process by Python's own KeyboardInterrupt
+            else:  # once main has installed its handlers: exit 0, one line, no traceback
+                wait_for_handlers(proc)
+                time.sleep(delay)
+            code, seconds = stop(proc)
+            assert seconds < 2.0
+            if delay is not None:
+                lines = log.read_text().splitlines()
+                assert code == 0 and len(lines) in (1, 2), lines
+                assert (lines[-1] == "compensator: SIGINT: stopped during start-up"
+                        or lines[-1].endswith("[compensator]: SIGINT: stopped")), lines
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
 
 
 def wait_for_handlers(proc: subprocess.Popen[str], timeout: float = 30.0) -> None:

@@ -124,3 +124,19 @@ def test_a_null_list_reads_as_empty(tmp_path: Path) -> None:
                                  "    sensors: [s1]\n    s1: {calibration: one.yaml}\n")
     params = load_params(path)
     assert [i.name for i in params.inputs] == ["s1"] and params.arrays == {}
+
+
+def test_tunables_are_checked_before_any_calibration_loads(tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A tunable out of range is refused before a calibration is read (loading one runs its
+    probe, which compiles kernels: seconds on a colcon install's first start)."""
+    import strain_comp.ros.params as params
+
+    def never(path: Path) -> Calibration:
+        raise AssertionError(f"{path} loaded before the tunables were checked")
+
+    monkeypatch.setattr(params, "load_calibration", never)
+    with pytest.raises(ParameterError, match=r"deadzone_scale: must be in \[0.01, 100.0\], "
+                                             r"got -5.0"):
+        parse_values({"sensors": ["s1"], "s1.calibration": str(tmp_path / "c.yaml"),
+                      "deadzone_scale": -5.0})

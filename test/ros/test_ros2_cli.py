@@ -243,7 +243,10 @@ def test_ros2_param_get_set_describe_dump_and_restart(ws: Workspace, tmp_path: P
                                              "deadzone_scale out of range Min: 0.01, Max: "
                                              "100.0, value: 500.0",
                 ("diagnostics_period_s", "2.0"): "Setting parameter failed: Trying to set a "
-                                                 "read-only parameter: diagnostics_period_s."}
+                                                 "read-only parameter: diagnostics_period_s.",
+                ("use_sim_time", "true"): "Setting parameter failed: use_sim_time is fixed at "
+                                          "start (params file or -p use_sim_time:=...); "
+                                          "restart the node to change it"}
     for args, expected in refusals.items():
         printed = param("set", "/compensator", *args)
         assert printed == expected

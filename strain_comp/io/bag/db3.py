@@ -1,10 +1,16 @@
-"""rosbag2's sqlite3 storage (``.db3``, the default of Humble and Iron), read with rosbags.
+"""rosbag2's sqlite3 storage (``.db3``, the default of Humble and Iron), read with sqlite.
 
 ``db3_messages`` gives a ``.db3`` file's messages in time order, in blocks, as (topic, type
 name, time [ns], CDR payload); ``strain_comp.io.bag.reader`` decodes them exactly as it
 decodes an MCAP's messages, so a bag evaluates the same in either storage. The database is
-opened read-only and immutable (rosbags' ``Sqlite3Reader``); whatever it or sqlite raise on
-a damaged or hostile file becomes one ``BagError`` line. Payloads compressed per message
+opened read-only and immutable with apsw (the sqlite binding rosbags uses) and read by our
+own queries, which ask sqlite for a value's type and size (``typeof``, ``octet_length``:
+read from the row's header, not its content) before the value is fetched: a message is
+fetched only within ``MAX_MESSAGE_BYTES``, a topic's names within ``MAX_NAME_BYTES``. Only
+what decoding needs is read (a topic's id, name, type and serialization format; a message's
+topic, time and data): QoS profiles and message definitions are never parsed. A row of the
+wrong type is skipped and counted; damage sqlite reports while reading ends the file with
+every message before it kept, a line in ``problems``. Payloads compressed per message
 (zstd, ``compression_mode: message``) are decompressed within ``MAX_MESSAGE_BYTES``; a file
 compressed whole (``compression_mode: file``, ``.db3.zstd``) is refused with how to
 decompress it.
@@ -15,21 +21,39 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+import apsw
 import zstandard
 
 from strain_comp.errors import BagError
 
 MAX_MESSAGE_BYTES = 64 * 2**20
 """Largest message kept [bytes], stored or decompressed (a Float64 message is 12 bytes): a
-larger one is skipped and counted."""
+larger one is skipped and counted, never fetched from the database."""
+MAX_TOPICS = 65535
+"""Topic rows read from one file (an MCAP channel id has 16 bits); the rest are skipped."""
+MAX_NAME_BYTES = 4096
+"""Longest topic name, type name or serialization format read [bytes] (a ROS 2 name is a
+few hundred at most): a topic with a longer one, or one that is not text, is skipped."""
 BLOCK = 4096
-"""Messages per block ``db3_messages`` yields."""
+"""Messages per block ``db3_messages`` yields; a block ends earlier once it holds
+``MAX_MESSAGE_BYTES`` (the reader's held-bytes budgets are checked between blocks)."""
 
 DECOMPRESS_HINT = ("decompress it first: rosbags-convert --src BAG --dst PLAIN_BAG "
                    "--dst-storage mcap (pip install rosbags), or ros2 bag convert with "
                    "compression_mode none")
 
 Message = tuple[str, str, int, bytes]
+
+_FIT = " AND ".join(["typeof(id) = 'integer'"] + [
+    f"typeof({c}) = 'text' AND octet_length({c}) <= {MAX_NAME_BYTES}"
+    for c in ("name", "type", "serialization_format")])
+"""A topic row whose values are read (sqlite checks the types and sizes on the header)."""
+_TOPICS = (f"SELECT id, name, type, serialization_format FROM topics WHERE {_FIT} "
+           f"ORDER BY id LIMIT {MAX_TOPICS}")
+_MESSAGES = ("SELECT topic_id, timestamp, typeof(data) = 'blob', "
+             "CASE WHEN typeof(data) = 'blob' AND octet_length(data) <= ? THEN data END "
+             "FROM messages ORDER BY timestamp, id")
+"""Every message in time order; its data only when it is a blob within the budget."""
 
 
 def refuse_compressed_file(path: Path) -> None:
@@ -46,74 +70,115 @@ def refuse_compressed_file(path: Path) -> None:
                    + DECOMPRESS_HINT)
 
 
+def _one_line(exc: BaseException) -> str:
+    """An exception's text on one line."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _topics(db: apsw.Connection, path: Path, problems: list[str]) -> dict[int, tuple[str, str]]:
+    """The CDR topics of the database, id -> (name, type); what is skipped is a problem."""
+    tables = db.execute("SELECT count(*) FROM sqlite_master WHERE type = 'table' "
+                        "AND name IN ('messages', 'topics')").fetchall()
+    if tables != [(2,)]:
+        raise BagError(f"{path}: not a rosbag2 sqlite3 database (no messages and topics "
+                       "tables)")
+    (total, fit), = db.execute(f"SELECT count(*), CAST(total({_FIT}) AS INTEGER) "
+                               "FROM topics").fetchall()
+    assert isinstance(total, int) and isinstance(fit, int)  # count and a cast total
+    topics: dict[int, tuple[str, str]] = {}
+    for cid, name, kind, encoding in db.execute(_TOPICS):
+        if encoding == "cdr":
+            topics[cid] = (name, kind)
+        else:
+            problems.append(f"{path}: {name!r}: serialization format {encoding!r}, not "
+                            "cdr; skipped")
+    skipped = total - min(fit, MAX_TOPICS)
+    if skipped:
+        problems.append(f"{path}: {skipped} topics skipped (a "
+                        "name, type or serialization format that is not text of at most "
+                        f"{MAX_NAME_BYTES} bytes, or past the first {MAX_TOPICS})")
+    return topics
+
+
 def db3_messages(path: Path, problems: list[str], *, compressed: bool = False
                  ) -> Iterator[list[Message]]:
     """The messages of one ``.db3`` file, in time order.
 
     Args:
         path: The rosbag2 sqlite3 database.
-        problems: Lines for what was skipped are appended here (topics not in CDR,
-            oversized or undecompressable messages, a damaged database after its readable
-            messages).
+        problems: Lines for what was skipped are appended here (topics not in CDR or not
+            readable, rows of the wrong type, oversized or undecompressable messages, a
+            damaged database after its readable messages).
         compressed: The payloads are zstd frames (a bag directory's
             ``compression_mode: message``).
 
     Yields:
-        Blocks of at most ``BLOCK`` messages, each (topic, type name, time [ns], payload).
+        Blocks of at most ``BLOCK`` messages and ``2 * MAX_MESSAGE_BYTES`` bytes, each
+        message (topic, type name, time [ns], payload).
 
     Raises:
         BagError: The file is not a readable rosbag2 database (one line).
 
     """
-    import apsw
-    from rosbags.rosbag2 import ReaderError
-    from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+    try:
+        db = apsw.Connection(f"{path.resolve().as_uri()}?immutable=1",
+                             flags=apsw.SQLITE_OPEN_READONLY | apsw.SQLITE_OPEN_URI)
+    except (apsw.Error, OSError) as exc:
+        raise BagError(f"{path}: cannot open as a sqlite3 database ({_one_line(exc)})"
+                       ) from None
+    try:
+        try:
+            topics = _topics(db, path, problems)
+            rows = db.execute(_MESSAGES, (MAX_MESSAGE_BYTES,))
+        except apsw.Error as exc:
+            raise BagError(f"{path}: not a readable rosbag2 sqlite3 database "
+                           f"({_one_line(exc)})") from None
+        yield from _blocks(rows, topics, path, problems, compressed)
+    finally:
+        db.close()
 
-    reader = Sqlite3Reader(path)
-    errors = (apsw.Error, ReaderError, ValueError, TypeError, KeyError, IndexError,
-              OverflowError, UnicodeDecodeError)
+
+def _blocks(rows: apsw.Cursor, topics: dict[int, tuple[str, str]], path: Path,
+            problems: list[str], compressed: bool) -> Iterator[list[Message]]:
+    """The message rows in blocks of ``BLOCK``: rows of the wrong type, on a topic not read,
+    too large or undecompressable are counted; damage ends the walk, what came before kept."""
+    counts = {"large": 0, "bad": 0, "zstd": 0, "topic": 0}
+    block: list[Message] = []
+    held = 0
     try:
-        reader.open()
-    except errors as exc:
-        raise BagError(f"{path}: not a readable rosbag2 sqlite3 database "
-                       f"({' '.join(str(exc).split())})") from None
-    large = bad = 0
-    try:
-        connections = list(reader.connections)
-        formats = {c.id: getattr(c.ext, "serialization_format", "cdr") for c in connections}
-        for conn in connections:
-            if formats[conn.id] != "cdr":
-                problems.append(f"{path}: {conn.topic}: serialization format "
-                                f"{formats[conn.id]!r}, not cdr; skipped")
-        wanted = [c for c in connections if formats[c.id] == "cdr"]
-        block: list[Message] = []
-        for conn, stamp, data in reader.messages(wanted) if wanted else ():
-            if len(data) > MAX_MESSAGE_BYTES:
-                large += 1
+        for cid, stamp, is_blob, data in rows:
+            if not is_blob or type(stamp) is not int:
+                counts["bad"] += 1
+                continue
+            if data is None:
+                counts["large"] += 1
+                continue
+            topic = topics.get(cid) if type(cid) is int else None
+            if topic is None:
+                counts["topic"] += 1
                 continue
             if compressed:
                 try:
                     data = _decompress(data)
                 except (zstandard.ZstdError, BagError):
-                    bad += 1
+                    counts["zstd"] += 1
                     continue
-            block.append((conn.topic, conn.msgtype, int(stamp), bytes(data)))
-            if len(block) >= BLOCK:
+            block.append((topic[0], topic[1], stamp, data))
+            held += len(data)
+            if len(block) >= BLOCK or held >= MAX_MESSAGE_BYTES:
                 yield block
-                block = []
-        if block:
-            yield block
-    except errors as exc:
-        problems.append(f"{path}: database damaged ({' '.join(str(exc).split())}); the "
-                        "messages before it are kept")
-    finally:
-        reader.close()
-    if large:
-        problems.append(f"{path}: {large} messages larger than {MAX_MESSAGE_BYTES} bytes "
-                        "skipped")
-    if bad:
-        problems.append(f"{path}: {bad} messages whose zstd compression cannot be undone "
-                        "skipped")
+                block, held = [], 0
+    except (apsw.Error, MemoryError) as exc:
+        problems.append(f"{path}: database damaged ({_one_line(exc)}); the messages before "
+                        "it are kept")
+    if block:
+        yield block
+    lines = {"large": f"larger than {MAX_MESSAGE_BYTES} bytes",
+             "bad": "whose time or data has the wrong type (a damaged row)",
+             "topic": "on a topic not read (not listed, not cdr, or skipped)",
+             "zstd": "whose zstd compression cannot be undone"}
+    problems.extend(f"{path}: {counts[k]} messages {line} skipped"
+                    for k, line in lines.items() if counts[k])
 
 
 def _decompress(data: bytes) -> bytes:

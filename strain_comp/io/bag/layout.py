@@ -14,6 +14,9 @@ from strain_comp.io.safe_yaml import LimitError, load_limited
 
 MAX_METADATA_BYTES = 2**20
 """rosbag2 metadata.yaml larger than this is refused (a real one is a few kB)."""
+MAX_STORAGE_FILES = 4096
+"""Storage files of one bag directory (listed in metadata.yaml or found by glob; a listing
+repeated, or naming one file two ways, counts once): more is refused."""
 
 
 def _inside(path: Path, file: Path) -> bool:
@@ -44,13 +47,16 @@ def _metadata(meta: Path) -> dict[str, Any]:
 
 def _metadata_files(path: Path, meta: Path) -> list[Path]:
     """The files ``metadata.yaml`` lists (``rosbag2_bagfile_information.
-    relative_file_paths``) that exist; BagError (one line) for unreadable metadata, a field
-    of the wrong type, or a path that is absolute, holds ``..`` or leads out of ``path``."""
+    relative_file_paths``) that exist, each once; BagError (one line) for unreadable
+    metadata, a field of the wrong type, more than ``MAX_STORAGE_FILES`` files, or a path
+    that is absolute, holds ``..`` or leads out of ``path``."""
     info = _metadata(meta)
     where = "rosbag2_bagfile_information"
     rel = info.get(where, {}).get("relative_file_paths", [])
     if not isinstance(rel, list) or not all(isinstance(p, str) for p in rel):
         raise BagError(f"{meta}: {where}.relative_file_paths must be a list of strings")
+    rel = list(dict.fromkeys(rel))
+    _bounded(meta, rel)
     for p in rel:
         if Path(p).is_absolute() or ".." in Path(p).parts:
             raise BagError(f"{meta}: relative_file_paths: {p!r} leaves the bag directory")
@@ -59,18 +65,30 @@ def _metadata_files(path: Path, meta: Path) -> list[Path]:
         if not _inside(path, file):
             raise BagError(f"{meta}: relative_file_paths: {file.name!r} is not a regular "
                            "file inside the bag directory")
-    return files
+    unique: dict[Path, Path] = {}
+    for file in files:
+        unique.setdefault(file.resolve(), file)
+    return list(unique.values())
+
+
+def _bounded(where: Path, files: list[str] | list[Path]) -> None:
+    """BagError (one line) for more than ``MAX_STORAGE_FILES`` storage files."""
+    if len(files) > MAX_STORAGE_FILES:
+        raise BagError(f"{where}: {len(files)} storage files, at most {MAX_STORAGE_FILES} "
+                       "are read")
 
 
 def _bag_files(path: Path) -> list[Path]:
     """The .mcap (or .db3) files of a rosbag2 directory, in metadata.yaml order when it
-    lists them; only regular files inside the directory (a symbolic link out of it is not
-    read). Files compressed whole (``.zstd``) are refused, with how to decompress them."""
+    lists them, each once; only regular files inside the directory (a symbolic link out of
+    it is not read). Files compressed whole (``.zstd``) are refused, with how to decompress
+    them."""
     meta = path / "metadata.yaml"
     files = _metadata_files(path, meta) if _inside(path, meta) else []
     if not files:
         files = [f for pattern in ("*.mcap", "*.db3", "*.mcap.zstd", "*.db3.zstd")
                  for f in sorted(path.glob(pattern)) if _inside(path, f)]
+        _bounded(path, files)
     if not files:
         raise BagError(f"{path}: directory holds no .mcap or .db3 file")
     for file in files:
@@ -91,9 +109,9 @@ def bag_paths(path: Path) -> list[Path]:
     return _bag_files(path) if path.is_dir() else [path]
 
 
-def per_message_zstd(path: Path, file: Path) -> bool:
-    """Are the messages of ``file`` compressed one by one? A rosbag2 directory says so in
-    metadata.yaml (``compression_mode: message``)."""
+def per_message_zstd(path: Path, files: list[Path]) -> bool:
+    """Are the messages of the bag's storage files compressed one by one? A rosbag2
+    directory says so in metadata.yaml (``compression_mode: message``); read once per bag."""
     meta = path / "metadata.yaml"
     if not (path.is_dir() and _inside(path, meta)):
         return False
@@ -102,7 +120,7 @@ def per_message_zstd(path: Path, file: Path) -> bool:
     if mode in ("", "none"):
         return False
     kind = str(info.get("compression_format") or "")
-    if mode != "message" or kind != "zstd" or file.suffix != ".db3":
+    if mode != "message" or kind != "zstd" or any(f.suffix != ".db3" for f in files):
         raise BagError(f"{meta}: compression {kind or '?'} per {mode} is not read here; "
                        + DECOMPRESS_HINT)
     return True

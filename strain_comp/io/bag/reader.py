@@ -19,7 +19,7 @@ import numpy as np
 
 from strain_comp.errors import BagError
 from strain_comp.io.bag.decode import decode
-from strain_comp.io.bag.layout import bag_paths
+from strain_comp.io.bag.layout import bag_paths, per_message_zstd
 from strain_comp.io.bag.records import MAX_LOG_NS, Collector
 from strain_comp.io.bag.schemas import BagContents
 from strain_comp.io.bag.walk import storage_file
@@ -46,9 +46,11 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
 def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
     """Every message of the bag at ``path`` located, within ``MAX_BAG_BYTES``."""
     col = Collector(set(topics) if topics is not None else None)
-    for index, file in enumerate(bag_paths(path)):
+    files = bag_paths(path)
+    compressed = per_message_zstd(path, files)
+    for index, file in enumerate(files):
         col.file_index = index
-        for _ in storage_file(col, path, file):
+        for _ in storage_file(col, file, compressed):
             if col.held > MAX_BAG_BYTES:
                 raise BagError(f"{file}: more than {MAX_BAG_BYTES} bytes of messages to hold "
                                "at once (the whole-bag reader's budget)")
@@ -90,9 +92,11 @@ def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     path = Path(path)
     col = Collector(set(topics) if topics is not None else None)
     cut: int | None = None
-    for index, file in enumerate(bag_paths(path)):
+    files = bag_paths(path)
+    compressed = per_message_zstd(path, files)
+    for index, file in enumerate(files):
         col.file_index = index
-        for _ in storage_file(col, path, file):
+        for _ in storage_file(col, file, compressed):
             if sum(m.size for m in col.msg_time) >= window or col.held >= MAX_HELD_BYTES:
                 piece, cut = _take(col, col.chunk_start, cut)
                 if piece is None and col.held >= MAX_HELD_BYTES:  # no cut frees memory

@@ -17,7 +17,6 @@ from mcap.records import Channel, Chunk, Message, Schema
 from strain_comp.errors import BagError
 from strain_comp.io.bag.chunks import RESYNC_BYTES, add_chunk, resync
 from strain_comp.io.bag.db3 import db3_messages
-from strain_comp.io.bag.layout import per_message_zstd
 from strain_comp.io.bag.records import MAX_LOG_NS, PARSE_ERRORS, Collector, add_loose
 from strain_comp.io.bag.schemas import MAGIC
 
@@ -91,10 +90,10 @@ def _read_top_record(col: Collector, opcode: int, content: bytes, where: str,
     return opcode == Opcode.FOOTER
 
 
-def storage_file(col: Collector, path: Path, file: Path) -> Iterator[int]:
-    """Collect the messages of one storage file of the bag at ``path``."""
+def storage_file(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
+    """Collect the messages of one storage file of a bag (``compressed``: zstd frames, .db3)."""
     if file.suffix == ".db3":
-        yield from _read_db3(col, file, per_message_zstd(path, file))
+        yield from _read_db3(col, file, compressed)
         return
     try:
         with file.open("rb") as handle:
@@ -115,17 +114,15 @@ def storage_file(col: Collector, path: Path, file: Path) -> Iterator[int]:
 
 def _read_db3(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
     """The messages of a ``.db3`` file (``db3.db3_messages``) collected as MCAP records of
-    one channel per topic and type, as an unchunked MCAP's are: decoded alike after."""
+    one channel per topic and type (at most ``db3.MAX_TOPICS``: an MCAP channel id has 16
+    bits), as an unchunked MCAP's are: decoded alike after."""
     channels: dict[tuple[str, str], int] = {}
-    skipped = crowded = 0
+    skipped = 0
     for n, block in enumerate(db3_messages(file, col.problems, compressed=compressed)):
         messages = []
         for topic, kind, stamp, data in block:
             if not 0 <= stamp <= MAX_LOG_NS:
                 skipped += 1
-                continue
-            if (topic, kind) not in channels and len(channels) >= MAX_DB3_CHANNELS:
-                crowded += 1
                 continue
             cid = channels.setdefault((topic, kind), len(channels) + 1)
             if (col.file_index, cid) not in col.channels:
@@ -141,10 +138,3 @@ def _read_db3(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
     if skipped:
         col.problems.append(f"{file}: {skipped} messages with a time stamp beyond 2^31 s "
                             "(2038-01-19) or before 1970 skipped")
-    if crowded:
-        col.problems.append(f"{file}: {crowded} messages on topics past the first "
-                            f"{MAX_DB3_CHANNELS} skipped")
-
-
-MAX_DB3_CHANNELS = 65535
-"""Topics (with their type) read from one .db3 file: an MCAP channel id has 16 bits."""
