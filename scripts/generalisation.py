@@ -23,20 +23,19 @@ is then used on B in each **workflow** and scored on all of B (``evaluate_record
 numbers ``strain-comp evaluate`` prints):
 
 * ``as_is``: ``evaluate --tare auto`` (the rest level read at the start of B);
-* ``first``: the session start on B's first cycle: ``recalibrate --input --from B --first
-  S``, then ``recalibrate --from B --first S`` (the output gain and offset on the spanned
-  input); S the end of the first stretch and return (``first_cycle``);
-* ``warmup``: the same session start on B's *second* cycle (``--window S1:S2``): the first
-  stretch is a warm-up whose reference is ignored; where B has no second cycle, or a step
-  on it is refused and the first cycle makes more steps, the first cycle's (the README's
-  procedure: a refused calibration stretch is redone on the warm-up, ``--first``);
+* ``first``: the session start on B's first stretch and return: ``strain-comp start CAL B
+  --window 0:S`` (the input zero and span, then the output gain and offset where the
+  calibration takes one); S the end of the first stretch and return;
+* ``warmup``: ``strain-comp start CAL B``, the stretch it finds itself: B's *second*
+  stretch and return, the first being a warm-up whose reference is ignored; where B has
+  no second, or it takes fewer steps than the first, the first (the README's procedure,
+  ``strain_comp.offline.session_start``);
 * ``refs_60``: ``warmup``, then ``evaluate --references-every 60``: B's own reference every
   60 s fused online into the output gain and offset (scored on all samples);
 * ``loop`` (``pair`` only, with ``--loop``): ``warmup`` on the calibration ``strain-comp
   diagnose A --validate C...`` made (the first ``--loop-validate`` runs other than A, B).
 
-A step of a session start that cannot be made (no rest in the window, a strain the
-calibration never outputs) leaves the calibration as it was, as for a user.
+A session start that ``start`` refuses leaves the calibration as it was, as for a user.
 
 Reported per scheme, model and sensor: the median and the worst absolute RMSE over the test
 runs (each sensor's unit: fibre mm, else % strain), and the **ratio** to the *best in-run
@@ -129,25 +128,6 @@ def quick(sensor: Sensor) -> Sensor:
 
 
 # --------------------------------------------------------------------------- the pieces
-
-
-def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
-    """Seconds of a run's first load and unload (``strain_comp.offline.session_window``, the
-    cycle the loop's session start uses too; at most its ``FIRST_CYCLE_CAP`` of the run)."""
-    from strain_comp.offline.session_window import FIRST_CYCLE_CAP
-    from strain_comp.offline.session_window import first_cycle as cycle
-
-    seconds = cycle(t, s)
-    return FIRST_CYCLE_CAP * float(t[-1] - t[0]) if seconds is None else seconds
-
-
-def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
-    """(START, END) seconds of a run's second load and unload (``recalibrate --window``;
-    ``strain_comp.offline.session_window.second_cycle``, the window the loop's session start
-    reads too); None when the run has none."""
-    from strain_comp.offline.session_window import second_cycle as window
-
-    return window(t, s)
 
 
 def code_hash() -> str:
@@ -248,34 +228,38 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration",
     return float(result.sensors[rec.name].stats.rmse)
 
 
-def warmup_start(rec: Any, cal: Any, log: Callable[[str], None] = print
-                 ) -> tuple[Any, Any]:
-    """``cal`` after the session start on ``rec``'s first cycle (``recalibrate --input --from
-    B --first S`` then ``recalibrate --from B --first S``), and after the README's procedure
-    (``warmup``): ``strain_comp.diagnosis.session.warmup_start``, the loop's session start
-    too (the second cycle, or the first where the run has no second one or a step on it is
-    refused and the first cycle makes more)."""
-    from strain_comp.diagnosis.session import Stretches, session_start
-    from strain_comp.diagnosis.session import warmup_start as warm
+def session_starts(rec: Any, cal: Any, log: Callable[[str], None] = print
+                   ) -> tuple[Any, Any]:
+    """``cal`` after ``strain-comp start CAL B --window 0:S`` on B's first stretch
+    (``first``), and after ``strain-comp start CAL B`` (``warmup``: the stretch it finds):
+    ``strain_comp.offline.session_start``, the code of the command; a start refused leaves
+    the calibration as it is (``start_or_keep``), as for a user."""
+    from strain_comp.errors import StrainCompError
+    from strain_comp.offline.session_start import start_or_keep, stretch_of
 
-    stretches = Stretches(first_cycle(rec.t, rec.s), second_cycle(rec.t, rec.s))
-    at_first = session_start(cal, {rec.name: rec}, (0.0, stretches.first))
-    started = warm(cal, {rec.name: rec}, stretches, at_first)
-    if started is at_first and stretches.second is not None:
-        log(f"## {rec.name}: the second cycle refused, warmup = first")
-    return at_first.calibration, started.calibration
+    recs = {rec.name: rec}
+    found = start_or_keep(cal, recs)
+    for line in found.notes:
+        log(f"## {rec.name}: {line}")
+    vr = cal.sensors[rec.name].valid_range
+    try:
+        first = stretch_of(rec.t, rec.s, vr.s_hi - vr.s_lo, rec.name)[0]
+    except StrainCompError:  # refused: as found (the calibration as it is)
+        return found.calibration, found.calibration
+    at_first = found if found.window == first else start_or_keep(cal, recs, window=first)
+    return at_first.calibration, found.calibration
 
 
 def workflows(rec: Any, cal: Any, loop_cal: Any | None = None, *,
               log: Callable[[str], None] = print) -> dict[str, float]:
     """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``, with
     the same session start as ``warmup``)."""
-    at_first, started = warmup_start(rec, cal, log)
+    at_first, started = session_starts(rec, cal, log)
     out = {"as_is": rmse(rec, cal, tare="auto"), "first": rmse(rec, at_first)}
     out["warmup"] = out["first"] if started is at_first else rmse(rec, started)
     out["refs_60"] = rmse(rec, started, references_every=REFERENCE_SECONDS)
     if loop_cal is not None:
-        out["loop"] = rmse(rec, warmup_start(rec, loop_cal, log)[1])
+        out["loop"] = rmse(rec, session_starts(rec, loop_cal, log)[1])
     return out
 
 

@@ -24,10 +24,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import RANGE
 from strain_comp.core.tare import TARE, ohms, rest_resistance_from_reference
-from strain_comp.errors import InputError
+from strain_comp.errors import CalibrationError, InputError
 from strain_comp.offline.span_policy import SPAN, SpanPolicy
 
 if TYPE_CHECKING:
@@ -225,11 +226,23 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
     Returns:
         The recalibrated sensor.
 
+    Raises:
+        InputError: The result would not load (the checks every reader applies), said in
+            the user's terms.
+
     """
     history = [*cal.provenance.get("recalibrations", []),
                dict(record, rest=span[0], rest_calibrated=span[1], span_gain=span[2])]
-    return replace(cal, input=replace(cal.input, zero_span=span),
-                   provenance={**cal.provenance, "recalibrations": history})
+    new = replace(cal, input=replace(cal.input, zero_span=span),
+                  provenance={**cal.provenance, "recalibrations": history})
+    try:  # the checks every reader applies, in the user's terms
+        check_calibration(Calibration({cal.name: new}))
+    except CalibrationError as err:
+        raise InputError(f"sensor {cal.name!r}: the stretch puts its rest at "
+                         f"{span[0]:.4g} and the calibration's at {span[1]:.4g} "
+                         f"(sensitivity x{1.0 / span[2] if span[2] else float('inf'):.3g}): "
+                         f"no input zero and span of this sensor ({err.problem})") from None
+    return new
 
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
