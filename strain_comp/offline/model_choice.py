@@ -10,9 +10,9 @@ The winner is fitted on every run; its calibration carries the table of every ca
 (``model_choice``) and the error to expect on a new session (``expected_error``: the
 winner's median and worst over the runs left out, ``core.calibration.expected_error``).
 
-With one run (or one group) there is nothing to leave out: ``SINGLE_RUN_MODEL`` is fitted,
-the model that carried best from one run to another on the benchmark
-(docs/generalisation.md, scheme ``pair``, workflow ``warmup``), and the reason is said.
+With one run (or one group) there is nothing to leave out: the candidate that carried best
+from one run to another on the benchmark is fitted (``ONE_RUN_ORDER``: apl by default), and
+the reason is said.
 """
 
 from __future__ import annotations
@@ -43,10 +43,11 @@ SIMPLER = ("cubic", "mpi", "creep_pi", "apl", "pl", "sinh_pl", "rational", "spik
 after them (not candidates by default)."""
 TIE = 0.02
 """Medians within this share of the lowest are a tie, won by the simpler model."""
-SINGLE_RUN_MODEL = "apl"
-"""The model of ``--model auto`` on one run (or one group): the lowest median ratio to the
-best in-run bound fitted on one run and used on another (docs/generalisation.md, ``pair``,
-``warmup``: apl 2.46, mpi 2.82, creep_pi 3.15, cubic 3.54)."""
+ONE_RUN_ORDER = ("apl", "mpi", "creep_pi", "cubic")
+"""``--model auto`` on one run (or one group) fits the first of these among the candidates:
+ordered by the median ratio to the best in-run bound of a model fitted on one run and used
+on another (docs/generalisation.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
+creep_pi 3.15, cubic 3.54)."""
 
 
 @dataclass(frozen=True)
@@ -224,10 +225,11 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
     held = [tuple(i for i, g in enumerate(labels) if g == label)
             for label in dict.fromkeys(labels)]
     if len(held) < 2:
+        model = next((m for m in ONE_RUN_ORDER if m in candidates), candidates[0])
         why = (f"one {'group' if groups is not None and len(recordings) > 1 else 'run'}: "
-               f"nothing to leave out, {SINGLE_RUN_MODEL} (the model that carried best from "
-               "one run to another on the benchmark, docs/generalisation.md)")
-        return SINGLE_RUN_MODEL, {"chosen": SINGLE_RUN_MODEL, "why": why}
+               f"nothing to leave out, so {model}, the candidate that carried best from one "
+               "run to another on the benchmark (docs/generalisation.md)")
+        return model, {"chosen": model, "why": why}
     folds = [Fold(m, h) for m in candidates for h in held]
     tasks = [(recordings, name, fold, options, pool) for fold in folds]
     if jobs > 1:

@@ -35,6 +35,7 @@ from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.recalibrate import Window, reading, session_start
 from strain_comp.offline.session_window import (
     calibration_stretch,
+    cycle_end,
     first_cycle,
     stretch_and_return,
 )
@@ -124,8 +125,7 @@ def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
     top = int(np.argmax(ss))
     back = ss[top:] < lo + SPAN.cycle_back * span
     if not back.any():
-        if not (ss[:top] > lo + SPAN.cycle_up * span).any() and \
-                not (ss[top:] < lo + SPAN.cycle_up * span).any():
+        if cycle_end(tt, ss) is None and ss[-1] > lo + SPAN.cycle_up * span:
             raise InputError(f"{source} ends {tt[-1] - tt[0]:.4g} s in, during its first "
                              f"stretch: it is shorter than the warm-up; {RECORD}")
         raise InputError(f"{source}: the reference never came back to rest after its "
