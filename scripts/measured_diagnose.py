@@ -33,8 +33,8 @@ two others after their session start (the fibre has one other), and the calibrat
 and as diagnosed is then used on each later run after that run's own session start
 (``strain-comp start CAL RUN``: its second load and unload after a warm-up one, or the first
 where the run has no second or a step is refused there; ``strain_comp.offline.session_start``,
-as the loop and the benchmark). Prints a table (later run: before -> after the loop, the change, what the loop found or why it added
-nothing) and writes ``carry.json`` into ``--out``:
+as the loop and the benchmark). Prints a table (later run: before -> after the loop, the
+change, what the loop found or why it added nothing) and writes ``carry.json`` into ``--out``:
 
     python scripts/measured_diagnose.py --carry --models cubic mpi --out out/carry
 
