@@ -80,7 +80,7 @@ def test_the_parser_is_assembled_from_one_module_per_command() -> None:
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     assert list(sub.choices) == [c.NAME for c in COMMANDS] == [
-        "simulate", "import-csv", "fit", "evaluate", "replay", "diagnose", "recalibrate",
+        "simulate", "import-csv", "fit", "start", "evaluate", "replay", "diagnose", "recalibrate",
         "node", "play"]
     for command in COMMANDS:
         p = sub.choices[command.NAME]
