@@ -207,6 +207,7 @@ class Bench:
         """``strain-comp fit RUN... --model MODEL --pool POOL`` (default options), cached."""
         from strain_comp.core.calibration_file import load_calibration, save_calibration
         from strain_comp.offline.fit import fit_bags
+        from strain_comp.offline.model_choice import auto_fitter
 
         runs = (runs,) if isinstance(runs, Run) else tuple(runs)
         path = self.cache_path(sensor, runs, model, pool)
@@ -219,7 +220,8 @@ class Bench:
         name = "s1" if sensor.name == "rig" else sensor.name
         cal = fit_bags([self.bag(sensor, r) for r in runs], model, [name],
                        {"progress": False} if model in ("apl", "pl", "mpi") else None,
-                       pool=pool, auto={"jobs": AUTO_JOBS[0]})
+                       pool=pool,
+                       fitter=auto_fitter(jobs=AUTO_JOBS[0]) if model == "auto" else None)
         cal.sensors[name].strain_unit = sensor.unit
         self.fit_seconds += time.perf_counter() - start
         self.log(f"## fit {sensor.name}/{'+'.join(r.label for r in runs)} {model} {pool}: "

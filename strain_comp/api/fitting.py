@@ -10,8 +10,13 @@ from strain_comp.api.inputs import Data, PathLike, as_recordings, paths_of
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
-from strain_comp.offline.fit import fit_any, fit_bags
-from strain_comp.offline.model_choice import check_auto_options, parse_candidates, parse_groups
+from strain_comp.offline.fit import Fitter, fit_bags, fit_sensor
+from strain_comp.offline.model_choice import (
+    auto_fitter,
+    check_auto_options,
+    parse_candidates,
+    parse_groups,
+)
 from strain_comp.offline.options import check_fit_options, model_options
 from strain_comp.progress import bar, grid_progress
 
@@ -66,15 +71,8 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
             candidate can).
 
     """
-    auto = None
-    if model == "auto":
-        chosen = parse_candidates(candidates)
-        check_auto_options(chosen, options)
-        paths = paths_of(data)
-        n_runs = len(paths) if paths is not None else (
-            1 if isinstance(data, (Recording, Mapping)) else len(data))  # type: ignore[arg-type]
-        auto = {"candidates": chosen, "groups": parse_groups(groups, n_runs), "jobs": jobs}
-    else:
+    auto = _auto(data, candidates, groups, jobs, options) if model == "auto" else None
+    if auto is None:
         check_fit_options(model, options)
     if not unit_ok(strain_unit):
         raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "
@@ -102,13 +100,26 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     return calibration
 
 
+def _auto(data: Data | Sequence[PathLike], candidates: Sequence[str] | str | None,
+          groups: Sequence[Any] | str | None, jobs: int, options: Mapping[str, Any]) -> Fitter:
+    """The fitter of ``model="auto"``, its candidates, groups and options checked."""
+    chosen = parse_candidates(candidates)
+    check_auto_options(chosen, options)
+    paths = paths_of(data)
+    n_runs = len(paths) if paths is not None else (
+        1 if isinstance(data, (Recording, Mapping)) else len(data))  # type: ignore[arg-type]
+    return auto_fitter(chosen, parse_groups(groups, n_runs), jobs)
+
+
 def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | None,
          report: Callable[[str], None] | None, options: Mapping[str, Any],
-         pool: str = "spanned", auto: Mapping[str, Any] | None = None) -> Calibration:
-    """``api.fit``'s fit: ``fit_bags`` on paths, else ``fit_any`` per sensor of the runs."""
+         pool: str = "spanned", auto: Fitter | None = None) -> Calibration:
+    """``api.fit``'s fit: ``fit_bags`` on paths, else ``fit_sensor`` (or ``auto``) per
+    sensor of the runs."""
     paths = paths_of(data)
     if paths is not None:
-        return fit_bags(paths, model, sensors, options, report=report, pool=pool, auto=auto)
+        return fit_bags(paths, model, sensors, options, report=report, pool=pool,
+                        fitter=auto)
     runs = [data] if isinstance(data, (Recording, Mapping)) else list(data)  # type: ignore[arg-type]
     by_sensor: dict[str, list[Recording]] = {}
     index: dict[str, list[int]] = {}
@@ -125,7 +136,10 @@ def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | N
         if name not in by_sensor:
             raise InputError(f"sensor {name!r} is not in the recordings "
                              f"(sensors found: {', '.join(by_sensor)})")
-        fitted[name] = fit_any(by_sensor[name], model, name=name,
-                               bags=[f"(arrays: {name})"], options=options, pool=pool,
-                               auto=auto, index=index[name])
+        bags = [f"(arrays: {name}, run {i + 1})" for i in index[name]]
+        fitted[name] = (fit_sensor(by_sensor[name], model, name=name,
+                                   bags=[f"(arrays: {name})"], options=options, pool=pool)
+                        if auto is None else
+                        auto(by_sensor[name], name=name, bags=bags, options=options,
+                             pool=pool, index=index[name]))
     return Calibration(fitted)

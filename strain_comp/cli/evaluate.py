@@ -120,7 +120,14 @@ def run(args: argparse.Namespace) -> int:
 def print_expected(args: argparse.Namespace, calibration: Calibration,
                    sensors: Iterable[str]) -> None:
     """Beside the table: per sensor the error its calibration expects on a new session
-    (``core.calibration.expected_words``), where it holds one (``fit --model auto``)."""
+    (``core.calibration.expected_words``), where it holds one (``fit --model auto``).
+
+    Args:
+        args: The parsed command line (where results go).
+        calibration: The calibration evaluated.
+        sensors: The sensors of the table.
+
+    """
     from strain_comp.core.calibration import expected_words
 
     for name in sensors:

@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import yaml
@@ -71,6 +71,15 @@ from strain_comp.offline.training import (
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
+
+class Fitter(Protocol):
+    """Fits one sensor's runs as ``fit_bags`` asks (``model_choice.auto_fitter``)."""
+
+    def __call__(self, recordings: Sequence[Recording], *, name: str,
+                 bags: Sequence[str | Path], options: Mapping[str, Any] | None, pool: str,
+                 index: Sequence[int]) -> SensorCalibration:
+        """The sensor's calibration; ``index``: which of the bags given each run is."""
+
 
 CHOICE_RUNS = 3
 """Runs a pooled fit needs to choose its session start: each run left out must leave a
@@ -335,10 +344,10 @@ def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None,
-             pool: str = "spanned", auto: Mapping[str, Any] | None = None) -> Calibration:
+             pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
     """One calibration for ``sensors``; each sensor is fitted to its recordings from every
-    bag that has it, pooled in one input space (``pool``, ``fit_sensor``); with model
-    ``auto`` the model chosen by leaving runs out (``model_choice.fit_auto``).
+    bag that has it, pooled in one input space (``pool``, ``fit_sensor``), or by ``fitter``
+    (``fit --model auto``: ``model_choice.auto_fitter``).
 
     Args:
         paths: The bags.
@@ -350,8 +359,8 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
         report: Where bag problems (skipped chunks, unknown schemas) and the sensors left
             out go, one line each.
         pool: As ``fit_sensor``.
-        auto: With model ``auto``: ``candidates``, ``groups`` (one label per bag) and
-            ``jobs`` of ``model_choice.fit_auto``.
+        fitter: Fits one sensor instead of ``fit_sensor`` (``Fitter``); None: ``fit_sensor``
+            with ``model``.
 
     Returns:
         The calibration.
@@ -390,11 +399,12 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
     for sensor in names:
         pairs = [(path, rec) for path, rec in by_sensor[sensor] if rec.s is not None]
         try:
-            calibrations[sensor] = fit_any([rec for _, rec in pairs], model, name=sensor,
-                                           bags=[path for path, _ in pairs],
-                                           options=options, pool=pool, auto=auto,
-                                           index=[[str(p) for p in paths].index(path)
-                                                  for path, _ in pairs])
+            runs, bags = [rec for _, rec in pairs], [path for path, _ in pairs]
+            calibrations[sensor] = (
+                fit_sensor(runs, model, name=sensor, bags=bags, options=options, pool=pool)
+                if fitter is None else
+                fitter(runs, name=sensor, bags=bags, options=options, pool=pool,
+                       index=[[str(p) for p in paths].index(path) for path in bags]))
         except FitError as err:
             if not every or len(names) == 1:
                 raise
@@ -403,40 +413,6 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
     if not calibrations:
         raise FitError(f"{bag_list}: no sensor could be fitted")
     return Calibration(calibrations)
-
-
-def fit_any(recordings: Sequence[Recording], model: str, *, name: str,
-            bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-            pool: str = "spanned", auto: Mapping[str, Any] | None = None,
-            index: Sequence[int] | None = None) -> SensorCalibration:
-    """``fit_sensor``, or with model ``auto`` ``model_choice.fit_auto``.
-
-    Args:
-        recordings: The sensor's runs.
-        model: The model's name, or ``auto``.
-        name: The sensor's name.
-        bags: The source bags, for the provenance.
-        options: As ``fit_sensor``.
-        pool: As ``fit_sensor``.
-        auto: ``candidates``, ``groups`` (one label per run given, before ``index``) and
-            ``jobs`` for ``auto``.
-        index: Which of the runs given each recording is (``groups``' order); None: all.
-
-    Returns:
-        The sensor's calibration.
-
-    """
-    if model != "auto":
-        return fit_sensor(recordings, model, name=name, bags=bags, options=options, pool=pool)
-    from strain_comp.offline.model_choice import CANDIDATES, fit_auto
-
-    auto = dict(auto or {})
-    groups = auto.get("groups")
-    if groups is not None and index is not None:
-        groups = [groups[i] for i in index]
-    return fit_auto(recordings, name=name, bags=[str(b) for b in bags], options=options,
-                    pool=pool, candidates=auto.get("candidates") or CANDIDATES, groups=groups,
-                    jobs=int(auto.get("jobs", 1)))
 
 
 def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],

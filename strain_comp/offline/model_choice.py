@@ -29,10 +29,18 @@ from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.errors import FitError, InputError, StrainCompError
 from strain_comp.models import MODEL_NAMES
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.options import DIRECTION_OPTIONS, FIT_OPTIONS, model_options
+from strain_comp.offline.fit import Fitter, fit_sensor
+from strain_comp.offline.options import (
+    DIRECTION_OPTIONS,
+    FIT_OPTIONS,
+    check_fit_options,
+    model_options,
+)
 from strain_comp.offline.session_start import start_or_keep
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from strain_comp.io.recording import Recording
 
 CANDIDATES = ("cubic", "mpi", "apl", "creep_pi")
@@ -119,8 +127,6 @@ def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) ->
         InputError: An option no candidate takes, or a bad value.
 
     """
-    from strain_comp.offline.options import check_fit_options
-
     for key, value in options.items():
         takers = [m for m in candidates if key in model_options(m)]
         if key in DIRECTION_OPTIONS or key in FIT_OPTIONS:
@@ -166,8 +172,6 @@ def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
         One RMSE per run left out [strain unit], or the fit's error.
 
     """
-    from strain_comp.offline.fit import fit_sensor
-
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
@@ -190,6 +194,25 @@ def _fold_task(args: tuple[Sequence[Recording], str, Fold, Mapping[str, Any], st
                ) -> list[float] | str:
     """``fold_errors`` in a worker process."""
     return fold_errors(*args)
+
+
+def _cell(model: str, folds: Sequence[Fold], results: Sequence[list[float] | str],
+          runs: int) -> dict[str, Any]:
+    """A candidate's row of the table: its median, worst and errors, or why it failed."""
+    errors = np.full(runs, np.nan)
+    failed = None
+    for fold, result in zip(folds, results, strict=True):
+        if fold.model != model:
+            continue
+        if isinstance(result, str):
+            failed = failed or result
+        else:
+            errors[list(fold.held)] = result
+    if failed is not None or not np.isfinite(errors).all():
+        return {"failed": failed or "no score on a run left out"}
+    return {"median": round(float(np.median(errors)), 6),
+            "worst": round(float(np.max(errors)), 6),
+            "errors": [round(float(e), 6) for e in errors]}
 
 
 def choose_model(recordings: Sequence[Recording], name: str, *,
@@ -238,25 +261,9 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
             results = list(workers.map(_fold_task, tasks))
     else:
         results = [_fold_task(task) for task in tasks]
-    table: dict[str, dict[str, Any]] = {}
-    for model in candidates:
-        errors = np.full(len(recordings), np.nan)
-        failed = None
-        for fold, result in zip(folds, results, strict=True):
-            if fold.model != model:
-                continue
-            if isinstance(result, str):
-                failed = failed or result
-            else:
-                errors[list(fold.held)] = result
-        if failed is not None or not np.isfinite(errors).all():
-            table[model] = {"failed": failed or "no score on a run left out"}
-        else:
-            table[model] = {"median": round(float(np.median(errors)), 6),
-                            "worst": round(float(np.max(errors)), 6),
-                            "errors": [round(float(e), 6) for e in errors]}
+    table = {model: _cell(model, folds, results, len(recordings)) for model in candidates}
+    for model, cell in table.items():
         if report is not None:
-            cell = table[model]
             report(f"{name}: {model}: " + (f"failed ({cell['failed']})" if "failed" in cell
                                            else f"median {cell['median']:.4g}, worst "
                                                 f"{cell['worst']:.4g} over {len(recordings)} "
@@ -306,8 +313,6 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
         FitError: Every candidate failed, or the chosen one fails on every run.
 
     """
-    from strain_comp.offline.fit import fit_sensor
-
     model, record = choose_model(recordings, name, candidates=candidates, groups=groups,
                                  options=options, pool=pool, jobs=jobs, report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
@@ -318,3 +323,27 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
         cal.provenance["expected_error"] = {**expected, "unit": cal.strain_unit,
                                             "model": model}
     return cal
+
+
+def auto_fitter(candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
+                jobs: int = 1) -> Fitter:
+    """``fit_auto`` as ``fit_bags``' ``fitter`` (``fit --model auto``).
+
+    Args:
+        candidates: The candidate models.
+        groups: One label per bag given, or None.
+        jobs: Worker processes for the folds.
+
+    Returns:
+        The fitter: ``groups`` read through each sensor's bags (``index``).
+
+    """
+    def fit(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path],
+            options: Mapping[str, Any] | None, pool: str,
+            index: Sequence[int]) -> SensorCalibration:
+        return fit_auto(recordings, name=name, bags=[str(b) for b in bags], options=options,
+                        pool=pool, candidates=candidates,
+                        groups=None if groups is None else [groups[i] for i in index],
+                        jobs=jobs)
+
+    return fit

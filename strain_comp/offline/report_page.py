@@ -37,6 +37,7 @@ from strain_comp.offline.plots import (
     context_line,
     plot_error_hist,
     plot_loop,
+    plot_model_choice,
     plot_raw,
     plot_time,
 )
@@ -364,8 +365,6 @@ def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
         The page.
 
     """
-    from strain_comp.offline.plots import plot_model_choice
-
     body: list[str] = []
     for name, cal in calibration.sensors.items():
         choice = cal.provenance.get("model_choice") or {}

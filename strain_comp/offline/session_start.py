@@ -32,7 +32,7 @@ import numpy as np
 from strain_comp.core.calibration import Calibration, expected_words, strain_unit_words
 from strain_comp.errors import InputError
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import Window, reading, session_start
+from strain_comp.offline.recalibrate import Window, reading, session_forms, session_start
 from strain_comp.offline.session_window import (
     calibration_stretch,
     cycle_end,
@@ -239,8 +239,6 @@ def _why(note: str) -> str:
 
 def _wanted(calibration: Calibration, name: str) -> int:
     """How many steps a start makes on the sensor (``session_forms``)."""
-    from strain_comp.offline.recalibrate import session_forms
-
     return len(session_forms(calibration.sensors[name]))
 
 
