@@ -90,8 +90,8 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float | No
     Args:
         calibration: A ``Calibration`` or the path of a calibration file.
         data: A bag or recordings with a reference strain.
-        first: Read the recording's first ``first`` seconds as the stretch (= ``window``
-            (0, first)); None: found, or ``window``.
+        first: Read the recording's first ``first`` seconds as the stretch, as they are
+            (``recalibrate --first``); None: found, or ``window``.
         tare: Kept for older callers; the start reads the stretch as recorded (only
             ``"calibration"`` and ``"auto"`` are accepted, both alike).
         window: The stretch, (START, END) seconds after the recording's start
@@ -116,13 +116,11 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float | No
         raise InputError(f"--tare {tare!r}: expected one of calibration, auto")
     if first is not None and window is not None:
         raise InputError("session_start: give first or window, not both")
-    if first is not None:
-        if not (math.isfinite(first) and first > 0):
-            raise InputError(f"first {first!r}: expected a duration > 0 s")
-        window = (0.0, float(first))
+    if first is not None and not (math.isfinite(first) and first > 0):
+        raise InputError(f"first {first!r}: expected a duration > 0 s")
     cal = as_calibration(calibration)
     paths = paths_of(data)
     held = as_recordings(data) if paths is None else read_recordings(paths[0])
     source = "the recordings" if paths is None else str(paths[0])
-    started = start(cal, held, window=window, sensors=sensors, source=source)
+    started = start(cal, held, window=window, sensors=sensors, source=source, first=first)
     return Recalibration(started.calibration, started.lines())

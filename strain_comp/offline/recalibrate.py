@@ -122,7 +122,7 @@ class SessionStart:
 
 
 def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
-                  window: Window) -> SessionStart:
+                  window: Window, source: str = "") -> SessionStart:
     """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
     ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
     output form on the spanned input, tare ``calibration``), the output step only on the
@@ -134,6 +134,7 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
         calibration: The calibration.
         recordings: The run's recordings by sensor name.
         window: The stretch read, (START, END) [s] after the run's start.
+        source: The run's name, for the lines and the provenance.
 
     Returns:
         The calibration after the steps made, the steps and a line on each.
@@ -150,7 +151,8 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
         try:
             out.calibration, lines = recalibrate_recordings(
                 out.calibration, recordings, form=form, tare=tare, sensors=sensors,
-                first=window[1] if head else None, span=None if head else window)
+                first=window[1] if head else None, span=None if head else window,
+                source=source)
         except StrainCompError as err:
             out.lines.append(f"the {form} step not made: {err}")
             continue

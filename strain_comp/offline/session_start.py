@@ -37,6 +37,7 @@ from strain_comp.offline.session_window import (
     calibration_stretch,
     cycle_end,
     first_cycle,
+    head,
     stretch_and_return,
 )
 from strain_comp.offline.session_window import window as window_of
@@ -144,7 +145,7 @@ def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
 
 def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
           window: Window | None = None, sensors: Sequence[str] | None = None,
-          source: str = "the recording") -> Started:
+          source: str = "the recording", first: float | None = None) -> Started:
     """The session start on a recording with a reference (module docstring): the
     calibration stretch found (or ``window``), the correction made, a record per sensor.
 
@@ -156,6 +157,8 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
         sensors: The sensors started; None or empty: every calibrated one with a
             reference (the first of them gives the stretch).
         source: The recording's name, for the messages.
+        first: Read the recording's first ``first`` seconds as they are, unchecked
+            (``recalibrate --first``; ``sc.session_start(first=...)``); not with ``window``.
 
     Returns:
         The started calibration, the stretch and one record per sensor.
@@ -180,7 +183,9 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
     lead = used[names[0]]
     assert lead.s is not None
     vr = calibration.sensors[names[0]].valid_range
-    if window is not None:
+    if first is not None:
+        made = _made(calibration, used, (0.0, float(first)), source, given=None)
+    elif window is not None:
         made = _made(calibration, used, window, source, given=True)
     else:
         made = _found(calibration, used, stretch_of(lead.t, lead.s, vr.s_hi - vr.s_lo,
@@ -193,7 +198,8 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
                              f"({'; '.join(notes) or 'no step made'}): {RECORD}")
     out = Started(started, used_window, notes=notes,
                   steps=[f for f in ("input", "output") if any(f in v for v in steps.values())])
-    cut = window_of(used, used_window, calibration, source)
+    cut = head(used, first) if first is not None else window_of(used, used_window,
+                                                                  calibration, source)
     scored = evaluate_recordings(cut, started, tare="calibration").sensors
     for name in names:
         cal = started.sensors[name]
@@ -271,18 +277,20 @@ def _found(calibration: Calibration, recordings: Mapping[str, Recording],
 
 
 def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: Window,
-          source: str, *, given: bool = False) -> Made:
+          source: str, *, given: bool | None = False) -> Made:
     """``recalibrate.session_start`` on ``span``: the calibration, the steps made per
     sensor, the lines of the steps not made, the window. The window's own refusal first:
-    as ``--window`` says it where ``given``, else in the start's terms."""
+    as ``--window`` says it where ``given``, in the start's terms where not, none where
+    None (the first seconds read as they are)."""
     try:
-        window_of(recordings, span, calibration, source)
+        if given is not None:
+            window_of(recordings, span, calibration, source)
     except InputError as err:
         if given:
             raise
         raise InputError(f"{source}: the stretch found at {span[0]:.4g}-{span[1]:.4g} s: "
                          f"{str(err).partition(': ')[2]}; {RECORD}") from None
-    made = session_start(calibration, recordings, span)
+    made = session_start(calibration, recordings, span, source)
     steps = {n: [form for form, names in made.made.items() if n in names]
              for n in recordings if n in calibration.sensors}
     notes = [_why(line) for line in made.lines if "not made" in line]

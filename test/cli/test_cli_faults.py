@@ -107,5 +107,5 @@ def test_version_and_help_import_no_command_machinery() -> None:
     from strain_comp.offline.options import describe_options
 
     assert out.stdout.rstrip().endswith(describe_options() + "\n\nexample:\n  strain-comp fit "
-                                        "run1.mcap run2.mcap --model apl --sensor s1 --out "
-                                        "s1.yaml --option N=11")
+                                        "run1.mcap run2.mcap run3.mcap --model auto --sensor "
+                                        "s1 --out s1.yaml")
