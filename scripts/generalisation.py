@@ -597,7 +597,8 @@ def figures(cases: Sequence[Case], workflow: str, out: Path) -> list[Path]:
     ax.set_title(f"median per sensor, session start '{workflow}'")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3, axis="y")
-    path = out / "generalisation_median.png"
+    path = out / ("generalisation_day2.png" if schemes == ["day2"] else
+                  "generalisation_median.png")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     return [path]

@@ -198,8 +198,8 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
                              f"({'; '.join(notes) or 'no step made'}): {RECORD}")
     out = Started(started, used_window, notes=notes,
                   steps=[f for f in ("input", "output") if any(f in v for v in steps.values())])
-    cut = head(used, first) if first is not None else window_of(used, used_window,
-                                                                  calibration, source)
+    cut = head(used, used_window[1]) if used_window[0] == 0.0 else window_of(
+        used, used_window, calibration, source)
     scored = evaluate_recordings(cut, started, tare="calibration").sensors
     for name in names:
         cal = started.sensors[name]
@@ -255,18 +255,14 @@ Made = tuple[Calibration, dict[str, list[str]], list[str], Window]
 def _found(calibration: Calibration, recordings: Mapping[str, Recording],
            stretches: tuple[Window, Window | None], source: str) -> Made:
     """The start on the calibration stretch (the second), or on the first where the second
-    is missing or takes fewer steps than the first (the README's fallback)."""
+    is missing or takes fewer steps than the first (the README's fallback); the first read
+    as it is (``recalibrate --first``), as the benchmark has always read it."""
     first, second = stretches
     made = None if second is None else _made(calibration, recordings, second, source)
     if made is not None and all(len(steps) == _wanted(calibration, n)
                                 for n, steps in made[1].items()):
         return made
-    try:
-        at_first = _made(calibration, recordings, first, source)
-    except InputError:
-        if made is None:
-            raise
-        return made
+    at_first = _made(calibration, recordings, first, source, given=None)
     if made is not None and sum(map(len, at_first[1].values())) <= \
             sum(map(len, made[1].values())):
         return made
