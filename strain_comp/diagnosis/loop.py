@@ -63,8 +63,8 @@ Per calibrated sensor that has a recording with a reference strain:
    with the terms started on that run as ``strain-comp start`` starts it (its second load
    and unload after a warm-up one, else its first: ``strain_comp.offline.session_start``,
    the benchmark's procedure; a run it refuses as it is), then evaluated over the whole
-   run. The per-run ``baseline`` hypothesis is then not tried: that recalibration re-zeroes every run itself, and a
-   baseline term (whose steady output is the rest strain at any resistance) would leave
+   run. The per-run ``baseline`` hypothesis is then not tried: that recalibration
+   re-zeroes every run itself, and a baseline term (whose steady output is the rest strain at any resistance) would leave
    it no input span to make. Nor are an intercept (``offset``) or
    a plain gain (``strain_level`` of power 1) written or scored: the output map of that
    recalibration makes its own, and through the steady outputs the input span reads
