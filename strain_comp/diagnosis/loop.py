@@ -64,9 +64,9 @@ Per calibrated sensor that has a recording with a reference strain:
    and unload after a warm-up one, else its first: ``strain_comp.offline.session_start``,
    the benchmark's procedure; a run it refuses as it is), then evaluated over the whole
    run. The per-run ``baseline`` hypothesis is then not tried: that recalibration
-   re-zeroes every run itself, and a baseline term (whose steady output is the rest strain at any resistance) would leave
-   it no input span to make. Nor are an intercept (``offset``) or
-   a plain gain (``strain_level`` of power 1) written or scored: the output map of that
+   re-zeroes every run itself, and a baseline term (whose steady output is the rest
+   strain at any resistance) would leave it no input span to make. Nor are an intercept
+   (``offset``) or a plain gain (``strain_level`` of power 1) written or scored: the output map of that
    recalibration makes its own, and through the steady outputs the input span reads
    they would only move where that span lands. The terms are still fitted with the
    intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
