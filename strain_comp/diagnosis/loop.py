@@ -66,8 +66,8 @@ Per calibrated sensor that has a recording with a reference strain:
    run. The per-run ``baseline`` hypothesis is then not tried: that recalibration
    re-zeroes every run itself, and a baseline term (whose steady output is the rest
    strain at any resistance) would leave it no input span to make. Nor are an intercept
-   (``offset``) or a plain gain (``strain_level`` of power 1) written or scored: the output map of that
-   recalibration makes its own, and through the steady outputs the input span reads
+   (``offset``) or a plain gain (``strain_level`` of power 1) written or scored: the
+   output map of that recalibration makes its own, and through the steady outputs the input span reads
    they would only move where that span lands. The terms are still fitted with the
    intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
    run whose stretches allow neither step is measured as calibrated.
