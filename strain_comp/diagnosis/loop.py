@@ -67,10 +67,10 @@ Per calibrated sensor that has a recording with a reference strain:
    re-zeroes every run itself, and a baseline term (whose steady output is the rest
    strain at any resistance) would leave it no input span to make. Nor are an intercept
    (``offset``) or a plain gain (``strain_level`` of power 1) written or scored: the
-   output map of that recalibration makes its own, and through the steady outputs the input span reads
-   they would only move where that span lands. The terms are still fitted with the
-   intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
-   run whose stretches allow neither step is measured as calibrated.
+   output map of that recalibration makes its own, and through the steady outputs the
+   input span reads they would only move where that span lands. The terms are still
+   fitted with the intercept (steps 4-5), so their coefficients are not biased by a mean.
+   A validation run whose stretches allow neither step is measured as calibrated.
    Steps 5-6 are then one (``selection.select_carried``): at each step the candidates
    that pass step 5 on the diagnosed run, the ``LoopPolicy.tried`` best, are each fitted
    there and scored on every validation run after its session start; the one whose log
