@@ -23,20 +23,19 @@ is then used on B in each **workflow** and scored on all of B (``evaluate_record
 numbers ``strain-comp evaluate`` prints):
 
 * ``as_is``: ``evaluate --tare auto`` (the rest level read at the start of B);
-* ``first``: the session start on B's first cycle: ``recalibrate --input --from B --first
-  S``, then ``recalibrate --from B --first S`` (the output gain and offset on the spanned
-  input); S the end of the first stretch and return (``first_cycle``);
-* ``warmup``: the same session start on B's *second* cycle (``--window S1:S2``): the first
-  stretch is a warm-up whose reference is ignored; where B has no second cycle, or a step
-  on it is refused and the first cycle makes more steps, the first cycle's (the README's
-  procedure: a refused calibration stretch is redone on the warm-up, ``--first``);
+* ``first``: the session start on B's first stretch and return: ``strain-comp start CAL B
+  --window 0:S`` (the input zero and span, then the output gain and offset where the
+  calibration takes one); S the end of the first stretch and return;
+* ``warmup``: ``strain-comp start CAL B``, the stretch it finds itself: B's *second*
+  stretch and return, the first being a warm-up whose reference is ignored; where B has
+  no second, or it takes fewer steps than the first, the first (the README's procedure,
+  ``strain_comp.offline.session_start``);
 * ``refs_60``: ``warmup``, then ``evaluate --references-every 60``: B's own reference every
   60 s fused online into the output gain and offset (scored on all samples);
 * ``loop`` (``pair`` only, with ``--loop``): ``warmup`` on the calibration ``strain-comp
   diagnose A --validate C...`` made (the first ``--loop-validate`` runs other than A, B).
 
-A step of a session start that cannot be made (no rest in the window, a strain the
-calibration never outputs) leaves the calibration as it was, as for a user.
+A session start that ``start`` refuses leaves the calibration as it was, as for a user.
 
 Reported per scheme, model and sensor: the median and the worst absolute RMSE over the test
 runs (each sensor's unit: fibre mm, else % strain), and the **ratio** to the *best in-run
@@ -71,8 +70,10 @@ WORKFLOWS = ("as_is", "first", "warmup", "refs_60")
 HEADLINE = "warmup"
 """The session start the README recommends (chosen on this benchmark: docs/generalisation.md)."""
 TARGETS = {("nylon", "loro", "warmup", "median"): 5.0, ("nylon", "loro", "warmup", "worst"): 7.5,
-           ("nylon", "loro", "refs_60", "median"): 4.0, ("cb", "loro", "warmup", "median"): 7.0}
-"""Absolute RMSE targets [% strain]: (sensor, scheme, workflow, statistic) -> at most."""
+           ("nylon", "loro", "refs_60", "median"): 4.0, ("cb", "loro", "warmup", "median"): 7.0,
+           ("nylon", "day2", "warmup", "ratio_median"): 1.2}
+"""Targets: (sensor, scheme, workflow, statistic) -> at most (absolute RMSE [% strain], or
+the ratio to the best in-run bound)."""
 REFERENCE_SECONDS = 60.0
 """Spacing of the known strains of the ``refs_60`` workflow."""
 ENGINE = {"out_of_range": "extend"}
@@ -80,6 +81,11 @@ ENGINE = {"out_of_range": "extend"}
 LOOP = {"stretch_history": False, "session_start": True, "validate": 3}
 """Options of the loop workflow's ``diagnose`` and how many other runs it validates on."""
 NYLON_COLUMNS = "time=time_s,resistance=r_over_r0,strain=position"
+BOUND_MODELS: list[str] = []
+"""The models of the in-run bound (``--bound-models``; empty: the benchmarked ones but
+``auto``, or cubic, mpi and apl with ``auto`` alone)."""
+AUTO_JOBS = [1]
+"""Worker processes of a ``fit --model auto`` (``--auto-jobs``)."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,8 @@ class Sensor:
     name: str
     runs: tuple[Run, ...]
     unit: str = "%"
+    later: tuple[Run, ...] = ()
+    """Runs of another session (scheme ``day2``: the test runs of a fit on ``runs``)."""
 
 
 def sensors_of(data: Path) -> dict[str, Sensor]:
@@ -115,12 +123,17 @@ def sensors_of(data: Path) -> dict[str, Sensor]:
         "nylon": Sensor("nylon", tuple(Run(k, f"{nylon}{k}.csv", (
             "--format", "generic", "--columns", NYLON_COLUMNS, "--scales", "strain=100"))
             for k in ("sin_20", "sin_30", "sin_40", "tri_50", "mixed_10_20", "mixed_15_25",
-                      "mixed_20_30"))),
+                      "mixed_20_30")), later=tuple(
+            Run(f"day2_{k}", f"nylon_silver/session2_10Hz/{k}.csv", (
+                "--format", "generic", "--columns", NYLON_COLUMNS, "--scales", "strain=100"))
+            for k in ("sin_20", "sin_40", "tri_20", "tri_30", "mixed_20_30"))),
         "rig": Sensor("rig", tuple(Run(k, f"rig:{k}") for k in
                                    ("triangle", "rates", "patterns", "steps", "random"))),
     }
-    return {k: v for k, v in out.items()
-            if k == "rig" or all((data / r.source).is_file() for r in v.runs)}
+    out = {k: v for k, v in out.items()
+           if k == "rig" or all((data / r.source).is_file() for r in v.runs)}
+    return {k: v if all((data / r.source).is_file() for r in v.later) else
+            replace(v, later=()) for k, v in out.items()}
 
 
 def another_day(data: Path) -> Sensor:
@@ -137,25 +150,6 @@ def quick(sensor: Sensor) -> Sensor:
 
 
 # --------------------------------------------------------------------------- the pieces
-
-
-def first_cycle(t: np.ndarray, s: np.ndarray) -> float:
-    """Seconds of a run's first load and unload (``strain_comp.offline.session_window``, the
-    cycle the loop's session start uses too; at most its ``FIRST_CYCLE_CAP`` of the run)."""
-    from strain_comp.offline.session_window import FIRST_CYCLE_CAP
-    from strain_comp.offline.session_window import first_cycle as cycle
-
-    seconds = cycle(t, s)
-    return FIRST_CYCLE_CAP * float(t[-1] - t[0]) if seconds is None else seconds
-
-
-def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
-    """(START, END) seconds of a run's second load and unload (``recalibrate --window``;
-    ``strain_comp.offline.session_window.second_cycle``, the window the loop's session start
-    reads too); None when the run has none."""
-    from strain_comp.offline.session_window import second_cycle as window
-
-    return window(t, s)
 
 
 def code_hash() -> str:
@@ -221,6 +215,7 @@ class Bench:
         """``strain-comp fit RUN... --model MODEL --pool POOL`` (default options), cached."""
         from strain_comp.core.calibration_file import load_calibration, save_calibration
         from strain_comp.offline.fit import fit_bags
+        from strain_comp.offline.model_choice import auto_fitter
 
         runs = (runs,) if isinstance(runs, Run) else tuple(runs)
         path = self.cache_path(sensor, runs, model, pool)
@@ -233,7 +228,8 @@ class Bench:
         name = "s1" if sensor.name == "rig" else sensor.name
         cal = fit_bags([self.bag(sensor, r) for r in runs], model, [name],
                        {"progress": False} if model in ("apl", "pl", "mpi") else None,
-                       pool=pool)
+                       pool=pool,
+                       fitter=auto_fitter(jobs=AUTO_JOBS[0]) if model == "auto" else None)
         cal.sensors[name].strain_unit = sensor.unit
         self.fit_seconds += time.perf_counter() - start
         self.log(f"## fit {sensor.name}/{'+'.join(r.label for r in runs)} {model} {pool}: "
@@ -255,34 +251,38 @@ def rmse(rec: Any, cal: Any, *, tare: str = "calibration",
     return float(result.sensors[rec.name].stats.rmse)
 
 
-def warmup_start(rec: Any, cal: Any, log: Callable[[str], None] = print
-                 ) -> tuple[Any, Any]:
-    """``cal`` after the session start on ``rec``'s first cycle (``recalibrate --input --from
-    B --first S`` then ``recalibrate --from B --first S``), and after the README's procedure
-    (``warmup``): ``strain_comp.diagnosis.session.warmup_start``, the loop's session start
-    too (the second cycle, or the first where the run has no second one or a step on it is
-    refused and the first cycle makes more)."""
-    from strain_comp.diagnosis.session import Stretches, session_start
-    from strain_comp.diagnosis.session import warmup_start as warm
+def session_starts(rec: Any, cal: Any, log: Callable[[str], None] = print
+                   ) -> tuple[Any, Any]:
+    """``cal`` after ``strain-comp start CAL B --window 0:S`` on B's first stretch
+    (``first``), and after ``strain-comp start CAL B`` (``warmup``: the stretch it finds):
+    ``strain_comp.offline.session_start``, the code of the command; a start refused leaves
+    the calibration as it is (``start_or_keep``), as for a user."""
+    from strain_comp.errors import StrainCompError
+    from strain_comp.offline.session_start import start_or_keep, stretch_of
 
-    stretches = Stretches(first_cycle(rec.t, rec.s), second_cycle(rec.t, rec.s))
-    at_first = session_start(cal, {rec.name: rec}, (0.0, stretches.first))
-    started = warm(cal, {rec.name: rec}, stretches, at_first)
-    if started is at_first and stretches.second is not None:
-        log(f"## {rec.name}: the second cycle refused, warmup = first")
-    return at_first.calibration, started.calibration
+    recs = {rec.name: rec}
+    found = start_or_keep(cal, recs)
+    for line in found.notes:
+        log(f"## {rec.name}: {line}")
+    vr = cal.sensors[rec.name].valid_range
+    try:
+        first = stretch_of(rec.t, rec.s, vr.s_hi - vr.s_lo, rec.name)[0]
+    except StrainCompError:  # refused: as found (the calibration as it is)
+        return found.calibration, found.calibration
+    at_first = found if found.window == first else start_or_keep(cal, recs, window=first)
+    return at_first.calibration, found.calibration
 
 
 def workflows(rec: Any, cal: Any, loop_cal: Any | None = None, *,
               log: Callable[[str], None] = print) -> dict[str, float]:
     """RMSE on ``rec`` of every workflow (``WORKFLOWS``; ``loop`` when ``loop_cal``, with
     the same session start as ``warmup``)."""
-    at_first, started = warmup_start(rec, cal, log)
+    at_first, started = session_starts(rec, cal, log)
     out = {"as_is": rmse(rec, cal, tare="auto"), "first": rmse(rec, at_first)}
     out["warmup"] = out["first"] if started is at_first else rmse(rec, started)
     out["refs_60"] = rmse(rec, started, references_every=REFERENCE_SECONDS)
     if loop_cal is not None:
-        out["loop"] = rmse(rec, warmup_start(rec, loop_cal, log)[1])
+        out["loop"] = rmse(rec, session_starts(rec, loop_cal, log)[1])
     return out
 
 
@@ -314,9 +314,9 @@ def band(rec: Any, cal: Any, log: Callable[[str], None] = print) -> tuple[float,
     the headline session start (``warmup``): ``evaluate``'s ``coverage_95``."""
     from strain_comp.offline.evaluate import evaluate_recordings
 
-    started = warmup_start(rec, cal, log)[1]
-    ev = evaluate_recordings({rec.name: rec}, started, out_of_range=ENGINE["out_of_range"],
-                             tracking=ENGINE["tracking"]).sensors[rec.name]
+    started = session_starts(rec, cal, log)[1]
+    ev = evaluate_recordings({rec.name: rec}, started,
+                             out_of_range=ENGINE["out_of_range"]).sensors[rec.name]
     return float(ev.stats.rmse), math.nan if ev.coverage_95 is None else ev.coverage_95
 
 
@@ -384,14 +384,28 @@ class Case:
         return value / self.best_in_run if self.best_in_run > 0 else math.nan
 
 
+def bound_models(models: Sequence[str]) -> list[str]:
+    """The models of the in-run bound (``BOUND_MODELS``)."""
+    return BOUND_MODELS or [m for m in models if m != "auto"] or ["cubic", "mpi", "apl"]
+
+
+def test_runs(sensor: Sensor, schemes: Sequence[str]) -> list[Run]:
+    """The runs the schemes test on: the sensor's runs, and its ``later`` ones for
+    ``day2``."""
+    runs = [] if set(schemes) <= {"day2"} else list(sensor.runs)
+    return runs + (list(sensor.later) if "day2" in schemes else [])
+
+
 def in_run_bounds(bench: Bench, sensor: Sensor, models: Sequence[str],
-                  step: Callable[[], None] = lambda: None) -> dict[tuple[str, str], float]:
-    """(model, run) -> the model's in-run bound on the run (fitted and scored on it)."""
+                  step: Callable[[], None] = lambda: None, runs: Sequence[Run] | None = None,
+                  ) -> dict[tuple[str, str], float]:
+    """(model, run) -> the model's in-run bound on the run (fitted and scored on it), for
+    ``runs`` (default the sensor's)."""
     from strain_comp.errors import StrainCompError
 
     bounds: dict[tuple[str, str], float] = {}
     for model in models:
-        for run in sensor.runs:
+        for run in sensor.runs if runs is None else runs:
             try:
                 bounds[model, run.label] = rmse(bench.recording(sensor, run),
                                                 bench.fit(sensor, run, model))
@@ -409,10 +423,8 @@ def test_cases(bench: Bench, sensor: Sensor, model: str, bounds: Mapping[tuple[s
 
     cases: list[Case] = []
     for scheme in schemes:
-        for test in sensor.runs:
+        for test in sensor.later if scheme == "day2" else sensor.runs:
             step()
-            if (model, test.label) not in bounds:
-                continue
             others = [r for r in sensor.runs if r != test]
             trainings = [(r,) for r in others] if scheme == "pair" else [tuple(others)]
             pool = scheme.removeprefix("loro_") if scheme.startswith("loro_") else "spanned"
@@ -430,7 +442,7 @@ def test_cases(bench: Bench, sensor: Sensor, model: str, bounds: Mapping[tuple[s
                                           rest[:int(LOOP["validate"])], model)
                 rec = bench.recording(sensor, test)
                 case = Case(sensor.name, model, scheme, "+".join(r.label for r in train),
-                            test.label, bounds[model, test.label],
+                            test.label, bounds.get((model, test.label), math.nan),
                             workflows(rec, cal, loop_cal, log=bench.log))
                 cases.append(case)
                 bench.log(f"## {sensor.name} {model} {scheme} {case.train} -> {test.label}: "
@@ -456,7 +468,8 @@ def run_benchmark(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str]
     cases: list[Case] = []
     bounds: dict[tuple[str, str, str], float] = {}
     for sensor in sensors:
-        found = in_run_bounds(bench, sensor, models, step)
+        found = in_run_bounds(bench, sensor, bound_models(models), step,
+                              test_runs(sensor, schemes))
         bounds.update({(sensor.name, *key): v for key, v in found.items()})
         for model in models:
             cases += test_cases(bench, sensor, model, found, schemes, loop, step)
@@ -477,15 +490,23 @@ class Task:
     loop: bool
     engine: dict[str, str]
     loop_options: dict[str, Any]
+    models: tuple[str, ...] = ()
+    """Every model of the benchmark (which give the in-run bound)."""
+    bound: tuple[str, ...] = ()
+    auto_jobs: int = 1
 
 
 def run_task(task: Task) -> tuple[list[Case], dict[tuple[str, str], float], float, list[str]]:
     """A task's cases, in-run bounds, seconds of fitting and log lines."""
     ENGINE.update(task.engine)
     LOOP.update(task.loop_options)
+    BOUND_MODELS[:] = task.bound
+    AUTO_JOBS[0] = task.auto_jobs
     lines: list[str] = []
     bench = Bench(task.data, task.out, refit=task.refit, log=lines.append)
-    bounds = in_run_bounds(bench, task.sensor, [task.model])
+    bounds = in_run_bounds(bench, task.sensor, [m for m in [task.model]
+                                                if m in bound_models(task.models)],
+                           runs=test_runs(task.sensor, task.schemes))
     cases = test_cases(bench, task.sensor, task.model, bounds, task.schemes, task.loop)
     return cases, bounds, bench.fit_seconds, lines
 
@@ -499,10 +520,11 @@ def run_parallel(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str],
     from multiprocessing import get_context
 
     for sensor in sensors:
-        for run in sensor.runs:
+        for run in (*sensor.runs, *sensor.later):
             bench.bag(sensor, run)
     tasks = sorted((Task(bench.data, bench.out, bench.refit, sensor, model, tuple(schemes),
-                         loop, dict(ENGINE), dict(LOOP))
+                         loop, dict(ENGINE), dict(LOOP), tuple(models), tuple(BOUND_MODELS),
+                         AUTO_JOBS[0])
                     for sensor in sensors for model in models),
                    key=lambda t: -len(t.sensor.runs))
     cases: list[Case] = []
@@ -634,7 +656,8 @@ def figures(cases: Sequence[Case], workflow: str, out: Path) -> list[Path]:
     ax.set_title(f"median per sensor, session start '{workflow}'")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3, axis="y")
-    path = out / "generalisation_median.png"
+    path = out / ("generalisation_day2.png" if schemes == ["day2"] else
+                  "generalisation_median.png")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     return [path]
@@ -662,8 +685,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="cb, fiber, nylon, rig (default: all present)")
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS))
     parser.add_argument("--schemes", nargs="+",
-                        choices=("pair", "loro", "loro_raw", "loro_joint", "loro_stretch"),
+                        choices=("pair", "loro", "loro_raw", "loro_joint", "loro_stretch",
+                                 "day2"),
                         default=list(SCHEMES))
+    parser.add_argument("--bound-models", nargs="+", metavar="MODEL",
+                        help="the models of the in-run bound (default: --models but auto; "
+                             "cubic mpi apl for auto alone)")
+    parser.add_argument("--auto-jobs", type=int, default=1, metavar="N",
+                        help="worker processes of each fit --model auto (default 1)")
     parser.add_argument("--pool-raw", action="store_true",
                         help="also leave-one-run-out pooled as recorded (fit --pool raw)")
     parser.add_argument("--quick", action="store_true", help="three runs per sensor")
@@ -696,6 +725,8 @@ def main(argv: list[str] | None = None) -> int:
 
     start = time.perf_counter()
     ENGINE.update(out_of_range=args.out_of_range)
+    BOUND_MODELS[:] = args.bound_models or []
+    AUTO_JOBS[0] = args.auto_jobs
     LOOP.update(stretch_history=args.loop_stretch_history == "on",
                 session_start=args.loop_session_start == "on", validate=args.loop_validate)
     available = sensors_of(args.data)

@@ -32,12 +32,10 @@ product is used: per sensor (carbon black, fibre, silver-nylon thread, the virtu
 model is fitted on one run, ``diagnose`` (``--tare auto``) works on that run and validates on
 two others after their session start (the fibre has one other), and the calibration as fitted
 and as diagnosed is then used on each later run after that run's own session start
-(``recalibrate --input --from RUN --window S1:S2`` then ``recalibrate --from RUN --window
-S1:S2``, S1:S2 its second load and unload after a warm-up one, or ``--first S`` on the first
-where the run has no second or a step is refused there:
-``strain_comp.diagnosis.session.warmup_start``, as the loop and the benchmark). Prints a
-table (later run: before -> after the loop, the change, what the loop found or why it added
-nothing) and writes ``carry.json`` into ``--out``:
+(``strain-comp start CAL RUN``: its second load and unload after a warm-up one, or the first
+where the run has no second or a step is refused there; ``strain_comp.offline.session_start``,
+as the loop and the benchmark). Prints a table (later run: before -> after the loop, the
+change, what the loop found or why it added nothing) and writes ``carry.json`` into ``--out``:
 
     python studies/measured_diagnose.py --carry --models cubic mpi --out out/carry
 
@@ -133,14 +131,11 @@ def carry(args: argparse.Namespace) -> int:
 
     from strain_comp.core.calibration import Calibration
     from strain_comp.diagnosis.conditions import diagnose_conditions
-    from strain_comp.diagnosis.session import Stretches, session_errors
+    from strain_comp.diagnosis.session import session_errors
     from strain_comp.offline.fit import fit_sensor
 
     def used(cal: Calibration, name: str, rec: Any) -> float:
-        stretches = Stretches.of(rec.t, rec.s)
-        if stretches is None:
-            raise SystemExit(f"{name}: the reference of a later run never moves")
-        errors = session_errors(cal, {name: rec}, name, stretches)
+        errors = session_errors(cal, {name: rec}, name)
         return float(np.sqrt(np.mean(errors ** 2)))
 
     policy = policy_of(args.policy)

@@ -11,7 +11,13 @@ from strain_comp.api.inputs import Data, PathLike, as_recordings, checked, paths
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
-from strain_comp.offline.fit import fit_bags, fit_sensor
+from strain_comp.offline.fit import Fitter, fit_bags, fit_sensor
+from strain_comp.offline.model_choice import (
+    auto_fitter,
+    check_auto_options,
+    parse_candidates,
+    parse_groups,
+)
 from strain_comp.offline.options import check_fit_options, model_options
 from strain_comp.progress import bar, grid_progress
 
@@ -19,14 +25,22 @@ from strain_comp.progress import bar, grid_progress
 def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         sensors: Sequence[str] | None = None, strain_unit: str = "%",
         report: Callable[[str], None] | None = None, progress_bar: bool = False,
-        pool: str = "spanned", input_unit: str = "ohm", **options: Any) -> Calibration:
+        pool: str = "spanned", input_unit: str = "ohm",
+        candidates: Sequence[str] | str | None = None,
+        groups: Sequence[Any] | str | None = None, jobs: int = 1,
+        **options: Any) -> Calibration:
     """Fit ``model`` to recordings with a reference strain: one calibration, one entry per
     sensor (``strain-comp fit``).
 
     Args:
         data: Bag paths (one or several runs), a Recording, or a list of Recordings (each
             a run; several runs of one sensor are fitted together).
-        model: apl, pl, mpi, cubic, sinh_pl, rational or spike_decay.
+        model: apl, pl, mpi, cubic, sinh_pl, rational, spike_decay or creep_pi; or
+            ``"auto"``: each of ``candidates`` fitted on all runs but one (or one group),
+            started on the run left out (``strain-comp start``) and scored over it; the
+            lowest median wins, a simpler model within 2 % of it before it
+            (``strain_comp.offline.model_choice``); the table and the error to expect are
+            stored in the provenance (``model_choice``, ``expected_error``).
         sensors: Which sensors to fit (default: every one with a reference).
         strain_unit: The reference strain's unit (``%``, ``mm``), stored in the calibration.
         report: Where notes go (skipped bag damage, a sensor left out, a resistance that
@@ -40,8 +54,14 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         input_unit: The unit of the recordings' resistance: ohm, or another for an input
             not in ohm (``R/R0``), stored in ``InputSettings.unit`` so the dead zone is read
             in it per second (``strain-comp fit --input-unit``).
+        candidates: With ``"auto"``: the models tried (a list or ``"cubic,apl"``; default
+            cubic, mpi, apl, creep_pi).
+        groups: With ``"auto"``: one label per run (``[1, 1, 1, 2, 2]`` or ``"1,1,1,2,2"``):
+            runs of a session or mounting left out together; default each run alone.
+        jobs: With ``"auto"``: worker processes for the runs left out.
         **options: The model's fit options, as ``strain-comp fit --option K=V`` takes them
-            (``strain-comp fit --help`` lists them).
+            (``strain-comp fit --help`` lists them); with ``"auto"`` each candidate takes
+            its own.
 
     Returns:
         The calibration, one ``SensorCalibration`` per sensor fitted.
@@ -51,7 +71,8 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
             unknown model or option, a bad unit, a sensor not in the data or
             without a reference, or a bag path that cannot be read.
         BagError: A bag cannot be read.
-        FitError: The model cannot be fitted to a sensor's data.
+        FitError: The model cannot be fitted to a sensor's data (with ``"auto"``: no
+            candidate can).
 
     """
 
@@ -60,7 +81,9 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
                         (input_unit, "input_unit")):
         checked(value, "text", what)
     sensors = checked(sensors, "names", "sensors")
-    check_fit_options(model, options)
+    auto = _auto(data, candidates, groups, jobs, options) if model == "auto" else None
+    if auto is None:
+        check_fit_options(model, options)
     if not unit_ok(strain_unit):
         raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "
                          "(1-16 letters, digits, %, / or .)")
@@ -68,19 +91,21 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         raise InputError(f"input unit {input_unit!r}: expected a unit such as ohm or R/R0 "
                          "(1-16 letters, digits, %, / or .)")
 
-    grid = "progress" in model_options(model) and "progress" not in options
+    grid = auto is None and "progress" in model_options(model) and "progress" not in options
     with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
         if grid:  # the grid's own lines give way to the bar (or to silence)
             options = {**options, "progress": grid_progress(shown) if progress_bar else False}
-        calibration = _fit(data, model, sensors, report, options, pool)
+        calibration = _fit(data, model, sensors, report, options, pool, auto)
     for cal in calibration.sensors.values():
         cal.strain_unit = strain_unit
+        if "expected_error" in cal.provenance:
+            cal.provenance["expected_error"]["unit"] = strain_unit
         if input_unit != "ohm":
             if cal.input.kind != "resistance":
                 raise InputError(f"input unit {input_unit!r}: {cal.name}'s input is a "
                                  f"{cal.input.kind}, whose resistance is in ohm")
             cal.input = replace(cal.input, unit=input_unit)
-        if grid:  # how the fit was shown is no fit option
+        if grid or auto is not None:  # how the fit was shown is no fit option
             cal.provenance.get("options", {}).pop("progress", None)
         line = ratio_note(cal)
         if line is not None and report is not None:
@@ -115,18 +140,33 @@ def ratio_note(cal: SensorCalibration) -> str | None:
             "input_unit='R/R0') so that the dead zone and the plots say so")
 
 
+def _auto(data: Data | Sequence[PathLike], candidates: Sequence[str] | str | None,
+          groups: Sequence[Any] | str | None, jobs: int, options: Mapping[str, Any]) -> Fitter:
+    """The fitter of ``model="auto"``, its candidates, groups and options checked."""
+    chosen = parse_candidates(candidates)
+    check_auto_options(chosen, options)
+    paths = paths_of(data)
+    n_runs = len(paths) if paths is not None else (
+        1 if isinstance(data, (Recording, Mapping)) else len(data))  # type: ignore[arg-type]
+    return auto_fitter(chosen, parse_groups(groups, n_runs), jobs)
+
+
 def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | None,
          report: Callable[[str], None] | None, options: Mapping[str, Any],
-         pool: str = "spanned") -> Calibration:
-
+         pool: str = "spanned", auto: Fitter | None = None) -> Calibration:
+    """``api.fit``'s fit: ``fit_bags`` on paths, else ``fit_sensor`` (or ``auto``) per
+    sensor of the runs."""
     paths = paths_of(data)
     if paths is not None:
-        return fit_bags(paths, model, sensors, options, report=report, pool=pool)
+        return fit_bags(paths, model, sensors, options, report=report, pool=pool,
+                        fitter=auto)
     runs = [data] if isinstance(data, (Recording, Mapping)) else list(data)  # type: ignore[arg-type]
     by_sensor: dict[str, list[Recording]] = {}
-    for run in runs:
+    index: dict[str, list[int]] = {}
+    for i, run in enumerate(runs):
         for name, rec in as_recordings(run).items():
             by_sensor.setdefault(name, []).append(rec)
+            index.setdefault(name, []).append(i)
     names = list(sensors) if sensors and "all" not in sensors else \
         [n for n, recs in by_sensor.items() if any(r.s is not None for r in recs)]
     if not names:
@@ -136,6 +176,10 @@ def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | N
         if name not in by_sensor:
             raise InputError(f"sensor {name!r} is not in the recordings "
                              f"(sensors found: {', '.join(by_sensor)})")
-        fitted[name] = fit_sensor(by_sensor[name], model, name=name,
-                                  bags=[f"(arrays: {name})"], options=options, pool=pool)
+        bags = [f"(arrays: {name}, run {i + 1})" for i in index[name]]
+        fitted[name] = (fit_sensor(by_sensor[name], model, name=name,
+                                   bags=[f"(arrays: {name})"], options=options, pool=pool)
+                        if auto is None else
+                        auto(by_sensor[name], name=name, bags=bags, options=options,
+                             pool=pool, index=index[name]))
     return Calibration(fitted)

@@ -1,5 +1,5 @@
 """``recalibrate`` and ``session_start`` from Python: ``strain-comp recalibrate`` through
-two points or over a run with a reference (docs/api.md)."""
+two points or over a run with a reference, and ``strain-comp start`` (docs/api.md)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ from strain_comp.api.inputs import (
 )
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
-from strain_comp.offline.recalibrate import forms_of, recalibrate_recordings
 from strain_comp.offline.recalibrate import recalibrate as _recalibrate
+from strain_comp.offline.recalibrate import recalibrate_recordings
+from strain_comp.offline.session_start import start
 
 
 class Recalibration(NamedTuple):
@@ -82,27 +83,37 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
     return Recalibration(new, lines)
 
 
-def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30.0,
-                  tare: str = "calibration",
-                  window: tuple[float, float] | None = None) -> Recalibration:
-    """The start of a session (README): on a run with a reference, first the input zero
-    and span, then the output gain and offset (not on a sensor with a stretch
-    line: ``recalibrate.session_forms``), over the calibration stretch ``window``
-    (after a warm-up stretch), or over the run's first ``first`` seconds.
+def session_start(calibration: CalibrationLike, data: Data, *, first: float | None = None,
+                  tare: str = "calibration", window: tuple[float, float] | None = None,
+                  sensors: Sequence[str] | None = None) -> Recalibration:
+    """``strain-comp start``: the start of a session (README) on a recording with a
+    reference, a warm-up stretch and back, then the calibration stretch and back. The
+    stretch is found from the reference (the second stretch and return, else the first)
+    and the correction the calibration's fit chose is made on it: the input zero and span,
+    then the output gain and offset on the sensors that take one
+    (``strain_comp.offline.session_start.start``).
 
     Args:
         calibration: A ``Calibration`` or the path of a calibration file.
         data: A bag or recordings with a reference strain.
-        first: How much of the run's start to use [s] when ``window`` is None.
-        tare: As ``--tare``.
-        window: The calibration stretch, (START, END) seconds after the run's start
-            (``recalibrate --window``).
+        first: Read the recording's first ``first`` seconds as the stretch, as they are
+            (``recalibrate --first``); None: found, or ``window``.
+        tare: Kept for older callers; the start reads the stretch as recorded (only
+            ``"calibration"`` and ``"auto"`` are accepted, both alike).
+        window: The stretch, (START, END) seconds after the recording's start
+            (``start --window``); None: found.
+        sensors: The sensors started (default: every calibrated one with a reference).
 
     Returns:
-        The calibration with both and the lines of each step.
+        The started calibration and one line per sensor: the stretch used (seconds), the
+        correction and the RMSE on the stretch, with the error the calibration expects on
+        a new session where it holds one (``fit --model auto``).
 
     Raises:
-        InputError: The stretch read has no usable load and unload, or no reference.
+        InputError: A recording a start cannot read (no stretch and return, no return to
+            rest after its largest strain, shorter than the warm-up), both ``first`` and
+            ``window``, or a stretch on which no correction can be made; each says what
+            to record instead.
         CalibrationError: The calibration file cannot be read.
         BagError: The bag cannot be read.
 
@@ -111,16 +122,13 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float = 30
     checked(tare, "text", "tare")
     first = checked(first, "seconds", "first")
     window = checked(window, "window", "window")
+    if tare not in ("calibration", "auto"):
+        raise InputError(f"--tare {tare!r}: expected one of calibration, auto")
+    if first is not None and window is not None:
+        raise InputError("session_start: give first or window, not both")
     cal = as_calibration(calibration)
     paths = paths_of(data)
     held = as_recordings(data) if paths is None else read_recordings(paths[0])
-    source = "recordings" if paths is None else paths[0]
-    head = first if window is None else None
-    cal, lines = recalibrate_recordings(cal, held, form="input", first=head, tare=tare,
-                                        source=source, span=window)
-    takes_output = forms_of(cal, held).get("output")
-    if takes_output:
-        cal, more = recalibrate_recordings(cal, held, form="output", first=head, tare=tare,
-                                           sensors=takes_output, source=source, span=window)
-        lines += more
-    return Recalibration(cal, lines)
+    source = "the recordings" if paths is None else str(paths[0])
+    started = start(cal, held, window=window, sensors=sensors, source=source, first=first)
+    return Recalibration(started.calibration, started.lines())

@@ -49,11 +49,12 @@ from strain_comp.cli import (
     recalibrate,
     replay,
     simulate,
+    start,
 )
 from strain_comp.cli.common import PROG, Command, Formatter, Parser, UsageError, err
 from strain_comp.errors import StrainCompError, Terminated, raise_terminated
 
-COMMANDS: tuple[Command, ...] = (simulate, import_csv, fit, evaluate, replay, diagnose,
+COMMANDS: tuple[Command, ...] = (simulate, import_csv, fit, start, evaluate, replay, diagnose,
                                  recalibrate, node, play)
 """Every command, in the order ``strain-comp --help`` lists them."""
 EXIT_USER = 2

@@ -17,8 +17,9 @@ from strain_comp.io.atomic import check_output, write_text
 from strain_comp.io.inputs import existing
 
 PROG = "strain-comp"
-OUT_OF_RANGE_HINT = ("samples out of the calibrated range: if the run's rest level moved, "
-                     "try --tare auto, or strain-comp recalibrate")
+OUT_OF_RANGE_HINT = ("samples out of the calibrated range: if the sensor's rest level or "
+                     "sensitivity moved, start the session on a stretch and back "
+                     "(strain-comp start)")
 
 
 class Command(Protocol):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from strain_comp.cli.common import (
@@ -103,6 +104,19 @@ def run(args: argparse.Namespace) -> int:
     return _evaluate_one(args, bags[0], inputs, calibration)
 
 
+def print_expected(args: argparse.Namespace, calibration: Calibration,
+                   sensors: Iterable[str]) -> None:
+    """Beside the table: per sensor the error its calibration expects on a new session
+    (``core.calibration.expected_words``), where it holds one (``fit --model auto``)."""
+    from strain_comp.core.calibration import expected_words
+
+    for name in sensors:
+        cal = calibration.sensors.get(name)
+        words = None if cal is None else expected_words(cal)
+        if words:
+            print(f"{name}: {words}", file=results(args))
+
+
 def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str],
                   calibration: Calibration) -> int:
     """``evaluate`` over one bag (``api.evaluate``, streamed)."""
@@ -119,6 +133,7 @@ def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str],
                               csv=args.csv, inputs=[args.calibration])
     result = evaluation.result
     print(evaluation.table(), file=results(args))
+    print_expected(args, calibration, result.sensors)
     for line in evaluation.problems + format_notes(result):
         note(args, line)
     # drawn before anything is written: a drawing that fails leaves no JSON behind
@@ -168,6 +183,7 @@ def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str],
             note(args, f"wrote {len(outcome.plots)} plots to "
                  f"{os.path.dirname(outcome.plots[0])}")
     print(format_aggregate(outcomes), file=stream)
+    print_expected(args, calibration, calibration.sensors)
     if args.report:
         from strain_comp.offline.batch import aggregate
         from strain_comp.offline.report_page import BagSection, evaluation_page

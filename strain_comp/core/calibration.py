@@ -10,6 +10,7 @@ with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from html import escape
 from typing import Any
@@ -290,3 +291,49 @@ def provenance(bags: list[str], fit_rmse: float, n_samples: int, **extra: Any) -
     }
     record.update(extra)
     return record
+
+
+def expected_error(cal: SensorCalibration) -> dict[str, Any] | None:
+    """The error a sensor's calibration expects on a new session: its provenance's
+    ``expected_error`` (``fit --model auto``: its model's RMSE on each training run left
+    out, after the session start there), when it holds a valid one.
+
+    Args:
+        cal: The sensor's calibration.
+
+    Returns:
+        ``median``, ``worst`` [strain unit], ``unit``, ``runs`` (and what else was stored),
+        or None when not measured.
+
+    """
+    found = cal.provenance.get("expected_error")
+    if not isinstance(found, dict):
+        return None
+    try:
+        median, worst = float(found["median"]), float(found["worst"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (math.isfinite(median) and math.isfinite(worst)):
+        return None
+    return dict(found, median=median, worst=worst, unit=str(found.get("unit", cal.strain_unit)))
+
+
+def expected_words(cal: SensorCalibration) -> str | None:
+    """``expected on a new session: RMSE 4.8 % strain (median), 6.8 at worst, over 7 runs
+    left out`` (``expected_error``), for ``start``, ``evaluate`` and the node's start-up
+    line; None when the calibration holds none.
+
+    Args:
+        cal: The sensor's calibration.
+
+    Returns:
+        The words, or None.
+
+    """
+    found = expected_error(cal)
+    if found is None:
+        return None
+    runs = found.get("runs")
+    over = f" over {runs} runs left out" if isinstance(runs, int) else ""
+    return (f"expected on a new session: RMSE {found['median']:.3g} "
+            f"{strain_unit_words(found['unit'])} (median), {found['worst']:.3g} at worst{over}")

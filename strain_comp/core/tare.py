@@ -106,7 +106,9 @@ def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
     if abs(drift) > MAX_REST_DRIFT:
         raise InputError(f"tare: the run starts while the resistance still drifts "
                          f"({100 * drift:+.2f} % over {window:g} s, at most "
-                         f"{100 * MAX_REST_DRIFT:g} % at rest): no rest level")
+                         f"{100 * MAX_REST_DRIFT:g} % at rest): no rest level; record "
+                         "the run from a few still seconds at rest, or start the session "
+                         "on a stretch and back (strain-comp start)")
     return rest_level(ra[:stop], pair=pair)
 
 

@@ -234,23 +234,23 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
         and after < (1.0 - margin) * before
     read = ", ".join(window_flag(s.window) for s in starts)
     u = strain_unit_words(cal.strain_unit)
-    made = "; ".join(line.split(" (from ")[0].removeprefix(f"{session.sensor}: ")
-                     for s in starts for line in s.lines)
+    made = "; ".join(line.removeprefix(f"{session.sensor}: ")
+                     for s in starts for line in [*s.lines(), *s.notes])
     reading = (f"{session.sensor}: session start on the validation run ({read}: {made}); "
                f"validation RMSE before the loop {before:.4g} -> {after:.4g} {u}"
                f"; {remains(before, after, u)}")
     if shown:
-        window = starts[0].window
+        window = next(s.window for s in starts if s.window is not None)
         which = ("its first load and unload" if window[0] == 0.0
                  else "a warm-up load and unload, then the next one")
         reading = (f"{session.sensor}: sensitivity differs from the calibration by "
                    + ", ".join(f"{c:+.1f} %" for c in changes) + " on the validation run: "
-                   f"recalibrate --input --from RUN {window_flag(window)}, then recalibrate "
-                   f"--from RUN {window_flag(window)} ({which}), at the start of each "
-                   "session; " + reading)
+                   f"strain-comp start CAL.yaml RUN --out TODAY.yaml at the start of each "
+                   f"session (here it read {which}, {window_flag(window)}); " + reading)
     return {"name": SESSION_RECORDS[1] if shown else SESSION_RECORDS[0],
             "reading": reading, "before": before, "after": after, "chosen": False,
-            "sensitivity_change": changes, "windows": [list(s.window) for s in starts],
+            "sensitivity_change": changes,
+            "windows": [None if s.window is None else list(s.window) for s in starts],
             "steps": [s.steps for s in starts]}
 
 

@@ -60,18 +60,17 @@ Per calibrated sensor that has a recording with a reference strain:
 
 8. **Session start.** With ``validate_recordings`` (and ``session_start``), every held-out
    figure of steps 6-7 is the validation run's RMSE as the product is used: the calibration
-   with the terms recalibrated on that run's second load and unload, after a warm-up one
-   (``recalibrate --input``, then the output map; on the first where the run has no second
-   or a step is refused there: ``strain_comp.diagnosis.session.warmup_start``, the
-   benchmark's procedure), then evaluated over the whole run. The per-run ``baseline``
-   hypothesis is then not tried: that recalibration re-zeroes every run itself, and a
-   baseline term (whose steady output is the rest strain at any resistance) would leave
-   it no input span to make. Nor are an intercept (``offset``) or
-   a plain gain (``strain_level`` of power 1) written or scored: the output map of that
-   recalibration makes its own, and through the steady outputs the input span reads
-   they would only move where that span lands. The terms are still fitted with the
-   intercept (steps 4-5), so their coefficients are not biased by a mean. A validation
-   run whose stretches allow neither step is measured as calibrated.
+   with the terms started on that run as ``strain-comp start`` starts it (its second load
+   and unload after a warm-up one, else its first: ``strain_comp.offline.session_start``,
+   the benchmark's procedure; a run it refuses as it is), then evaluated over the whole
+   run. The per-run ``baseline`` hypothesis is then not tried: that recalibration
+   re-zeroes every run itself, and a baseline term (whose steady output is the rest
+   strain at any resistance) would leave it no input span to make. Nor are an intercept
+   (``offset``) or a plain gain (``strain_level`` of power 1) written or scored: the
+   output map of that recalibration makes its own, and through the steady outputs the
+   input span reads they would only move where that span lands. The terms are still
+   fitted with the intercept (steps 4-5), so their coefficients are not biased by a mean.
+   A validation run whose stretches allow neither step is measured as calibrated.
    Steps 5-6 are then one (``selection.select_carried``): at each step the candidates
    that pass step 5 on the diagnosed run, the ``LoopPolicy.tried`` best, are each fitted
    there and scored on every validation run after its session start; the one whose log

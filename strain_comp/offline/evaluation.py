@@ -195,8 +195,9 @@ def format_notes(result: EvaluationResult) -> list[str]:
         if ev.n_out_of_range:
             lines.append(f"{name}: {ev.n_out_of_range} of the {ev.n_samples} samples ("
                          f"{ev.stats.n} scored) outside the "
-                         "calibration's valid range (flagged, scored); if the run's rest "
-                         "level moved, try --tare auto, or strain-comp recalibrate")
+                         "calibration's valid range (flagged, scored); if the sensor's "
+                         "rest level or sensitivity moved, start the session on a stretch "
+                         "and back (strain-comp start)")
         if ev.references is not None:
             lines.append(fusion_note(name, ev.references, ev.references["every"], ev.unit))
     return lines + list(result.notes)

@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import yaml
@@ -64,6 +64,7 @@ from strain_comp.offline.input_chain import input_chain
 from strain_comp.offline.options import model_options
 from strain_comp.offline.pool import Pooled, gate, pooled_input
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
+from strain_comp.offline.session_start import start_or_keep
 from strain_comp.offline.space_choice import choose_space
 from strain_comp.offline.training import (
     check_training_span,
@@ -72,10 +73,19 @@ from strain_comp.offline.training import (
     training_segments,
     valid_range,
 )
-from strain_comp.offline.uncertainty import learn, start_run
+from strain_comp.offline.uncertainty import learn
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
+
+class Fitter(Protocol):
+    """Fits one sensor's runs as ``fit_bags`` asks (``model_choice.auto_fitter``)."""
+
+    def __call__(self, recordings: Sequence[Recording], *, name: str,
+                 bags: Sequence[str | Path], options: Mapping[str, Any] | None, pool: str,
+                 index: Sequence[int]) -> SensorCalibration:
+        """The sensor's calibration; ``index``: which of the bags given each run is."""
+
 
 CHOICE_RUNS = 3
 """Runs a pooled fit needs to choose its session start: each run left out must leave a
@@ -217,7 +227,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
 def learned_band(runs: Sequence[Recording], model: str, name: str,
                  options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
     """The uncertainty of ``fit_sensor``'s calibration: ``model`` fitted on all runs but
-    one as ``fit_sensor`` fits it, started on the one left out (``start_run``), every run
+    one as ``fit_sensor`` fits it, started on the one left out (``start_or_keep``), every run
     left out in turn (``strain_comp.offline.uncertainty.learn``).
 
     Args:
@@ -240,7 +250,7 @@ def learned_band(runs: Sequence[Recording], model: str, name: str,
                                                    budget=budget, pool=pool, band=False)})
         except FitError:
             continue
-        pairs.append((start_run(fitted, {name: run}), {name: run}))
+        pairs.append((start_or_keep(fitted, {name: run}).calibration, {name: run}))
     return learn(pairs).get(name)
 
 
@@ -294,9 +304,10 @@ def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None,
-             pool: str = "spanned") -> Calibration:
+             pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
     """One calibration for ``sensors``; each sensor is fitted to its recordings from every
-    bag that has it, pooled in one input space (``pool``, ``fit_sensor``)."""
+    bag that has it, pooled in one input space (``pool``, ``fit_sensor``), or by ``fitter``
+    (``fit --model auto``: ``model_choice.auto_fitter``)."""
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
     for path in paths:
         recordings, problems = load_recordings(path)
@@ -325,9 +336,12 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
     for sensor in names:
         pairs = [(path, rec) for path, rec in by_sensor[sensor] if rec.s is not None]
         try:
-            calibrations[sensor] = fit_sensor([rec for _, rec in pairs], model, name=sensor,
-                                              bags=[path for path, _ in pairs],
-                                              options=options, pool=pool)
+            runs, bags = [rec for _, rec in pairs], [path for path, _ in pairs]
+            calibrations[sensor] = (
+                fit_sensor(runs, model, name=sensor, bags=bags, options=options, pool=pool)
+                if fitter is None else
+                fitter(runs, name=sensor, bags=bags, options=options, pool=pool,
+                       index=[[str(p) for p in paths].index(path) for path in bags]))
         except FitError as err:
             if not every or len(names) == 1:
                 raise

@@ -300,3 +300,44 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
                      if note.startswith(f"{name}: ") and "tare" in note), "")
         parts.append(tare_words(tare) + (f" ({done})" if done else ""))
     return ", ".join(parts)
+
+
+def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
+                      path: Target, *, context: str = "") -> Target:
+    """``fit --model auto``'s candidates: each one's RMSE on every run left out (a marker
+    per run), its median as a bar, the chosen one filled.
+
+    Args:
+        choice: The provenance's ``model_choice`` (``offline.model_choice.choose_model``).
+        runs: The runs' names, in the order of each candidate's ``errors``.
+        unit: The strain unit.
+        path: Where the PNG goes.
+        context: The title's second line.
+
+    Returns:
+        ``path``.
+
+    """
+    table = choice.get("candidates") or {}
+    assert isinstance(table, dict)
+    models = list(table)
+    fig = _figure(height=3.6)
+    ax = fig.subplots()
+    for i, model in enumerate(models):
+        cell = table[model]
+        if "median" not in cell:
+            ax.text(i, 0.0, "failed", ha="center", va="bottom", fontsize=8)
+            continue
+        chosen = model == choice.get("chosen")
+        ax.bar(i, cell["median"], 0.6, color="C0" if chosen else "none", edgecolor="C0",
+               label="median" if i == 0 else None)
+        errors = np.asarray(cell["errors"], dtype=float)
+        ax.plot(np.full(errors.size, float(i)) + np.linspace(-0.2, 0.2, errors.size), errors,
+                "o", color="C1", ms=4, label="each run left out" if i == 0 else None)
+    ax.set_xticks(np.arange(len(models)), models)
+    ax.set_ylabel(f"RMSE after start [{strain_unit_words(unit)}]")
+    ax.set_title(f"--model auto over {len(runs)} runs: {choice.get('chosen')} chosen"
+                 + (f"\n{context}" if context else ""), fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    return _save(fig, path)

@@ -118,10 +118,12 @@ class SessionStart:
     """What each step did (``recalibrate``'s lines), or why it could not be made."""
     steps: list[str] = field(default_factory=list)
     """The forms made (``input``, ``output``)."""
+    made: dict[str, list[str]] = field(default_factory=dict)
+    """Each form made -> the sensors it recalibrated."""
 
 
 def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
-                  window: Window) -> SessionStart:
+                  window: Window, source: str = "") -> SessionStart:
     """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
     ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
     output form on the spanned input, tare ``calibration``), the output step only on the
@@ -133,6 +135,7 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
         calibration: The calibration.
         recordings: The run's recordings by sensor name.
         window: The stretch read, (START, END) [s] after the run's start.
+        source: The run's name, for the lines and the provenance.
 
     Returns:
         The calibration after the steps made, the steps and a line on each.
@@ -142,19 +145,20 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
     head = window[0] == 0.0
     forms = forms_of(calibration, recordings)
     if not forms:
-        out.lines.append("recalibrate not made: the run holds no calibrated sensor with a "
-                         "strain reference")
+        out.lines.append("no step made: the run holds no calibrated sensor with a strain "
+                         "reference")
     for form, sensors in forms.items():
         tare = "calibration" if form == "output" else "auto"
         try:
             out.calibration, lines = recalibrate_recordings(
                 out.calibration, recordings, form=form, tare=tare, sensors=sensors,
-                first=window[1] if head else None, span=None if head else window)
+                first=window[1] if head else None, span=None if head else window,
+                source=source)
         except StrainCompError as err:
-            out.lines.append(f"recalibrate {'--input ' if form == 'input' else ''}"
-                             f"not made: {err}")
+            out.lines.append(f"the {form} step not made: {err}")
             continue
         out.steps.append(form)
+        out.made[form] = list(sensors)
         out.lines += lines
     return out
 
@@ -307,7 +311,8 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
     """
     if not (np.isfinite(a) and np.isfinite(b) and a > 0):
         raise InputError(f"recalibration of {cal.name!r}: gain {a:.4g} must be finite and "
-                         "> 0 (the points contradict the calibration's direction)")
+                         "> 0 (its output falls where the known strain rises: the "
+                         "calibration reads this sensor against its direction)")
     effects = [dict(e, coef=a * float(e["coef"])) for e in cal.effects]
     for name, kind, params, coef in ((GAIN_NAME, "strain_level", {"power": 1}, 1.0 - a),
                                      (OFFSET_NAME, "offset", {}, -b)):

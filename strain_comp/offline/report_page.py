@@ -26,12 +26,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from strain_comp import __version__
-from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.core.calibration import (
+    Calibration,
+    SensorCalibration,
+    expected_words,
+    strain_unit_words,
+)
 from strain_comp.offline.evaluation import format_notes
 from strain_comp.offline.plots import (
     context_line,
     plot_error_hist,
     plot_loop,
+    plot_model_choice,
     plot_raw,
     plot_time,
     tare_words,
@@ -271,6 +277,8 @@ def _provenance_rows(cal: SensorCalibration) -> list[tuple[str, str]]:
             ("input", plain_text(cal.input.to_dict()))]
     if "memory" in prov:
         rows.append(("memory", plain_text(prov["memory"])))
+    if expected_words(cal):
+        rows.append(("expected error", str(expected_words(cal))))
     rows.append(("effect terms", "; ".join(
         f"{e.get('name')} ({e.get('kind')}, coef {float(e.get('coef', 0.0)):.4g})"
         for e in cal.effects) or "none"))
@@ -363,3 +371,48 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
     names = ", ".join(Path(s.bag.rstrip("/")).name for s in sections[:3])
     more = f" and {len(sections) - 3} more" if len(sections) > 3 else ""
     return html_page(f"strain_comp evaluate: {names}{more}", body)
+
+
+def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
+    """The ``fit --model auto --report`` page: per sensor, the table of every candidate
+    (median and worst RMSE over the runs left out after ``start``, each run's RMSE) and its
+    plot (``plots.plot_model_choice``), then the calibration's provenance.
+
+    Args:
+        calibration: The calibration fitted with ``--model auto``.
+        calibration_path: Its file's name.
+
+    Returns:
+        The page.
+
+    """
+    body: list[str] = []
+    for name, cal in calibration.sensors.items():
+        choice = cal.provenance.get("model_choice") or {}
+        runs = [Path(str(b)).stem for b in cal.provenance.get("bags", [])]
+        body.append(f"<h2>{escape(name)}: {escape(str(choice.get('chosen', cal.model)))} "
+                    "chosen</h2>")
+        body.append(html_notes([str(choice.get("why", "not chosen by leaving runs out"))]))
+        table = choice.get("candidates") or {}
+        if not table:
+            continue
+        head = "".join(f"<th>{escape(h)}</th>" for h in ("model", "median", "worst", *runs))
+        lines = [f'<table class="scores" data-sensor="{escape(name)}"><tr>{head}</tr>']
+        for model, cell in table.items():
+            if "median" not in cell:
+                lines.append(f"<tr><td>{escape(model)}</td><td colspan=\"{2 + len(runs)}\">"
+                             f"failed: {escape(str(cell.get('failed')))}</td></tr>")
+                continue
+            cells = html_cell(cell["median"], ".4g", "median") + \
+                html_cell(cell["worst"], ".4g", "worst") + \
+                "".join(html_cell(e, ".4g", f"run{i}") for i, e in enumerate(cell["errors"]))
+            lines.append(f'<tr data-model="{escape(model)}"><td>{escape(model)}</td>{cells}'
+                         "</tr>")
+        lines.append("</table>")
+        body.append("\n".join(lines))
+        buffer = io.BytesIO()
+        plot_model_choice(choice, runs, cal.strain_unit, buffer, context=calibration_path)
+        body.append(html_image(f"{name}: RMSE of each candidate on each run left out, after "
+                               "strain-comp start", buffer.getvalue()))
+    body.append(provenance_section(calibration, calibration_path))
+    return html_page(f"strain_comp fit --model auto: {calibration_path}", body)

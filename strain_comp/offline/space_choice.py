@@ -25,8 +25,7 @@ from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.errors import StrainCompError
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.pool import SPACES
-from strain_comp.offline.recalibrate import session_start
-from strain_comp.offline.session_window import calibration_stretch
+from strain_comp.offline.session_start import start_or_keep
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -37,8 +36,8 @@ cubic, ``pool="stretch"``)."""
 
 
 def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
-    """``cal`` after the session start (``recalibrate.session_start``) on ``rec``'s
-    calibration stretch (``session_window.calibration_stretch``); as it is without one.
+    """``cal`` after the session start on ``rec`` (``session_start.start_or_keep``: its
+    calibration stretch found, as ``strain-comp start`` finds it); as it is where refused.
 
     Args:
         cal: The sensor's calibration.
@@ -48,11 +47,7 @@ def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
         The started calibration.
 
     """
-    calibration = Calibration({cal.name: cal})
-    stretch = None if rec.s is None else calibration_stretch(rec.t, rec.s)
-    if stretch is None:
-        return calibration
-    return session_start(calibration, {cal.name: rec}, stretch).calibration
+    return start_or_keep(Calibration({cal.name: cal}), {cal.name: rec}).calibration
 
 
 def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:

@@ -1,6 +1,5 @@
-"""The input zero and span of a recalibration: R' = R_rest,cal + k (R - R_rest,run), as
-one zeroes and spans a gauge (``recalibrate --input``; docs/design.md, "Calibration
-file", ``input.zero_span``).
+"""The input zero and span of a recalibration: R' = R_rest,cal + k (R - R_rest,run), as one
+zeroes and spans a gauge (``recalibrate --input``; docs/design.md, ``input.zero_span``).
 
 Through two points (R_i, S_i): R'_i is the calibrated resistance whose steady output is S_i
 (``calibrated_resistance``, the steady output inverted on a grid over the valid range),
@@ -8,9 +7,8 @@ k = (R'_2 - R'_1) / (R_2 - R_1), R_rest,run = R_1. From a recording's first cycl
 is the first rest, point 2 the largest strain (``points_from_first_cycle``). A memory model
 (one that does not follow its steady outputs along a slow ramp, ``follows_steady_curve``)
 is not on its held map in use: its rest point is read on its unloading branch and the
-stretch on its loading branch (``span_on_branches``), and the span is then refined by
-least squares of the engine's output over the cycle (``span_through_run``). The numbers
-are the fields of ``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
+stretch on its loading branch (``span_on_branches``), and the span is then refined by least
+squares of the engine's output over the cycle (``span_through_run``). Numbers: ``SpanPolicy``.
 """
 
 from __future__ import annotations
@@ -227,7 +225,7 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
         The recalibrated sensor.
 
     Raises:
-        InputError: The result would not load (``loadable``).
+        InputError: The result would not load (``loadable``), in the user's terms.
 
     """
     history = [*cal.provenance.get("recalibrations", []),
@@ -235,7 +233,6 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
     new = replace(cal, input=replace(cal.input, zero_span=span),
                   provenance={**cal.provenance, "recalibrations": history})
     return loadable(new, span_reading(span))
-
 
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """The uncertainty learned from runs left out (docs/design.md, "Uncertainty").
 
 ``learn`` takes (started calibration, recording) pairs: a calibration fitted without a run,
-then started on that run as a user starts it (``start_run``), and the run. Over every
+then started on that run as a user starts it (``strain-comp start``), and the run. Over every
 scored sample of every pair it fits the variance model of
 ``strain_comp.core.uncertainty`` by Gaussian maximum likelihood: the residual e = estimate
 - reference ~ N(0, exp(w . x)), x the engine's features at the sample (``features_run``),
@@ -35,49 +35,11 @@ from strain_comp.core.uncertainty import (
     new_state,
 )
 from strain_comp.io.recording import Recording
-from strain_comp.offline.recalibrate import Window, forms_of, session_start
-from strain_comp.offline.session_window import first_cycle, second_cycle
 
 RIDGE = 1e-3
 """Weight of a penalty ||w - w_0||^2 / 2 per unit of run weight on the weights besides the
 bias: a feature that never varies in the runs left out (no sample outside the range) keeps
 weight 0 instead of an arbitrary one."""
-
-
-def start_run(calibration: Calibration, recordings: Mapping[str, Recording],
-              window: Window | None = None) -> Calibration:
-    """The session start a user makes on a run (the README's: the second stretch after a
-    warm-up one, else the first; ``strain_comp.diagnosis.session.warmup_start``'s rule), or
-    on the stretch ``window`` (the live ``~/start``'s, recorded from its call to the
-    stretch's return). The one call to swap for the ``start`` command's function.
-
-    Args:
-        calibration: The calibration fitted without this run.
-        recordings: The run's recordings by sensor name (with references).
-        window: (START, END) [s] after the run's start of the stretch to read; None: found.
-
-    Returns:
-        The calibration after the steps the run allows (as given where none).
-
-    """
-    if window is not None:
-        return session_start(calibration, recordings, window).calibration
-    refs = [rec for name, rec in recordings.items()
-            if name in calibration.sensors and rec.s is not None]
-    if not refs:
-        return calibration
-    t, s = refs[0].t, refs[0].s
-    assert s is not None
-    first = first_cycle(t, s)
-    if first is None:
-        return calibration
-    second = second_cycle(t, s)
-    warm = None if second is None else session_start(calibration, recordings, second)
-    if warm is not None and len(warm.steps) == len(forms_of(calibration, recordings)):
-        return warm.calibration
-    at_first = session_start(calibration, recordings, (0.0, first))
-    return (at_first if warm is None or len(warm.steps) < len(at_first.steps)
-            else warm).calibration
 
 
 def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]

@@ -1,6 +1,6 @@
 """The session start of a live node: ``~/start`` watches the next stretch and return on the
 sensors' reference topics and then applies the session start ``strain-comp`` makes offline
-(``strain_comp.offline.uncertainty.start_run``) to the calibration; no ROS (docs/ros.md,
+(``strain_comp.offline.session_start.start``, the command's) to the calibration; no ROS (docs/ros.md,
 "Services").
 
 States, shown in /diagnostics (``strain_comp: session start``): ``idle`` (never called),
@@ -19,11 +19,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
-from strain_comp.errors import ParameterError
+from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.recording import Recording
-from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.session_start import start as session_start
 from strain_comp.offline.session_window import cycle_end
-from strain_comp.offline.uncertainty import start_run
 
 if TYPE_CHECKING:
     from strain_comp.ros.live import LiveCompensator
@@ -142,19 +141,20 @@ class LiveStart:
         return cycle_end(np.array(series.ref_t), ref) is not None
 
     def _apply(self, calibration: Calibration) -> Calibration | None:
-        """The session start on the recorded stretch (``start_run``), its RMSE there."""
+        """The session start on the recorded stretch (``strain-comp start``'s), its RMSE
+        there; refused with the start's own reason."""
         recordings = {name: s.recording(name) for name, s in self.series.items()}
         watched = Calibration({n: calibration.sensors[n] for n in recordings})
         ends = [float(r.t[-1] - r.t[0]) for r in recordings.values() if r.t.size]
-        started = start_run(watched, recordings, (0.0, max(ends, default=0.0)))
-        if started is watched:
-            self.outcome("refused", "refused: the session start could make no step on the "
-                         "stretch (no rest in it, or a strain the calibration never gives)")
+        try:
+            started = session_start(watched, recordings, window=(0.0, max(ends, default=0.0)),
+                            source="the stretch recorded after ~/start")
+        except InputError as err:
+            self.outcome("refused", f"refused: {err}")
             return None
-        scores = evaluate_recordings(recordings, started).sensors
         self.outcome("applied", "applied: stretch RMSE " + ", ".join(
-            f"{n} {ev.stats.rmse:.4g} {ev.unit}" for n, ev in scores.items()))
-        return Calibration({**calibration.sensors, **started.sensors})
+            f"{r.sensor} {r.rmse:.4g} {r.unit}" for r in started.records))
+        return Calibration({**calibration.sensors, **started.calibration.sensors})
 
     def diagnostic(self) -> tuple[int, str, dict[str, str]]:
         """(level, message, values) of the ``strain_comp: session start`` status."""

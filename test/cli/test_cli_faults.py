@@ -85,7 +85,7 @@ def test_the_parser_is_assembled_from_one_module_per_command() -> None:
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     assert list(sub.choices) == [c.NAME for c in COMMANDS] == [
-        "simulate", "import-csv", "fit", "evaluate", "replay", "diagnose", "recalibrate",
+        "simulate", "import-csv", "fit", "start", "evaluate", "replay", "diagnose", "recalibrate",
         "node", "play"]
     for command in COMMANDS:
         p = sub.choices[command.NAME]
@@ -112,8 +112,8 @@ def test_version_and_help_import_no_command_machinery() -> None:
     from strain_comp.offline.options import describe_options
 
     assert out.stdout.rstrip().endswith(describe_options() + "\n\nexample:\n  strain-comp fit "
-                                        "run1.mcap run2.mcap --model apl --sensor s1 --out "
-                                        "s1.yaml --option N=11")
+                                        "run1.mcap run2.mcap run3.mcap --model auto --sensor "
+                                        "s1 --out s1.yaml")
 
 
 def test_names_with_mathtext_or_undecodable_bytes_are_drawn_as_plain_text(

@@ -113,3 +113,34 @@ def test_node_without_rclpy_says_how_to_install_it(monkeypatch: pytest.MonkeyPat
     capsys.readouterr()
     assert main(["node", "--params", str(params)]) == 2
     assert "pip install '.[ros]'" in capsys.readouterr().err
+
+
+def test_fit_help_names_every_model_and_auto(capsys: pytest.CaptureFixture[str]) -> None:
+    """``fit --help`` names every registered model (creep_pi included) and ``auto``; the
+    command list names ``start``."""
+    from strain_comp.models import MODEL_NAMES
+
+    assert main(["fit", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    model_help = text[text.index("--model MODEL auto"):text.rindex("--candidates M1,M2")]
+    assert "auto" in model_help
+    for model in MODEL_NAMES:
+        assert model in model_help, model
+    assert main(["--help"]) == 0
+    assert "start " in capsys.readouterr().out
+
+
+def test_the_tare_and_evaluate_advise_start_not_each_other() -> None:
+    """A run that starts while the resistance drifts is not tared, and the tare says what to
+    record or to start the session; evaluate's out-of-range note says to start the session,
+    never to try the tare (which sent the user back to evaluate)."""
+    from strain_comp.cli.common import OUT_OF_RANGE_HINT
+    from strain_comp.core.direction import DirectionSettings
+    from strain_comp.core.tare import rest_resistance_at_start
+    from strain_comp.errors import InputError
+
+    t = np.arange(0.0, 30.0, 0.1)
+    with pytest.raises(InputError) as refused:
+        rest_resistance_at_start(t, 1000.0 * (1.0 + 0.01 * t), DirectionSettings(deadzone=1e6))
+    assert "still drifts" in str(refused.value) and "strain-comp start" in str(refused.value)
+    assert "--tare" not in OUT_OF_RANGE_HINT and "strain-comp start" in OUT_OF_RANGE_HINT

@@ -33,7 +33,7 @@ from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.report import SESSION_RECORDS, DiagnoseResult, write_plots
-from strain_comp.diagnosis.session import Stretches, session_errors
+from strain_comp.diagnosis.session import session_errors
 from strain_comp.io.recording import Recording, load_recordings
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
@@ -49,12 +49,7 @@ def as_used(calibration: Calibration, *runs: dict[str, Recording]) -> float:
     """RMSE of s1 over ``runs`` after the session-start recalibration after each run's
     warm-up stretch, then ``evaluate`` (the product's path, independent of the loop's
     arrays)."""
-    errors = []
-    for recordings in runs:
-        rec = recordings["s1"]
-        stretches = Stretches.of(rec.t, rec.s)
-        assert stretches is not None
-        errors.append(session_errors(calibration, recordings, "s1", stretches))
+    errors = [session_errors(calibration, recordings, "s1") for recordings in runs]
     return float(np.sqrt(np.mean(np.concatenate(errors) ** 2)))
 
 

@@ -31,15 +31,6 @@ def _script() -> ModuleType:
     return importlib.import_module("generalisation")
 
 
-def test_first_cycle_of_a_triangle() -> None:
-    gen = _script()
-    t = np.arange(0.0, 100.0, 0.1)
-    s = np.interp(t % 20.0, [0.0, 5.0, 15.0, 20.0], [0.0, 0.0, 30.0, 0.0])
-    # above half the span at t = 10 s, back below 10 % of it (3 %) at 20 - 0.5 s
-    assert gen.first_cycle(t, s) == pytest.approx(19.5, abs=0.15)
-    assert gen.first_cycle(t, np.linspace(0, 1, t.size)) == pytest.approx(0.4 * t[-1])
-
-
 def test_weighted_median_counts_each_sensor_once() -> None:
     gen = _script()
     values = np.array([1.0, 1.0, 1.0, 5.0, 6.0])  # sensor A's three pairs, B's, C's
@@ -47,13 +38,17 @@ def test_weighted_median_counts_each_sensor_once() -> None:
     assert gen.weighted_median(values, np.ones(5)) == 1.0
 
 
-def test_second_cycle_of_a_triangle() -> None:
-    gen = _script()
+def test_the_stretches_of_a_triangle() -> None:
+    """The benchmark's ``first`` and ``warmup`` read the stretches ``strain-comp start``
+    finds: the first stretch and return, then the next one."""
+    from strain_comp.offline.session_start import stretch_of
+
     t = np.arange(0.0, 100.0, 0.1)
     s = np.interp(t % 20.0, [0.0, 5.0, 15.0, 20.0], [0.0, 0.0, 30.0, 0.0])
-    start, end = gen.second_cycle(t, s)
-    assert start == pytest.approx(19.5, abs=0.15) and end == pytest.approx(39.5, abs=0.15)
-    assert gen.second_cycle(t, np.minimum(t, 30.0)) is None
+    # above half the span at t = 10 s, back below 10 % of it (3 %) at 20 - 0.5 s
+    first, second = stretch_of(t, s, 30.0, "run")
+    assert first == pytest.approx((0.0, 19.5), abs=0.15)
+    assert second == pytest.approx((19.5, 39.5), abs=0.15)
 
 
 def test_cases_of_two_rig_runs(tmp_path: Path) -> None:

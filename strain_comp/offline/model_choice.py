@@ -1,0 +1,349 @@
+"""The model chosen by leaving runs out (``fit A B C ... --model auto``).
+
+Each candidate model (``CANDIDATES`` by default, ``--candidates``) is fitted on all training
+runs but one (or but one group of runs, ``--groups``: a session or a mounting left out
+whole), started on each run left out as a user starts a session (``strain-comp start``:
+``session_start.start_or_keep``) and scored over all of it (the RMSE ``evaluate`` prints).
+The candidate with the lowest median of those errors wins; one within ``TIE`` of the lowest
+loses to a simpler one (``SIMPLER``: cubic, mpi, creep_pi, apl, by parameters and fit time).
+The winner is fitted on every run; its calibration carries the table of every candidate
+(``model_choice``) and the error to expect on a new session (``expected_error``: the
+winner's median and worst over the runs left out, ``core.calibration.expected_error``).
+
+With one run (or one group) there is nothing to leave out: the candidate that carried best
+from one run to another on the benchmark is fitted (``ONE_RUN_ORDER``: apl by default), and
+the reason is said.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.errors import FitError, InputError, StrainCompError
+from strain_comp.models import MODEL_NAMES
+from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.fit import Fitter, fit_sensor
+from strain_comp.offline.options import (
+    DIRECTION_OPTIONS,
+    FIT_OPTIONS,
+    check_fit_options,
+    model_options,
+)
+from strain_comp.offline.session_start import start_or_keep
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from strain_comp.io.recording import Recording
+
+CANDIDATES = ("cubic", "mpi", "apl", "creep_pi")
+"""The models ``--model auto`` tries unless ``--candidates`` says otherwise."""
+SIMPLER = ("cubic", "mpi", "creep_pi", "apl", "pl", "sinh_pl", "rational", "spike_decay")
+"""Simplest first: the cubic (4 numbers, no memory), mpi (rate-independent cells), creep_pi
+(linear in its parameters, one ridge), apl (rate-dependent cells, a grid search); the others
+after them (not candidates by default)."""
+TIE = 0.02
+"""Medians within this share of the lowest are a tie, won by the simpler model."""
+ONE_RUN_ORDER = ("apl", "mpi", "creep_pi", "cubic")
+"""``--model auto`` on one run (or one group) fits the first of these among the candidates:
+ordered by the median ratio to the best in-run bound of a model fitted on one run and used
+on another (docs/generalisation.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
+creep_pi 3.15, cubic 3.54)."""
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One candidate fitted on all groups but one and scored on that group's runs."""
+
+    model: str
+    held: tuple[int, ...]
+    """The indices of the runs left out."""
+
+
+def parse_candidates(text: str | Sequence[str] | None) -> tuple[str, ...]:
+    """``--candidates cubic,apl`` -> the models; ``CANDIDATES`` for None.
+
+    Args:
+        text: Comma-separated model names, a sequence of them, or None.
+
+    Returns:
+        The candidates, each once.
+
+    Raises:
+        InputError: An unknown model, ``auto`` or none.
+
+    """
+    if text is None:
+        return CANDIDATES
+    names = [n.strip() for n in (text.split(",") if isinstance(text, str) else text)]
+    names = list(dict.fromkeys(n for n in names if n))
+    bad = [n for n in names if n not in MODEL_NAMES]
+    if bad or not names:
+        raise InputError(f"--candidates {','.join(bad) or text!r}: expected models from "
+                         f"{', '.join(MODEL_NAMES)}, comma-separated")
+    return tuple(names)
+
+
+def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | None:
+    """``--groups 1,1,1,2,2`` -> one label per run (a session or a mounting: a group is
+    left out whole); None for None.
+
+    Args:
+        text: Comma-separated labels, a sequence of them, or None.
+        runs: The number of runs (bags) given.
+
+    Returns:
+        The labels, or None.
+
+    Raises:
+        InputError: Not one label per run.
+
+    """
+    if text is None:
+        return None
+    labels = [str(x).strip() for x in (text.split(",") if isinstance(text, str) else text)]
+    if len(labels) != runs or not all(labels):
+        raise InputError(f"--groups {text if isinstance(text, str) else ','.join(labels)!r}: "
+                         f"expected one label per run ({runs} runs), e.g. "
+                         f"{','.join(['1'] * max(runs - 1, 1) + ['2'])}")
+    return labels
+
+
+def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) -> None:
+    """Every option must be one some candidate takes (each gets only its own).
+
+    Args:
+        candidates: The candidate models.
+        options: Option -> value.
+
+    Raises:
+        InputError: An option no candidate takes, or a bad value.
+
+    """
+    for key, value in options.items():
+        takers = [m for m in candidates if key in model_options(m)]
+        if key in DIRECTION_OPTIONS or key in FIT_OPTIONS:
+            takers = list(candidates)
+        if not takers:
+            raise InputError(f"--option {key}: no candidate model takes it "
+                             f"(candidates: {', '.join(candidates)})")
+        check_fit_options(takers[0], {key: value})
+
+
+def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The options ``model`` takes of ``options`` (no grid lines of an APL-family fit).
+
+    Args:
+        model: The model.
+        options: The fit's options.
+
+    Returns:
+        Its own.
+
+    """
+    own = model_options(model)
+    out = {k: v for k, v in options.items()
+           if k in own or k in DIRECTION_OPTIONS or k in FIT_OPTIONS}
+    if "progress" in own:
+        out["progress"] = False
+    return out
+
+
+def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
+                options: Mapping[str, Any], pool: str) -> list[float] | str:
+    """The RMSE of ``fold.model`` on each run left out, fitted on the others and started on
+    each (``start_or_keep``), or why it could not be fitted.
+
+    Args:
+        recordings: Every training run.
+        name: The sensor.
+        fold: The model and the runs left out.
+        options: The fit's options.
+        pool: As ``fit --pool``.
+
+    Returns:
+        One RMSE per run left out [strain unit], or the fit's error.
+
+    """
+    rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
+    try:
+        cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
+                         pool=pool, band=False)
+    except StrainCompError as err:
+        return str(err)
+    out = []
+    for i in fold.held:
+        held = {name: recordings[i]}
+        started = start_or_keep(Calibration({name: cal}), held).calibration
+        try:
+            ev = evaluate_recordings(held, started, tare="calibration").sensors[name]
+            out.append(float(ev.stats.rmse))
+        except StrainCompError:
+            out.append(float("nan"))
+    return out
+
+
+def _fold_task(args: tuple[Sequence[Recording], str, Fold, Mapping[str, Any], str]
+               ) -> list[float] | str:
+    """``fold_errors`` in a worker process."""
+    return fold_errors(*args)
+
+
+def _cell(model: str, folds: Sequence[Fold], results: Sequence[list[float] | str],
+          runs: int) -> dict[str, Any]:
+    """A candidate's row of the table: its median, worst and errors, or why it failed."""
+    errors = np.full(runs, np.nan)
+    failed = None
+    for fold, result in zip(folds, results, strict=True):
+        if fold.model != model:
+            continue
+        if isinstance(result, str):
+            failed = failed or result
+        else:
+            errors[list(fold.held)] = result
+    if failed is not None or not np.isfinite(errors).all():
+        return {"failed": failed or "no score on a run left out"}
+    return {"median": round(float(np.median(errors)), 6),
+            "worst": round(float(np.max(errors)), 6),
+            "errors": [round(float(e), 6) for e in errors]}
+
+
+def choose_model(recordings: Sequence[Recording], name: str, *,
+                 candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
+                 options: Mapping[str, Any] | None = None, pool: str = "spanned",
+                 jobs: int = 1, report: Callable[[str], None] | None = None,
+                 ) -> tuple[str, dict[str, Any]]:
+    """The model of ``--model auto`` (module docstring) and its record.
+
+    Args:
+        recordings: The sensor's training runs.
+        name: The sensor.
+        candidates: The candidate models.
+        groups: One label per run (runs of a label are left out together); None: each run
+            its own.
+        options: The fit's options (each candidate takes its own).
+        pool: As ``fit --pool``.
+        jobs: Worker processes for the folds (1: here).
+        report: Where a line per candidate goes as it is scored.
+
+    Returns:
+        The model, and the record (``model_choice`` of the provenance): per candidate its
+        ``median``, ``worst`` and ``errors`` (one per run, in the order given) or its
+        ``failed`` reason; ``chosen``, ``why``, ``tie``, ``groups``; and ``expected``
+        (``median``, ``worst``, ``runs``) of the chosen model, absent with one group.
+
+    Raises:
+        FitError: Every candidate failed on some fold (one line, their reasons).
+
+    """
+    options = dict(options or {})
+    labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
+    held = [tuple(i for i, g in enumerate(labels) if g == label)
+            for label in dict.fromkeys(labels)]
+    if len(held) < 2:
+        model = next((m for m in ONE_RUN_ORDER if m in candidates), candidates[0])
+        why = (f"one {'group' if groups is not None and len(recordings) > 1 else 'run'}: "
+               f"nothing to leave out, so {model}, the candidate that carried best from one "
+               "run to another on the benchmark (docs/generalisation.md)")
+        return model, {"chosen": model, "why": why}
+    folds = [Fold(m, h) for m in candidates for h in held]
+    tasks = [(recordings, name, fold, options, pool) for fold in folds]
+    if jobs > 1:
+        with ProcessPoolExecutor(min(jobs, len(tasks)),
+                                 mp_context=get_context("spawn")) as workers:
+            results = list(workers.map(_fold_task, tasks))
+    else:
+        results = [_fold_task(task) for task in tasks]
+    table = {model: _cell(model, folds, results, len(recordings)) for model in candidates}
+    for model, cell in table.items():
+        if report is not None:
+            report(f"{name}: {model}: " + (f"failed ({cell['failed']})" if "failed" in cell
+                                           else f"median {cell['median']:.4g}, worst "
+                                                f"{cell['worst']:.4g} over {len(recordings)} "
+                                                "runs left out"))
+    scored = {m: c for m, c in table.items() if "median" in c}
+    if not scored:
+        reasons = "; ".join(f"{m}: {c['failed']}" for m, c in table.items())
+        raise FitError(f"sensor {name!r}: --model auto: no candidate could be fitted and "
+                       f"scored on the runs left out ({reasons})")
+    best = min(c["median"] for c in scored.values())
+    tied = [m for m, c in scored.items() if c["median"] <= (1.0 + TIE) * best]
+    chosen = min(tied, key=lambda m: SIMPLER.index(m) if m in SIMPLER else len(SIMPLER))
+    lowest = min(scored, key=lambda m: scored[m]["median"])
+    why = (f"the lowest median RMSE over the runs left out ({scored[chosen]['median']:.4g})"
+           if chosen == lowest else
+           f"within {TIE:.0%} of the lowest median ({lowest} {best:.4g}), and simpler")
+    return chosen, {"chosen": chosen, "why": why, "tie": TIE, "candidates": table,
+                    "groups": labels if groups is not None else None,
+                    "expected": {"median": scored[chosen]["median"],
+                                 "worst": scored[chosen]["worst"],
+                                 "runs": len(recordings)}}
+
+
+def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] = (),
+             options: Mapping[str, Any] | None = None, pool: str = "spanned",
+             candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
+             jobs: int = 1, report: Callable[[str], None] | None = None,
+             ) -> SensorCalibration:
+    """``fit --model auto`` on one sensor: the model ``choose_model`` picks, fitted on every
+    run, with ``model_choice`` and ``expected_error`` in its provenance.
+
+    Args:
+        recordings: The sensor's runs.
+        name: The sensor.
+        bags: The source bags, for the provenance.
+        options: The fit's options.
+        pool: As ``fit --pool``.
+        candidates: The candidate models.
+        groups: One label per run, or None.
+        jobs: Worker processes for the folds.
+        report: Where the candidates' lines go.
+
+    Returns:
+        The calibration.
+
+    Raises:
+        FitError: Every candidate failed, or the chosen one fails on every run.
+
+    """
+    model, record = choose_model(recordings, name, candidates=candidates, groups=groups,
+                                 options=options, pool=pool, jobs=jobs, report=report)
+    cal = fit_sensor(recordings, model, name=name, bags=bags,
+                     options=options_of(model, options or {}), pool=pool)
+    expected = record.pop("expected", None)
+    cal.provenance["model_choice"] = record
+    if expected is not None:
+        cal.provenance["expected_error"] = {**expected, "unit": cal.strain_unit,
+                                            "model": model}
+    return cal
+
+
+def auto_fitter(candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
+                jobs: int = 1) -> Fitter:
+    """``fit_auto`` as ``fit_bags``' ``fitter`` (``fit --model auto``).
+
+    Args:
+        candidates: The candidate models.
+        groups: One label per bag given, or None.
+        jobs: Worker processes for the folds.
+
+    Returns:
+        The fitter: ``groups`` read through each sensor's bags (``index``).
+
+    """
+    def fit(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path],
+            options: Mapping[str, Any] | None, pool: str,
+            index: Sequence[int]) -> SensorCalibration:
+        return fit_auto(recordings, name=name, bags=[str(b) for b in bags], options=options,
+                        pool=pool, candidates=candidates,
+                        groups=None if groups is None else [groups[i] for i in index],
+                        jobs=jobs)
+
+    return fit
