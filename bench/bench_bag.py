@@ -2,12 +2,13 @@
 """Bag I/O: today's MCAP writer and reader against the ``mcap`` library's, in one run, on
 the same bags, through ``replay`` (write) and ``evaluate`` (read) and ``read_bag``.
 
-    python bench/bench_bag.py [--seconds 100] [--array-seconds 10] [--repeat 3]
+    python bench/bench_bag.py [--seconds 10000] [--rate 10] [--array-seconds 10] [--repeat 3]
 
 Two bags (``bench/_common.py`` calibrations and resistances, written by ``BagWriter``): a
-1-sensor long bag (``--seconds`` of std_msgs/Float64 at 1 kHz, resistance and strain
+1-sensor long bag (``--seconds`` of std_msgs/Float64 at ``--rate``, resistance and strain
 reference) and a 256-sensor array bag (``--array-seconds`` of std_msgs/Float64MultiArray of
-256 values at 1 kHz, resistance and reference).
+256 values at 1 kHz, resistance and reference), each with a recorded ``/diagnostics`` at
+1 Hz (a status of 8 values per sensor, as the node's), which ``replay`` copies through.
 
 The library path is what strain_comp would run if MCAP framing went through ``mcap``:
 
@@ -18,7 +19,9 @@ The library path is what strain_comp would run if MCAP framing went through ``mc
   one ``Message`` per message), the payloads of each block of messages joined and handed to
   the same bulk numpy decoder (``io.bag.decode``: a Float64 value is ``np.frombuffer`` at
   byte 4), in place of ``io.bag.walk.storage_file`` under ``read_bag`` / ``iter_bag``.
-  The candidate does no damage recovery (that would only add to its time).
+  The candidate does no damage recovery (that would only add to its time);
+* DiagnosticArray payloads (``replay (diag)``): ``mcap_ros2``'s encoder
+  (``io.cdr.message_encoder``) in place of the hand-written ``io.cdr.diagnostic_array``.
 
 Each pair (today, library) is timed alternately ``--repeat`` times in this process, kernels
 and caches warm; the median of each is printed with the ratio library / today. Outputs of
@@ -46,6 +49,7 @@ from _common import calibration, resistance, row
 
 import strain_comp.io.bag.reader as reader_module
 import strain_comp.io.bag.writer as writer_module
+import strain_comp.io.cdr as cdr_module
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import BagError
 from strain_comp.io.atomic import AtomicFile
@@ -158,36 +162,63 @@ def _add_messages(col: Collector, msgs: list[Message]) -> None:
     col.msg_len.append(length)
 
 
-def use_library(read: bool = False, write: bool = False) -> None:
-    """Route the bag reader (``read``) and ``BagWriter`` (``write``) through the library or
-    today's code."""
-    reader_module.storage_file = library_storage_file if read else storage_file
-    writer_module.Stream = LibraryStream if write else STREAM  # type: ignore[assignment,misc]
+def library_diagnostic_array(sec: int, nanosec: int, frame_id: str,
+                             statuses: Sequence[tuple[str, int, str, str,
+                                                      Sequence[tuple[str, str]]]]) -> bytes:
+    """``io.cdr.diagnostic_array`` through ``mcap_ros2``'s encoder (``message_encoder``)."""
+    return cdr_module.message_encoder("diagnostic_msgs/msg/DiagnosticArray")({
+        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+        "status": [{"level": level, "name": name, "message": message,
+                    "hardware_id": hardware_id,
+                    "values": [{"key": k, "value": v} for k, v in values]}
+                   for name, level, message, hardware_id, values in statuses]})
 
 
 STREAM = writer_module.Stream
+DIAGNOSTIC_ARRAY = cdr_module.diagnostic_array
 
 
-def make_bags(tmp: Path, seconds: float, array_seconds: float
+def use_library(read: bool = False, write: bool = False, diagnostics: bool = False) -> None:
+    """Route the bag reader (``read``), ``BagWriter`` (``write``) and the DiagnosticArray
+    encoder (``diagnostics``) through the library or today's code."""
+    reader_module.storage_file = library_storage_file if read else storage_file
+    writer_module.Stream = LibraryStream if write else STREAM  # type: ignore[assignment,misc]
+    cdr_module.diagnostic_array = (library_diagnostic_array if diagnostics
+                                   else DIAGNOSTIC_ARRAY)
+
+
+def statuses(names: Sequence[str]) -> list[tuple[str, int, str, dict[str, str]]]:
+    """One recorded /diagnostics message: a status per sensor with 8 values, as the node's."""
+    keys = ("strain", "resistance", "n_nan", "n_non_positive", "n_open", "n_short",
+            "n_out_of_range", "rate_hz")
+    return [(f"strain_comp: {name}", 0, "ok", {k: f"{i * 0.125 + j:.4f}"
+                                                for j, k in enumerate(keys)})
+            for i, name in enumerate(names)]
+
+
+def make_bags(tmp: Path, seconds: float, rate: int, array_seconds: float
               ) -> list[tuple[str, Path, Calibration]]:
     """The 1-sensor long bag and the 256-sensor array bag, each with its calibration."""
     out = []
-    for what, k, secs in (("1 sensor", 1, seconds), ("256-sensor array", 256, array_seconds)):
+    for what, k, secs, hz in (("1 sensor", 1, seconds, rate),
+                              ("256-sensor array", 256, array_seconds, 1000)):
         names = [f"s{i}" for i in range(k)]
         cal = calibration(names, ["apl"])
-        t = np.arange(round(secs * 1000)) * 1e-3
+        t = np.arange(round(secs * hz)) / hz
         r = resistance(t, k, seed=1)
         lo, hi = cal.sensors[names[0]].valid_range.r_lo, cal.sensors[names[0]].valid_range.r_hi
         s = 50.0 * (r - lo) / (hi - lo)  # a stand-in reference strain
         path = tmp / f"bag_{k}.mcap"
         with BagWriter(path) as writer:
+            ticks = t[::hz]  # a recorded /diagnostics: 1 Hz
+            writer.write_diagnostics(ticks, [statuses(names)] * ticks.size)
             if k == 1:
                 writer.write_float64("/s0/resistance", t, r[:, 0])
                 writer.write_float64("/s0/strain_reference", t, s[:, 0])
             else:
                 writer.write_float64_array("/arr/resistance", t, r, names)
                 writer.write_float64_array("/arr/strain_reference", t, s, names)
-        out.append((f"{what}, {t.size:,} x 2 messages", path, cal))
+        out.append((f"{what}, {secs:g} s, {t.size:,} x 2 + {ticks.size:,}", path, cal))
     return out
 
 
@@ -226,20 +257,23 @@ def close(a: object, b: object) -> bool:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=100.0)
+    parser.add_argument("--seconds", type=float, default=10000.0)
+    parser.add_argument("--rate", type=int, default=10)
     parser.add_argument("--array-seconds", type=float, default=10.0)
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; median of "
           f"{args.repeat}, today and library alternately")
-    print("read_bag, evaluate: the library's reader; replay: the library's writer")
-    print(f"{'bag':<40}{'what':<10}{'today s':>9}{'library s':>11}{'library/today':>15}")
+    print("read_bag, evaluate: the mcap library's reader; replay: its writer; replay (diag): "
+          "mcap_ros2's DiagnosticArray encoder (the recorded /diagnostics copied through)")
+    print(f"{'bag':<44}{'what':<14}{'today s':>9}{'library s':>11}{'library/today':>15}")
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
-        for what, bag, cal in make_bags(tmp, args.seconds, args.array_seconds):
+        for what, bag, cal in make_bags(tmp, args.seconds, args.rate,
+                                            args.array_seconds):
             out_today, out_lib = tmp / "today.mcap", tmp / "library.mcap"
             for on in (False, True):  # warm-up: every kernel compiled, both paths checked
-                use_library(read=on, write=on)
+                use_library(read=on, write=on, diagnostics=on)
                 replay_bag(bag, cal, out_lib if on else out_today)
                 result = evaluate_bag(bag, cal)[0].to_json()
                 if not on:
@@ -254,12 +288,16 @@ def main() -> None:
                                         read=True),
                 "replay": median_pair(lambda b=bag, c=cal, o=out_today: replay_bag(b, c, o),
                                       args.repeat, write=True),
+                "replay (diag)": median_pair(
+                    lambda b=bag, c=cal, o=out_today: replay_bag(b, c, o), args.repeat,
+                    diagnostics=True),
             }
             for name, (t_today, t_lib) in pairs.items():
-                print(f"{what:<40}{name:<10}{t_today:>9.3f}{t_lib:>11.3f}"
+                print(f"{what:<44}{name:<14}{t_today:>9.3f}{t_lib:>11.3f}"
                       f"{t_lib / t_today:>14.2f}x", flush=True)
-                row(f"{name}, {what}, the `mcap` library's "
-                    f"{'writer' if name == 'replay' else 'reader'} in place of today's "
+                part = {"replay": "MCAP writer", "replay (diag)": "DiagnosticArray encoder"
+                        }.get(name, "MCAP reader")
+                row(f"{name}, {what}, the library's {part} in place of today's "
                     "(`bench_bag.py`)",
                     f"{t_lib:.2f} s", f"today's path: {t_today:.2f} s",
                     f"{t_lib / t_today:.2f}x slower")
