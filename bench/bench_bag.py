@@ -20,6 +20,9 @@ The library path is what strain_comp would run if MCAP framing went through ``mc
   the same bulk numpy decoder (``io.bag.decode``: a Float64 value is ``np.frombuffer`` at
   byte 4), in place of ``io.bag.walk.storage_file`` under ``read_bag`` / ``iter_bag``.
   The candidate does no damage recovery (that would only add to its time);
+* the top-level walk alone (``(top)``): ``StreamReader(emit_chunks=True)`` walks the file's
+  records (it parses every MessageIndex entry) and each chunk goes to today's ``add_chunk``
+  (bounded decompression, CRC, records located in bulk);
 * DiagnosticArray payloads (``replay (diag)``): ``mcap_ros2``'s encoder
   (``io.cdr.message_encoder``) in place of the hand-written ``io.cdr.diagnostic_array``.
 
@@ -40,7 +43,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -54,8 +57,8 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.errors import BagError
 from strain_comp.io.atomic import AtomicFile
 from strain_comp.io.bag import BagWriter, read_bag
-from strain_comp.io.bag.chunks import MAX_CHUNK_BYTES
-from strain_comp.io.bag.records import Collector
+from strain_comp.io.bag.chunks import MAX_CHUNK_BYTES, add_chunk
+from strain_comp.io.bag.records import Collector, add_loose
 from strain_comp.io.bag.schemas import LIBRARY, OFFERED_QOS, PROFILE, SCHEMAS
 from strain_comp.io.bag.stream import Pending, Topic
 from strain_comp.io.bag.walk import LOOSE_BLOCK, storage_file
@@ -143,6 +146,31 @@ def library_storage_file(col: Collector, path: Path, file: Path) -> Iterator[int
             _add_messages(col, msgs)
 
 
+def framing_storage_file(col: Collector, path: Path, file: Path) -> Iterator[int]:
+    """``io.bag.walk.storage_file`` with the top-level records walked by
+    ``StreamReader(emit_chunks=True)`` and each chunk handed to today's ``add_chunk``
+    (bounded decompression, CRC, the records of the chunk located in bulk)."""
+    if file.suffix == ".db3":
+        yield from storage_file(col, path, file)
+        return
+    with file.open("rb") as handle:
+        loose: list[Message] = []
+        for record in StreamReader(handle, emit_chunks=True,
+                                   record_size_limit=2 * MAX_CHUNK_BYTES).records:
+            if isinstance(record, Chunk):
+                col.chunk_start = max(col.chunk_start, record.message_start_time)
+                add_chunk(col, record, str(file))
+                yield handle.tell()
+            elif isinstance(record, Message):
+                loose.append(record)
+            elif isinstance(record, Schema):
+                col.schemas[(col.file_index, record.id)] = record
+            elif isinstance(record, Channel):
+                col.channels[(col.file_index, record.id)] = record
+        if loose:
+            add_loose(col, loose, str(file))
+
+
 def _add_messages(col: Collector, msgs: list[Message]) -> None:
     """The messages' channels, times and payloads (joined) as one block of ``col``."""
     n = len(msgs)
@@ -178,10 +206,13 @@ STREAM = writer_module.Stream
 DIAGNOSTIC_ARRAY = cdr_module.diagnostic_array
 
 
-def use_library(read: bool = False, write: bool = False, diagnostics: bool = False) -> None:
-    """Route the bag reader (``read``), ``BagWriter`` (``write``) and the DiagnosticArray
-    encoder (``diagnostics``) through the library or today's code."""
-    reader_module.storage_file = library_storage_file if read else storage_file
+def use_library(read: bool = False, write: bool = False, diagnostics: bool = False,
+                framing: bool = False) -> None:
+    """Route the bag reader (``read``; ``framing``: its top-level walk alone),
+    ``BagWriter`` (``write``) and the DiagnosticArray encoder (``diagnostics``) through the
+    library or today's code."""
+    reader_module.storage_file = (library_storage_file if read else framing_storage_file
+                                  if framing else storage_file)
     writer_module.Stream = LibraryStream if write else STREAM  # type: ignore[assignment,misc]
     cdr_module.diagnostic_array = (library_diagnostic_array if diagnostics
                                    else DIAGNOSTIC_ARRAY)
@@ -264,7 +295,8 @@ def main() -> None:
     args = parser.parse_args()
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; median of "
           f"{args.repeat}, today and library alternately")
-    print("read_bag, evaluate: the mcap library's reader; replay: its writer; replay (diag): "
+    print("read_bag, evaluate: the mcap library's reader; (top): its StreamReader for the "
+          "top-level records only, chunks read as today; replay: its writer; replay (diag): "
           "mcap_ros2's DiagnosticArray encoder (the recorded /diagnostics copied through)")
     print(f"{'bag':<44}{'what':<14}{'today s':>9}{'library s':>11}{'library/today':>15}")
     with tempfile.TemporaryDirectory() as tmpdir:
@@ -278,14 +310,21 @@ def main() -> None:
                 result = evaluate_bag(bag, cal)[0].to_json()
                 if not on:
                     reference = result
+            use_library(framing=True)
+            framed = evaluate_bag(bag, cal)[0].to_json()
             use_library()
             assert same_contents(out_today, out_lib), "the two writers' bags differ"
             assert result["sensors"] and close(result, reference), "the evaluations differ"
+            assert close(framed, reference), "the evaluations differ"
             n_out = sum(s.t.size for s in read_bag(out_today).series.values())
             pairs = {
                 "read_bag": median_pair(lambda b=bag: read_bag(b), args.repeat, read=True),
                 "evaluate": median_pair(lambda b=bag, c=cal: evaluate_bag(b, c), args.repeat,
                                         read=True),
+                "read_bag (top)": median_pair(lambda b=bag: read_bag(b), args.repeat,
+                                              framing=True),
+                "evaluate (top)": median_pair(lambda b=bag, c=cal: evaluate_bag(b, c),
+                                              args.repeat, framing=True),
                 "replay": median_pair(lambda b=bag, c=cal, o=out_today: replay_bag(b, c, o),
                                       args.repeat, write=True),
                 "replay (diag)": median_pair(
@@ -295,8 +334,9 @@ def main() -> None:
             for name, (t_today, t_lib) in pairs.items():
                 print(f"{what:<44}{name:<14}{t_today:>9.3f}{t_lib:>11.3f}"
                       f"{t_lib / t_today:>14.2f}x", flush=True)
-                part = {"replay": "MCAP writer", "replay (diag)": "DiagnosticArray encoder"
-                        }.get(name, "MCAP reader")
+                part = {"replay": "MCAP writer", "replay (diag)": "DiagnosticArray encoder",
+                        "read_bag (top)": "top-level MCAP walk",
+                        "evaluate (top)": "top-level MCAP walk"}.get(name, "MCAP reader")
                 row(f"{name}, {what}, the library's {part} in place of today's "
                     "(`bench_bag.py`)",
                     f"{t_lib:.2f} s", f"today's path: {t_today:.2f} s",
