@@ -22,9 +22,7 @@ The library path is what strain_comp would run if MCAP framing went through ``mc
   The candidate does no damage recovery (that would only add to its time);
 * the top-level walk alone (``(top)``): ``StreamReader(emit_chunks=True)`` walks the file's
   records (it parses every MessageIndex entry) and each chunk goes to today's ``add_chunk``
-  (bounded decompression, CRC, records located in bulk);
-* DiagnosticArray payloads (``replay (diag)``): ``mcap_ros2``'s encoder
-  (``io.cdr.message_encoder``) in place of the hand-written ``io.cdr.diagnostic_array``.
+  (bounded decompression, CRC, records located in bulk).
 
 Each pair (today, library) is timed alternately ``--repeat`` times in this process, kernels
 and caches warm; the median of each is printed with the ratio library / today. Outputs of
@@ -52,7 +50,6 @@ from _common import calibration, resistance, row
 
 import strain_comp.io.bag.reader as reader_module
 import strain_comp.io.bag.writer as writer_module
-import strain_comp.io.cdr as cdr_module
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import BagError
 from strain_comp.io.atomic import AtomicFile
@@ -190,32 +187,15 @@ def _add_messages(col: Collector, msgs: list[Message]) -> None:
     col.msg_len.append(length)
 
 
-def library_diagnostic_array(sec: int, nanosec: int, frame_id: str,
-                             statuses: Sequence[tuple[str, int, str, str,
-                                                      Sequence[tuple[str, str]]]]) -> bytes:
-    """``io.cdr.diagnostic_array`` through ``mcap_ros2``'s encoder (``message_encoder``)."""
-    return cdr_module.message_encoder("diagnostic_msgs/msg/DiagnosticArray")({
-        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
-        "status": [{"level": level, "name": name, "message": message,
-                    "hardware_id": hardware_id,
-                    "values": [{"key": k, "value": v} for k, v in values]}
-                   for name, level, message, hardware_id, values in statuses]})
-
-
 STREAM = writer_module.Stream
-DIAGNOSTIC_ARRAY = cdr_module.diagnostic_array
 
 
-def use_library(read: bool = False, write: bool = False, diagnostics: bool = False,
-                framing: bool = False) -> None:
-    """Route the bag reader (``read``; ``framing``: its top-level walk alone),
-    ``BagWriter`` (``write``) and the DiagnosticArray encoder (``diagnostics``) through the
-    library or today's code."""
+def use_library(read: bool = False, write: bool = False, framing: bool = False) -> None:
+    """Route the bag reader (``read``; ``framing``: its top-level walk alone) and
+    ``BagWriter`` (``write``) through the library or today's code."""
     reader_module.storage_file = (library_storage_file if read else framing_storage_file
                                   if framing else storage_file)
     writer_module.Stream = LibraryStream if write else STREAM  # type: ignore[assignment,misc]
-    cdr_module.diagnostic_array = (library_diagnostic_array if diagnostics
-                                   else DIAGNOSTIC_ARRAY)
 
 
 def statuses(names: Sequence[str]) -> list[tuple[str, int, str, dict[str, str]]]:
@@ -296,8 +276,7 @@ def main() -> None:
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; median of "
           f"{args.repeat}, today and library alternately")
     print("read_bag, evaluate: the mcap library's reader; (top): its StreamReader for the "
-          "top-level records only, chunks read as today; replay: its writer; replay (diag): "
-          "mcap_ros2's DiagnosticArray encoder (the recorded /diagnostics copied through)")
+          "top-level records only, chunks read as today; replay: its writer")
     print(f"{'bag':<44}{'what':<14}{'today s':>9}{'library s':>11}{'library/today':>15}")
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
@@ -305,7 +284,7 @@ def main() -> None:
                                             args.array_seconds):
             out_today, out_lib = tmp / "today.mcap", tmp / "library.mcap"
             for on in (False, True):  # warm-up: every kernel compiled, both paths checked
-                use_library(read=on, write=on, diagnostics=on)
+                use_library(read=on, write=on)
                 replay_bag(bag, cal, out_lib if on else out_today)
                 result = evaluate_bag(bag, cal)[0].to_json()
                 if not on:
@@ -327,14 +306,11 @@ def main() -> None:
                                               args.repeat, framing=True),
                 "replay": median_pair(lambda b=bag, c=cal, o=out_today: replay_bag(b, c, o),
                                       args.repeat, write=True),
-                "replay (diag)": median_pair(
-                    lambda b=bag, c=cal, o=out_today: replay_bag(b, c, o), args.repeat,
-                    diagnostics=True),
             }
             for name, (t_today, t_lib) in pairs.items():
                 print(f"{what:<44}{name:<14}{t_today:>9.3f}{t_lib:>11.3f}"
                       f"{t_lib / t_today:>14.2f}x", flush=True)
-                part = {"replay": "MCAP writer", "replay (diag)": "DiagnosticArray encoder",
+                part = {"replay": "MCAP writer",
                         "read_bag (top)": "top-level MCAP walk",
                         "evaluate (top)": "top-level MCAP walk"}.get(name, "MCAP reader")
                 row(f"{name}, {what}, the library's {part} in place of today's "

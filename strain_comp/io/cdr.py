@@ -2,8 +2,7 @@
 ``strain_comp.io.bag.schemas.SCHEMAS``), serialised by ``mcap_ros2``'s encoder (the
 reader's decoder library) from those schema texts, so the wire format is the library's.
 
-``message_encoder(kind)`` gives a ``dict -> bytes`` encoder of the standard field names;
-``diagnostic_array`` is written by hand (8x the library's speed, measured).
+``message_encoder(kind)`` gives a ``dict -> bytes`` encoder of the standard field names.
 Runs of messages whose layout is fixed for a topic (Float64MultiArray, JointState,
 Temperature) are written as numpy rows of one template: the template is a message the
 library serialises once, and where its values sit is where a second serialisation with
@@ -29,14 +28,6 @@ ENCAPSULATION = b"\x00\x01\x00\x00"
 STAMP = struct.Struct("<iI")
 """builtin_interfaces/Time: int32 sec, uint32 nanosec (4-aligned, bytes 4..12 of a message
 that starts with a header)."""
-_U32 = struct.Struct("<I")
-_PAD = [b"\0" * k for k in range(4)]
-_STRING_CACHE = 4096
-_CACHED_LENGTH = 256
-_STRINGS: dict[str, bytes] = {}
-"""Encoded strings (length, UTF-8, NUL) by text, those of at most ``_CACHED_LENGTH`` bytes:
-diagnostics repeat their names and keys in every message. Emptied when it reaches
-``_STRING_CACHE`` entries."""
 _PROBE = struct.unpack("<d", bytes(range(1, 9)))[0]
 """A float64 none of whose bytes is zero: where it replaces a zero value, the first byte
 that differs is the value's first byte."""
@@ -84,28 +75,10 @@ def _offset(a: bytes, b: bytes) -> int:
     return next(i for i, (x, y) in enumerate(zip(a, b, strict=True)) if x != y)
 
 
-def _encoded(text: str) -> bytes:
-    """``text`` as a CDR string (uint32 length with the NUL, UTF-8, NUL); short ones are kept
-    in ``_STRINGS``."""
-    raw = text.encode()
-    encoded = _U32.pack(len(raw) + 1) + raw + b"\0"
-    if len(raw) <= _CACHED_LENGTH:
-        if len(_STRINGS) >= _STRING_CACHE:
-            _STRINGS.clear()
-        _STRINGS[text] = encoded
-    return encoded
-
-
 def diagnostic_array(sec: int, nanosec: int, frame_id: str,
                      statuses: Sequence[tuple[str, int, str, str, Sequence[tuple[str, str]]]]
                      ) -> bytes:
-    """Encode a diagnostic_msgs/msg/DiagnosticArray, by hand: ``message_encoder``'s takes
-    about 8x as long per message (``bench/bench_bag.py``), and ``replay`` copies a recorded
-    ``/diagnostics`` (a status per sensor every second) message by message.
-
-    Each string is 4-aligned from the end of the encapsulation header: a uint32 length with
-    the NUL, its UTF-8 bytes and the NUL; ``level`` is one byte; a sequence is a uint32
-    count and its elements.
+    """Encode a diagnostic_msgs/msg/DiagnosticArray.
 
     Args:
         sec: ``header.stamp.sec``.
@@ -118,25 +91,12 @@ def diagnostic_array(sec: int, nanosec: int, frame_id: str,
         The CDR payload.
 
     """
-    data = bytearray(ENCAPSULATION)
-    data += STAMP.pack(sec, nanosec)
-    cached = _STRINGS.get
-    data += cached(frame_id) or _encoded(frame_id)
-    data += _PAD[-len(data) % 4]
-    data += _U32.pack(len(statuses))
-    for name, level, message, hardware_id, values in statuses:
-        data.append(level)
-        for text in (name, message, hardware_id):
-            data += _PAD[-len(data) % 4]
-            data += cached(text) or _encoded(text)
-        data += _PAD[-len(data) % 4]
-        data += _U32.pack(len(values))
-        for key, value in values:
-            data += _PAD[-len(data) % 4]
-            data += cached(key) or _encoded(key)
-            data += _PAD[-len(data) % 4]
-            data += cached(value) or _encoded(value)
-    return bytes(data)
+    return message_encoder("diagnostic_msgs/msg/DiagnosticArray")({
+        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+        "status": [{"level": level, "name": name, "message": message,
+                    "hardware_id": hardware_id,
+                    "values": [{"key": k, "value": v} for k, v in values]}
+                   for name, level, message, hardware_id, values in statuses]})
 
 
 def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: int,
