@@ -259,7 +259,7 @@ class BagWriter:
 
         """
         t_ns = _ns(t)
-        v = np.asarray(values, dtype="<f8").reshape(-1)
+        v = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
         if v.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {v.size} values")
         template, value_at = cdr.temperature_layout(frame_id, variance)
