@@ -53,7 +53,7 @@ setup(
         "numba>=0.58",
         "PyYAML>=6",
         "mcap>=1.1",
-        "mcap-ros2-support>=0.6,<0.7",  # io/bag/reader.py: its public DecoderFactory
+        "mcap-ros2-support>=0.6,<0.7",  # io/bag/decode.py: DecoderFactory; io/cdr.py: its encoder
         "matplotlib>=3.7",
         "threadpoolctl>=3.1",  # models/apl.py: one BLAS thread while the fit grid is scored
         "apsw>=3.43",  # io/bag/db3.py: rosbag2's sqlite3 storage (.db3); octet_length

@@ -10,7 +10,7 @@ accepts a serialised message).
 The wire format is the bag writer's (``strain_comp.io.cdr``, byte-equal to rosbags'
 serialiser): the constant blocks are cut from its ``joint_state_layout`` and
 ``float64_multiarray_head``. The tests decode the bytes with rclpy's own type support and
-compare them with ``strain_comp.io.cdr``'s per-message encoders.
+compare them with ``strain_comp.io.cdr.message_encoder``'s.
 """
 
 from __future__ import annotations

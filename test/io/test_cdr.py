@@ -1,6 +1,7 @@
-"""The dedicated CDR encoders (strain_comp.io.cdr) against rosbags' serialiser, an
-independent implementation of the ROS 2 types: byte for byte over random messages with
-empty sequences, unicode strings and every alignment case."""
+"""The CDR encoders (strain_comp.io.cdr: mcap_ros2's encoder, and the templates the writer
+and the node fill in bulk) against rosbags' serialiser, an independent implementation of
+the ROS 2 types: byte for byte over random messages with empty sequences, unicode strings
+and every alignment case."""
 
 from __future__ import annotations
 
@@ -67,6 +68,19 @@ def _random(kind: str, rng: np.random.Generator) -> dict[str, Any]:
     raise AssertionError(kind)
 
 
+def _lists(msg: Any) -> Any:
+    """``msg`` with its numpy arrays as lists (the encoder takes sequences as lists)."""
+    if isinstance(msg, dict):
+        return {key: _lists(value) for key, value in msg.items()}
+    if isinstance(msg, list):
+        return [_lists(value) for value in msg]
+    return msg.tolist() if isinstance(msg, np.ndarray) else msg
+
+
+def _encode(kind: str, msg: Any) -> bytes:
+    return cdr.message_encoder(kind)(_lists(msg))
+
+
 def _rosbags(kind: str, msg: Any) -> Any:
     """The same message as a rosbags message object (nested types built by name)."""
     types = {"layout": "std_msgs/msg/MultiArrayLayout",
@@ -89,10 +103,9 @@ def _rosbags(kind: str, msg: Any) -> Any:
 @pytest.mark.parametrize("kind", sorted(SCHEMAS))
 def test_encoders_equal_rosbags_byte_for_byte(kind: str) -> None:
     rng = np.random.default_rng(sum(map(ord, kind)))
-    encode = cdr.message_encoder(kind)
     for _ in range(300):
         msg = _random(kind, rng)
-        assert encode(msg) == bytes(STORE.serialize_cdr(_rosbags(kind, msg), kind)), msg
+        assert _encode(kind, msg) == bytes(STORE.serialize_cdr(_rosbags(kind, msg), kind)), msg
 
 
 def test_schema_texts_define_the_types_rosbags_knows() -> None:
@@ -125,28 +138,57 @@ def test_joint_state_rows_equal_the_message_encoder(tmp_path: Any) -> None:
             got.setdefault(channel.topic, []).append(message.data)
     ns = np.round(stamp * 1e9).astype(np.int64)
     lg = np.round(t * 1e9).astype(np.int64)
+    kind = "sensor_msgs/msg/JointState"
     assert got["/arr/strain_stamped"] == [
-        cdr.joint_state(*cdr.stamp_of(int(s)), "", names, p, v)
+        _encode(kind, {"header": _stamped(int(s)), "name": names, "position": p,
+                       "velocity": v, "effort": []})
         for s, p, v in zip(ns, pos, vel, strict=True)]
     assert got["/s/strain_stamped"] == [
-        cdr.joint_state(*cdr.stamp_of(int(s)), "", ["s"], p[:1])
+        _encode(kind, {"header": _stamped(int(s)), "name": ["s"], "position": p[:1],
+                       "velocity": [], "effort": []})
         for s, p in zip(lg, pos, strict=True)]
     contents = read_bag(path)  # read back quietly: the types listed, no problem lines
     assert contents.types["/s/strain_stamped"] == "sensor_msgs/msg/JointState"
     assert contents.problems == []
 
 
+def _stamped(t_ns: int, frame_id: str = "") -> dict[str, Any]:
+    sec, nanosec = cdr.stamp_of(t_ns)
+    return {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id}
+
+
+@pytest.mark.parametrize("frame_id", ["", "a", "abc", "abcd", "温度"])
+def test_temperature_rows_equal_the_message_encoder(tmp_path: Any, frame_id: str) -> None:
+    """BagWriter.write_temperature writes whole runs from one template: every payload equals
+    rosbags' serialisation of the message (stamp = log time, every frame_id alignment),
+    from values given as a strided view too."""
+    from mcap.reader import make_reader
+
+    rng = np.random.default_rng(len(frame_id))
+    t = np.sort(rng.random(40)) * 3e5
+    values = _floats(rng, 40)
+    path = tmp_path / "temperature.mcap"
+    with BagWriter(path) as writer:  # every other value of a longer array: a strided view
+        writer.write_temperature("/s/temperature", t, np.repeat(values, 2)[::2],
+                                 frame_id=frame_id, variance=0.25)
+    with path.open("rb") as f:
+        got = [m.data for _, _, m in make_reader(f).iter_messages()]
+    kind = "sensor_msgs/msg/Temperature"
+    assert got == [bytes(STORE.serialize_cdr(_rosbags(kind, {
+        "header": _stamped(int(ns), frame_id), "temperature": float(v), "variance": 0.25}),
+        kind)) for ns, v in zip(np.round(t * 1e9).astype(np.int64), values, strict=True)]
+
+
 def test_long_strings_and_late_stamps(tmp_path: Any) -> None:
-    """A string longer than the cache's limit encodes like a short one; a JointState stamp
-    past int32 seconds is refused with a BagError, not wrapped."""
+    """Long strings encode as rosbags encodes them; a JointState stamp past int32 seconds
+    is refused with a BagError, not wrapped."""
     from strain_comp.errors import BagError
 
     kind = "diagnostic_msgs/msg/DiagnosticArray"
     msg = {"header": {"stamp": {"sec": 1, "nanosec": 0}, "frame_id": ""},
            "status": [{"level": 1, "name": "ü" * 300, "message": "m" * 1000,
                        "hardware_id": "", "values": [{"key": "k", "value": "v" * 257}]}]}
-    assert cdr.message_encoder(kind)(msg) == bytes(STORE.serialize_cdr(_rosbags(kind, msg),
-                                                                       kind))
+    assert _encode(kind, msg) == bytes(STORE.serialize_cdr(_rosbags(kind, msg), kind))
     with BagWriter(tmp_path / "late.mcap") as writer, pytest.raises(BagError, match="2038"):
         writer.write_joint_state("/s/strain_stamped", [1.0], ["s"], [[0.5]],
                                  stamp=[2.0**31 + 1.0])
@@ -155,9 +197,9 @@ def test_long_strings_and_late_stamps(tmp_path: Any) -> None:
 @pytest.mark.parametrize("names", [[], ["s1"], ["a", "bé", "ccc", "温度"],
                                    [f"x{i}" for i in range(256)]])
 def test_node_encoders_equal_the_message_encoders(names: list[str]) -> None:
-    """The node's prebuilt-block encoders (strain_comp.ros.cdr) write the bytes of this
-    module's per-message encoders: JointState with empty velocity and effort, and the
-    Float64MultiArray labelled with the names (one wire format for bags and the node)."""
+    """The node's prebuilt-block encoders (strain_comp.ros.cdr) write the bytes of the
+    message encoder: JointState with empty velocity and effort, and the Float64MultiArray
+    labelled with the names (one wire format for bags and the node)."""
     from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
 
     rng = np.random.default_rng(len(names))
@@ -166,7 +208,9 @@ def test_node_encoders_equal_the_message_encoders(names: list[str]) -> None:
     for stamp_ns in (1_795_498_137_622_557_762, 0, 5, -1_500_000_000):
         values = _floats(rng, k)
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        assert stamped.encode(stamp_ns, values) == cdr.joint_state(sec, nanosec, "", names,
-                                                                   values)
-        assert vector.encode(values) == cdr.float64_multiarray(
-            [(",".join(names), k, k)], 0, values)
+        assert stamped.encode(stamp_ns, values) == _encode("sensor_msgs/msg/JointState", {
+            "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": ""},
+            "name": names, "position": values, "velocity": [], "effort": []})
+        assert vector.encode(values) == _encode("std_msgs/msg/Float64MultiArray", {
+            "layout": {"dim": [{"label": ",".join(names), "size": k, "stride": k}],
+                       "data_offset": 0}, "data": values})

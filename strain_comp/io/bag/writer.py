@@ -3,12 +3,12 @@
 ``BagWriter`` writes a header with profile ``ros2``, ros2msg schemas, channels with ``cdr``
 encoding, chunks with CRCs and message indexes, and a summary with schemas, channels,
 statistics, chunk indexes and summary offsets, so ``ros2 bag play``, ``rosbags`` and Foxglove
-read it. Payloads are CDR (``strain_comp.io.cdr``): Float64, Int8, Float64MultiArray and
-JointState runs are built as numpy byte rows of one template (their layout is fixed for a
-topic), Temperature and DiagnosticArray message by message (or already encoded for many
-messages at once: ``write_diagnostic_payloads``). The file's records (chunks, indexes,
-summary) are written by ``strain_comp.io.bag.stream``. Times are log times in seconds
-(float64), stored as integer ns.
+read it. Payloads are CDR (``strain_comp.io.cdr``, the ``mcap_ros2`` encoder): Float64, Int8,
+Float64MultiArray, JointState and Temperature runs are built as numpy byte rows of one
+template (their layout is fixed for a topic), DiagnosticArray message by message (or
+already encoded for many messages at once: ``write_diagnostic_payloads``). The file's
+records (chunks, indexes, summary) are written by ``strain_comp.io.bag.stream``. Times are
+log times in seconds (float64), stored as integer ns.
 """
 
 from __future__ import annotations
@@ -35,6 +35,13 @@ def _ns(t: npt.ArrayLike) -> np.ndarray:
         raise BagError(f"message times beyond {MAX_TIME_S} s (2038-01-19) cannot be stored "
                        f"(got {t.max():.6g} s; epoch milli- or nanoseconds?)")
     return np.round(t * 1e9).astype(np.int64)
+
+
+def _stamps(t_ns: np.ndarray) -> np.ndarray:
+    """(n, 8) uint8: builtin_interfaces/Time (``cdr.STAMP``) of each time [ns]."""
+    stamps = np.empty(t_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])
+    stamps["sec"], stamps["nanosec"] = np.divmod(t_ns, 10**9)
+    return stamps.view(np.uint8).reshape(-1, 8)
 
 
 def _cdr_rows(header_and_prefix: bytes, values: np.ndarray) -> np.ndarray:
@@ -148,9 +155,7 @@ class BagWriter:
         if s_ns.size and int(s_ns.max()) >= 2**31 * 10**9:
             raise BagError(f"{topic}: stamps after 2038-01-19 do not fit "
                            "builtin_interfaces/Time")
-        stamps = np.empty(t_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])
-        stamps["sec"], stamps["nanosec"] = np.divmod(s_ns, 10**9)
-        rows[:, 4:12] = stamps.view(np.uint8).reshape(-1, 8)
+        rows[:, 4:12] = _stamps(s_ns)
         rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
         if vel_at is not None:
             v = np.asarray(velocity, dtype="<f8").reshape(t_ns.size, k)
@@ -161,9 +166,14 @@ class BagWriter:
                           frame_id: str = "", variance: float = 0.0) -> None:
         """Add sensor_msgs/msg/Temperature messages, header stamp = log time."""
         t_ns = _ns(t)
-        v = np.asarray(values, dtype=np.float64).reshape(-1)
-        rows = [cdr.temperature(*cdr.stamp_of(ns), frame_id, x, variance)
-                for ns, x in zip(t_ns.tolist(), v.tolist(), strict=False)]
+        v = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
+        if v.size != t_ns.size:
+            raise BagError(f"{topic}: {t_ns.size} times but {v.size} values")
+        template, value_at = cdr.temperature_layout(frame_id, variance)
+        rows = np.empty((t_ns.size, len(template)), np.uint8)
+        rows[:] = np.frombuffer(template, np.uint8)
+        rows[:, 4:12] = _stamps(t_ns)
+        rows[:, value_at:value_at + 8] = v.view(np.uint8).reshape(-1, 8)
         self._add(topic, "sensor_msgs/msg/Temperature", t_ns, rows)
 
     def write_diagnostics(self, t: npt.ArrayLike, statuses: Sequence[Sequence[Status]], *,
