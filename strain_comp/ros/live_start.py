@@ -1,7 +1,7 @@
 """The session start of a live node: ``~/start`` watches the next stretch and return on the
 sensors' reference topics and then applies the session start ``strain-comp`` makes offline
-(``strain_comp.offline.session_start.start``, the command's) to the calibration; no ROS (docs/ros.md,
-"Services").
+(``strain_comp.offline.session_start.start``, the command's) to the calibration; no ROS
+(docs/ros.md, "Services").
 
 States, shown in /diagnostics (``strain_comp: session start``): ``idle`` (never called),
 ``waiting`` (called, the reference has not yet moved by ``MIN_STRETCH`` of the calibrated
