@@ -232,7 +232,7 @@ def test_a_gain_change_between_runs_is_read_with_its_size(bags: BagMaker,
     row = next(c for c in result.conditions if c["name"] == "gain change between runs")
     (change,) = result.sensors["s1"].session["sensitivity_change"]
     assert change == pytest.approx(20.0, abs=1.0), row["reading"]
-    assert f"{change:+.1f} %" in row["reading"] and "recalibrate --input" in row["reading"]
+    assert f"{change:+.1f} %" in row["reading"] and "strain-comp start" in row["reading"]
     assert row["after"] < 0.2 * row["before"] and not row["chosen"]
     same = diagnose_conditions(bags("random", 2), calibration,
                                validate_recordings=bags("patterns", 3))
