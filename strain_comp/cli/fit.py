@@ -147,16 +147,7 @@ def run(args: argparse.Namespace) -> int:
 
 def choice_lines(name: str, cal: SensorCalibration) -> list[str]:
     """``--model auto``'s table (median and worst RMSE over the runs left out per candidate),
-    the model chosen and why, and the error to expect; nothing for a model given.
-
-    Args:
-        name: The sensor.
-        cal: Its calibration.
-
-    Returns:
-        The lines.
-
-    """
+    the model chosen and why, and the error to expect; nothing for a model given."""
     from strain_comp.core.calibration import expected_words, strain_unit_words
 
     choice = cal.provenance.get("model_choice")

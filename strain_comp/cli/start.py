@@ -24,12 +24,7 @@ EXAMPLE = "strain-comp start s1.yaml start.mcap --out today.yaml"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The calibration, the start recording, the file to write, the sensors, the window.
-
-    Args:
-        p: The command's parser, filled in place.
-
-    """
+    """The calibration, the start recording, the file to write, the sensors, the window."""
     p.add_argument("calibration", metavar="CAL.yaml", help="calibration file to start from")
     p.add_argument("recording", metavar="START.mcap",
                    help="the start recording, with the reference strain: a warm-up stretch "
@@ -46,22 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """The session start (``offline.session_start.start``) written; one line per sensor on
-    stdout, the steps not made on stderr.
-
-    Args:
-        args: The parsed command line.
-
-    Returns:
-        0.
-
-    Raises:
-        InputError: A recording a start cannot read, a bad window, or a stretch on which no
-            correction can be made (one line saying what to record instead).
-        BagError: The bag cannot be read.
-        CalibrationError: The calibration file is bad.
-        OutputError: The output is an input or cannot be written.
-
-    """
+    stdout, the steps not made on stderr."""
     from strain_comp import api
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.session_start import start

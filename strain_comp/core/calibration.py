@@ -45,17 +45,7 @@ the calibrated range (``calibration_reader``)."""
 
 def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -> None:
     """The one check of a reference strain's size, for ``fit`` (training) and ``evaluate``
-    (scoring) alike: no finite value beyond +/- ``STRAIN_MAX``, what a calibration holds.
-
-    Args:
-        name: The sensor's name, for the message.
-        s: The reference strain (NaN: no reference there).
-        error: The error to raise (``FitError`` for a fit, ``InputError`` to score).
-
-    Raises:
-        StrainCompError: ``error`` naming the sensor and the largest value.
-
-    """
+    (scoring) alike: no finite value beyond +/- ``STRAIN_MAX``, what a calibration holds."""
     values = np.asarray(s, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         top = float(np.max(np.abs(values), initial=0.0, where=np.isfinite(values)))
@@ -296,16 +286,7 @@ def provenance(bags: list[str], fit_rmse: float, n_samples: int, **extra: Any) -
 def expected_error(cal: SensorCalibration) -> dict[str, Any] | None:
     """The error a sensor's calibration expects on a new session: its provenance's
     ``expected_error`` (``fit --model auto``: its model's RMSE on each training run left
-    out, after the session start there), when it holds a valid one.
-
-    Args:
-        cal: The sensor's calibration.
-
-    Returns:
-        ``median``, ``worst`` [strain unit], ``unit``, ``runs`` (and what else was stored),
-        or None when not measured.
-
-    """
+    out, after the session start there), when it holds a valid one."""
     found = cal.provenance.get("expected_error")
     if not isinstance(found, dict):
         return None
@@ -321,15 +302,7 @@ def expected_error(cal: SensorCalibration) -> dict[str, Any] | None:
 def expected_words(cal: SensorCalibration) -> str | None:
     """``expected on a new session: RMSE 4.8 % strain (median), 6.8 at worst, over 7 runs
     left out`` (``expected_error``), for ``start``, ``evaluate`` and the node's start-up
-    line; None when the calibration holds none.
-
-    Args:
-        cal: The sensor's calibration.
-
-    Returns:
-        The words, or None.
-
-    """
+    line; None when the calibration holds none."""
     found = expected_error(cal)
     if found is None:
         return None

@@ -137,19 +137,7 @@ def probe_calibration(cal: SensorCalibration) -> str | None:
 def loadable(cal: SensorCalibration, change: str) -> SensorCalibration:
     """``cal`` after the checks every calibration reader applies, so a recalibration
     (``offline.span.apply_span``, ``offline.recalibrate.apply_map``) refuses in the API
-    what the command line's write refuses.
-
-    Args:
-        cal: The recalibrated sensor.
-        change: What the recalibration did, in words, for the message.
-
-    Returns:
-        ``cal``.
-
-    Raises:
-        InputError: ``cal`` would not load, saying what in the user's terms.
-
-    """
+    what the command line's write refuses."""
     try:
         check_calibration(Calibration({cal.name: cal}))
     except CalibrationError as err:

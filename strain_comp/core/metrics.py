@@ -31,17 +31,7 @@ Z_95 = 1.959963984540054
 
 def band_counts(estimate: npt.ArrayLike, reference: npt.ArrayLike, std: npt.ArrayLike
                 ) -> tuple[int, int]:
-    """(pairs with a finite band, those inside it): |S_hat - S| <= ``Z_95`` sigma.
-
-    Args:
-        estimate: The estimated strain S_hat.
-        reference: The reference strain S, same length.
-        std: The estimate's standard deviation sigma, same length.
-
-    Returns:
-        The two counts over the pairs where all three are finite.
-
-    """
+    """(pairs with a finite band, those inside it): |S_hat - S| <= ``Z_95`` sigma."""
     s_hat, s = np.asarray(estimate, np.float64), np.asarray(reference, np.float64)
     sigma = np.asarray(std, np.float64)
     ok = np.isfinite(s_hat) & np.isfinite(s) & np.isfinite(sigma)

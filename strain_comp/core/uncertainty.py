@@ -64,12 +64,7 @@ class Uncertainty:
 
 
 def new_state() -> np.ndarray:
-    """A sensor's state before its first used sample.
-
-    Returns:
-        ``STATE_SIZE`` NaNs.
-
-    """
+    """A sensor's state before its first used sample."""
     return np.full(STATE_SIZE, np.nan)
 
 
@@ -77,18 +72,7 @@ def new_state() -> np.ndarray:
 def features_one(t: float, direction: float, ohm: float, strain: float, state: np.ndarray,
                  row: np.ndarray, out: np.ndarray) -> None:
     """The features of one used sample into ``out`` (``FEATURES`` order); ``state``
-    updated in place.
-
-    Args:
-        t: Time [s].
-        direction: The published direction (+1, 0, -1).
-        ohm: The resistance the model read.
-        strain: The published estimate.
-        state: The sensor's ``STATE_SIZE`` state.
-        row: The sensor's range row (``strain_comp.core.stages.RANGE_COLUMNS``).
-        out: ``N_FEATURES`` values, written.
-
-    """
+    updated in place."""
     if math.isnan(state[_START_T]):
         state[_START_T] = t
     if math.isnan(state[_LAST_DIRECTION]) or direction != state[_LAST_DIRECTION]:
@@ -107,16 +91,7 @@ def features_one(t: float, direction: float, ohm: float, strain: float, state: n
 
 @njit(inline="always")
 def sigma(x: np.ndarray, weights: np.ndarray) -> float:
-    """sqrt(exp(w . x)): the standard deviation of features ``x``.
-
-    Args:
-        x: The features.
-        weights: The weights.
-
-    Returns:
-        The standard deviation, in the calibration's strain unit.
-
-    """
+    """sqrt(exp(w . x)): the standard deviation of features ``x``."""
     z = 0.0
     for i in range(x.size):
         z += weights[i] * x[i]
@@ -126,21 +101,7 @@ def sigma(x: np.ndarray, weights: np.ndarray) -> float:
 @njit
 def std_one(t: float, direction: float, ohm: float, strain: float, state: np.ndarray,
             row: np.ndarray, weights: np.ndarray) -> float:
-    """The standard deviation of one used sample (``features_one`` then ``sigma``).
-
-    Args:
-        t: Time [s].
-        direction: The published direction.
-        ohm: The resistance the model read.
-        strain: The published estimate.
-        state: The sensor's state, updated in place.
-        row: The sensor's range row.
-        weights: Its weights.
-
-    Returns:
-        The standard deviation.
-
-    """
+    """The standard deviation of one used sample (``features_one`` then ``sigma``)."""
     x = np.empty(N_FEATURES)
     features_one(t, direction, ohm, strain, state, row, x)
     return sigma(x, weights)
@@ -149,20 +110,7 @@ def std_one(t: float, direction: float, ohm: float, strain: float, state: np.nda
 @njit
 def features_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.ndarray,
                  state: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """``features_one`` over used samples in time order, (n, ``N_FEATURES``).
-
-    Args:
-        t: Time [s] per used sample.
-        direction: The published direction per used sample.
-        ohm: The resistance the model read per used sample.
-        strain: The published estimate per used sample.
-        state: The sensor's state, updated in place.
-        row: The sensor's range row.
-
-    Returns:
-        The features, one row per sample.
-
-    """
+    """``features_one`` over used samples in time order, (n, ``N_FEATURES``)."""
     out = np.empty((t.size, N_FEATURES))
     for i in range(t.size):
         features_one(t[i], float(direction[i]), ohm[i], strain[i], state, row, out[i])
@@ -172,21 +120,7 @@ def features_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: 
 @njit
 def std_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.ndarray,
             state: np.ndarray, row: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """``std_one`` over used samples in time order.
-
-    Args:
-        t: Time [s] per used sample.
-        direction: The published direction per used sample.
-        ohm: The resistance the model read per used sample.
-        strain: The published estimate per used sample.
-        state: The sensor's state, updated in place.
-        row: The sensor's range row.
-        weights: Its weights.
-
-    Returns:
-        The standard deviation per sample.
-
-    """
+    """``std_one`` over used samples in time order."""
     out = np.empty(t.size)
     x = np.empty(N_FEATURES)
     for i in range(t.size):

@@ -42,26 +42,7 @@ def default_candidates(*, temperature_ref: float | None = None,
     The creep family (``report.creep_tau``) is a Prony series read one state at a time:
     ``relaxation`` of branch ``both`` (S_hat minus its first-order low-pass) and
     ``resistance_memory`` of form ``relaxation`` (100 ln R minus its low-pass), each at
-    ``CREEP_TAUS``; the differences u - z_k that ``creep_pi`` fits (docs/creep.md).
-
-    ``temperature_ref`` [deg C]: include temperature terms around it (None: no temperature
-    series); ``neighbours``: array neighbours to test for cross-talk; ``baseline_rest`` [%]:
-    the strain runs start at (the ``rest`` of the per-run ``baseline`` candidate);
-    ``stretch_history``: also the ``stretch`` terms (a rest level or a sensitivity that
-    moves with the stretch done; opt-in: on the measured within-run tables they were
-    chosen where a time drift carried better, docs/hysteresis_fit.md).
-
-    Args:
-        temperature_ref: Reference temperature [deg C] of the temperature terms; None leaves
-            them out.
-        neighbours: Array neighbours tested for cross-talk.
-        baseline_rest: Strain [%] the runs start at (the ``baseline`` candidate's ``rest``).
-        stretch_history: Also the ``stretch`` terms.
-
-    Returns:
-        The candidate effect dicts, in calibration-file form, each with ``coef`` 0.
-
-    """
+    ``CREEP_TAUS``; the differences u - z_k that ``creep_pi`` fits (docs/creep.md)."""
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
             for mode in ("signed", "direction")]
@@ -112,18 +93,7 @@ def added_effects(candidates: Sequence[dict[str, Any]], cols: Sequence[int],
                   coefs: Sequence[float], existing: Sequence[dict[str, Any]] = ()
                   ) -> list[dict[str, Any]]:
     """Calibration-file entries of candidates ``cols`` with ``coefs``, each named after its
-    candidate (``_2``, ``_3``... where the name is taken by ``existing`` or an earlier one).
-
-    Args:
-        candidates: The candidate effect dicts the loop scored.
-        cols: Indices into ``candidates`` of the terms added.
-        coefs: Their fitted coefficients, one per index.
-        existing: Effects the sensor already carries (names taken).
-
-    Returns:
-        The calibration-file effect dicts, in the order of ``cols``.
-
-    """
+    candidate (``_2``, ``_3``... where the name is taken by ``existing`` or an earlier one)."""
     taken = {str(e["name"]) for e in existing}
     out = []
     for j, c in zip(cols, coefs, strict=True):

@@ -21,28 +21,7 @@ def diagnose_bag(bag: str | Path, calibration: Calibration, *,
                  inputs: Sequence[str | Path] = (), **options: Any) -> DiagnoseResult:
     """``strain-comp diagnose``: load the bag(s), diagnose, write CAL2 and the plots
     (atomically; an output that is a bag or one of ``inputs`` is refused). ``validate``:
-    one validation bag or several (each a run of its own).
-
-    Args:
-        bag: The bag diagnosed.
-        calibration: The calibration diagnosed.
-        validate: Validation bag(s); None holds out time blocks of ``bag``.
-        out: Where to write the calibration with the terms added (CAL2); None writes nothing.
-        plots: Folder of the residual plots; None writes none.
-        inputs: Further input files no output may overwrite.
-        **options: Passed to ``diagnose_conditions`` (``tare``, ``policy``, ``progress``,
-            ``diagnose``'s options).
-
-    Returns:
-        The diagnosis of the chosen condition.
-
-    Raises:
-        BagError: A bag cannot be read.
-        InputError: An option is out of range, or no calibrated sensor has a reference.
-        CalibrationError: CAL2 would not load again (not written).
-        OutputError: An output is a bag, an input or not a regular file, or cannot be written.
-
-    """
+    one validation bag or several (each a run of its own)."""
     paths = [] if validate is None else [validate] if isinstance(validate, str | Path) \
         else list(validate)
     inputs = [bag, *paths, *inputs]

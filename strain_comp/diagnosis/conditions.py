@@ -100,16 +100,7 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
                    ) -> ChainFindings:
     """What the measurement chain shows in ``recordings`` that ``calibration`` does not
     correct yet: the alternation statistics, and the spikes and baseline steps the
-    engine's online corrector (at the default thresholds) finds in each run.
-
-    Args:
-        recordings: One run's recordings by sensor name.
-        calibration: The calibration; sensors it lacks are skipped.
-
-    Returns:
-        The sensors that alternate, spike or step uncorrected, and a line on each finding.
-
-    """
+    engine's online corrector (at the default thresholds) finds in each run."""
     found = ChainFindings()
     for name, rec in recordings.items():
         if name not in calibration.sensors:
@@ -191,24 +182,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                         tare: str = "calibration", policy: LoopPolicy = LOOP_POLICY,
                         progress: Callable[[int, int], None] | None = None,
                         **options: Any) -> DiagnoseResult:
-    """``diagnose`` under each condition of the module docstring; the chosen result.
-
-    Args:
-        recordings: The diagnosed run's recordings by sensor name.
-        calibration: The calibration diagnosed.
-        validate_recordings: One validation run or several; None holds out time blocks.
-        tare: ``calibration`` or ``auto`` (each run tared at its start, tried as a condition).
-        policy: The numbers of the selection and of the choice between conditions.
-        progress: Called with (sensors done, total) across all conditions; None: silent.
-        **options: Passed to ``diagnose``.
-
-    Returns:
-        The chosen condition's diagnosis, every condition's record in ``conditions``.
-
-    Raises:
-        InputError: An option is out of range, or no calibrated sensor has a reference.
-
-    """
+    """``diagnose`` under each condition of the module docstring; the chosen result."""
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
     validate = ([] if validate_recordings is None else [validate_recordings]

@@ -29,22 +29,7 @@ def score_rows(sensor: str, cal: SensorCalibration, cands: Candidates, rows: Row
                 scores: dict[int, float], terms: list[int], coefs: list[float],
                 gains: Mapping[int, float]) -> list[EffectScore]:
     """The evidence of every candidate: its score and, for an added one, its rank, gain,
-    coefficient and magnitude.
-
-    Args:
-        sensor: The sensor's name.
-        cal: Its calibration.
-        cands: The candidates scored.
-        rows: The fit and held-out rows of the candidates' regressors.
-        scores: Candidate index -> held-out share of the residual.
-        terms: Indices of the terms added, in the order chosen.
-        coefs: Their coefficients.
-        gains: Term index -> relative drop of the held-out RMSE it brought.
-
-    Returns:
-        One ``EffectScore`` per candidate, in the candidates' order.
-
-    """
+    coefficient and magnitude."""
     std_fit = np.std(rows.g_fit, axis=0)
     coef_of = dict(zip(terms, coefs, strict=True))
     vr = cal.valid_range
@@ -71,18 +56,7 @@ def lags(cands: Candidates, rows: Rows, j: int, coef: float) -> bool | None:
     reference after a change? Its correction coef g set against the same time constant's
     state of the estimate (S_hat minus its low-pass, positive after a rise of the strain):
     of opposite sign on the fit rows, the estimate stays behind. None: not a creep term, or
-    no such state among the candidates.
-
-    Args:
-        cands: The candidates.
-        rows: Their regressors on the fit and held-out rows.
-        j: The candidate's index.
-        coef: Its fitted coefficient.
-
-    Returns:
-        True: the estimate lags; False: it overshoots; None: unknown or not a creep term.
-
-    """
+    no such state among the candidates."""
     tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
     if tau is None:
         return None
@@ -103,27 +77,7 @@ def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: li
                session: bool, strides: tuple[int, int | None]) -> str:
     """The loop's finding for one sensor, in words. ``chosen``: the terms selected on the
     diagnosed run (without a session start); ``refused``: the best candidate scored on the
-    validation runs and not added (with one).
-
-    Args:
-        cal: The sensor's calibration.
-        cands: The candidates.
-        rows: Their regressors and the runs' series.
-        chosen: Terms selected on the diagnosed run.
-        refused: The best candidate refused on the validation runs, or None.
-        scores: Candidate index -> held-out share of the residual.
-        order: Terms added, in order.
-        gains: Term index -> relative drop of the held-out RMSE.
-        margin: The least relative drop a term must bring.
-        before: Held-out RMSE before, in the calibration's strain unit.
-        after: Held-out RMSE after, in the same unit.
-        session: Whether before and after follow a session-start recalibration.
-        strides: The sample strides of the diagnosed and (or None) validation runs.
-
-    Returns:
-        The sensor's finding, one sentence or a few joined by semicolons.
-
-    """
+    validation runs and not added (with one)."""
     names = cands.names
     if not order:
         top = max((j for j in scores if j not in cands.baselines), key=scores.__getitem__)
@@ -163,18 +117,7 @@ def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: li
 def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | None,
                 margin: float) -> str:
     """Why no term is added after the session start, in one clause: no candidate helps the
-    diagnosed run, or the best one that does (``refused``) and what it does to each run.
-
-    Args:
-        cands: The candidates.
-        scores: Candidate index -> held-out share of the residual.
-        refused: The best candidate refused on the validation runs, or None.
-        margin: The least relative drop a term must bring.
-
-    Returns:
-        The clause.
-
-    """
+    diagnosed run, or the best one that does (``refused``) and what it does to each run."""
     if refused is None:
         top = max((j for j in scores if j not in cands.baselines and j != cands.offset),
                   key=scores.__getitem__)
@@ -192,16 +135,7 @@ def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | No
 
 
 def family(cands: Candidates, j: int) -> str:
-    """``creep, tau X s, `` for a creep term (its family named in the message), else ``""``.
-
-    Args:
-        cands: The candidates.
-        j: The candidate's index.
-
-    Returns:
-        The prefix, empty for a term other than creep.
-
-    """
+    """``creep, tau X s, `` for a creep term (its family named in the message), else ``""``."""
     tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
     return "" if tau is None else f"creep, tau {tau:g} s, "
 
@@ -211,20 +145,7 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
     """What the session start did on the validation runs, and the gain change between runs
     it shows: the sensitivity against the calibration (the input span gain k: the sensor
     reads 1 / k - 1 more) where it is at least ``GAIN_CHANGE`` and the session start lowers
-    the validation error by more than ``margin``.
-
-    Args:
-        cal: The sensor's calibration.
-        session: The session starts made on the validation runs.
-        e_raw: The validation runs' error as calibrated [strain unit].
-        e_start: Their error after the session start [strain unit].
-        margin: The least relative drop that shows a gain change.
-
-    Returns:
-        The condition's record: name, reading, before, after, chosen, the sensitivity
-        changes [%], the stretch read and the steps made per run.
-
-    """
+    the validation error by more than ``margin``."""
     starts = session.starts()
     spans = [s.calibration.sensors[session.sensor].input.zero_span for s in starts]
     changes = [100.0 * (1.0 / span[2] - 1.0) for span, s in zip(spans, starts, strict=True)
@@ -256,17 +177,7 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
 
 def remains(before: float, after: float, unit_words: str) -> str:
     """One line on what the session start leaves: the share of the validation runs' squared
-    error that was their own gain and offset (their input space), which no term need make.
-
-    Args:
-        before: Validation RMSE as calibrated, in the strain unit.
-        after: Validation RMSE after the session start.
-        unit_words: The strain unit in words.
-
-    Returns:
-        The line.
-
-    """
+    error that was their own gain and offset (their input space), which no term need make."""
     if not before > 0 or not after < before:
         return (f"after the session start, what remains is all of the error and more ("
                 f"{before:.4g} -> {after:.4g} {unit_words}): the runs' own gain and offset are "

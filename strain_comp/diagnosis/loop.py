@@ -286,33 +286,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              stretch_history: bool = False,
              session_start: bool = True,
              on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
-    """Run the residual loop (module docstring) on every calibrated sensor with a reference.
-
-    Args:
-        recordings: One bag's recordings by sensor name, or a list of such (several bags).
-        calibration: The calibration diagnosed.
-        validate_recordings: Validation run(s); None holds out time blocks of ``recordings``.
-        holdout_fraction: Share of the time blocks held out, in (0, 1).
-        candidates: Effect dicts to test; None: ``default_candidates`` (with the
-            ``stretch`` terms when ``stretch_history``).
-        n_blocks: Number of time blocks of the cross-validation, >= 3.
-        policy: The numbers of the selection (``strain_comp.diagnosis.policy``).
-        tare: ``calibration`` or ``auto`` (every run, fit and validation, tared at its start).
-        stretch_history: Also test the ``stretch`` terms.
-        session_start: With validation recordings, measure them after the session-start
-            recalibration after a warm-up stretch (``strain_comp.diagnosis.session``; a run
-            where it cannot be made is measured as calibrated).
-        on_sensor: Called with each sensor's name once it is done; None: silent.
-
-    Returns:
-        Per sensor its diagnosis, the pooled error before and after, and the calibration
-        with the terms added.
-
-    Raises:
-        InputError: ``holdout_fraction`` or ``n_blocks`` is out of range, the validation
-            runs have no usable sample of a sensor, or no calibrated sensor has a reference.
-
-    """
+    """Run the residual loop (module docstring) on every calibrated sensor with a reference."""
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
     if n_blocks < 3:

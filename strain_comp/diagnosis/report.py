@@ -81,16 +81,7 @@ def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
     """The time constant [s] of a creep term, None for any other: one state of a Prony
     series u - z_k, z_k' = (u - z_k) / tau_k (viscoelastic creep, the generalised Maxwell
     form; ``creep_pi``, docs/creep.md), u being the estimate (``relaxation`` of branch
-    ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``).
-
-    Args:
-        kind: The term's kind.
-        params: Its parameters.
-
-    Returns:
-        tau [s], or None for a term other than creep.
-
-    """
+    ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``)."""
     if (kind == "relaxation" and params.get("branch", "both") == "both") or (
             kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):
         return float(params.get("tau", 10.0))
@@ -100,20 +91,7 @@ def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
 def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
                   span: float | None, lag: bool | None) -> str:
     """A creep term in words: which way the estimate errs after a change, by how much (in %
-    of the span where known) and with what time constant.
-
-    Args:
-        tau: The time constant [s].
-        of: What the state is of: ``estimate`` or ``resistance``.
-        magnitude: Typical size of the correction in ``unit``, or None.
-        unit: The calibration's strain unit.
-        span: The calibrated strain span in ``unit``, or None.
-        lag: True: the estimate lags; False: it overshoots; None: unknown.
-
-    Returns:
-        The reading.
-
-    """
+    of the span where known) and with what time constant."""
     u = strain_unit_words(unit)
     how = {True: "the estimate lags the reference after each change",
            False: "the estimate overshoots the reference after each change",
@@ -136,21 +114,7 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
     removes it), so the reading describes the sensor against its calibration. Sizes are
     in the calibration's strain ``unit`` (``% strain``, or e.g. ``mm`` for an extension);
     relative readings (sensitivity, gain drift) are in % of the output; a creep term's in %
-    of the strain ``span`` as well (``creep_reading``).
-
-    Args:
-        kind: The term's kind.
-        params: Its parameters.
-        coef: Its coefficient.
-        magnitude: Typical size of the correction in ``unit``, or None.
-        unit: The calibration's strain unit.
-        span: The calibrated strain span in ``unit``, or None.
-        lag: Does the estimate lag (a creep term of the resistance; None: unknown)?
-
-    Returns:
-        The reading.
-
-    """
+    of the strain ``span`` as well (``creep_reading``)."""
     u = strain_unit_words(unit)
     size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
     tau = creep_tau(kind, params)
@@ -335,16 +299,7 @@ def _num(value: float) -> float | None:
 
 
 def plot_file(out_dir: str | Path, name: str) -> Path:
-    """The residual plot ``write_plots`` writes for sensor ``name`` into ``out_dir``.
-
-    Args:
-        out_dir: The plots' folder.
-        name: The sensor's name.
-
-    Returns:
-        ``out_dir/diagnose_NAME.png``.
-
-    """
+    """The residual plot ``write_plots`` writes for sensor ``name`` into ``out_dir``."""
     return Path(out_dir) / f"diagnose_{name}.png"
 
 
@@ -352,20 +307,7 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
     """Residual before and after against the winning regressor, time and strain (one PNG
     per sensor, ``residual_figure``), each written atomically; a plot path that is one of
-    ``inputs`` is refused.
-
-    Args:
-        result: The diagnosis.
-        out_dir: The folder (made if missing).
-        inputs: Input files no plot may overwrite.
-
-    Returns:
-        The paths written.
-
-    Raises:
-        OutputError: A plot path is an input or not a regular file, or cannot be written.
-
-    """
+    ``inputs`` is refused."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -382,16 +324,7 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
 
 def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     """Sensor ``name``'s residual before and after against the winning regressor, time and
-    strain (held-out samples); None when the loop kept no arrays for it.
-
-    Args:
-        result: The diagnosis.
-        name: The sensor.
-
-    Returns:
-        The figure (three panels), or None.
-
-    """
+    strain (held-out samples); None when the loop kept no arrays for it."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -29,21 +29,7 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
                    runs: Sequence[tuple[str, BagSection]] = ()) -> str:
     """The ``diagnose --report`` page: the held-out error before and after, each effect
     found with its reading, the conditions tried, the residual plots, ``runs`` and the
-    provenance of the calibration diagnosed.
-
-    Args:
-        result: The diagnosis.
-        calibration: The calibration diagnosed.
-        calibration_path: Its file, for the provenance.
-        bag: The diagnosed bag's path.
-        validate: The validation bags' paths.
-        tare: The tare mode, for the provenance.
-        runs: Headed evaluations of the run to add (its table and plots).
-
-    Returns:
-        The page's HTML.
-
-    """
+    provenance of the calibration diagnosed."""
     body = [f"<p>Run <code>{escape(bag)}</code>; held out: "
             + (escape(", ".join(validate)) if validate else
                f"time blocks of the run ({escape(plain_text(result.validation))})") + "</p>",

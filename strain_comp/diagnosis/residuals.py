@@ -62,15 +62,7 @@ class Series:
 
 def as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
              ) -> list[Mapping[str, Recording]]:
-    """The runs of ``diagnose``'s argument, one bag or several.
-
-    Args:
-        recordings: One run's recordings by sensor name, or a list of such.
-
-    Returns:
-        The runs, in order.
-
-    """
+    """The runs of ``diagnose``'s argument, one bag or several."""
     if isinstance(recordings, Mapping):
         return [recordings]
     return list(recordings)
@@ -97,17 +89,7 @@ class Run:
 def base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
                tare: str = "calibration") -> dict[str, Run]:
     """S_hat without effects, direction, used mask and gap resets per calibrated sensor
-    (each run tared by ``tare``, as ``evaluate`` does).
-
-    Args:
-        bag: One run's recordings by sensor name.
-        calibration: The calibration; its effect terms are stripped.
-        tare: ``calibration`` or ``auto``.
-
-    Returns:
-        Sensor -> its engine output, for the calibrated sensors recorded.
-
-    """
+    (each run tared by ``tare``, as ``evaluate`` does)."""
     stripped = Calibration({n: dataclasses.replace(c, effects=[])
                             for n, c in calibration.sensors.items()})
     engine = Engine(stripped)  # sensors are independent: effect terms (cross-talk) stripped
@@ -130,16 +112,7 @@ def base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
 
 
 def neighbours_of(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
-    """Array neighbours at index +-1 of ``rec``, in index order.
-
-    Args:
-        rec: The sensor's recording.
-        bag: The run's recordings by sensor name.
-
-    Returns:
-        The neighbours' names; empty when ``rec`` is not in an array.
-
-    """
+    """Array neighbours at index +-1 of ``rec``, in index order."""
     if rec.array is None or rec.index is None:
         return []
     found = {other.index: name for name, other in bag.items()
@@ -148,16 +121,7 @@ def neighbours_of(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
 
 
 def block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
-    """Contiguous time blocks 0..n_blocks-1 of equal duration.
-
-    Args:
-        t: Sample times [s], ascending.
-        n_blocks: The number of blocks.
-
-    Returns:
-        Each sample's block (all 0 when the times do not advance).
-
-    """
+    """Contiguous time blocks 0..n_blocks-1 of equal duration."""
     if t.size == 0:
         return np.zeros(0, dtype=np.intp)
     span = t[-1] - t[0]
@@ -182,20 +146,7 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
             candidates: Sequence[dict[str, Any]], n_blocks: int, stride: int = 1
             ) -> Series | None:
     """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
-    at every ``stride``-th of the samples kept (the regressors run over all of them).
-
-    Args:
-        sensor: The sensor.
-        bag: The run's recordings by sensor name.
-        runs: The run's engine outputs (``base_runs``).
-        candidates: The candidate effect dicts.
-        n_blocks: The number of time blocks; fewer than 2 samples per block is nothing usable.
-        stride: Keep every ``stride``-th row.
-
-    Returns:
-        The series, or None.
-
-    """
+    at every ``stride``-th of the samples kept (the regressors run over all of them)."""
     rec = bag[sensor]
     if rec.s is None or sensor not in runs:
         return None
@@ -237,59 +188,25 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
 
 def stride_of(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
     """Every how many-th used sample of ``sensor`` the loop keeps in ``bags`` (1 up to
-    ``ROW_BUDGET`` samples; see there).
-
-    Args:
-        bags: The runs' recordings by sensor name.
-        sensor: The sensor.
-
-    Returns:
-        The stride, >= 1.
-
-    """
+    ``ROW_BUDGET`` samples; see there)."""
     total = sum(b[sensor].t.size for b in bags if sensor in b)
     return max(1, math.ceil(total / ROW_BUDGET))
 
 
 def rmse_stats(e: np.ndarray) -> dict[str, float]:
-    """The statistics of errors ``e`` that ``diagnose`` reports before and after.
-
-    Args:
-        e: Errors, estimate minus reference [strain unit].
-
-    Returns:
-        rmse, mae, max_abs and n.
-
-    """
+    """The statistics of errors ``e`` that ``diagnose`` reports before and after."""
     stats = error_stats(e, np.zeros_like(e))
     return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
 
 
 def holdout_period(holdout_fraction: float) -> int:
-    """Every how many-th time block is held out (module docstring, step 3).
-
-    Args:
-        holdout_fraction: Share of the blocks held out, in (0, 1).
-
-    Returns:
-        The period, >= 2.
-
-    """
+    """Every how many-th time block is held out (module docstring, step 3)."""
     return max(2, round(1.0 / holdout_fraction))
 
 
 def baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:
     """Mean reference strain over the first ``BASELINE_WINDOW`` s of the fit recordings:
-    the strain a run starts at (what a baseline term should read at rest).
-
-    Args:
-        bags: The fit runs' recordings by sensor name.
-        sensor: The sensor.
-
-    Returns:
-        The mean [strain unit], 0 without a reference there.
-
-    """
+    the strain a run starts at (what a baseline term should read at rest)."""
     values = []
     for bag in bags:
         rec = bag.get(sensor)

@@ -34,19 +34,7 @@ def candidates_of(sensor: str, bags: list[Mapping[str, Recording]],
                   candidates: Sequence[dict[str, Any]] | None, stretch_history: bool
                   ) -> Candidates:
     """The given candidates, or ``default_candidates`` for what the recordings hold
-    (temperature, array neighbours), each with coefficient 0, plus an offset.
-
-    Args:
-        sensor: The sensor.
-        bags: The fit runs' recordings by sensor name.
-        base_fit: Their engine outputs (``base_runs``).
-        candidates: The candidate effect dicts, or None for the defaults.
-        stretch_history: Include the ``stretch`` terms among the defaults.
-
-    Returns:
-        The candidates with their names, kinds, the offset's index and the baselines'.
-
-    """
+    (temperature, array neighbours), each with coefficient 0, plus an offset."""
     if candidates is None:
         temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
                  if sensor in b and b[sensor].temperature is not None]
@@ -87,26 +75,7 @@ def rows_of(sensor: str, series: list[Series], validate: list[Mapping[str, Recor
             period: int, val_stride: int) -> Rows:
     """Fit rows (not held out, within the range the terms read) with their fold (the
     position of the block among the fit blocks of its recording), and the held-out rows:
-    the validation recordings', or every ``period``-th block's without them.
-
-    Args:
-        sensor: The sensor.
-        series: Its series on the fit runs (``series_of``).
-        validate: The validation runs' recordings, or None to hold out time blocks.
-        base_val: The validation runs' engine outputs.
-        entries: The candidate effect dicts.
-        n_blocks: The number of time blocks.
-        period: Every how many-th block is held out (0: none).
-        val_stride: The row stride on the validation runs.
-
-    Returns:
-        The fit and held-out rows.
-
-    Raises:
-        InputError: The validation recordings have no usable sample of ``sensor`` with a
-            reference strain.
-
-    """
+    the validation recordings', or every ``period``-th block's without them."""
     held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
                 for s in series]
     fold_of_block = np.cumsum([not (period and b % period == period - 1)

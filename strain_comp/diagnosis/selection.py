@@ -99,24 +99,7 @@ class Gram:
 
 def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray,
                 sigmas: float = LOOP_POLICY.significance) -> bool:
-    """Is the fold-wise drop of the cross-validated squared error consistently > 0?
-
-    One-sided test over the folds: mean drop > ``sigmas`` standard errors
-    (``LoopPolicy.significance``). A term
-    that explains variance in some stretches of the record and hurts in others (it fits a
-    coincidence of the profile, not a physical effect) fails it even when the pooled
-    error falls a little.
-
-    Args:
-        before: Each fold's squared error before the term.
-        after: Each fold's squared error with it.
-        n: Each fold's number of rows (folds without rows are left out).
-        sigmas: Standard errors the mean drop must exceed.
-
-    Returns:
-        True if the drop is significant (with fewer than two folds: if it is positive).
-
-    """
+    """Is the fold-wise drop of the cross-validated squared error consistently > 0?"""
     d = (before - after)[n > 0]
     if d.size < 2:
         return bool(d.sum() > 0)
@@ -131,21 +114,7 @@ class Selection:
 
 def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effects: int, *,
             auto_intercept: bool = True, skip: Sequence[int] = ()) -> Selection:
-    """Greedy forward selection (module docstring, step 5).
-
-    Args:
-        gram: The fold-wise Gram matrices of the fit rows.
-        n_cols: The number of candidates.
-        offset: The intercept's column.
-        margin: The least relative drop of the cross-validated RMSE a term must bring.
-        max_effects: The most terms added (the intercept not counted).
-        auto_intercept: Fit the intercept with any other term.
-        skip: Columns never tried.
-
-    Returns:
-        The terms chosen, in order, and the gain of each.
-
-    """
+    """Greedy forward selection (module docstring, step 5)."""
 
     def model(cols: Sequence[int]) -> list[int]:
         return with_intercept(cols, offset) if auto_intercept else list(dict.fromkeys(cols))
@@ -181,17 +150,7 @@ def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effe
 
 def candidate_scores(gram: Gram, n_cols: int, offset: int) -> dict[int, float]:
     """First-round scores: held-out share of the residual variance each candidate explains
-    (relative to the intercept-only model; the intercept relative to no correction).
-
-    Args:
-        gram: The fold-wise Gram matrices of the fit rows.
-        n_cols: The number of candidates.
-        offset: The intercept's column.
-
-    Returns:
-        Column -> its score (1 - RMSE ratio squared).
-
-    """
+    (relative to the intercept-only model; the intercept relative to no correction)."""
     rmse_none = gram.cv_rmse([])
     rmse_offset = gram.cv_rmse([offset])
     scores = {}
@@ -205,16 +164,7 @@ def candidate_scores(gram: Gram, n_cols: int, offset: int) -> dict[int, float]:
 
 
 def with_intercept(cols: Sequence[int], offset: int) -> list[int]:
-    """The columns of a model: ``cols`` plus the intercept once any other term is in.
-
-    Args:
-        cols: The columns, duplicates dropped.
-        offset: The intercept's column.
-
-    Returns:
-        The model's columns.
-
-    """
+    """The columns of a model: ``cols`` plus the intercept once any other term is in."""
     cols = list(dict.fromkeys(cols))
     if any(c != offset for c in cols) and offset not in cols:
         cols.insert(0, offset)
@@ -222,15 +172,7 @@ def with_intercept(cols: Sequence[int], offset: int) -> list[int]:
 
 
 def rms(e: np.ndarray) -> float:
-    """The root mean square of ``e``.
-
-    Args:
-        e: Errors.
-
-    Returns:
-        sqrt(mean(e^2)); nan for no errors.
-
-    """
+    """The root mean square of ``e``."""
     return float(np.sqrt(np.mean(e**2)))
 
 
@@ -254,16 +196,7 @@ session-start recalibration when it can be made)."""
 
 
 def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
-    """``HeldOut`` of held-out residuals ``e`` and regressors ``g``: e - g[:, cols] c.
-
-    Args:
-        e: Held-out residuals [strain unit].
-        g: Held-out regressors, (n, k).
-
-    Returns:
-        The ``HeldOut`` function.
-
-    """
+    """``HeldOut`` of held-out residuals ``e`` and regressors ``g``: e - g[:, cols] c."""
     return lambda cols, coef: e - g[:, list(cols)] @ coef if len(cols) else e
 
 
@@ -273,18 +206,7 @@ def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
     (relative)? Given the validation run of each sample (``runs``, 0..k-1) and more than
     one run, also the median run's (the generalisation benchmark's statistic, so that one
     run does not decide alone), and no run's may rise by more than ``margin``: a term that
-    helps some runs of another condition and hurts others does not carry.
-
-    Args:
-        e_new: Held-out errors with the change.
-        e_old: Held-out errors without it.
-        margin: The least relative drop.
-        runs: The validation run of each sample, or None.
-
-    Returns:
-        True if the change carries.
-
-    """
+    helps some runs of another condition and hurts others does not carry."""
     if not rms(e_new) < (1.0 - margin) * rms(e_old):
         return False
     if runs is None or not e_new.size == e_old.size == runs.size or runs.max() < 1:
@@ -301,22 +223,7 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
     is kept if ``held_out`` says it lowers the held-out RMSE by more than ``margin``
     (a term that does not, e.g. an intercept the session-start recalibration makes anyway,
     is left out and the later ones are still tried); ``shift`` enters with coefficient 1.
-    ``runs``: the validation run of each held-out sample (``held_out_better``).
-
-    Args:
-        gram: The fold-wise Gram matrices of the fit rows.
-        selection: The branch's selected terms.
-        shift: A column entered with coefficient 1 (the branch's shift), or None.
-        offset: The intercept's column.
-        n_folds: The number of fit folds.
-        margin: The least relative drop of the held-out RMSE.
-        held_out: Held-out errors of a model (columns, coefficients).
-        runs: The validation run of each held-out sample, or None.
-
-    Returns:
-        The branch: the terms kept, their coefficients and the held-out error after.
-
-    """
+    ``runs``: the validation run of each held-out sample (``held_out_better``)."""
     all_folds = np.arange(n_folds)
     head = [] if shift is None else [shift]
     auto = shift is None
@@ -348,16 +255,7 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
 def upper_bound(log_ratios: Sequence[float], spread: float) -> float:
     """What a later run may get from a term: the mean of its log RMSE ratios over the
     validation runs plus ``spread`` of their standard deviations (``LoopPolicy.spread``);
-    +inf with fewer than two runs (no spread between runs to judge by).
-
-    Args:
-        log_ratios: ln(RMSE with / RMSE without) of each validation run.
-        spread: Standard deviations added to the mean.
-
-    Returns:
-        The bound, +inf with fewer than two finite ratios.
-
-    """
+    +inf with fewer than two runs (no spread between runs to judge by)."""
     x = np.asarray(log_ratios, dtype=np.float64)
     if x.size < 2 or not np.all(np.isfinite(x)):
         return math.inf
@@ -371,16 +269,7 @@ different number of samples with other terms, so the runs are kept apart)."""
 
 
 def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> list[float]:
-    """ln(RMSE new / RMSE old) of each run.
-
-    Args:
-        e_new: Each run's errors with the change.
-        e_old: Each run's errors without it.
-
-    Returns:
-        One ratio per run, +inf where an RMSE is 0.
-
-    """
+    """ln(RMSE new / RMSE old) of each run."""
     return [math.log(rms(a) / rms(b)) if rms(a) > 0 and rms(b) > 0 else math.inf
             for a, b in zip(e_new, e_old, strict=True)]
 
@@ -439,22 +328,7 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
     ratios over the validation runs is added if that bound is below ln(1 - margin): it
     lowers the error by more than the margin beyond the spread between runs (with one
     validation run there is no spread to judge by, and nothing is added). ``skip``: columns
-    never tried (what the session start makes itself).
-
-    Args:
-        gram: The fold-wise Gram matrices of the diagnosed run's rows.
-        n_cols: The number of candidates.
-        offset: The intercept's column.
-        held_out: Each validation run's errors after its session start, for a model
-            (columns, coefficients).
-        policy: The numbers of the selection.
-        skip: Columns never tried.
-
-    Returns:
-        The terms added with their gains, the model's columns and coefficients, the
-        validation errors after, whether any candidate passed, and the best one refused.
-
-    """
+    never tried (what the session start makes itself)."""
     all_folds = np.arange(gram.n.size)
     chosen: list[int] = []
     gains: dict[int, float] = {}

@@ -25,15 +25,7 @@ from strain_comp.offline.session_start import Started, start_or_keep
 
 def window_flag(window: Window | None) -> str:
     """``start``'s flag for a session start's stretch: ``--window START:END`` (``refused``
-    where the start was refused).
-
-    Args:
-        window: (START, END) [s] after the run's start, or None.
-
-    Returns:
-        The flag with its value.
-
-    """
+    where the start was refused)."""
     if window is None:
         return "refused"
     return f"--window {window[0]:.3g}:{window[1]:.3g}"
@@ -42,20 +34,7 @@ def window_flag(window: Window | None) -> str:
 def session_errors(calibration: Calibration, recordings: Mapping[str, Recording],
                    sensor: str) -> np.ndarray:
     """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
-    ``recordings`` after the session start (``session_start.start_or_keep``).
-
-    Args:
-        calibration: The calibration.
-        recordings: The run's recordings by sensor name.
-        sensor: The sensor scored.
-
-    Returns:
-        The errors, in the calibration's strain unit.
-
-    Raises:
-        InputError: No sensor of ``recordings`` can be scored.
-
-    """
+    ``recordings`` after the session start (``session_start.start_or_keep``)."""
     spanned = start_or_keep(calibration, recordings).calibration
     ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
     return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)

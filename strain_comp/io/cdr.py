@@ -35,34 +35,13 @@ that differs is the value's first byte."""
 
 @functools.cache
 def message_encoder(kind: str) -> Callable[[Mapping[str, Any]], bytes]:
-    """The encoder of a message type for messages given as nested dicts.
-
-    Args:
-        kind: A type of ``strain_comp.io.bag.schemas.SCHEMAS``, e.g.
-            ``std_msgs/msg/Float64``.
-
-    Returns:
-        A function from a message with the standard field names (sequences as lists) to
-        its CDR payload.
-
-    Raises:
-        KeyError: ``kind`` is not one of those types.
-
-    """
+    """The encoder of a message type for messages given as nested dicts."""
     encoder: Callable[[Mapping[str, Any]], bytes] = serialize_dynamic(kind, SCHEMAS[kind])[kind]
     return encoder
 
 
 def stamp_of(t_ns: int) -> tuple[int, int]:
-    """Split a time into a ROS stamp.
-
-    Args:
-        t_ns: Time in integer ns (>= 0).
-
-    Returns:
-        (sec, nanosec).
-
-    """
+    """Split a time into a ROS stamp."""
     return t_ns // 1_000_000_000, t_ns % 1_000_000_000
 
 
@@ -78,19 +57,7 @@ def _offset(a: bytes, b: bytes) -> int:
 def diagnostic_array(sec: int, nanosec: int, frame_id: str,
                      statuses: Sequence[tuple[str, int, str, str, Sequence[tuple[str, str]]]]
                      ) -> bytes:
-    """Encode a diagnostic_msgs/msg/DiagnosticArray.
-
-    Args:
-        sec: ``header.stamp.sec``.
-        nanosec: ``header.stamp.nanosec``.
-        frame_id: ``header.frame_id``.
-        statuses: ``status[]``, each as (name, level, message, hardware_id,
-            [(key, value), ...]).
-
-    Returns:
-        The CDR payload.
-
-    """
+    """Encode a diagnostic_msgs/msg/DiagnosticArray."""
     return message_encoder("diagnostic_msgs/msg/DiagnosticArray")({
         "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
         "status": [{"level": level, "name": name, "message": message,
@@ -102,17 +69,7 @@ def diagnostic_array(sec: int, nanosec: int, frame_id: str,
 def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: int,
                             n: int) -> bytes:
     """The bytes of a std_msgs/msg/Float64MultiArray message of ``n`` values before its
-    first value: every such message is this head and the values (little-endian float64).
-
-    Args:
-        dims: ``layout.dim``, each as (label, size, stride).
-        data_offset: ``layout.data_offset``.
-        n: The number of values.
-
-    Returns:
-        The head bytes, encapsulation header included.
-
-    """
+    first value: every such message is this head and the values (little-endian float64)."""
     payload = message_encoder("std_msgs/msg/Float64MultiArray")({
         "layout": {"dim": [{"label": label, "size": size, "stride": stride}
                            for label, size, stride in dims], "data_offset": data_offset},
@@ -122,22 +79,7 @@ def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: i
 
 def joint_state_layout(frame_id: str, names: Sequence[str], *, velocity: bool
                        ) -> tuple[bytes, int, int | None]:
-    """The template of every sensor_msgs/msg/JointState message for fixed names.
-
-    Only the stamp (bytes 4..12) and the values differ between such messages, so whole runs
-    are written as numpy rows of this template.
-
-    Args:
-        frame_id: ``header.frame_id``.
-        names: ``name[]``.
-        velocity: Whether ``velocity[]`` holds one value per name (else it is empty).
-
-    Returns:
-        The payload with zero stamp and values, the byte offset of its first position
-        value, and that of its first velocity value (None: velocity empty). Without names
-        the position offset is where the (empty) position values would start.
-
-    """
+    """The template of every sensor_msgs/msg/JointState message for fixed names."""
     encode = message_encoder("sensor_msgs/msg/JointState")
     n = len(names)
 
@@ -155,16 +97,7 @@ def joint_state_layout(frame_id: str, names: Sequence[str], *, velocity: bool
 
 def temperature_layout(frame_id: str, variance: float) -> tuple[bytes, int]:
     """The template of every sensor_msgs/msg/Temperature message of one frame and variance:
-    only the stamp (bytes 4..12) and the temperature differ.
-
-    Args:
-        frame_id: ``header.frame_id``.
-        variance: ``variance``.
-
-    Returns:
-        The payload with zero stamp and temperature, and the byte offset of the temperature.
-
-    """
+    only the stamp (bytes 4..12) and the temperature differ."""
     encode = message_encoder("sensor_msgs/msg/Temperature")
 
     def message(value: float) -> bytes:

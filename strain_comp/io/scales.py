@@ -15,18 +15,7 @@ SCALE_KEYS = ("time", "resistance", "strain")
 
 def check_scales(scales: Mapping[str, float] | None, where: str,
                  keys: Sequence[str] = SCALE_KEYS) -> None:
-    """Check factors per column (``import-csv --scales``, ``Recording.from_frame``).
-
-    Args:
-        scales: Column key -> factor; None: none.
-        where: The file or table, for the message.
-        keys: The keys allowed.
-
-    Raises:
-        InputError: An unknown key, or a factor that is not a finite number > 0 (other
-            than 0 for ``strain``, whose sign may flip).
-
-    """
+    """Check factors per column (``import-csv --scales``, ``Recording.from_frame``)."""
     for key, factor in (scales or {}).items():
         if key not in keys:
             raise InputError(f"{where}: unknown scale key {key!r} (one of {', '.join(keys)})")
@@ -38,21 +27,7 @@ def check_scales(scales: Mapping[str, float] | None, where: str,
 
 
 def scaled(where: str, key: str, raw: np.ndarray, factor: float) -> np.ndarray:
-    """``raw`` times its scale ``factor``.
-
-    Args:
-        where: The file or table, for the message.
-        key: The column's scale key.
-        raw: The column's values.
-        factor: The factor.
-
-    Returns:
-        The scaled values.
-
-    Raises:
-        InputError: A finite value overflows.
-
-    """
+    """``raw`` times its scale ``factor``."""
     with np.errstate(over="ignore", invalid="ignore"):
         out = raw * factor
     if np.any(np.isfinite(raw) & ~np.isfinite(out)):

@@ -141,16 +141,7 @@ def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
     ``plots`` and one per bag: a stem that is not a plain name (``..`` of a bag named
     ``...mcap`` or of a path ending in ``/..``, ``.``, empty, hidden) becomes ``bag``; a
     name taken already (a repeated stem, or one equal to another's numbered name) gets
-    ``_2``, ``_3``, ... until it is free.
-
-    Args:
-        bags: The bags, in order.
-        plots: The ``--plots`` directory; None: no plots.
-
-    Returns:
-        Each bag's plot folder (None without ``plots``).
-
-    """
+    ``_2``, ``_3``, ... until it is free."""
     if plots is None:
         return [None] * len(bags)
     taken: set[str] = set()

@@ -121,18 +121,7 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 
 def band_of(out: BatchOutput, estimate: np.ndarray, reference: np.ndarray,
             scored: np.ndarray) -> dict[str, Any]:
-    """``SensorEvaluation``'s ``std`` and ``coverage_95`` of a run (none without a band).
-
-    Args:
-        out: The engine's output.
-        estimate: The scored estimate per sample (fused where references are).
-        reference: The reference per sample.
-        scored: The samples scored.
-
-    Returns:
-        The two fields, or nothing.
-
-    """
+    """``SensorEvaluation``'s ``std`` and ``coverage_95`` of a run (none without a band)."""
     if out.std is None:
         return {}
     banded, inside = band_counts(estimate[scored], reference[scored], out.std[scored])

@@ -228,20 +228,7 @@ def learned_band(runs: Sequence[Recording], model: str, name: str,
                  options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
     """The uncertainty of ``fit_sensor``'s calibration: ``model`` fitted on all runs but
     one as ``fit_sensor`` fits it, started on the one left out (``start_or_keep``), every run
-    left out in turn (``strain_comp.offline.uncertainty.learn``).
-
-    Args:
-        runs: The sensor's runs (two or more).
-        model: The model's name.
-        name: The sensor's name.
-        options: As ``fit_sensor``.
-        budget: As ``fit_sensor``.
-        pool: As ``fit_sensor``.
-
-    Returns:
-        The uncertainty, None where fewer than two runs could be scored.
-
-    """
+    left out in turn (``strain_comp.offline.uncertainty.learn``)."""
     pairs = []
     for j, run in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j]

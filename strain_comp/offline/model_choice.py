@@ -68,18 +68,7 @@ class Fold:
 
 
 def parse_candidates(text: str | Sequence[str] | None) -> tuple[str, ...]:
-    """``--candidates cubic,apl`` -> the models; ``CANDIDATES`` for None.
-
-    Args:
-        text: Comma-separated model names, a sequence of them, or None.
-
-    Returns:
-        The candidates, each once.
-
-    Raises:
-        InputError: An unknown model, ``auto`` or none.
-
-    """
+    """``--candidates cubic,apl`` -> the models; ``CANDIDATES`` for None."""
     if text is None:
         return CANDIDATES
     names = [n.strip() for n in (text.split(",") if isinstance(text, str) else text)]
@@ -93,19 +82,7 @@ def parse_candidates(text: str | Sequence[str] | None) -> tuple[str, ...]:
 
 def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | None:
     """``--groups 1,1,1,2,2`` -> one label per run (a session or a mounting: a group is
-    left out whole); None for None.
-
-    Args:
-        text: Comma-separated labels, a sequence of them, or None.
-        runs: The number of runs (bags) given.
-
-    Returns:
-        The labels, or None.
-
-    Raises:
-        InputError: Not one label per run.
-
-    """
+    left out whole); None for None."""
     if text is None:
         return None
     labels = [str(x).strip() for x in (text.split(",") if isinstance(text, str) else text)]
@@ -117,16 +94,7 @@ def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | Non
 
 
 def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) -> None:
-    """Every option must be one some candidate takes (each gets only its own).
-
-    Args:
-        candidates: The candidate models.
-        options: Option -> value.
-
-    Raises:
-        InputError: An option no candidate takes, or a bad value.
-
-    """
+    """Every option must be one some candidate takes (each gets only its own)."""
     for key, value in options.items():
         takers = [m for m in candidates if key in model_options(m)]
         if key in DIRECTION_OPTIONS or key in FIT_OPTIONS:
@@ -138,16 +106,7 @@ def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) ->
 
 
 def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
-    """The options ``model`` takes of ``options`` (no grid lines of an APL-family fit).
-
-    Args:
-        model: The model.
-        options: The fit's options.
-
-    Returns:
-        Its own.
-
-    """
+    """The options ``model`` takes of ``options`` (no grid lines of an APL-family fit)."""
     own = model_options(model)
     out = {k: v for k, v in options.items()
            if k in own or k in DIRECTION_OPTIONS or k in FIT_OPTIONS}
@@ -159,19 +118,7 @@ def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
 def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
                 options: Mapping[str, Any], pool: str) -> list[float] | str:
     """The RMSE of ``fold.model`` on each run left out, fitted on the others and started on
-    each (``start_or_keep``), or why it could not be fitted.
-
-    Args:
-        recordings: Every training run.
-        name: The sensor.
-        fold: The model and the runs left out.
-        options: The fit's options.
-        pool: As ``fit --pool``.
-
-    Returns:
-        One RMSE per run left out [strain unit], or the fit's error.
-
-    """
+    each (``start_or_keep``), or why it could not be fitted."""
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
@@ -220,29 +167,7 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                  options: Mapping[str, Any] | None = None, pool: str = "spanned",
                  jobs: int = 1, report: Callable[[str], None] | None = None,
                  ) -> tuple[str, dict[str, Any]]:
-    """The model of ``--model auto`` (module docstring) and its record.
-
-    Args:
-        recordings: The sensor's training runs.
-        name: The sensor.
-        candidates: The candidate models.
-        groups: One label per run (runs of a label are left out together); None: each run
-            its own.
-        options: The fit's options (each candidate takes its own).
-        pool: As ``fit --pool``.
-        jobs: Worker processes for the folds (1: here).
-        report: Where a line per candidate goes as it is scored.
-
-    Returns:
-        The model, and the record (``model_choice`` of the provenance): per candidate its
-        ``median``, ``worst`` and ``errors`` (one per run, in the order given) or its
-        ``failed`` reason; ``chosen``, ``why``, ``tie``, ``groups``; and ``expected``
-        (``median``, ``worst``, ``runs``) of the chosen model, absent with one group.
-
-    Raises:
-        FitError: Every candidate failed on some fold (one line, their reasons).
-
-    """
+    """The model of ``--model auto`` (module docstring) and its record."""
     options = dict(options or {})
     labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
     held = [tuple(i for i, g in enumerate(labels) if g == label)
@@ -293,26 +218,7 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
              jobs: int = 1, report: Callable[[str], None] | None = None,
              ) -> SensorCalibration:
     """``fit --model auto`` on one sensor: the model ``choose_model`` picks, fitted on every
-    run, with ``model_choice`` and ``expected_error`` in its provenance.
-
-    Args:
-        recordings: The sensor's runs.
-        name: The sensor.
-        bags: The source bags, for the provenance.
-        options: The fit's options.
-        pool: As ``fit --pool``.
-        candidates: The candidate models.
-        groups: One label per run, or None.
-        jobs: Worker processes for the folds.
-        report: Where the candidates' lines go.
-
-    Returns:
-        The calibration.
-
-    Raises:
-        FitError: Every candidate failed, or the chosen one fails on every run.
-
-    """
+    run, with ``model_choice`` and ``expected_error`` in its provenance."""
     model, record = choose_model(recordings, name, candidates=candidates, groups=groups,
                                  options=options, pool=pool, jobs=jobs, report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
@@ -327,17 +233,7 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
 
 def auto_fitter(candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
                 jobs: int = 1) -> Fitter:
-    """``fit_auto`` as ``fit_bags``' ``fitter`` (``fit --model auto``).
-
-    Args:
-        candidates: The candidate models.
-        groups: One label per bag given, or None.
-        jobs: Worker processes for the folds.
-
-    Returns:
-        The fitter: ``groups`` read through each sensor's bags (``index``).
-
-    """
+    """``fit_auto`` as ``fit_bags``' ``fitter`` (``fit --model auto``)."""
     def fit(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path],
             options: Mapping[str, Any] | None, pool: str,
             index: Sequence[int]) -> SensorCalibration:

@@ -58,15 +58,7 @@ def _save(fig: Figure, path: Target, inputs: Sequence[str | Path] = ()) -> Targe
 def plain(text: str) -> str:
     """``text`` as matplotlib draws it literally: ``$`` escaped (no mathtext from a bag's
     or a sensor's name), a character that cannot be encoded (a surrogate from an undecodable
-    file name) as its ``\\udcff`` escape.
-
-    Args:
-        text: A name or a line with names in it.
-
-    Returns:
-        The text to draw.
-
-    """
+    file name) as its ``\\udcff`` escape."""
     return text.encode("utf-8", "backslashreplace").decode("utf-8").replace("$", r"\$")
 
 
@@ -76,15 +68,7 @@ def _legend(ax: Axes) -> None:
 
 
 def tare_words(tare: str) -> str:
-    """What a ``--tare`` mode is, in words: ``rest level (tare) from the calibration``.
-
-    Args:
-        tare: ``calibration`` or ``auto`` (another: named as given).
-
-    Returns:
-        The words.
-
-    """
+    """What a ``--tare`` mode is, in words: ``rest level (tare) from the calibration``."""
     return {"calibration": "rest level (tare) from the calibration",
             "auto": "rest level (tare) from the run's start (--tare auto)"}.get(
                 tare, f"tare {tare}")
@@ -254,16 +238,7 @@ PLOT_KINDS = ("time", "loop", "raw", "error_hist")
 def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
     """The files ``plot_evaluation`` writes into ``out_dir`` for the sensors ``names``
     (slashes in a name become ``_``), so a command can refuse another output among them
-    before anything is written (``io.atomic.check_distinct``).
-
-    Args:
-        out_dir: The plots' directory.
-        names: The sensors' names.
-
-    Returns:
-        The paths, per sensor in ``PLOT_KINDS`` order.
-
-    """
+    before anything is written (``io.atomic.check_distinct``)."""
     return [Path(out_dir) / f"{name.strip('/').replace('/', '_')}_{kind}.png"
             for name in names for kind in PLOT_KINDS]
 
@@ -305,19 +280,7 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
 def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
                       path: Target, *, context: str = "") -> Target:
     """``fit --model auto``'s candidates: each one's RMSE on every run left out (a marker
-    per run), its median as a bar, the chosen one filled.
-
-    Args:
-        choice: The provenance's ``model_choice`` (``offline.model_choice.choose_model``).
-        runs: The runs' names, in the order of each candidate's ``errors``.
-        unit: The strain unit.
-        path: Where the PNG goes.
-        context: The title's second line.
-
-    Returns:
-        ``path``.
-
-    """
+    per run), its median as a bar, the chosen one filled."""
     table = choice.get("candidates") or {}
     assert isinstance(table, dict)
     models = list(table)

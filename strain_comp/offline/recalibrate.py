@@ -76,31 +76,14 @@ def session_forms(cal: SensorCalibration) -> tuple[str, ...]:
     """The steps of a session start on a sensor, in order: the input zero and span, then the
     output gain and offset; the input step alone for a calibration with a stretch line
     (``InputSettings.stretch_line``), which places the run as the training runs' stretches
-    lay, gain and offset included (``strain_comp.offline.stretch_line``).
-
-    Args:
-        cal: The sensor's calibration.
-
-    Returns:
-        ``("input", "output")`` or ``("input",)``.
-
-    """
+    lay, gain and offset included (``strain_comp.offline.stretch_line``)."""
     return ("input",) if cal.input.stretch_line is not None else ("input", "output")
 
 
 def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
              ) -> dict[str, list[str]]:
     """The session start's steps on a run, in order, each with the sensors it recalibrates
-    (``session_forms`` of each calibrated sensor the run holds with a reference).
-
-    Args:
-        calibration: The calibration.
-        recordings: The run's recordings by sensor name.
-
-    Returns:
-        Form -> sensor names, for the forms some sensor takes.
-
-    """
+    (``session_forms`` of each calibrated sensor the run holds with a reference)."""
     names = [n for n, rec in recordings.items() if n in calibration.sensors
              and rec.s is not None]
     by_form = {form: [n for n in names if form in session_forms(calibration.sensors[n])]
@@ -129,18 +112,7 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
     output form on the spanned input, tare ``calibration``), the output step only on the
     sensors that take one (``session_forms``). A step that cannot be made (no
     rest in the stretch, a strain the calibration never outputs) is skipped, as it is for a
-    user, and says why.
-
-    Args:
-        calibration: The calibration.
-        recordings: The run's recordings by sensor name.
-        window: The stretch read, (START, END) [s] after the run's start.
-        source: The run's name, for the lines and the provenance.
-
-    Returns:
-        The calibration after the steps made, the steps and a line on each.
-
-    """
+    user, and says why."""
     out = SessionStart(calibration, window)
     head = window[0] == 0.0
     forms = forms_of(calibration, recordings)
@@ -165,20 +137,7 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
 
 def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
     """The input zero and span that puts the line of the stretch ``rec`` holds (its
-    referenced samples) onto the calibration's stretch line (``stretch_line.onto``).
-
-    Args:
-        cal: The sensor's calibration, with a stretch line.
-        rec: The stretch read (samples outside it have a NaN reference).
-
-    Returns:
-        (rest, rest_calibrated, gain) of ``InputSettings.zero_span``.
-
-    Raises:
-        InputError: The stretch has no line, one against the calibration's direction, or
-            one that gives a zero and span no calibration file holds.
-
-    """
+    referenced samples) onto the calibration's stretch line (``stretch_line.onto``)."""
     space = cal.input.stretch_line
     assert space is not None
     own = run_line(replace(rec, r=cal.input.to_ohm(rec.r)))
@@ -197,18 +156,7 @@ def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, 
 
 
 def parse_point(text: str) -> tuple[float, float]:
-    """``"R:S"`` (ohm, % strain) -> (R, S); InputError naming the flag otherwise.
-
-    Args:
-        text: The ``--point`` value.
-
-    Returns:
-        R [ohm] and S [calibration's strain unit].
-
-    Raises:
-        InputError: The text is not R:S with R > 0, or S is beyond +/- ``STRAIN_MAX``.
-
-    """
+    """``"R:S"`` (ohm, % strain) -> (R, S); InputError naming the flag otherwise."""
     r_text, sep, s_text = text.partition(":")
     try:
         r, s = float(r_text), float(s_text)
@@ -224,21 +172,7 @@ def parse_point(text: str) -> tuple[float, float]:
 
 def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                     policy: SpanPolicy | None = None) -> tuple[float, float]:
-    """(a, b) through two (R [ohm], S [%]) points (steady outputs: ``policy``).
-
-    Args:
-        cal: The sensor's calibration.
-        points: Two (R [ohm], S [strain unit]) points.
-        policy: The numbers of the steady output; None: ``SPAN``.
-
-    Returns:
-        The gain a and offset b [strain unit] of the output map.
-
-    Raises:
-        InputError: Not two points, a resistance outside the calibration's range, or the
-            same output at both.
-
-    """
+    """(a, b) through two (R [ohm], S [%]) points (steady outputs: ``policy``)."""
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = points
@@ -262,22 +196,7 @@ def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
                    ) -> tuple[float, float]:
     """(a, b) of reference ~ a estimate + b by least squares over the finite pairs: at
     least two of them, the reference moving through ``from_cover`` of the
-    calibrated strain ``span`` (when given; ``policy``, ``SPAN`` when None).
-
-    Args:
-        estimate: The calibration's output, one per sample [strain unit].
-        reference: The reference strain, one per sample.
-        span: The calibrated strain span, or None not to check the reference's travel.
-        policy: The numbers (``from_cover``); None: ``SPAN``.
-
-    Returns:
-        The gain a and offset b [strain unit].
-
-    Raises:
-        InputError: Fewer than two finite pairs, an estimate that does not move, or a
-            reference that moves through less than ``from_cover`` of ``span``.
-
-    """
+    calibrated strain ``span`` (when given; ``policy``, ``SPAN`` when None)."""
     policy = SPAN if policy is None else policy
     ok = np.isfinite(estimate) & np.isfinite(reference)
     if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
@@ -294,21 +213,7 @@ def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
 
 def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, Any],
               ) -> SensorCalibration:
-    """``cal`` whose output is a x (old output) + b, with ``record`` in its provenance.
-
-    Args:
-        cal: The sensor's calibration.
-        a: The gain, > 0.
-        b: The offset [strain unit].
-        record: What the map was made from, for the provenance.
-
-    Returns:
-        The recalibrated sensor (its effect terms scaled by ``a``).
-
-    Raises:
-        InputError: ``a`` is not finite and > 0, or the result would not load.
-
-    """
+    """``cal`` whose output is a x (old output) + b, with ``record`` in its provenance."""
     if not (np.isfinite(a) and np.isfinite(b) and a > 0):
         raise InputError(f"recalibration of {cal.name!r}: gain {a:.4g} must be finite and "
                          "> 0 (its output falls where the known strain rises: the "
@@ -348,28 +253,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     """``recalibrate`` from recordings with a reference strain (their first ``first``
     seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
     map by least squares, or the input zero and span from the first rest and the largest
-    strain (``span.span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None).
-
-    Args:
-        calibration: The calibration.
-        recordings: The run's recordings by sensor name.
-        form: ``output`` (gain and offset of the strain) or ``input`` (zero and span).
-        first: The seconds from the start read; None: all (or ``span``).
-        sensors: The sensors recalibrated; None or empty: every one with a reference.
-        tare: ``calibration`` or ``auto``, for the output map.
-        source: The bag's name, for the lines and the provenance.
-        span: The window (START, END) [s] after the start; not with ``first``.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The recalibrated calibration and one line per sensor.
-
-    Raises:
-        InputError: An unknown ``form``, both ``first`` and ``span``, a bad window or
-            ``first``, a sensor named that the calibration or the run lacks, no sensor
-            with a reference, or a map that cannot be made.
-
-    """
+    strain (``span.span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None)."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if span is not None and first is not None:
@@ -423,30 +307,7 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
                 tare: str = "calibration", form: str = "output",
                 first: float | None = None, span: tuple[float, float] | None = None,
                 policy: SpanPolicy | None = None) -> tuple[Calibration, list[str]]:
-    """The recalibrated calibration and one line per sensor (gain, offset, reading).
-
-    Args:
-        calibration: The calibration.
-        points: Two (R [ohm], S [strain unit]) points, when no ``bag``.
-        bag: A bag with a reference strain (every calibrated sensor in it), or None for
-            ``points``.
-        sensors: The sensors recalibrated (with ``points``: one, or the calibration's
-            only one).
-        tare: ``calibration`` or ``auto``, for the output map from a bag.
-        form: ``output`` or ``input``.
-        first: The seconds from the bag's start read; None: all (or ``span``).
-        span: The window (START, END) [s] after the bag's start, which must hold a stretch
-            and return.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The recalibrated calibration and one line per sensor.
-
-    Raises:
-        InputError: The map cannot be made (the input calibration is untouched).
-        BagError: The bag cannot be read.
-
-    """
+    """The recalibrated calibration and one line per sensor (gain, offset, reading)."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     out = dict(calibration.sensors)
@@ -479,16 +340,6 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
 def reading(a: float, b: float, *, unit: str = "%") -> str:
     """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
     (the sensor's sensitivity against the calibration's is 1 / a; the offset in the
-    calibration's strain ``unit``).
-
-    Args:
-        a: The gain.
-        b: The offset, in ``unit``.
-        unit: The calibration's strain unit.
-
-    Returns:
-        The reading.
-
-    """
+    calibration's strain ``unit``)."""
     return (f"output gain {a:.4g} (sensitivity {100.0 * (1.0 / a - 1.0):+.1f} %), "
             f"offset {b:+.3g} {strain_unit_words(unit)}")

@@ -88,19 +88,7 @@ class BagSection:
 def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
                        calibration_path: str = "", tare: str = ""
                        ) -> dict[str, list[tuple[str, bytes]]]:
-    """The four evaluation plots of every sensor with kept samples, as PNG bytes.
-
-    Args:
-        result: The evaluation.
-        calibration: Gives the raw panel its resistance range.
-        bag: Named in the titles.
-        calibration_path: Named in the titles.
-        tare: Named in the titles.
-
-    Returns:
-        Sensor -> (caption, PNG bytes) per plot.
-
-    """
+    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
     out: dict[str, list[tuple[str, bytes]]] = {}
     for name, ev in result.sensors.items():
         if not ev.t.size:
@@ -127,17 +115,7 @@ def _value(value: Any) -> str:
 
 
 def html_cell(value: Any, fmt: str, key: str) -> str:
-    """A table cell of a number, sortable by its value.
-
-    Args:
-        value: The number (None or non-finite: ``n/a``).
-        fmt: Its format.
-        key: The column's key.
-
-    Returns:
-        The ``<td>`` element.
-
-    """
+    """A table cell of a number, sortable by its value."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         text = "n/a"
     else:
@@ -165,62 +143,27 @@ def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]
 
 
 def scores_table(result: EvaluationResult, bag: str) -> str:
-    """The scores of one evaluation as the page's HTML table (``Evaluation._repr_html_``).
-
-    Args:
-        result: The evaluation.
-        bag: The run's name, for the table's ``data-bag``.
-
-    Returns:
-        The table.
-
-    """
+    """The scores of one evaluation as the page's HTML table (``Evaluation._repr_html_``)."""
     return _scores_table(((name, ev.model, ev.stats, ev.unit, {})
                           for name, ev in result.sensors.items()), bag)
 
 
 def html_image(caption: str, png: bytes) -> str:
-    """A PNG as an inline figure.
-
-    Args:
-        caption: The caption (escaped).
-        png: The PNG bytes.
-
-    Returns:
-        The ``<figure>`` element.
-
-    """
+    """A PNG as an inline figure."""
     data = base64.b64encode(png).decode("ascii")
     return (f'<figure><img alt="{escape(caption)}" src="data:image/png;base64,{data}">'
             f"<figcaption>{escape(caption)}</figcaption></figure>")
 
 
 def html_notes(lines: Iterable[str], cls: str = "note") -> str:
-    """Lines as a list.
-
-    Args:
-        lines: The lines (escaped).
-        cls: The list's class.
-
-    Returns:
-        The ``<ul>`` element, or "" without lines.
-
-    """
+    """Lines as a list."""
     items = "".join(f"<li>{escape(line)}</li>" for line in lines)
     return f'<ul class="{cls}">{items}</ul>' if items else ""
 
 
 def plain_text(value: Any) -> str:
     """A provenance value in one line: numbers to 4 significant digits, mappings as
-    ``key: value; ...``, lists as ``a, b``.
-
-    Args:
-        value: The value.
-
-    Returns:
-        The line.
-
-    """
+    ``key: value; ...``, lists as ``a, b``."""
     if isinstance(value, Mapping):
         return "; ".join(f"{k}: {plain_text(v)}" for k, v in value.items()) or "none"
     if isinstance(value, (list, tuple)):
@@ -232,18 +175,7 @@ def plain_text(value: Any) -> str:
 
 def provenance_section(calibration: Calibration, path: str, *, tare: str = "",
                        notes: Sequence[str] = ()) -> str:
-    """What the calibration is and where it came from, per sensor.
-
-    Args:
-        calibration: The calibration.
-        path: Its file's name.
-        tare: The tare mode, named.
-        notes: Lines shown above the table.
-
-    Returns:
-        The section's HTML.
-
-    """
+    """What the calibration is and where it came from, per sensor."""
     parts = [f"<h2>Calibration</h2><p><code>{escape(path)}</code>"
              + (f", {escape(tare_words(tare))}" if tare else "") + "</p>"]
     for name, cal in calibration.sensors.items():
@@ -288,16 +220,7 @@ def _provenance_rows(cal: SensorCalibration) -> list[tuple[str, str]]:
 
 
 def html_page(title: str, body: Sequence[str]) -> str:
-    """A self-contained page: the style, the title, the version and time, then ``body``.
-
-    Args:
-        title: The title (escaped).
-        body: The HTML parts.
-
-    Returns:
-        The page.
-
-    """
+    """A self-contained page: the style, the title, the version and time, then ``body``."""
     stamp = datetime.now(timezone.utc).isoformat(timespec="seconds")
     return "\n".join([
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -309,16 +232,7 @@ def html_page(title: str, body: Sequence[str]) -> str:
 
 
 def bag_section(section: BagSection, heading: str = "") -> list[str]:
-    """One bag's heading, table, notes and plots.
-
-    Args:
-        section: The bag's evaluation and figures.
-        heading: The heading (default: the bag's name).
-
-    Returns:
-        The HTML parts.
-
-    """
+    """One bag's heading, table, notes and plots."""
     body = [f"<h2>{escape(heading or section.bag)}</h2>"]
     if section.result is None:
         return [*body, f'<p class="error">not evaluated: {escape(section.error or "")}</p>']
@@ -342,19 +256,7 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
                     calibration_path: str, *, tare: str = "",
                     pooled: Mapping[str, tuple[Any, int, str, str]] | None = None) -> str:
     """The ``evaluate --report`` page: one section per bag, the pooled table for several
-    (``strain_comp.offline.batch.aggregate``), then the calibration's provenance.
-
-    Args:
-        sections: One per bag.
-        calibration: The calibration evaluated.
-        calibration_path: Its file's name.
-        tare: The tare mode.
-        pooled: The pooled errors (``aggregate``), or None.
-
-    Returns:
-        The page.
-
-    """
+    (``strain_comp.offline.batch.aggregate``), then the calibration's provenance."""
     body: list[str] = []
     if pooled is not None:
         done = sum(s.result is not None for s in sections)
@@ -376,16 +278,7 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
 def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
     """The ``fit --model auto --report`` page: per sensor, the table of every candidate
     (median and worst RMSE over the runs left out after ``start``, each run's RMSE) and its
-    plot (``plots.plot_model_choice``), then the calibration's provenance.
-
-    Args:
-        calibration: The calibration fitted with ``--model auto``.
-        calibration_path: Its file's name.
-
-    Returns:
-        The page.
-
-    """
+    plot (``plots.plot_model_choice``), then the calibration's provenance."""
     body: list[str] = []
     for name, cal in calibration.sensors.items():
         choice = cal.provenance.get("model_choice") or {}

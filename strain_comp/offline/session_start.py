@@ -98,23 +98,7 @@ def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
                ) -> tuple[Window, Window | None]:
     """The stretches a start recording offers: its first stretch and return (START 0), and
     its calibration stretch after it (None: it has none fit to read), refused in the
-    user's terms when it has no stretch and return a start can read.
-
-    Args:
-        t: Sample times [s].
-        s: The reference strain, one per sample.
-        strain_range: The calibration's strain range (the least stretch read is
-            ``SpanPolicy.min_cycle_share`` of it).
-        source: The recording's name, for the messages.
-
-    Returns:
-        The first stretch and the second.
-
-    Raises:
-        InputError: No stretch and return, a reference that never comes back to rest after
-            its largest strain, or a recording that ends during its first stretch.
-
-    """
+    user's terms when it has no stretch and return a start can read."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     tt, ss = t[ok], s[ok]
@@ -147,28 +131,7 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
           window: Window | None = None, sensors: Sequence[str] | None = None,
           source: str = "the recording", first: float | None = None) -> Started:
     """The session start on a recording with a reference (module docstring): the
-    calibration stretch found (or ``window``), the correction made, a record per sensor.
-
-    Args:
-        calibration: The calibration.
-        recordings: The start recording's recordings by sensor name.
-        window: The stretch to read, (START, END) seconds after the recording's start,
-            which must hold a stretch and return (``start --window``); None: found.
-        sensors: The sensors started; None or empty: every calibrated one with a
-            reference (the first of them gives the stretch).
-        source: The recording's name, for the messages.
-        first: Read the recording's first ``first`` seconds as they are, unchecked
-            (``recalibrate --first``; ``sc.session_start(first=...)``); not with ``window``.
-
-    Returns:
-        The started calibration, the stretch and one record per sensor.
-
-    Raises:
-        InputError: No calibrated sensor with a reference, a recording a start cannot read
-            (``stretch_of``), a ``window`` without a stretch and return, or a stretch on
-            which no correction can be made for a sensor.
-
-    """
+    calibration stretch found (or ``window``), the correction made, a record per sensor."""
     names = [n for n, rec in recordings.items() if n in calibration.sensors
              and rec.s is not None and not (sensors and n not in sensors)]
     for name in sensors or ():
@@ -217,17 +180,7 @@ def start_or_keep(calibration: Calibration, recordings: Mapping[str, Recording],
                   window: Window | None = None) -> Started:
     """``start``, or the calibration as it is (no step, no window, the refusal as its note)
     where the start refuses the run: what a user refused is left with, as the benchmark,
-    the loop's validation runs and the pooled fit's choice score it.
-
-    Args:
-        calibration: The calibration.
-        recordings: The run's recordings by sensor name.
-        window: As ``start``.
-
-    Returns:
-        The session start made, or the calibration as it is.
-
-    """
+    the loop's validation runs and the pooled fit's choice score it."""
     try:
         return start(calibration, recordings, window=window)
     except InputError as err:

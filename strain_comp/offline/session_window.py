@@ -27,17 +27,7 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     """Seconds from the first sample (``t[0]``, referenced or not) to the end of the first
     stretch and return of the reference ``s``: its first return to within ``cycle_back`` of
     its span above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN``
-    when None). None when there is none.
-
-    Args:
-        t: Sample times [s].
-        s: The reference strain, one per sample.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The seconds, or None.
-
-    """
+    when None). None when there is none."""
     policy = SPAN if policy is None else policy
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     origin = _origin(t)
@@ -67,17 +57,7 @@ def stretch_and_return(s: np.ndarray, strain_range: float,
     """True when the reference ``s`` of a window rises from within ``cycle_up`` of its span
     above its minimum to its maximum and falls back there, over at least
     ``min_cycle_share`` of ``strain_range`` (the calibration's): a load and unload
-    (``policy``, ``SPAN`` when None).
-
-    Args:
-        s: The window's reference strain.
-        strain_range: The calibration's strain range, in the same unit.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        True for a load and unload.
-
-    """
+    (``policy``, ``SPAN`` when None)."""
     policy = SPAN if policy is None else policy
     s = np.asarray(s, dtype=np.float64)
     s = s[np.isfinite(s)]
@@ -89,18 +69,7 @@ def stretch_and_return(s: np.ndarray, strain_range: float,
 
 
 def parse_window(text: str) -> tuple[float, float]:
-    """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise.
-
-    Args:
-        text: The ``--window`` value.
-
-    Returns:
-        START and END [s].
-
-    Raises:
-        InputError: Not two finite numbers with 0 <= START < END.
-
-    """
+    """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise."""
     a_text, sep, b_text = text.partition(":")
     try:
         start, end = float(a_text), float(b_text)
@@ -116,19 +85,7 @@ def parse_window(text: str) -> tuple[float, float]:
 
 def head(recordings: Mapping[str, Recording], seconds: float | None,
          ) -> dict[str, Recording]:
-    """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds).
-
-    Args:
-        recordings: The recordings by sensor name.
-        seconds: The duration [s], or None.
-
-    Returns:
-        The cut recordings by sensor name.
-
-    Raises:
-        InputError: ``seconds`` is not finite and > 0.
-
-    """
+    """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds)."""
     if seconds is None:
         return dict(recordings)
     if not (np.isfinite(seconds) and seconds > 0):
@@ -137,17 +94,7 @@ def head(recordings: Mapping[str, Recording], seconds: float | None,
 
 
 def cut(rec: Recording, start: float, end: float) -> Recording:
-    """The samples of ``rec`` from ``start`` to ``end`` seconds after its first sample.
-
-    Args:
-        rec: The recording.
-        start: Seconds after its first sample.
-        end: Seconds after its first sample, included.
-
-    Returns:
-        The cut recording (``rec`` itself when empty).
-
-    """
+    """The samples of ``rec`` from ``start`` to ``end`` seconds after its first sample."""
     if not rec.t.size:
         return rec
     a = int(np.searchsorted(rec.t, rec.t[0] + start, side="left"))
@@ -164,23 +111,7 @@ def window(recordings: Mapping[str, Recording], span: tuple[float, float],
     calibration from the bag's start, so a memory model enters the window in the state the
     warm-up left, and only the window's reference is fitted to. InputError for a window
     beyond a recording's end or one in which its reference strain makes no stretch and
-    return (``stretch_and_return`` over the strain range of its sensor's calibration).
-
-    Args:
-        recordings: The recordings by sensor name.
-        span: START and END [s] after the start.
-        calibration: The calibration (each sensor's strain range).
-        source: The bag's name, for the messages.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The referenced recordings cut, by sensor name.
-
-    Raises:
-        InputError: The window runs beyond a recording, or its reference makes no stretch and
-            return.
-
-    """
+    return (``stretch_and_return`` over the strain range of its sensor's calibration)."""
     start, end = span
     out = {}
     for name, rec in recordings.items():
@@ -205,16 +136,7 @@ def window(recordings: Mapping[str, Recording], span: tuple[float, float],
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
     """Seconds from the start of a run (its first sample, referenced or not) to the end of
     its first load and unload (``cycle_end``); at most ``FIRST_CYCLE_CAP`` of the run.
-    None when the reference never moves.
-
-    Args:
-        t: Sample times [s].
-        s: Reference strain, one per sample.
-
-    Returns:
-        The seconds, or None.
-
-    """
+    None when the reference never moves."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     if ok.sum() < 2 or not np.percentile(s[ok], 99) > np.percentile(s[ok], 1):
@@ -229,16 +151,7 @@ def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
     """(START, END) seconds of a run's second load and unload, the calibration stretch of
     the README's session start after a warm-up one (``recalibrate --window``): from the end
     of the first cycle (``first_cycle``) to the end of the next stretch and return
-    (``cycle_end`` on the rest of the run). None when the rest of the run has none.
-
-    Args:
-        t: Sample times [s].
-        s: Reference strain, one per sample.
-
-    Returns:
-        The window, or None.
-
-    """
+    (``cycle_end`` on the rest of the run). None when the rest of the run has none."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     first = first_cycle(t, s)
     return None if first is None else _cycle_after(t, s, first)
@@ -259,16 +172,7 @@ def _cycle_after(t: np.ndarray, s: np.ndarray, first: float) -> tuple[float, flo
 
 def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
     """The stretch the README's session start reads on a run: its second load and unload
-    after a warm-up one (``second_cycle``), else its first (START 0, ``first_cycle``).
-
-    Args:
-        t: Sample times [s].
-        s: Reference strain, one per sample.
-
-    Returns:
-        (START, END) [s] after the run's start, or None when the reference never moves.
-
-    """
+    after a warm-up one (``second_cycle``), else its first (START 0, ``first_cycle``)."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     first = first_cycle(t, s)
     return None if first is None else _cycle_after(t, s, first) or (0.0, first)

@@ -37,31 +37,12 @@ cubic, ``pool="stretch"``)."""
 
 def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
     """``cal`` after the session start on ``rec`` (``session_start.start_or_keep``: its
-    calibration stretch found, as ``strain-comp start`` finds it); as it is where refused.
-
-    Args:
-        cal: The sensor's calibration.
-        rec: The run, with a reference strain.
-
-    Returns:
-        The started calibration.
-
-    """
+    calibration stretch found, as ``strain-comp start`` finds it); as it is where refused."""
     return start_or_keep(Calibration({cal.name: cal}), {cal.name: rec}).calibration
 
 
 def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
-    """The session start of a pooled fit (module docstring).
-
-    Args:
-        recordings: The training runs (two or more).
-        fit: Fits the choice's model on runs, with their stretches' line.
-
-    Returns:
-        ``joint`` or ``stretch``, and the record: each one's root mean square of the
-        left-out runs' RMSE, and how many runs it was measured on.
-
-    """
+    """The session start of a pooled fit (module docstring)."""
     errors: dict[str, list[float]] = {space: [] for space in SPACES}
     for j, held in enumerate(recordings):
         rest = [rec for i, rec in enumerate(recordings) if i != j]

@@ -35,17 +35,7 @@ if TYPE_CHECKING:
 
 def steady_output(cal: SensorCalibration, r: float, policy: SpanPolicy | None = None) -> float:
     """The calibration's output [%] after ``policy.settle_samples`` samples at constant
-    ``r`` (``SPAN`` when None).
-
-    Args:
-        cal: The sensor's calibration.
-        r: The resistance [ohm].
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The output [strain unit].
-
-    """
+    ``r`` (``SPAN`` when None)."""
     engine = Engine(Calibration({cal.name: cal}))
     t = 0.1 * np.arange((SPAN if policy is None else policy).settle_samples)
     return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
@@ -58,16 +48,7 @@ def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
     by the models directly (an existing input zero and span left out: the resistances are
     the calibrated ones). Kept for the last ``CURVES_KEPT`` calibrations (by their whole
     content; the arrays are read-only): a session start spans every run with the same
-    calibration.
-
-    Args:
-        cal: The sensor's calibration.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The resistances [ohm] and the steady output at each [strain unit].
-
-    """
+    calibration."""
     bare = replace(cal, input=replace(cal.input, zero_span=None))
     return _steady_curve(pickle.dumps((bare, SPAN if policy is None else policy),
                                       protocol=pickle.HIGHEST_PROTOCOL))
@@ -101,21 +82,7 @@ def calibrated_resistance(cal: SensorCalibration, strain: float,
                           policy: SpanPolicy | None = None) -> float:
     """The resistance [ohm] whose steady output through ``cal`` is ``strain``: the first
     crossing from the rest end of ``steady_curve``, interpolated linearly. InputError when
-    no resistance of the valid range gives that strain.
-
-    Args:
-        cal: The sensor's calibration.
-        strain: The strain [strain unit].
-        curve: ``steady_curve``, or None to compute it.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        The resistance [ohm].
-
-    Raises:
-        InputError: No resistance of the valid range gives ``strain``.
-
-    """
+    no resistance of the valid range gives that strain."""
     grid, steady = curve if curve is not None else steady_curve(cal, policy)
     out = steady - strain
     cross = np.flatnonzero(np.sign(out[:-1]) * np.sign(out[1:]) <= 0)
@@ -135,22 +102,7 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
                      policy: SpanPolicy | None = None) -> tuple[float, float, float]:
     """The input zero and span (rest, rest_calibrated, k) through two measured (R, S)
     points, the first at rest (or the smaller strain); numbers: ``policy`` (``SPAN`` when
-    None).
-
-    Args:
-        cal: The sensor's calibration.
-        points: Two (R [ohm], S [strain unit]) points.
-        curve: ``steady_curve``, or None to compute it.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        rest [ohm], rest_calibrated [ohm] and the span gain k.
-
-    Raises:
-        InputError: Not two points, a resistance the engine reads as a short or an open, one
-            resistance at both strains, a strain the calibration never outputs, or k <= 0.
-
-    """
+    None)."""
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
@@ -180,22 +132,7 @@ def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
     measured ``r`` [ohm], reference ``s``): the stretch is the largest strain of the cycle,
     or ``top`` (the largest the calibration outputs) when lower; medians of the samples
     within the tare's ``rest_band`` of the span of each. InputError when it does not rest
-    or move.
-
-    Args:
-        t: Sample times [s].
-        r: Measured resistance [ohm].
-        s: Reference strain [strain unit].
-        top: The largest strain the calibration outputs.
-
-    Returns:
-        The rest point and the stretch point, each (R [ohm], S).
-
-    Raises:
-        InputError: The cycle has no rest or its reference never moves, or no sample is at a
-            strain the calibration outputs.
-
-    """
+    or move."""
     ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
@@ -214,20 +151,7 @@ def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
 
 def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
                record: Mapping[str, Any]) -> SensorCalibration:
-    """``cal`` reading its input through ``span`` (replacing an older one).
-
-    Args:
-        cal: The sensor's calibration.
-        span: rest [ohm], rest_calibrated [ohm] and the span gain k.
-        record: What the span was made from, for the provenance.
-
-    Returns:
-        The recalibrated sensor.
-
-    Raises:
-        InputError: The result would not load (``loadable``), in the user's terms.
-
-    """
+    """``cal`` reading its input through ``span`` (replacing an older one)."""
     history = [*cal.provenance.get("recalibrations", []),
                dict(record, rest=span[0], rest_calibrated=span[1], span_gain=span[2])]
     new = replace(cal, input=replace(cal.input, zero_span=span),
@@ -237,16 +161,7 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
     """The calibration's output along a slow ramp over ``grid`` and back (10 Hz, from a
-    fresh state at the rest end; an existing input zero and span left out).
-
-    Args:
-        cal: The sensor's calibration.
-        grid: The resistances [ohm] of the ramp up.
-
-    Returns:
-        The output [strain unit] up and back, 2 * ``grid.size`` samples.
-
-    """
+    fresh state at the rest end; an existing input zero and span left out)."""
     bare = replace(cal, input=replace(cal.input, zero_span=None))
     path = np.concatenate([grid, grid[::-1]])
     return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
@@ -259,17 +174,7 @@ def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.nda
     back (``ramp_output`` on ``steady_curve``'s grid) is its steady output at each
     resistance within ``policy.static_tolerance`` of the strain span: a static map, which two
     points invert exactly. A model with memory is on a loading or unloading branch in use
-    instead.
-
-    Args:
-        cal: The sensor's calibration.
-        curve: ``steady_curve``.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        True for a static map.
-
-    """
+    instead."""
     grid, steady = curve
     out = ramp_output(cal, grid)
     span = cal.valid_range.s_hi - cal.valid_range.s_lo
@@ -280,16 +185,7 @@ def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.nda
 def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(unloading, loading) outputs of a memory model on ``grid`` (from its rest end): a
     slow ramp up, down and up again; the unloading branch from the top, the loading branch
-    after that full unload, as a sensor at the start of a session was last unloaded.
-
-    Args:
-        cal: The sensor's calibration.
-        grid: The resistances [ohm], from the rest end.
-
-    Returns:
-        The unloading and loading outputs [strain unit], one per grid point.
-
-    """
+    after that full unload, as a sensor at the start of a session was last unloaded."""
     n = grid.size
     out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
     return out[n:2 * n][::-1], out[2 * n:3 * n]
@@ -297,17 +193,7 @@ def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.n
 
 def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float:
     """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end
-    (linear between grid points), else the grid point of the nearest output.
-
-    Args:
-        grid: The resistances [ohm].
-        out: The outputs on them [strain unit].
-        strain: The strain sought.
-
-    Returns:
-        The resistance [ohm].
-
-    """
+    (linear between grid points), else the grid point of the nearest output."""
     d = out - strain
     cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
     if not cross.size:
@@ -323,21 +209,7 @@ def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float
     """The input zero and span through two measured (R, S) points read on two branches of
     outputs over ``grid`` (``branch_resistance``): the rest point on the first (a memory
     model's unloading branch, ``branches``), the stretch on the second (its loading
-    branch); a static model's held map for both.
-
-    Args:
-        cal: The sensor's calibration.
-        points: Two (R [ohm], S [strain unit]) points.
-        grid: The resistances [ohm] of the branches.
-        branch: The outputs of the rest point's branch and of the stretch's.
-
-    Returns:
-        rest [ohm], rest_calibrated [ohm] and the span gain k.
-
-    Raises:
-        InputError: The span gain is not finite and > 0.
-
-    """
+    branch); a static model's held map for both."""
     (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
     c1 = branch_resistance(grid, branch[0], s1)
     c2 = branch_resistance(grid, branch[1], s2)
@@ -360,21 +232,7 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
     the calibration as tared (the run's rest onto its rest resistance, gain 1) if that
     reads the cycle better than the calibration as it is (``cycle_error``), not refined
     (a refinement from there fits the cycle, not the run: a loop's exact memory term lost
-    half its gain on the run after it). Numbers: ``policy`` (``SPAN`` when None).
-
-    Args:
-        cal: The sensor's calibration.
-        rec: The run's first cycle, with a reference strain.
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        rest [ohm], rest_calibrated [ohm] and the span gain k.
-
-    Raises:
-        InputError: ``rec`` has no reference, its cycle has no rest or no usable stretch, or
-            no span can be made.
-
-    """
+    half its gain on the run after it). Numbers: ``policy`` (``SPAN`` when None)."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     policy = SPAN if policy is None else policy
@@ -403,16 +261,7 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
 
 
 def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
-    """RMSE of the engine's output over ``rec`` against its finite reference strain.
-
-    Args:
-        cal: The sensor's calibration.
-        rec: The run, with a reference strain.
-
-    Returns:
-        The RMSE [strain unit]; inf when not finite.
-
-    """
+    """RMSE of the engine's output over ``rec`` against its finite reference strain."""
     assert rec.s is not None
     ok = np.isfinite(rec.s)
     strain = Engine(Calibration({cal.name: cal})).run(cal.name, rec.t, rec.r).strain
@@ -434,18 +283,7 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
     outputs have not settled in ``settle_samples``, such as slow creep states, can give a
     far-off two-point span), and keeps that start unless the fit lowers the error. The
     search's numbers: ``policy`` (``SPAN`` when None); none when it allows no evaluation
-    or the stretch has no referenced sample.
-
-    Args:
-        cal: The sensor's calibration.
-        rec: The run's first cycle.
-        start: The two-point span (rest, rest_calibrated, k).
-        policy: The numbers; None: ``SPAN``.
-
-    Returns:
-        rest [ohm], rest_calibrated [ohm] and the span gain k.
-
-    """
+    or the stretch has no referenced sample."""
     from scipy.optimize import minimize
 
     policy = SPAN if policy is None else policy
@@ -481,15 +319,7 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
 
 def span_reading(span: tuple[float, float, float]) -> str:
     """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81
-    (sensitivity +23.5 %)``.
-
-    Args:
-        span: rest [ohm], rest_calibrated [ohm] and the span gain k.
-
-    Returns:
-        The reading.
-
-    """
+    (sensitivity +23.5 %)``."""
     rest, rest_cal, k = span
     return (f"input zero {ohms((rest, rest_cal)).replace(' vs ', ' -> ')}, span gain "
             f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")

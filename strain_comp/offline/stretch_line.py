@@ -27,16 +27,7 @@ Line = tuple[float, float]
 
 def run_line(rec: Recording) -> Line | None:
     """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples, in
-    closed form (no LAPACK call to fail on a reference near 1e-300 or 1e300).
-
-    Args:
-        rec: The run (samples whose reference is NaN are left out).
-
-    Returns:
-        Its input zero R_0 [ohm] and sensitivity g [ohm per strain unit]; None without a
-        range of strain or a finite, nonzero line.
-
-    """
+    closed form (no LAPACK call to fail on a reference near 1e-300 or 1e300)."""
     if rec.s is None:
         return None
     ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
@@ -52,14 +43,5 @@ def run_line(rec: Recording) -> Line | None:
 
 def onto(own: Line, space: Line) -> tuple[float, float, float]:
     """The input zero and span (``InputSettings.zero_span``: rest, rest_calibrated, gain) that
-    puts a run whose stretch has the line ``own`` onto the line ``space``.
-
-    Args:
-        own: The run's stretch line.
-        space: The calibration's stretch line.
-
-    Returns:
-        (R_0,run, R_0,space, g_space / g_run).
-
-    """
+    puts a run whose stretch has the line ``own`` onto the line ``space``."""
     return own[0], space[0], space[1] / own[1]

@@ -45,16 +45,7 @@ weight 0 instead of an arbitrary one."""
 def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]
                      ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Every referenced sensor's features and residuals over its scored samples, the
-    engine run as ``evaluate`` runs it (tare ``calibration``).
-
-    Args:
-        started: The calibration started on the run.
-        recordings: The run's recordings by sensor name.
-
-    Returns:
-        Sensor name -> (features (n, ``len(FEATURES)``), residual estimate - reference).
-
-    """
+    engine run as ``evaluate`` runs it (tare ``calibration``)."""
     engine = Engine(replace(started, sensors={
         n: replace(c, uncertainty=None) for n, c in started.sensors.items()}))
     out = {}
@@ -75,15 +66,7 @@ def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]
 
 
 def likelihood_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """The weights by maximum likelihood over ``runs`` (module docstring), unscaled.
-
-    Args:
-        runs: (features, residuals) of each run left out.
-
-    Returns:
-        The weights.
-
-    """
+    """The weights by maximum likelihood over ``runs`` (module docstring), unscaled."""
     x = np.concatenate([f for f, _ in runs])
     e2 = np.concatenate([e for _, e in runs]) ** 2
     weight = np.concatenate([np.full(e.size, 1.0 / max(e.size, 1)) for _, e in runs])
@@ -112,15 +95,7 @@ def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
     """The weights by maximum likelihood over every run, times the factor on sigma a new
     run needs: for each run, the factor that makes the 95 % band of the weights learned
     without it hold 95 % of its samples; their median over the runs (robust to one run
-    whose errors no other run foretold; in-sample with one run).
-
-    Args:
-        runs: (features, residuals) of each run left out.
-
-    Returns:
-        The weights (the factor folded into the bias weight) and the factor.
-
-    """
+    whose errors no other run foretold; in-sample with one run)."""
     factors = []
     for j, (x, e) in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j] or runs
@@ -135,16 +110,7 @@ def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, 
 
 def learn(pairs: Iterable[tuple[Calibration, Mapping[str, Recording]]]
           ) -> dict[str, Uncertainty]:
-    """Each sensor's uncertainty from runs left out (module docstring).
-
-    Args:
-        pairs: (calibration fitted without the run and started on it, the run's recordings
-            by sensor name), one per run left out.
-
-    Returns:
-        Sensor name -> its uncertainty, for every sensor scored on at least two runs.
-
-    """
+    """Each sensor's uncertainty from runs left out (module docstring)."""
     by_sensor: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     for started, recordings in pairs:
         for name, samples in left_out_samples(started, recordings).items():

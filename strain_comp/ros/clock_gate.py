@@ -9,8 +9,7 @@ from typing import Any
 class ClockGate:
     """Under sim time: an input whose clock reading [ns] equals the previous input's stamp on
     the same topic waits for the next clock tick; a second such input releases the first at
-    the unchanged time (it then counts as time-not-increasing, as it would without the gate).
-    """
+    the unchanged time (it then counts as time-not-increasing, as it would without the gate)."""
 
     def __init__(self) -> None:
         self.last: dict[str, int] = {}

@@ -81,13 +81,7 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
 
 def send(publisher: Publisher, message: Callable[[], Any]) -> None:
     """Build and publish a message only when a subscription is matched: at 1 kHz the
-    building and serialising of an unread output is most of the node's CPU.
-
-    Args:
-        publisher: The output's publisher.
-        message: Builds the message.
-
-    """
+    building and serialising of an unread output is most of the node's CPU."""
     if publisher.get_subscription_count():
         publisher.publish(message())
 
@@ -104,11 +98,7 @@ def _internal(error: BaseException) -> str:
 
 
 class CompensatorNode(Node):
-    """The node (rclpy must be initialised); StrainCompError on bad parameters.
-
-    Parameters come from the node's overrides (params files, ``-p``, ``parameter_overrides``);
-    ``base_dir`` is where relative calibration paths resolve.
-    """
+    """The node (rclpy must be initialised); StrainCompError on bad parameters."""
 
     def __init__(self, node_name: str, *, base_dir: Path | None = None,
                  **node_options: Any) -> None:

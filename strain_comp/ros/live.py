@@ -57,17 +57,7 @@ class LiveCompensator:
     """One engine plus the per-input bookkeeping of a live node."""
 
     def __init__(self, params: NodeParams, *, warm_up: bool = True) -> None:
-        """Build the engine of ``params``.
-
-        Args:
-            params: The node's parameters, calibrations loaded.
-            warm_up: Compile every kernel now, not on the first message.
-
-        Raises:
-            ParameterError: ``tare: auto`` with a sensor whose calibration stores no rest
-                resistance.
-
-        """
+        """Build the engine of ``params``."""
         self.params = params
         self.tunables = dict(params.tunables)
         self.engine: Engine = params.build_engine()
@@ -124,22 +114,7 @@ class LiveCompensator:
         return True
 
     def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
-        """Feed one resistance message.
-
-        Args:
-            name: The sensor's name.
-            t: The message's time [s].
-            value: Its resistance [ohm] (or divider volts).
-
-        Returns:
-            The output to publish, or None (rate limited, or no estimate yet: a bad sample
-            before any good one holds no finite strain).
-
-        Raises:
-            InputError: An unknown sensor, or a good sample the calibration gives a non-finite
-                strain for (not published).
-
-        """
+        """Feed one resistance message."""
         out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
         if self.starting.series:
             self.starting.seen_input(name, t, value)
@@ -155,25 +130,7 @@ class LiveCompensator:
 
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
                  sizes: list[int] | None = None, label: str = "") -> ArrayOutput | None:
-        """Feed one array message.
-
-        Args:
-            name: The array's name.
-            t: The message's time [s].
-            data: The message's ``data``.
-            offset: Its ``layout.data_offset``.
-            sizes: Its ``dim[*].size``.
-            label: Its ``dim[0].label``.
-
-        Returns:
-            The outputs to publish, or None as ``on_sensor`` (until every sensor has an
-            estimate).
-
-        Raises:
-            InputError: A layout that does not match the array's sensors, or a good sample the
-                calibration gives a non-finite strain for (not published).
-
-        """
+        """Feed one array message."""
         sensors = self._inputs[name]
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         out = self.engine.step_array(name, t, values)
@@ -206,20 +163,7 @@ class LiveCompensator:
 
     def on_reference(self, sensor: str, t: float, value: Any) -> str | None:
         """A known strain of ``sensor`` (its ``strain_reference`` topic), fused or refused and
-        counted.
-
-        Args:
-            sensor: The sensor's name.
-            t: The message's time [s].
-            value: The known strain.
-
-        Returns:
-            None when fused, else the reason it was refused.
-
-        Raises:
-            InputError: A sensor not calibrated here, or ``fuse_references`` is false.
-
-        """
+        counted."""
         fusion = self.fusion.get(sensor)
         if fusion is None:
             raise InputError(f"no sensor {sensor!r} in the calibration" if self.fusion else
@@ -321,15 +265,7 @@ class LiveCompensator:
     # --- tare -----------------------------------------------------------------------------
 
     def tare(self) -> str:
-        """``~/tare`` (``LiveTare.tare``): each sensor's current rest resistance its zero.
-
-        Returns:
-            The summary.
-
-        Raises:
-            ParameterError: A sensor cannot be tared (each named); no gain changed.
-
-        """
+        """``~/tare`` (``LiveTare.tare``): each sensor's current rest resistance its zero."""
         return self.taring.tare()
 
     def span(self) -> tuple[LiveCompensator, str]:
@@ -443,14 +379,7 @@ class LiveCompensator:
 
     def diagnostics(self, now: float) -> list[tuple[str, int, str, dict[str, str]]]:
         """Statuses at clock time ``now`` [s]: one per sensor, the program errors', then the
-        transport's.
-
-        A sensor is ERROR with the reason while its latest sample is bad (e.g. "non-finite
-        input"), STALE when no message arrived for ``stale_after_s`` (two sample intervals
-        of a slow instrument, ``Engine.stale_for``), else as the engine says.
-        The program errors are ERROR while the node raised (``fault``) since the previous
-        call; the transport is WARN while messages were refused since the previous call.
-        """
+        transport's."""
         out = []
         health = self.health(now)
         last_message = {s: self._last_message.get(i.name) for i in self.params.inputs

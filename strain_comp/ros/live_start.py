@@ -75,12 +75,7 @@ class LiveStart:
 
     def request(self, now: float, sensors: list[str]) -> bool:
         """``~/start`` at clock time ``now``: watch the sensors with a recent reference
-        (True), or none has one (False: the caller spans instead).
-
-        Raises:
-            ParameterError: A stretch is already being watched (nothing changes).
-
-        """
+        (True), or none has one (False: the caller spans instead)."""
         if self.watching:
             raise ParameterError("start", f"refused: already {self.state} (since "
                                  f"{self.since:.1f} s); the stretch applies when it returns")
@@ -164,20 +159,7 @@ class LiveStart:
 
 def start(live: LiveCompensator, now: float) -> tuple[LiveCompensator, str]:
     """``~/start`` at clock time ``now``: watch the next stretch on the sensors with a
-    recent reference, else ``~/span`` on ``span_strain``.
-
-    Args:
-        live: The running compensator.
-        now: The clock time [s].
-
-    Returns:
-        The compensator to run on (a new one after a span) and the summary.
-
-    Raises:
-        ParameterError: A stretch is already watched, or the span is refused (the state
-            then says why).
-
-    """
+    recent reference, else ``~/span`` on ``span_strain``."""
     if live.starting.request(now, list(live.params.calibration.sensors)):
         return live, live.starting.detail
     try:
@@ -193,18 +175,7 @@ def start_reference(live: LiveCompensator, sensor: str, t: float, value: float
                     ) -> LiveCompensator:
     """A reference of ``sensor`` for ``~/start``: the compensator on the started
     calibration once the watched stretch has returned (model state restarts, as after a
-    reload), else ``live``.
-
-    Args:
-        live: The running compensator.
-        sensor: The sensor's name.
-        t: The reference's time [s].
-        value: The reference strain.
-
-    Returns:
-        The compensator to run on.
-
-    """
+    reload), else ``live``."""
     started = live.starting.seen_reference(sensor, t, value, live.params.calibration)
     if started is None:
         return live

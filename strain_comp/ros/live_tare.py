@@ -188,11 +188,7 @@ class LiveTare:
                 yield sensor, self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
 
     def tare(self) -> str:
-        """Make each sensor's current rest resistance its zero (all or none); the summary.
-
-        ParameterError naming every sensor that cannot be tared (no rest resistance in its
-        calibration, no good sample in the last ``TARE_WINDOW_S``); the gains then stay.
-        """
+        """Make each sensor's current rest resistance its zero (all or none); the summary."""
         rests: dict[str, float] = {}
         problems = []
         for sensor, values in self.at_rest():

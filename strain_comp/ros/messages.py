@@ -12,19 +12,7 @@ from strain_comp.errors import InputError
 
 def sensor_value(msg: Any, field: str = "data") -> float:
     """A scalar message's value (``std_msgs/Float64.data``, ``Temperature.temperature``). NaN
-    and inf pass: the engine screens them.
-
-    Args:
-        msg: The message.
-        field: The field holding the value.
-
-    Returns:
-        The value.
-
-    Raises:
-        InputError: The value is not a number.
-
-    """
+    and inf pass: the engine screens them."""
     value = getattr(msg, field, None)
     if isinstance(value, bool) or not isinstance(value, (float, int)):
         raise InputError(f"{field} is not a number ({type(value).__name__})")
@@ -33,18 +21,7 @@ def sensor_value(msg: Any, field: str = "data") -> float:
 
 def array_layout(msg: Any) -> tuple[Any, int, list[int], str]:
     """A Float64MultiArray's fields, each checked for its type. The sizes and the offset are
-    then checked against the sensors by ``array_values``.
-
-    Args:
-        msg: The message.
-
-    Returns:
-        ``data``, ``layout.data_offset``, ``dim[*].size`` and ``dim[0].label``.
-
-    Raises:
-        InputError: A field of the wrong type, naming it.
-
-    """
+    then checked against the sensors by ``array_values``."""
     layout = getattr(msg, "layout", None)
     data = getattr(msg, "data", None)
     offset = getattr(layout, "data_offset", None)

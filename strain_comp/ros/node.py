@@ -83,15 +83,7 @@ def _unqualified(key: str) -> str:
 
 
 def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
-    """The params files, node name and namespace the ``--ros-args`` part of ``args`` gives.
-
-    Args:
-        args: The command line.
-
-    Returns:
-        (params files, node name, namespace).
-
-    """
+    """The params files, node name and namespace the ``--ros-args`` part of ``args`` gives."""
     files: list[Path] = []
     name, namespace = NODE_NAME, "/"
     for flag, value in _ros_flags(args, ("--params-file", "-r", "--remap")):
@@ -108,15 +100,7 @@ def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
 
 
 def command_line_params(args: list[str]) -> dict[str, str]:
-    """The ``-p NAME:=VALUE`` (``--param``) overrides of the ``--ros-args`` part, as given.
-
-    Args:
-        args: The command line.
-
-    Returns:
-        Parameter name -> the text given.
-
-    """
+    """The ``-p NAME:=VALUE`` (``--param``) overrides of the ``--ros-args`` part, as given."""
     return {_unqualified(rule.partition(":=")[0]): rule
             for _, rule in _ros_flags(args, ("-p", "--param"))}
 
@@ -138,21 +122,7 @@ def check_params_files(files: list[Path], name: str, namespace: str) -> Path | N
     """The folder relative calibration paths resolve in: that of the last params file whose
     block for the node names a calibration (a file that sets other parameters only, as the
     one ``ros2 launch`` writes for ``use_sim_time:=true``, does not move it), else of the
-    last with a block for the node.
-
-    Args:
-        files: The params files, in order.
-        name: The node's name.
-        namespace: The node's namespace.
-
-    Returns:
-        The folder, or None without a block for the node.
-
-    Raises:
-        InputError: A file is missing, unreadable, not a params file, or has no block for
-            the node, naming it.
-
-    """
+    last with a block for the node."""
     from strain_comp.errors import InputError
     from strain_comp.ros.params import block_names, read_blocks
 
@@ -173,37 +143,14 @@ def check_params_files(files: list[Path], name: str, namespace: str) -> Path | N
 
 def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 **node_options: Any) -> CompensatorNode:
-    """The node (``strain_comp.ros.compensator.CompensatorNode``); rclpy must be initialised.
-
-    Args:
-        node_name: The node's name.
-        base_dir: Where relative calibration paths resolve (else the working directory).
-        **node_options: Passed to rclpy's ``Node``.
-
-    Returns:
-        The node, its calibrations loaded.
-
-    Raises:
-        StrainCompError: A bad parameter or calibration (ParameterError, InputError,
-            CalibrationError), naming it.
-
-    """
+    """The node (``strain_comp.ros.compensator.CompensatorNode``); rclpy must be initialised."""
     from strain_comp.ros.compensator import CompensatorNode
 
     return CompensatorNode(node_name, base_dir=base_dir, **node_options)
 
 
 def main(args: list[str] | None = None) -> int:
-    """``compensator``: spin the node until SIGINT/SIGTERM or shutdown, then exit 0.
-
-    Args:
-        args: The command line (default: ``sys.argv``).
-
-    Returns:
-        ``EXIT_BAD_INPUT`` when the node cannot start (it otherwise exits the process
-        with 0).
-
-    """
+    """``compensator``: spin the node until SIGINT/SIGTERM or shutdown, then exit 0."""
     signal.signal(signal.SIGINT, _stopped_in_start_up)
     signal.signal(signal.SIGTERM, _stopped_in_start_up)
     argv = list(sys.argv if args is None else args)
@@ -271,15 +218,7 @@ def main(args: list[str] | None = None) -> int:
 def prime_cache(config: str) -> list[str]:
     """Compile the kernels the params files in ``config`` need into numba's cache, as the
     node's start-up does (``setup.py`` runs it once the package is installed, so a colcon
-    install's first start loads them instead of compiling: docs/performance.md).
-
-    Args:
-        config: A folder of ``*_params.yaml`` files (their calibrations beside them).
-
-    Returns:
-        The params files primed.
-
-    """
+    install's first start loads them instead of compiling: docs/performance.md)."""
     from strain_comp.ros.live import LiveCompensator
     from strain_comp.ros.params import load_params
 

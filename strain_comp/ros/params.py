@@ -92,16 +92,7 @@ ROS_OWNED = ("use_sim_time", "qos_overrides", "start_type_description_service")
 
 
 def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
-    """Read-only parameters for the given sensor and array names (declare in this order).
-
-    Args:
-        sensors: The sensor names.
-        arrays: The array names.
-
-    Returns:
-        The parameters' specs.
-
-    """
+    """Read-only parameters for the given sensor and array names (declare in this order)."""
     specs = [ParamSpec("sensors", "string_array", [], None,
                        "Names of single sensors, each with a NAME.* map.", True),
              ParamSpec("arrays", "string_array", [], None,
@@ -137,20 +128,7 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
 
 
 def validate_tunable(name: str, value: Any) -> float:
-    """A tunable's value, checked.
-
-    Args:
-        name: The tunable's name.
-        value: The value set.
-
-    Returns:
-        The value as a float.
-
-    Raises:
-        ParameterError: An unknown tunable, not a number, or out of its range, naming it
-            and its range.
-
-    """
+    """A tunable's value, checked."""
     spec = TUNABLE.get(name)
     if spec is None:
         raise ParameterError(name, f"unknown parameter; tunables: {', '.join(TUNABLE)}")
@@ -212,12 +190,7 @@ def _flatten(node: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def share_dirs() -> list[Path]:
-    """Where an installed strain_comp keeps its share files, then the source checkout.
-
-    Returns:
-        The folders, in the order searched.
-
-    """
+    """Where an installed strain_comp keeps its share files, then the source checkout."""
     dirs = []
     try:
         from ament_index_python.packages import get_package_share_directory
@@ -232,16 +205,7 @@ def share_dirs() -> list[Path]:
 
 def resolve_path(value: str, base_dir: Path | None) -> Path:
     """A calibration path: absolute, or relative to base_dir (else cwd), then the share dir
-    (+ config/).
-
-    Args:
-        value: The path as the parameter gives it.
-        base_dir: The folder of the params file, or None.
-
-    Returns:
-        The first path that exists (else the first tried).
-
-    """
+    (+ config/)."""
     path = Path(os.path.expanduser(value))
     if path.is_absolute():
         return path
@@ -314,21 +278,7 @@ def _sensor_from(calibration: Calibration, name: str, where: str) -> SensorCalib
 
 
 def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> NodeParams:
-    """Validate flat (dotted) parameter values and load every calibration file.
-
-    Args:
-        flat: Parameter name -> value.
-        base_dir: Where relative calibration paths resolve.
-
-    Returns:
-        The node's parameters, calibrations loaded.
-
-    Raises:
-        ParameterError: A missing, unknown or bad parameter, no sensors, two inputs on one
-            topic, or a sensor named twice.
-        CalibrationError: A calibration file cannot be read.
-
-    """
+    """Validate flat (dotted) parameter values and load every calibration file."""
     sensors = _names(flat, "sensors")
     arrays = _names(flat, "arrays")
     if not sensors and not arrays:
@@ -373,17 +323,7 @@ def parse_values(flat: Mapping[str, Any], *, base_dir: Path | None = None) -> No
 
 
 def unknown_hint(key: str, known: set[str], names: list[str]) -> str:
-    """'unknown parameter' with the closest valid name, or the missing list entry.
-
-    Args:
-        key: The parameter given.
-        known: The valid names.
-        names: The sensor and array names.
-
-    Returns:
-        The problem text.
-
-    """
+    """'unknown parameter' with the closest valid name, or the missing list entry."""
     head = key.split(".")[0]
     if "." in key and head not in names:
         return (f"unknown parameter: {head!r} is not listed in 'sensors' or 'arrays' "
@@ -393,19 +333,7 @@ def unknown_hint(key: str, known: set[str], names: list[str]) -> str:
 
 
 def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A params file's top-level node blocks (names without a leading '/').
-
-    Args:
-        path: The params file.
-
-    Returns:
-        Block name -> its mapping.
-
-    Raises:
-        InputError: The file is missing, unreadable, not YAML or not a mapping of blocks,
-            naming it.
-
-    """
+    """A params file's top-level node blocks (names without a leading '/')."""
     path = Path(path)
     try:
         root = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -421,39 +349,14 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 def block_names(node_name: str, namespace: str = "/") -> list[str]:
     """The block keys (without a leading '/') that address a node as rcl matches them: its
-    fully qualified name, ``**/NAME``, ``NAMESPACE/*``, ``**``.
-
-    Args:
-        node_name: The node's name.
-        namespace: Its namespace.
-
-    Returns:
-        The keys.
-
-    """
+    fully qualified name, ``**/NAME``, ``NAMESPACE/*``, ``**``."""
     ns = namespace.strip("/")
     fqn = f"{ns}/{node_name}" if ns else node_name
     return [fqn, f"**/{node_name}", f"{ns}/*" if ns else "*", "**"]
 
 
 def load_params(path: str | os.PathLike[str], *, node_name: str | None = None) -> NodeParams:
-    """Read a ROS 2 params file (``<node>: ros__parameters: ...``) and validate it.
-
-    Args:
-        path: The params file.
-        node_name: Picks the node's block; without it the file must hold exactly one block
-            (``/**`` wildcard blocks are merged under it).
-
-    Returns:
-        The node's parameters, calibrations loaded.
-
-    Raises:
-        InputError: The file cannot be read, holds several nodes or none for
-            ``node_name``, or lacks ``ros__parameters``; naming the file.
-        ParameterError: A bad parameter, the field prefixed with the file.
-        CalibrationError: A calibration file cannot be read.
-
-    """
+    """Read a ROS 2 params file (``<node>: ros__parameters: ...``) and validate it."""
     path = Path(path)
     blocks = read_blocks(path)
     wildcard = blocks.pop("**", {})

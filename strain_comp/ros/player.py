@@ -51,19 +51,7 @@ class PlayedMessage:
 def bag_messages(path: str | Path, topics: list[str] | None = None) -> list[PlayedMessage]:
     """A bag's CDR messages in log-time order, read by the bag reader's walk within its
     budgets (``strain_comp.io.bag.reader.raw_messages``); what it skipped goes to stderr, one
-    line each.
-
-    Args:
-        path: The bag.
-        topics: Only these topics (None: all).
-
-    Returns:
-        The messages.
-
-    Raises:
-        BagError: The bag cannot be read or has no CDR message (on ``topics``).
-
-    """
+    line each."""
     from strain_comp.io.bag.reader import raw_messages
 
     messages, problems = raw_messages(path, topics)
@@ -82,15 +70,7 @@ PLAYABLE = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Int8",
 
 
 def message_class(type_name: str) -> type | None:
-    """The Python class of one of the ``PLAYABLE`` types.
-
-    Args:
-        type_name: A type name, e.g. ``std_msgs/msg/Float64``.
-
-    Returns:
-        The class, or None for any other type name.
-
-    """
+    """The Python class of one of the ``PLAYABLE`` types."""
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import Temperature
     from std_msgs.msg import Float32, Float64, Float64MultiArray, Int8
@@ -101,17 +81,7 @@ def message_class(type_name: str) -> type | None:
 
 
 def spin_until(executor: Executor, ready: Callable[..., bool], timeout: float = 5.0) -> bool:
-    """Spin ``executor`` until ``ready()``.
-
-    Args:
-        executor: The executor.
-        ready: The condition.
-        timeout: The longest wait [s].
-
-    Returns:
-        False when ``timeout`` passes first.
-
-    """
+    """Spin ``executor`` until ``ready()``."""
     deadline = time.monotonic() + timeout
     while not ready():
         if time.monotonic() > deadline:
@@ -123,24 +93,7 @@ def spin_until(executor: Executor, ready: Callable[..., bool], timeout: float = 
 def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
          topics: list[str] | None = None, lockstep: str | None = None,
          wait_s: float = 10.0) -> int:
-    """Play the bag; rclpy must be initialised.
-
-    Args:
-        path: The bag.
-        clock: Also publish /clock from the bag's log times.
-        rate: Playback speed (1: real time; 0: as fast as possible).
-        topics: Only these topics (None: all).
-        lockstep: Publish the next message once this topic answered the last one.
-        wait_s: The longest wait for the node's publishers and subscribers [s].
-
-    Returns:
-        The number of messages published.
-
-    Raises:
-        BagError: Nothing to play, no lockstep topic or publisher in ``wait_s``, or no
-            subscriber on any of the bag's topics in ``wait_s``.
-
-    """
+    """Play the bag; rclpy must be initialised."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
@@ -224,19 +177,7 @@ def _subscribed(executor: Executor, pubs: dict[str, Any], messages: list[PlayedM
 
 
 def main(path: str | Path, **options: Any) -> int:
-    """``strain-comp play``: init rclpy, play, shut down.
-
-    Args:
-        path: The bag.
-        **options: As ``play`` takes them.
-
-    Returns:
-        The number of messages published.
-
-    Raises:
-        BagError: As ``play``.
-
-    """
+    """``strain-comp play``: init rclpy, play, shut down."""
     import rclpy
     from rclpy.utilities import try_shutdown
 

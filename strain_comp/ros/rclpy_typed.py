@@ -24,44 +24,18 @@ class Logger(Protocol):
 
 
 def logger(node: Node) -> Logger:
-    """``node.get_logger()``: the node's ``RcutilsLogger``.
-
-    Args:
-        node: The node.
-
-    Returns:
-        Its logger.
-
-    """
+    """``node.get_logger()``: the node's ``RcutilsLogger``."""
     get: Callable[[], Logger] = node.get_logger
     return get()
 
 
 def destroy(node: Node) -> None:
-    """``node.destroy_node()``: frees its publishers, subscriptions, services and timers.
-
-    Args:
-        node: The node.
-
-    """
+    """``node.destroy_node()``: frees its publishers, subscriptions, services and timers."""
     destroy_node: Callable[[], None] = node.destroy_node
     destroy_node()
 
 
 def parameter(name: str, type_: Parameter.Type, value: object) -> Parameter:
-    """``Parameter(name, type_, value)``.
-
-    Args:
-        name: The parameter's name.
-        type_: Its type.
-        value: Its value.
-
-    Returns:
-        The parameter.
-
-    Raises:
-        ValueError: ``value`` is not of ``type_``.
-
-    """
+    """``Parameter(name, type_, value)``."""
     make: Callable[[str, Parameter.Type, object], Parameter] = Parameter
     return make(name, type_, value)

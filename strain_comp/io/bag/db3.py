@@ -57,15 +57,7 @@ _MESSAGES = ("SELECT topic_id, timestamp, typeof(data) = 'blob', "
 
 
 def refuse_compressed_file(path: Path) -> None:
-    """Refuse a storage file compressed whole (``x.db3.zstd``, ``x.mcap.zstd``).
-
-    Args:
-        path: The storage file.
-
-    Raises:
-        BagError: Always, with the way to decompress it.
-
-    """
+    """Refuse a storage file compressed whole (``x.db3.zstd``, ``x.mcap.zstd``)."""
     raise BagError(f"{path}: compressed per file ({path.suffix.lstrip('.')}); "
                    + DECOMPRESS_HINT)
 
@@ -102,24 +94,7 @@ def _topics(db: apsw.Connection, path: Path, problems: list[str]) -> dict[int, t
 
 def db3_messages(path: Path, problems: list[str], *, compressed: bool = False
                  ) -> Iterator[list[Message]]:
-    """The messages of one ``.db3`` file, in time order.
-
-    Args:
-        path: The rosbag2 sqlite3 database.
-        problems: Lines for what was skipped are appended here (topics not in CDR or not
-            readable, rows of the wrong type, oversized or undecompressable messages, a
-            damaged database after its readable messages).
-        compressed: The payloads are zstd frames (a bag directory's
-            ``compression_mode: message``).
-
-    Yields:
-        Blocks of at most ``BLOCK`` messages and ``2 * MAX_MESSAGE_BYTES`` bytes, each
-        message (topic, type name, time [ns], payload).
-
-    Raises:
-        BagError: The file is not a readable rosbag2 database (one line).
-
-    """
+    """The messages of one ``.db3`` file, in time order."""
     try:
         db = apsw.Connection(f"{path.resolve().as_uri()}?immutable=1",
                              flags=apsw.SQLITE_OPEN_READONLY | apsw.SQLITE_OPEN_URI)
