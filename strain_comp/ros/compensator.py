@@ -34,6 +34,7 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64, Float64MultiArray, Int8
 from std_srvs.srv import Trigger
 
+from strain_comp.core.calibration import expected_words
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
 from strain_comp.ros.clock_gate import ClockGate
@@ -168,7 +169,10 @@ class CompensatorNode(Node):
         models = ",".join(sorted({params.calibration.sensors[s].model for s in inp.sensors}))
         members = (f"{len(inp.sensors)} sensors: {inp.sensors[0]} .. {inp.sensors[-1]}"
                    if inp.is_array else ",".join(inp.sensors))
-        return f"{name} [{members}] ({models}) {sub.topic_name} -> {pubs[0].topic_name}"
+        expected = [expected_words(params.calibration.sensors[s]) for s in inp.sensors]
+        told = next((f", {w}" for w in expected if w), "")
+        return (f"{name} [{members}] ({models}{told}) {sub.topic_name} -> "
+                f"{pubs[0].topic_name}")
 
     # --- what goes wrong ------------------------------------------------------------------
 

@@ -332,9 +332,17 @@ def test_start_up_errors_are_one_line(workspace: dict[str, Any], tmp_path: Path,
 
 
 def test_cli_node_resolves_calibration_beside_its_params_file(tmp_path: Path) -> None:
+    """The calibration beside the params file is found; its ready line states the error the
+    calibration expects on a new session (``fit --model auto``'s ``expected_error``)."""
+    import strain_comp as sc
+    from strain_comp.core.calibration import expected_words
+
     folder = tmp_path / "robot"
     folder.mkdir()
-    shutil.copy(ROOT / "config/demo_calibration.yaml", folder / "my_cal.yaml")
+    cal = sc.load_calibration(ROOT / "config/demo_calibration.yaml")
+    cal.sensors["s1"].provenance["expected_error"] = {"median": 4.77, "worst": 6.77,
+                                                      "runs": 7, "unit": "%", "model": "apl"}
+    sc.save_calibration(cal, folder / "my_cal.yaml")
     (folder / "p.yaml").write_text(BASE + "    s1: {calibration: my_cal.yaml}\n")
     env = {**os.environ, **ENV, "PYTHONPATH": str(ROOT)}
     log = tmp_path / "node.log"
@@ -343,6 +351,9 @@ def test_cli_node_resolves_calibration_beside_its_params_file(tmp_path: Path) ->
     wait_for(log, "ready:", proc)
     code, seconds = stop(proc)
     assert code == 0 and seconds < 2.0
+    words = expected_words(sc.load_calibration(folder / "my_cal.yaml").sensors["s1"])
+    assert words is not None and "RMSE 4.77 % strain (median)" in words
+    assert f"s1 [s1] (apl, {words})" in log.read_text()
 
 
 def test_a_bad_command_line_value_names_the_command_line(workspace: dict[str, Any],
