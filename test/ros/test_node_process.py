@@ -12,7 +12,6 @@ depend on the stamps: again every strain must equal replay's.
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
