@@ -82,7 +82,7 @@ def test_fuzz_api_for_a_few_seconds(fuzz) -> None:
     """Random calls of the API with hostile arrays, frames and keyword types: only a
     StrainCompError of one line (``python scripts/fuzz.py --target api --seconds 600
     --seed 7`` for the long run)."""
-    stats = fuzz.fuzz_api(np.random.default_rng(7), iterations=400, timeout=20.0)
+    stats = fuzz.fuzz_api(np.random.default_rng(7), iterations=1000, timeout=20.0)
     assert not stats.internal, stats.line() + "".join(
         f"\n{trace}" for trace in stats.traces.values())
     assert stats.refused > 100 and stats.calls - stats.refused > 20, stats.line()
