@@ -47,10 +47,15 @@ live node for a bounded time.
   but the table and the JSON, a JSON that parses with no non-finite number; the RSS after
   each folder stays flat (as the node's, below).
 
-Anything else is a crash: the input and its traceback are saved under ``--out``. Inputs
-that take longer than ``--timeout`` seconds count as hangs (saved too).
+* **api**: random calls of ``sc.fit``, ``sc.estimate``, ``sc.evaluate`` and
+  ``Recording.from_frame`` (``api_call``: hostile arrays, frames and keyword types); each
+  may only return or raise a ``StrainCompError`` of one line.
 
-    python scripts/fuzz.py --seconds 120 [--target yaml|bag|cli|csv|node|evaluate|all]
+Anything else is a crash: the input and its traceback are saved under ``--out`` (**api**:
+each class's first call and traceback, in ``api_internal.txt``). Inputs that take longer
+than ``--timeout`` seconds count as hangs (saved too).
+
+    python scripts/fuzz.py --seconds 120 [--target yaml|bag|cli|csv|node|evaluate|db3|api|all]
         [--seed 0]
         [--out DIR]
 """
@@ -613,11 +618,13 @@ def api_call(rng: np.random.Generator, cal: Calibration) -> tuple[str, Callable[
 
 @dataclass
 class ApiStats:
-    """Counts of an API fuzz run: calls, clean refusals and internal errors by class."""
+    """Counts of an API fuzz run: calls, clean refusals and internal errors by class (with
+    the traceback of each class's first call)."""
 
     calls: int = 0
     refused: int = 0
     internal: dict[str, list[str]] = field(default_factory=dict)
+    traces: dict[str, str] = field(default_factory=dict)
     rss_mib: list[float] = field(default_factory=list)
 
     def line(self) -> str:
@@ -661,6 +668,7 @@ def fuzz_api(rng: np.random.Generator, *, seconds: float | None = None,
             except Exception as err:  # what the fuzzer looks for
                 key = f"{what.split('(')[0]}: {type(err).__name__}: {str(err)[:70]}"
                 stats.internal.setdefault(key, []).append(what)
+                stats.traces.setdefault(key, f"{what}\n{traceback.format_exc()}")
             finally:
                 signal.setitimer(signal.ITIMER_REAL, 0.0)
             if stats.calls % 50 == 0:
@@ -1361,6 +1369,10 @@ def main() -> int:
                 for key, calls in sorted(api.internal.items(), key=lambda kv: -len(kv[1])):
                     print(f"  {len(calls)} x {key}\n    e.g. {calls[0][:200]}")
                 failures += sum(len(v) for v in api.internal.values())
+                if api.traces:
+                    args.out.mkdir(parents=True, exist_ok=True)
+                    (args.out / "api_internal.txt").write_text("\n".join(api.traces.values()))
+                    print(f"  tracebacks saved to {args.out / 'api_internal.txt'}")
                 continue
             if target == "db3":
                 stats = fuzz_db3(rng, work / "db3", seconds=share, timeout=args.timeout)

@@ -368,6 +368,7 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
         "test_calibration_truncated_at_any_line_loads_or_is_refused_cleanly",
         "test_fuzz_bag_reader_and_replay",
         "test_fuzz_calibration_loader",
+        "test_fuzz_api_for_a_few_seconds",
         "test_fuzz_db3_reader",
         "test_fuzz_evaluate_over_folders_of_damaged_bags",
         "test_fuzz_live_node_for_a_few_seconds",

@@ -243,6 +243,38 @@ def test_arguments_of_the_wrong_type_raise_one_line_naming_them() -> None:
         assert words in str(err.value) and "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("words, call", [
+    ("strain_unit=None", lambda run: sc.fit(run, strain_unit=None)),
+    ("input_unit=None", lambda run: sc.fit(run, input_unit=None)),
+    ("data: expected", lambda run: sc.fit(None)),
+    ("tare=None", lambda run: sc.estimate(CAL, run.t, run.r, tare=None)),
+    ("out_of_range=None", lambda run: sc.evaluate(CAL, run, out_of_range=None)),
+    ("plot_points=None", lambda run: sc.evaluate(CAL, run, plot_points=None)),
+    ("first=None", lambda run: sc.session_start(CAL, run, first=None)),
+    ("t (the time) is required", lambda run: sc.estimate(CAL, None, run.r)),
+    ("r (the resistance) is required", lambda run: sc.estimate(CAL, run.t, None)),
+    ("t (the time) is required", lambda run: sc.Recording.from_frame(
+        {"time_s": run.t, "resistance_ohm": run.r}, time=None)),
+    ("r (the resistance) is required", lambda run: sc.fit(sc.Recording.from_frame(
+        {"time_s": run.t, "resistance_ohm": run.r}, resistance=None))),
+])
+def test_none_for_an_argument_with_a_value_as_default_is_refused_naming_it(
+        words: str, call: object) -> None:
+    """What ``fuzz.py --target api`` found: None where the argument's default is a value
+    (a unit, a tare mode, the data, the time or resistance column) reached ``len``, an
+    assert or the command line's ``--tare`` wording."""
+    run = sc.read_recordings(BAG)["s1"]
+    with pytest.raises(sc.StrainCompError) as err:
+        call(run)  # type: ignore[operator]
+    assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_none_still_means_the_default_where_the_default_is_none() -> None:
+    run = sc.read_recordings(BAG)["s1"]
+    given = sc.estimate(CAL, run.t, run.r, sensor=None, temperature=None)
+    np.testing.assert_array_equal(given.strain, sc.estimate(CAL, run.t, run.r).strain)
+
+
 def test_from_frame_takes_import_csvs_scales() -> None:
     t = np.arange(5.0)
     table = {"time_ms": t * 1000.0, "r_kohm": (t + 11.0) / 1000.0, "fraction": t / 100.0}

@@ -78,6 +78,16 @@ def test_fuzz_db3_reader(fuzz, tmp_path: Path) -> None:
     assert stats.accepted > 20 and stats.rejected > 20, stats.line()
 
 
+def test_fuzz_api_for_a_few_seconds(fuzz) -> None:
+    """Random calls of the API with hostile arrays, frames and keyword types: only a
+    StrainCompError of one line (``python scripts/fuzz.py --target api --seconds 600
+    --seed 7`` for the long run)."""
+    stats = fuzz.fuzz_api(np.random.default_rng(7), iterations=1000, timeout=20.0)
+    assert not stats.internal, stats.line() + "".join(
+        f"\n{trace}" for trace in stats.traces.values())
+    assert stats.refused > 100 and stats.calls - stats.refused > 20, stats.line()
+
+
 def test_calibration_truncated_at_any_line_loads_or_is_refused_cleanly(
         fuzz, every_model, tmp_path: Path) -> None:
     seed = tmp_path / "seed.yaml"

@@ -164,8 +164,8 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
 
     """
 
-    checked(data, "data", "data")
-    checked(tare, "text", "tare")
+    checked(data, "data", "data", optional=False)
+    checked(tare, "text", "tare", optional=False)
     with bar(None, "diagnose", enabled=progress_bar) as shown:
         return _diagnose(calibration, data, validate, tare, stretch_history, session_start,
                          out, plots, inputs, counter(shown) if progress_bar else None)

@@ -89,9 +89,9 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
 
     """
 
-    for value, what in ((sensor, "sensor"), (tare, "tare"), (out_of_range, "out_of_range"),
-                        (tracking, "tracking")):
-        checked(value, "text", what)
+    checked(sensor, "text", "sensor")
+    for value, what in ((tare, "tare"), (out_of_range, "out_of_range"), (tracking, "tracking")):
+        checked(value, "text", what, optional=False)
     tracking_off(tracking)
     cal = as_calibration(calibration)
     name = _sensor_name(cal, sensor)
@@ -154,7 +154,7 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
     """
 
     for value, what in ((tare, "tare"), (tracking, "tracking")):
-        checked(value, "text", what)
+        checked(value, "text", what, optional=False)
     tracking_off(tracking)
     checked(references_every, "seconds", "references_every")
     cal = as_calibration(calibration)

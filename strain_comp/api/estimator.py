@@ -36,7 +36,7 @@ class StrainEstimator:
             InputError: ``model`` is not text.
 
         """
-        self.model = checked(model, "text", "model")
+        self.model = checked(model, "text", "model", optional=False)
         self.options = options
         self.calibration_: Calibration | None = None
 

@@ -184,11 +184,11 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
 
     """
 
-    checked(data, "data", "data")
+    checked(data, "data", "data", optional=False)
     for value, what in ((tare, "tare"), (out_of_range, "out_of_range"), (tracking, "tracking")):
-        checked(value, "text", what)
+        checked(value, "text", what, optional=False)
     tracking_off(tracking)
-    plot_points = checked(plot_points, "count", "plot_points")
+    plot_points = checked(plot_points, "count", "plot_points", optional=False)
     references_every = checked(references_every, "seconds", "references_every")
     cal = as_calibration(calibration)
     paths = paths_of(data)

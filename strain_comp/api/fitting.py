@@ -76,10 +76,10 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
 
     """
 
-    checked(data, "data", "data")
+    checked(data, "data", "data", optional=False)
     for value, what in ((model, "model"), (strain_unit, "strain_unit"), (pool, "pool"),
                         (input_unit, "input_unit")):
-        checked(value, "text", what)
+        checked(value, "text", what, optional=False)
     sensors = checked(sensors, "names", "sensors")
     auto = _auto(data, candidates, groups, jobs, options) if model == "auto" else None
     if auto is None:

@@ -55,25 +55,28 @@ def _number(value: object) -> float | None:
         return None
 
 
-def checked(value: Any, kind: Kind, what: str) -> Any:
+def checked(value: Any, kind: Kind, what: str, *, optional: bool = True) -> Any:
     """A keyword argument of the API checked to be of the kind it must be, the one check
-    every function runs on its options (None passes: the option's default).
+    every function runs on its options (None passes when ``optional``: the option's
+    default).
 
     Args:
         value: The value given.
         kind: What it must be (``Kind``).
         what: The argument's name, for the message.
+        optional: None is the argument's default (it passes); False for an argument
+            whose default is a value (``tare="calibration"``): None is refused.
 
     Returns:
         ``value`` in its checked form: a str, a list of str, an int, a float, a (START,
         END) tuple of floats or a list of (R, S) tuples of floats.
 
     Raises:
-        InputError: ``value`` is not of that kind, naming the argument, what it must be
-            and what was given.
+        InputError: ``value`` is not of that kind (or None, not ``optional``), naming
+            the argument, what it must be and what was given.
 
     """
-    if value is None:
+    if value is None and optional:
         return None
     if kind == "data":
         if not (is_path(value) or isinstance(value, (Recording, Mapping, list, tuple))):

@@ -61,8 +61,8 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
     """
 
     checked(data, "data", "data")
-    checked(form, "text", "form")
-    checked(tare, "text", "tare")
+    checked(form, "text", "form", optional=False)
+    checked(tare, "text", "tare", optional=False)
     pts = checked(points, "points", "points")
     first = checked(first, "seconds", "first")
     sensors = checked(sensors, "names", "sensors")
@@ -118,9 +118,9 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float | No
         BagError: The bag cannot be read.
 
     """
-    checked(data, "data", "data")
-    checked(tare, "text", "tare")
-    first = checked(first, "seconds", "first")
+    checked(data, "data", "data", optional=False)
+    checked(tare, "text", "tare", optional=False)
+    first = checked(first, "seconds", "first", optional=False)
     window = checked(window, "window", "window")
     if tare not in ("calibration", "auto"):
         raise InputError(f"--tare {tare!r}: expected one of calibration, auto")

@@ -62,13 +62,17 @@ class Recording:
             The recording (float64 copies of the arrays).
 
         Raises:
-            InputError: An array is not 1-D numbers, the lengths differ, or the name is
-                empty.
+            InputError: ``t`` or ``r`` is None, an array is not 1-D numbers, the lengths
+                differ, or the name is empty.
 
         """
         columns = {"t": t, "r": r, "s": s, "temperature": temperature}
         arrays: dict[str, np.ndarray | None] = {}
         for key, value in columns.items():
+            if value is None and key in ("t", "r"):
+                raise InputError(f"recording {name!r}: {key} (the "
+                                 f"{'time' if key == 't' else 'resistance'}) is required, "
+                                 "got None")
             if value is None:
                 arrays[key] = None
                 continue
@@ -80,16 +84,14 @@ class Recording:
                 raise InputError(f"recording {name!r}: {key} must be 1-D, got shape "
                                  f"{array.shape}")
             arrays[key] = array
-        t_array = arrays["t"]
-        assert t_array is not None
+        t_array, r_array = arrays["t"], arrays["r"]
+        assert t_array is not None and r_array is not None
         for key, array in arrays.items():
             if array is not None and array.size != t_array.size:
                 raise InputError(f"recording {name!r}: {key} has {array.size} samples, t has "
                                  f"{t_array.size}")
         if not name or not isinstance(name, str):
             raise InputError(f"recording name must be a non-empty string, got {name!r}")
-        r_array = arrays["r"]
-        assert r_array is not None
         return cls(name, t_array, r_array, arrays["s"], arrays["temperature"])
 
     @classmethod
