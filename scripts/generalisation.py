@@ -205,20 +205,22 @@ class Bench:
         return self.recordings[key]
 
     def cache_path(self, sensor: Sensor, runs: Sequence[Run], model: str,
-                   pool: str = "spanned") -> Path:
+                   pool: str = "spanned", band: bool = False) -> Path:
         labels = "+".join(r.label for r in runs)
-        tail = "" if len(runs) == 1 or pool == "spanned" else f"_{pool}"
+        tail = ("" if len(runs) == 1 or pool == "spanned" else f"_{pool}") + (
+            "_band" if band else "")
         return self.out / "cache" / f"{sensor.name}_{labels}_{model}{tail}_{self.key}.yaml"
 
     def fit(self, sensor: Sensor, runs: Run | Sequence[Run], model: str,
-            pool: str = "spanned") -> Any:
-        """``strain-comp fit RUN... --model MODEL --pool POOL`` (default options), cached."""
+            pool: str = "spanned", band: bool = False) -> Any:
+        """``strain-comp fit RUN... --model MODEL --pool POOL`` (default options), cached;
+        ``band``: ``--model auto --candidates MODEL``, which learns the uncertainty."""
         from strain_comp.core.calibration_file import load_calibration, save_calibration
         from strain_comp.offline.fit import fit_bags
         from strain_comp.offline.model_choice import auto_fitter
 
         runs = (runs,) if isinstance(runs, Run) else tuple(runs)
-        path = self.cache_path(sensor, runs, model, pool)
+        path = self.cache_path(sensor, runs, model, pool, band)
         if path in self.fits:
             return self.fits[path]
         if path.is_file() and not self.refit:
@@ -229,7 +231,8 @@ class Bench:
         cal = fit_bags([self.bag(sensor, r) for r in runs], model, [name],
                        {"progress": False} if model in ("apl", "pl", "mpi") else None,
                        pool=pool,
-                       fitter=auto_fitter(jobs=AUTO_JOBS[0]) if model == "auto" else None)
+                       fitter=(auto_fitter(jobs=AUTO_JOBS[0]) if model == "auto" else
+                               auto_fitter((model,), jobs=AUTO_JOBS[0]) if band else None))
         cal.sensors[name].strain_unit = sensor.unit
         self.fit_seconds += time.perf_counter() - start
         self.log(f"## fit {sensor.name}/{'+'.join(r.label for r in runs)} {model} {pool}: "
@@ -323,7 +326,8 @@ def band(rec: Any, cal: Any, log: Callable[[str], None] = print) -> tuple[float,
 def coverage_table(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str],
                    day2: Sensor | None) -> tuple[str, list[dict[str, Any]]]:
     """``--coverage``: every run of every sensor left out of the model fitted on the others
-    (``fit``, which learns the band from its own runs left out), started on it (``warmup``)
+    (``fit --model auto --candidates MODEL``, which learns the band from its own runs left
+    out), started on it (``warmup``)
     and scored; with ``day2``, the thread's session-2 runs on the fit of all of session 1.
     A Markdown table of the coverage per sensor and model, and the rows."""
     from strain_comp.core.calibration import Calibration
@@ -336,7 +340,7 @@ def coverage_table(bench: Bench, sensors: Sequence[Sensor], models: Sequence[str
             if day2 is not None and sensor.name == "nylon":
                 tests += [(sensor.runs, day2, test) for test in day2.runs]
             for train, tested, test in tests:
-                cal = bench.fit(sensor, train, model)
+                cal = bench.fit(sensor, train, model, band=True)
                 rec = bench.recording(tested, test)
                 rec = replace(rec, name=sensor.name)
                 error, share = band(rec, Calibration({sensor.name: cal.sensors[sensor.name]}),

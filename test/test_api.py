@@ -250,7 +250,7 @@ def test_arguments_of_the_wrong_type_raise_one_line_naming_them() -> None:
     ("tare=None", lambda run: sc.estimate(CAL, run.t, run.r, tare=None)),
     ("out_of_range=None", lambda run: sc.evaluate(CAL, run, out_of_range=None)),
     ("plot_points=None", lambda run: sc.evaluate(CAL, run, plot_points=None)),
-    ("first=None", lambda run: sc.session_start(CAL, run, first=None)),
+    ("tare=None", lambda run: sc.session_start(CAL, run, tare=None)),
     ("t (the time) is required", lambda run: sc.estimate(CAL, None, run.r)),
     ("r (the resistance) is required", lambda run: sc.estimate(CAL, run.t, None)),
     ("t (the time) is required", lambda run: sc.Recording.from_frame(

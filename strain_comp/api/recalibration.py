@@ -120,7 +120,7 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float | No
     """
     checked(data, "data", "data", optional=False)
     checked(tare, "text", "tare", optional=False)
-    first = checked(first, "seconds", "first", optional=False)
+    first = checked(first, "seconds", "first")
     window = checked(window, "window", "window")
     if tare not in ("calibration", "auto"):
         raise InputError(f"--tare {tare!r}: expected one of calibration, auto")

@@ -25,9 +25,10 @@ each have their module:
 * **Fit error**: the fitted calibration runs over the training segments through the
   engine (``training_error``); its RMSE, the fit time and the settings' sources go into
   the provenance.
-* **Uncertainty** (``strain_comp.offline.uncertainty``): with two runs or more, the
-  standard deviation of every estimate, learned from the model fitted on all runs but one
-  and started on the one left out, every run in turn (``learned_band``).
+* **Uncertainty** (``strain_comp.offline.uncertainty``; ``band``, which ``fit --model auto``
+  sets): with two runs or more, the standard deviation of every estimate, learned from the
+  model fitted on all runs but one and started on the one left out, every run in turn
+  (``learned_band``).
 """
 
 from __future__ import annotations
@@ -157,7 +158,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
     own = {k: v for k, v in options.items() if k in _DIRECTION_OPTIONS}
 
     def cubic(runs: Sequence[Recording]) -> SensorCalibration:
-        return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch", band=False)
+        return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
 
     space, measured = choose_space(recordings, cubic)
     pooled = pooled_input(recordings, space, joint)
@@ -167,7 +168,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
 
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = True
+               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = False
                ) -> SensorCalibration:
     """Fit ``model`` to one sensor's recordings (each with a reference strain). Several runs
     are pooled in one input space (``pool``, ``strain_comp.offline.pool``); ``band``:
@@ -234,7 +235,7 @@ def learned_band(runs: Sequence[Recording], model: str, name: str,
         others = [r for k, r in enumerate(runs) if k != j]
         try:  # a fold that cannot be fitted (its runs span too little) is left out
             fitted = Calibration({name: fit_sensor(others, model, name=name, options=options,
-                                                   budget=budget, pool=pool, band=False)})
+                                                   budget=budget, pool=pool)})
         except FitError:
             continue
         pairs.append((start_or_keep(fitted, {name: run}).calibration, {name: run}))

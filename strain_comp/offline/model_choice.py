@@ -122,7 +122,7 @@ def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
-                         pool=pool, band=False)
+                         pool=pool)
     except StrainCompError as err:
         return str(err)
     out = []
@@ -222,7 +222,7 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
     model, record = choose_model(recordings, name, candidates=candidates, groups=groups,
                                  options=options, pool=pool, jobs=jobs, report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
-                     options=options_of(model, options or {}), pool=pool)
+                     options=options_of(model, options or {}), pool=pool, band=True)
     expected = record.pop("expected", None)
     cal.provenance["model_choice"] = record
     if expected is not None:

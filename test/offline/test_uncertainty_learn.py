@@ -57,9 +57,12 @@ def run(seed: int, gain: float) -> Recording:
 
 
 def test_fit_learns_a_band_from_several_runs_only() -> None:
+    """``band`` (``fit --model auto``'s final fit): learned from two runs or more; a plain
+    fit learns none."""
     runs = [run(i, g) for i, g in enumerate((1.0, 1.1, 0.9))]
-    assert fit_sensor(runs[:1], "cubic", name="s1").uncertainty is None
-    cal = fit_sensor(runs, "cubic", name="s1")
+    assert fit_sensor(runs[:1], "cubic", name="s1", band=True).uncertainty is None
+    assert fit_sensor(runs, "cubic", name="s1").uncertainty is None
+    cal = fit_sensor(runs, "cubic", name="s1", band=True)
     assert cal.uncertainty is not None and cal.uncertainty.runs == 3
     assert cal.uncertainty.samples > 3000
     ev = evaluate_recordings({"s1": run(7, 1.05)}, Calibration({"s1": cal})).sensors["s1"]

@@ -76,8 +76,10 @@ def recorder() -> Iterator[Any]:
     rclpy.try_shutdown(context=ctx)
 
 
-def short_bag(path: Path, n: int, topics: tuple[str, ...] = ("/s1/resistance",)) -> Path:
-    """The first ``n`` messages on ``topics`` of bags/demo_rates.mcap, as recorded."""
+def short_bag(path: Path, n: int, topics: tuple[str, ...] = ("/s1/resistance",),
+              rename: dict[str, str] | None = None) -> Path:
+    """The first ``n`` messages on ``topics`` of bags/demo_rates.mcap, as recorded (a topic
+    written under its name in ``rename``, where it has one)."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -92,7 +94,8 @@ def short_bag(path: Path, n: int, topics: tuple[str, ...] = ("/s1/resistance",))
             if channel.id not in channels:
                 sid = writer.register_schema(schema.name, schema.encoding, schema.data)
                 channels[channel.id] = writer.register_channel(
-                    channel.topic, channel.message_encoding, sid)
+                    (rename or {}).get(channel.topic, channel.topic), channel.message_encoding,
+                    sid)
             writer.add_message(channels[channel.id], message.log_time, message.data,
                                message.publish_time)
         writer.finish()
@@ -212,12 +215,13 @@ def test_sim_time_play_equals_replay(workspace: dict[str, Any], recorder: Any,
 
 def test_play_plays_the_topics_with_a_subscriber_and_names_the_others(
         workspace: dict[str, Any], recorder: Any, tmp_path: Path) -> None:
-    """A bag with resistance and reference played with --clock into the default node under
-    sim time (it does not subscribe to the reference): the resistance is played and answered,
+    """A bag with s1's resistance and a sensor s9 the default node does not know, played
+    with --clock into the node under sim time: the resistance is played and answered,
     /diagnostics come under sim time, and one line names the topic without a subscriber and
     --topic (play waited for a subscriber on every topic and failed after 10 s: 0 strains)."""
     bag = short_bag(tmp_path / "both.mcap", 2 * N_WALL,
-                    ("/s1/resistance", "/s1/strain_reference"))
+                    ("/s1/resistance", "/s1/strain_reference"),
+                    {"/s1/strain_reference": "/s9/resistance"})
     node = run_node(workspace, workspace["share"] / "config/compensator_params.yaml",
                     tmp_path / "node.log", "-p", "use_sim_time:=true")
     diagnostics: list[Any] = []
@@ -227,7 +231,7 @@ def test_play_plays_the_topics_with_a_subscriber_and_names_the_others(
     assert code == 0
     assert len(got) >= 0.5 * N_WALL and diagnostics, (len(got), len(diagnostics))
     assert tmp_path.joinpath("play.log").read_text().splitlines() == [
-        f"play: no subscriber on /s1/strain_reference: {N_WALL} messages not played "
+        f"play: no subscriber on /s9/resistance: {N_WALL} messages not played "
         "(--topic TOPIC chooses the topics to play)", f"played {N_WALL} messages"]
 
 
