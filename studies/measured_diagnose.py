@@ -39,6 +39,12 @@ change, what the loop found or why it added nothing) and writes ``carry.json`` i
 
     python studies/measured_diagnose.py --carry --models cubic mpi --out out/carry
 
+``--another-day`` closes the loop on the thread's other day (``another_day``): fitted on
+session 1, every split of the five session-2 runs, through the user's commands:
+
+    python studies/measured_diagnose.py --another-day --models creep_pi --jobs 2 \
+        --out /tmp/another_day
+
 Prints a Markdown table (data set x model: before, after, effects added), writes
 ``results.json``, the diagnosed calibrations (``<set>_<model>_diagnosed.yaml``) and the
 residual plots (``plots/``) into ``--out``.
@@ -187,6 +193,119 @@ def carry(args: argparse.Namespace) -> int:
     return 0
 
 
+DAY2_RUNS = ("sin_20", "sin_40", "tri_20", "tri_30", "mixed_20_30")
+"""``--another-day``: the thread's session-2 runs (nylon_silver/session2_10Hz)."""
+
+
+def _cli(argv: list[str]) -> int:
+    """``strain-comp ARGV`` (``strain_comp.cli.main``), quiet."""
+    from strain_comp.cli import main as cli
+
+    return cli([*argv, "-q"])
+
+
+def _started_rmse(cal: Path, bag: Path, work: Path) -> float:
+    """``strain-comp start CAL BAG`` then ``evaluate BAG`` with the started calibration
+    (a run ``start`` refuses is evaluated with ``CAL`` as it is): the RMSE."""
+    started = work / f"{cal.stem}__{bag.stem}.yaml"
+    if _cli(["start", str(cal), str(bag), "--out", str(started)]) != 0:
+        started = cal
+    report = work / f"{cal.stem}__{bag.stem}.json"
+    assert _cli(["evaluate", str(bag), "--calibration", str(started), "--json",
+                 str(report)]) == 0
+    return float(json.loads(report.read_text())["sensors"]["nylon"]["rmse"])
+
+
+def _split(job: tuple[str, tuple[str, str], dict[str, Path], Path, Path]) -> dict[str, Any]:
+    """One split of ``another_day``: diagnose, then each test run after its start."""
+    run, pair, bags, cal, out = job
+    tests = [r for r in DAY2_RUNS if r != run and r not in pair]
+    name = f"{run}__{pair[0]}__{pair[1]}"
+    cal2, report = out / f"{name}.yaml", out / f"{name}.json"
+    start = time.perf_counter()
+    code = _cli(["diagnose", str(bags[run]), "--calibration", str(cal), "--validate",
+                 *(str(bags[p]) for p in pair), "--out", str(cal2), "--json", str(report)])
+    assert code == 0, f"diagnose {name} exited {code}"
+    seconds = time.perf_counter() - start
+    found = json.loads(report.read_text())["sensors"]["nylon"]
+    after = {r: _started_rmse(cal2, bags[r], out) for r in tests}
+    return {"diagnosed": run, "validate": list(pair), "test": tests, "after": after,
+            "added": [e["name"] for e in found["added"]], "message": found["message"],
+            "seconds": round(seconds, 1)}
+
+
+def another_day(args: argparse.Namespace) -> int:
+    """The loop on another day, through the user's commands (``strain_comp.cli.main``):
+    ``import-csv`` every thread run of both sessions, ``fit --model MODEL`` on the seven
+    session-1 runs (cached in ``--out``), then for every split of the five session-2 runs
+    (one diagnosed, two validating, the other two tested: 30) ``diagnose RUN --calibration
+    S1 --validate A B``, and each test run through ``start`` and ``evaluate``, with the
+    session-1 calibration (before) and with the diagnosed one (after)."""
+    import itertools
+    from multiprocessing import Pool
+
+    import numpy as np
+
+    out = args.out
+    (out / "bags").mkdir(parents=True, exist_ok=True)
+    bags: dict[str, Path] = {}
+    for tag, folder in (("s1", "session1_100Hz"), ("s2", "session2_10Hz")):
+        for csv in sorted((args.data / "nylon_silver" / folder).glob("*.csv")):
+            bag = out / "bags" / f"{tag}_{csv.stem}.mcap"
+            if not bag.exists():
+                assert _cli(["import-csv", str(csv), "--format", "generic", "--columns",
+                             "time=time_s,resistance=r_over_r0,strain=position", "--scales",
+                             "strain=100", "--sensor", "nylon", "--out", str(bag)]) == 0
+            bags[f"{tag}_{csv.stem}"] = bag
+    model = args.models[0]
+    cal = out / f"session1_{model}.yaml"
+    if not cal.exists():
+        assert _cli(["fit", *(str(b) for k, b in sorted(bags.items()) if k.startswith("s1_")),
+                     "--model", model, "--sensor", "nylon", "--input-unit", "R/R0",
+                     "--out", str(cal)]) == 0
+    day2 = {r: bags[f"s2_{r}"] for r in DAY2_RUNS}
+    before = {r: _started_rmse(cal, day2[r], out) for r in DAY2_RUNS}
+    jobs = [(run, pair, day2, cal, out) for run in DAY2_RUNS
+            for pair in itertools.combinations([r for r in DAY2_RUNS if r != run], 2)]
+    start = time.perf_counter()
+    if args.jobs > 1:
+        with Pool(args.jobs) as pool:
+            rows = pool.map(_split, jobs, chunksize=1)
+    else:
+        rows = [_split(job) for job in jobs]
+    total = time.perf_counter() - start
+    print("| diagnosed | validate | test runs: before -> after | change | added (or the "
+          "refusal) |")
+    print("|---|---|---|---:|---|")
+    for row in rows:
+        tests = row["test"]
+        row["before"] = {r: before[r] for r in tests}
+        row["change"] = (float(np.median([row["after"][r] for r in tests]))
+                         / float(np.median([before[r] for r in tests])) - 1.0)
+        what = ", ".join(row["added"]) or row["message"]
+        print(f"| {row['diagnosed']} | {', '.join(row['validate'])} | "
+              + ", ".join(f"{r} {before[r]:.2f} -> {row['after'][r]:.2f}" for r in tests)
+              + f" | {100 * row['change']:+.0f} % | {what} |")
+    added = [r for r in rows if r["added"]]
+    changes = [r["change"] for r in added]
+    worse = [f"{t} {r['before'][t]:.2f} -> {r['after'][t]:.2f} after diagnosing "
+             f"{r['diagnosed']}" for r in rows for t in r["test"]
+             if r["after"][t] > r["before"][t] * 1.0005]
+    seconds = sorted(r["seconds"] for r in rows)
+    print(f"\n{len(added)} of {len(rows)} splits add a term, {len(rows) - len(added)} refuse; "
+          f"test median change where added: "
+          f"{', '.join(f'{100 * c:+.0f} %' for c in changes) or '-'}; splits at "
+          f"-25 % or better: {sum(r['change'] <= -0.25 for r in rows)}; test runs worse than "
+          f"without the loop: {len(worse)}{': ' + '; '.join(worse) if worse else ''}. "
+          f"Before (each run after its start, session-1 calibration): "
+          f"{', '.join(f'{r} {v:.2f}' for r, v in before.items())} % strain. Diagnose per "
+          f"split: median {seconds[len(seconds) // 2]:.0f} s, at most {seconds[-1]:.0f} s; "
+          f"all splits {total / 60:.1f} min with --jobs {args.jobs}")
+    (out / "another_day.json").write_text(json.dumps({"before": before, "rows": rows},
+                                                     indent=1) + "\n", encoding="utf-8")
+    return 0
+
+
 def short(run: str) -> str:
     """A run's short label: v16, run 1, sin_20, rig:random."""
     stem = run.removesuffix(".csv")
@@ -221,7 +340,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policy", nargs="+", default=[], metavar="FIELD=VALUE",
                         help="with --carry: the loop's policy with these fields changed "
                              "(strain_comp.diagnosis.policy.LoopPolicy, e.g. spread=1)")
+    parser.add_argument("--another-day", action="store_true",
+                        help="the thread fitted on session 1 (the first of --models), the "
+                             "loop on every split of session 2 (another_day)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="with --another-day: splits diagnosed at once (default 1)")
     args = parser.parse_args(argv)
+    if args.another_day:
+        return another_day(args)
     if args.carry:
         return carry(args)
 
