@@ -131,7 +131,21 @@ def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | No
                 "runs with one validation run (give two or more)")
     return (f"{cands.names[refused.column]} ({first:+.0f} % on the diagnosed run) changes "
             f"them by {changes}: not {100 * margin:.0f} % lower beyond the spread between "
-            "runs")
+            f"runs; {instead(refused.log_ratios, margin)}")
+
+
+def instead(log_ratios: list[float], margin: float) -> str:
+    """Why a term fitted on the diagnosed run does not carry, and what to record instead:
+    where it lowers some validation runs and not others (or none), the change differs
+    between runs, which only known strains during each run can follow; where it lowers
+    every one but by amounts that differ too much, more runs tell."""
+    if all(x < math.log(1.0 - margin) for x in log_ratios):
+        return ("the validation runs disagree on its size: record more validation runs "
+                "(diagnose --validate RUN1 RUN2 RUN3 ...)")
+    which = ("between the validation runs" if any(x < math.log(1.0 - margin) for x in log_ratios)
+             else "from the diagnosed run's on every validation run")
+    return (f"the change differs {which}, so no term fitted on one run carries it: record "
+            "known strains during the run (evaluate --references-every SECONDS)")
 
 
 def family(cands: Candidates, j: int) -> str:

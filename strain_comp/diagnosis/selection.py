@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from strain_comp._numba import njit
 from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
@@ -252,14 +253,17 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
     return Branch(shift, selection, kept, coef, e_after, rms(e_after))
 
 
-def upper_bound(log_ratios: Sequence[float], spread: float) -> float:
-    """What a later run may get from a term: the mean of its log RMSE ratios over the
-    validation runs plus ``spread`` of their standard deviations (``LoopPolicy.spread``);
-    +inf with fewer than two runs (no spread between runs to judge by)."""
+def upper_bound(log_ratios: Sequence[float], level: float) -> float:
+    """What one more run may get from a term: the one-sided prediction bound at ``level``
+    (``LoopPolicy.level``) of its log RMSE ratio from those on the k validation runs,
+    mean + t(level, k - 1) sd sqrt(1 + 1 / k) (Student's t: with two runs' standard
+    deviation the normal quantile would trust a spread that two runs hardly show); +inf
+    with fewer than two runs (no spread between runs to judge by)."""
     x = np.asarray(log_ratios, dtype=np.float64)
     if x.size < 2 or not np.all(np.isfinite(x)):
         return math.inf
-    return float(x.mean() + spread * x.std(ddof=1))
+    quantile = float(student_t.ppf(level, x.size - 1))
+    return float(x.mean() + quantile * x.std(ddof=1) * math.sqrt(1.0 + 1.0 / x.size))
 
 
 RunsHeldOut = Callable[[Sequence[int], np.ndarray], list[np.ndarray]]
@@ -346,7 +350,7 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
             e_j = held_out(cols, c)
             ratios = run_log_ratios(e_j, current)
             tried.append((Tried(j, math.log(1.0 - passing[j]), ratios,
-                                upper_bound(ratios, policy.spread)), c, e_j))
+                                upper_bound(ratios, policy.level)), c, e_j))
         if not tried:
             break
         best, c, e_j = min(tried, key=lambda x: (x[0].bound, float(np.mean(x[0].log_ratios))))
