@@ -124,6 +124,7 @@ from strain_comp.diagnosis.selection import (
     candidate_scores,
     keep_on_held_out,
     linear_held_out,
+    own_sizes,
     rms,
     select_carried,
     select_forward,
@@ -188,7 +189,13 @@ def _select(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float],
     if session is not None:
         n = len(cands.names)
         skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
-        carried = select_carried(gram, n, cands.offset, session.per_run, policy, skip)
+        fit = rows.series
+        sizes = own_sizes([(np.concatenate([x.e[~x.extended] for x in fit]),
+                            np.concatenate([x.s[~x.extended] for x in fit]),
+                            np.concatenate([x.g[~x.extended] for x in fit])),
+                           *((x.e[~x.extended], x.s[~x.extended], x.g[~x.extended])
+                             for x in rows.val_series)])
+        carried = select_carried(gram, n, cands.offset, session.per_run, policy, skip, sizes)
         kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
         return _Selected([carried.kept[k] for k in kept], [float(carried.coef[k]) for k in kept],
                          carried.selection.gains, carried.selection.chosen, carried.refused)
@@ -258,7 +265,8 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     order = [j for j in terms if j != cands.offset] or terms
     message = message_of(cal, cands, rows, picked.chosen, picked.refused, setup.scores, order,
                          picked.gains, policy.margin, rms(e_before), rms(e_after),
-                         session is not None, setup.strides)
+                         session is not None, setup.strides,
+                         agreement=policy.agreement)
     e_linear = linear(terms, np.array(coefs))
     winner = cands.names[order[0]] if order else None
     plot = {}
