@@ -270,8 +270,8 @@ ROS_MODULES = frozenset({
 """Modules that need rclpy, the ros2 command line or colcon (marked ``ros``; so is any test
 that takes the ``context`` fixture)."""
 
-SLOW_MODULES = frozenset({"test_api_doc", "test_live_start", "test_model_choice",
-                          "test_numba_setup", "test_progress"})
+SLOW_MODULES = frozenset({"test_api_doc", "test_diagnose_day", "test_live_start",
+                          "test_model_choice", "test_numba_setup", "test_progress"})
 """Modules whose every test takes about a second or more (marked ``slow``)."""
 
 SLOW_TESTS: dict[str, tuple[str, ...]] = {

@@ -77,9 +77,15 @@ Per calibrated sensor that has a recording with a reference strain:
    RMSE ratios (the diagnosed run's held-out folds and each validation run) have the
    lowest upper bound, mean plus ``LoopPolicy.spread`` standard deviations, is added if
    that bound is below ln(1 - margin): it lowers the error beyond the spread between
-   runs. The terms are thus chosen by what carries, not by what fits the diagnosed run
-   best (a drift that two runs share and a third does not, a memory that ratchets on
-   another run's noise, are seen as the spread they make).
+   runs, and if the validation runs agree on its size: each one's own coefficient of the
+   term (fitted on that run alone with its own intercept and gain, which the session
+   start makes) within ``LoopPolicy.agreement`` of the diagnosed run's
+   (``selection.own_sizes``). The terms are thus chosen by what carries, not by what fits
+   the diagnosed run best (a drift that two runs share and a third does not, a memory
+   that ratchets on another run's noise, are seen as the spread they make; a change whose
+   size differs from run to run, which a coefficient fitted on one run cannot follow, as
+   the sizes that disagree). Where none carries, the message says why and what to record
+   instead (``findings.instead``).
 
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
