@@ -159,7 +159,7 @@ def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPoli
     ratios = [math.log(a / b) for name, d in result.sensors.items() if name in reference.sensors
               for a, b in zip(d.runs_after, reference.sensors[name].runs_after, strict=False)
               if a > 0 and b > 0]
-    return len(ratios) < 2 or upper_bound(ratios, policy.spread) < math.log(1.0 - policy.margin)
+    return len(ratios) < 2 or upper_bound(ratios, policy.level) < math.log(1.0 - policy.margin)
 
 
 def _chosen(results: Sequence[DiagnoseResult], policy: LoopPolicy) -> int:

@@ -13,7 +13,6 @@ import numpy as np
 from strain_comp.core.calibration import SensorCalibration, strain_unit_words
 from strain_comp.core.effects import regressor_from_dict
 from strain_comp.core.tare import REST_WINDOW
-from strain_comp.diagnosis.policy import LOOP_POLICY
 from strain_comp.diagnosis.report import SESSION_RECORDS, EffectScore, creep_tau
 from strain_comp.diagnosis.residuals import ROW_BUDGET
 from strain_comp.diagnosis.rows import Candidates, Rows
@@ -75,8 +74,7 @@ def lags(cands: Candidates, rows: Rows, j: int, coef: float) -> bool | None:
 def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: list[int],
                refused: Tried | None, scores: dict[int, float], order: list[int],
                gains: Mapping[int, float], margin: float, before: float, after: float,
-               session: bool, strides: tuple[int, int | None], *,
-               agreement: float = LOOP_POLICY.agreement) -> str:
+               session: bool, strides: tuple[int, int | None]) -> str:
     """The loop's finding for one sensor, in words. ``chosen``: the terms selected on the
     diagnosed run (without a session start); ``refused``: the best candidate scored on the
     validation runs and not added (with one)."""
@@ -92,7 +90,7 @@ def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: li
         if session:
             message = (f"after the session start, what remains on the validation runs is "
                        f"{before:.4g} {cal.strain_unit} (as calibrated {rms(rows.e_out):.4g}) "
-                       f"and {not_carried(cands, scores, refused, margin, agreement)}: "
+                       f"and {not_carried(cands, scores, refused, margin)}: "
                        "nothing added")
     else:
         parts = ", ".join(f"{names[j]} ({family(cands, j)}gain {gains[j]:.1%})"
@@ -118,7 +116,7 @@ def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: li
 
 
 def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | None,
-                margin: float, agreement: float = LOOP_POLICY.agreement) -> str:
+                margin: float) -> str:
     """Why no term is added after the session start, in one clause: no candidate helps the
     diagnosed run, or the best one that does (``refused``), what it does to each run, why
     it does not carry and what to record instead (``instead``)."""
@@ -134,30 +132,24 @@ def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | No
                 f"{changes} on the validation run) cannot be told from the spread between "
                 "runs with one validation run (give two or more)")
     return (f"{cands.names[refused.column]} ({first:+.0f} % on the diagnosed run) changes "
-            f"them by {changes}: {instead(refused, margin, agreement)}")
+            f"them by {changes}: not {100 * margin:.0f} % lower beyond the spread between "
+            f"runs; {instead(refused.log_ratios, margin)}")
 
 
-def instead(refused: Tried, margin: float, agreement: float) -> str:
-    """Why a term fitted on the diagnosed run does not carry, and what to record instead.
-    Where it lowers some validation runs and not others (or none), or the runs' own sizes
-    of it differ from the diagnosed run's by more than ``agreement``, the change differs
+def instead(log_ratios: list[float], margin: float) -> str:
+    """Why a term fitted on the diagnosed run does not carry, and what to record instead:
+    where it lowers some validation runs and not others (or none), the change differs
     between runs, which only known strains during each run can follow; where it lowers
-    every one by amounts too far apart for its size to be told, more runs tell."""
+    every one, but by amounts too far apart for what one more run gets to be told, more
+    runs tell."""
     low = math.log(1.0 - margin)
-    fix = ("so no term fitted on one run carries it: record known strains during the run "
-           "(evaluate --references-every SECONDS)")
-    if refused.bound < low:
-        sizes = ", ".join(f"{x:.2g}" for x in refused.sizes)
-        return (f"the change differs between the validation runs (their own size of it is "
-                f"{sizes} times the diagnosed run's, more than {100 * agreement:.0f} % "
-                f"apart), {fix}")
-    spread = f"not {100 * margin:.0f} % lower beyond the spread between runs"
-    if all(x < low for x in refused.log_ratios):
-        return (f"{spread}; the validation runs disagree on its size: record more "
+    if all(x < low for x in log_ratios):
+        return ("the validation runs disagree on how much it lowers them: record more "
                 "validation runs (diagnose --validate RUN1 RUN2 RUN3 ...)")
-    which = ("between the validation runs" if any(x < low for x in refused.log_ratios)
+    which = ("between the validation runs" if any(x < low for x in log_ratios)
              else "from the diagnosed run's on every validation run")
-    return f"{spread}; the change differs {which}, {fix}"
+    return (f"the change differs {which}, so no term fitted on one run carries it: record "
+            "known strains during the run (evaluate --references-every SECONDS)")
 
 
 def family(cands: Candidates, j: int) -> str:

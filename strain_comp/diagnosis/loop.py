@@ -75,17 +75,13 @@ Per calibrated sensor that has a recording with a reference strain:
    that pass step 5 on the diagnosed run, the ``LoopPolicy.tried`` best, are each fitted
    there and scored on every validation run after its session start; the one whose log
    RMSE ratios (the diagnosed run's held-out folds and each validation run) have the
-   lowest upper bound, mean plus ``LoopPolicy.spread`` standard deviations, is added if
-   that bound is below ln(1 - margin): it lowers the error beyond the spread between
-   runs, and if the validation runs agree on its size: each one's own coefficient of the
-   term (fitted on that run alone with its own intercept and gain, which the session
-   start makes) within ``LoopPolicy.agreement`` of the diagnosed run's
-   (``selection.own_sizes``). The terms are thus chosen by what carries, not by what fits
-   the diagnosed run best (a drift that two runs share and a third does not, a memory
-   that ratchets on another run's noise, are seen as the spread they make; a change whose
-   size differs from run to run, which a coefficient fitted on one run cannot follow, as
-   the sizes that disagree). Where none carries, the message says why and what to record
-   instead (``findings.instead``).
+   lowest upper bound, the prediction bound of one more run's (``LoopPolicy.level``,
+   Student's t over the validation runs), is added if that bound is below ln(1 - margin):
+   it lowers the error beyond the spread between runs. The terms are thus chosen by what
+   carries, not by what fits the diagnosed run best (a drift that two runs share and a
+   third does not, a memory that ratchets on another run's noise, are seen as the spread
+   they make). Where none carries, the message says why and what to record instead
+   (``findings.instead``).
 
 Decisions: the regressors read the engine's clamped estimate (identical to the online
 input as long as the estimate is inside the valid strain range widened by the engine's
@@ -130,7 +126,6 @@ from strain_comp.diagnosis.selection import (
     candidate_scores,
     keep_on_held_out,
     linear_held_out,
-    own_sizes,
     rms,
     select_carried,
     select_forward,
@@ -195,13 +190,7 @@ def _select(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float],
     if session is not None:
         n = len(cands.names)
         skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
-        fit = rows.series
-        sizes = own_sizes([(np.concatenate([x.e[~x.extended] for x in fit]),
-                            np.concatenate([x.s[~x.extended] for x in fit]),
-                            np.concatenate([x.g[~x.extended] for x in fit])),
-                           *((x.e[~x.extended], x.s[~x.extended], x.g[~x.extended])
-                             for x in rows.val_series)])
-        carried = select_carried(gram, n, cands.offset, session.per_run, policy, skip, sizes)
+        carried = select_carried(gram, n, cands.offset, session.per_run, policy, skip)
         kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
         return _Selected([carried.kept[k] for k in kept], [float(carried.coef[k]) for k in kept],
                          carried.selection.gains, carried.selection.chosen, carried.refused)
@@ -271,8 +260,7 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     order = [j for j in terms if j != cands.offset] or terms
     message = message_of(cal, cands, rows, picked.chosen, picked.refused, setup.scores, order,
                          picked.gains, policy.margin, rms(e_before), rms(e_after),
-                         session is not None, setup.strides,
-                         agreement=policy.agreement)
+                         session is not None, setup.strides)
     e_linear = linear(terms, np.array(coefs))
     winner = cands.names[order[0]] if order else None
     plot = {}

@@ -23,18 +23,13 @@ class LoopPolicy:
     squared error on the diagnosed run must exceed this many standard errors
     (``selection.significant``): a term that helps in a few stretches and hurts in
     others fits a coincidence of the profile."""
-    spread: float = 2.0
-    """[standard deviations over runs] A term's upper bound is the mean of its log RMSE
-    ratios over the runs it was not fitted on (the diagnosed run's held-out folds, each
-    validation run after its session start) plus this many of their standard
-    deviations: what a later run may get, given how much runs differ."""
-    agreement: float = 0.25
-    """[1, relative coefficient] Each validation run's own coefficient of a term (fitted on
-    that run alone with an intercept and a gain, what the session start leaves to it) must
-    lie within this share of the diagnosed run's (``selection.own_sizes``): the change is
-    the same on every run, so one coefficient fitted on one run carries it. A run whose
-    own size is 1.5 times the written one keeps a third of its effect, a run with its own
-    size half the written one gets the other half added as error."""
+    level: float = 0.95
+    """[one-sided probability] A term's upper bound is the prediction bound, at this
+    level, of its log RMSE ratio on one more run, from the ratios on the validation runs
+    after their session start (``selection.upper_bound``: Student's t with the runs less
+    one degrees of freedom): what a later run may get, given how much the runs differ and
+    how few of them there are. With two runs the bound is the mean plus 5.5 times their
+    difference: a term is added only where both runs agree on its gain."""
     tried: int = 16
     """[candidates per step] The candidates that pass on the diagnosed run, best first,
     scored on the validation runs at each step (each costs one session start and one

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from strain_comp._numba import njit
 from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
@@ -252,14 +253,17 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
     return Branch(shift, selection, kept, coef, e_after, rms(e_after))
 
 
-def upper_bound(log_ratios: Sequence[float], spread: float) -> float:
-    """What a later run may get from a term: the mean of its log RMSE ratios over the
-    validation runs plus ``spread`` of their standard deviations (``LoopPolicy.spread``);
-    +inf with fewer than two runs (no spread between runs to judge by)."""
+def upper_bound(log_ratios: Sequence[float], level: float) -> float:
+    """What one more run may get from a term: the one-sided prediction bound at ``level``
+    (``LoopPolicy.level``) of its log RMSE ratio from those on the k validation runs,
+    mean + t(level, k - 1) sd sqrt(1 + 1 / k) (Student's t: with two runs' standard
+    deviation the normal quantile would trust a spread that two runs hardly show); +inf
+    with fewer than two runs (no spread between runs to judge by)."""
     x = np.asarray(log_ratios, dtype=np.float64)
     if x.size < 2 or not np.all(np.isfinite(x)):
         return math.inf
-    return float(x.mean() + spread * x.std(ddof=1))
+    quantile = float(student_t.ppf(level, x.size - 1))
+    return float(x.mean() + quantile * x.std(ddof=1) * math.sqrt(1.0 + 1.0 / x.size))
 
 
 RunsHeldOut = Callable[[Sequence[int], np.ndarray], list[np.ndarray]]
@@ -274,52 +278,15 @@ def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> 
             for a, b in zip(e_new, e_old, strict=True)]
 
 
-RunSizes = Callable[[Sequence[int]], np.ndarray]
-"""The coefficients of columns fitted on each run alone (``own_sizes``): (columns) ->
-array (runs, columns), the diagnosed runs pooled in row 0, each validation run after."""
-
-
-def own_sizes(runs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> RunSizes:
-    """``RunSizes`` of runs given as (residual e, reference strain s, regressors g): on
-    each, e ~ c0 + b s + g[:, cols] c by least squares, c returned. The intercept and the
-    gain b are the run's own, which the session start makes (a term's size is judged on
-    what it leaves)."""
-
-    def sizes(cols: Sequence[int]) -> np.ndarray:
-        out = []
-        for e, s, g in runs:
-            x = np.column_stack([np.ones(e.size), s, g[:, list(cols)]])
-            scale = np.maximum(np.abs(x).max(axis=0), 1e-300)
-            c = np.linalg.lstsq(x / scale, e, rcond=1e-12)[0] / scale
-            out.append(c[2:])
-        return np.asarray(out)
-
-    return sizes
-
-
-def agree(sizes: np.ndarray, tolerance: float) -> bool:
-    """Does every validation run's own size of a term (rows 1.. of one column of
-    ``own_sizes``) lie within ``tolerance`` of the diagnosed run's (row 0), relative?"""
-    return bool(np.all(np.abs(sizes[1:] - sizes[0]) <= tolerance * abs(sizes[0])))
-
-
 @dataclass
 class Tried:
     """A candidate scored on the validation runs: the log RMSE ratio on the diagnosed run's
-    held-out folds, each validation run's, their upper bound, and each validation run's
-    own size of the term against the diagnosed run's (``own_sizes``; empty: not
-    measured)."""
+    held-out folds, each validation run's, and their upper bound."""
 
     column: int
     fit_ratio: float
     log_ratios: list[float]
     bound: float
-    sizes: list[float] = field(default_factory=list)
-
-    def carries(self, policy: LoopPolicy) -> bool:
-        """Is its bound below ln(1 - margin), and do the runs agree on its size?"""
-        return self.bound < math.log(1.0 - policy.margin) and all(
-            abs(x - 1.0) <= policy.agreement for x in self.sizes)
 
 
 @dataclass
@@ -356,19 +323,16 @@ def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequen
 
 
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
-                   policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = (),
-                   sizes: RunSizes | None = None) -> Carried:
+                   policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Carried:
     """Greedy selection scored as the product is used (``strain_comp.diagnosis.loop``,
     step 8). At each step the candidates that pass on the diagnosed run (``_passing``),
     the ``policy.tried`` best, are each fitted there (with the terms already added and the
     intercept) and scored on the validation runs by ``held_out`` (the errors of each run
-    after its session start). Of those that carry (``Tried.carries``: the ``upper_bound``
-    of their log RMSE ratios over the validation runs is below ln(1 - margin), so they
-    lower the error by more than the margin beyond the spread between runs, and, given
-    ``sizes``, every validation run's own size of the term is within
-    ``policy.agreement`` of the diagnosed run's), the one with the lowest bound is added
-    (with one validation run there is no spread to judge by, and nothing is added).
-    ``skip``: columns never tried (what the session start makes itself)."""
+    after its session start). The one with the lowest ``upper_bound`` of its log RMSE
+    ratios over the validation runs is added if that bound is below ln(1 - margin): it
+    lowers the error by more than the margin beyond the spread between runs (with one
+    validation run there is no spread to judge by, and nothing is added). ``skip``: columns
+    never tried (what the session start makes itself)."""
     all_folds = np.arange(gram.n.size)
     chosen: list[int] = []
     gains: dict[int, float] = {}
@@ -385,15 +349,12 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
             c = gram.solve(cols, all_folds) / gram.scale[cols]
             e_j = held_out(cols, c)
             ratios = run_log_ratios(e_j, current)
-            own = np.zeros(0) if sizes is None else sizes([*chosen, j])[:, -1]
-            relative = [float(x / own[0]) if own[0] != 0 else math.inf for x in own[1:]]
             tried.append((Tried(j, math.log(1.0 - passing[j]), ratios,
-                                upper_bound(ratios, policy.spread), relative), c, e_j))
+                                upper_bound(ratios, policy.level)), c, e_j))
         if not tried:
             break
-        order = sorted(tried, key=lambda x: (x[0].bound, float(np.mean(x[0].log_ratios))))
-        best, c, e_j = next((x for x in order if x[0].carries(policy)), order[0])
-        if not best.carries(policy):
+        best, c, e_j = min(tried, key=lambda x: (x[0].bound, float(np.mean(x[0].log_ratios))))
+        if not best.bound < math.log(1.0 - policy.margin):
             refused = best
             break
         chosen.append(best.column)
