@@ -234,6 +234,51 @@ def _split(job: tuple[str, tuple[str, str], dict[str, Path], Path, Path]) -> dic
             "seconds": round(seconds, 1)}
 
 
+def carried_anywhere(day2: dict[str, Path], cal: Path, tried: int) -> None:
+    """``--another-day --evidence``: per diagnosed run, its ``tried`` best candidates (as
+    the loop ranks them on it), each fitted there and scored after ``start`` on each of
+    the four other runs, as the loop scores its validation runs
+    (``diagnosis.loop._setup``, ``selection._passing``, ``SessionHeldOut.per_run``): the
+    change of each run's RMSE, and how many candidates lower all four."""
+    import numpy as np
+
+    from strain_comp.core.calibration_file import load_calibration
+    from strain_comp.diagnosis import loop, selection
+    from strain_comp.diagnosis.policy import LOOP_POLICY
+    from strain_comp.diagnosis.residuals import base_runs
+    from strain_comp.io.recording import load_recordings
+
+    calibration = load_calibration(cal)
+    bags = {r: load_recordings(day2[r])[0] for r in DAY2_RUNS}
+    print("| fitted on | candidate | on it (folds) | "
+          + " | ".join(f"run {k + 1}" for k in range(4)) + " |")
+    print("|---|---|---:|" + "---:|" * 4)
+    for run in DAY2_RUNS:
+        others = [r for r in DAY2_RUNS if r != run]
+        fit, val = [bags[run]], [bags[r] for r in others]
+        setup = loop._setup("nylon", calibration, fit, val,
+                            [base_runs(b, calibration) for b in fit],
+                            [base_runs(b, calibration) for b in val], None, 0.3, 10, False, True)
+        assert setup is not None and setup.session is not None
+        gram, cands, session = setup.gram, setup.cands, setup.session
+        n = len(cands.names)
+        skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
+        passing = selection._passing(gram, [], cands.offset, n, skip, LOOP_POLICY)
+        none = session.per_run([], np.zeros(0))
+        lowers_all = 0
+        for j in sorted(passing, key=passing.__getitem__, reverse=True)[:tried]:
+            cols = selection.with_intercept([j], cands.offset)
+            coef = gram.solve(cols, np.arange(gram.n.size)) / gram.scale[cols]
+            ratios = selection.run_log_ratios(session.per_run(cols, coef), none)
+            lowers_all += all(x < 0 for x in ratios)
+            print(f"| {run} | {cands.names[j]} | {-100 * passing[j]:+.0f} % | "
+                  + " | ".join(f"{o} {100 * (np.exp(x) - 1):+.0f} %"
+                               for o, x in zip(others, ratios, strict=True)) + " |",
+                  flush=True)
+        print(f"\n{run}: {lowers_all} of {min(tried, len(passing))} candidates lower all "
+              "four other runs\n", flush=True)
+
+
 def another_day(args: argparse.Namespace) -> int:
     """The loop on another day, through the user's commands (``strain_comp.cli.main``):
     ``import-csv`` every thread run of both sessions, ``fit --model MODEL`` on the seven
@@ -264,6 +309,9 @@ def another_day(args: argparse.Namespace) -> int:
                      "--model", model, "--sensor", "nylon", "--input-unit", "R/R0",
                      "--out", str(cal)]) == 0
     day2 = {r: bags[f"s2_{r}"] for r in DAY2_RUNS}
+    if args.evidence:
+        carried_anywhere(day2, cal, 16)
+        return 0
     before = {r: _started_rmse(cal, day2[r], out) for r in DAY2_RUNS}
     jobs = [(run, pair, day2, cal, out) for run in DAY2_RUNS
             for pair in itertools.combinations([r for r in DAY2_RUNS if r != run], 2)]
@@ -343,6 +391,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--another-day", action="store_true",
                         help="the thread fitted on session 1 (the first of --models), the "
                              "loop on every split of session 2 (another_day)")
+    parser.add_argument("--evidence", action="store_true",
+                        help="with --another-day: each run's 16 best candidates scored on "
+                             "the four other runs (carried_anywhere) instead of the splits")
     parser.add_argument("--jobs", type=int, default=1,
                         help="with --another-day: splits diagnosed at once (default 1)")
     args = parser.parse_args(argv)
