@@ -111,7 +111,7 @@ def peak_rss_mb() -> float:
 
 def row(what: str, figure: str, baseline: str, ratio: str, *,
         memory_mb: float | None = None) -> None:
-    """Print one row of docs/performance.md's table (``bench/perf_table.py`` collects the
+    """Print one row of docs/results.md's table (``bench/perf_table.py`` collects the
     ``ROW`` lines of ``bench/run_all.sh``); memory: the peak RSS of this process unless
     given."""
     memory = peak_rss_mb() if memory_mb is None else memory_mb

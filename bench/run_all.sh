@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Run every strain_comp benchmark in turn (on demand; not part of the test suite) and
-# regenerate docs/performance.md's table from their ROW lines (bench/perf_table.py).
+# regenerate docs/results.md's table from their ROW lines (bench/perf_table.py).
 #   bash bench/run_all.sh [--quick]
 # --quick: smaller sizes (a smoke run of the scripts; the table is not rewritten).
 # Each script prints its own figures and the ratio against its baseline. The full run takes

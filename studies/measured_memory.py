@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: Where do memory models lose to the cubic within a run? (docs/measured.md)
+# Study: Where do memory models lose to the cubic within a run? (docs/results.md)
 """Where the memory models lose to the cubic within one measured run, by phase and by block.
 
     python studies/measured_memory.py --data ../shared/data/measured --out out/memory

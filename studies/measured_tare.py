@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: Is the tare multiplicative or additive on carbon black? (docs/measured.md)
+# Study: Is the tare multiplicative or additive on carbon black? (docs/results.md)
 """Multiplicative or additive tare? The evidence of the carbon-black runs.
 
     python studies/measured_tare.py --data ../shared/data/measured

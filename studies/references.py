@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: What does a known strain every N seconds buy across runs? (docs/fusion.md)
+# Study: What does a known strain every N seconds buy across runs? (docs/results.md)
 """What a known strain every N seconds buys across runs: ``evaluate --references-every``.
 
     python studies/references.py --every 60,30 --out out/references

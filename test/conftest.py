@@ -413,7 +413,7 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
 }
 """Per module, the tests (by function name: every parameter set) that take about a second
 or more in a module of fast ones (marked ``slow``): 1.5 s or more in one full run with
-``pytest --durations=0`` on the shared 2-core machine of docs/performance.md (load average
+``pytest --durations=0`` on the shared 2-core machine of docs/results.md (load average
 about 5)."""
 
 

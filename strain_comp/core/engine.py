@@ -34,7 +34,7 @@ GAP_RESET = sc.DEFAULT_GAP_RESET
 
 
 def tracking_off(mode: str) -> None:
-    """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/policies.md),
+    """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/results.md),
     ``off`` is the behaviour that remains (the rest level is the calibration's or the
     tare's)."""
     if mode != "off":

@@ -37,7 +37,7 @@ refusal is counted by its reason, the state unchanged.
 
 The scales are set per sensor from its calibrated strain span (``FusionSettings.for_span``),
 so one default serves a sensor calibrated in % and one in mm; their values were chosen on
-``studies/references.py`` (docs/fusion.md): a gain prior of 0.3 beats 0.1 and an offset
+``studies/references.py`` (docs/results.md): a gain prior of 0.3 beats 0.1 and an offset
 alone (the error is a gain error), and a gain that walks 0.15 a minute beats slower walks
 (the sensitivity moves within a run). ``SparseFusion`` feeds a
 run's own reference at a fixed spacing (``evaluate --references-every``): the sample
@@ -66,7 +66,7 @@ if TYPE_CHECKING:
 
 
 # The fusion's numbers, in shares of the calibrated strain span where a strain is meant.
-# docs/policies.md gives what keeps each: the largest change of a benchmark case with the
+# docs/results.md gives what keeps each: the largest change of a benchmark case with the
 # number set neutral.
 GAIN_SD = 0.3  # prior sd of the gain around 1: 30 % off is plausible (0: a case 15 %)
 OFFSET_SHARE = 0.05  # prior sd of the offset around 0 (0: a case 6 %)

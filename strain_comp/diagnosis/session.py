@@ -1,7 +1,7 @@
 """The session start in the residual loop, as a user makes it (``strain-comp start``:
 ``strain_comp.offline.session_start.start``, the calibration stretch found from the
 reference), on each validation run of ``diagnose --validate``; the generalisation benchmark
-(docs/generalisation.md, ``warmup``) calls the same ``start``. The residual loop scores its
+(docs/results.md, ``warmup``) calls the same ``start``. The residual loop scores its
 terms after it (``strain_comp.diagnosis.loop``), so that a term that only does what this
 recalibration does anyway gets no credit. A run the start refuses is scored with the
 calibration as it is, as a user refused is left with it.

@@ -61,7 +61,7 @@ on the bundled rig bags and the measured recordings: compare them with
 ``strain-comp fit ... --option output_nfev=0`` (the QP alone) or ``--option
 cell_weights=free|lead|lag`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
 never much worse than free ones and keep free weights from overfitting a noisy sensor.
-The current held-out figures of every model are in docs/measured.md
+The current held-out figures of every model are in docs/results.md
 (``studies/compare_models.py``, ``studies/measured.py``).
 """
 

@@ -34,7 +34,7 @@ training data (``_FitProblem.loop_sign``); one sign, for a resistance that leads
 (the paper's orientation) or lags it; none."""
 LOOP_SWITCH_GAIN = 0.05
 """``signed`` holds the cells to a lagging loop only when that lowers the training output
-RMSE by more than this share against the paper's leading loop (docs/hysteresis_fit.md)."""
+RMSE by more than this share against the paper's leading loop (docs/results.md)."""
 MEMORYLESS_SHARE = 0.01
 """Below this share of the output from the cells (``memory_report``) a fit is memoryless."""
 P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)

@@ -54,7 +54,7 @@ TIE = 0.02
 ONE_RUN_ORDER = ("apl", "mpi", "creep_pi", "cubic")
 """``--model auto`` on one run (or one group) fits the first of these among the candidates:
 ordered by the median ratio to the best in-run bound of a model fitted on one run and used
-on another (docs/generalisation.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
+on another (docs/results.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
 creep_pi 3.15, cubic 3.54)."""
 
 
@@ -176,7 +176,7 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
         model = next((m for m in ONE_RUN_ORDER if m in candidates), candidates[0])
         why = (f"one {'group' if groups is not None and len(recordings) > 1 else 'run'}: "
                f"nothing to leave out, so {model}, the candidate that carried best from one "
-               "run to another on the benchmark (docs/generalisation.md)")
+               "run to another on the benchmark (docs/results.md)")
         return model, {"chosen": model, "why": why}
     folds = [Fold(m, h) for m in candidates for h in held]
     tasks = [(recordings, name, fold, options, pool) for fold in folds]

@@ -13,7 +13,7 @@ in that space one of two ways:
   that moves after the stretch as it did on the training runs is placed as they were.
 
 Runs of one thread differ in sensitivity by up to 2x; pooled raw, the model fits their
-average and carries to none (docs/generalisation.md). ``spanned`` (the default) keeps the
+average and carries to none (docs/results.md). ``spanned`` (the default) keeps the
 maps where they lower the pooled cubic's error to at most ``POOL_GAIN`` of its error on
 the runs as recorded (``gate``), and ``strain_comp.offline.space_choice`` picks the session
 start by leaving out each training run in turn. The calibration's rest resistance and range
@@ -44,7 +44,7 @@ SPACES = ("joint", "stretch")
 """The session starts ``spanned`` chooses between."""
 POOL_GAIN = 0.7
 """The per-run maps are kept where they lower the pooled cubic's RMSE to at most this share
-of its RMSE on the runs as recorded (``gate``; docs/generalisation.md: 0.31-0.62 on
+of its RMSE on the runs as recorded (``gate``; docs/results.md: 0.31-0.62 on
 the thread and the fibre, where pooling in one space helps, 0.80-1.00 on the carbon black
 and the rig, where it does not)."""
 POOL_DEGREE = 3

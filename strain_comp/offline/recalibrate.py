@@ -21,7 +21,7 @@ by a. A second recalibration composes with the first (the coefficients add).
 Limits: ``strain_level`` reads the engine's estimate clamped to the valid strain range, so
 the map is exact inside that range. A new input form replaces an older one (both map
 measured resistance); the output gain and offset are kept. The numbers are the fields of
-``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
+``SpanPolicy`` (``offline/span_policy.py``; docs/results.md).
 
 A session start (``session_start``) is the input step, then the output step on the sensors
 that take one (``session_forms``), over one stretch of a run, each step skipped where it

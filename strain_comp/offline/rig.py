@@ -8,7 +8,7 @@ relaxation after loading steps that is negligible after unloading steps, a volta
 read-out (R1 = 10.5 ohm, Vin = 3.2 V) and a specimen of L0 = 100 mm (so 50 mm/min is
 50 %/min).
 
-The forward model, per sensor, and its effects (``RigEffects``): docs/rig.md.
+The forward model, per sensor, and its effects (``RigEffects``): docs/architecture.md.
 """
 
 from __future__ import annotations

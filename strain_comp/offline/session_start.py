@@ -10,7 +10,7 @@ input zero and span, then the output gain and offset on the sensors that take on
 the error (RMSE) on that stretch, beside the error the calibration expects on a new
 session (``core.calibration.expected_error``). Where the second stretch takes fewer steps
 than the first, the first is used (the README's fallback, measured on the benchmark:
-docs/generalisation.md). The one session start of the command line, the API, ``diagnose
+docs/results.md). The one session start of the command line, the API, ``diagnose
 --validate`` (``diagnosis.session``), ``fit --model auto`` (``offline.model_choice``) and
 ``scripts/generalisation.py``.
 

@@ -1,7 +1,7 @@
 """Which stretch of a recording a session start reads: its first seconds (``recalibrate
 --first``), a window (``--window START:END``) that must hold a stretch and return, and where
 a reference strain's first cycle ends (docs/design.md, "Command line"). The numbers are
-the fields of ``SpanPolicy`` (``offline/span_policy.py``; docs/policies.md).
+the fields of ``SpanPolicy`` (``offline/span_policy.py``; docs/results.md).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ the lower root mean square of those errors is the fit's. The two err in opposite
 outputs, right where the sensor holds its sensitivity through a run (the conductive
 fibre); ``stretch`` places the run where the training runs' stretches lay, so a
 sensitivity that moves after the stretch as it did on them (the silver-nylon thread) is
-placed as it was there (docs/generalisation.md, "Pooling runs in one input space").
+placed as it was there (docs/results.md, "Pooling and the session start").
 """
 
 from __future__ import annotations

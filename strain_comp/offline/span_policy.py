@@ -1,6 +1,6 @@
 """The tuned numbers of the session start: the input zero and span from a recording
 (``offline/span.py``), its window and cycles (``offline/session_window.py``) and the output
-map from a recording (``offline/recalibrate.py``). docs/policies.md gives each one's value,
+map from a recording (``offline/recalibrate.py``). docs/results.md gives each one's value,
 what it does and the measurement that keeps it."""
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ The session start (``recalibrate --input``) puts a new run there by R' = R_0,spa
 (g_space / g_run) (R - R_0,run), the line of the stretch it reads put onto that line. A new
 run is then placed where the training runs' stretches lay, with what moves after the
 stretch (the thread's sensitivity) as it moved on them, not read from the stretch alone
-(docs/generalisation.md, "Pooling runs in one input space").
+(docs/results.md, "Pooling and the session start").
 """
 
 from __future__ import annotations
