@@ -84,8 +84,8 @@ class InputSettings:
     """A calibration pooled with the stretch session start (``fit --pool stretch``): (R_0
     [ohm], g [ohm per strain unit]) of the line R = R_0 + g S its training runs' calibration
     stretches share in the calibrated input space; ``recalibrate --input`` puts a new
-    run's stretch line onto it (``strain_comp.offline.stretch_line``). None: the input
-    step reads the calibration's steady outputs (``strain_comp.offline.span``)."""
+    run's stretch line onto it (``strain_comp.offline.correction.onto``). None: the input
+    step reads the calibration's steady outputs (``strain_comp.offline.correction``)."""
     unit: str = "ohm"
     """The unit of the resistance the models and the direction detector read: ohm, or that
     of an input given in another (``R/R0`` for a resistance divided by its first sample).

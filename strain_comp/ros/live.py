@@ -275,7 +275,7 @@ class LiveCompensator:
         its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
         calibration (state restarts, as after a reload; the rest now reads as the
         calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
-        from strain_comp.offline.span import span_from_points, span_reading
+        from strain_comp.offline.correction import span_from_points, span_reading
 
         strain = self.tunables.get("span_strain", 0.0)
         if not strain > 0:

@@ -22,7 +22,7 @@ from strain_comp.errors import ParameterError
 from strain_comp.models.base import require_float
 
 RECALIBRATION_TERMS = ("recalibration_gain", "recalibration_offset")
-"""Names of the two terms of an output gain and offset (``strain_comp.offline.recalibrate``):
+"""Names of the two terms of an output gain and offset (``strain_comp.offline.correction``):
 a map of the output, not a term that models what moves."""
 
 
