@@ -96,13 +96,6 @@ class InputSettings:
         """The unit of the dead zone: the input's per second (``ohm/s`` by default)."""
         return f"{self.unit}/s"
 
-    def span_map(self) -> tuple[float, float]:
-        """(k, c) of R' = k R + c (``zero_span``; (1, 0) without it)."""
-        if self.zero_span is None:
-            return 1.0, 0.0
-        rest, rest_cal, k = self.zero_span
-        return k, rest_cal - k * rest
-
     @property
     def filtered(self) -> bool:
         """True when the models see the input through a measurement-chain correction."""

@@ -22,12 +22,9 @@ training runs (docs/generalisation.md, "Pooling runs in one input space").
 Output (the spike-decay paper's recalibration of its output map, Lee et al., for every
 model): S_new = a S_out + b through two points (S_out(R_i) the steady output at R_i,
 ``steady_output``, so a memory model has settled), or by least squares over a recording
-(``map_from_pairs``). The map is stored as effect terms (``strain_comp.core.effects``):
-S_hat minus ``recalibration_gain`` (kind ``strain_level``, power 1, coef 1 - a), minus
-``recalibration_offset`` (kind ``offset``, coef -b), every existing coefficient scaled by a;
-a second map composes with the first (``apply_map``). ``strain_level`` reads the estimate
-clamped to the valid strain range, so the map is exact inside that range. A new input form
-replaces an older one (both map measured resistance); the output gain and offset are kept.
+(``map_from_pairs``). Each estimate is written into the sensor's one correction
+(``strain_comp.core.correction``): a new input map replaces an older one (both map measured
+resistance, ``apply_span``), a new output map composes onto the one there (``apply_map``).
 """
 
 from __future__ import annotations
@@ -49,7 +46,7 @@ from strain_comp.core.calibration import (
     strain_unit_words,
 )
 from strain_comp.core.calibration_file import loadable
-from strain_comp.core.effects import RECALIBRATION_TERMS
+from strain_comp.core.correction import Correction
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.core.samples import good_mask
@@ -61,8 +58,6 @@ if TYPE_CHECKING:
 
 FORMS = ("output", "input")
 """Where the two-point map acts: on the engine's output strain or on its input resistance."""
-GAIN_NAME, OFFSET_NAME = RECALIBRATION_TERMS
-GAIN_NAME, OFFSET_NAME = RECALIBRATION_TERMS
 
 
 @dataclass(frozen=True)
@@ -228,7 +223,7 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
     """``cal`` reading its input through ``span`` (replacing an older one)."""
     history = [*cal.provenance.get("recalibrations", []),
                dict(record, rest=span[0], rest_calibrated=span[1], span_gain=span[2])]
-    new = replace(cal, input=replace(cal.input, zero_span=span),
+    new = replace(Correction.of(cal).with_input(*span).written(cal),
                   provenance={**cal.provenance, "recalibrations": history})
     return loadable(new, span_reading(span))
 
@@ -508,18 +503,12 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
         raise InputError(f"recalibration of {cal.name!r}: gain {a:.4g} must be finite and "
                          "> 0 (its output falls where the known strain rises: the "
                          "calibration reads this sensor against its direction)")
-    effects = [dict(e, coef=a * float(e["coef"])) for e in cal.effects]
-    for name, kind, params, coef in ((GAIN_NAME, "strain_level", {"power": 1}, 1.0 - a),
-                                     (OFFSET_NAME, "offset", {}, -b)):
-        old = next((e for e in effects if e["name"] == name), None)
-        if old is None:
-            effects.append({"name": name, "kind": kind, "params": params, "coef": coef})
-        else:
-            old["coef"] = float(old["coef"]) + coef
     history = [*cal.provenance.get("recalibrations", []), dict(record, gain=a, offset=b)]
-    new = replace(cal, effects=effects,
+    new = replace(Correction.of(cal).with_output(a, b).written(cal),
                   provenance={**cal.provenance, "recalibrations": history})
     return loadable(new, reading(a, b, unit=cal.strain_unit))
+
+
 def reading(a: float, b: float, *, unit: str = "%") -> str:
     """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
     (the sensor's sensitivity against the calibration's is 1 / a; the offset in the
