@@ -84,8 +84,7 @@ class LiveCompensator:
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
         self.fusion: dict[str, OutputFusion] = (
-            {s: OutputFusion.for_span(fitted_rest(c.valid_range)[1])
-             for s, c in params.calibration.sensors.items()}
+            {s: OutputFusion.for_calibration(c) for s, c in params.calibration.sensors.items()}
             if params.fuse_references else {})
         """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
         self._estimate: dict[str, tuple[float, float, bool]] = {}
@@ -154,8 +153,8 @@ class LiveCompensator:
         strains[used] = out.strain[used]
         inside[used] = out.status[used] != int(Status.OUT_OF_RANGE)
         if name not in self._maps:
-            self._maps[name] = (np.array([self.fusion[s].gain for s in self._inputs[name]]),
-                                np.array([self.fusion[s].offset for s in self._inputs[name]]))
+            maps = [self.fusion[s].relative() for s in self._inputs[name]]
+            self._maps[name] = (np.array([m[0] for m in maps]), np.array([m[1] for m in maps]))
         gain, offset = self._maps[name]
         return replace(out, strain=gain * out.strain + offset)
 
