@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
+from strain_comp.core.correction import Correction
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
@@ -297,7 +298,7 @@ class LiveCompensator:
             except StrainCompError as err:
                 problems.append(f"{sensor}: {err}")
                 continue
-            sensors[sensor] = replace(cal, input=replace(cal.input, zero_span=span))
+            sensors[sensor] = Correction.of(cal).with_input(*span).written(cal)
             lines.append(f"{sensor}: {span_reading(span)}")
         if problems:
             raise ParameterError("span", "refused: " + "; ".join(problems))
