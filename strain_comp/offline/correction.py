@@ -150,20 +150,40 @@ def calibrated_resistance(cal: SensorCalibration, strain: float,
                           curve: tuple[np.ndarray, np.ndarray] | None = None,
                           policy: SpanPolicy | None = None) -> float:
     """The resistance [ohm] whose steady output through ``cal`` is ``strain``: the first
-    crossing from the rest end of ``steady_curve``, interpolated linearly. InputError when
-    no resistance of the valid range gives that strain."""
+    crossing from the rest end of ``steady_curve`` (``crossing``). InputError when no
+    resistance of the valid range gives that strain."""
     grid, steady = curve if curve is not None else steady_curve(cal, policy)
-    out = steady - strain
-    cross = np.flatnonzero(np.sign(out[:-1]) * np.sign(out[1:]) <= 0)
-    if not cross.size:
+    found = crossing(grid, steady, strain)
+    if found is None:
         raise InputError(f"the calibration outputs no strain of {strain:g} "
                          f"{strain_unit_words(cal.strain_unit)} in its resistance range "
                          f"(it gives {steady.min():.4g} to {steady.max():.4g})")
+    return found
+
+
+def crossing(grid: np.ndarray, out: np.ndarray, strain: float) -> float | None:
+    """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end,
+    linear between grid points (None: it never does)."""
+    d = out - strain
+    cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
+    if not cross.size:
+        return None
     j = int(cross[0])
-    if out[j] == out[j + 1]:
-        return float(grid[j])
-    w = out[j] / (out[j] - out[j + 1])
+    w = d[j] / (d[j] - d[j + 1]) if d[j] != d[j + 1] else 0.0
     return float(grid[j] + w * (grid[j + 1] - grid[j]))
+
+
+def through(points: Sequence[tuple[float, float]], c1: float, c2: float,
+            ) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) that reads the two measured (R, S)
+    ``points`` (sorted by strain) as the calibrated resistances ``c1``, ``c2``."""
+    (r1, s1), (r2, s2) = points
+    k = (c2 - c1) / (r2 - r1) if r2 != r1 else float("nan")
+    if not (np.isfinite(k) and k > 0):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
+                         "against the calibration's direction (span gain "
+                         f"{k:.4g} must be > 0)")
+    return r1, c1, float(k)
 
 
 def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
@@ -185,14 +205,8 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
         raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: one resistance at two "
                          "strains gives no span")
     curve = curve if curve is not None else steady_curve(cal, policy)
-    c1 = calibrated_resistance(cal, s1, curve, policy)
-    c2 = calibrated_resistance(cal, s2, curve, policy)
-    k = (c2 - c1) / (r2 - r1)
-    if not (np.isfinite(k) and k > 0):
-        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
-                         "against the calibration's direction (span gain "
-                         f"{k:.4g} must be > 0)")
-    return r1, c1, float(k)
+    return through([(r1, s1), (r2, s2)], calibrated_resistance(cal, s1, curve, policy),
+                   calibrated_resistance(cal, s2, curve, policy))
 
 
 def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
@@ -261,15 +275,10 @@ def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float:
-    """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end
-    (linear between grid points), else the grid point of the nearest output."""
-    d = out - strain
-    cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
-    if not cross.size:
-        return float(grid[int(np.argmin(np.abs(d)))])
-    j = int(cross[0])
-    w = d[j] / (d[j] - d[j + 1]) if d[j] != d[j + 1] else 0.0
-    return float(grid[j] + w * (grid[j + 1] - grid[j]))
+    """The resistance of ``grid`` where ``out`` first crosses ``strain`` (``crossing``), else
+    the grid point of the nearest output."""
+    found = crossing(grid, out, strain)
+    return float(grid[int(np.argmin(np.abs(out - strain)))]) if found is None else found
 
 
 def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
@@ -279,15 +288,9 @@ def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float
     outputs over ``grid`` (``branch_resistance``): the rest point on the first (a memory
     model's unloading branch, ``branches``), the stretch on the second (its loading
     branch); a static model's held map for both."""
-    (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
-    c1 = branch_resistance(grid, branch[0], s1)
-    c2 = branch_resistance(grid, branch[1], s2)
-    k = (c2 - c1) / (r2 - r1) if r2 != r1 else float("nan")
-    if not (np.isfinite(k) and k > 0):
-        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
-                         "against the calibration's direction (span gain "
-                         f"{k:.4g} must be > 0)")
-    return r1, c1, float(k)
+    ordered = sorted(points, key=lambda p: p[1])
+    return through(ordered, branch_resistance(grid, branch[0], ordered[0][1]),
+                   branch_resistance(grid, branch[1], ordered[1][1]))
 
 
 def span_of_first_cycle(cal: SensorCalibration, rec: Recording,

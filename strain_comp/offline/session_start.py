@@ -486,6 +486,8 @@ def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
         out.made[form] = list(sensors)
         out.lines += lines
     return out
+
+
 def _check_named(calibration: Calibration, recordings: Mapping[str, Recording],
                  sensors: Sequence[str] | None, source: str) -> None:
     """InputError for a sensor named (``--sensor``) that the calibration or the run lacks."""
@@ -507,7 +509,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     """``recalibrate`` from recordings with a reference strain (their first ``first``
     seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
     map by least squares, or the input zero and span from the first rest and the largest
-    strain (``span.span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None)."""
+    strain (``span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None)."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if span is not None and first is not None:
