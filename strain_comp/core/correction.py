@@ -117,10 +117,13 @@ class Correction:
         """``cal`` holding this correction in the file form (module docstring), what it
         held before replaced."""
         a, b = self.output_gain, self.output_offset
-        effects = [dict(e, coef=a * float(e["coef"])) for e in Correction.of(cal).effects(
-            cal.effects)]
-        if self.has_output:
-            effects += [dict(_GAIN_TERM, coef=1.0 - a), dict(_OFFSET_TERM, coef=-b)]
+        held = Correction.of(cal)
+        if (a, b) == (held.output_gain, held.output_offset):  # the terms as they stand
+            effects = list(cal.effects)
+        else:
+            effects = [dict(e, coef=a * float(e["coef"])) for e in held.effects(cal.effects)]
+            if self.has_output:
+                effects += [dict(_GAIN_TERM, coef=1.0 - a), dict(_OFFSET_TERM, coef=-b)]
         span = (self.zero, self.rest, self.gain) if self.has_input else None
         return replace(cal, input=replace(cal.input, zero_span=span), effects=effects)
 

@@ -364,15 +364,10 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
         return start
     rest, rest_cal, k = start
     width = cal.valid_range.r_hi - cal.valid_range.r_lo
-    ok = np.isfinite(rec.s)
-    reference = rec.s[ok]
 
     def error(x: np.ndarray) -> float:
         span = (rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1])))
-        trial = replace(cal, input=replace(cal.input, zero_span=span))
-        strain = Engine(Calibration({cal.name: trial})).run(cal.name, rec.t, rec.r).strain
-        value = float(np.sqrt(np.mean((strain[ok] - reference) ** 2)))
-        return value if np.isfinite(value) else np.inf
+        return cycle_error(replace(cal, input=replace(cal.input, zero_span=span)), rec)
 
     origin = np.zeros(2)
     first = error(origin)
