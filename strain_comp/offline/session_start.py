@@ -256,11 +256,11 @@ def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: W
             raise
         raise InputError(f"{source}: the stretch found at {span[0]:.4g}-{span[1]:.4g} s: "
                          f"{str(err).partition(': ')[2]}; {RECORD}") from None
-    made = session_start(calibration, recordings, span, source)
-    steps = {n: [form for form, names in made.made.items() if n in names]
+    started, made, lines = session_start(calibration, recordings, span, source)
+    steps = {n: [form for form, names in made.items() if n in names]
              for n in recordings if n in calibration.sensors}
-    notes = [_why(line) for line in made.lines if "not made" in line]
-    return made.calibration, steps, notes, span
+    notes = [_why(line) for line in lines if "not made" in line]
+    return started, steps, notes, span
 
 # The stretch a session start reads (``recalibrate --first``, ``--window``, ``start``).
 
@@ -444,48 +444,36 @@ def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
     return {form: sensors for form, sensors in by_form.items() if sensors}
 
 
-@dataclass
-class SessionStart:
-    """A calibration after the session-start recalibration on one run."""
-
-    calibration: Calibration
-    window: Window
-    lines: list[str] = field(default_factory=list)
-    """What each step did (``recalibrate``'s lines), or why it could not be made."""
-    steps: list[str] = field(default_factory=list)
-    """The forms made (``input``, ``output``)."""
-    made: dict[str, list[str]] = field(default_factory=dict)
-    """Each form made -> the sensors it recalibrated."""
-
-
 def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
-                  window: Window, source: str = "") -> SessionStart:
+                  window: Window, source: str = "",
+                  ) -> tuple[Calibration, dict[str, list[str]], list[str]]:
     """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
     ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
     output form on the spanned input, tare ``calibration``), the output step only on the
-    sensors that take one (``session_forms``). A step that cannot be made (no
-    rest in the stretch, a strain the calibration never outputs) is skipped, as it is for a
-    user, and says why."""
-    out = SessionStart(calibration, window)
+    sensors that take one (``session_forms``); with each form made -> the sensors it
+    recalibrated, and what each step did (``recalibrate``'s lines). A step that cannot be
+    made (no rest in the stretch, a strain the calibration never outputs) is skipped, as it
+    is for a user, and says why."""
+    made: dict[str, list[str]] = {}
+    lines: list[str] = []
     head = window[0] == 0.0
     forms = forms_of(calibration, recordings)
     if not forms:
-        out.lines.append("no step made: the run holds no calibrated sensor with a strain "
-                         "reference")
+        lines.append("no step made: the run holds no calibrated sensor with a strain "
+                     "reference")
     for form, sensors in forms.items():
         tare = "calibration" if form == "output" else "auto"
         try:
-            out.calibration, lines = recalibrate_recordings(
-                out.calibration, recordings, form=form, tare=tare, sensors=sensors,
+            calibration, done = recalibrate_recordings(
+                calibration, recordings, form=form, tare=tare, sensors=sensors,
                 first=window[1] if head else None, span=None if head else window,
                 source=source)
         except StrainCompError as err:
-            out.lines.append(f"the {form} step not made: {err}")
+            lines.append(f"the {form} step not made: {err}")
             continue
-        out.steps.append(form)
-        out.made[form] = list(sensors)
-        out.lines += lines
-    return out
+        made[form] = list(sensors)
+        lines += done
+    return calibration, made, lines
 
 
 def _check_named(calibration: Calibration, recordings: Mapping[str, Recording],
