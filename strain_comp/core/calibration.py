@@ -76,10 +76,11 @@ class InputSettings:
     despike: float | None = None
     baseline_step: float | None = None
     zero_span: tuple[float, float, float] | None = None
-    """Input zero and span (``recalibrate``'s input form): (rest [ohm], rest_calibrated
-    [ohm], gain k); the models read R' = rest_calibrated + k (R - rest), R the measured
-    resistance (after a tare's gain), so a sensor whose rest level and sensitivity moved
-    reads as the calibrated one. None: R' = R."""
+    """Input zero and span, the file form of the input map of the sensor's one correction
+    (``strain_comp.core.correction``): (rest [ohm], rest_calibrated [ohm], gain k); the
+    models read R' = rest_calibrated + k (R - rest), R the measured resistance (after a
+    tare's gain), so a sensor whose rest level and sensitivity moved reads as the
+    calibrated one. None: R' = R."""
     stretch_line: tuple[float, float] | None = None
     """A calibration pooled with the stretch session start (``fit --pool stretch``): (R_0
     [ohm], g [ohm per strain unit]) of the line R = R_0 + g S its training runs' calibration
