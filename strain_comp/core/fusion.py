@@ -132,8 +132,6 @@ class OutputFusion:
     def _coordinates(self, p: np.ndarray) -> np.ndarray:
         """A covariance of the map relative to ``start`` in the filter's coordinates."""
         a0, b0 = self.start
-        if (a0, b0) == (1.0, 0.0):
-            return p
         tr = np.array([[a0, 0.0], [b0, 1.0]])
         out: np.ndarray = tr @ p @ tr.T
         return out
@@ -153,15 +151,13 @@ class OutputFusion:
     def relative(self) -> tuple[float, float]:
         """(g, b) of the fused map on the engine's estimate (through ``start``)."""
         a0, b0 = self.start
-        if (a0, b0) == (1.0, 0.0):
-            return self.gain, self.offset
         g = self.gain / a0
         return g, self.offset - g * b0
 
     def before_map(self, estimate: float) -> float:
         """The engine's estimate before the calibration's output map (``start``)."""
         a0, b0 = self.start
-        return estimate if (a0, b0) == (1.0, 0.0) else (estimate - b0) / a0
+        return (estimate - b0) / a0
 
     @property
     def n_refused(self) -> int:
