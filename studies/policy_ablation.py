@@ -57,7 +57,7 @@ import generalisation as gen  # noqa: E402  (the benchmark's machinery, one file
 POLICIES = {"range": ("strain_comp.core.range_policy", ""),
             "tare": ("strain_comp.core.tare", ""),
             "fusion": ("strain_comp.core.fusion", ""),
-            "span": ("strain_comp.offline.span_policy", "SPAN")}
+            "span": ("strain_comp.offline.correction", "SPAN")}
 """Policy -> (module, name of its default instance; empty: each number is a constant of
 the module, the field's name in capitals, ``REST_WINDOW`` for the tare's window)."""
 

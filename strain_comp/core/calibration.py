@@ -76,16 +76,17 @@ class InputSettings:
     despike: float | None = None
     baseline_step: float | None = None
     zero_span: tuple[float, float, float] | None = None
-    """Input zero and span (``recalibrate``'s input form): (rest [ohm], rest_calibrated
-    [ohm], gain k); the models read R' = rest_calibrated + k (R - rest), R the measured
-    resistance (after a tare's gain), so a sensor whose rest level and sensitivity moved
-    reads as the calibrated one. None: R' = R."""
+    """Input zero and span, the file form of the input map of the sensor's one correction
+    (``strain_comp.core.correction``): (rest [ohm], rest_calibrated [ohm], gain k); the
+    models read R' = rest_calibrated + k (R - rest), R the measured resistance (after a
+    tare's gain), so a sensor whose rest level and sensitivity moved reads as the
+    calibrated one. None: R' = R."""
     stretch_line: tuple[float, float] | None = None
     """A calibration pooled with the stretch session start (``fit --pool stretch``): (R_0
     [ohm], g [ohm per strain unit]) of the line R = R_0 + g S its training runs' calibration
     stretches share in the calibrated input space; ``recalibrate --input`` puts a new
-    run's stretch line onto it (``strain_comp.offline.stretch_line``). None: the input
-    step reads the calibration's steady outputs (``strain_comp.offline.span``)."""
+    run's stretch line onto it (``strain_comp.offline.correction.onto``). None: the input
+    step reads the calibration's steady outputs (``strain_comp.offline.correction``)."""
     unit: str = "ohm"
     """The unit of the resistance the models and the direction detector read: ohm, or that
     of an input given in another (``R/R0`` for a resistance divided by its first sample).
@@ -95,13 +96,6 @@ class InputSettings:
     def rate_unit(self) -> str:
         """The unit of the dead zone: the input's per second (``ohm/s`` by default)."""
         return f"{self.unit}/s"
-
-    def span_map(self) -> tuple[float, float]:
-        """(k, c) of R' = k R + c (``zero_span``; (1, 0) without it)."""
-        if self.zero_span is None:
-            return 1.0, 0.0
-        rest, rest_cal, k = self.zero_span
-        return k, rest_cal - k * rest
 
     @property
     def filtered(self) -> bool:

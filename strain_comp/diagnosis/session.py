@@ -19,8 +19,7 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import Window
-from strain_comp.offline.session_start import Started, start_or_keep
+from strain_comp.offline.session_start import Started, Window, start_or_keep
 
 
 def window_flag(window: Window | None) -> str:

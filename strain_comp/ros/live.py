@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
+from strain_comp.core.correction import Correction
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
@@ -84,8 +85,7 @@ class LiveCompensator:
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
         self.fusion: dict[str, OutputFusion] = (
-            {s: OutputFusion.for_span(fitted_rest(c.valid_range)[1])
-             for s, c in params.calibration.sensors.items()}
+            {s: OutputFusion.for_calibration(c) for s, c in params.calibration.sensors.items()}
             if params.fuse_references else {})
         """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
         self._estimate: dict[str, tuple[float, float, bool]] = {}
@@ -154,8 +154,8 @@ class LiveCompensator:
         strains[used] = out.strain[used]
         inside[used] = out.status[used] != int(Status.OUT_OF_RANGE)
         if name not in self._maps:
-            self._maps[name] = (np.array([self.fusion[s].gain for s in self._inputs[name]]),
-                                np.array([self.fusion[s].offset for s in self._inputs[name]]))
+            maps = [self.fusion[s].relative() for s in self._inputs[name]]
+            self._maps[name] = (np.array([m[0] for m in maps]), np.array([m[1] for m in maps]))
         gain, offset = self._maps[name]
         return replace(out, strain=gain * out.strain + offset)
 
@@ -275,7 +275,7 @@ class LiveCompensator:
         its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
         calibration (state restarts, as after a reload; the rest now reads as the
         calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
-        from strain_comp.offline.span import span_from_points, span_reading
+        from strain_comp.offline.correction import span_from_points, span_reading
 
         strain = self.tunables.get("span_strain", 0.0)
         if not strain > 0:
@@ -298,7 +298,7 @@ class LiveCompensator:
             except StrainCompError as err:
                 problems.append(f"{sensor}: {err}")
                 continue
-            sensors[sensor] = replace(cal, input=replace(cal.input, zero_span=span))
+            sensors[sensor] = Correction.of(cal).with_input(*span).written(cal)
             lines.append(f"{sensor}: {span_reading(span)}")
         if problems:
             raise ParameterError("span", "refused: " + "; ".join(problems))

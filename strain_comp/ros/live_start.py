@@ -21,8 +21,8 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.recording import Recording
+from strain_comp.offline.session_start import cycle_end
 from strain_comp.offline.session_start import start as session_start
-from strain_comp.offline.session_window import cycle_end
 
 if TYPE_CHECKING:
     from strain_comp.ros.live import LiveCompensator

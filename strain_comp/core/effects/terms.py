@@ -21,11 +21,6 @@ from strain_comp.core.effects.static import Crosstalk, Offset, StrainLevel, Temp
 from strain_comp.errors import ParameterError
 from strain_comp.models.base import require_float
 
-RECALIBRATION_TERMS = ("recalibration_gain", "recalibration_offset")
-"""Names of the two terms of an output gain and offset (``strain_comp.offline.recalibrate``):
-a map of the output, not a term that models what moves."""
-
-
 KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
     Offset, Rate, Direction, Relaxation, ResistanceMemory, Elapsed, Temperature, StrainLevel,
     Mullins, Stretch, Crosstalk, Baseline)}
