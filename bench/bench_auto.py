@@ -69,7 +69,7 @@ def main() -> None:
     print(f"{len(recordings)} runs x {args.seconds:g} s, candidates {','.join(candidates)}; "
           f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; bands identical: {same}")
     row(f"fit --model auto, {len(recordings)} rig runs x {args.seconds:g} s, "
-        f"{len(candidates)} candidates", f"{best['after']:.1f} s",
+        f"{len(candidates)} candidates (`bench_auto.py`)", f"{best['after']:.1f} s",
         f"{best['before']:.1f} s (choice, then the band's folds fitted again)",
         f"{best['before'] / best['after']:.2f}x")
 
