@@ -248,12 +248,14 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
     """``fit --model auto`` on one sensor: the model ``choose_model`` picks, fitted on every
     run, with ``model_choice`` and ``expected_error`` in its provenance and the uncertainty
     learned from its folds (``fit_sensor``'s ``band``, its folds not fitted again; a group
-    left out whole where ``groups`` are given)."""
+    left out whole where ``groups`` are given; with one group, ``fit_sensor``'s own, by
+    run)."""
     model, record, pairs = _choose(recordings, name, candidates=candidates, groups=groups,
                                    options=options, pool=pool, jobs=jobs, report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
-                     options=options_of(model, options or {}), pool=pool)
-    cal.uncertainty = learn(pairs).get(name)
+                     options=options_of(model, options or {}), pool=pool, band=not pairs)
+    if pairs:
+        cal.uncertainty = learn(pairs).get(name)
     expected = record.pop("expected", None)
     cal.provenance["model_choice"] = record
     if expected is not None:
