@@ -17,7 +17,7 @@ Input, from a stretch's line (a calibration pooled with the stretch session star
 space, ``InputSettings.stretch_line``): a new run is put there by R' = R_0,space + (g_space /
 g_run) (R - R_0,run), the line of the stretch it reads (``run_line``) put onto that line
 (``onto``), so what moves after the stretch (the thread's sensitivity) moves as it did on the
-training runs (docs/generalisation.md, "Pooling runs in one input space").
+training runs (docs/results.md, "Pooling and the session start").
 
 Output (the spike-decay paper's recalibration of its output map, Lee et al., for every
 model): S_new = a S_out + b through two points (S_out(R_i) the steady output at R_i,
