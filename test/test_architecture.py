@@ -19,7 +19,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "strain_comp"
-BASE = {"core.direction", "core.samples", "core.conversion"}
+BASE = {"base.direction", "base.samples", "base.conversion"}
 """Building blocks of both the models and the engine (direction detection, the sample
 screening rule, the divider formula): ranked below the models, though they live in core."""
 RANK = {"errors": 0, "_numba": 0, "__init__": 0, "progress": 0, "io": 1, "base": 2,

@@ -5,7 +5,7 @@ When every sensor's model belongs to a family with an array form (``FAMILIES``:
 ``strain_comp.models.apl_array.APLArray``, same N and M;
 ``strain_comp.models.creep_pi.CreepPIArray``, same numbers of play operators and time
 constants) and no sensor's input is corrected, one tick is one numba call per family:
-``family_tick`` bound to the family's per-sensor kernel (``strain_comp.models.lift``), a
+``family_tick`` bound to the family's per-sensor kernel (``strain_comp.base.lift``), a
 thin loop over the family's sensors of the shared stages ``sensor_front`` (input fix,
 screen, counts, detector reset on a gap; the stage kernels of ``strain_comp.core.stages``),
 the gap reset of the model's state rows, the model read, the family's kernel, then
@@ -25,11 +25,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp._numba import njit, specialise
-from strain_comp.core import samples as sc
-from strain_comp.core.direction import STATE_SIZE, direction_update
+from strain_comp.base import samples as sc
+from strain_comp.base.direction import STATE_SIZE, direction_update
+from strain_comp.base.lift import LiftedArray, kernel
+from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
 from strain_comp.core.outputs import ArrayOutput, SensorOutput
-from strain_comp.core.samples import USED_CODE, Status, screen_one
 from strain_comp.core.sensor import Latest, Pending, SensorState
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
 from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_one
@@ -37,7 +38,6 @@ from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
 from strain_comp.models.apl_array import APLArray
 from strain_comp.models.creep_pi import CreepPIArray
-from strain_comp.models.lift import LiftedArray, kernel
 
 if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher
@@ -101,7 +101,7 @@ def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
                 band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
                 params: tuple[Any, ...]) -> None:
     """Template: one tick of the array's sensors of one family, around the family's kernel
-    (``strain_comp.models.lift``). A gap reset zeroes the sensor's state rows (a sensor at
+    (``strain_comp.base.lift``). A gap reset zeroes the sensor's state rows (a sensor at
     rest)."""
     arrays = state + params
     for j in range(idx.size):

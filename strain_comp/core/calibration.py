@@ -19,8 +19,8 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp import __version__
-from strain_comp.core.conversion import divider_to_resistance
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.conversion import divider_to_resistance
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.models import Compensator, Normalisation, model_class

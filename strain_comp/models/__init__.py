@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import importlib
 
+from strain_comp.base.compensator import Compensator, Normalisation, Segment
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import Compensator, Normalisation, Segment
 
 _REGISTRY: dict[str, str] = {
     "apl": "strain_comp.models.apl:APL",

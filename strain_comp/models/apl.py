@@ -75,19 +75,19 @@ import numpy as np
 import numpy.typing as npt
 from threadpoolctl import threadpool_limits
 
-from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import FitError, ParameterError
-from strain_comp.models import apl_kernels as kern
-from strain_comp.models import pwa
-from strain_comp.models.apl_fit import CELL_WEIGHTS, fit_cells
-from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     KernelCompensator,
     Normalisation,
     Segment,
     require_float,
     require_vector,
 )
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.errors import FitError, ParameterError
+from strain_comp.models import apl_kernels as kern
+from strain_comp.models import pwa
+from strain_comp.models.apl_fit import CELL_WEIGHTS, fit_cells
+from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 
 N_MAX = 200
 M_MAX = 201

@@ -10,11 +10,11 @@ from typing import Protocol, cast
 
 import numpy as np
 
+from strain_comp.base.compensator import Compensator
+from strain_comp.base.lift import LiftedArray, lift
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models.apl_kernels import inverse_widths, thresholds
-from strain_comp.models.base import Compensator
-from strain_comp.models.lift import LiftedArray, lift
 
 
 class CellModel(Protocol):

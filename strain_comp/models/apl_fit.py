@@ -18,12 +18,12 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import lsq_linear, minimize
 
+from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.errors import FitError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 from strain_comp.models.apl_refine import bounded_lm, output_jacobian
-from strain_comp.models.base import Normalisation, Segment
 
 if TYPE_CHECKING:
     from strain_comp.models.apl import _CellModel

@@ -13,15 +13,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import FitError
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
     as_float_arrays,
     require_vector,
 )
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.errors import FitError
 
 
 class Cubic(Compensator):

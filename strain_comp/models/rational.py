@@ -36,7 +36,14 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
-from strain_comp.core.direction import (
+from strain_comp.base.compensator import (
+    Compensator,
+    Normalisation,
+    Segment,
+    as_float_arrays,
+    require_vector,
+)
+from strain_comp.base.direction import (
     STATE_SIZE,
     DirectionDetector,
     DirectionSettings,
@@ -44,13 +51,6 @@ from strain_comp.core.direction import (
     direction_update,
 )
 from strain_comp.errors import FitError, ParameterError
-from strain_comp.models.base import (
-    Compensator,
-    Normalisation,
-    Segment,
-    as_float_arrays,
-    require_vector,
-)
 
 MODES = ("combined", "split")
 _BRANCHES = ("combined", "loading", "unloading")

@@ -49,9 +49,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
-from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import FitError, ParameterError
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
@@ -59,6 +57,8 @@ from strain_comp.models.base import (
     require_float,
     require_vector,
 )
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.errors import FitError, ParameterError
 
 _MAX_NEWTON = 30
 _LOG_LO, _LOG_HI = -20.0, 10.0  # bounds of log I_S and log V_T in the fit

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.samples import good_mask
+from strain_comp.base.samples import good_mask
 from strain_comp.errors import InputError
 from strain_comp.offline.session_window import calibration_stretch, cut
 from strain_comp.offline.stretch_line import Line, run_line

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from strain_comp.core.samples import good_mask
+from strain_comp.base.samples import good_mask
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording

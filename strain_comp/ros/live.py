@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
@@ -33,7 +34,6 @@ from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, SensorOutput
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.core.samples import USED, Status, used_mask
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.io.multiarray import array_values
