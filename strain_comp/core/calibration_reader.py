@@ -26,7 +26,7 @@ from typing import Any
 
 import yaml
 
-from strain_comp.base.compensator import require_float
+from strain_comp.base.compensator import Normalisation, require_float
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import (
     FORMAT,
@@ -51,7 +51,6 @@ from strain_comp.core.effects import validate_effect_dict
 from strain_comp.core.uncertainty import FEATURES, WEIGHT_MAX, Uncertainty
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.safe_yaml import LimitError, load_limited
-from strain_comp.models import Normalisation
 
 
 class _Reader:

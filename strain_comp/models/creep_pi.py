@@ -66,6 +66,7 @@ from strain_comp.base.compensator import (
 )
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.base.lift import LiftedArray, lift
+from strain_comp.base.registry import register, register_array
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import creep_kernels as kern
 
@@ -120,6 +121,7 @@ def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
     return array
 
 
+@register
 class CreepPI(KernelCompensator):
     """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``
     (module docstring)."""
@@ -249,6 +251,7 @@ class CreepPI(KernelCompensator):
         return model
 
 
+@register_array
 @lift(kern.step_sensor, fastmath=kern.FASTMATH)
 class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same numbers of play operators and time constants) stepped

@@ -50,6 +50,7 @@ from strain_comp.base.direction import (
     _check_settings,
     direction_update,
 )
+from strain_comp.base.registry import register
 from strain_comp.errors import FitError, ParameterError
 
 MODES = ("combined", "split")
@@ -176,6 +177,7 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
     return np.asarray(candidates[int(np.argmin(costs))], dtype=np.float64)
 
 
+@register
 class Rational(Compensator):
     """rat22 compensator, combined or split by direction; see the module docstring."""
 

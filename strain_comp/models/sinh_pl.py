@@ -58,6 +58,7 @@ from strain_comp.base.compensator import (
     require_vector,
 )
 from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.registry import register
 from strain_comp.errors import FitError, ParameterError
 
 _MAX_NEWTON = 30
@@ -155,6 +156,7 @@ def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0:
     return out
 
 
+@register
 class SinhPL(Compensator):
     """Reduced power-law compensator with N sinh cells, eq. (1)-(3); see the module docstring."""
 

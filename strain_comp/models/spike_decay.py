@@ -76,6 +76,7 @@ from strain_comp.base.compensator import (
     require_vector,
 )
 from strain_comp.base.direction import DirectionSettings, _check_settings
+from strain_comp.base.registry import register
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models.spike_decay_fit import (
     analyse_holds,
@@ -93,6 +94,7 @@ from strain_comp.models.spike_decay_kernels import (
 )
 
 
+@register
 class SpikeDecay(Compensator):
     """Spike-and-decay inverse model, eq. (3)/(4); see the module docstring."""
 
