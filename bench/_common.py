@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
+import strain_comp.models  # noqa: F401  (registers the families the calibrations name)
 from strain_comp.base.compensator import Normalisation
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange

@@ -327,6 +327,28 @@ class LiveCompensator:
         elif name == "stale_after_s":
             self.engine.stale_after = value
 
+    def start(self, now: float) -> tuple[LiveCompensator, str]:
+        """``~/start`` at clock time ``now``: watch the next stretch on the sensors with a
+        recent reference (``live_start``), else ``~/span`` on ``span_strain``."""
+        if self.starting.request(now, list(self.params.calibration.sensors)):
+            return self, self.starting.detail
+        try:
+            fresh, summary = self.span()
+        except ParameterError as err:
+            self.starting.outcome("refused", f"refused: no reference and {err}")
+            raise
+        fresh.starting.outcome("applied", f"applied span_strain (no reference): {summary}")
+        return fresh, fresh.starting.detail
+
+    def start_reference(self, sensor: str, t: float, value: float) -> LiveCompensator:
+        """A reference of ``sensor`` for ``~/start``: the compensator on the started
+        calibration once the watched stretch has returned (model state restarts, as after a
+        reload), else this one."""
+        started = self.starting.seen_reference(sensor, t, value, self.params.calibration)
+        if started is None:
+            return self
+        return self.reload(replace(self.params, calibration=started))
+
     def reload(self, params: NodeParams) -> LiveCompensator:
         """A new LiveCompensator on ``params``'s calibration carrying on from this one
         (``successor`` then ``hand_over``). StrainCompError if the new one cannot run."""
