@@ -16,10 +16,11 @@ from dataclasses import replace
 
 import numpy as np
 
+import strain_comp.models  # noqa: F401  (registers the families the calibrations name)
+from strain_comp.base.compensator import Normalisation
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.uncertainty import Uncertainty
-from strain_comp.models.base import Normalisation
 
 NORM = Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0)
 R_LO, R_HI = (-1.0 - NORM.alpha) * NORM.r0, (1.0 - NORM.alpha) * NORM.r0

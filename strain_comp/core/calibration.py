@@ -18,12 +18,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp import __version__
-from strain_comp.core.conversion import divider_to_resistance
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Compensator, Normalisation
+from strain_comp.base.conversion import divider_to_resistance
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.registry import model_class
 from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.errors import ParameterError, StrainCompError
-from strain_comp.models import Compensator, Normalisation, model_class
+from strain_comp.version import __version__
 
 FORMAT = "strain_comp/calibration/v1"
 MAX_SENSORS = 4096

@@ -18,10 +18,10 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core import samples as sc
+from strain_comp.base import samples as sc
+from strain_comp.base.direction import DirectionDetector
 from strain_comp.core.array import ArrayGroup
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.direction import DirectionDetector
 from strain_comp.core.health import SensorHealth
 from strain_comp.core.outputs import ArrayOutput, BatchOutput, SensorOutput
 from strain_comp.core.range_policy import DEFAULT_OUT_OF_RANGE, OUT_OF_RANGE_MODES

@@ -62,9 +62,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.samples import used_mask
 from strain_comp.core.correction import Correction
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.core.samples import used_mask
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:

@@ -17,9 +17,9 @@ from functools import cached_property
 
 import numpy as np
 
+from strain_comp.base.compensator import Compensator
 from strain_comp.core.calibration import SensorCalibration, ValidRange
 from strain_comp.core.stages import RANGE_COLUMNS, bound_all, saturate_all
-from strain_comp.models.base import Compensator
 
 OUT_OF_RANGE_MODES = ("clamp", "extrapolate", "extend")
 """Strain of a sample beyond the valid resistance range: clamped to the valid strain range

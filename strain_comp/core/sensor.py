@@ -3,7 +3,7 @@ corrector, limits, held output and health, and the per-sample path through them
 (docs/design.md, "The engine"; the stages are ``strain_comp.core.stages``).
 
 Per sample, in this order: input conversion (and tare gain, input zero and span);
-screening (``strain_comp.core.samples.screen_one``); a gap reset of model, detector and
+screening (``strain_comp.base.samples.screen_one``); a gap reset of model, detector and
 effect terms; the input corrections (``input.filtered``: pair means, spikes, baseline
 steps; ``strain_comp.core.chain``); the detector and the model (reading ``model_read``);
 the effect terms (``strain_comp.core.effects``) on the clamped estimate; the range stage
@@ -22,18 +22,19 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core import samples as sc
+from strain_comp.base import samples as sc
+from strain_comp.base.compensator import Compensator
+from strain_comp.base.conversion import resistance_to_divider
+from strain_comp.base.direction import DirectionDetector, DirectionSettings
+from strain_comp.base.samples import USED, Status, screen_one
 from strain_comp.core import uncertainty
 from strain_comp.core.calibration import SensorCalibration
 from strain_comp.core.chain import DESPIKE_K, SPIKE, STEP, ChainCorrector, pair_values
-from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.correction import Correction
-from strain_comp.core.direction import DirectionDetector, DirectionSettings
 from strain_comp.core.effects import EffectTerms, run_segments
 from strain_comp.core.health import STATUSES, SensorHealth, add_counts
 from strain_comp.core.outputs import BatchOutput, SensorOutput
 from strain_comp.core.range_policy import SensorRange
-from strain_comp.core.samples import USED, Status, screen_one
 from strain_comp.core.stages import (
     bound,
     bound_all,
@@ -46,7 +47,6 @@ from strain_comp.core.stages import (
 )
 from strain_comp.core.uncertainty import std_one, std_run
 from strain_comp.errors import InputError
-from strain_comp.models.base import Compensator
 
 Latest = Callable[[str], float]
 """A sensor name -> its latest clamped pre-effect strain (what cross-talk terms read)."""

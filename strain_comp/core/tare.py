@@ -38,8 +38,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.direction import DirectionDetector, DirectionSettings
 from strain_comp.core.chain import pair_values
-from strain_comp.core.direction import DirectionDetector, DirectionSettings
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:

@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from strain_comp.base.samples import good_mask
 from strain_comp.core.calibration import (
     PARAM_MAX,
     SPAN_GAIN_MAX,
@@ -49,7 +50,6 @@ from strain_comp.core.calibration_file import loadable
 from strain_comp.core.correction import Correction
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
-from strain_comp.core.samples import good_mask
 from strain_comp.core.tare import REST_BAND, ohms, rest_resistance_from_reference
 from strain_comp.errors import InputError
 

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.samples import good_mask
+from strain_comp.base.samples import good_mask
 from strain_comp.errors import InputError
 from strain_comp.offline.correction import Line, run_line
 from strain_comp.offline.session_start import calibration_stretch, cut

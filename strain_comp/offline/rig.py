@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
 
-from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.base.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.errors import ParameterError
 from strain_comp.io.bag import BagWriter
 

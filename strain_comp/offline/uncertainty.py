@@ -23,10 +23,10 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize
 
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import Z_95
-from strain_comp.core.samples import used_mask
 from strain_comp.core.uncertainty import (
     FEATURES,
     WEIGHT_MAX,

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.correction import Correction
 from strain_comp.core.effects import TEMPERATURE_RANGE
@@ -34,7 +35,6 @@ from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, SensorOutput
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.core.samples import USED, Status, used_mask
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.io.multiarray import array_values
@@ -326,6 +326,28 @@ class LiveCompensator:
             self.engine.gap_reset = value
         elif name == "stale_after_s":
             self.engine.stale_after = value
+
+    def start(self, now: float) -> tuple[LiveCompensator, str]:
+        """``~/start`` at clock time ``now``: watch the next stretch on the sensors with a
+        recent reference (``live_start``), else ``~/span`` on ``span_strain``."""
+        if self.starting.request(now, list(self.params.calibration.sensors)):
+            return self, self.starting.detail
+        try:
+            fresh, summary = self.span()
+        except ParameterError as err:
+            self.starting.outcome("refused", f"refused: no reference and {err}")
+            raise
+        fresh.starting.outcome("applied", f"applied span_strain (no reference): {summary}")
+        return fresh, fresh.starting.detail
+
+    def start_reference(self, sensor: str, t: float, value: float) -> LiveCompensator:
+        """A reference of ``sensor`` for ``~/start``: the compensator on the started
+        calibration once the watched stretch has returned (model state restarts, as after a
+        reload), else this one."""
+        started = self.starting.seen_reference(sensor, t, value, self.params.calibration)
+        if started is None:
+            return self
+        return self.reload(replace(self.params, calibration=started))
 
     def reload(self, params: NodeParams) -> LiveCompensator:
         """A new LiveCompensator on ``params``'s calibration carrying on from this one

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import yaml
 
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.cli import main as cli
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import (
     MAX_REST_DRIFT,

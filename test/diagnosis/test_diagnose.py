@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from strain_comp.base.conversion import resistance_to_divider
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose

@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from strain_comp.base.compensator import Normalisation
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.io.recording import Recording
-from strain_comp.models.base import Normalisation
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.session_start import recalibrate_recordings
 

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.compensator import require_float
 from strain_comp.core.effects.history import Baseline, Direction, Elapsed, Mullins, Stretch
 from strain_comp.core.effects.memory import Rate, Relaxation, ResistanceMemory
 from strain_comp.core.effects.regressor import (
@@ -19,7 +20,6 @@ from strain_comp.core.effects.regressor import (
 )
 from strain_comp.core.effects.static import Crosstalk, Offset, StrainLevel, Temperature
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import require_float
 
 KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
     Offset, Rate, Direction, Relaxation, ResistanceMemory, Elapsed, Temperature, StrainLevel,
