@@ -19,7 +19,7 @@ class InstallPrimed(install):
     """``install``, then (an install into a prefix, as colcon's; not a wheel's staging root)
     the numba kernels of the bundled params files compiled into the installed package's
     cache (``strain_comp.ros.node.prime_cache``), so the node's first start loads them
-    instead of compiling for seconds (docs/performance.md). STRAIN_COMP_NO_PRIME=1 skips it;
+    instead of compiling for seconds (docs/results.md). STRAIN_COMP_NO_PRIME=1 skips it;
     a failure is a note, never a failed install."""
 
     def run(self) -> None:

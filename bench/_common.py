@@ -16,10 +16,11 @@ from dataclasses import replace
 
 import numpy as np
 
+import strain_comp.models  # noqa: F401  (registers the families the calibrations name)
+from strain_comp.base.compensator import Normalisation
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.uncertainty import Uncertainty
-from strain_comp.models.base import Normalisation
 
 NORM = Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0)
 R_LO, R_HI = (-1.0 - NORM.alpha) * NORM.r0, (1.0 - NORM.alpha) * NORM.r0
@@ -111,7 +112,7 @@ def peak_rss_mb() -> float:
 
 def row(what: str, figure: str, baseline: str, ratio: str, *,
         memory_mb: float | None = None) -> None:
-    """Print one row of docs/performance.md's table (``bench/perf_table.py`` collects the
+    """Print one row of docs/results.md's table (``bench/perf_table.py`` collects the
     ``ROW`` lines of ``bench/run_all.sh``); memory: the peak RSS of this process unless
     given."""
     memory = peak_rss_mb() if memory_mb is None else memory_mb

@@ -1,5 +1,5 @@
 """A pytest plugin: the bag reader's walk through ``bench_bag.py``'s library candidate, to
-see which damaged-bag tests the library path keeps (docs/performance.md).
+see which damaged-bag tests the library path keeps (docs/results.md).
 
     PYTHONPATH=.:bench BAG_LIBRARY=framing python -m pytest -p bag_library_plugin \\
         test/io/test_bag.py test/io/test_streaming.py test/test_budgets.py

@@ -43,13 +43,13 @@ import numpy as np
 from _common import row
 from scipy.optimize import minimize
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import StrainCompError
 from strain_comp.io.recording import Recording
 from strain_comp.models import Normalisation
 from strain_comp.models.apl import APL
 from strain_comp.models.apl_fit import available_cores
-from strain_comp.models.base import Segment
 from strain_comp.offline import rig
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.training import split_segments

@@ -46,6 +46,7 @@ CHILD = """
 import json, sys, time
 t0 = time.perf_counter()
 import numpy as np
+import strain_comp.models  # the model families register
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 t1 = time.perf_counter()

@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
-"""Write the ``ROW`` lines of a ``bench/run_all.sh`` log into docs/performance.md's table.
+"""Write the ``ROW`` lines of a ``bench/run_all.sh`` log into docs/results.md's table.
 
-    python bench/perf_table.py LOG [--readme docs/performance.md] [--only SCRIPT]
+    python bench/perf_table.py LOG [--readme docs/results.md] [--only SCRIPT]
 
 The table sits between the ``<!-- perf-table:begin -->`` and ``<!-- perf-table:end -->``
-markers of docs/performance.md; everything else is left as it is. ``--only bench_x.py``: LOG is a
+markers of docs/results.md; everything else is left as it is. ``--only bench_x.py``: LOG is a
 run of that one script; its rows (those naming `` `bench_x.py``) replace the table's rows
 of that script where they stood, the other rows are kept, and the stamp says so.
 """
@@ -26,7 +26,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("log", type=Path)
     parser.add_argument("--readme", type=Path,
-                        default=Path(__file__).resolve().parents[1] / "docs" / "performance.md")
+                        default=Path(__file__).resolve().parents[1] / "docs" / "results.md")
     parser.add_argument("--only", metavar="SCRIPT",
                         help="replace only this script's rows (e.g. bench_replay_memory.py)")
     args = parser.parse_args()

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Run every strain_comp benchmark in turn (on demand; not part of the test suite) and
-# regenerate docs/performance.md's table from their ROW lines (bench/perf_table.py).
+# regenerate docs/results.md's table from their ROW lines (bench/perf_table.py).
 #   bash bench/run_all.sh [--quick]
 # --quick: smaller sizes (a smoke run of the scripts; the table is not rewritten).
 # Each script prints its own figures and the ratio against its baseline. The full run takes
@@ -23,6 +23,7 @@ if (( quick )); then
   run bench/bench_replay_memory.py --messages 100000,1000000
   run bench/bench_fit.py --samples 5000 --models apl,mpi,cubic,rational \
     --rational-sizes 20000,200000
+  run bench/bench_auto.py --seconds 40 --candidates cubic,mpi --repeat 1
   run bench/bench_startup.py --warm-runs 1 --no-node
   run bench/bench_batch.py --bags 3 --duration 200
   run bench/bench_latency.py --messages 2000 --round-trips 200
@@ -36,6 +37,7 @@ else
   run bench/bench_replay.py
   run bench/bench_replay_memory.py
   run bench/bench_fit.py
+  run bench/bench_auto.py
   run bench/bench_startup.py
   run bench/bench_batch.py
   run bench/bench_latency.py

@@ -78,11 +78,11 @@ from typing import Any
 import numpy as np
 import yaml
 
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration, InputSettings, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.effects import KINDS
 from strain_comp.core.engine import Engine
-from strain_comp.core.samples import used_mask
 from strain_comp.errors import BagError, CalibrationError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording

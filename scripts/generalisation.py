@@ -68,7 +68,7 @@ DEFAULT_MODELS = ("cubic", "mpi", "apl", "creep_pi")
 SCHEMES = ("pair", "loro")
 WORKFLOWS = ("as_is", "first", "warmup", "refs_60")
 HEADLINE = "warmup"
-"""The session start the README recommends (chosen on this benchmark: docs/generalisation.md)."""
+"""The session start the README recommends (chosen on this benchmark: docs/results.md)."""
 TARGETS = {("nylon", "loro", "warmup", "median"): 5.0, ("nylon", "loro", "warmup", "worst"): 7.5,
            ("nylon", "loro", "refs_60", "median"): 4.0, ("cb", "loro", "warmup", "median"): 7.0,
            ("nylon", "day2", "warmup", "ratio_median"): 1.2}

@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
-from strain_comp.core.samples import used_mask
 from strain_comp.io.recording import Recording
 from strain_comp.models import MODEL_NAMES
 from strain_comp.offline.fit import fit_sensor

@@ -6,10 +6,9 @@ Contracts (layout, topics, units, files, command line): docs/design.md; the pape
 docstrings cite by key and equation number: docs/references.md.
 """
 
-__version__ = "0.1.0"
-
-
 from typing import TYPE_CHECKING, Any
+
+from strain_comp.version import __version__
 
 __all__ = ["Calibration", "Diagnosis", "Estimate", "Evaluation", "Recalibration", "Recording",
            "StrainCompError", "StrainEstimator", "__version__", "diagnose", "estimate",

@@ -1,4 +1,4 @@
-# Study: Which model has the lowest held-out RMSE on the bundled bags? (docs/measured.md)
+# Study: Which model has the lowest held-out RMSE on the bundled bags? (docs/results.md)
 """Held-out RMSE of every model on the bundled rig bags: a Markdown table, model x bag.
 
 Each model is fitted on the training bags (bags/train_random.mcap, bags/train_patterns.mcap)

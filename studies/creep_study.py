@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: Does creep_pi beat the cubic, MPI and APL on the measured data? (docs/creep.md)
+# Study: Does creep_pi beat the cubic, MPI and APL on the measured data? (docs/results.md)
 """What creep memory buys: creep_pi against the cubic, MPI and APL on the measured data.
 
     python studies/creep_study.py --out out/creep [--models creep_pi,cubic,mpi,apl]

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: Every model's held-out errors on the lab recordings? (docs/measured.md)
+# Study: Every model's held-out errors on the lab recordings? (docs/results.md)
 """Held-out errors of every model on the real lab recordings (../shared/data/measured).
 
     python studies/measured.py --data ../shared/data/measured --out out/measured

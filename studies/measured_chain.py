@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: What does the input corrector find on each measured run? (docs/measured.md)
+# Study: What does the input corrector find on each measured run? (docs/results.md)
 """The spike and baseline-step corrector on every measured recording.
 
     python studies/measured_chain.py --data ../shared/data/measured

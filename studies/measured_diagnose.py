@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: What does the residual loop change on the real lab recordings? (docs/loop.md)
+# Study: What does the residual loop change on the real lab recordings? (docs/results.md)
 """The residual loop on the real lab recordings (../shared/data/measured): before/after table.
 
     python studies/measured_diagnose.py --data ../shared/data/measured --out out/diagnose

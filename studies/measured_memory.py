@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: Where do memory models lose to the cubic within a run? (docs/measured.md)
+# Study: Where do memory models lose to the cubic within a run? (docs/results.md)
 """Where the memory models lose to the cubic within one measured run, by phase and by block.
 
     python studies/measured_memory.py --data ../shared/data/measured --out out/memory
@@ -45,10 +45,10 @@ def _part(rec, mask):  # type: ignore[no-untyped-def]
 def with_effects(cal, train: list, effects: list[str]):  # type: ignore[no-untyped-def]
     """``cal`` plus the named loop candidates and an intercept, least squares on ``train``'s
     samples with a reference; the terms run over every sample the engine used, as online."""
+    from strain_comp.base.samples import used_mask
     from strain_comp.core.calibration import Calibration
     from strain_comp.core.effects import Batch, regressor_from_dict
     from strain_comp.core.engine import Engine
-    from strain_comp.core.samples import used_mask
     from strain_comp.diagnosis.candidates import default_candidates
 
     known = {c["name"]: c for c in default_candidates()}

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: Is the tare multiplicative or additive on carbon black? (docs/measured.md)
+# Study: Is the tare multiplicative or additive on carbon black? (docs/results.md)
 """Multiplicative or additive tare? The evidence of the carbon-black runs.
 
     python studies/measured_tare.py --data ../shared/data/measured
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     args = parser.parse_args(argv)
 
-    from strain_comp.core.direction import DirectionSettings
+    from strain_comp.base.direction import DirectionSettings
     from strain_comp.core.tare import rest_resistance_at_start, rest_resistance_from_reference
     from strain_comp.errors import InputError
     from strain_comp.io.csv_import import import_csv

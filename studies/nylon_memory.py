@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: Do memory models lower the silver-nylon thread's error? (docs/hysteresis_fit.md)
+# Study: Do memory models lower the silver-nylon thread's error? (docs/results.md)
 """In-run error of the memory models on the silver-nylon thread sensor, with the cell
 weights' sign chosen from the data (the default) and held to the paper's leading loop.
 
@@ -12,7 +12,7 @@ code of ``strain-comp fit`` (their training RMSE is the in-run bound ``evaluate
 --in-run-bound`` gives), MPI, PL and APL once with the default ``cell_weights=signed``
 and once with ``cell_weights=lead`` (the fit before the loop's sign was read from the
 data). Prints a Markdown table with the ratio of MPI and APL to the cubic, and per fit the
-loop its cells were held to and whether it ended up memoryless. docs/hysteresis_fit.md
+loop its cells were held to and whether it ended up memoryless. docs/results.md
 explains the numbers.
 """
 

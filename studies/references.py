@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# Study: What does a known strain every N seconds buy across runs? (docs/fusion.md)
+# Study: What does a known strain every N seconds buy across runs? (docs/results.md)
 """What a known strain every N seconds buys across runs: ``evaluate --references-every``.
 
     python studies/references.py --every 60,30 --out out/references
@@ -10,7 +10,7 @@ and the virtual rig: every model in ``--models`` fitted on one run (``strain-com
 RUN``; ``--protocol loro``: on all other runs, ``strain-comp fit A B C ...``), used on
 every other run B of the same sensor after the session start on B's first cycle
 (``recalibrate --input --from B --first S``, then ``recalibrate --from B --first S``, S the
-first load and unload: ``strain_comp.offline.session_window.first_cycle``; ``--session-cycle
+first load and unload: ``strain_comp.offline.session_start.first_cycle``; ``--session-cycle
 2``: on B's second cycle, the first one an unreferenced warm-up), then scored
 on all of B (``strain-comp evaluate``) without references and with B's own reference every
 N seconds fused (``--references-every N``). Prints a
@@ -76,7 +76,7 @@ def bag(data: Path, out: Path, sensor: str, label: str, source: str,
 
 def cycle_seconds(rec: Any) -> float:
     """Seconds of the recording's first load and unload (``first_cycle``, capped)."""
-    from strain_comp.offline.session_window import FIRST_CYCLE_CAP, first_cycle
+    from strain_comp.offline.session_start import FIRST_CYCLE_CAP, first_cycle
 
     return first_cycle(rec.t, rec.s) or FIRST_CYCLE_CAP * float(rec.t[-1] - rec.t[0])
 
@@ -89,7 +89,7 @@ def session_start(cal: Any, rec: Any, cycle: int = 1) -> Any:
     from dataclasses import replace
 
     from strain_comp.errors import StrainCompError
-    from strain_comp.offline.recalibrate import recalibrate_recordings, session_forms
+    from strain_comp.offline.session_start import recalibrate_recordings, session_forms
 
     if cycle == 2:
         k = int(np.searchsorted(rec.t, rec.t[0] + cycle_seconds(rec), side="left"))

@@ -33,6 +33,8 @@ import numpy as np
 import pytest
 from ros_env import ros_env
 
+from strain_comp.base.compensator import Compensator, Normalisation, Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import (
     Calibration,
     InputSettings,
@@ -40,11 +42,9 @@ from strain_comp.core.calibration import (
     ValidRange,
     provenance,
 )
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import EXTEND_REACH, MARGIN, OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.io.recording import Recording
-from strain_comp.models.base import Compensator, Normalisation, Segment
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.rig import simulate
 
@@ -413,7 +413,7 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
 }
 """Per module, the tests (by function name: every parameter set) that take about a second
 or more in a module of fast ones (marked ``slow``): 1.5 s or more in one full run with
-``pytest --durations=0`` on the shared 2-core machine of docs/performance.md (load average
+``pytest --durations=0`` on the shared 2-core machine of docs/results.md (load average
 about 5)."""
 
 

@@ -18,7 +18,7 @@ import pytest
 import strain_comp as sc
 from strain_comp.cli import main
 from strain_comp.io.bag import read_bag
-from strain_comp.offline.session_window import second_cycle
+from strain_comp.offline.session_start import second_cycle
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = str(ROOT / "bags" / "demo_rates.mcap")

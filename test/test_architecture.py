@@ -1,8 +1,8 @@
 """The package's layers (docs/architecture.md): every import goes to a strictly lower rank,
-no module imports itself back through others, no private module is imported from
-outside its package, imports of the package's own modules sit at
-module level outside the command line and ros/ (optional dependencies such as matplotlib
-may load late anywhere), only ``strain_comp/ros/`` imports ROS,
+no module imports itself back through others (imports for the type checker included), no
+private module is imported from outside its package, imports of the package's own modules
+sit at module level outside the entry layers (the facade, the command line, ros/; optional
+dependencies such as matplotlib may load late anywhere), only ``strain_comp/ros/`` imports ROS,
 docs/architecture.md names every module, and the public API's functions give Args and Returns.
 
 The truth is the source itself: each module's imports read with ``ast``, a circle found by
@@ -19,20 +19,17 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "strain_comp"
-BASE = {"core.direction", "core.samples", "core.conversion"}
-"""Building blocks of both the models and the engine (direction detection, the sample
-screening rule, the divider formula): ranked below the models, though they live in core."""
-RANK = {"errors": 0, "_numba": 0, "__init__": 0, "progress": 0, "io": 1, "base": 2,
-        "models": 3, "core": 4, "offline": 5, "diagnosis": 6, "ros": 7, "api": 8, "cli": 9}
-"""Rank of each unit (a top-level module or subpackage, or ``BASE``); an import from one
-unit to another must go to a strictly lower rank."""
-LATE_IMPORTS = {"cli", "ros"}
-LAZY_FACADE = ("strain_comp", "strain_comp.api")
-"""The package's ``__init__`` re-exports ``strain_comp.api`` on first use (PEP 562
-``__getattr__``), so ``strain-comp --version`` loads no numpy: the one import that goes up
-a rank, and only inside that function."""
-"""Units that may import the package's own modules inside functions (the command line
-imports each command's modules when it runs; the node's ROS entry points)."""
+RANK = {"errors": 0, "_numba": 0, "progress": 0, "version": 0, "io": 1, "base": 2,
+        "models": 3, "core": 4, "offline": 5, "diagnosis": 6, "ros": 7, "api": 8, "cli": 9,
+        "__init__": 10}
+"""Rank of each unit (a top-level module or subpackage; ``__init__`` is the package's facade,
+``import strain_comp as sc``); an import from one unit to another must go to a strictly
+lower rank."""
+LATE_IMPORTS = {"cli", "ros", "__init__"}
+"""The entry layers, which may import the package's own modules inside functions: the
+command line imports each command's modules when it runs, the node its ROS machinery after
+its signal handlers, the facade ``strain_comp.api`` on first use (``strain-comp --version``
+loads no numpy; docs/architecture.md gives the measurement)."""
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "sensor_msgs", "diagnostic_msgs",
                 "std_srvs", "rosgraph_msgs", "builtin_interfaces", "ament_index_python"}
 
@@ -53,26 +50,23 @@ def _unit(module: str) -> str:
     rest = module.split(".")[1:]
     if not rest:
         return "__init__"
-    return "base" if ".".join(rest[:2]) in BASE else rest[0]
-
-
-def _type_checking(node: ast.AST) -> bool:
-    return isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+    return rest[0]
 
 
 def _imports(path: Path) -> list[tuple[str, bool]]:
-    """(imported module, inside a function) of every runtime import of ``path`` (imports
-    under ``if TYPE_CHECKING`` are for the type checker only)."""
+    """(imported module, inside a function) of every import of ``path``, those under ``if
+    TYPE_CHECKING`` included (a circle through the type checker is a circle);
+    ``from strain_comp import api`` imports ``strain_comp.api``, not the facade."""
     found: list[tuple[str, bool]] = []
 
     def visit(node: ast.AST, nested: bool) -> None:
         for child in ast.iter_child_nodes(node):
-            if _type_checking(child):
-                continue
             if isinstance(child, ast.ImportFrom) and child.module and child.level == 0:
-                found.append((child.module, nested))
-                found.extend((f"{child.module}.{a.name}", nested) for a in child.names
-                             if f"{child.module}.{a.name}" in MODULES)
+                modules = [f"{child.module}.{a.name}" for a in child.names
+                           if f"{child.module}.{a.name}" in MODULES]
+                if len(modules) < len(child.names):
+                    found.append((child.module, nested))
+                found.extend((m, nested) for m in modules)
             elif isinstance(child, ast.Import):
                 found.extend((alias.name, nested) for alias in child.names)
             inner = nested or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef))
@@ -89,8 +83,7 @@ def _own(name: str) -> str | None:
     return name or None
 
 
-GRAPH = {_module(p): {m for name, nested in _imports(p) if (m := _own(name)) and m != _module(p)
-                      and not (nested and (_module(p), m) == LAZY_FACADE)}
+GRAPH = {_module(p): {m for name, _ in _imports(p) if (m := _own(name)) and m != _module(p)}
          for p in SOURCES}
 
 
@@ -102,14 +95,12 @@ def test_every_unit_has_a_rank() -> None:
 def test_imports_go_to_strictly_lower_ranks(path: Path) -> None:
     module = _module(path)
     unit = _unit(module)
-    for name, nested in _imports(path):
-        if nested and (module, _own(name)) == LAZY_FACADE:
-            continue
+    for name, _ in _imports(path):
         top = name.split(".")[0]
         if top in ROS_PACKAGES:
             assert unit == "ros", f"{module} imports {name} outside strain_comp/ros"
         target = _own(name)
-        if target is None or target == "strain_comp":
+        if target is None or target == module:
             continue
         other = _unit(target)
         assert other == unit or RANK[other] < RANK[unit], \
@@ -122,7 +113,7 @@ def test_no_late_imports_of_the_package(path: Path) -> None:
     if _unit(module) in LATE_IMPORTS:
         return
     late = [name for name, nested in _imports(path) if nested and _own(name) is not None
-            and _own(name) != module and (module, _own(name)) != LAZY_FACADE]
+            and _own(name) != module]
     assert not late, f"{module} imports {late} inside a function"
 
 

@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 from conftest import calibration_of, fitted, strain_bounds
 
+from strain_comp.base.samples import Status
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.calibration_file import save_calibration as save
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
-from strain_comp.core.samples import Status
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.models import MODEL_NAMES
@@ -59,7 +59,7 @@ import yaml
 from strain_comp.core.calibration import (Calibration, InputSettings, SensorCalibration,
                                      ValidRange)
 from strain_comp.core.calibration_file import save_calibration
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.models import Normalisation
 
 def read(path):  # load_calibration without building the models (quicker start)

@@ -19,9 +19,9 @@ from strain_comp.api.inputs import (
     input_paths,
     paths_of,
 )
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine, tracking_off
-from strain_comp.core.samples import used_mask
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording

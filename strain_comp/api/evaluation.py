@@ -167,7 +167,7 @@ def evaluate(calibration: CalibrationLike, data: Data, *, tare: str = "calibrati
             plots and ``to_html`` (a bag; recordings keep all).
         references_every: The run's own reference every that many seconds fused into each
             sensor's output gain and offset (``evaluate --references-every``;
-            docs/fusion.md); None fuses none.
+            docs/results.md); None fuses none.
         csv: Also write every sample there (``evaluate --csv``; a bag only).
         inputs: Files ``csv`` must not overwrite (besides the calibration's path and the
             bag).

@@ -17,9 +17,8 @@ from strain_comp.api.inputs import (
 )
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
-from strain_comp.offline.recalibrate import recalibrate as _recalibrate
-from strain_comp.offline.recalibrate import recalibrate_recordings
-from strain_comp.offline.session_start import start
+from strain_comp.offline.session_start import recalibrate as _recalibrate
+from strain_comp.offline.session_start import recalibrate_recordings, start
 
 
 class Recalibration(NamedTuple):

@@ -38,7 +38,6 @@ import threading
 import traceback
 from collections.abc import Sequence
 
-from strain_comp import __version__
 from strain_comp.cli import (
     diagnose,
     evaluate,
@@ -53,6 +52,7 @@ from strain_comp.cli import (
 )
 from strain_comp.cli.common import PROG, Command, Formatter, Parser, UsageError, err
 from strain_comp.errors import StrainCompError, Terminated, raise_terminated
+from strain_comp.version import __version__
 
 COMMANDS: tuple[Command, ...] = (simulate, import_csv, fit, start, evaluate, replay, diagnose,
                                  recalibrate, node, play)

@@ -131,7 +131,7 @@ def tracking_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument("--baseline-tracking", choices=("off", "on"), default="off",
                    help="off (the only behaviour): the rest level is the calibration's or "
                    "the tare's; baseline tracking was removed, on is refused "
-                   "(docs/policies.md)")
+                   "(docs/results.md)")
 
 
 def references_flag(p: argparse.ArgumentParser) -> None:
@@ -139,7 +139,7 @@ def references_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument("--references-every", type=float, metavar="SECONDS",
                    help="fuse the bag's own /NAME/strain_reference every SECONDS into the "
                    "output gain and offset, causally (a known strain now and then, as a robot "
-                   "may have; scored on every sample; docs/fusion.md)")
+                   "may have; scored on every sample; docs/results.md)")
 
 
 def tare_flag(p: argparse.ArgumentParser) -> None:

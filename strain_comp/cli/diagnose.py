@@ -1,5 +1,5 @@
 """``strain-comp diagnose``: the residual loop, the effects a calibration lacks added
-(docs/design.md, docs/loop.md)."""
+(docs/design.md, docs/results.md)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ SUMMARY = "find the effect a calibration lacks and add it"
 DESCRIPTION = ("The residual loop: score candidate effects (rate, relaxation, drift, "
                "temperature, Mullins, cross-talk, the measurement chain, the tare) on "
                "held-out blocks of time, add those that lower the held-out error, and "
-               "write the calibration with them (docs/loop.md).")
+               "write the calibration with them (docs/design.md).")
 EXAMPLE = ("strain-comp diagnose run3.mcap --calibration s1.yaml --validate run4.mcap "
            "--out s1_v2.yaml --json report.json")
 

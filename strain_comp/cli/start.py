@@ -44,8 +44,7 @@ def run(args: argparse.Namespace) -> int:
     stdout, the steps not made on stderr."""
     from strain_comp import api
     from strain_comp.core.calibration_file import save_calibration
-    from strain_comp.offline.session_start import start
-    from strain_comp.offline.session_window import parse_window
+    from strain_comp.offline.session_start import parse_window, start
 
     calibration = api.load_calibration(existing(args.calibration, "calibration file"))
     source = bag(args.recording)

@@ -1,11 +1,11 @@
 """Sensors sampled together (an array topic), stepped as one tick (docs/design.md,
 "Arrays").
 
-When every sensor's model belongs to a family with an array form (``FAMILIES``:
-``strain_comp.models.apl_array.APLArray``, same N and M;
+When every sensor's model belongs to a family with an array form (registered in
+``strain_comp.base.registry``: ``strain_comp.models.apl_array.APLArray``, same N and M;
 ``strain_comp.models.creep_pi.CreepPIArray``, same numbers of play operators and time
 constants) and no sensor's input is corrected, one tick is one numba call per family:
-``family_tick`` bound to the family's per-sensor kernel (``strain_comp.models.lift``), a
+``family_tick`` bound to the family's per-sensor kernel (``strain_comp.base.lift``), a
 thin loop over the family's sensors of the shared stages ``sensor_front`` (input fix,
 screen, counts, detector reset on a gap; the stage kernels of ``strain_comp.core.stages``),
 the gap reset of the model's state rows, the model read, the family's kernel, then
@@ -18,6 +18,7 @@ one (the slower path). Otherwise a tick is a loop of the per-sample path over th
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -25,19 +26,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from strain_comp._numba import njit, specialise
-from strain_comp.core import samples as sc
-from strain_comp.core.direction import STATE_SIZE, direction_update
+from strain_comp.base import samples as sc
+from strain_comp.base.direction import STATE_SIZE, direction_update
+from strain_comp.base.lift import LiftedArray, kernel
+from strain_comp.base.registry import array_families
+from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
 from strain_comp.core.outputs import ArrayOutput, SensorOutput
-from strain_comp.core.samples import USED_CODE, Status, screen_one
 from strain_comp.core.sensor import Latest, Pending, SensorState
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
 from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_one
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
-from strain_comp.models.apl_array import APLArray
-from strain_comp.models.creep_pi import CreepPIArray
-from strain_comp.models.lift import LiftedArray, kernel
 
 if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher
@@ -101,7 +101,7 @@ def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
                 band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
                 params: tuple[Any, ...]) -> None:
     """Template: one tick of the array's sensors of one family, around the family's kernel
-    (``strain_comp.models.lift``). A gap reset zeroes the sensor's state rows (a sensor at
+    (``strain_comp.base.lift``). A gap reset zeroes the sensor's state rows (a sensor at
     rest)."""
     arrays = state + params
     for j in range(idx.size):
@@ -117,23 +117,21 @@ def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
         sensor_back(k, t, ohm, estimate, par, held, det, model_out, band, x)
 
 
-FAMILIES: tuple[type[LiftedArray], ...] = (APLArray, CreepPIArray)
-"""The model families with an array form, in the order a tick runs them."""
-TICKS: dict[type[LiftedArray], Dispatcher[Any]] = {
-    family: specialise(family_tick, {"kernel": family.kernel}, error_model="numpy")
-    for family in FAMILIES}
-"""Each family's tick: ``family_tick`` bound to the family's kernel."""
+@functools.cache
+def family_tick_of(family: type[LiftedArray]) -> Dispatcher[Any]:
+    """The family's tick: ``family_tick`` bound to the family's kernel."""
+    return specialise(family_tick, {"kernel": family.kernel}, error_model="numpy")
 
 
 def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedArray]] | None:
     """The model arrays of the families present in ``sensors``."""
-    models = [s.model for s in sensors]
-    rows = [[i for i, m in enumerate(models) if family.accepts(m)] for family in FAMILIES]
+    models, families = [s.model for s in sensors], array_families()
+    rows = [[i for i, m in enumerate(models) if family.accepts(m)] for family in families]
     if sum(len(r) for r in rows) != len(sensors):
         return None
     try:
         return [(np.array(r, dtype=np.int64), family([models[i] for i in r]))
-                for family, r in zip(FAMILIES, rows, strict=True) if r]
+                for family, r in zip(families, rows, strict=True) if r]
     except ParameterError:  # different shapes within a family
         return None
 
@@ -214,7 +212,7 @@ class ArrayGroup:
         if not self.kernels:
             return self._loop(t, raw)
         for idx, kern in self.kernels:
-            TICKS[type(kern)](t, idx, raw, self.par, self.held, self.counts, self.states,
+            family_tick_of(type(kern))(t, idx, raw, self.par, self.held, self.counts, self.states,
                               self.gap_reset, self.model_out, self.status, self.reset,
                               self.band, self.x, kern.state, kern.params)
         status = self.status.copy()

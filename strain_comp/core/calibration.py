@@ -18,12 +18,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp import __version__
-from strain_comp.core.conversion import divider_to_resistance
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Compensator, Normalisation
+from strain_comp.base.conversion import divider_to_resistance
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.registry import model_class
 from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.errors import ParameterError, StrainCompError
-from strain_comp.models import Compensator, Normalisation, model_class
+from strain_comp.version import __version__
 
 FORMAT = "strain_comp/calibration/v1"
 MAX_SENSORS = 4096
@@ -76,16 +77,17 @@ class InputSettings:
     despike: float | None = None
     baseline_step: float | None = None
     zero_span: tuple[float, float, float] | None = None
-    """Input zero and span (``recalibrate``'s input form): (rest [ohm], rest_calibrated
-    [ohm], gain k); the models read R' = rest_calibrated + k (R - rest), R the measured
-    resistance (after a tare's gain), so a sensor whose rest level and sensitivity moved
-    reads as the calibrated one. None: R' = R."""
+    """Input zero and span, the file form of the input map of the sensor's one correction
+    (``strain_comp.core.correction``): (rest [ohm], rest_calibrated [ohm], gain k); the
+    models read R' = rest_calibrated + k (R - rest), R the measured resistance (after a
+    tare's gain), so a sensor whose rest level and sensitivity moved reads as the
+    calibrated one. None: R' = R."""
     stretch_line: tuple[float, float] | None = None
     """A calibration pooled with the stretch session start (``fit --pool stretch``): (R_0
     [ohm], g [ohm per strain unit]) of the line R = R_0 + g S its training runs' calibration
     stretches share in the calibrated input space; ``recalibrate --input`` puts a new
-    run's stretch line onto it (``strain_comp.offline.stretch_line``). None: the input
-    step reads the calibration's steady outputs (``strain_comp.offline.span``)."""
+    run's stretch line onto it (``strain_comp.offline.correction.onto``). None: the input
+    step reads the calibration's steady outputs (``strain_comp.offline.correction``)."""
     unit: str = "ohm"
     """The unit of the resistance the models and the direction detector read: ohm, or that
     of an input given in another (``R/R0`` for a resistance divided by its first sample).
@@ -95,13 +97,6 @@ class InputSettings:
     def rate_unit(self) -> str:
         """The unit of the dead zone: the input's per second (``ohm/s`` by default)."""
         return f"{self.unit}/s"
-
-    def span_map(self) -> tuple[float, float]:
-        """(k, c) of R' = k R + c (``zero_span``; (1, 0) without it)."""
-        if self.zero_span is None:
-            return 1.0, 0.0
-        rest, rest_cal, k = self.zero_span
-        return k, rest_cal - k * rest
 
     @property
     def filtered(self) -> bool:

@@ -136,7 +136,7 @@ def probe_calibration(cal: SensorCalibration) -> str | None:
 
 def loadable(cal: SensorCalibration, change: str) -> SensorCalibration:
     """``cal`` after the checks every calibration reader applies, so a recalibration
-    (``offline.span.apply_span``, ``offline.recalibrate.apply_map``) refuses in the API
+    (``offline.correction.apply_span``, ``apply_map``) refuses in the API
     what the command line's write refuses."""
     try:
         check_calibration(Calibration({cal.name: cal}))

@@ -26,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from strain_comp.base.compensator import Normalisation, require_float
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import (
     FORMAT,
     MAX_ALIASES,
@@ -45,13 +47,10 @@ from strain_comp.core.calibration import (
     unit_ok,
 )
 from strain_comp.core.chain import DESPIKE_K, PAIR_BRANCHES, STEP_K
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import validate_effect_dict
 from strain_comp.core.uncertainty import FEATURES, WEIGHT_MAX, Uncertainty
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.safe_yaml import LimitError, load_limited
-from strain_comp.models import Normalisation
-from strain_comp.models.base import require_float
 
 
 class _Reader:

@@ -18,10 +18,10 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core import samples as sc
+from strain_comp.base import samples as sc
+from strain_comp.base.direction import DirectionDetector
 from strain_comp.core.array import ArrayGroup
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.direction import DirectionDetector
 from strain_comp.core.health import SensorHealth
 from strain_comp.core.outputs import ArrayOutput, BatchOutput, SensorOutput
 from strain_comp.core.range_policy import DEFAULT_OUT_OF_RANGE, OUT_OF_RANGE_MODES
@@ -34,7 +34,7 @@ GAP_RESET = sc.DEFAULT_GAP_RESET
 
 
 def tracking_off(mode: str) -> None:
-    """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/policies.md),
+    """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/results.md),
     ``off`` is the behaviour that remains (the rest level is the calibration's or the
     tare's)."""
     if mode != "off":

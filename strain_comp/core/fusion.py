@@ -6,6 +6,13 @@ s_hat at t, is an observation of the output map
 
     y = g s_hat + b + v,          v ~ N(0, R)                                      (1)
 
+The filter's state is the sensor's output map itself (its correction's output gain and
+offset, ``strain_comp.core.correction``), not a second map on top: it starts from the
+calibration's (a_0, b_0), reads s_hat as the estimate before that map, (s - b_0) / a_0 of
+the engine's s, and carries the covariance of (g, b) in those coordinates (the prior and the
+walk below, stated for the map relative to the calibration's, taken through T = [[a_0, 0],
+[b_0, 1]]: the same filter, the same fused strain).
+
 whose gain g and offset b drift slowly between references (a sensitivity that changed
 since the session start is the largest share of a calibration's error on another run: the
 estimate's error is mostly a gain error). The state theta = (g, b) is a random walk,
@@ -37,7 +44,7 @@ refusal is counted by its reason, the state unchanged.
 
 The scales are set per sensor from its calibrated strain span (``FusionSettings.for_span``),
 so one default serves a sensor calibrated in % and one in mm; their values were chosen on
-``studies/references.py`` (docs/fusion.md): a gain prior of 0.3 beats 0.1 and an offset
+``studies/references.py`` (docs/results.md): a gain prior of 0.3 beats 0.1 and an offset
 alone (the error is a gain error), and a gain that walks 0.15 a minute beats slower walks
 (the sensitivity moves within a run). ``SparseFusion`` feeds a
 run's own reference at a fixed spacing (``evaluate --references-every``): the sample
@@ -55,8 +62,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.samples import used_mask
+from strain_comp.core.correction import Correction
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.core.samples import used_mask
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:
@@ -66,7 +74,7 @@ if TYPE_CHECKING:
 
 
 # The fusion's numbers, in shares of the calibrated strain span where a strain is meant.
-# docs/policies.md gives what keeps each: the largest change of a benchmark case with the
+# docs/results.md gives what keeps each: the largest change of a benchmark case with the
 # number set neutral.
 GAIN_SD = 0.3  # prior sd of the gain around 1: 30 % off is plausible (0: a case 15 %)
 OFFSET_SHARE = 0.05  # prior sd of the offset around 0 (0: a case 6 %)
@@ -98,11 +106,14 @@ class FusionSettings:
 
 @dataclass
 class OutputFusion:
-    """The Kalman filter (3) on one sensor's output gain and offset."""
+    """The Kalman filter (3) on one sensor's output gain and offset (from ``start``, the
+    calibration's: module docstring)."""
 
     settings: FusionSettings
-    gain: float = 1.0
-    offset: float = 0.0
+    start: tuple[float, float] = (1.0, 0.0)
+    """The calibration's output gain and offset the filter starts from (a_0, b_0)."""
+    gain: float = math.nan
+    offset: float = math.nan
     covariance: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
     n_used: int = 0
     refused: Counter[str] = field(default_factory=Counter)
@@ -112,21 +123,50 @@ class OutputFusion:
     """Reference minus fused estimate of the latest reference judged."""
 
     def __post_init__(self) -> None:
+        if math.isnan(self.gain):
+            self.gain, self.offset = self.start
         if not self.covariance.any():
-            self.covariance = np.diag([self.settings.gain_sd ** 2,
-                                       self.settings.offset_sd ** 2])
+            self.covariance = self._coordinates(np.diag([self.settings.gain_sd ** 2,
+                                                         self.settings.offset_sd ** 2]))
+
+    def _coordinates(self, p: np.ndarray) -> np.ndarray:
+        """A covariance of the map relative to ``start`` in the filter's coordinates."""
+        a0, b0 = self.start
+        tr = np.array([[a0, 0.0], [b0, 1.0]])
+        out: np.ndarray = tr @ p @ tr.T
+        return out
 
     @classmethod
     def for_span(cls, span: float) -> OutputFusion:
         return cls(FusionSettings.for_span(span))
+
+    @classmethod
+    def for_calibration(cls, cal: SensorCalibration) -> OutputFusion:
+        """The fusion of a sensor at its calibrated strain span, from its correction's
+        output map."""
+        correction = Correction.of(cal)
+        return cls(FusionSettings.for_span(fitted_rest(cal.valid_range)[1]),
+                   (correction.output_gain, correction.output_offset))
+
+    def relative(self) -> tuple[float, float]:
+        """(g, b) of the fused map on the engine's estimate (through ``start``)."""
+        a0, b0 = self.start
+        g = self.gain / a0
+        return g, self.offset - g * b0
+
+    def before_map(self, estimate: float) -> float:
+        """The engine's estimate before the calibration's output map (``start``)."""
+        a0, b0 = self.start
+        return (estimate - b0) / a0
 
     @property
     def n_refused(self) -> int:
         return sum(self.refused.values())
 
     def apply(self, estimate: Any) -> Any:
-        """The fused strain g s_hat + b of an estimate (a float or an array)."""
-        return self.gain * estimate + self.offset
+        """The fused strain g s_hat + b of an estimate of the engine (a float or an array)."""
+        g, b = self.relative()
+        return g * estimate + b
 
     def update(self, t: float, estimate: float, reference: Any) -> str | None:
         """Fuse the reference ``reference`` known at time ``t`` [s] beside the engine's
@@ -138,7 +178,9 @@ class OutputFusion:
             return reason
         s = self.settings
         dt = 0.0 if self.last_reference_t is None else t - self.last_reference_t
-        p = self.covariance + np.diag([s.gain_walk ** 2, s.offset_walk ** 2]) * dt
+        p = self.covariance + self._coordinates(np.diag([s.gain_walk ** 2,
+                                                         s.offset_walk ** 2])) * dt
+        estimate = self.before_map(estimate)
         h = np.array([estimate, 1.0])
         innovation = float(reference) - (self.gain * estimate + self.offset)
         var = float(h @ p @ h) + s.noise_sd ** 2
@@ -281,8 +323,7 @@ class SparseFusion:
                         ) -> SparseFusion:
         """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds
         (``record``: keep ``judged``)."""
-        return cls(OutputFusion.for_span(fitted_rest(cal.valid_range)[1]),
-                   check_every(every), record=record)
+        return cls(OutputFusion.for_calibration(cal), check_every(every), record=record)
 
     def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
         """``out`` (the engine's, for samples ``t``) with its strain fused (``run``); the

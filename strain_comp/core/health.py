@@ -10,9 +10,9 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from strain_comp.base.samples import STATUS_RULES, USED, USED_CODE, Status
 from strain_comp.core.chain import SPIKE, STEP
 from strain_comp.core.outputs import BatchOutput
-from strain_comp.core.samples import STATUS_RULES, USED, USED_CODE, Status
 
 _DIAG_OK, _DIAG_WARN, _DIAG_ERROR, _DIAG_STALE = 0, 1, 2, 3
 LEVEL_NAMES = {_DIAG_OK: "OK", _DIAG_WARN: "WARN", _DIAG_ERROR: "ERROR", _DIAG_STALE: "STALE"}

@@ -9,7 +9,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from strain_comp.core.samples import Status
+from strain_comp.base.samples import Status
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ R outside the valid range widened by ``MARGIN`` of its span is flagged; the
 estimate is clamped to the strain range widened the same way and then, by ``out_of_range``
 (``OUT_OF_RANGE_MODES``), extended beyond it with a bounded slope within a bounded reach
 (``bounded_slopes``), or with the model's end slope (``end_slopes``), or not. The numbers
-are the constants below (docs/policies.md gives what keeps each).
+are the constants below (docs/results.md gives what keeps each).
 """
 
 from __future__ import annotations
@@ -17,20 +17,20 @@ from functools import cached_property
 
 import numpy as np
 
+from strain_comp.base.compensator import Compensator
 from strain_comp.core.calibration import SensorCalibration, ValidRange
 from strain_comp.core.stages import RANGE_COLUMNS, bound_all, saturate_all
-from strain_comp.models.base import Compensator
 
 OUT_OF_RANGE_MODES = ("clamp", "extrapolate", "extend")
 """Strain of a sample beyond the valid resistance range: clamped to the valid strain range
 (plus the margin); or that plus the model's end slope times the resistance beyond it; or
 that plus a bounded slope, within a bounded reach (``bounded_slopes``)."""
 DEFAULT_OUT_OF_RANGE = "extend"
-"""Chosen on the generalisation benchmark (docs/generalisation.md): the lowest median and
+"""Chosen on the generalisation benchmark (docs/results.md): the lowest median and
 worst ratio over every sensor and model on the headline workflow."""
 
 
-# The out-of-range rule's numbers. docs/policies.md gives what keeps each: the largest
+# The out-of-range rule's numbers. docs/results.md gives what keeps each: the largest
 # change of a benchmark case with the number set neutral, or the fault test it guards.
 OPEN_FACTOR = 100.0  # R above this x r_hi is an open circuit (a test_reliability fault test)
 SHORT_FACTOR = 0.01  # 0 < R below this x r_lo is a short circuit (the same fault test)

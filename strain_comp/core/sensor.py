@@ -3,7 +3,7 @@ corrector, limits, held output and health, and the per-sample path through them
 (docs/design.md, "The engine"; the stages are ``strain_comp.core.stages``).
 
 Per sample, in this order: input conversion (and tare gain, input zero and span);
-screening (``strain_comp.core.samples.screen_one``); a gap reset of model, detector and
+screening (``strain_comp.base.samples.screen_one``); a gap reset of model, detector and
 effect terms; the input corrections (``input.filtered``: pair means, spikes, baseline
 steps; ``strain_comp.core.chain``); the detector and the model (reading ``model_read``);
 the effect terms (``strain_comp.core.effects``) on the clamped estimate; the range stage
@@ -18,22 +18,23 @@ import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core import samples as sc
+from strain_comp.base import samples as sc
+from strain_comp.base.compensator import Compensator
+from strain_comp.base.conversion import resistance_to_divider
+from strain_comp.base.direction import DirectionDetector, DirectionSettings
+from strain_comp.base.samples import USED, Status, screen_one
 from strain_comp.core import uncertainty
 from strain_comp.core.calibration import SensorCalibration
 from strain_comp.core.chain import DESPIKE_K, SPIKE, STEP, ChainCorrector, pair_values
-from strain_comp.core.conversion import resistance_to_divider
-from strain_comp.core.direction import DirectionDetector, DirectionSettings
+from strain_comp.core.correction import Correction
 from strain_comp.core.effects import EffectTerms, run_segments
 from strain_comp.core.health import STATUSES, SensorHealth, add_counts
 from strain_comp.core.outputs import BatchOutput, SensorOutput
 from strain_comp.core.range_policy import SensorRange
-from strain_comp.core.samples import USED, Status, screen_one
 from strain_comp.core.stages import (
     bound,
     bound_all,
@@ -46,7 +47,6 @@ from strain_comp.core.stages import (
 )
 from strain_comp.core.uncertainty import std_one, std_run
 from strain_comp.errors import InputError
-from strain_comp.models.base import Compensator
 
 Latest = Callable[[str], float]
 """A sensor name -> its latest clamped pre-effect strain (what cross-talk terms read)."""
@@ -110,7 +110,9 @@ class SensorState:
     base: float = math.nan
     """Latest clamped strain before effect terms (what neighbours' cross-talk terms read)."""
     gain: float = 1.0
-    """Input gain (tare): the models see ``gain`` x the measured resistance."""
+    """Input gain (tare): the input map reads ``gain`` x the measured resistance."""
+    correction: Correction = field(default_factory=Correction)
+    """The calibration's input and output maps (``strain_comp.core.correction``)."""
     previous: float = math.nan
     """Latest used resistance [ohm] (for pair means when the input alternates)."""
     corrector: ChainCorrector | None = None
@@ -135,9 +137,11 @@ class SensorState:
             limits = SensorRange.build(cal, out_of_range, model)
         else:
             model.reset()  # as SensorRange.build leaves it
+        correction = Correction.of(cal)
         return cls(cal=cal, model=model,
                    detector=DirectionDetector(scaled(cal.direction, deadzone_scale)),
-                   limits=limits, effects=EffectTerms.from_dicts(cal.effects),
+                   limits=limits, effects=EffectTerms.from_dicts(correction.effects(cal.effects)),
+                   correction=correction,
                    corrector=_corrector(cal),
                    weights=None if cal.uncertainty is None else cal.uncertainty.vector())
 
@@ -165,28 +169,20 @@ class SensorState:
         return ohm, events
 
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(resistance [ohm] x the tare gain, through the input zero and span, forced
-        status) from the raw input values (the input-fix stage over a batch)."""
+        """(resistance [ohm] x the tare gain, through the input map of the correction,
+        forced status) from the raw input values (the input-fix stage over a batch)."""
         if self.cal.input.kind != "divider":
             forced = np.zeros(raw.shape, dtype=np.int8)
-            return self.span(raw * self.gain if self.gain != 1.0 else raw), forced
+            return self.correction.apply_input(raw, self.gain), forced
         ohm, forced = divider_all(raw, *self.cal.input.divider())
-        return self.span(ohm * self.gain), forced
+        return self.correction.apply_input(ohm, self.gain), forced
 
     def one_ohm(self, raw: float) -> tuple[float, int]:
         """``to_ohm`` of one raw value (the input-fix stage on one sample)."""
         if self.cal.input.kind != "divider":
-            return self.span(raw * self.gain), sc.GOOD
+            return self.correction.apply_input(raw, self.gain), sc.GOOD
         ohm, forced = divider_ohm(raw, *self.cal.input.divider())
-        return self.span(ohm * self.gain), forced
-
-    def span(self, ohm: Any) -> Any:
-        """``ohm`` through the calibration's input zero and span (``InputSettings.
-        zero_span``; unchanged without one)."""
-        if self.cal.input.zero_span is None:
-            return ohm
-        k, c = self.cal.input.span_map()
-        return k * ohm + c
+        return self.correction.apply_input(ohm, self.gain), forced
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
@@ -205,7 +201,8 @@ class SensorState:
                       direction: np.ndarray, temperature: np.ndarray, latest: Latest,
                       neighbours: Mapping[str, np.ndarray] | None = None,
                       starts: Sequence[int] = ()) -> np.ndarray:
-        """The one place where a calibration's effect terms correct the strain."""
+        """The one place where a calibration's effect terms correct the strain, and then its
+        output map (``Correction.apply_output``)."""
         base = np.clip(strain, self.limits.s_lo, self.limits.s_hi)
         given = neighbours or {}
         nbrs = {n: given[n] if n in given else np.full(t.size, latest(n))
@@ -217,11 +214,13 @@ class SensorState:
             self.effects.reset, t.size, starts)
         # a correction that overflows (extreme inputs or coefficients) is not applied: the
         # estimate never becomes NaN; +-inf is clamped to the valid range by the caller
-        return np.where(np.isnan(corrected), base, corrected)
+        out: np.ndarray = self.correction.apply_output(np.where(np.isnan(corrected), base,
+                                                                 corrected))
+        return out
 
     def latest_base(self) -> float:
         """The latest clamped strain before the effect terms (NaN before any)."""
-        return self.base if self.effects else self.strain
+        return self.base if self.cal.effects else self.strain
 
     def step_model(self, t: float, raw: float, gap_reset: float) -> SensorOutput | Pending:
         """Input fix, screening, gap reset, input corrections, detector and model of one

@@ -1,6 +1,6 @@
 """The per-sample stages every path runs: input fix, screen, model read, range, hold.
 
-Each stage is one scalar kernel (``divider_ohm``, ``strain_comp.core.samples.screen_one``,
+Each stage is one scalar kernel (``divider_ohm``, ``strain_comp.base.samples.screen_one``,
 ``model_read``, ``bound``); ``Engine.step`` calls it on one sample, the fused array tick
 (``strain_comp.core.array``) on each sensor of a tick, and ``Engine.run`` through its lift
 over a batch (``divider_all``, ``screen_batch``, ``saturate_all``, ``bound_all``,
@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from strain_comp._numba import njit
-from strain_comp.core import samples as sc
-from strain_comp.core.samples import screen_all
+from strain_comp.base import samples as sc
+from strain_comp.base.samples import screen_all
 
 RANGE_COLUMNS = ("r_lo", "r_hi", "s_lo", "s_hi", "slope_lo", "slope_hi", "reach_lo",
                  "reach_hi", "saturate")

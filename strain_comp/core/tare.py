@@ -27,7 +27,7 @@ the excitation (an artefact every other sample); the median ignores isolated spi
 * ``rest_resistance_from_reference`` (fit time): the leading samples whose reference strain
   is within ``REST_BAND`` of the span of its minimum.
 
-The numbers are the constants below (docs/policies.md gives what keeps each).
+The numbers are the constants below (docs/results.md gives what keeps each).
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.direction import DirectionDetector, DirectionSettings
 from strain_comp.core.chain import pair_values
-from strain_comp.core.direction import DirectionDetector, DirectionSettings
 from strain_comp.errors import InputError
 
 if TYPE_CHECKING:
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 
 
 
-# The tare's numbers. docs/policies.md gives what keeps each: the largest change of a
+# The tare's numbers. docs/results.md gives what keeps each: the largest change of a
 # benchmark case with the number set neutral.
 REST_WINDOW = 5.0  # s: longest leading stretch an automatic tare reads (inf: a case 20 %)
 MIN_REST_SAMPLES = 3  # fewest rest samples a tare accepts... (1: a case 62 %)

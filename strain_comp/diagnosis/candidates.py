@@ -20,7 +20,7 @@ any time constant in that span)."""
 CREEP_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-4, 18))
 """Time constants [s] of the creep candidates (one Prony-series state each, of the estimate
 or of the resistance): 0.25 s to 362 s, a factor sqrt(2) apart, covering the 0.3-300 s of
-``creep_pi``'s states (docs/creep.md)."""
+``creep_pi``'s states (docs/design.md)."""
 MEMORY_TAUS = tuple(float(2 ** k) for k in range(9))
 """Time constants [s] of the resistance peak and trough candidates: 1 s to 256 s, a factor
 2 apart."""
@@ -42,7 +42,7 @@ def default_candidates(*, temperature_ref: float | None = None,
     The creep family (``report.creep_tau``) is a Prony series read one state at a time:
     ``relaxation`` of branch ``both`` (S_hat minus its first-order low-pass) and
     ``resistance_memory`` of form ``relaxation`` (100 ln R minus its low-pass), each at
-    ``CREEP_TAUS``; the differences u - z_k that ``creep_pi`` fits (docs/creep.md)."""
+    ``CREEP_TAUS``; the differences u - z_k that ``creep_pi`` fits (docs/design.md)."""
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
             for mode in ("signed", "direction")]

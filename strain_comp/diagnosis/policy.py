@@ -1,7 +1,7 @@
-"""The residual loop's selection rule in numbers (docs/loop.md, "The loop's policy").
+"""The residual loop's selection rule in numbers (docs/results.md, "Residual loop").
 
 Every number that decides whether the loop (``strain_comp.diagnosis.loop``) adds a term is a
-field of ``LoopPolicy``, with its unit; docs/loop.md gives for each the measured figure
+field of ``LoopPolicy``, with its unit; docs/results.md gives for each the measured figure
 that keeps it.
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class LoopPolicy:
-    """How the loop decides (docs/loop.md, "The loop's policy")."""
+    """How the loop decides (docs/results.md, "Residual loop")."""
 
     margin: float = 0.03
     """[1, relative RMSE] Least fall of the error for a term (or a condition) to count:

@@ -80,7 +80,7 @@ class EffectScore:
 def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
     """The time constant [s] of a creep term, None for any other: one state of a Prony
     series u - z_k, z_k' = (u - z_k) / tau_k (viscoelastic creep, the generalised Maxwell
-    form; ``creep_pi``, docs/creep.md), u being the estimate (``relaxation`` of branch
+    form; ``creep_pi``, docs/design.md), u being the estimate (``relaxation`` of branch
     ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``)."""
     if (kind == "relaxation" and params.get("branch", "both") == "both") or (
             kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):

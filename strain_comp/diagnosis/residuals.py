@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from strain_comp.base.samples import gap_for, used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.effects import (
     Batch,
@@ -23,7 +24,6 @@ from strain_comp.core.effects import (
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.range_policy import MARGIN
-from strain_comp.core.samples import gap_for, used_mask
 from strain_comp.core.tare import tare_engine, unsettled_start
 from strain_comp.diagnosis.candidates import BASELINE_WINDOW
 from strain_comp.io.recording import Recording, hold_latest

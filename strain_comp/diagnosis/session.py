@@ -1,7 +1,7 @@
 """The session start in the residual loop, as a user makes it (``strain-comp start``:
 ``strain_comp.offline.session_start.start``, the calibration stretch found from the
 reference), on each validation run of ``diagnose --validate``; the generalisation benchmark
-(docs/generalisation.md, ``warmup``) calls the same ``start``. The residual loop scores its
+(docs/results.md, ``warmup``) calls the same ``start``. The residual loop scores its
 terms after it (``strain_comp.diagnosis.loop``), so that a term that only does what this
 recalibration does anyway gets no credit. A run the start refuses is scored with the
 calibration as it is, as a user refused is left with it.
@@ -19,8 +19,7 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import Window
-from strain_comp.offline.session_start import Started, start_or_keep
+from strain_comp.offline.session_start import Started, Window, start_or_keep
 
 
 def window_flag(window: Window | None) -> str:

@@ -1,39 +1,18 @@
-"""The model registry: model name (as in calibration files) -> compensator class.
-
-Classes are imported on first use so that one model's import cost (numba compilation of
-its kernels) is paid only by those who use it.
-"""
+"""The compensators. Importing this package registers every model family (and its array
+form) in ``strain_comp.base.registry``, where the calibration reader and the engine look
+them up; ``MODEL_NAMES`` are the registered names."""
 
 from __future__ import annotations
 
-import importlib
+from strain_comp.base.compensator import Compensator, Normalisation, Segment
+from strain_comp.base.registry import model_class, model_names
 
-from strain_comp.errors import ParameterError
-from strain_comp.models.base import Compensator, Normalisation, Segment
+# imported to register their families, in the order of MODEL_NAMES
+# isort: off
+from strain_comp.models import apl, apl_array, cubic, sinh_pl  # noqa: F401
+from strain_comp.models import rational, spike_decay, creep_pi  # noqa: F401
+# isort: on
 
-_REGISTRY: dict[str, str] = {
-    "apl": "strain_comp.models.apl:APL",
-    "pl": "strain_comp.models.apl:PL",
-    "mpi": "strain_comp.models.apl:MPI",
-    "cubic": "strain_comp.models.cubic:Cubic",
-    "sinh_pl": "strain_comp.models.sinh_pl:SinhPL",
-    "rational": "strain_comp.models.rational:Rational",
-    "spike_decay": "strain_comp.models.spike_decay:SpikeDecay",
-    "creep_pi": "strain_comp.models.creep_pi:CreepPI",
-}
-
-MODEL_NAMES: tuple[str, ...] = tuple(_REGISTRY)
-
-
-def model_class(name: str) -> type[Compensator]:
-    """The compensator class registered under ``name``."""
-    if name not in _REGISTRY:
-        raise ParameterError("name", f"unknown model {name!r}; known: {', '.join(MODEL_NAMES)}")
-    module_name, class_name = _REGISTRY[name].split(":")
-    found = getattr(importlib.import_module(module_name), class_name)
-    if not (isinstance(found, type) and issubclass(found, Compensator)):
-        raise TypeError(f"{_REGISTRY[name]} is not a Compensator")
-    return found
-
+MODEL_NAMES: tuple[str, ...] = model_names()
 
 __all__ = ["MODEL_NAMES", "Compensator", "Normalisation", "Segment", "model_class"]

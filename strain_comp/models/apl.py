@@ -61,7 +61,7 @@ on the bundled rig bags and the measured recordings: compare them with
 ``strain-comp fit ... --option output_nfev=0`` (the QP alone) or ``--option
 cell_weights=free|lead|lag`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
 never much worse than free ones and keep free weights from overfitting a noisy sensor.
-The current held-out figures of every model are in docs/measured.md
+The current held-out figures of every model are in docs/results.md
 (``studies/compare_models.py``, ``studies/measured.py``).
 """
 
@@ -75,19 +75,20 @@ import numpy as np
 import numpy.typing as npt
 from threadpoolctl import threadpool_limits
 
-from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import FitError, ParameterError
-from strain_comp.models import apl_kernels as kern
-from strain_comp.models import pwa
-from strain_comp.models.apl_fit import CELL_WEIGHTS, fit_cells
-from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     KernelCompensator,
     Normalisation,
     Segment,
     require_float,
     require_vector,
 )
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.registry import register
+from strain_comp.errors import FitError, ParameterError
+from strain_comp.models import apl_kernels as kern
+from strain_comp.models import pwa
+from strain_comp.models.apl_fit import CELL_WEIGHTS, CellFamily, fit_cells
+from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 
 N_MAX = 200
 M_MAX = 201
@@ -245,12 +246,14 @@ class _CellModel(KernelCompensator):
         if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counts):
             raise FitError(f"{cls.name}: output_nfev, search_nfev and search_top must be "
                            "integers >= 0")
-        return fit_cells(cls, segments, normalisation, n=N, m=M, sigma_grid=sigma_grid,
+        family: CellFamily[_CellModel] = cls
+        return fit_cells(family, segments, normalisation, n=N, m=M, sigma_grid=sigma_grid,
                          p_grid=p_grid, refine=refine, cell_weights=cell_weights, eps=eps,
                          ridge=ridge, output_nfev=output_nfev, search_nfev=search_nfev,
                          search_top=search_top, workers=workers, progress=progress)
 
 
+@register
 class APL(_CellModel):
     """Asymmetric power-law model (eq. (1)-(3))."""
 
@@ -258,6 +261,7 @@ class APL(_CellModel):
     kind = kern.KIND_APL
 
 
+@register
 class PL(_CellModel):
     """Power-law model of the paper's appendix (eq. (6), (2), (3))."""
 
@@ -265,6 +269,7 @@ class PL(_CellModel):
     kind = kern.KIND_PL
 
 
+@register
 class MPI(_CellModel):
     """Modified Prandtl-Ishlinskii model: PL with sigma = 0 (rate independent)."""
 

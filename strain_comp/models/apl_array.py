@@ -10,11 +10,12 @@ from typing import Protocol, cast
 
 import numpy as np
 
+from strain_comp.base.compensator import Compensator
+from strain_comp.base.lift import LiftedArray, lift
+from strain_comp.base.registry import register_array
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models.apl_kernels import inverse_widths, thresholds
-from strain_comp.models.base import Compensator
-from strain_comp.models.lift import LiftedArray, lift
 
 
 class CellModel(Protocol):
@@ -32,6 +33,7 @@ class CellModel(Protocol):
         ...
 
 
+@register_array
 @lift(kern.step_sensor, fastmath=kern.FASTMATH)
 class APLArray(LiftedArray):
     """K sensors of the APL family (same N and M) stepped together in one kernel call."""

@@ -12,21 +12,45 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import lsq_linear, minimize
 
+from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.errors import FitError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 from strain_comp.models.apl_refine import bounded_lm, output_jacobian
-from strain_comp.models.base import Normalisation, Segment
 
-if TYPE_CHECKING:
-    from strain_comp.models.apl import _CellModel
+
+class FittedCells(Protocol):
+    """What the fit writes on the model it builds (an APL, PL or MPI)."""
+
+    fit_report: dict[str, Any] | None
+
+
+_Cells = TypeVar("_Cells", bound=FittedCells)
+_Built = TypeVar("_Built", bound=FittedCells, covariant=True)
+
+
+class CellFamily(Protocol[_Built]):
+    """What the fit reads of the APL, PL or MPI class (``strain_comp.models.apl``)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def kind(self) -> int: ...
+
+    @property
+    def rate_dependent(self) -> bool: ...
+
+    def __call__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
+                 mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
+                 ) -> _Built: ...
 
 CELL_WEIGHTS = ("signed", "lead", "lag", "free")
 """Constraints on the cell weights: one sign, the loop's orientation chosen from the
@@ -34,18 +58,18 @@ training data (``_FitProblem.loop_sign``); one sign, for a resistance that leads
 (the paper's orientation) or lags it; none."""
 LOOP_SWITCH_GAIN = 0.05
 """``signed`` holds the cells to a lagging loop only when that lowers the training output
-RMSE by more than this share against the paper's leading loop (docs/hysteresis_fit.md)."""
+RMSE by more than this share against the paper's leading loop (docs/results.md)."""
 MEMORYLESS_SHARE = 0.01
 """Below this share of the output from the cells (``memory_report``) a fit is memoryless."""
 P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
 """The default grid of p searched by the fit."""
 
 
-def fit_cells(cls: type[_CellModel], segments: Sequence[Segment], normalisation: Normalisation,
+def fit_cells(cls: CellFamily[_Cells], segments: Sequence[Segment], normalisation: Normalisation,
               *, n: int, m: int, sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None,
               refine: bool, cell_weights: str, eps: float, ridge: float, output_nfev: int,
               search_nfev: int, search_top: int, workers: int | None,
-              progress: bool | Callable[[str], None]) -> _CellModel:
+              progress: bool | Callable[[str], None]) -> _Cells:
     """The fit of an APL, PL or MPI model (``APL.fit``, whose arguments were checked): the
     QP, the sigma / p grid, the output-error refinement (``strain_comp.models.apl``'s module
     docstring), called by ``APL.fit``, which holds BLAS to one thread."""
@@ -120,8 +144,8 @@ def grid_workers(requested: int | None, points: int, samples: int) -> int:
     return max(1, min(available_cores(), points // 2))
 
 
-def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *, workers: int,
-               say: Callable[[str], None]) -> list[_Solution]:
+def score_grid(problem: _FitProblem[_Cells], sigmas: np.ndarray, ps: np.ndarray, *,
+               workers: int, say: Callable[[str], None]) -> list[_Solution]:
     """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads (the
     points are independent; the cell-state kernel, numpy's array operations and BLAS release
     the GIL). ``APL.fit`` calls it with BLAS held to one thread, so the grid threads do not
@@ -168,10 +192,10 @@ class _Solution:
         self.sigma, self.p, self.w, self.slopes, self.rmse = sigma, p, w, slopes, rmse
 
 
-class _FitProblem:
+class _FitProblem(Generic[_Cells]):
     """The training data prepared once; ``solve(sigma, p)`` is one QP + output error."""
 
-    def __init__(self, cls: type[_CellModel], segments: Sequence[Segment],
+    def __init__(self, cls: CellFamily[_Cells], segments: Sequence[Segment],
                  normalisation: Normalisation, *, n: int, m: int, eps: float, ridge: float,
                  cell_weights: str, search_nfev: int) -> None:
         self.cls, self.norm, self.n, self.m = cls, normalisation, n, m
@@ -408,7 +432,7 @@ class _FitProblem:
                           "xatol": 1e-3, "fatol": 1e-6})
         return found["best"]
 
-    def build(self, result: _Solution) -> _CellModel:
+    def build(self, result: _Solution) -> _Cells:
         return self.cls(n=self.n, m=self.m, sigma=result.sigma, p=result.p, w=result.w,
                         mu=pwa.mu_from_slopes(result.slopes), normalisation=self.norm,
                         orientation=self.orientation)

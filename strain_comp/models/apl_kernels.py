@@ -1,7 +1,7 @@
 """numba kernels of the APL / PL / MPI cells ([Electrolycra] eq. (1), (2), appendix eq. (6)).
 
 One cell update (``advance_cells``) is shared by the single-sensor run/step kernel, the
-per-sensor array kernel ``step_sensor`` (lifted to K sensors by ``strain_comp.models.lift``)
+per-sensor array kernel ``step_sensor`` (lifted to K sensors by ``strain_comp.base.lift``)
 and the fitting kernel, so every path computes the same numbers.
 
 Time stepping (the paper gives the implicit form h_k(x_k, xdot_k, t) = 0 only). For a new
@@ -231,7 +231,7 @@ def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
                 inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
                 f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
     """Advance sensor s of an array by a good sample (the family kernel of
-    ``strain_comp.models.lift``). Parameters are in row s of each array."""
+    ``strain_comp.base.lift``). Parameters are in row s of each array."""
     xi = ri / norm[s, 0] + norm[s, 1]
     ks = kind[s]
     xs = x[s]

@@ -2,7 +2,7 @@
 
 One state update (``advance``) serves the streaming kernels (``run_kernel``: ``run`` and
 ``step``; ``step_sensor``: sensor s of an array, lifted to K sensors per tick by
-``strain_comp.models.lift``) and the fitting kernel
+``strain_comp.base.lift``) and the fitting kernel
 (``features_kernel``, with the feature map ``features``), so the fitted and the streamed
 model compute the same states; the streaming kernels sum the output as ``output``
 regroups the features' weights (``folded``).

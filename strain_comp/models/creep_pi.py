@@ -56,10 +56,7 @@ from typing import Any, cast
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import FitError, ParameterError
-from strain_comp.models import creep_kernels as kern
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     Compensator,
     KernelCompensator,
     Normalisation,
@@ -67,7 +64,11 @@ from strain_comp.models.base import (
     require_float,
     require_vector,
 )
-from strain_comp.models.lift import LiftedArray, lift
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.lift import LiftedArray, lift
+from strain_comp.base.registry import register, register_array
+from strain_comp.errors import FitError, ParameterError
+from strain_comp.models import creep_kernels as kern
 
 TAUS = (0.3, 3.0, 30.0, 300.0)
 """Default time constants [s] of the creep states."""
@@ -120,6 +121,7 @@ def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
     return array
 
 
+@register
 class CreepPI(KernelCompensator):
     """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``
     (module docstring)."""
@@ -249,10 +251,11 @@ class CreepPI(KernelCompensator):
         return model
 
 
+@register_array
 @lift(kern.step_sensor, fastmath=kern.FASTMATH)
 class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same numbers of play operators and time constants) stepped
-    together in one kernel call (``strain_comp.models.lift``, kernel
+    together in one kernel call (``strain_comp.base.lift``, kernel
     ``creep_kernels.step_sensor``)."""
 
     family = "a creep_pi"

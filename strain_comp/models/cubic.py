@@ -13,17 +13,19 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import FitError
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
     as_float_arrays,
     require_vector,
 )
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.registry import register
+from strain_comp.errors import FitError
 
 
+@register
 class Cubic(Compensator):
     """S = c3 R^3 + c2 R^2 + c1 R + c0 (eq. (4)); ``c`` = [c0, c1, c2, c3] in ohm units."""
 

@@ -36,21 +36,22 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
-from strain_comp.core.direction import (
-    STATE_SIZE,
-    DirectionDetector,
-    DirectionSettings,
-    _check_settings,
-    direction_update,
-)
-from strain_comp.errors import FitError, ParameterError
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
     as_float_arrays,
     require_vector,
 )
+from strain_comp.base.direction import (
+    STATE_SIZE,
+    DirectionDetector,
+    DirectionSettings,
+    _check_settings,
+    direction_update,
+)
+from strain_comp.base.registry import register
+from strain_comp.errors import FitError, ParameterError
 
 MODES = ("combined", "split")
 _BRANCHES = ("combined", "loading", "unloading")
@@ -176,6 +177,7 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
     return np.asarray(candidates[int(np.argmin(costs))], dtype=np.float64)
 
 
+@register
 class Rational(Compensator):
     """rat22 compensator, combined or split by direction; see the module docstring."""
 

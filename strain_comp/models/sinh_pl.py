@@ -49,9 +49,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
-from strain_comp.core.direction import DirectionSettings
-from strain_comp.errors import FitError, ParameterError
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
@@ -59,6 +57,9 @@ from strain_comp.models.base import (
     require_float,
     require_vector,
 )
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.registry import register
+from strain_comp.errors import FitError, ParameterError
 
 _MAX_NEWTON = 30
 _LOG_LO, _LOG_HI = -20.0, 10.0  # bounds of log I_S and log V_T in the fit
@@ -155,6 +156,7 @@ def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0:
     return out
 
 
+@register
 class SinhPL(Compensator):
     """Reduced power-law compensator with N sinh cells, eq. (1)-(3); see the module docstring."""
 

@@ -14,7 +14,7 @@ Forward model, eq. (3): R = f(eps) [1 + S exp(-lambda (t - ts))], with
 
 Online inversion (``step``/``run``, one numba kernel):
 
-1. The dead-zone direction detector ([EGaIn] section V.E, ``strain_comp.core.direction``)
+1. The dead-zone direction detector ([EGaIn] section V.E, ``strain_comp.base.direction``)
    runs on the spike-compensated resistance R_c = R / (1 + S exp(-lambda (t - ts))) of the
    active spike, so the decay of a spike already accounted for is not taken for movement.
 2. A movement starts when the detector leaves 0; its start time and start strain are
@@ -67,9 +67,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core.direction import DirectionSettings, _check_settings
-from strain_comp.errors import FitError, ParameterError
-from strain_comp.models.base import (
+from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
@@ -77,6 +75,9 @@ from strain_comp.models.base import (
     require_float,
     require_vector,
 )
+from strain_comp.base.direction import DirectionSettings, _check_settings
+from strain_comp.base.registry import register
+from strain_comp.errors import FitError, ParameterError
 from strain_comp.models.spike_decay_fit import (
     analyse_holds,
     default_hold_rate,
@@ -93,6 +94,7 @@ from strain_comp.models.spike_decay_kernels import (
 )
 
 
+@register
 class SpikeDecay(Compensator):
     """Spike-and-decay inverse model, eq. (3)/(4); see the module docstring."""
 

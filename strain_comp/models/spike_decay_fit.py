@@ -13,8 +13,8 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import least_squares
 
+from strain_comp.base.compensator import Segment
 from strain_comp.errors import FitError
-from strain_comp.models.base import Segment
 
 _N_BINS = 40  # strain bins of the quasi-static fit without holds
 

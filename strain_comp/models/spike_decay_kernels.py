@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from strain_comp._numba import njit
-from strain_comp.core.direction import STATE_SIZE, direction_update
+from strain_comp.base.direction import STATE_SIZE, direction_update
 
 # kernel state layout after the detector's STATE_SIZE entries
 (_STARTED, _MOVING, _T_MOVE, _EPS_MOVE, _TS, _S, _LAM, _EPS, _T_LAST, _T_EXT, _R_EXT,

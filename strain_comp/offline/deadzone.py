@@ -4,7 +4,7 @@ k sigma of dR/dt noise on a hold).
 The hold is the longest stretch where the *reference* strain is still (``|dS/dt|`` below
 ``HOLD_RATE_FRACTION`` of the 99.5th-percentile rate, at least ``MIN_HOLD_SAMPLES``
 samples). Its second half is used, so that relaxation right after the stop does not count
-as noise, and ``strain_comp.core.direction.estimate_deadzone`` sets the dead zone from it.
+as noise, and ``strain_comp.base.direction.estimate_deadzone`` sets the dead zone from it.
 Without a usable hold, the resistance noise sigma is estimated robustly from the whole
 record (MAD of the second difference of R, which cancels any smooth motion: std(d2 R) =
 sqrt(6) sigma for white noise), and ``estimate_deadzone`` is given a synthetic hold of
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.direction import DirectionSettings, estimate_deadzone
+from strain_comp.base.direction import DirectionSettings, estimate_deadzone
 from strain_comp.errors import InputError
 from strain_comp.models import Segment
 

@@ -34,11 +34,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from strain_comp.base.samples import Status, used_mask
 from strain_comp.core.calibration import Calibration, check_reference
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.metrics import band_counts, error_stats
-from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
 from strain_comp.io.bag import iter_bag, located

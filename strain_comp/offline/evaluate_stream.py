@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from strain_comp.base.samples import Status, used_mask
 from strain_comp.core.calibration import Calibration, check_reference
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.metrics import ErrorAccumulator
-from strain_comp.core.samples import Status, used_mask
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents

@@ -7,7 +7,7 @@ each have their module:
 
 * **Pooling runs** (``strain_comp.offline.pool``, ``--pool``): several training runs of one
   sensor put into one input space first, with the session start that reads each run left
-  out in turn best (``strain_comp.offline.space_choice``).
+  out in turn best (``strain_comp.offline.session_start.choose_space``).
 * **Training data** (``strain_comp.offline.training``): screening, segments cut where the
   engine resets, the checks of the data's span, the valid range and the rest resistance.
 * **Measurement chain** (``strain_comp.offline.input_chain``): an alternating excitation
@@ -65,8 +65,7 @@ from strain_comp.offline.input_chain import input_chain
 from strain_comp.offline.options import model_options
 from strain_comp.offline.pool import Pooled, gate, pooled_input
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
-from strain_comp.offline.session_start import start_or_keep
-from strain_comp.offline.space_choice import choose_space
+from strain_comp.offline.session_start import choose_space, start_or_keep
 from strain_comp.offline.training import (
     check_training_span,
     slow_sample_interval,
@@ -91,7 +90,7 @@ class Fitter(Protocol):
 CHOICE_RUNS = 3
 """Runs a pooled fit needs to choose its session start: each run left out must leave a
 pooled fit of two or more, made as the fit it stands for (with two, each fold would be a
-one-run fit, whose own stretch line is no pooled space; ``space_choice``)."""
+one-run fit, whose own stretch line is no pooled space; ``choose_space``)."""
 _DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair", "fit_budget")
 """Options ``fit_sensor`` takes itself (direction detector, measurement chain, the sample
 budget of a fit); the others go to the model's ``fit``."""
@@ -140,7 +139,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
               options: Mapping[str, Any]) -> Pooled:
     """The training runs as ``fit_sensor`` pools them (``strain_comp.offline.pool``): with
     ``spanned``, as recorded unless the runs pass the pooling's ``gate``, and then in one
-    input space with the session start ``space_choice.choose_space`` measures best for the
+    input space with the session start ``session_start.choose_space`` measures best for the
     cubic fitted with the same direction and measurement-chain options; ``joint`` (the
     session start of a one-run fit) with fewer than ``CHOICE_RUNS`` runs."""
     if pool != "spanned":

@@ -8,7 +8,9 @@ The candidate with the lowest median of those errors wins; one within ``TIE`` of
 loses to a simpler one (``SIMPLER``: cubic, mpi, creep_pi, apl, by parameters and fit time).
 The winner is fitted on every run; its calibration carries the table of every candidate
 (``model_choice``) and the error to expect on a new session (``expected_error``: the
-winner's median and worst over the runs left out, ``core.calibration.expected_error``).
+winner's median and worst over the runs left out, ``core.calibration.expected_error``), and
+its uncertainty learned from the winner's folds as they were started on the runs left out
+(``offline.uncertainty.learn``; no fold fitted again).
 
 With one run (or one group) there is nothing to leave out: the candidate that carried best
 from one run to another on the benchmark is fitted (``ONE_RUN_ORDER``: apl by default), and
@@ -37,6 +39,7 @@ from strain_comp.offline.options import (
     model_options,
 )
 from strain_comp.offline.session_start import start_or_keep
+from strain_comp.offline.uncertainty import learn
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -54,7 +57,7 @@ TIE = 0.02
 ONE_RUN_ORDER = ("apl", "mpi", "creep_pi", "cubic")
 """``--model auto`` on one run (or one group) fits the first of these among the candidates:
 ordered by the median ratio to the best in-run bound of a model fitted on one run and used
-on another (docs/generalisation.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
+on another (docs/results.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
 creep_pi 3.15, cubic 3.54)."""
 
 
@@ -65,6 +68,14 @@ class Fold:
     model: str
     held: tuple[int, ...]
     """The indices of the runs left out."""
+
+
+@dataclass(frozen=True)
+class Scored:
+    """A fold's RMSE on each run left out and its calibration started on each."""
+
+    errors: list[float]
+    started: list[Calibration]
 
 
 def parse_candidates(text: str | Sequence[str] | None) -> tuple[str, ...]:
@@ -116,34 +127,36 @@ def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
-                options: Mapping[str, Any], pool: str) -> list[float] | str:
+                options: Mapping[str, Any], pool: str) -> Scored | str:
     """The RMSE of ``fold.model`` on each run left out, fitted on the others and started on
-    each (``start_or_keep``), or why it could not be fitted."""
+    each (``start_or_keep``), with the started calibrations, or why it could not be
+    fitted."""
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
                          pool=pool)
     except StrainCompError as err:
         return str(err)
-    out = []
+    out = Scored([], [])
     for i in fold.held:
         held = {name: recordings[i]}
         started = start_or_keep(Calibration({name: cal}), held).calibration
+        out.started.append(started)
         try:
             ev = evaluate_recordings(held, started, tare="calibration").sensors[name]
-            out.append(float(ev.stats.rmse))
+            out.errors.append(float(ev.stats.rmse))
         except StrainCompError:
-            out.append(float("nan"))
+            out.errors.append(float("nan"))
     return out
 
 
 def _fold_task(args: tuple[Sequence[Recording], str, Fold, Mapping[str, Any], str]
-               ) -> list[float] | str:
+               ) -> Scored | str:
     """``fold_errors`` in a worker process."""
     return fold_errors(*args)
 
 
-def _cell(model: str, folds: Sequence[Fold], results: Sequence[list[float] | str],
+def _cell(model: str, folds: Sequence[Fold], results: Sequence[Scored | str],
           runs: int) -> dict[str, Any]:
     """A candidate's row of the table: its median, worst and errors, or why it failed."""
     errors = np.full(runs, np.nan)
@@ -154,7 +167,7 @@ def _cell(model: str, folds: Sequence[Fold], results: Sequence[list[float] | str
         if isinstance(result, str):
             failed = failed or result
         else:
-            errors[list(fold.held)] = result
+            errors[list(fold.held)] = result.errors
     if failed is not None or not np.isfinite(errors).all():
         return {"failed": failed or "no score on a run left out"}
     return {"median": round(float(np.median(errors)), 6),
@@ -168,6 +181,17 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                  jobs: int = 1, report: Callable[[str], None] | None = None,
                  ) -> tuple[str, dict[str, Any]]:
     """The model of ``--model auto`` (module docstring) and its record."""
+    model, record, _ = _choose(recordings, name, candidates=candidates, groups=groups,
+                               options=options, pool=pool, jobs=jobs, report=report)
+    return model, record
+
+
+def _choose(recordings: Sequence[Recording], name: str, *, candidates: Sequence[str],
+            groups: Sequence[str] | None, options: Mapping[str, Any] | None, pool: str,
+            jobs: int, report: Callable[[str], None] | None,
+            ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
+    """``choose_model``, and the chosen model's folds started on each run left out (none
+    with one run or group): the pairs ``offline.uncertainty.learn`` takes."""
     options = dict(options or {})
     labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
     held = [tuple(i for i, g in enumerate(labels) if g == label)
@@ -176,8 +200,8 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
         model = next((m for m in ONE_RUN_ORDER if m in candidates), candidates[0])
         why = (f"one {'group' if groups is not None and len(recordings) > 1 else 'run'}: "
                f"nothing to leave out, so {model}, the candidate that carried best from one "
-               "run to another on the benchmark (docs/generalisation.md)")
-        return model, {"chosen": model, "why": why}
+               "run to another on the benchmark (docs/results.md)")
+        return model, {"chosen": model, "why": why}, []
     folds = [Fold(m, h) for m in candidates for h in held]
     tasks = [(recordings, name, fold, options, pool) for fold in folds]
     if jobs > 1:
@@ -205,11 +229,15 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
     why = (f"the lowest median RMSE over the runs left out ({scored[chosen]['median']:.4g})"
            if chosen == lowest else
            f"within {TIE:.0%} of the lowest median ({lowest} {best:.4g}), and simpler")
+    pairs = [(started, {name: recordings[i]}) for fold, result in zip(folds, results,
+                                                                      strict=True)
+             if fold.model == chosen and not isinstance(result, str)
+             for i, started in zip(fold.held, result.started, strict=True)]
     return chosen, {"chosen": chosen, "why": why, "tie": TIE, "candidates": table,
                     "groups": labels if groups is not None else None,
                     "expected": {"median": scored[chosen]["median"],
                                  "worst": scored[chosen]["worst"],
-                                 "runs": len(recordings)}}
+                                 "runs": len(recordings)}}, pairs
 
 
 def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] = (),
@@ -218,11 +246,16 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
              jobs: int = 1, report: Callable[[str], None] | None = None,
              ) -> SensorCalibration:
     """``fit --model auto`` on one sensor: the model ``choose_model`` picks, fitted on every
-    run, with ``model_choice`` and ``expected_error`` in its provenance."""
-    model, record = choose_model(recordings, name, candidates=candidates, groups=groups,
-                                 options=options, pool=pool, jobs=jobs, report=report)
+    run, with ``model_choice`` and ``expected_error`` in its provenance and the uncertainty
+    learned from its folds (``fit_sensor``'s ``band``, its folds not fitted again; a group
+    left out whole where ``groups`` are given; with one group, ``fit_sensor``'s own, by
+    run)."""
+    model, record, pairs = _choose(recordings, name, candidates=candidates, groups=groups,
+                                   options=options, pool=pool, jobs=jobs, report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
-                     options=options_of(model, options or {}), pool=pool, band=True)
+                     options=options_of(model, options or {}), pool=pool, band=not pairs)
+    if pairs:
+        cal.uncertainty = learn(pairs).get(name)
     expected = record.pop("expected", None)
     cal.provenance["model_choice"] = record
     if expected is not None:

@@ -6,17 +6,17 @@ one cubic through all mapped runs (``joint_maps``). The session start then place
 in that space one of two ways:
 
 * ``joint``: by the calibration's steady outputs, then an output gain and offset
-  (``strain_comp.offline.span``), as for a calibration of one run;
+  (``strain_comp.offline.correction``), as for a calibration of one run;
 * ``stretch``: by its calibration stretch's line of resistance on strain, put onto the line
   the training runs' stretches share in the space (``stretch_space``, kept as
-  ``InputSettings.stretch_line``; ``strain_comp.offline.stretch_line``), so a sensitivity
+  ``InputSettings.stretch_line``; ``strain_comp.offline.correction``), so a sensitivity
   that moves after the stretch as it did on the training runs is placed as they were.
 
 Runs of one thread differ in sensitivity by up to 2x; pooled raw, the model fits their
-average and carries to none (docs/generalisation.md). ``spanned`` (the default) keeps the
+average and carries to none (docs/results.md). ``spanned`` (the default) keeps the
 maps where they lower the pooled cubic's error to at most ``POOL_GAIN`` of its error on
-the runs as recorded (``gate``), and ``strain_comp.offline.space_choice`` picks the session
-start by leaving out each training run in turn. The calibration's rest resistance and range
+the runs as recorded (``gate``), and ``session_start.choose_space`` picks the session start
+by leaving out each training run in turn. The calibration's rest resistance and range
 are those of the mapped runs. ``raw``: the runs as recorded. The provenance records the choice
 (``pooling``) and each run's map (``pooled_runs``).
 """
@@ -29,10 +29,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.samples import good_mask
+from strain_comp.base.samples import good_mask
 from strain_comp.errors import InputError
-from strain_comp.offline.session_window import calibration_stretch, cut
-from strain_comp.offline.stretch_line import Line, run_line
+from strain_comp.offline.correction import Line, run_line
+from strain_comp.offline.session_start import calibration_stretch, cut
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -40,11 +40,9 @@ if TYPE_CHECKING:
 POOLS = ("spanned", "joint", "stretch", "raw")
 """How ``fit_sensor`` pools several runs (module docstring): in one input space with the
 session start chosen by measurement (default), ``joint`` or ``stretch``, or as recorded."""
-SPACES = ("joint", "stretch")
-"""The session starts ``spanned`` chooses between."""
 POOL_GAIN = 0.7
 """The per-run maps are kept where they lower the pooled cubic's RMSE to at most this share
-of its RMSE on the runs as recorded (``gate``; docs/generalisation.md: 0.31-0.62 on
+of its RMSE on the runs as recorded (``gate``; docs/results.md: 0.31-0.62 on
 the thread and the fibre, where pooling in one space helps, 0.80-1.00 on the carbon black
 and the rig, where it does not)."""
 POOL_DEGREE = 3

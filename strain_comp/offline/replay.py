@@ -9,7 +9,7 @@ neighbours' estimates of the same tick, exactly as ``Engine.step_array`` (the no
 
 Outputs, one message at every input message's time (bad samples included, marked):
 ``/NAME/strain`` (Float64, held estimate on bad samples), ``/NAME/direction`` (Int8),
-``/NAME/status`` (Int8, ``strain_comp.core.samples.Status``); for arrays the same three as
+``/NAME/status`` (Int8, ``strain_comp.base.samples.Status``); for arrays the same three as
 Float64MultiArray on ``/ARRAY/strain``, ``/ARRAY/direction``, ``/ARRAY/status``; and the
 strain stamped with its input's time, ``/NAME/strain_stamped`` and ``/ARRAY/strain_stamped``
 (sensor_msgs/JointState: name = sensor names, position = strain, velocity and effort empty,

@@ -25,7 +25,6 @@ from html import escape
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from strain_comp import __version__
 from strain_comp.core.calibration import (
     Calibration,
     SensorCalibration,
@@ -42,6 +41,7 @@ from strain_comp.offline.plots import (
     plot_time,
     tare_words,
 )
+from strain_comp.version import __version__
 
 if TYPE_CHECKING:
     from strain_comp.core.metrics import ErrorStats

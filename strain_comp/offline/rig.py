@@ -8,7 +8,7 @@ relaxation after loading steps that is negligible after unloading steps, a volta
 read-out (R1 = 10.5 ohm, Vin = 3.2 V) and a specimen of L0 = 100 mm (so 50 mm/min is
 50 %/min).
 
-The forward model, per sensor, and its effects (``RigEffects``): docs/rig.md.
+The forward model, per sensor, and its effects (``RigEffects``): docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
 
-from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.base.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.errors import ParameterError
 from strain_comp.io.bag import BagWriter
 

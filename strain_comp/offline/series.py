@@ -7,7 +7,7 @@ One row per sample and sensor (long format, so an array of any size has the same
 ``estimate`` and ``reference`` are in ``unit``, the calibration's strain unit (% unless it
 says otherwise); ``reference`` is empty where the bag has none; ``direction`` is +1
 loading, 0 hold, -1 unloading; ``status`` the engine's sample status in words (``good``,
-``out_of_range``, ``not_finite``, ... ``strain_comp.core.samples.Status``). A number that is
+``out_of_range``, ``not_finite``, ... ``strain_comp.base.samples.Status``). A number that is
 not finite is written ``nan``, ``inf`` or ``-inf``; the one empty cell is a missing
 reference. ``evaluate`` over
 several bags puts a ``bag`` column first. A spreadsheet or ``pandas.read_csv`` reads it as
@@ -24,7 +24,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from strain_comp.core.samples import Status
+from strain_comp.base.samples import Status
 from strain_comp.errors import OutputError
 from strain_comp.io.atomic import AtomicFile
 from strain_comp.io.recording import PieceAlign

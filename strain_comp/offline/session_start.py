@@ -3,14 +3,14 @@ reference, a warm-up stretch and back, then the calibration stretch and back; th
 calibration corrected on that stretch in one step.
 
 ``start`` finds the stretch itself from the reference (``stretch_of``: the second stretch
-and return after a warm-up one, else the first; ``session_window.calibration_stretch``),
-applies the correction the calibration's fit chose (``recalibrate.session_start``: the
+and return after a warm-up one, else the first; ``calibration_stretch``),
+applies the correction the calibration's fit chose (``session_start``: the
 input zero and span, then the output gain and offset on the sensors that take one,
-``recalibrate.session_forms``), and says per sensor the stretch used, the correction and
+``session_forms``), and says per sensor the stretch used, the correction and
 the error (RMSE) on that stretch, beside the error the calibration expects on a new
 session (``core.calibration.expected_error``). Where the second stretch takes fewer steps
 than the first, the first is used (the README's fallback, measured on the benchmark:
-docs/generalisation.md). The one session start of the command line, the API, ``diagnose
+docs/results.md). The one session start of the command line, the API, ``diagnose
 --validate`` (``diagnosis.session``), ``fit --model auto`` (``offline.model_choice``) and
 ``scripts/generalisation.py``.
 
@@ -23,29 +23,46 @@ the warm-up), and a stretch on which no correction can be made.
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, expected_words, strain_unit_words
-from strain_comp.errors import InputError
-from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import Window, reading, session_forms, session_start
-from strain_comp.offline.session_window import (
-    calibration_stretch,
-    cycle_end,
-    first_cycle,
-    head,
-    stretch_and_return,
+from strain_comp.core.calibration import (
+    Calibration,
+    SensorCalibration,
+    expected_words,
+    strain_unit_words,
 )
-from strain_comp.offline.session_window import window as window_of
-from strain_comp.offline.span import span_reading
-from strain_comp.offline.span_policy import SPAN
+from strain_comp.core.range_policy import fitted_rest
+from strain_comp.errors import InputError, StrainCompError
+from strain_comp.io.recording import load_recordings
+from strain_comp.offline.correction import (
+    FORMS,
+    SPAN,
+    SpanPolicy,
+    apply_map,
+    apply_span,
+    map_from_pairs,
+    map_from_points,
+    reading,
+    span_from_points,
+    span_of_first_cycle,
+    span_reading,
+    stretch_span,
+)
+from strain_comp.offline.evaluate import evaluate_recordings
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
+
+Window = tuple[float, float]
+"""(START, END) seconds after a run's start of the stretch a session start reads; START 0
+is ``--first END``, any other ``--window START:END``."""
+SPACES = ("joint", "stretch")
+"""The session starts of a pooled fit (``fit --pool spanned`` chooses between them by
+``choose_space``; ``strain_comp.offline.pool``)."""
 
 RECORD = ("record one stretch and back as a warm-up, then the calibration stretch and back, "
           "to about the largest strain you will use, each from rest")
@@ -227,7 +244,7 @@ def _found(calibration: Calibration, recordings: Mapping[str, Recording],
 
 def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: Window,
           source: str, *, given: bool | None = False) -> Made:
-    """``recalibrate.session_start`` on ``span``: the calibration, the steps made per
+    """``session_start`` on ``span``: the calibration, the steps made per
     sensor, the lines of the steps not made, the window. The window's own refusal first:
     as ``--window`` says it where ``given``, in the start's terms where not, none where
     None (the first seconds read as they are)."""
@@ -239,8 +256,372 @@ def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: W
             raise
         raise InputError(f"{source}: the stretch found at {span[0]:.4g}-{span[1]:.4g} s: "
                          f"{str(err).partition(': ')[2]}; {RECORD}") from None
-    made = session_start(calibration, recordings, span, source)
-    steps = {n: [form for form, names in made.made.items() if n in names]
+    started, made, lines = session_start(calibration, recordings, span, source)
+    steps = {n: [form for form, names in made.items() if n in names]
              for n in recordings if n in calibration.sensors}
-    notes = [_why(line) for line in made.lines if "not made" in line]
-    return made.calibration, steps, notes, span
+    notes = [_why(line) for line in lines if "not made" in line]
+    return started, steps, notes, span
+
+# The stretch a session start reads (``recalibrate --first``, ``--window``, ``start``).
+
+FIRST_CYCLE_CAP = 0.4
+"""The first cycle is at most this share of a run (a run that never returns to rest)."""
+
+
+def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) -> float | None:
+    """Seconds from the first sample (``t[0]``, referenced or not) to the end of the first
+    stretch and return of the reference ``s``: its first return to within ``cycle_back`` of
+    its span above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN``
+    when None). None when there is none."""
+    policy = SPAN if policy is None else policy
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    origin = _origin(t)
+    ok = np.isfinite(t) & np.isfinite(s)
+    t, s = t[ok], s[ok]
+    if t.size < 2 or origin is None:
+        return None
+    lo, hi = float(s.min()), float(s.max())
+    if not hi > lo:
+        return None
+    up = np.flatnonzero(s > lo + policy.cycle_up * (hi - lo))
+    if not up.size:
+        return None
+    back = np.flatnonzero(s[up[0]:] < lo + policy.cycle_back * (hi - lo))
+    return float(t[up[0] + back[0]] - origin) if back.size else None
+
+
+def _origin(t: np.ndarray) -> float | None:
+    """The first finite sample time: where a run's seconds count from (``cut``, ``--first``,
+    ``--window``), samples without a reference included."""
+    finite = t[np.isfinite(t)]
+    return float(finite[0]) if finite.size else None
+
+
+def stretch_and_return(s: np.ndarray, strain_range: float,
+                       policy: SpanPolicy | None = None) -> bool:
+    """True when the reference ``s`` of a window rises from within ``cycle_up`` of its span
+    above its minimum to its maximum and falls back there, over at least
+    ``min_cycle_share`` of ``strain_range`` (the calibration's): a load and unload
+    (``policy``, ``SPAN`` when None)."""
+    policy = SPAN if policy is None else policy
+    s = np.asarray(s, dtype=np.float64)
+    s = s[np.isfinite(s)]
+    if s.size < 3 or not np.ptp(s) >= policy.min_cycle_share * strain_range:
+        return False
+    low = s <= s.min() + policy.cycle_up * np.ptp(s)
+    top = int(np.argmax(s))
+    return bool(low[:top].any() and low[top:].any())
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise."""
+    a_text, sep, b_text = text.partition(":")
+    try:
+        start, end = float(a_text), float(b_text)
+    except ValueError:
+        start, end = float("nan"), float("nan")
+    if not (sep and np.isfinite(start) and np.isfinite(end) and start >= 0):
+        raise InputError(f"--window {text!r}: expected START:END in seconds from the bag's "
+                         "start, START >= 0")
+    if not end > start:
+        raise InputError(f"--window {text!r}: END must be after START")
+    return start, end
+
+
+def head(recordings: Mapping[str, Recording], seconds: float | None,
+         ) -> dict[str, Recording]:
+    """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds)."""
+    if seconds is None:
+        return dict(recordings)
+    if not (np.isfinite(seconds) and seconds > 0):
+        raise InputError(f"--first {seconds!r}: expected a duration > 0 s")
+    return {name: cut(rec, 0.0, seconds) for name, rec in recordings.items()}
+
+
+def cut(rec: Recording, start: float, end: float) -> Recording:
+    """The samples of ``rec`` from ``start`` to ``end`` seconds after its first sample."""
+    if not rec.t.size:
+        return rec
+    a = int(np.searchsorted(rec.t, rec.t[0] + start, side="left"))
+    b = int(np.searchsorted(rec.t, rec.t[0] + end, side="right"))
+    return replace(rec, t=rec.t[a:b], r=rec.r[a:b], s=None if rec.s is None else rec.s[a:b],
+                   temperature=None if rec.temperature is None else rec.temperature[a:b])
+
+
+def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
+           calibration: Calibration, source: str = "the bag",
+           policy: SpanPolicy | None = None) -> dict[str, Recording]:
+    """Each referenced recording up to ``span[1]`` seconds after its start, its reference
+    strain left out (NaN) before ``span[0]`` (``recalibrate --window``): the engine runs the
+    calibration from the bag's start, so a memory model enters the window in the state the
+    warm-up left, and only the window's reference is fitted to. InputError for a window
+    beyond a recording's end or one in which its reference strain makes no stretch and
+    return (``stretch_and_return`` over the strain range of its sensor's calibration)."""
+    start, end = span
+    out = {}
+    for name, rec in recordings.items():
+        if rec.s is None or not rec.t.size:
+            continue
+        length = float(rec.t[-1] - rec.t[0])
+        if end > length + float(np.median(np.diff(rec.t)) if rec.t.size > 1 else 0.0):
+            raise InputError(f"--window {start:g}:{end:g}: {source} has {length:.4g} s of "
+                             f"sensor {name!r}, the window runs beyond it")
+        part = cut(rec, start, end)
+        vr = calibration.sensors[name].valid_range
+        if part.s is None or not stretch_and_return(part.s, vr.s_hi - vr.s_lo, policy):
+            raise InputError(f"--window {start:g}:{end:g}: the reference strain of {name!r} "
+                             f"makes no stretch and return in it (record a load and unload "
+                             f"there)")
+        whole = cut(rec, 0.0, end)
+        assert whole.s is not None
+        out[name] = replace(whole, s=np.where(whole.t < rec.t[0] + start, np.nan, whole.s))
+    return out
+
+
+def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
+    """Seconds from the start of a run (its first sample, referenced or not) to the end of
+    its first load and unload (``cycle_end``); at most ``FIRST_CYCLE_CAP`` of the run.
+    None when the reference never moves."""
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(s)
+    if ok.sum() < 2 or not np.percentile(s[ok], 99) > np.percentile(s[ok], 1):
+        return None
+    finite = t[np.isfinite(t)]
+    cap = FIRST_CYCLE_CAP * float(finite[-1] - finite[0])
+    end = cycle_end(t, s)
+    return cap if end is None else min(end, cap)
+
+
+def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
+    """(START, END) seconds of a run's second load and unload, the calibration stretch of
+    the README's session start after a warm-up one (``recalibrate --window``): from the end
+    of the first cycle (``first_cycle``) to the end of the next stretch and return
+    (``cycle_end`` on the rest of the run). None when the rest of the run has none."""
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    first = first_cycle(t, s)
+    return None if first is None else _cycle_after(t, s, first)
+
+
+def _cycle_after(t: np.ndarray, s: np.ndarray, first: float) -> tuple[float, float] | None:
+    """(START, END) [s] of the next load and unload after the first ``first`` seconds of a
+    run (``first_cycle``'s, so the run has finite sample times)."""
+    origin = _origin(t)
+    assert origin is not None  # first_cycle found finite samples
+    rest = t >= origin + first
+    end = cycle_end(t[rest], s[rest]) if rest.sum() > 1 else None
+    if end is None:
+        return None
+    start = float(t[rest][0] - origin)
+    return start, start + end
+
+
+def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
+    """The stretch the README's session start reads on a run: its second load and unload
+    after a warm-up one (``second_cycle``), else its first (START 0, ``first_cycle``)."""
+    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
+    first = first_cycle(t, s)
+    return None if first is None else _cycle_after(t, s, first) or (0.0, first)
+
+
+# The steps of a session start, and ``recalibrate`` from a recording or two points.
+
+def session_forms(cal: SensorCalibration) -> tuple[str, ...]:
+    """The steps of a session start on a sensor, in order: the input zero and span, then the
+    output gain and offset; the input step alone for a calibration with a stretch line
+    (``InputSettings.stretch_line``), which places the run as the training runs' stretches
+    lay, gain and offset included (``strain_comp.offline.correction``)."""
+    return ("input",) if cal.input.stretch_line is not None else ("input", "output")
+
+
+def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
+             ) -> dict[str, list[str]]:
+    """The session start's steps on a run, in order, each with the sensors it recalibrates
+    (``session_forms`` of each calibrated sensor the run holds with a reference)."""
+    names = [n for n, rec in recordings.items() if n in calibration.sensors
+             and rec.s is not None]
+    by_form = {form: [n for n in names if form in session_forms(calibration.sensors[n])]
+               for form in ("input", "output")}
+    return {form: sensors for form, sensors in by_form.items() if sensors}
+
+
+def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
+                  window: Window, source: str = "",
+                  ) -> tuple[Calibration, dict[str, list[str]], list[str]]:
+    """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
+    ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
+    output form on the spanned input, tare ``calibration``), the output step only on the
+    sensors that take one (``session_forms``); with each form made -> the sensors it
+    recalibrated, and what each step did (``recalibrate``'s lines). A step that cannot be
+    made (no rest in the stretch, a strain the calibration never outputs) is skipped, as it
+    is for a user, and says why."""
+    made: dict[str, list[str]] = {}
+    lines: list[str] = []
+    head = window[0] == 0.0
+    forms = forms_of(calibration, recordings)
+    if not forms:
+        lines.append("no step made: the run holds no calibrated sensor with a strain "
+                     "reference")
+    for form, sensors in forms.items():
+        tare = "calibration" if form == "output" else "auto"
+        try:
+            calibration, done = recalibrate_recordings(
+                calibration, recordings, form=form, tare=tare, sensors=sensors,
+                first=window[1] if head else None, span=None if head else window,
+                source=source)
+        except StrainCompError as err:
+            lines.append(f"the {form} step not made: {err}")
+            continue
+        made[form] = list(sensors)
+        lines += done
+    return calibration, made, lines
+
+
+def _check_named(calibration: Calibration, recordings: Mapping[str, Recording],
+                 sensors: Sequence[str] | None, source: str) -> None:
+    """InputError for a sensor named (``--sensor``) that the calibration or the run lacks."""
+    for name in sensors or ():
+        if name not in calibration.sensors:
+            raise InputError(f"recalibrate --sensor {name}: not in the calibration (its "
+                             f"sensors: {', '.join(calibration.sensors)})")
+        if name not in recordings or recordings[name].s is None:
+            raise InputError(f"recalibrate --sensor {name}: {source or 'the data'} holds no "
+                             "recording of it with a strain reference")
+
+
+def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Recording], *,
+                           form: str = "output", first: float | None = None,
+                           sensors: Sequence[str] | None = None, tare: str = "calibration",
+                           source: str = "", span: tuple[float, float] | None = None,
+                           policy: SpanPolicy | None = None,
+                           ) -> tuple[Calibration, list[str]]:
+    """``recalibrate`` from recordings with a reference strain (their first ``first``
+    seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
+    map by least squares, or the input zero and span from the first rest and the largest
+    strain (``span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None)."""
+    if form not in FORMS:
+        raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
+    if span is not None and first is not None:
+        raise InputError("recalibrate: give --first or --window, not both")
+    _check_named(calibration, recordings, sensors, source)
+    if span is not None:
+        chosen = {n: r for n, r in recordings.items()
+                  if n in calibration.sensors and not (sensors and n not in sensors)}
+        recs = window_of(chosen, span, calibration, source or "the bag", policy)
+        where = f"{source}, {span[0]:g} to {span[1]:g} s"
+    else:
+        recs = head(recordings, first)
+        where = f"{source}{'' if first is None else f', first {first:g} s'}"
+    out = dict(calibration.sensors)
+    lines = []
+    if form == "input":
+        for name, rec in recs.items():
+            if name not in calibration.sensors or rec.s is None or (sensors and
+                                                                     name not in sensors):
+                continue
+            cal = calibration.sensors[name]
+            by_line = cal.input.stretch_line is not None
+            zero_span = (stretch_span(cal, rec) if by_line
+                         else span_of_first_cycle(cal, rec, policy))
+            out[name] = apply_span(cal, zero_span, {"from": source, "first": first,
+                                                    "window": None if span is None
+                                                    else list(span)})
+            lines.append(f"{name}: {span_reading(zero_span)} (from {where}"
+                         + ("; the stretch's line put onto the calibration's: the whole "
+                            "session start, no output step)" if by_line else ")"))
+        if not lines:
+            raise InputError(f"recalibrate: {source or 'the data'} has no calibrated sensor "
+                             "with a strain_reference")
+        return Calibration(out), lines
+    result = evaluate_recordings(recs, calibration, tare=tare)
+    for name, ev in result.sensors.items():
+        if sensors and name not in sensors:
+            continue
+        a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored],
+                              span=fitted_rest(calibration.sensors[name].valid_range)[1],
+                              policy=policy)
+        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first,
+                                                "window": None if span is None else list(span)})
+        lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "
+                     f"{int(ev.scored.sum())} samples)")
+    return Calibration(out), lines
+
+
+def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
+                bag: str | None = None, sensors: Sequence[str] | None = None,
+                tare: str = "calibration", form: str = "output",
+                first: float | None = None, span: tuple[float, float] | None = None,
+                policy: SpanPolicy | None = None) -> tuple[Calibration, list[str]]:
+    """The recalibrated calibration and one line per sensor (gain, offset, reading)."""
+    if form not in FORMS:
+        raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
+    out = dict(calibration.sensors)
+    lines = []
+    if bag is not None:
+        return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
+                                      first=first, sensors=sensors, tare=tare,
+                                      source=str(bag), span=span, policy=policy)
+    else:
+        names = list(sensors or calibration.sensors)
+        if len(names) != 1:
+            raise InputError("recalibrate --point: name one --sensor (the calibration has "
+                             f"{', '.join(calibration.sensors)})")
+        name = names[0]
+        if name not in calibration.sensors:
+            raise InputError(f"sensor {name!r} is not in the calibration "
+                             f"({', '.join(calibration.sensors)})")
+        if form == "input":
+            span = span_from_points(out[name], points, policy=policy)
+            out[name] = apply_span(out[name], span, {"points": [list(p) for p in points]})
+            lines.append(f"{name}: {span_reading(span)} (through {len(points)} points)")
+        else:
+            a, b = map_from_points(out[name], points, policy)
+            out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
+            lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
+                         f"{len(points)} points)")
+    return Calibration(out), lines
+
+
+# Which session start a pooled fit takes (``fit --pool spanned``): by leaving out each
+# training run in turn.
+
+Fit = Callable[[Sequence["Recording"]], SensorCalibration]
+"""Fits the choice's model on runs pooled with the stretch line (``fit_sensor`` of the
+cubic, ``pool="stretch"``)."""
+
+
+def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
+    """``cal`` after the session start on ``rec`` (``session_start.start_or_keep``: its
+    calibration stretch found, as ``strain-comp start`` finds it); as it is where refused."""
+    return start_or_keep(Calibration({cal.name: cal}), {cal.name: rec}).calibration
+
+
+def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
+    """The session start of a pooled fit (module docstring)."""
+    errors: dict[str, list[float]] = {space: [] for space in SPACES}
+    for j, held in enumerate(recordings):
+        rest = [rec for i, rec in enumerate(recordings) if i != j]
+        try:
+            cal = fit(rest)
+        except StrainCompError:
+            continue
+        if cal.input.stretch_line is None:
+            continue
+        fold = {}
+        for space in SPACES:
+            used = cal if space == "stretch" else replace(
+                cal, input=replace(cal.input, stretch_line=None))
+            try:
+                started = session_started(used, held)
+                ev = evaluate_recordings({cal.name: held}, started, tare="calibration")
+                fold[space] = float(ev.sensors[cal.name].stats.rmse)
+            except StrainCompError:
+                fold[space] = float("nan")
+        if all(np.isfinite(v) for v in fold.values()):
+            for space, value in fold.items():
+                errors[space].append(value)
+    measured = {space: float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
+                for space, v in errors.items()}
+    chosen = SPACES[1] if measured[SPACES[1]] < measured[SPACES[0]] else SPACES[0]
+    return chosen, {"left_out_rmse": {k: round(v, 6) if np.isfinite(v) else None
+                                      for k, v in measured.items()},
+                    "runs_left_out": len(errors[SPACES[0]])}

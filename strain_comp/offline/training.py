@@ -1,6 +1,6 @@
 """The training data of a fit: screened samples cut into segments, checked, and their range.
 
-* **Screening**: a sample is used only when ``strain_comp.core.samples.good_mask`` accepts it
+* **Screening**: a sample is used only when ``strain_comp.base.samples.good_mask`` accepts it
   (the engine's rule: finite, R > 0 ohm, time increasing) and its reference strain is
   finite. As in the engine, a step back in time longer than ``GAP_SECONDS`` (a looped bag,
   a sim-time reset) is not a run of rejected samples but a new start: it cuts a segment.
@@ -28,9 +28,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from strain_comp.base.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.calibration import PARAM_MAX, STRAIN_MAX, ValidRange, check_reference
 from strain_comp.core.engine import GAP_RESET
-from strain_comp.core.samples import GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import FitError
 from strain_comp.models import Segment

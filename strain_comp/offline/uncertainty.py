@@ -7,9 +7,9 @@ scored sample of every pair it fits the variance model of
 - reference ~ N(0, exp(w . x)), x the engine's features at the sample (``features_run``),
 each run weighing the same whatever its length; the model is convex in w (a Newton
 solve). A final factor on sigma then makes the 95 % band (+-1.96 sigma) hold 95 % of a
-typical run's samples as the band learned on the other runs predicts them (the median over
-the runs, ``fit_weights``): a band learned in-sample holds less on a new run, whose errors
-differ from run to run.
+typical run's samples as the band learned on the other runs predicts them (the geometric
+mean over the runs of each run's factor, ``fit_weights``): a band learned in-sample holds
+less on a new run, whose errors differ from run to run.
 ``fit`` calls it with the fitted model's own leave-one-run-out
 (``strain_comp.offline.fit``); a caller that already left runs out (``fit --model auto``)
 passes its pairs.
@@ -23,10 +23,10 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize
 
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import Z_95
-from strain_comp.core.samples import used_mask
 from strain_comp.core.uncertainty import (
     FEATURES,
     WEIGHT_MAX,
@@ -94,15 +94,17 @@ def likelihood_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
 def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
     """The weights by maximum likelihood over every run, times the factor on sigma a new
     run needs: for each run, the factor that makes the 95 % band of the weights learned
-    without it hold 95 % of its samples; their median over the runs (robust to one run
-    whose errors no other run foretold; in-sample with one run)."""
+    without it hold 95 % of its samples; their geometric mean over the runs (a factor is a
+    scale: a run that needs twice the typical factor weighs as much as one that needs
+    half, where the median ignored how far the runs beyond it lay; in-sample with one
+    run)."""
     factors = []
     for j, (x, e) in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j] or runs
         w = likelihood_weights(others)
         ratio = np.abs(e) / np.exp(0.5 * np.clip(x @ w, -700.0, 700.0))
         factors.append(float(np.quantile(ratio, 0.95)) / Z_95 if ratio.size else np.nan)
-    factor = float(np.nanmedian(factors))
+    factor = float(np.exp(np.nanmean(np.log(np.maximum(factors, 1e-150)))))
     w = likelihood_weights(runs)
     w[0] += 2.0 * np.log(max(factor, 1e-150))
     return np.clip(w, -WEIGHT_MAX, WEIGHT_MAX), factor

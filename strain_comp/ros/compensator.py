@@ -39,7 +39,6 @@ from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
 from strain_comp.ros.clock_gate import ClockGate
 from strain_comp.ros.live import OK, WARN, LiveCompensator
-from strain_comp.ros.live_start import start, start_reference
 from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
@@ -352,7 +351,7 @@ class CompensatorNode(Node):
             refused = ({s: self.live.on_reference(s, t, v) for s, v in given.items()}
                        if self.live.fusion else {})
             for sensor, value in given.items():
-                self.live = start_reference(self.live, sensor, t, value)
+                self.live = self.live.start_reference(sensor, t, value)
             for sensor, reason in refused.items():
                 if reason is not None:
                     logger(self).warning(f"{sensor}: reference refused: {reason}",
@@ -421,7 +420,7 @@ class CompensatorNode(Node):
 
     def _start(self, request: Any, response: Any) -> Any:
         def begin() -> str:
-            self.live, summary = start(self.live, self._now_ns() * 1e-9)
+            self.live, summary = self.live.start(self._now_ns() * 1e-9)
             return summary
         return self._answer("~/start", response, begin)
 

@@ -26,14 +26,15 @@ from typing import Any
 
 import numpy as np
 
+from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
+from strain_comp.core.correction import Correction
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, SensorOutput
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.core.samples import USED, Status, used_mask
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.io.multiarray import array_values
@@ -84,8 +85,7 @@ class LiveCompensator:
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
         self.fusion: dict[str, OutputFusion] = (
-            {s: OutputFusion.for_span(fitted_rest(c.valid_range)[1])
-             for s, c in params.calibration.sensors.items()}
+            {s: OutputFusion.for_calibration(c) for s, c in params.calibration.sensors.items()}
             if params.fuse_references else {})
         """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
         self._estimate: dict[str, tuple[float, float, bool]] = {}
@@ -154,8 +154,8 @@ class LiveCompensator:
         strains[used] = out.strain[used]
         inside[used] = out.status[used] != int(Status.OUT_OF_RANGE)
         if name not in self._maps:
-            self._maps[name] = (np.array([self.fusion[s].gain for s in self._inputs[name]]),
-                                np.array([self.fusion[s].offset for s in self._inputs[name]]))
+            maps = [self.fusion[s].relative() for s in self._inputs[name]]
+            self._maps[name] = (np.array([m[0] for m in maps]), np.array([m[1] for m in maps]))
         gain, offset = self._maps[name]
         return replace(out, strain=gain * out.strain + offset)
 
@@ -275,7 +275,7 @@ class LiveCompensator:
         its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
         calibration (state restarts, as after a reload; the rest now reads as the
         calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
-        from strain_comp.offline.span import span_from_points, span_reading
+        from strain_comp.offline.correction import span_from_points, span_reading
 
         strain = self.tunables.get("span_strain", 0.0)
         if not strain > 0:
@@ -298,7 +298,7 @@ class LiveCompensator:
             except StrainCompError as err:
                 problems.append(f"{sensor}: {err}")
                 continue
-            sensors[sensor] = replace(cal, input=replace(cal.input, zero_span=span))
+            sensors[sensor] = Correction.of(cal).with_input(*span).written(cal)
             lines.append(f"{sensor}: {span_reading(span)}")
         if problems:
             raise ParameterError("span", "refused: " + "; ".join(problems))
@@ -326,6 +326,28 @@ class LiveCompensator:
             self.engine.gap_reset = value
         elif name == "stale_after_s":
             self.engine.stale_after = value
+
+    def start(self, now: float) -> tuple[LiveCompensator, str]:
+        """``~/start`` at clock time ``now``: watch the next stretch on the sensors with a
+        recent reference (``live_start``), else ``~/span`` on ``span_strain``."""
+        if self.starting.request(now, list(self.params.calibration.sensors)):
+            return self, self.starting.detail
+        try:
+            fresh, summary = self.span()
+        except ParameterError as err:
+            self.starting.outcome("refused", f"refused: no reference and {err}")
+            raise
+        fresh.starting.outcome("applied", f"applied span_strain (no reference): {summary}")
+        return fresh, fresh.starting.detail
+
+    def start_reference(self, sensor: str, t: float, value: float) -> LiveCompensator:
+        """A reference of ``sensor`` for ``~/start``: the compensator on the started
+        calibration once the watched stretch has returned (model state restarts, as after a
+        reload), else this one."""
+        started = self.starting.seen_reference(sensor, t, value, self.params.calibration)
+        if started is None:
+            return self
+        return self.reload(replace(self.params, calibration=started))
 
     def reload(self, params: NodeParams) -> LiveCompensator:
         """A new LiveCompensator on ``params``'s calibration carrying on from this one

@@ -13,19 +13,15 @@ any sensor ``~/start`` is ``~/span`` (the operator's known strain ``span_strain`
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.recording import Recording
+from strain_comp.offline.session_start import cycle_end
 from strain_comp.offline.session_start import start as session_start
-from strain_comp.offline.session_window import cycle_end
-
-if TYPE_CHECKING:
-    from strain_comp.ros.live import LiveCompensator
 
 RECENT_S = 5.0
 """A sensor has a reference when one arrived within this many seconds of ``~/start``."""
@@ -156,27 +152,3 @@ class LiveStart:
         level = 1 if self.state == "refused" else 0
         return level, f"{self.state}: {self.detail}", {"state": self.state}
 
-
-def start(live: LiveCompensator, now: float) -> tuple[LiveCompensator, str]:
-    """``~/start`` at clock time ``now``: watch the next stretch on the sensors with a
-    recent reference, else ``~/span`` on ``span_strain``."""
-    if live.starting.request(now, list(live.params.calibration.sensors)):
-        return live, live.starting.detail
-    try:
-        fresh, summary = live.span()
-    except ParameterError as err:
-        live.starting.outcome("refused", f"refused: no reference and {err}")
-        raise
-    fresh.starting.outcome("applied", f"applied span_strain (no reference): {summary}")
-    return fresh, fresh.starting.detail
-
-
-def start_reference(live: LiveCompensator, sensor: str, t: float, value: float
-                    ) -> LiveCompensator:
-    """A reference of ``sensor`` for ``~/start``: the compensator on the started
-    calibration once the watched stretch has returned (model state restarts, as after a
-    reload), else ``live``."""
-    started = live.starting.seen_reference(sensor, t, value, live.params.calibration)
-    if started is None:
-        return live
-    return live.reload(replace(live.params, calibration=started))

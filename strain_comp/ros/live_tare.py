@@ -15,8 +15,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from strain_comp.base.samples import used_mask
 from strain_comp.core.engine import Engine
-from strain_comp.core.samples import used_mask
 from strain_comp.core.tare import (
     REST_WINDOW,
     rest_level,

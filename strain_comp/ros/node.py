@@ -218,7 +218,7 @@ def main(args: list[str] | None = None) -> int:
 def prime_cache(config: str) -> list[str]:
     """Compile the kernels the params files in ``config`` need into numba's cache, as the
     node's start-up does (``setup.py`` runs it once the package is installed, so a colcon
-    install's first start loads them instead of compiling: docs/performance.md)."""
+    install's first start loads them instead of compiling: docs/results.md)."""
     from strain_comp.ros.live import LiveCompensator
     from strain_comp.ros.params import load_params
 

@@ -41,6 +41,7 @@ from typing import Any
 
 import yaml
 
+from strain_comp import models  # noqa: F401  (registers the families calibrations name)
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import GAP_RESET

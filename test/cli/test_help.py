@@ -134,8 +134,8 @@ def test_the_tare_and_evaluate_advise_start_not_each_other() -> None:
     """A run that starts while the resistance drifts is not tared, and the tare says what to
     record or to start the session; evaluate's out-of-range note says to start the session,
     never to try the tare (which sent the user back to evaluate)."""
+    from strain_comp.base.direction import DirectionSettings
     from strain_comp.cli.common import OUT_OF_RANGE_HINT
-    from strain_comp.core.direction import DirectionSettings
     from strain_comp.core.tare import rest_resistance_at_start
     from strain_comp.errors import InputError
 

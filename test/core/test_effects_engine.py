@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from conftest import DIRECTION, NORM, R_LO, S_HI, S_LO, cubic_cal, engine_of
 
+from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.effects import Batch, regressor_from_dict
 from strain_comp.core.range_policy import MARGIN
-from strain_comp.core.samples import used_mask
 from strain_comp.errors import CalibrationError, ParameterError
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording

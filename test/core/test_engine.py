@@ -28,6 +28,9 @@ from conftest import (
     noisy_stream,
 )
 
+from strain_comp.base.compensator import Segment
+from strain_comp.base.direction import DirectionDetector
+from strain_comp.base.samples import Status
 from strain_comp.core.calibration import (
     Calibration,
     InputSettings,
@@ -35,12 +38,9 @@ from strain_comp.core.calibration import (
     ValidRange,
 )
 from strain_comp.core.calibration_file import load_calibration
-from strain_comp.core.direction import DirectionDetector
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import MARGIN, SETTLE_STEPS
-from strain_comp.core.samples import Status
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import Segment
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 

@@ -182,3 +182,26 @@ def test_run_equals_the_samples_filtered_reference_by_reference() -> None:
         assert fast.fusion.state() == slow.fusion.state()
         assert (fast.k, fast.before) == (slow.k, slow.before)
     assert fast.fusion.n_used > 300 and fast.fusion.n_refused > 0
+
+
+def test_the_filter_on_a_calibrations_output_map_fuses_as_one_on_top() -> None:
+    """A calibration with an output map (a0, b0): the filter that carries the sensor's
+    output map itself (``start``) fuses every sample as a filter of a second map on the
+    engine's estimate would (the relative filter, prior (1, 0), written out here), and its
+    state is that map composed: gain g a0, offset g b0 + b."""
+    a0, b0 = 0.8, 2.5
+    t, estimate, reference = run(seconds=600.0)
+    engine_out = a0 * estimate + b0  # the engine's estimate, through the calibration's map
+    settings = OutputFusion.for_span(40.0).settings
+    on_top, itself = OutputFusion(settings), OutputFusion(settings, start=(a0, b0))
+    assert itself.apply(engine_out[5]) == pytest.approx(engine_out[5], rel=1e-12)
+    for k in range(0, t.size, 97):  # references now and then, some beyond the gate
+        y = reference[k] + (60.0 if k % 5 == 0 else 0.0)
+        assert (on_top.update(t[k], engine_out[k], y) is None) == \
+            (itself.update(t[k], engine_out[k], y) is None)
+        g, b = on_top.gain, on_top.offset
+        np.testing.assert_allclose(itself.apply(engine_out), g * engine_out + b,
+                                   rtol=1e-9, atol=1e-9)
+        assert itself.gain == pytest.approx(g * a0, rel=1e-9)
+        assert itself.offset == pytest.approx(g * b0 + b, rel=1e-9, abs=1e-9)
+    assert on_top.n_used > 20 and on_top.n_refused > 5

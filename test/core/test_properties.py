@@ -25,7 +25,7 @@ from conftest import calibration_of, fitted, strain_bounds
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from strain_comp.core.direction import DirectionDetector, DirectionSettings
+from strain_comp.base.direction import DirectionDetector, DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.models import MODEL_NAMES

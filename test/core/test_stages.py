@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.core import samples as sc
-from strain_comp.core.conversion import divider_to_resistance
+from strain_comp.base import samples as sc
+from strain_comp.base.conversion import divider_to_resistance
 from strain_comp.core.stages import (
     RANGE_COLUMNS,
     bound,

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import yaml
 
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.cli import main as cli
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import (
     MAX_REST_DRIFT,
@@ -24,10 +24,10 @@ from strain_comp.core.tare import (
 )
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
+from strain_comp.offline.correction import apply_map, map_from_pairs, steady_output
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.recalibrate import apply_map, map_from_pairs, recalibrate
-from strain_comp.offline.span import steady_output
+from strain_comp.offline.session_start import recalibrate
 
 R0 = 1000.0
 

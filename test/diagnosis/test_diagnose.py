@@ -11,7 +11,7 @@ effect, not a clean bag. Each test bag adds one rig effect; ``diagnose`` knows n
 how the data were made, works on the bag and is scored on a *separate* validation bag (other
 seed, and where the effect allows another scenario), two runs of it: a term is added only
 if it lowers their error after the session start beyond the spread between runs
-(docs/loop.md). It must name the effect (the kind of the first added effect) and cut the
+(docs/results.md). It must name the effect (the kind of the first added effect) and cut the
 validation RMSE by at least ``MIN_DROP``.
 """
 
@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from strain_comp.base.conversion import resistance_to_divider
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.loop import diagnose
@@ -546,6 +546,6 @@ def test_a_run_beyond_the_calibrated_range_still_finds_its_effect(bags: BagMaker
     assert any(a.kind == "mullins" for a in result.added), result.summary()
     assert result.after["rmse"] < 0.5 * result.before["rmse"], result.summary()
     # the engine's own output improves too (less than the loop's figure: beyond the range
-    # it clamps the corrected estimate before extending it, see docs/loop.md)
+    # it clamps the corrected estimate before extending it, see docs/results.md)
     online = Engine(result.calibration).run("s1", val["s1"].t, val["s1"].r).strain
     assert np.sqrt(np.mean((online - val["s1"].s) ** 2)) < 0.8 * result.before["rmse"]

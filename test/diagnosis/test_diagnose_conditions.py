@@ -8,9 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from strain_comp.base.conversion import resistance_to_divider
 from strain_comp.core.calibration import Calibration, InputSettings
 from strain_comp.core.chain import STEP_K
-from strain_comp.core.conversion import resistance_to_divider
 from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.conditions import chain_findings, diagnose_conditions
 from strain_comp.diagnosis.report import effect_reading

@@ -1,5 +1,5 @@
 """The residual loop names creep where a calibration lacks it, and adds nothing where
-there is none (docs/loop.md, "Creep among the candidates").
+there is none (docs/results.md, "Residual loop").
 
 A virtual-rig run (``rig.simulate``, viscous branches off) gets a known creep: one Prony
 state added to its resistance, R' = R - w (R - z), z' = (R - z) / tau (after a change the

@@ -1,5 +1,5 @@
-"""The residual loop on another day (docs/loop.md, "Another day"): a calibration made on
-day 1, used on day-2 runs after their session start (``strain-comp start``), where the
+"""The residual loop on another day (docs/results.md, "Residual loop"): a calibration made
+on day 1, used on day-2 runs after their session start (``strain-comp start``), where the
 sensor's sensitivity now drifts in time.
 
 Day 1 is a clean virtual-rig run (``rig.simulate``, viscous branches off, as

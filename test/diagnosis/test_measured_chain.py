@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, InputSettings
 from strain_comp.core.chain import (
     HELD,
@@ -25,7 +26,6 @@ from strain_comp.core.chain import (
     pair_means,
     pair_values,
 )
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.tare import rest_resistance_at_start
 from strain_comp.io.csv_import import repair_position_glitches
 from strain_comp.io.recording import Recording

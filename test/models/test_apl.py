@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Normalisation, Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import model_class
 from strain_comp.models.apl import APL, MPI, PL
 from strain_comp.models.apl_array import APLArray
-from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.cubic import Cubic
 
 DIRECTION = DirectionSettings(deadzone=0.0)

@@ -15,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Normalisation, Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.io.recording import Recording
 from strain_comp.models.apl import APL, MPI
-from strain_comp.models.base import Normalisation, Segment
 from strain_comp.offline.fit import fit_sensor, memoryless_note
 
 DIRECTION = DirectionSettings(deadzone=0.0)

@@ -11,12 +11,12 @@ import pytest
 import yaml
 from scipy.signal import lfilter
 
+from strain_comp.base.compensator import Normalisation, Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.errors import CalibrationError, FitError, ParameterError
 from strain_comp.models import model_class
-from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.creep_pi import LAM_GRID, CreepPI, CreepPIArray, play_thresholds
 from strain_comp.models.cubic import Cubic
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Normalisation, Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
-from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.cubic import Cubic
 
 DIRECTION = DirectionSettings(deadzone=0.0)

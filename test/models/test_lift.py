@@ -1,4 +1,4 @@
-"""The array lift (``strain_comp.models.lift``): a family that writes only its per-sensor
+"""The array lift (``strain_comp.base.lift``): a family that writes only its per-sensor
 kernel gets an array step equal to a plain Python loop over its sensors, bad samples
 leaving a sensor untouched, ``reset`` returning every sensor to rest; the compile-time
 binding (``strain_comp._numba.specialise``) gives each binding its own dispatcher, once."""
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from strain_comp._numba import njit, specialise
+from strain_comp.base.lift import LiftedArray, array_step, lift
 from strain_comp.errors import ParameterError
-from strain_comp.models.lift import LiftedArray, array_step, lift
 
 
 @dataclass

@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from strain_comp.core.direction import STATE_SIZE, DirectionSettings
+from strain_comp.base.compensator import Normalisation, Segment
+from strain_comp.base.direction import STATE_SIZE, DirectionSettings
 from strain_comp.errors import FitError, ParameterError
-from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.rational import Rational, fit_rat22, rational_kernel
 
 DIRECTION = DirectionSettings(deadzone=0.05, tau=0.05)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Normalisation, Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.sinh_pl import SinhPL
 
 NORM = Normalisation(r0=50.0, alpha=-3.0, s0=10.0, beta=-1.0)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.compensator import Normalisation, Segment
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import Normalisation, Segment
 from strain_comp.models.spike_decay import SpikeDecay, recalibrate_two_point
 
 NORM = Normalisation(1.0, 0.0, 1.0, 0.0)  # unused by this model

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording

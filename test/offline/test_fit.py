@@ -223,7 +223,7 @@ def test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample(
     the model at every sample. The fit now counts gaps in sample intervals, the calibration
     carries the interval, and the engine runs the memory model through (no GAP_RESET)
     with the error it had in training; a pause of 20 intervals still resets."""
-    from strain_comp.core.samples import Status
+    from strain_comp.base.samples import Status
     from strain_comp.offline.rig import RigEffects, simulate
 
     sim = simulate("long", seed=1, effects=RigEffects()).sensors["s1"]

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import Batch, regressor_from_dict
 from strain_comp.core.engine import Engine
-from strain_comp.core.samples import used_mask
 from strain_comp.diagnosis.candidates import default_candidates
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import fit_sensor

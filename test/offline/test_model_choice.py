@@ -16,7 +16,7 @@ from strain_comp.core.calibration import Calibration, expected_error
 from strain_comp.errors import FitError
 from strain_comp.io.bag.writer import BagWriter
 from strain_comp.io.recording import Recording
-from strain_comp.offline import model_choice
+from strain_comp.offline import fit, model_choice
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.session_start import start
@@ -73,13 +73,40 @@ def test_a_tie_goes_to_the_simpler_model(monkeypatch: pytest.MonkeyPatch) -> Non
     """Medians 1.00 (apl) and 1.015 (cubic): within 2 %, the cubic; 1.03: apl."""
     for cubic, chosen in ((1.015, "cubic"), (1.03, "apl")):
         def errors(recordings: object, name: str, fold: model_choice.Fold, options: object,
-                   pool: str, cubic: float = cubic) -> list[float]:
-            return [cubic if fold.model == "cubic" else 1.0] * len(fold.held)
+                   pool: str, cubic: float = cubic) -> model_choice.Scored:
+            return model_choice.Scored([cubic if fold.model == "cubic" else 1.0]
+                                       * len(fold.held), [Calibration({})] * len(fold.held))
 
         monkeypatch.setattr(model_choice, "fold_errors", errors)
         model, record = model_choice.choose_model(RUNS, "s1", candidates=("apl", "cubic"))
         assert model == chosen, cubic
         assert "simpler" in record["why"] if chosen == "cubic" else "lowest" in record["why"]
+
+
+def test_the_band_is_learned_from_the_choices_folds_not_fitted_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The uncertainty of ``--model auto`` is the one ``fit_sensor``'s ``band`` learns by
+    fitting the chosen model's folds again (weight for weight), yet the chosen model is
+    fitted once per fold and once on every run (before: twice per fold; the input space's
+    own cubic fits, ``pool="stretch"``, not counted)."""
+    runs = [Recording("s1", rec.t, rec.r + np.random.default_rng(i).normal(0.0, 0.2,
+                                                                          rec.t.size), rec.s)
+            for i, rec in enumerate(RUNS)]
+    fits: list[str] = []
+
+    def counted(*args: object, **kwargs: object) -> object:
+        if kwargs.get("pool", "spanned") == "spanned":
+            fits.append(str(args[1]))
+        return fit_sensor(*args, **kwargs)  # type: ignore[arg-type]
+
+    for module in (model_choice, fit):
+        monkeypatch.setattr(module, "fit_sensor", counted)
+    cal = model_choice.fit_auto(runs, name="s1", candidates=("cubic",))
+    assert fits.count("cubic") == len(runs) + 1
+    again = fit_sensor(runs, "cubic", name="s1", band=True)
+    assert cal.uncertainty is not None and again.uncertainty is not None
+    assert cal.uncertainty == again.uncertainty
+    assert cal.uncertainty.runs == len(runs)
 
 
 def test_groups_are_left_out_whole() -> None:

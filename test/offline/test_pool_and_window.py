@@ -18,9 +18,14 @@ from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.pool import Pooled, gate, pooled_input
-from strain_comp.offline.recalibrate import recalibrate_recordings, session_forms
-from strain_comp.offline.session_window import calibration_stretch, stretch_and_return
-from strain_comp.offline.space_choice import choose_space, session_started
+from strain_comp.offline.session_start import (
+    calibration_stretch,
+    choose_space,
+    recalibrate_recordings,
+    session_forms,
+    session_started,
+    stretch_and_return,
+)
 
 
 def gauge(s: np.ndarray) -> np.ndarray:
@@ -225,7 +230,7 @@ def test_cli_fit_pools_in_one_space_unless_asked_raw(tmp_path: Path) -> None:
 def test_a_window_keeps_the_warm_up_unreferenced_for_the_engine() -> None:
     """The engine runs from the bag's start (a memory model enters the window in the state
     the warm-up left); only the window's reference is fitted to."""
-    from strain_comp.offline.session_window import window
+    from strain_comp.offline.session_start import window_of as window
 
     cal = Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")})
     part = window({"s1": NEW}, (12.0, 22.0), cal)["s1"]

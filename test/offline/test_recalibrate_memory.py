@@ -17,14 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from strain_comp.base.compensator import Normalisation
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.core.direction import DirectionSettings
 from strain_comp.core.engine import Engine
 from strain_comp.io.recording import Recording
-from strain_comp.models.base import Normalisation
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.recalibrate import recalibrate_recordings
+from strain_comp.offline.session_start import recalibrate_recordings
 
 NORM = Normalisation(r0=0.5, alpha=-3.0, s0=25.0, beta=-1.0)
 """R/R0 in [1, 2] -> xi in [-1, 1]; psi in [-1, 1] -> strain 0..50 %."""
@@ -82,7 +82,7 @@ def test_branch_resistance_inverts_a_branch_and_takes_the_nearest_output_beyond_
     """Truth: a branch S = 10 (R - 1) on R in [1, 2] with a dip below its end value: the
     first crossing from the rest end, linear between grid points; a strain the branch never
     outputs reads at the resistance of its nearest output."""
-    from strain_comp.offline.span import branch_resistance
+    from strain_comp.offline.correction import branch_resistance
 
     grid = np.linspace(1.0, 2.0, 11)
     out = 10.0 * (grid - 1.0)

@@ -121,7 +121,7 @@ def test_fusion_composes_with_the_tare_and_a_session_start() -> None:
     """The fusion is a stage after the engine's output: with ``--tare auto`` and a
     calibration recalibrated on the run's first cycle it still recovers the changed
     sensitivity."""
-    from strain_comp.offline.recalibrate import recalibrate_recordings
+    from strain_comp.offline.session_start import recalibrate_recordings
 
     t, r, s = changed_run()
     rec = {"s1": Recording("s1", t, r, s)}

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from conftest import cubic_cal, lag_cal, noisy_stream
 
+from strain_comp.base.samples import Status
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
-from strain_comp.core.samples import Status
 from strain_comp.core.tare import rest_resistance_at_start
 from strain_comp.errors import BagError
 from strain_comp.io.bag import SCHEMAS, BagWriter, read_bag

@@ -13,6 +13,7 @@ import pytest
 from conftest import changed_run, cubic_cal, lag_cal, line_calibration, noisy_stream
 from mcap.reader import make_reader
 
+from strain_comp.base.samples import STATUS_RULES, USED, Status
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.chain import HELD, SPIKE, STEP
 from strain_comp.core.engine import Engine
@@ -25,7 +26,6 @@ from strain_comp.core.health import (
     times_text,
 )
 from strain_comp.core.outputs import BatchOutput
-from strain_comp.core.samples import STATUS_RULES, USED, Status
 from strain_comp.io import cdr, diagnostic_arrays
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording

@@ -26,7 +26,7 @@ def rig_run() -> Recording:
 
 @pytest.mark.parametrize("model", ["cubic", "mpi", "apl"])
 def test_span_from_the_first_cycle_reads_a_moved_sensor(model: str) -> None:
-    from strain_comp.offline.recalibrate import recalibrate_recordings
+    from strain_comp.offline.session_start import recalibrate_recordings
 
     cal = calibration_of(model)
     rec = rig_run()

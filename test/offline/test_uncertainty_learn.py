@@ -47,6 +47,30 @@ def test_the_likelihood_finds_a_known_variance_model() -> None:
     assert np.mean(np.abs(e) <= Z_95 * np.exp(0.5 * x @ w)) == pytest.approx(0.95, abs=0.002)
 
 
+def test_the_factor_is_the_geometric_mean_of_the_runs_left_out() -> None:
+    """Three runs of constant noise, sigma 1, 1 and 4 (bias only): each run's factor is the
+    95 % quantile of its |e| over the sigma the other two give (by hand: their pooled
+    variance, each run weighing the same), over 1.96; the factor is their geometric mean
+    (0.34, 0.34, 4 -> 0.78; the median, 0.34, ignored the wide run), and the bias weight
+    the pooled variance of all three times it squared."""
+    rng = np.random.default_rng(3)
+    sigmas = (1.0, 1.0, 4.0)
+    runs = []
+    for sd in sigmas:
+        x = np.zeros((20_000, len(FEATURES)))
+        x[:, 0] = 1.0
+        runs.append((x, rng.normal(0.0, sd, 20_000)))
+    var = [float(np.mean(e ** 2)) for _, e in runs]
+    by_hand = [float(np.quantile(np.abs(e), 0.95)) / Z_95
+               / np.sqrt(np.mean([v for k, v in enumerate(var) if k != j]))
+               for j, (_, e) in enumerate(runs)]
+    w, factor = fit_weights(runs)
+    assert factor == pytest.approx(np.exp(np.mean(np.log(by_hand))), rel=1e-4)
+    assert factor == pytest.approx((0.343 ** 2 * 4.0) ** (1 / 3), rel=0.05)
+    assert w[0] == pytest.approx(np.log(np.mean(var) * factor ** 2), abs=1e-4)
+    np.testing.assert_allclose(w[1:], 0.0, atol=1e-6)
+
+
 def run(seed: int, gain: float) -> Recording:
     """Two load cycles of the conftest gauge at 20 Hz, its sensitivity ``gain`` x."""
     rng = np.random.default_rng(seed)

@@ -14,9 +14,8 @@ from conftest import S_HI, S_LO, cubic_cal
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import ParameterError
-from strain_comp.offline.span import calibrated_resistance
+from strain_comp.offline.correction import calibrated_resistance
 from strain_comp.ros.live import LiveCompensator
-from strain_comp.ros.live_start import start, start_reference
 from strain_comp.ros.params import parse_values
 
 CAL = cubic_cal("s1")
@@ -53,7 +52,7 @@ def feed(live: LiveCompensator, samples: list[tuple[float, float]],
         if out is not None:
             errors.append(out.strain - s)
         if reference:
-            live = start_reference(live, "s1", t, s)
+            live = live.start_reference("s1", t, s)
     return live, errors
 
 
@@ -70,14 +69,14 @@ def test_start_watches_a_stretch_then_reads_the_reference(tmp_path: Path) -> Non
     live = node(tmp_path)
     live, before = feed(live, stretch(0.0))
     assert state(live) == "idle"
-    live, message = start(live, 20.0)
+    live, message = live.start(20.0)
     assert "waiting" in message and state(live) == "waiting"
     with pytest.raises(ParameterError, match="already waiting"):
-        start(live, 20.5)  # twice: refused, the watch goes on
+        live.start(20.5)  # twice: refused, the watch goes on
     live, _ = feed(live, stretch(20.0)[:150])
     assert state(live) == "recording"
     with pytest.raises(ParameterError, match="already recording"):
-        start(live, 27.5)
+        live.start(27.5)
     live, _ = feed(live, stretch(20.0)[150:])
     assert state(live) == "applied", live.starting.detail
     assert "stretch RMSE" in live.starting.detail
@@ -85,7 +84,7 @@ def test_start_watches_a_stretch_then_reads_the_reference(tmp_path: Path) -> Non
     live, after = feed(live, stretch(40.0))
     rms = [float(np.sqrt(np.mean(np.square(e)))) for e in (before, after)]
     assert rms[1] < 0.2 * rms[0] and rms[1] < 0.5  # the moved sensor reads the reference
-    live, message = start(live, 60.0)  # again after an applied start: a new watch
+    live, message = live.start(60.0)  # again after an applied start: a new watch
     assert state(live) == "waiting"
 
 
@@ -93,7 +92,7 @@ def test_start_called_during_a_stretch_waits_for_a_whole_one(tmp_path: Path) -> 
     live = node(tmp_path)
     samples = stretch(0.0)
     live, _ = feed(live, samples[:100])  # a reference seen: the watch is possible
-    live, _ = start(live, samples[100][0])  # mid-load
+    live, _ = live.start(samples[100][0])  # mid-load
     live, _ = feed(live, samples[100:])
     assert state(live) in ("recording", "applied", "refused")
     live, _ = feed(live, stretch(20.0))
@@ -104,12 +103,12 @@ def test_start_without_a_reference_spans_or_says_why(tmp_path: Path) -> None:
     live = node(tmp_path)
     live, _ = feed(live, stretch(0.0), reference=False)
     with pytest.raises(ParameterError, match="span_strain"):
-        start(live, 20.0)
+        live.start(20.0)
     assert state(live) == "refused" and "no reference" in live.starting.detail
     assert status(live)[1] == 1 and "span_strain" in status(live)[2]  # WARN, and why
     live.set_tunable("span_strain", 30.0)
     live, _ = feed(live, [(20.0 + 0.05 * i, 30.0) for i in range(20)], reference=False)
-    live, message = start(live, 21.0)
+    live, message = live.start(21.0)
     assert "span" in message and state(live) == "applied"
     out = live.on_sensor("s1", 22.0, moved(30.0))
     assert out is not None and out.strain == pytest.approx(30.0, abs=0.5)
@@ -118,7 +117,7 @@ def test_start_without_a_reference_spans_or_says_why(tmp_path: Path) -> None:
 def test_a_stretch_that_never_returns_is_refused(tmp_path: Path) -> None:
     live = node(tmp_path)
     live, _ = feed(live, stretch(0.0)[:10])
-    live, _ = start(live, 0.5)
+    live, _ = live.start(0.5)
     held = [(0.5 + 0.5 * i, 25.0) for i in range(1300)]  # loaded for 650 s
     live, _ = feed(live, held)
     assert state(live) == "refused" and "within 600 s" in live.starting.detail

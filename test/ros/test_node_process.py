@@ -186,7 +186,7 @@ def test_a_fresh_colcon_install_starts_without_compiling(workspace: dict[str, An
     """colcon's install compiles the kernels of the bundled params files into the installed
     package's numba cache (setup.py, ``prime_cache``): the first start of the install loads
     every kernel and compiles none (it compiled into an empty cache, 9 s idle, a minute on a
-    loaded machine: docs/performance.md). First in this module: no node started before."""
+    loaded machine: docs/results.md). First in this module: no node started before."""
     site = Path(workspace["env"]["PYTHONPATH"])
     assert list(site.glob("strain_comp/models/__pycache__/apl_kernels.*.nbi"))
     log = tmp_path / "node.log"

@@ -70,7 +70,6 @@ from strain_comp.core.effects.static import (
 )
 from strain_comp.core.effects.terms import (
     KINDS,
-    RECALIBRATION_TERMS,
     EffectTerms,
     effect_dict,
     regressor_from_dict,
@@ -79,7 +78,6 @@ from strain_comp.core.effects.terms import (
 
 __all__ = [
     "KINDS",
-    "RECALIBRATION_TERMS",
     "STRETCH_FORMS",
     "TEMPERATURE_RANGE",
     "Baseline",

@@ -14,8 +14,8 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.compensator import require_float
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import require_float
 
 
 @dataclass

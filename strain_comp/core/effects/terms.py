@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.compensator import require_float
 from strain_comp.core.effects.history import Baseline, Direction, Elapsed, Mullins, Stretch
 from strain_comp.core.effects.memory import Rate, Relaxation, ResistanceMemory
 from strain_comp.core.effects.regressor import (
@@ -19,12 +20,6 @@ from strain_comp.core.effects.regressor import (
 )
 from strain_comp.core.effects.static import Crosstalk, Offset, StrainLevel, Temperature
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import require_float
-
-RECALIBRATION_TERMS = ("recalibration_gain", "recalibration_offset")
-"""Names of the two terms of an output gain and offset (``strain_comp.offline.recalibrate``):
-a map of the output, not a term that models what moves."""
-
 
 KINDS: dict[str, type[Regressor]] = {cls.kind: cls for cls in (
     Offset, Rate, Direction, Relaxation, ResistanceMemory, Elapsed, Temperature, StrainLevel,

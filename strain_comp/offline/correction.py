@@ -1,14 +1,30 @@
-"""The input zero and span of a recalibration: R' = R_rest,cal + k (R - R_rest,run), as one
-zeroes and spans a gauge (``recalibrate --input``; docs/design.md, ``input.zero_span``).
+"""The estimators of a sensor's correction: the input zero and span (R' = R_rest,cal + k (R -
+R_rest,run), as one zeroes and spans a gauge; docs/design.md, ``input.zero_span``) and the
+output gain and offset (S' = a S + b), from two known points, a recording's first cycle, or a
+stretch's line of resistance on strain; and their numbers (``SpanPolicy``).
 
-Through two points (R_i, S_i): R'_i is the calibrated resistance whose steady output is S_i
-(``calibrated_resistance``, the steady output inverted on a grid over the valid range),
+Input, through two points (R_i, S_i): R'_i is the calibrated resistance whose steady output
+is S_i (``calibrated_resistance``, the steady output inverted on a grid over the valid range),
 k = (R'_2 - R'_1) / (R_2 - R_1), R_rest,run = R_1. From a recording's first cycle: point 1
 is the first rest, point 2 the largest strain (``points_from_first_cycle``). A memory model
 (one that does not follow its steady outputs along a slow ramp, ``follows_steady_curve``)
 is not on its held map in use: its rest point is read on its unloading branch and the
 stretch on its loading branch (``span_on_branches``), and the span is then refined by least
-squares of the engine's output over the cycle (``span_through_run``). Numbers: ``SpanPolicy``.
+squares of the engine's output over the cycle (``span_through_run``).
+
+Input, from a stretch's line (a calibration pooled with the stretch session start, ``fit
+--pool stretch``, keeps the line R = R_0 + g S its training runs' stretches share in its input
+space, ``InputSettings.stretch_line``): a new run is put there by R' = R_0,space + (g_space /
+g_run) (R - R_0,run), the line of the stretch it reads (``run_line``) put onto that line
+(``onto``), so what moves after the stretch (the thread's sensitivity) moves as it did on the
+training runs (docs/results.md, "Pooling and the session start").
+
+Output (the spike-decay paper's recalibration of its output map, Lee et al., for every
+model): S_new = a S_out + b through two points (S_out(R_i) the steady output at R_i,
+``steady_output``, so a memory model has settled), or by least squares over a recording
+(``map_from_pairs``). Each estimate is written into the sensor's one correction
+(``strain_comp.core.correction``): a new input map replaces an older one (both map measured
+resistance, ``apply_span``), a new output map composes onto the one there (``apply_map``).
 """
 
 from __future__ import annotations
@@ -16,21 +32,74 @@ from __future__ import annotations
 import functools
 import pickle
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
+from strain_comp.base.samples import good_mask
+from strain_comp.core.calibration import (
+    PARAM_MAX,
+    SPAN_GAIN_MAX,
+    STRAIN_MAX,
+    Calibration,
+    SensorCalibration,
+    strain_unit_words,
+)
 from strain_comp.core.calibration_file import loadable
+from strain_comp.core.correction import Correction
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.core.tare import REST_BAND, ohms, rest_resistance_from_reference
 from strain_comp.errors import InputError
-from strain_comp.offline.span_policy import SPAN, SpanPolicy
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
+
+FORMS = ("output", "input")
+"""Where the two-point map acts: on the engine's output strain or on its input resistance."""
+
+
+@dataclass(frozen=True)
+class SpanPolicy:
+    """The session start's numbers (resolutions, the search, the refusals)."""
+
+    settle_samples: int = 200
+    """Samples at a constant resistance (at 10 Hz) before a steady output is read
+    [samples]."""
+    grid_points: int = 201
+    """Resistances of the steady-output grid over the valid range that
+    ``calibrated_resistance`` inverts [points]."""
+    static_tolerance: float = 0.01
+    """A model whose slow ramp stays this close to its steady outputs is static (two
+    points invert it); else it has memory and is spanned on its branches and through the
+    run [share of the strain span]."""
+    fit_evaluations: int = 80
+    """Engine runs over the calibration stretch the search of a memory model's zero and
+    span may take (Nelder-Mead; 0: the two-point span is kept) [runs]."""
+    fit_step: tuple[float, float] = (0.05, 0.2)
+    """The search's first steps: of the calibrated rest resistance [share of the valid
+    resistance range] and of the log of the span gain [1]."""
+    fit_tolerance: tuple[float, float] = (1e-3, 1e-4)
+    """The search stops when its steps fall under the first [as ``fit_step``] and its
+    RMSE changes less than the second [strain unit]."""
+    from_cover: float = 0.1
+    """Share of the calibrated strain span the reference must move through for ``--from``:
+    a gain and offset are fitted over a stretch of the range, not a point of it (the
+    README's session start, ``bags/demo_rates.mcap``, first 30 s, moves through 17 % of
+    its span) [share of the strain span]."""
+    cycle_up: float = 0.5
+    """A cycle (``cycle_end``, ``stretch_and_return``): the reference passes this share of
+    its span above its minimum [share of the reference's span] ..."""
+    cycle_back: float = 0.1
+    """... then returns to within this share of it [share of the reference's span]."""
+    min_cycle_share: float = 0.1
+    """A ``--window``'s stretch must span at least this share of the calibration's strain
+    range [share of the strain span]."""
+
+
+SPAN = SpanPolicy()
+"""The policy every session start uses unless given another."""
 
 
 def steady_output(cal: SensorCalibration, r: float, policy: SpanPolicy | None = None) -> float:
@@ -81,20 +150,40 @@ def calibrated_resistance(cal: SensorCalibration, strain: float,
                           curve: tuple[np.ndarray, np.ndarray] | None = None,
                           policy: SpanPolicy | None = None) -> float:
     """The resistance [ohm] whose steady output through ``cal`` is ``strain``: the first
-    crossing from the rest end of ``steady_curve``, interpolated linearly. InputError when
-    no resistance of the valid range gives that strain."""
+    crossing from the rest end of ``steady_curve`` (``crossing``). InputError when no
+    resistance of the valid range gives that strain."""
     grid, steady = curve if curve is not None else steady_curve(cal, policy)
-    out = steady - strain
-    cross = np.flatnonzero(np.sign(out[:-1]) * np.sign(out[1:]) <= 0)
-    if not cross.size:
+    found = crossing(grid, steady, strain)
+    if found is None:
         raise InputError(f"the calibration outputs no strain of {strain:g} "
                          f"{strain_unit_words(cal.strain_unit)} in its resistance range "
                          f"(it gives {steady.min():.4g} to {steady.max():.4g})")
+    return found
+
+
+def crossing(grid: np.ndarray, out: np.ndarray, strain: float) -> float | None:
+    """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end,
+    linear between grid points (None: it never does)."""
+    d = out - strain
+    cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
+    if not cross.size:
+        return None
     j = int(cross[0])
-    if out[j] == out[j + 1]:
-        return float(grid[j])
-    w = out[j] / (out[j] - out[j + 1])
+    w = d[j] / (d[j] - d[j + 1]) if d[j] != d[j + 1] else 0.0
     return float(grid[j] + w * (grid[j + 1] - grid[j]))
+
+
+def through(points: Sequence[tuple[float, float]], c1: float, c2: float,
+            ) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) that reads the two measured (R, S)
+    ``points`` (sorted by strain) as the calibrated resistances ``c1``, ``c2``."""
+    (r1, s1), (r2, s2) = points
+    k = (c2 - c1) / (r2 - r1) if r2 != r1 else float("nan")
+    if not (np.isfinite(k) and k > 0):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
+                         "against the calibration's direction (span gain "
+                         f"{k:.4g} must be > 0)")
+    return r1, c1, float(k)
 
 
 def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
@@ -116,14 +205,8 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
         raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: one resistance at two "
                          "strains gives no span")
     curve = curve if curve is not None else steady_curve(cal, policy)
-    c1 = calibrated_resistance(cal, s1, curve, policy)
-    c2 = calibrated_resistance(cal, s2, curve, policy)
-    k = (c2 - c1) / (r2 - r1)
-    if not (np.isfinite(k) and k > 0):
-        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
-                         "against the calibration's direction (span gain "
-                         f"{k:.4g} must be > 0)")
-    return r1, c1, float(k)
+    return through([(r1, s1), (r2, s2)], calibrated_resistance(cal, s1, curve, policy),
+                   calibrated_resistance(cal, s2, curve, policy))
 
 
 def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
@@ -154,7 +237,7 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
     """``cal`` reading its input through ``span`` (replacing an older one)."""
     history = [*cal.provenance.get("recalibrations", []),
                dict(record, rest=span[0], rest_calibrated=span[1], span_gain=span[2])]
-    new = replace(cal, input=replace(cal.input, zero_span=span),
+    new = replace(Correction.of(cal).with_input(*span).written(cal),
                   provenance={**cal.provenance, "recalibrations": history})
     return loadable(new, span_reading(span))
 
@@ -192,15 +275,10 @@ def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float:
-    """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end
-    (linear between grid points), else the grid point of the nearest output."""
-    d = out - strain
-    cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
-    if not cross.size:
-        return float(grid[int(np.argmin(np.abs(d)))])
-    j = int(cross[0])
-    w = d[j] / (d[j] - d[j + 1]) if d[j] != d[j + 1] else 0.0
-    return float(grid[j] + w * (grid[j + 1] - grid[j]))
+    """The resistance of ``grid`` where ``out`` first crosses ``strain`` (``crossing``), else
+    the grid point of the nearest output."""
+    found = crossing(grid, out, strain)
+    return float(grid[int(np.argmin(np.abs(out - strain)))]) if found is None else found
 
 
 def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
@@ -210,15 +288,9 @@ def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float
     outputs over ``grid`` (``branch_resistance``): the rest point on the first (a memory
     model's unloading branch, ``branches``), the stretch on the second (its loading
     branch); a static model's held map for both."""
-    (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
-    c1 = branch_resistance(grid, branch[0], s1)
-    c2 = branch_resistance(grid, branch[1], s2)
-    k = (c2 - c1) / (r2 - r1) if r2 != r1 else float("nan")
-    if not (np.isfinite(k) and k > 0):
-        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the resistance moves "
-                         "against the calibration's direction (span gain "
-                         f"{k:.4g} must be > 0)")
-    return r1, c1, float(k)
+    ordered = sorted(points, key=lambda p: p[1])
+    return through(ordered, branch_resistance(grid, branch[0], ordered[0][1]),
+                   branch_resistance(grid, branch[1], ordered[1][1]))
 
 
 def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
@@ -292,15 +364,10 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
         return start
     rest, rest_cal, k = start
     width = cal.valid_range.r_hi - cal.valid_range.r_lo
-    ok = np.isfinite(rec.s)
-    reference = rec.s[ok]
 
     def error(x: np.ndarray) -> float:
         span = (rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1])))
-        trial = replace(cal, input=replace(cal.input, zero_span=span))
-        strain = Engine(Calibration({cal.name: trial})).run(cal.name, rec.t, rec.r).strain
-        value = float(np.sqrt(np.mean((strain[ok] - reference) ** 2)))
-        return value if np.isfinite(value) else np.inf
+        return cycle_error(replace(cal, input=replace(cal.input, zero_span=span)), rec)
 
     origin = np.zeros(2)
     first = error(origin)
@@ -323,3 +390,126 @@ def span_reading(span: tuple[float, float, float]) -> str:
     rest, rest_cal, k = span
     return (f"input zero {ohms((rest, rest_cal)).replace(' vs ', ' -> ')}, span gain "
             f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")
+
+
+Line = tuple[float, float]
+"""(R_0 [ohm], g [ohm per strain unit]) of R = R_0 + g S."""
+
+
+def run_line(rec: Recording) -> Line | None:
+    """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples, in
+    closed form (no LAPACK call to fail on a reference near 1e-300 or 1e300)."""
+    if rec.s is None:
+        return None
+    ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
+    s, r = np.asarray(rec.s, dtype=np.float64)[ok], np.asarray(rec.r, dtype=np.float64)[ok]
+    if s.size < 2 or not np.ptp(s) > 0:
+        return None
+    with np.errstate(all="ignore"):
+        ds, r_mean = s - s.mean(), r.mean()
+        g = float(np.dot(ds, r - r_mean) / np.dot(ds, ds))
+        r0 = float(r_mean - g * s.mean())
+    return (r0, g) if np.isfinite(r0) and np.isfinite(g) and g != 0 else None
+
+
+def onto(own: Line, space: Line) -> tuple[float, float, float]:
+    """The input zero and span (``InputSettings.zero_span``: rest, rest_calibrated, gain) that
+    puts a run whose stretch has the line ``own`` onto the line ``space``."""
+    return own[0], space[0], space[1] / own[1]
+
+
+def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
+    """The input zero and span that puts the line of the stretch ``rec`` holds (its
+    referenced samples) onto the calibration's stretch line (``onto``)."""
+    space = cal.input.stretch_line
+    assert space is not None
+    own = run_line(replace(rec, r=cal.input.to_ohm(rec.r)))
+    if own is None or np.sign(own[1]) != np.sign(space[1]) or not own[0] > 0:
+        raise InputError(f"recalibrate --input: sensor {cal.name!r}: its resistance does not "
+                         "move with the reference strain in the stretch read as the "
+                         "calibration's does (no line of resistance on strain there)")
+    zero_span = onto(own, space)
+    if not (0.0 < zero_span[0] <= PARAM_MAX
+            and 1.0 / SPAN_GAIN_MAX <= zero_span[2] <= SPAN_GAIN_MAX):
+        raise InputError(f"recalibrate --input: sensor {cal.name!r}: the stretch read puts "
+                         f"its rest at {zero_span[0]:.4g} ohm and its sensitivity "
+                         f"{1.0 / zero_span[2]:.4g} times the calibration's: no session start "
+                         "of this sensor (record a load and unload of it)")
+    return zero_span
+
+
+def parse_point(text: str) -> tuple[float, float]:
+    """``"R:S"`` (ohm, % strain) -> (R, S); InputError naming the flag otherwise."""
+    r_text, sep, s_text = text.partition(":")
+    try:
+        r, s = float(r_text), float(s_text)
+    except ValueError:
+        r, s = float("nan"), float("nan")
+    if not sep or not (np.isfinite(r) and np.isfinite(s) and r > 0):
+        raise InputError(f"--point {text!r}: expected R:S with R > 0 ohm and S in the "
+                         "calibration's strain unit (% unless it says otherwise)")
+    if not abs(s) <= STRAIN_MAX:
+        raise InputError(f"--point {text!r}: the strain must be within +/- {STRAIN_MAX:g}")
+    return r, s
+
+
+def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
+                    policy: SpanPolicy | None = None) -> tuple[float, float]:
+    """(a, b) through two (R [ohm], S [%]) points (steady outputs: ``policy``)."""
+    if len(points) != 2:
+        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
+    (r1, s1), (r2, s2) = points
+    lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
+    for r, s in points:
+        if not lo <= r <= hi:
+            raise InputError(f"--point {r:g}:{s:g}: {r:g} ohm is outside the calibration's "
+                             f"resistance range [{lo:.4g}, {hi:.4g}] ohm, where its output is "
+                             "clamped; a sensor whose resistance moved that far needs a tare "
+                             "(--tare auto, the node's ~/tare) or a new fit")
+    o1, o2 = steady_output(cal, r1, policy), steady_output(cal, r2, policy)
+    if not abs(o2 - o1) > 1e-9 * max(1.0, abs(o1)):
+        raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the calibration gives "
+                         f"the same strain ({o1:.4g} %) at both resistances")
+    a = (s2 - s1) / (o2 - o1)
+    return a, s1 - a * o1
+
+
+def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
+                   span: float | None = None, policy: SpanPolicy | None = None,
+                   ) -> tuple[float, float]:
+    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs: at
+    least two of them, the reference moving through ``from_cover`` of the
+    calibrated strain ``span`` (when given; ``policy``, ``SPAN`` when None)."""
+    policy = SPAN if policy is None else policy
+    ok = np.isfinite(estimate) & np.isfinite(reference)
+    if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
+        raise InputError(f"recalibrate --from: the bag gives {int(ok.sum())} scored samples "
+                         "(at least two needed) or no range of estimated "
+                         "strain")
+    if span is not None and not np.ptp(reference[ok]) >= policy.from_cover * span:
+        raise InputError(f"recalibrate --from: the reference moves through "
+                         f"{np.ptp(reference[ok]):.4g} of the calibrated span {span:.4g}; a "
+                         f"gain needs a stretch of at least {policy.from_cover:.0%} of it")
+    a, b = np.polyfit(estimate[ok], reference[ok], 1)
+    return float(a), float(b)
+
+
+def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, Any],
+              ) -> SensorCalibration:
+    """``cal`` whose output is a x (old output) + b, with ``record`` in its provenance."""
+    if not (np.isfinite(a) and np.isfinite(b) and a > 0):
+        raise InputError(f"recalibration of {cal.name!r}: gain {a:.4g} must be finite and "
+                         "> 0 (its output falls where the known strain rises: the "
+                         "calibration reads this sensor against its direction)")
+    history = [*cal.provenance.get("recalibrations", []), dict(record, gain=a, offset=b)]
+    new = replace(Correction.of(cal).with_output(a, b).written(cal),
+                  provenance={**cal.provenance, "recalibrations": history})
+    return loadable(new, reading(a, b, unit=cal.strain_unit))
+
+
+def reading(a: float, b: float, *, unit: str = "%") -> str:
+    """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
+    (the sensor's sensitivity against the calibration's is 1 / a; the offset in the
+    calibration's strain ``unit``)."""
+    return (f"output gain {a:.4g} (sensitivity {100.0 * (1.0 / a - 1.0):+.1f} %), "
+            f"offset {b:+.3g} {strain_unit_words(unit)}")

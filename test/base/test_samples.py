@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from strain_comp.core.samples import SampleStatus, classify
+from strain_comp.base.samples import SampleStatus, classify
 
 
 def classify_slow(t: list[float], r: list[float]) -> list[int]:

@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.core.direction import DirectionSettings
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import ParameterError
 
 

@@ -21,8 +21,8 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp._numba import specialise
+from strain_comp.base.compensator import Compensator
 from strain_comp.errors import ParameterError
-from strain_comp.models.base import Compensator
 
 if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.core.direction import (
+from strain_comp.base.direction import (
     DirectionDetector,
     DirectionSettings,
     derivative_noise,

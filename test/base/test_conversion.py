@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from strain_comp.core.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.base.conversion import divider_to_resistance, resistance_to_divider
 
 
 @settings(max_examples=100, deadline=None)

@@ -1,0 +1,151 @@
+"""A sensor's one correction: an affine map on the input resistance and one on the output
+strain, which every estimator of a session's change writes (docs/design.md, "Calibration
+file"):
+
+    R' = rest + gain (R - zero)                  (input: zero and gain)
+    S' = output_gain S + output_offset           (output: gain and offset)
+
+``zero`` is the measured resistance [ohm] that reads as the calibrated resistance ``rest``;
+the identity is (0, 0, 1) and (1, 0). The engine applies the input map right after the
+input's conversion to ohm (before the pair statistic, the corrector and the models) and the
+output map after the effect terms (``strain_comp.core.sensor``). The estimators:
+
+* the tare (a rest measured now, ``Engine.tare``): the input scaled by (reference rest /
+  rest now) before the input map (``apply_input``'s ``tare``), the reference being the
+  map's ``zero`` or, without one, the calibration's ``rest_resistance``
+  (``SensorCalibration.input_rest``);
+* two known points and a recording's first cycle or stretch line (``recalibrate``,
+  ``strain-comp start``; ``strain_comp.offline.correction``): a new input map (``with_input``,
+  replacing an older one), a new output map composed onto the one there (``with_output``).
+
+The file form is the one calibration files have always held, so every file written before
+loads with the same meaning and every reader reads what this one writes: the input map is
+``input.zero_span`` (rest = ``zero``, rest_calibrated = ``rest``, gain), the output map the
+two effect terms ``RECALIBRATION_TERMS`` (S_hat minus (1 - output_gain) S_hat minus
+-output_offset, every other term's coefficient stored scaled by the output gain; ``of`` and
+``written`` convert). A calibration pooled with the stretch start also holds the line
+its training runs' stretches share (``input.stretch_line``): not a map, the target of the
+estimator that places a new run's stretch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from strain_comp.core.calibration import SensorCalibration
+
+RECALIBRATION_TERMS = ("recalibration_gain", "recalibration_offset")
+"""Names of the two effect terms that hold the output gain and offset in a calibration file
+(the correction's file form, ``written``): a map of the output, not a term that models what
+moves."""
+_GAIN_TERM = {"name": RECALIBRATION_TERMS[0], "kind": "strain_level", "params": {"power": 1}}
+_OFFSET_TERM = {"name": RECALIBRATION_TERMS[1], "kind": "offset", "params": {}}
+
+
+@dataclass(frozen=True)
+class Correction:
+    """One sensor's input map R' = rest + gain (R - zero) and output map S' = output_gain S
+    + output_offset (module docstring)."""
+
+    zero: float = 0.0
+    rest: float = 0.0
+    gain: float = 1.0
+    output_gain: float = 1.0
+    output_offset: float = 0.0
+
+    @classmethod
+    def of(cls, cal: SensorCalibration) -> Correction:
+        """The correction a calibration holds (its file form, module docstring)."""
+        zero, rest, gain = cal.input.zero_span or (0.0, 0.0, 1.0)
+        a, b = _output_terms(cal.effects)
+        return cls(zero, rest, gain, a, b)
+
+    @property
+    def has_input(self) -> bool:
+        """True when the input map is not the identity."""
+        return (self.zero, self.rest, self.gain) != (0.0, 0.0, 1.0)
+
+    @property
+    def has_output(self) -> bool:
+        """True when the output map is not the identity."""
+        return (self.output_gain, self.output_offset) != (1.0, 0.0)
+
+    def input_map(self) -> tuple[float, float]:
+        """(k, c) of the input map as R' = k R + c."""
+        return self.gain, self.rest - self.gain * self.zero
+
+    def apply_input(self, ohm: Any, tare: float = 1.0) -> Any:
+        """``ohm`` (a float or an array) x ``tare`` through the input map (the engine's
+        input stage; ``tare``: the engine's tare gain)."""
+        ohm = ohm * tare if tare != 1.0 else ohm
+        if not self.has_input:
+            return ohm
+        k, c = self.input_map()
+        return k * ohm + c
+
+    def apply_output(self, strain: Any) -> Any:
+        """``strain`` (a float or an array) through the output map (the engine's output
+        stage)."""
+        if not self.has_output:
+            return strain
+        return self.output_gain * strain + self.output_offset
+
+    def with_input(self, zero: float, rest: float, gain: float) -> Correction:
+        """This correction with a new input map (it replaces the old: both map measured
+        resistance); the output map kept."""
+        return replace(self, zero=float(zero), rest=float(rest), gain=float(gain))
+
+    def with_output(self, gain: float, offset: float) -> Correction:
+        """This correction followed by the output map S' = gain S + offset (composed)."""
+        return replace(self, output_gain=gain * self.output_gain,
+                       output_offset=gain * self.output_offset + offset)
+
+    def effects(self, effects: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """The effect terms a calibration's ``effects`` (its file form) hold besides the
+        output map, with the coefficients they have before it (the engine runs these, then
+        ``apply_output``)."""
+        if not self.has_output:
+            return [dict(e) for e in effects]
+        return [dict(e, coef=float(e["coef"]) / self.output_gain) for e in effects
+                if not _is_output_term(e)]
+
+    def written(self, cal: SensorCalibration) -> SensorCalibration:
+        """``cal`` holding this correction in the file form (module docstring), what it
+        held before replaced."""
+        a, b = self.output_gain, self.output_offset
+        held = Correction.of(cal)
+        if (a, b) == (held.output_gain, held.output_offset):  # the terms as they stand
+            effects = list(cal.effects)
+        else:
+            effects = [dict(e, coef=a * float(e["coef"])) for e in held.effects(cal.effects)]
+            if self.has_output:
+                effects += [dict(_GAIN_TERM, coef=1.0 - a), dict(_OFFSET_TERM, coef=-b)]
+        span = (self.zero, self.rest, self.gain) if self.has_input else None
+        return replace(cal, input=replace(cal.input, zero_span=span), effects=effects)
+
+
+def _is_output_term(effect: Mapping[str, Any]) -> bool:
+    """True for one of the two effect terms that hold the output map (``RECALIBRATION_TERMS``,
+    of their kind)."""
+    for term in (_GAIN_TERM, _OFFSET_TERM):
+        if effect.get("name") == term["name"] and effect.get("kind") == term["kind"]:
+            params = effect.get("params") or {}
+            return term["kind"] == "offset" or params.get("power", 1) == 1
+    return False
+
+
+def _output_terms(effects: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
+    """(output gain, output offset) of a calibration's effect terms (1, 0 without them); a
+    gain that is not finite and > 0 is left to the effect terms as they stand (1, 0)."""
+    gain_coef = sum(float(e["coef"]) for e in effects
+                    if _is_output_term(e) and e.get("name") == RECALIBRATION_TERMS[0])
+    offset_coef = sum(float(e["coef"]) for e in effects
+                      if _is_output_term(e) and e.get("name") == RECALIBRATION_TERMS[1])
+    a, b = 1.0 - gain_coef, -offset_coef
+    if not (math.isfinite(a) and a > 0 and math.isfinite(b)):
+        return 1.0, 0.0
+    return a, b
