@@ -28,11 +28,11 @@ from strain_comp._numba import njit, specialise
 from strain_comp.core import samples as sc
 from strain_comp.core.direction import STATE_SIZE, direction_update
 from strain_comp.core.health import SensorHealth, add_counts
-from strain_comp.core.outputs import ArrayOutput, SensorOutput
+from strain_comp.core.outputs import ArrayOutput
 from strain_comp.core.samples import USED_CODE, Status, screen_one
-from strain_comp.core.sensor import Latest, Pending, SensorState
+from strain_comp.core.sensor import Latest, SensorState, run_together
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
-from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_one
+from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_run
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
 from strain_comp.models.apl_array import APLArray
@@ -226,21 +226,17 @@ class ArrayGroup:
                            self.held[:, _STD].copy() if self.banded else None)
 
     def _loop(self, t: float, raw: np.ndarray) -> ArrayOutput:
-        """One tick as the per-sample path of each sensor (cross-talk terms read the
-        neighbours' clamped pre-effect estimate of this tick)."""
-        pending = [s.step_model(t, float(value), self.gap_reset)
-                   for s, value in zip(self.sensors, raw, strict=True)]
-        bases = {name: p.base(s) if isinstance(p, Pending) else math.nan
-                 for name, s, p in zip(self.names, self.sensors, pending, strict=True)}
-        outputs = [p if isinstance(p, SensorOutput) else
-                   s.step_finish(p, math.nan, self.latest, bases)
-                   for s, p in zip(self.sensors, pending, strict=True)]
+        """One tick as a batch of one of each sensor (``run_together``: cross-talk terms
+        read the neighbours' clamped pre-effect estimate of this tick)."""
+        outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), [t],
+                                 raw[None, :], {}, self.gap_reset, self.latest).values())
         banded = any(s.weights is not None for s in self.sensors)
-        return ArrayOutput(np.array([o.strain for o in outputs]),
-                           np.array([o.direction for o in outputs], dtype=np.int8),
-                           np.array([o.status for o in outputs], dtype=np.int8),
-                           np.array([o.out_of_range for o in outputs]),
-                           np.array([o.std for o in outputs]) if banded else None)
+        return ArrayOutput(np.concatenate([o.strain for o in outs]),
+                           np.concatenate([o.direction for o in outs]).astype(np.int8),
+                           np.concatenate([o.status for o in outs]).astype(np.int8),
+                           np.concatenate([o.out_of_range for o in outs]),
+                           np.concatenate([o.std if o.std is not None else [math.nan]
+                                           for o in outs]) if banded else None)
 
     def _effects(self, t: float, raw: np.ndarray) -> None:
         """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""
@@ -260,9 +256,9 @@ class ArrayGroup:
                 self.latest, nbrs)
             self.held[i, _STRAIN] = bound(float(ohm[0]), float(strain[0]), s.limits.row)
             if s.weights is not None:  # again on the corrected strain (the same state)
-                self.held[i, _STD] = std_one(t, self.held[i, _DIRECTION], float(ohm[0]),
-                                             self.held[i, _STRAIN], self.band[i],
-                                             s.limits.row, s.weights)
+                self.held[i, _STD] = std_run(
+                    np.array([t]), self.held[i:i + 1, _DIRECTION], ohm,
+                    self.held[i:i + 1, _STRAIN], self.band[i], s.limits.row, s.weights)[0]
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``fused``)."""
