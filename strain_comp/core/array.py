@@ -95,26 +95,32 @@ def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
     held[k, _LAST_GOOD_T] = t
 
 
-def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
+def family_tick(t: np.ndarray, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
                 held: np.ndarray, counts: np.ndarray, det: np.ndarray, gap: float,
                 model_out: np.ndarray, status: np.ndarray, reset: np.ndarray,
                 band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
-                params: tuple[Any, ...]) -> None:
-    """Template: one tick of the array's sensors of one family, around the family's kernel
-    (``strain_comp.models.lift``). A gap reset zeroes the sensor's state rows (a sensor at
-    rest)."""
+                params: tuple[Any, ...], out: np.ndarray, out_status: np.ndarray) -> None:
+    """Template: ticks ``t`` (rows of ``raw``) of the array's sensors of one family, around
+    the family's kernel (``strain_comp.models.lift``); after each, the held strain,
+    direction and standard deviation of these sensors into ``out[i, :, k]`` and their
+    status into ``out_status[i, k]``. A gap reset zeroes the sensor's state rows (a sensor
+    at rest)."""
     arrays = state + params
-    for j in range(idx.size):
-        k = idx[j]
-        ohm, used = sensor_front(k, t, raw, par, held, counts, det, gap, model_out, status,
-                                 reset)
-        if not used:
-            continue
-        if reset[k]:
-            for rows in state:
-                rows[j, :] = 0.0
-        estimate = kernel(j, t, model_read(ohm, par[k, _RANGE:]), *arrays)
-        sensor_back(k, t, ohm, estimate, par, held, det, model_out, band, x)
+    for i in range(t.size):
+        for j in range(idx.size):
+            k = idx[j]
+            ohm, used = sensor_front(k, t[i], raw[i], par, held, counts, det, gap, model_out,
+                                     status, reset)
+            if used:
+                if reset[k]:
+                    for rows in state:
+                        rows[j, :] = 0.0
+                estimate = kernel(j, t[i], model_read(ohm, par[k, _RANGE:]), *arrays)
+                sensor_back(k, t[i], ohm, estimate, par, held, det, model_out, band, x)
+            out[i, 0, k] = held[k, _STRAIN]
+            out[i, 1, k] = held[k, _DIRECTION]
+            out[i, 2, k] = held[k, _STD]
+            out_status[i, k] = status[k]
 
 
 FAMILIES: tuple[type[LiftedArray], ...] = (APLArray, CreepPIArray)
@@ -122,7 +128,7 @@ FAMILIES: tuple[type[LiftedArray], ...] = (APLArray, CreepPIArray)
 TICKS: dict[type[LiftedArray], Dispatcher[Any]] = {
     family: specialise(family_tick, {"kernel": family.kernel}, error_model="numpy")
     for family in FAMILIES}
-"""Each family's tick: ``family_tick`` bound to the family's kernel."""
+"""Each family's ticks: ``family_tick`` bound to the family's kernel."""
 
 
 def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedArray]] | None:
@@ -160,6 +166,7 @@ class ArrayGroup:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
         every = self._all()
         self.sensors = [every[n] for n in self.names]
+        self.banded = any(s.weights is not None for s in self.sensors)
         self.kernels = []
         if not all(not s.cal.input.filtered and s.cal.input.zero_span is None
                    and s.cal.sample_interval is None for s in self.sensors):
@@ -187,7 +194,6 @@ class ArrayGroup:
         self.held[:, _STD] = math.nan
         self.band = np.full((k, BAND_SIZE), math.nan)
         self.x = np.empty(N_FEATURES)
-        self.banded = any(s.weights is not None for s in self.sensors)
         self.held[:, _LAST_STATUS] = -1
         self.counts = np.zeros((k, len(Status) + 1), dtype=np.int64)
         self.states = np.zeros((k, STATE_SIZE))
@@ -209,34 +215,38 @@ class ArrayGroup:
         self.par[:, _DEADZONE] = [s.cal.direction.deadzone * scale for s in self.sensors]
         self.states[:] = 0.0
 
-    def step(self, t: float, raw: np.ndarray) -> ArrayOutput:
-        """One tick: ``raw`` in the array's sensor order."""
+    def run(self, t: np.ndarray, raw: np.ndarray) -> ArrayOutput:
+        """Ticks ``t`` (rows of ``raw``, the array's sensor order): every field one row per
+        tick."""
         if not self.kernels:
             return self._loop(t, raw)
-        for idx, kern in self.kernels:
-            TICKS[type(kern)](t, idx, raw, self.par, self.held, self.counts, self.states,
-                              self.gap_reset, self.model_out, self.status, self.reset,
-                              self.band, self.x, kern.state, kern.params)
-        status = self.status.copy()
-        if self.effects:
-            self._effects(t, raw)
-        return ArrayOutput(self.held[:, _STRAIN].copy(),
-                           self.held[:, _DIRECTION].astype(np.int8), status,
-                           status == sc.OUT_OF_RANGE,
-                           self.held[:, _STD].copy() if self.banded else None)
+        n, k = t.size, len(self.names)
+        out = np.empty((n, 3, k))
+        status = np.empty((n, k), dtype=np.int8)
+        for a, b in ([(i, i + 1) for i in range(n)] if self.effects else [(0, n)]):
+            for idx, kern in self.kernels:
+                TICKS[type(kern)](t[a:b], idx, raw[a:b], self.par, self.held, self.counts,
+                                  self.states, self.gap_reset, self.model_out, self.status,
+                                  self.reset, self.band, self.x, kern.state, kern.params,
+                                  out[a:b], status[a:b])
+            if self.effects:  # the effect terms of this tick, then its outputs again
+                self._effects(float(t[a]), raw[a])
+                out[a, 0], out[a, 2] = self.held[:, _STRAIN], self.held[:, _STD]
+        return ArrayOutput(out[:, 0], out[:, 1].astype(np.int8), status,
+                           status == sc.OUT_OF_RANGE, out[:, 2] if self.banded else None)
 
-    def _loop(self, t: float, raw: np.ndarray) -> ArrayOutput:
-        """One tick as a batch of one of each sensor (``run_together``: cross-talk terms
-        read the neighbours' clamped pre-effect estimate of this tick)."""
-        outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), [t],
-                                 raw[None, :], {}, self.gap_reset, self.latest).values())
-        banded = any(s.weights is not None for s in self.sensors)
-        return ArrayOutput(np.concatenate([o.strain for o in outs]),
-                           np.concatenate([o.direction for o in outs]).astype(np.int8),
-                           np.concatenate([o.status for o in outs]).astype(np.int8),
-                           np.concatenate([o.out_of_range for o in outs]),
-                           np.concatenate([o.std if o.std is not None else [math.nan]
-                                           for o in outs]) if banded else None)
+    def _loop(self, t: np.ndarray, raw: np.ndarray) -> ArrayOutput:
+        """Ticks as a batch of each sensor (``run_together``: cross-talk terms read the
+        neighbours' clamped pre-effect estimate of the same tick)."""
+        outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
+                                 {}, self.gap_reset, self.latest).values())
+        nan = np.full(t.size, math.nan)
+        return ArrayOutput(np.column_stack([o.strain for o in outs]),
+                           np.column_stack([o.direction for o in outs]).astype(np.int8),
+                           np.column_stack([o.status for o in outs]).astype(np.int8),
+                           np.column_stack([o.out_of_range for o in outs]),
+                           np.column_stack([nan if o.std is None else o.std for o in outs])
+                           if self.banded else None)
 
     def _effects(self, t: float, raw: np.ndarray) -> None:
         """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""

@@ -194,17 +194,25 @@ class Engine:
                             temperature or {}, self._gap_reset, self.base_strain)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
-        """One tick of an array."""
+        """One tick of an array (``run_ticks`` of one)."""
+        out = self.run_ticks(array, [t], np.asarray(r_vector, dtype=np.float64)[None, ...])
+        return ArrayOutput(out.strain[0], out.direction[0], out.status[0],
+                           out.out_of_range[0], None if out.std is None else out.std[0])
+
+    def run_ticks(self, array: str, t: npt.ArrayLike, r: npt.ArrayLike) -> ArrayOutput:
+        """Ticks of an array registered at construction: ``t`` (n,), ``r`` (n, sensors) in
+        the array's sensor order; every field of the output one row per tick."""
         try:
             group = self._arrays[array]
         except KeyError:
             raise InputError(f"unknown array {array!r} (known: {', '.join(self._arrays)})") \
                 from None
-        raw = np.asarray(r_vector, dtype=np.float64)
-        if raw.shape != (len(group.names),):
+        times = np.ascontiguousarray(t, dtype=np.float64)
+        raw = np.ascontiguousarray(r, dtype=np.float64)
+        if times.ndim != 1 or raw.shape != (times.size, len(group.names)):
             raise InputError(f"array {array!r}: expected {len(group.names)} values, "
-                             f"got shape {raw.shape}")
-        return group.step(float(t), raw)
+                             f"got shape {raw.shape[1:]}")
+        return group.run(times, raw)
 
     def health(self, now: float | None = None) -> dict[str, SensorHealth]:
         """Copies of every sensor's counters."""
