@@ -110,7 +110,7 @@ class LiveCompensator:
         """Publish-rate limit on message time: of the ``candidates`` at times ``t``, those
         published (at most one output per 1/rate seconds)."""
         rate = self.tunables["publish_rate_limit_hz"]
-        due = candidates.copy()
+        due: np.ndarray = np.array(candidates, dtype=bool)
         if rate <= 0.0:
             if due.any():
                 self._last_publish[name] = float(t[np.flatnonzero(due)[-1]])
@@ -191,10 +191,11 @@ class LiveCompensator:
         if t.size > 1 and (name in self.taring.start or self.starting.series):
             parts = [self.on_arrays(name, t[i:i + 1], values[i:i + 1])
                      for i in range(t.size)]
-            std = [p[0].std for p in parts]
-            return (ArrayOutput(*(np.concatenate([getattr(p[0], f) for p in parts]) for f in
-                                  ("strain", "direction", "status", "out_of_range")),
-                                None if std[0] is None else np.concatenate(std)),
+            def rows(field: str) -> np.ndarray:
+                return np.concatenate([getattr(p[0], field) for p in parts])
+            return (ArrayOutput(rows("strain"), rows("direction"), rows("status"),
+                                rows("out_of_range"),
+                                None if parts[0][0].std is None else rows("std")),
                     np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts]))
         out = self.engine.run_ticks(name, t, values)
         for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):

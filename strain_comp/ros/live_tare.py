@@ -127,7 +127,9 @@ class LiveTare:
         sample at a time while one is pending: the caller feeds one)."""
         self.recent[name].add(t, raw, status)
         start = self.start.get(name)
-        for i in range(t.size if start is not None else 0):
+        if start is None:
+            return
+        for i in range(t.size):
             self._starting(name, float(t[i]), start, raw[i], status[i], direction[i])
 
     def _starting(self, name: str, t: float, start: _StartLog, raw: np.ndarray,
