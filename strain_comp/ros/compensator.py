@@ -30,6 +30,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.subscription import Subscription
 from rclpy.time_source import USE_SIM_TIME_NAME as USE_SIM_TIME
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64, Float64MultiArray, Int8
@@ -50,7 +51,7 @@ from strain_comp.ros.params import (
     parse_values,
     structural_specs,
 )
-from strain_comp.ros.rclpy_typed import logger, parameter
+from strain_comp.ros.rclpy_typed import destroy, logger, parameter
 
 INPUT_DEPTH = 200
 """Inputs are best effort (sensor-data QoS) keeping the latest 200 messages: 200 ms of a
@@ -90,6 +91,10 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
 
 FLOAT64, INT8 = ScalarEncoder("<f8"), ScalarEncoder("i1")
 """A single sensor's ``strain`` (and ``strain_std``) and ``direction``, serialised."""
+
+
+def _taken_later(msg: Any) -> None:
+    """The intake subscriptions' callback, never called: no executor spins their node."""
 
 
 def _one_line(error: BaseException) -> str:
@@ -136,6 +141,14 @@ class CompensatorNode(Node):
             i.name: ([], []) for i in params.inputs}
         """Per input, the stamps [ns] and values of the messages not yet handled."""
         self._pubs: dict[str, list[Publisher]] = {}
+        self._intake = None if self.get_parameter(USE_SIM_TIME).value else Node(
+            f"{node_name}_intake", namespace=self.get_namespace(), context=self.context,
+            start_parameter_services=False, enable_rosout=False)
+        """On the system clock, the node holding the input subscriptions, spun by no
+        executor: ``_flush`` takes what arrived (stamped with its reception time), so an
+        input message wakes no executor (under sim time the inputs wait for their /clock
+        tick through the gate, so they are subscribed on this node)."""
+        self._takes: list[tuple[str, Reader, Subscription]] = []
         ready = [self._connect(i.name) for i in params.inputs]
         self.create_timer(BATCH_PERIOD_S, self._flush,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -169,8 +182,13 @@ class CompensatorNode(Node):
                                            OUTPUT_DEPTH)]
         self._pubs[name] = pubs
         reader = self._read_array if inp.is_array else self._read_sensor
-        sub = self.create_subscription(kind, inp.topic, partial(self._arrive, name, reader),
-                                       input_qos)
+        if self._intake is None:
+            sub = self.create_subscription(kind, inp.topic,
+                                           partial(self._arrive, name, reader), input_qos)
+        else:
+            sub = self._intake.create_subscription(kind, self.resolve_topic_name(inp.topic),
+                                                   _taken_later, input_qos)
+            self._takes.append((name, reader, sub))
         if not inp.is_array:  # the array tick has no temperature input
             self.create_subscription(Temperature, f"{name}/temperature",
                                      partial(self._on_temperature, name),
@@ -186,6 +204,13 @@ class CompensatorNode(Node):
                 f"{pubs[0].topic_name}")
 
     # --- what goes wrong ------------------------------------------------------------------
+
+    def destroy_node(self) -> None:
+        """The node and its intake node."""
+        if self._intake is not None:
+            destroy(self._intake)
+        own: Callable[[], None] = super().destroy_node
+        own()
 
     def _refuse(self, name: str, reason: str) -> None:
         """A message (or /clock tick) refused for what it carries: counted, logged."""
@@ -329,8 +354,12 @@ class CompensatorNode(Node):
         return self.live.array_row(name, data, offset=offset, sizes=sizes, label=label)
 
     def _flush(self) -> None:
-        """Handle every queued message, one batch per input, and publish each sample's
-        outputs."""
+        """Handle every message that arrived, one batch per input, and publish each
+        sample's outputs."""
+        for name, reader, sub in self._takes:
+            with sub.handle:
+                while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                    self._queue(name, taken[1]["received_timestamp"], reader, taken[0])
         for name, (stamps, values) in self._queued.items():
             if stamps:
                 self._queued[name] = ([], [])
