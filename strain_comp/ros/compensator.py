@@ -60,12 +60,6 @@ INPUT_DEPTH = 200
 queuing without bound."""
 OUTPUT_DEPTH = 100
 """Outputs are reliable, keeping 100 messages for a subscriber not scheduled in time."""
-BATCH_PERIOD_S = 0.002
-"""Inputs that arrived are handled together, as one batch per input, every this many
-seconds of the steady clock (and before anything that reads or changes the state: a
-service, a parameter, a temperature, a reference, diagnostics, a reload): at 1 kHz the
-per-message cost of the engine's path is most of the node's CPU. Each input sample still
-gets its own outputs, stamped with its own time."""
 LOG_THROTTLE_S = 5.0
 """A refusal or a program error of one kind is logged at most once per this many seconds."""
 
@@ -150,7 +144,7 @@ class CompensatorNode(Node):
         tick through the gate, so they are subscribed on this node)."""
         self._takes: list[tuple[str, Reader, Subscription]] = []
         ready = [self._connect(i.name) for i in params.inputs]
-        self.create_timer(BATCH_PERIOD_S, self._flush,
+        self.create_timer(self.live.tunables["batch_period_s"], self._flush,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
@@ -278,6 +272,7 @@ class CompensatorNode(Node):
         names = list(self.gate.held)
         for name, (stamp, (reader, msg)) in zip(names, self.gate.tick(now), strict=True):
             self._queue(name, stamp, reader, msg)
+        self._flush()
 
     # --- parameters -----------------------------------------------------------------------
 
@@ -321,19 +316,15 @@ class CompensatorNode(Node):
     # --- messages -------------------------------------------------------------------------
 
     def _arrive(self, name: str, reader: Reader, msg: Any) -> None:
-        """A resistance message: queued with its stamp now (system time), or once the sim
-        clock moves; handled with the others of its input by ``_flush``."""
+        """Under sim time, a resistance message: queued once its /clock tick has come (the
+        gate), stamped with it, and handled at once (a bag played in lockstep waits for
+        each answer). On the system clock the intake node takes the inputs instead."""
         if self._loaded is not None:
             self._adopt()
-        clock = self.get_clock()
-        if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
-            # the system time, which the ROS clock reads without /clock (cheaper than
-            # clock.now() at 1 kHz)
-            self._queue(name, time.time_ns(), reader, msg)
-            return
-        now = clock.now().nanoseconds
+        now = self.get_clock().now().nanoseconds
         for stamp, (r, m) in self.gate.arrive(name, now, (reader, msg)):
             self._queue(name, stamp, r, m)
+        self._flush()
 
     def _queue(self, name: str, stamp: int, reader: Reader, msg: Any) -> None:
         """A message read (or refused for what it carries) and queued with its stamp."""
@@ -355,7 +346,10 @@ class CompensatorNode(Node):
 
     def _flush(self) -> None:
         """Handle every message that arrived, one batch per input, and publish each
-        sample's outputs."""
+        sample's outputs: every ``batch_period_s`` of the steady clock (at 1 kHz the
+        per-message cost of the engine's path and of the executor's wake-ups is most of
+        the node's CPU), and before anything that reads or changes the state (a service,
+        a parameter, a temperature, a reference, diagnostics, a reload)."""
         for name, reader, sub in self._takes:
             with sub.handle:
                 while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
