@@ -383,8 +383,8 @@ def test_array_layout_honoured_or_refused(array: Harness) -> None:
                                    [f"x{i}" for i in range(256)]])
 def test_output_bytes_decode_as_their_messages(names: list[str]) -> None:
     """The node's hand-built CDR of ``strain_stamped``, of an array's ``strain`` and of a
-    sensor's ``strain`` and ``direction`` is what rclpy's own type support reads: names, stamp, values, empty velocity and effort; the
-    layout labelled with the names."""
+    sensor's ``strain`` and ``direction`` is what rclpy's own type support reads: names,
+    stamp, values, empty velocity and effort; the layout labelled with the names."""
     from rclpy.serialization import deserialize_message
 
     from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
