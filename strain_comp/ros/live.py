@@ -5,8 +5,10 @@ parameters, compiles its kernels at start-up (not on the first message), reads a
 Float64MultiArray's layout, applies the publish-rate limit and tunable changes, keeps the
 recent good samples the tare needs (``live_tare``), and turns health into diagnostic
 statuses. The node only moves messages, so a bag played through it gives what ``replay``
-gives. Every input is stamped with the node's clock when its callback runs (ROS time, i.e.
-/clock under ``use_sim_time``; ``clock_gate``).
+gives. Every input is stamped with the node's clock on arrival (its reception time on the
+system clock; /clock under ``use_sim_time``, ``clock_gate``); the node hands the inputs
+that arrived to ``on_sensors`` / ``on_arrays`` as one batch per input, the engine's batch
+path, each sample with its own outputs.
 
 Known strains (``fuse_references: true``; ``strain_comp.core.fusion``; docs/ros.md, "Known
 strains"): a reference on ``NAME/strain_reference`` (``on_reference``), on
