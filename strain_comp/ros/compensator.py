@@ -327,15 +327,14 @@ class CompensatorNode(Node):
         self._flush()
 
     def _queue(self, name: str, stamp: int, reader: Reader, msg: Any) -> None:
-        """A message read (or refused for what it carries) and queued with its stamp."""
-        try:
+        """A message read and queued with its stamp (refused for what it carries, or a
+        program error counted, by ``_guarded``)."""
+        def read() -> None:
             value = reader(name, msg)
-        except StrainCompError as err:
-            self._refuse(name, str(err))
-            return
-        stamps, values = self._queued[name]
-        stamps.append(stamp)
-        values.append(value)
+            stamps, values = self._queued[name]
+            stamps.append(stamp)
+            values.append(value)
+        self._guarded(name, read)
 
     def _read_sensor(self, name: str, msg: Any) -> float:
         return sensor_value(msg)
