@@ -350,14 +350,18 @@ class CompensatorNode(Node):
         the node's CPU), and before anything that reads or changes the state (a service,
         a parameter, a temperature, a reference, diagnostics, a reload)."""
         for name, reader, sub in self._takes:
-            with sub.handle:
-                while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
-                    self._queue(name, taken[1]["received_timestamp"], reader, taken[0])
+            self._guarded(name, partial(self._take, name, reader, sub))
         for name, (stamps, values) in self._queued.items():
             if stamps:
                 self._queued[name] = ([], [])
                 self._guarded(name, partial(self._handle, name, stamps, values))
         self._log_tare()
+
+    def _take(self, name: str, reader: Reader, sub: Subscription) -> None:
+        """Queue what arrived on the intake subscription ``sub`` of input ``name``."""
+        with sub.handle:
+            while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                self._queue(name, taken[1]["received_timestamp"], reader, taken[0])
 
     def _handle(self, name: str, stamps: list[int], values: list[Any]) -> None:
         """A batch of input ``name``'s messages through the compensator; the outputs of the
