@@ -1,19 +1,19 @@
-"""Sensors sampled together (an array topic), stepped as one tick (docs/design.md,
-"Arrays").
+"""Sensors sampled together (an array topic), run as ticks (docs/design.md, "Arrays").
 
 When every sensor's model belongs to a family with an array form (registered in
 ``strain_comp.base.registry``: ``strain_comp.models.apl_array.APLArray``, same N and M;
 ``strain_comp.models.creep_pi.CreepPIArray``, same numbers of play operators and time
-constants) and no sensor's input is corrected, one tick is one numba call per family:
-``family_tick`` bound to the family's per-sensor kernel (``strain_comp.base.lift``), a
-thin loop over the family's sensors of the shared stages ``sensor_front`` (input fix,
-screen, counts, detector reset on a gap; the stage kernels of ``strain_comp.core.stages``),
-the gap reset of the model's state rows, the model read, the family's kernel, then
-``sensor_back`` (detector, range, hold): the lifted form of the per-sample path. An array
-mixing families runs each family's tick over its own sensors. The group then keeps the
-array's state, counters and held outputs itself, and its sensors should not also be fed
-through ``Engine.step``. Sensors with effect terms are corrected after the kernels, one by
-one (the slower path). Otherwise a tick is a loop of the per-sample path over the sensors.
+constants) and no sensor's input is corrected, a batch of ticks is one numba call per
+family: ``family_tick`` bound to the family's per-sensor kernel (``strain_comp.base.lift``),
+a loop over the ticks and, within each, a thin loop over the family's sensors of the shared
+stages ``sensor_front`` (input fix, screen, counts, detector reset on a gap; the stage
+kernels of ``strain_comp.core.stages``), the gap reset of the model's state rows, the model
+read, the family's kernel, then ``sensor_back`` (detector, range, hold): the lifted form of
+the per-sample path. One tick (``Engine.step_array``) is a batch of one. An array mixing
+families runs each family's ticks over its own sensors. The group then keeps the array's
+state, counters and held outputs itself, and its sensors should not also be fed through
+``Engine.step``. Sensors with effect terms are corrected after the kernels, tick by tick
+(the slower path). Otherwise the ticks are each sensor's batch path (``run_together``).
 """
 
 from __future__ import annotations
@@ -32,10 +32,10 @@ from strain_comp.base.lift import LiftedArray, kernel
 from strain_comp.base.registry import array_families
 from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
-from strain_comp.core.outputs import ArrayOutput, SensorOutput
-from strain_comp.core.sensor import Latest, Pending, SensorState
+from strain_comp.core.outputs import ArrayOutput
+from strain_comp.core.sensor import Latest, SensorState, run_together
 from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
-from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_one
+from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_run
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
 
@@ -95,26 +95,32 @@ def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
     held[k, _LAST_GOOD_T] = t
 
 
-def family_tick(t: float, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
+def family_tick(t: np.ndarray, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
                 held: np.ndarray, counts: np.ndarray, det: np.ndarray, gap: float,
                 model_out: np.ndarray, status: np.ndarray, reset: np.ndarray,
                 band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
-                params: tuple[Any, ...]) -> None:
-    """Template: one tick of the array's sensors of one family, around the family's kernel
-    (``strain_comp.base.lift``). A gap reset zeroes the sensor's state rows (a sensor at
-    rest)."""
+                params: tuple[Any, ...], out: np.ndarray, out_status: np.ndarray) -> None:
+    """Template: ticks ``t`` (rows of ``raw``) of the array's sensors of one family, around
+    the family's kernel (``strain_comp.base.lift``); after each, the held strain,
+    direction and standard deviation of these sensors into ``out[i, :, k]`` and their
+    status into ``out_status[i, k]``. A gap reset zeroes the sensor's state rows (a sensor
+    at rest)."""
     arrays = state + params
-    for j in range(idx.size):
-        k = idx[j]
-        ohm, used = sensor_front(k, t, raw, par, held, counts, det, gap, model_out, status,
-                                 reset)
-        if not used:
-            continue
-        if reset[k]:
-            for rows in state:
-                rows[j, :] = 0.0
-        estimate = kernel(j, t, model_read(ohm, par[k, _RANGE:]), *arrays)
-        sensor_back(k, t, ohm, estimate, par, held, det, model_out, band, x)
+    for i in range(t.size):
+        for j in range(idx.size):
+            k = idx[j]
+            ohm, used = sensor_front(k, t[i], raw[i], par, held, counts, det, gap, model_out,
+                                     status, reset)
+            if used:
+                if reset[k]:
+                    for rows in state:
+                        rows[j, :] = 0.0
+                estimate = kernel(j, t[i], model_read(ohm, par[k, _RANGE:]), *arrays)
+                sensor_back(k, t[i], ohm, estimate, par, held, det, model_out, band, x)
+            out[i, 0, k] = held[k, _STRAIN]
+            out[i, 1, k] = held[k, _DIRECTION]
+            out[i, 2, k] = held[k, _STD]
+            out_status[i, k] = status[k]
 
 
 @functools.cache
@@ -158,6 +164,7 @@ class ArrayGroup:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
         every = self._all()
         self.sensors = [every[n] for n in self.names]
+        self.banded = any(s.weights is not None for s in self.sensors)
         self.kernels = []
         if not all(not s.cal.input.filtered and s.cal.input.zero_span is None
                    and s.cal.sample_interval is None for s in self.sensors):
@@ -185,7 +192,6 @@ class ArrayGroup:
         self.held[:, _STD] = math.nan
         self.band = np.full((k, BAND_SIZE), math.nan)
         self.x = np.empty(N_FEATURES)
-        self.banded = any(s.weights is not None for s in self.sensors)
         self.held[:, _LAST_STATUS] = -1
         self.counts = np.zeros((k, len(Status) + 1), dtype=np.int64)
         self.states = np.zeros((k, STATE_SIZE))
@@ -207,38 +213,38 @@ class ArrayGroup:
         self.par[:, _DEADZONE] = [s.cal.direction.deadzone * scale for s in self.sensors]
         self.states[:] = 0.0
 
-    def step(self, t: float, raw: np.ndarray) -> ArrayOutput:
-        """One tick: ``raw`` in the array's sensor order."""
+    def run(self, t: np.ndarray, raw: np.ndarray) -> ArrayOutput:
+        """Ticks ``t`` (rows of ``raw``, the array's sensor order): every field one row per
+        tick."""
         if not self.kernels:
             return self._loop(t, raw)
-        for idx, kern in self.kernels:
-            family_tick_of(type(kern))(t, idx, raw, self.par, self.held, self.counts, self.states,
-                              self.gap_reset, self.model_out, self.status, self.reset,
-                              self.band, self.x, kern.state, kern.params)
-        status = self.status.copy()
-        if self.effects:
-            self._effects(t, raw)
-        return ArrayOutput(self.held[:, _STRAIN].copy(),
-                           self.held[:, _DIRECTION].astype(np.int8), status,
-                           status == sc.OUT_OF_RANGE,
-                           self.held[:, _STD].copy() if self.banded else None)
+        n, k = t.size, len(self.names)
+        out = np.empty((n, 3, k))
+        status = np.empty((n, k), dtype=np.int8)
+        for a, b in ([(i, i + 1) for i in range(n)] if self.effects else [(0, n)]):
+            for idx, kern in self.kernels:
+                family_tick_of(type(kern))(t[a:b], idx, raw[a:b], self.par, self.held, self.counts,
+                                  self.states, self.gap_reset, self.model_out, self.status,
+                                  self.reset, self.band, self.x, kern.state, kern.params,
+                                  out[a:b], status[a:b])
+            if self.effects:  # the effect terms of this tick, then its outputs again
+                self._effects(float(t[a]), raw[a])
+                out[a, 0], out[a, 2] = self.held[:, _STRAIN], self.held[:, _STD]
+        return ArrayOutput(out[:, 0], out[:, 1].astype(np.int8), status,
+                           status == sc.OUT_OF_RANGE, out[:, 2] if self.banded else None)
 
-    def _loop(self, t: float, raw: np.ndarray) -> ArrayOutput:
-        """One tick as the per-sample path of each sensor (cross-talk terms read the
-        neighbours' clamped pre-effect estimate of this tick)."""
-        pending = [s.step_model(t, float(value), self.gap_reset)
-                   for s, value in zip(self.sensors, raw, strict=True)]
-        bases = {name: p.base(s) if isinstance(p, Pending) else math.nan
-                 for name, s, p in zip(self.names, self.sensors, pending, strict=True)}
-        outputs = [p if isinstance(p, SensorOutput) else
-                   s.step_finish(p, math.nan, self.latest, bases)
-                   for s, p in zip(self.sensors, pending, strict=True)]
-        banded = any(s.weights is not None for s in self.sensors)
-        return ArrayOutput(np.array([o.strain for o in outputs]),
-                           np.array([o.direction for o in outputs], dtype=np.int8),
-                           np.array([o.status for o in outputs], dtype=np.int8),
-                           np.array([o.out_of_range for o in outputs]),
-                           np.array([o.std for o in outputs]) if banded else None)
+    def _loop(self, t: np.ndarray, raw: np.ndarray) -> ArrayOutput:
+        """Ticks as a batch of each sensor (``run_together``: cross-talk terms read the
+        neighbours' clamped pre-effect estimate of the same tick)."""
+        outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
+                                 {}, self.gap_reset, self.latest).values())
+        nan = np.full(t.size, math.nan)
+        return ArrayOutput(np.column_stack([o.strain for o in outs]),
+                           np.column_stack([o.direction for o in outs]).astype(np.int8),
+                           np.column_stack([o.status for o in outs]).astype(np.int8),
+                           np.column_stack([o.out_of_range for o in outs]),
+                           np.column_stack([nan if o.std is None else o.std for o in outs])
+                           if self.banded else None)
 
     def _effects(self, t: float, raw: np.ndarray) -> None:
         """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""
@@ -258,9 +264,9 @@ class ArrayGroup:
                 self.latest, nbrs)
             self.held[i, _STRAIN] = bound(float(ohm[0]), float(strain[0]), s.limits.row)
             if s.weights is not None:  # again on the corrected strain (the same state)
-                self.held[i, _STD] = std_one(t, self.held[i, _DIRECTION], float(ohm[0]),
-                                             self.held[i, _STRAIN], self.band[i],
-                                             s.limits.row, s.weights)
+                self.held[i, _STD] = std_run(
+                    np.array([t]), self.held[i:i + 1, _DIRECTION], ohm,
+                    self.held[i:i + 1, _STRAIN], self.band[i], s.limits.row, s.weights)[0]
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``fused``)."""

@@ -5,8 +5,7 @@ replayed through the node logic gives the numbers ``replay`` gives (docs/design.
 engine"). The engine holds one ``strain_comp.core.sensor.SensorState`` per sensor and one
 ``strain_comp.core.array.ArrayGroup`` per array; the per-sample stages are
 ``strain_comp.core.stages``, the out-of-range policy ``strain_comp.core.range_policy``.
-``run`` (batch) equals repeated ``step`` exactly, and ``run_array`` equals ``step_array``
-tick by tick.
+``step`` is ``run`` on a batch of one: there is one per-sample path.
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.health import SensorHealth
 from strain_comp.core.outputs import ArrayOutput, BatchOutput, SensorOutput
 from strain_comp.core.range_policy import DEFAULT_OUT_OF_RANGE, OUT_OF_RANGE_MODES
-from strain_comp.core.sensor import SensorState, scaled
+from strain_comp.core.sensor import SensorState, run_together, scaled
 from strain_comp.errors import InputError, ParameterError
 
 GAP_RESET = sc.DEFAULT_GAP_RESET
@@ -165,17 +164,18 @@ class Engine:
         return math.nan if other is None else other.latest_base()
 
     def step(self, sensor: str, t: float, r: float, temperature: float = math.nan) -> SensorOutput:
-        """One sample of one sensor."""
-        s = self._sensor(sensor)
-        pending = s.step_model(float(t), float(r), self._gap_reset)
-        if isinstance(pending, SensorOutput):
-            return pending
-        return s.step_finish(pending, float(temperature), self.base_strain)
+        """One sample of one sensor: ``run`` on a batch of one."""
+        out = self.run(sensor, [t], [r], None if math.isnan(temperature) else [temperature])
+        std = math.nan if out.std is None else float(out.std[0])
+        status = sc.Status(int(out.status[0]))
+        return SensorOutput(float(out.strain[0]), int(out.direction[0]), status,
+                            bool(out.out_of_range[0]),
+                            float(out.resistance[0]) if status in sc.USED else math.nan, std)
 
     def run(self, sensor: str, t: npt.ArrayLike, r: npt.ArrayLike,
             temperature: npt.ArrayLike | None = None, *,
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> BatchOutput:
-        """Batch path over whole arrays; identical to ``step`` sample by sample."""
+        """One sensor over a batch (the engine's one per-sample path)."""
         s = self._sensor(sensor)
         pending = s.run_model(t, r, temperature, self._gap_reset)
         nbrs = ({n: np.asarray(v, dtype=np.float64) for n, v in neighbours.items()}
@@ -185,32 +185,34 @@ class Engine:
     def run_array(self, sensors: Sequence[str], t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: Mapping[str, npt.ArrayLike | None] | None = None
                   ) -> dict[str, BatchOutput]:
-        """Batch path for sensors sampled together (an array topic). Equal, tick by tick, to
-        ``step_array``: every cross-talk term reads its neighbours' clamped pre-effect estimate
-        of the same tick."""
+        """Batch path for sensors sampled together (an array topic): every cross-talk term
+        reads its neighbours' clamped pre-effect estimate of the same tick."""
         r = np.asarray(r, dtype=np.float64)
         if r.ndim != 2 or r.shape[1] != len(sensors):
             raise InputError(f"run_array: r must be (n, {len(sensors)}), got shape {r.shape}")
-        temps = temperature or {}
-        pending = {name: self._sensor(name).run_model(t, r[:, j], temps.get(name),
-                                                      self._gap_reset)
-                   for j, name in enumerate(sensors)}
-        bases = {name: p.base(self._sensors[name]) for name, p in pending.items()}
-        return {name: self._sensors[name].run_finish(p, self.base_strain, bases)
-                for name, p in pending.items()}
+        return run_together({name: self._sensor(name) for name in sensors}, t, r,
+                            temperature or {}, self._gap_reset, self.base_strain)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
-        """One tick of an array."""
+        """One tick of an array (``run_ticks`` of one)."""
+        out = self.run_ticks(array, [t], np.asarray(r_vector, dtype=np.float64)[None, ...])
+        return ArrayOutput(out.strain[0], out.direction[0], out.status[0],
+                           out.out_of_range[0], None if out.std is None else out.std[0])
+
+    def run_ticks(self, array: str, t: npt.ArrayLike, r: npt.ArrayLike) -> ArrayOutput:
+        """Ticks of an array registered at construction: ``t`` (n,), ``r`` (n, sensors) in
+        the array's sensor order; every field of the output one row per tick."""
         try:
             group = self._arrays[array]
         except KeyError:
             raise InputError(f"unknown array {array!r} (known: {', '.join(self._arrays)})") \
                 from None
-        raw = np.asarray(r_vector, dtype=np.float64)
-        if raw.shape != (len(group.names),):
+        times = np.ascontiguousarray(t, dtype=np.float64)
+        raw = np.ascontiguousarray(r, dtype=np.float64)
+        if times.ndim != 1 or raw.shape != (times.size, len(group.names)):
             raise InputError(f"array {array!r}: expected {len(group.names)} values, "
-                             f"got shape {raw.shape}")
-        return group.step(float(t), raw)
+                             f"got shape {raw.shape[1:]}")
+        return group.run(times, raw)
 
     def health(self, now: float | None = None) -> dict[str, SensorHealth]:
         """Copies of every sensor's counters."""
@@ -239,7 +241,6 @@ class Engine:
                        deadzone_scale=self.deadzone_scale)
         mid = {name: s.mid_raw() for name, s in spare._sensors.items()}
         for name, value in mid.items():
-            spare.step(name, 0.0, value)
             spare.run(name, np.array([1.0, 2.0]), np.array([value, value]))
         for array, names in spare.arrays.items():
             spare.step_array(array, 3.0, np.array([mid[n] for n in names]))

@@ -7,9 +7,8 @@ screening (``strain_comp.base.samples.screen_one``); a gap reset of model, detec
 effect terms; the input corrections (``input.filtered``: pair means, spikes, baseline
 steps; ``strain_comp.core.chain``); the detector and the model (reading ``model_read``);
 the effect terms (``strain_comp.core.effects``) on the clamped estimate; the range stage
-(``bound``); the hold. ``step_model`` / ``step_finish`` run one sample, ``run_model`` /
-``run_finish`` a batch through the same stages (lifted), so ``run`` equals repeated
-``step`` exactly.
+(``bound``); the hold. ``run_model`` / ``run_finish`` run a batch through them; one sample
+is a batch of one (``Engine.step``), so there is one path.
 """
 
 from __future__ import annotations
@@ -33,38 +32,14 @@ from strain_comp.core.chain import DESPIKE_K, SPIKE, STEP, ChainCorrector, pair_
 from strain_comp.core.correction import Correction
 from strain_comp.core.effects import EffectTerms, run_segments
 from strain_comp.core.health import STATUSES, SensorHealth, add_counts
-from strain_comp.core.outputs import BatchOutput, SensorOutput
+from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.range_policy import SensorRange
-from strain_comp.core.stages import (
-    bound,
-    bound_all,
-    divider_all,
-    divider_ohm,
-    hold,
-    model_read,
-    range_status,
-    screen_batch,
-)
-from strain_comp.core.uncertainty import std_one, std_run
+from strain_comp.core.stages import bound_all, divider_all, hold, range_status, screen_batch
+from strain_comp.core.uncertainty import std_run
 from strain_comp.errors import InputError
 
 Latest = Callable[[str], float]
 """A sensor name -> its latest clamped pre-effect strain (what cross-talk terms read)."""
-
-
-@dataclass
-class Pending:
-    """One used sample after screening, model and detector, before the effect terms."""
-
-    t: float
-    r: float
-    status: Status
-    strain: float
-    direction: int
-
-    def base(self, sensor: SensorState) -> float:
-        """The clamped pre-effect estimate (what neighbours' cross-talk terms read)."""
-        return min(max(self.strain, sensor.limits.s_lo), sensor.limits.s_hi)
 
 
 @dataclass
@@ -177,12 +152,6 @@ class SensorState:
         ohm, forced = divider_all(raw, *self.cal.input.divider())
         return self.correction.apply_input(ohm, self.gain), forced
 
-    def one_ohm(self, raw: float) -> tuple[float, int]:
-        """``to_ohm`` of one raw value (the input-fix stage on one sample)."""
-        if self.cal.input.kind != "divider":
-            return self.correction.apply_input(raw, self.gain), sc.GOOD
-        ohm, forced = divider_ohm(raw, *self.cal.input.divider())
-        return self.correction.apply_input(ohm, self.gain), forced
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
@@ -221,54 +190,6 @@ class SensorState:
     def latest_base(self) -> float:
         """The latest clamped strain before the effect terms (NaN before any)."""
         return self.base if self.cal.effects else self.strain
-
-    def step_model(self, t: float, raw: float, gap_reset: float) -> SensorOutput | Pending:
-        """Input fix, screening, gap reset, input corrections, detector and model of one
-        sample (a bad one: its held output)."""
-        ohm, forced = self.one_ohm(raw)
-        lim = self.limits
-        code, reset = screen_one(t, ohm, forced, self.last_good_t, lim.r_short, lim.r_open,
-                                 lim.r_lo, lim.r_hi, sc.gap_for(self.cal.sample_interval,
-                                                                gap_reset))
-        status = Status(code)
-        h = self.health
-        if status not in USED:
-            h.count(status)
-            h.last_status = status
-            return SensorOutput(self.strain, self.direction, status, False, std=self.std)
-        if reset:
-            self.reset_state()
-            h.n_gaps += 1
-        if self.cal.input.filtered:
-            ohm = float(self.pair(np.array([t]), np.array([ohm]),
-                                  math.nan if reset else self.previous)[0][0])
-            status = Status(int(range_status(np.array([ohm]), np.array([reset]),
-                                             lim.r_lo, lim.r_hi)[0]))
-        direction = int(self.detector.step(t, ohm)) * self.cal.direction.sign
-        strain = float(self.model.step(t, model_read(ohm, lim.row)))
-        return Pending(t, ohm, status, strain, direction)
-
-    def step_finish(self, p: Pending, temperature: float, latest: Latest,
-                    neighbours: Mapping[str, float] | None = None) -> SensorOutput:
-        """Effect terms, range, held output and counters of one used sample."""
-        t, ohm, status, strain, direction = p.t, p.r, p.status, p.strain, p.direction
-        if self.cal.effects:
-            nbrs = {n: np.array([v]) for n, v in (neighbours or {}).items()}
-            strain = float(self.apply_effects(np.array([t]), np.array([ohm]),
-                                              np.array([strain]), np.array([direction]),
-                                              np.array([temperature]), latest, nbrs)[0])
-        strain = bound(ohm, strain, self.limits.row)
-        if self.weights is not None:
-            self.std = std_one(t, direction, ohm, strain, self.band, self.limits.row,
-                               self.weights)
-        h = self.health
-        self.last_good_t = t
-        self.strain, self.direction = strain, direction
-        h.count(status)
-        h.last_good_t = t
-        h.last_status = status
-        return SensorOutput(strain, direction, status, status is Status.OUT_OF_RANGE, ohm,
-                            self.std)
 
     def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:
@@ -349,6 +270,18 @@ class SensorState:
             corrections[idx] = p.corrections
         return BatchOutput(strain, direction, status, out_of_range, p.ohm, reset, corrections,
                            std)
+
+
+def run_together(sensors: Mapping[str, SensorState], t: npt.ArrayLike, r: np.ndarray,
+                 temperature: Mapping[str, npt.ArrayLike | None], gap_reset: float,
+                 latest: Latest) -> dict[str, BatchOutput]:
+    """Sensors sampled together (``r``: one column per sensor, in ``sensors``' order) over a
+    batch: every cross-talk term reads its neighbours' clamped pre-effect estimate of the
+    same tick."""
+    pending = {name: s.run_model(t, r[:, j], temperature.get(name), gap_reset)
+               for j, (name, s) in enumerate(sensors.items())}
+    bases = {name: p.base(sensors[name]) for name, p in pending.items()}
+    return {name: sensors[name].run_finish(p, latest, bases) for name, p in pending.items()}
 
 
 def scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:

@@ -1,8 +1,8 @@
 """The per-sample stages every path runs: input fix, screen, model read, range, hold.
 
 Each stage is one scalar kernel (``divider_ohm``, ``strain_comp.base.samples.screen_one``,
-``model_read``, ``bound``); ``Engine.step`` calls it on one sample, the fused array tick
-(``strain_comp.core.array``) on each sensor of a tick, and ``Engine.run`` through its lift
+``model_read``, ``bound``); the fused array tick (``strain_comp.core.array``) calls it on
+each sensor of a tick, and ``Engine.run`` (one sample: a batch of one) through its lift
 over a batch (``divider_all``, ``screen_batch``, ``saturate_all``, ``bound_all``,
 ``hold``), as numbagg lifts a 1-D kernel: one rule, written once (docs/design.md, "The
 engine").

@@ -6,7 +6,7 @@ each used sample (``FEATURES``): the direction (loading, unloading, hold), the t
 the direction last changed, how far the resistance lies outside the calibrated range, the
 time since the session started (the engine's first sample, a reset, a reload, a span or a
 session start) and the published strain's level. ``features_one`` is the one place these
-are computed: ``Engine.step`` calls it through ``std_one``, ``Engine.run`` through ``std_run``, the
+are computed: the engine calls it through ``std_run``, the
 learner through ``features_run``, and the array tick (``strain_comp.core.array``) inside
 its kernel, so every path gives the same numbers. A calibration without it gives no band (NaN).
 """
@@ -99,15 +99,6 @@ def sigma(x: np.ndarray, weights: np.ndarray) -> float:
 
 
 @njit
-def std_one(t: float, direction: float, ohm: float, strain: float, state: np.ndarray,
-            row: np.ndarray, weights: np.ndarray) -> float:
-    """The standard deviation of one used sample (``features_one`` then ``sigma``)."""
-    x = np.empty(N_FEATURES)
-    features_one(t, direction, ohm, strain, state, row, x)
-    return sigma(x, weights)
-
-
-@njit
 def features_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.ndarray,
                  state: np.ndarray, row: np.ndarray) -> np.ndarray:
     """``features_one`` over used samples in time order, (n, ``N_FEATURES``)."""
@@ -120,7 +111,8 @@ def features_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: 
 @njit
 def std_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.ndarray,
             state: np.ndarray, row: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """``std_one`` over used samples in time order."""
+    """The standard deviation of used samples in time order (``features_one`` then
+    ``sigma`` at each)."""
     out = np.empty(t.size)
     x = np.empty(N_FEATURES)
     for i in range(t.size):

@@ -46,6 +46,21 @@ class StampedEncoder:
                          _doubles(position, self.k), self._tail))
 
 
+class ScalarEncoder:
+    """Serialised messages of one number (std_msgs/msg/Float64: ``<f8``, Int8: ``i1``)."""
+
+    def __init__(self, dtype: str) -> None:
+        self.dtype = np.dtype(dtype)
+
+    def encode(self, values: np.ndarray) -> list[bytes]:
+        """One message per value."""
+        data = np.ascontiguousarray(values, dtype=self.dtype).reshape(-1)
+        rows = np.empty((data.size, len(cdr.ENCAPSULATION) + self.dtype.itemsize), np.uint8)
+        rows[:, :len(cdr.ENCAPSULATION)] = np.frombuffer(cdr.ENCAPSULATION, np.uint8)
+        rows[:, len(cdr.ENCAPSULATION):] = data.view(np.uint8).reshape(data.size, -1)
+        return [row.tobytes() for row in rows]
+
+
 class VectorEncoder:
     """Serialised Float64MultiArray messages of ``k`` values whose ``dim[0]`` is labelled with
     the sensor names (size = stride = k, data_offset 0), as the bag writer's

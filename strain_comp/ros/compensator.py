@@ -23,12 +23,14 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.clock import JumpThreshold, ROSClock, TimeJump
+from rclpy.clock import Clock, JumpThreshold, ROSClock, TimeJump
+from rclpy.clock_type import ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.subscription import Subscription
 from rclpy.time_source import USE_SIM_TIME_NAME as USE_SIM_TIME
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64, Float64MultiArray, Int8
@@ -36,9 +38,9 @@ from std_srvs.srv import Trigger
 
 from strain_comp.core.calibration import expected_words
 from strain_comp.errors import InputError, ParameterError, StrainCompError
-from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
+from strain_comp.ros.cdr import ScalarEncoder, StampedEncoder, VectorEncoder
 from strain_comp.ros.clock_gate import ClockGate
-from strain_comp.ros.live import OK, WARN, LiveCompensator
+from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
 from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
@@ -48,7 +50,7 @@ from strain_comp.ros.params import (
     parse_values,
     structural_specs,
 )
-from strain_comp.ros.rclpy_typed import logger, parameter
+from strain_comp.ros.rclpy_typed import destroy, logger, parameter
 
 INPUT_DEPTH = 200
 """Inputs are best effort (sensor-data QoS) keeping the latest 200 messages: 200 ms of a
@@ -60,8 +62,9 @@ OUTPUT_DEPTH = 100
 LOG_THROTTLE_S = 5.0
 """A refusal or a program error of one kind is logged at most once per this many seconds."""
 
-Handler = Callable[[str, int, Any, list[Publisher]], None]
-"""A resistance handler: (input name, stamp [ns], message, its publishers)."""
+Reader = Callable[[str, Any], Any]
+"""A resistance message's reader: (input name, message) -> its value(s) (InputError when
+the message cannot be read)."""
 
 
 def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
@@ -79,11 +82,12 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     return described
 
 
-def send(publisher: Publisher, message: Callable[[], Any]) -> None:
-    """Build and publish a message only when a subscription is matched: at 1 kHz the
-    building and serialising of an unread output is most of the node's CPU."""
-    if publisher.get_subscription_count():
-        publisher.publish(message())
+FLOAT64, INT8 = ScalarEncoder("<f8"), ScalarEncoder("i1")
+"""A single sensor's ``strain`` (and ``strain_std``) and ``direction``, serialised."""
+
+
+def _taken_later(msg: Any) -> None:
+    """The intake subscriptions' callback, never called: no executor spins their node."""
 
 
 def _one_line(error: BaseException) -> str:
@@ -126,7 +130,21 @@ class CompensatorNode(Node):
         self.add_pre_set_parameters_callback(self._integers_as_doubles)
         self.stamped = {i.name: StampedEncoder(list(i.sensors)) for i in params.inputs}
         self.vector = {i.name: VectorEncoder(list(i.sensors)) for i in params.inputs}
+        self._queued: dict[str, tuple[list[int], list[Any]]] = {
+            i.name: ([], []) for i in params.inputs}
+        """Per input, the stamps [ns] and values of the messages not yet handled."""
+        self._pubs: dict[str, list[Publisher]] = {}
+        self._intake = None if self.get_parameter(USE_SIM_TIME).value else Node(
+            f"{node_name}_intake", namespace=self.get_namespace(), context=self.context,
+            start_parameter_services=False, enable_rosout=False)
+        """On the system clock, the node holding the input subscriptions, spun by no
+        executor: ``_flush`` takes what arrived (stamped with its reception time), so an
+        input message wakes no executor (under sim time the inputs wait for their /clock
+        tick through the gate, so they are subscribed on this node)."""
+        self._takes: list[tuple[str, Reader, Subscription]] = []
         ready = [self._connect(i.name) for i in params.inputs]
+        self.create_timer(self.live.tunables["batch_period_s"], self._flush,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
@@ -155,10 +173,15 @@ class CompensatorNode(Node):
             pubs += [self.create_publisher(kind, f"{name}/strain_std", OUTPUT_DEPTH),
                      self.create_publisher(JointState, f"{name}/strain_std_stamped",
                                            OUTPUT_DEPTH)]
-        handler = self._on_array if inp.is_array else self._on_sensor
-        sub = self.create_subscription(kind, inp.topic,
-                                       partial(self._arrive, name, handler, pubs=pubs),
-                                       input_qos)
+        self._pubs[name] = pubs
+        reader = self._read_array if inp.is_array else self._read_sensor
+        if self._intake is None:
+            sub = self.create_subscription(kind, inp.topic,
+                                           partial(self._arrive, name, reader), input_qos)
+        else:
+            sub = self._intake.create_subscription(kind, self.resolve_topic_name(inp.topic),
+                                                   _taken_later, input_qos)
+            self._takes.append((name, reader, sub))
         if not inp.is_array:  # the array tick has no temperature input
             self.create_subscription(Temperature, f"{name}/temperature",
                                      partial(self._on_temperature, name),
@@ -174,6 +197,13 @@ class CompensatorNode(Node):
                 f"{pubs[0].topic_name}")
 
     # --- what goes wrong ------------------------------------------------------------------
+
+    def destroy_node(self) -> None:
+        """The node and its intake node."""
+        if self._intake is not None:
+            destroy(self._intake)
+        own: Callable[[], None] = super().destroy_node
+        own()
 
     def _refuse(self, name: str, reason: str) -> None:
         """A message (or /clock tick) refused for what it carries: counted, logged."""
@@ -239,8 +269,9 @@ class CompensatorNode(Node):
             self._adopt()
         now = self.get_clock().now().nanoseconds
         names = list(self.gate.held)
-        for name, (stamp, (h, m, p)) in zip(names, self.gate.tick(now), strict=True):
-            h(name, stamp, m, p)
+        for name, (stamp, (reader, msg)) in zip(names, self.gate.tick(now), strict=True):
+            self._queue(name, stamp, reader, msg)
+        self._flush()
 
     # --- parameters -----------------------------------------------------------------------
 
@@ -264,6 +295,7 @@ class CompensatorNode(Node):
 
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
         """Tunables checked all first, then applied; ``use_sim_time`` fixed at start."""
+        self._flush()
         for p in params:  # any peer may call set_parameters: the time source is fixed
             if p.name == USE_SIM_TIME and p.value != self.get_parameter(USE_SIM_TIME).value:
                 return SetParametersResult(successful=False, reason=(
@@ -282,54 +314,91 @@ class CompensatorNode(Node):
 
     # --- messages -------------------------------------------------------------------------
 
-    def _arrive(self, name: str, handler: Handler, msg: Any, *,
-                pubs: list[Publisher]) -> None:
-        """A resistance message: handled now (system time), or once the sim clock moves."""
+    def _arrive(self, name: str, reader: Reader, msg: Any) -> None:
+        """Under sim time, a resistance message: queued once its /clock tick has come (the
+        gate), stamped with it, and handled at once (a bag played in lockstep waits for
+        each answer). On the system clock the intake node takes the inputs instead."""
         if self._loaded is not None:
             self._adopt()
-        clock = self.get_clock()
-        if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
-            # the system time, which the ROS clock reads without /clock (cheaper than
-            # clock.now() at 1 kHz)
-            handler(name, time.time_ns(), msg, pubs)
+        now = self.get_clock().now().nanoseconds
+        for stamp, (r, m) in self.gate.arrive(name, now, (reader, msg)):
+            self._queue(name, stamp, r, m)
+        self._flush()
+
+    def _queue(self, name: str, stamp: int, reader: Reader, msg: Any) -> None:
+        """A message read and queued with its stamp (refused for what it carries, or a
+        program error counted, by ``_guarded``)."""
+        def read() -> None:
+            value = reader(name, msg)
+            stamps, values = self._queued[name]
+            stamps.append(stamp)
+            values.append(value)
+        self._guarded(name, read)
+
+    def _read_sensor(self, name: str, msg: Any) -> float:
+        return sensor_value(msg)
+
+    def _read_array(self, name: str, msg: Any) -> np.ndarray:
+        data, offset, sizes, label = array_layout(msg)
+        return self.live.array_row(name, data, offset=offset, sizes=sizes, label=label)
+
+    def _flush(self) -> None:
+        """Handle every message that arrived, one batch per input, and publish each
+        sample's outputs: every ``batch_period_s`` of the steady clock (at 1 kHz the
+        per-message cost of the engine's path and of the executor's wake-ups is most of
+        the node's CPU), and before anything that reads or changes the state (a service,
+        a parameter, a temperature, a reference, diagnostics, a reload)."""
+        for name, reader, sub in self._takes:
+            self._guarded(name, partial(self._take, name, reader, sub))
+        for name, (stamps, values) in self._queued.items():
+            if stamps:
+                self._queued[name] = ([], [])
+                self._guarded(name, partial(self._handle, name, stamps, values))
+        self._log_tare()
+
+    def _take(self, name: str, reader: Reader, sub: Subscription) -> None:
+        """Queue what arrived on the intake subscription ``sub`` of input ``name``."""
+        with sub.handle:
+            while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                self._queue(name, taken[1]["received_timestamp"], reader, taken[0])
+
+    def _handle(self, name: str, stamps: list[int], values: list[Any]) -> None:
+        """A batch of input ``name``'s messages through the compensator; the outputs of the
+        samples it publishes."""
+        t = np.array(stamps, dtype=np.int64).astype(np.float64) * 1e-9
+        pubs = self._pubs[name]
+        if isinstance(values[0], float):
+            out, publish, refused = self.live.on_sensors(name, t, np.array(values))
+            strain, direction = out.strain, out.direction
+            scalar = True
+        else:
+            out, publish, refused = self.live.on_arrays(name, t, np.array(values))
+            strain, direction = out.strain, out.direction.astype(np.float64)
+            scalar = False
+        for _ in range(int(np.count_nonzero(refused))):
+            self._refuse(name, NON_FINITE)
+        rows = np.flatnonzero(publish)
+        if not rows.size:
             return
-        now = clock.now().nanoseconds
-        for stamp, (h, m, p) in self.gate.arrive(name, now, (handler, msg, pubs)):
-            h(name, stamp, m, p)
-
-    def _on_sensor(self, name: str, stamp: int, msg: Any, pubs: list[Publisher]) -> None:
-        def handle() -> None:
-            out = self.live.on_sensor(name, stamp * 1e-9, sensor_value(msg))
-            if out is not None:
-                value, direction = out.strain, int(out.direction)
-                send(pubs[0], lambda: Float64(data=value))
-                send(pubs[1], lambda: Int8(data=direction))
-                send(pubs[2], lambda: self.stamped[name].encode(stamp, np.array([value])))
-                if len(pubs) > 3:
-                    std = out.std
-                    send(pubs[3], lambda: Float64(data=std))
-                    send(pubs[4], lambda: self.stamped[name].encode(stamp, np.array([std])))
-        self._guarded(name, handle)
-        self._log_tare()
-
-    def _on_array(self, name: str, stamp: int, msg: Any, pubs: list[Publisher]) -> None:
-        def handle() -> None:
-            data, offset, sizes, label = array_layout(msg)
-            out = self.live.on_array(name, stamp * 1e-9, data, offset=offset, sizes=sizes,
-                                     label=label)
-            if out is not None:
-                strain, direction, vector = out.strain, out.direction, self.vector[name]
-                send(pubs[0], lambda: vector.encode(strain))
-                send(pubs[1], lambda: vector.encode(direction))
-                send(pubs[2], lambda: self.stamped[name].encode(stamp, strain))
-                if len(pubs) > 3 and out.std is not None:
-                    std = out.std
-                    send(pubs[3], lambda: vector.encode(std))
-                    send(pubs[4], lambda: self.stamped[name].encode(stamp, std))
-        self._guarded(name, handle)
-        self._log_tare()
+        std = out.std if len(pubs) > 3 else None
+        series = [(pubs[0], strain), (pubs[1], direction)]
+        if std is not None:
+            series.append((pubs[3], std))
+        for pub, column in series:
+            if pub.get_subscription_count():
+                for message in (FLOAT64.encode(column[rows]) if scalar and pub is not pubs[1]
+                                else INT8.encode(column[rows]) if scalar
+                                else [self.vector[name].encode(column[i]) for i in rows]):
+                    pub.publish(message)
+        stamped = self.stamped[name]
+        for pub, column in [(pubs[2], strain)] + ([] if std is None else [(pubs[4], std)]):
+            if pub.get_subscription_count():
+                for i in rows:
+                    pub.publish(stamped.encode(stamps[i], column[i:i + 1] if scalar
+                                               else column[i]))
 
     def _on_temperature(self, sensor: str, msg: Any) -> None:
+        self._flush()
         self._guarded(f"{sensor}/temperature", lambda: self.live.on_temperature(
             sensor, sensor_value(msg, "temperature")))
 
@@ -339,6 +408,7 @@ class CompensatorNode(Node):
         and logged, a malformed message under the transport."""
         if self._loaded is not None:
             self._adopt()
+        self._flush()
 
         def handle() -> None:
             t = self._now_ns() * 1e-9
@@ -365,6 +435,7 @@ class CompensatorNode(Node):
     def _diagnostics(self) -> None:
         def publish() -> None:
             self._adopt()
+            self._flush()
             now = self.get_clock().now()
             msg = DiagnosticArray(status=[
                 DiagnosticStatus(level=bytes([level]), name=name, message=message,
@@ -394,6 +465,7 @@ class CompensatorNode(Node):
         in flight."""
         if self._busy(response):
             return response
+        self._flush()
         try:
             response.message = act()
             response.success = True
@@ -436,6 +508,7 @@ class CompensatorNode(Node):
         goes to the log and /diagnostics. A call while a load is in flight is refused."""
         if self._busy(response):
             return response
+        self._flush()
         current = self.live
         try:
             params = parse_values(self.flat, base_dir=self.base_dir)
@@ -486,6 +559,7 @@ class CompensatorNode(Node):
         if isinstance(outcome, str):
             self._refused_reload(outcome)
             return
+        self._flush()  # what arrived before the swap: the old calibration's
         self.live = self.live.hand_over(outcome)
         self.calibration_status = (OK, "reloaded " + self._paths(self.live))
         logger(self).info(self.calibration_status[1])

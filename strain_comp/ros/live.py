@@ -5,8 +5,10 @@ parameters, compiles its kernels at start-up (not on the first message), reads a
 Float64MultiArray's layout, applies the publish-rate limit and tunable changes, keeps the
 recent good samples the tare needs (``live_tare``), and turns health into diagnostic
 statuses. The node only moves messages, so a bag played through it gives what ``replay``
-gives. Every input is stamped with the node's clock when its callback runs (ROS time, i.e.
-/clock under ``use_sim_time``; ``clock_gate``).
+gives. Every input is stamped with the node's clock on arrival (its reception time on the
+system clock; /clock under ``use_sim_time``, ``clock_gate``); the node hands the inputs
+that arrived to ``on_sensors`` / ``on_arrays`` as one batch per input, the engine's batch
+path, each sample with its own outputs.
 
 Known strains (``fuse_references: true``; ``strain_comp.core.fusion``; docs/ros.md, "Known
 strains"): a reference on ``NAME/strain_reference`` (``on_reference``), on
@@ -33,7 +35,7 @@ from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
-from strain_comp.core.outputs import ArrayOutput, SensorOutput
+from strain_comp.core.outputs import ArrayOutput, BatchOutput, SensorOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
@@ -51,6 +53,8 @@ MAX_REFUSAL_KEYS = 32
 reasons count under ``NAME: other reasons`` (a peer varying a message cannot grow them)."""
 MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
+NON_FINITE = "the calibration gave a non-finite strain; not published"
+"""The refusal of a good sample whose strain is not finite (a good sample is never NaN)."""
 _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
@@ -104,55 +108,119 @@ class LiveCompensator:
 
     # --- messages -------------------------------------------------------------------------
 
-    def _due(self, name: str, t: float) -> bool:
-        """Publish-rate limit on message time: at most one output per 1/rate seconds."""
+    def _due(self, name: str, t: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """Publish-rate limit on message time: of the ``candidates`` at times ``t``, those
+        published (at most one output per 1/rate seconds)."""
         rate = self.tunables["publish_rate_limit_hz"]
-        last = self._last_publish.get(name)
-        if rate > 0.0 and last is not None and 0.0 <= t - last < 1.0 / rate:
-            return False
-        self._last_publish[name] = t
-        return True
+        due: np.ndarray = np.array(candidates, dtype=bool)
+        if rate <= 0.0:
+            if due.any():
+                self._last_publish[name] = float(t[np.flatnonzero(due)[-1]])
+            return due
+        for i in np.flatnonzero(due):
+            last = self._last_publish.get(name)
+            if last is not None and 0.0 <= t[i] - last < 1.0 / rate:
+                due[i] = False
+            else:
+                self._last_publish[name] = float(t[i])
+        return due
 
     def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
-        """Feed one resistance message."""
-        out = self.engine.step(name, t, value, self.temperature.get(name, math.nan))
-        if self.starting.series:
-            self.starting.seen_input(name, t, value)
-        self._seen(name, t, np.array([value]), np.array([out.status]),
-                   np.array([out.direction]))
-        if out.status in USED and not math.isfinite(out.strain):  # a good sample: never NaN
-            raise InputError("the calibration gave a non-finite strain; not published")
+        """Feed one resistance message (``on_sensors`` of one): its output, None when not
+        published; InputError when the calibration gave a non-finite strain."""
+        out, publish, refused = self.on_sensors(name, np.array([t]), np.array([value]))
+        if refused[0]:
+            raise InputError(NON_FINITE)
+        if not publish[0]:
+            return None
+        return SensorOutput(float(out.strain[0]), int(out.direction[0]),
+                            Status(int(out.status[0])), bool(out.out_of_range[0]),
+                            float(out.resistance[0]),
+                            math.nan if out.std is None else float(out.std[0]))
+
+    def on_sensors(self, name: str, t: np.ndarray, values: np.ndarray
+                   ) -> tuple[BatchOutput, np.ndarray, np.ndarray]:
+        """Feed resistance messages of one sensor at times ``t`` (a batch through the
+        engine; one at a time while an automatic tare or ``~/start`` watches the input, whose
+        outcome changes the next sample): (outputs, which to publish, which were refused
+        because the calibration gave a non-finite strain for a good sample)."""
+        if t.size > 1 and (name in self.taring.start or self.starting.series):
+            parts = [self.on_sensors(name, t[i:i + 1], values[i:i + 1])
+                     for i in range(t.size)]
+            return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                    np.concatenate([p[2] for p in parts]))
+        temp = self.temperature.get(name, math.nan)
+        out = self.engine.run(name, t, values,
+                              None if math.isnan(temp) else np.full(t.size, temp))
+        for ti, value in zip(t if self.starting.series else (), values, strict=False):
+            self.starting.seen_input(name, float(ti), float(value))
+        self._seen(name, t, values[:, None], out.status[:, None], out.direction[:, None])
+        used = used_mask(out.status)
+        refused = used & ~np.isfinite(out.strain)  # a good sample: never NaN
         if self.fusion:
-            if out.status in USED:
-                self._estimate[name] = (t, out.strain, out.status != Status.OUT_OF_RANGE)
+            kept = np.flatnonzero(used & ~refused)
+            if kept.size:
+                i = kept[-1]
+                self._estimate[name] = (float(t[i]), float(out.strain[i]),
+                                        int(out.status[i]) != Status.OUT_OF_RANGE)
             out = replace(out, strain=self.fusion[name].apply(out.strain))
-        return out if math.isfinite(out.strain) and self._due(name, t) else None
+        return out, self._due(name, t, np.isfinite(out.strain) & ~refused), refused
 
     def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
                  sizes: list[int] | None = None, label: str = "") -> ArrayOutput | None:
-        """Feed one array message."""
-        sensors = self._inputs[name]
-        values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
-        out = self.engine.step_array(name, t, values)
-        for j, sensor in enumerate(sensors if self.starting.series else ()):
-            self.starting.seen_input(sensor, t, float(values[j]))
-        self._seen(name, t, values, out.status, out.direction)
-        if (used_mask(out.status) & ~np.isfinite(out.strain)).any():  # good samples: never NaN
-            raise InputError("the calibration gave a non-finite strain; not published")
-        if self.fusion:
-            out = self._fused_array(name, t, out)
-        return out if np.isfinite(out.strain).all() and self._due(name, t) else None
+        """Feed one array message (``on_arrays`` of one): its output, None when not
+        published; InputError when the calibration gave a non-finite strain."""
+        values = self.array_row(name, data, offset=offset, sizes=sizes, label=label)
+        out, publish, refused = self.on_arrays(name, np.array([t]), values[None, :])
+        if refused[0]:
+            raise InputError(NON_FINITE)
+        if not publish[0]:
+            return None
+        return ArrayOutput(out.strain[0], out.direction[0], out.status[0],
+                           out.out_of_range[0], None if out.std is None else out.std[0])
 
-    def _fused_array(self, name: str, t: float, out: ArrayOutput) -> ArrayOutput:
-        """``out`` with each sensor's fused gain and offset applied; its used samples'
-        estimates kept for the references."""
-        used = used_mask(out.status)
-        k = used.size
+    def array_row(self, name: str, data: Any, *, offset: int = 0,
+                  sizes: list[int] | None = None, label: str = "") -> np.ndarray:
+        """An array message's values in the array's sensor order (InputError when its
+        layout does not fit)."""
+        sensors = self._inputs[name]
+        return array_values(data, offset, sizes or [], len(sensors), label, sensors)
+
+    def on_arrays(self, name: str, t: np.ndarray, values: np.ndarray
+                  ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
+        """Feed array messages (rows of ``values``) at times ``t``, as ``on_sensors``: every
+        output field one row per tick."""
+        if t.size > 1 and (name in self.taring.start or self.starting.series):
+            parts = [self.on_arrays(name, t[i:i + 1], values[i:i + 1])
+                     for i in range(t.size)]
+            def rows(field: str) -> np.ndarray:
+                return np.concatenate([getattr(p[0], field) for p in parts])
+            return (ArrayOutput(rows("strain"), rows("direction"), rows("status"),
+                                rows("out_of_range"),
+                                None if parts[0][0].std is None else rows("std")),
+                    np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts]))
+        out = self.engine.run_ticks(name, t, values)
+        for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
+            for ti, value in zip(t, values[:, j], strict=True):
+                self.starting.seen_input(sensor, float(ti), float(value))
+        self._seen(name, t, values, out.status, out.direction)
+        refused = (used_mask(out.status) & ~np.isfinite(out.strain)).any(axis=1)
+        if self.fusion:
+            out = self._fused_array(name, t, out, refused)
+        return out, self._due(name, t, np.isfinite(out.strain).all(axis=1) & ~refused), refused
+
+    def _fused_array(self, name: str, t: np.ndarray, out: ArrayOutput, refused: np.ndarray
+                     ) -> ArrayOutput:
+        """``out`` with each sensor's fused gain and offset applied; the used samples'
+        estimates of the ticks not refused kept for the references."""
+        k = out.strain.shape[1]
         times, strains, inside = self._array_estimate.setdefault(
             name, (np.full(k, np.nan), np.full(k, np.nan), np.zeros(k, bool)))
-        times[used] = t
-        strains[used] = out.strain[used]
-        inside[used] = out.status[used] != int(Status.OUT_OF_RANGE)
+        for i in np.flatnonzero(~refused):
+            used = used_mask(out.status[i])
+            times[used] = t[i]
+            strains[used] = out.strain[i][used]
+            inside[used] = out.status[i][used] != int(Status.OUT_OF_RANGE)
         if name not in self._maps:
             maps = [self.fusion[s].relative() for s in self._inputs[name]]
             self._maps[name] = (np.array([m[0] for m in maps]), np.array([m[1] for m in maps]))
@@ -257,10 +325,11 @@ class LiveCompensator:
             return
         self.temperature[name] = value
 
-    def _seen(self, name: str, t: float, raw: np.ndarray, status: np.ndarray,
+    def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
+        """Samples of input ``name`` (rows: times ``t``; columns: its sensors) for the tare."""
         self.taring.seen(name, t, raw, status, direction)
-        self._last_message[name] = t
+        self._last_message[name] = float(t[-1])
 
     # --- tare -----------------------------------------------------------------------------
 

@@ -69,8 +69,11 @@ class _Samples:
 class _Recent(_Samples):
     """Ring of an input's latest ``RING`` samples (for ``~/tare``)."""
 
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray) -> None:
-        self._store(self.n % RING, t, raw, status)
+    def add(self, t: np.ndarray, raw: np.ndarray, status: np.ndarray) -> None:
+        """Samples at times ``t`` (rows of ``raw`` and ``status``)."""
+        at = (self.n + np.arange(t.size)) % RING
+        self.t[at], self.raw[at], self.good[at] = t, raw, used_mask(status)
+        self.n += t.size
 
 
 class _StartLog(_Samples):
@@ -117,13 +120,21 @@ class LiveTare:
                       if self.pending else {})
         self.log: list[str] = []
 
-    def seen(self, name: str, t: float, raw: np.ndarray, status: np.ndarray,
+    def seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
              direction: np.ndarray) -> None:
-        """Log a sample of input ``name`` (its sensors' raw values, statuses and directions)
-        and take the automatic tares it decides."""
+        """Log samples of input ``name`` (rows: times ``t``; columns: its sensors' raw
+        values, statuses and directions) and take the automatic tares they decide (one
+        sample at a time while one is pending: the caller feeds one)."""
         self.recent[name].add(t, raw, status)
         start = self.start.get(name)
         if start is None:
+            return
+        for i in range(t.size):
+            self._starting(name, float(t[i]), start, raw[i], status[i], direction[i])
+
+    def _starting(self, name: str, t: float, start: _StartLog, raw: np.ndarray,
+                  status: np.ndarray, direction: np.ndarray) -> None:
+        if name not in self.start:
             return
         firsts = [self.pending[s] for s in self.inputs[name] if s in self.pending]
         if start.add(t, raw, status, keep_from=min((f for f in firsts if not math.isnan(f)),

@@ -12,7 +12,8 @@ zero and span at the known strain ``span_strain``, ``LiveCompensator.span``) and
 ``~/reload_calibration`` (std_srvs/Trigger: answers "loading ..." at once; a worker
 thread loads, the executor swaps the result in between two messages, so outputs go on
 while a large file loads; the result goes to the log and /diagnostics). Each input is
-stamped with the node clock when its callback runs, so ``use_sim_time`` follows /clock.
+stamped with the node clock on arrival (its reception time; under ``use_sim_time`` its
+/clock tick), so ``use_sim_time`` follows /clock.
 
 Start-up problems (params file missing or not YAML, no block for the node's name, a bad or
 unknown parameter, a missing calibration) print one line ``compensator: ...`` and exit 2.

@@ -75,6 +75,10 @@ TUNABLES: tuple[ParamSpec, ...] = (
               "A jump between good samples longer than this resets the model state [s].", False),
     ParamSpec("diagnostics_period_s", "double", 1.0, (0.01, 60.0),
               "Period of the /diagnostics publication [s].", True),
+    ParamSpec("batch_period_s", "double", 0.01, (0.0005, 1.0),
+              "Inputs that arrived are handled together every this many seconds of the "
+              "steady clock, each sample with its own outputs and stamp: a longer period "
+              "costs less CPU and adds up to that much latency [s].", True),
     ParamSpec("span_strain", "double", 0.0, (0.0, 1e6),
               "The known strain (calibration's unit) every sensor is held at when ~/span is "
               "called; 0: not set (~/span refuses).", False),

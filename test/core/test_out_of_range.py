@@ -122,18 +122,6 @@ def test_below_the_range_the_estimate_extends_to_zero_strain_at_most() -> None:
     assert far == pytest.approx(0.0)
 
 
-def test_extend_step_equals_run_with_memory() -> None:
-    """The streaming path gives the batch path's numbers, in and out of range, for a
-    model with memory (its cells read the resistance held at the range's ends)."""
-    cal = calibrated(lambda e: 100.0 * (1.0 + 0.02 * e), 20.0, "mpi")
-    t, s = triangles(40.0, cycles=2)
-    r = 100.0 * (1.0 + 0.02 * s)
-    batch = engine_of(cal, out_of_range="extend").run("s1", t, r)
-    engine = engine_of(cal, out_of_range="extend")
-    stepped = [engine.step("s1", ti, ri).strain for ti, ri in zip(t, r, strict=True)]
-    np.testing.assert_allclose(stepped, batch.strain, rtol=1e-9, atol=1e-9)
-
-
 def test_an_array_on_the_fused_kernel_extends_as_each_sensor_alone() -> None:
     """APL sensors of an array keep the fused kernel with ``extend`` (the default) and
     give, in and out of range, what each sensor gives through ``step``."""

@@ -147,6 +147,9 @@ def test_relative_names_follow_the_namespace(context: Any) -> None:
 
 
 def test_outputs_equal_replay_in_sim_time(single: Harness, tmp_path: Path) -> None:
+    """The node's strain of each input is ``strain-comp replay``'s of the same bag to 1e-9
+    (the same engine path: the node's batches are the engine's batches)."""
+    from strain_comp.cli import main as cli_main
     from strain_comp.io.bag import read_bag
 
     messages = [m for m in bag_messages(ROOT / "bags/demo_rates.mcap", ["/s1/resistance"])]
@@ -159,13 +162,14 @@ def test_outputs_equal_replay_in_sim_time(single: Harness, tmp_path: Path) -> No
     for m in messages:
         assert single.feed(pub, m.data, strain, m.log_time_ns)
     assert single.spin_until(lambda: len(direction) == N_BAG and len(stamped) == N_BAG)
-    series = read_bag(ROOT / "bags/demo_rates.mcap").series["/s1/resistance"]
-    engine = Engine(load_calibration(tmp_path / "demo_calibration.yaml"))  # single's
-    truth = engine.run(
-        "s1", series.t[:N_BAG], np.asarray(series.values).reshape(-1)[:N_BAG])
+    assert cli_main(["replay", str(ROOT / "bags/demo_rates.mcap"), "--calibration",
+                     str(tmp_path / "demo_calibration.yaml"),  # single's
+                     "--out", str(tmp_path / "replay.mcap")]) == 0
+    replayed = read_bag(tmp_path / "replay.mcap").series
     got = np.array([m.data for m in strain])
-    np.testing.assert_allclose(got, truth.strain, rtol=0, atol=1e-9)
-    np.testing.assert_array_equal([m.data for m in direction], truth.direction)
+    np.testing.assert_allclose(got, replayed["/s1/strain"].values[:N_BAG], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal([m.data for m in direction],
+                                  replayed["/s1/direction"].values[:N_BAG])
     # the stamped twin: the input's time (its /clock tick), the same strain, no rate
     assert [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in stamped] == [
         m.log_time_ns for m in messages]
@@ -378,9 +382,9 @@ def test_array_layout_honoured_or_refused(array: Harness) -> None:
 @pytest.mark.parametrize("names", [["s1"], ["a", "bc", "def", "ghij", "k"],
                                    [f"x{i}" for i in range(256)]])
 def test_output_bytes_decode_as_their_messages(names: list[str]) -> None:
-    """The node's hand-built CDR of ``strain_stamped`` and of an array's ``strain`` is what
-    rclpy's own type support reads: names, stamp, values, empty velocity and effort; the
-    layout labelled with the names."""
+    """The node's hand-built CDR of ``strain_stamped``, of an array's ``strain`` and of a
+    sensor's ``strain`` and ``direction`` is what rclpy's own type support reads: names,
+    stamp, values, empty velocity and effort; the layout labelled with the names."""
     from rclpy.serialization import deserialize_message
 
     from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
@@ -397,3 +401,8 @@ def test_output_bytes_decode_as_their_messages(names: list[str]) -> None:
     assert [(d.label, d.size, d.stride) for d in vector.layout.dim] == [
         (",".join(names), len(names), len(names))]
     assert vector.layout.data_offset == 0
+    from strain_comp.ros.compensator import FLOAT64, INT8
+
+    assert [deserialize_message(b, Float64).data for b in FLOAT64.encode(values)] == list(values)
+    directions = np.array([-1, 0, 1])
+    assert [deserialize_message(b, Int8).data for b in INT8.encode(directions)] == [-1, 0, 1]
