@@ -25,7 +25,6 @@ from strain_comp.base import samples as sc
 from strain_comp.base.compensator import Compensator
 from strain_comp.base.conversion import resistance_to_divider
 from strain_comp.base.direction import DirectionDetector, DirectionSettings
-from strain_comp.base.samples import USED, Status, screen_one
 from strain_comp.core import uncertainty
 from strain_comp.core.calibration import SensorCalibration
 from strain_comp.core.chain import DESPIKE_K, SPIKE, STEP, ChainCorrector, pair_values
