@@ -60,7 +60,8 @@ setup(
         "tqdm>=4.60",  # progress.py: progress bars on a terminal
     ],
     extras_require={
-        "test": ["pytest>=7", "hypothesis>=6", "ruff", "mypy>=1.16",
+        "test": ["pytest>=7", "pytest-xdist>=3.5",  # scripts/test.sh: -n 2
+                 "hypothesis>=6", "ruff", "mypy>=1.16",
                  "types-PyYAML", "rosbags>=0.11",  # rosbags: test/io/test_db3.py writes .db3
                  "pandas>=2"],  # docs/api.md's notebook (to_frame), run by test_api_doc
         "fast": ["intel-cmplr-lib-rt"],

@@ -7,4 +7,6 @@ bash scripts/bootstrap.sh
 bash scripts/ros2_venv.sh  # the real ros2 command line for test/ros/test_ros2_cli.py (cached)
 .venv/bin/ruff check strain_comp test bench scripts studies
 .venv/bin/mypy
-exec .venv/bin/python -m pytest -q "$@"
+# two workers (pytest-xdist), each test file whole on one of them (its module fixtures, such
+# as a colcon build, made once); test/ros_env.py gives each worker its own ROS domains
+exec .venv/bin/python -m pytest -q -n 2 --dist loadfile "$@"

@@ -1,8 +1,8 @@
 """ROS 2 environment for tests that start ROS: discovery on this machine only, and a domain
-per test module and process, so parallel runs do not see each other's nodes; the package's
-sources for a colcon workspace (``strain_comp.ros.player.spin_until`` spins an executor
-until a condition holds). Imports no ROS module (a test module sets its environment
-before importing rclpy)."""
+per test module, run and pytest-xdist worker, so parallel runs do not see each other's
+nodes; the package's sources for a colcon workspace (``strain_comp.ros.player.spin_until``
+spins an executor until a condition holds). Imports no ROS module (a test module sets its
+environment before importing rclpy)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,20 @@ DOMAINS = 100
 
 
 def ros_env(slot: int) -> dict[str, str]:
-    """Environment variables for one test module (``slot``: a small number per module)."""
-    domain = 1 + (os.getpid() * 7 + slot * 31) % DOMAINS
+    """Environment variables for one test module (``slot``: a small number per module).
+
+    The domain is ``slot``'s, offset per pytest run (its process id, or under pytest-xdist
+    the run's id, which every worker shares); the workers of one run interleave their
+    slots (``slot * workers + worker``), so no two of them share a domain."""
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    base = int(run[:8], 16) if run else os.getpid()
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:])
+    key = slot * workers + worker
+    if key >= DOMAINS:
+        raise ValueError(f"ROS test slot {slot} with {workers} pytest-xdist workers exceeds "
+                         f"the {DOMAINS} domains: run with fewer workers (-n)")
+    domain = 1 + (base * 7 + key * 31) % DOMAINS
     return {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": str(domain)}
 
 
