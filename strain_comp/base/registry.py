@@ -39,7 +39,7 @@ def model_names() -> tuple[str, ...]:
 def model_class(name: str) -> type[Compensator]:
     """The compensator class registered under ``name``."""
     if name not in _MODELS:
-        known = ", ".join(_MODELS) or "none (strain_comp.models is not imported)"
+        known = ", ".join(_MODELS) or "none registered"
         raise ParameterError("name", f"unknown model {name!r}; known: {known}")
     return _MODELS[name]
 

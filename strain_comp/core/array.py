@@ -223,10 +223,10 @@ class ArrayGroup:
         status = np.empty((n, k), dtype=np.int8)
         for a, b in ([(i, i + 1) for i in range(n)] if self.effects else [(0, n)]):
             for idx, kern in self.kernels:
-                family_tick_of(type(kern))(t[a:b], idx, raw[a:b], self.par, self.held, self.counts,
-                                  self.states, self.gap_reset, self.model_out, self.status,
-                                  self.reset, self.band, self.x, kern.state, kern.params,
-                                  out[a:b], status[a:b])
+                tick = family_tick_of(type(kern))
+                tick(t[a:b], idx, raw[a:b], self.par, self.held, self.counts, self.states,
+                     self.gap_reset, self.model_out, self.status, self.reset, self.band,
+                     self.x, kern.state, kern.params, out[a:b], status[a:b])
             if self.effects:  # the effect terms of this tick, then its outputs again
                 self._effects(float(t[a]), raw[a])
                 out[a, 0], out[a, 2] = self.held[:, _STRAIN], self.held[:, _STD]

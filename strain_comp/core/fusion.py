@@ -6,13 +6,6 @@ s_hat at t, is an observation of the output map
 
     y = g s_hat + b + v,          v ~ N(0, R)                                      (1)
 
-The filter's state is the sensor's output map itself (its correction's output gain and
-offset, ``strain_comp.core.correction``), not a second map on top: it starts from the
-calibration's (a_0, b_0), reads s_hat as the estimate before that map, (s - b_0) / a_0 of
-the engine's s, and carries the covariance of (g, b) in those coordinates (the prior and the
-walk below, stated for the map relative to the calibration's, taken through T = [[a_0, 0],
-[b_0, 1]]: the same filter, the same fused strain).
-
 whose gain g and offset b drift slowly between references (a sensitivity that changed
 since the session start is the largest share of a calibration's error on another run: the
 estimate's error is mostly a gain error). The state theta = (g, b) is a random walk,
@@ -26,6 +19,13 @@ forgetting factor is the special case of Q proportional to P): with h = (s_hat, 
 
     P^- = P + Q dt,   e = y - h theta,   S = h P^- h' + R,
     K = P^- h' / S,   theta <- theta + K e,   P <- (I - K h) P^-.                  (3)
+
+The filter's state is the sensor's output map itself (its correction's output gain and
+offset, ``strain_comp.core.correction``), not a second map on top: it starts from the
+calibration's (a_0, b_0), reads s_hat as the estimate before that map, (s - b_0) / a_0 of
+the engine's s, and carries the covariance of (g, b) in those coordinates (the prior and the
+walk, stated for the map relative to the calibration's, taken through T = [[a_0, 0],
+[b_0, 1]]: the same filter, the same fused strain).
 
 Why a Kalman filter on (g, b) and not RLS with exponential forgetting: the references are
 sparse and often at one strain (rest), which excites only b; forgetting then inflates the
@@ -135,10 +135,6 @@ class OutputFusion:
         tr = np.array([[a0, 0.0], [b0, 1.0]])
         out: np.ndarray = tr @ p @ tr.T
         return out
-
-    @classmethod
-    def for_span(cls, span: float) -> OutputFusion:
-        return cls(FusionSettings.for_span(span))
 
     @classmethod
     def for_calibration(cls, cal: SensorCalibration) -> OutputFusion:

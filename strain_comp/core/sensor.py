@@ -67,7 +67,6 @@ class PendingBatch:
         return out
 
 
-
 @dataclass
 class SensorState:
     """Everything the engine keeps for one sensor."""
@@ -151,19 +150,12 @@ class SensorState:
         ohm, forced = divider_all(raw, *self.cal.input.divider())
         return self.correction.apply_input(ohm, self.gain), forced
 
-
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
         r_mid = 0.5 * (self.cal.valid_range.r_lo + self.cal.valid_range.r_hi)
         if self.cal.input.kind != "divider":
             return r_mid
         return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
-
-    def reset_state(self) -> None:
-        """A gap reset: model, detector and effect terms start afresh."""
-        self.model.reset()
-        self.detector.reset()
-        self.effects.reset()
 
     def apply_effects(self, t: np.ndarray, r: np.ndarray, strain: np.ndarray,
                       direction: np.ndarray, temperature: np.ndarray, latest: Latest,

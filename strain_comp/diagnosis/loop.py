@@ -74,7 +74,7 @@ Per calibrated sensor that has a recording with a reference strain:
    Steps 5-6 are then one (``selection.select_carried``): at each step the candidates
    that pass step 5 on the diagnosed run, the ``LoopPolicy.tried`` best, are each fitted
    there and scored on every validation run after its session start; the one whose log
-   RMSE ratios (the diagnosed run's held-out folds and each validation run) have the
+   RMSE ratios on the validation runs have the
    lowest upper bound, the prediction bound of one more run's (``LoopPolicy.level``,
    Student's t over the validation runs), is added if that bound is below ln(1 - margin):
    it lowers the error beyond the spread between runs. The terms are thus chosen by what

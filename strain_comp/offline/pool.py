@@ -150,7 +150,7 @@ def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
 def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float
                   ) -> Line | None:
     """The line the runs' calibration stretches share once mapped
-    (``stretch_line.run_line`` of their stretches, mapped and pooled)."""
+    (``correction.run_line`` of their stretches, mapped and pooled)."""
     parts = []
     for rec, (z, k) in zip(recordings, maps, strict=True):
         stretch = None if rec.s is None else calibration_stretch(rec.t, rec.s)

@@ -5,7 +5,7 @@ Inputs: ``/NAME/resistance`` (Float64) for every calibrated sensor NAME, and arr
 ``/NAME/temperature`` when present (the latest value at or before each sample, as a live
 node would hold it). The message time is the log time, as the node's clock is online.
 An array topic goes through ``Engine.run_array``, so its cross-talk effect terms read the
-neighbours' estimates of the same tick, exactly as ``Engine.step_array`` (the node) does.
+neighbours' estimates of the same tick, as the node's ticks (``Engine.run_ticks``) do.
 
 Outputs, one message at every input message's time (bad samples included, marked):
 ``/NAME/strain`` (Float64, held estimate on bad samples), ``/NAME/direction`` (Int8),

@@ -552,32 +552,31 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
                 first: float | None = None, span: tuple[float, float] | None = None,
                 policy: SpanPolicy | None = None) -> tuple[Calibration, list[str]]:
     """The recalibrated calibration and one line per sensor (gain, offset, reading)."""
-    if form not in FORMS:
-        raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
-    out = dict(calibration.sensors)
-    lines = []
     if bag is not None:
         return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
                                       first=first, sensors=sensors, tare=tare,
                                       source=str(bag), span=span, policy=policy)
+    if form not in FORMS:
+        raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
+    out = dict(calibration.sensors)
+    lines = []
+    names = list(sensors or calibration.sensors)
+    if len(names) != 1:
+        raise InputError("recalibrate --point: name one --sensor (the calibration has "
+                         f"{', '.join(calibration.sensors)})")
+    name = names[0]
+    if name not in calibration.sensors:
+        raise InputError(f"sensor {name!r} is not in the calibration "
+                         f"({', '.join(calibration.sensors)})")
+    if form == "input":
+        span = span_from_points(out[name], points, policy=policy)
+        out[name] = apply_span(out[name], span, {"points": [list(p) for p in points]})
+        lines.append(f"{name}: {span_reading(span)} (through {len(points)} points)")
     else:
-        names = list(sensors or calibration.sensors)
-        if len(names) != 1:
-            raise InputError("recalibrate --point: name one --sensor (the calibration has "
-                             f"{', '.join(calibration.sensors)})")
-        name = names[0]
-        if name not in calibration.sensors:
-            raise InputError(f"sensor {name!r} is not in the calibration "
-                             f"({', '.join(calibration.sensors)})")
-        if form == "input":
-            span = span_from_points(out[name], points, policy=policy)
-            out[name] = apply_span(out[name], span, {"points": [list(p) for p in points]})
-            lines.append(f"{name}: {span_reading(span)} (through {len(points)} points)")
-        else:
-            a, b = map_from_points(out[name], points, policy)
-            out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
-            lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
-                         f"{len(points)} points)")
+        a, b = map_from_points(out[name], points, policy)
+        out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
+        lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
+                     f"{len(points)} points)")
     return Calibration(out), lines
 
 

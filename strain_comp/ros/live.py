@@ -30,7 +30,6 @@ import numpy as np
 
 from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.correction import Correction
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
@@ -344,7 +343,7 @@ class LiveCompensator:
         its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
         calibration (state restarts, as after a reload; the rest now reads as the
         calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
-        from strain_comp.offline.correction import span_from_points, span_reading
+        from strain_comp.offline.correction import apply_span, span_from_points, span_reading
 
         strain = self.tunables.get("span_strain", 0.0)
         if not strain > 0:
@@ -364,10 +363,10 @@ class LiveCompensator:
                       (rest_level(values, pair=cal.input.pair), strain)]
             try:
                 span = span_from_points(cal, points)
+                sensors[sensor] = apply_span(cal, span, {"span_strain": strain})
             except StrainCompError as err:
                 problems.append(f"{sensor}: {err}")
                 continue
-            sensors[sensor] = Correction.of(cal).with_input(*span).written(cal)
             lines.append(f"{sensor}: {span_reading(span)}")
         if problems:
             raise ParameterError("span", "refused: " + "; ".join(problems))

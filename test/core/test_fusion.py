@@ -9,10 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.core.fusion import OutputFusion, SparseFusion
+from strain_comp.core.fusion import FusionSettings, OutputFusion, SparseFusion
 
 GAIN, OFFSET = 1.25, -1.5
 """The truth: reference = GAIN x estimate + OFFSET (+ noise)."""
+
+
+def _fusion(span: float) -> OutputFusion:
+    """A filter scaled for a calibrated strain span of ``span``."""
+    return OutputFusion(FusionSettings.for_span(span))
 
 
 def run(seconds: float = 1200.0, rate: float = 20.0, seed: int = 3
@@ -29,7 +34,7 @@ def run(seconds: float = 1200.0, rate: float = 20.0, seed: int = 3
 
 def test_sparse_noisy_references_recover_the_gain_and_offset() -> None:
     t, estimate, reference = run()
-    sparse = SparseFusion(OutputFusion.for_span(40.0), every=20.0)
+    sparse = SparseFusion(_fusion(40.0), every=20.0)
     fused = sparse.run(t, estimate, reference, np.ones(t.size, bool))
     fusion = sparse.fusion
     assert fusion.n_used == 59 and fusion.n_refused == 0
@@ -48,11 +53,11 @@ def test_sparse_noisy_references_recover_the_gain_and_offset() -> None:
 def test_a_reference_changes_nothing_before_its_time() -> None:
     t, estimate, reference = run(seconds=300.0)
     every = np.ones(t.size, bool)
-    base = SparseFusion(OutputFusion.for_span(40.0), every=30.0).run(t, estimate, reference,
+    base = SparseFusion(_fusion(40.0), every=30.0).run(t, estimate, reference,
                                                                       every)
     cut = 150.0
     changed = np.where(t > cut - 1e-9, reference + 7.0, reference)  # from the 150 s one on
-    other = SparseFusion(OutputFusion.for_span(40.0), every=30.0).run(t, estimate, changed,
+    other = SparseFusion(_fusion(40.0), every=30.0).run(t, estimate, changed,
                                                                        every)
     at_or_before = t <= cut + 1e-9
     assert np.array_equal(base[at_or_before], other[at_or_before])
@@ -66,9 +71,9 @@ def test_pieces_give_the_one_run_and_the_nearest_sample_is_used() -> None:
     t, estimate, reference = run(seconds=300.0, rate=3.0)
     ok = np.ones(t.size, bool)
     ok[::7] = False  # some samples not eligible (bad, or no reference)
-    whole = SparseFusion(OutputFusion.for_span(40.0), every=25.0)
+    whole = SparseFusion(_fusion(40.0), every=25.0)
     one = whole.run(t, estimate, reference, ok)
-    pieces = SparseFusion(OutputFusion.for_span(40.0), every=25.0)
+    pieces = SparseFusion(_fusion(40.0), every=25.0)
     edges = [0, 1, 74, 75, 76, 300, 301, 640, t.size]
     parts = [pieces.run(t[a:b], estimate[a:b], reference[a:b], ok[a:b])
              for a, b in itertools.pairwise(edges)]
@@ -86,13 +91,13 @@ def test_pieces_give_the_one_run_and_the_nearest_sample_is_used() -> None:
 
 
 def test_one_reference_at_rest_moves_the_offset_and_one_at_strain_mostly_the_gain() -> None:
-    rest = OutputFusion.for_span(40.0)
+    rest = _fusion(40.0)
     assert rest.update(1.0, 0.0, 1.0) is None
     # eq. (3) with h = (0, 1): K_b = P_b / (P_b + R), the first reference has no walk
     k_b = rest.settings.offset_sd ** 2 / (rest.settings.offset_sd ** 2
                                            + rest.settings.noise_sd ** 2)
     assert rest.gain == 1.0 and rest.offset == pytest.approx(k_b * 1.0)
-    strained = OutputFusion.for_span(40.0)
+    strained = _fusion(40.0)
     assert strained.update(1.0, 30.0, 36.0) is None  # a sensitivity 20 % low
     assert strained.gain - 1.0 > 0.15
     assert abs(strained.offset) < 0.1 * 30.0 * (strained.gain - 1.0)
@@ -100,7 +105,7 @@ def test_one_reference_at_rest_moves_the_offset_and_one_at_strain_mostly_the_gai
 
 def test_the_gate_refuses_an_outlier_and_the_state_stays() -> None:
     t, estimate, reference = run(seconds=600.0)
-    sparse = SparseFusion(OutputFusion.for_span(40.0), every=30.0)
+    sparse = SparseFusion(_fusion(40.0), every=30.0)
     sparse.run(t, estimate, reference, np.ones(t.size, bool))
     fusion = sparse.fusion
     before = fusion.state()
@@ -116,7 +121,7 @@ def test_the_gate_refuses_an_outlier_and_the_state_stays() -> None:
     ("12.0", "not a number"), (None, "not a number"), (True, "not a number")])
 def test_non_finite_or_wrong_typed_references_are_refused(reference: object, reason: str
                                                           ) -> None:
-    fusion = OutputFusion.for_span(40.0)
+    fusion = _fusion(40.0)
     assert fusion.update(1.0, 10.0, reference) == reason
     assert fusion.refused[reason] == 1 and fusion.n_used == 0
     assert (fusion.gain, fusion.offset) == (1.0, 0.0)
@@ -174,8 +179,8 @@ def test_run_equals_the_samples_filtered_reference_by_reference() -> None:
     t[1500:] += 40.0  # a silence longer than the spacing
     ok = rng.random(t.size) > 0.2
     reference = np.where(rng.random(t.size) < 0.02, reference + 300.0, reference)  # gated
-    fast = SparseFusion(OutputFusion.for_span(40.0), every=2.5)
-    slow = SparseFusion(OutputFusion.for_span(40.0), every=2.5)
+    fast = SparseFusion(_fusion(40.0), every=2.5)
+    slow = SparseFusion(_fusion(40.0), every=2.5)
     for a, b in itertools.pairwise([0, 1, 700, 701, 2000, t.size]):
         part = (t[a:b], estimate[a:b], reference[a:b], ok[a:b])
         assert np.array_equal(fast.run(*part), _fused_by_filtering(slow, *part))
@@ -192,7 +197,7 @@ def test_the_filter_on_a_calibrations_output_map_fuses_as_one_on_top() -> None:
     a0, b0 = 0.8, 2.5
     t, estimate, reference = run(seconds=600.0)
     engine_out = a0 * estimate + b0  # the engine's estimate, through the calibration's map
-    settings = OutputFusion.for_span(40.0).settings
+    settings = _fusion(40.0).settings
     on_top, itself = OutputFusion(settings), OutputFusion(settings, start=(a0, b0))
     assert itself.apply(engine_out[5]) == pytest.approx(engine_out[5], rel=1e-12)
     for k in range(0, t.size, 97):  # references now and then, some beyond the gate
