@@ -30,6 +30,7 @@ resistance, ``apply_span``), a new output map composes onto the one there (``app
 from __future__ import annotations
 
 import functools
+import math
 import pickle
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -438,14 +439,20 @@ def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, 
     return zero_span
 
 
+def number_pair(text: str) -> tuple[float, float]:
+    """``"A:B"`` -> (A, B), NaN for both where the text is no such pair (the command line's
+    ``--point`` and ``--window`` values)."""
+    a_text, sep, b_text = text.partition(":")
+    try:
+        return (float(a_text), float(b_text)) if sep else (math.nan, math.nan)
+    except ValueError:
+        return math.nan, math.nan
+
+
 def parse_point(text: str) -> tuple[float, float]:
     """``"R:S"`` (ohm, % strain) -> (R, S); InputError naming the flag otherwise."""
-    r_text, sep, s_text = text.partition(":")
-    try:
-        r, s = float(r_text), float(s_text)
-    except ValueError:
-        r, s = float("nan"), float("nan")
-    if not sep or not (np.isfinite(r) and np.isfinite(s) and r > 0):
+    r, s = number_pair(text)
+    if not (np.isfinite(r) and np.isfinite(s) and r > 0):
         raise InputError(f"--point {text!r}: expected R:S with R > 0 ohm and S in the "
                          "calibration's strain unit (% unless it says otherwise)")
     if not abs(s) <= STRAIN_MAX:

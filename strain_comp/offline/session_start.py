@@ -46,6 +46,7 @@ from strain_comp.offline.correction import (
     apply_span,
     map_from_pairs,
     map_from_points,
+    number_pair,
     reading,
     span_from_points,
     span_of_first_cycle,
@@ -315,12 +316,8 @@ def stretch_and_return(s: np.ndarray, strain_range: float,
 
 def parse_window(text: str) -> tuple[float, float]:
     """``"START:END"`` (seconds from a bag's start) -> (START, END); InputError otherwise."""
-    a_text, sep, b_text = text.partition(":")
-    try:
-        start, end = float(a_text), float(b_text)
-    except ValueError:
-        start, end = float("nan"), float("nan")
-    if not (sep and np.isfinite(start) and np.isfinite(end) and start >= 0):
+    start, end = number_pair(text)
+    if not (np.isfinite(start) and np.isfinite(end) and start >= 0):
         raise InputError(f"--window {text!r}: expected START:END in seconds from the bag's "
                          "start, START >= 0")
     if not end > start:
