@@ -102,7 +102,7 @@ def main() -> None:
     gc.enable()
 
     models = [c.build_model() for c in cal.sensors.values()]
-    kernel: APLArray | CreepPIArray = (APLArray.from_models(models) if args.model == "apl"
+    kernel: APLArray | CreepPIArray = (APLArray(models) if args.model == "apl"
                                        else CreepPIArray(models))  # type: ignore[arg-type]
     kernel_cost = np.empty(min(ticks, 10_000))
     for i in range(kernel_cost.size):

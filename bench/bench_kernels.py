@@ -165,7 +165,7 @@ def bench_array(n_sensors: int = 256, ticks: int = 20_000) -> None:
     models = [APL(n=11, m=9, sigma=2.15e-2 * rng.uniform(0.5, 2), p=rng.uniform(0.5, 1.5),
                   w=np.array(W_PAPER) * rng.uniform(0.8, 1.2, 13), mu=MU, normalisation=NORM)
               for _ in range(n_sensors)]
-    array = APLArray.from_models(models)
+    array = APLArray(models)
     t, r = make_input(ticks, seed=2)
     rs = r[:, None] * rng.uniform(0.98, 1.02, n_sensors)[None, :]
     out = np.empty(n_sensors)

@@ -134,7 +134,7 @@ def array_tick(k: int = 256, ticks: int = 5000) -> None:
     """Median time of one tick of k sensors: CreepPIArray.step against APLArray.step."""
     t = np.arange(ticks) * 1e-3
     r = resistance(t, k, seed=4)
-    apl = APLArray.from_models([c.build_model() for c in
+    apl = APLArray([c.build_model() for c in
                                 calibration([f"x{i}" for i in range(k)], ["apl"]).sensors.values()])
     creep = CreepPIArray([test_creep_pi.random_model(seed, n_play=8, taus=TAUS)
                           for seed in range(k)])

@@ -85,9 +85,6 @@ class Compensator(ABC):
 
     name: ClassVar[str]
     """Model name as written in calibration files and on the command line."""
-    array_kernel: ClassVar[bool] = False
-    """True when sensors of this model can be stepped together in one array kernel
-    (``strain_comp.models.apl_array.APLArray``; the engine's fused array tick)."""
     fit_full_rate: ClassVar[bool] = False
     """True when ``fit`` takes every sample of any number of them in bounded memory
     (creep_pi): the fit then skips the budget's reduction (``strain_comp.offline.reduce``),

@@ -55,9 +55,6 @@ def gap_for(sample_interval: float | None, gap: float = DEFAULT_GAP_RESET) -> fl
     """The gap of a sensor: ``gap``, or ``GAP_INTERVALS`` intervals when that is longer."""
     return gap if sample_interval is None else max(gap, GAP_INTERVALS * sample_interval)
 
-SampleStatus = Status
-"""The name the fitting code used for the same codes."""
-
 # the codes as plain ints, for the numba kernels (compile-time constants there)
 GOOD: Final = int(Status.GOOD)
 NOT_FINITE: Final = int(Status.NOT_FINITE)

@@ -1,39 +1,6 @@
-"""Measurement-chain effects found from the resistance alone (no reference needed).
-
-These belong to the instrument, not the material: an excitation whose polarity alternates
-every sample (a source-measure unit reversing its current: R_meas[i] = R[i] + A (-1)^i),
-isolated spikes (one-sample read glitches) and quantisation (an ADC's resistance step).
-Smooth strain motion cancels in the second difference d2[i] = R[i+1] - 2 R[i] + R[i-1],
-which the alternation statistic reads:
-
-* alternation: the d2 centred on sample i of A (-1)^i is -4 A (-1)^i, so
-  A = -median((-1)^i d2) / 4 (d2 indexed by its centre), and the share of (-1)^i d2
-  with the sign of -A is 0.5 without alternation. It is *present*
-  when that share is significant (z > ``ALTERNATION_Z``) and A is at least the white noise
-  sigma left after removing it (smaller alternations are a minor part of the noise).
-  Correction (online, phase-free, half a sample of delay): the models see pair means
-  (R[i] + R[i-1]) / 2 (``pair_means``), which cancel A exactly whatever its phase.
-  An alternation can also sit on one side of the signal: every other sample reads low by
-  an amount that switches on and off with the sensor's state (the carbon-black strip reads
-  steadily under load, then every other sample drops 680 ohm in the middle of a hold while
-  the other half continue the level). The pair mean then steps by half that amount, which
-  a model with memory takes for movement; the pair maximum does not. ``pair_branch``
-  reads the side from the steps of the alternation's size while the strain is known to be
-  still (a fit has the reference): per window of ``PAIR_WINDOW`` pairs the medians of the
-  upper (U) and lower (L) value of each pair, and at every step of U - L larger than
-  ``PAIR_STEP_K`` robust sigmas between two still windows the share k = -dL / d(U - L)
-  of it that the lower side took: median k near 1 means the lower side moves and the
-  upper one holds the level (``upper``), near 0 the reverse (``lower``), near 1/2 a
-  symmetric alternation (``mean``). Without such a step the side cannot be told and the
-  mean, exact for a symmetric alternation and the quietest, is kept. Movement is excluded
-  because it changes the level and the alternation's size together.
-* spikes: found and corrected online by ``ChainCorrector`` (calibration key
-  ``input.despike``; ``correct`` runs it over a whole series), which also re-bases
-  baseline steps (``input.baseline_step``): a contact resistance in series that changes in
-  one sample and stays.
-* quantisation: the smallest common step of the nonzero |R[i+1] - R[i]|, if most
-  differences are integer multiples of it (a reading only: no causal term undoes it
-  without lag; ``strain_comp.diagnosis.conditions``).
+"""Measurement-chain effects found from the resistance alone (no reference needed):
+alternation, isolated spikes, baseline steps, quantisation; how each is found and
+corrected: docs/models.md, "The measurement chain".
 """
 
 from __future__ import annotations
@@ -96,7 +63,7 @@ def _robust_sigma(x: np.ndarray) -> float:
 
 
 def alternation(r: npt.ArrayLike) -> Alternation:
-    """The alternation statistics of a resistance series (module docstring)."""
+    """The alternation statistics of a resistance series (docs/models.md)."""
     r = _finite(r)
     if r.size < 8:
         return Alternation(0.0, 0.0, 0.5, 0.0)
@@ -136,7 +103,7 @@ def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: 
 def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
     """The pair statistic (``PAIR_BRANCHES``) to read an alternating ``r`` through, from the
     steps of its size between windows where ``still`` (bool per sample: the strain is known
-    to be constant) holds (module docstring); ``mean`` when fewer than ``PAIR_MIN_STEPS``."""
+    to be constant) holds (docs/models.md); ``mean`` when fewer than ``PAIR_MIN_STEPS``."""
     ra = np.asarray(r, dtype=np.float64)
     ok = np.isfinite(ra) & (ra > 0)
     ra, sa = ra[ok], np.asarray(still, dtype=bool)[ok]

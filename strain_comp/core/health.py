@@ -15,7 +15,6 @@ from strain_comp.core.chain import SPIKE, STEP
 from strain_comp.core.outputs import BatchOutput
 
 _DIAG_OK, _DIAG_WARN, _DIAG_ERROR, _DIAG_STALE = 0, 1, 2, 3
-LEVEL_NAMES = {_DIAG_OK: "OK", _DIAG_WARN: "WARN", _DIAG_ERROR: "ERROR", _DIAG_STALE: "STALE"}
 
 @dataclass
 class SensorHealth:

@@ -1,5 +1,4 @@
-"""Error metrics, in % strain: RMSE ([Electrolycra] eq. (5)), MAE, max error, R^2,
-and the normalised hysteresis area ([ReducedPL] eq. (5))."""
+"""Error metrics, in % strain: RMSE ([Electrolycra] eq. (5)), MAE, max error, R^2."""
 
 from __future__ import annotations
 
@@ -128,13 +127,3 @@ class ErrorAccumulator:
         return ErrorStats(rmse=math.sqrt(self.sum_e2 / self.n), mae=self.sum_abs / self.n,
                           max_abs=self.max_abs, r2=r2, n=self.n)
 
-
-def hysteresis_area(x: npt.ArrayLike, y: npt.ArrayLike, n_periods: int) -> float:
-    """Normalised hysteresis area, [ReducedPL] eq. (5)."""
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    x_hat = (x - x.min()) / (x.max() - x.min())
-    y_hat = (y - y.min()) / (y.max() - y.min())
-    # trapezoidal rule for the line integral of y dx along the sampled path
-    integral = float(np.sum(0.5 * (y_hat[1:] + y_hat[:-1]) * np.diff(x_hat)))
-    return -integral / n_periods

@@ -19,7 +19,7 @@ import numpy as np
 
 from strain_comp.base.compensator import Compensator
 from strain_comp.core.calibration import SensorCalibration, ValidRange
-from strain_comp.core.stages import RANGE_COLUMNS, bound_all, saturate_all
+from strain_comp.core.stages import RANGE_COLUMNS
 
 OUT_OF_RANGE_MODES = ("clamp", "extrapolate", "extend")
 """Strain of a sample beyond the valid resistance range: clamped to the valid strain range
@@ -94,16 +94,6 @@ class SensorRange:
                   "slope_lo": slopes[0], "slope_hi": slopes[1], "reach_lo": self.reach[0],
                   "reach_hi": self.reach[1], "saturate": float(self.saturate)}
         return np.array([values[name] for name in RANGE_COLUMNS])
-
-    def model_input(self, ohm: np.ndarray) -> np.ndarray:
-        """What the model reads of used samples ``ohm`` (``saturate``)."""
-        return saturate_all(ohm, self.row)
-
-    def beyond(self, ohm: np.ndarray, strain: np.ndarray) -> np.ndarray:
-        """``strain`` clamped to the strain range, plus, with ``slopes``, the slope times
-        the resistance beyond the valid range (continuous at its ends), within ``reach``."""
-        return bound_all(np.ascontiguousarray(ohm, dtype=np.float64),
-                         np.ascontiguousarray(strain, dtype=np.float64), self.row)
 
 
 def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None

@@ -33,7 +33,14 @@ from strain_comp.core.effects import EffectTerms, run_segments
 from strain_comp.core.health import STATUSES, SensorHealth, add_counts
 from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.range_policy import SensorRange
-from strain_comp.core.stages import bound_all, divider_all, hold, range_status, screen_batch
+from strain_comp.core.stages import (
+    bound_all,
+    divider_all,
+    hold,
+    range_status,
+    saturate_all,
+    screen_batch,
+)
 from strain_comp.core.uncertainty import std_run
 from strain_comp.errors import InputError
 
@@ -216,7 +223,7 @@ class SensorState:
             if corrections is not None and events is not None:
                 corrections[a:b] = events
             dir_used[a:b] = self.detector.run(t[seg], seg_ohm)
-            strain_used[a:b] = self.model.run(t[seg], lim.model_input(seg_ohm))
+            strain_used[a:b] = self.model.run(t[seg], saturate_all(seg_ohm, lim.row))
         if self.cal.input.filtered:  # the range flag of what the model reads
             status[idx] = range_status(ohm[idx], reset[idx], lim.r_lo, lim.r_hi)
         if self.cal.direction.sign < 0:

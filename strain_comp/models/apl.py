@@ -1,68 +1,7 @@
-"""APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3),
-appendix eq. (6)).
+"""APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3), appendix eq. (6)).
 
-Normalised input xi = R / r0 + alpha drives N cells with states x_k:
-
-* ``APL`` (eq. (1)): asymmetric power-law cells, thresholds rho_k = 2k/(N+1) - 1, band
-  -1 <= xi - x_k <= rho_k, creep xdot = sigma ((xi - x_k + 1) / (rho_k + 1))^p; the cells
-  creep only upwards, so relaxation shows after rising input steps only.
-* ``PL`` (eq. (6)): symmetric power-law cells, rho_k = k/(N+1), band |x_k - xi| <= rho_k,
-  xdot = sigma (|xi - x_k| / rho_k)^p sgn(xi - x_k).
-* ``MPI``: PL with sigma = 0, i.e. play operators (rate independent).
-
-The paper's sensors rise in resistance with strain. For one whose resistance falls with
-strain (a negative gauge factor) the APL cells are driven by -xi (parameter
-``orientation: -1``, chosen by ``fit`` from the sign of the training data's correlation of
-R and S), so that they still creep after *strain* loading steps, as the material does; the
-PL and MPI cells are symmetric (eq. (6)), for them the orientation changes nothing and is
-not set.
-
-Output (eq. (2)): psi = f^-1(w_0 xi + sum_k w_k x_k + w_{N+1}), strain S = s0 (psi - beta),
-f the strictly increasing piecewise-affine map of eq. (3) (basis: ``strain_comp.models.pwa``).
-Time stepping, initial state and bad-sample handling: ``strain_comp.models.apl_kernels``.
-sigma is in normalised units per second, t in seconds.
-
-Fitting, step 1 (the paper's QP, done as bounded linear least squares): for fixed sigma,
-p the cell states do not depend on w, mu, and f(psi_meas) = w . [xi, x_1..x_N, 1] is linear
-in (w, segment slopes of f). The scale is fixed by the central slope of f = 1, the other
-slopes are bounded below by ``eps`` (f strictly increasing), the cell weights w_1..w_N
-take one sign (the inverse of a Prandtl-Ishlinskii operator with a positive density has
-weights of one sign), and a small ridge pulls slopes to 1 and weights to 0 where the data
-say nothing. Which sign is the sensor's loop: the gauge's sign when the resistance leads
-the strain (higher on loading than on unloading: a clockwise S-R loop, the paper's sensor,
-Table I, and the rig), the opposite sign when it lags (a counter-clockwise loop, e.g. a
-viscoelastic silver-nylon thread). Held to the wrong sign the QP sets every cell to zero
-and the model is a static map. ``cell_weights="signed"`` (default) chooses the sign from
-the training data (``_FitProblem.loop_sign``), ``"lead"`` / ``"lag"`` fix it, ``"free"``
-drops the constraint. The fit reports the share of the output its cells give and
-``memoryless`` when it is below 1 % (``_FitProblem.memory_report``).
-
-Step 2 (a choice beyond the paper): output-error refinement. The QP minimises the
-*equation* error f(psi_meas) - w . z; with a noisy resistance the regressors z (xi and the
-cell states) are noisy while f(psi_meas) is not, and the QP trades the fit of psi against
-the shape of f: on a noisy measured sensor the QP solution fits worse than the cubic, its
-output collapsing toward the mean on held-out runs.
-So from the QP solution (w, slopes) are refined, same bounds and ridge, to minimise the
-*output* error sum (f^-1(w . z) - psi_meas)^2 with the cell states fixed for the given
-sigma, p, by a bounded Levenberg-Marquardt (``strain_comp.models.apl_refine``; analytic
-Jacobian, since f^-1 is piecewise affine). A refined point is kept only if its output RMSE
-is not above the QP's. ``output_nfev=0`` gives the paper's QP alone.
-
-Step 3: sigma (log grid) and p (grid) are searched by the output RMSE of the strain of
-the model run on the training data: every grid point by its QP solution, the
-``search_top`` best of them again after ``search_nfev`` refinement evaluations, then a
-short Nelder-Mead from the best (each point scored after ``search_nfev`` refinement
-evaluations), and the final sigma, p get the full ``output_nfev`` refinement.
-(``search_nfev=0`` scores the whole search by the QP; refining every grid point instead
-costs ~3.5x the fit time for the same result on the rig bags.)
-
-Both choices (output-error refinement, signed cell weights) were made on held-out error,
-on the bundled rig bags and the measured recordings: compare them with
-``strain-comp fit ... --option output_nfev=0`` (the QP alone) or ``--option
-cell_weights=free|lead|lag`` and ``strain-comp evaluate`` on a held-out bag. Signed weights are
-never much worse than free ones and keep free weights from overfitting a noisy sensor.
-The current held-out figures of every model are in docs/results.md
-(``studies/compare_models.py``, ``studies/measured.py``).
+Cells, orientation, output map (eq. (2), (3)) and the fit (QP, output-error refinement,
+sigma/p search, signed cell weights): docs/models.md.
 """
 
 from __future__ import annotations
@@ -126,7 +65,6 @@ class _CellModel(KernelCompensator):
 
     kind: ClassVar[int]
     rate_dependent: ClassVar[bool] = True
-    array_kernel: ClassVar[bool] = True
 
     def __init__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
                  mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
@@ -186,11 +124,6 @@ class _CellModel(KernelCompensator):
     def f(self, psi: npt.ArrayLike) -> np.ndarray:
         """The output map f(psi) of eq. (3)."""
         return pwa.evaluate(psi, self.mu)
-
-    def f_inverse(self, y: npt.ArrayLike) -> np.ndarray:
-        """f^-1(y), exact (piecewise affine, linear beyond the outer breakpoints)."""
-        y = np.ascontiguousarray(np.atleast_1d(y), dtype=np.float64)
-        return pwa.finv_array(y, self._b, self._f_at_b, self._inv_slopes)
 
     def to_params(self) -> dict[str, Any]:
         params: dict[str, Any] = {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,

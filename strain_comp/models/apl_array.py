@@ -70,10 +70,5 @@ class APLArray(LiftedArray):
 
     @classmethod
     def accepts(cls, model: Compensator) -> bool:
-        """True for the APL family (APL, PL, MPI: ``Compensator.array_kernel``)."""
-        return type(model).array_kernel
-
-    @classmethod
-    def from_models(cls, models: Sequence[Compensator]) -> APLArray:
-        """The array of ``models``; ParameterError if one is not of the APL family."""
-        return cls(models)
+        """True for the APL family (APL, PL, MPI: the models with ``array_tables``)."""
+        return hasattr(model, "array_tables")

@@ -1,7 +1,6 @@
 """The fit of the APL, PL and MPI models ([Electrolycra] section III): the paper's QP on
 the cell states, a search over sigma and p, and the output-error refinement
-(``strain_comp.models.apl_refine``); ``strain_comp.models.apl``'s module docstring gives
-the method."""
+(``strain_comp.models.apl_refine``); docs/models.md gives the method."""
 
 from __future__ import annotations
 
@@ -258,7 +257,7 @@ class _FitProblem(Generic[_Cells]):
         self.bounds = (lo, hi)
 
     def orient(self, orientation: int) -> None:
-        """Drive the cells by orientation * xi (module docstring); before any solve."""
+        """Drive the cells by orientation * xi (docs/models.md); before any solve."""
         if orientation != self.orientation:
             self.xi = -self.xi
             self.gauge = -self.gauge

@@ -1,44 +1,7 @@
 """numba kernels of the APL / PL / MPI cells ([Electrolycra] eq. (1), (2), appendix eq. (6)).
 
-One cell update (``advance_cells``) is shared by the single-sensor run/step kernel, the
-per-sensor array kernel ``step_sensor`` (lifted to K sensors by ``strain_comp.base.lift``)
-and the fitting kernel, so every path computes the same numbers.
-
-Time stepping (the paper gives the implicit form h_k(x_k, xdot_k, t) = 0 only). For a new
-sample xi at time step dt = t - t_prev (dt < 0 is taken as 0):
-
-APL (eq. (1)), band x_k in [xi - rho_k, xi + 1]:
-  1. project onto the band of the new input: x <- clip(x, xi - rho_k, xi + 1)
-     (the two rate-independent branches: dragged to xi + 1 while xi falls, to xi - rho_k
-     while xi rises faster than the creep);
-  2. creep with the rate at the projected state (explicit Euler):
-     x <- min(x + dt sigma ((xi - x + 1) / (rho_k + 1))^p, xi + 1).
-  The creep never passes its equilibrium xi + 1 (that clip also keeps large sigma dt
-  stable). At the lower band edge the rate is exactly sigma, as eq. (1) requires.
-PL (eq. (6)), band |x_k - xi| <= rho_k:
-  1. x <- clip(x, xi - rho_k, xi + rho_k);
-  2. x <- x + dt sigma (|xi - x| / rho_k)^p sgn(xi - x), not passing the equilibrium xi.
-MPI: PL with sigma = 0, i.e. step 1 only (pure play operators).
-
-Initial state (first good sample after construction or reset): the relaxed state at that
-input, i.e. the equilibrium of the creep under a constant input: x_k = xi + 1 for APL,
-x_k = xi for PL and MPI. The first sample has no creep step.
-
-Bad samples (r not finite or <= 0, t not finite) advance nothing and give NaN; the state,
-including the previous time, is kept, so the next good sample steps over the gap.
-
-Speed: the power z^p per cell and sample bounds the kernel. libm's exp/log are scalar
-calls (~15 ns; numba's SVML path needs an SVML-patched llvmlite, which the pip wheel is
-not), so ``pow01`` computes exp(p log z) inline: fdlibm's log polynomial after an
-exponent/mantissa split by bit casts, and a degree-13 Taylor exp after reduction by ln 2
-(relative error ~1e-14), evaluated by Estrin's scheme: each cell's state depends on its
-previous value through the power, so the power's dependency chain, not its flop count,
-sets the time per sample, and Estrin's 4 dependent steps replace Horner's 13. With a
-branch-free cell loop and ``error_model="numpy"`` (no zero-division branch) LLVM
-vectorises the N cells; ``run_kernel`` and ``states_kernel`` pad them to a multiple of
-``LANES`` (``padded_cells``) so no cell falls into a scalar remainder loop (N = 11: three
-vectors of 4 instead of two and three scalar cells). The relaxed fast-math flags exclude
-``nnan``/``ninf`` so the bad-sample checks stay in the code.
+One cell update (``advance_cells``) serves the run/step kernel, the array kernel
+``step_sensor`` and the fit; time stepping, initial state and speed: docs/models.md.
 """
 
 from __future__ import annotations

@@ -1,21 +1,5 @@
-"""Bounded Levenberg-Marquardt for the output-error refinement of the APL family's fit.
-
-Used by ``strain_comp.models.apl`` to minimise sum_i (f^-1(w . z_i) - psi_i)^2 (+ ridge)
-over (w, slopes of f) from the QP solution ([Electrolycra] eq. (2), (3); the refinement
-itself is beyond the paper, see the apl module docstring).
-
-Why not ``scipy.optimize.least_squares``: its trust-region-reflective method with the exact
-solver takes an SVD of the tall Jacobian (n samples x ~20 parameters) on every iteration;
-multithreaded OpenBLAS makes that 0.4-0.5 s for n = 1500 on a busy 2-core machine (0.001 s
-single-threaded), and its LSMR solver is bound by Python overhead (~50 ms per refinement).
-Here every iteration reduces the problem to the small Gram matrix J^T J (one matrix
-product) and solves the damped, bounded step
-
-    min_d ||J d + r||^2 + lam ||D d||^2,  lo - theta <= d <= hi - theta,
-
-D^2 = diag(J^T J) (Marquardt's scaling), as a small bounded linear least-squares problem
-(``lsq_linear``, BVLS) on its Cholesky factor. A step is taken only if it lowers the cost,
-so the cost never rises; lam shrinks by 3 after a success and grows by 4 after a failure.
+"""Bounded Levenberg-Marquardt for the output-error refinement of the APL family's fit
+([Electrolycra] eq. (2), (3)); why not scipy's least_squares: docs/models.md.
 """
 
 from __future__ import annotations

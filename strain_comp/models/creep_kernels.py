@@ -1,32 +1,7 @@
 """numba kernels of the creep_pi model (``strain_comp.models.creep_pi``).
 
-One state update (``advance``) serves the streaming kernels (``run_kernel``: ``run`` and
-``step``; ``step_sensor``: sensor s of an array, lifted to K sensors per tick by
-``strain_comp.base.lift``) and the fitting kernel
-(``features_kernel``, with the feature map ``features``), so the fitted and the streamed
-model compute the same states; the streaming kernels sum the output as ``output``
-regroups the features' weights (``folded``).
-
-State of one sensor: ``z`` (K,) the low-pass states of xi, ``play`` (J + 1,) the play
-operators (the last one the direction play of width ``widths[J]``), ``clock`` =
-[t_prev, started, dt of the cached decays], ``decay`` (K,) = 1 - exp(-dt / tau_k) for that
-dt (recomputed only when dt changes by more than ``DT_TOLERANCE``: at a fixed sample rate
-the exponentials are paid once).
-
-Per good sample xi at time t (dt = t - t_prev, a negative dt taken as 0):
-
-* first sample after construction or ``reset`` (the sensor at rest): z_k = xi, every play
-  operator at its rest value xi; no update;
-* else z_k <- z_k + (1 - exp(-dt / tau_k)) (xi - z_k) (the exact solution of
-  tau dz/dt = xi - z for an input held over the step), and each play operator
-  p_j <- clip(p_j, xi - r_j, xi + r_j) ([Electrolycra] appendix eq. (6) with sigma = 0).
-
-Features (``N_FIXED + J + K`` per sample, in this order): xi, xi^2, xi^3; xi - p_j for the J
-play operators; xi - z_k for the K time constants; d = xi - p_dir in [-r_dir, r_dir] (r_dir
-times the movement direction: r_dir once xi has risen by 2 r_dir since its last fall,
--r_dir once it has fallen so far; between, linear in xi) and d xi.
-
-Bad samples (r not finite or <= 0, t not finite) advance nothing and give NaN.
+One state update (``advance``) serves the streaming kernels and the fitting kernel, so the
+fitted and the streamed model compute the same states; states and features: docs/models.md.
 """
 
 from __future__ import annotations
@@ -50,7 +25,7 @@ N_FIXED = 5
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def advance(ti: float, xi: float, z: np.ndarray, play: np.ndarray, clock: np.ndarray,
             decay: np.ndarray, tau: np.ndarray, widths: np.ndarray) -> None:
-    """One sample's state update in place (module docstring)."""
+    """One sample's state update in place."""
     if clock[1] == 0.0:
         for k in range(z.size):
             z[k] = xi
@@ -73,7 +48,7 @@ def advance(ti: float, xi: float, z: np.ndarray, play: np.ndarray, clock: np.nda
 
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def features(row: np.ndarray, xi: float, z: np.ndarray, play: np.ndarray) -> None:
-    """The feature vector of the current state into ``row`` (module docstring)."""
+    """The feature vector of the current state into ``row``."""
     n_play = play.size - 1
     row[0] = xi
     row[1] = xi * xi

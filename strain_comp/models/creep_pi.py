@@ -1,50 +1,8 @@
-"""creep_pi: play operators and Prony-series creep states, linear in its weights.
+"""creep_pi: play operators and Prony-series creep states, linear in its weights
+([Electrolycra] eq. (4), appendix eq. (6) with sigma = 0; [Nanocomposite] Equation (3)).
 
-The physics. A viscoelastic material's creep (and relaxation) is the superposition of
-first-order responses: the creep compliance as a Prony series
-J(t) = J_0 + sum_k J_k (1 - exp(-t / tau_k)) (generalised Kelvin-Voigt; the spike-decay seed,
-[nanocomposite spike-decay], writes the relaxation after a step as such exponentials). By
-Boltzmann superposition the output is then J_0 xi + sum_k J_k z_k, with z_k the first-order
-low-pass of the input at tau_k: the creep is linear in the low-pass states. The
-rate-independent hysteresis is a Prandtl-Ishlinskii operator, a weighted sum of play
-operators ([Electrolycra] appendix eq. (6) with sigma = 0, the MPI cells); a
-rate-dependent Prandtl-Ishlinskii model adds rate dependence to it, which [Electrolycra]
-eq. (1)-(2) does through power-law creep in each cell (APL). Here the rate dependence is
-instead carried by the creep states, and the whole map stays linear in its weights, so it
-is fitted by one ridge regression rather than a QP inside a nonlinear search.
-
-The model. Input xi = R / r0 + alpha (``Normalisation``, the training range on [-1, 1]).
-State and features per sample: ``strain_comp.models.creep_kernels`` (xi, xi^2, xi^3 (the
-cubic of [Electrolycra] eq. (4)); xi - p_j for J play operators of thresholds
-r_j = j / (J + 1) (as the MPI's, eq. (6)); xi - z_k for the low-pass states at the time
-constants tau_k (default 0.3, 3, 30, 300 s; exact for irregular sampling); a direction
-term d = xi - p_dir from a play operator of small width r_dir and d xi). Output
-psi = intercept + sum_i weights_i (feature_i - mean_i) / scale_i, strain
-S = s0 (psi - beta).
-
-Why the two direction terms: d (about +-r_dir, the sign of the last movement) lets the
-loading and unloading branches sit apart by a constant even where the play operators have
-not yet left their band, e.g. at the first small reversal; d xi lets that offset grow with
-the input, as a loop that opens with strain does. r_dir (``DIRECTION_WIDTH``, 2.5 % of the
-training span) is wide enough that sensor noise does not flip it, narrow enough that the
-branch switches within a small fraction of a cycle.
-
-The fit. The features of every training segment are computed at its full rate from the
-rest state at its first sample (the sensor starts at rest: z_k = xi, every play operator at
-xi), and only their Gram matrices (features x features) are kept, per cross-validation
-fold: so a long run costs time in proportion to its samples and no memory beyond one chunk
-of them, and no decimation ever touches the low-pass states. The features are standardised
-over the training data; the weights minimise the mean squared error of psi plus
-``penalty`` times their squared norm (the intercept unpenalised). The penalty, unless
-given (``lam``), is the one on ``LAM_GRID`` with the lowest cross-validated mean squared
-error: leave-one-segment-out over the training segments when there are two or more (each
-run held out in turn, the folds' errors pooled: the penalty that carries to a run not
-seen), else ``CV_BLOCKS`` contiguous blocks of the one segment, scored by the median
-block. Blocks of one run are not alike as runs are: the first alone holds the start from
-rest, whose states (a 300 s low-pass far from its input) the other blocks never show, so
-its error measures an extrapolation and, pooled, would set the penalty alone (on every
-thread run it asked for 1e3-1e5 times the penalty the three other blocks agree on, and
-doubled the in-run error).
+The model, its direction terms and the ridge fit with the cross-validated penalty:
+docs/design.md, "creep_pi".
 """
 
 from __future__ import annotations
@@ -123,8 +81,7 @@ def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
 
 @register
 class CreepPI(KernelCompensator):
-    """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``
-    (module docstring)."""
+    """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``."""
 
     name = "creep_pi"
     fit_full_rate = True
@@ -202,7 +159,7 @@ class CreepPI(KernelCompensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
             lam: float | None = None, **options: Any) -> CreepPI:
-        """Ridge fit of the weights (module docstring)."""
+        """Ridge fit of the weights (docs/design.md, "creep_pi")."""
         if options:
             raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
         try:

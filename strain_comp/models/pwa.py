@@ -1,21 +1,5 @@
-"""Strictly increasing piecewise-affine output map f of the APL family.
-
-[Electrolycra] eq. (3):
-
-f(psi) = sum_j mu_j phi_j(psi) with an odd number M of PWA basis functions. The paper
-leaves the basis to [29]; the choice made here:
-
-* M - 1 breakpoints b_i = -1 + 2 i / M (i = 1 .. M-1), equally spaced in [-1, 1] and
-  symmetric about 0 (M is odd, so none sits at 0 and 0 lies in the central segment);
-* phi_1(psi) = psi (the linear term) and, for each breakpoint b_i, the one-sided dead
-  zone phi_{i+1}(psi) = max(psi - b_i, 0) if b_i > 0, min(psi - b_i, 0) if b_i < 0.
-
-So f(0) = 0 (the offset lives in w_{N+1} of eq. (2)), the central segment has slope mu_1
-and every outer segment adds the dead zones it lies beyond. ``mu`` is stored in that order:
-``mu[0]`` linear, ``mu[1 + i]`` the dead zone at ``b[i]``. f is strictly increasing iff all
-M segment slopes are > 0; it is linear outside [b_1, b_{M-1}] (so also outside [-1, 1]) and
-its inverse is piecewise affine with the same breakpoints mapped through f: ``finv`` is
-exact, including linear extrapolation at both ends.
+"""Strictly increasing piecewise-affine output map f of the APL family ([Electrolycra]
+eq. (3)); the basis (breakpoints, dead zones, ``mu``'s order): docs/models.md.
 """
 
 from __future__ import annotations

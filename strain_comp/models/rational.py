@@ -1,29 +1,5 @@
-"""Rational rat22 model ([EGaIn] eq. (10)) with optional loading/unloading fits.
-
-    S = (p1 xi^2 + p2 xi + p3) / (xi^2 + q1 xi + q2),   xi = R / r0 + alpha
-
-Units: the coefficients act on the normalised resistance xi of the calibration's
-``Normalisation`` (far better conditioned than powers of R in ohm) and give strain in %.
-``coefficients_ohm`` returns the same curve in the paper's form, S(R) with R in ohm.
-
-Modes (``mode`` parameter):
-
-* ``combined``: one fit to all samples.
-* ``split``: separate fits for R rising (``loading``) and R falling (``unloading``), chosen
-  online by a dead-zone direction detector (section V.E) built from the sensor's
-  ``DirectionSettings``; a hold keeps the last moving direction's fit and, before any
-  movement, the ``combined`` fit (which split mode also stores) is used. "Loading" means
-  R rising: for a sensor whose resistance falls with strain it is the unloading branch.
-
-Fit: linearised least squares (S (xi^2 + q1 xi + q2) = p1 xi^2 + p2 xi + p3 is linear in
-p, q), refined by ``scipy.optimize.least_squares`` on the real output error with the
-analytic Jacobian (``_jac``: x^2/D, x/D, 1/D, -N x/D^2, -N/D^2), so a fit costs a few
-passes over the samples, linear in their number. Pole guard: a
-fit whose denominator has a real root inside the training xi range widened by 5 % of its
-span on each side is rejected and refitted with the denominator written as
-(xi - c)^2 + d^2 (no real root anywhere); the better pole-free fit wins. For the split
-fits, samples are labelled by running the same detector on R, per segment, exactly as the
-model will see them online.
+"""Rational rat22 model ([EGaIn] eq. (10)) on xi = R / r0 + alpha, combined or split by
+direction (section V.E); the fit and its pole guard: docs/models.md.
 """
 
 from __future__ import annotations
@@ -138,7 +114,7 @@ def _jac_free(z: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
               what: str = "rational") -> np.ndarray:
-    """The best pole-free rat22 fit of s(xi) (module docstring)."""
+    """The best pole-free rat22 fit of s(xi) (docs/models.md)."""
     if xi.size < 5:
         raise FitError(f"{what}: needs at least 5 samples, got {xi.size}")
     if np.ptp(xi) <= 0.0:
@@ -179,7 +155,7 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
 
 @register
 class Rational(Compensator):
-    """rat22 compensator, combined or split by direction; see the module docstring."""
+    """rat22 compensator, combined or split by direction."""
 
     name = "rational"
 
@@ -211,15 +187,6 @@ class Rational(Compensator):
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
         t, r = as_float_arrays(t, r)
         return self._kernel(t, self.normalisation.xi(r))
-
-    def coefficients_ohm(self, branch: str = "combined") -> dict[str, list[float]]:
-        """The branch's curve as S = (P1 R^2 + P2 R + P3) / (R^2 + Q1 R + Q2), R in ohm."""
-        p1, p2, p3, q1, q2 = self.coef[_BRANCHES.index(branch)]
-        r0, al = self.normalisation.r0, self.normalisation.alpha
-        # xi = R / r0 + al; multiply numerator and denominator by r0^2
-        num = [p1, r0 * (2 * p1 * al + p2), r0**2 * (p1 * al * al + p2 * al + p3)]
-        den = [1.0, r0 * (2 * al + q1), r0**2 * (al * al + q1 * al + q2)]
-        return {"p": [float(v) for v in num], "q": [float(v) for v in den[1:]]}
 
     def singular_in(self, r_lo: float, r_hi: float) -> float | None:
         """The first resistance in [r_lo, r_hi] where a branch's denominator has a real root

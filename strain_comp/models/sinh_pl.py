@@ -1,41 +1,7 @@
 """Reduced power-law model with sinh resistors ([ReducedPL] eq. (1)-(3)).
 
-Forward model (eq. (2)), C = 1: N cells with state u_k,
-
-    u_k' = f_k(e - u_k),   f_k(v) = I_S,k (exp(v / V_T,k) - exp(-v / V_T,k))   (eq. (1))
-    i    = w0 e + sum_k w_k u_k - Vb
-
-3N + 2 parameters: w0, Vb and per cell w_k, I_S,k > 0, V_T,k > 0. In strain_comp the
-model's input e is the normalised strain psi = S / s0 + beta and its output i is the
-normalised resistance xi = R / r0 + alpha (``Normalisation``): the sensor maps strain to
-resistance, the compensator (eq. (3)) maps xi back to psi,
-
-    e = i / w0 - sum_j (w_j / w0) u_j + Vb / w0,   u_k' = f_k(e - u_k).
-
-Time stepping. sinh makes the cells stiff, so the forward model advances every cell by one
-linearly implicit (Rosenbrock-Euler) step per sample with the new input e_n:
-
-    u_n = u + dt g(v) / (1 + dt g'(v)),   v = e_n - u,   g = f_k, g' = 2 I_S / V_T cosh(v / V_T)
-
-which is stable for any dt and never steps past e_n (|du| < |v|). The compensator is the
-exact algebraic inverse of that discrete forward model: at each sample it solves the
-scalar equation xi_n = w0 e + sum_k w_k u_k,n(e) - Vb for e by Newton's method (started from
-the explicit eq. (3) value with the old states; the derivative w0 + sum_k w_k s_k has
-0 < s_k < 1), then updates the cells with that e. So ``invert(forward(psi)) == psi`` to
-rounding, whatever dt is. The inverse is well posed when w0 and w0 + sum of the w_k of
-opposite sign to w0 have the same sign (the static map psi -> xi is monotone).
-
-State at start: the cells are at rest, u_k = e, with e from the static map
-xi = (w0 + sum w_k) e - Vb at the first sample.
-
-Fit: ``scipy.optimize.least_squares`` on the compensator's output error (psi_hat - psi)
-over all segments (cells reset per segment), I_S and V_T in log space; four starts (two
-splits of the static gain between w0 and the cells, two V_T) with the cell time constants
-V_T / (2 I_S) spread over the time scales of the data; the best
-start (a few evaluations each, on at most ~5000 evenly decimated samples) is refined on
-all samples. Bounds: w0 keeps the sign of the static gain with |w0| >= 0.05 |gain|,
-|w_k| <= 10 |gain|, log I_S and log V_T in [-20, 10]. (The paper fits the
-forward output error, eq. (4), with fmincon.)
+The compensator is the exact inverse of the linearly implicit forward step (Newton per
+sample); the time stepping, start state and fit: docs/models.md.
 """
 
 from __future__ import annotations
@@ -158,7 +124,7 @@ def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0:
 
 @register
 class SinhPL(Compensator):
-    """Reduced power-law compensator with N sinh cells, eq. (1)-(3); see the module docstring."""
+    """Reduced power-law compensator with N sinh cells, eq. (1)-(3)."""
 
     name = "sinh_pl"
 

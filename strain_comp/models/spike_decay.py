@@ -1,62 +1,6 @@
 """Spike-and-decay model of viscoelastic nanocomposite gauges ([Nanocomposite] eq. (3), (4)).
 
-Forward model, eq. (3): R = f(eps) [1 + S exp(-lambda (t - ts))], with
-
-* f the quasi-static curve, a piecewise cubic in the form of eq. (4) / Table 2: on
-  knots[i] <= eps < knots[i+1], f = c0 + c1 d + c2 d^2 + c3 d^3 with d = eps - knots[i].
-  Units here: eps in % strain (Table 2 uses a strain fraction), R in ohm.
-* S [ohm/ohm] and lambda [1/s] tabulated over (movement rate [%/s] x strain [%]) as in
-  Tables 4 and 5, one pair of tables for movements that raise the strain (``loading``) and
-  one for movements that lower it (``unloading``); looked up by bilinear interpolation in
-  (log10 rate, strain), clamped at the table edges. S may be negative (an undershoot).
-* ts the end of the last movement; while a new movement is under way the previous spike
-  keeps decaying.
-
-Online inversion (``step``/``run``, one numba kernel):
-
-1. The dead-zone direction detector ([EGaIn] section V.E, ``strain_comp.base.direction``)
-   runs on the spike-compensated resistance R_c = R / (1 + S exp(-lambda (t - ts))) of the
-   active spike, so the decay of a spike already accounted for is not taken for movement.
-2. A movement starts when the detector leaves 0; its start time and start strain are
-   those of the last hold sample. Along the movement the model tracks its furthest point
-   (the extreme of R_c in the movement's direction: the peak of a spike). The movement
-   ends at the first sample where the detector leaves the movement's sign (to hold or to
-   the opposite sign); ts is then the time of the furthest point, so the detector's lag
-   (filter, dead zone) does not delay the decay.
-3. At the end: (S, lambda) from the tables at (rate, eps_end), eps_end solving
-   R_peak = f(eps_end)(1 + S) (three fixed-point passes, as the paper divides the spiked
-   reading by 1 + S), rate = |eps_end - eps_start| / (ts - start) from the model's own
-   strain estimates, the table (loading / unloading) from the sign of the strain change.
-   Movements smaller than ``min_step`` [%] (noise, a mis-modelled decay) start no new
-   spike. The detector then restarts from R_c.
-4. Every sample: eps = f^-1(R_c) on the monotone branch of f. f is only inverted on the
-   stored ``range`` [lo, hi] where it is strictly monotone (carbon-black sensors have a
-   non-monotone shoulder); readings beyond f(lo) or f(hi) give lo or hi (clamped; the
-   calibration's valid range flags them).
-
-Known limit: when a spike decays in the direction of the movement that caused it (S > 0
-after a movement that lowered R: R keeps falling while the spike decays), the detector
-takes the decay for a continuing movement; ts then comes late and the spike is
-overestimated until it has decayed.
-
-Fit (from step-and-hold data with a reference strain): holds are runs where the reference
-moves slower than ``hold_rate`` [%/s] (default 0.2 % of the strain span per second) for at
-least ``min_hold`` s (default 1 s). Each hold after a movement is fitted with
-R = R_inf (1 + S exp(-lambda (t - t_end))) by least squares (t_end = end of the reference
-movement); R_inf at the hold's strain gives the settled points of f (points at one strain
-level, within 1 % of the span, are averaged; f = the monotone piecewise cubic Hermite
-(PCHIP) interpolant through them, ``range`` = the longest strictly monotone run of
-points). S, lambda go into the cell of the table nearest to the movement's (rate, strain);
-table axes are the rates (clustered within a factor 1.5) and strain levels present; a cell
-without data is filled from the mean of its filled neighbours, repeatedly; a direction
-without any step copies the other's table; lambda is kept only from holds whose spike
-stands clear of the noise; ``min_step`` = a quarter of the median training step. Without
-usable holds (fewer than two settled levels) f is
-fitted to all samples (PCHIP through the mean (strain, R) of 40 strain bins; the range
-ends at the outer bins' mean strain) and S = 0: a plain quasi-static inverse.
-
-``recalibrate_two_point`` scales and shifts f (f_new = a f + b) through two known points,
-as the paper calibrates a new sensor of the same make at 0 % and 15 % strain.
+The forward model, the online inversion, its known limit and the fit: docs/models.md.
 """
 
 from __future__ import annotations
@@ -96,7 +40,7 @@ from strain_comp.models.spike_decay_kernels import (
 
 @register
 class SpikeDecay(Compensator):
-    """Spike-and-decay inverse model, eq. (3)/(4); see the module docstring."""
+    """Spike-and-decay inverse model, eq. (3)/(4)."""
 
     name = "spike_decay"
 

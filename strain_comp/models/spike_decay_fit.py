@@ -1,7 +1,7 @@
 """The fit of the spike-and-decay model ([Nanocomposite] eq. (3), (4), Tables 2, 4, 5) from
 step-and-hold data: the movements and holds of the reference, each hold's decay, the
 quasi-static curve through the settled points and the (rate x strain) tables;
-``strain_comp.models.spike_decay``'s module docstring gives the method."""
+docs/models.md gives the method."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """numba kernels of the spike-and-decay model ([Nanocomposite] eq. (3), (4)): the
 quasi-static curve and its inverse, the (rate x strain) table lookup, and the online
-inversion; ``strain_comp.models.spike_decay``'s module docstring gives the method."""
+inversion; docs/models.md gives the method."""
 
 from __future__ import annotations
 
@@ -82,7 +82,7 @@ def spike_decay_kernel(state: np.ndarray, t: np.ndarray, r: np.ndarray, knots: n
                        c: np.ndarray, lo: float, hi: float, log_rates: np.ndarray,
                        strains: np.ndarray, s_tab: np.ndarray, lam_tab: np.ndarray,
                        min_step: float, deadzone: float, tau: float) -> np.ndarray:
-    """Online inversion of eq. (3); see the module docstring for the steps."""
+    """Online inversion of eq. (3) (docs/models.md, "spike_decay")."""
     out = np.empty(t.size)
     for n in range(t.size):
         tn = t[n]

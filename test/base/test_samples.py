@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from strain_comp.base.samples import SampleStatus, classify
+from strain_comp.base.samples import Status, classify
 
 
 def classify_slow(t: list[float], r: list[float]) -> list[int]:
@@ -16,16 +16,16 @@ def classify_slow(t: list[float], r: list[float]) -> list[int]:
     out = []
     for ti, ri in zip(t, r, strict=True):
         if not (math.isfinite(ri) and math.isfinite(ti)):
-            out.append(SampleStatus.NOT_FINITE)
+            out.append(Status.NOT_FINITE)
         elif ri <= 0:
-            out.append(SampleStatus.NON_POSITIVE)
+            out.append(Status.NON_POSITIVE)
         elif last_good > -math.inf and (ti <= last_good - 5.0 or ti - last_good > 5.0):
-            out.append(SampleStatus.GAP_RESET)  # a jump longer than the gap: start afresh
+            out.append(Status.GAP_RESET)  # a jump longer than the gap: start afresh
             last_good = ti
         elif ti <= last_good:
-            out.append(SampleStatus.TIME_NOT_INCREASING)
+            out.append(Status.TIME_NOT_INCREASING)
         else:
-            out.append(SampleStatus.GOOD)
+            out.append(Status.GOOD)
             last_good = ti
     return out
 

@@ -12,7 +12,7 @@ from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import apl_kernels as kern
-from strain_comp.models import model_class
+from strain_comp.models import model_class, pwa
 from strain_comp.models.apl import APL, MPI, PL
 from strain_comp.models.apl_array import APLArray
 from strain_comp.models.cubic import Cubic
@@ -163,7 +163,8 @@ def test_f_strictly_increasing_and_exact_inverse():
         assert np.all(np.diff(f) > 0)
         np.testing.assert_allclose([ref_f(v, model.mu.tolist()) for v in psi[::50]],
                                    f[::50], rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(model.f_inverse(f), psi, atol=1e-12)
+        _, b, f_at_b, inv_slopes = model.array_tables()
+        np.testing.assert_allclose(pwa.finv_array(f, b, f_at_b, inv_slopes), psi, atol=1e-12)
 
 
 def test_array_kernel_matches_per_sensor_models():
@@ -174,7 +175,7 @@ def test_array_kernel_matches_per_sensor_models():
         models.append(type(mdl)(n=5, m=7, sigma=mdl.sigma, p=mdl.p,
                                 w=rng.uniform(0, 1, 7), mu=[1.0, 0.1, 0.2, 0, 0.1, -0.3, 0.2],
                                 normalisation=Normalisation(7 + i, -2.5, 20 + i, -1)))
-    array = APLArray.from_models(models)
+    array = APLArray(models)
     t = np.cumsum(rng.exponential(0.02, 400))
     rs = np.column_stack([m.normalisation.r0 * (1.2 * np.sin(np.cumsum(rng.normal(0, .1, 400)))
                                                 - m.normalisation.alpha) for m in models])
@@ -186,7 +187,7 @@ def test_array_kernel_matches_per_sensor_models():
     array.reset()
     np.testing.assert_allclose(array.step(t[0], rs[0]), batch[0], rtol=0, atol=0)
     with pytest.raises(ParameterError):
-        APLArray.from_models([models[0], APL(n=4, m=7, sigma=1, p=1, w=np.ones(6),
+        APLArray([models[0], APL(n=4, m=7, sigma=1, p=1, w=np.ones(6),
                                              mu=np.r_[1.0, np.zeros(6)], normalisation=NORM)])
 
 

@@ -99,16 +99,6 @@ def test_split_beats_combined_on_hysteresis() -> None:
     assert results["split"] < 0.5 * results["combined"]
 
 
-def test_coefficients_ohm_is_the_same_curve() -> None:
-    t, r, s = hysteretic_data(4000)
-    norm = Normalisation.fit(r, s)
-    m = Rational.fit([Segment(t, r, s)], norm, direction=DIRECTION)
-    c = m.coefficients_ohm()
-    p, q = c["p"], c["q"]
-    s_ohm = (p[0] * r**2 + p[1] * r + p[2]) / (r**2 + q[0] * r + q[1])
-    np.testing.assert_allclose(s_ohm, m.run(t, r), rtol=1e-8)
-
-
 def test_params_round_trip_and_errors() -> None:
     t, r, s = hysteretic_data(6000)
     norm = Normalisation.fit(r, s)
