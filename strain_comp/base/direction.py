@@ -1,15 +1,7 @@
 """Dead-zone direction detector ([EGaIn] section V.E, Fig. 7): loading / hold / unloading.
 
-The causal derivative of R (first difference over dt) is low-pass filtered by exponential
-smoothing with time constant ``tau`` (alpha = 1 - exp(-dt / tau); ``tau = 0`` keeps the raw
-difference) and compared with a dead zone: above ``+deadzone`` the state is +1 (R rising,
-"loading" for a sensor whose resistance grows with strain), below ``-deadzone`` it is -1
-(R falling), inside it 0 (hold). The paper sets the dead zone at 3 or 4 sigma of the
-derivative noise measured while nothing moves; ``estimate_deadzone`` does that here.
-
-The per-sample update ``direction_update`` is a numba function that ``DirectionDetector``
-(``step`` and ``run``) and the models that switch on direction (rational, spike_decay) call
-from their own kernels, so every user sees the same states.
+One numba update (``direction_update``) serves the detector and the models that switch on
+direction (docs/models.md, "The direction detector").
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
 """A model family's array form lifted from its per-sensor kernel, as numbagg lifts a 1-D
-kernel: a family writes one numba kernel that advances sensor ``s`` of its tables by one
-good sample, and gets the array step over every sensor (``LiftedArray.step``) and the
-engine's array tick (``strain_comp.core.array``) without writing either.
-
-The kernel's contract: ``kernel(s, t, r, *state, *params) -> strain [%]`` advances row
-``s`` of each ``state`` array (2-D float64, one row per sensor, a zeroed row is a sensor at
-rest: construction, ``reset`` and the engine's gap reset zero it) by the good sample ``r``
-[ohm] at ``t`` [s], reading row ``s`` (or all) of the ``params`` arrays. The lifts bind it
-with ``strain_comp._numba.specialise`` (one compiled and cached dispatcher per family).
+kernel: ``kernel(s, t, r, *state, *params) -> strain [%]`` advances row ``s`` of each
+state array (a zeroed row is a sensor at rest) by one good sample (docs/models.md, "Arrays").
 """
 
 from __future__ import annotations

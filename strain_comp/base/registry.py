@@ -1,8 +1,7 @@
-"""The model registry: a model family registers its compensator classes under their names in
-calibration files (``register``) and its array form if it has one (``register_array``); the
-calibration reader (``model_class``) and the engine's array tick (``array_families``) look
-them up. The families register themselves when ``strain_comp.models`` is imported, which
-every layer above the models does before it reads a calibration."""
+"""The model registry: name -> compensator class (``register``), and the array forms
+(``register_array``); the families register themselves when ``strain_comp.models`` is
+imported.
+"""
 
 from __future__ import annotations
 

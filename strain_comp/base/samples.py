@@ -1,23 +1,6 @@
-"""Sample screening: the one rule deciding which raw samples may reach a model's state.
-
-The engine (``strain_comp.core.engine``, every sample online and in replay) and the fit
-(``strain_comp.offline.fit``) both call ``screen_one``; the fit passes no resistance range
-(no calibration exists yet), so only the rules that need none apply there.
-
-Per sample, in this order (``Status`` codes):
-
-1. not finite (t or R): ``NOT_FINITE`` (or the status the input conversion forced);
-2. R <= 0 ohm: ``NON_POSITIVE``; R above ``r_open``: ``OPEN_CIRCUIT``; 0 < R below
-   ``r_short``: ``SHORT_CIRCUIT``;
-3. a time more than ``gap`` seconds after the last good sample, or that far *before* it (a
-   bag loop, a sim-time reset): accepted, and the state is reset first (``GAP_RESET``);
-   any smaller step that does not move forward past the last good time:
-   ``TIME_NOT_INCREASING``;
-4. R outside [r_lo, r_hi]: ``OUT_OF_RANGE`` (still used), else ``GOOD``.
-
-Bad samples (statuses 1-5) are counted and reported by the caller; they never reach a model
-(docs/design.md, "Units and conventions"). ``STATUS_RULES`` is the one table of what each status
-means: used or not, and which health counter it adds to.
+"""Sample screening: the one rule (``screen_one``) deciding which raw samples may reach a
+model's state, in the engine and the fit; ``STATUS_RULES`` is the one table of what each
+status means (docs/models.md, "Screening").
 """
 
 from __future__ import annotations

@@ -1,19 +1,6 @@
-"""Sensors sampled together (an array topic), run as ticks (docs/design.md, "Arrays").
-
-When every sensor's model belongs to a family with an array form (registered in
-``strain_comp.base.registry``: ``strain_comp.models.apl_array.APLArray``, same N and M;
-``strain_comp.models.creep_pi.CreepPIArray``, same numbers of play operators and time
-constants) and no sensor's input is corrected, a batch of ticks is one numba call per
-family: ``family_tick`` bound to the family's per-sensor kernel (``strain_comp.base.lift``),
-a loop over the ticks and, within each, a thin loop over the family's sensors of the shared
-stages ``sensor_front`` (input fix, screen, counts, detector reset on a gap; the stage
-kernels of ``strain_comp.core.stages``), the gap reset of the model's state rows, the model
-read, the family's kernel, then ``sensor_back`` (detector, range, hold): the lifted form of
-the per-sample path. One tick (``Engine.step_array``) is a batch of one. An array mixing
-families runs each family's ticks over its own sensors. The group then keeps the array's
-state, counters and held outputs itself, and its sensors should not also be fed through
-``Engine.step``. Sensors with effect terms are corrected after the kernels, tick by tick
-(the slower path). Otherwise the ticks are each sensor's batch path (``run_together``).
+"""Sensors sampled together (an array topic), run as ticks: one numba call per model family
+with an array form when no input is corrected, else each sensor's batch path
+(docs/models.md, "Arrays").
 """
 
 from __future__ import annotations

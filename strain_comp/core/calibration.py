@@ -1,11 +1,6 @@
-"""Calibration files in memory: ``Calibration`` (one or more sensors), each a
-``SensorCalibration`` with its ``InputSettings`` and ``ValidRange``, in the format
-``strain_comp/calibration/v1`` (docs/design.md, "Calibration file", gives every field).
-
-The limits below bound what a file may hold; the reader that checks every field against
-them is ``strain_comp.core.calibration_reader`` (``parse_fields``); loading, the probe that
-runs the engine and saving are ``strain_comp.core.calibration_file``. Floats are written
-with Python's shortest round-trip repr, so load(save(c)) == c exactly.
+"""Calibration files in memory, format ``strain_comp/calibration/v1`` (docs/design.md,
+"Calibration file"), and the limits a file may hold (checked by ``calibration_reader``).
+Floats are written with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 """
 
 from __future__ import annotations
@@ -39,9 +34,8 @@ MAX_DEPTH = 64
 PARAM_MAX = 1e12
 STRAIN_MAX = 1e6
 SPAN_GAIN_MAX = 1000.0
-"""The most an input's sensitivity may differ from the calibration's, either way: the bound
-of ``InputSettings.zero_span``'s gain and of a stretch line's slope against the slope of
-the calibrated range (``calibration_reader``)."""
+"""The most an input's sensitivity may differ from the calibration's, either way (the
+zero_span gain, a stretch line's slope against the calibrated range's)."""
 
 
 def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -> None:
@@ -58,16 +52,8 @@ def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -
 
 @dataclass(frozen=True)
 class InputSettings:
-    """What the input topic carries: ``resistance`` in ohm, or ``divider`` volts across R1;
-    ``alternation``: the excitation alternates every sample, so the models and the
-    direction detector see a pair statistic of consecutive samples, ``pair``: ``mean``,
-    or ``upper`` / ``lower`` for an alternation on one side of the signal
-    (``strain_comp.core.chain.pair_values``); ``despike``: isolated
-    spikes beyond this many robust sigmas are replaced by the prediction, and
-    ``baseline_step``: jumps beyond this many robust sigmas that stay without relaxing are
-    subtracted (both ``strain_comp.core.chain.ChainCorrector``; None: off, except that
-    ``baseline_step`` alone holds spikes at ``chain.DESPIKE_K``: its watch starts from a
-    held jump)."""
+    """The calibration's ``input``: what the topic carries and the corrections the models
+    read it through (docs/design.md, "Calibration file")."""
 
     kind: str = "resistance"
     r1: float | None = None
@@ -77,21 +63,13 @@ class InputSettings:
     despike: float | None = None
     baseline_step: float | None = None
     zero_span: tuple[float, float, float] | None = None
-    """Input zero and span, the file form of the input map of the sensor's one correction
-    (``strain_comp.core.correction``): (rest [ohm], rest_calibrated [ohm], gain k); the
-    models read R' = rest_calibrated + k (R - rest), R the measured resistance (after a
-    tare's gain), so a sensor whose rest level and sensitivity moved reads as the
-    calibrated one. None: R' = R."""
+    """(rest [ohm], rest_calibrated [ohm], gain k): the models read R' = rest_calibrated +
+    k (R - rest) (``strain_comp.core.correction``); None: R' = R."""
     stretch_line: tuple[float, float] | None = None
-    """A calibration pooled with the stretch session start (``fit --pool stretch``): (R_0
-    [ohm], g [ohm per strain unit]) of the line R = R_0 + g S its training runs' calibration
-    stretches share in the calibrated input space; ``recalibrate --input`` puts a new
-    run's stretch line onto it (``strain_comp.offline.correction.onto``). None: the input
-    step reads the calibration's steady outputs (``strain_comp.offline.correction``)."""
+    """(R_0 [ohm], g [ohm per strain unit]) of the line R = R_0 + g S the training runs'
+    stretches share (``fit --pool stretch``); None: no pooled stretch."""
     unit: str = "ohm"
-    """The unit of the resistance the models and the direction detector read: ohm, or that
-    of an input given in another (``R/R0`` for a resistance divided by its first sample).
-    The dead zone is in it per second (``rate_unit``)."""
+    """The unit of the resistance the models read (``ohm``, ``R/R0``, ...)."""
 
     @property
     def rate_unit(self) -> str:
@@ -163,20 +141,13 @@ class SensorCalibration:
     effects: list[dict[str, Any]] = field(default_factory=list)
     provenance: dict[str, Any] = field(default_factory=dict)
     rest_resistance: float | None = None
-    """Resistance at rest (zero strain) when the calibration was made [ohm]; a tare scales
-    the measured resistance by rest_resistance / (the rest resistance measured now)."""
+    """Resistance at rest (zero strain) when the calibration was made [ohm]: the tare's zero."""
     strain_unit: str = "%"
-    """The unit of the strain the model gives: that of the training reference. "%" (strain
-    in percent, the contract); an extension in "mm" where the recording holds no gauge
-    length (an imported fibre run); the numbers, errors and readings are in it."""
+    """The unit of the strain the model gives: that of the training reference ("%", "mm")."""
     sample_interval: float | None = None
-    """Median sample interval of the training data [s], stored for an instrument so slow
-    that ``GAP_INTERVALS`` of its intervals exceed the default gap (``samples.
-    DEFAULT_GAP_RESET``): the engine then resets the state only after a pause of that many
-    intervals, not at every sample."""
+    """Median sample interval of a slow instrument's training data [s] (``samples.gap_for``)."""
     uncertainty: Uncertainty | None = None
-    """The learned standard deviation of every estimate (``strain_comp.core.uncertainty``);
-    None: no band (a file written before it, or a fit on one run)."""
+    """The learned standard deviation of every estimate; None: no band."""
 
     def __repr__(self) -> str:
         """Short: the name, model, ranges and fit error, not the parameters (``to_dict``)."""
@@ -193,9 +164,8 @@ class SensorCalibration:
 
     @property
     def input_rest(self) -> float | None:
-        """The measured resistance at rest [ohm] a tare refers to: the rest of the input
-        zero and span (``InputSettings.zero_span``) when there is one, else
-        ``rest_resistance`` (None: neither stored)."""
+        """The measured rest [ohm] a tare refers to: ``zero_span``'s rest, else
+        ``rest_resistance``."""
         span = self.input.zero_span
         return span[0] if span is not None else self.rest_resistance
 
@@ -279,9 +249,7 @@ def provenance(bags: list[str], fit_rmse: float, n_samples: int, **extra: Any) -
 
 
 def expected_error(cal: SensorCalibration) -> dict[str, Any] | None:
-    """The error a sensor's calibration expects on a new session: its provenance's
-    ``expected_error`` (``fit --model auto``: its model's RMSE on each training run left
-    out, after the session start there), when it holds a valid one."""
+    """The provenance's ``expected_error`` (``fit --model auto``), when it holds a valid one."""
     found = cal.provenance.get("expected_error")
     if not isinstance(found, dict):
         return None
@@ -296,8 +264,7 @@ def expected_error(cal: SensorCalibration) -> dict[str, Any] | None:
 
 def expected_words(cal: SensorCalibration) -> str | None:
     """``expected on a new session: RMSE 4.8 % strain (median), 6.8 at worst, over 7 runs
-    left out`` (``expected_error``), for ``start``, ``evaluate`` and the node's start-up
-    line; None when the calibration holds none."""
+    left out``; None when the calibration holds no ``expected_error``."""
     found = expected_error(cal)
     if found is None:
         return None

@@ -1,13 +1,7 @@
-"""Calibration files read and written with every load-time check, the probe included:
-each sensor is run through the engine on a probe (``probe_calibration``), and a
-calibration that gives a non-finite strain there is refused, so one that loads gives
-finite strain inside its declared range (docs/design.md, "Calibration file").
-
-The fields are parsed and checked (each model built, not run) in
-``strain_comp.core.calibration_reader``; this module sits above the engine, which it runs.
-Saving is atomic
-(``strain_comp.io.atomic``), and ``save_calibration`` first applies the same checks to the
-text it would write (``check_calibration``): nothing it writes fails to load.
+"""Calibration files loaded and saved with every load-time check: the fields
+(``calibration_reader``) and a probe through the engine (a sensor giving a non-finite
+strain there is refused). Saving is atomic and checks the text first: nothing written
+fails to load.
 """
 
 from __future__ import annotations
@@ -56,9 +50,7 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
 
 
 def parse_calibration(text: str, path: str) -> Calibration:
-    """Validate the text of a calibration file (every load-time check: the limits, the
-    fields, the probe). The one validation both ``load_calibration`` and
-    ``check_calibration`` (before a write) apply."""
+    """Validate the text of a calibration file: the limits, the fields, the probe."""
     calibration = parse_fields(text, path)
     probed: dict[str, str | None] = {}
     for name, cal in calibration.sensors.items():
@@ -80,13 +72,12 @@ def probe_key(cal: SensorCalibration) -> str:
 
 def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"
                       ) -> None:
-    """The load-time checks on the file ``calibration`` would be. ``save_calibration`` runs
-    it before writing, so nothing written fails to load."""
+    """The load-time checks on the file ``calibration`` would be."""
     _check_text(calibration_text(calibration), path)
 
 
 def _check_text(text: str, path: str | os.PathLike[str]) -> None:
-    """``check_calibration`` of the calibration whose ``calibration_text`` is ``text``."""
+    """``check_calibration`` of ``calibration_text``'s ``text``."""
     if len(text.encode("utf-8")) > MAX_FILE_BYTES:
         raise CalibrationError(str(path), "file", f"refused: larger than {MAX_FILE_BYTES} bytes")
     parse_calibration(text, str(path))
@@ -94,8 +85,7 @@ def _check_text(text: str, path: str | os.PathLike[str]) -> None:
 
 def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
                      inputs: Iterable[str | os.PathLike[str]] = (), check: bool = True) -> None:
-    """Write atomically (``strain_comp.io.atomic``): a crash at any moment leaves the old or
-    the new file, never a mix."""
+    """Write atomically (a crash leaves the old or the new file), checked first."""
     text = calibration_text(calibration)  # made once: checked, then written
     if check:
         try:
@@ -107,9 +97,8 @@ def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
 
 
 def probe_resistance(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
-    """A probe of one sensor: log-spaced from the shortest to the most open value the engine
-    feeds a model (0.01 x the bottom to 100 x the top of the valid range) and back, slowly,
-    fast, and with a long hold."""
+    """A probe of one sensor: log-spaced from short to open (0.01 x the bottom to 100 x the
+    top of the valid range) and back, slowly, fast, and with a long hold."""
     lo, hi = math.log(cal.valid_range.r_lo * 0.011), math.log(cal.valid_range.r_hi * 99.0)
     up = np.exp(np.linspace(lo, hi, 200))
     sweep = np.concatenate([up, up[::-1], up[::4], up[::-4], np.full(50, up[100])])
@@ -119,10 +108,9 @@ def probe_resistance(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
 
 
 def probe_calibration(cal: SensorCalibration) -> str | None:
-    """Where the engine gives a non-finite strain on this sensor's probe
-    (``probe_resistance``, with a temperature of 25 deg C). The probe is the resistance the
-    model reads: an input zero and span (an affine map checked on its own) is left out, else
-    a probe value it maps below the short level is screened out."""
+    """Where the engine gives a non-finite strain on this sensor's probe (25 deg C), or None.
+    The input zero and span is left out: a probe value it maps below the short level would
+    be screened out."""
     probe = SensorCalibration(**{**vars(cal), "input": replace(cal.input, zero_span=None),
                                  "effects": [e for e in cal.effects
                                              if e.get("kind") != "crosstalk"]})
@@ -135,9 +123,8 @@ def probe_calibration(cal: SensorCalibration) -> str | None:
 
 
 def loadable(cal: SensorCalibration, change: str) -> SensorCalibration:
-    """``cal`` after the checks every calibration reader applies, so a recalibration
-    (``offline.correction.apply_span``, ``apply_map``) refuses in the API
-    what the command line's write refuses."""
+    """``cal`` after the load-time checks, so a recalibration refuses in the API what the
+    command line's write refuses."""
     try:
         check_calibration(Calibration({cal.name: cal}))
     except CalibrationError as err:

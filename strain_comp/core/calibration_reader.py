@@ -1,19 +1,7 @@
-"""The validating reader of calibration files (format: ``strain_comp.core.calibration``).
-
-Parsing (``parse_fields``) validates every field without running a model and raises one
-``CalibrationError`` naming the file and the dotted field. Limits bound the work per sensor
-and per term, so an array of any size the node can run loads and a hostile file is refused,
-never half-read: a regular file of at most ``MAX_SENSOR_BYTES`` per sensor (plus
-``MAX_SENSOR_BYTES`` for the header) and at most ``MAX_FILE_BYTES`` in all (``MAX_SENSORS``
-sensors); at most ``MAX_SENSOR_EFFECTS`` effect terms per sensor (the load-time probe runs
-each, so these bound the load time per sensor); at most ``MAX_ALIASES`` YAML aliases and
-``MAX_NODES`` values once aliases are expanded (no "billion laughs"); nesting at most
-``MAX_DEPTH`` deep (aliases included); integers within float range; every number of a
-model's parameters and of an effect at most ``PARAM_MAX`` in magnitude, resistances in (0,
-``PARAM_MAX``] and strains within +/- ``STRAIN_MAX`` %. A cross-talk effect must read
-another sensor; no model may have a pole inside its valid range. Each sensor's model is
-built once here (its parameters' checks and the pole check). Loading, the probe that runs
-the engine and saving are ``strain_comp.core.calibration_file``.
+"""The validating reader of calibration files: every field checked, each model built once
+(its parameter checks, no pole in the valid range), none run; one ``CalibrationError``
+naming the file and the dotted field. The limits (``calibration.MAX_*``, ``PARAM_MAX``,
+``STRAIN_MAX``) bound the work per sensor, so a hostile file is refused, never half-read.
 """
 
 from __future__ import annotations
@@ -276,8 +264,7 @@ class _Reader:
 
     def line_slope(self, cal: SensorCalibration, where: str) -> None:
         """A stretch line's slope within ``SPAN_GAIN_MAX`` times, either way, of the slope
-        of the calibrated range (resistance span over strain span): a line flatter than
-        that reads every resistance alike (the zero_span gain's bound, on the line)."""
+        of the calibrated range."""
         line, vr = cal.input.stretch_line, cal.valid_range
         if line is None or not vr.s_hi > vr.s_lo:
             return
@@ -362,10 +349,8 @@ def read_text(path: str | os.PathLike[str]) -> str:
 
 
 def parse_fields(text: str, path: str) -> Calibration:
-    """Validate the text of a calibration file without running a model: the limits, the
-    fields and the poles (``strain_comp.core.calibration_file.parse_calibration`` adds the
-    probe). The cyclic garbage collector is paused meanwhile (``safe_yaml.load_limited``: a
-    large array's many small objects, no cycles)."""
+    """Validate the text of a calibration file without running a model. The cyclic garbage
+    collector is paused meanwhile (a large array's many small objects, no cycles)."""
     collecting = gc.isenabled()
     gc.disable()
     try:

@@ -1,11 +1,7 @@
 """The transport-free engine: calibrated strain, direction and health of every sensor.
 
-Bag replay and both live transports (rclpy node, DDS) feed the same ``Engine``, so a bag
-replayed through the node logic gives the numbers ``replay`` gives (docs/design.md, "The
-engine"). The engine holds one ``strain_comp.core.sensor.SensorState`` per sensor and one
-``strain_comp.core.array.ArrayGroup`` per array; the per-sample stages are
-``strain_comp.core.stages``, the out-of-range policy ``strain_comp.core.range_policy``.
-``step`` is ``run`` on a batch of one: there is one per-sample path.
+Replay, evaluate and the node feed the same ``Engine``; ``step`` is ``run`` on a batch of
+one, so there is one per-sample path (docs/models.md).
 """
 
 from __future__ import annotations

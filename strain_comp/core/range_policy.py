@@ -1,12 +1,6 @@
 """The out-of-range policy: where a sample is flagged, an open circuit or a short, and what
-strain a resistance beyond the valid range gives (docs/design.md, "Out of range").
-
-A sensor's ``SensorRange`` holds the limits the stages read (``strain_comp.core.stages``):
-R outside the valid range widened by ``MARGIN`` of its span is flagged; the
-estimate is clamped to the strain range widened the same way and then, by ``out_of_range``
-(``OUT_OF_RANGE_MODES``), extended beyond it with a bounded slope within a bounded reach
-(``bounded_slopes``), or with the model's end slope (``end_slopes``), or not. The numbers
-are the constants below (docs/results.md gives what keeps each).
+strain a resistance beyond the valid range gives (``OUT_OF_RANGE_MODES``); the numbers are
+the constants below (docs/results.md, "Out of range", gives what keeps each).
 """
 
 from __future__ import annotations

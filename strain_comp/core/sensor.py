@@ -1,14 +1,6 @@
 """One sensor in the engine: its calibration, model, detector, effect terms, input
 corrector, limits, held output and health, and the per-sample path through them
-(docs/design.md, "The engine"; the stages are ``strain_comp.core.stages``).
-
-Per sample, in this order: input conversion (and tare gain, input zero and span);
-screening (``strain_comp.base.samples.screen_one``); a gap reset of model, detector and
-effect terms; the input corrections (``input.filtered``: pair means, spikes, baseline
-steps; ``strain_comp.core.chain``); the detector and the model (reading ``model_read``);
-the effect terms (``strain_comp.core.effects``) on the clamped estimate; the range stage
-(``bound``); the hold. ``run_model`` / ``run_finish`` run a batch through them; one sample
-is a batch of one (``Engine.step``), so there is one path.
+(docs/models.md, "The engine's per-sample path"); one sample is a batch of one.
 """
 
 from __future__ import annotations

@@ -1,14 +1,6 @@
-"""The per-sample stages every path runs: input fix, screen, model read, range, hold.
-
-Each stage is one scalar kernel (``divider_ohm``, ``strain_comp.base.samples.screen_one``,
-``model_read``, ``bound``); the fused array tick (``strain_comp.core.array``) calls it on
-each sensor of a tick, and ``Engine.run`` (one sample: a batch of one) through its lift
-over a batch (``divider_all``, ``screen_batch``, ``saturate_all``, ``bound_all``,
-``hold``), as numbagg lifts a 1-D kernel: one rule, written once (docs/design.md, "The
-engine").
-
-The range stages read one sensor's limits as a row (``RANGE_COLUMNS``, from
-``strain_comp.core.range_policy.SensorRange.row``).
+"""The per-sample stages every path runs (input fix, screen, model read, range, hold): one
+scalar kernel each, called per sensor by the array tick and lifted over a batch for
+``Engine.run`` (docs/models.md, "The engine's per-sample path").
 """
 
 from __future__ import annotations

@@ -1,14 +1,6 @@
-"""The standard deviation of every estimate (docs/design.md, "Uncertainty").
-
-A calibration learned with several runs (``strain_comp.offline.uncertainty.learn``) holds
-per sensor a log-linear variance model, log sigma^2 = w . x, over what the engine knows at
-each used sample (``FEATURES``): the direction (loading, unloading, hold), the time since
-the direction last changed, how far the resistance lies outside the calibrated range, the
-time since the session started (the engine's first sample, a reset, a reload, a span or a
-session start) and the published strain's level. ``features_one`` is the one place these
-are computed: the engine calls it through ``std_run``, the
-learner through ``features_run``, and the array tick (``strain_comp.core.array``) inside
-its kernel, so every path gives the same numbers. A calibration without it gives no band (NaN).
+"""The standard deviation of every estimate (docs/design.md, "Uncertainty"): a log-linear
+variance model over ``FEATURES``, computed in one place (``features_one``) for the engine,
+the learner and the array tick.
 """
 
 from __future__ import annotations
