@@ -52,9 +52,7 @@ class CellFamily(Protocol[_Built]):
                  ) -> _Built: ...
 
 CELL_WEIGHTS = ("signed", "lead", "lag", "free")
-"""Constraints on the cell weights: one sign, the loop's orientation chosen from the
-training data (``_FitProblem.loop_sign``); one sign, for a resistance that leads the strain
-(the paper's orientation) or lags it; none."""
+"""Constraints on the cell weights (docs/design.md, "Loop orientation")."""
 LOOP_SWITCH_GAIN = 0.05
 """``signed`` holds the cells to a lagging loop only when that lowers the training output
 RMSE by more than this share against the paper's leading loop (docs/results.md)."""
@@ -69,9 +67,8 @@ def fit_cells(cls: CellFamily[_Cells], segments: Sequence[Segment], normalisatio
               refine: bool, cell_weights: str, eps: float, ridge: float, output_nfev: int,
               search_nfev: int, search_top: int, workers: int | None,
               progress: bool | Callable[[str], None]) -> _Cells:
-    """The fit of an APL, PL or MPI model (``APL.fit``, whose arguments were checked): the
-    QP, the sigma / p grid, the output-error refinement (``strain_comp.models.apl``'s module
-    docstring), called by ``APL.fit``, which holds BLAS to one thread."""
+    """The fit of an APL, PL or MPI model (docs/models.md), called by ``APL.fit``, which
+    checked the arguments and holds BLAS to one thread."""
     problem = _FitProblem(cls, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
     if cls.kind == kern.KIND_APL and problem.gauge < 0:
@@ -266,19 +263,9 @@ class _FitProblem(Generic[_Cells]):
             self._set_bounds()
 
     def loop_sign(self) -> int:
-        """The sign the training loop asks of the cell weights (as a multiple of the
-        gauge's sign: 1 a leading, -1 a lagging resistance).
-
-        Positive cell weights (for a rising gauge) put the strain lower, at a given
-        resistance, while the input rises: the resistance is higher on loading than on
-        unloading, it leads the strain (a clockwise S-R loop, as the paper's sensor and the
-        rig have it). Negative ones: the resistance lags the strain (counter-clockwise,
-        e.g. a viscoelastic thread). The inverse of a Prandtl-Ishlinskii operator with
-        positive weights has weights of one sign, so one sign for all cells is the right
-        constraint, but which sign is the sensor's. The loop is the sensor's, not the
-        model's: both signs are fitted with the MPI's cells (symmetric play operators, no
-        creep) for every model of the family, and the lagging loop is taken when it lowers
-        the output RMSE by more than ``LOOP_SWITCH_GAIN``, else the paper's."""
+        """The sign the training loop asks of the cell weights, as a multiple of the gauge's
+        (1: the resistance leads, -1: it lags; docs/design.md, "Loop orientation"). Both are
+        fitted with the MPI's cells whatever the model: the loop is the sensor's."""
         scores = {}
         for loop in (1, -1):
             self.weight_sign = loop * self.gauge
@@ -295,14 +282,8 @@ class _FitProblem(Generic[_Cells]):
         self._set_bounds()
 
     def memory_report(self, result: _Solution) -> dict[str, Any]:
-        """How much of the fitted output comes from the cells' memory: ``memory_share``,
-        the RMS over the training data of what the cells' term sum_k w_k x_k adds beyond
-        any cubic in xi (its least-squares residual on 1, xi, xi^2, xi^3: a cell that
-        follows the input, or sits at a constant offset from it, is no memory) over the
-        RMS of w . z about its mean; ``memoryless`` when it is below
-        ``MEMORYLESS_SHARE``; ``loop`` the S-R loop orientation the cell weights were
-        held to (``lead``: resistance higher on loading, ``lag``: lower, ``free``: not
-        held)."""
+        """``memory_share`` (docs/design.md, "Loop orientation"), ``memoryless`` and the
+        ``loop`` the cell weights were held to."""
         z = self.design(result.sigma, result.p)
         term = z[:, 1:self.n + 1] @ result.w[1:self.n + 1]
         static = np.column_stack([np.ones_like(self.xi), self.xi, self.xi ** 2, self.xi ** 3])

@@ -13,10 +13,9 @@ from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
 from strain_comp.base.compensator import (
-    Compensator,
+    KernelCompensator,
     Normalisation,
     Segment,
-    as_float_arrays,
     require_vector,
 )
 from strain_comp.base.direction import (
@@ -154,7 +153,7 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
 
 
 @register
-class Rational(Compensator):
+class Rational(KernelCompensator):
     """rat22 compensator, combined or split by direction."""
 
     name = "rational"
@@ -175,18 +174,11 @@ class Rational(Compensator):
         """Detector restarts; the combined fit is used until the first movement."""
         self.state[:] = 0.0
 
-    def _kernel(self, t: np.ndarray, xi: np.ndarray) -> np.ndarray:
-        return rational_kernel(self.state, t, xi, self.coef, self.mode == "split",
-                               self.direction.deadzone / self.normalisation.r0,
-                               self.direction.tau)
-
-    def step(self, t: float, r: float) -> float:
-        xi = float(self.normalisation.xi(r))
-        return float(self._kernel(np.array([float(t)]), np.array([xi]))[0])
-
-    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        t, r = as_float_arrays(t, r)
-        return self._kernel(t, self.normalisation.xi(r))
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        out[:] = rational_kernel(self.state, t, self.normalisation.xi(r), self.coef,
+                                 self.mode == "split",
+                                 self.direction.deadzone / self.normalisation.r0,
+                                 self.direction.tau)
 
     def singular_in(self, r_lo: float, r_hi: float) -> float | None:
         """The first resistance in [r_lo, r_hi] where a branch's denominator has a real root

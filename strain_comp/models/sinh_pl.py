@@ -16,7 +16,7 @@ from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
 from strain_comp.base.compensator import (
-    Compensator,
+    KernelCompensator,
     Normalisation,
     Segment,
     as_float_arrays,
@@ -123,7 +123,7 @@ def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0:
 
 
 @register
-class SinhPL(Compensator):
+class SinhPL(KernelCompensator):
     """Reduced power-law compensator with N sinh cells, eq. (1)-(3)."""
 
     name = "sinh_pl"
@@ -140,26 +140,14 @@ class SinhPL(Compensator):
             raise ParameterError("w", "w, i_s and v_t must have one entry per cell")
         self.state = np.zeros(2 + self.w.size)
 
-    @property
-    def n_cells(self) -> int:
-        return int(self.w.size)
-
     def reset(self) -> None:
         """Cells back to 'not started': the next sample puts them at rest."""
         self.state[:] = 0.0
 
-    def _inverse(self, t: np.ndarray, xi: np.ndarray) -> np.ndarray:
-        return sinh_pl_inverse_kernel(self.state, t, xi, self.w0, self.vb, self.w, self.i_s,
-                                      self.v_t)
-
-    def step(self, t: float, r: float) -> float:
-        xi = float(self.normalisation.xi(r))
-        psi = self._inverse(np.array([float(t)]), np.array([xi]))[0]
-        return float(self.normalisation.strain(psi))
-
-    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        t, r = as_float_arrays(t, r)
-        return self.normalisation.strain(self._inverse(t, self.normalisation.xi(r)))
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        out[:] = self.normalisation.strain(sinh_pl_inverse_kernel(
+            self.state, t, self.normalisation.xi(r), self.w0, self.vb, self.w, self.i_s,
+            self.v_t))
 
     def forward(self, t: npt.ArrayLike, s: npt.ArrayLike) -> np.ndarray:
         """Resistance [ohm] the forward model eq. (2) predicts for strain s [%] (fresh state)."""

@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.base.compensator import (
-    Compensator,
+    KernelCompensator,
     Normalisation,
     Segment,
     as_float_arrays,
@@ -39,7 +39,7 @@ from strain_comp.models.spike_decay_kernels import (
 
 
 @register
-class SpikeDecay(Compensator):
+class SpikeDecay(KernelCompensator):
     """Spike-and-decay inverse model, eq. (3)/(4)."""
 
     name = "spike_decay"
@@ -79,18 +79,11 @@ class SpikeDecay(Compensator):
         return (float(table_lookup(self.s_table[k], *args)),
                 float(table_lookup(self.lam_table[k], *args)))
 
-    def _kernel(self, t: np.ndarray, r: np.ndarray) -> np.ndarray:
-        return spike_decay_kernel(self.state, t, r, self.knots, self.c, self.lo, self.hi,
-                                  np.log10(self.rates), self.strains, self.s_table,
-                                  self.lam_table, self.min_step, self.direction.deadzone,
-                                  self.direction.tau)
-
-    def step(self, t: float, r: float) -> float:
-        return float(self._kernel(np.array([float(t)]), np.array([float(r)]))[0])
-
-    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        t, r = as_float_arrays(t, r)
-        return self._kernel(t, r)
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        out[:] = spike_decay_kernel(self.state, t, r, self.knots, self.c, self.lo, self.hi,
+                                    np.log10(self.rates), self.strains, self.s_table,
+                                    self.lam_table, self.min_step, self.direction.deadzone,
+                                    self.direction.tau)
 
     def predict_resistance(self, t: npt.ArrayLike, s: npt.ArrayLike, *,
                            hold_rate: float | None = None) -> np.ndarray:
