@@ -1,8 +1,5 @@
-"""What every compensator is: a streaming inverse model, resistance in, strain % out.
-
-The contract (explicit state, ``step`` and ``run`` through one kernel) is docs/design.md,
-"Models"; the parameters are the calibration file's ``model.params`` (docs/design.md,
-"Calibration file").
+"""What every compensator is: a streaming inverse model, resistance in, strain % out
+(docs/design.md, "Models"); its parameters are the calibration file's ``model.params``.
 """
 
 from __future__ import annotations
@@ -86,9 +83,8 @@ class Compensator(ABC):
     name: ClassVar[str]
     """Model name as written in calibration files and on the command line."""
     fit_full_rate: ClassVar[bool] = False
-    """True when ``fit`` takes every sample of any number of them in bounded memory
-    (creep_pi): the fit then skips the budget's reduction (``strain_comp.offline.reduce``),
-    which would low-pass and decimate what its states are computed from."""
+    """True when ``fit`` takes every sample in bounded memory (creep_pi): the fit then skips
+    the budget's reduction, which would low-pass what its states are computed from."""
 
     def __init__(self, normalisation: Normalisation) -> None:
         """A model mapping through ``normalisation``."""
@@ -128,9 +124,8 @@ class Compensator(ABC):
 
 
 class KernelCompensator(Compensator):
-    """A compensator whose ``run`` and ``step`` are one numba kernel over arrays
-    (``_run_into``): ``step`` runs it on a one-sample view, so both paths share every
-    floating-point operation."""
+    """A compensator whose ``step`` runs its array path (``_run_into``) on a one-sample view,
+    so both paths share every floating-point operation."""
 
     def __init__(self, normalisation: Normalisation) -> None:
         super().__init__(normalisation)
@@ -140,8 +135,7 @@ class KernelCompensator(Compensator):
 
     @abstractmethod
     def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
-        """Advance over contiguous float64 arrays of good samples, writing strain % to
-        ``out``."""
+        """Advance over contiguous float64 arrays of good samples, strain % into ``out``."""
 
     def step(self, t: float, r: float) -> float:
         self._t1[0] = t

@@ -31,6 +31,11 @@ class DirectionSettings:
     sign: int = 1
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.deadzone) and self.deadzone >= 0.0):
+            raise ParameterError("direction.deadzone", f"must be finite and >= 0, got "
+                                 f"{self.deadzone}")
+        if not (math.isfinite(self.tau) and self.tau >= 0.0):
+            raise ParameterError("direction.tau", f"must be finite and >= 0, got {self.tau}")
         if self.sign not in (1, -1) or isinstance(self.sign, bool):
             raise ParameterError("direction.sign", f"must be +1 or -1, got {self.sign!r}")
 
@@ -97,20 +102,11 @@ def _filtered_derivative(t: np.ndarray, r: np.ndarray, tau: float) -> np.ndarray
     return d
 
 
-def _check_settings(settings: DirectionSettings) -> None:
-    if not (math.isfinite(settings.deadzone) and settings.deadzone >= 0.0):
-        raise ParameterError("direction.deadzone", f"must be finite and >= 0, got "
-                             f"{settings.deadzone}")
-    if not (math.isfinite(settings.tau) and settings.tau >= 0.0):
-        raise ParameterError("direction.tau", f"must be finite and >= 0, got {settings.tau}")
-
-
 class DirectionDetector:
     """Streaming dead-zone direction detector; ``step`` and ``run`` share one kernel."""
 
     def __init__(self, settings: DirectionSettings) -> None:
         """A detector that has seen nothing."""
-        _check_settings(settings)
         self.settings = settings
         self.state = new_state()
 

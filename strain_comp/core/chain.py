@@ -186,9 +186,8 @@ class ChainCorrector:
             self.state[column] = 0.0
 
     def rescale(self, factor: float) -> None:
-        """Carry the state over to samples ``factor`` x as large (a new tare gain): every
-        level, offset, rate and innovation scales with them, so the gain change itself is
-        neither a spike nor a baseline step."""
+        """Carry the state over to samples ``factor`` x as large (a new tare gain), so the
+        gain change itself is neither a spike nor a baseline step."""
         for column in LEVELS:
             self.state[column] *= factor
         for values in (self.window, self.trend, self.buffer, self.pre):
@@ -214,10 +213,9 @@ class ChainCorrector:
 def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
             step_k: float = 0.0, alternating: bool | None = None, pair: str = "mean",
             ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
-    """A whole run's finite positive samples through a fresh ``ChainCorrector``, after the
-    pair statistic ``pair`` (``pair_values``) when the excitation alternates (when None:
-    found from the data), as the engine feeds its models: (what the models see, event
-    codes, the corrector); NaN where bad."""
+    """A whole run through a fresh ``ChainCorrector`` as the engine feeds its models (after
+    the pair statistic when the excitation alternates; None: found from the data): (what
+    the models see, event codes, the corrector), NaN where bad."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)

@@ -1,6 +1,6 @@
-"""numba kernels of the chain corrector (``strain_comp.core.chain.ChainCorrector``, whose
-docstring gives the method): its state layout, event codes and tuning, and the judgement
-of each sample against its prediction."""
+"""numba kernels of the chain corrector (``strain_comp.core.chain.ChainCorrector``): its
+state layout, event codes and tuning, and the judgement of each sample against its
+prediction."""
 
 from __future__ import annotations
 

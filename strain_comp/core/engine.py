@@ -29,9 +29,7 @@ GAP_RESET = sc.DEFAULT_GAP_RESET
 
 
 def tracking_off(mode: str) -> None:
-    """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/results.md),
-    ``off`` is the behaviour that remains (the rest level is the calibration's or the
-    tare's)."""
+    """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/results.md)."""
     if mode != "off":
         raise InputError(f"--baseline-tracking {mode}: baseline tracking was removed (it "
                          "never acted on the generalisation benchmark); only off remains")
@@ -126,10 +124,9 @@ class Engine:
         return gain
 
     def set_input_gain(self, sensor: str, gain: float) -> None:
-        """Set the tare gain of ``sensor``, effective from the next sample. The state is kept:
-        the input corrector's and the pair statistic's references are carried over to the new
-        gain, so the change is not taken for a baseline step, and so is the memory of effect
-        terms that read the resistance, so the change is no step for them either."""
+        """Set the tare gain of ``sensor``, effective from the next sample; the corrector's,
+        the pair statistic's and the effect terms' references are carried over to it, so
+        the change is no step for them."""
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
         s = self._sensor(sensor)
@@ -225,9 +222,8 @@ class Engine:
         return out
 
     def stale_for(self, sensor: str) -> float:
-        """The silence after which ``sensor`` is stale: ``stale_after``, or two of its sample
-        intervals for a slow instrument (``SensorCalibration.sample_interval``), which is
-        otherwise stale between every two samples."""
+        """The silence after which ``sensor`` is stale: ``stale_after``, or two sample
+        intervals of a slow instrument."""
         interval = self._sensor(sensor).cal.sample_interval
         return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 

@@ -149,11 +149,8 @@ def times_text(t: np.ndarray) -> np.ndarray:
 
 
 class HealthCounter:
-    """A sensor's health at any tick of one run: its health ``before`` the run plus the
-    cumulative counts of the run's samples ``t`` (in order; ``out`` their results; None:
-    the sensor ran nothing), summed once per run, so a tick costs a lookup, not a
-    ``SensorHealth``: what ``Engine.health(now=tick)`` would have said had the run been cut
-    at the tick."""
+    """A sensor's health at any tick of one run (``Engine.health(now=tick)`` had the run been
+    cut there): ``before`` plus cumulative counts, summed once, so a tick costs a lookup."""
 
     def __init__(self, before: SensorHealth, t: np.ndarray | None = None,
                  out: BatchOutput | None = None) -> None:

@@ -21,11 +21,9 @@ class SensorOutput:
     status: Status
     out_of_range: bool
     resistance: float = math.nan
-    """The resistance [ohm] the model read (as ``BatchOutput.resistance``); NaN for a bad
-    sample."""
+    """The resistance [ohm] the model read; NaN for a bad sample."""
     std: float = math.nan
-    """The estimate's standard deviation (``strain_comp.core.uncertainty``; held with the
-    strain); NaN where the calibration holds no uncertainty."""
+    """The estimate's standard deviation; NaN where the calibration holds no uncertainty."""
 
 
 @dataclass(frozen=True)
@@ -37,8 +35,7 @@ class ArrayOutput:
     status: np.ndarray
     out_of_range: np.ndarray
     std: np.ndarray | None = None
-    """The standard deviation per sensor (NaN for a sensor without an uncertainty); None
-    when no sensor of the array has one."""
+    """The standard deviation per sensor; None when no sensor of the array has one."""
 
 
 @dataclass(frozen=True)
@@ -50,18 +47,15 @@ class BatchOutput:
     status: np.ndarray
     out_of_range: np.ndarray
     resistance: np.ndarray
-    """The resistance [ohm] the model read at each used sample (converted, times the tare
-    gain, after the input corrections: what effect terms read); other samples hold their
-    converted input. Read-only: it may share memory with the caller's input."""
+    """The resistance [ohm] the model read at each used sample (what effect terms read),
+    else the converted input. Read-only: it may share memory with the caller's input."""
     reset: np.ndarray | None = None
-    """True where a gap reset the state before the sample (counted in ``n_gaps``); None
-    when not known (no resets assumed)."""
+    """True where a gap reset the state before the sample; None: not known."""
     corrections: np.ndarray | None = None
-    """Where the input corrector removed a spike (``chain.SPIKE``) or confirmed a
-    baseline step (``chain.STEP``), else 0; None without a corrector."""
+    """``chain.SPIKE`` or ``chain.STEP`` where the input corrector acted, else 0; None
+    without a corrector."""
     std: np.ndarray | None = None
-    """The estimate's standard deviation per sample (held with the strain); None where the
-    calibration holds no uncertainty."""
+    """The estimate's standard deviation per sample; None without an uncertainty."""
 
 
 def concatenate(outs: Sequence[BatchOutput]) -> BatchOutput:

@@ -92,11 +92,9 @@ class SensorRange:
 
 def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
-    """The model's output along a slow ramp over the valid range and back from a fresh
-    state (``SETTLE_STEPS`` = n steps each way at 10 Hz): (loading branch, unloading
-    branch), both at the resistances ``np.linspace(r_lo, r_hi, n + 1)``. A sensor leaves
-    the range at the top while loading and at the bottom while unloading. ``model``:
-    ``cal``'s model, reset before and after the ramp (None: a new one)."""
+    """(loading, unloading) branch of the model along a slow ramp (``SETTLE_STEPS`` each way
+    at 10 Hz) over the valid range and back from rest, both at ``np.linspace(r_lo, r_hi,
+    n + 1)``; ``model`` is reset before and after (None: a new one)."""
     n = SETTLE_STEPS
     up = np.linspace(limits.r_lo, limits.r_hi, n + 1)
     r = np.concatenate([up, up[-2::-1]])

@@ -100,10 +100,8 @@ class SensorState:
     def build(cls, cal: SensorCalibration, deadzone_scale: float,
               out_of_range: str = "clamp", limits: SensorRange | None = None
               ) -> SensorState:
-        """A fresh sensor: model, detector (dead zone x ``deadzone_scale``), limits under
-        the policy ``out_of_range``, effect terms and input corrector of ``cal``.
-        ``limits``: the limits already built for ``cal`` and ``out_of_range`` (they depend
-        on nothing else; building them runs the model along a ramp), None to build them."""
+        """A fresh sensor of ``cal``; ``limits``: those already built for ``cal`` and
+        ``out_of_range`` (building them runs the model along a ramp), None to build them."""
         model = cal.build_model()
         if limits is None:
             limits = SensorRange.build(cal, out_of_range, model)
@@ -119,12 +117,10 @@ class SensorState:
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
-        """What the models see of used samples ``ohm`` at times ``t``: the calibration's pair
-        statistic (``input.pair``) when its input alternates, then the spike / baseline-step
-        corrector when set (``strain_comp.core.chain``), else ``ohm``; ``previous``: the used
-        sample before them (NaN after a reset, which also restarts the corrector's
-        references); with the corrector's event per sample (spikes and confirmed steps,
-        also counted in ``health``), None without a corrector."""
+        """What the models see of used samples ``ohm``: the pair statistic when the input
+        alternates, then the corrector when set; ``previous``: the used sample before them
+        (NaN after a reset, which restarts the corrector). With the corrector's event per
+        sample, None without a corrector."""
         if not self.cal.input.filtered or not ohm.size:
             return ohm, None
         self.previous = float(ohm[-1])

@@ -212,8 +212,7 @@ class CreepPI(KernelCompensator):
 @lift(kern.step_sensor, fastmath=kern.FASTMATH)
 class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same numbers of play operators and time constants) stepped
-    together in one kernel call (``strain_comp.base.lift``, kernel
-    ``creep_kernels.step_sensor``)."""
+    together in one kernel call."""
 
     family = "a creep_pi"
 

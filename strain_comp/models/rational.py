@@ -22,7 +22,6 @@ from strain_comp.base.direction import (
     STATE_SIZE,
     DirectionDetector,
     DirectionSettings,
-    _check_settings,
     direction_update,
 )
 from strain_comp.base.registry import register
@@ -163,7 +162,6 @@ class Rational(KernelCompensator):
         super().__init__(normalisation)
         if mode not in MODES:
             raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
-        _check_settings(direction)
         self.mode = mode
         self.direction = direction
         rows = [coef["combined"]] * 3 if mode == "combined" else [coef[b] for b in _BRANCHES]

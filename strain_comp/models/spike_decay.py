@@ -19,7 +19,7 @@ from strain_comp.base.compensator import (
     require_float,
     require_vector,
 )
-from strain_comp.base.direction import DirectionSettings, _check_settings
+from strain_comp.base.direction import DirectionSettings
 from strain_comp.base.registry import register
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models.spike_decay_fit import (
@@ -50,7 +50,6 @@ class SpikeDecay(KernelCompensator):
                  min_step: float, normalisation: Normalisation,
                  direction: DirectionSettings) -> None:
         super().__init__(normalisation)
-        _check_settings(direction)
         self.direction = direction
         self.knots = np.ascontiguousarray(knots, dtype=np.float64)
         self.c = np.ascontiguousarray(c, dtype=np.float64).reshape(self.knots.size, 4)
