@@ -38,21 +38,6 @@ def band_counts(estimate: npt.ArrayLike, reference: npt.ArrayLike, std: npt.Arra
     return int(ok.sum()), int(inside.sum())
 
 
-def error_stats(estimate: npt.ArrayLike, reference: npt.ArrayLike) -> ErrorStats:
-    """RMSE = sqrt(mean((S_hat - S)^2)) ([Electrolycra] eq. (5)), MAE, max |e| and R^2."""
-    s_hat = np.asarray(estimate, dtype=np.float64)
-    s = np.asarray(reference, dtype=np.float64)
-    ok = np.isfinite(s_hat) & np.isfinite(s)
-    if not ok.any():
-        nan = float("nan")
-        return ErrorStats(nan, nan, nan, nan, 0)
-    e = s_hat[ok] - s[ok]
-    ss_tot = float(np.sum((s[ok] - s[ok].mean()) ** 2))
-    r2 = 1.0 - float(np.sum(e**2)) / ss_tot if ss_tot > 0 else float("nan")
-    return ErrorStats(rmse=float(np.sqrt(np.mean(e**2))), mae=float(np.mean(np.abs(e))),
-                      max_abs=float(np.max(np.abs(e))), r2=r2, n=int(ok.sum()))
-
-
 class ErrorAccumulator:
     """``error_stats`` over a series that arrives in pieces, in constant memory."""
 
@@ -127,3 +112,9 @@ class ErrorAccumulator:
         return ErrorStats(rmse=math.sqrt(self.sum_e2 / self.n), mae=self.sum_abs / self.n,
                           max_abs=self.max_abs, r2=r2, n=self.n)
 
+
+def error_stats(estimate: npt.ArrayLike, reference: npt.ArrayLike) -> ErrorStats:
+    """RMSE = sqrt(mean((S_hat - S)^2)) ([Electrolycra] eq. (5)), MAE, max |e| and R^2."""
+    acc = ErrorAccumulator()
+    acc.add(estimate, reference)
+    return acc.stats()
