@@ -78,7 +78,7 @@ class Segment:
 
 
 class Compensator(ABC):
-    """Base class of the eight inverse models; see the module docstring for the contract."""
+    """Base class of the eight inverse models."""
 
     name: ClassVar[str]
     """Model name as written in calibration files and on the command line."""

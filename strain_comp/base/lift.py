@@ -57,7 +57,7 @@ class LiftedArray(ABC):
     family: ClassVar[str]
     """The family's name in errors (``an APL-family``, ``a creep_pi``)."""
     kernel: ClassVar[Dispatcher[Any]]
-    """The family's per-sensor kernel (module docstring)."""
+    """The family's per-sensor kernel (``kernel(s, t, r, *state, *params)``)."""
     array_step: ClassVar[Dispatcher[Any]]
     """``array_step`` bound to ``kernel``."""
     state: tuple[np.ndarray, ...]

@@ -74,7 +74,7 @@ USED_CODE: Final[npt.NDArray[np.bool_]] = np.array(
 @njit
 def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: float,
                r_open: float, r_lo: float, r_hi: float, gap: float) -> tuple[int, bool]:
-    """Screen one sample by the rules of the module docstring."""
+    """Screen one sample (docs/models.md, "Screening")."""
     if not (math.isfinite(t) and math.isfinite(r)):
         return NOT_FINITE if forced == GOOD else forced, False
     if forced != GOOD:

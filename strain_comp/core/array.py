@@ -130,7 +130,7 @@ def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedAr
 
 
 class ArrayGroup:
-    """The sensors of one array, stepped together (the module's doc)."""
+    """The sensors of one array, stepped together."""
 
     def __init__(self, sensors: Callable[[], dict[str, SensorState]], names: list[str],
                  gap_reset: float, deadzone_scale: float, latest: Latest) -> None:

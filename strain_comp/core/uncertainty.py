@@ -15,11 +15,7 @@ from strain_comp._numba import njit
 from strain_comp.core.stages import R_HI, R_LO, S_HI, S_LO
 
 FEATURES = ("bias", "loading", "unloading", "hold", "outside", "elapsed", "level")
-"""The regressors of log sigma^2, in order: 1; direction +1; direction -1; ln(1 + seconds
-since the direction last changed); the resistance's distance beyond the calibrated range
-(margins included) in spans of that range; ln(1 + minutes since the session started); the
-published estimate's place in the calibrated strain range (0 at its bottom, 1 at its
-top)."""
+"""The regressors of log sigma^2, in order (docs/design.md, "Uncertainty")."""
 N_FEATURES = len(FEATURES)
 STATE_SIZE = 3
 """Per sensor: the direction of the previous used sample, the time it last changed, the

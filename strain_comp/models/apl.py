@@ -138,8 +138,6 @@ class _CellModel(KernelCompensator):
                     direction: DirectionSettings) -> _CellModel:
         n = _require_int(params, "N", 1, N_MAX)
         m = _require_int(params, "M", 1, M_MAX)
-        if m % 2 == 0:
-            raise ParameterError("M", f"must be odd, got {m}")
         if cls.rate_dependent:
             sigma = require_float(params, "sigma", lo=0.0)
             p = require_float(params, "p", lo=kern.P_MIN, hi=P_MAX)
@@ -149,8 +147,6 @@ class _CellModel(KernelCompensator):
         w = require_vector(params, "w", length=n + 2)
         mu = require_vector(params, "mu", length=m)
         orientation = _require_int(params, "orientation", -1, 1) if "orientation" in params else 1
-        if orientation == 0:
-            raise ParameterError("orientation", "must be 1 or -1, got 0")
         return cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=normalisation,
                    orientation=orientation)
 
