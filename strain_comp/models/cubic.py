@@ -14,10 +14,9 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.base.compensator import (
-    Compensator,
+    KernelCompensator,
     Normalisation,
     Segment,
-    as_float_arrays,
     require_vector,
 )
 from strain_comp.base.direction import DirectionSettings
@@ -26,7 +25,7 @@ from strain_comp.errors import FitError
 
 
 @register
-class Cubic(Compensator):
+class Cubic(KernelCompensator):
     """S = c3 R^3 + c2 R^2 + c1 R + c0 (eq. (4)); ``c`` = [c0, c1, c2, c3] in ohm units."""
 
     name = "cubic"
@@ -38,14 +37,9 @@ class Cubic(Compensator):
     def reset(self) -> None:
         """Nothing to reset: the cubic has no memory."""
 
-    def step(self, t: float, r: float) -> float:
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
         c0, c1, c2, c3 = self.c
-        return float(((c3 * r + c2) * r + c1) * r + c0)
-
-    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        _, r = as_float_arrays(t, r)
-        c0, c1, c2, c3 = self.c
-        return np.asarray(((c3 * r + c2) * r + c1) * r + c0)
+        out[:] = ((c3 * r + c2) * r + c1) * r + c0
 
     def to_params(self) -> dict[str, Any]:
         return {"c": [float(v) for v in self.c]}
