@@ -74,7 +74,8 @@ class SensorRange:
                     r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
                     s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin)
         if out_of_range == "extrapolate":
-            return cls(**{**vars(plain), "slopes": end_slopes(cal, plain, model)})
+            slopes = end_slopes(*branches(cal, plain, model), plain)
+            return cls(**{**vars(plain), "slopes": slopes})
         if out_of_range == "extend":
             slopes, reach = bounded_slopes(cal, plain, model)
             return cls(**{**vars(plain), "slopes": slopes, "reach": reach, "saturate": True})
@@ -106,16 +107,10 @@ def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | N
     return out[:n + 1], out[n:][::-1]
 
 
-def end_slopes(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
+def end_slopes(loading: np.ndarray, unloading: np.ndarray, limits: SensorRange
                ) -> tuple[float, float]:
-    """dS/dR of the model's unloading branch over the first step of the ramp over the valid
-    range and of its loading branch over the last (``branches``): ``extrapolate``."""
-    return _end_slopes(*branches(cal, limits, model), limits)
-
-
-def _end_slopes(loading: np.ndarray, unloading: np.ndarray, limits: SensorRange
-                ) -> tuple[float, float]:
-    """``end_slopes`` of the branches ``loading`` and ``unloading`` (``branches``)."""
+    """dS/dR of the unloading branch over the first step of the ramp (``branches``) and of
+    the loading branch over the last: ``extrapolate``."""
     width = (limits.r_hi - limits.r_lo) / SETTLE_STEPS
     lo = float(unloading[1] - unloading[0]) / width
     hi = float(loading[-1] - loading[-2]) / width
@@ -136,7 +131,7 @@ def bounded_slopes(cal: SensorCalibration, limits: SensorRange,
     spans above the range, and below it never past zero strain: a resistance under the
     calibrated rest is far more often a rest level that moved than a compression."""
     loading, unloading = branches(cal, limits, model)
-    lo_end, hi_end = _end_slopes(loading, unloading, limits)
+    lo_end, hi_end = end_slopes(loading, unloading, limits)
     secant = float(loading[-1] - unloading[0]) / (limits.r_hi - limits.r_lo)
     low, high = EXTEND_SLOPE
 
