@@ -144,10 +144,14 @@ def check_params_files(files: list[Path], name: str, namespace: str) -> Path | N
 
 def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 **node_options: Any) -> CompensatorNode:
-    """The node (``strain_comp.ros.compensator.CompensatorNode``); rclpy must be initialised."""
+    """The node (``strain_comp.ros.compensator.CompensatorNode``), its ready line logged;
+    rclpy must be initialised."""
     from strain_comp.ros.compensator import CompensatorNode
+    from strain_comp.ros.rclpy_typed import logger
 
-    return CompensatorNode(node_name, base_dir=base_dir, **node_options)
+    node = CompensatorNode(node_name, base_dir=base_dir, **node_options)
+    logger(node).info(node.ready_line)
+    return node
 
 
 def main(args: list[str] | None = None) -> int:
@@ -170,12 +174,13 @@ def main(args: list[str] | None = None) -> int:
         from rclpy.signals import SignalHandlerOptions
         from rclpy.utilities import ok, try_shutdown
 
+        from strain_comp.ros.compensator import CompensatorNode
         from strain_comp.ros.rclpy_typed import destroy, logger
 
         start_errors = (*start_errors, ParameterException)
 
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-        node = create_node(name, base_dir=base_dir)
+        node = CompensatorNode(name, base_dir=base_dir)
     except StrainCompError as err:
         given = command_line_params(argv).get(getattr(err, "field", ""))
         if given is not None:  # -p wins over the params files: the command line is at fault
@@ -193,6 +198,8 @@ def main(args: list[str] | None = None) -> int:
         _stopped_in_start_up(signal.SIGINT)
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
+    # only now: a SIGINT after the ready line gets the running node's clean shutdown
+    logger(node).info(node.ready_line)
     # rclpy 7.1.6's EventsExecutor loses inputs under use_sim_time (docs/ros.md)
     sim_time = node.get_parameter("use_sim_time").value
     executor = (EventsExecutor() if node.live.params.executor == "events" and not sim_time
