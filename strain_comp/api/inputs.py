@@ -58,7 +58,24 @@ def _number(value: object) -> float | None:
 def checked(value: Any, kind: Kind, what: str, *, optional: bool = True) -> Any:
     """A keyword argument of the API checked to be of the kind it must be, the one check
     every function runs on its options (None passes when ``optional``: the option's
-    default)."""
+    default).
+
+    Args:
+        value: The value given.
+        kind: What it must be (``Kind``).
+        what: The argument's name, for the message.
+        optional: None is the argument's default (it passes); False for an argument
+            whose default is a value (``tare="calibration"``): None is refused.
+
+    Returns:
+        ``value`` in its checked form: a str, a list of str, an int, a float, a (START,
+        END) tuple of floats or a list of (R, S) tuples of floats.
+
+    Raises:
+        InputError: ``value`` is not of that kind (or None, not ``optional``), naming
+            the argument, what it must be and what was given.
+
+    """
     if value is None and optional:
         return None
     if kind == "data":
@@ -108,12 +125,31 @@ def checked(value: Any, kind: Kind, what: str, *, optional: bool = True) -> Any:
 
 
 def is_path(data: object) -> bool:
-    """Is ``data`` one path (str or ``os.PathLike``)?"""
+    """Is ``data`` one path (str or ``os.PathLike``)?
+
+    Args:
+        data: Anything a function of the API takes as data.
+
+    Returns:
+        True for a str or ``os.PathLike``.
+
+    """
     return isinstance(data, (str, os.PathLike))
 
 
 def paths_of(data: object) -> list[str] | None:
-    """``data`` as bag paths when it is one path or a non-empty list of them, else None."""
+    """``data`` as bag paths when it is one path or a non-empty list of them, else None.
+
+    Args:
+        data: Anything a function of the API takes as data.
+
+    Returns:
+        The bag paths, each checked to exist, or None when ``data`` is not paths.
+
+    Raises:
+        InputError: A path is missing, unreadable, or neither a file nor a directory.
+
+    """
     if isinstance(data, (str, os.PathLike)):
         return [existing(data, "bag", directory=True)]
     if isinstance(data, (list, tuple)) and data and all(is_path(p) for p in data):
@@ -124,7 +160,15 @@ def paths_of(data: object) -> list[str] | None:
 def input_paths(*given: object) -> list[str]:
     """The files a call reads, which none of its outputs may be (``io.atomic.check_output``):
     each of ``given`` that is a path or a list of paths (a calibration's path, the bags,
-    ``inputs=``); recordings and calibrations in memory add none."""
+    ``inputs=``); recordings and calibrations in memory add none.
+
+    Args:
+        *given: The call's inputs, as given.
+
+    Returns:
+        The paths, as strings.
+
+    """
     out: list[str] = []
     for value in given:
         for item in value if isinstance(value, (list, tuple)) else [value]:
@@ -167,7 +211,19 @@ def save_calibration(calibration: Calibration, path: PathLike) -> None:
 
 
 def as_calibration(calibration: CalibrationLike) -> Calibration:
-    """``calibration`` itself, or the calibration file at that path, read and checked."""
+    """``calibration`` itself, or the calibration file at that path, read and checked.
+
+    Args:
+        calibration: A ``Calibration`` or the path of a calibration file.
+
+    Returns:
+        The calibration.
+
+    Raises:
+        InputError: ``calibration`` is neither, or the path cannot be read.
+        CalibrationError: The file is malformed or a field out of range.
+
+    """
     if isinstance(calibration, Calibration):
         return calibration
     if isinstance(calibration, (str, os.PathLike)):
@@ -203,7 +259,20 @@ def read_recordings(path: PathLike, *, report: Callable[[str], None] | None = No
 
 
 def as_recordings(data: object) -> dict[str, Recording]:
-    """Sensor name -> recording, for one bag's worth of recordings."""
+    """Sensor name -> recording, for one bag's worth of recordings.
+
+    Args:
+        data: A Recording, a mapping of sensor name to Recording, or a sequence of
+            Recordings of different sensors.
+
+    Returns:
+        Sensor name -> recording.
+
+    Raises:
+        InputError: ``data`` is none of these, names one sensor twice, or a dict's value
+            is not a Recording.
+
+    """
     if isinstance(data, Recording):
         return {data.name: data}
     if isinstance(data, Mapping):
