@@ -1,17 +1,5 @@
-"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range.
-
-``load_limited(text, ...)`` is ``yaml.safe_load`` that raises ``LimitError`` instead of
-expanding a "billion laughs" document, recursing into 1,000 levels of nesting
-(``RecursionError``) or building an integer no float can hold (``OverflowError`` later);
-every other fault is the usual ``yaml.YAMLError``. Used for calibration files and rosbag2
-``metadata.yaml``. With libyaml (``yaml.CSafeLoader``) a document of plain mappings,
-sequences and untagged scalars (what ``yaml.safe_dump`` writes without shared values: every
-calibration file) is built straight from libyaml's event stream in one pass, with the
-limits counted on the way (``_build_plain``): the text is parsed once and no node tree is
-built. Any other document (an anchor, an alias, an explicit tag, a timestamp, a merge key)
-has the limits checked on the event stream first (no nesting or alias beyond them reaches
-the composer), then is composed and constructed by libyaml's loader. Without libyaml the
-pure-Python loader counts the limits while it composes.
+"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range
+(docs/architecture.md, "Inside the modules").
 """
 
 from __future__ import annotations

@@ -154,9 +154,9 @@ class CompensatorNode(Node):
         self.create_service(Trigger, "~/start", self._start)
         self.create_service(Trigger, "~/reload_calibration", self._reload)
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
-        logger(self).info(f"ready: {len(ready)} inputs: " + "; ".join(ready)
-                               + f"; tare {params.tare}; fuse_references "
-                               f"{params.fuse_references}")
+        self.ready_line = (f"ready: {len(ready)} inputs: " + "; ".join(ready)
+                           + f"; tare {params.tare}; fuse_references {params.fuse_references}")
+        """The log line that says the node is up (``create_node`` and ``main`` log it)."""
 
     def _connect(self, name: str) -> str:
         """The publishers and subscriptions of input ``name``; its line of the ready log."""

@@ -1,22 +1,5 @@
-"""What the live node does with each message, free of any transport (docs/ros.md).
-
-The rclpy node holds one ``LiveCompensator``: it builds the engine from validated node
-parameters, compiles its kernels at start-up (not on the first message), reads a
-Float64MultiArray's layout, applies the publish-rate limit and tunable changes, keeps the
-recent good samples the tare needs (``live_tare``), and turns health into diagnostic
-statuses. The node only moves messages, so a bag played through it gives what ``replay``
-gives. Every input is stamped with the node's clock on arrival (its reception time on the
-system clock; /clock under ``use_sim_time``, ``clock_gate``); the node hands the inputs
-that arrived to ``on_sensors`` / ``on_arrays`` as one batch per input, the engine's batch
-path, each sample with its own outputs.
-
-Known strains (``fuse_references: true``; ``strain_comp.core.fusion``; docs/ros.md, "Known
-strains"): a reference on ``NAME/strain_reference`` (``on_reference``), on
-``ARRAY/strain_reference`` (one value per sensor, NaN for none; ``on_reference_array``) or
-from ``~/reference`` (``reference_now``) is paired with the sensor's latest estimate and
-fused into its output gain and offset. A reference is refused and counted (by reason, in
-the sensor's /diagnostics) when the sensor has no recent estimate within its calibrated
-range, or the fusion refuses it; one naming a sensor not calibrated is refused as a message.
+"""What the live node does with each message, free of any transport (docs/ros.md;
+docs/architecture.md, "Inside the modules").
 """
 
 from __future__ import annotations

@@ -1,26 +1,7 @@
-"""The ``compensator`` executable: starts the rclpy node (``strain_comp.ros.compensator``:
-ROS topics, services and parameters around the ``LiveCompensator`` it owns) and spins it.
-
-``ros2 run strain_comp compensator --ros-args --params-file config/compensator_params.yaml``.
-Parameters as in ``strain_comp.ros.params`` (structural ones read-only, tunables ranged and
-validated, integers accepted for floats); inputs with sensor-data QoS, topic names resolved
-in the node's namespace, ``/diagnostics`` absolute; with ``fuse_references: true`` a
-``NAME/strain_reference`` input per sensor or array (``LiveCompensator.on_reference``);
-services ``~/tare``, ``~/reference`` (every sensor is at ``known_strain`` now: fused into
-its output gain and offset, ``LiveCompensator.reference_now``), ``~/span`` (input
-zero and span at the known strain ``span_strain``, ``LiveCompensator.span``) and
-``~/reload_calibration`` (std_srvs/Trigger: answers "loading ..." at once; a worker
-thread loads, the executor swaps the result in between two messages, so outputs go on
-while a large file loads; the result goes to the log and /diagnostics). Each input is
-stamped with the node clock on arrival (its reception time; under ``use_sim_time`` its
-/clock tick), so ``use_sim_time`` follows /clock.
-
-Start-up problems (params file missing or not YAML, no block for the node's name, a bad or
-unknown parameter, a missing calibration) print one line ``compensator: ...`` and exit 2.
-SIGINT / SIGTERM exit 0 at any moment: during start-up at once with one line ``compensator:
-SIGINT: stopped during start-up``, while spinning after a clean shutdown bounded by
-``SHUTDOWN_S`` (its log line ``SIGINT: stopped``). Only the standard library is imported
-at module level, so the signal handlers are in place before anything slow is imported.
+"""The ``compensator`` executable: starts the rclpy node (``strain_comp.ros.compensator``) and
+spins it; start-up problems are one line and exit 2, SIGINT/SIGTERM exit 0 at any moment
+(docs/ros.md; docs/architecture.md, "Inside the modules"). Only the standard library is
+imported at module level, so the signal handlers are in place before anything slow.
 """
 
 from __future__ import annotations
@@ -144,10 +125,14 @@ def check_params_files(files: list[Path], name: str, namespace: str) -> Path | N
 
 def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
                 **node_options: Any) -> CompensatorNode:
-    """The node (``strain_comp.ros.compensator.CompensatorNode``); rclpy must be initialised."""
+    """The node (``strain_comp.ros.compensator.CompensatorNode``), its ready line logged;
+    rclpy must be initialised."""
     from strain_comp.ros.compensator import CompensatorNode
+    from strain_comp.ros.rclpy_typed import logger
 
-    return CompensatorNode(node_name, base_dir=base_dir, **node_options)
+    node = CompensatorNode(node_name, base_dir=base_dir, **node_options)
+    logger(node).info(node.ready_line)
+    return node
 
 
 def main(args: list[str] | None = None) -> int:
@@ -170,12 +155,13 @@ def main(args: list[str] | None = None) -> int:
         from rclpy.signals import SignalHandlerOptions
         from rclpy.utilities import ok, try_shutdown
 
+        from strain_comp.ros.compensator import CompensatorNode
         from strain_comp.ros.rclpy_typed import destroy, logger
 
         start_errors = (*start_errors, ParameterException)
 
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-        node = create_node(name, base_dir=base_dir)
+        node = CompensatorNode(name, base_dir=base_dir)
     except StrainCompError as err:
         given = command_line_params(argv).get(getattr(err, "field", ""))
         if given is not None:  # -p wins over the params files: the command line is at fault
@@ -193,6 +179,8 @@ def main(args: list[str] | None = None) -> int:
         _stopped_in_start_up(signal.SIGINT)
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
+    # only now: a SIGINT after the ready line gets the running node's clean shutdown
+    logger(node).info(node.ready_line)
     # rclpy 7.1.6's EventsExecutor loses inputs under use_sim_time (docs/ros.md)
     sim_time = node.get_parameter("use_sim_time").value
     executor = (EventsExecutor() if node.live.params.executor == "events" and not sim_time

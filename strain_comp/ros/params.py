@@ -1,31 +1,5 @@
-"""Node parameters: the ``<node>: ros__parameters:`` YAML of the rclpy node.
-
-```yaml
-compensator:
-  ros__parameters:
-    sensors: [s1, s2]                 # read-only: one entry per single sensor
-    s1: {topic: s1/resistance, calibration: demo_calibration.yaml}
-    s2: {calibration: s2.yaml}        # topic defaults to s2/resistance
-    arrays: [hand]                    # read-only: multi-sensor array topics
-    hand: {topic: hand/resistance, sensors: [a, b, c], calibration: hand.yaml}
-    tare: calibration                 # read-only: calibration | auto
-    deadzone_scale: 1.0               # tunables: see TUNABLES
-```
-
-The layout imitates ros2_controllers' per-sensor maps: a list of names, then one map per
-name. Structural parameters (names, topics, calibration paths, tare mode) are read-only;
-tunables have a type, a range and a description in one table (``TUNABLES``) that the node
-turns into ParameterDescriptors. Topic names follow ROS name resolution: relative names
-(the defaults) resolve in the node's namespace. Integers are accepted where a float is
-expected (ROS users write ``2`` for ``2.0``). An unknown key is refused with the closest
-valid name. Sensor and array names (they prefix the output topics) and topics must be
-valid ROS names (``NAME_RULE``), checked here so a bad one is one line, not a traceback
-from rclpy.
-
-A relative calibration path resolves against the params file's directory (when known,
-else the working directory), then the installed package share directory (its ``config/``
-too) and the source checkout; a calibration file must name the sensor, unless it holds
-exactly one sensor, which then takes the name from the params file.
+"""Node parameters: the ``<node>: ros__parameters:`` YAML of the rclpy node (layout, checks
+and path resolution: docs/architecture.md, "Inside the modules"; docs/ros.md).
 """
 
 from __future__ import annotations

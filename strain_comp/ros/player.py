@@ -1,22 +1,5 @@
-"""``strain-comp play``: publish a bag's messages over ROS 2 at their recorded times.
-
-For machines without rosbag2 (where ROS is installed, ``ros2 bag play`` is the tool). Each
-message goes out as its recorded CDR bytes on its recorded topic and type; the first one at
-once, every later one at ``(log time - first log time) / rate`` after it. With ``clock``, a
-rosgraph_msgs/Clock carrying the message's log time is published on /clock just before each
-message, so a node with ``use_sim_time`` stamps the input with its recorded time.
-
-``lockstep=TOPIC``: after each message, wait (at most ``LOCKSTEP_TIMEOUT_S``) for one message
-on TOPIC (the node's answer) before the next one, instead of keeping the recorded pace: what
-a test or an offline comparison needs, as nothing then queues up in the node. Playing waits
-(at most ``wait_s``) for a subscriber on the bag's topics, then ``MATCH_S`` more for the
-rest of them, and plays the topics that have one: the others are named in one line on
-stderr (``--topic`` chooses the topics), and no topic with a subscriber is an error.
-
-The bag is read by the bag reader's own walk within its budgets (decompressed bytes per
-chunk and held; ``strain_comp.io.bag.reader.raw_messages``). Message types come from a
-fixed registry (``PLAYABLE``: the types strain_comp reads and writes), never by importing a
-module a bag or a peer names; messages of any other type are not played and counted.
+"""``strain-comp play``: publish a bag's messages over ROS 2 at their recorded times, or in
+lockstep with the node's answers (docs/architecture.md, "Inside the modules").
 """
 
 from __future__ import annotations
