@@ -243,23 +243,31 @@ def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
             for name in names for kind in PLOT_KINDS]
 
 
+def plot_sensor(result: EvaluationResult, name: str, targets: Sequence[Target], *,
+                inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
+                bag: str = "", calibration_path: str = "", tare: str = "") -> list[Target]:
+    """The four plots of one evaluated sensor into ``targets`` (``PLOT_KINDS`` order)."""
+    ev = result.sensors[name]
+    context = context_line(result, name, bag, calibration_path, tare)
+    cal = calibration.sensors.get(name) if calibration is not None else None
+    r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
+    time, loop, raw, hist = targets
+    return [plot_time(ev, time, inputs=inputs, context=context),
+            plot_loop(ev, loop, inputs=inputs, context=context),
+            plot_raw(ev, raw, inputs=inputs, context=context, r_range=r_range),
+            plot_error_hist(ev, hist, inputs=inputs, context=context)]
+
+
 def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
                     inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
                     bag: str = "", calibration_path: str = "", tare: str = "") -> list[Path]:
     """The four plots for every evaluated sensor, each written atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, ev in result.sensors.items():
-        context = context_line(result, name, bag, calibration_path, tare)
-        cal = calibration.sensors.get(name) if calibration is not None else None
-        r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-        time, loop, raw, hist = plot_files(out, [name])
-        written.append(plot_time(ev, time, inputs=inputs, context=context))
-        written.append(plot_loop(ev, loop, inputs=inputs, context=context))
-        written.append(plot_raw(ev, raw, inputs=inputs, context=context, r_range=r_range))
-        written.append(plot_error_hist(ev, hist, inputs=inputs, context=context))
-    return written
+    return [path for name in result.sensors
+            for path in plot_sensor(result, name, plot_files(out, [name]), inputs=inputs,
+                                    calibration=calibration, bag=bag,
+                                    calibration_path=calibration_path, tare=tare)]
 
 
 def context_line(result: EvaluationResult, name: str, bag: str, calibration_path: str,

@@ -234,20 +234,12 @@ class _Replay:
         """Queue the piece's rows of ``replay --csv`` with the piece's reference samples."""
         assert self.series is not None
         values = series.values if series.values.ndim == 2 else series.values[:, None]
-        ref = contents.series.get(f"/{inp.name}/strain_reference")
-        labels = contents.labels.get(f"/{inp.name}/strain_reference") or inp.sensors
         for j, name in enumerate(inp.sensors):
             cal = self.calibration.sensors[name]
             pending = self.pending.setdefault(name, PendingSeries(name, cal.strain_unit))
-            ref_t, ref_v = np.empty(0), np.empty(0)
-            if ref is not None and ref.values.ndim == (2 if inp.is_array else 1):
-                if not inp.is_array:
-                    ref_t, ref_v = ref.t, ref.values
-                elif name in labels and labels.index(name) < ref.values.shape[1]:
-                    ref_t, ref_v = ref.t, ref.values[:, labels.index(name)]
             out = outs[name]
             pending.add(series.t, cal.input.to_ohm(values[:, j]), out.strain, out.direction,
-                        out.status, ref_t, ref_v)
+                        out.status, *_reference(contents, inp, name))
             pending.flush(self.series)
 
     def finish_series(self) -> None:
@@ -311,27 +303,14 @@ class _Replay:
         at each sample is the latest at or before it (as the node holds it)."""
         if self.references_every is None:
             return outs
-        contents = self._contents
-        topic = f"/{inp.name}/strain_reference"
-        ref = contents.series.get(topic)
-        labels = contents.labels.get(topic) or inp.sensors
         for name in inp.sensors:
-            src_t, src_v = np.empty(0), np.empty(0)
-            if ref is not None and ref.values.ndim == (2 if inp.is_array else 1):
-                if not inp.is_array:
-                    src_t, src_v = ref.t, ref.values
-                elif name in labels and labels.index(name) < ref.values.shape[1]:
-                    src_t, src_v = ref.t, ref.values[:, labels.index(name)]
-            held = self.reference.get(name)
-            if held is not None:
-                src_t, src_v = np.concatenate((held[0], src_t)), np.concatenate((held[1], src_v))
+            src_t, src_v = _reference(self._contents, inp, name)
             ok = np.isfinite(src_t) & np.isfinite(src_v)
-            src_t, src_v = src_t[ok], src_v[ok]
-            if src_t.size:
+            values = _held(self.reference, name, src_t[ok], src_v[ok], t)
+            if values is None:
+                values = np.full(t.size, np.nan)
+            else:
                 self.referenced.add(name)
-                order = np.argsort(src_t, kind="stable")
-                self.reference[name] = (src_t[order][-1:], src_v[order][-1:])
-            values = hold_latest(t, src_t, src_v) if src_t.size else np.full(t.size, np.nan)
             outs[name] = self.fused[name].fuse(t, outs[name], values)
         return outs
 
@@ -339,18 +318,38 @@ class _Replay:
                      ) -> np.ndarray | None:
         """The latest temperature at or before each of ``t`` (NaN before the first)."""
         series = contents.series.get(f"/{name}/temperature")
-        held = self.temperature.get(name)
-        if series is not None and series.t.size:
-            src_t, src_v = series.t, series.values
-            if held is not None:
-                src_t, src_v = np.concatenate((held[0], src_t)), np.concatenate((held[1], src_v))
-            order = np.argsort(src_t, kind="stable")
-            self.temperature[name] = (src_t[order][-1:], src_v[order][-1:])
-        elif held is not None:
-            src_t, src_v = held
-        else:
-            return None
-        return hold_latest(t, src_t, src_v)
+        empty = np.empty(0)
+        return _held(self.temperature, name, empty if series is None else series.t,
+                     empty if series is None else series.values, t)
+
+
+def _reference(contents: BagContents, inp: _Input, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The piece's reference samples (t, value) of sensor ``name`` of ``inp`` (none when
+    its topic or column is missing)."""
+    topic = f"/{inp.name}/strain_reference"
+    ref = contents.series.get(topic)
+    labels = contents.labels.get(topic) or inp.sensors
+    if ref is None or ref.values.ndim != (2 if inp.is_array else 1):
+        return np.empty(0), np.empty(0)
+    if not inp.is_array:
+        return ref.t, ref.values
+    if name in labels and labels.index(name) < ref.values.shape[1]:
+        return ref.t, ref.values[:, labels.index(name)]
+    return np.empty(0), np.empty(0)
+
+
+def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np.ndarray,
+          src_v: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+    """The latest source sample at or before each of ``t``, as the node holds it, the
+    source's latest sample kept in ``latest`` for the next piece; None: no sample yet."""
+    if name in latest:
+        src_t = np.concatenate((latest[name][0], src_t))
+        src_v = np.concatenate((latest[name][1], src_v))
+    if not src_t.size:
+        return None
+    order = np.argsort(src_t, kind="stable")
+    latest[name] = (src_t[order][-1:], src_v[order][-1:])
+    return hold_latest(t, src_t, src_v)
 
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,

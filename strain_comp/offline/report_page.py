@@ -32,15 +32,7 @@ from strain_comp.core.calibration import (
     strain_unit_words,
 )
 from strain_comp.offline.evaluation import format_notes
-from strain_comp.offline.plots import (
-    context_line,
-    plot_error_hist,
-    plot_loop,
-    plot_model_choice,
-    plot_raw,
-    plot_time,
-    tare_words,
-)
+from strain_comp.offline.plots import plot_model_choice, plot_sensor, tare_words
 from strain_comp.version import __version__
 
 if TYPE_CHECKING:
@@ -91,19 +83,12 @@ def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, ba
     """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
     out: dict[str, list[tuple[str, bytes]]] = {}
     for name, ev in result.sensors.items():
-        if not ev.t.size:
-            continue
-        context = context_line(result, name, bag, calibration_path, tare)
-        cal = calibration.sensors.get(name)
-        r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-        buffers = [io.BytesIO() for _ in range(4)]
-        plot_time(ev, buffers[0], context=context)
-        plot_loop(ev, buffers[1], context=context)
-        plot_raw(ev, buffers[2], context=context, r_range=r_range)
-        plot_error_hist(ev, buffers[3], context=context)
-        shown = [(caption, buffer.getvalue()) for caption, buffer in zip(FIGURES, buffers,
-                                                                       strict=True)]
-        out[name] = shown
+        if ev.t.size:
+            buffers = [io.BytesIO() for _ in FIGURES]
+            plot_sensor(result, name, buffers, calibration=calibration, bag=bag,
+                        calibration_path=calibration_path, tare=tare)
+            out[name] = [(caption, buffer.getvalue())
+                         for caption, buffer in zip(FIGURES, buffers, strict=True)]
     return out
 
 
