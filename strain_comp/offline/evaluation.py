@@ -1,8 +1,5 @@
-"""An evaluation's result: each sensor's run and error statistics, its table and its notes.
-
-``strain_comp.offline.evaluate`` makes it (``evaluate_recordings``, ``evaluate_bag``); the
-errors are in % strain (``strain_comp.core.metrics.error_stats``: RMSE per [Electrolycra]
-eq. (5), MAE, max |e|, R^2) over the samples the engine used whose reference is finite.
+"""An evaluation's result (``offline.evaluate``): each sensor's run and error statistics, its
+table and its notes.
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
-"""Evaluation plots (PNG, matplotlib's Agg backend, imported only when plots are asked for).
-
-Per sensor (slashes in NAME become ``_``): ``NAME_time.png`` (estimate and reference
-strain over time, with the estimate's 95 % band where the calibration holds an uncertainty,
-resistance below), ``NAME_loop.png`` (estimate against reference with
-the identity line; a perfect compensator lies on it, hysteresis left in the estimate
-shows as a loop), ``NAME_raw.png`` (the recorded resistance against the reference strain,
-what the model inverts, with the calibration's resistance range) and
-``NAME_error_hist.png`` (histogram of S_hat - S over the scored samples). Titles name the
-bag, the calibration and the tare; samples outside the calibrated range are marked in
-orange; axes span the data (5 % margin); strain in the calibration's unit, resistance in
-a readable prefix (or V for a divider input).
+"""Evaluation plots (PNG, matplotlib's Agg backend, imported only when plots are asked for):
+per sensor ``NAME_time.png`` (estimate, reference and 95 % band over time, resistance
+below), ``NAME_loop.png`` (estimate against reference), ``NAME_raw.png`` (resistance against
+reference, with the calibrated range) and ``NAME_error_hist.png``; samples outside the
+calibrated range in orange.
 """
 
 from __future__ import annotations

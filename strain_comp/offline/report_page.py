@@ -1,15 +1,6 @@
-"""One page to look at: ``evaluate --report`` and ``diagnose --report`` as a single HTML file.
-
-The page holds everything in itself (styles inline, plots as base64 PNG: it opens without
-a network and can be mailed): the error table per bag and sensor, the evaluation plots of
-``strain_comp.offline.plots`` (estimate and reference over time, estimate against
-reference, resistance against reference with the calibrated range, error histogram;
-samples outside the calibrated range in orange), the calibration's provenance (model,
-options, what it was fitted on, rest resistance, effect terms, recalibrations, the tare
-of this run) and, for ``diagnose`` (``strain_comp.diagnosis.report_page``, built from
-these parts), each effect found with its reading and the held-out error before and
-after. Every figure of a table carries its full value in ``data-value`` (what ``--json``
-holds), the text shows it rounded.
+"""``evaluate --report`` and ``diagnose --report``: one self-contained HTML page
+(docs/design.md, ``--report``); every figure of a table carries its full value in
+``data-value``, the text shows it rounded.
 """
 
 from __future__ import annotations
