@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from strain_comp.base.samples import Status, used_mask
-from strain_comp.core.calibration import Calibration, check_reference
+from strain_comp.core.calibration import Calibration, SensorCalibration, check_reference
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.metrics import ErrorAccumulator
@@ -36,16 +36,7 @@ from strain_comp.io.recording import (
     Recording,
     array_sensor_names,
 )
-from strain_comp.offline.evaluation import (
-    EvaluationResult,
-    SensorEvaluation,
-    crosstalk_off_tick,
-    fusion_state,
-    input_unit,
-    nothing_scored,
-    references_needed,
-    temperature_missing,
-)
+from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation, input_unit
 
 if TYPE_CHECKING:
     from strain_comp.core.outputs import BatchOutput
@@ -118,17 +109,20 @@ class _Score:
                           out_of_range=np.asarray(out.out_of_range, bool),
                           **({} if std is None else {"std": std}))
 
-    def evaluation(self, name: str, model: str, unit: str, input_unit: str = "ohm"
-                   ) -> SensorEvaluation:
+    def evaluation(self, name: str, cal: SensorCalibration, input_gain: float,
+                   fused: SparseFusion | None) -> SensorEvaluation:
         kept = self.kept or _Kept(0)
         return SensorEvaluation(
-            name=name, model=model, stats=self.errors.stats(), t=kept.get("t"),
+            name=name, model=cal.model, stats=self.errors.stats(), t=kept.get("t"),
             r=kept.get("r"), reference=kept.get("reference"), estimate=kept.get("estimate"),
             direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
             bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
-            unit=unit, errors=self.errors,
-            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit,
+            unit=cal.strain_unit, errors=self.errors,
+            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit(cal),
+            input_gain=input_gain,
+            references=None if fused is None else {"every": fused.every,
+                                                   **fused.fusion.state()},
             std=kept.get("std") if self.errors.n_banded else np.empty(0),
             coverage_95=self.errors.coverage_95())
 
@@ -190,9 +184,11 @@ class Scorer:
                same_tick: Mapping[str, set[str]]) -> EvaluationResult:
         """Every calibrated sensor's evaluation, or the note why it has none; ``found``:
         every sensor in the data."""
-        if self.references_every is not None:
-            references_needed(self.calibration, {n: n in referenced for n in found},
-                              self.references_every)
+        missing = [n for n in self.calibration.sensors if n in found and n not in referenced]
+        if self.references_every is not None and missing:
+            raise InputError(f"--references-every {self.references_every:g}: "
+                             f"{', '.join(missing)} has no strain_reference in the data (the "
+                             "references fused are the data's own /NAME/strain_reference)")
         sensors: dict[str, SensorEvaluation] = {}
         notes = list(self.notes)
         for name, cal in self.calibration.sensors.items():
@@ -201,14 +197,11 @@ class Scorer:
             elif name not in referenced:
                 notes.append(f"{name}: no strain_reference in the data, not scored")
             else:
-                sensors[name] = self.scores[name].evaluation(name, cal.model,
-                                                                cal.strain_unit,
-                                                                input_unit(cal))
-                sensors[name].input_gain = self.engine.input_gain(name)
-                sensors[name].references = fusion_state(self.fused.get(name))
+                sensors[name] = self.scores[name].evaluation(
+                    name, cal, self.engine.input_gain(name), self.fused.get(name))
                 if name not in with_temperature:
-                    notes += temperature_missing(name, cal)
-                notes += crosstalk_off_tick(name, cal, same_tick.get(name, set()))
+                    notes += _temperature_missing(name, cal)
+                notes += _crosstalk_off_tick(name, cal, same_tick.get(name, set()))
         return EvaluationResult(sensors, notes)
 
 
@@ -246,6 +239,37 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
     if not result.sensors:
         raise InputError(nothing_scored(calibration, list(recordings)))
     return result
+
+
+def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic:
+    offline such a term reads the neighbour's latest estimate of the previous batch, not of
+    the same instant (``Engine.run``; the node, stepping each message, reads the latest one),
+    so its correction is not the one diagnosed."""
+    off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
+           if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
+           and str(e["params"].get("neighbour")) not in same_tick]
+    if not off:
+        return []
+    return [f"{name}: cross-talk term {', '.join(off)} reads a sensor not recorded on its "
+            "array topic: offline it sees that sensor's estimate batch by batch, not tick by "
+            "tick, and this error is not the calibration's (record the array on one topic)"]
+
+
+def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
+    """The note for a run without temperature scored through a calibration with a
+    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
+    if not terms:
+        return []
+    return [f"{name}: no temperature in the data: the calibration's temperature term "
+            f"{', '.join(terms)} is not applied"]
+
+
+def nothing_scored(calibration: Calibration, names: list[str]) -> str:
+    """The error when no calibrated sensor can be scored, naming both sides."""
+    return ("no calibrated sensor has a strain_reference in the data (calibration: "
+            f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
 
 
 @dataclass

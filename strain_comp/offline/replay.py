@@ -104,10 +104,8 @@ class _Replay:
         self.calibration = calibration
         self.references_every = references_every
         self.fused: dict[str, SparseFusion] = {}
-        self.referenced: set[str] = set()
-        """Sensors with a reference sample in a piece read so far."""
         self.reference: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        """Per sensor, its latest reference sample so far (t, value), held across pieces."""
+        """Per sensor with a reference sample so far, its latest (t, value)."""
         self.series = series
         self.pending: dict[str, PendingSeries] = {}
         self.tare = tare
@@ -298,11 +296,8 @@ class _Replay:
             src_t, src_v = _reference(self._contents, inp, name)
             ok = np.isfinite(src_t) & np.isfinite(src_v)
             values = _held(self.reference, name, src_t[ok], src_v[ok], t)
-            if values is None:
-                values = np.full(t.size, np.nan)
-            else:
-                self.referenced.add(name)
-            outs[name] = self.fused[name].fuse(t, outs[name], values)
+            outs[name] = self.fused[name].fuse(
+                t, outs[name], np.full(t.size, np.nan) if values is None else values)
         return outs
 
     def _temperature(self, contents: BagContents, name: str, t: np.ndarray
@@ -367,7 +362,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             raise BagError("; ".join([f"no /NAME/resistance topic for any calibrated "
                                       f"sensor ({', '.join(calibration.sensors)})",
                                       *located(in_path, state.problems)]))
-        missing = [s for s in state.fused if s not in state.referenced]
+        missing = [s for s in state.fused if s not in state.reference]
         if missing:
             raise InputError(f"--references-every {references_every:g}: {', '.join(missing)} "
                              "has no strain_reference in the bag (the references fused are "
