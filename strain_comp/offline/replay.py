@@ -197,21 +197,18 @@ class _Replay:
         ticks = np.union1d(self.ticks, new)
         t_last = float(t_all.max())
         now, self.ticks = ticks[ticks < t_last], ticks[ticks >= t_last]
-        temps = {s: self._temperature(contents, s, series.t)
-                 for inp, series in inputs for s in inp.sensors}
         # each input runs once over the piece; the health at each tick inside it comes
         # from the cumulative status counts of the samples at or before the tick
         before = self.engine.health()
         fusion_before = {s: f.fusion.diagnostic_values() for s, f in self.fused.items()}
-        runs: list[tuple[np.ndarray, dict[str, BatchOutput]]] = []
+        ran: dict[str, tuple[np.ndarray, BatchOutput]] = {}
         for inp, series in inputs:
-            outs = self._outputs(inp, series.t, series.values,
-                                 {s: temps[s] for s in inp.sensors})
+            outs = self._outputs(inp, series.t, series.values, {
+                s: self._temperature(contents, s, series.t) for s in inp.sensors})
             self.n_compensated += series.t.size
             if self.series is not None:
                 self._series(contents, inp, series, outs)
-            runs.append((series.t, outs))
-        ran = {sensor: (t, out) for t, outs in runs for sensor, out in outs.items()}
+            ran.update({s: (series.t, out) for s, out in outs.items()})
         counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
                     for name, h in before.items()}
         fusion = {s: FusionTicks.of(fusion_before[s], list(f.judged))
