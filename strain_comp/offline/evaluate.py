@@ -224,13 +224,12 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
         np.array_equal(recordings[n].t, recordings[g[0]].t) for n in g)]
     alone = [n for n in scored if not any(n in g for g in groups)]
     for names in [*groups, *([n] for n in alone)]:
-        recs = [recordings[n] for n in names]
         scorer.score(names, names if len(names) > 1 else [],
-                     np.asarray(recs[0].t, dtype=np.float64),
-                     np.column_stack([np.asarray(rec.r, dtype=np.float64) for rec in recs]),
-                     {rec.name: rec.temperature for rec in recs},
-                     {n: np.asarray(rec.s, dtype=np.float64) for n, rec in zip(names, recs,
-                                                                               strict=True)})
+                     np.asarray(recordings[names[0]].t, dtype=np.float64),
+                     np.column_stack([np.asarray(recordings[n].r, dtype=np.float64)
+                                      for n in names]),
+                     {n: recordings[n].temperature for n in names},
+                     {n: np.asarray(recordings[n].s, dtype=np.float64) for n in names})
     result = scorer.result(
         list(recordings), set(scored),
         {n for n, rec in recordings.items() if rec.temperature is not None},
