@@ -253,33 +253,29 @@ class _Replay:
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
+        """Run ``inp``'s piece and stage its outputs: an array's as Float64MultiArray, a
+        sensor's as Float64 (strain, std) and Int8 (direction, status)."""
         if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
-            outs = self._fused(inp, t, self.engine.run_array(inp.sensors, t, values, temps))
-            for what in OUTPUTS:
-                stacked = np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
-                self.out.write_float64_array(f"/{inp.name}/{what}", t,
-                                                stacked.astype(np.float64), inp.sensors)
-                if what == "strain":
-                    self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
-                                                  stacked)
-            if any(outs[s].std is not None for s in inp.sensors):
-                std = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None else v
-                                for s in inp.sensors], axis=1)
-                self.out.write_float64_array(f"/{inp.name}/{BAND[0]}", t, std, inp.sensors)
-                self.out.write_joint_state(f"/{inp.name}/{BAND[1]}", t, inp.sensors, std)
+            outs = self.engine.run_array(inp.sensors, t, values, temps)
         else:
-            out = self.engine.run(inp.name, t, values, temps[inp.name])
-            out = self._fused(inp, t, {inp.name: out})[inp.name]
-            self.out.write_float64(f"/{inp.name}/strain", t, out.strain)
-            self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
-                                          out.strain[:, None])
-            self.out.write_int8(f"/{inp.name}/direction", t, out.direction)
-            self.out.write_int8(f"/{inp.name}/status", t, out.status)
-            if out.std is not None:
-                self.out.write_float64(f"/{inp.name}/{BAND[0]}", t, out.std)
-                self.out.write_joint_state(f"/{inp.name}/{BAND[1]}", t, [inp.name],
-                                           out.std[:, None])
-            outs = {inp.name: out}
+            outs = {inp.name: self.engine.run(inp.name, t, values, temps[inp.name])}
+        outs = self._fused(inp, t, outs)
+        columns = {what: np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
+                   for what in OUTPUTS}
+        if any(outs[s].std is not None for s in inp.sensors):
+            columns[BAND[0]] = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None
+                                         else v for s in inp.sensors], axis=1)
+        for what, stacked in columns.items():
+            topic = f"/{inp.name}/{what}"
+            if inp.is_array:
+                self.out.write_float64_array(topic, t, stacked.astype(np.float64), inp.sensors)
+            elif what in ("direction", "status"):
+                self.out.write_int8(topic, t, stacked[:, 0])
+            else:
+                self.out.write_float64(topic, t, stacked[:, 0])
+            if what in ("strain", BAND[0]):
+                stamped = STAMPED if what == "strain" else BAND[1]
+                self.out.write_joint_state(f"/{inp.name}/{stamped}", t, inp.sensors, stacked)
         self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs
 
