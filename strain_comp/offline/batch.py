@@ -1,18 +1,8 @@
-"""``evaluate`` over many bags: one table per bag and the pooled errors of all of them.
-
-A study has dozens of runs. ``expand_bags`` turns the command line's paths into bags (an
-MCAP file, a rosbag2 directory, or a folder of them); ``evaluate_bags`` evaluates each one
-exactly as a single ``evaluate`` would (``evaluate_bag``, streamed), serially or in a pool
-of ``jobs`` processes, and pools each sensor's errors over the bags it was scored in
-(``ErrorAccumulator.merge``: the RMSE, MAE, max and R^2 of all the samples together, not a
-mean of per-bag figures). A bag that cannot be evaluated is reported with its one-line
-reason and the others still are; the command then exits 2 after writing everything.
-
-JSON (``evaluate --json`` with more than one bag; one bag keeps the single-bag shape)::
-
-    {"bags": {"BAG": {"sensors": {...}} | {"error": "..."}, ...},
-     "aggregate": {"sensors": {"NAME": {"rmse", "mae", "max_abs", "r2", "n", "n_bags",
-                                        "unit"}}}}
+"""``evaluate`` over many bags: one table per bag and each sensor's errors pooled over the
+bags it was scored in (``ErrorAccumulator.merge``: all samples together, not a mean of
+per-bag figures), serially or in a pool of ``jobs`` processes. A bag that cannot be
+evaluated is reported with its one-line reason and the others still are (the JSON:
+docs/design.md, "JSON outputs").
 """
 
 from __future__ import annotations
@@ -99,9 +89,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   inputs: Sequence[str], out_of_range: str = "extend",
                   references_every: float | None = None, figures: bool = False) -> BagOutcome:
     """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
-    ``series_to``: the open CSV (serial) or the path of a temporary part (a pool worker;
-    the parent copies it into the table). A failed write of an output (``OutputError``)
-    ends the command: it is not the bag's error."""
+    ``series_to``: the open CSV (serial) or the path of a worker's temporary part."""
     table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
     try:
         calibration = load_calibration(calibration_path)
@@ -137,11 +125,8 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
 
 
 def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
-    """A subfolder of ``plots`` per bag, named by its stem, always directly inside
-    ``plots`` and one per bag: a stem that is not a plain name (``..`` of a bag named
-    ``...mcap`` or of a path ending in ``/..``, ``.``, empty, hidden) becomes ``bag``; a
-    name taken already (a repeated stem, or one equal to another's numbered name) gets
-    ``_2``, ``_3``, ... until it is free."""
+    """A subfolder of ``plots`` per bag, named by its stem (``bag`` when the stem is not a
+    plain name: ``..``, ``.``, empty, hidden), ``_2``, ``_3``, ... when taken already."""
     if plots is None:
         return [None] * len(bags)
     taken: set[str] = set()

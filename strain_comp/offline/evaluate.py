@@ -1,60 +1,42 @@
 """Evaluation: run a calibration over recordings with a reference strain and score it.
 
-Every calibrated sensor that has a recording with ``strain_reference`` is run through the
-engine's batch path (``strain_comp.core.engine.Engine.run``, or ``Engine.run_array`` for the
-sensors of one array, so cross-talk terms see the same tick's neighbours), the very code
-that ``replay`` and the node use, so the numbers here are the numbers a robot would see.
-Errors (% strain, ``strain_comp.core.metrics.error_stats``: RMSE per [Electrolycra] eq. (5),
-MAE, max |e|, R^2) are taken over the samples the engine *used* (status good, gap reset or
-out of range) whose reference is finite; over bad samples (not finite, R <= 0, open or
-short circuit, time not increasing) the engine holds its estimate, and those are counted,
-not scored.
-Out-of-range samples are scored like any other and counted: the flag warns, it does not
-hide the error. The engine clamps estimates to the valid strain range plus a margin.
-
-``evaluate_bag`` (the ``evaluate`` command) does the same on a bag read piece by piece
-(``strain_comp.io.bag.iter_bag``), in memory bounded independently of the bag's length: the
-engine carries its state from piece to piece exactly, the reference and temperature are
-aligned across pieces (``strain_comp.io.recording.PieceAlign``), the statistics are running
-sums (``strain_comp.core.metrics.ErrorAccumulator``) and the status counts cumulative. Its
-numbers are ``evaluate_recordings``'s on the whole recordings (equal to rounding; a bag of
-one piece gives the same bits). What waits between pieces is the samples after the latest
-reference (or temperature) sample read so far: bounded when the reference runs with the
-resistance, the whole tail when a reference stops before the bag ends. Arrays for plots are
-kept only when asked for, decimated to at most ``PLOT_POINTS`` evenly spaced samples per
-sensor (the statistics use every sample). The in-run bound (``fit.in_run_bound``) fits a
-model to the whole run: it needs the recordings loaded whole (``load_recordings``).
+One scorer (``Scorer``) runs every calibrated, referenced sensor through the engine's batch
+path (``Engine.run``, or ``Engine.run_array`` for an array, so cross-talk terms see the same
+tick's neighbours: the code ``replay`` and the node use) and keeps running error sums
+(``core.metrics.ErrorAccumulator``) over the samples the engine used (good, gap reset, out
+of range: flagged, still scored) whose reference is finite; held samples are counted, not
+scored. ``evaluate_recordings`` feeds it whole recordings; ``evaluate_bag`` a bag piece by
+piece (``BagScorer``, reference and temperature aligned across pieces by
+``io.recording.PieceAlign``), in memory bounded independently of the bag's length.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from strain_comp.base.samples import Status, used_mask
-from strain_comp.core.calibration import Calibration, check_reference
+from strain_comp.core.calibration import Calibration, SensorCalibration, check_reference
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion, check_every
-from strain_comp.core.metrics import band_counts, error_stats
+from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
-from strain_comp.io.bag import iter_bag, located
+from strain_comp.io.bag import BagContents, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
-from strain_comp.io.recording import Recording
-from strain_comp.offline.evaluate_stream import EvaluationStream
-from strain_comp.offline.evaluation import (
-    EvaluationResult,
-    SensorEvaluation,
-    crosstalk_off_tick,
-    fusion_state,
-    input_unit,
-    nothing_scored,
-    references_needed,
-    temperature_missing,
+from strain_comp.io.recording import (
+    REFERENCE,
+    RESISTANCE,
+    TEMPERATURE,
+    PieceAlign,
+    Recording,
+    array_sensor_names,
 )
+from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation, input_unit
 
 if TYPE_CHECKING:
     from strain_comp.core.outputs import BatchOutput
@@ -64,89 +46,397 @@ PLOT_POINTS = 50_000
 """Most samples per sensor ``evaluate_bag`` keeps for plots (evenly spaced)."""
 
 
-def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
-                        tare: str = "calibration", out_of_range: str = "extend",
-                        references_every: float | None = None) -> EvaluationResult:
-    """Score every calibrated sensor that has a recording with a reference strain."""
-    if references_every is not None:
-        check_every(references_every)
-        references_needed(calibration, {n: r.s is not None for n, r in recordings.items()},
-                          references_every)
-    engine = Engine(calibration, out_of_range=out_of_range)
-    tared = tare_engine(engine, {n: (rec.t, rec.r) for n, rec in recordings.items()}, tare)
-    outputs = _array_outputs(engine, recordings, calibration)
-    sensors: dict[str, SensorEvaluation] = {}
-    notes: list[str] = [f"{name}: {line}" for name, line in tared.items()]
-    for name, cal in calibration.sensors.items():
-        rec = recordings.get(name)
-        if rec is None:
-            notes.append(f"{name}: calibrated but not in the data")
-            continue
-        if rec.s is None:
-            notes.append(f"{name}: no strain_reference in the data, not scored")
-            continue
-        t = np.asarray(rec.t, dtype=np.float64)
-        r = np.asarray(rec.r, dtype=np.float64)
-        s = np.asarray(rec.s, dtype=np.float64)
-        check_reference(name, s, InputError)
-        out = outputs.get(name) or engine.run(name, t, r, rec.temperature)
-        fused = None
-        if references_every is not None:
-            fused = SparseFusion.for_calibration(cal, references_every)
-            out = fused.fuse(t, out, s)
+class _Kept:
+    """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
+    more, every other kept sample goes and the stride doubles; None: every sample)."""
+
+    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range", "std")
+
+    def __init__(self, cap: int | None) -> None:
+        self.cap = cap
+        self.stride = 1
+        self.n = 0
+        self.index = np.empty(0, np.int64)
+        self.columns: dict[str, np.ndarray] = {}
+
+    def add(self, **columns: np.ndarray) -> None:
+        size = columns["t"].size
+        index = np.arange(self.n, self.n + size)
+        self.n += size
+        take = index % self.stride == 0
+        self.index = np.concatenate((self.index, index[take]))
+        for key in (k for k in self.FIELDS if k in columns):  # std: only with a band
+            new = columns[key][take]
+            self.columns[key] = new if key not in self.columns else \
+                np.concatenate((self.columns[key], new))
+        while self.cap is not None and self.index.size > self.cap:
+            self.stride *= 2
+            take = self.index % self.stride == 0
+            self.index = self.index[take]
+            self.columns = {k: v[take] for k, v in self.columns.items()}
+
+    def get(self, key: str) -> np.ndarray:
+        return self.columns.get(key, np.empty(0))
+
+
+class _Score:
+    """One sensor's running statistics and cumulative status counts."""
+
+    def __init__(self, plot_points: int | None) -> None:
+        self.errors = ErrorAccumulator()
+        self.n_samples = 0
+        self.n_bad = 0
+        self.n_out_of_range = 0
+        self.bad: dict[int, int] = {}
+        self.kept = _Kept(plot_points) if plot_points != 0 else None
+
+    def add(self, t: np.ndarray, r: np.ndarray, s: np.ndarray, out: BatchOutput) -> None:
         estimate = np.asarray(out.strain, dtype=np.float64)
         status = np.asarray(out.status)
         good = used_mask(status)
         scored = good & np.isfinite(s) & np.isfinite(estimate)
-        bad_by_status = {Status(int(v)).name.lower(): int(np.sum(status == v))
-                         for v in np.unique(status[~good])}
-        sensors[name] = SensorEvaluation(
-            name=name, model=cal.model, stats=error_stats(estimate[scored], s[scored]),
-            t=t, r=r, reference=s, estimate=estimate,
-            direction=np.asarray(out.direction), scored=scored, n_samples=int(t.size),
-            n_bad=int(np.sum(~good)), n_out_of_range=int(np.sum(np.asarray(out.out_of_range))),
-            bad_by_status=bad_by_status, unit=cal.strain_unit,
-            out_of_range=np.asarray(out.out_of_range, bool), input_unit=input_unit(cal),
-            input_gain=engine.input_gain(name),
-            references=fusion_state(fused), **band_of(out, estimate, s, scored))
-        if rec.temperature is None:
-            notes += temperature_missing(name, calibration.sensors[name])
-        notes += crosstalk_off_tick(name, cal, {
-            n for n, other in recordings.items()
-            if rec.array is not None and other.array == rec.array})
-    if not sensors:
+        std = None if out.std is None else np.asarray(out.std, dtype=np.float64)
+        self.errors.add(estimate[scored], s[scored], None if std is None else std[scored])
+        self.n_samples += int(t.size)
+        self.n_bad += int(np.sum(~good))
+        self.n_out_of_range += int(np.sum(np.asarray(out.out_of_range)))
+        values, counts = np.unique(status[~good], return_counts=True)
+        for v, c in zip(values.tolist(), counts.tolist(), strict=True):
+            self.bad[int(v)] = self.bad.get(int(v), 0) + int(c)
+        if self.kept is not None:
+            self.kept.add(t=t, r=r, reference=s, estimate=estimate,
+                          direction=np.asarray(out.direction), scored=scored,
+                          out_of_range=np.asarray(out.out_of_range, bool),
+                          **({} if std is None else {"std": std}))
+
+    def evaluation(self, name: str, cal: SensorCalibration, input_gain: float,
+                   fused: SparseFusion | None) -> SensorEvaluation:
+        kept = self.kept or _Kept(0)
+        return SensorEvaluation(
+            name=name, model=cal.model, stats=self.errors.stats(), t=kept.get("t"),
+            r=kept.get("r"), reference=kept.get("reference"), estimate=kept.get("estimate"),
+            direction=kept.get("direction"), scored=kept.get("scored").astype(bool),
+            n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
+            bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
+            unit=cal.strain_unit, errors=self.errors,
+            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit(cal),
+            input_gain=input_gain,
+            references=None if fused is None else {"every": fused.every,
+                                                   **fused.fusion.state()},
+            std=kept.get("std") if self.errors.n_banded else np.empty(0),
+            coverage_95=self.errors.coverage_95())
+
+
+class Scorer:
+    """The one evaluation: sensors tared (``start``), their samples run and scored piece by
+    piece (``score``), the per-sensor result and notes (``result``)."""
+
+    def __init__(self, calibration: Calibration, engine: Engine, tare: str,
+                 plot_points: int | None, series: SeriesCSV | None = None, bag: str = "",
+                 references_every: float | None = None) -> None:
+        if references_every is not None:
+            check_every(references_every)
+        self.calibration = calibration
+        self.references_every = references_every
+        self.fused: dict[str, SparseFusion] = {}
+        self.series = series
+        self.bag = bag
+        self.engine = engine
+        self.tare = tare
+        self.plot_points = plot_points
+        self.scores: dict[str, _Score] = {}
+        self.notes: list[str] = []
+
+    def start(self, runs: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
+        """Tare the calibrated sensors of ``runs`` (time, input) and open their scores."""
+        tared = tare_engine(self.engine, runs, self.tare)
+        self.notes += [f"{name}: {line}" for name, line in tared.items()]
+        for name in runs:
+            self.scores[name] = _Score(self.plot_points)
+            if self.references_every is not None:
+                self.fused[name] = SparseFusion.for_calibration(self.calibration.sensors[name],
+                                                               self.references_every)
+
+    def score(self, names: list[str], group: list[str], t: np.ndarray, r: np.ndarray,
+              temps: Mapping[str, np.ndarray | None], refs: Mapping[str, np.ndarray]) -> None:
+        """Run and score a piece of ``names`` (``r``'s columns); ``group``: the sensors run
+        together by ``Engine.run_array`` (calibration order), else empty."""
+        for name, ref in refs.items():
+            check_reference(name, ref, InputError)
+        column = {name: j for j, name in enumerate(names)}
+        if group:
+            outs = self.engine.run_array(group, t, r[:, [column[g] for g in group]],
+                                         {g: temps[g] for g in group})
+        else:
+            outs = {name: self.engine.run(name, t, r[:, j], temps[name])
+                    for j, name in enumerate(names)}
+        for name, fused in self.fused.items():
+            if name in outs:
+                outs[name] = fused.fuse(t, outs[name], refs[name])
+        for name, j in column.items():
+            self.scores[name].add(t, r[:, j], refs[name], outs[name])
+            if self.series is not None:
+                cal, out = self.calibration.sensors[name], outs[name]
+                self.series.add(name, t, cal.input.to_ohm(r[:, j]), out.strain, refs[name],
+                                out.direction, out.status, unit=cal.strain_unit, bag=self.bag)
+
+    def result(self, found: list[str], referenced: set[str], with_temperature: set[str],
+               same_tick: Mapping[str, set[str]]) -> EvaluationResult:
+        """Every calibrated sensor's evaluation, or the note why it has none; ``found``:
+        every sensor in the data."""
+        missing = [n for n in self.calibration.sensors if n in found and n not in referenced]
+        if self.references_every is not None and missing:
+            raise InputError(f"--references-every {self.references_every:g}: "
+                             f"{', '.join(missing)} has no strain_reference in the data (the "
+                             "references fused are the data's own /NAME/strain_reference)")
+        sensors: dict[str, SensorEvaluation] = {}
+        notes = list(self.notes)
+        for name, cal in self.calibration.sensors.items():
+            if name not in found:
+                notes.append(f"{name}: calibrated but not in the data")
+            elif name not in referenced:
+                notes.append(f"{name}: no strain_reference in the data, not scored")
+            else:
+                sensors[name] = self.scores[name].evaluation(
+                    name, cal, self.engine.input_gain(name), self.fused.get(name))
+                if name not in with_temperature:
+                    notes += _temperature_missing(name, cal)
+                notes += _crosstalk_off_tick(name, cal, same_tick.get(name, set()))
+        return EvaluationResult(sensors, notes)
+
+
+def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
+                        tare: str = "calibration", out_of_range: str = "extend",
+                        references_every: float | None = None) -> EvaluationResult:
+    """Score every calibrated sensor that has a recording with a reference strain."""
+    scorer = Scorer(calibration, Engine(calibration, out_of_range=out_of_range), tare, None,
+                    references_every=references_every)
+    scorer.start({n: (rec.t, rec.r) for n, rec in recordings.items()
+                  if n in calibration.sensors})
+    scored = [n for n in calibration.sensors if n in recordings and recordings[n].s is not None]
+    arrays: dict[str, list[str]] = {}
+    for name in scored:
+        if recordings[name].array is not None:
+            arrays.setdefault(str(recordings[name].array), []).append(name)
+    # an array on one time base runs together (cross-talk reads the same tick's
+    # neighbours, as the node does); then the others one by one
+    groups = [g for g in arrays.values() if len(g) > 1 and all(
+        np.array_equal(recordings[n].t, recordings[g[0]].t) for n in g)]
+    alone = [n for n in scored if not any(n in g for g in groups)]
+    for names in [*groups, *([n] for n in alone)]:
+        scorer.score(names, names if len(names) > 1 else [],
+                     np.asarray(recordings[names[0]].t, dtype=np.float64),
+                     np.column_stack([np.asarray(recordings[n].r, dtype=np.float64)
+                                      for n in names]),
+                     {n: recordings[n].temperature for n in names},
+                     {n: np.asarray(recordings[n].s, dtype=np.float64) for n in names})
+    result = scorer.result(
+        list(recordings), set(scored),
+        {n for n, rec in recordings.items() if rec.temperature is not None},
+        {n: {m for m, other in recordings.items() if other.array == rec.array}
+         for n, rec in recordings.items() if rec.array is not None})
+    if not result.sensors:
         raise InputError(nothing_scored(calibration, list(recordings)))
-    return EvaluationResult(sensors, notes)
+    return result
 
 
-def band_of(out: BatchOutput, estimate: np.ndarray, reference: np.ndarray,
-            scored: np.ndarray) -> dict[str, Any]:
-    """``SensorEvaluation``'s ``std`` and ``coverage_95`` of a run (none without a band)."""
-    if out.std is None:
+def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic:
+    offline such a term reads the neighbour's latest estimate of the previous batch, not of
+    the same instant (``Engine.run``; the node, stepping each message, reads the latest one),
+    so its correction is not the one diagnosed."""
+    off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
+           if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
+           and str(e["params"].get("neighbour")) not in same_tick]
+    if not off:
+        return []
+    return [f"{name}: cross-talk term {', '.join(off)} reads a sensor not recorded on its "
+            "array topic: offline it sees that sensor's estimate batch by batch, not tick by "
+            "tick, and this error is not the calibration's (record the array on one topic)"]
+
+
+def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
+    """The note for a run without temperature scored through a calibration with a
+    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
+    if not terms:
+        return []
+    return [f"{name}: no temperature in the data: the calibration's temperature term "
+            f"{', '.join(terms)} is not applied"]
+
+
+def nothing_scored(calibration: Calibration, names: list[str]) -> str:
+    """The error when no calibrated sensor can be scored, naming both sides."""
+    return ("no calibrated sensor has a strain_reference in the data (calibration: "
+            f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
+
+
+@dataclass
+class _Input:
+    """One ``/PREFIX/resistance`` topic: its calibrated columns and what waits for the
+    reference (or temperature) to arrive."""
+
+    prefix: str
+    names: list[str]
+    """Calibrated sensors, in column order of ``columns``."""
+    columns: list[int]
+    single: bool
+    group: list[str]
+    """Sensors run together by ``Engine.run_array`` (calibration order), else empty."""
+    temperature: PieceAlign | None
+    """Only when an effect term of a sensor here could read it."""
+    reference: dict[str, PieceAlign]
+    ref_columns: dict[str, int | None] | None = None
+    """Per sensor its reference column (None: a 1-D reference); None until the reference
+    topic is first seen; empty when it does not fit."""
+    t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    r: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+
+
+class BagScorer(Scorer):
+    """``Scorer`` fed a bag piece by piece: what waits between pieces is the samples after
+    the latest reference (or temperature) sample read so far."""
+
+    def __init__(self, calibration: Calibration, engine: Engine, tare: str,
+                 plot_points: int, series: SeriesCSV | None = None, bag: str = "",
+                 references_every: float | None = None) -> None:
+        super().__init__(calibration, engine, tare, plot_points, series, bag, references_every)
+        self.inputs: dict[str, _Input | None] = {}
+        self.names: list[str] = []
+        """Every sensor found in the data, in ``load_recordings`` order."""
+        self.bag_problems: list[str] = []
+        self.problems: list[str] = []
+        self.references: set[str] = set()
+        self.with_temperature: set[str] = set()
+        """Sensors whose input has a temperature sample in a piece read so far."""
+
+    def _problem(self, line: str) -> None:
+        if line not in self.problems:
+            self.problems.append(line)
+
+    def piece(self, contents: BagContents) -> None:
+        self.bag_problems += contents.problems
+        for topic in sorted(contents.series):
+            if topic.endswith(REFERENCE):
+                self.references.add(topic)
+            if topic.endswith(RESISTANCE) and topic not in self.inputs:
+                self.inputs[topic] = self._input(topic, contents)
+        for topic, inp in self.inputs.items():
+            if inp is not None:
+                self._add(inp, topic, contents)
+                self._run(inp)
+
+    def finish(self) -> None:
+        for inp in self.inputs.values():
+            if inp is not None:
+                for align in [inp.temperature, *inp.reference.values()]:
+                    if align is not None:
+                        align.finish()
+                self._run(inp)
+        for topic in sorted(self.references):
+            if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
+                self._problem(f"{topic}: reference without a resistance topic; ignored")
+
+    def _input(self, topic: str, contents: BagContents) -> _Input | None:
+        """What a resistance topic first seen in ``contents`` is (as ``load_recordings``
+        reads it), tared from this first piece (as ``replay`` does)."""
+        prefix = topic[:-len(RESISTANCE)]
+        series = contents.series[topic]
+        single = series.values.ndim == 1
+        if single:
+            labels = [prefix.lstrip("/")]
+        else:
+            labels, problem = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                                 series.values.shape[1])
+            if problem is not None:
+                self._problem(problem)
+        names: list[str] = []
+        columns: list[int] = []
+        for j, name in enumerate(labels):
+            if not single and name in self.names:
+                self._problem(f"{topic}: sensor {name} appears twice; column {j} skipped")
+                continue
+            self.names.append(name)
+            if name in self.calibration.sensors:
+                names.append(name)
+                columns.append(j)
+        if not names:
+            return None
+        values = series.values if not single else series.values[:, None]
+        self.start({n: (series.t, values[:, j]) for n, j in zip(names, columns, strict=True)})
+        group = [] if single or len(names) < 2 else \
+            [n for n in self.calibration.sensors if n in names]
+        effects = any(self.calibration.sensors[n].effects for n in names)
+        return _Input(prefix, names, columns, single, group,
+                      PieceAlign() if effects else None,
+                      {n: PieceAlign() for n in names}, r=np.empty((0, len(names))))
+
+    def _ref_columns(self, inp: _Input, topic: str, contents: BagContents
+                     ) -> dict[str, int | None]:
+        """Reference column of each sensor of ``inp`` (``load_recordings``'s rules)."""
+        ref = contents.series[inp.prefix + REFERENCE]
+        if inp.single:
+            if ref.values.ndim == 1:
+                return {inp.names[0]: None}
+            self._problem(f"{inp.prefix + REFERENCE}: an array reference for a single sensor")
+            return {}
+        labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
+                                       contents.series[topic].values.shape[1])
+        ref_labels = contents.labels.get(inp.prefix + REFERENCE) or labels
+        if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
+                and set(labels) <= set(ref_labels):
+            return {n: ref_labels.index(n) for n in inp.names}
+        self._problem(f"{inp.prefix + REFERENCE}: columns do not match {topic}; ignored")
         return {}
-    banded, inside = band_counts(estimate[scored], reference[scored], out.std[scored])
-    return {"std": out.std, "coverage_95": inside / banded if banded else None}
 
+    def _add(self, inp: _Input, topic: str, contents: BagContents) -> None:
+        """Queue a piece's samples of ``inp`` and feed its alignments."""
+        empty = np.empty(0)
+        series = contents.series.get(topic)
+        t = series.t if series is not None else empty
+        if series is not None and t.size:
+            values = series.values[:, None] if inp.single else series.values
+            inp.t = np.concatenate((inp.t, t))
+            inp.r = np.concatenate((inp.r, values[:, inp.columns]))
+        if inp.temperature is not None:
+            temp = contents.series.get(inp.prefix + TEMPERATURE)
+            if temp is not None and temp.values.ndim == 1:
+                inp.temperature.add(t, temp.t, temp.values)
+                if temp.t.size:
+                    self.with_temperature.update(inp.names)
+            else:
+                inp.temperature.add(t, empty, empty)
+        ref = contents.series.get(inp.prefix + REFERENCE)
+        if ref is not None and inp.ref_columns is None:
+            inp.ref_columns = self._ref_columns(inp, topic, contents)
+        for name, align in inp.reference.items():
+            column = (inp.ref_columns or {}).get(name, -1)
+            if ref is None or column == -1:
+                align.add(t, empty, empty)
+            else:
+                align.add(t, ref.t, ref.values if column is None else ref.values[:, column])
 
-def _array_outputs(engine: Any, recordings: Mapping[str, Recording],
-                   calibration: Calibration) -> dict[str, Any]:
-    """``Engine.run_array`` outputs of the calibrated, referenced sensors of every array
-    whose sensors share one time base (cross-talk terms then read the same tick's
-    neighbours, as the node does); other sensors are run one by one by the caller."""
-    groups: dict[str, list[str]] = {}
-    for name in calibration.sensors:
-        rec = recordings.get(name)
-        if rec is not None and rec.s is not None and rec.array is not None:
-            groups.setdefault(rec.array, []).append(name)
-    out: dict[str, Any] = {}
-    for names in groups.values():
-        recs = [recordings[n] for n in names]
-        t = np.asarray(recs[0].t, dtype=np.float64)
-        if len(names) < 2 or any(not np.array_equal(rec.t, t) for rec in recs):
-            continue
-        out.update(engine.run_array(names, t, np.column_stack([rec.r for rec in recs]),
-                                    {n: recordings[n].temperature for n in names}))
-    return out
+    def _run(self, inp: _Input) -> None:
+        """Compensate and score the queued samples whose reference is known."""
+        horizon = min(a.horizon() for a in [inp.temperature, *inp.reference.values()]
+                      if a is not None)
+        n = int(np.searchsorted(inp.t, horizon, side="right"))
+        if n == 0:
+            return
+        t, r = inp.t[:n], inp.r[:n]
+        inp.t, inp.r = inp.t[n:], inp.r[n:]
+        temp = None if inp.temperature is None else inp.temperature.take(t)
+        self.score(inp.names, inp.group, t, r, {name: temp for name in inp.names},
+                   {name: align.take(t) for name, align in inp.reference.items()})
+
+    def bag_result(self) -> EvaluationResult:
+        """``result`` of what the bag held."""
+        return self.result(
+            self.names, {name for inp in self.inputs.values() if inp is not None
+                         for name in inp.ref_columns or {}},
+            self.with_temperature,
+            {name: set(inp.names) for inp in self.inputs.values()
+             if inp is not None and not inp.single for name in inp.names})
 
 
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
@@ -157,17 +447,14 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
     of about ``window`` messages (``iter_bag``), each compensated and scored before the next
-    is read."""
-    if references_every is not None:
-        check_every(references_every)
-    stream = EvaluationStream(calibration, Engine(calibration, out_of_range=out_of_range),
-                              tare, plot_points, series, str(path),
-                              references_every)
+    is read; at most ``plot_points`` samples kept per sensor for plots."""
+    stream = BagScorer(calibration, Engine(calibration, out_of_range=out_of_range),
+                       tare, plot_points, series, str(path), references_every)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
     stream.finish()
     problems = stream.bag_problems + located(path, stream.problems)
-    result = stream.result()
+    result = stream.bag_result()
     if not result.sensors:
         raise InputError("; ".join([f"{path}: {nothing_scored(calibration, stream.names)}",
                                     *problems]))

@@ -1,23 +1,18 @@
-"""An evaluation's result: each sensor's run and error statistics, its table and its notes.
-
-``strain_comp.offline.evaluate`` makes it (``evaluate_recordings``, ``evaluate_bag``); the
-errors are in % strain (``strain_comp.core.metrics.error_stats``: RMSE per [Electrolycra]
-eq. (5), MAE, max |e|, R^2) over the samples the engine used whose reference is finite.
+"""An evaluation's result (``offline.evaluate``): each sensor's run and error statistics, its
+table and its notes.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import Calibration, SensorCalibration, strain_unit_words
-from strain_comp.core.fusion import SparseFusion, fusion_note
+from strain_comp.core.calibration import SensorCalibration, strain_unit_words
+from strain_comp.core.fusion import fusion_note
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats
-from strain_comp.errors import InputError
 
 
 @dataclass
@@ -97,55 +92,9 @@ def _json_number(value: float | int) -> float | int | None:
     return value
 
 
-def references_needed(calibration: Calibration, referenced: Mapping[str, bool],
-                      every: float) -> None:
-    """Check that the data holds the references to fuse every ``every`` s."""
-    missing = [n for n in calibration.sensors if n in referenced and not referenced[n]]
-    if missing:
-        raise InputError(f"--references-every {every:g}: {', '.join(missing)} has no "
-                         "strain_reference in the data (the references fused are the data's "
-                         "own /NAME/strain_reference)")
-
-
-def fusion_state(fused: SparseFusion | None) -> dict[str, Any] | None:
-    """The JSON record of a sensor's fusion."""
-    return None if fused is None else {"every": fused.every, **fused.fusion.state()}
-
-
 def input_unit(cal: SensorCalibration) -> str:
     """The unit of the input a sensor's run holds."""
     return "V" if cal.input.kind == "divider" else cal.input.unit
-
-
-def crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
-    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic:
-    offline such a term reads the neighbour's latest estimate of the previous batch, not of
-    the same instant (``Engine.run``; the node, stepping each message, reads the latest one),
-    so its correction is not the one diagnosed."""
-    off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
-           if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
-           and str(e["params"].get("neighbour")) not in same_tick]
-    if not off:
-        return []
-    return [f"{name}: cross-talk term {', '.join(off)} reads a sensor not recorded on its "
-            "array topic: offline it sees that sensor's estimate batch by batch, not tick by "
-            "tick, and this error is not the calibration's (record the array on one topic)"]
-
-
-def temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
-    """The note for a run without temperature scored through a calibration with a
-    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
-    terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
-    if not terms:
-        return []
-    return [f"{name}: no temperature in the data: the calibration's temperature term "
-            f"{', '.join(terms)} is not applied"]
-
-
-def nothing_scored(calibration: Calibration, names: list[str]) -> str:
-    """The error when no calibrated sensor can be scored, naming both sides."""
-    return ("no calibrated sensor has a strain_reference in the data (calibration: "
-            f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
 
 
 def format_table(result: EvaluationResult) -> str:

@@ -1,15 +1,8 @@
-"""Evaluation plots (PNG, matplotlib's Agg backend, imported only when plots are asked for).
-
-Per sensor (slashes in NAME become ``_``): ``NAME_time.png`` (estimate and reference
-strain over time, with the estimate's 95 % band where the calibration holds an uncertainty,
-resistance below), ``NAME_loop.png`` (estimate against reference with
-the identity line; a perfect compensator lies on it, hysteresis left in the estimate
-shows as a loop), ``NAME_raw.png`` (the recorded resistance against the reference strain,
-what the model inverts, with the calibration's resistance range) and
-``NAME_error_hist.png`` (histogram of S_hat - S over the scored samples). Titles name the
-bag, the calibration and the tare; samples outside the calibrated range are marked in
-orange; axes span the data (5 % margin); strain in the calibration's unit, resistance in
-a readable prefix (or V for a divider input).
+"""Evaluation plots (PNG, matplotlib's Agg backend, imported only when plots are asked for):
+per sensor ``NAME_time.png`` (estimate, reference and 95 % band over time, resistance
+below), ``NAME_loop.png`` (estimate against reference), ``NAME_raw.png`` (resistance against
+reference, with the calibrated range) and ``NAME_error_hist.png``; samples outside the
+calibrated range in orange.
 """
 
 from __future__ import annotations
@@ -243,23 +236,31 @@ def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
             for name in names for kind in PLOT_KINDS]
 
 
+def plot_sensor(result: EvaluationResult, name: str, targets: Sequence[Target], *,
+                inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
+                bag: str = "", calibration_path: str = "", tare: str = "") -> list[Target]:
+    """The four plots of one evaluated sensor into ``targets`` (``PLOT_KINDS`` order)."""
+    ev = result.sensors[name]
+    context = context_line(result, name, bag, calibration_path, tare)
+    cal = calibration.sensors.get(name) if calibration is not None else None
+    r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
+    time, loop, raw, hist = targets
+    return [plot_time(ev, time, inputs=inputs, context=context),
+            plot_loop(ev, loop, inputs=inputs, context=context),
+            plot_raw(ev, raw, inputs=inputs, context=context, r_range=r_range),
+            plot_error_hist(ev, hist, inputs=inputs, context=context)]
+
+
 def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
                     inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
                     bag: str = "", calibration_path: str = "", tare: str = "") -> list[Path]:
     """The four plots for every evaluated sensor, each written atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, ev in result.sensors.items():
-        context = context_line(result, name, bag, calibration_path, tare)
-        cal = calibration.sensors.get(name) if calibration is not None else None
-        r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-        time, loop, raw, hist = plot_files(out, [name])
-        written.append(plot_time(ev, time, inputs=inputs, context=context))
-        written.append(plot_loop(ev, loop, inputs=inputs, context=context))
-        written.append(plot_raw(ev, raw, inputs=inputs, context=context, r_range=r_range))
-        written.append(plot_error_hist(ev, hist, inputs=inputs, context=context))
-    return written
+    return [path for name in result.sensors
+            for path in plot_sensor(result, name, plot_files(out, [name]), inputs=inputs,
+                                    calibration=calibration, bag=bag,
+                                    calibration_path=calibration_path, tare=tare)]
 
 
 def context_line(result: EvaluationResult, name: str, bag: str, calibration_path: str,

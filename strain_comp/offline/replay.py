@@ -1,25 +1,11 @@
 """Offline replay: a bag's resistance through the engine's batch path into a new bag.
 
-Inputs: ``/NAME/resistance`` (Float64) for every calibrated sensor NAME, and array topics
-``/ARRAY/resistance`` (Float64MultiArray) whose labels are all calibrated sensors;
-``/NAME/temperature`` when present (the latest value at or before each sample, as a live
-node would hold it). The message time is the log time, as the node's clock is online.
-An array topic goes through ``Engine.run_array``, so its cross-talk effect terms read the
-neighbours' estimates of the same tick, as the node's ticks (``Engine.run_ticks``) do.
-
-Outputs, one message at every input message's time (bad samples included, marked):
-``/NAME/strain`` (Float64, held estimate on bad samples), ``/NAME/direction`` (Int8),
-``/NAME/status`` (Int8, ``strain_comp.base.samples.Status``); for arrays the same three as
-Float64MultiArray on ``/ARRAY/strain``, ``/ARRAY/direction``, ``/ARRAY/status``; and the
-strain stamped with its input's time, ``/NAME/strain_stamped`` and ``/ARRAY/strain_stamped``
-(sensor_msgs/JointState: name = sensor names, position = strain, velocity and effort empty,
-header.stamp = the input message's log time, as Float64 and Float64MultiArray inputs
-carry no header; the node's topics of the same name); where the calibration holds an
-uncertainty, the estimate's standard deviation on ``/NAME/strain_std`` (Float64; an
-array's Float64MultiArray) and ``/NAME/strain_std_stamped`` (JointState, position = std);
-``/diagnostics`` at the end of every ``diagnostics_period`` of log time that holds input.
-Every input topic that can be written back (Float64, Int8, Float64MultiArray, Temperature,
-DiagnosticArray) is copied through; anything else is listed in the summary's problems.
+Inputs and outputs are the node's topics (docs/design.md, "Topics"), each output message at
+its input's log time, ``/diagnostics`` at the end of every ``diagnostics_period`` of log
+time that holds input. An array topic goes through ``Engine.run_array`` (cross-talk terms
+read the same tick's neighbours, as the node's ticks do); temperatures and references are
+held at their latest value, as the node holds them. Every input topic that can be written
+back is copied through; anything else is listed in the summary's problems.
 """
 
 from __future__ import annotations
@@ -27,25 +13,32 @@ from __future__ import annotations
 import itertools
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import GAP_RESET, Engine
 from strain_comp.core.fusion import SparseFusion, check_every
-from strain_comp.core.health import HealthCounter, SensorHealth
+from strain_comp.core.health import (
+    HealthCounter,
+    HealthTicks,
+    SensorHealth,
+    status_name,
+    times_text,
+)
 from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import BagError, InputError
 from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
+from strain_comp.io.bag.schemas import Status as DiagnosticStatus
+from strain_comp.io.diagnostic_arrays import Status, diagnostic_arrays
 from strain_comp.io.recording import array_sensor_names, hold_latest
-from strain_comp.offline.diagnostic_ticks import FusionTicks, diagnostic_payloads
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
-from strain_comp.offline.staging import StagedWrites
 
 OUTPUTS = ("strain", "direction", "status")
 TICK_BATCH = 1024
@@ -111,10 +104,8 @@ class _Replay:
         self.calibration = calibration
         self.references_every = references_every
         self.fused: dict[str, SparseFusion] = {}
-        self.referenced: set[str] = set()
-        """Sensors with a reference sample in a piece read so far."""
         self.reference: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        """Per sensor, its latest reference sample so far (t, value), held across pieces."""
+        """Per sensor with a reference sample so far, its latest (t, value)."""
         self.series = series
         self.pending: dict[str, PendingSeries] = {}
         self.tare = tare
@@ -139,10 +130,8 @@ class _Replay:
 
     def piece(self, contents: BagContents) -> None:
         """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs (in that
-        order among messages of one log time); the diagnostics a batch of ticks at a time,
-        each batch's slice of log time flushed before the next is built
-        (``strain_comp.offline.staging``), so memory is bounded however long the piece
-        lasts."""
+        order among messages of one log time), written one slice of ``TICK_BATCH`` ticks at
+        a time so memory is bounded however long the piece lasts."""
         self.problems += contents.problems
         self._discover(contents)
         self._contents = contents
@@ -208,21 +197,18 @@ class _Replay:
         ticks = np.union1d(self.ticks, new)
         t_last = float(t_all.max())
         now, self.ticks = ticks[ticks < t_last], ticks[ticks >= t_last]
-        temps = {s: self._temperature(contents, s, series.t)
-                 for inp, series in inputs for s in inp.sensors}
         # each input runs once over the piece; the health at each tick inside it comes
         # from the cumulative status counts of the samples at or before the tick
         before = self.engine.health()
         fusion_before = {s: f.fusion.diagnostic_values() for s, f in self.fused.items()}
-        runs: list[tuple[np.ndarray, dict[str, BatchOutput]]] = []
+        ran: dict[str, tuple[np.ndarray, BatchOutput]] = {}
         for inp, series in inputs:
-            outs = self._outputs(inp, series.t, series.values,
-                                 {s: temps[s] for s in inp.sensors})
+            outs = self._outputs(inp, series.t, series.values, {
+                s: self._temperature(contents, s, series.t) for s in inp.sensors})
             self.n_compensated += series.t.size
             if self.series is not None:
                 self._series(contents, inp, series, outs)
-            runs.append((series.t, outs))
-        ran = {sensor: (t, out) for t, outs in runs for sensor, out in outs.items()}
+            ran.update({s: (series.t, out) for s, out in outs.items()})
         counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
                     for name, h in before.items()}
         fusion = {s: FusionTicks.of(fusion_before[s], list(f.judged))
@@ -234,20 +220,12 @@ class _Replay:
         """Queue the piece's rows of ``replay --csv`` with the piece's reference samples."""
         assert self.series is not None
         values = series.values if series.values.ndim == 2 else series.values[:, None]
-        ref = contents.series.get(f"/{inp.name}/strain_reference")
-        labels = contents.labels.get(f"/{inp.name}/strain_reference") or inp.sensors
         for j, name in enumerate(inp.sensors):
             cal = self.calibration.sensors[name]
             pending = self.pending.setdefault(name, PendingSeries(name, cal.strain_unit))
-            ref_t, ref_v = np.empty(0), np.empty(0)
-            if ref is not None and ref.values.ndim == (2 if inp.is_array else 1):
-                if not inp.is_array:
-                    ref_t, ref_v = ref.t, ref.values
-                elif name in labels and labels.index(name) < ref.values.shape[1]:
-                    ref_t, ref_v = ref.t, ref.values[:, labels.index(name)]
             out = outs[name]
             pending.add(series.t, cal.input.to_ohm(values[:, j]), out.strain, out.direction,
-                        out.status, ref_t, ref_v)
+                        out.status, *_reference(contents, inp, name))
             pending.flush(self.series)
 
     def finish_series(self) -> None:
@@ -265,7 +243,7 @@ class _Replay:
 
     def _write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
                            fusion: dict[str, FusionTicks]) -> None:
-        """One /diagnostics message per tick (``diagnostic_ticks``): every sensor's health
+        """One /diagnostics message per tick (``diagnostic_payloads``): every sensor's health
         at the tick, a fused sensor's fusion state."""
         healths = {name: c.at(ticks, stale_after=self.engine.stale_for(name))
                    for name, c in counters.items()}
@@ -275,33 +253,29 @@ class _Replay:
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
+        """Run ``inp``'s piece and stage its outputs: an array's as Float64MultiArray, a
+        sensor's as Float64 (strain, std) and Int8 (direction, status)."""
         if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
-            outs = self._fused(inp, t, self.engine.run_array(inp.sensors, t, values, temps))
-            for what in OUTPUTS:
-                stacked = np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
-                self.out.write_float64_array(f"/{inp.name}/{what}", t,
-                                                stacked.astype(np.float64), inp.sensors)
-                if what == "strain":
-                    self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, inp.sensors,
-                                                  stacked)
-            if any(outs[s].std is not None for s in inp.sensors):
-                std = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None else v
-                                for s in inp.sensors], axis=1)
-                self.out.write_float64_array(f"/{inp.name}/{BAND[0]}", t, std, inp.sensors)
-                self.out.write_joint_state(f"/{inp.name}/{BAND[1]}", t, inp.sensors, std)
+            outs = self.engine.run_array(inp.sensors, t, values, temps)
         else:
-            out = self.engine.run(inp.name, t, values, temps[inp.name])
-            out = self._fused(inp, t, {inp.name: out})[inp.name]
-            self.out.write_float64(f"/{inp.name}/strain", t, out.strain)
-            self.out.write_joint_state(f"/{inp.name}/{STAMPED}", t, [inp.name],
-                                          out.strain[:, None])
-            self.out.write_int8(f"/{inp.name}/direction", t, out.direction)
-            self.out.write_int8(f"/{inp.name}/status", t, out.status)
-            if out.std is not None:
-                self.out.write_float64(f"/{inp.name}/{BAND[0]}", t, out.std)
-                self.out.write_joint_state(f"/{inp.name}/{BAND[1]}", t, [inp.name],
-                                           out.std[:, None])
-            outs = {inp.name: out}
+            outs = {inp.name: self.engine.run(inp.name, t, values, temps[inp.name])}
+        outs = self._fused(inp, t, outs)
+        columns = {what: np.stack([getattr(outs[s], what) for s in inp.sensors], axis=1)
+                   for what in OUTPUTS}
+        if any(outs[s].std is not None for s in inp.sensors):
+            columns[BAND[0]] = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None
+                                         else v for s in inp.sensors], axis=1)
+        for what, stacked in columns.items():
+            topic = f"/{inp.name}/{what}"
+            if inp.is_array:
+                self.out.write_float64_array(topic, t, stacked.astype(np.float64), inp.sensors)
+            elif what in ("direction", "status"):
+                self.out.write_int8(topic, t, stacked[:, 0])
+            else:
+                self.out.write_float64(topic, t, stacked[:, 0])
+            if what in ("strain", BAND[0]):
+                stamped = STAMPED if what == "strain" else BAND[1]
+                self.out.write_joint_state(f"/{inp.name}/{stamped}", t, inp.sensors, stacked)
         self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs
 
@@ -311,46 +285,50 @@ class _Replay:
         at each sample is the latest at or before it (as the node holds it)."""
         if self.references_every is None:
             return outs
-        contents = self._contents
-        topic = f"/{inp.name}/strain_reference"
-        ref = contents.series.get(topic)
-        labels = contents.labels.get(topic) or inp.sensors
         for name in inp.sensors:
-            src_t, src_v = np.empty(0), np.empty(0)
-            if ref is not None and ref.values.ndim == (2 if inp.is_array else 1):
-                if not inp.is_array:
-                    src_t, src_v = ref.t, ref.values
-                elif name in labels and labels.index(name) < ref.values.shape[1]:
-                    src_t, src_v = ref.t, ref.values[:, labels.index(name)]
-            held = self.reference.get(name)
-            if held is not None:
-                src_t, src_v = np.concatenate((held[0], src_t)), np.concatenate((held[1], src_v))
+            src_t, src_v = _reference(self._contents, inp, name)
             ok = np.isfinite(src_t) & np.isfinite(src_v)
-            src_t, src_v = src_t[ok], src_v[ok]
-            if src_t.size:
-                self.referenced.add(name)
-                order = np.argsort(src_t, kind="stable")
-                self.reference[name] = (src_t[order][-1:], src_v[order][-1:])
-            values = hold_latest(t, src_t, src_v) if src_t.size else np.full(t.size, np.nan)
-            outs[name] = self.fused[name].fuse(t, outs[name], values)
+            values = _held(self.reference, name, src_t[ok], src_v[ok], t)
+            outs[name] = self.fused[name].fuse(
+                t, outs[name], np.full(t.size, np.nan) if values is None else values)
         return outs
 
     def _temperature(self, contents: BagContents, name: str, t: np.ndarray
                      ) -> np.ndarray | None:
         """The latest temperature at or before each of ``t`` (NaN before the first)."""
         series = contents.series.get(f"/{name}/temperature")
-        held = self.temperature.get(name)
-        if series is not None and series.t.size:
-            src_t, src_v = series.t, series.values
-            if held is not None:
-                src_t, src_v = np.concatenate((held[0], src_t)), np.concatenate((held[1], src_v))
-            order = np.argsort(src_t, kind="stable")
-            self.temperature[name] = (src_t[order][-1:], src_v[order][-1:])
-        elif held is not None:
-            src_t, src_v = held
-        else:
-            return None
-        return hold_latest(t, src_t, src_v)
+        empty = np.empty(0)
+        return _held(self.temperature, name, empty if series is None else series.t,
+                     empty if series is None else series.values, t)
+
+
+def _reference(contents: BagContents, inp: _Input, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The piece's reference samples (t, value) of sensor ``name`` of ``inp`` (none when
+    its topic or column is missing)."""
+    topic = f"/{inp.name}/strain_reference"
+    ref = contents.series.get(topic)
+    labels = contents.labels.get(topic) or inp.sensors
+    if ref is None or ref.values.ndim != (2 if inp.is_array else 1):
+        return np.empty(0), np.empty(0)
+    if not inp.is_array:
+        return ref.t, ref.values
+    if name in labels and labels.index(name) < ref.values.shape[1]:
+        return ref.t, ref.values[:, labels.index(name)]
+    return np.empty(0), np.empty(0)
+
+
+def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np.ndarray,
+          src_v: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+    """The latest source sample at or before each of ``t``, as the node holds it, the
+    source's latest sample kept in ``latest`` for the next piece; None: no sample yet."""
+    if name in latest:
+        src_t = np.concatenate((latest[name][0], src_t))
+        src_v = np.concatenate((latest[name][1], src_v))
+    if not src_t.size:
+        return None
+    order = np.argsort(src_t, kind="stable")
+    latest[name] = (src_t[order][-1:], src_v[order][-1:])
+    return hold_latest(t, src_t, src_v)
 
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
@@ -361,9 +339,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                csv: str | os.PathLike[str] | None = None,
                references_every: float | None = None) -> ReplaySummary:
     """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
-    written atomically; an ``out_path`` that is ``in_path`` or one of ``inputs`` (e.g. the
-    calibration file) is refused before anything is read. The bag streams through in
-    pieces (``_Replay``): memory does not grow with its length."""
+    written atomically (refused when it is an input), piece by piece (``_Replay``)."""
     if references_every is not None:
         check_every(references_every)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
@@ -379,7 +355,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             raise BagError("; ".join([f"no /NAME/resistance topic for any calibrated "
                                       f"sensor ({', '.join(calibration.sensors)})",
                                       *located(in_path, state.problems)]))
-        missing = [s for s in state.fused if s not in state.referenced]
+        missing = [s for s in state.fused if s not in state.reference]
         if missing:
             raise InputError(f"--references-every {references_every:g}: {', '.join(missing)} "
                              "has no strain_reference in the bag (the references fused are "
@@ -396,6 +372,139 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                          state.n_compensated,
                          {s: {"every": f.every, **f.fusion.state()}
                           for s, f in state.fused.items()})
+
+
+Call = Callable[[BagWriter, np.ndarray], None]
+"""A held write: the writer and the indices (ascending) of the messages to write now."""
+
+
+class StagedWrites:
+    """``BagWriter``'s ``write_*`` calls of a piece held as the arrays given until ``write``
+    hands them to the writer one log-time slice at a time; every held call is made in every
+    slice, empty ones included, so each topic is first named, and numbered, as it would be
+    written in one go."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[np.ndarray, np.ndarray, Call]] = []
+        """(times [ns] in order, the order of the messages by time, the write)."""
+
+    def _hold(self, t: npt.ArrayLike, call: Call) -> None:
+        t_ns = np.round(np.asarray(t, np.float64).reshape(-1) * 1e9)
+        order = np.argsort(t_ns, kind="stable")  # NaN last
+        self.calls.append((t_ns[order], order, call))
+
+    def write(self, writer: BagWriter, lo: float, hi: float | None) -> None:
+        """Write the messages of log times in [``lo``, ``hi``) [s], compared as the writer
+        stores them (integer ns); ``hi`` None: every message not before ``lo`` (times the
+        writer refuses included, so it still refuses them)."""
+        lo_ns = np.round(lo * 1e9)
+        hi_ns = None if hi is None else np.round(hi * 1e9)
+        for t_ns, order, call in self.calls:  # a slice costs its messages, not the piece's
+            a = int(np.searchsorted(t_ns, lo_ns, side="left"))
+            b = t_ns.size if hi_ns is None else int(np.searchsorted(t_ns, hi_ns, side="left"))
+            call(writer, np.sort(order[a:b]))
+
+    def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
+        t, v = np.asarray(t), np.asarray(values)
+        self._hold(t, lambda w, i: w.write_float64(topic, t[i], v[i]))
+
+    def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
+        t, v = np.asarray(t), np.asarray(values)
+        self._hold(t, lambda w, i: w.write_int8(topic, t[i], v[i]))
+
+    def write_float64_array(self, topic: str, t: npt.ArrayLike, values2d: npt.ArrayLike,
+                            labels: Sequence[str]) -> None:
+        t, v = np.asarray(t), np.asarray(values2d)
+        self._hold(t, lambda w, i: w.write_float64_array(topic, t[i], v[i], labels))
+
+    def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
+                          position: npt.ArrayLike) -> None:
+        t, p = np.asarray(t), np.asarray(position)
+        self._hold(t, lambda w, i: w.write_joint_state(topic, t[i], names, p[i]))
+
+    def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
+        t, v = np.asarray(t), np.asarray(values)
+        self._hold(t, lambda w, i: w.write_temperature(topic, t[i], v[i]))
+
+    def write_diagnostics(self, t: npt.ArrayLike, statuses: Sequence[Sequence[DiagnosticStatus]], *,
+                          topic: str = "/diagnostics") -> None:
+        t = np.asarray(t)
+        self._hold(t, lambda w, i: w.write_diagnostics(
+            t[i], [statuses[k] for k in i.tolist()], topic=topic))
+
+
+class FusionTicks:
+    """A fused sensor's ``fusion_*`` key-values at any tick of a piece: ``states[0]`` before
+    it, ``states[i]`` after the reference judged at ``times[i - 1]``."""
+
+    def __init__(self, states: list[dict[str, str]], times: np.ndarray) -> None:
+        self.states = states
+        order = np.argsort(times, kind="stable")
+        self.sorted_times = times[order]
+        self.latest = np.maximum.accumulate(order + 1) if order.size else order
+        """Per time in order, the last state judged at or before it."""
+        key_sets = [tuple(state) for state in states]
+        ids = {keys: n for n, keys in enumerate(dict.fromkeys(key_sets))}
+        self.key_sets = list(ids)
+        """The sets of keys its states have, in order of appearance."""
+        self.key_set = np.array([ids[keys] for keys in key_sets], np.int64)
+        """Per state, its set of keys (index into ``key_sets``)."""
+
+    @classmethod
+    def of(cls, before: dict[str, str], judged: list[tuple[float, dict[str, str]]]
+           ) -> FusionTicks:
+        return cls([before, *(values for _, values in judged)],
+                   np.array([t for t, _ in judged], np.float64))
+
+    def at(self, ticks: np.ndarray) -> np.ndarray:
+        """Index into ``states`` at each of ``ticks``: the last reference judged at or
+        before the tick (in the order judged), else 0."""
+        pos = np.searchsorted(self.sorted_times, ticks, side="right")
+        found = np.zeros(ticks.size, np.int64)
+        found[pos > 0] = self.latest[pos[pos > 0] - 1]
+        return found
+
+    def columns(self, keys: tuple[str, ...], index: np.ndarray
+                ) -> list[tuple[str, np.ndarray]]:
+        """(key, UTF-8 values at the ticks of ``index``) for every key of ``keys``."""
+        used = np.unique(index)
+        found = []
+        for key in keys:
+            texts = np.array([self.states[i][key].encode() for i in used.tolist()])
+            found.append((key, texts[np.searchsorted(used, index)]))
+        return found
+
+
+def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
+                        fusion: Mapping[str, FusionTicks]
+                        ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
+    """The DiagnosticArray payloads of ``ticks`` [s] at once (the bytes of
+    ``SensorHealth.to_diagnostic`` tick by tick), in runs of one fusion key set (its keys
+    grow when a reference is first refused for a new reason): (the run's ticks, payloads
+    joined, lengths)."""
+    if not ticks.size:
+        return
+    t_ns = np.round(ticks * 1e9).astype(np.int64)  # as the writer stamps its messages
+    index = {name: f.at(ticks) for name, f in fusion.items()}
+    changed = np.zeros(max(ticks.size - 1, 0), bool)  # where a fused sensor's keys change
+    for name, i in index.items():
+        changed |= np.diff(fusion[name].key_set[i]) != 0
+    cuts = [0, *(np.flatnonzero(changed) + 1).tolist(), ticks.size]
+    good_t = np.split(times_text(np.concatenate([np.empty(0),
+                                                 *(h.last_good_t for h in healths.values())])),
+                      np.cumsum([h.last_good_t.size for h in healths.values()])[:-1])
+    columns = {name: h.diagnostic(texts)
+               for (name, h), texts in zip(healths.items(), good_t, strict=True)}
+    for a, b in itertools.pairwise(cuts):
+        statuses: list[Status] = []
+        for name, (levels, messages, values) in columns.items():
+            run = [(key, v[a:b]) for key, v in values]
+            if name in fusion:
+                f = fusion[name]
+                keys = f.key_sets[f.key_set[index[name][a]]]
+                run += fusion[name].columns(keys, index[name][a:b])
+            statuses.append((levels[a:b], status_name(name), messages[a:b], "", run))
+        yield slice(a, b), *diagnostic_arrays(t_ns[a:b], "", statuses)
 
 
 def _copy_through(contents: BagContents, writer: StagedWrites, written: set[str],

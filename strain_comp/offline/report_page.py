@@ -1,15 +1,6 @@
-"""One page to look at: ``evaluate --report`` and ``diagnose --report`` as a single HTML file.
-
-The page holds everything in itself (styles inline, plots as base64 PNG: it opens without
-a network and can be mailed): the error table per bag and sensor, the evaluation plots of
-``strain_comp.offline.plots`` (estimate and reference over time, estimate against
-reference, resistance against reference with the calibrated range, error histogram;
-samples outside the calibrated range in orange), the calibration's provenance (model,
-options, what it was fitted on, rest resistance, effect terms, recalibrations, the tare
-of this run) and, for ``diagnose`` (``strain_comp.diagnosis.report_page``, built from
-these parts), each effect found with its reading and the held-out error before and
-after. Every figure of a table carries its full value in ``data-value`` (what ``--json``
-holds), the text shows it rounded.
+"""``evaluate --report`` and ``diagnose --report``: one self-contained HTML page
+(docs/design.md, ``--report``); every figure of a table carries its full value in
+``data-value``, the text shows it rounded.
 """
 
 from __future__ import annotations
@@ -32,15 +23,7 @@ from strain_comp.core.calibration import (
     strain_unit_words,
 )
 from strain_comp.offline.evaluation import format_notes
-from strain_comp.offline.plots import (
-    context_line,
-    plot_error_hist,
-    plot_loop,
-    plot_model_choice,
-    plot_raw,
-    plot_time,
-    tare_words,
-)
+from strain_comp.offline.plots import plot_model_choice, plot_sensor, tare_words
 from strain_comp.version import __version__
 
 if TYPE_CHECKING:
@@ -91,19 +74,12 @@ def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, ba
     """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
     out: dict[str, list[tuple[str, bytes]]] = {}
     for name, ev in result.sensors.items():
-        if not ev.t.size:
-            continue
-        context = context_line(result, name, bag, calibration_path, tare)
-        cal = calibration.sensors.get(name)
-        r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-        buffers = [io.BytesIO() for _ in range(4)]
-        plot_time(ev, buffers[0], context=context)
-        plot_loop(ev, buffers[1], context=context)
-        plot_raw(ev, buffers[2], context=context, r_range=r_range)
-        plot_error_hist(ev, buffers[3], context=context)
-        shown = [(caption, buffer.getvalue()) for caption, buffer in zip(FIGURES, buffers,
-                                                                       strict=True)]
-        out[name] = shown
+        if ev.t.size:
+            buffers = [io.BytesIO() for _ in FIGURES]
+            plot_sensor(result, name, buffers, calibration=calibration, bag=bag,
+                        calibration_path=calibration_path, tare=tare)
+            out[name] = [(caption, buffer.getvalue())
+                         for caption, buffer in zip(FIGURES, buffers, strict=True)]
     return out
 
 

@@ -1,17 +1,6 @@
-"""The compensated series as CSV: ``replay --csv`` and ``evaluate --csv``.
-
-One row per sample and sensor (long format, so an array of any size has the same columns):
-
-    sensor,time_s,resistance_ohm,estimate,reference,unit,direction,status
-
-``estimate`` and ``reference`` are in ``unit``, the calibration's strain unit (% unless it
-says otherwise); ``reference`` is empty where the bag has none; ``direction`` is +1
-loading, 0 hold, -1 unloading; ``status`` the engine's sample status in words (``good``,
-``out_of_range``, ``not_finite``, ... ``strain_comp.base.samples.Status``). A number that is
-not finite is written ``nan``, ``inf`` or ``-inf``; the one empty cell is a missing
-reference. ``evaluate`` over
-several bags puts a ``bag`` column first. A spreadsheet or ``pandas.read_csv`` reads it as
-it is. The file is written atomically (``strain_comp.io.atomic``); ``-`` writes to stdout.
+"""The compensated series as CSV: ``replay --csv`` and ``evaluate --csv`` (columns and cells:
+docs/design.md, "JSON outputs"), written atomically (``strain_comp.io.atomic``); ``-``
+writes to stdout.
 """
 
 from __future__ import annotations

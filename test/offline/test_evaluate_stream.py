@@ -18,8 +18,7 @@ from strain_comp.core.metrics import ErrorAccumulator, error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
 from strain_comp.io.recording import PieceAlign, align, load_recordings
-from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
-from strain_comp.offline.evaluate_stream import _Kept
+from strain_comp.offline.evaluate import _Kept, evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import EvaluationResult, format_table
 
 

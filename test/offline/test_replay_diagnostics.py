@@ -1,5 +1,5 @@
 """Replay's /diagnostics, counted and encoded for many ticks at once
-(``core.health.HealthCounter``, ``io.diagnostic_arrays``, ``offline.diagnostic_ticks``),
+(``core.health.HealthCounter``, ``io.diagnostic_arrays``, ``offline.replay``),
 are byte for byte what the engine stepped sample by sample and the per-message encoder
 (``cdr.diagnostic_array``) give at every tick, fused references included."""
 
@@ -29,7 +29,7 @@ from strain_comp.core.outputs import BatchOutput
 from strain_comp.io import cdr, diagnostic_arrays
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording
-from strain_comp.offline import diagnostic_ticks, replay
+from strain_comp.offline import replay
 from strain_comp.offline.fit import fit_sensor
 
 PERIOD = 0.5
@@ -181,7 +181,7 @@ def test_fused_replay_encodes_as_message_by_message(tmp_path: Path,
         return (np.frombuffer(b"".join(payloads), np.uint8),
                 np.array([len(p) for p in payloads], np.int64))
 
-    monkeypatch.setattr(diagnostic_ticks, "diagnostic_arrays", one_by_one)
+    monkeypatch.setattr(replay, "diagnostic_arrays", one_by_one)
     replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "slow.mcap", window=300,
                references_every=5.0)
     fast = _found(tmp_path / "fast.mcap")
@@ -275,7 +275,7 @@ def test_ticks_flushed_batch_by_batch_keep_the_order_of_one_log_time(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, rig: bool) -> None:
     """Inputs stamped on the ticks themselves (outputs, /diagnostics and copied inputs of
     one log time), with or without a /diagnostics input copied through: the bag written a
-    few ticks at a time, each batch's slice of log time flushed (``offline.staging``), is
+    few ticks at a time, each batch's slice of log time flushed (``replay.StagedWrites``), is
     the bag written in one go, in the order replay adds a piece's messages."""
     t = np.arange(0.0, 600.0, 0.5)
     with BagWriter(tmp_path / "in.mcap") as writer:
