@@ -39,9 +39,10 @@ from strain_comp.core.range_policy import fitted_rest
 from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.correction import (
+    CYCLE_BACK,
+    CYCLE_UP,
     FORMS,
-    SPAN,
-    SpanPolicy,
+    MIN_CYCLE_SHARE,
     apply_map,
     apply_span,
     map_from_pairs,
@@ -120,15 +121,15 @@ def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     tt, ss = t[ok], s[ok]
-    if ss.size < 3 or not np.ptp(ss) >= SPAN.min_cycle_share * strain_range:
+    if ss.size < 3 or not np.ptp(ss) >= MIN_CYCLE_SHARE * strain_range:
         raise InputError(f"{source}: its reference strain makes no stretch and return (it "
                          f"moves through {np.ptp(ss) if ss.size else 0.0:.3g} of the "
                          f"calibrated {strain_range:.3g}): {RECORD}")
     lo, span = float(ss.min()), float(np.ptp(ss))
     top = int(np.argmax(ss))
-    back = ss[top:] < lo + SPAN.cycle_back * span
+    back = ss[top:] < lo + CYCLE_BACK * span
     if not back.any():
-        if cycle_end(tt, ss) is None and ss[-1] > lo + SPAN.cycle_up * span:
+        if cycle_end(tt, ss) is None and ss[-1] > lo + CYCLE_UP * span:
             raise InputError(f"{source} ends {tt[-1] - tt[0]:.4g} s in, during its first "
                              f"stretch: it is shorter than the warm-up; {RECORD}")
         raise InputError(f"{source}: the reference never came back to rest after its "
@@ -269,12 +270,9 @@ FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
 
 
-def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) -> float | None:
-    """Seconds from the first sample (``t[0]``, referenced or not) to the end of the first
-    stretch and return of the reference ``s``: its first return to within ``cycle_back`` of
-    its span above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN``
-    when None). None when there is none."""
-    policy = SPAN if policy is None else policy
+def cycle_end(t: np.ndarray, s: np.ndarray) -> float | None:
+    """Seconds from the first sample to the end of the first stretch and return of ``s``
+    (past ``CYCLE_UP`` of its span, back within ``CYCLE_BACK``); None when there is none."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     origin = _origin(t)
     ok = np.isfinite(t) & np.isfinite(s)
@@ -284,10 +282,10 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     lo, hi = float(s.min()), float(s.max())
     if not hi > lo:
         return None
-    up = np.flatnonzero(s > lo + policy.cycle_up * (hi - lo))
+    up = np.flatnonzero(s > lo + CYCLE_UP * (hi - lo))
     if not up.size:
         return None
-    back = np.flatnonzero(s[up[0]:] < lo + policy.cycle_back * (hi - lo))
+    back = np.flatnonzero(s[up[0]:] < lo + CYCLE_BACK * (hi - lo))
     return float(t[up[0] + back[0]] - origin) if back.size else None
 
 
@@ -298,18 +296,14 @@ def _origin(t: np.ndarray) -> float | None:
     return float(finite[0]) if finite.size else None
 
 
-def stretch_and_return(s: np.ndarray, strain_range: float,
-                       policy: SpanPolicy | None = None) -> bool:
-    """True when the reference ``s`` of a window rises from within ``cycle_up`` of its span
-    above its minimum to its maximum and falls back there, over at least
-    ``min_cycle_share`` of ``strain_range`` (the calibration's): a load and unload
-    (``policy``, ``SPAN`` when None)."""
-    policy = SPAN if policy is None else policy
+def stretch_and_return(s: np.ndarray, strain_range: float) -> bool:
+    """True for a load and unload: ``s`` rises from its low part (within ``CYCLE_UP`` of its
+    span) to its maximum and falls back, over ``MIN_CYCLE_SHARE`` of ``strain_range``."""
     s = np.asarray(s, dtype=np.float64)
     s = s[np.isfinite(s)]
-    if s.size < 3 or not np.ptp(s) >= policy.min_cycle_share * strain_range:
+    if s.size < 3 or not np.ptp(s) >= MIN_CYCLE_SHARE * strain_range:
         return False
-    low = s <= s.min() + policy.cycle_up * np.ptp(s)
+    low = s <= s.min() + CYCLE_UP * np.ptp(s)
     top = int(np.argmax(s))
     return bool(low[:top].any() and low[top:].any())
 
@@ -346,8 +340,7 @@ def cut(rec: Recording, start: float, end: float) -> Recording:
 
 
 def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
-           calibration: Calibration, source: str = "the bag",
-           policy: SpanPolicy | None = None) -> dict[str, Recording]:
+           calibration: Calibration, source: str = "the bag") -> dict[str, Recording]:
     """Each referenced recording up to ``span[1]`` seconds after its start, its reference
     strain left out (NaN) before ``span[0]`` (``recalibrate --window``): the engine runs the
     calibration from the bag's start, so a memory model enters the window in the state the
@@ -365,7 +358,7 @@ def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
                              f"sensor {name!r}, the window runs beyond it")
         part = cut(rec, start, end)
         vr = calibration.sensors[name].valid_range
-        if part.s is None or not stretch_and_return(part.s, vr.s_hi - vr.s_lo, policy):
+        if part.s is None or not stretch_and_return(part.s, vr.s_hi - vr.s_lo):
             raise InputError(f"--window {start:g}:{end:g}: the reference strain of {name!r} "
                              f"makes no stretch and return in it (record a load and unload "
                              f"there)")
@@ -489,12 +482,11 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
                            form: str = "output", first: float | None = None,
                            sensors: Sequence[str] | None = None, tare: str = "calibration",
                            source: str = "", span: tuple[float, float] | None = None,
-                           policy: SpanPolicy | None = None,
                            ) -> tuple[Calibration, list[str]]:
     """``recalibrate`` from recordings with a reference strain (their first ``first``
     seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
     map by least squares, or the input zero and span from the first rest and the largest
-    strain (``span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None)."""
+    strain (``span_of_first_cycle``)."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if span is not None and first is not None:
@@ -503,7 +495,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     if span is not None:
         chosen = {n: r for n, r in recordings.items()
                   if n in calibration.sensors and not (sensors and n not in sensors)}
-        recs = window_of(chosen, span, calibration, source or "the bag", policy)
+        recs = window_of(chosen, span, calibration, source or "the bag")
         where = f"{source}, {span[0]:g} to {span[1]:g} s"
     else:
         recs = head(recordings, first)
@@ -518,7 +510,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
             cal = calibration.sensors[name]
             by_line = cal.input.stretch_line is not None
             zero_span = (stretch_span(cal, rec) if by_line
-                         else span_of_first_cycle(cal, rec, policy))
+                         else span_of_first_cycle(cal, rec))
             out[name] = apply_span(cal, zero_span, {"from": source, "first": first,
                                                     "window": None if span is None
                                                     else list(span)})
@@ -534,8 +526,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
         if sensors and name not in sensors:
             continue
         a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored],
-                              span=fitted_rest(calibration.sensors[name].valid_range)[1],
-                              policy=policy)
+                              span=fitted_rest(calibration.sensors[name].valid_range)[1])
         out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first,
                                                 "window": None if span is None else list(span)})
         lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "
@@ -547,12 +538,12 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
                 bag: str | None = None, sensors: Sequence[str] | None = None,
                 tare: str = "calibration", form: str = "output",
                 first: float | None = None, span: tuple[float, float] | None = None,
-                policy: SpanPolicy | None = None) -> tuple[Calibration, list[str]]:
+                ) -> tuple[Calibration, list[str]]:
     """The recalibrated calibration and one line per sensor (gain, offset, reading)."""
     if bag is not None:
         return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
                                       first=first, sensors=sensors, tare=tare,
-                                      source=str(bag), span=span, policy=policy)
+                                      source=str(bag), span=span)
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     out = dict(calibration.sensors)
@@ -566,11 +557,11 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
         raise InputError(f"sensor {name!r} is not in the calibration "
                          f"({', '.join(calibration.sensors)})")
     if form == "input":
-        span = span_from_points(out[name], points, policy=policy)
+        span = span_from_points(out[name], points)
         out[name] = apply_span(out[name], span, {"points": [list(p) for p in points]})
         lines.append(f"{name}: {span_reading(span)} (through {len(points)} points)")
     else:
-        a, b = map_from_points(out[name], points, policy)
+        a, b = map_from_points(out[name], points)
         out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
         lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
                      f"{len(points)} points)")
