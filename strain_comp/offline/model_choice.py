@@ -179,19 +179,9 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                  candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
                  options: Mapping[str, Any] | None = None, pool: str = "spanned",
                  jobs: int = 1, report: Callable[[str], None] | None = None,
-                 ) -> tuple[str, dict[str, Any]]:
-    """The model of ``--model auto`` (module docstring) and its record."""
-    model, record, _ = _choose(recordings, name, candidates=candidates, groups=groups,
-                               options=options, pool=pool, jobs=jobs, report=report)
-    return model, record
-
-
-def _choose(recordings: Sequence[Recording], name: str, *, candidates: Sequence[str],
-            groups: Sequence[str] | None, options: Mapping[str, Any] | None, pool: str,
-            jobs: int, report: Callable[[str], None] | None,
-            ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
-    """``choose_model``, and the chosen model's folds started on each run left out (none
-    with one run or group): the pairs ``offline.uncertainty.learn`` takes."""
+                 ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
+    """The model of ``--model auto`` (module docstring), its record, and its folds started
+    on each run left out (none with one group): the pairs ``uncertainty.learn`` takes."""
     options = dict(options or {})
     labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
     held = [tuple(i for i, g in enumerate(labels) if g == label)
@@ -250,8 +240,9 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
     learned from its folds (``fit_sensor``'s ``band``, its folds not fitted again; a group
     left out whole where ``groups`` are given; with one group, ``fit_sensor``'s own, by
     run)."""
-    model, record, pairs = _choose(recordings, name, candidates=candidates, groups=groups,
-                                   options=options, pool=pool, jobs=jobs, report=report)
+    model, record, pairs = choose_model(recordings, name, candidates=candidates,
+                                        groups=groups, options=options, pool=pool, jobs=jobs,
+                                        report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
                      options=options_of(model, options or {}), pool=pool, band=not pairs)
     if pairs:
