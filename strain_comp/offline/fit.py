@@ -1,34 +1,9 @@
-"""Fitting orchestration: recordings (time, resistance, reference strain) -> calibration.
-
-``fit_sensor`` turns one sensor's recordings into a ``SensorCalibration``; ``fit_bags`` does
-it for every named sensor of a set of bags and returns one ``Calibration``. The model
-equations and their fits live in ``strain_comp.models``; the steps before the model's fit
-each have their module:
-
-* **Pooling runs** (``strain_comp.offline.pool``, ``--pool``): several training runs of one
-  sensor put into one input space first, with the session start that reads each run left
-  out in turn best (``strain_comp.offline.session_start.choose_space``).
-* **Training data** (``strain_comp.offline.training``): screening, segments cut where the
-  engine resets, the checks of the data's span, the valid range and the rest resistance.
-* **Measurement chain** (``strain_comp.offline.input_chain``): an alternating excitation
-  read in pairs.
-* **Normalisation**: ``Normalisation.fit`` over all training samples ([Electrolycra]
-  section II.C: the training data span [-1, 1]).
-* **Direction detector** (``strain_comp.offline.deadzone``): the dead zone, the derivative
-  filter and the sign.
-* **Long runs**: above ``strain_comp.offline.reduce.FIT_SAMPLE_BUDGET`` good samples the
-  model is fitted on an anti-aliased reduction of the segments that keeps every reversal
-  and hold (``strain_comp.offline.reduce``); everything else above, and the fit error, is
-  computed on the full data. The provenance records the factor (``fit_reduction``). A
-  model whose fit takes every sample in bounded memory (``Compensator.fit_full_rate``:
-  creep_pi, whose low-pass states a decimation would alter) gets the full data.
-* **Fit error**: the fitted calibration runs over the training segments through the
-  engine (``training_error``); its RMSE, the fit time and the settings' sources go into
-  the provenance.
-* **Uncertainty** (``strain_comp.offline.uncertainty``; ``band``, which ``fit --model auto``
-  sets): with two runs or more, the standard deviation of every estimate, learned from the
-  model fitted on all runs but one and started on the one left out, every run in turn
-  (``learned_band``).
+"""Fitting orchestration: recordings (time, resistance, reference strain) -> calibration
+(``fit_sensor`` one sensor, ``fit_bags`` every named sensor of a set of bags; docs/design.md,
+``fit``). The steps before the model's fit each have their module: pooling runs
+(``offline.pool``), training data (``offline.training``), the measurement chain
+(``offline.input_chain``), the direction detector (``offline.deadzone``), long runs
+(``offline.reduce``) and the uncertainty (``offline.uncertainty``).
 """
 
 from __future__ import annotations

@@ -1,20 +1,10 @@
-"""The model chosen by leaving runs out (``fit A B C ... --model auto``).
+"""The model chosen by leaving runs out (``fit A B C ... --model auto``; docs/design.md).
 
-Each candidate model (``CANDIDATES`` by default, ``--candidates``) is fitted on all training
-runs but one (or but one group of runs, ``--groups``: a session or a mounting left out
-whole), started on each run left out as a user starts a session (``strain-comp start``:
-``session_start.start_or_keep``) and scored over all of it (the RMSE ``evaluate`` prints).
-The candidate with the lowest median of those errors wins; one within ``TIE`` of the lowest
-loses to a simpler one (``SIMPLER``: cubic, mpi, creep_pi, apl, by parameters and fit time).
-The winner is fitted on every run; its calibration carries the table of every candidate
-(``model_choice``) and the error to expect on a new session (``expected_error``: the
-winner's median and worst over the runs left out, ``core.calibration.expected_error``), and
-its uncertainty learned from the winner's folds as they were started on the runs left out
-(``offline.uncertainty.learn``; no fold fitted again).
-
-With one run (or one group) there is nothing to leave out: the candidate that carried best
-from one run to another on the benchmark is fitted (``ONE_RUN_ORDER``: apl by default), and
-the reason is said.
+Each candidate is fitted on all runs (or groups, ``--groups``) but one, started on the one
+left out as ``strain-comp start`` does and scored over all of it; the lowest median wins, one
+within ``TIE`` losing to a simpler one (``SIMPLER``). The winner is fitted on every run with
+the table (``model_choice``), the error to expect (``expected_error``) and the uncertainty
+learned from its folds. With one run or group, ``ONE_RUN_ORDER`` decides.
 """
 
 from __future__ import annotations

@@ -1,24 +1,9 @@
-"""Several training runs of one sensor put into one input space (``strain-comp fit --pool``).
-
-As ``recalibrate --input`` zeroes and spans a run, each run is mapped by R' = R_0,ref + k (R
-- R_0,run) onto the run of median sensitivity, its zero and sensitivity fitted jointly with
-one cubic through all mapped runs (``joint_maps``). The session start then places a new run
-in that space one of two ways:
-
-* ``joint``: by the calibration's steady outputs, then an output gain and offset
-  (``strain_comp.offline.correction``), as for a calibration of one run;
-* ``stretch``: by its calibration stretch's line of resistance on strain, put onto the line
-  the training runs' stretches share in the space (``stretch_space``, kept as
-  ``InputSettings.stretch_line``; ``strain_comp.offline.correction``), so a sensitivity
-  that moves after the stretch as it did on the training runs is placed as they were.
-
-Runs of one thread differ in sensitivity by up to 2x; pooled raw, the model fits their
-average and carries to none (docs/results.md). ``spanned`` (the default) keeps the
-maps where they lower the pooled cubic's error to at most ``POOL_GAIN`` of its error on
-the runs as recorded (``gate``), and ``session_start.choose_space`` picks the session start
-by leaving out each training run in turn. The calibration's rest resistance and range
-are those of the mapped runs. ``raw``: the runs as recorded. The provenance records the choice
-(``pooling``) and each run's map (``pooled_runs``).
+"""Several training runs of one sensor put into one input space (``strain-comp fit --pool``;
+docs/design.md): each run mapped by R' = R_0,ref + k (R - R_0,run) onto the run of median
+sensitivity, jointly with one cubic through all mapped runs (``joint_maps``), kept where it
+lowers that cubic's error to ``POOL_GAIN`` (``gate``). A new run is then placed by the
+calibration's steady outputs (``joint``) or by its stretch's line put onto the line the
+training runs' stretches share (``stretch``, ``InputSettings.stretch_line``).
 """
 
 from __future__ import annotations
