@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -37,7 +36,12 @@ from strain_comp.offline.deadzone import direction_settings, resistance_sign
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.evaluation import EvaluationResult
 from strain_comp.offline.input_chain import input_chain
-from strain_comp.offline.options import model_options
+from strain_comp.offline.options import (
+    DIRECTION_OPTIONS,
+    FIT_OPTIONS,
+    check_fit_options,
+    model_options,
+)
 from strain_comp.offline.pool import Pooled, gate, pooled_input
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
 from strain_comp.offline.session_start import choose_space, start_or_keep
@@ -66,9 +70,8 @@ CHOICE_RUNS = 3
 """Runs a pooled fit needs to choose its session start: each run left out must leave a
 pooled fit of two or more, made as the fit it stands for (with two, each fold would be a
 one-run fit, whose own stretch line is no pooled space; ``choose_space``)."""
-_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair", "fit_budget")
-"""Options ``fit_sensor`` takes itself (direction detector, measurement chain, the sample
-budget of a fit); the others go to the model's ``fit``."""
+_OWN_OPTIONS = (*DIRECTION_OPTIONS, *FIT_OPTIONS)
+"""Options ``fit_sensor`` takes itself; the others go to the model's ``fit``."""
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
@@ -84,19 +87,6 @@ def parse_options(items: Iterable[str]) -> dict[str, Any]:
         except yaml.YAMLError:
             raise InputError(f"--option {item!r}: value is not valid YAML") from None
     return options
-
-
-def _check_options(fit: Callable[..., Any], model: str, options: Mapping[str, Any]) -> None:
-    """InputError for an option that ``fit`` has no keyword for (when it names them all)."""
-    params = inspect.signature(fit).parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return
-    known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
-             and n != "direction"]
-    for key in options:
-        if key not in known:
-            raise InputError(f"model {model!r} has no option {key!r} "
-                             f"(options: {', '.join(known + list(_DIRECTION_OPTIONS))})")
 
 
 def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) -> float:
@@ -129,7 +119,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
         pooled.record.update(gated, chosen_by={"why": f"fewer than {CHOICE_RUNS} runs: a run "
                                                "left out leaves no pooled fit to start"})
         return pooled
-    own = {k: v for k, v in options.items() if k in _DIRECTION_OPTIONS}
+    own = {k: v for k, v in options.items() if k in _OWN_OPTIONS}
 
     def cubic(runs: Sequence[Recording]) -> SensorCalibration:
         return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
@@ -161,9 +151,9 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     normalisation = Normalisation.fit(r_all, s_all)
     direction, direction_source = direction_settings(segments, options)
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
-    model_options = {k: v for k, v in options.items() if k not in _DIRECTION_OPTIONS}
-    _check_options(cls.fit, model, model_options)
+    model_options = {k: v for k, v in options.items() if k not in _OWN_OPTIONS}
     budget = _fit_budget(options, budget, name)
+    check_fit_options(model, options)
     start = time.perf_counter()
     fit_segments, factor = ((segments, 1) if cls.fit_full_rate
                             else reduce_segments(segments, budget))
