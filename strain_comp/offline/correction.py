@@ -167,9 +167,8 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
 
 def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
                             top: float = np.inf) -> list[tuple[float, float]]:
-    """(R, S) medians at a cycle's first rest and at its largest strain (or ``top``, the
-    largest the calibration outputs, when lower); InputError when it does not rest or
-    move."""
+    """(R, S) medians at a cycle's first rest and at its largest strain (or ``top``, when
+    lower); InputError when it does not rest or move."""
     ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
@@ -217,9 +216,8 @@ def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.nda
 
 
 def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unloading, loading) outputs on ``grid`` of a slow ramp up, down and up again: the
-    loading branch after a full unload, as a sensor at a session's start was last
-    unloaded."""
+    """(unloading, loading) outputs on ``grid`` of a slow ramp up, down and up again (a
+    sensor at a session's start was last unloaded)."""
     n = grid.size
     out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
     return out[n:2 * n][::-1], out[2 * n:3 * n]
@@ -319,8 +317,7 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
 
 
 def span_reading(span: tuple[float, float, float]) -> str:
-    """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81
-    (sensitivity +23.5 %)``."""
+    """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81 (...)``."""
     rest, rest_cal, k = span
     return (f"input zero {ohms((rest, rest_cal)).replace(' vs ', ' -> ')}, span gain "
             f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")
@@ -331,8 +328,8 @@ Line = tuple[float, float]
 
 
 def run_line(rec: Recording) -> Line | None:
-    """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples, in
-    closed form (no LAPACK call to fail on a reference near 1e-300 or 1e300)."""
+    """(R_0, g) of the least-squares line R = R_0 + g S of a run's good referenced samples, in
+    closed form (no LAPACK call to fail on a reference near 1e-300)."""
     if rec.s is None:
         return None
     ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
@@ -347,14 +344,13 @@ def run_line(rec: Recording) -> Line | None:
 
 
 def onto(own: Line, space: Line) -> tuple[float, float, float]:
-    """The input zero and span (``InputSettings.zero_span``: rest, rest_calibrated, gain) that
-    puts a run whose stretch has the line ``own`` onto the line ``space``."""
+    """The input zero and span that puts a run's line ``own`` onto the line ``space``."""
     return own[0], space[0], space[1] / own[1]
 
 
 def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
-    """The input zero and span that puts the line of the stretch ``rec`` holds (its
-    referenced samples) onto the calibration's stretch line (``onto``)."""
+    """The input zero and span that puts the line of the stretch ``rec`` onto the
+    calibration's stretch line."""
     space = cal.input.stretch_line
     assert space is not None
     own = run_line(replace(rec, r=cal.input.to_ohm(rec.r)))
@@ -373,8 +369,7 @@ def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, 
 
 
 def number_pair(text: str) -> tuple[float, float]:
-    """``"A:B"`` -> (A, B), NaN for both where the text is no such pair (the command line's
-    ``--point`` and ``--window`` values)."""
+    """``"A:B"`` -> (A, B); NaN for both where the text is no such pair."""
     a_text, sep, b_text = text.partition(":")
     try:
         return (float(a_text), float(b_text)) if sep else (math.nan, math.nan)
@@ -445,8 +440,6 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
 
 
 def reading(a: float, b: float, *, unit: str = "%") -> str:
-    """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
-    (the sensor's sensitivity against the calibration's is 1 / a; the offset in the
-    calibration's strain ``unit``)."""
+    """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``."""
     return (f"output gain {a:.4g} (sensitivity {100.0 * (1.0 / a - 1.0):+.1f} %), "
             f"offset {b:+.3g} {strain_unit_words(unit)}")

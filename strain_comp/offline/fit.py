@@ -102,11 +102,9 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
 
 def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
               options: Mapping[str, Any]) -> Pooled:
-    """The training runs as ``fit_sensor`` pools them (``strain_comp.offline.pool``): with
-    ``spanned``, as recorded unless the runs pass the pooling's ``gate``, and then in one
-    input space with the session start ``session_start.choose_space`` measures best for the
-    cubic fitted with the same direction and measurement-chain options; ``joint`` (the
-    session start of a one-run fit) with fewer than ``CHOICE_RUNS`` runs."""
+    """The training runs pooled (``offline.pool``); ``spanned``: as recorded unless they pass
+    the ``gate``, then the session start ``choose_space`` measures best for the cubic
+    (``joint`` with fewer than ``CHOICE_RUNS`` runs)."""
     if pool != "spanned":
         return pooled_input(recordings, pool)
     if len(recordings) < 2:
@@ -134,9 +132,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = False
                ) -> SensorCalibration:
-    """Fit ``model`` to one sensor's recordings (each with a reference strain). Several runs
-    are pooled in one input space (``pool``, ``strain_comp.offline.pool``); ``band``:
-    their uncertainty learned by leaving each run out (``learned_band``)."""
+    """Fit ``model`` to one sensor's recordings (each with a reference strain), several runs
+    pooled (``pool``); ``band``: the uncertainty learned by leaving each run out."""
     options, cls, runs = dict(options or {}), model_class(model), list(recordings)
     pooled = pool_runs(recordings, pool, name, options)
     recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
@@ -191,9 +188,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
 
 def learned_band(runs: Sequence[Recording], model: str, name: str,
                  options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
-    """The uncertainty of ``fit_sensor``'s calibration: ``model`` fitted on all runs but
-    one as ``fit_sensor`` fits it, started on the one left out (``start_or_keep``), every run
-    left out in turn (``strain_comp.offline.uncertainty.learn``)."""
+    """The uncertainty of ``fit_sensor``'s calibration from ``model`` fitted on all runs but
+    one and started on the one left out, every run in turn."""
     pairs = []
     for j, run in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j]
@@ -257,9 +253,8 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None,
              pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
-    """One calibration for ``sensors``; each sensor is fitted to its recordings from every
-    bag that has it, pooled in one input space (``pool``, ``fit_sensor``), or by ``fitter``
-    (``fit --model auto``: ``model_choice.auto_fitter``)."""
+    """One calibration for ``sensors``, each fitted to its recordings from every bag that has
+    it (``fit_sensor``, or ``fitter`` for ``fit --model auto``)."""
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
     for path in paths:
         recordings, problems = load_recordings(path)
@@ -306,10 +301,8 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
 
 def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
                  calibration: Calibration) -> None:
-    """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
-    the evaluated run itself and scored on it, i.e. what that model family can reach on this
-    run; the gap to ``rmse`` is what does not transfer from the training runs. A run the
-    model cannot be fitted to gets NaN and a note."""
+    """Set each scored sensor's ``in_run_rmse``: the same model fitted and scored on the
+    evaluated run itself (NaN and a note where it cannot be fitted)."""
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
         options = cal.provenance.get("options") or {}

@@ -119,8 +119,7 @@ def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
 def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
                 options: Mapping[str, Any], pool: str) -> Scored | str:
     """The RMSE of ``fold.model`` on each run left out, fitted on the others and started on
-    each (``start_or_keep``), with the started calibrations, or why it could not be
-    fitted."""
+    each, with the started calibrations; or why it could not be fitted."""
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
@@ -225,11 +224,8 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
              candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
              jobs: int = 1, report: Callable[[str], None] | None = None,
              ) -> SensorCalibration:
-    """``fit --model auto`` on one sensor: the model ``choose_model`` picks, fitted on every
-    run, with ``model_choice`` and ``expected_error`` in its provenance and the uncertainty
-    learned from its folds (``fit_sensor``'s ``band``, its folds not fitted again; a group
-    left out whole where ``groups`` are given; with one group, ``fit_sensor``'s own, by
-    run)."""
+    """``fit --model auto`` on one sensor: ``choose_model``'s model fitted on every run, with
+    ``model_choice``, ``expected_error`` and the uncertainty learned from its folds."""
     model, record, pairs = choose_model(recordings, name, candidates=candidates,
                                         groups=groups, options=options, pool=pool, jobs=jobs,
                                         report=report)

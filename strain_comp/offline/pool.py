@@ -95,10 +95,8 @@ def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: floa
 
 
 def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
-    """The ``joint`` space: a per-run affine nuisance fitted jointly with a pooled cubic of
-    strain on mapped resistance (least squares over the maps, the cubic solved for at each
-    step), started from each run's line of resistance on strain (``run_line``) and anchored
-    on the run of median sensitivity (its map stays the identity)."""
+    """The ``joint`` space: each run's affine map fitted jointly with a pooled cubic of strain
+    on mapped resistance, from the runs' lines, anchored on the median-sensitivity run."""
     from scipy.optimize import least_squares
 
     found = _lines(recordings)
@@ -167,9 +165,8 @@ def gate(recordings: Sequence[Recording]) -> tuple[dict[str, Any], Joint | None]
 
 def pooled_input(recordings: Sequence[Recording], pool: str, joint: Joint | None = None
                  ) -> Pooled:
-    """The runs in one input space (``joint`` and ``stretch``: the joint maps, and for
-    ``stretch`` the line the mapped stretches share; a single run's own stretch line) or as
-    recorded (``raw``, a single run, or where there are no maps; module docstring)."""
+    """The runs in one input space (``joint``, ``stretch``: the joint maps, and the stretches'
+    shared line) or as recorded (``raw``, or where no maps can be made)."""
     if pool not in POOLS or pool == "spanned":
         raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
     as_recorded = Pooled(list(recordings), [], {"pool": "raw"})
