@@ -139,12 +139,6 @@ def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
     return out
 
 
-def _fold_task(args: tuple[Sequence[Recording], str, Fold, Mapping[str, Any], str]
-               ) -> Scored | str:
-    """``fold_errors`` in a worker process."""
-    return fold_errors(*args)
-
-
 def _cell(model: str, folds: Sequence[Fold], results: Sequence[Scored | str],
           runs: int) -> dict[str, Any]:
     """A candidate's row of the table: its median, worst and errors, or why it failed."""
@@ -186,9 +180,9 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
     if jobs > 1:
         with ProcessPoolExecutor(min(jobs, len(tasks)),
                                  mp_context=get_context("spawn")) as workers:
-            results = list(workers.map(_fold_task, tasks))
+            results = list(workers.map(fold_errors, *zip(*tasks, strict=True)))
     else:
-        results = [_fold_task(task) for task in tasks]
+        results = [fold_errors(*task) for task in tasks]
     table = {model: _cell(model, folds, results, len(recordings)) for model in candidates}
     for model, cell in table.items():
         if report is not None:

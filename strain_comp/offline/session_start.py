@@ -520,12 +520,6 @@ Fit = Callable[[Sequence["Recording"]], SensorCalibration]
 """Fits the choice's model (the cubic) on runs pooled with the stretch line."""
 
 
-def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
-    """``cal`` after the session start on ``rec`` (``session_start.start_or_keep``: its
-    calibration stretch found, as ``strain-comp start`` finds it); as it is where refused."""
-    return start_or_keep(Calibration({cal.name: cal}), {cal.name: rec}).calibration
-
-
 def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
     """The session start of a pooled fit, ``joint`` or ``stretch``: the lower root mean
     square RMSE over the runs left out in turn (``fit`` on the others, started as ``start``
@@ -544,7 +538,8 @@ def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[s
             used = cal if space == "stretch" else replace(
                 cal, input=replace(cal.input, stretch_line=None))
             try:
-                started = session_started(used, held)
+                started = start_or_keep(Calibration({cal.name: used}),
+                                        {cal.name: held}).calibration
                 ev = evaluate_recordings({cal.name: held}, started, tare="calibration")
                 fold[space] = float(ev.sensors[cal.name].stats.rmse)
             except StrainCompError:
