@@ -118,6 +118,7 @@ ABLATIONS = (
     Ablation("fusion", "gate", INF, "no gate"),
     Ablation("span", "settle_samples", 50, "steady outputs after 5 s"),
     Ablation("span", "grid_points", 51, "a 4x coarser grid"),
+    Ablation("span", "static_tolerance", INF, "every model spanned as a static one"),
     Ablation("span", "fit_evaluations", 0, "no search through the run"),
     Ablation("span", "fit_step", (0.1, 0.4), "2x larger first steps"),
     Ablation("span", "fit_tolerance", (1e-2, 1e-3), "10x looser stop"),

@@ -46,6 +46,9 @@ SETTLE_SAMPLES = 200
 """Samples at a constant resistance (at 10 Hz) before a steady output is read."""
 GRID_POINTS = 201
 """Resistances of the steady-output grid over the valid range (``calibrated_resistance``)."""
+STATIC_TOLERANCE = 0.01
+"""A model whose slow ramp stays this close to its steady outputs [share of the strain span]
+is static (two points invert it); else it is spanned on its branches and through the run."""
 FIT_EVALUATIONS = 80
 """Engine runs the search of a memory model's zero and span may take (0: none)."""
 FIT_STEP = (0.05, 0.2)
@@ -87,8 +90,10 @@ CURVES_KEPT = 64
 @functools.lru_cache(maxsize=CURVES_KEPT)
 def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
     """``steady_curve`` of its pickled key."""
-    bare, settle, _ = pickle.loads(key)  # the bytes steady_curve just made
-    grid = resistance_grid(bare)
+    bare, settle, points = pickle.loads(key)  # the bytes steady_curve just made
+    grid = np.linspace(bare.valid_range.r_lo, bare.valid_range.r_hi, points)
+    if bare.direction.sign < 0:
+        grid = grid[::-1]
     engine = Engine(Calibration({bare.name: bare}))  # reset before each: steady_output's
     t = 0.1 * np.arange(settle)
     curve = (grid, np.empty(grid.size))
@@ -98,12 +103,6 @@ def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
     for values in curve:
         values.setflags(write=False)
     return curve
-
-
-def resistance_grid(cal: SensorCalibration) -> np.ndarray:
-    """``GRID_POINTS`` resistances over the valid range, from the rest end."""
-    grid = np.linspace(cal.valid_range.r_lo, cal.valid_range.r_hi, GRID_POINTS)
-    return grid[::-1] if cal.direction.sign < 0 else grid
 
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,
@@ -196,14 +195,31 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
     return loadable(new, span_reading(span))
 
 
+def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
+    """The calibration's output along a slow ramp over ``grid`` and back (10 Hz, from a
+    fresh state at the rest end; an existing input zero and span left out)."""
+    bare = replace(cal, input=replace(cal.input, zero_span=None))
+    path = np.concatenate([grid, grid[::-1]])
+    return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
+                                                     path).strain
+
+
+def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.ndarray],
+                         ) -> bool:
+    """True for a static map: a slow ramp up and back stays within ``STATIC_TOLERANCE`` of
+    the steady outputs (a memory model is on a loading or unloading branch in use)."""
+    grid, steady = curve
+    out = ramp_output(cal, grid)
+    span = cal.valid_range.s_hi - cal.valid_range.s_lo
+    return bool(np.max(np.abs(out - np.concatenate([steady, steady[::-1]])))
+                <= STATIC_TOLERANCE * span)
+
+
 def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(unloading, loading) outputs on ``grid`` of a slow ramp up, down and up again (a
     sensor at a session's start was last unloaded)."""
     n = grid.size
-    bare = replace(cal, input=replace(cal.input, zero_span=None))
-    path = np.concatenate([grid, grid[::-1], grid])
-    out = Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
-                                                    path).strain
+    out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
     return out[n:2 * n][::-1], out[2 * n:3 * n]
 
 
@@ -226,20 +242,27 @@ def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float
 
 def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
                         ) -> tuple[float, float, float]:
-    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle: its two
-    points read on the model's branches (a static model's are its steady outputs), then
-    refined through the run (``span_through_run``). Where the branches give no span: the
-    calibration as tared if that reads the cycle better, not refined (a refinement from
-    there fits the cycle, not the run: a loop's exact memory term lost half its gain on the
-    run after it)."""
+    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle: a static
+    model's map inverted at its two points (where it never outputs one, the nearest output's
+    resistance); a memory model's points read on its branches, then refined through the
+    run (``span_through_run``). Where the branches give no span: the calibration as tared
+    if that reads the cycle better, not refined (a refinement from there fits the cycle, not
+    the run: a loop's exact memory term lost half its gain on the run after it)."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
-    grid = resistance_grid(cal)
-    branch = branches(cal, grid)
+    curve = steady_curve(cal)
+    if follows_steady_curve(cal, curve):
+        points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                         top=float(curve[1].max()))
+        try:
+            return span_from_points(cal, points, curve)
+        except InputError:
+            return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
+    branch = branches(cal, curve[0])
     points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                      top=float(branch[1].max()))
     try:
-        start = span_on_branches(cal, points, grid, branch)
+        start = span_on_branches(cal, points, curve[0], branch)
     except InputError:
         if cal.rest_resistance is None:
             raise
