@@ -51,7 +51,7 @@ def main() -> None:
         fit_sensor(recordings[:1], model, name="s1", options=options_of(model, {}))
 
     def before() -> object:
-        model, _ = choose_model(recordings, "s1", candidates=candidates)
+        model, _, _ = choose_model(recordings, "s1", candidates=candidates)
         return fit_sensor(recordings, model, name="s1", options=options_of(model, {}),
                           band=True).uncertainty
 

@@ -18,7 +18,7 @@ import pytest
 import strain_comp as sc
 from strain_comp.cli import main
 from strain_comp.io.bag import read_bag
-from strain_comp.offline.session_start import second_cycle
+from strain_comp.offline.session_start import calibration_stretch
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = str(ROOT / "bags" / "demo_rates.mcap")
@@ -113,8 +113,8 @@ def test_recalibrate_prints_the_commands_readings(tmp_path: Path,
         sc.load_calibration(tmp_path / "field.yaml").to_dict()
     # the README's procedure: the calibration stretch after a warm-up one (--window)
     run = sc.read_recordings(BAG)["s1"]
-    window = second_cycle(run.t, run.s)
-    assert window is not None
+    window = calibration_stretch(run.t, run.s)
+    assert window is not None and window[0] > 0.0
     flag = ["--window", f"{window[0]!r}:{window[1]!r}"]
     assert main(["recalibrate", CAL, "--input", "--from", BAG, *flag, "--out", str(out),
                  "-q"]) == 0

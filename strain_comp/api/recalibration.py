@@ -17,7 +17,7 @@ from strain_comp.api.inputs import (
 )
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
-from strain_comp.offline.session_start import recalibrate as _recalibrate
+from strain_comp.offline.session_start import recalibrate as recalibrate_points
 from strain_comp.offline.session_start import recalibrate_recordings, start
 
 
@@ -70,15 +70,13 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
     if (data is None) == (not pts):
         raise InputError("recalibrate needs either two points (R, S) or data with a "
                          "reference strain")
+    if data is None:
+        return Recalibration(*recalibrate_points(cal, points=pts, sensors=sensors, form=form))
     paths = paths_of(data)
-    if data is None or paths is not None:
-        bag = None if paths is None else paths[0]
-        new, lines = _recalibrate(cal, points=pts, bag=bag, sensors=sensors, tare=tare,
-                                  form=form, first=first, span=window)
-    else:
-        new, lines = recalibrate_recordings(cal, as_recordings(data), form=form, first=first,
-                                            sensors=sensors, tare=tare, source="recordings",
-                                            span=window)
+    held = as_recordings(data) if paths is None else read_recordings(paths[0])
+    new, lines = recalibrate_recordings(cal, held, form=form, first=first, sensors=sensors,
+                                        tare=tare, span=window,
+                                        source="recordings" if paths is None else str(paths[0]))
     return Recalibration(new, lines)
 
 

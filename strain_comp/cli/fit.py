@@ -100,12 +100,9 @@ def run(args: argparse.Namespace) -> int:
     from strain_comp.core.calibration import strain_unit_words, unit_ok
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.fit import memoryless_note, parse_options
-    from strain_comp.offline.options import check_fit_options
     from strain_comp.progress import wanted
 
-    options = parse_options(args.option or [])
-    if not auto:
-        check_fit_options(args.model, options)
+    options = parse_options(args.option or [])  # checked by api.fit before any bag is read
     for flag, unit in (("--strain-unit", args.strain_unit), ("--input-unit", args.input_unit)):
         if not unit_ok(unit):
             raise InputError(f"{flag} {unit!r}: expected a unit such as % or mm for strain, "

@@ -1,31 +1,14 @@
 """A sensor's one correction: an affine map on the input resistance and one on the output
-strain, which every estimator of a session's change writes (docs/design.md, "Calibration
-file"):
+strain, which every estimator of a session's change writes (tare, ``recalibrate``,
+``strain-comp start``; ``strain_comp.offline.correction``):
 
     R' = rest + gain (R - zero)                  (input: zero and gain)
     S' = output_gain S + output_offset           (output: gain and offset)
 
-``zero`` is the measured resistance [ohm] that reads as the calibrated resistance ``rest``;
-the identity is (0, 0, 1) and (1, 0). The engine applies the input map right after the
-input's conversion to ohm (before the pair statistic, the corrector and the models) and the
-output map after the effect terms (``strain_comp.core.sensor``). The estimators:
-
-* the tare (a rest measured now, ``Engine.tare``): the input scaled by (reference rest /
-  rest now) before the input map (``apply_input``'s ``tare``), the reference being the
-  map's ``zero`` or, without one, the calibration's ``rest_resistance``
-  (``SensorCalibration.input_rest``);
-* two known points and a recording's first cycle or stretch line (``recalibrate``,
-  ``strain-comp start``; ``strain_comp.offline.correction``): a new input map (``with_input``,
-  replacing an older one), a new output map composed onto the one there (``with_output``).
-
-The file form is the one calibration files have always held, so every file written before
-loads with the same meaning and every reader reads what this one writes: the input map is
-``input.zero_span`` (rest = ``zero``, rest_calibrated = ``rest``, gain), the output map the
-two effect terms ``RECALIBRATION_TERMS`` (S_hat minus (1 - output_gain) S_hat minus
--output_offset, every other term's coefficient stored scaled by the output gain; ``of`` and
-``written`` convert). A calibration pooled with the stretch start also holds the line
-its training runs' stretches share (``input.stretch_line``): not a map, the target of the
-estimator that places a new run's stretch.
+Its file form is the one calibration files have always held (docs/design.md, "Calibration
+file"): the input map is ``input.zero_span`` (rest = ``zero``, rest_calibrated = ``rest``,
+gain), the output map the two effect terms ``RECALIBRATION_TERMS``, every other term's
+coefficient scaled by the output gain (``of`` and ``written`` convert).
 """
 
 from __future__ import annotations
@@ -79,8 +62,7 @@ class Correction:
         return self.gain, self.rest - self.gain * self.zero
 
     def apply_input(self, ohm: Any, tare: float = 1.0) -> Any:
-        """``ohm`` (a float or an array) x ``tare`` through the input map (the engine's
-        input stage; ``tare``: the engine's tare gain)."""
+        """``ohm`` x the engine's ``tare`` gain, through the input map."""
         ohm = ohm * tare if tare != 1.0 else ohm
         if not self.has_input:
             return ohm
@@ -88,8 +70,7 @@ class Correction:
         return k * ohm + c
 
     def apply_output(self, strain: Any) -> Any:
-        """``strain`` (a float or an array) through the output map (the engine's output
-        stage)."""
+        """``strain`` through the output map."""
         if not self.has_output:
             return strain
         return self.output_gain * strain + self.output_offset
@@ -105,9 +86,8 @@ class Correction:
                        output_offset=gain * self.output_offset + offset)
 
     def effects(self, effects: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-        """The effect terms a calibration's ``effects`` (its file form) hold besides the
-        output map, with the coefficients they have before it (the engine runs these, then
-        ``apply_output``)."""
+        """The other effect terms of ``effects``, with their coefficients before the output
+        map."""
         if not self.has_output:
             return [dict(e) for e in effects]
         return [dict(e, coef=float(e["coef"]) / self.output_gain) for e in effects
@@ -129,8 +109,7 @@ class Correction:
 
 
 def _is_output_term(effect: Mapping[str, Any]) -> bool:
-    """True for one of the two effect terms that hold the output map (``RECALIBRATION_TERMS``,
-    of their kind)."""
+    """True for one of the two effect terms that hold the output map."""
     for term in (_GAIN_TERM, _OFFSET_TERM):
         if effect.get("name") == term["name"] and effect.get("kind") == term["kind"]:
             params = effect.get("params") or {}

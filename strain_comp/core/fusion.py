@@ -1,55 +1,21 @@
 """Sparse references fused online: the output gain and offset, estimated causally.
 
-A robot sometimes knows its strain (a joint at a mechanical stop, a gripper open at rest, a
-test rig's reference). Each such *reference* y at time t, beside the engine's estimate
-s_hat at t, is an observation of the output map
+Each reference y at time t, beside the engine's estimate s_hat there, observes the output
+map, whose gain g and offset b walk slowly (docs/design.md, "Known strains"):
 
-    y = g s_hat + b + v,          v ~ N(0, R)                                      (1)
+    y = g s_hat + b + v,  v ~ N(0, R);   theta = (g, b),  theta_k = theta_{k-1} + w_k,
+    w_k ~ N(0, Q dt_k),  Q = diag(q_g^2, q_b^2)                                   (1, 2)
 
-whose gain g and offset b drift slowly between references (a sensitivity that changed
-since the session start is the largest share of a calibration's error on another run: the
-estimate's error is mostly a gain error). The state theta = (g, b) is a random walk,
+estimated by the Kalman filter (Ljung, *System Identification*, 1999, ch. 11), h = (s_hat, 1):
 
-    theta_k = theta_{k-1} + w_k,  w_k ~ N(0, Q dt_k),  Q = diag(q_g^2, q_b^2)      (2)
+    P^- = P + Q dt,  e = y - h theta,  S = h P^- h' + R,
+    K = P^- h' / S,  theta <- theta + K e,  P <- (I - K h) P^-                      (3)
 
-(dt_k the seconds since the previous reference), estimated by the Kalman filter
-(Kalman 1960; for parameter tracking: Ljung, *System Identification*, 2nd ed., 1999,
-chapter 11, "Recursive estimation methods", where recursive least squares with a
-forgetting factor is the special case of Q proportional to P): with h = (s_hat, 1),
-
-    P^- = P + Q dt,   e = y - h theta,   S = h P^- h' + R,
-    K = P^- h' / S,   theta <- theta + K e,   P <- (I - K h) P^-.                  (3)
-
-The filter's state is the sensor's output map itself (its correction's output gain and
-offset, ``strain_comp.core.correction``), not a second map on top: it starts from the
-calibration's (a_0, b_0), reads s_hat as the estimate before that map, (s - b_0) / a_0 of
-the engine's s, and carries the covariance of (g, b) in those coordinates (the prior and the
-walk, stated for the map relative to the calibration's, taken through T = [[a_0, 0],
-[b_0, 1]]: the same filter, the same fused strain).
-
-Why a Kalman filter on (g, b) and not RLS with exponential forgetting: the references are
-sparse and often at one strain (rest), which excites only b; forgetting then inflates the
-gain's covariance without bound between informative references (covariance windup, Ljung
-ch. 11), while the random walk (2) grows it by a bounded Q dt per second. Its prior
-theta_0 ~ N((1, 0), P_0) regularises toward the calibration as it stands, and the split of
-one reference between gain and offset follows from P_0 and h: a reference at rest (s_hat
-about 0) moves only the offset, one at a large strain mostly the gain.
-
-The *gate* refuses a reference whose innovation is beyond ``gate`` x sqrt(S) (the
-normalised innovation test of tracking filters; Bar-Shalom, Li, Kirubarajan, *Estimation
-with Applications to Tracking and Navigation*, 2001): a reference that
-contradicts the estimate that far is a wrong reference, not a drift. Non-finite references
-or estimates, a wrong type and a time before the previous reference are refused too; each
-refusal is counted by its reason, the state unchanged.
-
-The scales are set per sensor from its calibrated strain span (``FusionSettings.for_span``),
-so one default serves a sensor calibrated in % and one in mm; their values were chosen on
-``studies/references.py`` (docs/results.md): a gain prior of 0.3 beats 0.1 and an offset
-alone (the error is a gain error), and a gain that walks 0.15 a minute beats slower walks
-(the sensitivity moves within a run). ``SparseFusion`` feeds a
-run's own reference at a fixed spacing (``evaluate --references-every``): the sample
-nearest each multiple of the spacing from the run's first sample, each affecting only the
-samples after it.
+The state is the sensor's own output map (``strain_comp.core.correction``), started from the
+calibration's (a_0, b_0), the prior and walk taken through T = [[a_0, 0], [b_0, 1]]. A random
+walk, not RLS with forgetting: references often at rest excite only b, and forgetting winds
+up the gain's covariance. A reference beyond ``GATE`` innovation sds is refused (Bar-Shalom
+et al. 2001), as are non-finite ones and times going back; each refusal is counted.
 """
 
 from __future__ import annotations

@@ -1,33 +1,8 @@
-"""Tare: the sensor's resistance at rest, measured at the start of a run or of a fit.
-
-A soft resistive sensor's rest resistance moves between runs (contact resistance, ageing,
-the specimen's history): the carbon-black recordings rest at 17 kohm in one run and 38-56
-kohm in others. As one zeroes a scale before use, the engine scales the measured
-resistance by (calibration's rest resistance / rest resistance measured now)
-(``Engine.tare``). Multiplicative rather than additive: the resistance span of a strain
-cycle scales with the rest level across those runs (dR/R_rest stays within a factor 1.5
-where dR alone differs 3x), as a change of the conducting cross-section (a gain) predicts;
-a series contact resistance alone would shift R without changing dR.
-
-Both estimators here use the same statistic, so a fit and a run are zeroed alike: the
-median of the pair means (R[i] + R[i+1]) / 2 over the leading rest samples, or of the pair
-statistic the calibration reads an alternating input through (``pair``: the models see
-it, so the tare scales its level). Pair statistics cancel a sample-to-sample alternation of
-the excitation (an artefact every other sample); the median ignores isolated spikes.
-
-* ``rest_resistance_at_start`` (run time, no reference: ``--tare auto``, the node): the
-  samples from the start while the calibration's direction detector says hold (0), at most
-  ``REST_WINDOW`` seconds. The rest must last ``MIN_REST_SAMPLES`` samples or ``MIN_REST_SECONDS``
-  (a 1 Hz instrument gives one or two samples before any movement shows: a rule in samples
-  alone never tares it; a detector cannot see movement before its second sample, so such a
-  tare is off by at most half the first sample's change), and it must be settled: a start
-  whose level still drifts by more than ``MAX_REST_DRIFT`` of itself over the window (a
-  sensor still relaxing from an earlier stretch, whose resistance falls for minutes; or a
-  movement slower than the detector's dead zone) is no rest level and is declined.
-* ``rest_resistance_from_reference`` (fit time): the leading samples whose reference strain
-  is within ``REST_BAND`` of the span of its minimum.
-
-The numbers are the constants below (docs/results.md gives what keeps each).
+"""Tare: the sensor's resistance at rest, read at the start of a run (``--tare auto``, the
+node: while the direction detector holds, settled) or of a fit (the reference at its
+minimum), both as the median of the pair statistic the calibration reads; the engine scales
+the input by (calibrated rest / rest now), multiplicative as measured (docs/results.md,
+"Tare"). A 1 Hz instrument's rest is accepted on ``MIN_REST_SECONDS`` alone.
 """
 
 from __future__ import annotations
@@ -82,10 +57,8 @@ def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
                                  direction: DirectionSettings, *, window: float | None = None,
                                  pair: str = "mean",
                                  ) -> float | None:
-    """``rest_resistance_at_start`` on the first samples of a run as they arrive: None while
-    a longer start could still change the answer (the detector has not left hold and
-    ``window`` seconds have not passed), else that answer (or its InputError). The node
-    calls it on each new sample, so it takes the zero ``--tare auto`` takes offline."""
+    """``rest_resistance_at_start`` on a run's first samples as they arrive (the node), None
+    while more samples could still change it."""
     window = REST_WINDOW if window is None else window
     ta, ra, stop, decided = _rest_stretch(t, r, direction, window, pair)
     return _rest_of_stretch(ta, ra, stop, window, pair) if decided else None
@@ -93,8 +66,7 @@ def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
 
 def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
                      pair: str) -> float:
-    """The rest level of the first ``stop`` good samples ``ta``, ``ra``, or InputError when
-    they are too few or still drift (``rest_resistance_at_start``)."""
+    """The rest level of the first ``stop`` samples; InputError when too few or drifting."""
     if ta.size == 0:
         raise InputError("tare: no good resistance sample at the start of the run")
     if stop == 0 or (stop < MIN_REST_SAMPLES
@@ -114,9 +86,8 @@ def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
 
 def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings,
                   window: float, pair: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """(good t, good r within ``window`` s of the first, samples before the detector first
-    leaves hold, whether that stretch has ended: the detector left hold or the window
-    is complete)."""
+    """(good t, r within ``window`` s, samples before the detector leaves hold, whether that
+    stretch has ended)."""
     ta = np.asarray(t, dtype=np.float64)
     ra = np.asarray(r, dtype=np.float64)
     good = _good(ta, ra)
@@ -137,10 +108,8 @@ def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettin
 
 def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float | None = None,
                pair: str = "mean") -> float:
-    """Drift of a rest stretch over ``window`` s (``REST_WINDOW`` when None), as a share of
-    its level: the change of the ``rest_level`` of its second half against its first, per
-    the time between the halves' centres; 0 when the stretch is too short to tell (fewer
-    than 4 samples)."""
+    """Drift of a rest stretch over ``window`` s as a share of its level (second half's
+    ``rest_level`` against the first's); 0 when under 4 samples."""
     window = REST_WINDOW if window is None else window
     if r.size < 4:
         return 0.0
@@ -154,8 +123,7 @@ def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float | None = None,
 
 def _referenced(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, min_samples: int,
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The good samples with a finite reference, None when fewer than ``min_samples`` or
-    the reference never moves."""
+    """The good referenced samples; None when too few or the reference never moves."""
     ta = np.asarray(t, dtype=np.float64)
     ra = np.asarray(r, dtype=np.float64)
     sa = np.asarray(s, dtype=np.float64)
@@ -208,8 +176,7 @@ TARE_MODES = ("calibration", "auto")
 
 
 def ohms(values: tuple[float, ...]) -> str:
-    """Resistances in the prefix that suits the largest: ``35.1 vs 39.9 kohm``, ``66.1 vs
-    71.8 ohm``, ``2.41 vs 2.45 Mohm``, ``0.521 vs 0.530 ohm``."""
+    """Resistances in the prefix that suits the largest: ``35.1 vs 39.9 kohm``."""
     top = max(abs(v) for v in values)
     scale, prefix = next(((f, p) for f, p in ((1e6, "M"), (1e3, "k")) if top >= f), (1.0, ""))
     return " vs ".join(f"{v / scale:.4g}" for v in values) + f" {prefix}ohm"

@@ -1,30 +1,9 @@
-"""The estimators of a sensor's correction: the input zero and span (R' = R_rest,cal + k (R -
-R_rest,run), as one zeroes and spans a gauge; docs/design.md, ``input.zero_span``) and the
-output gain and offset (S' = a S + b), from two known points, a recording's first cycle, or a
-stretch's line of resistance on strain; and their numbers (``SpanPolicy``).
-
-Input, through two points (R_i, S_i): R'_i is the calibrated resistance whose steady output
-is S_i (``calibrated_resistance``, the steady output inverted on a grid over the valid range),
-k = (R'_2 - R'_1) / (R_2 - R_1), R_rest,run = R_1. From a recording's first cycle: point 1
-is the first rest, point 2 the largest strain (``points_from_first_cycle``). A memory model
-(one that does not follow its steady outputs along a slow ramp, ``follows_steady_curve``)
-is not on its held map in use: its rest point is read on its unloading branch and the
-stretch on its loading branch (``span_on_branches``), and the span is then refined by least
-squares of the engine's output over the cycle (``span_through_run``).
-
-Input, from a stretch's line (a calibration pooled with the stretch session start, ``fit
---pool stretch``, keeps the line R = R_0 + g S its training runs' stretches share in its input
-space, ``InputSettings.stretch_line``): a new run is put there by R' = R_0,space + (g_space /
-g_run) (R - R_0,run), the line of the stretch it reads (``run_line``) put onto that line
-(``onto``), so what moves after the stretch (the thread's sensitivity) moves as it did on the
-training runs (docs/results.md, "Pooling and the session start").
-
-Output (the spike-decay paper's recalibration of its output map, Lee et al., for every
-model): S_new = a S_out + b through two points (S_out(R_i) the steady output at R_i,
-``steady_output``, so a memory model has settled), or by least squares over a recording
-(``map_from_pairs``). Each estimate is written into the sensor's one correction
-(``strain_comp.core.correction``): a new input map replaces an older one (both map measured
-resistance, ``apply_span``), a new output map composes onto the one there (``apply_map``).
+"""The estimators of a sensor's correction (``strain_comp.core.correction``; the equations:
+docs/design.md, ``input.zero_span``, and docs/results.md, "Pooling and the session start"):
+the input zero and span from two known points, a run's first cycle (a memory model read on
+its branches, then refined through the run) or a stretch's line of resistance on strain, and
+the output gain and offset (S' = a S + b; Lee et al.'s recalibration) from two points or by
+least squares over a recording.
 """
 
 from __future__ import annotations
@@ -33,7 +12,7 @@ import functools
 import math
 import pickle
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -61,66 +40,46 @@ FORMS = ("output", "input")
 """Where the two-point map acts: on the engine's output strain or on its input resistance."""
 
 
-@dataclass(frozen=True)
-class SpanPolicy:
-    """The session start's numbers (resolutions, the search, the refusals)."""
-
-    settle_samples: int = 200
-    """Samples at a constant resistance (at 10 Hz) before a steady output is read
-    [samples]."""
-    grid_points: int = 201
-    """Resistances of the steady-output grid over the valid range that
-    ``calibrated_resistance`` inverts [points]."""
-    static_tolerance: float = 0.01
-    """A model whose slow ramp stays this close to its steady outputs is static (two
-    points invert it); else it has memory and is spanned on its branches and through the
-    run [share of the strain span]."""
-    fit_evaluations: int = 80
-    """Engine runs over the calibration stretch the search of a memory model's zero and
-    span may take (Nelder-Mead; 0: the two-point span is kept) [runs]."""
-    fit_step: tuple[float, float] = (0.05, 0.2)
-    """The search's first steps: of the calibrated rest resistance [share of the valid
-    resistance range] and of the log of the span gain [1]."""
-    fit_tolerance: tuple[float, float] = (1e-3, 1e-4)
-    """The search stops when its steps fall under the first [as ``fit_step``] and its
-    RMSE changes less than the second [strain unit]."""
-    from_cover: float = 0.1
-    """Share of the calibrated strain span the reference must move through for ``--from``:
-    a gain and offset are fitted over a stretch of the range, not a point of it (the
-    README's session start, ``bags/demo_rates.mcap``, first 30 s, moves through 17 % of
-    its span) [share of the strain span]."""
-    cycle_up: float = 0.5
-    """A cycle (``cycle_end``, ``stretch_and_return``): the reference passes this share of
-    its span above its minimum [share of the reference's span] ..."""
-    cycle_back: float = 0.1
-    """... then returns to within this share of it [share of the reference's span]."""
-    min_cycle_share: float = 0.1
-    """A ``--window``'s stretch must span at least this share of the calibration's strain
-    range [share of the strain span]."""
+# The session start's numbers (docs/results.md, "Policies": what each buys, measured by
+# studies/policy_ablation.py).
+SETTLE_SAMPLES = 200
+"""Samples at a constant resistance (at 10 Hz) before a steady output is read."""
+GRID_POINTS = 201
+"""Resistances of the steady-output grid over the valid range (``calibrated_resistance``)."""
+STATIC_TOLERANCE = 0.01
+"""A model whose slow ramp stays this close to its steady outputs [share of the strain span]
+is static (two points invert it); else it is spanned on its branches and through the run."""
+FIT_EVALUATIONS = 80
+"""Engine runs the search of a memory model's zero and span may take (0: none)."""
+FIT_STEP = (0.05, 0.2)
+"""The search's first steps: of the calibrated rest [share of the resistance range] and of
+the log of the span gain."""
+FIT_TOLERANCE = (1e-3, 1e-4)
+"""The search stops under these steps [as ``FIT_STEP``] and RMSE changes [strain unit]."""
+FROM_COVER = 0.1
+"""``--from``: the reference must move through this share of the calibrated strain span (a
+gain needs a stretch; the README's start on ``bags/demo_rates.mcap`` moves through 17 %)."""
+CYCLE_UP = 0.5
+"""A cycle (``cycle_end``): the reference passes this share of its span above its minimum,"""
+CYCLE_BACK = 0.1
+"""... then returns to within this share of it."""
+MIN_CYCLE_SHARE = 0.1
+"""A ``--window``'s stretch must span at least this share of the calibrated strain range."""
 
 
-SPAN = SpanPolicy()
-"""The policy every session start uses unless given another."""
-
-
-def steady_output(cal: SensorCalibration, r: float, policy: SpanPolicy | None = None) -> float:
-    """The calibration's output [%] after ``policy.settle_samples`` samples at constant
-    ``r`` (``SPAN`` when None)."""
+def steady_output(cal: SensorCalibration, r: float) -> float:
+    """The calibration's output after ``SETTLE_SAMPLES`` samples at a constant ``r``."""
     engine = Engine(Calibration({cal.name: cal}))
-    t = 0.1 * np.arange((SPAN if policy is None else policy).settle_samples)
+    t = 0.1 * np.arange(SETTLE_SAMPLES)
     return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
 
 
-def steady_curve(cal: SensorCalibration, policy: SpanPolicy | None = None,
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """(resistances [ohm], steady outputs) on ``policy.grid_points`` resistances over the valid
-    range, from the rest end (the low end for a sensor whose R rises with strain), read
-    by the models directly (an existing input zero and span left out: the resistances are
-    the calibrated ones). Kept for the last ``CURVES_KEPT`` calibrations (by their whole
-    content; the arrays are read-only): a session start spans every run with the same
+def steady_curve(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
+    """(calibrated resistances, steady outputs) over the valid range from the rest end, an
+    input zero and span left out; cached (read-only) as every run is spanned with one
     calibration."""
     bare = replace(cal, input=replace(cal.input, zero_span=None))
-    return _steady_curve(pickle.dumps((bare, SPAN if policy is None else policy),
+    return _steady_curve(pickle.dumps((bare, SETTLE_SAMPLES, GRID_POINTS),
                                       protocol=pickle.HIGHEST_PROTOCOL))
 
 
@@ -130,14 +89,13 @@ CURVES_KEPT = 64
 
 @functools.lru_cache(maxsize=CURVES_KEPT)
 def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
-    """``steady_curve`` of the pickled (calibration without its input zero and span,
-    policy) ``key``."""
-    bare, policy = pickle.loads(key)  # the bytes steady_curve just made
-    grid = np.linspace(bare.valid_range.r_lo, bare.valid_range.r_hi, policy.grid_points)
+    """``steady_curve`` of its pickled key."""
+    bare, settle, points = pickle.loads(key)  # the bytes steady_curve just made
+    grid = np.linspace(bare.valid_range.r_lo, bare.valid_range.r_hi, points)
     if bare.direction.sign < 0:
         grid = grid[::-1]
     engine = Engine(Calibration({bare.name: bare}))  # reset before each: steady_output's
-    t = 0.1 * np.arange(policy.settle_samples)
+    t = 0.1 * np.arange(settle)
     curve = (grid, np.empty(grid.size))
     for i, r in enumerate(grid):
         engine.reset()
@@ -148,12 +106,10 @@ def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
 
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,
-                          curve: tuple[np.ndarray, np.ndarray] | None = None,
-                          policy: SpanPolicy | None = None) -> float:
-    """The resistance [ohm] whose steady output through ``cal`` is ``strain``: the first
-    crossing from the rest end of ``steady_curve`` (``crossing``). InputError when no
-    resistance of the valid range gives that strain."""
-    grid, steady = curve if curve is not None else steady_curve(cal, policy)
+                          curve: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """The resistance whose steady output is ``strain``, first from the rest end; InputError
+    when none of the valid range gives it."""
+    grid, steady = curve if curve is not None else steady_curve(cal)
     found = crossing(grid, steady, strain)
     if found is None:
         raise InputError(f"the calibration outputs no strain of {strain:g} "
@@ -189,10 +145,9 @@ def through(points: Sequence[tuple[float, float]], c1: float, c2: float,
 
 def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                      curve: tuple[np.ndarray, np.ndarray] | None = None,
-                     policy: SpanPolicy | None = None) -> tuple[float, float, float]:
+                     ) -> tuple[float, float, float]:
     """The input zero and span (rest, rest_calibrated, k) through two measured (R, S)
-    points, the first at rest (or the smaller strain); numbers: ``policy`` (``SPAN`` when
-    None)."""
+    points (``--point``), inverting the steady outputs."""
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
@@ -205,18 +160,15 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
     if not abs(r2 - r1) > 1e-12 * max(abs(r1), abs(r2)):
         raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: one resistance at two "
                          "strains gives no span")
-    curve = curve if curve is not None else steady_curve(cal, policy)
-    return through([(r1, s1), (r2, s2)], calibrated_resistance(cal, s1, curve, policy),
-                   calibrated_resistance(cal, s2, curve, policy))
+    curve = curve if curve is not None else steady_curve(cal)
+    return through([(r1, s1), (r2, s2)], calibrated_resistance(cal, s1, curve),
+                   calibrated_resistance(cal, s2, curve))
 
 
 def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
                             top: float = np.inf) -> list[tuple[float, float]]:
-    """(R, S) at the first rest and at a known stretch of a run's first cycle (``t``,
-    measured ``r`` [ohm], reference ``s``): the stretch is the largest strain of the cycle,
-    or ``top`` (the largest the calibration outputs) when lower; medians of the samples
-    within the tare's ``rest_band`` of the span of each. InputError when it does not rest
-    or move."""
+    """(R, S) medians at a cycle's first rest and at its largest strain (or ``top``, when
+    lower); InputError when it does not rest or move."""
     ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
@@ -253,23 +205,19 @@ def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
 
 
 def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.ndarray],
-                         policy: SpanPolicy | None = None) -> bool:
-    """True when the calibration's output along a slow ramp over its resistance range and
-    back (``ramp_output`` on ``steady_curve``'s grid) is its steady output at each
-    resistance within ``policy.static_tolerance`` of the strain span: a static map, which two
-    points invert exactly. A model with memory is on a loading or unloading branch in use
-    instead."""
+                         ) -> bool:
+    """True for a static map: a slow ramp up and back stays within ``STATIC_TOLERANCE`` of
+    the steady outputs (a memory model is on a loading or unloading branch in use)."""
     grid, steady = curve
     out = ramp_output(cal, grid)
     span = cal.valid_range.s_hi - cal.valid_range.s_lo
     return bool(np.max(np.abs(out - np.concatenate([steady, steady[::-1]])))
-                <= (SPAN if policy is None else policy).static_tolerance * span)
+                <= STATIC_TOLERANCE * span)
 
 
 def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unloading, loading) outputs of a memory model on ``grid`` (from its rest end): a
-    slow ramp up, down and up again; the unloading branch from the top, the loading branch
-    after that full unload, as a sensor at the start of a session was last unloaded."""
+    """(unloading, loading) outputs on ``grid`` of a slow ramp up, down and up again (a
+    sensor at a session's start was last unloaded)."""
     n = grid.size
     out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
     return out[n:2 * n][::-1], out[2 * n:3 * n]
@@ -285,36 +233,29 @@ def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float
 def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                      grid: np.ndarray, branch: tuple[np.ndarray, np.ndarray],
                      ) -> tuple[float, float, float]:
-    """The input zero and span through two measured (R, S) points read on two branches of
-    outputs over ``grid`` (``branch_resistance``): the rest point on the first (a memory
-    model's unloading branch, ``branches``), the stretch on the second (its loading
-    branch); a static model's held map for both."""
+    """The input zero and span through two (R, S) points, the rest read on the first branch
+    (unloading), the stretch on the second (loading)."""
     ordered = sorted(points, key=lambda p: p[1])
     return through(ordered, branch_resistance(grid, branch[0], ordered[0][1]),
                    branch_resistance(grid, branch[1], ordered[1][1]))
 
 
 def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
-                        policy: SpanPolicy | None = None) -> tuple[float, float, float]:
-    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle ``rec``
-    (``points_from_first_cycle``). A static model: its held map inverted at the two points
-    (``span_from_points``); where the map never outputs a point's strain, the resistance
-    of its nearest output (the output map made after the span corrects what remains). A
-    memory model: the two points read on its branches (``span_on_branches``), then the
-    span refined through the run (``span_through_run``); where the branches give no span,
-    the calibration as tared (the run's rest onto its rest resistance, gain 1) if that
-    reads the cycle better than the calibration as it is (``cycle_error``), not refined
-    (a refinement from there fits the cycle, not the run: a loop's exact memory term lost
-    half its gain on the run after it). Numbers: ``policy`` (``SPAN`` when None)."""
+                        ) -> tuple[float, float, float]:
+    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle: a static
+    model's map inverted at its two points (where it never outputs one, the nearest output's
+    resistance); a memory model's points read on its branches, then refined through the
+    run (``span_through_run``). Where the branches give no span: the calibration as tared
+    if that reads the cycle better, not refined (a refinement from there fits the cycle, not
+    the run: a loop's exact memory term lost half its gain on the run after it)."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
-    policy = SPAN if policy is None else policy
-    curve = steady_curve(cal, policy)
-    if follows_steady_curve(cal, curve, policy):
+    curve = steady_curve(cal)
+    if follows_steady_curve(cal, curve):
         points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                          top=float(curve[1].max()))
         try:
-            return span_from_points(cal, points, curve, policy)
+            return span_from_points(cal, points, curve)
         except InputError:
             return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
     branch = branches(cal, curve[0])
@@ -330,7 +271,7 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
                 cycle_error(cal, rec):
             raise
         return tared
-    return span_through_run(cal, rec, start, policy)
+    return span_through_run(cal, rec, start)
 
 
 def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
@@ -343,25 +284,15 @@ def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
 
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
-                     start: tuple[float, float, float], policy: SpanPolicy | None = None,
-                     ) -> tuple[float, float, float]:
-    """The input zero and span (rest, rest_calibrated, k) whose engine output over ``rec``
-    (the first cycle) is closest to its reference strain (least squares, Nelder-Mead from
-    ``start``, the two-point span; the measured rest kept): for a model that does not
-    follow its steady outputs (``follows_steady_curve``). The engine runs the model along
-    the path the sensor took, so a memory model is spanned on its loading and unloading
-    branches, not on a constant-resistance map it does not follow in use. The search starts
-    from ``start`` or from the calibration as tared (the run's rest onto the calibration's
-    rest resistance, span gain 1), whichever reads the cycle better (a model whose held
-    outputs have not settled in ``settle_samples``, such as slow creep states, can give a
-    far-off two-point span), and keeps that start unless the fit lowers the error. The
-    search's numbers: ``policy`` (``SPAN`` when None); none when it allows no evaluation
-    or the stretch has no referenced sample."""
+                     start: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The input zero and span whose engine output over the cycle ``rec`` is closest to its
+    reference (Nelder-Mead, the measured rest kept), from ``start`` or the calibration as
+    tared, whichever reads the cycle better (slow creep states that have not settled in
+    ``SETTLE_SAMPLES`` give a far-off two-point span); that start kept unless the fit is
+    lower."""
     from scipy.optimize import minimize
 
-    policy = SPAN if policy is None else policy
-    if (rec.s is None or policy.fit_evaluations <= 0
-            or not np.isfinite(rec.s).any()):
+    if rec.s is None or FIT_EVALUATIONS <= 0 or not np.isfinite(rec.s).any():
         return start
     rest, rest_cal, k = start
     width = cal.valid_range.r_hi - cal.valid_range.r_lo
@@ -376,18 +307,17 @@ def span_through_run(cal: SensorCalibration, rec: Recording,
         tared = np.array([(cal.rest_resistance - rest_cal) / width, -np.log(k)])
         if (tared_error := error(tared)) < first:
             origin, first = tared, tared_error
-    step_zero, step_gain = policy.fit_step
+    step_zero, step_gain = FIT_STEP
     simplex = origin + np.array([[0.0, 0.0], [step_zero, 0.0], [0.0, step_gain]])
     best = minimize(error, origin, method="Nelder-Mead",
-                    options={"initial_simplex": simplex, "xatol": policy.fit_tolerance[0],
-                             "fatol": policy.fit_tolerance[1], "maxfev": policy.fit_evaluations})
+                    options={"initial_simplex": simplex, "xatol": FIT_TOLERANCE[0],
+                             "fatol": FIT_TOLERANCE[1], "maxfev": FIT_EVALUATIONS})
     x = best.x if np.isfinite(best.fun) and best.fun < first else origin
     return rest, rest_cal + width * float(x[0]), k * float(np.exp(x[1]))
 
 
 def span_reading(span: tuple[float, float, float]) -> str:
-    """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81
-    (sensitivity +23.5 %)``."""
+    """The input map in words: ``input zero 1.02 -> 1.00 ohm, span gain 0.81 (...)``."""
     rest, rest_cal, k = span
     return (f"input zero {ohms((rest, rest_cal)).replace(' vs ', ' -> ')}, span gain "
             f"{k:.4g} (sensitivity {100.0 * (1.0 / k - 1.0):+.1f} %)")
@@ -398,8 +328,8 @@ Line = tuple[float, float]
 
 
 def run_line(rec: Recording) -> Line | None:
-    """(R_0, g): the least-squares line R = R_0 + g S of a run's good, referenced samples, in
-    closed form (no LAPACK call to fail on a reference near 1e-300 or 1e300)."""
+    """(R_0, g) of the least-squares line R = R_0 + g S of a run's good referenced samples, in
+    closed form (no LAPACK call to fail on a reference near 1e-300)."""
     if rec.s is None:
         return None
     ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
@@ -414,14 +344,13 @@ def run_line(rec: Recording) -> Line | None:
 
 
 def onto(own: Line, space: Line) -> tuple[float, float, float]:
-    """The input zero and span (``InputSettings.zero_span``: rest, rest_calibrated, gain) that
-    puts a run whose stretch has the line ``own`` onto the line ``space``."""
+    """The input zero and span that puts a run's line ``own`` onto the line ``space``."""
     return own[0], space[0], space[1] / own[1]
 
 
 def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
-    """The input zero and span that puts the line of the stretch ``rec`` holds (its
-    referenced samples) onto the calibration's stretch line (``onto``)."""
+    """The input zero and span that puts the line of the stretch ``rec`` onto the
+    calibration's stretch line."""
     space = cal.input.stretch_line
     assert space is not None
     own = run_line(replace(rec, r=cal.input.to_ohm(rec.r)))
@@ -440,8 +369,7 @@ def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, 
 
 
 def number_pair(text: str) -> tuple[float, float]:
-    """``"A:B"`` -> (A, B), NaN for both where the text is no such pair (the command line's
-    ``--point`` and ``--window`` values)."""
+    """``"A:B"`` -> (A, B); NaN for both where the text is no such pair."""
     a_text, sep, b_text = text.partition(":")
     try:
         return (float(a_text), float(b_text)) if sep else (math.nan, math.nan)
@@ -461,8 +389,8 @@ def parse_point(text: str) -> tuple[float, float]:
 
 
 def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
-                    policy: SpanPolicy | None = None) -> tuple[float, float]:
-    """(a, b) through two (R [ohm], S [%]) points (steady outputs: ``policy``)."""
+                    ) -> tuple[float, float]:
+    """(a, b) through two (R [ohm], S) points, by the steady outputs there."""
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = points
@@ -473,7 +401,7 @@ def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]
                              f"resistance range [{lo:.4g}, {hi:.4g}] ohm, where its output is "
                              "clamped; a sensor whose resistance moved that far needs a tare "
                              "(--tare auto, the node's ~/tare) or a new fit")
-    o1, o2 = steady_output(cal, r1, policy), steady_output(cal, r2, policy)
+    o1, o2 = steady_output(cal, r1), steady_output(cal, r2)
     if not abs(o2 - o1) > 1e-9 * max(1.0, abs(o1)):
         raise InputError(f"--point {r1:g}:{s1:g} and {r2:g}:{s2:g}: the calibration gives "
                          f"the same strain ({o1:.4g} %) at both resistances")
@@ -482,21 +410,18 @@ def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]
 
 
 def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
-                   span: float | None = None, policy: SpanPolicy | None = None,
-                   ) -> tuple[float, float]:
-    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs: at
-    least two of them, the reference moving through ``from_cover`` of the
-    calibrated strain ``span`` (when given; ``policy``, ``SPAN`` when None)."""
-    policy = SPAN if policy is None else policy
+                   span: float | None = None) -> tuple[float, float]:
+    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs, the
+    reference moving through ``FROM_COVER`` of the calibrated strain ``span`` (if given)."""
     ok = np.isfinite(estimate) & np.isfinite(reference)
     if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
         raise InputError(f"recalibrate --from: the bag gives {int(ok.sum())} scored samples "
                          "(at least two needed) or no range of estimated "
                          "strain")
-    if span is not None and not np.ptp(reference[ok]) >= policy.from_cover * span:
+    if span is not None and not np.ptp(reference[ok]) >= FROM_COVER * span:
         raise InputError(f"recalibrate --from: the reference moves through "
                          f"{np.ptp(reference[ok]):.4g} of the calibrated span {span:.4g}; a "
-                         f"gain needs a stretch of at least {policy.from_cover:.0%} of it")
+                         f"gain needs a stretch of at least {FROM_COVER:.0%} of it")
     a, b = np.polyfit(estimate[ok], reference[ok], 1)
     return float(a), float(b)
 
@@ -515,8 +440,6 @@ def apply_map(cal: SensorCalibration, a: float, b: float, record: Mapping[str, A
 
 
 def reading(a: float, b: float, *, unit: str = "%") -> str:
-    """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``
-    (the sensor's sensitivity against the calibration's is 1 / a; the offset in the
-    calibration's strain ``unit``)."""
+    """The map in words: ``output gain 1.22 (sensitivity -18.0 %), offset +0.42 % strain``."""
     return (f"output gain {a:.4g} (sensitivity {100.0 * (1.0 / a - 1.0):+.1f} %), "
             f"offset {b:+.3g} {strain_unit_words(unit)}")

@@ -1,20 +1,8 @@
-"""The direction detector's settings from training data ([EGaIn] section V.E: dead zone =
-k sigma of dR/dt noise on a hold).
-
-The hold is the longest stretch where the *reference* strain is still (``|dS/dt|`` below
-``HOLD_RATE_FRACTION`` of the 99.5th-percentile rate, at least ``MIN_HOLD_SAMPLES``
-samples). Its second half is used, so that relaxation right after the stop does not count
-as noise, and ``strain_comp.base.direction.estimate_deadzone`` sets the dead zone from it.
-Without a usable hold, the resistance noise sigma is estimated robustly from the whole
-record (MAD of the second difference of R, which cancels any smooth motion: std(d2 R) =
-sqrt(6) sigma for white noise), and ``estimate_deadzone`` is given a synthetic hold of
-white noise with that sigma at the longest segment's own sample times (fixed seed, so fits
-are reproducible). Noise-free data get a tiny floor. The provenance records which of these
-set the dead zone (``direction_from``). Options ``deadzone`` (the input's unit per s,
-ohm/s by default; set directly), ``k_sigma`` and ``tau`` override this and are not passed
-to the model. ``sign`` is the sign of the correlation of R and S in the training data (-1
-for a sensor whose R falls with strain), so the published direction is +1 on loading for
-every sensor (``strain_comp.core.engine``).
+"""The direction detector's settings from training data ([EGaIn] section V.E: dead zone = k
+sigma of dR/dt noise on a hold): on the second half of the longest hold of the reference
+(relaxation after the stop is no noise), else on white noise of the sigma the MAD of R's
+second difference gives (std(d2 R) = sqrt(6) sigma; fixed seed). The provenance says which
+(``direction_from``); ``sign`` makes the published direction +1 on loading for every sensor.
 """
 
 from __future__ import annotations

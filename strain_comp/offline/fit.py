@@ -1,39 +1,13 @@
-"""Fitting orchestration: recordings (time, resistance, reference strain) -> calibration.
-
-``fit_sensor`` turns one sensor's recordings into a ``SensorCalibration``; ``fit_bags`` does
-it for every named sensor of a set of bags and returns one ``Calibration``. The model
-equations and their fits live in ``strain_comp.models``; the steps before the model's fit
-each have their module:
-
-* **Pooling runs** (``strain_comp.offline.pool``, ``--pool``): several training runs of one
-  sensor put into one input space first, with the session start that reads each run left
-  out in turn best (``strain_comp.offline.session_start.choose_space``).
-* **Training data** (``strain_comp.offline.training``): screening, segments cut where the
-  engine resets, the checks of the data's span, the valid range and the rest resistance.
-* **Measurement chain** (``strain_comp.offline.input_chain``): an alternating excitation
-  read in pairs.
-* **Normalisation**: ``Normalisation.fit`` over all training samples ([Electrolycra]
-  section II.C: the training data span [-1, 1]).
-* **Direction detector** (``strain_comp.offline.deadzone``): the dead zone, the derivative
-  filter and the sign.
-* **Long runs**: above ``strain_comp.offline.reduce.FIT_SAMPLE_BUDGET`` good samples the
-  model is fitted on an anti-aliased reduction of the segments that keeps every reversal
-  and hold (``strain_comp.offline.reduce``); everything else above, and the fit error, is
-  computed on the full data. The provenance records the factor (``fit_reduction``). A
-  model whose fit takes every sample in bounded memory (``Compensator.fit_full_rate``:
-  creep_pi, whose low-pass states a decimation would alter) gets the full data.
-* **Fit error**: the fitted calibration runs over the training segments through the
-  engine (``training_error``); its RMSE, the fit time and the settings' sources go into
-  the provenance.
-* **Uncertainty** (``strain_comp.offline.uncertainty``; ``band``, which ``fit --model auto``
-  sets): with two runs or more, the standard deviation of every estimate, learned from the
-  model fitted on all runs but one and started on the one left out, every run in turn
-  (``learned_band``).
+"""Fitting orchestration: recordings (time, resistance, reference strain) -> calibration
+(``fit_sensor`` one sensor, ``fit_bags`` every named sensor of a set of bags; docs/design.md,
+``fit``). The steps before the model's fit each have their module: pooling runs
+(``offline.pool``), training data (``offline.training``), the measurement chain
+(``offline.input_chain``), the direction detector (``offline.deadzone``), long runs
+(``offline.reduce``) and the uncertainty (``offline.uncertainty``).
 """
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -62,7 +36,12 @@ from strain_comp.offline.deadzone import direction_settings, resistance_sign
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.evaluation import EvaluationResult
 from strain_comp.offline.input_chain import input_chain
-from strain_comp.offline.options import model_options
+from strain_comp.offline.options import (
+    DIRECTION_OPTIONS,
+    FIT_OPTIONS,
+    check_fit_options,
+    model_options,
+)
 from strain_comp.offline.pool import Pooled, gate, pooled_input
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
 from strain_comp.offline.session_start import choose_space, start_or_keep
@@ -91,9 +70,8 @@ CHOICE_RUNS = 3
 """Runs a pooled fit needs to choose its session start: each run left out must leave a
 pooled fit of two or more, made as the fit it stands for (with two, each fold would be a
 one-run fit, whose own stretch line is no pooled space; ``choose_space``)."""
-_DIRECTION_OPTIONS = ("deadzone", "k_sigma", "tau", "alternation", "pair", "fit_budget")
-"""Options ``fit_sensor`` takes itself (direction detector, measurement chain, the sample
-budget of a fit); the others go to the model's ``fit``."""
+_OWN_OPTIONS = (*DIRECTION_OPTIONS, *FIT_OPTIONS)
+"""Options ``fit_sensor`` takes itself; the others go to the model's ``fit``."""
 
 
 def parse_options(items: Iterable[str]) -> dict[str, Any]:
@@ -111,19 +89,6 @@ def parse_options(items: Iterable[str]) -> dict[str, Any]:
     return options
 
 
-def _check_options(fit: Callable[..., Any], model: str, options: Mapping[str, Any]) -> None:
-    """InputError for an option that ``fit`` has no keyword for (when it names them all)."""
-    params = inspect.signature(fit).parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return
-    known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
-             and n != "direction"]
-    for key in options:
-        if key not in known:
-            raise InputError(f"model {model!r} has no option {key!r} "
-                             f"(options: {', '.join(known + list(_DIRECTION_OPTIONS))})")
-
-
 def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) -> float:
     """RMSE on the training segments through the engine's batch path."""
     engine = Engine(Calibration({calibration.name: calibration}))
@@ -137,11 +102,9 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
 
 def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
               options: Mapping[str, Any]) -> Pooled:
-    """The training runs as ``fit_sensor`` pools them (``strain_comp.offline.pool``): with
-    ``spanned``, as recorded unless the runs pass the pooling's ``gate``, and then in one
-    input space with the session start ``session_start.choose_space`` measures best for the
-    cubic fitted with the same direction and measurement-chain options; ``joint`` (the
-    session start of a one-run fit) with fewer than ``CHOICE_RUNS`` runs."""
+    """The training runs pooled (``offline.pool``); ``spanned``: as recorded unless they pass
+    the ``gate``, then the session start ``choose_space`` measures best for the cubic
+    (``joint`` with fewer than ``CHOICE_RUNS`` runs)."""
     if pool != "spanned":
         return pooled_input(recordings, pool)
     if len(recordings) < 2:
@@ -154,7 +117,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
         pooled.record.update(gated, chosen_by={"why": f"fewer than {CHOICE_RUNS} runs: a run "
                                                "left out leaves no pooled fit to start"})
         return pooled
-    own = {k: v for k, v in options.items() if k in _DIRECTION_OPTIONS}
+    own = {k: v for k, v in options.items() if k in _OWN_OPTIONS}
 
     def cubic(runs: Sequence[Recording]) -> SensorCalibration:
         return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
@@ -169,9 +132,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = False
                ) -> SensorCalibration:
-    """Fit ``model`` to one sensor's recordings (each with a reference strain). Several runs
-    are pooled in one input space (``pool``, ``strain_comp.offline.pool``); ``band``:
-    their uncertainty learned by leaving each run out (``learned_band``)."""
+    """Fit ``model`` to one sensor's recordings (each with a reference strain), several runs
+    pooled (``pool``); ``band``: the uncertainty learned by leaving each run out."""
     options, cls, runs = dict(options or {}), model_class(model), list(recordings)
     pooled = pool_runs(recordings, pool, name, options)
     recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
@@ -186,9 +148,9 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     normalisation = Normalisation.fit(r_all, s_all)
     direction, direction_source = direction_settings(segments, options)
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
-    model_options = {k: v for k, v in options.items() if k not in _DIRECTION_OPTIONS}
-    _check_options(cls.fit, model, model_options)
+    model_options = {k: v for k, v in options.items() if k not in _OWN_OPTIONS}
     budget = _fit_budget(options, budget, name)
+    check_fit_options(model, options)
     start = time.perf_counter()
     fit_segments, factor = ((segments, 1) if cls.fit_full_rate
                             else reduce_segments(segments, budget))
@@ -226,9 +188,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
 
 def learned_band(runs: Sequence[Recording], model: str, name: str,
                  options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
-    """The uncertainty of ``fit_sensor``'s calibration: ``model`` fitted on all runs but
-    one as ``fit_sensor`` fits it, started on the one left out (``start_or_keep``), every run
-    left out in turn (``strain_comp.offline.uncertainty.learn``)."""
+    """The uncertainty of ``fit_sensor``'s calibration from ``model`` fitted on all runs but
+    one and started on the one left out, every run in turn."""
     pairs = []
     for j, run in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j]
@@ -292,9 +253,8 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None,
              pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
-    """One calibration for ``sensors``; each sensor is fitted to its recordings from every
-    bag that has it, pooled in one input space (``pool``, ``fit_sensor``), or by ``fitter``
-    (``fit --model auto``: ``model_choice.auto_fitter``)."""
+    """One calibration for ``sensors``, each fitted to its recordings from every bag that has
+    it (``fit_sensor``, or ``fitter`` for ``fit --model auto``)."""
     by_sensor: dict[str, list[tuple[str, Recording]]] = {}
     for path in paths:
         recordings, problems = load_recordings(path)
@@ -341,10 +301,8 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
 
 def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
                  calibration: Calibration) -> None:
-    """Set each scored sensor's ``in_run_rmse``: the same model (and fit options) fitted on
-    the evaluated run itself and scored on it, i.e. what that model family can reach on this
-    run; the gap to ``rmse`` is what does not transfer from the training runs. A run the
-    model cannot be fitted to gets NaN and a note."""
+    """Set each scored sensor's ``in_run_rmse``: the same model fitted and scored on the
+    evaluated run itself (NaN and a note where it cannot be fitted)."""
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
         options = cal.provenance.get("options") or {}

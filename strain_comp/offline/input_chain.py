@@ -1,14 +1,8 @@
-"""The measurement chain read from the training runs: an alternating excitation and its pair.
-
-An alternation of the excitation every other sample (``strain_comp.core.chain.alternation``,
-found from R alone) switches on the calibration's ``input.alternation``: the models are
-fitted to, and the engine feeds them, a pair statistic of R[i] and R[i-1], so the
-alternation never reaches a model's memory or the detector: the mean, or the upper or
-lower of the two when the steps of the alternation's size while the reference strain is
-still (``STILL_FRACTION`` of its span within a window) show the alternation on one side of
-the signal (``strain_comp.core.chain.pair_branch``; the carbon-black strip), stored as
-``input.pair``. Options ``alternation`` (true/false) and ``pair`` (mean/upper/lower)
-override the detection; the provenance records the reading (``measurement_chain``).
+"""The measurement chain read from the training runs: an alternation of the excitation every
+other sample (``core.chain``) makes the models read a pair statistic of R[i], R[i-1] (the
+mean, or the upper or lower side where the still stretches show the alternation on one
+side: the carbon-black strip), so it never reaches a model's memory or the detector.
+Options ``alternation`` and ``pair`` override; the provenance says what was read.
 """
 
 from __future__ import annotations

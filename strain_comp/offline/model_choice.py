@@ -1,20 +1,10 @@
-"""The model chosen by leaving runs out (``fit A B C ... --model auto``).
+"""The model chosen by leaving runs out (``fit A B C ... --model auto``; docs/design.md).
 
-Each candidate model (``CANDIDATES`` by default, ``--candidates``) is fitted on all training
-runs but one (or but one group of runs, ``--groups``: a session or a mounting left out
-whole), started on each run left out as a user starts a session (``strain-comp start``:
-``session_start.start_or_keep``) and scored over all of it (the RMSE ``evaluate`` prints).
-The candidate with the lowest median of those errors wins; one within ``TIE`` of the lowest
-loses to a simpler one (``SIMPLER``: cubic, mpi, creep_pi, apl, by parameters and fit time).
-The winner is fitted on every run; its calibration carries the table of every candidate
-(``model_choice``) and the error to expect on a new session (``expected_error``: the
-winner's median and worst over the runs left out, ``core.calibration.expected_error``), and
-its uncertainty learned from the winner's folds as they were started on the runs left out
-(``offline.uncertainty.learn``; no fold fitted again).
-
-With one run (or one group) there is nothing to leave out: the candidate that carried best
-from one run to another on the benchmark is fitted (``ONE_RUN_ORDER``: apl by default), and
-the reason is said.
+Each candidate is fitted on all runs (or groups, ``--groups``) but one, started on the one
+left out as ``strain-comp start`` does and scored over all of it; the lowest median wins, one
+within ``TIE`` losing to a simpler one (``SIMPLER``). The winner is fitted on every run with
+the table (``model_choice``), the error to expect (``expected_error``) and the uncertainty
+learned from its folds. With one run or group, ``ONE_RUN_ORDER`` decides.
 """
 
 from __future__ import annotations
@@ -129,8 +119,7 @@ def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
 def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
                 options: Mapping[str, Any], pool: str) -> Scored | str:
     """The RMSE of ``fold.model`` on each run left out, fitted on the others and started on
-    each (``start_or_keep``), with the started calibrations, or why it could not be
-    fitted."""
+    each, with the started calibrations; or why it could not be fitted."""
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
@@ -148,12 +137,6 @@ def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
         except StrainCompError:
             out.errors.append(float("nan"))
     return out
-
-
-def _fold_task(args: tuple[Sequence[Recording], str, Fold, Mapping[str, Any], str]
-               ) -> Scored | str:
-    """``fold_errors`` in a worker process."""
-    return fold_errors(*args)
 
 
 def _cell(model: str, folds: Sequence[Fold], results: Sequence[Scored | str],
@@ -179,19 +162,9 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                  candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
                  options: Mapping[str, Any] | None = None, pool: str = "spanned",
                  jobs: int = 1, report: Callable[[str], None] | None = None,
-                 ) -> tuple[str, dict[str, Any]]:
-    """The model of ``--model auto`` (module docstring) and its record."""
-    model, record, _ = _choose(recordings, name, candidates=candidates, groups=groups,
-                               options=options, pool=pool, jobs=jobs, report=report)
-    return model, record
-
-
-def _choose(recordings: Sequence[Recording], name: str, *, candidates: Sequence[str],
-            groups: Sequence[str] | None, options: Mapping[str, Any] | None, pool: str,
-            jobs: int, report: Callable[[str], None] | None,
-            ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
-    """``choose_model``, and the chosen model's folds started on each run left out (none
-    with one run or group): the pairs ``offline.uncertainty.learn`` takes."""
+                 ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
+    """The model of ``--model auto`` (module docstring), its record, and its folds started
+    on each run left out (none with one group): the pairs ``uncertainty.learn`` takes."""
     options = dict(options or {})
     labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
     held = [tuple(i for i, g in enumerate(labels) if g == label)
@@ -207,9 +180,9 @@ def _choose(recordings: Sequence[Recording], name: str, *, candidates: Sequence[
     if jobs > 1:
         with ProcessPoolExecutor(min(jobs, len(tasks)),
                                  mp_context=get_context("spawn")) as workers:
-            results = list(workers.map(_fold_task, tasks))
+            results = list(workers.map(fold_errors, *zip(*tasks, strict=True)))
     else:
-        results = [_fold_task(task) for task in tasks]
+        results = [fold_errors(*task) for task in tasks]
     table = {model: _cell(model, folds, results, len(recordings)) for model in candidates}
     for model, cell in table.items():
         if report is not None:
@@ -245,13 +218,11 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
              candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
              jobs: int = 1, report: Callable[[str], None] | None = None,
              ) -> SensorCalibration:
-    """``fit --model auto`` on one sensor: the model ``choose_model`` picks, fitted on every
-    run, with ``model_choice`` and ``expected_error`` in its provenance and the uncertainty
-    learned from its folds (``fit_sensor``'s ``band``, its folds not fitted again; a group
-    left out whole where ``groups`` are given; with one group, ``fit_sensor``'s own, by
-    run)."""
-    model, record, pairs = _choose(recordings, name, candidates=candidates, groups=groups,
-                                   options=options, pool=pool, jobs=jobs, report=report)
+    """``fit --model auto`` on one sensor: ``choose_model``'s model fitted on every run, with
+    ``model_choice``, ``expected_error`` and the uncertainty learned from its folds."""
+    model, record, pairs = choose_model(recordings, name, candidates=candidates,
+                                        groups=groups, options=options, pool=pool, jobs=jobs,
+                                        report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
                      options=options_of(model, options or {}), pool=pool, band=not pairs)
     if pairs:

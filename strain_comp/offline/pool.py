@@ -1,24 +1,9 @@
-"""Several training runs of one sensor put into one input space (``strain-comp fit --pool``).
-
-As ``recalibrate --input`` zeroes and spans a run, each run is mapped by R' = R_0,ref + k (R
-- R_0,run) onto the run of median sensitivity, its zero and sensitivity fitted jointly with
-one cubic through all mapped runs (``joint_maps``). The session start then places a new run
-in that space one of two ways:
-
-* ``joint``: by the calibration's steady outputs, then an output gain and offset
-  (``strain_comp.offline.correction``), as for a calibration of one run;
-* ``stretch``: by its calibration stretch's line of resistance on strain, put onto the line
-  the training runs' stretches share in the space (``stretch_space``, kept as
-  ``InputSettings.stretch_line``; ``strain_comp.offline.correction``), so a sensitivity
-  that moves after the stretch as it did on the training runs is placed as they were.
-
-Runs of one thread differ in sensitivity by up to 2x; pooled raw, the model fits their
-average and carries to none (docs/results.md). ``spanned`` (the default) keeps the
-maps where they lower the pooled cubic's error to at most ``POOL_GAIN`` of its error on
-the runs as recorded (``gate``), and ``session_start.choose_space`` picks the session start
-by leaving out each training run in turn. The calibration's rest resistance and range
-are those of the mapped runs. ``raw``: the runs as recorded. The provenance records the choice
-(``pooling``) and each run's map (``pooled_runs``).
+"""Several training runs of one sensor put into one input space (``strain-comp fit --pool``;
+docs/design.md): each run mapped by R' = R_0,ref + k (R - R_0,run) onto the run of median
+sensitivity, jointly with one cubic through all mapped runs (``joint_maps``), kept where it
+lowers that cubic's error to ``POOL_GAIN`` (``gate``). A new run is then placed by the
+calibration's steady outputs (``joint``) or by its stretch's line put onto the line the
+training runs' stretches share (``stretch``, ``InputSettings.stretch_line``).
 """
 
 from __future__ import annotations
@@ -110,10 +95,8 @@ def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: floa
 
 
 def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
-    """The ``joint`` space: a per-run affine nuisance fitted jointly with a pooled cubic of
-    strain on mapped resistance (least squares over the maps, the cubic solved for at each
-    step), started from each run's line of resistance on strain (``run_line``) and anchored
-    on the run of median sensitivity (its map stays the identity)."""
+    """The ``joint`` space: each run's affine map fitted jointly with a pooled cubic of strain
+    on mapped resistance, from the runs' lines, anchored on the median-sensitivity run."""
     from scipy.optimize import least_squares
 
     found = _lines(recordings)
@@ -182,9 +165,8 @@ def gate(recordings: Sequence[Recording]) -> tuple[dict[str, Any], Joint | None]
 
 def pooled_input(recordings: Sequence[Recording], pool: str, joint: Joint | None = None
                  ) -> Pooled:
-    """The runs in one input space (``joint`` and ``stretch``: the joint maps, and for
-    ``stretch`` the line the mapped stretches share; a single run's own stretch line) or as
-    recorded (``raw``, a single run, or where there are no maps; module docstring)."""
+    """The runs in one input space (``joint``, ``stretch``: the joint maps, and the stretches'
+    shared line) or as recorded (``raw``, or where no maps can be made)."""
     if pool not in POOLS or pool == "spanned":
         raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
     as_recorded = Pooled(list(recordings), [], {"pool": "raw"})

@@ -1,38 +1,10 @@
-"""Reduction of long training runs before a model fit: anti-aliased decimation that keeps
-the reversals and the holds.
-
-A model fit costs time and memory in proportion to its training samples (APL's QP builds a
-samples x (N + M + 2) matrix per grid point), and a 1e7-sample run holds far more samples
-than its motion needs: a strain protocol moves at a few Hz at most. Above
-``FIT_SAMPLE_BUDGET`` good samples, ``fit_sensor`` fits the model on a reduction of every
-segment by the integer factor ``f = ceil(samples / budget)``; everything else the
-calibration holds (normalisation, valid range, direction detector, rest resistance, the
-fit error ``fit_rmse``) is still computed on the full data. Below the budget nothing
-changes: the fit sees every sample.
-
-Per segment (``reduce_segment``):
-
-1. **Anti-aliasing**: R and S are low-passed by a centred triangular filter of 2f - 1
-   taps (two passes of an f-sample moving average; zero phase, so no lag enters the
-   hysteresis; zero gain at multiples of the new sample rate fs / f, side lobes below
-   -26 dB; at the segment ends the signal is extended by its odd reflection, so a ramp
-   stays exact there).
-2. **Decimation**: every f-th filtered sample, plus the last.
-3. **Reversals**: every turning point of the filtered S and of the filtered R whose swing
-   to the next one is at least ``REVERSAL_FRACTION`` of the segment's span (a peak-valley
-   scan with that hysteresis, so noise does not count) is kept at its own sample: the
-   extremes that set a hysteresis model's memory survive exactly where they were. At most
-   as many as the decimated samples: for a signal noisier than that, the swing doubles
-   until they fit, so a reduction never holds more than about 4 n / f samples.
-4. **Holds**: the first and last sample of every stretch of at least 2f samples where the
-   filtered S is still (``|dS/dt|`` at most ``HOLD_RATE_FRACTION`` of the segment's
-   99.5th-percentile rate, the rule ``deadzone.find_hold`` uses), so a hold starts and ends
-   where it did; inside it the decimated samples carry its relaxation.
-
-Kept samples are the union, in time order, with the filtered values. What a reduction
-loses: motion faster than fs / (2f) and minor loops under ``REVERSAL_FRACTION`` of the span
-between two decimated samples; a rate-dependent model's sigma grid follows the reduced
-sample interval (``APL.fit``: up to 0.2 / interval).
+"""Reduction of long training runs before a model fit (above ``FIT_SAMPLE_BUDGET`` good
+samples; everything but the model's own fit still sees the full data): per segment, a
+zero-phase triangular low-pass of 2f - 1 taps (no lag enters the hysteresis), every f-th
+sample, plus every reversal of S or R swinging ``REVERSAL_FRACTION`` of the span and the
+ends of every hold, at their own samples (the extremes that set a hysteresis model's memory
+survive where they were). Lost: motion faster than fs / (2f) and minor loops under
+``REVERSAL_FRACTION``.
 """
 
 from __future__ import annotations

@@ -1,23 +1,7 @@
-"""The start of a session (``strain-comp start``, ``sc.session_start``): one recording with a
-reference, a warm-up stretch and back, then the calibration stretch and back; the
-calibration corrected on that stretch in one step.
-
-``start`` finds the stretch itself from the reference (``stretch_of``: the second stretch
-and return after a warm-up one, else the first; ``calibration_stretch``),
-applies the correction the calibration's fit chose (``session_start``: the
-input zero and span, then the output gain and offset on the sensors that take one,
-``session_forms``), and says per sensor the stretch used, the correction and
-the error (RMSE) on that stretch, beside the error the calibration expects on a new
-session (``core.calibration.expected_error``). Where the second stretch takes fewer steps
-than the first, the first is used (the README's fallback, measured on the benchmark:
-docs/results.md). The one session start of the command line, the API, ``diagnose
---validate`` (``diagnosis.session``), ``fit --model auto`` (``offline.model_choice``) and
-``scripts/generalisation.py``.
-
-Refused, in one line that says what to record instead (``InputError``): a recording with no
-calibrated sensor's reference, a reference with no stretch and return, one that never comes
-back to rest after its largest strain, one that ends during its first stretch (shorter than
-the warm-up), and a stretch on which no correction can be made.
+"""The start of a session (``strain-comp start``, ``sc.session_start``; docs/design.md): the
+calibration stretch found on a recording with a reference (the second stretch and return
+after a warm-up, else the first), the correction the calibration's fit chose made on it,
+and ``recalibrate``'s work; refusals say what to record instead.
 """
 
 from __future__ import annotations
@@ -37,11 +21,11 @@ from strain_comp.core.calibration import (
 )
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.errors import InputError, StrainCompError
-from strain_comp.io.recording import load_recordings
 from strain_comp.offline.correction import (
+    CYCLE_BACK,
+    CYCLE_UP,
     FORMS,
-    SPAN,
-    SpanPolicy,
+    MIN_CYCLE_SHARE,
     apply_map,
     apply_span,
     map_from_pairs,
@@ -59,8 +43,7 @@ if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
 Window = tuple[float, float]
-"""(START, END) seconds after a run's start of the stretch a session start reads; START 0
-is ``--first END``, any other ``--window START:END``."""
+"""(START, END) seconds after a run's start of the stretch read (START 0: ``--first END``)."""
 SPACES = ("joint", "stretch")
 """The session starts of a pooled fit (``fit --pool spanned`` chooses between them by
 ``choose_space``; ``strain_comp.offline.pool``)."""
@@ -86,8 +69,7 @@ class StartRecord:
     """The error the calibration expects on a new session, in words (None: not measured)."""
 
     def line(self) -> str:
-        """``s1: stretch 45-95 s, input zero ..., output gain ...; RMSE 0.81 % strain on
-        the stretch (expected on a new session: ...)``."""
+        """``s1: stretch 45-95 s, input zero ...; RMSE 0.81 % strain on the stretch (...)``."""
         tail = "" if self.expected is None else f" ({self.expected})"
         return (f"{self.sensor}: stretch {self.window[0]:.4g}-{self.window[1]:.4g} s, "
                 f"{self.correction}; RMSE {self.rmse:.3g} {strain_unit_words(self.unit)} on "
@@ -114,21 +96,20 @@ class Started:
 
 def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
                ) -> tuple[Window, Window | None]:
-    """The stretches a start recording offers: its first stretch and return (START 0), and
-    its calibration stretch after it (None: it has none fit to read), refused in the
-    user's terms when it has no stretch and return a start can read."""
+    """(first stretch, the calibration stretch after it or None) of a start recording;
+    InputError in the user's terms when it has no stretch and return a start can read."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     tt, ss = t[ok], s[ok]
-    if ss.size < 3 or not np.ptp(ss) >= SPAN.min_cycle_share * strain_range:
+    if ss.size < 3 or not np.ptp(ss) >= MIN_CYCLE_SHARE * strain_range:
         raise InputError(f"{source}: its reference strain makes no stretch and return (it "
                          f"moves through {np.ptp(ss) if ss.size else 0.0:.3g} of the "
                          f"calibrated {strain_range:.3g}): {RECORD}")
     lo, span = float(ss.min()), float(np.ptp(ss))
     top = int(np.argmax(ss))
-    back = ss[top:] < lo + SPAN.cycle_back * span
+    back = ss[top:] < lo + CYCLE_BACK * span
     if not back.any():
-        if cycle_end(tt, ss) is None and ss[-1] > lo + SPAN.cycle_up * span:
+        if cycle_end(tt, ss) is None and ss[-1] > lo + CYCLE_UP * span:
             raise InputError(f"{source} ends {tt[-1] - tt[0]:.4g} s in, during its first "
                              f"stretch: it is shorter than the warm-up; {RECORD}")
         raise InputError(f"{source}: the reference never came back to rest after its "
@@ -148,8 +129,9 @@ def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
 def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
           window: Window | None = None, sensors: Sequence[str] | None = None,
           source: str = "the recording", first: float | None = None) -> Started:
-    """The session start on a recording with a reference (module docstring): the
-    calibration stretch found (or ``window``), the correction made, a record per sensor."""
+    """The session start on a recording with a reference: the calibration stretch found
+    (or ``window``, or the first ``first`` seconds), the correction made, a record per
+    sensor."""
     names = [n for n, rec in recordings.items() if n in calibration.sensors
              and rec.s is not None and not (sensors and n not in sensors)]
     for name in sensors or ():
@@ -196,9 +178,8 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
 
 def start_or_keep(calibration: Calibration, recordings: Mapping[str, Recording], *,
                   window: Window | None = None) -> Started:
-    """``start``, or the calibration as it is (no step, no window, the refusal as its note)
-    where the start refuses the run: what a user refused is left with, as the benchmark,
-    the loop's validation runs and the pooled fit's choice score it."""
+    """``start``, or the calibration as it is (the refusal as its note) where refused: what a
+    refused user is left with, as the benchmark and the fits' folds score it."""
     try:
         return start(calibration, recordings, window=window)
     except InputError as err:
@@ -225,9 +206,9 @@ Made = tuple[Calibration, dict[str, list[str]], list[str], Window]
 
 def _found(calibration: Calibration, recordings: Mapping[str, Recording],
            stretches: tuple[Window, Window | None], source: str) -> Made:
-    """The start on the calibration stretch (the second), or on the first where the second
-    is missing or takes fewer steps than the first (the README's fallback); the first read
-    as it is (``recalibrate --first``), as the benchmark has always read it."""
+    """The start on the second stretch, or on the first (read as it is) where the second is
+    missing or takes fewer steps (the README's fallback; the carbon black's creep_pi takes
+    it on 4 of 5 runs left out)."""
     first, second = stretches
     made = None if second is None else _made(calibration, recordings, second, source)
     if made is not None and all(len(steps) == _wanted(calibration, n)
@@ -245,10 +226,8 @@ def _found(calibration: Calibration, recordings: Mapping[str, Recording],
 
 def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: Window,
           source: str, *, given: bool | None = False) -> Made:
-    """``session_start`` on ``span``: the calibration, the steps made per
-    sensor, the lines of the steps not made, the window. The window's own refusal first:
-    as ``--window`` says it where ``given``, in the start's terms where not, none where
-    None (the first seconds read as they are)."""
+    """``session_start`` on ``span``; the window refused first: as ``--window`` says it
+    where ``given``, in the start's terms where False, not checked where None."""
     try:
         if given is not None:
             window_of(recordings, span, calibration, source)
@@ -269,12 +248,9 @@ FIRST_CYCLE_CAP = 0.4
 """The first cycle is at most this share of a run (a run that never returns to rest)."""
 
 
-def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) -> float | None:
-    """Seconds from the first sample (``t[0]``, referenced or not) to the end of the first
-    stretch and return of the reference ``s``: its first return to within ``cycle_back`` of
-    its span above the minimum after first passing ``cycle_up`` of it (``policy``, ``SPAN``
-    when None). None when there is none."""
-    policy = SPAN if policy is None else policy
+def cycle_end(t: np.ndarray, s: np.ndarray) -> float | None:
+    """Seconds from the first sample to the end of the first stretch and return of ``s``
+    (past ``CYCLE_UP`` of its span, back within ``CYCLE_BACK``); None when there is none."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     origin = _origin(t)
     ok = np.isfinite(t) & np.isfinite(s)
@@ -284,32 +260,27 @@ def cycle_end(t: np.ndarray, s: np.ndarray, policy: SpanPolicy | None = None) ->
     lo, hi = float(s.min()), float(s.max())
     if not hi > lo:
         return None
-    up = np.flatnonzero(s > lo + policy.cycle_up * (hi - lo))
+    up = np.flatnonzero(s > lo + CYCLE_UP * (hi - lo))
     if not up.size:
         return None
-    back = np.flatnonzero(s[up[0]:] < lo + policy.cycle_back * (hi - lo))
+    back = np.flatnonzero(s[up[0]:] < lo + CYCLE_BACK * (hi - lo))
     return float(t[up[0] + back[0]] - origin) if back.size else None
 
 
 def _origin(t: np.ndarray) -> float | None:
-    """The first finite sample time: where a run's seconds count from (``cut``, ``--first``,
-    ``--window``), samples without a reference included."""
+    """The first finite sample time, where a run's seconds count from."""
     finite = t[np.isfinite(t)]
     return float(finite[0]) if finite.size else None
 
 
-def stretch_and_return(s: np.ndarray, strain_range: float,
-                       policy: SpanPolicy | None = None) -> bool:
-    """True when the reference ``s`` of a window rises from within ``cycle_up`` of its span
-    above its minimum to its maximum and falls back there, over at least
-    ``min_cycle_share`` of ``strain_range`` (the calibration's): a load and unload
-    (``policy``, ``SPAN`` when None)."""
-    policy = SPAN if policy is None else policy
+def stretch_and_return(s: np.ndarray, strain_range: float) -> bool:
+    """True for a load and unload: ``s`` rises from its low part (within ``CYCLE_UP`` of its
+    span) to its maximum and falls back, over ``MIN_CYCLE_SHARE`` of ``strain_range``."""
     s = np.asarray(s, dtype=np.float64)
     s = s[np.isfinite(s)]
-    if s.size < 3 or not np.ptp(s) >= policy.min_cycle_share * strain_range:
+    if s.size < 3 or not np.ptp(s) >= MIN_CYCLE_SHARE * strain_range:
         return False
-    low = s <= s.min() + policy.cycle_up * np.ptp(s)
+    low = s <= s.min() + CYCLE_UP * np.ptp(s)
     top = int(np.argmax(s))
     return bool(low[:top].any() and low[top:].any())
 
@@ -346,14 +317,10 @@ def cut(rec: Recording, start: float, end: float) -> Recording:
 
 
 def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
-           calibration: Calibration, source: str = "the bag",
-           policy: SpanPolicy | None = None) -> dict[str, Recording]:
-    """Each referenced recording up to ``span[1]`` seconds after its start, its reference
-    strain left out (NaN) before ``span[0]`` (``recalibrate --window``): the engine runs the
-    calibration from the bag's start, so a memory model enters the window in the state the
-    warm-up left, and only the window's reference is fitted to. InputError for a window
-    beyond a recording's end or one in which its reference strain makes no stretch and
-    return (``stretch_and_return`` over the strain range of its sensor's calibration)."""
+           calibration: Calibration, source: str = "the bag") -> dict[str, Recording]:
+    """Each referenced recording up to ``span[1]``, its reference NaN before ``span[0]``
+    (``--window``: a memory model enters the window in the state the warm-up left);
+    InputError for a window beyond the end or without a stretch and return."""
     start, end = span
     out = {}
     for name, rec in recordings.items():
@@ -365,7 +332,7 @@ def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
                              f"sensor {name!r}, the window runs beyond it")
         part = cut(rec, start, end)
         vr = calibration.sensors[name].valid_range
-        if part.s is None or not stretch_and_return(part.s, vr.s_hi - vr.s_lo, policy):
+        if part.s is None or not stretch_and_return(part.s, vr.s_hi - vr.s_lo):
             raise InputError(f"--window {start:g}:{end:g}: the reference strain of {name!r} "
                              f"makes no stretch and return in it (record a load and unload "
                              f"there)")
@@ -376,9 +343,8 @@ def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
 
 
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
-    """Seconds from the start of a run (its first sample, referenced or not) to the end of
-    its first load and unload (``cycle_end``); at most ``FIRST_CYCLE_CAP`` of the run.
-    None when the reference never moves."""
+    """Seconds to the end of a run's first load and unload, at most ``FIRST_CYCLE_CAP`` of
+    the run; None when the reference never moves."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     if ok.sum() < 2 or not np.percentile(s[ok], 99) > np.percentile(s[ok], 1):
@@ -389,51 +355,34 @@ def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
     return cap if end is None else min(end, cap)
 
 
-def second_cycle(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
-    """(START, END) seconds of a run's second load and unload, the calibration stretch of
-    the README's session start after a warm-up one (``recalibrate --window``): from the end
-    of the first cycle (``first_cycle``) to the end of the next stretch and return
-    (``cycle_end`` on the rest of the run). None when the rest of the run has none."""
+def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
+    """(START, END) seconds of the stretch the README's session start reads: the second
+    load and unload after a warm-up one, else the first (START 0); None if none moves."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     first = first_cycle(t, s)
-    return None if first is None else _cycle_after(t, s, first)
-
-
-def _cycle_after(t: np.ndarray, s: np.ndarray, first: float) -> tuple[float, float] | None:
-    """(START, END) [s] of the next load and unload after the first ``first`` seconds of a
-    run (``first_cycle``'s, so the run has finite sample times)."""
+    if first is None:
+        return None
     origin = _origin(t)
     assert origin is not None  # first_cycle found finite samples
     rest = t >= origin + first
     end = cycle_end(t[rest], s[rest]) if rest.sum() > 1 else None
     if end is None:
-        return None
+        return 0.0, first
     start = float(t[rest][0] - origin)
     return start, start + end
-
-
-def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
-    """The stretch the README's session start reads on a run: its second load and unload
-    after a warm-up one (``second_cycle``), else its first (START 0, ``first_cycle``)."""
-    t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
-    first = first_cycle(t, s)
-    return None if first is None else _cycle_after(t, s, first) or (0.0, first)
 
 
 # The steps of a session start, and ``recalibrate`` from a recording or two points.
 
 def session_forms(cal: SensorCalibration) -> tuple[str, ...]:
-    """The steps of a session start on a sensor, in order: the input zero and span, then the
-    output gain and offset; the input step alone for a calibration with a stretch line
-    (``InputSettings.stretch_line``), which places the run as the training runs' stretches
-    lay, gain and offset included (``strain_comp.offline.correction``)."""
+    """The steps of a session start on a sensor: input then output; the input step alone with
+    a stretch line, which places the run gain and offset included."""
     return ("input",) if cal.input.stretch_line is not None else ("input", "output")
 
 
 def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
              ) -> dict[str, list[str]]:
-    """The session start's steps on a run, in order, each with the sensors it recalibrates
-    (``session_forms`` of each calibrated sensor the run holds with a reference)."""
+    """Each step of the session start on a run -> the sensors it recalibrates."""
     names = [n for n, rec in recordings.items() if n in calibration.sensors
              and rec.s is not None]
     by_form = {form: [n for n in names if form in session_forms(calibration.sensors[n])]
@@ -444,13 +393,9 @@ def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
 def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
                   window: Window, source: str = "",
                   ) -> tuple[Calibration, dict[str, list[str]], list[str]]:
-    """``calibration`` after ``recalibrate --input --from RUN --window START:END`` and then
-    ``recalibrate --from RUN --window START:END`` (``--first END`` for a window from 0; the
-    output form on the spanned input, tare ``calibration``), the output step only on the
-    sensors that take one (``session_forms``); with each form made -> the sensors it
-    recalibrated, and what each step did (``recalibrate``'s lines). A step that cannot be
-    made (no rest in the stretch, a strain the calibration never outputs) is skipped, as it
-    is for a user, and says why."""
+    """``calibration`` after ``recalibrate --input`` and then ``recalibrate --from`` on
+    ``window`` (``session_forms``), the forms made -> their sensors, and the lines of what
+    each step did; a step that cannot be made is skipped, as for a user, and says why."""
     made: dict[str, list[str]] = {}
     lines: list[str] = []
     head = window[0] == 0.0
@@ -489,12 +434,9 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
                            form: str = "output", first: float | None = None,
                            sensors: Sequence[str] | None = None, tare: str = "calibration",
                            source: str = "", span: tuple[float, float] | None = None,
-                           policy: SpanPolicy | None = None,
                            ) -> tuple[Calibration, list[str]]:
-    """``recalibrate`` from recordings with a reference strain (their first ``first``
-    seconds, or the ``span`` (START, END) seconds after their start, ``window``): the output
-    map by least squares, or the input zero and span from the first rest and the largest
-    strain (``span_of_first_cycle``); numbers: ``policy`` (``SPAN`` when None)."""
+    """``recalibrate`` from recordings with a reference (their first ``first`` seconds or
+    ``span``): the output map by least squares, or the input zero and span."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if span is not None and first is not None:
@@ -503,7 +445,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     if span is not None:
         chosen = {n: r for n, r in recordings.items()
                   if n in calibration.sensors and not (sensors and n not in sensors)}
-        recs = window_of(chosen, span, calibration, source or "the bag", policy)
+        recs = window_of(chosen, span, calibration, source or "the bag")
         where = f"{source}, {span[0]:g} to {span[1]:g} s"
     else:
         recs = head(recordings, first)
@@ -518,7 +460,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
             cal = calibration.sensors[name]
             by_line = cal.input.stretch_line is not None
             zero_span = (stretch_span(cal, rec) if by_line
-                         else span_of_first_cycle(cal, rec, policy))
+                         else span_of_first_cycle(cal, rec))
             out[name] = apply_span(cal, zero_span, {"from": source, "first": first,
                                                     "window": None if span is None
                                                     else list(span)})
@@ -534,8 +476,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
         if sensors and name not in sensors:
             continue
         a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored],
-                              span=fitted_rest(calibration.sensors[name].valid_range)[1],
-                              policy=policy)
+                              span=fitted_rest(calibration.sensors[name].valid_range)[1])
         out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first,
                                                 "window": None if span is None else list(span)})
         lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "
@@ -544,15 +485,10 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
 
 
 def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
-                bag: str | None = None, sensors: Sequence[str] | None = None,
-                tare: str = "calibration", form: str = "output",
-                first: float | None = None, span: tuple[float, float] | None = None,
-                policy: SpanPolicy | None = None) -> tuple[Calibration, list[str]]:
-    """The recalibrated calibration and one line per sensor (gain, offset, reading)."""
-    if bag is not None:
-        return recalibrate_recordings(calibration, load_recordings(bag)[0], form=form,
-                                      first=first, sensors=sensors, tare=tare,
-                                      source=str(bag), span=span, policy=policy)
+                sensors: Sequence[str] | None = None, form: str = "output",
+                ) -> tuple[Calibration, list[str]]:
+    """``recalibrate --point``: the calibration through two known points on one sensor, and
+    a line saying what changed."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     out = dict(calibration.sensors)
@@ -566,11 +502,11 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
         raise InputError(f"sensor {name!r} is not in the calibration "
                          f"({', '.join(calibration.sensors)})")
     if form == "input":
-        span = span_from_points(out[name], points, policy=policy)
+        span = span_from_points(out[name], points)
         out[name] = apply_span(out[name], span, {"points": [list(p) for p in points]})
         lines.append(f"{name}: {span_reading(span)} (through {len(points)} points)")
     else:
-        a, b = map_from_points(out[name], points, policy)
+        a, b = map_from_points(out[name], points)
         out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
         lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
                      f"{len(points)} points)")
@@ -581,18 +517,13 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
 # training run in turn.
 
 Fit = Callable[[Sequence["Recording"]], SensorCalibration]
-"""Fits the choice's model on runs pooled with the stretch line (``fit_sensor`` of the
-cubic, ``pool="stretch"``)."""
-
-
-def session_started(cal: SensorCalibration, rec: Recording) -> Calibration:
-    """``cal`` after the session start on ``rec`` (``session_start.start_or_keep``: its
-    calibration stretch found, as ``strain-comp start`` finds it); as it is where refused."""
-    return start_or_keep(Calibration({cal.name: cal}), {cal.name: rec}).calibration
+"""Fits the choice's model (the cubic) on runs pooled with the stretch line."""
 
 
 def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
-    """The session start of a pooled fit (module docstring)."""
+    """The session start of a pooled fit, ``joint`` or ``stretch``: the lower root mean
+    square RMSE over the runs left out in turn (``fit`` on the others, started as ``start``
+    does). On all three fibre runs it takes ``joint``, on the thread ``stretch``."""
     errors: dict[str, list[float]] = {space: [] for space in SPACES}
     for j, held in enumerate(recordings):
         rest = [rec for i, rec in enumerate(recordings) if i != j]
@@ -607,7 +538,8 @@ def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[s
             used = cal if space == "stretch" else replace(
                 cal, input=replace(cal.input, stretch_line=None))
             try:
-                started = session_started(used, held)
+                started = start_or_keep(Calibration({cal.name: used}),
+                                        {cal.name: held}).calibration
                 ev = evaluate_recordings({cal.name: held}, started, tare="calibration")
                 fold[space] = float(ev.sensors[cal.name].stats.rmse)
             except StrainCompError:

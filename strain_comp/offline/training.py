@@ -1,23 +1,8 @@
-"""The training data of a fit: screened samples cut into segments, checked, and their range.
-
-* **Screening**: a sample is used only when ``strain_comp.base.samples.good_mask`` accepts it
-  (the engine's rule: finite, R > 0 ohm, time increasing) and its reference strain is
-  finite. As in the engine, a step back in time longer than ``GAP_SECONDS`` (a looped bag,
-  a sim-time reset) is not a run of rejected samples but a new start: it cuts a segment.
-* **Segments**: good samples are cut into ``Segment``s wherever the time between two
-  consecutive good samples exceeds ``GAP_SECONDS`` (a recording pause, or a long stretch of
-  bad samples), the engine's default ``gap_reset``: training resets model state exactly
-  where the engine does. For an instrument so slow that ``GAP_INTERVALS`` of its median
-  sample interval exceed that, the gap is that many intervals, and the calibration stores
-  the interval (``sample_interval``) so that the engine counts gaps alike (a 0.1 Hz
-  logger was cut at every sample and could not be fitted at all). Isolated bad samples
-  do not cut a segment: online, a bad sample is skipped and the state kept, and the fit
-  sees the same. Each recording starts a new
-  segment (model state is reset per segment). Segments shorter than ``MIN_SEGMENT``
-  samples are dropped.
-* **Valid range**: the training range of R and S widened by ``TRAINING_WIDENING`` (5 %) of its
-  span on each side (the resistance floor is kept above half the smallest training R, so it
-  stays > 0 ohm). Inputs outside it are flagged as out of range, not silently trusted.
+"""The training data of a fit: screened as the engine screens (``good_mask``, a finite
+reference), cut into segments where the engine resets (a gap over ``GAP_SECONDS``, or
+``GAP_INTERVALS`` sample intervals of a slow instrument, stored as ``sample_interval``;
+each recording a new segment), checked, and their valid range (widened by
+``TRAINING_WIDENING`` of its span, the resistance kept > 0).
 """
 
 from __future__ import annotations

@@ -1,18 +1,7 @@
-"""The uncertainty learned from runs left out (docs/design.md, "Uncertainty").
-
-``learn`` takes (started calibration, recording) pairs: a calibration fitted without a run,
-then started on that run as a user starts it (``strain-comp start``), and the run. Over every
-scored sample of every pair it fits the variance model of
-``strain_comp.core.uncertainty`` by Gaussian maximum likelihood: the residual e = estimate
-- reference ~ N(0, exp(w . x)), x the engine's features at the sample (``features_run``),
-each run weighing the same whatever its length; the model is convex in w (a Newton
-solve). A final factor on sigma then makes the 95 % band (+-1.96 sigma) hold 95 % of a
-typical run's samples as the band learned on the other runs predicts them (the geometric
-mean over the runs of each run's factor, ``fit_weights``): a band learned in-sample holds
-less on a new run, whose errors differ from run to run.
-``fit`` calls it with the fitted model's own leave-one-run-out
-(``strain_comp.offline.fit``); a caller that already left runs out (``fit --model auto``)
-passes its pairs.
+"""The uncertainty learned from runs left out (docs/design.md, "Uncertainty"): over (started
+calibration, run) pairs, the variance model of ``strain_comp.core.uncertainty`` fitted by
+Gaussian maximum likelihood (each run weighing the same; convex, a Newton solve), then a
+factor on sigma so that the 95 % band holds on a typical run left out (``fit_weights``).
 """
 
 from __future__ import annotations

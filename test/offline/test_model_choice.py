@@ -78,7 +78,7 @@ def test_a_tie_goes_to_the_simpler_model(monkeypatch: pytest.MonkeyPatch) -> Non
                                        * len(fold.held), [Calibration({})] * len(fold.held))
 
         monkeypatch.setattr(model_choice, "fold_errors", errors)
-        model, record = model_choice.choose_model(RUNS, "s1", candidates=("apl", "cubic"))
+        model, record, _ = model_choice.choose_model(RUNS, "s1", candidates=("apl", "cubic"))
         assert model == chosen, cubic
         assert "simpler" in record["why"] if chosen == "cubic" else "lowest" in record["why"]
 
@@ -111,8 +111,8 @@ def test_the_band_is_learned_from_the_choices_folds_not_fitted_again(
 
 def test_groups_are_left_out_whole() -> None:
     """Groups a, a, b, b: each run of group a is scored by the model fitted on b alone."""
-    model, record = model_choice.choose_model(RUNS, "s1", candidates=("cubic",),
-                                              groups=["a", "a", "b", "b"])
+    model, record, _ = model_choice.choose_model(RUNS, "s1", candidates=("cubic",),
+                                                 groups=["a", "a", "b", "b"])
     assert model == "cubic" and record["groups"] == ["a", "a", "b", "b"]
     errors = record["candidates"]["cubic"]["errors"]
     assert errors == pytest.approx(left_out("cubic", [0, 1]) + left_out("cubic", [2, 3]),

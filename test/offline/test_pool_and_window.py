@@ -23,7 +23,7 @@ from strain_comp.offline.session_start import (
     choose_space,
     recalibrate_recordings,
     session_forms,
-    session_started,
+    start_or_keep,
     stretch_and_return,
 )
 
@@ -142,7 +142,7 @@ def test_the_choice_of_space_follows_the_runs_left_out() -> None:
     for space in ("joint", "stretch"):
         cal = fit_sensor(MOVING, "cubic", name="s1", pool=space)
         assert session_forms(cal) == (("input",) if space == "stretch" else ("input", "output"))
-        started = session_started(cal, new)
+        started = start_or_keep(Calibration({"s1": cal}), {"s1": new}).calibration
         errors[space] = evaluate_recordings({"s1": new}, started).sensors["s1"].stats.rmse
     assert errors["stretch"] < 0.5 * errors["joint"]
 
