@@ -106,11 +106,23 @@ class AtomicFile:
         self.handle: BinaryIO = os.fdopen(fd, "wb")
         self.done = False
 
+    @contextmanager
+    def discarded_on_error(self) -> Iterator[None]:
+        """Discard on any error; an OSError raised as ``OutputError`` naming the target."""
+        try:
+            yield
+        except OSError as err:
+            self.discard()
+            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from None
+        except BaseException:
+            self.discard()
+            raise
+
     def commit(self) -> None:
         """Flush, fsync, rename over the target and fsync the directory (once)."""
         if self.done:
             return
-        try:
+        with self.discarded_on_error():
             with self.handle:
                 self.handle.flush()
                 os.fchmod(self.handle.fileno(), _file_mode(self.path))
@@ -119,12 +131,6 @@ class AtomicFile:
             os.replace(self.tmp, self.path)
             self.done = True
             fsync_directory(self.path.parent)
-        except OSError as err:
-            self.discard()
-            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from None
-        except BaseException:
-            self.discard()
-            raise
 
     def discard(self) -> None:
         """Close and delete the temporary file; the target is left as it was (once)."""
@@ -143,14 +149,8 @@ class AtomicFile:
 def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterator[BinaryIO]:
     """A binary file that replaces ``path`` only once it is complete."""
     output = AtomicFile(path, inputs=inputs)
-    try:
+    with output.discarded_on_error():
         yield output.handle
-    except OSError as err:
-        output.discard()
-        raise OutputError(f"{output.path}: cannot write: {err.strerror or err}") from None
-    except BaseException:
-        output.discard()
-        raise
     output.commit()
 
 
