@@ -1,29 +1,8 @@
-"""The ``strain-comp`` command line (docs/design.md, "Command line": a contract): one module
-per command (``NAME``, ``SUMMARY``, ``DESCRIPTION``, ``EXAMPLE``, ``add_arguments(parser)``,
-``run(args) -> int``), the parser assembled from them here, what they share in
-``strain_comp.cli.common``.
-
-Every command imports its machinery only when it runs, so ``strain-comp --help`` and
-``--version`` stay fast. Exit codes are 0 (done), 2 (refused or failed), 70 (a fault of
-strain-comp itself), 130 (interrupted) and 143 (terminated by SIGTERM), nothing else.
-Every ``StrainCompError``, unreadable or missing file and usage error (argparse's
-included) ends the command with exit code 2 and exactly one line on stderr,
-``strain-comp: error: ...``. Any other exception is a bug, not the user's: one line
-``strain-comp: internal error: ...`` naming a file that holds the traceback
-(``--debug``: the traceback on stderr), exit code 70. Ctrl-C is one line
-``strain-comp: interrupted``, exit code 130.
-
-Inputs (bags, CSV files, calibrations, parameter files) must be regular files (a bag may be
-a rosbag2 directory): a FIFO or a device is refused before it is opened, so a command never
-blocks on one. Every output goes through ``strain_comp.io.atomic`` with the command's
-inputs, so an output that is an input (the same file, or a hard or symbolic link to it) or
-not a regular file is refused before any work is done, and a kill leaves the old file or
-the complete new one.
-
-Results (tables, readings, ``-`` outputs) go to stdout; notes (what was written, tares,
-out-of-range counts, skipped data) and progress go to stderr, and ``--quiet`` drops the
-notes. ``--json -`` and ``--csv -`` write to stdout; the table then goes to stderr, so stdout
-holds the JSON or CSV alone.
+"""The ``strain-comp`` command line (docs/design.md, "Command line": a contract, with the
+exit codes and what goes to stdout and stderr): one module per command (``NAME``,
+``SUMMARY``, ``DESCRIPTION``, ``EXAMPLE``, ``add_arguments(parser)``, ``run(args) -> int``),
+the parser assembled from them here. Every command imports its machinery only when it runs,
+so ``strain-comp --help`` and ``--version`` stay fast.
 """
 
 from __future__ import annotations

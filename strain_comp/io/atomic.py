@@ -1,16 +1,6 @@
-"""The one way strain_comp writes a file: atomically, and never over an input or a non-file.
-
-``atomic_output(path, inputs=...)`` yields a binary file object on a temporary file beside
-``path``; on a clean exit the data are fsynced, the temporary file is renamed over ``path``
-and the directory is fsynced, so a kill at any moment leaves the old file or the complete
-new one (and at most a hidden ``.NAME.*.tmp`` beside it). Concurrent writers to one path
-each rename a complete file: the last rename wins. Refused with ``OutputError`` before
-anything is written: a target that exists and is not a regular file (a directory, a device,
-a FIFO, a symbolic link), a target that is one of ``inputs`` (the same file, through a
-hard or symbolic link too), and two outputs of one command that are one path
-(``check_distinct``). A write that fails (a full disk, ``ulimit -f``) removes its temporary
-file and raises ``OutputError`` naming the target.
-"""
+"""The one way strain_comp writes a file: atomically (a temporary file beside it, fsynced,
+renamed), and never over an input or a non-file; refusals and write faults are one
+``OutputError`` naming the target (docs/reliability.md)."""
 
 from __future__ import annotations
 

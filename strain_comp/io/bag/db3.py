@@ -1,20 +1,7 @@
-"""rosbag2's sqlite3 storage (``.db3``, the default of Humble and Iron), read with sqlite.
-
-``db3_messages`` gives a ``.db3`` file's messages in time order, in blocks, as (topic, type
-name, time [ns], CDR payload); ``strain_comp.io.bag.reader`` decodes them exactly as it
-decodes an MCAP's messages, so a bag evaluates the same in either storage. The database is
-opened read-only and immutable with apsw (the sqlite binding rosbags uses) and read by our
-own queries, which ask sqlite for a value's type and size (``typeof``, ``octet_length``:
-read from the row's header, not its content) before the value is fetched: a message is
-fetched only within ``MAX_MESSAGE_BYTES``, a topic's names within ``MAX_NAME_BYTES``. Only
-what decoding needs is read (a topic's id, name, type and serialization format; a message's
-topic, time and data): QoS profiles and message definitions are never parsed. A row of the
-wrong type is skipped and counted; damage sqlite reports while reading ends the file with
-every message before it kept, a line in ``problems``. Payloads compressed per message
-(zstd, ``compression_mode: message``) are decompressed within ``MAX_MESSAGE_BYTES``; a file
-compressed whole (``compression_mode: file``, ``.db3.zstd``) is refused with how to
-decompress it.
-"""
+"""rosbag2's sqlite3 storage (``.db3``) read with apsw, read-only and immutable: a value's
+type and size are asked of sqlite before it is fetched, so every message and name is read
+within its budget; damage ends the file with every message before it kept
+(docs/reliability.md, "Bags")."""
 
 from __future__ import annotations
 

@@ -1,15 +1,6 @@
-"""MCAP bag writing: one time-ordered, chunked (zstd), fully indexed ros2-profile file.
-
-``BagWriter`` writes a header with profile ``ros2``, ros2msg schemas, channels with ``cdr``
-encoding, chunks with CRCs and message indexes, and a summary with schemas, channels,
-statistics, chunk indexes and summary offsets, so ``ros2 bag play``, ``rosbags`` and Foxglove
-read it. Payloads are CDR (``strain_comp.io.cdr``, the ``mcap_ros2`` encoder): Float64, Int8,
-Float64MultiArray, JointState and Temperature runs are built as numpy byte rows of one
-template (their layout is fixed for a topic), DiagnosticArray message by message (or
-already encoded for many messages at once: ``write_diagnostic_payloads``). The file's
-records (chunks, indexes, summary) are written by ``strain_comp.io.bag.stream``. Times are
-log times in seconds (float64), stored as integer ns.
-"""
+"""MCAP bag writing: one time-ordered, chunked (zstd), fully indexed ros2-profile file
+(docs/design.md, "Bags"); payloads of a fixed layout built as numpy rows of one template
+(``strain_comp.io.cdr``), the records written by ``strain_comp.io.bag.stream``."""
 
 from __future__ import annotations
 
