@@ -13,7 +13,7 @@ import numpy as np
 
 from strain_comp.errors import BagError
 from strain_comp.io.bag.decode import decode
-from strain_comp.io.bag.layout import bag_paths, per_message_zstd
+from strain_comp.io.bag.layout import bag_storage
 from strain_comp.io.bag.records import MAX_LOG_NS, Collector
 from strain_comp.io.bag.schemas import BagContents
 from strain_comp.io.bag.walk import storage_file
@@ -49,8 +49,7 @@ def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
 
 def _walk(path: Path, col: Collector) -> Iterator[Path]:
     """Collect every storage file of the bag into ``col``; yields the file after each record."""
-    files = bag_paths(path)
-    compressed = per_message_zstd(path, files)
+    files, compressed = bag_storage(path)
     for index, file in enumerate(files):
         col.file_index = index
         for _ in storage_file(col, file, compressed):
