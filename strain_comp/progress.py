@@ -1,9 +1,5 @@
-"""Progress bars for long work (an APL fit's grid, diagnose, many bags), with tqdm.
-
-A bar is drawn on stderr only when stderr is a terminal and the command is not ``--quiet``
-(``wanted``): a CI log (not a terminal) and a quiet command get nothing. Each caller opens
-one with ``bar`` and hands the long work a callable that moves it (``counter`` for done of
-total, ``grid_progress`` for an APL fit's grid lines); a disabled bar costs nothing.
+"""Progress bars for long work (an APL fit's grid, diagnose, many bags), with tqdm, drawn on
+stderr only when it is a terminal and the command is not ``--quiet`` (``wanted``).
 """
 
 from __future__ import annotations

@@ -420,7 +420,8 @@ about 5)."""
 def _check_marked_names() -> None:
     """A marked module or test that no longer exists is a mark lost: fail the collection."""
     files = {path.stem: path for path in Path(__file__).parent.rglob("test_*.py")}
-    missing = sorted((ROS_MODULES | SLOW_MODULES | set(SLOW_TESTS)) - set(files))
+    missing = sorted((ROS_MODULES | SLOW_MODULES | set(SLOW_TESTS) | set(LONGEST_FIRST))
+                     - set(files))
     for module, names in SLOW_TESTS.items():
         if module in files:
             text = files[module].read_text(encoding="utf-8")
@@ -429,19 +430,19 @@ def _check_marked_names() -> None:
         raise pytest.UsageError(f"test/conftest.py marks tests that do not exist: {missing}")
 
 
-HEAVY_FIRST = ("test_hostile", "test_diagnose", "test_ros2_cli", "test_api", "test_node_process",
-               "test_fuzz", "test_progress", "test_evaluate_stream", "test_diagnose_creep")
-"""The modules that take longest (``pytest --durations=60``: 300 s down to 35 s on one loaded
-worker), run first: ``--dist loadfile`` hands out modules in this order, so the last ones
-handed out are short and neither worker idles long at the end."""
+LONGEST_FIRST = ("test_ros2_cli", "test_diagnose", "test_node_process", "test_hostile",
+                 "test_api", "test_fuzz", "test_progress", "test_failed_writes",
+                 "test_diagnose_creep", "test_reliability", "test_evaluate_stream",
+                 "test_generalisation")
+"""The modules that take longest in a full run (``scripts/test.sh --durations=60``), longest
+first: they run first, so that neither worker of ``--dist loadfile`` (which hands files out
+in collection order) is left running one of them at the end while the other idles."""
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark each collected test ``ros`` and/or ``slow`` from the tables above; the heaviest
-    modules first."""
+    """Mark each collected test ``ros`` and/or ``slow`` from the tables above; the modules of
+    ``LONGEST_FIRST`` first, each module's tests kept together and in order."""
     _check_marked_names()
-    rank = {module: i for i, module in enumerate(HEAVY_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.stem, len(rank)))
     for item in items:
         module = item.path.stem
         name = getattr(item, "originalname", item.name)
@@ -449,6 +450,8 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.ros)
         if module in SLOW_MODULES or name in SLOW_TESTS.get(module, ()):
             item.add_marker(pytest.mark.slow)
+    rank = {module: i for i, module in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.stem, len(rank)))  # stable: order kept
 
 
 @pytest.fixture(scope="module", autouse=True)

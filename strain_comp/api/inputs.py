@@ -8,7 +8,7 @@ import os
 import reprlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeGuard
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration as _load_calibration
@@ -53,6 +53,14 @@ def _number(value: object) -> float | None:
         return float(value)
     except (TypeError, ValueError):
         return None
+
+
+def _pair(value: object) -> tuple[float, float] | None:
+    """``value`` as two floats when it holds exactly two real numbers, else None."""
+    numbers = [_number(v) for v in _items(value) or []]
+    if len(numbers) != 2 or numbers[0] is None or numbers[1] is None:
+        return None
+    return numbers[0], numbers[1]
 
 
 def checked(value: Any, kind: Kind, what: str, *, optional: bool = True) -> Any:
@@ -104,27 +112,24 @@ def checked(value: Any, kind: Kind, what: str, *, optional: bool = True) -> Any:
             raise bad
         return number
     if kind == "window":
-        items = _items(value) or []
-        pair = [n for n in (_number(v) for v in items) if n is not None]
-        if len(pair) != 2 or len(items) != 2 or \
-                not 0.0 <= pair[0] < pair[1] < math.inf:
+        pair = _pair(value)
+        if pair is None or not 0.0 <= pair[0] < pair[1] < math.inf:
             raise bad
-        return pair[0], pair[1]
+        return pair
     rows = _items(value)
     if rows is None:
         raise bad
     points = []
     for row in rows:
-        items = _items(row) or []
-        pair = [n for n in (_number(v) for v in items) if n is not None]
-        if len(pair) != 2 or len(items) != 2:
+        point = _pair(row)
+        if point is None:
             raise InputError(f"{what}: point {reprlib.repr(row)}: expected (resistance "
                              "[ohm], strain), two numbers")
-        points.append((pair[0], pair[1]))
+        points.append(point)
     return points
 
 
-def is_path(data: object) -> bool:
+def is_path(data: object) -> TypeGuard[str | os.PathLike[str]]:
     """Is ``data`` one path (str or ``os.PathLike``)?
 
     Args:
@@ -150,7 +155,7 @@ def paths_of(data: object) -> list[str] | None:
         InputError: A path is missing, unreadable, or neither a file nor a directory.
 
     """
-    if isinstance(data, (str, os.PathLike)):
+    if is_path(data):
         return [existing(data, "bag", directory=True)]
     if isinstance(data, (list, tuple)) and data and all(is_path(p) for p in data):
         return [existing(p, "bag", directory=True) for p in data]
@@ -226,8 +231,8 @@ def as_calibration(calibration: CalibrationLike) -> Calibration:
     """
     if isinstance(calibration, Calibration):
         return calibration
-    if isinstance(calibration, (str, os.PathLike)):
-        return _load_calibration(existing(calibration, "calibration file"))
+    if is_path(calibration):
+        return load_calibration(os.fspath(calibration))
     raise InputError(f"expected a Calibration or the path of a calibration file, got "
                      f"{type(calibration).__name__}")
 
@@ -250,10 +255,9 @@ def read_recordings(path: PathLike, *, report: Callable[[str], None] | None = No
         BagError: The bag cannot be read.
 
     """
-
     recordings, problems = load_recordings(existing(path, "bag", directory=True))
-    for line in problems:
-        if report is not None:
+    if report is not None:
+        for line in problems:
             report(line)
     return recordings
 

@@ -1,6 +1,8 @@
-"""The ``strain-comp`` command line (docs/design.md, "Command line"): one module per command,
-the parser assembled from them here, what they share in ``strain_comp.cli.common`` (exit
-codes, inputs, outputs and streams: docs/architecture.md, "Inside the modules").
+"""The ``strain-comp`` command line (docs/design.md, "Command line": a contract, with the
+exit codes and what goes to stdout and stderr): one module per command (``NAME``,
+``SUMMARY``, ``DESCRIPTION``, ``EXAMPLE``, ``add_arguments(parser)``, ``run(args) -> int``),
+the parser assembled from them here. Every command imports its machinery only when it runs,
+so ``strain-comp --help`` and ``--version`` stay fast.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from strain_comp.cli.common import PROG, note, output
 from strain_comp.errors import InputError
@@ -51,30 +51,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="field delimiter (default: detected among tab ; , | and spaces)")
 
 
+def _key_values(items: Sequence[str], flag: str, form: str) -> Iterator[tuple[str, str, str]]:
+    """(item, key, value) of each ``KEY=VALUE`` of comma-separated ``items``."""
+    for item in (part for text in items for part in text.split(",") if part.strip()):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise InputError(f"{flag} {item!r}: expected {form}")
+        yield item, key.strip(), value.strip()
+
+
 def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
     """``["time=0,resistance=3", "strain=ext_mm"]`` -> {key: column index or header name}."""
     columns: dict[str, int | str] = {}
-    for item in (part for text in items for part in text.split(",") if part.strip()):
-        key, sep, column = item.partition("=")
-        if not sep or not key.strip() or not column.strip():
-            raise InputError(f"--columns {item!r}: expected KEY=COLUMN (index or header name)")
-        column = column.strip()
+    for _, key, column in _key_values(items, "--columns", "KEY=COLUMN (index or header name)"):
         # an index is ASCII digits only ("²" is a digit to str.isdigit, not to int)
-        columns[key.strip()] = int(column) if column.isascii() and column.isdigit() else column
+        columns[key] = int(column) if column.isascii() and column.isdigit() else column
     return columns
 
 
 def parse_scales(items: Sequence[str]) -> dict[str, float]:
     """``["time=1e-3,resistance=1000"]`` -> {key: factor}."""
+    form = "KEY=FACTOR, e.g. time=1e-3"
     scales: dict[str, float] = {}
-    for item in (part for text in items for part in text.split(",") if part.strip()):
-        key, sep, value = item.partition("=")
+    for item, key, value in _key_values(items, "--scales", form):
         try:
-            scales[key.strip()] = float(value)
+            scales[key] = float(value)
         except ValueError:
-            sep = ""
-        if not sep or not key.strip():
-            raise InputError(f"--scales {item!r}: expected KEY=FACTOR, e.g. time=1e-3")
+            raise InputError(f"--scales {item!r}: expected {form}") from None
     return scales
 
 

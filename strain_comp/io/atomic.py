@@ -1,16 +1,6 @@
-"""The one way strain_comp writes a file: atomically, and never over an input or a non-file.
-
-``atomic_output(path, inputs=...)`` yields a binary file object on a temporary file beside
-``path``; on a clean exit the data are fsynced, the temporary file is renamed over ``path``
-and the directory is fsynced, so a kill at any moment leaves the old file or the complete
-new one (and at most a hidden ``.NAME.*.tmp`` beside it). Concurrent writers to one path
-each rename a complete file: the last rename wins. Refused with ``OutputError`` before
-anything is written: a target that exists and is not a regular file (a directory, a device,
-a FIFO, a symbolic link), a target that is one of ``inputs`` (the same file, through a
-hard or symbolic link too), and two outputs of one command that are one path
-(``check_distinct``). A write that fails (a full disk, ``ulimit -f``) removes its temporary
-file and raises ``OutputError`` naming the target.
-"""
+"""The one way strain_comp writes a file: atomically (a temporary file beside it, fsynced,
+renamed), and never over an input or a non-file; refusals and write faults are one
+``OutputError`` naming the target (docs/reliability.md)."""
 
 from __future__ import annotations
 
@@ -106,11 +96,23 @@ class AtomicFile:
         self.handle: BinaryIO = os.fdopen(fd, "wb")
         self.done = False
 
+    @contextmanager
+    def discarded_on_error(self) -> Iterator[None]:
+        """Discard on any error; an OSError raised as ``OutputError`` naming the target."""
+        try:
+            yield
+        except OSError as err:
+            self.discard()
+            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from None
+        except BaseException:
+            self.discard()
+            raise
+
     def commit(self) -> None:
         """Flush, fsync, rename over the target and fsync the directory (once)."""
         if self.done:
             return
-        try:
+        with self.discarded_on_error():
             with self.handle:
                 self.handle.flush()
                 os.fchmod(self.handle.fileno(), _file_mode(self.path))
@@ -119,12 +121,6 @@ class AtomicFile:
             os.replace(self.tmp, self.path)
             self.done = True
             fsync_directory(self.path.parent)
-        except OSError as err:
-            self.discard()
-            raise OutputError(f"{self.path}: cannot write: {err.strerror or err}") from None
-        except BaseException:
-            self.discard()
-            raise
 
     def discard(self) -> None:
         """Close and delete the temporary file; the target is left as it was (once)."""
@@ -143,14 +139,8 @@ class AtomicFile:
 def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterator[BinaryIO]:
     """A binary file that replaces ``path`` only once it is complete."""
     output = AtomicFile(path, inputs=inputs)
-    try:
+    with output.discarded_on_error():
         yield output.handle
-    except OSError as err:
-        output.discard()
-        raise OutputError(f"{output.path}: cannot write: {err.strerror or err}") from None
-    except BaseException:
-        output.discard()
-        raise
     output.commit()
 
 

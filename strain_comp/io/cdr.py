@@ -1,15 +1,7 @@
-"""CDR payloads of the message types strain_comp writes (those of
-``strain_comp.io.bag.schemas.SCHEMAS``), serialised by ``mcap_ros2``'s encoder (the
-reader's decoder library) from those schema texts, so the wire format is the library's.
-
-``message_encoder(kind)`` gives a ``dict -> bytes`` encoder of the standard field names.
-Runs of messages whose layout is fixed for a topic (Float64MultiArray, JointState,
-Temperature) are written as numpy rows of one template: the template is a message the
-library serialises once, and where its values sit is where a second serialisation with
-other values differs from it. The node's prebuilt blocks (``strain_comp.ros.cdr``) are cut
-from the same templates. ``test_cdr`` checks the encoders byte for byte against ``rosbags``'
-serialiser.
-"""
+"""CDR payloads of the message types strain_comp writes, serialised by ``mcap_ros2``'s
+encoder from ``SCHEMAS``. A fixed-layout message (Float64MultiArray, JointState,
+Temperature) is a template the library serialises once; where its values sit is where a
+second serialisation with other values differs from it."""
 
 from __future__ import annotations
 

@@ -1,11 +1,7 @@
-"""diagnostic_msgs/msg/DiagnosticArray payloads of many messages at once, the same bytes
-as ``strain_comp.io.cdr.diagnostic_array`` message by message: replay writes one per
-``diagnostics_period`` of log time, so a long, sparse bag holds as many messages as
-samples. Every message of a call has the same statuses and keys; each text is either
-constant or one per message (a byte-string or integer column). The layout (the CDR walk
-of ``cdr.diagnostic_array``: each string a uint32 length with the NUL, its UTF-8 bytes and
-the NUL, 4-aligned from the end of the encapsulation header) is compiled once into a list
-of operations, which a compiled loop (``_place``) walks for every message."""
+"""DiagnosticArray payloads of many messages at once, the same bytes as
+``cdr.diagnostic_array`` message by message (replay writes one per ``diagnostics_period``):
+the layout is compiled once into a list of operations that a compiled loop (``_place``)
+walks for every message."""
 
 from __future__ import annotations
 

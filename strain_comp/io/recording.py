@@ -166,24 +166,28 @@ def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.n
     out = np.full(t.shape, np.nan)
     if t_src.size == 0:
         return out
-    order = np.argsort(t_src, kind="stable")
-    t_src, values = t_src[order], values[order]
-    last = np.append(t_src[1:] != t_src[:-1], True)
-    t_src, values = t_src[last], values[last]
+    t_src, values = _sorted_last(t_src, values)
     inside = (t >= t_src[0]) & (t <= t_src[-1])
     out[inside] = np.interp(t[inside], t_src, values)
     return out
 
 
+def _sorted_last(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples in time order, the last one kept of those at one time."""
+    order = np.argsort(t, kind="stable")
+    t, values = t[order], values[order]
+    last = np.append(t[1:] != t[:-1], True)
+    return t[last], values[last]
+
+
 class PieceAlign:
-    """``align`` of a source series onto target stamps when both arrive in time-ordered
-    pieces (``iter_bag``), equal to ``align`` over the whole series."""
+    """``align`` over pieces that arrive in time order (``iter_bag``), equal to ``align``
+    over the whole series."""
 
     def __init__(self) -> None:
         self.exact = True
         self.finished = False
-        self.copied: list[np.ndarray] = []
-        """Copied values of the leading waiting targets (pieces with identical stamps)."""
+        self.copied: list[np.ndarray] = []  # values of the leading targets, stamps identical
         self.src_t = np.empty(0)
         self.src_v = np.empty(0)
 
@@ -199,12 +203,8 @@ class PieceAlign:
         ok = np.isfinite(t_src) & np.isfinite(values)
         if not ok.any():
             return
-        t_src = np.concatenate((self.src_t, t_src[ok]))
-        values = np.concatenate((self.src_v, values[ok]))
-        order = np.argsort(t_src, kind="stable")
-        t_src, values = t_src[order], values[order]
-        last = np.append(t_src[1:] != t_src[:-1], True)
-        self.src_t, self.src_v = t_src[last], values[last]
+        self.src_t, self.src_v = _sorted_last(np.concatenate((self.src_t, t_src[ok])),
+                                              np.concatenate((self.src_v, values[ok])))
         if self.exact:  # held for the piece where the stamps first differ
             self.src_t, self.src_v = self.src_t[-1:], self.src_v[-1:]
 

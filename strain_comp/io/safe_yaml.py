@@ -1,5 +1,13 @@
-"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range
-(docs/architecture.md, "Inside the modules").
+"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range.
+
+``load_limited(text, ...)`` is ``yaml.safe_load`` that raises ``LimitError`` instead of
+expanding a "billion laughs" document, recursing into 1,000 levels of nesting
+(``RecursionError``) or building an integer no float can hold (``OverflowError`` later);
+every other fault is the usual ``yaml.YAMLError``. Used for calibration files and rosbag2
+``metadata.yaml``. A document of plain mappings, sequences and untagged scalars (every
+calibration file) is built straight from the parser's events with the limits counted on
+the way (``_build_plain``); any other has the limits checked on the events first, then is
+composed and constructed by the loader (libyaml's where installed).
 """
 
 from __future__ import annotations
@@ -17,31 +25,6 @@ class LimitError(Exception):
     """A YAML document exceeds a limit of ``load_limited``."""
 
 
-class _LimitedLoader(yaml.SafeLoader):
-    """yaml.SafeLoader that counts aliases and nesting while it composes, and refuses
-    integers that no float can hold."""
-
-    def __init__(self, stream: str, max_aliases: int, max_depth: int) -> None:
-        super().__init__(stream)
-        self.max_aliases = max_aliases
-        self.max_depth = max_depth
-        self.n_aliases = 0
-        self.depth = 0
-
-    def compose_node(self, parent: Any, index: Any) -> Any:
-        if self.check_event(yaml.AliasEvent):
-            self.n_aliases += 1
-            if self.n_aliases > self.max_aliases:
-                raise LimitError(f"more than {self.max_aliases} YAML aliases")
-        self.depth += 1
-        try:
-            if self.depth > self.max_depth:
-                raise LimitError(f"nested more than {self.max_depth} deep")
-            return super().compose_node(parent, index)
-        finally:
-            self.depth -= 1
-
-
 def _construct_int(loader: Any, node: Any) -> int:
     """An integer; a ConstructorError for one that no float can hold."""
     try:
@@ -55,28 +38,17 @@ def _construct_int(loader: Any, node: Any) -> int:
     return value
 
 
-_LimitedLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
-
 _STR, _FLOAT, _INT, _BOOL, _NULL = (f"tag:yaml.org,2002:{kind}"
                                     for kind in ("str", "float", "int", "bool", "null"))
-_CSafeLoader: Any = getattr(yaml, "CSafeLoader", None)
-if _CSafeLoader is not None:
-    class _LimitedCLoader(yaml.CSafeLoader):
-        """libyaml's SafeLoader refusing integers that no float can hold; plain strings,
-        floats and integers are built without the generic constructor's bookkeeping (a
-        third of a large calibration's load)."""
+_SafeLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
-        def construct_object(self, node: Any, deep: bool = False) -> Any:
-            if node.__class__ is yaml.ScalarNode:
-                if node.tag == _STR:
-                    return node.value
-                if node.tag == _FLOAT:
-                    return self.construct_yaml_float(node)
-                if node.tag == _INT:
-                    return _construct_int(self, node)
-            return super().construct_object(node, deep)
 
-    _LimitedCLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+class _Loader(_SafeLoader):  # type: ignore[misc]
+    """libyaml's SafeLoader (the pure-Python one without libyaml), refusing integers that
+    no float can hold."""
+
+
+_Loader.add_constructor("tag:yaml.org,2002:int", _construct_int)
 
 
 class _NotPlain(Exception):
@@ -117,7 +89,7 @@ def _plain_scalar(event: Any, constructor: yaml.constructor.SafeConstructor) -> 
 
 
 def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
-    """The single YAML document in ``text`` built from libyaml's events (iterative), within
+    """The single YAML document in ``text`` built from the parser's events (iterative), within
     the node and nesting limits as ``_check_events`` counts them; ``_NotPlain`` for a
     document holding an anchor, an alias, an explicit tag, a complex key, a scalar other
     than a string, float, integer, bool or null, or a second document."""
@@ -127,7 +99,7 @@ def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
     root: Any = None
     nodes = 0
     documents = 0
-    events: Iterator[Any] = yaml.parse(text, Loader=_CSafeLoader)
+    events: Iterator[Any] = yaml.parse(text, Loader=_Loader)
     for event in events:
         kind = event.__class__
         if kind is yaml.ScalarEvent or kind is yaml.MappingStartEvent \
@@ -172,11 +144,10 @@ def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
 
 
 def _check_events(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> int:
-    """The alias and nesting limits on libyaml's events (iterative), as ``_LimitedLoader``
-    counts them while composing: a node's depth counts the collections around it, plus 1.
-    Returns the number of aliases (none: the document holds at most ``max_nodes`` values)."""
+    """The alias and nesting limits on the parser's events (iterative, before any node is
+    composed); the number of aliases (none: the document holds at most ``max_nodes``)."""
     depth = aliases = nodes = 0
-    for event in yaml.parse(text, Loader=_CSafeLoader):
+    for event in yaml.parse(text, Loader=_Loader):
         if isinstance(event, yaml.AliasEvent):
             aliases += 1
             if aliases > max_aliases:
@@ -263,20 +234,14 @@ def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_00
 
 def _load(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> Any:
     """``load_limited`` with the collector as it is."""
-    loader: Any = None
-    aliases = 1  # unknown: the expansion is checked
     _check_flow_depth(text, max_depth)
-    if _CSafeLoader is not None:
-        try:
-            return _build_plain(text, max_nodes, max_depth)
-        except _NotPlain:
-            pass
     try:
-        if _CSafeLoader is not None:
-            aliases = _check_events(text, max_aliases, max_nodes, max_depth)
-            loader = _LimitedCLoader(text)
-        else:
-            loader = _LimitedLoader(text, max_aliases, max_depth)
+        return _build_plain(text, max_nodes, max_depth)
+    except _NotPlain:
+        pass
+    aliases = _check_events(text, max_aliases, max_nodes, max_depth)
+    loader = _Loader(text)
+    try:
         node = loader.get_single_node()
         if node is None:
             return None
@@ -284,5 +249,4 @@ def _load(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> Any:
             _check_expansion(node, max_nodes, max_depth)
         return loader.construct_document(node)
     finally:
-        if loader is not None:
-            loader.dispose()
+        loader.dispose()

@@ -1,6 +1,7 @@
-"""rosbag2's sqlite3 storage (``.db3``) read with our own sqlite queries within budgets
-(docs/architecture.md, "Inside the modules").
-"""
+"""rosbag2's sqlite3 storage (``.db3``) read with apsw, read-only and immutable: a value's
+type and size are asked of sqlite before it is fetched, so every message and name is read
+within its budget; damage ends the file with every message before it kept
+(docs/reliability.md, "Bags")."""
 
 from __future__ import annotations
 

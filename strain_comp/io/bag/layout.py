@@ -28,8 +28,8 @@ def _inside(path: Path, file: Path) -> bool:
 
 
 def _metadata(meta: Path) -> dict[str, Any]:
-    """rosbag2's metadata.yaml within ``MAX_METADATA_BYTES``; BagError (one line) when it is
-    unreadable or ``rosbag2_bagfile_information`` is not a mapping."""
+    """``rosbag2_bagfile_information`` of a metadata.yaml within ``MAX_METADATA_BYTES``;
+    BagError (one line) when it is unreadable or not a mapping."""
     try:
         with meta.open("rb") as handle:
             data = handle.read(MAX_METADATA_BYTES + 1)
@@ -42,19 +42,18 @@ def _metadata(meta: Path) -> dict[str, Any]:
     where = "rosbag2_bagfile_information"
     if not isinstance(info, dict) or not isinstance(info.get(where, {}), dict):
         raise BagError(f"{meta}: {where} must be a mapping")
-    return info
+    bagfile: dict[str, Any] = info.get(where, {})
+    return bagfile
 
 
-def _metadata_files(path: Path, meta: Path) -> list[Path]:
-    """The files ``metadata.yaml`` lists (``rosbag2_bagfile_information.
-    relative_file_paths``) that exist, each once; BagError (one line) for unreadable
-    metadata, a field of the wrong type, more than ``MAX_STORAGE_FILES`` files, or a path
-    that is absolute, holds ``..`` or leads out of ``path``."""
-    info = _metadata(meta)
-    where = "rosbag2_bagfile_information"
-    rel = info.get(where, {}).get("relative_file_paths", [])
+def _metadata_files(path: Path, meta: Path, info: dict[str, Any]) -> list[Path]:
+    """The files metadata.yaml lists (``relative_file_paths``) that exist, each once;
+    BagError (one line) for a field of the wrong type, more than ``MAX_STORAGE_FILES``
+    files, or a path that is absolute, holds ``..`` or leads out of ``path``."""
+    rel = info.get("relative_file_paths", [])
     if not isinstance(rel, list) or not all(isinstance(p, str) for p in rel):
-        raise BagError(f"{meta}: {where}.relative_file_paths must be a list of strings")
+        raise BagError(f"{meta}: rosbag2_bagfile_information.relative_file_paths must be a "
+                       "list of strings")
     rel = list(dict.fromkeys(rel))
     _bounded(meta, rel)
     for p in rel:
@@ -78,13 +77,23 @@ def _bounded(where: Path, files: list[str] | list[Path]) -> None:
                        "are read")
 
 
-def _bag_files(path: Path) -> list[Path]:
-    """The .mcap (or .db3) files of a rosbag2 directory, in metadata.yaml order when it
-    lists them, each once; only regular files inside the directory (a symbolic link out of
-    it is not read). Files compressed whole (``.zstd``) are refused, with how to decompress
-    them."""
+def bag_storage(path: Path) -> tuple[list[Path], bool]:
+    """The storage files (MCAP, sqlite3) of a bag, checked before anything is opened (a FIFO
+    would block), and whether their messages are compressed one by one. A rosbag2
+    directory's files in metadata.yaml order when it lists them, each once, only regular
+    files inside the directory; files compressed whole (``.zstd``) are refused, with how to
+    decompress them."""
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
+    if not (path.is_dir() or path.is_file()):
+        raise BagError(f"{path}: not a regular file or a rosbag2 directory")
+    if path.is_file():
+        if path.suffix == ".zstd":
+            refuse_compressed_file(path)
+        return [path], False
     meta = path / "metadata.yaml"
-    files = _metadata_files(path, meta) if _inside(path, meta) else []
+    info = _metadata(meta) if _inside(path, meta) else {}
+    files = _metadata_files(path, meta, info)
     if not files:
         files = [f for pattern in ("*.mcap", "*.db3", "*.mcap.zstd", "*.db3.zstd")
                  for f in sorted(path.glob(pattern)) if _inside(path, f)]
@@ -94,28 +103,12 @@ def _bag_files(path: Path) -> list[Path]:
     for file in files:
         if file.suffix == ".zstd":
             refuse_compressed_file(file)
-    return files
+    return files, _per_message_zstd(meta, info, files)
 
 
-def bag_paths(path: Path) -> list[Path]:
-    """The storage files (MCAP, sqlite3) of a bag, checked before anything is opened (a FIFO
-    would block)."""
-    if not path.exists():
-        raise BagError(f"{path}: no such bag")
-    if not (path.is_dir() or path.is_file()):
-        raise BagError(f"{path}: not a regular file or a rosbag2 directory")
-    if path.is_file() and path.suffix == ".zstd":
-        refuse_compressed_file(path)
-    return _bag_files(path) if path.is_dir() else [path]
-
-
-def per_message_zstd(path: Path, files: list[Path]) -> bool:
-    """Are the messages of the bag's storage files compressed one by one? A rosbag2
-    directory says so in metadata.yaml (``compression_mode: message``); read once per bag."""
-    meta = path / "metadata.yaml"
-    if not (path.is_dir() and _inside(path, meta)):
-        return False
-    info = _metadata(meta).get("rosbag2_bagfile_information", {})
+def _per_message_zstd(meta: Path, info: dict[str, Any], files: list[Path]) -> bool:
+    """Are the messages compressed one by one (metadata.yaml's ``compression_mode:
+    message``)? BagError for any other compression."""
     mode = str(info.get("compression_mode") or "").lower()
     if mode in ("", "none"):
         return False

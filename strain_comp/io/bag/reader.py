@@ -1,13 +1,7 @@
-"""Reading a bag: ``read_bag`` (whole), ``iter_bag`` (piece by piece in log-time order) and
-``raw_messages`` (payloads not decoded), for a bare ``.mcap`` or ``.db3`` file or a rosbag2
-directory.
-
-Each storage file is walked from its start (``walk``), never through its summary, so a
-damaged file still yields every complete message before the damage and resumes at the next
-intact chunk (``chunks``); messages are located in bulk (``records``) and decoded by topic
-(``decode``). What was skipped is a line in ``BagContents.problems``; the budgets are in
-docs/reliability.md ("Bags").
-"""
+"""Reading a bag (a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory): ``read_bag``
+(whole), ``iter_bag`` (pieces in log-time order), ``raw_messages`` (not decoded). Each
+storage file is walked from its start, never through its summary, so a damaged file still
+yields every complete message (docs/reliability.md, "Bags")."""
 
 from __future__ import annotations
 
@@ -19,7 +13,7 @@ import numpy as np
 
 from strain_comp.errors import BagError
 from strain_comp.io.bag.decode import decode
-from strain_comp.io.bag.layout import bag_paths, per_message_zstd
+from strain_comp.io.bag.layout import bag_storage
 from strain_comp.io.bag.records import MAX_LOG_NS, Collector
 from strain_comp.io.bag.schemas import BagContents
 from strain_comp.io.bag.walk import storage_file
@@ -46,15 +40,20 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
 def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
     """Every message of the bag at ``path`` located, within ``MAX_BAG_BYTES``."""
     col = Collector(set(topics) if topics is not None else None)
-    files = bag_paths(path)
-    compressed = per_message_zstd(path, files)
+    for file in _walk(path, col):
+        if col.held > MAX_BAG_BYTES:
+            raise BagError(f"{file}: more than {MAX_BAG_BYTES} bytes of messages to hold "
+                           "at once (the whole-bag reader's budget)")
+    return col
+
+
+def _walk(path: Path, col: Collector) -> Iterator[Path]:
+    """Collect every storage file of the bag into ``col``; yields the file after each record."""
+    files, compressed = bag_storage(path)
     for index, file in enumerate(files):
         col.file_index = index
         for _ in storage_file(col, file, compressed):
-            if col.held > MAX_BAG_BYTES:
-                raise BagError(f"{file}: more than {MAX_BAG_BYTES} bytes of messages to hold "
-                               "at once (the whole-bag reader's budget)")
-    return col
+            yield file
 
 
 def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
@@ -92,18 +91,14 @@ def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     path = Path(path)
     col = Collector(set(topics) if topics is not None else None)
     cut: int | None = None
-    files = bag_paths(path)
-    compressed = per_message_zstd(path, files)
-    for index, file in enumerate(files):
-        col.file_index = index
-        for _ in storage_file(col, file, compressed):
-            if sum(m.size for m in col.msg_time) >= window or col.held >= MAX_HELD_BYTES:
-                piece, cut = _take(col, col.chunk_start, cut)
-                if piece is None and col.held >= MAX_HELD_BYTES:  # no cut frees memory
-                    piece, cut = _take(col, None, cut)
-                if piece is not None:
-                    piece.problems[:] = located(path, piece.problems)
-                    yield piece
+    for _ in _walk(path, col):
+        if sum(m.size for m in col.msg_time) >= window or col.held >= MAX_HELD_BYTES:
+            piece, cut = _take(col, col.chunk_start, cut)
+            if piece is None and col.held >= MAX_HELD_BYTES:  # no cut frees memory
+                piece, cut = _take(col, None, cut)
+            if piece is not None:
+                piece.problems[:] = located(path, piece.problems)
+                yield piece
     piece, _ = _take(col, None, cut)
     if piece is None:
         piece = BagContents(problems=col.problems)

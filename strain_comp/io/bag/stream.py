@@ -165,12 +165,9 @@ class Stream:
     def finish(self) -> None:
         """Data end, summary (schemas, channels, statistics, chunk indexes), footer; then
         the atomic rename."""
-        try:
+        with self._output.discarded_on_error():
             self._finish()
-            self._output.commit()
-        except OSError as exc:
-            self.abort()
-            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
+        self._output.commit()
 
     def _finish(self) -> None:
         self._write(_record(DataEnd(data_section_crc=0)))

@@ -1,15 +1,6 @@
-"""MCAP bag writing: one time-ordered, chunked (zstd), fully indexed ros2-profile file.
-
-``BagWriter`` writes a header with profile ``ros2``, ros2msg schemas, channels with ``cdr``
-encoding, chunks with CRCs and message indexes, and a summary with schemas, channels,
-statistics, chunk indexes and summary offsets, so ``ros2 bag play``, ``rosbags`` and Foxglove
-read it. Payloads are CDR (``strain_comp.io.cdr``, the ``mcap_ros2`` encoder): Float64, Int8,
-Float64MultiArray, JointState and Temperature runs are built as numpy byte rows of one
-template (their layout is fixed for a topic), DiagnosticArray message by message (or
-already encoded for many messages at once: ``write_diagnostic_payloads``). The file's
-records (chunks, indexes, summary) are written by ``strain_comp.io.bag.stream``. Times are
-log times in seconds (float64), stored as integer ns.
-"""
+"""MCAP bag writing: one time-ordered, chunked (zstd), fully indexed ros2-profile file
+(docs/design.md, "Bags"); payloads of a fixed layout built as numpy rows of one template
+(``strain_comp.io.cdr``), the records written by ``strain_comp.io.bag.stream``."""
 
 from __future__ import annotations
 
@@ -42,6 +33,14 @@ def _stamps(t_ns: np.ndarray) -> np.ndarray:
     stamps = np.empty(t_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])
     stamps["sec"], stamps["nanosec"] = np.divmod(t_ns, 10**9)
     return stamps.view(np.uint8).reshape(-1, 8)
+
+
+def _stamped_rows(template: bytes, s_ns: np.ndarray) -> np.ndarray:
+    """One copy of ``template`` (a message with a header) per stamp [ns], each stamped."""
+    rows = np.empty((s_ns.size, len(template)), np.uint8)
+    rows[:] = np.frombuffer(template, np.uint8)
+    rows[:, 4:12] = _stamps(s_ns)
+    return rows
 
 
 def _cdr_rows(header_and_prefix: bytes, values: np.ndarray) -> np.ndarray:
@@ -116,7 +115,7 @@ class BagWriter:
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add std_msgs/msg/Float64 messages, one per (t, value)."""
         v = np.asarray(values, dtype="<f8").reshape(-1, 1)
-        self._add(topic, "std_msgs/msg/Float64", _ns(t), _cdr_rows(b"\0\1\0\0", v))
+        self._add(topic, "std_msgs/msg/Float64", _ns(t), _cdr_rows(cdr.ENCAPSULATION, v))
 
     def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add std_msgs/msg/Int8 messages, one per (t, value)."""
@@ -124,7 +123,7 @@ class BagWriter:
         if v.size and (np.abs(v) > 128).any():
             raise BagError(f"{topic}: Int8 values out of range")
         v = v.astype(np.int8).reshape(-1, 1)
-        self._add(topic, "std_msgs/msg/Int8", _ns(t), _cdr_rows(b"\0\1\0\0", v))
+        self._add(topic, "std_msgs/msg/Int8", _ns(t), _cdr_rows(cdr.ENCAPSULATION, v))
 
     def write_float64_array(self, topic: str, t: npt.ArrayLike, values2d: npt.ArrayLike,
                             labels: Sequence[str]) -> None:
@@ -147,15 +146,13 @@ class BagWriter:
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, k)
         template, pos_at, vel_at = cdr.joint_state_layout(frame_id, names,
                                                           velocity=velocity is not None)
-        rows = np.empty((t_ns.size, len(template)), np.uint8)
-        rows[:] = np.frombuffer(template, np.uint8)
         s_ns = t_ns if stamp is None else _ns(stamp)
         if s_ns.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {s_ns.size} stamps")
         if s_ns.size and int(s_ns.max()) >= 2**31 * 10**9:
             raise BagError(f"{topic}: stamps after 2038-01-19 do not fit "
                            "builtin_interfaces/Time")
-        rows[:, 4:12] = _stamps(s_ns)
+        rows = _stamped_rows(template, s_ns)
         rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
         if vel_at is not None:
             v = np.asarray(velocity, dtype="<f8").reshape(t_ns.size, k)
@@ -170,9 +167,7 @@ class BagWriter:
         if v.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {v.size} values")
         template, value_at = cdr.temperature_layout(frame_id, variance)
-        rows = np.empty((t_ns.size, len(template)), np.uint8)
-        rows[:] = np.frombuffer(template, np.uint8)
-        rows[:, 4:12] = _stamps(t_ns)
+        rows = _stamped_rows(template, t_ns)
         rows[:, value_at:value_at + 8] = v.view(np.uint8).reshape(-1, 8)
         self._add(topic, "sensor_msgs/msg/Temperature", t_ns, rows)
 
