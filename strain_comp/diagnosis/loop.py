@@ -1,91 +1,7 @@
 """The residual loop (docs/design.md, "The residual loop"): find the effect a calibration lacks,
 add it as an explicit online term, and report the error before and after on held-out data.
 
-Per calibrated sensor that has a recording with a reference strain:
-
-1. **Residual.** The calibration, with its effect terms removed, runs through the engine's
-   batch path (``Engine.run``, the code replay and the node use) to give the model's own
-   estimate S_hat and the published direction d; the sensor's existing effect terms (if
-   any) are applied on top, and e = S_corrected - S over the samples the engine used whose
-   reference is finite. Effect state restarts at the engine's gap resets, as online.
-   A run that starts while its resistance still relaxes from a stretch before the
-   recording (``strain_comp.core.tare.unsettled_start``: the rest before the reference
-   first moves drifts as the automatic tare refuses; judged on the resistance, and timed
-   from the first sample with a reference) leaves that rest out of steps 3-6, in fit and
-   validation runs alike: no term whose state starts at the first sample can know that
-   earlier stretch, and those samples would decide the intercept every term is fitted
-   with. The engine still applies the terms there online; the message says what was left
-   out.
-2. **Candidates.** Every regressor of ``default_candidates`` (``strain_comp.core.effects``: rate,
-   direction, creep (one Prony-series state of the estimate or of 100 ln R each, 0.25-362
-   s; ``report.creep_tau``), relaxation after loading or unloading steps only (0.5-128 s),
-   a fading memory of the resistance itself (peak, trough of 100 ln R, 1-256 s),
-   elapsed-time drift, temperature when a temperature series exists, strain level,
-   Mullins-type history incl. the peak strain, cross-talk from array neighbours at index
-   +-1, and a per-run ``baseline``) is computed online over each recording, exactly as
-   the engine would compute it. Nothing about how the data were made is known.
-3. **Blocks.** Each recording is cut by time into ``n_blocks`` contiguous blocks (never
-   random samples). Without validation recordings, every ``round(1 / holdout_fraction)``-th
-   block is held out for the final report; the other blocks are the fit data.
-4. **Scores.** Blocked cross-validation on the fit data (leave one block position out of
-   every recording per fold): a model is e ~ c0 + sum_j c_j g_j fitted by least squares on
-   the other folds and scored on the held-out fold. A candidate's ``score`` is the share of
-   the residual variance it explains on data it was not fitted on, relative to the
-   intercept-only model (for ``offset`` and ``baseline``: relative to no correction).
-   Scores can be negative (the term only fits noise).
-5. **Greedy forward selection.** Add the candidate whose relative drop of the
-   cross-validated RMSE is largest, refit, repeat while that gain exceeds ``margin``, the
-   fold-wise drop is positive by more than ``SIGNIFICANCE`` standard errors (a term that
-   helps in a few stretches of the record and hurts in others fits a coincidence of the
-   profile), and at most ``max_effects`` times. The intercept (an effect of kind
-   ``offset``) is fitted with any added effect and stored with it; an effect's gain is
-   measured against the current model *with* the intercept, so an effect never gets the
-   credit of a mere offset (the offset competes as a candidate of its own).
-6. **Report.** The selected terms are fitted on all fit data; RMSE before and after is
-   measured on the held-out blocks or on the ``validate_recordings``. An effect is kept
-   if it lowers that held-out RMSE by more than ``margin``, below both the model before it
-   and that model with an intercept (with several validation runs, the median run's RMSE
-   too, and no run's may rise by more than ``margin``); one that does not is not added,
-   and the later ones are still tried (without a session start; with one, step 8). The result
-   says when nothing helps. The output calibration is the input plus
-   the added effect entries, with the coefficients whose held-out error is reported.
-7. **Per-run baseline.** A ``baseline`` term (the mean S_hat over the first seconds of a
-   run, minus the strain runs start at) is a per-run intercept: inside one run it cannot be
-   told from a constant ``offset``. It is tested as a second hypothesis: its shift is
-   removed whole (coefficient 1, no automatic intercept), steps 5-6 run on what is left,
-   and the baseline hypothesis replaces the constant-intercept one only if its held-out
-   RMSE is lower by more than ``margin``. That choice is made on the held-out data, like
-   the veto of step 6: given a ``--validate`` recording of another run it is a cross-run
-   test; on held-out blocks of one run the two tie and the constant hypothesis stays.
-
-8. **Session start.** With ``validate_recordings`` (and ``session_start``), every held-out
-   figure of steps 6-7 is the validation run's RMSE as the product is used: the calibration
-   with the terms started on that run as ``strain-comp start`` starts it (its second load
-   and unload after a warm-up one, else its first: ``strain_comp.offline.session_start``,
-   the benchmark's procedure; a run it refuses as it is), then evaluated over the whole
-   run. The per-run ``baseline`` hypothesis is then not tried: that recalibration
-   re-zeroes every run itself, and a baseline term (whose steady output is the rest
-   strain at any resistance) would leave it no input span to make. Nor are an intercept
-   (``offset``) or a plain gain (``strain_level`` of power 1) written or scored: the
-   output map of that recalibration makes its own, and through the steady outputs the
-   input span reads they would only move where that span lands. The terms are still
-   fitted with the intercept (steps 4-5), so their coefficients are not biased by a mean.
-   A validation run whose stretches allow neither step is measured as calibrated.
-   Steps 5-6 are then one (``selection.select_carried``): at each step the candidates
-   that pass step 5 on the diagnosed run, the ``LoopPolicy.tried`` best, are each fitted
-   there and scored on every validation run after its session start; the one whose log
-   RMSE ratios on the validation runs have the
-   lowest upper bound, the prediction bound of one more run's (``LoopPolicy.level``,
-   Student's t over the validation runs), is added if that bound is below ln(1 - margin):
-   it lowers the error beyond the spread between runs. The terms are thus chosen by what
-   carries, not by what fits the diagnosed run best (a drift that two runs share and a
-   third does not, a memory that ratchets on another run's noise, are seen as the spread
-   they make). Where none carries, the message says why and what to record instead
-   (``findings.instead``).
-
-Decisions: the regressors read the engine's clamped estimate (identical to the online
-input as long as the estimate is inside the valid strain range widened by the engine's
-margin); effect state is reset at the engine's gap resets, in diagnosis as online.
+The steps: docs/design.md, "The loop's steps".
 
 The package: ``candidates`` (step 2), ``residuals`` and ``rows`` (steps 1-3),
 ``selection`` (steps 4-6 and 8, testable alone) with its numbers in ``policy``,
@@ -245,7 +161,7 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
 
 def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
                      policy: LoopPolicy) -> SensorDiagnosis:
-    """One sensor's loop (module docstring) on its ``setup``."""
+    """One sensor's loop (docs/design.md, "The loop's steps") on its ``setup``."""
     cal = calibration.sensors[sensor]
     cands, rows, session = setup.cands, setup.rows, setup.session
     linear = linear_held_out(rows.e_out, rows.g_out)
@@ -288,7 +204,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              stretch_history: bool = False,
              session_start: bool = True,
              on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
-    """Run the residual loop (module docstring) on every calibrated sensor with a reference."""
+    """Run the residual loop on every calibrated sensor with a reference (docs/design.md)."""
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
     if n_blocks < 3:
