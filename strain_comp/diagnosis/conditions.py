@@ -1,33 +1,7 @@
 """Measurement-chain and tare hypotheses around the residual loop.
 
-Some causes of a residual act on the resistance before any model sees it: the rest level of
-this run (a tare), an alternation of the excitation every other sample (pair means, see
-``strain_comp.core.chain``). They are not effect regressors on the output; each is a
-*condition* under which the whole loop (``strain_comp.diagnosis.loop.diagnose``) runs:
-
-1. ``as calibrated``: the calibration as given (always run; the reference).
-2. ``tare`` (with ``tare="auto"``): every run tared at its start (``strain_comp.core.tare``).
-3. ``alternation`` (when ``strain_comp.core.chain.alternation`` finds one in the
-   diagnosed or the validation runs and the calibration does not correct it yet): the
-   engine feeds the models pair means. Combined with 2 when both apply.
-4. ``despike`` (when the engine's own online corrector, ``ChainCorrector``, removes
-   isolated spikes from those runs): ``input.despike`` on, over 3 when it applies, with
-   the tare of 2 when asked for.
-5. ``baseline step`` (when that corrector confirms a baseline step in those runs: a jump
-   that stays without relaxing): ``input.baseline_step`` on, like 4.
-
-The condition whose held-out RMSE after the loop is lowest is chosen, but a condition other
-than the reference only if it beats it by more than ``LoopPolicy.margin`` (relative) and,
-with two or more validation runs after their session start, its log RMSE ratios to the
-reference over those runs have an upper bound below ln(1 - margin), as a term's
-(``selection.upper_bound``): a tare or a filter that worsens held-out error, or helps one
-run and costs the others, is not chosen. Every condition is reported with its
-reading (e.g. ``alternation +-340 ohm every other sample``) and its before/after RMSE.
-Quantisation found in the data is reported as a reading only: a quantisation step cannot
-be undone by a causal term without lag (any dequantiser is a low-pass filter, which delays
-every real change), and its error, q / sqrt(12) rms, is below the read-out noise wherever
-the noise dithers it (the ADC's steps on the virtual rig: 0.0098 ohm against 0.01 ohm of
-noise).
+Each condition (a tare, pair means against an alternation, despiking, a baseline-step
+correction) reruns the whole loop; docs/design.md, "Conditions", says which is chosen.
 """
 
 from __future__ import annotations
@@ -182,7 +156,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                         tare: str = "calibration", policy: LoopPolicy = LOOP_POLICY,
                         progress: Callable[[int, int], None] | None = None,
                         **options: Any) -> DiagnoseResult:
-    """``diagnose`` under each condition of the module docstring; the chosen result."""
+    """``diagnose`` under each condition (docs/design.md, "Conditions"); the chosen result."""
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
     validate = ([] if validate_recordings is None else [validate_recordings]
