@@ -67,11 +67,8 @@ def default_candidates(*, temperature_ref: float | None = None,
                 for form in ("offset", "strain")]
     out += [{"name": f"strain_level_{p}", "kind": "strain_level", "params": {"power": p}}
             for p in (1, 2, 3)]
-    out += [{"name": "mullins_gap", "kind": "mullins", "params": {"form": "gap", "n0": 1.0}},
-            {"name": "mullins_gap_strain", "kind": "mullins",
-             "params": {"form": "gap_strain", "n0": 1.0}},
-            {"name": "mullins_cycles_log", "kind": "mullins",
-             "params": {"form": "cycles_log", "n0": 1.0}}]
+    out += [{"name": f"mullins_{form}", "kind": "mullins", "params": {"form": form, "n0": 1.0}}
+            for form in ("gap", "gap_strain", "cycles_log")]
     out += [{"name": f"mullins_cycles_exp_n{n0:g}", "kind": "mullins",
              "params": {"form": "cycles_exp", "n0": n0}} for n0 in (1.0, 3.0)]
     out.append({"name": "mullins_peak_strain", "kind": "mullins",

@@ -1,5 +1,7 @@
-"""Measurement-chain and tare hypotheses around the residual loop: each a condition the whole
-loop runs under, chosen on held-out error (docs/architecture.md, "Inside the modules").
+"""Measurement-chain and tare hypotheses around the residual loop.
+
+Each condition (a tare, pair means against an alternation, despiking, a baseline-step
+correction) reruns the whole loop; docs/design.md, "Conditions", says which is chosen.
 """
 
 from __future__ import annotations
@@ -154,7 +156,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                         tare: str = "calibration", policy: LoopPolicy = LOOP_POLICY,
                         progress: Callable[[int, int], None] | None = None,
                         **options: Any) -> DiagnoseResult:
-    """``diagnose`` under each condition of the module docstring; the chosen result."""
+    """``diagnose`` under each condition (docs/design.md, "Conditions"); the chosen result."""
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
     validate = ([] if validate_recordings is None else [validate_recordings]

@@ -1,6 +1,13 @@
 """The residual loop (docs/design.md, "The residual loop"): find the effect a calibration lacks,
-add it as an explicit online term, and report the error before and after on held-out data
-(its steps: docs/architecture.md, "Inside the modules").
+add it as an explicit online term, and report the error before and after on held-out data.
+
+The steps: docs/design.md, "The loop's steps".
+
+The package: ``candidates`` (step 2), ``residuals`` and ``rows`` (steps 1-3),
+``selection`` (steps 4-6 and 8, testable alone) with its numbers in ``policy``,
+``session`` (the session start), ``findings`` (the message and records), ``report``
+(results, readings, plots), this module (the per-sensor loop) and ``conditions`` (tare
+and measurement-chain hypotheses around the whole loop).
 """
 
 from __future__ import annotations
@@ -154,7 +161,7 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
 
 def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
                      policy: LoopPolicy) -> SensorDiagnosis:
-    """One sensor's loop (module docstring) on its ``setup``."""
+    """One sensor's loop (docs/design.md, "The loop's steps") on its ``setup``."""
     cal = calibration.sensors[sensor]
     cands, rows, session = setup.cands, setup.rows, setup.session
     linear = linear_held_out(rows.e_out, rows.g_out)
@@ -197,7 +204,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
              stretch_history: bool = False,
              session_start: bool = True,
              on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
-    """Run the residual loop (module docstring) on every calibrated sensor with a reference."""
+    """Run the residual loop on every calibrated sensor with a reference (docs/design.md)."""
     if not 0.0 < holdout_fraction < 1.0:
         raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
     if n_blocks < 3:

@@ -24,6 +24,14 @@ from strain_comp.offline.report_page import (
 )
 
 
+def _before_after(before: dict[str, float], after: dict[str, float]) -> list[str]:
+    """The rows of a held-out error table: RMSE, MAE and n before and after."""
+    return [f'<tr data-when="{which}"><th>{which}</th>'
+            + "".join(html_cell(record[k], "d" if k == "n" else ".4g", k)
+                      for k in ("rmse", "mae", "n")) + "</tr>"
+            for which, record in (("before", before), ("after", after))]
+
+
 def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration_path: str,
                    bag: str, *, validate: Sequence[str] = (), tare: str = "",
                    runs: Sequence[tuple[str, BagSection]] = ()) -> str:
@@ -35,12 +43,7 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
                f"time blocks of the run ({escape(plain_text(result.validation))})") + "</p>",
             "<h2>Held-out error, all sensors</h2>",
             '<table class="before-after"><tr><th></th><th>RMSE</th><th>MAE</th><th>n</th>'
-            "</tr>"]
-    for which, record in (("before", result.before), ("after", result.after)):
-        body.append(f'<tr data-when="{which}"><th>{which}</th>'
-                    + "".join(html_cell(record[k], "d" if k == "n" else ".4g", k)
-                              for k in ("rmse", "mae", "n")) + "</tr>")
-    body.append("</table>")
+            "</tr>", *_before_after(result.before, result.after), "</table>"]
     body.append("<h2>Effects found</h2>")
     added = result.added
     if added:
@@ -69,11 +72,7 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
         body.append(f"<h2>{escape(name)}</h2><p>{escape(d.message)}</p>")
         body.append(f'<table class="sensor-before-after" data-sensor="{escape(name)}">'
                     f"<tr><th></th><th>RMSE [{escape(unit)}]</th><th>MAE</th><th>n</th></tr>")
-        for which, record in (("before", d.before), ("after", d.after)):
-            body.append(f'<tr data-when="{which}"><th>{which}</th>'
-                        + "".join(html_cell(record[k], "d" if k == "n" else ".4g", k)
-                                  for k in ("rmse", "mae", "n")) + "</tr>")
-        body.append("</table>")
+        body += [*_before_after(d.before, d.after), "</table>"]
         scored = sorted(d.scores, key=lambda e: -e.score if math.isfinite(e.score) else 0.0)
         body.append("<details><summary>every candidate scored</summary>"
                     + html_notes(f"{e.name} ({e.kind}): held-out share of the residual "

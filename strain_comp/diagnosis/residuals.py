@@ -200,7 +200,7 @@ def rmse_stats(e: np.ndarray) -> dict[str, float]:
 
 
 def holdout_period(holdout_fraction: float) -> int:
-    """Every how many-th time block is held out (module docstring, step 3)."""
+    """Every how many-th time block is held out (docs/design.md, "The loop's steps", 3)."""
     return max(2, round(1.0 / holdout_fraction))
 
 

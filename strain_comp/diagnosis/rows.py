@@ -1,4 +1,4 @@
-"""One sensor's rows for the residual loop (``strain_comp.diagnosis.loop``, steps 2-3): its
+"""One sensor's rows for the residual loop (docs/design.md, "The loop's steps", 2-3): its
 candidate effects (``candidates_of``) and the fit and held-out rows of their regressors
 and its residual (``rows_of``)."""
 

@@ -4,7 +4,7 @@ Blocked cross-validation from per-fold sums (``Gram``), the fold-wise significan
 (``significant``), greedy forward selection (``select_forward``), first-round scores
 (``candidate_scores``), the held-out veto (``keep_on_held_out``) and the selection on
 validation runs after their session start (``select_carried``, ``upper_bound``). See
-``strain_comp.diagnosis.loop`` (steps 4-6) for how the loop uses them; the numbers are
+docs/design.md, "The loop's steps" (4-6), for how the loop uses them; the numbers are
 ``strain_comp.diagnosis.policy.LoopPolicy``'s.
 """
 
@@ -115,7 +115,7 @@ class Selection:
 
 def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effects: int, *,
             auto_intercept: bool = True, skip: Sequence[int] = ()) -> Selection:
-    """Greedy forward selection (module docstring, step 5)."""
+    """Greedy forward selection (docs/design.md, "The loop's steps", 5)."""
 
     def model(cols: Sequence[int]) -> list[int]:
         return with_intercept(cols, offset) if auto_intercept else list(dict.fromkeys(cols))
@@ -219,7 +219,7 @@ def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
                      n_folds: int, margin: float, held_out: HeldOut,
                      runs: np.ndarray | None = None) -> Branch:
-    """The held-out veto (module docstring, step 6) on one branch's selected terms, in
+    """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's selected terms, in
     their order: a term, fitted on all fit folds of ``gram`` with those kept before it,
     is kept if ``held_out`` says it lowers the held-out RMSE by more than ``margin``
     (a term that does not, e.g. an intercept the session-start recalibration makes anyway,
@@ -324,7 +324,7 @@ def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequen
 
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
                    policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Carried:
-    """Greedy selection scored as the product is used (``strain_comp.diagnosis.loop``,
+    """Greedy selection scored as the product is used (docs/design.md, "The loop's steps",
     step 8). At each step the candidates that pass on the diagnosed run (``_passing``),
     the ``policy.tried`` best, are each fitted there (with the terms already added and the
     intercept) and scored on the validation runs by ``held_out`` (the errors of each run

@@ -1,6 +1,6 @@
 """The ``compensator`` executable: starts the rclpy node (``strain_comp.ros.compensator``) and
 spins it; start-up problems are one line and exit 2, SIGINT/SIGTERM exit 0 at any moment
-(docs/ros.md; docs/architecture.md, "Inside the modules"). Only the standard library is
+(docs/ros.md; docs/architecture.md, "Inside the node"). Only the standard library is
 imported at module level, so the signal handlers are in place before anything slow.
 """
 

@@ -1,5 +1,5 @@
 """Node parameters: the ``<node>: ros__parameters:`` YAML of the rclpy node (layout, checks
-and path resolution: docs/architecture.md, "Inside the modules"; docs/ros.md).
+and path resolution: docs/architecture.md, "Inside the node"; docs/ros.md).
 """
 
 from __future__ import annotations

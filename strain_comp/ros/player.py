@@ -1,5 +1,5 @@
 """``strain-comp play``: publish a bag's messages over ROS 2 at their recorded times, or in
-lockstep with the node's answers (docs/architecture.md, "Inside the modules").
+lockstep with the node's answers (docs/architecture.md, "Inside the node").
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Effect regressors: step == run, state carried across batches, the equations against slow
-pure-Python references, calibration-dict round trip and validation errors."""
+"""Effect regressors: sample by sample == in batches (state carried), the equations against
+slow pure-Python references, calibration-dict round trip and validation errors."""
 
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ from strain_comp.core.effects import (
     KINDS,
     Batch,
     EffectTerms,
-    Sample,
     regressor_from_dict,
     validate_effect_dict,
 )
@@ -42,24 +41,21 @@ ALL = [*default_candidates(temperature_ref=24.0, neighbours=["left"], stretch_hi
        {"name": "x", "kind": "elapsed", "params": {}, "coef": 0.0}]
 
 
-def samples(b: Batch) -> list[Sample]:
-    return [Sample(float(b.t[k]), float(b.r[k]), float(b.s_hat[k]), int(b.direction[k]),
-                   float(b.temperature[k]), {"left": float(b.neighbours["left"][k])})
-            for k in range(b.t.size)]
-
-
 @pytest.mark.parametrize("effect", ALL, ids=[e["name"] for e in ALL])
-def test_step_equals_run_and_run_continues_state(effect: dict) -> None:
+def test_run_continues_state_sample_by_sample_and_across_batches(effect: dict) -> None:
+    """Batches of one (as the engine runs online), two halves and the whole agree."""
     b = random_inputs()
+
+    def part(k: slice) -> Batch:
+        return Batch.of(b.t[k], b.r[k], b.s_hat[k], b.direction[k], b.temperature[k],
+                        {"left": b.neighbours["left"][k]})
+
     g_step = regressor_from_dict(effect)
-    stepped = np.array([g_step.step(x) for x in samples(b)])
+    stepped = np.concatenate([g_step.run(part(slice(k, k + 1))) for k in range(b.t.size)])
     g_run = regressor_from_dict(effect)
     half = b.t.size // 2
-    first = Batch.of(b.t[:half], b.r[:half], b.s_hat[:half], b.direction[:half],
-                     b.temperature[:half], {"left": b.neighbours["left"][:half]})
-    second = Batch.of(b.t[half:], b.r[half:], b.s_hat[half:], b.direction[half:],
-                      b.temperature[half:], {"left": b.neighbours["left"][half:]})
-    ran = np.concatenate([g_run.run(first), g_run.run(second)])
+    ran = np.concatenate([g_run.run(part(slice(None, half))),
+                          g_run.run(part(slice(half, None)))])
     assert np.all(np.isfinite(ran))
     np.testing.assert_allclose(ran, stepped, rtol=1e-12, atol=1e-12)
     g_run.reset()
@@ -128,10 +124,6 @@ def test_effect_terms_correct_and_round_trip() -> None:
                      if np.isfinite(nb[: k + 1]).any() else 0.0 for k in range(nb.size)])
     expected = b.s_hat - 0.25 * np.sqrt((b.t - b.t[0]) / 50.0) + 0.1 * held - 0.5
     np.testing.assert_allclose(out, expected, atol=1e-12)
-    terms.reset()
-    stepped = [terms.step(x.t, x.r, x.s_hat, x.direction, x.temperature, x.neighbours)
-               for x in samples(b)]
-    np.testing.assert_allclose(stepped, out, rtol=1e-12, atol=1e-12)
 
 
 def test_every_kind_round_trips_through_a_calibration_file(tmp_path: Path) -> None:

@@ -4,8 +4,6 @@ stretch travel and the run's baseline."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -14,20 +12,20 @@ from strain_comp._numba import njit
 from strain_comp.core.effects.regressor import (
     Batch,
     Regressor,
-    Sample,
-    choice_param,
+    choice,
     ffill,
-    number_param,
-    positive_param,
+    flag,
+    number,
+    param_readers,
+    positive,
 )
-from strain_comp.errors import ParameterError
 
 
 class Direction(Regressor):
     """The detector's direction d ([EGaIn] section V.E) as a regressor."""
 
     kind = "direction"
-    param_names = ("mode", "hold")
+    readers = param_readers(mode=choice(("sign", "strain"), "sign"), hold=flag(False))
 
     def __init__(self, mode: str = "sign", hold: bool = False) -> None:
         self.mode = mode
@@ -50,16 +48,6 @@ class Direction(Regressor):
                 self._last = float(last[-1])
         return d * batch.s_hat if self.mode == "strain" else d
 
-    def params(self) -> dict[str, Any]:
-        return {"mode": self.mode, "hold": self.hold}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Direction:
-        hold = params.get("hold", False)
-        if not isinstance(hold, bool):
-            raise ParameterError("params.hold", f"must be true or false, got {hold!r}")
-        return cls(choice_param(params, "mode", ("sign", "strain"), "sign"), hold)
-
 
 
 
@@ -67,7 +55,8 @@ class Elapsed(Regressor):
     """Slow drift: a function of the time since the first sample, x = (t - t0) / scale."""
 
     kind = "elapsed"
-    param_names = ("form", "scale")
+    readers = param_readers(form=choice(("linear", "sqrt", "log", "linear_strain"), "linear"),
+                            scale=positive(100.0))
 
     def __init__(self, form: str = "linear", scale: float = 100.0) -> None:
         self.form = form
@@ -85,26 +74,11 @@ class Elapsed(Regressor):
             return np.log1p(x)
         return x
 
-    def step(self, sample: Sample) -> float:
-        if math.isnan(self._t0):
-            self._t0 = sample.t
-        g = float(self._g((sample.t - self._t0) / self.scale))
-        return g * sample.s_hat if self.form == "linear_strain" else g
-
     def run(self, batch: Batch) -> np.ndarray:
         if batch.t.size and math.isnan(self._t0):
             self._t0 = float(batch.t[0])
         g = self._g((batch.t - self._t0) / self.scale)
         return g * batch.s_hat if self.form == "linear_strain" else g
-
-    def params(self) -> dict[str, Any]:
-        return {"form": self.form, "scale": self.scale}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Elapsed:
-        return cls(choice_param(params, "form", ("linear", "sqrt", "log", "linear_strain"),
-                           "linear"),
-                   positive_param(params, "scale", 100.0))
 
 
 
@@ -145,7 +119,7 @@ class Mullins(Regressor):
     below a previously reached strain)."""
 
     kind = "mullins"
-    param_names = ("form", "n0")
+    readers = param_readers(form=choice(_MULLINS_FORMS, "cycles_exp"), n0=positive(1.0))
 
     def __init__(self, form: str = "cycles_exp", n0: float = 1.0) -> None:
         self.form = form
@@ -158,14 +132,6 @@ class Mullins(Regressor):
 
     def run(self, batch: Batch) -> np.ndarray:
         return _mullins_kernel(batch.s_hat, batch.direction, self._code, self.n0, self._state)
-
-    def params(self) -> dict[str, Any]:
-        return {"form": self.form, "n0": self.n0}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Mullins:
-        return cls(choice_param(params, "form", _MULLINS_FORMS, "cycles_exp"),
-                   positive_param(params, "n0", 1.0))
 
 
 STRETCH_FORMS = ("rest", "rest_log", "gain", "gain_log")
@@ -199,7 +165,8 @@ class Stretch(Regressor):
     noise at rest adds nothing; a 0 -> 50 -> 0 % cycle adds 100)."""
 
     kind = "stretch"
-    param_names = ("form", "scale", "band")
+    readers = param_readers(form=choice(STRETCH_FORMS, "rest"), scale=positive(1000.0),
+                            band=number(0.5, lo=0.0))
 
     def __init__(self, form: str = "rest", scale: float = 1000.0, band: float = 0.5) -> None:
         self.form = form
@@ -213,15 +180,6 @@ class Stretch(Regressor):
 
     def run(self, batch: Batch) -> np.ndarray:
         return _stretch_kernel(batch.s_hat, self.band, self.scale, self._code, self._state)
-
-    def params(self) -> dict[str, Any]:
-        return {"form": self.form, "scale": self.scale, "band": self.band}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Stretch:
-        return cls(choice_param(params, "form", STRETCH_FORMS, "rest"),
-                   positive_param(params, "scale", 1000.0),
-                   number_param(params, "band", 0.5, lo=0.0))
 
 
 
@@ -249,7 +207,7 @@ class Baseline(Regressor):
     [%] the strain the sensor is at when a run starts (what the calibration should read)."""
 
     kind = "baseline"
-    param_names = ("window", "rest")
+    readers = param_readers(window=positive(5.0), rest=number(0.0))
 
     def __init__(self, window: float = 5.0, rest: float = 0.0) -> None:
         self.window = window
@@ -261,10 +219,3 @@ class Baseline(Regressor):
 
     def run(self, batch: Batch) -> np.ndarray:
         return _baseline_kernel(batch.t, batch.s_hat, self.window, self._state) - self.rest
-
-    def params(self) -> dict[str, Any]:
-        return {"window": self.window, "rest": self.rest}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Baseline:
-        return cls(positive_param(params, "window", 5.0), number_param(params, "rest", 0.0))

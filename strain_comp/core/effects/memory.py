@@ -4,8 +4,6 @@ strain steps, and the memory of the resistance itself."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 
@@ -13,8 +11,9 @@ from strain_comp._numba import njit
 from strain_comp.core.effects.regressor import (
     Batch,
     Regressor,
-    choice_param,
-    positive_param,
+    choice,
+    param_readers,
+    positive,
 )
 
 
@@ -46,7 +45,7 @@ class Rate(Regressor):
     sensor moves, whatever the direction (e.g. self-heating or a rate-dependent gain)."""
 
     kind = "rate"
-    param_names = ("tau", "mode")
+    readers = param_readers(tau=positive(1.0), mode=choice(("signed", "direction"), "signed"))
 
     def __init__(self, tau: float = 1.0, mode: str = "signed") -> None:
         self.tau = tau
@@ -59,14 +58,6 @@ class Rate(Regressor):
     def run(self, batch: Batch) -> np.ndarray:
         return _rate_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
                             self.mode == "direction", self._state)
-
-    def params(self) -> dict[str, Any]:
-        return {"tau": self.tau, "mode": self.mode}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Rate:
-        return cls(positive_param(params, "tau", 1.0),
-                   choice_param(params, "mode", ("signed", "direction"), "signed"))
 
 
 
@@ -106,7 +97,7 @@ class Relaxation(Regressor):
     Discretised exactly for a piecewise-constant input: h_k = h_{k-1} e^{-dt/tau} + dS_k."""
 
     kind = "relaxation"
-    param_names = ("tau", "branch")
+    readers = param_readers(tau=positive(10.0), branch=choice(_BRANCHES, "both"))
 
     def __init__(self, tau: float = 10.0, branch: str = "both") -> None:
         self.tau = tau
@@ -120,14 +111,6 @@ class Relaxation(Regressor):
     def run(self, batch: Batch) -> np.ndarray:
         return _relaxation_kernel(batch.t, batch.s_hat, batch.direction, self.tau, self._code,
                                   self._state)
-
-    def params(self) -> dict[str, Any]:
-        return {"tau": self.tau, "branch": self.branch}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Relaxation:
-        return cls(positive_param(params, "tau", 10.0),
-                   choice_param(params, "branch", _BRANCHES, "both"))
 
 
 _MEMORY_FORMS = ("relaxation", "peak", "trough")
@@ -172,7 +155,7 @@ class ResistanceMemory(Regressor):
     * ``trough``: g = y - q, the mirror of ``peak`` for sensors whose steps undershoot."""
 
     kind = "resistance_memory"
-    param_names = ("tau", "form")
+    readers = param_readers(tau=positive(10.0), form=choice(_MEMORY_FORMS, "relaxation"))
 
     def __init__(self, tau: float = 10.0, form: str = "relaxation") -> None:
         self.tau = tau
@@ -189,11 +172,3 @@ class ResistanceMemory(Regressor):
 
     def run(self, batch: Batch) -> np.ndarray:
         return _resistance_memory_kernel(batch.t, batch.r, self.tau, self._code, self._state)
-
-    def params(self) -> dict[str, Any]:
-        return {"tau": self.tau, "form": self.form}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> ResistanceMemory:
-        return cls(positive_param(params, "tau", 10.0),
-                   choice_param(params, "form", _MEMORY_FORMS, "relaxation"))

@@ -1,14 +1,14 @@
-"""The effect-term contract: the inputs a regressor reads (``Sample``, ``Batch``),
+"""The effect-term contract: the inputs a regressor reads (``Batch``),
 the ``Regressor`` base class and the parameter readers every kind shares
 (docs/design.md, "The residual loop")."""
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import pairwise
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
@@ -19,20 +19,8 @@ from strain_comp.errors import ParameterError
 
 
 @dataclass
-class Sample:
-    """One sample as the online path sees it (inputs of ``Regressor.step``)."""
-
-    t: float
-    r: float
-    s_hat: float
-    direction: int
-    temperature: float = math.nan
-    neighbours: Mapping[str, float] | None = None
-
-
-@dataclass
 class Batch:
-    """Whole arrays of samples (inputs of ``Regressor.run``); all of one length n."""
+    """Arrays of samples (inputs of ``Regressor.run``); all of one length n."""
 
     t: np.ndarray
     r: np.ndarray
@@ -57,13 +45,9 @@ class Batch:
         return cls(t_, r_, s_hat_, direction_, temperature=temp, neighbours=nbrs)
 
 
-def choice_param(params: Mapping[str, Any], key: str, options: Sequence[str], default: str
-                 ) -> str:
-    """``params[key]``, one of ``options``."""
-    value = params.get(key, default)
-    if value not in options:
-        raise ParameterError(f"params.{key}", f"must be one of {', '.join(options)}; got {value!r}")
-    return str(value)
+Reader = Callable[[Mapping[str, Any], str], Any]
+"""Reads one parameter ``params[key]`` (its default where missing) or raises
+``ParameterError``."""
 
 
 def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: Any) -> float:
@@ -76,9 +60,44 @@ def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: 
         raise ParameterError(f"params.{err.field}", err.problem) from None
 
 
-def positive_param(params: Mapping[str, Any], key: str, default: float) -> float:
-    """``params[key]`` as a finite float > 0."""
-    return number_param(params, key, default, lo=0.0, strict=True)
+def number(default: float, **bounds: Any) -> Reader:
+    """A finite float within ``bounds``."""
+    return lambda params, key: number_param(params, key, default, **bounds)
+
+
+def positive(default: float) -> Reader:
+    """A finite float > 0."""
+    return number(default, lo=0.0, strict=True)
+
+
+def choice(options: Sequence[str], default: str) -> Reader:
+    """One of ``options``."""
+
+    def read(params: Mapping[str, Any], key: str) -> str:
+        value = params.get(key, default)
+        if value not in options:
+            raise ParameterError(f"params.{key}",
+                                 f"must be one of {', '.join(options)}; got {value!r}")
+        return str(value)
+
+    return read
+
+
+def flag(default: bool) -> Reader:
+    """True or false."""
+
+    def read(params: Mapping[str, Any], key: str) -> bool:
+        value = params.get(key, default)
+        if not isinstance(value, bool):
+            raise ParameterError(f"params.{key}", f"must be true or false, got {value!r}")
+        return value
+
+    return read
+
+
+def param_readers(**readers: Reader) -> Mapping[str, Reader]:
+    """A kind's parameters: each name's reader, in the order of the file's ``params``."""
+    return MappingProxyType(readers)
 
 
 def ffill(values: np.ndarray, last: float) -> np.ndarray:
@@ -103,40 +122,30 @@ def run_segments(run: Callable[[slice], np.ndarray], reset: Callable[[], None], 
 
 
 class Regressor(ABC):
-    """One effect regressor g(t) with explicit state; see the module docstring."""
+    """One effect regressor g(t) with explicit state; see the package docstring."""
 
     kind: ClassVar[str]
-    param_names: ClassVar[tuple[str, ...]] = ()
+    readers: ClassVar[Mapping[str, Reader]] = MappingProxyType({})
+    """Each parameter's reader, in the order of the calibration file's ``params``."""
+    neighbour: str | None = None
+    """Name of the array neighbour this regressor reads, if any."""
 
     @abstractmethod
     def reset(self) -> None:
         """Restore the initial state."""
 
-    def step(self, sample: Sample) -> float:
-        """Advance by one sample: ``run`` on a batch of one, so a regressor with a compiled
-        kernel has that one implementation."""
-        neighbours = {n: [v] for n, v in (sample.neighbours or {}).items()}
-        return float(self.run(Batch.of([sample.t], [sample.r], [sample.s_hat],
-                                       [sample.direction], [sample.temperature],
-                                       neighbours))[0])
-
     @abstractmethod
     def run(self, batch: Batch) -> np.ndarray:
         """g over a batch, continuing from (and updating) the current state."""
 
-    @abstractmethod
     def params(self) -> dict[str, Any]:
         """The parameters as plain Python (the calibration file's ``params``)."""
+        return {key: getattr(self, key) for key in self.readers}
 
     @classmethod
-    @abstractmethod
     def from_params(cls, params: Mapping[str, Any]) -> Regressor:
-        """Build from ``params``."""
-
-    @property
-    def neighbour(self) -> str | None:
-        """Name of the array neighbour this regressor reads, if any."""
-        return None
+        """Build from ``params``, each read by its reader."""
+        return cls(**{key: read(params, key) for key, read in cls.readers.items()})
 
     def rescale(self, factor: float) -> None:
         """The resistance it reads is ``factor`` x what it was (a tare): carry the state

@@ -12,10 +12,10 @@ import numpy as np
 from strain_comp.core.effects.regressor import (
     Batch,
     Regressor,
-    Sample,
-    choice_param,
+    choice,
     ffill,
-    number_param,
+    number,
+    param_readers,
 )
 from strain_comp.errors import ParameterError
 
@@ -28,18 +28,8 @@ class Offset(Regressor):
     def reset(self) -> None:
         pass
 
-    def step(self, sample: Sample) -> float:
-        return 1.0
-
     def run(self, batch: Batch) -> np.ndarray:
         return np.ones(batch.t.size)
-
-    def params(self) -> dict[str, Any]:
-        return {}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Offset:
-        return cls()
 
 
 
@@ -59,7 +49,7 @@ class Temperature(Regressor):
     g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor)."""
 
     kind = "temperature"
-    param_names = ("form", "t_ref")
+    readers = param_readers(form=choice(("offset", "strain"), "offset"), t_ref=number(20.0))
 
     def __init__(self, form: str = "offset", t_ref: float = 20.0) -> None:
         self.form = form
@@ -68,14 +58,6 @@ class Temperature(Regressor):
 
     def reset(self) -> None:
         self._last = math.nan
-
-    def step(self, sample: Sample) -> float:
-        if TEMPERATURE_RANGE[0] <= sample.temperature <= TEMPERATURE_RANGE[1]:
-            self._last = float(sample.temperature)
-        if math.isnan(self._last):
-            return 0.0
-        dt = self._last - self.t_ref
-        return dt * sample.s_hat if self.form == "strain" else dt
 
     def run(self, batch: Batch) -> np.ndarray:
         temp = batch.temperature
@@ -88,20 +70,20 @@ class Temperature(Regressor):
         dt = np.where(np.isnan(held), 0.0, held - self.t_ref)
         return dt * batch.s_hat if self.form == "strain" else dt
 
-    def params(self) -> dict[str, Any]:
-        return {"form": self.form, "t_ref": self.t_ref}
 
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Temperature:
-        return cls(choice_param(params, "form", ("offset", "strain"), "offset"),
-                   number_param(params, "t_ref", 20.0))
+def _power(params: Mapping[str, Any], key: str) -> int:
+    """1, 2 or 3."""
+    power = params.get(key, 1)
+    if isinstance(power, bool) or power not in (1, 2, 3):
+        raise ParameterError(f"params.{key}", f"must be 1, 2 or 3, got {power!r}")
+    return int(power)
 
 
 class StrainLevel(Regressor):
     """g = S_hat ** power: a gain (power 1) or curvature (2, 3) error of the static map."""
 
     kind = "strain_level"
-    param_names = ("power",)
+    readers = param_readers(power=_power)
 
     def __init__(self, power: int = 1) -> None:
         self.power = power
@@ -109,63 +91,39 @@ class StrainLevel(Regressor):
     def reset(self) -> None:
         pass
 
-    def step(self, sample: Sample) -> float:
-        return float(sample.s_hat) ** self.power
-
     def run(self, batch: Batch) -> np.ndarray:
         return batch.s_hat ** self.power
 
-    def params(self) -> dict[str, Any]:
-        return {"power": self.power}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> StrainLevel:
-        power = params.get("power", 1)
-        if isinstance(power, bool) or power not in (1, 2, 3):
-            raise ParameterError("params.power", f"must be 1, 2 or 3, got {power!r}")
-        return cls(int(power))
 
 
+
+def _sensor_name(params: Mapping[str, Any], key: str) -> str:
+    """A sensor's name (no default)."""
+    name = params.get(key)
+    if not isinstance(name, str) or not name:
+        raise ParameterError(f"params.{key}", f"must be a sensor name, got {name!r}")
+    return name
 
 
 class Crosstalk(Regressor):
     """Cross-talk in an array: g = the S_hat of the neighbour sensor ``neighbour``."""
 
     kind = "crosstalk"
-    param_names = ("neighbour",)
+    readers = param_readers(neighbour=_sensor_name)
 
     def __init__(self, neighbour: str) -> None:
-        self._neighbour = neighbour
+        self.neighbour = neighbour
         self._last = math.nan
-
-    @property
-    def neighbour(self) -> str | None:
-        return self._neighbour
 
     def reset(self) -> None:
         self._last = math.nan
 
-    def step(self, sample: Sample) -> float:
-        value = (sample.neighbours or {}).get(self._neighbour, math.nan)
-        if math.isfinite(value):
-            self._last = float(value)
-        return 0.0 if math.isnan(self._last) else self._last
-
     def run(self, batch: Batch) -> np.ndarray:
-        values = batch.neighbours.get(self._neighbour)
+        assert self.neighbour is not None
+        values = batch.neighbours.get(self.neighbour)
         if values is None:
             values = np.full(batch.t.size, np.nan)
         held = ffill(values, self._last)
         if held.size:
             self._last = float(held[-1])
         return np.where(np.isnan(held), 0.0, held)
-
-    def params(self) -> dict[str, Any]:
-        return {"neighbour": self._neighbour}
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Crosstalk:
-        neighbour = params.get("neighbour")
-        if not isinstance(neighbour, str) or not neighbour:
-            raise ParameterError("params.neighbour", f"must be a sensor name, got {neighbour!r}")
-        return cls(neighbour)

@@ -3,7 +3,6 @@ g_j), the registry of kinds and the calibration-file entries."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -13,11 +12,7 @@ import numpy.typing as npt
 from strain_comp.base.compensator import require_float
 from strain_comp.core.effects.history import Baseline, Direction, Elapsed, Mullins, Stretch
 from strain_comp.core.effects.memory import Rate, Relaxation, ResistanceMemory
-from strain_comp.core.effects.regressor import (
-    Batch,
-    Regressor,
-    Sample,
-)
+from strain_comp.core.effects.regressor import Batch, Regressor
 from strain_comp.core.effects.static import Crosstalk, Offset, StrainLevel, Temperature
 from strain_comp.errors import ParameterError
 
@@ -42,7 +37,7 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
     if not isinstance(params, Mapping):
         raise ParameterError("params", f"must be a mapping, got {type(params).__name__}")
     cls = KINDS[kind]
-    unknown = sorted(str(k) for k in params if k not in cls.param_names)
+    unknown = sorted(str(k) for k in params if k not in cls.readers)
     if unknown:
         raise ParameterError(f"params.{unknown[0]}", f"unknown parameter of kind {kind!r}")
     return cls.from_params(params)
@@ -107,20 +102,10 @@ class EffectTerms:
         for g in self.regressors:
             g.rescale(factor)
 
-    def step(self, t: float, r: float, s_hat: float, direction: int,
-             temperature: float = math.nan,
-             neighbours: Mapping[str, float] | None = None) -> float:
-        """Corrected strain of one sample (advances every regressor's state)."""
-        sample = Sample(t, r, s_hat, direction, temperature, neighbours)
-        out = float(s_hat)
-        for g, c in zip(self.regressors, self.coefs, strict=True):
-            out -= c * g.step(sample)
-        return out
-
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
             direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> np.ndarray:
-        """Batch equivalent of repeated ``step``: corrected strain over arrays."""
+        """Corrected strain over arrays, continuing from (and updating) the terms' state."""
         batch = Batch.of(t, r, s_hat, direction, temperature, neighbours)
         out = np.copy(batch.s_hat, order="C")
         for g, c in zip(self.regressors, self.coefs, strict=True):
