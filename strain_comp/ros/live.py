@@ -17,7 +17,7 @@ from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
-from strain_comp.core.outputs import ArrayOutput, BatchOutput, SensorOutput, concatenate
+from strain_comp.core.outputs import ArrayOutput, BatchOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
@@ -107,19 +107,6 @@ class LiveCompensator:
                 self._last_publish[name] = float(t[i])
         return due
 
-    def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
-        """Feed one resistance message (``on_sensors`` of one): its output, None when not
-        published; InputError when the calibration gave a non-finite strain."""
-        out, publish, refused = self.on_sensors(name, np.array([t]), np.array([value]))
-        if refused[0]:
-            raise InputError(NON_FINITE)
-        if not publish[0]:
-            return None
-        return SensorOutput(float(out.strain[0]), int(out.direction[0]),
-                            Status(int(out.status[0])), bool(out.out_of_range[0]),
-                            float(out.resistance[0]),
-                            math.nan if out.std is None else float(out.std[0]))
-
     def on_sensors(self, name: str, t: np.ndarray, values: np.ndarray
                    ) -> tuple[BatchOutput, np.ndarray, np.ndarray]:
         """Feed resistance messages of one sensor at times ``t`` (a batch through the
@@ -147,19 +134,6 @@ class LiveCompensator:
                                         int(out.status[i]) != Status.OUT_OF_RANGE)
             out = replace(out, strain=self.fusion[name].apply(out.strain))
         return out, self._due(name, t, np.isfinite(out.strain) & ~refused), refused
-
-    def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
-                 sizes: list[int] | None = None, label: str = "") -> ArrayOutput | None:
-        """Feed one array message (``on_arrays`` of one): its output, None when not
-        published; InputError when the calibration gave a non-finite strain."""
-        values = self.array_row(name, data, offset=offset, sizes=sizes, label=label)
-        out, publish, refused = self.on_arrays(name, np.array([t]), values[None, :])
-        if refused[0]:
-            raise InputError(NON_FINITE)
-        if not publish[0]:
-            return None
-        return ArrayOutput(out.strain[0], out.direction[0], out.status[0],
-                           out.out_of_range[0], None if out.std is None else out.std[0])
 
     def array_row(self, name: str, data: Any, *, offset: int = 0,
                   sizes: list[int] | None = None, label: str = "") -> np.ndarray:
@@ -245,7 +219,7 @@ class LiveCompensator:
     def on_reference_array(self, name: str, t: float, data: Any, *, offset: int = 0,
                            sizes: list[int] | None = None, label: str = ""
                            ) -> dict[str, str | None]:
-        """An array's known strains (layout as ``on_array``; NaN: no reference for that
+        """An array's known strains (layout as ``array_row``; NaN: no reference for that
         sensor): per sensor given, None when fused or the reason it was refused."""
         return {sensor: self.on_reference(sensor, t, value) for sensor, value in
                 self.array_references(name, data, offset=offset, sizes=sizes,
@@ -253,7 +227,7 @@ class LiveCompensator:
 
     def array_references(self, name: str, data: Any, *, offset: int = 0,
                          sizes: list[int] | None = None, label: str = "") -> dict[str, float]:
-        """An array's known strains by sensor (layout as ``on_array``; NaN ones left out)."""
+        """An array's known strains by sensor (layout as ``array_row``; NaN ones left out)."""
         sensors = self._inputs[name]
         values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
         return {s: float(v) for s, v in zip(sensors, values, strict=True) if not np.isnan(v)}
