@@ -478,7 +478,7 @@ class CompensatorNode(Node):
         return response
 
     def _tare(self, request: Any, response: Any) -> Any:
-        return self._answer("~/tare", response, self.live.tare)
+        return self._answer("~/tare", response, self.live.taring.tare)
 
     def _reference(self, request: Any, response: Any) -> Any:
         return self._answer("~/reference", response,

@@ -216,21 +216,12 @@ class LiveCompensator:
             return None
         return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
 
-    def on_reference_array(self, name: str, t: float, data: Any, *, offset: int = 0,
-                           sizes: list[int] | None = None, label: str = ""
-                           ) -> dict[str, str | None]:
-        """An array's known strains (layout as ``array_row``; NaN: no reference for that
-        sensor): per sensor given, None when fused or the reason it was refused."""
-        return {sensor: self.on_reference(sensor, t, value) for sensor, value in
-                self.array_references(name, data, offset=offset, sizes=sizes,
-                                      label=label).items()}
-
     def array_references(self, name: str, data: Any, *, offset: int = 0,
                          sizes: list[int] | None = None, label: str = "") -> dict[str, float]:
         """An array's known strains by sensor (layout as ``array_row``; NaN ones left out)."""
-        sensors = self._inputs[name]
-        values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
-        return {s: float(v) for s, v in zip(sensors, values, strict=True) if not np.isnan(v)}
+        values = self.array_row(name, data, offset=offset, sizes=sizes, label=label)
+        return {s: float(v) for s, v in zip(self._inputs[name], values, strict=True)
+                if not np.isnan(v)}
 
     def reference_now(self, now: float | None = None) -> str:
         """``~/reference``: every sensor is at ``known_strain`` at the clock time ``now``
@@ -288,10 +279,6 @@ class LiveCompensator:
         self._last_message[name] = float(t[-1])
 
     # --- tare -----------------------------------------------------------------------------
-
-    def tare(self) -> str:
-        """``~/tare`` (``LiveTare.tare``): each sensor's current rest resistance its zero."""
-        return self.taring.tare()
 
     def span(self) -> tuple[LiveCompensator, str]:
         """``~/span``: every sensor is held at the known strain ``span_strain`` now; its

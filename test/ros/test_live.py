@@ -72,10 +72,10 @@ def test_array_values_follow_the_label() -> None:
 def test_tare_takes_the_recent_median_all_or_nothing(tmp_path: Path) -> None:
     node = live(tmp_path)
     with pytest.raises(ParameterError, match="no good sample"):
-        node.tare()
+        node.taring.tare()
     for i, r in enumerate([100.0, 160.0, 161.0, math.nan, 159.0]):
         one_message(node, "s1", 10.0 + 0.2 * i, r)
-    node.tare()  # the good samples of the last 0.5 s: 161, 159
+    node.taring.tare()  # the good samples of the last 0.5 s: 161, 159
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 160.0)
     values = node.diagnostics(10.5)[0][3]
     assert float(values["rest_resistance"]) == pytest.approx(160.0)
@@ -83,7 +83,7 @@ def test_tare_takes_the_recent_median_all_or_nothing(tmp_path: Path) -> None:
     bare = live(tmp_path, rest=None)
     one_message(bare, "s1", 1.0, 150.0)
     with pytest.raises(ParameterError, match="stores no rest_resistance"):
-        bare.tare()
+        bare.taring.tare()
 
 
 def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
@@ -171,7 +171,7 @@ def test_auto_tare_of_a_rest_outside_the_calibrated_range_is_the_offline_one(
     service = live(tmp_path)
     for ti, ri in zip(t, r, strict=True):
         one_message(service, "s1", float(ti), float(ri))
-    service.tare()
+    service.taring.tare()
     assert service.engine.input_gain("s1") == pytest.approx(150.0 / 60.0, rel=1e-3)
 
 
@@ -199,7 +199,7 @@ def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
     node = live(tmp_path, tare="auto")
     for ti in np.arange(0.0, 1.0, 0.01):
         one_message(node, "s1", float(ti), 140.0)
-    node.tare()
+    node.taring.tare()
     assert not node.taring.start
     for ti in np.arange(1.0, 2.0 * REST_WINDOW, 0.01):
         one_message(node, "s1", float(ti), 120.0)
@@ -218,7 +218,7 @@ def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) ->
     with pytest.raises(ParameterError, match="span_strain"):
         node.span()
     one_message(node, "s1", 1.0, 155.0)
-    node.tare()  # the zero of the moved sensor
+    node.taring.tare()  # the zero of the moved sensor
     node.set_tunable("span_strain", 10.0)
     for i in range(5):
         one_message(node, "s1", 2.0 + 0.1 * i, moved)

@@ -107,21 +107,25 @@ def test_bad_references_are_refused_and_counted(tmp_path: Path) -> None:
 
 def test_array_references_nan_for_none_and_the_label_honoured(tmp_path: Path) -> None:
     node = live(tmp_path, array=True)
+
+    def references(t: float, data: list[float], label: str = "") -> dict[str, str | None]:
+        given = node.array_references("arr", data, label=label)
+        return {s: node.on_reference(s, t, v) for s, v in given.items()}
+
     out = one_message(node, "arr", 1.0, [150.0, 170.0])
     assert out is not None
     raw = out.strain.copy()
-    got = node.on_reference_array("arr", 1.01, [math.nan, GAIN * raw[1] + OFFSET])
+    got = references(1.01, [math.nan, GAIN * raw[1] + OFFSET])
     assert got == {"b": None}
     assert node.fusion["a"].n_used == 0 and node.fusion["b"].n_used == 1
     again = one_message(node, "arr", 1.02, [150.0, 170.0])
     assert again is not None and again.strain[0] == raw[0] and again.strain[1] > raw[1]
-    got = node.on_reference_array("arr", 1.03, [GAIN * raw[0] + OFFSET, math.nan],
-                                  label="a,b")
+    got = references(1.03, [GAIN * raw[0] + OFFSET, math.nan], label="a,b")
     assert got == {"a": None}
     with pytest.raises(InputError, match="label does not name the sensors"):
-        node.on_reference_array("arr", 1.04, [1.0, 2.0], label="a,c")
+        references(1.04, [1.0, 2.0], label="a,c")
     with pytest.raises(InputError, match="expected 2 values"):
-        node.on_reference_array("arr", 1.05, [1.0])
+        references(1.05, [1.0])
     fresh = node.reload(node.params)  # a reload restarts the estimate, counts go on
     assert fresh.fusion["a"].gain == 1.0 and fresh.fusion["a"].n_used == 1
 
