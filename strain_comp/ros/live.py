@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import fields, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -37,6 +38,7 @@ MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
 NON_FINITE = "the calibration gave a non-finite strain; not published"
 """The refusal of a good sample whose strain is not finite (a good sample is never NaN)."""
+_Out = TypeVar("_Out", BatchOutput, ArrayOutput)
 _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
@@ -110,19 +112,13 @@ class LiveCompensator:
     def on_sensors(self, name: str, t: np.ndarray, values: np.ndarray
                    ) -> tuple[BatchOutput, np.ndarray, np.ndarray]:
         """Feed resistance messages of one sensor at times ``t`` (a batch through the
-        engine; one at a time while an automatic tare or ``~/start`` watches the input, whose
-        outcome changes the next sample): (outputs, which to publish, which were refused
+        engine, else ``_each``): (outputs, which to publish, which were refused
         because the calibration gave a non-finite strain for a good sample)."""
         if t.size > 1 and (name in self.taring.start or self.starting.series):
-            parts = [self.on_sensors(name, t[i:i + 1], values[i:i + 1])
-                     for i in range(t.size)]
-            return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
-                    np.concatenate([p[2] for p in parts]))
+            return self._each(self.on_sensors, name, t, values)
         temp = self.temperature.get(name, math.nan)
         out = self.engine.run(name, t, values,
                               None if math.isnan(temp) else np.full(t.size, temp))
-        for ti, value in zip(t if self.starting.series else (), values, strict=False):
-            self.starting.seen_input(name, float(ti), float(value))
         self._seen(name, t, values[:, None], out.status[:, None], out.direction[:, None])
         used = used_mask(out.status)
         refused = used & ~np.isfinite(out.strain)  # a good sample: never NaN
@@ -134,6 +130,14 @@ class LiveCompensator:
                                         int(out.status[i]) != Status.OUT_OF_RANGE)
             out = replace(out, strain=self.fusion[name].apply(out.strain))
         return out, self._due(name, t, np.isfinite(out.strain) & ~refused), refused
+
+    def _each(self, feed: Callable[..., tuple[_Out, np.ndarray, np.ndarray]], name: str,
+              t: np.ndarray, values: np.ndarray) -> tuple[_Out, np.ndarray, np.ndarray]:
+        """``feed`` one sample at a time: an automatic tare or ``~/start`` watches the input,
+        whose outcome changes the next sample."""
+        parts = [feed(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
+        return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                np.concatenate([p[2] for p in parts]))
 
     def array_row(self, name: str, data: Any, *, offset: int = 0,
                   sizes: list[int] | None = None, label: str = "") -> np.ndarray:
@@ -147,18 +151,8 @@ class LiveCompensator:
         """Feed array messages (rows of ``values``) at times ``t``, as ``on_sensors``: every
         output field one row per tick."""
         if t.size > 1 and (name in self.taring.start or self.starting.series):
-            parts = [self.on_arrays(name, t[i:i + 1], values[i:i + 1])
-                     for i in range(t.size)]
-            def rows(field: str) -> np.ndarray:
-                return np.concatenate([getattr(p[0], field) for p in parts])
-            return (ArrayOutput(rows("strain"), rows("direction"), rows("status"),
-                                rows("out_of_range"),
-                                None if parts[0][0].std is None else rows("std")),
-                    np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts]))
+            return self._each(self.on_arrays, name, t, values)
         out = self.engine.run_ticks(name, t, values)
-        for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
-            for ti, value in zip(t, values[:, j], strict=True):
-                self.starting.seen_input(sensor, float(ti), float(value))
         self._seen(name, t, values, out.status, out.direction)
         refused = (used_mask(out.status) & ~np.isfinite(out.strain)).any(axis=1)
         if self.fusion:
@@ -274,7 +268,11 @@ class LiveCompensator:
 
     def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
-        """Samples of input ``name`` (rows: times ``t``; columns: its sensors) for the tare."""
+        """Samples of input ``name`` (rows: times ``t``; columns: its sensors) for the tare
+        and ``~/start``."""
+        for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
+            for ti, value in zip(t, raw[:, j], strict=True):
+                self.starting.seen_input(sensor, float(ti), float(value))
         self.taring.seen(name, t, raw, status, direction)
         self._last_message[name] = float(t[-1])
 
