@@ -110,7 +110,7 @@ def test_a_program_error_in_a_service_answers_so_and_is_counted(
     def broken() -> str:
         raise KeyError("s1")
 
-    monkeypatch.setattr(rig.node.live, "tare", broken)
+    monkeypatch.setattr(rig.node.live.taring, "tare", broken)
     reply = rig.call("/compensator/tare")
     assert not reply.success
     assert reply.message.startswith("internal error: KeyError: 's1' (a bug")
