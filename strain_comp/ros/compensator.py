@@ -361,14 +361,11 @@ class CompensatorNode(Node):
         """A batch of input ``name``'s messages through the compensator; publish the outputs."""
         t = np.array(stamps, dtype=np.int64).astype(np.float64) * 1e-9
         pubs = self._pubs[name]
-        if isinstance(values[0], float):
-            out, publish, refused = self.live.on_sensors(name, t, np.array(values))
-            strain, direction = out.strain, out.direction
-            scalar = True
-        else:
-            out, publish, refused = self.live.on_arrays(name, t, np.array(values))
-            strain, direction = out.strain, out.direction.astype(np.float64)
-            scalar = False
+        scalar = isinstance(values[0], float)
+        feed = self.live.on_sensors if scalar else self.live.on_arrays
+        out, publish, refused = feed(name, t, np.array(values))
+        strain = out.strain
+        direction = out.direction if scalar else out.direction.astype(np.float64)
         for _ in range(int(np.count_nonzero(refused))):
             self._refuse(name, NON_FINITE)
         rows = np.flatnonzero(publish)
