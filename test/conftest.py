@@ -35,6 +35,7 @@ from ros_env import ros_env
 
 from strain_comp.base.compensator import Compensator, Normalisation, Segment
 from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.samples import Status
 from strain_comp.core.calibration import (
     Calibration,
     InputSettings,
@@ -43,6 +44,7 @@ from strain_comp.core.calibration import (
     provenance,
 )
 from strain_comp.core.engine import Engine
+from strain_comp.core.outputs import ArrayOutput, SensorOutput
 from strain_comp.core.range_policy import EXTEND_REACH, MARGIN, OPEN_FACTOR, SHORT_FACTOR
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import fit_sensor
@@ -258,6 +260,24 @@ def changed_run(seconds: float = 300.0) -> tuple[np.ndarray, np.ndarray, np.ndar
     r = (CHANGED_SENSITIVITY * s + 50.0) / 0.5 + rng.normal(0.0, 0.2, t.size)
     return t, r, s
 
+
+
+def one_message(live: Any, name: str, t: float, value: Any) -> Any:
+    """One message (a number, or an array's values) through ``LiveCompensator.on_sensors``
+    / ``on_arrays`` as a batch of one: its output, None when not published."""
+    if np.ndim(value) == 0:
+        out, publish, _ = live.on_sensors(name, np.array([t]), np.array([float(value)]))
+        if not publish[0]:
+            return None
+        return SensorOutput(float(out.strain[0]), int(out.direction[0]),
+                            Status(int(out.status[0])), bool(out.out_of_range[0]),
+                            float(out.resistance[0]),
+                            math.nan if out.std is None else float(out.std[0]))
+    out, publish, _ = live.on_arrays(name, np.array([t]), np.asarray(value, float)[None, :])
+    if not publish[0]:
+        return None
+    return ArrayOutput(out.strain[0], out.direction[0], out.status[0], out.out_of_range[0],
+                       None if out.std is None else out.std[0])
 
 # ---------------------------------------------------------------------------- markers
 # ``pytest -m "not slow and not ros"`` is the quick run; scripts/test.sh (CI) runs all.

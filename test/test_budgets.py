@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zstandard
-from conftest import cubic_cal
+from conftest import cubic_cal, one_message
 from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Schema
 
@@ -215,7 +215,7 @@ def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
     monkeypatch.setattr(live_tare, "MAX_START_SAMPLES", 1024)
     node = _live(tmp_path, "auto")
     for _ in range(5000):
-        node.on_sensor("s1", 3.0, 150.0)
+        one_message(node, "s1", 3.0, 150.0)
     assert node.taring.start == {} or node.taring.start["s1"].t.size <= 1024
     assert any("auto tare declined: 1024 samples" in line for line in node.taring.log)
     assert node.engine.input_gain("s1") == 1.0
@@ -224,12 +224,12 @@ def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
 def test_reload_keeps_the_health_and_refusal_counters(tmp_path: Path) -> None:
     node = _live(tmp_path)
     for i, r in enumerate([150.0, math.nan, 151.0, -1.0]):
-        node.on_sensor("s1", 1.0 + 0.1 * i, r)
+        one_message(node, "s1", 1.0 + 0.1 * i, r)
     node.refuse("s1", "wrong type")
     before = node.health()["s1"]
     node = node.reload(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml"},
                                     base_dir=tmp_path))
-    node.on_sensor("s1", 2.0, 152.0)
+    one_message(node, "s1", 2.0, 152.0)
     after = node.health()["s1"]
     assert (after.n_good, after.n_nan, after.n_non_positive) == (before.n_good + 1, 1, 1)
     assert node.refused["s1: wrong type"] == 1
@@ -259,7 +259,7 @@ def test_temperatures_outside_the_physical_range_are_missing_never_nan(tmp_path:
     out = []
     for ti, ri, ti_c in zip(t, r, hostile, strict=True):
         node.on_temperature("s1", ti_c)
-        out.append(node.on_sensor("s1", ti, ri).strain)  # type: ignore[union-attr]
+        out.append(one_message(node, "s1", ti, ri).strain)
     np.testing.assert_allclose(out, truth, atol=1e-12)
     assert sum(node.refused.values()) == 4
 

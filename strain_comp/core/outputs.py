@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
+from typing import TypeVar
 
 import numpy as np
 
@@ -58,11 +59,14 @@ class BatchOutput:
     """The estimate's standard deviation per sample; None without an uncertainty."""
 
 
-def concatenate(outs: Sequence[BatchOutput]) -> BatchOutput:
-    """One ``BatchOutput`` of consecutive ones (``run`` over pieces of a stream)."""
+_Out = TypeVar("_Out", BatchOutput, ArrayOutput)
+
+
+def concatenate(outs: Sequence[_Out]) -> _Out:
+    """One ``BatchOutput`` (or ``ArrayOutput``) of consecutive ones (pieces of a stream)."""
     def join(key: str) -> np.ndarray | None:
         values = [getattr(o, key) for o in outs]
         return None if any(v is None for v in values) else np.concatenate(values)
 
-    return BatchOutput(*(join(f.name) for f in fields(BatchOutput)))  # type: ignore[arg-type]
+    return type(outs[0])(*(join(f.name) for f in fields(outs[0])))  # type: ignore[arg-type]
 

@@ -68,8 +68,7 @@ the message cannot be read)."""
 
 
 def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    """The ParameterDescriptor of a ``ParamSpec``: a fixed type (a refused set never changes
-    it), the range, the description, read-only."""
+    """A ``ParamSpec``'s descriptor, with a fixed type (a refused set never changes it)."""
     kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
              "bool": ParameterType.PARAMETER_BOOL,
              "string_array": ParameterType.PARAMETER_STRING_ARRAY}
@@ -213,8 +212,7 @@ class CompensatorNode(Node):
                                   throttle_duration_sec=LOG_THROTTLE_S)
 
     def _fault(self, name: str, error: Exception) -> None:
-        """A program error while handling ``name``: counted apart, logged with its
-        traceback; the node goes on."""
+        """A program error while handling ``name``: counted apart, logged with its traceback."""
         self.live.fault(name, error)
         logger(self).error(
             f"{name}: program error (a bug, not the message): {type(error).__name__}: "
@@ -222,8 +220,7 @@ class CompensatorNode(Node):
             throttle_duration_sec=LOG_THROTTLE_S)
 
     def _guarded(self, name: str, act: Callable[[], None]) -> None:
-        """``act()``; a refusal (StrainCompError) or a program error is counted, never
-        ends the node."""
+        """``act()``; a refusal or a program error is counted, never ends the node."""
         try:
             act()
         except StrainCompError as err:
@@ -245,8 +242,7 @@ class CompensatorNode(Node):
             source._subscribe_to_clock_topic()
 
     def _on_clock(self, msg: Any) -> None:
-        """A /clock tick from any peer: a time rclpy cannot hold (negative) is refused and
-        counted under ``/clock``; the clock keeps its time."""
+        """A /clock tick: a time rclpy cannot hold (negative) is refused under ``/clock``."""
         def tick() -> None:
             sec = getattr(getattr(msg, "clock", None), "sec", None)
             if isinstance(sec, bool) or not isinstance(sec, int):
@@ -326,8 +322,7 @@ class CompensatorNode(Node):
         self._flush()
 
     def _queue(self, name: str, stamp: int, reader: Reader, msg: Any) -> None:
-        """A message read and queued with its stamp (refused for what it carries, or a
-        program error counted, by ``_guarded``)."""
+        """A message read and queued with its stamp (``_guarded``)."""
         def read() -> None:
             value = reader(name, msg)
             stamps, values = self._queued[name]
@@ -363,18 +358,14 @@ class CompensatorNode(Node):
                 self._queue(name, taken[1]["received_timestamp"], reader, taken[0])
 
     def _handle(self, name: str, stamps: list[int], values: list[Any]) -> None:
-        """A batch of input ``name``'s messages through the compensator; the outputs of the
-        samples it publishes."""
+        """A batch of input ``name``'s messages through the compensator; publish the outputs."""
         t = np.array(stamps, dtype=np.int64).astype(np.float64) * 1e-9
         pubs = self._pubs[name]
-        if isinstance(values[0], float):
-            out, publish, refused = self.live.on_sensors(name, t, np.array(values))
-            strain, direction = out.strain, out.direction
-            scalar = True
-        else:
-            out, publish, refused = self.live.on_arrays(name, t, np.array(values))
-            strain, direction = out.strain, out.direction.astype(np.float64)
-            scalar = False
+        scalar = isinstance(values[0], float)
+        feed = self.live.on_sensors if scalar else self.live.on_arrays
+        out, publish, refused = feed(name, t, np.array(values))
+        strain = out.strain
+        direction = out.direction if scalar else out.direction.astype(np.float64)
         for _ in range(int(np.count_nonzero(refused))):
             self._refuse(name, NON_FINITE)
         rows = np.flatnonzero(publish)
@@ -451,8 +442,7 @@ class CompensatorNode(Node):
     # --- services -------------------------------------------------------------------------
 
     def _busy(self, response: Any) -> bool:
-        """Refuse a call into ``response`` while a reload is in flight (its result would
-        replace what the call changes)."""
+        """Refuse a call while a reload is in flight (its result would replace the change)."""
         if self._loading is None:
             return False
         response.success = False
@@ -460,9 +450,7 @@ class CompensatorNode(Node):
         return True
 
     def _answer(self, service: str, response: Any, act: Callable[[], str]) -> Any:
-        """A Trigger response: ``act()``'s summary (logged), or its error in one line (a
-        program error said as such, logged with its traceback); refused while a reload is
-        in flight."""
+        """A Trigger response: ``act()``'s summary (logged), or its error in one line."""
         if self._busy(response):
             return response
         self._flush()
@@ -478,34 +466,30 @@ class CompensatorNode(Node):
         return response
 
     def _tare(self, request: Any, response: Any) -> Any:
-        return self._answer("~/tare", response, self.live.tare)
+        return self._answer("~/tare", response, self.live.taring.tare)
 
     def _reference(self, request: Any, response: Any) -> Any:
         return self._answer("~/reference", response,
                             lambda: self.live.reference_now(self._now_ns() * 1e-9))
 
     def _span(self, request: Any, response: Any) -> Any:
-        def span() -> str:
-            self.live, summary = self.live.span()
-            return summary
-        return self._answer("~/span", response, span)
+        return self._answer("~/span", response, lambda: self._swap(self.live.span()))
 
     def _start(self, request: Any, response: Any) -> Any:
-        def begin() -> str:
-            self.live, summary = self.live.start(self._now_ns() * 1e-9)
-            return summary
-        return self._answer("~/start", response, begin)
+        return self._answer("~/start", response,
+                            lambda: self._swap(self.live.start(self._now_ns() * 1e-9)))
+
+    def _swap(self, outcome: tuple[LiveCompensator, str]) -> str:
+        """Go on with the compensator a service returned; its summary."""
+        self.live, summary = outcome
+        return summary
 
     @staticmethod
     def _paths(live: LiveCompensator) -> str:
         return ", ".join(sorted({str(i.calibration_path) for i in live.params.inputs}))
 
     def _reload(self, request: Any, response: Any) -> Any:
-        """Read and validate the calibration files (every load-time check), then answer:
-        success=false with the reason for files that will be refused (the old calibration
-        keeps running), success=true ("loading ...") for files that will be used, whose
-        compensator is then built on a worker thread while the outputs go on; its result
-        goes to the log and /diagnostics. A call while a load is in flight is refused."""
+        """Validate the calibration files, answer, then build on a worker thread (docs/ros.md)."""
         if self._busy(response):
             return response
         self._flush()
@@ -513,13 +497,12 @@ class CompensatorNode(Node):
         try:
             params = parse_values(self.flat, base_dir=self.base_dir)
             current.check_successor(params)
-        except (StrainCompError, OSError) as err:  # the files' fault: the answer's reason
-            self._refused_reload(_one_line(err))
-            response.success, response.message = False, self.calibration_status[1]
-            return response
-        except Exception as err:  # a fault of the program: answered and reported as one
-            self._fault("~/reload_calibration", err)
-            self._refused_reload(_internal(err))
+        except Exception as err:
+            if isinstance(err, (StrainCompError, OSError)):  # the files' fault: the reason
+                self._refused_reload(_one_line(err))
+            else:  # a fault of the program: answered and reported as one
+                self._fault("~/reload_calibration", err)
+                self._refused_reload(_internal(err))
             response.success, response.message = False, self.calibration_status[1]
             return response
         self._loading = threading.Thread(target=self._load, args=(current, params),
@@ -536,8 +519,7 @@ class CompensatorNode(Node):
         logger(self).error(self.calibration_status[1])
 
     def _load(self, current: LiveCompensator, params: NodeParams) -> None:
-        """Worker thread: build the new compensator (``successor``) on the validated
-        ``params`` and leave it (or the reason it failed) in ``_loaded``."""
+        """Worker thread: ``successor`` (or the reason it failed) into ``_loaded``."""
         outcome: LiveCompensator | str = "the load ended without a result"
         try:
             outcome = current.successor(params)
@@ -547,9 +529,7 @@ class CompensatorNode(Node):
             self._loaded = outcome
 
     def _adopt(self) -> None:
-        """Executor thread, before a message or diagnostics tick: once the load has
-        finished, swap the loaded compensator in (``hand_over``: counters carry on) or log
-        the refusal; the old one keeps running until then, and after a refusal."""
+        """Executor thread: swap a finished load in (``hand_over``) or log its refusal."""
         if self._loaded is None:
             return
         outcome, self._loaded = self._loaded, None

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import fields, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
-from strain_comp.core.outputs import ArrayOutput, BatchOutput, SensorOutput, concatenate
+from strain_comp.core.outputs import ArrayOutput, BatchOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
@@ -37,6 +38,7 @@ MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
 NON_FINITE = "the calibration gave a non-finite strain; not published"
 """The refusal of a good sample whose strain is not finite (a good sample is never NaN)."""
+_Out = TypeVar("_Out", BatchOutput, ArrayOutput)
 _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
@@ -91,8 +93,7 @@ class LiveCompensator:
     # --- messages -------------------------------------------------------------------------
 
     def _due(self, name: str, t: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-        """Publish-rate limit on message time: of the ``candidates`` at times ``t``, those
-        published (at most one output per 1/rate seconds)."""
+        """Of the ``candidates`` at times ``t``, those published (one per 1/rate s)."""
         rate = self.tunables["publish_rate_limit_hz"]
         due: np.ndarray = np.array(candidates, dtype=bool)
         if rate <= 0.0:
@@ -107,35 +108,14 @@ class LiveCompensator:
                 self._last_publish[name] = float(t[i])
         return due
 
-    def on_sensor(self, name: str, t: float, value: float) -> SensorOutput | None:
-        """Feed one resistance message (``on_sensors`` of one): its output, None when not
-        published; InputError when the calibration gave a non-finite strain."""
-        out, publish, refused = self.on_sensors(name, np.array([t]), np.array([value]))
-        if refused[0]:
-            raise InputError(NON_FINITE)
-        if not publish[0]:
-            return None
-        return SensorOutput(float(out.strain[0]), int(out.direction[0]),
-                            Status(int(out.status[0])), bool(out.out_of_range[0]),
-                            float(out.resistance[0]),
-                            math.nan if out.std is None else float(out.std[0]))
-
     def on_sensors(self, name: str, t: np.ndarray, values: np.ndarray
                    ) -> tuple[BatchOutput, np.ndarray, np.ndarray]:
-        """Feed resistance messages of one sensor at times ``t`` (a batch through the
-        engine; one at a time while an automatic tare or ``~/start`` watches the input, whose
-        outcome changes the next sample): (outputs, which to publish, which were refused
-        because the calibration gave a non-finite strain for a good sample)."""
+        """Resistances of one sensor at times ``t``: (outputs, published, refused: non-finite)."""
         if t.size > 1 and (name in self.taring.start or self.starting.series):
-            parts = [self.on_sensors(name, t[i:i + 1], values[i:i + 1])
-                     for i in range(t.size)]
-            return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
-                    np.concatenate([p[2] for p in parts]))
+            return self._each(self.on_sensors, name, t, values)
         temp = self.temperature.get(name, math.nan)
         out = self.engine.run(name, t, values,
                               None if math.isnan(temp) else np.full(t.size, temp))
-        for ti, value in zip(t if self.starting.series else (), values, strict=False):
-            self.starting.seen_input(name, float(ti), float(value))
         self._seen(name, t, values[:, None], out.status[:, None], out.direction[:, None])
         used = used_mask(out.status)
         refused = used & ~np.isfinite(out.strain)  # a good sample: never NaN
@@ -148,43 +128,26 @@ class LiveCompensator:
             out = replace(out, strain=self.fusion[name].apply(out.strain))
         return out, self._due(name, t, np.isfinite(out.strain) & ~refused), refused
 
-    def on_array(self, name: str, t: float, data: Any, *, offset: int = 0,
-                 sizes: list[int] | None = None, label: str = "") -> ArrayOutput | None:
-        """Feed one array message (``on_arrays`` of one): its output, None when not
-        published; InputError when the calibration gave a non-finite strain."""
-        values = self.array_row(name, data, offset=offset, sizes=sizes, label=label)
-        out, publish, refused = self.on_arrays(name, np.array([t]), values[None, :])
-        if refused[0]:
-            raise InputError(NON_FINITE)
-        if not publish[0]:
-            return None
-        return ArrayOutput(out.strain[0], out.direction[0], out.status[0],
-                           out.out_of_range[0], None if out.std is None else out.std[0])
+    def _each(self, feed: Callable[..., tuple[_Out, np.ndarray, np.ndarray]], name: str,
+              t: np.ndarray, values: np.ndarray) -> tuple[_Out, np.ndarray, np.ndarray]:
+        """``feed`` one sample at a time: an automatic tare or ``~/start`` watches the input,
+        whose outcome changes the next sample."""
+        parts = [feed(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
+        return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                np.concatenate([p[2] for p in parts]))
 
     def array_row(self, name: str, data: Any, *, offset: int = 0,
                   sizes: list[int] | None = None, label: str = "") -> np.ndarray:
-        """An array message's values in the array's sensor order (InputError when its
-        layout does not fit)."""
+        """An array message's values in sensor order; InputError when its layout does not fit."""
         sensors = self._inputs[name]
         return array_values(data, offset, sizes or [], len(sensors), label, sensors)
 
     def on_arrays(self, name: str, t: np.ndarray, values: np.ndarray
                   ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
-        """Feed array messages (rows of ``values``) at times ``t``, as ``on_sensors``: every
-        output field one row per tick."""
+        """Array ticks (rows of ``values``) at times ``t``, as ``on_sensors``."""
         if t.size > 1 and (name in self.taring.start or self.starting.series):
-            parts = [self.on_arrays(name, t[i:i + 1], values[i:i + 1])
-                     for i in range(t.size)]
-            def rows(field: str) -> np.ndarray:
-                return np.concatenate([getattr(p[0], field) for p in parts])
-            return (ArrayOutput(rows("strain"), rows("direction"), rows("status"),
-                                rows("out_of_range"),
-                                None if parts[0][0].std is None else rows("std")),
-                    np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts]))
+            return self._each(self.on_arrays, name, t, values)
         out = self.engine.run_ticks(name, t, values)
-        for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
-            for ti, value in zip(t, values[:, j], strict=True):
-                self.starting.seen_input(sensor, float(ti), float(value))
         self._seen(name, t, values, out.status, out.direction)
         refused = (used_mask(out.status) & ~np.isfinite(out.strain)).any(axis=1)
         if self.fusion:
@@ -193,8 +156,7 @@ class LiveCompensator:
 
     def _fused_array(self, name: str, t: np.ndarray, out: ArrayOutput, refused: np.ndarray
                      ) -> ArrayOutput:
-        """``out`` with each sensor's fused gain and offset applied; the used samples'
-        estimates of the ticks not refused kept for the references."""
+        """``out`` fused; the used samples' estimates kept for the references."""
         k = out.strain.shape[1]
         times, strains, inside = self._array_estimate.setdefault(
             name, (np.full(k, np.nan), np.full(k, np.nan), np.zeros(k, bool)))
@@ -212,8 +174,7 @@ class LiveCompensator:
     # --- known strains --------------------------------------------------------------------
 
     def on_reference(self, sensor: str, t: float, value: Any) -> str | None:
-        """A known strain of ``sensor`` (its ``strain_reference`` topic), fused or refused and
-        counted."""
+        """A known strain of ``sensor``: None when fused, else the reason (counted)."""
         fusion = self.fusion.get(sensor)
         if fusion is None:
             raise InputError(f"no sensor {sensor!r} in the calibration" if self.fusion else
@@ -242,27 +203,15 @@ class LiveCompensator:
             return None
         return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
 
-    def on_reference_array(self, name: str, t: float, data: Any, *, offset: int = 0,
-                           sizes: list[int] | None = None, label: str = ""
-                           ) -> dict[str, str | None]:
-        """An array's known strains (layout as ``on_array``; NaN: no reference for that
-        sensor): per sensor given, None when fused or the reason it was refused."""
-        return {sensor: self.on_reference(sensor, t, value) for sensor, value in
-                self.array_references(name, data, offset=offset, sizes=sizes,
-                                      label=label).items()}
-
     def array_references(self, name: str, data: Any, *, offset: int = 0,
                          sizes: list[int] | None = None, label: str = "") -> dict[str, float]:
-        """An array's known strains by sensor (layout as ``on_array``; NaN ones left out)."""
-        sensors = self._inputs[name]
-        values = array_values(data, offset, sizes or [], len(sensors), label, sensors)
-        return {s: float(v) for s, v in zip(sensors, values, strict=True) if not np.isnan(v)}
+        """An array's known strains by sensor (layout as ``array_row``; NaN ones left out)."""
+        values = self.array_row(name, data, offset=offset, sizes=sizes, label=label)
+        return {s: float(v) for s, v in zip(self._inputs[name], values, strict=True)
+                if not np.isnan(v)}
 
     def reference_now(self, now: float | None = None) -> str:
-        """``~/reference``: every sensor is at ``known_strain`` at the clock time ``now``
-        [s] (None: each sensor's latest sample's time). The summary; ParameterError when
-        ``fuse_references`` is false or a sensor's reference was refused (the others are
-        fused; each refusal counted)."""
+        """``~/reference`` at clock time ``now`` (None: each sensor's latest sample)."""
         if not self.fusion:
             raise ParameterError("fuse_references", "false: set it to true in the params file "
                                  "to fuse known strains")
@@ -282,24 +231,21 @@ class LiveCompensator:
         return f"known strain {strain:g} fused: " + "; ".join(lines)
 
     def refuse(self, name: str, reason: str) -> None:
-        """Count a message that could not be handled, by input and reason (at most
-        ``MAX_REFUSAL_KEYS`` distinct keys)."""
+        """Count a refused message by input and reason."""
         key = f"{name}: {reason[:MAX_REASON_CHARS]}"
         if key not in self.refused and len(self.refused) >= MAX_REFUSAL_KEYS:
             key = f"{name}: other reasons"
         self.refused[key] += 1
 
     def fault(self, name: str, error: BaseException) -> None:
-        """Count a program error raised while handling input ``name`` (a message, a
-        service call), by input and exception type (at most ``MAX_REFUSAL_KEYS`` keys)."""
+        """Count a program error by input and exception type."""
         key = f"{name}: {type(error).__name__}"
         if key not in self.faults and len(self.faults) >= MAX_REFUSAL_KEYS:
             key = f"{name}: other errors"
         self.faults[key] += 1
 
     def on_temperature(self, name: str, value: float) -> None:
-        """Remember a sensor's latest temperature [deg C] for its effect terms; a reading
-        outside ``TEMPERATURE_RANGE`` is refused and counted, the previous one stays."""
+        """A sensor's latest temperature [deg C]; one outside ``TEMPERATURE_RANGE`` refused."""
         value = float(value)
         if not TEMPERATURE_RANGE[0] <= value <= TEMPERATURE_RANGE[1]:
             self.refuse(f"{name}/temperature", "temperature outside "
@@ -309,23 +255,18 @@ class LiveCompensator:
 
     def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
-        """Samples of input ``name`` (rows: times ``t``; columns: its sensors) for the tare."""
+        """Samples of input ``name`` (rows: times ``t``; columns: its sensors) for the tare
+        and ``~/start``."""
+        for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
+            for ti, value in zip(t, raw[:, j], strict=True):
+                self.starting.seen_input(sensor, float(ti), float(value))
         self.taring.seen(name, t, raw, status, direction)
         self._last_message[name] = float(t[-1])
 
     # --- tare -----------------------------------------------------------------------------
 
-    def tare(self) -> str:
-        """``~/tare`` (``LiveTare.tare``): each sensor's current rest resistance its zero."""
-        return self.taring.tare()
-
     def span(self) -> tuple[LiveCompensator, str]:
-        """``~/span``: every sensor is held at the known strain ``span_strain`` now; its
-        input zero and span (``recalibrate --input``, ``InputSettings.zero_span``) through
-        its rest (the zero of its latest tare, else the calibration's) and the median of
-        its good samples of the last ``TARE_WINDOW_S``. Returns the compensator on the new
-        calibration (state restarts, as after a reload; the rest now reads as the
-        calibrated rest) and the summary; ParameterError, nothing changed, otherwise."""
+        """``~/span`` (docs/ros.md): the compensator on the spanned calibration, the summary."""
         from strain_comp.offline.correction import apply_span, span_from_points, span_reading
 
         strain = self.tunables.get("span_strain", 0.0)
@@ -379,8 +320,7 @@ class LiveCompensator:
             self.engine.stale_after = value
 
     def start(self, now: float) -> tuple[LiveCompensator, str]:
-        """``~/start`` at clock time ``now``: watch the next stretch on the sensors with a
-        recent reference (``live_start``), else ``~/span`` on ``span_strain``."""
+        """``~/start`` at clock time ``now`` (``live_start``; no reference: ``span``)."""
         if self.starting.request(now, list(self.params.calibration.sensors)):
             return self, self.starting.detail
         try:
@@ -392,40 +332,30 @@ class LiveCompensator:
         return fresh, fresh.starting.detail
 
     def start_reference(self, sensor: str, t: float, value: float) -> LiveCompensator:
-        """A reference of ``sensor`` for ``~/start``: the compensator on the started
-        calibration once the watched stretch has returned (model state restarts, as after a
-        reload), else this one."""
+        """A reference for ``~/start``: the compensator on the started calibration, or this one."""
         started = self.starting.seen_reference(sensor, t, value, self.params.calibration)
         if started is None:
             return self
         return self.reload(replace(self.params, calibration=started))
 
     def reload(self, params: NodeParams) -> LiveCompensator:
-        """A new LiveCompensator on ``params``'s calibration carrying on from this one
-        (``successor`` then ``hand_over``). StrainCompError if the new one cannot run."""
+        """``successor`` then ``hand_over``."""
         return self.hand_over(self.successor(params))
 
     def successor(self, params: NodeParams) -> LiveCompensator:
-        """The slow half of a reload: a LiveCompensator built on ``params``'s calibration
-        (engine built and warmed up) with this one's tunables, not yet carrying anything
-        over. Reads only this one's inputs and tunables, so the node runs it on a worker
-        thread while this one keeps handling messages. StrainCompError if it cannot run."""
+        """A reload's slow half, built on a worker thread: reads only inputs and tunables."""
         self.check_successor(params)
         params.tunables = dict(self.tunables)
         return LiveCompensator(params)
 
     def check_successor(self, params: NodeParams) -> None:
-        """StrainCompError if ``params`` (read and validated by ``parse_values``) cannot
-        replace this one's: a reload keeps the inputs and their sensors."""
+        """StrainCompError unless ``params`` keeps the inputs and their sensors."""
         if [i.sensors for i in params.inputs] != [i.sensors for i in self.params.inputs]:
             raise StrainCompError("the reloaded calibration changes the sensors")
 
     def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
-        """``fresh`` (from ``successor``) carrying on from this one, as of now: its health
-        and refusal counters go on from this one's, its tunables are this one's current
-        ones, its inputs' last message times are this one's. Model state restarts and the
-        input gains return to 1 (a new calibration brings its own zero; ``tare: auto``
-        tares again). Quick: the node calls it between two messages."""
+        """``fresh`` carrying on this one's counters, tunables and message times (model
+        state and input gains restart: a new calibration brings its own zero)."""
         for name, value in self.tunables.items():
             fresh._apply(name, value)
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen
@@ -451,8 +381,7 @@ class LiveCompensator:
     # --- diagnostics ----------------------------------------------------------------------
 
     def diagnostics(self, now: float) -> list[tuple[str, int, str, dict[str, str]]]:
-        """Statuses at clock time ``now`` [s]: one per sensor, the program errors', then the
-        transport's."""
+        """Statuses at clock time ``now`` [s]: per sensor, program errors, start, transport."""
         out = []
         health = self.health(now)
         last_message = {s: self._last_message.get(i.name) for i in self.params.inputs

@@ -53,11 +53,6 @@ class _Samples:
         self.raw = np.zeros((self.SIZE, self.k))
         self.good = np.zeros((self.SIZE, self.k), dtype=bool)
 
-    def _store(self, i: int, t: float, raw: np.ndarray, status: np.ndarray) -> None:
-        self.t[i], self.raw[i] = t, raw
-        self.good[i] = used_mask(status)
-        self.n += 1
-
     def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
         """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
         m = min(self.n, self.t.size)
@@ -84,9 +79,8 @@ class _StartLog(_Samples):
     SIZE = 256
 
     def add(self, t: float, raw: np.ndarray, status: np.ndarray, *, keep_from: float) -> bool:
-        """Log a sample; when full, first drop the samples before ``keep_from`` [s], then
-        double if still more than half full (amortised O(1) per sample). False (nothing
-        logged) when that would pass ``MAX_START_SAMPLES``."""
+        """Log a sample (when full: drop those before ``keep_from``, then double if still
+        more than half full); False past ``MAX_START_SAMPLES``."""
         if self.n == self.t.size:
             keep = np.flatnonzero(self.t[:self.n] >= keep_from)
             self.n = keep.size
@@ -98,7 +92,8 @@ class _StartLog(_Samples):
                 self.t = np.concatenate([self.t, np.full(self.t.size, -math.inf)])
                 self.raw = np.concatenate([self.raw, np.zeros(self.raw.shape)])
                 self.good = np.concatenate([self.good, np.zeros(self.good.shape, dtype=bool)])
-        self._store(self.n, t, raw, status)
+        self.t[self.n], self.raw[self.n], self.good[self.n] = t, raw, used_mask(status)
+        self.n += 1
         return True
 
 
@@ -122,9 +117,8 @@ class LiveTare:
 
     def seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
              direction: np.ndarray) -> None:
-        """Log samples of input ``name`` (rows: times ``t``; columns: its sensors' raw
-        values, statuses and directions) and take the automatic tares they decide (one
-        sample at a time while one is pending: the caller feeds one)."""
+        """Log samples of input ``name`` (rows: times; columns: its sensors) and take the
+        automatic tares they decide."""
         self.recent[name].add(t, raw, status)
         start = self.start.get(name)
         if start is None:
@@ -190,8 +184,7 @@ class LiveTare:
                                  f"input gain {gain:.6g}")
 
     def at_rest(self) -> Iterator[tuple[str, np.ndarray]]:
-        """Each sensor (in input order) with its good samples [ohm] of the last
-        ``TARE_WINDOW_S`` of its input."""
+        """Each sensor with its good samples [ohm] of its input's last ``TARE_WINDOW_S``."""
         for name, sensors in self.inputs.items():
             recent = self.recent[name]
             latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf

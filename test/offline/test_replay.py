@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cubic_cal, lag_cal, noisy_stream
+from conftest import cubic_cal, lag_cal, noisy_stream, one_message
 
 from strain_comp.base.samples import Status
 from strain_comp.core.calibration import Calibration
@@ -53,10 +53,7 @@ def node_logic(contents: object) -> dict[str, list]:
     events.sort(key=lambda e: e[0])
     out: dict[str, list] = {"s1": [], "arr": []}
     for t, name, value in events:
-        if name == "s1":
-            out[name].append(live.on_sensor(name, t, value))
-        else:
-            out[name].append(live.on_array(name, t, value))
+        out[name].append(one_message(live, name, t, value))
     return out
 
 
@@ -126,7 +123,7 @@ def live_health(contents: object) -> dict:
     live = LiveCompensator(params, warm_up=False)
     for t, v in zip(contents.series["/s1/resistance"].t, contents.series["/s1/resistance"].values,
                     strict=True):
-        live.on_sensor("s1", t, v)
+        one_message(live, "s1", t, v)
     arr = contents.series["/arr/resistance"]
     for k, name in enumerate(["a", "b"]):
         for t, v in zip(arr.t, arr.values[:, k], strict=True):

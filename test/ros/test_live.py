@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import S_HI, S_LO, cubic_cal
+from conftest import S_HI, S_LO, cubic_cal, one_message
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.tare import REST_WINDOW, rest_resistance_at_start, tare_engine
@@ -72,25 +72,25 @@ def test_array_values_follow_the_label() -> None:
 def test_tare_takes_the_recent_median_all_or_nothing(tmp_path: Path) -> None:
     node = live(tmp_path)
     with pytest.raises(ParameterError, match="no good sample"):
-        node.tare()
+        node.taring.tare()
     for i, r in enumerate([100.0, 160.0, 161.0, math.nan, 159.0]):
-        node.on_sensor("s1", 10.0 + 0.2 * i, r)
-    node.tare()  # the good samples of the last 0.5 s: 161, 159
+        one_message(node, "s1", 10.0 + 0.2 * i, r)
+    node.taring.tare()  # the good samples of the last 0.5 s: 161, 159
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 160.0)
     values = node.diagnostics(10.5)[0][3]
     assert float(values["rest_resistance"]) == pytest.approx(160.0)
     assert live(tmp_path, rest=None).engine.input_gain("s1") == 1.0
     bare = live(tmp_path, rest=None)
-    bare.on_sensor("s1", 1.0, 150.0)
+    one_message(bare, "s1", 1.0, 150.0)
     with pytest.raises(ParameterError, match="stores no rest_resistance"):
-        bare.tare()
+        bare.taring.tare()
 
 
 def test_auto_tare_uses_the_first_seconds_at_rest(tmp_path: Path) -> None:
     node = live(tmp_path, tare="auto")
     t = np.arange(0.0, REST_WINDOW + 0.5, 0.01)
     for ti in t:
-        node.on_sensor("s1", float(ti), 140.0)
+        one_message(node, "s1", float(ti), 140.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
     assert node.taring.log and "auto tare" in node.taring.log[0]
     with pytest.raises(ParameterError, match="auto needs 'rest_resistance'"):
@@ -104,7 +104,7 @@ def test_auto_tare_at_1_khz_reads_the_whole_window_as_offline(tmp_path: Path) ->
     t = np.arange(0.0, REST_WINDOW + 0.2, 0.001)
     r = np.where(t < 2.5, 140.0, 140.3) + 0.1 * np.random.default_rng(1).standard_normal(t.size)
     for ti, ri in zip(t, r, strict=True):
-        node.on_sensor("s1", float(ti), float(ri))
+        one_message(node, "s1", float(ti), float(ri))
     assert node.taring.log and "auto tare: rest resistance" in node.taring.log[0]
     expected = rest_resistance_at_start(t, r, node.params.calibration.sensors["s1"].direction)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / expected, rel=1e-12)
@@ -118,7 +118,7 @@ def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path
     t = np.arange(0.0, 3.0, 0.01)
     r = 140.0 + 2.0 * (-1.0) ** np.arange(t.size) + np.where(t > 1.0, 60.0 * (t - 1.0), 0.0)
     for ti, ri in zip(t, r, strict=True):
-        node.on_sensor("s1", float(ti), float(ri))
+        one_message(node, "s1", float(ti), float(ri))
     assert node.taring.log, "no auto tare although the run started at rest"
     direction = node.params.calibration.sensors["s1"].direction
     expected = rest_resistance_at_start(t, r, direction)
@@ -134,7 +134,7 @@ def test_auto_tare_declines_a_run_that_starts_moving_and_never_tares_later(
     t = np.arange(0.0, 3.0 * REST_WINDOW, 0.01)
     r = 140.0 + 60.0 * np.minimum(t, 1.0)
     for ti, ri in zip(t, r, strict=True):
-        node.on_sensor("s1", float(ti), float(ri))
+        one_message(node, "s1", float(ti), float(ri))
     direction = node.params.calibration.sensors["s1"].direction
     with pytest.raises(InputError):
         rest_resistance_at_start(t, r, direction)
@@ -144,8 +144,8 @@ def test_auto_tare_declines_a_run_that_starts_moving_and_never_tares_later(
 
 def test_diagnostics_error_stale_and_transport_recovery(tmp_path: Path) -> None:
     node = live(tmp_path)
-    node.on_sensor("s1", 1.0, 150.0)
-    node.on_sensor("s1", 1.1, math.nan)
+    one_message(node, "s1", 1.0, 150.0)
+    one_message(node, "s1", 1.1, math.nan)
     status = node.diagnostics(1.2)
     assert status[0][1:3] == (2, "non-finite input: estimate held")
     assert node.diagnostics(5.0)[0][1] == 3  # no input at all for longer than stale_after_s
@@ -163,15 +163,15 @@ def test_auto_tare_of_a_rest_outside_the_calibrated_range_is_the_offline_one(
     r = 60.0 + 0.05 * np.random.default_rng(2).standard_normal(t.size)
     node = live(tmp_path, tare="auto")
     for ti, ri in zip(t, r, strict=True):
-        node.on_sensor("s1", float(ti), float(ri))
+        one_message(node, "s1", float(ti), float(ri))
     engine = node.params.build_engine()
     tare_engine(engine, {"s1": (t, r)}, "auto")
     assert engine.input_gain("s1") != 1.0
     assert node.engine.input_gain("s1") == pytest.approx(engine.input_gain("s1"), rel=1e-12)
     service = live(tmp_path)
     for ti, ri in zip(t, r, strict=True):
-        service.on_sensor("s1", float(ti), float(ri))
-    service.tare()
+        one_message(service, "s1", float(ti), float(ri))
+    service.taring.tare()
     assert service.engine.input_gain("s1") == pytest.approx(150.0 / 60.0, rel=1e-3)
 
 
@@ -187,7 +187,7 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
                                          "m.calibration": "c.yaml", "tare": "auto"},
                                         base_dir=tmp_path), warm_up=False)
     for ti in np.arange(0.0, 60.0, 0.01):
-        node.on_array("m", float(ti), [140.0, math.nan])
+        one_message(node, "m", float(ti), [140.0, math.nan])
     assert node.engine.input_gain("a") == pytest.approx(150.0 / 140.0)
     assert node.engine.input_gain("b") == 1.0
     assert node.taring.start["m"].n <= 512
@@ -198,11 +198,11 @@ def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
     tare follows, and nothing more is logged for one."""
     node = live(tmp_path, tare="auto")
     for ti in np.arange(0.0, 1.0, 0.01):
-        node.on_sensor("s1", float(ti), 140.0)
-    node.tare()
+        one_message(node, "s1", float(ti), 140.0)
+    node.taring.tare()
     assert not node.taring.start
     for ti in np.arange(1.0, 2.0 * REST_WINDOW, 0.01):
-        node.on_sensor("s1", float(ti), 120.0)
+        one_message(node, "s1", float(ti), 120.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
     assert not node.taring.log and not node.taring.start
 
@@ -217,19 +217,19 @@ def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) ->
     moved = 155.0 + 1.5 * (r10 - r0)  # rest moved to 155 ohm, 50 % more sensitive
     with pytest.raises(ParameterError, match="span_strain"):
         node.span()
-    node.on_sensor("s1", 1.0, 155.0)
-    node.tare()  # the zero of the moved sensor
+    one_message(node, "s1", 1.0, 155.0)
+    node.taring.tare()  # the zero of the moved sensor
     node.set_tunable("span_strain", 10.0)
     for i in range(5):
-        node.on_sensor("s1", 2.0 + 0.1 * i, moved)
+        one_message(node, "s1", 2.0 + 0.1 * i, moved)
     fresh, message = node.span()
     assert "span gain" in message
     assert fresh.params.calibration.sensors["s1"].input.zero_span == pytest.approx(
         (155.0, r0, 1.0 / 1.5), rel=1e-6)
     assert fresh.tunables["span_strain"] == 10.0
-    out = [fresh.on_sensor("s1", 5.0 + 0.1 * i, moved) for i in range(100)][-1]
+    out = [one_message(fresh, "s1", 5.0 + 0.1 * i, moved) for i in range(100)][-1]
     assert out is not None and out.strain == pytest.approx(10.0, abs=0.05)
-    out = [fresh.on_sensor("s1", 20.0 + 0.1 * i, 155.0) for i in range(100)][-1]
+    out = [one_message(fresh, "s1", 20.0 + 0.1 * i, 155.0) for i in range(100)][-1]
     assert out is not None and out.strain == pytest.approx(rest_strain, abs=0.05)
 
 

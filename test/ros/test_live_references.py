@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cubic_cal
+from conftest import cubic_cal, one_message
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
@@ -43,8 +43,8 @@ def test_references_on_the_topic_move_the_output_to_the_truth_and_only_after(
     t = np.arange(0.0, 120.0, 0.05)
     raw, out = [], []
     for k, (tk, rk) in enumerate(zip(t, resistance(t), strict=True)):
-        ref = plain.on_sensor("s1", tk, rk)
-        got = fused.on_sensor("s1", tk, rk)
+        ref = one_message(plain, "s1", tk, rk)
+        got = one_message(fused, "s1", tk, rk)
         assert ref is not None and got is not None
         raw.append(ref.strain)
         out.append(got.strain)
@@ -68,12 +68,12 @@ def test_known_strain_service_fuses_every_sensor_or_says_why_not(tmp_path: Path)
     with pytest.raises(ParameterError, match="known_strain"):
         node.reference_now()  # no estimate yet: refused, counted
     assert node.fusion["s1"].refused["no estimate yet"] == 1
-    out = node.on_sensor("s1", 1.0, 180.0)
+    out = one_message(node, "s1", 1.0, 180.0)
     assert out is not None
     node.set_tunable("known_strain", out.strain + 3.0)
     summary = node.reference_now()
     assert summary.startswith(f"known strain {out.strain + 3.0:g} fused: s1: gain")
-    after = node.on_sensor("s1", 1.1, 180.0)
+    after = one_message(node, "s1", 1.1, 180.0)
     assert after is not None and after.strain > out.strain + 1.0  # moved toward the known one
     with pytest.raises(ParameterError, match="fuse_references"):
         live(tmp_path, "off").reference_now()
@@ -84,7 +84,7 @@ def test_known_strain_service_fuses_every_sensor_or_says_why_not(tmp_path: Path)
 def test_bad_references_are_refused_and_counted(tmp_path: Path) -> None:
     node = live(tmp_path)
     for k in range(40):
-        node.on_sensor("s1", 0.1 * k, 150.0)
+        one_message(node, "s1", 0.1 * k, 150.0)
     state = (node.fusion["s1"].gain, node.fusion["s1"].offset)
     assert node.on_reference("s1", 4.0, math.nan) == "non-finite reference"
     assert node.on_reference("s1", 4.0, math.inf) == "non-finite reference"
@@ -92,7 +92,7 @@ def test_bad_references_are_refused_and_counted(tmp_path: Path) -> None:
     reason = node.on_reference("s1", 4.0, 1e6)
     assert reason is not None and reason.startswith("beyond the gate")
     assert node.on_reference("s1", 60.0, 20.0) == "no recent estimate"
-    node.on_sensor("s1", 60.0, 400.0)  # out of the calibrated range
+    one_message(node, "s1", 60.0, 400.0)  # out of the calibrated range
     assert node.on_reference("s1", 60.01, 20.0) == "estimate out of the calibrated range"
     assert (node.fusion["s1"].gain, node.fusion["s1"].offset) == state
     with pytest.raises(InputError, match="no sensor 'x'"):
@@ -107,21 +107,25 @@ def test_bad_references_are_refused_and_counted(tmp_path: Path) -> None:
 
 def test_array_references_nan_for_none_and_the_label_honoured(tmp_path: Path) -> None:
     node = live(tmp_path, array=True)
-    out = node.on_array("arr", 1.0, [150.0, 170.0])
+
+    def references(t: float, data: list[float], label: str = "") -> dict[str, str | None]:
+        given = node.array_references("arr", data, label=label)
+        return {s: node.on_reference(s, t, v) for s, v in given.items()}
+
+    out = one_message(node, "arr", 1.0, [150.0, 170.0])
     assert out is not None
     raw = out.strain.copy()
-    got = node.on_reference_array("arr", 1.01, [math.nan, GAIN * raw[1] + OFFSET])
+    got = references(1.01, [math.nan, GAIN * raw[1] + OFFSET])
     assert got == {"b": None}
     assert node.fusion["a"].n_used == 0 and node.fusion["b"].n_used == 1
-    again = node.on_array("arr", 1.02, [150.0, 170.0])
+    again = one_message(node, "arr", 1.02, [150.0, 170.0])
     assert again is not None and again.strain[0] == raw[0] and again.strain[1] > raw[1]
-    got = node.on_reference_array("arr", 1.03, [GAIN * raw[0] + OFFSET, math.nan],
-                                  label="a,b")
+    got = references(1.03, [GAIN * raw[0] + OFFSET, math.nan], label="a,b")
     assert got == {"a": None}
     with pytest.raises(InputError, match="label does not name the sensors"):
-        node.on_reference_array("arr", 1.04, [1.0, 2.0], label="a,c")
+        references(1.04, [1.0, 2.0], label="a,c")
     with pytest.raises(InputError, match="expected 2 values"):
-        node.on_reference_array("arr", 1.05, [1.0])
+        references(1.05, [1.0])
     fresh = node.reload(node.params)  # a reload restarts the estimate, counts go on
     assert fresh.fusion["a"].gain == 1.0 and fresh.fusion["a"].n_used == 1
 

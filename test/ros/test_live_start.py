@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import S_HI, S_LO, cubic_cal
+from conftest import S_HI, S_LO, cubic_cal, one_message
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
@@ -48,7 +48,7 @@ def feed(live: LiveCompensator, samples: list[tuple[float, float]],
     """Each sample's resistance, then its reference (``start_reference``, as the node)."""
     errors = []
     for t, s in samples:
-        out = live.on_sensor("s1", t, moved(s))
+        out = one_message(live, "s1", t, moved(s))
         if out is not None:
             errors.append(out.strain - s)
         if reference:
@@ -110,7 +110,7 @@ def test_start_without_a_reference_spans_or_says_why(tmp_path: Path) -> None:
     live, _ = feed(live, [(20.0 + 0.05 * i, 30.0) for i in range(20)], reference=False)
     live, message = live.start(21.0)
     assert "span" in message and state(live) == "applied"
-    out = live.on_sensor("s1", 22.0, moved(30.0))
+    out = one_message(live, "s1", 22.0, moved(30.0))
     assert out is not None and out.strain == pytest.approx(30.0, abs=0.5)
 
 

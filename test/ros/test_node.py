@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import NodeUnderTest
+from conftest import NodeUnderTest, one_message
 from ros_env import use_ros_env
 
 ROS_SLOT = 1
@@ -311,7 +311,7 @@ def test_reload_loads_off_the_executor_and_swaps_between_messages(
     values = [12.0, 12.5, 13.5, 15.0, 17.0, 19.0, 20.0, 18.0, 16.0, 14.0]
 
     def expect(ref: LiveCompensator, value: float) -> float:
-        out = ref.on_sensor("s1", single.t_ns * 1e-9, value)
+        out = one_message(ref, "s1", single.t_ns * 1e-9, value)
         assert out is not None
         return out.strain
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import NodeUnderTest
+from conftest import NodeUnderTest, one_message
 from ros_env import use_ros_env
 
 ROS_SLOT = 17
@@ -91,7 +91,7 @@ def test_a_program_error_in_a_callback_is_reported_as_such_and_the_node_goes_on(
     assert [v for _, v in calls] == [12.0, 13.0, 14.0]
 
     truth = LiveCompensator(parse_values(rig.node.flat, base_dir=CONFIG), warm_up=False)
-    expected = [truth.on_sensor("s1", t, v) for t, v in calls if v != 13.0]  # 13 left out
+    expected = [one_message(truth, "s1", t, v) for t, v in calls if v != 13.0]  # 13 left out
     assert [m.data for m in rig.strain] == [o.strain for o in expected if o is not None]
     assert rig.node.live.faults == {"s1: TypeError": 1}
     assert sum(rig.node.live.refused.values()) == 0  # not a refused message
@@ -110,7 +110,7 @@ def test_a_program_error_in_a_service_answers_so_and_is_counted(
     def broken() -> str:
         raise KeyError("s1")
 
-    monkeypatch.setattr(rig.node.live, "tare", broken)
+    monkeypatch.setattr(rig.node.live.taring, "tare", broken)
     reply = rig.call("/compensator/tare")
     assert not reply.success
     assert reply.message.startswith("internal error: KeyError: 's1' (a bug")
