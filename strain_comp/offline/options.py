@@ -56,6 +56,11 @@ def _boolean(value: Any) -> str | None:
     return None if isinstance(value, bool) else "true or false"
 
 
+def _progress(value: Any) -> str | None:
+    """true or false from the user; the API passes its progress bar's callback."""
+    return None if isinstance(value, bool) or callable(value) else "true or false"
+
+
 def _number_list(lo: float, *, strict: bool = False, hi: float = math.inf,
                  max_len: int = MAX_LIST) -> Check:
     item = _number(lo, strict=strict, hi=hi)
@@ -76,7 +81,7 @@ def _apl_options() -> dict[str, Check]:
         "refine": _boolean, "cell_weights": _choice("signed", "lead", "lag", "free"),
         "eps": _number(0.0, strict=True), "ridge": _number(0.0),
         "output_nfev": _integer(0, MAX_COUNT), "search_nfev": _integer(0, MAX_COUNT),
-        "search_top": _integer(0, MAX_COUNT), "progress": _boolean,
+        "search_top": _integer(0, MAX_COUNT), "progress": _progress,
     }
 
 
