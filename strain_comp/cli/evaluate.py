@@ -69,8 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Every input and output checked before any bag is read; one bag streamed through
-    ``api.evaluate``, several through ``offline.batch``."""
+    """Every input and output checked before any bag is read, then the bags evaluated
+    (``offline.batch``): one bag given as a file as itself (no heading, no pooled table,
+    its error the command's), several as a table per bag and the pooled errors."""
     from strain_comp import api
     from strain_comp.core.engine import tracking_off
     from strain_comp.core.fusion import check_every
@@ -91,17 +92,15 @@ def run(args: argparse.Namespace) -> int:
     calibration = api.load_calibration(args.calibration)  # a bad one: one line before any bag
     many = len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
         os.path.join(b, "metadata.yaml")) for b in args.bags)
-    plots = [p for d in (plot_dirs(bags, args.plots) if many else [args.plots])
-             if d is not None for p in plot_files(d, list(calibration.sensors))]
+    dirs = plot_dirs(bags, args.plots) if many else [args.plots]
+    plots = [p for d in dirs if d is not None for p in plot_files(d, list(calibration.sensors))]
     check_distinct((args.json, args.csv, args.plots, args.report, *plots))
     if args.json == "-" and args.csv == "-":
         raise InputError("--json - and --csv -: only one of them can go to stdout")
     for out in (args.json, args.csv, args.report):
         if out is not None and out != "-":
             output(out, inputs)
-    if many:
-        return _evaluate_many(args, bags, inputs, calibration)
-    return _evaluate_one(args, bags[0], inputs, calibration)
+    return _evaluate(args, bags, dirs, many, inputs, calibration)
 
 
 def print_expected(args: argparse.Namespace, calibration: Calibration,
@@ -117,80 +116,48 @@ def print_expected(args: argparse.Namespace, calibration: Calibration,
             print(f"{name}: {words}", file=results(args))
 
 
-def _evaluate_one(args: argparse.Namespace, path: str, inputs: list[str],
-                  calibration: Calibration) -> int:
-    """``evaluate`` over one bag (``api.evaluate``, streamed)."""
-    from strain_comp import api
+def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None], many: bool,
+              inputs: list[str], calibration: Calibration) -> int:
+    """The bags evaluated; then the tables, notes, JSON and report (``many``: a heading per
+    bag, its notes prefixed by it, the pooled table, keyed JSON, exit 2 when one failed)."""
+    from strain_comp.offline.batch import aggregate, evaluate_bags, format_aggregate, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
-    from strain_comp.offline.evaluation import format_notes
-
-    # streamed; an error when nothing can be scored names what the bag reader skipped
-    evaluation = api.evaluate(calibration, path, tare=args.tare,
-                              out_of_range=args.out_of_range,
-                              tracking=args.baseline_tracking, in_run_bound=args.in_run_bound,
-                              plot_points=PLOT_POINTS if args.plots or args.report else 0,
-                              references_every=args.references_every,
-                              csv=args.csv, inputs=[args.calibration])
-    result = evaluation.result
-    print(evaluation.table(), file=results(args))
-    print_expected(args, calibration, result.sensors)
-    for line in evaluation.problems + format_notes(result):
-        note(args, line)
-    # drawn before anything is written: a drawing that fails leaves no JSON behind
-    page = evaluation.to_html(args.calibration) if args.report else None
-    if args.plots:
-        from strain_comp.offline.plots import plot_evaluation
-
-        written = plot_evaluation(result, args.plots, inputs=inputs, calibration=calibration,
-                                  bag=path, calibration_path=args.calibration, tare=args.tare)
-        note(args, f"wrote {len(written)} plots to {args.plots}")
-    if args.json:
-        write_json(args.json, evaluation.to_json(), inputs)
-    if page is not None:
-        write_text(args.report, page, inputs=inputs)
-        note(args, f"wrote {args.report}")
-    if args.csv not in (None, "-"):
-        note(args, f"wrote {args.csv}")
-    return 0
-
-
-def _evaluate_many(args: argparse.Namespace, bags: list[str], inputs: list[str],
-                   calibration: Calibration) -> int:
-    """``evaluate`` over several bags (``strain_comp.offline.batch``)."""
-    from strain_comp.offline.batch import evaluate_bags, format_aggregate, format_bag, to_json
-    from strain_comp.offline.evaluate import PLOT_POINTS
+    from strain_comp.offline.evaluation import format_notes, format_table
+    from strain_comp.offline.report_page import BagSection, evaluation_page
     from strain_comp.offline.series import series_csv
     from strain_comp.progress import bar, wanted
 
-    with series_csv(args.csv, inputs=inputs, bag=True) as table, \
-            bar(len(bags), "evaluate", enabled=wanted(args.quiet)) as shown:
+    with series_csv(args.csv, inputs=inputs, bag=many) as table, \
+            bar(len(bags), "evaluate", enabled=many and wanted(args.quiet)) as shown:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
                                  plot_points=PLOT_POINTS if args.plots or args.report else 0,
-                                 in_run=args.in_run_bound, plots=args.plots, series=table,
+                                 in_run=args.in_run_bound, plots=dirs, series=table,
                                  progress=lambda done, total, bag: shown.update(1),
                                  out_of_range=args.out_of_range,
                                  references_every=args.references_every,
-                                 figures=bool(args.report))
+                                 figures=bool(args.report), keep_going=many)
+        one = None if many else outcomes[0].result  # one bag: it raised, or it has a result
         if args.json:  # the table is committed only once the JSON is written too
-            write_json(args.json, to_json(outcomes), inputs)
+            write_json(args.json, to_json(outcomes) if one is None else one.to_json(), inputs)
     stream = results(args)
-    for outcome in outcomes:
-        text, notes = format_bag(outcome)
-        print(text, file=stream)
-        for line in notes:
-            note(args, f"{outcome.bag}: {line}")
+    for outcome, folder in zip(outcomes, dirs, strict=True):
+        if many:
+            print(f"== {outcome.bag}", file=stream)
+        if outcome.result is None:
+            print(f"not evaluated: {outcome.error}", file=stream)
+            continue
+        print(format_table(outcome.result), file=stream)
+        for line in outcome.problems + format_notes(outcome.result):
+            note(args, f"{outcome.bag}: {line}" if many else line)
         if outcome.plots:
-            note(args, f"wrote {len(outcome.plots)} plots to "
-                 f"{os.path.dirname(outcome.plots[0])}")
-    print(format_aggregate(outcomes), file=stream)
-    print_expected(args, calibration, calibration.sensors)
+            note(args, f"wrote {len(outcome.plots)} plots to {folder}")
+    if many:
+        print(format_aggregate(outcomes), file=stream)
+    print_expected(args, calibration, calibration.sensors if one is None else one.sensors)
     if args.report:
-        from strain_comp.offline.batch import aggregate
-        from strain_comp.offline.report_page import BagSection, evaluation_page
-
         page = evaluation_page([BagSection(o.bag, o.result, o.error, o.problems, o.figures)
                                 for o in outcomes], calibration, args.calibration,
-                               tare=args.tare, pooled=aggregate(outcomes))
+                               tare=args.tare, pooled=aggregate(outcomes) if many else None)
         write_text(args.report, page, inputs=inputs)
         note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):

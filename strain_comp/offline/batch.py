@@ -31,12 +31,7 @@ from strain_comp.errors import (
 )
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_bag
-from strain_comp.offline.evaluation import (
-    EvaluationResult,
-    coverage_cell,
-    format_notes,
-    format_table,
-)
+from strain_comp.offline.evaluation import EvaluationResult, coverage_cell
 from strain_comp.offline.fit import in_run_bound
 from strain_comp.offline.plots import plot_evaluation
 from strain_comp.offline.report_page import evaluation_figures
@@ -87,9 +82,11 @@ class BagOutcome:
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
                   inputs: Sequence[str], out_of_range: str = "extend",
-                  references_every: float | None = None, figures: bool = False) -> BagOutcome:
-    """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``.
-    ``series_to``: the open CSV (serial) or the path of a worker's temporary part."""
+                  references_every: float | None = None, figures: bool = False,
+                  keep_going: bool = True) -> BagOutcome:
+    """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``
+    (raised unless ``keep_going``). ``series_to``: the open CSV (serial) or the path of a
+    worker's temporary part."""
     table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
     try:
         calibration = load_calibration(calibration_path)
@@ -114,10 +111,14 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
             table.discard()
         raise
     except StrainCompError as err:
+        if not keep_going:
+            raise
         outcome = BagOutcome(bag, error=" ".join(str(err).split()))
     except BrokenPipeError:  # stdout closed: the command ends, not this bag
         raise
     except OSError as err:
+        if not keep_going:
+            raise
         outcome = BagOutcome(bag, error=f"{err.filename or bag}: {err.strerror or err}")
     if isinstance(series_to, str) and table is not None:
         table.close()  # the parent copies the part into the table (``_copy_part``)
@@ -215,21 +216,22 @@ def check_jobs(jobs: int) -> None:
 
 def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "calibration",
                   jobs: int = 1, plot_points: int = 0, in_run: bool = False,
-                  plots: str | None = None, series: SeriesCSV | None = None,
+                  plots: Sequence[str | None] | None = None, series: SeriesCSV | None = None,
                   progress: Callable[[int, int, str], None] | None = None,
                   out_of_range: str = "extend",
                   references_every: float | None = None,
-                  figures: bool = False) -> list[BagOutcome]:
-    """Every bag evaluated (module docstring), in the order given."""
+                  figures: bool = False, keep_going: bool = True) -> list[BagOutcome]:
+    """Every bag evaluated (module docstring), in the order given; ``plots``: the folder
+    of each bag's plots (``plot_dirs``)."""
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
-    dirs = plot_dirs(bags, plots)
+    dirs = list(plots or [None] * len(bags))
     outcomes: list[BagOutcome] = []
     if jobs == 1 or len(bags) == 1:
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
                                           dirs[k], series, inputs, out_of_range,
-                                          references_every, figures))
+                                          references_every, figures, keep_going))
             if progress is not None:
                 progress(k + 1, len(bags), bag)
         return outcomes
@@ -297,14 +299,6 @@ def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
     words = ", ".join(strain_unit_words(u) for u in sorted(units)) or "% strain"
     lines.append(f"errors in {words}, over all samples of all bags together")
     return "\n".join(lines)
-
-
-def format_bag(outcome: BagOutcome) -> tuple[str, list[str]]:
-    """One bag's heading and table (stdout) and its notes (stderr)."""
-    if outcome.result is None:
-        return f"== {outcome.bag}\nnot evaluated: {outcome.error}", []
-    notes = outcome.problems + format_notes(outcome.result)
-    return f"== {outcome.bag}\n{format_table(outcome.result)}", notes
 
 
 def to_json(outcomes: Sequence[BagOutcome]) -> dict[str, Any]:
