@@ -26,10 +26,8 @@ CalibrationLike = Calibration | PathLike
 
 
 Kind = Literal["data", "text", "names", "count", "seconds", "window", "points"]
-"""What ``checked`` expects: ``data`` (a path, a Recording, a list or a dict: ``Data``;
-its items are checked where they are read), ``text`` (a str), ``names`` (a str or a list
-of str), ``count`` (an int >= 0), ``seconds`` (a finite number > 0), ``window`` ((START,
-END) seconds, 0 <= START < END) or ``points`` ((resistance, strain) pairs of numbers)."""
+"""What ``checked`` expects (``_WANTED`` says each in words); ``data``'s items are checked
+where they are read."""
 _WANTED = {"data": "a bag path, a Recording, a list or a dict of Recordings (arrays: "
                    "sc.Recording.from_arrays(t, r, s))", "text": "text",
            "names": "a name or a list of names",

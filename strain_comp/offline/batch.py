@@ -1,9 +1,6 @@
-"""``evaluate`` over many bags: one table per bag and each sensor's errors pooled over the
-bags it was scored in (``ErrorAccumulator.merge``: all samples together, not a mean of
-per-bag figures), serially or in a pool of ``jobs`` processes. A bag that cannot be
-evaluated is reported with its one-line reason and the others still are (the JSON:
-docs/design.md, "JSON outputs").
-"""
+"""``evaluate`` over one bag or many (docs/design.md): a table per bag and each sensor's
+errors pooled over every sample of the bags it was scored in, serially or in a pool of
+``jobs`` processes."""
 
 from __future__ import annotations
 

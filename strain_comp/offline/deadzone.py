@@ -16,10 +16,8 @@ import numpy as np
 from strain_comp.base.direction import DirectionSettings, estimate_deadzone
 from strain_comp.errors import InputError
 from strain_comp.models import Segment
+from strain_comp.offline.reduce import HOLD_RATE_FRACTION, still_stretches
 
-HOLD_RATE_FRACTION = 0.01
-"""|dS/dt| below this fraction of the 99.5th-percentile |dS/dt| counts as a hold (the high
-percentile is a moving rate even when fast steps take only a few % of the record)."""
 MIN_HOLD_SAMPLES = 40
 """A hold must have at least this many samples to set the dead zone."""
 DEFAULT_K_SIGMA = 4.0
@@ -40,9 +38,7 @@ def find_hold(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray] | No
         return None
     best: tuple[int, int, int] | None = None  # (length, segment index, start)
     for index, rate in enumerate(rates):
-        still = np.concatenate(([False], rate <= HOLD_RATE_FRACTION * scale, [False]))
-        edges = np.flatnonzero(np.diff(still.astype(np.int8)))
-        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        for start, stop in zip(*still_stretches(rate, scale), strict=True):
             if best is None or stop - start > best[0]:
                 best = (int(stop - start), index, int(start))
     if best is None or best[0] < MIN_HOLD_SAMPLES:
@@ -150,11 +146,8 @@ def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def _tau_grid(segments: Sequence[Segment]) -> list[float]:
     """``TAU_GRID``, without the filters shorter than two median sample intervals when the
-    samples come in bursts (``_bursts``). A first difference over a
-    burst's microseconds turns read-out noise into a derivative thousands of times its
-    size (its dead zone then hides every movement, or the detector flickers); a filter of
-    at least two sample intervals weights each difference by its dt and averages over the
-    bursts, as a regular instrument's difference would be."""
+    samples come in bursts (``_bursts``): a first difference over a burst's microseconds
+    turns read-out noise into a huge derivative; a longer filter averages over the bursts."""
     median = _bursts(segments)
     if median is None:
         return list(TAU_GRID)

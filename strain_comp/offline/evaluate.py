@@ -1,13 +1,7 @@
-"""Evaluation: run a calibration over recordings with a reference strain and score it.
-
-One scorer (``Scorer``) runs every calibrated, referenced sensor through the engine's batch
-path (``Engine.run``, or ``Engine.run_array`` for an array, so cross-talk terms see the same
-tick's neighbours: the code ``replay`` and the node use) and keeps running error sums
-(``core.metrics.ErrorAccumulator``) over the samples the engine used (good, gap reset, out
-of range: flagged, still scored) whose reference is finite; held samples are counted, not
-scored. ``evaluate_recordings`` feeds it whole recordings; ``evaluate_bag`` a bag piece by
-piece (``BagScorer``, reference and temperature aligned across pieces by
-``io.recording.PieceAlign``), in memory bounded independently of the bag's length.
+"""Evaluation: one scorer (``Scorer``) runs a calibration through the engine's batch path
+(``Engine.run_array`` for an array: cross-talk terms see the same tick's neighbours) and
+keeps running error sums over the samples the engine used whose reference is finite; held
+samples are counted, not scored. ``evaluate_bag`` streams a bag (docs/architecture.md).
 """
 
 from __future__ import annotations

@@ -55,9 +55,12 @@ def plain(text: str) -> str:
     return text.encode("utf-8", "backslashreplace").decode("utf-8").replace("$", r"\$")
 
 
-def _legend(ax: Axes) -> None:
-    """The legend beside the axes, never over the data."""
+def _finish(ax: Axes, title: str | None = None) -> None:
+    """The title (if any), the legend beside the axes (never over the data), the grid."""
+    if title is not None:
+        ax.set_title(title, fontsize=10)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
+    ax.grid(alpha=0.3)
 
 
 def tare_words(tare: str) -> str:
@@ -128,9 +131,7 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     lim = _limits(ev.reference, ev.estimate)
     if lim is not None:
         top.set_ylim(*lim)
-    top.set_title(_title(ev, context), fontsize=10)
-    _legend(top)
-    top.grid(alpha=0.3)
+    _finish(top, _title(ev, context))
     bottom.plot(t, r, color="tab:blue", lw=0.8, label="R" if ev.input_unit == "ohm"
                 else "input")
     lim = _limits(r)
@@ -140,8 +141,7 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
         bottom.set_xlim(float(t[0]), float(t[-1]) if t[-1] > t[0] else float(t[0]) + 1.0)
     bottom.set_xlabel("time since start [s]")
     bottom.set_ylabel(r_label)
-    _legend(bottom)
-    bottom.grid(alpha=0.3)
+    _finish(bottom)
     return _save(fig, path, inputs)
 
 
@@ -164,9 +164,7 @@ def plot_loop(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
         ax.set_aspect("equal")
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
-    ax.set_title(_title(ev, context), fontsize=10)
-    _legend(ax)
-    ax.grid(alpha=0.3)
+    _finish(ax, _title(ev, context))
     return _save(fig, path, inputs)
 
 
@@ -199,9 +197,7 @@ def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path]
         ax.set_xlim(*xlim)
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
-    ax.set_title(_title(ev, context), fontsize=10)
-    _legend(ax)
-    ax.grid(alpha=0.3)
+    _finish(ax, _title(ev, context))
     return _save(fig, path, inputs)
 
 
@@ -218,9 +214,7 @@ def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str 
     ax.axvline(0.0, color="0.3", lw=1.0)
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
-    ax.set_title(_title(ev, context), fontsize=10)
-    _legend(ax)
-    ax.grid(alpha=0.3)
+    _finish(ax, _title(ev, context))
     return _save(fig, path, inputs)
 
 

@@ -1,10 +1,7 @@
-"""Reduction of long training runs before a model fit (above ``FIT_SAMPLE_BUDGET`` good
-samples; everything but the model's own fit still sees the full data): per segment, a
-zero-phase triangular low-pass of 2f - 1 taps (no lag enters the hysteresis), every f-th
-sample, plus every reversal of S or R swinging ``REVERSAL_FRACTION`` of the span and the
-ends of every hold, at their own samples (the extremes that set a hysteresis model's memory
-survive where they were). Lost: motion faster than fs / (2f) and minor loops under
-``REVERSAL_FRACTION``.
+"""Reduction of long training runs before a model fit (docs/architecture.md): a zero-phase
+low-pass (no lag enters the hysteresis), every f-th sample, plus the reversals and hold ends
+at their own samples (the extremes that set a hysteresis model's memory stay where they
+were). Lost: motion faster than fs / (2f) and minor loops under ``REVERSAL_FRACTION``.
 """
 
 from __future__ import annotations
@@ -24,7 +21,9 @@ FIT_SAMPLE_BUDGET = 250_000
 REVERSAL_FRACTION = 0.01
 """Turning points with a swing of at least this share of the segment's span are kept."""
 HOLD_RATE_FRACTION = 0.01
-"""The reference is still where ``|dS/dt|`` is at most this share of its 99.5th percentile."""
+"""The reference is still where ``|dS/dt|`` is at most this share of its 99.5th percentile
+(the high percentile is a moving rate even when fast steps take only a few % of the
+record)."""
 
 
 def moving_average(x: np.ndarray, width: int) -> np.ndarray:
@@ -102,22 +101,27 @@ def _reversals(x: np.ndarray, swing: float, limit: int) -> np.ndarray:
     return found
 
 
+def still_stretches(rate: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """(start, stop) of every stretch where ``rate`` <= ``HOLD_RATE_FRACTION`` x ``scale``."""
+    still = np.concatenate(([False], rate <= HOLD_RATE_FRACTION * scale, [False]))
+    edges = np.flatnonzero(np.diff(still.astype(np.int8)))
+    return edges[::2], edges[1::2]
+
+
 def hold_edges(t: np.ndarray, s: np.ndarray, min_length: int) -> np.ndarray:
-    """First and last index of every still stretch of ``s`` (still: ``|dS/dt|`` <=
-    ``HOLD_RATE_FRACTION`` x its 99.5th percentile)."""
+    """First and last index of every still stretch of ``s`` (``still_stretches`` of
+    ``|dS/dt|`` against its 99.5th percentile)."""
     rate = np.abs(np.gradient(s, t))
     scale = float(np.percentile(rate, 99.5))
     if scale <= 0.0:
         return np.empty(0, np.int64)
-    still = np.concatenate(([False], rate <= HOLD_RATE_FRACTION * scale, [False]))
-    edges = np.flatnonzero(np.diff(still.astype(np.int8)))
-    start, stop = edges[::2], edges[1::2]
+    start, stop = still_stretches(rate, scale)
     long_ = stop - start >= min_length
     return np.concatenate((start[long_], stop[long_] - 1))
 
 
 def reduce_segment(seg: Segment, factor: int) -> Segment:
-    """``seg`` reduced by ``factor`` (module docstring, steps 1-4)."""
+    """``seg`` reduced by ``factor`` (module docstring)."""
     n = seg.t.size
     if factor <= 1 or n <= 2 * factor:
         return seg

@@ -1,11 +1,7 @@
-"""Offline replay: a bag's resistance through the engine's batch path into a new bag.
-
-Inputs and outputs are the node's topics (docs/design.md, "Topics"), each output message at
-its input's log time, ``/diagnostics`` at the end of every ``diagnostics_period`` of log
-time that holds input. An array topic goes through ``Engine.run_array`` (cross-talk terms
-read the same tick's neighbours, as the node's ticks do); temperatures and references are
-held at their latest value, as the node holds them. Every input topic that can be written
-back is copied through; anything else is listed in the summary's problems.
+"""Offline replay: a bag's resistance through the engine's batch path into a new bag, on the
+node's topics (docs/design.md, "Topics"): each output at its input's log time,
+``/diagnostics`` at the end of every ``diagnostics_period`` of log time that holds input;
+temperatures and references held at their latest value, as the node holds them.
 """
 
 from __future__ import annotations

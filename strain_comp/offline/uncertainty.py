@@ -1,8 +1,6 @@
-"""The uncertainty learned from runs left out (docs/design.md, "Uncertainty"): over (started
-calibration, run) pairs, the variance model of ``strain_comp.core.uncertainty`` fitted by
-Gaussian maximum likelihood (each run weighing the same; convex, a Newton solve), then a
-factor on sigma so that the 95 % band holds on a typical run left out (``fit_weights``).
-"""
+"""The uncertainty learned from runs left out: the variance model of
+``strain_comp.core.uncertainty`` by maximum likelihood, then a factor on sigma
+(docs/design.md, "Uncertainty")."""
 
 from __future__ import annotations
 
@@ -82,11 +80,9 @@ def likelihood_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
 
 def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
     """The weights by maximum likelihood over every run, times the factor on sigma a new
-    run needs: for each run, the factor that makes the 95 % band of the weights learned
-    without it hold 95 % of its samples; their geometric mean over the runs (a factor is a
-    scale: a run that needs twice the typical factor weighs as much as one that needs
-    half, where the median ignored how far the runs beyond it lay; in-sample with one
-    run)."""
+    run needs (docs/design.md, "Uncertainty"). The geometric mean of the runs' factors, as
+    a factor is a scale: a run that needs twice the typical one weighs as much as one that
+    needs half (the median ignored how far the runs beyond it lay)."""
     factors = []
     for j, (x, e) in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j] or runs
