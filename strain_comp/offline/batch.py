@@ -30,7 +30,7 @@ from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_bag
 from strain_comp.offline.evaluation import EvaluationResult, coverage_cell
 from strain_comp.offline.fit import in_run_bound
-from strain_comp.offline.plots import plot_evaluation
+from strain_comp.offline.plots import write_plots
 from strain_comp.offline.report_page import evaluation_figures
 from strain_comp.offline.series import SeriesCSV
 
@@ -93,13 +93,13 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
         if in_run:
             in_run_bound(result, load_recordings(bag)[0], calibration)
         outcome = BagOutcome(bag, result, problems)
-        if plots_dir is not None:
-            outcome.plots = [str(p) for p in plot_evaluation(
-                result, plots_dir, inputs=inputs, calibration=calibration, bag=bag,
-                calibration_path=calibration_path, tare=tare)]
-        if figures:
-            outcome.figures = evaluation_figures(result, calibration, bag=bag,
-                                                 calibration_path=calibration_path, tare=tare)
+        if plots_dir is not None or figures:  # drawn once for both
+            drawn = evaluation_figures(result, calibration, bag=bag,
+                                       calibration_path=calibration_path, tare=tare)
+            if plots_dir is not None:
+                outcome.plots = [str(p) for p in write_plots(drawn, plots_dir, inputs=inputs)]
+            if figures:
+                outcome.figures = drawn
         for ev in result.sensors.values():  # the arrays went into the plots
             ev.t = ev.r = ev.reference = ev.estimate = ev.direction = ev.scored = \
                 ev.t[:0]

@@ -7,15 +7,16 @@ calibrated range in orange.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import io
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, TypeVar
+from typing import IO, TYPE_CHECKING
 
 import numpy as np
 
 from strain_comp.core.calibration import strain_unit_words
 from strain_comp.core.metrics import Z_95
-from strain_comp.io.atomic import atomic_output
+from strain_comp.io.atomic import write_bytes
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -23,10 +24,6 @@ if TYPE_CHECKING:
 
     from strain_comp.core.calibration import Calibration
     from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation
-
-Target = TypeVar("Target", Path, IO[bytes])
-"""Where a plot goes: a PNG file's path, or an open binary file."""
-
 
 def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
     import matplotlib
@@ -37,15 +34,8 @@ def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
     return Figure(figsize=(9.0, height * rows), layout="constrained")
 
 
-def _save(fig: Figure, path: Target, inputs: Sequence[str | Path] = ()) -> Target:
-    """PNG written atomically (``strain_comp.io.atomic``); a path that is an input is
-    refused. An open binary file (``report_page`` embeds the bytes) is written as is."""
-    if not isinstance(path, (str, Path)):
-        fig.savefig(path, dpi=110, format="png")
-        return path
-    with atomic_output(path, inputs=inputs) as handle:
-        fig.savefig(handle, dpi=110, format="png")
-    return path
+def _save(fig: Figure, out: IO[bytes]) -> None:
+    fig.savefig(out, dpi=110, format="png")
 
 
 def plain(text: str) -> str:
@@ -107,8 +97,7 @@ def _out_of_range(ev: SensorEvaluation) -> np.ndarray:
     return mask if mask.shape == ev.t.shape else np.zeros(ev.t.shape, bool)
 
 
-def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
-              context: str = "") -> Target:
+def plot_time(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
     """Estimate and reference strain over time, resistance on a second panel; samples
     outside the calibrated range marked on both."""
     fig = _figure(2, height=3.2)
@@ -142,11 +131,10 @@ def plot_time(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     bottom.set_xlabel("time since start [s]")
     bottom.set_ylabel(r_label)
     _finish(bottom)
-    return _save(fig, path, inputs)
+    _save(fig, out)
 
 
-def plot_loop(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
-              context: str = "") -> Target:
+def plot_loop(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
     """S_hat against S with the identity line; out-of-range samples marked."""
     fig = _figure(height=6.0)
     ax = fig.subplots()
@@ -165,11 +153,11 @@ def plot_loop(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
     _finish(ax, _title(ev, context))
-    return _save(fig, path, inputs)
+    _save(fig, out)
 
 
-def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
-             context: str = "", r_range: tuple[float, float] | None = None) -> Target:
+def plot_raw(ev: SensorEvaluation, out: IO[bytes], *, context: str = "",
+             r_range: tuple[float, float] | None = None) -> None:
     """The sensor as recorded: resistance against the reference strain (what the model
     inverts), with the calibration's resistance range as lines, moved by the tare's gain into
     the recorded resistance."""
@@ -198,11 +186,10 @@ def plot_raw(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path]
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
     _finish(ax, _title(ev, context))
-    return _save(fig, path, inputs)
+    _save(fig, out)
 
 
-def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str | Path] = (),
-                    context: str = "") -> Target:
+def plot_error_hist(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
     """Histogram of the error S_hat - S over the scored samples."""
     fig = _figure(height=4.0)
     ax = fig.subplots()
@@ -215,7 +202,7 @@ def plot_error_hist(ev: SensorEvaluation, path: Target, *, inputs: Sequence[str 
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
     _finish(ax, _title(ev, context))
-    return _save(fig, path, inputs)
+    _save(fig, out)
 
 
 PLOT_KINDS = ("time", "loop", "raw", "error_hist")
@@ -230,31 +217,33 @@ def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
             for name in names for kind in PLOT_KINDS]
 
 
-def plot_sensor(result: EvaluationResult, name: str, targets: Sequence[Target], *,
-                inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
-                bag: str = "", calibration_path: str = "", tare: str = "") -> list[Target]:
-    """The four plots of one evaluated sensor into ``targets`` (``PLOT_KINDS`` order)."""
+def plot_sensor(result: EvaluationResult, name: str, *, calibration: Calibration | None = None,
+                bag: str = "", calibration_path: str = "", tare: str = "") -> list[bytes]:
+    """The four plots of one evaluated sensor as PNG bytes (``PLOT_KINDS`` order)."""
     ev = result.sensors[name]
     context = context_line(result, name, bag, calibration_path, tare)
     cal = calibration.sensors.get(name) if calibration is not None else None
     r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-    time, loop, raw, hist = targets
-    return [plot_time(ev, time, inputs=inputs, context=context),
-            plot_loop(ev, loop, inputs=inputs, context=context),
-            plot_raw(ev, raw, inputs=inputs, context=context, r_range=r_range),
-            plot_error_hist(ev, hist, inputs=inputs, context=context)]
+    time, loop, raw, hist = buffers = [io.BytesIO() for _ in PLOT_KINDS]
+    plot_time(ev, time, context=context)
+    plot_loop(ev, loop, context=context)
+    plot_raw(ev, raw, context=context, r_range=r_range)
+    plot_error_hist(ev, hist, context=context)
+    return [buffer.getvalue() for buffer in buffers]
 
 
-def plot_evaluation(result: EvaluationResult, out_dir: str | Path, *,
-                    inputs: Sequence[str | Path] = (), calibration: Calibration | None = None,
-                    bag: str = "", calibration_path: str = "", tare: str = "") -> list[Path]:
-    """The four plots for every evaluated sensor, each written atomically."""
+def write_plots(figures: Mapping[str, Sequence[tuple[str, bytes]]], out_dir: str | Path, *,
+                inputs: Sequence[str | Path] = ()) -> list[Path]:
+    """Each sensor's drawn plots (``report_page.evaluation_figures``) into ``out_dir``
+    (``plot_files``), each written atomically; a path that is an input is refused."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    return [path for name in result.sensors
-            for path in plot_sensor(result, name, plot_files(out, [name]), inputs=inputs,
-                                    calibration=calibration, bag=bag,
-                                    calibration_path=calibration_path, tare=tare)]
+    written = []
+    for name, drawn in figures.items():
+        for path, (_, png) in zip(plot_files(out, [name]), drawn, strict=True):
+            write_bytes(path, png, inputs=inputs)
+            written.append(path)
+    return written
 
 
 def context_line(result: EvaluationResult, name: str, bag: str, calibration_path: str,
@@ -273,7 +262,7 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
 
 
 def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
-                      path: Target, *, context: str = "") -> Target:
+                      out: IO[bytes], *, context: str = "") -> None:
     """``fit --model auto``'s candidates: each one's RMSE on every run left out (a marker
     per run), its median as a bar, the chosen one filled."""
     table = choice.get("candidates") or {}
@@ -298,4 +287,4 @@ def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
                  + (f"\n{context}" if context else ""), fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
-    return _save(fig, path)
+    _save(fig, out)

@@ -75,11 +75,9 @@ def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, ba
     out: dict[str, list[tuple[str, bytes]]] = {}
     for name, ev in result.sensors.items():
         if ev.t.size:
-            buffers = [io.BytesIO() for _ in FIGURES]
-            plot_sensor(result, name, buffers, calibration=calibration, bag=bag,
-                        calibration_path=calibration_path, tare=tare)
-            out[name] = [(caption, buffer.getvalue())
-                         for caption, buffer in zip(FIGURES, buffers, strict=True)]
+            pngs = plot_sensor(result, name, calibration=calibration, bag=bag,
+                               calibration_path=calibration_path, tare=tare)
+            out[name] = list(zip(FIGURES, pngs, strict=True))
     return out
 
 

@@ -81,11 +81,13 @@ def test_unscorable_sensors_are_noted_and_nothing_scorable_is_an_error() -> None
 
 
 def test_plots_are_written(tmp_path: Path) -> None:
-    from strain_comp.offline.plots import plot_evaluation
+    from strain_comp.offline.plots import write_plots
+    from strain_comp.offline.report_page import evaluation_figures
 
     result = evaluate_recordings({"s1": recording()}, calibration())
-    written = plot_evaluation(result, tmp_path / "plots", calibration=calibration(),
-                              bag="runs/b.mcap", calibration_path="c/cal.yaml", tare="auto")
+    written = write_plots(evaluation_figures(result, calibration(), bag="runs/b.mcap",
+                                             calibration_path="c/cal.yaml", tare="auto"),
+                          tmp_path / "plots")
     assert sorted(p.name for p in written) == ["s1_error_hist.png", "s1_loop.png",
                                                "s1_raw.png", "s1_time.png"]
     for path in written:

@@ -202,7 +202,7 @@ def test_plots_say_where_they_show_a_subsample_and_legends_sit_beside_the_data()
     import numpy as np
 
     import strain_comp as sc
-    from strain_comp.offline.plots import _figure, _legend
+    from strain_comp.offline.plots import _figure, _finish
 
     ev = sc.evaluate(CAL, BAG, plot_points=1000).result.sensors["s1"]
     from strain_comp.offline.plots import _title
@@ -210,7 +210,7 @@ def test_plots_say_where_they_show_a_subsample_and_legends_sit_beside_the_data()
     fig = _figure()
     ax = fig.subplots()
     ax.plot(np.arange(10.0), label="x")
-    _legend(ax)
+    _finish(ax)
     fig.canvas.draw()
     box = ax.get_legend().get_window_extent()
     assert box.x0 >= ax.get_window_extent().x1  # right of the axes: over no data
