@@ -123,7 +123,7 @@ def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None],
     from strain_comp.offline.batch import aggregate, evaluate_bags, format_aggregate, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.evaluation import format_notes, format_table
-    from strain_comp.offline.report_page import BagSection, evaluation_page
+    from strain_comp.offline.report_page import evaluation_page
     from strain_comp.offline.series import series_csv
     from strain_comp.progress import bar, wanted
 
@@ -155,9 +155,8 @@ def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None],
         print(format_aggregate(outcomes), file=stream)
     print_expected(args, calibration, calibration.sensors if one is None else one.sensors)
     if args.report:
-        page = evaluation_page([BagSection(o.bag, o.result, o.error, o.problems, o.figures)
-                                for o in outcomes], calibration, args.calibration,
-                               tare=args.tare, pooled=aggregate(outcomes) if many else None)
+        page = evaluation_page(outcomes, calibration, args.calibration, tare=args.tare,
+                               pooled=aggregate(outcomes) if many else None)
         write_text(args.report, page, inputs=inputs)
         note(args, f"wrote {args.report}")
     if args.csv not in (None, "-"):

@@ -10,7 +10,6 @@ import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
 from multiprocessing import get_context
 from multiprocessing.context import BaseContext
 from pathlib import Path
@@ -28,10 +27,10 @@ from strain_comp.errors import (
 )
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_bag
-from strain_comp.offline.evaluation import EvaluationResult, coverage_cell
+from strain_comp.offline.evaluation import coverage_cell
 from strain_comp.offline.fit import in_run_bound
 from strain_comp.offline.plots import write_plots
-from strain_comp.offline.report_page import evaluation_figures
+from strain_comp.offline.report_page import BagSection, evaluation_figures
 from strain_comp.offline.series import SeriesCSV
 
 MAX_JOBS = 64
@@ -63,25 +62,12 @@ def expand_bags(paths: Sequence[str]) -> list[str]:
     return list(dict.fromkeys(bags))
 
 
-@dataclass
-class BagOutcome:
-    """One bag's evaluation, or the one line why it could not be evaluated."""
-
-    bag: str
-    result: EvaluationResult | None = None
-    problems: list[str] = field(default_factory=list)
-    error: str | None = None
-    plots: list[str] = field(default_factory=list)
-    figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
-    """``evaluate --report``: per sensor its plots as (caption, PNG bytes)."""
-
-
 def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   in_run: bool, plots_dir: str | None, series_to: SeriesCSV | str | None,
                   inputs: Sequence[str], out_of_range: str = "extend",
                   references_every: float | None = None, figures: bool = False,
-                  keep_going: bool = True) -> BagOutcome:
-    """``evaluate`` of one bag (what a worker runs); errors become ``BagOutcome.error``
+                  keep_going: bool = True) -> BagSection:
+    """``evaluate`` of one bag (what a worker runs); errors become ``BagSection.error``
     (raised unless ``keep_going``). ``series_to``: the open CSV (serial) or the path of a
     worker's temporary part."""
     table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
@@ -92,7 +78,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                                         references_every=references_every)
         if in_run:
             in_run_bound(result, load_recordings(bag)[0], calibration)
-        outcome = BagOutcome(bag, result, problems)
+        outcome = BagSection(bag, result, problems=problems)
         if plots_dir is not None or figures:  # drawn once for both
             drawn = evaluation_figures(result, calibration, bag=bag,
                                        calibration_path=calibration_path, tare=tare)
@@ -110,13 +96,13 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
     except StrainCompError as err:
         if not keep_going:
             raise
-        outcome = BagOutcome(bag, error=" ".join(str(err).split()))
+        outcome = BagSection(bag, None, error=" ".join(str(err).split()))
     except BrokenPipeError:  # stdout closed: the command ends, not this bag
         raise
     except OSError as err:
         if not keep_going:
             raise
-        outcome = BagOutcome(bag, error=f"{err.filename or bag}: {err.strerror or err}")
+        outcome = BagSection(bag, None, error=f"{err.filename or bag}: {err.strerror or err}")
     if isinstance(series_to, str) and table is not None:
         table.close()  # the parent copies the part into the table (``_copy_part``)
     return outcome
@@ -186,7 +172,7 @@ def _worker_signals() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends us
 
 
-def _evaluate_in_worker(*args: Any) -> BagOutcome:
+def _evaluate_in_worker(*args: Any) -> BagSection:
     """``_evaluate_one`` in a pool worker (``_worker_signals``)."""
     global _in_bag
     _in_bag = True
@@ -217,13 +203,13 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   progress: Callable[[int, int, str], None] | None = None,
                   out_of_range: str = "extend",
                   references_every: float | None = None,
-                  figures: bool = False, keep_going: bool = True) -> list[BagOutcome]:
+                  figures: bool = False, keep_going: bool = True) -> list[BagSection]:
     """Every bag evaluated (module docstring), in the order given; ``plots``: the folder
     of each bag's plots (``plot_dirs``)."""
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = list(plots or [None] * len(bags))
-    outcomes: list[BagOutcome] = []
+    outcomes: list[BagSection] = []
     if jobs == 1 or len(bags) == 1:
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
@@ -262,7 +248,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
     return outcomes
 
 
-def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulator, int, str,
+def aggregate(outcomes: Sequence[BagSection]) -> dict[str, tuple[ErrorAccumulator, int, str,
                                                                     str]]:
     """The errors of every sensor pooled over the bags."""
     pooled: dict[str, tuple[ErrorAccumulator, int, str, str]] = {}
@@ -277,7 +263,7 @@ def aggregate(outcomes: Sequence[BagOutcome]) -> dict[str, tuple[ErrorAccumulato
     return pooled
 
 
-def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
+def format_aggregate(outcomes: Sequence[BagSection]) -> str:
     """The pooled table: every sensor over every bag it was scored in."""
     pooled = aggregate(outcomes)
     banded = any(acc.coverage_95() is not None for acc, *_ in pooled.values())
@@ -298,7 +284,7 @@ def format_aggregate(outcomes: Sequence[BagOutcome]) -> str:
     return "\n".join(lines)
 
 
-def to_json(outcomes: Sequence[BagOutcome]) -> dict[str, Any]:
+def to_json(outcomes: Sequence[BagSection]) -> dict[str, Any]:
     """The multi-bag JSON (module docstring)."""
     bags: dict[str, Any] = {}
     for outcome in outcomes:

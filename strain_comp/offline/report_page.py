@@ -58,14 +58,16 @@ SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
 
 @dataclass
 class BagSection:
-    """One evaluated bag: its result (None when it failed: ``error``), the reader's
-    problems and, per sensor, the plots as (caption, PNG bytes)."""
+    """One evaluated bag (``evaluate``, a section of the page): its result (None when it
+    failed: ``error``, one line), the reader's problems, per sensor the plots as (caption,
+    PNG bytes) and the plot files written (``--plots``)."""
 
     bag: str
     result: EvaluationResult | None
     error: str | None = None
     problems: list[str] = field(default_factory=list)
     figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
+    plots: list[str] = field(default_factory=list)
 
 
 def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
