@@ -259,6 +259,15 @@ def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
             f"{', '.join(terms)} is not applied"]
 
 
+def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | None]:
+    """The sensors of a ``/PREFIX/resistance`` topic, as ``load_recordings`` names them (the
+    prefix of one series, an array's labels: ``array_sensor_names``), and the problem."""
+    values = contents.series[topic].values
+    if values.ndim == 1:
+        return [topic[:-len(RESISTANCE)].lstrip("/")], None
+    return array_sensor_names(topic, contents.labels.get(topic) or [], values.shape[1])
+
+
 def nothing_scored(calibration: Calibration, names: list[str]) -> str:
     """The error when no calibrated sensor can be scored, naming both sides."""
     return ("no calibrated sensor has a strain_reference in the data (calibration: "
@@ -337,13 +346,9 @@ class BagScorer(Scorer):
         prefix = topic[:-len(RESISTANCE)]
         series = contents.series[topic]
         single = series.values.ndim == 1
-        if single:
-            labels = [prefix.lstrip("/")]
-        else:
-            labels, problem = array_sensor_names(topic, contents.labels.get(topic) or [],
-                                                 series.values.shape[1])
-            if problem is not None:
-                self._problem(problem)
+        labels, problem = topic_sensors(topic, contents)
+        if problem is not None:
+            self._problem(problem)
         names: list[str] = []
         columns: list[int] = []
         for j, name in enumerate(labels):
@@ -374,8 +379,7 @@ class BagScorer(Scorer):
                 return {inp.names[0]: None}
             self._problem(f"{inp.prefix + REFERENCE}: an array reference for a single sensor")
             return {}
-        labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
-                                       contents.series[topic].values.shape[1])
+        labels, _ = topic_sensors(topic, contents)
         ref_labels = contents.labels.get(inp.prefix + REFERENCE) or labels
         if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
                 and set(labels) <= set(ref_labels):

@@ -33,7 +33,8 @@ from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.diagnostic_arrays import Status, diagnostic_arrays
-from strain_comp.io.recording import array_sensor_names, hold_latest
+from strain_comp.io.recording import hold_latest
+from strain_comp.offline.evaluate import topic_sensors
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")
@@ -76,19 +77,15 @@ class _Input:
 
 
 def _input(topic: str, contents: BagContents, calibration: Calibration) -> _Input | None:
-    """The input a ``/NAME/resistance`` topic is, or None (copied through only)."""
-    series = contents.series[topic]
-    name = topic[1:].rsplit("/", 1)[0]
+    """The input a ``/NAME/resistance`` topic is when every sensor on it is calibrated, or
+    None (copied through only)."""
     if contents.types.get(topic) not in RESISTANCE_TYPES:  # e.g. Temperature: never ohm
         return None
-    if series.values.ndim == 1 and name in calibration.sensors:
-        return _Input(topic, name, [name], False)
-    if series.values.ndim == 2:
-        labels, _ = array_sensor_names(topic, contents.labels.get(topic) or [],
-                                       series.values.shape[1])
-        if all(label in calibration.sensors for label in labels):
-            return _Input(topic, name, labels, True)
-    return None
+    sensors, _ = topic_sensors(topic, contents)
+    if not all(name in calibration.sensors for name in sensors):
+        return None
+    return _Input(topic, topic[1:].rsplit("/", 1)[0], sensors,
+                  contents.series[topic].values.ndim == 2)
 
 
 class _Replay:
