@@ -23,7 +23,6 @@ from strain_comp.api.inputs import (
 )
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration as _save_calibration
-from strain_comp.diagnosis.command import diagnose_bag
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.report import plot_file, write_plots
 from strain_comp.diagnosis.report_page import diagnosis_page
@@ -183,15 +182,9 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
     written = input_paths(calibration, list(inputs))
     check_distinct((out, plots, *(plot_file(plots, n) for n in cal.sensors if plots)))
     paths = paths_of(data)
-    if paths is not None and all(paths_of(v) is not None for v in runs):  # the command's way
-        validated = [os.fspath(v) for v in runs]
-        return Diagnosis(diagnose_bag(
-            paths[0], cal, validate=validated or None,
-            out=out, plots=None if plots is None else os.fspath(plots), inputs=written,
-            tare=tare, stretch_history=stretch_history, session_start=session_start,
-            progress=progress), cal, paths[0], validated, tare, paths[0])
+    recordings = _run(data)
     val = [_run(v) for v in runs] or None
-    result = diagnose_conditions(_run(data), cal, validate_recordings=val, tare=tare,
+    result = diagnose_conditions(recordings, cal, validate_recordings=val, tare=tare,
                                  stretch_history=stretch_history, session_start=session_start,
                                  progress=progress)
     written += [p for v in [data, *runs] for p in paths_of(v) or []]
@@ -201,4 +194,4 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
         write_plots(result, os.fspath(plots), inputs=written)
     return Diagnosis(result, cal, paths[0] if paths else "recordings",
                      [p for v in runs for p in paths_of(v) or []], tare,
-                     paths[0] if paths else _run(data))
+                     paths[0] if paths else recordings)
