@@ -40,7 +40,7 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
     unknown = sorted(str(k) for k in params if k not in cls.readers)
     if unknown:
         raise ParameterError(f"params.{unknown[0]}", f"unknown parameter of kind {kind!r}")
-    return cls.from_params(params)
+    return cls(params)
 
 
 def validate_effect_dict(effect: Mapping[str, Any]) -> None:
