@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import numpy.typing as npt
 
 from strain_comp._numba import njit
 from strain_comp.core.effects.regressor import (
@@ -52,18 +51,14 @@ class Elapsed(Regressor):
     form: str
     scale: float
 
-    def _g(self, x: npt.ArrayLike) -> np.ndarray:
-        x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
-        if self.form == "sqrt":
-            return np.sqrt(x)
-        if self.form == "log":
-            return np.log1p(x)
-        return x
-
     def run(self, batch: Batch) -> np.ndarray:
         if batch.t.size and math.isnan(self._state[0]):
             self._state[0] = batch.t[0]
-        g = self._g((batch.t - self._state[0]) / self.scale)
+        g: np.ndarray = np.maximum((batch.t - self._state[0]) / self.scale, 0.0)
+        if self.form == "sqrt":
+            g = np.sqrt(g)
+        elif self.form == "log":
+            g = np.log1p(g)
         return g * batch.s_hat if self.form == "linear_strain" else g
 
 

@@ -50,19 +50,18 @@ Reader = Callable[[Mapping[str, Any], str], Any]
 ``ParameterError``."""
 
 
-def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: Any) -> float:
-    """``params[key]`` as a finite float within ``bounds``."""
-    if key not in params:
-        return default
-    try:
-        return require_float(params, key, **bounds)
-    except ParameterError as err:
-        raise ParameterError(f"params.{err.field}", err.problem) from None
-
-
 def number(default: float, **bounds: Any) -> Reader:
     """A finite float within ``bounds``."""
-    return lambda params, key: number_param(params, key, default, **bounds)
+
+    def read(params: Mapping[str, Any], key: str) -> float:
+        if key not in params:
+            return default
+        try:
+            return require_float(params, key, **bounds)
+        except ParameterError as err:
+            raise ParameterError(f"params.{err.field}", err.problem) from None
+
+    return read
 
 
 def positive(default: float) -> Reader:

@@ -33,11 +33,6 @@ TEMPERATURE_RANGE = (-273.15, 1000.0)
 finite 1e308, NaN, inf) is a bad reading, treated as missing."""
 
 
-def valid_temperature(temp: np.ndarray) -> np.ndarray:
-    """Mask of readings inside ``TEMPERATURE_RANGE``."""
-    return (temp >= TEMPERATURE_RANGE[0]) & (temp <= TEMPERATURE_RANGE[1])
-
-
 class Temperature(Regressor):
     """Temperature dependence: g = T - t_ref (``form: offset``, a TCR shifting R) or
     g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor)."""
@@ -52,7 +47,8 @@ class Temperature(Regressor):
         temp = batch.temperature
         if temp is None:
             temp = np.full(batch.t.size, np.nan)
-        held = self._held(np.where(valid_temperature(temp), temp, np.nan))
+        valid = (temp >= TEMPERATURE_RANGE[0]) & (temp <= TEMPERATURE_RANGE[1])
+        held = self._held(np.where(valid, temp, np.nan))
         dt = np.where(np.isnan(held), 0.0, held - self.t_ref)
         return dt * batch.s_hat if self.form == "strain" else dt
 
