@@ -78,10 +78,8 @@ class EffectScore:
 
 
 def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
-    """The time constant [s] of a creep term, None for any other: one state of a Prony
-    series u - z_k, z_k' = (u - z_k) / tau_k (viscoelastic creep, the generalised Maxwell
-    form; ``creep_pi``, docs/design.md), u being the estimate (``relaxation`` of branch
-    ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``)."""
+    """The time constant [s] of a creep term (one Prony-series state of the estimate or of
+    100 ln R; docs/design.md, "The loop's steps", 2), None for any other."""
     if (kind == "relaxation" and params.get("branch", "both") == "both") or (
             kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):
         return float(params.get("tau", 10.0))
@@ -110,11 +108,8 @@ def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
 def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
                    magnitude: float | None = None, *, unit: str = "%",
                    span: float | None = None, lag: bool | None = None) -> str:
-    """An added term in physical words. The model's output carries + coef g (the term
-    removes it), so the reading describes the sensor against its calibration. Sizes are
-    in the calibration's strain ``unit`` (``% strain``, or e.g. ``mm`` for an extension);
-    relative readings (sensitivity, gain drift) are in % of the output; a creep term's in %
-    of the strain ``span`` as well (``creep_reading``)."""
+    """An added term in physical words: the sensor against its calibration (the output
+    carries + coef g), sizes in the strain ``unit``, relative readings in % of the output."""
     u = strain_unit_words(unit)
     size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
     tau = creep_tau(kind, params)
