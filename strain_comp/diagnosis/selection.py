@@ -98,8 +98,8 @@ def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray,
     return bool(d.mean() > sigmas * d.std(ddof=1) / math.sqrt(d.size))
 
 
-def _passing(gram: Gram, trials: Mapping[int, np.ndarray], ref: np.ndarray, margin: float,
-             sigmas: float = LOOP_POLICY.significance) -> dict[int, float]:
+def _gains(gram: Gram, trials: Mapping[int, np.ndarray], ref: np.ndarray, margin: float,
+           sigmas: float = LOOP_POLICY.significance) -> dict[int, float]:
     """The gain over ``ref`` of each trial (its fold-wise squared errors) that lowers the
     cross-validated RMSE by more than ``margin``, significantly."""
     gains = {j: 1.0 - math.sqrt(after.sum() / ref.sum()) for j, after in trials.items()}
@@ -130,12 +130,12 @@ def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effe
         if auto_intercept:
             ref = gram.fold_sse(model([*chosen, offset]))
             if offset not in chosen:
-                passing = _passing(gram, {offset: ref}, current, margin)
+                passing = _gains(gram, {offset: ref}, current, margin)
         if ref.sum() > 0:
-            passing |= _passing(gram, {j: gram.fold_sse(model([*chosen, j]))
-                                       for j in range(n_cols) if j not in chosen
-                                       and j not in skip and not (auto_intercept and j == offset)},
-                                ref, margin)
+            passing |= _gains(gram, {j: gram.fold_sse(model([*chosen, j]))
+                                     for j in range(n_cols) if j not in chosen
+                                     and j not in skip and not (auto_intercept and j == offset)},
+                              ref, margin)
         if not passing:
             break
         best = max(passing, key=passing.__getitem__)
@@ -182,7 +182,6 @@ class Branch:
     selection: Selection
     kept: list[int]
     coef: np.ndarray
-    e_after: np.ndarray
     rmse: float
 
 
@@ -227,7 +226,7 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
     if shift is not None:
         e_shift = held_out(head, np.ones(1))
         if not held_out_better(e_shift, current, margin, runs):
-            return Branch(None, selection, [], np.zeros(0), e_none, rms(e_none))
+            return Branch(None, selection, [], np.zeros(0), rms(e_none))
         current = e_shift
     for j in selection.chosen:
         cols = with_intercept([*kept, j], offset) if auto else [*kept, j]
@@ -238,7 +237,7 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
         if helps:  # one that does not is left out; the later ones are still tried
             kept, current = cols, e_j
     coef, e_after = trial(kept)
-    return Branch(shift, selection, kept, coef, e_after, rms(e_after))
+    return Branch(shift, selection, kept, coef, rms(e_after))
 
 
 def upper_bound(log_ratios: Sequence[float], level: float) -> float:
@@ -275,16 +274,25 @@ class Tried:
 
 @dataclass
 class Carried:
-    """The terms ``select_carried`` adds, their fit, the held-out errors with them, and
-    the best candidate it tried and did not add."""
+    """The terms ``select_carried`` adds, their fit, and the best candidate it tried and did
+    not add."""
 
     selection: Selection
     kept: list[int]
     coef: np.ndarray
-    e_after: np.ndarray
-    passed: bool
-    """Did any candidate pass on the diagnosed run at the last step?"""
     refused: Tried | None
+
+
+def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequence[int],
+             policy: LoopPolicy) -> dict[int, float]:
+    """The candidates that lower the cross-validated RMSE with ``cols`` and the intercept
+    by more than the margin, significantly: their gain."""
+    ref = gram.fold_sse(with_intercept([*cols, offset], offset))
+    if not ref.sum() > RESOLUTION ** 2 * gram.ee.sum():
+        return {}
+    return _gains(gram, {j: gram.fold_sse(with_intercept([*cols, j], offset))
+                         for j in range(n_cols) if j not in cols and j not in skip and j != offset},
+                  ref, policy.margin, policy.significance)
 
 
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
@@ -297,14 +305,8 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
     current = held_out([], np.zeros(0))
     coef = np.zeros(0)
     refused: Tried | None = None
-    passed = False
     while len(chosen) < policy.max_effects:
-        ref = gram.fold_sse(with_intercept([*chosen, offset], offset))
-        passing = {} if not ref.sum() > RESOLUTION ** 2 * gram.ee.sum() else _passing(
-            gram, {j: gram.fold_sse(with_intercept([*chosen, j], offset)) for j in range(n_cols)
-                   if j not in chosen and j not in skip and j != offset},
-            ref, policy.margin, policy.significance)
-        passed = bool(passing)
+        passing = _passing(gram, chosen, offset, n_cols, skip, policy)
         tried: list[tuple[Tried, np.ndarray, list[np.ndarray]]] = []
         for j in sorted(passing, key=passing.__getitem__, reverse=True)[:policy.tried]:
             cols = with_intercept([*chosen, j], offset)
@@ -323,5 +325,4 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
         gains[best.column] = 1.0 - rms(np.concatenate(e_j)) / rms(np.concatenate(current))
         current, coef, refused = e_j, c, None
     kept = with_intercept(chosen, offset) if chosen else []
-    return Carried(Selection(chosen, gains), kept, coef, np.concatenate(current), passed,
-                   refused)
+    return Carried(Selection(chosen, gains), kept, coef, refused)
