@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -165,16 +165,6 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
 
     checked(data, "data", "data", optional=False)
     checked(tare, "text", "tare", optional=False)
-    with bar(None, "diagnose", enabled=progress_bar) as shown:
-        return _diagnose(calibration, data, validate, tare, stretch_history, session_start,
-                         out, plots, inputs, counter(shown) if progress_bar else None)
-
-
-def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequence[Data] | None,
-              tare: str, stretch_history: bool, session_start: bool, out: PathLike | None,
-              plots: PathLike | None, inputs: Sequence[PathLike],
-              progress: Callable[[int, int], None] | None) -> Diagnosis:
-
     cal = as_calibration(calibration)
     runs: list[Any] = [] if validate is None else [validate] if (
         is_path(validate) or isinstance(validate, (Recording, Mapping))) \
@@ -184,9 +174,11 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
     paths = paths_of(data)
     recordings = _run(data)
     val = [_run(v) for v in runs] or None
-    result = diagnose_conditions(recordings, cal, validate_recordings=val, tare=tare,
-                                 stretch_history=stretch_history, session_start=session_start,
-                                 progress=progress)
+    with bar(None, "diagnose", enabled=progress_bar) as shown:
+        result = diagnose_conditions(recordings, cal, validate_recordings=val, tare=tare,
+                                     stretch_history=stretch_history,
+                                     session_start=session_start,
+                                     progress=counter(shown) if progress_bar else None)
     written += [p for v in [data, *runs] for p in paths_of(v) or []]
     if out is not None:
         _save_calibration(result.calibration, out, inputs=written)

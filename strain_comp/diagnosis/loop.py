@@ -22,7 +22,7 @@ from strain_comp.diagnosis.residuals import (
     base_runs,
     holdout_period,
     rmse_stats,
-    series_of,
+    series_all,
     stride_of,
 )
 from strain_comp.diagnosis.rows import Candidates, Rows, candidates_of, rows_of
@@ -126,9 +126,7 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
         session = None
     stride = stride_of(bags, sensor)
     val_stride = 1 if validate is None else stride_of(validate, sensor)
-    series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-              for s in [series_of(sensor, b, runs, cands.entries, n_blocks, stride)]
-              if s is not None]
+    series = series_all(sensor, bags, base_fit, cands.entries, n_blocks, stride)
     if not series:
         return None
     period = holdout_period(holdout_fraction) if validate is None else 0

@@ -329,24 +329,17 @@ def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     if not d.plot:
         return None
     fig = Figure(figsize=(16, 4.2))
-    ax1, ax2, ax3 = fig.subplots(1, 3)
     p = d.plot
     u = result.calibration.sensors[name].strain_unit
-    ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
-    ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-    ax1.set_xlabel(plain(f"regressor {d.winner}"))
-    ax1.set_ylabel(f"residual S_hat - S [{u}]")
-    ax1.legend(markerscale=4)
-    ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
-    ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
-    ax2.set_xlabel("time [s] (held-out samples)")
-    ax2.set_ylabel(f"residual [{u}]")
-    ax2.legend(markerscale=4)
-    ax3.plot(p["s"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
-    ax3.plot(p["s"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-    ax3.set_xlabel(f"reference strain [{u}] (held-out samples)")
-    ax3.set_ylabel(f"residual [{u}]")
-    ax3.legend(markerscale=4)
+    panels = ((p["g"], plain(f"regressor {d.winner}"), f"residual S_hat - S [{u}]", 0.4),
+              (p["t"], "time [s] (held-out samples)", f"residual [{u}]", None),
+              (p["s"], f"reference strain [{u}] (held-out samples)", f"residual [{u}]", 0.4))
+    for ax, (x, xlabel, ylabel, alpha) in zip(fig.subplots(1, 3), panels, strict=True):
+        ax.plot(x, p["e_before"], ".", ms=2, alpha=alpha, label="before")
+        ax.plot(x, p["e_after"], ".", ms=2, alpha=alpha, label="after")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.legend(markerscale=4)
     fig.suptitle(plain(f"{name}: {d.message}"), fontsize=8)
     fig.tight_layout()
     return fig

@@ -179,6 +179,14 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
                    block=block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
 
 
+def series_all(sensor: str, bags: Sequence[Mapping[str, Recording]],
+               base: Sequence[Mapping[str, Run]], candidates: Sequence[dict[str, Any]],
+               n_blocks: int, stride: int) -> list[Series]:
+    """``series_of`` of every bag that has something usable of ``sensor``."""
+    return [s for b, runs in zip(bags, base, strict=True) if sensor in b
+            for s in [series_of(sensor, b, runs, candidates, n_blocks, stride)] if s is not None]
+
+
 def stride_of(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
     """Every how many-th used sample of ``sensor`` the loop keeps in ``bags`` (1 up to
     ``ROW_BUDGET`` samples; see there)."""
