@@ -27,6 +27,7 @@ from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult
+from strain_comp.diagnosis.residuals import as_bags
 from strain_comp.diagnosis.selection import upper_bound
 from strain_comp.io.recording import Recording
 
@@ -155,8 +156,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
     """``diagnose`` under each condition (docs/design.md, "Conditions"); the chosen result."""
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
-    validate = ([] if validate_recordings is None else [validate_recordings]
-                if isinstance(validate_recordings, Mapping) else list(validate_recordings))
+    validate = [] if validate_recordings is None else as_bags(validate_recordings)
     for bag in validate:  # what the validation runs show is tested as well
         more = chain_findings(bag, calibration)
         for key in ("alternating", "spiky", "stepped"):

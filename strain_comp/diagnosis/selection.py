@@ -174,15 +174,27 @@ def rms(e: np.ndarray) -> float:
 
 
 @dataclass
+class Tried:
+    """A candidate scored on the validation runs: its log RMSE ratios and their bound."""
+
+    column: int
+    fit_ratio: float
+    log_ratios: list[float]
+    bound: float
+
+
+@dataclass
 class Branch:
     """One hypothesis after selection and the held-out veto: ``shift`` is the baseline
-    column removed with coefficient 1 (None: a constant intercept instead)."""
+    column removed with coefficient 1 (None: a constant intercept instead); ``refused``:
+    the best candidate ``select_carried`` tried and did not add."""
 
     shift: int | None
     selection: Selection
     kept: list[int]
     coef: np.ndarray
     rmse: float
+    refused: Tried | None = None
 
 
 HeldOut = Callable[[Sequence[int], np.ndarray], np.ndarray]
@@ -262,27 +274,6 @@ def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> 
             for a, b in zip(e_new, e_old, strict=True)]
 
 
-@dataclass
-class Tried:
-    """A candidate scored on the validation runs: its log RMSE ratios and their bound."""
-
-    column: int
-    fit_ratio: float
-    log_ratios: list[float]
-    bound: float
-
-
-@dataclass
-class Carried:
-    """The terms ``select_carried`` adds, their fit, and the best candidate it tried and did
-    not add."""
-
-    selection: Selection
-    kept: list[int]
-    coef: np.ndarray
-    refused: Tried | None
-
-
 def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequence[int],
              policy: LoopPolicy) -> dict[int, float]:
     """The candidates that lower the cross-validated RMSE with ``cols`` and the intercept
@@ -296,7 +287,7 @@ def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequen
 
 
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
-                   policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Carried:
+                   policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Branch:
     """Greedy selection scored on the validation runs after their session start
     (docs/design.md, "The loop's steps", 8); ``skip``: columns never tried."""
     all_folds = np.arange(gram.n.size)
@@ -325,4 +316,5 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
         gains[best.column] = 1.0 - rms(np.concatenate(e_j)) / rms(np.concatenate(current))
         current, coef, refused = e_j, c, None
     kept = with_intercept(chosen, offset) if chosen else []
-    return Carried(Selection(chosen, gains), kept, coef, refused)
+    return Branch(None, Selection(chosen, gains), kept, coef, rms(np.concatenate(current)),
+                  refused)
