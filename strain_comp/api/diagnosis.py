@@ -79,9 +79,8 @@ class Diagnosis:
     def effects(self) -> list[dict[str, Any]]:
         """The effects added, in order: sensor, name, kind, reading, gain (the relative
         drop of the held-out RMSE when it was added)."""
-        return [{"sensor": e.sensor, "name": e.name, "kind": e.kind,
-                 "reading": record.get("reading", ""), "gain": e.gain}
-                for e in self.result.added for record in [e.to_json()]]
+        return [{"sensor": e.sensor, "name": e.name, "kind": e.kind, "reading": e.reading(),
+                 "gain": e.gain} for e in self.result.added]
 
     def summary(self) -> str:
         """The lines ``strain-comp diagnose`` prints.

@@ -27,6 +27,7 @@ from strain_comp.diagnosis.residuals import (
 )
 from strain_comp.diagnosis.rows import Candidates, Rows, candidates_of, rows_of
 from strain_comp.diagnosis.selection import (
+    Branch,
     Gram,
     HeldOut,
     Tried,
@@ -58,7 +59,7 @@ class _Setup:
 
 
 def _choose(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
-            ) -> Any:
+            ) -> Branch:
     """Forward selection kept on the held-out rows, and for each baseline candidate the
     per-run hypothesis (the start-of-run shift removed whole) when it wins by the margin
     (without a session start: steps 5-7)."""
