@@ -175,17 +175,18 @@ class BagWriter:
                           topic: str = "/diagnostics") -> None:
         """Add diagnostic_msgs/msg/DiagnosticArray messages, one per time."""
         t_ns = _ns(t)
-        rows = [cdr.diagnostic_array(*cdr.stamp_of(ns), "",
-                                     [(name, int(level), message, "",
-                                       [(str(a), str(b)) for a, b in values.items()])
-                                      for name, level, message, values in st])
-                for ns, st in zip(t_ns.tolist(), statuses, strict=False)]
+        rows = []
+        for i, st in zip(range(t_ns.size), statuses, strict=False):
+            blob, _ = cdr.diagnostic_arrays(t_ns[i:i + 1], "", [
+                (np.array([level], np.uint8), name, message, "",
+                 [(str(a), str(b)) for a, b in values.items()])
+                for name, level, message, values in st])
+            rows.append(blob.tobytes())
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns, rows)
 
     def write_diagnostic_payloads(self, t: npt.ArrayLike, blob: np.ndarray,
                                   lengths: np.ndarray, *, topic: str = "/diagnostics") -> None:
-        """Add diagnostic_msgs/msg/DiagnosticArray messages already encoded
-        (``strain_comp.io.diagnostic_arrays``), one per time."""
+        """Add DiagnosticArray messages already encoded (``diagnostic_arrays``)."""
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", _ns(t), (blob, lengths))
 
     def flush(self, *, before: float | None = None) -> None:
