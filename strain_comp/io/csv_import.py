@@ -20,8 +20,7 @@ import numpy.typing as npt
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
 from strain_comp.io.bag.schemas import MAX_TIME_S
-from strain_comp.io.recording import Recording, align
-from strain_comp.io.scales import check_scales, scaled
+from strain_comp.io.recording import Recording, align, check_scales, scaled
 
 FORMATS = ("cb_pdms", "fiber", "generic")
 CB_PDMS_GAUGE_MM = 40.0
