@@ -1,6 +1,5 @@
 """The one way strain_comp writes a file: atomically (a temporary file beside it, fsynced,
-renamed), and never over an input or a non-file; refusals and write faults are one
-``OutputError`` naming the target (docs/reliability.md)."""
+renamed), never over an input or a non-file (docs/reliability.md)."""
 
 from __future__ import annotations
 
@@ -71,7 +70,7 @@ def _file_mode(path: Path) -> int:
 
 class AtomicFile:
     """An open temporary file beside ``path`` that ``commit()`` renames over ``path`` and
-    ``discard()`` deletes; for writers that stream into it over many calls (the bag writer)."""
+    ``discard()`` deletes."""
 
     def __init__(self, path: PathLike, *, inputs: Iterable[PathLike] = ()) -> None:
         """Open the temporary file beside ``path``."""
@@ -140,7 +139,7 @@ def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterato
 
 
 def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``text`` to ``path`` atomically, UTF-8 encoded (a character UTF-8 cannot hold,
-    a surrogate from an undecodable file name, as its ``\\udcff`` escape)."""
+    """Write ``text`` to ``path`` atomically, UTF-8 encoded (a surrogate from an undecodable
+    file name as its ``\\udcff`` escape)."""
     with atomic_output(path, inputs=inputs) as handle:
         handle.write(text.encode("utf-8", "backslashreplace"))

@@ -21,11 +21,9 @@ ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR little endian, no options."""
 
 STAMP = struct.Struct("<iI")
-"""builtin_interfaces/Time: int32 sec, uint32 nanosec (4-aligned, bytes 4..12 of a message
-that starts with a header)."""
+"""builtin_interfaces/Time (bytes 4..12 of a message that starts with a header)."""
 _PROBE = struct.unpack("<d", bytes(range(1, 9)))[0]
-"""A float64 none of whose bytes is zero: where it replaces a zero value, the first byte
-that differs is the value's first byte."""
+"""A float64 none of whose bytes is zero: the first byte that differs where it replaces a 0."""
 
 
 @functools.cache
@@ -46,8 +44,7 @@ def _offset(a: bytes, b: bytes) -> int:
 
 def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: int,
                             n: int) -> bytes:
-    """The bytes of a std_msgs/msg/Float64MultiArray message of ``n`` values before its
-    first value: every such message is this head and the values (little-endian float64)."""
+    """The bytes of a Float64MultiArray of ``n`` values before its first value."""
     payload = message_encoder("std_msgs/msg/Float64MultiArray")({
         "layout": {"dim": [{"label": label, "size": size, "stride": stride}
                            for label, size, stride in dims], "data_offset": data_offset},
@@ -74,8 +71,7 @@ def joint_state_layout(frame_id: str, names: Sequence[str], *, velocity: bool
 
 
 def temperature_layout(frame_id: str, variance: float) -> tuple[bytes, int]:
-    """The template of every sensor_msgs/msg/Temperature message of one frame and variance:
-    only the stamp (bytes 4..12) and the temperature differ."""
+    """The template of every sensor_msgs/msg/Temperature message of one frame and variance."""
     encode = message_encoder("sensor_msgs/msg/Temperature")
 
     def message(value: float) -> bytes:
@@ -92,8 +88,8 @@ byte strings (``np.bytes_``, UTF-8) or integers (written as ``str(n)``)."""
 Status = tuple[np.ndarray, str, Text, str, Sequence[tuple[str, Text]]]
 """(levels (uint8 per message), name, message, hardware_id, [(key, value), ...])."""
 _CONST, _CONST_ALIGNED, _TEXT, _BYTE, _STAMP, _INT = range(6)
-"""``_place`` operations: constant bytes (as they are, or 4-aligned), a column's text (its
-length, bytes and NUL, 4-aligned), a column's byte, the stamp, a column's integer as text."""
+"""``_place`` operations: constant bytes (as they are, or 4-aligned), a column's text, byte
+or integer (as text), the stamp."""
 _U32 = struct.Struct("<I")
 
 
@@ -119,8 +115,8 @@ def _digits(value: int, digits: np.ndarray) -> int:
 def _place(ops: np.ndarray, pool: np.ndarray, texts: np.ndarray, text_len: np.ndarray,
            byte_cols: np.ndarray, int_cols: np.ndarray, t_ns: np.ndarray,
            out: np.ndarray, lengths: np.ndarray) -> None:
-    """Walk ``ops`` (kind, a, b) for every message: its length into ``lengths`` only while
-    ``out`` is empty, else the payloads written one after the other into ``out``."""
+    """Walk ``ops`` (kind, a, b) for every message: the lengths while ``out`` is empty, else
+    the payloads into ``out``."""
     write = out.size > 0
     at = 0
     digits = np.zeros((int_cols.shape[0], 24), np.uint8)  # each integer column's latest
@@ -216,8 +212,7 @@ def diagnostic_arrays(t_ns: np.ndarray, frame_id: str, statuses: Sequence[Status
 
 
 def _columns(texts: list[np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Byte-string columns of ``k`` entries as one (columns, k, width) uint8 array and each
-    entry's length in bytes."""
+    """Byte-string columns as one (columns, k, width) uint8 array, and each entry's length."""
     width = max([t.dtype.itemsize for t in texts], default=1)
     rows = np.zeros((len(texts), k, width), np.uint8)
     for i, column in enumerate(texts):

@@ -28,18 +28,13 @@ def _ns(t: npt.ArrayLike) -> np.ndarray:
     return np.round(t * 1e9).astype(np.int64)
 
 
-def _stamps(t_ns: np.ndarray) -> np.ndarray:
-    """(n, 8) uint8: builtin_interfaces/Time (``cdr.STAMP``) of each time [ns]."""
-    stamps = np.empty(t_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])
-    stamps["sec"], stamps["nanosec"] = np.divmod(t_ns, 10**9)
-    return stamps.view(np.uint8).reshape(-1, 8)
-
-
 def _stamped_rows(template: bytes, s_ns: np.ndarray) -> np.ndarray:
     """One copy of ``template`` (a message with a header) per stamp [ns], each stamped."""
+    stamps = np.empty(s_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])  # cdr.STAMP
+    stamps["sec"], stamps["nanosec"] = np.divmod(s_ns, 10**9)
     rows = np.empty((s_ns.size, len(template)), np.uint8)
     rows[:] = np.frombuffer(template, np.uint8)
-    rows[:, 4:12] = _stamps(s_ns)
+    rows[:, 4:12] = stamps.view(np.uint8).reshape(-1, 8)
     return rows
 
 
@@ -147,11 +142,8 @@ class BagWriter:
         template, pos_at, vel_at = cdr.joint_state_layout(frame_id, names,
                                                           velocity=velocity is not None)
         s_ns = t_ns if stamp is None else _ns(stamp)
-        if s_ns.size != t_ns.size:
+        if s_ns.size != t_ns.size:  # (_ns refuses stamps past int32 seconds)
             raise BagError(f"{topic}: {t_ns.size} times but {s_ns.size} stamps")
-        if s_ns.size and int(s_ns.max()) >= 2**31 * 10**9:
-            raise BagError(f"{topic}: stamps after 2038-01-19 do not fit "
-                           "builtin_interfaces/Time")
         rows = _stamped_rows(template, s_ns)
         rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
         if vel_at is not None:
@@ -217,10 +209,6 @@ class BagWriter:
         self._pending = Pending()
         if not p.t_ns:
             return
-        try:
-            rest = self._out.write_messages(self._topics, p, final=final, before=before)
-        except OSError as exc:
-            self._out.abort()
-            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
+        rest = self._out.write_messages(self._topics, p, final=final, before=before)
         if rest is not None:
             self._pending = rest
