@@ -133,22 +133,15 @@ class BagWriter:
         self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t), _cdr_rows(head, v))
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
-                          position: npt.ArrayLike, velocity: npt.ArrayLike | None = None, *,
-                          stamp: npt.ArrayLike | None = None, frame_id: str = "") -> None:
-        """Add sensor_msgs/msg/JointState messages, one per row of ``position``."""
-        t_ns = _ns(t)
+                          position: npt.ArrayLike) -> None:
+        """Add sensor_msgs/msg/JointState messages, one per row of ``position``, stamped
+        with the log time."""
+        t_ns = _ns(t)  # refuses stamps past int32 seconds
         k = len(names)
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, k)
-        template, pos_at, vel_at = cdr.joint_state_layout(frame_id, names,
-                                                          velocity=velocity is not None)
-        s_ns = t_ns if stamp is None else _ns(stamp)
-        if s_ns.size != t_ns.size:  # (_ns refuses stamps past int32 seconds)
-            raise BagError(f"{topic}: {t_ns.size} times but {s_ns.size} stamps")
-        rows = _stamped_rows(template, s_ns)
+        template, pos_at, _ = cdr.joint_state_layout("", names, velocity=False)
+        rows = _stamped_rows(template, t_ns)
         rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
-        if vel_at is not None:
-            v = np.asarray(velocity, dtype="<f8").reshape(t_ns.size, k)
-            rows[:, vel_at:vel_at + 8 * k] = v.view(np.uint8).reshape(-1, 8 * k)
         self._add(topic, "sensor_msgs/msg/JointState", t_ns, rows)
 
     def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike, *,
