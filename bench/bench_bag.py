@@ -121,10 +121,10 @@ class LibraryStream:
         self._output.discard()
 
 
-def library_storage_file(col: Collector, path: Path, file: Path) -> Iterator[int]:
+def library_storage_file(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
     """``io.bag.walk.storage_file`` through ``mcap.stream_reader.StreamReader``."""
     if file.suffix == ".db3":
-        yield from storage_file(col, path, file)
+        yield from storage_file(col, file, compressed)
         return
     with file.open("rb") as handle:
         msgs: list[Message] = []
@@ -143,12 +143,12 @@ def library_storage_file(col: Collector, path: Path, file: Path) -> Iterator[int
             _add_messages(col, msgs)
 
 
-def framing_storage_file(col: Collector, path: Path, file: Path) -> Iterator[int]:
+def framing_storage_file(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
     """``io.bag.walk.storage_file`` with the top-level records walked by
     ``StreamReader(emit_chunks=True)`` and each chunk handed to today's ``add_chunk``
     (bounded decompression, CRC, the records of the chunk located in bulk)."""
     if file.suffix == ".db3":
-        yield from storage_file(col, path, file)
+        yield from storage_file(col, file, compressed)
         return
     with file.open("rb") as handle:
         loose: list[Message] = []

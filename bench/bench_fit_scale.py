@@ -16,7 +16,7 @@ default budget gives ``--samples``; the same ``--small`` samples fitted on every
 (the baseline both sizes can afford); then ``--samples`` with the default budget
 (``strain_comp.offline.reduce``). Each prints the fit error ``fit_rmse`` (the engine over
 the FULL training data), the reduction factor, the fit and wall time and the peak RSS.
-Then ``strain-comp diagnose`` (``diagnose_bag``) on both bags with a ``--diagnose-model``
+Then ``strain-comp diagnose`` (``api.diagnose``) on both bags with a ``--diagnose-model``
 calibration fitted on the small one: time, peak RSS, held-out RMSE before and after and
 the terms added (``--only fit|diagnose`` runs one part).
 Goal: 1e7 samples in <= 2 GB and minutes, with a full-data
@@ -61,13 +61,13 @@ print(json.dumps({"seconds": seconds, "peak_mb": peak, **cal.provenance}))
 DIAGNOSE_ONE = """
 import json, sys, time
 from strain_comp.core.calibration import Calibration
-from strain_comp.diagnosis.command import diagnose_bag
+from strain_comp.api import diagnose
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.fit import fit_sensor
 small, bag, model = sys.argv[1], sys.argv[2], sys.argv[3]
 cal = Calibration({"s1": fit_sensor([load_recordings(small)[0]["s1"]], model, name="s1")})
 start = time.perf_counter()
-result = diagnose_bag(bag, cal)
+result = diagnose(cal, bag).result
 seconds = time.perf_counter() - start
 with open("/proc/self/status") as status:
     peak = next(int(ln.split()[1]) for ln in status if ln.startswith("VmHWM")) / 1024
@@ -131,9 +131,9 @@ def fits(args: argparse.Namespace, small: Path, large: Path) -> None:
 
 
 def diagnoses(args: argparse.Namespace, small: Path, large: Path) -> None:
-    """``diagnose_bag`` on both bags (calibration fitted on the small one)."""
+    """``api.diagnose`` on both bags (calibration fitted on the small one)."""
     print(f"diagnose (calibration: {args.diagnose_model} fitted on the {args.small:,}-sample "
-          "bag; s = diagnose_bag alone, peak = the whole process):")
+          "bag; s = api.diagnose alone, peak = the whole process):")
     print(f"{'bag':<14}{'s':>8}{'peak MB':>9}  held-out RMSE before -> after, added")
     for label, bag in ((f"{args.small:,}", small), (f"{args.samples:,}", large)):
         d, _ = child([sys.executable, "-c", DIAGNOSE_ONE, str(small), str(bag),

@@ -292,8 +292,8 @@ def workflows(rec: Any, cal: Any, loop_cal: Any | None = None, *,
 def looped(bench: Bench, sensor: Sensor, train: Run, validate: Sequence[Run], model: str
            ) -> Any:
     """The calibration ``strain-comp diagnose TRAIN --validate VALIDATE...`` makes, cached."""
+    from strain_comp.api import diagnose
     from strain_comp.core.calibration_file import load_calibration
-    from strain_comp.diagnosis.command import diagnose_bag
 
     options = ("_stretch" if LOOP["stretch_history"] else "") + (
         "" if LOOP["session_start"] else "_nosession")
@@ -304,11 +304,11 @@ def looped(bench: Bench, sensor: Sensor, train: Run, validate: Sequence[Run], mo
         cal = bench.fit(sensor, train, model)
         src = bench.cache_path(sensor, (train,), model)
         with contextlib.redirect_stdout(sys.stderr):
-            diagnose_bag(str(bench.bag(sensor, train)), cal,
-                         validate=[str(bench.bag(sensor, r)) for r in validate],
-                         out=str(path), plots=None, inputs=[str(src)], tare="auto",
-                         stretch_history=LOOP["stretch_history"],
-                         session_start=LOOP["session_start"])
+            diagnose(cal, str(bench.bag(sensor, train)),
+                     validate=[str(bench.bag(sensor, r)) for r in validate],
+                     out=str(path), inputs=[str(src)], tare="auto",
+                     stretch_history=LOOP["stretch_history"],
+                     session_start=LOOP["session_start"])
     return load_calibration(path)
 
 

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -23,7 +23,6 @@ from strain_comp.api.inputs import (
 )
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration as _save_calibration
-from strain_comp.diagnosis.command import diagnose_bag
 from strain_comp.diagnosis.conditions import diagnose_conditions
 from strain_comp.diagnosis.report import plot_file, write_plots
 from strain_comp.diagnosis.report_page import diagnosis_page
@@ -80,9 +79,8 @@ class Diagnosis:
     def effects(self) -> list[dict[str, Any]]:
         """The effects added, in order: sensor, name, kind, reading, gain (the relative
         drop of the held-out RMSE when it was added)."""
-        return [{"sensor": e.sensor, "name": e.name, "kind": e.kind,
-                 "reading": record.get("reading", ""), "gain": e.gain}
-                for e in self.result.added for record in [e.to_json()]]
+        return [{"sensor": e.sensor, "name": e.name, "kind": e.kind, "reading": e.reading(),
+                 "gain": e.gain} for e in self.result.added]
 
     def summary(self) -> str:
         """The lines ``strain-comp diagnose`` prints.
@@ -166,16 +164,6 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
 
     checked(data, "data", "data", optional=False)
     checked(tare, "text", "tare", optional=False)
-    with bar(None, "diagnose", enabled=progress_bar) as shown:
-        return _diagnose(calibration, data, validate, tare, stretch_history, session_start,
-                         out, plots, inputs, counter(shown) if progress_bar else None)
-
-
-def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequence[Data] | None,
-              tare: str, stretch_history: bool, session_start: bool, out: PathLike | None,
-              plots: PathLike | None, inputs: Sequence[PathLike],
-              progress: Callable[[int, int], None] | None) -> Diagnosis:
-
     cal = as_calibration(calibration)
     runs: list[Any] = [] if validate is None else [validate] if (
         is_path(validate) or isinstance(validate, (Recording, Mapping))) \
@@ -183,17 +171,13 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
     written = input_paths(calibration, list(inputs))
     check_distinct((out, plots, *(plot_file(plots, n) for n in cal.sensors if plots)))
     paths = paths_of(data)
-    if paths is not None and all(paths_of(v) is not None for v in runs):  # the command's way
-        validated = [os.fspath(v) for v in runs]
-        return Diagnosis(diagnose_bag(
-            paths[0], cal, validate=validated or None,
-            out=out, plots=None if plots is None else os.fspath(plots), inputs=written,
-            tare=tare, stretch_history=stretch_history, session_start=session_start,
-            progress=progress), cal, paths[0], validated, tare, paths[0])
+    recordings = _run(data)
     val = [_run(v) for v in runs] or None
-    result = diagnose_conditions(_run(data), cal, validate_recordings=val, tare=tare,
-                                 stretch_history=stretch_history, session_start=session_start,
-                                 progress=progress)
+    with bar(None, "diagnose", enabled=progress_bar) as shown:
+        result = diagnose_conditions(recordings, cal, validate_recordings=val, tare=tare,
+                                     stretch_history=stretch_history,
+                                     session_start=session_start,
+                                     progress=counter(shown) if progress_bar else None)
     written += [p for v in [data, *runs] for p in paths_of(v) or []]
     if out is not None:
         _save_calibration(result.calibration, out, inputs=written)
@@ -201,4 +185,4 @@ def _diagnose(calibration: CalibrationLike, data: Data, validate: Data | Sequenc
         write_plots(result, os.fspath(plots), inputs=written)
     return Diagnosis(result, cal, paths[0] if paths else "recordings",
                      [p for v in runs for p in paths_of(v) or []], tare,
-                     paths[0] if paths else _run(data))
+                     paths[0] if paths else recordings)

@@ -1,7 +1,7 @@
 """Per-sensor health: counters by sample status, the diagnostic level and message
 (diagnostic_msgs/DiagnosticStatus), and the health a batch had at given times, as arrays
 (``HealthCounter``: cumulative counts summed once a run, every tick a lookup; its
-key-values as columns for ``strain_comp.io.diagnostic_arrays``)."""
+key-values as columns for ``strain_comp.io.cdr.diagnostic_arrays``)."""
 
 from __future__ import annotations
 

@@ -78,7 +78,7 @@ class SensorState:
     last_good_t: float = -math.inf
     strain: float = math.nan
     direction: int = 0
-    effects: EffectTerms = field(default_factory=lambda: EffectTerms([], [], []))
+    effects: EffectTerms = field(default_factory=lambda: EffectTerms([], []))
     base: float = math.nan
     """Latest clamped strain before effect terms (what neighbours' cross-talk terms read)."""
     gain: float = 1.0

@@ -1,10 +1,5 @@
-"""Candidate effects of the residual loop: the generic regressors a model lacks.
-
-Each candidate is a calibration-file effect dict (``strain_comp.core.effects``) with
-``coef: 0``; the loop (``strain_comp.diagnosis.loop``) computes each one online over the
-recordings, exactly as the engine would, and ``strain_comp.diagnosis.selection`` decides
-which ones to add.
-"""
+"""Candidate effects of the residual loop (docs/design.md, "The loop's steps", 2): each a
+calibration-file effect dict with ``coef: 0``."""
 
 from __future__ import annotations
 
@@ -37,12 +32,7 @@ def default_candidates(*, temperature_ref: float | None = None,
                        neighbours: Sequence[str] = (),
                        baseline_rest: float = 0.0,
                        stretch_history: bool = False) -> list[dict[str, Any]]:
-    """The generic candidate effects (calibration-file dicts with ``coef: 0``).
-
-    The creep family (``report.creep_tau``) is a Prony series read one state at a time:
-    ``relaxation`` of branch ``both`` (S_hat minus its first-order low-pass) and
-    ``resistance_memory`` of form ``relaxation`` (100 ln R minus its low-pass), each at
-    ``CREEP_TAUS``; the differences u - z_k that ``creep_pi`` fits (docs/design.md)."""
+    """The generic candidate effects (calibration-file dicts with ``coef: 0``)."""
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
             for mode in ("signed", "direction")]

@@ -27,6 +27,7 @@ from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
 from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult
+from strain_comp.diagnosis.residuals import as_bags
 from strain_comp.diagnosis.selection import upper_bound
 from strain_comp.io.recording import Recording
 
@@ -126,10 +127,8 @@ def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | Non
 
 
 def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPolicy) -> bool:
-    """Does the condition of ``result`` lower the validation runs' error against the
-    calibration as given (``reference``) beyond the spread between runs (each sensor's
-    validation runs after their session start; ``selection.upper_bound``, as a term)?
-    True with fewer than two such runs: the pooled figure decides alone."""
+    """Does the condition of ``result`` lower the validation runs' error against
+    ``reference`` beyond the spread between runs (True with fewer than two runs)?"""
     ratios = [math.log(a / b) for name, d in result.sensors.items() if name in reference.sensors
               for a, b in zip(d.runs_after, reference.sensors[name].runs_after, strict=False)
               if a > 0 and b > 0]
@@ -137,9 +136,7 @@ def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPoli
 
 
 def _chosen(results: Sequence[DiagnoseResult], policy: LoopPolicy) -> int:
-    """The index of the condition chosen: the last whose held-out RMSE is ``margin`` below
-    both the best one before it and the first (as calibrated), carried beyond the spread
-    between runs (``_carries``); 0 when none is."""
+    """The index of the condition chosen (docs/design.md, "Conditions")."""
     margin = policy.margin
     best = 0
     for k, result in enumerate(results[1:], start=1):
@@ -159,8 +156,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
     """``diagnose`` under each condition (docs/design.md, "Conditions"); the chosen result."""
     found = chain_findings(recordings, calibration)
     readings = found.lines + found.spike_lines + found.step_lines
-    validate = ([] if validate_recordings is None else [validate_recordings]
-                if isinstance(validate_recordings, Mapping) else list(validate_recordings))
+    validate = [] if validate_recordings is None else as_bags(validate_recordings)
     for bag in validate:  # what the validation runs show is tested as well
         more = chain_findings(bag, calibration)
         for key in ("alternating", "spiky", "stepped"):

@@ -52,11 +52,8 @@ def score_rows(sensor: str, cal: SensorCalibration, cands: Candidates, rows: Row
 
 
 def lags(cands: Candidates, rows: Rows, j: int, coef: float) -> bool | None:
-    """Does creep term ``j`` (``report.creep_tau``) stand for an estimate that lags the
-    reference after a change? Its correction coef g set against the same time constant's
-    state of the estimate (S_hat minus its low-pass, positive after a rise of the strain):
-    of opposite sign on the fit rows, the estimate stays behind. None: not a creep term, or
-    no such state among the candidates."""
+    """Does creep term ``j`` stand for an estimate that lags the reference after a change
+    (its correction against the same tau's state of the estimate is of opposite sign)?"""
     tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
     if tau is None:
         return None
@@ -117,9 +114,7 @@ def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: li
 
 def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | None,
                 margin: float) -> str:
-    """Why no term is added after the session start, in one clause: no candidate helps the
-    diagnosed run, or the best one that does (``refused``), what it does to each run, why
-    it does not carry and what to record instead (``instead``)."""
+    """Why no term is added after the session start, in one clause."""
     if refused is None:
         top = max((j for j in scores if j not in cands.baselines and j != cands.offset),
                   key=scores.__getitem__)
@@ -138,10 +133,7 @@ def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | No
 
 def instead(log_ratios: list[float], margin: float) -> str:
     """Why a term fitted on the diagnosed run does not carry, and what to record instead:
-    where it lowers some validation runs and not others (or none), the change differs
-    between runs, which only known strains during each run can follow; where it lowers
-    every one, but by amounts too far apart for what one more run gets to be told, more
-    runs tell."""
+    known strains where the change differs between runs, more runs where only its size does."""
     low = math.log(1.0 - margin)
     if all(x < low for x in log_ratios):
         return ("the validation runs disagree on how much it lowers them: record more "
@@ -161,9 +153,7 @@ def family(cands: Candidates, j: int) -> str:
 def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.ndarray,
                     e_start: np.ndarray, margin: float) -> dict[str, Any]:
     """What the session start did on the validation runs, and the gain change between runs
-    it shows: the sensitivity against the calibration (the input span gain k: the sensor
-    reads 1 / k - 1 more) where it is at least ``GAIN_CHANGE`` and the session start lowers
-    the validation error by more than ``margin``."""
+    it shows (the input span gain k: the sensor reads 1 / k - 1 more)."""
     starts = session.starts()
     spans = [s.calibration.sensors[session.sensor].input.zero_span for s in starts]
     changes = [100.0 * (1.0 / span[2] - 1.0) for span, s in zip(spans, starts, strict=True)

@@ -1,14 +1,5 @@
-"""The residual loop (docs/design.md, "The residual loop"): find the effect a calibration lacks,
-add it as an explicit online term, and report the error before and after on held-out data.
-
-The steps: docs/design.md, "The loop's steps".
-
-The package: ``candidates`` (step 2), ``residuals`` and ``rows`` (steps 1-3),
-``selection`` (steps 4-6 and 8, testable alone) with its numbers in ``policy``,
-``session`` (the session start), ``findings`` (the message and records), ``report``
-(results, readings, plots), this module (the per-sensor loop) and ``conditions`` (tare
-and measurement-chain hypotheses around the whole loop).
-"""
+"""The residual loop per sensor (docs/design.md, "The residual loop", "The loop's steps"):
+find the effect a calibration lacks, add it as an online term, report the held-out error."""
 
 from __future__ import annotations
 
@@ -31,11 +22,12 @@ from strain_comp.diagnosis.residuals import (
     base_runs,
     holdout_period,
     rmse_stats,
-    series_of,
+    series_all,
     stride_of,
 )
 from strain_comp.diagnosis.rows import Candidates, Rows, candidates_of, rows_of
 from strain_comp.diagnosis.selection import (
+    Branch,
     Gram,
     HeldOut,
     Tried,
@@ -51,38 +43,42 @@ from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 
 
-def _choose(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float],
-            policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None) -> Any:
+@dataclass
+class _Setup:
+    """One sensor's candidates, rows, cross-validation sums and first-round scores, and
+    the held-out measure (the validation runs after their session start, or linear)."""
+
+    cands: Candidates
+    rows: Rows
+    gram: Gram
+    scores: dict[int, float]
+    shifted: dict[int, Gram]
+    """Each baseline candidate's Gram with its start-of-run shift removed whole (step 7)."""
+    session: SessionHeldOut | None
+    strides: tuple[int, int | None]
+
+
+def _choose(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
+            ) -> Branch:
     """Forward selection kept on the held-out rows, and for each baseline candidate the
     per-run hypothesis (the start-of-run shift removed whole) when it wins by the margin
     (without a session start: steps 5-7)."""
+    gram, cands, n_folds = setup.gram, setup.cands, setup.rows.n_folds
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
     margin, max_effects = policy.margin, policy.max_effects
     chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines)
-    best = keep_on_held_out(gram, chosen, None, offset, rows.n_folds, margin, held_out, runs)
+    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
-    for b in baselines:
-        shifted = Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
-        rmse_b = shifted.cv_rmse([])
+    for b, shifted in setup.shifted.items():
         selection = select_forward(shifted, n, offset, margin, max_effects - 1,
                                    auto_intercept=False, skip=baselines)
-        selection.gains = {b: 1.0 - rmse_b / rmse_none if rmse_none > 0 else 0.0,
+        selection.gains = {b: 1.0 - shifted.cv_rmse([]) / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, rows.n_folds, margin,
-                                  held_out, runs)
+        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
+                                  runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
     return best
-
-
-def _baseline_scores(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float]
-                     ) -> None:
-    """``scores`` of the per-run baseline candidates: the share of the cross-validated
-    residual variance their start-of-run shift, removed whole, explains (step 7)."""
-    rmse_none = gram.cv_rmse([])
-    for b in cands.baselines:
-        shifted = Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
-        scores[b] = 1.0 - (shifted.cv_rmse([]) / rmse_none) ** 2 if rmse_none > 0 else 0.0
 
 
 @dataclass
@@ -98,37 +94,24 @@ class _Selected:
     refused: Tried | None
 
 
-def _select(gram: Gram, rows: Rows, cands: Candidates, scores: dict[int, float],
-            policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None,
-            session: SessionHeldOut | None) -> _Selected:
+def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
+            ) -> _Selected:
     """Steps 5-7, or with a session start step 8 (what the session start makes itself,
     the per-run baseline among it, is neither tried nor written)."""
+    cands, session = setup.cands, setup.session
     if session is not None:
         n = len(cands.names)
         skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
-        carried = select_carried(gram, n, cands.offset, session.per_run, policy, skip)
+        carried = select_carried(setup.gram, n, cands.offset, session.per_run, policy, skip)
         kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
         return _Selected([carried.kept[k] for k in kept], [float(carried.coef[k]) for k in kept],
                          carried.selection.gains, carried.selection.chosen, carried.refused)
-    best = _choose(gram, rows, cands, scores, policy, held_out, runs)
+    best = _choose(setup, policy, held_out, runs)
     rmse_before = rms(held_out([], np.zeros(0)))
     terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
         + best.kept
     coefs = ([1.0] if terms[:1] == [best.shift] else []) + [float(c) for c in best.coef]
     return _Selected(terms, coefs, best.selection.gains, best.selection.chosen, None)
-
-
-@dataclass
-class _Setup:
-    """One sensor's candidates, rows, cross-validation sums and first-round scores, and
-    the held-out measure (the validation runs after their session start, or linear)."""
-
-    cands: Candidates
-    rows: Rows
-    gram: Gram
-    scores: dict[int, float]
-    session: SessionHeldOut | None
-    strides: tuple[int, int | None]
 
 
 def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Recording]],
@@ -144,9 +127,7 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
         session = None
     stride = stride_of(bags, sensor)
     val_stride = 1 if validate is None else stride_of(validate, sensor)
-    series = [s for b, runs in zip(bags, base_fit, strict=True) if sensor in b
-              for s in [series_of(sensor, b, runs, cands.entries, n_blocks, stride)]
-              if s is not None]
+    series = series_all(sensor, bags, base_fit, cands.entries, n_blocks, stride)
     if not series:
         return None
     period = holdout_period(holdout_fraction) if validate is None else 0
@@ -154,8 +135,12 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
                    val_stride)
     gram = Gram(rows.g_fit, rows.e_fit, rows.fold, rows.n_folds)
     scores = candidate_scores(gram, len(cands.names), cands.offset)
-    _baseline_scores(gram, rows, cands, scores)
-    return _Setup(cands, rows, gram, scores, session,
+    shifted = {b: Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
+               for b in cands.baselines}
+    rmse_none = gram.cv_rmse([])
+    for b, shifted_b in shifted.items():  # the share its shift, removed whole, explains
+        scores[b] = 1.0 - (shifted_b.cv_rmse([]) / rmse_none) ** 2 if rmse_none > 0 else 0.0
+    return _Setup(cands, rows, gram, scores, shifted, session,
                   (stride, val_stride if validate is not None else None))
 
 
@@ -169,7 +154,7 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     runs = None  # the validation run of each held-out sample (without a session start)
     if session is None and rows.val_series:
         runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(rows.val_series)])
-    picked = _select(setup.gram, rows, cands, setup.scores, policy, held_out, runs, session)
+    picked = _select(setup, policy, held_out, runs)
     terms, coefs = picked.terms, picked.coefs
     e_before = held_out([], np.zeros(0))
     e_after = held_out(terms, np.array(coefs))

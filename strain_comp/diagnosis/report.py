@@ -78,10 +78,8 @@ class EffectScore:
 
 
 def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
-    """The time constant [s] of a creep term, None for any other: one state of a Prony
-    series u - z_k, z_k' = (u - z_k) / tau_k (viscoelastic creep, the generalised Maxwell
-    form; ``creep_pi``, docs/design.md), u being the estimate (``relaxation`` of branch
-    ``both``) or 100 ln R (``resistance_memory`` of form ``relaxation``)."""
+    """The time constant [s] of a creep term (one Prony-series state of the estimate or of
+    100 ln R; docs/design.md, "The loop's steps", 2), None for any other."""
     if (kind == "relaxation" and params.get("branch", "both") == "both") or (
             kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):
         return float(params.get("tau", 10.0))
@@ -110,11 +108,8 @@ def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
 def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
                    magnitude: float | None = None, *, unit: str = "%",
                    span: float | None = None, lag: bool | None = None) -> str:
-    """An added term in physical words. The model's output carries + coef g (the term
-    removes it), so the reading describes the sensor against its calibration. Sizes are
-    in the calibration's strain ``unit`` (``% strain``, or e.g. ``mm`` for an extension);
-    relative readings (sensitivity, gain drift) are in % of the output; a creep term's in %
-    of the strain ``span`` as well (``creep_reading``)."""
+    """An added term in physical words: the sensor against its calibration (the output
+    carries + coef g), sizes in the strain ``unit``, relative readings in % of the output."""
     u = strain_unit_words(unit)
     size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
     tau = creep_tau(kind, params)
@@ -334,24 +329,17 @@ def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
     if not d.plot:
         return None
     fig = Figure(figsize=(16, 4.2))
-    ax1, ax2, ax3 = fig.subplots(1, 3)
     p = d.plot
     u = result.calibration.sensors[name].strain_unit
-    ax1.plot(p["g"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
-    ax1.plot(p["g"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-    ax1.set_xlabel(plain(f"regressor {d.winner}"))
-    ax1.set_ylabel(f"residual S_hat - S [{u}]")
-    ax1.legend(markerscale=4)
-    ax2.plot(p["t"], p["e_before"], ".", ms=2, label="before")
-    ax2.plot(p["t"], p["e_after"], ".", ms=2, label="after")
-    ax2.set_xlabel("time [s] (held-out samples)")
-    ax2.set_ylabel(f"residual [{u}]")
-    ax2.legend(markerscale=4)
-    ax3.plot(p["s"], p["e_before"], ".", ms=2, alpha=0.4, label="before")
-    ax3.plot(p["s"], p["e_after"], ".", ms=2, alpha=0.4, label="after")
-    ax3.set_xlabel(f"reference strain [{u}] (held-out samples)")
-    ax3.set_ylabel(f"residual [{u}]")
-    ax3.legend(markerscale=4)
+    panels = ((p["g"], plain(f"regressor {d.winner}"), f"residual S_hat - S [{u}]", 0.4),
+              (p["t"], "time [s] (held-out samples)", f"residual [{u}]", None),
+              (p["s"], f"reference strain [{u}] (held-out samples)", f"residual [{u}]", 0.4))
+    for ax, (x, xlabel, ylabel, alpha) in zip(fig.subplots(1, 3), panels, strict=True):
+        ax.plot(x, p["e_before"], ".", ms=2, alpha=alpha, label="before")
+        ax.plot(x, p["e_after"], ".", ms=2, alpha=alpha, label="after")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.legend(markerscale=4)
     fig.suptitle(plain(f"{name}: {d.message}"), fontsize=8)
     fig.tight_layout()
     return fig

@@ -50,12 +50,10 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
         body.append('<table class="effects"><tr><th>sensor</th><th>term</th><th>kind</th>'
                     "<th>reading</th><th>held-out RMSE drop</th></tr>")
         for effect in added:
-            record = effect.to_json()
-            gain = effect.gain
             body.append(f'<tr data-effect="{escape(effect.name)}"><td>{escape(effect.sensor)}'
                         f"</td><td>{escape(effect.name)}</td><td>{escape(effect.kind)}</td>"
-                        f"<td>{escape(str(record.get('reading', '')))}</td>"
-                        + html_cell(gain, ".1%", "gain") + "</tr>")
+                        f"<td>{escape(effect.reading())}</td>"
+                        + html_cell(effect.gain, ".1%", "gain") + "</tr>")
         body.append("</table>")
     else:
         body.append("<p>None: no candidate lowered the held-out error enough.</p>")

@@ -1,7 +1,5 @@
-"""The residual loop's data (docs/design.md, "The residual loop", steps 1-3): each
-recording run through the engine with the calibration's effect terms removed
-(``base_runs``), the residual and the candidate regressors over its used samples, cut into
-time blocks (``series_of``), and the row budget of a long run (``stride_of``)."""
+"""The residual loop's data (docs/design.md, "The loop's steps", 1-3): the engine's output
+without effect terms, the residual and the candidate regressors, cut into time blocks."""
 
 from __future__ import annotations
 
@@ -29,14 +27,9 @@ from strain_comp.diagnosis.candidates import BASELINE_WINDOW
 from strain_comp.io.recording import Recording, hold_latest
 
 ROW_BUDGET = 250_000
-"""Samples of one sensor (over its fit recordings; validation recordings apart) up to which
-the loop keeps every used sample. Above it, every k-th (k = ceil(samples / budget)) after
-the regressors have run online over all of them: the candidates' memory and state see the
-full rate, and only the rows of the least-squares problems are thinned. A fixed-stride
-subsample keeps the residual's RMSE and MAE unbiased estimates of the full data's (a
-low-pass would shrink the noise no term can explain and inflate every gain), and the
-regressors are at most as fast as the motion; ``max_abs`` is the subsample's. Memory: the
-regressor matrix holds at most about ``ROW_BUDGET`` rows."""
+"""Samples of one sensor's fit recordings up to which the loop keeps every used sample
+(docs/design.md, "The residual loop", 5). A fixed stride, not a low-pass: that would shrink
+the noise no term can explain and inflate every gain."""
 
 
 @dataclass
@@ -184,6 +177,14 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
     return Series(e=(corrected + run.beyond[used] - s)[rows], g=g, t=t[rows],
                    extended=(run.beyond[used] != 0.0)[rows],
                    block=block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
+
+
+def series_all(sensor: str, bags: Sequence[Mapping[str, Recording]],
+               base: Sequence[Mapping[str, Run]], candidates: Sequence[dict[str, Any]],
+               n_blocks: int, stride: int) -> list[Series]:
+    """``series_of`` of every bag that has something usable of ``sensor``."""
+    return [s for b, runs in zip(bags, base, strict=True) if sensor in b
+            for s in [series_of(sensor, b, runs, candidates, n_blocks, stride)] if s is not None]
 
 
 def stride_of(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:

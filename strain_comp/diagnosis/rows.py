@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from strain_comp.diagnosis.candidates import default_candidates
-from strain_comp.diagnosis.residuals import Run, Series, baseline_rest, neighbours_of, series_of
+from strain_comp.diagnosis.residuals import Run, Series, baseline_rest, neighbours_of, series_all
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 
@@ -86,9 +86,7 @@ def rows_of(sensor: str, series: list[Series], validate: list[Mapping[str, Recor
     fold = np.concatenate([fold_of_block[s.block[f]]
                            for s, f in zip(series, fits, strict=True)])
     if validate is not None:
-        val_series = [s for b, runs in zip(validate, base_val, strict=True) if sensor in b
-                      for s in [series_of(sensor, b, runs, entries, n_blocks, val_stride)]
-                      if s is not None]
+        val_series = series_all(sensor, validate, base_val, entries, n_blocks, val_stride)
         if not val_series:
             raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
                              "samples with a reference strain")

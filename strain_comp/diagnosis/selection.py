@@ -1,17 +1,10 @@
-"""Selection statistics of the residual loop, testable on any regressor matrix.
-
-Blocked cross-validation from per-fold sums (``Gram``), the fold-wise significance test
-(``significant``), greedy forward selection (``select_forward``), first-round scores
-(``candidate_scores``), the held-out veto (``keep_on_held_out``) and the selection on
-validation runs after their session start (``select_carried``, ``upper_bound``). See
-docs/design.md, "The loop's steps" (4-6), for how the loop uses them; the numbers are
-``strain_comp.diagnosis.policy.LoopPolicy``'s.
-"""
+"""Selection statistics of the residual loop (docs/design.md, "The loop's steps", 4-8),
+testable on any regressor matrix; the numbers are ``policy.LoopPolicy``'s."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,9 +15,7 @@ from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 
 RESOLUTION = 1e-6
 """Forward selection stops once the cross-validated RMSE is below this fraction of the
-residual's own: what is left is rounding (the fold sums' squared errors cancel to about
-1e-16 of the residual's square, 1e-8 of its RMSE), and a relative gain on it (a term
-"explaining" 1e-15 % of strain) is no evidence of any effect."""
+residual's own: what is left is rounding (the fold sums cancel to about 1e-8 of the RMSE)."""
 
 
 @njit
@@ -107,6 +98,15 @@ def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray,
     return bool(d.mean() > sigmas * d.std(ddof=1) / math.sqrt(d.size))
 
 
+def _gains(gram: Gram, trials: Mapping[int, np.ndarray], ref: np.ndarray, margin: float,
+           sigmas: float = LOOP_POLICY.significance) -> dict[int, float]:
+    """The gain over ``ref`` of each trial (its fold-wise squared errors) that lowers the
+    cross-validated RMSE by more than ``margin``, significantly."""
+    gains = {j: 1.0 - math.sqrt(after.sum() / ref.sum()) for j, after in trials.items()}
+    return {j: gain for j, gain in gains.items()
+            if gain > margin and significant(ref, trials[j], gram.n, sigmas)}
+
+
 @dataclass
 class Selection:
     chosen: list[int]
@@ -126,25 +126,21 @@ def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effe
     floor = RESOLUTION ** 2 * current.sum()
     while len([c for c in chosen if c != offset]) < max_effects and current.sum() > floor:
         ref = current
-        trials: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        passing: dict[int, float] = {}
         if auto_intercept:
             ref = gram.fold_sse(model([*chosen, offset]))
             if offset not in chosen:
-                trials[offset] = (current, ref)
+                passing = _gains(gram, {offset: ref}, current, margin)
         if ref.sum() > 0:
-            for j in range(n_cols):
-                if j in chosen or j in skip or (auto_intercept and j == offset):
-                    continue
-                trials[j] = (ref, gram.fold_sse(model([*chosen, j])))
-        gain = {j: 1.0 - math.sqrt(after.sum() / before.sum())
-                for j, (before, after) in trials.items()}
-        passing = [j for j, (before, after) in trials.items()
-                   if gain[j] > margin and significant(before, after, gram.n)]
+            passing |= _gains(gram, {j: gram.fold_sse(model([*chosen, j]))
+                                     for j in range(n_cols) if j not in chosen
+                                     and j not in skip and not (auto_intercept and j == offset)},
+                              ref, margin)
         if not passing:
             break
-        best = max(passing, key=gain.__getitem__)
+        best = max(passing, key=passing.__getitem__)
         chosen.append(best)
-        gains[best] = gain[best]
+        gains[best] = passing[best]
         current = gram.fold_sse(model(chosen))
     return Selection(chosen, gains)
 
@@ -178,22 +174,31 @@ def rms(e: np.ndarray) -> float:
 
 
 @dataclass
+class Tried:
+    """A candidate scored on the validation runs: its log RMSE ratios and their bound."""
+
+    column: int
+    fit_ratio: float
+    log_ratios: list[float]
+    bound: float
+
+
+@dataclass
 class Branch:
     """One hypothesis after selection and the held-out veto: ``shift`` is the baseline
-    column removed with coefficient 1 (None: a constant intercept instead)."""
+    column removed with coefficient 1 (None: a constant intercept instead); ``refused``:
+    the best candidate ``select_carried`` tried and did not add."""
 
     shift: int | None
     selection: Selection
     kept: list[int]
     coef: np.ndarray
-    e_after: np.ndarray
     rmse: float
+    refused: Tried | None = None
 
 
 HeldOut = Callable[[Sequence[int], np.ndarray], np.ndarray]
-"""The held-out residual of a set of terms: (columns, coefficients) -> errors over the
-held-out data (``strain_comp.diagnosis.loop``: the validation run's, after the
-session-start recalibration when it can be made)."""
+"""The held-out residual of a set of terms: (columns, coefficients) -> errors."""
 
 
 def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
@@ -203,11 +208,9 @@ def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
 
 def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
                     runs: np.ndarray | None = None) -> bool:
-    """Does ``e_new`` lower the held-out RMSE of ``e_old`` by more than ``margin``
-    (relative)? Given the validation run of each sample (``runs``, 0..k-1) and more than
-    one run, also the median run's (the generalisation benchmark's statistic, so that one
-    run does not decide alone), and no run's may rise by more than ``margin``: a term that
-    helps some runs of another condition and hurts others does not carry."""
+    """Does ``e_new`` lower the held-out RMSE of ``e_old`` by more than ``margin``, and
+    given each sample's validation run (``runs``), the median run's, with no run's rising
+    by more than ``margin`` (docs/design.md, "The loop's steps", 6)?"""
     if not rms(e_new) < (1.0 - margin) * rms(e_old):
         return False
     if runs is None or not e_new.size == e_old.size == runs.size or runs.max() < 1:
@@ -219,12 +222,8 @@ def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
                      n_folds: int, margin: float, held_out: HeldOut,
                      runs: np.ndarray | None = None) -> Branch:
-    """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's selected terms, in
-    their order: a term, fitted on all fit folds of ``gram`` with those kept before it,
-    is kept if ``held_out`` says it lowers the held-out RMSE by more than ``margin``
-    (a term that does not, e.g. an intercept the session-start recalibration makes anyway,
-    is left out and the later ones are still tried); ``shift`` enters with coefficient 1.
-    ``runs``: the validation run of each held-out sample (``held_out_better``)."""
+    """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's selected
+    terms, in their order; ``shift`` enters with coefficient 1."""
     all_folds = np.arange(n_folds)
     head = [] if shift is None else [shift]
     auto = shift is None
@@ -239,7 +238,7 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
     if shift is not None:
         e_shift = held_out(head, np.ones(1))
         if not held_out_better(e_shift, current, margin, runs):
-            return Branch(None, selection, [], np.zeros(0), e_none, rms(e_none))
+            return Branch(None, selection, [], np.zeros(0), rms(e_none))
         current = e_shift
     for j in selection.chosen:
         cols = with_intercept([*kept, j], offset) if auto else [*kept, j]
@@ -250,15 +249,14 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
         if helps:  # one that does not is left out; the later ones are still tried
             kept, current = cols, e_j
     coef, e_after = trial(kept)
-    return Branch(shift, selection, kept, coef, e_after, rms(e_after))
+    return Branch(shift, selection, kept, coef, rms(e_after))
 
 
 def upper_bound(log_ratios: Sequence[float], level: float) -> float:
-    """What one more run may get from a term: the one-sided prediction bound at ``level``
-    (``LoopPolicy.level``) of its log RMSE ratio from those on the k validation runs,
-    mean + t(level, k - 1) sd sqrt(1 + 1 / k) (Student's t: with two runs' standard
-    deviation the normal quantile would trust a spread that two runs hardly show); +inf
-    with fewer than two runs (no spread between runs to judge by)."""
+    """The one-sided prediction bound at ``level`` of one more run's log RMSE ratio from
+    the k runs', mean + t(level, k - 1) sd sqrt(1 + 1 / k); +inf with fewer than two runs.
+    Student's t: with two runs' sd the normal quantile would trust a spread two runs hardly
+    show."""
     x = np.asarray(log_ratios, dtype=np.float64)
     if x.size < 2 or not np.all(np.isfinite(x)):
         return math.inf
@@ -267,9 +265,7 @@ def upper_bound(log_ratios: Sequence[float], level: float) -> float:
 
 
 RunsHeldOut = Callable[[Sequence[int], np.ndarray], list[np.ndarray]]
-"""The held-out residual of a set of terms on each validation run: (columns, coefficients)
--> one array of errors per run (``session.SessionHeldOut.per_run``: a run may score a
-different number of samples with other terms, so the runs are kept apart)."""
+"""``HeldOut`` kept apart by validation run (``session.SessionHeldOut.per_run``)."""
 
 
 def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> list[float]:
@@ -278,71 +274,30 @@ def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> 
             for a, b in zip(e_new, e_old, strict=True)]
 
 
-@dataclass
-class Tried:
-    """A candidate scored on the validation runs: the log RMSE ratio on the diagnosed run's
-    held-out folds, each validation run's, and their upper bound."""
-
-    column: int
-    fit_ratio: float
-    log_ratios: list[float]
-    bound: float
-
-
-@dataclass
-class Carried:
-    """The terms ``select_carried`` adds, in order, their fit (scaled back), the held-out
-    errors with them, and the best candidate it tried and did not add (None: every
-    candidate it tried was added, or none passed on the diagnosed run)."""
-
-    selection: Selection
-    kept: list[int]
-    coef: np.ndarray
-    e_after: np.ndarray
-    passed: bool
-    """Did any candidate pass on the diagnosed run at the last step?"""
-    refused: Tried | None
-
-
 def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequence[int],
              policy: LoopPolicy) -> dict[int, float]:
-    """The candidates that lower the diagnosed run's cross-validated RMSE (with ``cols``
-    and the intercept) by more than the margin, significantly: their gain."""
+    """The candidates that lower the cross-validated RMSE with ``cols`` and the intercept
+    by more than the margin, significantly: their gain."""
     ref = gram.fold_sse(with_intercept([*cols, offset], offset))
     if not ref.sum() > RESOLUTION ** 2 * gram.ee.sum():
         return {}
-    gains = {}
-    for j in range(n_cols):
-        if j in cols or j in skip or j == offset:
-            continue
-        after = gram.fold_sse(with_intercept([*cols, j], offset))
-        gain = 1.0 - math.sqrt(after.sum() / ref.sum())
-        if gain > policy.margin and significant(ref, after, gram.n, policy.significance):
-            gains[j] = gain
-    return gains
+    return _gains(gram, {j: gram.fold_sse(with_intercept([*cols, j], offset))
+                         for j in range(n_cols) if j not in cols and j not in skip and j != offset},
+                  ref, policy.margin, policy.significance)
 
 
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
-                   policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Carried:
-    """Greedy selection scored as the product is used (docs/design.md, "The loop's steps",
-    step 8). At each step the candidates that pass on the diagnosed run (``_passing``),
-    the ``policy.tried`` best, are each fitted there (with the terms already added and the
-    intercept) and scored on the validation runs by ``held_out`` (the errors of each run
-    after its session start). The one with the lowest ``upper_bound`` of its log RMSE
-    ratios over the validation runs is added if that bound is below ln(1 - margin): it
-    lowers the error by more than the margin beyond the spread between runs (with one
-    validation run there is no spread to judge by, and nothing is added). ``skip``: columns
-    never tried (what the session start makes itself)."""
+                   policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Branch:
+    """Greedy selection scored on the validation runs after their session start
+    (docs/design.md, "The loop's steps", 8); ``skip``: columns never tried."""
     all_folds = np.arange(gram.n.size)
     chosen: list[int] = []
     gains: dict[int, float] = {}
     current = held_out([], np.zeros(0))
     coef = np.zeros(0)
     refused: Tried | None = None
-    passed = False
     while len(chosen) < policy.max_effects:
         passing = _passing(gram, chosen, offset, n_cols, skip, policy)
-        passed = bool(passing)
         tried: list[tuple[Tried, np.ndarray, list[np.ndarray]]] = []
         for j in sorted(passing, key=passing.__getitem__, reverse=True)[:policy.tried]:
             cols = with_intercept([*chosen, j], offset)
@@ -361,5 +316,5 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
         gains[best.column] = 1.0 - rms(np.concatenate(e_j)) / rms(np.concatenate(current))
         current, coef, refused = e_j, c, None
     kept = with_intercept(chosen, offset) if chosen else []
-    return Carried(Selection(chosen, gains), kept, coef, np.concatenate(current), passed,
-                   refused)
+    return Branch(None, Selection(chosen, gains), kept, coef, rms(np.concatenate(current)),
+                  refused)

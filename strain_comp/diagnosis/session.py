@@ -1,11 +1,5 @@
-"""The session start in the residual loop, as a user makes it (``strain-comp start``:
-``strain_comp.offline.session_start.start``, the calibration stretch found from the
-reference), on each validation run of ``diagnose --validate``; the generalisation benchmark
-(docs/results.md, ``warmup``) calls the same ``start``. The residual loop scores its
-terms after it (``strain_comp.diagnosis.loop``), so that a term that only does what this
-recalibration does anyway gets no credit. A run the start refuses is scored with the
-calibration as it is, as a user refused is left with it.
-"""
+"""The session start on each validation run of ``diagnose --validate``, as a user makes it
+(``strain-comp start``; docs/design.md, "The loop's steps", 8)."""
 
 from __future__ import annotations
 
@@ -40,12 +34,9 @@ def session_errors(calibration: Calibration, recordings: Mapping[str, Recording]
 
 
 class SessionHeldOut:
-    """The loop's held-out residual (``strain_comp.diagnosis.selection.HeldOut``) of one
-    sensor's terms on validation runs as the product is used: the calibration with the
-    terms added, started on each run (``session_start.start_or_keep``), evaluated over the
-    whole run. In an array the sensor's neighbours are started with it on the sensor's
-    stretch, as a user starts the whole array: a stretch refused for one of them is refused
-    for all. Cached by terms and coefficients."""
+    """The loop's ``selection.HeldOut`` of one sensor's terms on the validation runs after
+    their session start (the array's neighbours started with it, as a user starts the
+    whole array), cached by terms and coefficients."""
 
     def __init__(self, calibration: Calibration, sensor: str,
                  runs: Sequence[Mapping[str, Recording]], candidates: Sequence[dict[str, Any]]

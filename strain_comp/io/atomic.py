@@ -1,6 +1,5 @@
 """The one way strain_comp writes a file: atomically (a temporary file beside it, fsynced,
-renamed), and never over an input or a non-file; refusals and write faults are one
-``OutputError`` naming the target (docs/reliability.md)."""
+renamed), never over an input or a non-file (docs/reliability.md)."""
 
 from __future__ import annotations
 
@@ -69,18 +68,9 @@ def _file_mode(path: Path) -> int:
         return 0o666 & ~umask
 
 
-def fsync_directory(directory: Path) -> None:
-    """Make a rename in ``directory`` durable."""
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 class AtomicFile:
     """An open temporary file beside ``path`` that ``commit()`` renames over ``path`` and
-    ``discard()`` deletes; for writers that stream into it over many calls (the bag writer)."""
+    ``discard()`` deletes."""
 
     def __init__(self, path: PathLike, *, inputs: Iterable[PathLike] = ()) -> None:
         """Open the temporary file beside ``path``."""
@@ -120,7 +110,11 @@ class AtomicFile:
             check_output(self.path, self.inputs)
             os.replace(self.tmp, self.path)
             self.done = True
-            fsync_directory(self.path.parent)
+            directory = os.open(self.path.parent, os.O_RDONLY)  # the rename made durable
+            try:
+                os.fsync(directory)
+            finally:
+                os.close(directory)
 
     def discard(self) -> None:
         """Close and delete the temporary file; the target is left as it was (once)."""
@@ -144,13 +138,8 @@ def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterato
     output.commit()
 
 
-def write_bytes(path: PathLike, data: bytes, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``data`` to ``path`` atomically."""
-    with atomic_output(path, inputs=inputs) as handle:
-        handle.write(data)
-
-
 def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``text`` to ``path`` atomically, UTF-8 encoded (a character UTF-8 cannot hold,
-    a surrogate from an undecodable file name, as its ``\\udcff`` escape)."""
-    write_bytes(path, text.encode("utf-8", "backslashreplace"), inputs=inputs)
+    """Write ``text`` to ``path`` atomically, UTF-8 encoded (a surrogate from an undecodable
+    file name as its ``\\udcff`` escape)."""
+    with atomic_output(path, inputs=inputs) as handle:
+        handle.write(text.encode("utf-8", "backslashreplace"))

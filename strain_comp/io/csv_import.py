@@ -1,10 +1,6 @@
-"""CSV import of tensile-tester recordings into Recordings (and bags): the formats
-``cb_pdms``, ``fiber`` and ``generic``, the delimiter, decimal comma and header detected,
-and bad rows counted by reason and dropped (docs/csv.md gives the columns and units).
-
-Dropping rather than keeping and flagging is deliberate: an imported recording is
-training and evaluation data; fault handling is exercised on bags.
-"""
+"""Tensile-tester CSVs into Recordings and bags (docs/csv.md: formats, columns, units).
+Bad rows are dropped and counted, not flagged: an imported recording is training and
+evaluation data; fault handling is exercised on bags."""
 
 from __future__ import annotations
 
@@ -20,8 +16,7 @@ import numpy.typing as npt
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
 from strain_comp.io.bag.schemas import MAX_TIME_S
-from strain_comp.io.recording import Recording, align
-from strain_comp.io.scales import check_scales, scaled
+from strain_comp.io.recording import Recording, align, check_scales, scaled
 
 FORMATS = ("cb_pdms", "fiber", "generic")
 CB_PDMS_GAUGE_MM = 40.0
@@ -77,7 +72,7 @@ _WHITESPACE = " "
 
 
 def detect_delimiter(lines: Sequence[str]) -> str:
-    """The delimiter of a CSV file (rules in the module docstring)."""
+    """The delimiter of a CSV file: the first that splits every line alike, else spaces."""
     lines = [line for line in lines if line.strip()][:20]
     for delimiter in _DELIMITERS:
         counts = {len(row) for row in csv.reader(lines, delimiter=delimiter)}
@@ -117,8 +112,8 @@ def _to_float(text: str) -> float:
 
 def _numeric(rows: list[list[str]], width: int, columns: list[int]
              ) -> tuple[np.ndarray, np.ndarray]:
-    """(n, len(columns)) float array of those columns (NaN where unparsable) and a mask of
-    rows shorter than ``width``; memory O(rows x columns used), whatever the indices."""
+    """Those columns as floats (NaN where unparsable) and the mask of rows shorter than
+    ``width``."""
     table = np.full((len(rows), len(columns)), np.nan)
     short = np.zeros(len(rows), bool)
     for i, row in enumerate(rows):
@@ -158,9 +153,8 @@ def repair_position_glitches(pos: np.ndarray, *, threshold_mm: float = 0.5
 def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: float | None = None,
                columns: Mapping[str, int | str] | None = None,
                scales: Mapping[str, float] | None = None, delimiter: str | None = None,
-               header: bool | None = None, glitch_threshold_mm: float = 0.5,
                resistance_unit: str = "ohm") -> ImportResult:
-    """Import one tensile-tester CSV as a Recording (formats in the module docstring)."""
+    """Import one tensile-tester CSV as a Recording (docs/csv.md)."""
     path = Path(path)
     mapping = _mapping(path, fmt, gauge_length_mm, columns, scales)
     rows, _ = _read_rows(path, delimiter)
@@ -168,7 +162,7 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     if resistance_unit != "ohm":
         report.notes.append(f"the 'resistance' topic holds the input in {resistance_unit}, "
                             f"not ohm (fit it with --input-unit {resistance_unit})")
-    head, rows = _split_header(path, rows, header)
+    head, rows = _split_header(path, rows)
     fields, short = _fields(path, fmt, rows, head, mapping, scales)
     report.rows = len(rows)
     t = fields["time"]
@@ -176,7 +170,6 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
     strain = None
     if "strain" in fields:
         strain = _reference(fields, good, report, gauge_length_mm=gauge_length_mm,
-                            glitch_threshold_mm=glitch_threshold_mm,
                             strain_factor=(scales or {}).get("strain", 1.0))
     report.kept = int(good.sum())
     rec = Recording(name=sensor, t=t[good], r=fields["resistance"][good], s=strain)
@@ -190,8 +183,7 @@ _KEYS = ("time", "resistance", "strain", "strain_time")
 def _mapping(path: Path, fmt: str, gauge_length_mm: float | None,
              columns: Mapping[str, int | str] | None, scales: Mapping[str, float] | None
              ) -> dict[str, int | str]:
-    """The column mapping (the format's defaults under ``columns``), with the format, the
-    file, the gauge length and the scales checked; InputError for the first fault."""
+    """The column mapping (the format's defaults under ``columns``), its inputs checked."""
     if fmt not in FORMATS:
         raise InputError(f"unknown CSV format {fmt!r}; one of {', '.join(FORMATS)}")
     if not path.is_file():
@@ -209,15 +201,12 @@ def _mapping(path: Path, fmt: str, gauge_length_mm: float | None,
     return mapping
 
 
-def _split_header(path: Path, rows: list[list[str]], header: bool | None
+def _split_header(path: Path, rows: list[list[str]]
                   ) -> tuple[list[str] | None, list[list[str]]]:
-    """The header row (None: none; ``header`` None: a non-numeric first row is one) and the
-    data rows; InputError when no data row is left."""
+    """The header row (a non-numeric first row; None: none) and the data rows."""
     head: list[str] | None = None
-    has_header = header
-    if has_header is None:
-        has_header = bool(rows) and not all(np.isfinite(_to_float(x)) for x in rows[0] if x)
-    if has_header and rows:
+    has_header = bool(rows) and not all(np.isfinite(_to_float(x)) for x in rows[0] if x)
+    if has_header:
         head, rows = rows[0], rows[1:]
     if not rows:
         raise InputError(f"{path}: no data rows")
@@ -228,8 +217,7 @@ def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
             mapping: Mapping[str, int | str], scales: Mapping[str, float] | None
             ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Each mapped field's values, scaled (NaN where unparsable), and the mask of rows
-    shorter than the format's width; InputError for a column past the widest row or a
-    scale that overflows."""
+    shorter than the format's width."""
     cols = {k: _column(k, v, head, path) for k, v in mapping.items()}
     widest = max(len(row) for row in rows)
     for k, c in cols.items():
@@ -248,8 +236,7 @@ def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
 
 def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
                short: npt.NDArray[np.bool_], report: ImportReport) -> npt.NDArray[np.bool_]:
-    """The rows kept (rules in the module docstring), the others counted by reason in
-    ``report.dropped``; InputError when no row is good."""
+    """The rows kept, the others counted by reason in ``report.dropped``."""
     unparsable = short | ~np.isfinite(t) | np.isnan(r)
     not_finite = ~unparsable & ~np.isfinite(r)
     non_positive = ~unparsable & ~not_finite & (r <= 0)
@@ -272,10 +259,9 @@ def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[
 
 
 def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: ImportReport, *,
-               gauge_length_mm: float | None, glitch_threshold_mm: float,
-               strain_factor: float) -> np.ndarray:
-    """The reference strain on the good rows' times (NaN outside its span), read from the
-    good rows only unless it has its own time column; its notes and warnings in ``report``."""
+               gauge_length_mm: float | None, strain_factor: float) -> np.ndarray:
+    """The reference strain on the good rows' times (NaN outside its span); its notes and
+    warnings in ``report``."""
     t = fields["time"]
     s_raw = fields["strain"]
     t_s = fields.get("strain_time", t)
@@ -284,7 +270,7 @@ def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: Impor
         ok &= good
     ts = t_s[ok]
     strain_src = _strain(s_raw[ok], report, gauge_length_mm=gauge_length_mm,
-                         glitch_threshold_mm=glitch_threshold_mm, strain_factor=strain_factor)
+                         strain_factor=strain_factor)
     strain = align(t[good], ts, strain_src)
     outside = int(np.isnan(strain).sum())
     if outside:
@@ -296,12 +282,11 @@ def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: Impor
 
 
 def _strain(pos: np.ndarray, report: ImportReport, *, gauge_length_mm: float | None,
-            glitch_threshold_mm: float, strain_factor: float) -> np.ndarray:
-    """The reference column as strain by the format's rule (module docstring); the unit
-    stored, a repaired glitch count and a note in ``report``."""
+            strain_factor: float) -> np.ndarray:
+    """The reference column as strain by the format's rule; the unit stored, the repaired
+    glitches and a note in ``report``."""
     if report.fmt == "cb_pdms":
-        pos, report.glitches_repaired = repair_position_glitches(
-            np.abs(pos), threshold_mm=glitch_threshold_mm)
+        pos, report.glitches_repaired = repair_position_glitches(np.abs(pos))
         return 100.0 * pos / (gauge_length_mm or CB_PDMS_GAUGE_MM)
     if report.fmt == "fiber" and gauge_length_mm is None:
         report.strain_unit = "mm"

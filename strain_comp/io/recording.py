@@ -1,14 +1,11 @@
-"""Recordings: one sensor's resistance with its reference strain and temperature, from a bag.
-
-The topics read are those of docs/design.md, "Topics" (``NAME`` may contain slashes; an
-array's ``/ARRAY/temperature`` is one temperature for the whole array). The reference and
-the temperature are put on the resistance time stamps (``align``).
-"""
+"""Recordings: one sensor's resistance with its reference strain and temperature, from a
+bag (the topics of docs/design.md, "Topics") or a table (its columns scaled by ``scales``);
+the reference and the temperature put on the resistance time stamps (``align``)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,11 +16,35 @@ import numpy.typing as npt
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagContents, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
-from strain_comp.io.scales import check_scales, scaled
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
 TEMPERATURE = "/temperature"
+SCALE_KEYS = ("time", "resistance", "strain")
+"""The columns a table's ``scales`` (``import-csv --scales``, ``from_frame``) multiply."""
+
+
+def check_scales(scales: Mapping[str, float] | None, where: str,
+                 keys: Sequence[str] = SCALE_KEYS) -> None:
+    """Check factors per column (``import-csv --scales``, ``Recording.from_frame``)."""
+    for key, factor in (scales or {}).items():
+        if key not in keys:
+            raise InputError(f"{where}: unknown scale key {key!r} (one of {', '.join(keys)})")
+        sign_ok = isinstance(factor, (int, float)) and not isinstance(factor, bool) and (
+            factor != 0 if key == "strain" else factor > 0)
+        if not (sign_ok and np.isfinite(factor)):
+            need = "a number other than 0" if key == "strain" else "a number > 0"
+            raise InputError(f"{where}: scale {key}={factor!r} must be {need}")
+
+
+def scaled(where: str, key: str, raw: np.ndarray, factor: float) -> np.ndarray:
+    """``raw`` times its scale ``factor``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = raw * factor
+    if np.any(np.isfinite(raw) & ~np.isfinite(out)):
+        raise InputError(f"{where}: --scales {key}={factor:g}: the scaled values "
+                         "overflow (beyond 1.8e308); check the factor")
+    return out
 
 
 @dataclass(frozen=True)
@@ -254,12 +275,6 @@ def _align_columns(t: np.ndarray, src: Series, k: int) -> np.ndarray:
         np.empty((t.size, 0))
 
 
-def recordings_from_bag(contents: BagContents) -> dict[str, Recording]:
-    """The recordings of a bag's decoded contents."""
-    recordings, _ = _recordings(contents)
-    return recordings
-
-
 def array_sensor_names(topic: str, labels: list[str], k: int) -> tuple[list[str], str | None]:
     """Sensor names of the k columns of an array topic."""
     if len(labels) == k:
@@ -355,4 +370,4 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
 
 
 __all__ = ["PieceAlign", "Recording", "align", "array_sensor_names", "hold_latest",
-           "load_recordings", "recordings_from_bag"]
+           "load_recordings"]

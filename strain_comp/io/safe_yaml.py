@@ -1,14 +1,7 @@
-"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range.
-
-``load_limited(text, ...)`` is ``yaml.safe_load`` that raises ``LimitError`` instead of
-expanding a "billion laughs" document, recursing into 1,000 levels of nesting
-(``RecursionError``) or building an integer no float can hold (``OverflowError`` later);
-every other fault is the usual ``yaml.YAMLError``. Used for calibration files and rosbag2
-``metadata.yaml``. A document of plain mappings, sequences and untagged scalars (every
-calibration file) is built straight from the parser's events with the limits counted on
-the way (``_build_plain``); any other has the limits checked on the events first, then is
-composed and constructed by the loader (libyaml's where installed).
-"""
+"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range
+(``load_limited``: ``yaml.safe_load`` raising ``LimitError``). A plain document (every
+calibration file) is built straight from the parser's events (``_build_plain``, parsed
+once); any other has the limits checked on the events, then goes through the loader."""
 
 from __future__ import annotations
 
@@ -44,8 +37,7 @@ _SafeLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 class _Loader(_SafeLoader):  # type: ignore[misc]
-    """libyaml's SafeLoader (the pure-Python one without libyaml), refusing integers that
-    no float can hold."""
+    """libyaml's SafeLoader where installed, refusing integers that no float can hold."""
 
 
 _Loader.add_constructor("tag:yaml.org,2002:int", _construct_int)
@@ -65,9 +57,8 @@ _SEQUENCE = object()
 
 
 def _plain_scalar(event: Any, constructor: yaml.constructor.SafeConstructor) -> Any:
-    """The value of an untagged scalar, as ``yaml.safe_load`` resolves and constructs it:
-    a string, float, integer (within float range), bool or null; ``_NotPlain`` for any
-    other implicit type (a timestamp, a merge key)."""
+    """An untagged scalar as ``yaml.safe_load`` gives it; ``_NotPlain`` for a timestamp or
+    a merge key."""
     value = event.value
     tag = _STR
     if event.implicit[0]:  # plain: the implicit resolvers of yaml.SafeLoader, in order
@@ -89,10 +80,8 @@ def _plain_scalar(event: Any, constructor: yaml.constructor.SafeConstructor) -> 
 
 
 def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
-    """The single YAML document in ``text`` built from the parser's events (iterative), within
-    the node and nesting limits as ``_check_events`` counts them; ``_NotPlain`` for a
-    document holding an anchor, an alias, an explicit tag, a complex key, a scalar other
-    than a string, float, integer, bool or null, or a second document."""
+    """The document built from the parser's events within the limits; ``_NotPlain`` for
+    one that is not plain (an anchor, alias, tag, complex key or second document)."""
     constructor = yaml.constructor.SafeConstructor()
     open_: list[Any] = []  # the collections being filled, outermost first
     keys: list[Any] = []  # per open collection: its pending key, _UNSET or _SEQUENCE
@@ -144,8 +133,7 @@ def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
 
 
 def _check_events(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> int:
-    """The alias and nesting limits on the parser's events (iterative, before any node is
-    composed); the number of aliases (none: the document holds at most ``max_nodes``)."""
+    """The limits on the parser's events, before any node is composed; the alias count."""
     depth = aliases = nodes = 0
     for event in yaml.parse(text, Loader=_Loader):
         if isinstance(event, yaml.AliasEvent):
@@ -171,10 +159,8 @@ _FLOW_BRACKET = re.compile(r"[\[\]{}]")
 
 
 def _check_flow_depth(text: str, max_depth: int) -> None:
-    """LimitError when flow brackets open more than ``max_depth`` deep, checked on the text
-    before any YAML scanner runs (libyaml's own scanner refuses deep flow nesting with its
-    own words and limit, which differ between releases). Brackets inside quoted scalars are
-    counted too: only a document nested absurdly deep can be refused by them."""
+    """LimitError for flow brackets nested deeper than ``max_depth``, on the text: libyaml's
+    scanner refuses deep flow nesting in words that differ between releases."""
     depth = 0
     for match in _FLOW_BRACKET.finditer(text):
         if match.group() in "[{":
@@ -186,8 +172,7 @@ def _check_flow_depth(text: str, max_depth: int) -> None:
 
 
 def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
-    """LimitError when ``root`` with every alias expanded holds more than ``max_nodes``
-    values or is nested more than ``max_depth`` deep (iterative: no recursion)."""
+    """LimitError when ``root``, aliases expanded, exceeds the size or nesting limit."""
     size: dict[int, int] = {}
     depth: dict[int, int] = {}
     stack: list[tuple[yaml.Node, bool]] = [(root, False)]
@@ -219,10 +204,8 @@ def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
 
 def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_000,
                  max_depth: int = 64) -> Any:
-    """Parse the single YAML document in ``text`` within the limits. The cyclic garbage
-    collector is paused meanwhile: a document builds no cycles (an alias that contains
-    itself is refused), and its passes over the many new objects of a large document
-    tripled the load time of a 1024-sensor calibration."""
+    """The single YAML document in ``text``, within the limits. The cyclic collector is
+    paused meanwhile (docs/reliability.md): a document builds no cycles."""
     collecting = gc.isenabled()
     gc.disable()
     try:

@@ -16,7 +16,7 @@ import numpy as np
 
 from strain_comp.core.calibration import strain_unit_words
 from strain_comp.core.metrics import Z_95
-from strain_comp.io.atomic import write_bytes
+from strain_comp.io.atomic import atomic_output
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -241,7 +241,8 @@ def write_plots(figures: Mapping[str, Sequence[tuple[str, bytes]]], out_dir: str
     written = []
     for name, drawn in figures.items():
         for path, (_, png) in zip(plot_files(out, [name]), drawn, strict=True):
-            write_bytes(path, png, inputs=inputs)
+            with atomic_output(path, inputs=inputs) as handle:
+                handle.write(png)
             written.append(path)
     return written
 

@@ -1,7 +1,7 @@
 """Replay's /diagnostics, counted and encoded for many ticks at once
-(``core.health.HealthCounter``, ``io.diagnostic_arrays``, ``offline.replay``),
+(``core.health.HealthCounter``, ``io.cdr.diagnostic_arrays``, ``offline.replay``),
 are byte for byte what the engine stepped sample by sample and the per-message encoder
-(``cdr.diagnostic_array``) give at every tick, fused references included."""
+(mcap_ros2's, ``_library``) give at every tick, fused references included."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from strain_comp.core.health import (
     times_text,
 )
 from strain_comp.core.outputs import BatchOutput
-from strain_comp.io import cdr, diagnostic_arrays
+from strain_comp.io import cdr
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording
 from strain_comp.offline import replay
@@ -59,10 +59,21 @@ def _ticks(times: np.ndarray, period: float) -> np.ndarray:
     return t0 + period * (np.unique(np.floor((times - t0) / period)) + 1.0)
 
 
+def _library(ns: int, frame_id: str,
+             statuses: list[tuple[str, int, str, str, list[tuple[str, str]]]]) -> bytes:
+    """One DiagnosticArray as mcap_ros2's encoder serialises it (the reference)."""
+    return cdr.message_encoder("diagnostic_msgs/msg/DiagnosticArray")({
+        "header": {"stamp": {"sec": ns // 10**9, "nanosec": ns % 10**9},
+                   "frame_id": frame_id},
+        "status": [{"level": level, "name": name, "message": message, "hardware_id": hw,
+                    "values": [{"key": k, "value": v} for k, v in values]}
+                   for name, level, message, hw, values in statuses]})
+
+
 def _payload(tick: float, statuses: list[tuple[str, int, str, dict[str, str]]]
              ) -> tuple[int, bytes]:
     ns = round(tick * 1e9)
-    return ns, cdr.diagnostic_array(*cdr.stamp_of(ns), "", [
+    return ns, _library(ns, "", [
         (name, level, message, "", list(values.items()))
         for name, level, message, values in statuses])
 
@@ -87,7 +98,7 @@ def _bag(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 def _stepped(cal: Calibration, streams: dict[str, tuple[np.ndarray, np.ndarray]]
              ) -> list[tuple[int, bytes]]:
     """The /diagnostics a node would publish at each tick: the engine stepped sample by
-    sample, ``health(now=tick)``, ``cdr.diagnostic_array`` per message."""
+    sample, ``health(now=tick)``, ``_library`` per message."""
     events = sorted((float(t), name, float(r)) for name, (ts, rs) in streams.items()
                     for t, r in zip(ts, rs, strict=True))
     engine = Engine(cal)
@@ -158,7 +169,7 @@ def test_fused_replay_diagnostics_equal_the_fusion_judged_tick_by_tick(tmp_path:
 def test_fused_replay_encodes_as_message_by_message(tmp_path: Path,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """A rest that falls after each release, fused: the columns encoded at once are the
-    bytes of ``cdr.diagnostic_array`` per message of the same columns."""
+    bytes of ``_library`` per message of the same columns."""
     t = np.arange(0.0, 70.0, 0.1)
     cal = Calibration({"s1": fit_sensor([Recording("s1", t, gauge(staircase(t)),
                                                    staircase(t))], "cubic", name="s1")})
@@ -171,9 +182,9 @@ def test_fused_replay_encodes_as_message_by_message(tmp_path: Path,
     replay.replay_bag(tmp_path / "in.mcap", cal, tmp_path / "fast.mcap", window=300,
                references_every=5.0)
 
-    def one_by_one(t_ns: np.ndarray, frame_id: str, statuses: list[diagnostic_arrays.Status]
+    def one_by_one(t_ns: np.ndarray, frame_id: str, statuses: list[cdr.Status]
                    ) -> tuple[np.ndarray, np.ndarray]:
-        payloads = [cdr.diagnostic_array(*cdr.stamp_of(ns), frame_id, [
+        payloads = [_library(ns, frame_id, [
             (name, int(levels[k]), _at(message, k), hw,
              [(key, _at(value, k)) for key, value in values])
             for levels, name, message, hw, values in statuses])
@@ -256,15 +267,15 @@ def test_diagnostic_arrays_equal_diagnostic_array_per_message() -> None:
     columns = [np.array([rng.choice(words).encode() for _ in range(k)]) for _ in range(4)]
     levels = [rng.integers(0, 4, k).astype(np.uint8) for _ in range(3)]
     numbers = rng.integers(-10**12, 10**12, k) // 10 ** rng.integers(0, 13, k)
-    statuses: list[diagnostic_arrays.Status] = [
+    statuses: list[cdr.Status] = [
         (levels[0], "strain_comp: a", columns[0], "",
          [("n", columns[1]), ("count", numbers), ("held", np.repeat(numbers[::4], 4))]),
         (levels[1], "é", "ok", "hw", []),
         (levels[2], "c", columns[2], "", [("k1", "v"), ("kk2", columns[3])])]
-    blob, lengths = diagnostic_arrays.diagnostic_arrays(t_ns, "frame", statuses)
+    blob, lengths = cdr.diagnostic_arrays(t_ns, "frame", statuses)
     ends = np.cumsum(lengths)
     for j, ns in enumerate(t_ns.tolist()):
-        expected = cdr.diagnostic_array(*cdr.stamp_of(ns), "frame", [
+        expected = _library(ns, "frame", [
             (name, int(lv[j]), _at(msg, j), hw, [(key, _at(v, j)) for key, v in values])
             for lv, name, msg, hw, values in statuses])
         assert blob[ends[j] - lengths[j]:ends[j]].tobytes() == expected

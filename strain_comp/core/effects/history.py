@@ -6,14 +6,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import numpy.typing as npt
 
 from strain_comp._numba import njit
 from strain_comp.core.effects.regressor import (
     Batch,
     Regressor,
     choice,
-    ffill,
     flag,
     number,
     param_readers,
@@ -26,29 +24,20 @@ class Direction(Regressor):
 
     kind = "direction"
     readers = param_readers(mode=choice(("sign", "strain"), "sign"), hold=flag(False))
-
-    def __init__(self, mode: str = "sign", hold: bool = False) -> None:
-        self.mode = mode
-        self.hold = hold
-        self.reset()
-
-    def reset(self) -> None:
-        self._last = 0.0  # the last moving direction (hold) up to the previous sample
-        self._prev = 0.0  # the previous sample's direction
+    initial = (0.0, 0.0)
+    """The last moving direction (hold) up to the previous sample, the previous sample's."""
+    mode: str
+    hold: bool
 
     def run(self, batch: Batch) -> np.ndarray:
-        d = np.concatenate(([self._prev], batch.direction[:-1]))
+        last, prev = float(self._state[0]), float(self._state[1])
+        d = np.concatenate(([prev], batch.direction[:-1]))
         if batch.direction.size:
-            self._prev = float(batch.direction[-1])
+            self._state[1] = batch.direction[-1]
         if self.hold:
-            last = ffill(np.where(batch.direction != 0.0, batch.direction, np.nan),
-                          self._last)
-            d = np.concatenate(([self._last], last[:-1]))[:batch.t.size]
-            if last.size:
-                self._last = float(last[-1])
+            held = self._held(np.where(batch.direction != 0.0, batch.direction, np.nan))
+            d = np.concatenate(([last], held[:-1]))[:batch.t.size]
         return d * batch.s_hat if self.mode == "strain" else d
-
-
 
 
 class Elapsed(Regressor):
@@ -57,30 +46,20 @@ class Elapsed(Regressor):
     kind = "elapsed"
     readers = param_readers(form=choice(("linear", "sqrt", "log", "linear_strain"), "linear"),
                             scale=positive(100.0))
-
-    def __init__(self, form: str = "linear", scale: float = 100.0) -> None:
-        self.form = form
-        self.scale = scale
-        self._t0 = math.nan
-
-    def reset(self) -> None:
-        self._t0 = math.nan
-
-    def _g(self, x: npt.ArrayLike) -> np.ndarray:
-        x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
-        if self.form == "sqrt":
-            return np.sqrt(x)
-        if self.form == "log":
-            return np.log1p(x)
-        return x
+    initial = (math.nan,)
+    """The time of the first sample."""
+    form: str
+    scale: float
 
     def run(self, batch: Batch) -> np.ndarray:
-        if batch.t.size and math.isnan(self._t0):
-            self._t0 = float(batch.t[0])
-        g = self._g((batch.t - self._t0) / self.scale)
+        if batch.t.size and math.isnan(self._state[0]):
+            self._state[0] = batch.t[0]
+        g: np.ndarray = np.maximum((batch.t - self._state[0]) / self.scale, 0.0)
+        if self.form == "sqrt":
+            g = np.sqrt(g)
+        elif self.form == "log":
+            g = np.log1p(g)
         return g * batch.s_hat if self.form == "linear_strain" else g
-
-
 
 
 _MULLINS_FORMS = ("gap", "gap_strain", "cycles_log", "cycles_exp", "peak_strain")
@@ -120,18 +99,13 @@ class Mullins(Regressor):
 
     kind = "mullins"
     readers = param_readers(form=choice(_MULLINS_FORMS, "cycles_exp"), n0=positive(1.0))
-
-    def __init__(self, form: str = "cycles_exp", n0: float = 1.0) -> None:
-        self.form = form
-        self.n0 = n0
-        self._code = _MULLINS_FORMS.index(form)
-        self.reset()
-
-    def reset(self) -> None:
-        self._state = np.array([-np.inf, 0.0, 0.0])
+    initial = (-math.inf, 0.0, 0.0)
+    form: str
+    n0: float
 
     def run(self, batch: Batch) -> np.ndarray:
-        return _mullins_kernel(batch.s_hat, batch.direction, self._code, self.n0, self._state)
+        return _mullins_kernel(batch.s_hat, batch.direction, _MULLINS_FORMS.index(self.form),
+                               self.n0, self._state)
 
 
 STRETCH_FORMS = ("rest", "rest_log", "gain", "gain_log")
@@ -167,21 +141,14 @@ class Stretch(Regressor):
     kind = "stretch"
     readers = param_readers(form=choice(STRETCH_FORMS, "rest"), scale=positive(1000.0),
                             band=number(0.5, lo=0.0))
-
-    def __init__(self, form: str = "rest", scale: float = 1000.0, band: float = 0.5) -> None:
-        self.form = form
-        self.scale = scale
-        self.band = band
-        self._code = STRETCH_FORMS.index(form)
-        self.reset()
-
-    def reset(self) -> None:
-        self._state = np.zeros(3)
+    initial = (0.0, 0.0, 0.0)
+    form: str
+    scale: float
+    band: float
 
     def run(self, batch: Batch) -> np.ndarray:
-        return _stretch_kernel(batch.s_hat, self.band, self.scale, self._code, self._state)
-
-
+        return _stretch_kernel(batch.s_hat, self.band, self.scale, STRETCH_FORMS.index(self.form),
+                               self._state)
 
 
 @njit
@@ -208,14 +175,9 @@ class Baseline(Regressor):
 
     kind = "baseline"
     readers = param_readers(window=positive(5.0), rest=number(0.0))
-
-    def __init__(self, window: float = 5.0, rest: float = 0.0) -> None:
-        self.window = window
-        self.rest = rest
-        self._state = np.zeros(3)
-
-    def reset(self) -> None:
-        self._state = np.zeros(3)
+    initial = (0.0, 0.0, 0.0)
+    window: float
+    rest: float
 
     def run(self, batch: Batch) -> np.ndarray:
         return _baseline_kernel(batch.t, batch.s_hat, self.window, self._state) - self.rest

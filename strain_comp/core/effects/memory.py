@@ -46,20 +46,13 @@ class Rate(Regressor):
 
     kind = "rate"
     readers = param_readers(tau=positive(1.0), mode=choice(("signed", "direction"), "signed"))
-
-    def __init__(self, tau: float = 1.0, mode: str = "signed") -> None:
-        self.tau = tau
-        self.mode = mode
-        self._state = np.zeros(4)
-
-    def reset(self) -> None:
-        self._state = np.zeros(4)
+    initial = (0.0, 0.0, 0.0, 0.0)
+    tau: float
+    mode: str
 
     def run(self, batch: Batch) -> np.ndarray:
         return _rate_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
                             self.mode == "direction", self._state)
-
-
 
 
 _BRANCHES = ("both", "loading", "unloading")
@@ -98,19 +91,13 @@ class Relaxation(Regressor):
 
     kind = "relaxation"
     readers = param_readers(tau=positive(10.0), branch=choice(_BRANCHES, "both"))
-
-    def __init__(self, tau: float = 10.0, branch: str = "both") -> None:
-        self.tau = tau
-        self.branch = branch
-        self._code = _BRANCHES.index(branch)
-        self._state = np.zeros(4)
-
-    def reset(self) -> None:
-        self._state = np.zeros(4)
+    initial = (0.0, 0.0, 0.0, 0.0)
+    tau: float
+    branch: str
 
     def run(self, batch: Batch) -> np.ndarray:
-        return _relaxation_kernel(batch.t, batch.s_hat, batch.direction, self.tau, self._code,
-                                  self._state)
+        return _relaxation_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
+                                  _BRANCHES.index(self.branch), self._state)
 
 
 _MEMORY_FORMS = ("relaxation", "peak", "trough")
@@ -156,19 +143,14 @@ class ResistanceMemory(Regressor):
 
     kind = "resistance_memory"
     readers = param_readers(tau=positive(10.0), form=choice(_MEMORY_FORMS, "relaxation"))
-
-    def __init__(self, tau: float = 10.0, form: str = "relaxation") -> None:
-        self.tau = tau
-        self.form = form
-        self._code = _MEMORY_FORMS.index(form)
-        self._state = np.zeros(4)
-
-    def reset(self) -> None:
-        self._state = np.zeros(4)
+    initial = (0.0, 0.0, 0.0, 0.0)
+    tau: float
+    form: str
 
     def rescale(self, factor: float) -> None:
         """y and its memory shift by 100 ln(factor): g is unchanged."""
         self._state[:2] += 100.0 * math.log(factor)
 
     def run(self, batch: Batch) -> np.ndarray:
-        return _resistance_memory_kernel(batch.t, batch.r, self.tau, self._code, self._state)
+        return _resistance_memory_kernel(batch.t, batch.r, self.tau,
+                                         _MEMORY_FORMS.index(self.form), self._state)

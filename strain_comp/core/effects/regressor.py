@@ -50,19 +50,18 @@ Reader = Callable[[Mapping[str, Any], str], Any]
 ``ParameterError``."""
 
 
-def number_param(params: Mapping[str, Any], key: str, default: float, **bounds: Any) -> float:
-    """``params[key]`` as a finite float within ``bounds``."""
-    if key not in params:
-        return default
-    try:
-        return require_float(params, key, **bounds)
-    except ParameterError as err:
-        raise ParameterError(f"params.{err.field}", err.problem) from None
-
-
 def number(default: float, **bounds: Any) -> Reader:
     """A finite float within ``bounds``."""
-    return lambda params, key: number_param(params, key, default, **bounds)
+
+    def read(params: Mapping[str, Any], key: str) -> float:
+        if key not in params:
+            return default
+        try:
+            return require_float(params, key, **bounds)
+        except ParameterError as err:
+            raise ParameterError(f"params.{err.field}", err.problem) from None
+
+    return read
 
 
 def positive(default: float) -> Reader:
@@ -127,12 +126,21 @@ class Regressor(ABC):
     kind: ClassVar[str]
     readers: ClassVar[Mapping[str, Reader]] = MappingProxyType({})
     """Each parameter's reader, in the order of the calibration file's ``params``."""
+    initial: ClassVar[tuple[float, ...]] = ()
+    """The state at a start (``_state``, what ``run`` carries from one batch to the next)."""
     neighbour: str | None = None
     """Name of the array neighbour this regressor reads, if any."""
+    _state: np.ndarray
 
-    @abstractmethod
+    def __init__(self, params: Mapping[str, Any]) -> None:
+        """Each parameter read from ``params`` by its reader."""
+        for key, read in self.readers.items():
+            setattr(self, key, read(params, key))
+        self.reset()
+
     def reset(self) -> None:
         """Restore the initial state."""
+        self._state = np.array(self.initial, dtype=np.float64)
 
     @abstractmethod
     def run(self, batch: Batch) -> np.ndarray:
@@ -142,13 +150,15 @@ class Regressor(ABC):
         """The parameters as plain Python (the calibration file's ``params``)."""
         return {key: getattr(self, key) for key in self.readers}
 
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Regressor:
-        """Build from ``params``, each read by its reader."""
-        return cls(**{key: read(params, key) for key, read in cls.readers.items()})
-
     def rescale(self, factor: float) -> None:
         """The resistance it reads is ``factor`` x what it was (a tare): carry the state
         over, as if that scale had held from the first sample. Terms that do not read the
         resistance keep no state in its scale: nothing to do."""
         return None
+
+    def _held(self, values: np.ndarray, k: int = 0) -> np.ndarray:
+        """``values`` with the last finite one held, across batches in ``_state[k]``."""
+        held = ffill(values, float(self._state[k]))
+        if held.size:
+            self._state[k] = held[-1]
+        return held

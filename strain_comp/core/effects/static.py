@@ -13,7 +13,6 @@ from strain_comp.core.effects.regressor import (
     Batch,
     Regressor,
     choice,
-    ffill,
     number,
     param_readers,
 )
@@ -25,23 +24,13 @@ class Offset(Regressor):
 
     kind = "offset"
 
-    def reset(self) -> None:
-        pass
-
     def run(self, batch: Batch) -> np.ndarray:
         return np.ones(batch.t.size)
-
-
 
 
 TEMPERATURE_RANGE = (-273.15, 1000.0)
 """Temperatures [deg C] a temperature term reads; one outside (below absolute zero, a
 finite 1e308, NaN, inf) is a bad reading, treated as missing."""
-
-
-def valid_temperature(temp: np.ndarray) -> np.ndarray:
-    """Mask of readings inside ``TEMPERATURE_RANGE``."""
-    return (temp >= TEMPERATURE_RANGE[0]) & (temp <= TEMPERATURE_RANGE[1])
 
 
 class Temperature(Regressor):
@@ -50,23 +39,16 @@ class Temperature(Regressor):
 
     kind = "temperature"
     readers = param_readers(form=choice(("offset", "strain"), "offset"), t_ref=number(20.0))
-
-    def __init__(self, form: str = "offset", t_ref: float = 20.0) -> None:
-        self.form = form
-        self.t_ref = t_ref
-        self._last = math.nan
-
-    def reset(self) -> None:
-        self._last = math.nan
+    initial = (math.nan,)
+    form: str
+    t_ref: float
 
     def run(self, batch: Batch) -> np.ndarray:
         temp = batch.temperature
         if temp is None:
             temp = np.full(batch.t.size, np.nan)
-        temp = np.where(valid_temperature(temp), temp, np.nan)
-        held = ffill(temp, self._last)
-        if held.size:
-            self._last = float(held[-1])
+        valid = (temp >= TEMPERATURE_RANGE[0]) & (temp <= TEMPERATURE_RANGE[1])
+        held = self._held(np.where(valid, temp, np.nan))
         dt = np.where(np.isnan(held), 0.0, held - self.t_ref)
         return dt * batch.s_hat if self.form == "strain" else dt
 
@@ -84,17 +66,10 @@ class StrainLevel(Regressor):
 
     kind = "strain_level"
     readers = param_readers(power=_power)
-
-    def __init__(self, power: int = 1) -> None:
-        self.power = power
-
-    def reset(self) -> None:
-        pass
+    power: int
 
     def run(self, batch: Batch) -> np.ndarray:
         return batch.s_hat ** self.power
-
-
 
 
 def _sensor_name(params: Mapping[str, Any], key: str) -> str:
@@ -110,20 +85,12 @@ class Crosstalk(Regressor):
 
     kind = "crosstalk"
     readers = param_readers(neighbour=_sensor_name)
-
-    def __init__(self, neighbour: str) -> None:
-        self.neighbour = neighbour
-        self._last = math.nan
-
-    def reset(self) -> None:
-        self._last = math.nan
+    initial = (math.nan,)
 
     def run(self, batch: Batch) -> np.ndarray:
         assert self.neighbour is not None
         values = batch.neighbours.get(self.neighbour)
         if values is None:
             values = np.full(batch.t.size, np.nan)
-        held = ffill(values, self._last)
-        if held.size:
-            self._last = float(held[-1])
+        held = self._held(values)
         return np.where(np.isnan(held), 0.0, held)

@@ -40,7 +40,7 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
     unknown = sorted(str(k) for k in params if k not in cls.readers)
     if unknown:
         raise ParameterError(f"params.{unknown[0]}", f"unknown parameter of kind {kind!r}")
-    return cls.from_params(params)
+    return cls(params)
 
 
 def validate_effect_dict(effect: Mapping[str, Any]) -> None:
@@ -59,14 +59,12 @@ class EffectTerms:
     """The effect terms of one sensor, as the engine uses them:
     S_corrected = S_hat - sum_j coef_j g_j."""
 
-    def __init__(self, names: Sequence[str], regressors: Sequence[Regressor],
-                 coefs: npt.ArrayLike) -> None:
+    def __init__(self, regressors: Sequence[Regressor], coefs: Sequence[float]) -> None:
         """Hold the terms."""
-        self.names = list(names)
         self.regressors = list(regressors)
         self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
-        if not len(self.names) == len(self.regressors) == self.coefs.size:
-            raise ValueError("EffectTerms: names, regressors and coefs differ in length")
+        if not len(self.regressors) == self.coefs.size:
+            raise ValueError("EffectTerms: regressors and coefs differ in length")
 
     @classmethod
     def from_dicts(cls, effects: Sequence[Mapping[str, Any]]) -> EffectTerms:
@@ -74,19 +72,11 @@ class EffectTerms:
         regressors, coefs = [], []
         for i, effect in enumerate(effects):
             try:
-                validate_effect_dict(effect)
+                regressors.append(regressor_from_dict(effect))
+                coefs.append(require_float(effect, "coef"))
             except ParameterError as err:
                 raise ParameterError(f"{i}.{err.field}", err.problem) from None
-            regressors.append(regressor_from_dict(effect))
-            coefs.append(float(effect["coef"]))
-        return cls([str(e["name"]) for e in effects], regressors, coefs)
-
-    def to_dicts(self) -> list[dict[str, Any]]:
-        rows = zip(self.names, self.regressors, self.coefs, strict=True)
-        return [effect_dict(n, g, c) for n, g, c in rows]
-
-    def __bool__(self) -> bool:
-        return bool(self.regressors)
+        return cls(regressors, coefs)
 
     @property
     def neighbours(self) -> list[str]:

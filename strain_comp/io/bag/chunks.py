@@ -21,9 +21,7 @@ from strain_comp.io.bag.records import PARSE_ERRORS, Collector, scan_records
 _DECOMPRESS_ERRORS = (zstandard.ZstdError, RuntimeError, BagError, ValueError)
 
 MAX_CHUNK_BYTES = 64 * 2**20
-"""Decompressed size budget of one chunk [bytes]: a chunk that claims more, or whose data
-expands beyond the size it claims, is skipped and named in ``problems`` (a writer's chunk
-is a few MiB; rosbag2's default is 4 MiB)."""
+"""Decompressed size budget of one chunk [bytes] (rosbag2's default chunk is 4 MiB)."""
 
 
 def _chunk_payload(chunk: Chunk) -> bytes:
@@ -48,8 +46,7 @@ def _chunk_payload(chunk: Chunk) -> bytes:
 
 
 def add_chunk(col: Collector, chunk: Chunk, where: str) -> None:
-    """Add the records of ``chunk`` to ``col``; a chunk that cannot be decompressed or fails
-    its CRC is skipped, a damaged record tail cut, each named in ``col.problems``."""
+    """Add the records of ``chunk`` to ``col``; damage skipped, named in ``col.problems``."""
     try:
         data = _chunk_payload(chunk)
     except _DECOMPRESS_ERRORS as exc:
@@ -66,9 +63,9 @@ def add_chunk(col: Collector, chunk: Chunk, where: str) -> None:
 
 
 def _plausible_chunk(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> bool:
-    """Does a valid Chunk record start at ``pos`` (structure, compression, CRC)? The fixed
-    fields are checked in place first, so a candidate costs O(1) unless its lengths agree;
-    then its bytes are copied and checked and taken from ``budget[0]``."""
+    """Does a valid Chunk record start at ``pos``? The fixed fields are checked in place
+    first (O(1)); a candidate whose lengths agree is copied, checked and paid from
+    ``budget[0]``."""
     if pos + 9 + 40 > len(data) or data[pos] != Opcode.CHUNK:
         return False
     (length,) = struct.unpack_from("<Q", data, pos + 1)
@@ -92,8 +89,7 @@ def _plausible_chunk(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> bo
 
 
 RESYNC_BYTES = 4 * MAX_CHUNK_BYTES
-"""Bytes of candidate chunks one file's recovery may copy and check [bytes] (candidates
-whose fixed fields disagree cost nothing); past it the rest of the file is skipped."""
+"""Bytes of candidate chunks one file's recovery may copy and check [bytes]."""
 
 
 def resync(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> int | None:

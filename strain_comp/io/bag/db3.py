@@ -1,7 +1,6 @@
 """rosbag2's sqlite3 storage (``.db3``) read with apsw, read-only and immutable: a value's
-type and size are asked of sqlite before it is fetched, so every message and name is read
-within its budget; damage ends the file with every message before it kept
-(docs/reliability.md, "Bags")."""
+type and size asked of sqlite before it is fetched; damage ends the file, what came before
+kept (docs/reliability.md, "Bags")."""
 
 from __future__ import annotations
 
@@ -14,16 +13,13 @@ import zstandard
 from strain_comp.errors import BagError
 
 MAX_MESSAGE_BYTES = 64 * 2**20
-"""Largest message kept [bytes], stored or decompressed (a Float64 message is 12 bytes): a
-larger one is skipped and counted, never fetched from the database."""
+"""Largest message kept [bytes], stored or decompressed: a larger one is skipped, counted."""
 MAX_TOPICS = 65535
 """Topic rows read from one file (an MCAP channel id has 16 bits); the rest are skipped."""
 MAX_NAME_BYTES = 4096
-"""Longest topic name, type name or serialization format read [bytes] (a ROS 2 name is a
-few hundred at most): a topic with a longer one, or one that is not text, is skipped."""
+"""Longest topic name, type name or serialization format read [bytes]; longer: skipped."""
 BLOCK = 4096
-"""Messages per block ``db3_messages`` yields; a block ends earlier once it holds
-``MAX_MESSAGE_BYTES`` (the reader's held-bytes budgets are checked between blocks)."""
+"""Messages per block ``db3_messages`` yields (fewer once it holds ``MAX_MESSAGE_BYTES``)."""
 
 DECOMPRESS_HINT = ("decompress it first: rosbags-convert --src BAG --dst PLAIN_BAG "
                    "--dst-storage mcap (pip install rosbags), or ros2 bag convert with "
@@ -102,8 +98,7 @@ def db3_messages(path: Path, problems: list[str], *, compressed: bool = False
 
 def _blocks(rows: apsw.Cursor, topics: dict[int, tuple[str, str]], path: Path,
             problems: list[str], compressed: bool) -> Iterator[list[Message]]:
-    """The message rows in blocks of ``BLOCK``: rows of the wrong type, on a topic not read,
-    too large or undecompressable are counted; damage ends the walk, what came before kept."""
+    """The message rows in blocks of ``BLOCK``; the rows skipped counted by reason."""
     counts = {"large": 0, "bad": 0, "zstd": 0, "topic": 0}
     block: list[Message] = []
     held = 0

@@ -33,7 +33,7 @@ _DECODERS = DecoderFactory()
 
 
 def _decoder(kind: str) -> Callable[[bytes], Any]:
-    """CDR decoder of the standard ROS 2 message ``kind`` (one of ``_DECODED_TYPES``)."""
+    """CDR decoder of the standard ROS 2 message ``kind``."""
     schema = Schema(id=_DECODED_TYPES.index(kind) + 1, name=kind, encoding="ros2msg",
                     data=SCHEMAS[kind].encode())
     decoder = _DECODERS.decoder_for("cdr", schema)
@@ -91,9 +91,8 @@ def decode(col: Collector) -> BagContents:
 def _one_type_per_topic(out: BagContents,
                         per_type: dict[tuple[str, str], tuple[Schema, list[np.ndarray]]]
                         ) -> list[tuple[str, str, Schema, list[np.ndarray]]]:
-    """(topic, type, schema, message indices) with one type per topic: a topic recorded on
-    channels of different types keeps the type with the most messages (the first seen on a
-    tie); the others are never read as it: they are skipped, counted in ``problems``."""
+    """(topic, type, schema, message indices), one type per topic: the type with the most
+    messages (the first seen on a tie); the others skipped, counted in ``problems``."""
     kept: dict[str, tuple[str, Schema, list[np.ndarray]]] = {}
     for (topic, kind), (schema, parts) in per_type.items():
         n = sum(p.size for p in parts)
@@ -161,12 +160,9 @@ def _decode_topic(out: BagContents, topic: str, schema: Schema, blob: np.ndarray
 
 def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
                   start: np.ndarray, length: np.ndarray, t: np.ndarray) -> None:
-    """Float64MultiArray, read as the node reads it (``array_values``: the layout's offset and
-    size honoured, values matched by label wherever a label is given). The first message
-    with a well-formed layout fixes the number of values k; the first label naming k
-    distinct sensors names the topic's columns; a message whose label names other sensors
-    is skipped and counted. Bulk path: the messages byte-identical to the first up to their
-    values, when the first is a plain array (offset 0, k values) read by position."""
+    """Float64MultiArray, read as the node reads it (``array_values``). The first well-formed
+    message fixes k; the first label naming k distinct sensors names the columns. In bulk:
+    the messages byte-identical to a plain first one (offset 0, k values) up to the values."""
     first = None
     for i in range(start.size):
         try:  # the first message that decodes into a well-formed array fixes the layout

@@ -15,8 +15,7 @@ from strain_comp.io.safe_yaml import LimitError, load_limited
 MAX_METADATA_BYTES = 2**20
 """rosbag2 metadata.yaml larger than this is refused (a real one is a few kB)."""
 MAX_STORAGE_FILES = 4096
-"""Storage files of one bag directory (listed in metadata.yaml or found by glob; a listing
-repeated, or naming one file two ways, counts once): more is refused."""
+"""Storage files of one bag directory (each counted once): more is refused."""
 
 
 def _inside(path: Path, file: Path) -> bool:
@@ -28,8 +27,7 @@ def _inside(path: Path, file: Path) -> bool:
 
 
 def _metadata(meta: Path) -> dict[str, Any]:
-    """``rosbag2_bagfile_information`` of a metadata.yaml within ``MAX_METADATA_BYTES``;
-    BagError (one line) when it is unreadable or not a mapping."""
+    """``rosbag2_bagfile_information`` of a metadata.yaml, within ``MAX_METADATA_BYTES``."""
     try:
         with meta.open("rb") as handle:
             data = handle.read(MAX_METADATA_BYTES + 1)
@@ -47,9 +45,7 @@ def _metadata(meta: Path) -> dict[str, Any]:
 
 
 def _metadata_files(path: Path, meta: Path, info: dict[str, Any]) -> list[Path]:
-    """The files metadata.yaml lists (``relative_file_paths``) that exist, each once;
-    BagError (one line) for a field of the wrong type, more than ``MAX_STORAGE_FILES``
-    files, or a path that is absolute, holds ``..`` or leads out of ``path``."""
+    """The files metadata.yaml lists that exist, each once, all inside ``path``."""
     rel = info.get("relative_file_paths", [])
     if not isinstance(rel, list) or not all(isinstance(p, str) for p in rel):
         raise BagError(f"{meta}: rosbag2_bagfile_information.relative_file_paths must be a "
@@ -71,7 +67,7 @@ def _metadata_files(path: Path, meta: Path, info: dict[str, Any]) -> list[Path]:
 
 
 def _bounded(where: Path, files: list[str] | list[Path]) -> None:
-    """BagError (one line) for more than ``MAX_STORAGE_FILES`` storage files."""
+    """BagError for more than ``MAX_STORAGE_FILES`` storage files."""
     if len(files) > MAX_STORAGE_FILES:
         raise BagError(f"{where}: {len(files)} storage files, at most {MAX_STORAGE_FILES} "
                        "are read")
@@ -79,10 +75,8 @@ def _bounded(where: Path, files: list[str] | list[Path]) -> None:
 
 def bag_storage(path: Path) -> tuple[list[Path], bool]:
     """The storage files (MCAP, sqlite3) of a bag, checked before anything is opened (a FIFO
-    would block), and whether their messages are compressed one by one. A rosbag2
-    directory's files in metadata.yaml order when it lists them, each once, only regular
-    files inside the directory; files compressed whole (``.zstd``) are refused, with how to
-    decompress them."""
+    would block; metadata.yaml's order), and whether their messages are compressed one by
+    one; files compressed whole (``.zstd``) are refused, saying how to decompress them."""
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     if not (path.is_dir() or path.is_file()):
@@ -107,8 +101,7 @@ def bag_storage(path: Path) -> tuple[list[Path], bool]:
 
 
 def _per_message_zstd(meta: Path, info: dict[str, Any], files: list[Path]) -> bool:
-    """Are the messages compressed one by one (metadata.yaml's ``compression_mode:
-    message``)? BagError for any other compression."""
+    """Are the messages zstd-compressed one by one? BagError for any other compression."""
     mode = str(info.get("compression_mode") or "").lower()
     if mode in ("", "none"):
         return False

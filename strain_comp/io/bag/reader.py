@@ -1,7 +1,6 @@
-"""Reading a bag (a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory): ``read_bag``
-(whole), ``iter_bag`` (pieces in log-time order), ``raw_messages`` (not decoded). Each
-storage file is walked from its start, never through its summary, so a damaged file still
-yields every complete message (docs/reliability.md, "Bags")."""
+"""Reading a bag: ``read_bag`` (whole), ``iter_bag`` (pieces in log-time order),
+``raw_messages`` (not decoded); each file walked from its start, never through its summary
+(docs/reliability.md, "Bags")."""
 
 from __future__ import annotations
 
@@ -21,10 +20,8 @@ from strain_comp.io.bag.walk import storage_file
 WINDOW = 200_000
 """Messages ``iter_bag`` lets wait before it cuts a piece."""
 MAX_HELD_BYTES = 256 * 2**20
-"""Message bytes held undecoded at once [bytes]. ``iter_bag`` cuts a piece when the held
-messages reach it (at the latest chunk's start, else all held: later messages may then
-come late, counted), so it holds at most this plus one chunk; ``read_bag`` (the whole bag in
-memory) refuses a bag holding more than ``MAX_BAG_BYTES``."""
+"""Message bytes ``iter_bag`` holds undecoded [bytes]: it cuts a piece there (at the latest
+chunk's start, else all held: later messages may then come late, counted)."""
 MAX_BAG_BYTES = 2**30
 """Message bytes ``read_bag`` holds for one whole bag [bytes]; past it: BagError."""
 
@@ -48,7 +45,7 @@ def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
 
 
 def _walk(path: Path, col: Collector) -> Iterator[Path]:
-    """Collect every storage file of the bag into ``col``; yields the file after each record."""
+    """Collect every storage file of the bag into ``col``; the file after each record."""
     files, compressed = bag_storage(path)
     for index, file in enumerate(files):
         col.file_index = index

@@ -1,6 +1,5 @@
-"""MCAP records located in bulk: the record scan of a chunk, and the collector of
-schemas, channels and message spans that the walk fills and the decoder reads
-(docs/reliability.md, "Bags")."""
+"""MCAP records located in bulk, and the collector of schemas, channels and message spans
+that the walk fills and the decoder reads."""
 
 from __future__ import annotations
 
@@ -22,8 +21,7 @@ PARSE_ERRORS = (McapError, struct.error, UnicodeDecodeError, ValueError, Overflo
 """What the mcap record parsers raise on damaged content."""
 
 MAX_LOG_NS = MAX_TIME_S * 10**9
-"""The latest log time kept [ns] (``MAX_TIME_S``). A later (or negative) log time is a
-damaged record: its message is skipped and counted in ``problems``."""
+"""The latest log time kept [ns]: a later (or negative) one is skipped and counted."""
 
 
 @njit
@@ -51,10 +49,10 @@ def scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
 
 
 @njit
-def _compact(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """Copy the spans buf[starts[i] : starts[i] + lens[i]] into one new buffer; their new
-    starts. The source (a whole decompressed chunk) can then be released."""
+def compact(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """The spans ``buf[starts[i]:starts[i] + lens[i]]`` copied into one new buffer; their
+    new starts."""
     out = np.empty(lens.sum(), np.uint8)
     new = np.empty(starts.shape[0], np.int64)
     pos = 0
@@ -90,8 +88,7 @@ class Collector:
         """Message bytes held undecoded in ``blocks``."""
         self.file_index = 0
         self.chunk_start = 0
-        """Largest message start time [ns] of the chunks read so far (or log time of the
-        messages read outside chunks): earlier messages are all read."""
+        """Latest chunk start (or loose message) time read [ns]: earlier ones are all in."""
 
     def add_block(self, buf: np.ndarray, ops: np.ndarray, starts: np.ndarray,
                   lens: np.ndarray, where: str) -> None:
@@ -110,7 +107,7 @@ class Collector:
         if not keep.any():
             return
         # only the wanted payloads are kept: the decompressed chunk is released
-        payload, start = _compact(buf, s[keep] + 22, lens[is_msg][keep] - 22)
+        payload, start = compact(buf, s[keep] + 22, lens[is_msg][keep] - 22)
         block = len(self.blocks)
         self.blocks.append(payload)
         self.held += payload.size
@@ -122,8 +119,7 @@ class Collector:
         self.msg_len.append(lens[is_msg][keep] - 22)
 
     def _wanted(self, channel_id: int) -> bool:
-        """Are the messages of ``channel_id`` (of the current file) to be kept? All when no
-        topics were asked for, and those of a channel not yet seen (reported later)."""
+        """Keep the messages of ``channel_id``? Those of a channel not yet seen too."""
         channel = self.channels.get((self.file_index, channel_id))
         return self.topics is None or channel is None or channel.topic in self.topics
 
@@ -142,9 +138,7 @@ class Collector:
 
 
 def add_loose(col: Collector, msgs: list[Message], name: str) -> None:
-    """Messages stored outside chunks, packed into one block of message records. They are in
-    file order, which is log-time order: those before the latest log time are complete, as a
-    chunk's start time says for chunked messages."""
+    """Messages stored outside chunks (in log-time order), packed into one block."""
     builder = RecordBuilder()
     for m in msgs:
         m.write(builder)

@@ -1,8 +1,6 @@
-"""MCAP records of a bag being written: the buffered messages of ``BagWriter`` merged in
-log-time order into chunks (zstd, CRC, message indexes), records assembled per chunk with
-a compiled copy, not per message; then the summary (schemas, channels, statistics, chunk
-indexes, summary offsets) and the footer. The file goes through
-``strain_comp.io.atomic.AtomicFile``."""
+"""MCAP records of a bag being written: ``BagWriter``'s buffered messages merged in log-time
+order into chunks assembled in bulk (zstd, CRC, message indexes); then the summary and the
+footer."""
 
 from __future__ import annotations
 
@@ -34,6 +32,7 @@ from mcap.records import (
 from strain_comp._numba import njit
 from strain_comp.errors import BagError
 from strain_comp.io.atomic import AtomicFile
+from strain_comp.io.bag.records import compact
 from strain_comp.io.bag.schemas import LIBRARY, MAGIC, OFFERED_QOS, PROFILE, SCHEMAS
 
 
@@ -145,7 +144,7 @@ class Stream:
             a = cuts[-1]
             if a < t_ns.size:
                 keep = Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [plen[a:].copy()],
-                               [_take_payloads(blob, poff[a:], plen[a:])])
+                               [compact(blob, poff[a:], plen[a:])[0]])
                 keep.nbytes = keep.payloads[0].size
         for a, b in itertools.pairwise(cuts):
             if b == a:
@@ -205,8 +204,7 @@ class Stream:
 
 
 def _joined(parts: list[np.ndarray]) -> np.ndarray:
-    """``parts`` joined into one array, each let go (``parts`` emptied) once copied: the
-    result's pages are touched as it fills, so the peak is about one copy, not two."""
+    """``parts`` joined, each let go once copied (``parts`` emptied): a peak of one copy."""
     if len(parts) == 1:
         return parts.pop()
     out = np.empty(sum(part.size for part in parts), np.uint8)
@@ -219,17 +217,11 @@ def _joined(parts: list[np.ndarray]) -> np.ndarray:
     return out
 
 
-def _take_payloads(blob: np.ndarray, poff: np.ndarray, plen: np.ndarray) -> np.ndarray:
-    """The payloads at ``poff`` / ``plen`` packed into one blob, in that order."""
-    idx = np.repeat(poff - np.concatenate(([0], np.cumsum(plen)[:-1])), plen)
-    return blob[idx + np.arange(idx.size)]
-
-
 @njit
 def _fill_records(raw: np.ndarray, head: np.ndarray, start: np.ndarray, poff: np.ndarray,
                   plen: np.ndarray, blob: np.ndarray) -> None:
-    """Copy message i's record header ``head[i]`` and payload ``blob[poff[i]:+plen[i]]``
-    to ``raw[start[i]:]`` (one pass; a numpy fancy-index scatter was 3-5x slower)."""
+    """Message i's record header and payload to ``raw[start[i]:]`` (a numpy fancy-index
+    scatter was 3-5x slower)."""
     width = head.shape[1]
     for i in range(start.size):
         s = start[i]

@@ -1,5 +1,4 @@
-"""The walk of one storage file, record by record from its start: what it collects, what
-damage it skips and where it resumes (docs/reliability.md, "Bags")."""
+"""The walk of one storage file, record by record from its start, past damage."""
 
 from __future__ import annotations
 
@@ -27,8 +26,8 @@ _OPCODES = {int(op) for op in Opcode}
 
 
 def _read_file(col: Collector, data: bytes | mmap.mmap, name: str) -> Iterator[int]:
-    """Collect every complete record of one MCAP file held in memory (or mapped); yields
-    the end offset after each top-level record, so a caller may take what was collected."""
+    """Collect every complete record of one MCAP file (mapped); the end offset after each
+    top-level record."""
     if len(data) < len(MAGIC) or data[:len(MAGIC)] != MAGIC:
         raise BagError(f"{name}: not an MCAP file (bad magic)")
     pos = len(MAGIC)
@@ -113,9 +112,8 @@ def storage_file(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
 
 
 def _read_db3(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
-    """The messages of a ``.db3`` file (``db3.db3_messages``) collected as MCAP records of
-    one channel per topic and type (at most ``db3.MAX_TOPICS``: an MCAP channel id has 16
-    bits), as an unchunked MCAP's are: decoded alike after."""
+    """The messages of a ``.db3`` file collected as an unchunked MCAP's, one channel per
+    topic and type."""
     channels: dict[tuple[str, str], int] = {}
     skipped = 0
     for n, block in enumerate(db3_messages(file, col.problems, compressed=compressed)):

@@ -28,18 +28,13 @@ def _ns(t: npt.ArrayLike) -> np.ndarray:
     return np.round(t * 1e9).astype(np.int64)
 
 
-def _stamps(t_ns: np.ndarray) -> np.ndarray:
-    """(n, 8) uint8: builtin_interfaces/Time (``cdr.STAMP``) of each time [ns]."""
-    stamps = np.empty(t_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])
-    stamps["sec"], stamps["nanosec"] = np.divmod(t_ns, 10**9)
-    return stamps.view(np.uint8).reshape(-1, 8)
-
-
 def _stamped_rows(template: bytes, s_ns: np.ndarray) -> np.ndarray:
     """One copy of ``template`` (a message with a header) per stamp [ns], each stamped."""
+    stamps = np.empty(s_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])  # cdr.STAMP
+    stamps["sec"], stamps["nanosec"] = np.divmod(s_ns, 10**9)
     rows = np.empty((s_ns.size, len(template)), np.uint8)
     rows[:] = np.frombuffer(template, np.uint8)
-    rows[:, 4:12] = _stamps(s_ns)
+    rows[:, 4:12] = stamps.view(np.uint8).reshape(-1, 8)
     return rows
 
 
@@ -138,25 +133,15 @@ class BagWriter:
         self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t), _cdr_rows(head, v))
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
-                          position: npt.ArrayLike, velocity: npt.ArrayLike | None = None, *,
-                          stamp: npt.ArrayLike | None = None, frame_id: str = "") -> None:
-        """Add sensor_msgs/msg/JointState messages, one per row of ``position``."""
-        t_ns = _ns(t)
+                          position: npt.ArrayLike) -> None:
+        """Add sensor_msgs/msg/JointState messages, one per row of ``position``, stamped
+        with the log time."""
+        t_ns = _ns(t)  # refuses stamps past int32 seconds
         k = len(names)
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, k)
-        template, pos_at, vel_at = cdr.joint_state_layout(frame_id, names,
-                                                          velocity=velocity is not None)
-        s_ns = t_ns if stamp is None else _ns(stamp)
-        if s_ns.size != t_ns.size:
-            raise BagError(f"{topic}: {t_ns.size} times but {s_ns.size} stamps")
-        if s_ns.size and int(s_ns.max()) >= 2**31 * 10**9:
-            raise BagError(f"{topic}: stamps after 2038-01-19 do not fit "
-                           "builtin_interfaces/Time")
-        rows = _stamped_rows(template, s_ns)
+        template, pos_at, _ = cdr.joint_state_layout("", names, velocity=False)
+        rows = _stamped_rows(template, t_ns)
         rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
-        if vel_at is not None:
-            v = np.asarray(velocity, dtype="<f8").reshape(t_ns.size, k)
-            rows[:, vel_at:vel_at + 8 * k] = v.view(np.uint8).reshape(-1, 8 * k)
         self._add(topic, "sensor_msgs/msg/JointState", t_ns, rows)
 
     def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike, *,
@@ -175,17 +160,18 @@ class BagWriter:
                           topic: str = "/diagnostics") -> None:
         """Add diagnostic_msgs/msg/DiagnosticArray messages, one per time."""
         t_ns = _ns(t)
-        rows = [cdr.diagnostic_array(*cdr.stamp_of(ns), "",
-                                     [(name, int(level), message, "",
-                                       [(str(a), str(b)) for a, b in values.items()])
-                                      for name, level, message, values in st])
-                for ns, st in zip(t_ns.tolist(), statuses, strict=False)]
+        rows = []
+        for i, st in zip(range(t_ns.size), statuses, strict=False):
+            blob, _ = cdr.diagnostic_arrays(t_ns[i:i + 1], "", [
+                (np.array([level], np.uint8), name, message, "",
+                 [(str(a), str(b)) for a, b in values.items()])
+                for name, level, message, values in st])
+            rows.append(blob.tobytes())
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns, rows)
 
     def write_diagnostic_payloads(self, t: npt.ArrayLike, blob: np.ndarray,
                                   lengths: np.ndarray, *, topic: str = "/diagnostics") -> None:
-        """Add diagnostic_msgs/msg/DiagnosticArray messages already encoded
-        (``strain_comp.io.diagnostic_arrays``), one per time."""
+        """Add DiagnosticArray messages already encoded (``diagnostic_arrays``)."""
         self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", _ns(t), (blob, lengths))
 
     def flush(self, *, before: float | None = None) -> None:
@@ -216,10 +202,6 @@ class BagWriter:
         self._pending = Pending()
         if not p.t_ns:
             return
-        try:
-            rest = self._out.write_messages(self._topics, p, final=final, before=before)
-        except OSError as exc:
-            self._out.abort()
-            raise BagError(f"{self.path}: cannot write ({exc.strerror})") from exc
+        rest = self._out.write_messages(self._topics, p, final=final, before=before)
         if rest is not None:
             self._pending = rest
