@@ -15,7 +15,7 @@ import numpy.typing as npt
 from threadpoolctl import threadpool_limits
 
 from strain_comp.base.compensator import (
-    KernelCompensator,
+    Compensator,
     Normalisation,
     Segment,
     require_float,
@@ -23,10 +23,10 @@ from strain_comp.base.compensator import (
 )
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.base.registry import register
-from strain_comp.errors import FitError, ParameterError
+from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
-from strain_comp.models.apl_fit import CELL_WEIGHTS, CellFamily, fit_cells
+from strain_comp.models.apl_fit import fit_cells
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 
 N_MAX = 200
@@ -60,7 +60,7 @@ def _check_shape(n: int, m: int) -> None:
         raise ParameterError("M", f"must be odd and in [1, {M_MAX}], got {m}")
 
 
-class _CellModel(KernelCompensator):
+class CellModel(Compensator):
     """Shared implementation of APL, PL and MPI; ``kind`` selects the cell law."""
 
     kind: ClassVar[int]
@@ -135,7 +135,7 @@ class _CellModel(KernelCompensator):
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
-                    direction: DirectionSettings) -> _CellModel:
+                    direction: DirectionSettings) -> CellModel:
         n = _require_int(params, "N", 1, N_MAX)
         m = _require_int(params, "M", 1, M_MAX)
         if cls.rate_dependent:
@@ -158,32 +158,17 @@ class _CellModel(KernelCompensator):
             refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
             ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
             search_top: int = 5, workers: int | None = None,
-            progress: bool | Callable[[str], None] = True, **options: Any) -> _CellModel:
+            progress: bool | Callable[[str], None] = True, **options: Any) -> CellModel:
         """Fit w, mu by the QP and the output-error refinement, searching sigma and p (module
-        docstring)."""
-        if options:
-            raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
-        try:
-            _check_shape(N, M)
-        except ParameterError as exc:
-            raise FitError(f"{cls.name}: {exc}") from None
-        if workers is not None and not (isinstance(workers, int) and workers >= 1):
-            raise FitError(f"{cls.name}: workers must be an integer >= 1")
-        if cell_weights not in CELL_WEIGHTS:
-            raise FitError(f"{cls.name}: cell_weights must be one of {', '.join(CELL_WEIGHTS)}")
-        counts = (output_nfev, search_nfev, search_top)
-        if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counts):
-            raise FitError(f"{cls.name}: output_nfev, search_nfev and search_top must be "
-                           "integers >= 0")
-        family: CellFamily[_CellModel] = cls
-        return fit_cells(family, segments, normalisation, n=N, m=M, sigma_grid=sigma_grid,
+        docstring); the options were checked by ``strain_comp.offline.options``."""
+        return fit_cells(cls, segments, normalisation, n=N, m=M, sigma_grid=sigma_grid,
                          p_grid=p_grid, refine=refine, cell_weights=cell_weights, eps=eps,
                          ridge=ridge, output_nfev=output_nfev, search_nfev=search_nfev,
                          search_top=search_top, workers=workers, progress=progress)
 
 
 @register
-class APL(_CellModel):
+class APL(CellModel):
     """Asymmetric power-law model (eq. (1)-(3))."""
 
     name = "apl"
@@ -191,7 +176,7 @@ class APL(_CellModel):
 
 
 @register
-class PL(_CellModel):
+class PL(CellModel):
     """Power-law model of the paper's appendix (eq. (6), (2), (3))."""
 
     name = "pl"
@@ -199,7 +184,7 @@ class PL(_CellModel):
 
 
 @register
-class MPI(_CellModel):
+class MPI(CellModel):
     """Modified Prandtl-Ishlinskii model: PL with sigma = 0 (rate independent)."""
 
     name = "mpi"

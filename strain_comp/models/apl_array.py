@@ -1,12 +1,11 @@
 """K sensors of the APL family stepped together: the array form of the per-sensor kernel
 (``strain_comp.models.apl_kernels.step_sensor``), for the engine's array tick
-(``strain_comp.core.array``) and ``APLArray.step`` on its own. It reads the models
-through ``CellModel`` and needs none of their fit."""
+(``strain_comp.core.array``) and ``APLArray.step`` on its own."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol, cast
+from typing import cast
 
 import numpy as np
 
@@ -15,22 +14,8 @@ from strain_comp.base.lift import LiftedArray, lift
 from strain_comp.base.registry import register_array
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
+from strain_comp.models.apl import CellModel
 from strain_comp.models.apl_kernels import inverse_widths, thresholds
-
-
-class CellModel(Protocol):
-    """What the array reads of an APL, PL or MPI model (``strain_comp.models.apl``)."""
-
-    N: int
-    M: int
-    kind: int
-    sigma: float
-    p: float
-    w: np.ndarray
-
-    def array_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(norm, b, f_at_b, inv_slopes)."""
-        ...
 
 
 @register_array
@@ -70,5 +55,5 @@ class APLArray(LiftedArray):
 
     @classmethod
     def accepts(cls, model: Compensator) -> bool:
-        """True for the APL family (APL, PL, MPI: the models with ``array_tables``)."""
-        return hasattr(model, "array_tables")
+        """True for the APL family (APL, PL, MPI)."""
+        return isinstance(model, CellModel)

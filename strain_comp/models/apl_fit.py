@@ -11,7 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -24,35 +24,10 @@ from strain_comp.models import pwa
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 from strain_comp.models.apl_refine import bounded_lm, output_jacobian
 
-
-class FittedCells(Protocol):
-    """What the fit writes on the model it builds (an APL, PL or MPI)."""
-
-    fit_report: dict[str, Any] | None
+if TYPE_CHECKING:
+    from strain_comp.models.apl import CellModel
 
 
-_Cells = TypeVar("_Cells", bound=FittedCells)
-_Built = TypeVar("_Built", bound=FittedCells, covariant=True)
-
-
-class CellFamily(Protocol[_Built]):
-    """What the fit reads of the APL, PL or MPI class (``strain_comp.models.apl``)."""
-
-    @property
-    def name(self) -> str: ...
-
-    @property
-    def kind(self) -> int: ...
-
-    @property
-    def rate_dependent(self) -> bool: ...
-
-    def __call__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
-                 mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
-                 ) -> _Built: ...
-
-CELL_WEIGHTS = ("signed", "lead", "lag", "free")
-"""Constraints on the cell weights (docs/design.md, "Loop orientation")."""
 LOOP_SWITCH_GAIN = 0.05
 """``signed`` holds the cells to a lagging loop only when that lowers the training output
 RMSE by more than this share against the paper's leading loop (docs/results.md)."""
@@ -62,13 +37,13 @@ P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
 """The default grid of p searched by the fit."""
 
 
-def fit_cells(cls: CellFamily[_Cells], segments: Sequence[Segment], normalisation: Normalisation,
+def fit_cells(cls: type[CellModel], segments: Sequence[Segment], normalisation: Normalisation,
               *, n: int, m: int, sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None,
               refine: bool, cell_weights: str, eps: float, ridge: float, output_nfev: int,
               search_nfev: int, search_top: int, workers: int | None,
-              progress: bool | Callable[[str], None]) -> _Cells:
+              progress: bool | Callable[[str], None]) -> CellModel:
     """The fit of an APL, PL or MPI model (docs/models.md), called by ``APL.fit``, which
-    checked the arguments and holds BLAS to one thread."""
+    holds BLAS to one thread."""
     problem = _FitProblem(cls, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
     if cls.kind == kern.KIND_APL and problem.gauge < 0:
@@ -83,8 +58,6 @@ def fit_cells(cls: CellFamily[_Cells], segments: Sequence[Segment], normalisatio
     sigmas = (problem.default_sigma_grid() if sigma_grid is None
               else np.asarray(sigma_grid, dtype=np.float64))
     ps = np.asarray(P_GRID if p_grid is None else p_grid, dtype=np.float64)
-    if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
-        raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
     say = _progress_printer(progress, cls.name)
     grid = score_grid(problem, sigmas, ps,
                       workers=grid_workers(workers, sigmas.size * ps.size, problem.t.size),
@@ -140,7 +113,7 @@ def grid_workers(requested: int | None, points: int, samples: int) -> int:
     return max(1, min(available_cores(), points // 2))
 
 
-def score_grid(problem: _FitProblem[_Cells], sigmas: np.ndarray, ps: np.ndarray, *,
+def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *,
                workers: int, say: Callable[[str], None]) -> list[_Solution]:
     """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads (the
     points are independent; the cell-state kernel, numpy's array operations and BLAS release
@@ -188,10 +161,10 @@ class _Solution:
         self.sigma, self.p, self.w, self.slopes, self.rmse = sigma, p, w, slopes, rmse
 
 
-class _FitProblem(Generic[_Cells]):
+class _FitProblem:
     """The training data prepared once; ``solve(sigma, p)`` is one QP + output error."""
 
-    def __init__(self, cls: CellFamily[_Cells], segments: Sequence[Segment],
+    def __init__(self, cls: type[CellModel], segments: Sequence[Segment],
                  normalisation: Normalisation, *, n: int, m: int, eps: float, ridge: float,
                  cell_weights: str, search_nfev: int) -> None:
         self.cls, self.norm, self.n, self.m = cls, normalisation, n, m
@@ -274,7 +247,7 @@ class _FitProblem(Generic[_Cells]):
         return -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
 
     def set_weight_sign(self) -> None:
-        """The cell weights' sign for ``cell_weights`` (``CELL_WEIGHTS``)."""
+        """The cell weights' sign for ``cell_weights`` (docs/design.md, "Loop orientation")."""
         loop = {"lead": 1, "lag": -1}.get(self.cell_weights)
         if loop is None:
             loop = self.loop_sign() if self.cell_weights == "signed" else 1
@@ -412,7 +385,7 @@ class _FitProblem(Generic[_Cells]):
                           "xatol": 1e-3, "fatol": 1e-6})
         return found["best"]
 
-    def build(self, result: _Solution) -> _Cells:
+    def build(self, result: _Solution) -> CellModel:
         return self.cls(n=self.n, m=self.m, sigma=result.sigma, p=result.p, w=result.w,
                         mu=pwa.mu_from_slopes(result.slopes), normalisation=self.norm,
                         orientation=self.orientation)

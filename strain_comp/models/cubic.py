@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.base.compensator import (
-    KernelCompensator,
+    Compensator,
     Normalisation,
     Segment,
     require_vector,
@@ -25,7 +25,7 @@ from strain_comp.errors import FitError
 
 
 @register
-class Cubic(KernelCompensator):
+class Cubic(Compensator):
     """S = c3 R^3 + c2 R^2 + c1 R + c0 (eq. (4)); ``c`` = [c0, c1, c2, c3] in ohm units."""
 
     name = "cubic"
