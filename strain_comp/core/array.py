@@ -14,6 +14,7 @@ import numpy as np
 
 from strain_comp._numba import njit, specialise
 from strain_comp.base import samples as sc
+from strain_comp.base.conversion import divider_ohm
 from strain_comp.base.direction import STATE_SIZE, direction_update
 from strain_comp.base.lift import LiftedArray, kernel
 from strain_comp.base.registry import array_families
@@ -21,7 +22,7 @@ from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
 from strain_comp.core.outputs import ArrayOutput
 from strain_comp.core.sensor import Latest, SensorState, run_together
-from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
+from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, model_read
 from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_run
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
@@ -55,7 +56,7 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
     reset[k] = rst
     counts[k, code] += 1
     held[k, _LAST_STATUS] = code
-    if not sc.is_used(code):
+    if not USED_CODE[code]:
         model_out[k] = np.nan
         return ohm, False
     if rst:

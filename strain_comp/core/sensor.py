@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from strain_comp.base import samples as sc
 from strain_comp.base.compensator import Compensator
-from strain_comp.base.conversion import resistance_to_divider
+from strain_comp.base.conversion import divider_all, resistance_to_divider
 from strain_comp.base.direction import DirectionDetector, DirectionSettings
 from strain_comp.core import uncertainty
 from strain_comp.core.calibration import SensorCalibration
@@ -27,7 +27,6 @@ from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.range_policy import SensorRange
 from strain_comp.core.stages import (
     bound_all,
-    divider_all,
     hold,
     range_status,
     saturate_all,

@@ -161,10 +161,16 @@ class CellModel(Compensator):
             progress: bool | Callable[[str], None] = True, **options: Any) -> CellModel:
         """Fit w, mu by the QP and the output-error refinement, searching sigma and p (module
         docstring); the options were checked by ``strain_comp.offline.options``."""
-        return fit_cells(cls, segments, normalisation, n=N, m=M, sigma_grid=sigma_grid,
-                         p_grid=p_grid, refine=refine, cell_weights=cell_weights, eps=eps,
-                         ridge=ridge, output_nfev=output_nfev, search_nfev=search_nfev,
-                         search_top=search_top, workers=workers, progress=progress)
+        best, orientation, report = fit_cells(
+            cls.name, cls.kind, cls.rate_dependent, segments, normalisation, n=N, m=M,
+            sigma_grid=sigma_grid, p_grid=p_grid, refine=refine, cell_weights=cell_weights,
+            eps=eps, ridge=ridge, output_nfev=output_nfev, search_nfev=search_nfev,
+            search_top=search_top, workers=workers, progress=progress)
+        model = cls(n=N, m=M, sigma=best.sigma, p=best.p, w=best.w,
+                    mu=pwa.mu_from_slopes(best.slopes), normalisation=normalisation,
+                    orientation=orientation)
+        model.fit_report = report
+        return model
 
 
 @register
