@@ -1,21 +1,6 @@
-"""Sparse references fused online: the output gain and offset, estimated causally.
-
-Each reference y at time t, beside the engine's estimate s_hat there, observes the output
-map, whose gain g and offset b walk slowly (docs/design.md, "Known strains"):
-
-    y = g s_hat + b + v,  v ~ N(0, R);   theta = (g, b),  theta_k = theta_{k-1} + w_k,
-    w_k ~ N(0, Q dt_k),  Q = diag(q_g^2, q_b^2)                                   (1, 2)
-
-estimated by the Kalman filter (Ljung, *System Identification*, 1999, ch. 11), h = (s_hat, 1):
-
-    P^- = P + Q dt,  e = y - h theta,  S = h P^- h' + R,
-    K = P^- h' / S,  theta <- theta + K e,  P <- (I - K h) P^-                      (3)
-
-The state is the sensor's own output map (``strain_comp.core.correction``), started from the
-calibration's (a_0, b_0), the prior and walk taken through T = [[a_0, 0], [b_0, 1]]. A random
-walk, not RLS with forgetting: references often at rest excite only b, and forgetting winds
-up the gain's covariance. A reference beyond ``GATE`` innovation sds is refused (Bar-Shalom
-et al. 2001), as are non-finite ones and times going back; each refusal is counted.
+"""Sparse references fused online: the output gain and offset, estimated causally by a
+Kalman filter on a random walk; the model and equations (1)-(3): docs/models.md, "Fusion of
+known strains".
 """
 
 from __future__ import annotations
@@ -73,7 +58,7 @@ class FusionSettings:
 @dataclass
 class OutputFusion:
     """The Kalman filter (3) on one sensor's output gain and offset (from ``start``, the
-    calibration's: module docstring)."""
+    calibration's)."""
 
     settings: FusionSettings
     start: tuple[float, float] = (1.0, 0.0)
@@ -85,8 +70,6 @@ class OutputFusion:
     refused: Counter[str] = field(default_factory=Counter)
     last_reference_t: float | None = None
     """Time of the latest reference used or refused for its value [s]."""
-    last_innovation: float = math.nan
-    """Reference minus fused estimate of the latest reference judged."""
 
     def __post_init__(self) -> None:
         if math.isnan(self.gain):
@@ -147,7 +130,6 @@ class OutputFusion:
         innovation = float(reference) - (self.gain * estimate + self.offset)
         var = float(h @ p @ h) + s.noise_sd ** 2
         self.last_reference_t = t
-        self.last_innovation = innovation
         if abs(innovation) > s.gate * math.sqrt(var):
             reason = (f"beyond the gate ({s.gate:g} sd): innovation {innovation:.4g} against "
                       f"sd {math.sqrt(var):.4g}")
