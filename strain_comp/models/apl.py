@@ -121,10 +121,6 @@ class CellModel(Compensator):
                         self.rho, self._inv_width, self.w, self._norm, self._b,
                         self._f_at_b, self._inv_slopes)
 
-    def f(self, psi: npt.ArrayLike) -> np.ndarray:
-        """The output map f(psi) of eq. (3)."""
-        return pwa.evaluate(psi, self.mu)
-
     def to_params(self) -> dict[str, Any]:
         params: dict[str, Any] = {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,
                                   "w": [float(v) for v in self.w],
