@@ -79,12 +79,6 @@ def alternation(r: npt.ArrayLike) -> Alternation:
     return Alternation(amplitude, noise, agreement, z)
 
 
-def pair_means(r: np.ndarray, previous: float = math.nan) -> np.ndarray:
-    """(R[i] + R[i-1]) / 2, the first one with ``previous`` (itself when NaN)."""
-    before = np.concatenate(([previous], r[:-1])) if r.size else r
-    return np.where(np.isfinite(before), 0.5 * (r + before), r)
-
-
 PAIR_BRANCHES = ("mean", "upper", "lower")
 """The pair statistics an alternating input can be read through (``pair_values``)."""
 
@@ -93,9 +87,9 @@ def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: 
                 ) -> np.ndarray:
     """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
     first one with ``previous`` (itself when NaN)."""
-    if branch == "mean":
-        return pair_means(r, previous)
     before = np.concatenate(([previous], r[:-1])) if r.size else r
+    if branch == "mean":
+        return np.where(np.isfinite(before), 0.5 * (r + before), r)
     # fmax/fmin: a NaN previous is skipped
     return np.fmax(r, before) if branch == "upper" else np.fmin(r, before)
 
