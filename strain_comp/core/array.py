@@ -88,11 +88,8 @@ def family_tick(t: np.ndarray, idx: np.ndarray, raw: np.ndarray, par: np.ndarray
                 model_out: np.ndarray, status: np.ndarray, reset: np.ndarray,
                 band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
                 params: tuple[Any, ...], out: np.ndarray, out_status: np.ndarray) -> None:
-    """Template: ticks ``t`` (rows of ``raw``) of the array's sensors of one family, around
-    the family's kernel (``strain_comp.base.lift``); after each, the held strain,
-    direction and standard deviation of these sensors into ``out[i, :, k]`` and their
-    status into ``out_status[i, k]``. A gap reset zeroes the sensor's state rows (a sensor
-    at rest)."""
+    """Template: ticks ``t`` of one family's sensors around its kernel; held strain,
+    direction and std into ``out[i, :, k]``, status into ``out_status[i, k]``."""
     arrays = state + params
     for i in range(t.size):
         for j in range(idx.size):

@@ -99,11 +99,6 @@ class OutputFusion:
         g = self.gain / a0
         return g, self.offset - g * b0
 
-    def before_map(self, estimate: float) -> float:
-        """The engine's estimate before the calibration's output map (``start``)."""
-        a0, b0 = self.start
-        return (estimate - b0) / a0
-
     @property
     def n_refused(self) -> int:
         return sum(self.refused.values())
@@ -114,9 +109,8 @@ class OutputFusion:
         return g * estimate + b
 
     def update(self, t: float, estimate: float, reference: Any) -> str | None:
-        """Fuse the reference ``reference`` known at time ``t`` [s] beside the engine's
-        estimate ``estimate`` at ``t``; None when used, else the reason it was refused
-        (counted; the state is unchanged)."""
+        """Fuse ``reference`` at ``t`` [s] beside the engine's ``estimate``; None when used,
+        else the reason it was refused (counted; the state unchanged)."""
         reason = self._screen(t, estimate, reference)
         if reason is not None:
             self.refused[reason] += 1
@@ -125,7 +119,8 @@ class OutputFusion:
         dt = 0.0 if self.last_reference_t is None else t - self.last_reference_t
         p = self.covariance + self._coordinates(np.diag([s.gain_walk ** 2,
                                                          s.offset_walk ** 2])) * dt
-        estimate = self.before_map(estimate)
+        a0, b0 = self.start
+        estimate = (estimate - b0) / a0  # before the calibration's output map
         h = np.array([estimate, 1.0])
         innovation = float(reference) - (self.gain * estimate + self.offset)
         var = float(h @ p @ h) + s.noise_sd ** 2
@@ -165,9 +160,7 @@ class OutputFusion:
         return None
 
     def state(self) -> dict[str, Any]:
-        """What /diagnostics and the JSON show: gain, offset, their standard deviations and
-        covariance, references used and refused (by reason), the latest reference's
-        time."""
+        """What /diagnostics and the JSON show of the filter."""
         return {"gain": self.gain, "offset": self.offset,
                 "gain_sd": math.sqrt(max(float(self.covariance[0, 0]), 0.0)),
                 "offset_sd": math.sqrt(max(float(self.covariance[1, 1]), 0.0)),
@@ -192,11 +185,8 @@ class OutputFusion:
 
 @dataclass
 class SparseFusion:
-    """One sensor's run fused with its own reference every ``every`` seconds, streamed in
-    consecutive pieces (``run``): the reference of the eligible sample nearest each
-    multiple of ``every`` after the run's first sample (eligible: ``fuse``; none farther
-    than ``every`` / 2 from the multiple),
-    fused at that sample's time and applied to the samples after it."""
+    """One sensor's run, streamed in pieces (``run``), fused with the reference of the
+    eligible sample nearest each multiple of ``every`` s (none beyond ``every`` / 2)."""
 
     fusion: OutputFusion
     every: float
@@ -270,10 +260,8 @@ class SparseFusion:
         return cls(OutputFusion.for_calibration(cal), check_every(every), record=record)
 
     def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
-        """``out`` (the engine's, for samples ``t``) with its strain fused (``run``); the
-        eligible samples: used, within the calibrated range (beyond it the estimate is
-        held or extended, not a gain of the strain), with a finite reference and
-        estimate."""
+        """``out`` with its strain fused; eligible: used samples within the calibrated range
+        (beyond it the estimate is held or extended, not a gain of the strain)."""
         strain = np.asarray(out.strain, dtype=np.float64)
         reference = np.asarray(reference, dtype=np.float64)
         eligible = (used_mask(out.status) & ~np.asarray(out.out_of_range, bool)

@@ -116,10 +116,8 @@ class SensorState:
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
-        """What the models see of used samples ``ohm``: the pair statistic when the input
-        alternates, then the corrector when set; ``previous``: the used sample before them
-        (NaN after a reset, which restarts the corrector). With the corrector's event per
-        sample, None without a corrector."""
+        """(what the models see of used samples ``ohm``, the corrector's events or None);
+        ``previous``: the used sample before them (NaN after a reset: restart)."""
         if not self.cal.input.filtered or not ohm.size:
             return ohm, None
         self.previous = float(ohm[-1])
@@ -171,10 +169,6 @@ class SensorState:
         out: np.ndarray = self.correction.apply_output(np.where(np.isnan(corrected), base,
                                                                  corrected))
         return out
-
-    def latest_base(self) -> float:
-        """The latest clamped strain before the effect terms (NaN before any)."""
-        return self.base if self.cal.effects else self.strain
 
     def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:

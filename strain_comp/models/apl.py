@@ -53,13 +53,6 @@ def _require_int(params: Mapping[str, Any], key: str, lo: int, hi: int) -> int:
     return int(value)
 
 
-def _check_shape(n: int, m: int) -> None:
-    if not 1 <= n <= N_MAX:
-        raise ParameterError("N", f"must be in [1, {N_MAX}], got {n}")
-    if not (1 <= m <= M_MAX and m % 2 == 1):
-        raise ParameterError("M", f"must be odd and in [1, {M_MAX}], got {m}")
-
-
 class CellModel(Compensator):
     """Shared implementation of APL, PL and MPI; ``kind`` selects the cell law."""
 
@@ -70,7 +63,10 @@ class CellModel(Compensator):
                  mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
                  ) -> None:
         super().__init__(normalisation)
-        _check_shape(n, m)
+        if not 1 <= n <= N_MAX:
+            raise ParameterError("N", f"must be in [1, {N_MAX}], got {n}")
+        if not (1 <= m <= M_MAX and m % 2 == 1):
+            raise ParameterError("M", f"must be odd and in [1, {M_MAX}], got {m}")
         if orientation not in (1, -1) or isinstance(orientation, bool):
             raise ParameterError("orientation", f"must be 1 or -1, got {orientation!r}")
         if not (math.isfinite(sigma) and sigma >= 0.0):

@@ -1,8 +1,5 @@
-"""Cubic baseline ([Electrolycra] eq. (4)): S = c3 R^3 + c2 R^2 + c1 R + c0.
-
-Memoryless, so it has no state; it is fitted by ordinary least squares on the normalised
-input xi (better conditioned than powers of R in ohm) and its coefficients are stored in
-ohm units exactly as eq. (4) writes them.
+"""Cubic baseline ([Electrolycra] eq. (4)): S = c3 R^3 + c2 R^2 + c1 R + c0, memoryless;
+fitted on xi (better conditioned than powers of R in ohm), stored in ohm units as eq. (4).
 """
 
 from __future__ import annotations
