@@ -92,20 +92,15 @@ class CellModel(Compensator):
                                        f"slope {slopes[j]:.6g}")
         self.rho = thresholds(n, self.kind)
         self._inv_width = inverse_widths(self.rho, self.kind)
-        self._b, self._f_at_b, self._inv_slopes = pwa.slope_tables(slopes)
+        self.b, self.f_at_b, self.inv_slopes = pwa.slope_tables(slopes)
         self.orientation = int(orientation)
         # The cells' input orientation * xi, as orientation * (R / r0 + alpha).
-        self._norm = np.array([orientation * normalisation.r0, orientation * normalisation.alpha,
+        self.norm = np.array([orientation * normalisation.r0, orientation * normalisation.alpha,
                                normalisation.s0, normalisation.beta])
         self.x = np.zeros(n)
         self._clock = np.zeros(2)
         self.fit_report: dict[str, Any] | None = None
         self.reset()
-
-    def array_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(norm, b, f_at_b, inv_slopes): the per-sensor tables the array kernel reads
-        (``strain_comp.models.apl_array``)."""
-        return self._norm, self._b, self._f_at_b, self._inv_slopes
 
     def reset(self) -> None:
         """Forget the state: the next good sample re-initialises the cells (relaxed)."""
@@ -114,8 +109,8 @@ class CellModel(Compensator):
 
     def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
         kern.run_kernel(t, r, self.x, self._clock, out, self.kind, self.sigma, self.p,
-                        self.rho, self._inv_width, self.w, self._norm, self._b,
-                        self._f_at_b, self._inv_slopes)
+                        self.rho, self._inv_width, self.w, self.norm, self.b,
+                        self.f_at_b, self.inv_slopes)
 
     def to_params(self) -> dict[str, Any]:
         params: dict[str, Any] = {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,

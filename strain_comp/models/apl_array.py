@@ -34,7 +34,6 @@ class APLArray(LiftedArray):
                 raise ParameterError(f"models.{i}", f"N, M = {model.N}, {model.M} differ "
                                                     f"from the first sensor's {n}, {m}")
         k = len(cells)
-        tables = [mdl.array_tables() for mdl in cells]
         self.kind = np.array([mdl.kind for mdl in cells], dtype=np.int64)
         self.sigma = np.array([mdl.sigma for mdl in cells])
         self.p = np.array([mdl.p for mdl in cells])
@@ -42,11 +41,11 @@ class APLArray(LiftedArray):
         self.inv_width = np.vstack([inverse_widths(self.rho[0], kern.KIND_APL),
                                     inverse_widths(self.rho[1], kern.KIND_PL)])
         self.w = np.vstack([mdl.w for mdl in cells])
-        self.norm = np.vstack([norm for norm, _, _, _ in tables])
-        self.b = tables[0][1]
-        self.f_at_b = np.ascontiguousarray(np.vstack([f for _, _, f, _ in tables])
+        self.norm = np.vstack([mdl.norm for mdl in cells])
+        self.b = cells[0].b
+        self.f_at_b = np.ascontiguousarray(np.vstack([mdl.f_at_b for mdl in cells])
                                            .reshape(k, m - 1))
-        self.inv_slopes = np.vstack([inv for _, _, _, inv in tables])
+        self.inv_slopes = np.vstack([mdl.inv_slopes for mdl in cells])
         self.x = np.zeros((k, n))
         self.clock = np.zeros((k, 2))
         self.state = (self.x, self.clock)

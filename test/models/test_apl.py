@@ -164,8 +164,8 @@ def test_f_strictly_increasing_and_exact_inverse():
         assert np.all(np.diff(f) > 0)
         np.testing.assert_allclose([ref_f(v, model.mu.tolist()) for v in psi[::50]],
                                    f[::50], rtol=1e-12, atol=1e-12)
-        _, b, f_at_b, inv_slopes = model.array_tables()
-        np.testing.assert_allclose(pwa.finv_array(f, b, f_at_b, inv_slopes), psi, atol=1e-12)
+        np.testing.assert_allclose(pwa.finv_array(f, model.b, model.f_at_b, model.inv_slopes),
+                                   psi, atol=1e-12)
 
 
 def test_array_kernel_matches_per_sensor_models():
