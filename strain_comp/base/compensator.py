@@ -155,8 +155,8 @@ def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = Non
     return value
 
 
-def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None,
-                   min_length: int = 1) -> np.ndarray:
+def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None
+                   ) -> np.ndarray:
     """Read ``params[key]`` as a list of finite floats."""
     if key not in params:
         raise ParameterError(key, "missing")
@@ -171,8 +171,8 @@ def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = 
         raise ParameterError(key, "must hold finite numbers only")
     if length is not None and array.size != length:
         raise ParameterError(key, f"must have {length} entries, got {array.size}")
-    if array.size < min_length:
-        raise ParameterError(key, f"must have at least {min_length} entries, got {array.size}")
+    if array.size == 0:
+        raise ParameterError(key, "must have at least 1 entries, got 0")
     return array
 
 

@@ -136,11 +136,11 @@ class SensorState:
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(resistance [ohm] x the tare gain, through the input map of the correction,
         forced status) from the raw input values (the input-fix stage over a batch)."""
-        if self.cal.input.kind != "divider":
+        if self.cal.input.kind == "divider":
+            raw, forced = divider_all(raw, *self.cal.input.divider())
+        else:
             forced = np.zeros(raw.shape, dtype=np.int8)
-            return self.correction.apply_input(raw, self.gain), forced
-        ohm, forced = divider_all(raw, *self.cal.input.divider())
-        return self.correction.apply_input(ohm, self.gain), forced
+        return self.correction.apply_input(raw, self.gain), forced
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
