@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -146,12 +147,15 @@ def _progress_printer(progress: bool | Callable[[str], None], name: str) -> Call
     return say
 
 
+@dataclass
 class Solution:
     """One solved point of the search: sigma, p, parameter vector and output RMSE [%]."""
 
-    def __init__(self, sigma: float, p: float, w: np.ndarray, slopes: np.ndarray,
-                 rmse: float) -> None:
-        self.sigma, self.p, self.w, self.slopes, self.rmse = sigma, p, w, slopes, rmse
+    sigma: float
+    p: float
+    w: np.ndarray
+    slopes: np.ndarray
+    rmse: float
 
 
 class _FitProblem:
