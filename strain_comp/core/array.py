@@ -43,9 +43,8 @@ _LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS, _STD = range(5)
 def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
                  counts: np.ndarray, det: np.ndarray, gap: float, model_out: np.ndarray,
                  status: np.ndarray, reset: np.ndarray) -> tuple[float, bool]:
-    """The stages before the model for sensor ``k`` of a tick: input fix, tare gain, screen,
-    counts. A sample not used gets NaN in ``model_out[k]``. On a gap reset the detector
-    restarts and the gap is counted; the caller zeroes the model's state rows (``reset[k]``)."""
+    """The stages before the model for sensor ``k`` of a tick (input fix, gain, screen,
+    counts, a gap reset's detector restart): (resistance, used)."""
     ri, forced = raw[k], sc.GOOD
     if par[k, _VIN] > 0.0:  # voltage divider
         ri, forced = divider_ohm(ri, par[k, _R1], par[k, _VIN])
@@ -69,9 +68,8 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
 def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
                 held: np.ndarray, det: np.ndarray, model_out: np.ndarray, band: np.ndarray,
                 x: np.ndarray) -> None:
-    """The stages after the model for a used sample of sensor ``k``: the unclamped estimate
-    into ``model_out[k]`` (for the effect terms), the detector, the range bound, the
-    standard deviation where the sensor has an uncertainty, and the hold (``held[k]``)."""
+    """The stages after the model for a used sample of sensor ``k``: detector, range,
+    standard deviation and hold; the unclamped estimate into ``model_out[k]``."""
     model_out[k] = estimate
     held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                            par[k, _TAU]) * par[k, _SIGN]

@@ -207,9 +207,8 @@ class ChainCorrector:
 def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
             step_k: float = 0.0, alternating: bool | None = None, pair: str = "mean",
             ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
-    """A whole run through a fresh ``ChainCorrector`` as the engine feeds its models (after
-    the pair statistic when the excitation alternates; None: found from the data): (what
-    the models see, event codes, the corrector), NaN where bad."""
+    """A whole run through a fresh ``ChainCorrector`` as the engine feeds its models
+    (``alternating`` None: found from the data): (what the models see, events, corrector)."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)

@@ -270,9 +270,8 @@ class SparseFusion:
 
 
 def check_every(every: float, t: npt.ArrayLike | None = None) -> float:
-    """``every`` if it is a spacing of references (finite, > 0 s) and, given a run's first
-    time stamps ``t``, not below its sampling interval (the median step): a reference per
-    sample at most, so the fusion's steps are bounded by the samples. InputError otherwise."""
+    """``every`` if it is finite, > 0 s and not below the sampling interval of ``t`` (a
+    reference per sample at most); InputError otherwise."""
     if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
         raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
     steps = np.diff(np.asarray(t if t is not None else [], dtype=np.float64))

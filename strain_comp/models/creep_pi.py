@@ -200,8 +200,7 @@ class CreepPI(Compensator):
 @register_array
 @lift(kern.step_sensor, fastmath=kern.FASTMATH)
 class CreepPIArray(LiftedArray):
-    """K creep_pi sensors (same numbers of play operators and time constants) stepped
-    together in one kernel call."""
+    """K creep_pi sensors (same shapes) stepped together in one kernel call."""
 
     family = "a creep_pi"
 
@@ -234,9 +233,8 @@ class CreepPIArray(LiftedArray):
 
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
                thresholds: np.ndarray) -> np.ndarray:
-    """Gram matrices of [1, features, psi] per cross-validation fold: one fold per segment
-    when there are two or more, else ``CV_BLOCKS`` contiguous blocks of the one (fewer when
-    it is short)."""
+    """Gram matrices of [1, features, psi] per cross-validation fold: a segment each, or
+    ``CV_BLOCKS`` contiguous blocks of a single one."""
     widths = np.append(thresholds, DIRECTION_WIDTH)
     n_f = n_features(thresholds.size, tau.size)
     single = len(segments) == 1
