@@ -135,6 +135,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     """Fit ``model`` to one sensor's recordings (each with a reference strain), several runs
     pooled (``pool``); ``band``: the uncertainty learned by leaving each run out."""
     options, cls, runs = dict(options or {}), model_class(model), list(recordings)
+    check_fit_options(model, options)
     pooled = pool_runs(recordings, pool, name, options)
     recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
     interval = slow_sample_interval(recordings)
@@ -149,8 +150,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     direction, direction_source = direction_settings(segments, options)
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
     model_options = {k: v for k, v in options.items() if k not in _OWN_OPTIONS}
-    budget = _fit_budget(options, budget, name)
-    check_fit_options(model, options)
+    budget = options.get("fit_budget", budget)
     start = time.perf_counter()
     fit_segments, factor = ((segments, 1) if cls.fit_full_rate
                             else reduce_segments(segments, budget))
@@ -202,15 +202,6 @@ def learned_band(runs: Sequence[Recording], model: str, name: str,
     return learn(pairs).get(name)
 
 
-def _fit_budget(options: Mapping[str, Any], budget: int, name: str) -> int:
-    """The option ``fit_budget``, else ``budget``; FitError unless an integer >= 1000."""
-    budget = options.get("fit_budget", budget)
-    if not (isinstance(budget, int) and not isinstance(budget, bool) and budget >= 1000):
-        raise FitError(f"sensor {name!r}: option fit_budget must be an integer >= 1000, "
-                       f"got {budget!r}")
-    return budget
-
-
 def _check_usable(calibration: SensorCalibration) -> None:
     """FitError, in the user's terms, when the fitted calibration fails the checks every
     reader applies (``check_calibration``)."""
@@ -249,53 +240,67 @@ def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
             f"static map of R (the cells' sign: --option cell_weights=lead|lag|free)")
 
 
+Run = tuple[str, int, "Recording"]
+"""One run of a sensor: (its source, the index of that input, the recording)."""
+
+
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None,
              pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
-    """One calibration for ``sensors``, each fitted to its recordings from every bag that has
-    it (``fit_sensor``, or ``fitter`` for ``fit --model auto``)."""
-    by_sensor: dict[str, list[tuple[str, Recording]]] = {}
-    for path in paths:
+    """``fit_runs`` on the recordings of every bag, the damage skipped to ``report``."""
+    by_sensor: dict[str, list[Run]] = {}
+    for i, path in enumerate(paths):
         recordings, problems = load_recordings(path)
         for problem in problems:
             if report is not None:
                 report(problem)
         for sensor, rec in recordings.items():
-            by_sensor.setdefault(sensor, []).append((str(path), rec))
-    referenced = [n for n, recs in by_sensor.items() if any(r.s is not None for _, r in recs)]
-    bag_list = ", ".join(str(p) for p in paths)
-    if sensors is None or "all" in sensors:
+            by_sensor.setdefault(sensor, []).append((str(path), i, rec))
+    return fit_runs(by_sensor, model, sensors, options, where=", ".join(map(str, paths)),
+                    report=report, pool=pool, fitter=fitter)
+
+
+def fit_runs(by_sensor: Mapping[str, Sequence[Run]], model: str,
+             sensors: Sequence[str] | None = None, options: Mapping[str, Any] | None = None,
+             *, where: str, report: Callable[[str], None] | None = None,
+             pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
+    """One calibration for ``sensors`` (default or ``all``: every one with a reference), each
+    fitted to its referenced runs (``fit_sensor``, or ``fitter`` for ``fit --model auto``);
+    ``where`` names the inputs in messages."""
+    referenced = [n for n, runs in by_sensor.items()
+                  if any(rec.s is not None for _, _, rec in runs)]
+    found = ", ".join(by_sensor) or "none"
+    every = not sensors or "all" in sensors
+    if every:
         if not referenced:
-            raise InputError(f"{bag_list}: no sensor with a strain_reference topic "
-                             f"(sensors found: {', '.join(by_sensor) or 'none'})")
+            raise InputError(f"{where}: no sensor with a strain reference "
+                             f"(sensors found: {found})")
         names = referenced
     else:
-        names = list(dict.fromkeys(sensors))
+        names = list(dict.fromkeys(sensors or ()))
         for sensor in names:
             if sensor not in by_sensor:
-                raise InputError(f"sensor {sensor!r} is not in {bag_list} "
-                                 f"(sensors found: {', '.join(by_sensor) or 'none'})")
+                raise InputError(f"sensor {sensor!r} is not in {where} (sensors found: {found})")
             if sensor not in referenced:
-                raise InputError(f"sensor {sensor!r} has no strain_reference in {bag_list}")
+                raise InputError(f"sensor {sensor!r} has no strain_reference in {where}")
     calibrations = {}
-    every = sensors is None or "all" in sensors
     for sensor in names:
-        pairs = [(path, rec) for path, rec in by_sensor[sensor] if rec.s is not None]
+        used = [run for run in by_sensor[sensor] if run[2].s is not None]
+        runs, bags = [rec for _, _, rec in used], [source for source, _, _ in used]
         try:
-            runs, bags = [rec for _, rec in pairs], [path for path, _ in pairs]
             calibrations[sensor] = (
                 fit_sensor(runs, model, name=sensor, bags=bags, options=options, pool=pool)
                 if fitter is None else
                 fitter(runs, name=sensor, bags=bags, options=options, pool=pool,
-                       index=[[str(p) for p in paths].index(path) for path in bags]))
+                       index=[i for _, i, _ in used]))
         except FitError as err:
             if not every or len(names) == 1:
                 raise
             if report is not None:  # "all": the sensors that can be fitted are
                 report(f"not fitted: {err}")
     if not calibrations:
-        raise FitError(f"{bag_list}: no sensor could be fitted")
+        raise FitError(f"{where}: no sensor could be fitted")
     return Calibration(calibrations)
 
 
