@@ -84,12 +84,11 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     auto = _auto(data, candidates, groups, jobs, options) if model == "auto" else None
     if auto is None:
         check_fit_options(model, options)
-    if not unit_ok(strain_unit):
-        raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "
-                         "(1-16 letters, digits, %, / or .)")
-    if not unit_ok(input_unit):
-        raise InputError(f"input unit {input_unit!r}: expected a unit such as ohm or R/R0 "
-                         "(1-16 letters, digits, %, / or .)")
+    for unit, what, example in ((strain_unit, "strain unit", "% or mm"),
+                                (input_unit, "input unit", "ohm or R/R0")):
+        if not unit_ok(unit):
+            raise InputError(f"{what} {unit!r}: expected a unit such as {example} "
+                             "(1-16 letters, digits, %, / or .)")
 
     grid = auto is None and "progress" in model_options(model) and "progress" not in options
     with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
