@@ -1,9 +1,5 @@
-"""Fitting orchestration: recordings (time, resistance, reference strain) -> calibration
-(``fit_sensor`` one sensor, ``fit_bags`` every named sensor of a set of bags; docs/design.md,
-``fit``). The steps before the model's fit each have their module: pooling runs
-(``offline.pool``), training data (``offline.training``), the measurement chain
-(``offline.input_chain``), the direction detector (``offline.deadzone``), long runs
-(``offline.reduce``) and the uncertainty (``offline.uncertainty``).
+"""Fitting orchestration: recordings with a reference strain -> calibration (``fit_sensor``
+one sensor, ``fit_runs`` / ``fit_bags`` every named sensor; docs/design.md, ``fit``).
 """
 
 from __future__ import annotations
@@ -67,9 +63,7 @@ class Fitter(Protocol):
 
 
 CHOICE_RUNS = 3
-"""Runs a pooled fit needs to choose its session start: each run left out must leave a
-pooled fit of two or more, made as the fit it stands for (with two, each fold would be a
-one-run fit, whose own stretch line is no pooled space; ``choose_space``)."""
+"""Runs a pooled fit needs to choose its session start: each fold a pooled fit of two."""
 _OWN_OPTIONS = (*DIRECTION_OPTIONS, *FIT_OPTIONS)
 """Options ``fit_sensor`` takes itself; the others go to the model's ``fit``."""
 
@@ -102,9 +96,8 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
 
 def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
               options: Mapping[str, Any]) -> Pooled:
-    """The training runs pooled (``offline.pool``); ``spanned``: as recorded unless they pass
-    the ``gate``, then the session start ``choose_space`` measures best for the cubic
-    (``joint`` with fewer than ``CHOICE_RUNS`` runs)."""
+    """The training runs pooled (``offline.pool``); ``spanned``: past the ``gate``, the
+    session start ``choose_space`` measures best for the cubic."""
     if pool != "spanned":
         return pooled_input(recordings, pool)
     if len(recordings) < 2:
@@ -132,8 +125,8 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
                budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = False
                ) -> SensorCalibration:
-    """Fit ``model`` to one sensor's recordings (each with a reference strain), several runs
-    pooled (``pool``); ``band``: the uncertainty learned by leaving each run out."""
+    """Fit ``model`` to one sensor's runs; ``band``: its uncertainty learned by leaving each
+    run out."""
     options, cls, runs = dict(options or {}), model_class(model), list(recordings)
     check_fit_options(model, options)
     pooled = pool_runs(recordings, pool, name, options)
@@ -188,8 +181,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
 
 def learned_band(runs: Sequence[Recording], model: str, name: str,
                  options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
-    """The uncertainty of ``fit_sensor``'s calibration from ``model`` fitted on all runs but
-    one and started on the one left out, every run in turn."""
+    """The uncertainty of ``model`` fitted on all runs but one and started on the one left out."""
     pairs = []
     for j, run in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j]
@@ -203,8 +195,7 @@ def learned_band(runs: Sequence[Recording], model: str, name: str,
 
 
 def _check_usable(calibration: SensorCalibration) -> None:
-    """FitError, in the user's terms, when the fitted calibration fails the checks every
-    reader applies (``check_calibration``)."""
+    """FitError, in the user's terms, where the fit fails the checks every reader applies."""
     name = calibration.name
     try:
         check_calibration(Calibration({name: calibration}))
@@ -306,8 +297,7 @@ def fit_runs(by_sensor: Mapping[str, Sequence[Run]], model: str,
 
 def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
                  calibration: Calibration) -> None:
-    """Set each scored sensor's ``in_run_rmse``: the same model fitted and scored on the
-    evaluated run itself (NaN and a note where it cannot be fitted)."""
+    """Set each scored sensor's ``in_run_rmse``: its model fitted and scored on the run itself."""
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
         options = cal.provenance.get("options") or {}

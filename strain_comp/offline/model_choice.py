@@ -1,14 +1,11 @@
-"""The model chosen by leaving runs out (``fit A B C ... --model auto``; docs/design.md).
-
-Each candidate is fitted on all runs (or groups, ``--groups``) but one, started on the one
-left out as ``strain-comp start`` does and scored over all of it; the lowest median wins, one
-within ``TIE`` losing to a simpler one (``SIMPLER``). The winner is fitted on every run with
-the table (``model_choice``), the error to expect (``expected_error``) and the uncertainty
-learned from its folds. With one run or group, ``ONE_RUN_ORDER`` decides.
+"""The model chosen by leaving runs out (``fit A B C ... --model auto``; docs/design.md): the
+lowest median RMSE after a start on each run (or group) left out, a simpler one within ``TIE``
+before it; with one run or group, ``ONE_RUN_ORDER`` decides.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -39,16 +36,11 @@ if TYPE_CHECKING:
 CANDIDATES = ("cubic", "mpi", "apl", "creep_pi")
 """The models ``--model auto`` tries unless ``--candidates`` says otherwise."""
 SIMPLER = ("cubic", "mpi", "creep_pi", "apl", "pl", "sinh_pl", "rational", "spike_decay")
-"""Simplest first: the cubic (4 numbers, no memory), mpi (rate-independent cells), creep_pi
-(linear in its parameters, one ridge), apl (rate-dependent cells, a grid search); the others
-after them (not candidates by default)."""
+"""Simplest first (a tie goes to the earlier)."""
 TIE = 0.02
 """Medians within this share of the lowest are a tie, won by the simpler model."""
 ONE_RUN_ORDER = ("apl", "mpi", "creep_pi", "cubic")
-"""``--model auto`` on one run (or one group) fits the first of these among the candidates:
-ordered by the median ratio to the best in-run bound of a model fitted on one run and used
-on another (docs/results.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
-creep_pi 3.15, cubic 3.54)."""
+"""With one run or group, the first of these among the candidates (docs/results.md, ``pair``)."""
 
 
 @dataclass(frozen=True)
@@ -82,8 +74,7 @@ def parse_candidates(text: str | Sequence[str] | None) -> tuple[str, ...]:
 
 
 def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | None:
-    """``--groups 1,1,1,2,2`` -> one label per run (a session or a mounting: a group is
-    left out whole); None for None."""
+    """``--groups 1,1,1,2,2`` -> one label per run; None for None."""
     if text is None:
         return None
     labels = [str(x).strip() for x in (text.split(",") if isinstance(text, str) else text)]
@@ -118,8 +109,7 @@ def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
 
 def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
                 options: Mapping[str, Any], pool: str) -> Scored | str:
-    """The RMSE of ``fold.model`` on each run left out, fitted on the others and started on
-    each, with the started calibrations; or why it could not be fitted."""
+    """``fold.model`` fitted on the other runs and started on each left out, or why not."""
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
@@ -163,8 +153,8 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                  options: Mapping[str, Any] | None = None, pool: str = "spanned",
                  jobs: int = 1, report: Callable[[str], None] | None = None,
                  ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
-    """The model of ``--model auto`` (module docstring), its record, and its folds started
-    on each run left out (none with one group): the pairs ``uncertainty.learn`` takes."""
+    """The model of ``--model auto``, its record, and its folds started on each run left out
+    (the pairs ``uncertainty.learn`` takes)."""
     options = dict(options or {})
     labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
     held = [tuple(i for i, g in enumerate(labels) if g == label)
@@ -213,13 +203,15 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                                  "runs": len(recordings)}}, pairs
 
 
-def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] = (),
+def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path] = (),
              options: Mapping[str, Any] | None = None, pool: str = "spanned",
              candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
              jobs: int = 1, report: Callable[[str], None] | None = None,
-             ) -> SensorCalibration:
-    """``fit --model auto`` on one sensor: ``choose_model``'s model fitted on every run, with
-    ``model_choice``, ``expected_error`` and the uncertainty learned from its folds."""
+             index: Sequence[int] | None = None) -> SensorCalibration:
+    """``choose_model``'s model fitted on every run, with its record and uncertainty;
+    ``index``: which input each run is, for ``groups`` given per input."""
+    if groups is not None and index is not None:
+        groups = [groups[i] for i in index]
     model, record, pairs = choose_model(recordings, name, candidates=candidates,
                                         groups=groups, options=options, pool=pool, jobs=jobs,
                                         report=report)
@@ -237,13 +229,5 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
 
 def auto_fitter(candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
                 jobs: int = 1) -> Fitter:
-    """``fit_auto`` as ``fit_bags``' ``fitter`` (``fit --model auto``)."""
-    def fit(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path],
-            options: Mapping[str, Any] | None, pool: str,
-            index: Sequence[int]) -> SensorCalibration:
-        return fit_auto(recordings, name=name, bags=[str(b) for b in bags], options=options,
-                        pool=pool, candidates=candidates,
-                        groups=None if groups is None else [groups[i] for i in index],
-                        jobs=jobs)
-
-    return fit
+    """``fit_auto`` as ``fit_runs``' ``fitter`` (``fit --model auto``)."""
+    return functools.partial(fit_auto, candidates=candidates, groups=groups, jobs=jobs)
