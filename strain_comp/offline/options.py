@@ -1,11 +1,5 @@
-"""The ``fit --option K=V`` options of every model, with their types and ranges.
-
-``check_fit_options(model, options)`` refuses, with one ``InputError`` line naming the
-option, an option the model has no use for (every model, ``cubic`` included) and a value
-of the wrong type or out of range, before any bag is read. The table mirrors the keyword
-arguments of each model's ``fit`` (``strain_comp.models``) and the direction-detector
-options every model takes (``strain_comp.offline.deadzone.direction_settings``). The APL grid
-sizes are capped by the kernels (``N_MAX``, ``M_MAX``); lists hold at most 100 values.
+"""The ``fit --option K=V`` options of every model, with their types and ranges: the keyword
+arguments of each model's ``fit`` and the direction-detector options every model takes.
 """
 
 from __future__ import annotations
