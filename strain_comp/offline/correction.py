@@ -63,9 +63,14 @@ MIN_CYCLE_SHARE = 0.1
 
 def steady_output(cal: SensorCalibration, r: float) -> float:
     """The calibration's output after ``SETTLE_SAMPLES`` samples at a constant ``r``."""
-    engine = Engine(Calibration({cal.name: cal}))
+    return _settled(Engine(Calibration({cal.name: cal})), cal.name, r)
+
+
+def _settled(engine: Engine, name: str, r: float) -> float:
+    """``steady_output`` of ``engine``, reset first."""
+    engine.reset()
     t = 0.1 * np.arange(SETTLE_SAMPLES)
-    return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
+    return float(engine.run(name, t, np.full(t.size, r)).strain[-1])
 
 
 def steady_curve(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
@@ -82,16 +87,14 @@ CURVES_KEPT = 64
 @functools.lru_cache(maxsize=CURVES_KEPT)
 def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
     """``steady_curve`` of its pickled key."""
-    bare, settle, points = pickle.loads(key)  # the bytes steady_curve just made
+    bare, _, points = pickle.loads(key)  # the bytes steady_curve just made
     grid = np.linspace(bare.valid_range.r_lo, bare.valid_range.r_hi, points)
     if bare.direction.sign < 0:
         grid = grid[::-1]
-    engine = Engine(Calibration({bare.name: bare}))  # reset before each: steady_output's
-    t = 0.1 * np.arange(settle)
+    engine = Engine(Calibration({bare.name: bare}))
     curve = (grid, np.empty(grid.size))
     for i, r in enumerate(grid):
-        engine.reset()
-        curve[1][i] = engine.run(bare.name, t, np.full(t.size, float(r))).strain[-1]
+        curve[1][i] = _settled(engine, bare.name, float(r))
     for values in curve:
         values.setflags(write=False)
     return curve

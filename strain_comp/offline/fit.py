@@ -24,7 +24,6 @@ from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.chain import Alternation, pair_values
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
-from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.errors import CalibrationError, FitError, InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.models import Normalisation, Segment, model_class
@@ -40,7 +39,7 @@ from strain_comp.offline.options import (
 )
 from strain_comp.offline.pool import Pooled, gate, pooled_input
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
-from strain_comp.offline.session_start import choose_space, start_or_keep
+from strain_comp.offline.session_start import choose_space
 from strain_comp.offline.training import (
     check_training_span,
     slow_sample_interval,
@@ -48,7 +47,6 @@ from strain_comp.offline.training import (
     training_segments,
     valid_range,
 )
-from strain_comp.offline.uncertainty import learn
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -123,11 +121,9 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
 
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = False
-               ) -> SensorCalibration:
-    """Fit ``model`` to one sensor's runs; ``band``: its uncertainty learned by leaving each
-    run out."""
-    options, cls, runs = dict(options or {}), model_class(model), list(recordings)
+               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
+    """Fit ``model`` to one sensor's runs, several pooled as ``pool`` says."""
+    options, cls = dict(options or {}), model_class(model)
     check_fit_options(model, options)
     pooled = pool_runs(recordings, pool, name, options)
     recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
@@ -174,24 +170,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                               "samples": sum(seg.t.size for seg in fit_segments)}}
            if factor > 1 else {}),
         **({"memory": memory} if memory else {}))
-    if band and len(runs) >= 2:
-        calibration.uncertainty = learned_band(runs, model, name, options, budget, pool)
     return calibration
-
-
-def learned_band(runs: Sequence[Recording], model: str, name: str,
-                 options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
-    """The uncertainty of ``model`` fitted on all runs but one and started on the one left out."""
-    pairs = []
-    for j, run in enumerate(runs):
-        others = [r for k, r in enumerate(runs) if k != j]
-        try:  # a fold that cannot be fitted (its runs span too little) is left out
-            fitted = Calibration({name: fit_sensor(others, model, name=name, options=options,
-                                                   budget=budget, pool=pool)})
-        except FitError:
-            continue
-        pairs.append((start_or_keep(fitted, {name: run}).calibration, {name: run}))
-    return learn(pairs).get(name)
 
 
 def _check_usable(calibration: SensorCalibration) -> None:

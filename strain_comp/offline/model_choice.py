@@ -216,7 +216,12 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str |
                                         groups=groups, options=options, pool=pool, jobs=jobs,
                                         report=report)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
-                     options=options_of(model, options or {}), pool=pool, band=not pairs)
+                     options=options_of(model, options or {}), pool=pool)
+    if not pairs and len(recordings) > 1:  # one group: the band from each run left out
+        for j in range(len(recordings)):
+            scored = fold_errors(recordings, name, Fold(model, (j,)), options or {}, pool)
+            if not isinstance(scored, str):
+                pairs.append((scored.started[0], {name: recordings[j]}))
     if pairs:
         cal.uncertainty = learn(pairs).get(name)
     expected = record.pop("expected", None)
