@@ -85,12 +85,15 @@ def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | Non
     return labels
 
 
+def _takes(model: str, key: str) -> bool:
+    """Whether ``model``'s fit takes the option ``key``."""
+    return key in model_options(model) or key in DIRECTION_OPTIONS or key in FIT_OPTIONS
+
+
 def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) -> None:
     """Every option must be one some candidate takes (each gets only its own)."""
     for key, value in options.items():
-        takers = [m for m in candidates if key in model_options(m)]
-        if key in DIRECTION_OPTIONS or key in FIT_OPTIONS:
-            takers = list(candidates)
+        takers = [m for m in candidates if _takes(m, key)]
         if not takers:
             raise InputError(f"--option {key}: no candidate model takes it "
                              f"(candidates: {', '.join(candidates)})")
@@ -99,10 +102,8 @@ def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) ->
 
 def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
     """The options ``model`` takes of ``options`` (no grid lines of an APL-family fit)."""
-    own = model_options(model)
-    out = {k: v for k, v in options.items()
-           if k in own or k in DIRECTION_OPTIONS or k in FIT_OPTIONS}
-    if "progress" in own:
+    out = {k: v for k, v in options.items() if _takes(model, k)}
+    if "progress" in model_options(model):
         out["progress"] = False
     return out
 

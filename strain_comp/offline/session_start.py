@@ -468,6 +468,8 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
     """``recalibrate --point``: the calibration through two known points on one sensor."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
+    if len(points) != 2:
+        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     out = dict(calibration.sensors)
     lines = []
     names = list(sensors or calibration.sensors)
