@@ -8,6 +8,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from strain_comp.core.chain import PAIR_BRANCHES
 from strain_comp.errors import InputError
 from strain_comp.models import MODEL_NAMES
 from strain_comp.models.apl import M_MAX, N_MAX
@@ -99,7 +100,7 @@ def model_options(model: str) -> dict[str, Check]:
 
 DIRECTION_OPTIONS: dict[str, Check] = {
     "deadzone": _number(0.0, strict=True), "k_sigma": _number(0.0, strict=True),
-    "tau": _number(0.0), "alternation": _boolean, "pair": _choice("mean", "upper", "lower"),
+    "tau": _number(0.0), "alternation": _boolean, "pair": _choice(*PAIR_BRANCHES),
 }
 """Options every model takes: the direction detector and the measurement chain."""
 
