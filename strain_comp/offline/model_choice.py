@@ -6,7 +6,7 @@ before it; with one run or group, ``ONE_RUN_ORDER`` decides.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -151,8 +151,7 @@ def _cell(model: str, folds: Sequence[Fold], results: Sequence[Scored | str],
 
 def choose_model(recordings: Sequence[Recording], name: str, *,
                  candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
-                 options: Mapping[str, Any] | None = None, pool: str = "spanned",
-                 jobs: int = 1, report: Callable[[str], None] | None = None,
+                 options: Mapping[str, Any] | None = None, pool: str = "spanned", jobs: int = 1,
                  ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
     """The model of ``--model auto``, its record, and its folds started on each run left out
     (the pairs ``uncertainty.learn`` takes)."""
@@ -175,12 +174,6 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
     else:
         results = [fold_errors(*task) for task in tasks]
     table = {model: _cell(model, folds, results, len(recordings)) for model in candidates}
-    for model, cell in table.items():
-        if report is not None:
-            report(f"{name}: {model}: " + (f"failed ({cell['failed']})" if "failed" in cell
-                                           else f"median {cell['median']:.4g}, worst "
-                                                f"{cell['worst']:.4g} over {len(recordings)} "
-                                                "runs left out"))
     scored = {m: c for m, c in table.items() if "median" in c}
     if not scored:
         reasons = "; ".join(f"{m}: {c['failed']}" for m, c in table.items())
@@ -207,15 +200,13 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
 def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path] = (),
              options: Mapping[str, Any] | None = None, pool: str = "spanned",
              candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
-             jobs: int = 1, report: Callable[[str], None] | None = None,
-             index: Sequence[int] | None = None) -> SensorCalibration:
+             jobs: int = 1, index: Sequence[int] | None = None) -> SensorCalibration:
     """``choose_model``'s model fitted on every run, with its record and uncertainty;
     ``index``: which input each run is, for ``groups`` given per input."""
     if groups is not None and index is not None:
         groups = [groups[i] for i in index]
     model, record, pairs = choose_model(recordings, name, candidates=candidates,
-                                        groups=groups, options=options, pool=pool, jobs=jobs,
-                                        report=report)
+                                        groups=groups, options=options, pool=pool, jobs=jobs)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
                      options=options_of(model, options or {}), pool=pool)
     if not pairs and len(recordings) > 1:  # one group: the band from each run left out
