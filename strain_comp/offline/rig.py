@@ -89,8 +89,8 @@ class RigEffects:
         return [f.name for f in dataclasses.fields(cls)]
 
     @classmethod
-    def parse(cls, items: Iterable[str], *, base: RigEffects | None = None) -> RigEffects:
-        """Effects from ``name=value`` strings over ``base`` (default ``RigEffects()``)."""
+    def parse(cls, items: Iterable[str]) -> RigEffects:
+        """Effects from ``name=value`` strings, the others at their defaults."""
         changes: dict[str, float] = {}
         for item in items:
             name, sep, value = item.partition("=")
@@ -102,7 +102,7 @@ class RigEffects:
                 changes[name] = float(value)
             except ValueError:
                 raise ParameterError(name, f"not a number: {value!r}") from None
-        return dataclasses.replace(base or cls(), **changes)
+        return cls(**changes)
 
     @classmethod
     def describe(cls) -> str:

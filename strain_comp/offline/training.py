@@ -85,13 +85,13 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
                            "(a unit or scale mistake?)")
 
 
-def valid_range(segments: Sequence[Segment], *, margin: float = TRAINING_WIDENING) -> ValidRange:
-    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0)."""
+def valid_range(segments: Sequence[Segment]) -> ValidRange:
+    """Training range of R and S widened by ``TRAINING_WIDENING`` (R kept > 0)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     r_lo, r_hi = float(r.min()), float(r.max())
     s_lo, s_hi = float(s.min()), float(s.max())
-    r_pad, s_pad = margin * (r_hi - r_lo), margin * (s_hi - s_lo)
+    r_pad, s_pad = TRAINING_WIDENING * (r_hi - r_lo), TRAINING_WIDENING * (s_hi - s_lo)
     return ValidRange(max(r_lo - r_pad, 0.5 * r_lo), r_hi + r_pad, s_lo - s_pad, s_hi + s_pad)
 
 
