@@ -103,17 +103,14 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
     gated, joint = gate(recordings)
     if joint is None:
         return Pooled(list(recordings), [], {"pool": "raw", **gated})
-    if len(recordings) < CHOICE_RUNS:
-        pooled = pooled_input(recordings, "joint", joint)
-        pooled.record.update(gated, chosen_by={"why": f"fewer than {CHOICE_RUNS} runs: a run "
-                                               "left out leaves no pooled fit to start"})
-        return pooled
     own = {k: v for k, v in options.items() if k in _OWN_OPTIONS}
 
     def cubic(runs: Sequence[Recording]) -> SensorCalibration:
         return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
 
-    space, measured = choose_space(recordings, cubic)
+    space, measured = (choose_space(recordings, cubic) if len(recordings) >= CHOICE_RUNS else
+                       ("joint", {"why": f"fewer than {CHOICE_RUNS} runs: a run left out "
+                                         "leaves no pooled fit to start"}))
     pooled = pooled_input(recordings, space, joint)
     pooled.record.update(gated, chosen_by=measured)
     return pooled
