@@ -184,28 +184,12 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
 
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
-    """The output, without input zero and span, along a slow (10 Hz) ramp over ``grid``."""
+    """The output, without input zero and span, along a slow (10 Hz) ramp over ``grid``, back
+    and over it again (a sensor at a session's start was last unloaded)."""
     bare = replace(cal, input=replace(cal.input, zero_span=None))
-    path = np.concatenate([grid, grid[::-1]])
+    path = np.concatenate([grid, grid[::-1], grid])
     return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
                                                      path).strain
-
-
-def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.ndarray],
-                         ) -> bool:
-    """True for a static map: a ramp up and back within ``STATIC_TOLERANCE`` of ``curve``."""
-    grid, steady = curve
-    out = ramp_output(cal, grid)
-    span = cal.valid_range.s_hi - cal.valid_range.s_lo
-    return bool(np.max(np.abs(out - np.concatenate([steady, steady[::-1]])))
-                <= STATIC_TOLERANCE * span)
-
-
-def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unloading, loading) outputs on ``grid`` of a slow ramp up, down and up again."""
-    n = grid.size
-    out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
-    return out[n:2 * n][::-1], out[2 * n:3 * n]
 
 
 def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float:
@@ -230,14 +214,17 @@ def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     curve = steady_curve(cal)
-    if follows_steady_curve(cal, curve):
+    n, out = curve[0].size, ramp_output(cal, curve[0])
+    span = cal.valid_range.s_hi - cal.valid_range.s_lo
+    if np.max(np.abs(out[:2 * n] - np.concatenate([curve[1], curve[1][::-1]]))) <= \
+            STATIC_TOLERANCE * span:  # a static map: up and back on its steady outputs
         points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                          top=float(curve[1].max()))
         try:
             return span_from_points(cal, points, curve)
         except InputError:
             return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
-    branch = branches(cal, curve[0])
+    branch = out[n:2 * n][::-1], out[2 * n:]  # (unloading, loading)
     points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                      top=float(branch[1].max()))
     try:
