@@ -7,8 +7,8 @@ same choice followed by a fit that learns its band by fitting the chosen model's
 Training runs: four rig scenarios (``rates``, ``triangle``, ``patterns``, ``random``,
 seed 0, ``--seconds`` each), sensor s1. ``fit_auto`` learns the band from the chosen
 model's folds as the choice started them; the baseline is what it ran before:
-``choose_model`` then ``fit_sensor(..., band=True)`` (``fit.learned_band``: every fold of
-the chosen model fitted and started again). Every model is fitted once first (numba
+``choose_model`` then ``fit_auto`` of the chosen model on one group (every fold of the
+chosen model fitted and started again). Every model is fitted once first (numba
 compiled), both variants run alternately, best of ``--repeat``; the two bands are
 compared weight for weight.
 """
@@ -52,8 +52,8 @@ def main() -> None:
 
     def before() -> object:
         model, _, _ = choose_model(recordings, "s1", candidates=candidates)
-        return fit_sensor(recordings, model, name="s1", options=options_of(model, {}),
-                          band=True).uncertainty
+        return fit_auto(recordings, name="s1", candidates=(model,),
+                        groups=["1"] * len(recordings)).uncertainty
 
     def after() -> object:
         return fit_auto(recordings, name="s1", candidates=candidates).uncertainty

@@ -191,7 +191,7 @@ def _gil_free_share(segments: list[Segment], norm: Normalisation, serial: float)
     from strain_comp.models import apl_kernels as kern
     from strain_comp.models.apl_fit import P_GRID, _FitProblem
 
-    problem = _FitProblem(APL, segments, norm, n=11, m=9, eps=1e-3, ridge=1e-6,
+    problem = _FitProblem(APL.name, APL.kind, segments, norm, n=11, m=9, eps=1e-3, ridge=1e-6,
                           cell_weights="signed", search_nfev=0)
     start = time.perf_counter()
     for sigma in problem.default_sigma_grid():

@@ -73,16 +73,14 @@ class Lag(Compensator):
         self.x = math.nan
         self.t_last = math.nan
 
-    def step(self, t: float, r: float) -> float:
-        if math.isnan(self.x):
-            self.x = r
-        else:
-            self.x += (1.0 - math.exp(-(t - self.t_last) / self.tau)) * (r - self.x)
-        self.t_last = t
-        return 0.5 * (self.x - R_LO)
-
-    def run(self, t: Any, r: Any) -> np.ndarray:
-        return np.array([self.step(ti, ri) for ti, ri in zip(t, r, strict=True)])
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        for i in range(t.size):
+            if math.isnan(self.x):
+                self.x = r[i]
+            else:
+                self.x += (1.0 - math.exp(-(t[i] - self.t_last) / self.tau)) * (r[i] - self.x)
+            self.t_last = t[i]
+            out[i] = 0.5 * (self.x - R_LO)
 
     def to_params(self) -> dict[str, Any]:
         return {"tau": self.tau}

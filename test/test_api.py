@@ -83,7 +83,7 @@ def test_fit_gives_the_commands_calibration(tmp_path: Path) -> None:
     runs = [sc.read_recordings(b)["s1"] for b in TRAIN]
     from_arrays = sc.fit(runs, "cubic").sensors["s1"]
     assert from_arrays.params == by_api.params
-    assert from_arrays.provenance["bags"] == ["(arrays: s1)"]
+    assert from_arrays.provenance["bags"] == ["(arrays: s1, run 1)", "(arrays: s1, run 2)"]
 
 
 def test_fit_options_and_unit(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ from strain_comp.api.inputs import Data, PathLike, as_recordings, checked, paths
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
-from strain_comp.offline.fit import Fitter, fit_bags, fit_sensor
+from strain_comp.offline.fit import Fitter, Run, fit_bags, fit_runs
 from strain_comp.offline.model_choice import (
     auto_fitter,
     check_auto_options,
@@ -84,12 +84,11 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     auto = _auto(data, candidates, groups, jobs, options) if model == "auto" else None
     if auto is None:
         check_fit_options(model, options)
-    if not unit_ok(strain_unit):
-        raise InputError(f"strain unit {strain_unit!r}: expected a unit such as % or mm "
-                         "(1-16 letters, digits, %, / or .)")
-    if not unit_ok(input_unit):
-        raise InputError(f"input unit {input_unit!r}: expected a unit such as ohm or R/R0 "
-                         "(1-16 letters, digits, %, / or .)")
+    for unit, what, example in ((strain_unit, "strain unit", "% or mm"),
+                                (input_unit, "input unit", "ohm or R/R0")):
+        if not unit_ok(unit):
+            raise InputError(f"{what} {unit!r}: expected a unit such as {example} "
+                             "(1-16 letters, digits, %, / or .)")
 
     grid = auto is None and "progress" in model_options(model) and "progress" not in options
     with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
@@ -154,32 +153,15 @@ def _auto(data: Data | Sequence[PathLike], candidates: Sequence[str] | str | Non
 def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | None,
          report: Callable[[str], None] | None, options: Mapping[str, Any],
          pool: str = "spanned", auto: Fitter | None = None) -> Calibration:
-    """``api.fit``'s fit: ``fit_bags`` on paths, else ``fit_sensor`` (or ``auto``) per
-    sensor of the runs."""
+    """``api.fit``'s fit: ``fit_bags`` on paths, else ``fit_runs`` on the runs given."""
     paths = paths_of(data)
     if paths is not None:
         return fit_bags(paths, model, sensors, options, report=report, pool=pool,
                         fitter=auto)
     runs = [data] if isinstance(data, (Recording, Mapping)) else list(data)  # type: ignore[arg-type]
-    by_sensor: dict[str, list[Recording]] = {}
-    index: dict[str, list[int]] = {}
+    by_sensor: dict[str, list[Run]] = {}
     for i, run in enumerate(runs):
         for name, rec in as_recordings(run).items():
-            by_sensor.setdefault(name, []).append(rec)
-            index.setdefault(name, []).append(i)
-    names = list(sensors) if sensors and "all" not in sensors else \
-        [n for n, recs in by_sensor.items() if any(r.s is not None for r in recs)]
-    if not names:
-        raise InputError("no recording with a reference strain to fit to")
-    fitted: dict[str, SensorCalibration] = {}
-    for name in names:
-        if name not in by_sensor:
-            raise InputError(f"sensor {name!r} is not in the recordings "
-                             f"(sensors found: {', '.join(by_sensor)})")
-        bags = [f"(arrays: {name}, run {i + 1})" for i in index[name]]
-        fitted[name] = (fit_sensor(by_sensor[name], model, name=name,
-                                   bags=[f"(arrays: {name})"], options=options, pool=pool)
-                        if auto is None else
-                        auto(by_sensor[name], name=name, bags=bags, options=options,
-                             pool=pool, index=index[name]))
-    return Calibration(fitted)
+            by_sensor.setdefault(name, []).append((f"(arrays: {name}, run {i + 1})", i, rec))
+    return fit_runs(by_sensor, model, sensors, options, where="the recordings",
+                    report=report, pool=pool, fitter=auto)

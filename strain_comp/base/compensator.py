@@ -78,7 +78,8 @@ class Segment:
 
 
 class Compensator(ABC):
-    """Base class of the eight inverse models."""
+    """Base class of the eight inverse models. ``step`` runs the array path (``_run_into``)
+    on a one-sample view, so both paths share every floating-point operation."""
 
     name: ClassVar[str]
     """Model name as written in calibration files and on the command line."""
@@ -89,18 +90,31 @@ class Compensator(ABC):
     def __init__(self, normalisation: Normalisation) -> None:
         """A model mapping through ``normalisation``."""
         self.normalisation = normalisation
+        self._t1 = np.zeros(1)
+        self._r1 = np.zeros(1)
+        self._o1 = np.zeros(1)
 
     @abstractmethod
     def reset(self) -> None:
         """Restore the initial state (as after construction)."""
 
     @abstractmethod
+    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+        """Advance over contiguous float64 arrays of good samples, strain % into ``out``."""
+
     def step(self, t: float, r: float) -> float:
         """Advance by one good sample."""
+        self._t1[0] = t
+        self._r1[0] = r
+        self._run_into(self._t1, self._r1, self._o1)
+        return float(self._o1[0])
 
-    @abstractmethod
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
         """Advance over arrays of good samples from the current state."""
+        t, r = as_float_arrays(t, r)
+        out = np.empty(t.size)
+        self._run_into(t, r, out)
+        return out
 
     @abstractmethod
     def to_params(self) -> dict[str, Any]:
@@ -123,33 +137,6 @@ class Compensator(ABC):
         """Fit the model to training segments."""
 
 
-class KernelCompensator(Compensator):
-    """A compensator whose ``step`` runs its array path (``_run_into``) on a one-sample view,
-    so both paths share every floating-point operation."""
-
-    def __init__(self, normalisation: Normalisation) -> None:
-        super().__init__(normalisation)
-        self._t1 = np.zeros(1)
-        self._r1 = np.zeros(1)
-        self._o1 = np.zeros(1)
-
-    @abstractmethod
-    def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
-        """Advance over contiguous float64 arrays of good samples, strain % into ``out``."""
-
-    def step(self, t: float, r: float) -> float:
-        self._t1[0] = t
-        self._r1[0] = r
-        self._run_into(self._t1, self._r1, self._o1)
-        return float(self._o1[0])
-
-    def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
-        t, r = as_float_arrays(t, r)
-        out = np.empty(t.size)
-        self._run_into(t, r, out)
-        return out
-
-
 def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = None,
                   hi: float | None = None, strict: bool = False) -> float:
     """Read ``params[key]`` as a finite float within [lo, hi]."""
@@ -168,8 +155,8 @@ def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = Non
     return value
 
 
-def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None,
-                   min_length: int = 1) -> np.ndarray:
+def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None
+                   ) -> np.ndarray:
     """Read ``params[key]`` as a list of finite floats."""
     if key not in params:
         raise ParameterError(key, "missing")
@@ -184,8 +171,8 @@ def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = 
         raise ParameterError(key, "must hold finite numbers only")
     if length is not None and array.size != length:
         raise ParameterError(key, f"must have {length} entries, got {array.size}")
-    if array.size < min_length:
-        raise ParameterError(key, f"must have at least {min_length} entries, got {array.size}")
+    if array.size == 0:
+        raise ParameterError(key, "must have at least 1 entries, got 0")
     return array
 
 

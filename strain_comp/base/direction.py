@@ -45,11 +45,6 @@ class DirectionSettings:
                 "sign": self.sign}
 
 
-def new_state() -> np.ndarray:
-    """A fresh detector state vector."""
-    return np.zeros(STATE_SIZE, dtype=np.float64)
-
-
 @njit
 def direction_update(state: np.ndarray, t: float, r: float, deadzone: float,
                      tau: float) -> int:
@@ -103,21 +98,16 @@ def _filtered_derivative(t: np.ndarray, r: np.ndarray, tau: float) -> np.ndarray
 
 
 class DirectionDetector:
-    """Streaming dead-zone direction detector; ``step`` and ``run`` share one kernel."""
+    """Streaming dead-zone direction detector (``direction_update`` over arrays)."""
 
     def __init__(self, settings: DirectionSettings) -> None:
         """A detector that has seen nothing."""
         self.settings = settings
-        self.state = new_state()
+        self.state = np.zeros(STATE_SIZE)
 
     def reset(self) -> None:
         """Forget everything seen (the next sample primes the detector again)."""
         self.state[:] = 0.0
-
-    def step(self, t: float, r: float) -> int:
-        """Advance by one sample."""
-        return int(direction_update(self.state, float(t), float(r), self.settings.deadzone,
-                                    self.settings.tau))
 
     def run(self, t: npt.ArrayLike, r: npt.ArrayLike) -> np.ndarray:
         """Advance over whole arrays, continuing from the current state."""

@@ -42,15 +42,6 @@ def array_step(t: float, r: np.ndarray, out: np.ndarray, state: tuple[np.ndarray
         out[s] = kernel(s, t, ri, *arrays)
 
 
-def tick_arrays(r: npt.ArrayLike, k: int, out: np.ndarray | None
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """The resistances of one array tick as a contiguous float64 vector."""
-    r = np.ascontiguousarray(r, dtype=np.float64)
-    if r.shape != (k,):
-        raise ValueError(f"r must have shape ({k},), got {r.shape}")
-    return r, np.empty(k) if out is None else out
-
-
 class LiftedArray(ABC):
     """K sensors of one family stepped together through the family's lifted kernel."""
 
@@ -86,7 +77,11 @@ class LiftedArray(ABC):
 
     def step(self, t: float, r: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
         """Advance all sensors by one tick at time t [s]; strain % per sensor."""
-        r, out = tick_arrays(r, len(self.models), out)
+        k = len(self.models)
+        r = np.ascontiguousarray(r, dtype=np.float64)
+        if r.shape != (k,):
+            raise ValueError(f"r must have shape ({k},), got {r.shape}")
+        out = np.empty(k) if out is None else out
         type(self).array_step(float(t), r, out, self.state, self.params)
         return out
 

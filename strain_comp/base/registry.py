@@ -1,7 +1,5 @@
-"""The model registry: name -> compensator class (``register``), and the array forms
-(``register_array``); the families register themselves when ``strain_comp.models`` is
-imported.
-"""
+"""The model registry: name -> compensator class (``register``) and the array forms
+(``register_array``), filled when ``strain_comp.models`` is imported."""
 
 from __future__ import annotations
 

@@ -68,7 +68,8 @@ USED: Final = frozenset(s for s, (used, _) in STATUS_RULES.items() if used)
 """The statuses of samples fed to the model (all others are bad: estimate held)."""
 USED_CODE: Final[npt.NDArray[np.bool_]] = np.array(
     [STATUS_RULES[Status(c)][0] for c in range(len(Status))], dtype=np.bool_)
-"""``USED`` as a lookup table by status code (for arrays and kernels)."""
+"""``USED`` as a lookup table by status code (for arrays and numba kernels, which read it
+as a constant)."""
 
 
 @njit
@@ -97,16 +98,6 @@ def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: flo
 
 
 @njit
-def is_used(code: int) -> bool:
-    """Whether a sample with this status is fed to the model (``USED``)."""
-    return code == GOOD or code == GAP_RESET or code == OUT_OF_RANGE
-
-
-if {Status(c) for c in range(len(Status)) if is_used.py_func(c)} != USED:
-    raise AssertionError("is_used must agree with STATUS_RULES")
-
-
-@njit
 def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: float,
                r_short: float, r_open: float, r_lo: float, r_hi: float,
                gap: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -119,16 +110,15 @@ def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: fl
                                r_lo, r_hi, gap)
         status[i] = code
         reset[i] = rst
-        if is_used(code):
+        if USED_CODE[code]:
             last_good_t = t[i]
     return status, reset, last_good_t
 
 
 def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *,
              gap: float = DEFAULT_GAP_RESET) -> np.ndarray:
-    """Status of every sample (int8 ``Status`` codes), judged in order by ``screen_one``
-    with no resistance range (what the fit can know): GOOD, NOT_FINITE, NON_POSITIVE,
-    TIME_NOT_INCREASING or GAP_RESET."""
+    """Status of every sample (int8 codes) by ``screen_one`` with no resistance range (what
+    the fit can know)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
     forced = np.zeros(t.shape, dtype=np.int8)

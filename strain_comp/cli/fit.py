@@ -97,16 +97,12 @@ def run(args: argparse.Namespace) -> int:
         check_distinct((args.out, args.report))
         output(args.report, args.bags)
     from strain_comp import api
-    from strain_comp.core.calibration import strain_unit_words, unit_ok
+    from strain_comp.core.calibration import strain_unit_words
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.fit import memoryless_note, parse_options
     from strain_comp.progress import wanted
 
     options = parse_options(args.option or [])  # checked by api.fit before any bag is read
-    for flag, unit in (("--strain-unit", args.strain_unit), ("--input-unit", args.input_unit)):
-        if not unit_ok(unit):
-            raise InputError(f"{flag} {unit!r}: expected a unit such as % or mm for strain, "
-                             "ohm or R/R0 for the input (1-16 letters, digits, %, / or .)")
     notes: list[str] = []  # damage the reader skipped: noted once, in the error if any
     try:
         calibration = api.fit(args.bags, args.model, sensors=args.sensor,

@@ -64,8 +64,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("recalibrate --first needs --from BAG.mcap")
     if args.window is not None and source is None:
         raise InputError("recalibrate --window needs --from BAG.mcap")
-    if args.window is not None and args.first is not None:
-        raise InputError("recalibrate: give --first or --window, not both")
     window = None if args.window is None else parse_window(args.window)
     new, lines = api.recalibrate(calibration, source, points=points, sensors=args.sensor,
                                  tare=args.tare, form="input" if args.input else "output",

@@ -14,6 +14,7 @@ import numpy as np
 
 from strain_comp._numba import njit, specialise
 from strain_comp.base import samples as sc
+from strain_comp.base.conversion import divider_ohm
 from strain_comp.base.direction import STATE_SIZE, direction_update
 from strain_comp.base.lift import LiftedArray, kernel
 from strain_comp.base.registry import array_families
@@ -21,7 +22,7 @@ from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
 from strain_comp.core.outputs import ArrayOutput
 from strain_comp.core.sensor import Latest, SensorState, run_together
-from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, divider_ohm, model_read
+from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, model_read
 from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_run
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
@@ -42,9 +43,8 @@ _LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS, _STD = range(5)
 def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
                  counts: np.ndarray, det: np.ndarray, gap: float, model_out: np.ndarray,
                  status: np.ndarray, reset: np.ndarray) -> tuple[float, bool]:
-    """The stages before the model for sensor ``k`` of a tick: input fix, tare gain, screen,
-    counts. A sample not used gets NaN in ``model_out[k]``. On a gap reset the detector
-    restarts and the gap is counted; the caller zeroes the model's state rows (``reset[k]``)."""
+    """The stages before the model for sensor ``k`` of a tick (input fix, gain, screen,
+    counts, a gap reset's detector restart): (resistance, used)."""
     ri, forced = raw[k], sc.GOOD
     if par[k, _VIN] > 0.0:  # voltage divider
         ri, forced = divider_ohm(ri, par[k, _R1], par[k, _VIN])
@@ -55,7 +55,7 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
     reset[k] = rst
     counts[k, code] += 1
     held[k, _LAST_STATUS] = code
-    if not sc.is_used(code):
+    if not USED_CODE[code]:
         model_out[k] = np.nan
         return ohm, False
     if rst:
@@ -68,9 +68,8 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
 def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
                 held: np.ndarray, det: np.ndarray, model_out: np.ndarray, band: np.ndarray,
                 x: np.ndarray) -> None:
-    """The stages after the model for a used sample of sensor ``k``: the unclamped estimate
-    into ``model_out[k]`` (for the effect terms), the detector, the range bound, the
-    standard deviation where the sensor has an uncertainty, and the hold (``held[k]``)."""
+    """The stages after the model for a used sample of sensor ``k``: detector, range,
+    standard deviation and hold; the unclamped estimate into ``model_out[k]``."""
     model_out[k] = estimate
     held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                            par[k, _TAU]) * par[k, _SIGN]
@@ -87,11 +86,8 @@ def family_tick(t: np.ndarray, idx: np.ndarray, raw: np.ndarray, par: np.ndarray
                 model_out: np.ndarray, status: np.ndarray, reset: np.ndarray,
                 band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
                 params: tuple[Any, ...], out: np.ndarray, out_status: np.ndarray) -> None:
-    """Template: ticks ``t`` (rows of ``raw``) of the array's sensors of one family, around
-    the family's kernel (``strain_comp.base.lift``); after each, the held strain,
-    direction and standard deviation of these sensors into ``out[i, :, k]`` and their
-    status into ``out_status[i, k]``. A gap reset zeroes the sensor's state rows (a sensor
-    at rest)."""
+    """Template: ticks ``t`` of one family's sensors around its kernel; held strain,
+    direction and std into ``out[i, :, k]``, status into ``out_status[i, k]``."""
     arrays = state + params
     for i in range(t.size):
         for j in range(idx.size):

@@ -325,9 +325,10 @@ def _parse_yaml(reader: _Reader, text: str) -> Any:
         raise reader.fail(where, f"not valid YAML: {problem}") from None
 
 
-def _read_text(reader: _Reader, path: str | os.PathLike[str]) -> str:
-    """The file's text: a regular file (never a FIFO: checked before opening) of at most
-    MAX_FILE_BYTES, UTF-8."""
+def read_text(path: str | os.PathLike[str]) -> str:
+    """The text of the calibration file ``path``: a regular file (never a FIFO: checked
+    before opening) of at most MAX_FILE_BYTES, UTF-8."""
+    reader = _Reader(str(path))
     try:
         info = os.stat(path)
         if not stat.S_ISREG(info.st_mode):
@@ -343,26 +344,19 @@ def _read_text(reader: _Reader, path: str | os.PathLike[str]) -> str:
         raise reader.fail("file", f"cannot read: {err}") from None
 
 
-def read_text(path: str | os.PathLike[str]) -> str:
-    """The text of the calibration file ``path`` within the limits."""
-    return _read_text(_Reader(str(path)), path)
-
-
 def parse_fields(text: str, path: str) -> Calibration:
     """Validate the text of a calibration file without running a model. The cyclic garbage
     collector is paused meanwhile (a large array's many small objects, no cycles)."""
     collecting = gc.isenabled()
     gc.disable()
     try:
-        return _parse_fields(text, path)
+        return _parse_fields(text, _Reader(path))
     finally:
         if collecting:
             gc.enable()
 
 
-def _parse_fields(text: str, path: str) -> Calibration:
-    """``parse_fields`` with the collector as it is."""
-    reader = _Reader(path)
+def _parse_fields(text: str, reader: _Reader) -> Calibration:
     root = _parse_yaml(reader, text)
     root = reader.mapping(root, "(top level)")
     fmt = reader.child(root, "format", "")

@@ -79,12 +79,6 @@ def alternation(r: npt.ArrayLike) -> Alternation:
     return Alternation(amplitude, noise, agreement, z)
 
 
-def pair_means(r: np.ndarray, previous: float = math.nan) -> np.ndarray:
-    """(R[i] + R[i-1]) / 2, the first one with ``previous`` (itself when NaN)."""
-    before = np.concatenate(([previous], r[:-1])) if r.size else r
-    return np.where(np.isfinite(before), 0.5 * (r + before), r)
-
-
 PAIR_BRANCHES = ("mean", "upper", "lower")
 """The pair statistics an alternating input can be read through (``pair_values``)."""
 
@@ -93,9 +87,9 @@ def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: 
                 ) -> np.ndarray:
     """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
     first one with ``previous`` (itself when NaN)."""
-    if branch == "mean":
-        return pair_means(r, previous)
     before = np.concatenate(([previous], r[:-1])) if r.size else r
+    if branch == "mean":
+        return np.where(np.isfinite(before), 0.5 * (r + before), r)
     # fmax/fmin: a NaN previous is skipped
     return np.fmax(r, before) if branch == "upper" else np.fmin(r, before)
 
@@ -213,9 +207,8 @@ class ChainCorrector:
 def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
             step_k: float = 0.0, alternating: bool | None = None, pair: str = "mean",
             ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
-    """A whole run through a fresh ``ChainCorrector`` as the engine feeds its models (after
-    the pair statistic when the excitation alternates; None: found from the data): (what
-    the models see, event codes, the corrector), NaN where bad."""
+    """A whole run through a fresh ``ChainCorrector`` as the engine feeds its models
+    (``alternating`` None: found from the data): (what the models see, events, corrector)."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)

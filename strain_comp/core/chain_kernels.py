@@ -80,10 +80,8 @@ def _slope(values: np.ndarray) -> float:
 @njit(error_model="numpy")
 def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: int
                 ) -> tuple[float, float]:
-    """(jump, slope) of a least-squares fit of one line with a jump to the samples before
-    a jump (``pre``, a ring of ``npre`` values ending before ``ppos``) and after it
-    (``post``, starting ``gap`` samples after the last ``pre`` one); (0, 0) if the ring is
-    not full."""
+    """(jump, slope) of one line with a jump fitted to the ring ``pre`` before it and
+    ``post``, ``gap`` samples later; (0, 0) while the ring is not full."""
     if npre < pre.size:
         return 0.0, 0.0
     a = np.zeros((3, 3))

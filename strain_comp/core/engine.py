@@ -1,7 +1,5 @@
-"""The transport-free engine: calibrated strain, direction and health of every sensor.
-
-Replay, evaluate and the node feed the same ``Engine``; ``step`` is ``run`` on a batch of
-one, so there is one per-sample path (docs/models.md).
+"""The transport-free engine: calibrated strain, direction and health of every sensor; replay,
+evaluate and the node feed it, and ``step`` is ``run`` on a batch of one (docs/models.md).
 """
 
 from __future__ import annotations
@@ -154,7 +152,9 @@ class Engine:
     def base_strain(self, name: str) -> float:
         """A sensor's latest clamped strain before its effect terms."""
         other = self._sensors.get(name)
-        return math.nan if other is None else other.latest_base()
+        if other is None:
+            return math.nan
+        return other.base if other.cal.effects else other.strain
 
     def step(self, sensor: str, t: float, r: float, temperature: float = math.nan) -> SensorOutput:
         """One sample of one sensor: ``run`` on a batch of one."""

@@ -1,21 +1,6 @@
-"""Sparse references fused online: the output gain and offset, estimated causally.
-
-Each reference y at time t, beside the engine's estimate s_hat there, observes the output
-map, whose gain g and offset b walk slowly (docs/design.md, "Known strains"):
-
-    y = g s_hat + b + v,  v ~ N(0, R);   theta = (g, b),  theta_k = theta_{k-1} + w_k,
-    w_k ~ N(0, Q dt_k),  Q = diag(q_g^2, q_b^2)                                   (1, 2)
-
-estimated by the Kalman filter (Ljung, *System Identification*, 1999, ch. 11), h = (s_hat, 1):
-
-    P^- = P + Q dt,  e = y - h theta,  S = h P^- h' + R,
-    K = P^- h' / S,  theta <- theta + K e,  P <- (I - K h) P^-                      (3)
-
-The state is the sensor's own output map (``strain_comp.core.correction``), started from the
-calibration's (a_0, b_0), the prior and walk taken through T = [[a_0, 0], [b_0, 1]]. A random
-walk, not RLS with forgetting: references often at rest excite only b, and forgetting winds
-up the gain's covariance. A reference beyond ``GATE`` innovation sds is refused (Bar-Shalom
-et al. 2001), as are non-finite ones and times going back; each refusal is counted.
+"""Sparse references fused online: the output gain and offset, estimated causally by a
+Kalman filter on a random walk; the model and equations (1)-(3): docs/models.md, "Fusion of
+known strains".
 """
 
 from __future__ import annotations
@@ -73,7 +58,7 @@ class FusionSettings:
 @dataclass
 class OutputFusion:
     """The Kalman filter (3) on one sensor's output gain and offset (from ``start``, the
-    calibration's: module docstring)."""
+    calibration's)."""
 
     settings: FusionSettings
     start: tuple[float, float] = (1.0, 0.0)
@@ -85,8 +70,6 @@ class OutputFusion:
     refused: Counter[str] = field(default_factory=Counter)
     last_reference_t: float | None = None
     """Time of the latest reference used or refused for its value [s]."""
-    last_innovation: float = math.nan
-    """Reference minus fused estimate of the latest reference judged."""
 
     def __post_init__(self) -> None:
         if math.isnan(self.gain):
@@ -116,11 +99,6 @@ class OutputFusion:
         g = self.gain / a0
         return g, self.offset - g * b0
 
-    def before_map(self, estimate: float) -> float:
-        """The engine's estimate before the calibration's output map (``start``)."""
-        a0, b0 = self.start
-        return (estimate - b0) / a0
-
     @property
     def n_refused(self) -> int:
         return sum(self.refused.values())
@@ -131,9 +109,8 @@ class OutputFusion:
         return g * estimate + b
 
     def update(self, t: float, estimate: float, reference: Any) -> str | None:
-        """Fuse the reference ``reference`` known at time ``t`` [s] beside the engine's
-        estimate ``estimate`` at ``t``; None when used, else the reason it was refused
-        (counted; the state is unchanged)."""
+        """Fuse ``reference`` at ``t`` [s] beside the engine's ``estimate``; None when used,
+        else the reason it was refused (counted; the state unchanged)."""
         reason = self._screen(t, estimate, reference)
         if reason is not None:
             self.refused[reason] += 1
@@ -142,12 +119,12 @@ class OutputFusion:
         dt = 0.0 if self.last_reference_t is None else t - self.last_reference_t
         p = self.covariance + self._coordinates(np.diag([s.gain_walk ** 2,
                                                          s.offset_walk ** 2])) * dt
-        estimate = self.before_map(estimate)
+        a0, b0 = self.start
+        estimate = (estimate - b0) / a0  # before the calibration's output map
         h = np.array([estimate, 1.0])
         innovation = float(reference) - (self.gain * estimate + self.offset)
         var = float(h @ p @ h) + s.noise_sd ** 2
         self.last_reference_t = t
-        self.last_innovation = innovation
         if abs(innovation) > s.gate * math.sqrt(var):
             reason = (f"beyond the gate ({s.gate:g} sd): innovation {innovation:.4g} against "
                       f"sd {math.sqrt(var):.4g}")
@@ -183,9 +160,7 @@ class OutputFusion:
         return None
 
     def state(self) -> dict[str, Any]:
-        """What /diagnostics and the JSON show: gain, offset, their standard deviations and
-        covariance, references used and refused (by reason), the latest reference's
-        time."""
+        """What /diagnostics and the JSON show of the filter."""
         return {"gain": self.gain, "offset": self.offset,
                 "gain_sd": math.sqrt(max(float(self.covariance[0, 0]), 0.0)),
                 "offset_sd": math.sqrt(max(float(self.covariance[1, 1]), 0.0)),
@@ -210,11 +185,8 @@ class OutputFusion:
 
 @dataclass
 class SparseFusion:
-    """One sensor's run fused with its own reference every ``every`` seconds, streamed in
-    consecutive pieces (``run``): the reference of the eligible sample nearest each
-    multiple of ``every`` after the run's first sample (eligible: ``fuse``; none farther
-    than ``every`` / 2 from the multiple),
-    fused at that sample's time and applied to the samples after it."""
+    """One sensor's run, streamed in pieces (``run``), fused with the reference of the
+    eligible sample nearest each multiple of ``every`` s (none beyond ``every`` / 2)."""
 
     fusion: OutputFusion
     every: float
@@ -288,10 +260,8 @@ class SparseFusion:
         return cls(OutputFusion.for_calibration(cal), check_every(every), record=record)
 
     def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
-        """``out`` (the engine's, for samples ``t``) with its strain fused (``run``); the
-        eligible samples: used, within the calibrated range (beyond it the estimate is
-        held or extended, not a gain of the strain), with a finite reference and
-        estimate."""
+        """``out`` with its strain fused; eligible: used samples within the calibrated range
+        (beyond it the estimate is held or extended, not a gain of the strain)."""
         strain = np.asarray(out.strain, dtype=np.float64)
         reference = np.asarray(reference, dtype=np.float64)
         eligible = (used_mask(out.status) & ~np.asarray(out.out_of_range, bool)
@@ -300,9 +270,8 @@ class SparseFusion:
 
 
 def check_every(every: float, t: npt.ArrayLike | None = None) -> float:
-    """``every`` if it is a spacing of references (finite, > 0 s) and, given a run's first
-    time stamps ``t``, not below its sampling interval (the median step): a reference per
-    sample at most, so the fusion's steps are bounded by the samples. InputError otherwise."""
+    """``every`` if it is finite, > 0 s and not below the sampling interval of ``t`` (a
+    reference per sample at most); InputError otherwise."""
     if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
         raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
     steps = np.diff(np.asarray(t if t is not None else [], dtype=np.float64))

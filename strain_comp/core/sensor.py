@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from strain_comp.base import samples as sc
 from strain_comp.base.compensator import Compensator
-from strain_comp.base.conversion import resistance_to_divider
+from strain_comp.base.conversion import divider_all, resistance_to_divider
 from strain_comp.base.direction import DirectionDetector, DirectionSettings
 from strain_comp.core import uncertainty
 from strain_comp.core.calibration import SensorCalibration
@@ -27,7 +27,6 @@ from strain_comp.core.outputs import BatchOutput
 from strain_comp.core.range_policy import SensorRange
 from strain_comp.core.stages import (
     bound_all,
-    divider_all,
     hold,
     range_status,
     saturate_all,
@@ -117,10 +116,8 @@ class SensorState:
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
-        """What the models see of used samples ``ohm``: the pair statistic when the input
-        alternates, then the corrector when set; ``previous``: the used sample before them
-        (NaN after a reset, which restarts the corrector). With the corrector's event per
-        sample, None without a corrector."""
+        """(what the models see of used samples ``ohm``, the corrector's events or None);
+        ``previous``: the used sample before them (NaN after a reset: restart)."""
         if not self.cal.input.filtered or not ohm.size:
             return ohm, None
         self.previous = float(ohm[-1])
@@ -139,11 +136,11 @@ class SensorState:
     def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(resistance [ohm] x the tare gain, through the input map of the correction,
         forced status) from the raw input values (the input-fix stage over a batch)."""
-        if self.cal.input.kind != "divider":
+        if self.cal.input.kind == "divider":
+            raw, forced = divider_all(raw, *self.cal.input.divider())
+        else:
             forced = np.zeros(raw.shape, dtype=np.int8)
-            return self.correction.apply_input(raw, self.gain), forced
-        ohm, forced = divider_all(raw, *self.cal.input.divider())
-        return self.correction.apply_input(ohm, self.gain), forced
+        return self.correction.apply_input(raw, self.gain), forced
 
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
@@ -172,10 +169,6 @@ class SensorState:
         out: np.ndarray = self.correction.apply_output(np.where(np.isnan(corrected), base,
                                                                  corrected))
         return out
-
-    def latest_base(self) -> float:
-        """The latest clamped strain before the effect terms (NaN before any)."""
-        return self.base if self.cal.effects else self.strain
 
     def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:

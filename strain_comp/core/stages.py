@@ -1,6 +1,7 @@
-"""The per-sample stages every path runs (input fix, screen, model read, range, hold): one
-scalar kernel each, called per sensor by the array tick and lifted over a batch for
-``Engine.run`` (docs/models.md, "The engine's per-sample path").
+"""The per-sample stages every path runs (screen, model read, range, hold; the input fix is
+``base.conversion.divider_ohm``): one scalar kernel each, called per sensor by the array
+tick and lifted over a batch for ``Engine.run`` (docs/models.md, "The engine's per-sample
+path").
 """
 
 from __future__ import annotations
@@ -24,27 +25,6 @@ R_LO, R_HI, S_LO, S_HI, SLOPE_LO, SLOPE_HI, REACH_LO, REACH_HI, SATURATE = \
 def clamp(value: float, lo: float, hi: float) -> float:
     """``np.clip`` of one value (NaN stays NaN)."""
     return value if value != value else min(max(value, lo), hi)
-
-
-@njit(error_model="numpy")
-def divider_ohm(v: float, r1: float, vin: float) -> tuple[float, int]:
-    """Input fix of a divider reading, R = R1 (Vin - V_R1) / V_R1 ([Electrolycra] section
-    II.A)."""
-    if v <= 0.0:
-        return np.nan, sc.OPEN_CIRCUIT
-    if v >= vin:
-        return np.nan, sc.SHORT_CIRCUIT
-    return r1 * (vin - v) / v, sc.GOOD
-
-
-@njit
-def divider_all(v: np.ndarray, r1: float, vin: float) -> tuple[np.ndarray, np.ndarray]:
-    """``divider_ohm`` over a batch."""
-    ohm = np.empty(v.size)
-    forced = np.empty(v.size, np.int8)
-    for i in range(v.size):
-        ohm[i], forced[i] = divider_ohm(v[i], r1, vin)
-    return ohm, forced
 
 
 @njit
@@ -97,7 +77,7 @@ def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t
     m = 0
     n_starts = 0
     for i in range(t.size):
-        if sc.is_used(status[i]):
+        if sc.USED_CODE[status[i]]:
             if reset[i]:
                 starts[n_starts] = m
                 n_starts += 1

@@ -15,7 +15,7 @@ import numpy.typing as npt
 from threadpoolctl import threadpool_limits
 
 from strain_comp.base.compensator import (
-    KernelCompensator,
+    Compensator,
     Normalisation,
     Segment,
     require_float,
@@ -23,10 +23,10 @@ from strain_comp.base.compensator import (
 )
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.base.registry import register
-from strain_comp.errors import FitError, ParameterError
+from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
-from strain_comp.models.apl_fit import CELL_WEIGHTS, CellFamily, fit_cells
+from strain_comp.models.apl_fit import fit_cells
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 
 N_MAX = 200
@@ -53,14 +53,7 @@ def _require_int(params: Mapping[str, Any], key: str, lo: int, hi: int) -> int:
     return int(value)
 
 
-def _check_shape(n: int, m: int) -> None:
-    if not 1 <= n <= N_MAX:
-        raise ParameterError("N", f"must be in [1, {N_MAX}], got {n}")
-    if not (1 <= m <= M_MAX and m % 2 == 1):
-        raise ParameterError("M", f"must be odd and in [1, {M_MAX}], got {m}")
-
-
-class _CellModel(KernelCompensator):
+class CellModel(Compensator):
     """Shared implementation of APL, PL and MPI; ``kind`` selects the cell law."""
 
     kind: ClassVar[int]
@@ -70,7 +63,10 @@ class _CellModel(KernelCompensator):
                  mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
                  ) -> None:
         super().__init__(normalisation)
-        _check_shape(n, m)
+        if not 1 <= n <= N_MAX:
+            raise ParameterError("N", f"must be in [1, {N_MAX}], got {n}")
+        if not (1 <= m <= M_MAX and m % 2 == 1):
+            raise ParameterError("M", f"must be odd and in [1, {M_MAX}], got {m}")
         if orientation not in (1, -1) or isinstance(orientation, bool):
             raise ParameterError("orientation", f"must be 1 or -1, got {orientation!r}")
         if not (math.isfinite(sigma) and sigma >= 0.0):
@@ -96,20 +92,15 @@ class _CellModel(KernelCompensator):
                                        f"slope {slopes[j]:.6g}")
         self.rho = thresholds(n, self.kind)
         self._inv_width = inverse_widths(self.rho, self.kind)
-        self._b, self._f_at_b, self._inv_slopes = pwa.slope_tables(slopes)
+        self.b, self.f_at_b, self.inv_slopes = pwa.slope_tables(slopes)
         self.orientation = int(orientation)
         # The cells' input orientation * xi, as orientation * (R / r0 + alpha).
-        self._norm = np.array([orientation * normalisation.r0, orientation * normalisation.alpha,
+        self.norm = np.array([orientation * normalisation.r0, orientation * normalisation.alpha,
                                normalisation.s0, normalisation.beta])
         self.x = np.zeros(n)
         self._clock = np.zeros(2)
         self.fit_report: dict[str, Any] | None = None
         self.reset()
-
-    def array_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(norm, b, f_at_b, inv_slopes): the per-sensor tables the array kernel reads
-        (``strain_comp.models.apl_array``)."""
-        return self._norm, self._b, self._f_at_b, self._inv_slopes
 
     def reset(self) -> None:
         """Forget the state: the next good sample re-initialises the cells (relaxed)."""
@@ -118,12 +109,8 @@ class _CellModel(KernelCompensator):
 
     def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
         kern.run_kernel(t, r, self.x, self._clock, out, self.kind, self.sigma, self.p,
-                        self.rho, self._inv_width, self.w, self._norm, self._b,
-                        self._f_at_b, self._inv_slopes)
-
-    def f(self, psi: npt.ArrayLike) -> np.ndarray:
-        """The output map f(psi) of eq. (3)."""
-        return pwa.evaluate(psi, self.mu)
+                        self.rho, self._inv_width, self.w, self.norm, self.b,
+                        self.f_at_b, self.inv_slopes)
 
     def to_params(self) -> dict[str, Any]:
         params: dict[str, Any] = {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,
@@ -135,7 +122,7 @@ class _CellModel(KernelCompensator):
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
-                    direction: DirectionSettings) -> _CellModel:
+                    direction: DirectionSettings) -> CellModel:
         n = _require_int(params, "N", 1, N_MAX)
         m = _require_int(params, "M", 1, M_MAX)
         if cls.rate_dependent:
@@ -158,32 +145,23 @@ class _CellModel(KernelCompensator):
             refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
             ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
             search_top: int = 5, workers: int | None = None,
-            progress: bool | Callable[[str], None] = True, **options: Any) -> _CellModel:
+            progress: bool | Callable[[str], None] = True, **options: Any) -> CellModel:
         """Fit w, mu by the QP and the output-error refinement, searching sigma and p (module
-        docstring)."""
-        if options:
-            raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
-        try:
-            _check_shape(N, M)
-        except ParameterError as exc:
-            raise FitError(f"{cls.name}: {exc}") from None
-        if workers is not None and not (isinstance(workers, int) and workers >= 1):
-            raise FitError(f"{cls.name}: workers must be an integer >= 1")
-        if cell_weights not in CELL_WEIGHTS:
-            raise FitError(f"{cls.name}: cell_weights must be one of {', '.join(CELL_WEIGHTS)}")
-        counts = (output_nfev, search_nfev, search_top)
-        if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counts):
-            raise FitError(f"{cls.name}: output_nfev, search_nfev and search_top must be "
-                           "integers >= 0")
-        family: CellFamily[_CellModel] = cls
-        return fit_cells(family, segments, normalisation, n=N, m=M, sigma_grid=sigma_grid,
-                         p_grid=p_grid, refine=refine, cell_weights=cell_weights, eps=eps,
-                         ridge=ridge, output_nfev=output_nfev, search_nfev=search_nfev,
-                         search_top=search_top, workers=workers, progress=progress)
+        docstring); the options were checked by ``strain_comp.offline.options``."""
+        best, orientation, report = fit_cells(
+            cls.name, cls.kind, cls.rate_dependent, segments, normalisation, n=N, m=M,
+            sigma_grid=sigma_grid, p_grid=p_grid, refine=refine, cell_weights=cell_weights,
+            eps=eps, ridge=ridge, output_nfev=output_nfev, search_nfev=search_nfev,
+            search_top=search_top, workers=workers, progress=progress)
+        model = cls(n=N, m=M, sigma=best.sigma, p=best.p, w=best.w,
+                    mu=pwa.mu_from_slopes(best.slopes), normalisation=normalisation,
+                    orientation=orientation)
+        model.fit_report = report
+        return model
 
 
 @register
-class APL(_CellModel):
+class APL(CellModel):
     """Asymmetric power-law model (eq. (1)-(3))."""
 
     name = "apl"
@@ -191,7 +169,7 @@ class APL(_CellModel):
 
 
 @register
-class PL(_CellModel):
+class PL(CellModel):
     """Power-law model of the paper's appendix (eq. (6), (2), (3))."""
 
     name = "pl"
@@ -199,7 +177,7 @@ class PL(_CellModel):
 
 
 @register
-class MPI(_CellModel):
+class MPI(CellModel):
     """Modified Prandtl-Ishlinskii model: PL with sigma = 0 (rate independent)."""
 
     name = "mpi"

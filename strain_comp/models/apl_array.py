@@ -1,12 +1,11 @@
 """K sensors of the APL family stepped together: the array form of the per-sensor kernel
 (``strain_comp.models.apl_kernels.step_sensor``), for the engine's array tick
-(``strain_comp.core.array``) and ``APLArray.step`` on its own. It reads the models
-through ``CellModel`` and needs none of their fit."""
+(``strain_comp.core.array``) and ``APLArray.step`` on its own."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol, cast
+from typing import cast
 
 import numpy as np
 
@@ -15,22 +14,8 @@ from strain_comp.base.lift import LiftedArray, lift
 from strain_comp.base.registry import register_array
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
+from strain_comp.models.apl import CellModel
 from strain_comp.models.apl_kernels import inverse_widths, thresholds
-
-
-class CellModel(Protocol):
-    """What the array reads of an APL, PL or MPI model (``strain_comp.models.apl``)."""
-
-    N: int
-    M: int
-    kind: int
-    sigma: float
-    p: float
-    w: np.ndarray
-
-    def array_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(norm, b, f_at_b, inv_slopes)."""
-        ...
 
 
 @register_array
@@ -49,7 +34,6 @@ class APLArray(LiftedArray):
                 raise ParameterError(f"models.{i}", f"N, M = {model.N}, {model.M} differ "
                                                     f"from the first sensor's {n}, {m}")
         k = len(cells)
-        tables = [mdl.array_tables() for mdl in cells]
         self.kind = np.array([mdl.kind for mdl in cells], dtype=np.int64)
         self.sigma = np.array([mdl.sigma for mdl in cells])
         self.p = np.array([mdl.p for mdl in cells])
@@ -57,11 +41,11 @@ class APLArray(LiftedArray):
         self.inv_width = np.vstack([inverse_widths(self.rho[0], kern.KIND_APL),
                                     inverse_widths(self.rho[1], kern.KIND_PL)])
         self.w = np.vstack([mdl.w for mdl in cells])
-        self.norm = np.vstack([norm for norm, _, _, _ in tables])
-        self.b = tables[0][1]
-        self.f_at_b = np.ascontiguousarray(np.vstack([f for _, _, f, _ in tables])
+        self.norm = np.vstack([mdl.norm for mdl in cells])
+        self.b = cells[0].b
+        self.f_at_b = np.ascontiguousarray(np.vstack([mdl.f_at_b for mdl in cells])
                                            .reshape(k, m - 1))
-        self.inv_slopes = np.vstack([inv for _, _, _, inv in tables])
+        self.inv_slopes = np.vstack([mdl.inv_slopes for mdl in cells])
         self.x = np.zeros((k, n))
         self.clock = np.zeros((k, 2))
         self.state = (self.x, self.clock)
@@ -70,5 +54,5 @@ class APLArray(LiftedArray):
 
     @classmethod
     def accepts(cls, model: Compensator) -> bool:
-        """True for the APL family (APL, PL, MPI: the models with ``array_tables``)."""
-        return hasattr(model, "array_tables")
+        """True for the APL family (APL, PL, MPI)."""
+        return isinstance(model, CellModel)

@@ -11,7 +11,8 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Generic, Protocol, TypeVar
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -24,35 +25,6 @@ from strain_comp.models import pwa
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 from strain_comp.models.apl_refine import bounded_lm, output_jacobian
 
-
-class FittedCells(Protocol):
-    """What the fit writes on the model it builds (an APL, PL or MPI)."""
-
-    fit_report: dict[str, Any] | None
-
-
-_Cells = TypeVar("_Cells", bound=FittedCells)
-_Built = TypeVar("_Built", bound=FittedCells, covariant=True)
-
-
-class CellFamily(Protocol[_Built]):
-    """What the fit reads of the APL, PL or MPI class (``strain_comp.models.apl``)."""
-
-    @property
-    def name(self) -> str: ...
-
-    @property
-    def kind(self) -> int: ...
-
-    @property
-    def rate_dependent(self) -> bool: ...
-
-    def __call__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
-                 mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
-                 ) -> _Built: ...
-
-CELL_WEIGHTS = ("signed", "lead", "lag", "free")
-"""Constraints on the cell weights (docs/design.md, "Loop orientation")."""
 LOOP_SWITCH_GAIN = 0.05
 """``signed`` holds the cells to a lagging loop only when that lowers the training output
 RMSE by more than this share against the paper's leading loop (docs/results.md)."""
@@ -62,30 +34,27 @@ P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
 """The default grid of p searched by the fit."""
 
 
-def fit_cells(cls: CellFamily[_Cells], segments: Sequence[Segment], normalisation: Normalisation,
-              *, n: int, m: int, sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None,
-              refine: bool, cell_weights: str, eps: float, ridge: float, output_nfev: int,
+def fit_cells(name: str, kind: int, rate_dependent: bool, segments: Sequence[Segment],
+              normalisation: Normalisation, *, n: int, m: int,
+              sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None, refine: bool,
+              cell_weights: str, eps: float, ridge: float, output_nfev: int,
               search_nfev: int, search_top: int, workers: int | None,
-              progress: bool | Callable[[str], None]) -> _Cells:
+              progress: bool | Callable[[str], None]) -> tuple[Solution, int, dict[str, Any]]:
     """The fit of an APL, PL or MPI model (docs/models.md), called by ``APL.fit``, which
-    checked the arguments and holds BLAS to one thread."""
-    problem = _FitProblem(cls, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
+    holds BLAS to one thread: the best solution, the cells' orientation and the fit report."""
+    problem = _FitProblem(name, kind, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
-    if cls.kind == kern.KIND_APL and problem.gauge < 0:
+    if kind == kern.KIND_APL and problem.gauge < 0:
         problem.orient(-1)
     problem.set_weight_sign()
-    if not cls.rate_dependent:
+    if not rate_dependent:
         result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
-        model = problem.build(result)
-        model.fit_report = {"rmse": result.rmse, "evaluations": 1,
-                            **problem.memory_report(result)}
-        return model
+        return result, problem.orientation, {"rmse": result.rmse, "evaluations": 1,
+                                             **problem.memory_report(result)}
     sigmas = (problem.default_sigma_grid() if sigma_grid is None
               else np.asarray(sigma_grid, dtype=np.float64))
     ps = np.asarray(P_GRID if p_grid is None else p_grid, dtype=np.float64)
-    if sigmas.size == 0 or ps.size == 0 or np.any(sigmas <= 0) or np.any(ps < kern.P_MIN):
-        raise FitError(f"{cls.name}: sigma_grid must be > 0 and p_grid >= {kern.P_MIN}")
-    say = _progress_printer(progress, cls.name)
+    say = _progress_printer(progress, name)
     grid = score_grid(problem, sigmas, ps,
                       workers=grid_workers(workers, sigmas.size * ps.size, problem.t.size),
                       say=say)
@@ -103,16 +72,14 @@ def fit_cells(cls: CellFamily[_Cells], segments: Sequence[Segment], normalisatio
         final = problem.solve(best.sigma, best.p, output_nfev=output_nfev)
         best = min(final, best, key=_by_rmse)
         say(f"output error: rmse {best.rmse:.4g} %")
-    model = problem.build(best)
-    model.fit_report = {"rmse": best.rmse, "evaluations": problem.evaluations,
-                        "seconds": time.monotonic() - problem.started,
-                        **problem.memory_report(best)}
-    return model
+    return best, problem.orientation, {"rmse": best.rmse, "evaluations": problem.evaluations,
+                                       "seconds": time.monotonic() - problem.started,
+                                       **problem.memory_report(best)}
 
 
 
 
-def _by_rmse(solution: _Solution) -> float:
+def _by_rmse(solution: Solution) -> float:
     return solution.rmse
 
 
@@ -140,13 +107,13 @@ def grid_workers(requested: int | None, points: int, samples: int) -> int:
     return max(1, min(available_cores(), points // 2))
 
 
-def score_grid(problem: _FitProblem[_Cells], sigmas: np.ndarray, ps: np.ndarray, *,
-               workers: int, say: Callable[[str], None]) -> list[_Solution]:
+def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *,
+               workers: int, say: Callable[[str], None]) -> list[Solution]:
     """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads (the
     points are independent; the cell-state kernel, numpy's array operations and BLAS release
     the GIL). ``APL.fit`` calls it with BLAS held to one thread, so the grid threads do not
     start BLAS threads of their own. The result does not depend on ``workers``."""
-    grid: list[_Solution] = []
+    grid: list[Solution] = []
     if workers <= 1:
         for i, sigma in enumerate(sigmas):
             grid.extend(problem.solve(float(sigma), float(p)) for p in ps)
@@ -161,7 +128,7 @@ def score_grid(problem: _FitProblem[_Cells], sigmas: np.ndarray, ps: np.ndarray,
     return grid
 
 
-def _say_row(say: Callable[[str], None], grid: list[_Solution], i: int, rows: int,
+def _say_row(say: Callable[[str], None], grid: list[Solution], i: int, rows: int,
              sigma: float) -> None:
     best = min(grid, key=_by_rmse)
     say(f"grid row {i + 1}/{rows} (sigma={sigma:.3g}/s): best rmse {best.rmse:.4g} % at "
@@ -180,48 +147,51 @@ def _progress_printer(progress: bool | Callable[[str], None], name: str) -> Call
     return say
 
 
-class _Solution:
+@dataclass
+class Solution:
     """One solved point of the search: sigma, p, parameter vector and output RMSE [%]."""
 
-    def __init__(self, sigma: float, p: float, w: np.ndarray, slopes: np.ndarray,
-                 rmse: float) -> None:
-        self.sigma, self.p, self.w, self.slopes, self.rmse = sigma, p, w, slopes, rmse
+    sigma: float
+    p: float
+    w: np.ndarray
+    slopes: np.ndarray
+    rmse: float
 
 
-class _FitProblem(Generic[_Cells]):
+class _FitProblem:
     """The training data prepared once; ``solve(sigma, p)`` is one QP + output error."""
 
-    def __init__(self, cls: CellFamily[_Cells], segments: Sequence[Segment],
+    def __init__(self, name: str, kind: int, segments: Sequence[Segment],
                  normalisation: Normalisation, *, n: int, m: int, eps: float, ridge: float,
                  cell_weights: str, search_nfev: int) -> None:
-        self.cls, self.norm, self.n, self.m = cls, normalisation, n, m
+        self.name, self.kind, self.norm, self.n, self.m = name, kind, normalisation, n, m
         self.search_nfev = search_nfev
         self.eps, self.started, self.evaluations = eps, time.monotonic(), 0
         self._lock = threading.Lock()
         segments = [seg for seg in segments if seg.t.size > 0]
         if not segments:
-            raise FitError(f"{cls.name}: no training samples")
+            raise FitError(f"{name}: no training samples")
         self.t = np.concatenate([seg.t for seg in segments])
         r = np.concatenate([seg.r for seg in segments])
         s = np.concatenate([seg.s for seg in segments])
         if not (np.all(np.isfinite(self.t)) and np.all(np.isfinite(r)) and np.all(r > 0)
                 and np.all(np.isfinite(s))):
-            raise FitError(f"{cls.name}: training samples must be finite with R > 0")
+            raise FitError(f"{name}: training samples must be finite with R > 0")
         n_params = n + m + 1
         if self.t.size < max(50, 5 * n_params):
-            raise FitError(f"{cls.name}: needs at least {max(50, 5 * n_params)} samples for "
+            raise FitError(f"{name}: needs at least {max(50, 5 * n_params)} samples for "
                            f"N={n}, M={m}, got {self.t.size}")
         self.xi = normalisation.xi(r)
         self.psi = normalisation.psi(s)
         if np.ptp(self.xi) < 1e-6 or np.ptp(self.psi) < 1e-6:
-            raise FitError(f"{cls.name}: no excitation (resistance or strain is constant)")
+            raise FitError(f"{name}: no excitation (resistance or strain is constant)")
         self.starts = np.zeros(self.t.size, dtype=np.bool_)
         self.starts[np.cumsum([0] + [seg.t.size for seg in segments[:-1]])] = True
         self.durations = [float(seg.t[-1] - seg.t[0]) for seg in segments]
         self.median_dt = float(np.median(np.concatenate(
             [np.diff(seg.t) for seg in segments if seg.t.size > 1] or [np.array([1.0])])))
-        self.rho = thresholds(n, cls.kind)
-        self.inv_width = inverse_widths(self.rho, cls.kind)
+        self.rho = thresholds(n, kind)
+        self.inv_width = inverse_widths(self.rho, kind)
         # f(psi) = G @ slopes; the central slope is fixed to 1 (scale of the problem).
         g = pwa.path_matrix(self.psi, m)
         self.c = (m - 1) // 2
@@ -274,14 +244,14 @@ class _FitProblem(Generic[_Cells]):
         return -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
 
     def set_weight_sign(self) -> None:
-        """The cell weights' sign for ``cell_weights`` (``CELL_WEIGHTS``)."""
+        """The cell weights' sign for ``cell_weights`` (docs/design.md, "Loop orientation")."""
         loop = {"lead": 1, "lag": -1}.get(self.cell_weights)
         if loop is None:
             loop = self.loop_sign() if self.cell_weights == "signed" else 1
         self.weight_sign = loop * self.gauge
         self._set_bounds()
 
-    def memory_report(self, result: _Solution) -> dict[str, Any]:
+    def memory_report(self, result: Solution) -> dict[str, Any]:
         """``memory_share`` (docs/design.md, "Loop orientation"), ``memoryless`` and the
         ``loop`` the cell weights were held to."""
         z = self.design(result.sigma, result.p)
@@ -310,7 +280,7 @@ class _FitProblem(Generic[_Cells]):
             states = kern.states_kernel(self.t, self.xi, self.starts, kern.KIND_PL, 0.0, 1.0,
                                         rho, inverse_widths(rho, kern.KIND_PL))
         else:
-            states = kern.states_kernel(self.t, self.xi, self.starts, self.cls.kind, sigma,
+            states = kern.states_kernel(self.t, self.xi, self.starts, self.kind, sigma,
                                         p, self.rho, self.inv_width)
         z = np.empty((self.t.size, self.n + 2))
         z[:, 0] = self.xi
@@ -381,7 +351,7 @@ class _FitProblem(Generic[_Cells]):
         return found, psi_of(found)
 
     def solve(self, sigma: float, p: float, *, output_nfev: int = 0,
-              play: bool = False) -> _Solution:
+              play: bool = False) -> Solution:
         """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it;
         ``play``: with the MPI's cells (``design``)."""
         with self._lock:
@@ -391,10 +361,10 @@ class _FitProblem(Generic[_Cells]):
         psi_hat = self.predict(z, theta)
         if output_nfev > 0 and math.isfinite(self.rmse(psi_hat)):
             theta, psi_hat = self.output_error(z, theta, max_nfev=output_nfev)
-        return _Solution(sigma, p, theta[:self.n + 2].copy(), self.slopes(theta),
+        return Solution(sigma, p, theta[:self.n + 2].copy(), self.slopes(theta),
                          self.rmse(psi_hat))
 
-    def refine(self, best: _Solution, *, max_evaluations: int = 30) -> _Solution:
+    def refine(self, best: Solution, *, max_evaluations: int = 30) -> Solution:
         """A short Nelder-Mead in (log10 sigma, p) from the best grid point."""
         found = {"best": best}
 
@@ -411,10 +381,3 @@ class _FitProblem(Generic[_Cells]):
                  options={"maxfev": max_evaluations, "initial_simplex": simplex,
                           "xatol": 1e-3, "fatol": 1e-6})
         return found["best"]
-
-    def build(self, result: _Solution) -> _Cells:
-        return self.cls(n=self.n, m=self.m, sigma=result.sigma, p=result.p, w=result.w,
-                        mu=pwa.mu_from_slopes(result.slopes), normalisation=self.norm,
-                        orientation=self.orientation)
-
-

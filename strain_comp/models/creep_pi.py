@@ -16,7 +16,6 @@ import numpy.typing as npt
 
 from strain_comp.base.compensator import (
     Compensator,
-    KernelCompensator,
     Normalisation,
     Segment,
     require_float,
@@ -80,7 +79,7 @@ def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
 
 
 @register
-class CreepPI(KernelCompensator):
+class CreepPI(Compensator):
     """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``."""
 
     name = "creep_pi"
@@ -159,19 +158,9 @@ class CreepPI(KernelCompensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
             lam: float | None = None, **options: Any) -> CreepPI:
-        """Ridge fit of the weights (docs/design.md, "creep_pi")."""
-        if options:
-            raise FitError(f"{cls.name}: unknown fit options {sorted(options)}")
-        try:
-            tau = _checked("taus", list(taus), length=(1, N_TAU_MAX), lo=TAU_RANGE[0],
-                           hi=TAU_RANGE[1])
-        except (ParameterError, TypeError, ValueError) as exc:
-            raise FitError(f"{cls.name}: option taus: {exc}") from None
-        if isinstance(n_play, bool) or not (isinstance(n_play, int) and 1 <= n_play <= N_PLAY_MAX):
-            raise FitError(f"{cls.name}: option n_play must be an integer in [1, {N_PLAY_MAX}]")
-        if lam is not None and not (isinstance(lam, (int, float)) and not isinstance(lam, bool)
-                                    and 0.0 <= lam <= LAM_MAX):
-            raise FitError(f"{cls.name}: option lam must be a number in [0, {LAM_MAX:g}]")
+        """Ridge fit of the weights (docs/design.md, "creep_pi"); options checked by
+        ``strain_comp.offline.options``."""
+        tau = np.asarray(taus, dtype=np.float64)
         thresholds = play_thresholds(n_play)
         grams = fold_grams(segments, normalisation, tau, thresholds)
         n_f = n_features(n_play, tau.size)
@@ -211,8 +200,7 @@ class CreepPI(KernelCompensator):
 @register_array
 @lift(kern.step_sensor, fastmath=kern.FASTMATH)
 class CreepPIArray(LiftedArray):
-    """K creep_pi sensors (same numbers of play operators and time constants) stepped
-    together in one kernel call."""
+    """K creep_pi sensors (same shapes) stepped together in one kernel call."""
 
     family = "a creep_pi"
 
@@ -245,9 +233,8 @@ class CreepPIArray(LiftedArray):
 
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
                thresholds: np.ndarray) -> np.ndarray:
-    """Gram matrices of [1, features, psi] per cross-validation fold: one fold per segment
-    when there are two or more, else ``CV_BLOCKS`` contiguous blocks of the one (fewer when
-    it is short)."""
+    """Gram matrices of [1, features, psi] per cross-validation fold: a segment each, or
+    ``CV_BLOCKS`` contiguous blocks of a single one."""
     widths = np.append(thresholds, DIRECTION_WIDTH)
     n_f = n_features(thresholds.size, tau.size)
     single = len(segments) == 1

@@ -1,8 +1,5 @@
-"""Cubic baseline ([Electrolycra] eq. (4)): S = c3 R^3 + c2 R^2 + c1 R + c0.
-
-Memoryless, so it has no state; it is fitted by ordinary least squares on the normalised
-input xi (better conditioned than powers of R in ohm) and its coefficients are stored in
-ohm units exactly as eq. (4) writes them.
+"""Cubic baseline ([Electrolycra] eq. (4)): S = c3 R^3 + c2 R^2 + c1 R + c0, memoryless;
+fitted on xi (better conditioned than powers of R in ohm), stored in ohm units as eq. (4).
 """
 
 from __future__ import annotations
@@ -14,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.base.compensator import (
-    KernelCompensator,
+    Compensator,
     Normalisation,
     Segment,
     require_vector,
@@ -25,7 +22,7 @@ from strain_comp.errors import FitError
 
 
 @register
-class Cubic(KernelCompensator):
+class Cubic(Compensator):
     """S = c3 R^3 + c2 R^2 + c1 R + c0 (eq. (4)); ``c`` = [c0, c1, c2, c3] in ohm units."""
 
     name = "cubic"

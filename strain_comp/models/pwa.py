@@ -17,17 +17,6 @@ def breakpoints(m: int) -> np.ndarray:
     return -1.0 + 2.0 * np.arange(1, m) / m
 
 
-def basis(psi: npt.ArrayLike, m: int) -> npt.NDArray[np.float64]:
-    """The M basis functions phi_j(psi) as columns (eq. (3))."""
-    psi = np.atleast_1d(np.asarray(psi, dtype=np.float64))
-    b = breakpoints(m)
-    phi = np.empty((psi.size, m))
-    phi[:, 0] = psi
-    for i, bi in enumerate(b):
-        phi[:, 1 + i] = np.maximum(psi - bi, 0.0) if bi > 0 else np.minimum(psi - bi, 0.0)
-    return phi
-
-
 def slopes_from_mu(mu: npt.ArrayLike) -> np.ndarray:
     """Slopes of the M segments (left to right) of f with basis coefficients ``mu``."""
     mu = np.asarray(mu, dtype=np.float64)
@@ -82,12 +71,6 @@ def _breakpoint_paths(m: int) -> tuple[np.ndarray, np.ndarray]:
     b.flags.writeable = False
     paths.flags.writeable = False
     return b, paths
-
-
-def evaluate(psi: npt.ArrayLike, mu: npt.ArrayLike) -> np.ndarray:
-    """f(psi) (eq. (3))."""
-    coef = np.asarray(mu, dtype=np.float64)
-    return basis(psi, coef.size) @ coef
 
 
 @njit

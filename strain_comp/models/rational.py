@@ -13,7 +13,7 @@ from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
 from strain_comp.base.compensator import (
-    KernelCompensator,
+    Compensator,
     Normalisation,
     Segment,
     require_vector,
@@ -152,7 +152,7 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
 
 
 @register
-class Rational(KernelCompensator):
+class Rational(Compensator):
     """rat22 compensator, combined or split by direction."""
 
     name = "rational"
@@ -218,13 +218,9 @@ class Rational(KernelCompensator):
 
     @classmethod
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
-            direction: DirectionSettings, **options: Any) -> Rational:
-        """Options: ``mode`` = combined (default) or split."""
-        mode = options.pop("mode", "combined")
-        if options:
-            raise ParameterError(next(iter(options)), "unknown rational fit option")
-        if mode not in MODES:
-            raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
+            direction: DirectionSettings, mode: str = "combined", **options: Any
+            ) -> Rational:
+        """``mode``: combined or split."""
         xi = np.concatenate([normalisation.xi(seg.r) for seg in segments])
         s = np.concatenate([seg.s for seg in segments])
         if xi.size < 5:

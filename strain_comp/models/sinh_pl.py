@@ -16,7 +16,7 @@ from scipy.optimize import least_squares
 
 from strain_comp._numba import njit
 from strain_comp.base.compensator import (
-    KernelCompensator,
+    Compensator,
     Normalisation,
     Segment,
     as_float_arrays,
@@ -123,7 +123,7 @@ def sinh_pl_inverse_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, w0:
 
 
 @register
-class SinhPL(KernelCompensator):
+class SinhPL(Compensator):
     """Reduced power-law compensator with N sinh cells, eq. (1)-(3)."""
 
     name = "sinh_pl"
@@ -178,14 +178,9 @@ class SinhPL(KernelCompensator):
 
     @classmethod
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
-            direction: DirectionSettings, **options: Any) -> SinhPL:
-        """Nonlinear least squares on the inverse output error; option ``n_cells`` (1-3)."""
-        n_cells = int(options.pop("n_cells", 1))
-        max_nfev = int(options.pop("max_nfev", 100))
-        if options:
-            raise ParameterError(next(iter(options)), "unknown sinh_pl fit option")
-        if not 1 <= n_cells <= 3:
-            raise ParameterError("n_cells", f"must be 1, 2 or 3, got {n_cells}")
+            direction: DirectionSettings, n_cells: int = 1, max_nfev: int = 100,
+            **options: Any) -> SinhPL:
+        """Nonlinear least squares on the inverse output error; ``n_cells`` 1 to 3."""
         data = [(seg.t, normalisation.xi(seg.r), normalisation.psi(seg.s)) for seg in segments]
         n_samples = sum(d[0].size for d in data)
         if n_samples < 10 * (3 * n_cells + 2):

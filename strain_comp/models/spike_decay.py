@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.base.compensator import (
-    KernelCompensator,
+    Compensator,
     Normalisation,
     Segment,
     as_float_arrays,
@@ -39,7 +39,7 @@ from strain_comp.models.spike_decay_kernels import (
 
 
 @register
-class SpikeDecay(KernelCompensator):
+class SpikeDecay(Compensator):
     """Spike-and-decay inverse model, eq. (3)/(4)."""
 
     name = "spike_decay"
@@ -148,18 +148,16 @@ class SpikeDecay(KernelCompensator):
 
     @classmethod
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
-            direction: DirectionSettings, **options: Any) -> SpikeDecay:
-        """Fit from step-and-hold data; options ``hold_rate`` [%/s], ``min_hold`` [s]."""
+            direction: DirectionSettings, hold_rate: float | None = None,
+            min_hold: float = 1.0, **options: Any) -> SpikeDecay:
+        """Fit from step-and-hold data; ``hold_rate`` [%/s], ``min_hold`` [s]."""
         s_all = np.concatenate([seg.s for seg in segments])
         if s_all.size < 10:
             raise FitError(f"spike_decay: needs at least 10 samples, got {s_all.size}")
         span = float(np.ptp(s_all))
         if span <= 0.0:
             raise FitError("spike_decay: the reference strain does not vary")
-        hold_rate = float(options.pop("hold_rate", default_hold_rate(s_all)))
-        min_hold = float(options.pop("min_hold", 1.0))
-        if options:
-            raise ParameterError(next(iter(options)), "unknown spike_decay fit option")
+        hold_rate = default_hold_rate(s_all) if hold_rate is None else float(hold_rate)
         settled, steps = analyse_holds(segments, hold_rate, min_hold)
         tol = 0.01 * span
         eps_pts, r_pts, steps = settled_points(segments, settled, steps, tol)

@@ -193,10 +193,8 @@ def _fill(table: np.ndarray) -> None:
 def settled_points(segments: Sequence[Segment], settled: list[tuple[float, float]],
                    steps: list[tuple[float, ...]], tol: float
                    ) -> tuple[np.ndarray, np.ndarray, list[tuple[float, ...]]]:
-    """The points f passes through and the steps the tables are made of: the holds' settled
-    (strain, R), levels within ``tol`` averaged, and ``steps``; with fewer than two levels
-    (no usable holds), the mean (strain, R) of each of ``_N_BINS`` strain bins of every
-    sample and no step (no spike)."""
+    """The points f passes through and the steps the tables are made of (docs/models.md,
+    "spike_decay"); without two hold levels, bin means and no step."""
     levels = _cluster(np.array([p[0] for p in settled]), tol) if settled else []
     if len(levels) >= 2:
         eps_pts = np.array([np.mean([settled[i][0] for i in g]) for g in levels])

@@ -1,9 +1,6 @@
-"""The estimators of a sensor's correction (``strain_comp.core.correction``; the equations:
-docs/design.md, ``input.zero_span``, and docs/results.md, "Pooling and the session start"):
-the input zero and span from two known points, a run's first cycle (a memory model read on
-its branches, then refined through the run) or a stretch's line of resistance on strain, and
-the output gain and offset (S' = a S + b; Lee et al.'s recalibration) from two points or by
-least squares over a recording.
+"""The estimators of a sensor's correction (``strain_comp.core.correction``): the input zero
+and span, and the output gain and offset (docs/design.md, ``input.zero_span``; docs/results.md,
+"Pooling and the session start").
 """
 
 from __future__ import annotations
@@ -47,18 +44,15 @@ SETTLE_SAMPLES = 200
 GRID_POINTS = 201
 """Resistances of the steady-output grid over the valid range (``calibrated_resistance``)."""
 STATIC_TOLERANCE = 0.01
-"""A model whose slow ramp stays this close to its steady outputs [share of the strain span]
-is static (two points invert it); else it is spanned on its branches and through the run."""
+"""A slow ramp this close to the steady outputs [share of the strain span]: a static model."""
 FIT_EVALUATIONS = 80
 """Engine runs the search of a memory model's zero and span may take (0: none)."""
 FIT_STEP = (0.05, 0.2)
-"""The search's first steps: of the calibrated rest [share of the resistance range] and of
-the log of the span gain."""
+"""The search's first steps: calibrated rest [share of the R range], log of the span gain."""
 FIT_TOLERANCE = (1e-3, 1e-4)
 """The search stops under these steps [as ``FIT_STEP``] and RMSE changes [strain unit]."""
 FROM_COVER = 0.1
-"""``--from``: the reference must move through this share of the calibrated strain span (a
-gain needs a stretch; the README's start on ``bags/demo_rates.mcap`` moves through 17 %)."""
+"""``--from``: the reference must move through this share of the calibrated strain span."""
 CYCLE_UP = 0.5
 """A cycle (``cycle_end``): the reference passes this share of its span above its minimum,"""
 CYCLE_BACK = 0.1
@@ -69,15 +63,18 @@ MIN_CYCLE_SHARE = 0.1
 
 def steady_output(cal: SensorCalibration, r: float) -> float:
     """The calibration's output after ``SETTLE_SAMPLES`` samples at a constant ``r``."""
-    engine = Engine(Calibration({cal.name: cal}))
+    return _settled(Engine(Calibration({cal.name: cal})), cal.name, r)
+
+
+def _settled(engine: Engine, name: str, r: float) -> float:
+    """``steady_output`` of ``engine``, reset first."""
+    engine.reset()
     t = 0.1 * np.arange(SETTLE_SAMPLES)
-    return float(engine.run(cal.name, t, np.full(t.size, r)).strain[-1])
+    return float(engine.run(name, t, np.full(t.size, r)).strain[-1])
 
 
 def steady_curve(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
-    """(calibrated resistances, steady outputs) over the valid range from the rest end, an
-    input zero and span left out; cached (read-only) as every run is spanned with one
-    calibration."""
+    """(resistances, steady outputs) over the valid range from the rest end, cached, read-only."""
     bare = replace(cal, input=replace(cal.input, zero_span=None))
     return _steady_curve(pickle.dumps((bare, SETTLE_SAMPLES, GRID_POINTS),
                                       protocol=pickle.HIGHEST_PROTOCOL))
@@ -90,16 +87,14 @@ CURVES_KEPT = 64
 @functools.lru_cache(maxsize=CURVES_KEPT)
 def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
     """``steady_curve`` of its pickled key."""
-    bare, settle, points = pickle.loads(key)  # the bytes steady_curve just made
+    bare, _, points = pickle.loads(key)  # the bytes steady_curve just made
     grid = np.linspace(bare.valid_range.r_lo, bare.valid_range.r_hi, points)
     if bare.direction.sign < 0:
         grid = grid[::-1]
-    engine = Engine(Calibration({bare.name: bare}))  # reset before each: steady_output's
-    t = 0.1 * np.arange(settle)
+    engine = Engine(Calibration({bare.name: bare}))
     curve = (grid, np.empty(grid.size))
     for i, r in enumerate(grid):
-        engine.reset()
-        curve[1][i] = engine.run(bare.name, t, np.full(t.size, float(r))).strain[-1]
+        curve[1][i] = _settled(engine, bare.name, float(r))
     for values in curve:
         values.setflags(write=False)
     return curve
@@ -107,8 +102,7 @@ def _steady_curve(key: bytes) -> tuple[np.ndarray, np.ndarray]:
 
 def calibrated_resistance(cal: SensorCalibration, strain: float,
                           curve: tuple[np.ndarray, np.ndarray] | None = None) -> float:
-    """The resistance whose steady output is ``strain``, first from the rest end; InputError
-    when none of the valid range gives it."""
+    """The resistance whose steady output is ``strain``, first from the rest end."""
     grid, steady = curve if curve is not None else steady_curve(cal)
     found = crossing(grid, steady, strain)
     if found is None:
@@ -119,8 +113,7 @@ def calibrated_resistance(cal: SensorCalibration, strain: float,
 
 
 def crossing(grid: np.ndarray, out: np.ndarray, strain: float) -> float | None:
-    """The resistance of ``grid`` where ``out`` first crosses ``strain`` from the rest end,
-    linear between grid points (None: it never does)."""
+    """Where ``out`` first crosses ``strain`` on ``grid``, linear between its points."""
     d = out - strain
     cross = np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) <= 0)
     if not cross.size:
@@ -132,8 +125,7 @@ def crossing(grid: np.ndarray, out: np.ndarray, strain: float) -> float | None:
 
 def through(points: Sequence[tuple[float, float]], c1: float, c2: float,
             ) -> tuple[float, float, float]:
-    """The input zero and span (rest, rest_calibrated, k) that reads the two measured (R, S)
-    ``points`` (sorted by strain) as the calibrated resistances ``c1``, ``c2``."""
+    """The input zero and span reading two (R, S) ``points`` as resistances ``c1``, ``c2``."""
     (r1, s1), (r2, s2) = points
     k = (c2 - c1) / (r2 - r1) if r2 != r1 else float("nan")
     if not (np.isfinite(k) and k > 0):
@@ -146,10 +138,7 @@ def through(points: Sequence[tuple[float, float]], c1: float, c2: float,
 def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                      curve: tuple[np.ndarray, np.ndarray] | None = None,
                      ) -> tuple[float, float, float]:
-    """The input zero and span (rest, rest_calibrated, k) through two measured (R, S)
-    points (``--point``), inverting the steady outputs."""
-    if len(points) != 2:
-        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
+    """The input zero and span through two (R, S) points, inverting the steady outputs."""
     (r1, s1), (r2, s2) = sorted(points, key=lambda p: p[1])
     lo, hi = SHORT_FACTOR * cal.valid_range.r_lo, OPEN_FACTOR * cal.valid_range.r_hi
     for r, s in ((r1, s1), (r2, s2)):  # the engine screens such a reading as a short or open
@@ -167,8 +156,7 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
 
 def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
                             top: float = np.inf) -> list[tuple[float, float]]:
-    """(R, S) medians at a cycle's first rest and at its largest strain (or ``top``, when
-    lower); InputError when it does not rest or move."""
+    """(R, S) medians at a cycle's first rest and at its largest strain (at most ``top``)."""
     ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
@@ -196,36 +184,16 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
 
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
-    """The calibration's output along a slow ramp over ``grid`` and back (10 Hz, from a
-    fresh state at the rest end; an existing input zero and span left out)."""
+    """The output, without input zero and span, along a slow (10 Hz) ramp over ``grid``, back
+    and over it again (a sensor at a session's start was last unloaded)."""
     bare = replace(cal, input=replace(cal.input, zero_span=None))
-    path = np.concatenate([grid, grid[::-1]])
+    path = np.concatenate([grid, grid[::-1], grid])
     return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
                                                      path).strain
 
 
-def follows_steady_curve(cal: SensorCalibration, curve: tuple[np.ndarray, np.ndarray],
-                         ) -> bool:
-    """True for a static map: a slow ramp up and back stays within ``STATIC_TOLERANCE`` of
-    the steady outputs (a memory model is on a loading or unloading branch in use)."""
-    grid, steady = curve
-    out = ramp_output(cal, grid)
-    span = cal.valid_range.s_hi - cal.valid_range.s_lo
-    return bool(np.max(np.abs(out - np.concatenate([steady, steady[::-1]])))
-                <= STATIC_TOLERANCE * span)
-
-
-def branches(cal: SensorCalibration, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unloading, loading) outputs on ``grid`` of a slow ramp up, down and up again (a
-    sensor at a session's start was last unloaded)."""
-    n = grid.size
-    out = ramp_output(cal, np.concatenate([grid, grid[::-1], grid]))
-    return out[n:2 * n][::-1], out[2 * n:3 * n]
-
-
 def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float:
-    """The resistance of ``grid`` where ``out`` first crosses ``strain`` (``crossing``), else
-    the grid point of the nearest output."""
+    """``crossing``, else the grid point of the nearest output."""
     found = crossing(grid, out, strain)
     return float(grid[int(np.argmin(np.abs(out - strain)))]) if found is None else found
 
@@ -233,8 +201,7 @@ def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float
 def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                      grid: np.ndarray, branch: tuple[np.ndarray, np.ndarray],
                      ) -> tuple[float, float, float]:
-    """The input zero and span through two (R, S) points, the rest read on the first branch
-    (unloading), the stretch on the second (loading)."""
+    """The input zero and span through two (R, S) points: rest unloading, stretch loading."""
     ordered = sorted(points, key=lambda p: p[1])
     return through(ordered, branch_resistance(grid, branch[0], ordered[0][1]),
                    branch_resistance(grid, branch[1], ordered[1][1]))
@@ -242,28 +209,28 @@ def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float
 
 def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
                         ) -> tuple[float, float, float]:
-    """The input zero and span (rest, rest_calibrated, k) from a run's first cycle: a static
-    model's map inverted at its two points (where it never outputs one, the nearest output's
-    resistance); a memory model's points read on its branches, then refined through the
-    run (``span_through_run``). Where the branches give no span: the calibration as tared
-    if that reads the cycle better, not refined (a refinement from there fits the cycle, not
-    the run: a loop's exact memory term lost half its gain on the run after it)."""
+    """The input zero and span from a run's first cycle: a static map inverted at two points,
+    a memory model's read on its branches and refined through the run."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     curve = steady_curve(cal)
-    if follows_steady_curve(cal, curve):
+    n, out = curve[0].size, ramp_output(cal, curve[0])
+    span = cal.valid_range.s_hi - cal.valid_range.s_lo
+    if np.max(np.abs(out[:2 * n] - np.concatenate([curve[1], curve[1][::-1]]))) <= \
+            STATIC_TOLERANCE * span:  # a static map: up and back on its steady outputs
         points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                          top=float(curve[1].max()))
         try:
             return span_from_points(cal, points, curve)
         except InputError:
             return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
-    branch = branches(cal, curve[0])
+    branch = out[n:2 * n][::-1], out[2 * n:]  # (unloading, loading)
     points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
                                      top=float(branch[1].max()))
     try:
         start = span_on_branches(cal, points, curve[0], branch)
-    except InputError:
+    except InputError:  # the calibration as tared, unrefined: a refinement from there fits
+        # the cycle, not the run (a loop's exact memory term lost half its gain after it)
         if cal.rest_resistance is None:
             raise
         tared = (min(points, key=lambda p: p[1])[0], cal.rest_resistance, 1.0)
@@ -285,11 +252,8 @@ def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
                      start: tuple[float, float, float]) -> tuple[float, float, float]:
-    """The input zero and span whose engine output over the cycle ``rec`` is closest to its
-    reference (Nelder-Mead, the measured rest kept), from ``start`` or the calibration as
-    tared, whichever reads the cycle better (slow creep states that have not settled in
-    ``SETTLE_SAMPLES`` give a far-off two-point span); that start kept unless the fit is
-    lower."""
+    """The input zero and span (the rest kept) reading the cycle ``rec`` best (Nelder-Mead
+    from ``start`` or the calibration as tared, kept unless the fit is lower)."""
     from scipy.optimize import minimize
 
     if rec.s is None or FIT_EVALUATIONS <= 0 or not np.isfinite(rec.s).any():
@@ -328,8 +292,8 @@ Line = tuple[float, float]
 
 
 def run_line(rec: Recording) -> Line | None:
-    """(R_0, g) of the least-squares line R = R_0 + g S of a run's good referenced samples, in
-    closed form (no LAPACK call to fail on a reference near 1e-300)."""
+    """(R_0, g) of the least-squares line R = R_0 + g S of a run's good referenced samples."""
+    # closed form: no LAPACK call to fail on a reference near 1e-300
     if rec.s is None:
         return None
     ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
@@ -349,8 +313,7 @@ def onto(own: Line, space: Line) -> tuple[float, float, float]:
 
 
 def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
-    """The input zero and span that puts the line of the stretch ``rec`` onto the
-    calibration's stretch line."""
+    """The input zero and span putting the stretch's line onto the calibration's."""
     space = cal.input.stretch_line
     assert space is not None
     own = run_line(replace(rec, r=cal.input.to_ohm(rec.r)))
@@ -391,8 +354,6 @@ def parse_point(text: str) -> tuple[float, float]:
 def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]],
                     ) -> tuple[float, float]:
     """(a, b) through two (R [ohm], S) points, by the steady outputs there."""
-    if len(points) != 2:
-        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     (r1, s1), (r2, s2) = points
     lo, hi = cal.valid_range.r_lo, cal.valid_range.r_hi
     for r, s in points:
@@ -411,8 +372,7 @@ def map_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float]
 
 def map_from_pairs(estimate: np.ndarray, reference: np.ndarray, *,
                    span: float | None = None) -> tuple[float, float]:
-    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs, the
-    reference moving through ``FROM_COVER`` of the calibrated strain ``span`` (if given)."""
+    """(a, b) of reference ~ a estimate + b by least squares over the finite pairs."""
     ok = np.isfinite(estimate) & np.isfinite(reference)
     if ok.sum() < 2 or not np.ptp(estimate[ok]) > 0:
         raise InputError(f"recalibrate --from: the bag gives {int(ok.sum())} scored samples "

@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from strain_comp.base.direction import DirectionSettings, estimate_deadzone
-from strain_comp.errors import InputError
 from strain_comp.models import Segment
 from strain_comp.offline.reduce import HOLD_RATE_FRACTION, still_stretches
 
@@ -96,9 +95,7 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
     """Dead-zone settings and their source."""
     k_sigma = float(options.get("k_sigma", DEFAULT_K_SIGMA))
     if "deadzone" in options:
-        deadzone = float(options["deadzone"])
-        if not deadzone > 0:
-            raise InputError(f"option deadzone must be > 0 (input unit/s), got {deadzone}")
+        deadzone = float(options["deadzone"])  # > 0: checked with every fit option
         tau = float(options.get("tau", 0.0))
         return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
     taus = [float(options["tau"])] if "tau" in options else _tau_grid(segments)

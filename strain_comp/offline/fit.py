@@ -1,9 +1,5 @@
-"""Fitting orchestration: recordings (time, resistance, reference strain) -> calibration
-(``fit_sensor`` one sensor, ``fit_bags`` every named sensor of a set of bags; docs/design.md,
-``fit``). The steps before the model's fit each have their module: pooling runs
-(``offline.pool``), training data (``offline.training``), the measurement chain
-(``offline.input_chain``), the direction detector (``offline.deadzone``), long runs
-(``offline.reduce``) and the uncertainty (``offline.uncertainty``).
+"""Fitting orchestration: recordings with a reference strain -> calibration (``fit_sensor``
+one sensor, ``fit_runs`` / ``fit_bags`` every named sensor; docs/design.md, ``fit``).
 """
 
 from __future__ import annotations
@@ -28,7 +24,6 @@ from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.chain import Alternation, pair_values
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
-from strain_comp.core.uncertainty import Uncertainty
 from strain_comp.errors import CalibrationError, FitError, InputError, StrainCompError
 from strain_comp.io.recording import load_recordings
 from strain_comp.models import Normalisation, Segment, model_class
@@ -44,7 +39,7 @@ from strain_comp.offline.options import (
 )
 from strain_comp.offline.pool import Pooled, gate, pooled_input
 from strain_comp.offline.reduce import FIT_SAMPLE_BUDGET, reduce_segments
-from strain_comp.offline.session_start import choose_space, start_or_keep
+from strain_comp.offline.session_start import choose_space
 from strain_comp.offline.training import (
     check_training_span,
     slow_sample_interval,
@@ -52,7 +47,6 @@ from strain_comp.offline.training import (
     training_segments,
     valid_range,
 )
-from strain_comp.offline.uncertainty import learn
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
@@ -67,9 +61,7 @@ class Fitter(Protocol):
 
 
 CHOICE_RUNS = 3
-"""Runs a pooled fit needs to choose its session start: each run left out must leave a
-pooled fit of two or more, made as the fit it stands for (with two, each fold would be a
-one-run fit, whose own stretch line is no pooled space; ``choose_space``)."""
+"""Runs a pooled fit needs to choose its session start: each fold a pooled fit of two."""
 _OWN_OPTIONS = (*DIRECTION_OPTIONS, *FIT_OPTIONS)
 """Options ``fit_sensor`` takes itself; the others go to the model's ``fit``."""
 
@@ -102,9 +94,8 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
 
 def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
               options: Mapping[str, Any]) -> Pooled:
-    """The training runs pooled (``offline.pool``); ``spanned``: as recorded unless they pass
-    the ``gate``, then the session start ``choose_space`` measures best for the cubic
-    (``joint`` with fewer than ``CHOICE_RUNS`` runs)."""
+    """The training runs pooled (``offline.pool``); ``spanned``: past the ``gate``, the
+    session start ``choose_space`` measures best for the cubic."""
     if pool != "spanned":
         return pooled_input(recordings, pool)
     if len(recordings) < 2:
@@ -112,17 +103,14 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
     gated, joint = gate(recordings)
     if joint is None:
         return Pooled(list(recordings), [], {"pool": "raw", **gated})
-    if len(recordings) < CHOICE_RUNS:
-        pooled = pooled_input(recordings, "joint", joint)
-        pooled.record.update(gated, chosen_by={"why": f"fewer than {CHOICE_RUNS} runs: a run "
-                                               "left out leaves no pooled fit to start"})
-        return pooled
     own = {k: v for k, v in options.items() if k in _OWN_OPTIONS}
 
     def cubic(runs: Sequence[Recording]) -> SensorCalibration:
         return fit_sensor(runs, "cubic", name=name, options=own, pool="stretch")
 
-    space, measured = choose_space(recordings, cubic)
+    space, measured = (choose_space(recordings, cubic) if len(recordings) >= CHOICE_RUNS else
+                       ("joint", {"why": f"fewer than {CHOICE_RUNS} runs: a run left out "
+                                         "leaves no pooled fit to start"}))
     pooled = pooled_input(recordings, space, joint)
     pooled.record.update(gated, chosen_by=measured)
     return pooled
@@ -130,11 +118,10 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
 
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned", band: bool = False
-               ) -> SensorCalibration:
-    """Fit ``model`` to one sensor's recordings (each with a reference strain), several runs
-    pooled (``pool``); ``band``: the uncertainty learned by leaving each run out."""
-    options, cls, runs = dict(options or {}), model_class(model), list(recordings)
+               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
+    """Fit ``model`` to one sensor's runs, several pooled as ``pool`` says."""
+    options, cls = dict(options or {}), model_class(model)
+    check_fit_options(model, options)
     pooled = pool_runs(recordings, pool, name, options)
     recordings, pool_maps, pooling = pooled.runs, pooled.maps, pooled.record
     interval = slow_sample_interval(recordings)
@@ -149,8 +136,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     direction, direction_source = direction_settings(segments, options)
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
     model_options = {k: v for k, v in options.items() if k not in _OWN_OPTIONS}
-    budget = _fit_budget(options, budget, name)
-    check_fit_options(model, options)
+    budget = options.get("fit_budget", budget)
     start = time.perf_counter()
     fit_segments, factor = ((segments, 1) if cls.fit_full_rate
                             else reduce_segments(segments, budget))
@@ -181,39 +167,11 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                               "samples": sum(seg.t.size for seg in fit_segments)}}
            if factor > 1 else {}),
         **({"memory": memory} if memory else {}))
-    if band and len(runs) >= 2:
-        calibration.uncertainty = learned_band(runs, model, name, options, budget, pool)
     return calibration
 
 
-def learned_band(runs: Sequence[Recording], model: str, name: str,
-                 options: Mapping[str, Any], budget: int, pool: str) -> Uncertainty | None:
-    """The uncertainty of ``fit_sensor``'s calibration from ``model`` fitted on all runs but
-    one and started on the one left out, every run in turn."""
-    pairs = []
-    for j, run in enumerate(runs):
-        others = [r for k, r in enumerate(runs) if k != j]
-        try:  # a fold that cannot be fitted (its runs span too little) is left out
-            fitted = Calibration({name: fit_sensor(others, model, name=name, options=options,
-                                                   budget=budget, pool=pool)})
-        except FitError:
-            continue
-        pairs.append((start_or_keep(fitted, {name: run}).calibration, {name: run}))
-    return learn(pairs).get(name)
-
-
-def _fit_budget(options: Mapping[str, Any], budget: int, name: str) -> int:
-    """The option ``fit_budget``, else ``budget``; FitError unless an integer >= 1000."""
-    budget = options.get("fit_budget", budget)
-    if not (isinstance(budget, int) and not isinstance(budget, bool) and budget >= 1000):
-        raise FitError(f"sensor {name!r}: option fit_budget must be an integer >= 1000, "
-                       f"got {budget!r}")
-    return budget
-
-
 def _check_usable(calibration: SensorCalibration) -> None:
-    """FitError, in the user's terms, when the fitted calibration fails the checks every
-    reader applies (``check_calibration``)."""
+    """FitError, in the user's terms, where the fit fails the checks every reader applies."""
     name = calibration.name
     try:
         check_calibration(Calibration({name: calibration}))
@@ -249,60 +207,73 @@ def memoryless_note(name: str, calibration: SensorCalibration) -> str | None:
             f"static map of R (the cells' sign: --option cell_weights=lead|lag|free)")
 
 
+Run = tuple[str, int, "Recording"]
+"""One run of a sensor: (its source, the index of that input, the recording)."""
+
+
 def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | None = None,
              options: Mapping[str, Any] | None = None, *,
              report: Callable[[str], None] | None = None,
              pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
-    """One calibration for ``sensors``, each fitted to its recordings from every bag that has
-    it (``fit_sensor``, or ``fitter`` for ``fit --model auto``)."""
-    by_sensor: dict[str, list[tuple[str, Recording]]] = {}
-    for path in paths:
+    """``fit_runs`` on the recordings of every bag, the damage skipped to ``report``."""
+    by_sensor: dict[str, list[Run]] = {}
+    for i, path in enumerate(paths):
         recordings, problems = load_recordings(path)
         for problem in problems:
             if report is not None:
                 report(problem)
         for sensor, rec in recordings.items():
-            by_sensor.setdefault(sensor, []).append((str(path), rec))
-    referenced = [n for n, recs in by_sensor.items() if any(r.s is not None for _, r in recs)]
-    bag_list = ", ".join(str(p) for p in paths)
-    if sensors is None or "all" in sensors:
+            by_sensor.setdefault(sensor, []).append((str(path), i, rec))
+    return fit_runs(by_sensor, model, sensors, options, where=", ".join(map(str, paths)),
+                    report=report, pool=pool, fitter=fitter)
+
+
+def fit_runs(by_sensor: Mapping[str, Sequence[Run]], model: str,
+             sensors: Sequence[str] | None = None, options: Mapping[str, Any] | None = None,
+             *, where: str, report: Callable[[str], None] | None = None,
+             pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
+    """One calibration for ``sensors`` (default or ``all``: every one with a reference), each
+    fitted to its referenced runs (``fit_sensor``, or ``fitter`` for ``fit --model auto``);
+    ``where`` names the inputs in messages."""
+    referenced = [n for n, runs in by_sensor.items()
+                  if any(rec.s is not None for _, _, rec in runs)]
+    found = ", ".join(by_sensor) or "none"
+    every = not sensors or "all" in sensors
+    if every:
         if not referenced:
-            raise InputError(f"{bag_list}: no sensor with a strain_reference topic "
-                             f"(sensors found: {', '.join(by_sensor) or 'none'})")
+            raise InputError(f"{where}: no sensor with a strain reference "
+                             f"(sensors found: {found})")
         names = referenced
     else:
-        names = list(dict.fromkeys(sensors))
+        names = list(dict.fromkeys(sensors or ()))
         for sensor in names:
             if sensor not in by_sensor:
-                raise InputError(f"sensor {sensor!r} is not in {bag_list} "
-                                 f"(sensors found: {', '.join(by_sensor) or 'none'})")
+                raise InputError(f"sensor {sensor!r} is not in {where} (sensors found: {found})")
             if sensor not in referenced:
-                raise InputError(f"sensor {sensor!r} has no strain_reference in {bag_list}")
+                raise InputError(f"sensor {sensor!r} has no strain_reference in {where}")
     calibrations = {}
-    every = sensors is None or "all" in sensors
     for sensor in names:
-        pairs = [(path, rec) for path, rec in by_sensor[sensor] if rec.s is not None]
+        used = [run for run in by_sensor[sensor] if run[2].s is not None]
+        runs, bags = [rec for _, _, rec in used], [source for source, _, _ in used]
         try:
-            runs, bags = [rec for _, rec in pairs], [path for path, _ in pairs]
             calibrations[sensor] = (
                 fit_sensor(runs, model, name=sensor, bags=bags, options=options, pool=pool)
                 if fitter is None else
                 fitter(runs, name=sensor, bags=bags, options=options, pool=pool,
-                       index=[[str(p) for p in paths].index(path) for path in bags]))
+                       index=[i for _, i, _ in used]))
         except FitError as err:
             if not every or len(names) == 1:
                 raise
             if report is not None:  # "all": the sensors that can be fitted are
                 report(f"not fitted: {err}")
     if not calibrations:
-        raise FitError(f"{bag_list}: no sensor could be fitted")
+        raise FitError(f"{where}: no sensor could be fitted")
     return Calibration(calibrations)
 
 
 def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
                  calibration: Calibration) -> None:
-    """Set each scored sensor's ``in_run_rmse``: the same model fitted and scored on the
-    evaluated run itself (NaN and a note where it cannot be fitted)."""
+    """Set each scored sensor's ``in_run_rmse``: its model fitted and scored on the run itself."""
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
         options = cal.provenance.get("options") or {}

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from strain_comp.core.chain import PAIR_BRANCHES, Alternation, alternation, pair_branch
+from strain_comp.core.chain import Alternation, alternation, pair_branch
 from strain_comp.errors import FitError
 
 if TYPE_CHECKING:
@@ -31,9 +31,6 @@ def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str
     chain = alternation(r_raw)
     alternating = bool(options.get("alternation", chain.present))
     pair = str(options.get("pair", pair_side(recordings) if alternating else "mean"))
-    if pair not in PAIR_BRANCHES:
-        raise FitError(f"sensor {name!r}: option pair must be one of "
-                       f"{', '.join(PAIR_BRANCHES)}, got {pair!r}")
     if pair != "mean" and not alternating:
         raise FitError(f"sensor {name!r}: option pair={pair} needs an alternating input "
                        "(found none; set alternation=true)")

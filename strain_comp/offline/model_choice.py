@@ -1,15 +1,12 @@
-"""The model chosen by leaving runs out (``fit A B C ... --model auto``; docs/design.md).
-
-Each candidate is fitted on all runs (or groups, ``--groups``) but one, started on the one
-left out as ``strain-comp start`` does and scored over all of it; the lowest median wins, one
-within ``TIE`` losing to a simpler one (``SIMPLER``). The winner is fitted on every run with
-the table (``model_choice``), the error to expect (``expected_error``) and the uncertainty
-learned from its folds. With one run or group, ``ONE_RUN_ORDER`` decides.
+"""The model chosen by leaving runs out (``fit A B C ... --model auto``; docs/design.md): the
+lowest median RMSE after a start on each run (or group) left out, a simpler one within ``TIE``
+before it; with one run or group, ``ONE_RUN_ORDER`` decides.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import functools
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -39,16 +36,11 @@ if TYPE_CHECKING:
 CANDIDATES = ("cubic", "mpi", "apl", "creep_pi")
 """The models ``--model auto`` tries unless ``--candidates`` says otherwise."""
 SIMPLER = ("cubic", "mpi", "creep_pi", "apl", "pl", "sinh_pl", "rational", "spike_decay")
-"""Simplest first: the cubic (4 numbers, no memory), mpi (rate-independent cells), creep_pi
-(linear in its parameters, one ridge), apl (rate-dependent cells, a grid search); the others
-after them (not candidates by default)."""
+"""Simplest first (a tie goes to the earlier)."""
 TIE = 0.02
 """Medians within this share of the lowest are a tie, won by the simpler model."""
 ONE_RUN_ORDER = ("apl", "mpi", "creep_pi", "cubic")
-"""``--model auto`` on one run (or one group) fits the first of these among the candidates:
-ordered by the median ratio to the best in-run bound of a model fitted on one run and used
-on another (docs/results.md, scheme ``pair``, ``warmup``: apl 2.46, mpi 2.82,
-creep_pi 3.15, cubic 3.54)."""
+"""With one run or group, the first of these among the candidates (docs/results.md, ``pair``)."""
 
 
 @dataclass(frozen=True)
@@ -82,8 +74,7 @@ def parse_candidates(text: str | Sequence[str] | None) -> tuple[str, ...]:
 
 
 def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | None:
-    """``--groups 1,1,1,2,2`` -> one label per run (a session or a mounting: a group is
-    left out whole); None for None."""
+    """``--groups 1,1,1,2,2`` -> one label per run; None for None."""
     if text is None:
         return None
     labels = [str(x).strip() for x in (text.split(",") if isinstance(text, str) else text)]
@@ -94,12 +85,15 @@ def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | Non
     return labels
 
 
+def _takes(model: str, key: str) -> bool:
+    """Whether ``model``'s fit takes the option ``key``."""
+    return key in model_options(model) or key in DIRECTION_OPTIONS or key in FIT_OPTIONS
+
+
 def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) -> None:
     """Every option must be one some candidate takes (each gets only its own)."""
     for key, value in options.items():
-        takers = [m for m in candidates if key in model_options(m)]
-        if key in DIRECTION_OPTIONS or key in FIT_OPTIONS:
-            takers = list(candidates)
+        takers = [m for m in candidates if _takes(m, key)]
         if not takers:
             raise InputError(f"--option {key}: no candidate model takes it "
                              f"(candidates: {', '.join(candidates)})")
@@ -108,18 +102,15 @@ def check_auto_options(candidates: Sequence[str], options: Mapping[str, Any]) ->
 
 def options_of(model: str, options: Mapping[str, Any]) -> dict[str, Any]:
     """The options ``model`` takes of ``options`` (no grid lines of an APL-family fit)."""
-    own = model_options(model)
-    out = {k: v for k, v in options.items()
-           if k in own or k in DIRECTION_OPTIONS or k in FIT_OPTIONS}
-    if "progress" in own:
+    out = {k: v for k, v in options.items() if _takes(model, k)}
+    if "progress" in model_options(model):
         out["progress"] = False
     return out
 
 
 def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
                 options: Mapping[str, Any], pool: str) -> Scored | str:
-    """The RMSE of ``fold.model`` on each run left out, fitted on the others and started on
-    each, with the started calibrations; or why it could not be fitted."""
+    """``fold.model`` fitted on the other runs and started on each left out, or why not."""
     rest = [rec for i, rec in enumerate(recordings) if i not in fold.held]
     try:
         cal = fit_sensor(rest, fold.model, name=name, options=options_of(fold.model, options),
@@ -160,11 +151,10 @@ def _cell(model: str, folds: Sequence[Fold], results: Sequence[Scored | str],
 
 def choose_model(recordings: Sequence[Recording], name: str, *,
                  candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
-                 options: Mapping[str, Any] | None = None, pool: str = "spanned",
-                 jobs: int = 1, report: Callable[[str], None] | None = None,
+                 options: Mapping[str, Any] | None = None, pool: str = "spanned", jobs: int = 1,
                  ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
-    """The model of ``--model auto`` (module docstring), its record, and its folds started
-    on each run left out (none with one group): the pairs ``uncertainty.learn`` takes."""
+    """The model of ``--model auto``, its record, and its folds started on each run left out
+    (the pairs ``uncertainty.learn`` takes)."""
     options = dict(options or {})
     labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
     held = [tuple(i for i, g in enumerate(labels) if g == label)
@@ -184,12 +174,6 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
     else:
         results = [fold_errors(*task) for task in tasks]
     table = {model: _cell(model, folds, results, len(recordings)) for model in candidates}
-    for model, cell in table.items():
-        if report is not None:
-            report(f"{name}: {model}: " + (f"failed ({cell['failed']})" if "failed" in cell
-                                           else f"median {cell['median']:.4g}, worst "
-                                                f"{cell['worst']:.4g} over {len(recordings)} "
-                                                "runs left out"))
     scored = {m: c for m, c in table.items() if "median" in c}
     if not scored:
         reasons = "; ".join(f"{m}: {c['failed']}" for m, c in table.items())
@@ -213,18 +197,23 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                                  "runs": len(recordings)}}, pairs
 
 
-def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] = (),
+def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path] = (),
              options: Mapping[str, Any] | None = None, pool: str = "spanned",
              candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
-             jobs: int = 1, report: Callable[[str], None] | None = None,
-             ) -> SensorCalibration:
-    """``fit --model auto`` on one sensor: ``choose_model``'s model fitted on every run, with
-    ``model_choice``, ``expected_error`` and the uncertainty learned from its folds."""
+             jobs: int = 1, index: Sequence[int] | None = None) -> SensorCalibration:
+    """``choose_model``'s model fitted on every run, with its record and uncertainty;
+    ``index``: which input each run is, for ``groups`` given per input."""
+    if groups is not None and index is not None:
+        groups = [groups[i] for i in index]
     model, record, pairs = choose_model(recordings, name, candidates=candidates,
-                                        groups=groups, options=options, pool=pool, jobs=jobs,
-                                        report=report)
+                                        groups=groups, options=options, pool=pool, jobs=jobs)
     cal = fit_sensor(recordings, model, name=name, bags=bags,
-                     options=options_of(model, options or {}), pool=pool, band=not pairs)
+                     options=options_of(model, options or {}), pool=pool)
+    if not pairs and len(recordings) > 1:  # one group: the band from each run left out
+        for j in range(len(recordings)):
+            scored = fold_errors(recordings, name, Fold(model, (j,)), options or {}, pool)
+            if not isinstance(scored, str):
+                pairs.append((scored.started[0], {name: recordings[j]}))
     if pairs:
         cal.uncertainty = learn(pairs).get(name)
     expected = record.pop("expected", None)
@@ -237,13 +226,5 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str] 
 
 def auto_fitter(candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
                 jobs: int = 1) -> Fitter:
-    """``fit_auto`` as ``fit_bags``' ``fitter`` (``fit --model auto``)."""
-    def fit(recordings: Sequence[Recording], *, name: str, bags: Sequence[str | Path],
-            options: Mapping[str, Any] | None, pool: str,
-            index: Sequence[int]) -> SensorCalibration:
-        return fit_auto(recordings, name=name, bags=[str(b) for b in bags], options=options,
-                        pool=pool, candidates=candidates,
-                        groups=None if groups is None else [groups[i] for i in index],
-                        jobs=jobs)
-
-    return fit
+    """``fit_auto`` as ``fit_runs``' ``fitter`` (``fit --model auto``)."""
+    return functools.partial(fit_auto, candidates=candidates, groups=groups, jobs=jobs)

@@ -1,11 +1,5 @@
-"""The ``fit --option K=V`` options of every model, with their types and ranges.
-
-``check_fit_options(model, options)`` refuses, with one ``InputError`` line naming the
-option, an option the model has no use for (every model, ``cubic`` included) and a value
-of the wrong type or out of range, before any bag is read. The table mirrors the keyword
-arguments of each model's ``fit`` (``strain_comp.models``) and the direction-detector
-options every model takes (``strain_comp.offline.deadzone.direction_settings``). The APL grid
-sizes are capped by the kernels (``N_MAX``, ``M_MAX``); lists hold at most 100 values.
+"""The ``fit --option K=V`` options of every model, with their types and ranges: the keyword
+arguments of each model's ``fit`` and the direction-detector options every model takes.
 """
 
 from __future__ import annotations
@@ -14,6 +8,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from strain_comp.core.chain import PAIR_BRANCHES
 from strain_comp.errors import InputError
 from strain_comp.models import MODEL_NAMES
 from strain_comp.models.apl import M_MAX, N_MAX
@@ -105,7 +100,7 @@ def model_options(model: str) -> dict[str, Check]:
 
 DIRECTION_OPTIONS: dict[str, Check] = {
     "deadzone": _number(0.0, strict=True), "k_sigma": _number(0.0, strict=True),
-    "tau": _number(0.0), "alternation": _boolean, "pair": _choice("mean", "upper", "lower"),
+    "tau": _number(0.0), "alternation": _boolean, "pair": _choice(*PAIR_BRANCHES),
 }
 """Options every model takes: the direction detector and the measurement chain."""
 

@@ -1,9 +1,5 @@
 """Several training runs of one sensor put into one input space (``strain-comp fit --pool``;
-docs/design.md): each run mapped by R' = R_0,ref + k (R - R_0,run) onto the run of median
-sensitivity, jointly with one cubic through all mapped runs (``joint_maps``), kept where it
-lowers that cubic's error to ``POOL_GAIN`` (``gate``). A new run is then placed by the
-calibration's steady outputs (``joint``) or by its stretch's line put onto the line the
-training runs' stretches share (``stretch``, ``InputSettings.stretch_line``).
+docs/design.md, docs/results.md "Pooling and the session start").
 """
 
 from __future__ import annotations
@@ -23,16 +19,11 @@ if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
 POOLS = ("spanned", "joint", "stretch", "raw")
-"""How ``fit_sensor`` pools several runs (module docstring): in one input space with the
-session start chosen by measurement (default), ``joint`` or ``stretch``, or as recorded."""
+"""How ``fit_sensor`` pools several runs (``fit --pool``)."""
 POOL_GAIN = 0.7
-"""The per-run maps are kept where they lower the pooled cubic's RMSE to at most this share
-of its RMSE on the runs as recorded (``gate``; docs/results.md: 0.31-0.62 on
-the thread and the fibre, where pooling in one space helps, 0.80-1.00 on the carbon black
-and the rig, where it does not)."""
+"""The maps are kept where they lower the pooled cubic's RMSE to this share (``gate``)."""
 POOL_DEGREE = 3
-"""Degree of the pooled curve of strain on mapped resistance the input maps are fitted
-through (``joint_maps``): the cubic model's."""
+"""Degree of the pooled curve of strain on mapped resistance (``joint_maps``): a cubic."""
 POOL_SAMPLES = 4000
 """Samples of each run (evenly thinned) the input maps are fitted on."""
 
@@ -49,10 +40,9 @@ class Pooled:
     runs: list[Recording]
     """The runs, mapped (or as recorded)."""
     maps: list[dict[str, float]]
-    """Each run's map (``rest``, ``rest_calibrated``, ``span_gain``: R' = rest_calibrated +
-    span_gain (R - rest), the form of ``recalibrate --input``); empty as recorded."""
+    """Each run's map (``rest``, ``rest_calibrated``, ``span_gain``); empty as recorded."""
     record: dict[str, Any]
-    """The provenance's ``pooling``: the space (``pool``) and the figures it was chosen on."""
+    """The provenance's ``pooling``."""
     stretch_line: Line | None = None
     """The line the stretches share (``InputSettings.stretch_line``), for ``stretch``."""
 
@@ -95,8 +85,7 @@ def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: floa
 
 
 def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
-    """The ``joint`` space: each run's affine map fitted jointly with a pooled cubic of strain
-    on mapped resistance, from the runs' lines, anchored on the median-sensitivity run."""
+    """Each run's affine map onto the median-sensitivity run, fitted jointly with a cubic."""
     from scipy.optimize import least_squares
 
     found = _lines(recordings)
@@ -132,8 +121,7 @@ def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
 
 def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float
                   ) -> Line | None:
-    """The line the runs' calibration stretches share once mapped
-    (``correction.run_line`` of their stretches, mapped and pooled)."""
+    """The line the runs' calibration stretches share once mapped."""
     parts = []
     for rec, (z, k) in zip(recordings, maps, strict=True):
         stretch = None if rec.s is None else calibration_stretch(rec.t, rec.s)
@@ -151,8 +139,7 @@ def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: f
 
 
 def gate(recordings: Sequence[Recording]) -> tuple[dict[str, Any], Joint | None]:
-    """Whether the runs differ in zero and sensitivity: the pooled cubic's RMSE through the
-    ``joint`` maps against the runs as recorded, kept where at most ``POOL_GAIN`` of it."""
+    """The ``joint`` maps where they lower the pooled cubic's RMSE to ``POOL_GAIN`` of it."""
     joint = joint_maps(recordings)
     if joint is None:
         return {"why": "a run has no line, or the runs' lines disagree in sign"}, None
@@ -165,8 +152,7 @@ def gate(recordings: Sequence[Recording]) -> tuple[dict[str, Any], Joint | None]
 
 def pooled_input(recordings: Sequence[Recording], pool: str, joint: Joint | None = None
                  ) -> Pooled:
-    """The runs in one input space (``joint``, ``stretch``: the joint maps, and the stretches'
-    shared line) or as recorded (``raw``, or where no maps can be made)."""
+    """The runs in one input space (``joint``, ``stretch``) or as recorded (``raw``)."""
     if pool not in POOLS or pool == "spanned":
         raise InputError(f"--pool {pool!r}: expected one of {', '.join(POOLS)}")
     as_recorded = Pooled(list(recordings), [], {"pool": "raw"})

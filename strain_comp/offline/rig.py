@@ -1,14 +1,6 @@
-"""Virtual test rig: a soft resistive strain sensor on a tensile tester (strain % in, ohm out).
-
-It makes the bundled bags and the residual loop's test bags, whose data may carry an
-effect that a calibration does not declare. The behaviour to reproduce is the Electrolycra
-sensor of [Electrolycra] (sections II.A-B): a clockwise S-R hysteresis loop that
-rotates counter-clockwise about its lower-left corner as the strain rate grows, resistance
-relaxation after loading steps that is negligible after unloading steps, a voltage-divider
-read-out (R1 = 10.5 ohm, Vin = 3.2 V) and a specimen of L0 = 100 mm (so 50 mm/min is
-50 %/min).
-
-The forward model, per sensor, and its effects (``RigEffects``): docs/architecture.md.
+"""Virtual test rig: a soft resistive strain sensor on a tensile tester (strain % in, ohm out),
+after the Electrolycra sensor of [Electrolycra]; the forward model and its effects
+(``RigEffects``): docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -97,8 +89,8 @@ class RigEffects:
         return [f.name for f in dataclasses.fields(cls)]
 
     @classmethod
-    def parse(cls, items: Iterable[str], *, base: RigEffects | None = None) -> RigEffects:
-        """Effects from ``name=value`` strings over ``base`` (default ``RigEffects()``)."""
+    def parse(cls, items: Iterable[str]) -> RigEffects:
+        """Effects from ``name=value`` strings, the others at their defaults."""
         changes: dict[str, float] = {}
         for item in items:
             name, sep, value = item.partition("=")
@@ -110,7 +102,7 @@ class RigEffects:
                 changes[name] = float(value)
             except ValueError:
                 raise ParameterError(name, f"not a number: {value!r}") from None
-        return dataclasses.replace(base or cls(), **changes)
+        return cls(**changes)
 
     @classmethod
     def describe(cls) -> str:
@@ -130,23 +122,18 @@ class SensorSpec:
 
 @dataclass(frozen=True)
 class SimSensor:
-    """A simulated sensor's data: time [s], true strain [%], measured and noise-free
-    resistance [ohm], temperature [deg C] or None."""
+    """A simulated sensor's data: time [s], strain [%], resistance [ohm], temperature [deg C]."""
 
     t: np.ndarray
     strain: np.ndarray
     resistance: np.ndarray
-    resistance_true: np.ndarray
     temperature: np.ndarray | None
 
 
 @dataclass(frozen=True)
 class SimRun:
-    """The result of ``simulate``: sensors in order; ``array`` names the array topic prefix
-    when the sensors form one array (else each sensor has its own topics)."""
+    """The result of ``simulate``; ``array``: the array topic prefix of sensors in one array."""
 
-    scenario: str
-    seed: int
     effects: RigEffects
     fs: float
     sensors: dict[str, SimSensor]
@@ -404,17 +391,14 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
         noise_rng = np.random.default_rng([seed, 1 + i])
         chain = _chain(t, r[:, i], fx, np.random.default_rng([seed, 100 + i]))
         sensors[name] = SimSensor(t=t, strain=strain[:, i].copy(),
-                                  resistance=_read_out(chain, fx, noise_rng),
-                                  resistance_true=r[:, i].copy(), temperature=temp)
-    return SimRun(scenario=scenario, seed=seed, effects=fx, fs=sc.fs, sensors=sensors,
+                                  resistance=_read_out(chain, fx, noise_rng), temperature=temp)
+    return SimRun(effects=fx, fs=sc.fs, sensors=sensors,
                   array=ARRAY_NAME if scenario == "array" else None)
 
 
 def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:
-    """Write a SimRun as an MCAP bag: per sensor ``/NAME/resistance``,
-    ``/NAME/strain_reference`` and (when simulated) ``/NAME/temperature``; for an array
-    ``/ARRAY/resistance`` and ``/ARRAY/strain_reference`` (Float64MultiArray, labels = sensor
-    names) and ``/ARRAY/temperature``."""
+    """Write a SimRun as an MCAP bag: per sensor (or array) its resistance, strain_reference
+    and temperature topics."""
     first = next(iter(run.sensors.values()))
     step = max(1, round(run.fs / temperature_rate))
     with BagWriter(path) as writer:
@@ -435,7 +419,3 @@ def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.
             if sensor.temperature is not None:
                 writer.write_temperature(f"/{name}/temperature", sensor.t[::step],
                                          sensor.temperature[::step])
-
-
-__all__ = ["SCENARIOS", "RigEffects", "SensorSpec", "SimRun", "SimSensor", "simulate",
-           "temperature_profile", "write_sim_bag"]

@@ -1,7 +1,5 @@
-"""The start of a session (``strain-comp start``, ``sc.session_start``; docs/design.md): the
-calibration stretch found on a recording with a reference (the second stretch and return
-after a warm-up, else the first), the correction the calibration's fit chose made on it,
-and ``recalibrate``'s work; refusals say what to record instead.
+"""The start of a session (``strain-comp start``; docs/design.md) and ``recalibrate``'s work:
+the calibration stretch found and the correction the calibration's fit chose made on it.
 """
 
 from __future__ import annotations
@@ -45,8 +43,7 @@ if TYPE_CHECKING:
 Window = tuple[float, float]
 """(START, END) seconds after a run's start of the stretch read (START 0: ``--first END``)."""
 SPACES = ("joint", "stretch")
-"""The session starts of a pooled fit (``fit --pool spanned`` chooses between them by
-``choose_space``; ``strain_comp.offline.pool``)."""
+"""The session starts of a pooled fit (``choose_space``)."""
 
 RECORD = ("record one stretch and back as a warm-up, then the calibration stretch and back, "
           "to about the largest strain you will use, each from rest")
@@ -96,8 +93,7 @@ class Started:
 
 def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
                ) -> tuple[Window, Window | None]:
-    """(first stretch, the calibration stretch after it or None) of a start recording;
-    InputError in the user's terms when it has no stretch and return a start can read."""
+    """(first stretch, the calibration stretch after it or None) of a start recording."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     tt, ss = t[ok], s[ok]
@@ -129,9 +125,7 @@ def stretch_of(t: np.ndarray, s: np.ndarray, strain_range: float, source: str,
 def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
           window: Window | None = None, sensors: Sequence[str] | None = None,
           source: str = "the recording", first: float | None = None) -> Started:
-    """The session start on a recording with a reference: the calibration stretch found
-    (or ``window``, or the first ``first`` seconds), the correction made, a record per
-    sensor."""
+    """The session start on the stretch found (or ``window``, or the first ``first`` s)."""
     names = [n for n, rec in recordings.items() if n in calibration.sensors
              and rec.s is not None and not (sensors and n not in sensors)]
     for name in sensors or ():
@@ -178,8 +172,7 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
 
 def start_or_keep(calibration: Calibration, recordings: Mapping[str, Recording], *,
                   window: Window | None = None) -> Started:
-    """``start``, or the calibration as it is (the refusal as its note) where refused: what a
-    refused user is left with, as the benchmark and the fits' folds score it."""
+    """``start``, or the calibration as it is (the refusal as its note) where refused."""
     try:
         return start(calibration, recordings, window=window)
     except InputError as err:
@@ -195,23 +188,17 @@ def _why(note: str) -> str:
     return f"{step} not made: {why}" if why else note
 
 
-def _wanted(calibration: Calibration, name: str) -> int:
-    """How many steps a start makes on the sensor (``session_forms``)."""
-    return len(session_forms(calibration.sensors[name]))
-
-
 Made = tuple[Calibration, dict[str, list[str]], list[str], Window]
 """A session start on one stretch (``_made``)."""
 
 
 def _found(calibration: Calibration, recordings: Mapping[str, Recording],
            stretches: tuple[Window, Window | None], source: str) -> Made:
-    """The start on the second stretch, or on the first (read as it is) where the second is
-    missing or takes fewer steps (the README's fallback; the carbon black's creep_pi takes
-    it on 4 of 5 runs left out)."""
+    """The start on the second stretch, or on the first where the second is missing or takes
+    fewer steps (the README's fallback)."""
     first, second = stretches
     made = None if second is None else _made(calibration, recordings, second, source)
-    if made is not None and all(len(steps) == _wanted(calibration, n)
+    if made is not None and all(len(steps) == len(session_forms(calibration.sensors[n]))
                                 for n, steps in made[1].items()):
         return made
     at_first = _made(calibration, recordings, first, source, given=None)
@@ -226,8 +213,7 @@ def _found(calibration: Calibration, recordings: Mapping[str, Recording],
 
 def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: Window,
           source: str, *, given: bool | None = False) -> Made:
-    """``session_start`` on ``span``; the window refused first: as ``--window`` says it
-    where ``given``, in the start's terms where False, not checked where None."""
+    """``session_start`` on ``span``, the window checked first (``given``: as ``--window``)."""
     try:
         if given is not None:
             window_of(recordings, span, calibration, source)
@@ -249,8 +235,7 @@ FIRST_CYCLE_CAP = 0.4
 
 
 def cycle_end(t: np.ndarray, s: np.ndarray) -> float | None:
-    """Seconds from the first sample to the end of the first stretch and return of ``s``
-    (past ``CYCLE_UP`` of its span, back within ``CYCLE_BACK``); None when there is none."""
+    """Seconds from the first sample to the end of the first stretch and return of ``s``."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     origin = _origin(t)
     ok = np.isfinite(t) & np.isfinite(s)
@@ -274,8 +259,7 @@ def _origin(t: np.ndarray) -> float | None:
 
 
 def stretch_and_return(s: np.ndarray, strain_range: float) -> bool:
-    """True for a load and unload: ``s`` rises from its low part (within ``CYCLE_UP`` of its
-    span) to its maximum and falls back, over ``MIN_CYCLE_SHARE`` of ``strain_range``."""
+    """True for a load and unload over ``MIN_CYCLE_SHARE`` of ``strain_range``."""
     s = np.asarray(s, dtype=np.float64)
     s = s[np.isfinite(s)]
     if s.size < 3 or not np.ptp(s) >= MIN_CYCLE_SHARE * strain_range:
@@ -299,10 +283,8 @@ def parse_window(text: str) -> tuple[float, float]:
 def head(recordings: Mapping[str, Recording], seconds: float | None,
          ) -> dict[str, Recording]:
     """Each recording's first ``seconds`` (all of it when None): ``window`` (0, seconds)."""
-    if seconds is None:
+    if seconds is None:  # > 0 otherwise: checked where the user gives it (api.inputs)
         return dict(recordings)
-    if not (np.isfinite(seconds) and seconds > 0):
-        raise InputError(f"--first {seconds!r}: expected a duration > 0 s")
     return {name: cut(rec, 0.0, seconds) for name, rec in recordings.items()}
 
 
@@ -318,9 +300,8 @@ def cut(rec: Recording, start: float, end: float) -> Recording:
 
 def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
            calibration: Calibration, source: str = "the bag") -> dict[str, Recording]:
-    """Each referenced recording up to ``span[1]``, its reference NaN before ``span[0]``
-    (``--window``: a memory model enters the window in the state the warm-up left);
-    InputError for a window beyond the end or without a stretch and return."""
+    """Each referenced recording up to ``span[1]``, its reference NaN before ``span[0]`` (a
+    memory model enters the window in the state the warm-up left)."""
     start, end = span
     out = {}
     for name, rec in recordings.items():
@@ -343,8 +324,7 @@ def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
 
 
 def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
-    """Seconds to the end of a run's first load and unload, at most ``FIRST_CYCLE_CAP`` of
-    the run; None when the reference never moves."""
+    """Seconds to the end of a run's first load and unload, at most ``FIRST_CYCLE_CAP``."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     ok = np.isfinite(t) & np.isfinite(s)
     if ok.sum() < 2 or not np.percentile(s[ok], 99) > np.percentile(s[ok], 1):
@@ -356,8 +336,7 @@ def first_cycle(t: np.ndarray, s: np.ndarray) -> float | None:
 
 
 def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | None:
-    """(START, END) seconds of the stretch the README's session start reads: the second
-    load and unload after a warm-up one, else the first (START 0); None if none moves."""
+    """(START, END) seconds of the second load and unload, else the first (START 0)."""
     t, s = np.asarray(t, dtype=np.float64), np.asarray(s, dtype=np.float64)
     first = first_cycle(t, s)
     if first is None:
@@ -375,8 +354,7 @@ def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | N
 # The steps of a session start, and ``recalibrate`` from a recording or two points.
 
 def session_forms(cal: SensorCalibration) -> tuple[str, ...]:
-    """The steps of a session start on a sensor: input then output; the input step alone with
-    a stretch line, which places the run gain and offset included."""
+    """The steps of a session start on a sensor: input, then output unless a stretch line."""
     return ("input",) if cal.input.stretch_line is not None else ("input", "output")
 
 
@@ -393,9 +371,8 @@ def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
 def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
                   window: Window, source: str = "",
                   ) -> tuple[Calibration, dict[str, list[str]], list[str]]:
-    """``calibration`` after ``recalibrate --input`` and then ``recalibrate --from`` on
-    ``window`` (``session_forms``), the forms made -> their sensors, and the lines of what
-    each step did; a step that cannot be made is skipped, as for a user, and says why."""
+    """``calibration`` after each step on ``window`` (``session_forms``), the forms made ->
+    their sensors, and a line per step done (or skipped, and why)."""
     made: dict[str, list[str]] = {}
     lines: list[str] = []
     head = window[0] == 0.0
@@ -435,8 +412,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
                            sensors: Sequence[str] | None = None, tare: str = "calibration",
                            source: str = "", span: tuple[float, float] | None = None,
                            ) -> tuple[Calibration, list[str]]:
-    """``recalibrate`` from recordings with a reference (their first ``first`` seconds or
-    ``span``): the output map by least squares, or the input zero and span."""
+    """``recalibrate --from`` on the first ``first`` seconds or ``span`` of recordings."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if span is not None and first is not None:
@@ -487,10 +463,11 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
 def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
                 sensors: Sequence[str] | None = None, form: str = "output",
                 ) -> tuple[Calibration, list[str]]:
-    """``recalibrate --point``: the calibration through two known points on one sensor, and
-    a line saying what changed."""
+    """``recalibrate --point``: the calibration through two known points on one sensor."""
     if form not in FORMS:
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
+    if len(points) != 2:
+        raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
     out = dict(calibration.sensors)
     lines = []
     names = list(sensors or calibration.sensors)
@@ -513,17 +490,13 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
     return Calibration(out), lines
 
 
-# Which session start a pooled fit takes (``fit --pool spanned``): by leaving out each
-# training run in turn.
-
 Fit = Callable[[Sequence["Recording"]], SensorCalibration]
 """Fits the choice's model (the cubic) on runs pooled with the stretch line."""
 
 
 def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
-    """The session start of a pooled fit, ``joint`` or ``stretch``: the lower root mean
-    square RMSE over the runs left out in turn (``fit`` on the others, started as ``start``
-    does). On all three fibre runs it takes ``joint``, on the thread ``stretch``."""
+    """The session start of a pooled fit (``joint``, ``stretch``) scoring lower over the runs
+    left out in turn."""
     errors: dict[str, list[float]] = {space: [] for space in SPACES}
     for j, held in enumerate(recordings):
         rest = [rec for i, rec in enumerate(recordings) if i != j]

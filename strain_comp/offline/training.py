@@ -1,8 +1,5 @@
-"""The training data of a fit: screened as the engine screens (``good_mask``, a finite
-reference), cut into segments where the engine resets (a gap over ``GAP_SECONDS``, or
-``GAP_INTERVALS`` sample intervals of a slow instrument, stored as ``sample_interval``;
-each recording a new segment), checked, and their valid range (widened by
-``TRAINING_WIDENING`` of its span, the resistance kept > 0).
+"""The training data of a fit: screened as the engine screens, cut into segments where the
+engine resets, checked, and their valid range.
 """
 
 from __future__ import annotations
@@ -28,18 +25,15 @@ GAP_SECONDS = GAP_RESET
 MIN_SEGMENT = 8
 """Segments with fewer good samples are not used for fitting."""
 MIN_SPAN = 1e-9
-"""Smallest span of the training resistance [ohm] and reference strain a fit accepts: a
-finer one (a reference near 1e-300) is a unit mistake that the least-squares solvers
-cannot resolve (LAPACK fails)."""
+"""Smallest span of the training resistance [ohm] and strain: a finer one is a unit mistake
+that the least-squares solvers cannot resolve (LAPACK fails)."""
 TRAINING_WIDENING = 0.05
-"""Valid range = training range widened by this fraction of its span on each side (the
-engine then flags beyond ``MARGIN`` more)."""
+"""Valid range = training range widened by this fraction of its span on each side."""
 
 
 def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
                    gap: float = GAP_SECONDS) -> list[Segment]:
-    """Good, referenced samples of one recording cut into segments (module docstring)
-    wherever the time steps back or forward by more than ``gap``."""
+    """Good, referenced samples cut where the time steps back or forward by over ``gap``."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64)
@@ -56,8 +50,7 @@ def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
 
 def training_segments(recordings: Sequence[Recording], name: str,
                       interval: float | None) -> list[Segment]:
-    """Every recording's segments (``split_segments``, the gap of a slow instrument's
-    ``interval``)."""
+    """Every recording's segments (``split_segments``, the gap of ``interval``)."""
     segments: list[Segment] = []
     for rec in recordings:
         if rec.s is None:
@@ -92,19 +85,18 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
                            "(a unit or scale mistake?)")
 
 
-def valid_range(segments: Sequence[Segment], *, margin: float = TRAINING_WIDENING) -> ValidRange:
-    """Training range of R and S widened by ``margin`` x span on each side (R kept > 0)."""
+def valid_range(segments: Sequence[Segment]) -> ValidRange:
+    """Training range of R and S widened by ``TRAINING_WIDENING`` (R kept > 0)."""
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     r_lo, r_hi = float(r.min()), float(r.max())
     s_lo, s_hi = float(s.min()), float(s.max())
-    r_pad, s_pad = margin * (r_hi - r_lo), margin * (s_hi - s_lo)
+    r_pad, s_pad = TRAINING_WIDENING * (r_hi - r_lo), TRAINING_WIDENING * (s_hi - s_lo)
     return ValidRange(max(r_lo - r_pad, 0.5 * r_lo), r_hi + r_pad, s_lo - s_pad, s_hi + s_pad)
 
 
 def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
-    """The median interval between the recordings' good samples when ``GAP_INTERVALS`` of it
-    exceed ``GAP_SECONDS`` (a slow instrument, module docstring)."""
+    """The median interval between good samples, where a slow instrument's (else None)."""
     steps = [np.diff(np.asarray(rec.t, dtype=np.float64)[good_mask(rec.t, rec.r)])
              for rec in recordings]
     dt = np.concatenate(steps) if steps else np.empty(0)
@@ -117,9 +109,7 @@ def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
 
 def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "mean",
                              ) -> float | None:
-    """The calibration's rest resistance: the median over the training runs of each run's
-    leading rest level (``strain_comp.core.tare.rest_resistance_from_reference``, the
-    statistic an automatic tare uses at run time)."""
+    """The median over the runs of each one's leading rest level, as an automatic tare's."""
     levels = [rest_resistance_from_reference(rec.t, rec.r, rec.s, pair=pair)
               for rec in recordings
               if rec.s is not None]

@@ -9,7 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from strain_comp.base.conversion import divider_to_resistance, resistance_to_divider
+from strain_comp.base import samples as sc
+from strain_comp.base.conversion import (
+    divider_all,
+    divider_ohm,
+    divider_to_resistance,
+    resistance_to_divider,
+)
 
 
 @settings(max_examples=100, deadline=None)
@@ -30,3 +36,17 @@ def test_bad_readings_give_nan() -> None:
     r = divider_to_resistance(v, 1000.0, 5.0)
     assert np.all(np.isnan(r[:-1]))
     assert r[-1] == 1000.0
+
+
+def test_divider_ohm_is_the_divider_formula_and_flags_open_and_short() -> None:
+    v = np.concatenate([np.random.default_rng(7).uniform(-1.0, 6.0, 500),
+                        [0.0, 5.0, np.nan, np.inf]])
+    ohm, forced = divider_all(v, 1000.0, 5.0)
+    with np.errstate(all="ignore"):
+        formula = np.where((v > 0.0) & (v < 5.0), 1000.0 * (5.0 - v) / v, np.nan)
+    np.testing.assert_array_equal(ohm, formula)
+    expected = np.where(v <= 0.0, sc.OPEN_CIRCUIT, np.where(v >= 5.0, sc.SHORT_CIRCUIT, sc.GOOD))
+    np.testing.assert_array_equal(forced, expected)
+    for x, o, f in zip(v.tolist(), ohm.tolist(), forced.tolist(), strict=True):
+        one, flag = divider_ohm(x, 1000.0, 5.0)
+        assert flag == f and (one == o or (math.isnan(one) and math.isnan(o)))

@@ -42,7 +42,7 @@ def test_kernel_matches_reference(tau: float) -> None:
     assert batch.dtype == np.int8
     assert batch.tolist() == detect_slow(t.tolist(), r.tolist(), 1.0, tau)
     det = DirectionDetector(settings)
-    assert [det.step(a, b) for a, b in zip(t, r, strict=True)] == batch.tolist()
+    assert [int(det.run([a], [b])[0]) for a, b in zip(t, r, strict=True)] == batch.tolist()
     det.reset()
     assert det.run(t, r).tolist() == batch.tolist()
 

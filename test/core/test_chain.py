@@ -17,7 +17,6 @@ from strain_comp.core.chain import (
     alternation,
     correct,
     pair_branch,
-    pair_means,
     pair_values,
     quantisation,
 )
@@ -55,7 +54,7 @@ def test_no_alternation_in_white_noise_or_below_the_noise() -> None:
 def test_pair_means_cancel_alternation_whatever_its_phase() -> None:
     base = np.linspace(100.0, 200.0, 11)
     for phase in (0, 1):
-        out = pair_means(base + 7.0 * (-1.0) ** (np.arange(11) + phase))
+        out = pair_values(base + 7.0 * (-1.0) ** (np.arange(11) + phase))
         np.testing.assert_allclose(out[1:], 0.5 * (base[1:] + base[:-1]))
 
 
@@ -132,9 +131,9 @@ def test_a_spike_on_alternating_input_is_removed_from_the_pair_means() -> None:
     r[[300, 900]] += [500.0, -400.0]
     seen, _, corrector = correct(t, r)
     assert corrector.n_spikes == 2
-    truth = pair_means(r - 30.0 * (-1.0) ** np.arange(t.size))
+    truth = pair_values(r - 30.0 * (-1.0) ** np.arange(t.size))
     truth[[300, 301, 900, 901]] = np.nan  # the spikes' pair means
-    assert np.nanmax(np.abs(seen - pair_means(r))[[300, 301, 900, 901]]) > 100.0
+    assert np.nanmax(np.abs(seen - pair_values(r))[[300, 301, 900, 901]]) > 100.0
     assert abs(seen[300] - truth[299]) < 30.0 and abs(seen[901] - truth[902]) < 30.0
 
 
@@ -319,7 +318,7 @@ def test_pair_branch_reads_the_side_from_steps_in_holds() -> None:
     assert pair_branch(one_sided(t, r), np.zeros(t.size, dtype=bool)) == "mean"
     # the upper pair value follows the truth through the steps; the mean steps by half
     upper = pair_values(one_sided(t, r), branch="upper")[1:]
-    mean = pair_means(one_sided(t, r))[1:]
+    mean = pair_values(one_sided(t, r))[1:]
     inside = still[1:] & still[:-1]
     assert np.max(np.abs(upper - r[1:])[inside]) < 15.0  # max of two of 2 ohm noise
     assert np.max(np.abs(mean - r[1:])[inside]) > 140.0

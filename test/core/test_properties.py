@@ -187,5 +187,3 @@ def test_detector_never_leaves_hold_below_its_deadzone(deadzone: float, tau: flo
     r = r0 + np.concatenate(([0.0], np.cumsum(np.array(rates[1:]) * deadzone * dt[1:])))
     detector = DirectionDetector(DirectionSettings(deadzone=deadzone, tau=tau))
     assert not detector.run(t, r).any()
-    detector.reset()
-    assert all(detector.step(ti, ri) == 0 for ti, ri in zip(t, r, strict=True))

@@ -10,14 +10,11 @@ import numpy as np
 import pytest
 
 from strain_comp.base import samples as sc
-from strain_comp.base.conversion import divider_to_resistance
 from strain_comp.core.stages import (
     RANGE_COLUMNS,
     bound,
     bound_all,
     clamp,
-    divider_all,
-    divider_ohm,
     hold,
     model_read,
     saturate_all,
@@ -41,17 +38,6 @@ def _bound_reference(ohm: np.ndarray, strain: np.ndarray, row: np.ndarray) -> np
     out = out + np.where(ohm > r_hi, hi * (ohm - r_hi), 0.0) \
         + np.where(ohm < r_lo, lo * (ohm - r_lo), 0.0)
     return np.clip(out, reach_lo, reach_hi)
-
-
-def test_divider_ohm_is_the_divider_formula_and_flags_open_and_short() -> None:
-    v = np.concatenate([RNG.uniform(-1.0, 6.0, 500), [0.0, 5.0, np.nan, np.inf]])
-    ohm, forced = divider_all(v, 1000.0, 5.0)
-    np.testing.assert_array_equal(ohm, divider_to_resistance(v, 1000.0, 5.0))
-    expected = np.where(v <= 0.0, sc.OPEN_CIRCUIT, np.where(v >= 5.0, sc.SHORT_CIRCUIT, sc.GOOD))
-    np.testing.assert_array_equal(forced, expected)
-    for x, o, f in zip(v.tolist(), ohm.tolist(), forced.tolist(), strict=True):
-        one, flag = divider_ohm(x, 1000.0, 5.0)
-        assert flag == f and (one == o or (math.isnan(one) and math.isnan(o)))
 
 
 @pytest.mark.parametrize("row", [

@@ -23,7 +23,6 @@ from strain_comp.core.chain import (
     STEP_SAMPLES,
     alternation,
     correct,
-    pair_means,
     pair_values,
 )
 from strain_comp.core.tare import rest_resistance_at_start
@@ -56,7 +55,7 @@ def test_the_alternating_excitation_is_found_and_cancelled(v9_head: tuple) -> No
     assert 10.0 < abs(unloaded.amplitude) < 40.0
     assert 300.0 < abs(loaded.amplitude) < 500.0
     jumps = np.median(np.abs(np.diff(r[3000:])))
-    assert np.median(np.abs(np.diff(pair_means(r[3000:])[1:]))) < 0.2 * jumps
+    assert np.median(np.abs(np.diff(pair_values(r[3000:])[1:]))) < 0.2 * jumps
 
 
 def test_auto_tare_reads_the_rest_level_through_the_alternation(v9_head: tuple) -> None:
@@ -82,7 +81,7 @@ def measured(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_the_corrector_leaves_loading_alone(path: Path) -> None:
     t, r, position = measured(path)
     wobble = alternation(r).present
-    seen = pair_means(r) if wobble else r
+    seen = pair_values(r) if wobble else r
     _, _, stepper = correct(t, r, step_k=STEP_K, alternating=wobble)
     for step in stepper.steps:  # only where the reference does not move
         watch = (t > step.t - 2.0 * STEP_SAMPLES * np.median(np.diff(t))) & (t <= step.t)
@@ -138,7 +137,7 @@ def test_a_one_sided_alternation_switches_on_in_a_loaded_hold() -> None:
     def fall(series: np.ndarray) -> float:
         return float(np.median(series[before[1:]]) - np.median(series[after[1:]]))
 
-    upper, mean = fall(pair_values(r, branch="upper")[1:]), fall(pair_means(r)[1:])
+    upper, mean = fall(pair_values(r, branch="upper")[1:]), fall(pair_values(r)[1:])
     assert abs(upper) < 100.0  # the hold's own relaxation over 15 s
     assert 280.0 < mean - upper < 420.0  # half the 680 ohm drop of every other sample
 

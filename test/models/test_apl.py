@@ -10,12 +10,13 @@ import pytest
 
 from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.base.direction import DirectionSettings
-from strain_comp.errors import FitError, ParameterError
+from strain_comp.errors import FitError, InputError, ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import model_class, pwa
 from strain_comp.models.apl import APL, MPI, PL
 from strain_comp.models.apl_array import APLArray
 from strain_comp.models.cubic import Cubic
+from strain_comp.offline.options import check_fit_options
 
 DIRECTION = DirectionSettings(deadzone=0.0)
 NORM = Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0)
@@ -159,12 +160,12 @@ def test_f_strictly_increasing_and_exact_inverse():
     for _ in range(10):
         model = random_model(rng, APL)
         psi = np.linspace(-3, 3, 2001)
-        f = model.f(psi)
+        f = pwa.path_matrix(psi, model.M) @ pwa.slopes_from_mu(model.mu)
         assert np.all(np.diff(f) > 0)
         np.testing.assert_allclose([ref_f(v, model.mu.tolist()) for v in psi[::50]],
                                    f[::50], rtol=1e-12, atol=1e-12)
-        _, b, f_at_b, inv_slopes = model.array_tables()
-        np.testing.assert_allclose(pwa.finv_array(f, b, f_at_b, inv_slopes), psi, atol=1e-12)
+        np.testing.assert_allclose(pwa.finv_array(f, model.b, model.f_at_b, model.inv_slopes),
+                                   psi, atol=1e-12)
 
 
 def test_array_kernel_matches_per_sensor_models():
@@ -319,11 +320,9 @@ def test_fit_errors():
     t = np.arange(2000.0)
     with pytest.raises(FitError, match="excitation"):
         MPI.fit([Segment(t, np.full(t.size, 10.0), np.sin(t))], NORM, direction=DIRECTION)
-    with pytest.raises(FitError):
-        APL.fit([Segment(t, 10 + np.sin(t), np.sin(t))], NORM, direction=DIRECTION, M=4)
-    for bad in ({"output_nfev": -1}, {"search_nfev": 1.5}, {"search_top": True}):
-        with pytest.raises(FitError, match="integers"):
-            APL.fit([Segment(t, 10 + np.sin(t), np.sin(t))], NORM, direction=DIRECTION, **bad)
+    for bad in ({"M": 4}, {"output_nfev": -1}, {"search_nfev": 1.5}, {"search_top": True}):
+        with pytest.raises(InputError, match="integer"):
+            check_fit_options("apl", bad)
 
 
 # ---------------------------------------------------------------- paper's claims

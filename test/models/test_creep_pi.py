@@ -15,10 +15,11 @@ from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.calibration_file import load_calibration, save_calibration
-from strain_comp.errors import CalibrationError, FitError, ParameterError
+from strain_comp.errors import CalibrationError, FitError, InputError, ParameterError
 from strain_comp.models import model_class
 from strain_comp.models.creep_pi import LAM_GRID, CreepPI, CreepPIArray, play_thresholds
 from strain_comp.models.cubic import Cubic
+from strain_comp.offline.options import check_fit_options
 
 DIRECTION = DirectionSettings(deadzone=1e-3)
 NORM = Normalisation(r0=2.0, alpha=-6.0, s0=15.0, beta=-1.0)
@@ -255,7 +256,7 @@ def test_single_segment_and_bad_options() -> None:
     assert np.sqrt(np.mean((model.run(seg.t, seg.r) - s) ** 2)) < 0.5
     for bad in ({"taus": [0.0]}, {"taus": []}, {"n_play": 0}, {"n_play": 2.5},
                 {"lam": -1.0}, {"lam": True}):
-        with pytest.raises(FitError):
-            CreepPI.fit([seg], norm, direction=DIRECTION, **bad)
+        with pytest.raises(InputError):
+            check_fit_options("creep_pi", bad)
     with pytest.raises(FitError):
         CreepPI.fit([Segment(t[:10], seg.r[:10], s[:10])], norm, direction=DIRECTION)

@@ -85,8 +85,8 @@ def test_a_tie_goes_to_the_simpler_model(monkeypatch: pytest.MonkeyPatch) -> Non
 
 def test_the_band_is_learned_from_the_choices_folds_not_fitted_again(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """The uncertainty of ``--model auto`` is the one ``fit_sensor``'s ``band`` learns by
-    fitting the chosen model's folds again (weight for weight), yet the chosen model is
+    """The uncertainty of ``--model auto`` is the one its folds give when the runs form one
+    group (each run left out after the choice; weight for weight), yet the chosen model is
     fitted once per fold and once on every run (before: twice per fold; the input space's
     own cubic fits, ``pool="stretch"``, not counted)."""
     runs = [Recording("s1", rec.t, rec.r + np.random.default_rng(i).normal(0.0, 0.2,
@@ -103,7 +103,8 @@ def test_the_band_is_learned_from_the_choices_folds_not_fitted_again(
         monkeypatch.setattr(module, "fit_sensor", counted)
     cal = model_choice.fit_auto(runs, name="s1", candidates=("cubic",))
     assert fits.count("cubic") == len(runs) + 1
-    again = fit_sensor(runs, "cubic", name="s1", band=True)
+    again = model_choice.fit_auto(runs, name="s1", candidates=("cubic",),
+                                  groups=["a"] * len(runs))
     assert cal.uncertainty is not None and again.uncertainty is not None
     assert cal.uncertainty == again.uncertainty
     assert cal.uncertainty.runs == len(runs)

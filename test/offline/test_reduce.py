@@ -129,8 +129,8 @@ def test_reduced_fit_error_on_the_full_data_is_close_to_the_full_fit() -> None:
 
 
 def test_fit_budget_option() -> None:
-    """``--option fit_budget=N`` sets the budget; a bad value is a FitError naming it."""
-    from strain_comp.errors import FitError
+    """``--option fit_budget=N`` sets the budget; a bad value is an InputError naming it."""
+    from strain_comp.errors import InputError
 
     t, s, _, _ = _protocol()
     rec = Recording("s1", t, 100.0 + 2.0 * s + 0.01 * np.sin(t), s)
@@ -138,7 +138,7 @@ def test_fit_budget_option() -> None:
     assert cal.provenance["fit_reduction"]["factor"] == -(-t.size // 2000)
     assert "fit_budget" not in cal.provenance["options"]
     for bad in (10, "many", 5000.5, True):
-        with pytest.raises(FitError, match="fit_budget"):
+        with pytest.raises(InputError, match="fit_budget"):
             fit_sensor([rec], "cubic", name="s1", options={"fit_budget": bad})
 
 

@@ -19,6 +19,7 @@ from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
+from strain_comp.offline.model_choice import fit_auto
 from strain_comp.offline.replay import replay_bag
 from strain_comp.offline.uncertainty import fit_weights
 
@@ -81,12 +82,12 @@ def run(seed: int, gain: float) -> Recording:
 
 
 def test_fit_learns_a_band_from_several_runs_only() -> None:
-    """``band`` (``fit --model auto``'s final fit): learned from two runs or more; a plain
-    fit learns none."""
+    """``fit --model auto`` on one group: a band learned from two runs or more by leaving
+    each out; a plain fit learns none."""
     runs = [run(i, g) for i, g in enumerate((1.0, 1.1, 0.9))]
-    assert fit_sensor(runs[:1], "cubic", name="s1", band=True).uncertainty is None
+    assert fit_auto(runs[:1], name="s1", candidates=("cubic",)).uncertainty is None
     assert fit_sensor(runs, "cubic", name="s1").uncertainty is None
-    cal = fit_sensor(runs, "cubic", name="s1", band=True)
+    cal = fit_auto(runs, name="s1", candidates=("cubic",), groups=["1"] * len(runs))
     assert cal.uncertainty is not None and cal.uncertainty.runs == 3
     assert cal.uncertainty.samples > 3000
     ev = evaluate_recordings({"s1": run(7, 1.05)}, Calibration({"s1": cal})).sensors["s1"]
