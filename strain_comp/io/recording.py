@@ -275,11 +275,17 @@ def _align_columns(t: np.ndarray, src: Series, k: int) -> np.ndarray:
         np.empty((t.size, 0))
 
 
-def array_sensor_names(topic: str, labels: list[str], k: int) -> tuple[list[str], str | None]:
-    """Sensor names of the k columns of an array topic."""
+def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | None]:
+    """The sensors of a ``/PREFIX/resistance`` topic (a series: its prefix; an array: its
+    labels, else PREFIX_j by column) and the problem with its labels, if any."""
+    values = contents.series[topic].values
+    prefix = topic[:-len(RESISTANCE)].lstrip("/")
+    if values.ndim == 1:
+        return [prefix], None
+    labels = contents.labels.get(topic) or []
+    k = values.shape[1]
     if len(labels) == k:
         return labels, None
-    prefix = topic[:-len(RESISTANCE)].lstrip("/")
     problem = (f"{topic}: {len(labels)} labels for {k} columns; sensors named by column"
                if labels else None)
     return [f"{prefix}_{j}" for j in range(k)], problem
@@ -307,8 +313,7 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
                 problems.append(f"{prefix + REFERENCE}: an array reference for a single sensor")
             out[name] = Recording(name, res.t, res.values, s, t_temp)
             continue
-        labels, problem = array_sensor_names(topic, contents.labels.get(topic) or [],
-                                             res.values.shape[1])
+        labels, problem = topic_sensors(topic, contents)
         if problem is not None:
             problems.append(problem)
         s_cols = None
@@ -369,5 +374,5 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     return recordings, contents.problems + located(path, problems)
 
 
-__all__ = ["PieceAlign", "Recording", "align", "array_sensor_names", "hold_latest",
-           "load_recordings"]
+__all__ = ["PieceAlign", "Recording", "align", "hold_latest", "load_recordings",
+           "topic_sensors"]

@@ -28,7 +28,7 @@ from strain_comp.io.recording import (
     TEMPERATURE,
     PieceAlign,
     Recording,
-    array_sensor_names,
+    topic_sensors,
 )
 from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation, input_unit
 
@@ -257,15 +257,6 @@ def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
         return []
     return [f"{name}: no temperature in the data: the calibration's temperature term "
             f"{', '.join(terms)} is not applied"]
-
-
-def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | None]:
-    """The sensors of a ``/PREFIX/resistance`` topic, as ``load_recordings`` names them (the
-    prefix of one series, an array's labels: ``array_sensor_names``), and the problem."""
-    values = contents.series[topic].values
-    if values.ndim == 1:
-        return [topic[:-len(RESISTANCE)].lstrip("/")], None
-    return array_sensor_names(topic, contents.labels.get(topic) or [], values.shape[1])
 
 
 def nothing_scored(calibration: Calibration, names: list[str]) -> str:
