@@ -66,12 +66,14 @@ def _choose(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
     gram, cands, n_folds = setup.gram, setup.cands, setup.rows.n_folds
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
     margin, max_effects = policy.margin, policy.max_effects
-    chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines)
+    chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines,
+                            sigmas=policy.significance)
     best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
     for b, shifted in setup.shifted.items():
         selection = select_forward(shifted, n, offset, margin, max_effects - 1,
-                                   auto_intercept=False, skip=baselines)
+                                   auto_intercept=False, skip=baselines,
+                                   sigmas=policy.significance)
         selection.gains = {b: 1.0 - shifted.cv_rmse([]) / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
         branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,

@@ -114,7 +114,8 @@ class Selection:
 
 
 def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effects: int, *,
-            auto_intercept: bool = True, skip: Sequence[int] = ()) -> Selection:
+                   auto_intercept: bool = True, skip: Sequence[int] = (),
+                   sigmas: float = LOOP_POLICY.significance) -> Selection:
     """Greedy forward selection (docs/design.md, "The loop's steps", 5)."""
 
     def model(cols: Sequence[int]) -> list[int]:
@@ -130,12 +131,12 @@ def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effe
         if auto_intercept:
             ref = gram.fold_sse(model([*chosen, offset]))
             if offset not in chosen:
-                passing = _gains(gram, {offset: ref}, current, margin)
+                passing = _gains(gram, {offset: ref}, current, margin, sigmas)
         if ref.sum() > 0:
             passing |= _gains(gram, {j: gram.fold_sse(model([*chosen, j]))
                                      for j in range(n_cols) if j not in chosen
                                      and j not in skip and not (auto_intercept and j == offset)},
-                              ref, margin)
+                              ref, margin, sigmas)
         if not passing:
             break
         best = max(passing, key=passing.__getitem__)

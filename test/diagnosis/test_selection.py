@@ -51,6 +51,14 @@ def test_forward_selection_finds_the_true_effect_only() -> None:
     assert branch.rmse == pytest.approx(0.3, abs=0.02)
 
 
+def test_forward_selection_honours_the_significance_asked_for() -> None:
+    g, e, fold = problem(1)
+    gram = Gram(g, e, fold, 6)
+    assert select_forward(gram, g.shape[1], 0, 0.03, 3, sigmas=1.0).chosen == [1]
+    # no fold-wise drop is a million standard errors above zero: nothing is chosen
+    assert select_forward(gram, g.shape[1], 0, 0.03, 3, sigmas=1e6).chosen == []
+
+
 def test_significance_rejects_a_gain_of_one_fold() -> None:
     before = np.full(6, 10.0)
     assert significant(before, before - 1.0 + 0.01 * np.arange(6), np.ones(6))
