@@ -386,11 +386,7 @@ class CompensatorNode(Node):
         """A batch of input ``name``'s messages through the compensator; publish the outputs."""
         stamps_ns = np.array(stamps, dtype=np.int64)
         t = stamps_ns.astype(np.float64) * 1e-9
-        values = np.concatenate(blocks)
-        if name in self._arrays:
-            out, publish, refused = self.live.on_arrays(name, t, values)
-        else:
-            out, publish, refused = self.live.on_sensors(name, t, values[:, 0])
+        out, publish, refused = self.live.on_input(name, t, np.concatenate(blocks))
         for _ in range(int(np.count_nonzero(refused))):
             self._refuse(name, NON_FINITE)
         rows = np.flatnonzero(publish)
