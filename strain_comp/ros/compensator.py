@@ -175,9 +175,9 @@ class CompensatorNode(Node):
             sub = self._intake.create_subscription(kind, self.resolve_topic_name(inp.topic),
                                                    _taken_later, input_qos)
             self._takes.append((name, sub, RowDecoder()))
-        if not inp.is_array:  # the array tick has no temperature input
-            self.create_subscription(Temperature, f"{name}/temperature",
-                                     partial(self._on_temperature, name),
+        for sensor in inp.sensors:  # as replay reads them: SENSOR/temperature
+            self.create_subscription(Temperature, f"{sensor}/temperature",
+                                     partial(self._on_temperature, sensor),
                                      qos_profile_sensor_data)
         self.create_subscription(kind, f"{name}/strain_reference",  # fused, or ~/start's
                                  partial(self._on_reference, name, inp.is_array), input_qos)

@@ -111,12 +111,12 @@ class LiveCompensator:
             parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
             return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
                     np.concatenate([p[2] for p in parts]))
+        held = [self.temperature.get(s, math.nan) for s in self._inputs[name]]
+        temps = None if np.isnan(held).all() else np.tile(held, (t.size, 1))
         if name in self.engine.arrays:
-            out = self.engine.run_ticks(name, t, values)
+            out = self.engine.run_ticks(name, t, values, temps)
         else:
-            temp = self.temperature.get(name, math.nan)
-            one = self.engine.run(name, t, values[:, 0],
-                                  None if math.isnan(temp) else np.full(t.size, temp))
+            one = self.engine.run(name, t, values[:, 0], None if temps is None else temps[:, 0])
             out = ArrayOutput(one.strain[:, None], one.direction[:, None], one.status[:, None],
                               one.out_of_range[:, None],
                               None if one.std is None else one.std[:, None])
