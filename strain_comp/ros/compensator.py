@@ -1,8 +1,5 @@
 """The compensator node: ROS topics, services and parameters around the ``LiveCompensator``
-it owns (no ROS in it), as imu_tools' node owns its filter; ``ros/node.py`` starts it.
-A message is refused for what it carries, a fault of the program is logged and counted
-apart, and the node goes on (docs/ros.md; docs/reliability.md, "The live node").
-"""
+it owns (docs/ros.md; docs/reliability.md, "The live node")."""
 
 from __future__ import annotations
 
@@ -54,10 +51,7 @@ from strain_comp.ros.params import (
 from strain_comp.ros.rclpy_typed import destroy, logger, parameter
 
 INPUT_DEPTH = 200
-"""Inputs are best effort (sensor-data QoS) keeping the latest 200 messages: 200 ms of a
-1 kHz stream, so a scheduling stall on a shared computer costs no sample (docs/ros.md,
-"Rates on one core"), while an input rate beyond the node's drops the oldest instead of
-queuing without bound."""
+"""Inputs are best effort keeping the latest 200 messages, 200 ms at 1 kHz (docs/ros.md)."""
 OUTPUT_DEPTH = 100
 """Outputs are reliable, keeping 100 messages for a subscriber not scheduled in time."""
 LOG_THROTTLE_S = 5.0
@@ -100,9 +94,8 @@ class CompensatorNode(Node):
         super().__init__(node_name, **node_options)
         self._loading: threading.Thread | None = None
         self._loaded: LiveCompensator | str | None = None
-        """The finished load (a LiveCompensator, or the reason it was refused), swapped in
-        by ``_adopt`` before the next message or diagnostics tick (rclpy's EventsExecutor
-        has no guard conditions to wake the executor with)."""
+        """The finished load (or why it failed), swapped in by ``_adopt`` before the next
+        message or diagnostics tick (the EventsExecutor has no guard condition to wake)."""
         self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                      if k.split(".")[0] not in ROS_OWNED}
         self.base_dir = base_dir
@@ -120,6 +113,7 @@ class CompensatorNode(Node):
             self._declare(TUNABLE[name], value)
         self.add_pre_set_parameters_callback(self._integers_as_doubles)
         self._arrays = {i.name for i in params.inputs if i.is_array}
+        self._sensors = {i.name: i.sensors for i in params.inputs}
         self._queued: dict[str, tuple[list[int], list[np.ndarray]]] = {
             i.name: ([], []) for i in params.inputs}
         """Per input, the stamps [ns] and values (blocks of rows) not yet handled."""
@@ -128,10 +122,8 @@ class CompensatorNode(Node):
         self._intake = None if self.get_parameter(USE_SIM_TIME).value else Node(
             f"{node_name}_intake", namespace=self.get_namespace(), context=self.context,
             start_parameter_services=False, enable_rosout=False)
-        """On the system clock, the node holding the input subscriptions, spun by no
-        executor: ``_flush`` takes what arrived (stamped with its reception time), so an
-        input message wakes no executor (under sim time the inputs wait for their /clock
-        tick through the gate, so they are subscribed on this node)."""
+        """On the system clock, the node of the input subscriptions, spun by no executor
+        (``_flush`` takes what arrived; docs/ros.md, ``batch_period_s``)."""
         self._takes: list[tuple[str, Subscription, RowDecoder]] = []
         ready = [self._connect(i.name) for i in params.inputs]
         self.create_timer(self.live.tunables["batch_period_s"], self._flush,
@@ -305,9 +297,7 @@ class CompensatorNode(Node):
     # --- messages -------------------------------------------------------------------------
 
     def _arrive(self, name: str, msg: Any) -> None:
-        """Under sim time, a resistance message: queued once its /clock tick has come (the
-        gate), stamped with it, and handled at once (a bag played in lockstep waits for
-        each answer). On the system clock the intake node takes the inputs instead."""
+        """Under sim time, an input: handled once its /clock tick has come (the gate)."""
         if self._loaded is not None:
             self._adopt()
         now = self.get_clock().now().nanoseconds
@@ -326,11 +316,15 @@ class CompensatorNode(Node):
                                     label=label)
         return where.astype(np.intp), len(data)
 
+    def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
+        """A message's values in sensor order, and ``_columns``."""
+        columns, n_values = self._columns(name, msg)
+        return np.atleast_1d(np.asarray(msg.data, dtype=np.float64))[columns], columns, n_values
+
     def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, int]:
         """A message read and queued with its stamp; ``_columns``."""
-        columns, n_values = self._columns(name, msg)
-        data = np.atleast_1d(np.asarray(msg.data, dtype=np.float64))
-        self._queue_rows(name, [stamp], data[columns][None])
+        values, columns, n_values = self._read(name, msg)
+        self._queue_rows(name, [stamp], values[None])
         return columns, n_values
 
     def _learn(self, name: str, stamp: int, raw: bytes, kind: Any, decoder: RowDecoder
@@ -346,11 +340,8 @@ class CompensatorNode(Node):
         blocks.append(rows)
 
     def _flush(self) -> None:
-        """Handle every message that arrived, one batch per input, and publish each
-        sample's outputs: every ``batch_period_s`` of the steady clock (at 1 kHz the
-        per-message cost of the engine's path and of the executor's wake-ups is most of
-        the node's CPU), and before anything that reads or changes the state (a service,
-        a parameter, a temperature, a reference, diagnostics, a reload)."""
+        """Handle what arrived, one batch per input: every ``batch_period_s``, and before
+        anything that reads or changes the state."""
         for name, sub, decoder in self._takes:
             self._guarded(name, partial(self._take, name, sub, decoder))
         for name, (stamps, values) in self._queued.items():
@@ -406,21 +397,17 @@ class CompensatorNode(Node):
             sensor, sensor_value(msg, "temperature")))
 
     def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
-        """A known strain of a sensor (Float64) or of an array's sensors (Float64MultiArray,
-        NaN: none), stamped on arrival; a refusal is counted in the sensor's /diagnostics
-        and logged, a malformed message under the transport."""
+        """A known strain of a sensor, or of an array's sensors (NaN: none), stamped on
+        arrival."""
         if self._loaded is not None:
             self._adopt()
         self._flush()
 
         def handle() -> None:
             t = self._now_ns() * 1e-9
-            if is_array:
-                data, offset, sizes, label = array_layout(msg)
-                given = self.live.array_references(name, data, offset=offset, sizes=sizes,
-                                                   label=label)
-            else:
-                given = {name: sensor_value(msg)}
+            values = self._read(name, msg)[0]  # an array's NaN: no reference
+            given = {s: float(v) for s, v in zip(self._sensors[name], values, strict=True)
+                     if not (is_array and np.isnan(v))}
             refused = ({s: self.live.on_reference(s, t, v) for s, v in given.items()}
                        if self.live.fusion else {})
             for sensor, value in given.items():

@@ -65,8 +65,7 @@ class LiveCompensator:
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self.faults: Counter[str] = Counter()
-        """Program errors by where and exception type (``fault``): a bug, not a message's
-        content; counted apart from the refusals."""
+        """Program errors by where and exception type, counted apart from the refusals."""
         self._faults_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
@@ -176,13 +175,6 @@ class LiveCompensator:
         if vectors is None or np.isnan(vectors[0][column]):
             return None
         return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
-
-    def array_references(self, name: str, data: Any, *, offset: int = 0,
-                         sizes: list[int] | None = None, label: str = "") -> dict[str, float]:
-        """An array's known strains by sensor (layout as ``array_row``; NaN ones left out)."""
-        values = self.array_row(name, data, offset=offset, sizes=sizes, label=label)
-        return {s: float(v) for s, v in zip(self._inputs[name], values, strict=True)
-                if not np.isnan(v)}
 
     def reference_now(self, now: float | None = None) -> str:
         """``~/reference`` at clock time ``now`` (None: each sensor's latest sample)."""
