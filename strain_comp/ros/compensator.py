@@ -43,6 +43,7 @@ from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
     TUNABLE,
+    InputTopic,
     NodeParams,
     ParamSpec,
     parse_values,
@@ -125,7 +126,7 @@ class CompensatorNode(Node):
         """On the system clock, the node of the input subscriptions, spun by no executor
         (``_flush`` takes what arrived; docs/ros.md, ``batch_period_s``)."""
         self._takes: list[tuple[str, Subscription, RowDecoder]] = []
-        ready = [self._connect(i.name) for i in params.inputs]
+        ready = [self._connect(i) for i in params.inputs]
         self.create_timer(self.live.tunables["batch_period_s"], self._flush,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -141,10 +142,9 @@ class CompensatorNode(Node):
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
         """The log line that says the node is up (``create_node`` and ``main`` log it)."""
 
-    def _connect(self, name: str) -> str:
-        """The publishers and subscriptions of input ``name``; its line of the ready log."""
-        params = self.live.params
-        inp = next(i for i in params.inputs if i.name == name)
+    def _connect(self, inp: InputTopic) -> str:
+        """The publishers and subscriptions of an input; its line of the ready log."""
+        params, name = self.live.params, inp.name
         input_qos = copy(qos_profile_sensor_data)
         input_qos.depth = INPUT_DEPTH
         kind = Float64MultiArray if inp.is_array else Float64
