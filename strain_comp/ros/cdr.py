@@ -65,12 +65,16 @@ class RowDecoder:
         self._size = -1
         self._columns = np.zeros(0, np.intp)
 
-    def learn(self, raw: bytes, n_values: int, columns: np.ndarray) -> None:
+    def learn(self, raw: bytes, n_values: int, columns: np.ndarray, values: np.ndarray
+              ) -> None:
         """``raw``, whose layout was checked, ends with ``n_values`` float64 values, of which
-        ``columns`` are the sensors' (a big-endian message is not learnt)."""
-        if raw[:2] == cdr.ENCAPSULATION[:2]:
+        ``columns`` are the sensors' ``values``; not learnt unless they read back so (a
+        big-endian message, padding after the values)."""
+        if raw[:2] == cdr.ENCAPSULATION[:2] and len(raw) >= 8 * n_values:
             self._head, self._size = raw[:len(raw) - 8 * n_values], len(raw)
             self._columns = columns
+            if not np.array_equal(self.rows([raw])[0], values, equal_nan=True):
+                self._size = -1  # fits nothing
 
     def fits(self, raw: bytes) -> bool:
         return len(raw) == self._size and raw.startswith(self._head)

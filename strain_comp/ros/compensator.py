@@ -321,18 +321,18 @@ class CompensatorNode(Node):
         columns, n_values = self._columns(name, msg)
         return np.atleast_1d(np.asarray(msg.data, dtype=np.float64))[columns], columns, n_values
 
-    def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, int]:
-        """A message read and queued with its stamp; ``_columns``."""
-        values, columns, n_values = self._read(name, msg)
-        self._queue_rows(name, [stamp], values[None])
-        return columns, n_values
+    def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
+        """A message read and queued with its stamp; ``_read``."""
+        read = self._read(name, msg)
+        self._queue_rows(name, [stamp], read[0][None])
+        return read
 
     def _learn(self, name: str, stamp: int, raw: bytes, kind: Any, decoder: RowDecoder
                ) -> None:
         """Queue an intake message of a layout not read before; read its layout in bulk
         from then on."""
-        columns, n_values = self._queue(name, stamp, deserialize_message(raw, kind))
-        decoder.learn(raw, n_values, columns)
+        values, columns, n_values = self._queue(name, stamp, deserialize_message(raw, kind))
+        decoder.learn(raw, n_values, columns, values)
 
     def _queue_rows(self, name: str, stamps: list[int], rows: np.ndarray) -> None:
         queued_stamps, blocks = self._queued[name]

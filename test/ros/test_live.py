@@ -300,3 +300,22 @@ def test_an_arrays_sensors_take_their_temperature_as_replay_does(tmp_path: Path)
 
     np.testing.assert_allclose(node(True), replayed, rtol=1e-12, atol=1e-12)
     assert np.abs(node(False) - replayed).max() > 0.1
+
+
+def test_row_decoder_reads_one_layout_in_bulk_and_learns_only_what_reads_back() -> None:
+    """The intake's bulk read: the rows of the messages of the layout learnt, in the sensors'
+    columns; another label is not that layout; a message whose values are not its last
+    bytes (padding after them) is not learnt."""
+    from strain_comp.ros.cdr import RowDecoder, RowEncoder
+
+    rows = np.arange(12.0).reshape(4, 3)
+    raws = RowEncoder.vector(["a", "b", "c"]).encode(rows)
+    decoder = RowDecoder()
+    assert not decoder.fits(raws[0])
+    decoder.learn(raws[0], 3, np.array([2, 0, 1]), rows[0][[2, 0, 1]])
+    assert all(decoder.fits(raw) for raw in raws)
+    np.testing.assert_array_equal(decoder.rows(raws), rows[:, [2, 0, 1]])
+    assert not decoder.fits(RowEncoder.vector(["a", "b", "x"]).encode(rows)[0])
+    padded = RowDecoder()
+    padded.learn(raws[0] + bytes(8), 3, np.arange(3), rows[0])
+    assert not padded.fits(raws[0] + bytes(8))
