@@ -58,6 +58,7 @@ OUTPUT_DEPTH = 100
 LOG_THROTTLE_S = 5.0
 """A refusal or a program error of one kind is logged at most once per this many seconds."""
 
+
 def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """A ``ParamSpec``'s descriptor, with a fixed type (a refused set never changes it)."""
     kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
