@@ -36,6 +36,7 @@ from std_srvs.srv import Trigger
 
 from strain_comp.core.calibration import expected_words
 from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.io.multiarray import array_values
 from strain_comp.ros.cdr import RowDecoder, RowEncoder
 from strain_comp.ros.clock_gate import ClockGate
 from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
@@ -313,8 +314,8 @@ class CompensatorNode(Node):
             sensor_value(msg)
             return np.zeros(1, np.intp), 1
         data, offset, sizes, label = array_layout(msg)
-        where = self.live.array_row(name, np.arange(len(data)), offset=offset, sizes=sizes,
-                                    label=label)
+        sensors = self._sensors[name]
+        where = array_values(np.arange(len(data)), offset, sizes, len(sensors), label, sensors)
         return where.astype(np.intp), len(data)
 
     def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:

@@ -21,7 +21,6 @@ from strain_comp.core.outputs import ArrayOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
-from strain_comp.io.multiarray import array_values
 from strain_comp.ros.live_start import LiveStart
 from strain_comp.ros.live_tare import TARE_WINDOW_S, LiveTare
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
@@ -124,12 +123,6 @@ class LiveCompensator:
         if self.fusion:
             out = self._fused(name, t, out, refused)
         return out, self._due(name, t, np.isfinite(out.strain).all(axis=1) & ~refused), refused
-
-    def array_row(self, name: str, data: Any, *, offset: int = 0,
-                  sizes: list[int] | None = None, label: str = "") -> np.ndarray:
-        """An array message's values in sensor order; InputError when its layout does not fit."""
-        sensors = self._inputs[name]
-        return array_values(data, offset, sizes or [], len(sensors), label, sensors)
 
     def _fused(self, name: str, t: np.ndarray, out: ArrayOutput, refused: np.ndarray
                ) -> ArrayOutput:

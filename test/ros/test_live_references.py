@@ -15,6 +15,7 @@ from conftest import cubic_cal, one_message
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import InputError, ParameterError
+from strain_comp.io.multiarray import array_values
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
@@ -109,7 +110,7 @@ def test_array_references_nan_for_none_and_the_label_honoured(tmp_path: Path) ->
     node = live(tmp_path, array=True)
 
     def references(t: float, data: list[float], label: str = "") -> dict[str, str | None]:
-        values = node.array_row("arr", data, label=label)  # NaN: none (as the node reads)
+        values = array_values(data, 0, [], 2, label, ("a", "b"))  # NaN: none, as the node
         return {s: node.on_reference(s, t, float(v))
                 for s, v in zip(("a", "b"), values, strict=True) if not math.isnan(v)}
 
