@@ -56,7 +56,8 @@ class LiveCompensator:
                 raise ParameterError("tare", f"auto needs 'rest_resistance' in the calibration "
                                      f"of {', '.join(missing)}")
         self._last_publish: dict[str, float] = {}
-        self.temperature: dict[str, float] = {}
+        self.temperature: dict[str, np.ndarray] = {}
+        """Per input that had one, its sensors' latest temperatures [deg C] (NaN: none yet)."""
         self._inputs = {i.name: i.sensors for i in params.inputs}
         self.taring = LiveTare(self.engine, params)
         """The zero: ``~/tare`` and ``tare: auto`` (its log: the tares taken)."""
@@ -109,8 +110,8 @@ class LiveCompensator:
             parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
             return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
                     np.concatenate([p[2] for p in parts]))
-        held = [self.temperature.get(s, math.nan) for s in self._inputs[name]]
-        temps = None if np.isnan(held).all() else np.tile(held, (t.size, 1))
+        held = self.temperature.get(name)
+        temps = None if held is None else np.tile(held, (t.size, 1))
         if name in self.engine.arrays:
             out = self.engine.run_ticks(name, t, values, temps)
         else:
@@ -210,7 +211,9 @@ class LiveCompensator:
             self.refuse(f"{name}/temperature", "temperature outside "
                         f"[{TEMPERATURE_RANGE[0]:g}, {TEMPERATURE_RANGE[1]:g}] degC")
             return
-        self.temperature[name] = value
+        inp, column = self._column[name]
+        held = self.temperature.setdefault(inp, np.full(len(self._inputs[inp]), math.nan))
+        held[column] = value
 
     def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
