@@ -83,8 +83,8 @@ def drive(topic: str, out_topic: str, kind: str, k: int, rate: float, seconds: f
     for i, msg in enumerate(msgs):  # paced by a sleep, then a busy wait for the last 1 ms:
         # the DDS threads that receive the answers share this core
         due = start + i / rate
-        if due - time.perf_counter() > 0.0015:
-            time.sleep(due - time.perf_counter() - 0.001)
+        if (ahead := due - time.perf_counter()) > 0.0015:  # read once: a preemption
+            time.sleep(ahead - 0.001)  # between two reads made the sleep negative
         while time.perf_counter() < due:
             pass
         pub.publish(msg)
