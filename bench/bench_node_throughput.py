@@ -2,7 +2,7 @@
 
     python bench/bench_node_throughput.py [--seconds S] [--rates 1000,2000] [--overload]
                                           [--arrays 256@1000,1024@250] [--arrays-only]
-                                          [--band] [--goals]
+                                          [--band] [--goals] [--flush K@ROUNDS]
 
 The node (``strain_comp.ros.node``, another process) is pinned to core 1 with taskset; this
 process publishes on core 0 at a fixed rate for S seconds (at most 4500 messages) and counts
@@ -25,6 +25,11 @@ read from this process: the node's own threads, DDS's included) / wall time of t
 ``--goals``: only the three rate goals, each with every output subscribed (one sensor at
 1 kHz; 256 sensors at 1 kHz; 1024 at 250 Hz), with the load average (``uptime``) before and
 after.
+``--flush K@ROUNDS``: no second process; the node in this one (on core 1), on a K-sensor array
+(K = 1: one Float64 sensor), every output subscribed; ROUNDS times ten inputs are published into its
+intake and one ``_flush`` (what the batch timer runs) is timed with ``time.thread_time``: the
+CPU of the node's Python thread per input, which other load on the machine changes less
+than the CPU share from outside (the DDS threads are left out).
 Baseline in the same run: a bare rclpy echo node (SingleThreadedExecutor, republishes each
 Float64), so the CPU ratio is the compensator's cost against ROS's own message handling.
 """
@@ -78,8 +83,8 @@ def drive(topic: str, out_topic: str, kind: str, k: int, rate: float, seconds: f
     for i, msg in enumerate(msgs):  # paced by a sleep, then a busy wait for the last 1 ms:
         # the DDS threads that receive the answers share this core
         due = start + i / rate
-        if due - time.perf_counter() > 0.0015:
-            time.sleep(due - time.perf_counter() - 0.001)
+        if (ahead := due - time.perf_counter()) > 0.0015:  # read once: a preemption
+            time.sleep(ahead - 0.001)  # between two reads made the sleep negative
         while time.perf_counter() < due:
             pass
         pub.publish(msg)
@@ -160,6 +165,61 @@ def single_topic(args: argparse.Namespace) -> None:
             stop_node(node)
 
 
+def flush(k: int, rounds: int) -> None:
+    """``--flush``: the node's thread CPU per input message (module docstring)."""
+    import tempfile
+    from pathlib import Path
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64, Float64MultiArray, Int8
+
+    from strain_comp.core.calibration_file import save_calibration
+    from strain_comp.ros.compensator import CompensatorNode
+
+    os.sched_setaffinity(0, {1})  # one core, as the node process of the other parts
+    tmp = Path(tempfile.mkdtemp(prefix="strain_comp_bench_"))
+    names = [f"x{i}" for i in range(k)] if k > 1 else ["s1"]
+    save_calibration(calibration(names, ["apl"]), tmp / "cal.yaml")
+    name, kind, direction = (("hand", Float64MultiArray, Float64MultiArray) if k > 1
+                             else ("s1", Float64, Int8))
+    (tmp / "params.yaml").write_text(
+        "/**/compensator:\n  ros__parameters:\n" + (
+            f"    arrays: [hand]\n    hand: {{sensors: [{', '.join(names)}], "
+            "calibration: cal.yaml}\n" if k > 1 else
+            "    sensors: [s1]\n    s1: {calibration: cal.yaml}\n"))
+    rclpy.init(args=["--ros-args", "--params-file", str(tmp / "params.yaml")])
+    node = CompensatorNode("compensator", base_dir=tmp)
+    probe = rclpy.create_node("bench_flush")
+    executor = SingleThreadedExecutor()
+    executor.add_node(probe)
+    pub = probe.create_publisher(kind, f"/{name}/resistance", 200)
+    subs = [probe.create_subscription(t, f"/{name}/{o}", lambda _m: None, 10) for o, t in
+            (("strain", kind), ("direction", direction), ("strain_stamped", JointState))]
+    while pub.get_subscription_count() == 0 or any(s.get_publisher_count() == 0 for s in subs):
+        executor.spin_once(timeout_sec=0.05)
+    time.sleep(0.5)
+    r = resistance(np.arange(rounds * 10) / 1000.0, k)
+    msgs = ([Float64(data=float(v)) for v in r[:, 0]] if k == 1
+            else [Float64MultiArray(data=row.tolist()) for row in r])
+    cpu = []
+    for i in range(rounds):
+        for msg in msgs[i * 10:(i + 1) * 10]:
+            pub.publish(msg)
+        time.sleep(0.004)  # delivered into the intake's history
+        start = time.thread_time()
+        node._flush()
+        cpu.append(time.thread_time() - start)
+        executor.spin_once(timeout_sec=0)
+    per_input = np.array(cpu) / 10
+    print(f"{k} sensor(s), apl, every output subscribed: the node's thread CPU per input "
+          f"{per_input.mean() * 1e6:.0f} us (median batch {np.median(per_input) * 1e6:.0f} "
+          f"us; {per_input.mean() * 1e5:.1f} % of a core at 1 kHz), {len(msgs)} inputs; "
+          f"load average {os.getloadavg()[0]:.1f}")
+    rclpy.try_shutdown()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0)
@@ -174,7 +234,13 @@ def main() -> None:
                              "estimate's standard deviation (compare with a run without)")
     parser.add_argument("--goals", action="store_true",
                         help="only the three rate goals, every output subscribed")
+    parser.add_argument("--flush", help="K@ROUNDS: the node's thread CPU per input, "
+                        "in this process")
     args = parser.parse_args()
+    if args.flush:
+        k, rounds = (int(v) for v in args.flush.split("@"))
+        flush(k, rounds)
+        return
     os.sched_setaffinity(0, {0})
     import rclpy
     from sensor_msgs.msg import JointState

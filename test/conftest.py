@@ -261,19 +261,15 @@ def changed_run(seconds: float = 300.0) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def one_message(live: Any, name: str, t: float, value: Any) -> Any:
-    """One message (a number, or an array's values) through ``LiveCompensator.on_sensors``
-    / ``on_arrays`` as a batch of one: its output, None when not published."""
-    if np.ndim(value) == 0:
-        out, publish, _ = live.on_sensors(name, np.array([t]), np.array([float(value)]))
-        if not publish[0]:
-            return None
-        return SensorOutput(float(out.strain[0]), int(out.direction[0]),
-                            Status(int(out.status[0])), bool(out.out_of_range[0]),
-                            float(out.resistance[0]),
-                            math.nan if out.std is None else float(out.std[0]))
-    out, publish, _ = live.on_arrays(name, np.array([t]), np.asarray(value, float)[None, :])
+    """One message (a number, or an array's values) through ``LiveCompensator.on_input`` as
+    a batch of one: its output, None when not published."""
+    out, publish, _ = live.on_input(name, np.array([t]), np.asarray(value, float).reshape(1, -1))
     if not publish[0]:
         return None
+    if np.ndim(value) == 0:
+        return SensorOutput(float(out.strain[0, 0]), int(out.direction[0, 0]),
+                            Status(int(out.status[0, 0])), bool(out.out_of_range[0, 0]),
+                            std=math.nan if out.std is None else float(out.std[0, 0]))
     return ArrayOutput(out.strain[0], out.direction[0], out.status[0], out.out_of_range[0],
                        None if out.std is None else out.std[0])
 

@@ -196,11 +196,12 @@ class ArrayGroup:
         self.par[:, _DEADZONE] = [s.cal.direction.deadzone * scale for s in self.sensors]
         self.states[:] = 0.0
 
-    def run(self, t: np.ndarray, raw: np.ndarray) -> ArrayOutput:
-        """Ticks ``t`` (rows of ``raw``, the array's sensor order): every field one row per
-        tick."""
+    def run(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None = None
+            ) -> ArrayOutput:
+        """Ticks ``t`` (rows of ``raw`` and ``temperature``, the array's sensor order): every
+        field one row per tick."""
         if not self.kernels:
-            return self._loop(t, raw)
+            return self._loop(t, raw, temperature)
         n, k = t.size, len(self.names)
         out = np.empty((n, 3, k))
         status = np.empty((n, k), dtype=np.int8)
@@ -211,16 +212,19 @@ class ArrayGroup:
                      self.gap_reset, self.model_out, self.status, self.reset, self.band,
                      self.x, kern.state, kern.params, out[a:b], status[a:b])
             if self.effects:  # the effect terms of this tick, then its outputs again
-                self._effects(float(t[a]), raw[a])
+                self._effects(float(t[a]), raw[a], None if temperature is None
+                              else temperature[a])
                 out[a, 0], out[a, 2] = self.held[:, _STRAIN], self.held[:, _STD]
         return ArrayOutput(out[:, 0], out[:, 1].astype(np.int8), status,
                            status == sc.OUT_OF_RANGE, out[:, 2] if self.banded else None)
 
-    def _loop(self, t: np.ndarray, raw: np.ndarray) -> ArrayOutput:
+    def _loop(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None
+              ) -> ArrayOutput:
         """Ticks as a batch of each sensor (``run_together``: cross-talk terms read the
         neighbours' clamped pre-effect estimate of the same tick)."""
+        temps = {} if temperature is None else dict(zip(self.names, temperature.T, strict=True))
         outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
-                                 {}, self.gap_reset, self.latest).values())
+                                 temps, self.gap_reset, self.latest).values())
         nan = np.full(t.size, math.nan)
         return ArrayOutput(np.column_stack([o.strain for o in outs]),
                            np.column_stack([o.direction for o in outs]).astype(np.int8),
@@ -229,7 +233,7 @@ class ArrayGroup:
                            np.column_stack([nan if o.std is None else o.std for o in outs])
                            if self.banded else None)
 
-    def _effects(self, t: float, raw: np.ndarray) -> None:
+    def _effects(self, t: float, raw: np.ndarray, temperature: np.ndarray | None) -> None:
         """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""
         base = np.clip(self.model_out, self.par[:, _RANGE + S_LO], self.par[:, _RANGE + S_HI])
         for i in self.effects:
@@ -243,7 +247,8 @@ class ArrayGroup:
                     for n in s.effects.neighbours if n in self.names}
             strain = s.apply_effects(
                 np.array([t]), ohm, self.model_out[i:i + 1],
-                self.held[i:i + 1, _DIRECTION].astype(np.int8), np.array([math.nan]),
+                self.held[i:i + 1, _DIRECTION].astype(np.int8),
+                np.array([math.nan if temperature is None else temperature[i]]),
                 self.latest, nbrs)
             self.held[i, _STRAIN] = bound(float(ohm[0]), float(strain[0]), s.limits.row)
             if s.weights is not None:  # again on the corrected strain (the same state)

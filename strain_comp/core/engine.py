@@ -192,9 +192,10 @@ class Engine:
         return ArrayOutput(out.strain[0], out.direction[0], out.status[0],
                            out.out_of_range[0], None if out.std is None else out.std[0])
 
-    def run_ticks(self, array: str, t: npt.ArrayLike, r: npt.ArrayLike) -> ArrayOutput:
-        """Ticks of an array registered at construction: ``t`` (n,), ``r`` (n, sensors) in
-        the array's sensor order; every field of the output one row per tick."""
+    def run_ticks(self, array: str, t: npt.ArrayLike, r: npt.ArrayLike,
+                  temperature: npt.ArrayLike | None = None) -> ArrayOutput:
+        """Ticks of an array registered at construction: ``t`` (n,), ``r`` and ``temperature``
+        (n, sensors) in the array's sensor order; every field of the output one row per tick."""
         try:
             group = self._arrays[array]
         except KeyError:
@@ -205,7 +206,8 @@ class Engine:
         if times.ndim != 1 or raw.shape != (times.size, len(group.names)):
             raise InputError(f"array {array!r}: expected {len(group.names)} values, "
                              f"got shape {raw.shape[1:]}")
-        return group.run(times, raw)
+        return group.run(times, raw, None if temperature is None
+                         else np.asarray(temperature, dtype=np.float64))
 
     def health(self, now: float | None = None) -> dict[str, SensorHealth]:
         """Copies of every sensor's counters."""

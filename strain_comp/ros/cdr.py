@@ -1,17 +1,7 @@
-"""The node's per-tick outputs as serialised bytes (CDR), built around a prebuilt block.
-
-A message built in Python and converted by rclpy costs tens of microseconds; for an array
-most of it is the part that never changes: a sensor_msgs/msg/JointState for
-``NAME/strain_stamped`` carrying 256 names took about 90 us per message (each name converted
-every time), a tenth of a core at 1 kHz. These encoders build the constant part once; each
-message is then the changing fields around it, published as bytes (``Publisher.publish``
-accepts a serialised message).
-
-The wire format is the bag writer's (``strain_comp.io.cdr``, byte-equal to rosbags'
-serialiser): the constant blocks are cut from its ``joint_state_layout`` and
-``float64_multiarray_head``. The tests decode the bytes with rclpy's own type support and
-compare them with ``strain_comp.io.cdr.message_encoder``'s.
-"""
+"""The node's messages as serialised bytes (CDR), a batch at a time with numpy: the outputs
+built around a prebuilt block (a message built in Python and converted by rclpy costs tens of
+microseconds, mostly the part that never changes), the inputs read in bulk. The wire format
+is the bag writer's (``strain_comp.io.cdr``); docs/results.md, "The node's CPU"."""
 
 from __future__ import annotations
 
@@ -20,57 +10,78 @@ import numpy as np
 from strain_comp.io import cdr
 
 
-def _doubles(values: np.ndarray, k: int) -> bytes:
-    data = np.ascontiguousarray(values, dtype="<f8")
-    if data.size != k:
-        raise ValueError(f"expected {k} values, got {data.size}")
-    return data.tobytes()
+class RowEncoder:
+    """Messages of one constant ``template`` but for ``k`` values at byte ``at`` (and, when
+    ``stamped``, the header's stamp at bytes 4..12): one message per row."""
 
+    def __init__(self, template: bytes, at: int, k: int, dtype: str = "<f8", *,
+                 stamped: bool = False) -> None:
+        self.template = np.frombuffer(template, np.uint8)
+        self.at, self.k, self.dtype, self.stamped = at, k, np.dtype(dtype), stamped
 
-class StampedEncoder:
-    """Serialised JointState messages for a fixed list of names, frame_id '', velocity and
-    effort empty."""
+    @classmethod
+    def scalar(cls, dtype: str) -> RowEncoder:
+        """std_msgs/msg/Float64 (``<f8``) or Int8 (``i1``)."""
+        return cls(cdr.ENCAPSULATION + bytes(np.dtype(dtype).itemsize), 4, 1, dtype)
 
-    def __init__(self, names: list[str]) -> None:
-        self.k = len(names)
+    @classmethod
+    def vector(cls, names: list[str]) -> RowEncoder:
+        """std_msgs/msg/Float64MultiArray whose ``dim[0]`` is labelled with the names (size =
+        stride = k, data_offset 0), as the bag writer's ``write_float64_array``."""
+        k = len(names)
+        head = cdr.float64_multiarray_head([(",".join(names), k, k)], 0, k)
+        return cls(head + bytes(8 * k), len(head), k)
+
+    @classmethod
+    def joint_state(cls, names: list[str]) -> RowEncoder:
+        """sensor_msgs/msg/JointState of the names (frame_id '', velocity and effort empty)."""
         template, pos_at, _ = cdr.joint_state_layout("", names, velocity=False)
-        self._middle = template[4 + cdr.STAMP.size:pos_at]  # frame_id .. position's head
-        self._tail = template[pos_at + 8 * self.k:]  # velocity, effort
+        return cls(template, pos_at, len(names), stamped=True)
 
-    def encode(self, stamp_ns: int, position: np.ndarray) -> bytes:
-        """The message for a stamp [ns since the epoch] and ``k`` positions (strain)."""
-        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-        if not -2**31 <= sec < 2**31:
-            raise ValueError(f"stamp {stamp_ns} ns does not fit builtin_interfaces/Time")
-        return b"".join((cdr.ENCAPSULATION, cdr.STAMP.pack(sec, nanosec), self._middle,
-                         _doubles(position, self.k), self._tail))
-
-
-class ScalarEncoder:
-    """Serialised messages of one number (std_msgs/msg/Float64: ``<f8``, Int8: ``i1``)."""
-
-    def __init__(self, dtype: str) -> None:
-        self.dtype = np.dtype(dtype)
-
-    def encode(self, values: np.ndarray) -> list[bytes]:
-        """One message per value."""
-        data = np.ascontiguousarray(values, dtype=self.dtype).reshape(-1)
-        rows = np.empty((data.size, len(cdr.ENCAPSULATION) + self.dtype.itemsize), np.uint8)
-        rows[:, :len(cdr.ENCAPSULATION)] = np.frombuffer(cdr.ENCAPSULATION, np.uint8)
-        rows[:, len(cdr.ENCAPSULATION):] = data.view(np.uint8).reshape(data.size, -1)
-        return [row.tobytes() for row in rows]
+    def encode(self, rows: np.ndarray, stamps_ns: np.ndarray | None = None) -> list[bytes]:
+        """The messages of ``rows`` (n x k values, or n values when k is 1) and, stamped, of
+        their stamps [ns since the epoch]."""
+        n = len(rows)
+        values = np.ascontiguousarray(rows, dtype=self.dtype).reshape(n, self.k)
+        out = np.empty((n, self.template.size), np.uint8)
+        out[:] = self.template
+        out[:, self.at:self.at + values.itemsize * self.k] = values.view(np.uint8).reshape(n, -1)
+        if self.stamped:
+            sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), 1_000_000_000)
+            if n and not (-2**31 <= sec.min() and sec.max() < 2**31):
+                raise ValueError("a stamp does not fit builtin_interfaces/Time")
+            out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+            out[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(n, 4)
+        return [row.tobytes() for row in out]
 
 
-class VectorEncoder:
-    """Serialised Float64MultiArray messages of ``k`` values whose ``dim[0]`` is labelled with
-    the sensor names (size = stride = k, data_offset 0), as the bag writer's
-    ``write_float64_array``."""
+class RowDecoder:
+    """The sensors' values of serialised messages that end in float64 values and whose bytes
+    before them equal those of the last message checked (``learn``): one layout, read in
+    bulk."""
 
-    def __init__(self, names: list[str]) -> None:
-        self.k = len(names)
-        self._head = cdr.float64_multiarray_head([(",".join(names), self.k, self.k)], 0,
-                                                 self.k)
+    def __init__(self) -> None:
+        self._head = b""
+        self._size = -1
+        self._columns = np.zeros(0, np.intp)
 
-    def encode(self, values: np.ndarray) -> bytes:
-        """The message for ``k`` values."""
-        return self._head + _doubles(values, self.k)
+    def learn(self, raw: bytes, n_values: int, columns: np.ndarray, values: np.ndarray
+              ) -> None:
+        """``raw``, whose layout was checked, ends with ``n_values`` float64 values, of which
+        ``columns`` are the sensors' ``values``; not learnt unless they read back so (a
+        big-endian message, padding after the values)."""
+        if raw[:2] == cdr.ENCAPSULATION[:2] and len(raw) >= 8 * n_values:
+            self._head, self._size = raw[:len(raw) - 8 * n_values], len(raw)
+            self._columns = columns
+            if not np.array_equal(self.rows([raw])[0], values, equal_nan=True):
+                self._size = -1  # fits nothing
+
+    def fits(self, raw: bytes) -> bool:
+        return len(raw) == self._size and raw.startswith(self._head)
+
+    def rows(self, raws: list[bytes]) -> np.ndarray:
+        """The values of messages that fit, one row per message."""
+        values = np.ndarray((len(raws), (self._size - len(self._head)) // 8), "<f8",
+                            b"".join(raws), len(self._head), (self._size, 8))
+        rows: np.ndarray = values[:, self._columns]
+        return rows

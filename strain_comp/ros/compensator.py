@@ -1,8 +1,5 @@
 """The compensator node: ROS topics, services and parameters around the ``LiveCompensator``
-it owns (no ROS in it), as imu_tools' node owns its filter; ``ros/node.py`` starts it.
-A message is refused for what it carries, a fault of the program is logged and counted
-apart, and the node goes on (docs/ros.md; docs/reliability.md, "The live node").
-"""
+it owns (docs/ros.md; docs/reliability.md, "The live node")."""
 
 from __future__ import annotations
 
@@ -30,6 +27,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from rclpy.time_source import USE_SIM_TIME_NAME as USE_SIM_TIME
 from sensor_msgs.msg import JointState, Temperature
@@ -38,13 +36,15 @@ from std_srvs.srv import Trigger
 
 from strain_comp.core.calibration import expected_words
 from strain_comp.errors import InputError, ParameterError, StrainCompError
-from strain_comp.ros.cdr import ScalarEncoder, StampedEncoder, VectorEncoder
+from strain_comp.io.multiarray import array_values
+from strain_comp.ros.cdr import RowDecoder, RowEncoder
 from strain_comp.ros.clock_gate import ClockGate
 from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
 from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
     TUNABLE,
+    InputTopic,
     NodeParams,
     ParamSpec,
     parse_values,
@@ -53,18 +53,11 @@ from strain_comp.ros.params import (
 from strain_comp.ros.rclpy_typed import destroy, logger, parameter
 
 INPUT_DEPTH = 200
-"""Inputs are best effort (sensor-data QoS) keeping the latest 200 messages: 200 ms of a
-1 kHz stream, so a scheduling stall on a shared computer costs no sample (docs/ros.md,
-"Rates on one core"), while an input rate beyond the node's drops the oldest instead of
-queuing without bound."""
+"""Inputs are best effort keeping the latest 200 messages, 200 ms at 1 kHz (docs/ros.md)."""
 OUTPUT_DEPTH = 100
 """Outputs are reliable, keeping 100 messages for a subscriber not scheduled in time."""
 LOG_THROTTLE_S = 5.0
 """A refusal or a program error of one kind is logged at most once per this many seconds."""
-
-Reader = Callable[[str, Any], Any]
-"""A resistance message's reader: (input name, message) -> its value(s) (InputError when
-the message cannot be read)."""
 
 
 def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
@@ -79,10 +72,6 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
         described.floating_point_range = [FloatingPointRange(
             from_value=float(spec.range[0]), to_value=float(spec.range[1]), step=0.0)]
     return described
-
-
-FLOAT64, INT8 = ScalarEncoder("<f8"), ScalarEncoder("i1")
-"""A single sensor's ``strain`` (and ``strain_std``) and ``direction``, serialised."""
 
 
 def _taken_later(msg: Any) -> None:
@@ -108,9 +97,8 @@ class CompensatorNode(Node):
         super().__init__(node_name, **node_options)
         self._loading: threading.Thread | None = None
         self._loaded: LiveCompensator | str | None = None
-        """The finished load (a LiveCompensator, or the reason it was refused), swapped in
-        by ``_adopt`` before the next message or diagnostics tick (rclpy's EventsExecutor
-        has no guard conditions to wake the executor with)."""
+        """The finished load (or why it failed), swapped in by ``_adopt`` before the next
+        message or diagnostics tick (the EventsExecutor has no guard condition to wake)."""
         self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                      if k.split(".")[0] not in ROS_OWNED}
         self.base_dir = base_dir
@@ -127,21 +115,20 @@ class CompensatorNode(Node):
         for name, value in params.tunables.items():
             self._declare(TUNABLE[name], value)
         self.add_pre_set_parameters_callback(self._integers_as_doubles)
-        self.stamped = {i.name: StampedEncoder(list(i.sensors)) for i in params.inputs}
-        self.vector = {i.name: VectorEncoder(list(i.sensors)) for i in params.inputs}
-        self._queued: dict[str, tuple[list[int], list[Any]]] = {
+        self._arrays = {i.name for i in params.inputs if i.is_array}
+        self._sensors = {i.name: i.sensors for i in params.inputs}
+        self._queued: dict[str, tuple[list[int], list[np.ndarray]]] = {
             i.name: ([], []) for i in params.inputs}
-        """Per input, the stamps [ns] and values of the messages not yet handled."""
-        self._pubs: dict[str, list[Publisher]] = {}
+        """Per input, the stamps [ns] and values (blocks of rows) not yet handled."""
+        self._outputs: dict[str, list[tuple[Publisher, RowEncoder, str]]] = {}
+        """Per input, its outputs: (publisher, encoder, the ``ArrayOutput`` field)."""
         self._intake = None if self.get_parameter(USE_SIM_TIME).value else Node(
             f"{node_name}_intake", namespace=self.get_namespace(), context=self.context,
             start_parameter_services=False, enable_rosout=False)
-        """On the system clock, the node holding the input subscriptions, spun by no
-        executor: ``_flush`` takes what arrived (stamped with its reception time), so an
-        input message wakes no executor (under sim time the inputs wait for their /clock
-        tick through the gate, so they are subscribed on this node)."""
-        self._takes: list[tuple[str, Reader, Subscription]] = []
-        ready = [self._connect(i.name) for i in params.inputs]
+        """On the system clock, the node of the input subscriptions, spun by no executor
+        (``_flush`` takes what arrived; docs/ros.md, ``batch_period_s``)."""
+        self._takes: list[tuple[str, Subscription, RowDecoder]] = []
+        ready = [self._connect(i) for i in params.inputs]
         self.create_timer(self.live.tunables["batch_period_s"], self._flush,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -157,33 +144,34 @@ class CompensatorNode(Node):
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
         """The log line that says the node is up (``create_node`` and ``main`` log it)."""
 
-    def _connect(self, name: str) -> str:
-        """The publishers and subscriptions of input ``name``; its line of the ready log."""
-        params = self.live.params
-        inp = next(i for i in params.inputs if i.name == name)
+    def _connect(self, inp: InputTopic) -> str:
+        """The publishers and subscriptions of an input; its line of the ready log."""
+        params, name = self.live.params, inp.name
         input_qos = copy(qos_profile_sensor_data)
         input_qos.depth = INPUT_DEPTH
         kind = Float64MultiArray if inp.is_array else Float64
-        pubs = [self.create_publisher(kind, f"{name}/strain", OUTPUT_DEPTH),
-                self.create_publisher(Float64MultiArray if inp.is_array else Int8,
-                                      f"{name}/direction", OUTPUT_DEPTH),
-                self.create_publisher(JointState, f"{name}/strain_stamped", OUTPUT_DEPTH)]
+        value = RowEncoder.vector(list(inp.sensors)) if inp.is_array else RowEncoder.scalar("<f8")
+        stamped = RowEncoder.joint_state(list(inp.sensors))
+        outputs = [(kind, "strain", value, "strain"),
+                   (Float64MultiArray if inp.is_array else Int8, "direction",
+                    value if inp.is_array else RowEncoder.scalar("i1"), "direction"),
+                   (JointState, "strain_stamped", stamped, "strain")]
         if any(params.calibration.sensors[s].uncertainty for s in inp.sensors):  # the band
-            pubs += [self.create_publisher(kind, f"{name}/strain_std", OUTPUT_DEPTH),
-                     self.create_publisher(JointState, f"{name}/strain_std_stamped",
-                                           OUTPUT_DEPTH)]
-        self._pubs[name] = pubs
-        reader = self._read_array if inp.is_array else self._read_sensor
+            outputs += [(kind, "strain_std", value, "std"),
+                        (JointState, "strain_std_stamped", stamped, "std")]
+        self._outputs[name] = [
+            (self.create_publisher(msg_type, f"{name}/{topic}", OUTPUT_DEPTH), encoder, field)
+            for msg_type, topic, encoder, field in outputs]
         if self._intake is None:
-            sub = self.create_subscription(kind, inp.topic,
-                                           partial(self._arrive, name, reader), input_qos)
+            sub = self.create_subscription(kind, inp.topic, partial(self._arrive, name),
+                                           input_qos)
         else:
             sub = self._intake.create_subscription(kind, self.resolve_topic_name(inp.topic),
                                                    _taken_later, input_qos)
-            self._takes.append((name, reader, sub))
-        if not inp.is_array:  # the array tick has no temperature input
-            self.create_subscription(Temperature, f"{name}/temperature",
-                                     partial(self._on_temperature, name),
+            self._takes.append((name, sub, RowDecoder()))
+        for sensor in inp.sensors:  # as replay reads them: SENSOR/temperature
+            self.create_subscription(Temperature, f"{sensor}/temperature",
+                                     partial(self._on_temperature, sensor),
                                      qos_profile_sensor_data)
         self.create_subscription(kind, f"{name}/strain_reference",  # fused, or ~/start's
                                  partial(self._on_reference, name, inp.is_array), input_qos)
@@ -193,7 +181,7 @@ class CompensatorNode(Node):
         expected = [expected_words(params.calibration.sensors[s]) for s in inp.sensors]
         told = next((f", {w}" for w in expected if w), "")
         return (f"{name} [{members}] ({models}{told}) {sub.topic_name} -> "
-                f"{pubs[0].topic_name}")
+                f"{self._outputs[name][0][0].topic_name}")
 
     # --- what goes wrong ------------------------------------------------------------------
 
@@ -219,7 +207,7 @@ class CompensatorNode(Node):
             f"{_one_line(error)}\n" + "".join(traceback.format_exception(error)).rstrip(),
             throttle_duration_sec=LOG_THROTTLE_S)
 
-    def _guarded(self, name: str, act: Callable[[], None]) -> None:
+    def _guarded(self, name: str, act: Callable[[], object]) -> None:
         """``act()``; a refusal or a program error is counted, never ends the node."""
         try:
             act()
@@ -265,8 +253,8 @@ class CompensatorNode(Node):
             self._adopt()
         now = self.get_clock().now().nanoseconds
         names = list(self.gate.held)
-        for name, (stamp, (reader, msg)) in zip(names, self.gate.tick(now), strict=True):
-            self._queue(name, stamp, reader, msg)
+        for name, (stamp, msg) in zip(names, self.gate.tick(now), strict=True):
+            self._guarded(name, partial(self._queue, name, stamp, msg))
         self._flush()
 
     # --- parameters -----------------------------------------------------------------------
@@ -310,83 +298,100 @@ class CompensatorNode(Node):
 
     # --- messages -------------------------------------------------------------------------
 
-    def _arrive(self, name: str, reader: Reader, msg: Any) -> None:
-        """Under sim time, a resistance message: queued once its /clock tick has come (the
-        gate), stamped with it, and handled at once (a bag played in lockstep waits for
-        each answer). On the system clock the intake node takes the inputs instead."""
+    def _arrive(self, name: str, msg: Any) -> None:
+        """Under sim time, an input: handled once its /clock tick has come (the gate)."""
         if self._loaded is not None:
             self._adopt()
         now = self.get_clock().now().nanoseconds
-        for stamp, (r, m) in self.gate.arrive(name, now, (reader, msg)):
-            self._queue(name, stamp, r, m)
+        for stamp, queued in self.gate.arrive(name, now, msg):
+            self._guarded(name, partial(self._queue, name, stamp, queued))
         self._flush()
 
-    def _queue(self, name: str, stamp: int, reader: Reader, msg: Any) -> None:
-        """A message read and queued with its stamp (``_guarded``)."""
-        def read() -> None:
-            value = reader(name, msg)
-            stamps, values = self._queued[name]
-            stamps.append(stamp)
-            values.append(value)
-        self._guarded(name, read)
-
-    def _read_sensor(self, name: str, msg: Any) -> float:
-        return sensor_value(msg)
-
-    def _read_array(self, name: str, msg: Any) -> np.ndarray:
+    def _columns(self, name: str, msg: Any) -> tuple[np.ndarray, int]:
+        """Where the sensors' values are in a message's data, and its number of values
+        (InputError when the message cannot be read)."""
+        if name not in self._arrays:
+            sensor_value(msg)
+            return np.zeros(1, np.intp), 1
         data, offset, sizes, label = array_layout(msg)
-        return self.live.array_row(name, data, offset=offset, sizes=sizes, label=label)
+        sensors = self._sensors[name]
+        where = array_values(np.arange(len(data)), offset, sizes, len(sensors), label, sensors)
+        return where.astype(np.intp), len(data)
+
+    def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
+        """A message's values in sensor order, and ``_columns``."""
+        columns, n_values = self._columns(name, msg)
+        return np.atleast_1d(np.asarray(msg.data, dtype=np.float64))[columns], columns, n_values
+
+    def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
+        """A message read and queued with its stamp; ``_read``."""
+        read = self._read(name, msg)
+        self._queue_rows(name, [stamp], read[0][None])
+        return read
+
+    def _learn(self, name: str, stamp: int, raw: bytes, kind: Any, decoder: RowDecoder
+               ) -> None:
+        """Queue an intake message of a layout not read before; read its layout in bulk
+        from then on."""
+        values, columns, n_values = self._queue(name, stamp, deserialize_message(raw, kind))
+        decoder.learn(raw, n_values, columns, values)
+
+    def _queue_rows(self, name: str, stamps: list[int], rows: np.ndarray) -> None:
+        queued_stamps, blocks = self._queued[name]
+        queued_stamps.extend(stamps)
+        blocks.append(rows)
 
     def _flush(self) -> None:
-        """Handle every message that arrived, one batch per input, and publish each
-        sample's outputs: every ``batch_period_s`` of the steady clock (at 1 kHz the
-        per-message cost of the engine's path and of the executor's wake-ups is most of
-        the node's CPU), and before anything that reads or changes the state (a service,
-        a parameter, a temperature, a reference, diagnostics, a reload)."""
-        for name, reader, sub in self._takes:
-            self._guarded(name, partial(self._take, name, reader, sub))
+        """Handle what arrived, one batch per input: every ``batch_period_s``, and before
+        anything that reads or changes the state."""
+        for name, sub, decoder in self._takes:
+            self._guarded(name, partial(self._take, name, sub, decoder))
         for name, (stamps, values) in self._queued.items():
             if stamps:
                 self._queued[name] = ([], [])
                 self._guarded(name, partial(self._handle, name, stamps, values))
         self._log_tare()
 
-    def _take(self, name: str, reader: Reader, sub: Subscription) -> None:
-        """Queue what arrived on the intake subscription ``sub`` of input ``name``."""
+    def _take(self, name: str, sub: Subscription, decoder: RowDecoder) -> None:
+        """Queue what arrived on the intake subscription ``sub`` of input ``name``, as bytes:
+        a message of the layout last read is read in bulk by ``decoder``, another one as a
+        message (per message, a Python message costs most of the node's CPU at 1 kHz)."""
         with sub.handle:
-            while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
-                self._queue(name, taken[1]["received_timestamp"], reader, taken[0])
+            taken = []
+            while (one := sub.handle.take_message(sub.msg_type, True)) is not None:
+                taken.append(one)
+        stamps: list[int] = []
+        raws: list[bytes] = []
+        for raw, info in taken:
+            if not decoder.fits(raw):
+                if raws:
+                    self._queue_rows(name, stamps, decoder.rows(raws))
+                    stamps, raws = [], []
+                self._guarded(name, partial(self._learn, name, info["received_timestamp"], raw,
+                                            sub.msg_type, decoder))
+            else:
+                stamps.append(info["received_timestamp"])
+                raws.append(raw)
+        if raws:
+            self._queue_rows(name, stamps, decoder.rows(raws))
 
-    def _handle(self, name: str, stamps: list[int], values: list[Any]) -> None:
+    def _handle(self, name: str, stamps: list[int], blocks: list[np.ndarray]) -> None:
         """A batch of input ``name``'s messages through the compensator; publish the outputs."""
-        t = np.array(stamps, dtype=np.int64).astype(np.float64) * 1e-9
-        pubs = self._pubs[name]
-        scalar = isinstance(values[0], float)
-        feed = self.live.on_sensors if scalar else self.live.on_arrays
-        out, publish, refused = feed(name, t, np.array(values))
-        strain = out.strain
-        direction = out.direction if scalar else out.direction.astype(np.float64)
+        stamps_ns = np.array(stamps, dtype=np.int64)
+        t = stamps_ns.astype(np.float64) * 1e-9
+        out, publish, refused = self.live.on_input(name, t, np.concatenate(blocks))
         for _ in range(int(np.count_nonzero(refused))):
             self._refuse(name, NON_FINITE)
         rows = np.flatnonzero(publish)
         if not rows.size:
             return
-        std = out.std if len(pubs) > 3 else None
-        series = [(pubs[0], strain), (pubs[1], direction)]
-        if std is not None:
-            series.append((pubs[3], std))
-        for pub, column in series:
+        for pub, encoder, field in self._outputs[name]:
             if pub.get_subscription_count():
-                for message in (FLOAT64.encode(column[rows]) if scalar and pub is not pubs[1]
-                                else INT8.encode(column[rows]) if scalar
-                                else [self.vector[name].encode(column[i]) for i in rows]):
-                    pub.publish(message)
-        stamped = self.stamped[name]
-        for pub, column in [(pubs[2], strain)] + ([] if std is None else [(pubs[4], std)]):
-            if pub.get_subscription_count():
-                for i in rows:
-                    pub.publish(stamped.encode(stamps[i], column[i:i + 1] if scalar
-                                               else column[i]))
+                messages = encoder.encode(getattr(out, field)[rows], stamps_ns[rows])
+                handle = pub.handle  # rclpy's Publisher.publish of bytes, once per batch
+                with handle:
+                    for message in messages:
+                        handle.publish_raw(message)
 
     def _on_temperature(self, sensor: str, msg: Any) -> None:
         self._flush()
@@ -394,21 +399,17 @@ class CompensatorNode(Node):
             sensor, sensor_value(msg, "temperature")))
 
     def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
-        """A known strain of a sensor (Float64) or of an array's sensors (Float64MultiArray,
-        NaN: none), stamped on arrival; a refusal is counted in the sensor's /diagnostics
-        and logged, a malformed message under the transport."""
+        """A known strain of a sensor, or of an array's sensors (NaN: none), stamped on
+        arrival."""
         if self._loaded is not None:
             self._adopt()
         self._flush()
 
         def handle() -> None:
             t = self._now_ns() * 1e-9
-            if is_array:
-                data, offset, sizes, label = array_layout(msg)
-                given = self.live.array_references(name, data, offset=offset, sizes=sizes,
-                                                   label=label)
-            else:
-                given = {name: sensor_value(msg)}
+            values = self._read(name, msg)[0]  # an array's NaN: no reference
+            given = {s: float(v) for s, v in zip(self._sensors[name], values, strict=True)
+                     if not (is_array and np.isnan(v))}
             refused = ({s: self.live.on_reference(s, t, v) for s, v in given.items()}
                        if self.live.fusion else {})
             for sensor, value in given.items():

@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable
 from dataclasses import fields, replace
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -18,11 +17,10 @@ from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
-from strain_comp.core.outputs import ArrayOutput, BatchOutput, concatenate
+from strain_comp.core.outputs import ArrayOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
-from strain_comp.io.multiarray import array_values
 from strain_comp.ros.live_start import LiveStart
 from strain_comp.ros.live_tare import TARE_WINDOW_S, LiveTare
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
@@ -38,7 +36,6 @@ MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
 NON_FINITE = "the calibration gave a non-finite strain; not published"
 """The refusal of a good sample whose strain is not finite (a good sample is never NaN)."""
-_Out = TypeVar("_Out", BatchOutput, ArrayOutput)
 _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
@@ -59,7 +56,8 @@ class LiveCompensator:
                 raise ParameterError("tare", f"auto needs 'rest_resistance' in the calibration "
                                      f"of {', '.join(missing)}")
         self._last_publish: dict[str, float] = {}
-        self.temperature: dict[str, float] = {}
+        self.temperature: dict[str, np.ndarray] = {}
+        """Per input that had one, its sensors' latest temperatures [deg C] (NaN: none yet)."""
         self._inputs = {i.name: i.sensors for i in params.inputs}
         self.taring = LiveTare(self.engine, params)
         """The zero: ``~/tare`` and ``tare: auto`` (its log: the tares taken)."""
@@ -67,8 +65,7 @@ class LiveCompensator:
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self.faults: Counter[str] = Counter()
-        """Program errors by where and exception type (``fault``): a bug, not a message's
-        content; counted apart from the refusals."""
+        """Program errors by where and exception type, counted apart from the refusals."""
         self._faults_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``reload``)."""
@@ -76,17 +73,13 @@ class LiveCompensator:
             {s: OutputFusion.for_calibration(c) for s, c in params.calibration.sensors.items()}
             if params.fuse_references else {})
         """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
-        self._estimate: dict[str, tuple[float, float, bool]] = {}
-        """Per single sensor, its latest estimate before fusion: (time, strain, within the
-        calibrated range), of a sample the model used."""
-        self._array_estimate: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        """Per array, the same as three vectors (times, NaN before a first used sample;
-        strains; within the range), updated in place each tick."""
-        self._column = {s: (i.name, j) for i in params.inputs if i.is_array
-                        for j, s in enumerate(i.sensors)}
-        """Array sensors: (array, column)."""
+        self._estimate: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        """Per input, its sensors' latest estimates before fusion, of samples the model used:
+        times (NaN before a first one), strains, within the calibrated range."""
+        self._column = {s: (i.name, j) for i in params.inputs for j, s in enumerate(i.sensors)}
+        """Per sensor: (its input, its column)."""
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        """Per array, its sensors' fused gains and offsets (``_fused_array``)."""
+        """Per input, its sensors' fused gains and offsets (``_fused``)."""
         self.starting = LiveStart()
         """``~/start``'s state and the samples it watches (``live_start``)."""
 
@@ -108,57 +101,35 @@ class LiveCompensator:
                 self._last_publish[name] = float(t[i])
         return due
 
-    def on_sensors(self, name: str, t: np.ndarray, values: np.ndarray
-                   ) -> tuple[BatchOutput, np.ndarray, np.ndarray]:
-        """Resistances of one sensor at times ``t``: (outputs, published, refused: non-finite)."""
+    def on_input(self, name: str, t: np.ndarray, values: np.ndarray
+                 ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
+        """Samples of input ``name`` at times ``t`` (rows of ``values``, a column per sensor):
+        (the outputs, a column per sensor; published; refused: non-finite)."""
         if t.size > 1 and (name in self.taring.start or self.starting.series):
-            return self._each(self.on_sensors, name, t, values)
-        temp = self.temperature.get(name, math.nan)
-        out = self.engine.run(name, t, values,
-                              None if math.isnan(temp) else np.full(t.size, temp))
-        self._seen(name, t, values[:, None], out.status[:, None], out.direction[:, None])
-        used = used_mask(out.status)
-        refused = used & ~np.isfinite(out.strain)  # a good sample: never NaN
-        if self.fusion:
-            kept = np.flatnonzero(used & ~refused)
-            if kept.size:
-                i = kept[-1]
-                self._estimate[name] = (float(t[i]), float(out.strain[i]),
-                                        int(out.status[i]) != Status.OUT_OF_RANGE)
-            out = replace(out, strain=self.fusion[name].apply(out.strain))
-        return out, self._due(name, t, np.isfinite(out.strain) & ~refused), refused
-
-    def _each(self, feed: Callable[..., tuple[_Out, np.ndarray, np.ndarray]], name: str,
-              t: np.ndarray, values: np.ndarray) -> tuple[_Out, np.ndarray, np.ndarray]:
-        """``feed`` one sample at a time: an automatic tare or ``~/start`` watches the input,
-        whose outcome changes the next sample."""
-        parts = [feed(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
-        return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
-                np.concatenate([p[2] for p in parts]))
-
-    def array_row(self, name: str, data: Any, *, offset: int = 0,
-                  sizes: list[int] | None = None, label: str = "") -> np.ndarray:
-        """An array message's values in sensor order; InputError when its layout does not fit."""
-        sensors = self._inputs[name]
-        return array_values(data, offset, sizes or [], len(sensors), label, sensors)
-
-    def on_arrays(self, name: str, t: np.ndarray, values: np.ndarray
-                  ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
-        """Array ticks (rows of ``values``) at times ``t``, as ``on_sensors``."""
-        if t.size > 1 and (name in self.taring.start or self.starting.series):
-            return self._each(self.on_arrays, name, t, values)
-        out = self.engine.run_ticks(name, t, values)
+            # an automatic tare or ~/start watches the input: a sample changes the next one
+            parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
+            return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                    np.concatenate([p[2] for p in parts]))
+        held = self.temperature.get(name)
+        temps = None if held is None else np.tile(held, (t.size, 1))
+        if name in self.engine.arrays:
+            out = self.engine.run_ticks(name, t, values, temps)
+        else:
+            one = self.engine.run(name, t, values[:, 0], None if temps is None else temps[:, 0])
+            out = ArrayOutput(one.strain[:, None], one.direction[:, None], one.status[:, None],
+                              one.out_of_range[:, None],
+                              None if one.std is None else one.std[:, None])
         self._seen(name, t, values, out.status, out.direction)
         refused = (used_mask(out.status) & ~np.isfinite(out.strain)).any(axis=1)
         if self.fusion:
-            out = self._fused_array(name, t, out, refused)
+            out = self._fused(name, t, out, refused)
         return out, self._due(name, t, np.isfinite(out.strain).all(axis=1) & ~refused), refused
 
-    def _fused_array(self, name: str, t: np.ndarray, out: ArrayOutput, refused: np.ndarray
-                     ) -> ArrayOutput:
+    def _fused(self, name: str, t: np.ndarray, out: ArrayOutput, refused: np.ndarray
+               ) -> ArrayOutput:
         """``out`` fused; the used samples' estimates kept for the references."""
         k = out.strain.shape[1]
-        times, strains, inside = self._array_estimate.setdefault(
+        times, strains, inside = self._estimate.setdefault(
             name, (np.full(k, np.nan), np.full(k, np.nan), np.zeros(k, bool)))
         for i in np.flatnonzero(~refused):
             used = used_mask(out.status[i])
@@ -188,27 +159,16 @@ class LiveCompensator:
             return fusion.refuse("no recent estimate")
         reason = fusion.update(t, latest[1], value)
         if reason is None:
-            for array, sensors in self._inputs.items():
-                if sensor in sensors:
-                    self._maps.pop(array, None)
+            self._maps.pop(self._column[sensor][0], None)
         return reason
 
     def _latest(self, sensor: str) -> tuple[float, float, bool] | None:
         """A sensor's latest estimate before fusion (time, strain, within the range)."""
-        if sensor not in self._column:
-            return self._estimate.get(sensor)
-        array, column = self._column[sensor]
-        vectors = self._array_estimate.get(array)
+        name, column = self._column[sensor]
+        vectors = self._estimate.get(name)
         if vectors is None or np.isnan(vectors[0][column]):
             return None
         return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
-
-    def array_references(self, name: str, data: Any, *, offset: int = 0,
-                         sizes: list[int] | None = None, label: str = "") -> dict[str, float]:
-        """An array's known strains by sensor (layout as ``array_row``; NaN ones left out)."""
-        values = self.array_row(name, data, offset=offset, sizes=sizes, label=label)
-        return {s: float(v) for s, v in zip(self._inputs[name], values, strict=True)
-                if not np.isnan(v)}
 
     def reference_now(self, now: float | None = None) -> str:
         """``~/reference`` at clock time ``now`` (None: each sensor's latest sample)."""
@@ -251,7 +211,9 @@ class LiveCompensator:
             self.refuse(f"{name}/temperature", "temperature outside "
                         f"[{TEMPERATURE_RANGE[0]:g}, {TEMPERATURE_RANGE[1]:g}] degC")
             return
-        self.temperature[name] = value
+        inp, column = self._column[name]
+        held = self.temperature.setdefault(inp, np.full(len(self._inputs[inp]), math.nan))
+        held[column] = value
 
     def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:

@@ -1,14 +1,6 @@
-"""The session start of a live node: ``~/start`` watches the next stretch and return on the
-sensors' reference topics and then applies the session start ``strain-comp`` makes offline
-(``strain_comp.offline.session_start.start``, the command's) to the calibration; no ROS
-(docs/ros.md, "Services").
-
-States, shown in /diagnostics (``strain_comp: session start``): ``idle`` (never called),
-``waiting`` (called, the reference has not yet moved by ``MIN_STRETCH`` of the calibrated
-strain range), ``recording`` (it has; waiting for its return), ``applied`` (with the
-stretch's RMSE after the start) and ``refused`` (with why). Without a recent reference on
-any sensor ``~/start`` is ``~/span`` (the operator's known strain ``span_strain``).
-"""
+"""``~/start`` of a live node: the next stretch and return on the reference topics, then the
+offline session start (``strain_comp.offline.session_start.start``); its states and rules:
+docs/ros.md, "Services"."""
 
 from __future__ import annotations
 
@@ -54,7 +46,7 @@ class _Series:
 
 
 class LiveStart:
-    """``~/start``'s state and the samples it watches (module docstring)."""
+    """``~/start``'s state and the samples it watches."""
 
     def __init__(self) -> None:
         self.state = "idle"

@@ -1,10 +1,6 @@
-"""The zero of a live node's sensors: ``~/tare`` on each input's recent good samples and
-``tare: auto`` on the samples since the start, by the rules ``--tare auto`` applies offline
-(``core.tare``; docs/ros.md, "Services").
-
-A good sample here is one the engine fed to its model (``USED``), also when it lies outside
-the calibrated range: a rest that moved out of the range is what a tare corrects.
-"""
+"""The zero of a live node's sensors: ``~/tare`` and ``tare: auto`` by the offline rules
+(``core.tare``; docs/ros.md, "Services"). A good sample is one the model used, also outside
+the calibrated range: a rest that moved out of it is what a tare corrects."""
 
 from __future__ import annotations
 

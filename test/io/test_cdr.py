@@ -197,17 +197,18 @@ def test_node_encoders_equal_the_message_encoders(names: list[str]) -> None:
     """The node's prebuilt-block encoders (strain_comp.ros.cdr) write the bytes of the
     message encoder: JointState with empty velocity and effort, and the Float64MultiArray
     labelled with the names (one wire format for bags and the node)."""
-    from strain_comp.ros.cdr import StampedEncoder, VectorEncoder
+    from strain_comp.ros.cdr import RowEncoder
 
     rng = np.random.default_rng(len(names))
-    stamped, vector = StampedEncoder(names), VectorEncoder(names)
+    stamped, vector = RowEncoder.joint_state(names), RowEncoder.vector(names)
     k = len(names)
     for stamp_ns in (1_795_498_137_622_557_762, 0, 5, -1_500_000_000):
         values = _floats(rng, k)
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        assert stamped.encode(stamp_ns, values) == _encode("sensor_msgs/msg/JointState", {
+        [message] = stamped.encode(np.array([values]), np.array([stamp_ns]))
+        assert message == _encode("sensor_msgs/msg/JointState", {
             "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": ""},
             "name": names, "position": values, "velocity": [], "effort": []})
-        assert vector.encode(values) == _encode("std_msgs/msg/Float64MultiArray", {
+        assert vector.encode(np.array([values])) == [_encode("std_msgs/msg/Float64MultiArray", {
             "layout": {"dim": [{"label": ",".join(names), "size": k, "stride": k}],
-                       "data_offset": 0}, "data": values})
+                       "data_offset": 0}, "data": values})]

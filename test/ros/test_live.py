@@ -245,3 +245,77 @@ def test_baseline_tracking_parameter_accepts_off_only(tmp_path: Path) -> None:
         with pytest.raises(ParameterError, match=r"baseline_tracking.*only off") as refused:
             parse_values({**flat, "baseline_tracking": value}, base_dir=tmp_path)
         assert "\n" not in str(refused.value)
+
+
+def test_an_arrays_sensors_take_their_temperature_as_replay_does(tmp_path: Path) -> None:
+    """An array whose calibrations hold a temperature term, its sensors' SENSOR/temperature
+    fed in log-time order: the node's strains are replay's of the same bag (the node once
+    ignored an array's temperature), and the temperature moves them."""
+    import copy
+
+    import yaml
+
+    from strain_comp.core.calibration_file import load_calibration
+    from strain_comp.io.bag import BagWriter, read_bag
+    from strain_comp.offline.replay import replay_bag
+    from strain_comp.ros.params import TUNABLES, InputTopic, NodeParams
+
+    config = Path(__file__).resolve().parents[2] / "config"
+    demo = yaml.safe_load((config / "demo_calibration.yaml").read_text())["sensors"]["s1"]
+    sensors = {}
+    for name, coef in (("a", 0.05), ("b", -0.03)):
+        sensors[name] = copy.deepcopy(demo)
+        sensors[name]["effects"] = [{"name": "temp", "kind": "temperature",
+                                     "params": {"form": "offset", "t_ref": 20.0}, "coef": coef}]
+    (tmp_path / "cal.yaml").write_text(yaml.safe_dump(
+        {"format": "strain_comp/calibration/v1", "sensors": sensors}))
+    cal = load_calibration(tmp_path / "cal.yaml")
+    t = 100.0 + np.arange(400) * 0.02
+    r = np.stack([13.0 + 2.0 * np.sin(t), 13.0 + 2.0 * np.cos(t)], axis=1)
+    t_temp = 100.005 + np.arange(40) * 0.2
+    temps = {"a": 20.0 + 0.5 * np.arange(40), "b": 40.0 - 0.4 * np.arange(40)}
+    with BagWriter(tmp_path / "in.mcap") as writer:
+        writer.write_float64_array("/arr/resistance", t, r, ["a", "b"])
+        for name, values in temps.items():
+            writer.write_temperature(f"/{name}/temperature", t_temp, values)
+    replay_bag(tmp_path / "in.mcap", cal, tmp_path / "out.mcap")
+    replayed = read_bag(tmp_path / "out.mcap").series["/arr/strain"].values
+
+    def node(with_temperature: bool) -> np.ndarray:
+        live = LiveCompensator(NodeParams([InputTopic("arr", "/arr/resistance", ("a", "b"),
+                                                      tmp_path / "cal.yaml", True)],
+                                          cal, {s.name: s.default for s in TUNABLES}),
+                               warm_up=False)
+        events = [(ti, "arr", row) for ti, row in zip(t, r, strict=True)]
+        if with_temperature:
+            events += [(ti, name, v) for name, values in temps.items()
+                       for ti, v in zip(t_temp, values, strict=True)]
+        out = []
+        for ti, name, value in sorted(events, key=lambda e: e[0]):
+            if name == "arr":
+                out.append(one_message(live, name, ti, value).strain)
+            else:
+                live.on_temperature(name, value)
+        return np.array(out)
+
+    np.testing.assert_allclose(node(True), replayed, rtol=1e-12, atol=1e-12)
+    assert np.abs(node(False) - replayed).max() > 0.1
+
+
+def test_row_decoder_reads_one_layout_in_bulk_and_learns_only_what_reads_back() -> None:
+    """The intake's bulk read: the rows of the messages of the layout learnt, in the sensors'
+    columns; another label is not that layout; a message whose values are not its last
+    bytes (padding after them) is not learnt."""
+    from strain_comp.ros.cdr import RowDecoder, RowEncoder
+
+    rows = np.arange(12.0).reshape(4, 3)
+    raws = RowEncoder.vector(["a", "b", "c"]).encode(rows)
+    decoder = RowDecoder()
+    assert not decoder.fits(raws[0])
+    decoder.learn(raws[0], 3, np.array([2, 0, 1]), rows[0][[2, 0, 1]])
+    assert all(decoder.fits(raw) for raw in raws)
+    np.testing.assert_array_equal(decoder.rows(raws), rows[:, [2, 0, 1]])
+    assert not decoder.fits(RowEncoder.vector(["a", "b", "x"]).encode(rows)[0])
+    padded = RowDecoder()
+    padded.learn(raws[0] + bytes(8), 3, np.arange(3), rows[0])
+    assert not padded.fits(raws[0] + bytes(8))

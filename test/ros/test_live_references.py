@@ -15,6 +15,7 @@ from conftest import cubic_cal, one_message
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import InputError, ParameterError
+from strain_comp.io.multiarray import array_values
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
@@ -109,8 +110,9 @@ def test_array_references_nan_for_none_and_the_label_honoured(tmp_path: Path) ->
     node = live(tmp_path, array=True)
 
     def references(t: float, data: list[float], label: str = "") -> dict[str, str | None]:
-        given = node.array_references("arr", data, label=label)
-        return {s: node.on_reference(s, t, v) for s, v in given.items()}
+        values = array_values(data, 0, [], 2, label, ("a", "b"))  # NaN: none, as the node
+        return {s: node.on_reference(s, t, float(v))
+                for s, v in zip(("a", "b"), values, strict=True) if not math.isnan(v)}
 
     out = one_message(node, "arr", 1.0, [150.0, 170.0])
     assert out is not None

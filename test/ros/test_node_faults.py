@@ -70,16 +70,16 @@ def rig(context: Any) -> Iterator[Rig]:
 
 def test_a_program_error_in_a_callback_is_reported_as_such_and_the_node_goes_on(
         rig: Rig, monkeypatch: pytest.MonkeyPatch) -> None:
-    real = rig.node.live.on_sensors
+    real = rig.node.live.on_input
     calls: list[tuple[float, float]] = []
 
     def faulty(name: str, t: np.ndarray, values: np.ndarray) -> Any:
-        calls.extend(zip(t.tolist(), values.tolist(), strict=True))
+        calls.extend(zip(t.tolist(), values[:, 0].tolist(), strict=True))
         if 13.0 in values:
             raise TypeError("unsupported operand type(s) for +: 'float' and 'NoneType'")
         return real(name, t, values)
 
-    monkeypatch.setattr(rig.node.live, "on_sensors", faulty)
+    monkeypatch.setattr(rig.node.live, "on_input", faulty)
     logged: list[str] = []
     logger = rig.node.get_logger()
     monkeypatch.setattr(type(logger), "error",

@@ -22,6 +22,7 @@ use_ros_env(ROS_SLOT)
 from rclpy.parameter import Parameter  # noqa: E402  (after the environment is set)
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
 
 from strain_comp.core.calibration_file import load_calibration  # noqa: E402
@@ -120,6 +121,41 @@ def test_array_values_are_matched_by_label_and_refused_when_labels_differ(sim: P
     key = "array: layout dim[0].label does not name the sensors a1,a2,a3,a4,a5,a6"
     assert sim.spin_until(lambda: sim.node.live.refused[key] == 1)
     assert len(strain) == 2
+
+
+def test_on_the_system_clock_messages_are_read_in_bulk_as_one_by_one(context: Any) -> None:
+    """The intake reads a run of one layout in bulk from the bytes: interleaved layouts
+    (plain, labelled in reverse order, a data_offset, a refused label, plain again) each
+    give the engine's strains of the sample in sensor order, at the stamp published."""
+    p = Peer(context, False)
+    try:
+        stamped: list[Any] = []
+        p.probe.create_subscription(JointState, "/array/strain_stamped", stamped.append, 100)
+        pub = p.probe.create_publisher(Float64MultiArray, "/array/resistance", 100)
+        p.wait_matched(pub)
+        rng = np.random.default_rng(3)
+        rows = [list(12.0 + 4.0 * rng.random(6)) for _ in range(12)]
+        offset = _array([99.0, *rows[5]], ",".join(SENSORS))
+        offset.layout.data_offset = 1
+        offset.layout.dim[0].size = offset.layout.dim[0].stride = 6
+        messages = [*(_array(r, "") for r in rows[:3]),
+                    _array(rows[3][::-1], ",".join(SENSORS[::-1])),
+                    _array(rows[4][::-1], ",".join(SENSORS[::-1])), offset,
+                    _array(rows[0], "a1,a2,a3,a4,a5,x6"),
+                    *(_array(r, ",".join(SENSORS)) for r in rows[6:])]
+        for msg in messages:
+            pub.publish(msg)
+        assert p.spin_until(lambda: len(stamped) == len(rows))
+        key = "array: layout dim[0].label does not name the sensors a1,a2,a3,a4,a5,a6"
+        assert p.node.live.refused[key] == 1
+    finally:
+        p.close()
+    engine = Engine(load_calibration(CONFIG / "array_calibration.yaml"),
+                    arrays={"array": SENSORS})
+    for msg, row in zip(stamped, rows, strict=True):
+        t = (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec) * 1e-9  # as the node
+        np.testing.assert_allclose(msg.position, engine.step_array("array", t, row).strain,
+                                   rtol=0, atol=1e-12)
 
 
 def test_refusal_counters_stay_bounded(sim: Peer) -> None:
