@@ -24,6 +24,9 @@ from __future__ import annotations
 import functools
 import math
 import os
+import subprocess
+import sys
+import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -451,6 +454,26 @@ LONGEST_FIRST = ("test_ros2_cli", "test_diagnose", "test_node_process", "test_ho
 """The modules that take longest in a full run (``scripts/test.sh --durations=60``), longest
 first: they run first, so that neither worker of ``--dist loadfile`` (which hands files out
 in collection order) is left running one of them at the end while the other idles."""
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist (``-n N``), in the controller before the workers start: the numba
+    kernels compiled into the cache by two processes side by side (test/warm_kernels.py),
+    so that the workers load them rather than each compile the same ones. A part that fails
+    is a warning: the tests then compile what is missing, as without this step."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    script = Path(__file__).with_name("warm_kernels.py")
+    with tempfile.TemporaryFile() as log0, tempfile.TemporaryFile() as log1:
+        runs = [(subprocess.Popen([sys.executable, str(script), str(part)], stdout=log,
+                                  stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL), log)
+                for part, log in enumerate((log0, log1))]
+        for proc, log in runs:
+            if proc.wait() != 0:
+                log.seek(0)
+                tail = log.read().decode(errors="replace")[-2000:]
+                config.issue_config_time_warning(pytest.PytestWarning(
+                    f"{script.name} {' '.join(proc.args[2:])} failed: {tail}"), stacklevel=2)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
