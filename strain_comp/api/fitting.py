@@ -7,7 +7,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
-from strain_comp.api.inputs import Data, PathLike, as_recordings, checked, paths_of
+from strain_comp.api._inputs import as_recordings, checked, paths_of
+from strain_comp.api.inputs import Data, PathLike
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
