@@ -8,19 +8,16 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from strain_comp.api.evaluation import evaluate
-from strain_comp.api.inputs import (
-    CalibrationLike,
-    Data,
-    PathLike,
+from strain_comp.api._inputs import (
     as_calibration,
     as_recordings,
     checked,
     input_paths,
     is_path,
     paths_of,
-    read_recordings,
 )
+from strain_comp.api.evaluation import evaluate
+from strain_comp.api.inputs import CalibrationLike, Data, PathLike, read_recordings
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration as _save_calibration
 from strain_comp.diagnosis.conditions import diagnose_conditions

@@ -11,14 +11,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from strain_comp.api.inputs import (
-    CalibrationLike,
-    PathLike,
-    as_calibration,
-    checked,
-    input_paths,
-    paths_of,
-)
+from strain_comp.api._inputs import as_calibration, checked, input_paths, paths_of
+from strain_comp.api.inputs import CalibrationLike, PathLike
 from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine, tracking_off

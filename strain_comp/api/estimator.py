@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.api._inputs import as_calibration, checked
 from strain_comp.api.estimation import estimate
 from strain_comp.api.evaluation import evaluate
 from strain_comp.api.fitting import fit
-from strain_comp.api.inputs import CalibrationLike, Data, as_calibration, checked
+from strain_comp.api.inputs import CalibrationLike, Data
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
 

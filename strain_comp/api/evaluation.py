@@ -8,17 +8,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from strain_comp.api.inputs import (
-    CalibrationLike,
-    Data,
-    PathLike,
+from strain_comp.api._inputs import (
     as_calibration,
     as_recordings,
     checked,
     input_paths,
     paths_of,
-    read_recordings,
 )
+from strain_comp.api.inputs import CalibrationLike, Data, PathLike, read_recordings
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.core.engine import tracking_off
 from strain_comp.errors import InputError

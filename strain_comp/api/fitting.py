@@ -7,7 +7,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
-from strain_comp.api.inputs import Data, PathLike, as_recordings, checked, paths_of
+from strain_comp.api._inputs import as_recordings, checked, paths_of
+from strain_comp.api.inputs import Data, PathLike
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
@@ -44,7 +45,7 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         sensors: Which sensors to fit (default: every one with a reference).
         strain_unit: The reference strain's unit (``%``, ``mm``), stored in the calibration.
         report: Where notes go (skipped bag damage, a sensor left out, a resistance that
-            looks like a ratio: ``ratio_note``); None drops them, but for the last,
+            looks like a ratio R/R0); None drops them, but for the last,
             given as a ``UserWarning``.
         progress_bar: A bar on stderr over an APL-family fit's grid (``strain_comp.progress``).
         pool: How several runs of a sensor are pooled: ``"spanned"`` (each run's input zero
@@ -67,7 +68,7 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         The calibration, one ``SensorCalibration`` per sensor fitted.
 
     Raises:
-        InputError: ``data`` or an argument of the wrong type (``api.inputs.checked``), an
+        InputError: ``data`` or an argument of the wrong type (``api._inputs.checked``), an
             unknown model or option, a bad unit, a sensor not in the data or
             without a reference, or a bag path that cannot be read.
         BagError: A bag cannot be read.
@@ -106,7 +107,7 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
             cal.input = replace(cal.input, unit=input_unit)
         if grid or auto is not None:  # how the fit was shown is no fit option
             cal.provenance.get("options", {}).pop("progress", None)
-        line = ratio_note(cal)
+        line = _ratio_note(cal)
         if line is not None and report is not None:
             report(line)
         elif line is not None:
@@ -116,21 +117,12 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
 
 RATIO_TOP = 5.0
 """A resistance read in ohm whose whole calibrated range lies at or below this [ohm] looks
-like a ratio R/R0 (about 1 at rest): ``ratio_note`` says so."""
+like a ratio R/R0 (about 1 at rest): ``_ratio_note`` says so."""
 
 
-def ratio_note(cal: SensorCalibration) -> str | None:
-    """One line when a sensor's resistance, read as ohm, looks like a ratio R/R0: its
-    calibrated range lies within (0, ``RATIO_TOP``] ohm (a soft sensor's rest is tens of
-    ohm to megaohm; a ratio is about 1 at rest). The dead zone and the plots would say ohm.
-
-    Args:
-        cal: A sensor's calibration, as fitted.
-
-    Returns:
-        The line, or None.
-
-    """
+def _ratio_note(cal: SensorCalibration) -> str | None:
+    """One line when a sensor's resistance, read as ohm, looks like a ratio R/R0 (a soft
+    sensor's rest is tens of ohm to megaohm; a ratio is about 1 at rest)."""
     vr = cal.valid_range
     if cal.input.kind != "resistance" or cal.input.unit != "ohm" or vr.r_hi > RATIO_TOP:
         return None

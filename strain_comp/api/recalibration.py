@@ -6,15 +6,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
-from strain_comp.api.inputs import (
-    CalibrationLike,
-    Data,
-    as_calibration,
-    as_recordings,
-    checked,
-    paths_of,
-    read_recordings,
-)
+from strain_comp.api._inputs import as_calibration, as_recordings, checked, paths_of
+from strain_comp.api.inputs import CalibrationLike, Data, read_recordings
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
 from strain_comp.offline.session_start import recalibrate as recalibrate_points

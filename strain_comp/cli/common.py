@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import math
 import sys
 from collections.abc import Callable, Sequence
 from typing import NoReturn, Protocol, TextIO
@@ -98,20 +97,11 @@ def output(path: str, inputs: Sequence[str | None]) -> str:
     return path
 
 
-def finite(value: object) -> object:
-    """NaN and inf (not JSON) as null, recursively."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite(v) for v in value]
-    return value
-
-
 def write_json(path: str, data: object, inputs: Sequence[str]) -> None:
     """JSON to ``path`` (atomically) or to stdout for ``-``."""
-    text = json.dumps(finite(data), indent=2, allow_nan=False) + "\n"
+    from strain_comp.offline.evaluation import json_safe  # numpy: loaded when writing only
+
+    text = json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n"
     if path == "-":
         sys.stdout.write(text)
         sys.stdout.flush()

@@ -57,20 +57,19 @@ class SensorEvaluation:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
-        record: dict[str, Any] = {k: _json_number(v) for k, v in self.stats.to_dict().items()}
+        record: dict[str, Any] = self.stats.to_dict()
         record.update(model=self.model, n_samples=self.n_samples, n_bad=self.n_bad,
                       n_out_of_range=self.n_out_of_range, bad_by_status=self.bad_by_status,
                       unit=self.unit)
         if self.coverage_95 is not None:
             record["coverage_95"] = self.coverage_95
         if self.in_run_rmse is not None:
-            record["in_run_rmse"] = _json_number(self.in_run_rmse)
+            record["in_run_rmse"] = self.in_run_rmse
         # docs/design.md's key, kept: baseline tracking was removed, so it never acts
         record["baseline_tracking"] = {"seconds": 0.0, "correction": 0.0}
         if self.references is not None:
-            record["references"] = {k: v if isinstance(v, dict) else _json_number(v)
-                                    for k, v in self.references.items()}
-        return record
+            record["references"] = self.references
+        return json_safe(record)  # type: ignore[no-any-return]
 
 
 @dataclass
@@ -85,10 +84,14 @@ class EvaluationResult:
         return {"sensors": {name: ev.to_dict() for name, ev in self.sensors.items()}}
 
 
-def _json_number(value: float | int) -> float | int | None:
-    """NaN/inf are not JSON: write them as null."""
+def json_safe(value: Any) -> Any:
+    """NaN and inf (not JSON) as null, recursively (dicts, lists, tuples as lists)."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
     return value
 
 

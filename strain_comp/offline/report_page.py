@@ -22,7 +22,7 @@ from strain_comp.core.calibration import (
     expected_words,
     strain_unit_words,
 )
-from strain_comp.offline.evaluation import format_notes
+from strain_comp.offline.evaluation import format_notes, json_safe
 from strain_comp.offline.plots import plot_model_choice, plot_sensor, tare_words
 from strain_comp.version import __version__
 
@@ -83,20 +83,14 @@ def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, ba
     return out
 
 
-def _value(value: Any) -> str:
-    """``data-value``: the number as JSON writes it (null for NaN / inf)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return "null"
-    return json.dumps(value)
-
-
 def html_cell(value: Any, fmt: str, key: str) -> str:
     """A table cell of a number, sortable by its value."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         text = "n/a"
     else:
         text = format(value, fmt)
-    return f'<td class="num" data-key="{key}" data-value="{escape(_value(value))}">{text}</td>'
+    as_json = escape(json.dumps(json_safe(value)))  # NaN / inf: null, as the JSON writes it
+    return f'<td class="num" data-key="{key}" data-value="{as_json}">{text}</td>'
 
 
 def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]]],
