@@ -175,21 +175,11 @@ class Recording:
 
 
 def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
-    """Put ``values`` sampled at ``t_src`` on the times ``t``."""
+    """Put ``values`` sampled at ``t_src`` on the times ``t`` (``PieceAlign`` in one piece)."""
     t = np.asarray(t, dtype=np.float64)
-    t_src = np.asarray(t_src, dtype=np.float64)
-    values = np.asarray(values, dtype=np.float64)
-    if t_src.shape == t.shape and np.array_equal(t_src, t):
-        return np.copy(values, order="C")
-    ok = np.isfinite(t_src) & np.isfinite(values)
-    t_src, values = t_src[ok], values[ok]
-    out = np.full(t.shape, np.nan)
-    if t_src.size == 0:
-        return out
-    t_src, values = _sorted_last(t_src, values)
-    inside = (t >= t_src[0]) & (t <= t_src[-1])
-    out[inside] = np.interp(t[inside], t_src, values)
-    return out
+    aligner = PieceAlign()
+    aligner.add(t, np.asarray(t_src), np.asarray(values))
+    return aligner.take(t.ravel()).reshape(t.shape)
 
 
 def _sorted_last(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
