@@ -23,7 +23,8 @@ MAX_HELD_BYTES = 256 * 2**20
 """Message bytes ``iter_bag`` holds undecoded [bytes]: it cuts a piece there (at the latest
 chunk's start, else all held: later messages may then come late, counted)."""
 MAX_BAG_BYTES = 2**30
-"""Message bytes ``read_bag`` holds for one whole bag [bytes]; past it: BagError."""
+"""Message bytes ``read_bag`` and ``raw_messages`` read from one bag [bytes]; past it:
+BagError."""
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
@@ -68,8 +69,8 @@ def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
 
 def _check_budget(col: Collector, file: Path, budget: int) -> None:
     if col.collected > budget:
-        raise BagError(f"{file}: more than {budget} bytes of messages to hold "
-                       "at once (the whole-bag reader's budget)")
+        raise BagError(f"{file}: more than {budget} bytes of messages "
+                       "(the whole-bag reader's budget)")
 
 
 def _walk(path: Path, col: Collector) -> Iterator[Path]:
