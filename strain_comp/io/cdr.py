@@ -52,22 +52,20 @@ def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: i
     return payload[:len(payload) - 8 * n]
 
 
-def joint_state_layout(frame_id: str, names: Sequence[str], *, velocity: bool
-                       ) -> tuple[bytes, int, int | None]:
-    """The template of every sensor_msgs/msg/JointState message for fixed names."""
+def joint_state_layout(frame_id: str, names: Sequence[str]) -> tuple[bytes, int]:
+    """The template of every sensor_msgs/msg/JointState message for fixed names (velocity and
+    effort empty), and where its first position sits."""
     encode = message_encoder("sensor_msgs/msg/JointState")
     n = len(names)
 
-    def message(position: float, speed: float) -> bytes:
+    def message(position: float) -> bytes:
         return encode({"header": _header(0, 0, frame_id), "name": list(names),
-                       "position": [position] * n, "velocity":
-                       [speed] * n if velocity else [], "effort": []})
+                       "position": [position] * n, "velocity": [], "effort": []})
 
-    template = message(0.0, 0.0)
+    template = message(0.0)
     if not n:  # no values: position's count is followed by velocity's and effort's
-        return template, len(template) - 8, len(template) - 4 if velocity else None
-    pos_at = _offset(template, message(_PROBE, 0.0))
-    return template, pos_at, _offset(template, message(0.0, _PROBE)) if velocity else None
+        return template, len(template) - 8
+    return template, _offset(template, message(_PROBE))
 
 
 def temperature_layout(frame_id: str, variance: float) -> tuple[bytes, int]:

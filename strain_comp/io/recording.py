@@ -14,8 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, Series, iter_bag, located
-from strain_comp.io.bag.reader import WINDOW
+from strain_comp.io.bag import BagContents, Series, located, read_bag
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -176,21 +175,11 @@ class Recording:
 
 
 def align(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -> np.ndarray:
-    """Put ``values`` sampled at ``t_src`` on the times ``t``."""
+    """Put ``values`` sampled at ``t_src`` on the times ``t`` (``PieceAlign`` in one piece)."""
     t = np.asarray(t, dtype=np.float64)
-    t_src = np.asarray(t_src, dtype=np.float64)
-    values = np.asarray(values, dtype=np.float64)
-    if t_src.shape == t.shape and np.array_equal(t_src, t):
-        return np.copy(values, order="C")
-    ok = np.isfinite(t_src) & np.isfinite(values)
-    t_src, values = t_src[ok], values[ok]
-    out = np.full(t.shape, np.nan)
-    if t_src.size == 0:
-        return out
-    t_src, values = _sorted_last(t_src, values)
-    inside = (t >= t_src[0]) & (t <= t_src[-1])
-    out[inside] = np.interp(t[inside], t_src, values)
-    return out
+    aligner = PieceAlign()
+    aligner.add(t, np.asarray(t_src), np.asarray(values))
+    return aligner.take(t.ravel()).reshape(t.shape)
 
 
 def _sorted_last(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -338,38 +327,9 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
     return out, problems
 
 
-def read_bag_pieces(path: str | Path, *, window: int = WINDOW) -> BagContents:
-    """``read_bag``'s contents, assembled from ``iter_bag``'s time-ordered pieces."""
-    merged = BagContents()
-    parts: dict[str, list[Series]] = {}
-    for piece in iter_bag(path, window=window):
-        for topic, series in piece.series.items():
-            parts.setdefault(topic, []).append(series)
-        for topic, labels in piece.labels.items():
-            merged.labels.setdefault(topic, labels)
-        merged.problems += piece.problems
-        merged.diagnostics += piece.diagnostics
-        merged.types.update(piece.types)
-    for topic, pieces in parts.items():
-        width = pieces[0].values.shape[1:]
-        same = [p for p in pieces if p.values.shape[1:] == width]
-        if len(same) < len(pieces):  # read_bag keeps one width per array topic too
-            n = sum(p.t.size for p in pieces if p.values.shape[1:] != width)
-            merged.problems += located(path, [f"{topic}: {n} messages of another array "
-                                              "width than the first ones skipped"])
-        series = same[0] if len(same) == 1 else Series(
-            np.concatenate([p.t for p in same]), np.concatenate([p.values for p in same]))
-        pieces.clear()
-        if series.t.size > 1 and bool(np.any(np.diff(series.t) < 0)):
-            order = np.argsort(series.t, kind="stable")
-            series = Series(series.t[order], series.values[order])
-        merged.series[topic] = series
-    return merged
-
-
 def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
-    """Read a bag into recordings (through ``read_bag_pieces``)."""
-    contents = read_bag_pieces(path)
+    """Read a bag into recordings (in pieces, without the whole-bag budget)."""
+    contents = read_bag(path, budget=False)
     recordings, problems = _recordings(contents)
     return recordings, contents.problems + located(path, problems)
 

@@ -35,7 +35,7 @@ class RowEncoder:
     @classmethod
     def joint_state(cls, names: list[str]) -> RowEncoder:
         """sensor_msgs/msg/JointState of the names (frame_id '', velocity and effort empty)."""
-        template, pos_at, _ = cdr.joint_state_layout("", names, velocity=False)
+        template, pos_at = cdr.joint_state_layout("", names)
         return cls(template, pos_at, len(names), stamped=True)
 
     def encode(self, rows: np.ndarray, stamps_ns: np.ndarray | None = None) -> list[bytes]:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from strain_comp.io.bag import BagWriter, read_bag
+from strain_comp.io.bag import BagWriter
 from strain_comp.io.recording import align, load_recordings
 
 T = np.arange(200) * 0.1
@@ -63,26 +63,3 @@ def test_resistance_without_reference(tmp_path: Path) -> None:
     recs, problems = load_recordings(path)
     assert recs["s1"].s is None and recs["p"].s is None and recs["q"].temperature is None
     assert problems == []
-
-
-def test_read_in_pieces_equals_read_whole(tmp_path: Path) -> None:
-    """``read_bag_pieces`` (what ``load_recordings`` uses, memory ~ the series) gives
-    ``read_bag``'s series, labels and types on a bag read in many pieces."""
-    from strain_comp.io.recording import read_bag_pieces
-
-    rng = np.random.default_rng(5)
-    path = tmp_path / "pieces.mcap"
-    t = np.sort(rng.random(3000)) * 100.0
-    with BagWriter(path, chunk_size=4096) as writer:
-        writer.write_float64("/s1/resistance", t, rng.random(3000))
-        writer.write_float64("/s1/strain_reference", t[::3], rng.random(1000))
-        writer.write_float64_array("/arr/resistance", t[:1500], rng.random((1500, 2)),
-                                   ["a", "b"])
-        writer.write_diagnostics([1.0, 50.0], [[("x", 0, "ok", {"k": "v"})]] * 2)
-    whole, pieces = read_bag(path), read_bag_pieces(path, window=200)
-    assert set(pieces.series) == set(whole.series)
-    for topic, series in whole.series.items():
-        np.testing.assert_array_equal(pieces.series[topic].t, series.t)
-        np.testing.assert_array_equal(pieces.series[topic].values, series.values)
-    assert pieces.labels == whole.labels and pieces.types == whole.types
-    assert pieces.diagnostics == whole.diagnostics and pieces.problems == whole.problems

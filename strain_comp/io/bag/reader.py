@@ -1,4 +1,4 @@
-"""Reading a bag: ``read_bag`` (whole), ``iter_bag`` (pieces in log-time order),
+"""Reading a bag: ``iter_bag`` (pieces in log-time order), ``read_bag`` (them joined),
 ``raw_messages`` (not decoded); each file walked from its start, never through its summary
 (docs/reliability.md, "Bags")."""
 
@@ -14,7 +14,7 @@ from strain_comp.errors import BagError
 from strain_comp.io.bag.decode import decode
 from strain_comp.io.bag.layout import bag_storage
 from strain_comp.io.bag.records import MAX_LOG_NS, Collector
-from strain_comp.io.bag.schemas import BagContents
+from strain_comp.io.bag.schemas import BagContents, Series
 from strain_comp.io.bag.walk import storage_file
 
 WINDOW = 200_000
@@ -23,25 +23,54 @@ MAX_HELD_BYTES = 256 * 2**20
 """Message bytes ``iter_bag`` holds undecoded [bytes]: it cuts a piece there (at the latest
 chunk's start, else all held: later messages may then come late, counted)."""
 MAX_BAG_BYTES = 2**30
-"""Message bytes ``read_bag`` holds for one whole bag [bytes]; past it: BagError."""
+"""Message bytes ``read_bag`` and ``raw_messages`` read from one bag [bytes]; past it:
+BagError."""
 
 
-def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagContents:
-    """Read a whole bag: a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory."""
-    path = Path(path)
-    contents = decode(_collect(path, topics))
-    contents.problems[:] = located(path, contents.problems)
-    return contents
+def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
+             window: int = WINDOW, budget: bool = True) -> BagContents:
+    """Read a whole bag (a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory): ``iter_bag``'s
+    pieces joined; ``budget``: refuse past ``MAX_BAG_BYTES`` of messages."""
+    merged = BagContents()
+    parts: dict[str, list[Series]] = {}
+    for piece in iter_bag(path, topics, window=window,
+                          budget=MAX_BAG_BYTES if budget else None):
+        for topic, series in piece.series.items():
+            parts.setdefault(topic, []).append(series)
+        for topic, labels in piece.labels.items():
+            merged.labels.setdefault(topic, labels)
+        merged.problems += piece.problems
+        merged.diagnostics += piece.diagnostics
+        merged.types.update(piece.types)
+    for topic, pieces in parts.items():
+        width = pieces[0].values.shape[1:]
+        same = [p for p in pieces if p.values.shape[1:] == width]
+        if len(same) < len(pieces):  # as ``decode`` keeps one width per array topic
+            n = sum(p.t.size for p in pieces if p.values.shape[1:] != width)
+            merged.problems += located(path, [f"{topic}: {n} messages of another array "
+                                              "width than the first ones skipped"])
+        series = same[0] if len(same) == 1 else Series(
+            np.concatenate([p.t for p in same]), np.concatenate([p.values for p in same]))
+        pieces.clear()
+        if series.t.size > 1 and bool(np.any(np.diff(series.t) < 0)):
+            order = np.argsort(series.t, kind="stable")
+            series = Series(series.t[order], series.values[order])
+        merged.series[topic] = series
+    return merged
 
 
 def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
     """Every message of the bag at ``path`` located, within ``MAX_BAG_BYTES``."""
     col = Collector(set(topics) if topics is not None else None)
     for file in _walk(path, col):
-        if col.held > MAX_BAG_BYTES:
-            raise BagError(f"{file}: more than {MAX_BAG_BYTES} bytes of messages to hold "
-                           "at once (the whole-bag reader's budget)")
+        _check_budget(col, file, MAX_BAG_BYTES)
     return col
+
+
+def _check_budget(col: Collector, file: Path, budget: int) -> None:
+    if col.collected > budget:
+        raise BagError(f"{file}: more than {budget} bytes of messages "
+                       "(the whole-bag reader's budget)")
 
 
 def _walk(path: Path, col: Collector) -> Iterator[Path]:
@@ -83,12 +112,15 @@ def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = No
 
 
 def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
-             window: int = WINDOW) -> Iterator[BagContents]:
-    """``read_bag`` piece by piece in log-time order, in memory bounded by ``window``."""
+             window: int = WINDOW, budget: int | None = None) -> Iterator[BagContents]:
+    """A bag piece by piece in log-time order, in memory bounded by ``window``; ``budget``:
+    message bytes past which it refuses (``read_bag``)."""
     path = Path(path)
     col = Collector(set(topics) if topics is not None else None)
     cut: int | None = None
-    for _ in _walk(path, col):
+    for file in _walk(path, col):
+        if budget is not None:
+            _check_budget(col, file, budget)
         if sum(m.size for m in col.msg_time) >= window or col.held >= MAX_HELD_BYTES:
             piece, cut = _take(col, col.chunk_start, cut)
             if piece is None and col.held >= MAX_HELD_BYTES:  # no cut frees memory

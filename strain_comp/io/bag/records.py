@@ -86,6 +86,8 @@ class Collector:
         self.problems: list[str] = []
         self.held = 0
         """Message bytes held undecoded in ``blocks``."""
+        self.collected = 0
+        """Message bytes collected since the start (``read_bag``'s budget)."""
         self.file_index = 0
         self.chunk_start = 0
         """Latest chunk start (or loose message) time read [ns]: earlier ones are all in."""
@@ -111,6 +113,7 @@ class Collector:
         block = len(self.blocks)
         self.blocks.append(payload)
         self.held += payload.size
+        self.collected += payload.size
         self.block_file.append(self.file_index)
         self.msg_block.append(np.full(start.shape, block, np.int32))
         self.msg_channel.append(channel[keep])

@@ -139,7 +139,7 @@ class BagWriter:
         t_ns = _ns(t)  # refuses stamps past int32 seconds
         k = len(names)
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, k)
-        template, pos_at, _ = cdr.joint_state_layout("", names, velocity=False)
+        template, pos_at = cdr.joint_state_layout("", names)
         rows = _stamped_rows(template, t_ns)
         rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
         self._add(topic, "sensor_msgs/msg/JointState", t_ns, rows)
