@@ -142,7 +142,7 @@ class CompensatorNode(Node):
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
         self.ready_line = (f"ready: {len(ready)} inputs: " + "; ".join(ready)
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
-        """The log line that says the node is up (``create_node`` and ``main`` log it)."""
+        """The log line that says the node is up (``node.main`` logs it)."""
 
     def _connect(self, inp: InputTopic) -> str:
         """The publishers and subscriptions of an input; its line of the ready log."""

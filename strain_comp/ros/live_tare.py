@@ -5,6 +5,7 @@ the calibrated range: a rest that moved out of it is what a tare corrects."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -157,17 +158,15 @@ class LiveTare:
                 continue
             times, raw = log.since(start, column)
             cal = self.calibration.sensors[sensor]
-            ohm = self._ohm(sensor, raw)
+            # past REST_WINDOW decided; before, the engine's detector moved and the rule's (on
+            # pairs) may not have yet
+            decide: Callable[..., float | None] = (
+                rest_resistance_at_start if t - start >= REST_WINDOW
+                else rest_resistance_when_decided)
             try:
-                if t - start >= REST_WINDOW:  # decided
-                    rest = rest_resistance_at_start(times, ohm, cal.direction,
-                                                    pair=cal.input.pair)
-                else:  # the engine's detector moved; the rule's (on pairs) may not have yet
-                    found = rest_resistance_when_decided(times, ohm, cal.direction,
-                                                         pair=cal.input.pair)
-                    if found is None:
-                        continue
-                    rest = found
+                rest = decide(times, self._ohm(sensor, raw), cal.direction, pair=cal.input.pair)
+                if rest is None:
+                    continue
             except InputError as err:
                 del self.pending[sensor]
                 self.log.append(f"{sensor}: auto tare declined: {err}; the calibration's "
