@@ -14,7 +14,6 @@ import numpy as np
 from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import TEMPERATURE_RANGE
-from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, concatenate
@@ -50,7 +49,7 @@ class LiveCompensator:
         """Build the engine of ``params``."""
         self.params = params
         self.tunables = dict(params.tunables)
-        self.engine: Engine = params.build_engine()
+        self.engine = params.build_engine()
         if warm_up:
             self.engine.warm_up()
         if params.tare == "auto":

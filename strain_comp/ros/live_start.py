@@ -12,14 +12,12 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.recording import Recording
+from strain_comp.offline.correction import MIN_CYCLE_SHARE
 from strain_comp.offline.session_start import cycle_end
 from strain_comp.offline.session_start import start as session_start
 
 RECENT_S = 5.0
 """A sensor has a reference when one arrived within this many seconds of ``~/start``."""
-MIN_STRETCH = 0.1
-"""The stretch must move the reference over this share of the calibrated strain range (as
-``recalibrate --window`` requires)."""
 MAX_WATCH_S = 600.0
 """A stretch not complete this long after ``~/start`` is refused."""
 MAX_SAMPLES = 2**20
@@ -116,7 +114,7 @@ class LiveStart:
         """Has ``name``'s stretch returned? (``recording`` once it moved far enough.)"""
         vr = calibration.sensors[name].valid_range
         ref = np.array(series.ref)
-        if ref.size < 2 or not ref.max() - ref.min() >= MIN_STRETCH * (vr.s_hi - vr.s_lo):
+        if ref.size < 2 or not ref.max() - ref.min() >= MIN_CYCLE_SHARE * (vr.s_hi - vr.s_lo):
             return False
         if self.state == "waiting":
             self.state = "recording"

@@ -18,7 +18,7 @@ import yaml
 from strain_comp import models  # noqa: F401  (registers the families calibrations name)
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
-from strain_comp.core.engine import GAP_RESET
+from strain_comp.core.engine import GAP_RESET, Engine
 from strain_comp.core.tare import TARE_MODES
 from strain_comp.errors import InputError, ParameterError
 
@@ -144,10 +144,8 @@ class NodeParams:
     def arrays(self) -> dict[str, list[str]]:
         return {i.name: list(i.sensors) for i in self.inputs if i.is_array}
 
-    def build_engine(self) -> Any:
+    def build_engine(self) -> Engine:
         """The Engine these parameters describe (gap, stale and dead-zone tunables applied)."""
-        from strain_comp.core.engine import Engine
-
         return Engine(self.calibration, arrays=self.arrays,
                       gap_reset=self.tunables["gap_reset_s"],
                       stale_after=self.tunables["stale_after_s"],
