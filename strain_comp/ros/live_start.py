@@ -11,7 +11,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError, ParameterError
-from strain_comp.io.recording import Recording
+from strain_comp.io.recording import Recording, hold_latest
 from strain_comp.offline.correction import MIN_CYCLE_SHARE
 from strain_comp.offline.session_start import cycle_end
 from strain_comp.offline.session_start import start as session_start
@@ -37,10 +37,8 @@ class _Series:
 
     def recording(self, name: str) -> Recording:
         """The inputs with the latest reference at or before each (NaN before the first)."""
-        t, ref_t = np.array(self.t), np.array(self.ref_t)
-        at = np.searchsorted(ref_t, t, side="right") - 1
-        s = np.where(at >= 0, np.array(self.ref)[np.maximum(at, 0)], np.nan)
-        return Recording(name, t, np.array(self.r), s)
+        t = np.array(self.t)
+        return Recording(name, t, np.array(self.r), hold_latest(t, self.ref_t, self.ref))
 
 
 class LiveStart:
