@@ -307,21 +307,16 @@ class CompensatorNode(Node):
             self._guarded(name, partial(self._queue, name, stamp, queued))
         self._flush()
 
-    def _columns(self, name: str, msg: Any) -> tuple[np.ndarray, int]:
-        """Where the sensors' values are in a message's data, and its number of values
-        (InputError when the message cannot be read)."""
+    def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
+        """A message's values in sensor order, where they are in its data and its number of
+        values (InputError when the message cannot be read)."""
         if name not in self._arrays:
-            sensor_value(msg)
-            return np.zeros(1, np.intp), 1
+            return np.array([sensor_value(msg)]), np.zeros(1, np.intp), 1
         data, offset, sizes, label = array_layout(msg)
         sensors = self._sensors[name]
         where = array_values(np.arange(len(data)), offset, sizes, len(sensors), label, sensors)
-        return where.astype(np.intp), len(data)
-
-    def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
-        """A message's values in sensor order, and ``_columns``."""
-        columns, n_values = self._columns(name, msg)
-        return np.atleast_1d(np.asarray(msg.data, dtype=np.float64))[columns], columns, n_values
+        columns = where.astype(np.intp)
+        return np.asarray(data, dtype=np.float64)[columns], columns, len(data)
 
     def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
         """A message read and queued with its stamp; ``_read``."""
