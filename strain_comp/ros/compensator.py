@@ -345,7 +345,8 @@ class CompensatorNode(Node):
             if stamps:
                 self._queued[name] = ([], [])
                 self._guarded(name, partial(self._handle, name, stamps, values))
-        self._log_tare()
+        while self.live.taring.log:  # the automatic tares taken or declined
+            logger(self).info(self.live.taring.log.pop(0))
 
     def _take(self, name: str, sub: Subscription, decoder: RowDecoder) -> None:
         """Queue what arrived on the intake subscription ``sub`` of input ``name``, as bytes:
@@ -414,10 +415,6 @@ class CompensatorNode(Node):
                     logger(self).warning(f"{sensor}: reference refused: {reason}",
                                               throttle_duration_sec=LOG_THROTTLE_S)
         self._guarded(f"{name}/strain_reference", handle)
-
-    def _log_tare(self) -> None:
-        while self.live.taring.log:
-            logger(self).info(self.live.taring.log.pop(0))
 
     def _diagnostics(self) -> None:
         def publish() -> None:

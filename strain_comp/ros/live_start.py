@@ -52,15 +52,10 @@ class LiveStart:
         self._last_reference: dict[str, float] = {}
         self._checked = -math.inf
 
-    @property
-    def watching(self) -> bool:
-        """True while a stretch is waited for or recorded."""
-        return self.state in ("waiting", "recording")
-
     def request(self, now: float, sensors: list[str]) -> bool:
         """``~/start`` at clock time ``now``: watch the sensors with a recent reference
         (True), or none has one (False: the caller spans instead)."""
-        if self.watching:
+        if self.state in ("waiting", "recording"):
             raise ParameterError("start", f"refused: already {self.state} (since "
                                  f"{self.since:.1f} s); the stretch applies when it returns")
         referenced = [s for s in sensors
@@ -73,10 +68,9 @@ class LiveStart:
                        + ", ".join(f"{s}/strain_reference" for s in referenced))
         return True
 
-    def outcome(self, state: str, detail: str) -> str:
-        """Set a final state (``applied`` or ``refused``); the detail."""
+    def outcome(self, state: str, detail: str) -> None:
+        """Set a final state (``applied`` or ``refused``)."""
         self.state, self.detail, self.series = state, detail, {}
-        return detail
 
     def seen_input(self, sensor: str, t: float, value: float) -> None:
         """A raw input sample of ``sensor`` (kept while watching)."""
