@@ -513,7 +513,7 @@ def context() -> Iterator[Any]:
 
 
 class NodeUnderTest:
-    """The node (``strain_comp.ros.node.create_node`` with ``cli_args``, calibration paths
+    """The node (``CompensatorNode`` with ``cli_args``, calibration paths
     relative to ``base_dir``), a probe node named ``probe_name`` and one executor spinning
     both, in this process."""
 
@@ -522,9 +522,10 @@ class NodeUnderTest:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
 
-        from strain_comp.ros.node import create_node
+        from strain_comp.ros.compensator import CompensatorNode
+        from strain_comp.ros.node import NODE_NAME
 
-        self.node = create_node(base_dir=base_dir, context=ctx, cli_args=cli_args)
+        self.node = CompensatorNode(NODE_NAME, base_dir=base_dir, context=ctx, cli_args=cli_args)
         self.probe = Node(probe_name, context=ctx)
         self.executor = SingleThreadedExecutor(context=ctx)
         self.executor.add_node(self.node)

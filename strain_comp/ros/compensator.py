@@ -142,7 +142,7 @@ class CompensatorNode(Node):
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
         self.ready_line = (f"ready: {len(ready)} inputs: " + "; ".join(ready)
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
-        """The log line that says the node is up (``create_node`` and ``main`` log it)."""
+        """The log line that says the node is up (``node.main`` logs it)."""
 
     def _connect(self, inp: InputTopic) -> str:
         """The publishers and subscriptions of an input; its line of the ready log."""
@@ -307,21 +307,16 @@ class CompensatorNode(Node):
             self._guarded(name, partial(self._queue, name, stamp, queued))
         self._flush()
 
-    def _columns(self, name: str, msg: Any) -> tuple[np.ndarray, int]:
-        """Where the sensors' values are in a message's data, and its number of values
-        (InputError when the message cannot be read)."""
+    def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
+        """A message's values in sensor order, where they are in its data and its number of
+        values (InputError when the message cannot be read)."""
         if name not in self._arrays:
-            sensor_value(msg)
-            return np.zeros(1, np.intp), 1
+            return np.array([sensor_value(msg)]), np.zeros(1, np.intp), 1
         data, offset, sizes, label = array_layout(msg)
         sensors = self._sensors[name]
         where = array_values(np.arange(len(data)), offset, sizes, len(sensors), label, sensors)
-        return where.astype(np.intp), len(data)
-
-    def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
-        """A message's values in sensor order, and ``_columns``."""
-        columns, n_values = self._columns(name, msg)
-        return np.atleast_1d(np.asarray(msg.data, dtype=np.float64))[columns], columns, n_values
+        columns = where.astype(np.intp)
+        return np.asarray(data, dtype=np.float64)[columns], columns, len(data)
 
     def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
         """A message read and queued with its stamp; ``_read``."""
@@ -350,7 +345,8 @@ class CompensatorNode(Node):
             if stamps:
                 self._queued[name] = ([], [])
                 self._guarded(name, partial(self._handle, name, stamps, values))
-        self._log_tare()
+        while self.live.taring.log:  # the automatic tares taken or declined
+            logger(self).info(self.live.taring.log.pop(0))
 
     def _take(self, name: str, sub: Subscription, decoder: RowDecoder) -> None:
         """Queue what arrived on the intake subscription ``sub`` of input ``name``, as bytes:
@@ -419,10 +415,6 @@ class CompensatorNode(Node):
                     logger(self).warning(f"{sensor}: reference refused: {reason}",
                                               throttle_duration_sec=LOG_THROTTLE_S)
         self._guarded(f"{name}/strain_reference", handle)
-
-    def _log_tare(self) -> None:
-        while self.live.taring.log:
-            logger(self).info(self.live.taring.log.pop(0))
 
     def _diagnostics(self) -> None:
         def publish() -> None:

@@ -14,15 +14,13 @@ import numpy as np
 from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import TEMPERATURE_RANGE
-from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.core.tare import rest_level
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.live_start import LiveStart
-from strain_comp.ros.live_tare import TARE_WINDOW_S, LiveTare
+from strain_comp.ros.live_tare import LiveTare
 from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
 
 BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
@@ -39,6 +37,11 @@ NON_FINITE = "the calibration gave a non-finite strain; not published"
 _COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
+def _count(counter: Counter[str], key: str, other: str) -> None:
+    """Count ``key``, or ``other`` once ``MAX_REFUSAL_KEYS`` distinct keys are counted."""
+    counter[key if key in counter or len(counter) < MAX_REFUSAL_KEYS else other] += 1
+
+
 class LiveCompensator:
     """One engine plus the per-input bookkeeping of a live node."""
 
@@ -46,7 +49,7 @@ class LiveCompensator:
         """Build the engine of ``params``."""
         self.params = params
         self.tunables = dict(params.tunables)
-        self.engine: Engine = params.build_engine()
+        self.engine = params.build_engine()
         if warm_up:
             self.engine.warm_up()
         if params.tare == "auto":
@@ -192,17 +195,11 @@ class LiveCompensator:
 
     def refuse(self, name: str, reason: str) -> None:
         """Count a refused message by input and reason."""
-        key = f"{name}: {reason[:MAX_REASON_CHARS]}"
-        if key not in self.refused and len(self.refused) >= MAX_REFUSAL_KEYS:
-            key = f"{name}: other reasons"
-        self.refused[key] += 1
+        _count(self.refused, f"{name}: {reason[:MAX_REASON_CHARS]}", f"{name}: other reasons")
 
     def fault(self, name: str, error: BaseException) -> None:
         """Count a program error by input and exception type."""
-        key = f"{name}: {type(error).__name__}"
-        if key not in self.faults and len(self.faults) >= MAX_REFUSAL_KEYS:
-            key = f"{name}: other errors"
-        self.faults[key] += 1
+        _count(self.faults, f"{name}: {type(error).__name__}", f"{name}: other errors")
 
     def on_temperature(self, name: str, value: float) -> None:
         """A sensor's latest temperature [deg C]; one outside ``TEMPERATURE_RANGE`` refused."""
@@ -236,17 +233,14 @@ class LiveCompensator:
             raise ParameterError("span_strain", "set it to the known strain the sensors are "
                                  "held at before calling ~/span")
         sensors = dict(self.params.calibration.sensors)
-        lines, problems = [], []
-        for sensor, values in self.taring.at_rest():
+        lines: list[str] = []
+        problems: list[str] = []
+        for sensor, rest in self.taring.rests_now(problems).items():
             cal = sensors[sensor]
             zero = cal.input_rest
-            if zero is None or values.size == 0:
-                problems.append(f"{sensor}: " + ("the calibration stores no "
-                                "rest_resistance" if zero is None else
-                                f"no good sample in the last {TARE_WINDOW_S} s"))
-                continue
+            assert zero is not None  # rests_now names a sensor without a calibrated rest
             points = [(zero / self.engine.input_gain(sensor), fitted_rest(cal.valid_range)[0]),
-                      (rest_level(values, pair=cal.input.pair), strain)]
+                      (rest, strain)]
             try:
                 span = span_from_points(cal, points)
                 sensors[sensor] = apply_span(cal, span, {"span_strain": strain})

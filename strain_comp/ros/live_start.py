@@ -11,15 +11,13 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError, ParameterError
-from strain_comp.io.recording import Recording
+from strain_comp.io.recording import Recording, hold_latest
+from strain_comp.offline.correction import MIN_CYCLE_SHARE
 from strain_comp.offline.session_start import cycle_end
 from strain_comp.offline.session_start import start as session_start
 
 RECENT_S = 5.0
 """A sensor has a reference when one arrived within this many seconds of ``~/start``."""
-MIN_STRETCH = 0.1
-"""The stretch must move the reference over this share of the calibrated strain range (as
-``recalibrate --window`` requires)."""
 MAX_WATCH_S = 600.0
 """A stretch not complete this long after ``~/start`` is refused."""
 MAX_SAMPLES = 2**20
@@ -39,10 +37,8 @@ class _Series:
 
     def recording(self, name: str) -> Recording:
         """The inputs with the latest reference at or before each (NaN before the first)."""
-        t, ref_t = np.array(self.t), np.array(self.ref_t)
-        at = np.searchsorted(ref_t, t, side="right") - 1
-        s = np.where(at >= 0, np.array(self.ref)[np.maximum(at, 0)], np.nan)
-        return Recording(name, t, np.array(self.r), s)
+        t = np.array(self.t)
+        return Recording(name, t, np.array(self.r), hold_latest(t, self.ref_t, self.ref))
 
 
 class LiveStart:
@@ -56,15 +52,10 @@ class LiveStart:
         self._last_reference: dict[str, float] = {}
         self._checked = -math.inf
 
-    @property
-    def watching(self) -> bool:
-        """True while a stretch is waited for or recorded."""
-        return self.state in ("waiting", "recording")
-
     def request(self, now: float, sensors: list[str]) -> bool:
         """``~/start`` at clock time ``now``: watch the sensors with a recent reference
         (True), or none has one (False: the caller spans instead)."""
-        if self.watching:
+        if self.state in ("waiting", "recording"):
             raise ParameterError("start", f"refused: already {self.state} (since "
                                  f"{self.since:.1f} s); the stretch applies when it returns")
         referenced = [s for s in sensors
@@ -77,10 +68,9 @@ class LiveStart:
                        + ", ".join(f"{s}/strain_reference" for s in referenced))
         return True
 
-    def outcome(self, state: str, detail: str) -> str:
-        """Set a final state (``applied`` or ``refused``); the detail."""
+    def outcome(self, state: str, detail: str) -> None:
+        """Set a final state (``applied`` or ``refused``)."""
         self.state, self.detail, self.series = state, detail, {}
-        return detail
 
     def seen_input(self, sensor: str, t: float, value: float) -> None:
         """A raw input sample of ``sensor`` (kept while watching)."""
@@ -116,7 +106,7 @@ class LiveStart:
         """Has ``name``'s stretch returned? (``recording`` once it moved far enough.)"""
         vr = calibration.sensors[name].valid_range
         ref = np.array(series.ref)
-        if ref.size < 2 or not ref.max() - ref.min() >= MIN_STRETCH * (vr.s_hi - vr.s_lo):
+        if ref.size < 2 or not ref.max() - ref.min() >= MIN_CYCLE_SHARE * (vr.s_hi - vr.s_lo):
             return False
         if self.state == "waiting":
             self.state = "recording"

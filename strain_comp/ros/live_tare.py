@@ -5,7 +5,7 @@ the calibrated range: a rest that moved out of it is what a tare corrects."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -158,17 +158,15 @@ class LiveTare:
                 continue
             times, raw = log.since(start, column)
             cal = self.calibration.sensors[sensor]
-            ohm = self._ohm(sensor, raw)
+            # past REST_WINDOW decided; before, the engine's detector moved and the rule's (on
+            # pairs) may not have yet
+            decide: Callable[..., float | None] = (
+                rest_resistance_at_start if t - start >= REST_WINDOW
+                else rest_resistance_when_decided)
             try:
-                if t - start >= REST_WINDOW:  # decided
-                    rest = rest_resistance_at_start(times, ohm, cal.direction,
-                                                    pair=cal.input.pair)
-                else:  # the engine's detector moved; the rule's (on pairs) may not have yet
-                    found = rest_resistance_when_decided(times, ohm, cal.direction,
-                                                         pair=cal.input.pair)
-                    if found is None:
-                        continue
-                    rest = found
+                rest = decide(times, self._ohm(sensor, raw), cal.direction, pair=cal.input.pair)
+                if rest is None:
+                    continue
             except InputError as err:
                 del self.pending[sensor]
                 self.log.append(f"{sensor}: auto tare declined: {err}; the calibration's "
@@ -179,26 +177,28 @@ class LiveTare:
             self.log.append(f"{sensor}: auto tare: rest resistance {rest:.6g} ohm, "
                                  f"input gain {gain:.6g}")
 
-    def at_rest(self) -> Iterator[tuple[str, np.ndarray]]:
-        """Each sensor with its good samples [ohm] of its input's last ``TARE_WINDOW_S``."""
+    def rests_now(self, problems: list[str]) -> dict[str, float]:
+        """Each sensor's rest level [ohm] over its input's last ``TARE_WINDOW_S`` of good
+        samples; a sensor without one (or without a calibrated rest) named in ``problems``."""
+        rests: dict[str, float] = {}
         for name, sensors in self.inputs.items():
             recent = self.recent[name]
             latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
             for column, sensor in enumerate(sensors):
-                yield sensor, self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
+                values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
+                cal = self.calibration.sensors[sensor]
+                if cal.input_rest is None:
+                    problems.append(f"{sensor}: the calibration stores no rest_resistance")
+                elif values.size == 0:
+                    problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
+                else:
+                    rests[sensor] = rest_level(values, pair=cal.input.pair)
+        return rests
 
     def tare(self) -> str:
         """Make each sensor's current rest resistance its zero (all or none); the summary."""
-        rests: dict[str, float] = {}
-        problems = []
-        for sensor, values in self.at_rest():
-            cal = self.calibration.sensors[sensor]
-            if cal.rest_resistance is None:
-                problems.append(f"{sensor}: the calibration stores no rest_resistance")
-            elif values.size == 0:
-                problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
-            else:
-                rests[sensor] = rest_level(values, pair=cal.input.pair)
+        problems: list[str] = []
+        rests = self.rests_now(problems)
         if problems:
             raise ParameterError("tare", "refused: " + "; ".join(problems))
         for sensor, rest in rests.items():

@@ -13,10 +13,7 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any, NoReturn
-
-if TYPE_CHECKING:
-    from strain_comp.ros.compensator import CompensatorNode
+from typing import NoReturn
 
 NODE_NAME = "compensator"
 SHUTDOWN_S = 1.5
@@ -121,18 +118,6 @@ def check_params_files(files: list[Path], name: str, namespace: str) -> Path | N
             raise InputError(f"{path}: no parameters for node {fqn!r} (the file holds: "
                              f"{', '.join(blocks)}); name a block '{fqn}' or '/**/{name}'")
     return named or base
-
-
-def create_node(node_name: str = NODE_NAME, *, base_dir: Path | None = None,
-                **node_options: Any) -> CompensatorNode:
-    """The node (``strain_comp.ros.compensator.CompensatorNode``), its ready line logged;
-    rclpy must be initialised."""
-    from strain_comp.ros.compensator import CompensatorNode
-    from strain_comp.ros.rclpy_typed import logger
-
-    node = CompensatorNode(node_name, base_dir=base_dir, **node_options)
-    logger(node).info(node.ready_line)
-    return node
 
 
 def main(args: list[str] | None = None) -> int:

@@ -18,7 +18,8 @@ import yaml
 from strain_comp import models  # noqa: F401  (registers the families calibrations name)
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
-from strain_comp.core.engine import GAP_RESET
+from strain_comp.core.engine import GAP_RESET, Engine
+from strain_comp.core.tare import TARE_MODES
 from strain_comp.errors import InputError, ParameterError
 
 PACKAGE = "strain_comp"
@@ -61,9 +62,6 @@ TUNABLES: tuple[ParamSpec, ...] = (
               "called (fuse_references: true); 0 (default): at rest.", False),
 )
 TUNABLE = {spec.name: spec for spec in TUNABLES}
-TARE_MODES = ("calibration", "auto")
-"""``tare``: ``calibration`` uses the calibration as fitted (input gain 1); ``auto`` takes the
-rest resistance from the first seconds of good samples at rest (``strain_comp.ros.live``)."""
 EXECUTORS = ("events", "single_threaded")
 """``executor``: how the node spins (``strain_comp.ros.node``)."""
 ROS_OWNED = ("use_sim_time", "qos_overrides", "start_type_description_service")
@@ -146,10 +144,8 @@ class NodeParams:
     def arrays(self) -> dict[str, list[str]]:
         return {i.name: list(i.sensors) for i in self.inputs if i.is_array}
 
-    def build_engine(self) -> Any:
+    def build_engine(self) -> Engine:
         """The Engine these parameters describe (gap, stale and dead-zone tunables applied)."""
-        from strain_comp.core.engine import Engine
-
         return Engine(self.calibration, arrays=self.arrays,
                       gap_reset=self.tunables["gap_reset_s"],
                       stale_after=self.tunables["stale_after_s"],
@@ -168,28 +164,22 @@ def _flatten(node: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
-def share_dirs() -> list[Path]:
-    """Where an installed strain_comp keeps its share files, then the source checkout."""
-    dirs = []
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        dirs.append(Path(get_package_share_directory(PACKAGE)))
-    except (ImportError, LookupError, OSError):  # no ament index (AMENT_PREFIX_PATH unset)
-        pass  # or the package is not in it
-    dirs.append(Path(sys.prefix) / "share" / PACKAGE)
-    dirs.append(Path(__file__).resolve().parent.parent)
-    return dirs
-
-
 def resolve_path(value: str, base_dir: Path | None) -> Path:
     """A calibration path: absolute, or relative to base_dir (else cwd), then the share dir
-    (+ config/)."""
+    of an installed strain_comp, then the source checkout (each + config/)."""
     path = Path(os.path.expanduser(value))
     if path.is_absolute():
         return path
+    shares = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        shares.append(Path(get_package_share_directory(PACKAGE)))
+    except (ImportError, LookupError, OSError):  # no ament index (AMENT_PREFIX_PATH unset)
+        pass  # or the package is not in it
+    shares += [Path(sys.prefix) / "share" / PACKAGE, Path(__file__).resolve().parent.parent]
     bases = [base_dir if base_dir is not None else Path.cwd()]
-    for share in share_dirs():
+    for share in shares:
         bases += [share, share / "config"]
     for base in bases:
         if (base / path).is_file():
