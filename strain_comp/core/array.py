@@ -22,8 +22,8 @@ from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
 from strain_comp.core.outputs import ArrayOutput
 from strain_comp.core.sensor import Latest, SensorState, run_together
-from strain_comp.core.stages import RANGE_COLUMNS, S_HI, S_LO, bound, model_read
-from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma, std_run
+from strain_comp.core.stages import RANGE_COLUMNS, bound, model_read
+from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
 from strain_comp.errors import ParameterError
 
@@ -41,8 +41,8 @@ _LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS, _STD = range(5)
 
 @njit(error_model="numpy", inline="always")
 def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
-                 counts: np.ndarray, det: np.ndarray, gap: float, model_out: np.ndarray,
-                 status: np.ndarray, reset: np.ndarray) -> tuple[float, bool]:
+                 counts: np.ndarray, det: np.ndarray, gap: float, status: np.ndarray,
+                 reset: np.ndarray) -> tuple[float, bool]:
     """The stages before the model for sensor ``k`` of a tick (input fix, gain, screen,
     counts, a gap reset's detector restart): (resistance, used)."""
     ri, forced = raw[k], sc.GOOD
@@ -56,7 +56,6 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
     counts[k, code] += 1
     held[k, _LAST_STATUS] = code
     if not USED_CODE[code]:
-        model_out[k] = np.nan
         return ohm, False
     if rst:
         det[k, :] = 0.0
@@ -66,11 +65,9 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
 
 @njit(error_model="numpy", inline="always")
 def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
-                held: np.ndarray, det: np.ndarray, model_out: np.ndarray, band: np.ndarray,
-                x: np.ndarray) -> None:
+                held: np.ndarray, det: np.ndarray, band: np.ndarray, x: np.ndarray) -> None:
     """The stages after the model for a used sample of sensor ``k``: detector, range,
-    standard deviation and hold; the unclamped estimate into ``model_out[k]``."""
-    model_out[k] = estimate
+    standard deviation and hold."""
     held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                            par[k, _TAU]) * par[k, _SIGN]
     held[k, _STRAIN] = bound(ohm, estimate, par[k, _RANGE:])
@@ -83,23 +80,23 @@ def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
 
 def family_tick(t: np.ndarray, idx: np.ndarray, raw: np.ndarray, par: np.ndarray,
                 held: np.ndarray, counts: np.ndarray, det: np.ndarray, gap: float,
-                model_out: np.ndarray, status: np.ndarray, reset: np.ndarray,
-                band: np.ndarray, x: np.ndarray, state: tuple[np.ndarray, ...],
-                params: tuple[Any, ...], out: np.ndarray, out_status: np.ndarray) -> None:
+                status: np.ndarray, reset: np.ndarray, band: np.ndarray, x: np.ndarray,
+                state: tuple[np.ndarray, ...], params: tuple[Any, ...], out: np.ndarray,
+                out_status: np.ndarray) -> None:
     """Template: ticks ``t`` of one family's sensors around its kernel; held strain,
     direction and std into ``out[i, :, k]``, status into ``out_status[i, k]``."""
     arrays = state + params
     for i in range(t.size):
         for j in range(idx.size):
             k = idx[j]
-            ohm, used = sensor_front(k, t[i], raw[i], par, held, counts, det, gap, model_out,
-                                     status, reset)
+            ohm, used = sensor_front(k, t[i], raw[i], par, held, counts, det, gap, status,
+                                     reset)
             if used:
                 if reset[k]:
                     for rows in state:
                         rows[j, :] = 0.0
                 estimate = kernel(j, t[i], model_read(ohm, par[k, _RANGE:]), *arrays)
-                sensor_back(k, t[i], ohm, estimate, par, held, det, model_out, band, x)
+                sensor_back(k, t[i], ohm, estimate, par, held, det, band, x)
             out[i, 0, k] = held[k, _STRAIN]
             out[i, 1, k] = held[k, _DIRECTION]
             out[i, 2, k] = held[k, _STD]
@@ -150,7 +147,8 @@ class ArrayGroup:
         self.banded = any(s.weights is not None for s in self.sensors)
         self.kernels = []
         if not all(not s.cal.input.filtered and s.cal.input.zero_span is None
-                   and s.cal.sample_interval is None for s in self.sensors):
+                   and s.cal.sample_interval is None and not s.cal.effects
+                   for s in self.sensors):
             return
         self.kernels = family_arrays(self.sensors) or []
         if not self.kernels:
@@ -178,11 +176,9 @@ class ArrayGroup:
         self.held[:, _LAST_STATUS] = -1
         self.counts = np.zeros((k, len(Status) + 1), dtype=np.int64)
         self.states = np.zeros((k, STATE_SIZE))
-        self.model_out = np.empty(k)
         self.status = np.empty(k, dtype=np.int8)
         self.reset = np.empty(k, dtype=np.bool_)
         self.set_deadzone_scale(self.deadzone_scale)
-        self.effects = [i for i, s in enumerate(self.sensors) if s.cal.effects]
 
     def set_gain(self, index: int, gain: float) -> None:
         """The tare gain of the ``index``-th sensor (kernel path)."""
@@ -205,16 +201,11 @@ class ArrayGroup:
         n, k = t.size, len(self.names)
         out = np.empty((n, 3, k))
         status = np.empty((n, k), dtype=np.int8)
-        for a, b in ([(i, i + 1) for i in range(n)] if self.effects else [(0, n)]):
-            for idx, kern in self.kernels:
-                tick = family_tick_of(type(kern))
-                tick(t[a:b], idx, raw[a:b], self.par, self.held, self.counts, self.states,
-                     self.gap_reset, self.model_out, self.status, self.reset, self.band,
-                     self.x, kern.state, kern.params, out[a:b], status[a:b])
-            if self.effects:  # the effect terms of this tick, then its outputs again
-                self._effects(float(t[a]), raw[a], None if temperature is None
-                              else temperature[a])
-                out[a, 0], out[a, 2] = self.held[:, _STRAIN], self.held[:, _STD]
+        for idx, kern in self.kernels:
+            tick = family_tick_of(type(kern))
+            tick(t, idx, raw, self.par, self.held, self.counts, self.states, self.gap_reset,
+                 self.status, self.reset, self.band, self.x, kern.state, kern.params, out,
+                 status)
         return ArrayOutput(out[:, 0], out[:, 1].astype(np.int8), status,
                            status == sc.OUT_OF_RANGE, out[:, 2] if self.banded else None)
 
@@ -232,29 +223,6 @@ class ArrayGroup:
                            np.column_stack([o.out_of_range for o in outs]),
                            np.column_stack([nan if o.std is None else o.std for o in outs])
                            if self.banded else None)
-
-    def _effects(self, t: float, raw: np.ndarray, temperature: np.ndarray | None) -> None:
-        """Effect terms of the tick's used sensors (neighbours read clamped estimates)."""
-        base = np.clip(self.model_out, self.par[:, _RANGE + S_LO], self.par[:, _RANGE + S_HI])
-        for i in self.effects:
-            s = self.sensors[i]
-            if self.reset[i]:
-                s.effects.reset()
-            if not USED_CODE[self.status[i]]:
-                continue
-            ohm, _ = s.to_ohm(raw[i:i + 1])
-            nbrs = {n: base[self.names.index(n):self.names.index(n) + 1]
-                    for n in s.effects.neighbours if n in self.names}
-            strain = s.apply_effects(
-                np.array([t]), ohm, self.model_out[i:i + 1],
-                self.held[i:i + 1, _DIRECTION].astype(np.int8),
-                np.array([math.nan if temperature is None else temperature[i]]),
-                self.latest, nbrs)
-            self.held[i, _STRAIN] = bound(float(ohm[0]), float(strain[0]), s.limits.row)
-            if s.weights is not None:  # again on the corrected strain (the same state)
-                self.held[i, _STD] = std_run(
-                    np.array([t]), self.held[i:i + 1, _DIRECTION], ohm,
-                    self.held[i:i + 1, _STRAIN], self.band[i], s.limits.row, s.weights)[0]
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``fused``)."""
