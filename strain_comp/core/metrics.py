@@ -28,16 +28,6 @@ Z_95 = 1.959963984540054
 """The two-sided 95 % point of the normal distribution: the band is +-Z_95 sigma."""
 
 
-def band_counts(estimate: npt.ArrayLike, reference: npt.ArrayLike, std: npt.ArrayLike
-                ) -> tuple[int, int]:
-    """(pairs with a finite band, those inside it): |S_hat - S| <= ``Z_95`` sigma."""
-    s_hat, s = np.asarray(estimate, np.float64), np.asarray(reference, np.float64)
-    sigma = np.asarray(std, np.float64)
-    ok = np.isfinite(s_hat) & np.isfinite(s) & np.isfinite(sigma)
-    inside = np.abs(s_hat[ok] - s[ok]) <= Z_95 * sigma[ok]
-    return int(ok.sum()), int(inside.sum())
-
-
 class ErrorAccumulator:
     """``error_stats`` over a series that arrives in pieces, in constant memory."""
 
@@ -53,34 +43,29 @@ class ErrorAccumulator:
 
     def add(self, estimate: npt.ArrayLike, reference: npt.ArrayLike,
             std: npt.ArrayLike | None = None) -> None:
-        """Take in the finite pairs of one piece (and the band's counts where ``std``)."""
-        if std is not None:
-            banded, inside = band_counts(estimate, reference, std)
-            self.n_banded += banded
-            self.n_inside += inside
+        """Take in the finite pairs of one piece, and where ``std`` the band's counts: pairs
+        with a finite band, those inside it (|S_hat - S| <= ``Z_95`` sigma)."""
+        piece = ErrorAccumulator()
         s_hat = np.asarray(estimate, dtype=np.float64)
         s = np.asarray(reference, dtype=np.float64)
         ok = np.isfinite(s_hat) & np.isfinite(s)
-        if not ok.any():
-            return
-        s = s[ok]
-        e = s_hat[ok] - s
-        n, mean = int(ok.sum()), float(s.mean())
-        m2 = float(np.sum((s - mean) ** 2))
-        sum_e2, sum_abs = float(np.sum(e**2)), float(np.sum(np.abs(e)))
-        max_abs = float(np.max(np.abs(e)))
-        if self.n:
-            total = self.n + n
-            delta = mean - self.mean
-            m2 = self.m2 + m2 + delta * delta * (self.n * n / total)
-            mean = self.mean + delta * (n / total)
-            sum_e2, sum_abs = self.sum_e2 + sum_e2, self.sum_abs + sum_abs
-            max_abs, n = max(self.max_abs, max_abs), total
-        self.n, self.mean, self.m2 = n, mean, m2
-        self.sum_e2, self.sum_abs, self.max_abs = sum_e2, sum_abs, max_abs
+        if std is not None:
+            sigma = np.asarray(std, np.float64)
+            banded = ok & np.isfinite(sigma)
+            piece.n_banded = int(banded.sum())
+            piece.n_inside = int(np.sum(np.abs(s_hat[banded] - s[banded])
+                                        <= Z_95 * sigma[banded]))
+        if ok.any():
+            s = s[ok]
+            e = s_hat[ok] - s
+            piece.n, piece.mean = int(ok.sum()), float(s.mean())
+            piece.m2 = float(np.sum((s - piece.mean) ** 2))
+            piece.sum_e2, piece.sum_abs = float(np.sum(e**2)), float(np.sum(np.abs(e)))
+            piece.max_abs = float(np.max(np.abs(e)))
+        self.merge(piece)
 
     def merge(self, other: ErrorAccumulator) -> None:
-        """Take in everything ``other`` took in (the same pairwise update as ``add``)."""
+        """Take in everything ``other`` took in (the pairwise update of mean and m2)."""
         self.n_banded += other.n_banded
         self.n_inside += other.n_inside
         if not other.n:
