@@ -228,7 +228,7 @@ class ArrayGroup:
         """Counters of the kernel path's sensors (only when ``fused``)."""
         out = {}
         for k, name in enumerate(self.names):
-            h = SensorHealth(n_gaps=int(self.counts[k, -1]))
+            h = SensorHealth()
             add_counts(h, self.counts[k])
             if self.held[k, _LAST_GOOD_T] > -math.inf:
                 h.last_good_t = float(self.held[k, _LAST_GOOD_T])

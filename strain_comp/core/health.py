@@ -36,14 +36,6 @@ class SensorHealth:
     last_status: Status | None = None
     stale: bool = False
 
-    def count(self, status: Status, n: int = 1) -> None:
-        """Add ``n`` samples of ``status`` to the counters (``STATUS_RULES``)."""
-        used, counter = STATUS_RULES[status]
-        if used:
-            self.n_good += n
-        if counter is not None:
-            setattr(self, counter, getattr(self, counter) + n)
-
     @property
     def n_bad(self) -> int:
         """Samples rejected (held estimate) of any kind."""
@@ -72,36 +64,28 @@ class SensorHealth:
         return level, message, {k: str(v) for k, v in values.items()}
 
 
-if {c for _, c in STATUS_RULES.values() if c} - {f.name for f in fields(SensorHealth)}:
-    raise AssertionError("every counter of STATUS_RULES must be a SensorHealth field")
-
-
 STATUSES = tuple(Status)
 """Every ``Status``, indexed by its code."""
-_COUNTERS = tuple((("n_good",) if used else ()) + ((counter,) if counter else ())
-                  for used, counter in (STATUS_RULES[s] for s in STATUSES))
-"""The health counters a sample of each status code adds to (from ``STATUS_RULES``)."""
-
-
-def add_counts(h: SensorHealth, counts: np.ndarray) -> None:
-    """Add per-``Status`` sample counts (indexed by status code; a further entry, the gap
-    resets, is left out) to ``h``'s counters."""
-    for names, n in zip(_COUNTERS, counts.tolist(), strict=False):
-        if n:
-            for name in names:
-                setattr(h, name, getattr(h, name) + n)
-
-
 COUNTERS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 """The counters of ``SensorHealth``, in the order ``to_diagnostic`` lists them."""
 _ADDS = np.zeros((len(Status) + 3, len(COUNTERS)), np.int64)
-"""Counters (columns) one event adds to: each status code (``STATUS_RULES``), then a gap
-reset, a spike and a baseline step (rows)."""
-for _code, _names in enumerate(_COUNTERS):
-    for _name in _names:
-        _ADDS[_code, COUNTERS.index(_name)] = 1
+"""Counters (columns) one event adds to: each status code (``STATUS_RULES``: ``n_good`` if
+used, and its counter), then a gap reset, a spike and a baseline step (rows)."""
+for _status, (_used, _counter) in STATUS_RULES.items():
+    for _name in (("n_good",) if _used else ()) + ((_counter,) if _counter else ()):
+        _ADDS[_status, COUNTERS.index(_name)] = 1
 for _row, _name in enumerate(("n_gaps", "n_spikes", "n_baseline_steps"), len(Status)):
     _ADDS[_row, COUNTERS.index(_name)] = 1
+
+
+def add_counts(h: SensorHealth, counts: np.ndarray) -> None:
+    """Add event counts to ``h``'s counters: per status code, then gap resets, spikes and
+    baseline steps (the rows of ``_ADDS``; a shorter ``counts`` holds its first rows)."""
+    for name, n in zip(COUNTERS, (counts @ _ADDS[:counts.size]).tolist(), strict=True):
+        if n:
+            setattr(h, name, getattr(h, name) + n)
+
+
 _STATES = [SensorHealth(stale=True).to_diagnostic()[:2],
            *(SensorHealth(last_status=s).to_diagnostic()[:2] for s in (None, *STATUSES))]
 """(level, message) when stale, then with no sample yet and after each status code (row:

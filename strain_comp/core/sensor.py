@@ -236,7 +236,6 @@ class SensorState:
             status, reset, idx, strain_used, dir_used, self.strain, self.direction)
         h = self.health
         add_counts(h, counts)
-        h.n_gaps += int(counts[-1])
         if status.size:
             h.last_status = STATUSES[status[-1]]
         if idx.size:

@@ -214,7 +214,10 @@ def _health_at(before: SensorHealth, t: np.ndarray, out: BatchOutput, tick: floa
     h = replace(before)
     for i in np.flatnonzero(np.maximum.accumulate(t) <= tick).tolist():
         status = Status(int(out.status[i]))
-        h.count(status)
+        used, counter = STATUS_RULES[status]
+        h.n_good += used
+        if counter is not None:
+            setattr(h, counter, getattr(h, counter) + 1)
         h.n_gaps += int(out.reset is not None and out.reset[i])
         correction = 0 if out.corrections is None else int(out.corrections[i])
         h.n_spikes += correction == SPIKE
