@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -21,7 +20,7 @@ from strain_comp.base.registry import array_families
 from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
 from strain_comp.core.outputs import ArrayOutput
-from strain_comp.core.sensor import Latest, SensorState, run_together
+from strain_comp.core.sensor import SensorState, run_together
 from strain_comp.core.stages import RANGE_COLUMNS, bound, model_read
 from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
@@ -29,6 +28,8 @@ from strain_comp.errors import ParameterError
 
 if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher
+
+    from strain_comp.core.engine import Engine
 
 # columns of the fused tick's per-sensor parameter table, then the range row (``RANGE_COLUMNS``),
 # then the uncertainty weights (``strain_comp.core.uncertainty.FEATURES``)
@@ -125,13 +126,9 @@ def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedAr
 class ArrayGroup:
     """The sensors of one array, stepped together."""
 
-    def __init__(self, sensors: Callable[[], dict[str, SensorState]], names: list[str],
-                 gap_reset: float, deadzone_scale: float, latest: Latest) -> None:
-        self._all = sensors
+    def __init__(self, engine: Engine, names: list[str]) -> None:
+        self.engine = engine
         self.names = names
-        self.gap_reset = gap_reset
-        self.deadzone_scale = deadzone_scale
-        self.latest = latest
         self.kernels: list[tuple[np.ndarray, LiftedArray]] = []
         self.rebuild()
 
@@ -142,8 +139,7 @@ class ArrayGroup:
 
     def rebuild(self) -> None:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
-        every = self._all()
-        self.sensors = [every[n] for n in self.names]
+        self.sensors = [self.engine.state(n) for n in self.names]
         self.banded = any(s.weights is not None for s in self.sensors)
         self.kernels = []
         if not all(not s.cal.input.filtered and s.cal.input.zero_span is None
@@ -178,7 +174,7 @@ class ArrayGroup:
         self.states = np.zeros((k, STATE_SIZE))
         self.status = np.empty(k, dtype=np.int8)
         self.reset = np.empty(k, dtype=np.bool_)
-        self.set_deadzone_scale(self.deadzone_scale)
+        self.set_deadzone_scale(self.engine.deadzone_scale)
 
     def set_gain(self, index: int, gain: float) -> None:
         """The tare gain of the ``index``-th sensor (kernel path)."""
@@ -186,7 +182,6 @@ class ArrayGroup:
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Every dead zone x ``scale``; the detectors restart from rest (kernel path)."""
-        self.deadzone_scale = scale
         if not self.kernels:
             return
         self.par[:, _DEADZONE] = [s.cal.direction.deadzone * scale for s in self.sensors]
@@ -203,9 +198,9 @@ class ArrayGroup:
         status = np.empty((n, k), dtype=np.int8)
         for idx, kern in self.kernels:
             tick = family_tick_of(type(kern))
-            tick(t, idx, raw, self.par, self.held, self.counts, self.states, self.gap_reset,
-                 self.status, self.reset, self.band, self.x, kern.state, kern.params, out,
-                 status)
+            tick(t, idx, raw, self.par, self.held, self.counts, self.states,
+                 self.engine.gap_reset, self.status, self.reset, self.band, self.x, kern.state,
+                 kern.params, out, status)
         return ArrayOutput(out[:, 0], out[:, 1].astype(np.int8), status,
                            status == sc.OUT_OF_RANGE, out[:, 2] if self.banded else None)
 
@@ -215,7 +210,8 @@ class ArrayGroup:
         neighbours' clamped pre-effect estimate of the same tick)."""
         temps = {} if temperature is None else dict(zip(self.names, temperature.T, strict=True))
         outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
-                                 temps, self.gap_reset, self.latest).values())
+                                 temps, self.engine.gap_reset,
+                                 self.engine.base_strain).values())
         nan = np.full(t.size, math.nan)
         return ArrayOutput(np.column_stack([o.strain for o in outs]),
                            np.column_stack([o.direction for o in outs]).astype(np.int8),

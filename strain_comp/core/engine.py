@@ -49,7 +49,7 @@ class Engine:
         if not deadzone_scale > 0:
             raise ParameterError("deadzone_scale", f"must be > 0, got {deadzone_scale}")
         self.calibration = calibration
-        self._gap_reset = float(gap_reset)
+        self.gap_reset = float(gap_reset)
         self.stale_after = float(stale_after)
         self.deadzone_scale = float(deadzone_scale)
         self._sensors = {name: SensorState.build(cal, self.deadzone_scale, out_of_range)
@@ -60,20 +60,7 @@ class Engine:
             if missing or not names:
                 raise InputError(f"array {array!r}: sensors {missing or '(none)'} are not in "
                                  f"the calibration (known: {', '.join(self._sensors)})")
-            self._arrays[array] = ArrayGroup(lambda: self._sensors, list(names),
-                                             self._gap_reset, self.deadzone_scale,
-                                             self.base_strain)
-
-    @property
-    def gap_reset(self) -> float:
-        """A larger jump [s] between good samples resets model and detector."""
-        return self._gap_reset
-
-    @gap_reset.setter
-    def gap_reset(self, value: float) -> None:
-        self._gap_reset = float(value)
-        for group in self._arrays.values():
-            group.gap_reset = self._gap_reset
+            self._arrays[array] = ArrayGroup(self, list(names))
 
     @property
     def sensors(self) -> list[str]:
@@ -85,7 +72,8 @@ class Engine:
         """Array names -> ordered sensor names."""
         return {name: list(group.names) for name, group in self._arrays.items()}
 
-    def _sensor(self, name: str) -> SensorState:
+    def state(self, name: str) -> SensorState:
+        """What the engine keeps for sensor ``name``."""
         try:
             return self._sensors[name]
         except KeyError:
@@ -102,15 +90,15 @@ class Engine:
 
     def limits_row(self, sensor: str) -> np.ndarray:
         """The range bound's parameters of ``sensor`` (``SensorRange.row``)."""
-        return self._sensor(sensor).limits.row
+        return self.state(sensor).limits.row
 
     def input_gain(self, sensor: str) -> float:
         """The tare gain of ``sensor``: its models see this x the measured resistance."""
-        return self._sensor(sensor).gain
+        return self.state(sensor).gain
 
     def tare(self, sensor: str, rest_resistance: float) -> float:
         """Make ``rest_resistance`` (measured now, at rest) this sensor's zero."""
-        reference = self._sensor(sensor).cal.input_rest
+        reference = self.state(sensor).cal.input_rest
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
                                  "the calibration stores none, so it cannot be tared")
@@ -127,7 +115,7 @@ class Engine:
         the change is no step for them."""
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
-        s = self._sensor(sensor)
+        s = self.state(sensor)
         factor = float(gain) / s.gain
         s.previous *= factor
         if s.corrector is not None:
@@ -169,8 +157,8 @@ class Engine:
             temperature: npt.ArrayLike | None = None, *,
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> BatchOutput:
         """One sensor over a batch (the engine's one per-sample path)."""
-        s = self._sensor(sensor)
-        pending = s.run_model(t, r, temperature, self._gap_reset)
+        s = self.state(sensor)
+        pending = s.run_model(t, r, temperature, self.gap_reset)
         nbrs = ({n: np.asarray(v, dtype=np.float64) for n, v in neighbours.items()}
                 if neighbours else {})
         return s.run_finish(pending, self.base_strain, nbrs)
@@ -183,8 +171,8 @@ class Engine:
         r = np.asarray(r, dtype=np.float64)
         if r.ndim != 2 or r.shape[1] != len(sensors):
             raise InputError(f"run_array: r must be (n, {len(sensors)}), got shape {r.shape}")
-        return run_together({name: self._sensor(name) for name in sensors}, t, r,
-                            temperature or {}, self._gap_reset, self.base_strain)
+        return run_together({name: self.state(name) for name in sensors}, t, r,
+                            temperature or {}, self.gap_reset, self.base_strain)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
         """One tick of an array (``run_ticks`` of one)."""
@@ -226,7 +214,7 @@ class Engine:
     def stale_for(self, sensor: str) -> float:
         """The silence after which ``sensor`` is stale: ``stale_after``, or two sample
         intervals of a slow instrument."""
-        interval = self._sensor(sensor).cal.sample_interval
+        interval = self.state(sensor).cal.sample_interval
         return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 
     def warm_up(self) -> None:
