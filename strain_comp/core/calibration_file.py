@@ -71,28 +71,23 @@ def probe_key(cal: SensorCalibration) -> str:
 
 
 def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"
-                      ) -> None:
-    """The load-time checks on the file ``calibration`` would be."""
-    _check_text(calibration_text(calibration), path)
-
-
-def _check_text(text: str, path: str | os.PathLike[str]) -> None:
-    """``check_calibration`` of ``calibration_text``'s ``text``."""
+                      ) -> str:
+    """The text ``save_calibration`` writes, after the load-time checks on it."""
+    text = calibration_text(calibration)
     if len(text.encode("utf-8")) > MAX_FILE_BYTES:
         raise CalibrationError(str(path), "file", f"refused: larger than {MAX_FILE_BYTES} bytes")
     parse_calibration(text, str(path))
+    return text
 
 
 def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
-                     inputs: Iterable[str | os.PathLike[str]] = (), check: bool = True) -> None:
+                     inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
     """Write atomically (a crash leaves the old or the new file), checked first."""
-    text = calibration_text(calibration)  # made once: checked, then written
-    if check:
-        try:
-            _check_text(text, path)
-        except CalibrationError as err:
-            raise CalibrationError(err.path, err.field,
-                                   f"not written, it would not load: {err.problem}") from None
+    try:
+        text = check_calibration(calibration, path)
+    except CalibrationError as err:
+        raise CalibrationError(err.path, err.field,
+                               f"not written, it would not load: {err.problem}") from None
     write_text(path, text, inputs=inputs)
 
 
