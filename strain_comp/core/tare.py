@@ -45,27 +45,22 @@ def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
-                             direction: DirectionSettings, *, window: float | None = None,
-                             pair: str = "mean") -> float:
+                             direction: DirectionSettings, *, pair: str = "mean") -> float:
     """Rest resistance [ohm] of a run from its first seconds (no reference needed)."""
-    window = REST_WINDOW if window is None else window
-    ta, ra, stop, _ = _rest_stretch(t, r, direction, window, pair)
-    return _rest_of_stretch(ta, ra, stop, window, pair)
+    ta, ra, stop, _ = _rest_stretch(t, r, direction, pair)
+    return _rest_of_stretch(ta, ra, stop, pair)
 
 
 def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
-                                 direction: DirectionSettings, *, window: float | None = None,
-                                 pair: str = "mean",
+                                 direction: DirectionSettings, *, pair: str = "mean",
                                  ) -> float | None:
     """``rest_resistance_at_start`` on a run's first samples as they arrive (the node), None
     while more samples could still change it."""
-    window = REST_WINDOW if window is None else window
-    ta, ra, stop, decided = _rest_stretch(t, r, direction, window, pair)
-    return _rest_of_stretch(ta, ra, stop, window, pair) if decided else None
+    ta, ra, stop, decided = _rest_stretch(t, r, direction, pair)
+    return _rest_of_stretch(ta, ra, stop, pair) if decided else None
 
 
-def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
-                     pair: str) -> float:
+def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, pair: str) -> float:
     """The rest level of the first ``stop`` samples; InputError when too few or drifting."""
     if ta.size == 0:
         raise InputError("tare: no good resistance sample at the start of the run")
@@ -74,10 +69,10 @@ def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
         raise InputError(f"tare: the run does not start at rest (the direction detector "
                          f"leaves hold after {stop} samples, {MIN_REST_SAMPLES} or "
                          f"{MIN_REST_SECONDS:g} s needed)")
-    drift = rest_drift(ta[:stop], ra[:stop], window=window, pair=pair)
+    drift = rest_drift(ta[:stop], ra[:stop], pair=pair)
     if abs(drift) > MAX_REST_DRIFT:
         raise InputError(f"tare: the run starts while the resistance still drifts "
-                         f"({100 * drift:+.2f} % over {window:g} s, at most "
+                         f"({100 * drift:+.2f} % over {REST_WINDOW:g} s, at most "
                          f"{100 * MAX_REST_DRIFT:g} % at rest): no rest level; record "
                          "the run from a few still seconds at rest, or start the session "
                          "on a stretch and back (strain-comp start)")
@@ -85,8 +80,8 @@ def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, window: float,
 
 
 def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings,
-                  window: float, pair: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """(good t, r within ``window`` s, samples before the detector leaves hold, whether that
+                  pair: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """(good t, r within ``REST_WINDOW`` s, samples before the detector leaves hold, whether that
     stretch has ended)."""
     ta = np.asarray(t, dtype=np.float64)
     ra = np.asarray(r, dtype=np.float64)
@@ -94,8 +89,8 @@ def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettin
     ta, ra = ta[good], ra[good]
     if ta.size == 0:
         return ta, ra, 0, False
-    head = int(np.searchsorted(ta, ta[0] + window, side="right"))
-    complete = head < ta.size or ta[-1] - ta[0] >= window
+    head = int(np.searchsorted(ta, ta[0] + REST_WINDOW, side="right"))
+    complete = head < ta.size or ta[-1] - ta[0] >= REST_WINDOW
     ta, ra = ta[:head], ra[:head]
     # the detector reads pair values: an alternation every other sample is not movement
     pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
@@ -106,11 +101,9 @@ def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettin
     return ta, ra, ra.size, complete
 
 
-def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float | None = None,
-               pair: str = "mean") -> float:
-    """Drift of a rest stretch over ``window`` s as a share of its level (second half's
+def rest_drift(t: np.ndarray, r: np.ndarray, *, pair: str = "mean") -> float:
+    """Drift of a rest stretch over ``REST_WINDOW`` s as a share of its level (second half's
     ``rest_level`` against the first's); 0 when under 4 samples."""
-    window = REST_WINDOW if window is None else window
     if r.size < 4:
         return 0.0
     half = r.size // 2
@@ -118,7 +111,7 @@ def rest_drift(t: np.ndarray, r: np.ndarray, *, window: float | None = None,
     dt = float(np.median(t[half:]) - np.median(t[:half]))
     if not dt > 0:
         return 0.0
-    return (second - first) / first * window / dt
+    return (second - first) / first * REST_WINDOW / dt
 
 
 def _referenced(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, min_samples: int,
@@ -147,7 +140,7 @@ def unsettled_start(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, *,
     head = int(np.searchsorted(ta, ta[0] + REST_WINDOW, side="right"))
     if stop < head:  # a rest shorter than the window: no drift to judge
         return 0.0, 0.0
-    drift = rest_drift(ta[:head], ra[:head], window=REST_WINDOW, pair=pair)
+    drift = rest_drift(ta[:head], ra[:head], pair=pair)
     if abs(drift) <= MAX_REST_DRIFT:
         return 0.0, drift
     return float(ta[stop] - ta[0]), drift

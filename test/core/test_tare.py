@@ -355,15 +355,16 @@ def test_a_second_input_span_replaces_the_first(cubic: Calibration) -> None:
 
 def test_the_drift_and_window_are_the_ones_applied(monkeypatch: pytest.MonkeyPatch) -> None:
     """The relaxing start the default declines (``MAX_REST_DRIFT`` 0.5 %) is tared with a
-    5 % drift accepted (read when called, as studies/policy_ablation.py sets it), at the
-    median of its first ``window`` seconds."""
+    5 % drift accepted (both read when called, as studies/policy_ablation.py sets them), at
+    the median of its first ``REST_WINDOW`` seconds."""
     from strain_comp.core import tare
 
     t = np.arange(0.0, 20.0, 0.1)
     relaxing = R0 * (1.0 + 0.2 * np.exp(-t / 60.0))
     assert MAX_REST_DRIFT == 0.005 and REST_WINDOW == 5.0
+    monkeypatch.setattr(tare, "REST_WINDOW", 3.0)
     with pytest.raises(InputError, match="no rest level"):
-        rest_resistance_at_start(t, relaxing, DirectionSettings(deadzone=50.0), window=3.0)
+        rest_resistance_at_start(t, relaxing, DirectionSettings(deadzone=50.0))
     monkeypatch.setattr(tare, "MAX_REST_DRIFT", 0.05)
-    rest = rest_resistance_at_start(t, relaxing, DirectionSettings(deadzone=50.0), window=3.0)
+    rest = rest_resistance_at_start(t, relaxing, DirectionSettings(deadzone=50.0))
     assert rest == pytest.approx(float(np.median(relaxing[t <= 3.0])), rel=1e-3)
