@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from strain_comp.base.registry import array_families
 from strain_comp.base.samples import USED_CODE, Status, screen_one
 from strain_comp.core.health import SensorHealth, add_counts
 from strain_comp.core.outputs import ArrayOutput
-from strain_comp.core.sensor import SensorState, run_together
+from strain_comp.core.sensor import Latest, SensorState, run_together
 from strain_comp.core.stages import RANGE_COLUMNS, bound, model_read
 from strain_comp.core.uncertainty import N_FEATURES, features_one, sigma
 from strain_comp.core.uncertainty import STATE_SIZE as BAND_SIZE
@@ -28,8 +29,6 @@ from strain_comp.errors import ParameterError
 
 if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher
-
-    from strain_comp.core.engine import Engine
 
 # columns of the fused tick's per-sensor parameter table, then the range row (``RANGE_COLUMNS``),
 # then the uncertainty weights (``strain_comp.core.uncertainty.FEATURES``)
@@ -126,20 +125,20 @@ def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedAr
 class ArrayGroup:
     """The sensors of one array, stepped together."""
 
-    def __init__(self, engine: Engine, names: list[str]) -> None:
-        self.engine = engine
+    def __init__(self, sensors: Mapping[str, SensorState], names: list[str],
+                 deadzone_scale: float) -> None:
         self.names = names
         self.kernels: list[tuple[np.ndarray, LiftedArray]] = []
-        self.rebuild()
+        self.rebuild(sensors, deadzone_scale)
 
     @property
     def fused(self) -> bool:
         """True when a tick is the fused family ticks (else the per-sensor loop)."""
         return bool(self.kernels)
 
-    def rebuild(self) -> None:
+    def rebuild(self, sensors: Mapping[str, SensorState], deadzone_scale: float) -> None:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
-        self.sensors = [self.engine.state(n) for n in self.names]
+        self.sensors = [sensors[n] for n in self.names]
         self.banded = any(s.weights is not None for s in self.sensors)
         self.kernels = []
         if not all(not s.cal.input.filtered and s.cal.input.zero_span is None
@@ -174,7 +173,7 @@ class ArrayGroup:
         self.states = np.zeros((k, STATE_SIZE))
         self.status = np.empty(k, dtype=np.int8)
         self.reset = np.empty(k, dtype=np.bool_)
-        self.set_deadzone_scale(self.engine.deadzone_scale)
+        self.set_deadzone_scale(deadzone_scale)
 
     def set_gain(self, index: int, gain: float) -> None:
         """The tare gain of the ``index``-th sensor (kernel path)."""
@@ -187,31 +186,30 @@ class ArrayGroup:
         self.par[:, _DEADZONE] = [s.cal.direction.deadzone * scale for s in self.sensors]
         self.states[:] = 0.0
 
-    def run(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None = None
-            ) -> ArrayOutput:
+    def run(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None,
+            gap_reset: float, latest: Latest) -> ArrayOutput:
         """Ticks ``t`` (rows of ``raw`` and ``temperature``, the array's sensor order): every
         field one row per tick."""
         if not self.kernels:
-            return self._loop(t, raw, temperature)
+            return self._loop(t, raw, temperature, gap_reset, latest)
         n, k = t.size, len(self.names)
         out = np.empty((n, 3, k))
         status = np.empty((n, k), dtype=np.int8)
         for idx, kern in self.kernels:
             tick = family_tick_of(type(kern))
-            tick(t, idx, raw, self.par, self.held, self.counts, self.states,
-                 self.engine.gap_reset, self.status, self.reset, self.band, self.x, kern.state,
-                 kern.params, out, status)
+            tick(t, idx, raw, self.par, self.held, self.counts, self.states, gap_reset,
+                 self.status, self.reset, self.band, self.x, kern.state, kern.params, out,
+                 status)
         return ArrayOutput(out[:, 0], out[:, 1].astype(np.int8), status,
                            status == sc.OUT_OF_RANGE, out[:, 2] if self.banded else None)
 
-    def _loop(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None
-              ) -> ArrayOutput:
+    def _loop(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None,
+              gap_reset: float, latest: Latest) -> ArrayOutput:
         """Ticks as a batch of each sensor (``run_together``: cross-talk terms read the
         neighbours' clamped pre-effect estimate of the same tick)."""
         temps = {} if temperature is None else dict(zip(self.names, temperature.T, strict=True))
         outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
-                                 temps, self.engine.gap_reset,
-                                 self.engine.base_strain).values())
+                                 temps, gap_reset, latest).values())
         nan = np.full(t.size, math.nan)
         return ArrayOutput(np.column_stack([o.strain for o in outs]),
                            np.column_stack([o.direction for o in outs]).astype(np.int8),

@@ -60,7 +60,7 @@ class Engine:
             if missing or not names:
                 raise InputError(f"array {array!r}: sensors {missing or '(none)'} are not in "
                                  f"the calibration (known: {', '.join(self._sensors)})")
-            self._arrays[array] = ArrayGroup(self, list(names))
+            self._arrays[array] = ArrayGroup(self._sensors, list(names), self.deadzone_scale)
 
     @property
     def sensors(self) -> list[str]:
@@ -72,8 +72,7 @@ class Engine:
         """Array names -> ordered sensor names."""
         return {name: list(group.names) for name, group in self._arrays.items()}
 
-    def state(self, name: str) -> SensorState:
-        """What the engine keeps for sensor ``name``."""
+    def _sensor(self, name: str) -> SensorState:
         try:
             return self._sensors[name]
         except KeyError:
@@ -86,19 +85,19 @@ class Engine:
                                                      self.out_of_range, s.limits), gain=s.gain)
                          for name, s in self._sensors.items()}
         for group in self._arrays.values():
-            group.rebuild()
+            group.rebuild(self._sensors, self.deadzone_scale)
 
     def limits_row(self, sensor: str) -> np.ndarray:
         """The range bound's parameters of ``sensor`` (``SensorRange.row``)."""
-        return self.state(sensor).limits.row
+        return self._sensor(sensor).limits.row
 
     def input_gain(self, sensor: str) -> float:
         """The tare gain of ``sensor``: its models see this x the measured resistance."""
-        return self.state(sensor).gain
+        return self._sensor(sensor).gain
 
     def tare(self, sensor: str, rest_resistance: float) -> float:
         """Make ``rest_resistance`` (measured now, at rest) this sensor's zero."""
-        reference = self.state(sensor).cal.input_rest
+        reference = self._sensor(sensor).cal.input_rest
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
                                  "the calibration stores none, so it cannot be tared")
@@ -115,7 +114,7 @@ class Engine:
         the change is no step for them."""
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
-        s = self.state(sensor)
+        s = self._sensor(sensor)
         factor = float(gain) / s.gain
         s.previous *= factor
         if s.corrector is not None:
@@ -157,7 +156,7 @@ class Engine:
             temperature: npt.ArrayLike | None = None, *,
             neighbours: Mapping[str, npt.ArrayLike] | None = None) -> BatchOutput:
         """One sensor over a batch (the engine's one per-sample path)."""
-        s = self.state(sensor)
+        s = self._sensor(sensor)
         pending = s.run_model(t, r, temperature, self.gap_reset)
         nbrs = ({n: np.asarray(v, dtype=np.float64) for n, v in neighbours.items()}
                 if neighbours else {})
@@ -171,7 +170,7 @@ class Engine:
         r = np.asarray(r, dtype=np.float64)
         if r.ndim != 2 or r.shape[1] != len(sensors):
             raise InputError(f"run_array: r must be (n, {len(sensors)}), got shape {r.shape}")
-        return run_together({name: self.state(name) for name in sensors}, t, r,
+        return run_together({name: self._sensor(name) for name in sensors}, t, r,
                             temperature or {}, self.gap_reset, self.base_strain)
 
     def step_array(self, array: str, t: float, r_vector: npt.ArrayLike) -> ArrayOutput:
@@ -195,7 +194,8 @@ class Engine:
             raise InputError(f"array {array!r}: expected {len(group.names)} values, "
                              f"got shape {raw.shape[1:]}")
         return group.run(times, raw, None if temperature is None
-                         else np.asarray(temperature, dtype=np.float64))
+                         else np.asarray(temperature, dtype=np.float64), self.gap_reset,
+                         self.base_strain)
 
     def health(self, now: float | None = None) -> dict[str, SensorHealth]:
         """Copies of every sensor's counters."""
@@ -214,7 +214,7 @@ class Engine:
     def stale_for(self, sensor: str) -> float:
         """The silence after which ``sensor`` is stale: ``stale_after``, or two sample
         intervals of a slow instrument."""
-        interval = self.state(sensor).cal.sample_interval
+        interval = self._sensor(sensor).cal.sample_interval
         return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 
     def warm_up(self) -> None:
