@@ -1,5 +1,5 @@
 """Calibration files in memory, format ``strain_comp/calibration/v1`` (docs/design.md,
-"Calibration file"), and the limits a file may hold (checked by ``calibration_reader``).
+"Calibration file"), and the limits a file may hold (checked by ``calibration_file``).
 Floats are written with Python's shortest round-trip repr, so load(save(c)) == c exactly.
 """
 
