@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -133,42 +133,12 @@ class SensorState:
         self.health.n_baseline_steps += int(np.count_nonzero(events == STEP))
         return ohm, events
 
-    def to_ohm(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(resistance [ohm] x the tare gain, through the input map of the correction,
-        forced status) from the raw input values (the input-fix stage over a batch)."""
-        if self.cal.input.kind == "divider":
-            raw, forced = divider_all(raw, *self.cal.input.divider())
-        else:
-            forced = np.zeros(raw.shape, dtype=np.int8)
-        return self.correction.apply_input(raw, self.gain), forced
-
     def mid_raw(self) -> float:
         """A raw input value in the middle of the valid range (for warming up kernels)."""
         r_mid = 0.5 * (self.cal.valid_range.r_lo + self.cal.valid_range.r_hi)
         if self.cal.input.kind != "divider":
             return r_mid
         return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
-
-    def apply_effects(self, t: np.ndarray, r: np.ndarray, strain: np.ndarray,
-                      direction: np.ndarray, temperature: np.ndarray, latest: Latest,
-                      neighbours: Mapping[str, np.ndarray] | None = None,
-                      starts: Sequence[int] = ()) -> np.ndarray:
-        """The one place where a calibration's effect terms correct the strain, and then its
-        output map (``Correction.apply_output``)."""
-        base = np.clip(strain, self.limits.s_lo, self.limits.s_hi)
-        given = neighbours or {}
-        nbrs = {n: given[n] if n in given else np.full(t.size, latest(n))
-                for n in self.effects.neighbours}
-        self.base = float(base[-1])
-        corrected = run_segments(
-            lambda k: self.effects.run(t[k], r[k], base[k], direction[k], temperature[k],
-                                       {n: v[k] for n, v in nbrs.items()}),
-            self.effects.reset, t.size, starts)
-        # a correction that overflows (extreme inputs or coefficients) is not applied: the
-        # estimate never becomes NaN; +-inf is clamped to the valid range by the caller
-        out: np.ndarray = self.correction.apply_output(np.where(np.isnan(corrected), base,
-                                                                 corrected))
-        return out
 
     def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:
@@ -180,7 +150,11 @@ class SensorState:
             raise InputError("run: t and r must be 1-D arrays of one length")
         temp = (None if temperature is None
                 else np.ascontiguousarray(temperature, dtype=np.float64))
-        ohm, forced = self.to_ohm(raw)
+        if self.cal.input.kind == "divider":  # the input-fix stage over a batch
+            raw, forced = divider_all(raw, *self.cal.input.divider())
+        else:
+            forced = np.zeros(raw.shape, dtype=np.int8)
+        ohm = self.correction.apply_input(raw, self.gain)
         lim = self.limits
         status, reset, last_good_t, idx, resets = screen_batch(
             t, ohm, forced, self.last_good_t, lim.r_short, lim.r_open, lim.r_lo, lim.r_hi,
@@ -217,13 +191,23 @@ class SensorState:
         """``run``'s second stage: effect terms, range, held outputs and counters."""
         t, status, reset, last_good_t, idx = p.t, p.status, p.reset, p.last_good_t, p.idx
         strain_used, dir_used = p.strain_used, p.dir_used
-        if self.cal.effects and idx.size:
-            nbrs = {n: v[idx] for n, v in neighbours.items()}
-            starts = p.bounds[1:-1]  # a reset at the first sample resets at once
+        if self.cal.effects and idx.size:  # the one place effect terms correct the strain
+            t_used, ohm_used = t[idx], p.ohm[idx]
             temp = (np.full(idx.size, np.nan) if p.temperature is None
                     else p.temperature[idx])
-            strain_used = self.apply_effects(t[idx], p.ohm[idx], strain_used, dir_used, temp,
-                                             latest, nbrs, starts)
+            base = np.clip(strain_used, self.limits.s_lo, self.limits.s_hi)
+            self.base = float(base[-1])
+            nbrs = {n: neighbours[n][idx] if n in neighbours else np.full(idx.size, latest(n))
+                    for n in self.effects.neighbours}
+            corrected = run_segments(  # a reset at the first sample resets at once
+                lambda k: self.effects.run(t_used[k], ohm_used[k], base[k], dir_used[k],
+                                           temp[k], {n: v[k] for n, v in nbrs.items()}),
+                self.effects.reset, idx.size, p.bounds[1:-1])
+            # a correction that overflows (extreme inputs or coefficients) is not applied: the
+            # estimate never becomes NaN; +-inf is clamped to the valid range below. Then the
+            # output map (``Correction.apply_output``).
+            strain_used = self.correction.apply_output(np.where(np.isnan(corrected), base,
+                                                                corrected))
         strain_used = bound_all(p.ohm[idx], strain_used, self.limits.row)
         std = None
         if self.weights is not None:
