@@ -153,14 +153,10 @@ class Engine:
                             float(out.resistance[0]) if status in sc.USED else math.nan, std)
 
     def run(self, sensor: str, t: npt.ArrayLike, r: npt.ArrayLike,
-            temperature: npt.ArrayLike | None = None, *,
-            neighbours: Mapping[str, npt.ArrayLike] | None = None) -> BatchOutput:
+            temperature: npt.ArrayLike | None = None) -> BatchOutput:
         """One sensor over a batch (the engine's one per-sample path)."""
         s = self._sensor(sensor)
-        pending = s.run_model(t, r, temperature, self.gap_reset)
-        nbrs = ({n: np.asarray(v, dtype=np.float64) for n, v in neighbours.items()}
-                if neighbours else {})
-        return s.run_finish(pending, self.base_strain, nbrs)
+        return s.run_finish(s.run_model(t, r, temperature, self.gap_reset), self.base_strain, {})
 
     def run_array(self, sensors: Sequence[str], t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: Mapping[str, npt.ArrayLike | None] | None = None
