@@ -99,11 +99,9 @@ def features_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: 
 @njit
 def std_run(t: np.ndarray, direction: np.ndarray, ohm: np.ndarray, strain: np.ndarray,
             state: np.ndarray, row: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """The standard deviation of used samples in time order (``features_one`` then
-    ``sigma`` at each)."""
+    """The standard deviation of used samples in time order (``sigma`` of each's features)."""
+    x = features_run(t, direction, ohm, strain, state, row)
     out = np.empty(t.size)
-    x = np.empty(N_FEATURES)
     for i in range(t.size):
-        features_one(t[i], float(direction[i]), ohm[i], strain[i], state, row, x)
-        out[i] = sigma(x, weights)
+        out[i] = sigma(x[i], weights)
     return out
