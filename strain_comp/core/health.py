@@ -6,7 +6,7 @@ key-values as columns for ``strain_comp.io.cdr.diagnostic_arrays``)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -97,9 +97,8 @@ _LAST_STATUS = np.array([b"none", *(s.name.encode() for s in STATUSES)])
 
 @dataclass(frozen=True)
 class HealthTicks:
-    """A sensor's health at each of K ticks: ``before`` plus the counts up to each tick."""
+    """A sensor's health at each of K ticks."""
 
-    before: SensorHealth
     counters: np.ndarray
     """(K, len(COUNTERS)) int64."""
     last_status: np.ndarray
@@ -173,7 +172,7 @@ class HealthCounter:
         used[seen] = self.last_used[pos[seen] - 1]
         last_good_t[used >= 0] = self.t[used[used >= 0]]
         stale = np.isnan(last_good_t) | (ticks - last_good_t > stale_after)
-        return HealthTicks(replace(before), self.counts[pos], last_status, last_good_t, stale)
+        return HealthTicks(self.counts[pos], last_status, last_good_t, stale)
 
 
 def diagnostics(health: Mapping[str, SensorHealth], *, prefix: str = "strain_comp"
