@@ -1,14 +1,7 @@
-"""A sensor's one correction: an affine map on the input resistance and one on the output
-strain, which every estimator of a session's change writes (tare, ``recalibrate``,
-``strain-comp start``; ``strain_comp.offline.correction``):
-
-    R' = rest + gain (R - zero)                  (input: zero and gain)
-    S' = output_gain S + output_offset           (output: gain and offset)
-
-Its file form is the one calibration files have always held (docs/design.md, "Calibration
-file"): the input map is ``input.zero_span`` (rest = ``zero``, rest_calibrated = ``rest``,
-gain), the output map the two effect terms ``RECALIBRATION_TERMS``, every other term's
-coefficient scaled by the output gain (``of`` and ``written`` convert).
+"""A sensor's one correction, R' = rest + gain (R - zero) on the input and S' = output_gain
+S + output_offset on the output, which every estimator of a session's change writes; its
+file form (``input.zero_span`` and ``RECALIBRATION_TERMS``; ``of`` and ``written`` convert):
+docs/design.md, "Calibration file".
 """
 
 from __future__ import annotations
@@ -31,8 +24,7 @@ _OFFSET_TERM = {"name": RECALIBRATION_TERMS[1], "kind": "offset", "params": {}}
 
 @dataclass(frozen=True)
 class Correction:
-    """One sensor's input map R' = rest + gain (R - zero) and output map S' = output_gain S
-    + output_offset (module docstring)."""
+    """One sensor's input map and output map (module docstring)."""
 
     zero: float = 0.0
     rest: float = 0.0
