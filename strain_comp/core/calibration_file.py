@@ -303,19 +303,16 @@ class _Reader:
         if not (isinstance(unit, str) and unit_ok(unit)):
             raise self.fail(f"{where}.unit", "must be a unit such as 'ohm' or 'R/R0' (1-16 "
                             f"letters, digits, %, / or .), got {unit!r}")
-        if kind == "resistance":
-            return InputSettings(alternation=alternation, pair=pair, despike=despike,
-                                 baseline_step=step, zero_span=span, stretch_line=line,
-                                 unit=unit)
-        if kind != "divider":
+        if kind not in ("resistance", "divider"):
             raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
-        if unit != "ohm":
+        if kind == "divider" and unit != "ohm":
             raise self.fail(f"{where}.unit", "a divider's resistance is in ohm (as r1), got "
                             f"{unit!r}")
-        return InputSettings("divider", r1=self.number(node, "r1", where, lo=0.0, strict=True),
-                             vin=self.number(node, "vin", where, lo=0.0, strict=True),
-                             alternation=alternation, pair=pair, despike=despike,
-                             baseline_step=step, zero_span=span, stretch_line=line)
+        divider = {key: self.number(node, key, where, lo=0.0, strict=True)
+                   for key in ("r1", "vin")} if kind == "divider" else {}
+        return InputSettings(kind, alternation=alternation, pair=pair, despike=despike,
+                             baseline_step=step, zero_span=span, stretch_line=line, unit=unit,
+                             **divider)
 
 
 def _parse_yaml(reader: _Reader, text: str) -> Any:
@@ -337,11 +334,8 @@ def read_text(path: str | os.PathLike[str]) -> str:
     before opening) of at most MAX_FILE_BYTES, UTF-8."""
     reader = _Reader(str(path))
     try:
-        info = os.stat(path)
-        if not stat.S_ISREG(info.st_mode):
+        if not stat.S_ISREG(os.stat(path).st_mode):
             raise reader.fail("file", "cannot read: not a regular file")
-        if info.st_size > MAX_FILE_BYTES:
-            raise reader.fail("file", f"refused: larger than {MAX_FILE_BYTES} bytes")
         with open(path, "rb") as handle:
             data = handle.read(MAX_FILE_BYTES + 1)
         if len(data) > MAX_FILE_BYTES:
