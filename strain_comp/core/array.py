@@ -1,7 +1,4 @@
-"""Sensors sampled together (an array topic), run as ticks: one numba call per model family
-with an array form when no input is corrected, else each sensor's batch path
-(docs/models.md, "Arrays").
-"""
+"""Sensors sampled together (an array topic), run as ticks (docs/models.md, "Arrays")."""
 
 from __future__ import annotations
 
@@ -43,8 +40,7 @@ _LAST_GOOD_T, _STRAIN, _DIRECTION, _LAST_STATUS, _STD = range(5)
 def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.ndarray,
                  counts: np.ndarray, det: np.ndarray, gap: float, status: np.ndarray,
                  reset: np.ndarray) -> tuple[float, bool]:
-    """The stages before the model for sensor ``k`` of a tick (input fix, gain, screen,
-    counts, a gap reset's detector restart): (resistance, used)."""
+    """The stages before the model for sensor ``k`` of a tick: (resistance, used)."""
     ri, forced = raw[k], sc.GOOD
     if par[k, _VIN] > 0.0:  # voltage divider
         ri, forced = divider_ohm(ri, par[k, _R1], par[k, _VIN])
@@ -66,8 +62,7 @@ def sensor_front(k: int, t: float, raw: np.ndarray, par: np.ndarray, held: np.nd
 @njit(error_model="numpy", inline="always")
 def sensor_back(k: int, t: float, ohm: float, estimate: float, par: np.ndarray,
                 held: np.ndarray, det: np.ndarray, band: np.ndarray, x: np.ndarray) -> None:
-    """The stages after the model for a used sample of sensor ``k``: detector, range,
-    standard deviation and hold."""
+    """The stages after the model for a used sample of sensor ``k``."""
     held[k, _DIRECTION] = direction_update(det[k], t, ohm, par[k, _DEADZONE],
                                            par[k, _TAU]) * par[k, _SIGN]
     held[k, _STRAIN] = bound(ohm, estimate, par[k, _RANGE:])
@@ -188,8 +183,7 @@ class ArrayGroup:
 
     def run(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None,
             gap_reset: float, latest: Latest) -> ArrayOutput:
-        """Ticks ``t`` (rows of ``raw`` and ``temperature``, the array's sensor order): every
-        field one row per tick."""
+        """Ticks ``t`` (rows of ``raw`` and ``temperature``): every field one row per tick."""
         if not self.kernels:
             return self._loop(t, raw, temperature, gap_reset, latest)
         n, k = t.size, len(self.names)
@@ -205,8 +199,7 @@ class ArrayGroup:
 
     def _loop(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None,
               gap_reset: float, latest: Latest) -> ArrayOutput:
-        """Ticks as a batch of each sensor (``run_together``: cross-talk terms read the
-        neighbours' clamped pre-effect estimate of the same tick)."""
+        """Ticks as a batch of each sensor (``run_together``)."""
         temps = {} if temperature is None else dict(zip(self.names, temperature.T, strict=True))
         outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
                                  temps, gap_reset, latest).values())

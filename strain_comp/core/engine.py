@@ -1,6 +1,4 @@
-"""The transport-free engine: calibrated strain, direction and health of every sensor; replay,
-evaluate and the node feed it, and ``step`` is ``run`` on a batch of one (docs/models.md).
-"""
+"""The transport-free engine: calibrated strain, direction and health of every sensor."""
 
 from __future__ import annotations
 
@@ -109,9 +107,7 @@ class Engine:
         return gain
 
     def set_input_gain(self, sensor: str, gain: float) -> None:
-        """Set the tare gain of ``sensor``, effective from the next sample; the corrector's,
-        the pair statistic's and the effect terms' references are carried over to it, so
-        the change is no step for them."""
+        """Set the tare gain of ``sensor`` from the next sample (no step for the states)."""
         if not (math.isfinite(gain) and gain > 0):
             raise ParameterError(f"{sensor}.input_gain", f"must be finite and > 0, got {gain}")
         s = self._sensor(sensor)
@@ -161,8 +157,7 @@ class Engine:
     def run_array(self, sensors: Sequence[str], t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: Mapping[str, npt.ArrayLike | None] | None = None
                   ) -> dict[str, BatchOutput]:
-        """Batch path for sensors sampled together (an array topic): every cross-talk term
-        reads its neighbours' clamped pre-effect estimate of the same tick."""
+        """Sensors sampled together over a batch (``run_together``)."""
         r = np.asarray(r, dtype=np.float64)
         if r.ndim != 2 or r.shape[1] != len(sensors):
             raise InputError(f"run_array: r must be (n, {len(sensors)}), got shape {r.shape}")
@@ -177,8 +172,7 @@ class Engine:
 
     def run_ticks(self, array: str, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None = None) -> ArrayOutput:
-        """Ticks of an array registered at construction: ``t`` (n,), ``r`` and ``temperature``
-        (n, sensors) in the array's sensor order; every field of the output one row per tick."""
+        """Ticks of an array registered at construction (``r``: (n, sensors))."""
         try:
             group = self._arrays[array]
         except KeyError:
@@ -208,8 +202,7 @@ class Engine:
         return out
 
     def stale_for(self, sensor: str) -> float:
-        """The silence after which ``sensor`` is stale: ``stale_after``, or two sample
-        intervals of a slow instrument."""
+        """``stale_after``, or two sample intervals of a slow instrument."""
         interval = self._sensor(sensor).cal.sample_interval
         return self.stale_after if interval is None else max(self.stale_after, 2.0 * interval)
 

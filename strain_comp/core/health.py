@@ -1,7 +1,5 @@
-"""Per-sensor health: counters by sample status, the diagnostic level and message
-(diagnostic_msgs/DiagnosticStatus), and the health a batch had at given times, as arrays
-(``HealthCounter``: cumulative counts summed once a run, every tick a lookup; its
-key-values as columns for ``strain_comp.io.cdr.diagnostic_arrays``)."""
+"""Per-sensor health: counters by sample status, the diagnostic level and message, and
+the health a batch had at given times, as arrays (``HealthCounter``)."""
 
 from __future__ import annotations
 
@@ -121,8 +119,7 @@ class HealthTicks:
 
 
 def times_text(t: np.ndarray) -> np.ndarray:
-    """``repr`` of each time [s] as UTF-8 bytes, ``none`` for NaN: each distinct time
-    formatted once (the sensors of one instrument share their stamps)."""
+    """``repr`` of each time [s] as UTF-8 bytes, ``none`` for NaN (each distinct one once)."""
     found = np.full(t.size, b"none", dtype="S32")
     known = ~np.isnan(t)
     bits, where = np.unique(t[known].view(np.int64), return_inverse=True)  # -0.0 kept apart
@@ -158,8 +155,7 @@ class HealthCounter:
         self.order = np.maximum.accumulate(self.t)
 
     def at(self, ticks: np.ndarray, *, stale_after: float) -> HealthTicks:
-        """The health at each of ``ticks`` [s], stale after ``stale_after`` [s] without a
-        good sample (as ``Engine.health(now=tick)``)."""
+        """The health at each of ``ticks`` [s] (as ``Engine.health(now=tick)``)."""
         before = self.before
         pos = np.searchsorted(self.order, ticks, side="right")
         last_status = np.full(ticks.size, -1 if before.last_status is None

@@ -1,7 +1,5 @@
-"""One sensor in the engine: its calibration, model, detector, effect terms, input
-corrector, limits, held output and health, and the per-sample path through them
-(docs/models.md, "The engine's per-sample path"); one sample is a batch of one.
-"""
+"""One sensor in the engine and its per-sample path (docs/models.md, "The engine's
+per-sample path"); one sample is a batch of one."""
 
 from __future__ import annotations
 
@@ -99,8 +97,7 @@ class SensorState:
     def build(cls, cal: SensorCalibration, deadzone_scale: float,
               out_of_range: str = "clamp", limits: SensorRange | None = None
               ) -> SensorState:
-        """A fresh sensor of ``cal``; ``limits``: those already built for ``cal`` and
-        ``out_of_range`` (building them runs the model along a ramp), None to build them."""
+        """A fresh sensor of ``cal``; ``limits``: those already built (None: build them)."""
         model = cal.build_model()
         if limits is None:
             limits = SensorRange.build(cal, out_of_range, model)
@@ -142,8 +139,7 @@ class SensorState:
 
     def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:
-        """``run``'s first stage: input fix, screening, gap resets, input corrections,
-        detector and model over a batch."""
+        """``run``'s first stage: input fix, screen, input corrections, detector, model."""
         t = np.ascontiguousarray(t, dtype=np.float64)
         raw = np.ascontiguousarray(r, dtype=np.float64)
         if t.ndim != 1 or t.shape != raw.shape:
@@ -237,9 +233,8 @@ class SensorState:
 def run_together(sensors: Mapping[str, SensorState], t: npt.ArrayLike, r: np.ndarray,
                  temperature: Mapping[str, npt.ArrayLike | None], gap_reset: float,
                  latest: Latest) -> dict[str, BatchOutput]:
-    """Sensors sampled together (``r``: one column per sensor, in ``sensors``' order) over a
-    batch: every cross-talk term reads its neighbours' clamped pre-effect estimate of the
-    same tick."""
+    """Sensors sampled together (``r``: a column each) over a batch: every cross-talk term
+    reads its neighbours' clamped pre-effect estimate of the same tick."""
     pending = {name: s.run_model(t, r[:, j], temperature.get(name), gap_reset)
                for j, (name, s) in enumerate(sensors.items())}
     bases = {name: p.base(sensors[name]) for name, p in pending.items()}

@@ -1,8 +1,5 @@
-"""The per-sample stages every path runs (screen, model read, range, hold; the input fix is
-``base.conversion.divider_ohm``): one scalar kernel each, called per sensor by the array
-tick and lifted over a batch for ``Engine.run`` (docs/models.md, "The engine's per-sample
-path").
-"""
+"""The per-sample stages every path runs, one scalar kernel each, lifted over a batch for
+``Engine.run`` (docs/models.md, "The engine's per-sample path")."""
 
 from __future__ import annotations
 
@@ -68,8 +65,7 @@ def bound_all(ohm: np.ndarray, strain: np.ndarray, row: np.ndarray) -> np.ndarra
 def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t: float,
                  r_short: float, r_open: float, r_lo: float, r_hi: float, gap: float
                  ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
-    """``screen_all``, plus the indices of the used samples and the positions among them
-    where a gap reset starts a segment."""
+    """``screen_all``, the used samples' indices and where among them a gap reset falls."""
     status, reset, last = screen_all(t, ohm, forced, last_good_t, r_short, r_open, r_lo,
                                      r_hi, gap)
     idx = np.empty(t.size, np.int64)
@@ -97,8 +93,7 @@ def range_status(ohm: np.ndarray, reset: np.ndarray, r_lo: float, r_hi: float) -
 def hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np.ndarray,
          dir_used: np.ndarray, strain: float, direction: int
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The hold stage over a batch: each sample shows the strain and direction of the latest
-    used sample at or before it."""
+    """The hold stage over a batch: each sample shows the latest used sample's output."""
     n = status.size
     out_s = np.empty(n)
     out_d = np.empty(n, np.int8)
