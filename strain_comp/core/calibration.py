@@ -39,8 +39,7 @@ zero_span gain, a stretch line's slope against the calibrated range's)."""
 
 
 def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -> None:
-    """The one check of a reference strain's size, for ``fit`` (training) and ``evaluate``
-    (scoring) alike: no finite value beyond +/- ``STRAIN_MAX``, what a calibration holds."""
+    """No finite reference strain beyond +/- ``STRAIN_MAX`` (for ``fit`` and ``evaluate``)."""
     values = np.asarray(s, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         top = float(np.max(np.abs(values), initial=0.0, where=np.isfinite(values)))
@@ -52,8 +51,7 @@ def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -
 
 @dataclass(frozen=True)
 class InputSettings:
-    """The calibration's ``input``: what the topic carries and the corrections the models
-    read it through (docs/design.md, "Calibration file")."""
+    """The calibration's ``input`` (docs/design.md, "Calibration file")."""
 
     kind: str = "resistance"
     r1: float | None = None
@@ -164,8 +162,7 @@ class SensorCalibration:
 
     @property
     def input_rest(self) -> float | None:
-        """The measured rest [ohm] a tare refers to: ``zero_span``'s rest, else
-        ``rest_resistance``."""
+        """The rest [ohm] a tare refers to: ``zero_span``'s rest, else ``rest_resistance``."""
         span = self.input.zero_span
         return span[0] if span is not None else self.rest_resistance
 

@@ -101,8 +101,7 @@ class _Reader:
                                 f"got {node!r}")
 
     def sensor(self, name: str, node: Any) -> SensorCalibration:
-        """One sensor's entry: every field checked, its model built once (its parameters
-        and the pole check)."""
+        """One sensor's entry: every field checked, its model built once."""
         where = f"sensors.{name}"
         node = self.mapping(node, where)
         model_node = self.mapping(self.child(node, "model", where), f"{where}.model")
@@ -170,8 +169,7 @@ class _Reader:
         return ValidRange(r_lo, r_hi, s_lo, s_hi)
 
     def direction(self, node: Mapping[str, Any], where: str) -> DirectionSettings:
-        """``direction``: the dead zone > 0, tau >= 0 (default 0), k_sigma null or > 0, the
-        sign."""
+        """``direction``: the dead zone > 0, tau >= 0, k_sigma null or > 0, the sign."""
         dw = f"{where}.direction"
         dir_node = self.mapping(self.child(node, "direction", where), dw)
         k_sigma = dir_node.get("k_sigma")
@@ -346,8 +344,8 @@ def read_text(path: str | os.PathLike[str]) -> str:
 
 
 def parse_fields(text: str, path: str) -> Calibration:
-    """Validate the text of a calibration file without running a model. The cyclic garbage
-    collector is paused meanwhile (a large array's many small objects, no cycles)."""
+    """Validate the text of a calibration file without running a model."""
+    # the cyclic garbage collector is paused: a large array's many small objects, no cycles
     collecting = gc.isenabled()
     gc.disable()
     try:
@@ -419,8 +417,7 @@ def parse_calibration(text: str, path: str) -> Calibration:
 
 
 def probe_key(cal: SensorCalibration) -> str:
-    """What the load-time probe of ``cal`` depends on: everything but its name and provenance
-    (sensors of an array written from one fit are probed once)."""
+    """What the probe of ``cal`` depends on (alike sensors are probed once)."""
     return repr({**cal.to_dict(), "provenance": None})
 
 
@@ -472,8 +469,7 @@ def probe_calibration(cal: SensorCalibration) -> str | None:
 
 
 def loadable(cal: SensorCalibration, change: str) -> SensorCalibration:
-    """``cal`` after the load-time checks, so a recalibration refuses in the API what the
-    command line's write refuses."""
+    """``cal`` after the load-time checks (the API refuses what the command line's write does)."""
     try:
         check_calibration(Calibration({cal.name: cal}))
     except CalibrationError as err:

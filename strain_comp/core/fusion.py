@@ -1,7 +1,5 @@
-"""Sparse references fused online: the output gain and offset, estimated causally by a
-Kalman filter on a random walk; the model and equations (1)-(3): docs/models.md, "Fusion of
-known strains".
-"""
+"""Sparse references fused online into the output gain and offset by a Kalman filter
+(docs/models.md, "Fusion of known strains", equations (1)-(3))."""
 
 from __future__ import annotations
 
@@ -57,8 +55,7 @@ class FusionSettings:
 
 @dataclass
 class OutputFusion:
-    """The Kalman filter (3) on one sensor's output gain and offset (from ``start``, the
-    calibration's)."""
+    """The Kalman filter (3) on one sensor's output gain and offset."""
 
     settings: FusionSettings
     start: tuple[float, float] = (1.0, 0.0)
@@ -87,8 +84,7 @@ class OutputFusion:
 
     @classmethod
     def for_calibration(cls, cal: SensorCalibration) -> OutputFusion:
-        """The fusion of a sensor at its calibrated strain span, from its correction's
-        output map."""
+        """A sensor's fusion at its calibrated span, from its correction's output map."""
         correction = Correction.of(cal)
         return cls(FusionSettings.for_span(fitted_rest(cal.valid_range)[1]),
                    (correction.output_gain, correction.output_offset))
@@ -140,8 +136,7 @@ class OutputFusion:
         return None
 
     def refuse(self, reason: str) -> str:
-        """Count a reference refused before it reached ``update`` (no estimate to pair it
-        with, a sensor out of its calibrated range); the reason."""
+        """Count a reference refused before it reached ``update``; the reason."""
         self.refused[reason] += 1
         return reason
 
@@ -204,8 +199,7 @@ class SparseFusion:
 
     def run(self, t: np.ndarray, estimate: np.ndarray, reference: np.ndarray,
             eligible: np.ndarray) -> np.ndarray:
-        """The fused estimate of one piece (the engine's ``estimate`` and the run's
-        ``reference`` at its samples ``t``)."""
+        """The fused estimate of one piece."""
         t = np.asarray(t, dtype=np.float64)
         estimate = np.asarray(estimate, dtype=np.float64)
         out = np.array(estimate, dtype=np.float64)
@@ -255,8 +249,7 @@ class SparseFusion:
     @classmethod
     def for_calibration(cls, cal: SensorCalibration, every: float, *, record: bool = False
                         ) -> SparseFusion:
-        """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds
-        (``record``: keep ``judged``)."""
+        """A sensor's fusion at its calibrated strain span, fed every ``every`` seconds."""
         return cls(OutputFusion.for_calibration(cal), check_every(every), record=record)
 
     def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
@@ -270,8 +263,7 @@ class SparseFusion:
 
 
 def check_every(every: float, t: npt.ArrayLike | None = None) -> float:
-    """``every`` if it is finite, > 0 s and not below the sampling interval of ``t`` (a
-    reference per sample at most); InputError otherwise."""
+    """``every`` if finite, > 0 s and not below the sampling interval of ``t``."""
     if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
         raise InputError(f"--references-every {every!r}: must be a number of seconds > 0")
     steps = np.diff(np.asarray(t if t is not None else [], dtype=np.float64))
