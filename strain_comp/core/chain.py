@@ -179,8 +179,7 @@ in 32) never makes a spike or a step."""
 
 @njit(error_model="numpy")
 def _least_change(window: np.ndarray) -> float:
-    """The smallest non-zero value of ``window`` (0 if none): one quantisation step where
-    the read-out is quantised, negligible where it is not."""
+    """The smallest non-zero value of ``window`` (0 if none)."""
     least = np.inf
     for v in window:
         if 0.0 < v < least:
@@ -198,8 +197,7 @@ def _slope(values: np.ndarray) -> float:
 @njit(error_model="numpy")
 def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: int
                 ) -> tuple[float, float]:
-    """(jump, slope) of one line with a jump fitted to the ring ``pre`` before it and
-    ``post``, ``gap`` samples later; (0, 0) while the ring is not full."""
+    """(jump, slope) of a line with a jump fitted to the ring ``pre`` and ``post``."""
     if npre < pre.size:
         return 0.0, 0.0
     a = np.zeros((3, 3))
@@ -396,8 +394,7 @@ class ChainCorrector:
             values *= factor
 
     def run(self, t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(corrected samples, event codes) of consecutive used samples ``x`` [ohm] at
-        times ``t`` [s]; spikes and steps are counted in ``n_spikes`` and ``steps``."""
+        """(corrected samples, event codes) of consecutive used samples ``x`` [ohm]."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         events = np.zeros(x.size, np.int8)
         offsets = np.empty(x.size)
@@ -415,8 +412,7 @@ class ChainCorrector:
 def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
             step_k: float = 0.0, alternating: bool | None = None, pair: str = "mean",
             ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
-    """A whole run through a fresh ``ChainCorrector`` as the engine feeds its models
-    (``alternating`` None: found from the data): (what the models see, events, corrector)."""
+    """A whole run through a fresh ``ChainCorrector``: (what the models see, events, it)."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)

@@ -36,8 +36,7 @@ SETTLE_STEPS = 200  # steps each way of the 10 Hz ramp the end slopes are read o
 
 
 def fitted_rest(valid_range: ValidRange) -> tuple[float, float]:
-    """(rest strain, strain span) the calibration was fitted over: its valid strain range
-    less the ``MARGIN`` the fit adds on each side."""
+    """(rest strain, strain span) the calibration was fitted over (less the ``MARGIN``)."""
     span = (valid_range.s_hi - valid_range.s_lo) / (1.0 + 2.0 * MARGIN)
     return valid_range.s_lo + MARGIN * span, span
 
@@ -65,8 +64,7 @@ class SensorRange:
     @classmethod
     def build(cls, cal: SensorCalibration, out_of_range: str = "clamp",
               model: Compensator | None = None) -> SensorRange:
-        """The limits of ``cal``'s valid range under the mode ``out_of_range``; ``model``:
-        ``cal``'s model to read the slopes on (``branches``; None: a new one)."""
+        """The limits of ``cal``'s valid range under the mode ``out_of_range``."""
         vr = cal.valid_range
         r_margin = MARGIN * (vr.r_hi - vr.r_lo)
         s_margin = MARGIN * (vr.s_hi - vr.s_lo)
@@ -109,8 +107,7 @@ def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | N
 
 def end_slopes(loading: np.ndarray, unloading: np.ndarray, limits: SensorRange
                ) -> tuple[float, float]:
-    """dS/dR of the unloading branch over the first step of the ramp (``branches``) and of
-    the loading branch over the last: ``extrapolate``."""
+    """dS/dR of the branches at the range's ends (``extrapolate``)."""
     width = (limits.r_hi - limits.r_lo) / SETTLE_STEPS
     lo = float(unloading[1] - unloading[0]) / width
     hi = float(loading[-1] - loading[-2]) / width

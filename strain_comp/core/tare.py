@@ -81,8 +81,7 @@ def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, pair: str) -> fl
 
 def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings,
                   pair: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """(good t, r within ``REST_WINDOW`` s, samples before the detector leaves hold, whether that
-    stretch has ended)."""
+    """(good t, r of the first ``REST_WINDOW`` s, samples at rest, whether that has ended)."""
     ta = np.asarray(t, dtype=np.float64)
     ra = np.asarray(r, dtype=np.float64)
     good = _good(ta, ra)
@@ -102,8 +101,7 @@ def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettin
 
 
 def rest_drift(t: np.ndarray, r: np.ndarray, *, pair: str = "mean") -> float:
-    """Drift of a rest stretch over ``REST_WINDOW`` s as a share of its level (second half's
-    ``rest_level`` against the first's); 0 when under 4 samples."""
+    """Drift of a rest stretch over ``REST_WINDOW`` s as a share of its level."""
     if r.size < 4:
         return 0.0
     half = r.size // 2

@@ -1,7 +1,5 @@
-"""The standard deviation of every estimate (docs/design.md, "Uncertainty"): a log-linear
-variance model over ``FEATURES``, computed in one place (``features_one``) for the engine,
-the learner and the array tick.
-"""
+"""The standard deviation of every estimate (docs/design.md, "Uncertainty"): one kernel
+(``features_one``) for the engine, the learner and the array tick."""
 
 from __future__ import annotations
 
@@ -27,8 +25,7 @@ WEIGHT_MAX = 100.0
 
 @dataclass(frozen=True)
 class Uncertainty:
-    """A sensor's learned variance model: one weight per ``FEATURES`` entry, and what it
-    was learned on."""
+    """A sensor's learned variance model: one weight per ``FEATURES`` entry."""
 
     weights: tuple[float, ...]
     runs: int = 0
@@ -59,8 +56,7 @@ def new_state() -> np.ndarray:
 @njit(inline="always")
 def features_one(t: float, direction: float, ohm: float, strain: float, state: np.ndarray,
                  row: np.ndarray, out: np.ndarray) -> None:
-    """The features of one used sample into ``out`` (``FEATURES`` order); ``state``
-    updated in place."""
+    """The features of one used sample into ``out``; ``state`` updated in place."""
     if math.isnan(state[_START_T]):
         state[_START_T] = t
     if math.isnan(state[_LAST_DIRECTION]) or direction != state[_LAST_DIRECTION]:
