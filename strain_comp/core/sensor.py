@@ -104,11 +104,15 @@ class SensorState:
         else:
             model.reset()  # as SensorRange.build leaves it
         correction = Correction.of(cal)
+        chain = cal.input  # a spike threshold or step size in the file asks for the corrector
+        corrector = None if chain.despike is None and chain.baseline_step is None else \
+            ChainCorrector(k=chain.despike or DESPIKE_K, alternating=chain.alternation,
+                           step_k=chain.baseline_step or 0.0)
         return cls(cal=cal, model=model,
                    detector=DirectionDetector(scaled(cal.direction, deadzone_scale)),
                    limits=limits, effects=EffectTerms.from_dicts(correction.effects(cal.effects)),
                    correction=correction,
-                   corrector=_corrector(cal),
+                   corrector=corrector,
                    weights=None if cal.uncertainty is None else cal.uncertainty.vector())
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
@@ -245,11 +249,3 @@ def scaled(settings: DirectionSettings, scale: float) -> DirectionSettings:
     """``settings`` with the dead zone times ``scale``."""
     return replace(settings, deadzone=settings.deadzone * scale)
 
-
-def _corrector(cal: SensorCalibration) -> ChainCorrector | None:
-    settings = cal.input
-    if settings.despike is None and settings.baseline_step is None:
-        return None
-    return ChainCorrector(k=settings.despike if settings.despike is not None else DESPIKE_K,
-                          alternating=settings.alternation,
-                          step_k=settings.baseline_step or 0.0)
