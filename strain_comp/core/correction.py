@@ -68,8 +68,7 @@ class Correction:
         return self.output_gain * strain + self.output_offset
 
     def with_input(self, zero: float, rest: float, gain: float) -> Correction:
-        """This correction with a new input map (it replaces the old: both map measured
-        resistance); the output map kept."""
+        """This correction with a new input map replacing the old (both map measured R)."""
         return replace(self, zero=float(zero), rest=float(rest), gain=float(gain))
 
     def with_output(self, gain: float, offset: float) -> Correction:
@@ -78,16 +77,14 @@ class Correction:
                        output_offset=gain * self.output_offset + offset)
 
     def effects(self, effects: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-        """The other effect terms of ``effects``, with their coefficients before the output
-        map."""
+        """The other effect terms of ``effects``, coefficients before the output map."""
         if not self.has_output:
             return [dict(e) for e in effects]
         return [dict(e, coef=float(e["coef"]) / self.output_gain) for e in effects
                 if not _is_output_term(e)]
 
     def written(self, cal: SensorCalibration) -> SensorCalibration:
-        """``cal`` holding this correction in the file form (module docstring), what it
-        held before replaced."""
+        """``cal`` holding this correction in the file form (replacing what it held)."""
         a, b = self.output_gain, self.output_offset
         held = Correction.of(cal)
         if (a, b) == (held.output_gain, held.output_offset):  # the terms as they stand
@@ -110,8 +107,8 @@ def _is_output_term(effect: Mapping[str, Any]) -> bool:
 
 
 def _output_terms(effects: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
-    """(output gain, output offset) of a calibration's effect terms (1, 0 without them); a
-    gain that is not finite and > 0 is left to the effect terms as they stand (1, 0)."""
+    """(output gain, output offset) of a calibration's effect terms; (1, 0) without a valid
+    gain (the terms then act as they stand)."""
     gain_coef = sum(float(e["coef"]) for e in effects
                     if _is_output_term(e) and e.get("name") == RECALIBRATION_TERMS[0])
     offset_coef = sum(float(e["coef"]) for e in effects

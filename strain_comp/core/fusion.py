@@ -105,8 +105,7 @@ class OutputFusion:
         return g * estimate + b
 
     def update(self, t: float, estimate: float, reference: Any) -> str | None:
-        """Fuse ``reference`` at ``t`` [s] beside the engine's ``estimate``; None when used,
-        else the reason it was refused (counted; the state unchanged)."""
+        """Fuse ``reference`` at ``t`` [s]; None when used, else why it was refused."""
         reason = self._screen(t, estimate, reference)
         if reason is not None:
             self.refused[reason] += 1
@@ -180,8 +179,8 @@ class OutputFusion:
 
 @dataclass
 class SparseFusion:
-    """One sensor's run, streamed in pieces (``run``), fused with the reference of the
-    eligible sample nearest each multiple of ``every`` s (none beyond ``every`` / 2)."""
+    """One sensor's run in pieces, fused with the reference of the eligible sample nearest
+    each multiple of ``every`` s (none beyond ``every`` / 2)."""
 
     fusion: OutputFusion
     every: float
@@ -253,8 +252,7 @@ class SparseFusion:
         return cls(OutputFusion.for_calibration(cal), check_every(every), record=record)
 
     def fuse(self, t: np.ndarray, out: BatchOutput, reference: np.ndarray) -> BatchOutput:
-        """``out`` with its strain fused; eligible: used samples within the calibrated range
-        (beyond it the estimate is held or extended, not a gain of the strain)."""
+        """``out`` with its strain fused on the used samples within the calibrated range."""
         strain = np.asarray(out.strain, dtype=np.float64)
         reference = np.asarray(reference, dtype=np.float64)
         eligible = (used_mask(out.status) & ~np.asarray(out.out_of_range, bool)

@@ -77,8 +77,7 @@ for _row, _name in enumerate(("n_gaps", "n_spikes", "n_baseline_steps"), len(Sta
 
 
 def add_counts(h: SensorHealth, counts: np.ndarray) -> None:
-    """Add event counts to ``h``'s counters: per status code, then gap resets, spikes and
-    baseline steps (the rows of ``_ADDS``; a shorter ``counts`` holds its first rows)."""
+    """Add event counts (the rows of ``_ADDS``, or its first rows) to ``h``'s counters."""
     for name, n in zip(COUNTERS, (counts @ _ADDS[:counts.size]).tolist(), strict=True):
         if n:
             setattr(h, name, getattr(h, name) + n)
@@ -129,8 +128,7 @@ def times_text(t: np.ndarray) -> np.ndarray:
 
 
 class HealthCounter:
-    """A sensor's health at any tick of one run (``Engine.health(now=tick)`` had the run been
-    cut there): ``before`` plus cumulative counts, summed once, so a tick costs a lookup."""
+    """A sensor's health at any tick of one run: cumulative counts, so a tick is a lookup."""
 
     def __init__(self, before: SensorHealth, t: np.ndarray | None = None,
                  out: BatchOutput | None = None) -> None:

@@ -1,8 +1,6 @@
-"""Tare: the sensor's resistance at rest, read at the start of a run (``--tare auto``, the
-node: while the direction detector holds, settled) or of a fit (the reference at its
-minimum), both as the median of the pair statistic the calibration reads; the engine scales
-the input by (calibrated rest / rest now), multiplicative as measured (docs/results.md,
-"Tare"). A 1 Hz instrument's rest is accepted on ``MIN_REST_SECONDS`` alone.
+"""Tare: the sensor's resistance at rest, read at the start of a run (while the direction
+detector holds, settled) or of a fit (the reference at its minimum); the engine scales the
+input by (calibrated rest / rest now), multiplicative as measured (docs/results.md, "Tare").
 """
 
 from __future__ import annotations
@@ -34,8 +32,7 @@ REST_BAND = 0.02  # reference strain this share of its span above its minimum is
 
 
 def rest_level(r: np.ndarray, *, pair: str = "mean") -> float:
-    """Median of the pair statistic ``pair`` (``strain_comp.core.chain.pair_values``; cancels
-    an alternation every other sample), which ignores spikes."""
+    """Median of the pair statistic ``pair`` (cancels an alternation; ignores spikes)."""
     return float(np.median(pair_values(r, branch=pair)[1:] if r.size >= 2 else r))
 
 
@@ -54,8 +51,7 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
 def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
                                  direction: DirectionSettings, *, pair: str = "mean",
                                  ) -> float | None:
-    """``rest_resistance_at_start`` on a run's first samples as they arrive (the node), None
-    while more samples could still change it."""
+    """``rest_resistance_at_start`` as samples arrive (the node); None while undecided."""
     ta, ra, stop, decided = _rest_stretch(t, r, direction, pair)
     return _rest_of_stretch(ta, ra, stop, pair) if decided else None
 
