@@ -184,8 +184,17 @@ class ArrayGroup:
     def run(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None,
             gap_reset: float, latest: Latest) -> ArrayOutput:
         """Ticks ``t`` (rows of ``raw`` and ``temperature``): every field one row per tick."""
-        if not self.kernels:
-            return self._loop(t, raw, temperature, gap_reset, latest)
+        if not self.kernels:  # each sensor's batch path (``run_together``)
+            temps = {} if temperature is None else dict(zip(self.names, temperature.T, strict=True))
+            outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
+                                     temps, gap_reset, latest).values())
+            nan = np.full(t.size, math.nan)
+            return ArrayOutput(np.column_stack([o.strain for o in outs]),
+                               np.column_stack([o.direction for o in outs]).astype(np.int8),
+                               np.column_stack([o.status for o in outs]).astype(np.int8),
+                               np.column_stack([o.out_of_range for o in outs]),
+                               np.column_stack([nan if o.std is None else o.std for o in outs])
+                               if self.banded else None)
         n, k = t.size, len(self.names)
         out = np.empty((n, 3, k))
         status = np.empty((n, k), dtype=np.int8)
@@ -196,20 +205,6 @@ class ArrayGroup:
                  status)
         return ArrayOutput(out[:, 0], out[:, 1].astype(np.int8), status,
                            status == sc.OUT_OF_RANGE, out[:, 2] if self.banded else None)
-
-    def _loop(self, t: np.ndarray, raw: np.ndarray, temperature: np.ndarray | None,
-              gap_reset: float, latest: Latest) -> ArrayOutput:
-        """Ticks as a batch of each sensor (``run_together``)."""
-        temps = {} if temperature is None else dict(zip(self.names, temperature.T, strict=True))
-        outs = list(run_together(dict(zip(self.names, self.sensors, strict=True)), t, raw,
-                                 temps, gap_reset, latest).values())
-        nan = np.full(t.size, math.nan)
-        return ArrayOutput(np.column_stack([o.strain for o in outs]),
-                           np.column_stack([o.direction for o in outs]).astype(np.int8),
-                           np.column_stack([o.status for o in outs]).astype(np.int8),
-                           np.column_stack([o.out_of_range for o in outs]),
-                           np.column_stack([nan if o.std is None else o.std for o in outs])
-                           if self.banded else None)
 
     def health(self) -> dict[str, SensorHealth]:
         """Counters of the kernel path's sensors (only when ``fused``)."""
