@@ -49,17 +49,12 @@ class Correction:
         """True when the output map is not the identity."""
         return (self.output_gain, self.output_offset) != (1.0, 0.0)
 
-    def input_map(self) -> tuple[float, float]:
-        """(k, c) of the input map as R' = k R + c."""
-        return self.gain, self.rest - self.gain * self.zero
-
     def apply_input(self, ohm: Any, tare: float = 1.0) -> Any:
         """``ohm`` x the engine's ``tare`` gain, through the input map."""
         ohm = ohm * tare if tare != 1.0 else ohm
         if not self.has_input:
             return ohm
-        k, c = self.input_map()
-        return k * ohm + c
+        return self.gain * ohm + (self.rest - self.gain * self.zero)
 
     def apply_output(self, strain: Any) -> Any:
         """``strain`` through the output map."""
