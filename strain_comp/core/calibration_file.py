@@ -182,8 +182,7 @@ class _Reader:
         )
 
     def effects(self, name: str, node: Mapping[str, Any], where: str) -> list[dict[str, Any]]:
-        """``effects``: a list of valid effect terms, numbers bounded, no cross-talk term
-        reading the sensor ``name`` itself."""
+        """``effects``: valid terms, no cross-talk term reading the sensor ``name`` itself."""
         effects = node.get("effects", []) or []
         if not isinstance(effects, list):
             raise self.fail(f"{where}.effects", "must be a list")
@@ -211,8 +210,7 @@ class _Reader:
 
     def sigmas(self, node: Mapping[str, Any], key: str, where: str, default: float
                ) -> float | None:
-        """An optional threshold in robust sigmas: absent/false/null off, true the default,
-        else a number in (0, 1000)."""
+        """An optional threshold in robust sigmas: off, true (the default) or in (0, 1000)."""
         value = node.get(key)
         if value is None or value is False:
             return None
@@ -221,8 +219,7 @@ class _Reader:
         return self.number(node, key, where, lo=0.0, hi=1000.0, strict=True)
 
     def zero_span(self, node: Any, where: str) -> tuple[float, float, float] | None:
-        """``input.zero_span``: absent or null, else rest and rest_calibrated in (0,
-        PARAM_MAX] ohm and a gain in (0, SPAN_GAIN_MAX]."""
+        """``input.zero_span``: absent or null, else its rest, rest_calibrated and gain."""
         if node is None:
             return None
         node = self.mapping(node, where)
@@ -233,8 +230,7 @@ class _Reader:
                                            strict=True)
 
     def stretch_line(self, node: Any, where: str) -> tuple[float, float] | None:
-        """``input.stretch_line``: absent or null, else a rest in (0, PARAM_MAX] ohm and a
-        slope of magnitude in (0, PARAM_MAX] ohm per strain unit."""
+        """``input.stretch_line``: absent or null, else its rest and a non-zero slope."""
         if node is None:
             return None
         node = self.mapping(node, where)
@@ -246,8 +242,7 @@ class _Reader:
         return rest, slope
 
     def uncertainty(self, node: Any, where: str) -> Uncertainty | None:
-        """``uncertainty``: absent or null, else ``weights`` naming only ``FEATURES``, each
-        finite within ``WEIGHT_MAX``, and optional counts ``runs`` and ``samples``."""
+        """``uncertainty``: absent or null, else ``weights`` and counts ``runs``, ``samples``."""
         if node is None:
             return None
         node = self.mapping(node, where)
@@ -268,8 +263,7 @@ class _Reader:
         return Uncertainty.from_weights(values, *counts)
 
     def line_slope(self, cal: SensorCalibration, where: str) -> None:
-        """A stretch line's slope within ``SPAN_GAIN_MAX`` times, either way, of the slope
-        of the calibrated range."""
+        """A stretch line's slope within ``SPAN_GAIN_MAX`` times the calibrated range's."""
         line, vr = cal.input.stretch_line, cal.valid_range
         if line is None or not vr.s_hi > vr.s_lo:
             return
@@ -313,20 +307,6 @@ class _Reader:
                              **divider)
 
 
-def _parse_yaml(reader: _Reader, text: str) -> Any:
-    """The YAML document in ``text`` within the limits; CalibrationError otherwise."""
-    try:
-        return load_limited(text, max_aliases=MAX_ALIASES, max_nodes=MAX_NODES,
-                            max_depth=MAX_DEPTH)
-    except LimitError as err:
-        raise reader.fail("yaml", f"refused: {err}") from None
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark is not None else "yaml"
-        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-        raise reader.fail(where, f"not valid YAML: {problem}") from None
-
-
 def read_text(path: str | os.PathLike[str]) -> str:
     """The text of the calibration file ``path``: a regular file (never a FIFO: checked
     before opening) of at most MAX_FILE_BYTES, UTF-8."""
@@ -356,7 +336,16 @@ def parse_fields(text: str, path: str) -> Calibration:
 
 
 def _parse_fields(text: str, reader: _Reader) -> Calibration:
-    root = _parse_yaml(reader, text)
+    try:
+        root = load_limited(text, max_aliases=MAX_ALIASES, max_nodes=MAX_NODES,
+                            max_depth=MAX_DEPTH)
+    except LimitError as err:
+        raise reader.fail("yaml", f"refused: {err}") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else "yaml"
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise reader.fail(where, f"not valid YAML: {problem}") from None
     root = reader.mapping(root, "(top level)")
     fmt = reader.child(root, "format", "")
     if fmt != FORMAT:
@@ -442,17 +431,6 @@ def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
     write_text(path, text, inputs=inputs)
 
 
-def probe_resistance(cal: SensorCalibration) -> tuple[np.ndarray, np.ndarray]:
-    """A probe of one sensor: log-spaced from short to open (0.01 x the bottom to 100 x the
-    top of the valid range) and back, slowly, fast, and with a long hold."""
-    lo, hi = math.log(cal.valid_range.r_lo * 0.011), math.log(cal.valid_range.r_hi * 99.0)
-    up = np.exp(np.linspace(lo, hi, 200))
-    sweep = np.concatenate([up, up[::-1], up[::4], up[::-4], np.full(50, up[100])])
-    t = np.concatenate([np.arange(400) * 0.05, 20.0 + np.arange(100) * 0.01,
-                        21.0 + np.arange(50) * 2.0])
-    return t, sweep
-
-
 def probe_calibration(cal: SensorCalibration) -> str | None:
     """Where the engine gives a non-finite strain on this sensor's probe (25 deg C), or None.
     The input zero and span is left out: a probe value it maps below the short level would
@@ -461,7 +439,13 @@ def probe_calibration(cal: SensorCalibration) -> str | None:
                                  "effects": [e for e in cal.effects
                                              if e.get("kind") != "crosstalk"]})
     engine = Engine(Calibration({cal.name: probe}))
-    t, r = probe_resistance(cal)
+    # log-spaced from short to open (0.01 x the bottom to 100 x the top of the valid range)
+    # and back, slowly, fast, and with a long hold
+    lo, hi = math.log(cal.valid_range.r_lo * 0.011), math.log(cal.valid_range.r_hi * 99.0)
+    up = np.exp(np.linspace(lo, hi, 200))
+    r = np.concatenate([up, up[::-1], up[::4], up[::-4], np.full(50, up[100])])
+    t = np.concatenate([np.arange(400) * 0.05, 20.0 + np.arange(100) * 0.01,
+                        21.0 + np.arange(50) * 2.0])
     with np.errstate(all="ignore"):
         out = engine.run(cal.name, t, r, np.full(t.size, 25.0))
     bad = np.flatnonzero(~np.isfinite(out.strain))
