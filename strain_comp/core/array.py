@@ -78,8 +78,7 @@ def family_tick(t: np.ndarray, idx: np.ndarray, raw: np.ndarray, par: np.ndarray
                 status: np.ndarray, reset: np.ndarray, band: np.ndarray, x: np.ndarray,
                 state: tuple[np.ndarray, ...], params: tuple[Any, ...], out: np.ndarray,
                 out_status: np.ndarray) -> None:
-    """Template: ticks ``t`` of one family's sensors around its kernel; held strain,
-    direction and std into ``out[i, :, k]``, status into ``out_status[i, k]``."""
+    """Template: ticks ``t`` of one family's sensors around its kernel, into ``out``."""
     arrays = state + params
     for i in range(t.size):
         for j in range(idx.size):

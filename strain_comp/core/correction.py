@@ -15,9 +15,7 @@ if TYPE_CHECKING:
     from strain_comp.core.calibration import SensorCalibration
 
 RECALIBRATION_TERMS = ("recalibration_gain", "recalibration_offset")
-"""Names of the two effect terms that hold the output gain and offset in a calibration file
-(the correction's file form, ``written``): a map of the output, not a term that models what
-moves."""
+"""The two effect terms holding the output map in a file: a map, not a term of what moves."""
 _GAIN_TERM = {"name": RECALIBRATION_TERMS[0], "kind": "strain_level", "params": {"power": 1}}
 _OFFSET_TERM = {"name": RECALIBRATION_TERMS[1], "kind": "offset", "params": {}}
 

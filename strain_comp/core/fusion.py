@@ -188,13 +188,11 @@ class SparseFusion:
     k: int = 1
     """The next multiple of ``every`` waiting for its reference."""
     before: tuple[float, float, float] | None = None
-    """The latest eligible sample of earlier pieces (t, estimate, reference), a candidate
-    for the next multiple."""
+    """The latest eligible sample of earlier pieces (t, estimate, reference)."""
     record: bool = False
     """Keep ``judged`` (replay's /diagnostics ticks read it)."""
     judged: list[tuple[float, dict[str, str]]] = field(default_factory=list)
-    """With ``record``: (time, ``OutputFusion.diagnostic_values`` after it) of every
-    reference judged since the reader last cleared it."""
+    """With ``record``: (time, ``OutputFusion.diagnostic_values``) of each judged reference."""
 
     def run(self, t: np.ndarray, estimate: np.ndarray, reference: np.ndarray,
             eligible: np.ndarray) -> np.ndarray:

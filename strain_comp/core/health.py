@@ -108,8 +108,7 @@ class HealthTicks:
     def diagnostic(self, good_t: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, np.ndarray]]]:
         """(levels, messages, [(key, values)]) as ``SensorHealth.to_diagnostic`` gives them
-        at each tick: the texts as UTF-8 byte-string arrays, the counters as integers
-        (``str`` of each is the text); ``good_t``: ``times_text(last_good_t)`` if known."""
+        at each tick (texts as UTF-8 bytes, counters as integers)."""
         state = np.where(self.stale, 0, self.last_status + 2)
         values = [(name, self.counters[:, j]) for j, name in enumerate(COUNTERS)]
         good_t = times_text(self.last_good_t) if good_t is None else good_t

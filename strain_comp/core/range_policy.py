@@ -52,8 +52,7 @@ class SensorRange:
     s_lo: float
     s_hi: float
     slopes: tuple[float, float] | None = None
-    """(dS/dR at r_lo, at r_hi) beyond the valid range when the estimate is extended out
-    of range (``OUT_OF_RANGE_MODES``), else None (clamped)."""
+    """(dS/dR at r_lo, at r_hi) beyond the valid range when extended, else None (clamped)."""
     reach: tuple[float, float] = (-math.inf, math.inf)
     """Lowest and highest strain an extended estimate reaches (``extend``)."""
     saturate: bool = False
@@ -91,9 +90,8 @@ class SensorRange:
 
 def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
-    """(loading, unloading) branch of the model along a slow ramp (``SETTLE_STEPS`` each way
-    at 10 Hz) over the valid range and back from rest, both at ``np.linspace(r_lo, r_hi,
-    n + 1)``; ``model`` is reset before and after (None: a new one)."""
+    """(loading, unloading) branch of the model along a slow ramp over the valid range and
+    back, both at ``np.linspace(r_lo, r_hi, n + 1)``; ``model`` reset before and after."""
     n = SETTLE_STEPS
     up = np.linspace(limits.r_lo, limits.r_hi, n + 1)
     r = np.concatenate([up, up[-2::-1]])

@@ -81,11 +81,9 @@ class SensorState:
     gain: float = 1.0
     """Input gain (tare): the input map reads ``gain`` x the measured resistance."""
     correction: Correction = field(default_factory=Correction)
-    """The calibration's input and output maps (``strain_comp.core.correction``)."""
     previous: float = math.nan
     """Latest used resistance [ohm] (for pair means when the input alternates)."""
     corrector: ChainCorrector | None = None
-    """Spike and baseline-step correction when the calibration's input asks for it."""
     std: float = math.nan
     """Latest standard deviation of the estimate (NaN: no band in the calibration)."""
     band: np.ndarray = field(default_factory=uncertainty.new_state)
@@ -117,8 +115,7 @@ class SensorState:
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
-        """(what the models see of used samples ``ohm``, the corrector's events or None);
-        ``previous``: the used sample before them (NaN after a reset: restart)."""
+        """(what the models see of used samples ``ohm``, the corrector's events or None)."""
         if not self.cal.input.filtered or not ohm.size:
             return ohm, None
         self.previous = float(ohm[-1])

@@ -83,8 +83,7 @@ def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t
 
 
 def range_status(ohm: np.ndarray, reset: np.ndarray, r_lo: float, r_hi: float) -> np.ndarray:
-    """Status codes of used samples from the resistance the model reads: out of range
-    outside [r_lo, r_hi], else a gap reset or good (``screen_one``'s last rule)."""
+    """Status codes of used samples from the resistance the model reads (``screen_one``)."""
     inside = np.where(reset, sc.GAP_RESET, sc.GOOD)
     return np.where((ohm < r_lo) | (ohm > r_hi), sc.OUT_OF_RANGE, inside).astype(np.int8)
 
