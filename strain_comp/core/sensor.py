@@ -72,7 +72,6 @@ class SensorState:
     detector: DirectionDetector
     limits: SensorRange
     health: SensorHealth = field(default_factory=SensorHealth)
-    last_good_t: float = -math.inf
     strain: float = math.nan
     direction: int = 0
     effects: EffectTerms = field(default_factory=lambda: EffectTerms([], []))
@@ -111,7 +110,8 @@ class SensorState:
                    limits=limits, effects=EffectTerms.from_dicts(correction.effects(cal.effects)),
                    correction=correction,
                    corrector=corrector,
-                   weights=None if cal.uncertainty is None else cal.uncertainty.vector())
+                   weights=None if cal.uncertainty is None
+                   else np.asarray(cal.uncertainty.weights, dtype=np.float64))
 
     def pair(self, t: np.ndarray, ohm: np.ndarray, previous: float
              ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -152,10 +152,10 @@ class SensorState:
         else:
             forced = np.zeros(raw.shape, dtype=np.int8)
         ohm = self.correction.apply_input(raw, self.gain)
-        lim = self.limits
+        lim, last = self.limits, self.health.last_good_t
         status, reset, last_good_t, idx, resets = screen_batch(
-            t, ohm, forced, self.last_good_t, lim.r_short, lim.r_open, lim.r_lo, lim.r_hi,
-            sc.gap_for(self.cal.sample_interval, gap_reset))
+            t, ohm, forced, -math.inf if last is None else last, lim.r_short, lim.r_open,
+            lim.r_lo, lim.r_hi, sc.gap_for(self.cal.sample_interval, gap_reset))
         if self.cal.input.filtered:
             ohm = ohm.copy()  # corrected samples replace the used ones below; raw intact
         bounds = [0, *resets.tolist(), idx.size] if resets.size else [0, idx.size]
@@ -220,7 +220,6 @@ class SensorState:
         if status.size:
             h.last_status = STATUSES[status[-1]]
         if idx.size:
-            self.last_good_t = last_good_t
             h.last_good_t = last_good_t
             self.strain, self.direction = float(strain_used[-1]), int(dir_used[-1])
         corrections = None

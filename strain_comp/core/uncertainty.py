@@ -33,10 +33,6 @@ class Uncertainty:
     samples: int = 0
     """Left-out samples it was fitted on."""
 
-    def vector(self) -> np.ndarray:
-        """The weights as a float array (``FEATURES`` order)."""
-        return np.asarray(self.weights, dtype=np.float64)
-
     def to_dict(self) -> dict[str, object]:
         return {"weights": dict(zip(FEATURES, self.weights, strict=True)),
                 "runs": self.runs, "samples": self.samples}
