@@ -375,11 +375,6 @@ class ChainCorrector:
         self.n_spikes = 0
         self.steps: list[BaselineStep] = []
 
-    @property
-    def offset(self) -> float:
-        """The baseline correction so far [ohm] (subtracted from every sample)."""
-        return float(self.state[_OFFSET])
-
     def restart(self) -> None:
         """Forget the references (after a gap): the next sample passes unjudged."""
         for column in REFERENCES:
@@ -398,7 +393,7 @@ class ChainCorrector:
         x = np.ascontiguousarray(x, dtype=np.float64)
         events = np.zeros(x.size, np.int8)
         offsets = np.empty(x.size)
-        before = self.offset
+        before = float(self.state[_OFFSET])  # the baseline correction so far [ohm]
         y = correct_samples(np.ascontiguousarray(t, dtype=np.float64), x, self.state,
                             self.window, self.trend, self.buffer, self.pre, self.k,
                             self.width, self.step_k, events, offsets)
