@@ -395,7 +395,7 @@ def parse_calibration(text: str, path: str) -> Calibration:
     calibration = parse_fields(text, path)
     probed: dict[str, str | None] = {}
     for name, cal in calibration.sensors.items():
-        key = probe_key(cal)
+        key = repr({**cal.to_dict(), "provenance": None})  # alike sensors: one probe
         if key not in probed:
             probed[key] = probe_calibration(cal)
         where = probed[key]
@@ -403,11 +403,6 @@ def parse_calibration(text: str, path: str) -> Calibration:
             raise CalibrationError(path, f"sensors.{name}", f"gives a non-finite strain "
                                    f"({where}); its parameters are out of any usable range")
     return calibration
-
-
-def probe_key(cal: SensorCalibration) -> str:
-    """What the probe of ``cal`` depends on (alike sensors are probed once)."""
-    return repr({**cal.to_dict(), "provenance": None})
 
 
 def check_calibration(calibration: Calibration, path: str | os.PathLike[str] = "calibration"

@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.base import samples as sc
+from strain_comp.base.conversion import resistance_to_divider
 from strain_comp.base.direction import DirectionDetector
 from strain_comp.core.array import ArrayGroup
 from strain_comp.core.calibration import Calibration
@@ -210,7 +211,11 @@ class Engine:
         """Compile every kernel now (not on the first message): run a copy of the engine."""
         spare = Engine(self.calibration, arrays=self.arrays, gap_reset=self.gap_reset,
                        deadzone_scale=self.deadzone_scale)
-        mid = {name: s.mid_raw() for name, s in spare._sensors.items()}
+        mid = {}  # a raw input value in the middle of each valid range
+        for name, cal in self.calibration.sensors.items():
+            r_mid = 0.5 * (cal.valid_range.r_lo + cal.valid_range.r_hi)
+            mid[name] = (float(resistance_to_divider(r_mid, *cal.input.divider()))
+                         if cal.input.kind == "divider" else r_mid)
         for name, value in mid.items():
             spare.run(name, np.array([1.0, 2.0]), np.array([value, value]))
         for array, names in spare.arrays.items():

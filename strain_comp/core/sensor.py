@@ -13,7 +13,7 @@ import numpy.typing as npt
 
 from strain_comp.base import samples as sc
 from strain_comp.base.compensator import Compensator
-from strain_comp.base.conversion import divider_all, resistance_to_divider
+from strain_comp.base.conversion import divider_all
 from strain_comp.base.direction import DirectionDetector, DirectionSettings
 from strain_comp.core import uncertainty
 from strain_comp.core.calibration import SensorCalibration
@@ -130,13 +130,6 @@ class SensorState:
         self.health.n_spikes += int(np.count_nonzero(events == SPIKE))
         self.health.n_baseline_steps += int(np.count_nonzero(events == STEP))
         return ohm, events
-
-    def mid_raw(self) -> float:
-        """A raw input value in the middle of the valid range (for warming up kernels)."""
-        r_mid = 0.5 * (self.cal.valid_range.r_lo + self.cal.valid_range.r_hi)
-        if self.cal.input.kind != "divider":
-            return r_mid
-        return float(resistance_to_divider(r_mid, *self.cal.input.divider()))
 
     def run_model(self, t: npt.ArrayLike, r: npt.ArrayLike,
                   temperature: npt.ArrayLike | None, gap_reset: float) -> PendingBatch:
