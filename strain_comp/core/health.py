@@ -168,13 +168,12 @@ class HealthCounter:
         return HealthTicks(self.counts[pos], last_status, last_good_t, stale)
 
 
-def diagnostics(health: Mapping[str, SensorHealth], *, prefix: str = "strain_comp"
-                ) -> list[tuple[str, int, str, dict[str, str]]]:
+def diagnostics(health: Mapping[str, SensorHealth]) -> list[tuple[str, int, str, dict[str, str]]]:
     """``(name, level, message, values)`` per sensor, as BagWriter and the nodes publish."""
-    return [(status_name(name, prefix), *h.to_diagnostic()) for name, h in health.items()]
+    return [(status_name(name), *h.to_diagnostic()) for name, h in health.items()]
 
 
-def status_name(sensor: str, prefix: str = "strain_comp") -> str:
+def status_name(sensor: str) -> str:
     """The DiagnosticStatus name of ``sensor``'s health."""
-    return f"{prefix}: {sensor}"
+    return f"strain_comp: {sensor}"
 
