@@ -103,19 +103,6 @@ def family_tick_of(family: type[LiftedArray]) -> Dispatcher[Any]:
     return specialise(family_tick, {"kernel": family.kernel}, error_model="numpy")
 
 
-def family_arrays(sensors: list[SensorState]) -> list[tuple[np.ndarray, LiftedArray]] | None:
-    """The model arrays of the families present in ``sensors``."""
-    models, families = [s.model for s in sensors], array_families()
-    rows = [[i for i, m in enumerate(models) if family.accepts(m)] for family in families]
-    if sum(len(r) for r in rows) != len(sensors):
-        return None
-    try:
-        return [(np.array(r, dtype=np.int64), family([models[i] for i in r]))
-                for family, r in zip(families, rows, strict=True) if r]
-    except ParameterError:  # different shapes within a family
-        return None
-
-
 class ArrayGroup:
     """The sensors of one array, stepped together."""
 
@@ -139,8 +126,14 @@ class ArrayGroup:
                    and s.cal.sample_interval is None and not s.cal.effects
                    for s in self.sensors):
             return
-        self.kernels = family_arrays(self.sensors) or []
-        if not self.kernels:
+        models, families = [s.model for s in self.sensors], array_families()
+        rows = [[i for i, m in enumerate(models) if family.accepts(m)] for family in families]
+        if sum(len(r) for r in rows) != len(models):  # a model without an array form
+            return
+        try:  # the model arrays of the families present
+            self.kernels = [(np.array(r, dtype=np.int64), family([models[i] for i in r]))
+                            for family, r in zip(families, rows, strict=True) if r]
+        except ParameterError:  # different shapes within a family
             return
         k = len(self.sensors)
         par = np.zeros((k, _N_PARAMS))
