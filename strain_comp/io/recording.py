@@ -280,6 +280,12 @@ def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | N
     return [f"{prefix}_{j}" for j in range(k)], problem
 
 
+def _temperature(contents: BagContents, name: str, t: np.ndarray) -> np.ndarray | None:
+    """Sensor ``name``'s ``/NAME/temperature`` on the times ``t`` (None: no such topic)."""
+    temp = contents.series.get(f"/{name}{TEMPERATURE}")
+    return None if temp is None or temp.values.ndim != 1 else align(t, temp.t, temp.values)
+
+
 def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]:
     problems: list[str] = []
     out: dict[str, Recording] = {}
@@ -290,9 +296,6 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
         prefix = topic[:-len(RESISTANCE)]
         res = series[topic]
         ref = series.get(prefix + REFERENCE)
-        temp = series.get(prefix + TEMPERATURE)
-        t_temp = None if temp is None or temp.values.ndim != 1 else \
-            align(res.t, temp.t, temp.values)
         if res.values.ndim == 1:
             name = prefix.lstrip("/")
             s = None
@@ -300,7 +303,7 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
                 s = align(res.t, ref.t, ref.values)
             elif ref is not None:
                 problems.append(f"{prefix + REFERENCE}: an array reference for a single sensor")
-            out[name] = Recording(name, res.t, res.values, s, t_temp)
+            out[name] = Recording(name, res.t, res.values, s, _temperature(contents, name, res.t))
             continue
         labels, problem = topic_sensors(topic, contents)
         if problem is not None:
@@ -319,8 +322,8 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
                 problems.append(f"{topic}: sensor {name} appears twice; column {j} skipped")
                 continue
             out[name] = Recording(name, res.t, res.values[:, j],
-                                  None if s_cols is None else s_cols[:, j], t_temp,
-                                  prefix.lstrip("/"), j)
+                                  None if s_cols is None else s_cols[:, j],
+                                  _temperature(contents, name, res.t), prefix.lstrip("/"), j)
     for topic in series:
         if topic.endswith(REFERENCE) and topic[:-len(REFERENCE)] + RESISTANCE not in series:
             problems.append(f"{topic}: reference without a resistance topic; ignored")
