@@ -387,7 +387,7 @@ def test_output_bytes_decode_as_their_messages(names: list[str]) -> None:
     stamp, values, empty velocity and effort; the layout labelled with the names."""
     from rclpy.serialization import deserialize_message
 
-    from strain_comp.ros.cdr import RowEncoder
+    from strain_comp.io.cdr import RowEncoder
 
     values = np.random.default_rng(len(names)).normal(size=len(names))
     stamps = [1_795_498_137_622_557_762, 0, 5]

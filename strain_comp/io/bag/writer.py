@@ -1,6 +1,6 @@
 """MCAP bag writing: one time-ordered, chunked (zstd), fully indexed ros2-profile file
 (docs/design.md, "Bags"); payloads of a fixed layout built as numpy rows of one template
-(``strain_comp.io.cdr``), the records written by ``strain_comp.io.bag.stream``."""
+(``strain_comp.io.cdr.RowEncoder``), the records written by ``strain_comp.io.bag.stream``."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from strain_comp.io import cdr
 from strain_comp.io.atomic import check_output
 from strain_comp.io.bag.schemas import CHUNK_SIZE, MAX_TIME_S, Status
 from strain_comp.io.bag.stream import Pending, Stream, Topic
+from strain_comp.io.cdr import RowEncoder
 
 
 def _ns(t: npt.ArrayLike) -> np.ndarray:
@@ -26,27 +27,6 @@ def _ns(t: npt.ArrayLike) -> np.ndarray:
         raise BagError(f"message times beyond {MAX_TIME_S} s (2038-01-19) cannot be stored "
                        f"(got {t.max():.6g} s; epoch milli- or nanoseconds?)")
     return np.round(t * 1e9).astype(np.int64)
-
-
-def _stamped_rows(template: bytes, s_ns: np.ndarray) -> np.ndarray:
-    """One copy of ``template`` (a message with a header) per stamp [ns], each stamped."""
-    stamps = np.empty(s_ns.size, [("sec", "<i4"), ("nanosec", "<u4")])  # cdr.STAMP
-    stamps["sec"], stamps["nanosec"] = np.divmod(s_ns, 10**9)
-    rows = np.empty((s_ns.size, len(template)), np.uint8)
-    rows[:] = np.frombuffer(template, np.uint8)
-    rows[:, 4:12] = stamps.view(np.uint8).reshape(-1, 8)
-    return rows
-
-
-def _cdr_rows(header_and_prefix: bytes, values: np.ndarray) -> np.ndarray:
-    """(n, len(prefix) + row bytes) uint8 payloads: a constant prefix, then the values."""
-    prefix = np.frombuffer(header_and_prefix, dtype=np.uint8)
-    width = values.dtype.itemsize * int(np.prod(values.shape[1:]))
-    body = np.ascontiguousarray(values).view(np.uint8).reshape(values.shape[0], width)
-    rows = np.empty((values.shape[0], prefix.size + body.shape[1]), np.uint8)
-    rows[:, :prefix.size] = prefix
-    rows[:, prefix.size:] = body
-    return rows
 
 
 class BagWriter:
@@ -109,16 +89,16 @@ class BagWriter:
 
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add std_msgs/msg/Float64 messages, one per (t, value)."""
-        v = np.asarray(values, dtype="<f8").reshape(-1, 1)
-        self._add(topic, "std_msgs/msg/Float64", _ns(t), _cdr_rows(cdr.ENCAPSULATION, v))
+        v = np.asarray(values, dtype="<f8").reshape(-1)
+        self._add(topic, "std_msgs/msg/Float64", _ns(t), RowEncoder.scalar("<f8").rows(v))
 
     def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add std_msgs/msg/Int8 messages, one per (t, value)."""
         v = np.asarray(values)
         if v.size and (np.abs(v) > 128).any():
             raise BagError(f"{topic}: Int8 values out of range")
-        v = v.astype(np.int8).reshape(-1, 1)
-        self._add(topic, "std_msgs/msg/Int8", _ns(t), _cdr_rows(cdr.ENCAPSULATION, v))
+        v = v.astype(np.int8).reshape(-1)
+        self._add(topic, "std_msgs/msg/Int8", _ns(t), RowEncoder.scalar("i1").rows(v))
 
     def write_float64_array(self, topic: str, t: npt.ArrayLike, values2d: npt.ArrayLike,
                             labels: Sequence[str]) -> None:
@@ -128,33 +108,26 @@ class BagWriter:
             raise BagError(f"{topic}: values must be (n, {len(labels)}) for {len(labels)} labels")
         if any("," in x for x in labels):
             raise BagError(f"{topic}: sensor labels must not contain commas")
-        k = v.shape[1]
-        head = cdr.float64_multiarray_head([(",".join(labels), k, k)], 0, k)
-        self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t), _cdr_rows(head, v))
+        self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t),
+                  RowEncoder.vector(labels).rows(v))
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
                           position: npt.ArrayLike) -> None:
         """Add sensor_msgs/msg/JointState messages, one per row of ``position``, stamped
         with the log time."""
         t_ns = _ns(t)  # refuses stamps past int32 seconds
-        k = len(names)
-        p = np.asarray(position, dtype="<f8").reshape(t_ns.size, k)
-        template, pos_at = cdr.joint_state_layout("", names)
-        rows = _stamped_rows(template, t_ns)
-        rows[:, pos_at:pos_at + 8 * k] = p.view(np.uint8).reshape(-1, 8 * k)
-        self._add(topic, "sensor_msgs/msg/JointState", t_ns, rows)
+        p = np.asarray(position, dtype="<f8").reshape(t_ns.size, len(names))
+        self._add(topic, "sensor_msgs/msg/JointState", t_ns,
+                  RowEncoder.joint_state(names).rows(p, t_ns))
 
-    def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike, *,
-                          frame_id: str = "", variance: float = 0.0) -> None:
+    def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add sensor_msgs/msg/Temperature messages, header stamp = log time."""
         t_ns = _ns(t)
-        v = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
+        v = np.asarray(values, dtype="<f8").reshape(-1)
         if v.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {v.size} values")
-        template, value_at = cdr.temperature_layout(frame_id, variance)
-        rows = _stamped_rows(template, t_ns)
-        rows[:, value_at:value_at + 8] = v.view(np.uint8).reshape(-1, 8)
-        self._add(topic, "sensor_msgs/msg/Temperature", t_ns, rows)
+        self._add(topic, "sensor_msgs/msg/Temperature", t_ns,
+                  RowEncoder.temperature().rows(v, t_ns))
 
     def write_diagnostics(self, t: npt.ArrayLike, statuses: Sequence[Sequence[Status]], *,
                           topic: str = "/diagnostics") -> None:
