@@ -91,7 +91,8 @@ class RowEncoder:
         values = np.ascontiguousarray(values, dtype=self.dtype).reshape(n, self.k)
         out = np.empty((n, self.template.size), np.uint8)
         out[:] = self.template
-        out[:, self.at:self.at + values.itemsize * self.k] = values.view(np.uint8).reshape(n, -1)
+        width = values.itemsize * self.k
+        out[:, self.at:self.at + width] = values.view(np.uint8).reshape(n, width)
         if self.stamped:
             sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), 1_000_000_000)
             if n and not (-2**31 <= sec.min() and sec.max() < 2**31):
