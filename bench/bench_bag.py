@@ -108,7 +108,6 @@ class LibraryStream:
                        [np.frombuffer(b"".join(blob[o:o + k] for o, k in
                                                zip(poff[n:].tolist(), plen[n:].tolist(),
                                                    strict=True)), np.uint8)])
-        rest.nbytes = rest.payloads[0].size
         return rest
 
     def finish(self) -> None:

@@ -21,8 +21,6 @@ from strain_comp.io.bag.schemas import SCHEMAS
 ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR little endian, no options."""
 
-STAMP = struct.Struct("<iI")
-"""builtin_interfaces/Time (bytes 4..12 of a message that starts with a header)."""
 _HEADER = {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}
 _PROBE = struct.unpack("<d", bytes(range(1, 9)))[0]
 """A float64 none of whose bytes is zero: the first byte that differs where it replaces a 0."""

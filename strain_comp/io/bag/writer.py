@@ -68,7 +68,6 @@ class Pending:
     seq: list[np.ndarray] = field(default_factory=list)
     lengths: list[np.ndarray] = field(default_factory=list)
     payloads: list[np.ndarray] = field(default_factory=list)
-    nbytes: int = 0
 
 
 def _record(record: Any) -> bytes:
@@ -158,7 +157,6 @@ class Stream:
             if a < t_ns.size:
                 keep = Pending([t_ns[a:]], [chan[a:]], [seq[a:]], [plen[a:].copy()],
                                [compact(blob, poff[a:], plen[a:])[0]])
-                keep.nbytes = keep.payloads[0].size
         for a, b in itertools.pairwise(cuts):
             if b == a:
                 continue
@@ -359,7 +357,6 @@ class BagWriter:
         p.seq.append(np.arange(entry.n + 1, entry.n + 1 + t_ns.size, dtype=np.uint32))
         p.lengths.append(lengths)
         p.payloads.append(blob)
-        p.nbytes += blob.size
         entry.n += t_ns.size
 
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
