@@ -29,13 +29,12 @@ BagError."""
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
-             window: int = WINDOW, budget: bool = True) -> BagContents:
+             budget: bool = True) -> BagContents:
     """Read a whole bag (a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory): ``iter_bag``'s
     pieces joined; ``budget``: refuse past ``MAX_BAG_BYTES`` of messages."""
     merged = BagContents()
     parts: dict[str, list[Series]] = {}
-    for piece in iter_bag(path, topics, window=window,
-                          budget=MAX_BAG_BYTES if budget else None):
+    for piece in iter_bag(path, topics, budget=MAX_BAG_BYTES if budget else None):
         for topic, series in piece.series.items():
             parts.setdefault(topic, []).append(series)
         for topic, labels in piece.labels.items():

@@ -333,7 +333,7 @@ class BagWriter:
             self._out.abort()
 
     def _add(self, topic: str, kind: str, t_ns: np.ndarray,
-             rows: np.ndarray | list[bytes] | tuple[np.ndarray, np.ndarray]) -> None:
+             rows: np.ndarray | tuple[np.ndarray, np.ndarray]) -> None:
         if self._closed:
             raise BagError(f"{self.path}: writer already closed")
         if not topic.startswith("/"):
@@ -343,12 +343,9 @@ class BagWriter:
             raise BagError(f"topic {topic} already holds {entry.type}, not {kind}")
         if isinstance(rows, tuple):
             blob, lengths = rows
-        elif isinstance(rows, np.ndarray):
+        else:
             lengths = np.full(rows.shape[0], rows.shape[1], np.int64)
             blob = rows.reshape(-1)
-        else:
-            lengths = np.array([len(r) for r in rows], np.int64)
-            blob = np.frombuffer(b"".join(rows), dtype=np.uint8)
         if lengths.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {lengths.size} values")
         p = self._pending
@@ -411,8 +408,10 @@ class BagWriter:
                 (np.array([level], np.uint8), name, message, "",
                  [(str(a), str(b)) for a, b in values.items()])
                 for name, level, message, values in st])
-            rows.append(blob.tobytes())
-        self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns, rows)
+            rows.append(blob)
+        self._add(topic, "diagnostic_msgs/msg/DiagnosticArray", t_ns,
+                  (np.concatenate([np.zeros(0, np.uint8), *rows]),
+                   np.array([row.size for row in rows], np.int64)))
 
     def write_diagnostic_payloads(self, t: npt.ArrayLike, blob: np.ndarray,
                                   lengths: np.ndarray, *, topic: str = "/diagnostics") -> None:
