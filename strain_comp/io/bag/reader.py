@@ -59,14 +59,6 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     return merged
 
 
-def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
-    """Every message of the bag at ``path`` located, within ``MAX_BAG_BYTES``."""
-    col = Collector(set(topics) if topics is not None else None)
-    for file in _walk(path, col):
-        _check_budget(col, file, MAX_BAG_BYTES)
-    return col
-
-
 def _check_budget(col: Collector, file: Path, budget: int) -> None:
     if col.collected > budget:
         raise BagError(f"{file}: more than {budget} bytes of messages "
@@ -95,7 +87,9 @@ def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = No
                  ) -> tuple[list[RawMessage], list[str]]:
     """Every CDR message of a bag, not decoded, in log-time order; the problems."""
     path = Path(path)
-    col = _collect(path, topics)
+    col = Collector(set(topics) if topics is not None else None)
+    for file in _walk(path, col):  # every message located, within ``MAX_BAG_BYTES``
+        _check_budget(col, file, MAX_BAG_BYTES)
     out: list[RawMessage] = []
     if col.msg_time:
         blob, start, length, log_ns, groups = channel_messages(col, col.problems)
