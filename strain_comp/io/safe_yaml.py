@@ -198,25 +198,20 @@ def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_00
     collecting = gc.isenabled()
     gc.disable()
     try:
-        return _load(text, max_aliases, max_nodes, max_depth)
+        _check_flow_depth(text, max_depth)
+        plain, document, aliases = _walk(text, max_aliases, max_nodes, max_depth)
+        if plain:
+            return document
+        loader = _Loader(text)
+        try:
+            node = loader.get_single_node()
+            if node is None:
+                return None
+            if aliases:  # without aliases nothing expands: the events' checks were the limits
+                _check_expansion(node, max_nodes, max_depth)
+            return loader.construct_document(node)
+        finally:
+            loader.dispose()
     finally:
         if collecting:
             gc.enable()
-
-
-def _load(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> Any:
-    """``load_limited`` with the collector as it is."""
-    _check_flow_depth(text, max_depth)
-    plain, document, aliases = _walk(text, max_aliases, max_nodes, max_depth)
-    if plain:
-        return document
-    loader = _Loader(text)
-    try:
-        node = loader.get_single_node()
-        if node is None:
-            return None
-        if aliases:  # without aliases nothing expands: the events' checks were the limits
-            _check_expansion(node, max_nodes, max_depth)
-        return loader.construct_document(node)
-    finally:
-        loader.dispose()
