@@ -210,3 +210,12 @@ def test_node_encoders_equal_the_message_encoders(names: list[str]) -> None:
         assert vector.encode(np.array([values])) == [_encode("std_msgs/msg/Float64MultiArray", {
             "layout": {"dim": [{"label": ",".join(names), "size": k, "stride": k}],
                        "data_offset": 0}, "data": values})]
+
+
+def test_the_encoders_import_first() -> None:
+    """``strain_comp.io.cdr`` imported before the bag package (as the node imports it):
+    no circular import."""
+    import subprocess
+    import sys
+
+    subprocess.run([sys.executable, "-c", "import strain_comp.io.cdr"], check=True)

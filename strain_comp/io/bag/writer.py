@@ -46,7 +46,6 @@ from strain_comp.io.bag.schemas import (
     SCHEMAS,
     Status,
 )
-from strain_comp.io.cdr import RowEncoder
 
 
 @dataclass
@@ -359,7 +358,7 @@ class BagWriter:
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add std_msgs/msg/Float64 messages, one per (t, value)."""
         v = np.asarray(values, dtype="<f8").reshape(-1)
-        self._add(topic, "std_msgs/msg/Float64", _ns(t), RowEncoder.scalar("<f8").rows(v))
+        self._add(topic, "std_msgs/msg/Float64", _ns(t), cdr.RowEncoder.scalar("<f8").rows(v))
 
     def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add std_msgs/msg/Int8 messages, one per (t, value)."""
@@ -367,7 +366,7 @@ class BagWriter:
         if v.size and (np.abs(v) > 128).any():
             raise BagError(f"{topic}: Int8 values out of range")
         v = v.astype(np.int8).reshape(-1)
-        self._add(topic, "std_msgs/msg/Int8", _ns(t), RowEncoder.scalar("i1").rows(v))
+        self._add(topic, "std_msgs/msg/Int8", _ns(t), cdr.RowEncoder.scalar("i1").rows(v))
 
     def write_float64_array(self, topic: str, t: npt.ArrayLike, values2d: npt.ArrayLike,
                             labels: Sequence[str]) -> None:
@@ -378,7 +377,7 @@ class BagWriter:
         if any("," in x for x in labels):
             raise BagError(f"{topic}: sensor labels must not contain commas")
         self._add(topic, "std_msgs/msg/Float64MultiArray", _ns(t),
-                  RowEncoder.vector(labels).rows(v))
+                  cdr.RowEncoder.vector(labels).rows(v))
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
                           position: npt.ArrayLike) -> None:
@@ -387,7 +386,7 @@ class BagWriter:
         t_ns = _ns(t)  # refuses stamps past int32 seconds
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, len(names))
         self._add(topic, "sensor_msgs/msg/JointState", t_ns,
-                  RowEncoder.joint_state(names).rows(p, t_ns))
+                  cdr.RowEncoder.joint_state(names).rows(p, t_ns))
 
     def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
         """Add sensor_msgs/msg/Temperature messages, header stamp = log time."""
@@ -396,7 +395,7 @@ class BagWriter:
         if v.size != t_ns.size:
             raise BagError(f"{topic}: {t_ns.size} times but {v.size} values")
         self._add(topic, "sensor_msgs/msg/Temperature", t_ns,
-                  RowEncoder.temperature().rows(v, t_ns))
+                  cdr.RowEncoder.temperature().rows(v, t_ns))
 
     def write_diagnostics(self, t: npt.ArrayLike, statuses: Sequence[Sequence[Status]], *,
                           topic: str = "/diagnostics") -> None:
