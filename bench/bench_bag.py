@@ -14,7 +14,7 @@ The library path is what strain_comp would run if MCAP framing went through ``mc
 
 * write: ``mcap.writer.Writer`` (zstd chunks of the same size, CRCs, every index), one
   ``add_message`` per message (the library has no bulk call), in place of
-  ``io.bag.stream.Stream`` under ``BagWriter`` (same payloads, same log-time merge);
+  ``io.bag.writer.Stream`` under ``BagWriter`` (same payloads, same log-time merge);
 * read: ``mcap.stream_reader.StreamReader`` (chunks decompressed and split by the library,
   one ``Message`` per message), the payloads of each block of messages joined and handed to
   the same bulk numpy decoder (``io.bag.decode``: a Float64 value is ``np.frombuffer`` at
@@ -57,14 +57,14 @@ from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.bag.chunks import MAX_CHUNK_BYTES, add_chunk
 from strain_comp.io.bag.records import Collector, add_loose
 from strain_comp.io.bag.schemas import LIBRARY, OFFERED_QOS, PROFILE, SCHEMAS
-from strain_comp.io.bag.stream import Pending, Topic
 from strain_comp.io.bag.walk import LOOSE_BLOCK, storage_file
+from strain_comp.io.bag.writer import Pending, Topic
 from strain_comp.offline.evaluate import evaluate_bag
 from strain_comp.offline.replay import replay_bag
 
 
 class LibraryStream:
-    """``io.bag.stream.Stream``'s interface through ``mcap.writer.Writer``."""
+    """``io.bag.writer.Stream``'s interface through ``mcap.writer.Writer``."""
 
     def __init__(self, path: Path, inputs: Sequence[str | os.PathLike[str]],
                  chunk_size: int) -> None:
@@ -108,7 +108,6 @@ class LibraryStream:
                        [np.frombuffer(b"".join(blob[o:o + k] for o, k in
                                                zip(poff[n:].tolist(), plen[n:].tolist(),
                                                    strict=True)), np.uint8)])
-        rest.nbytes = rest.payloads[0].size
         return rest
 
     def finish(self) -> None:

@@ -125,9 +125,9 @@ def test_a_decompression_bomb_is_skipped_within_the_chunk_budget(tmp_path: Path)
     pieces = list(iter_bag(path))
     assert sum(p.series["/s1/resistance"].t.size for p in pieces
                if "/s1/resistance" in p.series) == 3
-    from strain_comp.ros.player import bag_messages  # play reads with the same budgets
+    from strain_comp.io.bag.reader import raw_messages  # play reads with the same budgets
 
-    played = bag_messages(path)
+    played, _ = raw_messages(path)
     assert [struct.unpack("<d", m.data[4:])[0] for m in played] == [10.0, 11.0, 12.0]
 
 

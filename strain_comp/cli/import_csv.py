@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Sequence
+from typing import TypeVar
 
 from strain_comp.cli.common import PROG, note, output
 from strain_comp.errors import InputError
 from strain_comp.io.inputs import existing
 
+T = TypeVar("T")
 NAME = "import-csv"
 SUMMARY = "turn a tensile-tester CSV into a bag"
 DESCRIPTION = (
@@ -51,34 +53,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="field delimiter (default: detected among tab ; , | and spaces)")
 
 
-def _key_values(items: Sequence[str], flag: str, form: str) -> Iterator[tuple[str, str, str]]:
-    """(item, key, value) of each ``KEY=VALUE`` of comma-separated ``items``."""
+def _key_values(items: Sequence[str], flag: str, form: str,
+                value: Callable[[str], T]) -> dict[str, T]:
+    """{key: value(text)} of each ``KEY=VALUE`` of comma-separated ``items``."""
+    out: dict[str, T] = {}
     for item in (part for text in items for part in text.split(",") if part.strip()):
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip() or not value.strip():
-            raise InputError(f"{flag} {item!r}: expected {form}")
-        yield item, key.strip(), value.strip()
-
-
-def parse_columns(items: Sequence[str]) -> dict[str, int | str]:
-    """``["time=0,resistance=3", "strain=ext_mm"]`` -> {key: column index or header name}."""
-    columns: dict[str, int | str] = {}
-    for _, key, column in _key_values(items, "--columns", "KEY=COLUMN (index or header name)"):
-        # an index is ASCII digits only ("²" is a digit to str.isdigit, not to int)
-        columns[key] = int(column) if column.isascii() and column.isdigit() else column
-    return columns
-
-
-def parse_scales(items: Sequence[str]) -> dict[str, float]:
-    """``["time=1e-3,resistance=1000"]`` -> {key: factor}."""
-    form = "KEY=FACTOR, e.g. time=1e-3"
-    scales: dict[str, float] = {}
-    for item, key, value in _key_values(items, "--scales", form):
+        key, sep, text = item.partition("=")
         try:
-            scales[key] = float(value)
+            if not sep or not key.strip() or not text.strip():
+                raise ValueError(item)
+            out[key.strip()] = value(text.strip())
         except ValueError:
-            raise InputError(f"--scales {item!r}: expected {form}") from None
-    return scales
+            raise InputError(f"{flag} {item!r}: expected {form}") from None
+    return out
+
+
+def _column(text: str) -> int | str:
+    """A column index (ASCII digits only: "²" is a digit to str.isdigit, not to int), else a
+    header name."""
+    return int(text) if text.isascii() and text.isdigit() else text
 
 
 def run(args: argparse.Namespace) -> int:
@@ -94,8 +87,10 @@ def run(args: argparse.Namespace) -> int:
 
     result = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
-        columns=parse_columns(args.columns) if args.columns else None,
-        scales=parse_scales(args.scales) if args.scales else None, delimiter=args.delimiter,
+        columns=_key_values(args.columns or [], "--columns",
+                            "KEY=COLUMN (index or header name)", _column),
+        scales=_key_values(args.scales or [], "--scales", "KEY=FACTOR, e.g. time=1e-3", float),
+        delimiter=args.delimiter,
         resistance_unit=args.resistance_unit)
     csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
     print("\n".join(result.report.lines()))

@@ -1,8 +1,9 @@
 """CDR payloads of the message types strain_comp writes, serialised by ``mcap_ros2``'s
 encoder from ``SCHEMAS``. A fixed-layout message (Float64MultiArray, JointState,
-Temperature) is a template the library serialises once; where its values sit is where a
-second serialisation with other values differs from it. DiagnosticArrays of many messages
-at once: the layout compiled into operations a compiled loop (``_place``) walks."""
+Temperature) is a template the library serialises once (``RowEncoder``, for bags and the
+node); where its values sit is where a second serialisation with other values differs.
+DiagnosticArrays of many messages at once: the layout compiled into operations a compiled
+loop (``_place``) walks."""
 
 from __future__ import annotations
 
@@ -20,8 +21,7 @@ from strain_comp.io.bag.schemas import SCHEMAS
 ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR little endian, no options."""
 
-STAMP = struct.Struct("<iI")
-"""builtin_interfaces/Time (bytes 4..12 of a message that starts with a header)."""
+_HEADER = {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}
 _PROBE = struct.unpack("<d", bytes(range(1, 9)))[0]
 """A float64 none of whose bytes is zero: the first byte that differs where it replaces a 0."""
 
@@ -33,51 +33,75 @@ def message_encoder(kind: str) -> Callable[[Mapping[str, Any]], bytes]:
     return encoder
 
 
-def _header(sec: int, nanosec: int, frame_id: str) -> dict[str, Any]:
-    return {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id}
+def _layout(kind: str, message: Callable[[float], dict[str, Any]]) -> tuple[bytes, int]:
+    """The template of a fixed-layout message (its values 0) and where its first value sits:
+    the first byte where a second serialisation with other values differs."""
+    encode = message_encoder(kind)
+    template, probed = encode(message(0.0)), encode(message(_PROBE))
+    at = next((i for i, (x, y) in enumerate(zip(template, probed, strict=True)) if x != y),
+              len(template))  # no values: nothing differs, nothing is written
+    return template, at
 
 
-def _offset(a: bytes, b: bytes) -> int:
-    """The first byte where two serialisations of one layout differ."""
-    return next(i for i, (x, y) in enumerate(zip(a, b, strict=True)) if x != y)
+class RowEncoder:
+    """Messages of one constant ``template`` but for ``k`` values at byte ``at`` (and, when
+    ``stamped``, the header's stamp at bytes 4..12): one message per row."""
 
+    def __init__(self, template: bytes, at: int, k: int, dtype: str = "<f8", *,
+                 stamped: bool = False) -> None:
+        self.template = np.frombuffer(template, np.uint8)
+        self.at, self.k, self.dtype, self.stamped = at, k, np.dtype(dtype), stamped
 
-def float64_multiarray_head(dims: Sequence[tuple[str, int, int]], data_offset: int,
-                            n: int) -> bytes:
-    """The bytes of a Float64MultiArray of ``n`` values before its first value."""
-    payload = message_encoder("std_msgs/msg/Float64MultiArray")({
-        "layout": {"dim": [{"label": label, "size": size, "stride": stride}
-                           for label, size, stride in dims], "data_offset": data_offset},
-        "data": [0.0] * n})
-    return payload[:len(payload) - 8 * n]
+    @classmethod
+    def scalar(cls, dtype: str) -> RowEncoder:
+        """std_msgs/msg/Float64 (``<f8``) or Int8 (``i1``)."""
+        return cls(ENCAPSULATION + bytes(np.dtype(dtype).itemsize), 4, 1, dtype)
 
+    @classmethod
+    def vector(cls, names: Sequence[str]) -> RowEncoder:
+        """std_msgs/msg/Float64MultiArray whose ``dim[0]`` is labelled with the names (size =
+        stride = k, data_offset 0)."""
+        k = len(names)
+        payload = message_encoder("std_msgs/msg/Float64MultiArray")({
+            "layout": {"dim": [{"label": ",".join(names), "size": k, "stride": k}],
+                       "data_offset": 0}, "data": [0.0] * k})
+        return cls(payload, len(payload) - 8 * k, k)
 
-def joint_state_layout(frame_id: str, names: Sequence[str]) -> tuple[bytes, int]:
-    """The template of every sensor_msgs/msg/JointState message for fixed names (velocity and
-    effort empty), and where its first position sits."""
-    encode = message_encoder("sensor_msgs/msg/JointState")
-    n = len(names)
+    @classmethod
+    def joint_state(cls, names: Sequence[str]) -> RowEncoder:
+        """sensor_msgs/msg/JointState of the names (frame_id '', velocity and effort empty)."""
+        template, at = _layout("sensor_msgs/msg/JointState", lambda value: {
+            "header": _HEADER, "name": list(names), "position": [value] * len(names),
+            "velocity": [], "effort": []})
+        return cls(template, at, len(names), stamped=True)
 
-    def message(position: float) -> bytes:
-        return encode({"header": _header(0, 0, frame_id), "name": list(names),
-                       "position": [position] * n, "velocity": [], "effort": []})
+    @classmethod
+    def temperature(cls) -> RowEncoder:
+        """sensor_msgs/msg/Temperature (frame_id '', variance 0)."""
+        template, at = _layout("sensor_msgs/msg/Temperature", lambda value: {
+            "header": _HEADER, "temperature": value, "variance": 0.0})
+        return cls(template, at, 1, stamped=True)
 
-    template = message(0.0)
-    if not n:  # no values: position's count is followed by velocity's and effort's
-        return template, len(template) - 8
-    return template, _offset(template, message(_PROBE))
+    def rows(self, values: np.ndarray, stamps_ns: np.ndarray | None = None) -> np.ndarray:
+        """The messages of ``values`` (n x k, or n when k is 1) and, stamped, of their stamps
+        [ns since the epoch]: one uint8 row each."""
+        n = len(values)
+        values = np.ascontiguousarray(values, dtype=self.dtype).reshape(n, self.k)
+        out = np.empty((n, self.template.size), np.uint8)
+        out[:] = self.template
+        width = values.itemsize * self.k
+        out[:, self.at:self.at + width] = values.view(np.uint8).reshape(n, width)
+        if self.stamped:
+            sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), 1_000_000_000)
+            if n and not (-2**31 <= sec.min() and sec.max() < 2**31):
+                raise ValueError("a stamp does not fit builtin_interfaces/Time")
+            out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+            out[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(n, 4)
+        return out
 
-
-def temperature_layout(frame_id: str, variance: float) -> tuple[bytes, int]:
-    """The template of every sensor_msgs/msg/Temperature message of one frame and variance."""
-    encode = message_encoder("sensor_msgs/msg/Temperature")
-
-    def message(value: float) -> bytes:
-        return encode({"header": _header(0, 0, frame_id), "temperature": value,
-                       "variance": variance})
-
-    template = message(0.0)
-    return template, _offset(template, message(_PROBE))
+    def encode(self, values: np.ndarray, stamps_ns: np.ndarray | None = None) -> list[bytes]:
+        """``rows`` as one bytes object per message."""
+        return [row.tobytes() for row in self.rows(values, stamps_ns)]
 
 
 Text = str | np.ndarray

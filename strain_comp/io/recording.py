@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, Series, located, read_bag
+from strain_comp.io.bag import BagContents, located, read_bag
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -259,11 +259,6 @@ def hold_latest(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -
     return np.where(pos >= 0, values[order][np.maximum(pos, 0)], np.nan)
 
 
-def _align_columns(t: np.ndarray, src: Series, k: int) -> np.ndarray:
-    return np.column_stack([align(t, src.t, src.values[:, j]) for j in range(k)]) if k else \
-        np.empty((t.size, 0))
-
-
 def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | None]:
     """The sensors of a ``/PREFIX/resistance`` topic (a series: its prefix; an array: its
     labels, else PREFIX_j by column) and the problem with its labels, if any."""
@@ -280,6 +275,12 @@ def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | N
     return [f"{prefix}_{j}" for j in range(k)], problem
 
 
+def _temperature(contents: BagContents, name: str, t: np.ndarray) -> np.ndarray | None:
+    """Sensor ``name``'s ``/NAME/temperature`` on the times ``t`` (None: no such topic)."""
+    temp = contents.series.get(f"/{name}{TEMPERATURE}")
+    return None if temp is None or temp.values.ndim != 1 else align(t, temp.t, temp.values)
+
+
 def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]:
     problems: list[str] = []
     out: dict[str, Recording] = {}
@@ -290,9 +291,6 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
         prefix = topic[:-len(RESISTANCE)]
         res = series[topic]
         ref = series.get(prefix + REFERENCE)
-        temp = series.get(prefix + TEMPERATURE)
-        t_temp = None if temp is None or temp.values.ndim != 1 else \
-            align(res.t, temp.t, temp.values)
         if res.values.ndim == 1:
             name = prefix.lstrip("/")
             s = None
@@ -300,18 +298,17 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
                 s = align(res.t, ref.t, ref.values)
             elif ref is not None:
                 problems.append(f"{prefix + REFERENCE}: an array reference for a single sensor")
-            out[name] = Recording(name, res.t, res.values, s, t_temp)
+            out[name] = Recording(name, res.t, res.values, s, _temperature(contents, name, res.t))
             continue
         labels, problem = topic_sensors(topic, contents)
         if problem is not None:
             problems.append(problem)
-        s_cols = None
+        s_cols: list[np.ndarray] | None = None
         if ref is not None:
             ref_labels = contents.labels.get(prefix + REFERENCE) or labels
             if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
                     and set(labels) <= set(ref_labels):
-                aligned = _align_columns(res.t, ref, ref.values.shape[1])
-                s_cols = aligned[:, [ref_labels.index(x) for x in labels]]
+                s_cols = [align(res.t, ref.t, ref.values[:, ref_labels.index(x)]) for x in labels]
             else:
                 problems.append(f"{prefix + REFERENCE}: columns do not match {topic}; ignored")
         for j, name in enumerate(labels):
@@ -319,8 +316,8 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
                 problems.append(f"{topic}: sensor {name} appears twice; column {j} skipped")
                 continue
             out[name] = Recording(name, res.t, res.values[:, j],
-                                  None if s_cols is None else s_cols[:, j], t_temp,
-                                  prefix.lstrip("/"), j)
+                                  None if s_cols is None else s_cols[j],
+                                  _temperature(contents, name, res.t), prefix.lstrip("/"), j)
     for topic in series:
         if topic.endswith(REFERENCE) and topic[:-len(REFERENCE)] + RESISTANCE not in series:
             problems.append(f"{topic}: reference without a resistance topic; ignored")

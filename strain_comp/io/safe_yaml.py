@@ -1,7 +1,7 @@
 """YAML from untrusted files with limits: aliases, expanded size, nesting, integer range
 (``load_limited``: ``yaml.safe_load`` raising ``LimitError``). A plain document (every
-calibration file) is built straight from the parser's events (``_build_plain``, parsed
-once); any other has the limits checked on the events, then goes through the loader."""
+calibration file) is built straight from the parser's events as the limits are checked on
+them (``_walk``, parsed once); any other then goes through the loader."""
 
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ _Loader.add_constructor("tag:yaml.org,2002:int", _construct_int)
 
 
 class _NotPlain(Exception):
-    """The document holds more than ``_build_plain`` builds (an anchor, an alias, a tag)."""
+    """The document holds more than ``_walk`` builds (a timestamp, a merge key)."""
 
 
 _RESOLVERS: dict[str | None, list[tuple[str, re.Pattern[str]]]] = {
@@ -79,49 +79,61 @@ def _plain_scalar(event: Any, constructor: yaml.constructor.SafeConstructor) -> 
     raise _NotPlain
 
 
-def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
-    """The document built from the parser's events within the limits; ``_NotPlain`` for
-    one that is not plain (an anchor, alias, tag, complex key or second document)."""
+def _walk(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> tuple[bool, Any, int]:
+    """One pass over the parser's events: the limits checked before anything is composed,
+    the document built while it is plain (no anchor, alias, tag, complex key or second
+    document). Returns (plain, the document if plain, the alias count)."""
     constructor = yaml.constructor.SafeConstructor()
     open_: list[Any] = []  # the collections being filled, outermost first
     keys: list[Any] = []  # per open collection: its pending key, _UNSET or _SEQUENCE
     root: Any = None
-    nodes = 0
-    documents = 0
+    plain = True
+    nodes = documents = aliases = depth = 0
     events: Iterator[Any] = yaml.parse(text, Loader=_Loader)
     for event in events:
         kind = event.__class__
-        if kind is yaml.ScalarEvent or kind is yaml.MappingStartEvent \
-                or kind is yaml.SequenceStartEvent:
-            if event.anchor is not None or event.tag is not None:
-                raise _NotPlain
-            value: Any = (_plain_scalar(event, constructor) if kind is yaml.ScalarEvent
-                          else {} if kind is yaml.MappingStartEvent else [])
-        elif kind is yaml.MappingEndEvent or kind is yaml.SequenceEndEvent:
-            open_.pop()
-            keys.pop()
+        if kind is yaml.MappingEndEvent or kind is yaml.SequenceEndEvent:
+            depth -= 1
+            if plain:
+                open_.pop()
+                keys.pop()
             continue
-        elif kind is yaml.DocumentStartEvent:
+        if kind is yaml.DocumentStartEvent:
             documents += 1
-            if documents > 1:
-                raise _NotPlain  # the composer names the fault
+            plain = plain and documents == 1  # the composer names the fault
             continue
-        elif kind is yaml.AliasEvent:
-            raise _NotPlain
-        else:
+        if kind is yaml.AliasEvent:
+            plain = False
+            aliases += 1
+            if aliases > max_aliases:
+                raise LimitError(f"more than {max_aliases} YAML aliases")
+        elif not (kind is yaml.ScalarEvent or kind is yaml.MappingStartEvent
+                  or kind is yaml.SequenceStartEvent):
+            continue
+        if depth + 1 > max_depth:
+            raise LimitError(f"nested more than {max_depth} deep")
+        if kind is yaml.AliasEvent:
             continue
         nodes += 1
-        if len(open_) + 1 > max_depth:
-            raise LimitError(f"nested more than {max_depth} deep")
         if nodes > max_nodes:
             raise LimitError(f"more than {max_nodes} values once YAML aliases are expanded")
+        if kind is not yaml.ScalarEvent:
+            depth += 1
+        plain = plain and event.anchor is None and event.tag is None
+        if not plain:
+            continue
+        try:
+            value: Any = (_plain_scalar(event, constructor) if kind is yaml.ScalarEvent
+                          else {} if kind is yaml.MappingStartEvent else [])
+        except _NotPlain:
+            plain = False
+            continue
         if not open_:
             root = value
         elif keys[-1] is _SEQUENCE:
             open_[-1].append(value)
         elif keys[-1] is _UNSET:
-            if kind is not yaml.ScalarEvent:
-                raise _NotPlain  # a complex key
+            plain = kind is yaml.ScalarEvent  # else a complex key
             keys[-1] = value
         else:
             open_[-1][keys[-1]] = value
@@ -129,30 +141,7 @@ def _build_plain(text: str, max_nodes: int, max_depth: int) -> Any:
         if kind is not yaml.ScalarEvent:
             open_.append(value)
             keys.append(_UNSET if kind is yaml.MappingStartEvent else _SEQUENCE)
-    return root
-
-
-def _check_events(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> int:
-    """The limits on the parser's events, before any node is composed; the alias count."""
-    depth = aliases = nodes = 0
-    for event in yaml.parse(text, Loader=_Loader):
-        if isinstance(event, yaml.AliasEvent):
-            aliases += 1
-            if aliases > max_aliases:
-                raise LimitError(f"more than {max_aliases} YAML aliases")
-        if isinstance(event, (yaml.CollectionStartEvent, yaml.ScalarEvent, yaml.AliasEvent)) \
-                and depth + 1 > max_depth:
-            raise LimitError(f"nested more than {max_depth} deep")
-        if isinstance(event, (yaml.CollectionStartEvent, yaml.ScalarEvent)):
-            nodes += 1
-            if nodes > max_nodes:
-                raise LimitError(f"more than {max_nodes} values once YAML aliases are "
-                                 "expanded")
-        if isinstance(event, yaml.CollectionStartEvent):
-            depth += 1
-        elif isinstance(event, yaml.CollectionEndEvent):
-            depth -= 1
-    return aliases
+    return plain, root, aliases
 
 
 _FLOW_BRACKET = re.compile(r"[\[\]{}]")
@@ -209,27 +198,20 @@ def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_00
     collecting = gc.isenabled()
     gc.disable()
     try:
-        return _load(text, max_aliases, max_nodes, max_depth)
+        _check_flow_depth(text, max_depth)
+        plain, document, aliases = _walk(text, max_aliases, max_nodes, max_depth)
+        if plain:
+            return document
+        loader = _Loader(text)
+        try:
+            node = loader.get_single_node()
+            if node is None:
+                return None
+            if aliases:  # without aliases nothing expands: the events' checks were the limits
+                _check_expansion(node, max_nodes, max_depth)
+            return loader.construct_document(node)
+        finally:
+            loader.dispose()
     finally:
         if collecting:
             gc.enable()
-
-
-def _load(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> Any:
-    """``load_limited`` with the collector as it is."""
-    _check_flow_depth(text, max_depth)
-    try:
-        return _build_plain(text, max_nodes, max_depth)
-    except _NotPlain:
-        pass
-    aliases = _check_events(text, max_aliases, max_nodes, max_depth)
-    loader = _Loader(text)
-    try:
-        node = loader.get_single_node()
-        if node is None:
-            return None
-        if aliases:  # without aliases nothing expands: the events' checks were the limits
-            _check_expansion(node, max_nodes, max_depth)
-        return loader.construct_document(node)
-    finally:
-        loader.dispose()

@@ -1,58 +1,13 @@
-"""The node's messages as serialised bytes (CDR), a batch at a time with numpy: the outputs
-built around a prebuilt block (a message built in Python and converted by rclpy costs tens of
-microseconds, mostly the part that never changes), the inputs read in bulk. The wire format
-is the bag writer's (``strain_comp.io.cdr``); docs/results.md, "The node's CPU"."""
+"""The node's inputs read in bulk from their serialised bytes (CDR); its outputs are built
+by the bag writer's ``strain_comp.io.cdr.RowEncoder`` around a prebuilt block (a message
+built in Python and converted by rclpy costs tens of microseconds); docs/results.md, "The
+node's CPU"."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from strain_comp.io import cdr
-
-
-class RowEncoder:
-    """Messages of one constant ``template`` but for ``k`` values at byte ``at`` (and, when
-    ``stamped``, the header's stamp at bytes 4..12): one message per row."""
-
-    def __init__(self, template: bytes, at: int, k: int, dtype: str = "<f8", *,
-                 stamped: bool = False) -> None:
-        self.template = np.frombuffer(template, np.uint8)
-        self.at, self.k, self.dtype, self.stamped = at, k, np.dtype(dtype), stamped
-
-    @classmethod
-    def scalar(cls, dtype: str) -> RowEncoder:
-        """std_msgs/msg/Float64 (``<f8``) or Int8 (``i1``)."""
-        return cls(cdr.ENCAPSULATION + bytes(np.dtype(dtype).itemsize), 4, 1, dtype)
-
-    @classmethod
-    def vector(cls, names: list[str]) -> RowEncoder:
-        """std_msgs/msg/Float64MultiArray whose ``dim[0]`` is labelled with the names (size =
-        stride = k, data_offset 0), as the bag writer's ``write_float64_array``."""
-        k = len(names)
-        head = cdr.float64_multiarray_head([(",".join(names), k, k)], 0, k)
-        return cls(head + bytes(8 * k), len(head), k)
-
-    @classmethod
-    def joint_state(cls, names: list[str]) -> RowEncoder:
-        """sensor_msgs/msg/JointState of the names (frame_id '', velocity and effort empty)."""
-        template, pos_at = cdr.joint_state_layout("", names)
-        return cls(template, pos_at, len(names), stamped=True)
-
-    def encode(self, rows: np.ndarray, stamps_ns: np.ndarray | None = None) -> list[bytes]:
-        """The messages of ``rows`` (n x k values, or n values when k is 1) and, stamped, of
-        their stamps [ns since the epoch]."""
-        n = len(rows)
-        values = np.ascontiguousarray(rows, dtype=self.dtype).reshape(n, self.k)
-        out = np.empty((n, self.template.size), np.uint8)
-        out[:] = self.template
-        out[:, self.at:self.at + values.itemsize * self.k] = values.view(np.uint8).reshape(n, -1)
-        if self.stamped:
-            sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), 1_000_000_000)
-            if n and not (-2**31 <= sec.min() and sec.max() < 2**31):
-                raise ValueError("a stamp does not fit builtin_interfaces/Time")
-            out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-            out[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(n, 4)
-        return [row.tobytes() for row in out]
 
 
 class RowDecoder:

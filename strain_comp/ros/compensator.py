@@ -36,8 +36,9 @@ from std_srvs.srv import Trigger
 
 from strain_comp.core.calibration import expected_words
 from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.io.cdr import RowEncoder
 from strain_comp.io.multiarray import array_values
-from strain_comp.ros.cdr import RowDecoder, RowEncoder
+from strain_comp.ros.cdr import RowDecoder
 from strain_comp.ros.clock_gate import ClockGate
 from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
 from strain_comp.ros.messages import array_layout, sensor_value

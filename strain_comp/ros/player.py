@@ -7,11 +7,11 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from strain_comp.errors import BagError
+from strain_comp.io.bag.reader import RawMessage, raw_messages
 from strain_comp.io.bag.schemas import norm_type
 
 if TYPE_CHECKING:
@@ -21,29 +21,6 @@ LOCKSTEP_TIMEOUT_S = 1.0
 MATCH_S = 2.0
 """How long play waits for the other topics' subscribers once one topic has one [s]: a node
 announces its subscriptions together."""
-
-
-@dataclass(frozen=True)
-class PlayedMessage:
-    topic: str
-    type_name: str
-    log_time_ns: int
-    data: bytes
-
-
-def bag_messages(path: str | Path, topics: list[str] | None = None) -> list[PlayedMessage]:
-    """A bag's CDR messages in log-time order, read by the bag reader's walk within its
-    budgets (``strain_comp.io.bag.reader.raw_messages``); what it skipped goes to stderr, one
-    line each."""
-    from strain_comp.io.bag.reader import raw_messages
-
-    messages, problems = raw_messages(path, topics)
-    for problem in problems:
-        print(f"play: {problem}", file=sys.stderr)
-    out = [PlayedMessage(*m) for m in messages]
-    if not out:
-        raise BagError(f"{path}: no CDR messages" + (f" on {', '.join(topics)}" if topics else ""))
-    return out
 
 
 PLAYABLE = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Int8",
@@ -83,7 +60,11 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
 
     from strain_comp.ros.rclpy_typed import destroy
 
-    messages = bag_messages(path, topics)
+    messages, problems = raw_messages(path, topics)  # the bag reader's walk and budgets
+    for problem in problems:
+        print(f"play: {problem}", file=sys.stderr)
+    if not messages:
+        raise BagError(f"{path}: no CDR messages" + (f" on {', '.join(topics)}" if topics else ""))
     kinds = {name: message_class(name) for name in {m.type_name for m in messages}}
     skipped = sorted(name for name, kind in kinds.items() if kind is None)
     if skipped:
@@ -137,8 +118,8 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
     return len(messages)
 
 
-def _subscribed(executor: Executor, pubs: dict[str, Any], messages: list[PlayedMessage],
-                wait_s: float) -> list[PlayedMessage]:
+def _subscribed(executor: Executor, pubs: dict[str, Any], messages: list[RawMessage],
+                wait_s: float) -> list[RawMessage]:
     """The messages on topics that have a subscriber, waiting ``wait_s`` for the first one
     and ``MATCH_S`` more for the others; the topics without one named in one line on stderr.
     BagError when no topic has a subscriber."""

@@ -63,3 +63,16 @@ def test_resistance_without_reference(tmp_path: Path) -> None:
     recs, problems = load_recordings(path)
     assert recs["s1"].s is None and recs["p"].s is None and recs["q"].temperature is None
     assert problems == []
+
+
+def test_array_sensors_read_their_own_temperature(tmp_path: Path) -> None:
+    """An array's sensors read /NAME/temperature each, as replay and the node do
+    (docs/design.md, "Topics"); an /ARRAY/temperature names no sensor."""
+    path = tmp_path / "arr.mcap"
+    with BagWriter(path) as w:
+        w.write_float64_array("/arr/resistance", T, np.ones((T.size, 2)), ["p", "q"])
+        w.write_temperature("/p/temperature", T, 20 + T)
+        w.write_temperature("/arr/temperature", T, 99 + 0 * T)
+    recs, _ = load_recordings(path)
+    np.testing.assert_array_equal(recs["p"].temperature, 20 + T)
+    assert recs["q"].temperature is None

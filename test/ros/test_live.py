@@ -306,7 +306,8 @@ def test_row_decoder_reads_one_layout_in_bulk_and_learns_only_what_reads_back() 
     """The intake's bulk read: the rows of the messages of the layout learnt, in the sensors'
     columns; another label is not that layout; a message whose values are not its last
     bytes (padding after them) is not learnt."""
-    from strain_comp.ros.cdr import RowDecoder, RowEncoder
+    from strain_comp.io.cdr import RowEncoder
+    from strain_comp.ros.cdr import RowDecoder
 
     rows = np.arange(12.0).reshape(4, 3)
     raws = RowEncoder.vector(["a", "b", "c"]).encode(rows)

@@ -33,7 +33,7 @@ from std_msgs.msg import Float64, Float64MultiArray, Int8, MultiArrayDimension  
 
 from strain_comp.core.calibration_file import load_calibration, save_calibration  # noqa: E402
 from strain_comp.core.engine import Engine  # noqa: E402
-from strain_comp.ros.player import bag_messages  # noqa: E402
+from strain_comp.io.bag.reader import raw_messages  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "config"
@@ -152,7 +152,7 @@ def test_outputs_equal_replay_in_sim_time(single: Harness, tmp_path: Path) -> No
     from strain_comp.cli import main as cli_main
     from strain_comp.io.bag import read_bag
 
-    messages = [m for m in bag_messages(ROOT / "bags/demo_rates.mcap", ["/s1/resistance"])]
+    messages, _ = raw_messages(ROOT / "bags/demo_rates.mcap", ["/s1/resistance"])
     messages = messages[:N_BAG]
     strain = single.listen("/s1/strain", Float64)
     direction = single.listen("/s1/direction", Int8)
@@ -387,7 +387,7 @@ def test_output_bytes_decode_as_their_messages(names: list[str]) -> None:
     stamp, values, empty velocity and effort; the layout labelled with the names."""
     from rclpy.serialization import deserialize_message
 
-    from strain_comp.ros.cdr import RowEncoder
+    from strain_comp.io.cdr import RowEncoder
 
     values = np.random.default_rng(len(names)).normal(size=len(names))
     stamps = [1_795_498_137_622_557_762, 0, 5]

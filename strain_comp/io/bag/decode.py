@@ -47,6 +47,25 @@ def decode(col: Collector) -> BagContents:
     out = BagContents(problems=col.problems)
     if not col.msg_channel:
         return out
+    blob, start, length, log_ns, groups = channel_messages(col, out.problems)
+    per_type: dict[tuple[str, str], tuple[Schema, list[np.ndarray]]] = {}
+    for topic, schema, idx in groups:
+        per_type.setdefault((topic, norm_type(schema.name)), (schema, []))[1].append(idx)
+    for topic, kind, schema, parts in _one_type_per_topic(out, per_type):
+        out.types[topic] = kind
+        idx = np.concatenate(parts)
+        idx = idx[np.argsort(log_ns[idx], kind="stable")]
+        _decode_topic(out, topic, schema, blob, start[idx], length[idx],
+                      log_ns[idx].astype(np.float64) * 1e-9)
+    return out
+
+
+def channel_messages(col: Collector, problems: list[str]
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                list[tuple[str, Schema, np.ndarray]]]:
+    """The payloads ``col`` located, joined (the bytes, each message's start, length and log
+    time [ns]), and per CDR channel read its topic, schema and message indices; what is
+    skipped is counted in ``problems``."""
     sizes = np.array([b.shape[0] for b in col.blocks], dtype=np.int64)
     blob = np.concatenate(col.blocks) if len(col.blocks) > 1 else col.blocks[0]
     base = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
@@ -56,36 +75,30 @@ def decode(col: Collector) -> BagContents:
     log_ns = np.concatenate(col.msg_time)
     late = (log_ns < 0) | (log_ns > MAX_LOG_NS)
     if late.any():
-        out.problems.append(f"{int(np.count_nonzero(late))} messages with a log time beyond "
-                            "2^31 s (2038-01-19) skipped")
+        problems.append(f"{int(np.count_nonzero(late))} messages with a log time beyond "
+                        "2^31 s (2038-01-19) skipped")
     # channel ids are per file: key messages by (file, channel id)
     key = np.array(col.block_file, dtype=np.int64)[block] * 65536 + np.concatenate(col.msg_channel)
-    per_type: dict[tuple[str, str], tuple[Schema, list[np.ndarray]]] = {}
     valid = np.flatnonzero(~late)
     order = valid[np.argsort(key[valid], kind="stable")]  # grouped by channel in one sort
     keys, first = np.unique(key[order], return_index=True)
-    groups = np.split(order, first[1:]) if keys.size else []
-    for k, idx in zip(keys.tolist(), groups, strict=True):
+    groups = []
+    for k, idx in zip(keys.tolist(), np.split(order, first[1:]) if keys.size else [],
+                      strict=True):
         f, cid = divmod(k, 65536)
         channel = col.channels.get((f, cid))
         if channel is None:
-            out.problems.append(f"{idx.size} messages on unknown channel id {cid} skipped")
+            problems.append(f"{idx.size} messages on unknown channel id {cid} skipped")
             continue
         if col.topics is not None and channel.topic not in col.topics:
             continue
         schema = col.schemas.get((f, channel.schema_id))
         if schema is None or schema.encoding != "ros2msg" or channel.message_encoding != "cdr":
-            out.problems.append(f"{channel.topic}: no ros2msg schema / cdr encoding; "
-                                f"{idx.size} messages skipped")
+            problems.append(f"{channel.topic}: no ros2msg schema / cdr encoding; "
+                            f"{idx.size} messages skipped")
             continue
-        per_type.setdefault((channel.topic, norm_type(schema.name)), (schema, []))[1].append(idx)
-    for topic, kind, schema, parts in _one_type_per_topic(out, per_type):
-        out.types[topic] = kind
-        idx = np.concatenate(parts)
-        idx = idx[np.argsort(log_ns[idx], kind="stable")]
-        _decode_topic(out, topic, schema, blob, start[idx], length[idx],
-                      log_ns[idx].astype(np.float64) * 1e-9)
-    return out
+        groups.append((channel.topic, schema, idx))
+    return blob, start, length, log_ns, groups
 
 
 def _one_type_per_topic(out: BagContents,

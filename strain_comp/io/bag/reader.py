@@ -7,13 +7,14 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from strain_comp.errors import BagError
-from strain_comp.io.bag.decode import decode
+from strain_comp.io.bag.decode import channel_messages, decode
 from strain_comp.io.bag.layout import bag_storage
-from strain_comp.io.bag.records import MAX_LOG_NS, Collector
+from strain_comp.io.bag.records import Collector
 from strain_comp.io.bag.schemas import BagContents, Series
 from strain_comp.io.bag.walk import storage_file
 
@@ -28,13 +29,12 @@ BagError."""
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
-             window: int = WINDOW, budget: bool = True) -> BagContents:
+             budget: bool = True) -> BagContents:
     """Read a whole bag (a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory): ``iter_bag``'s
     pieces joined; ``budget``: refuse past ``MAX_BAG_BYTES`` of messages."""
     merged = BagContents()
     parts: dict[str, list[Series]] = {}
-    for piece in iter_bag(path, topics, window=window,
-                          budget=MAX_BAG_BYTES if budget else None):
+    for piece in iter_bag(path, topics, budget=MAX_BAG_BYTES if budget else None):
         for topic, series in piece.series.items():
             parts.setdefault(topic, []).append(series)
         for topic, labels in piece.labels.items():
@@ -59,14 +59,6 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     return merged
 
 
-def _collect(path: Path, topics: Iterable[str] | None) -> Collector:
-    """Every message of the bag at ``path`` located, within ``MAX_BAG_BYTES``."""
-    col = Collector(set(topics) if topics is not None else None)
-    for file in _walk(path, col):
-        _check_budget(col, file, MAX_BAG_BYTES)
-    return col
-
-
 def _check_budget(col: Collector, file: Path, budget: int) -> None:
     if col.collected > budget:
         raise BagError(f"{file}: more than {budget} bytes of messages "
@@ -82,32 +74,33 @@ def _walk(path: Path, col: Collector) -> Iterator[Path]:
             yield file
 
 
+class RawMessage(NamedTuple):
+    """A message as the bag stores it (CDR), not decoded."""
+
+    topic: str
+    type_name: str
+    log_time_ns: int
+    data: bytes
+
+
 def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None
-                 ) -> tuple[list[tuple[str, str, int, bytes]], list[str]]:
-    """Every CDR message of a bag, not decoded, in log-time order."""
+                 ) -> tuple[list[RawMessage], list[str]]:
+    """Every CDR message of a bag, not decoded, in log-time order; the problems."""
     path = Path(path)
-    col = _collect(path, topics)
-    out: list[tuple[str, str, int, bytes]] = []
+    col = Collector(set(topics) if topics is not None else None)
+    for file in _walk(path, col):  # every message located, within ``MAX_BAG_BYTES``
+        _check_budget(col, file, MAX_BAG_BYTES)
+    out: list[RawMessage] = []
     if col.msg_time:
-        block = np.concatenate(col.msg_block)
-        start, length = np.concatenate(col.msg_start), np.concatenate(col.msg_len)
-        log_ns, channel_id = np.concatenate(col.msg_time), np.concatenate(col.msg_channel)
-        files = np.array(col.block_file, dtype=np.int64)[block]
-        skipped = 0
-        for i in np.argsort(log_ns, kind="stable").tolist():
-            channel = col.channels.get((int(files[i]), int(channel_id[i])))
-            schema = None if channel is None else col.schemas.get((int(files[i]),
-                                                                   channel.schema_id))
-            if (channel is None or schema is None or channel.message_encoding != "cdr"
-                    or not 0 <= log_ns[i] <= MAX_LOG_NS):
-                skipped += 1
-                continue
-            if col.topics is None or channel.topic in col.topics:
-                payload = col.blocks[block[i]][start[i]:start[i] + length[i]].tobytes()
-                out.append((channel.topic, schema.name, int(log_ns[i]), payload))
-        if skipped:
-            col.problems.append(f"{skipped} messages without a known CDR channel or with a "
-                                "log time beyond 2^31 s skipped")
+        blob, start, length, log_ns, groups = channel_messages(col, col.problems)
+        group = np.full(log_ns.size, -1)
+        for g, (_, _, idx) in enumerate(groups):
+            group[idx] = g
+        kept = np.flatnonzero(group >= 0)
+        for i in kept[np.argsort(log_ns[kept], kind="stable")].tolist():
+            topic, schema, _ = groups[group[i]]
+            out.append(RawMessage(topic, schema.name, int(log_ns[i]),
+                                  blob[start[i]:start[i] + length[i]].tobytes()))
     return out, located(path, col.problems)
 
 
