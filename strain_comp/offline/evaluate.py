@@ -20,7 +20,7 @@ from strain_comp.core.fusion import SparseFusion, check_every
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, iter_bag, located
+from strain_comp.io.bag import BagContents, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import (
     REFERENCE,
@@ -265,6 +265,31 @@ def nothing_scored(calibration: Calibration, names: list[str]) -> str:
             f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
 
 
+def temperature_series(contents: BagContents, name: str) -> Series | None:
+    """Sensor ``name``'s ``/NAME/temperature`` in ``contents`` (an array's sensors each read
+    their own, as the node does), or None."""
+    temp = contents.series.get(f"/{name}{TEMPERATURE}")
+    return temp if temp is not None and temp.values.ndim == 1 else None
+
+
+def reference_columns(contents: BagContents, topic: str) -> tuple[dict[str, int | None],
+                                                                  str | None]:
+    """Each sensor's column of the ``/PREFIX/strain_reference`` of resistance ``topic``
+    (None: a 1-D reference; ``load_recordings``'s rules), or none and the problem why."""
+    reference = topic[:-len(RESISTANCE)] + REFERENCE
+    ref = contents.series[reference]
+    labels, _ = topic_sensors(topic, contents)
+    if contents.series[topic].values.ndim == 1:
+        if ref.values.ndim == 1:
+            return {labels[0]: None}, None
+        return {}, f"{reference}: an array reference for a single sensor"
+    ref_labels = contents.labels.get(reference) or labels
+    if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
+            and set(labels) <= set(ref_labels):
+        return {n: ref_labels.index(n) for n in labels}, None
+    return {}, f"{reference}: columns do not match {topic}; ignored"
+
+
 @dataclass
 class _Input:
     """One ``/PREFIX/resistance`` topic: its calibrated columns and what waits for the
@@ -277,8 +302,8 @@ class _Input:
     single: bool
     group: list[str]
     """Sensors run together by ``Engine.run_array`` (calibration order), else empty."""
-    temperature: PieceAlign | None
-    """Only when an effect term of a sensor here could read it."""
+    temperature: dict[str, PieceAlign]
+    """Per sensor its ``/NAME/temperature``, only when an effect term here could read it."""
     reference: dict[str, PieceAlign]
     ref_columns: dict[str, int | None] | None = None
     """Per sensor its reference column (None: a 1-D reference); None until the reference
@@ -323,9 +348,8 @@ class BagScorer(Scorer):
     def finish(self) -> None:
         for inp in self.inputs.values():
             if inp is not None:
-                for align in [inp.temperature, *inp.reference.values()]:
-                    if align is not None:
-                        align.finish()
+                for align in [*inp.temperature.values(), *inp.reference.values()]:
+                    align.finish()
                 self._run(inp)
         for topic in sorted(self.references):
             if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
@@ -358,25 +382,8 @@ class BagScorer(Scorer):
             [n for n in self.calibration.sensors if n in names]
         effects = any(self.calibration.sensors[n].effects for n in names)
         return _Input(prefix, names, columns, single, group,
-                      PieceAlign() if effects else None,
+                      {n: PieceAlign() for n in names} if effects else {},
                       {n: PieceAlign() for n in names}, r=np.empty((0, len(names))))
-
-    def _ref_columns(self, inp: _Input, topic: str, contents: BagContents
-                     ) -> dict[str, int | None]:
-        """Reference column of each sensor of ``inp`` (``load_recordings``'s rules)."""
-        ref = contents.series[inp.prefix + REFERENCE]
-        if inp.single:
-            if ref.values.ndim == 1:
-                return {inp.names[0]: None}
-            self._problem(f"{inp.prefix + REFERENCE}: an array reference for a single sensor")
-            return {}
-        labels, _ = topic_sensors(topic, contents)
-        ref_labels = contents.labels.get(inp.prefix + REFERENCE) or labels
-        if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
-                and set(labels) <= set(ref_labels):
-            return {n: ref_labels.index(n) for n in inp.names}
-        self._problem(f"{inp.prefix + REFERENCE}: columns do not match {topic}; ignored")
-        return {}
 
     def _add(self, inp: _Input, topic: str, contents: BagContents) -> None:
         """Queue a piece's samples of ``inp`` and feed its alignments."""
@@ -387,17 +394,16 @@ class BagScorer(Scorer):
             values = series.values[:, None] if inp.single else series.values
             inp.t = np.concatenate((inp.t, t))
             inp.r = np.concatenate((inp.r, values[:, inp.columns]))
-        if inp.temperature is not None:
-            temp = contents.series.get(inp.prefix + TEMPERATURE)
-            if temp is not None and temp.values.ndim == 1:
-                inp.temperature.add(t, temp.t, temp.values)
-                if temp.t.size:
-                    self.with_temperature.update(inp.names)
-            else:
-                inp.temperature.add(t, empty, empty)
+        for name, align in inp.temperature.items():
+            temp = temperature_series(contents, name)
+            align.add(t, empty if temp is None else temp.t, empty if temp is None else temp.values)
+            if temp is not None and temp.t.size:
+                self.with_temperature.add(name)
         ref = contents.series.get(inp.prefix + REFERENCE)
         if ref is not None and inp.ref_columns is None:
-            inp.ref_columns = self._ref_columns(inp, topic, contents)
+            inp.ref_columns, problem = reference_columns(contents, topic)
+            if problem is not None:
+                self._problem(problem)
         for name, align in inp.reference.items():
             column = (inp.ref_columns or {}).get(name, -1)
             if ref is None or column == -1:
@@ -407,15 +413,15 @@ class BagScorer(Scorer):
 
     def _run(self, inp: _Input) -> None:
         """Compensate and score the queued samples whose reference is known."""
-        horizon = min(a.horizon() for a in [inp.temperature, *inp.reference.values()]
-                      if a is not None)
+        horizon = min(a.horizon() for a in [*inp.temperature.values(), *inp.reference.values()])
         n = int(np.searchsorted(inp.t, horizon, side="right"))
         if n == 0:
             return
         t, r = inp.t[:n], inp.r[:n]
         inp.t, inp.r = inp.t[n:], inp.r[n:]
-        temp = None if inp.temperature is None else inp.temperature.take(t)
-        self.score(inp.names, inp.group, t, r, {name: temp for name in inp.names},
+        self.score(inp.names, inp.group, t, r,
+                   {name: inp.temperature[name].take(t) if inp.temperature else None
+                    for name in inp.names},
                    {name: align.take(t) for name, align in inp.reference.items()})
 
     def bag_result(self) -> EvaluationResult:

@@ -34,6 +34,7 @@ from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.cdr import Status, diagnostic_arrays
 from strain_comp.io.recording import hold_latest, topic_sensors
+from strain_comp.offline.evaluate import reference_columns, temperature_series
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")
@@ -199,7 +200,7 @@ class _Replay:
                 s: self._temperature(contents, s, series.t) for s in inp.sensors})
             self.n_compensated += series.t.size
             if self.series is not None:
-                self._series(contents, inp, series, outs)
+                self._series(inp, series, outs)
             ran.update({s: (series.t, out) for s, out in outs.items()})
         counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
                     for name, h in before.items()}
@@ -207,8 +208,7 @@ class _Replay:
                   for s, f in self.fused.items()}
         return now, counters, fusion
 
-    def _series(self, contents: BagContents, inp: _Input, series: Series,
-                outs: dict[str, BatchOutput]) -> None:
+    def _series(self, inp: _Input, series: Series, outs: dict[str, BatchOutput]) -> None:
         """Queue the piece's rows of ``replay --csv`` with the piece's reference samples."""
         assert self.series is not None
         values = series.values if series.values.ndim == 2 else series.values[:, None]
@@ -217,7 +217,7 @@ class _Replay:
             pending = self.pending.setdefault(name, PendingSeries(name, cal.strain_unit))
             out = outs[name]
             pending.add(series.t, cal.input.to_ohm(values[:, j]), out.strain, out.direction,
-                        out.status, *_reference(contents, inp, name))
+                        out.status, *self._reference(inp, name))
             pending.flush(self.series)
 
     def finish_series(self) -> None:
@@ -278,7 +278,7 @@ class _Replay:
         if self.references_every is None:
             return outs
         for name in inp.sensors:
-            src_t, src_v = _reference(self._contents, inp, name)
+            src_t, src_v = self._reference(inp, name)
             ok = np.isfinite(src_t) & np.isfinite(src_v)
             values = _held(self.reference, name, src_t[ok], src_v[ok], t)
             outs[name] = self.fused[name].fuse(
@@ -288,25 +288,26 @@ class _Replay:
     def _temperature(self, contents: BagContents, name: str, t: np.ndarray
                      ) -> np.ndarray | None:
         """The latest temperature at or before each of ``t`` (NaN before the first)."""
-        series = contents.series.get(f"/{name}/temperature")
+        series = temperature_series(contents, name)
         empty = np.empty(0)
         return _held(self.temperature, name, empty if series is None else series.t,
                      empty if series is None else series.values, t)
 
+    def _reference(self, inp: _Input, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """The piece's reference samples (t, value) of sensor ``name`` of ``inp``
+        (``reference_columns``; none when its topic or column is missing)."""
+        ref = self._contents.series.get(f"/{inp.name}/strain_reference")
+        if ref is None:
+            return np.empty(0), np.empty(0)
+        columns, problem = reference_columns(self._contents, inp.topic)
+        if problem is not None:
+            self._problem(problem)
+        if name not in columns:
+            return np.empty(0), np.empty(0)
+        column = columns[name]
+        return ref.t, ref.values if column is None else ref.values[:, column]
 
-def _reference(contents: BagContents, inp: _Input, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """The piece's reference samples (t, value) of sensor ``name`` of ``inp`` (none when
-    its topic or column is missing)."""
-    topic = f"/{inp.name}/strain_reference"
-    ref = contents.series.get(topic)
-    labels = contents.labels.get(topic) or inp.sensors
-    if ref is None or ref.values.ndim != (2 if inp.is_array else 1):
-        return np.empty(0), np.empty(0)
-    if not inp.is_array:
-        return ref.t, ref.values
-    if name in labels and labels.index(name) < ref.values.shape[1]:
-        return ref.t, ref.values[:, labels.index(name)]
-    return np.empty(0), np.empty(0)
+
 
 
 def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np.ndarray,
