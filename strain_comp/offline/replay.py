@@ -258,18 +258,24 @@ class _Replay:
             columns[BAND[0]] = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None
                                          else v for s in inp.sensors], axis=1)
         for what, stacked in columns.items():
-            topic = f"/{inp.name}/{what}"
-            if inp.is_array:
-                self.out.write_float64_array(topic, t, stacked.astype(np.float64), inp.sensors)
-            elif what in ("direction", "status"):
-                self.out.write_int8(topic, t, stacked[:, 0])
-            else:
-                self.out.write_float64(topic, t, stacked[:, 0])
-            if what in ("strain", BAND[0]):
-                stamped = STAMPED if what == "strain" else BAND[1]
-                self.out.write_joint_state(f"/{inp.name}/{stamped}", t, inp.sensors, stacked)
+            self._stage(inp, what, t, stacked)
         self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs
+
+    def _stage(self, inp: _Input, what: str, t: np.ndarray, stacked: np.ndarray) -> None:
+        """Hold the output ``what`` of ``inp`` (a column per sensor) and its stamped twin."""
+        topic = f"/{inp.name}/{what}"
+        if inp.is_array:
+            self.out.add(t, lambda w, i: w.write_float64_array(topic, t[i], stacked[i],
+                                                                inp.sensors))
+        elif what in ("direction", "status"):
+            self.out.add(t, lambda w, i: w.write_int8(topic, t[i], stacked[i, 0]))
+        else:
+            self.out.add(t, lambda w, i: w.write_float64(topic, t[i], stacked[i, 0]))
+        if what in ("strain", BAND[0]):
+            stamped = f"/{inp.name}/{STAMPED if what == 'strain' else BAND[1]}"
+            self.out.add(t, lambda w, i: w.write_joint_state(stamped, t[i], inp.sensors,
+                                                              stacked[i]))
 
     def _fused(self, inp: _Input, t: np.ndarray, outs: dict[str, BatchOutput]
                ) -> dict[str, BatchOutput]:
@@ -372,16 +378,16 @@ Call = Callable[[BagWriter, np.ndarray], None]
 
 
 class StagedWrites:
-    """``BagWriter``'s ``write_*`` calls of a piece held as the arrays given until ``write``
-    hands them to the writer one log-time slice at a time; every held call is made in every
-    slice, empty ones included, so each topic is first named, and numbered, as it would be
-    written in one go."""
+    """``BagWriter`` calls of a piece held until ``write`` makes them one log-time slice at
+    a time; every held call is made in every slice, empty ones included, so each topic is
+    first named, and numbered, as it would be written in one go."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[np.ndarray, np.ndarray, Call]] = []
         """(times [ns] in order, the order of the messages by time, the write)."""
 
-    def _hold(self, t: npt.ArrayLike, call: Call) -> None:
+    def add(self, t: npt.ArrayLike, call: Call) -> None:
+        """Hold ``call``, a write of messages at the log times ``t`` [s]."""
         t_ns = np.round(np.asarray(t, np.float64).reshape(-1) * 1e9)
         order = np.argsort(t_ns, kind="stable")  # NaN last
         self.calls.append((t_ns[order], order, call))
@@ -396,34 +402,6 @@ class StagedWrites:
             a = int(np.searchsorted(t_ns, lo_ns, side="left"))
             b = t_ns.size if hi_ns is None else int(np.searchsorted(t_ns, hi_ns, side="left"))
             call(writer, np.sort(order[a:b]))
-
-    def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        t, v = np.asarray(t), np.asarray(values)
-        self._hold(t, lambda w, i: w.write_float64(topic, t[i], v[i]))
-
-    def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        t, v = np.asarray(t), np.asarray(values)
-        self._hold(t, lambda w, i: w.write_int8(topic, t[i], v[i]))
-
-    def write_float64_array(self, topic: str, t: npt.ArrayLike, values2d: npt.ArrayLike,
-                            labels: Sequence[str]) -> None:
-        t, v = np.asarray(t), np.asarray(values2d)
-        self._hold(t, lambda w, i: w.write_float64_array(topic, t[i], v[i], labels))
-
-    def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
-                          position: npt.ArrayLike) -> None:
-        t, p = np.asarray(t), np.asarray(position)
-        self._hold(t, lambda w, i: w.write_joint_state(topic, t[i], names, p[i]))
-
-    def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        t, v = np.asarray(t), np.asarray(values)
-        self._hold(t, lambda w, i: w.write_temperature(topic, t[i], v[i]))
-
-    def write_diagnostics(self, t: npt.ArrayLike, statuses: Sequence[Sequence[DiagnosticStatus]], *,
-                          topic: str = "/diagnostics") -> None:
-        t = np.asarray(t)
-        self._hold(t, lambda w, i: w.write_diagnostics(
-            t[i], [statuses[k] for k in i.tolist()], topic=topic))
 
 
 class FusionTicks:
@@ -500,35 +478,45 @@ def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
         yield slice(a, b), *diagnostic_arrays(t_ns[a:b], "", statuses)
 
 
-def _copy_through(contents: BagContents, writer: StagedWrites, written: set[str],
+COPIED = {"std_msgs/msg/Float64": "write_float64", "std_msgs/msg/Int8": "write_int8",
+          "std_msgs/msg/Float64MultiArray": "write_float64_array",
+          "sensor_msgs/msg/Temperature": "write_temperature"}
+"""The input types copied into the output bag, with the writer's method that writes them."""
+
+
+def _copier(method: str, topic: str, t: np.ndarray, values: np.ndarray, *extra: object) -> Call:
+    """The held ``BagWriter`` call ``method(topic, t, values, *extra)`` of a slice's messages."""
+    return lambda w, i: getattr(w, method)(topic, t[i], values[i], *extra)
+
+
+def _diagnostics_copier(topic: str, diagnostics: list[tuple[float, list[DiagnosticStatus]]]
+                        ) -> Call:
+    """The held ``BagWriter.write_diagnostics`` of a slice's messages of ``diagnostics``."""
+    t = np.array([d[0] for d in diagnostics])
+    return lambda w, i: w.write_diagnostics(t[i], [diagnostics[k][1] for k in i.tolist()],
+                                            topic=topic)
+
+
+def _copy_through(contents: BagContents, out: StagedWrites, written: set[str],
                   problem: Callable[[str], None]) -> int:
     """Write the input topics into the output bag; the number of messages copied."""
     n = 0
     for topic, kind in contents.types.items():
+        series = contents.series.get(topic)
         if topic in written and topic != "/diagnostics":
             problem(f"{topic}: an input topic with an output's name; not copied")
-            continue
-        series = contents.series.get(topic)
-        if kind == "diagnostic_msgs/msg/DiagnosticArray":
+        elif kind == "diagnostic_msgs/msg/DiagnosticArray":
             if contents.diagnostics:
-                writer.write_diagnostics([d[0] for d in contents.diagnostics],
-                                         [d[1] for d in contents.diagnostics], topic=topic)
+                out.add([d[0] for d in contents.diagnostics],
+                        _diagnostics_copier(topic, contents.diagnostics))
                 n += len(contents.diagnostics)
-        elif series is None:
+        elif series is None or kind not in COPIED:
             problem(f"{topic}: type {kind} is not copied to the output")
-        elif kind == "std_msgs/msg/Float64":
-            writer.write_float64(topic, series.t, series.values)
-        elif kind == "std_msgs/msg/Int8":
-            writer.write_int8(topic, series.t, series.values)
-        elif kind == "std_msgs/msg/Float64MultiArray":
-            writer.write_float64_array(topic, series.t, series.values,
-                                       contents.labels.get(topic) or
-                                       [str(i) for i in range(series.values.shape[1])])
-        elif kind == "sensor_msgs/msg/Temperature":
-            writer.write_temperature(topic, series.t, series.values)
         else:
-            problem(f"{topic}: type {kind} is not copied to the output")
-            continue
-        if series is not None:
+            labels: tuple[list[str], ...] = ()
+            if kind == "std_msgs/msg/Float64MultiArray":
+                labels = (contents.labels.get(topic)
+                          or [str(i) for i in range(series.values.shape[1])],)
+            out.add(series.t, _copier(COPIED[kind], topic, series.t, series.values, *labels))
             n += series.t.size
     return n
