@@ -27,7 +27,7 @@ from strain_comp.errors import (
 )
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_bag
-from strain_comp.offline.evaluation import coverage_cell
+from strain_comp.offline.evaluation import score_lines
 from strain_comp.offline.fit import in_run_bound
 from strain_comp.offline.plots import write_plots
 from strain_comp.offline.report_page import BagSection, evaluation_figures
@@ -266,19 +266,11 @@ def aggregate(outcomes: Sequence[BagSection]) -> dict[str, tuple[ErrorAccumulato
 def format_aggregate(outcomes: Sequence[BagSection]) -> str:
     """The pooled table: every sensor over every bag it was scored in."""
     pooled = aggregate(outcomes)
-    banded = any(acc.coverage_95() is not None for acc, *_ in pooled.values())
-    header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
-              f"{'max_abs':>9} {'r2':>8}" + (f" {'in 95%':>7}" if banded else ""))
     done = sum(o.result is not None for o in outcomes)
     lines = [f"== {done} of {len(outcomes)} bags evaluated: errors pooled over them",
-             header, "-" * len(header)]
-    units = set()
-    for name, (acc, n_bags, model, unit) in pooled.items():
-        st = acc.stats()
-        units.add(unit)
-        lines.append(f"{name:<16} {model:<11} {n_bags:>4d} {st.n:>8d} {st.rmse:>9.4f} "
-                     f"{st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}"
-                     + (coverage_cell(acc.coverage_95()) if banded else ""))
+             *score_lines([(name, model, n_bags, acc.stats(), acc.coverage_95())
+                           for name, (acc, n_bags, model, _) in pooled.items()], bags=True)]
+    units = {unit for *_, unit in pooled.values()}
     words = ", ".join(strain_unit_words(u) for u in sorted(units)) or "% strain"
     lines.append(f"errors in {words}, over all samples of all bags together")
     return "\n".join(lines)

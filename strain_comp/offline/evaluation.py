@@ -5,6 +5,7 @@ table and its notes.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -100,17 +101,29 @@ def input_unit(cal: SensorCalibration) -> str:
     return "V" if cal.input.kind == "divider" else cal.input.unit
 
 
+def score_lines(rows: Sequence[tuple[str, str, int | None, ErrorStats, float | None]],
+                bags: bool = False) -> Iterator[str]:
+    """The fixed-width table of (sensor, model, bags, stats, 95 % coverage) rows: the
+    header, its rule, a line per row; ``in 95%`` where a row has a coverage."""
+    banded = any(coverage is not None for *_, coverage in rows)
+    header = (f"{'sensor':<16} {'model':<11}" + (f" {'bags':>4}" if bags else "")
+              + f" {'n':>8} {'RMSE':>9} {'MAE':>9} {'max_abs':>9} {'r2':>8}"
+              + (f" {'in 95%':>7}" if banded else ""))
+    yield from (header, "-" * len(header))
+    for name, model, n_bags, st, coverage in rows:
+        yield (f"{name:<16} {model:<11}" + (f" {n_bags:>4d}" if bags else "")
+               + f" {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}"
+               + (coverage_cell(coverage) if banded else ""))
+
+
 def format_table(result: EvaluationResult) -> str:
     """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
     banded = any(ev.coverage_95 is not None for ev in result.sensors.values())
-    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max_abs':>9} "
-              f"{'r2':>8}" + (f" {'in 95%':>7}" if banded else ""))
-    lines = [header, "-" * len(header)]
-    for name, ev in result.sensors.items():
-        st = ev.stats
-        lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
-                     f"{st.max_abs:>9.4f} {st.r2:>8.5f}"
-                     + (coverage_cell(ev.coverage_95) if banded else ""))
+    rows = score_lines([(name, ev.model, None, ev.stats, ev.coverage_95)
+                        for name, ev in result.sensors.items()])
+    lines = [next(rows), next(rows)]
+    for ev in result.sensors.values():
+        lines.append(next(rows))
         if ev.in_run_rmse is not None:
             lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
                          f"{ev.in_run_rmse:.4f}")
