@@ -10,7 +10,7 @@ from __future__ import annotations
 import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,7 +22,6 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-    from strain_comp.core.calibration import Calibration
     from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation
 
 def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
@@ -34,8 +33,11 @@ def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
     return Figure(figsize=(9.0, height * rows), layout="constrained")
 
 
-def _save(fig: Figure, out: IO[bytes]) -> None:
-    fig.savefig(out, dpi=110, format="png")
+def png(fig: Figure) -> bytes:
+    """The figure as PNG bytes."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, dpi=110, format="png")
+    return buffer.getvalue()
 
 
 def plain(text: str) -> str:
@@ -97,7 +99,7 @@ def _out_of_range(ev: SensorEvaluation) -> np.ndarray:
     return mask if mask.shape == ev.t.shape else np.zeros(ev.t.shape, bool)
 
 
-def plot_time(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
+def plot_time(ev: SensorEvaluation, context: str = "") -> Figure:
     """Estimate and reference strain over time, resistance on a second panel; samples
     outside the calibrated range marked on both."""
     fig = _figure(2, height=3.2)
@@ -131,10 +133,10 @@ def plot_time(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> Non
     bottom.set_xlabel("time since start [s]")
     bottom.set_ylabel(r_label)
     _finish(bottom)
-    _save(fig, out)
+    return fig
 
 
-def plot_loop(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
+def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
     """S_hat against S with the identity line; out-of-range samples marked."""
     fig = _figure(height=6.0)
     ax = fig.subplots()
@@ -153,11 +155,11 @@ def plot_loop(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> Non
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
     _finish(ax, _title(ev, context))
-    _save(fig, out)
+    return fig
 
 
-def plot_raw(ev: SensorEvaluation, out: IO[bytes], *, context: str = "",
-             r_range: tuple[float, float] | None = None) -> None:
+def plot_raw(ev: SensorEvaluation, context: str = "",
+             r_range: tuple[float, float] | None = None) -> Figure:
     """The sensor as recorded: resistance against the reference strain (what the model
     inverts), with the calibration's resistance range as lines, moved by the tare's gain into
     the recorded resistance."""
@@ -186,10 +188,10 @@ def plot_raw(ev: SensorEvaluation, out: IO[bytes], *, context: str = "",
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
     _finish(ax, _title(ev, context))
-    _save(fig, out)
+    return fig
 
 
-def plot_error_hist(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
+def plot_error_hist(ev: SensorEvaluation, context: str = "") -> Figure:
     """Histogram of the error S_hat - S over the scored samples."""
     fig = _figure(height=4.0)
     ax = fig.subplots()
@@ -202,7 +204,7 @@ def plot_error_hist(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") 
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
     _finish(ax, _title(ev, context))
-    _save(fig, out)
+    return fig
 
 
 PLOT_KINDS = ("time", "loop", "raw", "error_hist")
@@ -215,21 +217,6 @@ def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
     before anything is written (``io.atomic.check_distinct``)."""
     return [Path(out_dir) / f"{name.strip('/').replace('/', '_')}_{kind}.png"
             for name in names for kind in PLOT_KINDS]
-
-
-def plot_sensor(result: EvaluationResult, name: str, *, calibration: Calibration | None = None,
-                bag: str = "", calibration_path: str = "", tare: str = "") -> list[bytes]:
-    """The four plots of one evaluated sensor as PNG bytes (``PLOT_KINDS`` order)."""
-    ev = result.sensors[name]
-    context = context_line(result, name, bag, calibration_path, tare)
-    cal = calibration.sensors.get(name) if calibration is not None else None
-    r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-    time, loop, raw, hist = buffers = [io.BytesIO() for _ in PLOT_KINDS]
-    plot_time(ev, time, context=context)
-    plot_loop(ev, loop, context=context)
-    plot_raw(ev, raw, context=context, r_range=r_range)
-    plot_error_hist(ev, hist, context=context)
-    return [buffer.getvalue() for buffer in buffers]
 
 
 def write_plots(figures: Mapping[str, Sequence[tuple[str, bytes]]], out_dir: str | Path, *,
@@ -262,8 +249,8 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
     return ", ".join(parts)
 
 
-def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
-                      out: IO[bytes], *, context: str = "") -> None:
+def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str, *,
+                      context: str = "") -> Figure:
     """``fit --model auto``'s candidates: each one's RMSE on every run left out (a marker
     per run), its median as a bar, the chosen one filled."""
     table = choice.get("candidates") or {}
@@ -288,4 +275,4 @@ def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
                  + (f"\n{context}" if context else ""), fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
-    _save(fig, out)
+    return fig

@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import base64
-import io
 import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
@@ -23,7 +22,16 @@ from strain_comp.core.calibration import (
     strain_unit_words,
 )
 from strain_comp.offline.evaluation import format_notes, json_safe
-from strain_comp.offline.plots import plot_model_choice, plot_sensor, tare_words
+from strain_comp.offline.plots import (
+    context_line,
+    plot_error_hist,
+    plot_loop,
+    plot_model_choice,
+    plot_raw,
+    plot_time,
+    png,
+    tare_words,
+)
 from strain_comp.version import __version__
 
 if TYPE_CHECKING:
@@ -73,13 +81,18 @@ class BagSection:
 def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
                        calibration_path: str = "", tare: str = ""
                        ) -> dict[str, list[tuple[str, bytes]]]:
-    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
+    """The four evaluation plots of every sensor with kept samples, as PNG bytes (captions
+    ``FIGURES``, files ``plots.PLOT_KINDS``)."""
     out: dict[str, list[tuple[str, bytes]]] = {}
     for name, ev in result.sensors.items():
         if ev.t.size:
-            pngs = plot_sensor(result, name, calibration=calibration, bag=bag,
-                               calibration_path=calibration_path, tare=tare)
-            out[name] = list(zip(FIGURES, pngs, strict=True))
+            context = context_line(result, name, bag, calibration_path, tare)
+            cal = calibration.sensors.get(name)
+            r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
+            figures = (plot_time(ev, context), plot_loop(ev, context),
+                       plot_raw(ev, context, r_range), plot_error_hist(ev, context))
+            out[name] = [(caption, png(figure))
+                         for caption, figure in zip(FIGURES, figures, strict=True)]
     return out
 
 
@@ -273,9 +286,8 @@ def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
                          "</tr>")
         lines.append("</table>")
         body.append("\n".join(lines))
-        buffer = io.BytesIO()
-        plot_model_choice(choice, runs, cal.strain_unit, buffer, context=calibration_path)
+        figure = plot_model_choice(choice, runs, cal.strain_unit, context=calibration_path)
         body.append(html_image(f"{name}: RMSE of each candidate on each run left out, after "
-                               "strain-comp start", buffer.getvalue()))
+                               "strain-comp start", png(figure)))
     body.append(provenance_section(calibration, calibration_path))
     return html_page(f"strain_comp fit --model auto: {calibration_path}", body)
