@@ -67,9 +67,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   inputs: Sequence[str], out_of_range: str = "extend",
                   references_every: float | None = None, figures: bool = False,
                   keep_going: bool = True) -> BagSection:
-    """``evaluate`` of one bag (what a worker runs); errors become ``BagSection.error``
-    (raised unless ``keep_going``). ``series_to``: the open CSV (serial) or the path of a
-    worker's temporary part."""
+    """``evaluate`` of one bag; ``series_to``: the open CSV or a worker's part's path."""
     table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
     try:
         calibration = load_calibration(calibration_path)
@@ -127,13 +125,12 @@ def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
 
 
 def _copy_part(part: str, table: SeriesCSV, target: str) -> None:
-    """A worker's CSV part (header first) streamed into the table in blocks; an error
-    names the table's target, not the part."""
+    """A worker's CSV part streamed into the table; an error names the table's target."""
     try:
         with open(part, encoding="utf-8") as handle:
             handle.readline()  # the part's own header
             while block := handle.read(2**20):
-                table.add_text(block)
+                table.write(block)
     except OSError as err:
         raise OutputError(f"{target}: cannot write: {err.strerror or err}") from None
 
@@ -204,8 +201,8 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   out_of_range: str = "extend",
                   references_every: float | None = None,
                   figures: bool = False, keep_going: bool = True) -> list[BagSection]:
-    """Every bag evaluated (module docstring), in the order given; ``plots``: the folder
-    of each bag's plots (``plot_dirs``)."""
+    """Every bag evaluated, in the order given; ``plots``: each bag's folder (``plot_dirs``)."""
+
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = list(plots or [None] * len(bags))

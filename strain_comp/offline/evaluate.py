@@ -41,8 +41,7 @@ PLOT_POINTS = 50_000
 
 
 class _Kept:
-    """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
-    more, every other kept sample goes and the stride doubles; None: every sample)."""
+    """Every ``stride``-th sample of one sensor, for plots, the stride doubled past ``cap``."""
 
     FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range", "std")
 
@@ -122,8 +121,7 @@ class _Score:
 
 
 class Scorer:
-    """The one evaluation: sensors tared (``start``), their samples run and scored piece by
-    piece (``score``), the per-sensor result and notes (``result``)."""
+    """The one evaluation: sensors tared, run and scored piece by piece, then the result."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int | None, series: SeriesCSV | None = None, bag: str = "",
@@ -153,8 +151,7 @@ class Scorer:
 
     def score(self, names: list[str], group: list[str], t: np.ndarray, r: np.ndarray,
               temps: Mapping[str, np.ndarray | None], refs: Mapping[str, np.ndarray]) -> None:
-        """Run and score a piece of ``names`` (``r``'s columns); ``group``: the sensors run
-        together by ``Engine.run_array`` (calibration order), else empty."""
+        """Run and score a piece of ``names``; ``group``: those run by ``Engine.run_array``."""
         for name, ref in refs.items():
             check_reference(name, ref, InputError)
         column = {name: j for j, name in enumerate(names)}
@@ -176,8 +173,7 @@ class Scorer:
 
     def result(self, found: list[str], referenced: set[str], with_temperature: set[str],
                same_tick: Mapping[str, set[str]]) -> EvaluationResult:
-        """Every calibrated sensor's evaluation, or the note why it has none; ``found``:
-        every sensor in the data."""
+        """Every calibrated sensor's evaluation, or the note why it has none."""
         missing = [n for n in self.calibration.sensors if n in found and n not in referenced]
         if self.references_every is not None and missing:
             raise InputError(f"--references-every {self.references_every:g}: "
@@ -250,8 +246,7 @@ def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) 
 
 
 def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
-    """The note for a run without temperature scored through a calibration with a
-    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    """The note that a temperature term is not applied without temperature (it reads 0)."""
     terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
     if not terms:
         return []
@@ -266,8 +261,7 @@ def nothing_scored(calibration: Calibration, names: list[str]) -> str:
 
 
 def temperature_series(contents: BagContents, name: str) -> Series | None:
-    """Sensor ``name``'s ``/NAME/temperature`` in ``contents`` (an array's sensors each read
-    their own, as the node does), or None."""
+    """Sensor ``name``'s own ``/NAME/temperature`` (an array's too, as the node reads it)."""
     temp = contents.series.get(f"/{name}{TEMPERATURE}")
     return temp if temp is not None and temp.values.ndim == 1 else None
 
@@ -292,8 +286,7 @@ def reference_columns(contents: BagContents, topic: str) -> tuple[dict[str, int 
 
 @dataclass
 class _Input:
-    """One ``/PREFIX/resistance`` topic: its calibrated columns and what waits for the
-    reference (or temperature) to arrive."""
+    """One resistance topic: its calibrated columns and the samples waiting for alignment."""
 
     prefix: str
     names: list[str]
@@ -313,8 +306,7 @@ class _Input:
 
 
 class BagScorer(Scorer):
-    """``Scorer`` fed a bag piece by piece: what waits between pieces is the samples after
-    the latest reference (or temperature) sample read so far."""
+    """``Scorer`` fed a bag piece by piece, samples held until their reference is known."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int, series: SeriesCSV | None = None, bag: str = "",
@@ -356,8 +348,8 @@ class BagScorer(Scorer):
                 self._problem(f"{topic}: reference without a resistance topic; ignored")
 
     def _input(self, topic: str, contents: BagContents) -> _Input | None:
-        """What a resistance topic first seen in ``contents`` is (as ``load_recordings``
-        reads it), tared from this first piece (as ``replay`` does)."""
+        """A resistance topic as ``load_recordings`` reads it, tared from its first piece."""
+
         prefix = topic[:-len(RESISTANCE)]
         series = contents.series[topic]
         single = series.values.ndim == 1
@@ -440,9 +432,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  out_of_range: str = "extend",
                  references_every: float | None = None,
                  ) -> tuple[EvaluationResult, list[str]]:
-    """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
-    of about ``window`` messages (``iter_bag``), each compensated and scored before the next
-    is read; at most ``plot_points`` samples kept per sensor for plots."""
+    """``evaluate_recordings`` of the bag at ``path``, streamed in pieces (``iter_bag``)."""
     stream = BagScorer(calibration, Engine(calibration, out_of_range=out_of_range),
                        tare, plot_points, series, str(path), references_every)
     for contents in iter_bag(path, window=window):

@@ -77,8 +77,7 @@ class _Input:
 
 
 def _input(topic: str, contents: BagContents, calibration: Calibration) -> _Input | None:
-    """The input a ``/NAME/resistance`` topic is when every sensor on it is calibrated, or
-    None (copied through only)."""
+    """The input of a topic whose sensors are all calibrated, else None (copied only)."""
     if contents.types.get(topic) not in RESISTANCE_TYPES:  # e.g. Temperature: never ohm
         return None
     sensors, _ = topic_sensors(topic, contents)
@@ -143,7 +142,7 @@ class _Replay:
             self.out.write(self.writer, lo, hi)
             ticks = now if shared else now[k * TICK_BATCH:(k + 1) * TICK_BATCH]
             for a in range(0, ticks.size, TICK_BATCH):
-                self._write_diagnostics(ticks[a:a + TICK_BATCH], counters, fusion)
+                self.write_diagnostics(ticks[a:a + TICK_BATCH], counters, fusion)
             copies.write(self.writer, lo, hi)
             if hi is not None:
                 self.writer.flush(before=hi)
@@ -152,8 +151,7 @@ class _Replay:
         self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
 
     def _discover(self, contents: BagContents) -> None:
-        """Take each new ``/NAME/resistance`` topic of ``contents`` as an input or not; an
-        input's sensors are tared (``tare``) and, with ``references_every``, fused."""
+        """Take each new ``/NAME/resistance`` topic as an input (tared, fused) or not."""
         for topic in contents.series:
             if topic.endswith("/resistance") and topic not in self.inputs:
                 inp = _input(topic, contents, self.calibration)
@@ -179,8 +177,7 @@ class _Replay:
 
     def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]
              ) -> tuple[np.ndarray, dict[str, HealthCounter], dict[str, FusionTicks]]:
-        """Write the outputs of the piece's ``inputs``; the diagnostics ticks it completes,
-        each sensor's health over the piece and a fused sensor's fusion states."""
+        """Stage the outputs of ``inputs``; the ticks completed, healths and fusion states."""
         t_all = np.concatenate([series.t for _, series in inputs])
         if self.t0 is None:
             self.t0 = float(t_all.min())
@@ -204,7 +201,7 @@ class _Replay:
             ran.update({s: (series.t, out) for s, out in outs.items()})
         counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
                     for name, h in before.items()}
-        fusion = {s: FusionTicks.of(fusion_before[s], list(f.judged))
+        fusion = {s: FusionTicks(fusion_before[s], list(f.judged))
                   for s, f in self.fused.items()}
         return now, counters, fusion
 
@@ -226,17 +223,9 @@ class _Replay:
             for pending in self.pending.values():
                 pending.flush(self.series, final=True)
 
-    def write_ticks(self, ticks: np.ndarray) -> None:
-        """The /diagnostics of ``ticks`` after the last input (the engine's health now)."""
-        self._write_diagnostics(ticks, {name: HealthCounter(h)
-                                        for name, h in self.engine.health().items()},
-                                {s: FusionTicks.of(f.fusion.diagnostic_values(), [])
-                                 for s, f in self.fused.items()})
-
-    def _write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
+    def write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
                            fusion: dict[str, FusionTicks]) -> None:
-        """One /diagnostics message per tick (``diagnostic_payloads``): every sensor's health
-        at the tick, a fused sensor's fusion state."""
+        """One /diagnostics message per tick (``diagnostic_payloads``)."""
         healths = {name: c.at(ticks, stale_after=self.engine.stale_for(name))
                    for name, c in counters.items()}
         for run, blob, lengths in diagnostic_payloads(ticks, healths, fusion):
@@ -245,8 +234,7 @@ class _Replay:
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
-        """Run ``inp``'s piece and stage its outputs: an array's as Float64MultiArray, a
-        sensor's as Float64 (strain, std) and Int8 (direction, status)."""
+        """Run ``inp``'s piece and stage its outputs."""
         if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
             outs = self.engine.run_array(inp.sensors, t, values, temps)
         else:
@@ -279,8 +267,7 @@ class _Replay:
 
     def _fused(self, inp: _Input, t: np.ndarray, outs: dict[str, BatchOutput]
                ) -> dict[str, BatchOutput]:
-        """``outs`` with the sensors' references fused (``references_every``); the reference
-        at each sample is the latest at or before it (as the node holds it)."""
+        """``outs`` with the latest reference at each sample fused, as the node does."""
         if self.references_every is None:
             return outs
         for name in inp.sensors:
@@ -300,8 +287,7 @@ class _Replay:
                      empty if series is None else series.values, t)
 
     def _reference(self, inp: _Input, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """The piece's reference samples (t, value) of sensor ``name`` of ``inp``
-        (``reference_columns``; none when its topic or column is missing)."""
+        """The piece's reference samples (t, value) of sensor ``name`` of ``inp``."""
         ref = self._contents.series.get(f"/{inp.name}/strain_reference")
         if ref is None:
             return np.empty(0), np.empty(0)
@@ -318,8 +304,7 @@ class _Replay:
 
 def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np.ndarray,
           src_v: np.ndarray, t: np.ndarray) -> np.ndarray | None:
-    """The latest source sample at or before each of ``t``, as the node holds it, the
-    source's latest sample kept in ``latest`` for the next piece; None: no sample yet."""
+    """``hold_latest`` carried across pieces in ``latest``; None: no sample yet."""
     if name in latest:
         src_t = np.concatenate((latest[name][0], src_t))
         src_v = np.concatenate((latest[name][1], src_v))
@@ -337,8 +322,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
                references_every: float | None = None) -> ReplaySummary:
-    """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
-    written atomically (refused when it is an input), piece by piece (``_Replay``)."""
+    """Replay ``in_path`` into a new bag at ``out_path``, written atomically, by pieces."""
     if references_every is not None:
         check_every(references_every)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
@@ -359,7 +343,10 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             raise InputError(f"--references-every {references_every:g}: {', '.join(missing)} "
                              "has no strain_reference in the bag (the references fused are "
                              "the bag's own /NAME/strain_reference)")
-        state.write_ticks(state.ticks)
+        # the ticks after the last input: the engine's health now
+        state.write_diagnostics(state.ticks, {
+            name: HealthCounter(h) for name, h in engine.health().items()},
+            {s: FusionTicks(f.fusion.diagnostic_values(), []) for s, f in state.fused.items()})
         state.finish_series()
     replayed = {s for i in inputs for s in i.sensors}
     problems = state.problems + [
@@ -405,31 +392,26 @@ class StagedWrites:
 
 
 class FusionTicks:
-    """A fused sensor's ``fusion_*`` key-values at any tick of a piece: ``states[0]`` before
-    it, ``states[i]`` after the reference judged at ``times[i - 1]``."""
+    """A fused sensor's ``fusion_*`` key-values at any tick of a piece."""
 
-    def __init__(self, states: list[dict[str, str]], times: np.ndarray) -> None:
-        self.states = states
+    def __init__(self, before: dict[str, str], judged: list[tuple[float, dict[str, str]]]
+                 ) -> None:
+        self.states = [before, *(values for _, values in judged)]
+        times = np.array([t for t, _ in judged], np.float64)
         order = np.argsort(times, kind="stable")
         self.sorted_times = times[order]
         self.latest = np.maximum.accumulate(order + 1) if order.size else order
         """Per time in order, the last state judged at or before it."""
-        key_sets = [tuple(state) for state in states]
+        key_sets = [tuple(state) for state in self.states]
         ids = {keys: n for n, keys in enumerate(dict.fromkeys(key_sets))}
         self.key_sets = list(ids)
         """The sets of keys its states have, in order of appearance."""
         self.key_set = np.array([ids[keys] for keys in key_sets], np.int64)
         """Per state, its set of keys (index into ``key_sets``)."""
 
-    @classmethod
-    def of(cls, before: dict[str, str], judged: list[tuple[float, dict[str, str]]]
-           ) -> FusionTicks:
-        return cls([before, *(values for _, values in judged)],
-                   np.array([t for t, _ in judged], np.float64))
-
     def at(self, ticks: np.ndarray) -> np.ndarray:
-        """Index into ``states`` at each of ``ticks``: the last reference judged at or
-        before the tick (in the order judged), else 0."""
+        """Per tick, the state after the last reference judged at or before it (0: none)."""
+
         pos = np.searchsorted(self.sorted_times, ticks, side="right")
         found = np.zeros(ticks.size, np.int64)
         found[pos > 0] = self.latest[pos[pos > 0] - 1]

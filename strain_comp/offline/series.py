@@ -39,9 +39,10 @@ class SeriesCSV:
         self.path = path
         self.file = None if self.stdout else AtomicFile(path, inputs=inputs)
         self.bag = bag
-        self._write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
+        self.write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
 
-    def _write(self, text: str) -> None:
+    def write(self, text: str) -> None:
+        """Text as it is: a header, rows already formatted (``evaluate --jobs``'s parts)."""
         if self.file is None:
             sys.stdout.write(text)
         else:
@@ -70,11 +71,7 @@ class SeriesCSV:
                        np.asarray(status).astype(int).tolist(), strict=True):
             buf.write(f"{head},{row[0]},{row[1]},{row[2]},{row[3]},{tail},{row[4]},"
                       f"{_STATUS.get(row[5], str(row[5]))}\n")
-        self._write(buf.getvalue())
-
-    def add_text(self, text: str) -> None:
-        """Rows already formatted (a worker's part of ``evaluate --jobs``), header-less."""
-        self._write(text)
+        self.write(buf.getvalue())
 
     def close(self) -> None:
         if self.file is not None:
