@@ -68,9 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Every input and output checked before any bag is read, then the bags evaluated
-    (``offline.batch``): one bag given as a file as itself (no heading, no pooled table,
-    its error the command's), several as a table per bag and the pooled errors."""
+    """Every input and output checked before any bag is read, then the bags evaluated."""
     from strain_comp import api
     from strain_comp.core.engine import tracking_off
     from strain_comp.core.fusion import check_every
@@ -104,8 +102,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None], many: bool,
               inputs: list[str], calibration: Calibration) -> int:
-    """The bags evaluated; then the tables, notes, JSON and report (``many``: a heading per
-    bag, its notes prefixed by it, the pooled table, keyed JSON, exit 2 when one failed)."""
+    """The bags evaluated; then the tables, notes, JSON and report."""
+
     from strain_comp.core.calibration import expected_words
     from strain_comp.offline.batch import aggregate, evaluate_bags, format_aggregate, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS

@@ -103,8 +103,7 @@ def input_unit(cal: SensorCalibration) -> str:
 
 def score_lines(rows: Sequence[tuple[str, str, int | None, ErrorStats, float | None]],
                 bags: bool = False) -> Iterator[str]:
-    """The fixed-width table of (sensor, model, bags, stats, 95 % coverage) rows: the
-    header, its rule, a line per row; ``in 95%`` where a row has a coverage."""
+    """Header, rule and a line per (sensor, model, bags, stats, 95 % coverage) row."""
     banded = any(coverage is not None for *_, coverage in rows)
     header = (f"{'sensor':<16} {'model':<11}" + (f" {'bags':>4}" if bags else "")
               + f" {'n':>8} {'RMSE':>9} {'MAE':>9} {'max_abs':>9} {'r2':>8}"
@@ -144,8 +143,8 @@ def coverage_cell(coverage: float | None) -> str:
 
 
 def format_notes(result: EvaluationResult) -> list[str]:
-    """Lines for what the table does not show: bad samples, samples without a reference,
-    out-of-range, unscored sensors."""
+    """Lines for what the table does not show: bad, unreferenced, out of range, unscored."""
+
     lines = []
     for name, ev in result.sensors.items():
         if ev.n_bad:

@@ -84,8 +84,7 @@ def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | Non
 
 
 def _resistance_axis(ev: SensorEvaluation) -> tuple[np.ndarray, str, float]:
-    """The input in a readable prefix (ohm, kohm, Mohm; V for a divider), its label and
-    the factor it was divided by."""
+    """The input in a readable prefix (ohm, kohm, Mohm), its label and its divisor."""
     r = np.asarray(ev.r, dtype=np.float64)
     if ev.input_unit != "ohm":
         return r, f"input [{ev.input_unit}]", 1.0
@@ -94,18 +93,12 @@ def _resistance_axis(ev: SensorEvaluation) -> tuple[np.ndarray, str, float]:
     return r / scale, f"resistance [{prefix}ohm]", scale
 
 
-def _out_of_range(ev: SensorEvaluation) -> np.ndarray:
-    mask = np.asarray(ev.out_of_range, bool)
-    return mask if mask.shape == ev.t.shape else np.zeros(ev.t.shape, bool)
-
-
 def plot_time(ev: SensorEvaluation, context: str = "") -> Figure:
-    """Estimate and reference strain over time, resistance on a second panel; samples
-    outside the calibrated range marked on both."""
+    """Estimate and reference strain over time, resistance on a second panel."""
     fig = _figure(2, height=3.2)
     top, bottom = fig.subplots(2, 1, sharex=True)
     t = ev.t - ev.t[0] if ev.t.size else ev.t
-    outside = _out_of_range(ev)
+    outside = ev.out_of_range
     if ev.std.size == t.size and t.size:
         half = Z_95 * ev.std
         share = "" if ev.coverage_95 is None else f", holds {100 * ev.coverage_95:.1f} %"
@@ -142,7 +135,7 @@ def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
     ax = fig.subplots()
     s, s_hat = ev.reference[ev.scored], ev.estimate[ev.scored]
     ax.plot(s, s_hat, color="tab:red", lw=0.6, alpha=0.8, label="estimate")
-    outside = _out_of_range(ev)[ev.scored]
+    outside = ev.out_of_range[ev.scored]
     if outside.any():
         ax.plot(s[outside], s_hat[outside], ".", color="tab:orange", ms=2.5,
                 label="outside the calibrated range")
@@ -160,14 +153,12 @@ def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
 
 def plot_raw(ev: SensorEvaluation, context: str = "",
              r_range: tuple[float, float] | None = None) -> Figure:
-    """The sensor as recorded: resistance against the reference strain (what the model
-    inverts), with the calibration's resistance range as lines, moved by the tare's gain into
-    the recorded resistance."""
+    """Resistance against reference strain, with the calibrated range through the tare."""
     fig = _figure(height=5.0)
     ax = fig.subplots()
     r, r_label, scale = _resistance_axis(ev)
     ax.plot(ev.reference, r, color="tab:blue", lw=0.6, alpha=0.8, label="recorded")
-    outside = _out_of_range(ev)
+    outside = ev.out_of_range
     if outside.any():
         ax.plot(ev.reference[outside], r[outside], ".", color="tab:orange", ms=2.5,
                 label="outside the calibrated range")
@@ -212,17 +203,14 @@ PLOT_KINDS = ("time", "loop", "raw", "error_hist")
 
 
 def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
-    """The files ``plot_evaluation`` writes into ``out_dir`` for the sensors ``names``
-    (slashes in a name become ``_``), so a command can refuse another output among them
-    before anything is written (``io.atomic.check_distinct``)."""
+    """The files ``write_plots`` writes for ``names``, to check before anything is written."""
     return [Path(out_dir) / f"{name.strip('/').replace('/', '_')}_{kind}.png"
             for name in names for kind in PLOT_KINDS]
 
 
 def write_plots(figures: Mapping[str, Sequence[tuple[str, bytes]]], out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
-    """Each sensor's drawn plots (``report_page.evaluation_figures``) into ``out_dir``
-    (``plot_files``), each written atomically; a path that is an input is refused."""
+    """Each sensor's plots (``evaluation_figures``) into ``out_dir``, written atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -251,8 +239,8 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
 
 def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str, *,
                       context: str = "") -> Figure:
-    """``fit --model auto``'s candidates: each one's RMSE on every run left out (a marker
-    per run), its median as a bar, the chosen one filled."""
+    """``fit --model auto``'s candidates: RMSE per run left out, the median as a bar."""
+
     table = choice.get("candidates") or {}
     assert isinstance(table, dict)
     models = list(table)

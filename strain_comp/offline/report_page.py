@@ -66,9 +66,7 @@ SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
 
 @dataclass
 class BagSection:
-    """One evaluated bag (``evaluate``, a section of the page): its result (None when it
-    failed: ``error``, one line), the reader's problems, per sensor the plots as (caption,
-    PNG bytes) and the plot files written (``--plots``)."""
+    """One evaluated bag (None result: ``error``), its problems, figures and plot files."""
 
     bag: str
     result: EvaluationResult | None
@@ -81,8 +79,7 @@ class BagSection:
 def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
                        calibration_path: str = "", tare: str = ""
                        ) -> dict[str, list[tuple[str, bytes]]]:
-    """The four evaluation plots of every sensor with kept samples, as PNG bytes (captions
-    ``FIGURES``, files ``plots.PLOT_KINDS``)."""
+    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
     out: dict[str, list[tuple[str, bytes]]] = {}
     for name, ev in result.sensors.items():
         if ev.t.size:
@@ -145,8 +142,7 @@ def html_notes(lines: Iterable[str], cls: str = "note") -> str:
 
 
 def plain_text(value: Any) -> str:
-    """A provenance value in one line: numbers to 4 significant digits, mappings as
-    ``key: value; ...``, lists as ``a, b``."""
+    """A provenance value in one line, numbers to 4 significant digits."""
     if isinstance(value, Mapping):
         return "; ".join(f"{k}: {plain_text(v)}" for k, v in value.items()) or "none"
     if isinstance(value, (list, tuple)):
@@ -238,8 +234,7 @@ def bag_section(section: BagSection, heading: str = "") -> list[str]:
 def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
                     calibration_path: str, *, tare: str = "",
                     pooled: Mapping[str, tuple[Any, int, str, str]] | None = None) -> str:
-    """The ``evaluate --report`` page: one section per bag, the pooled table for several
-    (``strain_comp.offline.batch.aggregate``), then the calibration's provenance."""
+    """The ``evaluate --report`` page: the pooled table, a section per bag, provenance."""
     body: list[str] = []
     if pooled is not None:
         done = sum(s.result is not None for s in sections)
@@ -259,9 +254,8 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
 
 
 def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
-    """The ``fit --model auto --report`` page: per sensor, the table of every candidate
-    (median and worst RMSE over the runs left out after ``start``, each run's RMSE) and its
-    plot (``plots.plot_model_choice``), then the calibration's provenance."""
+    """The ``fit --model auto --report`` page: each sensor's candidates, then provenance."""
+
     body: list[str] = []
     for name, cal in calibration.sensors.items():
         choice = cal.provenance.get("model_choice") or {}

@@ -88,8 +88,7 @@ class SeriesCSV:
 def series_csv(path: str | os.PathLike[str] | None, *,
                inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False
                ) -> Iterator[SeriesCSV | None]:
-    """A ``SeriesCSV`` for ``path``, committed when the block ends and discarded, the target
-    left as it was, when it raises."""
+    """A ``SeriesCSV`` for ``path``, committed at the block's end, discarded if it raises."""
     if path is None:
         yield None
         return
@@ -110,8 +109,8 @@ def _cell(text: str) -> str:
 
 
 class PendingSeries:
-    """One replayed sensor's rows waiting for its reference (``PieceAlign``, the alignment
-    ``evaluate`` uses), so ``replay --csv`` gives the reference ``evaluate --csv`` gives."""
+    """One replayed sensor's rows waiting for their reference, aligned as ``evaluate``'s."""
+
 
     def __init__(self, name: str, unit: str) -> None:
         self.name = name
