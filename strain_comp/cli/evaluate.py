@@ -103,7 +103,6 @@ def run(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None], many: bool,
               inputs: list[str], calibration: Calibration) -> int:
     """The bags evaluated; then the tables, notes, JSON and report."""
-
     from strain_comp.core.calibration import expected_words
     from strain_comp.offline.batch import aggregate, evaluate_bags, format_aggregate, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS

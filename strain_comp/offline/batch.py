@@ -202,7 +202,6 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   references_every: float | None = None,
                   figures: bool = False, keep_going: bool = True) -> list[BagSection]:
     """Every bag evaluated, in the order given; ``plots``: each bag's folder (``plot_dirs``)."""
-
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = list(plots or [None] * len(bags))

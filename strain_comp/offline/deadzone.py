@@ -151,5 +151,4 @@ def _tau_grid(segments: Sequence[Segment]) -> list[float]:
 
 def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
     """The sign of the correlation of R and S (0 counts as +1): ``DirectionSettings.sign``."""
-
     return -1 if float(np.mean((r - r.mean()) * (s - s.mean()))) < 0 else 1

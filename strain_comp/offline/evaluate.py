@@ -349,7 +349,6 @@ class BagScorer(Scorer):
 
     def _input(self, topic: str, contents: BagContents) -> _Input | None:
         """A resistance topic as ``load_recordings`` reads it, tared from its first piece."""
-
         prefix = topic[:-len(RESISTANCE)]
         series = contents.series[topic]
         single = series.values.ndim == 1

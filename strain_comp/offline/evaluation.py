@@ -144,7 +144,6 @@ def coverage_cell(coverage: float | None) -> str:
 
 def format_notes(result: EvaluationResult) -> list[str]:
     """Lines for what the table does not show: bad, unreferenced, out of range, unscored."""
-
     lines = []
     for name, ev in result.sensors.items():
         if ev.n_bad:

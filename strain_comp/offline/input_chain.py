@@ -47,7 +47,6 @@ def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 def pair_side(recordings: Sequence[Recording]) -> str:
     """``pair_branch`` over the training runs, still where ``STILL_FRACTION`` says."""
-
     r_all, still_all = [], []
     for rec in recordings:
         if rec.s is None:

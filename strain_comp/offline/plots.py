@@ -240,7 +240,6 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
 def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str, *,
                       context: str = "") -> Figure:
     """``fit --model auto``'s candidates: RMSE per run left out, the median as a bar."""
-
     table = choice.get("candidates") or {}
     assert isinstance(table, dict)
     models = list(table)

@@ -108,7 +108,6 @@ def still_stretches(rate: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndar
 
 def hold_edges(t: np.ndarray, s: np.ndarray, min_length: int) -> np.ndarray:
     """First and last index of every still stretch of ``s`` at least ``min_length`` long."""
-
     rate = np.abs(np.gradient(s, t))
     scale = float(np.percentile(rate, 99.5))
     if scale <= 0.0:

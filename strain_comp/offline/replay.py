@@ -411,7 +411,6 @@ class FusionTicks:
 
     def at(self, ticks: np.ndarray) -> np.ndarray:
         """Per tick, the state after the last reference judged at or before it (0: none)."""
-
         pos = np.searchsorted(self.sorted_times, ticks, side="right")
         found = np.zeros(ticks.size, np.int64)
         found[pos > 0] = self.latest[pos[pos > 0] - 1]

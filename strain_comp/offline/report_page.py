@@ -255,7 +255,6 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
 
 def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
     """The ``fit --model auto --report`` page: each sensor's candidates, then provenance."""
-
     body: list[str] = []
     for name, cal in calibration.sensors.items():
         choice = cal.provenance.get("model_choice") or {}

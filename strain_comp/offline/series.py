@@ -111,7 +111,6 @@ def _cell(text: str) -> str:
 class PendingSeries:
     """One replayed sensor's rows waiting for their reference, aligned as ``evaluate``'s."""
 
-
     def __init__(self, name: str, unit: str) -> None:
         self.name = name
         self.unit = unit
