@@ -34,16 +34,6 @@ if TYPE_CHECKING:
     from strain_comp.offline.evaluation import EvaluationResult
 
 
-def _pandas() -> Any:
-    """pandas, or InputError saying it is optional and missing."""
-    try:
-        import pandas
-    except ImportError:
-        raise InputError("to_frame needs pandas (optional: pip install pandas); the arrays "
-                         "and dicts work without it") from None
-    return pandas
-
-
 @dataclass
 class Evaluation:
     """A calibration scored on one run: per sensor n, RMSE, MAE, max |error| and R^2 in
@@ -119,7 +109,11 @@ class Evaluation:
 
         """
         run = checked(run, "text", "run") or self.source
-        pandas = _pandas()
+        try:
+            import pandas
+        except ImportError:
+            raise InputError("to_frame needs pandas (optional: pip install pandas); the "
+                             "arrays and dicts work without it") from None
         rows = [{"model": row["model"], "run": run, "sensor": name,
                  **{k: v for k, v in row.items() if k != "model"}}
                 for name, row in self.scores.items()]

@@ -110,9 +110,11 @@ def score_lines(rows: Sequence[tuple[str, str, int | None, ErrorStats, float | N
               + (f" {'in 95%':>7}" if banded else ""))
     yield from (header, "-" * len(header))
     for name, model, n_bags, st, coverage in rows:
-        yield (f"{name:<16} {model:<11}" + (f" {n_bags:>4d}" if bags else "")
-               + f" {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}"
-               + (coverage_cell(coverage) if banded else ""))
+        line = (f"{name:<16} {model:<11}" + (f" {n_bags:>4d}" if bags else "")
+                + f" {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}")
+        if banded:  # the share of the scored samples inside the band, "-" without one
+            line += f" {'-':>7}" if coverage is None else f" {100.0 * coverage:>6.1f}%"
+        yield line
 
 
 def format_table(result: EvaluationResult) -> str:
@@ -135,11 +137,6 @@ def format_table(result: EvaluationResult) -> str:
                  + ("; in 95%: the scored samples inside the 95 % band (+-1.96 sigma)"
                     if banded else ""))
     return "\n".join(lines)
-
-
-def coverage_cell(coverage: float | None) -> str:
-    """The table's ``in 95%`` cell: a percentage, ``-`` without a band."""
-    return f" {'-':>7}" if coverage is None else f" {100.0 * coverage:>6.1f}%"
 
 
 def format_notes(result: EvaluationResult) -> list[str]:
