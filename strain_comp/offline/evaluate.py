@@ -16,7 +16,7 @@ import numpy as np
 from strain_comp.base.samples import Status, used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration, check_reference
 from strain_comp.core.engine import Engine
-from strain_comp.core.fusion import SparseFusion, check_every
+from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
@@ -126,8 +126,6 @@ class Scorer:
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int | None, series: SeriesCSV | None = None, bag: str = "",
                  references_every: float | None = None) -> None:
-        if references_every is not None:
-            check_every(references_every)
         self.calibration = calibration
         self.references_every = references_every
         self.fused: dict[str, SparseFusion] = {}

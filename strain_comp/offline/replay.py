@@ -18,7 +18,7 @@ import numpy.typing as npt
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import GAP_RESET, Engine
-from strain_comp.core.fusion import SparseFusion, check_every
+from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.health import (
     HealthCounter,
     HealthTicks,
@@ -323,8 +323,6 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                csv: str | os.PathLike[str] | None = None,
                references_every: float | None = None) -> ReplaySummary:
     """Replay ``in_path`` into a new bag at ``out_path``, written atomically, by pieces."""
-    if references_every is not None:
-        check_every(references_every)
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
     out_path = Path(out_path)
     with series_csv(csv, inputs=[in_path, *inputs, out_path]) as table, \
