@@ -297,8 +297,7 @@ class _Input:
     """Per sensor its ``/NAME/temperature``, only when an effect term here could read it."""
     reference: dict[str, PieceAlign]
     ref_columns: dict[str, int | None] | None = None
-    """Per sensor its reference column (None: a 1-D reference); None until the reference
-    topic is first seen; empty when it does not fit."""
+    """``reference_columns`` once the reference topic is seen, else None."""
     t: np.ndarray = field(default_factory=lambda: np.empty(0))
     r: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
 

@@ -41,8 +41,7 @@ class SensorEvaluation:
     out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
     """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
     input_unit: str = "ohm"
-    """The unit of ``r``: ohm (or the calibration's input unit), or V for a voltage
-    divider's input."""
+    """The unit of ``r``: the calibration's input unit, or V for a voltage divider."""
     input_gain: float = 1.0
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
     errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
@@ -50,11 +49,9 @@ class SensorEvaluation:
     references: dict[str, Any] | None = None
     """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
     std: np.ndarray = field(default_factory=lambda: np.empty(0))
-    """The estimate's standard deviation per sample of ``t`` (empty: the calibration holds
-    no uncertainty)."""
+    """The estimate's standard deviation per sample of ``t`` (empty: no uncertainty)."""
     coverage_95: float | None = None
-    """The share of the scored samples inside the 95 % band (+-1.96 sigma); None without
-    a band."""
+    """The share of the scored samples inside the 95 % band; None without a band."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""

@@ -39,8 +39,7 @@ from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")
 TICK_BATCH = 1024
-"""/diagnostics ticks whose healths are counted and encoded at once: a piece of a long,
-sparse bag holds thousands of ticks."""
+"""/diagnostics ticks counted and encoded at once (a long sparse piece holds thousands)."""
 STAMPED = "strain_stamped"
 """The JointState output beside ``OUTPUTS`` (module docstring)."""
 BAND = ("strain_std", "strain_std_stamped")
@@ -64,8 +63,7 @@ class ReplaySummary:
     n_compensated: int = 0
     """Resistance messages run through the engine (an array message counts once)."""
     references: dict[str, dict[str, float]] = field(default_factory=dict)
-    """Per sensor, what the fused references did (``OutputFusion.state`` and ``every``),
-    with ``references_every``."""
+    """Per fused sensor, ``OutputFusion.state`` and ``every``."""
 
 
 @dataclass
@@ -428,10 +426,8 @@ class FusionTicks:
 def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
                         fusion: Mapping[str, FusionTicks]
                         ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
-    """The DiagnosticArray payloads of ``ticks`` [s] at once (the bytes of
-    ``SensorHealth.to_diagnostic`` tick by tick), in runs of one fusion key set (its keys
-    grow when a reference is first refused for a new reason): (the run's ticks, payloads
-    joined, lengths)."""
+    """The DiagnosticArray payloads of ``ticks`` [s] at once, in runs of one fusion key set
+    (it grows with each new reason to refuse): (the run's ticks, payloads, lengths)."""
     if not ticks.size:
         return
     t_ns = np.round(ticks * 1e9).astype(np.int64)  # as the writer stamps its messages
