@@ -22,12 +22,8 @@ from strain_comp.errors import InputError
 from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import format_notes, format_table
 from strain_comp.offline.fit import in_run_bound as _in_run_bound
-from strain_comp.offline.report_page import (
-    BagSection,
-    evaluation_figures,
-    evaluation_page,
-    scores_table,
-)
+from strain_comp.offline.plots import evaluation_figures
+from strain_comp.offline.report_page import BagSection, evaluation_page, scores_table
 from strain_comp.offline.series import series_csv
 
 if TYPE_CHECKING:

@@ -29,8 +29,8 @@ from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_bag
 from strain_comp.offline.evaluation import score_lines
 from strain_comp.offline.fit import in_run_bound
-from strain_comp.offline.plots import write_plots
-from strain_comp.offline.report_page import BagSection, evaluation_figures
+from strain_comp.offline.plots import evaluation_figures, write_plots
+from strain_comp.offline.report_page import BagSection
 from strain_comp.offline.series import SeriesCSV
 
 MAX_JOBS = 64

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from strain_comp.core.calibration import Calibration
     from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation
 
 def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
@@ -198,14 +199,35 @@ def plot_error_hist(ev: SensorEvaluation, context: str = "") -> Figure:
     return fig
 
 
-PLOT_KINDS = ("time", "loop", "raw", "error_hist")
-"""The plots per sensor, in the order written: ``NAME_KIND.png``."""
+PLOTS = {"time": "estimate and reference over time, resistance below",
+         "loop": "estimate against reference (a loop left is hysteresis the model missed)",
+         "raw": "recorded resistance against reference, with the calibrated range (dotted); "
+                "samples outside it in orange",
+         "error_hist": "error histogram"}
+"""The plots per sensor, in the order drawn: ``NAME_KIND.png`` and its caption."""
 
 
 def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
     """The files ``write_plots`` writes for ``names``, to check before anything is written."""
     return [Path(out_dir) / f"{name.strip('/').replace('/', '_')}_{kind}.png"
-            for name in names for kind in PLOT_KINDS]
+            for name in names for kind in PLOTS]
+
+
+def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
+                       calibration_path: str = "", tare: str = ""
+                       ) -> dict[str, list[tuple[str, bytes]]]:
+    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
+    out: dict[str, list[tuple[str, bytes]]] = {}
+    for name, ev in result.sensors.items():
+        if ev.t.size:
+            context = context_line(result, name, bag, calibration_path, tare)
+            cal = calibration.sensors.get(name)
+            r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
+            figures = (plot_time(ev, context), plot_loop(ev, context),
+                       plot_raw(ev, context, r_range), plot_error_hist(ev, context))
+            out[name] = [(caption, png(figure))
+                         for caption, figure in zip(PLOTS.values(), figures, strict=True)]
+    return out
 
 
 def write_plots(figures: Mapping[str, Sequence[tuple[str, bytes]]], out_dir: str | Path, *,

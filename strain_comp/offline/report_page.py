@@ -22,16 +22,7 @@ from strain_comp.core.calibration import (
     strain_unit_words,
 )
 from strain_comp.offline.evaluation import format_notes, json_safe
-from strain_comp.offline.plots import (
-    context_line,
-    plot_error_hist,
-    plot_loop,
-    plot_model_choice,
-    plot_raw,
-    plot_time,
-    png,
-    tare_words,
-)
+from strain_comp.offline.plots import plot_model_choice, png, tare_words
 from strain_comp.version import __version__
 
 if TYPE_CHECKING:
@@ -52,13 +43,6 @@ img { max-width: 100%; border: 1px solid #eee; margin: 0.4em 0; }
 figure { margin: 0.6em 0; } figcaption { color: #555; font-size: 0.9em; }
 """
 
-FIGURES = ("estimate and reference over time, resistance below",
-           "estimate against reference (a loop left is hysteresis the model missed)",
-           "recorded resistance against reference, with the calibrated range (dotted); "
-           "samples outside it in orange",
-           "error histogram")
-"""Captions of the evaluation plots, in the order ``evaluation_figures`` draws them."""
-
 SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
               ("max_abs", "max_abs", ".4f"), ("r2", "r2", ".5f"))
 """Table columns: JSON key, heading, format of the shown text."""
@@ -74,23 +58,6 @@ class BagSection:
     problems: list[str] = field(default_factory=list)
     figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
     plots: list[str] = field(default_factory=list)
-
-
-def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
-                       calibration_path: str = "", tare: str = ""
-                       ) -> dict[str, list[tuple[str, bytes]]]:
-    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
-    out: dict[str, list[tuple[str, bytes]]] = {}
-    for name, ev in result.sensors.items():
-        if ev.t.size:
-            context = context_line(result, name, bag, calibration_path, tare)
-            cal = calibration.sensors.get(name)
-            r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-            figures = (plot_time(ev, context), plot_loop(ev, context),
-                       plot_raw(ev, context, r_range), plot_error_hist(ev, context))
-            out[name] = [(caption, png(figure))
-                         for caption, figure in zip(FIGURES, figures, strict=True)]
-    return out
 
 
 def html_cell(value: Any, fmt: str, key: str) -> str:
