@@ -114,7 +114,6 @@ class _Replay:
         self.n_out = 0
         self.n_compensated = 0
         self.problems: list[str] = []
-        self.reported: set[str] = set()
         self.written: set[str] = {"/diagnostics"}
         self._contents = BagContents()
 
@@ -169,8 +168,7 @@ class _Replay:
                             for s in inp.sensors})
 
     def _problem(self, line: str) -> None:
-        if line not in self.reported:
-            self.reported.add(line)
+        if line not in self.problems:
             self.problems.append(line)
 
     def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]
@@ -214,12 +212,6 @@ class _Replay:
             pending.add(series.t, cal.input.to_ohm(values[:, j]), out.strain, out.direction,
                         out.status, *self._reference(inp, name))
             pending.flush(self.series)
-
-    def finish_series(self) -> None:
-        """Write every row still waiting for its reference."""
-        if self.series is not None:
-            for pending in self.pending.values():
-                pending.flush(self.series, final=True)
 
     def write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
                            fusion: dict[str, FusionTicks]) -> None:
@@ -343,7 +335,9 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
         state.write_diagnostics(state.ticks, {
             name: HealthCounter(h) for name, h in engine.health().items()},
             {s: FusionTicks(f.fusion.diagnostic_values(), []) for s, f in state.fused.items()})
-        state.finish_series()
+        if table is not None:  # every row still waiting for its reference
+            for pending in state.pending.values():
+                pending.flush(table, final=True)
     replayed = {s for i in inputs for s in i.sensors}
     problems = state.problems + [
         f"calibrated sensor {s!r} has no input topic in the bag: not replayed "
