@@ -43,9 +43,7 @@ def _is_bag_dir(path: Path) -> bool:
 
 
 def expand_bags(paths: Sequence[str]) -> list[str]:
-    """The bags named by ``paths``: MCAP files and rosbag2 directories as given; a folder
-    that is not a rosbag2 directory stands for its ``*.mcap``, ``*.db3`` files and rosbag2
-    directories (sorted by name, not recursively)."""
+    """The bags named by ``paths``; a folder (not a rosbag2 directory) stands for its bags."""
     bags: list[str] = []
     for text in paths:
         path = Path(text)
@@ -107,8 +105,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
 
 
 def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
-    """A subfolder of ``plots`` per bag, named by its stem (``bag`` when the stem is not a
-    plain name: ``..``, ``.``, empty, hidden), ``_2``, ``_3``, ... when taken already."""
+    """A subfolder of ``plots`` per bag named by its stem (or ``bag``), ``_2``... if taken."""
     if plots is None:
         return [None] * len(bags)
     taken: set[str] = set()
@@ -136,10 +133,8 @@ def _copy_part(part: str, table: SeriesCSV, target: str) -> None:
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Cancel what has not started, send SIGTERM to every worker (``_worker_signals``: its
-    bag unwinds, removing its temporary files, and it exits) and wait for each, at most
-    ``STOP_SECONDS`` before SIGKILL. The pool keeps its processes in a private attribute:
-    no public API reaches them."""
+    """Cancel what has not started, SIGTERM every worker, SIGKILL after ``STOP_SECONDS``
+    (the pool's private attribute: no public API reaches its processes)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
@@ -157,9 +152,7 @@ _in_bag = False
 
 
 def _worker_signals() -> None:
-    """A pool worker's SIGTERM: inside a bag it raises ``Terminated`` (the bag's ``with``
-    blocks remove their temporary files), then the worker exits; between bags it exits
-    at once. Either way it takes no further bag."""
+    """SIGTERM in a worker: ``Terminated`` inside a bag (its files removed), else exit."""
     def on_term(signum: int, frame: object) -> None:
         if _in_bag:
             raise_terminated(signum, frame)

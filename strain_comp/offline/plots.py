@@ -1,8 +1,5 @@
 """Evaluation plots (PNG, matplotlib's Agg backend, imported only when plots are asked for):
-per sensor ``NAME_time.png`` (estimate, reference and 95 % band over time, resistance
-below), ``NAME_loop.png`` (estimate against reference), ``NAME_raw.png`` (resistance against
-reference, with the calibrated range) and ``NAME_error_hist.png``; samples outside the
-calibrated range in orange.
+the four of ``PLOTS`` per sensor, samples outside the calibrated range in orange.
 """
 
 from __future__ import annotations
@@ -42,9 +39,7 @@ def png(fig: Figure) -> bytes:
 
 
 def plain(text: str) -> str:
-    """``text`` as matplotlib draws it literally: ``$`` escaped (no mathtext from a bag's
-    or a sensor's name), a character that cannot be encoded (a surrogate from an undecodable
-    file name) as its ``\\udcff`` escape."""
+    """``text`` drawn literally: ``$`` escaped, a surrogate (undecodable file name) escaped."""
     return text.encode("utf-8", "backslashreplace").decode("utf-8").replace("$", r"\$")
 
 

@@ -370,9 +370,8 @@ class StagedWrites:
         self.calls.append((t_ns[order], order, call))
 
     def write(self, writer: BagWriter, lo: float, hi: float | None) -> None:
-        """Write the messages of log times in [``lo``, ``hi``) [s], compared as the writer
-        stores them (integer ns); ``hi`` None: every message not before ``lo`` (times the
-        writer refuses included, so it still refuses them)."""
+        """Write the messages of log times [s] in [``lo``, ``hi``) as integer ns; ``hi``
+        None: all the rest (times the writer refuses included, so it still refuses them)."""
         lo_ns = np.round(lo * 1e9)
         hi_ns = None if hi is None else np.round(hi * 1e9)
         for t_ns, order, call in self.calls:  # a slice costs its messages, not the piece's

@@ -24,9 +24,7 @@ _STATUS = {int(s): s.name.lower() for s in Status}
 
 
 def _number(values: np.ndarray, missing: str = "nan") -> list[str]:
-    """Shortest round-trip text of each value (``inf``, ``-inf`` as Python writes them);
-    ``missing`` for NaN: ``nan`` for a measured value that is not a number, an empty cell
-    for a reference the bag does not have."""
+    """Shortest round-trip text of each value, ``missing`` for NaN."""
     return [missing if v != v else repr(v) for v in values.tolist()]
 
 
