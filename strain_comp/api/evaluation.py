@@ -86,7 +86,8 @@ class Evaluation:
 
     def _repr_html_(self) -> str:
         """The report page's table of the scores, for a notebook."""
-        return scores_table(self.result, self.source)
+        return scores_table(((name, ev.model, ev.stats, ev.unit, {})
+                             for name, ev in self.result.sensors.items()), self.source)
 
     def to_frame(self, run: str | None = None) -> Any:
         """``scores`` as a pandas DataFrame, one row per sensor, indexed by (model, run,

@@ -70,7 +70,7 @@ def html_cell(value: Any, fmt: str, key: str) -> str:
     return f'<td class="num" data-key="{key}" data-value="{as_json}">{text}</td>'
 
 
-def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]]],
+def scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]]],
                   bag: str, extra: Sequence[tuple[str, str]] = ()) -> str:
     """A table of (sensor, model, stats, unit, extra values) rows."""
     head = "".join(f"<th>{h}</th>" for h in ("sensor", "model",
@@ -87,12 +87,6 @@ def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]
                      f"<td>{escape(model)}</td>{cells}</tr>")
     lines.append("</table>")
     return "\n".join(lines)
-
-
-def scores_table(result: EvaluationResult, bag: str) -> str:
-    """The scores of one evaluation as the page's HTML table (``Evaluation._repr_html_``)."""
-    return _scores_table(((name, ev.model, ev.stats, ev.unit, {})
-                          for name, ev in result.sensors.items()), bag)
 
 
 def html_image(caption: str, png: bytes) -> str:
@@ -184,7 +178,7 @@ def bag_section(section: BagSection, heading: str = "") -> list[str]:
         return [*body, f'<p class="error">not evaluated: {escape(section.error or "")}</p>']
     result = section.result
     bound = any(ev.in_run_rmse is not None for ev in result.sensors.values())
-    body.append(_scores_table(
+    body.append(scores_table(
         ((name, ev.model, ev.stats, ev.unit,
           {"n_out_of_range": ev.n_out_of_range, "n_bad": ev.n_bad,
            **({"in_run_rmse": ev.in_run_rmse} if ev.in_run_rmse is not None else {})})
@@ -206,7 +200,7 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
     if pooled is not None:
         done = sum(s.result is not None for s in sections)
         body.append(f"<h2>All bags: errors pooled over {done} of {len(sections)}</h2>")
-        body.append(_scores_table(((name, model, acc.stats(), unit, {"n_bags": n_bags})
+        body.append(scores_table(((name, model, acc.stats(), unit, {"n_bags": n_bags})
                                    for name, (acc, n_bags, model, unit) in pooled.items()),
                                   "(pooled)", [("n_bags", "bags")]))
     notes: list[str] = []
