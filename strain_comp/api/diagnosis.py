@@ -26,7 +26,8 @@ from strain_comp.diagnosis.report_page import diagnosis_page
 from strain_comp.io.atomic import check_distinct
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import PLOT_POINTS
-from strain_comp.offline.report_page import BagSection, evaluation_figures
+from strain_comp.offline.plots import evaluation_figures
+from strain_comp.offline.report_page import BagSection
 from strain_comp.progress import bar, counter
 
 if TYPE_CHECKING:

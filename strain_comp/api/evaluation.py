@@ -22,26 +22,12 @@ from strain_comp.errors import InputError
 from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import format_notes, format_table
 from strain_comp.offline.fit import in_run_bound as _in_run_bound
-from strain_comp.offline.report_page import (
-    BagSection,
-    evaluation_figures,
-    evaluation_page,
-    scores_table,
-)
+from strain_comp.offline.plots import evaluation_figures
+from strain_comp.offline.report_page import BagSection, evaluation_page, scores_table
 from strain_comp.offline.series import series_csv
 
 if TYPE_CHECKING:
     from strain_comp.offline.evaluation import EvaluationResult
-
-
-def _pandas() -> Any:
-    """pandas, or InputError saying it is optional and missing."""
-    try:
-        import pandas
-    except ImportError:
-        raise InputError("to_frame needs pandas (optional: pip install pandas); the arrays "
-                         "and dicts work without it") from None
-    return pandas
 
 
 @dataclass
@@ -100,7 +86,8 @@ class Evaluation:
 
     def _repr_html_(self) -> str:
         """The report page's table of the scores, for a notebook."""
-        return scores_table(self.result, self.source)
+        return scores_table(((name, ev.model, ev.stats, ev.unit, {})
+                             for name, ev in self.result.sensors.items()), self.source)
 
     def to_frame(self, run: str | None = None) -> Any:
         """``scores`` as a pandas DataFrame, one row per sensor, indexed by (model, run,
@@ -119,7 +106,11 @@ class Evaluation:
 
         """
         run = checked(run, "text", "run") or self.source
-        pandas = _pandas()
+        try:
+            import pandas
+        except ImportError:
+            raise InputError("to_frame needs pandas (optional: pip install pandas); the "
+                             "arrays and dicts work without it") from None
         rows = [{"model": row["model"], "run": run, "sensor": name,
                  **{k: v for k, v in row.items() if k != "model"}}
                 for name, row in self.scores.items()]

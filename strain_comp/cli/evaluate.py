@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import os
-from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from strain_comp.cli.common import (
@@ -69,9 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Every input and output checked before any bag is read, then the bags evaluated
-    (``offline.batch``): one bag given as a file as itself (no heading, no pooled table,
-    its error the command's), several as a table per bag and the pooled errors."""
+    """Every input and output checked before any bag is read, then the bags evaluated."""
     from strain_comp import api
     from strain_comp.core.engine import tracking_off
     from strain_comp.core.fusion import check_every
@@ -103,23 +100,10 @@ def run(args: argparse.Namespace) -> int:
     return _evaluate(args, bags, dirs, many, inputs, calibration)
 
 
-def print_expected(args: argparse.Namespace, calibration: Calibration,
-                   sensors: Iterable[str]) -> None:
-    """Beside the table: per sensor the error its calibration expects on a new session
-    (``core.calibration.expected_words``), where it holds one (``fit --model auto``)."""
-    from strain_comp.core.calibration import expected_words
-
-    for name in sensors:
-        cal = calibration.sensors.get(name)
-        words = None if cal is None else expected_words(cal)
-        if words:
-            print(f"{name}: {words}", file=results(args))
-
-
 def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None], many: bool,
               inputs: list[str], calibration: Calibration) -> int:
-    """The bags evaluated; then the tables, notes, JSON and report (``many``: a heading per
-    bag, its notes prefixed by it, the pooled table, keyed JSON, exit 2 when one failed)."""
+    """The bags evaluated; then the tables, notes, JSON and report."""
+    from strain_comp.core.calibration import expected_words
     from strain_comp.offline.batch import aggregate, evaluate_bags, format_aggregate, to_json
     from strain_comp.offline.evaluate import PLOT_POINTS
     from strain_comp.offline.evaluation import format_notes, format_table
@@ -153,7 +137,10 @@ def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None],
             note(args, f"wrote {len(outcome.plots)} plots to {folder}")
     if many:
         print(format_aggregate(outcomes), file=stream)
-    print_expected(args, calibration, calibration.sensors if one is None else one.sensors)
+    for name in calibration.sensors if one is None else one.sensors:  # fit --model auto's
+        words = expected_words(calibration.sensors[name])
+        if words:
+            print(f"{name}: {words}", file=stream)
     if args.report:
         page = evaluation_page(outcomes, calibration, args.calibration, tare=args.tare,
                                pooled=aggregate(outcomes) if many else None)

@@ -43,8 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The bag replayed (``api.replay``); what was compensated and held on the results
-    stream."""
+    """The bag replayed (``api.replay``); what was compensated and held, printed."""
     bag(args.bag)
     existing(args.calibration, "calibration file")
     output(args.out, [args.bag, args.calibration])

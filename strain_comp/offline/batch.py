@@ -27,10 +27,10 @@ from strain_comp.errors import (
 )
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.evaluate import evaluate_bag
-from strain_comp.offline.evaluation import coverage_cell
+from strain_comp.offline.evaluation import score_lines
 from strain_comp.offline.fit import in_run_bound
-from strain_comp.offline.plots import write_plots
-from strain_comp.offline.report_page import BagSection, evaluation_figures
+from strain_comp.offline.plots import evaluation_figures, write_plots
+from strain_comp.offline.report_page import BagSection
 from strain_comp.offline.series import SeriesCSV
 
 MAX_JOBS = 64
@@ -43,9 +43,7 @@ def _is_bag_dir(path: Path) -> bool:
 
 
 def expand_bags(paths: Sequence[str]) -> list[str]:
-    """The bags named by ``paths``: MCAP files and rosbag2 directories as given; a folder
-    that is not a rosbag2 directory stands for its ``*.mcap``, ``*.db3`` files and rosbag2
-    directories (sorted by name, not recursively)."""
+    """The bags named by ``paths``; a folder (not a rosbag2 directory) stands for its bags."""
     bags: list[str] = []
     for text in paths:
         path = Path(text)
@@ -67,9 +65,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
                   inputs: Sequence[str], out_of_range: str = "extend",
                   references_every: float | None = None, figures: bool = False,
                   keep_going: bool = True) -> BagSection:
-    """``evaluate`` of one bag (what a worker runs); errors become ``BagSection.error``
-    (raised unless ``keep_going``). ``series_to``: the open CSV (serial) or the path of a
-    worker's temporary part."""
+    """``evaluate`` of one bag; ``series_to``: the open CSV or a worker's part's path."""
     table = SeriesCSV(series_to, bag=True) if isinstance(series_to, str) else series_to
     try:
         calibration = load_calibration(calibration_path)
@@ -109,8 +105,7 @@ def _evaluate_one(bag: str, calibration_path: str, tare: str, plot_points: int,
 
 
 def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
-    """A subfolder of ``plots`` per bag, named by its stem (``bag`` when the stem is not a
-    plain name: ``..``, ``.``, empty, hidden), ``_2``, ``_3``, ... when taken already."""
+    """A subfolder of ``plots`` per bag named by its stem (or ``bag``), ``_2``... if taken."""
     if plots is None:
         return [None] * len(bags)
     taken: set[str] = set()
@@ -127,22 +122,19 @@ def plot_dirs(bags: Sequence[str], plots: str | None) -> list[str | None]:
 
 
 def _copy_part(part: str, table: SeriesCSV, target: str) -> None:
-    """A worker's CSV part (header first) streamed into the table in blocks; an error
-    names the table's target, not the part."""
+    """A worker's CSV part streamed into the table; an error names the table's target."""
     try:
         with open(part, encoding="utf-8") as handle:
             handle.readline()  # the part's own header
             while block := handle.read(2**20):
-                table.add_text(block)
+                table.write(block)
     except OSError as err:
         raise OutputError(f"{target}: cannot write: {err.strerror or err}") from None
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Cancel what has not started, send SIGTERM to every worker (``_worker_signals``: its
-    bag unwinds, removing its temporary files, and it exits) and wait for each, at most
-    ``STOP_SECONDS`` before SIGKILL. The pool keeps its processes in a private attribute:
-    no public API reaches them."""
+    """Cancel what has not started, SIGTERM every worker, SIGKILL after ``STOP_SECONDS``
+    (the pool's private attribute: no public API reaches its processes)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
@@ -160,9 +152,7 @@ _in_bag = False
 
 
 def _worker_signals() -> None:
-    """A pool worker's SIGTERM: inside a bag it raises ``Terminated`` (the bag's ``with``
-    blocks remove their temporary files), then the worker exits; between bags it exits
-    at once. Either way it takes no further bag."""
+    """SIGTERM in a worker: ``Terminated`` inside a bag (its files removed), else exit."""
     def on_term(signum: int, frame: object) -> None:
         if _in_bag:
             raise_terminated(signum, frame)
@@ -204,8 +194,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                   out_of_range: str = "extend",
                   references_every: float | None = None,
                   figures: bool = False, keep_going: bool = True) -> list[BagSection]:
-    """Every bag evaluated (module docstring), in the order given; ``plots``: the folder
-    of each bag's plots (``plot_dirs``)."""
+    """Every bag evaluated, in the order given; ``plots``: each bag's folder (``plot_dirs``)."""
     check_jobs(jobs)
     inputs = [*bags, calibration_path]
     dirs = list(plots or [None] * len(bags))
@@ -266,19 +255,11 @@ def aggregate(outcomes: Sequence[BagSection]) -> dict[str, tuple[ErrorAccumulato
 def format_aggregate(outcomes: Sequence[BagSection]) -> str:
     """The pooled table: every sensor over every bag it was scored in."""
     pooled = aggregate(outcomes)
-    banded = any(acc.coverage_95() is not None for acc, *_ in pooled.values())
-    header = (f"{'sensor':<16} {'model':<11} {'bags':>4} {'n':>8} {'RMSE':>9} {'MAE':>9} "
-              f"{'max_abs':>9} {'r2':>8}" + (f" {'in 95%':>7}" if banded else ""))
     done = sum(o.result is not None for o in outcomes)
     lines = [f"== {done} of {len(outcomes)} bags evaluated: errors pooled over them",
-             header, "-" * len(header)]
-    units = set()
-    for name, (acc, n_bags, model, unit) in pooled.items():
-        st = acc.stats()
-        units.add(unit)
-        lines.append(f"{name:<16} {model:<11} {n_bags:>4d} {st.n:>8d} {st.rmse:>9.4f} "
-                     f"{st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}"
-                     + (coverage_cell(acc.coverage_95()) if banded else ""))
+             *score_lines([(name, model, n_bags, acc.stats(), acc.coverage_95())
+                           for name, (acc, n_bags, model, _) in pooled.items()], bags=True)]
+    units = {unit for *_, unit in pooled.values()}
     words = ", ".join(strain_unit_words(u) for u in sorted(units)) or "% strain"
     lines.append(f"errors in {words}, over all samples of all bags together")
     return "\n".join(lines)

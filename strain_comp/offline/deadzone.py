@@ -75,9 +75,7 @@ def movement_rate(segments: Sequence[Segment]) -> float:
 
 
 def _hold_samples(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray, str] | None:
-    """(t, r, source) of what nothing-moves noise looks like: the reference's longest hold,
-    else white noise of the record's robust sigma at the longest segment's sample times
-    (fixed seed); None for noise-free data."""
+    """(t, r, source) of a hold, else of seeded noise of the robust sigma; None: noise-free."""
     hold = find_hold(segments)
     if hold is not None and np.ptp(hold[1]) > 0:
         return hold[0], hold[1], "hold"
@@ -152,6 +150,5 @@ def _tau_grid(segments: Sequence[Segment]) -> list[float]:
 
 
 def resistance_sign(r: np.ndarray, s: np.ndarray) -> int:
-    """The sign of the gauge, for ``DirectionSettings.sign``: the sign of the correlation of
-    R and S (0 correlation counts as +1)."""
+    """The sign of the correlation of R and S (0 counts as +1): ``DirectionSettings.sign``."""
     return -1 if float(np.mean((r - r.mean()) * (s - s.mean()))) < 0 else 1

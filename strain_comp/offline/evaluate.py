@@ -16,11 +16,11 @@ import numpy as np
 from strain_comp.base.samples import Status, used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration, check_reference
 from strain_comp.core.engine import Engine
-from strain_comp.core.fusion import SparseFusion, check_every
+from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, iter_bag, located
+from strain_comp.io.bag import BagContents, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import (
     REFERENCE,
@@ -41,8 +41,7 @@ PLOT_POINTS = 50_000
 
 
 class _Kept:
-    """Every ``stride``-th sample of one sensor, for plots: at most ``cap`` samples (when
-    more, every other kept sample goes and the stride doubles; None: every sample)."""
+    """Every ``stride``-th sample of one sensor, for plots, the stride doubled past ``cap``."""
 
     FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range", "std")
 
@@ -122,14 +121,11 @@ class _Score:
 
 
 class Scorer:
-    """The one evaluation: sensors tared (``start``), their samples run and scored piece by
-    piece (``score``), the per-sensor result and notes (``result``)."""
+    """The one evaluation: sensors tared, run and scored piece by piece, then the result."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int | None, series: SeriesCSV | None = None, bag: str = "",
                  references_every: float | None = None) -> None:
-        if references_every is not None:
-            check_every(references_every)
         self.calibration = calibration
         self.references_every = references_every
         self.fused: dict[str, SparseFusion] = {}
@@ -153,8 +149,7 @@ class Scorer:
 
     def score(self, names: list[str], group: list[str], t: np.ndarray, r: np.ndarray,
               temps: Mapping[str, np.ndarray | None], refs: Mapping[str, np.ndarray]) -> None:
-        """Run and score a piece of ``names`` (``r``'s columns); ``group``: the sensors run
-        together by ``Engine.run_array`` (calibration order), else empty."""
+        """Run and score a piece of ``names``; ``group``: those run by ``Engine.run_array``."""
         for name, ref in refs.items():
             check_reference(name, ref, InputError)
         column = {name: j for j, name in enumerate(names)}
@@ -176,8 +171,7 @@ class Scorer:
 
     def result(self, found: list[str], referenced: set[str], with_temperature: set[str],
                same_tick: Mapping[str, set[str]]) -> EvaluationResult:
-        """Every calibrated sensor's evaluation, or the note why it has none; ``found``:
-        every sensor in the data."""
+        """Every calibrated sensor's evaluation, or the note why it has none."""
         missing = [n for n in self.calibration.sensors if n in found and n not in referenced]
         if self.references_every is not None and missing:
             raise InputError(f"--references-every {self.references_every:g}: "
@@ -250,8 +244,7 @@ def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) 
 
 
 def _temperature_missing(name: str, cal: SensorCalibration) -> list[str]:
-    """The note for a run without temperature scored through a calibration with a
-    temperature term: the term reads g = 0 (``core.effects``), it is not applied."""
+    """The note that a temperature term is not applied without temperature (it reads 0)."""
     terms = [str(e.get("name")) for e in cal.effects if e.get("kind") == "temperature"]
     if not terms:
         return []
@@ -265,10 +258,33 @@ def nothing_scored(calibration: Calibration, names: list[str]) -> str:
             f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
 
 
+def temperature_series(contents: BagContents, name: str) -> Series | None:
+    """Sensor ``name``'s own ``/NAME/temperature`` (an array's too, as the node reads it)."""
+    temp = contents.series.get(f"/{name}{TEMPERATURE}")
+    return temp if temp is not None and temp.values.ndim == 1 else None
+
+
+def reference_columns(contents: BagContents, topic: str) -> tuple[dict[str, int | None],
+                                                                  str | None]:
+    """Each sensor's column of the ``/PREFIX/strain_reference`` of resistance ``topic``
+    (None: a 1-D reference; ``load_recordings``'s rules), or none and the problem why."""
+    reference = topic[:-len(RESISTANCE)] + REFERENCE
+    ref = contents.series[reference]
+    labels, _ = topic_sensors(topic, contents)
+    if contents.series[topic].values.ndim == 1:
+        if ref.values.ndim == 1:
+            return {labels[0]: None}, None
+        return {}, f"{reference}: an array reference for a single sensor"
+    ref_labels = contents.labels.get(reference) or labels
+    if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
+            and set(labels) <= set(ref_labels):
+        return {n: ref_labels.index(n) for n in labels}, None
+    return {}, f"{reference}: columns do not match {topic}; ignored"
+
+
 @dataclass
 class _Input:
-    """One ``/PREFIX/resistance`` topic: its calibrated columns and what waits for the
-    reference (or temperature) to arrive."""
+    """One resistance topic: its calibrated columns and the samples waiting for alignment."""
 
     prefix: str
     names: list[str]
@@ -277,19 +293,17 @@ class _Input:
     single: bool
     group: list[str]
     """Sensors run together by ``Engine.run_array`` (calibration order), else empty."""
-    temperature: PieceAlign | None
-    """Only when an effect term of a sensor here could read it."""
+    temperature: dict[str, PieceAlign]
+    """Per sensor its ``/NAME/temperature``, only when an effect term here could read it."""
     reference: dict[str, PieceAlign]
     ref_columns: dict[str, int | None] | None = None
-    """Per sensor its reference column (None: a 1-D reference); None until the reference
-    topic is first seen; empty when it does not fit."""
+    """``reference_columns`` once the reference topic is seen, else None."""
     t: np.ndarray = field(default_factory=lambda: np.empty(0))
     r: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
 
 
 class BagScorer(Scorer):
-    """``Scorer`` fed a bag piece by piece: what waits between pieces is the samples after
-    the latest reference (or temperature) sample read so far."""
+    """``Scorer`` fed a bag piece by piece, samples held until their reference is known."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
                  plot_points: int, series: SeriesCSV | None = None, bag: str = "",
@@ -323,17 +337,15 @@ class BagScorer(Scorer):
     def finish(self) -> None:
         for inp in self.inputs.values():
             if inp is not None:
-                for align in [inp.temperature, *inp.reference.values()]:
-                    if align is not None:
-                        align.finish()
+                for align in [*inp.temperature.values(), *inp.reference.values()]:
+                    align.finish()
                 self._run(inp)
         for topic in sorted(self.references):
             if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
                 self._problem(f"{topic}: reference without a resistance topic; ignored")
 
     def _input(self, topic: str, contents: BagContents) -> _Input | None:
-        """What a resistance topic first seen in ``contents`` is (as ``load_recordings``
-        reads it), tared from this first piece (as ``replay`` does)."""
+        """A resistance topic as ``load_recordings`` reads it, tared from its first piece."""
         prefix = topic[:-len(RESISTANCE)]
         series = contents.series[topic]
         single = series.values.ndim == 1
@@ -358,25 +370,8 @@ class BagScorer(Scorer):
             [n for n in self.calibration.sensors if n in names]
         effects = any(self.calibration.sensors[n].effects for n in names)
         return _Input(prefix, names, columns, single, group,
-                      PieceAlign() if effects else None,
+                      {n: PieceAlign() for n in names} if effects else {},
                       {n: PieceAlign() for n in names}, r=np.empty((0, len(names))))
-
-    def _ref_columns(self, inp: _Input, topic: str, contents: BagContents
-                     ) -> dict[str, int | None]:
-        """Reference column of each sensor of ``inp`` (``load_recordings``'s rules)."""
-        ref = contents.series[inp.prefix + REFERENCE]
-        if inp.single:
-            if ref.values.ndim == 1:
-                return {inp.names[0]: None}
-            self._problem(f"{inp.prefix + REFERENCE}: an array reference for a single sensor")
-            return {}
-        labels, _ = topic_sensors(topic, contents)
-        ref_labels = contents.labels.get(inp.prefix + REFERENCE) or labels
-        if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
-                and set(labels) <= set(ref_labels):
-            return {n: ref_labels.index(n) for n in inp.names}
-        self._problem(f"{inp.prefix + REFERENCE}: columns do not match {topic}; ignored")
-        return {}
 
     def _add(self, inp: _Input, topic: str, contents: BagContents) -> None:
         """Queue a piece's samples of ``inp`` and feed its alignments."""
@@ -387,17 +382,16 @@ class BagScorer(Scorer):
             values = series.values[:, None] if inp.single else series.values
             inp.t = np.concatenate((inp.t, t))
             inp.r = np.concatenate((inp.r, values[:, inp.columns]))
-        if inp.temperature is not None:
-            temp = contents.series.get(inp.prefix + TEMPERATURE)
-            if temp is not None and temp.values.ndim == 1:
-                inp.temperature.add(t, temp.t, temp.values)
-                if temp.t.size:
-                    self.with_temperature.update(inp.names)
-            else:
-                inp.temperature.add(t, empty, empty)
+        for name, align in inp.temperature.items():
+            temp = temperature_series(contents, name)
+            align.add(t, empty if temp is None else temp.t, empty if temp is None else temp.values)
+            if temp is not None and temp.t.size:
+                self.with_temperature.add(name)
         ref = contents.series.get(inp.prefix + REFERENCE)
         if ref is not None and inp.ref_columns is None:
-            inp.ref_columns = self._ref_columns(inp, topic, contents)
+            inp.ref_columns, problem = reference_columns(contents, topic)
+            if problem is not None:
+                self._problem(problem)
         for name, align in inp.reference.items():
             column = (inp.ref_columns or {}).get(name, -1)
             if ref is None or column == -1:
@@ -407,15 +401,15 @@ class BagScorer(Scorer):
 
     def _run(self, inp: _Input) -> None:
         """Compensate and score the queued samples whose reference is known."""
-        horizon = min(a.horizon() for a in [inp.temperature, *inp.reference.values()]
-                      if a is not None)
+        horizon = min(a.horizon() for a in [*inp.temperature.values(), *inp.reference.values()])
         n = int(np.searchsorted(inp.t, horizon, side="right"))
         if n == 0:
             return
         t, r = inp.t[:n], inp.r[:n]
         inp.t, inp.r = inp.t[n:], inp.r[n:]
-        temp = None if inp.temperature is None else inp.temperature.take(t)
-        self.score(inp.names, inp.group, t, r, {name: temp for name in inp.names},
+        self.score(inp.names, inp.group, t, r,
+                   {name: inp.temperature[name].take(t) if inp.temperature else None
+                    for name in inp.names},
                    {name: align.take(t) for name, align in inp.reference.items()})
 
     def bag_result(self) -> EvaluationResult:
@@ -434,9 +428,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  out_of_range: str = "extend",
                  references_every: float | None = None,
                  ) -> tuple[EvaluationResult, list[str]]:
-    """``evaluate_recordings`` of the bag at ``path``, streamed: read in time-ordered pieces
-    of about ``window`` messages (``iter_bag``), each compensated and scored before the next
-    is read; at most ``plot_points`` samples kept per sensor for plots."""
+    """``evaluate_recordings`` of the bag at ``path``, streamed in pieces (``iter_bag``)."""
     stream = BagScorer(calibration, Engine(calibration, out_of_range=out_of_range),
                        tare, plot_points, series, str(path), references_every)
     for contents in iter_bag(path, window=window):

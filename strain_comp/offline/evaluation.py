@@ -5,6 +5,7 @@ table and its notes.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,8 +41,7 @@ class SensorEvaluation:
     out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
     """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
     input_unit: str = "ohm"
-    """The unit of ``r``: ohm (or the calibration's input unit), or V for a voltage
-    divider's input."""
+    """The unit of ``r``: the calibration's input unit, or V for a voltage divider."""
     input_gain: float = 1.0
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
     errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
@@ -49,11 +49,9 @@ class SensorEvaluation:
     references: dict[str, Any] | None = None
     """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
     std: np.ndarray = field(default_factory=lambda: np.empty(0))
-    """The estimate's standard deviation per sample of ``t`` (empty: the calibration holds
-    no uncertainty)."""
+    """The estimate's standard deviation per sample of ``t`` (empty: no uncertainty)."""
     coverage_95: float | None = None
-    """The share of the scored samples inside the 95 % band (+-1.96 sigma); None without
-    a band."""
+    """The share of the scored samples inside the 95 % band; None without a band."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: the docs/design.md keys first, then extra keys."""
@@ -100,17 +98,30 @@ def input_unit(cal: SensorCalibration) -> str:
     return "V" if cal.input.kind == "divider" else cal.input.unit
 
 
+def score_lines(rows: Sequence[tuple[str, str, int | None, ErrorStats, float | None]],
+                bags: bool = False) -> Iterator[str]:
+    """Header, rule and a line per (sensor, model, bags, stats, 95 % coverage) row."""
+    banded = any(coverage is not None for *_, coverage in rows)
+    header = (f"{'sensor':<16} {'model':<11}" + (f" {'bags':>4}" if bags else "")
+              + f" {'n':>8} {'RMSE':>9} {'MAE':>9} {'max_abs':>9} {'r2':>8}"
+              + (f" {'in 95%':>7}" if banded else ""))
+    yield from (header, "-" * len(header))
+    for name, model, n_bags, st, coverage in rows:
+        line = (f"{name:<16} {model:<11}" + (f" {n_bags:>4d}" if bags else "")
+                + f" {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} {st.max_abs:>9.4f} {st.r2:>8.5f}")
+        if banded:  # the share of the scored samples inside the band, "-" without one
+            line += f" {'-':>7}" if coverage is None else f" {100.0 * coverage:>6.1f}%"
+        yield line
+
+
 def format_table(result: EvaluationResult) -> str:
     """Fixed-width error table, errors in each calibration's strain unit (% strain)."""
     banded = any(ev.coverage_95 is not None for ev in result.sensors.values())
-    header = (f"{'sensor':<16} {'model':<11} {'n':>8} {'RMSE':>9} {'MAE':>9} {'max_abs':>9} "
-              f"{'r2':>8}" + (f" {'in 95%':>7}" if banded else ""))
-    lines = [header, "-" * len(header)]
-    for name, ev in result.sensors.items():
-        st = ev.stats
-        lines.append(f"{name:<16} {ev.model:<11} {st.n:>8d} {st.rmse:>9.4f} {st.mae:>9.4f} "
-                     f"{st.max_abs:>9.4f} {st.r2:>8.5f}"
-                     + (coverage_cell(ev.coverage_95) if banded else ""))
+    rows = score_lines([(name, ev.model, None, ev.stats, ev.coverage_95)
+                        for name, ev in result.sensors.items()])
+    lines = [next(rows), next(rows)]
+    for ev in result.sensors.values():
+        lines.append(next(rows))
         if ev.in_run_rmse is not None:
             lines.append(f"{'':<16} in-run bound (same model fitted on this run): RMSE "
                          f"{ev.in_run_rmse:.4f}")
@@ -125,14 +136,8 @@ def format_table(result: EvaluationResult) -> str:
     return "\n".join(lines)
 
 
-def coverage_cell(coverage: float | None) -> str:
-    """The table's ``in 95%`` cell: a percentage, ``-`` without a band."""
-    return f" {'-':>7}" if coverage is None else f" {100.0 * coverage:>6.1f}%"
-
-
 def format_notes(result: EvaluationResult) -> list[str]:
-    """Lines for what the table does not show: bad samples, samples without a reference,
-    out-of-range, unscored sensors."""
+    """Lines for what the table does not show: bad, unreferenced, out of range, unscored."""
     lines = []
     for name, ev in result.sensors.items():
         if ev.n_bad:

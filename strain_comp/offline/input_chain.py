@@ -25,8 +25,7 @@ STILL_FRACTION = 0.001
 
 def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str, Any],
                 ) -> tuple[Alternation, bool, str]:
-    """The measurement chain of sensor ``name``'s training runs, with the options
-    ``alternation`` and ``pair`` over the detection."""
+    """The measurement chain of ``name``'s training runs, options over the detection."""
     r_raw = np.concatenate([np.asarray(rec.r) for rec in recordings])
     chain = alternation(r_raw)
     alternating = bool(options.get("alternation", chain.present))
@@ -38,8 +37,7 @@ def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str
 
 
 def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Change of the reference strain over the second around each sample (from the last
-    sample at or after t - 0.5 s to the last at or before t + 0.5 s)."""
+    """Change of the reference strain over the second around each sample."""
     t = np.asarray(t, dtype=np.float64)
     lo = np.searchsorted(t, t - 0.5)
     hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
@@ -48,9 +46,7 @@ def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def pair_side(recordings: Sequence[Recording]) -> str:
-    """``strain_comp.core.chain.pair_branch`` over the training runs, still where the
-    reference strain moves by at most ``STILL_FRACTION`` of its span over 1 s around a
-    sample."""
+    """``pair_branch`` over the training runs, still where ``STILL_FRACTION`` says."""
     r_all, still_all = [], []
     for rec in recordings:
         if rec.s is None:

@@ -1,8 +1,5 @@
 """Evaluation plots (PNG, matplotlib's Agg backend, imported only when plots are asked for):
-per sensor ``NAME_time.png`` (estimate, reference and 95 % band over time, resistance
-below), ``NAME_loop.png`` (estimate against reference), ``NAME_raw.png`` (resistance against
-reference, with the calibrated range) and ``NAME_error_hist.png``; samples outside the
-calibrated range in orange.
+the four of ``PLOTS`` per sensor, samples outside the calibrated range in orange.
 """
 
 from __future__ import annotations
@@ -10,7 +7,7 @@ from __future__ import annotations
 import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,14 +31,15 @@ def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
     return Figure(figsize=(9.0, height * rows), layout="constrained")
 
 
-def _save(fig: Figure, out: IO[bytes]) -> None:
-    fig.savefig(out, dpi=110, format="png")
+def png(fig: Figure) -> bytes:
+    """The figure as PNG bytes."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, dpi=110, format="png")
+    return buffer.getvalue()
 
 
 def plain(text: str) -> str:
-    """``text`` as matplotlib draws it literally: ``$`` escaped (no mathtext from a bag's
-    or a sensor's name), a character that cannot be encoded (a surrogate from an undecodable
-    file name) as its ``\\udcff`` escape."""
+    """``text`` drawn literally: ``$`` escaped, a surrogate (undecodable file name) escaped."""
     return text.encode("utf-8", "backslashreplace").decode("utf-8").replace("$", r"\$")
 
 
@@ -82,8 +80,7 @@ def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | Non
 
 
 def _resistance_axis(ev: SensorEvaluation) -> tuple[np.ndarray, str, float]:
-    """The input in a readable prefix (ohm, kohm, Mohm; V for a divider), its label and
-    the factor it was divided by."""
+    """The input in a readable prefix (ohm, kohm, Mohm), its label and its divisor."""
     r = np.asarray(ev.r, dtype=np.float64)
     if ev.input_unit != "ohm":
         return r, f"input [{ev.input_unit}]", 1.0
@@ -92,18 +89,12 @@ def _resistance_axis(ev: SensorEvaluation) -> tuple[np.ndarray, str, float]:
     return r / scale, f"resistance [{prefix}ohm]", scale
 
 
-def _out_of_range(ev: SensorEvaluation) -> np.ndarray:
-    mask = np.asarray(ev.out_of_range, bool)
-    return mask if mask.shape == ev.t.shape else np.zeros(ev.t.shape, bool)
-
-
-def plot_time(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
-    """Estimate and reference strain over time, resistance on a second panel; samples
-    outside the calibrated range marked on both."""
+def plot_time(ev: SensorEvaluation, context: str = "") -> Figure:
+    """Estimate and reference strain over time, resistance on a second panel."""
     fig = _figure(2, height=3.2)
     top, bottom = fig.subplots(2, 1, sharex=True)
     t = ev.t - ev.t[0] if ev.t.size else ev.t
-    outside = _out_of_range(ev)
+    outside = ev.out_of_range
     if ev.std.size == t.size and t.size:
         half = Z_95 * ev.std
         share = "" if ev.coverage_95 is None else f", holds {100 * ev.coverage_95:.1f} %"
@@ -131,16 +122,16 @@ def plot_time(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> Non
     bottom.set_xlabel("time since start [s]")
     bottom.set_ylabel(r_label)
     _finish(bottom)
-    _save(fig, out)
+    return fig
 
 
-def plot_loop(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
+def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
     """S_hat against S with the identity line; out-of-range samples marked."""
     fig = _figure(height=6.0)
     ax = fig.subplots()
     s, s_hat = ev.reference[ev.scored], ev.estimate[ev.scored]
     ax.plot(s, s_hat, color="tab:red", lw=0.6, alpha=0.8, label="estimate")
-    outside = _out_of_range(ev)[ev.scored]
+    outside = ev.out_of_range[ev.scored]
     if outside.any():
         ax.plot(s[outside], s_hat[outside], ".", color="tab:orange", ms=2.5,
                 label="outside the calibrated range")
@@ -153,19 +144,17 @@ def plot_loop(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> Non
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
     _finish(ax, _title(ev, context))
-    _save(fig, out)
+    return fig
 
 
-def plot_raw(ev: SensorEvaluation, out: IO[bytes], *, context: str = "",
-             r_range: tuple[float, float] | None = None) -> None:
-    """The sensor as recorded: resistance against the reference strain (what the model
-    inverts), with the calibration's resistance range as lines, moved by the tare's gain into
-    the recorded resistance."""
+def plot_raw(ev: SensorEvaluation, context: str = "",
+             r_range: tuple[float, float] | None = None) -> Figure:
+    """Resistance against reference strain, with the calibrated range through the tare."""
     fig = _figure(height=5.0)
     ax = fig.subplots()
     r, r_label, scale = _resistance_axis(ev)
     ax.plot(ev.reference, r, color="tab:blue", lw=0.6, alpha=0.8, label="recorded")
-    outside = _out_of_range(ev)
+    outside = ev.out_of_range
     if outside.any():
         ax.plot(ev.reference[outside], r[outside], ".", color="tab:orange", ms=2.5,
                 label="outside the calibrated range")
@@ -186,10 +175,10 @@ def plot_raw(ev: SensorEvaluation, out: IO[bytes], *, context: str = "",
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
     _finish(ax, _title(ev, context))
-    _save(fig, out)
+    return fig
 
 
-def plot_error_hist(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") -> None:
+def plot_error_hist(ev: SensorEvaluation, context: str = "") -> Figure:
     """Histogram of the error S_hat - S over the scored samples."""
     fig = _figure(height=4.0)
     ax = fig.subplots()
@@ -202,40 +191,43 @@ def plot_error_hist(ev: SensorEvaluation, out: IO[bytes], *, context: str = "") 
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
     _finish(ax, _title(ev, context))
-    _save(fig, out)
+    return fig
 
 
-PLOT_KINDS = ("time", "loop", "raw", "error_hist")
-"""The plots per sensor, in the order written: ``NAME_KIND.png``."""
+PLOTS = {"time": "estimate and reference over time, resistance below",
+         "loop": "estimate against reference (a loop left is hysteresis the model missed)",
+         "raw": "recorded resistance against reference, with the calibrated range (dotted); "
+                "samples outside it in orange",
+         "error_hist": "error histogram"}
+"""The plots per sensor, in the order drawn: ``NAME_KIND.png`` and its caption."""
 
 
 def plot_files(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
-    """The files ``plot_evaluation`` writes into ``out_dir`` for the sensors ``names``
-    (slashes in a name become ``_``), so a command can refuse another output among them
-    before anything is written (``io.atomic.check_distinct``)."""
+    """The files ``write_plots`` writes for ``names``, to check before anything is written."""
     return [Path(out_dir) / f"{name.strip('/').replace('/', '_')}_{kind}.png"
-            for name in names for kind in PLOT_KINDS]
+            for name in names for kind in PLOTS]
 
 
-def plot_sensor(result: EvaluationResult, name: str, *, calibration: Calibration | None = None,
-                bag: str = "", calibration_path: str = "", tare: str = "") -> list[bytes]:
-    """The four plots of one evaluated sensor as PNG bytes (``PLOT_KINDS`` order)."""
-    ev = result.sensors[name]
-    context = context_line(result, name, bag, calibration_path, tare)
-    cal = calibration.sensors.get(name) if calibration is not None else None
-    r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-    time, loop, raw, hist = buffers = [io.BytesIO() for _ in PLOT_KINDS]
-    plot_time(ev, time, context=context)
-    plot_loop(ev, loop, context=context)
-    plot_raw(ev, raw, context=context, r_range=r_range)
-    plot_error_hist(ev, hist, context=context)
-    return [buffer.getvalue() for buffer in buffers]
+def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
+                       calibration_path: str = "", tare: str = ""
+                       ) -> dict[str, list[tuple[str, bytes]]]:
+    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
+    out: dict[str, list[tuple[str, bytes]]] = {}
+    for name, ev in result.sensors.items():
+        if ev.t.size:
+            context = context_line(result, name, bag, calibration_path, tare)
+            cal = calibration.sensors.get(name)
+            r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
+            figures = (plot_time(ev, context), plot_loop(ev, context),
+                       plot_raw(ev, context, r_range), plot_error_hist(ev, context))
+            out[name] = [(caption, png(figure))
+                         for caption, figure in zip(PLOTS.values(), figures, strict=True)]
+    return out
 
 
 def write_plots(figures: Mapping[str, Sequence[tuple[str, bytes]]], out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
-    """Each sensor's drawn plots (``report_page.evaluation_figures``) into ``out_dir``
-    (``plot_files``), each written atomically; a path that is an input is refused."""
+    """Each sensor's plots (``evaluation_figures``) into ``out_dir``, written atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -262,10 +254,9 @@ def context_line(result: EvaluationResult, name: str, bag: str, calibration_path
     return ", ".join(parts)
 
 
-def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
-                      out: IO[bytes], *, context: str = "") -> None:
-    """``fit --model auto``'s candidates: each one's RMSE on every run left out (a marker
-    per run), its median as a bar, the chosen one filled."""
+def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str, *,
+                      context: str = "") -> Figure:
+    """``fit --model auto``'s candidates: RMSE per run left out, the median as a bar."""
     table = choice.get("candidates") or {}
     assert isinstance(table, dict)
     models = list(table)
@@ -288,4 +279,4 @@ def plot_model_choice(choice: dict[str, object], runs: Sequence[str], unit: str,
                  + (f"\n{context}" if context else ""), fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
-    _save(fig, out)
+    return fig

@@ -27,8 +27,7 @@ record)."""
 
 
 def moving_average(x: np.ndarray, width: int) -> np.ndarray:
-    """Centred moving average (odd widths centred exactly, even ones half a sample late),
-    over the samples that exist near the ends."""
+    """Centred moving average, over the samples that exist near the ends."""
     n = x.size
     c: npt.NDArray[np.float64] = np.concatenate(([0.0], np.cumsum(x)))
     i = np.arange(n)
@@ -50,8 +49,7 @@ def lowpass(x: np.ndarray, factor: int) -> np.ndarray:
 
 @njit
 def turning_points(x: np.ndarray, swing: float) -> np.ndarray:
-    """Indices of the alternating extremes of ``x`` that differ from their neighbours by at
-    least ``swing`` (peak-valley scan with hysteresis ``swing``)."""
+    """Indices of the alternating extremes of ``x`` at least ``swing`` apart."""
     n = x.size
     out = np.empty(n, np.int64)
     count = 0
@@ -109,8 +107,7 @@ def still_stretches(rate: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndar
 
 
 def hold_edges(t: np.ndarray, s: np.ndarray, min_length: int) -> np.ndarray:
-    """First and last index of every still stretch of ``s`` (``still_stretches`` of
-    ``|dS/dt|`` against its 99.5th percentile)."""
+    """First and last index of every still stretch of ``s`` at least ``min_length`` long."""
     rate = np.abs(np.gradient(s, t))
     scale = float(np.percentile(rate, 99.5))
     if scale <= 0.0:

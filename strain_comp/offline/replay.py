@@ -18,7 +18,7 @@ import numpy.typing as npt
 
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import GAP_RESET, Engine
-from strain_comp.core.fusion import SparseFusion, check_every
+from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.health import (
     HealthCounter,
     HealthTicks,
@@ -34,12 +34,12 @@ from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.cdr import Status, diagnostic_arrays
 from strain_comp.io.recording import hold_latest, topic_sensors
+from strain_comp.offline.evaluate import reference_columns, temperature_series
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")
 TICK_BATCH = 1024
-"""/diagnostics ticks whose healths are counted and encoded at once: a piece of a long,
-sparse bag holds thousands of ticks."""
+"""/diagnostics ticks counted and encoded at once (a long sparse piece holds thousands)."""
 STAMPED = "strain_stamped"
 """The JointState output beside ``OUTPUTS`` (module docstring)."""
 BAND = ("strain_std", "strain_std_stamped")
@@ -63,8 +63,7 @@ class ReplaySummary:
     n_compensated: int = 0
     """Resistance messages run through the engine (an array message counts once)."""
     references: dict[str, dict[str, float]] = field(default_factory=dict)
-    """Per sensor, what the fused references did (``OutputFusion.state`` and ``every``),
-    with ``references_every``."""
+    """Per fused sensor, ``OutputFusion.state`` and ``every``."""
 
 
 @dataclass
@@ -76,8 +75,7 @@ class _Input:
 
 
 def _input(topic: str, contents: BagContents, calibration: Calibration) -> _Input | None:
-    """The input a ``/NAME/resistance`` topic is when every sensor on it is calibrated, or
-    None (copied through only)."""
+    """The input of a topic whose sensors are all calibrated, else None (copied only)."""
     if contents.types.get(topic) not in RESISTANCE_TYPES:  # e.g. Temperature: never ohm
         return None
     sensors, _ = topic_sensors(topic, contents)
@@ -116,7 +114,6 @@ class _Replay:
         self.n_out = 0
         self.n_compensated = 0
         self.problems: list[str] = []
-        self.reported: set[str] = set()
         self.written: set[str] = {"/diagnostics"}
         self._contents = BagContents()
 
@@ -142,7 +139,7 @@ class _Replay:
             self.out.write(self.writer, lo, hi)
             ticks = now if shared else now[k * TICK_BATCH:(k + 1) * TICK_BATCH]
             for a in range(0, ticks.size, TICK_BATCH):
-                self._write_diagnostics(ticks[a:a + TICK_BATCH], counters, fusion)
+                self.write_diagnostics(ticks[a:a + TICK_BATCH], counters, fusion)
             copies.write(self.writer, lo, hi)
             if hi is not None:
                 self.writer.flush(before=hi)
@@ -151,8 +148,7 @@ class _Replay:
         self.writer.flush(before=float(self.ticks[0]) if self.ticks.size else None)
 
     def _discover(self, contents: BagContents) -> None:
-        """Take each new ``/NAME/resistance`` topic of ``contents`` as an input or not; an
-        input's sensors are tared (``tare``) and, with ``references_every``, fused."""
+        """Take each new ``/NAME/resistance`` topic as an input (tared, fused) or not."""
         for topic in contents.series:
             if topic.endswith("/resistance") and topic not in self.inputs:
                 inp = _input(topic, contents, self.calibration)
@@ -172,14 +168,12 @@ class _Replay:
                             for s in inp.sensors})
 
     def _problem(self, line: str) -> None:
-        if line not in self.reported:
-            self.reported.add(line)
+        if line not in self.problems:
             self.problems.append(line)
 
     def _run(self, contents: BagContents, inputs: list[tuple[_Input, Series]]
              ) -> tuple[np.ndarray, dict[str, HealthCounter], dict[str, FusionTicks]]:
-        """Write the outputs of the piece's ``inputs``; the diagnostics ticks it completes,
-        each sensor's health over the piece and a fused sensor's fusion states."""
+        """Stage the outputs of ``inputs``; the ticks completed, healths and fusion states."""
         t_all = np.concatenate([series.t for _, series in inputs])
         if self.t0 is None:
             self.t0 = float(t_all.min())
@@ -199,16 +193,15 @@ class _Replay:
                 s: self._temperature(contents, s, series.t) for s in inp.sensors})
             self.n_compensated += series.t.size
             if self.series is not None:
-                self._series(contents, inp, series, outs)
+                self._series(inp, series, outs)
             ran.update({s: (series.t, out) for s, out in outs.items()})
         counters = {name: HealthCounter(h, *ran.get(name, (None, None)))
                     for name, h in before.items()}
-        fusion = {s: FusionTicks.of(fusion_before[s], list(f.judged))
+        fusion = {s: FusionTicks(fusion_before[s], list(f.judged))
                   for s, f in self.fused.items()}
         return now, counters, fusion
 
-    def _series(self, contents: BagContents, inp: _Input, series: Series,
-                outs: dict[str, BatchOutput]) -> None:
+    def _series(self, inp: _Input, series: Series, outs: dict[str, BatchOutput]) -> None:
         """Queue the piece's rows of ``replay --csv`` with the piece's reference samples."""
         assert self.series is not None
         values = series.values if series.values.ndim == 2 else series.values[:, None]
@@ -217,26 +210,12 @@ class _Replay:
             pending = self.pending.setdefault(name, PendingSeries(name, cal.strain_unit))
             out = outs[name]
             pending.add(series.t, cal.input.to_ohm(values[:, j]), out.strain, out.direction,
-                        out.status, *_reference(contents, inp, name))
+                        out.status, *self._reference(inp, name))
             pending.flush(self.series)
 
-    def finish_series(self) -> None:
-        """Write every row still waiting for its reference."""
-        if self.series is not None:
-            for pending in self.pending.values():
-                pending.flush(self.series, final=True)
-
-    def write_ticks(self, ticks: np.ndarray) -> None:
-        """The /diagnostics of ``ticks`` after the last input (the engine's health now)."""
-        self._write_diagnostics(ticks, {name: HealthCounter(h)
-                                        for name, h in self.engine.health().items()},
-                                {s: FusionTicks.of(f.fusion.diagnostic_values(), [])
-                                 for s, f in self.fused.items()})
-
-    def _write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
+    def write_diagnostics(self, ticks: np.ndarray, counters: dict[str, HealthCounter],
                            fusion: dict[str, FusionTicks]) -> None:
-        """One /diagnostics message per tick (``diagnostic_payloads``): every sensor's health
-        at the tick, a fused sensor's fusion state."""
+        """One /diagnostics message per tick (``diagnostic_payloads``)."""
         healths = {name: c.at(ticks, stale_after=self.engine.stale_for(name))
                    for name, c in counters.items()}
         for run, blob, lengths in diagnostic_payloads(ticks, healths, fusion):
@@ -245,8 +224,7 @@ class _Replay:
 
     def _outputs(self, inp: _Input, t: np.ndarray, values: np.ndarray,
                  temps: dict[str, np.ndarray | None]) -> dict[str, BatchOutput]:
-        """Run ``inp``'s piece and stage its outputs: an array's as Float64MultiArray, a
-        sensor's as Float64 (strain, std) and Int8 (direction, status)."""
+        """Run ``inp``'s piece and stage its outputs."""
         if inp.is_array:  # cross-talk terms read the same tick's neighbours, as online
             outs = self.engine.run_array(inp.sensors, t, values, temps)
         else:
@@ -258,27 +236,32 @@ class _Replay:
             columns[BAND[0]] = np.stack([np.full(t.size, np.nan) if (v := outs[s].std) is None
                                          else v for s in inp.sensors], axis=1)
         for what, stacked in columns.items():
-            topic = f"/{inp.name}/{what}"
-            if inp.is_array:
-                self.out.write_float64_array(topic, t, stacked.astype(np.float64), inp.sensors)
-            elif what in ("direction", "status"):
-                self.out.write_int8(topic, t, stacked[:, 0])
-            else:
-                self.out.write_float64(topic, t, stacked[:, 0])
-            if what in ("strain", BAND[0]):
-                stamped = STAMPED if what == "strain" else BAND[1]
-                self.out.write_joint_state(f"/{inp.name}/{stamped}", t, inp.sensors, stacked)
+            self._stage(inp, what, t, stacked)
         self.n_out += (len(OUTPUTS) + 1) * t.size
         return outs
 
+    def _stage(self, inp: _Input, what: str, t: np.ndarray, stacked: np.ndarray) -> None:
+        """Hold the output ``what`` of ``inp`` (a column per sensor) and its stamped twin."""
+        topic = f"/{inp.name}/{what}"
+        if inp.is_array:
+            self.out.add(t, lambda w, i: w.write_float64_array(topic, t[i], stacked[i],
+                                                                inp.sensors))
+        elif what in ("direction", "status"):
+            self.out.add(t, lambda w, i: w.write_int8(topic, t[i], stacked[i, 0]))
+        else:
+            self.out.add(t, lambda w, i: w.write_float64(topic, t[i], stacked[i, 0]))
+        if what in ("strain", BAND[0]):
+            stamped = f"/{inp.name}/{STAMPED if what == 'strain' else BAND[1]}"
+            self.out.add(t, lambda w, i: w.write_joint_state(stamped, t[i], inp.sensors,
+                                                              stacked[i]))
+
     def _fused(self, inp: _Input, t: np.ndarray, outs: dict[str, BatchOutput]
                ) -> dict[str, BatchOutput]:
-        """``outs`` with the sensors' references fused (``references_every``); the reference
-        at each sample is the latest at or before it (as the node holds it)."""
+        """``outs`` with the latest reference at each sample fused, as the node does."""
         if self.references_every is None:
             return outs
         for name in inp.sensors:
-            src_t, src_v = _reference(self._contents, inp, name)
+            src_t, src_v = self._reference(inp, name)
             ok = np.isfinite(src_t) & np.isfinite(src_v)
             values = _held(self.reference, name, src_t[ok], src_v[ok], t)
             outs[name] = self.fused[name].fuse(
@@ -288,31 +271,30 @@ class _Replay:
     def _temperature(self, contents: BagContents, name: str, t: np.ndarray
                      ) -> np.ndarray | None:
         """The latest temperature at or before each of ``t`` (NaN before the first)."""
-        series = contents.series.get(f"/{name}/temperature")
+        series = temperature_series(contents, name)
         empty = np.empty(0)
         return _held(self.temperature, name, empty if series is None else series.t,
                      empty if series is None else series.values, t)
 
+    def _reference(self, inp: _Input, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """The piece's reference samples (t, value) of sensor ``name`` of ``inp``."""
+        ref = self._contents.series.get(f"/{inp.name}/strain_reference")
+        if ref is None:
+            return np.empty(0), np.empty(0)
+        columns, problem = reference_columns(self._contents, inp.topic)
+        if problem is not None:
+            self._problem(problem)
+        if name not in columns:
+            return np.empty(0), np.empty(0)
+        column = columns[name]
+        return ref.t, ref.values if column is None else ref.values[:, column]
 
-def _reference(contents: BagContents, inp: _Input, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """The piece's reference samples (t, value) of sensor ``name`` of ``inp`` (none when
-    its topic or column is missing)."""
-    topic = f"/{inp.name}/strain_reference"
-    ref = contents.series.get(topic)
-    labels = contents.labels.get(topic) or inp.sensors
-    if ref is None or ref.values.ndim != (2 if inp.is_array else 1):
-        return np.empty(0), np.empty(0)
-    if not inp.is_array:
-        return ref.t, ref.values
-    if name in labels and labels.index(name) < ref.values.shape[1]:
-        return ref.t, ref.values[:, labels.index(name)]
-    return np.empty(0), np.empty(0)
+
 
 
 def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np.ndarray,
           src_v: np.ndarray, t: np.ndarray) -> np.ndarray | None:
-    """The latest source sample at or before each of ``t``, as the node holds it, the
-    source's latest sample kept in ``latest`` for the next piece; None: no sample yet."""
+    """``hold_latest`` carried across pieces in ``latest``; None: no sample yet."""
     if name in latest:
         src_t = np.concatenate((latest[name][0], src_t))
         src_v = np.concatenate((latest[name][1], src_v))
@@ -330,10 +312,7 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
                references_every: float | None = None) -> ReplaySummary:
-    """Replay ``in_path`` through ``calibration`` into a new MCAP bag at ``out_path``,
-    written atomically (refused when it is an input), piece by piece (``_Replay``)."""
-    if references_every is not None:
-        check_every(references_every)
+    """Replay ``in_path`` into a new bag at ``out_path``, written atomically, by pieces."""
     engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
     out_path = Path(out_path)
     with series_csv(csv, inputs=[in_path, *inputs, out_path]) as table, \
@@ -352,8 +331,13 @@ def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
             raise InputError(f"--references-every {references_every:g}: {', '.join(missing)} "
                              "has no strain_reference in the bag (the references fused are "
                              "the bag's own /NAME/strain_reference)")
-        state.write_ticks(state.ticks)
-        state.finish_series()
+        # the ticks after the last input: the engine's health now
+        state.write_diagnostics(state.ticks, {
+            name: HealthCounter(h) for name, h in engine.health().items()},
+            {s: FusionTicks(f.fusion.diagnostic_values(), []) for s, f in state.fused.items()})
+        if table is not None:  # every row still waiting for its reference
+            for pending in state.pending.values():
+                pending.flush(table, final=True)
     replayed = {s for i in inputs for s in i.sensors}
     problems = state.problems + [
         f"calibrated sensor {s!r} has no input topic in the bag: not replayed "
@@ -371,24 +355,23 @@ Call = Callable[[BagWriter, np.ndarray], None]
 
 
 class StagedWrites:
-    """``BagWriter``'s ``write_*`` calls of a piece held as the arrays given until ``write``
-    hands them to the writer one log-time slice at a time; every held call is made in every
-    slice, empty ones included, so each topic is first named, and numbered, as it would be
-    written in one go."""
+    """``BagWriter`` calls of a piece held until ``write`` makes them one log-time slice at
+    a time; every held call is made in every slice, empty ones included, so each topic is
+    first named, and numbered, as it would be written in one go."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[np.ndarray, np.ndarray, Call]] = []
         """(times [ns] in order, the order of the messages by time, the write)."""
 
-    def _hold(self, t: npt.ArrayLike, call: Call) -> None:
+    def add(self, t: npt.ArrayLike, call: Call) -> None:
+        """Hold ``call``, a write of messages at the log times ``t`` [s]."""
         t_ns = np.round(np.asarray(t, np.float64).reshape(-1) * 1e9)
         order = np.argsort(t_ns, kind="stable")  # NaN last
         self.calls.append((t_ns[order], order, call))
 
     def write(self, writer: BagWriter, lo: float, hi: float | None) -> None:
-        """Write the messages of log times in [``lo``, ``hi``) [s], compared as the writer
-        stores them (integer ns); ``hi`` None: every message not before ``lo`` (times the
-        writer refuses included, so it still refuses them)."""
+        """Write the messages of log times [s] in [``lo``, ``hi``) as integer ns; ``hi``
+        None: all the rest (times the writer refuses included, so it still refuses them)."""
         lo_ns = np.round(lo * 1e9)
         hi_ns = None if hi is None else np.round(hi * 1e9)
         for t_ns, order, call in self.calls:  # a slice costs its messages, not the piece's
@@ -396,61 +379,27 @@ class StagedWrites:
             b = t_ns.size if hi_ns is None else int(np.searchsorted(t_ns, hi_ns, side="left"))
             call(writer, np.sort(order[a:b]))
 
-    def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        t, v = np.asarray(t), np.asarray(values)
-        self._hold(t, lambda w, i: w.write_float64(topic, t[i], v[i]))
-
-    def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        t, v = np.asarray(t), np.asarray(values)
-        self._hold(t, lambda w, i: w.write_int8(topic, t[i], v[i]))
-
-    def write_float64_array(self, topic: str, t: npt.ArrayLike, values2d: npt.ArrayLike,
-                            labels: Sequence[str]) -> None:
-        t, v = np.asarray(t), np.asarray(values2d)
-        self._hold(t, lambda w, i: w.write_float64_array(topic, t[i], v[i], labels))
-
-    def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
-                          position: npt.ArrayLike) -> None:
-        t, p = np.asarray(t), np.asarray(position)
-        self._hold(t, lambda w, i: w.write_joint_state(topic, t[i], names, p[i]))
-
-    def write_temperature(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        t, v = np.asarray(t), np.asarray(values)
-        self._hold(t, lambda w, i: w.write_temperature(topic, t[i], v[i]))
-
-    def write_diagnostics(self, t: npt.ArrayLike, statuses: Sequence[Sequence[DiagnosticStatus]], *,
-                          topic: str = "/diagnostics") -> None:
-        t = np.asarray(t)
-        self._hold(t, lambda w, i: w.write_diagnostics(
-            t[i], [statuses[k] for k in i.tolist()], topic=topic))
-
 
 class FusionTicks:
-    """A fused sensor's ``fusion_*`` key-values at any tick of a piece: ``states[0]`` before
-    it, ``states[i]`` after the reference judged at ``times[i - 1]``."""
+    """A fused sensor's ``fusion_*`` key-values at any tick of a piece."""
 
-    def __init__(self, states: list[dict[str, str]], times: np.ndarray) -> None:
-        self.states = states
+    def __init__(self, before: dict[str, str], judged: list[tuple[float, dict[str, str]]]
+                 ) -> None:
+        self.states = [before, *(values for _, values in judged)]
+        times = np.array([t for t, _ in judged], np.float64)
         order = np.argsort(times, kind="stable")
         self.sorted_times = times[order]
         self.latest = np.maximum.accumulate(order + 1) if order.size else order
         """Per time in order, the last state judged at or before it."""
-        key_sets = [tuple(state) for state in states]
+        key_sets = [tuple(state) for state in self.states]
         ids = {keys: n for n, keys in enumerate(dict.fromkeys(key_sets))}
         self.key_sets = list(ids)
         """The sets of keys its states have, in order of appearance."""
         self.key_set = np.array([ids[keys] for keys in key_sets], np.int64)
         """Per state, its set of keys (index into ``key_sets``)."""
 
-    @classmethod
-    def of(cls, before: dict[str, str], judged: list[tuple[float, dict[str, str]]]
-           ) -> FusionTicks:
-        return cls([before, *(values for _, values in judged)],
-                   np.array([t for t, _ in judged], np.float64))
-
     def at(self, ticks: np.ndarray) -> np.ndarray:
-        """Index into ``states`` at each of ``ticks``: the last reference judged at or
-        before the tick (in the order judged), else 0."""
+        """Per tick, the state after the last reference judged at or before it (0: none)."""
         pos = np.searchsorted(self.sorted_times, ticks, side="right")
         found = np.zeros(ticks.size, np.int64)
         found[pos > 0] = self.latest[pos[pos > 0] - 1]
@@ -470,10 +419,8 @@ class FusionTicks:
 def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
                         fusion: Mapping[str, FusionTicks]
                         ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
-    """The DiagnosticArray payloads of ``ticks`` [s] at once (the bytes of
-    ``SensorHealth.to_diagnostic`` tick by tick), in runs of one fusion key set (its keys
-    grow when a reference is first refused for a new reason): (the run's ticks, payloads
-    joined, lengths)."""
+    """The DiagnosticArray payloads of ``ticks`` [s] at once, in runs of one fusion key set
+    (it grows with each new reason to refuse): (the run's ticks, payloads, lengths)."""
     if not ticks.size:
         return
     t_ns = np.round(ticks * 1e9).astype(np.int64)  # as the writer stamps its messages
@@ -499,35 +446,45 @@ def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
         yield slice(a, b), *diagnostic_arrays(t_ns[a:b], "", statuses)
 
 
-def _copy_through(contents: BagContents, writer: StagedWrites, written: set[str],
+COPIED = {"std_msgs/msg/Float64": "write_float64", "std_msgs/msg/Int8": "write_int8",
+          "std_msgs/msg/Float64MultiArray": "write_float64_array",
+          "sensor_msgs/msg/Temperature": "write_temperature"}
+"""The input types copied into the output bag, with the writer's method that writes them."""
+
+
+def _copier(method: str, topic: str, t: np.ndarray, values: np.ndarray, *extra: object) -> Call:
+    """The held ``BagWriter`` call ``method(topic, t, values, *extra)`` of a slice's messages."""
+    return lambda w, i: getattr(w, method)(topic, t[i], values[i], *extra)
+
+
+def _diagnostics_copier(topic: str, diagnostics: list[tuple[float, list[DiagnosticStatus]]]
+                        ) -> Call:
+    """The held ``BagWriter.write_diagnostics`` of a slice's messages of ``diagnostics``."""
+    t = np.array([d[0] for d in diagnostics])
+    return lambda w, i: w.write_diagnostics(t[i], [diagnostics[k][1] for k in i.tolist()],
+                                            topic=topic)
+
+
+def _copy_through(contents: BagContents, out: StagedWrites, written: set[str],
                   problem: Callable[[str], None]) -> int:
     """Write the input topics into the output bag; the number of messages copied."""
     n = 0
     for topic, kind in contents.types.items():
+        series = contents.series.get(topic)
         if topic in written and topic != "/diagnostics":
             problem(f"{topic}: an input topic with an output's name; not copied")
-            continue
-        series = contents.series.get(topic)
-        if kind == "diagnostic_msgs/msg/DiagnosticArray":
+        elif kind == "diagnostic_msgs/msg/DiagnosticArray":
             if contents.diagnostics:
-                writer.write_diagnostics([d[0] for d in contents.diagnostics],
-                                         [d[1] for d in contents.diagnostics], topic=topic)
+                out.add([d[0] for d in contents.diagnostics],
+                        _diagnostics_copier(topic, contents.diagnostics))
                 n += len(contents.diagnostics)
-        elif series is None:
+        elif series is None or kind not in COPIED:
             problem(f"{topic}: type {kind} is not copied to the output")
-        elif kind == "std_msgs/msg/Float64":
-            writer.write_float64(topic, series.t, series.values)
-        elif kind == "std_msgs/msg/Int8":
-            writer.write_int8(topic, series.t, series.values)
-        elif kind == "std_msgs/msg/Float64MultiArray":
-            writer.write_float64_array(topic, series.t, series.values,
-                                       contents.labels.get(topic) or
-                                       [str(i) for i in range(series.values.shape[1])])
-        elif kind == "sensor_msgs/msg/Temperature":
-            writer.write_temperature(topic, series.t, series.values)
         else:
-            problem(f"{topic}: type {kind} is not copied to the output")
-            continue
-        if series is not None:
+            labels: tuple[list[str], ...] = ()
+            if kind == "std_msgs/msg/Float64MultiArray":
+                labels = (contents.labels.get(topic)
+                          or [str(i) for i in range(series.values.shape[1])],)
+            out.add(series.t, _copier(COPIED[kind], topic, series.t, series.values, *labels))
             n += series.t.size
     return n

@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import base64
-import io
 import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
@@ -23,7 +22,7 @@ from strain_comp.core.calibration import (
     strain_unit_words,
 )
 from strain_comp.offline.evaluation import format_notes, json_safe
-from strain_comp.offline.plots import plot_model_choice, plot_sensor, tare_words
+from strain_comp.offline.plots import plot_model_choice, png, tare_words
 from strain_comp.version import __version__
 
 if TYPE_CHECKING:
@@ -44,13 +43,6 @@ img { max-width: 100%; border: 1px solid #eee; margin: 0.4em 0; }
 figure { margin: 0.6em 0; } figcaption { color: #555; font-size: 0.9em; }
 """
 
-FIGURES = ("estimate and reference over time, resistance below",
-           "estimate against reference (a loop left is hysteresis the model missed)",
-           "recorded resistance against reference, with the calibrated range (dotted); "
-           "samples outside it in orange",
-           "error histogram")
-"""Captions of the evaluation plots, in the order ``evaluation_figures`` draws them."""
-
 SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
               ("max_abs", "max_abs", ".4f"), ("r2", "r2", ".5f"))
 """Table columns: JSON key, heading, format of the shown text."""
@@ -58,9 +50,7 @@ SCORE_KEYS = (("n", "n", "d"), ("rmse", "RMSE", ".4f"), ("mae", "MAE", ".4f"),
 
 @dataclass
 class BagSection:
-    """One evaluated bag (``evaluate``, a section of the page): its result (None when it
-    failed: ``error``, one line), the reader's problems, per sensor the plots as (caption,
-    PNG bytes) and the plot files written (``--plots``)."""
+    """One evaluated bag (None result: ``error``), its problems, figures and plot files."""
 
     bag: str
     result: EvaluationResult | None
@@ -68,19 +58,6 @@ class BagSection:
     problems: list[str] = field(default_factory=list)
     figures: dict[str, list[tuple[str, bytes]]] = field(default_factory=dict)
     plots: list[str] = field(default_factory=list)
-
-
-def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, bag: str = "",
-                       calibration_path: str = "", tare: str = ""
-                       ) -> dict[str, list[tuple[str, bytes]]]:
-    """The four evaluation plots of every sensor with kept samples, as PNG bytes."""
-    out: dict[str, list[tuple[str, bytes]]] = {}
-    for name, ev in result.sensors.items():
-        if ev.t.size:
-            pngs = plot_sensor(result, name, calibration=calibration, bag=bag,
-                               calibration_path=calibration_path, tare=tare)
-            out[name] = list(zip(FIGURES, pngs, strict=True))
-    return out
 
 
 def html_cell(value: Any, fmt: str, key: str) -> str:
@@ -93,7 +70,7 @@ def html_cell(value: Any, fmt: str, key: str) -> str:
     return f'<td class="num" data-key="{key}" data-value="{as_json}">{text}</td>'
 
 
-def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]]],
+def scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]]],
                   bag: str, extra: Sequence[tuple[str, str]] = ()) -> str:
     """A table of (sensor, model, stats, unit, extra values) rows."""
     head = "".join(f"<th>{h}</th>" for h in ("sensor", "model",
@@ -112,12 +89,6 @@ def _scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]
     return "\n".join(lines)
 
 
-def scores_table(result: EvaluationResult, bag: str) -> str:
-    """The scores of one evaluation as the page's HTML table (``Evaluation._repr_html_``)."""
-    return _scores_table(((name, ev.model, ev.stats, ev.unit, {})
-                          for name, ev in result.sensors.items()), bag)
-
-
 def html_image(caption: str, png: bytes) -> str:
     """A PNG as an inline figure."""
     data = base64.b64encode(png).decode("ascii")
@@ -132,8 +103,7 @@ def html_notes(lines: Iterable[str], cls: str = "note") -> str:
 
 
 def plain_text(value: Any) -> str:
-    """A provenance value in one line: numbers to 4 significant digits, mappings as
-    ``key: value; ...``, lists as ``a, b``."""
+    """A provenance value in one line, numbers to 4 significant digits."""
     if isinstance(value, Mapping):
         return "; ".join(f"{k}: {plain_text(v)}" for k, v in value.items()) or "none"
     if isinstance(value, (list, tuple)):
@@ -208,7 +178,7 @@ def bag_section(section: BagSection, heading: str = "") -> list[str]:
         return [*body, f'<p class="error">not evaluated: {escape(section.error or "")}</p>']
     result = section.result
     bound = any(ev.in_run_rmse is not None for ev in result.sensors.values())
-    body.append(_scores_table(
+    body.append(scores_table(
         ((name, ev.model, ev.stats, ev.unit,
           {"n_out_of_range": ev.n_out_of_range, "n_bad": ev.n_bad,
            **({"in_run_rmse": ev.in_run_rmse} if ev.in_run_rmse is not None else {})})
@@ -225,13 +195,12 @@ def bag_section(section: BagSection, heading: str = "") -> list[str]:
 def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
                     calibration_path: str, *, tare: str = "",
                     pooled: Mapping[str, tuple[Any, int, str, str]] | None = None) -> str:
-    """The ``evaluate --report`` page: one section per bag, the pooled table for several
-    (``strain_comp.offline.batch.aggregate``), then the calibration's provenance."""
+    """The ``evaluate --report`` page: the pooled table, a section per bag, provenance."""
     body: list[str] = []
     if pooled is not None:
         done = sum(s.result is not None for s in sections)
         body.append(f"<h2>All bags: errors pooled over {done} of {len(sections)}</h2>")
-        body.append(_scores_table(((name, model, acc.stats(), unit, {"n_bags": n_bags})
+        body.append(scores_table(((name, model, acc.stats(), unit, {"n_bags": n_bags})
                                    for name, (acc, n_bags, model, unit) in pooled.items()),
                                   "(pooled)", [("n_bags", "bags")]))
     notes: list[str] = []
@@ -246,9 +215,7 @@ def evaluation_page(sections: Sequence[BagSection], calibration: Calibration,
 
 
 def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
-    """The ``fit --model auto --report`` page: per sensor, the table of every candidate
-    (median and worst RMSE over the runs left out after ``start``, each run's RMSE) and its
-    plot (``plots.plot_model_choice``), then the calibration's provenance."""
+    """The ``fit --model auto --report`` page: each sensor's candidates, then provenance."""
     body: list[str] = []
     for name, cal in calibration.sensors.items():
         choice = cal.provenance.get("model_choice") or {}
@@ -273,9 +240,8 @@ def model_choice_page(calibration: Calibration, calibration_path: str) -> str:
                          "</tr>")
         lines.append("</table>")
         body.append("\n".join(lines))
-        buffer = io.BytesIO()
-        plot_model_choice(choice, runs, cal.strain_unit, buffer, context=calibration_path)
+        figure = plot_model_choice(choice, runs, cal.strain_unit, context=calibration_path)
         body.append(html_image(f"{name}: RMSE of each candidate on each run left out, after "
-                               "strain-comp start", buffer.getvalue()))
+                               "strain-comp start", png(figure)))
     body.append(provenance_section(calibration, calibration_path))
     return html_page(f"strain_comp fit --model auto: {calibration_path}", body)

@@ -24,9 +24,7 @@ _STATUS = {int(s): s.name.lower() for s in Status}
 
 
 def _number(values: np.ndarray, missing: str = "nan") -> list[str]:
-    """Shortest round-trip text of each value (``inf``, ``-inf`` as Python writes them);
-    ``missing`` for NaN: ``nan`` for a measured value that is not a number, an empty cell
-    for a reference the bag does not have."""
+    """Shortest round-trip text of each value, ``missing`` for NaN."""
     return [missing if v != v else repr(v) for v in values.tolist()]
 
 
@@ -39,9 +37,10 @@ class SeriesCSV:
         self.path = path
         self.file = None if self.stdout else AtomicFile(path, inputs=inputs)
         self.bag = bag
-        self._write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
+        self.write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
 
-    def _write(self, text: str) -> None:
+    def write(self, text: str) -> None:
+        """Text as it is: a header, rows already formatted (``evaluate --jobs``'s parts)."""
         if self.file is None:
             sys.stdout.write(text)
         else:
@@ -70,11 +69,7 @@ class SeriesCSV:
                        np.asarray(status).astype(int).tolist(), strict=True):
             buf.write(f"{head},{row[0]},{row[1]},{row[2]},{row[3]},{tail},{row[4]},"
                       f"{_STATUS.get(row[5], str(row[5]))}\n")
-        self._write(buf.getvalue())
-
-    def add_text(self, text: str) -> None:
-        """Rows already formatted (a worker's part of ``evaluate --jobs``), header-less."""
-        self._write(text)
+        self.write(buf.getvalue())
 
     def close(self) -> None:
         if self.file is not None:
@@ -91,8 +86,7 @@ class SeriesCSV:
 def series_csv(path: str | os.PathLike[str] | None, *,
                inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False
                ) -> Iterator[SeriesCSV | None]:
-    """A ``SeriesCSV`` for ``path``, committed when the block ends and discarded, the target
-    left as it was, when it raises."""
+    """A ``SeriesCSV`` for ``path``, committed at the block's end, discarded if it raises."""
     if path is None:
         yield None
         return
@@ -113,8 +107,7 @@ def _cell(text: str) -> str:
 
 
 class PendingSeries:
-    """One replayed sensor's rows waiting for its reference (``PieceAlign``, the alignment
-    ``evaluate`` uses), so ``replay --csv`` gives the reference ``evaluate --csv`` gives."""
+    """One replayed sensor's rows waiting for their reference, aligned as ``evaluate``'s."""
 
     def __init__(self, name: str, unit: str) -> None:
         self.name = name

@@ -31,8 +31,7 @@ weight 0 instead of an arbitrary one."""
 
 def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]
                      ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Every referenced sensor's features and residuals over its scored samples, the
-    engine run as ``evaluate`` runs it (tare ``calibration``)."""
+    """Every referenced sensor's features and residuals, the engine run as ``evaluate``'s."""
     engine = Engine(replace(started, sensors={
         n: replace(c, uncertainty=None) for n, c in started.sensors.items()}))
     out = {}

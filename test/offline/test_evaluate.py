@@ -81,8 +81,7 @@ def test_unscorable_sensors_are_noted_and_nothing_scorable_is_an_error() -> None
 
 
 def test_plots_are_written(tmp_path: Path) -> None:
-    from strain_comp.offline.plots import write_plots
-    from strain_comp.offline.report_page import evaluation_figures
+    from strain_comp.offline.plots import evaluation_figures, write_plots
 
     result = evaluate_recordings({"s1": recording()}, calibration())
     written = write_plots(evaluation_figures(result, calibration(), bag="runs/b.mcap",

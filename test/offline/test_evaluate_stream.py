@@ -17,7 +17,7 @@ from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.metrics import ErrorAccumulator, error_stats
 from strain_comp.errors import InputError
 from strain_comp.io.bag import BagWriter
-from strain_comp.io.recording import PieceAlign, align, load_recordings
+from strain_comp.io.recording import PieceAlign, Recording, align, load_recordings
 from strain_comp.offline.evaluate import _Kept, evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import EvaluationResult, format_table
 
@@ -219,3 +219,29 @@ def test_streamed_evaluate_of_an_unchunked_bag_equals_the_whole_series(tmp_path:
     assert problems == []
     assert_same(got, whole)
     assert got.sensors["s1"].stats.n == whole.sensors["s1"].stats.n > 10_000
+
+
+def test_an_array_sensor_reads_its_own_temperature_topic(tmp_path: Path) -> None:
+    """Each sensor of an array reads ``/NAME/temperature`` (as replay and the node do), not
+    ``/ARRAY/temperature``: the streamed scores equal the in-memory ones of recordings with
+    each sensor's own temperature, and no sensor is noted as without temperature."""
+    t = 10.0 + np.arange(2000) * 0.01
+    r = np.stack([150 + 30 * np.sin(t), 150 + 30 * np.cos(t)], axis=1)
+    t_temp = 10.0 + np.arange(100) * 0.2
+    temps = {"a": 20.0 + 0.1 * np.arange(100), "b": 35.0 - 0.1 * np.arange(100)}
+    term = [{"name": "temp", "kind": "temperature", "params": {"form": "offset",
+                                                             "t_ref": 20.0}, "coef": 0.3}]
+    calibration = Calibration({n: cubic_cal(n, effects=term) for n in temps})
+    with BagWriter(tmp_path / "t.mcap") as w:
+        w.write_float64_array("/arr/resistance", t, r, ["a", "b"])
+        w.write_float64_array("/arr/strain_reference", t, 0.5 * (r - 100.0), ["a", "b"])
+        for name, values in temps.items():
+            w.write_temperature(f"/{name}/temperature", t_temp, values)
+    recordings = {n: Recording(n, t, r[:, j], 0.5 * (r[:, j] - 100.0),
+                               align(t, t_temp, temps[n]), "arr", j)
+                  for j, n in enumerate(temps)}
+    whole = evaluate_recordings(recordings, calibration)
+    got, _ = evaluate_bag(tmp_path / "t.mcap", calibration, window=500)
+    assert_same(got, whole)
+    assert not any("temperature" in note for note in got.notes)
+    assert got.sensors["a"].stats.rmse != got.sensors["b"].stats.rmse  # each its own

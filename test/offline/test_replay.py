@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,8 +15,9 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import rest_resistance_at_start
-from strain_comp.errors import BagError
+from strain_comp.errors import BagError, InputError
 from strain_comp.io.bag import SCHEMAS, BagWriter, read_bag
+from strain_comp.offline.evaluate import evaluate_bag
 from strain_comp.offline.replay import replay_bag
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import TUNABLES, InputTopic, NodeParams
@@ -186,3 +188,24 @@ def test_replay_with_auto_tare_equals_the_engine_tared_at_the_run_start(tmp_path
     expected = engine.run(name, series.t, series.values).strain
     got = read_bag(tmp_path / "out.mcap").series[f"/{name}/strain"].values
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+
+
+def test_replay_refuses_an_array_reference_evaluate_refuses(tmp_path: Path) -> None:
+    """One rule for an array's reference columns (``evaluate.reference_columns``): a
+    reference without a column for sensor b is refused whole by replay as by evaluate,
+    with the same problem, and replay's CSV then holds no reference for a either."""
+    t = 100.0 + np.arange(200) * 0.02
+    r = np.stack([150 + 30 * np.sin(t), 150 + 30 * np.cos(t)], axis=1)
+    bag = tmp_path / "ref.mcap"
+    with BagWriter(bag) as w:
+        w.write_float64_array("/arr/resistance", t, r, ["a", "b"])
+        w.write_float64_array("/arr/strain_reference", t, 0.5 * (r - 100.0), ["a", "x"])
+    cal = Calibration({"a": cubic_cal("a"), "b": cubic_cal("b")})
+    problem = "/arr/strain_reference: columns do not match /arr/resistance; ignored"
+    summary = replay_bag(bag, cal, tmp_path / "out.mcap", csv=tmp_path / "out.csv")
+    assert any(problem in line for line in summary.problems)
+    with open(tmp_path / "out.csv", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 2 * t.size and all(row["reference"] == "" for row in rows)
+    with pytest.raises(InputError, match=problem):
+        evaluate_bag(bag, cal)
