@@ -43,12 +43,17 @@ def _fold_sums(x: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int
     return xx, xe, ee, count
 
 
+def column_std(g: np.ndarray) -> np.ndarray:
+    """Each column's standard deviation (NaN, without numpy's warning, with no rows)."""
+    return np.std(g, axis=0) if g.shape[0] else np.full(g.shape[1], np.nan)
+
+
 class Gram:
     """Per-fold sums X'X, X'e, e'e over all candidate columns: any subset's least-squares
     fit on some folds and its error on the others, without touching the samples again."""
 
     def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
-        std = np.std(g, axis=0)
+        std = column_std(g)
         self.scale = np.where(std > 0, std, 1.0)
         x = np.ascontiguousarray(g / self.scale)
         self.xx, self.xe, self.ee, self.n = _fold_sums(
@@ -85,7 +90,10 @@ class Gram:
         return np.where(self.n > 0, np.maximum(sse, 0.0), 0.0)
 
     def cv_rmse(self, cols: Sequence[int]) -> float:
-        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out)."""
+        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out); NaN
+        without rows."""
+        if not self.n.sum() > 0:
+            return math.nan
         return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
 
 
