@@ -241,7 +241,7 @@ class DiagnoseResult:
     """Measurement-chain and tare hypotheses tried (``strain_comp.diagnosis.conditions``)."""
 
     @property
-    def effects(self) -> list[EffectScore]:
+    def scored(self) -> list[EffectScore]:
         """All candidates: added ones first (in order added, the intercept last), then the
         rest by score."""
         rows = [s for d in self.sensors.values() for s in d.scores]
@@ -253,19 +253,29 @@ class DiagnoseResult:
 
     @property
     def added(self) -> list[EffectScore]:
-        return [s for s in self.effects if s.added]
+        return [s for s in self.scored if s.added]
 
     def to_json(self) -> dict[str, Any]:
-        """The DESIGN.md ``diagnose --json`` record, then extra keys."""
+        """What ``diagnose --json`` writes (docs/design.md).
+
+        Returns:
+            The JSON document.
+
+        """
         return {"before": self.before, "after": self.after,
-                "effects": [s.to_json() for s in self.effects],
+                "effects": [s.to_json() for s in self.scored],
                 "validated_on": self.validated_on, "validation": self.validation,
                 "sensors": {n: d.to_json() for n, d in self.sensors.items()},
                 "conditions": self.conditions,
                 "units": {n: self.calibration.sensors[n].strain_unit for n in self.sensors}}
 
     def summary(self) -> str:
-        """A few lines for the terminal; one when nothing was kept."""
+        """The lines ``strain-comp diagnose`` prints (one when nothing was kept).
+
+        Returns:
+            The text.
+
+        """
         units = {cal.strain_unit for cal in self.calibration.sensors.values()}
         u = units.pop() if len(units) == 1 else "(each sensor's unit)"
         if not self.added and not any(c.get("chosen") for c in self.conditions):
