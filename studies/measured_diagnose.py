@@ -258,7 +258,7 @@ def carried_anywhere(day2: dict[str, Path], cal: Path, tried: int) -> None:
         fit, val = [bags[run]], [bags[r] for r in others]
         setup = loop._setup("nylon", calibration, fit, val,
                             [base_runs(b, calibration) for b in fit],
-                            [base_runs(b, calibration) for b in val], None, 0.3, 10, False, True)
+                            [base_runs(b, calibration) for b in val], None, False, True)
         assert setup is not None and setup.session is not None
         gram, cands, session = setup.gram, setup.cands, setup.session
         n = len(cands.names)

@@ -17,10 +17,11 @@ from strain_comp.diagnosis.findings import message_of, score_rows, session_recor
 from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult, SensorDiagnosis
 from strain_comp.diagnosis.residuals import (
+    HELD_OUT_EVERY,
+    N_BLOCKS,
     Run,
     as_bags,
     base_runs,
-    holdout_period,
     rmse_stats,
     series_all,
     stride_of,
@@ -119,8 +120,7 @@ def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
 def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Recording]],
            validate: list[Mapping[str, Recording]] | None, base_fit: list[dict[str, Run]],
            base_val: list[dict[str, Run]], candidates: Sequence[dict[str, Any]] | None,
-           holdout_fraction: float, n_blocks: int, stretch_history: bool,
-           session_start: bool) -> _Setup | None:
+           stretch_history: bool, session_start: bool) -> _Setup | None:
     """Steps 1-4 for one sensor (None: no usable recording)."""
     cands = candidates_of(sensor, bags, base_fit, candidates, stretch_history)
     session = (None if validate is None or not session_start
@@ -129,12 +129,10 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
         session = None
     stride = stride_of(bags, sensor)
     val_stride = 1 if validate is None else stride_of(validate, sensor)
-    series = series_all(sensor, bags, base_fit, cands.entries, n_blocks, stride)
+    series = series_all(sensor, bags, base_fit, cands.entries, stride)
     if not series:
         return None
-    period = holdout_period(holdout_fraction) if validate is None else 0
-    rows = rows_of(sensor, series, validate, base_val, cands.entries, n_blocks, period,
-                   val_stride)
+    rows = rows_of(sensor, series, validate, base_val, cands.entries, val_stride)
     gram = Gram(rows.g_fit, rows.e_fit, rows.fold, rows.n_folds)
     scores = candidate_scores(gram, len(cands.names), cands.offset)
     shifted = {b: Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
@@ -185,17 +183,12 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
 def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]],
              calibration: Calibration, *,
              validate_recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
-             | None = None, holdout_fraction: float = 0.3,
-             candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
+             | None = None, candidates: Sequence[dict[str, Any]] | None = None,
              policy: LoopPolicy = LOOP_POLICY, tare: str = "calibration",
              stretch_history: bool = False,
              session_start: bool = True,
              on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
     """Run the residual loop on every calibrated sensor with a reference (docs/design.md)."""
-    if not 0.0 < holdout_fraction < 1.0:
-        raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
-    if n_blocks < 3:
-        raise InputError(f"n_blocks must be >= 3, got {n_blocks}")
     bags = as_bags(recordings)
     validate = None if validate_recordings is None else as_bags(validate_recordings)
     base_fit = [base_runs(b, calibration, tare=tare) for b in bags]
@@ -204,7 +197,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     results: dict[str, SensorDiagnosis] = {}
     for sensor in calibration.sensors:
         setup = _setup(sensor, calibration, bags, validate, base_fit, base_val or [],
-                       candidates, holdout_fraction, n_blocks, stretch_history, session_start)
+                       candidates, stretch_history, session_start)
         if setup is not None:
             results[sensor] = _diagnose_sensor(sensor, calibration, setup, policy)
         if on_sensor is not None:  # progress (strain_comp.progress)
@@ -221,8 +214,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     pooled_after = _pool(results, "after")
     if validate is None:
         validated_on = "holdout"
-        validation = {"kind": "held-out time blocks of the input", "n_blocks": n_blocks,
-                      "held_out_every": holdout_period(holdout_fraction)}
+        validation = {"kind": "held-out time blocks of the input", "n_blocks": N_BLOCKS,
+                      "held_out_every": HELD_OUT_EVERY}
     else:
         validated_on = "validate"
         validation = {"kind": "validation recordings",

@@ -26,6 +26,10 @@ from strain_comp.core.tare import tare_engine, unsettled_start
 from strain_comp.diagnosis.candidates import BASELINE_WINDOW
 from strain_comp.io.recording import Recording, hold_latest
 
+N_BLOCKS = 10
+"""Contiguous time blocks each recording is cut into (docs/design.md, "The loop's steps", 3)."""
+HELD_OUT_EVERY = 3
+"""Without validation runs every third block is held out (a holdout fraction of 0.3)."""
 ROW_BUDGET = 250_000
 """Samples of one sensor's fit recordings up to which the loop keeps every used sample
 (docs/design.md, "The residual loop", 5). A fixed stride, not a low-pass: that would shrink
@@ -113,14 +117,14 @@ def neighbours_of(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
     return [found[i] for i in sorted(found)]
 
 
-def block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
-    """Contiguous time blocks 0..n_blocks-1 of equal duration."""
+def block_ids(t: np.ndarray) -> np.ndarray:
+    """Contiguous time blocks 0..N_BLOCKS-1 of equal duration."""
     if t.size == 0:
         return np.zeros(0, dtype=np.intp)
     span = t[-1] - t[0]
     if not span > 0:
         return np.zeros(t.size, dtype=np.intp)
-    blocks: np.ndarray = np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
+    blocks: np.ndarray = np.minimum(((t - t[0]) / span * N_BLOCKS).astype(np.intp), N_BLOCKS - 1)
     return blocks
 
 
@@ -136,8 +140,7 @@ def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], ba
 
 
 def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run],
-            candidates: Sequence[dict[str, Any]], n_blocks: int, stride: int = 1
-            ) -> Series | None:
+            candidates: Sequence[dict[str, Any]], stride: int = 1) -> Series | None:
     """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
     at every ``stride``-th of the samples kept (the regressors run over all of them)."""
     rec = bag[sensor]
@@ -147,7 +150,7 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
     cal = run.cal
     used = run.used
     ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
-    if ok.sum() < 2 * n_blocks:
+    if ok.sum() < 2 * N_BLOCKS:
         return None
     t = np.asarray(rec.t, dtype=np.float64)[used]
     temperature = None if rec.temperature is None else np.asarray(rec.temperature)[used]
@@ -167,7 +170,7 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
     unsettled = unsettled_start(rec.t, cal.input.to_ohm(rec.r), rec.s, pair=cal.input.pair)
     if unsettled[0] > 0:  # seconds from the first sample with a reference
         keep &= t > t[keep][0] + unsettled[0]
-    if keep.sum() < 2 * n_blocks:
+    if keep.sum() < 2 * N_BLOCKS:
         return None
     rows = np.flatnonzero(keep)[::stride]
     regressors = [regressor_from_dict(c) for c in candidates]
@@ -176,15 +179,15 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
         g[:, j] = _segmented(reg.run, reg.reset, batch, run.starts)[rows]
     return Series(e=(corrected + run.beyond[used] - s)[rows], g=g, t=t[rows],
                    extended=(run.beyond[used] != 0.0)[rows],
-                   block=block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
+                   block=block_ids(t[rows]), s=s[rows], unsettled=unsettled)
 
 
 def series_all(sensor: str, bags: Sequence[Mapping[str, Recording]],
                base: Sequence[Mapping[str, Run]], candidates: Sequence[dict[str, Any]],
-               n_blocks: int, stride: int) -> list[Series]:
+               stride: int) -> list[Series]:
     """``series_of`` of every bag that has something usable of ``sensor``."""
     return [s for b, runs in zip(bags, base, strict=True) if sensor in b
-            for s in [series_of(sensor, b, runs, candidates, n_blocks, stride)] if s is not None]
+            for s in [series_of(sensor, b, runs, candidates, stride)] if s is not None]
 
 
 def stride_of(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
@@ -198,11 +201,6 @@ def rmse_stats(e: np.ndarray) -> dict[str, float]:
     """The statistics of errors ``e`` that ``diagnose`` reports before and after."""
     stats = error_stats(e, np.zeros_like(e))
     return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
-
-
-def holdout_period(holdout_fraction: float) -> int:
-    """Every how many-th time block is held out (docs/design.md, "The loop's steps", 3)."""
-    return max(2, round(1.0 / holdout_fraction))
 
 
 def baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:

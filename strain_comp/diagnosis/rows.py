@@ -11,7 +11,15 @@ from typing import Any
 import numpy as np
 
 from strain_comp.diagnosis.candidates import default_candidates
-from strain_comp.diagnosis.residuals import Run, Series, baseline_rest, neighbours_of, series_all
+from strain_comp.diagnosis.residuals import (
+    HELD_OUT_EVERY,
+    N_BLOCKS,
+    Run,
+    Series,
+    baseline_rest,
+    neighbours_of,
+    series_all,
+)
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 
@@ -71,22 +79,23 @@ class Rows:
 
 
 def rows_of(sensor: str, series: list[Series], validate: list[Mapping[str, Recording]] | None,
-            base_val: list[dict[str, Run]], entries: list[dict[str, Any]], n_blocks: int,
-            period: int, val_stride: int) -> Rows:
+            base_val: list[dict[str, Run]], entries: list[dict[str, Any]], val_stride: int
+            ) -> Rows:
     """Fit rows (not held out, within the range the terms read) with their fold (the
     position of the block among the fit blocks of its recording), and the held-out rows:
-    the validation recordings', or every ``period``-th block's without them."""
+    the validation recordings', or every ``HELD_OUT_EVERY``-th block's without them."""
+    period = HELD_OUT_EVERY if validate is None else 0
     held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
                 for s in series]
     fold_of_block = np.cumsum([not (period and b % period == period - 1)
-                               for b in range(n_blocks)]) - 1
+                               for b in range(N_BLOCKS)]) - 1
     fits = [~h & ~s.extended for s, h in zip(series, held_out, strict=True)]
     e_fit = np.concatenate([s.e[f] for s, f in zip(series, fits, strict=True)])
     g_fit = np.concatenate([s.g[f] for s, f in zip(series, fits, strict=True)])
     fold = np.concatenate([fold_of_block[s.block[f]]
                            for s, f in zip(series, fits, strict=True)])
     if validate is not None:
-        val_series = series_all(sensor, validate, base_val, entries, n_blocks, val_stride)
+        val_series = series_all(sensor, validate, base_val, entries, val_stride)
         if not val_series:
             raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
                              "samples with a reference strain")
