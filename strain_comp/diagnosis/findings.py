@@ -14,8 +14,7 @@ from strain_comp.core.calibration import SensorCalibration, strain_unit_words
 from strain_comp.core.effects import regressor_from_dict
 from strain_comp.core.tare import REST_WINDOW
 from strain_comp.diagnosis.report import SESSION_RECORDS, EffectScore, creep_tau
-from strain_comp.diagnosis.residuals import ROW_BUDGET
-from strain_comp.diagnosis.rows import Candidates, Rows
+from strain_comp.diagnosis.residuals import ROW_BUDGET, Candidates, Rows
 from strain_comp.diagnosis.selection import Tried, column_std, rms
 from strain_comp.diagnosis.session import SessionHeldOut, window_flag
 

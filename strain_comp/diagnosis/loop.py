@@ -19,14 +19,17 @@ from strain_comp.diagnosis.report import DiagnoseResult, SensorDiagnosis
 from strain_comp.diagnosis.residuals import (
     HELD_OUT_EVERY,
     N_BLOCKS,
+    Candidates,
+    Rows,
     Run,
     as_bags,
     base_runs,
+    candidates_of,
     rmse_stats,
+    rows_of,
     series_all,
     stride_of,
 )
-from strain_comp.diagnosis.rows import Candidates, Rows, candidates_of, rows_of
 from strain_comp.diagnosis.selection import (
     Branch,
     Gram,
