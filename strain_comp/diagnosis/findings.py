@@ -25,7 +25,7 @@ between runs."""
 
 
 def score_rows(sensor: str, cal: SensorCalibration, cands: Candidates, rows: Rows,
-                scores: dict[int, float], terms: list[int], coefs: list[float],
+                scores: dict[int, float], terms: list[int], coefs: np.ndarray,
                 gains: Mapping[int, float]) -> list[EffectScore]:
     """The evidence of every candidate: its score and, for an added one, its rank, gain,
     coefficient and magnitude."""

@@ -34,7 +34,6 @@ from strain_comp.diagnosis.selection import (
     Branch,
     Gram,
     HeldOut,
-    Tried,
     candidate_scores,
     keep_on_held_out,
     linear_held_out,
@@ -62,13 +61,20 @@ class _Setup:
     strides: tuple[int, int | None]
 
 
-def _choose(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
+def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
             ) -> Branch:
-    """Forward selection kept on the held-out rows, and for each baseline candidate the
-    per-run hypothesis (the start-of-run shift removed whole) when it wins by the margin
-    (without a session start: steps 5-7)."""
-    gram, cands, n_folds = setup.gram, setup.cands, setup.rows.n_folds
+    """The terms added (``kept``, with ``coef``): without a session start steps 5-7
+    (forward selection kept on the held-out rows, and for each baseline candidate the
+    per-run hypothesis when it wins by the margin), with one step 8 (what the session start
+    makes itself, the per-run baseline among it, is neither tried nor written)."""
+    gram, cands, n_folds, session = setup.gram, setup.cands, setup.rows.n_folds, setup.session
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
+    if session is not None:
+        skip = [j for j in range(n) if j in baselines or session.redundant(j)]
+        carried = select_carried(gram, n, offset, session.per_run, policy, skip)
+        kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
+        return dataclasses.replace(carried, kept=[carried.kept[k] for k in kept],
+                                   coef=carried.coef[kept])
     margin, max_effects = policy.margin, policy.max_effects
     chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines,
                             sigmas=policy.significance)
@@ -84,40 +90,10 @@ def _choose(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
                                   runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
+    if best.shift is not None and best.rmse < rms(held_out([], np.zeros(0))):
+        return dataclasses.replace(best, kept=[best.shift, *best.kept],
+                                   coef=np.concatenate(([1.0], best.coef)))
     return best
-
-
-@dataclass
-class _Selected:
-    """The terms one sensor's loop adds (columns, coefficients), their gains, the terms
-    selected on the diagnosed run alone (without a session start) and the best candidate
-    scored after the session start and not added."""
-
-    terms: list[int]
-    coefs: list[float]
-    gains: dict[int, float]
-    chosen: list[int]
-    refused: Tried | None
-
-
-def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
-            ) -> _Selected:
-    """Steps 5-7, or with a session start step 8 (what the session start makes itself,
-    the per-run baseline among it, is neither tried nor written)."""
-    cands, session = setup.cands, setup.session
-    if session is not None:
-        n = len(cands.names)
-        skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
-        carried = select_carried(setup.gram, n, cands.offset, session.per_run, policy, skip)
-        kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
-        return _Selected([carried.kept[k] for k in kept], [float(carried.coef[k]) for k in kept],
-                         carried.selection.gains, carried.selection.chosen, carried.refused)
-    best = _choose(setup, policy, held_out, runs)
-    rmse_before = rms(held_out([], np.zeros(0)))
-    terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
-        + best.kept
-    coefs = ([1.0] if terms[:1] == [best.shift] else []) + [float(c) for c in best.coef]
-    return _Selected(terms, coefs, best.selection.gains, best.selection.chosen, None)
 
 
 def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Recording]],
@@ -158,14 +134,14 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     if session is None and rows.val_series:
         runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(rows.val_series)])
     picked = _select(setup, policy, held_out, runs)
-    terms, coefs = picked.terms, picked.coefs
+    terms, coefs = picked.kept, picked.coef
     e_before = held_out([], np.zeros(0))
-    e_after = held_out(terms, np.array(coefs))
+    e_after = held_out(terms, coefs)
     order = [j for j in terms if j != cands.offset] or terms
-    message = message_of(cal, cands, rows, picked.chosen, picked.refused, setup.scores, order,
-                         picked.gains, policy.margin, rms(e_before), rms(e_after),
-                         session is not None, setup.strides)
-    e_linear = linear(terms, np.array(coefs))
+    message = message_of(cal, cands, rows, picked.selection.chosen, picked.refused,
+                         setup.scores, order, picked.selection.gains, policy.margin,
+                         rms(e_before), rms(e_after), session is not None, setup.strides)
+    e_linear = linear(terms, coefs)
     winner = cands.names[order[0]] if order else None
     plot = {}
     if winner is not None:
@@ -173,13 +149,14 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
                 "g": rows.g_out[:, order[0]], "s": rows.s_out}
     found = SensorDiagnosis(
         name=sensor, before=rmse_stats(e_before), after=rmse_stats(e_after),
-        scores=score_rows(sensor, cal, cands, rows, setup.scores, terms, coefs, picked.gains),
-        added=added_effects(cands.entries, terms, coefs, cal.effects), message=message,
+        scores=score_rows(sensor, cal, cands, rows, setup.scores, terms, coefs,
+                          picked.selection.gains),
+        added=added_effects(cands.entries, terms, coefs.tolist(), cal.effects), message=message,
         plot=plot, winner=winner)
     if session is not None:
         found.as_calibrated = {"before": rmse_stats(rows.e_out), "after": rmse_stats(e_linear)}
         found.session = session_record(cal, session, rows.e_out, e_before, policy.margin)
-        found.runs_after = [rms(e) for e in session.per_run(terms, np.array(coefs))]
+        found.runs_after = [rms(e) for e in session.per_run(terms, coefs)]
     return found
 
 
