@@ -21,8 +21,7 @@ from strain_comp.api.inputs import CalibrationLike, Data, PathLike, read_recordi
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration as _save_calibration
 from strain_comp.diagnosis.conditions import diagnose_conditions
-from strain_comp.diagnosis.report import DiagnoseResult, plot_file, write_plots
-from strain_comp.diagnosis.report_page import diagnosis_page
+from strain_comp.diagnosis.report import DiagnoseResult, diagnosis_page, plot_file, write_plots
 from strain_comp.io.atomic import check_distinct
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import PLOT_POINTS
