@@ -25,10 +25,9 @@ from strain_comp.core.chain import (
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
-from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.diagnosis.residuals import as_bags
-from strain_comp.diagnosis.selection import upper_bound
+from strain_comp.diagnosis.selection import LOOP_POLICY, LoopPolicy, upper_bound
 from strain_comp.io.recording import Recording
 
 CHAIN_CONDITIONS = ("alternation", "despike", "baseline step")

@@ -14,7 +14,6 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.diagnosis.findings import message_of, score_rows, session_record
-from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult, SensorDiagnosis
 from strain_comp.diagnosis.residuals import (
     HELD_OUT_EVERY,
@@ -31,9 +30,11 @@ from strain_comp.diagnosis.residuals import (
     stride_of,
 )
 from strain_comp.diagnosis.selection import (
+    LOOP_POLICY,
     Branch,
     Gram,
     HeldOut,
+    LoopPolicy,
     candidate_scores,
     keep_on_held_out,
     linear_held_out,

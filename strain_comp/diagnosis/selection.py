@@ -1,5 +1,6 @@
 """Selection statistics of the residual loop (docs/design.md, "The loop's steps", 4-8),
-testable on any regressor matrix; the numbers are ``policy.LoopPolicy``'s."""
+testable on any regressor matrix, and their numbers (``LoopPolicy``, with units; docs/results.md,
+"Residual loop", gives what each does and the measured figure that keeps it)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,27 @@ import numpy as np
 from scipy.stats import t as student_t
 
 from strain_comp._numba import njit
-from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
+
+
+@dataclass(frozen=True)
+class LoopPolicy:
+    """How the loop decides (``studies/measured_diagnose.py --policy FIELD=VALUE`` varies it)."""
+
+    margin: float = 0.03
+    """[1, relative RMSE] least fall of the error for a term (or a condition) to count."""
+    significance: float = 1.0
+    """[standard errors over the folds] least fold-wise drop on the diagnosed run."""
+    level: float = 0.95
+    """[one-sided probability] of the prediction bound of one more run's log RMSE ratio."""
+    tried: int = 16
+    """[candidates per step] scored on the validation runs at each step."""
+    max_effects: int = 3
+    """[terms] the most terms one diagnosis adds to a sensor."""
+
+
+LOOP_POLICY = LoopPolicy()
+"""The product's policy."""
+
 
 RESOLUTION = 1e-6
 """Forward selection stops once the cross-validated RMSE is below this fraction of the
