@@ -1,8 +1,5 @@
-"""Measurement-chain and tare hypotheses around the residual loop.
-
-Each condition (a tare, pair means against an alternation, despiking, a baseline-step
-correction) reruns the whole loop; docs/design.md, "Conditions", says which is chosen.
-"""
+"""Measurement-chain and tare hypotheses around the residual loop: each condition reruns the
+whole loop (docs/design.md, "Conditions", says which is chosen)."""
 
 from __future__ import annotations
 
