@@ -119,7 +119,7 @@ def policy_of(changes: list[str]) -> Any:
     """``LOOP_POLICY`` with the fields ``FIELD=VALUE`` of ``changes`` changed."""
     import dataclasses
 
-    from strain_comp.diagnosis.policy import LOOP_POLICY
+    from strain_comp.diagnosis.selection import LOOP_POLICY
 
     fields = {f.name: f.type for f in dataclasses.fields(LOOP_POLICY)}
     values: dict[str, Any] = {}
@@ -244,8 +244,8 @@ def carried_anywhere(day2: dict[str, Path], cal: Path, tried: int) -> None:
 
     from strain_comp.core.calibration_file import load_calibration
     from strain_comp.diagnosis import loop, selection
-    from strain_comp.diagnosis.policy import LOOP_POLICY
     from strain_comp.diagnosis.residuals import base_runs
+    from strain_comp.diagnosis.selection import LOOP_POLICY
     from strain_comp.io.recording import load_recordings
 
     calibration = load_calibration(cal)
@@ -258,7 +258,7 @@ def carried_anywhere(day2: dict[str, Path], cal: Path, tried: int) -> None:
         fit, val = [bags[run]], [bags[r] for r in others]
         setup = loop._setup("nylon", calibration, fit, val,
                             [base_runs(b, calibration) for b in fit],
-                            [base_runs(b, calibration) for b in val], None, 0.3, 10, False, True)
+                            [base_runs(b, calibration) for b in val], None, False, True)
         assert setup is not None and setup.session is not None
         gram, cands, session = setup.gram, setup.cands, setup.session
         n = len(cands.names)
@@ -387,7 +387,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --carry: these sensors only (default all)")
     parser.add_argument("--policy", nargs="+", default=[], metavar="FIELD=VALUE",
                         help="with --carry: the loop's policy with these fields changed "
-                             "(strain_comp.diagnosis.policy.LoopPolicy, e.g. spread=1)")
+                             "(strain_comp.diagnosis.selection.LoopPolicy, e.g. level=0.9)")
     parser.add_argument("--another-day", action="store_true",
                         help="the thread fitted on session 1 (the first of --models), the "
                              "loop on every split of session 2 (another_day)")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from strain_comp.api._inputs import (
     as_calibration,
@@ -21,17 +21,13 @@ from strain_comp.api.inputs import CalibrationLike, Data, PathLike, read_recordi
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration as _save_calibration
 from strain_comp.diagnosis.conditions import diagnose_conditions
-from strain_comp.diagnosis.report import plot_file, write_plots
-from strain_comp.diagnosis.report_page import diagnosis_page
+from strain_comp.diagnosis.report import DiagnoseResult, diagnosis_page, plot_file, write_plots
 from strain_comp.io.atomic import check_distinct
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import PLOT_POINTS
 from strain_comp.offline.plots import evaluation_figures
 from strain_comp.offline.report_page import BagSection
 from strain_comp.progress import bar, counter
-
-if TYPE_CHECKING:
-    from strain_comp.diagnosis.report import DiagnoseResult
 
 
 def _run(data: object) -> dict[str, Recording]:
@@ -43,11 +39,11 @@ def _run(data: object) -> dict[str, Recording]:
 
 
 @dataclass
-class Diagnosis:
+class Diagnosis(DiagnoseResult):
     """What ``diagnose`` found: the effects added with their readings, the held-out error
-    before and after, and the calibration with the added terms."""
+    before and after (``before``, ``after``: RMSE, MAE and n pooled over the sensors), and
+    ``calibration``, the calibration with the added terms (save it with save_calibration)."""
 
-    result: DiagnoseResult
     diagnosed: Calibration | None = None
     """The calibration diagnosed (without the added terms)."""
     source: str = "recordings"
@@ -59,44 +55,11 @@ class Diagnosis:
     """The run diagnosed (a bag's path or recordings), for ``to_html``'s evaluations."""
 
     @property
-    def calibration(self) -> Calibration:
-        """The calibration with the added effect terms (save it with save_calibration)."""
-        return self.result.calibration
-
-    @property
-    def before(self) -> dict[str, float]:
-        """Held-out RMSE, MAE and n before the added terms (pooled over the sensors)."""
-        return self.result.before
-
-    @property
-    def after(self) -> dict[str, float]:
-        """The same after them."""
-        return self.result.after
-
-    @property
     def effects(self) -> list[dict[str, Any]]:
         """The effects added, in order: sensor, name, kind, reading, gain (the relative
         drop of the held-out RMSE when it was added)."""
         return [{"sensor": e.sensor, "name": e.name, "kind": e.kind, "reading": e.reading(),
-                 "gain": e.gain} for e in self.result.added]
-
-    def summary(self) -> str:
-        """The lines ``strain-comp diagnose`` prints.
-
-        Returns:
-            The text.
-
-        """
-        return self.result.summary()
-
-    def to_json(self) -> dict[str, Any]:
-        """What ``diagnose --json`` writes (docs/design.md).
-
-        Returns:
-            The JSON document.
-
-        """
-        return self.result.to_json()
+                 "gain": e.gain} for e in self.added]
 
     def to_html(self, calibration_path: str = "") -> str:
         """The ``diagnose --report`` page (``strain_comp.offline.report_page``): before and
@@ -112,17 +75,17 @@ class Diagnosis:
 
         """
 
-        diagnosed = self.diagnosed or self.result.calibration
+        diagnosed = self.diagnosed or self.calibration
         runs = []
         if self.data is not None:
             for heading, cal in (("the run through the calibration diagnosed", diagnosed),
                                  ("the run through it with the terms added",
-                                  self.result.calibration)):
+                                  self.calibration)):
                 ev = evaluate(cal, self.data, tare=self.tare, plot_points=PLOT_POINTS)
                 figures = evaluation_figures(ev.result, cal, bag=self.source, tare=self.tare)
                 runs.append((heading, BagSection(self.source, ev.result,
                                                  problems=ev.problems, figures=figures)))
-        return diagnosis_page(self.result, diagnosed, calibration_path or "(in memory)",
+        return diagnosis_page(self, diagnosed, calibration_path or "(in memory)",
                               self.source, validate=self.validate, tare=self.tare, runs=runs)
 
 
@@ -181,6 +144,7 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
         _save_calibration(result.calibration, out, inputs=written)
     if plots is not None:
         write_plots(result, os.fspath(plots), inputs=written)
-    return Diagnosis(result, cal, paths[0] if paths else "recordings",
-                     [p for v in runs for p in paths_of(v) or []], tare,
-                     paths[0] if paths else recordings)
+    return Diagnosis(**vars(result), diagnosed=cal,
+                     source=paths[0] if paths else "recordings",
+                     validate=[p for v in runs for p in paths_of(v) or []], tare=tare,
+                     data=paths[0] if paths else recordings)

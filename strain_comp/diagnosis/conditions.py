@@ -1,8 +1,5 @@
-"""Measurement-chain and tare hypotheses around the residual loop.
-
-Each condition (a tare, pair means against an alternation, despiking, a baseline-step
-correction) reruns the whole loop; docs/design.md, "Conditions", says which is chosen.
-"""
+"""Measurement-chain and tare hypotheses around the residual loop: each condition reruns the
+whole loop (docs/design.md, "Conditions", says which is chosen)."""
 
 from __future__ import annotations
 
@@ -25,11 +22,13 @@ from strain_comp.core.chain import (
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import tare_engine
 from strain_comp.diagnosis.loop import diagnose
-from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult
 from strain_comp.diagnosis.residuals import as_bags
-from strain_comp.diagnosis.selection import upper_bound
+from strain_comp.diagnosis.selection import LOOP_POLICY, LoopPolicy, upper_bound
 from strain_comp.io.recording import Recording
+
+CHAIN_CONDITIONS = ("alternation", "despike", "baseline step")
+"""The conditions of the measurement chain (docs/design.md, "Conditions", 3-5)."""
 
 
 def _with_input(calibration: Calibration, names: set[str], **settings: Any) -> Calibration:
@@ -41,15 +40,17 @@ def _with_input(calibration: Calibration, names: set[str], **settings: Any) -> C
 
 @dataclasses.dataclass
 class ChainFindings:
-    """Sensors with an uncorrected alternation, spikes, baseline steps; reading lines."""
+    """What the measurement chain shows: the sensors each condition would correct (by its
+    name: ``alternation``, ``despike``, ``baseline step``) and the reading lines, each with
+    its kind (one of those, or ``quantisation``: a reading only)."""
 
-    alternating: set[str] = dataclasses.field(default_factory=set)
-    spiky: set[str] = dataclasses.field(default_factory=set)
-    stepped: set[str] = dataclasses.field(default_factory=set)
-    lines: list[str] = dataclasses.field(default_factory=list)
-    """Alternation and quantisation readings."""
-    spike_lines: list[str] = dataclasses.field(default_factory=list)
-    step_lines: list[str] = dataclasses.field(default_factory=list)
+    sensors: dict[str, set[str]] = dataclasses.field(
+        default_factory=lambda: {kind: set() for kind in CHAIN_CONDITIONS})
+    readings: list[tuple[str, str]] = dataclasses.field(default_factory=list)
+
+    def lines(self, kind: str) -> list[str]:
+        """The reading lines of ``kind``."""
+        return [line for k, line in self.readings if k == kind]
 
 
 def _reference_note(rec: Recording, t: float) -> str:
@@ -77,6 +78,8 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
     correct yet: the alternation statistics, and the spikes and baseline steps the
     engine's online corrector (at the default thresholds) finds in each run."""
     found = ChainFindings()
+    spikes: list[tuple[str, str]] = []
+    steps: list[tuple[str, str]] = []
     for name, rec in recordings.items():
         if name not in calibration.sensors:
             continue
@@ -86,30 +89,31 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
         wobble = alternation(r)
         if wobble.present:
             done = settings.alternation
-            found.lines.append(f"{name}: {wobble.reading()}"
-                               + (" (corrected by the calibration)" if done else ""))
+            found.readings.append(("alternation", f"{name}: {wobble.reading()}"
+                                   + (" (corrected by the calibration)" if done else "")))
             if not done:
-                found.alternating.add(name)
+                found.sensors["alternation"].add(name)
         # what the engine's corrector would see: the calibration's pair statistic if it
         # reads one, pair means if an alternation is found (the condition switches them on)
         _, _, corrector = correct(rec.t, r, step_k=STEP_K,
                                   alternating=settings.alternation or wobble.present,
                                   pair=settings.pair if settings.alternation else "mean")
         if corrector.n_spikes and settings.despike is None:
-            found.spiky.add(name)
+            found.sensors["despike"].add(name)
             plural = "s" if corrector.n_spikes > 1 else ""
-            found.spike_lines.append(f"{name}: {corrector.n_spikes} isolated spike{plural} in "
-                                     f"{r.size} samples (held out online at "
-                                     f"{DESPIKE_K:g} robust sigmas)")
+            spikes.append(("despike", f"{name}: {corrector.n_spikes} isolated spike{plural} in "
+                           f"{r.size} samples (held out online at {DESPIKE_K:g} robust sigmas)"))
         if corrector.steps and settings.baseline_step is None:
-            found.stepped.add(name)
-            found.step_lines += [f"{name}: {step.reading()}{_reference_note(rec, step.t)}"
-                                 for step in corrector.steps]
+            found.sensors["baseline step"].add(name)
+            steps += [("baseline step", f"{name}: {step.reading()}"
+                       f"{_reference_note(rec, step.t)}") for step in corrector.steps]
         step = quantisation(raw)  # an ADC quantises what it reads: volts of a divider
         if step is not None:
             what = ("divider voltage", "V") if settings.kind == "divider" else ("resistance",
                                                                                 "ohm")
-            found.lines.append(f"{name}: {what[0]} quantised in steps of {step:.3g} {what[1]}")
+            found.readings.append(("quantisation", f"{name}: {what[0]} quantised in steps of "
+                                   f"{step:.3g} {what[1]}"))
+    found.readings += spikes + steps
     return found
 
 
@@ -155,15 +159,12 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                         **options: Any) -> DiagnoseResult:
     """``diagnose`` under each condition (docs/design.md, "Conditions"); the chosen result."""
     found = chain_findings(recordings, calibration)
-    readings = found.lines + found.spike_lines + found.step_lines
     validate = [] if validate_recordings is None else as_bags(validate_recordings)
     for bag in validate:  # what the validation runs show is tested as well
         more = chain_findings(bag, calibration)
-        for key in ("alternating", "spiky", "stepped"):
-            getattr(found, key).update(getattr(more, key))
-        readings += [f"{line} (validation run)"
-                     for line in more.lines + more.spike_lines + more.step_lines]
-    alternating = found.alternating
+        for kind in CHAIN_CONDITIONS:
+            found.sensors[kind].update(more.sensors[kind])
+        found.readings += [(kind, f"{line} (validation run)") for kind, line in more.readings]
     runs: list[tuple[str, str, Calibration, str]] = [
         ("as calibrated", "the calibration's rest resistance and input", calibration,
          "calibration")]
@@ -171,23 +172,20 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
         runs.append(("tare", _tare_outcome(calibration, recordings, *validate),
                      calibration, "auto"))
     base = calibration
-    if alternating:
-        fixed = _with_input(calibration, alternating, alternation=True)
-        base = fixed
-        text = "; ".join(line for line in readings if "alternation" in line)
-        runs.append(("alternation", f"pair means for {text}", fixed, "calibration"))
+    if found.sensors["alternation"]:
+        base = _with_input(calibration, found.sensors["alternation"], alternation=True)
+        text = "; ".join(found.lines("alternation"))
+        runs.append(("alternation", f"pair means for {text}", base, "calibration"))
         if tare == "auto":
-            runs.append(("alternation + tare", f"pair means and tare for {text}", fixed,
+            runs.append(("alternation + tare", f"pair means and tare for {text}", base,
                          "auto"))
     then = " + tare" if tare == "auto" else ""
-    if found.spiky:
-        text = "; ".join(line for line in readings if "isolated spike" in line)
-        runs.append((f"despike{then}", f"spikes held out online: {text}",
-                     _with_input(base, found.spiky, despike=DESPIKE_K), tare))
-    if found.stepped:
-        text = "; ".join(line for line in readings if "baseline step" in line)
-        runs.append((f"baseline step{then}", f"jumps re-based online: {text}",
-                     _with_input(base, found.stepped, baseline_step=STEP_K), tare))
+    for kind, what, setting in (("despike", "spikes held out online", {"despike": DESPIKE_K}),
+                                ("baseline step", "jumps re-based online",
+                                 {"baseline_step": STEP_K})):
+        if found.sensors[kind]:
+            runs.append((f"{kind}{then}", f"{what}: {'; '.join(found.lines(kind))}",
+                         _with_input(base, found.sensors[kind], **setting), tare))
     total = len(runs) * len(calibration.sensors)
     done: list[str] = []
 
@@ -205,7 +203,7 @@ def diagnose_conditions(recordings: Mapping[str, Recording], calibration: Calibr
                                                                      strict=True))]
     conditions += [{"name": "measurement chain", "reading": line, "before": float("nan"),
                     "after": float("nan"), "chosen": False}
-                   for line in readings if "alternation" not in line]
+                   for kind, line in found.readings if kind != "alternation"]
     conditions += [{k: d.session[k] for k in ("name", "reading", "before", "after", "chosen")}
                    for d in results[best].sensors.values() if d.session]
     return dataclasses.replace(results[best], conditions=conditions)

@@ -14,9 +14,8 @@ from strain_comp.core.calibration import SensorCalibration, strain_unit_words
 from strain_comp.core.effects import regressor_from_dict
 from strain_comp.core.tare import REST_WINDOW
 from strain_comp.diagnosis.report import SESSION_RECORDS, EffectScore, creep_tau
-from strain_comp.diagnosis.residuals import ROW_BUDGET
-from strain_comp.diagnosis.rows import Candidates, Rows
-from strain_comp.diagnosis.selection import Tried, rms
+from strain_comp.diagnosis.residuals import ROW_BUDGET, Candidates, Rows
+from strain_comp.diagnosis.selection import Tried, column_std, rms
 from strain_comp.diagnosis.session import SessionHeldOut, window_flag
 
 GAIN_CHANGE = 0.05
@@ -26,11 +25,11 @@ between runs."""
 
 
 def score_rows(sensor: str, cal: SensorCalibration, cands: Candidates, rows: Rows,
-                scores: dict[int, float], terms: list[int], coefs: list[float],
+                scores: dict[int, float], terms: list[int], coefs: np.ndarray,
                 gains: Mapping[int, float]) -> list[EffectScore]:
     """The evidence of every candidate: its score and, for an added one, its rank, gain,
     coefficient and magnitude."""
-    std_fit = np.std(rows.g_fit, axis=0)
+    std_fit = column_std(rows.g_fit)
     coef_of = dict(zip(terms, coefs, strict=True))
     vr = cal.valid_range
     found = []

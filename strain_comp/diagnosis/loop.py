@@ -14,23 +14,27 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.diagnosis.candidates import added_effects
 from strain_comp.diagnosis.findings import message_of, score_rows, session_record
-from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
 from strain_comp.diagnosis.report import DiagnoseResult, SensorDiagnosis
 from strain_comp.diagnosis.residuals import (
+    HELD_OUT_EVERY,
+    N_BLOCKS,
+    Candidates,
+    Rows,
     Run,
     as_bags,
     base_runs,
-    holdout_period,
+    candidates_of,
     rmse_stats,
+    rows_of,
     series_all,
     stride_of,
 )
-from strain_comp.diagnosis.rows import Candidates, Rows, candidates_of, rows_of
 from strain_comp.diagnosis.selection import (
+    LOOP_POLICY,
     Branch,
     Gram,
     HeldOut,
-    Tried,
+    LoopPolicy,
     candidate_scores,
     keep_on_held_out,
     linear_held_out,
@@ -58,13 +62,20 @@ class _Setup:
     strides: tuple[int, int | None]
 
 
-def _choose(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
+def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
             ) -> Branch:
-    """Forward selection kept on the held-out rows, and for each baseline candidate the
-    per-run hypothesis (the start-of-run shift removed whole) when it wins by the margin
-    (without a session start: steps 5-7)."""
-    gram, cands, n_folds = setup.gram, setup.cands, setup.rows.n_folds
+    """The terms added (``kept``, with ``coef``): without a session start steps 5-7
+    (forward selection kept on the held-out rows, and for each baseline candidate the
+    per-run hypothesis when it wins by the margin), with one step 8 (what the session start
+    makes itself, the per-run baseline among it, is neither tried nor written)."""
+    gram, cands, n_folds, session = setup.gram, setup.cands, setup.rows.n_folds, setup.session
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
+    if session is not None:
+        skip = [j for j in range(n) if j in baselines or session.redundant(j)]
+        carried = select_carried(gram, n, offset, session.per_run, policy, skip)
+        kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
+        return dataclasses.replace(carried, kept=[carried.kept[k] for k in kept],
+                                   coef=carried.coef[kept])
     margin, max_effects = policy.margin, policy.max_effects
     chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines,
                             sigmas=policy.significance)
@@ -80,47 +91,16 @@ def _choose(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
                                   runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
+    if best.shift is not None and best.rmse < rms(held_out([], np.zeros(0))):
+        return dataclasses.replace(best, kept=[best.shift, *best.kept],
+                                   coef=np.concatenate(([1.0], best.coef)))
     return best
-
-
-@dataclass
-class _Selected:
-    """The terms one sensor's loop adds (columns, coefficients), their gains, the terms
-    selected on the diagnosed run alone (without a session start) and the best candidate
-    scored after the session start and not added."""
-
-    terms: list[int]
-    coefs: list[float]
-    gains: dict[int, float]
-    chosen: list[int]
-    refused: Tried | None
-
-
-def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
-            ) -> _Selected:
-    """Steps 5-7, or with a session start step 8 (what the session start makes itself,
-    the per-run baseline among it, is neither tried nor written)."""
-    cands, session = setup.cands, setup.session
-    if session is not None:
-        n = len(cands.names)
-        skip = [j for j in range(n) if j in cands.baselines or session.redundant(j)]
-        carried = select_carried(setup.gram, n, cands.offset, session.per_run, policy, skip)
-        kept = [k for k, j in enumerate(carried.kept) if not session.redundant(j)]
-        return _Selected([carried.kept[k] for k in kept], [float(carried.coef[k]) for k in kept],
-                         carried.selection.gains, carried.selection.chosen, carried.refused)
-    best = _choose(setup, policy, held_out, runs)
-    rmse_before = rms(held_out([], np.zeros(0)))
-    terms = ([best.shift] if best.shift is not None and best.rmse < rmse_before else []) \
-        + best.kept
-    coefs = ([1.0] if terms[:1] == [best.shift] else []) + [float(c) for c in best.coef]
-    return _Selected(terms, coefs, best.selection.gains, best.selection.chosen, None)
 
 
 def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Recording]],
            validate: list[Mapping[str, Recording]] | None, base_fit: list[dict[str, Run]],
            base_val: list[dict[str, Run]], candidates: Sequence[dict[str, Any]] | None,
-           holdout_fraction: float, n_blocks: int, stretch_history: bool,
-           session_start: bool) -> _Setup | None:
+           stretch_history: bool, session_start: bool) -> _Setup | None:
     """Steps 1-4 for one sensor (None: no usable recording)."""
     cands = candidates_of(sensor, bags, base_fit, candidates, stretch_history)
     session = (None if validate is None or not session_start
@@ -129,12 +109,10 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
         session = None
     stride = stride_of(bags, sensor)
     val_stride = 1 if validate is None else stride_of(validate, sensor)
-    series = series_all(sensor, bags, base_fit, cands.entries, n_blocks, stride)
+    series = series_all(sensor, bags, base_fit, cands.entries, stride)
     if not series:
         return None
-    period = holdout_period(holdout_fraction) if validate is None else 0
-    rows = rows_of(sensor, series, validate, base_val, cands.entries, n_blocks, period,
-                   val_stride)
+    rows = rows_of(sensor, series, validate, base_val, cands.entries, val_stride)
     gram = Gram(rows.g_fit, rows.e_fit, rows.fold, rows.n_folds)
     scores = candidate_scores(gram, len(cands.names), cands.offset)
     shifted = {b: Gram(rows.g_fit, rows.e_fit - rows.g_fit[:, b], rows.fold, rows.n_folds)
@@ -157,14 +135,14 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
     if session is None and rows.val_series:
         runs = np.concatenate([np.full(s.e.size, k) for k, s in enumerate(rows.val_series)])
     picked = _select(setup, policy, held_out, runs)
-    terms, coefs = picked.terms, picked.coefs
+    terms, coefs = picked.kept, picked.coef
     e_before = held_out([], np.zeros(0))
-    e_after = held_out(terms, np.array(coefs))
+    e_after = held_out(terms, coefs)
     order = [j for j in terms if j != cands.offset] or terms
-    message = message_of(cal, cands, rows, picked.chosen, picked.refused, setup.scores, order,
-                         picked.gains, policy.margin, rms(e_before), rms(e_after),
-                         session is not None, setup.strides)
-    e_linear = linear(terms, np.array(coefs))
+    message = message_of(cal, cands, rows, picked.selection.chosen, picked.refused,
+                         setup.scores, order, picked.selection.gains, policy.margin,
+                         rms(e_before), rms(e_after), session is not None, setup.strides)
+    e_linear = linear(terms, coefs)
     winner = cands.names[order[0]] if order else None
     plot = {}
     if winner is not None:
@@ -172,30 +150,26 @@ def _diagnose_sensor(sensor: str, calibration: Calibration, setup: _Setup,
                 "g": rows.g_out[:, order[0]], "s": rows.s_out}
     found = SensorDiagnosis(
         name=sensor, before=rmse_stats(e_before), after=rmse_stats(e_after),
-        scores=score_rows(sensor, cal, cands, rows, setup.scores, terms, coefs, picked.gains),
-        added=added_effects(cands.entries, terms, coefs, cal.effects), message=message,
+        scores=score_rows(sensor, cal, cands, rows, setup.scores, terms, coefs,
+                          picked.selection.gains),
+        added=added_effects(cands.entries, terms, coefs.tolist(), cal.effects), message=message,
         plot=plot, winner=winner)
     if session is not None:
         found.as_calibrated = {"before": rmse_stats(rows.e_out), "after": rmse_stats(e_linear)}
         found.session = session_record(cal, session, rows.e_out, e_before, policy.margin)
-        found.runs_after = [rms(e) for e in session.per_run(terms, np.array(coefs))]
+        found.runs_after = [rms(e) for e in session.per_run(terms, coefs)]
     return found
 
 
 def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]],
              calibration: Calibration, *,
              validate_recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
-             | None = None, holdout_fraction: float = 0.3,
-             candidates: Sequence[dict[str, Any]] | None = None, n_blocks: int = 10,
+             | None = None, candidates: Sequence[dict[str, Any]] | None = None,
              policy: LoopPolicy = LOOP_POLICY, tare: str = "calibration",
              stretch_history: bool = False,
              session_start: bool = True,
              on_sensor: Callable[[str], None] | None = None) -> DiagnoseResult:
     """Run the residual loop on every calibrated sensor with a reference (docs/design.md)."""
-    if not 0.0 < holdout_fraction < 1.0:
-        raise InputError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
-    if n_blocks < 3:
-        raise InputError(f"n_blocks must be >= 3, got {n_blocks}")
     bags = as_bags(recordings)
     validate = None if validate_recordings is None else as_bags(validate_recordings)
     base_fit = [base_runs(b, calibration, tare=tare) for b in bags]
@@ -204,7 +178,7 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     results: dict[str, SensorDiagnosis] = {}
     for sensor in calibration.sensors:
         setup = _setup(sensor, calibration, bags, validate, base_fit, base_val or [],
-                       candidates, holdout_fraction, n_blocks, stretch_history, session_start)
+                       candidates, stretch_history, session_start)
         if setup is not None:
             results[sensor] = _diagnose_sensor(sensor, calibration, setup, policy)
         if on_sensor is not None:  # progress (strain_comp.progress)
@@ -221,8 +195,8 @@ def diagnose(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recordi
     pooled_after = _pool(results, "after")
     if validate is None:
         validated_on = "holdout"
-        validation = {"kind": "held-out time blocks of the input", "n_blocks": n_blocks,
-                      "held_out_every": holdout_period(holdout_fraction)}
+        validation = {"kind": "held-out time blocks of the input", "n_blocks": N_BLOCKS,
+                      "held_out_every": HELD_OUT_EVERY}
     else:
         validated_on = "validate"
         validation = {"kind": "validation recordings",

@@ -1,5 +1,6 @@
 """The residual loop's data (docs/design.md, "The loop's steps", 1-3): the engine's output
-without effect terms, the residual and the candidate regressors, cut into time blocks."""
+without effect terms, the residual and the candidate regressors, cut into time blocks, and
+one sensor's candidates (``candidates_of``) and fit and held-out rows (``rows_of``)."""
 
 from __future__ import annotations
 
@@ -23,9 +24,14 @@ from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.range_policy import MARGIN
 from strain_comp.core.tare import tare_engine, unsettled_start
-from strain_comp.diagnosis.candidates import BASELINE_WINDOW
+from strain_comp.diagnosis.candidates import BASELINE_WINDOW, default_candidates
+from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording, hold_latest
 
+N_BLOCKS = 10
+"""Contiguous time blocks each recording is cut into (docs/design.md, "The loop's steps", 3)."""
+HELD_OUT_EVERY = 3
+"""Without validation runs every third block is held out (a holdout fraction of 0.3)."""
 ROW_BUDGET = 250_000
 """Samples of one sensor's fit recordings up to which the loop keeps every used sample
 (docs/design.md, "The residual loop", 5). A fixed stride, not a low-pass: that would shrink
@@ -113,14 +119,14 @@ def neighbours_of(rec: Recording, bag: Mapping[str, Recording]) -> list[str]:
     return [found[i] for i in sorted(found)]
 
 
-def block_ids(t: np.ndarray, n_blocks: int) -> np.ndarray:
-    """Contiguous time blocks 0..n_blocks-1 of equal duration."""
+def block_ids(t: np.ndarray) -> np.ndarray:
+    """Contiguous time blocks 0..N_BLOCKS-1 of equal duration."""
     if t.size == 0:
         return np.zeros(0, dtype=np.intp)
     span = t[-1] - t[0]
     if not span > 0:
         return np.zeros(t.size, dtype=np.intp)
-    blocks: np.ndarray = np.minimum(((t - t[0]) / span * n_blocks).astype(np.intp), n_blocks - 1)
+    blocks: np.ndarray = np.minimum(((t - t[0]) / span * N_BLOCKS).astype(np.intp), N_BLOCKS - 1)
     return blocks
 
 
@@ -136,8 +142,7 @@ def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], ba
 
 
 def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run],
-            candidates: Sequence[dict[str, Any]], n_blocks: int, stride: int = 1
-            ) -> Series | None:
+            candidates: Sequence[dict[str, Any]], stride: int = 1) -> Series | None:
     """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
     at every ``stride``-th of the samples kept (the regressors run over all of them)."""
     rec = bag[sensor]
@@ -147,7 +152,7 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
     cal = run.cal
     used = run.used
     ok = used & np.isfinite(np.asarray(rec.s, dtype=np.float64))
-    if ok.sum() < 2 * n_blocks:
+    if ok.sum() < 2 * N_BLOCKS:
         return None
     t = np.asarray(rec.t, dtype=np.float64)[used]
     temperature = None if rec.temperature is None else np.asarray(rec.temperature)[used]
@@ -167,7 +172,7 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
     unsettled = unsettled_start(rec.t, cal.input.to_ohm(rec.r), rec.s, pair=cal.input.pair)
     if unsettled[0] > 0:  # seconds from the first sample with a reference
         keep &= t > t[keep][0] + unsettled[0]
-    if keep.sum() < 2 * n_blocks:
+    if keep.sum() < 2 * N_BLOCKS:
         return None
     rows = np.flatnonzero(keep)[::stride]
     regressors = [regressor_from_dict(c) for c in candidates]
@@ -176,15 +181,15 @@ def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run]
         g[:, j] = _segmented(reg.run, reg.reset, batch, run.starts)[rows]
     return Series(e=(corrected + run.beyond[used] - s)[rows], g=g, t=t[rows],
                    extended=(run.beyond[used] != 0.0)[rows],
-                   block=block_ids(t[rows], n_blocks), s=s[rows], unsettled=unsettled)
+                   block=block_ids(t[rows]), s=s[rows], unsettled=unsettled)
 
 
 def series_all(sensor: str, bags: Sequence[Mapping[str, Recording]],
                base: Sequence[Mapping[str, Run]], candidates: Sequence[dict[str, Any]],
-               n_blocks: int, stride: int) -> list[Series]:
+               stride: int) -> list[Series]:
     """``series_of`` of every bag that has something usable of ``sensor``."""
     return [s for b, runs in zip(bags, base, strict=True) if sensor in b
-            for s in [series_of(sensor, b, runs, candidates, n_blocks, stride)] if s is not None]
+            for s in [series_of(sensor, b, runs, candidates, stride)] if s is not None]
 
 
 def stride_of(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
@@ -200,11 +205,6 @@ def rmse_stats(e: np.ndarray) -> dict[str, float]:
     return {"rmse": stats.rmse, "mae": stats.mae, "max_abs": stats.max_abs, "n": stats.n}
 
 
-def holdout_period(holdout_fraction: float) -> int:
-    """Every how many-th time block is held out (docs/design.md, "The loop's steps", 3)."""
-    return max(2, round(1.0 / holdout_fraction))
-
-
 def baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:
     """Mean reference strain over the first ``BASELINE_WINDOW`` s of the fit recordings:
     the strain a run starts at (what a baseline term should read at rest)."""
@@ -216,3 +216,88 @@ def baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float
         s = np.asarray(rec.s, dtype=np.float64)[rec.t - rec.t[0] <= BASELINE_WINDOW]
         values.extend(s[np.isfinite(s)].tolist())
     return float(np.mean(values)) if values else 0.0
+
+
+@dataclass
+class Candidates:
+    """The candidate effects of one sensor, with an offset always among them."""
+
+    entries: list[dict[str, Any]]
+    names: list[str]
+    kinds: list[str]
+    offset: int
+    """Index of the offset."""
+    baselines: list[int]
+    """Indices of the per-run baseline candidates."""
+
+
+def candidates_of(sensor: str, bags: list[Mapping[str, Recording]],
+                  base_fit: list[dict[str, Run]],
+                  candidates: Sequence[dict[str, Any]] | None, stretch_history: bool
+                  ) -> Candidates:
+    """The given candidates, or ``default_candidates`` for what the recordings hold
+    (temperature, array neighbours), each with coefficient 0, plus an offset."""
+    if candidates is None:
+        temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
+                 if sensor in b and b[sensor].temperature is not None]
+        temps = [x[np.isfinite(x)] for x in temps]
+        have_temp = any(x.size and np.ptp(x) > 0 for x in temps)
+        t_ref = float(np.mean(np.concatenate(temps))) if have_temp else None
+        nbrs = sorted({n for b, runs in zip(bags, base_fit, strict=True) if sensor in b
+                       for n in neighbours_of(b[sensor], b) if n in runs})
+        candidates = default_candidates(temperature_ref=t_ref, neighbours=nbrs,
+                                        baseline_rest=baseline_rest(bags, sensor),
+                                        stretch_history=stretch_history)
+    entries = [dict(c, coef=0.0) for c in candidates]
+    if "offset" not in [str(c["kind"]) for c in entries]:
+        entries.append({"name": "offset", "kind": "offset", "params": {}, "coef": 0.0})
+    kinds = [str(c["kind"]) for c in entries]
+    return Candidates(entries, [str(c["name"]) for c in entries], kinds,
+                       kinds.index("offset"), [j for j, k in enumerate(kinds) if k == "baseline"])
+
+
+@dataclass
+class Rows:
+    """The loop's rows: the fit rows (cross-validation folds) and the held-out rows."""
+
+    series: list[Series]
+    val_series: list[Series]
+    g_fit: np.ndarray
+    e_fit: np.ndarray
+    fold: np.ndarray
+    n_folds: int
+    e_out: np.ndarray
+    g_out: np.ndarray
+    t_out: np.ndarray
+    s_out: np.ndarray
+
+
+def rows_of(sensor: str, series: list[Series], validate: list[Mapping[str, Recording]] | None,
+            base_val: list[dict[str, Run]], entries: list[dict[str, Any]], val_stride: int
+            ) -> Rows:
+    """Fit rows (not held out, within the range the terms read) with their fold (the
+    position of the block among the fit blocks of its recording), and the held-out rows:
+    the validation recordings', or every ``HELD_OUT_EVERY``-th block's without them."""
+    period = HELD_OUT_EVERY if validate is None else 0
+    held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
+                for s in series]
+    fold_of_block = np.cumsum([not (period and b % period == period - 1)
+                               for b in range(N_BLOCKS)]) - 1
+    fits = [~h & ~s.extended for s, h in zip(series, held_out, strict=True)]
+    e_fit = np.concatenate([s.e[f] for s, f in zip(series, fits, strict=True)])
+    g_fit = np.concatenate([s.g[f] for s, f in zip(series, fits, strict=True)])
+    fold = np.concatenate([fold_of_block[s.block[f]]
+                           for s, f in zip(series, fits, strict=True)])
+    if validate is not None:
+        val_series = series_all(sensor, validate, base_val, entries, val_stride)
+        if not val_series:
+            raise InputError(f"sensor {sensor!r}: the validation recordings have no usable "
+                             "samples with a reference strain")
+        out = [(s.e, s.g, s.t, s.s) for s in val_series]
+    else:
+        val_series = []
+        out = [(s.e[h], s.g[h], s.t[h], s.s[h]) for s, h in zip(series, held_out, strict=True)]
+    e_out, g_out, t_out, s_out = (np.concatenate([o[k] for o in out]) for k in range(4))
+    return Rows(series, val_series, g_fit, e_fit, fold, int(fold_of_block.max()) + 1,
+                 e_out, g_out, t_out, s_out)
+

@@ -1,5 +1,6 @@
 """Selection statistics of the residual loop (docs/design.md, "The loop's steps", 4-8),
-testable on any regressor matrix; the numbers are ``policy.LoopPolicy``'s."""
+testable on any regressor matrix, and their numbers (``LoopPolicy``, with units; docs/results.md,
+"Residual loop", gives what each does and the measured figure that keeps it)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,27 @@ import numpy as np
 from scipy.stats import t as student_t
 
 from strain_comp._numba import njit
-from strain_comp.diagnosis.policy import LOOP_POLICY, LoopPolicy
+
+
+@dataclass(frozen=True)
+class LoopPolicy:
+    """How the loop decides (``studies/measured_diagnose.py --policy FIELD=VALUE`` varies it)."""
+
+    margin: float = 0.03
+    """[1, relative RMSE] least fall of the error for a term (or a condition) to count."""
+    significance: float = 1.0
+    """[standard errors over the folds] least fold-wise drop on the diagnosed run."""
+    level: float = 0.95
+    """[one-sided probability] of the prediction bound of one more run's log RMSE ratio."""
+    tried: int = 16
+    """[candidates per step] scored on the validation runs at each step."""
+    max_effects: int = 3
+    """[terms] the most terms one diagnosis adds to a sensor."""
+
+
+LOOP_POLICY = LoopPolicy()
+"""The product's policy."""
+
 
 RESOLUTION = 1e-6
 """Forward selection stops once the cross-validated RMSE is below this fraction of the
@@ -43,12 +64,17 @@ def _fold_sums(x: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int
     return xx, xe, ee, count
 
 
+def column_std(g: np.ndarray) -> np.ndarray:
+    """Each column's standard deviation (NaN, without numpy's warning, with no rows)."""
+    return np.std(g, axis=0) if g.shape[0] else np.full(g.shape[1], np.nan)
+
+
 class Gram:
     """Per-fold sums X'X, X'e, e'e over all candidate columns: any subset's least-squares
     fit on some folds and its error on the others, without touching the samples again."""
 
     def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
-        std = np.std(g, axis=0)
+        std = column_std(g)
         self.scale = np.where(std > 0, std, 1.0)
         x = np.ascontiguousarray(g / self.scale)
         self.xx, self.xe, self.ee, self.n = _fold_sums(
@@ -85,7 +111,10 @@ class Gram:
         return np.where(self.n > 0, np.maximum(sse, 0.0), 0.0)
 
     def cv_rmse(self, cols: Sequence[int]) -> float:
-        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out)."""
+        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out); NaN
+        without rows."""
+        if not self.n.sum() > 0:
+            return math.nan
         return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
 
 

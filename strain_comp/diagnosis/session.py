@@ -54,8 +54,8 @@ class SessionHeldOut:
         """The session start of each validation run with the calibration as given (made
         once)."""
         if self._starts is None:
-            self._starts = [start_or_keep(self._restricted(self.calibration, bag),
-                                         self._bag(bag)) for bag in self.runs]
+            self._starts = [start_or_keep(*self._restricted(self.calibration, bag))
+                            for bag in self.runs]
         return self._starts
 
     def usable(self) -> bool:
@@ -82,8 +82,8 @@ class SessionHeldOut:
             trial = Calibration({**self.calibration.sensors, self.sensor: replace(
                 cal, effects=[*cal.effects, *added_effects(self.candidates, cols, list(coef),
                                                            cal.effects)])})
-            self._cache[key] = [session_errors(self._restricted(trial, bag), self._bag(bag),
-                                               self.sensor) for bag in self.runs]
+            self._cache[key] = [session_errors(*self._restricted(trial, bag), self.sensor)
+                                for bag in self.runs]
         return self._cache[key]
 
     def _names(self) -> list[str]:
@@ -93,10 +93,9 @@ class SessionHeldOut:
                                                   if e.get("kind") == "crosstalk")]))
 
     def _restricted(self, calibration: Calibration, bag: Mapping[str, Recording]
-                    ) -> Calibration:
+                    ) -> tuple[Calibration, dict[str, Recording]]:
+        """``calibration`` and ``bag`` of the sensor and those neighbours only."""
         names = [n for n in self._names() if n in calibration.sensors and n in bag]
-        return Calibration({n: calibration.sensors[n] for n in names})
-
-    def _bag(self, bag: Mapping[str, Recording]) -> dict[str, Recording]:
-        return {n: bag[n] for n in self._names() if n in bag}
+        return (Calibration({n: calibration.sensors[n] for n in names}),
+                {n: bag[n] for n in self._names() if n in bag})
 

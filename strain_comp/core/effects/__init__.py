@@ -1,9 +1,6 @@
-"""Effect terms: online corrections S_corrected = S_hat - sum_j c_j g_j that a calibrated
-model lacks, each regressor g_j computed causally from t, R, S_hat, the direction, an
-optional temperature and array neighbours (docs/design.md, "Effect terms"). The kinds by
-family: ``static`` (no memory), ``memory`` (fading memories), ``history`` (the run's
-history), on the contract of ``regressor``; ``terms`` runs a sensor's terms.
-"""
+"""Effect terms, online corrections S_corrected = S_hat - sum_j c_j g_j (docs/design.md,
+"Effect terms"). The kinds by family: ``static`` (no memory), ``memory`` (fading memories),
+``history`` (the run's history), on the contract of ``regressor``; ``terms`` runs them."""
 
 from __future__ import annotations
 

@@ -18,20 +18,25 @@ from strain_comp.core.effects.regressor import (
 
 
 @njit
-def _rate_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, direction_mode: bool,
-                 state: np.ndarray) -> np.ndarray:
-    """Low-passed derivative y' = (du/dt - y) / tau, exact for piecewise-constant du/dt."""
+def _step_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, rate: bool,
+                 branch: int, state: np.ndarray) -> np.ndarray:
+    """Rate: y' = (du/dt - y) / tau, exact for piecewise-constant du/dt (``branch`` 1: d y).
+    Relaxation: h_k = h_{k-1} exp(-dt/tau) + du_k [d_k in branch]: decaying memory of steps."""
     y, u_prev, t_prev, started = state[0], state[1], state[2], state[3]
     out = np.empty(t.size)
     for k in range(t.size):
         if started > 0.0:
             dt = t[k] - t_prev
-            if dt > 0.0:
+            if rate and dt > 0.0:
                 y += (1.0 - math.exp(-dt / tau)) * ((u[k] - u_prev) / dt - y)
+            elif not rate:
+                y *= math.exp(-dt / tau)
+                if branch == 0 or (branch == 1 and d[k] > 0) or (branch == 2 and d[k] < 0):
+                    y += u[k] - u_prev
         started = 1.0
         u_prev = u[k]
         t_prev = t[k]
-        out[k] = d[k] * y if direction_mode else y
+        out[k] = d[k] * y if rate and branch == 1 else y
     state[0], state[1], state[2], state[3] = y, u_prev, t_prev, started
     return out
 
@@ -51,30 +56,11 @@ class Rate(Regressor):
     mode: str
 
     def run(self, batch: Batch) -> np.ndarray:
-        return _rate_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
-                            self.mode == "direction", self._state)
+        return _step_kernel(batch.t, batch.s_hat, batch.direction, self.tau, True,
+                            int(self.mode == "direction"), self._state)
 
 
 _BRANCHES = ("both", "loading", "unloading")
-
-
-@njit
-def _relaxation_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, branch: int,
-                       state: np.ndarray) -> np.ndarray:
-    """h_k = h_{k-1} exp(-dt/tau) + du_k [d_k in branch]: decaying memory of S_hat steps."""
-    h, u_prev, t_prev, started = state[0], state[1], state[2], state[3]
-    out = np.empty(t.size)
-    for k in range(t.size):
-        if started > 0.0:
-            h *= math.exp(-(t[k] - t_prev) / tau)
-            if branch == 0 or (branch == 1 and d[k] > 0) or (branch == 2 and d[k] < 0):
-                h += u[k] - u_prev
-        started = 1.0
-        u_prev = u[k]
-        t_prev = t[k]
-        out[k] = h
-    state[0], state[1], state[2], state[3] = h, u_prev, t_prev, started
-    return out
 
 
 class Relaxation(Regressor):
@@ -96,8 +82,8 @@ class Relaxation(Regressor):
     branch: str
 
     def run(self, batch: Batch) -> np.ndarray:
-        return _relaxation_kernel(batch.t, batch.s_hat, batch.direction, self.tau,
-                                  _BRANCHES.index(self.branch), self._state)
+        return _step_kernel(batch.t, batch.s_hat, batch.direction, self.tau, False,
+                            _BRANCHES.index(self.branch), self._state)
 
 
 _MEMORY_FORMS = ("relaxation", "peak", "trough")

@@ -99,14 +99,6 @@ def param_readers(**readers: Reader) -> Mapping[str, Reader]:
     return MappingProxyType(readers)
 
 
-def ffill(values: np.ndarray, last: float) -> np.ndarray:
-    """Hold the last finite value."""
-    ok = np.isfinite(values)
-    idx = np.where(ok, np.arange(values.size), -1)
-    np.maximum.accumulate(idx, out=idx)
-    return np.where(idx >= 0, values[np.maximum(idx, 0)], last)
-
-
 def run_segments(run: Callable[[slice], np.ndarray], reset: Callable[[], None], n: int,
                  starts: Sequence[int]) -> np.ndarray:
     """``run`` over the n samples in segments cut at ``starts`` (where the engine reset after
@@ -158,7 +150,9 @@ class Regressor(ABC):
 
     def _held(self, values: np.ndarray, k: int = 0) -> np.ndarray:
         """``values`` with the last finite one held, across batches in ``_state[k]``."""
-        held = ffill(values, float(self._state[k]))
+        idx = np.where(np.isfinite(values), np.arange(values.size), -1)
+        np.maximum.accumulate(idx, out=idx)
+        held = np.where(idx >= 0, values[np.maximum(idx, 0)], float(self._state[k]))
         if held.size:
             self._state[k] = held[-1]
         return held

@@ -63,8 +63,6 @@ class EffectTerms:
         """Hold the terms."""
         self.regressors = list(regressors)
         self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
-        if not len(self.regressors) == self.coefs.size:
-            raise ValueError("EffectTerms: regressors and coefs differ in length")
 
     @classmethod
     def from_dicts(cls, effects: Sequence[Mapping[str, Any]]) -> EffectTerms:
