@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, located, read_bag
+from strain_comp.io.bag import BagContents, Series, located, read_bag
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -275,10 +275,28 @@ def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | N
     return [f"{prefix}_{j}" for j in range(k)], problem
 
 
-def _temperature(contents: BagContents, name: str, t: np.ndarray) -> np.ndarray | None:
-    """Sensor ``name``'s ``/NAME/temperature`` on the times ``t`` (None: no such topic)."""
+def temperature_series(contents: BagContents, name: str) -> Series | None:
+    """Sensor ``name``'s own ``/NAME/temperature`` (an array's too, as the node reads it)."""
     temp = contents.series.get(f"/{name}{TEMPERATURE}")
-    return None if temp is None or temp.values.ndim != 1 else align(t, temp.t, temp.values)
+    return temp if temp is not None and temp.values.ndim == 1 else None
+
+
+def reference_columns(contents: BagContents, topic: str) -> tuple[dict[str, int | None],
+                                                                  str | None]:
+    """Each sensor's column of the ``/PREFIX/strain_reference`` of resistance ``topic``
+    (None: a 1-D reference), or none and the problem why."""
+    reference = topic[:-len(RESISTANCE)] + REFERENCE
+    ref = contents.series[reference]
+    labels, _ = topic_sensors(topic, contents)
+    if contents.series[topic].values.ndim == 1:
+        if ref.values.ndim == 1:
+            return {labels[0]: None}, None
+        return {}, f"{reference}: an array reference for a single sensor"
+    ref_labels = contents.labels.get(reference) or labels
+    if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
+            and set(labels) <= set(ref_labels):
+        return {n: ref_labels.index(n) for n in labels}, None
+    return {}, f"{reference}: columns do not match {topic}; ignored"
 
 
 def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]:
@@ -291,33 +309,29 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
         prefix = topic[:-len(RESISTANCE)]
         res = series[topic]
         ref = series.get(prefix + REFERENCE)
-        if res.values.ndim == 1:
-            name = prefix.lstrip("/")
-            s = None
-            if ref is not None and ref.values.ndim == 1:
-                s = align(res.t, ref.t, ref.values)
-            elif ref is not None:
-                problems.append(f"{prefix + REFERENCE}: an array reference for a single sensor")
-            out[name] = Recording(name, res.t, res.values, s, _temperature(contents, name, res.t))
-            continue
         labels, problem = topic_sensors(topic, contents)
         if problem is not None:
             problems.append(problem)
-        s_cols: list[np.ndarray] | None = None
+        columns: dict[str, int | None] = {}
         if ref is not None:
-            ref_labels = contents.labels.get(prefix + REFERENCE) or labels
-            if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
-                    and set(labels) <= set(ref_labels):
-                s_cols = [align(res.t, ref.t, ref.values[:, ref_labels.index(x)]) for x in labels]
-            else:
-                problems.append(f"{prefix + REFERENCE}: columns do not match {topic}; ignored")
+            columns, problem = reference_columns(contents, topic)
+            if problem is not None:
+                problems.append(problem)
         for j, name in enumerate(labels):
             if name in out:
                 problems.append(f"{topic}: sensor {name} appears twice; column {j} skipped")
                 continue
-            out[name] = Recording(name, res.t, res.values[:, j],
-                                  None if s_cols is None else s_cols[j],
-                                  _temperature(contents, name, res.t), prefix.lstrip("/"), j)
+            s = None
+            if ref is not None and name in columns:
+                column = columns[name]
+                s = align(res.t, ref.t, ref.values if column is None else ref.values[:, column])
+            temp = temperature_series(contents, name)
+            temperature = None if temp is None else align(res.t, temp.t, temp.values)
+            if res.values.ndim == 1:
+                r, array, index = res.values, None, None
+            else:
+                r, array, index = res.values[:, j], prefix.lstrip("/"), j
+            out[name] = Recording(name, res.t, r, s, temperature, array, index)
     for topic in series:
         if topic.endswith(REFERENCE) and topic[:-len(REFERENCE)] + RESISTANCE not in series:
             problems.append(f"{topic}: reference without a resistance topic; ignored")
@@ -332,4 +346,4 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
 
 
 __all__ = ["PieceAlign", "Recording", "align", "hold_latest", "load_recordings",
-           "topic_sensors"]
+           "reference_columns", "temperature_series", "topic_sensors"]

@@ -20,14 +20,15 @@ from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.metrics import ErrorAccumulator
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, Series, iter_bag, located
+from strain_comp.io.bag import BagContents, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.recording import (
     REFERENCE,
     RESISTANCE,
-    TEMPERATURE,
     PieceAlign,
     Recording,
+    reference_columns,
+    temperature_series,
     topic_sensors,
 )
 from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation, input_unit
@@ -256,30 +257,6 @@ def nothing_scored(calibration: Calibration, names: list[str]) -> str:
     """The error when no calibrated sensor can be scored, naming both sides."""
     return ("no calibrated sensor has a strain_reference in the data (calibration: "
             f"{', '.join(calibration.sensors)}; data: {', '.join(names) or 'none'})")
-
-
-def temperature_series(contents: BagContents, name: str) -> Series | None:
-    """Sensor ``name``'s own ``/NAME/temperature`` (an array's too, as the node reads it)."""
-    temp = contents.series.get(f"/{name}{TEMPERATURE}")
-    return temp if temp is not None and temp.values.ndim == 1 else None
-
-
-def reference_columns(contents: BagContents, topic: str) -> tuple[dict[str, int | None],
-                                                                  str | None]:
-    """Each sensor's column of the ``/PREFIX/strain_reference`` of resistance ``topic``
-    (None: a 1-D reference; ``load_recordings``'s rules), or none and the problem why."""
-    reference = topic[:-len(RESISTANCE)] + REFERENCE
-    ref = contents.series[reference]
-    labels, _ = topic_sensors(topic, contents)
-    if contents.series[topic].values.ndim == 1:
-        if ref.values.ndim == 1:
-            return {labels[0]: None}, None
-        return {}, f"{reference}: an array reference for a single sensor"
-    ref_labels = contents.labels.get(reference) or labels
-    if ref.values.ndim == 2 and ref.values.shape[1] == len(ref_labels) \
-            and set(labels) <= set(ref_labels):
-        return {n: ref_labels.index(n) for n in labels}, None
-    return {}, f"{reference}: columns do not match {topic}; ignored"
 
 
 @dataclass

@@ -33,8 +33,12 @@ from strain_comp.io.bag import BagContents, BagWriter, Series, iter_bag, located
 from strain_comp.io.bag.reader import WINDOW
 from strain_comp.io.bag.schemas import Status as DiagnosticStatus
 from strain_comp.io.cdr import Status, diagnostic_arrays
-from strain_comp.io.recording import hold_latest, topic_sensors
-from strain_comp.offline.evaluate import reference_columns, temperature_series
+from strain_comp.io.recording import (
+    hold_latest,
+    reference_columns,
+    temperature_series,
+    topic_sensors,
+)
 from strain_comp.offline.series import PendingSeries, SeriesCSV, series_csv
 
 OUTPUTS = ("strain", "direction", "status")

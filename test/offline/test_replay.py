@@ -191,7 +191,7 @@ def test_replay_with_auto_tare_equals_the_engine_tared_at_the_run_start(tmp_path
 
 
 def test_replay_refuses_an_array_reference_evaluate_refuses(tmp_path: Path) -> None:
-    """One rule for an array's reference columns (``evaluate.reference_columns``): a
+    """One rule for an array's reference columns (``io.recording.reference_columns``): a
     reference without a column for sensor b is refused whole by replay as by evaluate,
     with the same problem, and replay's CSV then holds no reference for a either."""
     t = 100.0 + np.arange(200) * 0.02
