@@ -213,7 +213,8 @@ def _found(calibration: Calibration, recordings: Mapping[str, Recording],
 
 def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: Window,
           source: str, *, given: bool | None = False) -> Made:
-    """``session_start`` on ``span``, the window checked first (``given``: as ``--window``)."""
+    """Each step of the session start (``session_forms``) made on ``span``, the window checked
+    first (``given``: as ``--window``)."""
     try:
         if given is not None:
             window_of(recordings, span, calibration, source)
@@ -222,11 +223,24 @@ def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: W
             raise
         raise InputError(f"{source}: the stretch found at {span[0]:.4g}-{span[1]:.4g} s: "
                          f"{str(err).partition(': ')[2]}; {RECORD}") from None
-    started, made, lines = session_start(calibration, recordings, span, source)
-    steps = {n: [form for form, names in made.items() if n in names]
-             for n in recordings if n in calibration.sensors}
-    notes = [_why(line) for line in lines if "not made" in line]
-    return started, steps, notes, span
+    steps: dict[str, list[str]] = {n: [] for n in recordings if n in calibration.sensors}
+    notes = []
+    head = span[0] == 0.0
+    for form in ("input", "output"):
+        sensors = [n for n in steps if form in session_forms(calibration.sensors[n])]
+        if not sensors:
+            continue
+        try:
+            calibration, _ = recalibrate_recordings(
+                calibration, recordings, form=form,
+                tare="calibration" if form == "output" else "auto", sensors=sensors,
+                first=span[1] if head else None, span=None if head else span, source=source)
+        except StrainCompError as err:
+            notes.append(_why(f"the {form} step not made: {err}"))
+            continue
+        for name in sensors:
+            steps[name].append(form)
+    return calibration, steps, notes, span
 
 # The stretch a session start reads (``recalibrate --first``, ``--window``, ``start``).
 
@@ -356,43 +370,6 @@ def calibration_stretch(t: np.ndarray, s: np.ndarray) -> tuple[float, float] | N
 def session_forms(cal: SensorCalibration) -> tuple[str, ...]:
     """The steps of a session start on a sensor: input, then output unless a stretch line."""
     return ("input",) if cal.input.stretch_line is not None else ("input", "output")
-
-
-def forms_of(calibration: Calibration, recordings: Mapping[str, Recording],
-             ) -> dict[str, list[str]]:
-    """Each step of the session start on a run -> the sensors it recalibrates."""
-    names = [n for n, rec in recordings.items() if n in calibration.sensors
-             and rec.s is not None]
-    by_form = {form: [n for n in names if form in session_forms(calibration.sensors[n])]
-               for form in ("input", "output")}
-    return {form: sensors for form, sensors in by_form.items() if sensors}
-
-
-def session_start(calibration: Calibration, recordings: Mapping[str, Recording],
-                  window: Window, source: str = "",
-                  ) -> tuple[Calibration, dict[str, list[str]], list[str]]:
-    """``calibration`` after each step on ``window`` (``session_forms``), the forms made ->
-    their sensors, and a line per step done (or skipped, and why)."""
-    made: dict[str, list[str]] = {}
-    lines: list[str] = []
-    head = window[0] == 0.0
-    forms = forms_of(calibration, recordings)
-    if not forms:
-        lines.append("no step made: the run holds no calibrated sensor with a strain "
-                     "reference")
-    for form, sensors in forms.items():
-        tare = "calibration" if form == "output" else "auto"
-        try:
-            calibration, done = recalibrate_recordings(
-                calibration, recordings, form=form, tare=tare, sensors=sensors,
-                first=window[1] if head else None, span=None if head else window,
-                source=source)
-        except StrainCompError as err:
-            lines.append(f"the {form} step not made: {err}")
-            continue
-        made[form] = list(sensors)
-        lines += done
-    return calibration, made, lines
 
 
 def _check_named(calibration: Calibration, recordings: Mapping[str, Recording],
