@@ -198,47 +198,38 @@ def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float
     return float(grid[int(np.argmin(np.abs(out - strain)))]) if found is None else found
 
 
-def span_on_branches(cal: SensorCalibration, points: Sequence[tuple[float, float]],
-                     grid: np.ndarray, branch: tuple[np.ndarray, np.ndarray],
-                     ) -> tuple[float, float, float]:
-    """The input zero and span through two (R, S) points: rest unloading, stretch loading."""
-    ordered = sorted(points, key=lambda p: p[1])
-    return through(ordered, branch_resistance(grid, branch[0], ordered[0][1]),
-                   branch_resistance(grid, branch[1], ordered[1][1]))
-
-
 def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
                         ) -> tuple[float, float, float]:
     """The input zero and span from a run's first cycle: a static map inverted at two points,
-    a memory model's read on its branches and refined through the run."""
+    a memory model's read on its branches (rest unloading, stretch loading), then refined."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     curve = steady_curve(cal)
     n, out = curve[0].size, ramp_output(cal, curve[0])
     span = cal.valid_range.s_hi - cal.valid_range.s_lo
-    if np.max(np.abs(out[:2 * n] - np.concatenate([curve[1], curve[1][::-1]]))) <= \
-            STATIC_TOLERANCE * span:  # a static map: up and back on its steady outputs
-        points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
-                                         top=float(curve[1].max()))
-        try:
-            return span_from_points(cal, points, curve)
-        except InputError:
-            return span_on_branches(cal, points, curve[0], (curve[1], curve[1]))
-    branch = out[n:2 * n][::-1], out[2 * n:]  # (unloading, loading)
-    points = points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
-                                     top=float(branch[1].max()))
+    static = np.max(np.abs(out[:2 * n] - np.concatenate([curve[1], curve[1][::-1]]))) <= \
+        STATIC_TOLERANCE * span  # a static map: up and back on its steady outputs
+    branch = (curve[1], curve[1]) if static else (out[n:2 * n][::-1], out[2 * n:])
+    points = sorted(points_from_first_cycle(rec.t, cal.input.to_ohm(rec.r), rec.s,
+                                            top=float(branch[1].max())), key=lambda p: p[1])
     try:
-        start = span_on_branches(cal, points, curve[0], branch)
+        if static:
+            try:
+                return span_from_points(cal, points, curve)
+            except InputError:
+                pass
+        start = through(points, branch_resistance(curve[0], branch[0], points[0][1]),
+                        branch_resistance(curve[0], branch[1], points[1][1]))
     except InputError:  # the calibration as tared, unrefined: a refinement from there fits
         # the cycle, not the run (a loop's exact memory term lost half its gain after it)
-        if cal.rest_resistance is None:
+        if static or cal.rest_resistance is None:
             raise
-        tared = (min(points, key=lambda p: p[1])[0], cal.rest_resistance, 1.0)
+        tared = (points[0][0], cal.rest_resistance, 1.0)
         if not cycle_error(replace(cal, input=replace(cal.input, zero_span=tared)), rec) < \
                 cycle_error(cal, rec):
             raise
         return tared
-    return span_through_run(cal, rec, start)
+    return start if static else span_through_run(cal, rec, start)
 
 
 def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
