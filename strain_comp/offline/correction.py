@@ -298,11 +298,6 @@ def run_line(rec: Recording) -> Line | None:
     return (r0, g) if np.isfinite(r0) and np.isfinite(g) and g != 0 else None
 
 
-def onto(own: Line, space: Line) -> tuple[float, float, float]:
-    """The input zero and span that puts a run's line ``own`` onto the line ``space``."""
-    return own[0], space[0], space[1] / own[1]
-
-
 def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, float]:
     """The input zero and span putting the stretch's line onto the calibration's."""
     space = cal.input.stretch_line
@@ -312,7 +307,7 @@ def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, 
         raise InputError(f"recalibrate --input: sensor {cal.name!r}: its resistance does not "
                          "move with the reference strain in the stretch read as the "
                          "calibration's does (no line of resistance on strain there)")
-    zero_span = onto(own, space)
+    zero_span = own[0], space[0], space[1] / own[1]  # own's line put onto the calibration's
     if not (0.0 < zero_span[0] <= PARAM_MAX
             and 1.0 / SPAN_GAIN_MAX <= zero_span[2] <= SPAN_GAIN_MAX):
         raise InputError(f"recalibrate --input: sensor {cal.name!r}: the stretch read puts "

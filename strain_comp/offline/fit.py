@@ -21,7 +21,7 @@ from strain_comp.core.calibration import (
     provenance,
 )
 from strain_comp.core.calibration_file import check_calibration
-from strain_comp.core.chain import Alternation, pair_values
+from strain_comp.core.chain import pair_values
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
 from strain_comp.errors import CalibrationError, FitError, InputError, StrainCompError
@@ -152,13 +152,16 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     _check_usable(calibration)
     memory = memory_reading(compensator)
     rmse = training_error(calibration, segments)
+    chain_words = chain.reading() if chain.present else "no alternation found"
+    if chain.present and alternating:
+        chain_words += f", read through the pair {pair}"
     if not np.isfinite(rmse):
         raise FitError(f"sensor {name!r}: model {model!r} gives non-finite strain on its "
                        "own training data")
     calibration.provenance = provenance(
         [str(b) for b in bags], fit_rmse=rmse, n_samples=r_all.size, segments=len(segments),
         fit_seconds=round(fit_seconds, 3), direction_from=direction_source,
-        measurement_chain=_chain_reading(chain, alternating, pair),
+        measurement_chain=chain_words,
         options=model_options,
         **({"pooling": pooling} if len(recordings) > 1 else {}),
         **({"pooled_runs": [{k: round(v, 6) for k, v in m.items()} for m in pool_maps]}
@@ -179,13 +182,6 @@ def _check_usable(calibration: SensorCalibration) -> None:
         raise FitError(f"sensor {name!r}: the {calibration.model} fit cannot be used, nothing "
                        f"written: {err.field.removeprefix(f'sensors.{name}.')}: "
                        f"{err.problem}; try another model (apl, cubic)") from None
-
-
-def _chain_reading(chain: Alternation, alternating: bool, pair: str) -> str:
-    """The provenance's ``measurement_chain``: the alternation found and the pair read."""
-    if not chain.present:
-        return "no alternation found"
-    return chain.reading() + (f", read through the pair {pair}" if alternating else "")
 
 
 def memory_reading(compensator: Any) -> dict[str, Any] | None:

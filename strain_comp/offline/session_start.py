@@ -445,8 +445,6 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
-    out = dict(calibration.sensors)
-    lines = []
     names = list(sensors or calibration.sensors)
     if len(names) != 1:
         raise InputError("recalibrate --point: name one --sensor (the calibration has "
@@ -455,16 +453,15 @@ def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float
     if name not in calibration.sensors:
         raise InputError(f"sensor {name!r} is not in the calibration "
                          f"({', '.join(calibration.sensors)})")
+    cal, record = calibration.sensors[name], {"points": [list(p) for p in points]}
     if form == "input":
-        span = span_from_points(out[name], points)
-        out[name] = apply_span(out[name], span, {"points": [list(p) for p in points]})
-        lines.append(f"{name}: {span_reading(span)} (through {len(points)} points)")
+        span = span_from_points(cal, points)
+        new, words = apply_span(cal, span, record), span_reading(span)
     else:
-        a, b = map_from_points(out[name], points)
-        out[name] = apply_map(out[name], a, b, {"points": [list(p) for p in points]})
-        lines.append(f"{name}: {reading(a, b, unit=out[name].strain_unit)} (through "
-                     f"{len(points)} points)")
-    return Calibration(out), lines
+        a, b = map_from_points(cal, points)
+        new, words = apply_map(cal, a, b, record), reading(a, b, unit=cal.strain_unit)
+    return (Calibration({**calibration.sensors, name: new}),
+            [f"{name}: {words} (through {len(points)} points)"])
 
 
 Fit = Callable[[Sequence["Recording"]], SensorCalibration]
