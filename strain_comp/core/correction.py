@@ -1,6 +1,6 @@
 """A sensor's one correction: an affine map on the input resistance and one on the output
 strain, which every estimator of a session's change writes (tare, ``recalibrate``,
-``strain-comp start``; ``strain_comp.offline.correction``):
+``strain-comp start``; ``strain_comp.offline.session_start``):
 
     R' = rest + gain (R - zero)                  (input: zero and gain)
     S' = output_gain S + output_offset           (output: gain and offset)

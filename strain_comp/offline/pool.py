@@ -12,8 +12,7 @@ import numpy as np
 
 from strain_comp.base.samples import good_mask
 from strain_comp.errors import InputError
-from strain_comp.offline.correction import Line, run_line
-from strain_comp.offline.session_start import calibration_stretch, cut
+from strain_comp.offline.session_start import Line, calibration_stretch, cut, run_line
 
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
