@@ -124,7 +124,7 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
         raise FitError(f"sensor {name!r}: the training data span no range of resistance "
                        "or strain")
     check_reference(name, s_all, FitError)
-    span = valid_range(segments)
+    span = valid_range(r_all, s_all)
     if not max(abs(span.s_lo), abs(span.s_hi)) <= STRAIN_MAX:  # widened beyond it
         raise FitError(f"sensor {name!r}: the reference strain spans {s_all.min():.4g} to "
                        f"{s_all.max():.4g}, beyond the +/- {STRAIN_MAX:g} a calibration "
@@ -139,10 +139,8 @@ def check_training_span(segments: Sequence[Segment], name: str) -> None:
                            "(a unit or scale mistake?)")
 
 
-def valid_range(segments: Sequence[Segment]) -> ValidRange:
+def valid_range(r: np.ndarray, s: np.ndarray) -> ValidRange:
     """Training range of R and S widened by ``TRAINING_WIDENING`` (R kept > 0)."""
-    r = np.concatenate([seg.r for seg in segments])
-    s = np.concatenate([seg.s for seg in segments])
     r_lo, r_hi = float(r.min()), float(r.max())
     s_lo, s_hi = float(s.min()), float(s.max())
     r_pad, s_pad = TRAINING_WIDENING * (r_hi - r_lo), TRAINING_WIDENING * (s_hi - s_lo)
@@ -407,7 +405,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     fit_seconds = time.perf_counter() - start
     calibration = SensorCalibration(
         name=name, model=model, params=compensator.to_params(), normalisation=normalisation,
-        valid_range=valid_range(segments), direction=direction,
+        valid_range=valid_range(r_all, s_all), direction=direction,
         input=InputSettings(alternation=alternating, pair=pair,
                             stretch_line=pooled.stretch_line),
         rest_resistance=training_rest_resistance(recordings, pair=pair),
