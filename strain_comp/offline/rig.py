@@ -378,8 +378,7 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
 
 
 def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:
-    """Write a SimRun as an MCAP bag: per sensor (or array) its resistance, strain_reference
-    and temperature topics."""
+    """A SimRun as an MCAP bag: per sensor (or array) resistance, strain_reference, temperature."""
     first = next(iter(run.sensors.values()))
     step = max(1, round(run.fs / temperature_rate))
     with BagWriter(path) as writer:

@@ -548,8 +548,7 @@ Made = tuple[Calibration, dict[str, list[str]], list[str], Window]
 
 def _found(calibration: Calibration, recordings: Mapping[str, Recording],
            stretches: tuple[Window, Window | None], source: str) -> Made:
-    """The start on the second stretch, or on the first where the second is missing or takes
-    fewer steps (the README's fallback)."""
+    """The start on the second stretch, or the first where that is missing or takes fewer steps."""
     first, second = stretches
     made = None if second is None else _made(calibration, recordings, second, source)
     if made is not None and all(len(steps) == len(session_forms(calibration.sensors[n]))
@@ -823,8 +822,7 @@ Fit = Callable[[Sequence["Recording"]], SensorCalibration]
 
 
 def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[str, Any]]:
-    """The session start of a pooled fit (``joint``, ``stretch``) scoring lower over the runs
-    left out in turn."""
+    """The session start of a pooled fit (``joint``, ``stretch``) scoring lower on runs left out."""
     errors: dict[str, list[float]] = {space: [] for space in SPACES}
     for j, held in enumerate(recordings):
         rest = [rec for i, rec in enumerate(recordings) if i != j]
