@@ -12,10 +12,13 @@ from strain_comp.api.inputs import Data, PathLike
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
-from strain_comp.offline.fit import Fitter, Run, fit_bags, fit_runs
-from strain_comp.offline.model_choice import (
+from strain_comp.offline.fit import (
+    Fitter,
+    Run,
     auto_fitter,
     check_auto_options,
+    fit_bags,
+    fit_runs,
     parse_candidates,
     parse_groups,
 )
@@ -40,7 +43,7 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
             ``"auto"``: each of ``candidates`` fitted on all runs but one (or one group),
             started on the run left out (``strain-comp start``) and scored over it; the
             lowest median wins, a simpler model within 2 % of it before it
-            (``strain_comp.offline.model_choice``); the table and the error to expect are
+            (``strain_comp.offline.fit``); the table and the error to expect are
             stored in the provenance (``model_choice``, ``expected_error``).
         sensors: Which sensors to fit (default: every one with a reference).
         strain_unit: The reference strain's unit (``%``, ``mm``), stored in the calibration.
