@@ -538,11 +538,9 @@ def in_run_bound(result: EvaluationResult, recordings: Mapping[str, Recording],
     """Set each scored sensor's ``in_run_rmse``: its model fitted and scored on the run itself."""
     for name, ev in result.sensors.items():
         cal = calibration.sensors[name]
-        options = cal.provenance.get("options") or {}
-        if isinstance(options, Mapping) and "progress" in model_options(cal.model):
-            options = {**options, "progress": False}  # a refit inside evaluate: no grid lines
+        options = options_of(cal.model, cal.provenance.get("options") or {})  # no grid lines
         try:
-            own = fit_sensor([recordings[name]], cal.model, name=name, options=options or None)
+            own = fit_sensor([recordings[name]], cal.model, name=name, options=options)
             again = evaluate_recordings({name: recordings[name]}, Calibration({name: own}))
             ev.in_run_rmse = again.sensors[name].stats.rmse
         except StrainCompError as err:
