@@ -24,8 +24,7 @@ from _common import row
 
 from strain_comp.io.recording import Recording
 from strain_comp.offline import rig
-from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.model_choice import choose_model, fit_auto, options_of
+from strain_comp.offline.fit import choose_model, fit_auto, fit_sensor, options_of
 
 SCENARIOS = ("rates", "triangle", "patterns", "random")
 

@@ -51,8 +51,7 @@ from strain_comp.models import Normalisation
 from strain_comp.models.apl import APL
 from strain_comp.models.apl_fit import available_cores
 from strain_comp.offline import rig
-from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.training import split_segments
+from strain_comp.offline.fit import fit_sensor, split_segments
 
 MODELS = ("apl", "pl", "mpi", "cubic", "sinh_pl", "rational", "spike_decay")
 

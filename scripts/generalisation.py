@@ -216,8 +216,7 @@ class Bench:
         """``strain-comp fit RUN... --model MODEL --pool POOL`` (default options), cached;
         ``band``: ``--model auto --candidates MODEL``, which learns the uncertainty."""
         from strain_comp.core.calibration_file import load_calibration, save_calibration
-        from strain_comp.offline.fit import fit_bags
-        from strain_comp.offline.model_choice import auto_fitter
+        from strain_comp.offline.fit import auto_fitter, fit_bags
 
         runs = (runs,) if isinstance(runs, Run) else tuple(runs)
         path = self.cache_path(sensor, runs, model, pool, band)

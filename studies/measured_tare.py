@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     from strain_comp.errors import InputError
     from strain_comp.io.csv_import import import_csv
     from strain_comp.offline.deadzone import direction_settings
-    from strain_comp.offline.training import split_segments
+    from strain_comp.offline.fit import split_segments
 
     recs = {k: import_csv(args.data / "cb_pdms_7p5wt" / v, fmt="cb_pdms", sensor="cb").recording
             for k, v in RUNS.items()}

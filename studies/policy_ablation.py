@@ -6,7 +6,7 @@
 
 For every number of the out-of-range rule, the tare, the fusion and the session start
 (module constants of ``core/range_policy.py``, ``core/tare.py``, ``core/fusion.py``,
-``offline/correction.py``; docs/results.md), the generalisation benchmark's leave-one-run-out scheme
+``offline/session_start.py``; docs/results.md), the benchmark's leave-one-run-out scheme
 (``scripts/generalisation.py``: fits pooled over the other runs, then the session start and
 the evaluation as a user makes them) is rerun with that field set to its neutral value (the
 rule turned off, or a resolution made coarser), everything else at its default, and the
@@ -57,7 +57,7 @@ import generalisation as gen  # noqa: E402  (the benchmark's machinery, one file
 POLICIES = {"range": ("strain_comp.core.range_policy", ""),
             "tare": ("strain_comp.core.tare", ""),
             "fusion": ("strain_comp.core.fusion", ""),
-            "span": ("strain_comp.offline.correction", "")}
+            "span": ("strain_comp.offline.session_start", "")}
 """Policy -> (module, name of its default instance; empty: each number is a constant of
 the module, the field's name in capitals, ``REST_WINDOW`` for the tare's window)."""
 

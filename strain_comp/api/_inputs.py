@@ -105,8 +105,7 @@ def is_path(data: object) -> TypeGuard[str | os.PathLike[str]]:
 
 
 def paths_of(data: object) -> list[str] | None:
-    """``data`` as existing bag paths when it is one path or a non-empty list of them, else
-    None."""
+    """``data`` as existing bag paths when it is one path or a non-empty list of them (or None)."""
     if is_path(data):
         return [existing(data, "bag", directory=True)]
     if isinstance(data, (list, tuple)) and data and all(is_path(p) for p in data):

@@ -12,10 +12,13 @@ from strain_comp.api.inputs import Data, PathLike
 from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
-from strain_comp.offline.fit import Fitter, Run, fit_bags, fit_runs
-from strain_comp.offline.model_choice import (
+from strain_comp.offline.fit import (
+    Fitter,
+    Run,
     auto_fitter,
     check_auto_options,
+    fit_bags,
+    fit_runs,
     parse_candidates,
     parse_groups,
 )
@@ -40,7 +43,7 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
             ``"auto"``: each of ``candidates`` fitted on all runs but one (or one group),
             started on the run left out (``strain-comp start``) and scored over it; the
             lowest median wins, a simpler model within 2 % of it before it
-            (``strain_comp.offline.model_choice``); the table and the error to expect are
+            (``strain_comp.offline.fit``); the table and the error to expect are
             stored in the provenance (``model_choice``, ``expected_error``).
         sensors: Which sensors to fit (default: every one with a reference).
         strain_unit: The reference strain's unit (``%``, ``mm``), stored in the calibration.
@@ -82,20 +85,25 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
                         (input_unit, "input_unit")):
         checked(value, "text", what, optional=False)
     sensors = checked(sensors, "names", "sensors")
-    auto = _auto(data, candidates, groups, jobs, options) if model == "auto" else None
-    if auto is None:
+    if model != "auto":
         check_fit_options(model, options)
     for unit, what, example in ((strain_unit, "strain unit", "% or mm"),
                                 (input_unit, "input unit", "ohm or R/R0")):
         if not unit_ok(unit):
             raise InputError(f"{what} {unit!r}: expected a unit such as {example} "
                              "(1-16 letters, digits, %, / or .)")
+    paths = paths_of(data)
+    runs = paths if paths is not None else (
+        [data] if isinstance(data, (Recording, Mapping)) else list(data))  # type: ignore[arg-type]
+    auto = _auto(len(runs), candidates, groups, jobs, options) if model == "auto" else None
 
     grid = auto is None and "progress" in model_options(model) and "progress" not in options
     with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
         if grid:  # the grid's own lines give way to the bar (or to silence)
             options = {**options, "progress": grid_progress(shown) if progress_bar else False}
-        calibration = _fit(data, model, sensors, report, options, pool, auto)
+        calibration = (fit_bags(paths, model, sensors, options, report=report, pool=pool,
+                                fitter=auto) if paths is not None else
+                       _fit(runs, model, sensors, report, options, pool, auto))
     for cal in calibration.sensors.values():
         cal.strain_unit = strain_unit
         if "expected_error" in cal.provenance:
@@ -131,26 +139,18 @@ def _ratio_note(cal: SensorCalibration) -> str | None:
             "input_unit='R/R0') so that the dead zone and the plots say so")
 
 
-def _auto(data: Data | Sequence[PathLike], candidates: Sequence[str] | str | None,
+def _auto(n_runs: int, candidates: Sequence[str] | str | None,
           groups: Sequence[Any] | str | None, jobs: int, options: Mapping[str, Any]) -> Fitter:
     """The fitter of ``model="auto"``, its candidates, groups and options checked."""
     chosen = parse_candidates(candidates)
     check_auto_options(chosen, options)
-    paths = paths_of(data)
-    n_runs = len(paths) if paths is not None else (
-        1 if isinstance(data, (Recording, Mapping)) else len(data))  # type: ignore[arg-type]
     return auto_fitter(chosen, parse_groups(groups, n_runs), jobs)
 
 
-def _fit(data: Data | Sequence[PathLike], model: str, sensors: Sequence[str] | None,
+def _fit(runs: Sequence[Any], model: str, sensors: Sequence[str] | None,
          report: Callable[[str], None] | None, options: Mapping[str, Any],
          pool: str = "spanned", auto: Fitter | None = None) -> Calibration:
-    """``api.fit``'s fit: ``fit_bags`` on paths, else ``fit_runs`` on the runs given."""
-    paths = paths_of(data)
-    if paths is not None:
-        return fit_bags(paths, model, sensors, options, report=report, pool=pool,
-                        fitter=auto)
-    runs = [data] if isinstance(data, (Recording, Mapping)) else list(data)  # type: ignore[arg-type]
+    """``fit_runs`` on the runs given as recordings."""
     by_sensor: dict[str, list[Run]] = {}
     for i, run in enumerate(runs):
         for name, rec in as_recordings(run).items():

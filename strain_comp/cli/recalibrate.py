@@ -51,8 +51,7 @@ def run(args: argparse.Namespace) -> int:
     """The new map (``api.recalibrate``) written; one line per sensor on what changed."""
     from strain_comp import api
     from strain_comp.core.calibration_file import save_calibration
-    from strain_comp.offline.correction import parse_point
-    from strain_comp.offline.session_start import parse_window
+    from strain_comp.offline.session_start import parse_point, parse_window
 
     if bool(args.point) == bool(args.from_bag):
         raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")

@@ -40,8 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The session start (``offline.session_start.start``) written; one line per sensor on
-    stdout, the steps not made on stderr."""
+    """The session start written; one line per sensor on stdout, the steps not made on stderr."""
     from strain_comp import api
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.session_start import parse_window, start

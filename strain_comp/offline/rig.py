@@ -21,6 +21,11 @@ from strain_comp.io.bag import BagWriter
 L0_MM = 100.0  # specimen length [mm]: rates in mm/min convert to %/s via this
 T_REF = 23.0  # reference temperature [deg C]
 HYSTERESIS_TAUS = (1.0, 6.0)  # fast branch time constants [s]
+UNLOADING_RATIO = 0.2  # viscous response on unloading relative to loading
+TEMPERATURE_SINE = (3.0, 600.0)  # amplitude [K] and period [s] of the slow sinusoid
+TEMPERATURE_STEP = (2.0, 150.0)  # size [K] of the temperature steps and time between them [s]
+SPIKE_SIZE = 0.5  # height of a spike [ohm], with a random sign
+DIVIDER = (10.5, 3.2)  # series resistor R1 [ohm] and supply Vin [V] of the voltage divider
 
 
 def _effect(default: float, unit: str, doc: str) -> float:
@@ -37,14 +42,8 @@ class RigEffects:
     relaxation: float = _effect(0.3, "1", "weight of the slow branch: overshoot after a "
                                 "loading step = relaxation * R0 * du")
     relaxation_tau: float = _effect(20.0, "s", "time constant of the relaxation")
-    relaxation_unloading_ratio: float = _effect(0.2, "1", "viscous response on unloading "
-                                                "relative to loading (0..1)")
     drift: float = _effect(0.0, "1/h", "slow resistance drift, fraction of R per hour")
     temperature: float = _effect(0.0, "1/K", "temperature coefficient of resistance (TCR)")
-    temperature_amplitude: float = _effect(3.0, "K", "amplitude of the slow sinusoid")
-    temperature_period: float = _effect(600.0, "s", "period of the slow sinusoid")
-    temperature_step: float = _effect(2.0, "K", "size of the temperature steps")
-    temperature_step_period: float = _effect(150.0, "s", "time between temperature steps")
     crosstalk: float = _effect(0.0, "1", "fraction of each array neighbour's strain-induced "
                                "resistance change that leaks in")
     mullins: float = _effect(0.0, "1 per 100 %", "sensitivity lost per 100 % of peak strain "
@@ -54,13 +53,10 @@ class RigEffects:
                                  "+-this added to R (an excitation reversing its polarity)")
     spikes: float = _effect(0.0, "1", "share of samples read as an isolated spike "
                             "(never two in a row)")
-    spike_size: float = _effect(0.5, "ohm", "height of a spike, with a random sign")
     baseline_step: float = _effect(0.0, "ohm", "series resistance added from "
                                    "baseline_step_at on (a connector re-seated)")
     baseline_step_at: float = _effect(60.0, "s", "time of the baseline step")
     adc_bits: float = _effect(12, "bit", "ADC resolution of the divider voltage (0 = ideal)")
-    divider_r1: float = _effect(10.5, "ohm", "series resistor R1 of the voltage divider")
-    divider_vin: float = _effect(3.2, "V", "divider supply voltage Vin")
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -68,19 +64,14 @@ class RigEffects:
             if not np.isfinite(value):
                 raise ParameterError(f.name, f"must be finite, got {value}")
         nonneg = ("hysteresis", "relaxation", "noise", "adc_bits", "crosstalk", "mullins",
-                  "temperature_amplitude", "temperature_step", "spike_size",
                   "baseline_step_at")
         if not 0.0 <= self.spikes <= 0.1:
             raise ParameterError("spikes", f"must lie in [0, 0.1], got {self.spikes}")
         for name in nonneg:
             if getattr(self, name) < 0:
                 raise ParameterError(name, f"must be >= 0, got {getattr(self, name)}")
-        for name in ("relaxation_tau", "temperature_period", "temperature_step_period",
-                     "divider_r1", "divider_vin"):
-            if getattr(self, name) <= 0:
-                raise ParameterError(name, f"must be > 0, got {getattr(self, name)}")
-        if not 0.0 <= self.relaxation_unloading_ratio <= 1.0:
-            raise ParameterError("relaxation_unloading_ratio", "must lie in [0, 1]")
+        if not self.relaxation_tau > 0:
+            raise ParameterError("relaxation_tau", f"must be > 0, got {self.relaxation_tau}")
         if self.adc_bits != int(self.adc_bits) or self.adc_bits > 24:
             raise ParameterError("adc_bits", f"must be an integer 0..24, got {self.adc_bits}")
 
@@ -175,29 +166,25 @@ class _Profile:
         return t, np.interp(t % tp[-1] if end > tp[-1] else t, tp, sp)
 
 
-def _triangle(rng: np.random.Generator) -> _Profile:
-    del rng
+def _triangle(_: np.random.Generator) -> _Profile:
     return _Profile().hold(5).triangles(0, 30, 50, 4).hold(5)
 
 
-def _rates(rng: np.random.Generator) -> _Profile:
-    del rng
+def _rates(_: np.random.Generator) -> _Profile:
     p = _Profile().hold(5)
     for rate in (20, 40, 60, 80, 100):
         p.triangles(0, 20, rate, 2).hold(5)
     return p
 
 
-def _patterns(rng: np.random.Generator) -> _Profile:
-    del rng
+def _patterns(_: np.random.Generator) -> _Profile:
     p = _Profile().hold(5)
     for offset, amplitude in ((10, 20), (20, 20), (20, 30), (30, 20), (10, 40)):
         p.triangles(offset, offset + amplitude, 50, 2)
     return p.ramp(0, 50).hold(5)
 
 
-def _steps(rng: np.random.Generator) -> _Profile:
-    del rng
+def _steps(_: np.random.Generator) -> _Profile:
     p = _Profile().hold(10)
     for level in (10, 20, 30, 40, 30, 20, 10, 0):
         p.ramp(level, 1000).hold(30)
@@ -212,19 +199,12 @@ def _random(rng: np.random.Generator) -> _Profile:
     return p
 
 
-def _long(rng: np.random.Generator) -> _Profile:
-    del rng
-    p = _Profile().hold(60)
-    while p.t[-1] < 3600:
-        p.triangles(0, 20, 50, 2).hold(120).ramp(10, 50).hold(120).ramp(0, 50).hold(60)
-    return p
-
-
-def _temperature(rng: np.random.Generator) -> _Profile:
-    del rng
-    p = _Profile().hold(30)
-    while p.t[-1] < 1200:
-        p.triangles(0, 20, 60, 2).hold(40).ramp(10, 60).hold(40).ramp(0, 60).hold(20)
+def _cycles_and_holds(first: float, end: float, rate: float, hold: float) -> _Profile:
+    """0-20 % cycles, holds at 10 % and at rest, repeated to ``end`` seconds."""
+    p = _Profile().hold(first)
+    while p.t[-1] < end:
+        p.triangles(0, 20, rate, 2).hold(hold).ramp(10, rate).hold(hold).ramp(0, rate)
+        p.hold(hold / 2)
     return p
 
 
@@ -249,9 +229,11 @@ _SCENARIOS: dict[str, _Scenario] = {
     "array": _Scenario("6 sensors of different gains on one array topic /array/..., "
                        "neighbours strained differently", _triangle, fs=25.0),
     "long": _Scenario("1 h of cycles and holds at 5 Hz, with drift=0.05 per hour unless "
-                      "effects are given", _long, fs=5.0, effects={"drift": 0.05}),
+                      "effects are given", lambda _: _cycles_and_holds(60, 3600, 50, 120),
+                      fs=5.0, effects={"drift": 0.05}),
     "temperature": _Scenario("20 min of cycles and holds at 10 Hz with a temperature "
-                             "profile, TCR 0.004/K unless effects are given", _temperature,
+                             "profile, TCR 0.004/K unless effects are given",
+                             lambda _: _cycles_and_holds(30, 1200, 60, 40),
                              fs=10.0, effects={"temperature": 0.004}, temperature=True),
 }
 #: scenario name -> one-line description.
@@ -321,15 +303,14 @@ def _mechanical(strain: np.ndarray, spec: SensorSpec, fx: RigEffects, fs: float)
     for tau, weight in branches:
         if weight > 0:
             x = _branch(u, tau, fs)
-            viscous += weight * np.where(x >= 0, x, fx.relaxation_unloading_ratio * x)
+            viscous += weight * np.where(x >= 0, x, UNLOADING_RATIO * x)
     return spec.r0 * (1.0 + u + viscous)
 
 
-def temperature_profile(t: np.ndarray, fx: RigEffects) -> np.ndarray:
+def temperature_profile(t: np.ndarray) -> np.ndarray:
     """T(t): T_ref + slow sinusoid + a square wave of steps."""
-    square = (np.floor(t / fx.temperature_step_period) % 2) * fx.temperature_step
-    return T_REF + fx.temperature_amplitude * np.sin(2 * np.pi * t / fx.temperature_period) \
-        + square
+    square = (np.floor(t / TEMPERATURE_STEP[1]) % 2) * TEMPERATURE_STEP[0]
+    return T_REF + TEMPERATURE_SINE[0] * np.sin(2 * np.pi * t / TEMPERATURE_SINE[1]) + square
 
 
 def _chain(t: np.ndarray, r: np.ndarray, fx: RigEffects, rng: np.random.Generator
@@ -340,7 +321,7 @@ def _chain(t: np.ndarray, r: np.ndarray, fx: RigEffects, rng: np.random.Generato
     if fx.spikes > 0:
         hit = rng.random(out.size) < fx.spikes
         hit[1:] &= ~hit[:-1]  # isolated: never two in a row
-        out = out + hit * fx.spike_size * rng.choice([-1.0, 1.0], out.size)
+        out = out + hit * SPIKE_SIZE * rng.choice([-1.0, 1.0], out.size)
     return out
 
 
@@ -348,10 +329,10 @@ def _read_out(r: np.ndarray, fx: RigEffects, rng: np.random.Generator) -> np.nda
     if fx.noise > 0:
         r = r + rng.normal(0.0, fx.noise, r.shape)
     if fx.adc_bits > 0:
-        lsb = fx.divider_vin / 2.0 ** int(fx.adc_bits)
-        v = np.round(resistance_to_divider(np.maximum(r, 0.0), fx.divider_r1, fx.divider_vin)
-                     / lsb) * lsb
-        r = divider_to_resistance(v, fx.divider_r1, fx.divider_vin)
+        r1, vin = DIVIDER
+        lsb = vin / 2.0 ** int(fx.adc_bits)
+        v = np.round(resistance_to_divider(np.maximum(r, 0.0), r1, vin) / lsb) * lsb
+        r = divider_to_resistance(v, r1, vin)
     return r
 
 
@@ -373,7 +354,7 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
         names = ["s1"]
         specs = [SensorSpec()]
     with_temperature = sc.temperature or fx.temperature != 0
-    temp = temperature_profile(t, fx) if with_temperature else None
+    temp = temperature_profile(t) if with_temperature else None
     mech = np.column_stack([_mechanical(strain[:, i], spec, fx, sc.fs)
                             for i, spec in enumerate(specs)])
     r = mech.copy()
@@ -397,8 +378,7 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
 
 
 def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:
-    """Write a SimRun as an MCAP bag: per sensor (or array) its resistance, strain_reference
-    and temperature topics."""
+    """A SimRun as an MCAP bag: per sensor (or array) resistance, strain_reference, temperature."""
     first = next(iter(run.sensors.values()))
     step = max(1, round(run.fs / temperature_rate))
     with BagWriter(path) as writer:

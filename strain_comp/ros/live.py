@@ -226,7 +226,7 @@ class LiveCompensator:
 
     def span(self) -> tuple[LiveCompensator, str]:
         """``~/span`` (docs/ros.md): the compensator on the spanned calibration, the summary."""
-        from strain_comp.offline.correction import apply_span, span_from_points, span_reading
+        from strain_comp.offline.session_start import apply_span, span_from_points, span_reading
 
         strain = self.tunables.get("span_strain", 0.0)
         if not strain > 0:

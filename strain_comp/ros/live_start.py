@@ -12,8 +12,7 @@ import numpy as np
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.recording import Recording, hold_latest
-from strain_comp.offline.correction import MIN_CYCLE_SHARE
-from strain_comp.offline.session_start import cycle_end
+from strain_comp.offline.session_start import MIN_CYCLE_SHARE, cycle_end
 from strain_comp.offline.session_start import start as session_start
 
 RECENT_S = 5.0

@@ -25,8 +25,7 @@ from strain_comp.core.calibration_file import load_calibration, parse_calibratio
 from strain_comp.core.correction import Correction
 from strain_comp.core.engine import Engine
 from strain_comp.io.recording import load_recordings
-from strain_comp.offline.correction import steady_output
-from strain_comp.offline.session_start import recalibrate
+from strain_comp.offline.session_start import recalibrate, steady_output
 
 ROOT = Path(__file__).resolve().parents[2]
 CASES: dict[str, Any] = json.loads((Path(__file__).parent / "data" /

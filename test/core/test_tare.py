@@ -24,10 +24,9 @@ from strain_comp.core.tare import (
 )
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
-from strain_comp.offline.correction import apply_map, map_from_pairs, steady_output
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.session_start import recalibrate
+from strain_comp.offline.session_start import apply_map, map_from_pairs, recalibrate, steady_output
 
 R0 = 1000.0
 

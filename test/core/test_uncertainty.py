@@ -26,7 +26,7 @@ from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.uncertainty import FEATURES, Uncertainty
 from strain_comp.errors import CalibrationError
 from strain_comp.models import model_class
-from strain_comp.offline.training import Segment
+from strain_comp.offline.fit import Segment
 
 BAND = Uncertainty.from_weights({"bias": -3.0, "loading": 0.4, "unloading": 0.7, "hold": -0.2,
                                  "outside": 2.0, "elapsed": 0.3, "level": 1.1})

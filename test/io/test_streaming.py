@@ -130,7 +130,7 @@ def test_an_exception_inside_the_writer_leaves_no_output(tmp_path: Path) -> None
 
 
 def test_fit_segments_cut_at_a_long_step_back_in_time() -> None:
-    from strain_comp.offline.training import split_segments
+    from strain_comp.offline.fit import split_segments
 
     t = np.concatenate([np.arange(100) * 0.1, np.arange(100) * 0.1])  # a looped recording
     r = 100.0 + np.sin(t)

@@ -14,8 +14,14 @@ from strain_comp.core.metrics import error_stats
 from strain_comp.errors import FitError, InputError, ParameterError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.deadzone import DEADZONE_FRACTION, find_hold, movement_rate
-from strain_comp.offline.fit import fit_sensor, parse_options
-from strain_comp.offline.training import GAP_SECONDS, MIN_SEGMENT, TRAINING_WIDENING, split_segments
+from strain_comp.offline.fit import (
+    GAP_SECONDS,
+    MIN_SEGMENT,
+    TRAINING_WIDENING,
+    fit_sensor,
+    parse_options,
+    split_segments,
+)
 
 C_TRUE = np.array([-40.0, 0.5, -2e-3, 1e-5])  # S = c0 + c1 R + c2 R^2 + c3 R^3, R in ohm
 

@@ -1,4 +1,4 @@
-"""``fit --model auto`` (``offline.model_choice``) against known truth: runs of a sensor with
+"""``fit --model auto`` (``offline.fit``) against known truth: runs of a sensor with
 no memory and a sensitivity that differs from run to run, each candidate's error on every
 run left out recomputed by hand (fit on the others, ``start``, ``evaluate``), the tie to
 the simpler model, groups left out whole, one run, and every candidate failing."""
@@ -16,7 +16,7 @@ from strain_comp.core.calibration import Calibration, expected_error
 from strain_comp.errors import FitError
 from strain_comp.io.bag.writer import BagWriter
 from strain_comp.io.recording import Recording
-from strain_comp.offline import fit, model_choice
+from strain_comp.offline import fit
 from strain_comp.offline.evaluate import evaluate_recordings
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.session_start import start
@@ -61,7 +61,7 @@ def test_each_run_left_out_is_scored_after_start_and_the_lowest_median_wins() ->
         assert table[model]["worst"] == pytest.approx(max(expected), abs=1e-6)
     chosen = prov["model_choice"]["chosen"]
     best = min(c["median"] for c in table.values())
-    assert table[chosen]["median"] <= (1.0 + model_choice.TIE) * best
+    assert table[chosen]["median"] <= (1.0 + fit.TIE) * best
     assert cal.sensors["s1"].model == chosen
     found = expected_error(cal.sensors["s1"])
     assert found is not None and found["median"] == table[chosen]["median"]
@@ -72,13 +72,13 @@ def test_each_run_left_out_is_scored_after_start_and_the_lowest_median_wins() ->
 def test_a_tie_goes_to_the_simpler_model(monkeypatch: pytest.MonkeyPatch) -> None:
     """Medians 1.00 (apl) and 1.015 (cubic): within 2 %, the cubic; 1.03: apl."""
     for cubic, chosen in ((1.015, "cubic"), (1.03, "apl")):
-        def errors(recordings: object, name: str, fold: model_choice.Fold, options: object,
-                   pool: str, cubic: float = cubic) -> model_choice.Scored:
-            return model_choice.Scored([cubic if fold.model == "cubic" else 1.0]
+        def errors(recordings: object, name: str, fold: fit.Fold, options: object,
+                   pool: str, cubic: float = cubic) -> fit.Scored:
+            return fit.Scored([cubic if fold.model == "cubic" else 1.0]
                                        * len(fold.held), [Calibration({})] * len(fold.held))
 
-        monkeypatch.setattr(model_choice, "fold_errors", errors)
-        model, record, _ = model_choice.choose_model(RUNS, "s1", candidates=("apl", "cubic"))
+        monkeypatch.setattr(fit, "fold_errors", errors)
+        model, record, _ = fit.choose_model(RUNS, "s1", candidates=("apl", "cubic"))
         assert model == chosen, cubic
         assert "simpler" in record["why"] if chosen == "cubic" else "lowest" in record["why"]
 
@@ -99,11 +99,10 @@ def test_the_band_is_learned_from_the_choices_folds_not_fitted_again(
             fits.append(str(args[1]))
         return fit_sensor(*args, **kwargs)  # type: ignore[arg-type]
 
-    for module in (model_choice, fit):
-        monkeypatch.setattr(module, "fit_sensor", counted)
-    cal = model_choice.fit_auto(runs, name="s1", candidates=("cubic",))
+    monkeypatch.setattr(fit, "fit_sensor", counted)
+    cal = fit.fit_auto(runs, name="s1", candidates=("cubic",))
     assert fits.count("cubic") == len(runs) + 1
-    again = model_choice.fit_auto(runs, name="s1", candidates=("cubic",),
+    again = fit.fit_auto(runs, name="s1", candidates=("cubic",),
                                   groups=["a"] * len(runs))
     assert cal.uncertainty is not None and again.uncertainty is not None
     assert cal.uncertainty == again.uncertainty
@@ -112,7 +111,7 @@ def test_the_band_is_learned_from_the_choices_folds_not_fitted_again(
 
 def test_groups_are_left_out_whole() -> None:
     """Groups a, a, b, b: each run of group a is scored by the model fitted on b alone."""
-    model, record, _ = model_choice.choose_model(RUNS, "s1", candidates=("cubic",),
+    model, record, _ = fit.choose_model(RUNS, "s1", candidates=("cubic",),
                                                  groups=["a", "a", "b", "b"])
     assert model == "cubic" and record["groups"] == ["a", "a", "b", "b"]
     errors = record["candidates"]["cubic"]["errors"]
@@ -140,15 +139,15 @@ def test_every_candidate_failing_is_one_line_and_nothing_written(
             writer.write_float64("/s1/resistance", rec.t, rec.r)
             writer.write_float64("/s1/strain_reference", rec.t, rec.s)
 
-    def fails(recordings: object, name: str, fold: model_choice.Fold, options: object,
+    def fails(recordings: object, name: str, fold: fit.Fold, options: object,
               pool: str) -> str:
         return f"{fold.model} cannot be fitted"
 
-    monkeypatch.setattr(model_choice, "fold_errors", fails)
+    monkeypatch.setattr(fit, "fold_errors", fails)
     out = tmp_path / "cal.yaml"
     assert main(["fit", *bags, "--model", "auto", "--candidates", "cubic,mpi", "--sensor",
                  "s1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no candidate could be fitted" in err[0] and not out.exists()
     with pytest.raises(FitError):
-        model_choice.choose_model(RUNS, "s1", candidates=("cubic",))
+        fit.choose_model(RUNS, "s1", candidates=("cubic",))

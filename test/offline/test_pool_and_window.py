@@ -16,8 +16,7 @@ from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.pool import Pooled, gate, pooled_input
+from strain_comp.offline.fit import Pooled, fit_sensor, gate, pooled_input
 from strain_comp.offline.session_start import (
     calibration_stretch,
     choose_space,

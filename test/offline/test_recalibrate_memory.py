@@ -82,7 +82,7 @@ def test_branch_resistance_inverts_a_branch_and_takes_the_nearest_output_beyond_
     """Truth: a branch S = 10 (R - 1) on R in [1, 2] with a dip below its end value: the
     first crossing from the rest end, linear between grid points; a strain the branch never
     outputs reads at the resistance of its nearest output."""
-    from strain_comp.offline.correction import branch_resistance
+    from strain_comp.offline.session_start import branch_resistance
 
     grid = np.linspace(1.0, 2.0, 11)
     out = 10.0 * (grid - 1.0)

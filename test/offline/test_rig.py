@@ -12,6 +12,7 @@ from strain_comp.errors import ParameterError
 from strain_comp.io.recording import load_recordings
 from strain_comp.offline.rig import (
     SCENARIOS,
+    TEMPERATURE_STEP,
     RigEffects,
     SensorSpec,
     _mechanical,
@@ -113,7 +114,7 @@ def test_temperature_effect_and_topic(tmp_path: Path) -> None:
     write_sim_bag(on, tmp_path / "t.mcap")
     recs, _ = load_recordings(tmp_path / "t.mcap")
     err = np.abs(recs["s1"].temperature - temp)  # published at 2 Hz, interpolated back
-    assert np.nanmedian(err) < 0.01 and np.nanmax(err) <= fx.temperature_step + 0.01
+    assert np.nanmedian(err) < 0.01 and np.nanmax(err) <= TEMPERATURE_STEP[0] + 0.01
 
 
 def test_crosstalk_comes_from_neighbours_only() -> None:

@@ -18,8 +18,7 @@ from strain_comp.core.uncertainty import FEATURES, Uncertainty
 from strain_comp.io.bag import BagWriter, read_bag
 from strain_comp.io.recording import Recording
 from strain_comp.offline.evaluate import evaluate_recordings
-from strain_comp.offline.fit import fit_sensor
-from strain_comp.offline.model_choice import fit_auto
+from strain_comp.offline.fit import fit_auto, fit_sensor
 from strain_comp.offline.replay import replay_bag
 from strain_comp.offline.uncertainty import fit_weights
 

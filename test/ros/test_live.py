@@ -208,7 +208,7 @@ def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
 
 
 def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) -> None:
-    from strain_comp.offline.correction import calibrated_resistance
+    from strain_comp.offline.session_start import calibrated_resistance
 
     cal = cubic_cal("s1")
     rest_strain = S_LO + 0.05 * (S_HI - S_LO) / 1.1  # the fitted minimum of the range

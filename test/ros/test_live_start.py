@@ -14,7 +14,7 @@ from conftest import S_HI, S_LO, cubic_cal, one_message
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import ParameterError
-from strain_comp.offline.correction import calibrated_resistance
+from strain_comp.offline.session_start import calibrated_resistance
 from strain_comp.ros.live import LiveCompensator
 from strain_comp.ros.params import parse_values
 
