@@ -121,6 +121,8 @@ class _Reader:
                     else self.number(node, "sample_interval", where, lo=0.0, hi=1e6, strict=True))
         prov = node.get("provenance", {}) or {}
         self.mapping(prov, f"{where}.provenance")
+        if prov.get("options") is not None:  # a refit (the in-run bound) reads them
+            self.mapping(prov["options"], f"{where}.provenance.options")
         calibration = SensorCalibration(
             name=name, model=model_name, params=dict(params),
             normalisation=self.normalisation(node, where),

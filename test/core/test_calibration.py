@@ -136,6 +136,8 @@ def _edit(tmp_path: Path, change) -> Path:
      "sensors.left.input.stretch_line.slope", "must be finite"),
     (lambda d: d["sensors"]["left"]["input"].update(stretch_line=[1000.0, 2.0]),
      "sensors.left.input.stretch_line", "mapping"),
+    (lambda d: d["sensors"]["left"].update(provenance={"options": "abc"}),
+     "sensors.left.provenance.options", "mapping"),
 ])
 def test_malformed_field_is_named(tmp_path: Path, change, field: str, words: str) -> None:
     path = _edit(tmp_path, change)
