@@ -134,11 +134,14 @@ class CompensatorNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
-        self.create_service(Trigger, "~/tare", self._tare)
-        self.create_service(Trigger, "~/span", self._span)
-        self.create_service(Trigger, "~/reference", self._reference)
-        self.create_service(Trigger, "~/start", self._start)
-        self.create_service(Trigger, "~/reload_calibration", self._reload)
+        services: dict[str, Callable[[], str]] = {
+            "tare": lambda: self.live.taring.tare(),
+            "span": lambda: self._swap(self.live.span()),
+            "reference": lambda: self.live.reference_now(self._now_ns() * 1e-9),
+            "start": lambda: self._swap(self.live.start(self._now_ns() * 1e-9)),
+            "reload_calibration": self._reload}
+        for service, act in services.items():
+            self.create_service(Trigger, f"~/{service}", partial(self._answer, service, act))
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
         self.ready_line = (f"ready: {len(ready)} inputs: " + "; ".join(ready)
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
@@ -434,17 +437,13 @@ class CompensatorNode(Node):
 
     # --- services -------------------------------------------------------------------------
 
-    def _busy(self, response: Any) -> bool:
-        """Refuse a call while a reload is in flight (its result would replace the change)."""
-        if self._loading is None:
-            return False
-        response.success = False
-        response.message = "refused: a calibration reload is in flight; call again"
-        return True
-
-    def _answer(self, service: str, response: Any, act: Callable[[], str]) -> Any:
-        """A Trigger response: ``act()``'s summary (logged), or its error in one line."""
-        if self._busy(response):
+    def _answer(self, service: str, act: Callable[[], str], request: Any, response: Any
+                ) -> Any:
+        """A Trigger response: ``act()``'s summary (logged), or its error in one line; refused
+        while a reload is in flight (its result would replace the change)."""
+        if self._loading is not None:
+            response.success = False
+            response.message = "refused: a calibration reload is in flight; call again"
             return response
         self._flush()
         try:
@@ -454,23 +453,9 @@ class CompensatorNode(Node):
         except StrainCompError as err:
             response.success, response.message = False, _one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
-            self._fault(service, err)
+            self._fault(f"~/{service}", err)
             response.success, response.message = False, _internal(err)
         return response
-
-    def _tare(self, request: Any, response: Any) -> Any:
-        return self._answer("~/tare", response, self.live.taring.tare)
-
-    def _reference(self, request: Any, response: Any) -> Any:
-        return self._answer("~/reference", response,
-                            lambda: self.live.reference_now(self._now_ns() * 1e-9))
-
-    def _span(self, request: Any, response: Any) -> Any:
-        return self._answer("~/span", response, lambda: self._swap(self.live.span()))
-
-    def _start(self, request: Any, response: Any) -> Any:
-        return self._answer("~/start", response,
-                            lambda: self._swap(self.live.start(self._now_ns() * 1e-9)))
 
     def _swap(self, outcome: tuple[LiveCompensator, str]) -> str:
         """Go on with the compensator a service returned; its summary."""
@@ -481,11 +466,8 @@ class CompensatorNode(Node):
     def _paths(live: LiveCompensator) -> str:
         return ", ".join(sorted({str(i.calibration_path) for i in live.params.inputs}))
 
-    def _reload(self, request: Any, response: Any) -> Any:
-        """Validate the calibration files, answer, then build on a worker thread (docs/ros.md)."""
-        if self._busy(response):
-            return response
-        self._flush()
+    def _reload(self) -> str:
+        """Validate the calibration files, then build on a worker thread (docs/ros.md)."""
         current = self.live
         try:
             params = parse_values(self.flat, base_dir=self.base_dir)
@@ -496,15 +478,12 @@ class CompensatorNode(Node):
             else:  # a fault of the program: answered and reported as one
                 self._fault("~/reload_calibration", err)
                 self._refused_reload(_internal(err))
-            response.success, response.message = False, self.calibration_status[1]
-            return response
+            raise StrainCompError(self.calibration_status[1]) from None
         self._loading = threading.Thread(target=self._load, args=(current, params),
                                          name="reload_calibration", daemon=True)
         self.calibration_status = (OK, "loading " + self._paths(current))
-        response.success, response.message = True, self.calibration_status[1]
-        logger(self).info(response.message)
         self._loading.start()
-        return response
+        return self.calibration_status[1]
 
     def _refused_reload(self, reason: str) -> None:
         self.calibration_status = (WARN, "reload refused, the old calibration keeps "
