@@ -45,13 +45,12 @@ def _count(counter: Counter[str], key: str, other: str) -> None:
 class LiveCompensator:
     """One engine plus the per-input bookkeeping of a live node."""
 
-    def __init__(self, params: NodeParams, *, warm_up: bool = True) -> None:
-        """Build the engine of ``params``."""
+    def __init__(self, params: NodeParams) -> None:
+        """Build the engine of ``params`` and compile its kernels."""
         self.params = params
         self.tunables = dict(params.tunables)
         self.engine = params.build_engine()
-        if warm_up:
-            self.engine.warm_up()
+        self.engine.warm_up()
         if params.tare == "auto":
             missing = [n for n, c in params.calibration.sensors.items()
                        if c.rest_resistance is None]

@@ -29,8 +29,7 @@ def live(tmp_path: Path, fuse: str = "on", *, array: bool = False) -> LiveCompen
     flat = ({"arrays": ["arr"], "arr.sensors": ["a", "b"], "arr.calibration": "c.yaml"}
             if array else {"sensors": ["s1"], "s1.calibration": "c.yaml"})
     return LiveCompensator(parse_values({**flat, "fuse_references": fuse == "on",
-                                         "baseline_tracking": "off"}, base_dir=tmp_path),
-                           warm_up=False)
+                                         "baseline_tracking": "off"}, base_dir=tmp_path))
 
 
 def resistance(t: np.ndarray) -> np.ndarray:

@@ -90,7 +90,7 @@ def test_a_program_error_in_a_callback_is_reported_as_such_and_the_node_goes_on(
     rig.send(14.0)  # alive: 14 ohm answered
     assert [v for _, v in calls] == [12.0, 13.0, 14.0]
 
-    truth = LiveCompensator(parse_values(rig.node.flat, base_dir=CONFIG), warm_up=False)
+    truth = LiveCompensator(parse_values(rig.node.flat, base_dir=CONFIG))
     expected = [one_message(truth, "s1", t, v) for t, v in calls if v != 13.0]  # 13 left out
     assert [m.data for m in rig.strain] == [o.strain for o in expected if o is not None]
     assert rig.node.live.faults == {"s1: TypeError": 1}
