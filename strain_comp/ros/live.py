@@ -234,10 +234,8 @@ class LiveCompensator:
         sensors = dict(self.params.calibration.sensors)
         lines: list[str] = []
         problems: list[str] = []
-        for sensor, rest in self.taring.rests_now(problems).items():
+        for sensor, (rest, zero) in self.taring.rests_now(problems).items():
             cal = sensors[sensor]
-            zero = cal.input_rest
-            assert zero is not None  # rests_now names a sensor without a calibrated rest
             points = [(zero / self.engine.input_gain(sensor), fitted_rest(cal.valid_range)[0]),
                       (rest, strain)]
             try:

@@ -177,10 +177,11 @@ class LiveTare:
             self.log.append(f"{sensor}: auto tare: rest resistance {rest:.6g} ohm, "
                                  f"input gain {gain:.6g}")
 
-    def rests_now(self, problems: list[str]) -> dict[str, float]:
+    def rests_now(self, problems: list[str]) -> dict[str, tuple[float, float]]:
         """Each sensor's rest level [ohm] over its input's last ``TARE_WINDOW_S`` of good
-        samples; a sensor without one (or without a calibrated rest) named in ``problems``."""
-        rests: dict[str, float] = {}
+        samples and its calibrated rest (input units); a sensor without either is named in
+        ``problems``."""
+        rests: dict[str, tuple[float, float]] = {}
         for name, sensors in self.inputs.items():
             recent = self.recent[name]
             latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
@@ -192,7 +193,7 @@ class LiveTare:
                 elif values.size == 0:
                     problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
                 else:
-                    rests[sensor] = rest_level(values, pair=cal.input.pair)
+                    rests[sensor] = (rest_level(values, pair=cal.input.pair), cal.input_rest)
         return rests
 
     def tare(self) -> str:
@@ -201,9 +202,9 @@ class LiveTare:
         rests = self.rests_now(problems)
         if problems:
             raise ParameterError("tare", "refused: " + "; ".join(problems))
-        for sensor, rest in rests.items():
+        for sensor, (rest, _) in rests.items():
             self.engine.tare(sensor, rest)
             self.pending.pop(sensor, None)
         self.start.clear()  # no automatic tare is pending any more
         return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
-                                    for s, r in rests.items())
+                                    for s, (r, _) in rests.items())
