@@ -40,7 +40,6 @@ from strain_comp.io.multiarray import array_values
 from strain_comp.ros.cdr import RowDecoder, RowEncoder
 from strain_comp.ros.clock_gate import ClockGate
 from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
-from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
     TUNABLE,
@@ -235,10 +234,7 @@ class CompensatorNode(Node):
     def _on_clock(self, msg: Any) -> None:
         """A /clock tick: a time rclpy cannot hold (negative) is refused under ``/clock``."""
         def tick() -> None:
-            sec = getattr(getattr(msg, "clock", None), "sec", None)
-            if isinstance(sec, bool) or not isinstance(sec, int):
-                raise InputError("clock.sec is not an integer")
-            if sec < 0:
+            if msg.clock.sec < 0:
                 raise InputError("negative time")
             self._clock_callback(msg)
         self._guarded("/clock", tick)
@@ -314,10 +310,11 @@ class CompensatorNode(Node):
         """A message's values in sensor order, where they are in its data and its number of
         values (InputError when the message cannot be read)."""
         if name not in self._arrays:
-            return np.array([sensor_value(msg)]), np.zeros(1, np.intp), 1
-        data, offset, sizes, label = array_layout(msg)
-        sensors = self._sensors[name]
-        where = array_values(np.arange(len(data)), offset, sizes, len(sensors), label, sensors)
+            return np.array([msg.data]), np.zeros(1, np.intp), 1
+        data, dims, sensors = msg.data, msg.layout.dim, self._sensors[name]
+        where = array_values(np.arange(len(data)), msg.layout.data_offset,
+                             [d.size for d in dims], len(sensors),
+                             dims[0].label if dims else "", sensors)
         columns = where.astype(np.intp)
         return np.asarray(data, dtype=np.float64)[columns], columns, len(data)
 
@@ -395,7 +392,7 @@ class CompensatorNode(Node):
     def _on_temperature(self, sensor: str, msg: Any) -> None:
         self._flush()
         self._guarded(f"{sensor}/temperature", lambda: self.live.on_temperature(
-            sensor, sensor_value(msg, "temperature")))
+            sensor, msg.temperature))
 
     def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
         """A known strain of a sensor, or of an array's sensors (NaN: none), stamped on
