@@ -4,7 +4,6 @@ it owns (docs/ros.md; docs/reliability.md, "The live node")."""
 from __future__ import annotations
 
 import threading
-import time
 import traceback
 from collections.abc import Callable
 from copy import copy
@@ -20,7 +19,7 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.clock import Clock, JumpThreshold, ROSClock, TimeJump
+from rclpy.clock import Clock, JumpThreshold, TimeJump
 from rclpy.clock_type import ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -61,11 +60,9 @@ LOG_THROTTLE_S = 5.0
 
 def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """A ``ParamSpec``'s descriptor, with a fixed type (a refused set never changes it)."""
-    kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
-             "bool": ParameterType.PARAMETER_BOOL,
-             "string_array": ParameterType.PARAMETER_STRING_ARRAY}
+    kind = getattr(ParameterType, f"PARAMETER_{spec.type.upper()}")
     described = ParameterDescriptor(name=spec.name, description=spec.description,
-                                    read_only=spec.read_only, type=kinds[spec.type],
+                                    read_only=spec.read_only, type=kind,
                                     dynamic_typing=False)
     if spec.range is not None:
         described.floating_point_range = [FloatingPointRange(
@@ -241,16 +238,12 @@ class CompensatorNode(Node):
 
     def _now_ns(self) -> int:
         """The node clock [ns]: the system time, or /clock under sim time."""
-        clock = self.get_clock()
-        if isinstance(clock, ROSClock) and clock.ros_time_is_active:
-            return int(clock.now().nanoseconds)
-        return time.time_ns()
+        return int(self.get_clock().now().nanoseconds)
 
     def _on_tick(self, jump: TimeJump) -> None:
         """The sim clock moved: the inputs held for it are handled, stamped with it."""
-        if self._loaded is not None:
-            self._adopt()
-        now = self.get_clock().now().nanoseconds
+        self._adopt()
+        now = self._now_ns()
         names = list(self.gate.held)
         for name, (stamp, msg) in zip(names, self.gate.tick(now), strict=True):
             self._guarded(name, partial(self._queue, name, stamp, msg))
@@ -299,9 +292,8 @@ class CompensatorNode(Node):
 
     def _arrive(self, name: str, msg: Any) -> None:
         """Under sim time, an input: handled once its /clock tick has come (the gate)."""
-        if self._loaded is not None:
-            self._adopt()
-        now = self.get_clock().now().nanoseconds
+        self._adopt()
+        now = self._now_ns()
         for stamp, queued in self.gate.arrive(name, now, msg):
             self._guarded(name, partial(self._queue, name, stamp, queued))
         self._flush()
@@ -397,8 +389,7 @@ class CompensatorNode(Node):
     def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
         """A known strain of a sensor, or of an array's sensors (NaN: none), stamped on
         arrival."""
-        if self._loaded is not None:
-            self._adopt()
+        self._adopt()
         self._flush()
 
         def handle() -> None:
