@@ -190,7 +190,7 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
         one_message(node, "m", float(ti), [140.0, math.nan])
     assert node.engine.input_gain("a") == pytest.approx(150.0 / 140.0)
     assert node.engine.input_gain("b") == 1.0
-    assert node.taring.start["m"].n <= 512
+    assert node.taring.recent["m"].n <= 512
 
 
 def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
