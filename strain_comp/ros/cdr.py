@@ -11,8 +11,7 @@ from strain_comp.io import cdr
 
 
 class RowEncoder:
-    """Messages of one constant ``template`` but for ``k`` values at byte ``at`` (and, when
-    ``stamped``, the header's stamp at bytes 4..12): one message per row."""
+    """Messages of one ``template`` but for ``k`` values at byte ``at`` (and the stamp)."""
 
     def __init__(self, template: bytes, at: int, k: int, dtype: str = "<f8", *,
                  stamped: bool = False) -> None:
@@ -26,8 +25,7 @@ class RowEncoder:
 
     @classmethod
     def vector(cls, names: list[str]) -> RowEncoder:
-        """std_msgs/msg/Float64MultiArray whose ``dim[0]`` is labelled with the names (size =
-        stride = k, data_offset 0), as the bag writer's ``write_float64_array``."""
+        """std_msgs/msg/Float64MultiArray labelled as the bag writer's."""
         k = len(names)
         head = cdr.float64_multiarray_head([(",".join(names), k, k)], 0, k)
         return cls(head + bytes(8 * k), len(head), k)
@@ -39,8 +37,7 @@ class RowEncoder:
         return cls(template, pos_at, len(names), stamped=True)
 
     def encode(self, rows: np.ndarray, stamps_ns: np.ndarray | None = None) -> list[bytes]:
-        """The messages of ``rows`` (n x k values, or n values when k is 1) and, stamped, of
-        their stamps [ns since the epoch]."""
+        """The messages of ``rows`` (n x k values) and of their stamps [ns since the epoch]."""
         n = len(rows)
         values = np.ascontiguousarray(rows, dtype=self.dtype).reshape(n, self.k)
         out = np.empty((n, self.template.size), np.uint8)
@@ -56,9 +53,7 @@ class RowEncoder:
 
 
 class RowDecoder:
-    """The sensors' values of serialised messages that end in float64 values and whose bytes
-    before them equal those of the last message checked (``learn``): one layout, read in
-    bulk."""
+    """The sensors' values of serialised messages of the layout ``learn`` checked, in bulk."""
 
     def __init__(self) -> None:
         self._head = b""
@@ -67,9 +62,7 @@ class RowDecoder:
 
     def learn(self, raw: bytes, n_values: int, columns: np.ndarray, values: np.ndarray
               ) -> None:
-        """``raw``, whose layout was checked, ends with ``n_values`` float64 values, of which
-        ``columns`` are the sensors' ``values``; not learnt unless they read back so (a
-        big-endian message, padding after the values)."""
+        """Learn ``raw``'s layout unless its ``values`` do not read back (big-endian, padded)."""
         if raw[:2] == cdr.ENCAPSULATION[:2] and len(raw) >= 8 * n_values:
             self._head, self._size = raw[:len(raw) - 8 * n_values], len(raw)
             self._columns = columns

@@ -93,8 +93,7 @@ class CompensatorNode(Node):
         super().__init__(node_name, **node_options)
         self._loading: threading.Thread | None = None
         self._loaded: LiveCompensator | str | None = None
-        """The finished load (or why it failed), swapped in by ``_adopt`` before the next
-        message or diagnostics tick (the EventsExecutor has no guard condition to wake)."""
+        """The finished load (or why it failed), swapped in by ``_adopt``."""
         self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                      if k.split(".")[0] not in ROS_OWNED}
         self.base_dir = base_dir
@@ -121,8 +120,7 @@ class CompensatorNode(Node):
         self._intake = None if self.get_parameter(USE_SIM_TIME).value else Node(
             f"{node_name}_intake", namespace=self.get_namespace(), context=self.context,
             start_parameter_services=False, enable_rosout=False)
-        """On the system clock, the node of the input subscriptions, spun by no executor
-        (``_flush`` takes what arrived; docs/ros.md, ``batch_period_s``)."""
+        """Off sim time, the input subscriptions' node, spun by no executor (``_flush``)."""
         self._takes: list[tuple[str, Subscription, RowDecoder]] = []
         ready = [self._connect(i) for i in params.inputs]
         self.create_timer(self.live.tunables["batch_period_s"], self._flush,
@@ -218,8 +216,7 @@ class CompensatorNode(Node):
     # --- the clock ------------------------------------------------------------------------
 
     def _guard_clock(self) -> None:
-        """/clock through ``_on_clock`` (rclpy's own callback raises on a negative time,
-        which would end the node), also when sim time is on from the start."""
+        """/clock through ``_on_clock`` (rclpy's own raises on a negative time)."""
         source = self._time_source
         self._clock_callback = source.clock_callback
         source.clock_callback = self._on_clock  # type: ignore[method-assign]
@@ -252,8 +249,7 @@ class CompensatorNode(Node):
     # --- parameters -----------------------------------------------------------------------
 
     def _declare(self, spec: ParamSpec, value: Any) -> None:
-        """Declare a parameter with its fixed type; an empty (or, from a dump, null) list
-        stays a string array (rclpy would infer BYTE_ARRAY from [])."""
+        """Declare a parameter; an empty list stays a string array (rclpy infers BYTE_ARRAY)."""
         if spec.type == "string_array" and not value:
             self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, _descriptor(spec),
                                    ignore_override=True)
@@ -263,8 +259,7 @@ class CompensatorNode(Node):
                                    else value, _descriptor(spec), ignore_override=True)
 
     def _integers_as_doubles(self, params: list[Parameter]) -> list[Parameter]:
-        """``ros2 param set deadzone_scale 2``: an integer for a double tunable is set as a
-        double (before rclpy's type check, which would refuse it)."""
+        """An integer for a double tunable set as a double (rclpy's type check refuses it)."""
         return [parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
                 if p.name in TUNABLE and p.type_ == Parameter.Type.INTEGER else p
                 for p in params]
@@ -299,8 +294,7 @@ class CompensatorNode(Node):
         self._flush()
 
     def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
-        """A message's values in sensor order, where they are in its data and its number of
-        values (InputError when the message cannot be read)."""
+        """A message's values in sensor order, their columns in its data, its value count."""
         if name not in self._arrays:
             return np.array([msg.data]), np.zeros(1, np.intp), 1
         data, dims, sensors = msg.data, msg.layout.dim, self._sensors[name]
@@ -318,8 +312,7 @@ class CompensatorNode(Node):
 
     def _learn(self, name: str, stamp: int, raw: bytes, kind: Any, decoder: RowDecoder
                ) -> None:
-        """Queue an intake message of a layout not read before; read its layout in bulk
-        from then on."""
+        """Queue an intake message of a new layout; read that layout in bulk from then on."""
         values, columns, n_values = self._queue(name, stamp, deserialize_message(raw, kind))
         decoder.learn(raw, n_values, columns, values)
 
@@ -329,8 +322,7 @@ class CompensatorNode(Node):
         blocks.append(rows)
 
     def _flush(self) -> None:
-        """Handle what arrived, one batch per input: every ``batch_period_s``, and before
-        anything that reads or changes the state."""
+        """Handle what arrived, one batch per input (before anything that reads the state)."""
         for name, sub, decoder in self._takes:
             self._guarded(name, partial(self._take, name, sub, decoder))
         for name, (stamps, values) in self._queued.items():
@@ -341,9 +333,7 @@ class CompensatorNode(Node):
             logger(self).info(self.live.taring.log.pop(0))
 
     def _take(self, name: str, sub: Subscription, decoder: RowDecoder) -> None:
-        """Queue what arrived on the intake subscription ``sub`` of input ``name``, as bytes:
-        a message of the layout last read is read in bulk by ``decoder``, another one as a
-        message (per message, a Python message costs most of the node's CPU at 1 kHz)."""
+        """Queue what arrived on ``sub`` as bytes, the layout last read in bulk (``decoder``)."""
         with sub.handle:
             taken = []
             while (one := sub.handle.take_message(sub.msg_type, True)) is not None:
@@ -387,8 +377,7 @@ class CompensatorNode(Node):
             sensor, msg.temperature))
 
     def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
-        """A known strain of a sensor, or of an array's sensors (NaN: none), stamped on
-        arrival."""
+        """A known strain of a sensor or of an array's sensors (NaN: none), stamped on arrival."""
         self._adopt()
         self._flush()
 
@@ -427,8 +416,7 @@ class CompensatorNode(Node):
 
     def _answer(self, service: str, act: Callable[[], str], request: Any, response: Any
                 ) -> Any:
-        """A Trigger response: ``act()``'s summary (logged), or its error in one line; refused
-        while a reload is in flight (its result would replace the change)."""
+        """``act()``'s summary (logged) or error; refused while a reload is in flight."""
         if self._loading is not None:
             response.success = False
             response.message = "refused: a calibration reload is in flight; call again"

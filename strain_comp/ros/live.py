@@ -76,8 +76,7 @@ class LiveCompensator:
             if params.fuse_references else {})
         """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
         self._estimate: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        """Per input, its sensors' latest estimates before fusion, of samples the model used:
-        times (NaN before a first one), strains, within the calibrated range."""
+        """Per input, its sensors' latest used estimates before fusion: time, strain, inside."""
         self._column = {s: (i.name, j) for i in params.inputs for j, s in enumerate(i.sensors)}
         """Per sensor: (its input, its column)."""
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -105,8 +104,7 @@ class LiveCompensator:
 
     def on_input(self, name: str, t: np.ndarray, values: np.ndarray
                  ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
-        """Samples of input ``name`` at times ``t`` (rows of ``values``, a column per sensor):
-        (the outputs, a column per sensor; published; refused: non-finite)."""
+        """Samples of input ``name`` (rows): (the outputs; published; refused: non-finite)."""
         if t.size > 1 and (name in self.taring.start or self.starting.series):
             # an automatic tare or ~/start watches the input: a sample changes the next one
             parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
@@ -213,8 +211,7 @@ class LiveCompensator:
 
     def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
-        """Samples of input ``name`` (rows: times ``t``; columns: its sensors) for the tare
-        and ``~/start``."""
+        """Samples of input ``name`` (rows; columns: its sensors) for the tare and ~/start."""
         for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
             for ti, value in zip(t, raw[:, j], strict=True):
                 self.starting.seen_input(sensor, float(ti), float(value))
@@ -307,8 +304,7 @@ class LiveCompensator:
             raise StrainCompError("the reloaded calibration changes the sensors")
 
     def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
-        """``fresh`` carrying on this one's counters, tunables and message times (model
-        state and input gains restart: a new calibration brings its own zero)."""
+        """``fresh`` with this one's counters, tunables and message times (not its zero)."""
         for name, value in self.tunables.items():
             fresh._apply(name, value)
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen

@@ -33,8 +33,7 @@ past it the automatic tare is declined, the calibration's zero stays."""
 
 @dataclass
 class _Log:
-    """An input's latest raw samples (columns: its sensors) with their good flags (good: fed to
-    the model, ``USED``, also when out of the calibrated range)."""
+    """An input's latest raw samples (columns: its sensors) and whether the model used each."""
 
     k: int
     t: np.ndarray = field(init=False)
@@ -49,9 +48,7 @@ class _Log:
 
     def add(self, t: np.ndarray, raw: np.ndarray, status: np.ndarray, keep_from: float,
             most: int) -> bool:
-        """Log samples (when full: drop those before ``keep_from`` and all but the newest
-        ``most``, then double if still more than half full); False when one since
-        ``keep_from`` was dropped."""
+        """Log samples, keeping those since ``keep_from`` (False: more than ``most``)."""
         kept = True
         if self.n + t.size > self.t.size:
             keep = np.flatnonzero(self.t[:self.n] >= keep_from)
@@ -77,9 +74,7 @@ class _Log:
 
 
 class LiveTare:
-    """Per input, its latest samples: the last ``TARE_WINDOW_S`` (for ``~/tare``) and, while a
-    sensor's automatic tare is pending, every one since its first good one; the tares taken,
-    logged in ``log``."""
+    """Per input, its latest samples for ``~/tare`` and ``tare: auto``; the tares in ``log``."""
 
     def __init__(self, engine: Engine, params: NodeParams) -> None:
         self.engine = engine
@@ -88,16 +83,14 @@ class LiveTare:
         self.recent = {i.name: _Log(len(i.sensors)) for i in params.inputs}
         self.pending: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
                                           if params.tare == "auto" else {})
-        """Sensors whose automatic tare is pending: the time of their first good sample
-        (NaN: none yet)."""
+        """Sensors whose automatic tare is pending: their first good sample's time (or NaN)."""
         self.start = set(self.inputs) if self.pending else set()
         """The inputs with a sensor whose automatic tare is pending."""
         self.log: list[str] = []
 
     def seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
              direction: np.ndarray) -> None:
-        """Log samples of input ``name`` (rows: times; columns: its sensors; one while an
-        automatic tare is pending) and take the automatic tares they decide."""
+        """Log samples (one while a tare is pending) and take the automatic tares they decide."""
         keep_from = float(t[-1]) - TARE_WINDOW_S
         if name not in self.start:
             self.recent[name].add(t, raw, status, keep_from, RING)
@@ -154,9 +147,7 @@ class LiveTare:
                                  f"input gain {gain:.6g}")
 
     def rests_now(self, problems: list[str]) -> dict[str, tuple[float, float]]:
-        """Each sensor's rest level [ohm] over its input's last ``TARE_WINDOW_S`` of good
-        samples and its calibrated rest (input units); a sensor without either is named in
-        ``problems``."""
+        """Each sensor's rest now [ohm] and calibrated rest; one without either in problems."""
         rests: dict[str, tuple[float, float]] = {}
         for name, sensors in self.inputs.items():
             recent = self.recent[name]

@@ -28,8 +28,7 @@ def _exit_now(signum: int, frame: FrameType | None) -> None:
 
 
 def _stopped_in_start_up(signum: int, frame: FrameType | None = None) -> NoReturn:
-    """SIGINT/SIGTERM before the node is up: one line, exit 0 (no traceback, at any moment:
-    the handler is main's first statement, before anything slow is imported)."""
+    """SIGINT/SIGTERM before the node is up: one line, exit 0 (no traceback)."""
     os.write(2, f"{NODE_NAME}: {signal.Signals(signum).name}: stopped during start-up\n"
              .encode())
     os._exit(0)
@@ -155,9 +154,7 @@ def main(args: list[str] | None = None) -> int:
 
 
 def prime_cache(config: str) -> list[str]:
-    """Compile the kernels the params files in ``config`` need into numba's cache, as the
-    node's start-up does (``setup.py`` runs it once the package is installed, so a colcon
-    install's first start loads them instead of compiling: docs/results.md)."""
+    """Compile the kernels of the params files in ``config`` into numba's cache (setup.py)."""
     from strain_comp.ros.live import LiveCompensator
     from strain_comp.ros.params import load_params
 

@@ -165,8 +165,7 @@ def _flatten(node: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def resolve_path(value: str, base_dir: Path | None) -> Path:
-    """A calibration path: absolute, or relative to base_dir (else cwd), then the share dir
-    of an installed strain_comp, then the source checkout (each + config/)."""
+    """A calibration path: absolute, in base_dir (else cwd), the share dir or the checkout."""
     path = Path(os.path.expanduser(value))
     if path.is_absolute():
         return path
@@ -212,8 +211,7 @@ NAME_RULE = ("letters, digits and underscores, not starting with a digit, no dou
 
 
 def _ros_name(value: str, key: str, *, topic: bool = False) -> str:
-    """``value`` if it is a valid ROS name token (a topic: tokens joined by ``/``, optionally
-    absolute ``/...`` or private ``~/...``); ParameterError naming the rule otherwise."""
+    """``value`` if it is a valid ROS name (or topic name); ParameterError otherwise."""
     body = value[2:] if topic and value.startswith("~/") else (
         value[1:] if topic and value.startswith("/") else value)
     pattern = rf"{_TOKEN}(/{_TOKEN})*" if topic else _TOKEN
@@ -225,8 +223,7 @@ def _ros_name(value: str, key: str, *, topic: bool = False) -> str:
 
 
 def _names(flat: Mapping[str, Any], key: str) -> list[str]:
-    """A list of names; null (an empty list as older ``ros2 param dump`` files write it)
-    is the empty list."""
+    """A list of names (null, as older ``ros2 param dump`` files write [], is empty)."""
     value = flat.get(key)
     if value is None:
         return []
@@ -318,11 +315,8 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 def read_params(files: list[Path], name: str = "compensator", namespace: str = "/"
                 ) -> tuple[dict[str, Any], Path | None]:
-    """The flat values the params files give the node (the blocks rcl matches to it: ``**``,
-    ``NAMESPACE/*``, ``**/NAME``, its fully qualified name; later ones win) and the folder
-    relative calibration paths resolve in: that of the last file whose blocks name a
-    calibration (a file that sets other parameters only, as the one ``ros2 launch`` writes for
-    ``use_sim_time:=true``, does not move it), else of the last with a block for the node."""
+    """The values the files give the node (blocks as rcl matches them) and the folder of the
+    last that names a calibration (``ros2 launch``'s own file does not), else of the last."""
     ns = namespace.strip("/")
     fqn = f"{ns}/{name}" if ns else name
     values: dict[str, Any] = {}

@@ -32,9 +32,7 @@ class PlayedMessage:
 
 
 def bag_messages(path: str | Path, topics: list[str] | None = None) -> list[PlayedMessage]:
-    """A bag's CDR messages in log-time order, read by the bag reader's walk within its
-    budgets (``strain_comp.io.bag.reader.raw_messages``); what it skipped goes to stderr, one
-    line each."""
+    """A bag's CDR messages in log-time order (``raw_messages``); what it skipped on stderr."""
     from strain_comp.io.bag.reader import raw_messages
 
     messages, problems = raw_messages(path, topics)
@@ -139,9 +137,7 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
 
 def _subscribed(executor: Executor, pubs: dict[str, Any], messages: list[PlayedMessage],
                 wait_s: float) -> list[PlayedMessage]:
-    """The messages on topics that have a subscriber, waiting ``wait_s`` for the first one
-    and ``MATCH_S`` more for the others; the topics without one named in one line on stderr.
-    BagError when no topic has a subscriber."""
+    """The messages on topics with a subscriber (the others named on stderr), within wait_s."""
     def heard() -> set[str]:
         return {topic for topic, pub in pubs.items() if pub.get_subscription_count() > 0}
 
