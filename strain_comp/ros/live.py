@@ -170,17 +170,15 @@ class LiveCompensator:
             return None
         return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
 
-    def reference_now(self, now: float | None = None) -> str:
-        """``~/reference`` at clock time ``now`` (None: each sensor's latest sample)."""
+    def reference_now(self, now: float) -> str:
+        """``~/reference`` at clock time ``now``."""
         if not self.fusion:
             raise ParameterError("fuse_references", "false: set it to true in the params file "
                                  "to fuse known strains")
         strain = self.tunables["known_strain"]
         lines, refused = [], []
         for sensor, fusion in self.fusion.items():
-            latest = self._latest(sensor)
-            reason = (fusion.refuse("no estimate yet") if latest is None else
-                      self.on_reference(sensor, latest[0] if now is None else now, strain))
+            reason = self.on_reference(sensor, now, strain)
             if reason is None:
                 lines.append(f"{sensor}: gain {fusion.gain:.6g}, offset {fusion.offset:.6g}")
             else:
