@@ -204,7 +204,7 @@ def _live(tmp_path: Path, tare: str = "calibration") -> LiveCompensator:
     save_calibration(Calibration({"s1": replace(cubic_cal("s1"), rest_resistance=150.0)}),
                      tmp_path / "c.yaml")
     return LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml",
-                                         "tare": tare}, base_dir=tmp_path), warm_up=False)
+                                         "tare": tare}, base_dir=tmp_path))
 
 
 def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
@@ -216,7 +216,7 @@ def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
     node = _live(tmp_path, "auto")
     for _ in range(5000):
         one_message(node, "s1", 3.0, 150.0)
-    assert node.taring.start == {} or node.taring.start["s1"].t.size <= 1024
+    assert not node.taring.start and node.taring.recent["s1"].n <= live_tare.RING
     assert any("auto tare declined: 1024 samples" in line for line in node.taring.log)
     assert node.engine.input_gain("s1") == 1.0
 
@@ -255,7 +255,7 @@ def test_temperatures_outside_the_physical_range_are_missing_never_nan(tmp_path:
     np.testing.assert_allclose(stepped, truth, atol=1e-12)
     save_calibration(cal, tmp_path / "c.yaml")
     node = LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml"},
-                                        base_dir=tmp_path), warm_up=False)
+                                        base_dir=tmp_path))
     out = []
     for ti, ri, ti_c in zip(t, r, hostile, strict=True):
         node.on_temperature("s1", ti_c)

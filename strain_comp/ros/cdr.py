@@ -11,9 +11,7 @@ from strain_comp.io import cdr
 
 
 class RowDecoder:
-    """The sensors' values of serialised messages that end in float64 values and whose bytes
-    before them equal those of the last message checked (``learn``): one layout, read in
-    bulk."""
+    """The sensors' values of serialised messages of the layout ``learn`` checked, in bulk."""
 
     def __init__(self) -> None:
         self._head = b""
@@ -22,9 +20,7 @@ class RowDecoder:
 
     def learn(self, raw: bytes, n_values: int, columns: np.ndarray, values: np.ndarray
               ) -> None:
-        """``raw``, whose layout was checked, ends with ``n_values`` float64 values, of which
-        ``columns`` are the sensors' ``values``; not learnt unless they read back so (a
-        big-endian message, padding after the values)."""
+        """Learn ``raw``'s layout unless its ``values`` do not read back (big-endian, padded)."""
         if raw[:2] == cdr.ENCAPSULATION[:2] and len(raw) >= 8 * n_values:
             self._head, self._size = raw[:len(raw) - 8 * n_values], len(raw)
             self._columns = columns

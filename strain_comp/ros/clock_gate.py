@@ -7,9 +7,7 @@ from typing import Any
 
 
 class ClockGate:
-    """Under sim time: an input whose clock reading [ns] equals the previous input's stamp on
-    the same topic waits for the next clock tick; a second such input releases the first at
-    the unchanged time (it then counts as time-not-increasing, as it would without the gate)."""
+    """An input whose clock reading equals its topic's previous stamp waits for the next tick."""
 
     def __init__(self) -> None:
         self.last: dict[str, int] = {}

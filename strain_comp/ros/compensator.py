@@ -4,7 +4,6 @@ it owns (docs/ros.md; docs/reliability.md, "The live node")."""
 from __future__ import annotations
 
 import threading
-import time
 import traceback
 from collections.abc import Callable
 from copy import copy
@@ -20,7 +19,7 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.clock import Clock, JumpThreshold, ROSClock, TimeJump
+from rclpy.clock import Clock, JumpThreshold, TimeJump
 from rclpy.clock_type import ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -41,7 +40,6 @@ from strain_comp.io.multiarray import array_values
 from strain_comp.ros.cdr import RowDecoder
 from strain_comp.ros.clock_gate import ClockGate
 from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
-from strain_comp.ros.messages import array_layout, sensor_value
 from strain_comp.ros.params import (
     ROS_OWNED,
     TUNABLE,
@@ -63,11 +61,9 @@ LOG_THROTTLE_S = 5.0
 
 def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """A ``ParamSpec``'s descriptor, with a fixed type (a refused set never changes it)."""
-    kinds = {"double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
-             "bool": ParameterType.PARAMETER_BOOL,
-             "string_array": ParameterType.PARAMETER_STRING_ARRAY}
+    kind = getattr(ParameterType, f"PARAMETER_{spec.type.upper()}")
     described = ParameterDescriptor(name=spec.name, description=spec.description,
-                                    read_only=spec.read_only, type=kinds[spec.type],
+                                    read_only=spec.read_only, type=kind,
                                     dynamic_typing=False)
     if spec.range is not None:
         described.floating_point_range = [FloatingPointRange(
@@ -98,8 +94,7 @@ class CompensatorNode(Node):
         super().__init__(node_name, **node_options)
         self._loading: threading.Thread | None = None
         self._loaded: LiveCompensator | str | None = None
-        """The finished load (or why it failed), swapped in by ``_adopt`` before the next
-        message or diagnostics tick (the EventsExecutor has no guard condition to wake)."""
+        """The finished load (or why it failed), swapped in by ``_adopt``."""
         self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                      if k.split(".")[0] not in ROS_OWNED}
         self.base_dir = base_dir
@@ -126,8 +121,7 @@ class CompensatorNode(Node):
         self._intake = None if self.get_parameter(USE_SIM_TIME).value else Node(
             f"{node_name}_intake", namespace=self.get_namespace(), context=self.context,
             start_parameter_services=False, enable_rosout=False)
-        """On the system clock, the node of the input subscriptions, spun by no executor
-        (``_flush`` takes what arrived; docs/ros.md, ``batch_period_s``)."""
+        """Off sim time, the input subscriptions' node, spun by no executor (``_flush``)."""
         self._takes: list[tuple[str, Subscription, RowDecoder]] = []
         ready = [self._connect(i) for i in params.inputs]
         self.create_timer(self.live.tunables["batch_period_s"], self._flush,
@@ -135,11 +129,14 @@ class CompensatorNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
-        self.create_service(Trigger, "~/tare", self._tare)
-        self.create_service(Trigger, "~/span", self._span)
-        self.create_service(Trigger, "~/reference", self._reference)
-        self.create_service(Trigger, "~/start", self._start)
-        self.create_service(Trigger, "~/reload_calibration", self._reload)
+        services: dict[str, Callable[[], str]] = {
+            "tare": lambda: self.live.taring.tare(),
+            "span": lambda: self._swap(self.live.span()),
+            "reference": lambda: self.live.reference_now(self._now_ns() * 1e-9),
+            "start": lambda: self._swap(self.live.start(self._now_ns() * 1e-9)),
+            "reload_calibration": self._reload}
+        for service, act in services.items():
+            self.create_service(Trigger, f"~/{service}", partial(self._answer, service, act))
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
         self.ready_line = (f"ready: {len(ready)} inputs: " + "; ".join(ready)
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
@@ -220,8 +217,7 @@ class CompensatorNode(Node):
     # --- the clock ------------------------------------------------------------------------
 
     def _guard_clock(self) -> None:
-        """/clock through ``_on_clock`` (rclpy's own callback raises on a negative time,
-        which would end the node), also when sim time is on from the start."""
+        """/clock through ``_on_clock`` (rclpy's own raises on a negative time)."""
         source = self._time_source
         self._clock_callback = source.clock_callback
         source.clock_callback = self._on_clock  # type: ignore[method-assign]
@@ -233,26 +229,19 @@ class CompensatorNode(Node):
     def _on_clock(self, msg: Any) -> None:
         """A /clock tick: a time rclpy cannot hold (negative) is refused under ``/clock``."""
         def tick() -> None:
-            sec = getattr(getattr(msg, "clock", None), "sec", None)
-            if isinstance(sec, bool) or not isinstance(sec, int):
-                raise InputError("clock.sec is not an integer")
-            if sec < 0:
+            if msg.clock.sec < 0:
                 raise InputError("negative time")
             self._clock_callback(msg)
         self._guarded("/clock", tick)
 
     def _now_ns(self) -> int:
         """The node clock [ns]: the system time, or /clock under sim time."""
-        clock = self.get_clock()
-        if isinstance(clock, ROSClock) and clock.ros_time_is_active:
-            return int(clock.now().nanoseconds)
-        return time.time_ns()
+        return int(self.get_clock().now().nanoseconds)
 
     def _on_tick(self, jump: TimeJump) -> None:
         """The sim clock moved: the inputs held for it are handled, stamped with it."""
-        if self._loaded is not None:
-            self._adopt()
-        now = self.get_clock().now().nanoseconds
+        self._adopt()
+        now = self._now_ns()
         names = list(self.gate.held)
         for name, (stamp, msg) in zip(names, self.gate.tick(now), strict=True):
             self._guarded(name, partial(self._queue, name, stamp, msg))
@@ -261,8 +250,7 @@ class CompensatorNode(Node):
     # --- parameters -----------------------------------------------------------------------
 
     def _declare(self, spec: ParamSpec, value: Any) -> None:
-        """Declare a parameter with its fixed type; an empty (or, from a dump, null) list
-        stays a string array (rclpy would infer BYTE_ARRAY from [])."""
+        """Declare a parameter; an empty list stays a string array (rclpy infers BYTE_ARRAY)."""
         if spec.type == "string_array" and not value:
             self.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, _descriptor(spec),
                                    ignore_override=True)
@@ -272,8 +260,7 @@ class CompensatorNode(Node):
                                    else value, _descriptor(spec), ignore_override=True)
 
     def _integers_as_doubles(self, params: list[Parameter]) -> list[Parameter]:
-        """``ros2 param set deadzone_scale 2``: an integer for a double tunable is set as a
-        double (before rclpy's type check, which would refuse it)."""
+        """An integer for a double tunable set as a double (rclpy's type check refuses it)."""
         return [parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
                 if p.name in TUNABLE and p.type_ == Parameter.Type.INTEGER else p
                 for p in params]
@@ -301,21 +288,20 @@ class CompensatorNode(Node):
 
     def _arrive(self, name: str, msg: Any) -> None:
         """Under sim time, an input: handled once its /clock tick has come (the gate)."""
-        if self._loaded is not None:
-            self._adopt()
-        now = self.get_clock().now().nanoseconds
+        self._adopt()
+        now = self._now_ns()
         for stamp, queued in self.gate.arrive(name, now, msg):
             self._guarded(name, partial(self._queue, name, stamp, queued))
         self._flush()
 
     def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
-        """A message's values in sensor order, where they are in its data and its number of
-        values (InputError when the message cannot be read)."""
+        """A message's values in sensor order, their columns in its data, its value count."""
         if name not in self._arrays:
-            return np.array([sensor_value(msg)]), np.zeros(1, np.intp), 1
-        data, offset, sizes, label = array_layout(msg)
-        sensors = self._sensors[name]
-        where = array_values(np.arange(len(data)), offset, sizes, len(sensors), label, sensors)
+            return np.array([msg.data]), np.zeros(1, np.intp), 1
+        data, dims, sensors = msg.data, msg.layout.dim, self._sensors[name]
+        where = array_values(np.arange(len(data)), msg.layout.data_offset,
+                             [d.size for d in dims], len(sensors),
+                             dims[0].label if dims else "", sensors)
         columns = where.astype(np.intp)
         return np.asarray(data, dtype=np.float64)[columns], columns, len(data)
 
@@ -327,8 +313,7 @@ class CompensatorNode(Node):
 
     def _learn(self, name: str, stamp: int, raw: bytes, kind: Any, decoder: RowDecoder
                ) -> None:
-        """Queue an intake message of a layout not read before; read its layout in bulk
-        from then on."""
+        """Queue an intake message of a new layout; read that layout in bulk from then on."""
         values, columns, n_values = self._queue(name, stamp, deserialize_message(raw, kind))
         decoder.learn(raw, n_values, columns, values)
 
@@ -338,8 +323,7 @@ class CompensatorNode(Node):
         blocks.append(rows)
 
     def _flush(self) -> None:
-        """Handle what arrived, one batch per input: every ``batch_period_s``, and before
-        anything that reads or changes the state."""
+        """Handle what arrived, one batch per input (before anything that reads the state)."""
         for name, sub, decoder in self._takes:
             self._guarded(name, partial(self._take, name, sub, decoder))
         for name, (stamps, values) in self._queued.items():
@@ -350,9 +334,7 @@ class CompensatorNode(Node):
             logger(self).info(self.live.taring.log.pop(0))
 
     def _take(self, name: str, sub: Subscription, decoder: RowDecoder) -> None:
-        """Queue what arrived on the intake subscription ``sub`` of input ``name``, as bytes:
-        a message of the layout last read is read in bulk by ``decoder``, another one as a
-        message (per message, a Python message costs most of the node's CPU at 1 kHz)."""
+        """Queue what arrived on ``sub`` as bytes, the layout last read in bulk (``decoder``)."""
         with sub.handle:
             taken = []
             while (one := sub.handle.take_message(sub.msg_type, True)) is not None:
@@ -393,13 +375,11 @@ class CompensatorNode(Node):
     def _on_temperature(self, sensor: str, msg: Any) -> None:
         self._flush()
         self._guarded(f"{sensor}/temperature", lambda: self.live.on_temperature(
-            sensor, sensor_value(msg, "temperature")))
+            sensor, msg.temperature))
 
     def _on_reference(self, name: str, is_array: bool, msg: Any) -> None:
-        """A known strain of a sensor, or of an array's sensors (NaN: none), stamped on
-        arrival."""
-        if self._loaded is not None:
-            self._adopt()
+        """A known strain of a sensor or of an array's sensors (NaN: none), stamped on arrival."""
+        self._adopt()
         self._flush()
 
         def handle() -> None:
@@ -435,17 +415,12 @@ class CompensatorNode(Node):
 
     # --- services -------------------------------------------------------------------------
 
-    def _busy(self, response: Any) -> bool:
-        """Refuse a call while a reload is in flight (its result would replace the change)."""
-        if self._loading is None:
-            return False
-        response.success = False
-        response.message = "refused: a calibration reload is in flight; call again"
-        return True
-
-    def _answer(self, service: str, response: Any, act: Callable[[], str]) -> Any:
-        """A Trigger response: ``act()``'s summary (logged), or its error in one line."""
-        if self._busy(response):
+    def _answer(self, service: str, act: Callable[[], str], request: Any, response: Any
+                ) -> Any:
+        """``act()``'s summary (logged) or error; refused while a reload is in flight."""
+        if self._loading is not None:
+            response.success = False
+            response.message = "refused: a calibration reload is in flight; call again"
             return response
         self._flush()
         try:
@@ -455,23 +430,9 @@ class CompensatorNode(Node):
         except StrainCompError as err:
             response.success, response.message = False, _one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
-            self._fault(service, err)
+            self._fault(f"~/{service}", err)
             response.success, response.message = False, _internal(err)
         return response
-
-    def _tare(self, request: Any, response: Any) -> Any:
-        return self._answer("~/tare", response, self.live.taring.tare)
-
-    def _reference(self, request: Any, response: Any) -> Any:
-        return self._answer("~/reference", response,
-                            lambda: self.live.reference_now(self._now_ns() * 1e-9))
-
-    def _span(self, request: Any, response: Any) -> Any:
-        return self._answer("~/span", response, lambda: self._swap(self.live.span()))
-
-    def _start(self, request: Any, response: Any) -> Any:
-        return self._answer("~/start", response,
-                            lambda: self._swap(self.live.start(self._now_ns() * 1e-9)))
 
     def _swap(self, outcome: tuple[LiveCompensator, str]) -> str:
         """Go on with the compensator a service returned; its summary."""
@@ -482,11 +443,8 @@ class CompensatorNode(Node):
     def _paths(live: LiveCompensator) -> str:
         return ", ".join(sorted({str(i.calibration_path) for i in live.params.inputs}))
 
-    def _reload(self, request: Any, response: Any) -> Any:
-        """Validate the calibration files, answer, then build on a worker thread (docs/ros.md)."""
-        if self._busy(response):
-            return response
-        self._flush()
+    def _reload(self) -> str:
+        """Validate the calibration files, then build on a worker thread (docs/ros.md)."""
         current = self.live
         try:
             params = parse_values(self.flat, base_dir=self.base_dir)
@@ -497,15 +455,12 @@ class CompensatorNode(Node):
             else:  # a fault of the program: answered and reported as one
                 self._fault("~/reload_calibration", err)
                 self._refused_reload(_internal(err))
-            response.success, response.message = False, self.calibration_status[1]
-            return response
+            raise StrainCompError(self.calibration_status[1]) from None
         self._loading = threading.Thread(target=self._load, args=(current, params),
                                          name="reload_calibration", daemon=True)
         self.calibration_status = (OK, "loading " + self._paths(current))
-        response.success, response.message = True, self.calibration_status[1]
-        logger(self).info(response.message)
         self._loading.start()
-        return response
+        return self.calibration_status[1]
 
     def _refused_reload(self, reason: str) -> None:
         self.calibration_status = (WARN, "reload refused, the old calibration keeps "

@@ -45,13 +45,12 @@ def _count(counter: Counter[str], key: str, other: str) -> None:
 class LiveCompensator:
     """One engine plus the per-input bookkeeping of a live node."""
 
-    def __init__(self, params: NodeParams, *, warm_up: bool = True) -> None:
-        """Build the engine of ``params``."""
+    def __init__(self, params: NodeParams) -> None:
+        """Build the engine of ``params`` and compile its kernels."""
         self.params = params
         self.tunables = dict(params.tunables)
         self.engine = params.build_engine()
-        if warm_up:
-            self.engine.warm_up()
+        self.engine.warm_up()
         if params.tare == "auto":
             missing = [n for n, c in params.calibration.sensors.items()
                        if c.rest_resistance is None]
@@ -77,8 +76,7 @@ class LiveCompensator:
             if params.fuse_references else {})
         """Per sensor, its fused output gain and offset (``fuse_references: on``)."""
         self._estimate: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        """Per input, its sensors' latest estimates before fusion, of samples the model used:
-        times (NaN before a first one), strains, within the calibrated range."""
+        """Per input, its sensors' latest used estimates before fusion: time, strain, inside."""
         self._column = {s: (i.name, j) for i in params.inputs for j, s in enumerate(i.sensors)}
         """Per sensor: (its input, its column)."""
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -106,8 +104,7 @@ class LiveCompensator:
 
     def on_input(self, name: str, t: np.ndarray, values: np.ndarray
                  ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
-        """Samples of input ``name`` at times ``t`` (rows of ``values``, a column per sensor):
-        (the outputs, a column per sensor; published; refused: non-finite)."""
+        """Samples of input ``name`` (rows): (the outputs; published; refused: non-finite)."""
         if t.size > 1 and (name in self.taring.start or self.starting.series):
             # an automatic tare or ~/start watches the input: a sample changes the next one
             parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
@@ -173,17 +170,15 @@ class LiveCompensator:
             return None
         return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
 
-    def reference_now(self, now: float | None = None) -> str:
-        """``~/reference`` at clock time ``now`` (None: each sensor's latest sample)."""
+    def reference_now(self, now: float) -> str:
+        """``~/reference`` at clock time ``now``."""
         if not self.fusion:
             raise ParameterError("fuse_references", "false: set it to true in the params file "
                                  "to fuse known strains")
         strain = self.tunables["known_strain"]
         lines, refused = [], []
         for sensor, fusion in self.fusion.items():
-            latest = self._latest(sensor)
-            reason = (fusion.refuse("no estimate yet") if latest is None else
-                      self.on_reference(sensor, latest[0] if now is None else now, strain))
+            reason = self.on_reference(sensor, now, strain)
             if reason is None:
                 lines.append(f"{sensor}: gain {fusion.gain:.6g}, offset {fusion.offset:.6g}")
             else:
@@ -214,8 +209,7 @@ class LiveCompensator:
 
     def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
               direction: np.ndarray) -> None:
-        """Samples of input ``name`` (rows: times ``t``; columns: its sensors) for the tare
-        and ``~/start``."""
+        """Samples of input ``name`` (rows; columns: its sensors) for the tare and ~/start."""
         for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
             for ti, value in zip(t, raw[:, j], strict=True):
                 self.starting.seen_input(sensor, float(ti), float(value))
@@ -235,10 +229,8 @@ class LiveCompensator:
         sensors = dict(self.params.calibration.sensors)
         lines: list[str] = []
         problems: list[str] = []
-        for sensor, rest in self.taring.rests_now(problems).items():
+        for sensor, (rest, zero) in self.taring.rests_now(problems).items():
             cal = sensors[sensor]
-            zero = cal.input_rest
-            assert zero is not None  # rests_now names a sensor without a calibrated rest
             points = [(zero / self.engine.input_gain(sensor), fitted_rest(cal.valid_range)[0]),
                       (rest, strain)]
             try:
@@ -310,8 +302,7 @@ class LiveCompensator:
             raise StrainCompError("the reloaded calibration changes the sensors")
 
     def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
-        """``fresh`` carrying on this one's counters, tunables and message times (model
-        state and input gains restart: a new calibration brings its own zero)."""
+        """``fresh`` with this one's counters, tunables and message times (not its zero)."""
         for name, value in self.tunables.items():
             fresh._apply(name, value)
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen

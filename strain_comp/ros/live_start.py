@@ -52,8 +52,7 @@ class LiveStart:
         self._checked = -math.inf
 
     def request(self, now: float, sensors: list[str]) -> bool:
-        """``~/start`` at clock time ``now``: watch the sensors with a recent reference
-        (True), or none has one (False: the caller spans instead)."""
+        """Watch the sensors with a recent reference (True), or none has one (False)."""
         if self.state in ("waiting", "recording"):
             raise ParameterError("start", f"refused: already {self.state} (since "
                                  f"{self.since:.1f} s); the stretch applies when it returns")
@@ -80,9 +79,7 @@ class LiveStart:
 
     def seen_reference(self, sensor: str, t: float, value: float,
                        calibration: Calibration) -> Calibration | None:
-        """A reference of ``sensor``: kept while watching; once every watched sensor's
-        stretch has returned, the calibration started on it (None until then, and after a
-        refusal, whose reason is ``detail``)."""
+        """A reference of ``sensor``: the started calibration once every stretch returned."""
         self._last_reference[sensor] = t
         series = self.series.get(sensor)
         if series is None or not math.isfinite(value):
@@ -113,8 +110,7 @@ class LiveStart:
         return cycle_end(np.array(series.ref_t), ref) is not None
 
     def _apply(self, calibration: Calibration) -> Calibration | None:
-        """The session start on the recorded stretch (``strain-comp start``'s), its RMSE
-        there; refused with the start's own reason."""
+        """``strain-comp start``'s session start on the recorded stretch (None: refused)."""
         recordings = {name: s.recording(name) for name, s in self.series.items()}
         watched = Calibration({n: calibration.sensors[n] for n in recordings})
         ends = [float(r.t[-1] - r.t[0]) for r in recordings.values() if r.t.size]

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import ClassVar
 
 import numpy as np
 
@@ -25,7 +24,7 @@ from strain_comp.ros.params import NodeParams
 TARE_WINDOW_S = 0.5
 """``~/tare``: the rest resistance is the median of the good samples of this last span [s]."""
 RING = 4096
-"""Recent samples kept per input for the tare."""
+"""Recent samples kept at most per input for ``~/tare`` (the last 0.5 s up to 8 kHz)."""
 MAX_START_SAMPLES = 2**17
 """Samples an input's pending automatic tare may log (``REST_WINDOW`` = 5 s at 26 kHz); a
 clock that does not advance (a paused sim clock) would otherwise let it grow without end:
@@ -33,11 +32,9 @@ past it the automatic tare is declined, the calibration's zero stays."""
 
 
 @dataclass
-class _Samples:
-    """An input's raw samples (columns: its sensors) with their good flags (good: fed to the
-    model, ``USED``, also when out of the calibrated range); ``SIZE`` rows at first."""
+class _Log:
+    """An input's latest raw samples (columns: its sensors) and whether the model used each."""
 
-    SIZE: ClassVar[int] = RING
     k: int
     t: np.ndarray = field(init=False)
     raw: np.ndarray = field(init=False)
@@ -45,91 +42,63 @@ class _Samples:
     n: int = 0
 
     def __post_init__(self) -> None:
-        self.t = np.full(self.SIZE, -math.inf)
-        self.raw = np.zeros((self.SIZE, self.k))
-        self.good = np.zeros((self.SIZE, self.k), dtype=bool)
+        self.t = np.full(256, -math.inf)
+        self.raw = np.zeros((256, self.k))
+        self.good = np.zeros((256, self.k), dtype=bool)
 
-    def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
-        """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
-        m = min(self.n, self.t.size)
-        mask = (self.t[:m] >= t0) & self.good[:m, column]
-        order = np.argsort(self.t[:m][mask], kind="stable")
-        return self.t[:m][mask][order], self.raw[:m, column][mask][order]
-
-
-class _Recent(_Samples):
-    """Ring of an input's latest ``RING`` samples (for ``~/tare``)."""
-
-    def add(self, t: np.ndarray, raw: np.ndarray, status: np.ndarray) -> None:
-        """Samples at times ``t`` (rows of ``raw`` and ``status``)."""
-        at = (self.n + np.arange(t.size)) % RING
-        self.t[at], self.raw[at], self.good[at] = t, raw, used_mask(status)
-        self.n += t.size
-
-
-class _StartLog(_Samples):
-    """Every sample of an input since the earliest first good sample of a sensor whose
-    automatic tare is pending (``keep_from``): about ``REST_WINDOW`` seconds, nothing while
-    no pending sensor has had a good sample."""
-
-    SIZE = 256
-
-    def add(self, t: float, raw: np.ndarray, status: np.ndarray, *, keep_from: float) -> bool:
-        """Log a sample (when full: drop those before ``keep_from``, then double if still
-        more than half full); False past ``MAX_START_SAMPLES``."""
-        if self.n == self.t.size:
+    def add(self, t: np.ndarray, raw: np.ndarray, status: np.ndarray, keep_from: float,
+            most: int) -> bool:
+        """Log samples, keeping those since ``keep_from`` (False: more than ``most``)."""
+        kept = True
+        if self.n + t.size > self.t.size:
             keep = np.flatnonzero(self.t[:self.n] >= keep_from)
+            kept = keep.size <= most
+            keep = keep[max(keep.size - most, 0):]
             self.n = keep.size
             self.t[:self.n], self.raw[:self.n], self.good[:self.n] = (
                 self.t[keep], self.raw[keep], self.good[keep])
-            if self.n == self.t.size and self.n >= MAX_START_SAMPLES:
-                return False
-            if 2 * self.n > self.t.size:
+            while 2 * (self.n + t.size) > self.t.size:
                 self.t = np.concatenate([self.t, np.full(self.t.size, -math.inf)])
                 self.raw = np.concatenate([self.raw, np.zeros(self.raw.shape)])
                 self.good = np.concatenate([self.good, np.zeros(self.good.shape, dtype=bool)])
-        self.t[self.n], self.raw[self.n], self.good[self.n] = t, raw, used_mask(status)
-        self.n += 1
-        return True
+        at = slice(self.n, self.n + t.size)
+        self.t[at], self.raw[at], self.good[at] = t, raw, used_mask(status)
+        self.n += t.size
+        return kept
 
+    def since(self, t0: float, column: int) -> tuple[np.ndarray, np.ndarray]:
+        """(times, raw values) of ``column``'s good samples with time >= t0, in time order."""
+        mask = (self.t[:self.n] >= t0) & self.good[:self.n, column]
+        order = np.argsort(self.t[:self.n][mask], kind="stable")
+        return self.t[:self.n][mask][order], self.raw[:self.n, column][mask][order]
 
 
 class LiveTare:
-    """Per input, the recent samples (for ``~/tare``) and, while a sensor's automatic tare
-    is pending, every sample since its first good one; the tares taken, logged in ``log``."""
+    """Per input, its latest samples for ``~/tare`` and ``tare: auto``; the tares in ``log``."""
 
     def __init__(self, engine: Engine, params: NodeParams) -> None:
         self.engine = engine
         self.calibration = params.calibration
         self.inputs = {i.name: i.sensors for i in params.inputs}
-        self.recent = {i.name: _Recent(len(i.sensors)) for i in params.inputs}
+        self.recent = {i.name: _Log(len(i.sensors)) for i in params.inputs}
         self.pending: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
                                           if params.tare == "auto" else {})
-        """Sensors whose automatic tare is pending: the time of their first good sample
-        (NaN: none yet)."""
-        self.start = ({i.name: _StartLog(len(i.sensors)) for i in params.inputs}
-                      if self.pending else {})
+        """Sensors whose automatic tare is pending: their first good sample's time (or NaN)."""
+        self.start = set(self.inputs) if self.pending else set()
+        """The inputs with a sensor whose automatic tare is pending."""
         self.log: list[str] = []
 
     def seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
              direction: np.ndarray) -> None:
-        """Log samples of input ``name`` (rows: times; columns: its sensors) and take the
-        automatic tares they decide."""
-        self.recent[name].add(t, raw, status)
-        start = self.start.get(name)
-        if start is None:
-            return
-        for i in range(t.size):
-            self._starting(name, float(t[i]), start, raw[i], status[i], direction[i])
-
-    def _starting(self, name: str, t: float, start: _StartLog, raw: np.ndarray,
-                  status: np.ndarray, direction: np.ndarray) -> None:
+        """Log samples (one while a tare is pending) and take the automatic tares they decide."""
+        keep_from = float(t[-1]) - TARE_WINDOW_S
         if name not in self.start:
+            self.recent[name].add(t, raw, status, keep_from, RING)
             return
-        firsts = [self.pending[s] for s in self.inputs[name] if s in self.pending]
-        if start.add(t, raw, status, keep_from=min((f for f in firsts if not math.isnan(f)),
-                                                   default=math.inf)):
-            self._auto_tare(name, t, start, status, direction)
+        firsts = [self.pending.get(s, math.nan) for s in self.inputs[name]]
+        keep_from = min([keep_from] + [f for f in firsts if not math.isnan(f)])
+        if self.recent[name].add(t, raw, status, keep_from, MAX_START_SAMPLES):
+            self._auto_tare(name, float(t[-1]), self.recent[name], status[-1], direction[-1])
         else:
             for sensor in self.inputs[name]:
                 if self.pending.pop(sensor, None) is not None:
@@ -138,12 +107,12 @@ class LiveTare:
                         f"{REST_WINDOW:g} s of clock time (is the clock paused?); the "
                         "calibration's zero stays (call ~/tare at rest)")
         if not any(s in self.pending for s in self.inputs[name]):
-            del self.start[name]
+            self.start.discard(name)
 
     def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
         return self.calibration.sensors[sensor].input.to_ohm(raw)
 
-    def _auto_tare(self, name: str, t: float, log: _StartLog, status: np.ndarray,
+    def _auto_tare(self, name: str, t: float, log: _Log, status: np.ndarray,
                    direction: np.ndarray) -> None:
         for column, sensor in enumerate(self.inputs[name]):
             start = self.pending.get(sensor)
@@ -177,13 +146,12 @@ class LiveTare:
             self.log.append(f"{sensor}: auto tare: rest resistance {rest:.6g} ohm, "
                                  f"input gain {gain:.6g}")
 
-    def rests_now(self, problems: list[str]) -> dict[str, float]:
-        """Each sensor's rest level [ohm] over its input's last ``TARE_WINDOW_S`` of good
-        samples; a sensor without one (or without a calibrated rest) named in ``problems``."""
-        rests: dict[str, float] = {}
+    def rests_now(self, problems: list[str]) -> dict[str, tuple[float, float]]:
+        """Each sensor's rest now [ohm] and calibrated rest; one without either in problems."""
+        rests: dict[str, tuple[float, float]] = {}
         for name, sensors in self.inputs.items():
             recent = self.recent[name]
-            latest = recent.t[(recent.n - 1) % RING] if recent.n else -math.inf
+            latest = recent.t[recent.n - 1] if recent.n else -math.inf
             for column, sensor in enumerate(sensors):
                 values = self._ohm(sensor, recent.since(latest - TARE_WINDOW_S, column)[1])
                 cal = self.calibration.sensors[sensor]
@@ -192,7 +160,7 @@ class LiveTare:
                 elif values.size == 0:
                     problems.append(f"{sensor}: no good sample in the last {TARE_WINDOW_S} s")
                 else:
-                    rests[sensor] = rest_level(values, pair=cal.input.pair)
+                    rests[sensor] = (rest_level(values, pair=cal.input.pair), cal.input_rest)
         return rests
 
     def tare(self) -> str:
@@ -201,9 +169,9 @@ class LiveTare:
         rests = self.rests_now(problems)
         if problems:
             raise ParameterError("tare", "refused: " + "; ".join(problems))
-        for sensor, rest in rests.items():
+        for sensor, (rest, _) in rests.items():
             self.engine.tare(sensor, rest)
             self.pending.pop(sensor, None)
         self.start.clear()  # no automatic tare is pending any more
         return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
-                                    for s, r in rests.items())
+                                    for s, (r, _) in rests.items())

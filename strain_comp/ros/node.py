@@ -28,8 +28,7 @@ def _exit_now(signum: int, frame: FrameType | None) -> None:
 
 
 def _stopped_in_start_up(signum: int, frame: FrameType | None = None) -> NoReturn:
-    """SIGINT/SIGTERM before the node is up: one line, exit 0 (no traceback, at any moment:
-    the handler is main's first statement, before anything slow is imported)."""
+    """SIGINT/SIGTERM before the node is up: one line, exit 0 (no traceback)."""
     os.write(2, f"{NODE_NAME}: {signal.Signals(signum).name}: stopped during start-up\n"
              .encode())
     os._exit(0)
@@ -84,42 +83,6 @@ def command_line_params(args: list[str]) -> dict[str, str]:
             for _, rule in _ros_flags(args, ("-p", "--param"))}
 
 
-def _names_a_calibration(block: object) -> bool:
-    """Whether a node block's ``ros__parameters`` set a ``calibration`` (at any depth)."""
-    params = block.get("ros__parameters") if isinstance(block, dict) else None
-    stack = [params]
-    while stack:
-        node = stack.pop()
-        if isinstance(node, dict):
-            if "calibration" in node:
-                return True
-            stack.extend(node.values())
-    return False
-
-
-def check_params_files(files: list[Path], name: str, namespace: str) -> Path | None:
-    """The folder relative calibration paths resolve in: that of the last params file whose
-    block for the node names a calibration (a file that sets other parameters only, as the
-    one ``ros2 launch`` writes for ``use_sim_time:=true``, does not move it), else of the
-    last with a block for the node."""
-    from strain_comp.errors import InputError
-    from strain_comp.ros.params import block_names, read_blocks
-
-    base = named = None
-    for path in files:
-        blocks = read_blocks(path)
-        mine = [blocks[b] for b in block_names(name, namespace) if b in blocks]
-        if mine:
-            base = path.resolve().parent
-            if any(_names_a_calibration(block) for block in mine):
-                named = base
-        elif name != NODE_NAME or len(files) == 1:
-            fqn = f"{namespace.rstrip('/')}/{name}"
-            raise InputError(f"{path}: no parameters for node {fqn!r} (the file holds: "
-                             f"{', '.join(blocks)}); name a block '{fqn}' or '/**/{name}'")
-    return named or base
-
-
 def main(args: list[str] | None = None) -> int:
     """``compensator``: spin the node until SIGINT/SIGTERM or shutdown, then exit 0."""
     signal.signal(signal.SIGINT, _stopped_in_start_up)
@@ -130,9 +93,10 @@ def main(args: list[str] | None = None) -> int:
     start_errors: tuple[type[Exception], ...] = (RuntimeError, ValueError, TypeError, OSError)
     try:
         from strain_comp.errors import StrainCompError
+        from strain_comp.ros.params import read_params
 
         files, name, namespace = ros_arguments(argv)
-        base_dir = check_params_files(files, name, namespace)
+        base_dir = read_params(files, name, namespace)[1]
         import rclpy
         from rclpy.exceptions import ParameterException
         from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -190,9 +154,7 @@ def main(args: list[str] | None = None) -> int:
 
 
 def prime_cache(config: str) -> list[str]:
-    """Compile the kernels the params files in ``config`` need into numba's cache, as the
-    node's start-up does (``setup.py`` runs it once the package is installed, so a colcon
-    install's first start loads them instead of compiling: docs/results.md)."""
+    """Compile the kernels of the params files in ``config`` into numba's cache (setup.py)."""
     from strain_comp.ros.live import LiveCompensator
     from strain_comp.ros.params import load_params
 

@@ -165,8 +165,7 @@ def _flatten(node: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def resolve_path(value: str, base_dir: Path | None) -> Path:
-    """A calibration path: absolute, or relative to base_dir (else cwd), then the share dir
-    of an installed strain_comp, then the source checkout (each + config/)."""
+    """A calibration path: absolute, in base_dir (else cwd), the share dir or the checkout."""
     path = Path(os.path.expanduser(value))
     if path.is_absolute():
         return path
@@ -212,8 +211,7 @@ NAME_RULE = ("letters, digits and underscores, not starting with a digit, no dou
 
 
 def _ros_name(value: str, key: str, *, topic: bool = False) -> str:
-    """``value`` if it is a valid ROS name token (a topic: tokens joined by ``/``, optionally
-    absolute ``/...`` or private ``~/...``); ParameterError naming the rule otherwise."""
+    """``value`` if it is a valid ROS name (or topic name); ParameterError otherwise."""
     body = value[2:] if topic and value.startswith("~/") else (
         value[1:] if topic and value.startswith("/") else value)
     pattern = rf"{_TOKEN}(/{_TOKEN})*" if topic else _TOKEN
@@ -225,8 +223,7 @@ def _ros_name(value: str, key: str, *, topic: bool = False) -> str:
 
 
 def _names(flat: Mapping[str, Any], key: str) -> list[str]:
-    """A list of names; null (an empty list as older ``ros2 param dump`` files write it)
-    is the empty list."""
+    """A list of names (null, as older ``ros2 param dump`` files write [], is empty)."""
     value = flat.get(key)
     if value is None:
         return []
@@ -316,33 +313,38 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
     return {str(k).lstrip("/"): v for k, v in root.items()}
 
 
-def block_names(node_name: str, namespace: str = "/") -> list[str]:
-    """The block keys (without a leading '/') that address a node as rcl matches them: its
-    fully qualified name, ``**/NAME``, ``NAMESPACE/*``, ``**``."""
+def read_params(files: list[Path], name: str = "compensator", namespace: str = "/"
+                ) -> tuple[dict[str, Any], Path | None]:
+    """The values the files give the node (blocks as rcl matches them) and the folder of the
+    last that names a calibration (``ros2 launch``'s own file does not), else of the last."""
     ns = namespace.strip("/")
-    fqn = f"{ns}/{node_name}" if ns else node_name
-    return [fqn, f"**/{node_name}", f"{ns}/*" if ns else "*", "**"]
-
-
-def load_params(path: str | os.PathLike[str], *, node_name: str | None = None) -> NodeParams:
-    """Read a ROS 2 params file (``<node>: ros__parameters: ...``) and validate it."""
-    path = Path(path)
-    blocks = read_blocks(path)
-    wildcard = blocks.pop("**", {})
-    if node_name is None:
-        if len(blocks) > 1:
-            raise InputError(f"{path}: holds several nodes ({', '.join(blocks)}); name one")
-        node_name = next(iter(blocks), "**")
+    fqn = f"{ns}/{name}" if ns else name
     values: dict[str, Any] = {}
-    for block in (wildcard, blocks.get(node_name.lstrip("/"))):
-        if block is None:
-            raise InputError(f"{path}: no parameters for node {node_name!r}")
-        if block and not (isinstance(block, Mapping)
-                          and isinstance(block.get("ros__parameters"), Mapping)):
-            raise InputError(f"{path}: {node_name}: missing 'ros__parameters' mapping")
-        if block:
-            values.update(_flatten(block["ros__parameters"]))
+    base = named = None
+    for path in files:
+        blocks = read_blocks(path)
+        mine = [blocks[b] for b in ("**", f"{ns}/*" if ns else "*", f"**/{name}", fqn)
+                if b in blocks]
+        if not mine and (name != "compensator" or len(files) == 1):
+            raise InputError(f"{path}: no parameters for node '/{fqn}' (the file holds: "
+                             f"{', '.join(blocks)}); name a block '/{fqn}' or '/**/{name}'")
+        for block in mine:
+            if not (isinstance(block, Mapping)
+                    and isinstance(block.get("ros__parameters"), Mapping)):
+                raise InputError(f"{path}: /{fqn}: missing 'ros__parameters' mapping")
+            flat = _flatten(block["ros__parameters"])
+            base = path.resolve().parent
+            if any(key.rpartition(".")[2] == "calibration" for key in flat):
+                named = base
+            values.update(flat)
+    return values, named or base
+
+
+def load_params(path: str | os.PathLike[str]) -> NodeParams:
+    """Read a ROS 2 params file's values for the node ``compensator`` and validate them."""
+    path = Path(path)
+    values, base_dir = read_params([path])
     try:
-        return parse_values(values, base_dir=path.parent)
+        return parse_values(values, base_dir=base_dir)
     except ParameterError as err:
         raise ParameterError(f"{path}: {err.field}", err.problem) from None

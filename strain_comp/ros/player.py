@@ -120,9 +120,7 @@ def play(path: str | Path, *, clock: bool = False, rate: float = 1.0,
 
 def _subscribed(executor: Executor, pubs: dict[str, Any], messages: list[RawMessage],
                 wait_s: float) -> list[RawMessage]:
-    """The messages on topics that have a subscriber, waiting ``wait_s`` for the first one
-    and ``MATCH_S`` more for the others; the topics without one named in one line on stderr.
-    BagError when no topic has a subscriber."""
+    """The messages on topics with a subscriber (the others named on stderr), within wait_s."""
     def heard() -> set[str]:
         return {topic for topic, pub in pubs.items() if pub.get_subscription_count() > 0}
 

@@ -13,8 +13,7 @@ from rclpy.parameter import Parameter
 
 
 class Logger(Protocol):
-    """The methods of rclpy's ``RcutilsLogger`` the package calls (each returns False when
-    a filter such as the throttle skipped the message)."""
+    """The methods of rclpy's ``RcutilsLogger`` the package calls."""
 
     def info(self, message: str, *, throttle_duration_sec: float = ...) -> bool: ...
 

@@ -122,7 +122,7 @@ def live_health(contents: object) -> dict:
                         Calibration({"s1": lag_cal("s1"), "a": cubic_cal("a"),
                                      "b": lag_cal("b")}),
                         {s.name: s.default for s in TUNABLES})
-    live = LiveCompensator(params, warm_up=False)
+    live = LiveCompensator(params)
     for t, v in zip(contents.series["/s1/resistance"].t, contents.series["/s1/resistance"].values,
                     strict=True):
         one_message(live, "s1", t, v)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from strain_comp.ros.node import check_params_files
+from strain_comp.ros.params import read_params
 
 
 def test_a_params_file_without_a_calibration_does_not_move_the_base(tmp_path: Path) -> None:
@@ -17,11 +17,10 @@ def test_a_params_file_without_a_calibration_does_not_move_the_base(tmp_path: Pa
     (launch / "launch_params.yaml").write_text("/**:\n  ros__parameters:\n"
                                                "    use_sim_time: true\n")
     files = [mine / "params.yaml", launch / "launch_params.yaml"]
-    assert check_params_files(files, "compensator", "/") == mine.resolve()
+    assert read_params(files)[1] == mine.resolve()
     # a later file that names a calibration moves it, as before
     (launch / "more.yaml").write_text("/**/compensator:\n  ros__parameters:\n"
                                       "    s1: {calibration: other.yaml}\n")
-    assert check_params_files([*files, launch / "more.yaml"], "compensator", "/") == \
-        launch.resolve()
+    assert read_params([*files, launch / "more.yaml"])[1] == launch.resolve()
     # a file with no calibration alone: its folder, as before
-    assert check_params_files(files[1:], "compensator", "/") == launch.resolve()
+    assert read_params(files[1:])[1] == launch.resolve()

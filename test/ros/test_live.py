@@ -27,7 +27,7 @@ def live(tmp_path: Path, *, tare: str = "calibration", rest: float | None = 150.
                      tmp_path / "c.yaml")
     return LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml",
                                          "tare": tare},
-                                        base_dir=tmp_path), warm_up=False)
+                                        base_dir=tmp_path))
 
 
 def test_clock_gate_gives_each_input_its_own_tick() -> None:
@@ -185,12 +185,12 @@ def test_auto_tare_log_stays_bounded_while_a_sensor_never_reads(tmp_path: Path) 
                                   for n in ("a", "b")}), tmp_path / "c.yaml")
     node = LiveCompensator(parse_values({"arrays": ["m"], "m.sensors": ["a", "b"],
                                          "m.calibration": "c.yaml", "tare": "auto"},
-                                        base_dir=tmp_path), warm_up=False)
+                                        base_dir=tmp_path))
     for ti in np.arange(0.0, 60.0, 0.01):
         one_message(node, "m", float(ti), [140.0, math.nan])
     assert node.engine.input_gain("a") == pytest.approx(150.0 / 140.0)
     assert node.engine.input_gain("b") == 1.0
-    assert node.taring.start["m"].n <= 512
+    assert node.taring.recent["m"].n <= 512
 
 
 def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
@@ -284,8 +284,7 @@ def test_an_arrays_sensors_take_their_temperature_as_replay_does(tmp_path: Path)
     def node(with_temperature: bool) -> np.ndarray:
         live = LiveCompensator(NodeParams([InputTopic("arr", "/arr/resistance", ("a", "b"),
                                                       tmp_path / "cal.yaml", True)],
-                                          cal, {s.name: s.default for s in TUNABLES}),
-                               warm_up=False)
+                                          cal, {s.name: s.default for s in TUNABLES}))
         events = [(ti, "arr", row) for ti, row in zip(t, r, strict=True)]
         if with_temperature:
             events += [(ti, name, v) for name, values in temps.items()

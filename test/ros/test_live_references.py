@@ -29,8 +29,7 @@ def live(tmp_path: Path, fuse: str = "on", *, array: bool = False) -> LiveCompen
     flat = ({"arrays": ["arr"], "arr.sensors": ["a", "b"], "arr.calibration": "c.yaml"}
             if array else {"sensors": ["s1"], "s1.calibration": "c.yaml"})
     return LiveCompensator(parse_values({**flat, "fuse_references": fuse == "on",
-                                         "baseline_tracking": "off"}, base_dir=tmp_path),
-                           warm_up=False)
+                                         "baseline_tracking": "off"}, base_dir=tmp_path))
 
 
 def resistance(t: np.ndarray) -> np.ndarray:
@@ -67,17 +66,17 @@ def test_references_on_the_topic_move_the_output_to_the_truth_and_only_after(
 def test_known_strain_service_fuses_every_sensor_or_says_why_not(tmp_path: Path) -> None:
     node = live(tmp_path)
     with pytest.raises(ParameterError, match="known_strain"):
-        node.reference_now()  # no estimate yet: refused, counted
+        node.reference_now(1.0)  # no estimate yet: refused, counted
     assert node.fusion["s1"].refused["no estimate yet"] == 1
     out = one_message(node, "s1", 1.0, 180.0)
     assert out is not None
     node.set_tunable("known_strain", out.strain + 3.0)
-    summary = node.reference_now()
+    summary = node.reference_now(1.0)
     assert summary.startswith(f"known strain {out.strain + 3.0:g} fused: s1: gain")
     after = one_message(node, "s1", 1.1, 180.0)
     assert after is not None and after.strain > out.strain + 1.0  # moved toward the known one
     with pytest.raises(ParameterError, match="fuse_references"):
-        live(tmp_path, "off").reference_now()
+        live(tmp_path, "off").reference_now(1.0)
     with pytest.raises(ParameterError, match="known_strain"):
         node.set_tunable("known_strain", math.inf)
 

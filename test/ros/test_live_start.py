@@ -31,8 +31,7 @@ def moved(strain: float) -> float:
 def node(tmp_path: Path) -> LiveCompensator:
     save_calibration(Calibration({"s1": replace(CAL, rest_resistance=R0)}), tmp_path / "c.yaml")
     return LiveCompensator(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml",
-                                         "baseline_tracking": "off"}, base_dir=tmp_path),
-                           warm_up=False)
+                                         "baseline_tracking": "off"}, base_dir=tmp_path))
 
 
 def stretch(t0: float, seconds: float = 20.0, peak: float = 30.0) -> list[tuple[float, float]]:

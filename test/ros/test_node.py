@@ -302,7 +302,7 @@ def test_reload_loads_off_the_executor_and_swaps_between_messages(
 
     monkeypatch.setattr(LiveCompensator, "successor", slow_successor)
     node, base = single.node, single.node.base_dir
-    old_ref = LiveCompensator(parse_values(node.flat, base_dir=base), warm_up=False)
+    old_ref = LiveCompensator(parse_values(node.flat, base_dir=base))
     cal = base / "demo_calibration.yaml"
     cal.write_text(cal.read_text().replace("r0: 8.83269945355191", "r0: 9.5"))
     strain = single.listen("/s1/strain", Float64)
@@ -328,7 +328,7 @@ def test_reload_loads_off_the_executor_and_swaps_between_messages(
     assert node._loading is not None and node._loading.is_alive()
     release.set()
     assert single.spin_until(lambda: node._loaded is not None)  # loaded, not yet swapped
-    new_ref = LiveCompensator(parse_values(node.flat, base_dir=base), warm_up=False)
+    new_ref = LiveCompensator(parse_values(node.flat, base_dir=base))
     for value in values[6:]:  # swapped: the new calibration, its state from the swap on
         assert single.feed(pub, Float64(data=value), strain)
         assert strain[-1].data == expect(new_ref, value) != expect(old_ref, value)

@@ -89,7 +89,7 @@ def test_integers_accepted_for_floats_and_paths_beside_the_file(tmp_path: Path,
 def test_file_structure_errors(tmp_path: Path) -> None:
     path = tmp_path / "p.yaml"
     path.write_text("a: {ros__parameters: {}}\nb: {ros__parameters: {}}\n")
-    with pytest.raises(InputError, match="several nodes"):
+    with pytest.raises(InputError, match="no parameters for node '/compensator'"):
         load_params(path)
     path.write_text("compensator: {sensors: [s1]}\n")
     with pytest.raises(InputError, match="ros__parameters"):
