@@ -30,8 +30,7 @@ from _common import row
 from strain_comp._numba import njit
 from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.base.direction import DirectionSettings
-from strain_comp.models.apl import APL, MPI, PL
-from strain_comp.models.apl_array import APLArray
+from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.apl_kernels import FASTMATH, LANES, pow01
 from strain_comp.models.cubic import Cubic
 from strain_comp.models.pwa import inverse_tables

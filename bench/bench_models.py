@@ -37,7 +37,7 @@ import test_spike_decay
 from _common import best_time, calibration, resistance, row
 
 from strain_comp.base.compensator import Normalisation
-from strain_comp.models.apl_array import APLArray
+from strain_comp.models.apl import APLArray
 from strain_comp.models.creep_pi import TAUS, CreepPIArray
 from strain_comp.models.cubic import Cubic
 from strain_comp.models.rational import Rational

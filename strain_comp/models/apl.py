@@ -1,4 +1,5 @@
-"""APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3), appendix eq. (6)).
+"""APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3), appendix eq. (6)) and their
+array form.
 
 Cells, orientation, output map (eq. (2), (3)) and the fit (QP, output-error refinement,
 sigma/p search, signed cell weights): docs/models.md.
@@ -22,7 +23,8 @@ from strain_comp.base.compensator import (
     require_vector,
 )
 from strain_comp.base.direction import DirectionSettings
-from strain_comp.base.registry import register
+from strain_comp.base.lift import LiftedArray, lift
+from strain_comp.base.registry import register, register_array
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
@@ -183,3 +185,25 @@ class MPI(CellModel):
     name = "mpi"
     kind = kern.KIND_PL
     rate_dependent = False
+
+
+@register_array
+@lift(kern.step_sensor, fastmath=kern.FASTMATH)
+class APLArray(LiftedArray):
+    """K sensors of the APL family (same N and M) stepped together in one kernel call."""
+
+    family = "an APL-family"
+    model_type = CellModel
+    sizes = "N, M"
+
+    @staticmethod
+    def rows(model: CellModel) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:
+        return ((model.x, model._clock), (model.kind, model.sigma, model.p, model.w,
+                                          model.norm, model.f_at_b, model.inv_slopes))
+
+    @staticmethod
+    def shared(model: CellModel) -> tuple[np.ndarray, ...]:
+        rho = np.vstack([thresholds(model.N, kern.KIND_APL), thresholds(model.N, kern.KIND_PL)])
+        inv_width = np.vstack([inverse_widths(rho[0], kern.KIND_APL),
+                               inverse_widths(rho[1], kern.KIND_PL)])
+        return rho, inv_width, model.b

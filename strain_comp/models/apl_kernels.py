@@ -190,11 +190,11 @@ def run_kernel(t: np.ndarray, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
 
 @njit(fastmath=FASTMATH, error_model="numpy")
 def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
-                kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, rho: np.ndarray,
-                inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
-                f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
+                kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, w: np.ndarray,
+                norm: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray, rho: np.ndarray,
+                inv_width: np.ndarray, b: np.ndarray) -> float:
     """Advance sensor s of an array by a good sample (the family kernel of
-    ``strain_comp.base.lift``). Parameters are in row s of each array."""
+    ``strain_comp.base.lift``): row s of each array; rho, inv_width by kind, b shared."""
     xi = ri / norm[s, 0] + norm[s, 1]
     ks = kind[s]
     xs = x[s]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -203,32 +203,13 @@ class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same shapes) stepped together in one kernel call."""
 
     family = "a creep_pi"
+    model_type = CreepPI
+    sizes = "numbers of play operators and time constants"
 
-    def __init__(self, models: Sequence[Compensator]) -> None:
-        super().__init__(models)
-        creep = [cast(CreepPI, model) for model in models]
-        shape = (creep[0].thresholds.size, creep[0].taus.size)
-        for i, model in enumerate(creep):
-            if (model.thresholds.size, model.taus.size) != shape:
-                raise ParameterError(f"models.{i}", "numbers of play operators and time "
-                                                    "constants differ from the first sensor's")
-        k = len(creep)
-        self.norm = np.vstack([m._norm for m in creep])
-        self.tau = np.vstack([m.taus for m in creep])
-        self.widths = np.vstack([m._widths for m in creep])
-        self.coef = np.vstack([m._coef for m in creep])
-        self.bias = np.array([m._bias for m in creep])
-        self.z = np.zeros((k, shape[1]))
-        self.play = np.zeros((k, shape[0] + 1))
-        self.clock = np.zeros((k, 3))
-        self.decay = np.zeros((k, shape[1]))
-        self.state = (self.z, self.play, self.clock, self.decay)
-        self.params = (self.norm, self.tau, self.widths, self.coef, self.bias)
-
-    @classmethod
-    def accepts(cls, model: Compensator) -> bool:
-        """True for creep_pi."""
-        return isinstance(model, CreepPI)
+    @staticmethod
+    def rows(model: CreepPI) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:
+        return ((model.z, model.play, model._clock, model._decay),
+                (model._norm, model.taus, model._widths, model._coef, model._bias))
 
 
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
