@@ -36,10 +36,12 @@ P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
 
 def fit_cells(name: str, kind: int, rate_dependent: bool, segments: Sequence[Segment],
               normalisation: Normalisation, *, n: int, m: int,
-              sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None, refine: bool,
-              cell_weights: str, eps: float, ridge: float, output_nfev: int,
-              search_nfev: int, search_top: int, workers: int | None,
-              progress: bool | Callable[[str], None]) -> tuple[Solution, int, dict[str, Any]]:
+              sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
+              refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
+              ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
+              search_top: int = 5, workers: int | None = None,
+              progress: bool | Callable[[str], None] = True
+              ) -> tuple[Solution, int, dict[str, Any]]:
     """The fit of an APL, PL or MPI model (docs/models.md), called by ``APL.fit``, which
     holds BLAS to one thread: the best solution, the cells' orientation and the fit report."""
     problem = _FitProblem(name, kind, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
