@@ -61,23 +61,6 @@ def play_thresholds(n_play: int) -> np.ndarray:
     return np.arange(1, n_play + 1, dtype=np.float64) / (n_play + 1)
 
 
-def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
-             lo: float = -math.inf, hi: float = math.inf, strict: bool = False) -> np.ndarray:
-    array = np.ascontiguousarray(values, dtype=np.float64)
-    if array.ndim != 1 or not length[0] <= array.size <= length[1]:
-        size = length[0] if length[0] == length[1] else f"{length[0]} to {length[1]}"
-        raise ParameterError(name, f"must hold {size} numbers, got {array.size}")
-    if not np.all(np.isfinite(array)):
-        raise ParameterError(name, "must hold finite numbers only")
-    bad = (array <= lo) if strict else (array < lo)
-    bad |= array > hi
-    if np.any(bad):
-        j = int(np.argmax(bad))
-        raise ParameterError(f"{name}.{j}", f"must be in {'(' if strict else '['}{lo:g}, "
-                                            f"{hi:g}], got {array[j]:g}")
-    return array
-
-
 @register
 class CreepPI(Compensator):
     """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``."""
@@ -90,19 +73,14 @@ class CreepPI(Compensator):
                  weights: npt.ArrayLike, intercept: float, penalty: float,
                  normalisation: Normalisation) -> None:
         super().__init__(normalisation)
-        self.taus = _checked("taus", taus, length=(1, N_TAU_MAX), lo=TAU_RANGE[0],
-                             hi=TAU_RANGE[1])
-        self.thresholds = _checked("thresholds", thresholds, length=(1, N_PLAY_MAX), lo=0.0,
-                                   hi=WIDTH_MAX, strict=True)
-        self.direction_width = float(_checked("direction_width", [direction_width],
-                                              length=(1, 1), lo=0.0, hi=WIDTH_MAX,
-                                              strict=True)[0])
-        n_f = n_features(self.thresholds.size, self.taus.size)
-        self.mean = _checked("mean", mean, length=(n_f, n_f))
-        self.scale = _checked("scale", scale, length=(n_f, n_f), lo=SCALE_MIN)
-        self.weights = _checked("weights", weights, length=(n_f, n_f))
-        self.intercept = float(_checked("intercept", [intercept], length=(1, 1))[0])
-        self.penalty = float(_checked("penalty", [penalty], length=(1, 1), lo=0.0)[0])
+        self.taus = np.ascontiguousarray(taus, dtype=np.float64)
+        self.thresholds = np.ascontiguousarray(thresholds, dtype=np.float64)
+        self.direction_width = float(direction_width)
+        self.mean = np.ascontiguousarray(mean, dtype=np.float64)
+        self.scale = np.ascontiguousarray(scale, dtype=np.float64)
+        self.weights = np.ascontiguousarray(weights, dtype=np.float64)
+        self.intercept = float(intercept)
+        self.penalty = float(penalty)
         # The standardisation folded into the weights of the raw features.
         w = self.weights / self.scale
         self._bias = float(self.intercept - np.dot(w, self.mean))
@@ -141,14 +119,20 @@ class CreepPI(Compensator):
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
                     direction: DirectionSettings) -> CreepPI:
-        taus = require_vector(params, "taus")
-        thresholds = require_vector(params, "thresholds")
+        taus = require_vector(params, "taus", lo=TAU_RANGE[0], hi=TAU_RANGE[1])
+        thresholds = require_vector(params, "thresholds", lo=0.0, strict=True)
+        width = require_float(params, "direction_width", lo=0.0, strict=True)
+        for key, values, most in (("taus", taus, N_TAU_MAX), ("thresholds", thresholds,
+                                                                N_PLAY_MAX)):
+            if values.size > most:
+                raise ParameterError(key, f"must hold 1 to {most} numbers, got {values.size}")
+        for key, value in (("thresholds", thresholds.max()), ("direction_width", width)):
+            if value > WIDTH_MAX:
+                raise ParameterError(key, f"must be <= {WIDTH_MAX:g}, got {value:g}")
         n_f = n_features(thresholds.size, taus.size)
-        return cls(taus=taus, thresholds=thresholds,
-                   direction_width=require_float(params, "direction_width", lo=0.0,
-                                                 strict=True),
+        return cls(taus=taus, thresholds=thresholds, direction_width=width,
                    mean=require_vector(params, "mean", length=n_f),
-                   scale=require_vector(params, "scale", length=n_f),
+                   scale=require_vector(params, "scale", length=n_f, lo=SCALE_MIN),
                    weights=require_vector(params, "weights", length=n_f),
                    intercept=require_float(params, "intercept"),
                    penalty=require_float(params, "penalty", lo=0.0),

@@ -168,12 +168,8 @@ class SinhPL(Compensator):
             raise ParameterError("w0", "must be non-zero (the compensator divides by it)")
         vb = require_float(params, "vb")
         w = require_vector(params, "w")
-        i_s = require_vector(params, "i_s", length=w.size)
-        v_t = require_vector(params, "v_t", length=w.size)
-        for key, vec in (("i_s", i_s), ("v_t", v_t)):
-            bad = np.flatnonzero(vec <= 0.0)
-            if bad.size:
-                raise ParameterError(f"{key}.{bad[0]}", f"must be > 0, got {vec[bad[0]]}")
+        i_s = require_vector(params, "i_s", length=w.size, lo=0.0, strict=True)
+        v_t = require_vector(params, "v_t", length=w.size, lo=0.0, strict=True)
         return cls(w0, vb, w, i_s, v_t, normalisation)
 
     @classmethod

@@ -125,21 +125,16 @@ class SpikeDecay(Compensator):
         steps = np.diff(values)
         if not (np.all(steps > 0.0) or np.all(steps < 0.0)):
             raise ParameterError("c", "f is not strictly monotone on range")
-        rates = require_vector(params, "rates")
-        if np.any(rates <= 0.0) or np.any(np.diff(rates) <= 0.0):
-            raise ParameterError("rates", "must be > 0 and strictly increasing")
+        rates = require_vector(params, "rates", lo=0.0, strict=True)
+        if np.any(np.diff(rates) <= 0.0):
+            raise ParameterError("rates", "must be strictly increasing")
         strains = require_vector(params, "strains")
         if np.any(np.diff(strains) <= 0.0):
             raise ParameterError("strains", "must be strictly increasing")
         shape = (rates.size, strains.size)
-        tables = {key: _require_matrix(params, key, shape) for key in
-                  ("S_loading", "lambda_loading", "S_unloading", "lambda_unloading")}
-        for key in ("S_loading", "S_unloading"):
-            if np.any(tables[key] <= -1.0):
-                raise ParameterError(key, "every S must be > -1")
-        for key in ("lambda_loading", "lambda_unloading"):
-            if np.any(tables[key] <= 0.0):
-                raise ParameterError(key, "every lambda must be > 0")
+        # every S > -1 (a positive resistance), every lambda > 0
+        tables = {key: _require_matrix(params, key, shape, lo=-1.0 if key[0] == "S" else 0.0)
+                  for key in ("S_loading", "lambda_loading", "S_unloading", "lambda_unloading")}
         min_step = require_float(params, "min_step", lo=0.0)
         return cls(knots, c, eps_range, rates, strains,
                    [tables["S_loading"], tables["S_unloading"]],
@@ -169,13 +164,15 @@ class SpikeDecay(Compensator):
                    normalisation, direction)
 
 
-def _require_matrix(params: Mapping[str, Any], key: str, shape: tuple[int, int]) -> np.ndarray:
+def _require_matrix(params: Mapping[str, Any], key: str, shape: tuple[int, int], *,
+                    lo: float | None = None) -> np.ndarray:
     if key not in params:
         raise ParameterError(key, "missing")
     value = params[key]
     if not isinstance(value, (list, tuple, np.ndarray)) or len(value) != shape[0]:
         raise ParameterError(key, f"must be a list of {shape[0]} rows")
-    rows = [require_vector({f"{key}.{i}": row}, f"{key}.{i}", length=shape[1])
+    rows = [require_vector({f"{key}.{i}": row}, f"{key}.{i}", length=shape[1], lo=lo,
+                           strict=True)
             for i, row in enumerate(value)]
     return np.array(rows, dtype=np.float64).reshape(shape)
 
