@@ -90,24 +90,20 @@ class SpikeDecay(Compensator):
         t, s = as_float_arrays(t, s)
         hold_rate = default_hold_rate(s) if hold_rate is None else hold_rate
         factor = np.ones(t.size)
-        for mv in movements(t, s, hold_rate):
-            change = s[mv.end] - s[mv.start]
-            rate = abs(change) / (t[mv.end] - t[mv.start])
-            spike, lam = self.spike(rate, s[mv.end], loading=change >= 0)
-            after = t >= t[mv.end]
-            factor[after] = 1.0 + spike * np.exp(-lam * (t[after] - t[mv.end]))
+        for start, end in movements(t, s, hold_rate):
+            change = s[end] - s[start]
+            rate = abs(change) / (t[end] - t[start])
+            spike, lam = self.spike(rate, s[end], loading=change >= 0)
+            after = t >= t[end]
+            factor[after] = 1.0 + spike * np.exp(-lam * (t[after] - t[end]))
         return self.f(s) * factor
 
     def to_params(self) -> dict[str, Any]:
-        def rows(a: np.ndarray) -> list[list[float]]:
-            return [[float(v) for v in row] for row in a]
-
-        return {"knots": [float(v) for v in self.knots], "c": rows(self.c),
-                "range": [self.lo, self.hi], "rates": [float(v) for v in self.rates],
-                "strains": [float(v) for v in self.strains],
-                "S_loading": rows(self.s_table[0]), "lambda_loading": rows(self.lam_table[0]),
-                "S_unloading": rows(self.s_table[1]),
-                "lambda_unloading": rows(self.lam_table[1]), "min_step": self.min_step}
+        return {"knots": self.knots.tolist(), "c": self.c.tolist(), "range": [self.lo, self.hi],
+                "rates": self.rates.tolist(), "strains": self.strains.tolist(),
+                "S_loading": self.s_table[0].tolist(), "lambda_loading": self.lam_table[0].tolist(),
+                "S_unloading": self.s_table[1].tolist(),
+                "lambda_unloading": self.lam_table[1].tolist(), "min_step": self.min_step}
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -19,23 +18,15 @@ from strain_comp.errors import FitError
 _N_BINS = 40  # strain bins of the quasi-static fit without holds
 
 
-@dataclass(frozen=True)
-class Movement:
-    """One movement of the reference strain: sample indices of its start and end."""
-
-    start: int
-    end: int
-
-
-def movements(t: np.ndarray, s: np.ndarray, hold_rate: float) -> list[Movement]:
-    """Maximal runs of sample intervals where |ds/dt| > hold_rate."""
+def movements(t: np.ndarray, s: np.ndarray, hold_rate: float) -> list[tuple[int, int]]:
+    """(start, end) sample indices of the maximal runs of intervals where |ds/dt| > hold_rate."""
     if t.size < 2:
         return []
     moving = np.abs(np.diff(s) / np.diff(t)) > hold_rate
     edges = np.diff(np.concatenate([[0], moving.astype(np.int8), [0]]))
     starts = np.flatnonzero(edges == 1)
     ends = np.flatnonzero(edges == -1)
-    return [Movement(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
 
 
 def default_hold_rate(s: np.ndarray) -> float:
@@ -63,11 +54,11 @@ def analyse_holds(segments: Sequence[Segment], hold_rate: float, min_hold: float
     for seg in segments:
         t, r, s = seg.t, seg.r, seg.s
         moves = movements(t, s, hold_rate)
-        bounds: list[tuple[int, int, Movement | None]] = [
-            (0, moves[0].start if moves else t.size - 1, None)]
+        bounds: list[tuple[int, int, tuple[int, int] | None]] = [
+            (0, moves[0][0] if moves else t.size - 1, None)]
         for k, mv in enumerate(moves):
-            nxt = moves[k + 1].start if k + 1 < len(moves) else t.size - 1
-            bounds.append((mv.end, nxt, mv))
+            nxt = moves[k + 1][0] if k + 1 < len(moves) else t.size - 1
+            bounds.append((mv[1], nxt, mv))
         for a, b, mv in bounds:
             if b - a < 10 or t[b] - t[a] < min_hold:
                 continue
@@ -79,8 +70,8 @@ def analyse_holds(segments: Sequence[Segment], hold_rate: float, min_hold: float
                 fitted = _fit_decay(th, rh, r_inf)
                 if fitted is not None:
                     r_inf, spike, lam, clear = fitted
-                    change = s[mv.end] - s[mv.start]
-                    rate = abs(change) / (t[mv.end] - t[mv.start])
+                    change = s[mv[1]] - s[mv[0]]
+                    rate = abs(change) / (t[mv[1]] - t[mv[0]])
                     steps.append((rate, level, 0 if change >= 0 else 1, spike,
                                   lam if clear else math.nan, abs(change)))
             settled.append((level, r_inf))
