@@ -83,6 +83,8 @@ class Compensator(ABC):
 
     name: ClassVar[str]
     """Model name as written in calibration files and on the command line."""
+    param_names: ClassVar[tuple[str, ...]] = ()
+    """The attributes ``to_params`` writes (arrays as lists), where the model does not say."""
     fit_full_rate: ClassVar[bool] = False
     """True when ``fit`` takes every sample in bounded memory (creep_pi): the fit then skips
     the budget's reduction, which would low-pass what its states are computed from."""
@@ -116,9 +118,10 @@ class Compensator(ABC):
         self._run_into(t, r, out)
         return out
 
-    @abstractmethod
     def to_params(self) -> dict[str, Any]:
         """Every parameter, as the calibration file's ``model.params``."""
+        values = {key: getattr(self, key) for key in self.param_names}
+        return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in values.items()}
 
     @classmethod
     @abstractmethod

@@ -49,6 +49,7 @@ class CellModel(Compensator):
 
     kind: ClassVar[int]
     rate_dependent: ClassVar[bool] = True
+    param_names = ("N", "M", "sigma", "p", "w", "mu")
 
     def __init__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
                  mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
@@ -104,9 +105,7 @@ class CellModel(Compensator):
                         self.f_at_b, self.inv_slopes)
 
     def to_params(self) -> dict[str, Any]:
-        params: dict[str, Any] = {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,
-                                  "w": [float(v) for v in self.w],
-                                  "mu": [float(v) for v in self.mu]}
+        params = super().to_params()
         if self.orientation != 1:
             params["orientation"] = self.orientation
         return params

@@ -66,6 +66,8 @@ class CreepPI(Compensator):
     """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``."""
 
     name = "creep_pi"
+    param_names = ("taus", "thresholds", "direction_width", "mean", "scale", "weights",
+                   "intercept", "penalty")
     fit_full_rate = True
 
     def __init__(self, *, taus: npt.ArrayLike, thresholds: npt.ArrayLike,
@@ -106,15 +108,6 @@ class CreepPI(Compensator):
     def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
         kern.run_kernel(t, r, self.z, self.play, self._clock, self._decay, out, self._norm,
                         self.taus, self._widths, self._coef, self._bias)
-
-    def to_params(self) -> dict[str, Any]:
-        def plain(values: np.ndarray) -> list[float]:
-            return [float(v) for v in values]
-
-        return {"taus": plain(self.taus), "thresholds": plain(self.thresholds),
-                "direction_width": self.direction_width, "mean": plain(self.mean),
-                "scale": plain(self.scale), "weights": plain(self.weights),
-                "intercept": self.intercept, "penalty": self.penalty}
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,

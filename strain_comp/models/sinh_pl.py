@@ -127,6 +127,7 @@ class SinhPL(Compensator):
     """Reduced power-law compensator with N sinh cells, eq. (1)-(3)."""
 
     name = "sinh_pl"
+    param_names = ("w0", "vb", "w", "i_s", "v_t")
 
     def __init__(self, w0: float, vb: float, w: npt.ArrayLike, i_s: npt.ArrayLike,
                  v_t: npt.ArrayLike, normalisation: Normalisation) -> None:
@@ -155,10 +156,6 @@ class SinhPL(Compensator):
         xi = sinh_pl_forward_kernel(np.zeros_like(self.state), t, self.normalisation.psi(s),
                                     self.w0, self.vb, self.w, self.i_s, self.v_t)
         return (xi - self.normalisation.alpha) * self.normalisation.r0
-
-    def to_params(self) -> dict[str, Any]:
-        return {"w0": self.w0, "vb": self.vb, "w": [float(v) for v in self.w],
-                "i_s": [float(v) for v in self.i_s], "v_t": [float(v) for v in self.v_t]}
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
