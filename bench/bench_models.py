@@ -46,7 +46,7 @@ from strain_comp.models.rational import Rational
 def sinh_pl(n: int):
     m = test_sinh_pl.model(2)
     t, s = test_sinh_pl.excitation(n)
-    r = m.forward(t, s)
+    r = test_sinh_pl.resistance(m, t, s)
 
     def slow(k: int) -> np.ndarray:
         xi = m.normalisation.xi(r[:k])

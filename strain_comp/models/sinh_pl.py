@@ -19,7 +19,6 @@ from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
-    as_float_arrays,
     require_float,
     require_vector,
 )
@@ -48,32 +47,6 @@ def _cell_step(u: float, e: float, dt: float, i_s: float, v_t: float) -> tuple[f
     du = dt * i_s * sign * (1.0 - q * q) / d  # dt g / (1 + dt g')
     slope = dt * (0.5 * c * (1.0 + q * q) * q + dt * c * c * q * q) / (d * d)
     return u + du, slope
-
-
-@njit
-def sinh_pl_forward_kernel(state: np.ndarray, t: np.ndarray, psi: np.ndarray, w0: float,
-                           vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
-                           ) -> np.ndarray:
-    """Forward model eq. (2): psi (input e) -> xi (output i)."""
-    n_cells = w.size
-    out = np.empty(t.size)
-    for n in range(t.size):
-        e = psi[n]
-        if state[0] == 0.0:
-            state[0] = 1.0
-            for k in range(n_cells):
-                state[2 + k] = e
-        else:
-            dt = t[n] - state[1]
-            if dt > 0.0:
-                for k in range(n_cells):
-                    state[2 + k] = _cell_step(state[2 + k], e, dt, i_s[k], v_t[k])[0]
-        state[1] = t[n]
-        acc = w0 * e - vb
-        for k in range(n_cells):
-            acc += w[k] * state[2 + k]
-        out[n] = acc
-    return out
 
 
 @njit
@@ -149,13 +122,6 @@ class SinhPL(Compensator):
         out[:] = self.normalisation.strain(sinh_pl_inverse_kernel(
             self.state, t, self.normalisation.xi(r), self.w0, self.vb, self.w, self.i_s,
             self.v_t))
-
-    def forward(self, t: npt.ArrayLike, s: npt.ArrayLike) -> np.ndarray:
-        """Resistance [ohm] the forward model eq. (2) predicts for strain s [%] (fresh state)."""
-        t, s = as_float_arrays(t, s)
-        xi = sinh_pl_forward_kernel(np.zeros_like(self.state), t, self.normalisation.psi(s),
-                                    self.w0, self.vb, self.w, self.i_s, self.v_t)
-        return (xi - self.normalisation.alpha) * self.normalisation.r0
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
