@@ -91,9 +91,6 @@ class LiftedArray(ABC):
         """Parameters after the per-sensor ones, the same for every sensor (from the first)."""
         return ()
 
-    def __len__(self) -> int:
-        return len(self.models)
-
     def reset(self) -> None:
         """Forget every sensor's state."""
         for rows in self.state:
