@@ -43,12 +43,11 @@ def fit_cells(name: str, kind: int, rate_dependent: bool, segments: Sequence[Seg
               search_top: int = 5, workers: int | None = None,
               progress: bool | Callable[[str], None] = True
               ) -> tuple[Solution, int, dict[str, Any]]:
-    """The fit of an APL, PL or MPI model (docs/models.md), called by ``APL.fit``, which
-    holds BLAS to one thread: the best solution, the cells' orientation and the fit report."""
+    """The fit of an APL, PL or MPI model (docs/models.md): solution, orientation, report."""
     problem = _FitProblem(name, kind, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
     if kind == kern.KIND_APL and problem.gauge < 0:
-        problem.orient(-1)
+        problem.orient()
     problem.set_weight_sign()
     if not rate_dependent:
         result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
@@ -204,8 +203,6 @@ class _FitProblem:
         self.orientation = 1
         self.cell_weights = cell_weights
         self.gauge = float(np.sign(np.corrcoef(self.xi, self.psi)[0, 1]) or 1.0)
-        self.weight_sign = self.gauge
-        self._set_bounds()
         # Ridge rows: weights (cells only) -> 0, slopes -> 1, scaled with the sample count.
         lam = math.sqrt(ridge * self.t.size)
         k, n_w = n + m - 1, n + 2
@@ -216,8 +213,7 @@ class _FitProblem:
         self.ridge_b[n:] = lam
 
     def _set_bounds(self) -> None:
-        """Bounds of [w, free slopes]: slopes >= eps, cell weights of ``weight_sign``
-        (unless free)."""
+        """Bounds of [w, free slopes]: slopes >= eps, cell weights of ``weight_sign`` or free."""
         n_w = self.n + 2
         lo = np.full(n_w + self.m - 1, -np.inf)
         hi = np.full(n_w + self.m - 1, np.inf)
@@ -226,37 +222,30 @@ class _FitProblem:
         lo[n_w:] = self.eps
         self.bounds = (lo, hi)
 
-    def orient(self, orientation: int) -> None:
-        """Drive the cells by orientation * xi (docs/models.md); before any solve."""
-        if orientation != self.orientation:
-            self.xi = -self.xi
-            self.gauge = -self.gauge
-            self.weight_sign = self.gauge
-            self.orientation = orientation
-            self._set_bounds()
-
-    def loop_sign(self) -> int:
-        """The sign the training loop asks of the cell weights, as a multiple of the gauge's
-        (1: the resistance leads, -1: it lags; docs/design.md, "Loop orientation"). Both are
-        fitted with the MPI's cells whatever the model: the loop is the sensor's."""
-        scores = {}
-        for loop in (1, -1):
-            self.weight_sign = loop * self.gauge
-            self._set_bounds()
-            scores[loop] = self.solve(0.0, 1.0, output_nfev=self.search_nfev, play=True).rmse
-        return -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
+    def orient(self) -> None:
+        """Drive the cells by -xi (docs/models.md); before ``set_weight_sign``."""
+        self.xi = -self.xi
+        self.gauge = -self.gauge
+        self.orientation = -1
 
     def set_weight_sign(self) -> None:
-        """The cell weights' sign for ``cell_weights`` (docs/design.md, "Loop orientation")."""
-        loop = {"lead": 1, "lag": -1}.get(self.cell_weights)
-        if loop is None:
-            loop = self.loop_sign() if self.cell_weights == "signed" else 1
+        """The cell weights' sign for ``cell_weights``, as a multiple of the gauge's (1: the
+        resistance leads, -1: it lags; docs/design.md, "Loop orientation"). ``signed`` fits
+        both with the MPI's cells whatever the model: the loop is the sensor's."""
+        loop = {"lag": -1}.get(self.cell_weights, 1)
+        if self.cell_weights == "signed":
+            scores = {}
+            for loop in (1, -1):
+                self.weight_sign = loop * self.gauge
+                self._set_bounds()
+                scores[loop] = self.solve(0.0, 1.0, output_nfev=self.search_nfev,
+                                          play=True).rmse
+            loop = -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
         self.weight_sign = loop * self.gauge
         self._set_bounds()
 
     def memory_report(self, result: Solution) -> dict[str, Any]:
-        """``memory_share`` (docs/design.md, "Loop orientation"), ``memoryless`` and the
-        ``loop`` the cell weights were held to."""
+        """``memory_share``, ``memoryless`` and ``loop`` (docs/design.md, "Loop orientation")."""
         z = self.design(result.sigma, result.p)
         term = z[:, 1:self.n + 1] @ result.w[1:self.n + 1]
         static = np.column_stack([np.ones_like(self.xi), self.xi, self.xi ** 2, self.xi ** 3])
@@ -276,8 +265,7 @@ class _FitProblem:
         return np.geomspace(lo, hi, 13)
 
     def design(self, sigma: float, p: float, *, play: bool = False) -> np.ndarray:
-        """z = [xi, x_1..x_N, 1] per training sample (rows) for this sigma, p; with
-        ``play`` the cells are the MPI's symmetric play operators whatever the model."""
+        """z = [xi, x_1..x_N, 1] per sample at sigma, p; ``play``: the MPI's cells, any model."""
         if play:
             rho = thresholds(self.n, kern.KIND_PL)
             states = kern.states_kernel(self.t, self.xi, self.starts, kern.KIND_PL, 0.0, 1.0,
@@ -323,9 +311,7 @@ class _FitProblem:
 
     def output_error(self, z: np.ndarray, theta: np.ndarray, *,
                      max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
-        """Minimise sum (f^-1(w . z) - psi)^2 + ridge over theta from ``theta`` (bounded
-        Levenberg-Marquardt, same bounds as the QP); returns (theta, psi_hat), the start
-        when the refinement does not lower the output RMSE."""
+        """(theta, psi_hat) of ``bounded_lm`` on the output error from ``theta``, unless worse."""
         n_w = self.n + 2
         edges = pwa.breakpoints(self.m)
         cache: dict[str, np.ndarray] = {}
@@ -355,8 +341,7 @@ class _FitProblem:
 
     def solve(self, sigma: float, p: float, *, output_nfev: int = 0,
               play: bool = False) -> Solution:
-        """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it;
-        ``play``: with the MPI's cells (``design``)."""
+        """QP at (sigma, p), then ``output_nfev`` output-error evaluations; ``play``: see design."""
         with self._lock:
             self.evaluations += 1
         z = self.design(sigma, p, play=play)
