@@ -23,8 +23,7 @@ _Family = TypeVar("_Family", bound="LiftedArray")
 
 
 def kernel(s: int, t: float, r: float, *arrays: np.ndarray) -> float:
-    """The name a template (``array_step``, ``strain_comp.core.array.family_tick``) calls the
-    family's kernel by; each specialisation binds its own, this one is never called."""
+    """The name templates call the family's kernel by; each specialisation binds its own."""
     raise TypeError("a template's kernel is bound by strain_comp._numba.specialise")
 
 
@@ -109,8 +108,7 @@ class LiftedArray(ABC):
 
 def lift(family_kernel: Dispatcher[Any], **options: Any
          ) -> Callable[[type[_Family]], type[_Family]]:
-    """Class decorator: a ``LiftedArray`` family stepped by ``family_kernel``, its array step
-    compiled with the kernel's ``njit`` ``options`` (its fast-math flags)."""
+    """Class decorator: the family stepped by ``family_kernel``, compiled with its ``options``."""
     def decorate(cls: type[_Family]) -> type[_Family]:
         cls.kernel = family_kernel
         cls.array_step = specialise(array_step, {"kernel": family_kernel},

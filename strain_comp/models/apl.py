@@ -125,9 +125,7 @@ class CellModel(Compensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, N: int = 11, M: int = 9, **options: Any
             ) -> CellModel:
-        """Fit w, mu by the QP and the output-error refinement, searching sigma and p
-        (``fit_cells``), BLAS held to one thread; the options were checked by
-        ``strain_comp.offline.options``."""
+        """``fit_cells`` with BLAS held to one thread (options checked by offline.options)."""
         with threadpool_limits(limits=1, user_api="blas"):
             best, orientation, report = fit_cells(cls.name, cls.kind, cls.rate_dependent,
                                                   segments, normalisation, n=N, m=M, **options)

@@ -135,8 +135,7 @@ class CreepPI(Compensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
             lam: float | None = None, **options: Any) -> CreepPI:
-        """Ridge fit of the weights (docs/design.md, "creep_pi"); options checked by
-        ``strain_comp.offline.options``."""
+        """Ridge fit of the weights (docs/design.md, "creep_pi")."""
         tau = np.asarray(taus, dtype=np.float64)
         thresholds = play_thresholds(n_play)
         grams = fold_grams(segments, normalisation, tau, thresholds)
@@ -191,8 +190,7 @@ class CreepPIArray(LiftedArray):
 
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
                thresholds: np.ndarray) -> np.ndarray:
-    """Gram matrices of [1, features, psi] per cross-validation fold: a segment each, or
-    ``CV_BLOCKS`` contiguous blocks of a single one."""
+    """Gram matrices of [1, features, psi] per fold: a segment each, or CV_BLOCKS of one."""
     widths = np.append(thresholds, DIRECTION_WIDTH)
     n_f = n_features(thresholds.size, tau.size)
     single = len(segments) == 1
@@ -235,8 +233,7 @@ def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
 
 
 def cross_validate(grams: np.ndarray, lams: np.ndarray) -> np.ndarray:
-    """Held-out squared error: each fold's samples predicted by the fit on all the others,
-    per penalty in ``lams``."""
+    """Held-out squared error per penalty and fold, each fold predicted by the others' fit."""
     total = grams.sum(axis=0)
     errors = np.zeros((lams.size, grams.shape[0]))
     for i, lam in enumerate(lams):

@@ -64,8 +64,7 @@ def slope_tables(slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 @cache
 def _breakpoint_paths(m: int) -> tuple[np.ndarray, np.ndarray]:
-    """(breakpoints, ``path_matrix`` at them) of M segments, read-only: what every f of M
-    segments shares (computed once per M: a large array's models are built fast)."""
+    """(breakpoints, ``path_matrix`` at them) of M segments, read-only, computed once per M."""
     b = breakpoints(m)
     paths = path_matrix(b, m)
     b.flags.writeable = False

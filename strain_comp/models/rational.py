@@ -176,8 +176,7 @@ class Rational(Compensator):
                                  self.direction.tau)
 
     def singular_in(self, r_lo: float, r_hi: float) -> float | None:
-        """The first resistance in [r_lo, r_hi] where a branch's denominator has a real root
-        (the fit keeps every branch pole-free there, ``fit_rat22``), or None."""
+        """The first resistance in [r_lo, r_hi] where a branch has a real pole, or None."""
         lo, hi = self.normalisation.xi(np.array([r_lo, r_hi]))
         for row in self.coef:
             poles = _real_poles(row[3:])

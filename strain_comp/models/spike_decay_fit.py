@@ -184,8 +184,7 @@ def _fill(table: np.ndarray) -> None:
 def settled_points(segments: Sequence[Segment], settled: list[tuple[float, float]],
                    steps: list[tuple[float, ...]], tol: float
                    ) -> tuple[np.ndarray, np.ndarray, list[tuple[float, ...]]]:
-    """The points f passes through and the steps the tables are made of (docs/models.md,
-    "spike_decay"); without two hold levels, bin means and no step."""
+    """Points f passes through, steps of the tables (docs/models.md, "spike_decay")."""
     levels = _cluster(np.array([p[0] for p in settled]), tol) if settled else []
     if len(levels) >= 2:
         eps_pts = np.array([np.mean([settled[i][0] for i in g]) for g in levels])
