@@ -144,17 +144,15 @@ def tabulate(steps: list[tuple[float, ...]], levels: np.ndarray,
     strain_index = np.empty(rate.size, int)
     for gi, g in enumerate(strain_groups):
         strain_index[g] = gi
+    kind = np.array([st[2] for st in steps])
     tables = []
     for column in (3, 4):
         value = np.array([st[column] for st in steps])
         table = np.full((2, rates.size, strains.size), np.nan)
-        for k in range(2):
-            for i in range(rates.size):
-                for j in range(strains.size):
-                    cell = ((rate_index == i) & (strain_index == j) & np.isfinite(value)
-                            & (np.array([st[2] for st in steps]) == k))
-                    if cell.any():
-                        table[k, i, j] = value[cell].mean()
+        for k, i, j in np.ndindex(table.shape):
+            cell = (rate_index == i) & (strain_index == j) & np.isfinite(value) & (kind == k)
+            if cell.any():
+                table[k, i, j] = value[cell].mean()
         tables.append(table)
     s_table, lam_table = tables
     for table, default in ((s_table, 0.0), (lam_table, 1.0)):
