@@ -182,22 +182,19 @@ class SinhPL(Compensator):
                                 np.full(2 * n_cells, _LOG_LO)])
         upper = np.concatenate([[w0_hi, np.inf], np.full(n_cells, w_max),
                                 np.full(2 * n_cells, _LOG_HI)])
-        best = None
+        starts = []
         for share in (0.8, 0.5):
             for v_t0 in (0.1, 1.0):
                 w_cells = np.full(n_cells, (1.0 - share) * slope / n_cells)
                 x0 = np.concatenate([[share * slope, -offset], w_cells,
                                      np.log(v_t0 / (2.0 * taus)), np.full(n_cells,
                                                                           np.log(v_t0))])
-                sol = least_squares(residual, np.clip(x0, lower + 1e-9, upper - 1e-9),
-                                    bounds=(lower, upper), method="trf", x_scale="jac",
-                                    max_nfev=_START_NFEV, kwargs={"data": coarse})
-                if best is None or sol.cost < best.cost:
-                    best = sol
-        if best is None:
-            raise FitError("sinh_pl: no start point of the least-squares fit")
-        best = least_squares(residual, best.x, bounds=(lower, upper), method="trf",
-                             x_scale="jac", max_nfev=max_nfev)
+                starts.append(least_squares(
+                    residual, np.clip(x0, lower + 1e-9, upper - 1e-9), bounds=(lower, upper),
+                    method="trf", x_scale="jac", max_nfev=_START_NFEV, kwargs={"data": coarse}))
+        best = least_squares(residual, min(starts, key=lambda sol: sol.cost).x,
+                             bounds=(lower, upper), method="trf", x_scale="jac",
+                             max_nfev=max_nfev)
         w0, vb, w, i_s, v_t = unpack(best.x)
         if w0 == 0.0 or not np.all(np.isfinite(best.x)):
             raise FitError("sinh_pl: the fit did not converge to a usable model")
