@@ -299,7 +299,9 @@ class _FitProblem:
 
     def predict(self, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """psi_hat = f^-1(w . z) (eq. (2)) for the parameter vector theta."""
-        b, f_at_b, inv_slopes = pwa.inverse_tables(pwa.mu_from_slopes(self.slopes(theta)))
+        # the slopes as the model holds them: through mu (``CellModel``)
+        slopes = pwa.slopes_from_mu(pwa.mu_from_slopes(self.slopes(theta)))
+        b, f_at_b, inv_slopes = pwa.slope_tables(slopes)
         return pwa.finv_array(z @ theta[:self.n + 2], b, f_at_b, inv_slopes)
 
     def slopes(self, theta: np.ndarray) -> np.ndarray:
