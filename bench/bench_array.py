@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import calibration, resistance, row
 
 from strain_comp.core.engine import Engine
-from strain_comp.models.apl_array import APLArray
+from strain_comp.models.apl import APLArray
 from strain_comp.models.creep_pi import CreepPIArray
 
 

@@ -30,11 +30,10 @@ from _common import row
 from strain_comp._numba import njit
 from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.base.direction import DirectionSettings
-from strain_comp.models.apl import APL, MPI, PL
-from strain_comp.models.apl_array import APLArray
+from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.apl_kernels import FASTMATH, LANES, pow01
 from strain_comp.models.cubic import Cubic
-from strain_comp.models.pwa import inverse_tables
+from strain_comp.models.pwa import slope_tables, slopes_from_mu
 
 NORM = Normalisation(r0=7.16, alpha=-2.61, s0=25.0, beta=-1.0)
 CHUNK = 100_000
@@ -65,7 +64,7 @@ def python_cells(kind: str, t, r, n_cells: int, sigma: float, p: float, w, mu) -
         rho = [2.0 * k / (n_cells + 1) - 1.0 for k in range(1, n_cells + 1)]
     else:
         rho = [k / (n_cells + 1) for k in range(1, n_cells + 1)]
-    b, f_at_b, inv_slopes = (a.tolist() for a in inverse_tables(mu))
+    b, f_at_b, inv_slopes = (a.tolist() for a in slope_tables(slopes_from_mu(mu)))
     x: list[float] = []
     t_prev = 0.0
     out = []

@@ -37,7 +37,7 @@ import test_spike_decay
 from _common import best_time, calibration, resistance, row
 
 from strain_comp.base.compensator import Normalisation
-from strain_comp.models.apl_array import APLArray
+from strain_comp.models.apl import APLArray
 from strain_comp.models.creep_pi import TAUS, CreepPIArray
 from strain_comp.models.cubic import Cubic
 from strain_comp.models.rational import Rational
@@ -46,7 +46,7 @@ from strain_comp.models.rational import Rational
 def sinh_pl(n: int):
     m = test_sinh_pl.model(2)
     t, s = test_sinh_pl.excitation(n)
-    r = m.forward(t, s)
+    r = test_sinh_pl.resistance(m, t, s)
 
     def slow(k: int) -> np.ndarray:
         xi = m.normalisation.xi(r[:k])

@@ -83,6 +83,8 @@ class Compensator(ABC):
 
     name: ClassVar[str]
     """Model name as written in calibration files and on the command line."""
+    param_names: ClassVar[tuple[str, ...]] = ()
+    """The attributes ``to_params`` writes (arrays as lists), where the model does not say."""
     fit_full_rate: ClassVar[bool] = False
     """True when ``fit`` takes every sample in bounded memory (creep_pi): the fit then skips
     the budget's reduction, which would low-pass what its states are computed from."""
@@ -116,9 +118,10 @@ class Compensator(ABC):
         self._run_into(t, r, out)
         return out
 
-    @abstractmethod
     def to_params(self) -> dict[str, Any]:
         """Every parameter, as the calibration file's ``model.params``."""
+        values = {key: getattr(self, key) for key in self.param_names}
+        return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in values.items()}
 
     @classmethod
     @abstractmethod
@@ -143,7 +146,7 @@ def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = Non
     if key not in params:
         raise ParameterError(key, "missing")
     value = params[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ParameterError(key, f"must be a number, got {value!r}")
     value = float(value)
     if not np.isfinite(value):
@@ -155,20 +158,17 @@ def require_float(params: Mapping[str, Any], key: str, *, lo: float | None = Non
     return value
 
 
-def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None
+def require_vector(params: Mapping[str, Any], key: str, *, length: int | None = None,
+                   lo: float | None = None, hi: float | None = None, strict: bool = False
                    ) -> np.ndarray:
-    """Read ``params[key]`` as a list of finite floats."""
+    """Read ``params[key]`` as a list of floats, each as ``require_float`` reads a number."""
     if key not in params:
         raise ParameterError(key, "missing")
     value = params[key]
     if not isinstance(value, (list, tuple, np.ndarray)):
         raise ParameterError(key, f"must be a list of numbers, got {type(value).__name__}")
-    for i, item in enumerate(value):
-        if isinstance(item, bool) or not isinstance(item, (int, float, np.floating, np.integer)):
-            raise ParameterError(f"{key}.{i}", f"must be a number, got {item!r}")
-    array = np.asarray(value, dtype=np.float64)
-    if not np.all(np.isfinite(array)):
-        raise ParameterError(key, "must hold finite numbers only")
+    array = np.array([require_float({f"{key}.{i}": item}, f"{key}.{i}", lo=lo, hi=hi,
+                                    strict=strict) for i, item in enumerate(value)])
     if length is not None and array.size != length:
         raise ParameterError(key, f"must have {length} entries, got {array.size}")
     if array.size == 0:

@@ -15,8 +15,7 @@ from strain_comp.base import samples as sc
 
 @njit(error_model="numpy")
 def divider_ohm(v: float, r1: float, vin: float) -> tuple[float, int]:
-    """(R, forced status) of a divider reading: NaN and open (short) circuit at V <= 0
-    (V >= Vin)."""
+    """(R, forced status): NaN and open (short) circuit at V <= 0 (V >= Vin)."""
     if v <= 0.0:
         return np.nan, sc.OPEN_CIRCUIT
     if v >= vin:

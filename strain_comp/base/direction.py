@@ -78,23 +78,14 @@ def direction_update(state: np.ndarray, t: float, r: float, deadzone: float,
 
 @njit
 def _direction_run(state: np.ndarray, t: np.ndarray, r: np.ndarray, deadzone: float,
-                   tau: float) -> np.ndarray:
+                   tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """The direction and the filtered derivative after each sample."""
     out = np.empty(t.size, dtype=np.int8)
+    filtered = np.empty(t.size)
     for n in range(t.size):
         out[n] = direction_update(state, t[n], r[n], deadzone, tau)
-    return out
-
-
-@njit
-def _filtered_derivative(t: np.ndarray, r: np.ndarray, tau: float) -> np.ndarray:
-    """The detector's filtered derivative at samples 1..n-1 (the first has none)."""
-    state = np.zeros(STATE_SIZE)
-    d = np.empty(max(t.size - 1, 0))
-    for n in range(t.size):
-        direction_update(state, t[n], r[n], np.inf, tau)
-        if n > 0:
-            d[n - 1] = state[3]
-    return d
+        filtered[n] = state[_FILT]
+    return out, filtered
 
 
 class DirectionDetector:
@@ -115,7 +106,7 @@ class DirectionDetector:
         r = np.ascontiguousarray(r, dtype=np.float64)
         if t.ndim != 1 or t.shape != r.shape:
             raise ValueError("t and r must be 1-D arrays of one length")
-        return _direction_run(self.state, t, r, self.settings.deadzone, self.settings.tau)
+        return _direction_run(self.state, t, r, self.settings.deadzone, self.settings.tau)[0]
 
 
 def derivative_noise(t: npt.ArrayLike, r: npt.ArrayLike, tau: float = 0.0) -> float:
@@ -131,7 +122,7 @@ def derivative_noise(t: npt.ArrayLike, r: npt.ArrayLike, tau: float = 0.0) -> fl
     t, r = t[ok], r[ok]
     if t.size < 3 or np.any(np.diff(t) <= 0.0):
         raise InputError("derivative_noise: needs >= 3 finite samples with increasing time")
-    d = _filtered_derivative(t, r, float(tau))
+    d = _direction_run(np.zeros(STATE_SIZE), t, r, np.inf, float(tau))[1][1:]  # none at 0
     td = t[1:]
     if tau > 0.0:
         keep = td >= t[0] + 5.0 * tau

@@ -14,7 +14,6 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp._numba import specialise
-from strain_comp.base.compensator import Compensator
 from strain_comp.errors import ParameterError
 
 if TYPE_CHECKING:
@@ -24,8 +23,7 @@ _Family = TypeVar("_Family", bound="LiftedArray")
 
 
 def kernel(s: int, t: float, r: float, *arrays: np.ndarray) -> float:
-    """The name a template (``array_step``, ``strain_comp.core.array.family_tick``) calls the
-    family's kernel by; each specialisation binds its own, this one is never called."""
+    """The name templates call the family's kernel by; each specialisation binds its own."""
     raise TypeError("a template's kernel is bound by strain_comp._numba.specialise")
 
 
@@ -47,6 +45,10 @@ class LiftedArray(ABC):
 
     family: ClassVar[str]
     """The family's name in errors (``an APL-family``, ``a creep_pi``)."""
+    model_type: ClassVar[type]
+    """The class of the family's models."""
+    sizes: ClassVar[str]
+    """What must agree between the sensors, in errors (``N, M``)."""
     kernel: ClassVar[Dispatcher[Any]]
     """The family's per-sensor kernel (``kernel(s, t, r, *state, *params)``)."""
     array_step: ClassVar[Dispatcher[Any]]
@@ -54,21 +56,39 @@ class LiftedArray(ABC):
     state: tuple[np.ndarray, ...]
     params: tuple[Any, ...]
 
-    def __init__(self, models: Sequence[Compensator]) -> None:
+    def __init__(self, models: Sequence[Any]) -> None:
+        """The state rows at rest and the parameter rows of ``models``, stacked."""
         if not models:
             raise ParameterError("models", "an array needs at least one sensor")
         for i, model in enumerate(models):
             if not self.accepts(model):
                 raise ParameterError(f"models.{i}", f"not {self.family} model: {model!r}")
         self.models = list(models)
+        rows = [self.rows(model) for model in models]
+        shapes = [[np.shape(a) for a in state + params] for state, params in rows]
+        for i, shape in enumerate(shapes):
+            if shape != shapes[0]:
+                raise ParameterError(f"models.{i}", f"{self.sizes} differ from the first "
+                                                    "sensor's")
+        state, params = rows[0]
+        self.state = tuple(np.zeros((len(rows), *np.shape(a))) for a in state)
+        self.params = tuple(np.array([row[1][j] for row in rows]) for j in range(len(params)))
+        self.params += self.shared(models[0])
 
     @classmethod
-    @abstractmethod
-    def accepts(cls, model: Compensator) -> bool:
+    def accepts(cls, model: Any) -> bool:
         """True when ``model`` belongs to this family."""
+        return isinstance(model, cls.model_type)
 
-    def __len__(self) -> int:
-        return len(self.models)
+    @staticmethod
+    @abstractmethod
+    def rows(model: Any) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:
+        """One sensor's state arrays (their shapes) and parameters, in the kernel's order."""
+
+    @staticmethod
+    def shared(model: Any) -> tuple[Any, ...]:
+        """Parameters after the per-sensor ones, the same for every sensor (from the first)."""
+        return ()
 
     def reset(self) -> None:
         """Forget every sensor's state."""
@@ -88,8 +108,7 @@ class LiftedArray(ABC):
 
 def lift(family_kernel: Dispatcher[Any], **options: Any
          ) -> Callable[[type[_Family]], type[_Family]]:
-    """Class decorator: a ``LiftedArray`` family stepped by ``family_kernel``, its array step
-    compiled with the kernel's ``njit`` ``options`` (its fast-math flags)."""
+    """Class decorator: the family stepped by ``family_kernel``, compiled with its ``options``."""
     def decorate(cls: type[_Family]) -> type[_Family]:
         cls.kernel = family_kernel
         cls.array_step = specialise(array_step, {"kernel": family_kernel},

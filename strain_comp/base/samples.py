@@ -117,8 +117,7 @@ def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: fl
 
 def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *,
              gap: float = DEFAULT_GAP_RESET) -> np.ndarray:
-    """Status of every sample (int8 codes) by ``screen_one`` with no resistance range (what
-    the fit can know)."""
+    """Status codes by ``screen_one`` with no resistance range (what the fit can know)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
     forced = np.zeros(t.shape, dtype=np.int8)

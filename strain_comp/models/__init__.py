@@ -9,7 +9,7 @@ from strain_comp.base.registry import model_class, model_names
 
 # imported to register their families, in the order of MODEL_NAMES
 # isort: off
-from strain_comp.models import apl, apl_array, cubic, sinh_pl  # noqa: F401
+from strain_comp.models import apl, cubic, sinh_pl  # noqa: F401
 from strain_comp.models import rational, spike_decay, creep_pi  # noqa: F401
 # isort: on
 

@@ -1,4 +1,5 @@
-"""APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3), appendix eq. (6)).
+"""APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3), appendix eq. (6)) and their
+array form.
 
 Cells, orientation, output map (eq. (2), (3)) and the fit (QP, output-error refinement,
 sigma/p search, signed cell weights): docs/models.md.
@@ -7,8 +8,8 @@ sigma/p search, signed cell weights): docs/models.md.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, TypeVar
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -22,7 +23,8 @@ from strain_comp.base.compensator import (
     require_vector,
 )
 from strain_comp.base.direction import DirectionSettings
-from strain_comp.base.registry import register
+from strain_comp.base.lift import LiftedArray, lift
+from strain_comp.base.registry import register, register_array
 from strain_comp.errors import ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
@@ -32,24 +34,13 @@ from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 N_MAX = 200
 M_MAX = 201
 
-_F = TypeVar("_F", bound=Callable[..., Any])
 
-
-def _one_blas_thread(function: _F) -> _F:
-    """``function`` with BLAS held to one thread while it runs: threadpoolctl's
-    ``threadpool_limits.wrap``, which keeps the signature (threadpoolctl ships no types)."""
-    wrapped: _F = threadpool_limits.wrap(limits=1, user_api="blas")(function)
-    return wrapped
-
-
-def _require_int(params: Mapping[str, Any], key: str, lo: int, hi: int) -> int:
+def _require_int(params: Mapping[str, Any], key: str) -> int:
     if key not in params:
         raise ParameterError(key, "missing")
     value = params[key]
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise ParameterError(key, f"must be an integer, got {value!r}")
-    if not lo <= int(value) <= hi:
-        raise ParameterError(key, f"must be in [{lo}, {hi}], got {value}")
     return int(value)
 
 
@@ -58,6 +49,7 @@ class CellModel(Compensator):
 
     kind: ClassVar[int]
     rate_dependent: ClassVar[bool] = True
+    param_names = ("N", "M", "sigma", "p", "w", "mu")
 
     def __init__(self, *, n: int, m: int, sigma: float, p: float, w: npt.ArrayLike,
                  mu: npt.ArrayLike, normalisation: Normalisation, orientation: int = 1
@@ -113,9 +105,7 @@ class CellModel(Compensator):
                         self.f_at_b, self.inv_slopes)
 
     def to_params(self) -> dict[str, Any]:
-        params: dict[str, Any] = {"N": self.N, "M": self.M, "sigma": self.sigma, "p": self.p,
-                                  "w": [float(v) for v in self.w],
-                                  "mu": [float(v) for v in self.mu]}
+        params = super().to_params()
         if self.orientation != 1:
             params["orientation"] = self.orientation
         return params
@@ -123,36 +113,22 @@ class CellModel(Compensator):
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
                     direction: DirectionSettings) -> CellModel:
-        n = _require_int(params, "N", 1, N_MAX)
-        m = _require_int(params, "M", 1, M_MAX)
-        if cls.rate_dependent:
-            sigma = require_float(params, "sigma", lo=0.0)
-            p = require_float(params, "p", lo=kern.P_MIN, hi=P_MAX)
-        else:
-            sigma = require_float(params, "sigma", lo=0.0, hi=0.0) if "sigma" in params else 0.0
-            p = require_float(params, "p", lo=kern.P_MIN, hi=P_MAX) if "p" in params else 1.0
-        w = require_vector(params, "w", length=n + 2)
-        mu = require_vector(params, "mu", length=m)
-        orientation = _require_int(params, "orientation", -1, 1) if "orientation" in params else 1
-        return cls(n=n, m=m, sigma=sigma, p=p, w=w, mu=mu, normalisation=normalisation,
-                   orientation=orientation)
+        # the ranges and lengths are checked by the constructor
+        sigma = require_float(params, "sigma") if cls.rate_dependent or "sigma" in params else 0.0
+        p = require_float(params, "p") if cls.rate_dependent or "p" in params else 1.0
+        orientation = _require_int(params, "orientation") if "orientation" in params else 1
+        return cls(n=_require_int(params, "N"), m=_require_int(params, "M"), sigma=sigma, p=p,
+                   w=require_vector(params, "w"), mu=require_vector(params, "mu"),
+                   normalisation=normalisation, orientation=orientation)
 
     @classmethod
-    @_one_blas_thread
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
-            direction: DirectionSettings, N: int = 11, M: int = 9,
-            sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
-            refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
-            ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
-            search_top: int = 5, workers: int | None = None,
-            progress: bool | Callable[[str], None] = True, **options: Any) -> CellModel:
-        """Fit w, mu by the QP and the output-error refinement, searching sigma and p (module
-        docstring); the options were checked by ``strain_comp.offline.options``."""
-        best, orientation, report = fit_cells(
-            cls.name, cls.kind, cls.rate_dependent, segments, normalisation, n=N, m=M,
-            sigma_grid=sigma_grid, p_grid=p_grid, refine=refine, cell_weights=cell_weights,
-            eps=eps, ridge=ridge, output_nfev=output_nfev, search_nfev=search_nfev,
-            search_top=search_top, workers=workers, progress=progress)
+            direction: DirectionSettings, N: int = 11, M: int = 9, **options: Any
+            ) -> CellModel:
+        """``fit_cells`` with BLAS held to one thread (options checked by offline.options)."""
+        with threadpool_limits(limits=1, user_api="blas"):
+            best, orientation, report = fit_cells(cls.name, cls.kind, cls.rate_dependent,
+                                                  segments, normalisation, n=N, m=M, **options)
         model = cls(n=N, m=M, sigma=best.sigma, p=best.p, w=best.w,
                     mu=pwa.mu_from_slopes(best.slopes), normalisation=normalisation,
                     orientation=orientation)
@@ -183,3 +159,25 @@ class MPI(CellModel):
     name = "mpi"
     kind = kern.KIND_PL
     rate_dependent = False
+
+
+@register_array
+@lift(kern.step_sensor, fastmath=kern.FASTMATH)
+class APLArray(LiftedArray):
+    """K sensors of the APL family (same N and M) stepped together in one kernel call."""
+
+    family = "an APL-family"
+    model_type = CellModel
+    sizes = "N, M"
+
+    @staticmethod
+    def rows(model: CellModel) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:
+        return ((model.x, model._clock), (model.kind, model.sigma, model.p, model.w,
+                                          model.norm, model.f_at_b, model.inv_slopes))
+
+    @staticmethod
+    def shared(model: CellModel) -> tuple[np.ndarray, ...]:
+        rho = np.vstack([thresholds(model.N, kern.KIND_APL), thresholds(model.N, kern.KIND_PL)])
+        inv_width = np.vstack([inverse_widths(rho[0], kern.KIND_APL),
+                               inverse_widths(rho[1], kern.KIND_PL)])
+        return rho, inv_width, model.b

@@ -1,6 +1,6 @@
 """The fit of the APL, PL and MPI models ([Electrolycra] section III): the paper's QP on
-the cell states, a search over sigma and p, and the output-error refinement
-(``strain_comp.models.apl_refine``); docs/models.md gives the method."""
+the cell states, a search over sigma and p, and the output-error refinement (a bounded
+Levenberg-Marquardt, ``bounded_lm``); docs/models.md gives the method."""
 
 from __future__ import annotations
 
@@ -16,14 +16,15 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear, minimize
 
+from strain_comp._numba import njit
 from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.errors import FitError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
-from strain_comp.models.apl_refine import bounded_lm, output_jacobian
 
 LOOP_SWITCH_GAIN = 0.05
 """``signed`` holds the cells to a lagging loop only when that lowers the training output
@@ -36,16 +37,17 @@ P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
 
 def fit_cells(name: str, kind: int, rate_dependent: bool, segments: Sequence[Segment],
               normalisation: Normalisation, *, n: int, m: int,
-              sigma_grid: npt.ArrayLike | None, p_grid: npt.ArrayLike | None, refine: bool,
-              cell_weights: str, eps: float, ridge: float, output_nfev: int,
-              search_nfev: int, search_top: int, workers: int | None,
-              progress: bool | Callable[[str], None]) -> tuple[Solution, int, dict[str, Any]]:
-    """The fit of an APL, PL or MPI model (docs/models.md), called by ``APL.fit``, which
-    holds BLAS to one thread: the best solution, the cells' orientation and the fit report."""
+              sigma_grid: npt.ArrayLike | None = None, p_grid: npt.ArrayLike | None = None,
+              refine: bool = True, cell_weights: str = "signed", eps: float = 1e-3,
+              ridge: float = 1e-6, output_nfev: int = 100, search_nfev: int = 10,
+              search_top: int = 5, workers: int | None = None,
+              progress: bool | Callable[[str], None] = True
+              ) -> tuple[Solution, int, dict[str, Any]]:
+    """The fit of an APL, PL or MPI model (docs/models.md): solution, orientation, report."""
     problem = _FitProblem(name, kind, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
     if kind == kern.KIND_APL and problem.gauge < 0:
-        problem.orient(-1)
+        problem.orient()
     problem.set_weight_sign()
     if not rate_dependent:
         result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
@@ -201,8 +203,6 @@ class _FitProblem:
         self.orientation = 1
         self.cell_weights = cell_weights
         self.gauge = float(np.sign(np.corrcoef(self.xi, self.psi)[0, 1]) or 1.0)
-        self.weight_sign = self.gauge
-        self._set_bounds()
         # Ridge rows: weights (cells only) -> 0, slopes -> 1, scaled with the sample count.
         lam = math.sqrt(ridge * self.t.size)
         k, n_w = n + m - 1, n + 2
@@ -213,8 +213,7 @@ class _FitProblem:
         self.ridge_b[n:] = lam
 
     def _set_bounds(self) -> None:
-        """Bounds of [w, free slopes]: slopes >= eps, cell weights of ``weight_sign``
-        (unless free)."""
+        """Bounds of [w, free slopes]: slopes >= eps, cell weights of ``weight_sign`` or free."""
         n_w = self.n + 2
         lo = np.full(n_w + self.m - 1, -np.inf)
         hi = np.full(n_w + self.m - 1, np.inf)
@@ -223,37 +222,30 @@ class _FitProblem:
         lo[n_w:] = self.eps
         self.bounds = (lo, hi)
 
-    def orient(self, orientation: int) -> None:
-        """Drive the cells by orientation * xi (docs/models.md); before any solve."""
-        if orientation != self.orientation:
-            self.xi = -self.xi
-            self.gauge = -self.gauge
-            self.weight_sign = self.gauge
-            self.orientation = orientation
-            self._set_bounds()
-
-    def loop_sign(self) -> int:
-        """The sign the training loop asks of the cell weights, as a multiple of the gauge's
-        (1: the resistance leads, -1: it lags; docs/design.md, "Loop orientation"). Both are
-        fitted with the MPI's cells whatever the model: the loop is the sensor's."""
-        scores = {}
-        for loop in (1, -1):
-            self.weight_sign = loop * self.gauge
-            self._set_bounds()
-            scores[loop] = self.solve(0.0, 1.0, output_nfev=self.search_nfev, play=True).rmse
-        return -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
+    def orient(self) -> None:
+        """Drive the cells by -xi (docs/models.md); before ``set_weight_sign``."""
+        self.xi = -self.xi
+        self.gauge = -self.gauge
+        self.orientation = -1
 
     def set_weight_sign(self) -> None:
-        """The cell weights' sign for ``cell_weights`` (docs/design.md, "Loop orientation")."""
-        loop = {"lead": 1, "lag": -1}.get(self.cell_weights)
-        if loop is None:
-            loop = self.loop_sign() if self.cell_weights == "signed" else 1
+        """The cell weights' sign for ``cell_weights``, as a multiple of the gauge's (1: the
+        resistance leads, -1: it lags; docs/design.md, "Loop orientation"). ``signed`` fits
+        both with the MPI's cells whatever the model: the loop is the sensor's."""
+        loop = {"lag": -1}.get(self.cell_weights, 1)
+        if self.cell_weights == "signed":
+            scores = {}
+            for loop in (1, -1):
+                self.weight_sign = loop * self.gauge
+                self._set_bounds()
+                scores[loop] = self.solve(0.0, 1.0, output_nfev=self.search_nfev,
+                                          play=True).rmse
+            loop = -1 if scores[-1] < (1.0 - LOOP_SWITCH_GAIN) * scores[1] else 1
         self.weight_sign = loop * self.gauge
         self._set_bounds()
 
     def memory_report(self, result: Solution) -> dict[str, Any]:
-        """``memory_share`` (docs/design.md, "Loop orientation"), ``memoryless`` and the
-        ``loop`` the cell weights were held to."""
+        """``memory_share``, ``memoryless`` and ``loop`` (docs/design.md, "Loop orientation")."""
         z = self.design(result.sigma, result.p)
         term = z[:, 1:self.n + 1] @ result.w[1:self.n + 1]
         static = np.column_stack([np.ones_like(self.xi), self.xi, self.xi ** 2, self.xi ** 3])
@@ -273,8 +265,7 @@ class _FitProblem:
         return np.geomspace(lo, hi, 13)
 
     def design(self, sigma: float, p: float, *, play: bool = False) -> np.ndarray:
-        """z = [xi, x_1..x_N, 1] per training sample (rows) for this sigma, p; with
-        ``play`` the cells are the MPI's symmetric play operators whatever the model."""
+        """z = [xi, x_1..x_N, 1] per sample at sigma, p; ``play``: the MPI's cells, any model."""
         if play:
             rho = thresholds(self.n, kern.KIND_PL)
             states = kern.states_kernel(self.t, self.xi, self.starts, kern.KIND_PL, 0.0, 1.0,
@@ -308,7 +299,9 @@ class _FitProblem:
 
     def predict(self, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """psi_hat = f^-1(w . z) (eq. (2)) for the parameter vector theta."""
-        b, f_at_b, inv_slopes = pwa.inverse_tables(pwa.mu_from_slopes(self.slopes(theta)))
+        # the slopes as the model holds them: through mu (``CellModel``)
+        slopes = pwa.slopes_from_mu(pwa.mu_from_slopes(self.slopes(theta)))
+        b, f_at_b, inv_slopes = pwa.slope_tables(slopes)
         return pwa.finv_array(z @ theta[:self.n + 2], b, f_at_b, inv_slopes)
 
     def slopes(self, theta: np.ndarray) -> np.ndarray:
@@ -320,9 +313,7 @@ class _FitProblem:
 
     def output_error(self, z: np.ndarray, theta: np.ndarray, *,
                      max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
-        """Minimise sum (f^-1(w . z) - psi)^2 + ridge over theta from ``theta`` (bounded
-        Levenberg-Marquardt, same bounds as the QP); returns (theta, psi_hat), the start
-        when the refinement does not lower the output RMSE."""
+        """(theta, psi_hat) of ``bounded_lm`` on the output error from ``theta``, unless worse."""
         n_w = self.n + 2
         edges = pwa.breakpoints(self.m)
         cache: dict[str, np.ndarray] = {}
@@ -352,8 +343,7 @@ class _FitProblem:
 
     def solve(self, sigma: float, p: float, *, output_nfev: int = 0,
               play: bool = False) -> Solution:
-        """QP at (sigma, p), then ``output_nfev`` > 0 output-error evaluations from it;
-        ``play``: with the MPI's cells (``design``)."""
+        """QP at (sigma, p), then ``output_nfev`` output-error evaluations; ``play``: see design."""
         with self._lock:
             self.evaluations += 1
         z = self.design(sigma, p, play=play)
@@ -381,3 +371,81 @@ class _FitProblem:
                  options={"maxfev": max_evaluations, "initial_simplex": simplex,
                           "xatol": 1e-3, "fatol": 1e-6})
         return found["best"]
+
+
+Residuals = Callable[[np.ndarray], np.ndarray]
+NormalEquations = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def bounded_lm(residuals: Residuals, normal_equations: NormalEquations, theta: np.ndarray,
+               lo: np.ndarray, hi: np.ndarray, *, max_nfev: int, ftol: float = 1e-9,
+               lam: float = 1e-3) -> np.ndarray:
+    """theta (within [lo, hi]) with sum residuals(theta)^2 no larger than at the start; a
+    bounded Levenberg-Marquardt. Stops when a step lowers the cost by less than ``ftol``
+    times the cost, or when the damping cannot find a lower cost."""
+    theta = np.clip(np.asarray(theta, dtype=np.float64), lo, hi)
+    res = residuals(theta)
+    cost = float(res @ res)
+    nfev = 1
+    while nfev < max_nfev and np.isfinite(cost) and cost > 0.0:
+        gram, grad = normal_equations(theta, res)
+        scale = np.maximum(np.diag(gram), 1e-12 * max(float(np.max(np.diag(gram))), 1e-300))
+        improved = False
+        while nfev < max_nfev and lam < 1e12:
+            damped = gram + np.diag(lam * scale)
+            try:
+                factor = np.linalg.cholesky(damped).T
+            except np.linalg.LinAlgError:
+                lam *= 4.0
+                continue
+            target = -solve_triangular(factor, grad, trans="T")
+            step = lsq_linear(factor, target, bounds=(lo - theta, hi - theta),
+                              method="bvls").x
+            trial = np.clip(theta + step, lo, hi)
+            trial_res = residuals(trial)
+            nfev += 1
+            trial_cost = float(trial_res @ trial_res)
+            if trial_cost < cost:
+                gain = cost - trial_cost
+                theta, res, cost = trial, trial_res, trial_cost
+                lam = max(lam / 3.0, 1e-12)
+                improved = gain > ftol * cost
+                break
+            lam *= 4.0
+        if not improved:
+            break
+    return theta
+
+
+@njit(fastmath=True)
+def output_jacobian(z: np.ndarray, psi_hat: np.ndarray, res: np.ndarray, slopes: np.ndarray,
+                    edges: np.ndarray, c: int, out: np.ndarray) -> None:
+    """Rows [z_i / f'(psi_hat_i), -G_j(psi_hat_i) / f'(psi_hat_i) for j != c, res_i]: the
+    Jacobian of psi_hat = f^-1(w . z) with respect to (w, slopes of f except the fixed
+    central one ``c``), plus the residuals as a last column, so that one matrix product gives
+    J^T J and J^T res. G_j is the signed length of segment j on the path 0 -> psi
+    (``pwa.path_matrix``)."""
+    n_w = z.shape[1]
+    m = slopes.size
+    last = out.shape[1] - 1
+    for i in range(z.shape[0]):
+        ph = psi_hat[i]
+        seg = 0
+        while seg < m - 1 and edges[seg] < ph:
+            seg += 1
+        inv = 1.0 / slopes[seg]
+        for q in range(n_w):
+            out[i, q] = z[i, q] * inv
+        col = n_w
+        for j in range(m):
+            if j == c:
+                continue
+            g = 0.0
+            if j < c:  # left of 0: segment j spans [edges[j - 1], edges[j]]
+                if ph < edges[j]:
+                    g = max(ph, edges[j - 1]) - edges[j] if j > 0 else ph - edges[j]
+            elif ph > edges[j - 1]:
+                g = min(ph, edges[j]) - edges[j - 1] if j < m - 1 else ph - edges[j - 1]
+            out[i, col] = -g * inv
+            col += 1
+        out[i, last] = res[i]

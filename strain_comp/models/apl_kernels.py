@@ -143,8 +143,7 @@ LANES = 4
 @njit(fastmath=FASTMATH, error_model="numpy")
 def padded_cells(x: np.ndarray, rho: np.ndarray, inv_width: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Copies of the cell state and parameters padded to a multiple of ``LANES`` cells with
-    copies of the last cell, so the cell loop has no scalar remainder."""
+    """x, rho, inv_width padded to whole ``LANES`` by the last cell (no scalar remainder)."""
     n = x.size
     m = -(-n // LANES) * LANES
     xp = np.empty(m)
@@ -190,11 +189,10 @@ def run_kernel(t: np.ndarray, r: np.ndarray, x: np.ndarray, clock: np.ndarray,
 
 @njit(fastmath=FASTMATH, error_model="numpy")
 def step_sensor(s: int, t: float, ri: float, x: np.ndarray, clock: np.ndarray,
-                kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, rho: np.ndarray,
-                inv_width: np.ndarray, w: np.ndarray, norm: np.ndarray, b: np.ndarray,
-                f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
-    """Advance sensor s of an array by a good sample (the family kernel of
-    ``strain_comp.base.lift``). Parameters are in row s of each array."""
+                kind: np.ndarray, sigma: np.ndarray, p: np.ndarray, w: np.ndarray,
+                norm: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray, rho: np.ndarray,
+                inv_width: np.ndarray, b: np.ndarray) -> float:
+    """Advance sensor s of an array by a good sample: row s, rho and inv_width by kind."""
     xi = ri / norm[s, 0] + norm[s, 1]
     ks = kind[s]
     xs = x[s]

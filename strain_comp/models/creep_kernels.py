@@ -110,8 +110,7 @@ def run_kernel(t: np.ndarray, r: np.ndarray, z: np.ndarray, play: np.ndarray,
 def step_sensor(s: int, t: float, ri: float, z: np.ndarray, play: np.ndarray,
                 clock: np.ndarray, decay: np.ndarray, norm: np.ndarray, tau: np.ndarray,
                 widths: np.ndarray, coef: np.ndarray, bias: np.ndarray) -> float:
-    """Advance sensor s of an array by a good sample (row s of every argument, as
-    ``run_kernel`` takes them for one sensor)."""
+    """Advance sensor s of an array by a good sample (row s of every argument)."""
     xi = ri / norm[s, 0] + norm[s, 1]
     advance(t, xi, z[s], play[s], clock[s], decay[s], tau[s], widths[s])
     return float((output(xi, z[s], play[s], coef[s], bias[s]) - norm[s, 3]) * norm[s, 2])
@@ -121,8 +120,7 @@ def step_sensor(s: int, t: float, ri: float, z: np.ndarray, play: np.ndarray,
 def features_kernel(t: np.ndarray, xi: np.ndarray, z: np.ndarray, play: np.ndarray,
                     clock: np.ndarray, decay: np.ndarray, tau: np.ndarray,
                     widths: np.ndarray, rows: np.ndarray) -> None:
-    """Features of good samples from the given state, which is left where ``run_kernel`` would
-    leave it (a segment is fed in chunks)."""
+    """Features of good samples from the given state, left as ``run_kernel`` would leave it."""
     for i in range(t.size):
         advance(t[i], xi[i], z, play, clock, decay, tau, widths)
         features(rows[i], xi[i], z, play)

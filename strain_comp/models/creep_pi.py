@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -61,28 +61,13 @@ def play_thresholds(n_play: int) -> np.ndarray:
     return np.arange(1, n_play + 1, dtype=np.float64) / (n_play + 1)
 
 
-def _checked(name: str, values: npt.ArrayLike, *, length: tuple[int, int],
-             lo: float = -math.inf, hi: float = math.inf, strict: bool = False) -> np.ndarray:
-    array = np.ascontiguousarray(values, dtype=np.float64)
-    if array.ndim != 1 or not length[0] <= array.size <= length[1]:
-        size = length[0] if length[0] == length[1] else f"{length[0]} to {length[1]}"
-        raise ParameterError(name, f"must hold {size} numbers, got {array.size}")
-    if not np.all(np.isfinite(array)):
-        raise ParameterError(name, "must hold finite numbers only")
-    bad = (array <= lo) if strict else (array < lo)
-    bad |= array > hi
-    if np.any(bad):
-        j = int(np.argmax(bad))
-        raise ParameterError(f"{name}.{j}", f"must be in {'(' if strict else '['}{lo:g}, "
-                                            f"{hi:g}], got {array[j]:g}")
-    return array
-
-
 @register
 class CreepPI(Compensator):
     """Play operators + Prony creep states + cubic + direction terms, linear in ``weights``."""
 
     name = "creep_pi"
+    param_names = ("taus", "thresholds", "direction_width", "mean", "scale", "weights",
+                   "intercept", "penalty")
     fit_full_rate = True
 
     def __init__(self, *, taus: npt.ArrayLike, thresholds: npt.ArrayLike,
@@ -90,19 +75,14 @@ class CreepPI(Compensator):
                  weights: npt.ArrayLike, intercept: float, penalty: float,
                  normalisation: Normalisation) -> None:
         super().__init__(normalisation)
-        self.taus = _checked("taus", taus, length=(1, N_TAU_MAX), lo=TAU_RANGE[0],
-                             hi=TAU_RANGE[1])
-        self.thresholds = _checked("thresholds", thresholds, length=(1, N_PLAY_MAX), lo=0.0,
-                                   hi=WIDTH_MAX, strict=True)
-        self.direction_width = float(_checked("direction_width", [direction_width],
-                                              length=(1, 1), lo=0.0, hi=WIDTH_MAX,
-                                              strict=True)[0])
-        n_f = n_features(self.thresholds.size, self.taus.size)
-        self.mean = _checked("mean", mean, length=(n_f, n_f))
-        self.scale = _checked("scale", scale, length=(n_f, n_f), lo=SCALE_MIN)
-        self.weights = _checked("weights", weights, length=(n_f, n_f))
-        self.intercept = float(_checked("intercept", [intercept], length=(1, 1))[0])
-        self.penalty = float(_checked("penalty", [penalty], length=(1, 1), lo=0.0)[0])
+        self.taus = np.ascontiguousarray(taus, dtype=np.float64)
+        self.thresholds = np.ascontiguousarray(thresholds, dtype=np.float64)
+        self.direction_width = float(direction_width)
+        self.mean = np.ascontiguousarray(mean, dtype=np.float64)
+        self.scale = np.ascontiguousarray(scale, dtype=np.float64)
+        self.weights = np.ascontiguousarray(weights, dtype=np.float64)
+        self.intercept = float(intercept)
+        self.penalty = float(penalty)
         # The standardisation folded into the weights of the raw features.
         w = self.weights / self.scale
         self._bias = float(self.intercept - np.dot(w, self.mean))
@@ -129,26 +109,23 @@ class CreepPI(Compensator):
         kern.run_kernel(t, r, self.z, self.play, self._clock, self._decay, out, self._norm,
                         self.taus, self._widths, self._coef, self._bias)
 
-    def to_params(self) -> dict[str, Any]:
-        def plain(values: np.ndarray) -> list[float]:
-            return [float(v) for v in values]
-
-        return {"taus": plain(self.taus), "thresholds": plain(self.thresholds),
-                "direction_width": self.direction_width, "mean": plain(self.mean),
-                "scale": plain(self.scale), "weights": plain(self.weights),
-                "intercept": self.intercept, "penalty": self.penalty}
-
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
                     direction: DirectionSettings) -> CreepPI:
-        taus = require_vector(params, "taus")
-        thresholds = require_vector(params, "thresholds")
+        taus = require_vector(params, "taus", lo=TAU_RANGE[0], hi=TAU_RANGE[1])
+        thresholds = require_vector(params, "thresholds", lo=0.0, strict=True)
+        width = require_float(params, "direction_width", lo=0.0, strict=True)
+        for key, values, most in (("taus", taus, N_TAU_MAX), ("thresholds", thresholds,
+                                                                N_PLAY_MAX)):
+            if values.size > most:
+                raise ParameterError(key, f"must hold 1 to {most} numbers, got {values.size}")
+        for key, value in (("thresholds", thresholds.max()), ("direction_width", width)):
+            if value > WIDTH_MAX:
+                raise ParameterError(key, f"must be <= {WIDTH_MAX:g}, got {value:g}")
         n_f = n_features(thresholds.size, taus.size)
-        return cls(taus=taus, thresholds=thresholds,
-                   direction_width=require_float(params, "direction_width", lo=0.0,
-                                                 strict=True),
+        return cls(taus=taus, thresholds=thresholds, direction_width=width,
                    mean=require_vector(params, "mean", length=n_f),
-                   scale=require_vector(params, "scale", length=n_f),
+                   scale=require_vector(params, "scale", length=n_f, lo=SCALE_MIN),
                    weights=require_vector(params, "weights", length=n_f),
                    intercept=require_float(params, "intercept"),
                    penalty=require_float(params, "penalty", lo=0.0),
@@ -158,8 +135,7 @@ class CreepPI(Compensator):
     def fit(cls, segments: Sequence[Segment], normalisation: Normalisation, *,
             direction: DirectionSettings, taus: Sequence[float] = TAUS, n_play: int = N_PLAY,
             lam: float | None = None, **options: Any) -> CreepPI:
-        """Ridge fit of the weights (docs/design.md, "creep_pi"); options checked by
-        ``strain_comp.offline.options``."""
+        """Ridge fit of the weights (docs/design.md, "creep_pi")."""
         tau = np.asarray(taus, dtype=np.float64)
         thresholds = play_thresholds(n_play)
         grams = fold_grams(segments, normalisation, tau, thresholds)
@@ -203,38 +179,18 @@ class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same shapes) stepped together in one kernel call."""
 
     family = "a creep_pi"
+    model_type = CreepPI
+    sizes = "numbers of play operators and time constants"
 
-    def __init__(self, models: Sequence[Compensator]) -> None:
-        super().__init__(models)
-        creep = [cast(CreepPI, model) for model in models]
-        shape = (creep[0].thresholds.size, creep[0].taus.size)
-        for i, model in enumerate(creep):
-            if (model.thresholds.size, model.taus.size) != shape:
-                raise ParameterError(f"models.{i}", "numbers of play operators and time "
-                                                    "constants differ from the first sensor's")
-        k = len(creep)
-        self.norm = np.vstack([m._norm for m in creep])
-        self.tau = np.vstack([m.taus for m in creep])
-        self.widths = np.vstack([m._widths for m in creep])
-        self.coef = np.vstack([m._coef for m in creep])
-        self.bias = np.array([m._bias for m in creep])
-        self.z = np.zeros((k, shape[1]))
-        self.play = np.zeros((k, shape[0] + 1))
-        self.clock = np.zeros((k, 3))
-        self.decay = np.zeros((k, shape[1]))
-        self.state = (self.z, self.play, self.clock, self.decay)
-        self.params = (self.norm, self.tau, self.widths, self.coef, self.bias)
-
-    @classmethod
-    def accepts(cls, model: Compensator) -> bool:
-        """True for creep_pi."""
-        return isinstance(model, CreepPI)
+    @staticmethod
+    def rows(model: CreepPI) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:
+        return ((model.z, model.play, model._clock, model._decay),
+                (model._norm, model.taus, model._widths, model._coef, model._bias))
 
 
 def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: np.ndarray,
                thresholds: np.ndarray) -> np.ndarray:
-    """Gram matrices of [1, features, psi] per cross-validation fold: a segment each, or
-    ``CV_BLOCKS`` contiguous blocks of a single one."""
+    """Gram matrices of [1, features, psi] per fold: a segment each, or CV_BLOCKS of one."""
     widths = np.append(thresholds, DIRECTION_WIDTH)
     n_f = n_features(thresholds.size, tau.size)
     single = len(segments) == 1
@@ -277,8 +233,7 @@ def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
 
 
 def cross_validate(grams: np.ndarray, lams: np.ndarray) -> np.ndarray:
-    """Held-out squared error: each fold's samples predicted by the fit on all the others,
-    per penalty in ``lams``."""
+    """Held-out squared error per penalty and fold, each fold predicted by the others' fit."""
     total = grams.sum(axis=0)
     errors = np.zeros((lams.size, grams.shape[0]))
     for i, lam in enumerate(lams):

@@ -26,6 +26,7 @@ class Cubic(Compensator):
     """S = c3 R^3 + c2 R^2 + c1 R + c0 (eq. (4)); ``c`` = [c0, c1, c2, c3] in ohm units."""
 
     name = "cubic"
+    param_names = ("c",)
 
     def __init__(self, c: npt.ArrayLike, normalisation: Normalisation) -> None:
         super().__init__(normalisation)
@@ -37,9 +38,6 @@ class Cubic(Compensator):
     def _run_into(self, t: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
         c0, c1, c2, c3 = self.c
         out[:] = ((c3 * r + c2) * r + c1) * r + c0
-
-    def to_params(self) -> dict[str, Any]:
-        return {"c": [float(v) for v in self.c]}
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,

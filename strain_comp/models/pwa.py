@@ -51,21 +51,15 @@ def path_matrix(psi: npt.ArrayLike, m: int) -> np.ndarray:
     return np.clip(x[:, None], lo, hi) - origin
 
 
-def inverse_tables(mu: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The tables ``finv`` reads."""
-    return slope_tables(slopes_from_mu(mu))
-
-
 def slope_tables(slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``inverse_tables`` of f given by its M segment slopes (``slopes_from_mu``)."""
+    """The tables ``finv`` reads, of f given by its M segment slopes (``slopes_from_mu``)."""
     b, paths = _breakpoint_paths(slopes.size)
     return b.copy(), paths @ slopes, 1.0 / slopes
 
 
 @cache
 def _breakpoint_paths(m: int) -> tuple[np.ndarray, np.ndarray]:
-    """(breakpoints, ``path_matrix`` at them) of M segments, read-only: what every f of M
-    segments shares (computed once per M: a large array's models are built fast)."""
+    """(breakpoints, ``path_matrix`` at them) of M segments, read-only, computed once per M."""
     b = breakpoints(m)
     paths = path_matrix(b, m)
     b.flags.writeable = False
@@ -75,7 +69,7 @@ def _breakpoint_paths(m: int) -> tuple[np.ndarray, np.ndarray]:
 
 @njit
 def finv(y: float, b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) -> float:
-    """Exact inverse of the PWA f given its tables (see ``inverse_tables``)."""
+    """Exact inverse of the PWA f given its tables (see ``slope_tables``)."""
     j = 0
     nb = b.size
     while j < nb and f_at_b[j] < y:

@@ -57,9 +57,6 @@ def rational_kernel(state: np.ndarray, t: np.ndarray, xi: np.ndarray, coef: np.n
 def _branches(states: np.ndarray) -> np.ndarray:
     """Coefficient row the split model uses per sample: last moving direction, 0 before any."""
     row = np.where(states > 0, 1, np.where(states < 0, 2, 0))
-    moving = np.flatnonzero(row)
-    if moving.size == 0:
-        return row
     index = np.maximum.accumulate(np.where(row > 0, np.arange(row.size), -1))
     return np.where(index >= 0, row[np.maximum(index, 0)], 0)
 
@@ -179,8 +176,7 @@ class Rational(Compensator):
                                  self.direction.tau)
 
     def singular_in(self, r_lo: float, r_hi: float) -> float | None:
-        """The first resistance in [r_lo, r_hi] where a branch's denominator has a real root
-        (the fit keeps every branch pole-free there, ``fit_rat22``), or None."""
+        """The first resistance in [r_lo, r_hi] where a branch has a real pole, or None."""
         lo, hi = self.normalisation.xi(np.array([r_lo, r_hi]))
         for row in self.coef:
             poles = _real_poles(row[3:])
@@ -193,8 +189,7 @@ class Rational(Compensator):
         params: dict[str, Any] = {"mode": self.mode}
         branches = _BRANCHES if self.mode == "split" else ("combined",)
         for i, branch in enumerate(branches):
-            params[branch] = {"p": [float(v) for v in self.coef[i, :3]],
-                              "q": [float(v) for v in self.coef[i, 3:]]}
+            params[branch] = {"p": self.coef[i, :3].tolist(), "q": self.coef[i, 3:].tolist()}
         return params
 
     @classmethod

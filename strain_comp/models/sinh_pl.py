@@ -19,7 +19,6 @@ from strain_comp.base.compensator import (
     Compensator,
     Normalisation,
     Segment,
-    as_float_arrays,
     require_float,
     require_vector,
 )
@@ -48,32 +47,6 @@ def _cell_step(u: float, e: float, dt: float, i_s: float, v_t: float) -> tuple[f
     du = dt * i_s * sign * (1.0 - q * q) / d  # dt g / (1 + dt g')
     slope = dt * (0.5 * c * (1.0 + q * q) * q + dt * c * c * q * q) / (d * d)
     return u + du, slope
-
-
-@njit
-def sinh_pl_forward_kernel(state: np.ndarray, t: np.ndarray, psi: np.ndarray, w0: float,
-                           vb: float, w: np.ndarray, i_s: np.ndarray, v_t: np.ndarray
-                           ) -> np.ndarray:
-    """Forward model eq. (2): psi (input e) -> xi (output i)."""
-    n_cells = w.size
-    out = np.empty(t.size)
-    for n in range(t.size):
-        e = psi[n]
-        if state[0] == 0.0:
-            state[0] = 1.0
-            for k in range(n_cells):
-                state[2 + k] = e
-        else:
-            dt = t[n] - state[1]
-            if dt > 0.0:
-                for k in range(n_cells):
-                    state[2 + k] = _cell_step(state[2 + k], e, dt, i_s[k], v_t[k])[0]
-        state[1] = t[n]
-        acc = w0 * e - vb
-        for k in range(n_cells):
-            acc += w[k] * state[2 + k]
-        out[n] = acc
-    return out
 
 
 @njit
@@ -127,6 +100,7 @@ class SinhPL(Compensator):
     """Reduced power-law compensator with N sinh cells, eq. (1)-(3)."""
 
     name = "sinh_pl"
+    param_names = ("w0", "vb", "w", "i_s", "v_t")
 
     def __init__(self, w0: float, vb: float, w: npt.ArrayLike, i_s: npt.ArrayLike,
                  v_t: npt.ArrayLike, normalisation: Normalisation) -> None:
@@ -149,17 +123,6 @@ class SinhPL(Compensator):
             self.state, t, self.normalisation.xi(r), self.w0, self.vb, self.w, self.i_s,
             self.v_t))
 
-    def forward(self, t: npt.ArrayLike, s: npt.ArrayLike) -> np.ndarray:
-        """Resistance [ohm] the forward model eq. (2) predicts for strain s [%] (fresh state)."""
-        t, s = as_float_arrays(t, s)
-        xi = sinh_pl_forward_kernel(np.zeros_like(self.state), t, self.normalisation.psi(s),
-                                    self.w0, self.vb, self.w, self.i_s, self.v_t)
-        return (xi - self.normalisation.alpha) * self.normalisation.r0
-
-    def to_params(self) -> dict[str, Any]:
-        return {"w0": self.w0, "vb": self.vb, "w": [float(v) for v in self.w],
-                "i_s": [float(v) for v in self.i_s], "v_t": [float(v) for v in self.v_t]}
-
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
                     direction: DirectionSettings) -> SinhPL:
@@ -168,12 +131,8 @@ class SinhPL(Compensator):
             raise ParameterError("w0", "must be non-zero (the compensator divides by it)")
         vb = require_float(params, "vb")
         w = require_vector(params, "w")
-        i_s = require_vector(params, "i_s", length=w.size)
-        v_t = require_vector(params, "v_t", length=w.size)
-        for key, vec in (("i_s", i_s), ("v_t", v_t)):
-            bad = np.flatnonzero(vec <= 0.0)
-            if bad.size:
-                raise ParameterError(f"{key}.{bad[0]}", f"must be > 0, got {vec[bad[0]]}")
+        i_s = require_vector(params, "i_s", length=w.size, lo=0.0, strict=True)
+        v_t = require_vector(params, "v_t", length=w.size, lo=0.0, strict=True)
         return cls(w0, vb, w, i_s, v_t, normalisation)
 
     @classmethod
@@ -223,22 +182,19 @@ class SinhPL(Compensator):
                                 np.full(2 * n_cells, _LOG_LO)])
         upper = np.concatenate([[w0_hi, np.inf], np.full(n_cells, w_max),
                                 np.full(2 * n_cells, _LOG_HI)])
-        best = None
+        starts = []
         for share in (0.8, 0.5):
             for v_t0 in (0.1, 1.0):
                 w_cells = np.full(n_cells, (1.0 - share) * slope / n_cells)
                 x0 = np.concatenate([[share * slope, -offset], w_cells,
                                      np.log(v_t0 / (2.0 * taus)), np.full(n_cells,
                                                                           np.log(v_t0))])
-                sol = least_squares(residual, np.clip(x0, lower + 1e-9, upper - 1e-9),
-                                    bounds=(lower, upper), method="trf", x_scale="jac",
-                                    max_nfev=_START_NFEV, kwargs={"data": coarse})
-                if best is None or sol.cost < best.cost:
-                    best = sol
-        if best is None:
-            raise FitError("sinh_pl: no start point of the least-squares fit")
-        best = least_squares(residual, best.x, bounds=(lower, upper), method="trf",
-                             x_scale="jac", max_nfev=max_nfev)
+                starts.append(least_squares(
+                    residual, np.clip(x0, lower + 1e-9, upper - 1e-9), bounds=(lower, upper),
+                    method="trf", x_scale="jac", max_nfev=_START_NFEV, kwargs={"data": coarse}))
+        best = least_squares(residual, min(starts, key=lambda sol: sol.cost).x,
+                             bounds=(lower, upper), method="trf", x_scale="jac",
+                             max_nfev=max_nfev)
         w0, vb, w, i_s, v_t = unpack(best.x)
         if w0 == 0.0 or not np.all(np.isfinite(best.x)):
             raise FitError("sinh_pl: the fit did not converge to a usable model")

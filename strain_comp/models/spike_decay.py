@@ -90,24 +90,20 @@ class SpikeDecay(Compensator):
         t, s = as_float_arrays(t, s)
         hold_rate = default_hold_rate(s) if hold_rate is None else hold_rate
         factor = np.ones(t.size)
-        for mv in movements(t, s, hold_rate):
-            change = s[mv.end] - s[mv.start]
-            rate = abs(change) / (t[mv.end] - t[mv.start])
-            spike, lam = self.spike(rate, s[mv.end], loading=change >= 0)
-            after = t >= t[mv.end]
-            factor[after] = 1.0 + spike * np.exp(-lam * (t[after] - t[mv.end]))
+        for start, end in movements(t, s, hold_rate):
+            change = s[end] - s[start]
+            rate = abs(change) / (t[end] - t[start])
+            spike, lam = self.spike(rate, s[end], loading=change >= 0)
+            after = t >= t[end]
+            factor[after] = 1.0 + spike * np.exp(-lam * (t[after] - t[end]))
         return self.f(s) * factor
 
     def to_params(self) -> dict[str, Any]:
-        def rows(a: np.ndarray) -> list[list[float]]:
-            return [[float(v) for v in row] for row in a]
-
-        return {"knots": [float(v) for v in self.knots], "c": rows(self.c),
-                "range": [self.lo, self.hi], "rates": [float(v) for v in self.rates],
-                "strains": [float(v) for v in self.strains],
-                "S_loading": rows(self.s_table[0]), "lambda_loading": rows(self.lam_table[0]),
-                "S_unloading": rows(self.s_table[1]),
-                "lambda_unloading": rows(self.lam_table[1]), "min_step": self.min_step}
+        return {"knots": self.knots.tolist(), "c": self.c.tolist(), "range": [self.lo, self.hi],
+                "rates": self.rates.tolist(), "strains": self.strains.tolist(),
+                "S_loading": self.s_table[0].tolist(), "lambda_loading": self.lam_table[0].tolist(),
+                "S_unloading": self.s_table[1].tolist(),
+                "lambda_unloading": self.lam_table[1].tolist(), "min_step": self.min_step}
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], normalisation: Normalisation, *,
@@ -125,21 +121,16 @@ class SpikeDecay(Compensator):
         steps = np.diff(values)
         if not (np.all(steps > 0.0) or np.all(steps < 0.0)):
             raise ParameterError("c", "f is not strictly monotone on range")
-        rates = require_vector(params, "rates")
-        if np.any(rates <= 0.0) or np.any(np.diff(rates) <= 0.0):
-            raise ParameterError("rates", "must be > 0 and strictly increasing")
+        rates = require_vector(params, "rates", lo=0.0, strict=True)
+        if np.any(np.diff(rates) <= 0.0):
+            raise ParameterError("rates", "must be strictly increasing")
         strains = require_vector(params, "strains")
         if np.any(np.diff(strains) <= 0.0):
             raise ParameterError("strains", "must be strictly increasing")
         shape = (rates.size, strains.size)
-        tables = {key: _require_matrix(params, key, shape) for key in
-                  ("S_loading", "lambda_loading", "S_unloading", "lambda_unloading")}
-        for key in ("S_loading", "S_unloading"):
-            if np.any(tables[key] <= -1.0):
-                raise ParameterError(key, "every S must be > -1")
-        for key in ("lambda_loading", "lambda_unloading"):
-            if np.any(tables[key] <= 0.0):
-                raise ParameterError(key, "every lambda must be > 0")
+        # every S > -1 (a positive resistance), every lambda > 0
+        tables = {key: _require_matrix(params, key, shape, lo=-1.0 if key[0] == "S" else 0.0)
+                  for key in ("S_loading", "lambda_loading", "S_unloading", "lambda_unloading")}
         min_step = require_float(params, "min_step", lo=0.0)
         return cls(knots, c, eps_range, rates, strains,
                    [tables["S_loading"], tables["S_unloading"]],
@@ -169,13 +160,15 @@ class SpikeDecay(Compensator):
                    normalisation, direction)
 
 
-def _require_matrix(params: Mapping[str, Any], key: str, shape: tuple[int, int]) -> np.ndarray:
+def _require_matrix(params: Mapping[str, Any], key: str, shape: tuple[int, int], *,
+                    lo: float | None = None) -> np.ndarray:
     if key not in params:
         raise ParameterError(key, "missing")
     value = params[key]
     if not isinstance(value, (list, tuple, np.ndarray)) or len(value) != shape[0]:
         raise ParameterError(key, f"must be a list of {shape[0]} rows")
-    rows = [require_vector({f"{key}.{i}": row}, f"{key}.{i}", length=shape[1])
+    rows = [require_vector({f"{key}.{i}": row}, f"{key}.{i}", length=shape[1], lo=lo,
+                           strict=True)
             for i, row in enumerate(value)]
     return np.array(rows, dtype=np.float64).reshape(shape)
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -19,23 +18,15 @@ from strain_comp.errors import FitError
 _N_BINS = 40  # strain bins of the quasi-static fit without holds
 
 
-@dataclass(frozen=True)
-class Movement:
-    """One movement of the reference strain: sample indices of its start and end."""
-
-    start: int
-    end: int
-
-
-def movements(t: np.ndarray, s: np.ndarray, hold_rate: float) -> list[Movement]:
-    """Maximal runs of sample intervals where |ds/dt| > hold_rate."""
+def movements(t: np.ndarray, s: np.ndarray, hold_rate: float) -> list[tuple[int, int]]:
+    """(start, end) sample indices of the maximal runs of intervals where |ds/dt| > hold_rate."""
     if t.size < 2:
         return []
     moving = np.abs(np.diff(s) / np.diff(t)) > hold_rate
     edges = np.diff(np.concatenate([[0], moving.astype(np.int8), [0]]))
     starts = np.flatnonzero(edges == 1)
     ends = np.flatnonzero(edges == -1)
-    return [Movement(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
 
 
 def default_hold_rate(s: np.ndarray) -> float:
@@ -63,11 +54,11 @@ def analyse_holds(segments: Sequence[Segment], hold_rate: float, min_hold: float
     for seg in segments:
         t, r, s = seg.t, seg.r, seg.s
         moves = movements(t, s, hold_rate)
-        bounds: list[tuple[int, int, Movement | None]] = [
-            (0, moves[0].start if moves else t.size - 1, None)]
+        bounds: list[tuple[int, int, tuple[int, int] | None]] = [
+            (0, moves[0][0] if moves else t.size - 1, None)]
         for k, mv in enumerate(moves):
-            nxt = moves[k + 1].start if k + 1 < len(moves) else t.size - 1
-            bounds.append((mv.end, nxt, mv))
+            nxt = moves[k + 1][0] if k + 1 < len(moves) else t.size - 1
+            bounds.append((mv[1], nxt, mv))
         for a, b, mv in bounds:
             if b - a < 10 or t[b] - t[a] < min_hold:
                 continue
@@ -79,8 +70,8 @@ def analyse_holds(segments: Sequence[Segment], hold_rate: float, min_hold: float
                 fitted = _fit_decay(th, rh, r_inf)
                 if fitted is not None:
                     r_inf, spike, lam, clear = fitted
-                    change = s[mv.end] - s[mv.start]
-                    rate = abs(change) / (t[mv.end] - t[mv.start])
+                    change = s[mv[1]] - s[mv[0]]
+                    rate = abs(change) / (t[mv[1]] - t[mv[0]])
                     steps.append((rate, level, 0 if change >= 0 else 1, spike,
                                   lam if clear else math.nan, abs(change)))
             settled.append((level, r_inf))
@@ -153,17 +144,15 @@ def tabulate(steps: list[tuple[float, ...]], levels: np.ndarray,
     strain_index = np.empty(rate.size, int)
     for gi, g in enumerate(strain_groups):
         strain_index[g] = gi
+    kind = np.array([st[2] for st in steps])
     tables = []
     for column in (3, 4):
         value = np.array([st[column] for st in steps])
         table = np.full((2, rates.size, strains.size), np.nan)
-        for k in range(2):
-            for i in range(rates.size):
-                for j in range(strains.size):
-                    cell = ((rate_index == i) & (strain_index == j) & np.isfinite(value)
-                            & (np.array([st[2] for st in steps]) == k))
-                    if cell.any():
-                        table[k, i, j] = value[cell].mean()
+        for k, i, j in np.ndindex(table.shape):
+            cell = (rate_index == i) & (strain_index == j) & np.isfinite(value) & (kind == k)
+            if cell.any():
+                table[k, i, j] = value[cell].mean()
         tables.append(table)
     s_table, lam_table = tables
     for table, default in ((s_table, 0.0), (lam_table, 1.0)):
@@ -193,8 +182,7 @@ def _fill(table: np.ndarray) -> None:
 def settled_points(segments: Sequence[Segment], settled: list[tuple[float, float]],
                    steps: list[tuple[float, ...]], tol: float
                    ) -> tuple[np.ndarray, np.ndarray, list[tuple[float, ...]]]:
-    """The points f passes through and the steps the tables are made of (docs/models.md,
-    "spike_decay"); without two hold levels, bin means and no step."""
+    """Points f passes through, steps of the tables (docs/models.md, "spike_decay")."""
     levels = _cluster(np.array([p[0] for p in settled]), tol) if settled else []
     if len(levels) >= 2:
         eps_pts = np.array([np.mean([settled[i][0] for i in g]) for g in levels])

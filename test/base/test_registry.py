@@ -7,8 +7,7 @@ import pytest
 
 from strain_comp.base.registry import array_families, model_class, model_names, register
 from strain_comp.errors import ParameterError
-from strain_comp.models.apl import APL
-from strain_comp.models.apl_array import APLArray
+from strain_comp.models.apl import APL, APLArray
 from strain_comp.models.creep_pi import CreepPIArray
 
 DESIGN_MODELS = ("apl", "pl", "mpi", "cubic", "sinh_pl", "rational", "spike_decay",

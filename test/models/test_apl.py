@@ -13,8 +13,7 @@ from strain_comp.base.direction import DirectionSettings
 from strain_comp.errors import FitError, InputError, ParameterError
 from strain_comp.models import apl_kernels as kern
 from strain_comp.models import model_class, pwa
-from strain_comp.models.apl import APL, MPI, PL
-from strain_comp.models.apl_array import APLArray
+from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.cubic import Cubic
 from strain_comp.offline.options import check_fit_options
 

@@ -42,16 +42,12 @@ class LagArray(LiftedArray):
     """The lifted family of ``Lag``: nothing written but its tables."""
 
     family = "a lag"
+    model_type = Lag
+    sizes = "lags"
 
-    def __init__(self, models: list[Lag]) -> None:
-        super().__init__(models)  # type: ignore[arg-type]
-        k = len(models)
-        self.state = (np.zeros((k, 1)), np.zeros((k, 2)))
-        self.params = (np.array([m.gain for m in models]), np.array([m.tau for m in models]))
-
-    @classmethod
-    def accepts(cls, model: object) -> bool:
-        return isinstance(model, Lag)
+    @staticmethod
+    def rows(model: Lag) -> tuple[tuple[np.ndarray, ...], tuple[float, ...]]:
+        return (np.zeros(1), np.zeros(2)), (model.gain, model.tau)
 
 
 def python_lag(model: Lag, t: np.ndarray, r: np.ndarray) -> np.ndarray:
