@@ -447,14 +447,16 @@ def _check_marked_names() -> None:
         raise pytest.UsageError(f"test/conftest.py marks tests that do not exist: {missing}")
 
 
-LONGEST_FIRST = ("test_ros2_cli", "test_diagnose", "test_node_process", "test_hostile",
-                 "test_api", "test_fuzz", "test_progress", "test_failed_writes",
-                 "test_diagnose_creep", "test_reliability", "test_evaluate_stream",
-                 "test_generalisation")
-"""The modules that take longest in a full run (``scripts/test.sh --durations=60``), longest
-first: they run first, so that neither worker of ``--dist loadfile`` is left running one of
-them at the end while the other idles (``pytest_configure`` keeps xdist from reordering the
-files by their number of tests, its default, which started them last)."""
+LONGEST_FIRST = ("test_ros2_cli", "test_diagnose", "test_node_process", "test_failed_writes",
+                 "test_fuzz", "test_progress", "test_hostile", "test_reliability",
+                 "test_diagnose_creep", "test_api", "test_evaluate_stream",
+                 "test_generalisation", "test_array_budgets", "test_db3", "test_many_bags",
+                 "test_model_choice", "test_diagnose_day")
+"""The modules that take longest in a full run (their tests' sum in ``scripts/test.sh
+--durations=0``), longest first: they run first, so that neither worker of ``--dist
+loadfile`` is left running one of them at the end while the other idles
+(``pytest_configure`` keeps xdist from reordering the files by their number of tests, its
+default, which started them last)."""
 
 
 def pytest_configure(config: pytest.Config) -> None:
