@@ -447,22 +447,27 @@ def _check_marked_names() -> None:
         raise pytest.UsageError(f"test/conftest.py marks tests that do not exist: {missing}")
 
 
-LONGEST_FIRST = ("test_ros2_cli", "test_diagnose", "test_node_process", "test_hostile",
-                 "test_api", "test_fuzz", "test_progress", "test_failed_writes",
-                 "test_diagnose_creep", "test_reliability", "test_evaluate_stream",
-                 "test_generalisation")
-"""The modules that take longest in a full run (``scripts/test.sh --durations=60``), longest
-first: they run first, so that neither worker of ``--dist loadfile`` (which hands files out
-in collection order) is left running one of them at the end while the other idles."""
+LONGEST_FIRST = ("test_ros2_cli", "test_diagnose", "test_node_process", "test_failed_writes",
+                 "test_fuzz", "test_progress", "test_hostile", "test_reliability",
+                 "test_diagnose_creep", "test_api", "test_evaluate_stream",
+                 "test_generalisation", "test_array_budgets", "test_db3", "test_many_bags",
+                 "test_model_choice", "test_diagnose_day")
+"""The modules that take longest in a full run (their tests' sum in ``scripts/test.sh
+--durations=0``), longest first: they run first, so that neither worker of ``--dist
+loadfile`` is left running one of them at the end while the other idles
+(``pytest_configure`` keeps xdist from reordering the files by their number of tests, its
+default, which started them last)."""
 
 
 def pytest_configure(config: pytest.Config) -> None:
     """Under pytest-xdist (``-n N``), in the controller before the workers start: the numba
     kernels compiled into the cache by two processes side by side (test/warm_kernels.py),
     so that the workers load them rather than each compile the same ones. A part that fails
-    is a warning: the tests then compile what is missing, as without this step."""
+    is a warning: the tests then compile what is missing, as without this step. The files
+    are handed out in collection order (``LONGEST_FIRST``), not by their number of tests."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
+    config.option.loadscopereorder = False
     script = Path(__file__).with_name("warm_kernels.py")
     with tempfile.TemporaryFile() as log0, tempfile.TemporaryFile() as log1:
         runs = [(subprocess.Popen([sys.executable, str(script), str(part)], stdout=log,

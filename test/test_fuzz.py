@@ -228,8 +228,9 @@ def test_fuzz_live_node_for_a_few_seconds(fuzz, tmp_path: Path,
 def test_fuzz_evaluate_over_folders_of_damaged_bags(fuzz, every_model, tmp_path: Path) -> None:
     """``evaluate FOLDER --csv --json --plots --jobs 1|2`` over seed and damaged bags (the
     long run: ``scripts/fuzz.py --target evaluate``): one line on failure, no temporary
-    file, nothing outside ``--plots``."""
+    file, nothing outside ``--plots``. Seed 0's first three runs: ``--jobs 1`` and ``2``,
+    a ``...mcap`` under each, damaged and clean bags, a refusal and a success."""
     stats = fuzz.fuzz_evaluate(fuzz.seed_bags(tmp_path), fuzz.replay_calibration(every_model),
-                               np.random.default_rng(0), tmp_path / "evaluate", iterations=6)
+                               np.random.default_rng(0), tmp_path / "evaluate", iterations=3)
     assert not stats.crashes, "\n\n".join(trace for _, trace in stats.crashes[:2])
-    assert stats.runs == 6
+    assert stats.runs == 3 and 0 in stats.exits and 2 in stats.exits, stats.exits

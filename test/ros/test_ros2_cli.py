@@ -3,7 +3,8 @@
 The ``ros2`` command comes from a ROS 2 Jazzy installation (``ros2`` on PATH) or from the kit
 ``../shared/ros2cli`` built into ``.venv-ros2`` by ``scripts/ros2_venv.sh`` (Python 3.12,
 Jazzy's; CI builds it). One ``colcon build`` per session (with that environment's setuptools,
->= 76 in the kit), one more with Ubuntu 24.04's setuptools 68 for ``ros2 run``. Then:
+>= 76 in the kit), one more with Ubuntu 24.04's setuptools 68 for ``ros2 run`` (the numba
+cache the first primed copied into it, not compiled again). Then:
 ``ros2 run`` (both builds, and the ``strain-comp`` tools), ``ros2 param get|set|describe|dump``
 (every refusal printed as docs/ros.md quotes it; a dumped file restarts the node),
 ``ros2 topic pub|echo|hz`` (the strain equals the engine's for the published resistance; the
@@ -112,6 +113,17 @@ def build(root: Path, env: dict[str, str]) -> Workspace:
                             "PYTHONUNBUFFERED": "1"})
 
 
+def copy_kernel_cache(source: Workspace, target: Workspace) -> None:
+    """The numba cache that setup.py primed in ``source``'s install, into ``target``'s (the
+    same sources and Python, built with ``STRAIN_COMP_NO_PRIME=1``): its node loads the
+    kernels instead of compiling them a second time."""
+    src, dst = (next(w.root.glob("install/strain_comp/lib/python3*/*-packages"))
+                for w in (source, target))
+    for path in src.rglob("__pycache__/*.nb[ci]"):
+        (dst / path.relative_to(src)).parent.mkdir(exist_ok=True)
+        shutil.copy2(path, dst / path.relative_to(src))
+
+
 def setuptools_version(env: dict[str, str]) -> tuple[int, ...]:
     done = subprocess.run(["python3", "-c", "import setuptools; print(setuptools.__version__)"],
                           env=env, capture_output=True, text=True, timeout=60, check=True)
@@ -138,8 +150,11 @@ def ws(ros2_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> It
     """The one colcon build of the session; ros2 daemons started on its domains are stopped."""
     workspace = build(tmp_path_factory.mktemp("ros2ws"), ros2_env)
     yield workspace
-    for slot in SLOTS:
-        workspace.run("ros2", "daemon", "stop", slot=slot, timeout=30)
+    stopping = [subprocess.Popen(["ros2", "daemon", "stop"], env={**workspace.env, **ros_env(slot)},
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                for slot in SLOTS]
+    for proc in stopping:
+        proc.wait(timeout=30)
 
 
 SLOTS = range(40, 46)
@@ -214,7 +229,8 @@ def test_ros2_run_after_colcon_build(ws: Workspace, ros2_env: dict[str, str], se
             pytest.skip("no setuptools 68 beside the kit venv (scripts/ros2_venv.sh puts it)")
         env = {**ros2_env, "PYTHONPATH": f"{old}:{ros2_env.get('PYTHONPATH', '')}"}
         assert setuptools_version(env) == (68, 1)
-        workspace = build(tmp_path / "ws68", env)
+        workspace = build(tmp_path / "ws68", {**env, "STRAIN_COMP_NO_PRIME": "1"})
+        copy_kernel_cache(ws, workspace)
     log = tmp_path / "run.log"
     proc = workspace.start("ros2", "run", "strain_comp", "compensator", "--ros-args",
                            "--params-file", str(workspace.share / "config/compensator_params.yaml"),
