@@ -88,14 +88,7 @@ class LibraryStream:
             self._channels[entry.id] = self._writer.register_channel(
                 topic, "cdr", self._schemas[entry.type],
                 {"offered_qos_profiles": OFFERED_QOS})
-        t_ns = np.concatenate(p.t_ns)
-        order = np.argsort(t_ns, kind="stable")
-        t_ns = t_ns[order]
-        chan = np.concatenate(p.chan)[order]
-        seq = np.concatenate(p.seq)[order]
-        plen = np.concatenate(p.lengths)
-        poff = np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64)[order]
-        plen = plen[order]
+        t_ns, chan, seq, poff, plen = p.merged()
         blob = np.concatenate(p.payloads).tobytes()
         n = t_ns.size if before is None or final else int(np.searchsorted(t_ns, before))
         add, channels = self._writer.add_message, self._channels

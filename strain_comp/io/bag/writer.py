@@ -68,6 +68,16 @@ class Pending:
     lengths: list[np.ndarray] = field(default_factory=list)
     payloads: list[np.ndarray] = field(default_factory=list)
 
+    def merged(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The messages in log-time order (stable): times, channels, sequences, and each
+        payload's offset and length in the payloads joined in buffered order."""
+        t_ns = np.concatenate(self.t_ns)
+        order = np.argsort(t_ns, kind="stable")
+        plen = np.concatenate(self.lengths)
+        poff = np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64)
+        return (t_ns[order], np.concatenate(self.chan)[order], np.concatenate(self.seq)[order],
+                poff[order], plen[order])
+
 
 def _record(record: Any) -> bytes:
     builder = RecordBuilder()
@@ -131,14 +141,7 @@ class Stream:
         """Write ``p`` merged in log-time order as chunks; unless ``final``, the last partial
         chunk and the messages at or after ``before`` [ns] are returned (sorted) instead."""
         self._declare(topics)
-        t_ns = np.concatenate(p.t_ns)
-        order = np.argsort(t_ns, kind="stable")
-        t_ns = t_ns[order]
-        chan = np.concatenate(p.chan)[order]
-        seq = np.concatenate(p.seq)[order]
-        plen = np.concatenate(p.lengths)
-        poff = (np.concatenate(([0], np.cumsum(plen)[:-1])).astype(np.int64))[order]
-        plen = plen[order]
+        t_ns, chan, seq, poff, plen = p.merged()
         blob = _joined(p.payloads)
         n = t_ns.size if before is None or final else int(np.searchsorted(t_ns, before))
         rec_end = np.cumsum(31 + plen[:n])
