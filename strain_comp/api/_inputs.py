@@ -16,8 +16,7 @@ from strain_comp.io.inputs import existing
 from strain_comp.io.recording import Recording
 
 Kind = Literal["data", "text", "names", "count", "seconds", "window", "points"]
-"""What ``checked`` expects (``_WANTED`` says each in words); ``data``'s items are checked
-where they are read."""
+"""What ``checked`` expects (``_WANTED``: in words); ``data``'s items are checked where read."""
 _WANTED = {"data": "a bag path, a Recording, a list or a dict of Recordings (arrays: "
                    "sc.Recording.from_arrays(t, r, s))", "text": "text",
            "names": "a name or a list of names",
@@ -52,8 +51,7 @@ def _pair(value: object) -> tuple[float, float] | None:
 
 
 def checked(value: Any, kind: Kind, what: str, *, optional: bool = True) -> Any:
-    """A keyword argument of the API as the ``kind`` it must be (None passes when
-    ``optional``: the default); InputError naming ``what`` otherwise."""
+    """An argument as the ``kind`` it must be (None passes when ``optional``), else InputError."""
     if value is None and optional:
         return None
     if kind == "data":
@@ -114,8 +112,7 @@ def paths_of(data: object) -> list[str] | None:
 
 
 def input_paths(*given: object) -> list[str]:
-    """The files a call reads, which none of its outputs may be (``io.atomic.check_output``):
-    each of ``given`` that is a path or a list of paths."""
+    """The paths among ``given`` (paths or lists of them): files no output may overwrite."""
     out: list[str] = []
     for value in given:
         for item in value if isinstance(value, (list, tuple)) else [value]:

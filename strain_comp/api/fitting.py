@@ -124,13 +124,12 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
 
 
 RATIO_TOP = 5.0
-"""A resistance read in ohm whose whole calibrated range lies at or below this [ohm] looks
-like a ratio R/R0 (about 1 at rest): ``_ratio_note`` says so."""
+"""A resistance in ohm whose calibrated range lies at or below this [ohm] looks like R/R0."""
 
 
 def _ratio_note(cal: SensorCalibration) -> str | None:
-    """One line when a sensor's resistance, read as ohm, looks like a ratio R/R0 (a soft
-    sensor's rest is tens of ohm to megaohm; a ratio is about 1 at rest)."""
+    """One line when a sensor's resistance, read as ohm, looks like a ratio R/R0."""
+    # a soft sensor's rest is tens of ohm to megaohm; a ratio is about 1 at rest
     vr = cal.valid_range
     if cal.input.kind != "resistance" or cal.input.unit != "ohm" or vr.r_hi > RATIO_TOP:
         return None

@@ -1,6 +1,5 @@
-"""What the API's functions take (docs/api.md): bag paths, recordings, calibrations or
-their paths; the checks that put them into the one form the commands use are in
-``api._inputs``."""
+"""What the API's functions take (docs/api.md): bag paths, recordings, calibrations or their
+paths (checked in ``api._inputs``)."""
 
 from __future__ import annotations
 

@@ -139,8 +139,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def choice_lines(name: str, cal: SensorCalibration) -> list[str]:
-    """``--model auto``'s table (median and worst RMSE over the runs left out per candidate),
-    the model chosen and why, and the error to expect; nothing for a model given."""
+    """``--model auto``'s table, the model chosen and why, and the error to expect (or none)."""
     from strain_comp.core.calibration import expected_words, strain_unit_words
 
     choice = cal.provenance.get("model_choice")

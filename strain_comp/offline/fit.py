@@ -1,9 +1,6 @@
-"""Fitting orchestration: recordings with a reference strain -> calibration (``fit_sensor``
-one sensor, ``fit_runs`` / ``fit_bags`` every named sensor; docs/design.md, ``fit``), and the
-training data: screened as the engine screens, cut where the engine resets, checked, several
-runs of a sensor put into one input space (``fit --pool``; docs/results.md "Pooling and the
-session start").
-"""
+"""Fitting: recordings with a reference strain -> calibration (``fit_sensor`` one sensor,
+``fit_runs`` / ``fit_bags`` every named one), the training data screened and cut as the engine
+does, several runs pooled (``fit --pool``; docs/results.md "Pooling and the session start")."""
 
 from __future__ import annotations
 
@@ -84,8 +81,7 @@ GAP_SECONDS = GAP_RESET
 MIN_SEGMENT = 8
 """Segments with fewer good samples are not used for fitting."""
 MIN_SPAN = 1e-9
-"""Smallest span of the training resistance [ohm] and strain: a finer one is a unit mistake
-that the least-squares solvers cannot resolve (LAPACK fails)."""
+"""Smallest span of the training resistance [ohm] and strain (a finer one: LAPACK fails)."""
 TRAINING_WIDENING = 0.05
 """Valid range = training range widened by this fraction of its span on each side."""
 
@@ -360,8 +356,7 @@ def training_error(calibration: SensorCalibration, segments: Sequence[Segment]) 
 
 def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
               options: Mapping[str, Any]) -> Pooled:
-    """The training runs pooled (``pooled_input``); ``spanned``: past the ``gate``, the
-    session start ``choose_space`` measures best for the cubic."""
+    """The training runs pooled (``pooled_input``); ``spanned``: as ``choose_space`` says."""
     if pool != "spanned":
         return pooled_input(recordings, pool)
     if len(recordings) < 2:
@@ -494,9 +489,7 @@ def fit_runs(by_sensor: Mapping[str, Sequence[Run]], model: str,
              sensors: Sequence[str] | None = None, options: Mapping[str, Any] | None = None,
              *, where: str, report: Callable[[str], None] | None = None,
              pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
-    """One calibration for ``sensors`` (default or ``all``: every one with a reference), each
-    fitted to its referenced runs (``fit_sensor``, or ``fitter`` for ``fit --model auto``);
-    ``where`` names the inputs in messages."""
+    """One calibration of ``sensors`` (default, ``all``: each referenced one); ``where``: inputs."""
     referenced = [n for n, runs in by_sensor.items()
                   if any(rec.s is not None for _, _, rec in runs)]
     found = ", ".join(by_sensor) or "none"
@@ -671,8 +664,7 @@ def choose_model(recordings: Sequence[Recording], name: str, *,
                  candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
                  options: Mapping[str, Any] | None = None, pool: str = "spanned", jobs: int = 1,
                  ) -> tuple[str, dict[str, Any], list[tuple[Calibration, dict[str, Recording]]]]:
-    """The model of ``--model auto``, its record, and its folds started on each run left out
-    (the pairs ``uncertainty.learn`` takes)."""
+    """``--model auto``'s model, record, and folds started on each run left out (for ``learn``)."""
     options = dict(options or {})
     labels = list(groups) if groups is not None else [str(i) for i in range(len(recordings))]
     held = [tuple(i for i, g in enumerate(labels) if g == label)
@@ -719,8 +711,7 @@ def fit_auto(recordings: Sequence[Recording], *, name: str, bags: Sequence[str |
              options: Mapping[str, Any] | None = None, pool: str = "spanned",
              candidates: Sequence[str] = CANDIDATES, groups: Sequence[str] | None = None,
              jobs: int = 1, index: Sequence[int] | None = None) -> SensorCalibration:
-    """``choose_model``'s model fitted on every run, with its record and uncertainty;
-    ``index``: which input each run is, for ``groups`` given per input."""
+    """``choose_model``'s model fitted on every run; ``index``: each run's input (``groups``)."""
     if groups is not None and index is not None:
         groups = [groups[i] for i in index]
     model, record, pairs = choose_model(recordings, name, candidates=candidates,

@@ -1,7 +1,5 @@
 """Virtual test rig: a soft resistive strain sensor on a tensile tester (strain % in, ohm out),
-after the Electrolycra sensor of [Electrolycra]; the forward model and its effects
-(``RigEffects``): docs/architecture.md.
-"""
+after the Electrolycra sensor of [Electrolycra]; its model and effects: docs/architecture.md."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
-"""The start of a session (``strain-comp start``; docs/design.md) and ``recalibrate``'s work:
-the calibration stretch found, and the estimators of the correction (``core.correction``) the
-calibration's fit chose made on it (docs/results.md, "Pooling and the session start").
-"""
+"""The start of a session (``strain-comp start``) and ``recalibrate``: the calibration stretch
+found, and the estimators of the correction (``core.correction``) the calibration's fit chose
+(docs/results.md, "Pooling and the session start")."""
 
 from __future__ import annotations
 
@@ -187,8 +186,8 @@ def apply_span(cal: SensorCalibration, span: tuple[float, float, float],
 
 
 def ramp_output(cal: SensorCalibration, grid: np.ndarray) -> np.ndarray:
-    """The output, without input zero and span, along a slow (10 Hz) ramp over ``grid``, back
-    and over it again (a sensor at a session's start was last unloaded)."""
+    """The output, no input zero and span, along a slow (10 Hz) ramp over ``grid``, back, over."""
+    # back and over again: a sensor at a session's start was last unloaded
     bare = replace(cal, input=replace(cal.input, zero_span=None))
     path = np.concatenate([grid, grid[::-1], grid])
     return Engine(Calibration({cal.name: bare})).run(cal.name, 0.1 * np.arange(path.size),
@@ -203,8 +202,7 @@ def branch_resistance(grid: np.ndarray, out: np.ndarray, strain: float) -> float
 
 def span_of_first_cycle(cal: SensorCalibration, rec: Recording,
                         ) -> tuple[float, float, float]:
-    """The input zero and span from a run's first cycle: a static map inverted at two points,
-    a memory model's read on its branches (rest unloading, stretch loading), then refined."""
+    """The input zero and span from a run's first cycle: through two points, or on the branches."""
     if rec.s is None:
         raise InputError(f"recalibrate --input: {rec.name!r} has no reference strain")
     curve = steady_curve(cal)
@@ -246,8 +244,7 @@ def cycle_error(cal: SensorCalibration, rec: Recording) -> float:
 
 def span_through_run(cal: SensorCalibration, rec: Recording,
                      start: tuple[float, float, float]) -> tuple[float, float, float]:
-    """The input zero and span (the rest kept) reading the cycle ``rec`` best (Nelder-Mead
-    from ``start`` or the calibration as tared, kept unless the fit is lower)."""
+    """The input zero and span (the rest kept) reading ``rec`` best, by Nelder-Mead."""
     from scipy.optimize import minimize
 
     if rec.s is None or FIT_EVALUATIONS <= 0 or not np.isfinite(rec.s).any():
@@ -566,8 +563,7 @@ def _found(calibration: Calibration, recordings: Mapping[str, Recording],
 
 def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: Window,
           source: str, *, given: bool | None = False) -> Made:
-    """Each step of the session start (``session_forms``) made on ``span``, the window checked
-    first (``given``: as ``--window``)."""
+    """Each step (``session_forms``) made on ``span``, checked first (``given``: a --window)."""
     try:
         if given is not None:
             window_of(recordings, span, calibration, source)
@@ -667,8 +663,8 @@ def cut(rec: Recording, start: float, end: float) -> Recording:
 
 def window_of(recordings: Mapping[str, Recording], span: tuple[float, float],
            calibration: Calibration, source: str = "the bag") -> dict[str, Recording]:
-    """Each referenced recording up to ``span[1]``, its reference NaN before ``span[0]`` (a
-    memory model enters the window in the state the warm-up left)."""
+    """Each referenced recording up to ``span[1]``, its reference NaN before ``span[0]``."""
+    # the warm-up kept: a memory model enters the window in the state it left
     start, end = span
     out = {}
     for name, rec in recordings.items():
