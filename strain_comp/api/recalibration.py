@@ -10,8 +10,8 @@ from strain_comp.api._inputs import as_calibration, as_recordings, checked, path
 from strain_comp.api.inputs import CalibrationLike, Data, read_recordings
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
+from strain_comp.offline.session_start import FORMS, recalibrate_recordings, start
 from strain_comp.offline.session_start import recalibrate as recalibrate_points
-from strain_comp.offline.session_start import recalibrate_recordings, start
 
 
 class Recalibration(NamedTuple):
@@ -59,6 +59,8 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
     first = checked(first, "seconds", "first")
     sensors = checked(sensors, "names", "sensors")
     window = checked(window, "window", "window")
+    if form not in FORMS:
+        raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     cal = as_calibration(calibration)
     if (data is None) == (not pts):
         raise InputError("recalibrate needs either two points (R, S) or data with a "

@@ -7,7 +7,6 @@ import argparse
 
 from strain_comp.cli.common import bag, note, output, tare_flag
 from strain_comp.errors import InputError
-from strain_comp.io.inputs import existing
 
 NAME = "recalibrate"
 SUMMARY = ("output gain and offset (or input zero and span) through two known strains or "
@@ -55,14 +54,13 @@ def run(args: argparse.Namespace) -> int:
 
     if bool(args.point) == bool(args.from_bag):
         raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
-    calibration = api.load_calibration(existing(args.calibration, "calibration file"))
+    calibration = api.load_calibration(args.calibration)
     points = [parse_point(p) for p in args.point or []]
     source = None if args.from_bag is None else bag(args.from_bag)
     output(args.out, [args.calibration, source])
-    if args.first is not None and source is None:
-        raise InputError("recalibrate --first needs --from BAG.mcap")
-    if args.window is not None and source is None:
-        raise InputError("recalibrate --window needs --from BAG.mcap")
+    for flag, value in (("--first", args.first), ("--window", args.window)):
+        if value is not None and source is None:
+            raise InputError(f"recalibrate {flag} needs --from BAG.mcap")
     window = None if args.window is None else parse_window(args.window)
     new, lines = api.recalibrate(calibration, source, points=points, sensors=args.sensor,
                                  tare=args.tare, form="input" if args.input else "output",

@@ -41,7 +41,6 @@ def run(args: argparse.Namespace) -> int:
     if not args.scenario or not args.out:
         raise InputError("simulate needs --scenario NAME and --out BAG.mcap (or --list; "
                          "see strain-comp simulate --help)")
-    rig.check_size(args.scenario, seed=args.seed, duration=args.duration)
     effects = rig.RigEffects.parse(args.effect) if args.effect else None
     output(args.out, [])
     recorded = rig.simulate(args.scenario, seed=args.seed, effects=effects,

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 
 from strain_comp.cli.common import bag, note, output
-from strain_comp.io.inputs import existing
 
 NAME = "start"
 SUMMARY = "the start of a session: correct a calibration on a warm-up and a stretch"
@@ -45,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.session_start import parse_window, start
 
-    calibration = api.load_calibration(existing(args.calibration, "calibration file"))
+    calibration = api.load_calibration(args.calibration)
     source = bag(args.recording)
     output(args.out, [args.calibration, source])
     window = None if args.window is None else parse_window(args.window)

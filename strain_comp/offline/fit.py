@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 from itertools import pairwise
 from multiprocessing import get_context
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -61,14 +61,8 @@ from strain_comp.offline.uncertainty import learn
 if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
-class Fitter(Protocol):
-    """Fits one sensor's runs as ``fit_bags`` asks (``auto_fitter``)."""
-
-    def __call__(self, recordings: Sequence[Recording], *, name: str,
-                 bags: Sequence[str | Path], options: Mapping[str, Any] | None, pool: str,
-                 index: Sequence[int]) -> SensorCalibration:
-        """The sensor's calibration; ``index``: which of the bags given each run is."""
-
+Fitter = Callable[..., SensorCalibration]
+"""``fit_auto`` with its choice bound (``auto_fitter``), as ``fit_runs`` calls it."""
 
 CHOICE_RUNS = 3
 """Runs a pooled fit needs to choose its session start: each fold a pooled fit of two."""
@@ -199,20 +193,6 @@ class Pooled:
     """The line the stretches share (``InputSettings.stretch_line``), for ``stretch``."""
 
 
-def _lines(recordings: Sequence[Recording]) -> list[Line] | None:
-    """Each run's line (``run_line``), or None where one has none or their signs differ."""
-    lines = [run_line(rec) for rec in recordings]
-    found = [line for line in lines if line is not None]
-    if len(found) < len(lines) or len({np.sign(g) for _, g in found}) > 1:
-        return None
-    return found
-
-
-def _anchor(lines: Sequence[Line]) -> int:
-    """The run of median sensitivity (the lower middle one of an even count)."""
-    return int(np.argsort([abs(g) for _, g in lines])[(len(lines) - 1) // 2])
-
-
 def _thinned(recordings: Sequence[Recording]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Each run's good, referenced (R, S), evenly thinned to about ``POOL_SAMPLES``."""
     data = []
@@ -225,42 +205,45 @@ def _thinned(recordings: Sequence[Recording]) -> list[tuple[np.ndarray, np.ndarr
     return data
 
 
-def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float) -> float:
-    """RMSE of the pooled cubic of strain on mapped resistance through the mapped runs."""
-    data = _thinned(recordings)
+def _misfit(data: Sequence[tuple[np.ndarray, np.ndarray]], maps: Sequence[Map], r_ref: float,
+            scale: float | None = None) -> np.ndarray:
+    """The pooled cubic of strain on mapped resistance (over ``scale``, else its median) - S."""
     mapped = np.concatenate([r_ref + k * (r - z) for (r, _), (z, k) in zip(data, maps,
                                                                           strict=True)])
     s_all = np.concatenate([s for _, s in data])
-    mapped = mapped / float(np.median(np.abs(mapped)))
-    fitted = np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped)
-    return float(np.sqrt(np.mean((fitted - s_all) ** 2)))
+    mapped = mapped / (float(np.median(np.abs(mapped))) if scale is None else scale)
+    fitted: np.ndarray = np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped)
+    return np.asarray(fitted - s_all, dtype=np.float64)
+
+
+def curve_rmse(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: float) -> float:
+    """RMSE of the pooled cubic of strain on mapped resistance through the mapped runs."""
+    return float(np.sqrt(np.mean(_misfit(_thinned(recordings), maps, r_ref) ** 2)))
 
 
 def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
     """Each run's affine map onto the median-sensitivity run, fitted jointly with a cubic."""
     from scipy.optimize import least_squares
 
-    found = _lines(recordings)
-    if found is None:
+    lines = [run_line(rec) for rec in recordings]
+    found = [line for line in lines if line is not None]
+    if len(found) < len(lines) or len({np.sign(g) for _, g in found}) > 1:
         return None
-    anchor = _anchor(found)
+    # the run of median sensitivity (the lower middle one of an even count)
+    anchor = int(np.argsort([abs(g) for _, g in found])[(len(found) - 1) // 2])
     r0_ref, g_ref = found[anchor]
     data = _thinned(recordings)
     # map of run i: R' = r0_ref + k_i (R - z_i); started on the lines: z = R_0, k = g_ref / g
     start = np.array([v for i, (r0, g) in enumerate(found) if i != anchor
                       for v in (r0, g_ref / g)])
     scale = float(np.median(np.concatenate([np.abs(r) for r, _ in data])))
-    s_all = np.concatenate([s for _, s in data])
 
     def unpack(x: np.ndarray) -> list[Map]:
         pairs = iter(zip(x[::2], x[1::2], strict=True))
         return [(r0_ref, 1.0) if i == anchor else next(pairs) for i in range(len(data))]
 
     def residual(x: np.ndarray) -> np.ndarray:  # the cubic solved for, given the maps
-        mapped = np.concatenate([(r0_ref + k * (r - z)) / scale
-                                 for (r, _), (z, k) in zip(data, unpack(x), strict=True)])
-        fitted: np.ndarray = np.polyval(np.polyfit(mapped, s_all, POOL_DEGREE), mapped)
-        return np.asarray(fitted - s_all, dtype=np.float64)
+        return _misfit(data, unpack(x), r0_ref, scale)
 
     gains = start[1::2]
     lower = np.ravel([(-np.inf, 0.2 * k) for k in gains])
