@@ -95,7 +95,11 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
     paths = paths_of(data)
     runs = paths if paths is not None else (
         [data] if isinstance(data, (Recording, Mapping)) else list(data))  # type: ignore[arg-type]
-    auto = _auto(len(runs), candidates, groups, jobs, options) if model == "auto" else None
+    auto = None
+    if model == "auto":
+        chosen = parse_candidates(candidates)
+        check_auto_options(chosen, options)
+        auto = auto_fitter(chosen, parse_groups(groups, len(runs)), jobs)
 
     grid = auto is None and "progress" in model_options(model) and "progress" not in options
     with bar(None, f"{model} fit", enabled=grid and progress_bar) as shown:
@@ -136,14 +140,6 @@ def _ratio_note(cal: SensorCalibration) -> str | None:
     return (f"sensor {cal.name!r}: its resistance spans {vr.r_lo:.3g} to {vr.r_hi:.3g}, "
             "read as ohm; if it is a ratio (R/R0), fit with --input-unit R/R0 (Python: "
             "input_unit='R/R0') so that the dead zone and the plots say so")
-
-
-def _auto(n_runs: int, candidates: Sequence[str] | str | None,
-          groups: Sequence[Any] | str | None, jobs: int, options: Mapping[str, Any]) -> Fitter:
-    """The fitter of ``model="auto"``, its candidates, groups and options checked."""
-    chosen = parse_candidates(candidates)
-    check_auto_options(chosen, options)
-    return auto_fitter(chosen, parse_groups(groups, n_runs), jobs)
 
 
 def _fit(runs: Sequence[Any], model: str, sensors: Sequence[str] | None,

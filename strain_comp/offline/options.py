@@ -135,11 +135,6 @@ MEANINGS: dict[str, str] = {
 """What each option sets, with its default (``strain-comp fit --help``)."""
 
 
-def requirement(check: Check) -> str:
-    """What ``check`` accepts, in words (its answer to a value no check accepts)."""
-    return check(object()) or ""
-
-
 def describe_options() -> str:
     """Every model's options with meaning and range, for ``strain-comp fit --help``."""
     groups = (("apl, pl, mpi", "apl"), ("sinh_pl", "sinh_pl"), ("rational", "rational"),
@@ -150,7 +145,8 @@ def describe_options() -> str:
         lines.append(f"  {title}:")
         table = DIRECTION_OPTIONS if model is None else model_options(model)
         for key, check in table.items():
-            lines.append(f"    {key:<13}{MEANINGS.get(key, '')}; {requirement(check)}")
+            # what the check accepts: its answer to a value no check accepts
+            lines.append(f"    {key:<13}{MEANINGS.get(key, '')}; {check(object()) or ''}")
     return "\n".join(lines)
 
 

@@ -74,19 +74,16 @@ class RigEffects:
             raise ParameterError("adc_bits", f"must be an integer 0..24, got {self.adc_bits}")
 
     @classmethod
-    def names(cls) -> list[str]:
-        return [f.name for f in dataclasses.fields(cls)]
-
-    @classmethod
     def parse(cls, items: Iterable[str]) -> RigEffects:
         """Effects from ``name=value`` strings, the others at their defaults."""
         changes: dict[str, float] = {}
+        names = [f.name for f in dataclasses.fields(cls)]
         for item in items:
             name, sep, value = item.partition("=")
             name = name.strip()
-            if not sep or name not in cls.names():
+            if not sep or name not in names:
                 raise ParameterError(name or item, f"unknown effect (expected name=value, "
-                                     f"name one of {', '.join(cls.names())})")
+                                     f"name one of {', '.join(names)})")
             try:
                 changes[name] = float(value)
             except ValueError:

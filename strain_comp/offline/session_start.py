@@ -579,9 +579,8 @@ def _made(calibration: Calibration, recordings: Mapping[str, Recording], span: W
         if not sensors:
             continue
         try:
-            calibration, _ = recalibrate_recordings(
-                calibration, recordings, form=form,
-                tare="calibration" if form == "output" else "auto", sensors=sensors,
+            calibration, _ = recalibrate_recordings(  # the input form reads no tare
+                calibration, recordings, form=form, sensors=sensors,
                 first=span[1] if head else None, span=None if head else span, source=source)
         except StrainCompError as err:
             notes.append(_why(f"the {form} step not made: {err}"))
