@@ -14,12 +14,12 @@ import numpy.typing as npt
 from strain_comp.api._inputs import as_calibration, checked, input_paths, paths_of
 from strain_comp.api.inputs import CalibrationLike, PathLike
 from strain_comp.base.samples import used_mask
-from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine, tracking_off
 from strain_comp.core.tare import tare_engine
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.replay import replay_bag
+from strain_comp.offline.session_start import one_sensor
 
 if TYPE_CHECKING:
     from strain_comp.offline.replay import ReplaySummary
@@ -88,7 +88,7 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
         checked(value, "text", what, optional=False)
     tracking_off(tracking)
     cal = as_calibration(calibration)
-    name = _sensor_name(cal, sensor)
+    name = one_sensor(cal, None if sensor is None else [sensor], "estimate")
     rec = Recording.from_arrays(t, r, name=name, temperature=temperature)
     stamps = rec.t[np.isfinite(rec.t)]
     back = np.flatnonzero(np.diff(stamps) <= 0)
@@ -104,18 +104,6 @@ def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *
            else np.asarray(out.std, dtype=np.float64))
     return Estimate(np.where(valid, np.asarray(out.strain, dtype=np.float64), np.nan),
                     np.asarray(out.direction, dtype=np.int8), valid, std)
-
-
-def _sensor_name(calibration: Calibration, sensor: str | None) -> str:
-    if sensor is None:
-        if len(calibration.sensors) != 1:
-            raise InputError("name the sensor: the calibration has "
-                             f"{', '.join(calibration.sensors)}")
-        return next(iter(calibration.sensors))
-    if sensor not in calibration.sensors:
-        raise InputError(f"sensor {sensor!r} is not in the calibration "
-                         f"({', '.join(calibration.sensors)})")
-    return sensor
 
 
 def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,

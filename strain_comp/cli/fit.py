@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from strain_comp.cli.common import Parser, bag, note, output
+from strain_comp.cli.common import Parser, note, output
 from strain_comp.io.atomic import check_distinct, write_text
 
 if TYPE_CHECKING:
@@ -83,9 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """The model fitted (``api.fit``), the calibration written, one line per sensor."""
-    for path in args.bags:
-        bag(path)
-    output(args.out, args.bags)
+    output(args.out, args.bags)  # the bags are checked where api.fit reads them
     auto = args.model == "auto"
     for flag, value in (("--candidates", args.candidates), ("--groups", args.groups),
                         ("--report", args.report)):

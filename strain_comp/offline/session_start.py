@@ -478,10 +478,7 @@ def start(calibration: Calibration, recordings: Mapping[str, Recording], *,
     """The session start on the stretch found (or ``window``, or the first ``first`` s)."""
     names = [n for n, rec in recordings.items() if n in calibration.sensors
              and rec.s is not None and not (sensors and n not in sensors)]
-    for name in sensors or ():
-        if name not in calibration.sensors:
-            raise InputError(f"sensor {name!r} is not in the calibration "
-                             f"({', '.join(calibration.sensors)})")
+    _calibrated(calibration, sensors)
     if not names:
         raise InputError(f"{source} holds no strain reference of "
                          f"{', '.join(sensors or calibration.sensors)}: record the start "
@@ -782,20 +779,31 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
     return Calibration(out), lines
 
 
+def _calibrated(calibration: Calibration, sensors: Sequence[str] | None) -> None:
+    """InputError for a sensor of ``sensors`` the calibration lacks."""
+    for name in sensors or ():
+        if name not in calibration.sensors:
+            raise InputError(f"sensor {name!r} is not in the calibration "
+                             f"({', '.join(calibration.sensors)})")
+
+
+def one_sensor(calibration: Calibration, sensors: Sequence[str] | None, what: str) -> str:
+    """The one sensor ``sensors`` names, else the calibration's only one; InputError otherwise."""
+    names = list(sensors or calibration.sensors)
+    if len(names) != 1:
+        raise InputError(f"{what}: name one sensor (the calibration has "
+                         f"{', '.join(calibration.sensors)})")
+    _calibrated(calibration, names)
+    return names[0]
+
+
 def recalibrate(calibration: Calibration, *, points: Sequence[tuple[float, float]] = (),
                 sensors: Sequence[str] | None = None, form: str = "output",
                 ) -> tuple[Calibration, list[str]]:
     """``recalibrate --point``: the calibration through two known points on one sensor."""
     if len(points) != 2:
         raise InputError(f"recalibrate needs exactly two --point R:S, got {len(points)}")
-    names = list(sensors or calibration.sensors)
-    if len(names) != 1:
-        raise InputError("recalibrate --point: name one --sensor (the calibration has "
-                         f"{', '.join(calibration.sensors)})")
-    name = names[0]
-    if name not in calibration.sensors:
-        raise InputError(f"sensor {name!r} is not in the calibration "
-                         f"({', '.join(calibration.sensors)})")
+    name = one_sensor(calibration, sensors, "recalibrate --point")
     cal, record = calibration.sensors[name], {"points": [list(p) for p in points]}
     if form == "input":
         span = span_from_points(cal, points)
