@@ -1,7 +1,6 @@
-"""``StrainEstimator``: fit, predict and score under scikit-learn's names, one calibration
-held between them (docs/api.md). The methods are the API's functions (``fit``, ``estimate``,
-``evaluate``), so the numbers are the command line's. ``Calibration`` itself (core, below
-the engine) has no such methods: the engine imports it, so it cannot call the engine."""
+"""``StrainEstimator``: fit, predict and score under scikit-learn's names by the API's functions
+(docs/api.md). ``Calibration`` (core, below the engine) has no such methods: the engine imports
+it, so it cannot call the engine."""
 
 from __future__ import annotations
 

@@ -747,6 +747,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
         where = f"{source}{'' if first is None else f', first {first:g} s'}"
     out = dict(calibration.sensors)
     lines = []
+    record = {"from": source, "first": first, "window": None if span is None else list(span)}
     if form == "input":
         for name, rec in recs.items():
             if name not in calibration.sensors or rec.s is None or (sensors and
@@ -756,9 +757,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
             by_line = cal.input.stretch_line is not None
             zero_span = (stretch_span(cal, rec) if by_line
                          else span_of_first_cycle(cal, rec))
-            out[name] = apply_span(cal, zero_span, {"from": source, "first": first,
-                                                    "window": None if span is None
-                                                    else list(span)})
+            out[name] = apply_span(cal, zero_span, record)
             lines.append(f"{name}: {span_reading(zero_span)} (from {where}"
                          + ("; the stretch's line put onto the calibration's: the whole "
                             "session start, no output step)" if by_line else ")"))
@@ -772,8 +771,7 @@ def recalibrate_recordings(calibration: Calibration, recordings: Mapping[str, Re
             continue
         a, b = map_from_pairs(ev.estimate[ev.scored], ev.reference[ev.scored],
                               span=fitted_rest(calibration.sensors[name].valid_range)[1])
-        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, "first": first,
-                                                "window": None if span is None else list(span)})
+        out[name] = apply_map(out[name], a, b, {"from": source, "tare": tare, **record})
         lines.append(f"{name}: {reading(a, b, unit=ev.unit)} (from {where}, "
                      f"{int(ev.scored.sum())} samples)")
     return Calibration(out), lines
