@@ -63,8 +63,8 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
         raise InputError(f"recalibrate: form {form!r} is not one of {', '.join(FORMS)}")
     cal = as_calibration(calibration)
     if (data is None) == (not pts):
-        raise InputError("recalibrate needs either two points (R, S) or data with a "
-                         "reference strain")
+        raise InputError("recalibrate needs either two points (--point R:S) or data with a "
+                         "reference strain (--from BAG.mcap)")
     if data is None:
         return Recalibration(*recalibrate_points(cal, points=pts, sensors=sensors, form=form))
     paths = paths_of(data)

@@ -52,8 +52,6 @@ def run(args: argparse.Namespace) -> int:
     from strain_comp.core.calibration_file import save_calibration
     from strain_comp.offline.session_start import parse_point, parse_window
 
-    if bool(args.point) == bool(args.from_bag):
-        raise InputError("recalibrate needs either two --point R:S or --from BAG.mcap")
     calibration = api.load_calibration(args.calibration)
     points = [parse_point(p) for p in args.point or []]
     source = None if args.from_bag is None else bag(args.from_bag)

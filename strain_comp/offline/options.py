@@ -69,21 +69,17 @@ def _number_list(lo: float, *, strict: bool = False, hi: float = math.inf,
     return check
 
 
-def _apl_options() -> dict[str, Check]:
-    return {
-        "N": _integer(1, N_MAX), "M": _integer(1, M_MAX, odd=True),
-        "sigma_grid": _number_list(0.0, strict=True), "p_grid": _number_list(P_MIN),
-        "refine": _boolean, "cell_weights": _choice("signed", "lead", "lag", "free"),
-        "eps": _number(0.0, strict=True), "ridge": _number(0.0),
-        "output_nfev": _integer(0, MAX_COUNT), "search_nfev": _integer(0, MAX_COUNT),
-        "search_top": _integer(0, MAX_COUNT), "progress": _progress,
-    }
-
-
 def model_options(model: str) -> dict[str, Check]:
     """The options of ``model``'s fit (without the direction options)."""
     if model in ("apl", "pl", "mpi"):
-        return _apl_options()
+        return {
+            "N": _integer(1, N_MAX), "M": _integer(1, M_MAX, odd=True),
+            "sigma_grid": _number_list(0.0, strict=True), "p_grid": _number_list(P_MIN),
+            "refine": _boolean, "cell_weights": _choice("signed", "lead", "lag", "free"),
+            "eps": _number(0.0, strict=True), "ridge": _number(0.0),
+            "output_nfev": _integer(0, MAX_COUNT), "search_nfev": _integer(0, MAX_COUNT),
+            "search_top": _integer(0, MAX_COUNT), "progress": _progress,
+        }
     if model == "sinh_pl":
         return {"n_cells": _integer(1, 3), "max_nfev": _integer(1, MAX_COUNT)}
     if model == "rational":
