@@ -225,7 +225,7 @@ def joint_maps(recordings: Sequence[Recording]) -> Joint | None:
     """Each run's affine map onto the median-sensitivity run, fitted jointly with a cubic."""
     from scipy.optimize import least_squares
 
-    lines = [run_line(rec) for rec in recordings]
+    lines = [run_line(rec.t, rec.r, rec.s) for rec in recordings]
     found = [line for line in lines if line is not None]
     if len(found) < len(lines) or len({np.sign(g) for _, g in found}) > 1:
         return None
@@ -264,12 +264,9 @@ def stretch_space(recordings: Sequence[Recording], maps: Sequence[Map], r_ref: f
             return None
         part = cut(rec, *stretch)
         parts.append(replace(part, r=r_ref + k * (np.asarray(part.r, dtype=np.float64) - z)))
-    assert parts[0].s is not None  # every run has a stretch
-    pooled = replace(parts[0], t=np.arange(sum(p.t.size for p in parts), dtype=np.float64),
-                     r=np.concatenate([p.r for p in parts]),
-                     s=np.concatenate([p.s for p in parts if p.s is not None]),
-                     temperature=None)
-    line = run_line(pooled)
+    line = run_line(np.arange(sum(p.t.size for p in parts), dtype=np.float64),
+                    np.concatenate([p.r for p in parts]),
+                    np.concatenate([p.s for p in parts if p.s is not None]))
     return line if line is not None and line[0] > 0 else None
 
 

@@ -281,13 +281,13 @@ Line = tuple[float, float]
 """(R_0 [ohm], g [ohm per strain unit]) of R = R_0 + g S."""
 
 
-def run_line(rec: Recording) -> Line | None:
+def run_line(t: np.ndarray, r: np.ndarray, s: np.ndarray | None) -> Line | None:
     """(R_0, g) of the least-squares line R = R_0 + g S of a run's good referenced samples."""
     # closed form: no LAPACK call to fail on a reference near 1e-300
-    if rec.s is None:
+    if s is None:
         return None
-    ok = good_mask(rec.t, rec.r) & np.isfinite(rec.s)
-    s, r = np.asarray(rec.s, dtype=np.float64)[ok], np.asarray(rec.r, dtype=np.float64)[ok]
+    ok = good_mask(t, r) & np.isfinite(s)
+    s, r = np.asarray(s, dtype=np.float64)[ok], np.asarray(r, dtype=np.float64)[ok]
     if s.size < 2 or not np.ptp(s) > 0:
         return None
     with np.errstate(all="ignore"):
@@ -301,7 +301,7 @@ def stretch_span(cal: SensorCalibration, rec: Recording) -> tuple[float, float, 
     """The input zero and span putting the stretch's line onto the calibration's."""
     space = cal.input.stretch_line
     assert space is not None
-    own = run_line(replace(rec, r=cal.input.to_ohm(rec.r)))
+    own = run_line(rec.t, cal.input.to_ohm(rec.r), rec.s)
     if own is None or np.sign(own[1]) != np.sign(space[1]) or not own[0] > 0:
         raise InputError(f"recalibrate --input: sensor {cal.name!r}: its resistance does not "
                          "move with the reference strain in the stretch read as the "
