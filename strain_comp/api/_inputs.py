@@ -98,7 +98,6 @@ def checked(value: Any, kind: Kind, what: str, *, optional: bool = True) -> Any:
 
 
 def is_path(data: object) -> TypeGuard[str | os.PathLike[str]]:
-    """Is ``data`` one path (str or ``os.PathLike``)?"""
     return isinstance(data, (str, os.PathLike))
 
 

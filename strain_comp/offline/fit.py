@@ -577,7 +577,6 @@ def parse_groups(text: str | Sequence[Any] | None, runs: int) -> list[str] | Non
 
 
 def _takes(model: str, key: str) -> bool:
-    """Whether ``model``'s fit takes the option ``key``."""
     return key in model_options(model) or key in DIRECTION_OPTIONS or key in FIT_OPTIONS
 
 

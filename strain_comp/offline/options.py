@@ -153,7 +153,6 @@ FIT_OPTIONS: dict[str, Check] = {
 
 
 def check_fit_options(model: str, options: Mapping[str, Any]) -> None:
-    """Check the fit options of ``model``."""
     known = {**model_options(model), **DIRECTION_OPTIONS, **FIT_OPTIONS}
     for key, value in options.items():
         if key not in known:

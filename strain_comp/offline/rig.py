@@ -240,7 +240,6 @@ SEED_MAX = 2**63 - 1
 
 
 def check_size(scenario: str, *, seed: int = 0, duration: float | None = None) -> None:
-    """Check a scenario's size before it runs."""
     if scenario not in _SCENARIOS:
         raise ParameterError("scenario", f"unknown scenario {scenario!r}; one of "
                              f"{', '.join(SCENARIOS)}")
@@ -287,7 +286,7 @@ def _branch(u: npt.NDArray[np.float64], tau: float, fs: float) -> npt.NDArray[np
 
 
 def _mechanical(strain: np.ndarray, spec: SensorSpec, fx: RigEffects, fs: float) -> np.ndarray:
-    """Noise-free R_mech [ohm] of one sensor (items 1-2 of the module docstring)."""
+    """Noise-free R_mech [ohm] of one sensor (docs/architecture.md, items 1-2)."""
     g = spec.gain * spec.s_sat * np.tanh(strain / spec.s_sat)
     peak = np.maximum.accumulate(strain)
     u = np.maximum(0.1, 1.0 - fx.mullins * peak / 100.0) * g
@@ -309,7 +308,7 @@ def temperature_profile(t: np.ndarray) -> np.ndarray:
 
 def _chain(t: np.ndarray, r: np.ndarray, fx: RigEffects, rng: np.random.Generator
            ) -> npt.NDArray[np.float64]:
-    """The measurement chain's own effects (item 4): alternation, spikes, baseline step."""
+    """The measurement chain (docs/architecture.md, item 4): alternation, spikes, baseline step."""
     out: npt.NDArray[np.float64] = r + fx.alternation * (-1.0) ** np.arange(r.size)
     out = out + fx.baseline_step * (t >= fx.baseline_step_at)
     if fx.spikes > 0:
