@@ -51,7 +51,7 @@ from strain_comp.offline.fit import fit_sensor
 bag, model, budget = sys.argv[1], sys.argv[2], int(sys.argv[3])
 start = time.perf_counter()
 rec = load_recordings(bag)[0]["s1"]
-cal = fit_sensor([rec], model, name="s1", bags=[bag], budget=budget)
+cal = fit_sensor([rec], model, name="s1", bags=[bag], options={"fit_budget": budget})
 seconds = time.perf_counter() - start
 with open("/proc/self/status") as status:  # VmHWM: this process's peak since exec
     peak = next(int(ln.split()[1]) for ln in status if ln.startswith("VmHWM")) / 1024

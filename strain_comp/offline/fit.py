@@ -359,7 +359,7 @@ def pool_runs(recordings: Sequence[Recording], pool: str, name: str,
 
 def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
                bags: Sequence[str | Path] = (), options: Mapping[str, Any] | None = None,
-               budget: int = FIT_SAMPLE_BUDGET, pool: str = "spanned") -> SensorCalibration:
+               pool: str = "spanned") -> SensorCalibration:
     """Fit ``model`` to one sensor's runs, several pooled as ``pool`` says."""
     options, cls = dict(options or {}), model_class(model)
     check_fit_options(model, options)
@@ -377,7 +377,7 @@ def fit_sensor(recordings: Sequence[Recording], model: str, *, name: str,
     direction, direction_source = direction_settings(segments, options)
     direction = replace(direction, sign=resistance_sign(r_all, s_all))
     model_options = {k: v for k, v in options.items() if k not in _OWN_OPTIONS}
-    budget = options.get("fit_budget", budget)
+    budget = options.get("fit_budget", FIT_SAMPLE_BUDGET)
     start = time.perf_counter()
     fit_segments, factor = ((segments, 1) if cls.fit_full_rate
                             else reduce_segments(segments, budget))

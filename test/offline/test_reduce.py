@@ -118,7 +118,7 @@ def test_reduced_fit_error_on_the_full_data_is_close_to_the_full_fit() -> None:
         rng.standard_normal(t.size)
     rec = Recording("s1", t, r, np.interp(t, s1.t, s1.strain))
     full = fit_sensor([rec], "apl", name="s1")
-    reduced = fit_sensor([rec], "apl", name="s1", budget=t.size // 7)
+    reduced = fit_sensor([rec], "apl", name="s1", options={"fit_budget": t.size // 7})
     assert "fit_reduction" not in full.provenance
     assert reduced.provenance["fit_reduction"]["factor"] >= 7
     assert reduced.provenance["n_samples"] == full.provenance["n_samples"] == t.size
