@@ -120,6 +120,7 @@ class SimSensor:
 class SimRun:
     """The result of ``simulate``; ``array``: the array topic prefix of sensors in one array."""
 
+    effects: RigEffects
     fs: float
     sensors: dict[str, SimSensor]
     array: str | None = None
@@ -366,7 +367,7 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
         chain = _chain(t, r[:, i], fx, np.random.default_rng([seed, 100 + i]))
         sensors[name] = SimSensor(t=t, strain=strain[:, i].copy(),
                                   resistance=_read_out(chain, fx, noise_rng), temperature=temp)
-    return SimRun(fs=sc.fs, sensors=sensors,
+    return SimRun(effects=fx, fs=sc.fs, sensors=sensors,
                   array=ARRAY_NAME if scenario == "array" else None)
 
 
