@@ -133,8 +133,8 @@ def _copy_part(part: str, table: SeriesCSV, target: str) -> None:
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Cancel what has not started, SIGTERM every worker, SIGKILL after ``STOP_SECONDS``
-    (the pool's private attribute: no public API reaches its processes)."""
+    """Cancel what has not started, SIGTERM every worker, SIGKILL after ``STOP_SECONDS``."""
+    # the pool's private attribute: no public API reaches its processes
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
@@ -175,9 +175,7 @@ def _evaluate_in_worker(*args: Any) -> BagSection:
 
 
 def _context() -> BaseContext:
-    """Fork on Linux (a worker starts without importing strain_comp and numba again: spawn
-    cost about 2 s per worker, more than a bag takes; the parent has no threads running
-    here), spawn elsewhere (macOS: fork is unsafe)."""
+    """Fork on Linux (spawn re-imports numba: about 2 s per worker), spawn elsewhere (macOS)."""
     return get_context("fork" if sys.platform == "linux" else "spawn")
 
 

@@ -1,9 +1,6 @@
 """The direction detector's settings from training data ([EGaIn] section V.E: dead zone = k
-sigma of dR/dt noise on a hold): on the second half of the longest hold of the reference
-(relaxation after the stop is no noise), else on white noise of the sigma the MAD of R's
-second difference gives (std(d2 R) = sqrt(6) sigma; fixed seed). The provenance says which
-(``direction_from``); ``sign`` makes the published direction +1 on loading for every sensor.
-"""
+sigma of dR/dt noise) on the second half of the longest hold of the reference, else on seeded
+white noise of R's robust sigma; ``direction_from`` in the provenance says which."""
 
 from __future__ import annotations
 
@@ -58,10 +55,8 @@ def _noise_sigma(segments: Sequence[Segment]) -> float:
 
 
 def movement_rate(segments: Sequence[Segment]) -> float:
-    """Typical |dR/dt| while the reference moves: the gauge slope |dR/dS| (a line through all
-    samples) times the median |dS/dt| of the moving samples (the reference is clean, so this
-    is not inflated by resistance noise; on samples stamped in bursts dS/dt is taken on a
-    regular grid, ``_regular_gradient``)."""
+    """Typical |dR/dt| while the reference moves: |dR/dS| of a line times the median |dS/dt|."""
+    # through the clean reference, so resistance noise does not inflate it
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     gradient = np.gradient if _bursts(segments) is None else _regular_gradient
@@ -116,9 +111,7 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
 
 
 def _bursts(segments: Sequence[Segment]) -> float | None:
-    """The median sample interval when the samples come in bursts (more than 1 % of the
-    intervals below ``BURST_FRACTION`` of the median: stamps taken on arrival, as a bag's
-    log time is), else None."""
+    """The median sample interval when over 1 % of the intervals are bursts, else None."""
     dt = np.concatenate([np.diff(seg.t) for seg in segments])
     if dt.size < 2:
         return None
@@ -127,8 +120,7 @@ def _bursts(segments: Sequence[Segment]) -> float | None:
 
 
 def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """dS/dt at the samples, from S interpolated onto a grid of the median interval (a
-    burst's microseconds would turn the reference's own steps into huge rates)."""
+    """dS/dt at the samples, from S interpolated onto a grid of the median interval."""
     if t.size < 3:
         return np.zeros(t.size)
     step = float(np.median(np.diff(t)))
@@ -140,9 +132,8 @@ def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _tau_grid(segments: Sequence[Segment]) -> list[float]:
-    """``TAU_GRID``, without the filters shorter than two median sample intervals when the
-    samples come in bursts (``_bursts``): a first difference over a burst's microseconds
-    turns read-out noise into a huge derivative; a longer filter averages over the bursts."""
+    """``TAU_GRID`` without the filters shorter than two median intervals when in bursts."""
+    # a first difference over a burst's microseconds turns read-out noise into huge rates
     median = _bursts(segments)
     if median is None:
         return list(TAU_GRID)

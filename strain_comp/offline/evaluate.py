@@ -1,8 +1,6 @@
-"""Evaluation: one scorer (``Scorer``) runs a calibration through the engine's batch path
-(``Engine.run_array`` for an array: cross-talk terms see the same tick's neighbours) and
-keeps running error sums over the samples the engine used whose reference is finite; held
-samples are counted, not scored. ``evaluate_bag`` streams a bag (docs/architecture.md).
-"""
+"""Evaluation: ``Scorer`` runs a calibration through the engine's batch path and keeps running
+error sums over the used samples with a finite reference (held ones counted, not scored);
+``evaluate_bag`` streams a bag (docs/architecture.md)."""
 
 from __future__ import annotations
 
@@ -230,10 +228,8 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 
 
 def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
-    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic:
-    offline such a term reads the neighbour's latest estimate of the previous batch, not of
-    the same instant (``Engine.run``; the node, stepping each message, reads the latest one),
-    so its correction is not the one diagnosed."""
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic."""
+    # offline such a term reads the neighbour's estimate of the previous batch, not the tick's
     off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
            if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
            and str(e["params"].get("neighbour")) not in same_tick]

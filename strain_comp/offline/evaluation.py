@@ -1,6 +1,5 @@
 """An evaluation's result (``offline.evaluate``): each sensor's run and error statistics, its
-table and its notes.
-"""
+table and its notes."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""The measurement chain read from the training runs: an alternation of the excitation every
-other sample (``core.chain``) makes the models read a pair statistic of R[i], R[i-1] (the
-mean, or the upper or lower side where the still stretches show the alternation on one
-side: the carbon-black strip), so it never reaches a model's memory or the detector.
-Options ``alternation`` and ``pair`` override; the provenance says what was read.
-"""
+"""The measurement chain read from the training runs: with an alternation of the excitation
+(``core.chain``) the models read a pair statistic of R[i], R[i-1] (mean, upper or lower side);
+options ``alternation`` and ``pair`` override."""
 
 from __future__ import annotations
 
@@ -19,8 +16,8 @@ if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
 STILL_FRACTION = 0.001
-"""The reference strain is still where it moves by at most this share of its span in 1 s
-(half the slowest ramp in the measured data: the fibre moves 0.2 % of its span per s)."""
+"""The reference is still where it moves at most this share of its span in 1 s."""
+# half the slowest ramp in the measured data (the fibre moves 0.2 % of its span per s)
 
 
 def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str, Any],

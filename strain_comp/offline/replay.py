@@ -1,8 +1,6 @@
-"""Offline replay: a bag's resistance through the engine's batch path into a new bag, on the
-node's topics (docs/design.md, "Topics"): each output at its input's log time,
-``/diagnostics`` at the end of every ``diagnostics_period`` of log time that holds input;
-temperatures and references held at their latest value, as the node holds them.
-"""
+"""Offline replay: a bag's resistance through the engine's batch path into a new bag on the
+node's topics (docs/design.md, "Topics"), each output at its input's log time; temperatures
+and references held at their latest value, as the node holds them."""
 
 from __future__ import annotations
 
@@ -122,9 +120,7 @@ class _Replay:
         self._contents = BagContents()
 
     def piece(self, contents: BagContents) -> None:
-        """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs (in that
-        order among messages of one log time), written one slice of ``TICK_BATCH`` ticks at
-        a time so memory is bounded however long the piece lasts."""
+        """Replay one piece: outputs, ticks, copied inputs, in slices of ``TICK_BATCH`` ticks."""
         self.problems += contents.problems
         self._discover(contents)
         self._contents = contents
@@ -359,9 +355,8 @@ Call = Callable[[BagWriter, np.ndarray], None]
 
 
 class StagedWrites:
-    """``BagWriter`` calls of a piece held until ``write`` makes them one log-time slice at
-    a time; every held call is made in every slice, empty ones included, so each topic is
-    first named, and numbered, as it would be written in one go."""
+    """A piece's ``BagWriter`` calls, held until ``write`` makes them slice by slice."""
+    # every call is made in every slice, empty ones too: topics named and numbered as in one go
 
     def __init__(self) -> None:
         self.calls: list[tuple[np.ndarray, np.ndarray, Call]] = []
@@ -374,8 +369,7 @@ class StagedWrites:
         self.calls.append((t_ns[order], order, call))
 
     def write(self, writer: BagWriter, lo: float, hi: float | None) -> None:
-        """Write the messages of log times [s] in [``lo``, ``hi``) as integer ns; ``hi``
-        None: all the rest (times the writer refuses included, so it still refuses them)."""
+        """Write the messages of log times [s] in [``lo``, ``hi``); ``hi`` None: all the rest."""
         lo_ns = np.round(lo * 1e9)
         hi_ns = None if hi is None else np.round(hi * 1e9)
         for t_ns, order, call in self.calls:  # a slice costs its messages, not the piece's
@@ -423,8 +417,7 @@ class FusionTicks:
 def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
                         fusion: Mapping[str, FusionTicks]
                         ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
-    """The DiagnosticArray payloads of ``ticks`` [s] at once, in runs of one fusion key set
-    (it grows with each new reason to refuse): (the run's ticks, payloads, lengths)."""
+    """(ticks, payloads, lengths) of ``ticks``' DiagnosticArrays, a run per fusion key set."""
     if not ticks.size:
         return
     t_ns = np.round(ticks * 1e9).astype(np.int64)  # as the writer stamps its messages

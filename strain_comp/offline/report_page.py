@@ -1,7 +1,5 @@
-"""``evaluate --report`` and ``diagnose --report``: one self-contained HTML page
-(docs/design.md, ``--report``); every figure of a table carries its full value in
-``data-value``, the text shows it rounded.
-"""
+"""``evaluate --report`` and ``diagnose --report``: one self-contained HTML page (docs/design.md,
+``--report``); every figure of a table carries its full value in ``data-value``."""
 
 from __future__ import annotations
 

@@ -1,7 +1,5 @@
 """The compensated series as CSV: ``replay --csv`` and ``evaluate --csv`` (columns and cells:
-docs/design.md, "JSON outputs"), written atomically (``strain_comp.io.atomic``); ``-``
-writes to stdout.
-"""
+docs/design.md, "JSON outputs"), written atomically; ``-`` writes to stdout."""
 
 from __future__ import annotations
 
