@@ -126,16 +126,11 @@ def reduce_segment(seg: Segment, factor: int) -> Segment:
     return Segment(seg.t[idx], r[idx], s[idx])
 
 
-def reduction_factor(segments: Sequence[Segment], budget: int = FIT_SAMPLE_BUDGET) -> int:
-    """The factor that brings the segments within ``budget``."""
-    total = sum(seg.t.size for seg in segments)
-    return 1 if total <= budget else math.ceil(total / budget)
-
-
 def reduce_segments(segments: Sequence[Segment], budget: int = FIT_SAMPLE_BUDGET
                     ) -> tuple[list[Segment], int]:
-    """The segments a model is fitted on."""
-    factor = reduction_factor(segments, budget)
-    if factor == 1:
+    """The segments a model is fitted on, and the factor that brings them within ``budget``."""
+    total = sum(seg.t.size for seg in segments)
+    if total <= budget:
         return list(segments), 1
+    factor = math.ceil(total / budget)
     return [reduce_segment(seg, factor) for seg in segments], factor
