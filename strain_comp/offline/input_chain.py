@@ -33,15 +33,6 @@ def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str
     return chain, alternating, pair
 
 
-def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Change of the reference strain over the second around each sample."""
-    t = np.asarray(t, dtype=np.float64)
-    lo = np.searchsorted(t, t - 0.5)
-    hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
-    change: np.ndarray = s[hi] - s[lo]
-    return change
-
-
 def pair_side(recordings: Sequence[Recording]) -> str:
     """``pair_branch`` over the training runs, still where ``STILL_FRACTION`` says."""
     r_all, still_all = [], []
@@ -50,7 +41,10 @@ def pair_side(recordings: Sequence[Recording]) -> str:
             continue
         s = np.asarray(rec.s, dtype=np.float64)
         span = float(np.nanmax(s) - np.nanmin(s)) if np.any(np.isfinite(s)) else 0.0
-        moved = np.abs(strain_change(rec.t, s))
+        t = np.asarray(rec.t, dtype=np.float64)
+        lo = np.searchsorted(t, t - 0.5)
+        hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
+        moved = np.abs(s[hi] - s[lo])  # the change over the second around each sample
         r_all.append(np.asarray(rec.r, dtype=np.float64))
         still_all.append(np.isfinite(moved) & (moved <= STILL_FRACTION * span))
     if not r_all:
