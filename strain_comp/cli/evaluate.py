@@ -82,9 +82,7 @@ def run(args: argparse.Namespace) -> int:
     for path in args.bags:
         bag(path)
     existing(args.calibration, "calibration file")
-    bags = expand_bags(args.bags)
-    for path in bags:
-        bag(path)
+    bags = expand_bags(args.bags)  # a folder's bags exist: the given paths were checked
     inputs = [*bags, args.calibration]
     calibration = api.load_calibration(args.calibration)  # a bad one: one line before any bag
     many = len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
@@ -115,7 +113,7 @@ def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None],
             bar(len(bags), "evaluate", enabled=many and wanted(args.quiet)) as shown:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
                                  plot_points=PLOT_POINTS if args.plots or args.report else 0,
-                                 in_run=args.in_run_bound, plots=dirs, series=table,
+                                 in_run=args.in_run_bound, dirs=dirs, series=table,
                                  progress=lambda done, total, bag: shown.update(1),
                                  out_of_range=args.out_of_range,
                                  references_every=args.references_every,

@@ -185,25 +185,20 @@ def check_jobs(jobs: int) -> None:
         raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
 
 
-def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "calibration",
-                  jobs: int = 1, plot_points: int = 0, in_run: bool = False,
-                  plots: Sequence[str | None] | None = None, series: SeriesCSV | None = None,
-                  progress: Callable[[int, int, str], None] | None = None,
-                  out_of_range: str = "extend",
-                  references_every: float | None = None,
-                  figures: bool = False, keep_going: bool = True) -> list[BagSection]:
-    """Every bag evaluated, in the order given; ``plots``: each bag's folder (``plot_dirs``)."""
-    check_jobs(jobs)
+def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str, jobs: int,
+                  plot_points: int, in_run: bool, dirs: Sequence[str | None],
+                  series: SeriesCSV | None, progress: Callable[[int, int, str], None],
+                  out_of_range: str, references_every: float | None, figures: bool,
+                  keep_going: bool) -> list[BagSection]:
+    """Every bag evaluated, in the order given; ``dirs``: each bag's plots (``plot_dirs``)."""
     inputs = [*bags, calibration_path]
-    dirs = list(plots or [None] * len(bags))
     outcomes: list[BagSection] = []
     if jobs == 1 or len(bags) == 1:
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
                                           dirs[k], series, inputs, out_of_range,
                                           references_every, figures, keep_going))
-            if progress is not None:
-                progress(k + 1, len(bags), bag)
+            progress(k + 1, len(bags), bag)
         return outcomes
     with tempfile.TemporaryDirectory(prefix="strain_comp_") as tmp, \
             ProcessPoolExecutor(max_workers=min(jobs, len(bags)), mp_context=_context(),
@@ -227,8 +222,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                     _copy_part(part, series, str(series.path))
                     os.unlink(part)
                 outcomes.append(outcome)
-                if progress is not None:
-                    progress(k + 1, len(bags), bags[k])
+                progress(k + 1, len(bags), bags[k])
         except BaseException:  # SIGTERM, Ctrl-C, a failed output: end every worker first
             _stop_workers(pool)
             raise
