@@ -238,8 +238,7 @@ def aggregate(outcomes: Sequence[BagSection]) -> dict[str, tuple[ErrorAccumulato
             continue
         for name, ev in outcome.result.sensors.items():
             acc, n_bags, _, _ = pooled.get(name, (ErrorAccumulator(), 0, ev.model, ev.unit))
-            if ev.errors is not None:
-                acc.merge(ev.errors)
+            acc.merge(ev.errors)
             pooled[name] = (acc, n_bags + 1, ev.model, ev.unit)
     return pooled
 

@@ -32,6 +32,8 @@ class SensorEvaluation:
     n_samples: int
     n_bad: int
     n_out_of_range: int
+    errors: ErrorAccumulator = field(repr=False, compare=False)
+    """The running sums behind ``stats``, to pool several bags."""
     bad_by_status: dict[str, int] = field(default_factory=dict)
     in_run_rmse: float | None = None
     """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
@@ -43,8 +45,6 @@ class SensorEvaluation:
     """The unit of ``r``: the calibration's input unit, or V for a voltage divider."""
     input_gain: float = 1.0
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
-    errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
-    """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
     references: dict[str, Any] | None = None
     """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
     std: np.ndarray = field(default_factory=lambda: np.empty(0))
