@@ -307,13 +307,12 @@ def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
-               gap_reset: float = GAP_RESET, stale_after: float = 1.0,
-               window: int = WINDOW, tare: str = "calibration",
+               gap_reset: float = GAP_RESET, window: int = WINDOW, tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
                references_every: float | None = None) -> ReplaySummary:
     """Replay ``in_path`` into a new bag at ``out_path``, written atomically, by pieces."""
-    engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
+    engine = Engine(calibration, gap_reset=gap_reset)
     out_path = Path(out_path)
     with series_csv(csv, inputs=[in_path, *inputs, out_path]) as table, \
             BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
