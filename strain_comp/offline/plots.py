@@ -5,7 +5,7 @@ the four of ``PLOTS`` per sensor, samples outside the calibrated range in orange
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -67,8 +67,9 @@ def _title(ev: SensorEvaluation, context: str = "") -> str:
     return f"{head}\n{plain(context)}" if context else head
 
 
-def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | None:
-    """The finite data's range widened by ``pad`` of its span (None without data)."""
+def _limits(*arrays: np.ndarray, set_lim: Callable[[float, float], object] | None = None
+            ) -> tuple[float, float] | None:
+    """The finite data's range widened by 5 % of its span, set by ``set_lim`` (None: no data)."""
     finite = [a[np.isfinite(a)] for a in arrays]
     finite = [a for a in finite if a.size]
     if not finite:
@@ -76,7 +77,10 @@ def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | Non
     lo = float(min(a.min() for a in finite))
     hi = float(max(a.max() for a in finite))
     span = hi - lo if hi > lo else max(abs(hi), 1.0)
-    return lo - pad * span, hi + pad * span
+    lim = lo - 0.05 * span, hi + 0.05 * span
+    if set_lim is not None:
+        set_lim(*lim)
+    return lim
 
 
 def _resistance_axis(ev: SensorEvaluation) -> tuple[np.ndarray, str, float]:
@@ -108,15 +112,11 @@ def plot_time(ev: SensorEvaluation, context: str = "") -> Figure:
                  label=f"outside the calibrated range ({int(ev.n_out_of_range)})")
         bottom.plot(t[outside], r[outside], ".", color="tab:orange", ms=2.5)
     top.set_ylabel(f"strain [{ev.unit}]")
-    lim = _limits(ev.reference, ev.estimate)
-    if lim is not None:
-        top.set_ylim(*lim)
+    _limits(ev.reference, ev.estimate, set_lim=top.set_ylim)
     _finish(top, _title(ev, context))
     bottom.plot(t, r, color="tab:blue", lw=0.8, label="R" if ev.input_unit == "ohm"
                 else "input")
-    lim = _limits(r)
-    if lim is not None:
-        bottom.set_ylim(*lim)
+    _limits(r, set_lim=bottom.set_ylim)
     if t.size:
         bottom.set_xlim(float(t[0]), float(t[-1]) if t[-1] > t[0] else float(t[0]) + 1.0)
     bottom.set_xlabel("time since start [s]")
@@ -158,7 +158,7 @@ def plot_raw(ev: SensorEvaluation, context: str = "",
     if outside.any():
         ax.plot(ev.reference[outside], r[outside], ".", color="tab:orange", ms=2.5,
                 label="outside the calibrated range")
-    lim = _limits(r)
+    bounds = np.empty(0)
     if r_range is not None and ev.input_unit == "ohm":
         scale *= ev.input_gain
         for k, bound in enumerate(r_range):
@@ -166,12 +166,9 @@ def plot_raw(ev: SensorEvaluation, context: str = "",
                        label=("calibrated range" + (" (through the tare)"
                                                     if ev.input_gain != 1.0 else ""))
                        if k == 0 else None)
-        lim = _limits(r, np.asarray(r_range) / scale)
-    if lim is not None:
-        ax.set_ylim(*lim)
-    xlim = _limits(ev.reference)
-    if xlim is not None:
-        ax.set_xlim(*xlim)
+        bounds = np.asarray(r_range) / scale
+    _limits(r, bounds, set_lim=ax.set_ylim)
+    _limits(ev.reference, set_lim=ax.set_xlim)
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
     _finish(ax, _title(ev, context))
