@@ -29,7 +29,7 @@ from strain_comp.io.recording import (
     temperature_series,
     topic_sensors,
 )
-from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation, input_unit
+from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation
 
 if TYPE_CHECKING:
     from strain_comp.core.outputs import BatchOutput
@@ -41,8 +41,6 @@ PLOT_POINTS = 50_000
 
 class _Kept:
     """Every ``stride``-th sample of one sensor, for plots, the stride doubled past ``cap``."""
-
-    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range", "std")
 
     def __init__(self, cap: int | None) -> None:
         self.cap = cap
@@ -57,8 +55,8 @@ class _Kept:
         self.n += size
         take = index % self.stride == 0
         self.index = np.concatenate((self.index, index[take]))
-        for key in (k for k in self.FIELDS if k in columns):  # std: only with a band
-            new = columns[key][take]
+        for key, column in columns.items():
+            new = column[take]
             self.columns[key] = new if key not in self.columns else \
                 np.concatenate((self.columns[key], new))
         while self.cap is not None and self.index.size > self.cap:
@@ -111,8 +109,8 @@ class _Score:
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
             bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
             unit=cal.strain_unit, errors=self.errors,
-            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit(cal),
-            input_gain=input_gain,
+            out_of_range=kept.get("out_of_range").astype(bool), input_gain=input_gain,
+            input_unit="V" if cal.input.kind == "divider" else cal.input.unit,
             references=None if fused is None else {"every": fused.every,
                                                    **fused.fusion.state()},
             std=kept.get("std") if self.errors.n_banded else np.empty(0),

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import SensorCalibration, strain_unit_words
+from strain_comp.core.calibration import strain_unit_words
 from strain_comp.core.fusion import fusion_note
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats
 
@@ -90,11 +90,6 @@ def json_safe(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
     return value
-
-
-def input_unit(cal: SensorCalibration) -> str:
-    """The unit of the input a sensor's run holds."""
-    return "V" if cal.input.kind == "divider" else cal.input.unit
 
 
 def score_lines(rows: Sequence[tuple[str, str, int | None, ErrorStats, float | None]],
