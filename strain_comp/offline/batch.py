@@ -180,7 +180,6 @@ def _context() -> BaseContext:
 
 
 def check_jobs(jobs: int) -> None:
-    """Check ``--jobs``."""
     if not 1 <= jobs <= MAX_JOBS:
         raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
 
@@ -257,7 +256,6 @@ def format_aggregate(outcomes: Sequence[BagSection]) -> str:
 
 
 def to_json(outcomes: Sequence[BagSection]) -> dict[str, Any]:
-    """The multi-bag JSON (module docstring)."""
     bags: dict[str, Any] = {}
     for outcome in outcomes:
         bags[outcome.bag] = ({"error": outcome.error} if outcome.result is None

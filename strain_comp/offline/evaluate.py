@@ -384,7 +384,6 @@ class BagScorer(Scorer):
                    {name: align.take(t) for name, align in inp.reference.items()})
 
     def bag_result(self) -> EvaluationResult:
-        """``result`` of what the bag held."""
         return self.result(
             self.names, {name for inp in self.inputs.values() if inp is not None
                          for name in inp.ref_columns or {}},

@@ -32,7 +32,6 @@ def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
 
 
 def png(fig: Figure) -> bytes:
-    """The figure as PNG bytes."""
     buffer = io.BytesIO()
     fig.savefig(buffer, dpi=110, format="png")
     return buffer.getvalue()
