@@ -15,7 +15,6 @@ from strain_comp.models import Segment
 from strain_comp.offline.reduce import HOLD_RATE_FRACTION, still_stretches
 
 MIN_HOLD_SAMPLES = 40
-"""A hold must have at least this many samples to set the dead zone."""
 DEFAULT_K_SIGMA = 4.0
 """Dead zone = k sigma of the derivative noise ([EGaIn] section V.E: 3 or 4)."""
 TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)

@@ -42,7 +42,6 @@ class SensorEvaluation:
     out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
     """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
     input_unit: str = "ohm"
-    """The unit of ``r``: the calibration's input unit, or V for a voltage divider."""
     input_gain: float = 1.0
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
     references: dict[str, Any] | None = None

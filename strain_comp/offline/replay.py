@@ -43,7 +43,6 @@ OUTPUTS = ("strain", "direction", "status")
 TICK_BATCH = 1024
 """/diagnostics ticks counted and encoded at once (a long sparse piece holds thousands)."""
 STAMPED = "strain_stamped"
-"""The JointState output beside ``OUTPUTS`` (module docstring)."""
 BAND = ("strain_std", "strain_std_stamped")
 """The standard deviation's outputs, where the calibration holds an uncertainty."""
 RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
@@ -103,7 +102,6 @@ class _Replay:
         self.tare = tare
         self.writer = writer
         self.out = StagedWrites()
-        """The piece's outputs, written with its /diagnostics slice by slice (``piece``)."""
         self.engine = engine
         self.period = period
         self.inputs: dict[str, _Input | None] = {}
