@@ -31,9 +31,8 @@ class SeriesCSV:
 
     def __init__(self, path: str | os.PathLike[str], *,
                  inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False) -> None:
-        self.stdout = str(path) == "-"
         self.path = path
-        self.file = None if self.stdout else AtomicFile(path, inputs=inputs)
+        self.file = None if str(path) == "-" else AtomicFile(path, inputs=inputs)
         self.bag = bag
         self.write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
 
