@@ -33,7 +33,6 @@ from strain_comp.offline.plots import evaluation_figures, write_plots
 from strain_comp.offline.report_page import BagSection
 from strain_comp.offline.series import SeriesCSV
 
-MAX_JOBS = 64
 STOP_SECONDS = 30.0
 """How long a stopped pool worker may take to remove its temporary files and exit."""
 
@@ -177,11 +176,6 @@ def _evaluate_in_worker(*args: Any) -> BagSection:
 def _context() -> BaseContext:
     """Fork on Linux (spawn re-imports numba: about 2 s per worker), spawn elsewhere (macOS)."""
     return get_context("fork" if sys.platform == "linux" else "spawn")
-
-
-def check_jobs(jobs: int) -> None:
-    if not 1 <= jobs <= MAX_JOBS:
-        raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
 
 
 def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str, jobs: int,
