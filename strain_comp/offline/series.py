@@ -52,10 +52,8 @@ class SeriesCSV:
             reference: np.ndarray | None, direction: np.ndarray, status: np.ndarray, *,
             unit: str, bag: str = "") -> None:
         """Rows for one sensor's samples (arrays of equal length)."""
-        n = int(np.asarray(t).size)
-        if n == 0:
-            return
-        ref = np.full(n, np.nan) if reference is None else np.asarray(reference, np.float64)
+        ref = (np.full(np.asarray(t).size, np.nan) if reference is None
+               else np.asarray(reference, np.float64))
         head = f"{_cell(bag)},{_cell(sensor)}" if self.bag else _cell(sensor)
         tail = _cell(unit)
         buf = io.StringIO()
