@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -124,10 +125,8 @@ def plot_time(ev: SensorEvaluation, context: str = "") -> Figure:
     return fig
 
 
-def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
+def plot_loop(ax: Axes, ev: SensorEvaluation) -> None:
     """S_hat against S with the identity line; out-of-range samples marked."""
-    fig = _figure(height=6.0)
-    ax = fig.subplots()
     s, s_hat = ev.reference[ev.scored], ev.estimate[ev.scored]
     ax.plot(s, s_hat, color="tab:red", lw=0.6, alpha=0.8, label="estimate")
     outside = ev.out_of_range[ev.scored]
@@ -142,15 +141,10 @@ def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
         ax.set_aspect("equal")
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
-    _finish(ax, _title(ev, context))
-    return fig
 
 
-def plot_raw(ev: SensorEvaluation, context: str = "",
-             r_range: tuple[float, float] | None = None) -> Figure:
+def plot_raw(ax: Axes, ev: SensorEvaluation, r_range: tuple[float, float] | None) -> None:
     """Resistance against reference strain, with the calibrated range through the tare."""
-    fig = _figure(height=5.0)
-    ax = fig.subplots()
     r, r_label, scale = _resistance_axis(ev)
     ax.plot(ev.reference, r, color="tab:blue", lw=0.6, alpha=0.8, label="recorded")
     outside = ev.out_of_range
@@ -170,14 +164,10 @@ def plot_raw(ev: SensorEvaluation, context: str = "",
     _limits(ev.reference, set_lim=ax.set_xlim)
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
-    _finish(ax, _title(ev, context))
-    return fig
 
 
-def plot_error_hist(ev: SensorEvaluation, context: str = "") -> Figure:
+def plot_error_hist(ax: Axes, ev: SensorEvaluation) -> None:
     """Histogram of the error S_hat - S over the scored samples."""
-    fig = _figure(height=4.0)
-    ax = fig.subplots()
     error = ev.estimate[ev.scored] - ev.reference[ev.scored]
     shown = (f"a subsample of {error.size} of the {ev.stats.n} scored samples"
              if error.size < ev.stats.n else f"{error.size} samples")
@@ -186,8 +176,6 @@ def plot_error_hist(ev: SensorEvaluation, context: str = "") -> Figure:
     ax.axvline(0.0, color="0.3", lw=1.0)
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
-    _finish(ax, _title(ev, context))
-    return fig
 
 
 PLOTS = {"time": "estimate and reference over time, resistance below",
@@ -214,8 +202,15 @@ def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, ba
             context = context_line(result, name, bag, calibration_path, tare)
             cal = calibration.sensors.get(name)
             r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-            figures = (plot_time(ev, context), plot_loop(ev, context),
-                       plot_raw(ev, context, r_range), plot_error_hist(ev, context))
+            figures = [plot_time(ev, context)]
+            for height, draw in ((6.0, plot_loop),
+                                 (5.0, partial(plot_raw, r_range=r_range)),
+                                 (4.0, plot_error_hist)):  # one axes each
+                fig = _figure(height=height)
+                ax = fig.subplots()
+                draw(ax, ev)
+                _finish(ax, _title(ev, context))
+                figures.append(fig)
             out[name] = [(caption, png(figure))
                          for caption, figure in zip(PLOTS.values(), figures, strict=True)]
     return out
