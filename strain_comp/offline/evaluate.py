@@ -305,7 +305,8 @@ class BagScorer(Scorer):
                 self._add(inp, topic, contents)
                 self._run(inp)
 
-    def finish(self) -> None:
+    def finish(self) -> EvaluationResult:
+        """The rest of every input run and scored; the result of what the bag held."""
         for inp in self.inputs.values():
             if inp is not None:
                 for align in [*inp.temperature.values(), *inp.reference.values()]:
@@ -314,6 +315,12 @@ class BagScorer(Scorer):
         for topic in sorted(self.references):
             if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
                 self._problem(f"{topic}: reference without a resistance topic; ignored")
+        return self.result(
+            self.names, {name for inp in self.inputs.values() if inp is not None
+                         for name in inp.ref_columns or {}},
+            self.with_temperature,
+            {name: set(inp.names) for inp in self.inputs.values()
+             if inp is not None and not inp.single for name in inp.names})
 
     def _input(self, topic: str, contents: BagContents) -> _Input | None:
         """A resistance topic as ``load_recordings`` reads it, tared from its first piece."""
@@ -383,14 +390,6 @@ class BagScorer(Scorer):
                     for name in inp.names},
                    {name: align.take(t) for name, align in inp.reference.items()})
 
-    def bag_result(self) -> EvaluationResult:
-        return self.result(
-            self.names, {name for inp in self.inputs.values() if inp is not None
-                         for name in inp.ref_columns or {}},
-            self.with_temperature,
-            {name: set(inp.names) for inp in self.inputs.values()
-             if inp is not None and not inp.single for name in inp.names})
-
 
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
@@ -403,9 +402,8 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                        tare, plot_points, series, str(path), references_every)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
-    stream.finish()
+    result = stream.finish()
     problems = stream.bag_problems + located(path, stream.problems)
-    result = stream.bag_result()
     if not result.sensors:
         raise InputError("; ".join([f"{path}: {nothing_scored(calibration, stream.names)}",
                                     *problems]))
