@@ -68,20 +68,6 @@ def movement_rate(segments: Sequence[Segment]) -> float:
     return gain * float(np.median(rates[moving]))
 
 
-def _hold_samples(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray, str] | None:
-    """(t, r, source) of a hold, else of seeded noise of the robust sigma; None: noise-free."""
-    hold = find_hold(segments)
-    if hold is not None and np.ptp(hold[1]) > 0:
-        return hold[0], hold[1], "hold"
-    sigma = _noise_sigma(segments)
-    longest = max(segments, key=lambda seg: seg.t.size)
-    if sigma > 0 and longest.t.size >= 12:
-        rng = np.random.default_rng(0)
-        r_hold = float(np.median(longest.r)) + sigma * rng.standard_normal(longest.t.size)
-        return longest.t, r_hold, "noise"
-    return None
-
-
 def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
         DirectionSettings, str]:
     """Dead-zone settings and their source."""
@@ -91,16 +77,22 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
         tau = float(options.get("tau", 0.0))
         return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
     taus = [float(options["tau"])] if "tau" in options else _tau_grid(segments)
-    hold = _hold_samples(segments)
-    if hold is None:
-        # Noise-free data (a clean simulation): a dead zone far below any real motion,
-        # 1e-6 of the training R span per second of the longest segment.
-        longest = max(segments, key=lambda seg: seg.t.size)
-        t_span = float(longest.t[-1] - longest.t[0]) or 1.0
-        r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
-        return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=taus[0],
-                                 k_sigma=None), "floor"
-    t_hold, r_hold, source = hold
+    hold = find_hold(segments)
+    longest = max(segments, key=lambda seg: seg.t.size)
+    if hold is not None and np.ptp(hold[1]) > 0:
+        t_hold, r_hold, source = hold[0], hold[1], "hold"
+    else:  # seeded white noise of R's robust sigma
+        sigma = _noise_sigma(segments)
+        if not (sigma > 0 and longest.t.size >= 12):
+            # Noise-free data (a clean simulation): a dead zone far below any real motion,
+            # 1e-6 of the training R span per second of the longest segment.
+            t_span = float(longest.t[-1] - longest.t[0]) or 1.0
+            r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
+            return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=taus[0],
+                                     k_sigma=None), "floor"
+        rng = np.random.default_rng(0)
+        t_hold, source = longest.t, "noise"
+        r_hold = float(np.median(longest.r)) + sigma * rng.standard_normal(longest.t.size)
     target = DEADZONE_FRACTION * movement_rate(segments)
     for tau in taus:
         settings = estimate_deadzone(t_hold, r_hold, k_sigma=k_sigma, tau=tau)
