@@ -11,7 +11,6 @@ import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
-from multiprocessing.context import BaseContext
 from pathlib import Path
 from typing import Any
 
@@ -173,11 +172,6 @@ def _evaluate_in_worker(*args: Any) -> BagSection:
         _in_bag = False
 
 
-def _context() -> BaseContext:
-    """Fork on Linux (spawn re-imports numba: about 2 s per worker), spawn elsewhere (macOS)."""
-    return get_context("fork" if sys.platform == "linux" else "spawn")
-
-
 def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str, jobs: int,
                   plot_points: int, in_run: bool, dirs: Sequence[str | None],
                   series: SeriesCSV | None, progress: Callable[[int, int, str], None],
@@ -193,8 +187,10 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str, jobs
                                           references_every, figures, keep_going))
             progress(k + 1, len(bags), bag)
         return outcomes
+    # fork on Linux (spawn re-imports numba: about 2 s per worker), spawn elsewhere (macOS)
+    context = get_context("fork" if sys.platform == "linux" else "spawn")
     with tempfile.TemporaryDirectory(prefix="strain_comp_") as tmp, \
-            ProcessPoolExecutor(max_workers=min(jobs, len(bags)), mp_context=_context(),
+            ProcessPoolExecutor(max_workers=min(jobs, len(bags)), mp_context=context,
                                 initializer=_worker_signals) as pool:
         parts = [None if series is None else os.path.join(tmp, f"{k}.csv")
                  for k in range(len(bags))]
