@@ -242,12 +242,10 @@ class _Replay:
         """Hold the output ``what`` of ``inp`` (a column per sensor) and its stamped twin."""
         topic = f"/{inp.name}/{what}"
         if inp.is_array:
-            self.out.add(t, lambda w, i: w.write_float64_array(topic, t[i], stacked[i],
-                                                                inp.sensors))
-        elif what in ("direction", "status"):
-            self.out.add(t, lambda w, i: w.write_int8(topic, t[i], stacked[i, 0]))
+            self.out.add(t, _copier("write_float64_array", topic, t, stacked, inp.sensors))
         else:
-            self.out.add(t, lambda w, i: w.write_float64(topic, t[i], stacked[i, 0]))
+            method = "write_int8" if what in ("direction", "status") else "write_float64"
+            self.out.add(t, _copier(method, topic, t, stacked[:, 0]))
         if what in ("strain", BAND[0]):
             stamped = f"/{inp.name}/{STAMPED if what == 'strain' else BAND[1]}"
             self.out.add(t, lambda w, i: w.write_joint_state(stamped, t[i], inp.sensors,
