@@ -54,9 +54,7 @@ class Evaluation:
     @property
     def scores(self) -> dict[str, dict[str, Any]]:
         """Sensor -> {model, n, rmse, mae, max_abs, r2, unit}."""
-        return {name: {"model": ev.model, "n": ev.stats.n, "rmse": ev.stats.rmse,
-                       "mae": ev.stats.mae, "max_abs": ev.stats.max_abs, "r2": ev.stats.r2,
-                       "unit": ev.unit}
+        return {name: {"model": ev.model, "n": ev.stats.n, **ev.stats.to_dict(), "unit": ev.unit}
                 for name, ev in self.result.sensors.items()}
 
     def table(self) -> str:

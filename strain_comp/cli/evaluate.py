@@ -32,6 +32,7 @@ DESCRIPTION = ("Run a calibration over recordings with a reference strain and pr
                "over all of them.")
 EXAMPLE = ("strain-comp evaluate run3.mcap run4.mcap --calibration s1.yaml "
            "--csv series.csv --json errors.json --jobs 2")
+MAX_JOBS = 64
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -72,19 +73,18 @@ def run(args: argparse.Namespace) -> int:
     from strain_comp import api
     from strain_comp.core.engine import tracking_off
     from strain_comp.core.fusion import check_every
-    from strain_comp.offline.batch import check_jobs, expand_bags, plot_dirs
+    from strain_comp.offline.batch import expand_bags, plot_dirs
     from strain_comp.offline.plots import plot_files
 
-    check_jobs(args.jobs)  # before any bag is read
+    if not 1 <= args.jobs <= MAX_JOBS:  # before any bag is read
+        raise InputError(f"--jobs {args.jobs}: must be 1 to {MAX_JOBS}")
     tracking_off(args.baseline_tracking)
     if args.references_every is not None:
         check_every(args.references_every)
     for path in args.bags:
         bag(path)
     existing(args.calibration, "calibration file")
-    bags = expand_bags(args.bags)
-    for path in bags:
-        bag(path)
+    bags = expand_bags(args.bags)  # a folder's bags exist: the given paths were checked
     inputs = [*bags, args.calibration]
     calibration = api.load_calibration(args.calibration)  # a bad one: one line before any bag
     many = len(bags) > 1 or any(os.path.isdir(b) and not os.path.isfile(
@@ -115,7 +115,7 @@ def _evaluate(args: argparse.Namespace, bags: list[str], dirs: list[str | None],
             bar(len(bags), "evaluate", enabled=many and wanted(args.quiet)) as shown:
         outcomes = evaluate_bags(bags, args.calibration, tare=args.tare, jobs=args.jobs,
                                  plot_points=PLOT_POINTS if args.plots or args.report else 0,
-                                 in_run=args.in_run_bound, plots=dirs, series=table,
+                                 in_run=args.in_run_bound, dirs=dirs, series=table,
                                  progress=lambda done, total, bag: shown.update(1),
                                  out_of_range=args.out_of_range,
                                  references_every=args.references_every,

@@ -9,7 +9,6 @@ from strain_comp.cli.common import (
     OUT_OF_RANGE_HINT,
     bag,
     note,
-    output,
     references_flag,
     results,
     tare_flag,
@@ -45,10 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """The bag replayed (``api.replay``); what was compensated and held, printed."""
     bag(args.bag)
-    existing(args.calibration, "calibration file")
-    output(args.out, [args.bag, args.calibration])
-    if args.csv not in (None, "-"):
-        output(args.csv, [args.bag, args.calibration, args.out])
+    existing(args.calibration, "calibration file")  # the outputs: checked by replay_bag first
     from strain_comp import api
     from strain_comp.core.fusion import check_every, fusion_note
 

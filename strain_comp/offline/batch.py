@@ -11,7 +11,6 @@ import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
-from multiprocessing.context import BaseContext
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +32,6 @@ from strain_comp.offline.plots import evaluation_figures, write_plots
 from strain_comp.offline.report_page import BagSection
 from strain_comp.offline.series import SeriesCSV
 
-MAX_JOBS = 64
 STOP_SECONDS = 30.0
 """How long a stopped pool worker may take to remove its temporary files and exit."""
 
@@ -133,8 +131,8 @@ def _copy_part(part: str, table: SeriesCSV, target: str) -> None:
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Cancel what has not started, SIGTERM every worker, SIGKILL after ``STOP_SECONDS``
-    (the pool's private attribute: no public API reaches its processes)."""
+    """Cancel what has not started, SIGTERM every worker, SIGKILL after ``STOP_SECONDS``."""
+    # the pool's private attribute: no public API reaches its processes
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
@@ -174,41 +172,25 @@ def _evaluate_in_worker(*args: Any) -> BagSection:
         _in_bag = False
 
 
-def _context() -> BaseContext:
-    """Fork on Linux (a worker starts without importing strain_comp and numba again: spawn
-    cost about 2 s per worker, more than a bag takes; the parent has no threads running
-    here), spawn elsewhere (macOS: fork is unsafe)."""
-    return get_context("fork" if sys.platform == "linux" else "spawn")
-
-
-def check_jobs(jobs: int) -> None:
-    """Check ``--jobs``."""
-    if not 1 <= jobs <= MAX_JOBS:
-        raise InputError(f"--jobs {jobs}: must be 1 to {MAX_JOBS}")
-
-
-def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "calibration",
-                  jobs: int = 1, plot_points: int = 0, in_run: bool = False,
-                  plots: Sequence[str | None] | None = None, series: SeriesCSV | None = None,
-                  progress: Callable[[int, int, str], None] | None = None,
-                  out_of_range: str = "extend",
-                  references_every: float | None = None,
-                  figures: bool = False, keep_going: bool = True) -> list[BagSection]:
-    """Every bag evaluated, in the order given; ``plots``: each bag's folder (``plot_dirs``)."""
-    check_jobs(jobs)
+def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str, jobs: int,
+                  plot_points: int, in_run: bool, dirs: Sequence[str | None],
+                  series: SeriesCSV | None, progress: Callable[[int, int, str], None],
+                  out_of_range: str, references_every: float | None, figures: bool,
+                  keep_going: bool) -> list[BagSection]:
+    """Every bag evaluated, in the order given; ``dirs``: each bag's plots (``plot_dirs``)."""
     inputs = [*bags, calibration_path]
-    dirs = list(plots or [None] * len(bags))
     outcomes: list[BagSection] = []
     if jobs == 1 or len(bags) == 1:
         for k, bag in enumerate(bags):
             outcomes.append(_evaluate_one(bag, calibration_path, tare, plot_points, in_run,
                                           dirs[k], series, inputs, out_of_range,
                                           references_every, figures, keep_going))
-            if progress is not None:
-                progress(k + 1, len(bags), bag)
+            progress(k + 1, len(bags), bag)
         return outcomes
+    # fork on Linux (spawn re-imports numba: about 2 s per worker), spawn elsewhere (macOS)
+    context = get_context("fork" if sys.platform == "linux" else "spawn")
     with tempfile.TemporaryDirectory(prefix="strain_comp_") as tmp, \
-            ProcessPoolExecutor(max_workers=min(jobs, len(bags)), mp_context=_context(),
+            ProcessPoolExecutor(max_workers=min(jobs, len(bags)), mp_context=context,
                                 initializer=_worker_signals) as pool:
         parts = [None if series is None else os.path.join(tmp, f"{k}.csv")
                  for k in range(len(bags))]
@@ -229,8 +211,7 @@ def evaluate_bags(bags: Sequence[str], calibration_path: str, *, tare: str = "ca
                     _copy_part(part, series, str(series.path))
                     os.unlink(part)
                 outcomes.append(outcome)
-                if progress is not None:
-                    progress(k + 1, len(bags), bags[k])
+                progress(k + 1, len(bags), bags[k])
         except BaseException:  # SIGTERM, Ctrl-C, a failed output: end every worker first
             _stop_workers(pool)
             raise
@@ -246,8 +227,7 @@ def aggregate(outcomes: Sequence[BagSection]) -> dict[str, tuple[ErrorAccumulato
             continue
         for name, ev in outcome.result.sensors.items():
             acc, n_bags, _, _ = pooled.get(name, (ErrorAccumulator(), 0, ev.model, ev.unit))
-            if ev.errors is not None:
-                acc.merge(ev.errors)
+            acc.merge(ev.errors)
             pooled[name] = (acc, n_bags + 1, ev.model, ev.unit)
     return pooled
 
@@ -266,7 +246,6 @@ def format_aggregate(outcomes: Sequence[BagSection]) -> str:
 
 
 def to_json(outcomes: Sequence[BagSection]) -> dict[str, Any]:
-    """The multi-bag JSON (module docstring)."""
     bags: dict[str, Any] = {}
     for outcome in outcomes:
         bags[outcome.bag] = ({"error": outcome.error} if outcome.result is None

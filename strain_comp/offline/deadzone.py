@@ -1,9 +1,6 @@
 """The direction detector's settings from training data ([EGaIn] section V.E: dead zone = k
-sigma of dR/dt noise on a hold): on the second half of the longest hold of the reference
-(relaxation after the stop is no noise), else on white noise of the sigma the MAD of R's
-second difference gives (std(d2 R) = sqrt(6) sigma; fixed seed). The provenance says which
-(``direction_from``); ``sign`` makes the published direction +1 on loading for every sensor.
-"""
+sigma of dR/dt noise) on the second half of the longest hold of the reference, else on seeded
+white noise of R's robust sigma; ``direction_from`` in the provenance says which."""
 
 from __future__ import annotations
 
@@ -18,7 +15,6 @@ from strain_comp.models import Segment
 from strain_comp.offline.reduce import HOLD_RATE_FRACTION, still_stretches
 
 MIN_HOLD_SAMPLES = 40
-"""A hold must have at least this many samples to set the dead zone."""
 DEFAULT_K_SIGMA = 4.0
 """Dead zone = k sigma of the derivative noise ([EGaIn] section V.E: 3 or 4)."""
 TAU_GRID = (0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
@@ -58,10 +54,8 @@ def _noise_sigma(segments: Sequence[Segment]) -> float:
 
 
 def movement_rate(segments: Sequence[Segment]) -> float:
-    """Typical |dR/dt| while the reference moves: the gauge slope |dR/dS| (a line through all
-    samples) times the median |dS/dt| of the moving samples (the reference is clean, so this
-    is not inflated by resistance noise; on samples stamped in bursts dS/dt is taken on a
-    regular grid, ``_regular_gradient``)."""
+    """Typical |dR/dt| while the reference moves: |dR/dS| of a line times the median |dS/dt|."""
+    # through the clean reference, so resistance noise does not inflate it
     r = np.concatenate([seg.r for seg in segments])
     s = np.concatenate([seg.s for seg in segments])
     gradient = np.gradient if _bursts(segments) is None else _regular_gradient
@@ -74,20 +68,6 @@ def movement_rate(segments: Sequence[Segment]) -> float:
     return gain * float(np.median(rates[moving]))
 
 
-def _hold_samples(segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray, str] | None:
-    """(t, r, source) of a hold, else of seeded noise of the robust sigma; None: noise-free."""
-    hold = find_hold(segments)
-    if hold is not None and np.ptp(hold[1]) > 0:
-        return hold[0], hold[1], "hold"
-    sigma = _noise_sigma(segments)
-    longest = max(segments, key=lambda seg: seg.t.size)
-    if sigma > 0 and longest.t.size >= 12:
-        rng = np.random.default_rng(0)
-        r_hold = float(np.median(longest.r)) + sigma * rng.standard_normal(longest.t.size)
-        return longest.t, r_hold, "noise"
-    return None
-
-
 def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) -> tuple[
         DirectionSettings, str]:
     """Dead-zone settings and their source."""
@@ -97,16 +77,22 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
         tau = float(options.get("tau", 0.0))
         return DirectionSettings(deadzone=deadzone, tau=tau, k_sigma=None), "given"
     taus = [float(options["tau"])] if "tau" in options else _tau_grid(segments)
-    hold = _hold_samples(segments)
-    if hold is None:
-        # Noise-free data (a clean simulation): a dead zone far below any real motion,
-        # 1e-6 of the training R span per second of the longest segment.
-        longest = max(segments, key=lambda seg: seg.t.size)
-        t_span = float(longest.t[-1] - longest.t[0]) or 1.0
-        r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
-        return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=taus[0],
-                                 k_sigma=None), "floor"
-    t_hold, r_hold, source = hold
+    hold = find_hold(segments)
+    longest = max(segments, key=lambda seg: seg.t.size)
+    if hold is not None and np.ptp(hold[1]) > 0:
+        t_hold, r_hold, source = hold[0], hold[1], "hold"
+    else:  # seeded white noise of R's robust sigma
+        sigma = _noise_sigma(segments)
+        if not (sigma > 0 and longest.t.size >= 12):
+            # Noise-free data (a clean simulation): a dead zone far below any real motion,
+            # 1e-6 of the training R span per second of the longest segment.
+            t_span = float(longest.t[-1] - longest.t[0]) or 1.0
+            r_span = float(np.ptp(np.concatenate([seg.r for seg in segments])))
+            return DirectionSettings(deadzone=1e-6 * r_span / t_span, tau=taus[0],
+                                     k_sigma=None), "floor"
+        rng = np.random.default_rng(0)
+        t_hold, source = longest.t, "noise"
+        r_hold = float(np.median(longest.r)) + sigma * rng.standard_normal(longest.t.size)
     target = DEADZONE_FRACTION * movement_rate(segments)
     for tau in taus:
         settings = estimate_deadzone(t_hold, r_hold, k_sigma=k_sigma, tau=tau)
@@ -116,9 +102,7 @@ def direction_settings(segments: Sequence[Segment], options: Mapping[str, Any]) 
 
 
 def _bursts(segments: Sequence[Segment]) -> float | None:
-    """The median sample interval when the samples come in bursts (more than 1 % of the
-    intervals below ``BURST_FRACTION`` of the median: stamps taken on arrival, as a bag's
-    log time is), else None."""
+    """The median sample interval when over 1 % of the intervals are bursts, else None."""
     dt = np.concatenate([np.diff(seg.t) for seg in segments])
     if dt.size < 2:
         return None
@@ -127,8 +111,7 @@ def _bursts(segments: Sequence[Segment]) -> float | None:
 
 
 def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """dS/dt at the samples, from S interpolated onto a grid of the median interval (a
-    burst's microseconds would turn the reference's own steps into huge rates)."""
+    """dS/dt at the samples, from S interpolated onto a grid of the median interval."""
     if t.size < 3:
         return np.zeros(t.size)
     step = float(np.median(np.diff(t)))
@@ -140,9 +123,8 @@ def _regular_gradient(s: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _tau_grid(segments: Sequence[Segment]) -> list[float]:
-    """``TAU_GRID``, without the filters shorter than two median sample intervals when the
-    samples come in bursts (``_bursts``): a first difference over a burst's microseconds
-    turns read-out noise into a huge derivative; a longer filter averages over the bursts."""
+    """``TAU_GRID`` without the filters shorter than two median intervals when in bursts."""
+    # a first difference over a burst's microseconds turns read-out noise into huge rates
     median = _bursts(segments)
     if median is None:
         return list(TAU_GRID)

@@ -1,8 +1,6 @@
-"""Evaluation: one scorer (``Scorer``) runs a calibration through the engine's batch path
-(``Engine.run_array`` for an array: cross-talk terms see the same tick's neighbours) and
-keeps running error sums over the samples the engine used whose reference is finite; held
-samples are counted, not scored. ``evaluate_bag`` streams a bag (docs/architecture.md).
-"""
+"""Evaluation: ``Scorer`` runs a calibration through the engine's batch path and keeps running
+error sums over the used samples with a finite reference (held ones counted, not scored);
+``evaluate_bag`` streams a bag (docs/architecture.md)."""
 
 from __future__ import annotations
 
@@ -31,7 +29,7 @@ from strain_comp.io.recording import (
     temperature_series,
     topic_sensors,
 )
-from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation, input_unit
+from strain_comp.offline.evaluation import EvaluationResult, SensorEvaluation
 
 if TYPE_CHECKING:
     from strain_comp.core.outputs import BatchOutput
@@ -43,8 +41,6 @@ PLOT_POINTS = 50_000
 
 class _Kept:
     """Every ``stride``-th sample of one sensor, for plots, the stride doubled past ``cap``."""
-
-    FIELDS = ("t", "r", "reference", "estimate", "direction", "scored", "out_of_range", "std")
 
     def __init__(self, cap: int | None) -> None:
         self.cap = cap
@@ -59,8 +55,8 @@ class _Kept:
         self.n += size
         take = index % self.stride == 0
         self.index = np.concatenate((self.index, index[take]))
-        for key in (k for k in self.FIELDS if k in columns):  # std: only with a band
-            new = columns[key][take]
+        for key, column in columns.items():
+            new = column[take]
             self.columns[key] = new if key not in self.columns else \
                 np.concatenate((self.columns[key], new))
         while self.cap is not None and self.index.size > self.cap:
@@ -113,8 +109,8 @@ class _Score:
             n_samples=self.n_samples, n_bad=self.n_bad, n_out_of_range=self.n_out_of_range,
             bad_by_status={Status(v).name.lower(): c for v, c in sorted(self.bad.items())},
             unit=cal.strain_unit, errors=self.errors,
-            out_of_range=kept.get("out_of_range").astype(bool), input_unit=input_unit(cal),
-            input_gain=input_gain,
+            out_of_range=kept.get("out_of_range").astype(bool), input_gain=input_gain,
+            input_unit="V" if cal.input.kind == "divider" else cal.input.unit,
             references=None if fused is None else {"every": fused.every,
                                                    **fused.fusion.state()},
             std=kept.get("std") if self.errors.n_banded else np.empty(0),
@@ -230,10 +226,8 @@ def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibr
 
 
 def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
-    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic:
-    offline such a term reads the neighbour's latest estimate of the previous batch, not of
-    the same instant (``Engine.run``; the node, stepping each message, reads the latest one),
-    so its correction is not the one diagnosed."""
+    """The note for cross-talk terms whose neighbour is not on ``name``'s array topic."""
+    # offline such a term reads the neighbour's estimate of the previous batch, not the tick's
     off = [f"{e.get('name')} ({e['params'].get('neighbour')})" for e in cal.effects
            if e.get("kind") == "crosstalk" and isinstance(e.get("params"), Mapping)
            and str(e["params"].get("neighbour")) not in same_tick]
@@ -311,7 +305,8 @@ class BagScorer(Scorer):
                 self._add(inp, topic, contents)
                 self._run(inp)
 
-    def finish(self) -> None:
+    def finish(self) -> EvaluationResult:
+        """The rest of every input run and scored; the result of what the bag held."""
         for inp in self.inputs.values():
             if inp is not None:
                 for align in [*inp.temperature.values(), *inp.reference.values()]:
@@ -320,6 +315,12 @@ class BagScorer(Scorer):
         for topic in sorted(self.references):
             if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
                 self._problem(f"{topic}: reference without a resistance topic; ignored")
+        return self.result(
+            self.names, {name for inp in self.inputs.values() if inp is not None
+                         for name in inp.ref_columns or {}},
+            self.with_temperature,
+            {name: set(inp.names) for inp in self.inputs.values()
+             if inp is not None and not inp.single for name in inp.names})
 
     def _input(self, topic: str, contents: BagContents) -> _Input | None:
         """A resistance topic as ``load_recordings`` reads it, tared from its first piece."""
@@ -389,15 +390,6 @@ class BagScorer(Scorer):
                     for name in inp.names},
                    {name: align.take(t) for name, align in inp.reference.items()})
 
-    def bag_result(self) -> EvaluationResult:
-        """``result`` of what the bag held."""
-        return self.result(
-            self.names, {name for inp in self.inputs.values() if inp is not None
-                         for name in inp.ref_columns or {}},
-            self.with_temperature,
-            {name: set(inp.names) for inp in self.inputs.values()
-             if inp is not None and not inp.single for name in inp.names})
-
 
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  tare: str = "calibration", window: int = WINDOW,
@@ -410,9 +402,8 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                        tare, plot_points, series, str(path), references_every)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
-    stream.finish()
+    result = stream.finish()
     problems = stream.bag_problems + located(path, stream.problems)
-    result = stream.bag_result()
     if not result.sensors:
         raise InputError("; ".join([f"{path}: {nothing_scored(calibration, stream.names)}",
                                     *problems]))

@@ -1,6 +1,5 @@
 """An evaluation's result (``offline.evaluate``): each sensor's run and error statistics, its
-table and its notes.
-"""
+table and its notes."""
 
 from __future__ import annotations
 
@@ -11,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.core.calibration import SensorCalibration, strain_unit_words
+from strain_comp.core.calibration import strain_unit_words
 from strain_comp.core.fusion import fusion_note
 from strain_comp.core.metrics import ErrorAccumulator, ErrorStats
 
@@ -33,6 +32,8 @@ class SensorEvaluation:
     n_samples: int
     n_bad: int
     n_out_of_range: int
+    errors: ErrorAccumulator = field(repr=False, compare=False)
+    """The running sums behind ``stats``, to pool several bags."""
     bad_by_status: dict[str, int] = field(default_factory=dict)
     in_run_rmse: float | None = None
     """RMSE of the same model fitted on this run itself (``in_run_bound``), if asked."""
@@ -41,11 +42,8 @@ class SensorEvaluation:
     out_of_range: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
     """Boolean mask (same samples as ``t``): outside the calibration's valid range."""
     input_unit: str = "ohm"
-    """The unit of ``r``: the calibration's input unit, or V for a voltage divider."""
     input_gain: float = 1.0
     """The tare's gain: the model saw ``r`` (in ohm) times this."""
-    errors: ErrorAccumulator | None = field(default=None, repr=False, compare=False)
-    """The running sums behind ``stats`` (streamed evaluation), to pool several bags."""
     references: dict[str, Any] | None = None
     """What the fused references did (``OutputFusion.state`` and ``every``), when fused."""
     std: np.ndarray = field(default_factory=lambda: np.empty(0))
@@ -91,11 +89,6 @@ def json_safe(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
     return value
-
-
-def input_unit(cal: SensorCalibration) -> str:
-    """The unit of the input a sensor's run holds."""
-    return "V" if cal.input.kind == "divider" else cal.input.unit
 
 
 def score_lines(rows: Sequence[tuple[str, str, int | None, ErrorStats, float | None]],

@@ -1,9 +1,6 @@
-"""The measurement chain read from the training runs: an alternation of the excitation every
-other sample (``core.chain``) makes the models read a pair statistic of R[i], R[i-1] (the
-mean, or the upper or lower side where the still stretches show the alternation on one
-side: the carbon-black strip), so it never reaches a model's memory or the detector.
-Options ``alternation`` and ``pair`` override; the provenance says what was read.
-"""
+"""The measurement chain read from the training runs: with an alternation of the excitation
+(``core.chain``) the models read a pair statistic of R[i], R[i-1] (mean, upper or lower side);
+options ``alternation`` and ``pair`` override."""
 
 from __future__ import annotations
 
@@ -19,8 +16,8 @@ if TYPE_CHECKING:
     from strain_comp.io.recording import Recording
 
 STILL_FRACTION = 0.001
-"""The reference strain is still where it moves by at most this share of its span in 1 s
-(half the slowest ramp in the measured data: the fibre moves 0.2 % of its span per s)."""
+"""The reference is still where it moves at most this share of its span in 1 s."""
+# half the slowest ramp in the measured data (the fibre moves 0.2 % of its span per s)
 
 
 def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str, Any],
@@ -36,15 +33,6 @@ def input_chain(recordings: Sequence[Recording], name: str, options: Mapping[str
     return chain, alternating, pair
 
 
-def strain_change(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Change of the reference strain over the second around each sample."""
-    t = np.asarray(t, dtype=np.float64)
-    lo = np.searchsorted(t, t - 0.5)
-    hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
-    change: np.ndarray = s[hi] - s[lo]
-    return change
-
-
 def pair_side(recordings: Sequence[Recording]) -> str:
     """``pair_branch`` over the training runs, still where ``STILL_FRACTION`` says."""
     r_all, still_all = [], []
@@ -53,7 +41,10 @@ def pair_side(recordings: Sequence[Recording]) -> str:
             continue
         s = np.asarray(rec.s, dtype=np.float64)
         span = float(np.nanmax(s) - np.nanmin(s)) if np.any(np.isfinite(s)) else 0.0
-        moved = np.abs(strain_change(rec.t, s))
+        t = np.asarray(rec.t, dtype=np.float64)
+        lo = np.searchsorted(t, t - 0.5)
+        hi = np.clip(np.searchsorted(t, t + 0.5, side="right") - 1, 0, t.size - 1)
+        moved = np.abs(s[hi] - s[lo])  # the change over the second around each sample
         r_all.append(np.asarray(rec.r, dtype=np.float64))
         still_all.append(np.isfinite(moved) & (moved <= STILL_FRACTION * span))
     if not r_all:

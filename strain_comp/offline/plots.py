@@ -5,7 +5,8 @@ the four of ``PLOTS`` per sensor, samples outside the calibrated range in orange
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,7 +33,6 @@ def _figure(rows: int = 1, *, height: float = 4.0) -> Figure:
 
 
 def png(fig: Figure) -> bytes:
-    """The figure as PNG bytes."""
     buffer = io.BytesIO()
     fig.savefig(buffer, dpi=110, format="png")
     return buffer.getvalue()
@@ -67,8 +67,9 @@ def _title(ev: SensorEvaluation, context: str = "") -> str:
     return f"{head}\n{plain(context)}" if context else head
 
 
-def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | None:
-    """The finite data's range widened by ``pad`` of its span (None without data)."""
+def _limits(*arrays: np.ndarray, set_lim: Callable[[float, float], object] | None = None
+            ) -> tuple[float, float] | None:
+    """The finite data's range widened by 5 % of its span, set by ``set_lim`` (None: no data)."""
     finite = [a[np.isfinite(a)] for a in arrays]
     finite = [a for a in finite if a.size]
     if not finite:
@@ -76,7 +77,10 @@ def _limits(*arrays: np.ndarray, pad: float = 0.05) -> tuple[float, float] | Non
     lo = float(min(a.min() for a in finite))
     hi = float(max(a.max() for a in finite))
     span = hi - lo if hi > lo else max(abs(hi), 1.0)
-    return lo - pad * span, hi + pad * span
+    lim = lo - 0.05 * span, hi + 0.05 * span
+    if set_lim is not None:
+        set_lim(*lim)
+    return lim
 
 
 def _resistance_axis(ev: SensorEvaluation) -> tuple[np.ndarray, str, float]:
@@ -108,15 +112,11 @@ def plot_time(ev: SensorEvaluation, context: str = "") -> Figure:
                  label=f"outside the calibrated range ({int(ev.n_out_of_range)})")
         bottom.plot(t[outside], r[outside], ".", color="tab:orange", ms=2.5)
     top.set_ylabel(f"strain [{ev.unit}]")
-    lim = _limits(ev.reference, ev.estimate)
-    if lim is not None:
-        top.set_ylim(*lim)
+    _limits(ev.reference, ev.estimate, set_lim=top.set_ylim)
     _finish(top, _title(ev, context))
     bottom.plot(t, r, color="tab:blue", lw=0.8, label="R" if ev.input_unit == "ohm"
                 else "input")
-    lim = _limits(r)
-    if lim is not None:
-        bottom.set_ylim(*lim)
+    _limits(r, set_lim=bottom.set_ylim)
     if t.size:
         bottom.set_xlim(float(t[0]), float(t[-1]) if t[-1] > t[0] else float(t[0]) + 1.0)
     bottom.set_xlabel("time since start [s]")
@@ -125,10 +125,8 @@ def plot_time(ev: SensorEvaluation, context: str = "") -> Figure:
     return fig
 
 
-def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
+def plot_loop(ax: Axes, ev: SensorEvaluation) -> None:
     """S_hat against S with the identity line; out-of-range samples marked."""
-    fig = _figure(height=6.0)
-    ax = fig.subplots()
     s, s_hat = ev.reference[ev.scored], ev.estimate[ev.scored]
     ax.plot(s, s_hat, color="tab:red", lw=0.6, alpha=0.8, label="estimate")
     outside = ev.out_of_range[ev.scored]
@@ -143,22 +141,17 @@ def plot_loop(ev: SensorEvaluation, context: str = "") -> Figure:
         ax.set_aspect("equal")
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(f"estimated strain S_hat [{ev.unit}]")
-    _finish(ax, _title(ev, context))
-    return fig
 
 
-def plot_raw(ev: SensorEvaluation, context: str = "",
-             r_range: tuple[float, float] | None = None) -> Figure:
+def plot_raw(ax: Axes, ev: SensorEvaluation, r_range: tuple[float, float] | None) -> None:
     """Resistance against reference strain, with the calibrated range through the tare."""
-    fig = _figure(height=5.0)
-    ax = fig.subplots()
     r, r_label, scale = _resistance_axis(ev)
     ax.plot(ev.reference, r, color="tab:blue", lw=0.6, alpha=0.8, label="recorded")
     outside = ev.out_of_range
     if outside.any():
         ax.plot(ev.reference[outside], r[outside], ".", color="tab:orange", ms=2.5,
                 label="outside the calibrated range")
-    lim = _limits(r)
+    bounds = np.empty(0)
     if r_range is not None and ev.input_unit == "ohm":
         scale *= ev.input_gain
         for k, bound in enumerate(r_range):
@@ -166,22 +159,15 @@ def plot_raw(ev: SensorEvaluation, context: str = "",
                        label=("calibrated range" + (" (through the tare)"
                                                     if ev.input_gain != 1.0 else ""))
                        if k == 0 else None)
-        lim = _limits(r, np.asarray(r_range) / scale)
-    if lim is not None:
-        ax.set_ylim(*lim)
-    xlim = _limits(ev.reference)
-    if xlim is not None:
-        ax.set_xlim(*xlim)
+        bounds = np.asarray(r_range) / scale
+    _limits(r, bounds, set_lim=ax.set_ylim)
+    _limits(ev.reference, set_lim=ax.set_xlim)
     ax.set_xlabel(f"reference strain S [{ev.unit}]")
     ax.set_ylabel(r_label)
-    _finish(ax, _title(ev, context))
-    return fig
 
 
-def plot_error_hist(ev: SensorEvaluation, context: str = "") -> Figure:
+def plot_error_hist(ax: Axes, ev: SensorEvaluation) -> None:
     """Histogram of the error S_hat - S over the scored samples."""
-    fig = _figure(height=4.0)
-    ax = fig.subplots()
     error = ev.estimate[ev.scored] - ev.reference[ev.scored]
     shown = (f"a subsample of {error.size} of the {ev.stats.n} scored samples"
              if error.size < ev.stats.n else f"{error.size} samples")
@@ -190,8 +176,6 @@ def plot_error_hist(ev: SensorEvaluation, context: str = "") -> Figure:
     ax.axvline(0.0, color="0.3", lw=1.0)
     ax.set_xlabel(f"error S_hat - S [{strain_unit_words(ev.unit)}]")
     ax.set_ylabel("samples")
-    _finish(ax, _title(ev, context))
-    return fig
 
 
 PLOTS = {"time": "estimate and reference over time, resistance below",
@@ -218,8 +202,15 @@ def evaluation_figures(result: EvaluationResult, calibration: Calibration, *, ba
             context = context_line(result, name, bag, calibration_path, tare)
             cal = calibration.sensors.get(name)
             r_range = None if cal is None else (cal.valid_range.r_lo, cal.valid_range.r_hi)
-            figures = (plot_time(ev, context), plot_loop(ev, context),
-                       plot_raw(ev, context, r_range), plot_error_hist(ev, context))
+            figures = [plot_time(ev, context)]
+            for height, draw in ((6.0, plot_loop),
+                                 (5.0, partial(plot_raw, r_range=r_range)),
+                                 (4.0, plot_error_hist)):  # one axes each
+                fig = _figure(height=height)
+                ax = fig.subplots()
+                draw(ax, ev)
+                _finish(ax, _title(ev, context))
+                figures.append(fig)
             out[name] = [(caption, png(figure))
                          for caption, figure in zip(PLOTS.values(), figures, strict=True)]
     return out

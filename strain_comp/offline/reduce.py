@@ -1,8 +1,6 @@
 """Reduction of long training runs before a model fit (docs/architecture.md): a zero-phase
-low-pass (no lag enters the hysteresis), every f-th sample, plus the reversals and hold ends
-at their own samples (the extremes that set a hysteresis model's memory stay where they
-were). Lost: motion faster than fs / (2f) and minor loops under ``REVERSAL_FRACTION``.
-"""
+low-pass, every f-th sample, plus the reversals and hold ends at their own samples. Lost:
+motion faster than fs / (2f) and minor loops under ``REVERSAL_FRACTION``."""
 
 from __future__ import annotations
 
@@ -16,14 +14,11 @@ from strain_comp._numba import njit
 from strain_comp.models import Segment
 
 FIT_SAMPLE_BUDGET = 250_000
-"""Good training samples of one sensor above which the model is fitted on a reduction
-(each measured recording in ``../shared/data/measured`` holds under 70 000)."""
+"""Good training samples of one sensor above which the model is fitted on a reduction."""
 REVERSAL_FRACTION = 0.01
 """Turning points with a swing of at least this share of the segment's span are kept."""
 HOLD_RATE_FRACTION = 0.01
-"""The reference is still where ``|dS/dt|`` is at most this share of its 99.5th percentile
-(the high percentile is a moving rate even when fast steps take only a few % of the
-record)."""
+"""The reference is still where ``|dS/dt|`` is at most this share of its 99.5th percentile."""
 
 
 def moving_average(x: np.ndarray, width: int) -> np.ndarray:
@@ -37,8 +32,7 @@ def moving_average(x: np.ndarray, width: int) -> np.ndarray:
 
 
 def lowpass(x: np.ndarray, factor: int) -> np.ndarray:
-    """The triangular anti-aliasing filter of step 1: two ``factor``-sample averages, over
-    ``x`` extended by its odd reflection at both ends (a ramp stays exact up to the end)."""
+    """Two ``factor``-sample averages over ``x`` extended by its odd reflection at both ends."""
     k = min(factor, x.size - 1)
     if k < 1:
         return np.copy(x, order="C")
@@ -90,8 +84,7 @@ def turning_points(x: np.ndarray, swing: float) -> np.ndarray:
 
 
 def _reversals(x: np.ndarray, swing: float, limit: int) -> np.ndarray:
-    """``turning_points(x, swing)``, the swing doubled until at most ``limit`` remain (a
-    signal noisier than the swing would otherwise keep most of its samples)."""
+    """``turning_points(x, swing)``, the swing doubled until at most ``limit`` remain."""
     found = turning_points(x, swing)
     while found.size > limit:
         swing *= 2.0
@@ -133,16 +126,11 @@ def reduce_segment(seg: Segment, factor: int) -> Segment:
     return Segment(seg.t[idx], r[idx], s[idx])
 
 
-def reduction_factor(segments: Sequence[Segment], budget: int = FIT_SAMPLE_BUDGET) -> int:
-    """The factor that brings the segments within ``budget``."""
-    total = sum(seg.t.size for seg in segments)
-    return 1 if total <= budget else math.ceil(total / budget)
-
-
 def reduce_segments(segments: Sequence[Segment], budget: int = FIT_SAMPLE_BUDGET
                     ) -> tuple[list[Segment], int]:
-    """The segments a model is fitted on."""
-    factor = reduction_factor(segments, budget)
-    if factor == 1:
+    """The segments a model is fitted on, and the factor that brings them within ``budget``."""
+    total = sum(seg.t.size for seg in segments)
+    if total <= budget:
         return list(segments), 1
+    factor = math.ceil(total / budget)
     return [reduce_segment(seg, factor) for seg in segments], factor

@@ -1,8 +1,6 @@
-"""Offline replay: a bag's resistance through the engine's batch path into a new bag, on the
-node's topics (docs/design.md, "Topics"): each output at its input's log time,
-``/diagnostics`` at the end of every ``diagnostics_period`` of log time that holds input;
-temperatures and references held at their latest value, as the node holds them.
-"""
+"""Offline replay: a bag's resistance through the engine's batch path into a new bag on the
+node's topics (docs/design.md, "Topics"), each output at its input's log time; temperatures
+and references held at their latest value, as the node holds them."""
 
 from __future__ import annotations
 
@@ -45,7 +43,6 @@ OUTPUTS = ("strain", "direction", "status")
 TICK_BATCH = 1024
 """/diagnostics ticks counted and encoded at once (a long sparse piece holds thousands)."""
 STAMPED = "strain_stamped"
-"""The JointState output beside ``OUTPUTS`` (module docstring)."""
 BAND = ("strain_std", "strain_std_stamped")
 """The standard deviation's outputs, where the calibration holds an uncertainty."""
 RESISTANCE_TYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32",
@@ -105,7 +102,6 @@ class _Replay:
         self.tare = tare
         self.writer = writer
         self.out = StagedWrites()
-        """The piece's outputs, written with its /diagnostics slice by slice (``piece``)."""
         self.engine = engine
         self.period = period
         self.inputs: dict[str, _Input | None] = {}
@@ -122,9 +118,7 @@ class _Replay:
         self._contents = BagContents()
 
     def piece(self, contents: BagContents) -> None:
-        """Replay one time-ordered piece: outputs, diagnostics ticks, copied inputs (in that
-        order among messages of one log time), written one slice of ``TICK_BATCH`` ticks at
-        a time so memory is bounded however long the piece lasts."""
+        """Replay one piece: outputs, ticks, copied inputs, in slices of ``TICK_BATCH`` ticks."""
         self.problems += contents.problems
         self._discover(contents)
         self._contents = contents
@@ -248,12 +242,10 @@ class _Replay:
         """Hold the output ``what`` of ``inp`` (a column per sensor) and its stamped twin."""
         topic = f"/{inp.name}/{what}"
         if inp.is_array:
-            self.out.add(t, lambda w, i: w.write_float64_array(topic, t[i], stacked[i],
-                                                                inp.sensors))
-        elif what in ("direction", "status"):
-            self.out.add(t, lambda w, i: w.write_int8(topic, t[i], stacked[i, 0]))
+            self.out.add(t, _copier("write_float64_array", topic, t, stacked, inp.sensors))
         else:
-            self.out.add(t, lambda w, i: w.write_float64(topic, t[i], stacked[i, 0]))
+            method = "write_int8" if what in ("direction", "status") else "write_float64"
+            self.out.add(t, _copier(method, topic, t, stacked[:, 0]))
         if what in ("strain", BAND[0]):
             stamped = f"/{inp.name}/{STAMPED if what == 'strain' else BAND[1]}"
             self.out.add(t, lambda w, i: w.write_joint_state(stamped, t[i], inp.sensors,
@@ -311,13 +303,12 @@ def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
-               gap_reset: float = GAP_RESET, stale_after: float = 1.0,
-               window: int = WINDOW, tare: str = "calibration",
+               gap_reset: float = GAP_RESET, window: int = WINDOW, tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
                references_every: float | None = None) -> ReplaySummary:
     """Replay ``in_path`` into a new bag at ``out_path``, written atomically, by pieces."""
-    engine = Engine(calibration, gap_reset=gap_reset, stale_after=stale_after)
+    engine = Engine(calibration, gap_reset=gap_reset)
     out_path = Path(out_path)
     with series_csv(csv, inputs=[in_path, *inputs, out_path]) as table, \
             BagWriter(out_path, inputs=[in_path, *inputs]) as writer:
@@ -359,9 +350,8 @@ Call = Callable[[BagWriter, np.ndarray], None]
 
 
 class StagedWrites:
-    """``BagWriter`` calls of a piece held until ``write`` makes them one log-time slice at
-    a time; every held call is made in every slice, empty ones included, so each topic is
-    first named, and numbered, as it would be written in one go."""
+    """A piece's ``BagWriter`` calls, held until ``write`` makes them slice by slice."""
+    # every call is made in every slice, empty ones too: topics named and numbered as in one go
 
     def __init__(self) -> None:
         self.calls: list[tuple[np.ndarray, np.ndarray, Call]] = []
@@ -374,8 +364,7 @@ class StagedWrites:
         self.calls.append((t_ns[order], order, call))
 
     def write(self, writer: BagWriter, lo: float, hi: float | None) -> None:
-        """Write the messages of log times [s] in [``lo``, ``hi``) as integer ns; ``hi``
-        None: all the rest (times the writer refuses included, so it still refuses them)."""
+        """Write the messages of log times [s] in [``lo``, ``hi``); ``hi`` None: all the rest."""
         lo_ns = np.round(lo * 1e9)
         hi_ns = None if hi is None else np.round(hi * 1e9)
         for t_ns, order, call in self.calls:  # a slice costs its messages, not the piece's
@@ -423,8 +412,7 @@ class FusionTicks:
 def diagnostic_payloads(ticks: np.ndarray, healths: Mapping[str, HealthTicks],
                         fusion: Mapping[str, FusionTicks]
                         ) -> Iterator[tuple[slice, np.ndarray, np.ndarray]]:
-    """The DiagnosticArray payloads of ``ticks`` [s] at once, in runs of one fusion key set
-    (it grows with each new reason to refuse): (the run's ticks, payloads, lengths)."""
+    """(ticks, payloads, lengths) of ``ticks``' DiagnosticArrays, a run per fusion key set."""
     if not ticks.size:
         return
     t_ns = np.round(ticks * 1e9).astype(np.int64)  # as the writer stamps its messages

@@ -1,7 +1,5 @@
-"""``evaluate --report`` and ``diagnose --report``: one self-contained HTML page
-(docs/design.md, ``--report``); every figure of a table carries its full value in
-``data-value``, the text shows it rounded.
-"""
+"""``evaluate --report`` and ``diagnose --report``: one self-contained HTML page (docs/design.md,
+``--report``); every figure of a table carries its full value in ``data-value``."""
 
 from __future__ import annotations
 
@@ -90,16 +88,14 @@ def scores_table(rows: Iterable[tuple[str, str, ErrorStats, str, dict[str, Any]]
 
 
 def html_image(caption: str, png: bytes) -> str:
-    """A PNG as an inline figure."""
     data = base64.b64encode(png).decode("ascii")
     return (f'<figure><img alt="{escape(caption)}" src="data:image/png;base64,{data}">'
             f"<figcaption>{escape(caption)}</figcaption></figure>")
 
 
-def html_notes(lines: Iterable[str], cls: str = "note") -> str:
-    """Lines as a list."""
+def html_notes(lines: Iterable[str]) -> str:
     items = "".join(f"<li>{escape(line)}</li>" for line in lines)
-    return f'<ul class="{cls}">{items}</ul>' if items else ""
+    return f'<ul class="note">{items}</ul>' if items else ""
 
 
 def plain_text(value: Any) -> str:

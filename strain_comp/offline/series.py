@@ -1,7 +1,5 @@
 """The compensated series as CSV: ``replay --csv`` and ``evaluate --csv`` (columns and cells:
-docs/design.md, "JSON outputs"), written atomically (``strain_comp.io.atomic``); ``-``
-writes to stdout.
-"""
+docs/design.md, "JSON outputs"), written atomically; ``-`` writes to stdout."""
 
 from __future__ import annotations
 
@@ -33,9 +31,8 @@ class SeriesCSV:
 
     def __init__(self, path: str | os.PathLike[str], *,
                  inputs: Iterable[str | os.PathLike[str]] = (), bag: bool = False) -> None:
-        self.stdout = str(path) == "-"
         self.path = path
-        self.file = None if self.stdout else AtomicFile(path, inputs=inputs)
+        self.file = None if str(path) == "-" else AtomicFile(path, inputs=inputs)
         self.bag = bag
         self.write(",".join((("bag",) if bag else ()) + COLUMNS) + "\n")
 
@@ -55,10 +52,8 @@ class SeriesCSV:
             reference: np.ndarray | None, direction: np.ndarray, status: np.ndarray, *,
             unit: str, bag: str = "") -> None:
         """Rows for one sensor's samples (arrays of equal length)."""
-        n = int(np.asarray(t).size)
-        if n == 0:
-            return
-        ref = np.full(n, np.nan) if reference is None else np.asarray(reference, np.float64)
+        ref = (np.full(np.asarray(t).size, np.nan) if reference is None
+               else np.asarray(reference, np.float64))
         head = f"{_cell(bag)},{_cell(sensor)}" if self.bag else _cell(sensor)
         tail = _cell(unit)
         buf = io.StringIO()

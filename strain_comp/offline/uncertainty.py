@@ -15,7 +15,6 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import Z_95
 from strain_comp.core.uncertainty import (
-    FEATURES,
     WEIGHT_MAX,
     Uncertainty,
     features_run,
@@ -24,9 +23,8 @@ from strain_comp.core.uncertainty import (
 from strain_comp.io.recording import Recording
 
 RIDGE = 1e-3
-"""Weight of a penalty ||w - w_0||^2 / 2 per unit of run weight on the weights besides the
-bias: a feature that never varies in the runs left out (no sample outside the range) keeps
-weight 0 instead of an arbitrary one."""
+"""Weight of a penalty ||w - w_0||^2 / 2 per unit of run weight on the weights but the bias."""
+# a feature that never varies in the runs left out keeps weight 0, not an arbitrary one
 
 
 def left_out_samples(started: Calibration, recordings: Mapping[str, Recording]
@@ -78,10 +76,7 @@ def likelihood_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
 
 
 def fit_weights(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
-    """The weights by maximum likelihood over every run, times the factor on sigma a new
-    run needs (docs/design.md, "Uncertainty"). The geometric mean of the runs' factors, as
-    a factor is a scale: a run that needs twice the typical one weighs as much as one that
-    needs half (the median ignored how far the runs beyond it lay)."""
+    """The weights over every run times the factor on sigma a new run needs (design.md)."""
     factors = []
     for j, (x, e) in enumerate(runs):
         others = [r for k, r in enumerate(runs) if k != j] or runs
@@ -109,5 +104,4 @@ def learn(pairs: Iterable[tuple[Calibration, Mapping[str, Recording]]]
         w, _ = fit_weights(runs)
         out[name] = Uncertainty(tuple(float(v) for v in w), runs=len(runs),
                                 samples=sum(e.size for _, e in runs))
-    assert all(len(u.weights) == len(FEATURES) for u in out.values())
     return out
