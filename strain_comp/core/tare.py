@@ -42,22 +42,13 @@ def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
-                             direction: DirectionSettings, *, pair: str = "mean") -> float:
-    """Rest resistance [ohm] of a run from its first seconds (no reference needed)."""
-    ta, ra, stop, _ = _rest_stretch(t, r, direction, pair)
-    return _rest_of_stretch(ta, ra, stop, pair)
-
-
-def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
-                                 direction: DirectionSettings, *, pair: str = "mean",
-                                 ) -> float | None:
-    """``rest_resistance_at_start`` as samples arrive (the node); None while undecided."""
+                             direction: DirectionSettings, *, pair: str = "mean",
+                             ended: bool = True) -> float | None:
+    """Rest resistance [ohm] of a run from its first seconds (no reference needed); InputError
+    when too few or drifting; None while the rest goes on in a run not ``ended`` (the node)."""
     ta, ra, stop, decided = _rest_stretch(t, r, direction, pair)
-    return _rest_of_stretch(ta, ra, stop, pair) if decided else None
-
-
-def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, pair: str) -> float:
-    """The rest level of the first ``stop`` samples; InputError when too few or drifting."""
+    if not (decided or ended):
+        return None
     if ta.size == 0:
         raise InputError("tare: no good resistance sample at the start of the run")
     if stop == 0 or (stop < MIN_REST_SAMPLES
@@ -196,6 +187,7 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
         try:
             rest = rest_resistance_at_start(t, cal.input.to_ohm(r), cal.direction,
                                             pair=cal.input.pair)
+            assert rest is not None  # a whole run (ended) always decides
         except InputError as err:
             lines[name] = f"not tared: {str(err).removeprefix('tare: ')}"
             continue
