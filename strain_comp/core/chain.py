@@ -1,7 +1,6 @@
-"""Measurement-chain effects found from the resistance alone (no reference needed):
-alternation, isolated spikes, baseline steps, quantisation, and the online corrector's numba
-kernels; how each is found and corrected: docs/models.md, "The measurement chain".
-"""
+"""Measurement-chain effects found from the resistance alone: alternation, isolated spikes,
+baseline steps, quantisation, and the online corrector's kernels (docs/models.md, "The
+measurement chain")."""
 
 from __future__ import annotations
 
@@ -73,8 +72,7 @@ PAIR_BRANCHES = ("mean", "upper", "lower")
 
 def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: str = "mean",
                 ) -> np.ndarray:
-    """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
-    first one with ``previous`` (itself when NaN)."""
+    """The pair statistic ``branch`` of R[i] and R[i-1], the first with ``previous``."""
     before = np.concatenate(([previous], r[:-1])) if r.size else r
     if branch == "mean":
         return np.where(np.isfinite(before), 0.5 * (r + before), r)
@@ -83,9 +81,7 @@ def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: 
 
 
 def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
-    """The pair statistic (``PAIR_BRANCHES``) to read an alternating ``r`` through, from the
-    steps of its size between windows where ``still`` (bool per sample: the strain is known
-    to be constant) holds (docs/models.md); ``mean`` when fewer than ``PAIR_MIN_STEPS``."""
+    """The pair statistic to read an alternating ``r`` through, from its ``still`` stretches."""
     ra = np.asarray(r, dtype=np.float64)
     ok = np.isfinite(ra) & (ra > 0)
     ra, sa = ra[ok], np.asarray(still, dtype=bool)[ok]
@@ -125,9 +121,8 @@ def quantisation(r: npt.ArrayLike) -> float | None:
 DESPIKE_K = 8.0
 """Default spike threshold of the online corrector: robust sigmas of its innovation."""
 STEP_K = 12.0
-"""Default least size of a baseline step, in robust sigmas of the innovation (1.5 times the
-spike threshold: a measured carbon-black run, v19, shows a change of 8-12 sigmas that stays
-while loading, which is strain, not a step; ``studies/measured_chain.py``)."""
+"""Default least size of a baseline step, in robust sigmas of the innovation."""
+# 1.5 x the spike threshold: measured run v19 has an 8-12 sigma change under load (strain)
 WINDOW = 32
 """Latest |innovation| values the corrector's robust scale is the median of."""
 WINDOW_MIN = 16
@@ -139,9 +134,7 @@ STEP_SAMPLES = 16
 RELAX_Z = 4.0
 """Standard errors of the bend allowed for noise (below)."""
 RELAX_FRAC = 0.2
-"""A jump after which the trend bends (the slope after it minus the slope before, times
-``STEP_SAMPLES``) by more than ``RELAX_FRAC`` of the jump plus ``RELAX_Z`` standard errors
-relaxes or starts a movement: a strain change, not a baseline step."""
+"""A jump whose trend bends by more than this share of it (plus ``RELAX_Z``) is strain."""
 
 # corrector state columns
 (_OFFSET, _LAST, _LASTX, _NHIST, _MODE, _NBUF, _WPOS, _WN, _TPOS, _TN, _FIRST, _NPEND,
@@ -151,30 +144,24 @@ STATE_SIZE = 16
 REFERENCES = (_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS)
 """State columns a restart (after a gap) clears: the references, not the scale or offset."""
 LEVELS = (_OFFSET, _LAST, _LASTX, _FIRST, _DRIFT0)
-"""State columns that scale with the samples (levels, the offset, an innovation, a rate):
-what a new tare gain multiplies."""
+"""State columns that scale with the samples: what a new tare gain multiplies."""
 _NORMAL, _SUSPECT, _WATCH = 0, 1, 2
 HELD, SPIKE, STEP = 1, 2, 3
-"""Event codes of ``ChainCorrector.run``: the sample was held (replaced by the
-prediction), the excursion before ended here (a spike), a baseline step was confirmed here."""
+"""Event codes of ``ChainCorrector.run``: sample held, a spike ended, a baseline step."""
 NOISE_RATIO = 2.0
-"""A baseline step keeps the noise: the scatter after the jump is at most this many times
-the robust sigma before it."""
+"""A baseline step keeps the noise: the scatter after it at most this x the sigma before."""
 
 
 @njit(error_model="numpy")
 def _scale(window: np.ndarray) -> float:
-    """Robust sigma of innovations: 1.4826 x their median |value|, but at least 1.2533 x
-    their mean |value| (equal for Gaussian noise; on a quantised series, whose median
-    change may be 0, the mean still sees the noise)."""
+    """Robust sigma of innovations: 1.4826 x their median |value|, at least 1.2533 x the mean."""
+    # equal for Gaussian noise; on a quantised series the median change may be 0
     return float(max(1.4826 * np.median(window), 1.2533 * np.mean(window)))
 
 
 QUANT_STEPS = 3.0
-"""The threshold is at least this many of the smallest non-zero |innovation| of the window:
-a read-out quantised coarser than its noise (a quiet hold flickering by one ADC step either
-way, two steps from one side to the other, of which the mean floor of ``_scale`` sees one
-in 32) never makes a spike or a step."""
+"""The threshold is at least this many of the smallest non-zero |innovation| of the window."""
+# a hold flickering by one ADC step coarser than the noise never makes a spike or a step
 
 
 @njit(error_model="numpy")
@@ -217,9 +204,7 @@ def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: in
 @njit(error_model="numpy")
 def _is_step(st: np.ndarray, buf: np.ndarray, pre: np.ndarray, nbuf: int, sigma: float,
              step_k: float) -> tuple[bool, float]:
-    """(is a step, its jump) of the ``nbuf`` watched samples ``buf`` against the ring
-    ``pre`` before them: a step is a jump over ``step_k`` sigma, with no bend of a
-    relaxation and no more scatter than the noise."""
+    """(is a step, its jump): over ``step_k`` sigma, no relaxation's bend, noise's scatter."""
     jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf, int(st[_NPEND]))
     noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
     bend = (_slope(buf[:nbuf]) - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
@@ -233,9 +218,7 @@ def _is_step(st: np.ndarray, buf: np.ndarray, pre: np.ndarray, nbuf: int, sigma:
 @njit(error_model="numpy")
 def _watch(st: np.ndarray, xi: float, dt: float, thr: float, sigma: float, step_k: float,
            buf: np.ndarray, pre: np.ndarray) -> tuple[bool, bool, float]:
-    """One sample while a jump that stayed is watched, against the trend before it:
-    (accepted, a step found, its jump). A sample that moves on ends the watch (a strain
-    change); after ``STEP_SAMPLES`` held ones the jump is judged (``_is_step``)."""
+    """One sample while a jump that stayed is watched: (accepted, a step found, its jump)."""
     drift = st[_DRIFT0] * dt
     nbuf = int(st[_NBUF])
     if abs(xi - buf[nbuf - 1] - drift) > thr:  # moves on: a strain change
@@ -255,9 +238,7 @@ def _watch(st: np.ndarray, xi: float, dt: float, thr: float, sigma: float, step_
 def _judge(st: np.ndarray, xi: float, pred: float, dt: float, rate: float, thr: float,
            sigma: float, width: int, step_k: float, buf: np.ndarray, pre: np.ndarray,
            trend: np.ndarray) -> tuple[float, float, bool, int]:
-    """One sample through the corrector's modes (normal, suspect, watch) against its
-    prediction ``pred`` and threshold ``thr``: (xi, its innovation e, accepted, event); a
-    step found is taken out of xi and e and added to the offset."""
+    """One sample through the corrector's modes: (xi, innovation, accepted, event)."""
     e = xi - pred
     mode = int(st[_MODE])
     accept = True
@@ -381,8 +362,7 @@ class ChainCorrector:
             self.state[column] = 0.0
 
     def rescale(self, factor: float) -> None:
-        """Carry the state over to samples ``factor`` x as large (a new tare gain), so the
-        gain change itself is neither a spike nor a baseline step."""
+        """Carry the state over to samples ``factor`` x as large (a new tare gain)."""
         for column in LEVELS:
             self.state[column] *= factor
         for values in (self.window, self.trend, self.buffer, self.pre):

@@ -1,8 +1,6 @@
 """A sensor's one correction, R' = rest + gain (R - zero) on the input and S' = output_gain
 S + output_offset on the output, which every estimator of a session's change writes; its
-file form (``input.zero_span`` and ``RECALIBRATION_TERMS``; ``of`` and ``written`` convert):
-docs/design.md, "Calibration file".
-"""
+file form: docs/design.md, "Calibration file"."""
 
 from __future__ import annotations
 
@@ -100,8 +98,7 @@ def _is_output_term(effect: Mapping[str, Any]) -> bool:
 
 
 def _output_terms(effects: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
-    """(output gain, output offset) of a calibration's effect terms; (1, 0) without a valid
-    gain (the terms then act as they stand)."""
+    """(output gain, output offset) of a calibration's effect terms; (1, 0) if not valid."""
     gain_coef = sum(float(e["coef"]) for e in effects
                     if _is_output_term(e) and e.get("name") == RECALIBRATION_TERMS[0])
     offset_coef = sum(float(e["coef"]) for e in effects

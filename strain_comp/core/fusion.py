@@ -160,8 +160,7 @@ class OutputFusion:
 
 @dataclass
 class SparseFusion:
-    """One sensor's run in pieces, fused with the reference of the eligible sample nearest
-    each multiple of ``every`` s (none beyond ``every`` / 2)."""
+    """One sensor's run in pieces, fused with a reference near each multiple of ``every`` s."""
 
     fusion: OutputFusion
     every: float

@@ -43,8 +43,7 @@ class ErrorAccumulator:
 
     def add(self, estimate: npt.ArrayLike, reference: npt.ArrayLike,
             std: npt.ArrayLike | None = None) -> None:
-        """Take in the finite pairs of one piece, and where ``std`` the band's counts: pairs
-        with a finite band, those inside it (|S_hat - S| <= ``Z_95`` sigma)."""
+        """Take in the finite pairs of one piece (with ``std``: how many lie within the band)."""
         piece = ErrorAccumulator()
         s_hat = np.asarray(estimate, dtype=np.float64)
         s = np.asarray(reference, dtype=np.float64)

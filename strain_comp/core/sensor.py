@@ -226,8 +226,7 @@ class SensorState:
 def run_together(sensors: Mapping[str, SensorState], t: npt.ArrayLike, r: np.ndarray,
                  temperature: Mapping[str, npt.ArrayLike | None], gap_reset: float,
                  latest: Latest) -> dict[str, BatchOutput]:
-    """Sensors sampled together (``r``: a column each) over a batch: every cross-talk term
-    reads its neighbours' clamped pre-effect estimate of the same tick."""
+    """Sensors sampled together (``r``: a column each); cross-talk reads the same tick."""
     pending = {name: s.run_model(t, r[:, j], temperature.get(name), gap_reset)
                for j, (name, s) in enumerate(sensors.items())}
     bases = {name: p.base(sensors[name]) for name, p in pending.items()}

@@ -1,7 +1,5 @@
-"""Tare: the sensor's resistance at rest, read at the start of a run (while the direction
-detector holds, settled) or of a fit (the reference at its minimum); the engine scales the
-input by (calibrated rest / rest now), multiplicative as measured (docs/results.md, "Tare").
-"""
+"""Tare: the sensor's resistance at rest, read at the start of a run or of a fit; the engine
+scales the input by (calibrated rest / rest now) (docs/results.md, "Tare")."""
 
 from __future__ import annotations
 
