@@ -45,8 +45,6 @@ class Engine:
         self.out_of_range = out_of_range
         if not gap_reset > 0:
             raise ParameterError("gap_reset", f"must be > 0 s, got {gap_reset}")
-        if not deadzone_scale > 0:
-            raise ParameterError("deadzone_scale", f"must be > 0, got {deadzone_scale}")
         self.calibration = calibration
         self.gap_reset = float(gap_reset)
         self.stale_after = float(stale_after)
@@ -100,9 +98,6 @@ class Engine:
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
                                  "the calibration stores none, so it cannot be tared")
-        if not (math.isfinite(rest_resistance) and rest_resistance > 0):
-            raise ParameterError(f"{sensor}.tare", f"rest resistance must be finite and > 0 "
-                                 f"ohm, got {rest_resistance}")
         gain = reference / rest_resistance
         self.set_input_gain(sensor, gain)
         return gain
@@ -124,8 +119,6 @@ class Engine:
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Change the dead-zone scale (a node tunable); the detectors restart from rest."""
-        if not scale > 0:
-            raise ParameterError("deadzone_scale", f"must be > 0, got {scale}")
         self.deadzone_scale = float(scale)
         for sensor in self._sensors.values():
             sensor.detector = DirectionDetector(scaled(sensor.cal.direction, scale))
