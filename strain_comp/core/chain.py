@@ -24,11 +24,10 @@ PAIR_MIN_STEPS = 3
 
 @dataclass(frozen=True)
 class Alternation:
-    """Alternation every other sample: amplitude A [ohm], noise sigma [ohm], sign share."""
+    """Alternation every other sample: amplitude A [ohm], noise sigma [ohm], significance z."""
 
     amplitude: float
     noise: float
-    agreement: float
     z: float
 
     @property
@@ -53,17 +52,17 @@ def alternation(r: npt.ArrayLike) -> Alternation:
     """The alternation statistics of a resistance series (docs/models.md)."""
     r = _finite(r)
     if r.size < 8:
-        return Alternation(0.0, 0.0, 0.5, 0.0)
+        return Alternation(0.0, 0.0, 0.0)
     d2 = np.diff(r, 2)
     m = d2 * (-1.0) ** np.arange(1, d2.size + 1)  # d2[i] is centred on sample i + 1
     amplitude = -float(np.median(m)) / 4.0
     noise = _robust_sigma(m + 4.0 * amplitude) / math.sqrt(6.0)
     nonzero = m[m != 0]
     if amplitude == 0.0 or nonzero.size == 0:
-        return Alternation(amplitude, noise, 0.5, 0.0)
+        return Alternation(amplitude, noise, 0.0)
     agreement = float(np.mean(np.sign(nonzero) == -np.sign(amplitude)))
     z = (agreement - 0.5) * 2.0 * math.sqrt(nonzero.size)
-    return Alternation(amplitude, noise, agreement, z)
+    return Alternation(amplitude, noise, z)
 
 
 PAIR_BRANCHES = ("mean", "upper", "lower")
