@@ -311,18 +311,6 @@ def read_text(path: str | os.PathLike[str]) -> str:
         raise reader.fail("file", f"cannot read: {err}") from None
 
 
-def parse_fields(text: str, path: str) -> Calibration:
-    """Validate the text of a calibration file without running a model."""
-    # the cyclic garbage collector is paused: a large array's many small objects, no cycles
-    collecting = gc.isenabled()
-    gc.disable()
-    try:
-        return _parse_fields(text, _Reader(path))
-    finally:
-        if collecting:
-            gc.enable()
-
-
 def _parse_fields(text: str, reader: _Reader) -> Calibration:
     try:
         root = load_limited(text, max_aliases=MAX_ALIASES, max_nodes=MAX_NODES,
@@ -380,7 +368,14 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
 
 def parse_calibration(text: str, path: str) -> Calibration:
     """Validate the text of a calibration file: the limits, the fields, the probe."""
-    calibration = parse_fields(text, path)
+    # the cyclic garbage collector is paused: a large array's many small objects, no cycles
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        calibration = _parse_fields(text, _Reader(path))
+    finally:
+        if collecting:
+            gc.enable()
     probed: dict[str, str | None] = {}
     for name, cal in calibration.sensors.items():
         key = repr({**cal.to_dict(), "provenance": None})  # alike sensors: one probe
