@@ -109,7 +109,6 @@ class ArrayGroup:
     def __init__(self, sensors: Mapping[str, SensorState], names: list[str],
                  deadzone_scale: float) -> None:
         self.names = names
-        self.kernels: list[tuple[np.ndarray, LiftedArray]] = []
         self.rebuild(sensors, deadzone_scale)
 
     @property
@@ -121,7 +120,7 @@ class ArrayGroup:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
         self.sensors = [sensors[n] for n in self.names]
         self.banded = any(s.weights is not None for s in self.sensors)
-        self.kernels = []
+        self.kernels: list[tuple[np.ndarray, LiftedArray]] = []
         if not all(not s.cal.input.filtered and s.cal.input.zero_span is None
                    and s.cal.sample_interval is None and not s.cal.effects
                    for s in self.sensors):

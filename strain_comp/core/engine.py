@@ -38,7 +38,6 @@ class Engine:
                  arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
                  stale_after: float = 1.0, deadzone_scale: float = 1.0,
                  out_of_range: str = DEFAULT_OUT_OF_RANGE) -> None:
-        """Build one state per sensor and one group per array."""
         if out_of_range not in OUT_OF_RANGE_MODES:
             raise ParameterError("out_of_range", f"must be one of "
                                  f"{', '.join(OUT_OF_RANGE_MODES)}, got {out_of_range!r}")

@@ -20,7 +20,6 @@ class ErrorStats:
     n: int
 
     def to_dict(self) -> dict[str, float | int]:
-        """The statistics as a mapping."""
         return asdict(self)
 
 
@@ -88,7 +87,6 @@ class ErrorAccumulator:
         return self.n_inside / self.n_banded if self.n_banded else None
 
     def stats(self) -> ErrorStats:
-        """The statistics so far."""
         if not self.n:
             nan = float("nan")
             return ErrorStats(nan, nan, nan, nan, 0)
