@@ -41,20 +41,18 @@ class OutputFusion:
     """The calibrated strain span the prior, walk and noise are shares of."""
     start: tuple[float, float] = (1.0, 0.0)
     """The calibration's output gain and offset the filter starts from (a_0, b_0)."""
-    gain: float = math.nan
-    offset: float = math.nan
-    covariance: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    gain: float = field(init=False)
+    offset: float = field(init=False)
+    covariance: np.ndarray = field(init=False)
     n_used: int = 0
     refused: Counter[str] = field(default_factory=Counter)
     last_reference_t: float | None = None
     """Time of the latest reference used or refused for its value [s]."""
 
     def __post_init__(self) -> None:
-        if math.isnan(self.gain):
-            self.gain, self.offset = self.start
-        if not self.covariance.any():
-            self.covariance = self._coordinates(np.diag([GAIN_SD ** 2,
-                                                         (OFFSET_SHARE * self.span) ** 2]))
+        self.gain, self.offset = self.start
+        prior = np.diag([GAIN_SD ** 2, (OFFSET_SHARE * self.span) ** 2])
+        self.covariance = self._coordinates(prior)
 
     def _coordinates(self, p: np.ndarray) -> np.ndarray:
         """A covariance of the map relative to ``start`` in the filter's coordinates."""
