@@ -383,16 +383,13 @@ class ChainCorrector:
         return y, events
 
 
-def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
-            step_k: float = 0.0, alternating: bool | None = None, pair: str = "mean",
-            ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
+def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, alternating: bool, step_k: float = 0.0,
+            pair: str = "mean") -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
     """A whole run through a fresh ``ChainCorrector``: (what the models see, events, it)."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)
-    if alternating is None:
-        alternating = alternation(r).present
-    corrector = ChainCorrector(k=k, alternating=alternating, step_k=step_k)
+    corrector = ChainCorrector(alternating=alternating, step_k=step_k)
     seen = pair_values(r[good], branch=pair) if alternating else r[good]
     out = np.full(r.size, np.nan)
     events = np.zeros(r.size, np.int8)

@@ -103,12 +103,11 @@ class HealthTicks:
     stale: np.ndarray
     """(K,) bool: no good sample for longer than the sensor's stale time."""
 
-    def diagnostic(self, good_t: np.ndarray | None = None
+    def diagnostic(self, good_t: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, np.ndarray]]]:
-        """``SensorHealth.to_diagnostic`` at each tick (texts as UTF-8 bytes)."""
+        """``SensorHealth.to_diagnostic`` at each tick (``good_t``: ``times_text`` of them)."""
         state = np.where(self.stale, 0, self.last_status + 2)
         values = [(name, self.counters[:, j]) for j, name in enumerate(COUNTERS)]
-        good_t = times_text(self.last_good_t) if good_t is None else good_t
         values += [("last_good_t", good_t), ("last_status", _LAST_STATUS[self.last_status + 1])]
         return LEVELS[state], MESSAGES[state], values
 
