@@ -139,7 +139,6 @@ RELAX_FRAC = 0.2
 (_OFFSET, _LAST, _LASTX, _NHIST, _MODE, _NBUF, _WPOS, _WN, _TPOS, _TN, _FIRST, _NPEND,
  _PPOS, _PN, _DRIFT0, _LASTT) = range(16)
 STATE_SIZE = 16
-"""Length of the corrector's state."""
 REFERENCES = (_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS)
 """State columns a restart (after a gap) clears: the references, not the scale or offset."""
 LEVELS = (_OFFSET, _LAST, _LASTX, _FIRST, _DRIFT0)
