@@ -188,25 +188,24 @@ class SparseFusion:
         lo = 0  # the eligible samples not yet passed: idx[lo:]
         pos = 0
         half = 0.5 * self.every
+
+        def sample(j: int) -> tuple[float, float, float]:
+            """(t, estimate, reference) of the ``j``-th eligible sample."""
+            return float(t[idx[j]]), float(estimate[idx[j]]), float(reference[idx[j]])
+
         while True:
             target = self.origin + self.k * self.every
             j = lo + int(np.searchsorted(t_idx[lo:], target, side="left"))
             if j == idx.size:  # no eligible sample at or after the target in this piece
                 if lo < idx.size:
-                    last = int(idx[-1])
-                    self.before = (float(t[last]), float(estimate[last]), float(reference[last]))
+                    self.before = sample(idx.size - 1)
                 break
-            after = int(idx[j])
             candidates: list[tuple[float, int, tuple[float, float, float]]] = []
             if j > lo:
-                i = int(idx[j - 1])
-                candidates.append((target - t[i], j - 1,
-                                   (float(t[i]), float(estimate[i]), float(reference[i]))))
+                candidates.append((target - t_idx[j - 1], j - 1, sample(j - 1)))
             elif self.before is not None:
                 candidates.append((target - self.before[0], -1, self.before))
-            candidates.append((t[after] - target, j,
-                               (float(t[after]), float(estimate[after]),
-                                float(reference[after]))))
+            candidates.append((t_idx[j] - target, j, sample(j)))
             distance, chosen, (t_ref, s_hat, y) = min(candidates, key=lambda c: c[0])
             if distance <= half:
                 index = int(idx[chosen]) if chosen >= 0 else -1
