@@ -139,9 +139,9 @@ RELAX_FRAC = 0.2
 (_OFFSET, _LAST, _LASTX, _NHIST, _MODE, _NBUF, _WPOS, _WN, _TPOS, _TN, _FIRST, _NPEND,
  _PPOS, _PN, _DRIFT0, _LASTT) = range(16)
 STATE_SIZE = 16
-REFERENCES = (_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS)
+REFERENCES = [_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS]
 """State columns a restart (after a gap) clears: the references, not the scale or offset."""
-LEVELS = (_OFFSET, _LAST, _LASTX, _FIRST, _DRIFT0)
+LEVELS = [_OFFSET, _LAST, _LASTX, _FIRST, _DRIFT0]
 """State columns that scale with the samples: what a new tare gain multiplies."""
 _NORMAL, _SUSPECT, _WATCH = 0, 1, 2
 HELD, SPIKE, STEP = 1, 2, 3
@@ -356,13 +356,11 @@ class ChainCorrector:
 
     def restart(self) -> None:
         """Forget the references (after a gap): the next sample passes unjudged."""
-        for column in REFERENCES:
-            self.state[column] = 0.0
+        self.state[REFERENCES] = 0.0
 
     def rescale(self, factor: float) -> None:
         """Carry the state over to samples ``factor`` x as large (a new tare gain)."""
-        for column in LEVELS:
-            self.state[column] *= factor
+        self.state[LEVELS] *= factor
         for values in (self.window, self.trend, self.buffer, self.pre):
             values *= factor
 
