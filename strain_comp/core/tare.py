@@ -44,11 +44,24 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
                              ended: bool = True) -> float | None:
     """Rest resistance [ohm] of a run from its first seconds (no reference needed); InputError
     when too few or drifting; None while the rest goes on in a run not ``ended`` (the node)."""
-    ta, ra, stop, decided = _rest_stretch(t, r, direction, pair)
-    if not (decided or ended):
-        return None
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    good = _good(ta, ra)
+    ta, ra = ta[good], ra[good]
     if ta.size == 0:
+        if not ended:
+            return None
         raise InputError("tare: no good resistance sample at the start of the run")
+    head = int(np.searchsorted(ta, ta[0] + REST_WINDOW, side="right"))
+    complete = head < ta.size or ta[-1] - ta[0] >= REST_WINDOW
+    ta, ra = ta[:head], ra[:head]
+    # the detector reads pair values: an alternation every other sample is not movement
+    pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
+    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
+    moving = np.flatnonzero(states != 0)
+    if not (moving.size or complete or ended):  # still at rest: the rest may go on
+        return None
+    stop = int(moving[0]) + (ra.size - pairs.size) if moving.size else ra.size
     if stop == 0 or (stop < MIN_REST_SAMPLES
                      and ta[stop - 1] - ta[0] < MIN_REST_SECONDS):
         raise InputError(f"tare: the run does not start at rest (the direction detector "
@@ -62,27 +75,6 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
                          "the run from a few still seconds at rest, or start the session "
                          "on a stretch and back (strain-comp start)")
     return rest_level(ra[:stop], pair=pair)
-
-
-def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings,
-                  pair: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """(good t, r of the first ``REST_WINDOW`` s, samples at rest, whether that has ended)."""
-    ta = np.asarray(t, dtype=np.float64)
-    ra = np.asarray(r, dtype=np.float64)
-    good = _good(ta, ra)
-    ta, ra = ta[good], ra[good]
-    if ta.size == 0:
-        return ta, ra, 0, False
-    head = int(np.searchsorted(ta, ta[0] + REST_WINDOW, side="right"))
-    complete = head < ta.size or ta[-1] - ta[0] >= REST_WINDOW
-    ta, ra = ta[:head], ra[:head]
-    # the detector reads pair values: an alternation every other sample is not movement
-    pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
-    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
-    moving = np.flatnonzero(states != 0)
-    if moving.size:
-        return ta, ra, int(moving[0]) + (ra.size - pairs.size), True
-    return ta, ra, ra.size, complete
 
 
 def rest_drift(t: np.ndarray, r: np.ndarray, *, pair: str = "mean") -> float:
