@@ -26,7 +26,6 @@ from strain_comp.core.range_policy import SensorRange
 from strain_comp.core.stages import (
     bound_all,
     hold,
-    range_status,
     saturate_all,
     screen_batch,
 )
@@ -169,8 +168,9 @@ class SensorState:
                 corrections[a:b] = events
             dir_used[a:b] = self.detector.run(t[seg], seg_ohm)
             strain_used[a:b] = self.model.run(t[seg], saturate_all(seg_ohm, lim.row))
-        if self.cal.input.filtered:  # the range flag of what the model reads
-            status[idx] = range_status(ohm[idx], reset[idx], lim.r_lo, lim.r_hi)
+        if self.cal.input.filtered:  # the range flag of what the model reads (``screen_one``)
+            seen, inside = ohm[idx], np.where(reset[idx], sc.GAP_RESET, sc.GOOD)
+            status[idx] = np.where((seen < lim.r_lo) | (seen > lim.r_hi), sc.OUT_OF_RANGE, inside)
         if self.cal.direction.sign < 0:
             dir_used = -dir_used
         return PendingBatch(t, ohm, temp, status, reset, last_good_t, idx, bounds,

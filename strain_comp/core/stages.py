@@ -79,12 +79,6 @@ def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t
     return status, reset, last, idx[:m], starts[:n_starts]
 
 
-def range_status(ohm: np.ndarray, reset: np.ndarray, r_lo: float, r_hi: float) -> np.ndarray:
-    """Status codes of used samples from the resistance the model reads (``screen_one``)."""
-    inside = np.where(reset, sc.GAP_RESET, sc.GOOD)
-    return np.where((ohm < r_lo) | (ohm > r_hi), sc.OUT_OF_RANGE, inside).astype(np.int8)
-
-
 @njit
 def hold(status: np.ndarray, reset: np.ndarray, idx: np.ndarray, strain_used: np.ndarray,
          dir_used: np.ndarray, strain: float, direction: int
