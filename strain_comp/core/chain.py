@@ -200,20 +200,6 @@ def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: in
 
 
 @njit(error_model="numpy")
-def _is_step(st: np.ndarray, buf: np.ndarray, pre: np.ndarray, nbuf: int, sigma: float,
-             step_k: float) -> tuple[bool, float]:
-    """(is a step, its jump): over ``step_k`` sigma, no relaxation's bend, noise's scatter."""
-    jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf, int(st[_NPEND]))
-    noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
-    bend = (_slope(buf[:nbuf]) - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
-    bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
-    scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
-    return (abs(jump) > step_k * sigma
-            and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
-            and scatter <= NOISE_RATIO * sigma), jump
-
-
-@njit(error_model="numpy")
 def _watch(st: np.ndarray, xi: float, dt: float, thr: float, sigma: float, step_k: float,
            buf: np.ndarray, pre: np.ndarray) -> tuple[bool, bool, float]:
     """One sample while a jump that stayed is watched: (accepted, a step found, its jump)."""
@@ -228,8 +214,15 @@ def _watch(st: np.ndarray, xi: float, dt: float, thr: float, sigma: float, step_
     if nbuf != STEP_SAMPLES:
         return False, False, 0.0
     st[_MODE] = _NORMAL
-    stepped, jump = _is_step(st, buf, pre, nbuf, sigma, step_k)
-    return True, stepped, jump
+    # a step: a jump over ``step_k`` sigma, with no relaxation's bend, no more scatter than noise
+    jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf, int(st[_NPEND]))
+    noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
+    bend = (_slope(buf[:nbuf]) - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
+    bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
+    scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
+    return True, (abs(jump) > step_k * sigma
+                  and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
+                  and scatter <= NOISE_RATIO * sigma), jump
 
 
 @njit(error_model="numpy")
