@@ -106,23 +106,27 @@ def variants(ev: Any, span: float, every: float) -> dict[str, float]:
     """RMSE of the fused output under other fusion settings (``--variants``), from the
     engine's estimate ``ev`` (no references), and of the per-run least-squares gain and
     offset over the whole run (an oracle: it knows every reference of the run)."""
-    from dataclasses import replace
+    from strain_comp.core import fusion
+    from strain_comp.core.fusion import OutputFusion, SparseFusion
 
-    from strain_comp.core.fusion import FusionSettings, OutputFusion, SparseFusion
-
-    base = FusionSettings.for_span(span)
-    settings = {
-        "default": base,
-        "offset alone": replace(base, gain_sd=1e-9, gain_walk=0.0),
-        "gain prior 0.1": replace(base, gain_sd=0.1, gain_walk=base.gain_walk / 3.0),
-        "walks 4x slower": replace(base, gain_walk=base.gain_walk / 4.0,
-                                   offset_walk=base.offset_walk / 4.0),
+    # the fusion's module constants (read when a filter is built or updated), set per variant
+    settings: dict[str, dict[str, float]] = {
+        "default": {},
+        "offset alone": {"GAIN_SD": 1e-9, "GAIN_WALK": 0.0},
+        "gain prior 0.1": {"GAIN_SD": 0.1, "GAIN_WALK": fusion.GAIN_WALK / 3.0},
+        "walks 4x slower": {"GAIN_WALK": fusion.GAIN_WALK / 4.0,
+                            "OFFSET_WALK_SHARE": fusion.OFFSET_WALK_SHARE / 4.0},
     }
     eligible = ev.scored & ~ev.out_of_range
     out = {}
-    for name, setting in settings.items():
-        fused = SparseFusion(OutputFusion(setting), every).run(ev.t, ev.estimate,
-                                                              ev.reference, eligible)
+    for name, numbers in settings.items():
+        defaults = {key: getattr(fusion, key) for key in numbers}
+        vars(fusion).update(numbers)
+        try:
+            fused = SparseFusion(OutputFusion(span), every).run(ev.t, ev.estimate,
+                                                                ev.reference, eligible)
+        finally:
+            vars(fusion).update(defaults)
         out[name] = float(np.sqrt(np.mean((fused - ev.reference)[ev.scored] ** 2)))
     a = np.column_stack([ev.estimate[eligible], np.ones(int(eligible.sum()))])
     g, b = np.linalg.lstsq(a, ev.reference[eligible], rcond=None)[0]

@@ -39,7 +39,7 @@ def array_ticks() -> None:
 def main(part: int) -> None:
     if part == 0:
         run = training_recording()
-        correct(run.t, run.r)
+        correct(run.t, run.r, alternating=False)
     for model in PARTS[part]:
         fitted(model)
     if part == 1:

@@ -109,7 +109,6 @@ class ArrayGroup:
     def __init__(self, sensors: Mapping[str, SensorState], names: list[str],
                  deadzone_scale: float) -> None:
         self.names = names
-        self.kernels: list[tuple[np.ndarray, LiftedArray]] = []
         self.rebuild(sensors, deadzone_scale)
 
     @property
@@ -121,7 +120,7 @@ class ArrayGroup:
         """(Re)build from the engine's sensors: fresh state, zero counters."""
         self.sensors = [sensors[n] for n in self.names]
         self.banded = any(s.weights is not None for s in self.sensors)
-        self.kernels = []
+        self.kernels: list[tuple[np.ndarray, LiftedArray]] = []
         if not all(not s.cal.input.filtered and s.cal.input.zero_span is None
                    and s.cal.sample_interval is None and not s.cal.effects
                    for s in self.sensors):
@@ -149,13 +148,11 @@ class ArrayGroup:
                 par[i, _WEIGHTS:] = s.weights
         par[:, _GAIN] = [s.gain for s in self.sensors]
         self.par = par
-        self.held = np.zeros((k, 5))
-        self.held[:, _LAST_GOOD_T] = -math.inf
-        self.held[:, _STRAIN] = math.nan
-        self.held[:, _STD] = math.nan
+        before = np.zeros(5)  # the held row before any sample: no good t, strain, status, std
+        before[[_LAST_GOOD_T, _STRAIN, _LAST_STATUS, _STD]] = -math.inf, math.nan, -1, math.nan
+        self.held = np.tile(before, (k, 1))
         self.band = np.full((k, BAND_SIZE), math.nan)
         self.x = np.empty(N_FEATURES)
-        self.held[:, _LAST_STATUS] = -1
         self.counts = np.zeros((k, len(Status) + 1), dtype=np.int64)
         self.states = np.zeros((k, STATE_SIZE))
         self.status = np.empty(k, dtype=np.int8)

@@ -1,7 +1,6 @@
 """Calibration files in memory, format ``strain_comp/calibration/v1`` (docs/design.md,
 "Calibration file"), and the limits a file may hold (checked by ``calibration_file``).
-Floats are written with Python's shortest round-trip repr, so load(save(c)) == c exactly.
-"""
+Floats are written with Python's shortest round-trip repr, so load(save(c)) == c exactly."""
 
 from __future__ import annotations
 
@@ -34,8 +33,7 @@ MAX_DEPTH = 64
 PARAM_MAX = 1e12
 STRAIN_MAX = 1e6
 SPAN_GAIN_MAX = 1000.0
-"""The most an input's sensitivity may differ from the calibration's, either way (the
-zero_span gain, a stretch line's slope against the calibrated range's)."""
+"""The most an input's sensitivity (zero_span gain, stretch line) may differ, either way."""
 
 
 def check_reference(name: str, s: npt.ArrayLike, error: type[StrainCompError]) -> None:
@@ -61,11 +59,9 @@ class InputSettings:
     despike: float | None = None
     baseline_step: float | None = None
     zero_span: tuple[float, float, float] | None = None
-    """(rest [ohm], rest_calibrated [ohm], gain k): the models read R' = rest_calibrated +
-    k (R - rest) (``strain_comp.core.correction``); None: R' = R."""
+    """(rest [ohm], rest_calibrated [ohm], gain k) of ``core.correction``'s input map."""
     stretch_line: tuple[float, float] | None = None
-    """(R_0 [ohm], g [ohm per strain unit]) of the line R = R_0 + g S the training runs'
-    stretches share (``fit --pool stretch``); None: no pooled stretch."""
+    """(R_0 [ohm], g [ohm per strain unit]) of the pooled stretch R = R_0 + g S, or None."""
     unit: str = "ohm"
     """The unit of the resistance the models read (``ohm``, ``R/R0``, ...)."""
 
@@ -260,8 +256,7 @@ def expected_error(cal: SensorCalibration) -> dict[str, Any] | None:
 
 
 def expected_words(cal: SensorCalibration) -> str | None:
-    """``expected on a new session: RMSE 4.8 % strain (median), 6.8 at worst, over 7 runs
-    left out``; None when the calibration holds no ``expected_error``."""
+    """``expected on a new session: RMSE 4.8 % strain (median), ...``; None without one."""
     found = expected_error(cal)
     if found is None:
         return None

@@ -1,9 +1,6 @@
-"""Calibration files read, checked and written. The reader checks every field within the
-limits (``calibration.MAX_*``, ``PARAM_MAX``, ``STRAIN_MAX``) and builds each model once,
-runs none, then a probe runs each sensor through the engine; every problem is one
-``CalibrationError`` naming the file and the dotted field, so a hostile file is refused,
-never half-read. Saving is atomic and checks the text first: nothing written fails to load.
-"""
+"""Calibration files read, checked and written: every problem is one ``CalibrationError``
+naming the file and the field, so a hostile file is refused, never half-read; saving is
+atomic and checks the text first, so nothing written fails to load."""
 
 from __future__ import annotations
 
@@ -84,8 +81,8 @@ class _Reader:
         return lo, hi
 
     def bounded(self, node: Any, where: str, limit: float = PARAM_MAX) -> None:
-        """Every number inside ``node`` finite and at most ``limit`` in magnitude (the
-        place named only for a number refused: a large array has many)."""
+        """Every number inside ``node`` finite and at most ``limit`` in magnitude."""
+        # the place is named only for a number refused: a large array has many
         if isinstance(node, Mapping):
             for key, value in node.items():
                 self.bounded(value, f"{where}.{key}", limit)
@@ -136,7 +133,14 @@ class _Reader:
         except ParameterError as err:
             prefix = f"{where}.model" if err.field == "name" else f"{where}.model.params"
             raise self.fail(f"{prefix}.{err.field}", err.problem) from None
-        self.line_slope(calibration, where)
+        line, vr = calibration.input.stretch_line, calibration.valid_range
+        slope = (vr.r_hi - vr.r_lo) / (vr.s_hi - vr.s_lo)  # of the calibrated range
+        ratio = 1.0 if line is None else abs(line[1]) / slope
+        if line is not None and not 1.0 / SPAN_GAIN_MAX <= ratio <= SPAN_GAIN_MAX:
+            raise self.fail(f"{where}.input.stretch_line.slope",
+                            f"{line[1]:.4g} ohm per strain unit is {ratio:.3g} times the "
+                            f"slope of the calibrated range; it must lie within "
+                            f"{SPAN_GAIN_MAX:g} times of it either way")
         pole = model.singular_in(calibration.valid_range.r_lo, calibration.valid_range.r_hi)
         if pole is not None:
             raise self.fail(f"{where}.model", f"has no finite strain at R = {pole:.6g} ohm, "
@@ -174,13 +178,15 @@ class _Reader:
         """``direction``: the dead zone > 0, tau >= 0, k_sigma null or > 0, the sign."""
         dw = f"{where}.direction"
         dir_node = self.mapping(self.child(node, "direction", where), dw)
-        k_sigma = dir_node.get("k_sigma")
+        k_sigma, sign = dir_node.get("k_sigma"), dir_node.get("sign", 1)
+        if isinstance(sign, bool) or sign not in (1, -1):
+            raise self.fail(f"{dw}.sign", f"must be +1 or -1, got {sign!r}")
         return DirectionSettings(
             deadzone=self.number(dir_node, "deadzone", dw, lo=0.0, strict=True),
             tau=self.number(dir_node, "tau", dw, lo=0.0) if "tau" in dir_node else 0.0,
             k_sigma=None if k_sigma is None else self.number(dir_node, "k_sigma", dw, lo=0.0,
                                                              strict=True),
-            sign=self.sign(dir_node, dw),
+            sign=int(sign),
         )
 
     def effects(self, name: str, node: Mapping[str, Any], where: str) -> list[dict[str, Any]]:
@@ -202,13 +208,6 @@ class _Reader:
                 raise self.fail(f"{where}.effects.{i}.params.neighbour",
                                 f"a cross-talk term must read another sensor, not {name!r}")
         return [dict(e) for e in effects]
-
-    def sign(self, node: Mapping[str, Any], where: str) -> int:
-        """Optional ``sign``: +1 (R rises with strain, the default) or -1 (R falls)."""
-        value = node.get("sign", 1)
-        if isinstance(value, bool) or value not in (1, -1):
-            raise self.fail(f"{where}.sign", f"must be +1 or -1, got {value!r}")
-        return int(value)
 
     def sigmas(self, node: Mapping[str, Any], key: str, where: str, default: float
                ) -> float | None:
@@ -264,18 +263,6 @@ class _Reader:
                                                                                 "samples")]
         return Uncertainty.from_weights(values, *counts)
 
-    def line_slope(self, cal: SensorCalibration, where: str) -> None:
-        """A stretch line's slope within ``SPAN_GAIN_MAX`` times the calibrated range's."""
-        line, vr = cal.input.stretch_line, cal.valid_range
-        if line is None or not vr.s_hi > vr.s_lo:
-            return
-        ratio = abs(line[1]) / ((vr.r_hi - vr.r_lo) / (vr.s_hi - vr.s_lo))
-        if not 1.0 / SPAN_GAIN_MAX <= ratio <= SPAN_GAIN_MAX:
-            raise self.fail(f"{where}.input.stretch_line.slope",
-                            f"{line[1]:.4g} ohm per strain unit is {ratio:.3g} times the "
-                            f"slope of the calibrated range; it must lie within "
-                            f"{SPAN_GAIN_MAX:g} times of it either way")
-
     def input(self, node: Any, where: str) -> InputSettings:
         node = self.mapping(node, where)
         kind = node.get("kind", "resistance")
@@ -310,8 +297,7 @@ class _Reader:
 
 
 def read_text(path: str | os.PathLike[str]) -> str:
-    """The text of the calibration file ``path``: a regular file (never a FIFO: checked
-    before opening) of at most MAX_FILE_BYTES, UTF-8."""
+    """The text of the calibration file ``path``: regular (never a FIFO), UTF-8, not too large."""
     reader = _Reader(str(path))
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
@@ -323,18 +309,6 @@ def read_text(path: str | os.PathLike[str]) -> str:
         return data.decode("utf-8")
     except (OSError, UnicodeDecodeError) as err:
         raise reader.fail("file", f"cannot read: {err}") from None
-
-
-def parse_fields(text: str, path: str) -> Calibration:
-    """Validate the text of a calibration file without running a model."""
-    # the cyclic garbage collector is paused: a large array's many small objects, no cycles
-    collecting = gc.isenabled()
-    gc.disable()
-    try:
-        return _parse_fields(text, _Reader(path))
-    finally:
-        if collecting:
-            gc.enable()
 
 
 def _parse_fields(text: str, reader: _Reader) -> Calibration:
@@ -394,7 +368,14 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
 
 def parse_calibration(text: str, path: str) -> Calibration:
     """Validate the text of a calibration file: the limits, the fields, the probe."""
-    calibration = parse_fields(text, path)
+    # the cyclic garbage collector is paused: a large array's many small objects, no cycles
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        calibration = _parse_fields(text, _Reader(path))
+    finally:
+        if collecting:
+            gc.enable()
     probed: dict[str, str | None] = {}
     for name, cal in calibration.sensors.items():
         key = repr({**cal.to_dict(), "provenance": None})  # alike sensors: one probe
@@ -429,9 +410,8 @@ def save_calibration(calibration: Calibration, path: str | os.PathLike[str], *,
 
 
 def probe_calibration(cal: SensorCalibration) -> str | None:
-    """Where the engine gives a non-finite strain on this sensor's probe (25 deg C), or None.
-    The input zero and span is left out: a probe value it maps below the short level would
-    be screened out."""
+    """Where the engine gives a non-finite strain on this sensor's probe (25 deg C), or None."""
+    # no input zero and span: a probe value it maps below the short level would be screened out
     probe = SensorCalibration(**{**vars(cal), "input": replace(cal.input, zero_span=None),
                                  "effects": [e for e in cal.effects
                                              if e.get("kind") != "crosstalk"]})

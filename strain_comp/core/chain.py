@@ -1,7 +1,6 @@
-"""Measurement-chain effects found from the resistance alone (no reference needed):
-alternation, isolated spikes, baseline steps, quantisation, and the online corrector's numba
-kernels; how each is found and corrected: docs/models.md, "The measurement chain".
-"""
+"""Measurement-chain effects found from the resistance alone: alternation, isolated spikes,
+baseline steps, quantisation, and the online corrector's kernels (docs/models.md, "The
+measurement chain")."""
 
 from __future__ import annotations
 
@@ -25,11 +24,10 @@ PAIR_MIN_STEPS = 3
 
 @dataclass(frozen=True)
 class Alternation:
-    """Alternation every other sample: amplitude A [ohm], noise sigma [ohm], sign share."""
+    """Alternation every other sample: amplitude A [ohm], noise sigma [ohm], significance z."""
 
     amplitude: float
     noise: float
-    agreement: float
     z: float
 
     @property
@@ -54,17 +52,17 @@ def alternation(r: npt.ArrayLike) -> Alternation:
     """The alternation statistics of a resistance series (docs/models.md)."""
     r = _finite(r)
     if r.size < 8:
-        return Alternation(0.0, 0.0, 0.5, 0.0)
+        return Alternation(0.0, 0.0, 0.0)
     d2 = np.diff(r, 2)
     m = d2 * (-1.0) ** np.arange(1, d2.size + 1)  # d2[i] is centred on sample i + 1
     amplitude = -float(np.median(m)) / 4.0
     noise = _robust_sigma(m + 4.0 * amplitude) / math.sqrt(6.0)
     nonzero = m[m != 0]
     if amplitude == 0.0 or nonzero.size == 0:
-        return Alternation(amplitude, noise, 0.5, 0.0)
+        return Alternation(amplitude, noise, 0.0)
     agreement = float(np.mean(np.sign(nonzero) == -np.sign(amplitude)))
     z = (agreement - 0.5) * 2.0 * math.sqrt(nonzero.size)
-    return Alternation(amplitude, noise, agreement, z)
+    return Alternation(amplitude, noise, z)
 
 
 PAIR_BRANCHES = ("mean", "upper", "lower")
@@ -73,8 +71,7 @@ PAIR_BRANCHES = ("mean", "upper", "lower")
 
 def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: str = "mean",
                 ) -> np.ndarray:
-    """The pair statistic ``branch`` of R[i] and R[i-1] (mean, upper: max, lower: min), the
-    first one with ``previous`` (itself when NaN)."""
+    """The pair statistic ``branch`` of R[i] and R[i-1], the first with ``previous``."""
     before = np.concatenate(([previous], r[:-1])) if r.size else r
     if branch == "mean":
         return np.where(np.isfinite(before), 0.5 * (r + before), r)
@@ -83,9 +80,7 @@ def pair_values(r: npt.NDArray[np.float64], previous: float = math.nan, branch: 
 
 
 def pair_branch(r: npt.ArrayLike, still: npt.ArrayLike) -> str:
-    """The pair statistic (``PAIR_BRANCHES``) to read an alternating ``r`` through, from the
-    steps of its size between windows where ``still`` (bool per sample: the strain is known
-    to be constant) holds (docs/models.md); ``mean`` when fewer than ``PAIR_MIN_STEPS``."""
+    """The pair statistic to read an alternating ``r`` through, from its ``still`` stretches."""
     ra = np.asarray(r, dtype=np.float64)
     ok = np.isfinite(ra) & (ra > 0)
     ra, sa = ra[ok], np.asarray(still, dtype=bool)[ok]
@@ -125,9 +120,8 @@ def quantisation(r: npt.ArrayLike) -> float | None:
 DESPIKE_K = 8.0
 """Default spike threshold of the online corrector: robust sigmas of its innovation."""
 STEP_K = 12.0
-"""Default least size of a baseline step, in robust sigmas of the innovation (1.5 times the
-spike threshold: a measured carbon-black run, v19, shows a change of 8-12 sigmas that stays
-while loading, which is strain, not a step; ``studies/measured_chain.py``)."""
+"""Default least size of a baseline step, in robust sigmas of the innovation."""
+# 1.5 x the spike threshold: measured run v19 has an 8-12 sigma change under load (strain)
 WINDOW = 32
 """Latest |innovation| values the corrector's robust scale is the median of."""
 WINDOW_MIN = 16
@@ -139,42 +133,33 @@ STEP_SAMPLES = 16
 RELAX_Z = 4.0
 """Standard errors of the bend allowed for noise (below)."""
 RELAX_FRAC = 0.2
-"""A jump after which the trend bends (the slope after it minus the slope before, times
-``STEP_SAMPLES``) by more than ``RELAX_FRAC`` of the jump plus ``RELAX_Z`` standard errors
-relaxes or starts a movement: a strain change, not a baseline step."""
+"""A jump whose trend bends by more than this share of it (plus ``RELAX_Z``) is strain."""
 
 # corrector state columns
 (_OFFSET, _LAST, _LASTX, _NHIST, _MODE, _NBUF, _WPOS, _WN, _TPOS, _TN, _FIRST, _NPEND,
  _PPOS, _PN, _DRIFT0, _LASTT) = range(16)
 STATE_SIZE = 16
-"""Length of the corrector's state."""
-REFERENCES = (_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS)
+REFERENCES = [_NHIST, _MODE, _TN, _TPOS, _PN, _PPOS]
 """State columns a restart (after a gap) clears: the references, not the scale or offset."""
-LEVELS = (_OFFSET, _LAST, _LASTX, _FIRST, _DRIFT0)
-"""State columns that scale with the samples (levels, the offset, an innovation, a rate):
-what a new tare gain multiplies."""
+LEVELS = [_OFFSET, _LAST, _LASTX, _FIRST, _DRIFT0]
+"""State columns that scale with the samples: what a new tare gain multiplies."""
 _NORMAL, _SUSPECT, _WATCH = 0, 1, 2
 HELD, SPIKE, STEP = 1, 2, 3
-"""Event codes of ``ChainCorrector.run``: the sample was held (replaced by the
-prediction), the excursion before ended here (a spike), a baseline step was confirmed here."""
+"""Event codes of ``ChainCorrector.run``: sample held, a spike ended, a baseline step."""
 NOISE_RATIO = 2.0
-"""A baseline step keeps the noise: the scatter after the jump is at most this many times
-the robust sigma before it."""
+"""A baseline step keeps the noise: the scatter after it at most this x the sigma before."""
 
 
 @njit(error_model="numpy")
 def _scale(window: np.ndarray) -> float:
-    """Robust sigma of innovations: 1.4826 x their median |value|, but at least 1.2533 x
-    their mean |value| (equal for Gaussian noise; on a quantised series, whose median
-    change may be 0, the mean still sees the noise)."""
+    """Robust sigma of innovations: 1.4826 x their median |value|, at least 1.2533 x the mean."""
+    # equal for Gaussian noise; on a quantised series the median change may be 0
     return float(max(1.4826 * np.median(window), 1.2533 * np.mean(window)))
 
 
 QUANT_STEPS = 3.0
-"""The threshold is at least this many of the smallest non-zero |innovation| of the window:
-a read-out quantised coarser than its noise (a quiet hold flickering by one ADC step either
-way, two steps from one side to the other, of which the mean floor of ``_scale`` sees one
-in 32) never makes a spike or a step."""
+"""The threshold is at least this many of the smallest non-zero |innovation| of the window."""
+# a hold flickering by one ADC step coarser than the noise never makes a spike or a step
 
 
 @njit(error_model="numpy")
@@ -215,27 +200,9 @@ def _level_jump(pre: np.ndarray, ppos: int, npre: int, post: np.ndarray, gap: in
 
 
 @njit(error_model="numpy")
-def _is_step(st: np.ndarray, buf: np.ndarray, pre: np.ndarray, nbuf: int, sigma: float,
-             step_k: float) -> tuple[bool, float]:
-    """(is a step, its jump) of the ``nbuf`` watched samples ``buf`` against the ring
-    ``pre`` before them: a step is a jump over ``step_k`` sigma, with no bend of a
-    relaxation and no more scatter than the noise."""
-    jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf, int(st[_NPEND]))
-    noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
-    bend = (_slope(buf[:nbuf]) - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
-    bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
-    scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
-    return (abs(jump) > step_k * sigma
-            and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
-            and scatter <= NOISE_RATIO * sigma), jump
-
-
-@njit(error_model="numpy")
 def _watch(st: np.ndarray, xi: float, dt: float, thr: float, sigma: float, step_k: float,
            buf: np.ndarray, pre: np.ndarray) -> tuple[bool, bool, float]:
-    """One sample while a jump that stayed is watched, against the trend before it:
-    (accepted, a step found, its jump). A sample that moves on ends the watch (a strain
-    change); after ``STEP_SAMPLES`` held ones the jump is judged (``_is_step``)."""
+    """One sample while a jump that stayed is watched: (accepted, a step found, its jump)."""
     drift = st[_DRIFT0] * dt
     nbuf = int(st[_NBUF])
     if abs(xi - buf[nbuf - 1] - drift) > thr:  # moves on: a strain change
@@ -247,17 +214,22 @@ def _watch(st: np.ndarray, xi: float, dt: float, thr: float, sigma: float, step_
     if nbuf != STEP_SAMPLES:
         return False, False, 0.0
     st[_MODE] = _NORMAL
-    stepped, jump = _is_step(st, buf, pre, nbuf, sigma, step_k)
-    return True, stepped, jump
+    # a step: a jump over ``step_k`` sigma, with no relaxation's bend, no more scatter than noise
+    jump, slope = _level_jump(pre, int(st[_PPOS]), int(st[_PN]), buf, int(st[_NPEND]))
+    noise = sigma / np.sqrt(2.0)  # per sample: e is a difference
+    bend = (_slope(buf[:nbuf]) - _slope(np.roll(pre, -int(st[_PPOS])))) * nbuf
+    bend_se = noise * np.sqrt(24.0 / (nbuf * (nbuf * nbuf - 1.0))) * nbuf
+    scatter = _scale(np.abs(np.diff(buf[:nbuf]) - slope))
+    return True, (abs(jump) > step_k * sigma
+                  and abs(bend) <= RELAX_FRAC * abs(jump) + RELAX_Z * bend_se
+                  and scatter <= NOISE_RATIO * sigma), jump
 
 
 @njit(error_model="numpy")
 def _judge(st: np.ndarray, xi: float, pred: float, dt: float, rate: float, thr: float,
            sigma: float, width: int, step_k: float, buf: np.ndarray, pre: np.ndarray,
            trend: np.ndarray) -> tuple[float, float, bool, int]:
-    """One sample through the corrector's modes (normal, suspect, watch) against its
-    prediction ``pred`` and threshold ``thr``: (xi, its innovation e, accepted, event); a
-    step found is taken out of xi and e and added to the offset."""
+    """One sample through the corrector's modes: (xi, innovation, accepted, event)."""
     e = xi - pred
     mode = int(st[_MODE])
     accept = True
@@ -377,14 +349,11 @@ class ChainCorrector:
 
     def restart(self) -> None:
         """Forget the references (after a gap): the next sample passes unjudged."""
-        for column in REFERENCES:
-            self.state[column] = 0.0
+        self.state[REFERENCES] = 0.0
 
     def rescale(self, factor: float) -> None:
-        """Carry the state over to samples ``factor`` x as large (a new tare gain), so the
-        gain change itself is neither a spike nor a baseline step."""
-        for column in LEVELS:
-            self.state[column] *= factor
+        """Carry the state over to samples ``factor`` x as large (a new tare gain)."""
+        self.state[LEVELS] *= factor
         for values in (self.window, self.trend, self.buffer, self.pre):
             values *= factor
 
@@ -404,16 +373,13 @@ class ChainCorrector:
         return y, events
 
 
-def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, k: float = DESPIKE_K,
-            step_k: float = 0.0, alternating: bool | None = None, pair: str = "mean",
-            ) -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
+def correct(t: npt.ArrayLike, r: npt.ArrayLike, *, alternating: bool, step_k: float = 0.0,
+            pair: str = "mean") -> tuple[np.ndarray, np.ndarray, ChainCorrector]:
     """A whole run through a fresh ``ChainCorrector``: (what the models see, events, it)."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     good = np.isfinite(r) & (r > 0)
-    if alternating is None:
-        alternating = alternation(r).present
-    corrector = ChainCorrector(k=k, alternating=alternating, step_k=step_k)
+    corrector = ChainCorrector(alternating=alternating, step_k=step_k)
     seen = pair_values(r[good], branch=pair) if alternating else r[good]
     out = np.full(r.size, np.nan)
     events = np.zeros(r.size, np.int8)

@@ -1,8 +1,6 @@
 """A sensor's one correction, R' = rest + gain (R - zero) on the input and S' = output_gain
 S + output_offset on the output, which every estimator of a session's change writes; its
-file form (``input.zero_span`` and ``RECALIBRATION_TERMS``; ``of`` and ``written`` convert):
-docs/design.md, "Calibration file".
-"""
+file form: docs/design.md, "Calibration file"."""
 
 from __future__ import annotations
 
@@ -34,7 +32,12 @@ class Correction:
     def of(cls, cal: SensorCalibration) -> Correction:
         """The correction a calibration holds (its file form, module docstring)."""
         zero, rest, gain = cal.input.zero_span or (0.0, 0.0, 1.0)
-        a, b = _output_terms(cal.effects)
+        gain_coef, offset_coef = (sum(float(e["coef"]) for e in cal.effects
+                                      if _is_output_term(e) and e.get("name") == name)
+                                  for name in RECALIBRATION_TERMS)
+        a, b = 1.0 - gain_coef, -offset_coef
+        if not (math.isfinite(a) and a > 0 and math.isfinite(b)):  # the terms act as they stand
+            a, b = 1.0, 0.0
         return cls(zero, rest, gain, a, b)
 
     @property
@@ -97,16 +100,3 @@ def _is_output_term(effect: Mapping[str, Any]) -> bool:
             params = effect.get("params") or {}
             return term["kind"] == "offset" or params.get("power", 1) == 1
     return False
-
-
-def _output_terms(effects: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
-    """(output gain, output offset) of a calibration's effect terms; (1, 0) without a valid
-    gain (the terms then act as they stand)."""
-    gain_coef = sum(float(e["coef"]) for e in effects
-                    if _is_output_term(e) and e.get("name") == RECALIBRATION_TERMS[0])
-    offset_coef = sum(float(e["coef"]) for e in effects
-                      if _is_output_term(e) and e.get("name") == RECALIBRATION_TERMS[1])
-    a, b = 1.0 - gain_coef, -offset_coef
-    if not (math.isfinite(a) and a > 0 and math.isfinite(b)):
-        return 1.0, 0.0
-    return a, b

@@ -38,15 +38,12 @@ class Engine:
                  arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
                  stale_after: float = 1.0, deadzone_scale: float = 1.0,
                  out_of_range: str = DEFAULT_OUT_OF_RANGE) -> None:
-        """Build one state per sensor and one group per array."""
         if out_of_range not in OUT_OF_RANGE_MODES:
             raise ParameterError("out_of_range", f"must be one of "
                                  f"{', '.join(OUT_OF_RANGE_MODES)}, got {out_of_range!r}")
         self.out_of_range = out_of_range
         if not gap_reset > 0:
             raise ParameterError("gap_reset", f"must be > 0 s, got {gap_reset}")
-        if not deadzone_scale > 0:
-            raise ParameterError("deadzone_scale", f"must be > 0, got {deadzone_scale}")
         self.calibration = calibration
         self.gap_reset = float(gap_reset)
         self.stale_after = float(stale_after)
@@ -100,9 +97,6 @@ class Engine:
         if reference is None:
             raise ParameterError(f"{sensor}.rest_resistance",
                                  "the calibration stores none, so it cannot be tared")
-        if not (math.isfinite(rest_resistance) and rest_resistance > 0):
-            raise ParameterError(f"{sensor}.tare", f"rest resistance must be finite and > 0 "
-                                 f"ohm, got {rest_resistance}")
         gain = reference / rest_resistance
         self.set_input_gain(sensor, gain)
         return gain
@@ -124,8 +118,6 @@ class Engine:
 
     def set_deadzone_scale(self, scale: float) -> None:
         """Change the dead-zone scale (a node tunable); the detectors restart from rest."""
-        if not scale > 0:
-            raise ParameterError("deadzone_scale", f"must be > 0, got {scale}")
         self.deadzone_scale = float(scale)
         for sensor in self._sensors.values():
             sensor.detector = DirectionDetector(scaled(sensor.cal.direction, scale))

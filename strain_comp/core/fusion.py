@@ -33,47 +33,26 @@ NOISE_SHARE = 0.1  # sd of what a gain and offset do not explain (0.001: a case 
 GATE = 5.0  # a reference beyond this many innovation sds is refused (inf: a case 45 %)
 
 
-@dataclass(frozen=True)
-class FusionSettings:
-    """Prior, random walk, noise and gate of one sensor's fusion (in its strain unit)."""
-
-    gain_sd: float
-    offset_sd: float
-    gain_walk: float
-    offset_walk: float
-    noise_sd: float
-    gate: float = GATE
-
-    @classmethod
-    def for_span(cls, span: float) -> FusionSettings:
-        """The settings for a sensor calibrated over a strain span ``span`` (> 0)."""
-        span = span if math.isfinite(span) and span > 0 else 1.0
-        return cls(gain_sd=GAIN_SD, offset_sd=OFFSET_SHARE * span, gain_walk=GAIN_WALK,
-                   offset_walk=OFFSET_WALK_SHARE * span, noise_sd=NOISE_SHARE * span,
-                   gate=GATE)
-
-
 @dataclass
 class OutputFusion:
     """The Kalman filter (3) on one sensor's output gain and offset."""
 
-    settings: FusionSettings
+    span: float
+    """The calibrated strain span the prior, walk and noise are shares of."""
     start: tuple[float, float] = (1.0, 0.0)
     """The calibration's output gain and offset the filter starts from (a_0, b_0)."""
-    gain: float = math.nan
-    offset: float = math.nan
-    covariance: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    gain: float = field(init=False)
+    offset: float = field(init=False)
+    covariance: np.ndarray = field(init=False)
     n_used: int = 0
     refused: Counter[str] = field(default_factory=Counter)
     last_reference_t: float | None = None
     """Time of the latest reference used or refused for its value [s]."""
 
     def __post_init__(self) -> None:
-        if math.isnan(self.gain):
-            self.gain, self.offset = self.start
-        if not self.covariance.any():
-            self.covariance = self._coordinates(np.diag([self.settings.gain_sd ** 2,
-                                                         self.settings.offset_sd ** 2]))
+        self.gain, self.offset = self.start
+        prior = np.diag([GAIN_SD ** 2, (OFFSET_SHARE * self.span) ** 2])
+        self.covariance = self._coordinates(prior)
 
     def _coordinates(self, p: np.ndarray) -> np.ndarray:
         """A covariance of the map relative to ``start`` in the filter's coordinates."""
@@ -86,7 +65,8 @@ class OutputFusion:
     def for_calibration(cls, cal: SensorCalibration) -> OutputFusion:
         """A sensor's fusion at its calibrated span, from its correction's output map."""
         correction = Correction.of(cal)
-        return cls(FusionSettings.for_span(fitted_rest(cal.valid_range)[1]),
+        span = fitted_rest(cal.valid_range)[1]
+        return cls(span if math.isfinite(span) and span > 0 else 1.0,
                    (correction.output_gain, correction.output_offset))
 
     def relative(self) -> tuple[float, float]:
@@ -110,18 +90,17 @@ class OutputFusion:
         if reason is not None:
             self.refused[reason] += 1
             return reason
-        s = self.settings
         dt = 0.0 if self.last_reference_t is None else t - self.last_reference_t
-        p = self.covariance + self._coordinates(np.diag([s.gain_walk ** 2,
-                                                         s.offset_walk ** 2])) * dt
+        walk = np.diag([GAIN_WALK ** 2, (OFFSET_WALK_SHARE * self.span) ** 2])
+        p = self.covariance + self._coordinates(walk) * dt
         a0, b0 = self.start
         estimate = (estimate - b0) / a0  # before the calibration's output map
         h = np.array([estimate, 1.0])
         innovation = float(reference) - (self.gain * estimate + self.offset)
-        var = float(h @ p @ h) + s.noise_sd ** 2
+        var = float(h @ p @ h) + (NOISE_SHARE * self.span) ** 2
         self.last_reference_t = t
-        if abs(innovation) > s.gate * math.sqrt(var):
-            reason = (f"beyond the gate ({s.gate:g} sd): innovation {innovation:.4g} against "
+        if abs(innovation) > GATE * math.sqrt(var):
+            reason = (f"beyond the gate ({GATE:g} sd): innovation {innovation:.4g} against "
                       f"sd {math.sqrt(var):.4g}")
             self.refused["beyond the gate"] += 1
             self.covariance = p  # the time still passed
@@ -179,8 +158,7 @@ class OutputFusion:
 
 @dataclass
 class SparseFusion:
-    """One sensor's run in pieces, fused with the reference of the eligible sample nearest
-    each multiple of ``every`` s (none beyond ``every`` / 2)."""
+    """One sensor's run in pieces, fused with a reference near each multiple of ``every`` s."""
 
     fusion: OutputFusion
     every: float
@@ -210,25 +188,24 @@ class SparseFusion:
         lo = 0  # the eligible samples not yet passed: idx[lo:]
         pos = 0
         half = 0.5 * self.every
+
+        def sample(j: int) -> tuple[float, float, float]:
+            """(t, estimate, reference) of the ``j``-th eligible sample."""
+            return float(t[idx[j]]), float(estimate[idx[j]]), float(reference[idx[j]])
+
         while True:
             target = self.origin + self.k * self.every
             j = lo + int(np.searchsorted(t_idx[lo:], target, side="left"))
             if j == idx.size:  # no eligible sample at or after the target in this piece
                 if lo < idx.size:
-                    last = int(idx[-1])
-                    self.before = (float(t[last]), float(estimate[last]), float(reference[last]))
+                    self.before = sample(idx.size - 1)
                 break
-            after = int(idx[j])
             candidates: list[tuple[float, int, tuple[float, float, float]]] = []
             if j > lo:
-                i = int(idx[j - 1])
-                candidates.append((target - t[i], j - 1,
-                                   (float(t[i]), float(estimate[i]), float(reference[i]))))
+                candidates.append((target - t_idx[j - 1], j - 1, sample(j - 1)))
             elif self.before is not None:
                 candidates.append((target - self.before[0], -1, self.before))
-            candidates.append((t[after] - target, j,
-                               (float(t[after]), float(estimate[after]),
-                                float(reference[after]))))
+            candidates.append((t_idx[j] - target, j, sample(j)))
             distance, chosen, (t_ref, s_hat, y) = min(candidates, key=lambda c: c[0])
             if distance <= half:
                 index = int(idx[chosen]) if chosen >= 0 else -1

@@ -67,8 +67,7 @@ STATUSES = tuple(Status)
 COUNTERS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 """The counters of ``SensorHealth``, in the order ``to_diagnostic`` lists them."""
 _ADDS = np.zeros((len(Status) + 3, len(COUNTERS)), np.int64)
-"""Counters (columns) one event adds to: each status code (``STATUS_RULES``: ``n_good`` if
-used, and its counter), then a gap reset, a spike and a baseline step (rows)."""
+"""Counters (columns) one event adds to: each status code, a gap reset, a spike, a step."""
 for _status, (_used, _counter) in STATUS_RULES.items():
     for _name in (("n_good",) if _used else ()) + ((_counter,) if _counter else ()):
         _ADDS[_status, COUNTERS.index(_name)] = 1
@@ -85,8 +84,7 @@ def add_counts(h: SensorHealth, counts: np.ndarray) -> None:
 
 _STATES = [SensorHealth(stale=True).to_diagnostic()[:2],
            *(SensorHealth(last_status=s).to_diagnostic()[:2] for s in (None, *STATUSES))]
-"""(level, message) when stale, then with no sample yet and after each status code (row:
-code + 2)."""
+"""(level, message) when stale, with no sample yet, after each status code (row: code + 2)."""
 LEVELS = np.array([level for level, _ in _STATES], np.uint8)
 MESSAGES = np.array([message.encode() for _, message in _STATES])
 _LAST_STATUS = np.array([b"none", *(s.name.encode() for s in STATUSES)])
@@ -105,13 +103,11 @@ class HealthTicks:
     stale: np.ndarray
     """(K,) bool: no good sample for longer than the sensor's stale time."""
 
-    def diagnostic(self, good_t: np.ndarray | None = None
+    def diagnostic(self, good_t: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, np.ndarray]]]:
-        """(levels, messages, [(key, values)]) as ``SensorHealth.to_diagnostic`` gives them
-        at each tick (texts as UTF-8 bytes, counters as integers)."""
+        """``SensorHealth.to_diagnostic`` at each tick (``good_t``: ``times_text`` of them)."""
         state = np.where(self.stale, 0, self.last_status + 2)
         values = [(name, self.counters[:, j]) for j, name in enumerate(COUNTERS)]
-        good_t = times_text(self.last_good_t) if good_t is None else good_t
         values += [("last_good_t", good_t), ("last_status", _LAST_STATUS[self.last_status + 1])]
         return LEVELS[state], MESSAGES[state], values
 

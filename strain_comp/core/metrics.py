@@ -20,7 +20,6 @@ class ErrorStats:
     n: int
 
     def to_dict(self) -> dict[str, float | int]:
-        """The statistics as a mapping."""
         return asdict(self)
 
 
@@ -43,8 +42,7 @@ class ErrorAccumulator:
 
     def add(self, estimate: npt.ArrayLike, reference: npt.ArrayLike,
             std: npt.ArrayLike | None = None) -> None:
-        """Take in the finite pairs of one piece, and where ``std`` the band's counts: pairs
-        with a finite band, those inside it (|S_hat - S| <= ``Z_95`` sigma)."""
+        """Take in the finite pairs of one piece (with ``std``: how many lie within the band)."""
         piece = ErrorAccumulator()
         s_hat = np.asarray(estimate, dtype=np.float64)
         s = np.asarray(reference, dtype=np.float64)
@@ -89,7 +87,6 @@ class ErrorAccumulator:
         return self.n_inside / self.n_banded if self.n_banded else None
 
     def stats(self) -> ErrorStats:
-        """The statistics so far."""
         if not self.n:
             nan = float("nan")
             return ErrorStats(nan, nan, nan, nan, 0)

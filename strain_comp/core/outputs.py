@@ -48,13 +48,11 @@ class BatchOutput:
     status: np.ndarray
     out_of_range: np.ndarray
     resistance: np.ndarray
-    """The resistance [ohm] the model read at each used sample (what effect terms read),
-    else the converted input. Read-only: it may share memory with the caller's input."""
+    """[ohm] the model read at used samples, else the input (read-only: may be the caller's)."""
     reset: np.ndarray | None = None
     """True where a gap reset the state before the sample; None: not known."""
     corrections: np.ndarray | None = None
-    """``chain.SPIKE`` or ``chain.STEP`` where the input corrector acted, else 0; None
-    without a corrector."""
+    """``chain.SPIKE`` or ``chain.STEP`` where the input corrector acted, else 0; None: none."""
     std: np.ndarray | None = None
     """The estimate's standard deviation per sample; None without an uncertainty."""
 

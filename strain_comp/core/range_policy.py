@@ -1,7 +1,5 @@
 """The out-of-range policy: where a sample is flagged, an open circuit or a short, and what
-strain a resistance beyond the valid range gives (``OUT_OF_RANGE_MODES``); the numbers are
-the constants below (docs/results.md, "Out of range", gives what keeps each).
-"""
+strain a resistance beyond the valid range gives (docs/design.md, "--out-of-range")."""
 
 from __future__ import annotations
 
@@ -16,12 +14,9 @@ from strain_comp.core.calibration import SensorCalibration, ValidRange
 from strain_comp.core.stages import RANGE_COLUMNS
 
 OUT_OF_RANGE_MODES = ("clamp", "extrapolate", "extend")
-"""Strain of a sample beyond the valid resistance range: clamped to the valid strain range
-(plus the margin); or that plus the model's end slope times the resistance beyond it; or
-that plus a bounded slope, within a bounded reach (``bounded_slopes``)."""
+"""Strain of a sample beyond the valid resistance range (docs/design.md, "--out-of-range")."""
 DEFAULT_OUT_OF_RANGE = "extend"
-"""Chosen on the generalisation benchmark (docs/results.md): the lowest median and
-worst ratio over every sensor and model on the headline workflow."""
+"""Chosen on the generalisation benchmark (docs/results.md, "Out of range")."""
 
 
 # The out-of-range rule's numbers. docs/results.md gives what keeps each: the largest
@@ -56,13 +51,11 @@ class SensorRange:
     reach: tuple[float, float] = (-math.inf, math.inf)
     """Lowest and highest strain an extended estimate reaches (``extend``)."""
     saturate: bool = False
-    """``extend``: the model reads the resistance clipped to the valid range, so that its
-    output beyond the range is its output at the range's end (a polynomial that turns back
-    past the end, or cells driven where no data were, do not move it)."""
+    """``extend``: the model reads the resistance clipped to the valid range."""
 
     @classmethod
-    def build(cls, cal: SensorCalibration, out_of_range: str = "clamp",
-              model: Compensator | None = None) -> SensorRange:
+    def build(cls, cal: SensorCalibration, out_of_range: str, model: Compensator
+              ) -> SensorRange:
         """The limits of ``cal``'s valid range under the mode ``out_of_range``."""
         vr = cal.valid_range
         r_margin = MARGIN * (vr.r_hi - vr.r_lo)
@@ -71,7 +64,7 @@ class SensorRange:
                     r_lo=vr.r_lo - r_margin, r_hi=vr.r_hi + r_margin,
                     s_lo=vr.s_lo - s_margin, s_hi=vr.s_hi + s_margin)
         if out_of_range == "extrapolate":
-            slopes = end_slopes(*branches(cal, plain, model), plain)
+            slopes = end_slopes(*branches(plain, model), plain)
             return cls(**{**vars(plain), "slopes": slopes})
         if out_of_range == "extend":
             slopes, reach = bounded_slopes(cal, plain, model)
@@ -88,15 +81,11 @@ class SensorRange:
         return np.array([values[name] for name in RANGE_COLUMNS])
 
 
-def branches(cal: SensorCalibration, limits: SensorRange, model: Compensator | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """(loading, unloading) branch of the model along a slow ramp over the valid range and
-    back, both at ``np.linspace(r_lo, r_hi, n + 1)``; ``model`` reset before and after."""
+def branches(limits: SensorRange, model: Compensator) -> tuple[np.ndarray, np.ndarray]:
+    """(loading, unloading) branch of the model over a slow ramp up the valid range and back."""
     n = SETTLE_STEPS
     up = np.linspace(limits.r_lo, limits.r_hi, n + 1)
     r = np.concatenate([up, up[-2::-1]])
-    if model is None:
-        model = cal.build_model()
     model.reset()
     out = model.run(0.1 * np.arange(r.size), r)
     model.reset()
@@ -112,20 +101,10 @@ def end_slopes(loading: np.ndarray, unloading: np.ndarray, limits: SensorRange
     return (lo if math.isfinite(lo) else 0.0), (hi if math.isfinite(hi) else 0.0)
 
 
-def bounded_slopes(cal: SensorCalibration, limits: SensorRange,
-                   model: Compensator | None = None,
+def bounded_slopes(cal: SensorCalibration, limits: SensorRange, model: Compensator
                    ) -> tuple[tuple[float, float], tuple[float, float]]:
-    """``extend``: (slopes, reach). Each end slope kept within ``extend_slope`` x the
-    secant slope of the model over the valid range (``branches``: the top of its loading
-    branch to the bottom of its unloading one); zero (the range's end is held) where the
-    map does not rise the way the gauge does (a secant against ``direction.sign``) or turns
-    back at that end (an end slope against the secant, as past the resistance peak of a
-    carbon-black strip); nor where the branch that reads the top of the strain ends
-    ``extend_monotone`` of the span short of it: the training resistance peaked before the
-    strain did. The extended estimate reaches at most ``extend_reach`` calibrated strain
-    spans above the range, and below it never past zero strain: a resistance under the
-    calibrated rest is far more often a rest level that moved than a compression."""
-    loading, unloading = branches(cal, limits, model)
+    """``extend``: (end slopes, reach), the rules of docs/design.md, "--out-of-range"."""
+    loading, unloading = branches(limits, model)
     lo_end, hi_end = end_slopes(loading, unloading, limits)
     secant = float(loading[-1] - unloading[0]) / (limits.r_hi - limits.r_lo)
     low, high = EXTEND_SLOPE

@@ -26,7 +26,6 @@ from strain_comp.core.range_policy import SensorRange
 from strain_comp.core.stages import (
     bound_all,
     hold,
-    range_status,
     saturate_all,
     screen_batch,
 )
@@ -169,8 +168,9 @@ class SensorState:
                 corrections[a:b] = events
             dir_used[a:b] = self.detector.run(t[seg], seg_ohm)
             strain_used[a:b] = self.model.run(t[seg], saturate_all(seg_ohm, lim.row))
-        if self.cal.input.filtered:  # the range flag of what the model reads
-            status[idx] = range_status(ohm[idx], reset[idx], lim.r_lo, lim.r_hi)
+        if self.cal.input.filtered:  # the range flag of what the model reads (``screen_one``)
+            seen, inside = ohm[idx], np.where(reset[idx], sc.GAP_RESET, sc.GOOD)
+            status[idx] = np.where((seen < lim.r_lo) | (seen > lim.r_hi), sc.OUT_OF_RANGE, inside)
         if self.cal.direction.sign < 0:
             dir_used = -dir_used
         return PendingBatch(t, ohm, temp, status, reset, last_good_t, idx, bounds,
@@ -226,8 +226,7 @@ class SensorState:
 def run_together(sensors: Mapping[str, SensorState], t: npt.ArrayLike, r: np.ndarray,
                  temperature: Mapping[str, npt.ArrayLike | None], gap_reset: float,
                  latest: Latest) -> dict[str, BatchOutput]:
-    """Sensors sampled together (``r``: a column each) over a batch: every cross-talk term
-    reads its neighbours' clamped pre-effect estimate of the same tick."""
+    """Sensors sampled together (``r``: a column each); cross-talk reads the same tick."""
     pending = {name: s.run_model(t, r[:, j], temperature.get(name), gap_reset)
                for j, (name, s) in enumerate(sensors.items())}
     bases = {name: p.base(sensors[name]) for name, p in pending.items()}

@@ -11,9 +11,7 @@ from strain_comp.base.samples import screen_all
 
 RANGE_COLUMNS = ("r_lo", "r_hi", "s_lo", "s_hi", "slope_lo", "slope_hi", "reach_lo",
                  "reach_hi", "saturate")
-"""Columns of a sensor's range row: valid resistance [ohm] and strain [%] ranges (margins
-included), the slopes [%/ohm] below and above the range, the reach [%] of an extended
-estimate, and 1.0 when the model reads the resistance clipped to the range."""
+"""Columns of a sensor's range row (``range_policy.SensorRange``'s fields)."""
 R_LO, R_HI, S_LO, S_HI, SLOPE_LO, SLOPE_HI, REACH_LO, REACH_HI, SATURATE = \
     range(len(RANGE_COLUMNS))
 
@@ -41,8 +39,7 @@ def saturate_all(ohm: np.ndarray, row: np.ndarray) -> np.ndarray:
 
 @njit
 def bound(ohm: float, strain: float, row: np.ndarray) -> float:
-    """The range stage: ``strain`` clamped to the strain range, plus the slope times the
-    resistance beyond the valid range (continuous at its ends), within the reach."""
+    """The range stage: clamped, plus the slope times the resistance beyond, within reach."""
     strain = clamp(strain, row[S_LO], row[S_HI])
     if ohm > row[R_HI]:
         strain += row[SLOPE_HI] * (ohm - row[R_HI])
@@ -80,12 +77,6 @@ def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t
             idx[m] = i
             m += 1
     return status, reset, last, idx[:m], starts[:n_starts]
-
-
-def range_status(ohm: np.ndarray, reset: np.ndarray, r_lo: float, r_hi: float) -> np.ndarray:
-    """Status codes of used samples from the resistance the model reads (``screen_one``)."""
-    inside = np.where(reset, sc.GAP_RESET, sc.GOOD)
-    return np.where((ohm < r_lo) | (ohm > r_hi), sc.OUT_OF_RANGE, inside).astype(np.int8)
 
 
 @njit

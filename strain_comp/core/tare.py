@@ -1,7 +1,5 @@
-"""Tare: the sensor's resistance at rest, read at the start of a run (while the direction
-detector holds, settled) or of a fit (the reference at its minimum); the engine scales the
-input by (calibrated rest / rest now), multiplicative as measured (docs/results.md, "Tare").
-"""
+"""Tare: the sensor's resistance at rest, read at the start of a run or of a fit; the engine
+scales the input by (calibrated rest / rest now) (docs/results.md, "Tare")."""
 
 from __future__ import annotations
 
@@ -42,24 +40,28 @@ def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
-                             direction: DirectionSettings, *, pair: str = "mean") -> float:
-    """Rest resistance [ohm] of a run from its first seconds (no reference needed)."""
-    ta, ra, stop, _ = _rest_stretch(t, r, direction, pair)
-    return _rest_of_stretch(ta, ra, stop, pair)
-
-
-def rest_resistance_when_decided(t: npt.ArrayLike, r: npt.ArrayLike,
-                                 direction: DirectionSettings, *, pair: str = "mean",
-                                 ) -> float | None:
-    """``rest_resistance_at_start`` as samples arrive (the node); None while undecided."""
-    ta, ra, stop, decided = _rest_stretch(t, r, direction, pair)
-    return _rest_of_stretch(ta, ra, stop, pair) if decided else None
-
-
-def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, pair: str) -> float:
-    """The rest level of the first ``stop`` samples; InputError when too few or drifting."""
+                             direction: DirectionSettings, *, pair: str = "mean",
+                             ended: bool = True) -> float | None:
+    """Rest resistance [ohm] of a run from its first seconds (no reference needed); InputError
+    when too few or drifting; None while the rest goes on in a run not ``ended`` (the node)."""
+    ta = np.asarray(t, dtype=np.float64)
+    ra = np.asarray(r, dtype=np.float64)
+    good = _good(ta, ra)
+    ta, ra = ta[good], ra[good]
     if ta.size == 0:
+        if not ended:
+            return None
         raise InputError("tare: no good resistance sample at the start of the run")
+    head = int(np.searchsorted(ta, ta[0] + REST_WINDOW, side="right"))
+    complete = head < ta.size or ta[-1] - ta[0] >= REST_WINDOW
+    ta, ra = ta[:head], ra[:head]
+    # the detector reads pair values: an alternation every other sample is not movement
+    pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
+    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
+    moving = np.flatnonzero(states != 0)
+    if not (moving.size or complete or ended):  # still at rest: the rest may go on
+        return None
+    stop = int(moving[0]) + (ra.size - pairs.size) if moving.size else ra.size
     if stop == 0 or (stop < MIN_REST_SAMPLES
                      and ta[stop - 1] - ta[0] < MIN_REST_SECONDS):
         raise InputError(f"tare: the run does not start at rest (the direction detector "
@@ -73,27 +75,6 @@ def _rest_of_stretch(ta: np.ndarray, ra: np.ndarray, stop: int, pair: str) -> fl
                          "the run from a few still seconds at rest, or start the session "
                          "on a stretch and back (strain-comp start)")
     return rest_level(ra[:stop], pair=pair)
-
-
-def _rest_stretch(t: npt.ArrayLike, r: npt.ArrayLike, direction: DirectionSettings,
-                  pair: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """(good t, r of the first ``REST_WINDOW`` s, samples at rest, whether that has ended)."""
-    ta = np.asarray(t, dtype=np.float64)
-    ra = np.asarray(r, dtype=np.float64)
-    good = _good(ta, ra)
-    ta, ra = ta[good], ra[good]
-    if ta.size == 0:
-        return ta, ra, 0, False
-    head = int(np.searchsorted(ta, ta[0] + REST_WINDOW, side="right"))
-    complete = head < ta.size or ta[-1] - ta[0] >= REST_WINDOW
-    ta, ra = ta[:head], ra[:head]
-    # the detector reads pair values: an alternation every other sample is not movement
-    pairs = pair_values(ra, branch=pair)[1:] if ra.size >= 2 else ra
-    states = DirectionDetector(direction).run(ta[ta.size - pairs.size:], pairs)
-    moving = np.flatnonzero(states != 0)
-    if moving.size:
-        return ta, ra, int(moving[0]) + (ra.size - pairs.size), True
-    return ta, ra, ra.size, complete
 
 
 def rest_drift(t: np.ndarray, r: np.ndarray, *, pair: str = "mean") -> float:
@@ -196,6 +177,7 @@ def tare_engine(engine: Engine, runs: Mapping[str, tuple[npt.ArrayLike, npt.Arra
         try:
             rest = rest_resistance_at_start(t, cal.input.to_ohm(r), cal.direction,
                                             pair=cal.input.pair)
+            assert rest is not None  # a whole run (ended) always decides
         except InputError as err:
             lines[name] = f"not tared: {str(err).removeprefix('tare: ')}"
             continue

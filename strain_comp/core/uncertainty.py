@@ -16,8 +16,7 @@ FEATURES = ("bias", "loading", "unloading", "hold", "outside", "elapsed", "level
 """The regressors of log sigma^2, in order (docs/design.md, "Uncertainty")."""
 N_FEATURES = len(FEATURES)
 STATE_SIZE = 3
-"""Per sensor: the direction of the previous used sample, the time it last changed, the
-session's first time (NaN before the first used sample)."""
+"""Per sensor: the previous direction, the time it last changed, the session's first time."""
 _LAST_DIRECTION, _CHANGED_T, _START_T = range(STATE_SIZE)
 WEIGHT_MAX = 100.0
 """The largest magnitude of a weight a calibration file may hold."""

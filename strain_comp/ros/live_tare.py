@@ -5,7 +5,6 @@ the calibrated range: a rest that moved out of it is what a tare corrects."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +15,6 @@ from strain_comp.core.tare import (
     REST_WINDOW,
     rest_level,
     rest_resistance_at_start,
-    rest_resistance_when_decided,
 )
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.ros.params import NodeParams
@@ -129,11 +127,10 @@ class LiveTare:
             cal = self.calibration.sensors[sensor]
             # past REST_WINDOW decided; before, the engine's detector moved and the rule's (on
             # pairs) may not have yet
-            decide: Callable[..., float | None] = (
-                rest_resistance_at_start if t - start >= REST_WINDOW
-                else rest_resistance_when_decided)
             try:
-                rest = decide(times, self._ohm(sensor, raw), cal.direction, pair=cal.input.pair)
+                rest = rest_resistance_at_start(times, self._ohm(sensor, raw), cal.direction,
+                                                pair=cal.input.pair,
+                                                ended=t - start >= REST_WINDOW)
                 if rest is None:
                     continue
             except InputError as err:

@@ -129,7 +129,7 @@ def test_a_spike_on_alternating_input_is_removed_from_the_pair_means() -> None:
     t, r, _ = smooth_run(10)
     r = r + 30.0 * (-1.0) ** np.arange(t.size)
     r[[300, 900]] += [500.0, -400.0]
-    seen, _, corrector = correct(t, r)
+    seen, _, corrector = correct(t, r, alternating=alternation(r).present)
     assert corrector.n_spikes == 2
     truth = pair_values(r - 30.0 * (-1.0) ** np.arange(t.size))
     truth[[300, 301, 900, 901]] = np.nan  # the spikes' pair means
@@ -143,7 +143,8 @@ def test_a_baseline_step_is_found_its_size_recovered_and_the_error_falls(size: f
     cal = Calibration({"s1": fit_sensor([Recording("s1", t, r, s)], "cubic", name="s1")})
     t2, r2, s2 = smooth_run(12)
     stepped = r2 + size * (t2 >= 97.0)
-    _, _, corrector = correct(t2, stepped, step_k=16.0)
+    _, _, corrector = correct(t2, stepped, step_k=16.0,
+                              alternating=alternation(stepped).present)
     assert len(corrector.steps) == 1
     found = corrector.steps[0]
     assert found.size == pytest.approx(size, abs=6.0)  # 3 noise sigmas
@@ -158,7 +159,7 @@ def test_a_baseline_step_is_found_its_size_recovered_and_the_error_falls(size: f
 
 def test_no_step_on_ramps_and_no_change_without_spikes() -> None:
     t, r, _ = smooth_run(13)
-    seen, events, corrector = correct(t, r, step_k=16.0)
+    seen, events, corrector = correct(t, r, step_k=16.0, alternating=alternation(r).present)
     assert not corrector.steps and corrector.n_spikes == 0
     assert np.count_nonzero(events) < 0.005 * t.size
     assert np.max(np.abs(seen - r)) < 8.0 * 2.0 * np.sqrt(2.0)

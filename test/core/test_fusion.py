@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from strain_comp.core.fusion import FusionSettings, OutputFusion, SparseFusion
+from strain_comp.core.fusion import GAIN_SD, NOISE_SHARE, OFFSET_SHARE, OutputFusion, SparseFusion
 
 GAIN, OFFSET = 1.25, -1.5
 """The truth: reference = GAIN x estimate + OFFSET (+ noise)."""
@@ -17,7 +17,7 @@ GAIN, OFFSET = 1.25, -1.5
 
 def _fusion(span: float) -> OutputFusion:
     """A filter scaled for a calibrated strain span of ``span``."""
-    return OutputFusion(FusionSettings.for_span(span))
+    return OutputFusion(span)
 
 
 def run(seconds: float = 1200.0, rate: float = 20.0, seed: int = 3
@@ -46,7 +46,7 @@ def test_sparse_noisy_references_recover_the_gain_and_offset() -> None:
     fused_error = np.sqrt(np.mean((fused - truth)[late] ** 2))
     assert fused_error < 0.1 * raw_error
     st = fusion.state()
-    assert st["gain_sd"] < 0.5 * fusion.settings.gain_sd
+    assert st["gain_sd"] < 0.5 * GAIN_SD
     assert st["last_reference_t"] == pytest.approx(1180.0)
 
 
@@ -94,8 +94,7 @@ def test_one_reference_at_rest_moves_the_offset_and_one_at_strain_mostly_the_gai
     rest = _fusion(40.0)
     assert rest.update(1.0, 0.0, 1.0) is None
     # eq. (3) with h = (0, 1): K_b = P_b / (P_b + R), the first reference has no walk
-    k_b = rest.settings.offset_sd ** 2 / (rest.settings.offset_sd ** 2
-                                           + rest.settings.noise_sd ** 2)
+    k_b = OFFSET_SHARE ** 2 / (OFFSET_SHARE ** 2 + NOISE_SHARE ** 2)
     assert rest.gain == 1.0 and rest.offset == pytest.approx(k_b * 1.0)
     strained = _fusion(40.0)
     assert strained.update(1.0, 30.0, 36.0) is None  # a sensitivity 20 % low
@@ -197,8 +196,7 @@ def test_the_filter_on_a_calibrations_output_map_fuses_as_one_on_top() -> None:
     a0, b0 = 0.8, 2.5
     t, estimate, reference = run(seconds=600.0)
     engine_out = a0 * estimate + b0  # the engine's estimate, through the calibration's map
-    settings = _fusion(40.0).settings
-    on_top, itself = OutputFusion(settings), OutputFusion(settings, start=(a0, b0))
+    on_top, itself = OutputFusion(40.0), OutputFusion(40.0, start=(a0, b0))
     assert itself.apply(engine_out[5]) == pytest.approx(engine_out[5], rel=1e-12)
     for k in range(0, t.size, 97):  # references now and then, some beyond the gate
         y = reference[k] + (60.0 if k % 5 == 0 else 0.0)

@@ -151,11 +151,11 @@ def test_the_margin_and_reach_set_the_limits(monkeypatch: pytest.MonkeyPatch) ->
 
     cal = cubic_cal()
     vr = cal.valid_range
-    default_reach = range_policy.SensorRange.build(cal, "extend").reach[1]
+    default_reach = range_policy.SensorRange.build(cal, "extend", cal.build_model()).reach[1]
     assert default_reach == pytest.approx(vr.s_hi + EXTEND_REACH * (vr.s_hi - vr.s_lo))
     monkeypatch.setattr(range_policy, "MARGIN", 0.1)
     monkeypatch.setattr(range_policy, "EXTEND_REACH", 0.5)
-    limits = range_policy.SensorRange.build(cal, "extend")
+    limits = range_policy.SensorRange.build(cal, "extend", cal.build_model())
     assert limits.r_hi == pytest.approx(vr.r_hi + 0.1 * (vr.r_hi - vr.r_lo))
     assert limits.s_lo == pytest.approx(vr.s_lo - 0.1 * (vr.s_hi - vr.s_lo))
     assert limits.reach[1] == pytest.approx(vr.s_hi + 0.5 * (vr.s_hi - vr.s_lo))

@@ -18,7 +18,6 @@ from strain_comp.core.tare import (
     REST_WINDOW,
     rest_resistance_at_start,
     rest_resistance_from_reference,
-    rest_resistance_when_decided,
     tare_engine,
     unsettled_start,
 )
@@ -105,16 +104,16 @@ def test_rest_is_decided_once_the_detector_moves_or_the_window_is_full() -> None
     t = np.arange(0.0, 20.0, 0.1)
     resting = np.full(t.size, 1.3 * R0)
     inside = t < REST_WINDOW - 0.5
-    assert rest_resistance_when_decided(t[inside], resting[inside], detector) is None
-    assert rest_resistance_when_decided(t, resting, detector) == rest_resistance_at_start(
-        t, resting, detector)
+    assert rest_resistance_at_start(t[inside], resting[inside], detector, ended=False) is None
+    assert rest_resistance_at_start(t, resting, detector, ended=False) == \
+        rest_resistance_at_start(t, resting, detector)
     ramp = gauge(np.clip(t - 2.0, 0.0, None) * 2.0, 1.3 * R0)
     n = int(np.argmax(t > 3.0))
-    assert rest_resistance_when_decided(t[:n], ramp[:n], detector) == \
+    assert rest_resistance_at_start(t[:n], ramp[:n], detector, ended=False) == \
         rest_resistance_at_start(t, ramp, detector)
     moving = gauge(t * 2.0, 1.3 * R0)
     with pytest.raises(InputError, match="does not start at rest"):
-        rest_resistance_when_decided(t[:n], moving[:n], detector)
+        rest_resistance_at_start(t[:n], moving[:n], detector, ended=False)
 
 
 def test_rest_at_start_declines_a_start_that_still_relaxes() -> None:

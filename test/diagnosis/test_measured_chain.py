@@ -106,7 +106,8 @@ def test_an_injected_step_on_a_measured_run_is_found_and_the_error_falls() -> No
     size = -0.03 * float(np.median(r))  # a contact 3 % of R lost from t = 1300 s
     test = {"cb": Recording("cb", t[~first], r[~first] + size * (t[~first] >= 1300.0),
                             strain[~first])}
-    _, _, corrector = correct(t[~first], test["cb"].r, step_k=STEP_K)
+    _, _, corrector = correct(t[~first], test["cb"].r, step_k=STEP_K,
+                              alternating=alternation(test["cb"].r).present)
     found = [s for s in corrector.steps if 1300.0 <= s.t < 1310.0]
     assert len(found) == 1 and found[0].size == pytest.approx(size, rel=0.1)
     sensor = replace(cal.sensors["cb"], input=InputSettings(alternation=True))  # as found

@@ -246,7 +246,7 @@ def test_health_counter_equals_the_counts_sample_by_sample() -> None:
     assert {c for _, c in STATUS_RULES.values() if c} <= set(COUNTERS)
     for b in (before, SensorHealth()):
         found = HealthCounter(b, t, out).at(ticks, stale_after=0.4)
-        levels, messages, values = found.diagnostic()
+        levels, messages, values = found.diagnostic(times_text(found.last_good_t))
         for k, tick in enumerate(ticks.tolist()):
             h = _health_at(b, t, out, tick, 0.4)
             assert found.counters[k].tolist() == [getattr(h, c) for c in COUNTERS]
