@@ -76,9 +76,7 @@ def _by_rmse(solution: Solution) -> float:
     return solution.rmse
 
 
-# below this many samples a grid point takes well under a millisecond: thread hand-offs
-# would cost more than they save, so the grid is scored serially
-MIN_THREADED_SAMPLES = 2000
+MIN_THREADED_SAMPLES = 2000  # below: a grid point takes < 1 ms, thread hand-offs cost more
 
 
 def available_cores() -> int:

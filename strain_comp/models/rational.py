@@ -110,8 +110,6 @@ def _jac_free(z: np.ndarray, x: np.ndarray) -> np.ndarray:
 def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
               what: str = "rational") -> np.ndarray:
     """The best pole-free rat22 fit of s(xi) (docs/models.md)."""
-    if xi.size < 5:
-        raise FitError(f"{what}: needs at least 5 samples, got {xi.size}")
     if np.ptp(xi) <= 0.0:
         raise FitError(f"{what}: the resistance does not vary")
     lo, hi = guard
@@ -157,9 +155,7 @@ class Rational(Compensator):
     def __init__(self, coef: Mapping[str, npt.ArrayLike], mode: str,
                  normalisation: Normalisation, direction: DirectionSettings) -> None:
         super().__init__(normalisation)
-        if mode not in MODES:
-            raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
-        self.mode = mode
+        self.mode = mode  # checked by the reader (from_params) and the fit's options
         self.direction = direction
         rows = [coef["combined"]] * 3 if mode == "combined" else [coef[b] for b in _BRANCHES]
         self.coef = np.ascontiguousarray(np.array(rows, dtype=np.float64).reshape(3, 5))

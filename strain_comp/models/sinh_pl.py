@@ -1,7 +1,5 @@
-"""Reduced power-law model with sinh resistors ([ReducedPL] eq. (1)-(3)).
-
-The compensator is the exact inverse of the linearly implicit forward step (Newton per
-sample); the time stepping, start state and fit: docs/models.md.
+"""Reduced power-law model with sinh resistors ([ReducedPL] eq. (1)-(3)), inverted exactly
+through the linearly implicit forward step (Newton per sample); docs/models.md.
 """
 
 from __future__ import annotations
