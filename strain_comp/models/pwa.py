@@ -84,7 +84,6 @@ def finv(y: float, b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) ->
 @njit
 def finv_array(y: np.ndarray, b: np.ndarray, f_at_b: np.ndarray,
                inv_slopes: np.ndarray) -> np.ndarray:
-    """``finv`` over an array."""
     out = np.empty(y.size)
     for i in range(y.size):
         out[i] = finv(y[i], b, f_at_b, inv_slopes)
