@@ -72,8 +72,6 @@ class Segment:
         for name in ("t", "r", "s"):
             array = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
             object.__setattr__(self, name, array)
-        if not (self.t.shape == self.r.shape == self.s.shape and self.t.ndim == 1):
-            raise ValueError("Segment: t, r and s must be 1-D arrays of one length")
 
 
 class Compensator(ABC):

@@ -21,8 +21,6 @@ _STARTED, _T, _R, _FILT, _OUT = range(STATE_SIZE)
 
 @dataclass(frozen=True)
 class DirectionSettings:
-    """Settings of the dead-zone direction detector."""
-
     deadzone: float
     tau: float = 0.0
     k_sigma: float | None = None
@@ -45,7 +43,6 @@ class DirectionSettings:
 @njit
 def direction_update(state: np.ndarray, t: float, r: float, deadzone: float,
                      tau: float) -> int:
-    """Advance the detector by one sample."""
     if state[0] == 0.0:
         state[0] = 1.0
         state[1] = t

@@ -70,7 +70,6 @@ class LiftedArray(ABC):
 
     @classmethod
     def accepts(cls, model: Any) -> bool:
-        """True when ``model`` belongs to this family."""
         return isinstance(model, cls.model_type)
 
     @staticmethod

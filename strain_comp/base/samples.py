@@ -107,14 +107,14 @@ def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: fl
     return status, reset, last_good_t
 
 
-def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *,
-             gap: float = DEFAULT_GAP_RESET) -> np.ndarray:
+def classify(t: npt.ArrayLike, r: npt.ArrayLike, *, gap: float = DEFAULT_GAP_RESET
+             ) -> np.ndarray:
     """Status codes by ``screen_one`` with no resistance range (what the fit can know)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
     forced = np.zeros(t.shape, dtype=np.int8)
-    status, _, _ = screen_all(t, r, forced, float(last_good_t), 0.0, math.inf, -math.inf,
-                              math.inf, float(gap))
+    status, _, _ = screen_all(t, r, forced, -math.inf, 0.0, math.inf, -math.inf, math.inf,
+                              float(gap))
     return status
 
 

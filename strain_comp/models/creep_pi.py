@@ -41,7 +41,6 @@ FLAT = 1e-9  # a feature whose training standard deviation is below this gets sc
 
 
 def n_features(n_play: int, n_tau: int) -> int:
-    """Features per sample for J play operators and K time constants."""
     return kern.N_FIXED + n_play + n_tau
 
 

@@ -31,7 +31,6 @@ def slopes_from_mu(mu: npt.ArrayLike) -> np.ndarray:
 
 
 def mu_from_slopes(slopes: npt.ArrayLike) -> np.ndarray:
-    """Inverse of ``slopes_from_mu``."""
     slopes = np.asarray(slopes, dtype=np.float64)
     m = slopes.size
     c = (m - 1) // 2

@@ -82,13 +82,11 @@ class SpikeDecay(Compensator):
                                     self.lam_table, self.min_step, self.direction.deadzone,
                                     self.direction.tau)
 
-    def predict_resistance(self, t: npt.ArrayLike, s: npt.ArrayLike, *,
-                           hold_rate: float | None = None) -> np.ndarray:
+    def predict_resistance(self, t: npt.ArrayLike, s: npt.ArrayLike) -> np.ndarray:
         """Forward eq. (3) for a known strain history s [%] (the paper's output prediction)."""
         t, s = as_float_arrays(t, s)
-        hold_rate = default_hold_rate(s) if hold_rate is None else hold_rate
         factor = np.ones(t.size)
-        for start, end in movements(t, s, hold_rate):
+        for start, end in movements(t, s, default_hold_rate(s)):
             change = s[end] - s[start]
             rate = abs(change) / (t[end] - t[start])
             spike, lam = self.spike(rate, s[end], loading=change >= 0)
