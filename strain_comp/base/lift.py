@@ -41,28 +41,20 @@ def array_step(t: float, r: np.ndarray, out: np.ndarray, state: tuple[np.ndarray
 class LiftedArray(ABC):
     """K sensors of one family stepped together through the family's lifted kernel."""
 
-    family: ClassVar[str]  # the family's name in errors (``an APL-family``)
     model_type: ClassVar[type]
-    sizes: ClassVar[str]  # what must agree between the sensors, in errors (``N, M``)
     kernel: ClassVar[Dispatcher[Any]]
     array_step: ClassVar[Dispatcher[Any]]  # ``array_step`` bound to ``kernel``
     state: tuple[np.ndarray, ...]
     params: tuple[Any, ...]
 
     def __init__(self, models: Sequence[Any]) -> None:
-        """The state rows at rest and the parameter rows of ``models``, stacked."""
-        if not models:
-            raise ParameterError("models", "an array needs at least one sensor")
-        for i, model in enumerate(models):
-            if not self.accepts(model):
-                raise ParameterError(f"models.{i}", f"not {self.family} model: {model!r}")
+        """The state rows at rest and the parameter rows of ``models`` (``accepts``), stacked."""
         self.models = list(models)
         rows = [self.rows(model) for model in models]
         shapes = [[np.shape(a) for a in state + params] for state, params in rows]
         for i, shape in enumerate(shapes):
             if shape != shapes[0]:
-                raise ParameterError(f"models.{i}", f"{self.sizes} differ from the first "
-                                                    "sensor's")
+                raise ParameterError(f"models.{i}", "shapes differ from the first sensor's")
         state, params = rows[0]
         self.state = tuple(np.zeros((len(rows), *np.shape(a))) for a in state)
         self.params = tuple(np.array([row[1][j] for row in rows]) for j in range(len(params)))

@@ -163,9 +163,7 @@ class MPI(CellModel):
 class APLArray(LiftedArray):
     """K sensors of the APL family (same N and M) stepped together in one kernel call."""
 
-    family = "an APL-family"
     model_type = CellModel
-    sizes = "N, M"
 
     @staticmethod
     def rows(model: CellModel) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:

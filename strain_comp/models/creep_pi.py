@@ -166,9 +166,7 @@ class CreepPI(Compensator):
 class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same shapes) stepped together in one kernel call."""
 
-    family = "a creep_pi"
     model_type = CreepPI
-    sizes = "numbers of play operators and time constants"
 
     @staticmethod
     def rows(model: CreepPI) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:
