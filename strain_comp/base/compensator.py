@@ -57,7 +57,6 @@ class Normalisation:
         return (np.asarray(psi, dtype=np.float64) - self.beta) * self.s0
 
     def to_dict(self) -> dict[str, float]:
-        """The four coefficients."""
         return {"r0": self.r0, "alpha": self.alpha, "s0": self.s0, "beta": self.beta}
 
 
@@ -73,24 +72,17 @@ class Segment:
         for name in ("t", "r", "s"):
             array = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
             object.__setattr__(self, name, array)
-        if not (self.t.shape == self.r.shape == self.s.shape and self.t.ndim == 1):
-            raise ValueError("Segment: t, r and s must be 1-D arrays of one length")
 
 
 class Compensator(ABC):
-    """Base class of the eight inverse models. ``step`` runs the array path (``_run_into``)
-    on a one-sample view, so both paths share every floating-point operation."""
+    """Base class of the inverse models; ``step`` is ``_run_into`` on a one-sample view."""
 
-    name: ClassVar[str]
-    """Model name as written in calibration files and on the command line."""
-    param_names: ClassVar[tuple[str, ...]] = ()
-    """The attributes ``to_params`` writes (arrays as lists), where the model does not say."""
+    name: ClassVar[str]  # as in calibration files and on the command line
+    param_names: ClassVar[tuple[str, ...]] = ()  # what the default ``to_params`` writes
+    # fit takes every sample in bounded memory, not the budget's low-passing reduction
     fit_full_rate: ClassVar[bool] = False
-    """True when ``fit`` takes every sample in bounded memory (creep_pi): the fit then skips
-    the budget's reduction, which would low-pass what its states are computed from."""
 
     def __init__(self, normalisation: Normalisation) -> None:
-        """A model mapping through ``normalisation``."""
         self.normalisation = normalisation
         self._t1 = np.zeros(1)
         self._r1 = np.zeros(1)

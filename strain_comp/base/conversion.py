@@ -1,7 +1,5 @@
-"""Input conversion: voltage-divider readings to resistance.
-
-[Electrolycra] section II.A: the sensor in series with a known resistor R1 under a
-supply Vin; the voltage across R1 is measured and R = R1 (Vin - V_R1) / V_R1.
+"""Voltage-divider readings to resistance ([Electrolycra] section II.A): the sensor in series
+with R1 under a supply Vin, the voltage across R1 measured, R = R1 (Vin - V_R1) / V_R1.
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
-"""A model family's array form lifted from its per-sensor kernel, as numbagg lifts a 1-D
-kernel: ``kernel(s, t, r, *state, *params) -> strain [%]`` advances row ``s`` of each
-state array (a zeroed row is a sensor at rest) by one good sample (docs/models.md, "Arrays").
-"""
+"""A model family's array form lifted from its per-sensor kernel ``kernel(s, t, r, *state,
+*params) -> strain [%]``, which advances row ``s`` of each state array by one good sample
+(a zeroed row is a sensor at rest; docs/models.md, "Arrays")."""
 
 from __future__ import annotations
 
@@ -29,8 +28,7 @@ def kernel(s: int, t: float, r: float, *arrays: np.ndarray) -> float:
 
 def array_step(t: float, r: np.ndarray, out: np.ndarray, state: tuple[np.ndarray, ...],
                params: tuple[Any, ...]) -> None:
-    """Template: advance every sensor by one tick at ``t``. A bad r[s] (not finite or <= 0)
-    or t leaves sensor s untouched and gives NaN."""
+    """Template: every sensor by one tick at ``t``; a bad r[s] or t gives NaN, state kept."""
     arrays = state + params
     for s in range(r.size):
         ri = r[s]
@@ -43,33 +41,20 @@ def array_step(t: float, r: np.ndarray, out: np.ndarray, state: tuple[np.ndarray
 class LiftedArray(ABC):
     """K sensors of one family stepped together through the family's lifted kernel."""
 
-    family: ClassVar[str]
-    """The family's name in errors (``an APL-family``, ``a creep_pi``)."""
     model_type: ClassVar[type]
-    """The class of the family's models."""
-    sizes: ClassVar[str]
-    """What must agree between the sensors, in errors (``N, M``)."""
     kernel: ClassVar[Dispatcher[Any]]
-    """The family's per-sensor kernel (``kernel(s, t, r, *state, *params)``)."""
-    array_step: ClassVar[Dispatcher[Any]]
-    """``array_step`` bound to ``kernel``."""
+    array_step: ClassVar[Dispatcher[Any]]  # ``array_step`` bound to ``kernel``
     state: tuple[np.ndarray, ...]
     params: tuple[Any, ...]
 
     def __init__(self, models: Sequence[Any]) -> None:
-        """The state rows at rest and the parameter rows of ``models``, stacked."""
-        if not models:
-            raise ParameterError("models", "an array needs at least one sensor")
-        for i, model in enumerate(models):
-            if not self.accepts(model):
-                raise ParameterError(f"models.{i}", f"not {self.family} model: {model!r}")
+        """The state rows at rest and the parameter rows of ``models`` (``accepts``), stacked."""
         self.models = list(models)
         rows = [self.rows(model) for model in models]
         shapes = [[np.shape(a) for a in state + params] for state, params in rows]
         for i, shape in enumerate(shapes):
             if shape != shapes[0]:
-                raise ParameterError(f"models.{i}", f"{self.sizes} differ from the first "
-                                                    "sensor's")
+                raise ParameterError(f"models.{i}", "shapes differ from the first sensor's")
         state, params = rows[0]
         self.state = tuple(np.zeros((len(rows), *np.shape(a))) for a in state)
         self.params = tuple(np.array([row[1][j] for row in rows]) for j in range(len(params)))
@@ -77,7 +62,6 @@ class LiftedArray(ABC):
 
     @classmethod
     def accepts(cls, model: Any) -> bool:
-        """True when ``model`` belongs to this family."""
         return isinstance(model, cls.model_type)
 
     @staticmethod
@@ -91,7 +75,6 @@ class LiftedArray(ABC):
         return ()
 
     def reset(self) -> None:
-        """Forget every sensor's state."""
         for rows in self.state:
             rows[:] = 0.0
 

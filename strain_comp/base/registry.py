@@ -34,7 +34,6 @@ def model_names() -> tuple[str, ...]:
 
 
 def model_class(name: str) -> type[Compensator]:
-    """The compensator class registered under ``name``."""
     if name not in _MODELS:
         known = ", ".join(_MODELS) or "none registered"
         raise ParameterError("name", f"unknown model {name!r}; known: {known}")

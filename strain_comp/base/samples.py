@@ -1,6 +1,5 @@
-"""Sample screening: the one rule (``screen_one``) deciding which raw samples may reach a
-model's state, in the engine and the fit; ``STATUS_RULES`` is the one table of what each
-status means (docs/models.md, "Screening").
+"""Sample screening: the one rule (``screen_one``) deciding which raw samples reach a model,
+in the engine and the fit, and what each status means (docs/models.md, "Screening").
 """
 
 from __future__ import annotations
@@ -28,10 +27,8 @@ class Status(IntEnum):
     OUT_OF_RANGE = 7
 
 
-DEFAULT_GAP_RESET = 5.0
-"""Default gap [s]: a longer jump between good samples resets the state."""
-GAP_INTERVALS = 10.0
-"""For a slow instrument the gap is at least this many of its sample intervals."""
+DEFAULT_GAP_RESET = 5.0  # [s]: a longer jump between good samples resets the state
+GAP_INTERVALS = 10.0  # for a slow instrument the gap is at least this many sample intervals
 
 
 def gap_for(sample_interval: float | None, gap: float = DEFAULT_GAP_RESET) -> float:
@@ -58,18 +55,14 @@ STATUS_RULES: Final[dict[Status, tuple[bool, str | None]]] = {
     Status.GAP_RESET: (True, None),
     Status.OUT_OF_RANGE: (True, "n_out_of_range"),
 }
-"""Per status: is the sample used (fed to the model; counted in ``n_good``), and the health
-counter it also adds to (None: only ``n_good``). Gap resets are counted apart (``n_gaps``),
-as an out-of-range sample may reset too."""
+"""Per status: is the sample fed to the model (``n_good``), and its health counter besides."""
 if set(STATUS_RULES) != set(Status):
     raise AssertionError("STATUS_RULES must name every Status")
 
 USED: Final = frozenset(s for s, (used, _) in STATUS_RULES.items() if used)
-"""The statuses of samples fed to the model (all others are bad: estimate held)."""
+# USED as a table by status code, for arrays and numba kernels (a constant there)
 USED_CODE: Final[npt.NDArray[np.bool_]] = np.array(
     [STATUS_RULES[Status(c)][0] for c in range(len(Status))], dtype=np.bool_)
-"""``USED`` as a lookup table by status code (for arrays and numba kernels, which read it
-as a constant)."""
 
 
 @njit
@@ -101,7 +94,6 @@ def screen_one(t: float, r: float, forced: int, last_good_t: float, r_short: flo
 def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: float,
                r_short: float, r_open: float, r_lo: float, r_hi: float,
                gap: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """``screen_one`` over a sequence, in order."""
     n = t.size
     status = np.empty(n, dtype=np.int8)
     reset = np.zeros(n, dtype=np.bool_)
@@ -115,14 +107,14 @@ def screen_all(t: np.ndarray, r: np.ndarray, forced: np.ndarray, last_good_t: fl
     return status, reset, last_good_t
 
 
-def classify(t: npt.ArrayLike, r: npt.ArrayLike, last_good_t: float = -np.inf, *,
-             gap: float = DEFAULT_GAP_RESET) -> np.ndarray:
+def classify(t: npt.ArrayLike, r: npt.ArrayLike, *, gap: float = DEFAULT_GAP_RESET
+             ) -> np.ndarray:
     """Status codes by ``screen_one`` with no resistance range (what the fit can know)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     r = np.ascontiguousarray(r, dtype=np.float64)
     forced = np.zeros(t.shape, dtype=np.int8)
-    status, _, _ = screen_all(t, r, forced, float(last_good_t), 0.0, math.inf, -math.inf,
-                              math.inf, float(gap))
+    status, _, _ = screen_all(t, r, forced, -math.inf, 0.0, math.inf, -math.inf, math.inf,
+                              float(gap))
     return status
 
 

@@ -1,8 +1,5 @@
 """APL, PL and MPI inverse models ([Electrolycra] eq. (1)-(3), appendix eq. (6)) and their
-array form.
-
-Cells, orientation, output map (eq. (2), (3)) and the fit (QP, output-error refinement,
-sigma/p search, signed cell weights): docs/models.md.
+array form; cells, orientation, output map and the fit: docs/models.md.
 """
 
 from __future__ import annotations
@@ -166,9 +163,7 @@ class MPI(CellModel):
 class APLArray(LiftedArray):
     """K sensors of the APL family (same N and M) stepped together in one kernel call."""
 
-    family = "an APL-family"
     model_type = CellModel
-    sizes = "N, M"
 
     @staticmethod
     def rows(model: CellModel) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:

@@ -1,6 +1,6 @@
 """The fit of the APL, PL and MPI models ([Electrolycra] section III): the paper's QP on
 the cell states, a search over sigma and p, and the output-error refinement (a bounded
-Levenberg-Marquardt, ``bounded_lm``); docs/models.md gives the method."""
+Levenberg-Marquardt); docs/models.md gives the method."""
 
 from __future__ import annotations
 
@@ -26,13 +26,9 @@ from strain_comp.models import apl_kernels as kern
 from strain_comp.models import pwa
 from strain_comp.models.apl_kernels import P_MAX, inverse_widths, thresholds
 
-LOOP_SWITCH_GAIN = 0.05
-"""``signed`` holds the cells to a lagging loop only when that lowers the training output
-RMSE by more than this share against the paper's leading loop (docs/results.md)."""
-MEMORYLESS_SHARE = 0.01
-"""Below this share of the output from the cells (``memory_report``) a fit is memoryless."""
+LOOP_SWITCH_GAIN = 0.05  # least RMSE share a lagging loop must win by (docs/results.md)
+MEMORYLESS_SHARE = 0.01  # below this share of the output from the cells a fit is memoryless
 P_GRID = (0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0)
-"""The default grid of p searched by the fit."""
 
 
 def fit_cells(name: str, kind: int, rate_dependent: bool, segments: Sequence[Segment],
@@ -46,9 +42,6 @@ def fit_cells(name: str, kind: int, rate_dependent: bool, segments: Sequence[Seg
     """The fit of an APL, PL or MPI model (docs/models.md): solution, orientation, report."""
     problem = _FitProblem(name, kind, segments, normalisation, n=n, m=m, eps=eps, ridge=ridge,
                           cell_weights=cell_weights, search_nfev=search_nfev)
-    if kind == kern.KIND_APL and problem.gauge < 0:
-        problem.orient()
-    problem.set_weight_sign()
     if not rate_dependent:
         result = problem.solve(0.0, 1.0, output_nfev=output_nfev)
         return result, problem.orientation, {"rmse": result.rmse, "evaluations": 1,
@@ -79,15 +72,11 @@ def fit_cells(name: str, kind: int, rate_dependent: bool, segments: Sequence[Seg
                                        **problem.memory_report(best)}
 
 
-
-
 def _by_rmse(solution: Solution) -> float:
     return solution.rmse
 
 
-MIN_THREADED_SAMPLES = 2000
-"""Below this many training samples a grid point takes well under a millisecond and the
-grid is scored serially: thread hand-offs would cost more than they save."""
+MIN_THREADED_SAMPLES = 2000  # below: a grid point takes < 1 ms, thread hand-offs cost more
 
 
 def available_cores() -> int:
@@ -99,9 +88,7 @@ def available_cores() -> int:
 
 
 def grid_workers(requested: int | None, points: int, samples: int) -> int:
-    """Threads to score a sigma/p grid: ``requested``, else one per available core; never
-    more than half the points (each thread gets two or more), and 1 (serial, no thread pool)
-    on one core or below ``MIN_THREADED_SAMPLES`` samples unless requested."""
+    """Threads to score a grid: ``requested``, else a core each but two points per thread."""
     if requested is not None:
         return max(1, min(requested, points))
     if samples < MIN_THREADED_SAMPLES:
@@ -111,10 +98,7 @@ def grid_workers(requested: int | None, points: int, samples: int) -> int:
 
 def score_grid(problem: _FitProblem, sigmas: np.ndarray, ps: np.ndarray, *,
                workers: int, say: Callable[[str], None]) -> list[Solution]:
-    """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads (the
-    points are independent; the cell-state kernel, numpy's array operations and BLAS release
-    the GIL). ``APL.fit`` calls it with BLAS held to one thread, so the grid threads do not
-    start BLAS threads of their own. The result does not depend on ``workers``."""
+    """Every (sigma, p) of the grid scored by its QP solution, in ``workers`` threads."""
     grid: list[Solution] = []
     if workers <= 1:
         for i, sigma in enumerate(sigmas):
@@ -170,23 +154,15 @@ class _FitProblem:
         self.search_nfev = search_nfev
         self.eps, self.started, self.evaluations = eps, time.monotonic(), 0
         self._lock = threading.Lock()
-        segments = [seg for seg in segments if seg.t.size > 0]
-        if not segments:
-            raise FitError(f"{name}: no training samples")
         self.t = np.concatenate([seg.t for seg in segments])
         r = np.concatenate([seg.r for seg in segments])
         s = np.concatenate([seg.s for seg in segments])
-        if not (np.all(np.isfinite(self.t)) and np.all(np.isfinite(r)) and np.all(r > 0)
-                and np.all(np.isfinite(s))):
-            raise FitError(f"{name}: training samples must be finite with R > 0")
         n_params = n + m + 1
         if self.t.size < max(50, 5 * n_params):
             raise FitError(f"{name}: needs at least {max(50, 5 * n_params)} samples for "
                            f"N={n}, M={m}, got {self.t.size}")
         self.xi = normalisation.xi(r)
         self.psi = normalisation.psi(s)
-        if np.ptp(self.xi) < 1e-6 or np.ptp(self.psi) < 1e-6:
-            raise FitError(f"{name}: no excitation (resistance or strain is constant)")
         self.starts = np.zeros(self.t.size, dtype=np.bool_)
         self.starts[np.cumsum([0] + [seg.t.size for seg in segments[:-1]])] = True
         self.durations = [float(seg.t[-1] - seg.t[0]) for seg in segments]
@@ -211,6 +187,9 @@ class _FitProblem:
         self.ridge_a[np.arange(n), 1 + np.arange(n)] = lam
         self.ridge_a[n + np.arange(m - 1), n_w + np.arange(m - 1)] = lam
         self.ridge_b[n:] = lam
+        if kind == kern.KIND_APL and self.gauge < 0:  # drive the cells by -xi (docs/models.md)
+            self.xi, self.gauge, self.orientation = -self.xi, -self.gauge, -1
+        self.set_weight_sign()
 
     def _set_bounds(self) -> None:
         """Bounds of [w, free slopes]: slopes >= eps, cell weights of ``weight_sign`` or free."""
@@ -222,16 +201,8 @@ class _FitProblem:
         lo[n_w:] = self.eps
         self.bounds = (lo, hi)
 
-    def orient(self) -> None:
-        """Drive the cells by -xi (docs/models.md); before ``set_weight_sign``."""
-        self.xi = -self.xi
-        self.gauge = -self.gauge
-        self.orientation = -1
-
     def set_weight_sign(self) -> None:
-        """The cell weights' sign for ``cell_weights``, as a multiple of the gauge's (1: the
-        resistance leads, -1: it lags; docs/design.md, "Loop orientation"). ``signed`` fits
-        both with the MPI's cells whatever the model: the loop is the sensor's."""
+        """The cell weights' sign (docs/design.md, "Loop orientation"); ``signed`` tries both."""
         loop = {"lag": -1}.get(self.cell_weights, 1)
         if self.cell_weights == "signed":
             scores = {}
@@ -282,11 +253,8 @@ class _FitProblem:
     def equation_error(self, z: np.ndarray) -> np.ndarray:
         """The paper's QP: theta = [w, free slopes] minimising ||f(psi) - w . z||^2 + ridge."""
         a = np.hstack([z, self.neg_g, self.rhs[:, None]])
-        # Reduce the tall problem to its triangular factor: [A b] = QR, so ||A theta - b||
-        # = ||R_A theta - r_b|| + const. R from the Cholesky factor of the Gram matrix
-        # (tall-skinny QR is ten times slower here); the jitter keeps exactly collinear
-        # columns (a cell pinned to xi + 1 over all data) factorable, the ridge rows below
-        # then decide them.
+        # [A b] reduced to its triangular factor R by Cholesky of the Gram matrix (tall-skinny
+        # QR is ten times slower); the jitter keeps exactly collinear columns factorable.
         gram = a.T @ a
         gram[np.diag_indices_from(gram)] += 1e-12 * np.trace(gram) / gram.shape[0]
         r_full = np.linalg.cholesky(gram).T
@@ -380,9 +348,7 @@ NormalEquations = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarra
 def bounded_lm(residuals: Residuals, normal_equations: NormalEquations, theta: np.ndarray,
                lo: np.ndarray, hi: np.ndarray, *, max_nfev: int, ftol: float = 1e-9,
                lam: float = 1e-3) -> np.ndarray:
-    """theta (within [lo, hi]) with sum residuals(theta)^2 no larger than at the start; a
-    bounded Levenberg-Marquardt. Stops when a step lowers the cost by less than ``ftol``
-    times the cost, or when the damping cannot find a lower cost."""
+    """A bounded Levenberg-Marquardt: theta in [lo, hi] with no larger cost than the start."""
     theta = np.clip(np.asarray(theta, dtype=np.float64), lo, hi)
     res = residuals(theta)
     cost = float(res @ res)
@@ -420,11 +386,7 @@ def bounded_lm(residuals: Residuals, normal_equations: NormalEquations, theta: n
 @njit(fastmath=True)
 def output_jacobian(z: np.ndarray, psi_hat: np.ndarray, res: np.ndarray, slopes: np.ndarray,
                     edges: np.ndarray, c: int, out: np.ndarray) -> None:
-    """Rows [z_i / f'(psi_hat_i), -G_j(psi_hat_i) / f'(psi_hat_i) for j != c, res_i]: the
-    Jacobian of psi_hat = f^-1(w . z) with respect to (w, slopes of f except the fixed
-    central one ``c``), plus the residuals as a last column, so that one matrix product gives
-    J^T J and J^T res. G_j is the signed length of segment j on the path 0 -> psi
-    (``pwa.path_matrix``)."""
+    """The Jacobian of f^-1(w . z) by (w, free slopes) with the residuals as a last column."""
     n_w = z.shape[1]
     m = slopes.size
     last = out.shape[1] - 1

@@ -1,7 +1,5 @@
-"""numba kernels of the APL / PL / MPI cells ([Electrolycra] eq. (1), (2), appendix eq. (6)).
-
-One cell update (``advance_cells``) serves the run/step kernel, the array kernel
-``step_sensor`` and the fit; time stepping, initial state and speed: docs/models.md.
+"""numba kernels of the APL / PL / MPI cells ([Electrolycra] eq. (1), (2), appendix eq. (6)):
+one cell update (``advance_cells``) serves the run, array and fit kernels (docs/models.md).
 """
 
 from __future__ import annotations
@@ -18,16 +16,13 @@ from numba.extending import intrinsic
 from strain_comp._numba import njit
 from strain_comp.models.pwa import finv
 
-FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
-"""fast-math flags without ``nnan``/``ninf``: NaN checks must stay in the code."""
+FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # no nnan/ninf: NaN checks stay
 
 KIND_APL = 0
 KIND_PL = 1
 
-P_MIN = 0.05
-"""Smallest exponent p accepted (z^p for tiny z must stay negligible)."""
+P_MIN = 0.05  # smallest exponent p accepted (z^p for tiny z must stay negligible)
 P_MAX = 20.0
-"""Largest exponent p accepted."""
 
 
 _Codegen = Callable[[Any, Any, Any, Any], Any]
@@ -54,8 +49,7 @@ _LN2_LO = 1.90821492927058770002e-10
 _LG1, _LG2, _LG3, _LG4 = (6.666666666666735130e-01, 3.999999999940941908e-01,
                           2.857142874366239149e-01, 2.222219843214978396e-01)
 _LG5, _LG6, _LG7 = 1.818357216161805012e-01, 1.531383769920937332e-01, 1.479819860511658591e-01
-_TINY = 1e-300
-"""Lower guard of z: tiny^p with p >= P_MIN is < 1e-15, and the edge clip removes it."""
+_TINY = 1e-300  # lower guard of z: tiny^p with p >= P_MIN is < 1e-15
 
 
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
@@ -136,8 +130,7 @@ def output(x: np.ndarray, xi: float, w: np.ndarray, b: np.ndarray, f_at_b: np.nd
     return finv(y, b, f_at_b, inv_slopes)
 
 
-LANES = 4
-"""Cells are advanced in groups of this many (the SIMD width of AVX2 doubles)."""
+LANES = 4  # cells are advanced in groups of this many (the SIMD width of AVX2 doubles)
 
 
 @njit(fastmath=FASTMATH, error_model="numpy")

@@ -1,7 +1,5 @@
-"""numba kernels of the creep_pi model (``strain_comp.models.creep_pi``).
-
-One state update (``advance``) serves the streaming kernels and the fitting kernel, so the
-fitted and the streamed model compute the same states; states and features: docs/models.md.
+"""numba kernels of the creep_pi model: one state update (``advance``) serves the streaming
+and the fitting kernels, so both compute the same states (docs/models.md).
 """
 
 from __future__ import annotations
@@ -13,13 +11,8 @@ import numpy as np
 from strain_comp._numba import njit
 from strain_comp.models.apl_kernels import FASTMATH as FASTMATH
 
-DT_TOLERANCE = 1e-6
-"""A step within this share of the cached dt reuses its decays: the same as a time stamp
-off by a millionth of the step, far below any sensor clock's error, while stamps of a
-fixed rate that float64 rounding (or a bag's nanosecond stamps) jitter in their last
-digits stop paying four exponentials per sample."""
-N_FIXED = 5
-"""Features besides the play and creep ones: xi, xi^2, xi^3, d, d xi."""
+DT_TOLERANCE = 1e-6  # share of the cached dt within which a step reuses its decays
+N_FIXED = 5  # features besides the play and creep ones: xi, xi^2, xi^3, d, d xi
 
 
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
@@ -63,9 +56,7 @@ def features(row: np.ndarray, xi: float, z: np.ndarray, play: np.ndarray) -> Non
 
 
 def folded(w: np.ndarray, n_play: int, n_tau: int) -> np.ndarray:
-    """The weights ``w`` of the raw features regrouped for ``output``: [c1, c2, c3, then -w of
-    each play operator and each low-pass state, w_d, w_dx], c1 the weight of xi plus those of
-    every memory feature (each holds xi once)."""
+    """``w`` regrouped for ``output``: every memory feature's xi folded into c1, states -w."""
     coef = np.empty(w.size)
     coef[0] = w[0] + w[3:3 + n_play + n_tau].sum()
     coef[1:3] = w[1:3]
@@ -77,8 +68,7 @@ def folded(w: np.ndarray, n_play: int, n_tau: int) -> np.ndarray:
 @njit(fastmath=FASTMATH, error_model="numpy", inline="always")
 def output(xi: float, z: np.ndarray, play: np.ndarray, coef: np.ndarray, bias: float
            ) -> float:
-    """psi = bias + w . features, as bias + c1 xi + c2 xi^2 + c3 xi^3 + the folded weights
-    times the states + (xi - p_dir) (w_d + w_dx xi) (``folded``)."""
+    """psi = bias + w . features, through the ``folded`` weights."""
     n_play = play.size - 1
     psi = bias + xi * (coef[0] + xi * (coef[1] + xi * coef[2]))
     for j in range(n_play):

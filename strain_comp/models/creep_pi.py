@@ -1,8 +1,6 @@
 """creep_pi: play operators and Prony-series creep states, linear in its weights
-([Electrolycra] eq. (4), appendix eq. (6) with sigma = 0; [Nanocomposite] Equation (3)).
-
-The model, its direction terms and the ridge fit with the cross-validated penalty:
-docs/design.md, "creep_pi".
+([Electrolycra] eq. (4), appendix eq. (6) with sigma = 0; [Nanocomposite] Equation (3));
+the model and its cross-validated ridge fit: docs/design.md, "creep_pi".
 """
 
 from __future__ import annotations
@@ -27,32 +25,22 @@ from strain_comp.base.registry import register, register_array
 from strain_comp.errors import FitError, ParameterError
 from strain_comp.models import creep_kernels as kern
 
-TAUS = (0.3, 3.0, 30.0, 300.0)
-"""Default time constants [s] of the creep states."""
+TAUS = (0.3, 3.0, 30.0, 300.0)  # default time constants [s] of the creep states
 N_PLAY = 8
-"""Default number of play operators."""
-DIRECTION_WIDTH = 0.05
-"""Width r_dir of the direction play operator, normalised input (2.5 % of the span)."""
-TAU_RANGE = (1e-3, 1e6)
-"""Time constants [s] a calibration may hold."""
+DIRECTION_WIDTH = 0.05  # of the direction play operator, normalised (2.5 % of the span)
+TAU_RANGE = (1e-3, 1e6)  # time constants [s] a calibration may hold
 N_TAU_MAX = 12
 N_PLAY_MAX = 50
-WIDTH_MAX = 100.0
-"""Largest play threshold (normalised input; the training range spans 2)."""
+WIDTH_MAX = 100.0  # largest play threshold, normalised (the training range spans 2)
 SCALE_MIN = 1e-12
 LAM_MAX = 1e6
-LAM_GRID = np.geomspace(1e-9, 1e1, 41)
-"""Penalties searched by cross-validation (per sample, on standardised features)."""
-CV_BLOCKS = 4
-"""Contiguous folds of a single training segment."""
-CHUNK = 1 << 16
-"""Samples whose features are held at once during a fit."""
-FLAT = 1e-9
-"""A feature whose training standard deviation is below this is constant: scale 1."""
+LAM_GRID = np.geomspace(1e-9, 1e1, 41)  # per sample, on standardised features
+CV_BLOCKS = 4  # contiguous folds of a single training segment
+CHUNK = 1 << 16  # samples whose features are held at once during a fit
+FLAT = 1e-9  # a feature whose training standard deviation is below this gets scale 1
 
 
 def n_features(n_play: int, n_tau: int) -> int:
-    """Features per sample for J play operators and K time constants."""
     return kern.N_FIXED + n_play + n_tau
 
 
@@ -155,10 +143,7 @@ class CreepPI(Compensator):
         grams = np.einsum("ji,fjk,kl->fil", to_std, grams, to_std)
         total = grams.sum(axis=0)
         report: dict[str, Any] = {"folds": int(grams.shape[0])}
-        if lam is None:
-            if grams.shape[0] < 2:
-                raise FitError(f"{cls.name}: cross-validation needs at least {CV_BLOCKS} "
-                               "samples per fold; give a penalty (--option lam=...)")
+        if lam is None:  # two or more folds: n >= 9 samples split into n // 4 blocks
             errors = cross_validate(grams, LAM_GRID) / grams[:, 0, 0]
             cv = np.median(errors, axis=1) if len(segments) == 1 else errors.mean(axis=1)
             best = int(np.argmin(cv))
@@ -178,9 +163,7 @@ class CreepPI(Compensator):
 class CreepPIArray(LiftedArray):
     """K creep_pi sensors (same shapes) stepped together in one kernel call."""
 
-    family = "a creep_pi"
     model_type = CreepPI
-    sizes = "numbers of play operators and time constants"
 
     @staticmethod
     def rows(model: CreepPI) -> tuple[tuple[np.ndarray, ...], tuple[Any, ...]]:
@@ -218,9 +201,7 @@ def fold_grams(segments: Sequence[Segment], normalisation: Normalisation, tau: n
 
 
 def ridge(gram: np.ndarray, lam: float) -> np.ndarray:
-    """theta = [intercept, weights, -1] minimising the mean squared error of psi plus
-    ``lam`` |weights|^2 over the samples of ``gram``; the residual of a sample with row a is
-    a . theta, so its squared sum is theta' G theta."""
+    """theta = [intercept, weights, -1] of the ridge fit (residuals a . theta) on ``gram``."""
     p = gram.shape[0] - 2
     n = gram[0, 0]
     mx = gram[0, 1:p + 1] / n

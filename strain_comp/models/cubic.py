@@ -18,7 +18,6 @@ from strain_comp.base.compensator import (
 )
 from strain_comp.base.direction import DirectionSettings
 from strain_comp.base.registry import register
-from strain_comp.errors import FitError
 
 
 @register
@@ -49,8 +48,6 @@ class Cubic(Compensator):
             direction: DirectionSettings, **options: Any) -> Cubic:
         r = np.concatenate([seg.r for seg in segments])
         s = np.concatenate([seg.s for seg in segments])
-        if r.size < 4:
-            raise FitError(f"cubic: needs at least 4 samples, got {r.size}")
         xi = normalisation.xi(r)
         coef_xi = np.polynomial.polynomial.polyfit(xi, s, 3)
         # Substitute xi = R / r0 + alpha to express the polynomial in R (ohm).

@@ -31,7 +31,6 @@ def slopes_from_mu(mu: npt.ArrayLike) -> np.ndarray:
 
 
 def mu_from_slopes(slopes: npt.ArrayLike) -> np.ndarray:
-    """Inverse of ``slopes_from_mu``."""
     slopes = np.asarray(slopes, dtype=np.float64)
     m = slopes.size
     c = (m - 1) // 2
@@ -84,7 +83,6 @@ def finv(y: float, b: np.ndarray, f_at_b: np.ndarray, inv_slopes: np.ndarray) ->
 @njit
 def finv_array(y: np.ndarray, b: np.ndarray, f_at_b: np.ndarray,
                inv_slopes: np.ndarray) -> np.ndarray:
-    """``finv`` over an array."""
     out = np.empty(y.size)
     for i in range(y.size):
         out[i] = finv(y[i], b, f_at_b, inv_slopes)

@@ -61,17 +61,14 @@ def _branches(states: np.ndarray) -> np.ndarray:
     return np.where(index >= 0, row[np.maximum(index, 0)], 0)
 
 
-def _real_poles(q: np.ndarray) -> np.ndarray:
+def _poles_in(q: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The real roots of x^2 + q[0] x + q[1] in [lo, hi], in ascending order."""
     disc = q[0] * q[0] - 4.0 * q[1]
     if disc < 0.0:
         return np.empty(0)
     root = np.sqrt(disc)
-    return np.array([(-q[0] - root) / 2.0, (-q[0] + root) / 2.0])
-
-
-def _pole_free(q: np.ndarray, lo: float, hi: float) -> bool:
-    poles = _real_poles(q)
-    return not np.any((poles >= lo) & (poles <= hi))
+    poles = np.array([(-q[0] - root) / 2.0, (-q[0] + root) / 2.0])
+    return poles[(poles >= lo) & (poles <= hi)]
 
 
 def _eval(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -110,8 +107,6 @@ def _jac_free(z: np.ndarray, x: np.ndarray) -> np.ndarray:
 def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
               what: str = "rational") -> np.ndarray:
     """The best pole-free rat22 fit of s(xi) (docs/models.md)."""
-    if xi.size < 5:
-        raise FitError(f"{what}: needs at least 5 samples, got {xi.size}")
     if np.ptp(xi) <= 0.0:
         raise FitError(f"{what}: the resistance does not vary")
     lo, hi = guard
@@ -119,11 +114,11 @@ def fit_rat22(xi: np.ndarray, s: np.ndarray, *, guard: tuple[float, float],
     lin, *_ = np.linalg.lstsq(a, s * xi * xi, rcond=None)
     candidates = []
     with np.errstate(all="ignore"):
-        if _pole_free(lin[3:], lo, hi):
+        if not _poles_in(lin[3:], lo, hi).size:
             sol = least_squares(lambda c: _eval(c, xi) - s, lin, jac=lambda c: _jac(c, xi),
                                 method="lm")
             for coef in (sol.x, lin):
-                if _pole_free(coef[3:], lo, hi) and np.all(np.isfinite(coef)):
+                if not _poles_in(coef[3:], lo, hi).size and np.all(np.isfinite(coef)):
                     candidates.append(coef)
                     break
         # pole-free form: den = (xi - c)^2 + d^2, d = exp(log_d)
@@ -157,9 +152,7 @@ class Rational(Compensator):
     def __init__(self, coef: Mapping[str, npt.ArrayLike], mode: str,
                  normalisation: Normalisation, direction: DirectionSettings) -> None:
         super().__init__(normalisation)
-        if mode not in MODES:
-            raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
-        self.mode = mode
+        self.mode = mode  # checked by the reader (from_params) and the fit's options
         self.direction = direction
         rows = [coef["combined"]] * 3 if mode == "combined" else [coef[b] for b in _BRANCHES]
         self.coef = np.ascontiguousarray(np.array(rows, dtype=np.float64).reshape(3, 5))
@@ -179,8 +172,7 @@ class Rational(Compensator):
         """The first resistance in [r_lo, r_hi] where a branch has a real pole, or None."""
         lo, hi = self.normalisation.xi(np.array([r_lo, r_hi]))
         for row in self.coef:
-            poles = _real_poles(row[3:])
-            inside = poles[(poles >= min(lo, hi)) & (poles <= max(lo, hi))]
+            inside = _poles_in(row[3:], min(lo, hi), max(lo, hi))
             if inside.size:
                 return float((inside[0] - self.normalisation.alpha) * self.normalisation.r0)
         return None

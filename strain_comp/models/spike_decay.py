@@ -1,7 +1,5 @@
-"""Spike-and-decay model of viscoelastic nanocomposite gauges ([Nanocomposite] eq. (3), (4)).
-
-The forward model, the online inversion, its known limit and the fit: docs/models.md.
-"""
+"""Spike-and-decay model of viscoelastic nanocomposite gauges ([Nanocomposite] eq. (3), (4));
+the forward model, the online inversion, its known limit and the fit: docs/models.md."""
 
 from __future__ import annotations
 
@@ -84,13 +82,11 @@ class SpikeDecay(Compensator):
                                     self.lam_table, self.min_step, self.direction.deadzone,
                                     self.direction.tau)
 
-    def predict_resistance(self, t: npt.ArrayLike, s: npt.ArrayLike, *,
-                           hold_rate: float | None = None) -> np.ndarray:
+    def predict_resistance(self, t: npt.ArrayLike, s: npt.ArrayLike) -> np.ndarray:
         """Forward eq. (3) for a known strain history s [%] (the paper's output prediction)."""
         t, s = as_float_arrays(t, s)
-        hold_rate = default_hold_rate(s) if hold_rate is None else hold_rate
         factor = np.ones(t.size)
-        for start, end in movements(t, s, hold_rate):
+        for start, end in movements(t, s, default_hold_rate(s)):
             change = s[end] - s[start]
             rate = abs(change) / (t[end] - t[start])
             spike, lam = self.spike(rate, s[end], loading=change >= 0)
@@ -146,8 +142,6 @@ class SpikeDecay(Compensator):
         if s_all.size < 10:
             raise FitError(f"spike_decay: needs at least 10 samples, got {s_all.size}")
         span = float(np.ptp(s_all))
-        if span <= 0.0:
-            raise FitError("spike_decay: the reference strain does not vary")
         hold_rate = default_hold_rate(s_all) if hold_rate is None else float(hold_rate)
         settled, steps = analyse_holds(segments, hold_rate, min_hold)
         tol = 0.01 * span

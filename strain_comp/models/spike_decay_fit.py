@@ -1,7 +1,6 @@
 """The fit of the spike-and-decay model ([Nanocomposite] eq. (3), (4), Tables 2, 4, 5) from
-step-and-hold data: the movements and holds of the reference, each hold's decay, the
-quasi-static curve through the settled points and the (rate x strain) tables;
-docs/models.md gives the method."""
+step-and-hold data: each hold's decay, the quasi-static curve through the settled points and
+the (rate x strain) tables; docs/models.md gives the method."""
 
 from __future__ import annotations
 

@@ -15,7 +15,6 @@ from strain_comp.base.direction import STATE_SIZE, direction_update
 (_STARTED, _MOVING, _T_MOVE, _EPS_MOVE, _TS, _S, _LAM, _EPS, _T_LAST, _T_EXT, _R_EXT,
  _RC_EXT) = range(STATE_SIZE, STATE_SIZE + 12)
 STATE_LEN = STATE_SIZE + 12
-"""Length of the kernel state: the detector's, then the slots above."""
 _BISECT = 60
 
 

@@ -13,7 +13,8 @@ from strain_comp.base.direction import (
     derivative_noise,
     estimate_deadzone,
 )
-from strain_comp.errors import ParameterError
+from strain_comp.errors import InputError, ParameterError
+from strain_comp.offline.options import check_fit_options
 
 
 def detect_slow(t: list[float], r: list[float], deadzone: float, tau: float) -> list[int]:
@@ -97,5 +98,5 @@ def test_k_sigma_estimate_matches_known_noise(tau: float) -> None:
 def test_bad_settings_name_the_field() -> None:
     with pytest.raises(ParameterError, match=r"direction\.tau"):
         DirectionDetector(DirectionSettings(deadzone=1.0, tau=-1.0))
-    with pytest.raises(ParameterError, match="k_sigma"):
-        estimate_deadzone(np.arange(20.0), np.ones(20), k_sigma=0.0)
+    with pytest.raises(InputError, match="k_sigma"):  # a fit's k_sigma: with its options
+        check_fit_options("apl", {"k_sigma": 0.0})

@@ -15,6 +15,7 @@ from strain_comp.models import apl_kernels as kern
 from strain_comp.models import model_class, pwa
 from strain_comp.models.apl import APL, MPI, PL, APLArray
 from strain_comp.models.cubic import Cubic
+from strain_comp.offline.fit import check_training_span
 from strain_comp.offline.options import check_fit_options
 
 DIRECTION = DirectionSettings(deadzone=0.0)
@@ -316,9 +317,9 @@ def test_fit_errors():
     t = np.arange(30.0)
     with pytest.raises(FitError, match="at least"):
         APL.fit([Segment(t, 10 + np.sin(t), np.sin(t))], NORM, direction=DIRECTION)
-    t = np.arange(2000.0)
-    with pytest.raises(FitError, match="excitation"):
-        MPI.fit([Segment(t, np.full(t.size, 10.0), np.sin(t))], NORM, direction=DIRECTION)
+    t = np.arange(2000.0)  # no excitation: refused before any model's fit, by the sensor's name
+    with pytest.raises(FitError, match="span no range of resistance"):
+        check_training_span([Segment(t, np.full(t.size, 10.0), np.sin(t))], "s")
     for bad in ({"M": 4}, {"output_nfev": -1}, {"search_nfev": 1.5}, {"search_top": True}):
         with pytest.raises(InputError, match="integer"):
             check_fit_options("apl", bad)

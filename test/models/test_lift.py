@@ -13,7 +13,6 @@ import pytest
 
 from strain_comp._numba import njit, specialise
 from strain_comp.base.lift import LiftedArray, array_step, lift
-from strain_comp.errors import ParameterError
 
 
 @dataclass
@@ -41,9 +40,7 @@ def lag_kernel(s: int, t: float, ri: float, y: np.ndarray, clock: np.ndarray,
 class LagArray(LiftedArray):
     """The lifted family of ``Lag``: nothing written but its tables."""
 
-    family = "a lag"
     model_type = Lag
-    sizes = "lags"
 
     @staticmethod
     def rows(model: Lag) -> tuple[tuple[np.ndarray, ...], tuple[float, ...]]:
@@ -76,13 +73,6 @@ def test_a_lifted_family_steps_as_each_sensor_alone() -> None:
         np.testing.assert_allclose(got[:, s], python_lag(model, t, r[:, s]), rtol=1e-12)
     array.reset()
     np.testing.assert_array_equal(array.step(t[0], r[0]), got[0])
-
-
-def test_a_lifted_family_refuses_another_model() -> None:
-    with pytest.raises(ParameterError, match="not a lag model"):
-        LagArray([Lag(1.0, 0.1), object()])  # type: ignore[list-item]
-    with pytest.raises(ParameterError, match="at least one sensor"):
-        LagArray([])
 
 
 def test_a_binding_is_specialised_once() -> None:
