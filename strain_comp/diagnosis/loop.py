@@ -49,25 +49,21 @@ from strain_comp.io.recording import Recording
 
 @dataclass
 class _Setup:
-    """One sensor's candidates, rows, cross-validation sums and first-round scores, and
-    the held-out measure (the validation runs after their session start, or linear)."""
+    """One sensor's candidates, rows, cross-validation sums, first-round scores, held-out."""
 
     cands: Candidates
     rows: Rows
     gram: Gram
     scores: dict[int, float]
     shifted: dict[int, Gram]
-    """Each baseline candidate's Gram with its start-of-run shift removed whole (step 7)."""
+    """Each baseline candidate's Gram with its shift removed whole (step 7)."""
     session: SessionHeldOut | None
     strides: tuple[int, int | None]
 
 
 def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
             ) -> Branch:
-    """The terms added (``kept``, with ``coef``): without a session start steps 5-7
-    (forward selection kept on the held-out rows, and for each baseline candidate the
-    per-run hypothesis when it wins by the margin), with one step 8 (what the session start
-    makes itself, the per-run baseline among it, is neither tried nor written)."""
+    """The terms added (``kept``, with ``coef``): steps 5-7, or with a session start step 8."""
     gram, cands, n_folds, session = setup.gram, setup.cands, setup.rows.n_folds, setup.session
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
     if session is not None:

@@ -1,6 +1,5 @@
-"""Reports of the residual loop: per-candidate evidence, physical readings, per-sensor
-and pooled results (terminal summary, JSON), the residual plots and the ``diagnose
---report`` page (the parts of ``strain_comp.offline.report_page`` with the loop's results)."""
+"""Reports of the residual loop: per-candidate evidence, physical readings, per-sensor and
+pooled results (terminal summary, JSON), the residual plots and the ``diagnose --report`` page."""
 
 from __future__ import annotations
 
@@ -32,8 +31,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 SESSION_RECORDS = ("session start", "gain change between runs")
-"""Names of the ``conditions`` records of the session start on the validation runs
-(readings, never chosen; ``strain_comp.diagnosis.loop``)."""
+"""Names of the ``conditions`` records of the validation runs' session start (never chosen)."""
 
 
 @dataclass
@@ -45,23 +43,21 @@ class EffectScore:
     kind: str
     params: dict[str, Any]
     score: float
-    """Held-out share of residual variance explained (first round, see module doc)."""
+    """Held-out share of residual variance explained (first round)."""
     added: bool = False
     gain: float | None = None
     """Relative drop of the cross-validated RMSE in the round it was added."""
     coef: float | None = None
     magnitude: float | None = None
-    """coef * std(g) over the fit data: the typical size of the correction [% strain]."""
+    """coef * std(g) over the fit data: the typical size of the correction."""
     rank: int | None = None
     """Order of addition (0 first); None when not added."""
     unit: str = "%"
     """The calibration's strain unit, the unit of coef and magnitude."""
     span: float | None = None
-    """The calibration's strain span (its valid range) [unit]: creep sizes are read in % of it."""
+    """The calibration's valid strain span: creep sizes are read in % of it."""
     lag: bool | None = None
-    """A creep term: True when the estimate lags the reference after a change (catching up
-    with the term's time constant), False when it overshoots and relaxes back; None: not
-    known."""
+    """A creep term: True when the estimate lags the reference, False when it overshoots."""
 
     @property
     def family(self) -> str | None:
@@ -91,8 +87,7 @@ class EffectScore:
 
 
 def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
-    """The time constant [s] of a creep term (one Prony-series state of the estimate or of
-    100 ln R; docs/design.md, "The loop's steps", 2), None for any other."""
+    """The time constant [s] of a creep term (one Prony-series state), None for any other."""
     if (kind == "relaxation" and params.get("branch", "both") == "both") or (
             kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):
         return float(params.get("tau", 10.0))
@@ -101,8 +96,7 @@ def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
 
 def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
                   span: float | None, lag: bool | None) -> str:
-    """A creep term in words: which way the estimate errs after a change, by how much (in %
-    of the span where known) and with what time constant."""
+    """A creep term in words: which way the estimate errs after a change, how much, how long."""
     u = strain_unit_words(unit)
     how = {True: "the estimate lags the reference after each change",
            False: "the estimate overshoots the reference after each change",
@@ -121,8 +115,7 @@ def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
 def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
                    magnitude: float | None = None, *, unit: str = "%",
                    span: float | None = None, lag: bool | None = None) -> str:
-    """An added term in physical words: the sensor against its calibration (the output
-    carries + coef g), sizes in the strain ``unit``, relative readings in % of the output."""
+    """An added term in physical words (the output carries + coef g), sizes in ``unit``."""
     u = strain_unit_words(unit)
     size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
     tau = creep_tau(kind, params)
@@ -184,8 +177,7 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
 
 
 def _mullins_reading(form: str, n0: float, coef: float, u: str, size: str) -> str:
-    """A ``mullins`` term in words: the sensitivity against calibration it stands for (the
-    output carries + coef g; ``strain_comp.core.effects.Mullins`` for g)."""
+    """A ``mullins`` term in words: the sensitivity against calibration it stands for."""
     pct = 100.0 * coef
     if form == "cycles_log":
         return (f"sensitivity that moves with the load cycles done: {pct:+.3g} % x ln(1 + "
@@ -215,18 +207,14 @@ class SensorDiagnosis:
     """Effect entries added to the calibration (with the intercept, if any)."""
     message: str
     plot: dict[str, np.ndarray] = field(default_factory=dict)
-    """Held-out t, s (reference), e_before, e_after and ``g`` = the winning regressor
-    (empty: none)."""
+    """Held-out t, s, e_before, e_after and the winning regressor ``g`` (empty: none)."""
     winner: str | None = None
     as_calibrated: dict[str, dict[str, float]] = field(default_factory=dict)
-    """Before and after without the session-start recalibration (the loop's own residual on
-    the validation samples it reads), when ``before`` and ``after`` are measured after it."""
+    """Before and after without the session start, when ``before`` and ``after`` have one."""
     session: dict[str, Any] = field(default_factory=dict)
-    """The session start on the validation runs (``findings.session_record``; empty: the
-    before and after are measured without one)."""
+    """The session start on the validation runs (``findings.session_record``; empty: none)."""
     runs_after: list[float] = field(default_factory=list)
-    """RMSE of each validation run after its session start, with the added terms (empty:
-    measured without a session start)."""
+    """Each validation run's RMSE after its session start, with the added terms."""
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"before": self.before, "after": self.after,
@@ -255,8 +243,7 @@ class DiagnoseResult:
 
     @property
     def scored(self) -> list[EffectScore]:
-        """All candidates: added ones first (in order added, the intercept last), then the
-        rest by score."""
+        """All candidates: the added ones in order (the intercept last), then by score."""
         rows = [s for d in self.sensors.values() for s in d.scores]
         added = sorted((s for s in rows if s.added),
                        key=lambda s: (s.kind == "offset", s.sensor, s.rank))
@@ -323,9 +310,7 @@ def plot_file(out_dir: str | Path, name: str) -> Path:
 
 def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
-    """Residual before and after against the winning regressor, time and strain (one PNG
-    per sensor, ``residual_figure``), each written atomically; a plot path that is one of
-    ``inputs`` is refused."""
+    """One PNG per sensor of ``residual_figure``, each written atomically, none over ``inputs``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -341,8 +326,7 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
 
 
 def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
-    """Sensor ``name``'s residual before and after against the winning regressor, time and
-    strain (held-out samples); None when the loop kept no arrays for it."""
+    """The held-out residual before and after against the winning regressor, time and strain."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -379,9 +363,7 @@ def _before_after(before: dict[str, float], after: dict[str, float]) -> list[str
 def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration_path: str,
                    bag: str, *, validate: Sequence[str] = (), tare: str = "",
                    runs: Sequence[tuple[str, BagSection]] = ()) -> str:
-    """The ``diagnose --report`` page: the held-out error before and after, each effect
-    found with its reading, the conditions tried, the residual plots, ``runs`` and the
-    provenance of the calibration diagnosed."""
+    """The ``diagnose --report`` page (``Diagnosis.to_html`` says what it shows)."""
     body = [f"<p>Run <code>{escape(bag)}</code>; held out: "
             + (escape(", ".join(validate)) if validate else
                f"time blocks of the run ({escape(plain_text(result.validation))})") + "</p>",

@@ -1,6 +1,5 @@
-"""Selection statistics of the residual loop (docs/design.md, "The loop's steps", 4-8),
-testable on any regressor matrix, and their numbers (``LoopPolicy``, with units; docs/results.md,
-"Residual loop", gives what each does and the measured figure that keeps it)."""
+"""Selection statistics of the residual loop (docs/design.md, "The loop's steps", 4-8) on any
+regressor matrix, and their numbers (``LoopPolicy``; docs/results.md, "Residual loop")."""
 
 from __future__ import annotations
 
@@ -35,8 +34,7 @@ LOOP_POLICY = LoopPolicy()
 
 
 RESOLUTION = 1e-6
-"""Forward selection stops once the cross-validated RMSE is below this fraction of the
-residual's own: what is left is rounding (the fold sums cancel to about 1e-8 of the RMSE)."""
+"""Selection stops below this fraction of the residual's RMSE: what is left is rounding."""
 
 
 @njit
@@ -70,8 +68,7 @@ def column_std(g: np.ndarray) -> np.ndarray:
 
 
 class Gram:
-    """Per-fold sums X'X, X'e, e'e over all candidate columns: any subset's least-squares
-    fit on some folds and its error on the others, without touching the samples again."""
+    """Per-fold sums X'X, X'e, e'e: any subset's fit on some folds and error on the others."""
 
     def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
         std = column_std(g)
@@ -93,8 +90,7 @@ class Gram:
         return coef
 
     def fold_sse(self, cols: Sequence[int]) -> np.ndarray:
-        """Blocked cross-validation: each fold's squared error under the fit on the others
-        (0 for an empty fold)."""
+        """Each fold's squared error under the fit on the others (0 for an empty fold)."""
         if not cols:
             return np.copy(self.ee)
         idx = np.asarray(cols)
@@ -111,8 +107,7 @@ class Gram:
         return np.where(self.n > 0, np.maximum(sse, 0.0), 0.0)
 
     def cv_rmse(self, cols: Sequence[int]) -> float:
-        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out); NaN
-        without rows."""
+        """Blocked cross-validated RMSE of e ~ X[:, cols] c; NaN without rows."""
         if not self.n.sum() > 0:
             return math.nan
         return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
@@ -129,8 +124,7 @@ def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray,
 
 def _gains(gram: Gram, trials: Mapping[int, np.ndarray], ref: np.ndarray, margin: float,
            sigmas: float = LOOP_POLICY.significance) -> dict[int, float]:
-    """The gain over ``ref`` of each trial (its fold-wise squared errors) that lowers the
-    cross-validated RMSE by more than ``margin``, significantly."""
+    """The gain over ``ref`` of each trial that is beyond ``margin`` and significant."""
     gains = {j: 1.0 - math.sqrt(after.sum() / ref.sum()) for j, after in trials.items()}
     return {j: gain for j, gain in gains.items()
             if gain > margin and significant(ref, trials[j], gram.n, sigmas)}
@@ -176,8 +170,7 @@ def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effe
 
 
 def candidate_scores(gram: Gram, n_cols: int, offset: int) -> dict[int, float]:
-    """First-round scores: held-out share of the residual variance each candidate explains
-    (relative to the intercept-only model; the intercept relative to no correction)."""
+    """First-round scores: held-out share of the residual variance each candidate explains."""
     rmse_none = gram.cv_rmse([])
     rmse_offset = gram.cv_rmse([offset])
     scores = {}
@@ -215,9 +208,7 @@ class Tried:
 
 @dataclass
 class Branch:
-    """One hypothesis after selection and the held-out veto: ``shift`` is the baseline
-    column removed with coefficient 1 (None: a constant intercept instead); ``refused``:
-    the best candidate ``select_carried`` tried and did not add."""
+    """One hypothesis after selection and the held-out veto (``shift``: a baseline at coef 1)."""
 
     shift: int | None
     selection: Selection
@@ -238,9 +229,7 @@ def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
 
 def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
                     runs: np.ndarray | None = None) -> bool:
-    """Does ``e_new`` lower the held-out RMSE of ``e_old`` by more than ``margin``, and
-    given each sample's validation run (``runs``), the median run's, with no run's rising
-    by more than ``margin`` (docs/design.md, "The loop's steps", 6)?"""
+    """Does ``e_new`` lower the held-out RMSE (and the median run's) by more than ``margin``?"""
     if not rms(e_new) < (1.0 - margin) * rms(e_old):
         return False
     if runs is None or not e_new.size == e_old.size == runs.size or runs.max() < 1:
@@ -252,8 +241,7 @@ def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
                      n_folds: int, margin: float, held_out: HeldOut,
                      runs: np.ndarray | None = None) -> Branch:
-    """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's selected
-    terms, in their order; ``shift`` enters with coefficient 1."""
+    """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's terms."""
     all_folds = np.arange(n_folds)
     head = [] if shift is None else [shift]
     auto = shift is None
@@ -283,13 +271,11 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
 
 
 def upper_bound(log_ratios: Sequence[float], level: float) -> float:
-    """The one-sided prediction bound at ``level`` of one more run's log RMSE ratio from
-    the k runs', mean + t(level, k - 1) sd sqrt(1 + 1 / k); +inf with fewer than two runs.
-    Student's t: with two runs' sd the normal quantile would trust a spread two runs hardly
-    show."""
+    """The one-sided prediction bound at ``level`` of one more run's log RMSE ratio."""
     x = np.asarray(log_ratios, dtype=np.float64)
     if x.size < 2 or not np.all(np.isfinite(x)):
         return math.inf
+    # Student's t: with two runs' sd the normal quantile would trust a spread they hardly show
     quantile = float(student_t.ppf(level, x.size - 1))
     return float(x.mean() + quantile * x.std(ddof=1) * math.sqrt(1.0 + 1.0 / x.size))
 
@@ -306,8 +292,7 @@ def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> 
 
 def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequence[int],
              policy: LoopPolicy) -> dict[int, float]:
-    """The candidates that lower the cross-validated RMSE with ``cols`` and the intercept
-    by more than the margin, significantly: their gain."""
+    """The candidates that lower the cross-validated RMSE beyond the margin: their gain."""
     ref = gram.fold_sse(with_intercept([*cols, offset], offset))
     if not ref.sum() > RESOLUTION ** 2 * gram.ee.sum():
         return {}
@@ -318,8 +303,7 @@ def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequen
 
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
                    policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Branch:
-    """Greedy selection scored on the validation runs after their session start
-    (docs/design.md, "The loop's steps", 8); ``skip``: columns never tried."""
+    """Greedy selection scored on the validation runs (docs/design.md, "The loop's steps", 8)."""
     all_folds = np.arange(gram.n.size)
     chosen: list[int] = []
     gains: dict[int, float] = {}

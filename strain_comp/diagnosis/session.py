@@ -1,5 +1,4 @@
-"""The session start on each validation run of ``diagnose --validate``, as a user makes it
-(``strain-comp start``; docs/design.md, "The loop's steps", 8)."""
+"""The session start on each validation run of ``diagnose --validate``, as ``start`` makes it."""
 
 from __future__ import annotations
 
@@ -17,8 +16,7 @@ from strain_comp.offline.session_start import Started, Window, start_or_keep
 
 
 def window_flag(window: Window | None) -> str:
-    """``start``'s flag for a session start's stretch: ``--window START:END`` (``refused``
-    where the start was refused)."""
+    """``start``'s flag for a session start's stretch (``refused``: none)."""
     if window is None:
         return "refused"
     return f"--window {window[0]:.3g}:{window[1]:.3g}"
@@ -26,17 +24,15 @@ def window_flag(window: Window | None) -> str:
 
 def session_errors(calibration: Calibration, recordings: Mapping[str, Recording],
                    sensor: str) -> np.ndarray:
-    """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
-    ``recordings`` after the session start (``session_start.start_or_keep``)."""
+    """``sensor``'s errors (as ``evaluate`` scores them) after the session start."""
     spanned = start_or_keep(calibration, recordings).calibration
     ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
     return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)
 
 
 class SessionHeldOut:
-    """The loop's ``selection.HeldOut`` of one sensor's terms on the validation runs after
-    their session start (the array's neighbours started with it, as a user starts the
-    whole array), cached by terms and coefficients."""
+    """``selection.HeldOut`` on the validation runs after their session start (cached)."""
+    # the array's neighbours are started with the sensor, as a user starts the whole array
 
     def __init__(self, calibration: Calibration, sensor: str,
                  runs: Sequence[Mapping[str, Recording]], candidates: Sequence[dict[str, Any]]
@@ -51,8 +47,7 @@ class SessionHeldOut:
         self._starts: list[Started] | None = None
 
     def starts(self) -> list[Started]:
-        """The session start of each validation run with the calibration as given (made
-        once)."""
+        """The session start of each validation run with the calibration as given."""
         if self._starts is None:
             self._starts = [start_or_keep(*self._restricted(self.calibration, bag))
                             for bag in self.runs]
@@ -63,8 +58,7 @@ class SessionHeldOut:
         return any(start.steps for start in self.starts())
 
     def redundant(self, j: int) -> bool:
-        """Is candidate ``j`` what the session start makes itself (an output offset or
-        gain)? Such a term is neither scored nor written after it."""
+        """Is candidate ``j`` what the session start makes itself (an output offset or gain)?"""
         kind = str(self.candidates[j]["kind"])
         power = self.candidates[j]["params"].get("power", 1)
         return kind == "offset" or (kind == "strain_level" and bool(power == 1))

@@ -1,6 +1,5 @@
-"""The effect-term contract: the inputs a regressor reads (``Batch``),
-the ``Regressor`` base class and the parameter readers every kind shares
-(docs/design.md, "The residual loop")."""
+"""The effect-term contract: the inputs a regressor reads (``Batch``), the ``Regressor`` base
+class and the parameter readers every kind shares."""
 
 from __future__ import annotations
 
@@ -46,8 +45,7 @@ class Batch:
 
 
 Reader = Callable[[Mapping[str, Any], str], Any]
-"""Reads one parameter ``params[key]`` (its default where missing) or raises
-``ParameterError``."""
+"""Reads ``params[key]`` (its default where missing) or raises ``ParameterError``."""
 
 
 def number(default: float, **bounds: Any) -> Reader:
@@ -101,8 +99,7 @@ def param_readers(**readers: Reader) -> Mapping[str, Reader]:
 
 def run_segments(run: Callable[[slice], np.ndarray], reset: Callable[[], None], n: int,
                  starts: Sequence[int]) -> np.ndarray:
-    """``run`` over the n samples in segments cut at ``starts`` (where the engine reset after
-    a gap), calling ``reset`` between segments, as the engine resets effect state there."""
+    """``run`` over the n samples in segments cut at ``starts`` (gap resets), ``reset`` between."""
     out = np.empty(n)
     for k, (a, b) in enumerate(pairwise([0, *starts, n])):
         if k > 0:
@@ -143,9 +140,7 @@ class Regressor(ABC):
         return {key: getattr(self, key) for key in self.readers}
 
     def rescale(self, factor: float) -> None:
-        """The resistance it reads is ``factor`` x what it was (a tare): carry the state
-        over, as if that scale had held from the first sample. Terms that do not read the
-        resistance keep no state in its scale: nothing to do."""
+        """The resistance it reads is ``factor`` x what it was (a tare): carry the state over."""
         return None
 
     def _held(self, values: np.ndarray, k: int = 0) -> np.ndarray:

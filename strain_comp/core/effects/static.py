@@ -29,13 +29,11 @@ class Offset(Regressor):
 
 
 TEMPERATURE_RANGE = (-273.15, 1000.0)
-"""Temperatures [deg C] a temperature term reads; one outside (below absolute zero, a
-finite 1e308, NaN, inf) is a bad reading, treated as missing."""
+"""Temperatures [deg C] a temperature term reads; one outside is a bad reading (missing)."""
 
 
 class Temperature(Regressor):
-    """Temperature dependence: g = T - t_ref (``form: offset``, a TCR shifting R) or
-    g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor)."""
+    """Temperature: g = T - t_ref (``form: offset``) or (T - t_ref) * S_hat (``form: strain``)."""
 
     kind = "temperature"
     readers = param_readers(form=choice(("offset", "strain"), "offset"), t_ref=number(20.0))

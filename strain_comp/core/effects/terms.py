@@ -56,8 +56,7 @@ def effect_dict(name: str, regressor: Regressor, coef: float) -> dict[str, Any]:
 
 
 class EffectTerms:
-    """The effect terms of one sensor, as the engine uses them:
-    S_corrected = S_hat - sum_j coef_j g_j."""
+    """The effect terms of one sensor: S_corrected = S_hat - sum_j coef_j g_j."""
 
     def __init__(self, regressors: Sequence[Regressor], coefs: Sequence[float]) -> None:
         """Hold the terms."""
