@@ -3,7 +3,6 @@ pooled results (terminal summary, JSON), the residual plots and the ``diagnose -
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -15,7 +14,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
-from strain_comp.offline.plots import plain
+from strain_comp.offline.plots import plain, png
 from strain_comp.offline.report_page import (
     BagSection,
     bag_section,
@@ -276,27 +275,37 @@ class DiagnoseResult:
             The text.
 
         """
-        units = {cal.strain_unit for cal in self.calibration.sensors.values()}
-        u = units.pop() if len(units) == 1 else "(each sensor's unit)"
+        u = _unit(self)
         if not self.added and not any(c.get("chosen") for c in self.conditions):
             return (f"held-out RMSE ({self.validated_on}) {self.before['rmse']:.4g} {u}: "
                     "nothing kept, no effect term or condition lowered it (each one tried, "
                     "with its reading: --json, --report)")
         lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} {u}, "
                  f"after {self.after['rmse']:.4g} {u}"]
-        for c in self.conditions:
-            if c["name"] in ("measurement chain", *SESSION_RECORDS):
-                lines.append(f"  {c['name']}: {c['reading']}")
-                continue
-            verdict = "chosen" if c["chosen"] else "not chosen"
-            lines.append(f"  {c['name']}: {c['reading']}; held-out RMSE after the loop "
-                         f"{c['after']:.4g} {u} ({verdict})")
+        lines += [f"  {line}" for line in condition_lines(self)]
         for name, d in self.sensors.items():
             lines.append(f"  {name}: {d.message}")
             for e in d.scores:
                 if e.added and e.coef is not None:
                     lines.append(f"    + {e.name}: {e.reading()}")
         return "\n".join(lines)
+
+
+def _unit(result: DiagnoseResult) -> str:
+    units = {cal.strain_unit for cal in result.calibration.sensors.values()}
+    return units.pop() if len(units) == 1 else "(each sensor's unit)"
+
+
+def condition_lines(result: DiagnoseResult) -> list[str]:
+    """Each condition: its reading and, for one the whole loop ran under, the loop's result."""
+    lines = []
+    for c in result.conditions:
+        line = f"{c['name']}: {c['reading']}"
+        if c["name"] not in ("measurement chain", *SESSION_RECORDS):
+            line += (f"; held-out RMSE after the loop {c['after']:.4g} {_unit(result)} "
+                     f"({'chosen' if c['chosen'] else 'not chosen'})")
+        lines.append(line)
+    return lines
 
 
 def _num(value: float) -> float | None:
@@ -385,12 +394,7 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
         body.append("<p>None: no candidate lowered the held-out error enough.</p>")
     if result.conditions:
         body.append("<h2>Conditions tried</h2>")
-        body.append(html_notes(f"{c['name']}: {c['reading']}"
-                           + (f"; held-out RMSE after the loop {c['after']:.4g}, "
-                              + ("chosen" if c.get("chosen") else "not chosen")
-                              if isinstance(c.get("after"), float)
-                              and math.isfinite(c["after"]) else "")
-                           for c in result.conditions))
+        body.append(html_notes(condition_lines(result)))
     for name, d in result.sensors.items():
         unit = result.calibration.sensors[name].strain_unit
         body.append(f"<h2>{escape(name)}</h2><p>{escape(d.message)}</p>")
@@ -404,11 +408,8 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
                              for e in scored) + "</details>")
         fig = residual_figure(result, name)
         if fig is not None:
-            buffer = io.BytesIO()
-            fig.savefig(buffer, dpi=110, format="png")
             body.append(html_image("residual before and after against the winning term's "
-                               "regressor, time and strain (held-out samples)",
-                               buffer.getvalue()))
+                               "regressor, time and strain (held-out samples)", png(fig)))
     for heading, section in runs:
         body += bag_section(section, heading)
     body.append(provenance_section(calibration, calibration_path, tare=tare))
