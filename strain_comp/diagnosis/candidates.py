@@ -25,7 +25,7 @@ def default_candidates(*, temperature_ref: float | None = None,
                        neighbours: Sequence[str] = (),
                        baseline_rest: float = 0.0,
                        stretch_history: bool = False) -> list[dict[str, Any]]:
-    """The generic candidate effects (calibration-file dicts with ``coef: 0``)."""
+    """The generic candidate effects (calibration-file dicts, without ``coef``)."""
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
             for mode in ("signed", "direction")]
@@ -64,8 +64,6 @@ def default_candidates(*, temperature_ref: float | None = None,
                 "params": {"window": BASELINE_WINDOW, "rest": float(baseline_rest)}})
     out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}
             for nb in neighbours]
-    for entry in out:
-        entry["coef"] = 0.0
     return out
 
 
