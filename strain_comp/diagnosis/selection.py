@@ -192,7 +192,6 @@ def with_intercept(cols: Sequence[int], offset: int) -> list[int]:
 
 
 def rms(e: np.ndarray) -> float:
-    """The root mean square of ``e``."""
     return float(np.sqrt(np.mean(e**2)))
 
 

@@ -77,8 +77,7 @@ _MEMORY_FORMS = ("relaxation", "peak", "trough")
 @njit
 def _resistance_memory_kernel(t: np.ndarray, r: np.ndarray, tau: float, form: int,
                               state: np.ndarray) -> np.ndarray:
-    """y = 100 ln R, held between samples; m relaxes towards it with ``tau`` (``peak``:
-    m = max(m, y); ``trough``: m = min(m, y)); g = y - m (``peak``: m - y)."""
+    """g = y - m (peak: m - y); y = 100 ln R, m relaxing to it (peak: >= y, trough: <= y)."""
     m, y_prev, t_prev, started = state[0], state[1], state[2], state[3]
     out = np.empty(t.size)
     for k in range(t.size):

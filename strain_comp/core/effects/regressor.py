@@ -32,15 +32,11 @@ class Batch:
     def of(cls, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
            direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
            neighbours: Mapping[str, npt.ArrayLike] | None = None) -> Batch:
-        """Contiguous float64 copies, checked to be 1-D and of one length."""
-        arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in (t, r, s_hat, direction)]
-        n = arrays[0].size
+        """Contiguous float64 arrays (the callers' are 1-D and of one length)."""
+        t_, r_, s_hat_, direction_ = (np.ascontiguousarray(a, dtype=np.float64)
+                                      for a in (t, r, s_hat, direction))
         temp = None if temperature is None else np.ascontiguousarray(temperature, np.float64)
         nbrs = {str(k): np.ascontiguousarray(v, np.float64) for k, v in (neighbours or {}).items()}
-        for a in [*arrays, *([temp] if temp is not None else []), *nbrs.values()]:
-            if a.ndim != 1 or a.size != n:
-                raise ValueError("effects: every input array must be 1-D and of one length")
-        t_, r_, s_hat_, direction_ = arrays
         return cls(t_, r_, s_hat_, direction_, temperature=temp, neighbours=nbrs)
 
 
@@ -67,29 +63,26 @@ def positive(default: float) -> Reader:
     return number(default, lo=0.0, strict=True)
 
 
-def choice(options: Sequence[str], default: str) -> Reader:
-    """One of ``options``."""
+def checked(default: Any, ok: Callable[[Any], bool], wanted: str) -> Reader:
+    """``params[key]`` (``default`` where missing) if ``ok``; else it must be ``wanted``."""
 
-    def read(params: Mapping[str, Any], key: str) -> str:
+    def read(params: Mapping[str, Any], key: str) -> Any:
         value = params.get(key, default)
-        if value not in options:
-            raise ParameterError(f"params.{key}",
-                                 f"must be one of {', '.join(options)}; got {value!r}")
-        return str(value)
+        if not ok(value):
+            raise ParameterError(f"params.{key}", f"must be {wanted}, got {value!r}")
+        return value
 
     return read
+
+
+def choice(options: Sequence[str], default: str) -> Reader:
+    """One of ``options``."""
+    return checked(default, lambda value: value in options, f"one of {', '.join(options)}")
 
 
 def flag(default: bool) -> Reader:
     """True or false."""
-
-    def read(params: Mapping[str, Any], key: str) -> bool:
-        value = params.get(key, default)
-        if not isinstance(value, bool):
-            raise ParameterError(f"params.{key}", f"must be true or false, got {value!r}")
-        return value
-
-    return read
+    return checked(default, lambda value: isinstance(value, bool), "true or false")
 
 
 def param_readers(**readers: Reader) -> Mapping[str, Reader]:
@@ -122,13 +115,11 @@ class Regressor(ABC):
     _state: np.ndarray
 
     def __init__(self, params: Mapping[str, Any]) -> None:
-        """Each parameter read from ``params`` by its reader."""
         for key, read in self.readers.items():
             setattr(self, key, read(params, key))
         self.reset()
 
     def reset(self) -> None:
-        """Restore the initial state."""
         self._state = np.array(self.initial, dtype=np.float64)
 
     @abstractmethod

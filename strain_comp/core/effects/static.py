@@ -12,6 +12,7 @@ import numpy as np
 from strain_comp.core.effects.regressor import (
     Batch,
     Regressor,
+    checked,
     choice,
     number,
     param_readers,
@@ -70,19 +71,12 @@ class StrainLevel(Regressor):
         return batch.s_hat ** self.power
 
 
-def _sensor_name(params: Mapping[str, Any], key: str) -> str:
-    """A sensor's name (no default)."""
-    name = params.get(key)
-    if not isinstance(name, str) or not name:
-        raise ParameterError(f"params.{key}", f"must be a sensor name, got {name!r}")
-    return name
-
-
 class Crosstalk(Regressor):
     """Cross-talk in an array: g = the S_hat of the neighbour sensor ``neighbour``."""
 
     kind = "crosstalk"
-    readers = param_readers(neighbour=_sensor_name)
+    readers = param_readers(neighbour=checked(
+        None, lambda name: isinstance(name, str) and bool(name), "a sensor name"))
     initial = (math.nan,)
 
     def run(self, batch: Batch) -> np.ndarray:

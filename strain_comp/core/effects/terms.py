@@ -59,7 +59,6 @@ class EffectTerms:
     """The effect terms of one sensor: S_corrected = S_hat - sum_j coef_j g_j."""
 
     def __init__(self, regressors: Sequence[Regressor], coefs: Sequence[float]) -> None:
-        """Hold the terms."""
         self.regressors = list(regressors)
         self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
 
