@@ -64,7 +64,7 @@ class _Setup:
 def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
             ) -> Branch:
     """The terms added (``kept``, with ``coef``): steps 5-7, or with a session start step 8."""
-    gram, cands, n_folds, session = setup.gram, setup.cands, setup.rows.n_folds, setup.session
+    gram, cands, session = setup.gram, setup.cands, setup.session
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
     if session is not None:
         skip = [j for j in range(n) if j in baselines or session.redundant(j)]
@@ -75,7 +75,7 @@ def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
     margin, max_effects = policy.margin, policy.max_effects
     chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines,
                             sigmas=policy.significance)
-    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, runs)
+    best = keep_on_held_out(gram, chosen, None, offset, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
     for b, shifted in setup.shifted.items():
         selection = select_forward(shifted, n, offset, margin, max_effects - 1,
@@ -83,8 +83,7 @@ def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
                                    sigmas=policy.significance)
         selection.gains = {b: 1.0 - shifted.cv_rmse([]) / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
-                                  runs)
+        branch = keep_on_held_out(shifted, selection, b, offset, margin, held_out, runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
     if best.shift is not None and best.rmse < rms(held_out([], np.zeros(0))):

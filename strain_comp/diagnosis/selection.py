@@ -79,14 +79,15 @@ class Gram:
         self.xx_all = self.xx.sum(axis=0)
         self.xe_all = self.xe.sum(axis=0)
 
-    def solve(self, cols: Sequence[int], folds: np.ndarray) -> np.ndarray:
-        """Least-squares coefficients (scaled columns) on ``folds``."""
+    def solve(self, cols: Sequence[int]) -> np.ndarray:
+        """Least-squares coefficients of ``cols`` on every fold, in the columns' own units."""
         if not cols:
             return np.zeros(0)
         idx = np.asarray(cols)
+        folds = np.arange(self.n.size)
         a = self.xx[np.ix_(folds, idx, idx)].sum(axis=0)
         b = self.xe[np.ix_(folds, idx)].sum(axis=0)
-        coef: np.ndarray = np.linalg.lstsq(a, b, rcond=1e-12)[0]
+        coef: np.ndarray = np.linalg.lstsq(a, b, rcond=1e-12)[0] / self.scale[idx]
         return coef
 
     def fold_sse(self, cols: Sequence[int]) -> np.ndarray:
@@ -238,15 +239,13 @@ def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
 
 
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
-                     n_folds: int, margin: float, held_out: HeldOut,
-                     runs: np.ndarray | None = None) -> Branch:
+                     margin: float, held_out: HeldOut, runs: np.ndarray | None = None) -> Branch:
     """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's terms."""
-    all_folds = np.arange(n_folds)
     head = [] if shift is None else [shift]
     auto = shift is None
 
     def trial(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
+        c = gram.solve(cols)
         return c, held_out([*head, *cols], np.concatenate([np.ones(len(head)), c]))
 
     kept: list[int] = []
@@ -303,7 +302,6 @@ def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequen
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
                    policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Branch:
     """Greedy selection scored on the validation runs (docs/design.md, "The loop's steps", 8)."""
-    all_folds = np.arange(gram.n.size)
     chosen: list[int] = []
     gains: dict[int, float] = {}
     current = held_out([], np.zeros(0))
@@ -314,7 +312,7 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
         tried: list[tuple[Tried, np.ndarray, list[np.ndarray]]] = []
         for j in sorted(passing, key=passing.__getitem__, reverse=True)[:policy.tried]:
             cols = with_intercept([*chosen, j], offset)
-            c = gram.solve(cols, all_folds) / gram.scale[cols]
+            c = gram.solve(cols)
             e_j = held_out(cols, c)
             ratios = run_log_ratios(e_j, current)
             tried.append((Tried(j, math.log(1.0 - passing[j]), ratios,
