@@ -46,7 +46,6 @@ class ChainFindings:
     readings: list[tuple[str, str]] = dataclasses.field(default_factory=list)
 
     def lines(self, kind: str) -> list[str]:
-        """The reading lines of ``kind``."""
         return [line for k, line in self.readings if k == kind]
 
 

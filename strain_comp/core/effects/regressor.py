@@ -76,12 +76,10 @@ def checked(default: Any, ok: Callable[[Any], bool], wanted: str) -> Reader:
 
 
 def choice(options: Sequence[str], default: str) -> Reader:
-    """One of ``options``."""
     return checked(default, lambda value: value in options, f"one of {', '.join(options)}")
 
 
 def flag(default: bool) -> Reader:
-    """True or false."""
     return checked(default, lambda value: isinstance(value, bool), "true or false")
 
 
@@ -134,11 +132,11 @@ class Regressor(ABC):
         """The resistance it reads is ``factor`` x what it was (a tare): carry the state over."""
         return None
 
-    def _held(self, values: np.ndarray, k: int = 0) -> np.ndarray:
-        """``values`` with the last finite one held, across batches in ``_state[k]``."""
+    def _held(self, values: np.ndarray) -> np.ndarray:
+        """``values`` with the last finite one held, across batches in ``_state[0]``."""
         idx = np.where(np.isfinite(values), np.arange(values.size), -1)
         np.maximum.accumulate(idx, out=idx)
-        held = np.where(idx >= 0, values[np.maximum(idx, 0)], float(self._state[k]))
+        held = np.where(idx >= 0, values[np.maximum(idx, 0)], float(self._state[0]))
         if held.size:
-            self._state[k] = held[-1]
+            self._state[0] = held[-1]
         return held

@@ -53,7 +53,6 @@ class Temperature(Regressor):
 
 
 def _power(params: Mapping[str, Any], key: str) -> int:
-    """1, 2 or 3."""
     power = params.get(key, 1)
     if isinstance(power, bool) or power not in (1, 2, 3):
         raise ParameterError(f"params.{key}", f"must be 1, 2 or 3, got {power!r}")

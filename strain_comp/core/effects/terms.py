@@ -44,7 +44,6 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
 
 
 def validate_effect_dict(effect: Mapping[str, Any]) -> None:
-    """Check one calibration-file effect entry."""
     regressor_from_dict(effect)
     require_float(effect, "coef")
 
