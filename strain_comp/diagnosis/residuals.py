@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.base.samples import gap_for, used_mask
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.effects import (
     Batch,
@@ -91,9 +91,8 @@ def base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
             continue
         result = engine.run(name, rec.t, rec.r, rec.temperature)
         used = used_mask(result.status)
-        dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
-        gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
-        starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
+        assert result.reset is not None  # Engine.run reports its gap resets
+        starts = np.flatnonzero(result.reset[used]).tolist()
         vr = stripped.sensors[name].valid_range
         margin = MARGIN * (vr.s_hi - vr.s_lo)
         s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
