@@ -131,11 +131,9 @@ def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPoli
 
 def _chosen(results: Sequence[DiagnoseResult], policy: LoopPolicy) -> int:
     """The index of the condition chosen (docs/design.md, "Conditions")."""
-    margin = policy.margin
     best = 0
-    for k, result in enumerate(results[1:], start=1):
-        if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \
-                and result.after["rmse"] < (1.0 - margin) * results[0].after["rmse"] \
+    for k, result in enumerate(results[1:], start=1):  # below the best is below the first
+        if result.after["rmse"] < (1.0 - policy.margin) * results[best].after["rmse"] \
                 and _carries(result, results[0], policy):
             best = k
     return best
