@@ -145,7 +145,7 @@ def family(cands: Candidates, j: int) -> str:
 def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.ndarray,
                     e_start: np.ndarray, margin: float) -> dict[str, Any]:
     """What the session start did on the validation runs, and the gain change it shows."""
-    starts = session.starts()
+    starts = session.starts
     spans = [s.calibration.sensors[session.sensor].input.zero_span for s in starts]
     # the input span gain k: the sensor reads 1 / k - 1 more
     changes = [100.0 * (1.0 / span[2] - 1.0) for span, s in zip(spans, starts, strict=True)

@@ -100,7 +100,7 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
     cands = candidates_of(sensor, bags, base_fit, candidates, stretch_history)
     session = (None if validate is None or not session_start
                else SessionHeldOut(calibration, sensor, validate, cands.entries))
-    if session is not None and not session.usable():
+    if session is not None and not any(start.steps for start in session.starts):
         session = None
     stride = stride_of(bags, sensor)
     val_stride = 1 if validate is None else stride_of(validate, sensor)

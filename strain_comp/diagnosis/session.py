@@ -40,22 +40,17 @@ class SessionHeldOut:
         self.calibration = calibration
         self.sensor = sensor
         self.candidates = candidates
+        effects = [*calibration.sensors[sensor].effects, *candidates]
+        # the sensor and the neighbours its cross-talk terms and candidates read
+        self.names = list(dict.fromkeys([sensor, *(str(e["params"]["neighbour"]) for e in effects
+                                                   if e.get("kind") == "crosstalk")]))
         self.runs: list[dict[str, Recording]] = [
             dict(bag) for bag in runs
             if bag.get(sensor) is not None and bag[sensor].s is not None]
         self._cache: dict[tuple[tuple[int, float], ...], list[np.ndarray]] = {}
-        self._starts: list[Started] | None = None
-
-    def starts(self) -> list[Started]:
-        """The session start of each validation run with the calibration as given."""
-        if self._starts is None:
-            self._starts = [start_or_keep(*self._restricted(self.calibration, bag))
-                            for bag in self.runs]
-        return self._starts
-
-    def usable(self) -> bool:
-        """A validation run whose session start makes at least one step."""
-        return any(start.steps for start in self.starts())
+        # each validation run's session start with the calibration as given
+        self.starts: list[Started] = [start_or_keep(*self._restricted(calibration, bag))
+                                      for bag in self.runs]
 
     def redundant(self, j: int) -> bool:
         """Is candidate ``j`` what the session start makes itself (an output offset or gain)?"""
@@ -80,16 +75,10 @@ class SessionHeldOut:
                                 for bag in self.runs]
         return self._cache[key]
 
-    def _names(self) -> list[str]:
-        """The sensor and the neighbours its cross-talk terms and candidates read."""
-        effects = [*self.calibration.sensors[self.sensor].effects, *self.candidates]
-        return list(dict.fromkeys([self.sensor, *(str(e["params"]["neighbour"]) for e in effects
-                                                  if e.get("kind") == "crosstalk")]))
-
     def _restricted(self, calibration: Calibration, bag: Mapping[str, Recording]
                     ) -> tuple[Calibration, dict[str, Recording]]:
         """``calibration`` and ``bag`` of the sensor and those neighbours only."""
-        names = [n for n in self._names() if n in calibration.sensors and n in bag]
+        names = [n for n in self.names if n in calibration.sensors and n in bag]
         return (Calibration({n: calibration.sensors[n] for n in names}),
-                {n: bag[n] for n in self._names() if n in bag})
+                {n: bag[n] for n in self.names if n in bag})
 
