@@ -58,11 +58,6 @@ class EffectScore:
     lag: bool | None = None
     """A creep term: True when the estimate lags the reference, False when it overshoots."""
 
-    @property
-    def family(self) -> str | None:
-        """``creep`` for a Prony-series state (``creep_tau``), else None."""
-        return "creep" if creep_tau(self.kind, self.params) is not None else None
-
     def reading(self) -> str:
         """``effect_reading`` of this term (an added one: with its coefficient)."""
         return effect_reading(self.kind, self.params, self.coef or 0.0, self.magnitude,
@@ -74,8 +69,8 @@ class EffectScore:
                                   "params": self.params}
         if self.params.get("tau") is not None:
             record["time_constant"] = self.params["tau"]
-        if self.family is not None:
-            record["family"] = self.family
+        if creep_tau(self.kind, self.params) is not None:
+            record["family"] = "creep"
         for key in ("gain", "coef", "magnitude"):
             value = getattr(self, key)
             if value is not None:
