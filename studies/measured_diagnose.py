@@ -268,7 +268,7 @@ def carried_anywhere(day2: dict[str, Path], cal: Path, tried: int) -> None:
         lowers_all = 0
         for j in sorted(passing, key=passing.__getitem__, reverse=True)[:tried]:
             cols = selection.with_intercept([j], cands.offset)
-            coef = gram.solve(cols, np.arange(gram.n.size)) / gram.scale[cols]
+            coef = gram.solve(cols)
             ratios = selection.run_log_ratios(session.per_run(cols, coef), none)
             lowers_all += all(x < 0 for x in ratios)
             print(f"| {run} | {cands.names[j]} | {-100 * passing[j]:+.0f} % | "

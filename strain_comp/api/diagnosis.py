@@ -129,9 +129,10 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
     runs: list[Any] = [] if validate is None else [validate] if (
         is_path(validate) or isinstance(validate, (Recording, Mapping))) \
         else list(validate)  # type: ignore[arg-type]
-    written = input_paths(calibration, list(inputs))
     check_distinct((out, plots, *(plot_file(plots, n) for n in cal.sensors if plots)))
-    paths = paths_of(data)
+    paths = paths_of(data) or []
+    validate_paths = [p for v in runs for p in paths_of(v) or []]
+    written = [*input_paths(calibration, list(inputs)), *paths, *validate_paths]
     recordings = _run(data)
     val = [_run(v) for v in runs] or None
     with bar(None, "diagnose", enabled=progress_bar) as shown:
@@ -139,12 +140,11 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
                                      stretch_history=stretch_history,
                                      session_start=session_start,
                                      progress=counter(shown) if progress_bar else None)
-    written += [p for v in [data, *runs] for p in paths_of(v) or []]
     if out is not None:
         _save_calibration(result.calibration, out, inputs=written)
     if plots is not None:
         write_plots(result, os.fspath(plots), inputs=written)
     return Diagnosis(**vars(result), diagnosed=cal,
                      source=paths[0] if paths else "recordings",
-                     validate=[p for v in runs for p in paths_of(v) or []], tare=tare,
+                     validate=validate_paths, tare=tare,
                      data=paths[0] if paths else recordings)

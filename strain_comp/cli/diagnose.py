@@ -7,7 +7,6 @@ import argparse
 
 from strain_comp.cli.common import bag, note, output, results, tare_flag, write_json
 from strain_comp.io.atomic import check_distinct, write_text
-from strain_comp.io.inputs import existing
 
 NAME = "diagnose"
 SUMMARY = "find the effect a calibration lacks and add it"
@@ -54,7 +53,6 @@ def run(args: argparse.Namespace) -> int:
     bag(args.bag)
     for validate in args.validate or ():
         bag(validate, "validation bag")
-    existing(args.calibration, "calibration file")
     inputs = [args.bag, *(args.validate or ()), args.calibration]
     from strain_comp import api
     from strain_comp.diagnosis.report import plot_file

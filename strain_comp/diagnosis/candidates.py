@@ -1,5 +1,4 @@
-"""Candidate effects of the residual loop (docs/design.md, "The loop's steps", 2): each a
-calibration-file effect dict with ``coef: 0``."""
+"""Candidate effects of the residual loop (docs/design.md, "The loop's steps", 2)."""
 
 from __future__ import annotations
 
@@ -9,19 +8,13 @@ from typing import Any
 from strain_comp.core.effects import STRETCH_FORMS, effect_dict, regressor_from_dict
 
 RELAXATION_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-2, 15))
-"""Time constants [s] of the relaxation candidates after loading or unloading steps only:
-0.5 s to 128 s, a factor sqrt(2) apart (fine enough that the nearest one is within 19 % of
-any time constant in that span)."""
+"""[s] relaxation after loading or unloading steps: 0.5-128 s, sqrt(2) apart (any within 19 %)."""
 CREEP_TAUS = tuple(round(2.0 ** (k / 2), 2) for k in range(-4, 18))
-"""Time constants [s] of the creep candidates (one Prony-series state each, of the estimate
-or of the resistance): 0.25 s to 362 s, a factor sqrt(2) apart, covering the 0.3-300 s of
-``creep_pi``'s states (docs/design.md)."""
+"""[s] creep (one Prony state each): 0.25-362 s, sqrt(2) apart, covering ``creep_pi``'s states."""
 MEMORY_TAUS = tuple(float(2 ** k) for k in range(9))
-"""Time constants [s] of the resistance peak and trough candidates: 1 s to 256 s, a factor
-2 apart."""
+"""[s] resistance peak and trough: 1-256 s, a factor 2 apart."""
 STRETCH_SCALES = (200.0, 2000.0)
-"""Strain travel [%] over which a ``stretch`` candidate's history term grows: about one
-full 0 -> 100 -> 0 % cycle, and ten."""
+"""Strain travel [%] over which a ``stretch`` term grows: one 0 -> 100 -> 0 % cycle, and ten."""
 STRETCH_BAND = 0.5
 """Play [% strain] through which a ``stretch`` candidate counts travel (noise adds none)."""
 BASELINE_WINDOW = 5.0
@@ -32,7 +25,7 @@ def default_candidates(*, temperature_ref: float | None = None,
                        neighbours: Sequence[str] = (),
                        baseline_rest: float = 0.0,
                        stretch_history: bool = False) -> list[dict[str, Any]]:
-    """The generic candidate effects (calibration-file dicts with ``coef: 0``)."""
+    """The generic candidate effects (calibration-file dicts, without ``coef``)."""
     out: list[dict[str, Any]] = [{"name": "offset", "kind": "offset", "params": {}}]
     out += [{"name": f"rate_{mode}", "kind": "rate", "params": {"tau": 1.0, "mode": mode}}
             for mode in ("signed", "direction")]
@@ -71,16 +64,13 @@ def default_candidates(*, temperature_ref: float | None = None,
                 "params": {"window": BASELINE_WINDOW, "rest": float(baseline_rest)}})
     out += [{"name": f"crosstalk_{nb}", "kind": "crosstalk", "params": {"neighbour": nb}}
             for nb in neighbours]
-    for entry in out:
-        entry["coef"] = 0.0
     return out
 
 
 def added_effects(candidates: Sequence[dict[str, Any]], cols: Sequence[int],
                   coefs: Sequence[float], existing: Sequence[dict[str, Any]] = ()
                   ) -> list[dict[str, Any]]:
-    """Calibration-file entries of candidates ``cols`` with ``coefs``, each named after its
-    candidate (``_2``, ``_3``... where the name is taken by ``existing`` or an earlier one)."""
+    """Calibration-file entries of candidates ``cols`` with ``coefs``, names made unique."""
     taken = {str(e["name"]) for e in existing}
     out = []
     for j, c in zip(cols, coefs, strict=True):

@@ -28,7 +28,6 @@ from strain_comp.diagnosis.selection import LOOP_POLICY, LoopPolicy, upper_bound
 from strain_comp.io.recording import Recording
 
 CHAIN_CONDITIONS = ("alternation", "despike", "baseline step")
-"""The conditions of the measurement chain (docs/design.md, "Conditions", 3-5)."""
 
 
 def _with_input(calibration: Calibration, names: set[str], **settings: Any) -> Calibration:
@@ -40,23 +39,18 @@ def _with_input(calibration: Calibration, names: set[str], **settings: Any) -> C
 
 @dataclasses.dataclass
 class ChainFindings:
-    """What the measurement chain shows: the sensors each condition would correct (by its
-    name: ``alternation``, ``despike``, ``baseline step``) and the reading lines, each with
-    its kind (one of those, or ``quantisation``: a reading only)."""
+    """The sensors each chain condition would correct, and the reading lines by kind."""
 
     sensors: dict[str, set[str]] = dataclasses.field(
         default_factory=lambda: {kind: set() for kind in CHAIN_CONDITIONS})
     readings: list[tuple[str, str]] = dataclasses.field(default_factory=list)
 
     def lines(self, kind: str) -> list[str]:
-        """The reading lines of ``kind``."""
         return [line for k, line in self.readings if k == kind]
 
 
 def _reference_note(rec: Recording, t: float) -> str:
-    """Whether the reference strain jumps too around a step confirmed at ``t`` (a change of
-    its rate by more than 1 % of its span from one sample to the next, over the samples
-    that confirmed it and a few before): no jump is the signature of a baseline step."""
+    """Whether the reference jumps too around a step at ``t`` (no jump: a baseline step)."""
     if rec.s is None or np.asarray(rec.t).size < 3:
         return ""
     times, strain = np.asarray(rec.t), np.asarray(rec.s, dtype=np.float64)
@@ -74,9 +68,7 @@ def _reference_note(rec: Recording, t: float) -> str:
 
 def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration,
                    ) -> ChainFindings:
-    """What the measurement chain shows in ``recordings`` that ``calibration`` does not
-    correct yet: the alternation statistics, and the spikes and baseline steps the
-    engine's online corrector (at the default thresholds) finds in each run."""
+    """What the measurement chain shows in ``recordings`` that ``calibration`` does not correct."""
     found = ChainFindings()
     spikes: list[tuple[str, str]] = []
     steps: list[tuple[str, str]] = []
@@ -118,8 +110,7 @@ def chain_findings(recordings: Mapping[str, Recording], calibration: Calibration
 
 
 def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | None) -> str:
-    """What ``--tare auto`` did on each run, in words: the tare taken, or why it was
-    declined (the calibration's rest resistance then stays)."""
+    """What ``--tare auto`` did on each run, in words: the tare taken, or why not."""
     lines = []
     for k, run in enumerate(r for r in runs if r is not None):
         where = "training run" if k == 0 else "validation run"
@@ -131,8 +122,7 @@ def _tare_outcome(calibration: Calibration, *runs: Mapping[str, Recording] | Non
 
 
 def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPolicy) -> bool:
-    """Does the condition of ``result`` lower the validation runs' error against
-    ``reference`` beyond the spread between runs (True with fewer than two runs)?"""
+    """Does ``result`` lower the validation runs' error beyond the spread between runs?"""
     ratios = [math.log(a / b) for name, d in result.sensors.items() if name in reference.sensors
               for a, b in zip(d.runs_after, reference.sensors[name].runs_after, strict=False)
               if a > 0 and b > 0]
@@ -141,11 +131,9 @@ def _carries(result: DiagnoseResult, reference: DiagnoseResult, policy: LoopPoli
 
 def _chosen(results: Sequence[DiagnoseResult], policy: LoopPolicy) -> int:
     """The index of the condition chosen (docs/design.md, "Conditions")."""
-    margin = policy.margin
     best = 0
-    for k, result in enumerate(results[1:], start=1):
-        if result.after["rmse"] < (1.0 - margin) * results[best].after["rmse"] \
-                and result.after["rmse"] < (1.0 - margin) * results[0].after["rmse"] \
+    for k, result in enumerate(results[1:], start=1):  # below the best is below the first
+        if result.after["rmse"] < (1.0 - policy.margin) * results[best].after["rmse"] \
                 and _carries(result, results[0], policy):
             best = k
     return best

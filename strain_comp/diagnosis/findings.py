@@ -1,6 +1,5 @@
-"""The residual loop's findings for one sensor, in words and records: the evidence of every
-candidate (``score_rows``), the message (``message_of``), and what the session start did on
-the validation runs (``session_record``)."""
+"""The residual loop's findings for one sensor, in words and records: every candidate's
+evidence, the message, and what the session start did on the validation runs."""
 
 from __future__ import annotations
 
@@ -19,16 +18,13 @@ from strain_comp.diagnosis.selection import Tried, column_std, rms
 from strain_comp.diagnosis.session import SessionHeldOut, window_flag
 
 GAIN_CHANGE = 0.05
-"""A sensitivity against the calibration this far from 1 (the session start's input span
-on the validation run), which that session start corrects, is read as a gain change
-between runs."""
+"""A session start's input span this far from 1, which it corrects: a gain change between runs."""
 
 
 def score_rows(sensor: str, cal: SensorCalibration, cands: Candidates, rows: Rows,
                 scores: dict[int, float], terms: list[int], coefs: np.ndarray,
                 gains: Mapping[int, float]) -> list[EffectScore]:
-    """The evidence of every candidate: its score and, for an added one, its rank, gain,
-    coefficient and magnitude."""
+    """Every candidate's score and, for an added one, its rank, gain, coefficient and size."""
     std_fit = column_std(rows.g_fit)
     coef_of = dict(zip(terms, coefs, strict=True))
     vr = cal.valid_range
@@ -51,8 +47,8 @@ def score_rows(sensor: str, cal: SensorCalibration, cands: Candidates, rows: Row
 
 
 def lags(cands: Candidates, rows: Rows, j: int, coef: float) -> bool | None:
-    """Does creep term ``j`` stand for an estimate that lags the reference after a change
-    (its correction against the same tau's state of the estimate is of opposite sign)?"""
+    """Does creep term ``j`` stand for an estimate that lags the reference after a change?"""
+    # it does where its correction runs against the same tau's state of the estimate
     tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
     if tau is None:
         return None
@@ -71,9 +67,7 @@ def message_of(cal: SensorCalibration, cands: Candidates, rows: Rows, chosen: li
                refused: Tried | None, scores: dict[int, float], order: list[int],
                gains: Mapping[int, float], margin: float, before: float, after: float,
                session: bool, strides: tuple[int, int | None]) -> str:
-    """The loop's finding for one sensor, in words. ``chosen``: the terms selected on the
-    diagnosed run (without a session start); ``refused``: the best candidate scored on the
-    validation runs and not added (with one)."""
+    """The loop's finding for one sensor, in words."""
     names = cands.names
     if not order:
         top = max((j for j in scores if j not in cands.baselines), key=scores.__getitem__)
@@ -131,8 +125,7 @@ def not_carried(cands: Candidates, scores: dict[int, float], refused: Tried | No
 
 
 def instead(log_ratios: list[float], margin: float) -> str:
-    """Why a term fitted on the diagnosed run does not carry, and what to record instead:
-    known strains where the change differs between runs, more runs where only its size does."""
+    """Why a term fitted on the diagnosed run does not carry, and what to record instead."""
     low = math.log(1.0 - margin)
     if all(x < low for x in log_ratios):
         return ("the validation runs disagree on how much it lowers them: record more "
@@ -144,17 +137,17 @@ def instead(log_ratios: list[float], margin: float) -> str:
 
 
 def family(cands: Candidates, j: int) -> str:
-    """``creep, tau X s, `` for a creep term (its family named in the message), else ``""``."""
+    """``creep, tau X s, `` for a creep term, else ``""``."""
     tau = creep_tau(cands.kinds[j], cands.entries[j].get("params", {}))
     return "" if tau is None else f"creep, tau {tau:g} s, "
 
 
 def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.ndarray,
                     e_start: np.ndarray, margin: float) -> dict[str, Any]:
-    """What the session start did on the validation runs, and the gain change between runs
-    it shows (the input span gain k: the sensor reads 1 / k - 1 more)."""
-    starts = session.starts()
+    """What the session start did on the validation runs, and the gain change it shows."""
+    starts = session.starts
     spans = [s.calibration.sensors[session.sensor].input.zero_span for s in starts]
+    # the input span gain k: the sensor reads 1 / k - 1 more
     changes = [100.0 * (1.0 / span[2] - 1.0) for span, s in zip(spans, starts, strict=True)
                if span is not None and "input" in s.steps]
     before, after = rms(e_raw), rms(e_start)
@@ -183,8 +176,7 @@ def session_record(cal: SensorCalibration, session: SessionHeldOut, e_raw: np.nd
 
 
 def remains(before: float, after: float, unit_words: str) -> str:
-    """One line on what the session start leaves: the share of the validation runs' squared
-    error that was their own gain and offset (their input space), which no term need make."""
+    """What the session start leaves: the share of the error that was each run's gain and offset."""
     if not before > 0 or not after < before:
         return (f"after the session start, what remains is all of the error and more ("
                 f"{before:.4g} -> {after:.4g} {unit_words}): the runs' own gain and offset are "

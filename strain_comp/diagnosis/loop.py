@@ -49,26 +49,22 @@ from strain_comp.io.recording import Recording
 
 @dataclass
 class _Setup:
-    """One sensor's candidates, rows, cross-validation sums and first-round scores, and
-    the held-out measure (the validation runs after their session start, or linear)."""
+    """One sensor's candidates, rows, cross-validation sums, first-round scores, held-out."""
 
     cands: Candidates
     rows: Rows
     gram: Gram
     scores: dict[int, float]
     shifted: dict[int, Gram]
-    """Each baseline candidate's Gram with its start-of-run shift removed whole (step 7)."""
+    """Each baseline candidate's Gram with its shift removed whole (step 7)."""
     session: SessionHeldOut | None
     strides: tuple[int, int | None]
 
 
 def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarray | None
             ) -> Branch:
-    """The terms added (``kept``, with ``coef``): without a session start steps 5-7
-    (forward selection kept on the held-out rows, and for each baseline candidate the
-    per-run hypothesis when it wins by the margin), with one step 8 (what the session start
-    makes itself, the per-run baseline among it, is neither tried nor written)."""
-    gram, cands, n_folds, session = setup.gram, setup.cands, setup.rows.n_folds, setup.session
+    """The terms added (``kept``, with ``coef``): steps 5-7, or with a session start step 8."""
+    gram, cands, session = setup.gram, setup.cands, setup.session
     n, offset, baselines = len(cands.names), cands.offset, cands.baselines
     if session is not None:
         skip = [j for j in range(n) if j in baselines or session.redundant(j)]
@@ -79,7 +75,7 @@ def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
     margin, max_effects = policy.margin, policy.max_effects
     chosen = select_forward(gram, n, offset, margin, max_effects, skip=baselines,
                             sigmas=policy.significance)
-    best = keep_on_held_out(gram, chosen, None, offset, n_folds, margin, held_out, runs)
+    best = keep_on_held_out(gram, chosen, None, offset, margin, held_out, runs)
     rmse_none = gram.cv_rmse([])
     for b, shifted in setup.shifted.items():
         selection = select_forward(shifted, n, offset, margin, max_effects - 1,
@@ -87,8 +83,7 @@ def _select(setup: _Setup, policy: LoopPolicy, held_out: HeldOut, runs: np.ndarr
                                    sigmas=policy.significance)
         selection.gains = {b: 1.0 - shifted.cv_rmse([]) / rmse_none if rmse_none > 0 else 0.0,
                            **selection.gains}
-        branch = keep_on_held_out(shifted, selection, b, offset, n_folds, margin, held_out,
-                                  runs)
+        branch = keep_on_held_out(shifted, selection, b, offset, margin, held_out, runs)
         if branch.shift is not None and branch.rmse < (1.0 - margin) * best.rmse:
             best = branch
     if best.shift is not None and best.rmse < rms(held_out([], np.zeros(0))):
@@ -105,7 +100,7 @@ def _setup(sensor: str, calibration: Calibration, bags: list[Mapping[str, Record
     cands = candidates_of(sensor, bags, base_fit, candidates, stretch_history)
     session = (None if validate is None or not session_start
                else SessionHeldOut(calibration, sensor, validate, cands.entries))
-    if session is not None and not session.usable():
+    if session is not None and not any(start.steps for start in session.starts):
         session = None
     stride = stride_of(bags, sensor)
     val_stride = 1 if validate is None else stride_of(validate, sensor)

@@ -1,10 +1,8 @@
-"""Reports of the residual loop: per-candidate evidence, physical readings, per-sensor
-and pooled results (terminal summary, JSON), the residual plots and the ``diagnose
---report`` page (the parts of ``strain_comp.offline.report_page`` with the loop's results)."""
+"""Reports of the residual loop: per-candidate evidence, physical readings, per-sensor and
+pooled results (terminal summary, JSON), the residual plots and the ``diagnose --report`` page."""
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -16,7 +14,7 @@ import numpy as np
 
 from strain_comp.core.calibration import Calibration, strain_unit_words
 from strain_comp.io.atomic import atomic_output
-from strain_comp.offline.plots import plain
+from strain_comp.offline.plots import plain, png
 from strain_comp.offline.report_page import (
     BagSection,
     bag_section,
@@ -32,8 +30,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 SESSION_RECORDS = ("session start", "gain change between runs")
-"""Names of the ``conditions`` records of the session start on the validation runs
-(readings, never chosen; ``strain_comp.diagnosis.loop``)."""
+"""Names of the ``conditions`` records of the validation runs' session start (never chosen)."""
 
 
 @dataclass
@@ -45,28 +42,21 @@ class EffectScore:
     kind: str
     params: dict[str, Any]
     score: float
-    """Held-out share of residual variance explained (first round, see module doc)."""
+    """Held-out share of residual variance explained (first round)."""
     added: bool = False
     gain: float | None = None
     """Relative drop of the cross-validated RMSE in the round it was added."""
     coef: float | None = None
     magnitude: float | None = None
-    """coef * std(g) over the fit data: the typical size of the correction [% strain]."""
+    """coef * std(g) over the fit data: the typical size of the correction."""
     rank: int | None = None
     """Order of addition (0 first); None when not added."""
     unit: str = "%"
     """The calibration's strain unit, the unit of coef and magnitude."""
     span: float | None = None
-    """The calibration's strain span (its valid range) [unit]: creep sizes are read in % of it."""
+    """The calibration's valid strain span: creep sizes are read in % of it."""
     lag: bool | None = None
-    """A creep term: True when the estimate lags the reference after a change (catching up
-    with the term's time constant), False when it overshoots and relaxes back; None: not
-    known."""
-
-    @property
-    def family(self) -> str | None:
-        """``creep`` for a Prony-series state (``creep_tau``), else None."""
-        return "creep" if creep_tau(self.kind, self.params) is not None else None
+    """A creep term: True when the estimate lags the reference, False when it overshoots."""
 
     def reading(self) -> str:
         """``effect_reading`` of this term (an added one: with its coefficient)."""
@@ -79,8 +69,8 @@ class EffectScore:
                                   "params": self.params}
         if self.params.get("tau") is not None:
             record["time_constant"] = self.params["tau"]
-        if self.family is not None:
-            record["family"] = self.family
+        if creep_tau(self.kind, self.params) is not None:
+            record["family"] = "creep"
         for key in ("gain", "coef", "magnitude"):
             value = getattr(self, key)
             if value is not None:
@@ -91,8 +81,7 @@ class EffectScore:
 
 
 def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
-    """The time constant [s] of a creep term (one Prony-series state of the estimate or of
-    100 ln R; docs/design.md, "The loop's steps", 2), None for any other."""
+    """The time constant [s] of a creep term (one Prony-series state), None for any other."""
     if (kind == "relaxation" and params.get("branch", "both") == "both") or (
             kind == "resistance_memory" and params.get("form", "relaxation") == "relaxation"):
         return float(params.get("tau", 10.0))
@@ -101,8 +90,7 @@ def creep_tau(kind: str, params: Mapping[str, Any]) -> float | None:
 
 def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
                   span: float | None, lag: bool | None) -> str:
-    """A creep term in words: which way the estimate errs after a change, by how much (in %
-    of the span where known) and with what time constant."""
+    """A creep term in words: which way the estimate errs after a change, how much, how long."""
     u = strain_unit_words(unit)
     how = {True: "the estimate lags the reference after each change",
            False: "the estimate overshoots the reference after each change",
@@ -121,8 +109,7 @@ def creep_reading(tau: float, of: str, magnitude: float | None, unit: str,
 def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
                    magnitude: float | None = None, *, unit: str = "%",
                    span: float | None = None, lag: bool | None = None) -> str:
-    """An added term in physical words: the sensor against its calibration (the output
-    carries + coef g), sizes in the strain ``unit``, relative readings in % of the output."""
+    """An added term in physical words (the output carries + coef g), sizes in ``unit``."""
     u = strain_unit_words(unit)
     size = "" if magnitude is None else f", typically {abs(magnitude):.2g} {u}"
     tau = creep_tau(kind, params)
@@ -184,8 +171,7 @@ def effect_reading(kind: str, params: Mapping[str, Any], coef: float,
 
 
 def _mullins_reading(form: str, n0: float, coef: float, u: str, size: str) -> str:
-    """A ``mullins`` term in words: the sensitivity against calibration it stands for (the
-    output carries + coef g; ``strain_comp.core.effects.Mullins`` for g)."""
+    """A ``mullins`` term in words: the sensitivity against calibration it stands for."""
     pct = 100.0 * coef
     if form == "cycles_log":
         return (f"sensitivity that moves with the load cycles done: {pct:+.3g} % x ln(1 + "
@@ -215,18 +201,14 @@ class SensorDiagnosis:
     """Effect entries added to the calibration (with the intercept, if any)."""
     message: str
     plot: dict[str, np.ndarray] = field(default_factory=dict)
-    """Held-out t, s (reference), e_before, e_after and ``g`` = the winning regressor
-    (empty: none)."""
+    """Held-out t, s, e_before, e_after and the winning regressor ``g`` (empty: none)."""
     winner: str | None = None
     as_calibrated: dict[str, dict[str, float]] = field(default_factory=dict)
-    """Before and after without the session-start recalibration (the loop's own residual on
-    the validation samples it reads), when ``before`` and ``after`` are measured after it."""
+    """Before and after without the session start, when ``before`` and ``after`` have one."""
     session: dict[str, Any] = field(default_factory=dict)
-    """The session start on the validation runs (``findings.session_record``; empty: the
-    before and after are measured without one)."""
+    """The session start on the validation runs (``findings.session_record``; empty: none)."""
     runs_after: list[float] = field(default_factory=list)
-    """RMSE of each validation run after its session start, with the added terms (empty:
-    measured without a session start)."""
+    """Each validation run's RMSE after its session start, with the added terms."""
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"before": self.before, "after": self.after,
@@ -255,8 +237,7 @@ class DiagnoseResult:
 
     @property
     def scored(self) -> list[EffectScore]:
-        """All candidates: added ones first (in order added, the intercept last), then the
-        rest by score."""
+        """All candidates: the added ones in order (the intercept last), then by score."""
         rows = [s for d in self.sensors.values() for s in d.scores]
         added = sorted((s for s in rows if s.added),
                        key=lambda s: (s.kind == "offset", s.sensor, s.rank))
@@ -289,27 +270,37 @@ class DiagnoseResult:
             The text.
 
         """
-        units = {cal.strain_unit for cal in self.calibration.sensors.values()}
-        u = units.pop() if len(units) == 1 else "(each sensor's unit)"
+        u = _unit(self)
         if not self.added and not any(c.get("chosen") for c in self.conditions):
             return (f"held-out RMSE ({self.validated_on}) {self.before['rmse']:.4g} {u}: "
                     "nothing kept, no effect term or condition lowered it (each one tried, "
                     "with its reading: --json, --report)")
         lines = [f"held-out RMSE ({self.validated_on}): before {self.before['rmse']:.4g} {u}, "
                  f"after {self.after['rmse']:.4g} {u}"]
-        for c in self.conditions:
-            if c["name"] in ("measurement chain", *SESSION_RECORDS):
-                lines.append(f"  {c['name']}: {c['reading']}")
-                continue
-            verdict = "chosen" if c["chosen"] else "not chosen"
-            lines.append(f"  {c['name']}: {c['reading']}; held-out RMSE after the loop "
-                         f"{c['after']:.4g} {u} ({verdict})")
+        lines += [f"  {line}" for line in condition_lines(self)]
         for name, d in self.sensors.items():
             lines.append(f"  {name}: {d.message}")
             for e in d.scores:
                 if e.added and e.coef is not None:
                     lines.append(f"    + {e.name}: {e.reading()}")
         return "\n".join(lines)
+
+
+def _unit(result: DiagnoseResult) -> str:
+    units = {cal.strain_unit for cal in result.calibration.sensors.values()}
+    return units.pop() if len(units) == 1 else "(each sensor's unit)"
+
+
+def condition_lines(result: DiagnoseResult) -> list[str]:
+    """Each condition: its reading and, for one the whole loop ran under, the loop's result."""
+    lines = []
+    for c in result.conditions:
+        line = f"{c['name']}: {c['reading']}"
+        if c["name"] not in ("measurement chain", *SESSION_RECORDS):
+            line += (f"; held-out RMSE after the loop {c['after']:.4g} {_unit(result)} "
+                     f"({'chosen' if c['chosen'] else 'not chosen'})")
+        lines.append(line)
+    return lines
 
 
 def _num(value: float) -> float | None:
@@ -323,9 +314,7 @@ def plot_file(out_dir: str | Path, name: str) -> Path:
 
 def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
                 inputs: Sequence[str | Path] = ()) -> list[Path]:
-    """Residual before and after against the winning regressor, time and strain (one PNG
-    per sensor, ``residual_figure``), each written atomically; a plot path that is one of
-    ``inputs`` is refused."""
+    """One PNG per sensor of ``residual_figure``, each written atomically, none over ``inputs``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -341,8 +330,7 @@ def write_plots(result: DiagnoseResult, out_dir: str | Path, *,
 
 
 def residual_figure(result: DiagnoseResult, name: str) -> Figure | None:
-    """Sensor ``name``'s residual before and after against the winning regressor, time and
-    strain (held-out samples); None when the loop kept no arrays for it."""
+    """The held-out residual before and after against the winning regressor, time and strain."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -379,9 +367,7 @@ def _before_after(before: dict[str, float], after: dict[str, float]) -> list[str
 def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration_path: str,
                    bag: str, *, validate: Sequence[str] = (), tare: str = "",
                    runs: Sequence[tuple[str, BagSection]] = ()) -> str:
-    """The ``diagnose --report`` page: the held-out error before and after, each effect
-    found with its reading, the conditions tried, the residual plots, ``runs`` and the
-    provenance of the calibration diagnosed."""
+    """The ``diagnose --report`` page (``Diagnosis.to_html`` says what it shows)."""
     body = [f"<p>Run <code>{escape(bag)}</code>; held out: "
             + (escape(", ".join(validate)) if validate else
                f"time blocks of the run ({escape(plain_text(result.validation))})") + "</p>",
@@ -403,12 +389,7 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
         body.append("<p>None: no candidate lowered the held-out error enough.</p>")
     if result.conditions:
         body.append("<h2>Conditions tried</h2>")
-        body.append(html_notes(f"{c['name']}: {c['reading']}"
-                           + (f"; held-out RMSE after the loop {c['after']:.4g}, "
-                              + ("chosen" if c.get("chosen") else "not chosen")
-                              if isinstance(c.get("after"), float)
-                              and math.isfinite(c["after"]) else "")
-                           for c in result.conditions))
+        body.append(html_notes(condition_lines(result)))
     for name, d in result.sensors.items():
         unit = result.calibration.sensors[name].strain_unit
         body.append(f"<h2>{escape(name)}</h2><p>{escape(d.message)}</p>")
@@ -422,11 +403,8 @@ def diagnosis_page(result: DiagnoseResult, calibration: Calibration, calibration
                              for e in scored) + "</details>")
         fig = residual_figure(result, name)
         if fig is not None:
-            buffer = io.BytesIO()
-            fig.savefig(buffer, dpi=110, format="png")
             body.append(html_image("residual before and after against the winning term's "
-                               "regressor, time and strain (held-out samples)",
-                               buffer.getvalue()))
+                               "regressor, time and strain (held-out samples)", png(fig)))
     for heading, section in runs:
         body += bag_section(section, heading)
     body.append(provenance_section(calibration, calibration_path, tare=tare))

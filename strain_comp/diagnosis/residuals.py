@@ -1,6 +1,5 @@
-"""The residual loop's data (docs/design.md, "The loop's steps", 1-3): the engine's output
-without effect terms, the residual and the candidate regressors, cut into time blocks, and
-one sensor's candidates (``candidates_of``) and fit and held-out rows (``rows_of``)."""
+"""The residual loop's data (docs/design.md, "The loop's steps", 1-3): the residual and the
+candidate regressors in time blocks, one sensor's candidates and its fit and held-out rows."""
 
 from __future__ import annotations
 
@@ -12,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from strain_comp.base.samples import gap_for, used_mask
+from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.effects import (
     Batch,
@@ -29,13 +28,11 @@ from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording, hold_latest
 
 N_BLOCKS = 10
-"""Contiguous time blocks each recording is cut into (docs/design.md, "The loop's steps", 3)."""
+"""Contiguous time blocks each recording is cut into."""
 HELD_OUT_EVERY = 3
 """Without validation runs every third block is held out (a holdout fraction of 0.3)."""
 ROW_BUDGET = 250_000
-"""Samples of one sensor's fit recordings up to which the loop keeps every used sample
-(docs/design.md, "The residual loop", 5). A fixed stride, not a low-pass: that would shrink
-the noise no term can explain and inflate every gain."""
+"""Samples of one sensor's fit recordings up to which the loop keeps every used sample."""
 
 
 @dataclass
@@ -49,14 +46,11 @@ class Series:
     t: np.ndarray
     block: np.ndarray
     s: np.ndarray
-    """Reference strain [%]."""
+    """Reference strain."""
     extended: np.ndarray
-    """Samples whose estimate the engine extended beyond the valid range: no effect term
-    reads that extension (they read the estimate clamped), so the terms are not fitted
-    there; they are still scored."""
+    """Samples extended beyond the valid range (the terms read it clamped): scored, not fitted."""
     unsettled: tuple[float, float] = (0.0, 0.0)
-    """Seconds left out at the start (the sensor still relaxing there) and the drift seen
-    (``strain_comp.core.tare.unsettled_start``)."""
+    """Seconds left out at the start and the drift seen there (``tare.unsettled_start``)."""
 
 
 def as_bags(recordings: Mapping[str, Recording] | Sequence[Mapping[str, Recording]]
@@ -75,20 +69,18 @@ class Run:
     """The estimate clamped to the valid strain range (what the effect terms read)."""
     direction: np.ndarray
     resistance: np.ndarray
-    """What the model read (``BatchOutput.resistance``): the effect terms' R."""
+    """What the model read: the effect terms' R."""
     used: np.ndarray
     starts: list[int]
     """Positions among the used samples where the engine reset after a gap."""
     beyond: np.ndarray
     """What the engine adds beyond the valid range (its ``out_of_range`` extension)."""
     cal: SensorCalibration
-    """The sensor's calibration this run was read with."""
 
 
 def base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
                tare: str = "calibration") -> dict[str, Run]:
-    """S_hat without effects, direction, used mask and gap resets per calibrated sensor
-    (each run tared by ``tare``, as ``evaluate`` does)."""
+    """``Run`` of each calibrated sensor without effect terms, tared as ``evaluate`` tares."""
     stripped = Calibration({n: dataclasses.replace(c, effects=[])
                             for n, c in calibration.sensors.items()})
     engine = Engine(stripped)  # sensors are independent: effect terms (cross-talk) stripped
@@ -99,9 +91,8 @@ def base_runs(bag: Mapping[str, Recording], calibration: Calibration, *,
             continue
         result = engine.run(name, rec.t, rec.r, rec.temperature)
         used = used_mask(result.status)
-        dt = np.diff(np.asarray(rec.t, dtype=np.float64)[used])
-        gap = gap_for(stripped.sensors[name].sample_interval, engine.gap_reset)
-        starts = (np.flatnonzero((dt > gap) | (dt <= -gap)) + 1).tolist()
+        assert result.reset is not None  # Engine.run reports its gap resets
+        starts = np.flatnonzero(result.reset[used]).tolist()
         vr = stripped.sensors[name].valid_range
         margin = MARGIN * (vr.s_hi - vr.s_lo)
         s_hat = np.clip(result.strain, vr.s_lo - margin, vr.s_hi + margin)
@@ -132,8 +123,7 @@ def block_ids(t: np.ndarray) -> np.ndarray:
 
 def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], batch: Batch,
                starts: Sequence[int]) -> np.ndarray:
-    """``run`` over the segments between the engine's gap resets, ``reset`` between them
-    (the engine resets effect state where it resets the model)."""
+    """``run`` over the segments between the engine's gap resets, ``reset`` between them."""
     return run_segments(
         lambda k: run(Batch(batch.t[k], batch.r[k], batch.s_hat[k], batch.direction[k],
                             None if batch.temperature is None else batch.temperature[k],
@@ -143,8 +133,7 @@ def _segmented(run: Callable[[Batch], np.ndarray], reset: Callable[[], None], ba
 
 def series_of(sensor: str, bag: Mapping[str, Recording], runs: Mapping[str, Run],
             candidates: Sequence[dict[str, Any]], stride: int = 1) -> Series | None:
-    """Residual and candidate regressors of one sensor in one bag (None: nothing usable),
-    at every ``stride``-th of the samples kept (the regressors run over all of them)."""
+    """One sensor's residual and regressors in one bag at every ``stride``-th sample kept."""
     rec = bag[sensor]
     if rec.s is None or sensor not in runs:
         return None
@@ -193,8 +182,8 @@ def series_all(sensor: str, bags: Sequence[Mapping[str, Recording]],
 
 
 def stride_of(bags: Sequence[Mapping[str, Recording]], sensor: str) -> int:
-    """Every how many-th used sample of ``sensor`` the loop keeps in ``bags`` (1 up to
-    ``ROW_BUDGET`` samples; see there)."""
+    """Every how many-th sample of ``sensor`` the loop keeps in ``bags`` (``ROW_BUDGET``)."""
+    # a fixed stride, not a low-pass: that would shrink the noise no term can explain
     total = sum(b[sensor].t.size for b in bags if sensor in b)
     return max(1, math.ceil(total / ROW_BUDGET))
 
@@ -206,8 +195,7 @@ def rmse_stats(e: np.ndarray) -> dict[str, float]:
 
 
 def baseline_rest(bags: Sequence[Mapping[str, Recording]], sensor: str) -> float:
-    """Mean reference strain over the first ``BASELINE_WINDOW`` s of the fit recordings:
-    the strain a run starts at (what a baseline term should read at rest)."""
+    """Mean reference strain over the first ``BASELINE_WINDOW`` s: the strain runs start at."""
     values = []
     for bag in bags:
         rec = bag.get(sensor)
@@ -226,17 +214,14 @@ class Candidates:
     names: list[str]
     kinds: list[str]
     offset: int
-    """Index of the offset."""
     baselines: list[int]
-    """Indices of the per-run baseline candidates."""
 
 
 def candidates_of(sensor: str, bags: list[Mapping[str, Recording]],
                   base_fit: list[dict[str, Run]],
                   candidates: Sequence[dict[str, Any]] | None, stretch_history: bool
                   ) -> Candidates:
-    """The given candidates, or ``default_candidates`` for what the recordings hold
-    (temperature, array neighbours), each with coefficient 0, plus an offset."""
+    """The given candidates, or the defaults for what the recordings hold, plus an offset."""
     if candidates is None:
         temps = [np.asarray(b[sensor].temperature, np.float64) for b in bags
                  if sensor in b and b[sensor].temperature is not None]
@@ -275,9 +260,7 @@ class Rows:
 def rows_of(sensor: str, series: list[Series], validate: list[Mapping[str, Recording]] | None,
             base_val: list[dict[str, Run]], entries: list[dict[str, Any]], val_stride: int
             ) -> Rows:
-    """Fit rows (not held out, within the range the terms read) with their fold (the
-    position of the block among the fit blocks of its recording), and the held-out rows:
-    the validation recordings', or every ``HELD_OUT_EVERY``-th block's without them."""
+    """Fit rows with their fold, and the held-out rows (validation runs' or held-out blocks')."""
     period = HELD_OUT_EVERY if validate is None else 0
     held_out = [(s.block % period == period - 1) if period else np.zeros(s.e.size, bool)
                 for s in series]

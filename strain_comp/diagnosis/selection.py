@@ -1,6 +1,5 @@
-"""Selection statistics of the residual loop (docs/design.md, "The loop's steps", 4-8),
-testable on any regressor matrix, and their numbers (``LoopPolicy``, with units; docs/results.md,
-"Residual loop", gives what each does and the measured figure that keeps it)."""
+"""Selection statistics of the residual loop (docs/design.md, "The loop's steps", 4-8) on any
+regressor matrix, and their numbers (``LoopPolicy``; docs/results.md, "Residual loop")."""
 
 from __future__ import annotations
 
@@ -35,8 +34,7 @@ LOOP_POLICY = LoopPolicy()
 
 
 RESOLUTION = 1e-6
-"""Forward selection stops once the cross-validated RMSE is below this fraction of the
-residual's own: what is left is rounding (the fold sums cancel to about 1e-8 of the RMSE)."""
+"""Selection stops below this fraction of the residual's RMSE: what is left is rounding."""
 
 
 @njit
@@ -70,8 +68,7 @@ def column_std(g: np.ndarray) -> np.ndarray:
 
 
 class Gram:
-    """Per-fold sums X'X, X'e, e'e over all candidate columns: any subset's least-squares
-    fit on some folds and its error on the others, without touching the samples again."""
+    """Per-fold sums X'X, X'e, e'e: any subset's fit on some folds and error on the others."""
 
     def __init__(self, g: np.ndarray, e: np.ndarray, fold: np.ndarray, n_folds: int) -> None:
         std = column_std(g)
@@ -82,19 +79,19 @@ class Gram:
         self.xx_all = self.xx.sum(axis=0)
         self.xe_all = self.xe.sum(axis=0)
 
-    def solve(self, cols: Sequence[int], folds: np.ndarray) -> np.ndarray:
-        """Least-squares coefficients (scaled columns) on ``folds``."""
+    def solve(self, cols: Sequence[int]) -> np.ndarray:
+        """Least-squares coefficients of ``cols`` on every fold, in the columns' own units."""
         if not cols:
             return np.zeros(0)
         idx = np.asarray(cols)
+        folds = np.arange(self.n.size)
         a = self.xx[np.ix_(folds, idx, idx)].sum(axis=0)
         b = self.xe[np.ix_(folds, idx)].sum(axis=0)
-        coef: np.ndarray = np.linalg.lstsq(a, b, rcond=1e-12)[0]
+        coef: np.ndarray = np.linalg.lstsq(a, b, rcond=1e-12)[0] / self.scale[idx]
         return coef
 
     def fold_sse(self, cols: Sequence[int]) -> np.ndarray:
-        """Blocked cross-validation: each fold's squared error under the fit on the others
-        (0 for an empty fold)."""
+        """Each fold's squared error under the fit on the others (0 for an empty fold)."""
         if not cols:
             return np.copy(self.ee)
         idx = np.asarray(cols)
@@ -111,8 +108,7 @@ class Gram:
         return np.where(self.n > 0, np.maximum(sse, 0.0), 0.0)
 
     def cv_rmse(self, cols: Sequence[int]) -> float:
-        """Blocked cross-validated RMSE of e ~ X[:, cols] c (leave one fold out); NaN
-        without rows."""
+        """Blocked cross-validated RMSE of e ~ X[:, cols] c; NaN without rows."""
         if not self.n.sum() > 0:
             return math.nan
         return math.sqrt(self.fold_sse(cols).sum() / self.n.sum())
@@ -129,8 +125,7 @@ def significant(before: np.ndarray, after: np.ndarray, n: np.ndarray,
 
 def _gains(gram: Gram, trials: Mapping[int, np.ndarray], ref: np.ndarray, margin: float,
            sigmas: float = LOOP_POLICY.significance) -> dict[int, float]:
-    """The gain over ``ref`` of each trial (its fold-wise squared errors) that lowers the
-    cross-validated RMSE by more than ``margin``, significantly."""
+    """The gain over ``ref`` of each trial that is beyond ``margin`` and significant."""
     gains = {j: 1.0 - math.sqrt(after.sum() / ref.sum()) for j, after in trials.items()}
     return {j: gain for j, gain in gains.items()
             if gain > margin and significant(ref, trials[j], gram.n, sigmas)}
@@ -176,8 +171,7 @@ def select_forward(gram: Gram, n_cols: int, offset: int, margin: float, max_effe
 
 
 def candidate_scores(gram: Gram, n_cols: int, offset: int) -> dict[int, float]:
-    """First-round scores: held-out share of the residual variance each candidate explains
-    (relative to the intercept-only model; the intercept relative to no correction)."""
+    """First-round scores: held-out share of the residual variance each candidate explains."""
     rmse_none = gram.cv_rmse([])
     rmse_offset = gram.cv_rmse([offset])
     scores = {}
@@ -199,7 +193,6 @@ def with_intercept(cols: Sequence[int], offset: int) -> list[int]:
 
 
 def rms(e: np.ndarray) -> float:
-    """The root mean square of ``e``."""
     return float(np.sqrt(np.mean(e**2)))
 
 
@@ -215,9 +208,7 @@ class Tried:
 
 @dataclass
 class Branch:
-    """One hypothesis after selection and the held-out veto: ``shift`` is the baseline
-    column removed with coefficient 1 (None: a constant intercept instead); ``refused``:
-    the best candidate ``select_carried`` tried and did not add."""
+    """One hypothesis after selection and the held-out veto (``shift``: a baseline at coef 1)."""
 
     shift: int | None
     selection: Selection
@@ -238,9 +229,7 @@ def linear_held_out(e: np.ndarray, g: np.ndarray) -> HeldOut:
 
 def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
                     runs: np.ndarray | None = None) -> bool:
-    """Does ``e_new`` lower the held-out RMSE of ``e_old`` by more than ``margin``, and
-    given each sample's validation run (``runs``), the median run's, with no run's rising
-    by more than ``margin`` (docs/design.md, "The loop's steps", 6)?"""
+    """Does ``e_new`` lower the held-out RMSE (and the median run's) by more than ``margin``?"""
     if not rms(e_new) < (1.0 - margin) * rms(e_old):
         return False
     if runs is None or not e_new.size == e_old.size == runs.size or runs.max() < 1:
@@ -250,16 +239,13 @@ def held_out_better(e_new: np.ndarray, e_old: np.ndarray, margin: float,
 
 
 def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset: int,
-                     n_folds: int, margin: float, held_out: HeldOut,
-                     runs: np.ndarray | None = None) -> Branch:
-    """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's selected
-    terms, in their order; ``shift`` enters with coefficient 1."""
-    all_folds = np.arange(n_folds)
+                     margin: float, held_out: HeldOut, runs: np.ndarray | None = None) -> Branch:
+    """The held-out veto (docs/design.md, "The loop's steps", 6) on one branch's terms."""
     head = [] if shift is None else [shift]
     auto = shift is None
 
     def trial(cols: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        c = gram.solve(cols, all_folds) / gram.scale[cols] if cols else np.zeros(0)
+        c = gram.solve(cols)
         return c, held_out([*head, *cols], np.concatenate([np.ones(len(head)), c]))
 
     kept: list[int] = []
@@ -283,13 +269,11 @@ def keep_on_held_out(gram: Gram, selection: Selection, shift: int | None, offset
 
 
 def upper_bound(log_ratios: Sequence[float], level: float) -> float:
-    """The one-sided prediction bound at ``level`` of one more run's log RMSE ratio from
-    the k runs', mean + t(level, k - 1) sd sqrt(1 + 1 / k); +inf with fewer than two runs.
-    Student's t: with two runs' sd the normal quantile would trust a spread two runs hardly
-    show."""
+    """The one-sided prediction bound at ``level`` of one more run's log RMSE ratio."""
     x = np.asarray(log_ratios, dtype=np.float64)
     if x.size < 2 or not np.all(np.isfinite(x)):
         return math.inf
+    # Student's t: with two runs' sd the normal quantile would trust a spread they hardly show
     quantile = float(student_t.ppf(level, x.size - 1))
     return float(x.mean() + quantile * x.std(ddof=1) * math.sqrt(1.0 + 1.0 / x.size))
 
@@ -306,8 +290,7 @@ def run_log_ratios(e_new: Sequence[np.ndarray], e_old: Sequence[np.ndarray]) -> 
 
 def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequence[int],
              policy: LoopPolicy) -> dict[int, float]:
-    """The candidates that lower the cross-validated RMSE with ``cols`` and the intercept
-    by more than the margin, significantly: their gain."""
+    """The candidates that lower the cross-validated RMSE beyond the margin: their gain."""
     ref = gram.fold_sse(with_intercept([*cols, offset], offset))
     if not ref.sum() > RESOLUTION ** 2 * gram.ee.sum():
         return {}
@@ -318,9 +301,7 @@ def _passing(gram: Gram, cols: list[int], offset: int, n_cols: int, skip: Sequen
 
 def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
                    policy: LoopPolicy = LOOP_POLICY, skip: Sequence[int] = ()) -> Branch:
-    """Greedy selection scored on the validation runs after their session start
-    (docs/design.md, "The loop's steps", 8); ``skip``: columns never tried."""
-    all_folds = np.arange(gram.n.size)
+    """Greedy selection scored on the validation runs (docs/design.md, "The loop's steps", 8)."""
     chosen: list[int] = []
     gains: dict[int, float] = {}
     current = held_out([], np.zeros(0))
@@ -331,7 +312,7 @@ def select_carried(gram: Gram, n_cols: int, offset: int, held_out: RunsHeldOut,
         tried: list[tuple[Tried, np.ndarray, list[np.ndarray]]] = []
         for j in sorted(passing, key=passing.__getitem__, reverse=True)[:policy.tried]:
             cols = with_intercept([*chosen, j], offset)
-            c = gram.solve(cols, all_folds) / gram.scale[cols]
+            c = gram.solve(cols)
             e_j = held_out(cols, c)
             ratios = run_log_ratios(e_j, current)
             tried.append((Tried(j, math.log(1.0 - passing[j]), ratios,

@@ -1,5 +1,4 @@
-"""The session start on each validation run of ``diagnose --validate``, as a user makes it
-(``strain-comp start``; docs/design.md, "The loop's steps", 8)."""
+"""The session start on each validation run of ``diagnose --validate``, as ``start`` makes it."""
 
 from __future__ import annotations
 
@@ -17,8 +16,7 @@ from strain_comp.offline.session_start import Started, Window, start_or_keep
 
 
 def window_flag(window: Window | None) -> str:
-    """``start``'s flag for a session start's stretch: ``--window START:END`` (``refused``
-    where the start was refused)."""
+    """``start``'s flag for a session start's stretch (``refused``: none)."""
     if window is None:
         return "refused"
     return f"--window {window[0]:.3g}:{window[1]:.3g}"
@@ -26,17 +24,15 @@ def window_flag(window: Window | None) -> str:
 
 def session_errors(calibration: Calibration, recordings: Mapping[str, Recording],
                    sensor: str) -> np.ndarray:
-    """``sensor``'s errors (estimate - reference over the samples ``evaluate`` scores) on
-    ``recordings`` after the session start (``session_start.start_or_keep``)."""
+    """``sensor``'s errors (as ``evaluate`` scores them) after the session start."""
     spanned = start_or_keep(calibration, recordings).calibration
     ev = evaluate_recordings(recordings, spanned, tare="calibration").sensors[sensor]
     return np.asarray(ev.estimate[ev.scored] - ev.reference[ev.scored], dtype=np.float64)
 
 
 class SessionHeldOut:
-    """The loop's ``selection.HeldOut`` of one sensor's terms on the validation runs after
-    their session start (the array's neighbours started with it, as a user starts the
-    whole array), cached by terms and coefficients."""
+    """``selection.HeldOut`` on the validation runs after their session start (cached)."""
+    # the array's neighbours are started with the sensor, as a user starts the whole array
 
     def __init__(self, calibration: Calibration, sensor: str,
                  runs: Sequence[Mapping[str, Recording]], candidates: Sequence[dict[str, Any]]
@@ -44,27 +40,20 @@ class SessionHeldOut:
         self.calibration = calibration
         self.sensor = sensor
         self.candidates = candidates
+        effects = [*calibration.sensors[sensor].effects, *candidates]
+        # the sensor and the neighbours its cross-talk terms and candidates read
+        self.names = list(dict.fromkeys([sensor, *(str(e["params"]["neighbour"]) for e in effects
+                                                   if e.get("kind") == "crosstalk")]))
         self.runs: list[dict[str, Recording]] = [
             dict(bag) for bag in runs
             if bag.get(sensor) is not None and bag[sensor].s is not None]
         self._cache: dict[tuple[tuple[int, float], ...], list[np.ndarray]] = {}
-        self._starts: list[Started] | None = None
-
-    def starts(self) -> list[Started]:
-        """The session start of each validation run with the calibration as given (made
-        once)."""
-        if self._starts is None:
-            self._starts = [start_or_keep(*self._restricted(self.calibration, bag))
-                            for bag in self.runs]
-        return self._starts
-
-    def usable(self) -> bool:
-        """A validation run whose session start makes at least one step."""
-        return any(start.steps for start in self.starts())
+        # each validation run's session start with the calibration as given
+        self.starts: list[Started] = [start_or_keep(*self._restricted(calibration, bag))
+                                      for bag in self.runs]
 
     def redundant(self, j: int) -> bool:
-        """Is candidate ``j`` what the session start makes itself (an output offset or
-        gain)? Such a term is neither scored nor written after it."""
+        """Is candidate ``j`` what the session start makes itself (an output offset or gain)?"""
         kind = str(self.candidates[j]["kind"])
         power = self.candidates[j]["params"].get("power", 1)
         return kind == "offset" or (kind == "strain_level" and bool(power == 1))
@@ -86,16 +75,10 @@ class SessionHeldOut:
                                 for bag in self.runs]
         return self._cache[key]
 
-    def _names(self) -> list[str]:
-        """The sensor and the neighbours its cross-talk terms and candidates read."""
-        effects = [*self.calibration.sensors[self.sensor].effects, *self.candidates]
-        return list(dict.fromkeys([self.sensor, *(str(e["params"]["neighbour"]) for e in effects
-                                                  if e.get("kind") == "crosstalk")]))
-
     def _restricted(self, calibration: Calibration, bag: Mapping[str, Recording]
                     ) -> tuple[Calibration, dict[str, Recording]]:
         """``calibration`` and ``bag`` of the sensor and those neighbours only."""
-        names = [n for n in self._names() if n in calibration.sensors and n in bag]
+        names = [n for n in self.names if n in calibration.sensors and n in bag]
         return (Calibration({n: calibration.sensors[n] for n in names}),
-                {n: bag[n] for n in self._names() if n in bag})
+                {n: bag[n] for n in self.names if n in bag})
 

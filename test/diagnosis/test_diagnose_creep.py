@@ -64,7 +64,7 @@ def test_a_creep_the_calibration_lacks_is_named_and_carries(calibration: Calibra
                       validate_recordings=[run("steps", 3, tau, weight),
                                            run("patterns", 4, tau, weight)])
     first = result.added[0]
-    assert first.family == "creep", result.summary()
+    assert first.to_json()["family"] == "creep", result.summary()
     read = float(first.params["tau"])
     assert tau / 2 <= read <= 2 * tau, result.summary()
     record = first.to_json()

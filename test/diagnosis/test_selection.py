@@ -44,7 +44,7 @@ def test_forward_selection_finds_the_true_effect_only() -> None:
     assert selection.chosen == [1]  # the intercept comes with it, not as a choice
     scores = candidate_scores(gram, g.shape[1], 0)
     assert scores[1] > 0.9 and max(scores[j] for j in (2, 3, 4)) < 0.01
-    branch = keep_on_held_out(gram, selection, None, 0, 6, 0.03, linear_held_out(e, g))
+    branch = keep_on_held_out(gram, selection, None, 0, 0.03, linear_held_out(e, g))
     assert sorted(branch.kept) == [0, 1]
     assert branch.coef[branch.kept.index(0)] == pytest.approx(0.5, abs=0.05)
     assert branch.coef[branch.kept.index(1)] == pytest.approx(2.0, abs=0.05)

@@ -25,7 +25,7 @@ class Direction(Regressor):
     kind = "direction"
     readers = param_readers(mode=choice(("sign", "strain"), "sign"), hold=flag(False))
     initial = (0.0, 0.0)
-    """The last moving direction (hold) up to the previous sample, the previous sample's."""
+    """The last moving direction (hold) up to the previous sample, and the previous one's."""
     mode: str
     hold: bool
 
@@ -93,9 +93,7 @@ def _mullins_kernel(s: np.ndarray, d: np.ndarray, form: int, n0: float,
 
 
 class Mullins(Regressor):
-    """Mullins-type softening: the response depends on the strain history's peak and on
-    how many load cycles the sensor has done (elastomers soften over the first cycles and
-    below a previously reached strain)."""
+    """Mullins-type softening: a response set by the strain's peak so far and the load cycles."""
 
     kind = "mullins"
     readers = param_readers(form=choice(_MULLINS_FORMS, "cycles_exp"), n0=positive(1.0))
@@ -109,7 +107,7 @@ class Mullins(Regressor):
 
 
 STRETCH_FORMS = ("rest", "rest_log", "gain", "gain_log")
-"""The forms of ``Stretch`` (its docstring), in the order of the kernel's codes."""
+"""The forms of ``Stretch``, in the order of the kernel's codes."""
 
 
 @njit
@@ -134,9 +132,7 @@ def _stretch_kernel(s: np.ndarray, band: float, scale: float, form: int,
 
 
 class Stretch(Regressor):
-    """Stretch history: what the sensor has been through since the run started, as the
-    strain travel x = sum |dS_hat| [%] counted through a play of +-``band`` % (so that
-    noise at rest adds nothing; a 0 -> 50 -> 0 % cycle adds 100)."""
+    """Stretch history: the strain travel sum |dS_hat| since the start, through a play of +-band."""
 
     kind = "stretch"
     readers = param_readers(form=choice(STRETCH_FORMS, "rest"), scale=positive(1000.0),
@@ -169,9 +165,7 @@ def _baseline_kernel(t: np.ndarray, s: np.ndarray, window: float,
 
 
 class Baseline(Regressor):
-    """Run-to-run baseline shift: g = b - rest, with b the mean of S_hat over the first
-    ``window`` seconds of samples after a start (or a gap reset of the engine) and ``rest``
-    [%] the strain the sensor is at when a run starts (what the calibration should read)."""
+    """Run-to-run baseline: g = mean S_hat over the first ``window`` s after a start, - ``rest``."""
 
     kind = "baseline"
     readers = param_readers(window=positive(5.0), rest=number(0.0))

@@ -1,5 +1,5 @@
-"""Effect terms with a fading memory: exponentially weighted rate, relaxation after
-strain steps, and the memory of the resistance itself."""
+"""Effect terms with a fading memory: rate, relaxation after strain steps, and the memory of
+the resistance itself."""
 
 from __future__ import annotations
 
@@ -20,8 +20,7 @@ from strain_comp.core.effects.regressor import (
 @njit
 def _step_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, rate: bool,
                  branch: int, state: np.ndarray) -> np.ndarray:
-    """Rate: y' = (du/dt - y) / tau, exact for piecewise-constant du/dt (``branch`` 1: d y).
-    Relaxation: h_k = h_{k-1} exp(-dt/tau) + du_k [d_k in branch]: decaying memory of steps."""
+    """Rate y' = (du/dt - y) / tau, or relaxation h_k = h_{k-1} exp(-dt/tau) + du_k [in branch]."""
     y, u_prev, t_prev, started = state[0], state[1], state[2], state[3]
     out = np.empty(t.size)
     for k in range(t.size):
@@ -42,12 +41,7 @@ def _step_kernel(t: np.ndarray, u: np.ndarray, d: np.ndarray, tau: float, rate: 
 
 
 class Rate(Regressor):
-    """Signed strain rate dS_hat/dt [%/s], low-passed with time constant ``tau`` [s].
-
-    Viscoelastic sensors lag or lead the strain by an amount proportional to its rate
-    (rate-dependent hysteresis, [Electrolycra] section I). ``mode: direction`` gives
-    d * rate (the detector's direction times the rate): an error of one sign whenever the
-    sensor moves, whatever the direction (e.g. self-heating or a rate-dependent gain)."""
+    """Strain rate dS_hat/dt low-passed with ``tau`` [s] (``mode: direction``: times d)."""
 
     kind = "rate"
     readers = param_readers(tau=positive(1.0), mode=choice(("signed", "direction"), "signed"))
@@ -64,16 +58,7 @@ _BRANCHES = ("both", "loading", "unloading")
 
 
 class Relaxation(Regressor):
-    """Exponentially decaying memory of recent strain change: relaxation after steps.
-
-    The first-order filter x' = (S_hat - x) / tau gives the regressor h = S_hat - x, which
-    jumps with every change of S_hat and decays with time constant ``tau`` [s] once the
-    strain is held. A sensor that overshoots after a step and relaxes back (the
-    Electrolycra's creep, [Electrolycra] section III; the spike-and-decay of
-    [Nanocomposite] eq. (1)) leaves a residual c * h. ``branch: loading``
-    (or ``unloading``) accumulates only the changes made while the detector says loading
-    (unloading), since relaxation is often strong on loading and weak on unloading.
-    Discretised exactly for a piecewise-constant input: h_k = h_{k-1} e^{-dt/tau} + dS_k."""
+    """Decaying memory h = S_hat - x of strain changes (x' = (S_hat - x) / tau), per ``branch``."""
 
     kind = "relaxation"
     readers = param_readers(tau=positive(10.0), branch=choice(_BRANCHES, "both"))
@@ -92,8 +77,7 @@ _MEMORY_FORMS = ("relaxation", "peak", "trough")
 @njit
 def _resistance_memory_kernel(t: np.ndarray, r: np.ndarray, tau: float, form: int,
                               state: np.ndarray) -> np.ndarray:
-    """y = 100 ln R, held between samples; m relaxes towards it with ``tau`` (``peak``:
-    m = max(m, y); ``trough``: m = min(m, y)); g = y - m (``peak``: m - y)."""
+    """g = y - m (peak: m - y); y = 100 ln R, m relaxing to it (peak: >= y, trough: <= y)."""
     m, y_prev, t_prev, started = state[0], state[1], state[2], state[3]
     out = np.empty(t.size)
     for k in range(t.size):
@@ -115,17 +99,8 @@ def _resistance_memory_kernel(t: np.ndarray, r: np.ndarray, tau: float, form: in
 
 
 class ResistanceMemory(Regressor):
-    """Fading memory of the resistance itself: the part of R still relaxing, or how far R
-    stands from a recent spike. It reads R (the resistance the model sees), not S_hat,
-    because where R is not monotone in strain (the carbon-black shoulder) or a step's
-    overshoot runs past the calibrated range, S_hat has lost what R still shows.
-
-    * ``relaxation``: g = y - m, m' = (y - m) / tau, the share of R [%] above its recent
-      average: a relaxation that follows every step of R, whatever its sign;
-    * ``peak``: g = p - y, p the peak of y relaxing towards y with ``tau`` and never below
-      it: how far R [%] has fallen from a recent spike, the decaying spike of
-      [Nanocomposite] eq. (3), read without knowing the step that caused it;
-    * ``trough``: g = y - q, the mirror of ``peak`` for sensors whose steps undershoot."""
+    """Fading memory of 100 ln R: the part still relaxing, or the fall from a spike (or dip)."""
+    # R, not S_hat: where R is not monotone in strain or overshoots the range, S_hat lost it
 
     kind = "resistance_memory"
     readers = param_readers(tau=positive(10.0), form=choice(_MEMORY_FORMS, "relaxation"))

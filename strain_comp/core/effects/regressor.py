@@ -1,6 +1,5 @@
-"""The effect-term contract: the inputs a regressor reads (``Batch``),
-the ``Regressor`` base class and the parameter readers every kind shares
-(docs/design.md, "The residual loop")."""
+"""The effect-term contract: the inputs a regressor reads (``Batch``), the ``Regressor`` base
+class and the parameter readers every kind shares."""
 
 from __future__ import annotations
 
@@ -33,21 +32,16 @@ class Batch:
     def of(cls, t: npt.ArrayLike, r: npt.ArrayLike, s_hat: npt.ArrayLike,
            direction: npt.ArrayLike, temperature: npt.ArrayLike | None = None,
            neighbours: Mapping[str, npt.ArrayLike] | None = None) -> Batch:
-        """Contiguous float64 copies, checked to be 1-D and of one length."""
-        arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in (t, r, s_hat, direction)]
-        n = arrays[0].size
+        """Contiguous float64 arrays (the callers' are 1-D and of one length)."""
+        t_, r_, s_hat_, direction_ = (np.ascontiguousarray(a, dtype=np.float64)
+                                      for a in (t, r, s_hat, direction))
         temp = None if temperature is None else np.ascontiguousarray(temperature, np.float64)
         nbrs = {str(k): np.ascontiguousarray(v, np.float64) for k, v in (neighbours or {}).items()}
-        for a in [*arrays, *([temp] if temp is not None else []), *nbrs.values()]:
-            if a.ndim != 1 or a.size != n:
-                raise ValueError("effects: every input array must be 1-D and of one length")
-        t_, r_, s_hat_, direction_ = arrays
         return cls(t_, r_, s_hat_, direction_, temperature=temp, neighbours=nbrs)
 
 
 Reader = Callable[[Mapping[str, Any], str], Any]
-"""Reads one parameter ``params[key]`` (its default where missing) or raises
-``ParameterError``."""
+"""Reads ``params[key]`` (its default where missing) or raises ``ParameterError``."""
 
 
 def number(default: float, **bounds: Any) -> Reader:
@@ -69,29 +63,24 @@ def positive(default: float) -> Reader:
     return number(default, lo=0.0, strict=True)
 
 
-def choice(options: Sequence[str], default: str) -> Reader:
-    """One of ``options``."""
+def checked(default: Any, ok: Callable[[Any], bool], wanted: str) -> Reader:
+    """``params[key]`` (``default`` where missing) if ``ok``; else it must be ``wanted``."""
 
-    def read(params: Mapping[str, Any], key: str) -> str:
+    def read(params: Mapping[str, Any], key: str) -> Any:
         value = params.get(key, default)
-        if value not in options:
-            raise ParameterError(f"params.{key}",
-                                 f"must be one of {', '.join(options)}; got {value!r}")
-        return str(value)
-
-    return read
-
-
-def flag(default: bool) -> Reader:
-    """True or false."""
-
-    def read(params: Mapping[str, Any], key: str) -> bool:
-        value = params.get(key, default)
-        if not isinstance(value, bool):
-            raise ParameterError(f"params.{key}", f"must be true or false, got {value!r}")
+        if not ok(value):
+            raise ParameterError(f"params.{key}", f"must be {wanted}, got {value!r}")
         return value
 
     return read
+
+
+def choice(options: Sequence[str], default: str) -> Reader:
+    return checked(default, lambda value: value in options, f"one of {', '.join(options)}")
+
+
+def flag(default: bool) -> Reader:
+    return checked(default, lambda value: isinstance(value, bool), "true or false")
 
 
 def param_readers(**readers: Reader) -> Mapping[str, Reader]:
@@ -101,8 +90,7 @@ def param_readers(**readers: Reader) -> Mapping[str, Reader]:
 
 def run_segments(run: Callable[[slice], np.ndarray], reset: Callable[[], None], n: int,
                  starts: Sequence[int]) -> np.ndarray:
-    """``run`` over the n samples in segments cut at ``starts`` (where the engine reset after
-    a gap), calling ``reset`` between segments, as the engine resets effect state there."""
+    """``run`` over the n samples in segments cut at ``starts`` (gap resets), ``reset`` between."""
     out = np.empty(n)
     for k, (a, b) in enumerate(pairwise([0, *starts, n])):
         if k > 0:
@@ -125,13 +113,11 @@ class Regressor(ABC):
     _state: np.ndarray
 
     def __init__(self, params: Mapping[str, Any]) -> None:
-        """Each parameter read from ``params`` by its reader."""
         for key, read in self.readers.items():
             setattr(self, key, read(params, key))
         self.reset()
 
     def reset(self) -> None:
-        """Restore the initial state."""
         self._state = np.array(self.initial, dtype=np.float64)
 
     @abstractmethod
@@ -143,16 +129,14 @@ class Regressor(ABC):
         return {key: getattr(self, key) for key in self.readers}
 
     def rescale(self, factor: float) -> None:
-        """The resistance it reads is ``factor`` x what it was (a tare): carry the state
-        over, as if that scale had held from the first sample. Terms that do not read the
-        resistance keep no state in its scale: nothing to do."""
+        """The resistance it reads is ``factor`` x what it was (a tare): carry the state over."""
         return None
 
-    def _held(self, values: np.ndarray, k: int = 0) -> np.ndarray:
-        """``values`` with the last finite one held, across batches in ``_state[k]``."""
+    def _held(self, values: np.ndarray) -> np.ndarray:
+        """``values`` with the last finite one held, across batches in ``_state[0]``."""
         idx = np.where(np.isfinite(values), np.arange(values.size), -1)
         np.maximum.accumulate(idx, out=idx)
-        held = np.where(idx >= 0, values[np.maximum(idx, 0)], float(self._state[k]))
+        held = np.where(idx >= 0, values[np.maximum(idx, 0)], float(self._state[0]))
         if held.size:
-            self._state[k] = held[-1]
+            self._state[0] = held[-1]
         return held

@@ -12,6 +12,7 @@ import numpy as np
 from strain_comp.core.effects.regressor import (
     Batch,
     Regressor,
+    checked,
     choice,
     number,
     param_readers,
@@ -29,13 +30,11 @@ class Offset(Regressor):
 
 
 TEMPERATURE_RANGE = (-273.15, 1000.0)
-"""Temperatures [deg C] a temperature term reads; one outside (below absolute zero, a
-finite 1e308, NaN, inf) is a bad reading, treated as missing."""
+"""Temperatures [deg C] a temperature term reads; one outside is a bad reading (missing)."""
 
 
 class Temperature(Regressor):
-    """Temperature dependence: g = T - t_ref (``form: offset``, a TCR shifting R) or
-    g = (T - t_ref) * S_hat (``form: strain``, a temperature-dependent gauge factor)."""
+    """Temperature: g = T - t_ref (``form: offset``) or (T - t_ref) * S_hat (``form: strain``)."""
 
     kind = "temperature"
     readers = param_readers(form=choice(("offset", "strain"), "offset"), t_ref=number(20.0))
@@ -54,7 +53,6 @@ class Temperature(Regressor):
 
 
 def _power(params: Mapping[str, Any], key: str) -> int:
-    """1, 2 or 3."""
     power = params.get(key, 1)
     if isinstance(power, bool) or power not in (1, 2, 3):
         raise ParameterError(f"params.{key}", f"must be 1, 2 or 3, got {power!r}")
@@ -72,19 +70,12 @@ class StrainLevel(Regressor):
         return batch.s_hat ** self.power
 
 
-def _sensor_name(params: Mapping[str, Any], key: str) -> str:
-    """A sensor's name (no default)."""
-    name = params.get(key)
-    if not isinstance(name, str) or not name:
-        raise ParameterError(f"params.{key}", f"must be a sensor name, got {name!r}")
-    return name
-
-
 class Crosstalk(Regressor):
     """Cross-talk in an array: g = the S_hat of the neighbour sensor ``neighbour``."""
 
     kind = "crosstalk"
-    readers = param_readers(neighbour=_sensor_name)
+    readers = param_readers(neighbour=checked(
+        None, lambda name: isinstance(name, str) and bool(name), "a sensor name"))
     initial = (math.nan,)
 
     def run(self, batch: Batch) -> np.ndarray:

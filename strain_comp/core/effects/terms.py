@@ -44,7 +44,6 @@ def regressor_from_dict(effect: Mapping[str, Any]) -> Regressor:
 
 
 def validate_effect_dict(effect: Mapping[str, Any]) -> None:
-    """Check one calibration-file effect entry."""
     regressor_from_dict(effect)
     require_float(effect, "coef")
 
@@ -56,11 +55,9 @@ def effect_dict(name: str, regressor: Regressor, coef: float) -> dict[str, Any]:
 
 
 class EffectTerms:
-    """The effect terms of one sensor, as the engine uses them:
-    S_corrected = S_hat - sum_j coef_j g_j."""
+    """The effect terms of one sensor: S_corrected = S_hat - sum_j coef_j g_j."""
 
     def __init__(self, regressors: Sequence[Regressor], coefs: Sequence[float]) -> None:
-        """Hold the terms."""
         self.regressors = list(regressors)
         self.coefs = np.asarray(coefs, dtype=np.float64).reshape(-1)
 
