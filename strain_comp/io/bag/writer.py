@@ -175,13 +175,7 @@ class Stream:
         return keep
 
     def finish(self) -> None:
-        """Data end, summary (schemas, channels, statistics, chunk indexes), footer; then
-        the atomic rename."""
-        with self._output.discarded_on_error():
-            self._finish()
-        self._output.commit()
-
-    def _finish(self) -> None:
+        """Data end, summary (schemas, channels, statistics, chunk indexes), footer, rename."""
         self._write(_record(DataEnd(data_section_crc=0)))
         summary_start = self.pos
         pos = self.pos
@@ -210,6 +204,7 @@ class Stream:
         self._write(summary_data + _record(Footer(summary_start=summary_start,
                                                   summary_offset_start=summary_offset_start,
                                                   summary_crc=crc)) + MAGIC)
+        self._output.commit()
 
     def abort(self) -> None:
         """Drop the temporary file (nothing replaces the target)."""
@@ -428,18 +423,17 @@ class BagWriter:
                             round(before * 1e9))
 
     def close(self) -> None:
-        """Write the remaining messages, the summary and the footer (once); if that fails
-        (a full disk, ``ulimit -f``), the temporary file is deleted (``abort``)."""
+        """Write the rest, the summary and the footer (once); on a failure, ``abort``."""
         if self._closed:
             return
         try:
             self._write_pending(final=True)
+            assert self._out is not None
+            self._out.finish()
         except BaseException:
             self.abort()
             raise
         self._closed = True
-        assert self._out is not None
-        self._out.finish()
 
     def _write_pending(self, *, final: bool, before: int | None = None) -> None:
         if self._out is None:
