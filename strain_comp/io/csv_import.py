@@ -32,8 +32,7 @@ _LINES = re.compile(r"\r\n|\r|\n")
 
 @dataclass
 class ImportReport:
-    """What the import did: rows read and kept, dropped rows by reason, repaired glitches,
-    the unit of the stored strain, and notes."""
+    """What the import did: rows kept and dropped by reason, glitches, units, notes."""
 
     path: str
     fmt: str
@@ -46,8 +45,7 @@ class ImportReport:
     """The unit of the stored resistance: ohm, or the one given (``R/R0``)."""
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
-    """A reference that looks wrong (``reference_warnings``): one line each, saying what
-    to pass."""
+    """What looks wrong in the reference (``reference_warnings``), one line each."""
 
     def lines(self) -> list[str]:
         """Human-readable summary (the notes are printed apart, on stderr)."""
@@ -112,8 +110,7 @@ def _to_float(text: str) -> float:
 
 def _numeric(rows: list[list[str]], width: int, columns: list[int]
              ) -> tuple[np.ndarray, np.ndarray]:
-    """Those columns as floats (NaN where unparsable) and the mask of rows shorter than
-    ``width``."""
+    """Those columns as floats (NaN: unparsable) and the mask of rows shorter than ``width``."""
     table = np.full((len(rows), len(columns)), np.nan)
     short = np.zeros(len(rows), bool)
     for i, row in enumerate(rows):
@@ -216,8 +213,7 @@ def _split_header(path: Path, rows: list[list[str]]
 def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
             mapping: Mapping[str, int | str], scales: Mapping[str, float] | None
             ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Each mapped field's values, scaled (NaN where unparsable), and the mask of rows
-    shorter than the format's width."""
+    """Each mapped field's values, scaled (NaN: unparsable), and the mask of short rows."""
     cols = {k: _column(k, v, head, path) for k, v in mapping.items()}
     widest = max(len(row) for row in rows)
     for k, c in cols.items():
@@ -260,8 +256,7 @@ def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[
 
 def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: ImportReport, *,
                gauge_length_mm: float | None, strain_factor: float) -> np.ndarray:
-    """The reference strain on the good rows' times (NaN outside its span); its notes and
-    warnings in ``report``."""
+    """The reference strain on the good rows' times (NaN outside its span), noted in ``report``."""
     t = fields["time"]
     s_raw = fields["strain"]
     t_s = fields.get("strain_time", t)
@@ -283,8 +278,7 @@ def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: Impor
 
 def _strain(pos: np.ndarray, report: ImportReport, *, gauge_length_mm: float | None,
             strain_factor: float) -> np.ndarray:
-    """The reference column as strain by the format's rule; the unit stored, the repaired
-    glitches and a note in ``report``."""
+    """The reference column as strain by the format's rule; the unit and glitches in ``report``."""
     if report.fmt == "cb_pdms":
         pos, report.glitches_repaired = repair_position_glitches(np.abs(pos))
         return 100.0 * pos / (gauge_length_mm or CB_PDMS_GAUGE_MM)

@@ -51,8 +51,7 @@ def scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
 @njit
 def compact(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray]:
-    """The spans ``buf[starts[i]:starts[i] + lens[i]]`` copied into one new buffer; their
-    new starts."""
+    """The spans ``buf[starts[i]:starts[i] + lens[i]]`` in one new buffer; their starts."""
     out = np.empty(lens.sum(), np.uint8)
     new = np.empty(starts.shape[0], np.int64)
     pos = 0
@@ -72,7 +71,6 @@ class Collector:
     """Accumulates schemas, channels and message locations from one or more files."""
 
     def __init__(self, topics: set[str] | None) -> None:
-        """Start empty."""
         self.topics = topics
         self.schemas: dict[tuple[int, int], Schema] = {}
         self.channels: dict[tuple[int, int], Channel] = {}

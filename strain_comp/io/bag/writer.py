@@ -1,7 +1,6 @@
-"""MCAP bag writing (docs/design.md, "Bags"): ``BagWriter`` buffers messages, payloads of a
-fixed layout built as numpy rows of one template (``strain_comp.io.cdr.RowEncoder``);
-``Stream`` writes them merged in log-time order into chunks assembled in bulk (zstd, CRC,
-message indexes), then the summary and the footer: one fully indexed ros2-profile file."""
+"""MCAP bag writing: ``BagWriter`` buffers messages (``cdr.RowEncoder`` rows); ``Stream``
+writes them in log-time order into chunks assembled in bulk (zstd, CRC, message indexes),
+then the summary and the footer: one fully indexed ros2-profile file."""
 
 from __future__ import annotations
 
@@ -69,8 +68,7 @@ class Pending:
     payloads: list[np.ndarray] = field(default_factory=list)
 
     def merged(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The messages in log-time order (stable): times, channels, sequences, and each
-        payload's offset and length in the payloads joined in buffered order."""
+        """In log-time order: times, channels, sequences, payload offsets and lengths."""
         t_ns = np.concatenate(self.t_ns)
         order = np.argsort(t_ns, kind="stable")
         plen = np.concatenate(self.lengths)
@@ -138,8 +136,7 @@ class Stream:
 
     def write_messages(self, topics: Mapping[str, Topic], p: Pending, *, final: bool,
                        before: int | None = None) -> Pending | None:
-        """Write ``p`` merged in log-time order as chunks; unless ``final``, the last partial
-        chunk and the messages at or after ``before`` [ns] are returned (sorted) instead."""
+        """``p`` as chunks; unless ``final``, return the rest (a partial chunk, ``before`` on)."""
         self._declare(topics)
         t_ns, chan, seq, poff, plen = p.merged()
         blob = _joined(p.payloads)
@@ -228,8 +225,7 @@ def _joined(parts: list[np.ndarray]) -> np.ndarray:
 @njit
 def _fill_records(raw: np.ndarray, head: np.ndarray, start: np.ndarray, poff: np.ndarray,
                   plen: np.ndarray, blob: np.ndarray) -> None:
-    """Message i's record header and payload to ``raw[start[i]:]`` (a numpy fancy-index
-    scatter was 3-5x slower)."""
+    """Message i's record header and payload to ``raw[start[i]:]`` (numpy: 3-5x slower)."""
     width = head.shape[1]
     for i in range(start.size):
         s = start[i]
@@ -379,8 +375,7 @@ class BagWriter:
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
                           position: npt.ArrayLike) -> None:
-        """Add sensor_msgs/msg/JointState messages, one per row of ``position``, stamped
-        with the log time."""
+        """Add sensor_msgs/msg/JointState messages, one per row, stamped with the log time."""
         t_ns = _ns(t)  # refuses stamps past int32 seconds
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, len(names))
         self._add(topic, "sensor_msgs/msg/JointState", t_ns,
