@@ -30,8 +30,7 @@ class Command(Protocol):
     EXAMPLE: str
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """The command's arguments and flags (``--quiet`` and ``--debug`` are added to
-        every command)."""
+        """The command's arguments and flags (besides ``--quiet`` and ``--debug``)."""
 
     def run(self, args: argparse.Namespace) -> int:
         """Do the command; returns the exit code. Bad input raises ``StrainCompError``."""
@@ -42,9 +41,7 @@ class UsageError(StrainCompError):
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with usage errors as one line (``UsageError``) instead of usage + exit; a
-    ``notes`` callable adds text above the example when the help is printed (so a costly
-    list, such as the fit options, is built only for ``--help``)."""
+    """argparse with one-line usage errors; ``notes()`` adds text to the help when printed."""
 
     notes: Callable[[], str] | None = None
 
