@@ -18,7 +18,6 @@ from strain_comp.io.bag import BagWriter
 from strain_comp.io.bag.schemas import MAX_TIME_S
 from strain_comp.io.recording import Recording, align, check_scales, scaled
 
-FORMATS = ("cb_pdms", "fiber", "generic")
 CB_PDMS_GAUGE_MM = 40.0
 _DEFAULT_COLUMNS: dict[str, dict[str, int | str]] = {
     "cb_pdms": {"resistance": 0, "time": 2, "strain": 3, "strain_time": 4},
@@ -181,10 +180,6 @@ def _mapping(path: Path, fmt: str, gauge_length_mm: float | None,
              columns: Mapping[str, int | str] | None, scales: Mapping[str, float] | None
              ) -> dict[str, int | str]:
     """The column mapping (the format's defaults under ``columns``), its inputs checked."""
-    if fmt not in FORMATS:
-        raise InputError(f"unknown CSV format {fmt!r}; one of {', '.join(FORMATS)}")
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
     if gauge_length_mm is not None and not (np.isfinite(gauge_length_mm) and gauge_length_mm > 0):
         raise InputError(f"gauge length must be > 0 mm, got {gauge_length_mm}")
     mapping = {**_DEFAULT_COLUMNS[fmt], **(columns or {})}
@@ -339,5 +334,5 @@ def write_recording_bag(recording: Recording, out_path: str | Path, *,
             writer.write_temperature(f"{prefix}/temperature", recording.t, recording.temperature)
 
 
-__all__ = ["FORMATS", "ImportReport", "ImportResult", "import_csv", "reference_warnings",
+__all__ = ["ImportReport", "ImportResult", "import_csv", "reference_warnings",
            "repair_position_glitches", "write_recording_bag"]
