@@ -4,7 +4,6 @@ events as the limits are checked (``_walk``); any other then goes through the lo
 
 from __future__ import annotations
 
-import gc
 import re
 import sys
 from collections.abc import Iterator
@@ -190,24 +189,17 @@ def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
 def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_000,
                  max_depth: int = 64) -> Any:
     """The single YAML document in ``text``, within the limits."""
-    # the cyclic collector paused: a document builds no cycles (docs/reliability.md)
-    collecting = gc.isenabled()
-    gc.disable()
+    _check_flow_depth(text, max_depth)
+    plain, document, aliases = _walk(text, max_aliases, max_nodes, max_depth)
+    if plain:
+        return document
+    loader = _Loader(text)
     try:
-        _check_flow_depth(text, max_depth)
-        plain, document, aliases = _walk(text, max_aliases, max_nodes, max_depth)
-        if plain:
-            return document
-        loader = _Loader(text)
-        try:
-            node = loader.get_single_node()
-            if node is None:
-                return None
-            if aliases:  # without aliases nothing expands: the events' checks were the limits
-                _check_expansion(node, max_nodes, max_depth)
-            return loader.construct_document(node)
-        finally:
-            loader.dispose()
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        if aliases:  # without aliases nothing expands: the events' checks were the limits
+            _check_expansion(node, max_nodes, max_depth)
+        return loader.construct_document(node)
     finally:
-        if collecting:
-            gc.enable()
+        loader.dispose()

@@ -12,7 +12,7 @@ import numpy as np
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 
-from strain_comp.errors import BagError, InputError
+from strain_comp.errors import InputError
 from strain_comp.io.bag.records import MAX_LOG_NS, Collector, gather
 from strain_comp.io.bag.schemas import SCHEMAS, BagContents, Series, norm_type
 from strain_comp.io.multiarray import array_values, label_names
@@ -36,8 +36,7 @@ def _decoder(kind: str) -> Callable[[bytes], Any]:
     schema = Schema(id=_DECODED_TYPES.index(kind) + 1, name=kind, encoding="ros2msg",
                     data=SCHEMAS[kind].encode())
     decoder = _DECODERS.decoder_for("cdr", schema)
-    if decoder is None:
-        raise BagError(f"no CDR decoder for {kind}")
+    assert decoder is not None  # None only for another encoding than cdr / ros2msg
     return decoder
 
 
