@@ -44,8 +44,5 @@ def grid_progress(shown: Any) -> Callable[[str], None]:
         if match is None:
             shown.set_postfix_str(line.split(": ", 1)[-1][:40], refresh=True)
             return
-        done, total = int(match.group(1)), int(match.group(2))
-        if shown.total != total:
-            shown.reset(total=total)
-        shown.update(done - shown.n)
+        counter(shown)(int(match.group(1)), int(match.group(2)))
     return say

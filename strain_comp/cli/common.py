@@ -107,7 +107,6 @@ def write_json(path: str, data: object, inputs: Sequence[str]) -> None:
 
 
 def require_ros(command: str) -> None:
-    """Check that ROS 2's Python client is installed."""
     if importlib.util.find_spec("rclpy") is None:
         raise InputError(f"{command} needs ROS 2's Python client (rclpy): pip install "
                          "'.[ros]' in this project, or source a ROS 2 Jazzy installation")
@@ -122,7 +121,6 @@ def tracking_flag(p: argparse.ArgumentParser) -> None:
 
 
 def references_flag(p: argparse.ArgumentParser) -> None:
-    """Add ``--references-every SECONDS``."""
     p.add_argument("--references-every", type=float, metavar="SECONDS",
                    help="fuse the bag's own /NAME/strain_reference every SECONDS into the "
                    "output gain and offset, causally (a known strain now and then, as a robot "
@@ -130,7 +128,6 @@ def references_flag(p: argparse.ArgumentParser) -> None:
 
 
 def tare_flag(p: argparse.ArgumentParser) -> None:
-    """Add ``--tare calibration|auto``."""
     p.add_argument("--tare", choices=("calibration", "auto"), default="calibration",
                    help="rest resistance from the calibration (default) or from the run's "
                    "first seconds at rest (auto)")

@@ -72,7 +72,6 @@ class AtomicFile:
     """A temporary file beside ``path`` that ``commit()`` renames over it, ``discard()`` deletes."""
 
     def __init__(self, path: PathLike, *, inputs: Iterable[PathLike] = ()) -> None:
-        """Open the temporary file beside ``path``."""
         self.inputs = list(inputs)
         self.path = check_output(path, self.inputs)
         self.path.parent.mkdir(parents=True, exist_ok=True)

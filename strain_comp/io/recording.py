@@ -201,7 +201,6 @@ class PieceAlign:
         self.src_v = np.empty(0)
 
     def add(self, t: np.ndarray, t_src: np.ndarray, values: np.ndarray) -> None:
-        """Take in the next piece."""
         t_src = np.asarray(t_src, dtype=np.float64)
         values = np.asarray(values, dtype=np.float64)
         if self.exact and t_src.shape == t.shape and np.array_equal(t_src, t):

@@ -32,7 +32,6 @@ _DECODERS = DecoderFactory()
 
 
 def _decoder(kind: str) -> Callable[[bytes], Any]:
-    """CDR decoder of the standard ROS 2 message ``kind``."""
     schema = Schema(id=_DECODED_TYPES.index(kind) + 1, name=kind, encoding="ros2msg",
                     data=SCHEMAS[kind].encode())
     decoder = _DECODERS.decoder_for("cdr", schema)

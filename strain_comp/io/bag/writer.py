@@ -350,12 +350,10 @@ class BagWriter:
         entry.n += t_ns.size
 
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        """Add std_msgs/msg/Float64 messages, one per (t, value)."""
         v = np.asarray(values, dtype="<f8").reshape(-1)
         self._add(topic, "std_msgs/msg/Float64", _ns(t), cdr.RowEncoder.scalar("<f8").rows(v))
 
     def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        """Add std_msgs/msg/Int8 messages, one per (t, value)."""
         v = np.asarray(values)
         if v.size and (np.abs(v) > 128).any():
             raise BagError(f"{topic}: Int8 values out of range")
