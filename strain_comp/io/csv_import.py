@@ -58,12 +58,6 @@ class ImportReport:
         return out
 
 
-@dataclass(frozen=True)
-class ImportResult:
-    recording: Recording
-    report: ImportReport
-
-
 _DELIMITERS = ("\t", ";", ",", "|")
 _WHITESPACE = " "
 
@@ -149,8 +143,8 @@ def repair_position_glitches(pos: np.ndarray, *, threshold_mm: float = 0.5
 def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: float | None = None,
                columns: Mapping[str, int | str] | None = None,
                scales: Mapping[str, float] | None = None, delimiter: str | None = None,
-               resistance_unit: str = "ohm") -> ImportResult:
-    """Import one tensile-tester CSV as a Recording (docs/csv.md)."""
+               resistance_unit: str = "ohm") -> tuple[Recording, ImportReport]:
+    """One tensile-tester CSV as a Recording, and what the import did (docs/csv.md)."""
     path = Path(path)
     mapping = _mapping(path, fmt, gauge_length_mm, columns, scales)
     rows, _ = _read_rows(path, delimiter)
@@ -168,8 +162,7 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
         strain = _reference(fields, good, report, gauge_length_mm=gauge_length_mm,
                             strain_factor=(scales or {}).get("strain", 1.0))
     report.kept = int(good.sum())
-    rec = Recording(name=sensor, t=t[good], r=fields["resistance"][good], s=strain)
-    return ImportResult(rec, report)
+    return Recording(name=sensor, t=t[good], r=fields["resistance"][good], s=strain), report
 
 
 _KEYS = ("time", "resistance", "strain", "strain_time")
@@ -296,9 +289,7 @@ MICROSTRAIN_SPAN = 1000.0
 
 
 def reference_warnings(values: np.ndarray, t: np.ndarray, *, percent: bool) -> list[str]:
-    """What looks wrong in a reference column as read (before any gauge length)."""
-    ok = np.isfinite(values) & np.isfinite(t)
-    values, t = values[ok], t[ok]
+    """What looks wrong in a reference column as read (finite values, before any gauge length)."""
     if values.size < 2:
         return []
     lines = []
@@ -334,5 +325,5 @@ def write_recording_bag(recording: Recording, out_path: str | Path, *,
             writer.write_temperature(f"{prefix}/temperature", recording.t, recording.temperature)
 
 
-__all__ = ["ImportReport", "ImportResult", "import_csv", "reference_warnings",
+__all__ = ["ImportReport", "import_csv", "reference_warnings",
            "repair_position_glitches", "write_recording_bag"]
