@@ -26,7 +26,7 @@ from strain_comp.cli import (
     simulate,
     start,
 )
-from strain_comp.cli.common import PROG, Command, Formatter, Parser, UsageError, err
+from strain_comp.cli.common import PROG, Command, Parser, UsageError, err
 from strain_comp.errors import StrainCompError, Terminated, raise_terminated
 from strain_comp.version import __version__
 
@@ -44,7 +44,7 @@ EXIT_TERMINATED = 143
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser; subcommand names and flags as docs/design.md fixes them."""
     parser = Parser(
-        prog=PROG, formatter_class=Formatter,
+        prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Calibrated strain from soft resistive strain sensors: "
         "simulate or import data, fit, evaluate, replay, diagnose, run.",
         epilog="example:\n  strain-comp evaluate bags/demo_rates.mcap --calibration "
@@ -54,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     for command in COMMANDS:
         p = sub.add_parser(command.NAME, help=command.SUMMARY,
                            description=textwrap.fill(command.DESCRIPTION, 88),
-                           epilog="example:\n  " + command.EXAMPLE, formatter_class=Formatter)
+                           epilog="example:\n  " + command.EXAMPLE,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
         command.add_arguments(p)
         p.set_defaults(func=command.run)
         p.add_argument("-q", "--quiet", action="store_true",

@@ -62,10 +62,6 @@ class Parser(argparse.ArgumentParser):
         return super().format_help()
 
 
-class Formatter(argparse.RawDescriptionHelpFormatter):
-    """Descriptions and examples (epilogs) printed as written."""
-
-
 def err(line: str) -> None:
     """One line on stderr."""
     print(line, file=sys.stderr)

@@ -26,12 +26,11 @@ MAX_BAG_BYTES = 2**30
 """Message bytes ``read_bag`` and ``raw_messages`` read from one bag [bytes]."""
 
 
-def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
-             budget: bool = True) -> BagContents:
+def read_bag(path: str | os.PathLike[str], *, budget: bool = True) -> BagContents:
     """A whole bag: ``iter_bag``'s pieces joined; ``budget``: refuse past ``MAX_BAG_BYTES``."""
     merged = BagContents()
     parts: dict[str, list[Series]] = {}
-    for piece in iter_bag(path, topics, budget=MAX_BAG_BYTES if budget else None):
+    for piece in iter_bag(path, budget=MAX_BAG_BYTES if budget else None):
         for topic, series in piece.series.items():
             parts.setdefault(topic, []).append(series)
         for topic, labels in piece.labels.items():
@@ -101,11 +100,11 @@ def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = No
     return out, located(path, col.problems)
 
 
-def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
-             window: int = WINDOW, budget: int | None = None) -> Iterator[BagContents]:
+def iter_bag(path: str | os.PathLike[str], *, window: int = WINDOW,
+             budget: int | None = None) -> Iterator[BagContents]:
     """A bag piece by piece in log-time order, about ``window`` messages each."""
     path = Path(path)
-    col = Collector(set(topics) if topics is not None else None)
+    col = Collector(None)
     cut: int | None = None
     for file in _walk(path, col):
         if budget is not None:
