@@ -82,13 +82,10 @@ class Collector:
         self.msg_start: list[np.ndarray] = []
         self.msg_len: list[np.ndarray] = []
         self.problems: list[str] = []
-        self.held = 0
-        """Message bytes held undecoded in ``blocks``."""
-        self.collected = 0
-        """Message bytes collected since the start (``read_bag``'s budget)."""
+        self.held = 0  # message bytes held undecoded in ``blocks``
+        self.collected = 0  # message bytes collected since the start (the whole-bag budget)
         self.file_index = 0
-        self.chunk_start = 0
-        """Latest chunk start (or loose message) time read [ns]: earlier ones are all in."""
+        self.chunk_start = 0  # the latest chunk start read [ns]: earlier messages are all in
 
     def add_block(self, buf: np.ndarray, ops: np.ndarray, starts: np.ndarray,
                   lens: np.ndarray, where: str) -> None:
