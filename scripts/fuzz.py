@@ -1049,17 +1049,17 @@ def check_csv(path: Path, rng: np.random.Generator) -> bool:
                for key in ("time", "resistance", "strain") if key != "strain" or rng.random() < 0.7}
     scales = {"time": 1e-9} if rng.random() < 0.1 else None
     try:
-        result = import_csv(path, fmt="generic", sensor="s1", columns=columns, scales=scales)
+        rec, report = import_csv(path, fmt="generic", sensor="s1", columns=columns,
+                                 scales=scales)
     except InputError as err:
         if "\n" in str(err):
             raise AssertionError(f"error message not one line: {err}") from None
         return False
-    rec = result.recording
     t, r = np.asarray(rec.t), np.asarray(rec.r)
     if not (np.isfinite(t).all() and (np.diff(t) > 0).all() and t.min() >= 0
             and t.max() <= MAX_TIME_S and np.isfinite(r).all() and (r > 0).all()):
         raise AssertionError("imported samples that the bag readers would skip")
-    if result.report.kept + sum(result.report.dropped.values()) != result.report.rows:
+    if report.kept + sum(report.dropped.values()) != report.rows:
         raise AssertionError("rows lost: kept + dropped != rows")
     write_recording_bag(rec, path.with_suffix(".mcap"))
     return True

@@ -1,10 +1,6 @@
-"""strain_comp: calibrated strain from the resistance of soft strain sensors.
-
-The core (models, fitting, direction detection, bag I/O, evaluation, diagnosis) imports no
-ROS module; ``strain_comp.ros.node`` is a thin rclpy layer over ``strain_comp.core.engine``.
-Contracts (layout, topics, units, files, command line): docs/design.md; the papers the
-docstrings cite by key and equation number: docs/references.md.
-"""
+"""strain_comp: calibrated strain from the resistance of soft strain sensors. Only
+``strain_comp.ros`` imports ROS; contracts: docs/design.md; the papers the docstrings cite
+by key and equation number: docs/references.md."""
 
 from typing import TYPE_CHECKING, Any
 
@@ -39,14 +35,12 @@ if TYPE_CHECKING:
 
 
 def __dir__() -> list[str]:
-    """The public names (``__all__``) with the module's own, for ``dir()``, tab completion
-    and ``help()``, without importing ``strain_comp.api``."""
+    """The public names and the module's own, without importing ``strain_comp.api``."""
     return sorted({*__all__, *globals()} - {"Any", "TYPE_CHECKING"})
 
 
 def __getattr__(name: str) -> Any:
-    """``strain_comp.fit`` and the rest of ``strain_comp.api``, imported on first use, so
-    ``strain-comp --version`` and ``--help`` do not load numpy."""
+    """``strain_comp.api``'s names, imported on first use (``--help`` loads no numpy)."""
     if name in __all__:
         from strain_comp import api
 

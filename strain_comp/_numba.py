@@ -1,10 +1,6 @@
-"""numba set-up: a writable cache directory, then the ``njit`` every kernel uses.
-
-numba's ``cache=True`` writes next to the source file; on a read-only install (a ROS 2
-``install/`` tree, a system site-packages) that fails at import. If ``NUMBA_CACHE_DIR``
-is not set and the package directory is not writable, point it at a per-user cache
-directory before numba is imported. Every module imports numba through this one.
-"""
+"""numba set-up, through which every module imports numba: on a read-only install (a ROS 2
+``install/`` tree) ``cache=True`` would fail at import, so unless ``NUMBA_CACHE_DIR`` is set
+a per-user cache directory is chosen first; then the ``njit`` every kernel uses."""
 
 from __future__ import annotations
 
@@ -19,15 +15,11 @@ if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher
 
 
-def _writable(path: Path) -> bool:
-    return os.access(path, os.W_OK)
-
-
 def _choose_cache_dir() -> str | None:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return None
     pycache = Path(__file__).resolve().parent
-    if _writable(pycache):
+    if os.access(pycache, os.W_OK):
         return None
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     for candidate in (Path(base) / "strain_comp" / "numba",
@@ -36,7 +28,7 @@ def _choose_cache_dir() -> str | None:
             candidate.mkdir(parents=True, exist_ok=True)
         except OSError:
             continue
-        if _writable(candidate):
+        if os.access(candidate, os.W_OK):
             return str(candidate)
     return None
 

@@ -1,7 +1,5 @@
-"""The one errors module of strain_comp: callers catch these precisely.
-
-The command line turns every ``StrainCompError`` into exit code 2 and one line on stderr.
-"""
+"""The one errors module of strain_comp: the command line turns every ``StrainCompError``
+into exit code 2 and one line on stderr."""
 
 from __future__ import annotations
 
@@ -46,8 +44,7 @@ class OutputError(StrainCompError):
 
 
 class Terminated(BaseException):
-    """SIGTERM arrived (``kill``, ``timeout``, a scheduler): a command unwinds as on Ctrl-C,
-    every ``with`` block removing its temporary files and ending its workers (exit 143)."""
+    """SIGTERM arrived: a command unwinds as on Ctrl-C, ``with`` blocks cleaning up (exit 143)."""
 
 
 def raise_terminated(signum: int, frame: object) -> None:

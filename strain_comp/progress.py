@@ -1,6 +1,5 @@
-"""Progress bars for long work (an APL fit's grid, diagnose, many bags), with tqdm, drawn on
-stderr only when it is a terminal and the command is not ``--quiet`` (``wanted``).
-"""
+"""Progress bars (tqdm) for long work, drawn on stderr only when it is a terminal and the
+command is not ``--quiet`` (``wanted``)."""
 
 from __future__ import annotations
 
@@ -21,8 +20,7 @@ def wanted(quiet: bool = False) -> bool:
 
 @contextmanager
 def bar(total: int | None, what: str, *, enabled: bool) -> Iterator[Any]:
-    """A tqdm bar on stderr, or (disabled) one that draws nothing; closed on leaving the
-    block. ``update(n)`` advances it."""
+    """A tqdm bar on stderr (disabled: drawing nothing), closed on leaving the block."""
     from tqdm import tqdm
 
     with tqdm(total=total, desc=what, disable=not enabled, file=sys.stderr, leave=False,
@@ -40,15 +38,11 @@ def counter(shown: Any) -> Callable[[int, int], None]:
 
 
 def grid_progress(shown: Any) -> Callable[[str], None]:
-    """The ``progress`` callable of an APL-family fit: each ``grid row i/n`` line moves
-    ``shown`` to i of n; its other lines (refinement) name the step."""
+    """An APL-family fit's ``progress``: ``grid row i/n`` moves ``shown``, others say the step."""
     def say(line: str) -> None:
         match = GRID_ROW.search(line)
         if match is None:
             shown.set_postfix_str(line.split(": ", 1)[-1][:40], refresh=True)
             return
-        done, total = int(match.group(1)), int(match.group(2))
-        if shown.total != total:
-            shown.reset(total=total)
-        shown.update(done - shown.n)
+        counter(shown)(int(match.group(1)), int(match.group(2)))
     return say

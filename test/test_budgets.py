@@ -329,20 +329,20 @@ def test_csv_text_hazards_lose_no_row(tmp_path: Path) -> None:
     from strain_comp.io.csv_import import import_csv
 
     rows = "".join(f"{i * 0.1:.1f},{100.0 + i}\n" for i in range(10))
-    bom = import_csv(_csv(tmp_path, "\ufeff" + rows), fmt="generic", sensor="s1",
-                     columns={"time": 0, "resistance": 1})
-    np.testing.assert_allclose(bom.recording.r, 100.0 + np.arange(10))
-    sep = import_csv(_csv(tmp_path, "time,resistance,note\n" + "".join(
+    bom, _ = import_csv(_csv(tmp_path, "\ufeff" + rows), fmt="generic", sensor="s1",
+                        columns={"time": 0, "resistance": 1})
+    np.testing.assert_allclose(bom.r, 100.0 + np.arange(10))
+    _, sep = import_csv(_csv(tmp_path, "time,resistance,note\n" + "".join(
         f"{i * 0.1:.1f},{100.0 + i},a\u2028b\n" for i in range(10))), fmt="generic",
         sensor="s1", columns={"time": "time", "resistance": "resistance"})
-    assert sep.report.rows == 10 and sep.report.kept == 10
+    assert sep.rows == 10 and sep.kept == 10
     epoch = "".join(f"{1_700_000_000_000_000_000 + i * 10**8},{100.0 + i}\n" for i in range(10))
     with pytest.raises(InputError, match=r"epoch milli- or nanoseconds\? .*--scales time=1e-9"):
         import_csv(_csv(tmp_path, epoch), fmt="generic", sensor="s1",
                    columns={"time": 0, "resistance": 1})
-    scaled = import_csv(_csv(tmp_path, epoch), fmt="generic", sensor="s1",
-                        columns={"time": 0, "resistance": 1}, scales={"time": 1e-9})
-    assert scaled.report.kept == 10
+    _, scaled = import_csv(_csv(tmp_path, epoch), fmt="generic", sensor="s1",
+                           columns={"time": 0, "resistance": 1}, scales={"time": 1e-9})
+    assert scaled.kept == 10
     wide = _csv(tmp_path, "0.0," + "9" * 200_000 + "\n0.1,100\n")
     with pytest.raises(InputError, match="field larger than field limit"):
         import_csv(wide, fmt="generic", sensor="s1", columns={"time": 0, "resistance": 1})

@@ -1,9 +1,6 @@
-"""The ``strain-comp`` command line (docs/design.md, "Command line": a contract, with the
-exit codes and what goes to stdout and stderr): one module per command (``NAME``,
-``SUMMARY``, ``DESCRIPTION``, ``EXAMPLE``, ``add_arguments(parser)``, ``run(args) -> int``),
-the parser assembled from them here. Every command imports its machinery only when it runs,
-so ``strain-comp --help`` and ``--version`` stay fast.
-"""
+"""The ``strain-comp`` command line (docs/design.md, "Command line"): the parser assembled
+from one module per command (``cli.common.Command``), each importing its machinery only when
+it runs, so ``--help`` and ``--version`` stay fast."""
 
 from __future__ import annotations
 
@@ -29,7 +26,7 @@ from strain_comp.cli import (
     simulate,
     start,
 )
-from strain_comp.cli.common import PROG, Command, Formatter, Parser, UsageError, err
+from strain_comp.cli.common import PROG, Command, Parser, UsageError, err
 from strain_comp.errors import StrainCompError, Terminated, raise_terminated
 from strain_comp.version import __version__
 
@@ -39,8 +36,7 @@ COMMANDS: tuple[Command, ...] = (simulate, import_csv, fit, start, evaluate, rep
 EXIT_USER = 2
 """Bad input, refused output or a usage error: one line ``strain-comp: error: ...``."""
 EXIT_BUG = 70
-"""A fault of strain_comp itself (EX_SOFTWARE of sysexits.h): one line naming the file that
-holds the traceback."""
+"""A fault of strain_comp itself (EX_SOFTWARE of sysexits.h)."""
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
@@ -48,7 +44,7 @@ EXIT_TERMINATED = 143
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser; subcommand names and flags as docs/design.md fixes them."""
     parser = Parser(
-        prog=PROG, formatter_class=Formatter,
+        prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Calibrated strain from soft resistive strain sensors: "
         "simulate or import data, fit, evaluate, replay, diagnose, run.",
         epilog="example:\n  strain-comp evaluate bags/demo_rates.mcap --calibration "
@@ -58,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     for command in COMMANDS:
         p = sub.add_parser(command.NAME, help=command.SUMMARY,
                            description=textwrap.fill(command.DESCRIPTION, 88),
-                           epilog="example:\n  " + command.EXAMPLE, formatter_class=Formatter)
+                           epilog="example:\n  " + command.EXAMPLE,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
         command.add_arguments(p)
         p.set_defaults(func=command.run)
         p.add_argument("-q", "--quiet", action="store_true",
@@ -71,8 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def internal_error(error: BaseException, debug: bool) -> int:
-    """A fault of the program, not of the input: one line that says so, the traceback in a
-    file it names (on stderr with ``--debug``); exit code ``EXIT_BUG``."""
+    """A fault of the program: one line naming the file with the traceback (``--debug``: it)."""
     text = "".join(traceback.format_exception(error))
     what = " ".join(f"{type(error).__name__}: {error}".split())
     if debug:
@@ -91,8 +87,7 @@ def internal_error(error: BaseException, debug: bool) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (0 ok, 2 bad input, 70 a fault of
-    strain-comp, 130 interrupted, 143 terminated by SIGTERM)."""
+    """Run the command line; returns the exit code (0, 2, 70, 130 or 143: docs/design.md)."""
     handler = signal.getsignal(signal.SIGTERM)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, raise_terminated)

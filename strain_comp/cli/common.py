@@ -30,8 +30,7 @@ class Command(Protocol):
     EXAMPLE: str
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """The command's arguments and flags (``--quiet`` and ``--debug`` are added to
-        every command)."""
+        """The command's arguments and flags (besides ``--quiet`` and ``--debug``)."""
 
     def run(self, args: argparse.Namespace) -> int:
         """Do the command; returns the exit code. Bad input raises ``StrainCompError``."""
@@ -42,9 +41,7 @@ class UsageError(StrainCompError):
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with usage errors as one line (``UsageError``) instead of usage + exit; a
-    ``notes`` callable adds text above the example when the help is printed (so a costly
-    list, such as the fit options, is built only for ``--help``)."""
+    """argparse with one-line usage errors; ``notes()`` adds text to the help when printed."""
 
     notes: Callable[[], str] | None = None
 
@@ -63,10 +60,6 @@ class Parser(argparse.ArgumentParser):
             self.epilog = self.notes() + "\n\n" + (self.epilog or "")
             self.notes = None
         return super().format_help()
-
-
-class Formatter(argparse.RawDescriptionHelpFormatter):
-    """Descriptions and examples (epilogs) printed as written."""
 
 
 def err(line: str) -> None:
@@ -110,7 +103,6 @@ def write_json(path: str, data: object, inputs: Sequence[str]) -> None:
 
 
 def require_ros(command: str) -> None:
-    """Check that ROS 2's Python client is installed."""
     if importlib.util.find_spec("rclpy") is None:
         raise InputError(f"{command} needs ROS 2's Python client (rclpy): pip install "
                          "'.[ros]' in this project, or source a ROS 2 Jazzy installation")
@@ -125,7 +117,6 @@ def tracking_flag(p: argparse.ArgumentParser) -> None:
 
 
 def references_flag(p: argparse.ArgumentParser) -> None:
-    """Add ``--references-every SECONDS``."""
     p.add_argument("--references-every", type=float, metavar="SECONDS",
                    help="fuse the bag's own /NAME/strain_reference every SECONDS into the "
                    "output gain and offset, causally (a known strain now and then, as a robot "
@@ -133,7 +124,6 @@ def references_flag(p: argparse.ArgumentParser) -> None:
 
 
 def tare_flag(p: argparse.ArgumentParser) -> None:
-    """Add ``--tare calibration|auto``."""
     p.add_argument("--tare", choices=("calibration", "auto"), default="calibration",
                    help="rest resistance from the calibration (default) or from the run's "
                    "first seconds at rest (auto)")

@@ -68,12 +68,6 @@ def _key_values(items: Sequence[str], flag: str, form: str,
     return out
 
 
-def _column(text: str) -> int | str:
-    """A column index (ASCII digits only: "²" is a digit to str.isdigit, not to int), else a
-    header name."""
-    return int(text) if text.isascii() and text.isdigit() else text
-
-
 def run(args: argparse.Namespace) -> int:
     """The CSV read, checked and written as a bag; the import report on stdout."""
     existing(args.csv, "CSV file")
@@ -85,18 +79,18 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--resistance-unit {args.resistance_unit!r}: expected a unit such "
                          "as ohm or R/R0 (1-16 letters, digits, %, / or .)")
 
-    result = csv_import.import_csv(
+    recording, report = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
         columns=_key_values(args.columns or [], "--columns",
-                            "KEY=COLUMN (index or header name)", _column),
+                            "KEY=COLUMN (index or header name)", str),
         scales=_key_values(args.scales or [], "--scales", "KEY=FACTOR, e.g. time=1e-3", float),
         delimiter=args.delimiter,
         resistance_unit=args.resistance_unit)
-    csv_import.write_recording_bag(result.recording, args.out, inputs=[args.csv])
-    print("\n".join(result.report.lines()))
-    for line in result.report.notes:
+    csv_import.write_recording_bag(recording, args.out, inputs=[args.csv])
+    print("\n".join(report.lines()))
+    for line in report.notes:
         note(args, f"{PROG}: note: {line}")
-    for line in result.report.warnings:
+    for line in report.warnings:
         note(args, f"{PROG}: warning: {line}")
-    note(args, f"wrote {args.out} (sensor {args.sensor}, {len(result.recording.t)} samples)")
+    note(args, f"wrote {args.out} (sensor {args.sensor}, {len(recording.t)} samples)")
     return 0

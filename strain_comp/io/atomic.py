@@ -69,11 +69,9 @@ def _file_mode(path: Path) -> int:
 
 
 class AtomicFile:
-    """An open temporary file beside ``path`` that ``commit()`` renames over ``path`` and
-    ``discard()`` deletes."""
+    """A temporary file beside ``path`` that ``commit()`` renames over it, ``discard()`` deletes."""
 
     def __init__(self, path: PathLike, *, inputs: Iterable[PathLike] = ()) -> None:
-        """Open the temporary file beside ``path``."""
         self.inputs = list(inputs)
         self.path = check_output(path, self.inputs)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -139,7 +137,6 @@ def atomic_output(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterato
 
 
 def write_text(path: PathLike, text: str, *, inputs: Iterable[PathLike] = ()) -> None:
-    """Write ``text`` to ``path`` atomically, UTF-8 encoded (a surrogate from an undecodable
-    file name as its ``\\udcff`` escape)."""
+    """``text`` UTF-8 encoded to ``path``, atomically (a lone surrogate as its escape)."""
     with atomic_output(path, inputs=inputs) as handle:
         handle.write(text.encode("utf-8", "backslashreplace"))

@@ -1,9 +1,6 @@
-"""CDR payloads of the message types strain_comp writes, serialised by ``mcap_ros2``'s
-encoder from ``SCHEMAS``. A fixed-layout message (Float64MultiArray, JointState,
-Temperature) is a template the library serialises once (``RowEncoder``, for bags and the
-node); where its values sit is where a second serialisation with other values differs.
-DiagnosticArrays of many messages at once: the layout compiled into operations a compiled
-loop (``_place``) walks."""
+"""CDR payloads of the types strain_comp writes: fixed layouts as a template ``mcap_ros2``'s
+encoder serialises once (``RowEncoder``, for bags and the node); DiagnosticArrays of many
+messages at once, the layout compiled into operations a numba loop (``_place``) walks."""
 
 from __future__ import annotations
 
@@ -34,18 +31,16 @@ def message_encoder(kind: str) -> Callable[[Mapping[str, Any]], bytes]:
 
 
 def _layout(kind: str, message: Callable[[float], dict[str, Any]]) -> tuple[bytes, int]:
-    """The template of a fixed-layout message (its values 0) and where its first value sits:
-    the first byte where a second serialisation with other values differs."""
+    """A fixed-layout message's template (values 0) and its first value's byte offset."""
     encode = message_encoder(kind)
     template, probed = encode(message(0.0)), encode(message(_PROBE))
     at = next((i for i, (x, y) in enumerate(zip(template, probed, strict=True)) if x != y),
-              len(template))  # no values: nothing differs, nothing is written
+              len(template))  # the first byte a second serialisation changes; none: no values
     return template, at
 
 
 class RowEncoder:
-    """Messages of one constant ``template`` but for ``k`` values at byte ``at`` (and, when
-    ``stamped``, the header's stamp at bytes 4..12): one message per row."""
+    """One message per row: ``template`` with k values at ``at`` (stamped: bytes 4..12)."""
 
     def __init__(self, template: bytes, at: int, k: int, dtype: str = "<f8", *,
                  stamped: bool = False) -> None:
@@ -59,8 +54,7 @@ class RowEncoder:
 
     @classmethod
     def vector(cls, names: Sequence[str]) -> RowEncoder:
-        """std_msgs/msg/Float64MultiArray whose ``dim[0]`` is labelled with the names (size =
-        stride = k, data_offset 0)."""
+        """std_msgs/msg/Float64MultiArray, ``dim[0]`` labelled with the names, offset 0."""
         k = len(names)
         payload = message_encoder("std_msgs/msg/Float64MultiArray")({
             "layout": {"dim": [{"label": ",".join(names), "size": k, "stride": k}],
@@ -83,8 +77,7 @@ class RowEncoder:
         return cls(template, at, 1, stamped=True)
 
     def rows(self, values: np.ndarray, stamps_ns: np.ndarray | None = None) -> np.ndarray:
-        """The messages of ``values`` (n x k, or n when k is 1) and, stamped, of their stamps
-        [ns since the epoch]: one uint8 row each."""
+        """One uint8 row per message of ``values`` (n x k) and stamps [ns since the epoch]."""
         n = len(values)
         values = np.ascontiguousarray(values, dtype=self.dtype).reshape(n, self.k)
         out = np.empty((n, self.template.size), np.uint8)
@@ -105,13 +98,11 @@ class RowEncoder:
 
 
 Text = str | np.ndarray
-"""A text of ``diagnostic_arrays``: one for every message, or a column of one per message:
-byte strings (``np.bytes_``, UTF-8) or integers (written as ``str(n)``)."""
+"""One text for every message, or a column per message (UTF-8 ``np.bytes_``, or integers)."""
 Status = tuple[np.ndarray, str, Text, str, Sequence[tuple[str, Text]]]
 """(levels (uint8 per message), name, message, hardware_id, [(key, value), ...])."""
 _CONST, _CONST_ALIGNED, _TEXT, _BYTE, _STAMP, _INT = range(6)
-"""``_place`` operations: constant bytes (as they are, or 4-aligned), a column's text, byte
-or integer (as text), the stamp."""
+"""``_place`` operations: constant bytes (4-aligned or not), a column's text, byte, integer."""
 _U32 = struct.Struct("<I")
 
 
@@ -137,8 +128,7 @@ def _digits(value: int, digits: np.ndarray) -> int:
 def _place(ops: np.ndarray, pool: np.ndarray, texts: np.ndarray, text_len: np.ndarray,
            byte_cols: np.ndarray, int_cols: np.ndarray, t_ns: np.ndarray,
            out: np.ndarray, lengths: np.ndarray) -> None:
-    """Walk ``ops`` (kind, a, b) for every message: the lengths while ``out`` is empty, else
-    the payloads into ``out``."""
+    """Walk ``ops`` per message: the lengths while ``out`` is empty, else the payloads."""
     write = out.size > 0
     at = 0
     digits = np.zeros((int_cols.shape[0], 24), np.uint8)  # each integer column's latest
@@ -186,8 +176,7 @@ def _place(ops: np.ndarray, pool: np.ndarray, texts: np.ndarray, text_len: np.nd
 
 def diagnostic_arrays(t_ns: np.ndarray, frame_id: str, statuses: Sequence[Status]
                       ) -> tuple[np.ndarray, np.ndarray]:
-    """DiagnosticArray payloads: message k stamped ``t_ns[k]`` (integer ns, >= 0) holds
-    ``statuses`` with each column's k-th entry; the payloads joined (uint8), their lengths."""
+    """DiagnosticArray payloads (message k: each column's k-th entry) joined; their lengths."""
     k = t_ns.size
     ops: list[tuple[int, int, int]] = []
     pool = bytearray()

@@ -18,7 +18,6 @@ from strain_comp.io.bag import BagWriter
 from strain_comp.io.bag.schemas import MAX_TIME_S
 from strain_comp.io.recording import Recording, align, check_scales, scaled
 
-FORMATS = ("cb_pdms", "fiber", "generic")
 CB_PDMS_GAUGE_MM = 40.0
 _DEFAULT_COLUMNS: dict[str, dict[str, int | str]] = {
     "cb_pdms": {"resistance": 0, "time": 2, "strain": 3, "strain_time": 4},
@@ -32,8 +31,7 @@ _LINES = re.compile(r"\r\n|\r|\n")
 
 @dataclass
 class ImportReport:
-    """What the import did: rows read and kept, dropped rows by reason, repaired glitches,
-    the unit of the stored strain, and notes."""
+    """What the import did: rows kept and dropped by reason, glitches, units, notes."""
 
     path: str
     fmt: str
@@ -46,8 +44,7 @@ class ImportReport:
     """The unit of the stored resistance: ohm, or the one given (``R/R0``)."""
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
-    """A reference that looks wrong (``reference_warnings``): one line each, saying what
-    to pass."""
+    """What looks wrong in the reference (``reference_warnings``), one line each."""
 
     def lines(self) -> list[str]:
         """Human-readable summary (the notes are printed apart, on stderr)."""
@@ -59,12 +56,6 @@ class ImportReport:
         if self.resistance_unit != "ohm":
             out.append(f"  resistance stored in {self.resistance_unit}")
         return out
-
-
-@dataclass(frozen=True)
-class ImportResult:
-    recording: Recording
-    report: ImportReport
 
 
 _DELIMITERS = ("\t", ";", ",", "|")
@@ -112,8 +103,7 @@ def _to_float(text: str) -> float:
 
 def _numeric(rows: list[list[str]], width: int, columns: list[int]
              ) -> tuple[np.ndarray, np.ndarray]:
-    """Those columns as floats (NaN where unparsable) and the mask of rows shorter than
-    ``width``."""
+    """Those columns as floats (NaN: unparsable) and the mask of rows shorter than ``width``."""
     table = np.full((len(rows), len(columns)), np.nan)
     short = np.zeros(len(rows), bool)
     for i, row in enumerate(rows):
@@ -153,8 +143,8 @@ def repair_position_glitches(pos: np.ndarray, *, threshold_mm: float = 0.5
 def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: float | None = None,
                columns: Mapping[str, int | str] | None = None,
                scales: Mapping[str, float] | None = None, delimiter: str | None = None,
-               resistance_unit: str = "ohm") -> ImportResult:
-    """Import one tensile-tester CSV as a Recording (docs/csv.md)."""
+               resistance_unit: str = "ohm") -> tuple[Recording, ImportReport]:
+    """One tensile-tester CSV as a Recording, and what the import did (docs/csv.md)."""
     path = Path(path)
     mapping = _mapping(path, fmt, gauge_length_mm, columns, scales)
     rows, _ = _read_rows(path, delimiter)
@@ -172,8 +162,7 @@ def import_csv(path: str | Path, *, fmt: str, sensor: str, gauge_length_mm: floa
         strain = _reference(fields, good, report, gauge_length_mm=gauge_length_mm,
                             strain_factor=(scales or {}).get("strain", 1.0))
     report.kept = int(good.sum())
-    rec = Recording(name=sensor, t=t[good], r=fields["resistance"][good], s=strain)
-    return ImportResult(rec, report)
+    return Recording(name=sensor, t=t[good], r=fields["resistance"][good], s=strain), report
 
 
 _KEYS = ("time", "resistance", "strain", "strain_time")
@@ -184,10 +173,6 @@ def _mapping(path: Path, fmt: str, gauge_length_mm: float | None,
              columns: Mapping[str, int | str] | None, scales: Mapping[str, float] | None
              ) -> dict[str, int | str]:
     """The column mapping (the format's defaults under ``columns``), its inputs checked."""
-    if fmt not in FORMATS:
-        raise InputError(f"unknown CSV format {fmt!r}; one of {', '.join(FORMATS)}")
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
     if gauge_length_mm is not None and not (np.isfinite(gauge_length_mm) and gauge_length_mm > 0):
         raise InputError(f"gauge length must be > 0 mm, got {gauge_length_mm}")
     mapping = {**_DEFAULT_COLUMNS[fmt], **(columns or {})}
@@ -216,8 +201,7 @@ def _split_header(path: Path, rows: list[list[str]]
 def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
             mapping: Mapping[str, int | str], scales: Mapping[str, float] | None
             ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Each mapped field's values, scaled (NaN where unparsable), and the mask of rows
-    shorter than the format's width."""
+    """Each mapped field's values, scaled (NaN: unparsable), and the mask of short rows."""
     cols = {k: _column(k, v, head, path) for k, v in mapping.items()}
     widest = max(len(row) for row in rows)
     for k, c in cols.items():
@@ -260,8 +244,7 @@ def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[
 
 def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: ImportReport, *,
                gauge_length_mm: float | None, strain_factor: float) -> np.ndarray:
-    """The reference strain on the good rows' times (NaN outside its span); its notes and
-    warnings in ``report``."""
+    """The reference strain on the good rows' times (NaN outside its span), noted in ``report``."""
     t = fields["time"]
     s_raw = fields["strain"]
     t_s = fields.get("strain_time", t)
@@ -283,8 +266,7 @@ def _reference(fields: Mapping[str, np.ndarray], good: np.ndarray, report: Impor
 
 def _strain(pos: np.ndarray, report: ImportReport, *, gauge_length_mm: float | None,
             strain_factor: float) -> np.ndarray:
-    """The reference column as strain by the format's rule; the unit stored, the repaired
-    glitches and a note in ``report``."""
+    """The reference column as strain by the format's rule; the unit and glitches in ``report``."""
     if report.fmt == "cb_pdms":
         pos, report.glitches_repaired = repair_position_glitches(np.abs(pos))
         return 100.0 * pos / (gauge_length_mm or CB_PDMS_GAUGE_MM)
@@ -307,9 +289,7 @@ MICROSTRAIN_SPAN = 1000.0
 
 
 def reference_warnings(values: np.ndarray, t: np.ndarray, *, percent: bool) -> list[str]:
-    """What looks wrong in a reference column as read (before any gauge length)."""
-    ok = np.isfinite(values) & np.isfinite(t)
-    values, t = values[ok], t[ok]
+    """What looks wrong in a reference column as read (finite values, before any gauge length)."""
     if values.size < 2:
         return []
     lines = []
@@ -345,5 +325,5 @@ def write_recording_bag(recording: Recording, out_path: str | Path, *,
             writer.write_temperature(f"{prefix}/temperature", recording.t, recording.temperature)
 
 
-__all__ = ["FORMATS", "ImportReport", "ImportResult", "import_csv", "reference_warnings",
+__all__ = ["ImportReport", "import_csv", "reference_warnings",
            "repair_position_glitches", "write_recording_bag"]

@@ -19,8 +19,7 @@ def label_names(label: str) -> list[str]:
 
 @functools.lru_cache(maxsize=64)
 def label_order(label: str, names: tuple[str, ...]) -> np.ndarray | None:
-    """The indices that put the values of an array labelled ``label`` in the order of
-    ``names``."""
+    """The indices that put an array labelled ``label`` in the order of ``names``."""
     if not label.strip() or label == ",".join(names):
         return None
     given = label_names(label)

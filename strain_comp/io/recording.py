@@ -191,8 +191,7 @@ def _sorted_last(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 class PieceAlign:
-    """``align`` over pieces that arrive in time order (``iter_bag``), equal to ``align``
-    over the whole series."""
+    """``align`` over pieces in time order (``iter_bag``), equal to it over the whole."""
 
     def __init__(self) -> None:
         self.exact = True
@@ -202,7 +201,6 @@ class PieceAlign:
         self.src_v = np.empty(0)
 
     def add(self, t: np.ndarray, t_src: np.ndarray, values: np.ndarray) -> None:
-        """Take in the next piece."""
         t_src = np.asarray(t_src, dtype=np.float64)
         values = np.asarray(values, dtype=np.float64)
         if self.exact and t_src.shape == t.shape and np.array_equal(t_src, t):
@@ -260,8 +258,7 @@ def hold_latest(t: npt.ArrayLike, t_src: npt.ArrayLike, values: npt.ArrayLike) -
 
 
 def topic_sensors(topic: str, contents: BagContents) -> tuple[list[str], str | None]:
-    """The sensors of a ``/PREFIX/resistance`` topic (a series: its prefix; an array: its
-    labels, else PREFIX_j by column) and the problem with its labels, if any."""
+    """A resistance topic's sensors (its labels, else PREFIX_j) and a labels problem."""
     values = contents.series[topic].values
     prefix = topic[:-len(RESISTANCE)].lstrip("/")
     if values.ndim == 1:
@@ -283,8 +280,7 @@ def temperature_series(contents: BagContents, name: str) -> Series | None:
 
 def reference_columns(contents: BagContents, topic: str) -> tuple[dict[str, int | None],
                                                                   str | None]:
-    """Each sensor's column of the ``/PREFIX/strain_reference`` of resistance ``topic``
-    (None: a 1-D reference), or none and the problem why."""
+    """Each sensor's column of ``topic``'s reference (None: 1-D), or none and why."""
     reference = topic[:-len(RESISTANCE)] + REFERENCE
     ref = contents.series[reference]
     labels, _ = topic_sensors(topic, contents)

@@ -1,11 +1,9 @@
-"""YAML from untrusted files with limits: aliases, expanded size, nesting, integer range
-(``load_limited``: ``yaml.safe_load`` raising ``LimitError``). A plain document (every
-calibration file) is built straight from the parser's events as the limits are checked on
-them (``_walk``, parsed once); any other then goes through the loader."""
+"""YAML from untrusted files within limits (aliases, expanded size, nesting, integer range):
+``load_limited``. A plain document (every calibration file) is built from the parser's
+events as the limits are checked (``_walk``); any other then goes through the loader."""
 
 from __future__ import annotations
 
-import gc
 import re
 import sys
 from collections.abc import Iterator
@@ -57,8 +55,7 @@ _SEQUENCE = object()
 
 
 def _plain_scalar(event: Any, constructor: yaml.constructor.SafeConstructor) -> Any:
-    """An untagged scalar as ``yaml.safe_load`` gives it; ``_NotPlain`` for a timestamp or
-    a merge key."""
+    """An untagged scalar as ``yaml.safe_load`` gives it; ``_NotPlain``: timestamp, merge key."""
     value = event.value
     tag = _STR
     if event.implicit[0]:  # plain: the implicit resolvers of yaml.SafeLoader, in order
@@ -80,9 +77,7 @@ def _plain_scalar(event: Any, constructor: yaml.constructor.SafeConstructor) -> 
 
 
 def _walk(text: str, max_aliases: int, max_nodes: int, max_depth: int) -> tuple[bool, Any, int]:
-    """One pass over the parser's events: the limits checked before anything is composed,
-    the document built while it is plain (no anchor, alias, tag, complex key or second
-    document). Returns (plain, the document if plain, the alias count)."""
+    """(plain, the document if plain, aliases): the limits checked on the events in one pass."""
     constructor = yaml.constructor.SafeConstructor()
     open_: list[Any] = []  # the collections being filled, outermost first
     keys: list[Any] = []  # per open collection: its pending key, _UNSET or _SEQUENCE
@@ -148,8 +143,8 @@ _FLOW_BRACKET = re.compile(r"[\[\]{}]")
 
 
 def _check_flow_depth(text: str, max_depth: int) -> None:
-    """LimitError for flow brackets nested deeper than ``max_depth``, on the text: libyaml's
-    scanner refuses deep flow nesting in words that differ between releases."""
+    """LimitError for flow brackets nested deeper than ``max_depth``, counted on the text."""
+    # libyaml's scanner refuses deep flow nesting itself, in words that differ by release
     depth = 0
     for match in _FLOW_BRACKET.finditer(text):
         if match.group() in "[{":
@@ -193,25 +188,18 @@ def _check_expansion(root: yaml.Node, max_nodes: int, max_depth: int) -> None:
 
 def load_limited(text: str, *, max_aliases: int = 100, max_nodes: int = 1_000_000,
                  max_depth: int = 64) -> Any:
-    """The single YAML document in ``text``, within the limits. The cyclic collector is
-    paused meanwhile (docs/reliability.md): a document builds no cycles."""
-    collecting = gc.isenabled()
-    gc.disable()
+    """The single YAML document in ``text``, within the limits."""
+    _check_flow_depth(text, max_depth)
+    plain, document, aliases = _walk(text, max_aliases, max_nodes, max_depth)
+    if plain:
+        return document
+    loader = _Loader(text)
     try:
-        _check_flow_depth(text, max_depth)
-        plain, document, aliases = _walk(text, max_aliases, max_nodes, max_depth)
-        if plain:
-            return document
-        loader = _Loader(text)
-        try:
-            node = loader.get_single_node()
-            if node is None:
-                return None
-            if aliases:  # without aliases nothing expands: the events' checks were the limits
-                _check_expansion(node, max_nodes, max_depth)
-            return loader.construct_document(node)
-        finally:
-            loader.dispose()
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        if aliases:  # without aliases nothing expands: the events' checks were the limits
+            _check_expansion(node, max_nodes, max_depth)
+        return loader.construct_document(node)
     finally:
-        if collecting:
-            gc.enable()
+        loader.dispose()

@@ -28,17 +28,16 @@ def _cb_pdms(tmp_path: Path, glitches: tuple[int, ...] = (30, 50)) -> tuple[Path
 
 def test_cb_pdms_glitches_repaired_and_reference_interpolated(tmp_path: Path) -> None:
     path, strain = _cb_pdms(tmp_path)
-    res = import_csv(path, fmt="cb_pdms", sensor="cb")
-    assert res.report.glitches_repaired == 2
-    rec = res.recording
+    rec, report = import_csv(path, fmt="cb_pdms", sensor="cb")
+    assert report.glitches_repaired == 2
     assert rec.name == "cb" and rec.r.size == 200
     ok = ~np.isnan(rec.s)
     assert ok.sum() == 199  # the last t_R lies after the last t_pos
     np.testing.assert_allclose(rec.s[ok], strain[ok], atol=0.2)
     with pytest.raises(InputError, match="no good row"):  # R_inner: all negative here
         import_csv(path, fmt="cb_pdms", sensor="cb", columns={"resistance": 1})
-    half = import_csv(path, fmt="cb_pdms", sensor="cb", gauge_length_mm=80.0)
-    np.testing.assert_allclose(half.recording.s[ok], strain[ok] / 2, atol=0.1)
+    half, _ = import_csv(path, fmt="cb_pdms", sensor="cb", gauge_length_mm=80.0)
+    np.testing.assert_allclose(half.s[ok], strain[ok] / 2, atol=0.1)
 
 
 def test_repair_leaves_real_zeros() -> None:
@@ -52,12 +51,12 @@ def test_fiber_with_and_without_gauge_length(tmp_path: Path) -> None:
     ext = 10 * np.abs(np.sin(t / 8))
     path = tmp_path / "fiber.csv"
     np.savetxt(path, np.column_stack([t, ext, ext * 0.1, 70 + ext]), delimiter=",")
-    mm = import_csv(path, fmt="fiber", sensor="f")
-    assert mm.report.strain_unit == "mm" and any("mm" in n for n in mm.report.notes)
-    np.testing.assert_allclose(mm.recording.s, ext)
-    pct = import_csv(path, fmt="fiber", sensor="f", gauge_length_mm=50.0)
-    np.testing.assert_allclose(pct.recording.s, 2 * ext)
-    assert pct.report.strain_unit == "%"
+    mm, report = import_csv(path, fmt="fiber", sensor="f")
+    assert report.strain_unit == "mm" and any("mm" in n for n in report.notes)
+    np.testing.assert_allclose(mm.s, ext)
+    pct, report = import_csv(path, fmt="fiber", sensor="f", gauge_length_mm=50.0)
+    np.testing.assert_allclose(pct.s, 2 * ext)
+    assert report.strain_unit == "%"
 
 
 def test_bad_rows_are_counted_and_dropped(tmp_path: Path) -> None:
@@ -65,41 +64,37 @@ def test_bad_rows_are_counted_and_dropped(tmp_path: Path) -> None:
     path.write_text("0,0,0,10\n1,0.1,0,11\n2,abc,0,12\n3,0.3,0,nan\n4,0.4,0,-5\n"
                     "3.5,0.5,0,13\n5,0.6\n6,0.6,0,14\n6,0.7,0,15\n7,0.8,0,inf\n8,0.9,0,16\n"
                     "7.5,1.0,0,17\n")
-    res = import_csv(path, fmt="fiber", sensor="f")
-    d = res.report.dropped
+    rec, report = import_csv(path, fmt="fiber", sensor="f")
+    d = report.dropped
     assert d["unparsable or missing field"] == 2  # nan R, short row
     assert d["resistance <= 0 ohm"] == 1
     assert d["resistance not finite"] == 1
     assert d["time not increasing"] == 2  # the repeated 6 and the 7.5 after 8
     # 3.5 follows a dropped row (t=4, R<0): it beats the last *good* time, so it is kept;
     # the unparsable strain of t=2 leaves its reference to interpolation
-    np.testing.assert_array_equal(res.recording.t, [0, 1, 2, 3.5, 6, 8])
-    np.testing.assert_allclose(res.recording.s, [0, 0.1, 0.26, 0.5, 0.6, 0.9])
+    np.testing.assert_array_equal(rec.t, [0, 1, 2, 3.5, 6, 8])
+    np.testing.assert_allclose(rec.s, [0, 0.1, 0.26, 0.5, 0.6, 0.9])
 
 
 def test_generic_mapping_with_header_and_scales(tmp_path: Path) -> None:
     path = tmp_path / "g.tsv"
     path.write_text("ms\tstrain_pct\tohm\n0\t0\t10\n100\t1\t11\n200\t2\t12\n")
-    res = import_csv(path, fmt="generic", sensor="g", delimiter="\t",
-                     columns={"time": "ms", "resistance": "ohm", "strain": "strain_pct"},
-                     scales={"time": 1e-3})
-    np.testing.assert_allclose(res.recording.t, [0, 0.1, 0.2])
-    np.testing.assert_allclose(res.recording.r, [10, 11, 12])
-    np.testing.assert_allclose(res.recording.s, [0, 1, 2])
+    rec, _ = import_csv(path, fmt="generic", sensor="g", delimiter="\t",
+                        columns={"time": "ms", "resistance": "ohm", "strain": "strain_pct"},
+                        scales={"time": 1e-3})
+    np.testing.assert_allclose(rec.t, [0, 0.1, 0.2])
+    np.testing.assert_allclose(rec.r, [10, 11, 12])
+    np.testing.assert_allclose(rec.s, [0, 1, 2])
     with pytest.raises(InputError, match="not found"):
         import_csv(path, fmt="generic", sensor="g", delimiter="\t",
                    columns={"time": "seconds", "resistance": "ohm"})
     with pytest.raises(InputError, match="needs 'time'"):
         import_csv(path, fmt="generic", sensor="g", columns={"resistance": 2})
-    with pytest.raises(InputError, match="no such file"):
-        import_csv(tmp_path / "none.csv", fmt="fiber", sensor="g")
-    with pytest.raises(InputError, match="unknown CSV format"):
-        import_csv(path, fmt="excel", sensor="g")
 
 
 def test_bag_round_trip(tmp_path: Path) -> None:
     path, _ = _cb_pdms(tmp_path)
-    rec = import_csv(path, fmt="cb_pdms", sensor="cb").recording
+    rec, _ = import_csv(path, fmt="cb_pdms", sensor="cb")
     write_recording_bag(rec, tmp_path / "cb.mcap")
     recs, problems = load_recordings(tmp_path / "cb.mcap")
     assert problems == []
@@ -112,14 +107,15 @@ def test_measured_files(measured_data: Path) -> None:
     v9 = import_csv(cb / "2_7-5_E4pin_20mm_v9_0.2Strain_velocityprof.csv",
                     fmt="cb_pdms", sensor="cb")
     v10 = import_csv(cb / "2_7-5_E4pin_20mm_v10_0.3Strain.csv", fmt="cb_pdms", sensor="cb")
-    for res, top in ((v9, 20.0), (v10, 30.0)):
-        assert res.report.glitches_repaired > 0
-        assert np.nanmin(res.recording.s) == pytest.approx(0.0, abs=0.5)
-        assert np.nanmax(res.recording.s) == pytest.approx(top, abs=0.5)
-        assert res.report.kept == res.report.rows
-    fiber = import_csv(measured_data / "conductive_fiber" / "oldthread_sensorfiber_5x_1_synced.csv",
-                       fmt="fiber", sensor="fib")
-    assert fiber.report.strain_unit == "mm" and np.nanmax(fiber.recording.s) > 50
+    for (rec, report), top in ((v9, 20.0), (v10, 30.0)):
+        assert report.glitches_repaired > 0
+        assert np.nanmin(rec.s) == pytest.approx(0.0, abs=0.5)
+        assert np.nanmax(rec.s) == pytest.approx(top, abs=0.5)
+        assert report.kept == report.rows
+    fiber, report = import_csv(
+        measured_data / "conductive_fiber" / "oldthread_sensorfiber_5x_1_synced.csv",
+        fmt="fiber", sensor="fib")
+    assert report.strain_unit == "mm" and np.nanmax(fiber.s) > 50
 
 
 def test_delimiter_decimal_comma_and_units_from_the_command_line(tmp_path: Path) -> None:

@@ -30,7 +30,7 @@ def warnings_of(path: Path, *, scales: dict | None = None, strain_time: bool = F
     if strain_time:
         columns["strain_time"] = "ts"
     return import_csv(path, fmt="generic", sensor="s1", columns=columns,
-                      scales=scales).report.warnings
+                      scales=scales)[1].warnings
 
 
 @pytest.mark.parametrize(("strain", "words"), [
@@ -69,10 +69,10 @@ def test_the_command_prints_the_warning_on_stderr(tmp_path: Path,
 
 def test_the_measured_files_give_no_warning(measured_data: Path) -> None:
     for path in sorted((measured_data / "cb_pdms_7p5wt").glob("*.csv")):
-        assert import_csv(path, fmt="cb_pdms", sensor="s").report.warnings == [], path
+        assert import_csv(path, fmt="cb_pdms", sensor="s")[1].warnings == [], path
     for path in sorted((measured_data / "conductive_fiber").glob("*.csv")):
-        assert import_csv(path, fmt="fiber", sensor="s").report.warnings == [], path
+        assert import_csv(path, fmt="fiber", sensor="s")[1].warnings == [], path
     nylon = measured_data / "nylon_silver" / "session1_100Hz" / "sin_20.csv"
     columns = {"time": "time_s", "resistance": "r_over_r0", "strain": "position"}
     assert import_csv(nylon, fmt="generic", sensor="s", columns=columns,
-                      scales={"strain": 100.0}).report.warnings == []
+                      scales={"strain": 100.0})[1].warnings == []

@@ -63,9 +63,7 @@ def add_chunk(col: Collector, chunk: Chunk, where: str) -> None:
 
 
 def _plausible_chunk(data: bytes | mmap.mmap, pos: int, budget: list[int]) -> bool:
-    """Does a valid Chunk record start at ``pos``? The fixed fields are checked in place
-    first (O(1)); a candidate whose lengths agree is copied, checked and paid from
-    ``budget[0]``."""
+    """Does a valid Chunk start at ``pos``? Fixed fields first, then a copy paid from budget."""
     if pos + 9 + 40 > len(data) or data[pos] != Opcode.CHUNK:
         return False
     (length,) = struct.unpack_from("<Q", data, pos + 1)

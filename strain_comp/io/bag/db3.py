@@ -46,7 +46,6 @@ def refuse_compressed_file(path: Path) -> None:
 
 
 def _one_line(exc: BaseException) -> str:
-    """An exception's text on one line."""
     return " ".join(str(exc).split()) or type(exc).__name__
 
 

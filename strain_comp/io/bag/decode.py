@@ -1,7 +1,6 @@
-"""Collected messages decoded into a ``BagContents``: fixed-layout payloads in bulk with
-numpy (the CDR byte-order flag honoured), the other types message by message through
-``mcap_ros2``'s ``DecoderFactory`` on the standard definitions (``schemas.SCHEMAS``), never
-on the schema text found in the bag (docs/reliability.md, "Bags")."""
+"""Collected messages decoded into a ``BagContents``: fixed layouts in bulk with numpy, the
+other types one by one through ``mcap_ros2``'s decoder on the standard definitions
+(``schemas.SCHEMAS``), never on the schema text in the bag (docs/reliability.md)."""
 
 from __future__ import annotations
 
@@ -13,7 +12,7 @@ import numpy as np
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 
-from strain_comp.errors import BagError, InputError
+from strain_comp.errors import InputError
 from strain_comp.io.bag.records import MAX_LOG_NS, Collector, gather
 from strain_comp.io.bag.schemas import SCHEMAS, BagContents, Series, norm_type
 from strain_comp.io.multiarray import array_values, label_names
@@ -33,12 +32,10 @@ _DECODERS = DecoderFactory()
 
 
 def _decoder(kind: str) -> Callable[[bytes], Any]:
-    """CDR decoder of the standard ROS 2 message ``kind``."""
     schema = Schema(id=_DECODED_TYPES.index(kind) + 1, name=kind, encoding="ros2msg",
                     data=SCHEMAS[kind].encode())
     decoder = _DECODERS.decoder_for("cdr", schema)
-    if decoder is None:
-        raise BagError(f"no CDR decoder for {kind}")
+    assert decoder is not None  # None only for another encoding than cdr / ros2msg
     return decoder
 
 
@@ -63,9 +60,7 @@ def decode(col: Collector) -> BagContents:
 def channel_messages(col: Collector, problems: list[str]
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                 list[tuple[str, Schema, np.ndarray]]]:
-    """The payloads ``col`` located, joined (the bytes, each message's start, length and log
-    time [ns]), and per CDR channel read its topic, schema and message indices; what is
-    skipped is counted in ``problems``."""
+    """The payloads joined, each message's start, length, log time [ns]; per channel kept."""
     sizes = np.array([b.shape[0] for b in col.blocks], dtype=np.int64)
     blob = np.concatenate(col.blocks) if len(col.blocks) > 1 else col.blocks[0]
     base = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
@@ -104,8 +99,7 @@ def channel_messages(col: Collector, problems: list[str]
 def _one_type_per_topic(out: BagContents,
                         per_type: dict[tuple[str, str], tuple[Schema, list[np.ndarray]]]
                         ) -> list[tuple[str, str, Schema, list[np.ndarray]]]:
-    """(topic, type, schema, message indices), one type per topic: the type with the most
-    messages (the first seen on a tie); the others skipped, counted in ``problems``."""
+    """Per topic the type with the most messages (first on a tie); the others counted."""
     kept: dict[str, tuple[str, Schema, list[np.ndarray]]] = {}
     for (topic, kind), (schema, parts) in per_type.items():
         n = sum(p.size for p in parts)
@@ -173,9 +167,8 @@ def _decode_topic(out: BagContents, topic: str, schema: Schema, blob: np.ndarray
 
 def _decode_array(out: BagContents, topic: str, decoder: Any, blob: np.ndarray,
                   start: np.ndarray, length: np.ndarray, t: np.ndarray) -> None:
-    """Float64MultiArray, read as the node reads it (``array_values``). The first well-formed
-    message fixes k; the first label naming k distinct sensors names the columns. In bulk:
-    the messages byte-identical to a plain first one (offset 0, k values) up to the values."""
+    """Float64MultiArray as the node reads it (``array_values``); k from the first good one."""
+    # in bulk: the messages byte-identical to a plain first one (offset 0, k values) but values
     first = None
     for i in range(start.size):
         try:  # the first message that decodes into a well-formed array fixes the layout

@@ -74,9 +74,7 @@ def _bounded(where: Path, files: list[str] | list[Path]) -> None:
 
 
 def bag_storage(path: Path) -> tuple[list[Path], bool]:
-    """The storage files (MCAP, sqlite3) of a bag, checked before anything is opened (a FIFO
-    would block; metadata.yaml's order), and whether their messages are compressed one by
-    one; files compressed whole (``.zstd``) are refused, saying how to decompress them."""
+    """A bag's storage files, checked before any is opened; are messages zstd one by one?"""
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     if not (path.is_dir() or path.is_file()):

@@ -21,20 +21,16 @@ from strain_comp.io.bag.walk import storage_file
 WINDOW = 200_000
 """Messages ``iter_bag`` lets wait before it cuts a piece."""
 MAX_HELD_BYTES = 256 * 2**20
-"""Message bytes ``iter_bag`` holds undecoded [bytes]: it cuts a piece there (at the latest
-chunk's start, else all held: later messages may then come late, counted)."""
+"""Message bytes ``iter_bag`` holds undecoded [bytes]: it cuts a piece there."""
 MAX_BAG_BYTES = 2**30
-"""Message bytes ``read_bag`` and ``raw_messages`` read from one bag [bytes]; past it:
-BagError."""
+"""Message bytes ``read_bag`` and ``raw_messages`` read from one bag [bytes]."""
 
 
-def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
-             budget: bool = True) -> BagContents:
-    """Read a whole bag (a bare ``.mcap`` or ``.db3`` file or a rosbag2 directory): ``iter_bag``'s
-    pieces joined; ``budget``: refuse past ``MAX_BAG_BYTES`` of messages."""
+def read_bag(path: str | os.PathLike[str], *, budget: bool = True) -> BagContents:
+    """A whole bag: ``iter_bag``'s pieces joined; ``budget``: refuse past ``MAX_BAG_BYTES``."""
     merged = BagContents()
     parts: dict[str, list[Series]] = {}
-    for piece in iter_bag(path, topics, budget=MAX_BAG_BYTES if budget else None):
+    for piece in iter_bag(path, budget=MAX_BAG_BYTES if budget else None):
         for topic, series in piece.series.items():
             parts.setdefault(topic, []).append(series)
         for topic, labels in piece.labels.items():
@@ -104,12 +100,11 @@ def raw_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = No
     return out, located(path, col.problems)
 
 
-def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
-             window: int = WINDOW, budget: int | None = None) -> Iterator[BagContents]:
-    """A bag piece by piece in log-time order, in memory bounded by ``window``; ``budget``:
-    message bytes past which it refuses (``read_bag``)."""
+def iter_bag(path: str | os.PathLike[str], *, window: int = WINDOW,
+             budget: int | None = None) -> Iterator[BagContents]:
+    """A bag piece by piece in log-time order, about ``window`` messages each."""
     path = Path(path)
-    col = Collector(set(topics) if topics is not None else None)
+    col = Collector(None)
     cut: int | None = None
     for file in _walk(path, col):
         if budget is not None:
@@ -130,8 +125,7 @@ def iter_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
 
 def _take(col: Collector, upto: int | None, cut: int | None
           ) -> tuple[BagContents | None, int | None]:
-    """Decode and remove from ``col`` the messages before ``upto`` [ns] (all if None);
-    ``cut``: the previous piece's end. Returns the piece and the new cut."""
+    """The messages before ``upto`` [ns] (None: all) taken from ``col``, decoded; the new cut."""
     if not col.msg_time:
         return None, cut
     time = np.concatenate(col.msg_time)

@@ -51,8 +51,7 @@ def scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
 @njit
 def compact(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray]:
-    """The spans ``buf[starts[i]:starts[i] + lens[i]]`` copied into one new buffer; their
-    new starts."""
+    """The spans ``buf[starts[i]:starts[i] + lens[i]]`` in one new buffer; their starts."""
     out = np.empty(lens.sum(), np.uint8)
     new = np.empty(starts.shape[0], np.int64)
     pos = 0
@@ -72,7 +71,6 @@ class Collector:
     """Accumulates schemas, channels and message locations from one or more files."""
 
     def __init__(self, topics: set[str] | None) -> None:
-        """Start empty."""
         self.topics = topics
         self.schemas: dict[tuple[int, int], Schema] = {}
         self.channels: dict[tuple[int, int], Channel] = {}
@@ -84,13 +82,10 @@ class Collector:
         self.msg_start: list[np.ndarray] = []
         self.msg_len: list[np.ndarray] = []
         self.problems: list[str] = []
-        self.held = 0
-        """Message bytes held undecoded in ``blocks``."""
-        self.collected = 0
-        """Message bytes collected since the start (``read_bag``'s budget)."""
+        self.held = 0  # message bytes held undecoded in ``blocks``
+        self.collected = 0  # message bytes collected since the start (the whole-bag budget)
         self.file_index = 0
-        self.chunk_start = 0
-        """Latest chunk start (or loose message) time read [ns]: earlier ones are all in."""
+        self.chunk_start = 0  # the latest chunk start read [ns]: earlier messages are all in
 
     def add_block(self, buf: np.ndarray, ops: np.ndarray, starts: np.ndarray,
                   lens: np.ndarray, where: str) -> None:

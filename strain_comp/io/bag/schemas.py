@@ -1,7 +1,5 @@
-"""What a strain_comp bag holds: the ros2msg schema texts, and the decoded contents.
-
-Time is the message log time in seconds (float64); written bags store it in integer ns.
-"""
+"""What a strain_comp bag holds: the ros2msg schema texts, and the decoded contents (times:
+the log time in s, float64; written bags store integer ns)."""
 
 from __future__ import annotations
 
@@ -14,8 +12,7 @@ PROFILE = "ros2"
 LIBRARY = "strain_comp.io.bag"
 CHUNK_SIZE = 1 << 20  # uncompressed bytes per chunk
 MAX_TIME_S = 2**31 - 1
-"""The latest message time a bag holds [s]: 2038-01-19, the last second a ROS 2 header
-stamp (builtin_interfaces/Time, int32 seconds) can hold."""
+"""The latest message time a bag holds [s] (2038-01-19: a header stamp's int32 seconds)."""
 
 _SEP = "=" * 80 + "\n"
 _TIME = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"

@@ -26,8 +26,7 @@ _OPCODES = {int(op) for op in Opcode}
 
 
 def _read_file(col: Collector, data: bytes | mmap.mmap, name: str) -> Iterator[int]:
-    """Collect every complete record of one MCAP file (mapped); the end offset after each
-    top-level record."""
+    """Collect every complete record of one mapped MCAP file; yields each record's end."""
     if len(data) < len(MAGIC) or data[:len(MAGIC)] != MAGIC:
         raise BagError(f"{name}: not an MCAP file (bad magic)")
     pos = len(MAGIC)
@@ -112,8 +111,7 @@ def storage_file(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
 
 
 def _read_db3(col: Collector, file: Path, compressed: bool) -> Iterator[int]:
-    """The messages of a ``.db3`` file collected as an unchunked MCAP's, one channel per
-    topic and type."""
+    """A ``.db3`` file collected as an unchunked MCAP, one channel per topic and type."""
     channels: dict[tuple[str, str], int] = {}
     skipped = 0
     for n, block in enumerate(db3_messages(file, col.problems, compressed=compressed)):

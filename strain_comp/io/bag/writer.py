@@ -1,7 +1,6 @@
-"""MCAP bag writing (docs/design.md, "Bags"): ``BagWriter`` buffers messages, payloads of a
-fixed layout built as numpy rows of one template (``strain_comp.io.cdr.RowEncoder``);
-``Stream`` writes them merged in log-time order into chunks assembled in bulk (zstd, CRC,
-message indexes), then the summary and the footer: one fully indexed ros2-profile file."""
+"""MCAP bag writing: ``BagWriter`` buffers messages (``cdr.RowEncoder`` rows); ``Stream``
+writes them in log-time order into chunks assembled in bulk (zstd, CRC, message indexes),
+then the summary and the footer: one fully indexed ros2-profile file."""
 
 from __future__ import annotations
 
@@ -69,8 +68,7 @@ class Pending:
     payloads: list[np.ndarray] = field(default_factory=list)
 
     def merged(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The messages in log-time order (stable): times, channels, sequences, and each
-        payload's offset and length in the payloads joined in buffered order."""
+        """In log-time order: times, channels, sequences, payload offsets and lengths."""
         t_ns = np.concatenate(self.t_ns)
         order = np.argsort(t_ns, kind="stable")
         plen = np.concatenate(self.lengths)
@@ -138,8 +136,7 @@ class Stream:
 
     def write_messages(self, topics: Mapping[str, Topic], p: Pending, *, final: bool,
                        before: int | None = None) -> Pending | None:
-        """Write ``p`` merged in log-time order as chunks; unless ``final``, the last partial
-        chunk and the messages at or after ``before`` [ns] are returned (sorted) instead."""
+        """``p`` as chunks; unless ``final``, return the rest (a partial chunk, ``before`` on)."""
         self._declare(topics)
         t_ns, chan, seq, poff, plen = p.merged()
         blob = _joined(p.payloads)
@@ -175,13 +172,7 @@ class Stream:
         return keep
 
     def finish(self) -> None:
-        """Data end, summary (schemas, channels, statistics, chunk indexes), footer; then
-        the atomic rename."""
-        with self._output.discarded_on_error():
-            self._finish()
-        self._output.commit()
-
-    def _finish(self) -> None:
+        """Data end, summary (schemas, channels, statistics, chunk indexes), footer, rename."""
         self._write(_record(DataEnd(data_section_crc=0)))
         summary_start = self.pos
         pos = self.pos
@@ -210,6 +201,7 @@ class Stream:
         self._write(summary_data + _record(Footer(summary_start=summary_start,
                                                   summary_offset_start=summary_offset_start,
                                                   summary_crc=crc)) + MAGIC)
+        self._output.commit()
 
     def abort(self) -> None:
         """Drop the temporary file (nothing replaces the target)."""
@@ -233,8 +225,7 @@ def _joined(parts: list[np.ndarray]) -> np.ndarray:
 @njit
 def _fill_records(raw: np.ndarray, head: np.ndarray, start: np.ndarray, poff: np.ndarray,
                   plen: np.ndarray, blob: np.ndarray) -> None:
-    """Message i's record header and payload to ``raw[start[i]:]`` (a numpy fancy-index
-    scatter was 3-5x slower)."""
+    """Message i's record header and payload to ``raw[start[i]:]`` (numpy: 3-5x slower)."""
     width = head.shape[1]
     for i in range(start.size):
         s = start[i]
@@ -359,12 +350,10 @@ class BagWriter:
         entry.n += t_ns.size
 
     def write_float64(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        """Add std_msgs/msg/Float64 messages, one per (t, value)."""
         v = np.asarray(values, dtype="<f8").reshape(-1)
         self._add(topic, "std_msgs/msg/Float64", _ns(t), cdr.RowEncoder.scalar("<f8").rows(v))
 
     def write_int8(self, topic: str, t: npt.ArrayLike, values: npt.ArrayLike) -> None:
-        """Add std_msgs/msg/Int8 messages, one per (t, value)."""
         v = np.asarray(values)
         if v.size and (np.abs(v) > 128).any():
             raise BagError(f"{topic}: Int8 values out of range")
@@ -384,8 +373,7 @@ class BagWriter:
 
     def write_joint_state(self, topic: str, t: npt.ArrayLike, names: Sequence[str],
                           position: npt.ArrayLike) -> None:
-        """Add sensor_msgs/msg/JointState messages, one per row of ``position``, stamped
-        with the log time."""
+        """Add sensor_msgs/msg/JointState messages, one per row, stamped with the log time."""
         t_ns = _ns(t)  # refuses stamps past int32 seconds
         p = np.asarray(position, dtype="<f8").reshape(t_ns.size, len(names))
         self._add(topic, "sensor_msgs/msg/JointState", t_ns,
@@ -428,18 +416,17 @@ class BagWriter:
                             round(before * 1e9))
 
     def close(self) -> None:
-        """Write the remaining messages, the summary and the footer (once); if that fails
-        (a full disk, ``ulimit -f``), the temporary file is deleted (``abort``)."""
+        """Write the rest, the summary and the footer (once); on a failure, ``abort``."""
         if self._closed:
             return
         try:
             self._write_pending(final=True)
+            assert self._out is not None
+            self._out.finish()
         except BaseException:
             self.abort()
             raise
         self._closed = True
-        assert self._out is not None
-        self._out.finish()
 
     def _write_pending(self, *, final: bool, before: int | None = None) -> None:
         if self._out is None:
