@@ -383,7 +383,6 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
     ),
     "test_failed_writes": (
         "test_a_failed_write_leaves_no_temporary_file_and_names_its_target",
-        "test_csv_writes_nan_and_inf_one_way",
     ),
     "test_fit": (
         "test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample",
