@@ -55,26 +55,16 @@ def as_used(calibration: Calibration, *runs: dict[str, Recording]) -> float:
 
 @pytest.fixture(scope="module")
 def bags(tmp_path_factory: pytest.TempPathFactory) -> BagMaker:
-    """rig bag maker: (scenario, seed, **effects) -> recordings read back from the bag, made
-    once per module for each set of arguments; its arrays are read-only, so no test can
-    change what another one gets."""
+    """rig bag maker: (scenario, seed, **effects) -> recordings read back from the bag."""
     root = tmp_path_factory.mktemp("rig")
-    made: dict[tuple[Any, ...], dict[str, Recording]] = {}
 
     def make(scenario: str, seed: int, **effects: float) -> dict[str, Recording]:
-        key = (scenario, seed, *sorted(effects.items()))
-        if key not in made:
-            path = root / f"{scenario}_{seed}_{len(made)}.mcap"
-            run = simulate(scenario, seed=seed, effects=RigEffects(**{**CLEAN, **effects}))
-            write_sim_bag(run, path)
-            recordings, problems = load_recordings(path)
-            assert not problems
-            for rec in recordings.values():
-                for array in (rec.t, rec.r, rec.s, rec.temperature):
-                    if array is not None:
-                        array.flags.writeable = False
-            made[key] = recordings
-        return {name: dataclasses.replace(rec) for name, rec in made[key].items()}
+        path = root / f"{scenario}_{seed}_{len(list(root.iterdir()))}.mcap"
+        run = simulate(scenario, seed=seed, effects=RigEffects(**{**CLEAN, **effects}))
+        write_sim_bag(run, path)
+        recordings, problems = load_recordings(path)
+        assert not problems
+        return recordings
 
     return make
 
