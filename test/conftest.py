@@ -320,10 +320,6 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
     "test_array_budgets": (
         "test_1024_different_sensors_with_two_terms_each_load_as_written",
     ),
-    "test_budgets": (
-        "test_a_write_past_ulimit_f_names_the_path_and_leaves_no_temporary_file",
-        "test_two_outputs_of_one_command_on_one_path_are_refused",
-    ),
     "test_calibration": (
         "test_round_trip_is_exact",
     ),
