@@ -24,6 +24,8 @@ from __future__ import annotations
 import functools
 import math
 import os
+import pickle
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -166,9 +168,18 @@ def training_recording() -> Recording:
     return Recording("s1", sensor.t, sensor.resistance, sensor.strain)
 
 
+FITS = "STRAIN_COMP_TEST_FITS"
+"""Environment variable: the folder where test/warm_kernels.py leaves ``fitted``'s
+calibrations (pickled) for the pytest-xdist workers, which load them instead of refitting."""
+
+
 @functools.cache
 def fitted(model: str) -> SensorCalibration:
     """One calibration per model, fitted once per pytest run (shared with other files)."""
+    folder = os.environ.get(FITS)
+    if folder and (Path(folder) / f"{model}.pickle").exists():
+        cal: SensorCalibration = pickle.loads((Path(folder) / f"{model}.pickle").read_bytes())
+        return cal
     return fit_sensor([training_recording()], model, name="s1",
                       options={"tau": 0.2, **FIT_OPTIONS.get(model, {})})
 
@@ -309,10 +320,6 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
     "test_array_budgets": (
         "test_1024_different_sensors_with_two_terms_each_load_as_written",
     ),
-    "test_budgets": (
-        "test_a_write_past_ulimit_f_names_the_path_and_leaves_no_temporary_file",
-        "test_two_outputs_of_one_command_on_one_path_are_refused",
-    ),
     "test_calibration": (
         "test_round_trip_is_exact",
     ),
@@ -372,7 +379,6 @@ SLOW_TESTS: dict[str, tuple[str, ...]] = {
     ),
     "test_failed_writes": (
         "test_a_failed_write_leaves_no_temporary_file_and_names_its_target",
-        "test_csv_writes_nan_and_inf_one_way",
     ),
     "test_fit": (
         "test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample",
@@ -461,13 +467,16 @@ default, which started them last)."""
 
 def pytest_configure(config: pytest.Config) -> None:
     """Under pytest-xdist (``-n N``), in the controller before the workers start: the numba
-    kernels compiled into the cache by two processes side by side (test/warm_kernels.py),
-    so that the workers load them rather than each compile the same ones. A part that fails
-    is a warning: the tests then compile what is missing, as without this step. The files
-    are handed out in collection order (``LONGEST_FIRST``), not by their number of tests."""
+    kernels compiled into the cache and ``fitted``'s calibrations made (into ``FITS``) by two
+    processes side by side (test/warm_kernels.py), so that the workers load them rather than
+    each compile and fit the same ones. A part that fails is a warning: the tests then
+    compile and fit what is missing, as without this step. The files are handed out in
+    collection order (``LONGEST_FIRST``), not by their number of tests."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     config.option.loadscopereorder = False
+    os.environ[FITS] = tempfile.mkdtemp(prefix="strain_comp_fits_")
+    config.add_cleanup(functools.partial(shutil.rmtree, os.environ[FITS], ignore_errors=True))
     script = Path(__file__).with_name("warm_kernels.py")
     with tempfile.TemporaryFile() as log0, tempfile.TemporaryFile() as log1:
         runs = [(subprocess.Popen([sys.executable, str(script), str(part)], stdout=log,

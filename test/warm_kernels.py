@@ -2,18 +2,20 @@
 start: test/conftest.py runs ``python test/warm_kernels.py PART`` for parts 0 and 1 side by
 side. On a cold cache (a fresh clone) both workers would otherwise compile the same kernels
 at the same moment, each test's first call paying for it. Each part runs a share of what
-the tests run (the fits of ``conftest.fitted``, the measurement chain's correction, an
-array's fused tick, a replay, a diagnosis); a kernel missed here is compiled by the first
-test that needs it, as before."""
+the tests run (the fits of ``conftest.fitted``, left pickled in ``conftest.FITS`` for the
+workers to load, the measurement chain's correction, an array's fused tick, a replay, a
+diagnosis); a kernel missed here is compiled by the first test that needs it, as before."""
 
 from __future__ import annotations
 
+import os
+import pickle
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from conftest import PROJECT_ROOT, fitted, training_recording
+from conftest import FITS, PROJECT_ROOT, fitted, training_recording
 
 import strain_comp as sc
 from strain_comp.core.calibration import Calibration
@@ -41,7 +43,7 @@ def main(part: int) -> None:
         run = training_recording()
         correct(run.t, run.r, alternating=False)
     for model in PARTS[part]:
-        fitted(model)
+        (Path(os.environ[FITS]) / f"{model}.pickle").write_bytes(pickle.dumps(fitted(model)))
     if part == 1:
         array_ticks()
         with tempfile.TemporaryDirectory() as tmp:

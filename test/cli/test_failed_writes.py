@@ -12,15 +12,16 @@ from pathlib import Path
 
 import pytest
 
+from strain_comp.cli import main
+
 ROOT = Path(__file__).resolve().parents[2]
 BAG = ROOT / "bags" / "steps.mcap"
 CAL = ROOT / "config" / "demo_calibration.yaml"
 
 
-def cli(args: list[str], fsize: int | None, cwd: Path) -> subprocess.CompletedProcess[str]:
+def cli(args: list[str], fsize: int, cwd: Path) -> subprocess.CompletedProcess[str]:
     def limit() -> None:
-        if fsize is not None:
-            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
     return subprocess.run([sys.executable, "-m", "strain_comp.cli", *args], text=True,
                           capture_output=True, timeout=300, preexec_fn=limit, cwd=cwd,
                           env={**os.environ, "PYTHONPATH": str(ROOT),
@@ -42,13 +43,14 @@ COMMANDS = {
 
 @pytest.mark.parametrize("name", list(COMMANDS))
 def test_a_failed_write_leaves_no_temporary_file_and_names_its_target(
-        tmp_path: Path, name: str) -> None:
+        tmp_path: Path, name: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """Under ``ulimit -f`` of 1 byte (``simulate --scenario array`` left its temporary bag
     behind: the bag writer's close did not discard it on a failed write)."""
     args, target = COMMANDS[name]
     warm = tmp_path / "warm"  # the kernels compiled and cached first, without the limit
     warm.mkdir()
-    assert cli(args, None, warm).returncode == 0
+    monkeypatch.chdir(warm)  # in this process: one interpreter start fewer
+    assert main(args) == 0
     work = tmp_path / "work"
     work.mkdir()
     (work / "keep.txt").write_text("kept")
@@ -59,7 +61,7 @@ def test_a_failed_write_leaves_no_temporary_file_and_names_its_target(
     assert sorted(p.name for p in work.iterdir()) == ["keep.txt"]
 
 
-def test_csv_writes_nan_and_inf_one_way(tmp_path: Path) -> None:
+def test_csv_writes_nan_and_inf_one_way(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A NaN and an infinite resistance are written ``nan`` and ``inf`` (as float() reads
     them back); the one empty cell is a reference the bag does not have."""
     import csv
@@ -76,9 +78,9 @@ def test_csv_writes_nan_and_inf_one_way(tmp_path: Path) -> None:
     with BagWriter(bag) as writer:
         writer.write_float64("/s1/resistance", t, r)
         writer.write_float64("/s1/strain_reference", t[:30], np.linspace(0, 10, 30))
-    done = cli(["replay", str(bag), "--calibration", str(CAL), "--out", "out.mcap", "--csv",
-                "out.csv"], None, tmp_path)
-    assert done.returncode == 0, done.stderr
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", str(bag), "--calibration", str(CAL), "--out", "out.mcap", "--csv",
+                 "out.csv"]) == 0
     with (tmp_path / "out.csv").open() as f:
         rows = list(csv.DictReader(f))
     cells = [row["resistance_ohm"] for row in rows]
