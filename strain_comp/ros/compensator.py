@@ -34,7 +34,7 @@ from std_msgs.msg import Float64, Float64MultiArray, Int8
 from std_srvs.srv import Trigger
 
 from strain_comp.core.calibration import expected_words
-from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.cdr import RowEncoder
 from strain_comp.io.multiarray import array_values
 from strain_comp.ros.cdr import RowDecoder
@@ -266,22 +266,16 @@ class CompensatorNode(Node):
                 for p in params]
 
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
-        """Tunables checked all first, then applied; ``use_sim_time`` fixed at start."""
+        """Tunables applied (the descriptors checked them); ``use_sim_time`` fixed at start."""
         self._flush()
         for p in params:  # any peer may call set_parameters: the time source is fixed
             if p.name == USE_SIM_TIME and p.value != self.get_parameter(USE_SIM_TIME).value:
                 return SetParametersResult(successful=False, reason=(
                     f"{USE_SIM_TIME} is fixed at start (params file or -p "
                     f"{USE_SIM_TIME}:=...); restart the node to change it"))
-        try:
-            for p in params:  # validate all first, then apply
-                if p.name in TUNABLE:
-                    self.live.check_tunable(p.name, p.value)
-            for p in params:
-                if p.name in TUNABLE:
-                    self.live.set_tunable(p.name, p.value)
-        except ParameterError as err:
-            return SetParametersResult(successful=False, reason=str(err))
+        for p in params:  # rclpy refused a read-only, mistyped or out-of-range value before
+            if p.name in TUNABLE:
+                self.live.set_tunable(p.name, p.value)
         return SetParametersResult(successful=True)
 
     # --- messages -------------------------------------------------------------------------

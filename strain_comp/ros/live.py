@@ -21,7 +21,7 @@ from strain_comp.core.range_policy import fitted_rest
 from strain_comp.errors import InputError, ParameterError, StrainCompError
 from strain_comp.ros.live_start import LiveStart
 from strain_comp.ros.live_tare import LiveTare
-from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
+from strain_comp.ros.params import NodeParams, validate_tunable
 
 BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
               Status.TIME_NOT_INCREASING: "time not increasing",
@@ -247,18 +247,9 @@ class LiveCompensator:
 
     # --- parameters -----------------------------------------------------------------------
 
-    def check_tunable(self, name: str, value: Any) -> float:
-        """The validated value; ParameterError if out of range, unknown or read-only."""
-        value = validate_tunable(name, value)
-        if TUNABLE[name].read_only:
-            raise ParameterError(name, "read-only: set it in the params file and restart")
-        return value
-
     def set_tunable(self, name: str, value: Any) -> None:
-        """Validate (``check_tunable``) and apply a tunable."""
-        self._apply(name, self.check_tunable(name, value))
-
-    def _apply(self, name: str, value: float) -> None:
+        """Validate and apply a tunable."""
+        value = validate_tunable(name, value)
         self.tunables[name] = value
         if name == "deadzone_scale":
             self.engine.set_deadzone_scale(value)
@@ -304,7 +295,7 @@ class LiveCompensator:
     def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
         """``fresh`` with this one's counters, tunables and message times (not its zero)."""
         for name, value in self.tunables.items():
-            fresh._apply(name, value)
+            fresh.set_tunable(name, value)
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen
         fresh.faults, fresh._faults_seen = self.faults, self._faults_seen
         fresh._counted_before = self.health()  # the counters go on from here

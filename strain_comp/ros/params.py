@@ -106,9 +106,7 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
 
 def validate_tunable(name: str, value: Any) -> float:
     """A tunable's value, checked."""
-    spec = TUNABLE.get(name)
-    if spec is None:
-        raise ParameterError(name, f"unknown parameter; tunables: {', '.join(TUNABLE)}")
+    spec = TUNABLE[name]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParameterError(name, f"must be a number, got {value!r}")
     lo, hi = spec.range if spec.range is not None else (-float("inf"), float("inf"))
