@@ -138,13 +138,10 @@ class NodeParams:
     fuse_references: bool = False
     """Known strains fused into the output (``strain_comp.core.fusion``)."""
 
-    @property
-    def arrays(self) -> dict[str, list[str]]:
-        return {i.name: list(i.sensors) for i in self.inputs if i.is_array}
-
     def build_engine(self) -> Engine:
         """The Engine these parameters describe (gap, stale and dead-zone tunables applied)."""
-        return Engine(self.calibration, arrays=self.arrays,
+        arrays = {i.name: list(i.sensors) for i in self.inputs if i.is_array}
+        return Engine(self.calibration, arrays=arrays,
                       gap_reset=self.tunables["gap_reset_s"],
                       stale_after=self.tunables["stale_after_s"],
                       deadzone_scale=self.tunables["deadzone_scale"])
