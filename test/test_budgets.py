@@ -227,8 +227,8 @@ def test_reload_keeps_the_health_and_refusal_counters(tmp_path: Path) -> None:
         one_message(node, "s1", 1.0 + 0.1 * i, r)
     node.refuse("s1", "wrong type")
     before = node.health()["s1"]
-    node = node.reload(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml"},
-                                    base_dir=tmp_path))
+    node = node.hand_over(node.successor(parse_values(
+        {"sensors": ["s1"], "s1.calibration": "c.yaml"}, base_dir=tmp_path)))
     one_message(node, "s1", 2.0, 152.0)
     after = node.health()["s1"]
     assert (after.n_good, after.n_nan, after.n_non_positive) == (before.n_good + 1, 1, 1)

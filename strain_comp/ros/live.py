@@ -70,7 +70,7 @@ class LiveCompensator:
         """Program errors by where and exception type, counted apart from the refusals."""
         self._faults_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
-        """Health counters of the calibrations this one replaced (``reload``)."""
+        """Health counters of the calibrations this one replaced (``hand_over``)."""
         self.fusion: dict[str, OutputFusion] = (
             {s: OutputFusion.for_calibration(c) for s, c in params.calibration.sensors.items()}
             if params.fuse_references else {})
@@ -242,7 +242,8 @@ class LiveCompensator:
             lines.append(f"{sensor}: {span_reading(span)}")
         if problems:
             raise ParameterError("span", "refused: " + "; ".join(problems))
-        fresh = self.reload(replace(self.params, calibration=Calibration(sensors)))
+        fresh = self.hand_over(self.successor(
+            replace(self.params, calibration=Calibration(sensors))))
         return fresh, "spanned " + "; ".join(lines)
 
     # --- parameters -----------------------------------------------------------------------
@@ -275,22 +276,12 @@ class LiveCompensator:
         started = self.starting.seen_reference(sensor, t, value, self.params.calibration)
         if started is None:
             return self
-        return self.reload(replace(self.params, calibration=started))
-
-    def reload(self, params: NodeParams) -> LiveCompensator:
-        """``successor`` then ``hand_over``."""
-        return self.hand_over(self.successor(params))
+        return self.hand_over(self.successor(replace(self.params, calibration=started)))
 
     def successor(self, params: NodeParams) -> LiveCompensator:
         """A reload's slow half, built on a worker thread: reads only inputs and tunables."""
-        self.check_successor(params)
         params.tunables = dict(self.tunables)
         return LiveCompensator(params)
-
-    def check_successor(self, params: NodeParams) -> None:
-        """StrainCompError unless ``params`` keeps the inputs and their sensors."""
-        if [i.sensors for i in params.inputs] != [i.sensors for i in self.params.inputs]:
-            raise StrainCompError("the reloaded calibration changes the sensors")
 
     def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
         """``fresh`` with this one's counters, tunables and message times (not its zero)."""

@@ -127,7 +127,7 @@ def test_array_references_nan_for_none_and_the_label_honoured(tmp_path: Path) ->
         references(1.04, [1.0, 2.0], label="a,c")
     with pytest.raises(InputError, match="expected 2 values"):
         references(1.05, [1.0])
-    fresh = node.reload(node.params)  # a reload restarts the estimate, counts go on
+    fresh = node.hand_over(node.successor(node.params))  # the estimate restarts, counts go on
     assert fresh.fusion["a"].gain == 1.0 and fresh.fusion["a"].n_used == 1
 
 
