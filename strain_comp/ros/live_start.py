@@ -34,11 +34,6 @@ class _Series:
     ref_t: list[float] = field(default_factory=list)
     ref: list[float] = field(default_factory=list)
 
-    def recording(self, name: str) -> Recording:
-        """The inputs with the latest reference at or before each (NaN before the first)."""
-        t = np.array(self.t)
-        return Recording(name, t, np.array(self.r), hold_latest(t, self.ref_t, self.ref))
-
 
 class LiveStart:
     """``~/start``'s state and the samples it watches."""
@@ -111,7 +106,9 @@ class LiveStart:
 
     def _apply(self, calibration: Calibration) -> Calibration | None:
         """``strain-comp start``'s session start on the recorded stretch (None: refused)."""
-        recordings = {name: s.recording(name) for name, s in self.series.items()}
+        recordings = {name: Recording(name, np.array(s.t), np.array(s.r),  # the reference held
+                                      hold_latest(s.t, s.ref_t, s.ref))
+                      for name, s in self.series.items()}
         watched = Calibration({n: calibration.sensors[n] for n in recordings})
         ends = [float(r.t[-1] - r.t[0]) for r in recordings.values() if r.t.size]
         try:
@@ -123,9 +120,4 @@ class LiveStart:
         self.outcome("applied", "applied: stretch RMSE " + ", ".join(
             f"{r.sensor} {r.rmse:.4g} {r.unit}" for r in started.records))
         return Calibration({**calibration.sensors, **started.calibration.sensors})
-
-    def diagnostic(self) -> tuple[int, str, dict[str, str]]:
-        """(level, message, values) of the ``strain_comp: session start`` status."""
-        level = 1 if self.state == "refused" else 0
-        return level, f"{self.state}: {self.detail}", {"state": self.state}
 
