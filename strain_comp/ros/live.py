@@ -18,7 +18,7 @@ from strain_comp.core.fusion import OutputFusion
 from strain_comp.core.health import SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.ros.live_start import LiveStart
 from strain_comp.ros.live_tare import LiveTare
 from strain_comp.ros.params import NodeParams, validate_tunable
@@ -145,30 +145,21 @@ class LiveCompensator:
     # --- known strains --------------------------------------------------------------------
 
     def on_reference(self, sensor: str, t: float, value: Any) -> str | None:
-        """A known strain of ``sensor``: None when fused, else the reason (counted)."""
-        fusion = self.fusion.get(sensor)
-        if fusion is None:
-            raise InputError(f"no sensor {sensor!r} in the calibration" if self.fusion else
-                             "fuse_references is false")
-        latest = self._latest(sensor)
-        if latest is None:
-            return fusion.refuse("no estimate yet")
-        if not latest[2]:
-            return fusion.refuse("estimate out of the calibrated range")
-        if not t - latest[0] <= self.engine.stale_for(sensor):
-            return fusion.refuse("no recent estimate")
-        reason = fusion.update(t, latest[1], value)
-        if reason is None:
-            self._maps.pop(self._column[sensor][0], None)
-        return reason
-
-    def _latest(self, sensor: str) -> tuple[float, float, bool] | None:
-        """A sensor's latest estimate before fusion (time, strain, within the range)."""
+        """A known strain of a fused ``sensor``: None when fused, else the reason (counted)."""
+        fusion = self.fusion[sensor]
         name, column = self._column[sensor]
         vectors = self._estimate.get(name)
         if vectors is None or np.isnan(vectors[0][column]):
-            return None
-        return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
+            return fusion.refuse("no estimate yet")
+        latest, strain, inside = (v[column] for v in vectors)
+        if not inside:
+            return fusion.refuse("estimate out of the calibrated range")
+        if not t - latest <= self.engine.stale_for(sensor):
+            return fusion.refuse("no recent estimate")
+        reason = fusion.update(t, float(strain), value)
+        if reason is None:
+            self._maps.pop(name, None)
+        return reason
 
     def reference_now(self, now: float) -> str:
         """``~/reference`` at clock time ``now``."""
@@ -341,7 +332,9 @@ class LiveCompensator:
                     if raised else "ok",
                     {"n_errors": str(errors), "n_errors_recent": str(raised),
                      **{f"error[{k}]": str(v) for k, v in sorted(self.faults.items())}}))
-        out.append(("strain_comp: session start", *self.starting.diagnostic()))
+        start = self.starting
+        out.append(("strain_comp: session start", WARN if start.state == "refused" else OK,
+                    f"{start.state}: {start.detail}", {"state": start.state}))
         total = sum(self.refused.values())
         recent, self._refused_seen = total - self._refused_seen, total
         reasons = {f"refused[{k}]": str(v) for k, v in sorted(self.refused.items())}
