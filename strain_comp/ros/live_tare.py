@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,25 +25,18 @@ TARE_WINDOW_S = 0.5
 RING = 4096
 """Recent samples kept at most per input for ``~/tare`` (the last 0.5 s up to 8 kHz)."""
 MAX_START_SAMPLES = 2**17
-"""Samples an input's pending automatic tare may log (``REST_WINDOW`` = 5 s at 26 kHz); a
-clock that does not advance (a paused sim clock) would otherwise let it grow without end:
-past it the automatic tare is declined, the calibration's zero stays."""
+"""Samples a pending automatic tare may log (5 s at 26 kHz), past them declined: a paused
+sim clock would otherwise let the log grow without end."""
 
 
-@dataclass
 class _Log:
     """An input's latest raw samples (columns: its sensors) and whether the model used each."""
 
-    k: int
-    t: np.ndarray = field(init=False)
-    raw: np.ndarray = field(init=False)
-    good: np.ndarray = field(init=False)
-    n: int = 0
-
-    def __post_init__(self) -> None:
+    def __init__(self, k: int) -> None:
         self.t = np.full(256, -math.inf)
-        self.raw = np.zeros((256, self.k))
-        self.good = np.zeros((256, self.k), dtype=bool)
+        self.raw = np.zeros((256, k))
+        self.good = np.zeros((256, k), dtype=bool)
+        self.n = 0
 
     def add(self, t: np.ndarray, raw: np.ndarray, status: np.ndarray, keep_from: float,
             most: int) -> bool:
