@@ -1,6 +1,5 @@
 """What the live node does with each message, free of any transport (docs/ros.md;
-docs/architecture.md, "Inside the node").
-"""
+docs/architecture.md, "Inside the node")."""
 
 from __future__ import annotations
 

@@ -1,8 +1,6 @@
-"""The ``compensator`` executable: starts the rclpy node (``strain_comp.ros.compensator``) and
-spins it; start-up problems are one line and exit 2, SIGINT/SIGTERM exit 0 at any moment
-(docs/ros.md; docs/architecture.md, "Inside the node"). Only the standard library is
-imported at module level, so the signal handlers are in place before anything slow.
-"""
+"""The ``compensator`` executable: spins the rclpy node; start-up problems are one line and
+exit 2, SIGINT/SIGTERM exit 0 at any moment (docs/ros.md). Only the standard library is
+imported at module level, so the signal handlers are in place before anything slow."""
 
 from __future__ import annotations
 

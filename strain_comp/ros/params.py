@@ -1,6 +1,5 @@
 """Node parameters: the ``<node>: ros__parameters:`` YAML of the rclpy node (layout, checks
-and path resolution: docs/architecture.md, "Inside the node"; docs/ros.md).
-"""
+and path resolution: docs/architecture.md, "Inside the node"; docs/ros.md)."""
 
 from __future__ import annotations
 
@@ -310,8 +309,7 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 def read_params(files: list[Path], name: str = "compensator", namespace: str = "/"
                 ) -> tuple[dict[str, Any], Path | None]:
-    """The values the files give the node (blocks as rcl matches them) and the folder of the
-    last that names a calibration (``ros2 launch``'s own file does not), else of the last."""
+    """The files' values for the node (blocks as rcl matches them) and the base folder."""
     ns = namespace.strip("/")
     fqn = f"{ns}/{name}" if ns else name
     values: dict[str, Any] = {}
@@ -330,7 +328,7 @@ def read_params(files: list[Path], name: str = "compensator", namespace: str = "
             flat = _flatten(block["ros__parameters"])
             base = path.resolve().parent
             if any(key.rpartition(".")[2] == "calibration" for key in flat):
-                named = base
+                named = base  # the last file naming a calibration (ros2 launch's does not)
             values.update(flat)
     return values, named or base
 
