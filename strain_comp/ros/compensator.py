@@ -38,8 +38,7 @@ from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.cdr import RowEncoder
 from strain_comp.io.multiarray import array_values
 from strain_comp.ros.cdr import RowDecoder
-from strain_comp.ros.clock_gate import ClockGate
-from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
+from strain_comp.ros.live import NON_FINITE, OK, WARN, ClockGate, LiveCompensator
 from strain_comp.ros.params import (
     ROS_OWNED,
     TUNABLE,
@@ -240,10 +239,16 @@ class CompensatorNode(Node):
 
     def _on_tick(self, jump: TimeJump) -> None:
         """The sim clock moved: the inputs held for it are handled, stamped with it."""
+        self._gated(self.gate.tick)
+
+    def _arrive(self, name: str, msg: Any) -> None:
+        """Under sim time, an input: handled once its /clock tick has come (the gate)."""
+        self._gated(lambda now: self.gate.arrive(name, now, msg))
+
+    def _gated(self, release: Callable[[int], list[tuple[str, int, Any]]]) -> None:
+        """What the gate releases at the node clock's time, queued and handled."""
         self._adopt()
-        now = self._now_ns()
-        names = list(self.gate.held)
-        for name, (stamp, msg) in zip(names, self.gate.tick(now), strict=True):
+        for name, stamp, msg in release(self._now_ns()):
             self._guarded(name, partial(self._queue, name, stamp, msg))
         self._flush()
 
@@ -279,14 +284,6 @@ class CompensatorNode(Node):
         return SetParametersResult(successful=True)
 
     # --- messages -------------------------------------------------------------------------
-
-    def _arrive(self, name: str, msg: Any) -> None:
-        """Under sim time, an input: handled once its /clock tick has come (the gate)."""
-        self._adopt()
-        now = self._now_ns()
-        for stamp, queued in self.gate.arrive(name, now, msg):
-            self._guarded(name, partial(self._queue, name, stamp, queued))
-        self._flush()
 
     def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
         """A message's values in sensor order, their columns in its data, its value count."""

@@ -343,3 +343,31 @@ class LiveCompensator:
                     {"n_refused": str(total), "n_refused_recent": str(recent), **reasons}))
         return out
 
+
+class ClockGate:
+    """Under sim time, an input whose clock reading equals its topic's previous stamp waits
+    for the next /clock tick (docs/ros.md, "Time, and what a bag played into the node gives")."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, int] = {}
+        self.held: dict[str, Any] = {}
+
+    def arrive(self, name: str, now_ns: int, item: Any) -> list[tuple[str, int, Any]]:
+        """(name, stamp, item) triples to process now, in order."""
+        out = []
+        if name in self.held:
+            out.append((name, now_ns, self.held.pop(name)))
+        elif self.last.get(name) == now_ns:
+            self.held[name] = item
+            return out
+        self.last[name] = now_ns
+        out.append((name, now_ns, item))
+        return out
+
+    def tick(self, now_ns: int) -> list[tuple[str, int, Any]]:
+        """The clock moved to ``now_ns``: the held inputs to process now, stamped with it."""
+        out = [(name, now_ns, item) for name, item in self.held.items()]
+        for name in self.held:
+            self.last[name] = now_ns
+        self.held.clear()
+        return out

@@ -14,8 +14,7 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.tare import REST_WINDOW, rest_resistance_at_start, tare_engine
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.multiarray import array_values
-from strain_comp.ros.clock_gate import ClockGate
-from strain_comp.ros.live import LiveCompensator
+from strain_comp.ros.live import ClockGate, LiveCompensator
 from strain_comp.ros.params import parse_values
 
 
@@ -32,13 +31,13 @@ def live(tmp_path: Path, *, tare: str = "calibration", rest: float | None = 150.
 
 def test_clock_gate_gives_each_input_its_own_tick() -> None:
     gate = ClockGate()
-    assert gate.arrive("a", 10, "x") == [(10, "x")]
+    assert gate.arrive("a", 10, "x") == [("a", 10, "x")]
     assert gate.arrive("a", 10, "y") == []            # arrived before its tick: held
-    assert gate.tick(20) == [(20, "y")]                # its tick releases it
-    assert gate.arrive("a", 30, "z") == [(30, "z")]    # tick first: processed at once
+    assert gate.tick(20) == [("a", 20, "y")]           # its tick releases it
+    assert gate.arrive("a", 30, "z") == [("a", 30, "z")]  # tick first: processed at once
     assert gate.arrive("a", 30, "u") == []
-    assert gate.arrive("a", 30, "v") == [(30, "u"), (30, "v")]  # as if there were no gate
-    assert gate.arrive("b", 30, "w") == [(30, "w")]    # topics are independent
+    assert gate.arrive("a", 30, "v") == [("a", 30, "u"), ("a", 30, "v")]  # as if no gate
+    assert gate.arrive("b", 30, "w") == [("b", 30, "w")]  # topics are independent
 
 
 def test_array_layout() -> None:
