@@ -79,12 +79,6 @@ def _one_line(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def _internal(error: BaseException) -> str:
-    """A program error as a service answers it."""
-    return (f"internal error: {type(error).__name__}: {_one_line(error)} (a bug: the node's "
-            "log has the traceback)")
-
-
 class CompensatorNode(Node):
     """The node (rclpy must be initialised); StrainCompError on bad parameters."""
 
@@ -93,7 +87,6 @@ class CompensatorNode(Node):
         super().__init__(node_name, **node_options)
         self._loading: threading.Thread | None = None
         self._loaded: LiveCompensator | str | None = None
-        """The finished load (or why it failed), swapped in by ``_adopt``."""
         self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                      if k.split(".")[0] not in ROS_OWNED}
         self.base_dir = base_dir
@@ -139,7 +132,6 @@ class CompensatorNode(Node):
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
         self.ready_line = (f"ready: {len(ready)} inputs: " + "; ".join(ready)
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
-        """The log line that says the node is up (``node.main`` logs it)."""
 
     def _connect(self, inp: InputTopic) -> str:
         """The publishers and subscriptions of an input; its line of the ready log."""
@@ -422,7 +414,9 @@ class CompensatorNode(Node):
             response.success, response.message = False, _one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault(f"~/{service}", err)
-            response.success, response.message = False, _internal(err)
+            response.success = False
+            response.message = (f"internal error: {type(err).__name__}: {_one_line(err)} (a "
+                                "bug: the node's log has the traceback)")
         return response
 
     def _swap(self, outcome: tuple[LiveCompensator, str]) -> str:
@@ -439,12 +433,8 @@ class CompensatorNode(Node):
         current = self.live
         try:  # the sensors are the params', read-only: a file lacking one is refused here
             params = parse_values(self.flat, base_dir=self.base_dir)
-        except Exception as err:
-            if isinstance(err, (StrainCompError, OSError)):  # the files' fault: the reason
-                self._refused_reload(_one_line(err))
-            else:  # a fault of the program: answered and reported as one
-                self._fault("~/reload_calibration", err)
-                self._refused_reload(_internal(err))
+        except (StrainCompError, OSError) as err:  # the files' fault (a bug: ``_answer``)
+            self._refused_reload(_one_line(err))
             raise StrainCompError(self.calibration_status[1]) from None
         self._loading = threading.Thread(target=self._load, args=(current, params),
                                          name="reload_calibration", daemon=True)
