@@ -61,12 +61,10 @@ class LiveCompensator:
         """Per input that had one, its sensors' latest temperatures [deg C] (NaN: none yet)."""
         self._inputs = {i.name: i.sensors for i in params.inputs}
         self.taring = LiveTare(self.engine, params)
-        """The zero: ``~/tare`` and ``tare: auto`` (its log: the tares taken)."""
         self._last_message: dict[str, float] = {}
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self.faults: Counter[str] = Counter()
-        """Program errors by where and exception type, counted apart from the refusals."""
         self._faults_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
         """Health counters of the calibrations this one replaced (``hand_over``)."""
@@ -81,7 +79,6 @@ class LiveCompensator:
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         """Per input, its sensors' fused gains and offsets (``_fused``)."""
         self.starting = LiveStart()
-        """``~/start``'s state and the samples it watches (``live_start``)."""
 
     # --- messages -------------------------------------------------------------------------
 

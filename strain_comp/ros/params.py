@@ -62,7 +62,6 @@ TUNABLES: tuple[ParamSpec, ...] = (
 )
 TUNABLE = {spec.name: spec for spec in TUNABLES}
 EXECUTORS = ("events", "single_threaded")
-"""``executor``: how the node spins (``strain_comp.ros.node``)."""
 ROS_OWNED = ("use_sim_time", "qos_overrides", "start_type_description_service")
 """Parameters ROS itself declares; accepted in a params file and ignored here."""
 
@@ -135,7 +134,6 @@ class NodeParams:
     tare: str = "calibration"
     executor: str = "events"
     fuse_references: bool = False
-    """Known strains fused into the output (``strain_comp.core.fusion``)."""
 
     def build_engine(self) -> Engine:
         """The Engine these parameters describe (gap, stale and dead-zone tunables applied)."""
