@@ -101,8 +101,8 @@ class LiveCompensator:
     def on_input(self, name: str, t: np.ndarray, values: np.ndarray
                  ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
         """Samples of input ``name`` (rows): (the outputs; published; refused: non-finite)."""
-        if t.size > 1 and (name in self.taring.start or self.starting.series):
-            # an automatic tare or ~/start watches the input: a sample changes the next one
+        if t.size > 1 and name in self.taring.start:
+            # an automatic tare watches the input: a sample changes the next one
             parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
             return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
                     np.concatenate([p[2] for p in parts]))
@@ -115,7 +115,9 @@ class LiveCompensator:
             out = ArrayOutput(one.strain[:, None], one.direction[:, None], one.status[:, None],
                               one.out_of_range[:, None],
                               None if one.std is None else one.std[:, None])
-        self._seen(name, t, values, out.status, out.direction)
+        self.starting.seen_inputs(self._inputs[name], t, values)
+        self.taring.seen(name, t, values, out.status, out.direction)
+        self._last_message[name] = float(t[-1])
         refused = (used_mask(out.status) & ~np.isfinite(out.strain)).any(axis=1)
         if self.fusion:
             out = self._fused(name, t, out, refused)
@@ -193,15 +195,6 @@ class LiveCompensator:
         inp, column = self._column[name]
         held = self.temperature.setdefault(inp, np.full(len(self._inputs[inp]), math.nan))
         held[column] = value
-
-    def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
-              direction: np.ndarray) -> None:
-        """Samples of input ``name`` (rows; columns: its sensors) for the tare and ~/start."""
-        for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
-            for ti, value in zip(t, raw[:, j], strict=True):
-                self.starting.seen_input(sensor, float(ti), float(value))
-        self.taring.seen(name, t, raw, status, direction)
-        self._last_message[name] = float(t[-1])
 
     # --- tare -----------------------------------------------------------------------------
 

@@ -65,12 +65,13 @@ class LiveStart:
         """Set a final state (``applied`` or ``refused``)."""
         self.state, self.detail, self.series = state, detail, {}
 
-    def seen_input(self, sensor: str, t: float, value: float) -> None:
-        """A raw input sample of ``sensor`` (kept while watching)."""
-        series = self.series.get(sensor)
-        if series is not None and len(series.t) < MAX_SAMPLES:
-            series.t.append(t)
-            series.r.append(value)
+    def seen_inputs(self, sensors: tuple[str, ...], t: np.ndarray, raw: np.ndarray) -> None:
+        """Raw input samples (columns: ``sensors``), kept for the sensors watched."""
+        for j, sensor in enumerate(sensors if self.series else ()):
+            if sensor in self.series:
+                room = max(MAX_SAMPLES - len(self.series[sensor].t), 0)
+                self.series[sensor].t.extend(t[:room].tolist())
+                self.series[sensor].r.extend(raw[:room, j].tolist())
 
     def seen_reference(self, sensor: str, t: float, value: float,
                        calibration: Calibration) -> Calibration | None:
