@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import fields, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -14,7 +14,7 @@ from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.fusion import OutputFusion
-from strain_comp.core.health import SensorHealth, diagnostics
+from strain_comp.core.health import COUNTERS, SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
 from strain_comp.errors import ParameterError, StrainCompError
@@ -33,7 +33,6 @@ MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
 NON_FINITE = "the calibration gave a non-finite strain; not published"
 """The refusal of a good sample whose strain is not finite (a good sample is never NaN)."""
-_COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
 def _count(counter: Counter[str], key: str, other: str) -> None:
@@ -282,7 +281,7 @@ class LiveCompensator:
         """The engine's health with the counters of replaced calibrations added."""
         health = self.engine.health(now)
         for sensor, before in self._counted_before.items():
-            for name in _COUNTS:
+            for name in COUNTERS:
                 setattr(health[sensor], name,
                         getattr(health[sensor], name) + getattr(before, name))
         return health
