@@ -449,13 +449,10 @@ class CompensatorNode(Node):
 
     def _load(self, current: LiveCompensator, params: NodeParams) -> None:
         """Worker thread: ``successor`` (or the reason it failed) into ``_loaded``."""
-        outcome: LiveCompensator | str = "the load ended without a result"
         try:
-            outcome = current.successor(params)
+            self._loaded = current.successor(params)
         except Exception as err:  # a worker thread: whatever ends the load is its reason
-            outcome = _one_line(err)
-        finally:
-            self._loaded = outcome
+            self._loaded = _one_line(err)
 
     def _adopt(self) -> None:
         """Executor thread: swap a finished load in (``hand_over``) or log its refusal."""
