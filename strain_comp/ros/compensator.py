@@ -289,7 +289,6 @@ class CompensatorNode(Node):
         return np.asarray(data, dtype=np.float64)[columns], columns, len(data)
 
     def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
-        """A message read and queued with its stamp; ``_read``."""
         read = self._read(name, msg)
         self._queue_rows(name, [stamp], read[0][None])
         return read

@@ -228,7 +228,6 @@ class LiveCompensator:
     # --- parameters -----------------------------------------------------------------------
 
     def set_tunable(self, name: str, value: Any) -> None:
-        """Validate and apply a tunable."""
         value = validate_tunable(name, value)
         self.tunables[name] = value
         if name == "deadzone_scale":

@@ -103,7 +103,6 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
 
 
 def validate_tunable(name: str, value: Any) -> float:
-    """A tunable's value, checked."""
     spec = TUNABLE[name]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParameterError(name, f"must be a number, got {value!r}")
@@ -189,7 +188,6 @@ def _string(flat: Mapping[str, Any], key: str, default: str | None = None) -> st
 
 def _choice(flat: Mapping[str, Any], key: str, default: str, choices: tuple[str, ...]
             ) -> str:
-    """A string parameter that is one of ``choices``."""
     value = _string(flat, key, default)
     if value not in choices:
         raise ParameterError(key, f"must be one of {', '.join(choices)}, got {value!r}")

@@ -39,7 +39,6 @@ def message_class(type_name: str) -> type | None:
 
 
 def spin_until(executor: Executor, ready: Callable[..., bool], timeout: float = 5.0) -> bool:
-    """Spin ``executor`` until ``ready()``."""
     deadline = time.monotonic() + timeout
     while not ready():
         if time.monotonic() > deadline:

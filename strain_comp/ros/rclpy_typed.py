@@ -34,6 +34,5 @@ def destroy(node: Node) -> None:
 
 
 def parameter(name: str, type_: Parameter.Type, value: object) -> Parameter:
-    """``Parameter(name, type_, value)``."""
     make: Callable[[str, Parameter.Type, object], Parameter] = Parameter
     return make(name, type_, value)
