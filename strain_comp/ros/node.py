@@ -17,7 +17,6 @@ NODE_NAME = "compensator"
 SHUTDOWN_S = 1.5
 """Longest clean shutdown after SIGINT/SIGTERM before the process exits regardless [s]."""
 EXIT_BAD_INPUT = 2
-_stop = threading.Event()
 _stopped_by: list[str] = []
 
 
@@ -34,7 +33,6 @@ def _stopped_in_start_up(signum: int, frame: FrameType | None = None) -> NoRetur
 
 def _request_stop(signum: int, frame: FrameType | None) -> None:
     _stopped_by.append(signal.Signals(signum).name)
-    _stop.set()
     watchdog = threading.Timer(SHUTDOWN_S, os._exit, args=(0,))
     watchdog.daemon = True
     watchdog.start()
@@ -134,7 +132,7 @@ def main(args: list[str] | None = None) -> int:
                 else SingleThreadedExecutor())
     executor.add_node(node)
     try:
-        while not _stop.is_set() and ok():
+        while not _stopped_by and ok():
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
