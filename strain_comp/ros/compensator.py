@@ -62,8 +62,7 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """A ``ParamSpec``'s descriptor, with a fixed type (a refused set never changes it)."""
     kind = getattr(ParameterType, f"PARAMETER_{spec.type.upper()}")
     described = ParameterDescriptor(name=spec.name, description=spec.description,
-                                    read_only=spec.read_only, type=kind,
-                                    dynamic_typing=False)
+                                    read_only=spec.read_only, type=kind)
     if spec.range is not None:
         described.floating_point_range = [FloatingPointRange(
             from_value=float(spec.range[0]), to_value=float(spec.range[1]), step=0.0)]
