@@ -333,8 +333,7 @@ class LiveCompensator:
 
 
 class ClockGate:
-    """Under sim time, an input whose clock reading equals its topic's previous stamp waits
-    for the next /clock tick (docs/ros.md, "Time, and what a bag played into the node gives")."""
+    """Under sim time, an input whose clock reading equals its previous one waits for a tick."""
 
     def __init__(self) -> None:
         self.last: dict[str, int] = {}
