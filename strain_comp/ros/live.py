@@ -291,12 +291,10 @@ class LiveCompensator:
         """Statuses at clock time ``now`` [s]: per sensor, program errors, start, transport."""
         out = []
         health = self.health(now)
-        last_message = {s: self._last_message.get(i.name) for i in self.params.inputs
-                        for s in i.sensors}
         for name, level, message, values in diagnostics(health):
             sensor = name.split(": ", 1)[1]
             h = health[sensor]
-            last = last_message.get(sensor)
+            last = self._last_message.get(self._column[sensor][0])
             stale_after = self.engine.stale_for(sensor)
             silent = last is None or now - last > stale_after
             if h.last_status is not None and h.last_status not in USED and not silent:
