@@ -56,13 +56,16 @@ def _unqualified(key: str) -> str:
     return key.split(":", 1)[-1] if key.count(":") == 1 else key
 
 
-def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
-    """The params files, node name and namespace the ``--ros-args`` part of ``args`` gives."""
+def ros_arguments(args: list[str]) -> tuple[list[Path], str, str, dict[str, str]]:
+    """The ``--ros-args`` part: params files, node name, namespace, ``-p`` rules by name."""
     files: list[Path] = []
     name, namespace = NODE_NAME, "/"
-    for flag, value in _ros_flags(args, ("--params-file", "-r", "--remap")):
+    rules: dict[str, str] = {}
+    for flag, value in _ros_flags(args, ("--params-file", "-r", "--remap", "-p", "--param")):
         if flag == "--params-file":
             files.append(Path(value))
+        elif flag in ("-p", "--param"):
+            rules[_unqualified(value.partition(":=")[0])] = value
         elif ":=" in value:
             key, target = value.split(":=", 1)
             key = _unqualified(key)
@@ -70,13 +73,7 @@ def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
                 name = target
             elif key == "__ns":
                 namespace = target
-    return files, name, namespace
-
-
-def command_line_params(args: list[str]) -> dict[str, str]:
-    """The ``-p NAME:=VALUE`` (``--param``) overrides of the ``--ros-args`` part, as given."""
-    return {_unqualified(rule.partition(":=")[0]): rule
-            for _, rule in _ros_flags(args, ("-p", "--param"))}
+    return files, name, namespace, rules
 
 
 def main(args: list[str] | None = None) -> int:
@@ -91,7 +88,7 @@ def main(args: list[str] | None = None) -> int:
         from strain_comp.errors import StrainCompError
         from strain_comp.ros.params import read_params
 
-        files, name, namespace = ros_arguments(argv)
+        files, name, namespace, rules = ros_arguments(argv)
         base_dir = read_params(files, name, namespace)[1]
         import rclpy
         from rclpy.exceptions import ParameterException
@@ -108,7 +105,7 @@ def main(args: list[str] | None = None) -> int:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
         node = CompensatorNode(name, base_dir=base_dir)
     except StrainCompError as err:
-        given = command_line_params(argv).get(getattr(err, "field", ""))
+        given = rules.get(getattr(err, "field", ""))
         if given is not None:  # -p wins over the params files: the command line is at fault
             where = f"command line (-p {given}): "
         elif files and not str(err).startswith(str(files[-1])):
