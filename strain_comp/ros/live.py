@@ -20,7 +20,7 @@ from strain_comp.core.range_policy import fitted_rest
 from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.ros.live_start import LiveStart
 from strain_comp.ros.live_tare import LiveTare
-from strain_comp.ros.params import NodeParams, validate_tunable
+from strain_comp.ros.params import NodeParams
 
 BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
               Status.TIME_NOT_INCREASING: "time not increasing",
@@ -227,8 +227,8 @@ class LiveCompensator:
 
     # --- parameters -----------------------------------------------------------------------
 
-    def set_tunable(self, name: str, value: Any) -> None:
-        value = validate_tunable(name, value)
+    def set_tunable(self, name: str, value: float) -> None:
+        """Apply a tunable's value (checked by its descriptor, or by ``parse_values``)."""
         self.tunables[name] = value
         if name == "deadzone_scale":
             self.engine.set_deadzone_scale(value)
