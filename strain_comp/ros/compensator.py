@@ -120,12 +120,12 @@ class CompensatorNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
-        services: dict[str, Callable[[], str]] = {
-            "tare": lambda: self.live.taring.tare(),
-            "span": lambda: self._swap(self.live.span()),
-            "reference": lambda: self.live.reference_now(self._now_ns() * 1e-9),
-            "start": lambda: self._swap(self.live.start(self._now_ns() * 1e-9)),
-            "reload_calibration": self._reload}
+        services: dict[str, Callable[[], tuple[LiveCompensator, str]]] = {
+            "tare": lambda: (self.live, self.live.taring.tare()),
+            "span": lambda: self.live.span(),
+            "reference": lambda: (self.live, self.live.reference_now(self._now_ns() * 1e-9)),
+            "start": lambda: self.live.start(self._now_ns() * 1e-9),
+            "reload_calibration": lambda: (self.live, self._reload())}
         for service, act in services.items():
             self.create_service(Trigger, f"~/{service}", partial(self._answer, service, act))
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
@@ -396,8 +396,8 @@ class CompensatorNode(Node):
 
     # --- services -------------------------------------------------------------------------
 
-    def _answer(self, service: str, act: Callable[[], str], request: Any, response: Any
-                ) -> Any:
+    def _answer(self, service: str, act: Callable[[], tuple[LiveCompensator, str]],
+                request: Any, response: Any) -> Any:
         """``act()``'s summary (logged) or error; refused while a reload is in flight."""
         if self._loading is not None:
             response.success = False
@@ -405,7 +405,7 @@ class CompensatorNode(Node):
             return response
         self._flush()
         try:
-            response.message = act()
+            self.live, response.message = act()  # the compensator to go on with
             response.success = True
             logger(self).info(response.message)
         except StrainCompError as err:
@@ -416,11 +416,6 @@ class CompensatorNode(Node):
             response.message = (f"internal error: {type(err).__name__}: {_one_line(err)} (a "
                                 "bug: the node's log has the traceback)")
         return response
-
-    def _swap(self, outcome: tuple[LiveCompensator, str]) -> str:
-        """Go on with the compensator a service returned; its summary."""
-        self.live, summary = outcome
-        return summary
 
     @staticmethod
     def _paths(live: LiveCompensator) -> str:
