@@ -216,7 +216,7 @@ def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
     node = _live(tmp_path, "auto")
     for _ in range(5000):
         one_message(node, "s1", 3.0, 150.0)
-    assert not node.taring.start and node.taring.recent["s1"].n <= live_tare.RING
+    assert not node.taring.pending and node.taring.recent["s1"].n <= live_tare.RING
     assert any("auto tare declined: 1024 samples" in line for line in node.taring.log)
     assert node.engine.input_gain("s1") == 1.0
 

@@ -100,7 +100,7 @@ class LiveCompensator:
     def on_input(self, name: str, t: np.ndarray, values: np.ndarray
                  ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
         """Samples of input ``name`` (rows): (the outputs; published; refused: non-finite)."""
-        if t.size > 1 and name in self.taring.start:
+        if t.size > 1 and self.taring.pending_on(name):
             # an automatic tare watches the input: a sample changes the next one
             parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
             return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),

@@ -76,15 +76,17 @@ class LiveTare:
         self.pending: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
                                           if params.tare == "auto" else {})
         """Sensors whose automatic tare is pending: their first good sample's time (or NaN)."""
-        self.start = set(self.inputs) if self.pending else set()
-        """The inputs with a sensor whose automatic tare is pending."""
         self.log: list[str] = []
+
+    def pending_on(self, name: str) -> bool:
+        """Whether a sensor of input ``name`` waits for its automatic tare."""
+        return bool(self.pending) and not self.pending.keys().isdisjoint(self.inputs[name])
 
     def seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
              direction: np.ndarray) -> None:
         """Log samples (one while a tare is pending) and take the automatic tares they decide."""
         keep_from = float(t[-1]) - TARE_WINDOW_S
-        if name not in self.start:
+        if not self.pending_on(name):
             self.recent[name].add(t, raw, status, keep_from, RING)
             return
         firsts = [self.pending.get(s, math.nan) for s in self.inputs[name]]
@@ -98,8 +100,6 @@ class LiveTare:
                         f"{sensor}: auto tare declined: {MAX_START_SAMPLES} samples within "
                         f"{REST_WINDOW:g} s of clock time (is the clock paused?); the "
                         "calibration's zero stays (call ~/tare at rest)")
-        if not any(s in self.pending for s in self.inputs[name]):
-            self.start.discard(name)
 
     def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
         return self.calibration.sensors[sensor].input.to_ohm(raw)
@@ -164,6 +164,5 @@ class LiveTare:
         for sensor, (rest, _) in rests.items():
             self.engine.tare(sensor, rest)
             self.pending.pop(sensor, None)
-        self.start.clear()  # no automatic tare is pending any more
         return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
                                     for s, (r, _) in rests.items())
