@@ -215,7 +215,7 @@ def test_auto_tare_under_a_paused_clock_is_declined_within_its_budget(
     node = _live(tmp_path, "auto")
     for _ in range(5000):
         one_message(node, "s1", 3.0, 150.0)
-    assert not node.taring.start and node.taring.recent["s1"].n <= live_tare.RING
+    assert not node.taring.pending and node.taring.recent["s1"].n <= live_tare.RING
     assert any("auto tare declined: 1024 samples" in line for line in node.taring.log)
     assert node.engine.input_gain("s1") == 1.0
 
@@ -226,8 +226,8 @@ def test_reload_keeps_the_health_and_refusal_counters(tmp_path: Path) -> None:
         one_message(node, "s1", 1.0 + 0.1 * i, r)
     node.refuse("s1", "wrong type")
     before = node.health()["s1"]
-    node = node.reload(parse_values({"sensors": ["s1"], "s1.calibration": "c.yaml"},
-                                    base_dir=tmp_path))
+    node = node.hand_over(node.successor(parse_values(
+        {"sensors": ["s1"], "s1.calibration": "c.yaml"}, base_dir=tmp_path)))
     one_message(node, "s1", 2.0, 152.0)
     after = node.health()["s1"]
     assert (after.n_good, after.n_nan, after.n_non_positive) == (before.n_good + 1, 1, 1)

@@ -1,4 +1,1 @@
-"""The ROS 2 layer: node parameters, the per-message live logic and the rclpy node.
-
-The only subpackage that imports rclpy (lazily, in ``node``).
-"""
+"""The ROS 2 layer; the only subpackage that imports rclpy (lazily, in ``node``)."""

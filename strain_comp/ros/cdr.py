@@ -1,7 +1,6 @@
-"""The node's inputs read in bulk from their serialised bytes (CDR); its outputs are built
-by the bag writer's ``strain_comp.io.cdr.RowEncoder`` around a prebuilt block (a message
-built in Python and converted by rclpy costs tens of microseconds); docs/results.md, "The
-node's CPU"."""
+"""The node's inputs read in bulk from their serialised bytes (CDR), as its outputs are
+built (``strain_comp.io.cdr.RowEncoder``): a message built in Python and converted by rclpy
+costs tens of microseconds (docs/results.md, "The node's CPU")."""
 
 from __future__ import annotations
 

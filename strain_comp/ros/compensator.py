@@ -34,12 +34,11 @@ from std_msgs.msg import Float64, Float64MultiArray, Int8
 from std_srvs.srv import Trigger
 
 from strain_comp.core.calibration import expected_words
-from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.errors import InputError, StrainCompError
 from strain_comp.io.cdr import RowEncoder
 from strain_comp.io.multiarray import array_values
 from strain_comp.ros.cdr import RowDecoder
-from strain_comp.ros.clock_gate import ClockGate
-from strain_comp.ros.live import NON_FINITE, OK, WARN, LiveCompensator
+from strain_comp.ros.live import NON_FINITE, OK, WARN, ClockGate, LiveCompensator
 from strain_comp.ros.params import (
     ROS_OWNED,
     TUNABLE,
@@ -63,8 +62,7 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """A ``ParamSpec``'s descriptor, with a fixed type (a refused set never changes it)."""
     kind = getattr(ParameterType, f"PARAMETER_{spec.type.upper()}")
     described = ParameterDescriptor(name=spec.name, description=spec.description,
-                                    read_only=spec.read_only, type=kind,
-                                    dynamic_typing=False)
+                                    read_only=spec.read_only, type=kind)
     if spec.range is not None:
         described.floating_point_range = [FloatingPointRange(
             from_value=float(spec.range[0]), to_value=float(spec.range[1]), step=0.0)]
@@ -80,12 +78,6 @@ def _one_line(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def _internal(error: BaseException) -> str:
-    """A program error as a service answers it."""
-    return (f"internal error: {type(error).__name__}: {_one_line(error)} (a bug: the node's "
-            "log has the traceback)")
-
-
 class CompensatorNode(Node):
     """The node (rclpy must be initialised); StrainCompError on bad parameters."""
 
@@ -94,7 +86,6 @@ class CompensatorNode(Node):
         super().__init__(node_name, **node_options)
         self._loading: threading.Thread | None = None
         self._loaded: LiveCompensator | str | None = None
-        """The finished load (or why it failed), swapped in by ``_adopt``."""
         self.flat = {k: p.value for k, p in self._parameter_overrides.items()
                      if k.split(".")[0] not in ROS_OWNED}
         self.base_dir = base_dir
@@ -129,18 +120,17 @@ class CompensatorNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(self.live.tunables["diagnostics_period_s"], self._diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
-        services: dict[str, Callable[[], str]] = {
-            "tare": lambda: self.live.taring.tare(),
-            "span": lambda: self._swap(self.live.span()),
-            "reference": lambda: self.live.reference_now(self._now_ns() * 1e-9),
-            "start": lambda: self._swap(self.live.start(self._now_ns() * 1e-9)),
-            "reload_calibration": self._reload}
+        services: dict[str, Callable[[], tuple[LiveCompensator, str]]] = {
+            "tare": lambda: (self.live, self.live.taring.tare()),
+            "span": lambda: self.live.span(),
+            "reference": lambda: (self.live, self.live.reference_now(self._now_ns() * 1e-9)),
+            "start": lambda: self.live.start(self._now_ns() * 1e-9),
+            "reload_calibration": lambda: (self.live, self._reload())}
         for service, act in services.items():
             self.create_service(Trigger, f"~/{service}", partial(self._answer, service, act))
         self.calibration_status = (OK, "loaded " + self._paths(self.live))
         self.ready_line = (f"ready: {len(ready)} inputs: " + "; ".join(ready)
                            + f"; tare {params.tare}; fuse_references {params.fuse_references}")
-        """The log line that says the node is up (``node.main`` logs it)."""
 
     def _connect(self, inp: InputTopic) -> str:
         """The publishers and subscriptions of an input; its line of the ready log."""
@@ -240,10 +230,16 @@ class CompensatorNode(Node):
 
     def _on_tick(self, jump: TimeJump) -> None:
         """The sim clock moved: the inputs held for it are handled, stamped with it."""
+        self._gated(self.gate.tick)
+
+    def _arrive(self, name: str, msg: Any) -> None:
+        """Under sim time, an input: handled once its /clock tick has come (the gate)."""
+        self._gated(lambda now: self.gate.arrive(name, now, msg))
+
+    def _gated(self, release: Callable[[int], list[tuple[str, int, Any]]]) -> None:
+        """What the gate releases at the node clock's time, queued and handled."""
         self._adopt()
-        now = self._now_ns()
-        names = list(self.gate.held)
-        for name, (stamp, msg) in zip(names, self.gate.tick(now), strict=True):
+        for name, stamp, msg in release(self._now_ns()):
             self._guarded(name, partial(self._queue, name, stamp, msg))
         self._flush()
 
@@ -266,33 +262,19 @@ class CompensatorNode(Node):
                 for p in params]
 
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
-        """Tunables checked all first, then applied; ``use_sim_time`` fixed at start."""
+        """Tunables applied (the descriptors checked them); ``use_sim_time`` fixed at start."""
         self._flush()
         for p in params:  # any peer may call set_parameters: the time source is fixed
             if p.name == USE_SIM_TIME and p.value != self.get_parameter(USE_SIM_TIME).value:
                 return SetParametersResult(successful=False, reason=(
                     f"{USE_SIM_TIME} is fixed at start (params file or -p "
                     f"{USE_SIM_TIME}:=...); restart the node to change it"))
-        try:
-            for p in params:  # validate all first, then apply
-                if p.name in TUNABLE:
-                    self.live.check_tunable(p.name, p.value)
-            for p in params:
-                if p.name in TUNABLE:
-                    self.live.set_tunable(p.name, p.value)
-        except ParameterError as err:
-            return SetParametersResult(successful=False, reason=str(err))
+        for p in params:  # rclpy refused a read-only, mistyped or out-of-range value before
+            if p.name in TUNABLE:
+                self.live.set_tunable(p.name, p.value)
         return SetParametersResult(successful=True)
 
     # --- messages -------------------------------------------------------------------------
-
-    def _arrive(self, name: str, msg: Any) -> None:
-        """Under sim time, an input: handled once its /clock tick has come (the gate)."""
-        self._adopt()
-        now = self._now_ns()
-        for stamp, queued in self.gate.arrive(name, now, msg):
-            self._guarded(name, partial(self._queue, name, stamp, queued))
-        self._flush()
 
     def _read(self, name: str, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
         """A message's values in sensor order, their columns in its data, its value count."""
@@ -306,7 +288,6 @@ class CompensatorNode(Node):
         return np.asarray(data, dtype=np.float64)[columns], columns, len(data)
 
     def _queue(self, name: str, stamp: int, msg: Any) -> tuple[np.ndarray, np.ndarray, int]:
-        """A message read and queued with its stamp; ``_read``."""
         read = self._read(name, msg)
         self._queue_rows(name, [stamp], read[0][None])
         return read
@@ -415,8 +396,8 @@ class CompensatorNode(Node):
 
     # --- services -------------------------------------------------------------------------
 
-    def _answer(self, service: str, act: Callable[[], str], request: Any, response: Any
-                ) -> Any:
+    def _answer(self, service: str, act: Callable[[], tuple[LiveCompensator, str]],
+                request: Any, response: Any) -> Any:
         """``act()``'s summary (logged) or error; refused while a reload is in flight."""
         if self._loading is not None:
             response.success = False
@@ -424,20 +405,17 @@ class CompensatorNode(Node):
             return response
         self._flush()
         try:
-            response.message = act()
+            self.live, response.message = act()  # the compensator to go on with
             response.success = True
             logger(self).info(response.message)
         except StrainCompError as err:
             response.success, response.message = False, _one_line(err)
         except Exception as err:  # a fault of the program: answered and reported as one
             self._fault(f"~/{service}", err)
-            response.success, response.message = False, _internal(err)
+            response.success = False
+            response.message = (f"internal error: {type(err).__name__}: {_one_line(err)} (a "
+                                "bug: the node's log has the traceback)")
         return response
-
-    def _swap(self, outcome: tuple[LiveCompensator, str]) -> str:
-        """Go on with the compensator a service returned; its summary."""
-        self.live, summary = outcome
-        return summary
 
     @staticmethod
     def _paths(live: LiveCompensator) -> str:
@@ -446,15 +424,10 @@ class CompensatorNode(Node):
     def _reload(self) -> str:
         """Validate the calibration files, then build on a worker thread (docs/ros.md)."""
         current = self.live
-        try:
+        try:  # the sensors are the params', read-only: a file lacking one is refused here
             params = parse_values(self.flat, base_dir=self.base_dir)
-            current.check_successor(params)
-        except Exception as err:
-            if isinstance(err, (StrainCompError, OSError)):  # the files' fault: the reason
-                self._refused_reload(_one_line(err))
-            else:  # a fault of the program: answered and reported as one
-                self._fault("~/reload_calibration", err)
-                self._refused_reload(_internal(err))
+        except (StrainCompError, OSError) as err:  # the files' fault (a bug: ``_answer``)
+            self._refused_reload(_one_line(err))
             raise StrainCompError(self.calibration_status[1]) from None
         self._loading = threading.Thread(target=self._load, args=(current, params),
                                          name="reload_calibration", daemon=True)
@@ -469,13 +442,10 @@ class CompensatorNode(Node):
 
     def _load(self, current: LiveCompensator, params: NodeParams) -> None:
         """Worker thread: ``successor`` (or the reason it failed) into ``_loaded``."""
-        outcome: LiveCompensator | str = "the load ended without a result"
         try:
-            outcome = current.successor(params)
+            self._loaded = current.successor(params)
         except Exception as err:  # a worker thread: whatever ends the load is its reason
-            outcome = _one_line(err)
-        finally:
-            self._loaded = outcome
+            self._loaded = _one_line(err)
 
     def _adopt(self) -> None:
         """Executor thread: swap a finished load in (``hand_over``) or log its refusal."""

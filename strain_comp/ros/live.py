@@ -1,12 +1,11 @@
 """What the live node does with each message, free of any transport (docs/ros.md;
-docs/architecture.md, "Inside the node").
-"""
+docs/architecture.md, "Inside the node")."""
 
 from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import fields, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -15,13 +14,13 @@ from strain_comp.base.samples import USED, Status, used_mask
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.effects import TEMPERATURE_RANGE
 from strain_comp.core.fusion import OutputFusion
-from strain_comp.core.health import SensorHealth, diagnostics
+from strain_comp.core.health import COUNTERS, SensorHealth, diagnostics
 from strain_comp.core.outputs import ArrayOutput, concatenate
 from strain_comp.core.range_policy import fitted_rest
-from strain_comp.errors import InputError, ParameterError, StrainCompError
+from strain_comp.errors import ParameterError, StrainCompError
 from strain_comp.ros.live_start import LiveStart
 from strain_comp.ros.live_tare import LiveTare
-from strain_comp.ros.params import TUNABLE, NodeParams, validate_tunable
+from strain_comp.ros.params import NodeParams
 
 BAD_REASON = {Status.NOT_FINITE: "non-finite input", Status.NON_POSITIVE: "non-positive input",
               Status.TIME_NOT_INCREASING: "time not increasing",
@@ -34,7 +33,6 @@ MAX_REASON_CHARS = 160
 """A refusal reason longer than this is cut in its counter's key."""
 NON_FINITE = "the calibration gave a non-finite strain; not published"
 """The refusal of a good sample whose strain is not finite (a good sample is never NaN)."""
-_COUNTS = tuple(f.name for f in fields(SensorHealth) if f.name.startswith("n_"))
 
 
 def _count(counter: Counter[str], key: str, other: str) -> None:
@@ -62,15 +60,13 @@ class LiveCompensator:
         """Per input that had one, its sensors' latest temperatures [deg C] (NaN: none yet)."""
         self._inputs = {i.name: i.sensors for i in params.inputs}
         self.taring = LiveTare(self.engine, params)
-        """The zero: ``~/tare`` and ``tare: auto`` (its log: the tares taken)."""
         self._last_message: dict[str, float] = {}
         self.refused: Counter[str] = Counter()
         self._refused_seen = 0
         self.faults: Counter[str] = Counter()
-        """Program errors by where and exception type, counted apart from the refusals."""
         self._faults_seen = 0
         self._counted_before: dict[str, SensorHealth] = {}
-        """Health counters of the calibrations this one replaced (``reload``)."""
+        """Health counters of the calibrations this one replaced (``hand_over``)."""
         self.fusion: dict[str, OutputFusion] = (
             {s: OutputFusion.for_calibration(c) for s, c in params.calibration.sensors.items()}
             if params.fuse_references else {})
@@ -82,7 +78,6 @@ class LiveCompensator:
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         """Per input, its sensors' fused gains and offsets (``_fused``)."""
         self.starting = LiveStart()
-        """``~/start``'s state and the samples it watches (``live_start``)."""
 
     # --- messages -------------------------------------------------------------------------
 
@@ -105,8 +100,8 @@ class LiveCompensator:
     def on_input(self, name: str, t: np.ndarray, values: np.ndarray
                  ) -> tuple[ArrayOutput, np.ndarray, np.ndarray]:
         """Samples of input ``name`` (rows): (the outputs; published; refused: non-finite)."""
-        if t.size > 1 and (name in self.taring.start or self.starting.series):
-            # an automatic tare or ~/start watches the input: a sample changes the next one
+        if t.size > 1 and self.taring.pending_on(name):
+            # an automatic tare watches the input: a sample changes the next one
             parts = [self.on_input(name, t[i:i + 1], values[i:i + 1]) for i in range(t.size)]
             return (concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
                     np.concatenate([p[2] for p in parts]))
@@ -119,7 +114,9 @@ class LiveCompensator:
             out = ArrayOutput(one.strain[:, None], one.direction[:, None], one.status[:, None],
                               one.out_of_range[:, None],
                               None if one.std is None else one.std[:, None])
-        self._seen(name, t, values, out.status, out.direction)
+        self.starting.seen_inputs(self._inputs[name], t, values)
+        self.taring.seen(name, t, values, out.status, out.direction)
+        self._last_message[name] = float(t[-1])
         refused = (used_mask(out.status) & ~np.isfinite(out.strain)).any(axis=1)
         if self.fusion:
             out = self._fused(name, t, out, refused)
@@ -145,30 +142,21 @@ class LiveCompensator:
     # --- known strains --------------------------------------------------------------------
 
     def on_reference(self, sensor: str, t: float, value: Any) -> str | None:
-        """A known strain of ``sensor``: None when fused, else the reason (counted)."""
-        fusion = self.fusion.get(sensor)
-        if fusion is None:
-            raise InputError(f"no sensor {sensor!r} in the calibration" if self.fusion else
-                             "fuse_references is false")
-        latest = self._latest(sensor)
-        if latest is None:
-            return fusion.refuse("no estimate yet")
-        if not latest[2]:
-            return fusion.refuse("estimate out of the calibrated range")
-        if not t - latest[0] <= self.engine.stale_for(sensor):
-            return fusion.refuse("no recent estimate")
-        reason = fusion.update(t, latest[1], value)
-        if reason is None:
-            self._maps.pop(self._column[sensor][0], None)
-        return reason
-
-    def _latest(self, sensor: str) -> tuple[float, float, bool] | None:
-        """A sensor's latest estimate before fusion (time, strain, within the range)."""
+        """A known strain of a fused ``sensor``: None when fused, else the reason (counted)."""
+        fusion = self.fusion[sensor]
         name, column = self._column[sensor]
         vectors = self._estimate.get(name)
         if vectors is None or np.isnan(vectors[0][column]):
-            return None
-        return (float(vectors[0][column]), float(vectors[1][column]), bool(vectors[2][column]))
+            return fusion.refuse("no estimate yet")
+        latest, strain, inside = (v[column] for v in vectors)
+        if not inside:
+            return fusion.refuse("estimate out of the calibrated range")
+        if not t - latest <= self.engine.stale_for(sensor):
+            return fusion.refuse("no recent estimate")
+        reason = fusion.update(t, float(strain), value)
+        if reason is None:
+            self._maps.pop(name, None)
+        return reason
 
     def reference_now(self, now: float) -> str:
         """``~/reference`` at clock time ``now``."""
@@ -207,15 +195,6 @@ class LiveCompensator:
         held = self.temperature.setdefault(inp, np.full(len(self._inputs[inp]), math.nan))
         held[column] = value
 
-    def _seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
-              direction: np.ndarray) -> None:
-        """Samples of input ``name`` (rows; columns: its sensors) for the tare and ~/start."""
-        for j, sensor in enumerate(self._inputs[name] if self.starting.series else ()):
-            for ti, value in zip(t, raw[:, j], strict=True):
-                self.starting.seen_input(sensor, float(ti), float(value))
-        self.taring.seen(name, t, raw, status, direction)
-        self._last_message[name] = float(t[-1])
-
     # --- tare -----------------------------------------------------------------------------
 
     def span(self) -> tuple[LiveCompensator, str]:
@@ -242,23 +221,14 @@ class LiveCompensator:
             lines.append(f"{sensor}: {span_reading(span)}")
         if problems:
             raise ParameterError("span", "refused: " + "; ".join(problems))
-        fresh = self.reload(replace(self.params, calibration=Calibration(sensors)))
+        fresh = self.hand_over(self.successor(
+            replace(self.params, calibration=Calibration(sensors))))
         return fresh, "spanned " + "; ".join(lines)
 
     # --- parameters -----------------------------------------------------------------------
 
-    def check_tunable(self, name: str, value: Any) -> float:
-        """The validated value; ParameterError if out of range, unknown or read-only."""
-        value = validate_tunable(name, value)
-        if TUNABLE[name].read_only:
-            raise ParameterError(name, "read-only: set it in the params file and restart")
-        return value
-
-    def set_tunable(self, name: str, value: Any) -> None:
-        """Validate (``check_tunable``) and apply a tunable."""
-        self._apply(name, self.check_tunable(name, value))
-
-    def _apply(self, name: str, value: float) -> None:
+    def set_tunable(self, name: str, value: float) -> None:
+        """Apply a tunable's value (checked by its descriptor, or by ``parse_values``)."""
         self.tunables[name] = value
         if name == "deadzone_scale":
             self.engine.set_deadzone_scale(value)
@@ -284,27 +254,17 @@ class LiveCompensator:
         started = self.starting.seen_reference(sensor, t, value, self.params.calibration)
         if started is None:
             return self
-        return self.reload(replace(self.params, calibration=started))
-
-    def reload(self, params: NodeParams) -> LiveCompensator:
-        """``successor`` then ``hand_over``."""
-        return self.hand_over(self.successor(params))
+        return self.hand_over(self.successor(replace(self.params, calibration=started)))
 
     def successor(self, params: NodeParams) -> LiveCompensator:
         """A reload's slow half, built on a worker thread: reads only inputs and tunables."""
-        self.check_successor(params)
         params.tunables = dict(self.tunables)
         return LiveCompensator(params)
-
-    def check_successor(self, params: NodeParams) -> None:
-        """StrainCompError unless ``params`` keeps the inputs and their sensors."""
-        if [i.sensors for i in params.inputs] != [i.sensors for i in self.params.inputs]:
-            raise StrainCompError("the reloaded calibration changes the sensors")
 
     def hand_over(self, fresh: LiveCompensator) -> LiveCompensator:
         """``fresh`` with this one's counters, tunables and message times (not its zero)."""
         for name, value in self.tunables.items():
-            fresh._apply(name, value)
+            fresh.set_tunable(name, value)
         fresh.refused, fresh._refused_seen = self.refused, self._refused_seen
         fresh.faults, fresh._faults_seen = self.faults, self._faults_seen
         fresh._counted_before = self.health()  # the counters go on from here
@@ -320,7 +280,7 @@ class LiveCompensator:
         """The engine's health with the counters of replaced calibrations added."""
         health = self.engine.health(now)
         for sensor, before in self._counted_before.items():
-            for name in _COUNTS:
+            for name in COUNTERS:
                 setattr(health[sensor], name,
                         getattr(health[sensor], name) + getattr(before, name))
         return health
@@ -331,12 +291,10 @@ class LiveCompensator:
         """Statuses at clock time ``now`` [s]: per sensor, program errors, start, transport."""
         out = []
         health = self.health(now)
-        last_message = {s: self._last_message.get(i.name) for i in self.params.inputs
-                        for s in i.sensors}
         for name, level, message, values in diagnostics(health):
             sensor = name.split(": ", 1)[1]
             h = health[sensor]
-            last = last_message.get(sensor)
+            last = self._last_message.get(self._column[sensor][0])
             stale_after = self.engine.stale_for(sensor)
             silent = last is None or now - last > stale_after
             if h.last_status is not None and h.last_status not in USED and not silent:
@@ -359,7 +317,9 @@ class LiveCompensator:
                     if raised else "ok",
                     {"n_errors": str(errors), "n_errors_recent": str(raised),
                      **{f"error[{k}]": str(v) for k, v in sorted(self.faults.items())}}))
-        out.append(("strain_comp: session start", *self.starting.diagnostic()))
+        start = self.starting
+        out.append(("strain_comp: session start", WARN if start.state == "refused" else OK,
+                    f"{start.state}: {start.detail}", {"state": start.state}))
         total = sum(self.refused.values())
         recent, self._refused_seen = total - self._refused_seen, total
         reasons = {f"refused[{k}]": str(v) for k, v in sorted(self.refused.items())}
@@ -369,3 +329,30 @@ class LiveCompensator:
                     {"n_refused": str(total), "n_refused_recent": str(recent), **reasons}))
         return out
 
+
+class ClockGate:
+    """Under sim time, an input whose clock reading equals its previous one waits for a tick."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, int] = {}
+        self.held: dict[str, Any] = {}
+
+    def arrive(self, name: str, now_ns: int, item: Any) -> list[tuple[str, int, Any]]:
+        """(name, stamp, item) triples to process now, in order."""
+        out = []
+        if name in self.held:
+            out.append((name, now_ns, self.held.pop(name)))
+        elif self.last.get(name) == now_ns:
+            self.held[name] = item
+            return out
+        self.last[name] = now_ns
+        out.append((name, now_ns, item))
+        return out
+
+    def tick(self, now_ns: int) -> list[tuple[str, int, Any]]:
+        """The clock moved to ``now_ns``: the held inputs to process now, stamped with it."""
+        out = [(name, now_ns, item) for name, item in self.held.items()]
+        for name in self.held:
+            self.last[name] = now_ns
+        self.held.clear()
+        return out

@@ -34,11 +34,6 @@ class _Series:
     ref_t: list[float] = field(default_factory=list)
     ref: list[float] = field(default_factory=list)
 
-    def recording(self, name: str) -> Recording:
-        """The inputs with the latest reference at or before each (NaN before the first)."""
-        t = np.array(self.t)
-        return Recording(name, t, np.array(self.r), hold_latest(t, self.ref_t, self.ref))
-
 
 class LiveStart:
     """``~/start``'s state and the samples it watches."""
@@ -70,12 +65,13 @@ class LiveStart:
         """Set a final state (``applied`` or ``refused``)."""
         self.state, self.detail, self.series = state, detail, {}
 
-    def seen_input(self, sensor: str, t: float, value: float) -> None:
-        """A raw input sample of ``sensor`` (kept while watching)."""
-        series = self.series.get(sensor)
-        if series is not None and len(series.t) < MAX_SAMPLES:
-            series.t.append(t)
-            series.r.append(value)
+    def seen_inputs(self, sensors: tuple[str, ...], t: np.ndarray, raw: np.ndarray) -> None:
+        """Raw input samples (columns: ``sensors``), kept for the sensors watched."""
+        for j, sensor in enumerate(sensors if self.series else ()):
+            if sensor in self.series:
+                room = max(MAX_SAMPLES - len(self.series[sensor].t), 0)
+                self.series[sensor].t.extend(t[:room].tolist())
+                self.series[sensor].r.extend(raw[:room, j].tolist())
 
     def seen_reference(self, sensor: str, t: float, value: float,
                        calibration: Calibration) -> Calibration | None:
@@ -111,7 +107,9 @@ class LiveStart:
 
     def _apply(self, calibration: Calibration) -> Calibration | None:
         """``strain-comp start``'s session start on the recorded stretch (None: refused)."""
-        recordings = {name: s.recording(name) for name, s in self.series.items()}
+        recordings = {name: Recording(name, np.array(s.t), np.array(s.r),  # the reference held
+                                      hold_latest(s.t, s.ref_t, s.ref))
+                      for name, s in self.series.items()}
         watched = Calibration({n: calibration.sensors[n] for n in recordings})
         ends = [float(r.t[-1] - r.t[0]) for r in recordings.values() if r.t.size]
         try:
@@ -123,9 +121,4 @@ class LiveStart:
         self.outcome("applied", "applied: stretch RMSE " + ", ".join(
             f"{r.sensor} {r.rmse:.4g} {r.unit}" for r in started.records))
         return Calibration({**calibration.sensors, **started.calibration.sensors})
-
-    def diagnostic(self) -> tuple[int, str, dict[str, str]]:
-        """(level, message, values) of the ``strain_comp: session start`` status."""
-        level = 1 if self.state == "refused" else 0
-        return level, f"{self.state}: {self.detail}", {"state": self.state}
 

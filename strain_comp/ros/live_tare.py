@@ -5,7 +5,6 @@ the calibrated range: a rest that moved out of it is what a tare corrects."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,25 +23,18 @@ TARE_WINDOW_S = 0.5
 RING = 4096
 """Recent samples kept at most per input for ``~/tare`` (the last 0.5 s up to 8 kHz)."""
 MAX_START_SAMPLES = 2**17
-"""Samples an input's pending automatic tare may log (``REST_WINDOW`` = 5 s at 26 kHz); a
-clock that does not advance (a paused sim clock) would otherwise let it grow without end:
-past it the automatic tare is declined, the calibration's zero stays."""
+"""Samples a pending automatic tare may log (5 s at 26 kHz), past them declined: a paused
+sim clock would otherwise let the log grow without end."""
 
 
-@dataclass
 class _Log:
     """An input's latest raw samples (columns: its sensors) and whether the model used each."""
 
-    k: int
-    t: np.ndarray = field(init=False)
-    raw: np.ndarray = field(init=False)
-    good: np.ndarray = field(init=False)
-    n: int = 0
-
-    def __post_init__(self) -> None:
+    def __init__(self, k: int) -> None:
         self.t = np.full(256, -math.inf)
-        self.raw = np.zeros((256, self.k))
-        self.good = np.zeros((256, self.k), dtype=bool)
+        self.raw = np.zeros((256, k))
+        self.good = np.zeros((256, k), dtype=bool)
+        self.n = 0
 
     def add(self, t: np.ndarray, raw: np.ndarray, status: np.ndarray, keep_from: float,
             most: int) -> bool:
@@ -82,15 +74,17 @@ class LiveTare:
         self.pending: dict[str, float] = ({s: math.nan for s in params.calibration.sensors}
                                           if params.tare == "auto" else {})
         """Sensors whose automatic tare is pending: their first good sample's time (or NaN)."""
-        self.start = set(self.inputs) if self.pending else set()
-        """The inputs with a sensor whose automatic tare is pending."""
         self.log: list[str] = []
+
+    def pending_on(self, name: str) -> bool:
+        """Whether a sensor of input ``name`` waits for its automatic tare."""
+        return bool(self.pending) and not self.pending.keys().isdisjoint(self.inputs[name])
 
     def seen(self, name: str, t: np.ndarray, raw: np.ndarray, status: np.ndarray,
              direction: np.ndarray) -> None:
         """Log samples (one while a tare is pending) and take the automatic tares they decide."""
         keep_from = float(t[-1]) - TARE_WINDOW_S
-        if name not in self.start:
+        if not self.pending_on(name):
             self.recent[name].add(t, raw, status, keep_from, RING)
             return
         firsts = [self.pending.get(s, math.nan) for s in self.inputs[name]]
@@ -104,8 +98,6 @@ class LiveTare:
                         f"{sensor}: auto tare declined: {MAX_START_SAMPLES} samples within "
                         f"{REST_WINDOW:g} s of clock time (is the clock paused?); the "
                         "calibration's zero stays (call ~/tare at rest)")
-        if not any(s in self.pending for s in self.inputs[name]):
-            self.start.discard(name)
 
     def _ohm(self, sensor: str, raw: np.ndarray) -> np.ndarray:
         return self.calibration.sensors[sensor].input.to_ohm(raw)
@@ -169,6 +161,5 @@ class LiveTare:
         for sensor, (rest, _) in rests.items():
             self.engine.tare(sensor, rest)
             self.pending.pop(sensor, None)
-        self.start.clear()  # no automatic tare is pending any more
         return "tared " + ", ".join(f"{s} (rest {r:.6g} ohm, gain {self.engine.input_gain(s):.6g})"
                                     for s, (r, _) in rests.items())

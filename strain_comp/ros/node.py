@@ -1,8 +1,6 @@
-"""The ``compensator`` executable: starts the rclpy node (``strain_comp.ros.compensator``) and
-spins it; start-up problems are one line and exit 2, SIGINT/SIGTERM exit 0 at any moment
-(docs/ros.md; docs/architecture.md, "Inside the node"). Only the standard library is
-imported at module level, so the signal handlers are in place before anything slow.
-"""
+"""The ``compensator`` executable: spins the rclpy node; start-up problems are one line and
+exit 2, SIGINT/SIGTERM exit 0 at any moment (docs/ros.md). Only the standard library is
+imported at module level, so the signal handlers are in place before anything slow."""
 
 from __future__ import annotations
 
@@ -19,7 +17,6 @@ NODE_NAME = "compensator"
 SHUTDOWN_S = 1.5
 """Longest clean shutdown after SIGINT/SIGTERM before the process exits regardless [s]."""
 EXIT_BAD_INPUT = 2
-_stop = threading.Event()
 _stopped_by: list[str] = []
 
 
@@ -36,7 +33,6 @@ def _stopped_in_start_up(signum: int, frame: FrameType | None = None) -> NoRetur
 
 def _request_stop(signum: int, frame: FrameType | None) -> None:
     _stopped_by.append(signal.Signals(signum).name)
-    _stop.set()
     watchdog = threading.Timer(SHUTDOWN_S, os._exit, args=(0,))
     watchdog.daemon = True
     watchdog.start()
@@ -60,13 +56,16 @@ def _unqualified(key: str) -> str:
     return key.split(":", 1)[-1] if key.count(":") == 1 else key
 
 
-def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
-    """The params files, node name and namespace the ``--ros-args`` part of ``args`` gives."""
+def ros_arguments(args: list[str]) -> tuple[list[Path], str, str, dict[str, str]]:
+    """The ``--ros-args`` part: params files, node name, namespace, ``-p`` rules by name."""
     files: list[Path] = []
     name, namespace = NODE_NAME, "/"
-    for flag, value in _ros_flags(args, ("--params-file", "-r", "--remap")):
+    rules: dict[str, str] = {}
+    for flag, value in _ros_flags(args, ("--params-file", "-r", "--remap", "-p", "--param")):
         if flag == "--params-file":
             files.append(Path(value))
+        elif flag in ("-p", "--param"):
+            rules[_unqualified(value.partition(":=")[0])] = value
         elif ":=" in value:
             key, target = value.split(":=", 1)
             key = _unqualified(key)
@@ -74,13 +73,7 @@ def ros_arguments(args: list[str]) -> tuple[list[Path], str, str]:
                 name = target
             elif key == "__ns":
                 namespace = target
-    return files, name, namespace
-
-
-def command_line_params(args: list[str]) -> dict[str, str]:
-    """The ``-p NAME:=VALUE`` (``--param``) overrides of the ``--ros-args`` part, as given."""
-    return {_unqualified(rule.partition(":=")[0]): rule
-            for _, rule in _ros_flags(args, ("-p", "--param"))}
+    return files, name, namespace, rules
 
 
 def main(args: list[str] | None = None) -> int:
@@ -95,7 +88,7 @@ def main(args: list[str] | None = None) -> int:
         from strain_comp.errors import StrainCompError
         from strain_comp.ros.params import read_params
 
-        files, name, namespace = ros_arguments(argv)
+        files, name, namespace, rules = ros_arguments(argv)
         base_dir = read_params(files, name, namespace)[1]
         import rclpy
         from rclpy.exceptions import ParameterException
@@ -112,7 +105,7 @@ def main(args: list[str] | None = None) -> int:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
         node = CompensatorNode(name, base_dir=base_dir)
     except StrainCompError as err:
-        given = command_line_params(argv).get(getattr(err, "field", ""))
+        given = rules.get(getattr(err, "field", ""))
         if given is not None:  # -p wins over the params files: the command line is at fault
             where = f"command line (-p {given}): "
         elif files and not str(err).startswith(str(files[-1])):
@@ -136,7 +129,7 @@ def main(args: list[str] | None = None) -> int:
                 else SingleThreadedExecutor())
     executor.add_node(node)
     try:
-        while not _stop.is_set() and ok():
+        while not _stopped_by and ok():
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

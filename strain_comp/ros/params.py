@@ -1,6 +1,5 @@
 """Node parameters: the ``<node>: ros__parameters:`` YAML of the rclpy node (layout, checks
-and path resolution: docs/architecture.md, "Inside the node"; docs/ros.md).
-"""
+and path resolution: docs/architecture.md, "Inside the node"; docs/ros.md)."""
 
 from __future__ import annotations
 
@@ -63,7 +62,6 @@ TUNABLES: tuple[ParamSpec, ...] = (
 )
 TUNABLE = {spec.name: spec for spec in TUNABLES}
 EXECUTORS = ("events", "single_threaded")
-"""``executor``: how the node spins (``strain_comp.ros.node``)."""
 ROS_OWNED = ("use_sim_time", "qos_overrides", "start_type_description_service")
 """Parameters ROS itself declares; accepted in a params file and ignored here."""
 
@@ -105,10 +103,7 @@ def structural_specs(sensors: list[str], arrays: list[str]) -> list[ParamSpec]:
 
 
 def validate_tunable(name: str, value: Any) -> float:
-    """A tunable's value, checked."""
-    spec = TUNABLE.get(name)
-    if spec is None:
-        raise ParameterError(name, f"unknown parameter; tunables: {', '.join(TUNABLE)}")
+    spec = TUNABLE[name]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParameterError(name, f"must be a number, got {value!r}")
     lo, hi = spec.range if spec.range is not None else (-float("inf"), float("inf"))
@@ -138,15 +133,11 @@ class NodeParams:
     tare: str = "calibration"
     executor: str = "events"
     fuse_references: bool = False
-    """Known strains fused into the output (``strain_comp.core.fusion``)."""
-
-    @property
-    def arrays(self) -> dict[str, list[str]]:
-        return {i.name: list(i.sensors) for i in self.inputs if i.is_array}
 
     def build_engine(self) -> Engine:
         """The Engine these parameters describe (gap, stale and dead-zone tunables applied)."""
-        return Engine(self.calibration, arrays=self.arrays,
+        arrays = {i.name: list(i.sensors) for i in self.inputs if i.is_array}
+        return Engine(self.calibration, arrays=arrays,
                       gap_reset=self.tunables["gap_reset_s"],
                       stale_after=self.tunables["stale_after_s"],
                       deadzone_scale=self.tunables["deadzone_scale"])
@@ -197,7 +188,6 @@ def _string(flat: Mapping[str, Any], key: str, default: str | None = None) -> st
 
 def _choice(flat: Mapping[str, Any], key: str, default: str, choices: tuple[str, ...]
             ) -> str:
-    """A string parameter that is one of ``choices``."""
     value = _string(flat, key, default)
     if value not in choices:
         raise ParameterError(key, f"must be one of {', '.join(choices)}, got {value!r}")
@@ -315,8 +305,7 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 def read_params(files: list[Path], name: str = "compensator", namespace: str = "/"
                 ) -> tuple[dict[str, Any], Path | None]:
-    """The values the files give the node (blocks as rcl matches them) and the folder of the
-    last that names a calibration (``ros2 launch``'s own file does not), else of the last."""
+    """The files' values for the node (blocks as rcl matches them) and the base folder."""
     ns = namespace.strip("/")
     fqn = f"{ns}/{name}" if ns else name
     values: dict[str, Any] = {}
@@ -335,7 +324,7 @@ def read_params(files: list[Path], name: str = "compensator", namespace: str = "
             flat = _flatten(block["ros__parameters"])
             base = path.resolve().parent
             if any(key.rpartition(".")[2] == "calibration" for key in flat):
-                named = base
+                named = base  # the last file naming a calibration (ros2 launch's does not)
             values.update(flat)
     return values, named or base
 

@@ -1,6 +1,5 @@
 """``strain-comp play``: publish a bag's messages over ROS 2 at their recorded times, or in
-lockstep with the node's answers (docs/architecture.md, "Inside the node").
-"""
+lockstep with the node's answers (docs/architecture.md, "Inside the node")."""
 
 from __future__ import annotations
 
@@ -19,8 +18,7 @@ if TYPE_CHECKING:
 
 LOCKSTEP_TIMEOUT_S = 1.0
 MATCH_S = 2.0
-"""How long play waits for the other topics' subscribers once one topic has one [s]: a node
-announces its subscriptions together."""
+"""How long play waits for the other topics' subscribers once one topic has one [s]."""
 
 
 PLAYABLE = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Int8",
@@ -41,7 +39,6 @@ def message_class(type_name: str) -> type | None:
 
 
 def spin_until(executor: Executor, ready: Callable[..., bool], timeout: float = 5.0) -> bool:
-    """Spin ``executor`` until ``ready()``."""
     deadline = time.monotonic() + timeout
     while not ready():
         if time.monotonic() > deadline:

@@ -1,7 +1,6 @@
-"""Typed views of the rclpy calls the node and the player make that rclpy 7 (ROS 2 Jazzy)
-leaves unannotated (``Node.get_logger``, the logger's methods, ``Node.destroy_node``,
-``Parameter(...)``), so ros/ type-checks under strict mypy. Each view states the type the
-call has at run time; the call itself is rclpy's own."""
+"""Typed views of the rclpy calls that rclpy 7 (ROS 2 Jazzy) leaves unannotated, so ros/
+type-checks under strict mypy: each states the type the call has at run time; the call
+itself is rclpy's own."""
 
 from __future__ import annotations
 
@@ -35,6 +34,5 @@ def destroy(node: Node) -> None:
 
 
 def parameter(name: str, type_: Parameter.Type, value: object) -> Parameter:
-    """``Parameter(name, type_, value)``."""
     make: Callable[[str, Parameter.Type, object], Parameter] = Parameter
     return make(name, type_, value)

@@ -14,8 +14,7 @@ from strain_comp.core.calibration import Calibration
 from strain_comp.core.tare import REST_WINDOW, rest_resistance_at_start, tare_engine
 from strain_comp.errors import InputError, ParameterError
 from strain_comp.io.multiarray import array_values
-from strain_comp.ros.clock_gate import ClockGate
-from strain_comp.ros.live import LiveCompensator
+from strain_comp.ros.live import ClockGate, LiveCompensator
 from strain_comp.ros.params import parse_values
 
 
@@ -32,13 +31,13 @@ def live(tmp_path: Path, *, tare: str = "calibration", rest: float | None = 150.
 
 def test_clock_gate_gives_each_input_its_own_tick() -> None:
     gate = ClockGate()
-    assert gate.arrive("a", 10, "x") == [(10, "x")]
+    assert gate.arrive("a", 10, "x") == [("a", 10, "x")]
     assert gate.arrive("a", 10, "y") == []            # arrived before its tick: held
-    assert gate.tick(20) == [(20, "y")]                # its tick releases it
-    assert gate.arrive("a", 30, "z") == [(30, "z")]    # tick first: processed at once
+    assert gate.tick(20) == [("a", 20, "y")]           # its tick releases it
+    assert gate.arrive("a", 30, "z") == [("a", 30, "z")]  # tick first: processed at once
     assert gate.arrive("a", 30, "u") == []
-    assert gate.arrive("a", 30, "v") == [(30, "u"), (30, "v")]  # as if there were no gate
-    assert gate.arrive("b", 30, "w") == [(30, "w")]    # topics are independent
+    assert gate.arrive("a", 30, "v") == [("a", 30, "u"), ("a", 30, "v")]  # as if no gate
+    assert gate.arrive("b", 30, "w") == [("b", 30, "w")]  # topics are independent
 
 
 def test_array_layout() -> None:
@@ -108,7 +107,7 @@ def test_auto_tare_at_1_khz_reads_the_whole_window_as_offline(tmp_path: Path) ->
     assert node.taring.log and "auto tare: rest resistance" in node.taring.log[0]
     expected = rest_resistance_at_start(t, r, node.params.calibration.sensors["s1"].direction)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / expected, rel=1e-12)
-    assert not node.taring.start  # the start log is dropped once every sensor is decided
+    assert not node.taring.pending  # the start log is dropped once decided
 
 
 def test_auto_tare_is_the_offline_rule_when_the_run_starts_moving(tmp_path: Path) -> None:
@@ -200,11 +199,11 @@ def test_tare_service_ends_a_pending_auto_tare(tmp_path: Path) -> None:
     for ti in np.arange(0.0, 1.0, 0.01):
         one_message(node, "s1", float(ti), 140.0)
     node.taring.tare()
-    assert not node.taring.start
+    assert not node.taring.pending
     for ti in np.arange(1.0, 2.0 * REST_WINDOW, 0.01):
         one_message(node, "s1", float(ti), 120.0)
     assert node.engine.input_gain("s1") == pytest.approx(150.0 / 140.0)
-    assert not node.taring.log and not node.taring.start
+    assert not node.taring.log and not node.taring.pending
 
 
 def test_span_at_a_known_strain_reads_a_more_sensitive_sensor(tmp_path: Path) -> None:

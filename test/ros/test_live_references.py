@@ -77,8 +77,6 @@ def test_known_strain_service_fuses_every_sensor_or_says_why_not(tmp_path: Path)
     assert after is not None and after.strain > out.strain + 1.0  # moved toward the known one
     with pytest.raises(ParameterError, match="fuse_references"):
         live(tmp_path, "off").reference_now(1.0)
-    with pytest.raises(ParameterError, match="known_strain"):
-        node.set_tunable("known_strain", math.inf)
 
 
 def test_bad_references_are_refused_and_counted(tmp_path: Path) -> None:
@@ -95,10 +93,6 @@ def test_bad_references_are_refused_and_counted(tmp_path: Path) -> None:
     one_message(node, "s1", 60.0, 400.0)  # out of the calibrated range
     assert node.on_reference("s1", 60.01, 20.0) == "estimate out of the calibrated range"
     assert (node.fusion["s1"].gain, node.fusion["s1"].offset) == state
-    with pytest.raises(InputError, match="no sensor 'x'"):
-        node.on_reference("x", 61.0, 1.0)
-    with pytest.raises(InputError, match="fuse_references is false"):
-        live(tmp_path, "off").on_reference("s1", 1.0, 1.0)
     values = node.diagnostics(61.0)[0][3]
     assert values["fusion_n_refused"] == "6" and values["fusion_n_used"] == "0"
     assert values["fusion_refused[non-finite reference]"] == "2"
@@ -127,7 +121,7 @@ def test_array_references_nan_for_none_and_the_label_honoured(tmp_path: Path) ->
         references(1.04, [1.0, 2.0], label="a,c")
     with pytest.raises(InputError, match="expected 2 values"):
         references(1.05, [1.0])
-    fresh = node.reload(node.params)  # a reload restarts the estimate, counts go on
+    fresh = node.hand_over(node.successor(node.params))  # the estimate restarts, counts go on
     assert fresh.fusion["a"].gain == 1.0 and fresh.fusion["a"].n_used == 1
 
 

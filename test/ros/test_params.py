@@ -123,7 +123,7 @@ def test_a_null_list_reads_as_empty(tmp_path: Path) -> None:
     path = setup_files(tmp_path, "/compensator:\n  ros__parameters:\n    arrays: null\n"
                                  "    sensors: [s1]\n    s1: {calibration: one.yaml}\n")
     params = load_params(path)
-    assert [i.name for i in params.inputs] == ["s1"] and params.arrays == {}
+    assert [(i.name, i.is_array) for i in params.inputs] == [("s1", False)]
 
 
 def test_tunables_are_checked_before_any_calibration_loads(tmp_path: Path,
