@@ -33,8 +33,7 @@ def runs(seconds: float) -> list[Recording]:
     """The training runs, sensor s1."""
     out = []
     for scenario in SCENARIOS:
-        s1 = rig.simulate(scenario, seed=0, duration=seconds).sensors["s1"]
-        out.append(Recording("s1", s1.t, s1.resistance, s1.strain))
+        out.append(rig.simulate(scenario, seed=0, duration=seconds).sensors["s1"])
     return out
 
 

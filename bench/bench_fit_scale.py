@@ -85,9 +85,9 @@ def make_bag(path: Path, n: int) -> None:
     s1 = run.sensors["s1"]
     t = np.arange(n) / (up * base)
     rng = np.random.default_rng(1)
-    r = np.interp(t, s1.t, s1.resistance)
-    r += 0.002 * float(np.std(s1.resistance)) * rng.standard_normal(n)
-    s = np.interp(t, s1.t, s1.strain)
+    r = np.interp(t, s1.t, s1.r)
+    r += 0.002 * float(np.std(s1.r)) * rng.standard_normal(n)
+    s = np.interp(t, s1.t, s1.s)
     with BagWriter(path) as writer:
         writer.write_float64("/s1/resistance", t, r)
         writer.write_float64("/s1/strain_reference", t, s)

@@ -71,7 +71,7 @@ import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -131,9 +131,7 @@ def seed_calibration(fitted: dict[str, SensorCalibration]) -> Calibration:
 
 def fit_every_model() -> dict[str, SensorCalibration]:
     """Each model fitted quickly on 60 s of the rig's random scenario (a sound seed)."""
-    run = simulate("random", seed=2, duration=60.0)
-    sensor = next(iter(run.sensors.values()))
-    rec = Recording("s", sensor.t, sensor.resistance, sensor.strain)
+    rec = replace(simulate("random", seed=2, duration=60.0).sensors["s1"], name="s")
     fitted = {}
     for model in MODEL_NAMES:
         options: dict[str, Any] = {"tau": 0.2}

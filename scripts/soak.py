@@ -40,7 +40,6 @@ from strain_comp.base.samples import used_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.range_policy import OPEN_FACTOR, SHORT_FACTOR
-from strain_comp.io.recording import Recording
 from strain_comp.models import MODEL_NAMES
 from strain_comp.offline.fit import fit_sensor
 from strain_comp.offline.rig import simulate
@@ -79,9 +78,7 @@ class SoakResult:
 
 def fit_calibration(model: str) -> SensorCalibration:
     """``model`` fitted on 120 s of the rig's random ramps and holds (50 Hz)."""
-    run = simulate("random", seed=1, duration=120.0)
-    sensor = next(iter(run.sensors.values()))
-    rec = Recording("s1", sensor.t, sensor.resistance, sensor.strain)
+    rec = simulate("random", seed=1, duration=120.0).sensors["s1"]
     options: dict[str, object] = {"tau": 0.2}
     if model == "rational":
         options["mode"] = "split"

@@ -110,7 +110,7 @@ def carry_recording(spec: dict, run: str, name: str) -> Any:
 
     if spec["format"] == "rig":
         sim = simulate(run, seed=1).sensors["s1"]
-        return Recording(name, sim.t, sim.resistance, sim.strain)
+        return Recording(name, sim.t, sim.r, sim.s)
     return import_csv(Path(spec["data"]) / spec["dir"] / run, fmt=spec["format"], sensor=name,
                       columns=spec.get("columns"), scales=spec.get("scales")).recording
 

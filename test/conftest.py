@@ -163,9 +163,7 @@ Every model gets tau = 0.2 s: it smooths the derivative enough for the 50 Hz rig
 @functools.cache
 def training_recording() -> Recording:
     """120 s of the rig's random ramps and holds (50 Hz, noise, hysteresis, relaxation)."""
-    run = simulate("random", seed=1, duration=120.0)
-    sensor = next(iter(run.sensors.values()))
-    return Recording("s1", sensor.t, sensor.resistance, sensor.strain)
+    return simulate("random", seed=1, duration=120.0).sensors["s1"]
 
 
 FITS = "STRAIN_COMP_TEST_FITS"

@@ -15,6 +15,7 @@ from scipy.signal import lfilter
 from strain_comp.base.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.errors import ParameterError
 from strain_comp.io.bag import BagWriter
+from strain_comp.io.recording import Recording
 
 L0_MM = 100.0  # specimen length [mm]: rates in mm/min convert to %/s via this
 T_REF = 23.0  # reference temperature [deg C]
@@ -107,23 +108,12 @@ class SensorSpec:
 
 
 @dataclass(frozen=True)
-class SimSensor:
-    """A simulated sensor's data: time [s], strain [%], resistance [ohm], temperature [deg C]."""
-
-    t: np.ndarray
-    strain: np.ndarray
-    resistance: np.ndarray
-    temperature: np.ndarray | None
-
-
-@dataclass(frozen=True)
 class SimRun:
-    """The result of ``simulate``; ``array``: the array topic prefix of sensors in one array."""
+    """The result of ``simulate``: the effects used, the sample rate [Hz], the recordings."""
 
     effects: RigEffects
     fs: float
-    sensors: dict[str, SimSensor]
-    array: str | None = None
+    sensors: dict[str, Recording]
 
 
 # --------------------------------------------------------------------------- profiles
@@ -361,35 +351,36 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
     if temp is not None:
         r *= (1.0 + fx.temperature * (temp - T_REF))[:, None]
     r *= (1.0 + fx.drift * t / 3600.0)[:, None]
+    array = ARRAY_NAME if scenario == "array" else None
     sensors = {}
     for i, name in enumerate(names):
         noise_rng = np.random.default_rng([seed, 1 + i])
         chain = _chain(t, r[:, i], fx, np.random.default_rng([seed, 100 + i]))
-        sensors[name] = SimSensor(t=t, strain=strain[:, i].copy(),
-                                  resistance=_read_out(chain, fx, noise_rng), temperature=temp)
-    return SimRun(effects=fx, fs=sc.fs, sensors=sensors,
-                  array=ARRAY_NAME if scenario == "array" else None)
+        sensors[name] = Recording(name, t, _read_out(chain, fx, noise_rng), strain[:, i].copy(),
+                                  temp, array, None if array is None else i)
+    return SimRun(effects=fx, fs=sc.fs, sensors=sensors)
 
 
 def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:
     """A SimRun as an MCAP bag: per sensor (or array) resistance, strain_reference, temperature."""
     first = next(iter(run.sensors.values()))
     step = max(1, round(run.fs / temperature_rate))
+    strains = [rec.s for rec in run.sensors.values() if rec.s is not None]  # the rig's: all
     with BagWriter(path) as writer:
-        if run.array is not None:
+        if first.array is not None:
             names = list(run.sensors)
-            prefix = f"/{run.array}"
+            prefix = f"/{first.array}"
             writer.write_float64_array(f"{prefix}/resistance", first.t, np.column_stack(
-                [run.sensors[n].resistance for n in names]), names)
-            writer.write_float64_array(f"{prefix}/strain_reference", first.t, np.column_stack(
-                [run.sensors[n].strain for n in names]), names)
+                [run.sensors[n].r for n in names]), names)
+            writer.write_float64_array(f"{prefix}/strain_reference", first.t,
+                                       np.column_stack(strains), names)
             if first.temperature is not None:
                 writer.write_temperature(f"{prefix}/temperature", first.t[::step],
                                          first.temperature[::step])
             return
-        for name, sensor in run.sensors.items():
-            writer.write_float64(f"/{name}/resistance", sensor.t, sensor.resistance)
-            writer.write_float64(f"/{name}/strain_reference", sensor.t, sensor.strain)
+        for (name, sensor), s in zip(run.sensors.items(), strains, strict=True):
+            writer.write_float64(f"/{name}/resistance", sensor.t, sensor.r)
+            writer.write_float64(f"/{name}/strain_reference", sensor.t, s)
             if sensor.temperature is not None:
                 writer.write_temperature(f"/{name}/temperature", sensor.t[::step],
                                          sensor.temperature[::step])

@@ -35,16 +35,15 @@ def day_run(seed: int, drift: float) -> dict[str, Recording]:
     """A rig run of the ``random`` scenario (300 s) whose sensitivity drifts by ``drift``
     per second from its first sample."""
     sim = simulate("random", seed=seed, effects=CLEAN).sensors["s1"]
-    rest = float(sim.resistance[0])
-    r = rest + (sim.resistance - rest) * (1.0 + drift * (sim.t - sim.t[0]))
-    return {"s1": Recording("s1", sim.t, r, sim.strain)}
+    rest = float(sim.r[0])
+    r = rest + (sim.r - rest) * (1.0 + drift * (sim.t - sim.t[0]))
+    return {"s1": Recording("s1", sim.t, r, sim.s)}
 
 
 @pytest.fixture(scope="module")
 def day1() -> Calibration:
     sim = simulate("patterns", seed=0, effects=CLEAN).sensors["s1"]
-    return Calibration({"s1": fit_sensor([Recording("s1", sim.t, sim.resistance, sim.strain)],
-                                         "cubic", name="s1")})
+    return Calibration({"s1": fit_sensor([sim], "cubic", name="s1")})
 
 
 def started_rmse(calibration: Calibration, run: dict[str, Recording]) -> float:

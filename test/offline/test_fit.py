@@ -211,11 +211,11 @@ def test_samples_stamped_in_bursts_get_a_filter_of_two_intervals_and_a_working_d
     late += 1e-6 * np.arange(sim.t.size)
     agree = {}
     for name, t in (("regular", sim.t), ("bursts", late)):
-        cal = fit_sensor([recording(t, sim.resistance, sim.strain)], "cubic", name="s1")
+        cal = fit_sensor([recording(t, sim.r, sim.s)], "cubic", name="s1")
         if name == "bursts":
             assert cal.direction.tau >= 2.0 * np.median(np.diff(t))
-        published = Engine(Calibration({"s1": cal})).run("s1", t, sim.resistance).direction
-        rate = np.gradient(sim.strain, sim.t)
+        published = Engine(Calibration({"s1": cal})).run("s1", t, sim.r).direction
+        rate = np.gradient(sim.s, sim.t)
         moving = np.abs(rate) > 0.05
         agree[name] = float(np.mean(published[moving] == np.sign(rate[moving])))
     print(f"\ndetector agreement with the reference's direction: {agree}")
@@ -233,7 +233,7 @@ def test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample(
     from strain_comp.offline.rig import RigEffects, simulate
 
     sim = simulate("long", seed=1, effects=RigEffects()).sensors["s1"]
-    t, r, s = sim.t[::50], sim.resistance[::50], sim.strain[::50]
+    t, r, s = sim.t[::50], sim.r[::50], sim.s[::50]
     cal = fit_sensor([recording(t, r, s)], "pl", name="s1")
     assert cal.sample_interval == pytest.approx(10.0)
     path = tmp_path / "slow.yaml"

@@ -114,9 +114,9 @@ def test_reduced_fit_error_on_the_full_data_is_close_to_the_full_fit() -> None:
     s1 = run.sensors["s1"]
     t = np.arange(0.0, s1.t[-1], 0.008)
     rng = np.random.default_rng(1)
-    r = np.interp(t, s1.t, s1.resistance) + 0.002 * np.std(s1.resistance) * \
+    r = np.interp(t, s1.t, s1.r) + 0.002 * np.std(s1.r) * \
         rng.standard_normal(t.size)
-    rec = Recording("s1", t, r, np.interp(t, s1.t, s1.strain))
+    rec = Recording("s1", t, r, np.interp(t, s1.t, s1.s))
     full = fit_sensor([rec], "apl", name="s1")
     reduced = fit_sensor([rec], "apl", name="s1", options={"fit_budget": t.size // 7})
     assert "fit_reduction" not in full.provenance

@@ -25,7 +25,7 @@ CLEAN = RigEffects(noise=0.0, adc_bits=0)
 
 
 def _r(run, name="s1"):
-    return run.sensors[name].resistance
+    return run.sensors[name].r
 
 
 def test_every_scenario_runs_and_is_deterministic() -> None:
@@ -33,8 +33,8 @@ def test_every_scenario_runs_and_is_deterministic() -> None:
         a = simulate(name, seed=3, duration=60.0)
         b = simulate(name, seed=3, duration=60.0)
         for key in a.sensors:
-            np.testing.assert_array_equal(a.sensors[key].resistance, b.sensors[key].resistance)
-            assert np.isfinite(a.sensors[key].resistance).all()
+            np.testing.assert_array_equal(a.sensors[key].r, b.sensors[key].r)
+            assert np.isfinite(a.sensors[key].r).all()
     assert not np.array_equal(_r(simulate("random", seed=1)), _r(simulate("random", seed=2)))
 
 
@@ -72,12 +72,12 @@ def test_loop_is_clockwise_and_rotates_with_rate() -> None:
 def _hold_changes(fx: RigEffects) -> tuple[list[float], list[float]]:
     run = simulate("steps", effects=fx)
     x = run.sensors["s1"]
-    d = np.diff(x.strain)
+    d = np.diff(x.s)
     ends = np.flatnonzero((d != 0) & (np.append(d[1:], 0) == 0)) + 1
     up, down = [], []
     for e in ends:
-        seg = x.resistance[e:e + int(25 * run.fs)]
-        (up if x.strain[e] > x.strain[e - 3] else down).append(seg[0] - seg[-1])
+        seg = x.r[e:e + int(25 * run.fs)]
+        (up if x.s[e] > x.s[e - 3] else down).append(seg[0] - seg[-1])
     return up, down
 
 
@@ -96,7 +96,7 @@ def test_relaxation_strong_on_loading_weak_on_unloading() -> None:
 def test_drift_on_a_long_hold() -> None:
     off = simulate("long", effects=CLEAN)
     on = simulate("long", effects=dataclasses.replace(CLEAN, drift=0.05))
-    ratio = on.sensors["s1"].resistance / off.sensors["s1"].resistance
+    ratio = on.sensors["s1"].r / off.sensors["s1"].r
     t = on.sensors["s1"].t
     np.testing.assert_allclose(ratio, 1 + 0.05 * t / 3600, rtol=1e-12)
     default = simulate("long")  # the scenario's own drift
@@ -121,12 +121,12 @@ def test_crosstalk_comes_from_neighbours_only() -> None:
     off = simulate("array", effects=CLEAN)
     on = simulate("array", effects=dataclasses.replace(CLEAN, crosstalk=0.1))
     names = list(off.sensors)
-    delta = {n: off.sensors[n].resistance - off.sensors[n].resistance[0] for n in names}
+    delta = {n: off.sensors[n].r - off.sensors[n].r[0] for n in names}
     for i, n in enumerate(names):
         leak = sum(delta[names[j]] for j in (i - 1, i + 1) if 0 <= j < len(names))
-        np.testing.assert_allclose(on.sensors[n].resistance - off.sensors[n].resistance,
+        np.testing.assert_allclose(on.sensors[n].r - off.sensors[n].r,
                                    0.1 * leak, atol=1e-9)
-    strains = np.array([off.sensors[n].strain for n in names])
+    strains = np.array([off.sensors[n].s for n in names])
     assert np.corrcoef(strains)[0, 1] < 0.9  # neighbours strained differently
 
 
@@ -135,11 +135,11 @@ def test_mullins_softening_after_first_peak() -> None:
     run = simulate("triangle", effects=fx)
     x = run.sensors["s1"]
     ref = simulate("triangle", effects=dataclasses.replace(fx, mullins=0.0)).sensors["s1"]
-    at_peak = np.argmax(x.strain)
-    first = np.flatnonzero(x.strain > 15)[0]  # first loading, below the later peak
-    later = np.flatnonzero((x.strain > 14.9) & (x.strain < 15.1))[-1]
-    assert x.resistance[first] - 11.5 > x.resistance[later] - 11.5  # softer afterwards
-    loss = 1 - (x.resistance[at_peak] - 11.5) / (ref.resistance[at_peak] - 11.5)
+    at_peak = np.argmax(x.s)
+    first = np.flatnonzero(x.s > 15)[0]  # first loading, below the later peak
+    later = np.flatnonzero((x.s > 14.9) & (x.s < 15.1))[-1]
+    assert x.r[first] - 11.5 > x.r[later] - 11.5  # softer afterwards
+    loss = 1 - (x.r[at_peak] - 11.5) / (ref.r[at_peak] - 11.5)
     assert loss == pytest.approx(0.5 * 30 / 100, rel=1e-6)
 
 
@@ -163,6 +163,6 @@ def test_round_trip_through_bag(tmp_path: Path) -> None:
         recs, problems = load_recordings(tmp_path / f"{scenario}.mcap")
         assert problems == [] and set(recs) == set(run.sensors)
         for name, sensor in run.sensors.items():
-            np.testing.assert_array_equal(recs[name].r, sensor.resistance)
-            np.testing.assert_array_equal(recs[name].s, sensor.strain)
+            np.testing.assert_array_equal(recs[name].r, sensor.r)
+            np.testing.assert_array_equal(recs[name].s, sensor.s)
             np.testing.assert_allclose(recs[name].t, sensor.t, atol=1e-9)

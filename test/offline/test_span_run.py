@@ -19,9 +19,7 @@ GAIN = 1.3
 
 
 def rig_run() -> Recording:
-    run = simulate("triangle", seed=2, duration=170.0)
-    sensor = next(iter(run.sensors.values()))
-    return Recording("s1", sensor.t, sensor.resistance, sensor.strain)
+    return simulate("triangle", seed=2, duration=170.0).sensors["s1"]
 
 
 @pytest.mark.parametrize("model", ["cubic", "mpi", "apl"])
