@@ -109,9 +109,8 @@ class SensorSpec:
 
 @dataclass(frozen=True)
 class SimRun:
-    """The result of ``simulate``: the effects used, the sample rate [Hz], the recordings."""
+    """The result of ``simulate``: the sample rate [Hz] and a recording per sensor."""
 
-    effects: RigEffects
     fs: float
     sensors: dict[str, Recording]
 
@@ -252,15 +251,13 @@ def check_size(scenario: str, *, seed: int = 0, duration: float | None = None) -
 def _array_profiles(fs: float, duration: float | None) -> tuple[np.ndarray, np.ndarray]:
     """Per-sensor strain of the array: neighbours differ in amplitude, rate and phase."""
     columns = []
-    t = np.empty(0)
     for i in range(ARRAY_SIZE):
         hi = 12.0 + 4.0 * ((i * 3) % ARRAY_SIZE)
         rate = 30.0 + 14.0 * ((i * 5) % ARRAY_SIZE)
         p = _Profile().hold(2.0 + 3.0 * i)
         while p.t[-1] < 240:
             p.triangles(0, hi, rate, 1).hold(4.0 * (i % 3))
-        ti, si = p.sample(fs, 240.0 if duration is None else duration)
-        t = ti
+        t, si = p.sample(fs, 240.0 if duration is None else duration)
         columns.append(si)
     return t, np.column_stack(columns)
 
@@ -358,7 +355,7 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
         chain = _chain(t, r[:, i], fx, np.random.default_rng([seed, 100 + i]))
         sensors[name] = Recording(name, t, _read_out(chain, fx, noise_rng), strain[:, i].copy(),
                                   temp, array, None if array is None else i)
-    return SimRun(effects=fx, fs=sc.fs, sensors=sensors)
+    return SimRun(fs=sc.fs, sensors=sensors)
 
 
 def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:

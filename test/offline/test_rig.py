@@ -100,7 +100,8 @@ def test_drift_on_a_long_hold() -> None:
     t = on.sensors["s1"].t
     np.testing.assert_allclose(ratio, 1 + 0.05 * t / 3600, rtol=1e-12)
     default = simulate("long")  # the scenario's own drift
-    assert default.effects.drift == 0.05
+    own = simulate("long", effects=dataclasses.replace(RigEffects(), drift=0.05))
+    np.testing.assert_array_equal(default.sensors["s1"].r, own.sensors["s1"].r)
 
 
 def test_temperature_effect_and_topic(tmp_path: Path) -> None:
