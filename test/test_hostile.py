@@ -30,6 +30,7 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 import strain_comp as sc
+from strain_comp.base.samples import DEFAULT_GAP_RESET
 from strain_comp.cli import main
 from strain_comp.core.calibration import (
     MAX_FILE_BYTES,
@@ -38,7 +39,7 @@ from strain_comp.core.calibration import (
     SensorCalibration,
 )
 from strain_comp.core.calibration_file import load_calibration
-from strain_comp.core.engine import GAP_RESET, Engine
+from strain_comp.core.engine import Engine
 from strain_comp.diagnosis.candidates import default_candidates
 from strain_comp.errors import BagError, CalibrationError, InputError, OutputError
 from strain_comp.io.bag import BagWriter, read_bag
@@ -520,8 +521,8 @@ def test_a_calibration_that_loads_gives_finite_strain_in_its_range(
     cal = calibration.sensors["s1"]
     lo, hi = strain_bounds(cal)
     r = 10.0 ** np.asarray(log_r)
-    t = np.cumsum(rng.uniform(1e-3, GAP_RESET, r.size))
-    engine = Engine(calibration, gap_reset=GAP_RESET)
+    t = np.cumsum(rng.uniform(1e-3, DEFAULT_GAP_RESET, r.size))
+    engine = Engine(calibration, gap_reset=DEFAULT_GAP_RESET)
     out = engine.run_array(["s1", "s2"], t, np.column_stack([r, r]),
                            {"s1": np.full(t.size, 24.0 + 3.0 * np.sin(t))})["s1"]
     used = np.flatnonzero((out.status == 0) | (out.status >= 6))

@@ -20,10 +20,6 @@ from strain_comp.core.range_policy import DEFAULT_OUT_OF_RANGE, OUT_OF_RANGE_MOD
 from strain_comp.core.sensor import SensorState, run_together, scaled
 from strain_comp.errors import InputError, ParameterError
 
-GAP_RESET = sc.DEFAULT_GAP_RESET
-"""Default ``gap_reset`` [s]: a longer jump between good samples resets the state."""
-
-
 
 def tracking_off(mode: str) -> None:
     """Refuse ``--baseline-tracking on``: baseline tracking was removed (docs/results.md)."""
@@ -35,7 +31,8 @@ class Engine:
     """Calibrated strain, direction and health for every sensor of a calibration."""
 
     def __init__(self, calibration: Calibration, *,
-                 arrays: Mapping[str, Sequence[str]] | None = None, gap_reset: float = GAP_RESET,
+                 arrays: Mapping[str, Sequence[str]] | None = None,
+                 gap_reset: float = sc.DEFAULT_GAP_RESET,
                  stale_after: float = 1.0, deadzone_scale: float = 1.0,
                  out_of_range: str = DEFAULT_OUT_OF_RANGE) -> None:
         if out_of_range not in OUT_OF_RANGE_MODES:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from strain_comp.base.samples import GAP_INTERVALS, gap_for, good_mask
+from strain_comp.base.samples import DEFAULT_GAP_RESET, GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.calibration import (
     PARAM_MAX,
     STRAIN_MAX,
@@ -31,7 +31,7 @@ from strain_comp.core.calibration import (
 )
 from strain_comp.core.calibration_file import check_calibration
 from strain_comp.core.chain import pair_values
-from strain_comp.core.engine import GAP_RESET, Engine
+from strain_comp.core.engine import Engine
 from strain_comp.core.metrics import error_stats
 from strain_comp.core.tare import rest_resistance_from_reference
 from strain_comp.errors import CalibrationError, FitError, InputError, StrainCompError
@@ -70,8 +70,6 @@ _OWN_OPTIONS = (*DIRECTION_OPTIONS, *FIT_OPTIONS)
 """Options ``fit_sensor`` takes itself; the others go to the model's ``fit``."""
 
 
-GAP_SECONDS = GAP_RESET
-"""A step between good samples longer than this [s] cuts a segment (engine ``gap_reset``)."""
 MIN_SEGMENT = 8
 """Segments with fewer good samples are not used for fitting."""
 MIN_SPAN = 1e-9
@@ -81,7 +79,7 @@ TRAINING_WIDENING = 0.05
 
 
 def split_segments(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
-                   gap: float = GAP_SECONDS) -> list[Segment]:
+                   gap: float = DEFAULT_GAP_RESET) -> list[Segment]:
     """Good, referenced samples cut where the time steps back or forward by over ``gap``."""
     t = np.asarray(t, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
@@ -151,7 +149,7 @@ def slow_sample_interval(recordings: Sequence[Recording]) -> float | None:
     if not dt.size:
         return None
     interval = float(np.median(dt))
-    return interval if GAP_INTERVALS * interval > GAP_SECONDS else None
+    return interval if GAP_INTERVALS * interval > DEFAULT_GAP_RESET else None
 
 
 def training_rest_resistance(recordings: Sequence[Recording], *, pair: str = "mean",

@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from strain_comp.base.samples import DEFAULT_GAP_RESET
 from strain_comp.core.calibration import Calibration
-from strain_comp.core.engine import GAP_RESET, Engine
+from strain_comp.core.engine import Engine
 from strain_comp.core.fusion import SparseFusion
 from strain_comp.core.health import (
     HealthCounter,
@@ -303,7 +304,8 @@ def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np
 
 def replay_bag(in_path: str | os.PathLike[str], calibration: Calibration,
                out_path: str | os.PathLike[str], *, diagnostics_period: float = 1.0,
-               gap_reset: float = GAP_RESET, window: int = WINDOW, tare: str = "calibration",
+               gap_reset: float = DEFAULT_GAP_RESET, window: int = WINDOW,
+               tare: str = "calibration",
                inputs: Sequence[str | os.PathLike[str]] = (),
                csv: str | os.PathLike[str] | None = None,
                references_every: float | None = None) -> ReplaySummary:

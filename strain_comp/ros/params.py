@@ -15,9 +15,10 @@ from typing import Any
 import yaml
 
 from strain_comp import models  # noqa: F401  (registers the families calibrations name)
+from strain_comp.base.samples import DEFAULT_GAP_RESET
 from strain_comp.core.calibration import Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
-from strain_comp.core.engine import GAP_RESET, Engine
+from strain_comp.core.engine import Engine
 from strain_comp.core.tare import TARE_MODES
 from strain_comp.errors import InputError, ParameterError
 
@@ -45,7 +46,7 @@ TUNABLES: tuple[ParamSpec, ...] = (
     ParamSpec("stale_after_s", "double", 1.0, (0.001, 3600.0),
               "Diagnostics report a sensor STALE after this long without a good sample [s].",
               False),
-    ParamSpec("gap_reset_s", "double", GAP_RESET, (0.001, 3600.0),
+    ParamSpec("gap_reset_s", "double", DEFAULT_GAP_RESET, (0.001, 3600.0),
               "A jump between good samples longer than this resets the model state [s].", False),
     ParamSpec("diagnostics_period_s", "double", 1.0, (0.01, 60.0),
               "Period of the /diagnostics publication [s].", True),

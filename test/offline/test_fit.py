@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from strain_comp.base.samples import DEFAULT_GAP_RESET
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import load_calibration, save_calibration
 from strain_comp.core.engine import Engine
@@ -15,7 +16,6 @@ from strain_comp.errors import FitError, InputError, ParameterError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.deadzone import DEADZONE_FRACTION, find_hold, movement_rate
 from strain_comp.offline.fit import (
-    GAP_SECONDS,
     MIN_SEGMENT,
     TRAINING_WIDENING,
     fit_sensor,
@@ -108,12 +108,12 @@ def test_segments_cut_at_gaps_not_at_isolated_bad_samples() -> None:
     r = 100.0 + t
     s = t.copy()
     r[50] = np.nan  # isolated bad sample: no cut
-    gap = (t > 10.0) & (t < 10.0 + GAP_SECONDS + 1.0)  # a long stretch of bad samples: cut
+    gap = (t > 10.0) & (t < 10.0 + DEFAULT_GAP_RESET + 1.0)  # a long stretch of bad samples: cut
     r[gap] = 0.0
     t_short = t.copy()
     segments = split_segments(t_short, r, s)
     assert len(segments) == 2
-    assert segments[0].t[-1] <= 10.0 and segments[1].t[0] >= 10.0 + GAP_SECONDS
+    assert segments[0].t[-1] <= 10.0 and segments[1].t[0] >= 10.0 + DEFAULT_GAP_RESET
     assert segments[0].t.size == np.sum(t <= 10.0) - 1
     # a stretch shorter than MIN_SEGMENT samples between two gaps is dropped
     t2 = np.concatenate([np.arange(0, 5, 0.1), 20 + 0.1 * np.arange(MIN_SEGMENT - 1),
