@@ -168,7 +168,8 @@ def resolve_path(value: str, base_dir: Path | None) -> Path:
         shares.append(Path(get_package_share_directory(PACKAGE)))
     except (ImportError, LookupError, OSError):  # no ament index (AMENT_PREFIX_PATH unset)
         pass  # or the package is not in it
-    shares += [Path(sys.prefix) / "share" / PACKAGE, Path(__file__).resolve().parent.parent]
+    checkout = Path(__file__).resolve().parents[2]  # an editable install has no share dir
+    shares += [Path(sys.prefix) / "share" / PACKAGE, checkout]
     bases = [base_dir if base_dir is not None else Path.cwd()]
     for share in shares:
         bases += [share, share / "config"]
