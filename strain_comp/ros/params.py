@@ -16,11 +16,19 @@ import yaml
 
 from strain_comp import models  # noqa: F401  (registers the families calibrations name)
 from strain_comp.base.samples import DEFAULT_GAP_RESET
-from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.calibration import (
+    MAX_ALIASES,
+    MAX_DEPTH,
+    MAX_FILE_BYTES,
+    MAX_NODES,
+    Calibration,
+    SensorCalibration,
+)
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import TARE_MODES
 from strain_comp.errors import InputError, ParameterError
+from strain_comp.io.safe_yaml import LimitError, load_limited
 
 PACKAGE = "strain_comp"
 
@@ -294,9 +302,16 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
     """A params file's top-level node blocks (names without a leading '/')."""
     path = Path(path)
     try:
-        root = yaml.safe_load(path.read_text(encoding="utf-8"))
+        with path.open("rb") as handle:  # the budget of a calibration file
+            data = handle.read(MAX_FILE_BYTES + 1)
+        if len(data) > MAX_FILE_BYTES:
+            raise InputError(f"{path}: params file refused: larger than {MAX_FILE_BYTES} bytes")
+        root = load_limited(data.decode("utf-8"), max_aliases=MAX_ALIASES, max_nodes=MAX_NODES,
+                            max_depth=MAX_DEPTH)
     except OSError as err:
         raise InputError(f"{path}: cannot read params file: {err.strerror or err}") from None
+    except LimitError as err:
+        raise InputError(f"{path}: params file refused: {err}") from None
     except (UnicodeDecodeError, yaml.YAMLError) as err:
         raise InputError(f"{path}: not a YAML params file: "
                          + " ".join(str(err).split())) from None

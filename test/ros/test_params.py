@@ -104,6 +104,19 @@ def test_a_relative_calibration_falls_back_to_the_source_checkout(tmp_path: Path
     assert resolve_path("missing.yaml", tmp_path) == tmp_path / "missing.yaml"
 
 
+def test_a_hostile_params_file_is_refused_in_one_line(tmp_path: Path) -> None:
+    laughs = "a: &a [x,x,x,x,x,x,x,x,x,x]\n" + "".join(
+        f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n"
+        for p, c in zip("abcdefgh", "bcdefghi", strict=True))
+    path = tmp_path / "p.yaml"
+    path.write_text(laughs)
+    with pytest.raises(InputError, match="params file refused: more than"):
+        load_params(path)
+    path.write_bytes(b"#" * (9 * 2**20))
+    with pytest.raises(InputError, match="params file refused: larger than"):
+        load_params(path)
+
+
 def test_file_structure_errors(tmp_path: Path) -> None:
     path = tmp_path / "p.yaml"
     path.write_text("a: {ros__parameters: {}}\nb: {ros__parameters: {}}\n")
