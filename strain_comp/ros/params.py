@@ -16,14 +16,7 @@ import yaml
 
 from strain_comp import models  # noqa: F401  (registers the families calibrations name)
 from strain_comp.base.samples import DEFAULT_GAP_RESET
-from strain_comp.core.calibration import (
-    MAX_ALIASES,
-    MAX_DEPTH,
-    MAX_FILE_BYTES,
-    MAX_NODES,
-    Calibration,
-    SensorCalibration,
-)
+from strain_comp.core.calibration import MAX_FILE_BYTES, Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import TARE_MODES
@@ -302,12 +295,11 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
     """A params file's top-level node blocks (names without a leading '/')."""
     path = Path(path)
     try:
-        with path.open("rb") as handle:  # the budget of a calibration file
+        with path.open("rb") as handle:  # a calibration file's size budget
             data = handle.read(MAX_FILE_BYTES + 1)
         if len(data) > MAX_FILE_BYTES:
             raise InputError(f"{path}: params file refused: larger than {MAX_FILE_BYTES} bytes")
-        root = load_limited(data.decode("utf-8"), max_aliases=MAX_ALIASES, max_nodes=MAX_NODES,
-                            max_depth=MAX_DEPTH)
+        root = load_limited(data.decode("utf-8"))
     except OSError as err:
         raise InputError(f"{path}: cannot read params file: {err.strerror or err}") from None
     except LimitError as err:
