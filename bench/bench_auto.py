@@ -33,7 +33,7 @@ def runs(seconds: float) -> list[Recording]:
     """The training runs, sensor s1."""
     out = []
     for scenario in SCENARIOS:
-        out.append(rig.simulate(scenario, seed=0, duration=seconds).sensors["s1"])
+        out.append(rig.simulate(scenario, seed=0, duration=seconds)["s1"])
     return out
 
 

@@ -60,7 +60,7 @@ def training_recording(scenario: str, n: int) -> Recording:
     """``n`` samples of a rig scenario (repeated as needed), sensor s1."""
     fs = {"rates": 25.0, "steps": 50.0}[scenario]
     run = rig.simulate(scenario, seed=0, duration=(n + 1) / fs)
-    s1 = run.sensors["s1"]
+    s1 = run["s1"]
     return Recording("s1", s1.t[:n], s1.r[:n], s1.s[:n])
 
 

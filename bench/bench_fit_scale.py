@@ -82,7 +82,7 @@ def make_bag(path: Path, n: int) -> None:
     base = 25.0
     up = max(1, round(n / (1000 * base)))  # about 1000 s of motion, resampled to n
     run = rig.simulate("rates", seed=0, duration=n / (up * base) + 1.0)
-    s1 = run.sensors["s1"]
+    s1 = run["s1"]
     t = np.arange(n) / (up * base)
     rng = np.random.default_rng(1)
     r = np.interp(t, s1.t, s1.r)

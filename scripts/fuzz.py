@@ -131,7 +131,7 @@ def seed_calibration(fitted: dict[str, SensorCalibration]) -> Calibration:
 
 def fit_every_model() -> dict[str, SensorCalibration]:
     """Each model fitted quickly on 60 s of the rig's random scenario (a sound seed)."""
-    rec = replace(simulate("random", seed=2, duration=60.0).sensors["s1"], name="s")
+    rec = replace(simulate("random", seed=2, duration=60.0)["s1"], name="s")
     fitted = {}
     for model in MODEL_NAMES:
         options: dict[str, Any] = {"tau": 0.2}

@@ -78,7 +78,7 @@ class SoakResult:
 
 def fit_calibration(model: str) -> SensorCalibration:
     """``model`` fitted on 120 s of the rig's random ramps and holds (50 Hz)."""
-    rec = simulate("random", seed=1, duration=120.0).sensors["s1"]
+    rec = simulate("random", seed=1, duration=120.0)["s1"]
     options: dict[str, object] = {"tau": 0.2}
     if model == "rational":
         options["mode"] = "split"

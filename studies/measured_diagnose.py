@@ -109,7 +109,7 @@ def carry_recording(spec: dict, run: str, name: str) -> Any:
     from strain_comp.offline.rig import simulate
 
     if spec["format"] == "rig":
-        sim = simulate(run, seed=1).sensors["s1"]
+        sim = simulate(run, seed=1)["s1"]
         return Recording(name, sim.t, sim.r, sim.s)
     return import_csv(Path(spec["data"]) / spec["dir"] / run, fmt=spec["format"], sensor=name,
                       columns=spec.get("columns"), scales=spec.get("scales")).recording

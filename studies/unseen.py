@@ -81,7 +81,7 @@ CASES: dict[str, tuple[str, Callable[[Run, int], Run]]] = {
 
 def write_bag(path: Path, scenario: str, seed: int, change: Callable[[Run, int], Run]) -> float:
     """The case's bag of one rig run; returns the reference's standard deviation."""
-    sensor = simulate(scenario, seed=seed, effects=RigEffects()).sensors["s1"]
+    sensor = simulate(scenario, seed=seed, effects=RigEffects())["s1"]
     t, r, s = change((sensor.t, sensor.r, sensor.s), seed)
     with BagWriter(path) as writer:
         writer.write_float64("/s1/resistance", t, r)

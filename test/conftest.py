@@ -163,7 +163,7 @@ Every model gets tau = 0.2 s: it smooths the derivative enough for the 50 Hz rig
 @functools.cache
 def training_recording() -> Recording:
     """120 s of the rig's random ramps and holds (50 Hz, noise, hysteresis, relaxation)."""
-    return simulate("random", seed=1, duration=120.0).sensors["s1"]
+    return simulate("random", seed=1, duration=120.0)["s1"]
 
 
 FITS = "STRAIN_COMP_TEST_FITS"

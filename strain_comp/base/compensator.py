@@ -37,12 +37,10 @@ class Normalisation:
 
     @classmethod
     def fit(cls, r: npt.ArrayLike, s: npt.ArrayLike) -> Normalisation:
-        """The normalisation that maps the finite samples' ranges onto [-1, 1]."""
+        """The normalisation that maps the samples' ranges onto [-1, 1]."""
         r = np.asarray(r, dtype=np.float64)
         s = np.asarray(s, dtype=np.float64)
-        ok = np.isfinite(r) & np.isfinite(s)
-        return cls.from_ranges(float(r[ok].min()), float(r[ok].max()),
-                               float(s[ok].min()), float(s[ok].max()))
+        return cls.from_ranges(float(r.min()), float(r.max()), float(s.min()), float(s.max()))
 
     def xi(self, r: npt.ArrayLike) -> np.ndarray:
         """Normalised input xi = R / r0 + alpha."""
@@ -81,6 +79,7 @@ class Compensator(ABC):
     param_names: ClassVar[tuple[str, ...]] = ()  # what the default ``to_params`` writes
     # fit takes every sample in bounded memory, not the budget's low-passing reduction
     fit_full_rate: ClassVar[bool] = False
+    fit_report: dict[str, Any] | None = None  # what the fit chose (a memory model's memory)
 
     def __init__(self, normalisation: Normalisation) -> None:
         self.normalisation = normalisation

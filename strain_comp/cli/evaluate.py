@@ -19,7 +19,6 @@ from strain_comp.cli.common import (
 )
 from strain_comp.errors import InputError
 from strain_comp.io.atomic import check_distinct, write_text
-from strain_comp.io.inputs import existing
 
 if TYPE_CHECKING:
     from strain_comp.core.calibration import Calibration
@@ -83,7 +82,6 @@ def run(args: argparse.Namespace) -> int:
         check_every(args.references_every)
     for path in args.bags:
         bag(path)
-    existing(args.calibration, "calibration file")
     bags = expand_bags(args.bags)  # a folder's bags exist: the given paths were checked
     inputs = [*bags, args.calibration]
     calibration = api.load_calibration(args.calibration)  # a bad one: one line before any bag

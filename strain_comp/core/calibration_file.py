@@ -196,8 +196,6 @@ class _Reader:
             raise self.fail(f"{where}.effects", "must be a list")
         for i, effect in enumerate(effects):
             effect = self.mapping(effect, f"{where}.effects.{i}")
-            if not isinstance(effect.get("name"), str):
-                raise self.fail(f"{where}.effects.{i}.name", "missing or not a string")
             try:
                 validate_effect_dict(effect)
             except ParameterError as err:

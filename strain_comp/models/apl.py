@@ -88,7 +88,6 @@ class CellModel(Compensator):
                                normalisation.s0, normalisation.beta])
         self.x = np.zeros(n)
         self._clock = np.zeros(2)
-        self.fit_report: dict[str, Any] | None = None
         self.reset()
 
     def reset(self) -> None:

@@ -84,7 +84,6 @@ class CreepPI(Compensator):
         self.play = np.zeros(self._widths.size)
         self._clock = np.zeros(3)
         self._decay = np.zeros(self.taus.size)
-        self.fit_report: dict[str, Any] | None = None
         self.reset()
 
     def reset(self) -> None:

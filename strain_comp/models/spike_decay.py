@@ -165,22 +165,3 @@ def _require_matrix(params: Mapping[str, Any], key: str, shape: tuple[int, int],
                            strict=True)
             for i, row in enumerate(value)]
     return np.array(rows, dtype=np.float64).reshape(shape)
-
-
-def recalibrate_two_point(model: SpikeDecay, point_a: tuple[float, float],
-                          point_b: tuple[float, float]) -> SpikeDecay:
-    """A copy of ``model`` with f scaled and shifted (a f + b) through two points."""
-    (eps_a, r_a), (eps_b, r_b) = point_a, point_b
-    f_a, f_b = (f_eval(model.knots, model.c, float(e)) for e in (eps_a, eps_b))
-    if f_a == f_b:
-        raise ParameterError("point_b", "the two strains give one resistance on f; use two "
-                             "different strains in the monotone range")
-    a = (r_b - r_a) / (f_b - f_a)
-    b = r_a - a * f_a
-    if not (np.isfinite(a) and a != 0.0):
-        raise ParameterError("point_b", "the two resistances must differ")
-    c = model.c * a
-    c[:, 0] += b
-    return SpikeDecay(model.knots, c, (model.lo, model.hi), model.rates, model.strains,
-                      model.s_table, model.lam_table, model.min_step, model.normalisation,
-                      model.direction)

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
+from strain_comp.base.compensator import Compensator
 from strain_comp.base.samples import DEFAULT_GAP_RESET, GAP_INTERVALS, gap_for, good_mask
 from strain_comp.core.calibration import (
     PARAM_MAX,
@@ -423,9 +424,9 @@ def _check_usable(calibration: SensorCalibration) -> None:
                        f"{err.problem}; try another model (apl, cubic)") from None
 
 
-def memory_reading(compensator: Any) -> dict[str, Any] | None:
+def memory_reading(compensator: Compensator) -> dict[str, Any] | None:
     """What a model with memory cells (APL, PL, MPI) kept of its memory, from its fit report."""
-    report = getattr(compensator, "fit_report", None)
+    report = compensator.fit_report
     if not report or "memoryless" not in report:
         return None
     return {"memory_share": round(float(report["memory_share"]), 4),

@@ -4,7 +4,7 @@ after the Electrolycra sensor of [Electrolycra]; its model and effects: docs/arc
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,14 +105,6 @@ class SensorSpec:
     r0: float = 11.5
     gain: float = 0.03
     s_sat: float = 80.0
-
-
-@dataclass(frozen=True)
-class SimRun:
-    """The result of ``simulate``: the sample rate [Hz] and a recording per sensor."""
-
-    fs: float
-    sensors: dict[str, Recording]
 
 
 # --------------------------------------------------------------------------- profiles
@@ -318,8 +310,8 @@ def _read_out(r: np.ndarray, fx: RigEffects, rng: np.random.Generator) -> np.nda
 
 
 def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
-             duration: float | None = None) -> SimRun:
-    """Run a scenario on the rig; deterministic for a seed."""
+             duration: float | None = None) -> dict[str, Recording]:
+    """Run a scenario on the rig, a recording per sensor; deterministic for a seed."""
     check_size(scenario, seed=seed, duration=duration)
     sc = _SCENARIOS[scenario]
     fx = effects if effects is not None else dataclasses.replace(RigEffects(), **sc.effects)
@@ -355,27 +347,29 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
         chain = _chain(t, r[:, i], fx, np.random.default_rng([seed, 100 + i]))
         sensors[name] = Recording(name, t, _read_out(chain, fx, noise_rng), strain[:, i].copy(),
                                   temp, array, None if array is None else i)
-    return SimRun(fs=sc.fs, sensors=sensors)
+    return sensors
 
 
-def write_sim_bag(run: SimRun, path: str | Path, *, temperature_rate: float = 2.0) -> None:
-    """A SimRun as an MCAP bag: per sensor (or array) resistance, strain_reference, temperature."""
-    first = next(iter(run.sensors.values()))
-    step = max(1, round(run.fs / temperature_rate))
-    strains = [rec.s for rec in run.sensors.values() if rec.s is not None]  # the rig's: all
+def write_sim_bag(run: Mapping[str, Recording], path: str | Path, *,
+                  temperature_rate: float = 2.0) -> None:
+    """``simulate``'s recordings as an MCAP bag: resistance, strain_reference, temperature."""
+    first = next(iter(run.values()))
+    dt = first.t[1] - first.t[0] if first.t.size > 1 else 1.0
+    step = max(1, round(1.0 / (temperature_rate * dt)))
+    strains = [rec.s for rec in run.values() if rec.s is not None]  # the rig's: all
     with BagWriter(path) as writer:
         if first.array is not None:
-            names = list(run.sensors)
+            names = list(run)
             prefix = f"/{first.array}"
             writer.write_float64_array(f"{prefix}/resistance", first.t, np.column_stack(
-                [run.sensors[n].r for n in names]), names)
+                [run[n].r for n in names]), names)
             writer.write_float64_array(f"{prefix}/strain_reference", first.t,
                                        np.column_stack(strains), names)
             if first.temperature is not None:
                 writer.write_temperature(f"{prefix}/temperature", first.t[::step],
                                          first.temperature[::step])
             return
-        for (name, sensor), s in zip(run.sensors.items(), strains, strict=True):
+        for (name, sensor), s in zip(run.items(), strains, strict=True):
             writer.write_float64(f"/{name}/resistance", sensor.t, sensor.r)
             writer.write_float64(f"/{name}/strain_reference", sensor.t, s)
             if sensor.temperature is not None:

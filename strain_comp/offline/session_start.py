@@ -719,10 +719,8 @@ def session_forms(cal: SensorCalibration) -> tuple[str, ...]:
 def _check_named(calibration: Calibration, recordings: Mapping[str, Recording],
                  sensors: Sequence[str] | None, source: str) -> None:
     """InputError for a sensor named (``--sensor``) that the calibration or the run lacks."""
+    _calibrated(calibration, sensors)
     for name in sensors or ():
-        if name not in calibration.sensors:
-            raise InputError(f"recalibrate --sensor {name}: not in the calibration (its "
-                             f"sensors: {', '.join(calibration.sensors)})")
         if name not in recordings or recordings[name].s is None:
             raise InputError(f"recalibrate --sensor {name}: {source or 'the data'} holds no "
                              "recording of it with a strain reference")
@@ -781,8 +779,8 @@ def _calibrated(calibration: Calibration, sensors: Sequence[str] | None) -> None
     """InputError for a sensor of ``sensors`` the calibration lacks."""
     for name in sensors or ():
         if name not in calibration.sensors:
-            raise InputError(f"sensor {name!r} is not in the calibration "
-                             f"({', '.join(calibration.sensors)})")
+            raise InputError(f"sensor {name!r} is not in the calibration (its sensors: "
+                             f"{', '.join(calibration.sensors)})")
 
 
 def one_sensor(calibration: Calibration, sensors: Sequence[str] | None, what: str) -> str:

@@ -16,11 +16,12 @@ import yaml
 
 from strain_comp import models  # noqa: F401  (registers the families calibrations name)
 from strain_comp.base.samples import DEFAULT_GAP_RESET
-from strain_comp.core.calibration import Calibration, SensorCalibration
+from strain_comp.core.calibration import MAX_FILE_BYTES, Calibration, SensorCalibration
 from strain_comp.core.calibration_file import load_calibration
 from strain_comp.core.engine import Engine
 from strain_comp.core.tare import TARE_MODES
 from strain_comp.errors import InputError, ParameterError
+from strain_comp.io.safe_yaml import LimitError, load_limited
 
 PACKAGE = "strain_comp"
 
@@ -168,7 +169,8 @@ def resolve_path(value: str, base_dir: Path | None) -> Path:
         shares.append(Path(get_package_share_directory(PACKAGE)))
     except (ImportError, LookupError, OSError):  # no ament index (AMENT_PREFIX_PATH unset)
         pass  # or the package is not in it
-    shares += [Path(sys.prefix) / "share" / PACKAGE, Path(__file__).resolve().parent.parent]
+    checkout = Path(__file__).resolve().parents[2]  # an editable install has no share dir
+    shares += [Path(sys.prefix) / "share" / PACKAGE, checkout]
     bases = [base_dir if base_dir is not None else Path.cwd()]
     for share in shares:
         bases += [share, share / "config"]
@@ -293,9 +295,15 @@ def read_blocks(path: str | os.PathLike[str]) -> dict[str, Any]:
     """A params file's top-level node blocks (names without a leading '/')."""
     path = Path(path)
     try:
-        root = yaml.safe_load(path.read_text(encoding="utf-8"))
+        with path.open("rb") as handle:  # a calibration file's size budget
+            data = handle.read(MAX_FILE_BYTES + 1)
+        if len(data) > MAX_FILE_BYTES:
+            raise InputError(f"{path}: params file refused: larger than {MAX_FILE_BYTES} bytes")
+        root = load_limited(data.decode("utf-8"))
     except OSError as err:
         raise InputError(f"{path}: cannot read params file: {err.strerror or err}") from None
+    except LimitError as err:
+        raise InputError(f"{path}: params file refused: {err}") from None
     except (UnicodeDecodeError, yaml.YAMLError) as err:
         raise InputError(f"{path}: not a YAML params file: "
                          + " ".join(str(err).split())) from None

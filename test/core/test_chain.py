@@ -378,14 +378,14 @@ def test_one_adc_step_of_flicker_in_a_quiet_hold_is_no_spike() -> None:
     from strain_comp.offline.rig import RigEffects, simulate
 
     clean = RigEffects(relaxation=0.0)
-    run = simulate("steps", seed=13, effects=clean).sensors["s1"]
+    run = simulate("steps", seed=13, effects=clean)["s1"]
     hold = run.r[(run.s == 40.0)]
     changes = np.abs(np.diff(hold))
     assert np.mean(changes == 0.0) > 0.3  # stuck on one ADC step for runs of samples
     assert np.min(changes[changes > 0]) > 2.0 * clean.noise  # a step exceeds the noise
     _, events, corrector = correct(run.t, run.r, alternating=False)
     assert corrector.n_spikes == 0 and not np.any(events == SPIKE)
-    spiky = simulate("steps", seed=13, effects=replace(clean, spikes=0.002)).sensors["s1"]
+    spiky = simulate("steps", seed=13, effects=replace(clean, spikes=0.002))["s1"]
     injected = np.count_nonzero(np.abs(spiky.r - run.r) > 0.25)
     _, _, corrector = correct(spiky.t, spiky.r, alternating=False)
     assert injected > 10 and corrector.n_spikes == injected

@@ -446,7 +446,7 @@ def test_a_reference_the_sensor_does_not_follow_gets_one_term_and_no_rounding_te
     """The reference stays at 0 % while the resistance moves (a sensor off the specimen):
     one gain term explains the residual whole, its reading says so, and nothing is added
     after it to "explain" what is left, rounding at 1e-15 % strain."""
-    sim = simulate("random", seed=1).sensors["s1"]
+    sim = simulate("random", seed=1)["s1"]
     calibration = Calibration({"s1": fit_sensor([sim], "cubic", name="s1")})
     i = np.arange(2000)
     data = {"s1": Recording("s1", i * 20_000_000 * 1e-9, 10.0 + np.sin(0.02 * i),

@@ -41,7 +41,7 @@ def prony_creep(t: np.ndarray, r: np.ndarray, tau: float, weight: float) -> np.n
 
 def run(scenario: str, seed: int, tau: float | None = None, weight: float = 0.0
         ) -> dict[str, Recording]:
-    sim = simulate(scenario, seed=seed, effects=RigEffects(**CLEAN)).sensors["s1"]
+    sim = simulate(scenario, seed=seed, effects=RigEffects(**CLEAN))["s1"]
     r = sim.r if tau is None else prony_creep(sim.t, sim.r, tau, weight)
     return {"s1": Recording("s1", sim.t, r, sim.s)}
 

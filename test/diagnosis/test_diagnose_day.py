@@ -34,7 +34,7 @@ DRIFT = -0.1 / 60.0
 def day_run(seed: int, drift: float) -> dict[str, Recording]:
     """A rig run of the ``random`` scenario (300 s) whose sensitivity drifts by ``drift``
     per second from its first sample."""
-    sim = simulate("random", seed=seed, effects=CLEAN).sensors["s1"]
+    sim = simulate("random", seed=seed, effects=CLEAN)["s1"]
     rest = float(sim.r[0])
     r = rest + (sim.r - rest) * (1.0 + drift * (sim.t - sim.t[0]))
     return {"s1": Recording("s1", sim.t, r, sim.s)}
@@ -42,7 +42,7 @@ def day_run(seed: int, drift: float) -> dict[str, Recording]:
 
 @pytest.fixture(scope="module")
 def day1() -> Calibration:
-    sim = simulate("patterns", seed=0, effects=CLEAN).sensors["s1"]
+    sim = simulate("patterns", seed=0, effects=CLEAN)["s1"]
     return Calibration({"s1": fit_sensor([sim], "cubic", name="s1")})
 
 

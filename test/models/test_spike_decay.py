@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+import strain_comp as sc
 from strain_comp.base.compensator import Normalisation, Segment
 from strain_comp.base.direction import DirectionSettings
+from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.errors import ParameterError
-from strain_comp.models.spike_decay import SpikeDecay, recalibrate_two_point
+from strain_comp.models.spike_decay import SpikeDecay
 
 NORM = Normalisation(1.0, 0.0, 1.0, 0.0)  # unused by this model
 DIRECTION = DirectionSettings(deadzone=4.0, tau=0.05)
@@ -199,15 +201,18 @@ def test_non_monotone_f_is_inverted_on_its_monotone_branch() -> None:
 
 
 def test_two_point_recalibration_maps_a_scaled_sensor_back() -> None:
+    # the paper's recalibration of another sensor of the same make (f_new = a f + b) at 0 %
+    # and 15 %: two points through the calibration's input correction
     m = truth_model()
     new_f = lambda e: 1.3 * m.f(e) - 250.0  # noqa: E731  another sensor of the same make
-    cal = recalibrate_two_point(m, (0.0, float(new_f(0.0))), (15.0, float(new_f(15.0))))
+    cal = Calibration({"s1": SensorCalibration(
+        name="s1", model="spike_decay", params=m.to_params(), normalisation=NORM,
+        valid_range=ValidRange(1000.0, 2650.0, 0.0, 15.0), direction=DIRECTION)})
+    points = [(float(new_f(0.0)), 0.0), (float(new_f(15.0)), 15.0)]
+    new = sc.recalibrate(cal, points=points, form="input").calibration
     grid = np.linspace(0, 15, 31)
-    np.testing.assert_allclose(cal.f(grid), new_f(grid), rtol=1e-12)
-    est = cal.run(np.arange(grid.size) * 10.0, new_f(grid))  # 10 s apart: holds
-    np.testing.assert_allclose(est, grid, atol=1e-9)
-    with pytest.raises(ParameterError, match="point_b"):
-        recalibrate_two_point(m, (5.0, 1.0), (5.0, 2.0))
+    est = sc.estimate(new, np.arange(grid.size) * 10.0, new_f(grid))  # 10 s apart: holds
+    np.testing.assert_allclose(est.strain, grid, atol=1e-9)
 
 
 def test_params_round_trip_and_errors() -> None:

@@ -205,7 +205,7 @@ def test_samples_stamped_in_bursts_get_a_filter_of_two_intervals_and_a_working_d
     on 4 moving samples of 5 (0.96 on the regular stamps; the bursts' noise stays)."""
     from strain_comp.offline.rig import simulate
 
-    sim = simulate("random", seed=1).sensors["s1"]
+    sim = simulate("random", seed=1)["s1"]
     rng = np.random.default_rng(3)
     late = np.maximum.accumulate(sim.t + rng.uniform(0.0, 0.035, sim.t.size))
     late += 1e-6 * np.arange(sim.t.size)
@@ -232,7 +232,7 @@ def test_a_slow_instrument_is_fitted_and_run_without_a_reset_at_every_sample(
     from strain_comp.base.samples import Status
     from strain_comp.offline.rig import RigEffects, simulate
 
-    sim = simulate("long", seed=1, effects=RigEffects()).sensors["s1"]
+    sim = simulate("long", seed=1, effects=RigEffects())["s1"]
     t, r, s = sim.t[::50], sim.r[::50], sim.s[::50]
     cal = fit_sensor([recording(t, r, s)], "pl", name="s1")
     assert cal.sample_interval == pytest.approx(10.0)

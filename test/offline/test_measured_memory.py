@@ -28,7 +28,7 @@ def test_effect_fit_is_least_squares_on_the_online_term_across_reference_gaps() 
     assert spec is not None and spec.loader is not None
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
-    sensor = next(iter(simulate("steps", seed=3, duration=300.0).sensors.values()))
+    sensor = next(iter(simulate("steps", seed=3, duration=300.0).values()))
     s = np.where((sensor.t > 100.0) & (sensor.t < 140.0), np.nan, sensor.s)
     rec = Recording("s1", sensor.t, sensor.r, s)
     name = "resistance_relaxation_tau16"

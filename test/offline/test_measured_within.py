@@ -29,7 +29,7 @@ def measured() -> ModuleType:
 @functools.cache
 def steps_recording() -> Recording:
     """300 s of the rig's 0-40 % steps with 30 s holds (relaxation after each step)."""
-    return simulate("steps", seed=3, duration=300.0).sensors["s1"]
+    return simulate("steps", seed=3, duration=300.0)["s1"]
 
 
 def _tail_changed(rec: Recording) -> Recording:

@@ -322,6 +322,5 @@ def test_recalibrate_refuses_a_sensor_the_calibration_lacks(
     assert cli(["recalibrate", str(path), "--from", str(bag), "--sensor", "S2", "--out",
                 str(path.with_name("out.yaml"))]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == ("strain-comp: error: recalibrate --sensor S2: not in the calibration (its "
-                   "sensors: s1)")
+    assert err == "strain-comp: error: sensor 'S2' is not in the calibration (its sensors: s1)"
     assert not path.with_name("out.yaml").exists() and path.read_bytes() == before

@@ -111,7 +111,7 @@ def test_reduced_fit_error_on_the_full_data_is_close_to_the_full_fit() -> None:
     fitted on a reduction by 7 and on every sample, both scored on every sample (the
     ``fit_rmse`` the provenance reports)."""
     run = rig.simulate("rates", seed=0, duration=120.0)
-    s1 = run.sensors["s1"]
+    s1 = run["s1"]
     t = np.arange(0.0, s1.t[-1], 0.008)
     rng = np.random.default_rng(1)
     r = np.interp(t, s1.t, s1.r) + 0.002 * np.std(s1.r) * \

@@ -19,7 +19,7 @@ GAIN = 1.3
 
 
 def rig_run() -> Recording:
-    return simulate("triangle", seed=2, duration=170.0).sensors["s1"]
+    return simulate("triangle", seed=2, duration=170.0)["s1"]
 
 
 @pytest.mark.parametrize("model", ["cubic", "mpi", "apl"])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +12,13 @@ from conftest import cubic_cal
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration
 from strain_comp.errors import InputError, ParameterError, StrainCompError
-from strain_comp.ros.params import TUNABLES, load_params, parse_values, validate_tunable
+from strain_comp.ros.params import (
+    TUNABLES,
+    load_params,
+    parse_values,
+    resolve_path,
+    validate_tunable,
+)
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 
@@ -84,6 +91,30 @@ def test_integers_accepted_for_floats_and_paths_beside_the_file(tmp_path: Path,
     params = load_params(path)
     assert params.tunables["stale_after_s"] == 2.0
     assert params.inputs[0].calibration_path == tmp_path / "one.yaml"
+
+
+def test_a_relative_calibration_falls_back_to_the_source_checkout(tmp_path: Path,
+                                                                  monkeypatch: Any) -> None:
+    # an editable install has no share dir and no ament index: config/ of the checkout serves
+    monkeypatch.setitem(sys.modules, "ament_index_python.packages", None)
+    monkeypatch.setattr(sys, "prefix", str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    assert resolve_path("demo_calibration.yaml", tmp_path) == CONFIG / "demo_calibration.yaml"
+    assert resolve_path("config/demo_calibration.yaml", None) == CONFIG / "demo_calibration.yaml"
+    assert resolve_path("missing.yaml", tmp_path) == tmp_path / "missing.yaml"
+
+
+def test_a_hostile_params_file_is_refused_in_one_line(tmp_path: Path) -> None:
+    laughs = "a: &a [x,x,x,x,x,x,x,x,x,x]\n" + "".join(
+        f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n"
+        for p, c in zip("abcdefgh", "bcdefghi", strict=True))
+    path = tmp_path / "p.yaml"
+    path.write_text(laughs)
+    with pytest.raises(InputError, match="params file refused: more than"):
+        load_params(path)
+    path.write_bytes(b"#" * (9 * 2**20))
+    with pytest.raises(InputError, match="params file refused: larger than"):
+        load_params(path)
 
 
 def test_file_structure_errors(tmp_path: Path) -> None:
