@@ -217,7 +217,6 @@ def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
     return fields, short
 
 
-
 def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
                short: npt.NDArray[np.bool_], report: ImportReport) -> npt.NDArray[np.bool_]:
     """The rows kept, the others counted by reason in ``report.dropped``."""

@@ -287,8 +287,6 @@ class _Replay:
         return ref.t, ref.values if column is None else ref.values[:, column]
 
 
-
-
 def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np.ndarray,
           src_v: np.ndarray, t: np.ndarray) -> np.ndarray | None:
     """``hold_latest`` carried across pieces in ``latest``; None: no sample yet."""
