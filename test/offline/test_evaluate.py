@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.samples import good_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
@@ -43,6 +44,20 @@ def recording(name: str = "s1", *, with_reference: bool = True) -> Recording:
     return Recording(name=name, t=t, r=r, s=s if with_reference else None, temperature=None,
                      array=None, index=None)
 
+
+def test_recordings_with_bad_time_stamps_score_each_sample_on_its_own_reference() -> None:
+    """NaN stamps, a repeated one and a step back: screened by the engine as in a bag's
+    replay, every other sample scored against the reference recorded with it."""
+    t, r, s = data()
+    t[[300, 600, 900, 1200, 1500, -1]] = [np.nan, np.nan, t[899], np.nan, t[1500] - 0.5,
+                                          np.nan]
+    rec = Recording(name="s1", t=t, r=r, s=s)
+    got = evaluate_recordings({"s1": rec}, calibration()).sensors["s1"]
+    good = good_mask(t, r)
+    expected = error_stats(0.5 * r[good] - 50.0, s[good])
+    assert got.stats.n == expected.n == t.size - 9
+    assert got.stats.rmse == pytest.approx(expected.rmse, rel=1e-12)
+    assert (got.n_samples, got.n_bad) == (t.size, 9)
 
 def test_table_and_json_equal_independent_error_stats() -> None:
     result = evaluate_recordings({"s1": recording()}, calibration())
