@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, Series, located, read_bag
+from strain_comp.io.bag import BagContents, BagWriter, Series, located, read_bag
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -371,6 +371,22 @@ def _put(contents: BagContents, prefix: str, recs: Mapping[str, Recording]) -> N
                 t, np.asarray(rec.temperature, dtype=np.float64))
 
 
+def write_recordings(recordings: Mapping[str, Recording], path: str | Path, *,
+                     inputs: Sequence[str | Path] = (), temperature_every: int = 1) -> None:
+    """Recordings (by sensor name) into a new MCAP bag, atomically, on the topics
+    ``as_contents`` gives them; each temperature read every ``temperature_every`` samples."""
+    contents = as_contents({name.strip("/"): rec for name, rec in recordings.items()})
+    with BagWriter(path, inputs=inputs) as writer:
+        for topic, series in contents.series.items():
+            if topic.endswith(TEMPERATURE):
+                writer.write_temperature(topic, series.t[::temperature_every],
+                                         series.values[::temperature_every])
+            elif series.values.ndim == 2:
+                writer.write_float64_array(topic, series.t, series.values, contents.labels[topic])
+            else:
+                writer.write_float64(topic, series.t, series.values)
+
+
 def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     """Read a bag into recordings (in pieces, without the whole-bag budget)."""
     contents = read_bag(path, budget=False)
@@ -379,4 +395,4 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
 
 
 __all__ = ["PieceAlign", "Recording", "align", "as_contents", "hold_latest", "load_recordings",
-           "reference_columns", "temperature_series", "topic_sensors"]
+           "reference_columns", "temperature_series", "topic_sensors", "write_recordings"]

@@ -130,7 +130,7 @@ def test_a_temperature_term_without_temperature_in_the_data_is_noted(tmp_path: P
     in memory and streamed alike; with temperature, no note and the term applies."""
     from dataclasses import replace
 
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
     from strain_comp.offline.evaluate import evaluate_bag
 
     bare = calibration()
@@ -145,14 +145,14 @@ def test_a_temperature_term_without_temperature_in_the_data_is_noted(tmp_path: P
     assert without.sensors["s1"].stats.rmse == evaluate_recordings(
         {"s1": rec}, bare).sensors["s1"].stats.rmse
     path = tmp_path / "no_temperature.mcap"
-    write_recording_bag(rec, path)
+    write_recordings({rec.name: rec}, path)
     streamed, _ = evaluate_bag(path, cal, window=500)
     assert note in format_notes(streamed)
     warm = replace(rec, temperature=np.full(rec.t.size, 25.0))
     with_t = evaluate_recordings({"s1": warm}, cal)
     assert not any("temperature" in line for line in format_notes(with_t))
     path = tmp_path / "temperature.mcap"
-    write_recording_bag(warm, path)
+    write_recordings({warm.name: warm}, path)
     streamed, _ = evaluate_bag(path, cal, window=500)
     assert not any("temperature" in line for line in format_notes(streamed))
     assert streamed.sensors["s1"].stats.rmse != without.sensors["s1"].stats.rmse
