@@ -1,4 +1,4 @@
-"""Tensile-tester CSVs into Recordings and bags (docs/csv.md: formats, columns, units).
+"""Tensile-tester CSVs into Recordings (docs/csv.md: formats, columns, units).
 Bad rows are dropped and counted, not flagged: an imported recording is training and
 evaluation data; fault handling is exercised on bags."""
 
