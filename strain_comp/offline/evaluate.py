@@ -257,7 +257,7 @@ class Scorer:
         names: list[str] = []
         columns: list[int] = []
         for j, name in enumerate(labels):
-            if not single and name in self.names:
+            if name in self.names:
                 self._problem(f"{topic}: sensor {name} appears twice; column {j} skipped")
                 continue
             self.names.append(name)

@@ -13,9 +13,10 @@ from strain_comp.base.samples import good_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
-from strain_comp.io.recording import Recording
+from strain_comp.io.bag import BagWriter
+from strain_comp.io.recording import Recording, load_recordings
 from strain_comp.models import Normalisation
-from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import format_notes, format_table
 
 C = [-50.0, 0.5, 0.0, 0.0]  # S = 0.5 R - 50: R in [100, 150] ohm -> S in [0, 25] %
@@ -58,6 +59,26 @@ def test_recordings_with_bad_time_stamps_score_each_sample_on_its_own_reference(
     assert got.stats.n == expected.n == t.size - 9
     assert got.stats.rmse == pytest.approx(expected.rmse, rel=1e-12)
     assert (got.n_samples, got.n_bad) == (t.size, 9)
+
+def test_a_sensor_on_two_topics_is_scored_once_as_the_recordings_read_it(tmp_path: Path
+                                                                          ) -> None:
+    """An array's label that another topic also names: the bag is scored as
+    ``load_recordings`` reads it, the first topic's samples, the other skipped and said."""
+    t, r, s = data()
+    path = tmp_path / "twice.mcap"
+    with BagWriter(path) as writer:
+        writer.write_float64_array("/arr/resistance", t, np.column_stack([r, r]), ["s1", "b"])
+        writer.write_float64_array("/arr/strain_reference", t, np.column_stack([s, s]),
+                                   ["s1", "b"])
+        writer.write_float64("/s1/resistance", t, r + 20.0)
+        writer.write_float64("/s1/strain_reference", t, s)
+    recordings, read = load_recordings(path)
+    streamed, problems = evaluate_bag(path, calibration())
+    whole = evaluate_recordings(recordings, calibration()).sensors["s1"].stats
+    assert streamed.sensors["s1"].stats == whole
+    assert whole.n == t.size - 3
+    assert problems == read == [f"{path}: /s1/resistance: sensor s1 appears twice; column 0 "
+                                "skipped"]
 
 def test_table_and_json_equal_independent_error_stats() -> None:
     result = evaluate_recordings({"s1": recording()}, calibration())
