@@ -1041,7 +1041,8 @@ def check_csv(path: Path, rng: np.random.Generator) -> bool:
     with InputError (one line); raises else."""
     from strain_comp.errors import InputError
     from strain_comp.io.bag.schemas import MAX_TIME_S
-    from strain_comp.io.csv_import import import_csv, write_recording_bag
+    from strain_comp.io.csv_import import import_csv
+    from strain_comp.io.recording import write_recordings
 
     columns = {key: CSV_COLUMNS[int(rng.integers(0, len(CSV_COLUMNS)))]
                for key in ("time", "resistance", "strain") if key != "strain" or rng.random() < 0.7}
@@ -1059,7 +1060,7 @@ def check_csv(path: Path, rng: np.random.Generator) -> bool:
         raise AssertionError("imported samples that the bag readers would skip")
     if report.kept + sum(report.dropped.values()) != report.rows:
         raise AssertionError("rows lost: kept + dropped != rows")
-    write_recording_bag(rec, path.with_suffix(".mcap"))
+    write_recordings({rec.name: rec}, path.with_suffix(".mcap"))
     return True
 
 

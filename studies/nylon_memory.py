@@ -35,7 +35,8 @@ def main() -> int:
                         help=f"measured data directory (default {DEFAULT_DATA})")
     parser.add_argument("--runs", nargs="+", default=list(RUNS))
     args = parser.parse_args()
-    from strain_comp.io.csv_import import import_csv, write_recording_bag
+    from strain_comp.io.csv_import import import_csv
+    from strain_comp.io.recording import write_recordings
     from strain_comp.offline.fit import fit_bags
 
     folder = args.data / "nylon_silver" / "session1_100Hz"
@@ -50,7 +51,7 @@ def main() -> int:
                                 columns={"time": "time_s", "resistance": "r_over_r0",
                                          "strain": "position"}, scales={"strain": 100.0})
             bag = Path(tmp) / f"{run}.mcap"
-            write_recording_bag(result.recording, bag, inputs=[csv])
+            write_recordings({result.recording.name: result.recording}, bag, inputs=[csv])
             row: dict[str, str] = {}
             errors: dict[str, float] = {}
             for model in ("cubic", *MEMORY):

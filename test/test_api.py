@@ -339,8 +339,8 @@ def test_a_reference_beyond_what_a_calibration_holds_is_refused_as_fit_refuses(
         sc.evaluate(CAL, huge)
     with pytest.raises(sc.StrainCompError, match=r"reaches 1e\+200, beyond the \+/- 1e\+06"):
         sc.fit(huge, "cubic")
-    from strain_comp.io.csv_import import write_recording_bag
-    write_recording_bag(huge, tmp_path / "huge.mcap")
+    from strain_comp.io.recording import write_recordings
+    write_recordings({huge.name: huge}, tmp_path / "huge.mcap")
     out = tmp_path / "e.json"
     assert main(["evaluate", str(tmp_path / "huge.mcap"), "--calibration", CAL, "--json",
                  str(out), "-q"]) == 2  # the streamed bag too
@@ -424,8 +424,8 @@ def test_a_resistance_that_looks_like_a_ratio_is_warned_about_once(
         warnings.simplefilter("error")
         sc.fit(ratio, "cubic", input_unit="R/R0")  # said so: no warning
         sc.fit(run, "cubic")  # ohm: none
-    from strain_comp.io.csv_import import write_recording_bag
-    write_recording_bag(ratio, tmp_path / "ratio.mcap")
+    from strain_comp.io.recording import write_recordings
+    write_recordings({ratio.name: ratio}, tmp_path / "ratio.mcap")
     assert main(["fit", str(tmp_path / "ratio.mcap"), "--model", "cubic", "--sensor", "s1",
                  "--out", str(tmp_path / "c.yaml")]) == 0
     err = [line for line in capsys.readouterr().err.splitlines() if "R/R0" in line]

@@ -50,7 +50,6 @@ class Estimate:
         return iter((self.strain, self.direction))
 
 
-
 def estimate(calibration: CalibrationLike, t: npt.ArrayLike, r: npt.ArrayLike, *,
              sensor: str | None = None, temperature: npt.ArrayLike | None = None,
              tare: str = "calibration", out_of_range: str = "extend",

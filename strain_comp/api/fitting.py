@@ -9,7 +9,7 @@ from typing import Any
 
 from strain_comp.api._inputs import as_recordings, checked, paths_of
 from strain_comp.api.inputs import Data, PathLike
-from strain_comp.core.calibration import Calibration, SensorCalibration, unit_ok
+from strain_comp.core.calibration import Calibration, SensorCalibration, unit_problem
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import (
@@ -89,9 +89,8 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
         check_fit_options(model, options)
     for unit, what, example in ((strain_unit, "strain unit", "% or mm"),
                                 (input_unit, "input unit", "ohm or R/R0")):
-        if not unit_ok(unit):
-            raise InputError(f"{what} {unit!r}: expected a unit such as {example} "
-                             "(1-16 letters, digits, %, / or .)")
+        if (problem := unit_problem(unit, example)) is not None:
+            raise InputError(f"{what}: {problem}")
     paths = paths_of(data)
     runs = paths if paths is not None else (
         [data] if isinstance(data, (Recording, Mapping)) else list(data))  # type: ignore[arg-type]

@@ -72,12 +72,12 @@ def run(args: argparse.Namespace) -> int:
     """The CSV read, checked and written as a bag; the import report on stdout."""
     existing(args.csv, "CSV file")
     output(args.out, [args.csv])
-    from strain_comp.core.calibration import unit_ok
+    from strain_comp.core.calibration import unit_problem
     from strain_comp.io import csv_import
+    from strain_comp.io.recording import write_recordings
 
-    if not unit_ok(args.resistance_unit):
-        raise InputError(f"--resistance-unit {args.resistance_unit!r}: expected a unit such "
-                         "as ohm or R/R0 (1-16 letters, digits, %, / or .)")
+    if (problem := unit_problem(args.resistance_unit, "ohm or R/R0")) is not None:
+        raise InputError(f"--resistance-unit: {problem}")
 
     recording, report = csv_import.import_csv(
         args.csv, fmt=args.format, sensor=args.sensor, gauge_length_mm=args.gauge_length_mm,
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         scales=_key_values(args.scales or [], "--scales", "KEY=FACTOR, e.g. time=1e-3", float),
         delimiter=args.delimiter,
         resistance_unit=args.resistance_unit)
-    csv_import.write_recording_bag(recording, args.out, inputs=[args.csv])
+    write_recordings({recording.name: recording}, args.out, inputs=[args.csv])
     print("\n".join(report.lines()))
     for line in report.notes:
         note(args, f"{PROG}: note: {line}")

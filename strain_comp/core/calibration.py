@@ -216,9 +216,12 @@ class Calibration:
                 "sensors": {name: cal.to_dict() for name, cal in self.sensors.items()}}
 
 
-def unit_ok(unit: str) -> bool:
-    """Is ``unit`` a strain or input unit a file may name?"""
-    return 0 < len(unit) <= 16 and all(c.isalnum() or c in "%/." for c in unit)
+def unit_problem(unit: object, example: str) -> str | None:
+    """Why ``unit`` is no strain or input unit a file may name (None: it is one)."""
+    if isinstance(unit, str) and 0 < len(unit) <= 16 and all(c.isalnum() or c in "%/."
+                                                               for c in unit):
+        return None
+    return f"must be a unit such as {example} (1-16 letters, digits, %, / or .), got {unit!r}"
 
 
 def strain_unit_words(unit: str) -> str:

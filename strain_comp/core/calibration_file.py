@@ -34,7 +34,7 @@ from strain_comp.core.calibration import (
     SensorCalibration,
     ValidRange,
     strain_unit_words,
-    unit_ok,
+    unit_problem,
 )
 from strain_comp.core.chain import DESPIKE_K, PAIR_BRANCHES, STEP_K
 from strain_comp.core.effects import validate_effect_dict
@@ -111,9 +111,8 @@ class _Reader:
         rest = (None if node.get("rest_resistance") is None
                 else self.number(node, "rest_resistance", where, lo=0.0, strict=True))
         unit = node.get("strain_unit", "%")
-        if not (isinstance(unit, str) and unit_ok(unit)):
-            raise self.fail(f"{where}.strain_unit", "must be a unit such as '%' or 'mm' (1-16 "
-                            f"letters, digits, %, / or .), got {unit!r}")
+        if (problem := unit_problem(unit, "'%' or 'mm'")) is not None:
+            raise self.fail(f"{where}.strain_unit", problem)
         interval = (None if node.get("sample_interval") is None
                     else self.number(node, "sample_interval", where, lo=0.0, hi=1e6, strict=True))
         prov = node.get("provenance", {}) or {}
@@ -279,9 +278,8 @@ class _Reader:
         span = self.zero_span(node.get("zero_span"), f"{where}.zero_span")
         line = self.stretch_line(node.get("stretch_line"), f"{where}.stretch_line")
         unit = node.get("unit", "ohm")
-        if not (isinstance(unit, str) and unit_ok(unit)):
-            raise self.fail(f"{where}.unit", "must be a unit such as 'ohm' or 'R/R0' (1-16 "
-                            f"letters, digits, %, / or .), got {unit!r}")
+        if (problem := unit_problem(unit, "'ohm' or 'R/R0'")) is not None:
+            raise self.fail(f"{where}.unit", problem)
         if kind not in ("resistance", "divider"):
             raise self.fail(f"{where}.kind", f"must be 'resistance' or 'divider', got {kind!r}")
         if kind == "divider" and unit != "ohm":

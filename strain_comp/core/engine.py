@@ -121,7 +121,6 @@ class Engine:
         for group in self._arrays.values():
             group.set_deadzone_scale(scale)
 
-
     def base_strain(self, name: str) -> float:
         """A sensor's latest clamped strain before its effect terms."""
         other = self._sensors.get(name)

@@ -21,7 +21,6 @@ if TYPE_CHECKING:
     from strain_comp.core.outputs import BatchOutput
 
 
-
 # The fusion's numbers, in shares of the calibrated strain span where a strain is meant.
 # docs/results.md gives what keeps each: the largest change of a benchmark case with the
 # number set neutral.

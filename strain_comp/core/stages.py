@@ -57,7 +57,6 @@ def bound_all(ohm: np.ndarray, strain: np.ndarray, row: np.ndarray) -> np.ndarra
     return out
 
 
-
 @njit
 def screen_batch(t: np.ndarray, ohm: np.ndarray, forced: np.ndarray, last_good_t: float,
                  r_short: float, r_open: float, r_lo: float, r_hi: float, gap: float

@@ -17,7 +17,6 @@ if TYPE_CHECKING:
     from strain_comp.core.engine import Engine
 
 
-
 # The tare's numbers. docs/results.md gives what keeps each: the largest change of a
 # benchmark case with the number set neutral.
 REST_WINDOW = 5.0  # s: longest leading stretch an automatic tare reads (inf: a case 20 %)

@@ -1,4 +1,4 @@
-"""Tensile-tester CSVs into Recordings and bags (docs/csv.md: formats, columns, units).
+"""Tensile-tester CSVs into Recordings (docs/csv.md: formats, columns, units).
 Bad rows are dropped and counted, not flagged: an imported recording is training and
 evaluation data; fault handling is exercised on bags."""
 
@@ -14,7 +14,6 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagWriter
 from strain_comp.io.bag.schemas import MAX_TIME_S
 from strain_comp.io.recording import Recording, align, check_scales, scaled
 
@@ -217,7 +216,6 @@ def _fields(path: Path, fmt: str, rows: list[list[str]], head: list[str] | None,
     return fields, short
 
 
-
 def _good_rows(path: Path, fmt: str, t: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
                short: npt.NDArray[np.bool_], report: ImportReport) -> npt.NDArray[np.bool_]:
     """The rows kept, the others counted by reason in ``report.dropped``."""
@@ -313,17 +311,4 @@ def reference_warnings(values: np.ndarray, t: np.ndarray, *, percent: bool) -> l
     return lines
 
 
-def write_recording_bag(recording: Recording, out_path: str | Path, *,
-                        inputs: Sequence[str | Path] = ()) -> None:
-    """Write a Recording into a new MCAP bag, atomically."""
-    prefix = "/" + recording.name.strip("/")
-    with BagWriter(out_path, inputs=inputs) as writer:
-        writer.write_float64(f"{prefix}/resistance", recording.t, recording.r)
-        if recording.s is not None:
-            writer.write_float64(f"{prefix}/strain_reference", recording.t, recording.s)
-        if recording.temperature is not None:
-            writer.write_temperature(f"{prefix}/temperature", recording.t, recording.temperature)
-
-
-__all__ = ["ImportReport", "import_csv", "reference_warnings",
-           "repair_position_glitches", "write_recording_bag"]
+__all__ = ["ImportReport", "import_csv", "reference_warnings", "repair_position_glitches"]

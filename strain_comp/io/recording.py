@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.errors import InputError
-from strain_comp.io.bag import BagContents, Series, located, read_bag
+from strain_comp.io.bag import BagContents, BagWriter, Series, located, read_bag
 
 RESISTANCE = "/resistance"
 REFERENCE = "/strain_reference"
@@ -203,7 +203,7 @@ class PieceAlign:
     def add(self, t: np.ndarray, t_src: np.ndarray, values: np.ndarray) -> None:
         t_src = np.asarray(t_src, dtype=np.float64)
         values = np.asarray(values, dtype=np.float64)
-        if self.exact and t_src.shape == t.shape and np.array_equal(t_src, t):
+        if self.exact and t_src.shape == t.shape and np.array_equal(t_src, t, equal_nan=True):
             if t.size:
                 self.copied.append(values.copy())
         elif t.size or t_src.size:
@@ -334,6 +334,59 @@ def _recordings(contents: BagContents) -> tuple[dict[str, Recording], list[str]]
     return out, problems
 
 
+def as_contents(recordings: Mapping[str, Recording]) -> BagContents:
+    """Recordings (by sensor name) as one piece of a bag that ``load_recordings`` reads back
+    as them: an array's sensors on one time base on its topics, every other sensor alone."""
+    contents = BagContents()
+    groups: dict[str, dict[str, Recording]] = {}
+    for name, rec in recordings.items():
+        groups.setdefault(name if rec.array is None else rec.array, {})[name] = rec
+    for prefix, recs in groups.items():
+        first = next(iter(recs.values()))
+        if len(recs) > 1 and all(np.array_equal(r.t, first.t, equal_nan=True)
+                                 for r in recs.values()):
+            _put(contents, prefix, recs)
+        else:
+            for name, rec in recs.items():
+                _put(contents, name, {name: rec})
+    return contents
+
+
+def _put(contents: BagContents, prefix: str, recs: Mapping[str, Recording]) -> None:
+    """Recordings on one time base as ``/prefix``'s topics (several: as an array)."""
+    t = np.asarray(next(iter(recs.values())).t, dtype=np.float64)
+    topics = [(RESISTANCE, [rec.r for rec in recs.values()])]
+    if any(rec.s is not None for rec in recs.values()):  # as an array's reference: NaN for none
+        topics.append((REFERENCE, [np.full(t.size, np.nan) if rec.s is None else rec.s
+                                   for rec in recs.values()]))
+    for suffix, values in topics:
+        topic = f"/{prefix}{suffix}"
+        contents.series[topic] = Series(t, np.asarray(
+            values[0] if len(recs) == 1 else np.column_stack(values), dtype=np.float64))
+        if len(recs) > 1:
+            contents.labels[topic] = list(recs)
+    for name, rec in recs.items():
+        if rec.temperature is not None:
+            contents.series[f"/{name}{TEMPERATURE}"] = Series(
+                t, np.asarray(rec.temperature, dtype=np.float64))
+
+
+def write_recordings(recordings: Mapping[str, Recording], path: str | Path, *,
+                     inputs: Sequence[str | Path] = (), temperature_every: int = 1) -> None:
+    """Recordings (by sensor name) into a new MCAP bag, atomically, on the topics
+    ``as_contents`` gives them; each temperature read every ``temperature_every`` samples."""
+    contents = as_contents({name.strip("/"): rec for name, rec in recordings.items()})
+    with BagWriter(path, inputs=inputs) as writer:
+        for topic, series in contents.series.items():
+            if topic.endswith(TEMPERATURE):
+                writer.write_temperature(topic, series.t[::temperature_every],
+                                         series.values[::temperature_every])
+            elif series.values.ndim == 2:
+                writer.write_float64_array(topic, series.t, series.values, contents.labels[topic])
+            else:
+                writer.write_float64(topic, series.t, series.values)
+
+
 def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     """Read a bag into recordings (in pieces, without the whole-bag budget)."""
     contents = read_bag(path, budget=False)
@@ -341,5 +394,5 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     return recordings, contents.problems + located(path, problems)
 
 
-__all__ = ["PieceAlign", "Recording", "align", "hold_latest", "load_recordings",
-           "reference_columns", "temperature_series", "topic_sensors"]
+__all__ = ["PieceAlign", "Recording", "align", "as_contents", "hold_latest", "load_recordings",
+           "reference_columns", "temperature_series", "topic_sensors", "write_recordings"]

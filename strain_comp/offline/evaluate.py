@@ -1,9 +1,11 @@
 """Evaluation: ``Scorer`` runs a calibration through the engine's batch path and keeps running
 error sums over the used samples with a finite reference (held ones counted, not scored);
-``evaluate_bag`` streams a bag (docs/architecture.md)."""
+``evaluate_bag`` streams a bag into it, ``evaluate_recordings`` recordings as one piece of a
+bag (docs/architecture.md)."""
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -25,6 +27,7 @@ from strain_comp.io.recording import (
     RESISTANCE,
     PieceAlign,
     Recording,
+    as_contents,
     reference_columns,
     temperature_series,
     topic_sensors,
@@ -117,114 +120,6 @@ class _Score:
             coverage_95=self.errors.coverage_95())
 
 
-class Scorer:
-    """The one evaluation: sensors tared, run and scored piece by piece, then the result."""
-
-    def __init__(self, calibration: Calibration, engine: Engine, tare: str,
-                 plot_points: int | None, series: SeriesCSV | None = None, bag: str = "",
-                 references_every: float | None = None) -> None:
-        self.calibration = calibration
-        self.references_every = references_every
-        self.fused: dict[str, SparseFusion] = {}
-        self.series = series
-        self.bag = bag
-        self.engine = engine
-        self.tare = tare
-        self.plot_points = plot_points
-        self.scores: dict[str, _Score] = {}
-        self.notes: list[str] = []
-
-    def start(self, runs: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
-        """Tare the calibrated sensors of ``runs`` (time, input) and open their scores."""
-        tared = tare_engine(self.engine, runs, self.tare)
-        self.notes += [f"{name}: {line}" for name, line in tared.items()]
-        for name in runs:
-            self.scores[name] = _Score(self.plot_points)
-            if self.references_every is not None:
-                self.fused[name] = SparseFusion.for_calibration(self.calibration.sensors[name],
-                                                               self.references_every)
-
-    def score(self, names: list[str], group: list[str], t: np.ndarray, r: np.ndarray,
-              temps: Mapping[str, np.ndarray | None], refs: Mapping[str, np.ndarray]) -> None:
-        """Run and score a piece of ``names``; ``group``: those run by ``Engine.run_array``."""
-        for name, ref in refs.items():
-            check_reference(name, ref, InputError)
-        column = {name: j for j, name in enumerate(names)}
-        if group:
-            outs = self.engine.run_array(group, t, r[:, [column[g] for g in group]],
-                                         {g: temps[g] for g in group})
-        else:
-            outs = {name: self.engine.run(name, t, r[:, j], temps[name])
-                    for j, name in enumerate(names)}
-        for name, fused in self.fused.items():
-            if name in outs:
-                outs[name] = fused.fuse(t, outs[name], refs[name])
-        for name, j in column.items():
-            self.scores[name].add(t, r[:, j], refs[name], outs[name])
-            if self.series is not None:
-                cal, out = self.calibration.sensors[name], outs[name]
-                self.series.add(name, t, cal.input.to_ohm(r[:, j]), out.strain, refs[name],
-                                out.direction, out.status, unit=cal.strain_unit, bag=self.bag)
-
-    def result(self, found: list[str], referenced: set[str], with_temperature: set[str],
-               same_tick: Mapping[str, set[str]]) -> EvaluationResult:
-        """Every calibrated sensor's evaluation, or the note why it has none."""
-        missing = [n for n in self.calibration.sensors if n in found and n not in referenced]
-        if self.references_every is not None and missing:
-            raise InputError(f"--references-every {self.references_every:g}: "
-                             f"{', '.join(missing)} has no strain_reference in the data (the "
-                             "references fused are the data's own /NAME/strain_reference)")
-        sensors: dict[str, SensorEvaluation] = {}
-        notes = list(self.notes)
-        for name, cal in self.calibration.sensors.items():
-            if name not in found:
-                notes.append(f"{name}: calibrated but not in the data")
-            elif name not in referenced:
-                notes.append(f"{name}: no strain_reference in the data, not scored")
-            else:
-                sensors[name] = self.scores[name].evaluation(
-                    name, cal, self.engine.input_gain(name), self.fused.get(name))
-                if name not in with_temperature:
-                    notes += _temperature_missing(name, cal)
-                notes += _crosstalk_off_tick(name, cal, same_tick.get(name, set()))
-        return EvaluationResult(sensors, notes)
-
-
-def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
-                        tare: str = "calibration", out_of_range: str = "extend",
-                        references_every: float | None = None) -> EvaluationResult:
-    """Score every calibrated sensor that has a recording with a reference strain."""
-    scorer = Scorer(calibration, Engine(calibration, out_of_range=out_of_range), tare, None,
-                    references_every=references_every)
-    scorer.start({n: (rec.t, rec.r) for n, rec in recordings.items()
-                  if n in calibration.sensors})
-    scored = [n for n in calibration.sensors if n in recordings and recordings[n].s is not None]
-    arrays: dict[str, list[str]] = {}
-    for name in scored:
-        if recordings[name].array is not None:
-            arrays.setdefault(str(recordings[name].array), []).append(name)
-    # an array on one time base runs together (cross-talk reads the same tick's
-    # neighbours, as the node does); then the others one by one
-    groups = [g for g in arrays.values() if len(g) > 1 and all(
-        np.array_equal(recordings[n].t, recordings[g[0]].t) for n in g)]
-    alone = [n for n in scored if not any(n in g for g in groups)]
-    for names in [*groups, *([n] for n in alone)]:
-        scorer.score(names, names if len(names) > 1 else [],
-                     np.asarray(recordings[names[0]].t, dtype=np.float64),
-                     np.column_stack([np.asarray(recordings[n].r, dtype=np.float64)
-                                      for n in names]),
-                     {n: recordings[n].temperature for n in names},
-                     {n: np.asarray(recordings[n].s, dtype=np.float64) for n in names})
-    result = scorer.result(
-        list(recordings), set(scored),
-        {n for n, rec in recordings.items() if rec.temperature is not None},
-        {n: {m for m, other in recordings.items() if other.array == rec.array}
-         for n, rec in recordings.items() if rec.array is not None})
-    if not result.sensors:
-        raise InputError(nothing_scored(calibration, list(recordings)))
-    return result
-
-
 def _crosstalk_off_tick(name: str, cal: SensorCalibration, same_tick: set[str]) -> list[str]:
     """The note for cross-talk terms whose neighbour is not on ``name``'s array topic."""
     # offline such a term reads the neighbour's estimate of the previous batch, not the tick's
@@ -273,13 +168,23 @@ class _Input:
     r: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
 
 
-class BagScorer(Scorer):
-    """``Scorer`` fed a bag piece by piece, samples held until their reference is known."""
+class Scorer:
+    """The one evaluation: a bag fed piece by piece (recordings: ``as_contents``), each input
+    tared from its first piece, its samples run and scored once their reference is known."""
 
     def __init__(self, calibration: Calibration, engine: Engine, tare: str,
-                 plot_points: int, series: SeriesCSV | None = None, bag: str = "",
+                 plot_points: int | None, series: SeriesCSV | None = None, bag: str = "",
                  references_every: float | None = None) -> None:
-        super().__init__(calibration, engine, tare, plot_points, series, bag, references_every)
+        self.calibration = calibration
+        self.engine = engine
+        self.tare = tare
+        self.plot_points = plot_points
+        self.series = series
+        self.bag = bag
+        self.references_every = references_every
+        self.fused: dict[str, SparseFusion] = {}
+        self.scores: dict[str, _Score] = {}
+        self.notes: list[str] = []
         self.inputs: dict[str, _Input | None] = {}
         self.names: list[str] = []
         """Every sensor found in the data, in ``load_recordings`` order."""
@@ -294,6 +199,7 @@ class BagScorer(Scorer):
             self.problems.append(line)
 
     def piece(self, contents: BagContents) -> None:
+        """Take a piece's new inputs, queue its samples and score those now aligned."""
         self.bag_problems += contents.problems
         for topic in sorted(contents.series):
             if topic.endswith(REFERENCE):
@@ -306,7 +212,8 @@ class BagScorer(Scorer):
                 self._run(inp)
 
     def finish(self) -> EvaluationResult:
-        """The rest of every input run and scored; the result of what the bag held."""
+        """The rest of every input run and scored; each calibrated sensor's evaluation, or
+        the note why it has none."""
         for inp in self.inputs.values():
             if inp is not None:
                 for align in [*inp.temperature.values(), *inp.reference.values()]:
@@ -315,12 +222,29 @@ class BagScorer(Scorer):
         for topic in sorted(self.references):
             if topic[:-len(REFERENCE)] + RESISTANCE not in self.inputs:
                 self._problem(f"{topic}: reference without a resistance topic; ignored")
-        return self.result(
-            self.names, {name for inp in self.inputs.values() if inp is not None
-                         for name in inp.ref_columns or {}},
-            self.with_temperature,
-            {name: set(inp.names) for inp in self.inputs.values()
-             if inp is not None and not inp.single for name in inp.names})
+        inputs = [inp for inp in self.inputs.values() if inp is not None]
+        referenced = {name for inp in inputs for name in inp.ref_columns or {}}
+        same_tick = {name: set(inp.names) for inp in inputs if not inp.single
+                     for name in inp.names}
+        missing = [n for n in self.calibration.sensors if n in self.names and n not in referenced]
+        if self.references_every is not None and missing:
+            raise InputError(f"--references-every {self.references_every:g}: "
+                             f"{', '.join(missing)} has no strain_reference in the data (the "
+                             "references fused are the data's own /NAME/strain_reference)")
+        sensors: dict[str, SensorEvaluation] = {}
+        notes = list(self.notes)
+        for name, cal in self.calibration.sensors.items():
+            if name not in self.names:
+                notes.append(f"{name}: calibrated but not in the data")
+            elif name not in referenced:
+                notes.append(f"{name}: no strain_reference in the data, not scored")
+            else:
+                sensors[name] = self.scores[name].evaluation(
+                    name, cal, self.engine.input_gain(name), self.fused.get(name))
+                if name not in self.with_temperature:
+                    notes += _temperature_missing(name, cal)
+                notes += _crosstalk_off_tick(name, cal, same_tick.get(name, set()))
+        return EvaluationResult(sensors, notes)
 
     def _input(self, topic: str, contents: BagContents) -> _Input | None:
         """A resistance topic as ``load_recordings`` reads it, tared from its first piece."""
@@ -333,7 +257,7 @@ class BagScorer(Scorer):
         names: list[str] = []
         columns: list[int] = []
         for j, name in enumerate(labels):
-            if not single and name in self.names:
+            if name in self.names:
                 self._problem(f"{topic}: sensor {name} appears twice; column {j} skipped")
                 continue
             self.names.append(name)
@@ -343,7 +267,15 @@ class BagScorer(Scorer):
         if not names:
             return None
         values = series.values if not single else series.values[:, None]
-        self.start({n: (series.t, values[:, j]) for n, j in zip(names, columns, strict=True)})
+        tared = tare_engine(self.engine, {n: (series.t, values[:, j])
+                                          for n, j in zip(names, columns, strict=True)},
+                            self.tare)
+        self.notes += [f"{name}: {line}" for name, line in tared.items()]
+        for name in names:
+            self.scores[name] = _Score(self.plot_points)
+            if self.references_every is not None:
+                self.fused[name] = SparseFusion.for_calibration(self.calibration.sensors[name],
+                                                               self.references_every)
         group = [] if single or len(names) < 2 else \
             [n for n in self.calibration.sensors if n in names]
         effects = any(self.calibration.sensors[n].effects for n in names)
@@ -380,15 +312,47 @@ class BagScorer(Scorer):
     def _run(self, inp: _Input) -> None:
         """Compensate and score the queued samples whose reference is known."""
         horizon = min(a.horizon() for a in [*inp.temperature.values(), *inp.reference.values()])
-        n = int(np.searchsorted(inp.t, horizon, side="right"))
+        n = inp.t.size if horizon == math.inf else int(
+            np.searchsorted(inp.t, horizon, side="right"))
         if n == 0:
             return
         t, r = inp.t[:n], inp.r[:n]
         inp.t, inp.r = inp.t[n:], inp.r[n:]
-        self.score(inp.names, inp.group, t, r,
-                   {name: inp.temperature[name].take(t) if inp.temperature else None
-                    for name in inp.names},
-                   {name: align.take(t) for name, align in inp.reference.items()})
+        refs = {name: align.take(t) for name, align in inp.reference.items()}
+        for name, ref in refs.items():
+            check_reference(name, ref, InputError)
+        temps = {name: inp.temperature[name].take(t) if inp.temperature else None
+                 for name in inp.names}
+        column = {name: j for j, name in enumerate(inp.names)}
+        if inp.group:
+            outs = self.engine.run_array(inp.group, t, r[:, [column[g] for g in inp.group]],
+                                         {g: temps[g] for g in inp.group})
+        else:
+            outs = {name: self.engine.run(name, t, r[:, j], temps[name])
+                    for name, j in column.items()}
+        for name, fused in self.fused.items():
+            if name in outs:
+                outs[name] = fused.fuse(t, outs[name], refs[name])
+        for name, j in column.items():
+            self.scores[name].add(t, r[:, j], refs[name], outs[name])
+            if self.series is not None:
+                cal, out = self.calibration.sensors[name], outs[name]
+                self.series.add(name, t, cal.input.to_ohm(r[:, j]), out.strain, refs[name],
+                                out.direction, out.status, unit=cal.strain_unit, bag=self.bag)
+
+
+def evaluate_recordings(recordings: Mapping[str, Recording], calibration: Calibration, *,
+                        tare: str = "calibration", out_of_range: str = "extend",
+                        references_every: float | None = None) -> EvaluationResult:
+    """Score every calibrated sensor that has a recording with a reference strain, as from
+    a bag that holds them (``as_contents``)."""
+    scorer = Scorer(calibration, Engine(calibration, out_of_range=out_of_range), tare, None,
+                    references_every=references_every)
+    scorer.piece(as_contents(recordings))
+    result = scorer.finish()
+    if not result.sensors:
+        raise InputError(nothing_scored(calibration, list(recordings)))
+    return result
 
 
 def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
@@ -398,7 +362,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  references_every: float | None = None,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed in pieces (``iter_bag``)."""
-    stream = BagScorer(calibration, Engine(calibration, out_of_range=out_of_range),
+    stream = Scorer(calibration, Engine(calibration, out_of_range=out_of_range),
                        tare, plot_points, series, str(path), references_every)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)

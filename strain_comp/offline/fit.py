@@ -55,7 +55,7 @@ from strain_comp.offline.session_start import (
     choose_space,
     cut,
     run_line,
-    start_or_keep,
+    started_error,
 )
 from strain_comp.offline.uncertainty import learn
 
@@ -608,14 +608,9 @@ def fold_errors(recordings: Sequence[Recording], name: str, fold: Fold,
         return str(err)
     out = Scored([], [])
     for i in fold.held:
-        held = {name: recordings[i]}
-        started = start_or_keep(Calibration({name: cal}), held).calibration
+        started, error = started_error(cal, recordings[i])
         out.started.append(started)
-        try:
-            ev = evaluate_recordings(held, started, tare="calibration").sensors[name]
-            out.errors.append(float(ev.stats.rmse))
-        except StrainCompError:
-            out.errors.append(float("nan"))
+        out.errors.append(error)
     return out
 
 

@@ -148,9 +148,14 @@ class _Replay:
 
     def _discover(self, contents: BagContents) -> None:
         """Take each new ``/NAME/resistance`` topic as an input (tared, fused) or not."""
-        for topic in contents.series:
+        for topic in sorted(contents.series):  # as load_recordings: the first topic wins
             if topic.endswith("/resistance") and topic not in self.inputs:
                 inp = _input(topic, contents, self.calibration)
+                taken = {s for i in self.inputs.values() if i is not None for s in i.sensors}
+                if inp is not None and not taken.isdisjoint(inp.sensors):
+                    self._problem(f"{topic}: sensor {min(taken & set(inp.sensors))} appears "
+                                  "twice; the topic copied, not replayed")
+                    inp = None
                 self.inputs[topic] = inp
                 if inp is not None:
                     self.written.update(f"/{inp.name}/{what}"
@@ -285,8 +290,6 @@ class _Replay:
             return np.empty(0), np.empty(0)
         column = columns[name]
         return ref.t, ref.values if column is None else ref.values[:, column]
-
-
 
 
 def _held(latest: dict[str, tuple[np.ndarray, np.ndarray]], name: str, src_t: np.ndarray,

@@ -14,8 +14,7 @@ from scipy.signal import lfilter
 
 from strain_comp.base.conversion import divider_to_resistance, resistance_to_divider
 from strain_comp.errors import ParameterError
-from strain_comp.io.bag import BagWriter
-from strain_comp.io.recording import Recording
+from strain_comp.io.recording import Recording, write_recordings
 
 L0_MM = 100.0  # specimen length [mm]: rates in mm/min convert to %/s via this
 T_REF = 23.0  # reference temperature [deg C]
@@ -352,26 +351,7 @@ def simulate(scenario: str, *, seed: int = 0, effects: RigEffects | None = None,
 
 def write_sim_bag(run: Mapping[str, Recording], path: str | Path, *,
                   temperature_rate: float = 2.0) -> None:
-    """``simulate``'s recordings as an MCAP bag: resistance, strain_reference, temperature."""
+    """``simulate``'s recordings as an MCAP bag, the temperature read at ``temperature_rate`` Hz."""
     first = next(iter(run.values()))
     dt = first.t[1] - first.t[0] if first.t.size > 1 else 1.0
-    step = max(1, round(1.0 / (temperature_rate * dt)))
-    strains = [rec.s for rec in run.values() if rec.s is not None]  # the rig's: all
-    with BagWriter(path) as writer:
-        if first.array is not None:
-            names = list(run)
-            prefix = f"/{first.array}"
-            writer.write_float64_array(f"{prefix}/resistance", first.t, np.column_stack(
-                [run[n].r for n in names]), names)
-            writer.write_float64_array(f"{prefix}/strain_reference", first.t,
-                                       np.column_stack(strains), names)
-            if first.temperature is not None:
-                writer.write_temperature(f"{prefix}/temperature", first.t[::step],
-                                         first.temperature[::step])
-            return
-        for (name, sensor), s in zip(run.items(), strains, strict=True):
-            writer.write_float64(f"/{name}/resistance", sensor.t, sensor.r)
-            writer.write_float64(f"/{name}/strain_reference", sensor.t, s)
-            if sensor.temperature is not None:
-                writer.write_temperature(f"/{name}/temperature", sensor.t[::step],
-                                         sensor.temperature[::step])
+    write_recordings(run, path, temperature_every=max(1, round(1.0 / (temperature_rate * dt))))

@@ -526,6 +526,17 @@ def start_or_keep(calibration: Calibration, recordings: Mapping[str, Recording],
         return Started(calibration, None, notes=[str(err)])
 
 
+def started_error(cal: SensorCalibration, rec: Recording) -> tuple[Calibration, float]:
+    """``cal`` started on a run left out (``start_or_keep``) and its RMSE there (NaN: none)."""
+    started = Calibration({cal.name: cal})
+    try:
+        started = start_or_keep(started, {cal.name: rec}).calibration
+        ev = evaluate_recordings({cal.name: rec}, started, tare="calibration")
+        return started, float(ev.sensors[cal.name].stats.rmse)
+    except StrainCompError:
+        return started, float("nan")
+
+
 def _why(note: str) -> str:
     """A step's refusal in the user's terms: the command and field names dropped."""
     step, _, why = note.partition(" not made: ")
@@ -826,17 +837,8 @@ def choose_space(recordings: Sequence[Recording], fit: Fit) -> tuple[str, dict[s
             continue
         if cal.input.stretch_line is None:
             continue
-        fold = {}
-        for space in SPACES:
-            used = cal if space == "stretch" else replace(
-                cal, input=replace(cal.input, stretch_line=None))
-            try:
-                started = start_or_keep(Calibration({cal.name: used}),
-                                        {cal.name: held}).calibration
-                ev = evaluate_recordings({cal.name: held}, started, tare="calibration")
-                fold[space] = float(ev.sensors[cal.name].stats.rmse)
-            except StrainCompError:
-                fold[space] = float("nan")
+        fold = {space: started_error(cal if space == "stretch" else replace(
+            cal, input=replace(cal.input, stretch_line=None)), held)[1] for space in SPACES}
         if all(np.isfinite(v) for v in fold.values()):
             for space, value in fold.items():
                 errors[space].append(value)

@@ -124,14 +124,14 @@ def test_names_with_mathtext_or_undecodable_bytes_are_drawn_as_plain_text(
     import os
 
     import strain_comp as sc
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
 
     run = sc.read_recordings(ROOT / "bags" / "demo_rates.mcap")["s1"]
     cal = sc.load_calibration(ROOT / "config" / "demo_calibration.yaml").sensors["s1"]
     name = "s$^$_{x"  # not valid mathtext: matplotlib refuses to draw it as math
     bag = tmp_path / os.fsdecode(b"run\xff$x^2$.mcap")  # a surrogate in the bag's name
-    write_recording_bag(sc.Recording.from_arrays(run.t[:2000], run.r[:2000], run.s[:2000],
-                                                 name=name), bag)
+    write_recordings({name: sc.Recording.from_arrays(run.t[:2000], run.r[:2000],
+                                                     run.s[:2000], name=name)}, bag)
     sc.save_calibration(sc.Calibration({name: dataclasses.replace(cal, name=name)}),
                         tmp_path / "cal.yaml")
     out = {k: tmp_path / f"out.{k}" for k in ("json", "html")}

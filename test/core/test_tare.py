@@ -235,11 +235,11 @@ def test_cli_evaluate_tare_auto_with_bound_and_recalibrate_from_a_bag(cubic: Cal
                                                                        tmp_path: Path) -> None:
     import json
 
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
 
     cal, bag = tmp_path / "cal.yaml", tmp_path / "shifted.mcap"
     save_calibration(cubic, cal)
-    write_recording_bag(run(1.25 * R0), str(bag))
+    write_recordings({"s1": run(1.25 * R0)}, str(bag))
     out = tmp_path / "e.json"
     assert cli(["evaluate", str(bag), "--calibration", str(cal), "--tare", "auto",
                 "--in-run-bound", "--json", str(out)]) == 0
@@ -321,12 +321,12 @@ def test_input_zero_and_span_through_two_points_reads_the_moved_sensor(
 
 def test_cli_recalibrate_input_from_the_first_cycle_then_tare(cubic: Calibration,
                                                               tmp_path: Path) -> None:
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
 
     rec = run()
     cal, bag, cal2 = tmp_path / "cal.yaml", tmp_path / "moved.mcap", tmp_path / "cal2.yaml"
     save_calibration(cubic, cal)
-    write_recording_bag(Recording("s1", rec.t, moved(rec.s), rec.s), str(bag))
+    write_recordings({"s1": Recording("s1", rec.t, moved(rec.s), rec.s)}, str(bag))
     assert cli(["recalibrate", str(cal), "--input", "--from", str(bag), "--first", "15",
                 "--out", str(cal2)]) == 0
     spanned = load_calibration(cal2)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from strain_comp.errors import InputError
-from strain_comp.io.csv_import import import_csv, repair_position_glitches, write_recording_bag
-from strain_comp.io.recording import load_recordings
+from strain_comp.io.csv_import import import_csv, repair_position_glitches
+from strain_comp.io.recording import load_recordings, write_recordings
 
 
 def _cb_pdms(tmp_path: Path, glitches: tuple[int, ...] = (30, 50)) -> tuple[Path, np.ndarray]:
@@ -95,7 +95,7 @@ def test_generic_mapping_with_header_and_scales(tmp_path: Path) -> None:
 def test_bag_round_trip(tmp_path: Path) -> None:
     path, _ = _cb_pdms(tmp_path)
     rec, _ = import_csv(path, fmt="cb_pdms", sensor="cb")
-    write_recording_bag(rec, tmp_path / "cb.mcap")
+    write_recordings({rec.name: rec}, tmp_path / "cb.mcap")
     recs, problems = load_recordings(tmp_path / "cb.mcap")
     assert problems == []
     np.testing.assert_array_equal(recs["cb"].r, rec.r)

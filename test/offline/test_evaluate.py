@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 
 from strain_comp.base.direction import DirectionSettings
+from strain_comp.base.samples import good_mask
 from strain_comp.core.calibration import Calibration, SensorCalibration, ValidRange
 from strain_comp.core.metrics import error_stats
 from strain_comp.errors import InputError
-from strain_comp.io.recording import Recording
+from strain_comp.io.bag import BagWriter
+from strain_comp.io.recording import Recording, load_recordings
 from strain_comp.models import Normalisation
-from strain_comp.offline.evaluate import evaluate_recordings
+from strain_comp.offline.evaluate import evaluate_bag, evaluate_recordings
 from strain_comp.offline.evaluation import format_notes, format_table
 
 C = [-50.0, 0.5, 0.0, 0.0]  # S = 0.5 R - 50: R in [100, 150] ohm -> S in [0, 25] %
@@ -43,6 +45,40 @@ def recording(name: str = "s1", *, with_reference: bool = True) -> Recording:
     return Recording(name=name, t=t, r=r, s=s if with_reference else None, temperature=None,
                      array=None, index=None)
 
+
+def test_recordings_with_bad_time_stamps_score_each_sample_on_its_own_reference() -> None:
+    """NaN stamps, a repeated one and a step back: screened by the engine as in a bag's
+    replay, every other sample scored against the reference recorded with it."""
+    t, r, s = data()
+    t[[300, 600, 900, 1200, 1500, -1]] = [np.nan, np.nan, t[899], np.nan, t[1500] - 0.5,
+                                          np.nan]
+    rec = Recording(name="s1", t=t, r=r, s=s)
+    got = evaluate_recordings({"s1": rec}, calibration()).sensors["s1"]
+    good = good_mask(t, r)
+    expected = error_stats(0.5 * r[good] - 50.0, s[good])
+    assert got.stats.n == expected.n == t.size - 9
+    assert got.stats.rmse == pytest.approx(expected.rmse, rel=1e-12)
+    assert (got.n_samples, got.n_bad) == (t.size, 9)
+
+def test_a_sensor_on_two_topics_is_scored_once_as_the_recordings_read_it(tmp_path: Path
+                                                                          ) -> None:
+    """An array's label that another topic also names: the bag is scored as
+    ``load_recordings`` reads it, the first topic's samples, the other skipped and said."""
+    t, r, s = data()
+    path = tmp_path / "twice.mcap"
+    with BagWriter(path) as writer:
+        writer.write_float64_array("/arr/resistance", t, np.column_stack([r, r]), ["s1", "b"])
+        writer.write_float64_array("/arr/strain_reference", t, np.column_stack([s, s]),
+                                   ["s1", "b"])
+        writer.write_float64("/s1/resistance", t, r + 20.0)
+        writer.write_float64("/s1/strain_reference", t, s)
+    recordings, read = load_recordings(path)
+    streamed, problems = evaluate_bag(path, calibration())
+    whole = evaluate_recordings(recordings, calibration()).sensors["s1"].stats
+    assert streamed.sensors["s1"].stats == whole
+    assert whole.n == t.size - 3
+    assert problems == read == [f"{path}: /s1/resistance: sensor s1 appears twice; column 0 "
+                                "skipped"]
 
 def test_table_and_json_equal_independent_error_stats() -> None:
     result = evaluate_recordings({"s1": recording()}, calibration())
@@ -115,7 +151,7 @@ def test_a_temperature_term_without_temperature_in_the_data_is_noted(tmp_path: P
     in memory and streamed alike; with temperature, no note and the term applies."""
     from dataclasses import replace
 
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
     from strain_comp.offline.evaluate import evaluate_bag
 
     bare = calibration()
@@ -130,14 +166,14 @@ def test_a_temperature_term_without_temperature_in_the_data_is_noted(tmp_path: P
     assert without.sensors["s1"].stats.rmse == evaluate_recordings(
         {"s1": rec}, bare).sensors["s1"].stats.rmse
     path = tmp_path / "no_temperature.mcap"
-    write_recording_bag(rec, path)
+    write_recordings({rec.name: rec}, path)
     streamed, _ = evaluate_bag(path, cal, window=500)
     assert note in format_notes(streamed)
     warm = replace(rec, temperature=np.full(rec.t.size, 25.0))
     with_t = evaluate_recordings({"s1": warm}, cal)
     assert not any("temperature" in line for line in format_notes(with_t))
     path = tmp_path / "temperature.mcap"
-    write_recording_bag(warm, path)
+    write_recordings({warm.name: warm}, path)
     streamed, _ = evaluate_bag(path, cal, window=500)
     assert not any("temperature" in line for line in format_notes(streamed))
     assert streamed.sensors["s1"].stats.rmse != without.sensors["s1"].stats.rmse

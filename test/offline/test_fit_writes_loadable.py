@@ -21,8 +21,7 @@ from strain_comp.core.calibration_file import (
     save_calibration,
 )
 from strain_comp.errors import CalibrationError
-from strain_comp.io.csv_import import write_recording_bag
-from strain_comp.io.recording import Recording
+from strain_comp.io.recording import Recording, write_recordings
 from strain_comp.models.sinh_pl import _cell_step
 
 ERROR = "strain-comp: error: "
@@ -56,7 +55,7 @@ def test_whatever_fit_writes_evaluate_loads(tmp_path: Path, capsys: pytest.Captu
                     noise=noise, rate=rate)
     bag, cal = tmp_path / f"r{seed}.mcap", tmp_path / f"c{seed}_{model}.yaml"
     cal.unlink(missing_ok=True)
-    write_recording_bag(rec, bag)
+    write_recordings({rec.name: rec}, bag)
     capsys.readouterr()
     code = main(["fit", str(bag), "--model", model, "--sensor", "s1", "--out", str(cal), "-q"])
     err = capsys.readouterr().err
@@ -112,8 +111,8 @@ def test_refused_writes_name_the_problem_in_the_users_terms(
     rec = triangles(1, amplitude=10.0, rest=1000.0, gain=2.0, curve=0.0, lag=0.5, noise=0.0,
                     rate=10.0)
     micro = Recording("s1", rec.t, rec.r, rec.s * 1e6)  # 0 to 1e7: beyond +/- 1e6
-    write_recording_bag(micro, tmp_path / "ue.mcap")
-    write_recording_bag(rec, tmp_path / "pct.mcap")
+    write_recordings({micro.name: micro}, tmp_path / "ue.mcap")
+    write_recordings({rec.name: rec}, tmp_path / "pct.mcap")
     cases = [
         (["fit", str(tmp_path / "ue.mcap"), "--model", "cubic", "--sensor", "s1",
           "--strain-unit", "ue", "--out", str(tmp_path / "ue.yaml")], "ue.yaml",

@@ -193,11 +193,11 @@ def test_a_stretch_and_return_is_a_load_and_unload() -> None:
                                            ("x:3", "START:END")])
 def test_cli_refuses_a_bad_window_in_one_line(window: str, words: str, tmp_path: Path,
                                               capsys: pytest.CaptureFixture[str]) -> None:
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
 
     path, bag, out = tmp_path / "cal.yaml", tmp_path / "run.mcap", tmp_path / "out.yaml"
     save_calibration(Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")}), path)
-    write_recording_bag(NEW, str(bag))
+    write_recordings({NEW.name: NEW}, str(bag))
     assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window", window,
                 "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -210,12 +210,12 @@ def test_cli_refuses_a_bad_window_in_one_line(window: str, words: str, tmp_path:
 
 
 def test_cli_fit_pools_in_one_space_unless_asked_raw(tmp_path: Path) -> None:
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
 
     bags = []
     for i, rec in enumerate(RUNS):
         bags.append(str(tmp_path / f"run{i}.mcap"))
-        write_recording_bag(rec, bags[-1])
+        write_recordings({rec.name: rec}, bags[-1])
     for pool in ("spanned", "joint", "stretch", "raw"):
         out = tmp_path / f"{pool}.yaml"
         assert cli(["fit", *bags, "--model", "cubic", "--sensor", "s1", "--pool", pool,
@@ -246,13 +246,13 @@ def test_the_session_start_of_a_stretch_calibration_is_its_input_step(
     ``session_start`` from Python makes no output step; a stretch whose resistance falls
     with strain is refused in one line."""
     import strain_comp as sc
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
 
     path, bag, out = tmp_path / "cal.yaml", tmp_path / "start.mcap", tmp_path / "out.yaml"
     save_calibration(Calibration({"s1": fit_sensor(MOVING, "cubic", name="s1",
                                                    pool="stretch")}), path)
     new = moving(1120.0, 1.25)
-    write_recording_bag(new, str(bag))
+    write_recordings({new.name: new}, str(bag))
     assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window",
                 "11.5:21.5", "--out", str(out)]) == 0
     assert "no output step" in capsys.readouterr().out
@@ -268,7 +268,7 @@ def test_the_session_start_of_a_stretch_calibration_is_its_input_step(
     assert python.calibration.sensors["s1"].input.zero_span == pytest.approx(
         started.input.zero_span, rel=1e-12)
     falling = Recording("s1", new.t, 3000.0 - new.r, new.s)
-    write_recording_bag(falling, str(bag))
+    write_recordings({falling.name: falling}, str(bag))
     assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window",
                 "11.5:21.5", "--out", str(tmp_path / "no.yaml")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -302,8 +302,8 @@ def test_a_stretch_line_too_flat_for_the_calibrated_range_is_refused(
     data["sensors"]["s1"]["input"]["stretch_line"]["slope"] = 1e-9
     path.write_text(yaml.safe_dump(data))
     bag = tmp_path / "start.mcap"
-    from strain_comp.io.csv_import import write_recording_bag
-    write_recording_bag(moving(1120.0, 1.25), str(bag))
+    from strain_comp.io.recording import write_recordings
+    write_recordings({"s1": moving(1120.0, 1.25)}, str(bag))
     assert cli(["recalibrate", str(path), "--input", "--from", str(bag), "--window",
                 "11.5:21.5", "--out", str(tmp_path / "out.yaml")]) == 2
     err = capsys.readouterr().err.strip()
@@ -313,11 +313,11 @@ def test_a_stretch_line_too_flat_for_the_calibrated_range_is_refused(
 
 def test_recalibrate_refuses_a_sensor_the_calibration_lacks(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from strain_comp.io.csv_import import write_recording_bag
+    from strain_comp.io.recording import write_recordings
 
     path, bag = tmp_path / "cal.yaml", tmp_path / "run.mcap"
     save_calibration(Calibration({"s1": fit_sensor(RUNS[:1], "cubic", name="s1")}), path)
-    write_recording_bag(NEW, str(bag))
+    write_recordings({NEW.name: NEW}, str(bag))
     before = path.read_bytes()
     assert cli(["recalibrate", str(path), "--from", str(bag), "--sensor", "S2", "--out",
                 str(path.with_name("out.yaml"))]) == 2

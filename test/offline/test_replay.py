@@ -140,6 +140,27 @@ def test_replay_without_calibrated_topics_is_a_bag_error(tmp_path: object) -> No
         replay_bag(tmp_path / "x.mcap", calibration(), tmp_path / "y.mcap")
 
 
+def test_a_sensor_on_two_topics_is_replayed_from_the_first_only(tmp_path: Path) -> None:
+    """A sensor an array labels and another topic also names (the node refuses such
+    parameters): its engine runs on the first topic alone, the other is copied and said."""
+    t = np.arange(300) * 0.02 + 100.0
+    arr = np.stack([150 + 30 * np.sin(t), 150 + 30 * np.cos(t)], axis=1)
+    paths = [tmp_path / "twice.mcap", tmp_path / "once.mcap"]
+    for path in paths:
+        with BagWriter(path) as w:
+            w.write_float64_array("/arr/resistance", t, arr, ["a", "b"])
+            if path is paths[0]:
+                w.write_float64("/b/resistance", t, arr[:, 1] + 20.0)
+    twice, once = (replay_bag(p, calibration(), p.with_suffix(".out.mcap")) for p in paths)
+    assert twice.problems[0] == (f"{paths[0]}: /b/resistance: sensor b appears twice; the "
+                                 "topic copied, not replayed")
+    assert len(twice.problems) == len(once.problems) + 1
+    out, alone = (read_bag(p.with_suffix(".out.mcap")) for p in paths)
+    assert "/b/strain" not in out.series
+    np.testing.assert_array_equal(out.series["/b/resistance"].values, arr[:, 1] + 20.0)
+    np.testing.assert_array_equal(out.series["/arr/strain"].values,
+                                  alone.series["/arr/strain"].values)
+
 def test_array_without_labels_replays_under_column_names(tmp_path) -> None:
     """An array topic written by another tool without labels: fit, evaluate and replay all
     name its sensors ARRAY_0 ... ARRAY_{k-1}."""

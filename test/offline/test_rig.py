@@ -158,8 +158,11 @@ def test_noise_and_adc() -> None:
 
 
 def test_round_trip_through_bag(tmp_path: Path) -> None:
+    """Every sensor, an array's too, reads back its resistance, reference and temperature
+    (each sensor's own /NAME/temperature, as the node and evaluate read it)."""
+    warm = dataclasses.replace(RigEffects(), temperature=0.004)
     for scenario in ("triangle", "array"):
-        run = simulate(scenario, duration=30.0)
+        run = simulate(scenario, duration=30.0, effects=warm)
         write_sim_bag(run, tmp_path / f"{scenario}.mcap")
         recs, problems = load_recordings(tmp_path / f"{scenario}.mcap")
         assert problems == [] and set(recs) == set(run)
@@ -167,3 +170,6 @@ def test_round_trip_through_bag(tmp_path: Path) -> None:
             np.testing.assert_array_equal(recs[name].r, sensor.r)
             np.testing.assert_array_equal(recs[name].s, sensor.s)
             np.testing.assert_allclose(recs[name].t, sensor.t, atol=1e-9)
+            assert sensor.temperature is not None and recs[name].temperature is not None
+            err = np.abs(recs[name].temperature - sensor.temperature)  # 2 Hz, interpolated
+            assert np.nanmedian(err) < 0.01 and np.nanmax(err) <= TEMPERATURE_STEP[0] + 0.01

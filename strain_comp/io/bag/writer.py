@@ -283,8 +283,6 @@ def _chunk(t_ns: np.ndarray, chan: np.ndarray, seq: np.ndarray, poff: np.ndarray
     return pieces, index
 
 
-
-
 def _ns(t: npt.ArrayLike) -> np.ndarray:
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     if not np.isfinite(t).all() or (t < 0).any():
