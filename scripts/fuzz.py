@@ -144,9 +144,10 @@ def fit_every_model() -> dict[str, SensorCalibration]:
 
 
 def replay_calibration(fitted: dict[str, SensorCalibration]) -> Calibration:
-    """Sensors ``s1`` (apl) and ``p`` (cubic): the seed bags' per-sensor and array inputs."""
+    """Sensors ``s1`` (apl), ``p`` and ``q`` (cubic): the seed bags' per-sensor and array
+    inputs."""
     return Calibration({name: SensorCalibration(**{**vars(fitted[model]), "name": name})
-                        for name, model in (("s1", "apl"), ("p", "cubic"))})
+                        for name, model in (("s1", "apl"), ("p", "cubic"), ("q", "cubic"))})
 
 
 def seed_bags(directory: Path) -> list[bytes]:
@@ -159,7 +160,7 @@ def seed_bags(directory: Path) -> list[bytes]:
             w.write_float64("/s1/resistance", t, 15.0 + 5.0 * np.sin(t))
             w.write_float64("/s1/strain_reference", t, 10.0 + 10.0 * np.sin(t))
             w.write_int8("/s1/direction", t, np.sign(np.cos(t)))
-            w.write_float64_array("/a/resistance", t, np.c_[t, 2 * t], ["s1", "p"])
+            w.write_float64_array("/a/resistance", t, np.c_[t, 2 * t], ["p", "q"])
             w.write_temperature("/s1/temperature", t[::30], 20.0 + t[::30])
             w.write_diagnostics(t[:3], [[("s1", 0, "ok", {"k": "v"})]] * 3)
         seeds.append(path.read_bytes())
