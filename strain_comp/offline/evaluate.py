@@ -363,7 +363,7 @@ def evaluate_bag(path: str | os.PathLike[str], calibration: Calibration, *,
                  ) -> tuple[EvaluationResult, list[str]]:
     """``evaluate_recordings`` of the bag at ``path``, streamed in pieces (``iter_bag``)."""
     stream = Scorer(calibration, Engine(calibration, out_of_range=out_of_range),
-                       tare, plot_points, series, str(path), references_every)
+                    tare, plot_points, series, str(path), references_every)
     for contents in iter_bag(path, window=window):
         stream.piece(contents)
     result = stream.finish()
