@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from strain_comp.base.direction import DirectionDetector, DirectionSettings
+from strain_comp.base.samples import good_mask
 from strain_comp.core.chain import pair_values
 from strain_comp.errors import InputError
 
@@ -33,11 +34,6 @@ def rest_level(r: np.ndarray, *, pair: str = "mean") -> float:
     return float(np.median(pair_values(r, branch=pair)[1:] if r.size >= 2 else r))
 
 
-def _good(t: np.ndarray, r: np.ndarray) -> np.ndarray:
-    good: np.ndarray = np.isfinite(t) & np.isfinite(r) & (r > 0)
-    return good
-
-
 def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
                              direction: DirectionSettings, *, pair: str = "mean",
                              ended: bool = True) -> float | None:
@@ -45,7 +41,7 @@ def rest_resistance_at_start(t: npt.ArrayLike, r: npt.ArrayLike,
     when too few or drifting; None while the rest goes on in a run not ``ended`` (the node)."""
     ta = np.asarray(t, dtype=np.float64)
     ra = np.asarray(r, dtype=np.float64)
-    good = _good(ta, ra)
+    good = good_mask(ta, ra)  # the samples the engine feeds its model
     ta, ra = ta[good], ra[good]
     if ta.size == 0:
         if not ended:
@@ -94,7 +90,7 @@ def _referenced(t: npt.ArrayLike, r: npt.ArrayLike, s: npt.ArrayLike, min_sample
     ta = np.asarray(t, dtype=np.float64)
     ra = np.asarray(r, dtype=np.float64)
     sa = np.asarray(s, dtype=np.float64)
-    good = _good(ta, ra) & np.isfinite(sa)
+    good = good_mask(ta, ra) & np.isfinite(sa)
     ta, ra, sa = ta[good], ra[good], sa[good]
     if ta.size < min_samples or not np.ptp(sa) > 0:
         return None

@@ -159,7 +159,7 @@ def span_from_points(cal: SensorCalibration, points: Sequence[tuple[float, float
 def points_from_first_cycle(t: np.ndarray, r: np.ndarray, s: np.ndarray, *,
                             top: float = np.inf) -> list[tuple[float, float]]:
     """(R, S) medians at a cycle's first rest and at its largest strain (at most ``top``)."""
-    ok = np.isfinite(t) & np.isfinite(r) & (r > 0) & np.isfinite(s)
+    ok = good_mask(t, r) & np.isfinite(s)
     t, r, s = t[ok], r[ok], s[ok]
     rest = rest_resistance_from_reference(t, r, s)
     if rest is None:

@@ -77,6 +77,21 @@ def test_rest_at_start_cancels_alternation_and_spikes(cubic: Calibration) -> Non
     assert rest == pytest.approx(1234.0, abs=1.0)
 
 
+def test_the_tare_reads_the_samples_the_engine_feeds_its_model(cubic: Calibration) -> None:
+    """A logger's buffer of the first 3 s sent twice more (its stamps stepping back, a stuck
+    1.5x reading) is refused by the engine (time not increasing): the tare leaves it out as
+    well, at start and from the reference."""
+    rec = run(1234.0)
+    head, tail = rec.t <= 3.0, rec.t > 3.0
+    assert rec.s is not None and not rec.s[head].any()
+    t = np.concatenate([rec.t[head], rec.t[head], rec.t[head], rec.t[tail]])
+    r = np.concatenate([rec.r[head], 1.5 * rec.r[head], 1.5 * rec.r[head], rec.r[tail]])
+    s = np.concatenate([rec.s[head], rec.s[head], rec.s[head], rec.s[tail]])
+    assert rest_resistance_at_start(t, r, cubic.sensors["s1"].direction) == \
+        pytest.approx(1234.0, rel=1e-12)
+    assert rest_resistance_from_reference(t, r, s) == pytest.approx(1234.0, rel=1e-12)
+
+
 def test_rest_at_start_refuses_a_run_that_starts_moving(cubic: Calibration) -> None:
     t = np.arange(0.0, 10.0, 0.1)
     with pytest.raises(InputError, match="does not start at rest"):
