@@ -309,6 +309,3 @@ def reference_warnings(values: np.ndarray, t: np.ndarray, *, percent: bool) -> l
                      "strain=1e-4 (to %); if it is in another unit, fit with --strain-unit "
                      "UNIT")
     return lines
-
-
-__all__ = ["ImportReport", "import_csv", "reference_warnings", "repair_position_glitches"]

@@ -392,7 +392,3 @@ def load_recordings(path: str | Path) -> tuple[dict[str, Recording], list[str]]:
     contents = read_bag(path, budget=False)
     recordings, problems = _recordings(contents)
     return recordings, contents.problems + located(path, problems)
-
-
-__all__ = ["PieceAlign", "Recording", "align", "as_contents", "hold_latest", "load_recordings",
-           "reference_columns", "temperature_series", "topic_sensors", "write_recordings"]

@@ -221,6 +221,3 @@ def cross_validate(grams: np.ndarray, lams: np.ndarray) -> np.ndarray:
             theta = ridge(total - gram, float(lam))
             errors[i, f] = max(float(theta @ gram @ theta), 0.0)
     return errors
-
-
-__all__ = ["DIRECTION_WIDTH", "LAM_GRID", "TAUS", "CreepPI", "CreepPIArray", "play_thresholds"]
