@@ -269,6 +269,19 @@ def test_none_for_an_argument_with_a_value_as_default_is_refused_naming_it(
     assert words in str(err.value) and "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("call", [
+    lambda bags: sc.recalibrate(CAL, bags, first=20.0),
+    lambda bags: sc.session_start(CAL, bags),
+    lambda bags: sc.diagnose(CAL, bags),
+])
+def test_one_run_given_as_several_bags_is_refused_not_read_from_the_first(
+        call: object) -> None:
+    """Where a function reads one run, two bag paths are refused in one line (recalibrate and
+    session_start read the first and dropped the second without a word)."""
+    with pytest.raises(sc.StrainCompError, match=r"^expected one run .* got 2 bag paths$"):
+        call([BAG, str(ROOT / "bags" / "steps.mcap")])  # type: ignore[operator]
+
+
 def test_none_still_means_the_default_where_the_default_is_none() -> None:
     run = sc.read_recordings(BAG)["s1"]
     given = sc.estimate(CAL, run.t, run.r, sensor=None, temperature=None)

@@ -9,7 +9,7 @@ import reprlib
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Literal, TypeGuard
 
-from strain_comp.api.inputs import CalibrationLike, load_calibration
+from strain_comp.api.inputs import CalibrationLike, load_calibration, read_recordings
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
 from strain_comp.io.inputs import existing
@@ -151,3 +151,13 @@ def as_recordings(data: object) -> dict[str, Recording]:
         return out
     raise InputError(f"expected a bag path, a Recording, a list or a dict of Recordings, got "
                      f"{type(data).__name__} (arrays: sc.Recording.from_arrays(t, r, s))")
+
+
+def one_run(data: object) -> tuple[dict[str, Recording], str]:
+    """One run's recordings by sensor name, read from a bag path or as given, and their source."""
+    paths = paths_of(data)
+    if paths is not None and len(paths) > 1:
+        raise InputError(f"expected one run (a bag path or its recordings), got {len(paths)} "
+                         "bag paths")
+    return (as_recordings(data), "the recordings") if paths is None else \
+        (read_recordings(paths[0]), paths[0])

@@ -10,14 +10,14 @@ from typing import Any
 
 from strain_comp.api._inputs import (
     as_calibration,
-    as_recordings,
     checked,
     input_paths,
     is_path,
+    one_run,
     paths_of,
 )
 from strain_comp.api.evaluation import evaluate
-from strain_comp.api.inputs import CalibrationLike, Data, PathLike, read_recordings
+from strain_comp.api.inputs import CalibrationLike, Data, PathLike
 from strain_comp.core.calibration import Calibration
 from strain_comp.core.calibration_file import save_calibration as _save_calibration
 from strain_comp.diagnosis.conditions import diagnose_conditions
@@ -28,14 +28,6 @@ from strain_comp.offline.evaluate import PLOT_POINTS
 from strain_comp.offline.plots import evaluation_figures
 from strain_comp.offline.report_page import BagSection
 from strain_comp.progress import bar, counter
-
-
-def _run(data: object) -> dict[str, Recording]:
-    """One run's recordings by sensor name: read from a bag path, or as given."""
-    paths = paths_of(data)
-    if paths is not None and len(paths) == 1:
-        return read_recordings(paths[0])
-    return as_recordings(data)
 
 
 @dataclass
@@ -133,8 +125,8 @@ def diagnose(calibration: CalibrationLike, data: Data, *,
     paths = paths_of(data) or []
     validate_paths = [p for v in runs for p in paths_of(v) or []]
     written = [*input_paths(calibration, list(inputs)), *paths, *validate_paths]
-    recordings = _run(data)
-    val = [_run(v) for v in runs] or None
+    recordings = one_run(data)[0]
+    val = [one_run(v)[0] for v in runs] or None
     with bar(None, "diagnose", enabled=progress_bar) as shown:
         result = diagnose_conditions(recordings, cal, validate_recordings=val, tare=tare,
                                      stretch_history=stretch_history,

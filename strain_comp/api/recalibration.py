@@ -6,8 +6,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
-from strain_comp.api._inputs import as_calibration, as_recordings, checked, paths_of
-from strain_comp.api.inputs import CalibrationLike, Data, read_recordings
+from strain_comp.api._inputs import as_calibration, checked, one_run
+from strain_comp.api.inputs import CalibrationLike, Data
 from strain_comp.core.calibration import Calibration
 from strain_comp.errors import InputError
 from strain_comp.offline.session_start import FORMS, recalibrate_recordings, start
@@ -67,12 +67,10 @@ def recalibrate(calibration: CalibrationLike, data: Data | None = None, *,
                          "reference strain (--from BAG.mcap)")
     if data is None:
         return Recalibration(*recalibrate_points(cal, points=pts, sensors=sensors, form=form))
-    paths = paths_of(data)
-    held = as_recordings(data) if paths is None else read_recordings(paths[0])
-    new, lines = recalibrate_recordings(cal, held, form=form, first=first, sensors=sensors,
-                                        tare=tare, span=window,
-                                        source="recordings" if paths is None else str(paths[0]))
-    return Recalibration(new, lines)
+    held, source = one_run(data)
+    return Recalibration(*recalibrate_recordings(cal, held, form=form, first=first,
+                                                 sensors=sensors, tare=tare, span=window,
+                                                 source=source))
 
 
 def session_start(calibration: CalibrationLike, data: Data, *, first: float | None = None,
@@ -119,8 +117,6 @@ def session_start(calibration: CalibrationLike, data: Data, *, first: float | No
     if first is not None and window is not None:
         raise InputError("session_start: give first or window, not both")
     cal = as_calibration(calibration)
-    paths = paths_of(data)
-    held = as_recordings(data) if paths is None else read_recordings(paths[0])
-    source = "the recordings" if paths is None else str(paths[0])
+    held, source = one_run(data)
     started = start(cal, held, window=window, sensors=sensors, source=source, first=first)
     return Recalibration(started.calibration, started.lines())
