@@ -270,16 +270,17 @@ def test_none_for_an_argument_with_a_value_as_default_is_refused_naming_it(
 
 
 @pytest.mark.parametrize("call", [
-    lambda bags: sc.recalibrate(CAL, bags, first=20.0),
-    lambda bags: sc.session_start(CAL, bags),
-    lambda bags: sc.diagnose(CAL, bags),
+    lambda bags, tmp: sc.recalibrate(CAL, bags, first=20.0),
+    lambda bags, tmp: sc.session_start(CAL, bags),
+    lambda bags, tmp: sc.diagnose(CAL, bags),
+    lambda bags, tmp: sc.replay(CAL, bags, out=tmp / "out.mcap"),
 ])
 def test_one_run_given_as_several_bags_is_refused_not_read_from_the_first(
-        call: object) -> None:
-    """Where a function reads one run, two bag paths are refused in one line (recalibrate and
-    session_start read the first and dropped the second without a word)."""
-    with pytest.raises(sc.StrainCompError, match=r"^expected one run .* got 2 bag paths$"):
-        call([BAG, str(ROOT / "bags" / "steps.mcap")])  # type: ignore[operator]
+        call: object, tmp_path: Path) -> None:
+    """Where a function reads one run, two bag paths are refused in one line (recalibrate,
+    session_start and replay read the first and dropped the second without a word)."""
+    with pytest.raises(sc.StrainCompError, match=r"^(bag: )?expected .*one .* got 2 (bag )?paths$"):
+        call([BAG, str(ROOT / "bags" / "steps.mcap")], tmp_path)  # type: ignore[operator]
 
 
 def test_none_still_means_the_default_where_the_default_is_none() -> None:

@@ -140,8 +140,9 @@ def replay(calibration: CalibrationLike, bag: PathLike, out: PathLike, *,
     checked(references_every, "seconds", "references_every")
     cal = as_calibration(calibration)
     paths = paths_of(bag)
-    if paths is None:
-        raise InputError(f"bag: expected the path of a bag, got {type(bag).__name__}")
+    if paths is None or len(paths) > 1:
+        raise InputError("bag: expected the path of one bag, got "
+                         + (f"{len(paths)} paths" if paths else type(bag).__name__))
     return replay_bag(paths[0], cal, out, inputs=input_paths(calibration, list(inputs)),
                       tare=tare,
                       csv=None if csv is None else os.fspath(csv),
