@@ -13,8 +13,6 @@ from strain_comp.core.calibration import Calibration, SensorCalibration, unit_pr
 from strain_comp.errors import InputError
 from strain_comp.io.recording import Recording
 from strain_comp.offline.fit import (
-    Fitter,
-    Run,
     auto_fitter,
     check_auto_options,
     fit_bags,
@@ -106,7 +104,9 @@ def fit(data: Data | Sequence[PathLike], model: str = "cubic", *,
             options = {**options, "progress": grid_progress(shown) if progress_bar else False}
         calibration = (fit_bags(paths, model, sensors, options, report=report, pool=pool,
                                 fitter=auto) if paths is not None else
-                       _fit(runs, model, sensors, report, options, pool, auto))
+                       fit_runs([(None, as_recordings(run)) for run in runs], model, sensors,
+                                options, where="the recordings", report=report, pool=pool,
+                                fitter=auto))
     for cal in calibration.sensors.values():
         cal.strain_unit = strain_unit
         if "expected_error" in cal.provenance:
@@ -139,15 +139,3 @@ def _ratio_note(cal: SensorCalibration) -> str | None:
     return (f"sensor {cal.name!r}: its resistance spans {vr.r_lo:.3g} to {vr.r_hi:.3g}, "
             "read as ohm; if it is a ratio (R/R0), fit with --input-unit R/R0 (Python: "
             "input_unit='R/R0') so that the dead zone and the plots say so")
-
-
-def _fit(runs: Sequence[Any], model: str, sensors: Sequence[str] | None,
-         report: Callable[[str], None] | None, options: Mapping[str, Any],
-         pool: str = "spanned", auto: Fitter | None = None) -> Calibration:
-    """``fit_runs`` on the runs given as recordings."""
-    by_sensor: dict[str, list[Run]] = {}
-    for i, run in enumerate(runs):
-        for name, rec in as_recordings(run).items():
-            by_sensor.setdefault(name, []).append((f"(arrays: {name}, run {i + 1})", i, rec))
-    return fit_runs(by_sensor, model, sensors, options, where="the recordings",
-                    report=report, pool=pool, fitter=auto)

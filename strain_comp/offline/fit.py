@@ -452,23 +452,28 @@ def fit_bags(paths: Sequence[str | Path], model: str, sensors: Sequence[str] | N
              report: Callable[[str], None] | None = None,
              pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
     """``fit_runs`` on the recordings of every bag, the damage skipped to ``report``."""
-    by_sensor: dict[str, list[Run]] = {}
-    for i, path in enumerate(paths):
+    runs: list[tuple[str | None, Mapping[str, Recording]]] = []
+    for path in paths:
         recordings, problems = load_recordings(path)
         for problem in problems:
             if report is not None:
                 report(problem)
-        for sensor, rec in recordings.items():
-            by_sensor.setdefault(sensor, []).append((str(path), i, rec))
-    return fit_runs(by_sensor, model, sensors, options, where=", ".join(map(str, paths)),
+        runs.append((str(path), recordings))
+    return fit_runs(runs, model, sensors, options, where=", ".join(map(str, paths)),
                     report=report, pool=pool, fitter=fitter)
 
 
-def fit_runs(by_sensor: Mapping[str, Sequence[Run]], model: str,
+def fit_runs(inputs: Sequence[tuple[str | None, Mapping[str, Recording]]], model: str,
              sensors: Sequence[str] | None = None, options: Mapping[str, Any] | None = None,
              *, where: str, report: Callable[[str], None] | None = None,
              pool: str = "spanned", fitter: Fitter | None = None) -> Calibration:
-    """One calibration of ``sensors`` (default, ``all``: each referenced one); ``where``: inputs."""
+    """One calibration of ``sensors`` (default, ``all``: each referenced one) from each
+    run's (source, recordings by sensor), a source None: ``(arrays: NAME, run K)``."""
+    by_sensor: dict[str, list[Run]] = {}
+    for i, (source, recordings) in enumerate(inputs):
+        for name, rec in recordings.items():
+            by_sensor.setdefault(name, []).append((source or f"(arrays: {name}, run {i + 1})",
+                                                   i, rec))
     referenced = [n for n, runs in by_sensor.items()
                   if any(rec.s is not None for _, _, rec in runs)]
     found = ", ".join(by_sensor) or "none"
